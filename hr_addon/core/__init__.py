@@ -1,0 +1,1 @@
+"""Dynamic hierarchical radiosity core: numpy only, no bpy (tests/test_core_isolation.py enforces it)."""
