@@ -1,0 +1,102 @@
+"""Segment-occlusion throughput (rays/s) of every available visibility backend.
+
+Scenes: (a) a Cornell-like box with two blocks (~36 triangles), (b) the box plus tessellated spheres
+(~2,000 triangles), (c) the same with finer spheres (~20,000 triangles). Segments join random
+area-weighted points on the scene's surfaces (what form-factor visibility sampling asks for), endpoints
+exactly on the surfaces. Writes benchmarks/out/rays.json.
+
+    .venv/bin/python benchmarks/bench_rays.py [--rays 1000000] [--slow-rays 20000]
+"""
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, ROOT)
+try:  # the bpy module provides mathutils; without it the mathutils backend is just skipped
+    import bpy  # noqa: F401
+except ImportError:
+    pass
+from hr_addon.core.visibility import available_backends, make_backend  # noqa: E402
+
+SLOW = {"mathutils"}  # Python-loop backends get fewer rays
+
+
+def quad(p, u, v):
+    p, u, v = map(np.asarray, (p, u, v))
+    return [[p, p + u, p + u + v], [p, p + u + v, p + v]]
+
+
+def box(lo, hi):
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    s = hi - lo
+    ex, ey, ez = np.diag(s)
+    return (quad(lo, ey, ex) + quad(lo + ez, ex, ey) + quad(lo, ex, ez) + quad(lo + ey, ez, ex)
+            + quad(lo, ez, ey) + quad(lo + ex, ey, ez))
+
+
+def cornell():
+    return np.array(box([0, 0, 0], [5.5, 5.5, 5.5]) + box([1.3, 0.65, 0], [2.9, 2.25, 1.65])
+                    + box([3.7, 2.95, 0], [5.3, 4.55, 3.3]))
+
+
+def sphere(c, r, n):
+    th, ph = np.linspace(0, np.pi, n + 1), np.linspace(0, 2 * np.pi, 2 * n + 1)
+    p = np.stack(np.meshgrid(th, ph, indexing="ij"), -1)
+    p = c + r * np.stack([np.sin(p[..., 0]) * np.cos(p[..., 1]), np.sin(p[..., 0]) * np.sin(p[..., 1]),
+                          np.cos(p[..., 0])], -1)
+    a, b, cc, d = p[:-1, :-1], p[1:, :-1], p[1:, 1:], p[:-1, 1:]
+    tri = np.concatenate([np.stack([a, b, cc], -2), np.stack([a, cc, d], -2)]).reshape(-1, 3, 3)
+    e = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    return tri[np.linalg.norm(e, axis=1) > 1e-12]  # drop the pole slivers
+
+
+def spheres_scene(n_sph, n):
+    rng = np.random.default_rng(1)
+    parts = [cornell()] + [sphere(rng.uniform(1, 4.5, 3), rng.uniform(0.3, 0.7), n) for _ in range(n_sph)]
+    return np.concatenate(parts)
+
+
+def surface_points(tri, k, rng):
+    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    i = rng.choice(len(tri), k, p=area / area.sum())
+    r1, r2 = rng.random((2, k, 1))
+    s = np.sqrt(r1)
+    return (1 - s) * tri[i, 0] + s * (1 - r2) * tri[i, 1] + s * r2 * tri[i, 2]
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rays", type=int, default=1_000_000)
+    ap.add_argument("--slow-rays", type=int, default=20_000)
+    args = ap.parse_args()
+    scenes = {"cornell": cornell(), "2k": spheres_scene(8, 11), "20k": spheres_scene(10, 31)}
+    rng = np.random.default_rng(0)
+    results = []
+    print(f"{'scene':8s} {'tris':>6s} {'backend':10s} {'rays':>8s} {'build s':>8s} {'rays/s':>11s} {'occl':>6s}")
+    for sname, tri in scenes.items():
+        a, b = surface_points(tri, args.rays, rng), surface_points(tri, args.rays, rng)
+        for name in available_backends():
+            t0 = time.perf_counter()
+            be = make_backend(tri, name)
+            t1 = time.perf_counter()
+            r = args.slow_rays if name in SLOW else args.rays
+            occ = be.occluded(a[:r], b[:r])
+            dt = time.perf_counter() - t1
+            results.append(dict(scene=sname, triangles=len(tri), backend=name, rays=r, build_s=t1 - t0,
+                                seconds=dt, rays_per_s=r / dt, occluded_fraction=float(occ.mean())))
+            print(f"{sname:8s} {len(tri):6d} {name:10s} {r:8d} {t1 - t0:8.3f} {r / dt:11.3e} {occ.mean():6.3f}",
+                  flush=True)
+    out = os.path.join(ROOT, "benchmarks", "out")
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, "rays.json"), "w") as f:
+        json.dump(dict(cpu_count=os.cpu_count(), numpy=np.__version__, results=results), f, indent=1)
+    print("wrote", os.path.join(out, "rays.json"))
+
+
+if __name__ == "__main__":
+    main()

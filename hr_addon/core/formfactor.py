@@ -1,0 +1,196 @@
+"""Form factors between convex planar polygons (numpy only).
+
+Polygons follow docs/ARCHITECTURE.md: `corners (N, 4, 3)`, `nv (N,)` in {3, 4}, triangles padded by
+repeating corner 2, counter-clockwise seen from the (only) emitting/receiving front side.
+
+- `point_to_polygon`: exact unoccluded differential-area-to-polygon form factor (Lambert's contour
+  integral) with the polygon clipped to the receiver's horizon.
+- `patch_to_patch`: average of the above over a deterministic stratified set of points on p.
+- `estimate`: cheap conservative disc approximation used as the refinement oracle.
+"""
+import math
+
+import numpy as np
+
+_TWO_PI = 2.0 * math.pi
+# Relative tolerance (in units of the polygon's size) for "point lies on the polygon's plane".
+_PLANE_EPS = 1e-12
+# Fallback receiver cosine in `estimate` when p's centre is behind q but p may reach in front of it.
+COS_FLOOR = 0.05
+
+
+def _cross(a, b):
+    # np.cross is slow on small trailing axes (it moves axes around); explicit components are faster.
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+def _dot(a, b):
+    return np.einsum("...k,...k->...", a, b)
+
+
+def _padded(corners, nv):
+    """float64 corners, with triangles (nv == 3) re-padded so corner 3 == corner 2."""
+    c = np.asarray(corners, dtype=np.float64)
+    if nv is not None and np.any(np.asarray(nv) == 3):
+        c = c.copy()
+        tri = np.broadcast_to(np.asarray(nv) == 3, c.shape[:-2])
+        c[tri, 3] = c[tri, 2]
+    return c
+
+
+def polygon_normal_area(corners, nv=None):
+    """Unit normals (N, 3) and areas (N,) of planar convex <=4-gons.
+
+    Half the cross product of the diagonals is the exact area vector of any planar quad, and for a padded
+    triangle (c3 == c2) it reduces to (c1 - c0) x (c2 - c0) / 2. Degenerate polygons get a zero normal and
+    zero area instead of NaN.
+    """
+    c = _padded(corners, nv)
+    av = 0.5 * _cross(c[..., 2, :] - c[..., 0, :], c[..., 3, :] - c[..., 1, :])
+    area = np.linalg.norm(av, axis=-1)
+    normal = av / np.where(area > 0.0, area, 1.0)[..., None]
+    return normal, area
+
+
+def _clip_to_halfspace(verts, point, normal):
+    """Clip cyclic polygons `verts (N, V, 3)` to the half-space dot(x - point, normal) >= 0.
+
+    One Sutherland-Hodgman pass, vectorised: edge i emits (its start if inside, the crossing point if it
+    crosses), i.e. 2V slots. Empty slots are filled with the previous valid vertex (cyclically), so the
+    output is again a closed polygon whose extra vertices are repeats and whose extra edges have zero
+    length (they contribute nothing to contour integrals). Returns (N, 2V, 3) and a mask of rows with any
+    vertex left.
+    """
+    n, v = verts.shape[:2]
+    d = _dot(verts - point[:, None, :], normal[:, None, :])          # signed heights above the horizon
+    inside = d >= 0.0
+    nxt = np.roll(verts, -1, axis=1)
+    d_next = np.roll(d, -1, axis=1)
+    crosses = inside != np.roll(inside, -1, axis=1)
+    # Signs differ on crossing edges, so the denominator is non-zero there; elsewhere t is unused.
+    t = np.where(crosses, d / np.where(crosses, d - d_next, 1.0), 0.0)
+    hit = verts + t[..., None] * (nxt - verts)
+    slots = np.stack([verts, hit], axis=2).reshape(n, 2 * v, 3)
+    valid = np.stack([inside, crosses], axis=2).reshape(n, 2 * v)
+    # Forward fill: index of the last valid slot at or before j; leading gaps wrap to the row's last valid.
+    idx = np.where(valid, np.arange(2 * v), -1)
+    idx = np.maximum.accumulate(idx, axis=1)
+    last = idx[:, -1:]
+    idx = np.where(idx < 0, last, idx)
+    any_valid = last[:, 0] >= 0
+    idx = np.maximum(idx, 0)                                           # rows with nothing left: masked out
+    return np.take_along_axis(slots, idx[..., None], axis=1), any_valid
+
+
+def point_to_polygon(points, normals, corners, nv=None):
+    """Exact unoccluded form factor from differential areas (points, unit normals) to polygons. -> (N,)
+
+    F = -1/(2 pi) sum_i gamma_i n.(R_i x R_i+1)/|R_i x R_i+1| over the polygon's contour, after clipping
+    the polygon to the receiver's upper half-space (the contour integral assumes the whole polygon is
+    above the horizon). The minus sign: vertices are counter-clockwise about the polygon's normal, which
+    points towards a point that can see its front. Points on or behind the polygon's plane get 0.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    c = _padded(corners, nv)
+    shape = np.broadcast_shapes(p.shape[:-1], n.shape[:-1], c.shape[:-2])   # leading dims broadcast
+    p = np.broadcast_to(p, shape + (3,)).reshape(-1, 3)
+    n = np.broadcast_to(n, shape + (3,)).reshape(-1, 3)
+    c = np.broadcast_to(c, shape + (4, 3)).reshape(-1, 4, 3)
+
+    qn, qa = polygon_normal_area(c)
+    height = _dot(p - c[:, 0], qn)
+    front = height > _PLANE_EPS * np.sqrt(qa)                          # one-sided emitter
+    verts, any_valid = _clip_to_halfspace(c, p, n)
+
+    r = verts - p[:, None, :]
+    r_next = np.roll(r, -1, axis=1)
+    cr = _cross(r, r_next)
+    cr_len = np.linalg.norm(cr, axis=-1)
+    # gamma via atan2 is accurate for both tiny and near-pi angles (arccos of a dot product is not).
+    gamma = np.arctan2(cr_len, _dot(r, r_next))
+    # Repeated vertices / zero-length edges give R_i x R_i+1 = 0: their term is exactly 0.
+    term = np.where(cr_len > 0.0, gamma * _dot(cr, n[:, None, :]) / np.where(cr_len > 0.0, cr_len, 1.0), 0.0)
+    f = -term.sum(axis=1) / _TWO_PI
+    f = np.where(front & any_valid, f, 0.0)
+    return np.clip(f, 0.0, 1.0).reshape(shape)
+
+
+def _unit_cell_params(k):
+    """Parameters of the k*k sample points of the unit square (u, v) and unit triangle (a, b)."""
+    g = (np.arange(k) + 0.5) / k
+    uu, vv = np.meshgrid(g, g, indexing="ij")
+    quad = np.stack([uu.ravel(), vv.ravel()], axis=-1)
+    # Barycentric subdivision of the triangle into k*k congruent sub-triangles: k(k+1)/2 "upward" ones
+    # (centroid at (i + 1/3, j + 1/3)/k) and k(k-1)/2 "downward" ones (centroid at (i + 2/3, j + 2/3)/k).
+    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    up = (i + j) <= k - 1
+    down = (i + j) <= k - 2
+    tri = np.concatenate([np.stack([i[up] + 1 / 3, j[up] + 1 / 3], -1),
+                          np.stack([i[down] + 2 / 3, j[down] + 2 / 3], -1)]) / k
+    return quad, tri
+
+
+def sample_points(corners, nv, k):
+    """(N, k*k, 3) stratified points: centroids of a k x k subdivision of each polygon.
+
+    Quads use the bilinear map of a k x k grid (equal-area cells for parallelograms); triangles use the
+    k*k congruent sub-triangles of the uniform barycentric subdivision (always equal area).
+    """
+    c = np.asarray(corners, dtype=np.float64)
+    quad, tri = _unit_cell_params(int(k))
+    u, v = quad[:, 0][None, :, None], quad[:, 1][None, :, None]
+    c0, c1, c2, c3 = (c[:, i, None, :] for i in range(4))
+    pq = (1 - u) * (1 - v) * c0 + u * (1 - v) * c1 + u * v * c2 + (1 - u) * v * c3
+    a, b = tri[:, 0][None, :, None], tri[:, 1][None, :, None]
+    pt = c0 + a * (c1 - c0) + b * (c2 - c0)
+    return np.where((np.asarray(nv) == 3)[:, None, None], pt, pq)
+
+
+def patch_to_patch(corners_p, nv_p, corners_q, nv_q, n_samples=4):
+    """Unoccluded F[p->q] (N,): mean of point_to_polygon over `n_samples` (= k*k) points on p."""
+    k = math.isqrt(int(n_samples))
+    if k * k != n_samples or k < 1:
+        raise ValueError(f"n_samples must be a perfect square, got {n_samples}")
+    cq = _padded(corners_q, nv_q)
+    pts = sample_points(corners_p, nv_p, k)                           # (N, S, 3)
+    normals, _ = polygon_normal_area(corners_p, nv_p)
+    return point_to_polygon(pts, normals[:, None, :], cq[:, None]).mean(axis=1)   # broadcast over S
+
+
+def _unit(v):
+    length = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(length > 0.0, length, 1.0)
+
+
+def estimate(centers_p, normals_p, areas_p, corners_q, centers_q, normals_q, areas_q, corners_p=None):
+    """Cheap refinement oracle F_est[p->q] = A_q cos_p cos_q / (pi r^2 + A_q), clipped to [0, 1].
+
+    Conservative for patches partly behind each other:
+    - cos_p is the largest cosine at p's centre towards any of q's corners or its centre (>= 0), so a q
+      whose centre is below p's horizon but which reaches above it is not dropped.
+    - cos_q uses the centre-to-centre direction (>= 0). If that is 0 while p may still reach in front of
+      q, cos_q falls back to the largest cosine at q's centre towards p's corners when `corners_p` is given,
+      else to COS_FLOOR when p's centre is less than sqrt(A_p) behind q's plane (a size-based guess).
+    The +A_q in the denominator keeps the value finite (and <= 1) as r -> 0.
+    """
+    cp = np.asarray(centers_p, dtype=np.float64)
+    np_ = np.asarray(normals_p, dtype=np.float64)
+    cq = np.asarray(centers_q, dtype=np.float64)
+    nq = np.asarray(normals_q, dtype=np.float64)
+    aq = np.asarray(areas_q, dtype=np.float64)
+    targets = np.concatenate([np.asarray(corners_q, dtype=np.float64), cq[..., None, :]], axis=-2)
+    cos_p = np.clip(_dot(_unit(targets - cp[..., None, :]), np_[..., None, :]).max(axis=-1), 0.0, None)
+
+    d = cp - cq
+    r2 = _dot(d, d)
+    cos_q = np.clip(_dot(_unit(d), nq), 0.0, None)
+    if corners_p is not None:
+        to_corners = _unit(np.asarray(corners_p, dtype=np.float64) - cq[..., None, :])
+        fallback = np.clip(_dot(to_corners, nq[..., None, :]).max(axis=-1), 0.0, None)
+    else:
+        fallback = np.where(_dot(d, nq) > -np.sqrt(np.asarray(areas_p, dtype=np.float64)), COS_FLOOR, 0.0)
+    cos_q = np.where(cos_q > 0.0, cos_q, fallback)
+    return np.clip(aq * cos_p * cos_q / (math.pi * r2 + aq), 0.0, 1.0)

@@ -1,0 +1,75 @@
+"""The engine in one object: input mesh -> patches -> hierarchy -> links -> solution."""
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .geometry import MeshInput, prepare_patches
+from .hierarchy import Hierarchy
+from .output import loop_radiance
+from .refine import Refiner, RefineParams
+from .solver import Operator, solve
+from .visibility import make_backend
+
+
+@dataclass
+class BuildReport:
+    patches: int = 0
+    dropped: int = 0
+    nodes: int = 0
+    links: int = 0
+    t_total: float = 0.0
+    refine: dict = field(default_factory=dict)
+    backend: str = ""
+    warnings: list = field(default_factory=list)
+
+    @property
+    def memory_bytes(self):
+        return self.nodes * Hierarchy.node_bytes() + self.links * 2 * 16
+
+
+class RadiositySystem:
+    def __init__(self, mesh: MeshInput, params: RefineParams = None, backend="auto", tol=1e-7):
+        t0 = time.perf_counter()
+        self.mesh = mesh
+        self.params = params or RefineParams()
+        self.tol = tol
+        self.patches = prepare_patches(mesh)
+        self.h = Hierarchy(self.patches)
+        self.backend = make_backend(self.patches.triangles, backend)
+        self.refiner = Refiner(self.h, self.backend, self.params)
+        self.links = self.refiner.build()
+        self.B = None
+        self.report = None
+        if self.params.bfeps > 0:
+            for _ in range(self.params.bf_passes):
+                self.solve()
+                new = self.refiner.refine_bf(self.links, self.B)
+                if len(new) == len(self.links) and np.array_equal(new.a, self.links.a):
+                    break
+                self.links = new
+        self._op = None
+        self.build = BuildReport(len(self.patches.nv), self.patches.dropped, self.h.n, len(self.links),
+                                 time.perf_counter() - t0, dict(self.refiner.stats), type(self.backend).__name__,
+                                 list(self.patches.warnings))
+
+    def base_emission(self):
+        """(3, n) leaf emission from the input polygons."""
+        return self.patches.emission[:, self.h.view("patch")].copy()
+
+    def operator(self):
+        if self._op is None or self._op.n != self.h.n or self._op.links is not self.links:
+            self._op = Operator(self.h, self.links)
+        return self._op
+
+    def solve(self, E=None, warm=True, tol=None):
+        E = self.base_emission() if E is None else E
+        B0 = self.B if (warm and self.B is not None and self.B.shape[1] == self.h.n) else None
+        self._op = None if self._op is not None and self._op.links is not self.links else self._op
+        self.B, self.report = solve(self.h, self.links, E, B0=B0, tol=tol or self.tol, op=self.operator())
+        return self.B
+
+    def loop_radiance(self, domain="CORNER", smooth_angle=30.0):
+        if self.B is None:
+            self.solve()
+        return loop_radiance(self.h, self.B, self.mesh, smooth_angle, domain)

@@ -1,0 +1,267 @@
+"""HSA refinement (Hanrahan, Salzman, Aupperle 1991), vectorised over batches of node pairs.
+
+Pairs (p, q) are unordered. A pair becomes a link once both form factor estimates are below Feps
+(or BF, the estimate weighted by reflectance and source radiosity, is below BFeps), or neither node
+may be split (area below Aeps). Otherwise the node that looks larger from the other is split and
+the pair is replaced by four child pairs. A link partly occluded (0 < V < 1) with a form factor
+above shadow_feps is split further so shadow boundaries get resolution.
+
+One geometric computation serves both directions: F is integrated from the smaller node to the
+larger (sample points on the small one, exact contour integral over the large one) and the other
+direction follows from reciprocity, so A_p F_pq = A_q F_qp exactly and neither exceeds 1.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import formfactor as ff
+from .hierarchy import Hierarchy
+
+
+@dataclass
+class RefineParams:
+    feps: float = 0.02          # form factor threshold (dimensionless)
+    veps: float = 0.005         # max variation of a link's point form factor across either node
+    near: float = 16.0          # pairs closer than sqrt(near x (A_p + A_q)) get the variation test
+    aeps: float = 2e-4          # minimum node area, as a fraction of the total scene area
+    shadow_feps: float = 0.002  # partly visible links above this are split (0 disables)
+    vis_k: int = 2              # visibility samples per node: vis_k^2, rays per link: vis_k^4
+    bfeps: float = 0.0          # BF refinement threshold, relative to the brightest emitter (0: off)
+    bf_passes: int = 2
+
+    @staticmethod
+    def preset(name):
+        presets = {
+            "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vis_k=2),
+            "medium": RefineParams(),
+            "high": RefineParams(feps=0.008, aeps=4e-5, shadow_feps=0.0005, vis_k=3),
+        }
+        if name not in presets:
+            raise ValueError(f"Unknown quality preset '{name}' (choose from {', '.join(presets)})")
+        return presets[name]
+
+
+class Links:
+    """Symmetric link pairs plus the directed, receiver-sorted (CSR) arrays the solver gathers over."""
+
+    def __init__(self, a, b, f_ab, f_ba, vis):
+        self.a, self.b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+        self.f_ab, self.f_ba, self.vis = np.asarray(f_ab, float), np.asarray(f_ba, float), np.asarray(vis, float)
+        self._csr = None
+
+    def __len__(self):
+        return len(self.a)
+
+    @staticmethod
+    def empty():
+        z = np.zeros(0)
+        return Links(z.astype(np.int64), z.astype(np.int64), z, z, z)
+
+    def concat(self, other):
+        return Links(*(np.concatenate([getattr(self, k), getattr(other, k)]) for k in ("a", "b", "f_ab", "f_ba", "vis")))
+
+    def select(self, mask):
+        return Links(self.a[mask], self.b[mask], self.f_ab[mask], self.f_ba[mask], self.vis[mask])
+
+    def remap(self, remap):
+        """After Hierarchy.compact: renumber nodes (links must not touch deleted nodes)."""
+        return Links(remap[self.a], remap[self.b], self.f_ab, self.f_ba, self.vis)
+
+    def directed(self):
+        """(recv, src, F) with F = form factor x visibility, sorted by receiver, zero links dropped."""
+        if self._csr is None:
+            recv = np.concatenate([self.a, self.b])
+            src = np.concatenate([self.b, self.a])
+            f = np.concatenate([self.f_ab * self.vis, self.f_ba * self.vis])
+            keep = f > 0
+            order = np.argsort(recv[keep], kind="stable")
+            self._csr = (recv[keep][order].astype(np.int32), src[keep][order].astype(np.int32), f[keep][order])
+        return self._csr
+
+    @property
+    def n_directed(self):
+        return len(self.directed()[0])
+
+
+def _facing(h, p, q, tol):
+    """True where some corner of q is in front of p's plane and vice versa (else no exchange)."""
+    def front(x, y):
+        d = np.einsum("nkj,nj->nk", h.corners[y] - h.centre[x][:, None], h.normal[x])
+        return (d > tol).any(1)
+    return front(p, q) & front(q, p)
+
+
+def initial_pairs(h: Hierarchy, chunk=2_000_000):
+    """All root pairs that can exchange light (by plane-side tests)."""
+    k = len(h.patches.nv)
+    tol = 1e-9 * np.sqrt(h.patches.area.sum())
+    ps, qs = [], []
+    iu, ju = np.triu_indices(k, 1)
+    for s in range(0, len(iu), chunk):
+        p, q = iu[s:s + chunk], ju[s:s + chunk]
+        ok = _facing(h, p, q, tol)
+        ps.append(p[ok])
+        qs.append(q[ok])
+    return np.concatenate(ps) if ps else np.zeros(0, np.int64), np.concatenate(qs) if qs else np.zeros(0, np.int64)
+
+
+def link_form_factors(h: Hierarchy, a, b):
+    """Unoccluded F[a->b] and F[b->a] by integrating from the smaller node to the larger."""
+    small = h.area[a] <= h.area[b]
+    s, l = np.where(small, a, b), np.where(small, b, a)
+    d2 = np.sum((h.centre[s] - h.centre[l]) ** 2, axis=1)
+    size2 = h.area[s] + h.area[l]
+    # Sample density by proximity: the contour integral over the large node is exact, the error
+    # comes from the small node's extent, which matters only when it is close.
+    k = np.where(d2 < 2 * size2, 4, np.where(d2 < 12 * size2, 2, 1))
+    f_sl = np.zeros(len(s))
+    for kk in (1, 2, 4):
+        m = np.flatnonzero(k == kk)
+        if len(m) == 0:
+            continue
+        pts = ff.sample_points(h.corners[s[m]], h.nv[s[m]], kk)                 # (M, kk^2, 3)
+        ns = kk * kk
+        vals = ff.point_to_polygon(pts.reshape(-1, 3), np.repeat(h.normal[s[m]], ns, 0),
+                                   np.repeat(h.corners[l[m]], ns, 0), np.repeat(h.nv[l[m]], ns))
+        f_sl[m] = vals.reshape(-1, ns).mean(1)
+    f_sl = np.clip(f_sl, 0.0, 1.0)
+    f_ls = f_sl * h.area[s] / h.area[l]
+    return np.where(small, f_sl, f_ls), np.where(small, f_ls, f_sl)
+
+
+class Refiner:
+    """Builds and edits the link set of a hierarchy."""
+
+    def __init__(self, h: Hierarchy, backend, params: RefineParams):
+        self.h, self.backend, self.params = h, backend, params
+        self.total_area = float(h.patches.area.sum())
+        self.eps = 1e-6 * np.sqrt(self.total_area)   # ray end offset along normals
+        self.stats = {"rays": 0, "pairs_tested": 0, "t_vis": 0.0, "t_ff": 0.0, "t_refine": 0.0}
+
+    def visibility(self, a, b):
+        """Fraction of vis_k^2 x vis_k^2 segments between the two nodes that are unoccluded."""
+        import time
+        t0 = time.perf_counter()
+        h, k = self.h, self.params.vis_k
+        if len(a) == 0:
+            return np.zeros(0)
+        pa = ff.sample_points(h.corners[a], h.nv[a], k) + self.eps * h.normal[a][:, None]
+        pb = ff.sample_points(h.corners[b], h.nv[b], k) + self.eps * h.normal[b][:, None]
+        s = k * k
+        ra = np.repeat(pa, s, axis=1).reshape(-1, 3)
+        rb = np.tile(pb, (1, s, 1)).reshape(-1, 3)
+        vis = 1.0 - self.backend.occluded(ra, rb).reshape(-1, s * s).mean(1)
+        self.stats["rays"] += len(ra)
+        self.stats["t_vis"] += time.perf_counter() - t0
+        return vis
+
+    def refine(self, p, q, good_enough=None):
+        """HSA loop from candidate pairs (p, q); returns the new Links.
+
+        good_enough(p, q, f_pq, f_qp) -> bool mask may replace the Feps test (BF refinement)."""
+        import time
+        t0 = time.perf_counter()
+        h, prm = self.h, self.params
+        aeps = prm.aeps * self.total_area
+        out = []
+        p, q = np.asarray(p, np.int64), np.asarray(q, np.int64)
+        tol = 1e-9 * np.sqrt(self.total_area)
+        while len(p):
+            self.stats["pairs_tested"] += len(p)
+            f_pq = ff.estimate(h.centre[p], h.normal[p], h.area[p], h.corners[q], h.centre[q], h.normal[q], h.area[q])
+            f_qp = ff.estimate(h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p])
+            fmax = np.maximum(f_pq, f_qp)
+            alive = (fmax > 0) & _facing(h, p, q, tol)
+            p, q, f_pq, f_qp, fmax = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive]
+            ok = fmax < prm.feps if good_enough is None else good_enough(p, q, f_pq, f_qp)
+            can_p, can_q = h.area[p] > aeps, h.area[q] > aeps
+            # Push-down hands a link's average to every descendant of the receiver, so what matters
+            # is how much the point form factor varies across each node; measure it where it can be
+            # large (near pairs) and split the node whose variation is larger.
+            v_p, v_q = np.zeros(len(p)), np.zeros(len(p))
+            near = ok & (np.sum((h.centre[p] - h.centre[q]) ** 2, 1) < prm.near * (h.area[p] + h.area[q]))
+            if prm.veps > 0 and near.any():
+                v_p[near], v_q[near] = _variation(h, p[near], q[near]), _variation(h, q[near], p[near])
+                ok &= np.maximum(v_p, v_q) < prm.veps
+            vis = np.full(len(p), np.nan)
+            # Links that pass the oracle but straddle a shadow boundary get split further.
+            shadow = ok & (fmax > prm.shadow_feps) & (can_p | can_q) if prm.shadow_feps > 0 else np.zeros(len(p), bool)
+            if shadow.any():
+                vis[shadow] = self.visibility(p[shadow], q[shadow])
+                ok &= ~(shadow & (vis > 0) & (vis < 1))
+            by_var = (v_p + v_q) > 0
+            prefer_q = np.where(by_var, v_q > v_p, f_pq >= f_qp)
+            split_q = ~ok & can_q & (prefer_q | ~can_p)
+            split_p = ~ok & ~split_q & can_p
+            link = ~split_q & ~split_p
+            if link.any():
+                out.append((p[link], q[link], vis[link]))
+            sp_p, sp_q = p[split_p], q[split_p]   # p split: pairs (child of p, q)
+            sq_p, sq_q = p[split_q], q[split_q]   # q split: pairs (p, child of q)
+            h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
+            p = np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)])
+            q = np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()])
+        self.stats["t_refine"] += time.perf_counter() - t0
+        return self._finish(out)
+
+    def _finish(self, out):
+        import time
+        if not out:
+            return Links.empty()
+        a, b, vis = (np.concatenate(x) for x in zip(*out))
+        todo = np.isnan(vis)
+        vis[todo] = self.visibility(a[todo], b[todo])
+        t0 = time.perf_counter()
+        f_ab, f_ba = link_form_factors(self.h, a, b)
+        self.stats["t_ff"] += time.perf_counter() - t0
+        keep = (vis > 0) & ((f_ab > 0) | (f_ba > 0))
+        return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])
+
+    def build(self):
+        """Initial HSA refinement of all root pairs."""
+        return self.refine(*initial_pairs(self.h))
+
+    def refine_bf(self, links: Links, B):
+        """One BF pass: links whose rho x F x B_source exceeds bfeps (relative to the brightest
+        emitter) are replaced by links between their children. B: (3, n) radiosity of all nodes;
+        new children inherit their parent's B. Returns the new link set."""
+        h, prm = self.h, self.params
+        rho = h.patches.reflectance
+        bref = max(float(h.patches.emission.max()), 1e-30)
+        thr = prm.bfeps * bref
+
+        def bf(p, q, f_pq, f_qp):
+            Bn = _extend(B, h)
+            return np.maximum((rho[:, h.patch[p]] * Bn[:, q]).max(0) * f_pq,
+                              (rho[:, h.patch[q]] * Bn[:, p]).max(0) * f_qp) < thr
+
+        f_ab, f_ba = links.f_ab * links.vis, links.f_ba * links.vis
+        bad = ~bf(links.a, links.b, f_ab, f_ba)
+        aeps = prm.aeps * self.total_area
+        bad &= (h.area[links.a] > aeps) | (h.area[links.b] > aeps)
+        if not bad.any():
+            return links
+        return links.select(~bad).concat(self.refine(links.a[bad], links.b[bad], good_enough=bf))
+
+
+def _variation(h, x, y):
+    """Range of the point form factor to polygon y over x's corners and centre. The corners are
+    pulled 1% towards the centre: a corner on an edge shared with y is a singular configuration."""
+    pts = np.concatenate([h.corners[x], h.centre[x][:, None]], 1)
+    pts += 0.01 * (h.centre[x][:, None] - pts)
+    f = ff.point_to_polygon(pts.reshape(-1, 3), np.repeat(h.normal[x], 5, 0),
+                            np.repeat(h.corners[y], 5, 0), np.repeat(h.nv[y], 5)).reshape(-1, 5)
+    return f.max(1) - f.min(1)
+
+
+def _extend(B, h):
+    """B defined on the first len(B[0]) nodes, extended to all nodes by copying from parents."""
+    n0 = B.shape[1]
+    if n0 >= h.n:
+        return B
+    out = np.empty((B.shape[0], h.n))
+    out[:, :n0] = B
+    for lv in h.levels():
+        new = lv[lv >= n0]
+        out[:, new] = out[:, h.parent[new]]
+    return out

@@ -1,0 +1,260 @@
+"""Form factors against the closed forms in /work/shared/reference/README.md."""
+import math
+
+import numpy as np
+import pytest
+
+from hr_addon.core.formfactor import (estimate, patch_to_patch, point_to_polygon, polygon_normal_area,
+                                      sample_points)
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def quad(*pts):
+    return np.array([pts], dtype=np.float64)
+
+
+def rect_xy(x0, x1, y0, y1, z, facing_up=True):
+    """Axis-aligned rectangle in the plane z, normal +z (or -z)."""
+    c = [(x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)]
+    return quad(*(c if facing_up else c[::-1]))
+
+
+def fan(center, radius, n, facing_up=True):
+    """Regular n-gon as n padded triangles (corners (n, 4, 3), nv (n,))."""
+    a = np.linspace(0.0, 2 * math.pi, n + 1)
+    ring = np.stack([radius * np.cos(a), radius * np.sin(a), np.zeros_like(a)], -1) + center
+    c = np.broadcast_to(np.asarray(center, float), (n, 3))
+    p, q = (ring[:-1], ring[1:]) if facing_up else (ring[1:], ring[:-1])
+    return np.stack([c, p, q, q], axis=1), np.full(n, 3)
+
+
+def parallel_rect_corner(a, b, c):
+    x, y = a / c, b / c
+    return (x / math.sqrt(1 + x * x) * math.atan(y / math.sqrt(1 + x * x))
+            + y / math.sqrt(1 + y * y) * math.atan(x / math.sqrt(1 + y * y))) / (2 * math.pi)
+
+
+def opposed_rects(a, b, c):
+    x, y = a / c, b / c
+    x1, y1 = 1 + x * x, 1 + y * y
+    return 2 / (math.pi * x * y) * (math.log(math.sqrt(x1 * y1 / (x1 + y1 - 1)))
+                                    + x * math.sqrt(y1) * math.atan(x / math.sqrt(y1))
+                                    + y * math.sqrt(x1) * math.atan(y / math.sqrt(x1))
+                                    - x * math.atan(x) - y * math.atan(y))
+
+
+# ---------------------------------------------------------------------------------------------------
+def test_normal_area_quad_and_padded_triangle():
+    c = np.array([[[0, 0, 0], [2, 0, 0], [2, 3, 0], [0, 3, 0]],
+                  [[0, 0, 0], [0, 0, 1], [0, 1, 0], [0, 1, 0]],      # padded triangle in x=0, normal -x
+                  [[1, 1, 1], [1, 1, 1], [1, 1, 1], [1, 1, 1]]], float)
+    n, a = polygon_normal_area(c, np.array([4, 3, 4]))
+    np.testing.assert_allclose(a, [6.0, 0.5, 0.0])
+    np.testing.assert_allclose(n, [[0, 0, 1], [-1, 0, 0], [0, 0, 0]], atol=1e-15)
+
+
+def test_reference_points():
+    sq = rect_xy(0, 1, 0, 1, 1.0, facing_up=False)                     # faces the origin
+    assert point_to_polygon(np.zeros((1, 3)), UP[None], sq)[0] == pytest.approx(0.138532, abs=1e-6)
+    assert point_to_polygon([[0.5, 0.5, 0]], UP[None], sq)[0] == pytest.approx(0.239456, abs=1e-6)
+    assert point_to_polygon([[0, 0, 0]], UP[None], rect_xy(0, 2, 0, 3, 1.5, False))[0] == pytest.approx(
+        parallel_rect_corner(2, 3, 1.5), abs=1e-12)
+
+
+def test_one_sided_and_padding():
+    sq = rect_xy(0, 1, 0, 1, 1.0, facing_up=True)                      # back faces the origin
+    assert point_to_polygon([[0.5, 0.5, 0]], UP[None], sq)[0] == 0.0
+    # in the polygon's plane (also outside it): 0, no NaN
+    sq = rect_xy(0, 1, 0, 1, 0.0, facing_up=False)
+    f = point_to_polygon([[0.5, 0.5, 0], [3, 0.5, 0], [0, 0, 0]], [[0, 0, 1], [-1, 0, 0], [0, 0, -1]], sq)
+    np.testing.assert_array_equal(f, 0.0)
+    # a quad equals the sum of its two padded triangles, and the wrong 4th corner is ignored for nv == 3
+    sq = rect_xy(-0.3, 1.2, -0.4, 0.8, 1.0, facing_up=False)[0]
+    tris = np.array([[sq[0], sq[1], sq[2], [9, 9, 9]], [sq[0], sq[2], sq[3], sq[3]]])
+    pts = np.array([[0.1, 0.2, 0.0]])
+    f_tris = point_to_polygon(pts, UP, tris, np.array([3, 3])).sum()
+    assert f_tris == pytest.approx(point_to_polygon(pts, UP, sq[None])[0], abs=1e-14)
+
+
+def test_coaxial_disc():
+    """Differential area on the axis of a disc of radius R at height h: F = R^2 / (R^2 + h^2)."""
+    corners, nv = fan([0, 0, 1.0], 1.5, 4096, facing_up=False)
+    f = point_to_polygon(np.zeros(3), UP, corners, nv).sum()
+    assert f == pytest.approx(2.25 / 3.25, rel=1e-5)                   # inscribed 4096-gon: ~4e-7 off
+
+
+@pytest.mark.parametrize("theta_deg", [30, 60, 90, 120, 150])
+def test_horizon_clipping_half_plane(theta_deg):
+    """Element at height 1 under an (almost) infinite plane, its normal tilted by theta from the
+    direction to the plane: F = (1 + cos theta) / 2; for theta > 0 part of the plane is below the horizon."""
+    t = math.radians(theta_deg)
+    big = 1e6
+    plane = rect_xy(-big, big, -big, big, 1.0, facing_up=False)
+    f = point_to_polygon(np.zeros(3), [math.sin(t), 0, math.cos(t)], plane)
+    assert f[0] == pytest.approx((1 + math.cos(t)) / 2, abs=1e-5)
+
+
+def test_clipped_equals_upper_part():
+    """A polygon straddling the horizon gives the same F as its upper part computed separately."""
+    n = np.array([1.0, 0.0, 0.0])                                       # horizon: plane x = 0
+    whole = rect_xy(-0.7, 0.9, -0.5, 0.6, 1.0, facing_up=False)
+    upper = rect_xy(0.0, 0.9, -0.5, 0.6, 1.0, facing_up=False)
+    lower = rect_xy(-0.7, 0.0, -0.5, 0.6, 1.0, facing_up=False)
+    fw, fu, fl = (point_to_polygon(np.zeros(3), n, q)[0] for q in (whole, upper, lower))
+    assert fw == pytest.approx(fu, abs=1e-14) and fl == 0.0 and fu > 0.05
+    # Tilted normal, triangle cut through two edges: clipped F must stay additive, i.e. equal the sum
+    # over a fine subdivision (pieces wholly above, wholly below, and a few straddling ones).
+    n = np.array([0.3, 0.5, 0.2])
+    n /= np.linalg.norm(n)
+    a, b, c = np.array([[0, 0, 2], [1.5, -1, 1], [-1, -1, 1]], float)   # faces the origin; b above, c below
+    k = 64
+    u, v = np.meshgrid(np.arange(k + 1) / k, np.arange(k + 1) / k, indexing="ij")
+    g = a + u[..., None] * (b - a) + v[..., None] * (c - a)
+    subs = [[g[i, j], g[i + 1, j], g[i, j + 1], g[i, j + 1]] for i in range(k) for j in range(k - i)]
+    subs += [[g[i + 1, j], g[i + 1, j + 1], g[i, j + 1], g[i, j + 1]]
+             for i in range(k) for j in range(k - i - 1)]
+    subs = np.array(subs)
+    f_parts = point_to_polygon(np.zeros(3), n, subs, np.full(len(subs), 3))
+    assert (f_parts == 0).sum() > 100 and (f_parts > 0).sum() > 100
+    f_whole = point_to_polygon(np.zeros(3), n, np.array([[a, b, c, c]]), [3])[0]
+    assert f_whole == pytest.approx(f_parts.sum(), abs=1e-12)
+
+
+def test_range_and_no_nan():
+    rng = np.random.default_rng(1)
+    m = 20000
+    corners = rng.normal(size=(m, 1, 3)) + rng.normal(size=(m, 4, 3)) * 0.3
+    corners[:, 3] = corners[:, 2]                                       # random triangles
+    normals = rng.normal(size=(m, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    pts = np.zeros((m, 3))
+    pts[: m // 10] = corners[: m // 10, 0]                              # point on a vertex
+    f = point_to_polygon(pts, normals, corners, np.full(m, 3))
+    assert np.all(np.isfinite(f)) and f.min() >= 0.0 and f.max() <= 1.0
+    assert np.all(f[: m // 10] == 0.0)
+    assert (f > 0).mean() > 0.2
+
+
+# ---------------------------------------------------------------------------------------------------
+def test_sample_points():
+    quads = np.array([[[0, 0, 0], [2, 0, 0], [3, 1, 0], [1, 1, 0]]], float)    # parallelogram
+    tri = np.array([[[0, 0, 0], [3, 0, 0], [0, 3, 0], [0, 3, 0]]], float)
+    for k in (1, 2, 3, 5):
+        pq = sample_points(quads, [4], k)[0]
+        pt = sample_points(tri, [3], k)[0]
+        assert pq.shape == pt.shape == (k * k, 3)
+        np.testing.assert_allclose(pq.mean(0), quads[0].mean(0), atol=1e-14)     # equal-area cells
+        np.testing.assert_allclose(pt.mean(0), tri[0, :3].mean(0), atol=1e-14)
+        assert len(np.unique(np.round(pt, 12), axis=0)) == k * k
+        assert np.all(pt[:, 0] + pt[:, 1] < 3) and np.all(pt[:, :2] > 0)        # strictly inside
+    # k = 2 triangle: three corner sub-triangles plus the central (inverted) one
+    np.testing.assert_allclose(np.sort(sample_points(tri, [3], 2)[0][:, :2], axis=0),
+                               [[0.5, 0.5], [0.5, 0.5], [1.0, 1.0], [2.0, 2.0]], atol=1e-14)
+
+
+def _unit_squares():
+    floor = rect_xy(0, 1, 0, 1, 0.0, facing_up=True)
+    ceiling = rect_xy(0, 1, 0, 1, 1.0, facing_up=False)
+    wall = quad((0, 0, 0), (0, 0, 1), (1, 0, 1), (1, 0, 0))             # plane y = 0, normal +y
+    return floor, ceiling, wall
+
+
+@pytest.mark.parametrize("n_samples, tol_opp, tol_perp", [(16, 0.01, 0.005), (36, 0.005, 0.002),
+                                                          (9, 0.02, 0.005), (4, 0.05, 0.011)])
+def test_patch_to_patch_unit_squares(n_samples, tol_opp, tol_perp):
+    floor, ceiling, wall = _unit_squares()
+    four = np.array([4])
+    assert patch_to_patch(floor, four, ceiling, four, n_samples)[0] == pytest.approx(0.199825, rel=tol_opp)
+    assert patch_to_patch(floor, four, wall, four, n_samples)[0] == pytest.approx(0.200044, rel=tol_perp)
+
+
+def test_cube_closure_and_2x1():
+    floor, ceiling, wall = _unit_squares()
+    walls = [wall,
+             quad((1, 0, 0), (1, 0, 1), (1, 1, 1), (1, 1, 0)),          # x = 1, normal -x
+             quad((1, 1, 0), (1, 1, 1), (0, 1, 1), (0, 1, 0)),          # y = 1, normal -y
+             quad((0, 1, 0), (0, 1, 1), (0, 0, 1), (0, 0, 0))]          # x = 0, normal +x
+    q = np.concatenate([ceiling] + walls)
+    f = patch_to_patch(np.repeat(floor, 5, 0), np.full(5, 4), q, np.full(5, 4), 256)
+    assert f.sum() == pytest.approx(1.0, abs=2e-4)
+    assert patch_to_patch(rect_xy(0, 2, 0, 1, 0, True), [4], rect_xy(0, 2, 0, 1, 1, False), [4], 64)[0] \
+        == pytest.approx(opposed_rects(2, 1, 1), rel=5e-3)
+    assert opposed_rects(2, 1, 1) == pytest.approx(0.285875, abs=1e-6)
+
+
+def test_reciprocity_unequal_rectangles_and_triangles():
+    p = quad((0, 0, 0), (2, 0, 0), (2, 1, 0), (0, 1, 0))
+    q = quad((0.5, 1.5, 0.3), (0.5, 1.5, 1.0), (1.5, 2.0, 1.4), (1.5, 2.0, 0.7))   # tilted parallelogram
+    t = np.array([[[0.2, 0.3, 1.0], [0.0, 2.0, 1.5], [1.0, 0.5, 1.2], [1.0, 0.5, 1.2]]])  # tilted triangle
+    four, three = np.array([4]), np.array([3])
+    for (a, na), (b, nb) in [((p, four), (q, four)), ((p, four), (t, three))]:
+        if polygon_normal_area(b, nb)[0][0] @ (a[0].mean(0) - b[0].mean(0)) < 0:
+            b = b[:, [0, 2, 1, 3]] if nb[0] == 3 else b[:, ::-1]          # make b face a
+        aa, ab = polygon_normal_area(a, na)[1][0], polygon_normal_area(b, nb)[1][0]
+        fab = patch_to_patch(a, na, b, nb, 256)[0]
+        fba = patch_to_patch(b, nb, a, na, 256)[0]
+        assert fab > 0.01
+        assert aa * fab == pytest.approx(ab * fba, rel=2e-3)
+
+
+def test_patch_to_patch_batch_matches_single():
+    floor, ceiling, wall = _unit_squares()
+    tri = np.array([[[0, 0, 1], [0, 1, 1], [1, 0, 1], [1, 0, 1]]], float)          # faces down
+    p = np.concatenate([floor, floor, floor])
+    q = np.concatenate([ceiling, wall, tri])
+    nvq = np.array([4, 4, 3])
+    batch = patch_to_patch(p, np.full(3, 4), q, nvq, 16)
+    single = [patch_to_patch(floor, [4], q[i:i + 1], nvq[i:i + 1], 16)[0] for i in range(3)]
+    np.testing.assert_allclose(batch, single, rtol=1e-14)
+    with pytest.raises(ValueError):
+        patch_to_patch(floor, [4], ceiling, [4], 8)
+
+
+# ---------------------------------------------------------------------------------------------------
+def _props(c, nv):
+    n, a = polygon_normal_area(c, nv)
+    return sample_points(c, nv, 1)[:, 0], n, a
+
+
+def test_estimate_far_field_and_bounds():
+    """Far apart, the disc estimate approaches the exact value; it never exceeds 1 and never is negative."""
+    p = rect_xy(0, 0.1, 0, 0.1, 0.0, True)
+    q = rect_xy(0, 0.1, 0, 0.1, 5.0, False)
+    cp, np_, ap = _props(p, [4])
+    cq, nq, aq = _props(q, [4])
+    est = estimate(cp, np_, ap, q, cq, nq, aq)[0]
+    exact = patch_to_patch(p, [4], q, [4], 16)[0]
+    assert est == pytest.approx(exact, rel=0.01)
+    # coincident / touching patches: finite and <= 1
+    est = estimate(cp, np_, ap, rect_xy(0, 0.1, 0, 0.1, 0.0, False), cp, -np_, ap)
+    assert np.all((0 <= est) & (est <= 1))
+
+
+def test_estimate_conservative_cases():
+    floor = rect_xy(0, 1, 0, 1, 0.0, True)
+    cp, np_, ap = _props(floor, [4])
+    # q entirely behind p: 0
+    below = rect_xy(0, 1, 0, 1, -1.0, True)
+    cq, nq, aq = _props(below, [4])
+    assert estimate(cp, np_, ap, below, cq, nq, aq)[0] == 0.0
+    # q's centre below p's horizon but a corner above: cos_p from the corner keeps it > 0
+    tilted = quad((1.2, 0, 0.4), (1.2, 1, 0.4), (2.0, 1, -0.8), (2.0, 0, -0.8))     # faces -x (towards p)
+    cq, nq, aq = _props(tilted, [4])
+    assert nq[0, 0] < 0 and cq[0, 2] < 0
+    assert estimate(cp, np_, ap, tilted, cq, nq, aq)[0] > 0.0
+    assert patch_to_patch(floor, [4], tilted, [4], 64)[0] > 0.0                     # and it is real
+    # p's centre behind q's plane but p reaching in front of it: cos_q falls back
+    p2 = quad((0, 0, 0.3), (1, 0, 0.3), (1, 0, -0.5), (0, 0, -0.5))                # plane y = 0, normal +y
+    q2 = quad((-1, 1, 0), (2, 1, 0), (2, 3, 0), (-1, 3, 0))                         # z = 0 facing up
+    cp2, np2, ap2 = _props(p2, [4])
+    cq2, nq2, aq2 = _props(q2, [4])
+    assert (cp2 - cq2)[0] @ nq2[0] < 0
+    exact = patch_to_patch(p2, [4], q2, [4], 64)[0]
+    with_corners = estimate(cp2, np2, ap2, q2, cq2, nq2, aq2, corners_p=p2)[0]
+    without = estimate(cp2, np2, ap2, q2, cq2, nq2, aq2)[0]
+    assert exact > 0 and with_corners > 0 and without > 0
+    # and the fallback does not fire when p lies wholly behind q
+    p3 = p2 - [0, 0, 2.0]
+    cp3, np3, ap3 = _props(p3, [4])
+    assert estimate(cp3, np3, ap3, q2, cq2, nq2, aq2, corners_p=p3)[0] == 0.0
