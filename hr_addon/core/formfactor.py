@@ -194,3 +194,30 @@ def estimate(centers_p, normals_p, areas_p, corners_q, centers_q, normals_q, are
         fallback = np.where(_dot(d, nq) > -np.sqrt(np.asarray(areas_p, dtype=np.float64)), COS_FLOOR, 0.0)
     cos_q = np.where(cos_q > 0.0, cos_q, fallback)
     return np.clip(aq * cos_p * cos_q / (math.pi * r2 + aq), 0.0, 1.0)
+
+
+def quadrature(corners, nv, k):
+    """Gauss-Legendre k x k points and area weights (summing to 1) over convex quads and triangles.
+
+    Quads: the bilinear map of the unit square, weighted by its Jacobian. Triangles: the collapsed
+    (Duffy) map p = a + u (b - a) + u v (c - b), Jacobian proportional to u. Both integrate smooth
+    kernels far better than the equal-weight centroid rule of sample_points (error O(h^2k) not O(h^2)).
+    """
+    c = _padded(corners, nv)
+    nv = np.asarray(nv)
+    x, w = np.polynomial.legendre.leggauss(k)
+    x, w = (x + 1) / 2, w / 2
+    u, v = np.meshgrid(x, x, indexing="ij")
+    u, v, wu = u.ravel(), v.ravel(), np.outer(w, w).ravel()
+    a, b, cc, d = (c[:, i, None, :] for i in range(4))
+    U, V = u[None, :, None], v[None, :, None]
+    quad_pts = (1 - U) * (1 - V) * a + U * (1 - V) * b + U * V * cc + (1 - U) * V * d
+    du = (1 - V) * (b - a) + V * (cc - d)
+    dv = (1 - U) * (d - a) + U * (cc - b)
+    quad_w = wu * np.linalg.norm(np.cross(du, dv), axis=-1)
+    tri_pts = a + U * (b - a) + U * V * (cc - b)
+    tri_w = np.broadcast_to(wu * u, quad_w.shape)
+    tri = (nv == 3)[:, None]
+    pts = np.where(tri[..., None], tri_pts, quad_pts)
+    wts = np.where(tri, tri_w, quad_w)
+    return pts, wts / wts.sum(1, keepdims=True)

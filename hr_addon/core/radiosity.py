@@ -7,7 +7,7 @@ import numpy as np
 from .geometry import MeshInput, prepare_patches
 from .hierarchy import Hierarchy
 from .output import loop_radiance
-from .refine import Refiner, RefineParams
+from .refine import Refiner, RefineParams, push_corrections
 from .solver import Operator, solve
 from .visibility import make_backend
 
@@ -48,6 +48,10 @@ class RadiositySystem:
                 if len(new) == len(self.links) and np.array_equal(new.a, self.links.a):
                     break
                 self.links = new
+        if self.params.vcorr > 0:
+            t1 = time.perf_counter()
+            self.links = push_corrections(self.h, self.links, self.params.vcorr, self.params.corr_budget)
+            self.refiner.stats["t_corr"] = time.perf_counter() - t1
         self._op = None
         self.build = BuildReport(len(self.patches.nv), self.patches.dropped, self.h.n, len(self.links),
                                  time.perf_counter() - t0, dict(self.refiner.stats), type(self.backend).__name__,

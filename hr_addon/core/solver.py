@@ -134,9 +134,11 @@ def _energy(op, B, E, G, rep):
     rep.emitted = float(np.pi * np.sum(E[:, lf] * a[lf]))
     G = op.push(op.gather(B)) if G is None else G
     rep.absorbed = float(np.pi * np.sum((1 - op.rho[:, lf]) * G[:, lf] * a[lf]))
-    # Each node's outgoing form factor sum, counting links held by it and by its ancestors and
-    # descendants: push the per-node sums down to the leaves.
+    # Each node's outgoing form factor sum as a source, counting links held by it and by its
+    # ancestors: push the per-node sums down to the leaves. Push corrections only reshape what
+    # a receiver gathers (they sum to zero per link), so they do not count here.
+    recv, _, f = op.links.directed_base()
     fsum = np.zeros((1, op.n))
-    fsum[0] = np.bincount(op.recv, weights=op.f, minlength=op.n)
+    fsum[0] = np.bincount(recv, weights=f, minlength=op.n)
     fsum = op.push(fsum)[0]
     rep.escaped = float(np.pi * np.sum(B[:, lf] * a[lf] * (1 - fsum[lf])))

@@ -1,0 +1,101 @@
+"""Panels: Properties > Render > HR Radiosity, Properties > Object > HR Radiosity, and the
+3D View sidebar tab "HR"."""
+import bpy
+
+from . import playback
+from .ops import HR_OT_bake
+
+
+def _draw_bake(layout, context):
+    scene = context.scene
+    hr = scene.hr
+    col = layout.column()
+    row = col.row()
+    row.scale_y = 1.4
+    row.enabled = not HR_OT_bake.running
+    row.operator("hr.bake", icon="RENDER_ANIMATION")
+    d = playback.bake_dir_abs(scene)
+    if d:
+        col.label(text=f"Cache: {hr.bake_dir or d}", icon="FILE_CACHE")
+    msg = playback.status(scene)
+    if msg:
+        col.label(text=msg, icon="ERROR")
+    row = col.row(align=True)
+    row.operator("hr.add_preview", icon="SHADING_RENDERED")
+    row.operator("hr.remove_preview", text="", icon="X")
+    row = col.row(align=True)
+    row.prop(hr, "playback")
+    row.operator("hr.load_frame", text="", icon="FILE_REFRESH")
+    row.operator("hr.clear_bake", text="", icon="TRASH")
+
+
+class HR_PT_radiosity(bpy.types.Panel):
+    bl_label = "HR Radiosity"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+
+    def draw(self, context):
+        _draw_bake(self.layout, context)
+
+
+class HR_PT_radiosity_settings(bpy.types.Panel):
+    bl_label = "Settings"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    bl_parent_id = "HR_PT_radiosity"
+
+    def draw(self, context):
+        hr = context.scene.hr
+        layout = self.layout
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        layout.prop(hr, "method")
+        layout.prop(hr, "quality")
+        sub = layout.column(align=True)
+        sub.enabled = hr.quality == "CUSTOM"
+        sub.prop(hr, "feps")
+        sub.prop(hr, "aeps")
+        layout.prop(hr, "output")
+        layout.prop(hr, "domain")
+        layout.prop(hr, "cache_folder")
+        layout.prop(hr, "use_frame_range")
+        sub = layout.column(align=True)
+        sub.enabled = hr.use_frame_range
+        sub.prop(hr, "frame_start")
+        sub.prop(hr, "frame_end")
+
+
+class HR_PT_object(bpy.types.Panel):
+    bl_label = "HR Radiosity"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "object"
+
+    @classmethod
+    def poll(cls, context):
+        return context.object is not None and context.object.type == "MESH"
+
+    def draw(self, context):
+        obj = context.object
+        layout = self.layout
+        layout.prop(obj.hr, "exclude")
+        layout.prop(obj.hr, "is_light_shape")
+        row = layout.row(align=True)
+        row.operator("hr.mark_light_shape")
+        row.operator("hr.mark_light_shape", text="Unmark").clear = True
+
+
+class HR_PT_view3d(bpy.types.Panel):
+    bl_label = "HR Radiosity"
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = "HR"
+
+    def draw(self, context):
+        _draw_bake(self.layout, context)
+        self.layout.operator("hr.mark_light_shape", icon="LIGHT_AREA")
+
+
+classes = (HR_PT_radiosity, HR_PT_radiosity_settings, HR_PT_object, HR_PT_view3d)

@@ -1,0 +1,89 @@
+"""Settings: Scene.hr (bake settings and bake state) and Object.hr (per-object flags)."""
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+
+# Thresholds shown for each preset; the bake takes the full preset from core RefineParams.preset().
+PRESET_THRESHOLDS = {
+    "DRAFT": (0.05, 1e-3),
+    "MEDIUM": (0.02, 2e-4),
+    "HIGH": (0.008, 4e-5),
+}
+
+METHOD_ITEMS = [
+    ("AUTO", "Auto", "Choose per frame between the incremental methods and a fresh solve"),
+    ("AR", "AR", "Add/remove: update only the links touched by the changed light shapes"),
+    ("FE", "FE", "Fixed emitters: re-solve with new emission, keeping the hierarchy"),
+    ("NAIVE", "Naive", "Rebuild the emission from scratch and solve every changed frame"),
+]
+QUALITY_ITEMS = [
+    ("DRAFT", "Draft", "Coarse and fast"),
+    ("MEDIUM", "Medium", "Balanced"),
+    ("HIGH", "High", "Fine subdivision, slow"),
+    ("CUSTOM", "Custom", "Use the form factor (Feps) and area (Aeps) thresholds below"),
+]
+OUTPUT_ITEMS = [
+    ("VERTEX", "Vertex", "Colour attribute HR_Radiance on each mesh"),
+]
+DOMAIN_ITEMS = [
+    ("CORNER", "Face Corner", "One value per face corner: creases between walls stay sharp"),
+    ("POINT", "Vertex", "One value per vertex: smooth everywhere, smaller"),
+]
+
+
+# Blender 4.5+ warns about "//" in path properties unless they declare blend-relative support.
+_REL = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
+
+
+def _quality_update(self, context):
+    vals = PRESET_THRESHOLDS.get(self.quality)
+    if vals is not None:
+        self["feps"], self["aeps"] = vals
+
+
+class HR_SceneSettings(bpy.types.PropertyGroup):
+    method: EnumProperty(name="Method", items=METHOD_ITEMS, default="AUTO",
+                         description="How light-shape changes are applied from one frame to the next")
+    quality: EnumProperty(name="Quality", items=QUALITY_ITEMS, default="MEDIUM", update=_quality_update,
+                          description="Refinement preset (sets Feps and Aeps)")
+    feps: FloatProperty(name="Feps", default=0.02, min=1e-4, max=1.0, precision=4,
+                        description="Form factor threshold: links transporting more are subdivided (Custom quality)")
+    aeps: FloatProperty(name="Aeps", default=2e-4, min=1e-7, max=0.1, precision=6,
+                        description="Smallest element area as a fraction of the total scene area (Custom quality)")
+    output: EnumProperty(name="Output", items=OUTPUT_ITEMS, default="VERTEX")
+    domain: EnumProperty(name="Domain", items=DOMAIN_ITEMS, default="CORNER",
+                         description="Domain of the HR_Radiance colour attribute")
+    use_frame_range: BoolProperty(name="Custom Frame Range", default=False,
+                                  description="Bake frames Start..End below instead of the scene frame range")
+    frame_start: IntProperty(name="Start", default=1)
+    frame_end: IntProperty(name="End", default=250)
+    cache_folder: StringProperty(name="Cache Folder", default="//hr_cache/", subtype="DIR_PATH", options=_REL,
+                                 description="Folder for the per-frame radiance files (relative to the .blend)")
+    # Bake state, written by the bake. Relative ("//...") when the .blend is saved.
+    bake_dir: StringProperty(name="Baked Cache", default="", subtype="DIR_PATH", options=_REL,
+                             description="Cache directory of the last bake (empty: not baked)")
+    playback: BoolProperty(name="Playback", default=True,
+                           description="Load the baked radiance into HR_Radiance on frame change")
+
+
+class HR_ObjectSettings(bpy.types.PropertyGroup):
+    exclude: BoolProperty(name="Exclude", default=False,
+                          description="Leave this object out of the radiosity solution")
+    is_light_shape: BoolProperty(name="Light Shape", default=False,
+                                 description="Emissive patch lying on scene surfaces; not geometry itself")
+
+
+classes = (HR_SceneSettings, HR_ObjectSettings)
+
+
+def register():
+    for c in classes:
+        bpy.utils.register_class(c)
+    bpy.types.Scene.hr = PointerProperty(type=HR_SceneSettings)
+    bpy.types.Object.hr = PointerProperty(type=HR_ObjectSettings)
+
+
+def unregister():
+    del bpy.types.Object.hr
+    del bpy.types.Scene.hr
+    for c in reversed(classes):
+        bpy.utils.unregister_class(c)

@@ -1,0 +1,349 @@
+"""Scene in: evaluated meshes -> core MeshInput, light-shape objects -> core LightShape rings.
+
+Geometry is every visible, renderable mesh object (its collections not excluded or render-
+disabled, hide_render off) that is neither excluded (Object.hr.exclude) nor a light shape, with
+modifiers applied (depsgraph), in world space. Per polygon reflectance/emission come from the
+material slot (see materials.py).
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..core.geometry import InputError, MeshInput
+from .materials import read_material
+
+
+class SceneError(InputError):
+    """The scene cannot be baked (one-line reason)."""
+
+
+def _walk_collections(view_layer):
+    """Objects of the view layer whose collections render (not excluded, not hide_render)."""
+    found = {}
+
+    def walk(lc):
+        col = lc.collection
+        if lc.exclude or getattr(col, "hide_render", False):
+            return
+        for o in col.objects:
+            found.setdefault(o.name, o)
+        for c in lc.children:
+            walk(c)
+
+    walk(view_layer.layer_collection)
+    return [found[k] for k in sorted(found)]
+
+
+def geometry_objects(view_layer):
+    return [o for o in _walk_collections(view_layer)
+            if o.type == "MESH" and not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape]
+
+
+def light_shape_objects(view_layer, include_hidden=False):
+    return [o for o in _walk_collections(view_layer)
+            if o.type == "MESH" and o.hr.is_light_shape and not o.hr.exclude
+            and (include_hidden or not o.hide_render)]
+
+
+@dataclass
+class EvalMesh:
+    verts: np.ndarray        # (V, 3) world
+    loop_start: np.ndarray
+    loop_total: np.ndarray
+    loop_verts: np.ndarray
+    material_index: np.ndarray
+    materials: list          # material per slot (evaluated), [None] if no slots
+    flipped: bool            # negative-determinant transform
+
+
+def read_mesh(obj, depsgraph) -> EvalMesh:
+    """Evaluated mesh of `obj` in world space, vectorised with foreach_get."""
+    ob = obj.evaluated_get(depsgraph)
+    me = ob.to_mesh()
+    try:
+        V, P, L = len(me.vertices), len(me.polygons), len(me.loops)
+        co = np.empty(V * 3, np.float32)
+        me.vertices.foreach_get("co", co)
+        ls = np.empty(P, np.int32)
+        lt = np.empty(P, np.int32)
+        lv = np.empty(L, np.int32)
+        mi = np.zeros(P, np.int32)
+        me.polygons.foreach_get("loop_start", ls)
+        me.polygons.foreach_get("loop_total", lt)
+        me.loops.foreach_get("vertex_index", lv)
+        if P:
+            me.polygons.foreach_get("material_index", mi)
+    finally:
+        ob.to_mesh_clear()
+    M = np.array(ob.matrix_world, dtype=np.float64)
+    verts = co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
+    mats = [s.material for s in ob.material_slots] or [None]
+    return EvalMesh(verts, ls.astype(np.int64), lt.astype(np.int64), lv.astype(np.int64),
+                    np.clip(mi, 0, len(mats) - 1), mats, bool(np.linalg.det(M[:3, :3]) < 0))
+
+
+def _reversed_loops(loop_start, loop_total):
+    """Permutation that reverses every polygon's loop order."""
+    poly = np.repeat(np.arange(len(loop_start)), loop_total)
+    k = np.arange(len(poly)) - loop_start[poly]
+    return loop_start[poly] + loop_total[poly] - 1 - k
+
+
+@dataclass
+class Target:
+    """Where one object's share of the solution goes: HR_Radiance on its (original) mesh."""
+    name: str
+    mesh_name: str
+    loops: tuple             # (start, stop) of its loops in the MeshInput
+    verts: tuple             # (start, stop) of its vertices in the MeshInput
+    loop_perm: np.ndarray    # input loop j comes from evaluated loop loop_perm[j]
+    eval_loop_verts: np.ndarray
+    n_eval_verts: int
+    n_corner: int            # output sizes on the original mesh
+    n_point: int
+    vert_map: np.ndarray = None       # original vertex -> evaluated vertex (topology changed)
+    orig_loop_verts: np.ndarray = None
+
+    def extract(self, values, domain):
+        """(N, 3) values on the original mesh's domain from the full solution array."""
+        if domain == "POINT":
+            seg = values[self.verts[0]:self.verts[1]]
+            return seg if self.vert_map is None else seg[self.vert_map]
+        seg = np.empty((self.loops[1] - self.loops[0], 3), np.float32)
+        seg[self.loop_perm] = values[self.loops[0]:self.loops[1]]
+        if self.vert_map is None:
+            return seg
+        # Topology changed by modifiers: average per evaluated vertex, nearest vertex per corner.
+        cnt = np.maximum(np.bincount(self.eval_loop_verts, minlength=self.n_eval_verts), 1)
+        pv = np.stack([np.bincount(self.eval_loop_verts, seg[:, c], self.n_eval_verts) for c in range(3)], 1)
+        pv = (pv / cnt[:, None]).astype(np.float32)
+        return pv[self.vert_map][self.orig_loop_verts]
+
+
+@dataclass
+class SceneInput:
+    mesh: MeshInput
+    targets: list
+    warnings: list = field(default_factory=list)
+
+
+def _surfaces(materials, warnings, cache):
+    rho, em = [], []
+    for m in materials:
+        key = None if m is None else m.name_full
+        if key not in cache:
+            s = read_material(m)
+            cache[key] = s
+            warnings.extend(w for w in s.warnings if w not in warnings)
+        rho.append(cache[key].reflectance)
+        em.append(cache[key].emission)
+    return np.array(rho), np.array(em)
+
+
+def _topology_map(obj, em: EvalMesh, depsgraph):
+    """Nearest evaluated vertex for each original vertex (modifiers that change topology)."""
+    from mathutils import kdtree
+    me = obj.data
+    V = len(me.vertices)
+    co = np.empty(V * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    M = np.array(obj.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
+    world = co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+    tree = kdtree.KDTree(len(em.verts))
+    for i, p in enumerate(em.verts):
+        tree.insert(p, i)
+    tree.balance()
+    vmap = np.array([tree.find(p)[1] for p in world], np.int64)
+    olv = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("vertex_index", olv)
+    return vmap, olv.astype(np.int64)
+
+
+def collect_geometry(view_layer, depsgraph) -> SceneInput:
+    objs = geometry_objects(view_layer)
+    if not objs:
+        raise SceneError("No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
+    depsgraph.update()
+    warnings, mat_cache = [], {}
+    parts, targets = [], []
+    seen_mesh = {}
+    nloop = nvert = 0
+    for oid, obj in enumerate(objs):
+        em = read_mesh(obj, depsgraph)
+        if len(em.loop_start) == 0:
+            warnings.append(f"Object '{obj.name}' has no faces; skipped.")
+            continue
+        rho_t, em_t = _surfaces(em.materials, warnings, mat_cache)
+        perm = _reversed_loops(em.loop_start, em.loop_total) if em.flipped else np.arange(len(em.loop_verts))
+        parts.append(MeshInput(em.verts, em.loop_start, em.loop_total, em.loop_verts[perm],
+                               rho_t[em.material_index], em_t[em.material_index],
+                               np.zeros(len(em.loop_start), np.int64), [obj.name]))
+        me = obj.data
+        same_topology = (len(me.loops) == len(em.loop_verts) and len(me.vertices) == len(em.verts)
+                         and len(me.polygons) == len(em.loop_start))
+        if same_topology:
+            olv = np.empty(len(me.loops), np.int32)
+            me.loops.foreach_get("vertex_index", olv)
+            same_topology = np.array_equal(olv, em.loop_verts)
+        t = Target(obj.name, me.name, (nloop, nloop + len(em.loop_verts)), (nvert, nvert + len(em.verts)),
+                   perm, em.loop_verts, len(em.verts), len(me.loops), len(me.vertices))
+        if not same_topology:
+            t.vert_map, t.orig_loop_verts = _topology_map(obj, em, depsgraph)
+            warnings.append(f"Object '{obj.name}': modifiers change the topology; HR_Radiance is "
+                            "transferred to the original mesh by nearest vertex.")
+        if me.name in seen_mesh:
+            warnings.append(f"Objects '{seen_mesh[me.name]}' and '{obj.name}' share mesh data "
+                            f"'{me.name}'; HR_Radiance can hold only one of them (make them single user).")
+        else:
+            seen_mesh[me.name] = obj.name
+        targets.append(t)
+        nloop += len(em.loop_verts)
+        nvert += len(em.verts)
+    if not parts:
+        raise SceneError("No mesh objects with faces to compute radiosity on.")
+    mesh = parts[0]
+    for p in parts[1:]:
+        mesh = mesh.concat(p)
+    return SceneInput(mesh, targets, warnings)
+
+
+# --- light shapes -------------------------------------------------------------------------------
+
+def _newell(p):
+    q = np.roll(p, -1, axis=0)
+    return np.array([np.sum((p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2])),
+                     np.sum((p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0])),
+                     np.sum((p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1]))])
+
+
+def _drop_collinear(ring, tol=1e-9):
+    while len(ring) > 3:
+        a, b = np.roll(ring, 1, 0), np.roll(ring, -1, 0)
+        cr = np.linalg.norm(np.cross(ring - a, b - ring), axis=1)
+        scale = np.linalg.norm(ring - a, axis=1) * np.linalg.norm(b - ring, axis=1)
+        bad = np.flatnonzero(cr <= tol * np.maximum(scale, 1e-300))
+        if not len(bad):
+            break
+        ring = np.delete(ring, bad[0], 0)
+    return ring
+
+
+def _group_outline(verts, polys):
+    """Boundary rings (outer first, then holes) of a connected set of coplanar polygons.
+
+    polys: list of vertex-index lists with consistent winding. Returns None when the boundary is
+    not a set of simple loops (the caller then passes the polygons one by one).
+    """
+    edges = {}
+    for p in polys:
+        for a, b in zip(p, p[1:] + p[:1]):
+            if (a, b) in edges:
+                return None  # inconsistent winding or duplicate face
+            edges[(a, b)] = True
+    nxt = {}
+    for (a, b) in edges:
+        if (b, a) not in edges:
+            if a in nxt:
+                return None  # two boundary loops touch at a vertex
+            nxt[a] = b
+    rings = []
+    while nxt:
+        start = next(iter(nxt))
+        ring = [start]
+        v = nxt.pop(start)
+        while v != start:
+            if v not in nxt:
+                return None
+            ring.append(v)
+            v = nxt.pop(v)
+        rings.append(verts[ring])
+    normal = sum(_newell(verts[p]) for p in polys)
+    areas = [float(_newell(r) @ normal) for r in rings]
+    outer = [r for r, a in zip(rings, areas) if a > 0]
+    holes = [r for r, a in zip(rings, areas) if a < 0]
+    if len(outer) != 1:
+        return None
+    return [_drop_collinear(outer[0])] + [_drop_collinear(h) for h in holes]
+
+
+def mesh_outlines(em: EvalMesh):
+    """[(group_polys, rings, material_slot)] for an evaluated light-shape mesh.
+
+    Polygons are grouped when they share an edge, lie in one plane and use one material; each
+    group becomes one outline (outer ring + holes). Groups whose outline is not simple fall back
+    to one ring per polygon.
+    """
+    P = len(em.loop_start)
+    polys = [list(em.loop_verts[s:s + n][::-1] if em.flipped else em.loop_verts[s:s + n])
+             for s, n in zip(em.loop_start, em.loop_total)]
+    nrm, off = np.zeros((P, 3)), np.zeros(P)
+    for i, p in enumerate(polys):
+        n = _newell(em.verts[p])
+        ln = np.linalg.norm(n)
+        nrm[i] = n / ln if ln > 0 else 0
+        off[i] = nrm[i] @ em.verts[p].mean(0)
+    scale = float(np.abs(em.verts).max()) if len(em.verts) else 1.0
+    parent = list(range(P))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    edge_owner = {}
+    for i, p in enumerate(polys):
+        for a, b in zip(p, p[1:] + p[:1]):
+            j = edge_owner.get((b, a))
+            if j is not None and em.material_index[i] == em.material_index[j] \
+                    and nrm[i] @ nrm[j] > 1 - 1e-9 and abs(off[i] - off[j]) <= 1e-7 * max(scale, 1.0):
+                parent[find(i)] = find(j)
+            edge_owner[(a, b)] = i
+    groups = {}
+    for i in range(P):
+        groups.setdefault(find(i), []).append(i)
+    out = []
+    for g in sorted(groups.values(), key=min):
+        rings = _group_outline(em.verts, [polys[i] for i in g]) if len(g) > 1 else None
+        if rings is not None:
+            out.append((g, rings, int(em.material_index[g[0]])))
+        else:
+            out += [([i], [_drop_collinear(em.verts[polys[i]])], int(em.material_index[i])) for i in g]
+    return out
+
+
+def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None):
+    """{stable id: LightShape} of the light shapes active in the current (evaluated) frame."""
+    shapes = {}
+    mat_cache = {}
+    warnings = [] if warnings is None else warnings
+    for obj in light_shape_objects(view_layer):
+        ob = obj.evaluated_get(depsgraph)
+        if ob.hide_render:
+            continue
+        em = read_mesh(obj, depsgraph)
+        if len(em.loop_start) == 0:
+            continue
+        _, em_t = _surfaces(em.materials, warnings, mat_cache)
+        for g, rings, slot in mesh_outlines(em):
+            e = em_t[slot]
+            if not (e > 0).any():
+                continue
+            key = f"{obj.name}:{g[0]}"   # first polygon of the outline: stable while the mesh is
+            shapes[key] = LightShape(rings=[np.ascontiguousarray(r, np.float64) for r in rings],
+                                     emission=np.asarray(e, np.float64), name=obj.name)
+    return shapes
+
+
+def shapes_signature(shapes):
+    """Hashable digest of a frame's light state (identical frames -> identical digest)."""
+    import hashlib
+    h = hashlib.sha1()
+    for key in sorted(shapes):
+        s = shapes[key]
+        h.update(key.encode())
+        h.update(np.asarray(s.emission, np.float64).tobytes())
+        for r in s.rings:
+            h.update(np.asarray(r, np.float64).tobytes())
+            h.update(b"|")
+    return h.hexdigest()

@@ -1,0 +1,1012 @@
+"""Dynamic light shapes on a hierarchical radiosity solution (numpy only; see docs/events.md).
+
+A light shape is a planar polygon (outer ring + holes, concave allowed) with RGB emitted radiance lying on
+existing surfaces. Shapes appear, change colour/intensity, move/reshape and disappear; overlapping
+shapes add. Four methods:
+
+- NAIVE: the shapes become new input patches, laid over the surface (offset by `naive_offset` x scene
+  diagonal along the surface normal, so the covered surface is hidden behind them). Overlaps, holes and
+  concavity are resolved by a slab (trapezoid) decomposition of all shape and patch edges of a plane, so
+  each light patch has one summed emission and the reflectance of the one surface patch under it. A new
+  RadiositySystem is built (links from scratch) and solved cold. Baseline and accuracy reference.
+- AR (adaptive refinement): nodes wholly inside the shape are marked, partly covered nodes are
+  descended (HR leaves subdivided) down to `min_area_rel` x scene area, where the overlap fraction is
+  used. At most `node_budget` nodes per shape; beyond it the remaining boundary nodes use FE.
+- FE (fractional emissivity): no refinement; each overlapped HR leaf emits overlap fraction x emission
+  (clip.classify, exact for concave shapes with holes against convex nodes).
+- AUTO (ours): per node FE or AR by an exact error bound (FE's L1 emission error on a node is
+  2 f (1 - f) A |E|): the worst nodes are split until the shape's relative emission error is below
+  `emission_tol`. Transport: the existing links only know the old, dark walls, so the shape's first
+  bounce is computed by its own BF-refined links from the shape (sources with exact clipped coverage) to
+  every surface (split where rho F E > bf_rel, shadow boundaries resolved by ray-cast visibility); the
+  existing links then carry the further bounces. Its error approaches NAIVE's at near-FE cost.
+
+Incremental solution (AR/FE/AUTO), `incremental=`:
+- "response" (default): the system is linear, so B = B_base + sum_s E_s * U_s with U_s the solution for
+  shape s at unit emission (per channel). Adding a shape is one cold solve of its own response; a colour
+  or intensity change is a scale, a removal drops a term: no solve, exact history independence, radiance
+  never negative. Responses stay valid when other shapes add or remove nodes below HR leaves (such nodes
+  carry no links: their solution is the parent's, extended by copy).
+- "warm": one state, re-solved with the total emission, warm-started from the previous solution
+  (solver.solve(B0=...)), as in the paper.
+Nodes below the HR leaves are reference-counted by the shapes that need them and deleted (Hierarchy.compact)
+when none does, so node and link counts return to the baseline.
+
+A shape on no surface is handled by NAIVE (for the whole configuration while it is active), and the
+report says so. Invalid shapes (NaN, not planar, degenerate) raise InputError naming the shape.
+"""
+from collections import OrderedDict
+from dataclasses import dataclass, field
+import time
+
+import numpy as np
+
+from . import clip
+from . import formfactor as ff
+from .geometry import InputError, MeshInput, _newell
+from .output import loop_radiance as _loop_radiance
+from .radiosity import RadiositySystem
+from .refine import link_form_factors
+from .solver import Operator, solve
+
+METHODS = ("NAIVE", "AR", "FE", "AUTO")
+
+
+@dataclass
+class LightShape:
+    rings: list            # world-space rings (M_i, 3): outer first, then holes; planar
+    emission: np.ndarray   # (3,) radiance (Cycles strength x colour)
+    name: str = ""
+
+
+@dataclass
+class EventReport:
+    kind: str                  # "add", "remove", "emission", "reshape"
+    key: object = None
+    name: str = ""
+    method: str = ""           # method actually used: NAIVE, AR, FE, AUTO, "AR+FE" (AR stopped at the budget)
+    seconds: float = 0.0
+    iterations: int = 0        # solver iterations
+    nodes_added: int = 0
+    nodes_removed: int = 0
+    nodes: int = 0             # after the event
+    links: int = 0             # after the event (the solver's links)
+    direct_links: int = 0      # AUTO: links from the shape computed for its first bounce (not kept)
+    memory_bytes: int = 0      # nodes + links + cached responses
+    emission_l1: float = 0.0   # relative L1 error of the shape's emission field (exact for FE/AR/AUTO)
+    covered: float = 1.0       # fraction of the shape's area lying on surfaces
+    messages: list = field(default_factory=list)
+
+
+@dataclass
+class FrameReport:
+    events: list = field(default_factory=list)
+    seconds: float = 0.0
+    iterations: int = 0
+    nodes_added: int = 0
+    nodes_removed: int = 0
+    nodes: int = 0
+    links: int = 0
+    memory_bytes: int = 0
+    messages: list = field(default_factory=list)
+
+    @property
+    def changed(self):
+        return bool(self.events)
+
+    @property
+    def method(self):
+        return "+".join(sorted({e.method for e in self.events})) if self.events else ""
+
+
+@dataclass
+class _Rec:
+    key: object
+    name: str
+    rings: list                # validated world rings
+    emission: np.ndarray       # (3,)
+    method: str                # requested
+    used: str = ""
+    c: np.ndarray = None       # plane: point, normal, in-plane basis
+    n: np.ndarray = None
+    u: np.ndarray = None
+    v: np.ndarray = None
+    rings2d: list = None
+    area: float = 0.0
+    group: np.ndarray = None   # coplanar root patches (emitting side)
+    roots: np.ndarray = None   # coplanar root patches the shape overlaps
+    covered: float = 0.0
+    on_surface: bool = False
+    cov_nodes: np.ndarray = None
+    cov_vals: np.ndarray = None
+    owned: np.ndarray = None   # nodes whose split this shape needs (reference counted)
+    U: np.ndarray = None       # (3, n) response at unit emission
+    D: np.ndarray = None       # (3, n) AUTO: first-bounce radiance per unit emission, at link receivers
+    emission_l1: float = 0.0
+    budget_hit: bool = False
+    direct_links: int = 0
+    msgs: list = field(default_factory=list)
+
+    @property
+    def geom_key(self):
+        return tuple(r.tobytes() for r in self.rings)
+
+
+class DynamicRadiosity:
+    def __init__(self, system: RadiositySystem, method="AUTO", min_area_rel=1e-5, node_budget=20000,
+                 plane_tol=1e-3, incremental="response", emission_tol=0.02, bf_rel=1e-3,
+                 naive_params=None, naive_offset=1e-4, cache_size=8):
+        """system: a built RadiositySystem (its hierarchy is extended in place below the HR leaves).
+        min_area_rel: smallest AR node, fraction of the total scene area. node_budget: most nodes one shape
+        may add (AR/AUTO). plane_tol: distance tolerance of "on a surface", fraction of the scene
+        bounding-box diagonal. emission_tol: AUTO's target relative L1 error of the emission field.
+        bf_rel: AUTO's first-bounce link threshold rho F E < bf_rel x E. naive_params: RefineParams for
+        NAIVE rebuilds (default: the system's). cache_size: removed shapes whose responses need no extra
+        nodes are kept for instant re-adding (0: off)."""
+        method = method.upper()
+        if method not in METHODS:
+            raise ValueError(f"Unknown method '{method}' (choose from {', '.join(METHODS)})")
+        if incremental not in ("response", "warm"):
+            raise ValueError("incremental must be 'response' or 'warm'")
+        self.system = system
+        self.method = method
+        self.incremental = incremental
+        self.min_area_rel, self.node_budget, self.plane_tol = min_area_rel, int(node_budget), plane_tol
+        self.emission_tol, self.bf_rel = emission_tol, bf_rel
+        self.naive_params, self.naive_offset, self.cache_size = naive_params, naive_offset, cache_size
+        self.tol = system.tol
+        self.links = system.links
+        h = system.h
+        self.n_hr = h.n
+        self.hr_internal = h.child0[:h.n] >= 0
+        pt = system.patches
+        self.total_area = float(pt.area.sum())
+        lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
+        self.diag = float(np.linalg.norm(hi - lo)) or 1.0
+        self.shapes = OrderedDict()          # key -> _Rec
+        self._cache = OrderedDict()          # (geom_key, method) -> _Rec
+        self._ref = np.zeros(h.n, np.int64)  # shapes needing each node's split
+        self._op = None
+        self._op_version = None
+        self._naive = None                   # active NAIVE rebuild (_NaiveState) or None
+        E0 = system.base_emission()
+        self._Bbase, rep = self._solve(E0)
+        self._X = self._Bbase.copy()          # warm mode state
+        self._B = self._Bbase.copy()
+        self.base_iterations = rep.iterations
+
+    # -- public API ---------------------------------------------------------------------------------
+    @property
+    def h(self):
+        """The hierarchy B lives on (the NAIVE rebuild's while one is active)."""
+        return self._naive.system.h if self._naive is not None else self.system.h
+
+    @property
+    def B(self):
+        """(3, n) current node radiance on self.h."""
+        return self._naive.system.B if self._naive is not None else self._B
+
+    @property
+    def naive_active(self):
+        return self._naive is not None
+
+    def loop_radiance(self, domain="CORNER", smooth_angle=30.0):
+        """(L, 3) float32 per input loop (or (V, 3) per vertex for domain='POINT') of the input mesh."""
+        if self._naive is not None:
+            return self._naive.loop_radiance(self.system.mesh, domain, smooth_angle)
+        return _loop_radiance(self.system.h, self._B, self.system.mesh, smooth_angle, domain)
+
+    def add(self, key, shape):
+        t0 = time.perf_counter()
+        rep = self._add(key, shape)
+        rep.iterations += self._finish([rep])
+        return self._stamp(rep, t0)
+
+    def remove(self, key):
+        t0 = time.perf_counter()
+        rep = self._remove(key)
+        rep.iterations += self._finish([rep])
+        return self._stamp(rep, t0)
+
+    def set_emission(self, key, emission):
+        t0 = time.perf_counter()
+        rep = self._set_emission(key, emission)
+        rep.iterations += self._finish([rep])
+        return self._stamp(rep, t0)
+
+    def apply(self, shapes: dict) -> FrameReport:
+        """Make `shapes` (key -> LightShape, the full active set) current with as little work as possible."""
+        t0 = time.perf_counter()
+        fr = FrameReport()
+        valid = {k: self._validate(k, s) for k, s in shapes.items()}   # raise before changing anything
+        n0 = self.system.h.n
+        evs = []
+        for k in [k for k in self.shapes if k not in valid]:
+            evs.append(self._remove(k))
+        for k, (rings, em, name) in valid.items():
+            rec = self.shapes.get(k)
+            if rec is None:
+                continue
+            same_geom = len(rec.rings) == len(rings) and all(np.array_equal(a, b) for a, b in zip(rec.rings, rings))
+            if not same_geom:
+                r1 = self._remove(k)
+                r2 = self._add(k, LightShape(rings, em, name), validated=(rings, em, name))
+                r2.kind = "reshape"
+                r2.nodes_removed += r1.nodes_removed
+                r2.seconds += r1.seconds
+                evs.append(r2)
+            elif not np.array_equal(rec.emission, em):
+                evs.append(self._set_emission(k, em))
+        for k, (rings, em, name) in valid.items():
+            if k not in self.shapes:
+                evs.append(self._add(k, LightShape(rings, em, name), validated=(rings, em, name)))
+        if evs:
+            fr.iterations += self._finish(evs)
+        fr.events = evs
+        for e in evs:
+            fr.iterations += e.iterations
+            fr.messages += e.messages
+        fr.nodes_added = max(self.system.h.n - n0, 0) if not evs else sum(e.nodes_added for e in evs)
+        fr.nodes_removed = sum(e.nodes_removed for e in evs)
+        fr.seconds = time.perf_counter() - t0
+        self._counts(fr)
+        return fr
+
+    def emission(self):
+        """(3, n) leaf emission currently in effect on system.h (base + shapes' coverage fields)."""
+        self._sync()
+        E = self.system.base_emission()
+        for rec in self.shapes.values():
+            if rec.on_surface and rec.cov_nodes is not None:
+                E += rec.emission[:, None] * self._coverage(rec)[None]
+        return E
+
+    def memory_bytes(self):
+        from .hierarchy import Hierarchy
+        h = self.h
+        links = len(self._naive.system.links) if self._naive is not None else len(self.links)
+        cached = sum(sum(a.nbytes for a in (r.U, r.D) if a is not None)
+                     for r in list(self.shapes.values()) + list(self._cache.values()))
+        return h.n * Hierarchy.node_bytes() + links * 32 + cached
+
+    def evaluate(self, points, patch_ids):
+        """Radiance at surface points (N, 3) lying on input patches patch_ids (N,): returns
+        (B (N, 3), E (N, 3)), total and emitted radiance of the leaf holding each point."""
+        if self._naive is not None:
+            return self._naive.evaluate(points, patch_ids)
+        self._sync()
+        h = self.system.h
+        leaf = locate(h, patch_ids, points)
+        return self._B[:, leaf].T.copy(), self.emission()[:, leaf].T.copy()
+
+    # -- events -------------------------------------------------------------------------------------
+    def _stamp(self, rep, t0):
+        rep.seconds = time.perf_counter() - t0
+        self._counts(rep)
+        return rep
+
+    def _counts(self, rep):
+        rep.nodes = self.h.n
+        rep.links = len(self._naive.system.links) if self._naive is not None else len(self.links)
+        rep.memory_bytes = self.memory_bytes()
+
+    def _add(self, key, shape, validated=None):
+        t0 = time.perf_counter()
+        if key in self.shapes:
+            raise KeyError(f"A light shape with key {key!r} is already active (use apply() or remove it first).")
+        rings, em, name = validated or self._validate(key, shape)
+        rep = EventReport("add", key, name)
+        n0 = self.system.h.n
+        rec = _Rec(key, name, rings, em, self.method)
+        cached = self._cache.pop((rec.geom_key, rec.method), None) if self.method != "NAIVE" else None
+        if cached is not None:
+            cached.emission, cached.key, cached.name = em, key, name
+            rec = cached
+            rep.messages.append(f"shape '{name}': response reused from the cache")
+        else:
+            self._plane(rec)
+            self._find_surface(rec)
+            if not rec.on_surface:
+                rec.used = "NAIVE"
+                rec.msgs.append(f"shape '{name}' lies on no surface: handled by NAIVE")
+            elif self.method == "NAIVE":
+                rec.used = "NAIVE"
+            else:
+                rep.iterations += self._incremental_add(rec)
+        self.shapes[key] = rec
+        rep.method, rep.covered, rep.emission_l1 = rec.used, rec.covered, rec.emission_l1
+        rep.direct_links = rec.direct_links
+        rep.messages += rec.msgs
+        rep.nodes_added = self.system.h.n - n0
+        rep.seconds = time.perf_counter() - t0
+        return rep
+
+    def _remove(self, key):
+        t0 = time.perf_counter()
+        if key not in self.shapes:
+            raise KeyError(f"No active light shape with key {key!r}.")
+        rec = self.shapes.pop(key)
+        rep = EventReport("remove", key, rec.name, rec.used)
+        if rec.owned is not None and len(rec.owned):
+            self._ref[rec.owned] -= 1
+            rep.nodes_removed = self._gc()
+        elif rec.U is not None and self.cache_size > 0 and rec.used != "NAIVE":
+            self._cache[(rec.geom_key, rec.method)] = rec
+            while len(self._cache) > self.cache_size:
+                self._cache.popitem(last=False)
+        rep.seconds = time.perf_counter() - t0
+        return rep
+
+    def _set_emission(self, key, emission):
+        t0 = time.perf_counter()
+        if key not in self.shapes:
+            raise KeyError(f"No active light shape with key {key!r}.")
+        rec = self.shapes[key]
+        em = self._check_emission(emission, rec.name)
+        rec.emission = em
+        rep = EventReport("emission", key, rec.name, rec.used)
+        rep.seconds = time.perf_counter() - t0
+        return rep
+
+    def _finish(self, reps):
+        """Bring B up to date after a batch of events; returns solver iterations spent here."""
+        its = 0
+        naive = [r for r in self.shapes.values() if r.used == "NAIVE"]
+        if naive:
+            t0 = time.perf_counter()
+            self._naive = _NaiveState(self, list(self.shapes.values()))
+            its += self._naive.iterations
+            names = ", ".join(f"'{r.name}'" for r in naive if not r.on_surface)
+            if self.method != "NAIVE" and names:
+                reps[-1].messages.append(f"NAIVE rebuild of all {len(self.shapes)} active shape(s) because {names} "
+                                         f"lie(s) on no surface ({time.perf_counter() - t0:.2f} s)")
+            return its
+        self._naive = None
+        self._sync()
+        if self.incremental == "response":
+            B = self._Bbase.copy()
+            for rec in self.shapes.values():
+                B += rec.emission[:, None] * rec.U
+            self._B = B
+        else:
+            E = self.system.base_emission()
+            extra = np.zeros_like(E)
+            for rec in self.shapes.values():
+                cov = self._coverage(rec)[None] * rec.emission[:, None]
+                if rec.used == "AUTO":
+                    E += rec.emission[:, None] * self._push(rec.D)
+                    extra += cov
+                else:
+                    E += cov
+            self._X, rep = self._solve(E, B0=self._X)
+            its += rep.iterations
+            self._B = self._X + self._operator().pull(extra)
+        return its
+
+    # -- validation and geometry ---------------------------------------------------------------------
+    @staticmethod
+    def _check_emission(emission, name):
+        em = np.asarray(emission, float).reshape(-1)
+        if em.shape != (3,):
+            raise InputError(f"Light shape '{name}': emission must be 3 values (RGB), got shape {em.shape}.")
+        if not np.isfinite(em).all():
+            raise InputError(f"Light shape '{name}': emission {tuple(em)} is not finite.")
+        if (em < 0).any():
+            raise InputError(f"Light shape '{name}': negative emission {tuple(em)}.")
+        return em
+
+    def _validate(self, key, shape):
+        name = (getattr(shape, "name", "") or str(key))
+        rings = getattr(shape, "rings", None)
+        if rings is None or len(rings) == 0:
+            raise InputError(f"Light shape '{name}' has no rings.")
+        out = []
+        for i, r in enumerate(rings):
+            try:
+                r = np.array(r, dtype=float)
+            except (TypeError, ValueError):
+                raise InputError(f"Light shape '{name}': ring {i} is not an array of 3D points.") from None
+            if r.ndim != 2 or r.shape[1] != 3 or len(r) < 3:
+                raise InputError(f"Light shape '{name}': ring {i} must be (M >= 3, 3) points, got {r.shape}.")
+            if not np.isfinite(r).all():
+                raise InputError(f"Light shape '{name}': ring {i} has NaN or infinite coordinates.")
+            out.append(r)
+        em = self._check_emission(shape.emission, name)
+        nrm = _newell(out[0])
+        if np.linalg.norm(nrm) <= 1e-12 * self.diag ** 2:
+            raise InputError(f"Light shape '{name}': the outer ring has zero area.")
+        n = nrm / np.linalg.norm(nrm)
+        c = out[0].mean(0)
+        off = max(float(np.abs((r - c) @ n).max()) for r in out)
+        tol = self.plane_tol * self.diag
+        if off > tol:
+            raise InputError(f"Light shape '{name}' is not planar: a point is {off:.3g} off its plane "
+                             f"(tolerance {tol:.3g}).")
+        return out, em, name
+
+    def _plane(self, rec):
+        nrm = _newell(rec.rings[0])
+        rec.n = nrm / np.linalg.norm(nrm)
+        rec.c = rec.rings[0].mean(0)
+        axis = np.eye(3)[int(np.argmin(np.abs(rec.n)))]
+        rec.u = np.cross(rec.n, axis)
+        rec.u /= np.linalg.norm(rec.u)
+        rec.v = np.cross(rec.n, rec.u)
+        rec.rings2d = [self._to2d(rec, r) for r in rec.rings]
+        a = [abs(clip.polygon_area_2d(r)) for r in rec.rings2d]
+        rec.area = a[0] - sum(a[1:])
+        if rec.area <= 0:
+            raise InputError(f"Light shape '{rec.name}': its holes cover its whole area.")
+
+    @staticmethod
+    def _to2d(rec, p):
+        d = np.asarray(p, float) - rec.c
+        return np.stack([d @ rec.u, d @ rec.v], -1)
+
+    def _find_surface(self, rec):
+        pt = self.system.patches
+        tol = self.plane_tol * self.diag
+        dist = np.abs((pt.corners - rec.c) @ rec.n).max(1)
+        al = pt.normal @ rec.n
+        cand = (dist <= tol) & (np.abs(al) >= 0.999)
+        if (cand & (al > 0)).any():
+            cand &= al > 0   # surfaces on both sides of the plane: the shape emits on its front side
+        rec.group = np.flatnonzero(cand)
+        rec.roots = np.zeros(0, np.int64)
+        rec.covered = 0.0
+        if len(rec.group):
+            frac, _, out = self._classify(rec, rec.group)
+            rec.roots = rec.group[~out]
+            rec.covered = float(np.sum(frac[~out] * self.system.h.area[rec.roots])) / rec.area
+        rec.on_surface = rec.covered > 1e-6
+        if rec.on_surface and rec.covered < 0.999:
+            rec.msgs.append(f"shape '{rec.name}': only {100 * rec.covered:.1f}% of its area lies on surfaces; "
+                            "the rest does not emit")
+
+    def _classify(self, rec, nodes):
+        h = self.system.h
+        return clip.classify(rec.rings2d, self._to2d(rec, h.corners[nodes]), h.nv[nodes])
+
+    # -- incremental methods -------------------------------------------------------------------------
+    def _incremental_add(self, rec):
+        h = self.system.h
+        rec.used = rec.method
+        self._cover(rec)
+        required = [rec.cov_nodes]
+        if rec.method == "AUTO":
+            rec.D, req = self._direct(rec)
+            required.append(req)
+        rec.owned = self._owned_ancestors(np.concatenate(required))
+        self._ref[rec.owned] += 1
+        self._gc()       # splits made on the way that turned out unnecessary
+        self._sync()
+        cov = self._coverage(rec)
+        if rec.method == "AUTO":
+            E = np.broadcast_to(self._push(rec.D), (3, h.n)).copy() if rec.D is not None else np.zeros((3, h.n))
+        else:
+            E = np.repeat(cov[None], 3, 0)
+        if self.incremental == "warm":
+            return 0
+        U, rep = self._solve(E)
+        if rec.method == "AUTO":
+            U = U + self._operator().pull(np.repeat(cov[None], 3, 0))
+        rec.U = U
+        return rep.iterations
+
+    def _cover(self, rec):
+        """Coverage of the shape on the hierarchy: cov_nodes get cov_vals (1 inside, else the overlap
+        fraction), inherited by their descendants. Splits by the method's rule (see module doc)."""
+        h = self.system.h
+        min_area = self.min_area_rel * self.total_area
+        inside, part, pfrac = [], [], []
+        frontier = rec.roots
+        while len(frontier):
+            frac, ins, out = self._classify(rec, frontier)
+            frontier, frac, ins = frontier[~out], frac[~out], ins[~out]
+            inside.append(frontier[ins])
+            p, f = frontier[~ins], frac[~ins]
+            hr = self._hr_internal(p)
+            part.append(p[~hr])
+            pfrac.append(f[~hr])
+            frontier = (h.child0[p[hr]][:, None] + np.arange(4)).ravel()
+        inside = np.concatenate(inside) if inside else np.zeros(0, np.int64)
+        part = np.concatenate(part) if part else np.zeros(0, np.int64)
+        pfrac = np.concatenate(pfrac) if pfrac else np.zeros(0)
+        n_split = 0
+        target = self.emission_tol * rec.area
+        while len(part) and rec.method in ("AR", "AUTO"):
+            area = h.area[part]
+            err = np.round(2 * pfrac * (1 - pfrac) * area / rec.area, 12)
+            can = area > min_area
+            if rec.method == "AUTO":
+                if err.sum() <= target / rec.area:
+                    break
+            if not can.any():
+                break
+            idx = np.flatnonzero(can)
+            cen = h.centre[part[idx]]
+            order = idx[np.lexsort((cen[:, 2], cen[:, 1], cen[:, 0], -err[idx]))]
+            if rec.method == "AUTO":
+                cum = np.cumsum(err[order])
+                order = order[:int(np.searchsorted(cum, 0.5 * cum[-1])) + 1]
+            room = (self.node_budget - 4 * n_split) // 4
+            if len(order) > room:
+                order = order[:max(room, 0)]
+                rec.budget_hit = True
+            if len(order) == 0:
+                break
+            sel = part[order]
+            n_split += len(sel)
+            h.subdivide(sel[h.child0[sel] < 0])
+            keep = np.ones(len(part), bool)
+            keep[order] = False
+            part, pfrac = part[keep], pfrac[keep]
+            kids = (h.child0[sel][:, None] + np.arange(4)).ravel()
+            frac, ins, out = self._classify(rec, kids)
+            inside = np.concatenate([inside, kids[ins]])
+            m = ~ins & ~out
+            part = np.concatenate([part, kids[m]])
+            pfrac = np.concatenate([pfrac, frac[m]])
+        rec.cov_nodes = np.concatenate([inside, part]).astype(np.int64)
+        rec.cov_vals = np.concatenate([np.ones(len(inside)), pfrac])
+        rec.emission_l1 = float(np.sum(2 * pfrac * (1 - pfrac) * h.area[part])) / rec.area
+        if rec.budget_hit:
+            rec.used = rec.method + "+FE"
+            rec.msgs.append(f"shape '{rec.name}': {rec.method} reached the node budget ({self.node_budget} nodes); "
+                            f"{len(part)} boundary nodes use FE (emission L1 error {100 * rec.emission_l1:.2f}%)")
+
+    def _direct(self, rec):
+        """AUTO: BF-refined links from the shape (sources with exact clipped coverage) to all surfaces.
+        Returns the first-bounce radiance per unit emission at the link receivers (3, n, not pushed)
+        and the nodes the links need."""
+        h, prm, refiner = self.system.h, self.system.params, self.system.refiner
+        rho = self.system.patches.reflectance
+        rho_max = rho.max(0)
+        aeps = prm.aeps * self.total_area
+        thr = self.bf_rel
+        tol = 1e-9 * np.sqrt(self.total_area)
+        in_group = np.zeros(len(self.system.patches.nv), bool)
+        in_group[rec.group] = True
+        fr = np.full(h.n, np.nan)
+
+        def frac(nodes):
+            nonlocal fr
+            if len(fr) < h.n:
+                fr = np.concatenate([fr, np.full(h.n - len(fr), np.nan)])
+            todo = np.unique(nodes[np.isnan(fr[nodes])])
+            if len(todo):
+                vals = np.zeros(len(todo))
+                src = in_group[h.patch[todo]]
+                if src.any():
+                    vals[src] = self._classify(rec, todo[src])[0]
+                fr[todo] = vals
+            return fr[nodes]
+
+        recv = np.flatnonzero(~in_group)
+        p = np.tile(recv, len(rec.roots)).astype(np.int64)
+        q = np.repeat(rec.roots, len(recv)).astype(np.int64)
+        n_start = h.n
+        out = []
+        budget_msg = False
+        while len(p):
+            fq = frac(q)
+            m = fq > 0
+            p, q, fq = p[m], q[m], fq[m]
+            f_pq = ff.estimate(h.centre[p], h.normal[p], h.area[p], h.corners[q], h.centre[q], h.normal[q], h.area[q])
+            f_qp = ff.estimate(h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p])
+            alive = (np.maximum(f_pq, f_qp) > 0) & _facing(h, p, q, tol)
+            p, q, fq, f_pq, f_qp = p[alive], q[alive], fq[alive], f_pq[alive], f_qp[alive]
+            w = rho_max[h.patch[p]] * fq
+            ok = w * f_pq < thr
+            can_p, can_q = h.area[p] > aeps, h.area[q] > aeps
+            if h.n - n_start > self.node_budget:
+                can_p[:] = can_q[:] = False
+                budget_msg = True
+            v_p, v_q = np.zeros(len(p)), np.zeros(len(p))
+            near = ok & (np.sum((h.centre[p] - h.centre[q]) ** 2, 1) < prm.near * (h.area[p] + h.area[q]))
+            if near.any():
+                v_p[near], v_q[near] = _variation(h, p[near], q[near]), _variation(h, q[near], p[near])
+                ok &= w * np.maximum(v_p, v_q) < thr
+            vis = np.full(len(p), np.nan)
+            shadow = ok & (w * f_pq > 0.1 * thr) & (can_p | can_q)
+            if shadow.any():
+                vis[shadow] = refiner.visibility(p[shadow], q[shadow])
+                ok &= ~(shadow & (vis > 0) & (vis < 1))
+            by_var = (v_p + v_q) > 0
+            prefer_q = np.where(by_var, v_q > v_p, f_pq >= f_qp)
+            split_q = ~ok & can_q & (prefer_q | ~can_p)
+            split_p = ~ok & ~split_q & can_p
+            link = ~split_q & ~split_p
+            if link.any():
+                out.append((p[link], q[link], vis[link]))
+            sp_p, sp_q = p[split_p], q[split_p]
+            sq_p, sq_q = p[split_q], q[split_q]
+            h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
+            p = np.concatenate([(h.child0[sp_p][:, None] + np.arange(4)).ravel(), np.repeat(sq_p, 4)])
+            q = np.concatenate([np.repeat(sp_q, 4), (h.child0[sq_q][:, None] + np.arange(4)).ravel()])
+        if budget_msg:
+            rec.msgs.append(f"shape '{rec.name}': first-bounce refinement reached the node budget "
+                            f"({self.node_budget} nodes)")
+        D = np.zeros((3, h.n))
+        if not out:
+            rec.direct_links = 0
+            return D, np.zeros(0, np.int64)
+        a, b, vis = (np.concatenate(x) for x in zip(*out))
+        todo = np.isnan(vis)
+        if todo.any():
+            vis[todo] = refiner.visibility(a[todo], b[todo])
+        f_ab, _ = link_form_factors(h, a, b)
+        t = f_ab * vis * frac(b)
+        keep = t > 0
+        a, b, t = a[keep], b[keep], t[keep]
+        rec.direct_links = len(a)
+        for c in range(3):
+            D[c] = np.bincount(a, weights=rho[c, h.patch[a]] * t, minlength=h.n)
+        return D, np.unique(np.concatenate([a, b]))
+
+    # -- node bookkeeping ----------------------------------------------------------------------------
+    def _hr_internal(self, nodes):
+        nodes = np.asarray(nodes, np.int64)
+        out = np.zeros(len(nodes), bool)
+        m = nodes < self.n_hr
+        out[m] = self.hr_internal[nodes[m]]
+        return out
+
+    def _owned_ancestors(self, nodes):
+        """Nodes below the HR leaves (and split HR leaves) on the path to `nodes`: the splits they need."""
+        h = self.system.h
+        res = []
+        cur = np.unique(h.parent[np.asarray(nodes, np.int64)])
+        cur = cur[cur >= 0]
+        while len(cur):
+            cur = cur[~self._hr_internal(cur)]
+            res.append(cur)
+            cur = np.unique(h.parent[cur])
+            cur = cur[cur >= 0]
+        return np.unique(np.concatenate(res)) if res else np.zeros(0, np.int64)
+
+    def _gc(self):
+        """Delete the children of owned splits no shape needs. Returns the number of nodes deleted."""
+        h = self.system.h
+        self._sync()
+        n = h.n
+        idx = np.arange(n)
+        collapse = (h.child0[:n] >= 0) & ~self._hr_internal(idx) & (self._ref[:n] == 0)
+        if not collapse.any():
+            return 0
+        dead = np.zeros(n, bool)
+        for lv in h.levels()[1:]:
+            par = h.parent[lv]
+            dead[lv] = collapse[par] | dead[par]
+        keep = ~dead
+        remap = h.compact(keep)
+        assert (remap[:self.n_hr] == np.arange(self.n_hr)).all()
+        self._ref = self._ref[:n][keep]
+        self._Bbase = self._Bbase[:, keep]
+        self._X = self._X[:, keep]
+        self._B = self._B[:, keep] if self._B.shape[1] == n else self._B
+        for rec in list(self.shapes.values()) + list(self._cache.values()):
+            for name in ("U", "D"):
+                a = getattr(rec, name)
+                if a is not None:
+                    setattr(rec, name, a[:, keep])
+            for name in ("cov_nodes", "owned"):
+                a = getattr(rec, name)
+                if a is not None and len(a):
+                    a = remap[a]
+                    assert (a >= 0).all(), "a live shape lost a node it needs"
+                    setattr(rec, name, a)
+        return int(dead.sum())
+
+    def _sync(self):
+        """Extend per-node arrays to nodes created since: solutions by copy from the parent (new nodes
+        carry no links, so this is exact), first-bounce terms and reference counts with zeros."""
+        h = self.system.h
+        n = h.n
+        if len(self._ref) < n:
+            self._ref = np.concatenate([self._ref, np.zeros(n - len(self._ref), np.int64)])
+        self._Bbase = _extend_copy(self._Bbase, h)
+        self._X = _extend_copy(self._X, h)
+        self._B = _extend_copy(self._B, h)
+        for rec in list(self.shapes.values()) + list(self._cache.values()):
+            if rec.U is not None:
+                rec.U = _extend_copy(rec.U, h)
+            if rec.D is not None and rec.D.shape[1] < n:
+                rec.D = np.concatenate([rec.D, np.zeros((3, n - rec.D.shape[1]))], 1)
+
+    def _coverage(self, rec):
+        """(n,) coverage fraction of every leaf (internal nodes: area-weighted mean)."""
+        h = self.system.h
+        n = h.n
+        c = np.zeros(n)
+        s = np.zeros(n, bool)
+        if rec.cov_nodes is None or len(rec.cov_nodes) == 0:
+            return c
+        c[rec.cov_nodes] = rec.cov_vals
+        s[rec.cov_nodes] = True
+        par = h.parent[:n]
+        for lv in h.levels()[1:]:
+            m = lv[~s[lv] & s[par[lv]]]
+            c[m] = c[par[m]]
+            s[m] = True
+        return self._operator().pull(c[None].copy())[0]
+
+    def _push(self, D):
+        h = self.system.h
+        D = D.copy()
+        par = h.parent[:h.n]
+        for lv in h.levels()[1:]:
+            D[:, lv] += D[:, par[lv]]
+        return D
+
+    def _operator(self):
+        h = self.system.h
+        if self._op is None or self._op_version != h.version or self._op.n != h.n:
+            self._op = Operator(h, self.links)
+            self._op_version = h.version
+        return self._op
+
+    def _solve(self, E, B0=None):
+        return solve(self.system.h, self.links, E, B0=B0, tol=self.tol, op=self._operator())
+
+
+# -- helpers --------------------------------------------------------------------------------------------
+def _extend_copy(B, h):
+    """B (3, m) on the first m nodes, extended to h.n nodes by copying from parents."""
+    m = B.shape[1]
+    if m >= h.n:
+        return B
+    out = np.empty((B.shape[0], h.n))
+    out[:, :m] = B
+    for lv in h.levels():
+        new = lv[lv >= m]
+        if len(new):
+            out[:, new] = out[:, h.parent[new]]
+    return out
+
+
+def _facing(h, p, q, tol):
+    """Some corner of q is in front of p's plane and vice versa (as refine._facing)."""
+    def front(x, y):
+        d = np.einsum("nkj,nj->nk", h.corners[y] - h.centre[x][:, None], h.normal[x])
+        return (d > tol).any(1)
+    return front(p, q) & front(q, p)
+
+
+def _variation(h, x, y):
+    """Range of the point form factor to polygon y over x's (slightly shrunk) corners and centre."""
+    pts = np.concatenate([h.corners[x], h.centre[x][:, None]], 1)
+    pts += 0.01 * (h.centre[x][:, None] - pts)
+    f = ff.point_to_polygon(pts.reshape(-1, 3), np.repeat(h.normal[x], 5, 0),
+                            np.repeat(h.corners[y], 5, 0), np.repeat(h.nv[y], 5)).reshape(-1, 5)
+    return f.max(1) - f.min(1)
+
+
+def locate(h, roots, points):
+    """Leaf of each root's quadtree containing each point (N,), descending by signed edge distances."""
+    node = np.asarray(roots, np.int64).copy()
+    pts = np.asarray(points, float)
+    while True:
+        c0 = h.child0[node]
+        idx = np.flatnonzero(c0 >= 0)
+        if len(idx) == 0:
+            return node
+        kids = c0[idx][:, None] + np.arange(4)
+        C = h.corners[kids]                                   # (m, 4, 4, 3)
+        e = np.roll(C, -1, axis=2) - C
+        w = pts[idx][:, None, None, :] - C
+        s = np.einsum("mkej,mkj->mke", np.cross(e, w), h.normal[kids])
+        el = np.linalg.norm(e, axis=-1)
+        s = np.where(el > 0, s / np.where(el > 0, el, 1), np.inf)
+        best = np.argmax(s.min(-1), 1)
+        node[idx] = kids[np.arange(len(idx)), best]
+
+
+def surface_samples(patches, per_area, min_k=2):
+    """Stratified points on every input patch: k x k per patch with k ~ sqrt(area x per_area).
+    Returns points (N, 3), patch ids (N,), area weights (N,)."""
+    k = np.maximum(np.ceil(np.sqrt(patches.area * per_area)).astype(int), min_k)
+    pts, ids, wts = [], [], []
+    for kk in np.unique(k):
+        m = np.flatnonzero(k == kk)
+        p = ff.sample_points(patches.corners[m], patches.nv[m], kk)
+        pts.append(p.reshape(-1, 3))
+        ids.append(np.repeat(m, kk * kk))
+        wts.append(np.repeat(patches.area[m] / (kk * kk), kk * kk))
+    return np.concatenate(pts), np.concatenate(ids), np.concatenate(wts)
+
+
+def _in_rings(pts, rings):
+    """Even-odd point-in-polygon over all rings (outer + holes), pts (N, 2)."""
+    inside = np.zeros(len(pts), bool)
+    for r in rings:
+        a, b = r, np.roll(r, -1, 0)
+        ay, by = a[:, 1][None], b[:, 1][None]
+        y = pts[:, 1:2]
+        crosses = (ay > y) != (by > y)
+        t = (y - ay) / np.where(by != ay, by - ay, 1)
+        x = a[:, 0][None] + t * (b[:, 0] - a[:, 0])[None]
+        inside ^= (crosses & (pts[:, :1] < x)).sum(1) % 2 == 1
+    return inside
+
+
+def _in_convex(pts, poly):
+    """pts (N, 2) inside convex polygons poly (T, M, 2) of either orientation (zero edges ignored): (N, T)."""
+    e = np.roll(poly, -1, 1) - poly                                    # (T, M, 2)
+    w = pts[:, None, None, :] - poly[None]                             # (N, T, M, 2)
+    cr = e[None, ..., 0] * w[..., 1] - e[None, ..., 1] * w[..., 0]
+    zero = (np.abs(e).sum(-1) == 0)[None]
+    return (np.where(zero, 0, cr) >= 0).all(-1) | (np.where(zero, 0, cr) <= 0).all(-1)
+
+
+def slab_decomposition(edges, eps):
+    """Trapezoids (and triangles) between consecutive non-crossing edges in horizontal slabs.
+
+    edges (E, 2, 2). Slab boundaries are all endpoint heights and pairwise crossing heights, so inside a
+    slab no edges cross. Returns a list of (polygon (3 or 4, 2) counter-clockwise, midpoint (2,))."""
+    a, b = edges[:, 0].copy(), edges[:, 1].copy()
+    keep = np.abs(a[:, 1] - b[:, 1]) > eps
+    a, b = a[keep], b[keep]
+    sw = a[:, 1] > b[:, 1]
+    a[sw], b[sw] = b[sw].copy(), a[sw].copy()
+    ys = [a[:, 1], b[:, 1]]
+    i, j = np.triu_indices(len(a), 1)
+    d1, d2 = b[i] - a[i], b[j] - a[j]
+    den = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]
+    ok = np.abs(den) > 1e-30
+    r = a[j] - a[i]
+    t = np.where(ok, (r[:, 0] * d2[:, 1] - r[:, 1] * d2[:, 0]) / np.where(ok, den, 1), -1)
+    s = np.where(ok, (r[:, 0] * d1[:, 1] - r[:, 1] * d1[:, 0]) / np.where(ok, den, 1), -1)
+    hit = ok & (t > 0) & (t < 1) & (s > 0) & (s < 1)
+    ys.append((a[i] + t[:, None] * d1)[hit, 1])
+    ys = np.sort(np.concatenate(ys))
+    ys = ys[np.concatenate([[True], np.diff(ys) > eps])]
+    out = []
+    for y0, y1 in zip(ys[:-1], ys[1:]):
+        ym = 0.5 * (y0 + y1)
+        act = np.flatnonzero((a[:, 1] < ym) & (b[:, 1] > ym))
+        if len(act) < 2:
+            continue
+        aa, bb = a[act], b[act]
+        dx = (bb[:, 0] - aa[:, 0]) / (bb[:, 1] - aa[:, 1])
+        x0 = aa[:, 0] + (y0 - aa[:, 1]) * dx
+        x1 = aa[:, 0] + (y1 - aa[:, 1]) * dx
+        xm = 0.5 * (x0 + x1)
+        o = np.argsort(xm)
+        x0, x1, xm = x0[o], x1[o], xm[o]
+        for k in range(len(o) - 1):
+            if xm[k + 1] - xm[k] <= eps:
+                continue
+            mid = np.array([0.5 * (xm[k] + xm[k + 1]), ym])
+            bot, top = x0[k + 1] - x0[k] > eps, x1[k + 1] - x1[k] > eps
+            if bot and top:
+                poly = [(x0[k], y0), (x0[k + 1], y0), (x1[k + 1], y1), (x1[k], y1)]
+            elif bot:
+                poly = [(x0[k], y0), (x0[k + 1], y0), (0.5 * (x1[k] + x1[k + 1]), y1)]
+            elif top:
+                poly = [(0.5 * (x0[k] + x0[k + 1]), y0), (x1[k + 1], y1), (x1[k], y1)]
+            else:
+                continue
+            out.append((np.array(poly), mid))
+    return out
+
+
+class _NaiveState:
+    """NAIVE: the active shapes as offset input patches, a new RadiositySystem, solved cold."""
+
+    def __init__(self, dyn: DynamicRadiosity, recs):
+        t0 = time.perf_counter()
+        sysm = dyn.system
+        mesh, pt = sysm.mesh, sysm.patches
+        tol = dyn.plane_tol * dyn.diag
+        delta = dyn.naive_offset * dyn.diag
+        self.groups = []
+        verts, polys, rhos, ems = [], [], [], []
+        P0 = len(mesh.loop_start)
+        todo = [r for r in recs]
+        for r in todo:
+            if r.n is None:
+                dyn._plane(r)
+                dyn._find_surface(r)
+        while todo:
+            r0 = todo[0]
+            grp = [r for r in todo if abs(r.n @ r0.n) > 0.999 and abs((r.c - r0.c) @ r0.n) <= tol]
+            todo = [r for r in todo if r not in grp]
+            pats = np.unique(np.concatenate([r.group for r in grp]).astype(np.int64))
+            rings = [[dyn._to2d(r0, x) for x in r.rings] for r in grp]
+            lo = np.min([x.min(0) for rr in rings for x in rr], 0)
+            hi = np.max([x.max(0) for rr in rings for x in rr], 0)
+            p2 = dyn._to2d(r0, pt.corners[pats]) if len(pats) else np.zeros((0, 4, 2))
+            near = (p2.min(1) <= hi).all(1) & (p2.max(1) >= lo).all(1) if len(pats) else np.zeros(0, bool)
+            pats, p2 = pats[near], p2[near]
+            edges = [np.stack([x, np.roll(x, -1, 0)], 1) for rr in rings for x in rr]
+            edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in p2]
+            edges = np.concatenate(edges)
+            scale = float(np.abs(edges).max()) or 1.0
+            traps = slab_decomposition(edges, 1e-9 * scale)
+            if not traps:
+                continue
+            mids = np.array([m for _, m in traps])
+            em = np.zeros((len(mids), 3))
+            for r, rr in zip(grp, rings):
+                em += _in_rings(mids, rr)[:, None] * r.emission[None]
+            under = np.full(len(mids), -1)
+            if len(pats):
+                inc = _in_convex(mids, p2)
+                has = inc.any(1)
+                under[has] = pats[np.argmax(inc[has], 1)]
+            lit = em.max(1) > 0
+            g_quads, g_patch, g_front = [], [], []
+            for t in np.flatnonzero(lit):
+                poly2 = traps[t][0]
+                front = pt.normal[under[t]] if under[t] >= 0 else next(
+                    r.n for r, rr in zip(grp, rings) if _in_rings(mids[t:t + 1], rr)[0])
+                p3 = r0.c + poly2[:, :1] * r0.u + poly2[:, 1:2] * r0.v + delta * front
+                if _newell(p3) @ front < 0:
+                    p3, poly2 = p3[::-1], poly2[::-1]
+                base = len(np.concatenate(verts)) if verts else 0
+                verts.append(p3)
+                polys.append(list(range(base, base + len(p3))))
+                rhos.append(pt.reflectance[:, under[t]] if under[t] >= 0 else np.zeros(3))
+                ems.append(em[t] + (pt.emission[:, under[t]] if under[t] >= 0 else 0))
+                q4 = np.concatenate([poly2, poly2[-1:]]) if len(poly2) == 3 else poly2
+                g_quads.append(q4)
+                g_patch.append(P0 + len(polys) - 1)
+                g_front.append(front)
+            if g_quads:
+                self.groups.append((r0, set(pats.tolist()), np.array(g_quads), np.array(g_patch), np.array(g_front)))
+        self.P0, self.L0, self.V0 = P0, len(mesh.loop_verts), len(mesh.verts)
+        self.delta = delta
+        if polys:
+            light = MeshInput.from_polygons(np.concatenate(verts), polys, np.array(rhos), np.array(ems),
+                                            np.zeros(len(polys), np.int64), ["light shapes (NAIVE)"])
+            nm = mesh.concat(light)
+        else:
+            nm = mesh
+        self.system = RadiositySystem(nm, dyn.naive_params or sysm.params, backend=sysm.backend.name, tol=sysm.tol)
+        self.system.solve()
+        self.iterations = self.system.report.iterations
+        poly = self.system.patches.poly
+        for g in self.groups:   # input polygon -> patch index (-1 if dropped as degenerate)
+            pi = np.searchsorted(poly, g[3])
+            pi = np.minimum(pi, len(poly) - 1)
+            g[3][:] = np.where(poly[pi] == g[3], pi, -1)
+        self.seconds = time.perf_counter() - t0
+
+    def evaluate(self, points, patch_ids):
+        pts = np.asarray(points, float).copy()
+        roots = np.asarray(patch_ids, np.int64).copy()
+        for r0, pats, quads, pidx, front in self.groups:
+            m = np.flatnonzero(np.isin(roots, list(pats)))
+            if len(m) == 0:
+                continue
+            inc = _in_convex(DynamicRadiosity._to2d(r0, pts[m]), quads) & (pidx >= 0)[None]
+            has = inc.any(1)
+            t = np.argmax(inc[has], 1)
+            mm = m[has]
+            roots[mm] = pidx[t]
+            pts[mm] = pts[mm] + self.delta * front[t]
+        h = self.system.h
+        leaf = locate(h, roots, pts)
+        E = self.system.base_emission()
+        return self.system.B[:, leaf].T.copy(), E[:, leaf].T.copy()
+
+    def loop_radiance(self, mesh, domain, smooth_angle):
+        out = self.system.loop_radiance("CORNER", smooth_angle)[:self.L0].astype(np.float64)
+        # corners under a light patch show the light, not the hidden surface behind it
+        loop_poly = np.repeat(np.arange(self.P0), mesh.loop_total)
+        pt = self.system.patches
+        first = np.searchsorted(pt.poly, loop_poly)
+        pos = mesh.verts[mesh.loop_verts]
+        covered = np.zeros(len(pos), bool)
+        for r0, pats, quads, pidx, front in self.groups:
+            m = np.flatnonzero(np.isin(first, list(pats)))
+            if len(m):
+                covered[m] = _in_convex(DynamicRadiosity._to2d(r0, pos[m]), quads).any(1)
+        if covered.any():
+            out[covered] = self.evaluate(pos[covered], first[covered])[0]
+        if domain == "POINT":
+            res = np.zeros((self.V0, 3))
+            res[mesh.loop_verts] = out
+            return res.astype(np.float32)
+        return out.astype(np.float32)

@@ -1,0 +1,407 @@
+"""Generate the sample scenes in sample_blends/ with bpy (Blender as a Python module).
+
+    .venv/bin/python scripts/make_samples.py [--out sample_blends] [names...]
+
+cornell     Cornell box (hr_addon.core.scenes numbers: metres, z up), walls 8x8 quads, ceiling
+            light as an emissive mesh; a window (2x2 panes) appears on the green wall at frame 6,
+            a patch on the back wall at frame 13, the window disappears at frame 21.
+moonlight   room; an irregular moonlight patch on the floor whose emission strength is keyframed.
+curtain     room; a slit on a wall widening into a window (keyframed scale).
+searchbeam  room; an ellipse sweeping the back wall (keyframed location).
+office      room with a desk and two monitors whose screens switch on (frames 4 and 8).
+
+Every light shape lies exactly on the plane of the surface it lights (same float32 coordinate),
+has its origin on that plane and only moves / scales within it.
+"""
+import argparse
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import bpy  # noqa: E402
+
+import hr_addon  # noqa: E402
+from hr_addon.core import scenes  # noqa: E402
+
+SUBDIV = 8
+
+
+# --- helpers ------------------------------------------------------------------------------------
+
+def reset():
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    try:
+        hr_addon.register()
+    except ValueError:  # already registered in this process
+        pass
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 16
+    scene.cycles.max_bounces = 16
+    scene.cycles.diffuse_bounces = 16
+    scene.cycles.sample_clamp_indirect = 0.0
+    scene.render.resolution_x, scene.render.resolution_y = 320, 240
+    scene.view_settings.view_transform = "Standard"
+    scene.render.use_lock_interface = True
+    world = bpy.data.worlds.new("World")
+    world.color = (0, 0, 0)
+    if world.node_tree is not None:
+        bg = world.node_tree.nodes.get("Background")
+        if bg is not None:
+            bg.inputs["Strength"].default_value = 0.0
+    scene.world = world
+    return scene
+
+
+def diffuse(name, rgb):
+    m = bpy.data.materials.new(name)
+    if bpy.app.version < (5, 0, 0):
+        m.use_nodes = True
+    t = m.node_tree
+    for n in list(t.nodes):
+        if n.type != "OUTPUT_MATERIAL":
+            t.nodes.remove(n)
+    d = t.nodes.new("ShaderNodeBsdfDiffuse")
+    d.inputs["Color"].default_value = (*rgb, 1)
+    t.links.new(d.outputs[0], t.nodes["Material Output"].inputs["Surface"])
+    m.diffuse_color = (*rgb, 1)
+    return m
+
+
+def principled(name, rgb, emission=(1, 1, 1), strength=0.0):
+    m = bpy.data.materials.new(name)
+    if bpy.app.version < (5, 0, 0):
+        m.use_nodes = True
+    b = m.node_tree.nodes["Principled BSDF"]
+    b.inputs["Base Color"].default_value = (*rgb, 1)
+    b.inputs["Emission Color"].default_value = (*emission, 1)
+    b.inputs["Emission Strength"].default_value = strength
+    b.inputs["Roughness"].default_value = 1.0
+    m.diffuse_color = (*rgb, 1)
+    return m
+
+
+def emission(name, rgb, strength):
+    m = bpy.data.materials.new(name)
+    if bpy.app.version < (5, 0, 0):
+        m.use_nodes = True
+    t = m.node_tree
+    for n in list(t.nodes):
+        if n.type != "OUTPUT_MATERIAL":
+            t.nodes.remove(n)
+    e = t.nodes.new("ShaderNodeEmission")
+    e.inputs["Color"].default_value = (*rgb, 1)
+    e.inputs["Strength"].default_value = strength
+    t.links.new(e.outputs[0], t.nodes["Material Output"].inputs["Surface"])
+    return m
+
+
+def mesh_object(name, verts, polys, material=None, location=(0, 0, 0)):
+    me = bpy.data.meshes.new(name)
+    me.from_pydata([tuple(map(float, v)) for v in verts], [], [list(map(int, p)) for p in polys])
+    me.validate()
+    if material is not None:
+        me.materials.append(material)
+    ob = bpy.data.objects.new(name, me)
+    ob.location = location
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def from_mesh_input(mi, object_ids):
+    """Vertices and polygons of the given objects of a core MeshInput (vertices compacted)."""
+    sel = np.flatnonzero(np.isin(mi.object_id, list(object_ids)))
+    polys = [mi.loop_verts[mi.loop_start[i]:mi.loop_start[i] + mi.loop_total[i]] for i in sel]
+    used = np.unique(np.concatenate(polys))
+    remap = {int(v): k for k, v in enumerate(used)}
+    return mi.verts[used], [[remap[int(v)] for v in p] for p in polys]
+
+
+def orient(quad, towards):
+    q = np.asarray(quad, float)
+    n = np.cross(q[1] - q[0], q[2] - q[0])
+    return q[::-1] if np.dot(n, np.asarray(towards, float) - q.mean(0)) < 0 else q
+
+
+def grid(quad, n):
+    a, b, c, d = np.asarray(quad, float)
+    u = np.linspace(0, 1, n + 1)
+    U, V = np.meshgrid(u, u, indexing="ij")
+    P = ((1 - U) * (1 - V))[..., None] * a + (U * (1 - V))[..., None] * b \
+        + (U * V)[..., None] * c + ((1 - U) * V)[..., None] * d
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    return P.reshape(-1, 3), [[idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]]
+                              for i in range(n) for j in range(n)]
+
+
+def box_quads(lo, hi, inward, skip=()):
+    """Six faces of an axis-aligned box as named quads, normals in or out."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    c = (lo + hi) / 2
+    x0, y0, z0 = lo
+    x1, y1, z1 = hi
+    faces = {
+        "floor": [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0)],
+        "ceiling": [(x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)],
+        "wall_x0": [(x0, y0, z0), (x0, y1, z0), (x0, y1, z1), (x0, y0, z1)],
+        "wall_x1": [(x1, y0, z0), (x1, y1, z0), (x1, y1, z1), (x1, y0, z1)],
+        "wall_y0": [(x0, y0, z0), (x1, y0, z0), (x1, y0, z1), (x0, y0, z1)],
+        "wall_y1": [(x0, y1, z0), (x1, y1, z0), (x1, y1, z1), (x0, y1, z1)],
+    }
+    out = {}
+    for k, q in faces.items():
+        if k in skip:
+            continue
+        q = np.array(q)
+        target = c if inward else 2 * q.mean(0) - c
+        out[k] = orient(q, target)
+    return out
+
+
+def quads_object(name, quads, material, subdiv=1):
+    verts, polys = [], []
+    for q in quads:
+        v, p = grid(q, subdiv)
+        polys += [[i + sum(len(x) for x in verts) for i in pp] for pp in p]
+        verts.append(v)
+    return mesh_object(name, np.concatenate(verts), polys, material)
+
+
+def room(size, materials, subdiv=SUBDIV):
+    """Inward-facing room walls, one object each (8x8 quads)."""
+    objs = {}
+    for k, q in box_quads((0, 0, 0), size, inward=True).items():
+        objs[k] = quads_object(k, [q], materials.get(k, materials["default"]), subdiv)
+    return objs
+
+
+def light_shape(name, verts, polys, material, location=(0, 0, 0)):
+    ob = mesh_object(name, verts, polys, material, location)
+    ob.hr.is_light_shape = True
+    for attr in ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
+                 "visible_volume_scatter", "visible_shadow"):
+        setattr(ob, attr, False)
+    ob.show_in_front = True
+    return ob
+
+
+def key_visibility(ob, frames_on):
+    """hide_render keyframes: visible exactly in the given [start, end) intervals."""
+    keys = {1: True}
+    for a, b in frames_on:
+        keys[a] = False
+        if b is not None:
+            keys[b] = True
+    for f, hidden in sorted(keys.items()):
+        ob.hide_render = hidden
+        ob.keyframe_insert("hide_render", frame=f)
+        ob.hide_viewport = hidden
+        ob.keyframe_insert("hide_viewport", frame=f)
+
+
+def constant_interpolation(ob):
+    ad = ob.animation_data
+    if ad is None or ad.action is None:
+        return
+    for fc in _fcurves(ad.action):
+        for kp in fc.keyframe_points:
+            kp.interpolation = "CONSTANT"
+
+
+def _fcurves(action):
+    if hasattr(action, "fcurves") and bpy.app.version < (5, 0, 0):
+        return list(action.fcurves)
+    out = []
+    for layer in getattr(action, "layers", []):
+        for strip in layer.strips:
+            for bag in strip.channelbags:
+                out += list(bag.fcurves)
+    return out
+
+
+def camera(location, target, lens=35):
+    cam = bpy.data.cameras.new("Camera")
+    cam.lens = lens
+    ob = bpy.data.objects.new("Camera", cam)
+    bpy.context.scene.collection.objects.link(ob)
+    ob.location = location
+    d = np.asarray(target, float) - np.asarray(location, float)
+    from mathutils import Vector
+    ob.rotation_euler = Vector(d).to_track_quat("-Z", "Y").to_euler()
+    bpy.context.scene.camera = ob
+    return ob
+
+
+def finish(scene, path, frames, quality="DRAFT"):
+    scene.frame_start, scene.frame_end = frames
+    scene.frame_set(frames[0])
+    scene.hr.quality = quality
+    path.parent.mkdir(parents=True, exist_ok=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True, check_existing=False)
+    print(f"wrote {path} ({path.stat().st_size // 1024} KB)", flush=True)
+
+
+# --- scenes -------------------------------------------------------------------------------------
+
+# Window on the green wall (plane x = 0, normal +x): 2x2 panes, centre (y, z) = (0.28, 0.30).
+WINDOW_CENTRE = (0.28, 0.30)
+WINDOW_PANE, WINDOW_BAR = 0.09, 0.02
+WINDOW_EMISSION = ((1.0, 0.95, 0.85), 8.0)
+# Patch on the back wall (plane y = 0.5592, normal -y).
+BACK_Y = 0.5592
+PATCH_RECT = (0.20, 0.36, 0.26, 0.38)   # x0, x1, z0, z1
+PATCH_EMISSION = ((0.6, 0.7, 1.0), 6.0)
+CORNELL_FRAMES = (1, 24)
+WINDOW_ON = (6, 21)
+PATCH_ON = 13
+
+
+def window_polys():
+    cy, cz = WINDOW_CENTRE
+    p, b = WINDOW_PANE, WINDOW_BAR
+    verts, polys = [], []
+    for dy in (-(b / 2 + p), b / 2):
+        for dz in (-(b / 2 + p), b / 2):
+            y0, z0 = cy + dy, cz + dz
+            k = len(verts)
+            verts += [(0.0, y0, z0), (0.0, y0 + p, z0), (0.0, y0 + p, z0 + p), (0.0, y0, z0 + p)]
+            polys.append([k, k + 1, k + 2, k + 3])   # normal +x
+    return verts, polys
+
+
+def patch_polys():
+    x0, x1, z0, z1 = PATCH_RECT
+    return [(x0, BACK_Y, z0), (x0, BACK_Y, z1), (x1, BACK_Y, z1), (x1, BACK_Y, z0)], [[0, 1, 2, 3]]  # normal -y
+
+
+def make_cornell(path):
+    scene = reset()
+    mi = scenes.cornell_box(subdiv=SUBDIV, light=True)
+    names = list(mi.object_names)
+    white = diffuse("White", scenes.WHITE)
+    mats = {"red": diffuse("Red", scenes.RED), "green": diffuse("Green", scenes.GREEN), "white": white}
+    block = principled("Block White", scenes.WHITE)
+    light_rgb = np.array(scenes.CORNELL_LIGHT) / max(scenes.CORNELL_LIGHT)
+    light_mat = principled("Ceiling Light", (0.78, 0.78, 0.78), tuple(light_rgb), max(scenes.CORNELL_LIGHT))
+    for i, n in enumerate(names):
+        if n.startswith(("short_block", "tall_block")):
+            continue
+        mat = mats["red"] if "red" in n else mats["green"] if "green" in n else light_mat if n == "light" else white
+        v, p = from_mesh_input(mi, [i])
+        mesh_object(n, v, p, mat)
+    for blk in ("short_block", "tall_block"):
+        ids = [i for i, n in enumerate(names) if n.startswith(blk)]
+        v, p = from_mesh_input(mi, ids)
+        mesh_object(blk, v, p, block)
+    wv, wp = window_polys()
+    win = light_shape("Window", wv, wp, principled("Window Light", (0, 0, 0), *WINDOW_EMISSION))
+    key_visibility(win, [WINDOW_ON])
+    pv, pp = patch_polys()
+    patch = light_shape("Back Patch", pv, pp, emission("Patch Light", *PATCH_EMISSION))
+    key_visibility(patch, [(PATCH_ON, None)])
+    camera((0.278, -0.80, 0.273), (0.278, 0.28, 0.273), lens=35)
+    finish(scene, path, CORNELL_FRAMES)
+
+
+ROOM = (4.0, 3.0, 2.5)
+
+
+def room_materials():
+    return {"default": diffuse("Wall", (0.7, 0.7, 0.68)), "floor": diffuse("Floor", (0.45, 0.35, 0.25)),
+            "ceiling": diffuse("Ceiling", (0.8, 0.8, 0.8))}
+
+
+def make_moonlight(path):
+    scene = reset()
+    room(ROOM, room_materials())
+    quads_object("Bed", list(box_quads((2.4, 0.3, 0.0), (3.6, 1.3, 0.45), inward=False, skip=("floor",)).values()),
+                 diffuse("Blanket", (0.3, 0.35, 0.6)), 2)
+    # Irregular (concave) moonlight patch on the floor (plane z = 0, normal +z), an n-gon.
+    pts = [(0.6, 0.9), (1.5, 0.7), (2.1, 1.2), (1.8, 1.5), (2.3, 2.2), (1.2, 2.4), (0.9, 1.7)]
+    verts = [(x, y, 0.0) for x, y in pts]
+    mat = emission("Moonlight", (0.55, 0.65, 1.0), 1.0)
+    light_shape("Moonlight", verts, [list(range(len(verts)))], mat)
+    s = mat.node_tree.nodes["Emission"].inputs["Strength"]
+    for f, v in ((1, 0.5), (6, 4.0), (9, 4.0), (12, 1.5)):
+        s.default_value = v
+        s.keyframe_insert("default_value", frame=f)
+    camera((0.3, -0.5, 2.2), (2.0, 1.6, 0.3))
+    finish(scene, path, (1, 12))
+
+
+def make_curtain(path):
+    scene = reset()
+    room(ROOM, room_materials())
+    quads_object("Table", list(box_quads((1.2, 1.0, 0.0), (2.0, 1.8, 0.7), inward=False, skip=("floor",)).values()),
+                 diffuse("Wood", (0.5, 0.3, 0.15)), 2)
+    # A slit on the wall x = 0 (normal +x) centred at (y, z) = (1.5, 1.4); it widens along y.
+    verts = [(0.0, -0.05, -0.6), (0.0, 0.05, -0.6), (0.0, 0.05, 0.6), (0.0, -0.05, 0.6)]
+    ob = light_shape("Curtain Gap", verts, [[0, 1, 2, 3]], principled("Daylight", (0, 0, 0), (1.0, 0.97, 0.9), 6.0),
+                     location=(0.0, 1.5, 1.4))
+    for f, s in ((1, 1.0), (12, 12.0)):
+        ob.scale = (1.0, s, 1.0)
+        ob.keyframe_insert("scale", frame=f)
+    camera((3.8, 0.2, 1.8), (0.5, 1.6, 1.0))
+    finish(scene, path, (1, 12))
+
+
+def make_searchbeam(path):
+    scene = reset()
+    room(ROOM, room_materials())
+    # Ellipse (32-gon) on the back wall y = 3 (normal -y), origin on the wall, moving along x.
+    t = np.linspace(0, 2 * np.pi, 32, endpoint=False)
+    verts = [(0.4 * np.cos(a), 0.0, 0.25 * np.sin(a)) for a in t[::-1]]  # clockwise seen from +y: normal -y
+    ob = light_shape("Searchbeam", verts, [list(range(32))], emission("Beam", (1.0, 1.0, 0.9), 20.0),
+                     location=(0.8, ROOM[1], 1.6))
+    for f, x in ((1, 0.8), (12, 3.2)):
+        ob.location.x = x
+        ob.keyframe_insert("location", index=0, frame=f)
+    camera((2.0, 0.1, 1.4), (2.0, 3.0, 1.4), lens=20)
+    finish(scene, path, (1, 12))
+
+
+def make_office(path):
+    scene = reset()
+    room((5.0, 4.0, 2.7), room_materials())
+    mesh_ceiling = quads_object("Ceiling Panel", [orient([(2.2, 1.7, 2.699), (2.8, 1.7, 2.699), (2.8, 2.3, 2.699),
+                                                          (2.2, 2.3, 2.699)], (2.5, 2.0, 0.0))],
+                                principled("Panel", (0.8, 0.8, 0.8), (1, 1, 1), 1.5), 2)
+    mesh_ceiling.name = "Ceiling Panel"
+    quads_object("Desk", list(box_quads((1.5, 2.6, 0.0), (3.5, 3.4, 0.75), inward=False, skip=("floor",)).values()),
+                 diffuse("Desk", (0.55, 0.4, 0.25)), 2)
+    screen_mats = []
+    for i, x0 in enumerate((1.75, 2.65)):
+        x1 = x0 + 0.6
+        y0, y1, z0, z1 = 2.9, 2.95, 0.85, 1.2     # the screen is the y = 2.9 face, normal -y
+        quads_object(f"Monitor {i + 1}", list(box_quads((x0, y0, z0), (x1, y1, z1), inward=False).values()),
+                     principled(f"Monitor Case {i + 1}", (0.05, 0.05, 0.05)), 1)
+        d = 0.02
+        verts = [(x0 + d, y0, z0 + d), (x0 + d, y0, z1 - d), (x1 - d, y0, z1 - d), (x1 - d, y0, z0 + d)]
+        mat = emission(f"Screen {i + 1}", (0.8, 0.9, 1.0), 5.0)
+        screen_mats.append(mat)
+        ob = light_shape(f"Screen {i + 1}", verts, [[0, 1, 2, 3]], mat)
+        key_visibility(ob, [((4, 8)[i], None)])
+    camera((2.5, 0.3, 1.6), (2.5, 3.0, 0.9), lens=24)
+    finish(scene, path, (1, 10))
+
+
+MAKERS = {"cornell": make_cornell, "moonlight": make_moonlight, "curtain": make_curtain,
+          "searchbeam": make_searchbeam, "office": make_office}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("names", nargs="*", choices=[[]] + list(MAKERS), default=[])
+    ap.add_argument("--out", default=str(ROOT / "sample_blends"))
+    args = ap.parse_args(argv)
+    for name in args.names or list(MAKERS):
+        MAKERS[name](Path(args.out) / f"{name}.blend")
+
+
+if __name__ == "__main__":
+    main()

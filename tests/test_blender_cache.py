@@ -1,0 +1,120 @@
+"""The on-disk bake cache (hr_addon/blender/cache.py is bpy-free)."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from hr_addon.blender.cache import CacheError, CacheReader, CacheWriter, recover
+
+OBJS = {"a": {"mesh": "a", "count": 3}, "b": {"mesh": "b", "count": 2}}
+
+
+def _arrays(v):
+    return {"a": np.full((3, 3), v, np.float32), "b": np.full((2, 3), v, np.float32)}
+
+
+def _bake(d, frames, value, sig="s", objects=OBJS, reuse_after=None):
+    w = CacheWriter(d, objects, "CORNER", sig)
+    prev = None
+    for f in frames:
+        if reuse_after is not None and prev is not None and f > reuse_after:
+            w.reuse(f, prev)
+        else:
+            w.write(f, _arrays(value(f)))
+        prev = f
+    w.commit()
+    return w
+
+
+def test_write_read_roundtrip(tmp_path):
+    d = tmp_path / "cache" / "scene"
+    _bake(d, range(1, 6), lambda f: f, reuse_after=3)
+    r = CacheReader(d)
+    assert r.frame_range == (1, 5)
+    assert r.domain == "CORNER"
+    a = r.load(2)["a"]
+    assert a.shape == (3, 4) and a.dtype == np.float32
+    assert np.all(a[:, :3] == 2) and np.all(a[:, 3] == 1)
+    assert np.all(r.load(5)["b"][:, :3] == 3)          # frames 4, 5 reuse frame 3's file
+    assert r.frames[5] == r.frames[3]
+    assert len(list(d.glob("*.npz"))) == 3
+    # Outside the baked range: held / clamped.
+    assert np.all(r.load(100)["a"][:, :3] == 3) and np.all(r.load(-7)["a"][:, :3] == 1)
+    # No temporary directories or files are left behind.
+    assert sorted(p.name for p in d.parent.iterdir()) == ["scene"]
+    assert not [p for p in d.iterdir() if p.name.startswith(".")]
+
+
+def test_abort_keeps_previous(tmp_path):
+    d = tmp_path / "scene"
+    _bake(d, [1, 2], lambda f: 10)
+    w = CacheWriter(d, OBJS, "CORNER", "s")
+    w.write(1, _arrays(99))
+    w.abort()
+    assert np.all(CacheReader(d).load(1)["a"][:, :3] == 10)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+
+
+def test_split_bakes_merge(tmp_path):
+    one, two = tmp_path / "one" / "s", tmp_path / "two" / "s"
+    _bake(one, range(1, 11), lambda f: f // 3)
+    _bake(two, range(1, 6), lambda f: f // 3)
+    w = _bake(two, range(6, 11), lambda f: f // 3)
+    assert w.kept == 5
+    r1, r2 = CacheReader(one), CacheReader(two)
+    assert sorted(r1.frames) == sorted(r2.frames) == list(range(1, 11))
+    for f in range(1, 11):
+        for k in ("a", "b"):
+            assert np.array_equal(r1.load(f)[k], r2.load(f)[k])
+
+
+def test_rebake_subrange_keeps_shared_files_consistent(tmp_path):
+    d = tmp_path / "s"
+    _bake(d, range(1, 11), lambda f: 1, reuse_after=1)     # every frame points at frame_000001
+    _bake(d, range(1, 4), lambda f: 7)                      # re-bake 1-3 with other values
+    r = CacheReader(d)
+    assert [r.load(f)["a"][0, 0] for f in range(1, 11)] == [7] * 3 + [1] * 7
+
+
+def test_other_settings_discard_previous_frames(tmp_path):
+    d = tmp_path / "s"
+    _bake(d, range(1, 6), lambda f: 1, sig="old")
+    w = _bake(d, range(6, 8), lambda f: 2, sig="new")
+    assert w.kept == 0 and w.messages
+    assert sorted(CacheReader(d).frames) == [6, 7]
+
+
+def test_missing_and_corrupt(tmp_path):
+    with pytest.raises(CacheError, match="No radiosity cache"):
+        CacheReader(tmp_path / "nothing")
+    d = tmp_path / "s"
+    _bake(d, [1, 2], lambda f: f)
+    (d / "manifest.json").write_text("{not json")
+    with pytest.raises(CacheError, match="Corrupt radiosity cache manifest"):
+        CacheReader(d)
+    _bake(d, [1, 2], lambda f: f)
+    r = CacheReader(d)
+    (d / r.frames[2]).write_bytes(b"garbage")
+    with pytest.raises(CacheError, match="Corrupt radiosity cache file"):
+        r.load(2)
+    os.remove(d / r.frames[1])
+    with pytest.raises(CacheError, match="missing"):
+        r.load(1)
+    m = json.loads((d / "manifest.json").read_text())
+    m["objects"]["a"]["count"] = 5
+    (d / "manifest.json").write_text(json.dumps(m))
+    (d / "frame_000001.npz").write_bytes(b"")
+    _bake(d, [1], lambda f: 1)
+    m["frames"] = {"1": "frame_000001.npz"}
+    (d / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(CacheError, match="bad array"):
+        CacheReader(d).load(1)
+
+
+def test_recover_after_interrupted_swap(tmp_path):
+    d = tmp_path / "s"
+    _bake(d, [1], lambda f: 3)
+    os.replace(d, tmp_path / ".s.old-1-2")      # crash between the two renames of commit()
+    assert recover(d)
+    assert np.all(CacheReader(d).load(1)["a"][:, :3] == 3)

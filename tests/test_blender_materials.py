@@ -1,0 +1,140 @@
+"""Reading reflectance and emission from Blender materials (hr_addon/blender/materials.py)."""
+import numpy as np
+import pytest
+
+from test_blender_helpers import empty_scene, load_bpy
+
+
+@pytest.fixture
+def env():
+    return empty_scene()
+
+
+def _read(mat):
+    from hr_addon.blender.materials import read_material
+    return read_material(mat)
+
+
+def test_principled(env):
+    bpy, ms, _ = env
+    s = _read(ms.principled("P", (0.2, 0.4, 0.6), (1.0, 0.5, 0.25), 4.0))
+    assert np.allclose(s.reflectance, [0.2, 0.4, 0.6])
+    assert np.allclose(s.emission, [4.0, 2.0, 1.0])
+    assert s.warnings == []
+
+
+def test_diffuse_and_emission(env):
+    bpy, ms, _ = env
+    s = _read(ms.diffuse("D", (0.1, 0.2, 0.3)))
+    assert np.allclose(s.reflectance, [0.1, 0.2, 0.3]) and np.allclose(s.emission, 0)
+    s = _read(ms.emission("E", (0.5, 1.0, 0.25), 8.0))
+    assert np.allclose(s.reflectance, 0) and np.allclose(s.emission, [4.0, 8.0, 2.0])
+
+
+def test_no_material_is_default_grey(env):
+    from hr_addon.blender.materials import DEFAULT_REFLECTANCE
+    s = _read(None)
+    assert DEFAULT_REFLECTANCE == 0.8
+    assert np.allclose(s.reflectance, 0.8) and np.allclose(s.emission, 0) and s.warnings == []
+
+
+def test_mix_and_add(env):
+    bpy, ms, _ = env
+    m = bpy.data.materials.new("Mix")
+    t = m.node_tree
+    for n in list(t.nodes):
+        if n.type != "OUTPUT_MATERIAL":
+            t.nodes.remove(n)
+    d = t.nodes.new("ShaderNodeBsdfDiffuse")
+    d.inputs["Color"].default_value = (0.6, 0.6, 0.6, 1)
+    e = t.nodes.new("ShaderNodeEmission")
+    e.inputs["Color"].default_value = (1, 1, 1, 1)
+    e.inputs["Strength"].default_value = 2.0
+    mix = t.nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = 0.25
+    t.links.new(d.outputs[0], mix.inputs[1])
+    t.links.new(e.outputs[0], mix.inputs[2])
+    t.links.new(mix.outputs[0], t.nodes["Material Output"].inputs["Surface"])
+    s = _read(m)
+    assert np.allclose(s.reflectance, 0.45) and np.allclose(s.emission, 0.5)
+    add = t.nodes.new("ShaderNodeAddShader")
+    t.links.new(d.outputs[0], add.inputs[0])
+    t.links.new(e.outputs[0], add.inputs[1])
+    t.links.new(add.outputs[0], t.nodes["Material Output"].inputs["Surface"])
+    s = _read(m)
+    assert np.allclose(s.reflectance, 0.6) and np.allclose(s.emission, 2.0)
+
+
+def test_image_texture_average(env):
+    bpy, ms, _ = env
+    from hr_addon.blender.materials import srgb_to_linear
+    img = bpy.data.images.new("Tex", 4, 4)   # 8-bit sRGB
+    px = np.zeros((16, 4), np.float32)
+    px[:8] = (1.0, 0.0, 0.0, 1.0)
+    px[8:] = (0.0, 0.0, 1.0, 1.0)
+    img.pixels.foreach_set(px.ravel())
+    m = ms.principled("Textured", (0.5, 0.5, 0.5))
+    tex = m.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    m.node_tree.links.new(tex.outputs["Color"], m.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
+    s = _read(m)
+    assert np.allclose(s.reflectance, [0.5, 0, 0.5], atol=1e-6), s.reflectance
+    # Mid grey 0.5 (8-bit 128) is linearised from sRGB before averaging.
+    px[:] = (0.5, 0.5, 0.5, 1.0)
+    img.pixels.foreach_set(px.ravel())
+    img.update()
+    s = _read(m)
+    assert np.allclose(s.reflectance, srgb_to_linear(128 / 255), atol=1e-4)
+    # A float (linear) image is averaged as is.
+    imgf = bpy.data.images.new("TexF", 2, 2, float_buffer=True)
+    imgf.pixels.foreach_set(np.array([0.2, 0.2, 0.2, 1] * 2 + [0.6, 0.6, 0.6, 1] * 2, np.float32))
+    tex.image = imgf
+    assert np.allclose(_read(m).reflectance, 0.4, atol=1e-6)
+
+
+def test_unsupported_shader_warns_and_falls_back(env):
+    bpy, ms, _ = env
+    m = bpy.data.materials.new("Glassy")
+    t = m.node_tree
+    for n in list(t.nodes):
+        if n.type != "OUTPUT_MATERIAL":
+            t.nodes.remove(n)
+    g = t.nodes.new("ShaderNodeBsdfGlass")
+    t.links.new(g.outputs[0], t.nodes["Material Output"].inputs["Surface"])
+    s = _read(m)
+    assert np.allclose(s.reflectance, 0.8) and np.allclose(s.emission, 0)
+    assert len(s.warnings) == 1 and "'Glassy'" in s.warnings[0] and "Glass" in s.warnings[0]
+
+
+def test_unsupported_colour_input_warns(env):
+    bpy, ms, _ = env
+    m = ms.principled("Noisy", (0.3, 0.3, 0.3))
+    noise = m.node_tree.nodes.new("ShaderNodeTexNoise")
+    m.node_tree.links.new(noise.outputs["Color"], m.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
+    s = _read(m)
+    assert np.allclose(s.reflectance, 0.3)
+    assert s.warnings and "'Noisy'" in s.warnings[0]
+
+
+def test_reflectance_clamped_with_warning(env):
+    bpy, ms, _ = env
+    s = _read(ms.diffuse("Snow", (1.0, 0.5, 1.2)))
+    assert np.allclose(s.reflectance, [0.99, 0.5, 0.99])
+    assert len(s.warnings) == 1 and "'Snow'" in s.warnings[0] and "clamped" in s.warnings[0]
+
+
+def test_emission_keyframes_are_evaluated(env):
+    bpy, ms, scene = env
+    from hr_addon.blender.materials import read_material
+    m = ms.emission("Anim", (1, 1, 1), 1.0)
+    ms.mesh_object("Plane", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [[0, 1, 2, 3]], m)  # in the depsgraph
+    s = m.node_tree.nodes["Emission"].inputs["Strength"]
+    s.keyframe_insert("default_value", frame=1)
+    s.default_value = 9.0
+    s.keyframe_insert("default_value", frame=9)
+    scene.frame_set(9)
+    dg = bpy.context.evaluated_depsgraph_get()
+    assert np.allclose(read_material(m.evaluated_get(dg)).emission, 9.0)
+    scene.frame_set(1)
+    dg = bpy.context.evaluated_depsgraph_get()
+    assert np.allclose(read_material(m.evaluated_get(dg)).emission, 1.0)

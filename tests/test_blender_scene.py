@@ -1,0 +1,172 @@
+"""Scene in: evaluated meshes -> MeshInput, light-shape objects -> rings (hr_addon/blender/scene_in.py)."""
+import numpy as np
+import pytest
+
+from test_blender_helpers import empty_scene, open_sample
+
+QUAD = ([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [[0, 1, 2, 3]])
+
+
+@pytest.fixture
+def env():
+    return empty_scene()
+
+
+def _collect(bpy):
+    from hr_addon.blender.scene_in import collect_geometry
+    vl = bpy.context.view_layer
+    return collect_geometry(vl, vl.depsgraph)
+
+
+def _normals(mi):
+    from hr_addon.core.geometry import _newell
+    out = []
+    for s, n in zip(mi.loop_start, mi.loop_total):
+        v = _newell(mi.verts[mi.loop_verts[s:s + n]][None])[0]
+        out.append(v / np.linalg.norm(v))
+    return np.array(out)
+
+
+def test_world_space_materials_and_filters(env):
+    bpy, ms, scene = env
+    red = ms.diffuse("Red", (0.6, 0.1, 0.1))
+    lamp = ms.emission("Lamp", (1, 1, 1), 3.0)
+    a = ms.mesh_object("A", *QUAD, red, location=(0, 0, 2))
+    a.data.materials.append(lamp)
+    a.data.polygons[0].material_index = 1
+    ms.mesh_object("B", *QUAD, None, location=(5, 0, 0))                  # no material: grey
+    ms.mesh_object("Hidden", *QUAD, red).hide_render = True
+    ms.mesh_object("Excluded", *QUAD, red).hr.exclude = True
+    ms.mesh_object("Shape", *QUAD, lamp).hr.is_light_shape = True
+    col = bpy.data.collections.new("Off")
+    scene.collection.children.link(col)
+    off = bpy.data.objects.new("InOff", bpy.data.meshes["A"].copy())
+    col.objects.link(off)
+    col.hide_render = True
+    si = _collect(bpy)
+    assert si.mesh.object_names == ["A", "B"]
+    assert [t.name for t in si.targets] == ["A", "B"]
+    assert np.allclose(si.mesh.verts[:4, 2], 2.0) and np.allclose(si.mesh.verts[4:, 0] - [0, 1, 1, 0], 5)
+    assert np.allclose(si.mesh.reflectance, [[0, 0, 0], [0.8, 0.8, 0.8]])
+    assert np.allclose(si.mesh.emission, [[3, 3, 3], [0, 0, 0]])
+
+
+def test_modifiers_scale_and_mirror(env):
+    bpy, ms, scene = env
+    v, p = ms.grid([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], 2)
+    a = ms.mesh_object("Mirrored", v, p, None)
+    a.scale = (-2, 1, 1)                       # negative determinant: winding is reversed back
+    si = _collect(bpy)
+    assert np.allclose(_normals(si.mesh), [0, 0, 1])
+    assert np.isclose(si.mesh.verts[:, 0].min(), -2)
+    t = si.targets[0]
+    vals = np.arange(len(si.mesh.loop_verts) * 3, dtype=np.float32).reshape(-1, 3)
+    out = t.extract(vals, "CORNER")
+    # The value of input loop j lands on the evaluated loop it came from.
+    assert np.array_equal(out[t.loop_perm], vals)
+    a.scale = (1, 1, 1)
+    mod = a.modifiers.new("Sub", "SUBSURF")
+    mod.levels = 1
+    si = _collect(bpy)
+    assert len(si.mesh.loop_start) == 16       # evaluated: 4 quads -> 16
+    assert any("topology" in w for w in si.warnings)
+    t = si.targets[0]
+    out = t.extract(np.ones((len(si.mesh.loop_verts), 3), np.float32), "CORNER")
+    assert out.shape == (16, 3)                # back on the original mesh's 16 corners
+
+
+def test_no_meshes(env):
+    bpy, ms, scene = env
+    from hr_addon.blender.scene_in import SceneError
+    ms.mesh_object("Shape", *QUAD, None).hr.is_light_shape = True
+    with pytest.raises(SceneError, match="No mesh objects"):
+        _collect(bpy)
+
+
+def _outline(ms, bpy, verts, polys):
+    from hr_addon.blender.scene_in import mesh_outlines, read_mesh
+    ob = ms.mesh_object("S", verts, polys, None)
+    em = read_mesh(ob, bpy.context.view_layer.depsgraph)
+    return mesh_outlines(em)
+
+
+def _signed_area(r, n=(0, 0, 1)):
+    from hr_addon.core.geometry import _newell
+    return float(_newell(np.asarray(r)[None])[0] @ n) / 2
+
+
+def test_coplanar_polygons_merge_into_outlines(env):
+    bpy, ms, scene = env
+    v, p = ms.grid([(0, 0, 0), (3, 0, 0), (3, 3, 0), (0, 3, 0)], 3)
+    groups = _outline(ms, bpy, v, p)
+    assert len(groups) == 1 and len(groups[0][1]) == 1
+    ring = groups[0][1][0]
+    assert len(ring) == 4 and np.isclose(_signed_area(ring), 9)        # collinear points dropped, CCW
+    # Drop the centre quad: outer ring + one hole (clockwise).
+    holes = _outline(ms, bpy, v, [q for i, q in enumerate(p) if i != 4])
+    assert len(holes) == 1
+    outer, hole = holes[0][1]
+    assert np.isclose(_signed_area(outer), 9) and np.isclose(_signed_area(hole), -1)
+    # Two separate quads and one at another height stay separate.
+    sep = _outline(ms, bpy, [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (3, 0, 0), (3, 1, 0),
+                             (2, 1, 0), (1, 0, 1), (2, 0, 1), (2, 1, 1), (1, 1, 1)],
+                   [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]])
+    assert [len(g[1]) for g in sep] == [1, 1, 1]
+
+
+def _shapes(bpy, scene, frame):
+    from hr_addon.blender.bake import LightShape as CoreLightShape
+    from hr_addon.blender.scene_in import collect_light_shapes
+    LS = CoreLightShape
+    if LS is None:
+        from dataclasses import dataclass
+
+        @dataclass
+        class LS:
+            rings: list
+            emission: np.ndarray
+            name: str = ""
+    scene.frame_set(frame)
+    vl = bpy.context.view_layer
+    return collect_light_shapes(vl, vl.depsgraph, LS)
+
+
+def test_cornell_light_shapes_per_frame(tmp_path):
+    open_sample("cornell", tmp_path)
+    import bpy
+    ms = __import__("make_samples")
+    scene = bpy.context.scene
+    assert _shapes(bpy, scene, 1) == {}
+    s6 = _shapes(bpy, scene, 6)
+    assert sorted(s6) == ["Window:0", "Window:1", "Window:2", "Window:3"]
+    rgb, strength = ms.WINDOW_EMISSION
+    for s in s6.values():
+        assert np.allclose(s.emission, np.array(rgb) * strength)
+        (ring,) = s.rings
+        assert np.all(ring[:, 0] == 0.0)             # exactly on the green wall plane x = 0
+        assert np.isclose(_signed_area(ring, (1, 0, 0)), ms.WINDOW_PANE ** 2, rtol=1e-5)  # faces +x
+    s13 = _shapes(bpy, scene, 13)
+    assert sorted(s13) == sorted(list(s6) + ["Back Patch:0"])
+    back = s13["Back Patch:0"]
+    assert np.all(back.rings[0][:, 1] == np.float32(ms.BACK_Y))
+    assert np.allclose(back.emission, np.array(ms.PATCH_EMISSION[0]) * ms.PATCH_EMISSION[1])
+    assert sorted(_shapes(bpy, scene, 21)) == ["Back Patch:0"]
+    scene_objs = [o.name for o in scene.objects if o.hr.is_light_shape]
+    assert sorted(scene_objs) == ["Back Patch", "Window"]
+
+
+def test_keyframed_transform_and_strength(tmp_path):
+    open_sample("curtain", tmp_path)
+    import bpy
+    scene = bpy.context.scene
+    w = {f: np.ptp(_shapes(bpy, scene, f)["Curtain Gap:0"].rings[0][:, 1]) for f in (1, 12)}
+    assert np.isclose(w[1], 0.1, rtol=1e-5) and np.isclose(w[12], 1.2, rtol=1e-5)
+    assert all(np.all(_shapes(bpy, scene, f)["Curtain Gap:0"].rings[0][:, 0] == 0) for f in (1, 5))
+    open_sample("searchbeam", tmp_path)
+    scene = bpy.context.scene
+    xs = [_shapes(bpy, scene, f)["Searchbeam:0"].rings[0][:, 0].mean() for f in (1, 12)]
+    assert np.allclose(xs, [0.8, 3.2], atol=1e-5)
+    open_sample("moonlight", tmp_path)
+    scene = bpy.context.scene
+    em = [_shapes(bpy, scene, f)["Moonlight:0"].emission[2] for f in (1, 6)]
+    assert np.allclose(em, [0.5, 4.0])

@@ -1,0 +1,241 @@
+"""Core engine against analytic oracles (shared/reference/README.md). No bpy."""
+import warnings
+
+import numpy as np
+import pytest
+
+from hr_addon.core import formfactor as ff
+from hr_addon.core.geometry import InputError, MeshInput, prepare_patches
+from hr_addon.core.hierarchy import Hierarchy
+from hr_addon.core.radiosity import RadiositySystem
+from hr_addon.core.refine import RefineParams
+from hr_addon.core.solver import ConvergenceWarning, solve
+from hr_addon.core import scenes
+
+FAST = RefineParams.preset("draft")
+
+
+# -- input -----------------------------------------------------------------------------------------
+def test_triangulation_and_degenerates():
+    v = np.array([[0, 0, 0], [2, 0, 0], [2, 1, 0], [1, 1, 0], [1, 2, 0], [0, 2, 0],    # L-shaped hexagon
+                  [3, 0, 0], [4, 0, 0], [4, 1, 0.5], [3, 1, 0],                        # non-planar quad
+                  [5, 0, 0], [6, 0, 0], [5.2, 0.2, 0], [5, 1, 0],                      # concave quad (dart)
+                  [7, 0, 0], [8, 0, 0], [9, 0, 0]], float)                             # collinear: degenerate
+    mesh = MeshInput.from_polygons(v, [[0, 1, 2, 3, 4, 5], [6, 7, 8, 9], [10, 11, 12, 13], [14, 15, 16]], 0.5)
+    p = prepare_patches(mesh)
+    assert p.dropped == 1 and "Dropped 1" in p.warnings[0]
+    assert np.all(p.nv == 3)
+    # Area is preserved: L-shape 3, dart = triangle(10,11,12) + triangle(10,12,13)
+    lshape = p.area[p.poly == 0].sum()
+    dart = 0.5 * 1 * 0.2 + 0.5 * 1 * 0.2
+    assert lshape == pytest.approx(3.0) and p.area[p.poly == 2].sum() == pytest.approx(dart)
+    assert np.all(p.normal[p.poly != 1][:, 2] > 0.999)  # orientation kept through triangulation
+    # Every patch is convex and planar: corner turns all positive about its normal.
+    c = p.corners[:, :3]
+    assert np.all(np.einsum("ij,ij->i", np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), p.normal) > 0)
+
+
+@pytest.mark.parametrize("bad, message", [
+    (dict(verts_nan=True), "NaN or infinite vertex coordinates on polygon 1 of object 'wall'"),
+    (dict(rho=1.0), "outside [0, 1)"),
+    (dict(rho=np.nan), "Non-finite reflectance"),
+    (dict(emission=-1.0), "Negative emission"),
+])
+def test_bad_input_names_the_culprit(bad, message):
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]], float)
+    rho = np.full((2, 3), 0.5)
+    em = np.zeros((2, 3))
+    if bad.get("verts_nan"):
+        v[4, 1] = np.nan
+    if "rho" in bad:
+        rho[1, 0] = bad["rho"]
+    if "emission" in bad:
+        em[1, 2] = bad["emission"]
+    mesh = MeshInput.from_polygons(v, [[0, 1, 2, 3], [1, 4, 5, 2]], rho, em, [0, 0], ["wall"])
+    with pytest.raises(InputError, match=message.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")):
+        prepare_patches(mesh)
+
+
+def test_empty_scene_is_an_error():
+    with pytest.raises(InputError, match="no polygons"):
+        prepare_patches(MeshInput.from_polygons(np.zeros((0, 3)), [], 0.5))
+    with pytest.raises(InputError, match="degenerate"):
+        prepare_patches(MeshInput.from_polygons(np.zeros((3, 3)), [[0, 1, 2]], 0.5))
+
+
+# -- hierarchy -------------------------------------------------------------------------------------
+def test_subdivision_preserves_area_orientation_and_corners():
+    h = Hierarchy(prepare_patches(scenes.cornell_box()))
+    for _ in range(3):
+        h.subdivide(h.leaves())
+    inner = np.flatnonzero(~h.is_leaf)
+    kids = h.children(inner)
+    assert np.allclose(h.area[kids].sum(1), h.area[inner], rtol=1e-12)
+    c = h.corners[:h.n]
+    n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    assert np.all(np.einsum("ij,ij->i", n, h.normal[:h.n]) > 0)
+    for k in range(4):  # child k holds its parent's corner k (output relies on it)
+        has = k < h.nv[inner]
+        assert np.allclose(h.corners[kids[has, k], k], h.corners[inner[has], k])
+
+
+# -- form factors and links -------------------------------------------------------------------------
+def test_links_reciprocal_and_bounded():
+    s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("medium"))
+    L, h = s.links, s.h
+    assert np.allclose(h.area[L.a] * L.f_ab, h.area[L.b] * L.f_ba, rtol=1e-12, atol=0)
+    assert L.f_ab.max() <= 1 and L.f_ba.max() <= 1 and L.f_ab.min() >= 0
+    assert 0 <= L.vis.min() and L.vis.max() <= 1
+    recv, _, f = L.directed()
+    assert np.all(np.diff(recv) >= 0)          # CSR: sorted by receiver
+    # Every leaf's total form factor (its links, its ancestors' and the push corrections) stays
+    # <= 1 up to integration error, except where visibility varies across a coarse receiver:
+    # measured, 0.5% of the area (floor in the slot between the tall block and the back wall)
+    # exceeds 1.01, by at most 8%. The push corrections sum to zero per link and area.
+    op = s.operator()
+    fsum = op.push(np.bincount(recv, weights=f, minlength=h.n)[None].copy())[0][op.leaves]
+    a = h.area[op.leaves]
+    assert a[fsum > 1.01].sum() < 0.01 * a.sum() and fsum.max() < 1.1
+    leaf, src, dF = L.corr
+    assert len(dF) > 0 and abs(np.sum(h.area[leaf] * dF)) < 1e-9 * np.sum(h.area[leaf] * np.abs(dF))
+
+
+def test_smaller_feps_never_gives_fewer_links():
+    counts = [len(RadiositySystem(scenes.cornell_box(), RefineParams(feps=fe, veps=0, aeps=1e-3)).links)
+              for fe in (0.1, 0.05, 0.02, 0.01)]
+    assert counts == sorted(counts) and counts[0] < counts[-1]
+
+
+# -- whole-scene oracles ----------------------------------------------------------------------------
+@pytest.mark.parametrize("rho", [0.3, 0.5, 0.8])
+def test_furnace_box_uniform(rho):
+    E = 1.0
+    s = RadiositySystem(scenes.closed_box(rho=rho, emission=(E, E, E)), RefineParams.preset("medium"))
+    B = s.solve()
+    lf = s.h.leaves()
+    a = s.h.area[lf]
+    rel = B[:, lf] / (E / (1 - rho)) - 1
+    assert s.report.energy_error < 1e-5 and s.report.escaped < 1e-3 * s.report.emitted  # closed
+    assert np.abs(rel).max() < 0.005                    # everywhere, not just on average
+
+
+def test_push_corrections_are_what_makes_the_furnace_exact():
+    s = RadiositySystem(scenes.closed_box(rho=0.5), RefineParams(vcorr=0))
+    lf = s.h.leaves()
+    assert np.abs(s.solve()[:, lf] / 2 - 1).max() > 0.03   # plain HR push: a few % off near edges
+
+
+def _sphere_irradiance_error(subdiv, rho=0.6):
+    mesh = scenes.sphere(subdiv=subdiv, rho=rho, emission_fn=lambda c: np.where(c[:, :1] > 0.3, [[3.0, 1.0, 0.0]], 0.0))
+    s = RadiositySystem(mesh, RefineParams.preset("medium"))
+    B = s.solve()
+    lf = s.h.leaves()
+    H = (B - s.base_emission())[:, lf] / rho            # gathered radiance: uniform on a sphere
+    a = s.h.area[lf]
+    expected = (s.base_emission()[:, lf] * a).sum(1) / a.sum() / (1 - rho)
+    assert s.report.energy_error < 1e-5
+    return np.abs(H[:2] / expected[:2, None] - 1).max()
+
+
+def test_sphere_uniform_irradiance_for_any_emission():
+    # Flat facets are not on the sphere, so the oracle holds only as the mesh is refined:
+    # measured 2.8% (80 faces), 1.1% (320), 0.7% (1280, too slow for the suite).
+    e1, e2 = _sphere_irradiance_error(1), _sphere_irradiance_error(2)
+    assert e2 < 0.015 and e2 < 0.6 * e1
+
+
+def test_black_emitter_plate_pointwise():
+    mesh = scenes.parallel_plates(rho_receiver=0.5, emission=1.0, subdiv=32)
+    s = RadiositySystem(mesh, RefineParams(feps=0.005, veps=0.002, aeps=2e-4))
+    B = s.solve()
+    h = s.h
+    emitter = s.patches.object_names.index("emitter")
+    on_emitter = s.patches.object_id[h.view("patch")] == emitter
+    recv = np.flatnonzero(h.is_leaf & ~on_emitter)
+    em_root = np.flatnonzero(on_emitter & (h.view("parent") < 0))[0]
+    pts = h.centre[recv]
+    # Leaves nearest to the centre and to a corner of the receiver, against the closed forms
+    # (rho E F(dA -> emitter)), each corrected to the leaf's own average by exact point sampling.
+    for target, closed in (((0.5, 0.5, 0), 0.239456), ((0, 0, 0), 0.138532)):
+        i = recv[np.argmin(np.linalg.norm(pts - target, axis=1))]
+        sp = ff.sample_points(h.corners[[i]], h.nv[[i]], 8)[0]
+        exact_avg = ff.point_to_polygon(sp, np.repeat(h.normal[[i]], len(sp), 0),
+                                        np.repeat(h.corners[[em_root]], len(sp), 0)).mean()
+        assert B[0, i] == pytest.approx(0.5 * exact_avg, rel=0.01)
+        assert exact_avg == pytest.approx(closed, rel=0.05)    # the leaf sits next to the point
+
+
+def test_warm_start_reaches_the_cold_answer():
+    s = RadiositySystem(scenes.cornell_box(), FAST)
+    cold = s.solve(warm=False).copy()
+    it_cold = s.report.iterations
+    E = s.base_emission() * 1.1
+    warm = s.solve(E, warm=True)
+    it_warm = s.report.iterations
+    again = s.solve(E, warm=False)
+    assert np.abs(warm - again).max() < 1e-6 * again.max()
+    assert it_warm <= it_cold
+
+
+def test_cornell_box_solves_and_conserves_energy():
+    s = RadiositySystem(scenes.cornell_box())
+    B = s.solve()
+    r = s.report
+    assert r.converged and r.residual < 1e-6
+    assert B.min() >= 0
+    assert r.energy_error < 1e-4
+    assert 0 < r.escaped < r.emitted        # the box is open at the front
+    # The lamp (reflectance 0.78) reads its emission plus what it reflects; the red wall reflects
+    # more red than green, the green wall the opposite.
+    h = s.h
+    obj = s.patches.object_id[h.view("patch")]
+    lf = h.leaves()
+    names = s.patches.object_names
+    lamp = lf[obj[lf] == names.index("light")]
+    assert np.all(B[:, lamp] >= np.array(scenes.CORNELL_LIGHT)[:, None])
+    assert np.all(B[:, lamp] < 1.2 * np.array(scenes.CORNELL_LIGHT)[:, None])
+    red = lf[obj[lf] == names.index("left_red")]
+    green = lf[obj[lf] == names.index("right_green")]
+    assert B[0, red].mean() > 3 * B[1, red].mean() and B[1, green].mean() > 1.5 * B[0, green].mean()
+
+
+def test_reflectance_near_one_stops_with_a_warning():
+    s = RadiositySystem(scenes.closed_box(rho=0.999, emission=(1, 1, 1)), FAST)
+    with pytest.warns(ConvergenceWarning, match="did not converge"):
+        B, rep = solve(s.h, s.links, s.base_emission(), max_iter=50)
+    assert rep.iterations == 50 and not rep.converged and np.isfinite(B).all()
+
+
+# -- output ----------------------------------------------------------------------------------------
+def test_vertex_output_shared_vertices_agree_and_creases_stay_sharp():
+    mesh = scenes.cornell_box(subdiv=4)
+    s = RadiositySystem(mesh, FAST)
+    s.solve()
+    vals = s.loop_radiance("CORNER")
+    assert vals.shape == (len(mesh.loop_verts), 3) and vals.dtype == np.float32
+    loop_poly = np.repeat(np.arange(len(mesh.loop_start)), mesh.loop_total)
+    normal = s.patches.normal[np.searchsorted(s.patches.poly, loop_poly)]
+    # Loops at the same vertex with the same normal carry exactly one value (no cracks).
+    key = np.column_stack([mesh.loop_verts, np.round(normal, 6)])
+    _, inv = np.unique(key, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    for g in np.unique(inv)[:200]:
+        m = inv == g
+        assert np.ptp(vals[m], axis=0).max() == 0
+    # Floor and back wall corners differ (crease), although they share positions.
+    floor = mesh.object_names.index("floor")
+    back = mesh.object_names.index("back")
+    oid = mesh.object_id[loop_poly]
+    assert not np.allclose(vals[oid == floor].mean(0), vals[oid == back].mean(0))
+
+
+def test_backends_give_the_same_solution():
+    from hr_addon.core.visibility import available_backends
+    if len(available_backends()) < 2:
+        pytest.skip("only one ray backend available")
+    res = [RadiositySystem(scenes.cornell_box(), FAST, backend=b) for b in ("numpy", "embree")]
+    for s in res:
+        s.solve()
+    assert len(res[0].links) == len(res[1].links)
+    assert np.allclose(res[0].B, res[1].B, rtol=1e-3, atol=1e-6)
+
