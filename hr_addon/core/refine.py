@@ -18,6 +18,9 @@ from . import formfactor as ff
 from .hierarchy import Hierarchy
 
 
+CHUNK = 100_000  # node pairs processed at once
+
+
 @dataclass
 class RefineParams:
     feps: float = 0.02          # form factor threshold (dimensionless)
@@ -222,7 +225,14 @@ class Refiner:
         out = []
         p, q = np.asarray(p, np.int64), np.asarray(q, np.int64)
         tol = 1e-9 * np.sqrt(self.total_area)
-        while len(p):
+        pending = [(p, q)]
+        while pending:
+            # Depth-first over bounded batches keeps the temporaries (a few hundred bytes per pair
+            # and quadrature point) small whatever the scene size.
+            p, q = pending.pop()
+            if len(p) > CHUNK:
+                pending.append((p[CHUNK:], q[CHUNK:]))
+                p, q = p[:CHUNK], q[:CHUNK]
             self.stats["pairs_tested"] += len(p)
             f_pq = ff.estimate(h.centre[p], h.normal[p], h.area[p], h.corners[q], h.centre[q], h.normal[q], h.area[q])
             f_qp = ff.estimate(h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p])
@@ -255,8 +265,9 @@ class Refiner:
             sp_p, sp_q = p[split_p], q[split_p]   # p split: pairs (child of p, q)
             sq_p, sq_q = p[split_q], q[split_q]   # q split: pairs (p, child of q)
             h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
-            p = np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)])
-            q = np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()])
+            if len(sp_p) + len(sq_p):
+                pending.append((np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)]),
+                                np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()])))
         self.stats["t_refine"] += time.perf_counter() - t0
         return self._finish(out)
 
@@ -265,10 +276,15 @@ class Refiner:
         if not out:
             return Links.empty()
         a, b, vis = (np.concatenate(x) for x in zip(*out))
-        todo = np.isnan(vis)
-        vis[todo] = self.visibility(a[todo], b[todo])
+        todo = np.flatnonzero(np.isnan(vis))
+        for i in range(0, len(todo), CHUNK):
+            t = todo[i:i + CHUNK]
+            vis[t] = self.visibility(a[t], b[t])
         t0 = time.perf_counter()
-        f_ab, f_ba = link_form_factors(self.h, a, b)
+        f_ab, f_ba = np.empty(len(a)), np.empty(len(a))
+        for i in range(0, len(a), CHUNK):
+            sl = slice(i, i + CHUNK)
+            f_ab[sl], f_ba[sl] = link_form_factors(self.h, a[sl], b[sl])
         self.stats["t_ff"] += time.perf_counter() - t0
         keep = (vis > 0) & ((f_ab > 0) | (f_ba > 0))
         return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])

@@ -3,15 +3,15 @@
 Contract shared by every backend: the segment a->b is occluded iff some triangle meets it at a parameter
 t strictly inside (TMIN, 1 - TMIN), TMIN = 1e-6 relative to the segment length, computed in float64. The
 segment is open at both ends so that rays between points lying *on* surfaces never hit those surfaces;
-triangles are two-sided (occluders block from both sides) with closed edges. Zero-length segments are never
-occluded. Degenerate or non-finite input triangles are dropped: they have no area, so block nothing.
+triangles are two-sided (occluders block from both sides) with closed edges. Zero-length segments and
+segments with non-finite ends are never occluded. Degenerate or non-finite input triangles are dropped:
+they have no area, so block nothing.
 
 Backends: "numpy" (always available, the float64 reference), "embree" (embreex, float32, fast),
 "mathutils" (Blender's BVHTree, float32, one Python call per ray: for cross-checks inside Blender).
-The float32 backends only *propose* hits; every proposed hit is re-tested in float64 with the numpy kernel,
-and rays whose nearest float32 hit is refuted (a self-hit caused by rounding an endpoint that lies on a
-surface, or a graze) are re-traced by the numpy backend. So they agree with numpy except for float32 misses
-within ~1e-7 of a triangle edge and hits within ~F32_SLACK x scene size of an endpoint (see `_Float32Backend`).
+The float32 backends only *propose* hits: each proposal is re-tested in float64 with the numpy kernel,
+and rays whose proposal is refuted (rounding self-hits of endpoints lying on surfaces) are re-traced by the
+numpy backend. So all backends agree except for rays within ~1 float32 ulp of a triangle edge.
 
 Only numpy is imported at module level: mathutils / embreex are imported lazily by their backends.
 """
@@ -19,10 +19,9 @@ import numpy as np
 
 TMIN = 1e-6
 
-# float32 backends shorten the segment at both ends by this many float32 ulps of the coordinate magnitude:
-# an endpoint on a surface rounds to within ~1 ulp of it, so most rays leaving a surface start clear of it
-# (the rest are caught by the float64 check). 2**-24 is half an ulp at 1.0.
-F32_SLACK = 32 * 2.0 ** -24
+# float32 backends: segments shorter than this fraction of their coordinates' magnitude (~500 float32 ulps)
+# have too imprecise a float32 direction; they go to the numpy backend instead.
+F32_SHORT = 2.0 ** -15
 
 
 def _clean_triangles(triangles):
@@ -140,6 +139,7 @@ class NumpyBackend(RayBackend):
     GRID_DENSITY = 2.0      # cells per triangle; 0.5..4 measured within 15%
     MAX_CELL_REFS = 1 << 24  # caps (cell, triangle) candidates when big slanted triangles span many cells
     CHUNK_RAYS = 1 << 16    # rays walked together
+    CHUNK_PAIRS = 1 << 20   # (ray, triangle) index pairs expanded at once
     CHUNK_ELEMS = 1 << 14   # ray x triangle elements per kernel call: temporaries stay in cache
 
     def __init__(self, triangles, grid=None):
@@ -232,13 +232,20 @@ class NumpyBackend(RayBackend):
         stride = np.array([[res[1, 0] * res[2, 0]], [res[2, 0]], [1]])
         while len(ray):
             c = (cell * stride).sum(axis=0)
-            first, cnt = start[c], start[c + 1] - start[c]
+            first = start[c]
+            cnt = start[c + 1] - first
             occ = np.zeros(len(ray), dtype=bool)
-            if cnt.any():
-                pair = np.repeat(np.arange(len(ray)), cnt)
-                tri = cell_tri[np.repeat(first - (np.cumsum(cnt) - cnt), cnt) + np.arange(len(pair))]
+            end = np.cumsum(cnt)
+            # blocks of ~CHUNK_PAIRS (ray, triangle) pairs bound the index arrays in crowded cells
+            cuts = np.unique(np.searchsorted(end, np.arange(0, end[-1], self.CHUNK_PAIRS)[1:]))
+            for i, j in zip([0, *cuts], [*cuts, len(ray)]):
+                n = cnt[i:j]
+                if not n.any():
+                    continue
+                pair = np.repeat(np.arange(i, j), n)
+                tri = cell_tri[np.repeat(first[i:j] - (np.cumsum(n) - n), n) + np.arange(len(pair))]
                 occ[pair[self._hit_pairs(ad, ray[pair], tri)]] = True
-                out[ray[occ]] = True
+            out[ray[occ]] = True
             # step along the axis whose cell wall comes first
             tx, ty, tz = t_next
             alive = ~occ & (np.minimum(np.minimum(tx, ty), tz) < t_out)
@@ -256,18 +263,22 @@ class NumpyBackend(RayBackend):
 # ---------------------------------------------------------------------------------------------- float32
 
 class _Float32Backend(RayBackend):
-    """Shared by the float32 tracers: they propose the nearest hit, float64 decides.
+    """Shared by the float32 tracers: they propose each ray's nearest hit, float64 decides.
 
     Coordinates are shifted to the scene centre (halves their magnitude, hence their rounding) and the
-    segment is shortened to t in (tm, 1 - tm), tm = max(TMIN, F32_SLACK * |coords| / length): a few float32
-    ulps of the coordinate magnitude, so an endpoint on a surface mostly starts clear of it after rounding.
-    The tracer then returns each ray's nearest hit (triangle index or -1), which is re-tested in float64 on
-    the original segment. Rays whose nearest hit is refuted (rounding self-hits of grazing or coplanar rays)
-    are re-traced by the numpy backend. Left differences: a genuine occluder within tm of an endpoint
-    (closer than ~2e-6 x scene size) is missed, segments shorter than ~4e-6 x scene size are treated as
-    unoccluded, and float32 misses rays within ~1e-7 (relative) of an edge. The caller offsets endpoints
-    along normals by much more than tm anyway.
+    segment is traced over t in [TMIN, 1 - TMIN]. Rounding to float32 can still put an endpoint lying on a
+    surface just behind it, so the nearest hit proposed by the tracer (triangle index or -1) is re-tested
+    in float64 on the original segment; rays whose proposal is refuted (such self-hits, mostly of grazing
+    or in-plane rays: ~2% of rays between random points *on* surfaces, ~1e-5 once endpoints are offset
+    1e-6 x scene size along normals) and segments too short for float32 (F32_SHORT) are re-traced by the
+    numpy backend.
+    What is left of float32: misses of rays passing within ~1 float32 ulp of an edge, or of a hit within
+    ~1 ulp of TMIN. A float64 check of the hit alone would not do: ray_cast/rtcIntersect1 report only the
+    nearest hit, and a refuted one may hide a genuine one behind it.
     """
+
+    _rows = _exact = None  # float64 triangle rows and numpy backend, built on first need
+    last_retraced = 0      # diagnostics: rays of the last call that the numpy backend re-traced
 
     def _nearest(self, o, d, tfar):
         """float32 o, d (R,3), tfar (R,): index of the nearest triangle hit on o + t d, t in [0, tfar], or -1."""
@@ -277,28 +288,29 @@ class _Float32Backend(RayBackend):
         o = a - self.center
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
         mag = np.maximum(np.sqrt(np.einsum("ij,ij->i", o, o)) + length, self.half_extent)  # >= max |coord|
-        tm = np.maximum(TMIN, F32_SLACK * mag / length)
-        o += tm[:, None] * d
-        out = np.zeros(len(a), dtype=bool)
-        ray = np.flatnonzero(tm < 0.5)  # too short to trace in float32 otherwise
-        prim = self._nearest(o[ray].astype(np.float32), d[ray].astype(np.float32),
-                             (1.0 - 2.0 * tm[ray]).astype(np.float32))
-        ray, prim = ray[prim >= 0], prim[prim >= 0]
+        o += TMIN * d
+        short = length < F32_SHORT * mag
+        trace = np.flatnonzero(~short) if short.any() else None  # None: all (saves two gathers)
+        o, e = (o, d) if trace is None else (o[trace], d[trace])
+        prim = self._nearest(o.astype(np.float32), e.astype(np.float32),
+                             np.full(len(o), 1.0 - 2.0 * TMIN, dtype=np.float32))
+        ray = np.flatnonzero(prim >= 0)
+        prim = prim[ray]
+        if trace is not None:
+            ray = trace[ray]
         if self._rows is None:
             self._rows = _triangle_rows(self.triangles)
         with np.errstate(all="ignore"):
-            ok = _hit_kernel([m[prim] for m in self._rows], *a[ray].T, *d[ray].T)
+            ok = _hit_kernel([m[prim] for m in self._rows], *a.take(ray, axis=0).T, *d.take(ray, axis=0).T)
+        out = np.zeros(len(a), dtype=bool)
         out[ray[ok]] = True
-        if not ok.all():  # the nearest proposal was wrong; farther ones were never looked at
+        retry = np.concatenate([ray[~ok], np.flatnonzero(short)])
+        if len(retry):
             if self._exact is None:
                 self._exact = NumpyBackend(self.triangles)
-            retry = ray[~ok]
             out[retry] = self._exact._occluded(a[retry], d[retry])
-        self.last_retraced = int((~ok).sum())  # diagnostics: how often float64 overruled float32
+        self.last_retraced = len(retry)
         return out
-
-    _rows = _exact = None
-    last_retraced = 0
 
 
 class EmbreeBackend(_Float32Backend):
@@ -321,7 +333,7 @@ class EmbreeBackend(_Float32Backend):
         prim = np.empty(len(o), dtype=np.intp)
         for s in range(0, len(o), self.CHUNK):
             sl = slice(s, s + self.CHUNK)
-            prim[sl] = self._scene.run(o[sl], d[sl], dists=tfar[sl].copy(), query="INTERSECT")
+            prim[sl] = self._scene.run(o[sl], d[sl], dists=tfar[sl], query="INTERSECT")
         return prim
 
 
@@ -367,7 +379,7 @@ def _importable(name):
 
 
 def available_backends():
-    """Names of the backends usable in this process, fastest first."""
+    """Names of the backends usable in this process ("embree" first when present)."""
     return [n for n in ("embree", "numpy", "mathutils") if _importable(n)]
 
 
