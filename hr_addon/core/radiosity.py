@@ -41,6 +41,7 @@ class RadiositySystem:
         self.links = self.refiner.build()
         self.B = None
         self.report = None
+        self._op = None
         if self.params.bfeps > 0:
             for _ in range(self.params.bf_passes):
                 self.solve()
@@ -53,6 +54,7 @@ class RadiositySystem:
             self.links = push_corrections(self.h, self.links, self.params.vcorr, self.params.corr_budget)
             self.refiner.stats["t_corr"] = time.perf_counter() - t1
         self._op = None
+        self.B = None   # a BF pass solved with links that have changed since
         self.build = BuildReport(len(self.patches.nv), self.patches.dropped, self.h.n, len(self.links),
                                  time.perf_counter() - t0, dict(self.refiner.stats), type(self.backend).__name__,
                                  list(self.patches.warnings))
@@ -62,14 +64,13 @@ class RadiositySystem:
         return self.patches.emission[:, self.h.view("patch")].copy()
 
     def operator(self):
-        if self._op is None or self._op.n != self.h.n or self._op.links is not self.links:
+        if self._op is None or self._op.version != self.h.version or self._op.links is not self.links:
             self._op = Operator(self.h, self.links)
         return self._op
 
     def solve(self, E=None, warm=True, tol=None):
         E = self.base_emission() if E is None else E
         B0 = self.B if (warm and self.B is not None and self.B.shape[1] == self.h.n) else None
-        self._op = None if self._op is not None and self._op.links is not self.links else self._op
         self.B, self.report = solve(self.h, self.links, E, B0=B0, tol=tol or self.tol, op=self.operator())
         return self.B
 

@@ -40,7 +40,7 @@ class Operator:
     """The linear map B -> gathered-and-pushed irradiance term, over one hierarchy + link set."""
 
     def __init__(self, h: Hierarchy, links: Links):
-        self.h, self.links = h, links
+        self.h, self.links, self.version = h, links, h.version
         self.recv, self.src, self.f = links.directed()
         self.n = h.n
         self.levels = h.levels()
