@@ -2,6 +2,7 @@
 
 The same options as `blender -b scene.blend -c hr_bake [options]`; see hr_addon/blender/cli.py.
 """
+import os
 import sys
 
 USAGE = "usage: python -m hr_addon bake BLEND [--frames A-B] [--method ar|fe|naive|auto] " \
@@ -26,6 +27,8 @@ def main(argv=None):
         args = cli.make_parser("python -m hr_addon bake", blend_required=True).parse_args(argv[1:])
         if args.frames is not None:
             cli.parse_frames(args.frames)
+        if not os.path.isfile(args.blend):
+            raise cli.UsageError(f"file not found: {args.blend}")
     except cli.UsageError as exc:
         print(f"{cli.PROG}: error: {exc}", file=sys.stderr, flush=True)
         return 2

@@ -200,8 +200,6 @@ def key_visibility(ob, frames_on):
     for f, hidden in sorted(keys.items()):
         ob.hide_render = hidden
         ob.keyframe_insert("hide_render", frame=f)
-        ob.hide_viewport = hidden
-        ob.keyframe_insert("hide_viewport", frame=f)
 
 
 def constant_interpolation(ob):
@@ -242,6 +240,8 @@ def finish(scene, path, frames, quality="DRAFT"):
     scene.frame_set(frames[0])
     scene.hr.quality = quality
     path.parent.mkdir(parents=True, exist_ok=True)
+    if path.exists():
+        path.unlink()          # no .blend1 backup next to the committed file
     bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True, check_existing=False)
     print(f"wrote {path} ({path.stat().st_size // 1024} KB)", flush=True)
 
@@ -330,7 +330,7 @@ def make_moonlight(path):
     for f, v in ((1, 0.5), (6, 4.0), (9, 4.0), (12, 1.5)):
         s.default_value = v
         s.keyframe_insert("default_value", frame=f)
-    camera((0.3, -0.5, 2.2), (2.0, 1.6, 0.3))
+    camera((0.2, 0.15, 2.3), (2.0, 1.8, 0.2), lens=20)
     finish(scene, path, (1, 12))
 
 

@@ -158,7 +158,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
             else:
                 if dyn is not None:
                     report = dyn.apply(shapes)
-                    frame_warnings += list(getattr(report, "warnings", []) or [])
+                    frame_warnings += list(getattr(report, "messages", []) or [])
                     values = dyn.loop_radiance(domain)
                 else:
                     system.solve()

@@ -102,6 +102,12 @@ def run(argv, prog=PROG, blend_required=False):
     except OSError as exc:
         _err(f"cannot write the cache: {exc}")
         return 1
+    except Exception as exc:  # a bug: still one line (HR_DEBUG=1 prints the traceback)
+        if os.environ.get("HR_DEBUG"):
+            import traceback
+            traceback.print_exc()
+        _err(f"internal error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+        return 1
     if args.save:
         path = os.path.abspath(args.save)
         try:

@@ -2,18 +2,12 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-# Thresholds shown for each preset; the bake takes the full preset from core RefineParams.preset().
-PRESET_THRESHOLDS = {
-    "DRAFT": (0.05, 1e-3),
-    "MEDIUM": (0.02, 2e-4),
-    "HIGH": (0.008, 4e-5),
-}
-
 METHOD_ITEMS = [
-    ("AUTO", "Auto", "Choose per frame between the incremental methods and a fresh solve"),
-    ("AR", "AR", "Add/remove: update only the links touched by the changed light shapes"),
-    ("FE", "FE", "Fixed emitters: re-solve with new emission, keeping the hierarchy"),
-    ("NAIVE", "Naive", "Rebuild the emission from scratch and solve every changed frame"),
+    ("AUTO", "Auto", "Per element fractional emission or refinement, chosen by an error bound "
+                     "(accurate and fast; recommended)"),
+    ("AR", "AR", "Adaptive refinement: subdivide the elements under the light shape's outline"),
+    ("FE", "FE", "Fractional emissivity: elements partly covered emit the covered fraction (fastest)"),
+    ("NAIVE", "Naive", "Light shapes become new patches and the solution is rebuilt (slow reference)"),
 ]
 QUALITY_ITEMS = [
     ("DRAFT", "Draft", "Coarse and fast"),
@@ -35,9 +29,11 @@ _REL = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set
 
 
 def _quality_update(self, context):
-    vals = PRESET_THRESHOLDS.get(self.quality)
-    if vals is not None:
-        self["feps"], self["aeps"] = vals
+    """Show the preset's thresholds (the bake takes the whole preset from core RefineParams)."""
+    if self.quality != "CUSTOM":
+        from ..core.refine import RefineParams
+        p = RefineParams.preset(self.quality.lower())
+        self["feps"], self["aeps"] = p.feps, p.aeps
 
 
 class HR_SceneSettings(bpy.types.PropertyGroup):

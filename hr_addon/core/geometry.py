@@ -207,8 +207,16 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-10) -> Patches
     sel = np.flatnonzero(ok)[order]
     vidx = vidx[sel].copy()
     vidx[nv[sel] == 3, 3] = -1
+    # Quads kept as "planar" may still be off their plane by up to planar_tol x diagonal. Flatten
+    # them onto their mean plane so the node geometry, its sample points and its occluder triangles
+    # coincide; otherwise rays leaving a slightly twisted quad hit its own triangles.
+    corners = corners[sel]
+    nrm = n[sel] / np.maximum(np.linalg.norm(n[sel], axis=1, keepdims=True), 1e-300)
+    q4 = nv[sel] == 4
+    cen = corners[q4].mean(1, keepdims=True)
+    corners[q4] -= np.einsum("nkj,nj->nk", corners[q4] - cen, nrm[q4])[..., None] * nrm[q4][:, None]
     result = Patches(
-        corners=corners[sel], nv=nv[sel], vert_index=vidx, poly=poly[sel],
+        corners=corners, nv=nv[sel], vert_index=vidx, poly=poly[sel],
         object_id=np.asarray(mesh.object_id)[poly[sel]], reflectance=rho[poly[sel]].T.copy(),
         emission=em[poly[sel]].T.copy(), normal=n[sel] / (2 * area[sel, None]), area=area[sel],
         object_names=names, dropped=dropped)
