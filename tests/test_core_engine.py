@@ -199,10 +199,15 @@ def test_cornell_box_solves_and_conserves_energy():
     assert B[0, red].mean() > 3 * B[1, red].mean() and B[1, green].mean() > 1.5 * B[0, green].mean()
 
 
-def test_reflectance_near_one_stops_with_a_warning():
+def test_reflectance_near_one_converges_or_stops_with_a_warning():
     s = RadiositySystem(scenes.closed_box(rho=0.999, emission=(1, 1, 1)), FAST)
-    with pytest.warns(ConvergenceWarning, match="did not converge"):
-        B, rep = solve(s.h, s.links, s.base_emission(), max_iter=50)
+    B, rep = solve(s.h, s.links, s.base_emission(), max_iter=50)            # GMRES copes
+    lf = s.h.leaves()
+    assert rep.converged and rep.iterations < 50
+    # B = E / (1 - rho sum F): at rho = 0.999 a 5e-5 form factor deficit already costs 5%.
+    assert np.allclose(B[:, lf], 1000, rtol=0.1)
+    with pytest.warns(ConvergenceWarning, match="did not converge"):      # plain sweeps do not
+        B, rep = solve(s.h, s.links, s.base_emission(), max_iter=50, method="jacobi")
     assert rep.iterations == 50 and not rep.converged and np.isfinite(B).all()
 
 

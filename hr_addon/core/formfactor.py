@@ -103,19 +103,29 @@ def point_to_polygon(points, normals, corners, nv=None):
     qn, qa = polygon_normal_area(c)
     height = _dot(p - c[:, 0], qn)
     front = height > _PLANE_EPS * np.sqrt(qa)                          # one-sided emitter
-    verts, any_valid = _clip_to_halfspace(c, p, n)
+    above = _dot(c - p[:, None, :], n[:, None, :]) >= 0.0             # corners above the horizon
+    f = np.zeros(len(p))
+    # Most polygons lie wholly above the receiver's horizon: no clipping needed for those.
+    whole = np.flatnonzero(front & above.all(1))
+    f[whole] = _contour(c[whole] - p[whole, None, :], n[whole])
+    part = np.flatnonzero(front & above.any(1) & ~above.all(1))
+    if len(part):
+        verts, any_valid = _clip_to_halfspace(c[part], p[part], n[part])
+        f[part] = np.where(any_valid, _contour(verts - p[part, None, :], n[part]), 0.0)
+    return np.clip(f, 0.0, 1.0).reshape(shape)
 
-    r = verts - p[:, None, :]
+
+def _contour(r, n):
+    """Lambert's contour integral over polygons given as vertex offsets r (N, V, 3) from the point."""
     r_next = np.roll(r, -1, axis=1)
     cr = _cross(r, r_next)
-    cr_len = np.linalg.norm(cr, axis=-1)
+    cr_len = np.sqrt(np.einsum("nvk,nvk->nv", cr, cr))
     # gamma via atan2 is accurate for both tiny and near-pi angles (arccos of a dot product is not).
-    gamma = np.arctan2(cr_len, _dot(r, r_next))
+    gamma = np.arctan2(cr_len, np.einsum("nvk,nvk->nv", r, r_next))
     # Repeated vertices / zero-length edges give R_i x R_i+1 = 0: their term is exactly 0.
-    term = np.where(cr_len > 0.0, gamma * _dot(cr, n[:, None, :]) / np.where(cr_len > 0.0, cr_len, 1.0), 0.0)
-    f = -term.sum(axis=1) / _TWO_PI
-    f = np.where(front & any_valid, f, 0.0)
-    return np.clip(f, 0.0, 1.0).reshape(shape)
+    ok = cr_len > 0.0
+    term = np.where(ok, gamma * np.einsum("nvk,nk->nv", cr, n) / np.where(ok, cr_len, 1.0), 0.0)
+    return -term.sum(axis=1) / _TWO_PI
 
 
 def _unit_cell_params(k):
