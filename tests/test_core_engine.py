@@ -282,3 +282,25 @@ def test_twisted_wall_is_lit_and_results_are_scale_invariant():
         res.append((len(s.links), B[:, red].mean(1)))
     assert res[0][1][0] > 0.05                      # lit (its floor neighbour is ~0.1)
     assert res[0][0] == res[1][0] and np.allclose(res[0][1], res[1][1], rtol=1e-6)
+
+
+def test_radiance_at_points_finds_leaves_and_interpolates_continuously():
+    from hr_addon.core.output import locate, radiance_at
+    s = RadiositySystem(scenes.cornell_box(), FAST)
+    B = s.solve()
+    h = s.h
+    lf = h.leaves()
+    # Leaf centres locate to themselves; flat values are the leaf values.
+    assert np.array_equal(locate(h, h.patch[lf], h.centre[lf]), lf)
+    assert np.allclose(radiance_at(h, B, h.patch[lf], h.centre[lf], smooth=False), B[:, lf].T)
+    # Smooth values stay within the range of the surface and vary continuously along a line
+    # across the floor (no jumps bigger than the local gradient allows).
+    floor = s.patches.object_names.index("floor")
+    root = np.flatnonzero(s.patches.object_id == floor)[0]
+    c = h.corners[root]
+    t = np.linspace(0.02, 0.98, 2000)
+    line = c[0] + t[:, None] * (c[2] - c[0])
+    v = radiance_at(h, B, np.full(len(t), root), line)
+    flat = radiance_at(h, B, np.full(len(t), root), line, smooth=False)
+    assert v.min() >= 0 and v.max() <= B[:, lf].max()
+    assert np.abs(np.diff(v, axis=0)).max() < 0.5 * np.abs(np.diff(flat, axis=0)).max()
