@@ -39,7 +39,7 @@ class RefineParams:
         presets = {
             "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3),
             "medium": RefineParams(),
-            "high": RefineParams(feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vis_k=3, vcorr=1e-5),
+            "high": RefineParams(feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vcorr=1e-5),
         }
         if name not in presets:
             raise ValueError(f"Unknown quality preset '{name}' (choose from {', '.join(presets)})")
