@@ -14,18 +14,21 @@ shapes add. Four methods:
   used. At most `node_budget` nodes per shape; beyond it the remaining boundary nodes use FE.
 - FE (fractional emissivity): no refinement; each overlapped HR leaf emits overlap fraction x emission
   (clip.classify, exact for concave shapes with holes against convex nodes).
-- AUTO (ours): per node FE or AR by an exact error bound (FE's L1 emission error on a node is
-  2 f (1 - f) A |E|): the worst nodes are split until the shape's relative emission error is below
-  `emission_tol`. Transport: the existing links only know the old, dark walls, so the shape's first
-  bounce is computed by its own BF-refined links from the shape (sources with exact clipped coverage) to
-  every surface (split where rho F E > bf_rel, shadow boundaries resolved by ray-cast visibility); the
-  existing links then carry the further bounces. Its error approaches NAIVE's at near-FE cost.
+- AUTO (ours): the outline per node by FE or AR from an exact error bound (FE's L1 emission error on a
+  node is 2 f (1 - f) A |E|): the worst nodes are split until the shape's relative emission error is
+  below `emission_tol`. Transport: the existing links were refined for the old, dark walls and average a
+  source node's radiance over the whole node, which smears a small bright shape; so the shape's first
+  bounce is gathered separately at the receivers: exact point-to-shape form factor (contour integral
+  over the rings) x ray-cast visibility at 2 x 2 Gauss points, receivers split below the HR leaves where
+  rho x (range of F V) > bf_rel (the B x F criterion: only where the light is strong and uneven),
+  shadow edges included. The existing links then carry the further bounces. The link set is not
+  changed, so every cached response stays valid. Error at or below NAIVE's at a few times FE's cost.
 
 Incremental solution (AR/FE/AUTO), `incremental=`:
 - "response" (default): the system is linear, so B = B_base + sum_s E_s * U_s with U_s the solution for
   shape s at unit emission (per channel). Adding a shape is one cold solve of its own response; a colour
-  or intensity change is a scale, a removal drops a term: no solve, exact history independence, radiance
-  never negative. Responses stay valid when other shapes add or remove nodes below HR leaves (such nodes
+  or intensity change is a scale, a removal drops a term: no solve, history independent (the sum is
+  recomputed, nothing is subtracted), radiance never negative. Responses stay valid when other shapes add or remove nodes below HR leaves (such nodes
   carry no links: their solution is the parent's, extended by copy).
 - "warm": one state, re-solved with the total emission, warm-started from the previous solution
   (solver.solve(B0=...)), as in the paper.
@@ -44,6 +47,7 @@ import numpy as np
 from . import clip
 from . import formfactor as ff
 from .geometry import InputError, MeshInput, _newell
+from .output import locate, radiance_at
 from .output import loop_radiance as _loop_radiance
 from .radiosity import RadiositySystem
 from .refine import link_form_factors
@@ -134,15 +138,18 @@ class _Rec:
 
 class DynamicRadiosity:
     def __init__(self, system: RadiositySystem, method="AUTO", min_area_rel=1e-5, node_budget=20000,
-                 plane_tol=1e-3, incremental="response", emission_tol=0.02, bf_rel=1e-3,
-                 naive_params=None, naive_offset=1e-4, cache_size=8):
+                 plane_tol=1e-3, incremental="response", emission_tol=0.05, bf_rel=3e-3,
+                 naive_params=None, naive_offset=1e-4, cache_size=8,
+                 direct_min_area_rel=None):
         """system: a built RadiositySystem (its hierarchy is extended in place below the HR leaves).
         min_area_rel: smallest AR node, fraction of the total scene area. node_budget: most nodes one shape
         may add (AR/AUTO). plane_tol: distance tolerance of "on a surface", fraction of the scene
         bounding-box diagonal. emission_tol: AUTO's target relative L1 error of the emission field.
-        bf_rel: AUTO's first-bounce link threshold rho F E < bf_rel x E. naive_params: RefineParams for
-        NAIVE rebuilds (default: the system's). cache_size: removed shapes whose responses need no extra
-        nodes are kept for instant re-adding (0: off)."""
+        bf_rel: AUTO's first bounce: a receiver node is kept when rho x the range of F x V over it is
+        below bf_rel (radiance per unit emitted radiance). direct_min_area_rel: smallest such receiver
+        (and AUTO outline) node, default 4 x min_area_rel. incremental: "response" or "warm" (module
+        doc). naive_params: RefineParams for NAIVE rebuilds (default: the system's). cache_size: removed
+        shapes whose responses need no extra nodes are kept for instant re-adding (0: off)."""
         method = method.upper()
         if method not in METHODS:
             raise ValueError(f"Unknown method '{method}' (choose from {', '.join(METHODS)})")
@@ -153,6 +160,7 @@ class DynamicRadiosity:
         self.incremental = incremental
         self.min_area_rel, self.node_budget, self.plane_tol = min_area_rel, int(node_budget), plane_tol
         self.emission_tol, self.bf_rel = emission_tol, bf_rel
+        self.direct_min_area_rel = direct_min_area_rel if direct_min_area_rel is not None else 4 * min_area_rel
         self.naive_params, self.naive_offset, self.cache_size = naive_params, naive_offset, cache_size
         self.tol = system.tol
         self.links = system.links
@@ -163,6 +171,14 @@ class DynamicRadiosity:
         self.total_area = float(pt.area.sum())
         lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
         self.diag = float(np.linalg.norm(hi - lo)) or 1.0
+        # occluder triangles (bounds, plane ids) for the first-bounce shaft test
+        tris = pt.triangles
+        tri_patch = np.concatenate([np.arange(len(pt.nv)), np.flatnonzero(pt.nv == 4)])
+        self._tri_lo, self._tri_hi = tris.min(1), tris.max(1)
+        scale = 1e-6 * np.sqrt(self.total_area)
+        key = np.column_stack([np.round(pt.normal * 1e6), np.round(np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0]) / scale)])
+        self._patch_plane = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+        self._tri_plane = self._patch_plane[tri_patch]
         self.shapes = OrderedDict()          # key -> _Rec
         self._cache = OrderedDict()          # (geom_key, method) -> _Rec
         self._ref = np.zeros(h.n, np.int64)  # shapes needing each node's split
@@ -219,7 +235,6 @@ class DynamicRadiosity:
         t0 = time.perf_counter()
         fr = FrameReport()
         valid = {k: self._validate(k, s) for k, s in shapes.items()}   # raise before changing anything
-        n0 = self.system.h.n
         evs = []
         for k in [k for k in self.shapes if k not in valid]:
             evs.append(self._remove(k))
@@ -246,7 +261,7 @@ class DynamicRadiosity:
         for e in evs:
             fr.iterations += e.iterations
             fr.messages += e.messages
-        fr.nodes_added = max(self.system.h.n - n0, 0) if not evs else sum(e.nodes_added for e in evs)
+        fr.nodes_added = sum(e.nodes_added for e in evs)
         fr.nodes_removed = sum(e.nodes_removed for e in evs)
         fr.seconds = time.perf_counter() - t0
         self._counts(fr)
@@ -278,6 +293,15 @@ class DynamicRadiosity:
         h = self.system.h
         leaf = locate(h, patch_ids, points)
         return self._B[:, leaf].T.copy(), self.emission()[:, leaf].T.copy()
+
+    def radiance_at(self, points, patch_ids, smooth=True):
+        """Radiance (N, 3) at surface points lying on input patches (output.radiance_at on the current
+        solution; under NAIVE, points covered by a light patch read that patch)."""
+        if self._naive is not None:
+            roots, pts = self._naive.remap(points, patch_ids)
+            return radiance_at(self._naive.system.h, self._naive.system.B, roots, pts, smooth)
+        self._sync()
+        return radiance_at(self.system.h, self._B, patch_ids, points, smooth)
 
     # -- events -------------------------------------------------------------------------------------
     def _stamp(self, rep, t0):
@@ -471,15 +495,17 @@ class DynamicRadiosity:
     def _incremental_add(self, rec):
         h = self.system.h
         rec.used = rec.method
+        self._event_n0 = h.n      # the node budget covers the outline and the first bounce together
         self._cover(rec)
         required = [rec.cov_nodes]
         if rec.method == "AUTO":
             rec.D, req = self._direct(rec)
             required.append(req)
         rec.owned = self._owned_ancestors(np.concatenate(required))
+        self._sync(extra=[rec])
         self._ref[rec.owned] += 1
-        self._gc()       # splits made on the way that turned out unnecessary
-        self._sync()
+        self._gc(extra=[rec])       # splits made on the way that turned out unnecessary
+        self._sync(extra=[rec])
         cov = self._coverage(rec)
         if rec.method == "AUTO":
             E = np.broadcast_to(self._push(rec.D), (3, h.n)).copy() if rec.D is not None else np.zeros((3, h.n))
@@ -497,7 +523,8 @@ class DynamicRadiosity:
         """Coverage of the shape on the hierarchy: cov_nodes get cov_vals (1 inside, else the overlap
         fraction), inherited by their descendants. Splits by the method's rule (see module doc)."""
         h = self.system.h
-        min_area = self.min_area_rel * self.total_area
+        # AUTO resolves the outline as finely as the light it casts (direct_min_area_rel)
+        min_area = (self.direct_min_area_rel if rec.method == "AUTO" else self.min_area_rel) * self.total_area
         inside, part, pfrac = [], [], []
         frontier = rec.roots
         while len(frontier):
@@ -556,93 +583,178 @@ class DynamicRadiosity:
                             f"{len(part)} boundary nodes use FE (emission L1 error {100 * rec.emission_l1:.2f}%)")
 
     def _direct(self, rec):
-        """AUTO: BF-refined links from the shape (sources with exact clipped coverage) to all surfaces.
-        Returns the first-bounce radiance per unit emission at the link receivers (3, n, not pushed)
-        and the nodes the links need."""
-        h, prm, refiner = self.system.h, self.system.params, self.system.refiner
-        rho = self.system.patches.reflectance
-        rho_max = rho.max(0)
-        aeps = prm.aeps * self.total_area
-        thr = self.bf_rel
-        tol = 1e-9 * np.sqrt(self.total_area)
-        in_group = np.zeros(len(self.system.patches.nv), bool)
+        """AUTO: the shape's first bounce, per unit emission, at receiver nodes (3, n, not pushed) and
+        the nodes it needs.
+
+        Receivers are evaluated at 2 x 2 Gauss points: exact unoccluded point-to-shape form factor
+        (contour integral over the rings; convex pieces with horizon clipping where the receiver's
+        plane cuts the shape) times a kernel-weighted visibility ratio (rays to points on the shape).
+        Starting at the roots, a node takes the value if the light on it is weak (HR internal nodes:
+        rho F < bf_rel) or even (own leaves: rho x range of F V < bf_rel); otherwise it is split
+        (below the HR leaves down to direct_min_area_rel x scene area, node budget permitting).
+        """
+        h, pt = self.system.h, self.system.patches
+        rho, rho_max = pt.reflectance, pt.reflectance.max(0)
+        min_area, thr = self.direct_min_area_rel * self.total_area, self.bf_rel
+        corners, nv, area, nf = self._pieces(rec)
+        if len(corners) == 0:
+            return np.zeros((3, h.n)), np.zeros(0, np.int64)
+        # points on the shape for the visibility ratio: 2 x 2 Gauss points of the pieces, thinned to
+        # at most 16 by systematic sampling along their cumulative area (deterministic)
+        sp, sw = ff.quadrature(corners, nv, 2)
+        sp, sw = sp.reshape(-1, 3), (sw * area[:, None]).ravel()
+        if len(sp) > 16:
+            cum = np.cumsum(sw)
+            pick = np.minimum(np.searchsorted(cum, (np.arange(16) + 0.5) / 16 * cum[-1]), len(sp) - 1)
+            sp, sw = sp[pick], np.full(16, cum[-1] / 16)
+        eps = self.system.refiner.eps
+        rings = None
+        if rec.covered >= 1 - 1e-9:          # contour over the rings: outer CCW about nf, holes CW
+            rings = [r if (_newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
+        allv = np.concatenate(rec.rings)
+        shape_lo, shape_hi = corners.reshape(-1, 3).min(0), corners.reshape(-1, 3).max(0)
+        shape_plane = self._plane_id(rec.roots[0])
+
+        def unoccluded(nodes):
+            """(m, 4) unoccluded point-to-shape form factors at the nodes' Gauss points, points, weights."""
+            x, gw = ff.quadrature(h.corners[nodes], h.nv[nodes], 2)
+            xn = np.repeat(h.normal[nodes], 4, 0)
+            x = x.reshape(-1, 3)
+            F = np.zeros(len(x))
+            front = (x - rec.c) @ nf > eps
+            above = ((allv[None] - x[:, None]) * xn[:, None]).sum(-1).min(1) > eps
+            ok = front & above & (rings is not None)
+            if ok.any():
+                F[ok] = _contour(x[ok], xn[ok], rings)
+            rest = np.flatnonzero(front & ~ok)
+            if len(rest):
+                T = len(corners)
+                F[rest] = ff.point_to_polygon(np.repeat(x[rest], T, 0), np.repeat(xn[rest], T, 0),
+                                              np.tile(corners, (len(rest), 1, 1)),
+                                              np.tile(nv, len(rest))).reshape(-1, T).sum(1)
+            return F.reshape(-1, 4), x, xn, gw
+
+        def visible(nodes, F, x, xn):
+            """F x kernel-weighted visibility ratio; rays only where an occluder may be in the way."""
+            FV = F.ravel().copy()
+            may = self._maybe_occluded(nodes, shape_lo, shape_hi, shape_plane)
+            lit = np.flatnonzero((FV > 0) & np.repeat(may, 4))
+            if len(lit):
+                K = len(sp)
+                a = np.repeat(x[lit] + eps * xn[lit], K, 0)
+                b = np.tile(sp + eps * nf, (len(lit), 1))
+                d = b - a
+                r2 = np.einsum("ij,ij->i", d, d)
+                kern = (np.maximum(np.einsum("ij,ij->i", d, np.repeat(xn[lit], K, 0)), 0)
+                        * np.maximum(-(d @ nf), 0) / np.maximum(r2, 1e-300) ** 2 * np.tile(sw, len(lit)))
+                vis = ~self.system.backend.occluded(a, b)
+                kern, vis = kern.reshape(-1, K), vis.reshape(-1, K)
+                ks = kern.sum(1)
+                FV[lit] *= np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
+            return FV.reshape(-1, 4)
+
+        in_group = np.zeros(len(pt.nv), bool)
         in_group[rec.group] = True
-        fr = np.full(h.n, np.nan)
-
-        def frac(nodes):
-            nonlocal fr
-            if len(fr) < h.n:
-                fr = np.concatenate([fr, np.full(h.n - len(fr), np.nan)])
-            todo = np.unique(nodes[np.isnan(fr[nodes])])
-            if len(todo):
-                vals = np.zeros(len(todo))
-                src = in_group[h.patch[todo]]
-                if src.any():
-                    vals[src] = self._classify(rec, todo[src])[0]
-                fr[todo] = vals
-            return fr[nodes]
-
-        recv = np.flatnonzero(~in_group)
-        p = np.tile(recv, len(rec.roots)).astype(np.int64)
-        q = np.repeat(rec.roots, len(recv)).astype(np.int64)
-        n_start = h.n
-        out = []
+        roots = np.flatnonzero(~in_group)
+        # cull receivers wholly behind the shape or facing away from all of it
+        rc = pt.corners[roots]
+        front = ((rc - rec.c) @ nf > eps).any(1)
+        sees = ((allv[None] - pt.corners[roots][:, :1]) * pt.normal[roots][:, None]).sum(-1).max(1) > eps
+        frontier = roots[front & sees]
+        n_start = getattr(self, "_event_n0", h.n)
+        acc_nodes, acc_vals = [], []
         budget_msg = False
-        while len(p):
-            fq = frac(q)
-            m = fq > 0
-            p, q, fq = p[m], q[m], fq[m]
-            f_pq = ff.estimate(h.centre[p], h.normal[p], h.area[p], h.corners[q], h.centre[q], h.normal[q], h.area[q])
-            f_qp = ff.estimate(h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p])
-            alive = (np.maximum(f_pq, f_qp) > 0) & _facing(h, p, q, tol)
-            p, q, fq, f_pq, f_qp = p[alive], q[alive], fq[alive], f_pq[alive], f_qp[alive]
-            w = rho_max[h.patch[p]] * fq
-            ok = w * f_pq < thr
-            can_p, can_q = h.area[p] > aeps, h.area[q] > aeps
-            if h.n - n_start > self.node_budget:
-                can_p[:] = can_q[:] = False
+        while len(frontier):
+            F, x, xn, gw = unoccluded(frontier)
+            rm = rho_max[h.patch[frontier]]
+            hr = self._hr_internal(frontier)
+            # HR internal nodes keep the light if it is weak on them, else they are descended
+            acc = hr & (rm * F.max(1) < thr) & (F.max(1) > 0)
+            leaf = ~hr & (F.max(1) > 0)
+            ev = np.flatnonzero(acc | leaf)
+            FV = np.zeros_like(F)
+            if len(ev):
+                sel = (ev[:, None] * 4 + np.arange(4)).ravel()
+                FV[ev] = visible(frontier[ev], F[ev], x[sel], xn[sel])
+            val = (FV * gw).sum(1)
+            var = rm * (FV.max(1) - FV.min(1))
+            split = leaf & (h.area[frontier] > min_area) & (var >= thr)
+            room = max((self.node_budget - (h.n - n_start)) // 4, 0)
+            if split.sum() > room:       # over budget: split the most uneven nodes only
                 budget_msg = True
-            v_p, v_q = np.zeros(len(p)), np.zeros(len(p))
-            near = ok & (np.sum((h.centre[p] - h.centre[q]) ** 2, 1) < prm.near * (h.area[p] + h.area[q]))
-            if near.any():
-                v_p[near], v_q[near] = _variation(h, p[near], q[near]), _variation(h, q[near], p[near])
-                ok &= w * np.maximum(v_p, v_q) < thr
-            vis = np.full(len(p), np.nan)
-            shadow = ok & (w * f_pq > 0.1 * thr) & (can_p | can_q)
-            if shadow.any():
-                vis[shadow] = refiner.visibility(p[shadow], q[shadow])
-                ok &= ~(shadow & (vis > 0) & (vis < 1))
-            by_var = (v_p + v_q) > 0
-            prefer_q = np.where(by_var, v_q > v_p, f_pq >= f_qp)
-            split_q = ~ok & can_q & (prefer_q | ~can_p)
-            split_p = ~ok & ~split_q & can_p
-            link = ~split_q & ~split_p
-            if link.any():
-                out.append((p[link], q[link], vis[link]))
-            sp_p, sp_q = p[split_p], q[split_p]
-            sq_p, sq_q = p[split_q], q[split_q]
-            h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
-            p = np.concatenate([(h.child0[sp_p][:, None] + np.arange(4)).ravel(), np.repeat(sq_p, 4)])
-            q = np.concatenate([np.repeat(sp_q, 4), (h.child0[sq_q][:, None] + np.arange(4)).ravel()])
+                idx = np.flatnonzero(split)
+                cen = h.centre[frontier[idx]]
+                keep = idx[np.lexsort((cen[:, 2], cen[:, 1], cen[:, 0], -np.round(var[idx], 12)))[:room]]
+                split[:] = False
+                split[keep] = True
+            take = (acc | (leaf & ~split)) & (val > 0)
+            acc_nodes.append(frontier[take])
+            acc_vals.append(val[take])
+            down = frontier[(hr & ~acc & (F.max(1) > 0)) | split]
+            h.subdivide(down[h.child0[down] < 0])
+            frontier = (h.child0[down][:, None] + np.arange(4)).ravel()
         if budget_msg:
             rec.msgs.append(f"shape '{rec.name}': first-bounce refinement reached the node budget "
                             f"({self.node_budget} nodes)")
+        nodes = np.concatenate(acc_nodes)
+        vals = np.concatenate(acc_vals)
+        rec.direct_links = len(nodes)
         D = np.zeros((3, h.n))
-        if not out:
-            rec.direct_links = 0
-            return D, np.zeros(0, np.int64)
-        a, b, vis = (np.concatenate(x) for x in zip(*out))
-        todo = np.isnan(vis)
-        if todo.any():
-            vis[todo] = refiner.visibility(a[todo], b[todo])
-        f_ab, _ = link_form_factors(h, a, b)
-        t = f_ab * vis * frac(b)
-        keep = t > 0
-        a, b, t = a[keep], b[keep], t[keep]
-        rec.direct_links = len(a)
-        for c in range(3):
-            D[c] = np.bincount(a, weights=rho[c, h.patch[a]] * t, minlength=h.n)
-        return D, np.unique(np.concatenate([a, b]))
+        D[:, nodes] = rho[:, h.patch[nodes]] * vals
+        return D, nodes
+
+    def _pieces(self, rec):
+        """Convex pieces (trapezoids) of the shape on its covered patches: corners (T, 4, 3) CCW about
+        the emitting side's normal, nv, areas, and that normal."""
+        pt = self.system.patches
+        roots = rec.roots
+        nf = pt.normal[roots[0]] if len(roots) else rec.n
+        if len(roots) == 0:
+            return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
+        p2 = self._to2d(rec, pt.corners[roots])
+        edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
+        edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in p2]
+        edges = np.concatenate(edges)
+        traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
+        if not traps:
+            return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
+        mids = np.array([m for _, m in traps])
+        keep = _in_rings(mids, rec.rings2d) & _in_convex(mids, p2).any(1)
+        out, nvs = [], []
+        for t in np.flatnonzero(keep):
+            q = traps[t][0]
+            p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
+            if _newell(p3) @ nf < 0:
+                p3 = p3[::-1]
+            nvs.append(len(p3))
+            out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
+        c = np.array(out)
+        _, a = ff.polygon_normal_area(c, np.array(nvs))
+        return c, np.array(nvs), a, nf
+
+    def _plane_id(self, patch):
+        return int(self._patch_plane[patch])
+
+    def _maybe_occluded(self, nodes, lo, hi, shape_plane, budget=4_000_000):
+        """Conservative shaft test between nodes and the shape's box: False where no occluder
+        triangle (outside both planes) meets the joint bounding box, so no rays are needed."""
+        h = self.system.h
+        T = len(self._tri_lo)
+        if T > 1024 or len(nodes) == 0:
+            return np.ones(len(nodes), bool)
+        c = h.corners[nodes]
+        e = self.system.refiner.eps
+        nlo = np.minimum(c.min(1), lo) - e
+        nhi = np.maximum(c.max(1), hi) + e
+        pp = self._patch_plane[h.patch[nodes]]
+        out = np.ones(len(nodes), bool)
+        step = max(1, budget // max(T, 1))
+        for s0 in range(0, len(nodes), step):
+            sl = slice(s0, s0 + step)
+            hit = np.all((self._tri_lo[None] <= nhi[sl, None]) & (self._tri_hi[None] >= nlo[sl, None]), axis=2)
+            hit &= (self._tri_plane[None] != pp[sl, None]) & (self._tri_plane[None] != shape_plane)
+            out[sl] = hit.any(1)
+        return out
 
     # -- node bookkeeping ----------------------------------------------------------------------------
     def _hr_internal(self, nodes):
@@ -665,10 +777,10 @@ class DynamicRadiosity:
             cur = cur[cur >= 0]
         return np.unique(np.concatenate(res)) if res else np.zeros(0, np.int64)
 
-    def _gc(self):
+    def _gc(self, extra=()):
         """Delete the children of owned splits no shape needs. Returns the number of nodes deleted."""
         h = self.system.h
-        self._sync()
+        self._sync(extra)
         n = h.n
         idx = np.arange(n)
         collapse = (h.child0[:n] >= 0) & ~self._hr_internal(idx) & (self._ref[:n] == 0)
@@ -685,7 +797,7 @@ class DynamicRadiosity:
         self._Bbase = self._Bbase[:, keep]
         self._X = self._X[:, keep]
         self._B = self._B[:, keep] if self._B.shape[1] == n else self._B
-        for rec in list(self.shapes.values()) + list(self._cache.values()):
+        for rec in list(self.shapes.values()) + list(self._cache.values()) + list(extra):
             for name in ("U", "D"):
                 a = getattr(rec, name)
                 if a is not None:
@@ -698,7 +810,7 @@ class DynamicRadiosity:
                     setattr(rec, name, a)
         return int(dead.sum())
 
-    def _sync(self):
+    def _sync(self, extra=()):
         """Extend per-node arrays to nodes created since: solutions by copy from the parent (new nodes
         carry no links, so this is exact), first-bounce terms and reference counts with zeros."""
         h = self.system.h
@@ -708,7 +820,7 @@ class DynamicRadiosity:
         self._Bbase = _extend_copy(self._Bbase, h)
         self._X = _extend_copy(self._X, h)
         self._B = _extend_copy(self._B, h)
-        for rec in list(self.shapes.values()) + list(self._cache.values()):
+        for rec in list(self.shapes.values()) + list(self._cache.values()) + list(extra):
             if rec.U is not None:
                 rec.U = _extend_copy(rec.U, h)
             if rec.D is not None and rec.D.shape[1] < n:
@@ -747,7 +859,10 @@ class DynamicRadiosity:
         return self._op
 
     def _solve(self, E, B0=None):
-        return solve(self.system.h, self.links, E, B0=B0, tol=self.tol, op=self._operator())
+        """Solve with non-negative emission; the exact solution is non-negative, so the solver's
+        tiny negative excursions (GMRES is not monotone) are clipped."""
+        B, rep = solve(self.system.h, self.links, E, B0=B0, tol=self.tol, op=self._operator())
+        return np.maximum(B, 0.0), rep
 
 
 # -- helpers --------------------------------------------------------------------------------------------
@@ -782,24 +897,20 @@ def _variation(h, x, y):
     return f.max(1) - f.min(1)
 
 
-def locate(h, roots, points):
-    """Leaf of each root's quadtree containing each point (N,), descending by signed edge distances."""
-    node = np.asarray(roots, np.int64).copy()
-    pts = np.asarray(points, float)
-    while True:
-        c0 = h.child0[node]
-        idx = np.flatnonzero(c0 >= 0)
-        if len(idx) == 0:
-            return node
-        kids = c0[idx][:, None] + np.arange(4)
-        C = h.corners[kids]                                   # (m, 4, 4, 3)
-        e = np.roll(C, -1, axis=2) - C
-        w = pts[idx][:, None, None, :] - C
-        s = np.einsum("mkej,mkj->mke", np.cross(e, w), h.normal[kids])
-        el = np.linalg.norm(e, axis=-1)
-        s = np.where(el > 0, s / np.where(el > 0, el, 1), np.inf)
-        best = np.argmax(s.min(-1), 1)
-        node[idx] = kids[np.arange(len(idx)), best]
+def _contour(x, n, rings):
+    """Unoccluded form factor from points x (N, 3) with normals n to a polygon with holes lying wholly
+    above their horizons: Lambert's contour integral over all rings (outer CCW about the polygon's
+    normal, holes CW)."""
+    f = np.zeros(len(x))
+    for r in rings:
+        R = r[None] - x[:, None]                                      # (N, M, 3)
+        Rn = np.roll(R, -1, axis=1)
+        cr = np.cross(R, Rn)
+        cl = np.linalg.norm(cr, axis=-1)
+        g = np.arctan2(cl, np.einsum("nmk,nmk->nm", R, Rn))
+        t = np.where(cl > 0, g * np.einsum("nmk,nk->nm", cr, n) / np.where(cl > 0, cl, 1), 0.0)
+        f -= t.sum(1) / (2 * np.pi)
+    return np.clip(f, 0.0, 1.0)
 
 
 def surface_samples(patches, per_area, min_k=2):
@@ -974,6 +1085,15 @@ class _NaiveState:
         self.seconds = time.perf_counter() - t0
 
     def evaluate(self, points, patch_ids):
+        roots, pts = self.remap(points, patch_ids)
+        h = self.system.h
+        leaf = locate(h, roots, pts)
+        E = self.system.base_emission()
+        return self.system.B[:, leaf].T.copy(), E[:, leaf].T.copy()
+
+    def remap(self, points, patch_ids):
+        """Points on input patches -> (root patch, point) in the NAIVE system: points under a light
+        patch move onto it."""
         pts = np.asarray(points, float).copy()
         roots = np.asarray(patch_ids, np.int64).copy()
         for r0, pats, quads, pidx, front in self.groups:
@@ -986,10 +1106,7 @@ class _NaiveState:
             mm = m[has]
             roots[mm] = pidx[t]
             pts[mm] = pts[mm] + self.delta * front[t]
-        h = self.system.h
-        leaf = locate(h, roots, pts)
-        E = self.system.base_emission()
-        return self.system.B[:, leaf].T.copy(), E[:, leaf].T.copy()
+        return roots, pts
 
     def loop_radiance(self, mesh, domain, smooth_angle):
         out = self.system.loop_radiance("CORNER", smooth_angle)[:self.L0].astype(np.float64)

@@ -1,0 +1,353 @@
+"""Dynamic light shapes (hr_addon/core/events.py): NAIVE, AR, FE, AUTO.
+
+One coarse Cornell box is built once; every test works on a clone (the hierarchy is extended in place).
+"""
+import copy
+
+import numpy as np
+import pytest
+
+from hr_addon.core import scenes
+from hr_addon.core import shapes as S
+from hr_addon.core import formfactor as ff
+from hr_addon.core.events import DynamicRadiosity, LightShape, locate, surface_samples
+from hr_addon.core.geometry import InputError
+from hr_addon.core.radiosity import RadiositySystem
+from hr_addon.core.refine import Refiner, RefineParams
+from hr_addon.core.solver import solve
+
+COARSE = RefineParams(feps=0.1, aeps=4e-3, shadow_feps=0.02, veps=0.02)
+GREEN, BACK = S.CORNELL_GREEN_WALL, S.CORNELL_BACK_WALL
+
+
+def shape(outline, frame=GREEN, em=(8.0, 7.0, 5.0), name="s"):
+    return LightShape(S.on_plane(outline, frame), np.array(em, float), name)
+
+
+WINDOW = shape(S.window(0.2, 0.16, 0.02, centre=(0.3, 0.3), angle=0.3, shear=0.3), name="window")
+STAR = shape(S.star(0.1, 0.04, 5, centre=(0.25, 0.3), angle=0.2), BACK, (2.0, 3.0, 6.0), "star")
+ELLIPSE = shape(S.ellipse(0.12, 0.05, centre=(0.3, 0.25), angle=0.5), BACK, (5.0, 5.0, 5.0), "ellipse")
+
+
+def clone(sysm):
+    """A RadiositySystem sharing the links and ray backend but with its own hierarchy."""
+    c = object.__new__(RadiositySystem)
+    c.__dict__.update(sysm.__dict__)
+    c.h = copy.deepcopy(sysm.h)
+    c.refiner = Refiner(c.h, sysm.backend, sysm.params)
+    c._op = None
+    return c
+
+
+@pytest.fixture(scope="module")
+def base():
+    return RadiositySystem(scenes.cornell_box(), COARSE)
+
+
+@pytest.fixture(scope="module")
+def samples(base):
+    return surface_samples(base.patches, 1500)
+
+
+def leaf_power(dyn):
+    """Emitted power of the shapes per channel: sum over leaves of (E - E_base) x area (radiance x m^2)."""
+    h = dyn.system.h
+    lf = h.leaves()
+    E = dyn.emission() - dyn.system.base_emission()
+    return (E[:, lf] * h.area[lf]).sum(1)
+
+
+def rel(a, b):
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-300))
+
+
+# -- incremental == from scratch ------------------------------------------------------------------------
+@pytest.mark.parametrize("method", ["FE", "AR"])
+@pytest.mark.parametrize("incremental", ["response", "warm"])
+def test_incremental_equals_cold_solve(base, method, incremental):
+    dyn = DynamicRadiosity(clone(base), method=method, incremental=incremental)
+    dyn.add("w", WINDOW)
+    dyn.add("s", STAR)
+    dyn.set_emission("w", [1.0, 2.0, 3.0])
+    dyn.remove("s")
+    dyn.add("e", ELLIPSE)
+    dyn.apply({"e": ELLIPSE, "w": LightShape(WINDOW.rings, np.array([4.0, 0.0, 1.0]), "window")})
+    h = dyn.system.h
+    cold, rep = solve(h, dyn.links, dyn.emission(), tol=1e-10)
+    # the solver stops at a relative residual of tol = 1e-7; the error is at most that over (1 - rho)
+    assert rel(dyn.B, cold) < 2e-6, rel(dyn.B, cold)
+
+
+# -- history independence, drift, memory -------------------------------------------------------------------
+@pytest.mark.parametrize("method", ["AR", "AUTO", "FE"])
+def test_history_independence(base, samples, method):
+    pts, ids, _ = samples
+    alone = DynamicRadiosity(clone(base), method=method)
+    alone.add("B", STAR)
+    ref = alone.evaluate(pts, ids)[0]
+    dyn = DynamicRadiosity(clone(base), method=method)
+    n0, l0 = dyn.system.h.n, len(dyn.links)
+    dyn.add("A", WINDOW)
+    dyn.add("B", STAR)
+    dyn.remove("A")
+    # the same linear solve in another node numbering: equal to rounding (GMRES: ~1e-10)
+    assert rel(dyn.evaluate(pts, ids)[0], ref) < 1e-8
+    assert dyn.system.h.n == alone.system.h.n
+    dyn.remove("B")
+    assert (dyn.system.h.n, len(dyn.links)) == (n0, l0)      # memory back to the baseline
+    assert rel(dyn.B, dyn._Bbase) == 0.0
+
+
+def test_history_independence_warm(base, samples):
+    pts, ids, _ = samples
+    alone = DynamicRadiosity(clone(base), method="AR", incremental="warm")
+    alone.add("B", STAR)
+    dyn = DynamicRadiosity(clone(base), method="AR", incremental="warm")
+    dyn.add("A", WINDOW)
+    dyn.add("B", STAR)
+    dyn.remove("A")
+    assert rel(dyn.evaluate(pts, ids)[0], alone.evaluate(pts, ids)[0]) < 2e-6
+
+
+def test_thousand_cycles_no_drift_no_negative(base):
+    dyn = DynamicRadiosity(clone(base), method="FE")
+    dyn.add("B", STAR)
+    ref = dyn.B.copy()
+    n0 = dyn.system.h.n
+    for i in range(1000):
+        dyn.add("A", WINDOW)
+        dyn.set_emission("A", [1.0 + i % 7, 2.0, 0.5])
+        dyn.set_emission("B", [2.0, 3.0, 6.0 + i % 3])
+        dyn.remove("A")
+        assert dyn.B.min() >= 0.0
+    dyn.set_emission("B", STAR.emission)
+    assert rel(dyn.B, ref) < 1e-6 and dyn.system.h.n == n0
+
+
+@pytest.mark.parametrize("incremental", ["response", "warm"])
+def test_cycles_with_refinement(base, incremental):
+    """AR creates and deletes nodes every cycle (no response cache): no drift, nodes back to baseline."""
+    dyn = DynamicRadiosity(clone(base), method="AR", incremental=incremental, cache_size=0)
+    ref = dyn.B.copy()
+    n0, l0 = dyn.system.h.n, len(dyn.links)
+    for _ in range(15):
+        r = dyn.add("A", WINDOW)
+        assert r.nodes_added > 0
+        dyn.remove("A")
+        assert dyn.B.min() >= 0.0
+        assert (dyn.system.h.n, len(dyn.links)) == (n0, l0)
+    assert rel(dyn.B, ref) < 1e-6
+
+
+# -- FE / AR emission is exactly the shape's area x emission ------------------------------------------------
+CASES = {
+    "rotated": (S.rect(0.2, 0.1, (0.3, 0.3), 0.7), GREEN),
+    "concave_cross": (S.cross(0.2, 0.15, 0.03, (0.27, 0.28), 0.4), GREEN),
+    "star": (S.star(0.12, 0.03, 7, (0.3, 0.25), 0.1), BACK),
+    "window_with_hole": (S.window(0.2, 0.16, 0.02, (0.3, 0.3), 0.3, 0.3), GREEN),
+    "sliver": (S.rect(0.3, 5e-4, (0.28, 0.27), 0.35), BACK),
+    "tiny": (S.rect(1e-3, 1e-3, (0.1234, 0.3456), 0.2), GREEN),
+}
+
+
+@pytest.mark.parametrize("method", ["FE", "AR", "AUTO"])
+@pytest.mark.parametrize("case", list(CASES))
+def test_emission_sums_to_area_times_emission(base, case, method):
+    outline, frame = CASES[case]
+    sh = shape(outline, frame)
+    rings2d = outline if isinstance(outline, list) else [outline]
+    area = abs(S_area(rings2d[0])) - sum(abs(S_area(r)) for r in rings2d[1:])
+    dyn = DynamicRadiosity(clone(base), method=method, incremental="warm")
+    rep = dyn.add("x", sh)
+    assert rep.covered == pytest.approx(1.0, rel=1e-9)
+    np.testing.assert_allclose(leaf_power(dyn), area * sh.emission, rtol=1e-9)
+    if method == "AR":
+        assert rep.emission_l1 <= DynamicRadiosity(clone(base), method="FE").add("x", sh).emission_l1 + 1e-12
+
+
+def S_area(r):
+    from hr_addon.core.clip import polygon_area_2d
+    return polygon_area_2d(np.asarray(r))
+
+
+def test_shape_covering_patches_entirely():
+    """Back wall in 4 x 4 patches: the shape covers the inner ones entirely and parts of the others."""
+    sysm = RadiositySystem(scenes.cornell_box(subdiv=4), COARSE)
+    sh = shape(S.rect(0.4, 0.4, (0.3, 0.28), 0.0), BACK, (1.0, 2.0, 3.0))
+    dyn = DynamicRadiosity(sysm, method="FE")
+    rep = dyn.add("x", sh)
+    np.testing.assert_allclose(leaf_power(dyn), 0.16 * sh.emission, rtol=1e-9)
+    wall = [i for i, n in enumerate(sysm.patches.object_names) if n == "back"][0]
+    roots = np.flatnonzero(sysm.patches.object_id == wall)
+    cov = dyn._coverage(dyn.shapes["x"])
+    assert (np.isclose(cov[roots], 1.0)).sum() == 4 and rep.method == "FE"
+
+
+# -- where the methods fail ------------------------------------------------------------------------------
+def test_ar_node_budget_falls_back_to_fe(base):
+    """A non-axis-aligned, boundary-heavy shape with a tiny minimum area: AR would add far more nodes;
+    the budget caps them, the rest of the boundary uses FE, the report says so, power stays exact."""
+    sh = shape(S.star(0.15, 0.05, 9, (0.28, 0.27), 0.13), BACK)
+    free = DynamicRadiosity(clone(base), method="AR", min_area_rel=1e-7, node_budget=10 ** 7).add("x", sh)
+    budget = 2000
+    dyn = DynamicRadiosity(clone(base), method="AR", min_area_rel=1e-7, node_budget=budget)
+    rep = dyn.add("x", sh)
+    assert free.nodes_added > 5 * budget          # the growth the budget protects against
+    assert 0 < rep.nodes_added <= budget
+    assert rep.method == "AR+FE" and any("node budget" in m for m in rep.messages)
+    assert free.emission_l1 < rep.emission_l1 < DynamicRadiosity(clone(base), method="FE").add("x", sh).emission_l1
+    np.testing.assert_allclose(leaf_power(dyn), dyn.shapes["x"].area * sh.emission, rtol=1e-9)
+    # AUTO: one budget for the outline and the first-bounce receivers together
+    auto = DynamicRadiosity(clone(base), method="AUTO", bf_rel=1e-4, node_budget=600).add("x", sh)
+    assert 0 < auto.nodes_added <= 600 and any("node budget" in m for m in auto.messages)
+
+
+def test_fe_error_shrinks_with_finer_hierarchy():
+    """FE smears the shape over whole HR leaves: its (exact) L1 emission error falls as leaves shrink."""
+    sh = shape(S.ellipse(0.12, 0.07, (0.28, 0.27), 0.4), BACK)
+    errs = []
+    for aeps in (1.6e-2, 4e-3, 1e-3):
+        sysm = RadiositySystem(scenes.cornell_box(), RefineParams(feps=0.1, aeps=aeps, shadow_feps=0.02, veps=0.02))
+        errs.append(DynamicRadiosity(sysm, method="FE").add("x", sh).emission_l1)
+    assert errs[0] > errs[1] > errs[2], errs
+    assert errs[2] < 0.6 * errs[0]
+
+
+def test_auto_first_bounce_beats_links(base, samples):
+    """AUTO's first bounce (its own receiver refinement) against a brute-force point evaluation:
+    exact point-to-piece form factors (formfactor.point_to_polygon) x visibility by 64+ rays per point.
+    FE/AR hand the same light to the old links (AR only sharpens the outline: their reflected light is
+    identical), whose first bounce is far coarser. Per unit emission, RMS over sample points."""
+    pts, ids, w = samples
+    auto = DynamicRadiosity(clone(base), method="AUTO")
+    auto.add("w", WINDOW)
+    rec = auto.shapes["w"]
+    h = auto.system.h
+    leaf = locate(h, ids, pts)
+    rho = base.patches.reflectance[:, ids]
+    got_auto = auto._push(rec.D)[:, leaf]
+    fe = DynamicRadiosity(clone(base), method="FE")
+    fe.add("w", WINDOW)
+    op = fe._operator()
+    cov = np.repeat(fe._coverage(fe.shapes["w"])[None], 3, 0)
+    got_fe = (rho * op.push(op.gather(op.pull(cov)))[:, locate(fe.system.h, ids, pts)])
+    # brute force
+    corners, nv, area, nf = auto._pieces(rec)
+    off = ~np.isin(ids, rec.group)
+    x, xn = pts[off], base.patches.normal[ids[off]]
+    T = len(corners)
+    F = ff.point_to_polygon(np.repeat(x, T, 0), np.repeat(xn, T, 0), np.tile(corners, (len(x), 1, 1)),
+                            np.tile(nv, len(x))).reshape(-1, T).sum(1)
+    sp, sw = ff.quadrature(corners, nv, 3)
+    sp, sw = sp.reshape(-1, 3), (sw * area[:, None]).ravel()
+    K, eps = len(sp), 1e-6
+    a, b = np.repeat(x + eps * xn, K, 0), np.tile(sp + eps * nf, (len(x), 1))
+    d = b - a
+    kern = (np.maximum((d * np.repeat(xn, K, 0)).sum(1), 0) * np.maximum(-(d @ nf), 0)
+            / (d * d).sum(1) ** 2 * np.tile(sw, len(x))).reshape(-1, K)
+    vis = ~base.backend.occluded(a, b).reshape(-1, K)
+    V = np.where(kern.sum(1) > 0, (kern * vis).sum(1) / np.maximum(kern.sum(1), 1e-300), 1.0)
+    exact = rho[:, off] * F * V
+
+    def rms(v):
+        return np.sqrt(np.average(((v[:, off] - exact) ** 2).sum(0), weights=w[off]))
+    print("first bounce rms AUTO %.4g FE %.4g" % (rms(got_auto), rms(got_fe)))
+    assert rms(got_auto) < 0.5 * rms(got_fe), (rms(got_auto), rms(got_fe))
+    fe_pts, ar = fe.evaluate(pts, ids), DynamicRadiosity(clone(base), method="AR")
+    ar.add("w", WINDOW)
+    ar_pts = ar.evaluate(pts, ids)
+    assert rel(ar_pts[0] - ar_pts[1], fe_pts[0] - fe_pts[1]) < 1e-6
+
+
+# -- planes, objects, bad input -------------------------------------------------------------------------------
+def test_shape_spanning_two_objects_in_one_plane():
+    sb = scenes.SceneBuilder()
+    sb.add_quad("floor_a", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], (0.5, 0.5, 0.5))
+    sb.add_quad("floor_b", [(1, 0, 0), (2, 0, 0), (2, 1, 0), (1, 1, 0)], (0.3, 0.6, 0.3), subdiv=2)
+    sb.add_quad("ceiling", [(0, 0, 1), (0, 1, 1), (2, 1, 1), (2, 0, 1)], (0.7, 0.7, 0.7))
+    sysm = RadiositySystem(sb.build(), COARSE)
+    frame = (np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
+    sh = shape(S.ellipse(0.6, 0.3, (1.0, 0.5), 0.3), frame, (3.0, 3.0, 3.0))
+    for m in ("FE", "AR", "AUTO"):
+        dyn = DynamicRadiosity(clone(sysm), method=m)
+        rep = dyn.add("x", sh)
+        rec = dyn.shapes["x"]
+        assert len(set(sysm.patches.object_id[rec.roots])) == 2 and rep.covered == pytest.approx(1.0)
+        np.testing.assert_allclose(leaf_power(dyn), rec.area * sh.emission, rtol=1e-9)
+        assert dyn.B[:, np.flatnonzero(sysm.patches.object_id == 2)].min() > 0      # the ceiling is lit
+
+
+def test_shape_off_every_surface_uses_naive(base, samples):
+    pts, ids, _ = samples
+    dyn = DynamicRadiosity(clone(base), method="AR")
+    dyn.add("w", WINDOW)
+    floating = (np.array([0.2, 0.2, 0.3]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))   # mid-air, facing up
+    rep = dyn.add("f", shape(S.rect(0.1, 0.1, (0.05, 0.05)), floating, (5.0, 5.0, 5.0), "lamp"))
+    assert rep.method == "NAIVE" and dyn.naive_active
+    assert any("'lamp' lies on no surface: handled by NAIVE" in m for m in rep.messages)
+    assert dyn.loop_radiance().shape == (len(base.mesh.loop_verts), 3)
+    ceiling = np.flatnonzero(base.patches.object_names.index("ceiling") == base.patches.object_id[ids])
+    lit = dyn.evaluate(pts[ceiling], ids[ceiling])[0]
+    np.testing.assert_allclose(dyn.radiance_at(pts[ceiling], ids[ceiling], smooth=False), lit)
+    dyn.remove("f")
+    assert not dyn.naive_active
+    assert lit.mean() > 1.1 * dyn.evaluate(pts[ceiling], ids[ceiling])[0].mean()   # the lamp lit the ceiling
+
+
+def test_partly_off_surface_is_reported(base):
+    dyn = DynamicRadiosity(clone(base), method="FE")
+    rep = dyn.add("x", shape(S.rect(0.2, 0.2, (0.0, 0.3)), GREEN, name="edge"))   # half beyond the wall
+    assert rep.covered == pytest.approx(0.5, rel=1e-6) and any("50.0%" in m for m in rep.messages)
+
+
+@pytest.mark.parametrize("bad, what", [
+    ("nan", "NaN or infinite"), ("emission", "not finite"), ("bent", "not planar"), ("flat", "zero area")])
+def test_bad_shape_errors_name_the_shape(base, bad, what):
+    dyn = DynamicRadiosity(clone(base), method="FE")
+    rings = [r.copy() for r in WINDOW.rings]
+    em = np.array([1.0, 1.0, 1.0])
+    if bad == "nan":
+        rings[1][2, 1] = np.nan
+    elif bad == "emission":
+        em[1] = np.inf
+    elif bad == "bent":
+        rings[0][0, 0] += 0.05
+    else:
+        rings[0][:] = rings[0][0]
+    with pytest.raises(InputError, match=f"'broken'.*{what}|{what}.*'broken'"):
+        dyn.apply({"ok": WINDOW, "b": LightShape(rings, em, "broken")})
+    assert not dyn.shapes    # nothing applied
+
+
+# -- frames ------------------------------------------------------------------------------------------------
+def test_apply_diffs_frames(base):
+    dyn = DynamicRadiosity(clone(base), method="FE")
+    f = dyn.apply({"w": WINDOW, "s": STAR})
+    assert [e.kind for e in f.events] == ["add", "add"] and f.iterations > 0
+    again = dyn.apply({"w": WINDOW, "s": STAR})
+    assert not again.changed and again.iterations == 0
+    moved = shape(S.window(0.2, 0.16, 0.02, centre=(0.32, 0.3), angle=0.3, shear=0.3), name="window")
+    f = dyn.apply({"w": moved, "s": LightShape(STAR.rings, np.array([1.0, 1.0, 1.0]), "star")})
+    assert sorted(e.kind for e in f.events) == ["emission", "reshape"]
+    f = dyn.apply({})
+    assert [e.kind for e in f.events] == ["remove", "remove"] and f.nodes == base.h.n
+    out = dyn.loop_radiance()
+    assert out.dtype == np.float32 and out.shape == (len(base.mesh.loop_verts), 3)
+    pts = base.patches.corners.mean(1)
+    assert dyn.radiance_at(pts, np.arange(len(pts))).shape == (len(pts), 3)
+
+
+def test_naive_method_matches_its_own_rebuild(base, samples):
+    """NAIVE: light patches laid over the wall; overlapping shapes add (slab decomposition)."""
+    pts, ids, w = samples
+    dyn = DynamicRadiosity(clone(base), method="NAIVE")
+    a = shape(S.rect(0.2, 0.2, (0.25, 0.25), 0.3), BACK, (1.0, 1.0, 1.0))
+    b = shape(S.ellipse(0.1, 0.08, (0.35, 0.3), 0.0), BACK, (2.0, 0.0, 0.0))
+    rep = dyn.apply({"a": a, "b": b})
+    assert rep.method == "NAIVE"
+    E = dyn.evaluate(pts, ids)[1] - base.patches.emission[:, ids].T
+    fe = DynamicRadiosity(clone(base), method="FE")
+    fe.apply({"a": a, "b": b})
+    # same emitted power as the exact clipped coverage (point samples: a few percent)
+    np.testing.assert_allclose((E * w[:, None]).sum(0)[:1], leaf_power(fe)[:1], rtol=0.1)
+    assert dyn.loop_radiance("POINT").shape == (len(base.mesh.verts), 3)
