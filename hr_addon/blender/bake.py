@@ -16,10 +16,10 @@ import numpy as np
 from ..core.geometry import InputError
 from ..core.radiosity import RadiositySystem
 from ..core.refine import RefineParams
-from . import playback
+from . import playback, texture
 from .cache import CacheWriter
-from .scene_in import (SceneError, collect_geometry, collect_light_shapes, light_shape_objects,
-                       shapes_signature)
+from .scene_in import (SceneError, collect_geometry, collect_light_shapes, geometry_objects,
+                       light_shape_objects, shapes_signature)
 
 try:  # the dynamic (light-event) solver
     from ..core.events import DynamicRadiosity, LightShape
@@ -29,6 +29,7 @@ except ImportError:  # pragma: no cover - older core
 METHODS = ("AUTO", "AR", "FE", "NAIVE")
 QUALITIES = ("DRAFT", "MEDIUM", "HIGH", "CUSTOM")
 DOMAINS = ("CORNER", "POINT")
+OUTPUTS = ("VERTEX", "TEXTURE")
 
 
 @dataclass
@@ -93,11 +94,13 @@ def _signature(mesh, params, domain, targets):
 
 
 def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, domain=None,
-                feps=None, aeps=None):
+                feps=None, aeps=None, output=None, resolution=None, texture_format=None):
     """Generator: yields BakeProgress, returns (StopIteration.value) a BakeResult.
 
     Static geometry is read at the scene's start frame (the same for every partial bake, so
     split bakes agree); light shapes are evaluated from scratch at every frame.
+    output VERTEX: colour attribute HR_Radiance; TEXTURE: per-object image sequences (texture.py)
+    at `resolution` (objects may override it) in `texture_format` EXR or PNG.
     """
     hr = scene.hr
     view_layer = view_layer or (bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0])
@@ -109,7 +112,18 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         raise SceneError(f"Unknown domain '{domain}' (CORNER or POINT).")
     quality = (quality or hr.quality).upper()
     params = refine_params(quality, hr.feps if feps is None else feps, hr.aeps if aeps is None else aeps)
+    output = (output or hr.output).upper()
+    if output not in OUTPUTS:
+        raise SceneError(f"Unknown output '{output}' (VERTEX or TEXTURE).")
+    texture_format = (texture_format or hr.texture_format).upper()
+    if texture_format not in texture.FORMATS:
+        raise SceneError(f"Unknown texture format '{texture_format}' (EXR or PNG).")
+    resolution = int(resolution or hr.texture_resolution)
+    if not 8 <= resolution <= 16384:
+        raise SceneError(f"Bad texture resolution {resolution} (8 to 16384).")
     start, end = frame_range_for(scene, frames)
+    if output == "TEXTURE" and start < 0:
+        raise SceneError("Texture output needs frame numbers >= 0 (image sequence file names).")
     final_dir = cache_dir_for(scene)
     t_start = time.perf_counter()
     result = BakeResult(cache_dir=final_dir, frames=(start, end))
@@ -120,7 +134,14 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
     try:
         scene.frame_set(scene.frame_start)
         depsgraph = view_layer.depsgraph
-        scene_in = collect_geometry(view_layer, depsgraph)
+        geo_objects = geometry_objects(view_layer)
+        if output == "TEXTURE":
+            try:
+                result.warnings += texture.ensure_lightmaps(geo_objects, resolution)
+            except texture.TextureError as exc:
+                raise SceneError(str(exc)) from None
+        with texture.source_materials(geo_objects):    # texture preview copies stand for these
+            scene_in = collect_geometry(view_layer, depsgraph)
         result.warnings += scene_in.warnings
         has_shapes = bool(light_shape_objects(view_layer, include_hidden=True))
         if has_shapes and DynamicRadiosity is None:
@@ -135,12 +156,25 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         result.build_seconds = time.perf_counter() - t0
         result.build_report = system.build
         result.warnings += [w for w in system.build.warnings if w not in result.warnings]
-        objects = {t.name: {"mesh": t.mesh_name, "count": t.n_corner if domain == "CORNER" else t.n_point}
-                   for t in scene_in.targets}
         info = {"blend": os.path.basename(bpy.data.filepath), "scene": scene.name, "method": method,
-                "quality": quality, "feps": params.feps, "aeps": params.aeps,
+                "quality": quality, "feps": params.feps, "aeps": params.aeps, "output": output,
                 "created": time.strftime("%Y-%m-%d %H:%M:%S")}
-        writer = CacheWriter(final_dir, objects, domain, _signature(scene_in.mesh, params, domain, scene_in.targets), info)
+        baker = None
+        if output == "TEXTURE":
+            try:
+                baker = texture.TextureBaker(scene_in, system.patches, view_layer, view_layer.depsgraph,
+                                             resolution, texture_format)
+            except texture.TextureError as exc:
+                raise SceneError(str(exc)) from None
+            result.warnings += [w for w in baker.warnings if w not in result.warnings]
+            objects = baker.objects_info(scene_in.targets)
+            writer = CacheWriter(final_dir, objects, "TEXTURE",
+                                 baker.signature(_signature(scene_in.mesh, params, "TEXTURE", scene_in.targets)), info)
+            baker.bind(writer.tmp)
+        else:
+            objects = {t.name: {"mesh": t.mesh_name, "count": t.n_corner if domain == "CORNER" else t.n_point}
+                       for t in scene_in.targets}
+            writer = CacheWriter(final_dir, objects, domain, _signature(scene_in.mesh, params, domain, scene_in.targets), info)
         prev_sig = prev_frame = None
         total = end - start + 1
         for i, f in enumerate(range(start, end + 1)):
@@ -153,17 +187,22 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
                 shapes, sig = None, "static"
             if sig == prev_sig:
                 writer.reuse(f, prev_frame)
+                if baker is not None:
+                    baker.reuse(f, prev_frame)
                 result.reused += 1
                 reused = True
             else:
                 if dyn is not None:
                     report = dyn.apply(shapes)
                     frame_warnings += list(getattr(report, "messages", []) or [])
-                    values = dyn.loop_radiance(domain)
                 else:
                     system.solve()
-                    values = system.loop_radiance(domain)
-                writer.write(f, {t.name: t.extract(values, domain) for t in scene_in.targets})
+                if baker is not None:
+                    baker.write(f, baker.radiance(dyn, system))
+                    writer.write(f, {})      # the frame's entry in the manifest (textures hold the values)
+                else:
+                    values = dyn.loop_radiance(domain) if dyn is not None else system.loop_radiance(domain)
+                    writer.write(f, {t.name: t.extract(values, domain) for t in scene_in.targets})
                 result.solved += 1
                 reused = False
             prev_sig, prev_frame = sig, f
@@ -171,6 +210,8 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
             result.warnings += new_w
             yield BakeProgress("frame", frame=f, done=i + 1, total=total, reused=reused, warnings=new_w,
                                message=f"Frame {f} ({i + 1}/{total}){' unchanged' if reused else ''}")
+        if baker is not None:
+            baker.finish(writer)
         writer.commit()
         committed = True
         result.kept = writer.kept
@@ -185,6 +226,10 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         hr.playback = True
         scene.render.use_lock_interface = True  # renders read HR_Radiance in frame_change_pre
         playback.forget_readers()
+        if baker is not None:
+            texture.after_bake(scene, final_dir)
+        else:
+            texture.remove_material(geo_objects)    # a texture preview would show deleted files
     finally:
         if writer is not None and not committed:
             writer.abort()
@@ -215,4 +260,4 @@ def run_bake(scene, log=print, **kwargs):
 
 
 __all__ = ["bake_frames", "run_bake", "BakeProgress", "BakeResult", "SceneError", "InputError",
-           "METHODS", "QUALITIES", "DOMAINS"]
+           "METHODS", "QUALITIES", "DOMAINS", "OUTPUTS"]

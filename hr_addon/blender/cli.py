@@ -24,12 +24,15 @@ class _Parser(argparse.ArgumentParser):
 
 def make_parser(prog=PROG, blend_required=False):
     p = _Parser(prog=prog, description="Bake dynamic hierarchical radiosity into the HR_Radiance "
-                                       "attribute cache of a .blend file.")
+                                       "attribute cache (or baked textures) of a .blend file.")
     p.add_argument("blend", nargs=None if blend_required else "?",
                    help="the .blend file (default: the file Blender opened)")
     p.add_argument("--frames", metavar="A-B", help="frame range (default: the scene's)")
     p.add_argument("--method", type=str.lower, choices=["ar", "fe", "naive", "auto"])
-    p.add_argument("--output", type=str.lower, choices=["vertex"], default="vertex")
+    p.add_argument("--output", type=str.lower, choices=["vertex", "texture"],
+                   help="vertex colours (HR_Radiance) or baked textures (default: the scene's)")
+    p.add_argument("--resolution", type=int, metavar="N", help="texture size in texels (texture output)")
+    p.add_argument("--texture-format", type=str.lower, choices=["exr", "png"], help="texture file format")
     p.add_argument("--quality", type=str.lower, choices=["draft", "medium", "high", "custom"])
     p.add_argument("--feps", type=float, help="form factor threshold (implies --quality custom)")
     p.add_argument("--aeps", type=float, help="area threshold (implies --quality custom)")
@@ -61,6 +64,8 @@ def run(argv, prog=PROG, blend_required=False):
         frames = parse_frames(args.frames) if args.frames is not None else None
         if args.blend is not None and not os.path.isfile(args.blend):
             raise UsageError(f"file not found: {args.blend}")
+        if args.resolution is not None and not 8 <= args.resolution <= 16384:
+            raise UsageError(f"bad texture resolution {args.resolution} (8 to 16384)")
     except UsageError as exc:
         _err(str(exc))
         return 2
@@ -95,7 +100,8 @@ def run(argv, prog=PROG, blend_required=False):
     try:
         res = run_bake(scene, view_layer=scene.view_layers[0] if scene != bpy.context.scene else None,
                        frames=frames, method=args.method, quality=quality, domain=args.domain,
-                       feps=feps, aeps=aeps)
+                       feps=feps, aeps=aeps, output=args.output, resolution=args.resolution,
+                       texture_format=args.texture_format)
     except InputError as exc:
         _err(str(exc).replace("\n", " "))
         return 1

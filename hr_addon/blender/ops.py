@@ -3,8 +3,9 @@ import bpy
 from bpy.props import BoolProperty
 
 from ..core.geometry import InputError
-from . import playback
+from . import playback, texture
 from .bake import bake_frames, run_bake
+from .cache import CacheError
 from .preview import add_preview, remove_preview
 from .scene_in import geometry_objects
 
@@ -141,14 +142,23 @@ class HR_OT_mark_light_shape(bpy.types.Operator):
 
 
 class HR_OT_add_preview(bpy.types.Operator):
-    """Show HR_Radiance in the viewport and renders through an Emission shader
-    (the original shaders are kept and restored by Remove Preview)"""
+    """Show the bake in the viewport and renders through an Emission shader: HR_Radiance, or for
+    baked textures the image sequences on object-level material copies (restored by Remove Preview)"""
     bl_idname = "hr.add_preview"
     bl_label = "Preview Bake"
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
         objs = geometry_objects(context.view_layer)
+        if texture.is_texture_bake(context.scene):
+            try:
+                n = texture.add_material(context.scene, objs)
+            except (CacheError, RuntimeError) as exc:
+                self.report({"ERROR"}, str(exc))
+                return {"CANCELLED"}
+            self.report({"INFO"}, f"Baked textures shown on {n} object(s)")
+            return {"FINISHED"}
+        texture.remove_material(objs)
         n = add_preview(objs)
         context.scene.render.use_lock_interface = True
         self.report({"INFO"}, f"Preview on {len(objs)} object(s), {n} material(s)")
@@ -162,6 +172,7 @@ class HR_OT_remove_preview(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
+        texture.remove_material()
         n = remove_preview()
         self.report({"INFO"}, f"Preview removed from {n} material(s)")
         return {"FINISHED"}
@@ -190,6 +201,7 @@ class HR_OT_clear_bake(bpy.types.Operator):
         scene = context.scene
         scene.hr.bake_dir = ""
         scene.hr.playback = False
+        texture.remove_material([o for o in scene.objects if o.type == "MESH"])
         for o in scene.objects:
             if o.type == "MESH" and playback.ATTRIBUTE in o.data.color_attributes:
                 o.data.color_attributes.remove(o.data.color_attributes[playback.ATTRIBUTE])

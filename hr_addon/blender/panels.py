@@ -58,7 +58,11 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
         sub.prop(hr, "feps")
         sub.prop(hr, "aeps")
         layout.prop(hr, "output")
-        layout.prop(hr, "domain")
+        if hr.output == "TEXTURE":
+            layout.prop(hr, "texture_resolution")
+            layout.prop(hr, "texture_format")
+        else:
+            layout.prop(hr, "domain")
         layout.prop(hr, "cache_folder")
         layout.prop(hr, "use_frame_range")
         sub = layout.column(align=True)
@@ -82,6 +86,8 @@ class HR_PT_object(bpy.types.Panel):
         layout = self.layout
         layout.prop(obj.hr, "exclude")
         layout.prop(obj.hr, "is_light_shape")
+        if context.scene.hr.output == "TEXTURE":
+            layout.prop(obj.hr, "lightmap_resolution")
         row = layout.row(align=True)
         row.operator("hr.mark_light_shape")
         row.operator("hr.mark_light_shape", text="Unmark").clear = True

@@ -110,6 +110,9 @@ def load_frame(scene, frame=None):
     frame = scene.frame_current if frame is None else frame
     try:
         reader = get_reader(directory)
+        if reader.manifest.get("output") == "TEXTURE":   # image sequences play back by themselves
+            state["messages"].pop(scene.name_full, None)
+            return True
         arrays = reader.load(frame)
     except CacheError as exc:
         _log_once(scene, f"{exc}")

@@ -17,6 +17,12 @@ QUALITY_ITEMS = [
 ]
 OUTPUT_ITEMS = [
     ("VERTEX", "Vertex", "Colour attribute HR_Radiance on each mesh"),
+    ("TEXTURE", "Baked Textures", "One float image per object and frame (image sequence in the cache), "
+                                  "mapped by the UV map HR_Lightmap"),
+]
+TEXTURE_FORMAT_ITEMS = [
+    ("EXR", "OpenEXR", "32-bit float, linear (exact radiance)"),
+    ("PNG", "PNG", "16-bit, sRGB-encoded; radiance above 1 is clipped"),
 ]
 DOMAIN_ITEMS = [
     ("CORNER", "Face Corner", "One value per face corner: creases between walls stay sharp"),
@@ -45,7 +51,13 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
                         description="Form factor threshold: links transporting more are subdivided (Custom quality)")
     aeps: FloatProperty(name="Aeps", default=2e-4, min=1e-7, max=0.1, precision=6,
                         description="Smallest element area as a fraction of the total scene area (Custom quality)")
-    output: EnumProperty(name="Output", items=OUTPUT_ITEMS, default="VERTEX")
+    output: EnumProperty(name="Output", items=OUTPUT_ITEMS, default="VERTEX",
+                         description="Where the baked radiance goes")
+    texture_resolution: IntProperty(name="Texture Size", default=128, min=8, soft_min=16, max=16384,
+                                    soft_max=4096, description="Width and height of each object's lightmap "
+                                    "in texels (objects may override it)")
+    texture_format: EnumProperty(name="Texture Format", items=TEXTURE_FORMAT_ITEMS, default="EXR",
+                                 description="File format of the baked image sequences")
     domain: EnumProperty(name="Domain", items=DOMAIN_ITEMS, default="CORNER",
                          description="Domain of the HR_Radiance colour attribute")
     use_frame_range: BoolProperty(name="Custom Frame Range", default=False,
@@ -66,6 +78,9 @@ class HR_ObjectSettings(bpy.types.PropertyGroup):
                           description="Leave this object out of the radiosity solution")
     is_light_shape: BoolProperty(name="Light Shape", default=False,
                                  description="Emissive patch lying on scene surfaces; not geometry itself")
+    lightmap_resolution: IntProperty(name="Lightmap Size", default=0, min=0, max=16384, soft_max=4096,
+                                     description="Lightmap width and height in texels for baked textures "
+                                     "(0: the scene's Texture Size)")
 
 
 classes = (HR_SceneSettings, HR_ObjectSettings)

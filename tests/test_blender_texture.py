@@ -1,0 +1,316 @@
+"""Baked textures (hr_addon/blender/texture.py): lightmap UVs, texel values, image sequences, helper."""
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from test_blender_helpers import has_events, load_bpy, open_sample
+
+pytestmark = pytest.mark.skipif(not has_events(), reason="needs hr_addon.core.events")
+
+RES = 64
+GEOMETRY = ["back", "ceiling", "floor", "left_red", "light", "right_green", "short_block", "tall_block"]
+
+
+def _bake(**kw):
+    import bpy
+    from hr_addon.blender.bake import run_bake
+    kw.setdefault("quality", "draft")
+    kw.setdefault("method", "FE")
+    kw.setdefault("output", "texture")
+    kw.setdefault("resolution", RES)
+    return run_bake(bpy.context.scene, log=lambda *a, **k: None, **kw)
+
+
+def _uv(me, name):
+    a = np.empty(len(me.loops) * 2, np.float32)
+    me.uv_layers[name].uv.foreach_get("vector", a)
+    return a.reshape(-1, 2)
+
+
+def _polys(me):
+    return [list(p.loop_indices) for p in me.polygons]
+
+
+def _texels_in_polygon(uv_poly, res, margin=1e-6):
+    """Texel centres strictly inside a convex UV polygon (fan): x (n,), y (n,), bary (n, 3), tri (n,)."""
+    out = []
+    for t in range(1, len(uv_poly) - 1):
+        a, b, c = uv_poly[0] * res - 0.5, uv_poly[t] * res - 0.5, uv_poly[t + 1] * res - 0.5
+        lo = np.floor(np.minimum(np.minimum(a, b), c)).astype(int)
+        hi = np.ceil(np.maximum(np.maximum(a, b), c)).astype(int)
+        xs, ys = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+        q = np.stack([xs.ravel(), ys.ravel()], 1).astype(float)
+        m = np.array([b - a, c - a]).T
+        if abs(np.linalg.det(m)) < 1e-12:
+            continue
+        l12 = np.linalg.solve(m, (q - a).T).T
+        bary = np.column_stack([1 - l12.sum(1), l12])
+        ok = (bary > margin).all(1)
+        out.append((q[ok, 0].astype(int), q[ok, 1].astype(int), bary[ok], np.full(ok.sum(), t)))
+    return [np.concatenate(z) for z in zip(*out)] if out else [np.zeros(0, int)] * 2 + [np.zeros((0, 3)), np.zeros(0, int)]
+
+
+def _files(cache, name, frames, ext=".exr"):
+    return [cache / "textures" / f"{name}_{f:06d}{ext}" for f in frames]
+
+
+def _snapshot(d):
+    return {str(p.relative_to(d)): p.read_bytes() for p in Path(d).rglob("*") if p.is_file()}
+
+
+def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import texture
+    from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.output import radiance_at
+    from hr_addon.core.radiosity import RadiositySystem
+    from hr_addon.core.refine import RefineParams
+    from test_blender_bake import FRAMES, _reference_mesh, _reference_shapes
+
+    # The user's UV maps: floor has two (the second active for editing, the first for rendering).
+    floor = bpy.data.objects["floor"].data
+    mine = floor.uv_layers.new(name="UVMap")
+    other = floor.uv_layers.new(name="Paint")
+    rng = np.random.default_rng(3)
+    user_uv = {n: rng.random((len(floor.loops), 2)).astype(np.float32) for n in ("UVMap", "Paint")}
+    for lay in (mine, other):
+        lay.uv.foreach_set("vector", user_uv[lay.name].ravel())
+    floor.uv_layers.active = other
+    mine.active_render = True
+
+    res = _bake(frames=(5, 7))
+    assert res.solved == 2 and res.reused == 1 and res.warnings == [], res
+    cache = tmp_path / "hr_cache" / "cornell"
+    from hr_addon.blender.cache import CacheReader
+    m = CacheReader(cache).manifest
+    assert m["output"] == "TEXTURE" and sorted(m["objects"]) == GEOMETRY
+    # One file per object and frame number (4: the frame before the start, which Blender asks for).
+    for name in GEOMETRY:
+        files = _files(cache, name, range(4, 8))
+        assert all(f.is_file() for f in files), name
+        assert os.path.samefile(files[2], files[3]) or files[2].read_bytes() == files[3].read_bytes()
+        assert files[1].read_bytes() != files[2].read_bytes() or name == "light"
+    assert not list((cache / "textures").glob("*_000008.exr"))
+
+    # User UVs untouched; HR_Lightmap added everywhere, never active.
+    assert [lay.name for lay in floor.uv_layers] == ["UVMap", "Paint", "HR_Lightmap"]
+    assert floor.uv_layers.active.name == "Paint"
+    assert [lay.active_render for lay in floor.uv_layers] == [True, False, False]
+    for n in ("UVMap", "Paint"):
+        np.testing.assert_array_equal(_uv(floor, n), user_uv[n])
+    for o in bpy.context.scene.objects:
+        if o.type == "MESH":
+            assert ("HR_Lightmap" in o.data.uv_layers) == (o.name in GEOMETRY), o.name
+
+    # Float images that Blender reads as such, same values as our reader.
+    f6 = _files(cache, "right_green", [6])[0]
+    img = bpy.data.images.load(str(f6))
+    assert img.is_float and tuple(img.size) == (RES, RES)
+    px = np.empty(RES * RES * 4, np.float32)
+    img.pixels.foreach_get(px)
+    np.testing.assert_array_equal(px.reshape(RES, RES, 4)[..., :3], texture.read_image(f6))
+
+    # Texel values against the core's radiance_at at the same surface points (independent reference).
+    mesh, names = _reference_mesh(bpy)
+    assert names == GEOMETRY
+    dyn = DynamicRadiosity(RadiositySystem(mesh, RefineParams.preset("draft")), method="FE")
+    pt = dyn.system.patches
+    assert np.array_equal(pt.poly, np.arange(len(mesh.loop_start))) and (pt.nv == 4).all()
+    dyn.apply(_reference_shapes(FRAMES[6]))
+    poly0 = 0
+    for name in names:
+        ob = bpy.data.objects[name]
+        me = ob.data
+        uv = _uv(me, "HR_Lightmap")
+        assert uv.min() >= 0 and uv.max() <= 1
+        M = np.array(ob.matrix_world)
+        co = np.array([v.co for v in me.vertices], float) @ M[:3, :3].T + M[:3, 3]
+        lv = np.array([lp.vertex_index for lp in me.loops])
+        image = texture.read_image(_files(cache, name, [6])[0])
+        count = np.zeros((4 * RES, 4 * RES), int)
+        area = 0.0
+        xs, ys, pts, patch = [], [], [], []
+        for i, loops in enumerate(_polys(me)):
+            q = uv[loops]
+            area += 0.5 * abs(np.cross(q[1] - q[0], q[2] - q[0])) + 0.5 * abs(np.cross(q[2] - q[0], q[3] - q[0]))
+            x4, y4, _, _ = _texels_in_polygon(q, 4 * RES)
+            count[y4, x4] += 1                                 # no two polygons share a texel centre
+            x, y, bary, t = _texels_in_polygon(q, RES)
+            tri = np.stack([np.zeros_like(t), t, t + 1], 1)
+            pts.append(np.einsum("nk,nkj->nj", bary, co[lv[np.array(loops)][tri]]))
+            xs.append(x)
+            ys.append(y)
+            patch.append(np.full(len(x), poly0 + i))
+        assert count.max() == 1, name                       # islands do not overlap
+        assert area > 0.3, (name, area)                     # and are packed (5 cube faces: ~1/3)
+        x, y, pts, patch = map(np.concatenate, (xs, ys, pts, patch))
+        ref = radiance_at(dyn.h, dyn.B, patch, pts)
+        got = image[y, x]
+        np.testing.assert_allclose(got, ref, rtol=5e-4, atol=1e-5, err_msg=name)
+        # Dilation: texels just outside the islands carry values too.
+        inside = np.zeros((RES, RES), bool)
+        inside[y, x] = True
+        assert (image.max(-1) > 0).sum() > inside.sum() + 4 * RES * 0.5
+        poly0 += len(me.polygons)
+    # The window (frame 6) lights the right wall; frame 5 is darker.
+    right5 = texture.read_image(_files(cache, "right_green", [5])[0])
+    assert texture.read_image(f6)[..., 1].mean() > 1.5 * right5[..., 1].mean()
+
+
+def test_material_helper_plays_the_sequence(tmp_path):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import texture
+    from hr_addon.blender.materials import read_material
+    scene = bpy.context.scene
+    scene.hr.output = "TEXTURE"
+    scene.hr.texture_resolution = 32
+    _bake(frames=(5, 7), resolution=None, output=None)
+    white = bpy.data.materials["White"]
+    n_nodes = len(white.node_tree.nodes)
+    assert bpy.ops.hr.add_preview() == {"FINISHED"}
+    floor = bpy.data.objects["floor"]
+    slot = floor.material_slots[0]
+    mat = slot.material
+    assert slot.link == "OBJECT" and mat is not white and mat[texture.TAG] == "floor"
+    assert floor.data.materials[0] is white and len(white.node_tree.nodes) == n_nodes   # user's data intact
+    tex = mat.node_tree.nodes[texture.N_TEX]
+    assert tex.image.source == "SEQUENCE" and tex.image.filepath.startswith("//hr_cache/cornell/textures/floor_")
+    assert mat.node_tree.nodes[texture.N_UV].uv_map == "HR_Lightmap"
+    assert tex.inputs["Vector"].links[0].from_node.name == texture.N_UV
+    iu = tex.image_user
+    assert (iu.frame_start, iu.frame_duration, iu.frame_offset) == (5, 3, 4)
+    out = [n for n in mat.node_tree.nodes if n.type == "OUTPUT_MATERIAL" and n.is_active_output]
+    assert [n.name for n in out] == [texture.N_OUT]
+    np.testing.assert_array_equal(read_material(mat).reflectance, read_material(white).reflectance)
+    # Another bake while the helper is on: reads the user's materials, re-wires the new range.
+    res = _bake(frames=(5, 9), resolution=None, output=None)
+    iu = mat.node_tree.nodes[texture.N_TEX].image_user
+    assert res.warnings == [] and (iu.frame_start, iu.frame_duration) == (5, 5)
+    # Cycles plays the sequence (no handler needed): frame 6 shows the window, 7 is 6 again.
+    r = scene.render
+    r.engine = "CYCLES"
+    scene.cycles.samples = 1
+    scene.cycles.device = "CPU"
+    scene.cycles.use_denoising = False
+    r.resolution_x = r.resolution_y = 16
+    r.resolution_percentage = 100
+    r.image_settings.file_format = "OPEN_EXR"
+    scene.hr.playback = False                            # prove that the images alone do it
+    px = {}
+    for f in (3, 5, 6, 7):
+        scene.frame_set(f)
+        r.filepath = str(tmp_path / f"render_{f}.exr")
+        bpy.ops.render.render(write_still=True)
+        img = bpy.data.images.load(r.filepath)
+        a = np.empty(16 * 16 * 4, np.float32)
+        img.pixels.foreach_get(a)
+        px[f] = a.reshape(16, 16, 4)[..., :3]
+    assert np.all(np.isfinite(px[5])) and px[5].mean() > 0.01
+    assert px[6][:, :8].mean() > 1.2 * px[5][:, :8].mean()          # the window on the right wall
+    np.testing.assert_allclose(px[7], px[6], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(px[3], px[5], rtol=1e-5, atol=1e-6)  # before the bake: the first frame
+    # Remove: the slots show the mesh's materials again, the copies are gone.
+    assert bpy.ops.hr.remove_preview() == {"FINISHED"}
+    assert slot.link == "DATA" and slot.material is white
+    assert not [m for m in bpy.data.materials if m.get(texture.TAG)]
+
+
+def test_cancel_partial_bakes_and_png(tmp_path):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import bake as bake_mod
+    from hr_addon.blender import texture
+    from hr_addon.blender.ops import BakeJob
+    _bake(frames=(5, 6), resolution=32, texture_format="png")
+    cache = tmp_path / "hr_cache" / "cornell"
+    before = _snapshot(cache)
+    png = _files(cache, "back", [6], ".png")[0]
+    head = png.read_bytes()[:26]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[24:26] == bytes([16, 2])   # 16-bit RGB
+    img = bpy.data.images.load(str(png))
+    assert img.is_float                                       # Blender reads 16-bit PNGs as float
+    a = texture.read_image(png)
+    assert a.shape == (32, 32, 3) and 0 < a.max() <= 1
+    # Cancel (ESC) after a few frames: the previous bake stays, the temporary folder goes.
+    scene = bpy.context.scene
+    job = BakeJob(bake_mod.bake_frames(scene, frames=(1, 24), method="FE", quality="draft", output="TEXTURE",
+                                       resolution=32, texture_format="PNG"))
+    for _ in range(8):
+        assert job.step()
+    assert job.progress.stage == "frame"
+    job.cancel()
+    assert _snapshot(cache) == before
+    assert sorted(p.name for p in cache.parent.iterdir()) == ["cornell"]
+    # A later range is added to the same sequence; the earlier frames are kept.
+    res = _bake(frames=(8, 9), resolution=32, texture_format="png")
+    assert res.kept == 2 and res.solved == 1 and res.reused == 1
+    names = sorted(p.name for p in (cache / "textures").glob("back_*"))
+    assert names == [f"back_{f:06d}.png" for f in range(4, 10)]
+    assert _files(cache, "back", [6], ".png")[0].read_bytes() == before["textures/back_000006.png"]
+    assert _files(cache, "back", [7], ".png")[0].read_bytes() == before["textures/back_000006.png"]  # gap held
+
+
+def test_command_line_texture_output(tmp_path, capsys):
+    load_bpy()
+    from hr_addon.blender import cli
+    path = open_sample("cornell", tmp_path)
+    assert cli.run([str(path), "--resolution", "4"]) == 2
+    assert "bad texture resolution" in capsys.readouterr().err
+    assert cli.run([str(path), "--frames", "6-6", "--output", "texture", "--resolution", "16",
+                    "--texture-format", "png", "--quality", "draft", "--method", "fe"]) == 0
+    files = sorted(p.name for p in (tmp_path / "hr_cache" / "cornell" / "textures").iterdir())
+    assert files == sorted(f"{n}_{f:06d}.png" for n in GEOMETRY for f in (5, 6))
+
+
+def test_per_leaf_evaluation_and_packing_units():
+    """radiance_per_leaf equals radiance_at; EXR round trip; packed UVs of a sphere do not overlap."""
+    pytest.importorskip("bpy")
+    from hr_addon.blender import texture
+    from hr_addon.core import scenes
+    from hr_addon.core.output import radiance_at
+    from hr_addon.core.radiosity import RadiositySystem
+    from hr_addon.core.refine import RefineParams
+    sysm = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    sysm.solve()
+    pt = sysm.patches
+    rng = np.random.default_rng(0)
+    k = rng.integers(0, len(pt.nv), 3000)
+    c = pt.corners[k]
+    r = rng.random((len(k), 2))
+    r[r.sum(1) > 1] = 1 - r[r.sum(1) > 1]
+    p = c[:, 0] + r[:, :1] * (c[:, 1] - c[:, 0]) + r[:, 1:] * (c[:, 2] - c[:, 0])
+    p[::7] = c[::7, 0]                                        # corners and edges too
+    p[1::7] = 0.5 * (c[1::7, 1] + c[1::7, 2])
+    np.testing.assert_allclose(texture.radiance_per_leaf(sysm.h, sysm.B, k, p), radiance_at(sysm.h, sysm.B, k, p),
+                               rtol=1e-9, atol=1e-12)
+    # TexelLocator: leaves found from representatives (here: the first point of each patch) and,
+    # on the next call, from the remembered nodes, are those of a descent from the patch.
+    from hr_addon.core.output import locate
+    first = np.unique(k, return_index=True)
+    rep = first[1][np.searchsorted(first[0], k)]
+    loc = texture.TexelLocator(k, p, rep)
+    for _ in range(2):
+        np.testing.assert_array_equal(loc.leaves(sysm.h), locate(sysm.h, k, p))
+    np.testing.assert_allclose(texture.radiance_per_leaf(sysm.h, sysm.B, k, p, locator=loc),
+                               radiance_at(sysm.h, sysm.B, k, p), rtol=1e-6, atol=1e-9)
+    img = rng.random((5, 7, 3)).astype(np.float32) * 100
+    for comp in ("ZIP", "NONE"):
+        back, ch = texture.decode_exr(texture.encode_exr(img, comp))
+        assert ch == ["B", "G", "R"] and np.array_equal(back[..., ::-1], img)
+    sph = scenes.sphere()
+    res = 64
+    uv = texture.pack_lightmap(sph.verts, sph.loop_start, sph.loop_total, sph.loop_verts, res)
+    assert uv.min() >= 0 and uv.max() <= 1
+    texel, tri, bary, inside = texture.rasterise(
+        np.stack([uv[sph.loop_start + i] for i in (0, 1, 2)], 1), res, ring=0)
+    assert inside.all() and len(texel) > 0
+    # every polygon gets its own island: no texel centre inside two polygons' UV triangles
+    hits = np.zeros(res * 4 * res * 4, int)
+    for s, n in zip(sph.loop_start, sph.loop_total):
+        x, y, _, _ = _texels_in_polygon(uv[s:s + n], 4 * res)
+        hits[y * 4 * res + x] += 1
+    assert hits.max() == 1
