@@ -304,3 +304,26 @@ def test_radiance_at_points_finds_leaves_and_interpolates_continuously():
     flat = radiance_at(h, B, np.full(len(t), root), line, smooth=False)
     assert v.min() >= 0 and v.max() <= B[:, lf].max()
     assert np.abs(np.diff(v, axis=0)).max() < 0.5 * np.abs(np.diff(flat, axis=0)).max()
+
+
+def test_radiance_at_has_no_seams_between_input_polygons():
+    from hr_addon.core.output import radiance_at
+    s = RadiositySystem(scenes.cornell_box(subdiv=8), FAST)
+    B = s.solve()
+    pt = s.patches
+    floor = np.flatnonzero(pt.object_id == pt.object_names.index("floor"))
+    centre = pt.corners[floor].mean(1)
+    jumps, steps = [], []
+    for i, c in zip(floor, centre):
+        # Points a hair either side of edge 1-2, in this patch and in the one across the edge.
+        mid = (pt.corners[i, 1] + pt.corners[i, 2]) / 2
+        across = floor[np.linalg.norm(centre - (2 * mid - c), axis=1) < 1e-6]
+        if len(across) == 0:
+            continue
+        d = (c - mid) * 1e-4
+        va = radiance_at(s.h, B, [i], [mid + d])
+        vb = radiance_at(s.h, B, [across[0]], [mid - d])
+        jumps.append(np.abs(va - vb).max())
+        steps.append(np.abs(radiance_at(s.h, B, [i], [mid + 2500 * d]) - va).max())   # a quarter patch in
+    assert len(jumps) > 20
+    assert np.median(jumps) < 0.05 * np.median(steps) and max(jumps) < 0.02 * B[:, s.h.leaves()].max()

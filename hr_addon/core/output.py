@@ -74,6 +74,14 @@ def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="C
     return out.astype(np.float32)
 
 
+def _insideness(c, nrm, pts):
+    """Min signed distance of pts (M, 3) to the edges of polygons c (M, K, 4, 3), positive inside."""
+    e = np.roll(c, -1, axis=2) - c
+    length = np.linalg.norm(e, axis=-1)
+    d = np.einsum("mkvj,mkj->mkv", np.cross(e, pts[:, None, None] - c), nrm) / np.maximum(length, 1e-300)
+    return np.where(length > 0, d, np.inf).min(-1)                   # padded triangle edge ignored
+
+
 def locate(h: Hierarchy, patch, points):
     """Leaf of `patch`'s quadtree containing each point (M,) <- (M,), (M, 3).
 
@@ -86,13 +94,48 @@ def locate(h: Hierarchy, patch, points):
         if len(inner) == 0:
             return node
         kids = h.child0[node[inner]][:, None] + np.arange(4)            # (m, 4)
-        c = h.corners[kids]                                              # (m, 4, 4, 3)
-        nrm = h.normal[kids]
-        e = np.roll(c, -1, axis=2) - c
-        d = np.einsum("mkvj,mkj->mkv", np.cross(e, pts[inner, None, None] - c), nrm)
-        d /= np.maximum(np.linalg.norm(e, axis=-1), 1e-300)
-        d = np.where(np.linalg.norm(e, axis=-1) > 0, d, np.inf)         # padded triangle edge
-        node[inner] = kids[np.arange(len(inner)), np.argmax(d.min(-1), axis=1)]
+        d = _insideness(h.corners[kids], h.normal[kids], pts[inner])
+        node[inner] = kids[np.arange(len(inner)), np.argmax(d, axis=1)]
+
+
+def patch_neighbours(h: Hierarchy, smooth_angle=30.0):
+    """(K, D) padded table (-1) of the patches sharing a corner position with each patch, in the
+    same object, with normals within smooth_angle: where a smooth surface continues."""
+    pt = h.patches
+    if getattr(pt, "_neighbours", None) is not None:
+        return pt._neighbours
+    jj, kk = np.nonzero(pt.vert_index >= 0)
+    pos = pt.corners[jj, kk]
+    scale = max(float(np.abs(pos).max()), 1e-30) * 1e-9
+    key = np.column_stack([pt.object_id[jj], np.round(pos / scale).astype(np.int64)])
+    g = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+    order = np.argsort(g, kind="stable")
+    gs, js = g[order], jj[order]
+    start = np.searchsorted(gs, gs, "left")
+    count = np.searchsorted(gs, gs, "right") - start
+    a = np.repeat(js, count)
+    b = js[np.repeat(start, count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)]
+    ok = (a != b) & (np.einsum("ij,ij->i", pt.normal[a], pt.normal[b]) >= np.cos(np.radians(smooth_angle)))
+    pairs = np.unique(np.column_stack([a[ok], b[ok]]), axis=0)
+    K = len(pt.nv)
+    deg = np.bincount(pairs[:, 0], minlength=K) if len(pairs) else np.zeros(K, np.int64)
+    table = np.full((K, max(int(deg.max()) if K else 0, 1)), -1, np.int64)
+    if len(pairs):
+        first = np.searchsorted(pairs[:, 0], np.arange(K))
+        table[pairs[:, 0], np.arange(len(pairs)) - first[pairs[:, 0]]] = pairs[:, 1]
+    pt._neighbours = table
+    return table
+
+
+def locate_near(h: Hierarchy, patch, points):
+    """Like locate, but a point just outside its patch goes to the smooth neighbour holding it."""
+    patch = np.asarray(patch, np.int64)
+    pts = np.asarray(points, float)
+    cand = np.column_stack([patch, patch_neighbours(h)[patch]])          # (M, 1 + D)
+    valid = cand >= 0
+    cc = np.where(valid, cand, patch[:, None])
+    d = np.where(valid, _insideness(h.corners[cc], h.normal[cc], pts), -np.inf)
+    return locate(h, cc[np.arange(len(cc)), np.argmax(d, axis=1)], pts)
 
 
 def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
@@ -100,7 +143,8 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
 
     smooth=False returns the leaf values: the piecewise-constant HR solution. smooth=True
     interpolates linearly inside the leaf (quads as two triangles) between corner values, each the
-    area-weighted mean of the leaves touching that corner, found by probing just beside it. The
+    area-weighted mean of the leaves touching that corner, found by probing just beside it, also
+    in the neighbouring patches of a smooth surface (so input polygon edges leave no seam). The
     result is continuous across edges between leaves of equal size; at a T-vertex the jump is a
     fraction of the neighbouring leaves' difference."""
     patch = np.asarray(patch, np.int64)
@@ -116,7 +160,7 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
     den = np.zeros((len(leaf), 4))
     for su, sw in ((1, 1), (-1, 1), (1, -1), (-1, -1)):
         probe = (c + 1e-3 * size * (su * u + sw * w)).reshape(-1, 3)
-        pl = locate(h, np.repeat(patch, 4), probe).reshape(-1, 4)
+        pl = locate_near(h, np.repeat(patch, 4), probe).reshape(-1, 4)
         a = h.area[pl]
         num += a[..., None] * B[:, pl].transpose(1, 2, 0)
         den += a
