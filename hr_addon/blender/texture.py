@@ -26,7 +26,7 @@ from contextlib import contextmanager
 import bpy
 import numpy as np
 
-from ..core.output import locate, radiance_at
+from ..core.output import corner_weights, locate, radiance_at
 from .cache import CacheError, CacheReader
 from .materials import PREVIEW
 
@@ -813,25 +813,7 @@ class TextureBaker:
                 _link(self._path(o, first), self._path(o, first - 1))
 
 
-_TRIS = np.array([[0, 1, 2], [0, 2, 3]])
 _NUDGE = 0.05
-
-
-def _corner_weights(c, nv, normal, pts):
-    """(m, 4) weights of a leaf's 4 corner values at points, as core.output.radiance_at
-    interpolates them: linearly on triangle (0, 1, 2) or, for quads, (0, 2, 3)."""
-    second = (nv == 4) & (np.einsum("mj,mj->m", np.cross(c[:, 2] - c[:, 0], pts - c[:, 0]), normal) > 0)
-    idx = _TRIS[second.astype(np.int64)]
-    t = np.take_along_axis(c, idx[..., None], axis=1)
-    v0, v1, v2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], pts - t[:, 0]
-    d00, d01, d11 = (np.einsum("mj,mj->m", x, y) for x, y in ((v0, v0), (v0, v1), (v1, v1)))
-    d20, d21 = np.einsum("mj,mj->m", v2, v0), np.einsum("mj,mj->m", v2, v1)
-    den = np.maximum(d00 * d11 - d01 * d01, 1e-300)
-    b1 = np.clip((d11 * d20 - d01 * d21) / den, 0, 1)
-    b2 = np.clip((d00 * d21 - d01 * d20) / den, 0, 1 - b1)
-    w = np.zeros((len(pts), 4))
-    np.put_along_axis(w, idx, np.stack([1 - b1 - b2, b1, b2], 1), axis=1)
-    return w
 
 
 def radiance_per_leaf(h, B, patch, points, leaf=None, locator=None, chunk=200_000):
@@ -868,7 +850,7 @@ def radiance_per_leaf(h, B, patch, points, leaf=None, locator=None, chunk=200_00
                         for a in range(0, len(sp), chunk)])
     M = np.zeros((len(U), 4, 4))
     rhs = np.zeros((len(U), 4, 3))
-    M[rows, ks] = _corner_weights(c[rows], nv[rows], nrm[rows], sp)
+    M[rows, ks] = corner_weights(c[rows], nv[rows], nrm[rows], sp)
     rhs[rows, ks] = s
     tri = ~quad                                   # triangles: corner 3 repeats corner 2
     M[tri, 3] = [0.0, 0.0, -1.0, 1.0]
@@ -887,7 +869,7 @@ def radiance_per_leaf(h, B, patch, points, leaf=None, locator=None, chunk=200_00
         todo = np.arange(len(pts))
     for a in range(0, len(todo), chunk):
         i = todo[a:a + chunk]
-        w[i] = _corner_weights(c[inv[i]], nv[inv[i]], nrm[inv[i]], pts[i])
+        w[i] = corner_weights(c[inv[i]], nv[inv[i]], nrm[inv[i]], pts[i])
     if locator is not None:
         locator.valid[:] = True
     out = np.empty((len(pts), 3))
@@ -988,7 +970,7 @@ def solution_radiance(dyn, system, patch, points, locator=None):
     naive = getattr(dyn, "_naive", None) if dyn is not None else None
     if naive is not None:
         h, B = naive.system.h, naive.system.B
-        patch, points = _naive_roots(naive, patch, points)
+        patch, points = naive.remap(points, patch)
         locator = None
     elif dyn is not None:
         h, B = dyn.h, dyn.B
@@ -1001,27 +983,6 @@ def solution_radiance(dyn, system, patch, points, locator=None):
         h, B = system.h, system.B
     leaf = locator.leaves(h) if locator is not None else None
     return radiance_per_leaf(h, B, patch, points, leaf=leaf, locator=locator).astype(np.float32)
-
-
-def _naive_roots(naive, patch, points):
-    """NAIVE rebuild: points under a light shape lie on the light patch in front of the surface."""
-    try:
-        from ..core.events import DynamicRadiosity, _in_convex
-        pts = np.asarray(points, float).copy()
-        roots = np.asarray(patch, np.int64).copy()
-        for r0, pats, quads, pidx, front in naive.groups:
-            m = np.flatnonzero(np.isin(roots, list(pats)))
-            if len(m) == 0:
-                continue
-            inc = _in_convex(DynamicRadiosity._to2d(r0, pts[m]), quads) & (pidx >= 0)[None]
-            has = inc.any(1)
-            t = np.argmax(inc[has], 1)
-            mm = m[has]
-            roots[mm] = pidx[t]
-            pts[mm] = pts[mm] + naive.delta * front[t]
-        return roots, pts
-    except (ImportError, AttributeError, ValueError):   # pragma: no cover - other core version
-        return patch, points
 
 
 # --- material helper -----------------------------------------------------------------------------

@@ -817,12 +817,12 @@ class DynamicRadiosity:
         n = h.n
         if len(self._ref) < n:
             self._ref = np.concatenate([self._ref, np.zeros(n - len(self._ref), np.int64)])
-        self._Bbase = _extend_copy(self._Bbase, h)
-        self._X = _extend_copy(self._X, h)
-        self._B = _extend_copy(self._B, h)
+        self._Bbase = h.extend(self._Bbase)
+        self._X = h.extend(self._X)
+        self._B = h.extend(self._B)
         for rec in list(self.shapes.values()) + list(self._cache.values()) + list(extra):
             if rec.U is not None:
-                rec.U = _extend_copy(rec.U, h)
+                rec.U = h.extend(rec.U)
             if rec.D is not None and rec.D.shape[1] < n:
                 rec.D = np.concatenate([rec.D, np.zeros((3, n - rec.D.shape[1]))], 1)
 
@@ -866,20 +866,6 @@ class DynamicRadiosity:
 
 
 # -- helpers --------------------------------------------------------------------------------------------
-def _extend_copy(B, h):
-    """B (3, m) on the first m nodes, extended to h.n nodes by copying from parents."""
-    m = B.shape[1]
-    if m >= h.n:
-        return B
-    out = np.empty((B.shape[0], h.n))
-    out[:, :m] = B
-    for lv in h.levels():
-        new = lv[lv >= m]
-        if len(new):
-            out[:, new] = out[:, h.parent[new]]
-    return out
-
-
 def _facing(h, p, q, tol):
     """Some corner of q is in front of p's plane and vice versa (as refine._facing)."""
     def front(x, y):

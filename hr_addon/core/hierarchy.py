@@ -150,6 +150,19 @@ class Hierarchy:
                 return node
             node[inner] = self.child0[node[inner]] + np.broadcast_to(k, node.shape)[inner]
 
+    def extend(self, B):
+        """Per-node values B (C, m) on the first m nodes, extended to all nodes by copying from
+        parents: nodes added below the old leaves carry no links, so their solution is the parent's."""
+        m = B.shape[1]
+        if m >= self.n:
+            return B
+        out = np.empty((B.shape[0], self.n))
+        out[:, :m] = B
+        for lv in self.levels():
+            new = lv[lv >= m]
+            out[:, new] = out[:, self.parent[new]]
+        return out
+
     @classmethod
     def node_bytes(cls):
         """Bytes of storage per node (all per-node arrays, solver state excluded)."""

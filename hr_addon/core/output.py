@@ -165,15 +165,24 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
         num += a[..., None] * B[:, pl].transpose(1, 2, 0)
         den += a
     val = num / den[..., None]
-    # Linear interpolation on the triangle (0, 1, 2) or (0, 2, 3) holding the point.
-    second = (h.nv[leaf] == 4) & (np.einsum("mj,mj->m", np.cross(c[:, 2] - c[:, 0], pts - c[:, 0]), h.normal[leaf]) > 0)
-    tri = np.where(second[:, None], [0, 2, 3], [0, 1, 2])
-    t = np.take_along_axis(c, tri[..., None], axis=1)
+    return np.einsum("mk,mkc->mc", corner_weights(c, h.nv[leaf], h.normal[leaf], pts), val)
+
+
+_TRIS = np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def corner_weights(c, nv, normal, pts):
+    """(M, 4) weights of a leaf's corner values at points inside it: linear on the triangle
+    (0, 1, 2) or, for quads, (0, 2, 3) that holds the point."""
+    second = (nv == 4) & (np.einsum("mj,mj->m", np.cross(c[:, 2] - c[:, 0], pts - c[:, 0]), normal) > 0)
+    idx = _TRIS[second.astype(np.int64)]
+    t = np.take_along_axis(c, idx[..., None], axis=1)
     v0, v1, v2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], pts - t[:, 0]
     d00, d01, d11 = (np.einsum("mj,mj->m", x, y) for x, y in ((v0, v0), (v0, v1), (v1, v1)))
     d20, d21 = np.einsum("mj,mj->m", v2, v0), np.einsum("mj,mj->m", v2, v1)
-    den2 = np.maximum(d00 * d11 - d01 * d01, 1e-300)
-    b1 = np.clip((d11 * d20 - d01 * d21) / den2, 0, 1)
-    b2 = np.clip((d00 * d21 - d01 * d20) / den2, 0, 1 - b1)
-    bary = np.stack([1 - b1 - b2, b1, b2], 1)
-    return np.einsum("mk,mkc->mc", bary, np.take_along_axis(val, tri[..., None], axis=1))
+    den = np.maximum(d00 * d11 - d01 * d01, 1e-300)
+    b1 = np.clip((d11 * d20 - d01 * d21) / den, 0, 1)
+    b2 = np.clip((d00 * d21 - d01 * d20) / den, 0, 1 - b1)
+    w = np.zeros((len(pts), 4))
+    np.put_along_axis(w, idx, np.stack([1 - b1 - b2, b1, b2], 1), axis=1)
+    return w

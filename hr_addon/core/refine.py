@@ -303,7 +303,7 @@ class Refiner:
         thr = prm.bfeps * bref
 
         def bf(p, q, f_pq, f_qp):
-            Bn = _extend(B, h)
+            Bn = h.extend(B)
             return np.maximum((rho[:, h.patch[p]] * Bn[:, q]).max(0) * f_pq,
                               (rho[:, h.patch[q]] * Bn[:, p]).max(0) * f_qp) < thr
 
@@ -324,19 +324,6 @@ def _variation(h, x, y):
     f = ff.point_to_polygon(pts.reshape(-1, 3), np.repeat(h.normal[x], 5, 0),
                             np.repeat(h.corners[y], 5, 0), np.repeat(h.nv[y], 5)).reshape(-1, 5)
     return f.max(1) - f.min(1)
-
-
-def _extend(B, h):
-    """B defined on the first len(B[0]) nodes, extended to all nodes by copying from parents."""
-    n0 = B.shape[1]
-    if n0 >= h.n:
-        return B
-    out = np.empty((B.shape[0], h.n))
-    out[:, :n0] = B
-    for lv in h.levels():
-        new = lv[lv >= n0]
-        out[:, new] = out[:, h.parent[new]]
-    return out
 
 
 def _leaf_ranges(h):
