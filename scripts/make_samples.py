@@ -276,7 +276,7 @@ def window_polys():
 
 def patch_polys():
     x0, x1, z0, z1 = PATCH_RECT
-    return [(x0, BACK_Y, z0), (x0, BACK_Y, z1), (x1, BACK_Y, z1), (x1, BACK_Y, z0)], [[0, 1, 2, 3]]  # normal -y
+    return [(x0, BACK_Y, z0), (x1, BACK_Y, z0), (x1, BACK_Y, z1), (x0, BACK_Y, z1)], [[0, 1, 2, 3]]  # normal -y
 
 
 def make_cornell(path):
@@ -355,7 +355,7 @@ def make_searchbeam(path):
     room(ROOM, room_materials())
     # Ellipse (32-gon) on the back wall y = 3 (normal -y), origin on the wall, moving along x.
     t = np.linspace(0, 2 * np.pi, 32, endpoint=False)
-    verts = [(0.4 * np.cos(a), 0.0, 0.25 * np.sin(a)) for a in t[::-1]]  # clockwise seen from +y: normal -y
+    verts = [(0.4 * np.cos(a), 0.0, 0.25 * np.sin(a)) for a in t]  # counter-clockwise seen from -y: normal -y
     ob = light_shape("Searchbeam", verts, [list(range(32))], emission("Beam", (1.0, 1.0, 0.9), 20.0),
                      location=(0.8, ROOM[1], 1.6))
     for f, x in ((1, 0.8), (12, 3.2)):
@@ -381,7 +381,7 @@ def make_office(path):
         quads_object(f"Monitor {i + 1}", list(box_quads((x0, y0, z0), (x1, y1, z1), inward=False).values()),
                      principled(f"Monitor Case {i + 1}", (0.05, 0.05, 0.05)), 1)
         d = 0.02
-        verts = [(x0 + d, y0, z0 + d), (x0 + d, y0, z1 - d), (x1 - d, y0, z1 - d), (x1 - d, y0, z0 + d)]
+        verts = [(x0 + d, y0, z0 + d), (x1 - d, y0, z0 + d), (x1 - d, y0, z1 - d), (x0 + d, y0, z1 - d)]  # normal -y
         mat = emission(f"Screen {i + 1}", (0.8, 0.9, 1.0), 5.0)
         screen_mats.append(mat)
         ob = light_shape(f"Screen {i + 1}", verts, [[0, 1, 2, 3]], mat)

@@ -351,3 +351,49 @@ def test_naive_method_matches_its_own_rebuild(base, samples):
     # same emitted power as the exact clipped coverage (point samples: a few percent)
     np.testing.assert_allclose((E * w[:, None]).sum(0)[:1], leaf_power(fe)[:1], rtol=0.1)
     assert dyn.loop_radiance("POINT").shape == (len(base.mesh.verts), 3)
+
+
+def test_naive_splits_host_along_shape_outlines():
+    """NAIVE replaces the wall polygons under a window by their pieces around the panes (regression,
+    benchmarks/repro_naive_rims.py): the 2 cm strip between two panes is as bright as the wall outside
+    the window, and the original mesh's loops still get values."""
+    mesh = scenes.cornell_box(subdiv=4)
+    cy, cz, p, bar = 0.28, 0.30, 0.09, 0.02
+    shapes = {}
+    for i, dy in enumerate((-(bar / 2 + p), bar / 2)):
+        y0 = cy + dy
+        ring = np.array([(0, y0, cz - p), (0, y0 + p, cz - p), (0, y0 + p, cz + p), (0, y0, cz + p)], float)
+        shapes[i] = LightShape([ring], 8.0 * np.ones(3), f"pane{i}")
+    dyn = DynamicRadiosity(RadiositySystem(mesh, RefineParams.preset("draft")), method="NAIVE")
+    dyn.apply(shapes)
+    assert dyn.naive_active and len(dyn._naive.replaced)
+    pt = dyn.system.patches
+    green = mesh.object_names.index("right_green")
+    z = np.linspace(cz - 0.8 * p, cz + 0.8 * p, 7)
+    pts_in = np.column_stack([np.zeros_like(z), np.full_like(z, cy), z])
+    pts_out = np.column_stack([np.zeros_like(z), np.full_like(z, cy + bar / 2 + p + 0.07), z])
+
+    def patch_of(pts):
+        cand = np.flatnonzero(pt.object_id == green)
+        out = []
+        for q in pts:
+            c = pt.corners[cand]
+            ok = (c[:, :, 1].min(1) <= q[1] + 1e-9) & (c[:, :, 1].max(1) >= q[1] - 1e-9) & \
+                 (c[:, :, 2].min(1) <= q[2] + 1e-9) & (c[:, :, 2].max(1) >= q[2] - 1e-9)
+            out.append(cand[np.argmax(ok)])
+        return np.array(out)
+
+    def reflected(pts):
+        B, E = dyn.evaluate(pts, patch_of(pts))
+        return (B - E).mean()
+
+    mull, outside = reflected(pts_in), reflected(pts_out)
+    assert mull > 0.8 * outside > 0
+    r = dyn.radiance_at(pts_in, patch_of(pts_in))
+    assert np.isfinite(r).all() and (r.mean(1) > 0.5 * mull).all()
+    lr = dyn.loop_radiance()
+    assert lr.shape == (len(mesh.loop_verts), 3) and np.isfinite(lr).all()
+    loop_poly = np.repeat(np.arange(len(mesh.loop_start)), mesh.loop_total)
+    wall = np.isin(loop_poly, dyn._naive.replaced)
+    assert (lr[wall].mean(1) > 0).all()
+    assert dyn.loop_radiance(domain="POINT").shape == (len(mesh.verts), 3)

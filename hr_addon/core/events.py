@@ -998,7 +998,8 @@ class _NaiveState:
         tol = dyn.plane_tol * dyn.diag
         delta = dyn.naive_offset * dyn.diag
         self.groups = []
-        verts, polys, rhos, ems = [], [], [], []
+        verts, polys, rhos, ems, oids = [], [], [], [], []
+        replaced = set()     # input polygons replaced by their pieces around / under the light patches
         P0 = len(mesh.loop_start)
         todo = [r for r in recs]
         for r in todo:
@@ -1015,7 +1016,21 @@ class _NaiveState:
             hi = np.max([x.max(0) for rr in rings for x in rr], 0)
             p2 = dyn._to2d(r0, pt.corners[pats]) if len(pats) else np.zeros((0, 4, 2))
             near = (p2.min(1) <= hi).all(1) & (p2.max(1) >= lo).all(1) if len(pats) else np.zeros(0, bool)
-            pats, p2 = pats[near], p2[near]
+            pats = pats[near]
+            # Host polygons touched by the shapes are replaced by their pieces (below), so no host leaf
+            # straddles a light patch outline: take all the patches of those polygons, if all coplanar.
+            if len(pats):
+                hp = np.unique(pt.poly[pats])
+                allp = np.flatnonzero(np.isin(pt.poly, hp))
+                off = np.abs((pt.corners[allp] - r0.c) @ r0.n).max(1) > tol
+                bad = np.unique(pt.poly[allp[off]])
+                hp = np.setdiff1d(hp, np.union1d(bad, list(replaced)))
+                pats = np.union1d(pats, allp[np.isin(pt.poly[allp], hp)])
+                replaced.update(hp.tolist())
+                grp_repl = np.isin(pt.poly[pats], hp)
+            else:
+                grp_repl = np.zeros(0, bool)
+            p2 = dyn._to2d(r0, pt.corners[pats]) if len(pats) else np.zeros((0, 4, 2))
             edges = [np.stack([x, np.roll(x, -1, 0)], 1) for rr in rings for x in rr]
             edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in p2]
             edges = np.concatenate(edges)
@@ -1028,12 +1043,31 @@ class _NaiveState:
             for r, rr in zip(grp, rings):
                 em += _in_rings(mids, rr)[:, None] * r.emission[None]
             under = np.full(len(mids), -1)
+            repl = np.zeros(len(mids), bool)
             if len(pats):
                 inc = _in_convex(mids, p2)
                 has = inc.any(1)
-                under[has] = pats[np.argmax(inc[has], 1)]
+                k = np.argmax(inc[has], 1)
+                under[has] = pats[k]
+                repl[has] = grp_repl[k]
             lit = em.max(1) > 0
             g_quads, g_patch, g_front = [], [], []
+            for t in np.flatnonzero(~lit & repl):    # uncovered pieces of a replaced host polygon
+                poly2 = traps[t][0]
+                hn = pt.normal[under[t]]
+                p3 = r0.c + poly2[:, :1] * r0.u + poly2[:, 1:2] * r0.v
+                p3 = p3 - (((p3 - pt.corners[under[t], 0]) @ hn) / (r0.n @ hn))[:, None] * r0.n[None]
+                if _newell(p3) @ hn < 0:
+                    p3, poly2 = p3[::-1], poly2[::-1]
+                base = len(np.concatenate(verts)) if verts else 0
+                verts.append(p3)
+                polys.append(list(range(base, base + len(p3))))
+                rhos.append(pt.reflectance[:, under[t]])
+                ems.append(pt.emission[:, under[t]])
+                oids.append(int(pt.object_id[under[t]]))
+                g_quads.append(np.concatenate([poly2, poly2[-1:]]) if len(poly2) == 3 else poly2)
+                g_patch.append(P0 + len(polys) - 1)
+                g_front.append(np.zeros(3))
             for t in np.flatnonzero(lit):
                 poly2 = traps[t][0]
                 front = pt.normal[under[t]] if under[t] >= 0 else next(
@@ -1046,6 +1080,7 @@ class _NaiveState:
                 polys.append(list(range(base, base + len(p3))))
                 rhos.append(pt.reflectance[:, under[t]] if under[t] >= 0 else np.zeros(3))
                 ems.append(em[t] + (pt.emission[:, under[t]] if under[t] >= 0 else 0))
+                oids.append(-1)
                 q4 = np.concatenate([poly2, poly2[-1:]]) if len(poly2) == 3 else poly2
                 g_quads.append(q4)
                 g_patch.append(P0 + len(polys) - 1)
@@ -1054,12 +1089,24 @@ class _NaiveState:
                 self.groups.append((r0, set(pats.tolist()), np.array(g_quads), np.array(g_patch), np.array(g_front)))
         self.P0, self.L0, self.V0 = P0, len(mesh.loop_verts), len(mesh.verts)
         self.delta = delta
+        self.replaced = np.array(sorted(replaced), np.int64)
         if polys:
             light = MeshInput.from_polygons(np.concatenate(verts), polys, np.array(rhos), np.array(ems),
                                             np.zeros(len(polys), np.int64), ["light shapes (NAIVE)"])
             nm = mesh.concat(light)
+            oids = np.array(oids, np.int64)
+            nm.object_id[P0:][oids >= 0] = oids[oids >= 0]    # pieces weld with their host object
+            if len(self.replaced):   # collapse the replaced polygons (dropped as degenerate)
+                nm.loop_verts = nm.loop_verts.copy()
+                for q in self.replaced:
+                    a, k = mesh.loop_start[q], mesh.loop_total[q]
+                    nm.loop_verts[a:a + k] = nm.loop_verts[a]
         else:
             nm = mesh
+        # original patch -> patch of the same polygon in the NAIVE system (-1: polygon replaced)
+        kept = ~np.isin(pt.poly, self.replaced)
+        self.patch_map = np.where(kept, np.cumsum(kept) - 1, -1)
+        self.orig_poly = pt.poly
         self.system = RadiositySystem(nm, dyn.naive_params or sysm.params, backend=sysm.backend.name, tol=sysm.tol)
         self.system.solve()
         self.iterations = self.system.report.iterations
@@ -1081,13 +1128,22 @@ class _NaiveState:
         """Points on input patches -> (root patch, point) in the NAIVE system: points under a light
         patch move onto it."""
         pts = np.asarray(points, float).copy()
-        roots = np.asarray(patch_ids, np.int64).copy()
+        orig = np.asarray(patch_ids, np.int64)
+        roots = self.patch_map[orig]
         for r0, pats, quads, pidx, front in self.groups:
-            m = np.flatnonzero(np.isin(roots, list(pats)))
+            m = np.flatnonzero(np.isin(orig, list(pats)))
             if len(m) == 0:
                 continue
-            inc = _in_convex(DynamicRadiosity._to2d(r0, pts[m]), quads) & (pidx >= 0)[None]
+            p2 = DynamicRadiosity._to2d(r0, pts[m])
+            inc = _in_convex(p2, quads) & (pidx >= 0)[None]
             has = inc.any(1)
+            # a point of a replaced polygon just outside every piece (rounding): the nearest piece
+            lost = ~has & (roots[m] < 0)
+            if lost.any():
+                cen = quads.mean(1)
+                d = ((p2[lost][:, None] - cen[None]) ** 2).sum(-1) + np.where(pidx >= 0, 0, np.inf)[None]
+                inc[np.flatnonzero(lost), np.argmin(d, 1)] = True
+                has = inc.any(1)
             t = np.argmax(inc[has], 1)
             mm = m[has]
             roots[mm] = pidx[t]
@@ -1098,16 +1154,25 @@ class _NaiveState:
         out = self.system.loop_radiance("CORNER", smooth_angle)[:self.L0].astype(np.float64)
         # corners under a light patch show the light, not the hidden surface behind it
         loop_poly = np.repeat(np.arange(self.P0), mesh.loop_total)
-        pt = self.system.patches
-        first = np.searchsorted(pt.poly, loop_poly)
+        first = np.searchsorted(self.orig_poly, loop_poly)   # a patch of the ORIGINAL system
         pos = mesh.verts[mesh.loop_verts]
         covered = np.zeros(len(pos), bool)
         for r0, pats, quads, pidx, front in self.groups:
             m = np.flatnonzero(np.isin(first, list(pats)))
             if len(m):
-                covered[m] = _in_convex(DynamicRadiosity._to2d(r0, pos[m]), quads).any(1)
+                lit = front.any(1)   # unlit pieces (zero offset) are handled below
+                covered[m] = _in_convex(DynamicRadiosity._to2d(r0, pos[m]), quads[lit]).any(1)
         if covered.any():
             out[covered] = self.evaluate(pos[covered], first[covered])[0]
+        # corners of replaced polygons: the pieces' smooth radiance, probed just inside the polygon
+        rl = np.flatnonzero(np.isin(loop_poly, self.replaced) & ~covered)
+        if len(rl):
+            cen = np.zeros((self.P0, 3))
+            np.add.at(cen, loop_poly, pos)
+            cen /= np.maximum(mesh.loop_total, 1)[:, None]
+            p = pos[rl] + 1e-6 * (cen[loop_poly[rl]] - pos[rl])
+            roots, p = self.remap(p, first[rl])
+            out[rl] = radiance_at(self.system.h, self.system.B, roots, p, True)
         if domain == "POINT":
             res = np.zeros((self.V0, 3))
             res[mesh.loop_verts] = out
