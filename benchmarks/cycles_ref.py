@@ -332,7 +332,7 @@ def prepare(scene, texel_rel=1 / 100, k=3, texel=None):
     allv = sin.mesh.verts[sin.mesh.loop_verts]
     diag = float(np.linalg.norm(allv.max(0) - allv.min(0)))
     texel = texel or texel_rel * diag
-    poly_offset, p = {}, 0
+    poly_offset = {}
     lstart = sin.mesh.loop_start
     for t in sin.targets:
         poly_offset[t.name] = int(np.searchsorted(lstart, t.loops[0]))
@@ -530,9 +530,10 @@ class Ours:
         self.base_emission_poly = mesh.emission
 
     def evaluate(self, shapes=None, smooth=True):
-        """{name: dict(leaf_total, leaf_refl, vertex_total, emission[, smooth_refl]) (N, 3) per texel}:
-        leaf radiance (total, and reflected = minus the leaf's emission as the method applied it),
-        vertex output interpolated, exact emission, smooth (interpolated) reflected radiance."""
+        """{name: dict(leaf_total, leaf_refl, vertex_total, emission[, smooth_refl, smooth_total])}, each
+        (N, 3) per texel: leaf radiance (total, and reflected = minus the leaf's emission as the method
+        applied it), vertex output interpolated, exact emission, and the texture output's smooth
+        in-leaf interpolation (core.output.radiance_at) of reflected and total radiance."""
         from hr_addon.core.events import locate
         rs = self.rs
         names = rs.objects
@@ -543,7 +544,9 @@ class Ours:
             B, E = self.dyn.evaluate(allx, allp)
             loops = self.dyn.loop_radiance("CORNER")
             if want_smooth and not self.dyn.naive_active:
-                smooth = radiance_at(self.dyn.system.h, self.dyn.B - self.dyn.emission(), allp, allx, smooth=True)
+                h, Bn = self.dyn.system.h, self.dyn.B
+                smooth = (radiance_at(h, Bn - self.dyn.emission(), allp, allx, smooth=True),
+                          radiance_at(h, Bn, allp, allx, smooth=True))
         else:
             h = self.system.h
             leaf = locate(h, allp, allx)
@@ -553,7 +556,8 @@ class Ours:
             E = self.system.base_emission()[:, leaf].T
             loops = self.system.loop_radiance("CORNER")
             if want_smooth:
-                smooth = radiance_at(h, self.system.B - self.system.base_emission(), allp, allx, smooth=True)
+                smooth = (radiance_at(h, self.system.B - self.system.base_emission(), allp, allx, smooth=True),
+                          radiance_at(h, self.system.B, allp, allx, smooth=True))
         out, s = {}, 0
         targets = {t.name: t for t in rs.scene_in.targets}
         for name in names:
@@ -561,7 +565,7 @@ class Ours:
             patch, missing, P = self.samples[name]
             m = len(patch)
             b, e = B[s:s + m], E[s:s + m]
-            sm = None if smooth is None else smooth[s:s + m]
+            sm = None if smooth is None else (smooth[0][s:s + m], smooth[1][s:s + m])
             s += m
             corner = targets[name].extract(loops, "CORNER").astype(np.float64)
             vert = np.einsum("sk,skc->sc", at.s_bary, corner[at.s_loops])
@@ -569,8 +573,9 @@ class Ours:
             b = np.where(missing[:, None], np.nan, b)
             out[name] = {"leaf_total": at.texel_mean(b), "leaf_refl": at.texel_mean(b - e),
                          "vertex_total": at.texel_mean(vert), "emission": at.texel_mean(etrue)}
-            if sm is not None:
-                out[name]["smooth_refl"] = at.texel_mean(np.where(missing[:, None], np.nan, sm))
+            if sm is not None:   # the texture output's interpolation (core.output.radiance_at)
+                out[name]["smooth_refl"] = at.texel_mean(np.where(missing[:, None], np.nan, sm[0]))
+                out[name]["smooth_total"] = at.texel_mean(np.where(missing[:, None], np.nan, sm[1]))
         return out
 
 

@@ -1,15 +1,16 @@
 """Agreement with Cycles on the Cornell box sample (see docs/accuracy.md, benchmarks/cycles_compare.py).
 
 A coarse version of the benchmark: ~32 x 32 texels per wall (texel = 1/56 of the scene diagonal),
-Cycles at 32 samples (single thread), our solution at the default quality (medium) and method
+Cycles at 32 samples, our solution at the default quality (medium) and method
 (AUTO), frames 1 (ceiling light only) and 13 (ceiling light + window + back-wall patch, reached
 through frame 6 as the bake does). Reflected radiance at the same texels on both sides.
 
-Tolerances, from measurement with margin (4 Cycles seeds at these settings, see docs/accuracy.md):
+Tolerances, from measurement with margin (5 Cycles seeds at these settings, see docs/accuracy.md):
 - every surface of >= 400 texels: |mean ours - mean Cycles| / mean Cycles <= MRE_TOL (measured
-  worst surface 1.5-2.7%: our medium solution is 1-2% darker than Cycles, +-0.5% Cycles noise);
+  worst surface 1.5-2.7%: our medium solution is 1-2% darker than Cycles, +-0.5% Cycles noise;
+  surfaces below 400 texels, i.e. the light, are left out: too noisy at 32 spp);
 - all texels: signed bias of the mean within +-BIAS_TOL (measured -0.9 to -1.6%), texel RMSE
-  <= RMSE_TOL x mean radiance (measured 0.156-0.174, mostly Cycles noise at 32 spp: a gross check
+  <= RMSE_TOL x mean radiance (measured 0.155-0.174, mostly Cycles noise at 32 spp: a gross check
   that catches misplaced light, e.g. a shape emitting on the wrong side or a shifted shadow).
 A position bake checks that our texel -> surface point map is the one Cycles bakes.
 """
@@ -55,7 +56,7 @@ def comparison(tmp_path_factory):
         dyn.apply(shapes)
         if f == 6:
             continue
-        res = ours.evaluate(shapes)
+        res = ours.evaluate(shapes, smooth=False)
         ref, seconds, mask = C.bake(rs, SPP, seed=f)
         out[f] = (rs, res, ref, mask, shapes)
     return out
