@@ -13,8 +13,9 @@ baked at several sample counts with two seeds (its noise = error of an unbiased 
 Writes benchmarks/out/cycles.json, benchmarks/cycles_speed_accuracy.png and
 benchmarks/out/cycles_maps_cornell.png (error maps). Cycles bakes are cached in
 benchmarks/out/cycles_cache/ (not committed; --no-cache re-bakes). Times are CPU seconds of the
-process (all threads; Cycles is asked for one thread, BLAS is single-threaded), so that other users
-of the machine do not distort them. About 16 min of CPU from scratch, 8.5 min with cached references.
+process (all threads: Cycles is asked for one thread but may use more, BLAS is single-threaded), so
+that other users of the machine do not distort them. About 16 min of CPU from scratch, 8.5 min
+with cached references.
 """
 import os
 

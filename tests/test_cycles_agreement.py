@@ -10,7 +10,7 @@ Tolerances, from measurement with margin (5 Cycles seeds at these settings, see 
   worst surface 1.5-2.7%: our medium solution is 1-2% darker than Cycles, +-0.5% Cycles noise;
   surfaces below 400 texels, i.e. the light, are left out: too noisy at 32 spp);
 - all texels: signed bias of the mean within +-BIAS_TOL (measured -0.9 to -1.6%), texel RMSE
-  <= RMSE_TOL x mean radiance (measured 0.155-0.174, mostly Cycles noise at 32 spp: a gross check
+  <= RMSE_TOL x mean radiance (measured 0.154-0.174, mostly Cycles noise at 32 spp: a gross check
   that catches misplaced light, e.g. a shape emitting on the wrong side or a shifted shadow).
 A position bake checks that our texel -> surface point map is the one Cycles bakes.
 """
