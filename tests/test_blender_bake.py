@@ -5,9 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_blender_helpers import attribute, has_events, load_bpy, make_samples_module, open_sample
+from test_blender_helpers import attribute, load_bpy, make_samples_module, open_sample
 
-pytestmark = pytest.mark.skipif(not has_events(), reason="needs hr_addon.core.events")
 
 FRAMES = {1: (), 6: ("window",), 13: ("window", "patch"), 21: ("patch",)}   # cornell.blend states
 

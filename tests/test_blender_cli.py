@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_blender_helpers import REPO_ROOT, SAMPLES, has_events, load_bpy, make_samples_module, open_sample
+from test_blender_helpers import REPO_ROOT, SAMPLES, load_bpy, make_samples_module, open_sample
 
 pytest.importorskip("bpy")
 
@@ -110,7 +110,6 @@ def _frames(directory):
     return {f: r.load(f) for f in sorted(r.frames)}
 
 
-@pytest.mark.skipif(not has_events(), reason="needs hr_addon.core.events")
 def test_split_bake_in_two_processes_equals_single_bake(tmp_path):
     for sub in ("split", "single"):
         (tmp_path / sub).mkdir()

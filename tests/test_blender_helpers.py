@@ -60,9 +60,3 @@ def attribute(obj, name="HR_Radiance"):
     return v.reshape(-1, 4)
 
 
-def has_events():
-    try:
-        import hr_addon.core.events  # noqa: F401
-        return True
-    except ImportError:
-        return False

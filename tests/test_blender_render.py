@@ -2,9 +2,8 @@
 import numpy as np
 import pytest
 
-from test_blender_helpers import has_events, load_bpy, open_sample
+from test_blender_helpers import load_bpy, open_sample
 
-pytestmark = pytest.mark.skipif(not has_events(), reason="needs hr_addon.core.events")
 
 
 def test_render_two_frames_show_the_bake(tmp_path):

@@ -5,9 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_blender_helpers import has_events, load_bpy, open_sample
+from test_blender_helpers import load_bpy, open_sample
 
-pytestmark = pytest.mark.skipif(not has_events(), reason="needs hr_addon.core.events")
 
 RES = 64
 GEOMETRY = ["back", "ceiling", "floor", "left_red", "light", "right_green", "short_block", "tall_block"]

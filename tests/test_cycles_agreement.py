@@ -21,9 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_blender_helpers import has_events, load_bpy, open_sample
+from test_blender_helpers import load_bpy, open_sample
 
-pytestmark = pytest.mark.skipif(not has_events(), reason="needs hr_addon.core.events")
 
 BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
 
