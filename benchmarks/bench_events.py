@@ -19,7 +19,6 @@ seconds are kept too); incremental methods are run `--repeat` times and the fast
     .venv/bin/python benchmarks/plot_events.py
 """
 import argparse
-import copy
 import hashlib
 import json
 import os
@@ -35,7 +34,7 @@ from hr_addon.core import scenes  # noqa: E402
 from hr_addon.core import shapes as S  # noqa: E402
 from hr_addon.core.events import DynamicRadiosity, LightShape, surface_samples  # noqa: E402
 from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
-from hr_addon.core.refine import Refiner, RefineParams  # noqa: E402
+from hr_addon.core.refine import RefineParams  # noqa: E402
 
 QUALITY = {
     "coarse": RefineParams(feps=0.1, aeps=4e-3, shadow_feps=0.02, veps=0.02),
@@ -85,14 +84,6 @@ def beam_scenario(n=30):
     return out
 
 
-def clone(sysm):
-    c = object.__new__(RadiositySystem)
-    c.__dict__.update(sysm.__dict__)
-    c.h = copy.deepcopy(sysm.h)
-    c.refiner = Refiner(c.h, sysm.backend, sysm.params)
-    c._op = None
-    return c
-
 
 def config_key(scene, config, params):
     m = hashlib.sha1(scene.encode())
@@ -118,7 +109,7 @@ def reference(scene, mesh, config, pts, ids, cache_dir, cheap_base):
             return ref, 0.0
     t0 = time.perf_counter()
     if config:
-        dyn = DynamicRadiosity(clone(cheap_base), method="NAIVE", naive_params=REFERENCE)
+        dyn = DynamicRadiosity(cheap_base.copy(), method="NAIVE", naive_params=REFERENCE)
         dyn.apply(config)
     else:
         dyn = DynamicRadiosity(RadiositySystem(mesh, REFERENCE), method="NAIVE")
@@ -135,7 +126,7 @@ def err(x, ref, w):
 
 
 def run_variant(base, method, kw, events, pts, ids, eval_at):
-    dyn = DynamicRadiosity(clone(base), method=method, **kw)
+    dyn = DynamicRadiosity(base.copy(), method=method, **kw)
     B0, E0 = dyn.evaluate(pts, ids)
     refl0 = B0 - E0
     out, refl = [], {}

@@ -23,7 +23,6 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
-import copy  # noqa: E402
 import hashlib  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
@@ -75,17 +74,6 @@ def open_scene(name):
     bpy.ops.wm.open_mainfile(filepath=os.path.join(ROOT, "sample_blends", f"{name}.blend"), load_ui=False)
     return bpy.context.scene
 
-
-def clone(system):
-    """Independent copy of a built RadiositySystem (hierarchy deep-copied, links shared)."""
-    from hr_addon.core.radiosity import RadiositySystem
-    from hr_addon.core.refine import Refiner
-    c = object.__new__(RadiositySystem)
-    c.__dict__.update(system.__dict__)
-    c.h = copy.deepcopy(system.h)
-    c.refiner = Refiner(c.h, system.backend, system.params)
-    c._op = None
-    return c
 
 
 # --------------------------------------------------------------------------------------------
@@ -272,7 +260,7 @@ def run_scene(name, cfg, results, maps=None):
             if meth == "NAIVE" and q == "high":
                 continue   # a full high-quality rebuild per event (~30 s each): off the chart anyway
             t0 = time.process_time()
-            dyn = DynamicRadiosity(clone(base), method=meth)
+            dyn = DynamicRadiosity(base.copy(), method=meth)
             t_init = time.process_time() - t0
             ours = C.Ours(rs, dyn.system, dyn)
             run = {"quality": q, "method": meth, "build_seconds": t_build, "init_seconds": t_init,

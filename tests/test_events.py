@@ -2,7 +2,6 @@
 
 One coarse Cornell box is built once; every test works on a clone (the hierarchy is extended in place).
 """
-import copy
 
 import numpy as np
 import pytest
@@ -13,7 +12,7 @@ from hr_addon.core import formfactor as ff
 from hr_addon.core.events import DynamicRadiosity, LightShape, locate, surface_samples
 from hr_addon.core.geometry import InputError
 from hr_addon.core.radiosity import RadiositySystem
-from hr_addon.core.refine import Refiner, RefineParams
+from hr_addon.core.refine import RefineParams
 from hr_addon.core.solver import solve
 
 COARSE = RefineParams(feps=0.1, aeps=4e-3, shadow_feps=0.02, veps=0.02)
@@ -28,15 +27,6 @@ WINDOW = shape(S.window(0.2, 0.16, 0.02, centre=(0.3, 0.3), angle=0.3, shear=0.3
 STAR = shape(S.star(0.1, 0.04, 5, centre=(0.25, 0.3), angle=0.2), BACK, (2.0, 3.0, 6.0), "star")
 ELLIPSE = shape(S.ellipse(0.12, 0.05, centre=(0.3, 0.25), angle=0.5), BACK, (5.0, 5.0, 5.0), "ellipse")
 
-
-def clone(sysm):
-    """A RadiositySystem sharing the links and ray backend but with its own hierarchy."""
-    c = object.__new__(RadiositySystem)
-    c.__dict__.update(sysm.__dict__)
-    c.h = copy.deepcopy(sysm.h)
-    c.refiner = Refiner(c.h, sysm.backend, sysm.params)
-    c._op = None
-    return c
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +55,7 @@ def rel(a, b):
 @pytest.mark.parametrize("method", ["FE", "AR"])
 @pytest.mark.parametrize("incremental", ["response", "warm"])
 def test_incremental_equals_cold_solve(base, method, incremental):
-    dyn = DynamicRadiosity(clone(base), method=method, incremental=incremental)
+    dyn = DynamicRadiosity(base.copy(), method=method, incremental=incremental)
     dyn.add("w", WINDOW)
     dyn.add("s", STAR)
     dyn.set_emission("w", [1.0, 2.0, 3.0])
@@ -82,10 +72,10 @@ def test_incremental_equals_cold_solve(base, method, incremental):
 @pytest.mark.parametrize("method", ["AR", "AUTO", "FE"])
 def test_history_independence(base, samples, method):
     pts, ids, _ = samples
-    alone = DynamicRadiosity(clone(base), method=method)
+    alone = DynamicRadiosity(base.copy(), method=method)
     alone.add("B", STAR)
     ref = alone.evaluate(pts, ids)[0]
-    dyn = DynamicRadiosity(clone(base), method=method)
+    dyn = DynamicRadiosity(base.copy(), method=method)
     n0, l0 = dyn.system.h.n, len(dyn.links)
     dyn.add("A", WINDOW)
     dyn.add("B", STAR)
@@ -100,9 +90,9 @@ def test_history_independence(base, samples, method):
 
 def test_history_independence_warm(base, samples):
     pts, ids, _ = samples
-    alone = DynamicRadiosity(clone(base), method="AR", incremental="warm")
+    alone = DynamicRadiosity(base.copy(), method="AR", incremental="warm")
     alone.add("B", STAR)
-    dyn = DynamicRadiosity(clone(base), method="AR", incremental="warm")
+    dyn = DynamicRadiosity(base.copy(), method="AR", incremental="warm")
     dyn.add("A", WINDOW)
     dyn.add("B", STAR)
     dyn.remove("A")
@@ -110,7 +100,7 @@ def test_history_independence_warm(base, samples):
 
 
 def test_thousand_cycles_no_drift_no_negative(base):
-    dyn = DynamicRadiosity(clone(base), method="FE")
+    dyn = DynamicRadiosity(base.copy(), method="FE")
     dyn.add("B", STAR)
     ref = dyn.B.copy()
     n0 = dyn.system.h.n
@@ -127,7 +117,7 @@ def test_thousand_cycles_no_drift_no_negative(base):
 @pytest.mark.parametrize("incremental", ["response", "warm"])
 def test_cycles_with_refinement(base, incremental):
     """AR creates and deletes nodes every cycle (no response cache): no drift, nodes back to baseline."""
-    dyn = DynamicRadiosity(clone(base), method="AR", incremental=incremental, cache_size=0)
+    dyn = DynamicRadiosity(base.copy(), method="AR", incremental=incremental, cache_size=0)
     ref = dyn.B.copy()
     n0, l0 = dyn.system.h.n, len(dyn.links)
     for _ in range(15):
@@ -157,12 +147,12 @@ def test_emission_sums_to_area_times_emission(base, case, method):
     sh = shape(outline, frame)
     rings2d = outline if isinstance(outline, list) else [outline]
     area = abs(S_area(rings2d[0])) - sum(abs(S_area(r)) for r in rings2d[1:])
-    dyn = DynamicRadiosity(clone(base), method=method, incremental="warm")
+    dyn = DynamicRadiosity(base.copy(), method=method, incremental="warm")
     rep = dyn.add("x", sh)
     assert rep.covered == pytest.approx(1.0, rel=1e-9)
     np.testing.assert_allclose(leaf_power(dyn), area * sh.emission, rtol=1e-9)
     if method == "AR":
-        assert rep.emission_l1 <= DynamicRadiosity(clone(base), method="FE").add("x", sh).emission_l1 + 1e-12
+        assert rep.emission_l1 <= DynamicRadiosity(base.copy(), method="FE").add("x", sh).emission_l1 + 1e-12
 
 
 def S_area(r):
@@ -188,17 +178,17 @@ def test_ar_node_budget_falls_back_to_fe(base):
     """A non-axis-aligned, boundary-heavy shape with a tiny minimum area: AR would add far more nodes;
     the budget caps them, the rest of the boundary uses FE, the report says so, power stays exact."""
     sh = shape(S.star(0.15, 0.05, 9, (0.28, 0.27), 0.13), BACK)
-    free = DynamicRadiosity(clone(base), method="AR", min_area_rel=1e-7, node_budget=10 ** 7).add("x", sh)
+    free = DynamicRadiosity(base.copy(), method="AR", min_area_rel=1e-7, node_budget=10 ** 7).add("x", sh)
     budget = 2000
-    dyn = DynamicRadiosity(clone(base), method="AR", min_area_rel=1e-7, node_budget=budget)
+    dyn = DynamicRadiosity(base.copy(), method="AR", min_area_rel=1e-7, node_budget=budget)
     rep = dyn.add("x", sh)
     assert free.nodes_added > 5 * budget          # the growth the budget protects against
     assert 0 < rep.nodes_added <= budget
     assert rep.method == "AR+FE" and any("node budget" in m for m in rep.messages)
-    assert free.emission_l1 < rep.emission_l1 < DynamicRadiosity(clone(base), method="FE").add("x", sh).emission_l1
+    assert free.emission_l1 < rep.emission_l1 < DynamicRadiosity(base.copy(), method="FE").add("x", sh).emission_l1
     np.testing.assert_allclose(leaf_power(dyn), dyn.shapes["x"].area * sh.emission, rtol=1e-9)
     # AUTO: one budget for the outline and the first-bounce receivers together
-    auto = DynamicRadiosity(clone(base), method="AUTO", bf_rel=1e-4, node_budget=600).add("x", sh)
+    auto = DynamicRadiosity(base.copy(), method="AUTO", bf_rel=1e-4, node_budget=600).add("x", sh)
     assert 0 < auto.nodes_added <= 600 and any("node budget" in m for m in auto.messages)
 
 
@@ -219,14 +209,14 @@ def test_auto_first_bounce_beats_links(base, samples):
     FE/AR hand the same light to the old links (AR only sharpens the outline: their reflected light is
     identical), whose first bounce is far coarser. Per unit emission, RMS over sample points."""
     pts, ids, w = samples
-    auto = DynamicRadiosity(clone(base), method="AUTO")
+    auto = DynamicRadiosity(base.copy(), method="AUTO")
     auto.add("w", WINDOW)
     rec = auto.shapes["w"]
     h = auto.system.h
     leaf = locate(h, ids, pts)
     rho = base.patches.reflectance[:, ids]
     got_auto = auto._push(rec.D)[:, leaf]
-    fe = DynamicRadiosity(clone(base), method="FE")
+    fe = DynamicRadiosity(base.copy(), method="FE")
     fe.add("w", WINDOW)
     op = fe._operator()
     cov = np.repeat(fe._coverage(fe.shapes["w"])[None], 3, 0)
@@ -253,7 +243,7 @@ def test_auto_first_bounce_beats_links(base, samples):
         return np.sqrt(np.average(((v[:, off] - exact) ** 2).sum(0), weights=w[off]))
     print("first bounce rms AUTO %.4g FE %.4g" % (rms(got_auto), rms(got_fe)))
     assert rms(got_auto) < 0.5 * rms(got_fe), (rms(got_auto), rms(got_fe))
-    fe_pts, ar = fe.evaluate(pts, ids), DynamicRadiosity(clone(base), method="AR")
+    fe_pts, ar = fe.evaluate(pts, ids), DynamicRadiosity(base.copy(), method="AR")
     ar.add("w", WINDOW)
     ar_pts = ar.evaluate(pts, ids)
     assert rel(ar_pts[0] - ar_pts[1], fe_pts[0] - fe_pts[1]) < 1e-6
@@ -269,7 +259,7 @@ def test_shape_spanning_two_objects_in_one_plane():
     frame = (np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
     sh = shape(S.ellipse(0.6, 0.3, (1.0, 0.5), 0.3), frame, (3.0, 3.0, 3.0))
     for m in ("FE", "AR", "AUTO"):
-        dyn = DynamicRadiosity(clone(sysm), method=m)
+        dyn = DynamicRadiosity(sysm.copy(), method=m)
         rep = dyn.add("x", sh)
         rec = dyn.shapes["x"]
         assert len(set(sysm.patches.object_id[rec.roots])) == 2 and rep.covered == pytest.approx(1.0)
@@ -279,7 +269,7 @@ def test_shape_spanning_two_objects_in_one_plane():
 
 def test_shape_off_every_surface_uses_naive(base, samples):
     pts, ids, _ = samples
-    dyn = DynamicRadiosity(clone(base), method="AR")
+    dyn = DynamicRadiosity(base.copy(), method="AR")
     dyn.add("w", WINDOW)
     floating = (np.array([0.2, 0.2, 0.3]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))   # mid-air, facing up
     rep = dyn.add("f", shape(S.rect(0.1, 0.1, (0.05, 0.05)), floating, (5.0, 5.0, 5.0), "lamp"))
@@ -295,7 +285,7 @@ def test_shape_off_every_surface_uses_naive(base, samples):
 
 
 def test_partly_off_surface_is_reported(base):
-    dyn = DynamicRadiosity(clone(base), method="FE")
+    dyn = DynamicRadiosity(base.copy(), method="FE")
     rep = dyn.add("x", shape(S.rect(0.2, 0.2, (0.0, 0.3)), GREEN, name="edge"))   # half beyond the wall
     assert rep.covered == pytest.approx(0.5, rel=1e-6) and any("50.0%" in m for m in rep.messages)
 
@@ -303,7 +293,7 @@ def test_partly_off_surface_is_reported(base):
 @pytest.mark.parametrize("bad, what", [
     ("nan", "NaN or infinite"), ("emission", "not finite"), ("bent", "not planar"), ("flat", "zero area")])
 def test_bad_shape_errors_name_the_shape(base, bad, what):
-    dyn = DynamicRadiosity(clone(base), method="FE")
+    dyn = DynamicRadiosity(base.copy(), method="FE")
     rings = [r.copy() for r in WINDOW.rings]
     em = np.array([1.0, 1.0, 1.0])
     if bad == "nan":
@@ -321,7 +311,7 @@ def test_bad_shape_errors_name_the_shape(base, bad, what):
 
 # -- frames ------------------------------------------------------------------------------------------------
 def test_apply_diffs_frames(base):
-    dyn = DynamicRadiosity(clone(base), method="FE")
+    dyn = DynamicRadiosity(base.copy(), method="FE")
     f = dyn.apply({"w": WINDOW, "s": STAR})
     assert [e.kind for e in f.events] == ["add", "add"] and f.iterations > 0
     again = dyn.apply({"w": WINDOW, "s": STAR})
@@ -340,13 +330,13 @@ def test_apply_diffs_frames(base):
 def test_naive_method_matches_its_own_rebuild(base, samples):
     """NAIVE: light patches laid over the wall; overlapping shapes add (slab decomposition)."""
     pts, ids, w = samples
-    dyn = DynamicRadiosity(clone(base), method="NAIVE")
+    dyn = DynamicRadiosity(base.copy(), method="NAIVE")
     a = shape(S.rect(0.2, 0.2, (0.25, 0.25), 0.3), BACK, (1.0, 1.0, 1.0))
     b = shape(S.ellipse(0.1, 0.08, (0.35, 0.3), 0.0), BACK, (2.0, 0.0, 0.0))
     rep = dyn.apply({"a": a, "b": b})
     assert rep.method == "NAIVE"
     E = dyn.evaluate(pts, ids)[1] - base.patches.emission[:, ids].T
-    fe = DynamicRadiosity(clone(base), method="FE")
+    fe = DynamicRadiosity(base.copy(), method="FE")
     fe.apply({"a": a, "b": b})
     # same emitted power as the exact clipped coverage (point samples: a few percent)
     np.testing.assert_allclose((E * w[:, None]).sum(0)[:1], leaf_power(fe)[:1], rtol=0.1)

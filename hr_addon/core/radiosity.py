@@ -1,4 +1,5 @@
 """The engine in one object: input mesh -> patches -> hierarchy -> links -> solution."""
+import copy
 import time
 from dataclasses import dataclass, field
 
@@ -58,6 +59,16 @@ class RadiositySystem:
         self.build = BuildReport(len(self.patches.nv), self.patches.dropped, self.h.n, len(self.links),
                                  time.perf_counter() - t0, dict(self.refiner.stats), type(self.backend).__name__,
                                  list(self.patches.warnings))
+
+    def copy(self):
+        """An independent copy for light events: its own hierarchy (events add nodes below the
+        leaves), sharing the links and the ray backend, which events never change."""
+        c = object.__new__(RadiositySystem)
+        c.__dict__.update(self.__dict__)
+        c.h = copy.deepcopy(self.h)
+        c.refiner = Refiner(c.h, self.backend, self.params)
+        c._op = None
+        return c
 
     def base_emission(self):
         """(3, n) leaf emission from the input polygons."""
