@@ -58,14 +58,19 @@ def reset():
     return scene
 
 
-def diffuse(name, rgb):
+def _bare_material(name):
+    """A new material whose node tree holds only its Material Output."""
     m = bpy.data.materials.new(name)
     if bpy.app.version < (5, 0, 0):
         m.use_nodes = True
-    t = m.node_tree
-    for n in list(t.nodes):
+    for n in list(m.node_tree.nodes):
         if n.type != "OUTPUT_MATERIAL":
-            t.nodes.remove(n)
+            m.node_tree.nodes.remove(n)
+    return m, m.node_tree
+
+
+def diffuse(name, rgb):
+    m, t = _bare_material(name)
     d = t.nodes.new("ShaderNodeBsdfDiffuse")
     d.inputs["Color"].default_value = (*rgb, 1)
     t.links.new(d.outputs[0], t.nodes["Material Output"].inputs["Surface"])
@@ -87,13 +92,7 @@ def principled(name, rgb, emission=(1, 1, 1), strength=0.0):
 
 
 def emission(name, rgb, strength):
-    m = bpy.data.materials.new(name)
-    if bpy.app.version < (5, 0, 0):
-        m.use_nodes = True
-    t = m.node_tree
-    for n in list(t.nodes):
-        if n.type != "OUTPUT_MATERIAL":
-            t.nodes.remove(n)
+    m, t = _bare_material(name)
     e = t.nodes.new("ShaderNodeEmission")
     e.inputs["Color"].default_value = (*rgb, 1)
     e.inputs["Strength"].default_value = strength
