@@ -8,6 +8,7 @@ import numpy as np
 from .geometry import MeshInput, prepare_patches
 from .hierarchy import Hierarchy
 from .output import loop_radiance
+from .progress import Progress
 from .refine import Refiner, RefineParams, push_corrections
 from .solver import Operator, solve
 from .visibility import make_backend
@@ -30,7 +31,9 @@ class BuildReport:
 
 
 class RadiositySystem:
-    def __init__(self, mesh: MeshInput, params: RefineParams = None, backend="auto", tol=1e-7):
+    def __init__(self, mesh: MeshInput, params: RefineParams = None, backend="auto", tol=1e-7, progress=None):
+        """progress: callable(ProgressInfo) called between batches of the build; it cancels the
+        build by raising (core.progress.Cancelled), which propagates out of this constructor."""
         t0 = time.perf_counter()
         self.mesh = mesh
         self.params = params or RefineParams()
@@ -39,6 +42,7 @@ class RadiositySystem:
         self.h = Hierarchy(self.patches)
         self.backend = make_backend(self.patches.triangles, backend)
         self.refiner = Refiner(self.h, self.backend, self.params)
+        self.refiner.progress = Progress(progress, {"linking": 0.8, "push corrections": 0.2})
         self.links = self.refiner.build()
         self.B = None
         self.report = None
@@ -51,9 +55,11 @@ class RadiositySystem:
                     break
                 self.links = new
         if self.params.vcorr > 0:
+            self.refiner.progress.update("push corrections", 0, 1, force=True)
             t1 = time.perf_counter()
             self.links = push_corrections(self.h, self.links, self.params.vcorr, self.params.corr_budget)
             self.refiner.stats["t_corr"] = time.perf_counter() - t1
+        self.refiner.progress.done("push corrections")
         self._op = None
         self.B = None   # a BF pass solved with links that have changed since
         self.build = BuildReport(len(self.patches.nv), self.patches.dropped, self.h.n, len(self.links),

@@ -16,6 +16,7 @@ import numpy as np
 
 from . import formfactor as ff
 from .hierarchy import Hierarchy
+from .progress import NO_PROGRESS
 
 
 CHUNK = 100_000  # node pairs processed at once
@@ -157,6 +158,7 @@ class Refiner:
         self.h, self.backend, self.params = h, backend, params
         self.total_area = float(h.patches.area.sum())
         self.eps = 1e-6 * np.sqrt(self.total_area)   # ray end offset along normals
+        self.progress = NO_PROGRESS
         self.stats = {"rays": 0, "pairs_tested": 0, "pairs_culled": 0, "t_vis": 0.0, "t_ff": 0.0, "t_refine": 0.0}
         self._occluder_boxes()
 
@@ -226,6 +228,7 @@ class Refiner:
         p, q = np.asarray(p, np.int64), np.asarray(q, np.int64)
         tol = 1e-9 * np.sqrt(self.total_area)
         pending = [(p, q)]
+        done, total = 0, len(p)
         while pending:
             # Depth-first over bounded batches keeps the temporaries (a few hundred bytes per pair
             # and quadrature point) small whatever the scene size.
@@ -234,6 +237,8 @@ class Refiner:
                 pending.append((p[CHUNK:], q[CHUNK:]))
                 p, q = p[:CHUNK], q[:CHUNK]
             self.stats["pairs_tested"] += len(p)
+            done += len(p)
+            self.progress.update("linking", done, total)
             f_pq = ff.estimate(h.centre[p], h.normal[p], h.area[p], h.corners[q], h.centre[q], h.normal[q], h.area[q])
             f_qp = ff.estimate(h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p])
             fmax = np.maximum(f_pq, f_qp)
@@ -265,6 +270,7 @@ class Refiner:
             sp_p, sp_q = p[split_p], q[split_p]   # p split: pairs (child of p, q)
             sq_p, sq_q = p[split_q], q[split_q]   # q split: pairs (p, child of q)
             h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
+            total += 4 * (len(sp_p) + len(sq_p))
             if len(sp_p) + len(sq_p):
                 pending.append((np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)]),
                                 np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()])))
