@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import cluster
 from . import formfactor as ff
 from .hierarchy import Hierarchy
 from .progress import NO_PROGRESS
@@ -34,13 +35,18 @@ class RefineParams:
     bf_passes: int = 2
     vcorr: float = 1e-4         # push corrections for links varying more than this (0: off)
     corr_budget: int = 3_000_000
+    cluster: bool = True        # link through face clusters (cluster.py) instead of all patch pairs
+    cluster_ratio: float = 0.3  # far links need (radius_a + radius_b) < cluster_ratio x distance
+    partial_feps: float = 0.5   # far links with a partly facing cluster end need F < partial_feps x feps
+    cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
 
     @staticmethod
     def preset(name):
         presets = {
-            "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3),
+            "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3, cluster_veps=3e-3),
             "medium": RefineParams(),
-            "high": RefineParams(feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vcorr=1e-5),
+            "high": RefineParams(feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vcorr=1e-5,
+                                 cluster_veps=2e-4),
         }
         if name not in presets:
             raise ValueError(f"Unknown quality preset '{name}' (choose from {', '.join(presets)})")
@@ -50,16 +56,22 @@ class RefineParams:
 class Links:
     """Symmetric link pairs plus the directed, receiver-sorted (CSR) arrays the solver gathers over."""
 
-    def __init__(self, a, b, f_ab, f_ba, vis, corr=None):
+    def __init__(self, a, b, f_ab, f_ba, vis, corr=None, far=None):
         self.a, self.b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+        self.far = far   # cluster.FarLinks: links with a cluster end (None without clustering)
         self.f_ab, self.f_ba, self.vis = np.asarray(f_ab, float), np.asarray(f_ba, float), np.asarray(vis, float)
         # Push corrections (see push_corrections): directed (leaf, source, dF) terms whose dF sum to
         # zero, area-weighted, over each corrected link's receiver. Dropped by select/concat.
         self.corr = corr
-        self._csr = None
+        self._csr = self._ext = None
 
     def __len__(self):
-        return len(self.a)
+        """All links: between patch nodes and with a cluster end."""
+        return len(self.a) + self.n_far
+
+    @property
+    def n_far(self):
+        return 0 if self.far is None else len(self.far)
 
     @staticmethod
     def empty():
@@ -67,33 +79,57 @@ class Links:
         return Links(z.astype(np.int64), z.astype(np.int64), z, z, z)
 
     def concat(self, other):
-        return Links(*(np.concatenate([getattr(self, k), getattr(other, k)]) for k in ("a", "b", "f_ab", "f_ba", "vis")))
+        """Patch-node links of both; far links of self."""
+        return Links(*(np.concatenate([getattr(self, k), getattr(other, k)]) for k in ("a", "b", "f_ab", "f_ba", "vis")),
+                     far=self.far)
 
     def select(self, mask):
-        return Links(self.a[mask], self.b[mask], self.f_ab[mask], self.f_ba[mask], self.vis[mask])
+        """A subset of the patch-node links (mask over them); far links kept."""
+        return Links(self.a[mask], self.b[mask], self.f_ab[mask], self.f_ba[mask], self.vis[mask], far=self.far)
 
     def remap(self, remap):
         """After Hierarchy.compact: renumber nodes (links must not touch deleted nodes)."""
         corr = None if self.corr is None else (remap[self.corr[0]], remap[self.corr[1]], self.corr[2])
-        return Links(remap[self.a], remap[self.b], self.f_ab, self.f_ba, self.vis, corr)
-
-    def directed_base(self):
-        """directed() without the push corrections: each node's transfer as a source."""
-        return Links(self.a, self.b, self.f_ab, self.f_ba, self.vis).directed()
+        far = None if self.far is None else self.far.remap(remap)
+        return Links(remap[self.a], remap[self.b], self.f_ab, self.f_ba, self.vis, corr, far)
 
     def directed(self):
         """(recv, src, F) with F = form factor x visibility, sorted by receiver, zero links dropped."""
+        return self._directed()[:3]
+
+    def _directed(self):
+        """directed() and a mask of its push-correction terms."""
         if self._csr is None:
             recv = np.concatenate([self.a, self.b])
             src = np.concatenate([self.b, self.a])
             f = np.concatenate([self.f_ab * self.vis, self.f_ba * self.vis])
+            corr = np.zeros(len(f), bool)
             keep = f > 0
             if self.corr is not None:
                 recv, src, f = (np.concatenate([x, c]) for x, c in zip((recv, src, f), self.corr))
+                corr = np.concatenate([corr, np.ones(len(self.corr[0]), bool)])
                 keep = np.concatenate([keep, self.corr[2] != 0])
             order = np.argsort(recv[keep], kind="stable")
-            self._csr = (recv[keep][order].astype(np.int32), src[keep][order].astype(np.int32), f[keep][order])
+            self._csr = (recv[keep][order].astype(np.int32), src[keep][order].astype(np.int32), f[keep][order],
+                         corr[keep][order])
         return self._csr
+
+    def extended(self, h):
+        """The solver's gather terms: directed() plus the far links' terms, in the extended index
+        space of cluster.FarLinks (cluster slots first, patch node i at SLOTS x C + i), sorted
+        by receiver. Returns (recv, src, f, is_correction); cached (node geometry never changes
+        under a link set: events only add nodes below the leaves, and compact makes new Links)."""
+        if self.far is None or not len(self.far):
+            return self._directed()
+        if getattr(self, "_ext", None) is None:
+            recv, src, f, corr = self._directed()
+            off = cluster.SLOTS * self.far.tree.C
+            fr, fs, fw, fc = self.far.entries(h)
+            r = np.concatenate([recv.astype(np.int64) + off, fr])
+            order = np.argsort(r, kind="stable")
+            self._ext = (r[order].astype(np.int32), np.concatenate([src.astype(np.int64) + off, fs])[order].astype(np.int32),
+                         np.concatenate([f, fw])[order], np.concatenate([corr, fc])[order])
+        return self._ext
 
     @property
     def n_corrections(self):
@@ -159,7 +195,7 @@ class Refiner:
         self.total_area = float(h.patches.area.sum())
         self.eps = 1e-6 * np.sqrt(self.total_area)   # ray end offset along normals
         self.progress = NO_PROGRESS
-        self.stats = {"rays": 0, "pairs_tested": 0, "pairs_culled": 0, "t_vis": 0.0, "t_ff": 0.0, "t_refine": 0.0}
+        self.stats = {"rays": 0, "pairs_tested": 0, "pairs_culled": 0, "cluster_pairs": 0, "t_vis": 0.0, "t_ff": 0.0, "t_refine": 0.0}
         self._occluder_boxes()
 
     def _occluder_boxes(self):
@@ -296,8 +332,21 @@ class Refiner:
         return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])
 
     def build(self):
-        """Initial HSA refinement of all root pairs."""
-        return self.refine(*initial_pairs(self.h))
+        """Initial HSA refinement: down from the root cluster's self-pair (clustering), or over
+        all pairs of patches (quadratic: small scenes only)."""
+        if not self.params.cluster:
+            return self.refine(*initial_pairs(self.h))
+        from .cluster import ClusterTree, link_clusters
+        import time
+        t0 = time.perf_counter()
+        tree = ClusterTree(self.h.patches)
+        self.stats["t_tree"] = time.perf_counter() - t0
+        self.stats["clusters"] = tree.C
+        far, p, q = link_clusters(self, tree, self.progress)
+        self.stats["t_clusters"] = time.perf_counter() - t0
+        links = self.refine(p, q)
+        links.far = far
+        return links
 
     def refine_bf(self, links: Links, B):
         """One BF pass: links whose rho x F x B_source exceeds bfeps (relative to the brightest
@@ -364,7 +413,7 @@ def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000):
     shape of the form factor across the receiver, normalised so the link's total transfer (and
     with it reciprocity and energy balance) is unchanged. Budget bounds the (leaf, link) pairs.
     Returns the Links with corrections attached."""
-    links = Links(links.a, links.b, links.f_ab, links.f_ba, links.vis)
+    links = Links(links.a, links.b, links.f_ab, links.f_ba, links.vis, far=links.far)
     recv, src, f = links.directed()
     cand = np.flatnonzero(h.child0[recv] >= 0)
     if vcorr <= 0 or len(cand) == 0:

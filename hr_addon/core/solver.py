@@ -11,6 +11,7 @@ import warnings
 import numpy as np
 
 from .hierarchy import Hierarchy
+from .cluster import SLOTS
 from .refine import Links
 
 
@@ -41,11 +42,18 @@ class Operator:
 
     def __init__(self, h: Hierarchy, links: Links):
         self.h, self.links, self.version = h, links, h.version
-        self.recv, self.src, self.f = links.directed()
+        # Far links (with a cluster end) gather in an extended index space: the clusters' slots
+        # (SH power / irradiance and its gradient) first, then the nodes (cluster.FarLinks).
+        self.recv, self.src, self.f, self._corr = links.extended(h)
+        self._f_base = None
+        far = links.far
+        self.tree = far.tree if far is not None and len(far) else None
+        self.off = SLOTS * self.tree.C if self.tree is not None else 0
         self.n = h.n
         self.levels = h.levels()
         self.leaves = h.leaves()
         self.area = h.view("area").copy()
+        self.normal = h.view("normal")
         self.rho = h.node_rho()
         self.parent = h.view("parent")
         self.child0 = h.view("child0")
@@ -64,11 +72,28 @@ class Operator:
             B[:, inner] = np.einsum("cnk,nk->cn", B[:, kids], w)
         return B
 
-    def gather(self, B):
-        """G[r] = sum over links into r of F x B[src], per channel (bincount: ~60-70 M links/s)."""
+    def gather(self, B, base=False):
+        """G[r] = sum over links into r of F x B[src], per channel (bincount: ~60-70 M links/s).
+        With clusters, the sources' SH power comes first and the clusters' gathered SH irradiance
+        is handed to their member patches by orientation. base: without the push
+        corrections (a node's own form factor sums)."""
         G = np.empty((B.shape[0], self.n))
+        f = self.f
+        if base:
+            if self._f_base is None:
+                self._f_base = np.where(self._corr, 0.0, self.f)
+            f = self._f_base
+        tree, off = self.tree, self.off
         for c in range(B.shape[0]):
-            G[c] = np.bincount(self.recv, weights=self.f * B[c, self.src], minlength=self.n)
+            if tree is None:
+                G[c] = np.bincount(self.recv, weights=f * B[c, self.src], minlength=self.n)
+                continue
+            X = np.zeros(off + self.n)
+            X[:off].reshape(-1, SLOTS)[:, :9] = tree.power(B[c, :tree.K])
+            X[off:] = B[c]
+            Y = np.bincount(self.recv, weights=f * X[self.src], minlength=off + self.n)
+            G[c] = Y[off:]
+            G[c, :tree.K] += tree.distribute(Y[:off].reshape(-1, SLOTS))
         return G
 
     def push(self, G):
@@ -204,10 +229,8 @@ def _energy(op, B, E, G, rep):
     G = op.push(op.gather(B)) if G is None else G
     rep.absorbed = float(np.pi * np.sum((1 - op.rho[:, lf]) * G[:, lf] * a[lf]))
     # Each node's outgoing form factor sum as a source, counting links held by it and by its
-    # ancestors: push the per-node sums down to the leaves. Push corrections only reshape what
-    # a receiver gathers (they sum to zero per link), so they do not count here.
-    recv, _, f = op.links.directed_base()
-    fsum = np.zeros((1, op.n))
-    fsum[0] = np.bincount(recv, weights=f, minlength=op.n)
-    fsum = op.push(fsum)[0]
+    # ancestors (and clusters): the gather of unit radiance, pushed down to the leaves. Push
+    # corrections only reshape what a receiver gathers (they sum to zero per link), so they do
+    # not count here.
+    fsum = op.push(op.gather(np.ones((1, op.n)), base=True))[0]
     rep.escaped = float(np.pi * np.sum(B[:, lf] * a[lf] * (1 - fsum[lf])))
