@@ -316,6 +316,16 @@ def sample_points(tree: ClusterTree, h, ids, eps):
     return out, w
 
 
+def sample_normals(tree: ClusterTree, h, ids):
+    """(N, 4, 3) normals at the sample points of link ends."""
+    ids = np.asarray(ids, np.int64)
+    out = np.empty((len(ids), 4, 3))
+    cl = ids < 0
+    out[cl] = tree.sample_n[decode(ids[cl])]
+    out[~cl] = h.normal[ids[~cl]][:, None]
+    return out
+
+
 class FarLinks:
     """Links with at least one cluster end: ends a, b (shared ids), visibility (fraction and the
     mask of unoccluded sample segments), and whether each end is partial (its members do not all
@@ -323,8 +333,9 @@ class FarLinks:
     Their transfer weights live in the solver's extended index space: cluster c's 9 SH slots at
     9c .. 9c + 8, patch node i at 9C + i (so nodes added later do not shift them)."""
 
-    def __init__(self, tree: ClusterTree, a, b, vis, mask, part_a=None, part_b=None, eps=0.0):
+    def __init__(self, tree: ClusterTree, a, b, vis, mask, part_a=None, part_b=None, eps=0.0, grad_eps=0.0):
         self.tree, self.eps = tree, eps   # eps: the sample points' offset off their surfaces
+        self.grad_eps = grad_eps          # gradients only where they matter (terms())
         self.a, self.b, self.vis = np.asarray(a, np.int64), np.asarray(b, np.int64), np.asarray(vis, float)
         self.mask = np.asarray(mask, np.uint16)
         z = np.zeros(len(self.a), bool)
@@ -337,65 +348,87 @@ class FarLinks:
     def remap(self, remap):
         """After Hierarchy.compact: renumber the patch-node ends."""
         ren = lambda x: np.where(x >= 0, remap[np.maximum(x, 0)], x)
-        return FarLinks(self.tree, ren(self.a), ren(self.b), self.vis, self.mask, self.part_a, self.part_b, self.eps)
+        return FarLinks(self.tree, ren(self.a), ren(self.b), self.vis, self.mask, self.part_a, self.part_b,
+                        self.eps, self.grad_eps)
 
-    def entries(self, h, chunk=8192):
-        """(recv, src, w, is_gradient) directed terms in the extended space, both directions of
-        every link.
+    def terms(self, h, chunk=8192):
+        """The links' transfer in two passes through one intermediate value per link direction
+        (slot 2 l for "a gathers from b", 2 l + 1 for the reverse):
+
+        pass 1 (t_slot, t_src, t_w): t = sum of t_w x the source's slots (X space: a cluster's
+          SH power, a node's radiance);
+        pass 2 (recv, r_slot, r_w, is_gradient): the receiver's slots (Y space: a cluster's SH
+          irradiance and gradient, a node's gathered radiance) += r_w x t.
 
         The kernel is averaged over the link's 4 x 4 sample segments (those the visibility mask
         says are unoccluded): V cos cos / (pi r^2), with a node end's cosine and a cluster end's
         SH kernel evaluated along each segment, so the transfer stays accurate for ends that are
-        not small against their distance. One symmetric kernel serves both directions
-        (reciprocity). A wholly facing receiving cluster also gets the gradient of its
-        irradiance (a linear fit over its sample points), so its members are lit by where they
-        are, not only by their orientation."""
+        not small against their distance; each end's factor is its kernel-weighted mean over
+        the segments (rank one), and the same factor serves it as a source and as a receiver,
+        so one symmetric kernel serves both directions (reciprocity). A wholly facing receiving
+        cluster also gets the gradient of its irradiance where the link is strong and uneven
+        enough (link form factor x relative change over the cluster above grad_eps)."""
         tree = self.tree
         off = SLOTS * tree.C
-        out = []
+        p1, p2 = [], []
         for i in range(0, len(self.a), chunk):
             sl = slice(i, i + chunk)
             a, b = self.a[sl], self.b[sl]
             ea, eb = Ends(tree, h, a), Ends(tree, h, b)
-            (pa, wa_), (pb, wb_) = sample_points(tree, h, a, self.eps), sample_points(tree, h, b, self.eps)
+            (pa, wa), (pb, wb) = sample_points(tree, h, a, self.eps), sample_points(tree, h, b, self.eps)
             d = pb[:, None, :, :] - pa[:, :, None, :]                          # (N, 4 on a, 4 on b, 3)
             r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
             u = d / np.sqrt(r2)[..., None]
             vis = ((self.mask[sl, None] >> np.arange(16)) & 1).reshape(-1, 4, 4)
-            k = vis / (np.pi * r2) * wa_[:, :, None] * wb_[:, None, :]
-            fa_ = _end_factors(a, ea, self.part_a[sl], u.reshape(-1, 16, 3), off).reshape(-1, 4, 4, 9)
-            fb_ = _end_factors(b, eb, self.part_b[sl], -u.reshape(-1, 16, 3), off).reshape(-1, 4, 4, 9)
-            out.append(_gather_terms(a, ea, self.part_a[sl], pa, wa_, b, eb, k, u, fa_, fb_, off))
-            out.append(_gather_terms(b, eb, self.part_b[sl], pb, wb_, a, ea, k.transpose(0, 2, 1),
-                                     -u.transpose(0, 2, 1, 3), fb_.transpose(0, 2, 1, 3), fa_.transpose(0, 2, 1, 3), off))
-        if not out:
-            z = np.zeros(0, np.int64)
-            return z, z, np.zeros(0), np.zeros(0, bool)
-        return tuple(np.concatenate(x) for x in zip(*out))
+            k = vis / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]
+            K = k.sum((1, 2))
+            Kn = np.where(K > 0, K, 1.0)
+            fa = np.einsum("nis,nisc->nc", k, _end_factors(a, ea, self.part_a[sl], u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9)) / Kn[:, None]
+            fb = np.einsum("nis,nisc->nc", k, _end_factors(b, eb, self.part_b[sl], -u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9)) / Kn[:, None]
+            link = 2 * (i + np.arange(len(a)))
+            fmax = K * np.maximum(ea.area, eb.area)
+            for t, (r, er, fr, gr), (s_, es, fs) in ((link, (a, ea, fa, self._grad(h, ea, pa, wa, k, u, eb, self.part_a[sl])), (b, eb, fb)),
+                                                      (link + 1, (b, eb, fb, self._grad(h, eb, pb, wb, k.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl])), (a, ea, fa))):
+                # pass 1: a node source's slot holds radiance, a cluster's its power (area inside)
+                w1 = K[:, None] * fs * np.where(es.cl, 1.0, es.area)[:, None]
+                S = _slots(s_, es, off)[:, :9]
+                live = w1 != 0
+                p1.append((np.broadcast_to(t[:, None], w1.shape)[live], S[live], w1[live]))
+                # pass 2: uniform kernel, then the power-neutral gradient
+                R = _slots(r, er, off)
+                w2 = np.zeros((len(r), SLOTS))
+                w2[:, :9] = fr
+                g2 = np.zeros_like(w2)
+                gam = gr * (fmax * np.linalg.norm(gr, axis=1) * er.radius >= self.grad_eps)[:, None]
+                cl = er.cl & (np.abs(gam).sum(1) > 0)
+                if cl.any():
+                    c = decode(r[cl])
+                    Gm = gam[cl][:, :, None] * fr[cl][:, None, 1:4]               # (G, 3 axes, 3)
+                    m1, m1x = tree.m1[c], tree.m1x[c]
+                    beta = -np.einsum("nmk,nkm->n", m1x, Gm)
+                    g2[cl, 1:4] = m1 * (beta / np.maximum(np.einsum("nm,nm->n", m1, m1), 1e-300))[:, None]
+                    g2[cl, 9:] = Gm.transpose(0, 2, 1).reshape(-1, 9)
+                for w, flag in ((w2, False), (g2, True)):
+                    live = w != 0
+                    p2.append((R[live], np.broadcast_to(t[:, None], w.shape)[live], w[live],
+                               np.full(int(live.sum()), flag)))
+        cat = lambda parts, n: tuple(np.concatenate(x) for x in zip(*parts)) if parts else \
+            tuple(np.zeros(0, dt) for dt in (np.int64, np.int64, float, bool)[:n])
+        return cat(p1, 3), cat(p2, 4)
 
-
-def _slots(ids, e, off):
-    """(N, SLOTS) slot indices of link ends: a node's one slot (repeated), a cluster's SLOTS."""
-    return np.where(~e.cl[:, None], off + np.maximum(ids, 0)[:, None],
-                    SLOTS * decode(np.minimum(ids, -1))[:, None] + np.arange(SLOTS))
-
-
-def _gather_terms(r, er, part_r, pr, wr, s, es, k, u, fr, fs, off):
-    """Terms of receivers r gathering from sources s. k (N, 4 on r, 4 on s): the kernel per
-    segment, u (N, 4, 4, 3) its direction from r to s; fr, fs (N, 4, 4, 9): the ends' factors
-    along each segment."""
-    W = np.einsum("nis,nisk,nisl->nikl", k, fr, fs)                     # per receiver sample
-    # a source node's slot holds radiance, a cluster's its power: weight nodes by their area
-    W *= np.where(es.cl, 1.0, es.area)[:, None, None, None]
-    M = np.zeros((len(r), SLOTS, 9))      # the uniform kernel: every member gets the mean
-    M[:, :9] = W.sum(1)
-    D = np.zeros_like(M)                  # the gradient: reshapes, sums to zero power
-    grad = er.cl & ~part_r
-    if grad.any():
-        # A relative gradient gamma of the link's irradiance over the receiving cluster, from a
-        # least-squares linear fit of the scalar kernel (cosines about both ends' axes) over
-        # the receiver's sample points: member j gets the mean kernel times 1 + gamma . (x_j - c).
-        # Capped so that no member's share falls below half or rises above 1.5 times the mean.
+    @staticmethod
+    def _grad(h, er, pr, wr, k, u, es, part_r):
+        """(N, 3) relative gradient gamma of each link's irradiance over a receiving cluster
+        (zero for nodes and partial ends): a least-squares linear fit over its sample points of
+        the scalar kernel (cosines about both ends' axes); member j then gets the mean times
+        1 + gamma . (x_j - c). Capped so that no member gets below half or above 1.5 times the
+        mean. The constant term added in terms() keeps the cluster's received power (the
+        gradient only reshapes, like push corrections), so the members' outgoing form factors
+        (the uniform kernel) keep reciprocity and the energy balance."""
+        gam = np.zeros((len(pr), 3))
+        grad = er.cl & ~part_r
+        if not grad.any():
+            return gam
         x, wg = pr[grad], wr[grad]
         dx = x - np.einsum("ni,nij->nj", wg, x)[:, None]
         ug = u[grad]
@@ -404,28 +437,19 @@ def _gather_terms(r, er, part_r, pr, wr, s, es, k, u, fr, fs, off):
         Ki = ks.sum(2) / wg
         Km = np.einsum("ni,ni->n", Ki, wg)
         rel = np.where(Km[:, None] > 0, Ki / np.where(Km > 0, Km, 1)[:, None] - 1, 0)
-        gam = np.einsum("nki,ni->nk", np.linalg.pinv(dx, rcond=0.05), rel)
-        gn = np.linalg.norm(gam, axis=1) * er.radius[grad]
-        gam *= np.minimum(1.0, 0.5 / np.maximum(gn, 1e-300))[:, None]
-        # The gradient must add no power, sum_j A_j Y1(n_j) . (c0 + G x_j) = 0 with m1 =
-        # sum_j A_j Y1(n_j): a constant term c0 along m1 takes care of it (for a flat cluster
-        # this centres the gradient on its area centroid). Like push corrections it only
-        # reshapes what the members gather, so their outgoing form factors (the uniform kernel)
-        # keep reciprocity and the energy balance.
-        G = gam[:, :, None, None] * M[grad][:, None, 1:4, :]                  # (G, 3 axes, 3, 9)
-        c = decode(r[grad])
-        m1, m1x = er.tree.m1[c], er.tree.m1x[c]
-        beta = -np.einsum("nmk,nkmc->nc", m1x, G)
-        D[grad, 1:4] = m1[:, :, None] * (beta / np.maximum(np.einsum("nm,nm->n", m1, m1), 1e-300)[:, None])[:, None, :]
-        D[grad, 9:] = G.transpose(0, 2, 1, 3).reshape(-1, 9, 9)
-    R = np.broadcast_to(_slots(r, er, off)[:, :, None], M.shape)
-    S = np.broadcast_to(_slots(s, es, off)[:, None, :9], M.shape)
-    lm, ld = M != 0, D != 0
-    return (np.concatenate([R[lm], R[ld]]), np.concatenate([S[lm], S[ld]]), np.concatenate([M[lm], D[ld]]),
-            np.concatenate([np.zeros(int(lm.sum()), bool), np.ones(int(ld.sum()), bool)]))
+        g = np.einsum("nki,ni->nk", np.linalg.pinv(dx, rcond=0.05), rel)
+        gn = np.linalg.norm(g, axis=1) * er.radius[grad]
+        gam[grad] = g * np.minimum(1.0, 0.5 / np.maximum(gn, 1e-300))[:, None]
+        return gam
 
 
-def _end_factors(ids, e, part, u, off):
+def _slots(ids, e, off):
+    """(N, SLOTS) slot indices of link ends: a node's one slot (repeated), a cluster's SLOTS."""
+    return np.where(~e.cl[:, None], off + np.maximum(ids, 0)[:, None],
+                    SLOTS * decode(np.minimum(ids, -1))[:, None] + np.arange(SLOTS))
+
+
+def _end_factors(ids, e, part, u):
     """Kernel factors (N, S, 9) of one end of each link along the segments u (N, S, 3) leaving
     it: a patch node's cosine (slot 0); a cluster's SH kernel, linear (wholly facing) or the
     clamped cosine (partial)."""
@@ -494,18 +518,21 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         # patch node whose plane cuts the other end cannot be partial (split the other end).
         pa, pb = ~fa & ~ba & ea.cl, ~fb & ~bb & eb.cl
         facing = (fa | pa) & (fb | pb) & ~(pa & pb)
-        # Small against the distance (the point-to-point kernel holds), and the link's transfer
-        # times its relative variation across either end below cluster_veps: a cluster hands a
-        # link's irradiance to all its members alike, so strong, uneven links (near lights) go
-        # down to the patches, where push corrections shape them.
-        size = (ea.radius + eb.radius) / np.maximum(dist, 1e-300)
+        # Small against the distance: a cluster end is seen through 4 member samples and one
+        # kernel direction, so its radius counts fully; a patch node end is integrated at 2 x 2
+        # Gauss points, so half its radius counts. And the link's transfer times its relative
+        # variation across either end below cluster_veps: strong, uneven links (near lights) go
+        # down to where the variation is resolved.
+        rho_a = np.where(ea.cl, 1.0, 0.5) * ea.radius
+        rho_b = np.where(eb.cl, 1.0, 0.5) * eb.radius
+        size = (rho_a + rho_b) / np.maximum(dist, 1e-300)
         small = size < prm.cluster_ratio
         cand = ~drop & facing & small
+        var_a, var_b = np.zeros(len(a)), np.zeros(len(a))
         if cand.any():
-            var = np.full(len(a), np.inf)
-            var[cand] = fmax[cand] * _variation(tree, h, a[cand], b[cand], refiner.eps)
-            small &= var < prm.cluster_veps
-        ok = ~drop & facing & small & (fmax < np.where(pa | pb, prm.partial_feps * prm.feps, prm.feps))
+            var_a[cand], var_b[cand] = _variation(tree, h, a[cand], b[cand], refiner.eps)
+        even = fmax * np.maximum(var_a, var_b) < prm.cluster_veps
+        ok = ~drop & facing & small & even & (fmax < np.where(pa | pb, prm.partial_feps * prm.feps, prm.feps))
         vis, mask = np.full(len(a), np.nan), np.zeros(len(a), np.uint16)
         if prm.shadow_feps > 0:
             shadow = ok & (fmax > prm.shadow_feps)
@@ -523,22 +550,34 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         # other (as in HSA).
         a, b = a[todo], b[todo]
         th_a, th_b = ea.theta[todo], eb.theta[todo]
-        phi_a = np.arcsin(np.clip(ea.radius[todo] / np.maximum(dist[todo], 1e-300), 0, 1))
-        phi_b = np.arcsin(np.clip(eb.radius[todo] / np.maximum(dist[todo], 1e-300), 0, 1))
+        phi_a = np.arcsin(np.clip(rho_a[todo] / np.maximum(dist[todo], 1e-300), 0, 1))
+        phi_b = np.arcsin(np.clip(rho_b[todo] / np.maximum(dist[todo], 1e-300), 0, 1))
         fa, fb = fa[todo], fb[todo]
         face_a = np.maximum(np.where(~fa, th_a, 0), np.where(~fb, phi_a, 0))
         face_b = np.maximum(np.where(~fa, phi_b, 0), np.where(~fb, th_b, 0))
         by_face = ~facing[todo]
         by_size = ~by_face & ~small[todo]
+        by_var = ~by_face & ~by_size & ~even[todo]
         prefer_a = np.where(by_face, face_a >= face_b,
-                            np.where(by_size | (fmax[todo] < prm.feps), phi_a >= phi_b, f_ba[todo] >= f_ab[todo]))
+                   np.where(by_size, phi_a >= phi_b,
+                   np.where(by_var, phi_a >= phi_b,
+                   np.where(fmax[todo] < prm.feps, phi_a >= phi_b, f_ba[todo] >= f_ab[todo]))))
         can_a = ea.cl[todo] | (ea.area[todo] > aeps)
         can_b = eb.cl[todo] | (eb.area[todo] > aeps)
-        split_a = can_a & (prefer_a | ~can_b)
-        split_b = ~split_a & can_b
-        stuck = ~split_a & ~split_b
-        if stuck.any():   # both ends unsplittable: cannot happen with a cluster end (kept for safety)
-            done_w += weight(a[stuck], b[stuck])
+        # Too strong, too uneven or half shadowed, but the end that should be split cannot be (a
+        # patch node at Aeps): splitting the other end would not lower the form factor or the
+        # variation on that end, so link here, as HSA does with two unsplittable nodes.
+        take = ~by_face & ~by_size & np.where(prefer_a, ~can_a, ~can_b)
+        if take.any():
+            idx = np.flatnonzero(todo)[take]
+            v, m = vis[idx], mask[idx]
+            need = np.isnan(v)
+            if need.any():
+                v[need], m[need] = far_visibility(refiner, tree, a[take][need], b[take][need])
+            far.append((a[take], b[take], v, m, pa[idx], pb[idx]))
+            done_w += weight(a[take], b[take])
+        split_a = ~take & can_a & (prefer_a | ~can_b)
+        split_b = ~take & ~split_a & can_b
         new_a, new_b = [], []
         for sel, x, y in ((split_a, a, b), (split_b, b, a)):
             xs, ys = x[sel], y[sel]
@@ -563,7 +602,8 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             t = todo[i:i + CHUNK]
             fv[t], fm[t] = far_visibility(refiner, tree, fa_[t], fb_[t])
         keep = fv > 0
-        links = FarLinks(tree, fa_[keep], fb_[keep], fv[keep], fm[keep], pa_[keep], pb_[keep], refiner.eps)
+        links = FarLinks(tree, fa_[keep], fb_[keep], fv[keep], fm[keep], pa_[keep], pb_[keep], refiner.eps,
+                         0.1 * prm.cluster_veps)
     else:
         z = np.zeros(0)
         links = FarLinks(tree, z.astype(np.int64), z.astype(np.int64), z, z.astype(np.uint16))
@@ -573,20 +613,18 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
 
 
 def _variation(tree, h, a, b, eps):
-    """Relative range, over either end's sample points, of the kernel cos cos / r^2 summed over
-    the other end's samples (cosines at patch-node ends only; no visibility)."""
+    """(var_a, var_b): relative range, over each end's sample points, of the kernel cos cos / r^2
+    summed over the other end's samples (cosines about the samples' own normals; no visibility)."""
     (pa, wa), (pb, wb) = sample_points(tree, h, a, eps), sample_points(tree, h, b, eps)
     d = pb[:, None, :, :] - pa[:, :, None, :]
     r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
-    k = 1.0 / r2
-    for ids, sign in ((a, 1.0), (b, -1.0)):
-        node = ids >= 0
-        if node.any():
-            k[node] *= np.maximum(sign * np.einsum("nijk,nk->nij", d[node], h.normal[ids[node]]), 0) / np.sqrt(r2[node])
-    out = np.zeros(len(a))
+    na, nb = sample_normals(tree, h, a), sample_normals(tree, h, b)
+    k = (np.maximum(np.einsum("nijk,nik->nij", d, na), 0) * np.maximum(-np.einsum("nijk,njk->nij", d, nb), 0)
+         / (r2 * r2))
+    out = []
     for ks in ((k * wb[:, None, :]).sum(2), (k * wa[:, :, None]).sum(1)):
         m = ks.mean(1)
-        out = np.maximum(out, (ks.max(1) - ks.min(1)) / np.maximum(m, 1e-300) * (m > 0))
+        out.append((ks.max(1) - ks.min(1)) / np.maximum(m, 1e-300) * (m > 0))
     return out
 
 

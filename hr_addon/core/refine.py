@@ -115,20 +115,27 @@ class Links:
         return self._csr
 
     def extended(self, h):
-        """The solver's gather terms: directed() plus the far links' terms, in the extended index
-        space of cluster.FarLinks (cluster slots first, patch node i at SLOTS x C + i), sorted
-        by receiver. Returns (recv, src, f, is_correction); cached (node geometry never changes
-        under a link set: events only add nodes below the leaves, and compact makes new Links)."""
+        """The solver's gather terms. Without far links: directed() (recv, src, f, is_correction).
+        With them, the two passes of cluster.FarLinks.terms(): (pass1, main) where pass1 =
+        (t_slot, src, w) fills one intermediate value per far-link direction from the X space
+        (cluster slots first, patch node i at SLOTS x C + i), and main = (recv, src, f,
+        is_correction) gathers into the Y space (same layout) from Z = [intermediates | X]:
+        the patch-node links and corrections plus the far links' second pass, sorted by
+        receiver. Cached (node geometry never changes under a link set: events only add nodes
+        below the leaves, and compact makes new Links)."""
         if self.far is None or not len(self.far):
             return self._directed()
         if getattr(self, "_ext", None) is None:
             recv, src, f, corr = self._directed()
             off = cluster.SLOTS * self.far.tree.C
-            fr, fs, fw, fc = self.far.entries(h)
+            nT = 2 * len(self.far)
+            pass1, (fr, fs, fw, fc) = self.far.terms(h)
             r = np.concatenate([recv.astype(np.int64) + off, fr])
             order = np.argsort(r, kind="stable")
-            self._ext = (r[order].astype(np.int32), np.concatenate([src.astype(np.int64) + off, fs])[order].astype(np.int32),
-                         np.concatenate([f, fw])[order], np.concatenate([corr, fc])[order])
+            main = (r[order].astype(np.int32), np.concatenate([src.astype(np.int64) + off + nT, fs])[order].astype(np.int32),
+                    np.concatenate([f, fw])[order], np.concatenate([corr, fc])[order])
+            o1 = np.argsort(pass1[0], kind="stable")
+            self._ext = (tuple(x[o1] for x in pass1), main)
         return self._ext
 
     @property

@@ -44,11 +44,16 @@ class Operator:
         self.h, self.links, self.version = h, links, h.version
         # Far links (with a cluster end) gather in an extended index space: the clusters' slots
         # (SH power / irradiance and its gradient) first, then the nodes (cluster.FarLinks).
-        self.recv, self.src, self.f, self._corr = links.extended(h)
-        self._f_base = None
         far = links.far
         self.tree = far.tree if far is not None and len(far) else None
-        self.off = SLOTS * self.tree.C if self.tree is not None else 0
+        ext = links.extended(h)
+        if self.tree is None:
+            self.recv, self.src, self.f, self._corr = ext
+            self.off = self.nT = 0
+        else:
+            (self.t_slot, self.t_src, self.t_w), (self.recv, self.src, self.f, self._corr) = ext
+            self.off, self.nT = SLOTS * self.tree.C, 2 * len(far)
+        self._f_base = None
         self.n = h.n
         self.levels = h.levels()
         self.leaves = h.leaves()
@@ -88,10 +93,12 @@ class Operator:
             if tree is None:
                 G[c] = np.bincount(self.recv, weights=f * B[c, self.src], minlength=self.n)
                 continue
-            X = np.zeros(off + self.n)
+            Z = np.zeros(self.nT + off + self.n)        # [far-link intermediates | X]
+            X = Z[self.nT:]
             X[:off].reshape(-1, SLOTS)[:, :9] = tree.power(B[c, :tree.K])
             X[off:] = B[c]
-            Y = np.bincount(self.recv, weights=f * X[self.src], minlength=off + self.n)
+            Z[:self.nT] = np.bincount(self.t_slot, weights=self.t_w * X[self.t_src], minlength=self.nT)
+            Y = np.bincount(self.recv, weights=f * Z[self.src], minlength=off + self.n)
             G[c] = Y[off:]
             G[c, :tree.K] += tree.distribute(Y[:off].reshape(-1, SLOTS))
         return G
