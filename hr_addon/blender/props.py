@@ -47,9 +47,9 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
                          description="How light-shape changes are applied from one frame to the next")
     quality: EnumProperty(name="Quality", items=QUALITY_ITEMS, default="MEDIUM", update=_quality_update,
                           description="Refinement preset (sets Feps and Aeps)")
-    feps: FloatProperty(name="Feps", default=0.02, min=1e-4, max=1.0, precision=4,
+    feps: FloatProperty(name="Link threshold (Feps)", default=0.02, min=1e-4, max=1.0, precision=4,
                         description="Form factor threshold: links transporting more are subdivided (Custom quality)")
-    aeps: FloatProperty(name="Aeps", default=2e-4, min=1e-7, max=0.1, precision=6,
+    aeps: FloatProperty(name="Smallest element (Aeps)", default=2e-4, min=1e-7, max=0.1, precision=6,
                         description="Smallest element area as a fraction of the total scene area (Custom quality)")
     output: EnumProperty(name="Output", items=OUTPUT_ITEMS, default="VERTEX",
                          description="Where the baked radiance goes")
