@@ -54,7 +54,7 @@ def build_zip():
     out = REPO / "build" / "matrix_dist"
     proc = subprocess.run([str(MAIN_PY), str(REPO / "scripts" / "build_extension.py"), "--output-dir", str(out)],
                           cwd=REPO, stdin=subprocess.DEVNULL, capture_output=True, text=True)
-    zips = [ln for ln in proc.stdout.splitlines() if ln.endswith("_linux_x64.zip")]
+    zips = [ln for ln in proc.stdout.splitlines() if ln.endswith("-linux_x64.zip")]
     if proc.returncode != 0 or not zips:
         print(proc.stdout + proc.stderr, file=sys.stderr)
         raise SystemExit("matrix: building the extension failed")

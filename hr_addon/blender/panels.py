@@ -67,9 +67,15 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
         layout.prop(hr, "method")
         layout.prop(hr, "quality")
         sub = layout.column(align=True)
-        sub.enabled = hr.quality == "CUSTOM"
-        sub.prop(hr, "feps")
-        sub.prop(hr, "aeps")
+        if hr.quality == "CUSTOM":
+            sub.prop(hr, "feps")
+            sub.prop(hr, "aeps")
+        else:   # the preset's thresholds, read only (the bake takes the whole preset)
+            from ..core.refine import RefineParams
+            p = RefineParams.preset(hr.quality.lower())
+            sub.enabled = False
+            sub.label(text=f"Link threshold (Feps): {p.feps:g}")
+            sub.label(text=f"Smallest element (Aeps): {p.aeps:g}")
         layout.prop(hr, "output")
         if hr.output == "TEXTURE":
             layout.prop(hr, "texture_resolution")
