@@ -129,3 +129,17 @@ def test_headless_bake_prints_build_progress_and_rays(tmp_path):
     assert len(build) >= 2 and all(0 <= p.fraction <= 0.5 for p in build), [p.fraction for p in build]
     assert any(ln.startswith("HR Radiosity: Building the hierarchy: ") for ln in lines), lines
     assert res.rays == "embree" and lines[-1].endswith("rays: embree)"), lines[-1]
+
+
+def test_invoke_in_background_mode_bakes_synchronously(tmp_path):
+    """No event loop in `blender -b` / the bpy module: the button's INVOKE bakes in this process."""
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import background
+    scene = bpy.context.scene
+    scene.hr.use_frame_range = True
+    scene.hr.frame_start = scene.hr.frame_end = 6
+    scene.hr.quality = "DRAFT"
+    assert bpy.ops.hr.bake("INVOKE_DEFAULT") == {"FINISHED"}
+    assert background.active() is None
+    assert (tmp_path / "hr_cache" / "cornell" / "manifest.json").is_file()
