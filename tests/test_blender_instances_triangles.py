@@ -167,3 +167,27 @@ def test_geometry_nodes_instances_take_part():
     # an excluded source takes no part
     box.hr.exclude = True
     assert _collect(bpy).instances == {}
+
+
+def test_particle_instances_take_part():
+    bpy, ms, scene = empty_scene()
+    floor, grey = _floor_and_lamp(ms)
+    box = _box(ms, material=grey, size=0.2)
+    box.hide_render = True
+    emitter = ms.mesh_object("Emitter", [(1, 1, 0.5), (3, 1, 0.5), (3, 3, 0.5), (1, 3, 0.5)], [[0, 1, 2, 3]], None)
+    emitter.modifiers.new("Particles", "PARTICLE_SYSTEM")
+    ps = emitter.particle_systems[0].settings
+    ps.type = "HAIR"
+    ps.count = 5
+    ps.render_type = "OBJECT"
+    ps.instance_object = box
+    ps.particle_size = 1.0
+    emitter.show_instancer_for_render = False      # the emitter plane itself does not render
+    bpy.context.view_layer.update()
+    si = _collect(bpy)
+    assert {k: v.count for k, v in si.instances.items()} == {("Emitter", "Box"): 5}, si.instances
+    assert len(si.mesh.loop_start) == 64 + 1 + 5 * 6     # floor, ceiling, 5 boxes (not the emitter plane)
+    assert "Emitter" not in [t.name for t in si.targets]
+    emitter.show_instancer_for_render = True
+    assert len(_collect(bpy).mesh.loop_start) == 64 + 1 + 1 + 5 * 6
+    assert any("5 instance(s) take part" in w for w in si.warnings)

@@ -143,3 +143,66 @@ def test_invoke_in_background_mode_bakes_synchronously(tmp_path):
     assert bpy.ops.hr.bake("INVOKE_DEFAULT") == {"FINISHED"}
     assert background.active() is None
     assert (tmp_path / "hr_cache" / "cornell" / "manifest.json").is_file()
+
+
+def test_without_embreex_the_bake_says_numpy(tmp_path, monkeypatch):
+    """A platform without a wheel: the numpy tracer, and the summary and manifest say so."""
+    import sys
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    for name in [m for m in sys.modules if m == "embreex" or m.startswith("embreex.")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "embreex", None)          # import embreex -> ImportError
+    lines = []
+    from hr_addon.blender.bake import run_bake
+    from hr_addon.blender.cache import CacheReader
+    res = run_bake(bpy.context.scene, log=lambda m, **k: lines.append(m), frames=(1, 1), quality="draft")
+    assert res.rays == "numpy" and "embreex not available" in res.rays_note
+    assert "rays: numpy (embreex not available" in lines[-1], lines[-1]
+    m = CacheReader(tmp_path / "hr_cache" / "cornell").manifest
+    assert m["rays"] == "numpy" and "embreex not available" in m["rays_note"]
+
+
+class _Event:
+    def __init__(self, type, timer=None):
+        self.type, self.timer = type, timer
+
+
+def test_modal_bake_passes_every_event_through(tmp_path):
+    """The modal operator never consumes an event (the UI stays usable) and only polls on its own
+    timer; when the worker ends it reports and finishes. Driven with stand-ins for the window
+    manager (there is no event loop in background mode)."""
+    load_bpy()
+    from types import SimpleNamespace
+    from hr_addon.blender.ops import HR_OT_bake
+
+    class Job:
+        def __init__(self):
+            self.polls, self.state, self.warnings, self.summary = 0, "running", ["w1"], "baked frames 1-2 ..."
+
+        def poll(self):
+            self.polls += 1
+            if self.polls == 3:
+                self.state = "done"
+            return self.state == "running"
+
+        def text(self):
+            return "50% · frame 1 (1/2)"
+
+    timer, other_timer = object(), object()
+    reports, status = [], []
+    workspace = SimpleNamespace(status_text_set=status.append)
+    wm = SimpleNamespace(windows=[SimpleNamespace(workspace=workspace, screen=SimpleNamespace(areas=[]))],
+                         event_timer_remove=lambda t: reports.append(("timer removed", t is timer)))
+    context = SimpleNamespace(window_manager=wm)
+    op = SimpleNamespace(_job=Job(), _timer=timer, report=lambda kind, msg: reports.append((sorted(kind)[0], msg)))
+    for ev in ("MOUSEMOVE", "LEFTMOUSE", "ESC", "SPACE", "WHEELUPMOUSE", "A"):
+        assert HR_OT_bake.modal(op, context, _Event(ev)) == {"PASS_THROUGH"}
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", other_timer)) == {"PASS_THROUGH"}
+    assert op._job.polls == 0
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"PASS_THROUGH"}
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"PASS_THROUGH"}
+    assert status == ["HR Radiosity: 50% · frame 1 (1/2)"] * 2
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"FINISHED"}
+    assert status[-1] is None and ("timer removed", True) in reports
+    assert ("WARNING", "w1") in reports and ("INFO", "HR Radiosity: baked frames 1-2 ...") in reports

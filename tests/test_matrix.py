@@ -128,6 +128,34 @@ BACKGROUND_SCRIPT = PRELUDE + textwrap.dedent(r'''
 ''')
 
 
+BINARY_SCRIPT = PRELUDE + textwrap.dedent(r'''
+    # The worker command used inside Blender (Blender's binary, -b --python-expr ... -- args),
+    # with the bpy module standing in for the binary: the same expression (enable the installed
+    # extension in a fresh process, run its hr_bake) and the same arguments.
+    background = importlib.import_module(MOD + ".hr_addon.blender.background")
+    job = background.BackgroundBake(scene)
+    real_command = job.command
+
+    def as_blender(args):
+        argv, env = real_command(args, binary="blender", module=MOD)
+        assert argv[:5] == ["blender", "-b", "--python-exit-code", "1", "--python-expr"], argv
+        expr_file = os.path.join(os.path.dirname(args[0]), "expr.py")
+        with open(expr_file, "w") as fh:
+            fh.write(argv[5])
+        boot = "import sys, bpy; e = open(sys.argv[1]).read(); sys.argv = ['blender', '--'] + sys.argv[2:]; exec(e)"
+        return [sys.executable, "-c", boot, expr_file, *argv[argv.index("--") + 1:]], env
+
+    job.command = as_blender
+    job.start()
+    t0 = time.monotonic()
+    while job.poll():
+        assert time.monotonic() - t0 < 600, job.status
+        time.sleep(0.02)
+    out["state"], out["error"], out["summary"], out["loaded"] = job.state, job.error, job.summary, job.loaded
+    print("RESULT:" + json.dumps(out))
+''')
+
+
 def _run(script, zip_path, tmp_path):
     home, resources = tmp_path / "home", tmp_path / "blender_user"
     home.mkdir()
@@ -175,3 +203,9 @@ def test_installed_extension_background_bake(linux_zip, tmp_path):
     assert {"build", "frame"} <= set(out["stages"]), out
     assert any(0 < f < 1 for f in out["fractions"]), out["fractions"]
     assert out["loaded"] and out["shows_frame_6"], out
+
+
+def test_installed_extension_worker_command_for_blender_binary(linux_zip, tmp_path):
+    out, log = _run(BINARY_SCRIPT, linux_zip, tmp_path)
+    assert out["state"] == "done", (out, log)
+    assert "rays: embree" in out["summary"] and out["loaded"], out

@@ -120,18 +120,21 @@ class BackgroundBake:
             args += [f"--feps={float(hr.feps)!r}", f"--aeps={float(hr.aeps)!r}"]
         return args
 
-    def command(self, args):
-        """(argv, env) of the worker process."""
+    def command(self, args, binary=None, module=None):
+        """(argv, env) of the worker process: Blender's binary (default bpy.app.binary_path) running
+        the extension `module` (default: this one), else `python -m hr_addon`."""
         env = dict(os.environ)
-        if bpy.app.binary_path and ADDON_MODULE:
+        binary = bpy.app.binary_path if binary is None else binary
+        module = ADDON_MODULE if module is None else module
+        if binary and module:
             expr = ("import sys, addon_utils, bpy\n"
-                    f"m = {ADDON_MODULE!r}\n"
+                    f"m = {module!r}\n"
                     "if m not in bpy.context.preferences.addons:\n"
                     "    addon_utils.enable(m, default_set=False)\n"
                     "from importlib import import_module\n"
                     "cli = import_module(m + '.hr_addon.blender.cli')\n"
                     "sys.exit(cli.run(sys.argv[sys.argv.index('--') + 1:]))\n")
-            return [bpy.app.binary_path, "-b", "--python-exit-code", "1", "--python-expr", expr, "--", *args], env
+            return [binary, "-b", "--python-exit-code", "1", "--python-expr", expr, "--", *args], env
         # bpy module (tests, scripts): this package runs as `python -m hr_addon`
         paths = [str(PACKAGE_DIR.parent)]
         try:

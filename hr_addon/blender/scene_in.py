@@ -252,8 +252,17 @@ def instances_warning(info):
             "make them real (Object > Apply > Make Instances Real) to bake their own light.")
 
 
+def _hidden_instancer(obj):
+    """An object that instances (particles shown as objects, vertex/face instancing) and whose own
+    mesh does not render (Object > Instancing > Show Instancer: Render off)."""
+    if obj.show_instancer_for_render:
+        return False
+    return obj.instance_type in {"VERTS", "FACES"} or any(
+        p.settings.render_type in {"OBJECT", "COLLECTION"} for p in obj.particle_systems)
+
+
 def collect_geometry(view_layer, depsgraph) -> SceneInput:
-    objs = geometry_objects(view_layer)
+    objs = [o for o in geometry_objects(view_layer) if not _hidden_instancer(o)]
     depsgraph.update()
     warnings, mat_cache = [], {}
     inst_parts, inst_info = collect_instances(view_layer, depsgraph, mat_cache, warnings)
