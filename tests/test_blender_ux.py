@@ -206,3 +206,11 @@ def test_modal_bake_passes_every_event_through(tmp_path):
     assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"FINISHED"}
     assert status[-1] is None and ("timer removed", True) in reports
     assert ("WARNING", "w1") in reports and ("INFO", "HR Radiosity: baked frames 1-2 ...") in reports
+
+
+def test_ray_backend_name_from_the_build_report():
+    load_bpy()
+    from types import SimpleNamespace
+    from hr_addon.blender.bake import ray_backend_name
+    assert ray_backend_name(SimpleNamespace(backend=SimpleNamespace(name="embree"))) == "embree"
+    assert ray_backend_name(SimpleNamespace(build=SimpleNamespace(backend="NumpyBackend"))) == "numpy"

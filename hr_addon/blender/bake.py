@@ -50,6 +50,15 @@ class BakeProgress:
 BUILD_SHARE = 0.5   # share of the progress bar given to the hierarchy build
 
 
+def ray_backend_name(system):
+    """"embree", "numpy", ... of the ray backend a RadiositySystem was built with."""
+    name = getattr(getattr(system, "backend", None), "name", "")
+    if not name:   # BuildReport.backend holds the class name, e.g. "EmbreeBackend"
+        cls = str(getattr(getattr(system, "build", None), "backend", "") or "unknown")
+        name = cls[:-len("Backend")].lower() if cls.endswith("Backend") else cls.lower()
+    return name
+
+
 def ray_backend_note(name):
     """'' for Embree, else why the bake traces rays with `name` (shown in the summary line)."""
     if name == "embree":
@@ -198,7 +207,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         dyn = DynamicRadiosity(system, method=method) if has_shapes else None
         result.build_seconds = time.perf_counter() - t0
         result.build_report = system.build
-        result.rays = getattr(system.backend, "name", "") or system.build.backend
+        result.rays = ray_backend_name(system)
         result.rays_note = ray_backend_note(result.rays)
         result.warnings += [w for w in system.build.warnings if w not in result.warnings]
         info = {"blend": os.path.basename(bpy.data.filepath), "scene": scene.name, "method": method,
