@@ -133,7 +133,7 @@ def test_cancel_and_failure_keep_previous_bake(tmp_path, monkeypatch):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     from hr_addon.blender import bake as bake_mod
-    from hr_addon.blender.ops import BakeJob
+    from hr_addon.blender.bake import BakeJob
     _bake(frames=(5, 7), method="FE")
     cache = tmp_path / "hr_cache" / "cornell"
     before = _cache_snapshot(cache)

@@ -223,7 +223,7 @@ def test_cancel_partial_bakes_and_png(tmp_path):
     open_sample("cornell", tmp_path)
     from hr_addon.blender import bake as bake_mod
     from hr_addon.blender import texture
-    from hr_addon.blender.ops import BakeJob
+    from hr_addon.blender.bake import BakeJob
     _bake(frames=(5, 6), resolution=32, texture_format="png")
     cache = tmp_path / "hr_cache" / "cornell"
     before = _snapshot(cache)

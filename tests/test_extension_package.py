@@ -1,4 +1,5 @@
-"""Build the extension zip with scripts/build_extension.py and install it into Blender (bpy module).
+"""Build the extension zips with scripts/build_extension.py (one per platform, with that platform's
+embreex wheels) and install the linux-x64 one into Blender (bpy module).
 
 The install runs in a subprocess with a throw-away user-resource directory (BLENDER_USER_RESOURCES)
 and HOME, so neither this test process's bpy state nor ~/.config/blender is touched.
@@ -27,19 +28,30 @@ FORBIDDEN_TOP = {"tests", "sample_blends", "benchmarks", "docs", "scripts", ".ci
                  "dist", "build", ".pytest_cache", "requirements-dev.txt", "pytest.ini", ".gitignore"}
 
 
+PLATFORMS = ["linux-x64", "windows-x64", "macos-arm64", "macos-x64", "windows-arm64"]
+
+
 @pytest.fixture(scope="module")
-def built_zip(tmp_path_factory):
+def built_zips(tmp_path_factory):
+    """{platform: zip path} of one build (the wheels are downloaded into ./wheels/ once)."""
     out = tmp_path_factory.mktemp("dist")
     proc = subprocess.run(
         [sys.executable, str(BUILD_SCRIPT), "--output-dir", str(out)],
-        cwd=REPO_ROOT, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
+        cwd=REPO_ROOT, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=600,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    zip_path = Path(proc.stdout.strip().splitlines()[-1])
-    assert zip_path.is_file(), proc.stdout
-    assert zip_path.parent == out
-    assert zip_path.name == "{}-{}.zip".format(EXT_ID, MANIFEST["version"])
-    return zip_path
+    paths = [Path(ln) for ln in proc.stdout.strip().splitlines()[-len(PLATFORMS):]]
+    for p in paths:
+        assert p.is_file(), proc.stdout
+        assert p.parent == out
+    assert [p.name for p in paths] == ["{}-{}-{}.zip".format(EXT_ID, MANIFEST["version"], pl.replace("-", "_"))
+                                       for pl in PLATFORMS]
+    return dict(zip(PLATFORMS, paths))
+
+
+@pytest.fixture(scope="module")
+def built_zip(built_zips):
+    return built_zips["linux-x64"]
 
 
 def test_manifest_fields():
@@ -63,13 +75,46 @@ def test_zip_layout(built_zip):
     assert "hr_addon/core/__init__.py" in names
     assert "hr_addon/blender/__init__.py" in names
     assert not (tops & FORBIDDEN_TOP), sorted(tops & FORBIDDEN_TOP)
-    assert tops <= {"blender_manifest.toml", "__init__.py", "LICENSE", "hr_addon"}, sorted(tops)
+    assert tops <= {"blender_manifest.toml", "__init__.py", "LICENSE", "hr_addon", "wheels"}, sorted(tops)
     assert not [n for n in names if "__pycache__" in n or n.endswith((".pyc", ".pyo"))]
     assert not [n for n in names if any(p.startswith(".") for p in n.split("/"))]
     # Every .py under hr_addon/ in the source tree is shipped.
     src = {p.relative_to(REPO_ROOT).as_posix() for p in (REPO_ROOT / "hr_addon").rglob("*.py")
            if "__pycache__" not in p.parts}
     assert src <= set(names), sorted(src - set(names))
+
+
+def _zip_wheels(path):
+    with zipfile.ZipFile(path) as zf:
+        generated = tomllib.loads(zf.read("blender_manifest.toml").decode())["build"]["generated"]
+        return sorted(n for n in zf.namelist() if n.startswith("wheels/")), generated
+
+
+def test_manifest_wheels_cover_platforms_and_pythons():
+    """cp311 (Blender 4.2-5.0) and cp313 (5.1+) embreex for every platform that has a wheel."""
+    assert MANIFEST["platforms"] == PLATFORMS
+    wheels = [w.rsplit("/", 1)[-1] for w in MANIFEST["wheels"]]
+    assert all(w.startswith("embreex-") for w in wheels), wheels
+    assert not [w for w in MANIFEST["wheels"] if not w.startswith("./wheels/")]
+    for plat_tag in ("manylinux", "win_amd64", "arm64", "x86_64"):
+        tags = {w.split("-")[2] for w in wheels if plat_tag in w and not (plat_tag == "x86_64" and "linux" in w)}
+        assert tags == {"cp311", "cp313"}, (plat_tag, wheels)
+    assert not [w for w in wheels if "numpy" in w], "numpy ships with Blender"
+
+
+def test_each_platform_zip_has_only_its_wheels(built_zips):
+    expect = {"linux-x64": "manylinux", "windows-x64": "win_amd64", "macos-arm64": "macosx_13_0_arm64",
+              "macos-x64": "x86_64.whl"}
+    for platform, path in built_zips.items():
+        names, generated = _zip_wheels(path)
+        assert generated["platforms"] == [platform]
+        assert [w.rsplit("/", 1)[-1] for w in generated["wheels"]] == [n.rsplit("/", 1)[-1] for n in names]
+        if platform == "windows-arm64":      # no embreex wheel exists: the numpy tracer is used
+            assert names == [], names
+            continue
+        assert len(names) == 2 and all(expect[platform] in n for n in names), (platform, names)
+        assert {n.split("-")[2] for n in names} == {"cp311", "cp313"}, names
+        print(f"{path.name}: {path.stat().st_size / 1e6:.1f} MB")
 
 
 INSTALL_SCRIPT = textwrap.dedent(r'''

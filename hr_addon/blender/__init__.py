@@ -1,36 +1,64 @@
 """Blender glue: reads the scene, writes results, UI. All physics is in ..core.
 
 Modules: props (Scene.hr / Object.hr), materials + scene_in (scene in), bake (the frame loop),
-cache (on-disk frames, no bpy), playback (HR_Radiance, handlers), preview, ops, panels, cli.
+cache (on-disk frames, no bpy), playback (HR_Radiance, handlers), preview, background + jobstatus
+(the interactive bake's worker process and its status file), ops, panels, cli.
 """
 _cli_handle = None
 
 
 def _modules():
-    from . import ops, panels, playback, props
-    return props, ops, panels, playback
+    from . import background, ops, panels, playback, props
+    return props, ops, panels, playback, background
 
 
 def register():
     global _cli_handle
     import bpy
     from . import cli
-    props, ops, panels, playback = _modules()
+    props, ops, panels, playback, background = _modules()
     props.register()
     for c in ops.classes + panels.classes:
         bpy.utils.register_class(c)
     playback.register()
+    background.register()
     if _cli_handle is None:
         _cli_handle = bpy.utils.register_cli_command("hr_bake", cli.cli_command)
+    global _atexit_set
+    if not bpy.app.binary_path and not _atexit_set:
+        # The bpy module of Blender 4.2 and 4.5 crashes (4.2) or hangs (4.5) when Python exits with
+        # the add-on still registered (handlers, CLI command, ...): unregister it first, as
+        # Blender itself does on exit.
+        import atexit
+        atexit.register(_at_exit)
+        _atexit_set = True
+
+
+_atexit_set = False
+
+
+def _at_exit():
+    import bpy
+    if hasattr(bpy.types.Scene, "hr"):
+        try:
+            unregister()
+        except Exception:     # exiting anyway
+            pass
+
+
+def _unregister_cli():
+    global _cli_handle
+    if _cli_handle is not None:
+        import bpy
+        bpy.utils.unregister_cli_command(_cli_handle)
+        _cli_handle = None
 
 
 def unregister():
-    global _cli_handle
     import bpy
-    props, ops, panels, playback = _modules()
-    if _cli_handle is not None:
-        bpy.utils.unregister_cli_command(_cli_handle)
-        _cli_handle = None
+    props, ops, panels, playback, background = _modules()
+    _unregister_cli()
+    background.unregister()
     playback.unregister()
     for c in reversed(ops.classes + panels.classes):
         bpy.utils.unregister_class(c)

@@ -1,8 +1,9 @@
 """The bake: one hierarchy, then per frame light shapes -> apply -> solve -> cache.
 
-`bake_frames()` is a generator shared by the modal operator (one step per timer tick) and the
-headless loop (`run_bake()`); closing it early (ESC) discards the partial bake and keeps the
-previous cache.
+`bake_frames()` is a generator shared by the headless loop (`run_bake()`, also what the
+background worker of the interactive bake runs, see background.py) and tests; closing it early
+discards the partial bake and keeps the previous cache. The hierarchy build reports its progress
+through the `progress` callback (core.progress), frames through the yielded BakeProgress.
 """
 import dataclasses
 import hashlib
@@ -14,6 +15,7 @@ import bpy
 import numpy as np
 
 from ..core.geometry import InputError
+from ..core.progress import Cancelled
 from ..core.radiosity import RadiositySystem
 from ..core.refine import RefineParams
 from . import playback, texture
@@ -41,6 +43,32 @@ class BakeProgress:
     message: str = ""
     reused: bool = False
     warnings: list = field(default_factory=list)
+    fraction: float = 0.0          # of the whole bake (estimate: the build counts as BUILD_SHARE)
+    eta: float = float("nan")      # seconds left of the current stage (nan: unknown yet)
+
+
+BUILD_SHARE = 0.5   # share of the progress bar given to the hierarchy build
+
+
+def ray_backend_name(system):
+    """"embree", "numpy", ... of the ray backend a RadiositySystem was built with."""
+    name = getattr(getattr(system, "backend", None), "name", "")
+    if not name:   # BuildReport.backend holds the class name, e.g. "EmbreeBackend"
+        cls = str(getattr(getattr(system, "build", None), "backend", "") or "unknown")
+        name = cls[:-len("Backend")].lower() if cls.endswith("Backend") else cls.lower()
+    return name
+
+
+def ray_backend_note(name):
+    """'' for Embree, else why the bake traces rays with `name` (shown in the summary line)."""
+    if name == "embree":
+        return ""
+    try:
+        import embreex.mesh_construction  # noqa: F401
+        import embreex.rtcore_scene  # noqa: F401
+    except ImportError as exc:
+        return f"embreex not available on this platform/Python ({exc}); numpy tracer, slower"
+    return "numpy tracer"
 
 
 @dataclass
@@ -54,6 +82,17 @@ class BakeResult:
     build_seconds: float = 0.0
     seconds: float = 0.0
     build_report: object = None
+    rays: str = ""        # ray backend of the build ("embree", "numpy", ...)
+    rays_note: str = ""   # why not embree, if not
+
+    @property
+    def rays_text(self):
+        return f"rays: {self.rays}" + (f" ({self.rays_note})" if self.rays_note else "")
+
+    def summary(self):
+        return (f"baked frames {self.frames[0]}-{self.frames[1]} into {self.cache_dir}: "
+                f"{self.solved} solved, {self.reused} unchanged, {self.kept} kept from the previous bake "
+                f"(hierarchy {self.build_seconds:.1f} s, total {self.seconds:.1f} s, {self.rays_text})")
 
 
 def refine_params(quality, feps=None, aeps=None):
@@ -94,8 +133,14 @@ def _signature(mesh, params, domain, targets):
 
 
 def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, domain=None,
-                feps=None, aeps=None, output=None, resolution=None, texture_format=None):
+                feps=None, aeps=None, output=None, resolution=None, texture_format=None,
+                cache_dir=None, progress=None):
     """Generator: yields BakeProgress, returns (StopIteration.value) a BakeResult.
+
+    progress: callable(BakeProgress) called during the hierarchy build (between batches); it may
+    raise core.progress.Cancelled (or anything) to stop the bake, which keeps the previous cache.
+    cache_dir: absolute cache directory (default: from the scene's settings and the .blend path;
+    the background bake passes the real one because it bakes a copy of the file elsewhere).
 
     Static geometry is read at the scene's start frame (the same for every partial bake, so
     split bakes agree); light shapes are evaluated from scratch at every frame.
@@ -124,7 +169,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
     start, end = frame_range_for(scene, frames)
     if output == "TEXTURE" and start < 0:
         raise SceneError("Texture output needs frame numbers >= 0 (image sequence file names).")
-    final_dir = cache_dir_for(scene)
+    final_dir = os.path.abspath(cache_dir) if cache_dir else cache_dir_for(scene)
     t_start = time.perf_counter()
     result = BakeResult(cache_dir=final_dir, frames=(start, end))
     original_frame = scene.frame_current
@@ -148,17 +193,28 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
             raise SceneError("Light shapes need the dynamic solver (hr_addon.core.events), "
                              "which this version does not have.")
         npoly = len(scene_in.mesh.loop_start)
-        yield BakeProgress("build", total=end - start + 1, warnings=list(result.warnings),
+        total = end - start + 1
+        yield BakeProgress("build", total=total, warnings=list(result.warnings),
                            message=f"Building the hierarchy ({npoly} polygons, {quality.lower()} quality)")
         t0 = time.perf_counter()
-        system = RadiositySystem(scene_in.mesh, params)
+
+        def on_build(info):
+            if progress is not None:
+                progress(BakeProgress("build", total=total, fraction=BUILD_SHARE * float(info.fraction),
+                                      eta=float(info.eta), message=f"Building the hierarchy: {info.message}"))
+
+        system = RadiositySystem(scene_in.mesh, params, progress=on_build)
         dyn = DynamicRadiosity(system, method=method) if has_shapes else None
         result.build_seconds = time.perf_counter() - t0
         result.build_report = system.build
+        result.rays = ray_backend_name(system)
+        result.rays_note = ray_backend_note(result.rays)
         result.warnings += [w for w in system.build.warnings if w not in result.warnings]
         info = {"blend": os.path.basename(bpy.data.filepath), "scene": scene.name, "method": method,
                 "quality": quality, "feps": params.feps, "aeps": params.aeps, "output": output,
-                "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+                "rays": result.rays, "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+        if result.rays_note:
+            info["rays_note"] = result.rays_note
         baker = None
         if output == "TEXTURE":
             try:
@@ -176,7 +232,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
                        for t in scene_in.targets}
             writer = CacheWriter(final_dir, objects, domain, _signature(scene_in.mesh, params, domain, scene_in.targets), info)
         prev_sig = prev_frame = None
-        total = end - start + 1
+        t_frames = time.perf_counter()
         for i, f in enumerate(range(start, end + 1)):
             frame_warnings = []
             if has_shapes:
@@ -208,7 +264,9 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
             prev_sig, prev_frame = sig, f
             new_w = [w for w in frame_warnings if w not in result.warnings]
             result.warnings += new_w
+            left = (time.perf_counter() - t_frames) / (i + 1) * (total - i - 1)
             yield BakeProgress("frame", frame=f, done=i + 1, total=total, reused=reused, warnings=new_w,
+                               fraction=BUILD_SHARE + (1 - BUILD_SHARE) * (i + 1) / total, eta=left,
                                message=f"Frame {f} ({i + 1}/{total}){' unchanged' if reused else ''}")
         if baker is not None:
             baker.finish(writer)
@@ -216,20 +274,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         committed = True
         result.kept = writer.kept
         result.warnings += writer.messages
-        bpy_dir = final_dir
-        if bpy.data.filepath:
-            try:
-                bpy_dir = bpy.path.relpath(final_dir)
-            except ValueError:  # other drive (Windows)
-                pass
-        hr.bake_dir = bpy_dir.rstrip("/\\") + "/"
-        hr.playback = True
-        scene.render.use_lock_interface = True  # renders read HR_Radiance in frame_change_pre
-        playback.forget_readers()
-        if baker is not None:
-            texture.after_bake(scene, final_dir)
-        else:
-            texture.remove_material(geo_objects)    # a texture preview would show deleted files
+        use_bake(scene, final_dir, output, geo_objects)
     finally:
         if writer is not None and not committed:
             writer.abort()
@@ -241,23 +286,83 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
     return result
 
 
-def run_bake(scene, log=print, **kwargs):
-    """Headless bake: a plain loop printing progress lines; returns the BakeResult."""
-    gen = bake_frames(scene, **kwargs)
+class BakeJob:
+    """Steps a bake_frames generator in this process and keeps the progress numbers (scripts and
+    tests; the interactive bake runs in another process, see background.py)."""
+
+    def __init__(self, gen):
+        self.gen = gen
+        self.progress = None
+        self.result = None
+        self.error = None
+        self.warnings = []
+
+    def step(self):
+        """Advance one step; returns False when finished (result or error set)."""
+        try:
+            self.progress = next(self.gen)
+            self.warnings += self.progress.warnings
+            return True
+        except StopIteration as stop:
+            self.result = stop.value
+        except (InputError, OSError, RuntimeError, ValueError) as exc:
+            self.error = str(exc)
+        return False
+
+    def fraction(self):
+        p = self.progress
+        return 0.0 if p is None else p.fraction
+
+    def cancel(self):
+        self.gen.close()   # the generator's finally block discards the partial bake
+
+
+def use_bake(scene, final_dir, output, geo_objects=None):
+    """Point the scene at the bake in final_dir (after the bake, or after a background bake
+    finished): Scene.hr.bake_dir, playback on, Lock Interface on, texture preview re-wired."""
+    hr = scene.hr
+    bpy_dir = final_dir
+    if bpy.data.filepath:
+        try:
+            bpy_dir = bpy.path.relpath(final_dir)
+        except ValueError:  # other drive (Windows)
+            pass
+    hr.bake_dir = bpy_dir.rstrip("/\\") + "/"
+    hr.playback = True
+    scene.render.use_lock_interface = True  # renders read HR_Radiance in frame_change_pre
+    playback.forget_readers()
+    if output == "TEXTURE":
+        texture.after_bake(scene, final_dir)
+    else:
+        from .scene_in import geometry_objects
+        objs = geo_objects if geo_objects is not None else geometry_objects(
+            bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0])
+        texture.remove_material(objs)    # a texture preview would show deleted files
+
+
+def run_bake(scene, log=print, status=None, **kwargs):
+    """Headless bake: a plain loop printing progress lines; returns the BakeResult.
+
+    status: optional callable(BakeProgress) receiving every progress report (build and frames),
+    e.g. the background worker's status file writer."""
+    def report(p):
+        for w in p.warnings:
+            log(f"HR Radiosity: warning: {w}", flush=True)
+        log(f"HR Radiosity: {p.message}", flush=True)
+        if status is not None:
+            status(p)
+
+    gen = bake_frames(scene, progress=report, **kwargs)
     while True:
         try:
             p = next(gen)
         except StopIteration as stop:
             res = stop.value
             break
-        for w in p.warnings:
-            log(f"HR Radiosity: warning: {w}", flush=True)
-        log(f"HR Radiosity: {p.message}", flush=True)
-    log(f"HR Radiosity: baked frames {res.frames[0]}-{res.frames[1]} into {res.cache_dir}: "
-        f"{res.solved} solved, {res.reused} unchanged, {res.kept} kept from the previous bake "
-        f"(hierarchy {res.build_seconds:.1f} s, total {res.seconds:.1f} s)", flush=True)
+        report(p)
+    log(f"HR Radiosity: {res.summary()}", flush=True)
     return res
 
 
-__all__ = ["bake_frames", "run_bake", "BakeProgress", "BakeResult", "SceneError", "InputError",
+__all__ = ["bake_frames", "run_bake", "use_bake", "BakeJob", "BakeProgress", "BakeResult", "SceneError", "InputError", "Cancelled",
            "METHODS", "QUALITIES", "DOMAINS", "OUTPUTS"]

@@ -38,7 +38,12 @@ def make_parser(prog=PROG, blend_required=False):
     p.add_argument("--aeps", type=float, help="area threshold (implies --quality custom)")
     p.add_argument("--domain", type=str.lower, choices=["corner", "point"])
     p.add_argument("--scene", help="scene name (default: the active scene)")
+    p.add_argument("--view-layer", help="view layer name (default: the window's, else the first)")
     p.add_argument("--save", metavar="PATH", help="save the .blend (with the bake settings) to PATH")
+    p.add_argument("--cache-dir", metavar="DIR", help="write the bake into DIR (absolute; default: the "
+                                                      "scene's cache folder next to the .blend)")
+    p.add_argument("--status-file", metavar="PATH", help="keep a JSON progress status in PATH "
+                                                         "(the interactive background bake reads it)")
     return p
 
 
@@ -72,48 +77,75 @@ def run(argv, prog=PROG, blend_required=False):
 
     import bpy
     from ..core.geometry import InputError
+    from ..core.progress import Cancelled
     from .bake import run_bake
+    from .jobstatus import StatusWriter
+
+    status = None
+    if args.status_file:
+        try:
+            status = StatusWriter(args.status_file, cache_dir=args.cache_dir or "")
+        except OSError as exc:
+            _err(f"cannot write the status file {args.status_file}: {exc}")
+            return 1
+
+    def fail(code, msg):
+        _err(msg)
+        if status is not None:
+            status.write(state="failed", error=msg)
+        return code
 
     if args.blend is not None:
         try:
             bpy.ops.wm.open_mainfile(filepath=os.path.abspath(args.blend), load_ui=False)
         except RuntimeError as exc:
-            _err(f"cannot open {args.blend}: {str(exc).strip().splitlines()[-1] if str(exc).strip() else exc}")
-            return 2
+            return fail(2, f"cannot open {args.blend}: "
+                           f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else exc}")
     elif not bpy.data.filepath:
-        _err("no .blend file loaded (pass one: blender -b scene.blend -c hr_bake ...)")
-        return 2
+        return fail(2, "no .blend file loaded (pass one: blender -b scene.blend -c hr_bake ...)")
     scene = bpy.context.scene
     if args.scene:
         scene = bpy.data.scenes.get(args.scene)
         if scene is None:
-            _err(f"no scene named '{args.scene}'")
-            return 2
+            return fail(2, f"no scene named '{args.scene}'")
+    view_layer = scene.view_layers[0] if scene != bpy.context.scene else None
+    if args.view_layer:
+        view_layer = scene.view_layers.get(args.view_layer)
+        if view_layer is None:
+            return fail(2, f"no view layer named '{args.view_layer}' in scene '{scene.name}'")
+    if args.cache_dir is not None and not os.path.isabs(args.cache_dir):
+        return fail(2, f"--cache-dir must be an absolute path, got '{args.cache_dir}'")
     quality = args.quality
     if args.feps is not None or args.aeps is not None:
         quality = "custom"
     feps = args.feps if args.feps is not None else scene.hr.feps
     aeps = args.aeps if args.aeps is not None else scene.hr.aeps
     if quality == "custom" and not (0 < feps <= 1 and 0 < aeps < 1):
-        _err(f"bad thresholds feps={feps} aeps={aeps} (need 0 < feps <= 1, 0 < aeps < 1)")
-        return 2
+        return fail(2, f"bad thresholds feps={feps} aeps={aeps} (need 0 < feps <= 1, 0 < aeps < 1)")
+    restore = _terminate_as_exit()
     try:
-        res = run_bake(scene, view_layer=scene.view_layers[0] if scene != bpy.context.scene else None,
+        res = run_bake(scene, view_layer=view_layer,
                        frames=frames, method=args.method, quality=quality, domain=args.domain,
                        feps=feps, aeps=aeps, output=args.output, resolution=args.resolution,
-                       texture_format=args.texture_format)
+                       texture_format=args.texture_format, cache_dir=args.cache_dir,
+                       status=status.progress if status is not None else None)
+    except (Cancelled, KeyboardInterrupt, SystemExit):
+        # Cancelled (e.g. SIGTERM from the interactive bake's Cancel): the partial bake was removed.
+        print(f"{PROG}: cancelled; the previous bake is kept", file=sys.stderr, flush=True)
+        if status is not None:
+            status.write(state="cancelled")
+        return 130
     except InputError as exc:
-        _err(str(exc).replace("\n", " "))
-        return 1
+        return fail(1, str(exc).replace("\n", " "))
     except OSError as exc:
-        _err(f"cannot write the cache: {exc}")
-        return 1
+        return fail(1, f"cannot write the cache: {exc}")
     except Exception as exc:  # a bug: still one line (HR_DEBUG=1 prints the traceback)
         if os.environ.get("HR_DEBUG"):
             import traceback
             traceback.print_exc()
-        _err(f"internal error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
-        return 1
+        return fail(1, f"internal error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+    finally:
+        restore()
     if args.save:
         path = os.path.abspath(args.save)
         try:
@@ -130,7 +162,27 @@ def run(argv, prog=PROG, blend_required=False):
         print(f"{PROG}: saved {path}", flush=True)
     if res.warnings:
         print(f"{PROG}: {len(res.warnings)} warning(s)", flush=True)
+    if status is not None:
+        status.write(state="done", fraction=1.0, eta=None, summary=res.summary(), rays=res.rays,
+                     cache_dir=res.cache_dir, output=(args.output or scene.hr.output).upper(),
+                     message=f"Baked frames {res.frames[0]}-{res.frames[1]}",
+                     warnings=status.data["warnings"] + [w for w in res.warnings if w not in status.data["warnings"]])
     return 0
+
+
+def _terminate_as_exit():
+    """SIGTERM raises SystemExit in the main thread, so that the bake's cleanup runs (the partial
+    cache folder is removed). Returns a function restoring the previous handler."""
+    import signal
+
+    def on_term(signum, frame):
+        raise SystemExit(143)
+
+    try:
+        old = signal.signal(signal.SIGTERM, on_term)
+    except (ValueError, OSError, AttributeError):   # not the main thread / no such signal
+        return lambda: None
+    return lambda: signal.signal(signal.SIGTERM, old)
 
 
 def cli_command(argv):

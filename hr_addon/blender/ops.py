@@ -1,57 +1,61 @@
-"""Operators: bake (modal with progress, ESC cancels), light shapes, preview, cache."""
+"""Operators: bake (a background process with progress; Cancel keeps the previous bake), light
+shapes, preview, cache (reload, clear, delete)."""
+import os
+import shutil
+
 import bpy
 from bpy.props import BoolProperty
 
 from ..core.geometry import InputError
-from . import playback, texture
-from .bake import bake_frames, run_bake
-from .cache import CacheError
-from .preview import add_preview, remove_preview
+from . import background, playback, texture
+from .bake import run_bake
+from .cache import MANIFEST, CacheError, CacheReader
+from .preview import add_preview, has_preview, remove_preview
 from .scene_in import geometry_objects
 
 
-class BakeJob:
-    """Steps a bake generator and keeps the progress numbers (used by the modal operator)."""
+def _has_bake(scene):
+    return bool(playback.bake_dir_abs(scene))
 
-    def __init__(self, gen):
-        self.gen = gen
-        self.progress = None
-        self.result = None
-        self.error = None
-        self.warnings = []
 
-    def step(self):
-        """Advance one step; returns False when finished (result or error set)."""
-        try:
-            self.progress = next(self.gen)
-            self.warnings += self.progress.warnings
-            return True
-        except StopIteration as stop:
-            self.result = stop.value
-        except (InputError, OSError, RuntimeError, ValueError) as exc:
-            self.error = str(exc)
-        return False
+def _redraw(context):
+    wm = context.window_manager
+    for win in wm.windows:
+        for area in win.screen.areas:
+            if area.type in {"PROPERTIES", "VIEW_3D"}:
+                area.tag_redraw()
 
-    def fraction(self):
-        p = self.progress
-        return 0.0 if p is None or not p.total else p.done / p.total
 
-    def cancel(self):
-        self.gen.close()   # the generator's finally block discards the partial bake
+def _status_text(context, text):
+    for win in context.window_manager.windows:
+        if win.workspace is not None:
+            win.workspace.status_text_set(text)
 
 
 class HR_OT_bake(bpy.types.Operator):
-    """Bake dynamic hierarchical radiosity over the frame range into HR_Radiance (ESC cancels)"""
+    """Bake dynamic hierarchical radiosity over the frame range, in a background process
+    (Blender stays usable; Cancel keeps the previous bake)"""
     bl_idname = "hr.bake"
     bl_label = "Bake Radiosity"
     bl_options = {"REGISTER"}
 
-    _job = None
     _timer = None
-    running = False
+    _job = None
+
+    @classmethod
+    def poll(cls, context):
+        if context.scene is None or not hasattr(context.scene, "hr"):
+            return False
+        if background.running():
+            cls.poll_message_set("A radiosity bake is running")
+            return False
+        if playback.default_cache_dir(context.scene) is None:
+            cls.poll_message_set("Save the .blend file first: the cache folder is relative to it")
+            return False
+        return True
 
     def execute(self, context):
-        """Blocking bake (scripts, bpy.ops.hr.bake())."""
+        """Blocking bake in this process (scripts, bpy.ops.hr.bake(), background mode)."""
         try:
             res = run_bake(context.scene, view_layer=context.view_layer)
         except (InputError, OSError, RuntimeError, ValueError) as exc:
@@ -59,57 +63,64 @@ class HR_OT_bake(bpy.types.Operator):
             return {"CANCELLED"}
         for w in res.warnings:
             self.report({"WARNING"}, w)
-        self.report({"INFO"}, f"Baked {res.frames[0]}-{res.frames[1]}: {res.solved} solved, {res.reused} unchanged")
+        self.report({"INFO"}, f"Baked {res.frames[0]}-{res.frames[1]}: {res.solved} solved, "
+                              f"{res.reused} unchanged ({res.rays_text})")
         return {"FINISHED"}
 
     def invoke(self, context, event):
-        if HR_OT_bake.running:
-            self.report({"WARNING"}, "A radiosity bake is already running")
+        if bpy.app.background:          # no event loop: bake here
+            return self.execute(context)
+        job = background.BackgroundBake(context.scene, context.view_layer)
+        try:
+            job.start()
+        except (InputError, OSError, RuntimeError, ValueError) as exc:
+            self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self._job = BakeJob(bake_frames(context.scene, view_layer=context.view_layer))
+        self._job = job
         wm = context.window_manager
-        wm.progress_begin(0, 100)
-        self._timer = wm.event_timer_add(0.01, window=context.window)
+        self._timer = wm.event_timer_add(0.25, window=context.window)
         wm.modal_handler_add(self)
-        HR_OT_bake.running = True
-        self._status(context, "HR Radiosity: reading the scene... (ESC to cancel)")
+        _status_text(context, f"HR Radiosity: {job.text()}")
         return {"RUNNING_MODAL"}
 
-    def _status(self, context, text):
-        if context.workspace is not None:
-            context.workspace.status_text_set(text)
-
-    def _finish(self, context):
-        wm = context.window_manager
-        if self._timer is not None:
-            wm.event_timer_remove(self._timer)
-            self._timer = None
-        wm.progress_end()
-        self._status(context, None)
-        HR_OT_bake.running = False
-
     def modal(self, context, event):
-        job = self._job
-        if event.type == "ESC":
-            job.cancel()
-            self._finish(context)
-            self.report({"WARNING"}, "Radiosity bake cancelled; the previous bake is kept")
-            return {"CANCELLED"}
+        # Every event passes through: the viewport, timeline and editors stay fully usable.
         if event.type != "TIMER" or event.timer is not self._timer:
-            return {"RUNNING_MODAL"} if event.type not in {"WINDOW_DEACTIVATE", "TIMER"} else {"PASS_THROUGH"}
-        if job.step():
-            context.window_manager.progress_update(int(100 * job.fraction()))
-            self._status(context, f"HR Radiosity: {job.progress.message} (ESC to cancel)")
-            return {"RUNNING_MODAL"}
-        self._finish(context)
+            return {"PASS_THROUGH"}
+        job = self._job
+        if job.poll():
+            _status_text(context, f"HR Radiosity: {job.text()}")
+            _redraw(context)
+            return {"PASS_THROUGH"}
+        context.window_manager.event_timer_remove(self._timer)
+        self._timer = None
+        _status_text(context, None)
+        _redraw(context)
         for w in job.warnings:
             self.report({"WARNING"}, w)
-        if job.error is not None:
-            self.report({"ERROR"}, job.error)
-            return {"CANCELLED"}
-        r = job.result
-        self.report({"INFO"}, f"Baked frames {r.frames[0]}-{r.frames[1]}: {r.solved} solved, "
-                              f"{r.reused} unchanged ({r.seconds:.1f} s)")
+        if job.state == "done":
+            self.report({"INFO"}, f"HR Radiosity: {job.summary}")
+            return {"FINISHED"}
+        if job.state == "cancelled":
+            self.report({"WARNING"}, "Radiosity bake cancelled; the previous bake is kept")
+        else:
+            self.report({"ERROR"}, f"Radiosity bake failed: {job.error}")
+        return {"CANCELLED"}
+
+
+class HR_OT_cancel_bake(bpy.types.Operator):
+    """Stop the running radiosity bake; the previous bake is kept"""
+    bl_idname = "hr.cancel_bake"
+    bl_label = "Cancel Bake"
+
+    @classmethod
+    def poll(cls, context):
+        return background.running()
+
+    def execute(self, context):
+        job = background.active()
+        if job is not None:
+            job.cancel()
         return {"FINISHED"}
 
 
@@ -148,7 +159,17 @@ class HR_OT_add_preview(bpy.types.Operator):
     bl_label = "Preview Bake"
     bl_options = {"REGISTER", "UNDO"}
 
+    @classmethod
+    def poll(cls, context):
+        if context.scene is None or not _has_bake(context.scene):
+            cls.poll_message_set("Nothing to preview: bake first")
+            return False
+        return True
+
     def execute(self, context):
+        if not _has_bake(context.scene):
+            self.report({"ERROR"}, "Nothing to preview: there is no radiosity bake (Bake Radiosity first)")
+            return {"CANCELLED"}
         objs = geometry_objects(context.view_layer)
         if texture.is_texture_bake(context.scene):
             try:
@@ -171,6 +192,10 @@ class HR_OT_remove_preview(bpy.types.Operator):
     bl_label = "Remove Preview"
     bl_options = {"REGISTER", "UNDO"}
 
+    @classmethod
+    def poll(cls, context):
+        return has_preview()
+
     def execute(self, context):
         texture.remove_material()
         n = remove_preview()
@@ -182,6 +207,10 @@ class HR_OT_load_frame(bpy.types.Operator):
     """Reload the current frame from the radiosity cache"""
     bl_idname = "hr.load_frame"
     bl_label = "Reload Cache"
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and _has_bake(context.scene)
 
     def execute(self, context):
         playback.forget_readers()
@@ -197,16 +226,82 @@ class HR_OT_clear_bake(bpy.types.Operator):
     bl_label = "Clear Bake"
     bl_options = {"REGISTER", "UNDO"}
 
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and not background.running()
+
     def execute(self, context):
-        scene = context.scene
-        scene.hr.bake_dir = ""
-        scene.hr.playback = False
-        texture.remove_material([o for o in scene.objects if o.type == "MESH"])
-        for o in scene.objects:
-            if o.type == "MESH" and playback.ATTRIBUTE in o.data.color_attributes:
-                o.data.color_attributes.remove(o.data.color_attributes[playback.ATTRIBUTE])
+        _forget_bake(context.scene)
         return {"FINISHED"}
 
 
-classes = (HR_OT_bake, HR_OT_mark_light_shape, HR_OT_add_preview, HR_OT_remove_preview,
-           HR_OT_load_frame, HR_OT_clear_bake)
+def _forget_bake(scene):
+    scene.hr.bake_dir = ""
+    scene.hr.playback = False
+    texture.remove_material([o for o in scene.objects if o.type == "MESH"])
+    for o in scene.objects:
+        if o.type == "MESH" and playback.ATTRIBUTE in o.data.color_attributes:
+            o.data.color_attributes.remove(o.data.color_attributes[playback.ATTRIBUTE])
+    playback.forget_readers()
+
+
+def delete_cache_files(directory):
+    """Remove the files of the bake in `directory`: the ones its manifest names, its textures
+    folder and the manifest; then the folder if it is empty. Returns the number of files removed.
+    Nothing is removed from a folder without a radiosity manifest (CacheError)."""
+    reader = CacheReader(directory)        # raises CacheError unless it is a radiosity cache
+    n = 0
+    for name in sorted(set(reader.frames.values())):
+        p = os.path.join(directory, os.path.basename(name))
+        if os.path.isfile(p):
+            os.remove(p)
+            n += 1
+    tex = os.path.join(directory, texture.TEX_DIR)
+    if os.path.isdir(tex):
+        n += sum(len(f) for _, _, f in os.walk(tex))
+        shutil.rmtree(tex)
+    os.remove(os.path.join(directory, MANIFEST))
+    n += 1
+    try:
+        os.rmdir(directory)
+    except OSError:
+        pass      # other files in it: not ours, left alone
+    return n
+
+
+class HR_OT_delete_bake(bpy.types.Operator):
+    """Delete the baked files from disk and remove HR_Radiance (asks for confirmation)"""
+    bl_idname = "hr.delete_bake"
+    bl_label = "Delete Bake"
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        if context.scene is None or background.running():
+            return False
+        if not _has_bake(context.scene):
+            cls.poll_message_set("There is no radiosity bake to delete")
+            return False
+        return True
+
+    def invoke(self, context, event):
+        return context.window_manager.invoke_confirm(
+            self, event, title="Delete Bake", message=f"Delete the files of the radiosity bake in "
+            f"{playback.bake_dir_abs(context.scene)}?", confirm_text="Delete", icon="WARNING") \
+            if bpy.app.version >= (4, 1, 0) else context.window_manager.invoke_confirm(self, event)
+
+    def execute(self, context):
+        scene = context.scene
+        directory = playback.bake_dir_abs(scene)
+        try:
+            n = delete_cache_files(directory)
+        except (CacheError, OSError) as exc:
+            self.report({"ERROR"}, f"Cannot delete the bake in '{directory}': {exc}")
+            return {"CANCELLED"}
+        _forget_bake(scene)
+        self.report({"INFO"}, f"Deleted the radiosity bake ({n} file(s)) in {directory}")
+        return {"FINISHED"}
+
+
+classes = (HR_OT_bake, HR_OT_cancel_bake, HR_OT_mark_light_shape, HR_OT_add_preview, HR_OT_remove_preview,
+           HR_OT_load_frame, HR_OT_clear_bake, HR_OT_delete_bake)

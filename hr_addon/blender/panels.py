@@ -2,31 +2,44 @@
 3D View sidebar tab "HR"."""
 import bpy
 
-from . import playback
-from .ops import HR_OT_bake
+from . import background, playback
 
 
 def _draw_bake(layout, context):
     scene = context.scene
     hr = scene.hr
     col = layout.column()
-    row = col.row()
-    row.scale_y = 1.4
-    row.enabled = not HR_OT_bake.running
-    row.operator("hr.bake", icon="RENDER_ANIMATION")
+    job = background.active()
+    if job is not None and job.state == "running":
+        row = col.row(align=True)
+        row.progress(factor=job.fraction, type="BAR", text=job.text())
+        row.operator("hr.cancel_bake", text="", icon="CANCEL")
+    else:
+        row = col.row()
+        row.scale_y = 1.4
+        row.operator("hr.bake", icon="RENDER_ANIMATION")
     d = playback.bake_dir_abs(scene)
     if d:
         col.label(text=f"Cache: {hr.bake_dir or d}", icon="FILE_CACHE")
     msg = playback.status(scene)
+    if not msg and hr.playback and d and playback.render_unlocked(scene):
+        msg = playback.LOCK_MESSAGE
     if msg:
-        col.label(text=msg, icon="ERROR")
+        for i, line in enumerate(_wrap(msg, 60)):
+            col.label(text=line, icon="ERROR" if i == 0 else "BLANK1")
     row = col.row(align=True)
     row.operator("hr.add_preview", icon="SHADING_RENDERED")
     row.operator("hr.remove_preview", text="", icon="X")
     row = col.row(align=True)
     row.prop(hr, "playback")
     row.operator("hr.load_frame", text="", icon="FILE_REFRESH")
-    row.operator("hr.clear_bake", text="", icon="TRASH")
+    row.operator("hr.clear_bake", text="", icon="X")
+    row.operator("hr.delete_bake", text="", icon="TRASH")
+
+
+def _wrap(text, width):
+    import textwrap
+    return textwrap.wrap(text, width) or [text]
 
 
 class HR_PT_radiosity(bpy.types.Panel):
@@ -54,9 +67,15 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
         layout.prop(hr, "method")
         layout.prop(hr, "quality")
         sub = layout.column(align=True)
-        sub.enabled = hr.quality == "CUSTOM"
-        sub.prop(hr, "feps")
-        sub.prop(hr, "aeps")
+        if hr.quality == "CUSTOM":
+            sub.prop(hr, "feps")
+            sub.prop(hr, "aeps")
+        else:   # the preset's thresholds, read only (the bake takes the whole preset)
+            from ..core.refine import RefineParams
+            p = RefineParams.preset(hr.quality.lower())
+            sub.enabled = False
+            sub.label(text=f"Link threshold (Feps): {p.feps:g}")
+            sub.label(text=f"Smallest element (Aeps): {p.aeps:g}")
         layout.prop(hr, "output")
         if hr.output == "TEXTURE":
             layout.prop(hr, "texture_resolution")

@@ -10,7 +10,10 @@ from .cache import CacheError, CacheReader
 ATTRIBUTE = "HR_Radiance"
 
 # Set while a bake runs: the bake moves through frames itself, playback must not interfere.
-state = {"baking": False, "messages": {}, "readers": {}}
+state = {"baking": False, "messages": {}, "readers": {}, "loaded": {}}
+
+LOCK_MESSAGE = ("Frames are not loaded during this render: turn on Render > Lock Interface "
+                "(changing mesh data during a render is unsafe).")
 
 
 def _log_once(scene, msg):
@@ -65,6 +68,12 @@ def get_reader(directory):
 
 def forget_readers():
     state["readers"].clear()
+    forget_loaded()
+
+
+def forget_loaded():
+    """Forget which cached file each scene shows (the next load_frame writes HR_Radiance again)."""
+    state["loaded"].clear()
 
 
 def write_attribute(mesh, values, domain):
@@ -87,6 +96,7 @@ def write_attribute(mesh, values, domain):
 def apply_arrays(scene, arrays, domain):
     """Write {object name: values} to the objects' meshes; returns the list of problems."""
     problems = []
+    state["loaded"].pop(scene.name_full, None)
     for name, values in arrays.items():
         obj = scene.objects.get(name) or bpy.data.objects.get(name)
         if obj is None or obj.type != "MESH":
@@ -113,6 +123,10 @@ def load_frame(scene, frame=None):
         if reader.manifest.get("output") == "TEXTURE":   # image sequences play back by themselves
             state["messages"].pop(scene.name_full, None)
             return True
+        name = reader.frames[reader.nearest(frame)]
+        key = (directory, state["readers"].get(directory, (None,))[0], name)   # manifest mtime
+        if state["loaded"].get(scene.name_full) == key and _attributes_present(scene, reader):
+            return True          # same cached file as the frame shown: HR_Radiance is already right
         arrays = reader.load(frame)
     except CacheError as exc:
         _log_once(scene, f"{exc}")
@@ -121,25 +135,38 @@ def load_frame(scene, frame=None):
     if problems:
         _log_once(scene, "; ".join(problems))
         return False
+    state["loaded"][scene.name_full] = key
     state["messages"].pop(scene.name_full, None)
     return True
 
 
-_warned_lock = set()
+def _attributes_present(scene, reader):
+    for name in reader.objects:
+        obj = scene.objects.get(name) or bpy.data.objects.get(name)
+        if obj is None or obj.type != "MESH" or ATTRIBUTE not in obj.data.color_attributes:
+            return False
+    return True
+
+
+def render_unlocked(scene):
+    """True when an interactive render runs without Lock Interface (frames must not be loaded)."""
+    return (not bpy.app.background and not scene.render.use_lock_interface
+            and bpy.app.is_job_running("RENDER"))
 
 
 @persistent
 def on_frame_change_pre(scene, *args):
     if state["baking"] or not scene.hr.playback:
         return
-    if not bpy.app.background and not scene.render.use_lock_interface \
-            and bpy.app.is_job_running("RENDER"):
-        if scene.name_full not in _warned_lock:
-            _warned_lock.add(scene.name_full)
-            print("HR Radiosity: enable Render > Lock Interface to render the baked radiance "
-                  "(changing mesh data during a render is unsafe); frame not loaded.", flush=True)
+    if render_unlocked(scene):
+        _log_once(scene, LOCK_MESSAGE)     # printed once, and shown in the panel
         return
     load_frame(scene)
+
+
+@persistent
+def on_undo_redo(*args):
+    forget_loaded()    # undo may bring back HR_Radiance values of another frame
 
 
 @persistent
@@ -159,13 +186,18 @@ def _remove(lst, fn):
             lst.remove(h)
 
 
+def _handlers():
+    h = bpy.app.handlers
+    return ((h.frame_change_pre, on_frame_change_pre), (h.load_post, on_load_post),
+            (h.undo_post, on_undo_redo), (h.redo_post, on_undo_redo))
+
+
 def register():
-    for lst, fn in ((bpy.app.handlers.frame_change_pre, on_frame_change_pre),
-                    (bpy.app.handlers.load_post, on_load_post)):
+    for lst, fn in _handlers():
         _remove(lst, fn)
         lst.append(fn)
 
 
 def unregister():
-    _remove(bpy.app.handlers.frame_change_pre, on_frame_change_pre)
-    _remove(bpy.app.handlers.load_post, on_load_post)
+    for lst, fn in _handlers():
+        _remove(lst, fn)

@@ -96,3 +96,16 @@ def remove_preview(objects=None):
                 if m is not None and m.get("hr_preview"):
                     o.data.materials.pop(index=i)
     return n
+
+
+def has_preview():
+    """True when some material carries preview nodes, is the shared preview material, or is a
+    baked-texture helper material (what Remove Preview removes)."""
+    from .texture import TAG
+    for m in bpy.data.materials:
+        if m.get("hr_preview") or m.get(TAG) is not None:
+            return True
+        tree = m.node_tree
+        if tree is not None and N_OUT in tree.nodes:
+            return True
+    return False

@@ -34,22 +34,16 @@ DOMAIN_ITEMS = [
 _REL = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
 
 
-def _quality_update(self, context):
-    """Show the preset's thresholds (the bake takes the whole preset from core RefineParams)."""
-    if self.quality != "CUSTOM":
-        from ..core.refine import RefineParams
-        p = RefineParams.preset(self.quality.lower())
-        self["feps"], self["aeps"] = p.feps, p.aeps
-
-
 class HR_SceneSettings(bpy.types.PropertyGroup):
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="AUTO",
                          description="How light-shape changes are applied from one frame to the next")
-    quality: EnumProperty(name="Quality", items=QUALITY_ITEMS, default="MEDIUM", update=_quality_update,
-                          description="Refinement preset (sets Feps and Aeps)")
-    feps: FloatProperty(name="Feps", default=0.02, min=1e-4, max=1.0, precision=4,
+    # No update callback (it would copy the preset into feps/aeps): the bpy module of Blender 4.2 and
+    # 4.5 crashes at exit when a property has one. The panel shows the preset's values instead.
+    quality: EnumProperty(name="Quality", items=QUALITY_ITEMS, default="MEDIUM",
+                          description="Refinement preset (Custom: the thresholds below)")
+    feps: FloatProperty(name="Link threshold (Feps)", default=0.02, min=1e-4, max=1.0, precision=4,
                         description="Form factor threshold: links transporting more are subdivided (Custom quality)")
-    aeps: FloatProperty(name="Aeps", default=2e-4, min=1e-7, max=0.1, precision=6,
+    aeps: FloatProperty(name="Smallest element (Aeps)", default=2e-4, min=1e-7, max=0.1, precision=6,
                         description="Smallest element area as a fraction of the total scene area (Custom quality)")
     output: EnumProperty(name="Output", items=OUTPUT_ITEMS, default="VERTEX",
                          description="Where the baked radiance goes")

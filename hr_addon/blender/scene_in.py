@@ -2,8 +2,13 @@
 
 Geometry is every visible, renderable mesh object (its collections not excluded or render-
 disabled, hide_render off) that is neither excluded (Object.hr.exclude) nor a light shape, with
-modifiers applied (depsgraph), in world space. Per polygon reflectance/emission come from the
-material slot (see materials.py).
+modifiers applied (depsgraph), in world space, plus the mesh instances of the depsgraph
+(collection instances, geometry-nodes instances, particle instances: depsgraph.object_instances)
+whose instancer takes part. Instances receive and cast light, but only real objects get output
+(HR_Radiance or a lightmap): an instance shares its mesh data with the others, which can hold one
+value per element; the bake says so. Each instanced mesh is read once and placed per instance.
+Per polygon reflectance/emission come from the material slot (see materials.py). Polygons that
+must be split are triangulated as Blender's loop_triangles are (what Cycles and EEVEE render).
 """
 from dataclasses import dataclass, field
 
@@ -54,6 +59,35 @@ class EvalMesh:
     material_index: np.ndarray
     materials: list          # material per slot (evaluated), [None] if no slots
     flipped: bool            # negative-determinant transform
+    tri_loops: np.ndarray = None   # (T, 3) Blender's loop_triangles (loop indices)
+
+
+def _mesh_arrays(me):
+    """Local coordinates, topology, material indices and loop triangles of a Mesh datablock."""
+    V, P, L = len(me.vertices), len(me.polygons), len(me.loops)
+    co = np.empty(V * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    ls = np.empty(P, np.int32)
+    lt = np.empty(P, np.int32)
+    lv = np.empty(L, np.int32)
+    mi = np.zeros(P, np.int32)
+    me.polygons.foreach_get("loop_start", ls)
+    me.polygons.foreach_get("loop_total", lt)
+    me.loops.foreach_get("vertex_index", lv)
+    if P:
+        me.polygons.foreach_get("material_index", mi)
+    me.calc_loop_triangles()
+    tri = np.empty(len(me.loop_triangles) * 3, np.int32)
+    me.loop_triangles.foreach_get("loops", tri)
+    return (co.reshape(-1, 3).astype(np.float64), ls.astype(np.int64), lt.astype(np.int64), lv.astype(np.int64),
+            mi, tri.reshape(-1, 3).astype(np.int64))
+
+
+def _placed(arrays, matrix, mats):
+    co, ls, lt, lv, mi, tri = arrays
+    M = np.asarray(matrix, dtype=np.float64)
+    verts = co @ M[:3, :3].T + M[:3, 3]
+    return EvalMesh(verts, ls, lt, lv, np.clip(mi, 0, len(mats) - 1), mats, bool(np.linalg.det(M[:3, :3]) < 0), tri)
 
 
 def read_mesh(obj, depsgraph) -> EvalMesh:
@@ -61,25 +95,10 @@ def read_mesh(obj, depsgraph) -> EvalMesh:
     ob = obj.evaluated_get(depsgraph)
     me = ob.to_mesh()
     try:
-        V, P, L = len(me.vertices), len(me.polygons), len(me.loops)
-        co = np.empty(V * 3, np.float32)
-        me.vertices.foreach_get("co", co)
-        ls = np.empty(P, np.int32)
-        lt = np.empty(P, np.int32)
-        lv = np.empty(L, np.int32)
-        mi = np.zeros(P, np.int32)
-        me.polygons.foreach_get("loop_start", ls)
-        me.polygons.foreach_get("loop_total", lt)
-        me.loops.foreach_get("vertex_index", lv)
-        if P:
-            me.polygons.foreach_get("material_index", mi)
+        arrays = _mesh_arrays(me)
     finally:
         ob.to_mesh_clear()
-    M = np.array(ob.matrix_world, dtype=np.float64)
-    verts = co.reshape(-1, 3).astype(np.float64) @ M[:3, :3].T + M[:3, 3]
-    mats = [s.material for s in ob.material_slots] or [None]
-    return EvalMesh(verts, ls.astype(np.int64), lt.astype(np.int64), lv.astype(np.int64),
-                    np.clip(mi, 0, len(mats) - 1), mats, bool(np.linalg.det(M[:3, :3]) < 0))
+    return _placed(arrays, ob.matrix_world, [s.material for s in ob.material_slots] or [None])
 
 
 def _reversed_loops(loop_start, loop_total):
@@ -125,6 +144,7 @@ class SceneInput:
     mesh: MeshInput
     targets: list
     warnings: list = field(default_factory=list)
+    instances: dict = field(default_factory=dict)   # {(instancer, source): InstanceInfo}
 
 
 def _surfaces(materials, warnings, cache):
@@ -159,25 +179,107 @@ def _topology_map(obj, em: EvalMesh, depsgraph):
     return vmap, olv.astype(np.int64)
 
 
+def _mesh_input(em: EvalMesh, name, warnings, mat_cache):
+    """(MeshInput part, loop permutation) of an evaluated mesh in world space."""
+    rho_t, em_t = _surfaces(em.materials, warnings, mat_cache)
+    perm = _reversed_loops(em.loop_start, em.loop_total) if em.flipped else np.arange(len(em.loop_verts))
+    tri = None
+    if em.tri_loops is not None:
+        # input loop j is evaluated loop perm[j] (perm is its own inverse); a mirrored object's
+        # reversed polygons get reversed triangles
+        tri = perm[em.tri_loops][:, ::-1] if em.flipped else em.tri_loops
+    return MeshInput(em.verts, em.loop_start, em.loop_total, em.loop_verts[perm],
+                     rho_t[em.material_index], em_t[em.material_index],
+                     np.zeros(len(em.loop_start), np.int64), [name],
+                     None if tri is None else np.ascontiguousarray(tri)), perm
+
+
+@dataclass
+class InstanceInfo:
+    instancer: str           # the object that instances (collection-instance empty, emitter, ...)
+    source: str              # the instanced object
+    count: int = 0
+    polygons: int = 0        # per instance
+
+
+def collect_instances(view_layer, depsgraph, mat_cache, warnings):
+    """MeshInput parts of the mesh instances of the depsgraph, and {(instancer, source): InstanceInfo}.
+
+    An instance takes part when its instancer renders and is not excluded, and the instanced object
+    is neither a light shape nor excluded. Each instanced mesh is read once (its evaluated data is
+    shared by all its instances) and placed by each instance's world matrix."""
+    ok = {o.name for o in _walk_collections(view_layer)
+          if not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape}
+    shapes = {o.name for o in _walk_collections(view_layer) if o.hr.is_light_shape}
+    meshes, parts, info = {}, [], {}
+    for inst in depsgraph.object_instances:
+        if not inst.is_instance:
+            continue
+        ob = inst.object
+        if ob is None or ob.type != "MESH" or inst.parent is None:
+            continue
+        instancer = inst.parent.original
+        if instancer.name not in ok:
+            continue
+        source = ob.original
+        if source.hr.exclude or source.hr.is_light_shape or source.name in shapes:
+            continue
+        me = ob.data
+        key = (me.as_pointer(), me.name)
+        arrays = meshes.get(key)
+        if arrays is None:
+            arrays = meshes[key] = _mesh_arrays(me)
+        if len(arrays[1]) == 0:
+            continue
+        em = _placed(arrays, inst.matrix_world, [s.material for s in ob.material_slots] or [None])
+        label = f"{instancer.name}/{source.name}"
+        i = info.setdefault((instancer.name, source.name), InstanceInfo(instancer.name, source.name))
+        i.count += 1
+        i.polygons = len(arrays[1])
+        part, _ = _mesh_input(em, f"{label}#{i.count}", warnings, mat_cache)
+        parts.append(part)
+    return parts, info
+
+
+def instances_warning(info):
+    if not info:
+        return None
+    n = sum(i.count for i in info.values())
+    what = ", ".join(f"{i.count} x '{i.source}' (by '{i.instancer}')" for i in list(info.values())[:4])
+    more = ", ..." if len(info) > 4 else ""
+    return (f"{n} instance(s) take part in the light (they receive and cast it) but get no baked output: "
+            f"{what}{more}. Instances share their mesh data, which holds one value per element; "
+            "make them real (Object > Apply > Make Instances Real) to bake their own light.")
+
+
+def _hidden_instancer(obj):
+    """An object that instances (particles shown as objects, vertex/face instancing) and whose own
+    mesh does not render (Object > Instancing > Show Instancer: Render off)."""
+    if obj.show_instancer_for_render:
+        return False
+    return obj.instance_type in {"VERTS", "FACES"} or any(
+        p.settings.render_type in {"OBJECT", "COLLECTION"} for p in obj.particle_systems)
+
+
 def collect_geometry(view_layer, depsgraph) -> SceneInput:
-    objs = geometry_objects(view_layer)
-    if not objs:
-        raise SceneError("No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
+    objs = [o for o in geometry_objects(view_layer) if not _hidden_instancer(o)]
     depsgraph.update()
     warnings, mat_cache = [], {}
+    inst_parts, inst_info = collect_instances(view_layer, depsgraph, mat_cache, warnings)
+    if not objs and not inst_parts:
+        raise SceneError("No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
     parts, targets = [], []
     seen_mesh = {}
+    instancers = {i.instancer for i in inst_info.values()}
     nloop = nvert = 0
     for oid, obj in enumerate(objs):
         em = read_mesh(obj, depsgraph)
         if len(em.loop_start) == 0:
-            warnings.append(f"Object '{obj.name}' has no faces; skipped.")
+            if obj.name not in instancers:
+                warnings.append(f"Object '{obj.name}' has no faces; skipped.")
             continue
-        rho_t, em_t = _surfaces(em.materials, warnings, mat_cache)
-        perm = _reversed_loops(em.loop_start, em.loop_total) if em.flipped else np.arange(len(em.loop_verts))
-        parts.append(MeshInput(em.verts, em.loop_start, em.loop_total, em.loop_verts[perm],
-                               rho_t[em.material_index], em_t[em.material_index],
-                               np.zeros(len(em.loop_start), np.int64), [obj.name]))
+        part, perm = _mesh_input(em, obj.name, warnings, mat_cache)
+        parts.append(part)
         me = obj.data
         same_topology = (len(me.loops) == len(em.loop_verts) and len(me.vertices) == len(em.verts)
                          and len(me.polygons) == len(em.loop_start))
@@ -199,12 +301,16 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
         targets.append(t)
         nloop += len(em.loop_verts)
         nvert += len(em.verts)
+    parts += inst_parts                   # after the targets' parts: their offsets stay valid
+    w = instances_warning(inst_info)
+    if w:
+        warnings.append(w)
     if not parts:
         raise SceneError("No mesh objects with faces to compute radiosity on.")
     mesh = parts[0]
     for p in parts[1:]:
         mesh = mesh.concat(p)
-    return SceneInput(mesh, targets, warnings)
+    return SceneInput(mesh, targets, warnings, inst_info)
 
 
 # --- light shapes -------------------------------------------------------------------------------

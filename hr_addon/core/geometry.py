@@ -1,7 +1,9 @@
 """Input validation and conversion of arbitrary polygons into convex planar patches.
 
 Patches are the roots of the radiosity quadtrees. Triangles and planar convex quads are kept;
-non-planar or concave quads and n-gons are triangulated (n-gons by ear clipping).
+non-planar or concave quads and n-gons are triangulated: as MeshInput.tri_loops says when it is
+given (Blender's loop_triangles, what Cycles and EEVEE render), else here (quads along the inner or
+shorter diagonal, n-gons by ear clipping).
 """
 from dataclasses import dataclass, field
 
@@ -23,6 +25,10 @@ class MeshInput:
     emission: np.ndarray       # (P, 3) emitted radiance, >= 0
     object_id: np.ndarray      # (P,) index into object_names
     object_names: list = field(default_factory=list)
+    # Optional triangulation, (T, 3) loop indices (into loop_verts), each triangle wound like its
+    # polygon, e.g. Blender's mesh.loop_triangles. The polygons that must be split use it (those it
+    # covers); the others are split here.
+    tri_loops: np.ndarray = None
 
     @staticmethod
     def from_polygons(verts, polys, reflectance, emission=None, object_id=None, object_names=None):
@@ -39,6 +45,8 @@ class MeshInput:
 
     def concat(self, other):
         off = len(self.verts)
+        tris = [t for t in (self.tri_loops, None if other.tri_loops is None
+                            else np.asarray(other.tri_loops, np.int64) + len(self.loop_verts)) if t is not None]
         return MeshInput(
             np.concatenate([self.verts, other.verts]),
             np.concatenate([self.loop_start, other.loop_start + len(self.loop_verts)]),
@@ -47,7 +55,8 @@ class MeshInput:
             np.concatenate([self.reflectance, other.reflectance]),
             np.concatenate([self.emission, other.emission]),
             np.concatenate([self.object_id, other.object_id + len(self.object_names)]),
-            list(self.object_names) + list(other.object_names))
+            list(self.object_names) + list(other.object_names),
+            np.concatenate([np.asarray(t, np.int64).reshape(-1, 3) for t in tris]) if tris else None)
 
 
 @dataclass
@@ -179,17 +188,36 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-10) -> Patches
     convex = (turn > 0).all(1)
     keep = planar & convex
     quad_list.append(np.column_stack([q[keep], qv[keep]]))
+    # Polygons that must be split and that the given triangulation covers use it.
+    given = np.zeros(P, bool)
+    if mesh.tri_loops is not None and len(mesh.tri_loops):
+        tl = np.asarray(mesh.tri_loops, np.int64).reshape(-1, 3)
+        if tl.min() < 0 or tl.max() >= len(lv):
+            raise InputError("Triangulation (tri_loops) refers to loops that do not exist.")
+        tpoly = loop_poly[tl]
+        bad = (tpoly != tpoly[:, :1]).any(1)
+        if bad.any():
+            raise InputError(f"Triangulation (tri_loops) mixes the loops of several polygons at {who(int(tpoly[np.argmax(bad), 0]))}.")
+        tpoly = tpoly[:, 0]
+        need = np.zeros(P, bool)
+        need[q[~keep]] = True
+        need[sizes > 4] = True
+        count = np.bincount(tpoly, minlength=P)
+        given = need & (count == np.maximum(sizes - 2, 0))
+        use = given[tpoly]
+        tri_list.append(np.column_stack([tpoly[use], lv[tl[use]]]))
     # Split the others along the diagonal that stays inside (the one through a reflex corner)
     # or, for non-planar quads, the shorter one.
-    sq, sqv, sturn = q[~keep], qv[~keep], turn[~keep]
+    own = ~keep & ~given[q]
+    sq, sqv, sturn = q[own], qv[own], turn[own]
     reflex13 = (sturn[:, 0] <= 0) | (sturn[:, 2] <= 0)   # turn k is at corner k+1
-    use02 = np.where(planar[~keep], ~reflex13,
-                     np.linalg.norm(qp[~keep][:, 2] - qp[~keep][:, 0], axis=1)
-                     <= np.linalg.norm(qp[~keep][:, 3] - qp[~keep][:, 1], axis=1))
+    use02 = np.where(planar[own], ~reflex13,
+                     np.linalg.norm(qp[own][:, 2] - qp[own][:, 0], axis=1)
+                     <= np.linalg.norm(qp[own][:, 3] - qp[own][:, 1], axis=1))
     tri_list.append(np.column_stack([sq, np.where(use02[:, None], sqv[:, [0, 1, 2]], sqv[:, [0, 1, 3]])]))
     tri_list.append(np.column_stack([sq, np.where(use02[:, None], sqv[:, [0, 2, 3]], sqv[:, [1, 2, 3]])]))
 
-    for i in np.flatnonzero(sizes > 4):
+    for i in np.flatnonzero((sizes > 4) & ~given):
         idx = lv[starts[i]:starts[i] + sizes[i]]
         tri_list.append(np.array([(i, *tr) for tr in _ear_clip(verts[idx], idx)], dtype=np.int64).reshape(-1, 4))
 

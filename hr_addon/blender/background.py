@@ -1,0 +1,282 @@
+"""The interactive bake as a separate background process, so Blender's UI never blocks.
+
+BackgroundBake saves a copy of the current file (unsaved changes included) to a temporary folder
+and starts a worker on it:
+  - inside Blender: Blender's own binary, `blender -b --python-expr <enable the extension, run
+    hr_bake> -- copy.blend --cache-dir <real cache> --status-file <status.json> ...`;
+  - with the bpy module (no Blender binary, bpy.app.binary_path is empty): `python -m hr_addon
+    bake copy.blend ...` with this package's folder on PYTHONPATH.
+The worker writes into the real cache folder (through the cache writer's temporary folder, which
+replaces the cache only when the bake is complete) and reports its progress in a small JSON
+status file (jobstatus.py) that poll() reads. When it has finished, poll() points the scene at the
+bake and loads the current frame. cancel() stops the worker (SIGTERM: it removes its partial
+bake; whatever is left of it is removed here too), so the previous bake is kept.
+
+No bpy state is touched by the worker: the user's file, scene and meshes stay as they were.
+The modal operator (ops.HR_OT_bake) only calls start(), poll() on a timer and cancel(); tests
+drive the same class in a loop.
+"""
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import bpy
+from bpy.app.handlers import persistent
+
+from . import jobstatus, playback, texture
+from .bake import cache_dir_for, frame_range_for, use_bake
+from .scene_in import SceneError, geometry_objects
+
+PACKAGE_DIR = Path(__file__).resolve().parents[1]          # .../hr_addon
+ADDON_MODULE = __package__.rsplit(".hr_addon.blender", 1)[0] if ".hr_addon.blender" in __package__ else ""
+
+_active = None
+
+
+def active():
+    """The BackgroundBake that is running (or has just finished and not been collected)."""
+    return _active
+
+
+def running():
+    return _active is not None and _active.state == "running"
+
+
+class BackgroundBake:
+    """One background bake. overrides: method, quality, frames, output, ... as in bake_frames."""
+
+    def __init__(self, scene, view_layer=None, **overrides):
+        self.scene_name = scene.name_full
+        self.view_layer_name = (view_layer or scene.view_layers[0]).name
+        self.overrides = overrides
+        self.blend = bpy.data.filepath
+        self.state = "new"          # new, running, done, failed, cancelled
+        self.status = {}            # the last good status read from the worker
+        self.error = ""
+        self.summary = ""
+        self.warnings = []
+        self.proc = None
+        self.tmp = None
+        self.final_dir = ""
+        self.output = ""
+        self.loaded = False
+        self.started = 0.0
+        self.seen = []              # (fraction, stage, frame, eta) of every status read (tests)
+
+    # -- what the UI shows ----------------------------------------------------------------------
+    @property
+    def fraction(self):
+        return 1.0 if self.state == "done" else float(self.status.get("fraction") or 0.0)
+
+    @property
+    def eta(self):
+        return self.status.get("eta")
+
+    @property
+    def frame(self):
+        return self.status.get("frame")
+
+    def text(self):
+        """One line: percent, frame, time left."""
+        if self.state == "done":
+            return "Bake finished"
+        if self.state in ("failed", "cancelled"):
+            return "Bake cancelled; the previous bake is kept" if self.state == "cancelled" else self.error
+        s = self.status
+        parts = [f"{100 * self.fraction:.0f}%"]
+        if s.get("stage") == "frame" and s.get("total"):
+            parts.append(f"frame {s.get('frame')} ({s.get('done')}/{s.get('total')})")
+        elif s.get("stage") == "build":
+            parts.append("building the hierarchy")
+        else:
+            parts.append("starting")
+        if self.eta is not None:
+            parts.append(f"about {jobstatus.duration(self.eta)} left")
+        return " \u00b7 ".join(parts)
+
+    # -- worker ---------------------------------------------------------------------------------
+    def _scene(self):
+        return bpy.data.scenes.get(self.scene_name)
+
+    def _args(self, copy, status_path, scene):
+        o = self.overrides
+        # --option=value throughout: values may start with "-" (negative frames, names)
+        args = [copy, f"--scene={scene.name}", f"--view-layer={self.view_layer_name}",
+                f"--cache-dir={self.final_dir}", f"--status-file={status_path}"]
+        frames = frame_range_for(scene, o.get("frames"))
+        args.append(f"--frames={frames[0]}..{frames[1]}")
+        for key in ("method", "quality", "domain", "output", "texture_format"):
+            if o.get(key):
+                args.append(f"--{key.replace('_', '-')}={str(o[key]).lower()}")
+        for key in ("feps", "aeps", "resolution"):
+            if o.get(key) is not None:
+                args.append(f"--{key}={o[key]!r}")
+        hr = scene.hr
+        if not o.get("quality") and hr.quality == "CUSTOM" and o.get("feps") is None:
+            args += [f"--feps={float(hr.feps)!r}", f"--aeps={float(hr.aeps)!r}"]
+        return args
+
+    def command(self, args, binary=None, module=None):
+        """(argv, env) of the worker process: Blender's binary (default bpy.app.binary_path) running
+        the extension `module` (default: this one), else `python -m hr_addon`."""
+        env = dict(os.environ)
+        binary = bpy.app.binary_path if binary is None else binary
+        module = ADDON_MODULE if module is None else module
+        if binary and module:
+            expr = ("import sys, addon_utils, bpy\n"
+                    f"m = {module!r}\n"
+                    "if m not in bpy.context.preferences.addons:\n"
+                    "    addon_utils.enable(m, default_set=False)\n"
+                    "from importlib import import_module\n"
+                    "cli = import_module(m + '.hr_addon.blender.cli')\n"
+                    "sys.exit(cli.run(sys.argv[sys.argv.index('--') + 1:]))\n")
+            return [binary, "-b", "--python-exit-code", "1", "--python-expr", expr, "--", *args], env
+        # bpy module (tests, scripts): this package runs as `python -m hr_addon`
+        paths = [str(PACKAGE_DIR.parent)]
+        try:
+            import embreex
+            paths.append(str(Path(embreex.__file__).resolve().parents[1]))
+        except ImportError:
+            pass
+        old = env.get("PYTHONPATH")
+        env["PYTHONPATH"] = os.pathsep.join(paths + ([old] if old else []))
+        return [sys.executable, "-m", PACKAGE_DIR.name, "bake", *args], env
+
+    def start(self):
+        """Save the copy and start the worker. Raises SceneError (one-line reason) if it cannot."""
+        global _active
+        if running():
+            raise SceneError("A radiosity bake is already running.")
+        scene = self._scene()
+        view_layer = scene.view_layers.get(self.view_layer_name)
+        self.final_dir = cache_dir_for(scene)
+        if not geometry_objects(view_layer):
+            raise SceneError("No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
+        frame_range_for(scene, self.overrides.get("frames"))
+        self.output = (self.overrides.get("output") or scene.hr.output).upper()
+        if self.output == "TEXTURE":
+            # The lightmap UV maps belong to the user's meshes: make them here, the copy gets them.
+            res = int(self.overrides.get("resolution") or scene.hr.texture_resolution)
+            try:
+                self.warnings += texture.ensure_lightmaps(geometry_objects(view_layer), res)
+            except texture.TextureError as exc:
+                raise SceneError(str(exc)) from None
+        self.tmp = Path(tempfile.mkdtemp(prefix="hr_bake_"))
+        copy = str(self.tmp / (os.path.basename(self.blend) or "untitled.blend"))
+        status_path = str(self.tmp / "status.json")
+        try:
+            bpy.ops.wm.save_as_mainfile(filepath=copy, copy=True, check_existing=False, relative_remap=True)
+        except RuntimeError as exc:
+            self._cleanup()
+            raise SceneError(f"Cannot save a copy of the file for the background bake: {exc}") from None
+        argv, env = self.command(self._args(copy, status_path, scene))
+        self.status_path = status_path
+        self.log_path = self.tmp / "worker.log"
+        log = open(self.log_path, "wb")
+        try:
+            self.proc = subprocess.Popen(argv, env=env, cwd=str(self.tmp), stdin=subprocess.DEVNULL,
+                                         stdout=log, stderr=subprocess.STDOUT)
+        except OSError as exc:
+            self._cleanup()
+            raise SceneError(f"Cannot start the background bake ({argv[0]}): {exc}") from None
+        finally:
+            log.close()
+        self.state = "running"
+        self.started = time.monotonic()
+        _active = self
+        return self
+
+    def _read(self):
+        s = jobstatus.read_status(self.status_path)
+        if s is not None and s.get("pid") == self.proc.pid:     # not a stale file of another worker
+            self.status = s
+            self.warnings += [w for w in s["warnings"] if w not in self.warnings]
+            self.seen.append((s["fraction"], s.get("stage"), s.get("frame"), s.get("eta")))
+        return s
+
+    def _log_error(self):
+        try:
+            lines = self.log_path.read_text(errors="replace").splitlines()
+        except OSError:
+            return ""
+        errs = [ln.split("error:", 1)[1].strip() for ln in lines if "hr_bake: error:" in ln]
+        return errs[-1] if errs else (lines[-1].strip() if lines else "")
+
+    def poll(self):
+        """Read the worker's progress; when it has ended, load the result. True while running."""
+        if self.state != "running":
+            return False
+        self._read()
+        rc = self.proc.poll()
+        if rc is None:
+            return True
+        s = self._read() or self.status
+        if s.get("state") == "done" and rc == 0:
+            self.summary = s.get("summary", "")
+            self.state = "done"
+            self._use_result()
+        elif s.get("state") == "cancelled":
+            self.state = "cancelled"
+        else:
+            self.state = "failed"
+            self.error = s.get("error") or self._log_error() or f"the bake process exited with code {rc}"
+        self._cleanup()
+        return False
+
+    def _use_result(self):
+        scene = self._scene()
+        if scene is None or bpy.data.filepath != self.blend:
+            self.warnings.append(f"The bake finished in {self.final_dir}, but another file is open now.")
+            return
+        use_bake(scene, self.final_dir, self.output)
+        playback.forget_loaded()
+        self.loaded = playback.load_frame(scene)
+
+    def cancel(self, timeout=15.0):
+        """Stop the worker; its partial bake is removed and the previous bake is kept."""
+        if self.state != "running":
+            return
+        proc = self.proc
+        if proc.poll() is None:
+            proc.terminate()                 # SIGTERM: the worker removes its partial bake
+            try:
+                proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        self.state = "cancelled"
+        self._cleanup()
+
+    def _cleanup(self):
+        global _active
+        final = Path(self.final_dir) if self.final_dir else None
+        if final is not None and self.proc is not None and final.parent.is_dir():
+            # the worker's temporary cache folder, if it could not remove it itself (killed)
+            for d in final.parent.glob(f".{final.name}.baking-{self.proc.pid}-*"):
+                shutil.rmtree(d, ignore_errors=True)
+        if self.tmp is not None:
+            shutil.rmtree(self.tmp, ignore_errors=True)
+        if _active is self and self.state != "running":
+            _active = None
+
+
+@persistent
+def _on_load_pre(*args):
+    """Opening another file while a bake runs: stop the bake (its scene is going away)."""
+    if running():
+        _active.cancel()
+
+
+def register():
+    playback._remove(bpy.app.handlers.load_pre, _on_load_pre)
+    bpy.app.handlers.load_pre.append(_on_load_pre)
+
+
+def unregister():
+    if running():
+        _active.cancel()
+    playback._remove(bpy.app.handlers.load_pre, _on_load_pre)

@@ -1,0 +1,216 @@
+"""Bake UX: operator polls, Preview without a bake, Delete Bake, the Lock Interface message in the
+panel, playback that does not rewrite HR_Radiance for frames mapping to the same cached file,
+descriptive labels, and the build's progress reaching the headless bake's output."""
+import numpy as np
+import pytest
+
+from test_blender_helpers import attribute, load_bpy, open_sample
+
+
+def _bake(**kw):
+    import bpy
+    from hr_addon.blender.bake import run_bake
+    kw.setdefault("quality", "draft")
+    return run_bake(bpy.context.scene, log=lambda *a, **k: None, **kw)
+
+
+def test_preview_and_cache_operators_need_a_bake(tmp_path):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    for op in (bpy.ops.hr.add_preview, bpy.ops.hr.load_frame, bpy.ops.hr.delete_bake):
+        assert not op.poll()
+    with pytest.raises(RuntimeError, match="bake first"):
+        bpy.ops.hr.add_preview()
+    assert not bpy.ops.hr.remove_preview.poll()       # nothing to remove
+    assert not bpy.ops.hr.cancel_bake.poll()          # nothing running
+    assert bpy.ops.hr.bake.poll()
+    _bake(frames=(1, 2), method="FE")
+    assert bpy.ops.hr.add_preview.poll() and bpy.ops.hr.load_frame.poll() and bpy.ops.hr.delete_bake.poll()
+    assert bpy.ops.hr.add_preview() == {"FINISHED"}
+    assert bpy.ops.hr.remove_preview.poll()
+
+
+def test_bake_poll_refuses_unsaved_file():
+    bpy = load_bpy()
+    bpy.ops.wm.read_factory_settings(use_empty=False)
+    assert not bpy.ops.hr.bake.poll()
+
+
+def test_delete_bake_removes_the_files(tmp_path):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    _bake(frames=(5, 7), method="FE")
+    cache = tmp_path / "hr_cache" / "cornell"
+    assert (cache / "manifest.json").is_file()
+    other = tmp_path / "hr_cache" / "notes.txt"
+    other.write_text("not ours")
+    scene = bpy.context.scene
+    scene.frame_set(6)
+    assert "HR_Radiance" in bpy.data.objects["floor"].data.color_attributes
+    assert bpy.ops.hr.delete_bake() == {"FINISHED"}       # EXEC: the confirmation is invoke()'s
+    assert not cache.exists()
+    assert other.read_text() == "not ours"                 # only the bake's own files go
+    assert scene.hr.bake_dir == "" and not scene.hr.playback
+    assert "HR_Radiance" not in bpy.data.objects["floor"].data.color_attributes
+    assert not bpy.ops.hr.delete_bake.poll()
+
+
+def test_delete_refuses_a_folder_that_is_not_a_bake(tmp_path):
+    load_bpy()
+    from hr_addon.blender.cache import CacheError
+    from hr_addon.blender.ops import delete_cache_files
+    d = tmp_path / "precious"
+    d.mkdir()
+    (d / "frame_000001.npz").write_bytes(b"mine")
+    with pytest.raises(CacheError):
+        delete_cache_files(str(d))
+    assert (d / "frame_000001.npz").read_bytes() == b"mine"
+
+
+def test_playback_skips_rewriting_same_cached_file(tmp_path, monkeypatch):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import playback
+    _bake(frames=(1, 24), method="FE")        # files for frames 1, 6, 13, 21 only
+    scene = bpy.context.scene
+    writes = []
+    original = playback.write_attribute
+    monkeypatch.setattr(playback, "write_attribute", lambda me, v, d: (writes.append(me.name), original(me, v, d)))
+    scene.frame_set(6)
+    n = len(writes)
+    assert n > 0
+    shown = attribute(bpy.data.objects["back"])
+    for f in (7, 8, 12):                      # all map to frame_000006.npz
+        scene.frame_set(f)
+    assert len(writes) == n
+    np.testing.assert_array_equal(attribute(bpy.data.objects["back"]), shown)
+    scene.frame_set(13)                       # another file
+    assert len(writes) == 2 * n
+    # removing the attribute (or undo) makes the next frame change write it again
+    me = bpy.data.objects["back"].data
+    me.color_attributes.remove(me.color_attributes["HR_Radiance"])
+    scene.frame_set(14)
+    assert len(writes) == 3 * n and "HR_Radiance" in me.color_attributes
+
+
+def test_lock_interface_message_in_panel(tmp_path, monkeypatch):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import playback
+    _bake(frames=(1, 7), method="FE")
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    monkeypatch.setattr(playback, "render_unlocked", lambda s: True)   # a render without Lock Interface
+    before = attribute(bpy.data.objects["right_green"])
+    scene.frame_set(6)
+    assert playback.status(scene) == playback.LOCK_MESSAGE              # what the panel shows
+    np.testing.assert_array_equal(attribute(bpy.data.objects["right_green"]), before)   # not loaded
+    monkeypatch.setattr(playback, "render_unlocked", lambda s: False)
+    scene.frame_set(7)
+    assert playback.status(scene) == ""
+
+
+def test_descriptive_labels():
+    bpy = load_bpy()
+    props = bpy.types.Scene.bl_rna.properties["hr"].fixed_type.properties
+    assert props["feps"].name == "Link threshold (Feps)"
+    assert props["aeps"].name == "Smallest element (Aeps)"
+
+
+def test_headless_bake_prints_build_progress_and_rays(tmp_path):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender.bake import run_bake
+    lines = []
+    seen = []
+    res = run_bake(bpy.context.scene, log=lambda m, **k: lines.append(m), status=seen.append,
+                   frames=(1, 3), method="FE", quality="medium")
+    build = [p for p in seen if p.stage == "build"]
+    assert len(build) >= 2 and all(0 <= p.fraction <= 0.5 for p in build), [p.fraction for p in build]
+    assert any(ln.startswith("HR Radiosity: Building the hierarchy: ") for ln in lines), lines
+    assert res.rays == "embree" and lines[-1].endswith("rays: embree)"), lines[-1]
+
+
+def test_invoke_in_background_mode_bakes_synchronously(tmp_path):
+    """No event loop in `blender -b` / the bpy module: the button's INVOKE bakes in this process."""
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import background
+    scene = bpy.context.scene
+    scene.hr.use_frame_range = True
+    scene.hr.frame_start = scene.hr.frame_end = 6
+    scene.hr.quality = "DRAFT"
+    assert bpy.ops.hr.bake("INVOKE_DEFAULT") == {"FINISHED"}
+    assert background.active() is None
+    assert (tmp_path / "hr_cache" / "cornell" / "manifest.json").is_file()
+
+
+def test_without_embreex_the_bake_says_numpy(tmp_path, monkeypatch):
+    """A platform without a wheel: the numpy tracer, and the summary and manifest say so."""
+    import sys
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    for name in [m for m in sys.modules if m == "embreex" or m.startswith("embreex.")]:
+        monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "embreex", None)          # import embreex -> ImportError
+    lines = []
+    from hr_addon.blender.bake import run_bake
+    from hr_addon.blender.cache import CacheReader
+    res = run_bake(bpy.context.scene, log=lambda m, **k: lines.append(m), frames=(1, 1), quality="draft")
+    assert res.rays == "numpy" and "embreex not available" in res.rays_note
+    assert "rays: numpy (embreex not available" in lines[-1], lines[-1]
+    m = CacheReader(tmp_path / "hr_cache" / "cornell").manifest
+    assert m["rays"] == "numpy" and "embreex not available" in m["rays_note"]
+
+
+class _Event:
+    def __init__(self, type, timer=None):
+        self.type, self.timer = type, timer
+
+
+def test_modal_bake_passes_every_event_through(tmp_path):
+    """The modal operator never consumes an event (the UI stays usable) and only polls on its own
+    timer; when the worker ends it reports and finishes. Driven with stand-ins for the window
+    manager (there is no event loop in background mode)."""
+    load_bpy()
+    from types import SimpleNamespace
+    from hr_addon.blender.ops import HR_OT_bake
+
+    class Job:
+        def __init__(self):
+            self.polls, self.state, self.warnings, self.summary = 0, "running", ["w1"], "baked frames 1-2 ..."
+
+        def poll(self):
+            self.polls += 1
+            if self.polls == 3:
+                self.state = "done"
+            return self.state == "running"
+
+        def text(self):
+            return "50% · frame 1 (1/2)"
+
+    timer, other_timer = object(), object()
+    reports, status = [], []
+    workspace = SimpleNamespace(status_text_set=status.append)
+    wm = SimpleNamespace(windows=[SimpleNamespace(workspace=workspace, screen=SimpleNamespace(areas=[]))],
+                         event_timer_remove=lambda t: reports.append(("timer removed", t is timer)))
+    context = SimpleNamespace(window_manager=wm)
+    op = SimpleNamespace(_job=Job(), _timer=timer, report=lambda kind, msg: reports.append((sorted(kind)[0], msg)))
+    for ev in ("MOUSEMOVE", "LEFTMOUSE", "ESC", "SPACE", "WHEELUPMOUSE", "A"):
+        assert HR_OT_bake.modal(op, context, _Event(ev)) == {"PASS_THROUGH"}
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", other_timer)) == {"PASS_THROUGH"}
+    assert op._job.polls == 0
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"PASS_THROUGH"}
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"PASS_THROUGH"}
+    assert status == ["HR Radiosity: 50% · frame 1 (1/2)"] * 2
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"FINISHED"}
+    assert status[-1] is None and ("timer removed", True) in reports
+    assert ("WARNING", "w1") in reports and ("INFO", "HR Radiosity: baked frames 1-2 ...") in reports
+
+
+def test_ray_backend_name_from_the_build_report():
+    load_bpy()
+    from types import SimpleNamespace
+    from hr_addon.blender.bake import ray_backend_name
+    assert ray_backend_name(SimpleNamespace(backend=SimpleNamespace(name="embree"))) == "embree"
+    assert ray_backend_name(SimpleNamespace(build=SimpleNamespace(backend="NumpyBackend"))) == "numpy"
