@@ -333,9 +333,12 @@ class FarLinks:
     Their transfer weights live in the solver's extended index space: cluster c's 9 SH slots at
     9c .. 9c + 8, patch node i at 9C + i (so nodes added later do not shift them)."""
 
-    def __init__(self, tree: ClusterTree, a, b, vis, mask, part_a=None, part_b=None, eps=0.0, grad_eps=0.0):
+    def __init__(self, tree: ClusterTree, a, b, vis, mask, part_a=None, part_b=None, eps=0.0, grad_eps=0.0,
+                 scale=None):
         self.tree, self.eps = tree, eps   # eps: the sample points' offset off their surfaces
         self.grad_eps = grad_eps          # gradients only where they matter (terms())
+        # visibility of weak links traced with 4 segments only (their mask is full)
+        self.scale = np.ones(len(a)) if scale is None else np.asarray(scale, float)
         self.a, self.b, self.vis = np.asarray(a, np.int64), np.asarray(b, np.int64), np.asarray(vis, float)
         self.mask = np.asarray(mask, np.uint16)
         z = np.zeros(len(self.a), bool)
@@ -349,7 +352,7 @@ class FarLinks:
         """After Hierarchy.compact: renumber the patch-node ends."""
         ren = lambda x: np.where(x >= 0, remap[np.maximum(x, 0)], x)
         return FarLinks(self.tree, ren(self.a), ren(self.b), self.vis, self.mask, self.part_a, self.part_b,
-                        self.eps, self.grad_eps)
+                        self.eps, self.grad_eps, self.scale)
 
     def terms(self, h, chunk=8192):
         """The links' transfer in two passes through one intermediate value per link direction
@@ -380,7 +383,7 @@ class FarLinks:
             r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
             u = d / np.sqrt(r2)[..., None]
             vis = ((self.mask[sl, None] >> np.arange(16)) & 1).reshape(-1, 4, 4)
-            k = vis / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]
+            k = vis * self.scale[sl, None, None] / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]
             K = k.sum((1, 2))
             Kn = np.where(K > 0, K, 1.0)
             fa = np.einsum("nis,nisc->nc", k, _end_factors(a, ea, self.part_a[sl], u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9)) / Kn[:, None]
@@ -473,37 +476,41 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     for links above shadow_feps, visibility is not partial. Pairs wholly behind one end are
     dropped. Otherwise an end is split: a cluster into its children, a patch node into its
     quadtree children. Pairs of two patch nodes are returned for the ordinary patch refinement.
-    Returns (FarLinks, node pairs p, q)."""
+    Returns (FarLinks, node pairs p, q, and their known visibility: 1 or nan)."""
     h, prm = refiner.h, refiner.params
     aeps = prm.aeps * refiner.total_area
     far, nodes = [], []
     root = encode([0])
     total_w = 0.5 * tree.area[0] ** 2
     done_w = 0.0
-    pending = [(root, root)]
+    # pending pairs carry what is known of their visibility: nan unknown, 1 wholly visible (a
+    # parent's 16 segments were all unoccluded: its children need no rays, as in HR)
+    pending = [(root, root, np.full(1, np.nan))]
+    full = np.uint16(0xFFFF)
 
     def weight(a, b):
         aa, ab = _area(tree, h, a), _area(tree, h, b)
         return np.where(a == b, 0.5 * aa * aa, aa * ab).sum()
 
     while pending:
-        a, b = pending.pop()
+        a, b, known = pending.pop()
         if len(a) > CHUNK:
-            pending.append((a[CHUNK:], b[CHUNK:]))
-            a, b = a[:CHUNK], b[:CHUNK]
+            pending.append((a[CHUNK:], b[CHUNK:], known[CHUNK:]))
+            a, b, known = a[:CHUNK], b[:CHUNK], known[:CHUNK]
         refiner.stats["cluster_pairs"] += len(a)
         same = a == b
         if same.any():
             s = a[same & (a < 0)]
             done_w += weight(a[same & (a >= 0)], a[same & (a >= 0)])
             if len(s):
-                pending.append(_self_pairs(tree, decode(s)))
-            a, b = a[~same], b[~same]
+                sa, sb = _self_pairs(tree, decode(s))
+                pending.append((sa, sb, np.full(len(sa), np.nan)))
+            a, b, known = a[~same], b[~same], known[~same]
         both = (a >= 0) & (b >= 0)
         if both.any():
-            nodes.append((a[both], b[both]))
+            nodes.append((a[both], b[both], known[both]))
             done_w += weight(a[both], b[both])
-            a, b = a[~both], b[~both]
+            a, b, known = a[~both], b[~both], known[~both]
         if not len(a):
             continue
         ea, eb = Ends(tree, h, a), Ends(tree, h, b)
@@ -533,14 +540,15 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             var_a[cand], var_b[cand] = _variation(tree, h, a[cand], b[cand], refiner.eps)
         even = fmax * np.maximum(var_a, var_b) < prm.cluster_veps
         ok = ~drop & facing & small & even & (fmax < np.where(pa | pb, prm.partial_feps * prm.feps, prm.feps))
-        vis, mask = np.full(len(a), np.nan), np.zeros(len(a), np.uint16)
+        vis = known.copy()
+        mask = np.where(known == 1, full, np.uint16(0))
         if prm.shadow_feps > 0:
-            shadow = ok & (fmax > prm.shadow_feps)
+            shadow = ok & (fmax > prm.shadow_feps) & np.isnan(vis)
             if shadow.any():
-                vis[shadow], mask[shadow] = far_visibility(refiner, tree, a[shadow], b[shadow])
+                vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow])
                 ok &= ~(shadow & (vis > 0) & (vis < 1))
         if ok.any():
-            far.append((a[ok], b[ok], vis[ok], mask[ok], pa[ok], pb[ok]))
+            far.append((a[ok], b[ok], vis[ok], mask[ok], pa[ok], pb[ok], fmax[ok]))
         done_w += weight(a[drop | ok], b[drop | ok])
         todo = ~drop & ~ok
         # Which end to split, by the first test that failed. Facing (a node whose plane cuts the
@@ -570,46 +578,58 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         take = ~by_face & ~by_size & np.where(prefer_a, ~can_a, ~can_b)
         if take.any():
             idx = np.flatnonzero(todo)[take]
-            v, m = vis[idx], mask[idx]
-            need = np.isnan(v)
-            if need.any():
-                v[need], m[need] = far_visibility(refiner, tree, a[take][need], b[take][need])
-            far.append((a[take], b[take], v, m, pa[idx], pb[idx]))
+            far.append((a[take], b[take], vis[idx], mask[idx], pa[idx], pb[idx], fmax[idx]))
             done_w += weight(a[take], b[take])
         split_a = ~take & can_a & (prefer_a | ~can_b)
         split_b = ~take & ~split_a & can_b
-        new_a, new_b = [], []
+        # Visibility of pairs about to be split whose ends are small against their distance
+        # (size < vis_inherit; the 4 x 4 segments then see most of what lies between): wholly
+        # occluded pairs are dropped with all their descendants, wholly visible ones hand that
+        # on; partly visible ones leave it to their children.
+        kv = vis[todo]
+        test = (split_a | split_b) & np.isnan(kv) & (size[todo] < prm.vis_inherit)
+        if test.any():
+            kv[test] = far_visibility(refiner, tree, a[test], b[test])[0]
+            hidden = test & (kv == 0)
+            done_w += weight(a[hidden], b[hidden])
+            split_a &= ~hidden
+            split_b &= ~hidden
+        kv = np.where(kv == 1, 1.0, np.nan)
+        new_a, new_b, new_k = [], [], []
         for sel, x, y in ((split_a, a, b), (split_b, b, a)):
-            xs, ys = x[sel], y[sel]
+            xs, ys, ks = x[sel], y[sel], kv[sel]
             cl = xs < 0
             if cl.any():
                 kids, owner = tree.children(decode(xs[cl]))
                 new_a.append(kids)
                 new_b.append(ys[cl][owner])
+                new_k.append(ks[cl][owner])
             nd = xs[~cl]
             if len(nd):
                 h.subdivide(np.unique(nd[h.child0[nd] < 0]))
                 new_a.append(h.children(nd).ravel())
                 new_b.append(np.repeat(ys[~cl], 4))
+                new_k.append(np.repeat(ks[~cl], 4))
         if new_a:
-            pending.append((np.concatenate(new_a), np.concatenate(new_b)))
+            pending.append((np.concatenate(new_a), np.concatenate(new_b), np.concatenate(new_k)))
         if progress is not None:
             progress.update("clusters", done_w, total_w)
     if far:
-        fa_, fb_, fv, fm, pa_, pb_ = (np.concatenate(x) for x in zip(*far))
+        fa_, fb_, fv, fm, pa_, pb_, ff_ = (np.concatenate(x) for x in zip(*far))
+        fs = np.ones(len(fv))
         todo = np.flatnonzero(np.isnan(fv))
         for i in range(0, len(todo), CHUNK):
             t = todo[i:i + CHUNK]
-            fv[t], fm[t] = far_visibility(refiner, tree, fa_[t], fb_[t])
+            fv[t], fm[t], fs[t] = far_visibility(refiner, tree, fa_[t], fb_[t], ff_[t] < prm.shadow_feps)
         keep = fv > 0
         links = FarLinks(tree, fa_[keep], fb_[keep], fv[keep], fm[keep], pa_[keep], pb_[keep], refiner.eps,
-                         0.1 * prm.cluster_veps)
+                         0.1 * prm.cluster_veps, fs[keep])
     else:
         z = np.zeros(0)
         links = FarLinks(tree, z.astype(np.int64), z.astype(np.int64), z, z.astype(np.uint16))
-    p = np.concatenate([n[0] for n in nodes]) if nodes else np.zeros(0, np.int64)
-    q = np.concatenate([n[1] for n in nodes]) if nodes else np.zeros(0, np.int64)
-    return links, p, q
+    p, q, kv = ((np.concatenate(x) for x in zip(*nodes)) if nodes else
+                (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)))
+    return links, p, q, kv
 
 
 def _variation(tree, h, a, b, eps):
@@ -647,15 +667,28 @@ def _self_pairs(tree, c):
     return np.concatenate(out_a), np.concatenate(out_b)
 
 
-def far_visibility(refiner, tree, a, b):
-    """(vis, mask) of far links: the unoccluded fraction of the 4 x 4 segments between the ends'
-    sample points, and which of them are unoccluded (bit 4 i + j: sample i of a, j of b)."""
+def far_visibility(refiner, tree, a, b, weak=None):
+    """(vis, mask, scale) of far links: the unoccluded fraction of the 4 x 4 segments between the
+    ends' sample points and which of them are unoccluded (bit 4 i + j: sample i of a, j of b).
+    Weak links (mask `weak`) trace only the 4 segments i -> 3 - i: their mask is full and
+    `scale` holds their visibility fraction instead (1 for the others)."""
     import time
     t0 = time.perf_counter()
     h, eps = refiner.h, refiner.eps
     pa, pb = sample_points(tree, h, a, eps)[0], sample_points(tree, h, b, eps)[0]
-    occ = refiner.backend.occluded(np.repeat(pa, 4, axis=1).reshape(-1, 3),
-                                   np.tile(pb, (1, 4, 1)).reshape(-1, 3)).reshape(-1, 16)
-    refiner.stats["rays"] += occ.size
+    weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)
+    vis, mask, scale = np.empty(len(a)), np.empty(len(a), np.uint16), np.ones(len(a))
+    st = ~weak
+    if st.any():
+        occ = refiner.backend.occluded(np.repeat(pa[st], 4, axis=1).reshape(-1, 3),
+                                       np.tile(pb[st], (1, 4, 1)).reshape(-1, 3)).reshape(-1, 16)
+        vis[st] = 1.0 - occ.mean(1)
+        mask[st] = ((~occ) * (1 << np.arange(16))).sum(1)
+        refiner.stats["rays"] += occ.size
+    if weak.any():
+        occ = refiner.backend.occluded(pa[weak], pb[weak][:, ::-1]).reshape(-1, 4)
+        vis[weak] = scale[weak] = 1.0 - occ.mean(1)
+        mask[weak] = 0xFFFF
+        refiner.stats["rays"] += occ.size
     refiner.stats["t_vis"] += time.perf_counter() - t0
-    return 1.0 - occ.mean(1), ((~occ) * (1 << np.arange(16))).sum(1).astype(np.uint16)
+    return vis, mask, scale

@@ -39,6 +39,7 @@ class RefineParams:
     cluster_ratio: float = 0.3  # far links need (radius_a + radius_b) < cluster_ratio x distance
     partial_feps: float = 0.5   # far links with a partly facing cluster end need F < partial_feps x feps
     cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
+    vis_inherit: float = 0.3  # split pairs at most this size (radii / distance) pass on full or no visibility
 
     @staticmethod
     def preset(name):
@@ -237,8 +238,9 @@ class Refiner:
             out[sl] = hit.any(1)
         return out
 
-    def visibility(self, a, b):
-        """Fraction of vis_k^2 x vis_k^2 segments between the two nodes that are unoccluded."""
+    def visibility(self, a, b, weak=None):
+        """Fraction of vis_k^2 x vis_k^2 segments between the two nodes that are unoccluded;
+        weak links (mask) trace only the vis_k^2 segments from point i to point s - 1 - i."""
         import time
         t0 = time.perf_counter()
         h, k = self.h, self.params.vis_k
@@ -246,39 +248,50 @@ class Refiner:
         test = self._maybe_occluded(a, b)
         self.stats["pairs_culled"] += int(len(a) - test.sum())
         a, b = a[test], b[test]
+        weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)[test]
         if len(a) == 0:
             self.stats["t_vis"] += time.perf_counter() - t0
             return vis
         pa = ff.sample_points(h.corners[a], h.nv[a], k) + self.eps * h.normal[a][:, None]
         pb = ff.sample_points(h.corners[b], h.nv[b], k) + self.eps * h.normal[b][:, None]
         s = k * k
-        ra = np.repeat(pa, s, axis=1).reshape(-1, 3)
-        rb = np.tile(pb, (1, s, 1)).reshape(-1, 3)
-        vis[test] = 1.0 - self.backend.occluded(ra, rb).reshape(-1, s * s).mean(1)
-        self.stats["rays"] += len(ra)
+        out = np.empty(len(a))
+        st = ~weak
+        if st.any():
+            ra = np.repeat(pa[st], s, axis=1).reshape(-1, 3)
+            rb = np.tile(pb[st], (1, s, 1)).reshape(-1, 3)
+            out[st] = 1.0 - self.backend.occluded(ra, rb).reshape(-1, s * s).mean(1)
+            self.stats["rays"] += len(ra)
+        if weak.any():
+            out[weak] = 1.0 - self.backend.occluded(pa[weak], pb[weak][:, ::-1]).mean(1)
+            self.stats["rays"] += int(weak.sum()) * s
+        vis[test] = out
         self.stats["t_vis"] += time.perf_counter() - t0
         return vis
 
-    def refine(self, p, q, good_enough=None):
+    def refine(self, p, q, good_enough=None, known=None):
         """HSA loop from candidate pairs (p, q); returns the new Links.
 
-        good_enough(p, q, f_pq, f_qp) -> bool mask may replace the Feps test (BF refinement)."""
+        good_enough(p, q, f_pq, f_qp) -> bool mask may replace the Feps test (BF refinement).
+        known: per pair, 1 where it is known to be wholly visible (no rays needed for it or the
+        pairs it splits into), else nan."""
         import time
         t0 = time.perf_counter()
         h, prm = self.h, self.params
         aeps = prm.aeps * self.total_area
         out = []
         p, q = np.asarray(p, np.int64), np.asarray(q, np.int64)
+        kv = np.full(len(p), np.nan) if known is None else np.asarray(known, float)
         tol = 1e-9 * np.sqrt(self.total_area)
-        pending = [(p, q)]
+        pending = [(p, q, kv)]
         done, total = 0, len(p)
         while pending:
             # Depth-first over bounded batches keeps the temporaries (a few hundred bytes per pair
             # and quadrature point) small whatever the scene size.
-            p, q = pending.pop()
+            p, q, kv = pending.pop()
             if len(p) > CHUNK:
-                pending.append((p[CHUNK:], q[CHUNK:]))
-                p, q = p[:CHUNK], q[:CHUNK]
+                pending.append((p[CHUNK:], q[CHUNK:], kv[CHUNK:]))
+                p, q, kv = p[:CHUNK], q[:CHUNK], kv[:CHUNK]
             self.stats["pairs_tested"] += len(p)
             done += len(p)
             self.progress.update("linking", done, total)
@@ -286,7 +299,7 @@ class Refiner:
             f_qp = ff.estimate(h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p])
             fmax = np.maximum(f_pq, f_qp)
             alive = (fmax > 0) & _facing(h, p, q, tol)
-            p, q, f_pq, f_qp, fmax = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive]
+            p, q, f_pq, f_qp, fmax, kv = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive], kv[alive]
             ok = fmax < prm.feps if good_enough is None else good_enough(p, q, f_pq, f_qp)
             can_p, can_q = h.area[p] > aeps, h.area[q] > aeps
             # Push-down hands a link's average to every descendant of the receiver, so what matters
@@ -297,9 +310,9 @@ class Refiner:
             if prm.veps > 0 and near.any():
                 v_p[near], v_q[near] = _variation(h, p[near], q[near]), _variation(h, q[near], p[near])
                 ok &= np.maximum(v_p, v_q) < prm.veps
-            vis = np.full(len(p), np.nan)
+            vis = kv.copy()
             # Links that pass the oracle but straddle a shadow boundary get split further.
-            shadow = ok & (fmax > prm.shadow_feps) & (can_p | can_q) if prm.shadow_feps > 0 else np.zeros(len(p), bool)
+            shadow = ok & (fmax > prm.shadow_feps) & (can_p | can_q) & np.isnan(vis) if prm.shadow_feps > 0 else np.zeros(len(p), bool)
             if shadow.any():
                 vis[shadow] = self.visibility(p[shadow], q[shadow])
                 ok &= ~(shadow & (vis > 0) & (vis < 1))
@@ -315,8 +328,10 @@ class Refiner:
             h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
             total += 4 * (len(sp_p) + len(sq_p))
             if len(sp_p) + len(sq_p):
+                kn = np.where(vis == 1, 1.0, np.nan)
                 pending.append((np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)]),
-                                np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()])))
+                                np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()]),
+                                np.concatenate([np.repeat(kn[split_p], 4), np.repeat(kn[split_q], 4)])))
         self.stats["t_refine"] += time.perf_counter() - t0
         return self._finish(out)
 
@@ -325,16 +340,18 @@ class Refiner:
         if not out:
             return Links.empty()
         a, b, vis = (np.concatenate(x) for x in zip(*out))
-        todo = np.flatnonzero(np.isnan(vis))
-        for i in range(0, len(todo), CHUNK):
-            t = todo[i:i + CHUNK]
-            vis[t] = self.visibility(a[t], b[t])
         t0 = time.perf_counter()
         f_ab, f_ba = np.empty(len(a)), np.empty(len(a))
         for i in range(0, len(a), CHUNK):
             sl = slice(i, i + CHUNK)
             f_ab[sl], f_ba[sl] = link_form_factors(self.h, a[sl], b[sl])
         self.stats["t_ff"] += time.perf_counter() - t0
+        # links too weak to need a shadow test need no more than a few rays either
+        weak = np.maximum(f_ab, f_ba) < self.params.shadow_feps
+        todo = np.flatnonzero(np.isnan(vis))
+        for i in range(0, len(todo), CHUNK):
+            t = todo[i:i + CHUNK]
+            vis[t] = self.visibility(a[t], b[t], weak[t])
         keep = (vis > 0) & ((f_ab > 0) | (f_ba > 0))
         return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])
 
@@ -349,9 +366,9 @@ class Refiner:
         tree = ClusterTree(self.h.patches)
         self.stats["t_tree"] = time.perf_counter() - t0
         self.stats["clusters"] = tree.C
-        far, p, q = link_clusters(self, tree, self.progress)
+        far, p, q, known = link_clusters(self, tree, self.progress)
         self.stats["t_clusters"] = time.perf_counter() - t0
-        links = self.refine(p, q)
+        links = self.refine(p, q, known=known)
         links.far = far
         return links
 

@@ -280,8 +280,14 @@ class _Float32Backend(RayBackend):
     _rows = _exact = None  # float64 triangle rows and numpy backend, built on first need
     last_retraced = 0      # diagnostics: rays of the last call that the numpy backend re-traced
 
+    # Proposed hits farther than this (relative to the segment) from both ends are genuine: a
+    # rounding self-hit of an endpoint lying on a surface happens next to that endpoint (a ray
+    # would have to graze its surface within float32 noise over 1% of its length otherwise).
+    SURE = 1e-2
+
     def _nearest(self, o, d, tfar):
-        """float32 o, d (R,3), tfar (R,): index of the nearest triangle hit on o + t d, t in [0, tfar], or -1."""
+        """float32 o, d (R,3), tfar (R,): (index of the nearest triangle hit on o + t d, t in
+        [0, tfar], or -1; its t)."""
         raise NotImplementedError
 
     def _occluded(self, a, d):
@@ -292,9 +298,13 @@ class _Float32Backend(RayBackend):
         short = length < F32_SHORT * mag
         trace = np.flatnonzero(~short) if short.any() else None  # None: all (saves two gathers)
         o, e = (o, d) if trace is None else (o[trace], d[trace])
-        prim = self._nearest(o.astype(np.float32), e.astype(np.float32),
-                             np.full(len(o), 1.0 - 2.0 * TMIN, dtype=np.float32))
-        ray = np.flatnonzero(prim >= 0)
+        prim, t_hit = self._nearest(o.astype(np.float32), e.astype(np.float32),
+                                    np.full(len(o), 1.0 - 2.0 * TMIN, dtype=np.float32))
+        hit = prim >= 0
+        sure = hit & (t_hit > self.SURE) & (t_hit < 1.0 - self.SURE)
+        out = np.zeros(len(a), dtype=bool)
+        out[np.flatnonzero(sure) if trace is None else trace[sure]] = True
+        ray = np.flatnonzero(hit & ~sure)
         prim = prim[ray]
         if trace is not None:
             ray = trace[ray]
@@ -302,7 +312,6 @@ class _Float32Backend(RayBackend):
             self._rows = _triangle_rows(self.triangles)
         with np.errstate(all="ignore"):
             ok = _hit_kernel([m[prim] for m in self._rows], *a.take(ray, axis=0).T, *d.take(ray, axis=0).T)
-        out = np.zeros(len(a), dtype=bool)
         out[ray[ok]] = True
         retry = np.concatenate([ray[~ok], np.flatnonzero(short)])
         if len(retry):
@@ -329,12 +338,15 @@ class EmbreeBackend(_Float32Backend):
 
     def _nearest(self, o, d, tfar):
         # embreex traces from tnear = 0 (hence the shifted origins) up to `dists`; "INTERSECT" returns the
-        # nearest primID (-1 if none), the id of a triangle in the order given to TriangleMesh
+        # nearest primID (-1 if none), the id of a triangle in the order given to TriangleMesh, and
+        # its tfar (in units of d)
         prim = np.empty(len(o), dtype=np.intp)
+        t = np.empty(len(o), dtype=np.float32)
         for s in range(0, len(o), self.CHUNK):
             sl = slice(s, s + self.CHUNK)
-            prim[sl] = self._scene.run(o[sl], d[sl], dists=tfar[sl], query="INTERSECT")
-        return prim
+            res = self._scene.run(o[sl], d[sl], dists=tfar[sl], query="INTERSECT", output=1)
+            prim[sl], t[sl] = res["primID"], res["tfar"]
+        return prim, t
 
 
 class MathutilsBackend(_Float32Backend):
@@ -354,10 +366,12 @@ class MathutilsBackend(_Float32Backend):
                                           all_triangles=True)
 
     def _nearest(self, o, d, tfar):
-        dist = (tfar * np.linalg.norm(d, axis=1)).tolist()
+        length = np.linalg.norm(d, axis=1)
         cast = self._tree.ray_cast
-        idx = [cast(oi, di, li)[2] for oi, di, li in zip(o.tolist(), d.tolist(), dist)]
-        return np.array([-1 if i is None else i for i in idx], dtype=np.intp)
+        hits = [cast(oi, di, li)[2:] for oi, di, li in zip(o.tolist(), d.tolist(), (tfar * length).tolist())]
+        prim = np.array([-1 if i is None else i for i, _ in hits], dtype=np.intp)
+        t = np.array([0.0 if x is None else x for _, x in hits]) / np.maximum(length, 1e-300)
+        return prim, t
 
 
 # ---------------------------------------------------------------------------------------------- factory
