@@ -10,9 +10,13 @@ objects resting on other surfaces, the case clustering and contact handling must
 The size preset scales the counts and the tessellation; the layout is deterministic (seeded).
 Counts are triangles as Blender's loop_triangles would give (a quad is two).
 """
+import sys
+from pathlib import Path
+
 import numpy as np
 
-from hr_addon.core.geometry import MeshInput
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from hr_addon.core.geometry import MeshInput  # noqa: E402
 
 W, D, H = 6.0, 5.0, 2.8
 WOOD, WALL, FLOOR, FABRIC, CERAMIC = (0.45, 0.3, 0.18), (0.75, 0.73, 0.7), (0.5, 0.42, 0.35), (0.3, 0.35, 0.5), (0.8, 0.8, 0.75)
@@ -21,9 +25,9 @@ WOOD, WALL, FLOOR, FABRIC, CERAMIC = (0.45, 0.3, 0.18), (0.75, 0.73, 0.7), (0.5,
 #          objects on tables, floor boxes)
 PRESETS = {
     "2k": dict(grid=8, cases=1, books=12, tables=1, chairs=2, seg=12, sphere=2, clutter=3, boxes=6),
-    "20k": dict(grid=20, cases=3, books=32, tables=2, chairs=6, seg=24, sphere=3, clutter=16, boxes=24),
-    "100k": dict(grid=32, cases=6, books=48, tables=4, chairs=12, seg=24, sphere=4, clutter=40, boxes=80),
-    "1M": dict(grid=64, cases=24, books=96, tables=12, chairs=48, seg=48, sphere=5, clutter=160, boxes=400),
+    "20k": dict(grid=20, cases=3, books=32, tables=2, chairs=6, seg=24, sphere=3, clutter=20, boxes=30),
+    "100k": dict(grid=40, cases=6, books=48, tables=4, chairs=12, seg=32, sphere=4, clutter=48, boxes=80),
+    "1M": dict(grid=128, cases=12, books=96, tables=10, chairs=30, seg=64, sphere=5, clutter=150, boxes=200),
 }
 
 
@@ -101,12 +105,39 @@ def icosphere(centre, radius, subdiv):
     return v + centre, [np.array(f)]
 
 
+class Footprints:
+    """Occupied rectangles on one surface: objects are placed where they overlap nothing (real
+    rooms have no interpenetrating furniture; rejected placements are retried, then skipped)."""
+
+    def __init__(self, rng, lo, hi, gap=0.01):
+        self.rng, self.lo, self.hi, self.gap, self.rects = rng, np.asarray(lo, float), np.asarray(hi, float), gap, []
+
+    def place(self, w, d, tries=60):
+        for _ in range(tries):
+            x = self.rng.uniform(self.lo[0], self.hi[0] - w) if self.hi[0] - w > self.lo[0] else None
+            y = self.rng.uniform(self.lo[1], self.hi[1] - d) if self.hi[1] - d > self.lo[1] else None
+            if x is None or y is None:
+                return None
+            if self.free(x, y, w, d):
+                self.rects.append((x, y, x + w, y + d))
+                return x, y
+        return None
+
+    def free(self, x, y, w, d):
+        g = self.gap
+        return all(x + w + g <= r[0] or r[2] + g <= x or y + d + g <= r[1] or r[3] + g <= y for r in self.rects)
+
+    def take(self, x, y, w, d):
+        self.rects.append((x, y, x + w, y + d))
+
+
 def furnished_room(size="20k", seed=1):
     if size not in PRESETS:
         raise ValueError(f"unknown size {size!r} (choose from {', '.join(PRESETS)})")
     P = PRESETS[size]
     rng = np.random.default_rng(seed)
     b = Builder()
+    floor = Footprints(rng, (0.05, 0.05), (W - 0.05, D - 0.05))
     g = P["grid"]
     nz = max(2, int(g * H / W))
     # room, normals inward
@@ -119,11 +150,22 @@ def furnished_room(size="20k", seed=1):
     b.add("ceiling_light", *_q(grid_quad([2.4, 2.0, H - 0.005], [0, 1.0, 0], [1.2, 0, 0], 1, 1)), (0.8,) * 3, (6.0, 5.6, 5.0))
     tops = []   # (x0, y0, x1, y1, z) surfaces small things can stand on
     # tables on legs
+    # bookcases first: they stand along the north wall
+    cw, cd = 0.9, 0.32
+    cases = []
+    for k in range(P["cases"]):
+        x0 = 0.15 + (k % 6) * (cw + 0.05)
+        y0 = D - cd - 0.02 - (k // 6) * 0.6
+        floor.take(x0, y0, cw, cd)
+        cases.append((x0, y0))
+    sx, sy = W - 2.4, 0.3
+    floor.take(sx, sy, 2.0, 0.9)
     for k in range(P["tables"]):
-        x0, y0 = 0.6 + (k % 4) * 1.3, 0.8 + (k // 4 % 3) * 1.3
         tw, td, th = 1.0, 0.7, 0.74
-        if x0 + tw > W - 0.3 or y0 + td > D - 1.5:
-            x0, y0 = rng.uniform(0.3, W - 1.4), rng.uniform(0.3, D - 1.6)
+        spot = floor.place(tw, td)
+        if spot is None:
+            continue
+        x0, y0 = spot
         b.add(f"table{k}_top", *box([x0, y0, th - 0.04], [x0 + tw, y0 + td, th], 1), WOOD)
         for i, (lx, ly) in enumerate([(x0 + 0.06, y0 + 0.06), (x0 + tw - 0.06, y0 + 0.06),
                                       (x0 + 0.06, y0 + td - 0.06), (x0 + tw - 0.06, y0 + td - 0.06)]):
@@ -131,18 +173,18 @@ def furnished_room(size="20k", seed=1):
         tops.append((x0 + 0.1, y0 + 0.1, x0 + tw - 0.1, y0 + td - 0.1, th))
     # chairs: seat, four legs, backrest
     for k in range(P["chairs"]):
-        x0, y0 = rng.uniform(0.3, W - 0.8), rng.uniform(0.3, D - 1.8)
         s = 0.42
+        spot = floor.place(s, s)
+        if spot is None:
+            continue
+        x0, y0 = spot
         b.add(f"chair{k}_seat", *box([x0, y0, 0.42], [x0 + s, y0 + s, 0.46], 1), FABRIC)
         for i, (lx, ly) in enumerate([(x0 + 0.03, y0 + 0.03), (x0 + s - 0.03, y0 + 0.03),
                                       (x0 + 0.03, y0 + s - 0.03), (x0 + s - 0.03, y0 + s - 0.03)]):
             b.add(f"chair{k}_leg{i}", *cylinder([lx, ly, 0], 0.018, 0.42, max(6, P["seg"] // 3)), WOOD)
         b.add(f"chair{k}_back", *box([x0, y0 + s - 0.04, 0.46], [x0 + s, y0 + s, 0.9], 1), FABRIC)
     # bookcases along the north wall, boards carrying rows of books
-    cw, cd = 0.9, 0.32
-    for k in range(P["cases"]):
-        x0 = 0.15 + (k % 6) * (cw + 0.05)
-        y0 = D - cd - 0.02 - (k // 6) * 0.6
+    for k, (x0, y0) in enumerate(cases):
         boards = 5
         b.add(f"case{k}_side0", *box([x0, y0, 0], [x0 + 0.02, y0 + cd, 2.0], 1), WOOD)
         b.add(f"case{k}_side1", *box([x0 + cw - 0.02, y0, 0], [x0 + cw, y0 + cd, 2.0], 1), WOOD)
@@ -160,27 +202,35 @@ def furnished_room(size="20k", seed=1):
                 x += bw + 0.002
                 nb += 1
     # sofa
-    sx, sy = W - 2.4, 0.3
     b.add("sofa_base", *box([sx, sy, 0.0], [sx + 2.0, sy + 0.9, 0.45], 2), FABRIC)
     b.add("sofa_back", *box([sx, sy, 0.45], [sx + 2.0, sy + 0.2, 0.9], 2), FABRIC)
     for i in range(3):
         b.add(f"sofa_cushion{i}", *box([sx + 0.05 + i * 0.64, sy + 0.25, 0.45], [sx + 0.64 + i * 0.64, sy + 0.85, 0.58], 2), FABRIC)
     # clutter on the tables: spheres, vases, cups
+    on_top = [Footprints(rng, t[:2], t[2:4]) for t in tops]
     for k in range(P["clutter"]):
-        x0, y0, x1, y1, z = tops[k % len(tops)]
-        x, y = rng.uniform(x0, x1), rng.uniform(y0, y1)
+        if not tops:
+            break
+        z = tops[k % len(tops)][4]
         kind = k % 3
+        r = rng.uniform(0.05, 0.1) if kind == 0 else rng.uniform(0.04, 0.07) if kind == 1 else 0.035
+        spot = on_top[k % len(tops)].place(2 * r, 2 * r)
+        if spot is None:
+            continue
+        x, y = spot[0] + r, spot[1] + r
         if kind == 0:
-            r = rng.uniform(0.05, 0.1)
             b.add(f"ball{k}", *icosphere([x, y, z + r], r, P["sphere"]), CERAMIC)
         elif kind == 1:
-            b.add(f"vase{k}", *cylinder([x, y, z], rng.uniform(0.04, 0.07), rng.uniform(0.15, 0.3), P["seg"]), CERAMIC)
+            b.add(f"vase{k}", *cylinder([x, y, z], r, rng.uniform(0.15, 0.3), P["seg"]), CERAMIC)
         else:
-            b.add(f"cup{k}", *cylinder([x, y, z], 0.035, 0.09, P["seg"]), CERAMIC)
+            b.add(f"cup{k}", *cylinder([x, y, z], r, 0.09, P["seg"]), CERAMIC)
     # boxes on the floor and a few stacked
     for k in range(P["boxes"]):
-        x, y = rng.uniform(0.2, W - 0.6), rng.uniform(0.2, D - 1.5)
         s = rng.uniform(0.1, 0.35)
+        spot = floor.place(s, s)
+        if spot is None:
+            continue
+        x, y = spot
         z = 0.0
         b.add(f"box{k}", *box([x, y, z], [x + s, y + s, z + s * 0.8], 1), rng.uniform(0.2, 0.8, 3))
         if k % 4 == 0:

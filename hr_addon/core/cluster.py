@@ -226,6 +226,10 @@ SH_C1 = 0.4886025119029199
 # A cluster's slots in the solver's extended space: 9 SH coefficients (as a source its power,
 # as a receiver its irradiance), then the irradiance's l = 1 gradient (3 components x 3 axes)
 SLOTS = 18
+# Irradiance gradients only for nearly flat receiving clusters (normal cone below ~17 degrees):
+# on a curved one the members' orientations already shape what they get, and a linear fit over
+# four samples would mix the two
+GRAD_CONE = 0.3
 # max(0, n . u) ~ sum_lm A_l Y_lm(u) Y_lm(n) (Ramamoorthi & Hanrahan 2001: A = pi, 2 pi / 3, pi / 4)
 SH_CLAMPED = np.array([np.pi] + [2 * np.pi / 3] * 3 + [np.pi / 4] * 5)
 # n . u = sum_m Y_1m(u) Y_1m(n) / SH_C1^2: the exact kernel of ends that wholly face each other
@@ -383,15 +387,16 @@ class FarLinks:
             r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
             u = d / np.sqrt(r2)[..., None]
             vis = ((self.mask[sl, None] >> np.arange(16)) & 1).reshape(-1, 4, 4)
-            k = vis * self.scale[sl, None, None] / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]
+            kg = 1.0 / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]     # geometry only: the gradient fit
+            k = vis * self.scale[sl, None, None] * kg
             K = k.sum((1, 2))
             Kn = np.where(K > 0, K, 1.0)
             fa = np.einsum("nis,nisc->nc", k, _end_factors(a, ea, self.part_a[sl], u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9)) / Kn[:, None]
             fb = np.einsum("nis,nisc->nc", k, _end_factors(b, eb, self.part_b[sl], -u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9)) / Kn[:, None]
             link = 2 * (i + np.arange(len(a)))
             fmax = K * np.maximum(ea.area, eb.area)
-            for t, (r, er, fr, gr), (s_, es, fs) in ((link, (a, ea, fa, self._grad(h, ea, pa, wa, k, u, eb, self.part_a[sl])), (b, eb, fb)),
-                                                      (link + 1, (b, eb, fb, self._grad(h, eb, pb, wb, k.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl])), (a, ea, fa))):
+            for t, (r, er, fr, gr), (s_, es, fs) in ((link, (a, ea, fa, self._grad(h, ea, pa, wa, kg, u, eb, self.part_a[sl])), (b, eb, fb)),
+                                                      (link + 1, (b, eb, fb, self._grad(h, eb, pb, wb, kg.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl])), (a, ea, fa))):
                 # pass 1: a node source's slot holds radiance, a cluster's its power (area inside)
                 w1 = K[:, None] * fs * np.where(es.cl, 1.0, es.area)[:, None]
                 S = _slots(s_, es, off)[:, :9]
@@ -407,9 +412,15 @@ class FarLinks:
                 if cl.any():
                     c = decode(r[cl])
                     Gm = gam[cl][:, :, None] * fr[cl][:, None, 1:4]               # (G, 3 axes, 3)
-                    m1, m1x = tree.m1[c], tree.m1x[c]
-                    beta = -np.einsum("nmk,nkm->n", m1x, Gm)
-                    g2[cl, 1:4] = m1 * (beta / np.maximum(np.einsum("nm,nm->n", m1, m1), 1e-300))[:, None]
+                    # members evaluate G x_j at their absolute positions: centre it on the
+                    # cluster (-G c), then remove what it still adds to the cluster's power
+                    # (the members' centred first moment) along m1
+                    cen = tree.centre[c]
+                    m1 = tree.m1[c]
+                    mom = tree.m1x[c] - m1[:, :, None] * cen[:, None, :]
+                    beta = -np.einsum("nmk,nkm->n", mom, Gm)
+                    g2[cl, 1:4] = (m1 * (beta / np.maximum(np.einsum("nm,nm->n", m1, m1), 1e-300))[:, None]
+                                   - np.einsum("nkm,nk->nm", Gm, cen))
                     g2[cl, 9:] = Gm.transpose(0, 2, 1).reshape(-1, 9)
                 for w, flag in ((w2, False), (g2, True)):
                     live = w != 0
@@ -422,14 +433,14 @@ class FarLinks:
     @staticmethod
     def _grad(h, er, pr, wr, k, u, es, part_r):
         """(N, 3) relative gradient gamma of each link's irradiance over a receiving cluster
-        (zero for nodes and partial ends): a least-squares linear fit over its sample points of
+        (zero for nodes, partial ends and curved clusters): a least-squares linear fit over its sample points of
         the scalar kernel (cosines about both ends' axes); member j then gets the mean times
         1 + gamma . (x_j - c). Capped so that no member gets below half or above 1.5 times the
         mean. The constant term added in terms() keeps the cluster's received power (the
         gradient only reshapes, like push corrections), so the members' outgoing form factors
         (the uniform kernel) keep reciprocity and the energy balance."""
         gam = np.zeros((len(pr), 3))
-        grad = er.cl & ~part_r
+        grad = er.cl & ~part_r & (er.theta < GRAD_CONE)
         if not grad.any():
             return gam
         x, wg = pr[grad], wr[grad]

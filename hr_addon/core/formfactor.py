@@ -206,6 +206,22 @@ def estimate(centers_p, normals_p, areas_p, corners_q, centers_q, normals_q, are
     return np.clip(aq * cos_p * cos_q / (math.pi * r2 + aq), 0.0, 1.0)
 
 
+def _gauss_tables(k):
+    """Basis weights of the k x k Gauss points over the 4 corners: quads (bilinear map), its u
+    and v derivatives, triangles (collapsed map a + u (b - a) + u v (c - b)), and the weights."""
+    x, w = np.polynomial.legendre.leggauss(k)
+    x, w = (x + 1) / 2, w / 2
+    u, v = (g.ravel() for g in np.meshgrid(x, x, indexing="ij"))
+    quad = np.stack([(1 - u) * (1 - v), u * (1 - v), u * v, (1 - u) * v], 1)
+    du = np.stack([-(1 - v), 1 - v, v, -v], 1)
+    dv = np.stack([-(1 - u), -u, u, 1 - u], 1)
+    tri = np.stack([1 - u, u * (1 - v), u * v, np.zeros_like(u)], 1)
+    return quad, du, dv, tri, np.outer(w, w).ravel(), u
+
+
+_GAUSS = {}
+
+
 def quadrature(corners, nv, k):
     """Gauss-Legendre k x k points and area weights (summing to 1) over convex quads and triangles.
 
@@ -214,20 +230,19 @@ def quadrature(corners, nv, k):
     kernels far better than the equal-weight centroid rule of sample_points (error O(h^2k) not O(h^2)).
     """
     c = _padded(corners, nv)
-    nv = np.asarray(nv)
-    x, w = np.polynomial.legendre.leggauss(k)
-    x, w = (x + 1) / 2, w / 2
-    u, v = np.meshgrid(x, x, indexing="ij")
-    u, v, wu = u.ravel(), v.ravel(), np.outer(w, w).ravel()
-    a, b, cc, d = (c[:, i, None, :] for i in range(4))
-    U, V = u[None, :, None], v[None, :, None]
-    quad_pts = (1 - U) * (1 - V) * a + U * (1 - V) * b + U * V * cc + (1 - U) * V * d
-    du = (1 - V) * (b - a) + V * (cc - d)
-    dv = (1 - U) * (d - a) + U * (cc - b)
-    quad_w = wu * np.linalg.norm(np.cross(du, dv), axis=-1)
-    tri_pts = a + U * (b - a) + U * V * (cc - b)
-    tri_w = np.broadcast_to(wu * u, quad_w.shape)
-    tri = (nv == 3)[:, None]
-    pts = np.where(tri[..., None], tri_pts, quad_pts)
-    wts = np.where(tri, tri_w, quad_w)
+    tri = np.asarray(nv) == 3
+    if k not in _GAUSS:
+        _GAUSS[k] = _gauss_tables(k)
+    quad_b, du_b, dv_b, tri_b, wu, u = _GAUSS[k]
+    pts = np.empty((len(c), k * k, 3))
+    wts = np.empty((len(c), k * k))
+    q = ~tri
+    if q.any():
+        cq = c[q]
+        pts[q] = np.einsum("sk,nkj->nsj", quad_b, cq)
+        jac = _cross(np.einsum("sk,nkj->nsj", du_b, cq), np.einsum("sk,nkj->nsj", dv_b, cq))
+        wts[q] = wu * np.sqrt(np.einsum("nsj,nsj->ns", jac, jac))
+    if tri.any():
+        pts[tri] = np.einsum("sk,nkj->nsj", tri_b, c[tri])
+        wts[tri] = wu * u
     return pts, wts / wts.sum(1, keepdims=True)

@@ -42,7 +42,7 @@ class RadiositySystem:
         self.h = Hierarchy(self.patches)
         self.backend = make_backend(self.patches.triangles, backend)
         self.refiner = Refiner(self.h, self.backend, self.params)
-        self.refiner.progress = Progress(progress, {"linking": 0.8, "push corrections": 0.2})
+        self.refiner.progress = Progress(progress, {"clusters": 0.5, "linking": 0.4, "push corrections": 0.1})
         self.links = self.refiner.build()
         self.B = None
         self.report = None

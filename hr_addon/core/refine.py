@@ -39,6 +39,7 @@ class RefineParams:
     cluster_ratio: float = 0.3  # far links need (radius_a + radius_b) < cluster_ratio x distance
     partial_feps: float = 0.5   # far links with a partly facing cluster end need F < partial_feps x feps
     cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
+    cluster_leaf: int = 4       # most patches in a leaf cluster
     vis_inherit: float = 0.3  # split pairs at most this size (radii / distance) pass on full or no visibility
 
     @staticmethod
@@ -363,7 +364,7 @@ class Refiner:
         from .cluster import ClusterTree, link_clusters
         import time
         t0 = time.perf_counter()
-        tree = ClusterTree(self.h.patches)
+        tree = ClusterTree(self.h.patches, leaf_size=self.params.cluster_leaf)
         self.stats["t_tree"] = time.perf_counter() - t0
         self.stats["clusters"] = tree.C
         far, p, q, known = link_clusters(self, tree, self.progress)
