@@ -95,7 +95,7 @@ class Operator:
                 continue
             Z = np.zeros(self.nT + off + self.n)        # [far-link intermediates | X]
             X = Z[self.nT:]
-            X[:off].reshape(-1, SLOTS)[:, :9] = tree.power(B[c, :tree.K])
+            X[:off] = tree.power(B[c, :tree.K]).ravel()
             X[off:] = B[c]
             Z[:self.nT] = np.bincount(self.t_slot, weights=self.t_w * X[self.t_src], minlength=self.nT)
             Y = np.bincount(self.recv, weights=f * Z[self.src], minlength=off + self.n)
