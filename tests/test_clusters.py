@@ -1,0 +1,234 @@
+"""Face clusters (hr_addon/core/cluster.py): the tree, the far-link kernel against exact form
+factors, reciprocity and energy balance, oracles with clutter, light events through cluster
+links, progress and cancel. No bpy."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hr_addon.core import cluster as C
+from hr_addon.core import formfactor as ff
+from hr_addon.core import scenes
+from hr_addon.core import shapes as S
+from hr_addon.core.events import DynamicRadiosity, LightShape
+from hr_addon.core.geometry import MeshInput, prepare_patches
+from hr_addon.core.hierarchy import Hierarchy
+from hr_addon.core.progress import Cancelled
+from hr_addon.core.radiosity import RadiositySystem
+from hr_addon.core.refine import Links, RefineParams, link_form_factors
+from hr_addon.core.solver import Operator
+from hr_addon.core.visibility import make_backend
+
+DRAFT = RefineParams.preset("draft")
+
+
+def _grid(o, u, v, n):
+    s, t = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
+    verts = np.asarray(o, float) + s.reshape(-1, 1) * np.asarray(u, float) + t.reshape(-1, 1) * np.asarray(v, float)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    return verts, np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
+
+
+def _box(lo, hi):
+    """Closed box, outward normals, one quad per face."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    X, Y, Z = np.diag(hi - lo)
+    vs, qs = [], []
+    for o, u, v in ((lo, Y, X), (lo + Z, X, Y), (lo, X, Z), (lo + Y, Z, X), (lo, Z, Y), (lo + X, Y, Z)):
+        vv, q = _grid(o, u, v, 1)
+        qs.append(q + 4 * len(vs))
+        vs.append(vv)
+    return np.concatenate(vs), np.concatenate(qs)
+
+
+def clutter_room(rho=0.5, E=1.0, n=12, seed=3):
+    """A closed 3 x 3 x 2.5 m room (6 x 6 quads per wall) with n floating boxes, spheres and
+    cylinders that touch nothing: every surface sees only other surfaces, so with the same
+    reflectance and emission everywhere B = E / (1 - rho) holds for any geometry."""
+    rng = np.random.default_rng(seed)
+    W, D, H = 3.0, 3.0, 2.5
+    parts = []
+    for o, u, v in (((0, 0, 0), (W, 0, 0), (0, D, 0)), ((0, 0, H), (0, D, 0), (W, 0, 0)),
+                    ((0, 0, 0), (0, 0, H), (W, 0, 0)), ((0, D, 0), (W, 0, 0), (0, 0, H)),
+                    ((0, 0, 0), (0, D, 0), (0, 0, H)), ((W, 0, 0), (0, 0, H), (0, D, 0))):
+        parts.append(_grid(o, u, v, 6))
+    placed = []
+    for k in range(n):
+        for _ in range(200):
+            c, r = rng.uniform([0.6, 0.6, 0.6], [W - 0.6, D - 0.6, H - 0.6]), rng.uniform(0.1, 0.3)
+            if all(np.linalg.norm(c - c2) > 1.62 * (r + r2) for c2, r2 in placed):
+                break
+        placed.append((c, r))
+        if k % 3 == 0:
+            parts.append(_box(c - r, c + r * np.array([1, 0.6, 1.4])))
+        elif k % 3 == 1:
+            v, f = scenes.icosphere(2, r, inward=False)
+            parts.append((v + c, np.array(f)))
+        else:
+            t = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+            ring = np.column_stack([0.6 * r * np.cos(t), 0.6 * r * np.sin(t), np.zeros(16)]) + c - [0, 0, r]
+            i, j = np.arange(16), (np.arange(16) + 1) % 16
+            verts = np.concatenate([ring, ring + [0, 0, 2 * r], [c - [0, 0, r], c + [0, 0, r]]])
+            parts.append((verts, [np.column_stack([i, j, 16 + j, 16 + i]),
+                                  np.column_stack([np.full(16, 32), j, i]), np.column_stack([np.full(16, 33), 16 + i, 16 + j])]))
+    verts, polys, oid, off = [], [], [], 0
+    for k, (v, f) in enumerate(parts):
+        for ff_ in (f if isinstance(f, list) else [f]):
+            polys += [list(p + off) for p in ff_]
+            oid += [k] * len(ff_)
+        verts.append(v)
+        off += len(v)
+    return MeshInput.from_polygons(np.concatenate(verts), polys, rho, (E, E, E), np.array(oid),
+                                   [f"part{k}" for k in range(len(parts))])
+
+
+@pytest.fixture(scope="module")
+def clutter():
+    return RadiositySystem(clutter_room(), DRAFT)
+
+
+# -- the tree ---------------------------------------------------------------------------------------
+def test_tree_covers_every_patch_once_and_bounds_its_members():
+    p = prepare_patches(clutter_room())
+    t = C.ClusterTree(p)
+    leaves = np.flatnonzero(t.is_leaf)
+    kids = np.concatenate([t.child_ids[t.child_start[c]:t.child_start[c + 1]] for c in leaves])
+    assert np.array_equal(np.sort(kids), np.arange(t.K))           # each patch in one leaf cluster
+    assert t.area[0] == pytest.approx(p.area.sum(), rel=1e-12)
+    for c in np.random.default_rng(0).choice(t.C, 60, replace=False):
+        mem = t.perm[t.start[c]:t.end[c]]
+        corners = np.concatenate([p.corners[m, :p.nv[m]] for m in mem])
+        assert (corners >= t.lo[c] - 1e-12).all() and (corners <= t.hi[c] + 1e-12).all()
+        assert np.linalg.norm(corners - t.centre[c], axis=1).max() <= t.radius[c] + 1e-12
+        cos = p.normal[mem] @ t.axis[c]
+        assert cos.min() >= np.cos(t.theta[c]) - 1e-9                # the normal cone holds them
+        if c > 0:
+            par = t.parent[c]
+            assert t.start[par] <= t.start[c] and t.end[c] <= t.end[par]
+
+
+# -- the far-link kernel -----------------------------------------------------------------------------
+@pytest.mark.parametrize("dist, size, n", [(4.0, 0.5, 4), (2.0, 0.5, 4), (2.0, 0.5, 6)])
+def test_far_link_transfer_matches_exact_form_factors(dist, size, n):
+    """A wall patch and a cluster of n x n small squares facing it: the far link's transfer
+    (both directions) against the sum of exact patch-to-patch form factors."""
+    verts, polys = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [[0, 1, 2, 3]]
+    for i in range(n):
+        for j in range(n):
+            x, y, e = 0.5 - size / 2 + (i + 0.5) * size / n, 0.5 - size / 2 + (j + 0.5) * size / n, 0.4 * size / n
+            polys.append(list(range(len(verts), len(verts) + 4)))
+            verts += [(x - e, y - e, dist), (x - e, y + e, dist), (x + e, y + e, dist), (x + e, y - e, dist)]
+    p = prepare_patches(MeshInput.from_polygons(np.array(verts, float), polys, 0.5))
+    h, t = Hierarchy(p), C.ClusterTree(p)
+    cl = next(c for c in range(t.C) if t.end[c] - t.start[c] == n * n and t.depth[c] > 0)
+
+    class R:
+        pass
+    r = R()
+    r.h, r.eps, r.stats, r.backend = h, 1e-9, {"rays": 0, "t_vis": 0.0}, make_backend(p.triangles, "numpy")
+    a, b = np.array([0]), C.encode([cl])
+    vis, mask, scale = C.far_visibility(r, t, a, b)
+    links = Links.empty()
+    links.far = C.FarLinks(t, a, b, vis, mask, [False], [False], 1e-9, 0.0, scale)
+    op = Operator(h, links)
+    G = op.push(op.gather(np.ones((1, h.n))))[0]
+    f_wall, f_sq = link_form_factors(h, np.zeros(n * n, int), np.arange(1, n * n + 1))
+    assert G[0] == pytest.approx(f_wall.sum(), rel=0.02)
+    area = h.view("area")
+    assert (area[1:] * G[1:]).sum() == pytest.approx((area[1:] * f_sq).sum(), rel=0.02)
+
+
+def test_reciprocity_and_energy_balance_with_clusters(clutter):
+    """A_i K_ij = A_j K_ji for the operator's kernel between leaves (far links included: the
+    gradient terms act on both ends alike), and the solve's energy balance."""
+    s = clutter
+    assert s.links.n_far > 0.3 * len(s.links)
+    op, h = s.operator(), s.h
+    lf = h.leaves()
+    pick = np.random.default_rng(1).choice(lf, 12, replace=False)
+    K = np.zeros((len(pick), len(pick)))
+    for j, src in enumerate(pick):
+        e = np.zeros((1, h.n))
+        e[0, src] = 1.0
+        K[:, j] = op.push(op.gather(op.pull(e), base=True))[0][pick]
+    AK = h.area[pick][:, None] * K            # A_i F_ij: the power leaf j's radiance sends to leaf i
+    assert np.abs(AK - AK.T).max() <= 1e-9 * np.abs(AK).max()
+    s.solve()
+    assert s.report.energy_error < 1e-9
+
+
+# -- oracles with clutter ------------------------------------------------------------------------------
+def test_furnace_with_clutter(clutter):
+    """Same reflectance and emission everywhere, nothing touching: B = E / (1 - rho) = 2 on
+    every leaf. Measured at draft: all-pairs HR 4.2% worst leaf / 1.8% at the 99th percentile,
+    clusters 4.1% / 2.1% with two thirds the links."""
+    s = clutter
+    B = s.solve()
+    lf = s.h.leaves()
+    err = np.abs(B[:, lf] / 2.0 - 1)
+    assert err.max() < 0.05 and np.percentile(err, 99) < 0.03
+    a = s.h.area[lf]
+    assert abs((a * (B[0, lf] / 2.0 - 1)).sum() / a.sum()) < 0.005
+    plain = RadiositySystem(clutter_room(), dataclasses.replace(DRAFT, cluster=False))
+    assert len(s.links) < 0.8 * len(plain.links)
+
+
+def test_sphere_of_5000_triangles_keeps_uniform_irradiance():
+    """Inside a closed sphere the irradiance is uniform for any emission layout (flat facets
+    on 5,120 triangles: 0.5%); random emitting triangles, clusters on. Measured: 1.1%."""
+    rng = np.random.default_rng(0)
+    rho = 0.6
+    mesh = scenes.sphere(subdiv=4, rho=rho,
+                         emission_fn=lambda c: rng.uniform(0, 2, (len(c), 3)) * (rng.random((len(c), 1)) < 0.1))
+    s = RadiositySystem(mesh, DRAFT)
+    assert s.links.n_far > 0
+    B = s.solve()
+    lf = s.h.leaves()
+    H = (B - s.base_emission())[:, lf] / rho
+    a = s.h.area[lf]
+    expected = (s.base_emission()[:, lf] * a).sum(1) / a.sum() / (1 - rho)
+    assert np.abs(H / expected[:, None] - 1).max() < 0.025
+    assert s.report.energy_error < 1e-9
+
+
+# -- light events through cluster links ---------------------------------------------------------------
+def test_light_shape_sends_its_power_through_cluster_links(clutter):
+    """An FE window on a wall of the clutter room (objects linked to the wall at cluster level):
+    the objects receive what all-pairs HR gives them, and the emitted power is exact."""
+    def absorbed_by_objects(system):
+        dyn = DynamicRadiosity(system.copy(), method="FE")
+        frame = (np.array([0.0, 0.8, 0.6]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))
+        dyn.add("w", LightShape(S.on_plane(S.rect(0.9, 0.7, centre=(0.5, 0.45), angle=0.3), frame), np.full(3, 10.0), "w"))
+        B = dyn.B - dyn._Bbase                       # the window's own light
+        h = dyn.system.h
+        lf = h.leaves()
+        obj = dyn.system.patches.object_id[h.patch[lf]]
+        return np.bincount(obj, weights=B[1, lf] * h.area[lf] * (obj >= 6)), dyn
+    mesh = clutter_room(rho=0.5, E=0.0)
+    ours, dyn = absorbed_by_objects(RadiositySystem(mesh, DRAFT))
+    ref, _ = absorbed_by_objects(RadiositySystem(mesh, dataclasses.replace(DRAFT, cluster=False)))
+    assert dyn.links.n_far > 0
+    objects = ref[6:] > 0.01 * ref[6:].max()
+    assert objects.sum() >= 8
+    assert ours[6:].sum() == pytest.approx(ref[6:].sum(), rel=0.05)
+    np.testing.assert_allclose(ours[6:][objects], ref[6:][objects], rtol=0.25)
+
+
+# -- progress and cancel --------------------------------------------------------------------------------
+def test_build_reports_progress_and_cancels():
+    infos = []
+    RadiositySystem(clutter_room(n=6), DRAFT, progress=lambda i: infos.append(i))
+    fr = [i.fraction for i in infos]
+    assert len(infos) >= 3 and fr[-1] == pytest.approx(1.0)
+    assert all(b >= a - 1e-12 for a, b in zip(fr, fr[1:]))            # never goes back
+    assert {"clusters", "linking"} <= {i.phase for i in infos}
+
+    calls = []
+
+    def cancel(info):
+        calls.append(info)
+        if len(calls) == 2:
+            raise Cancelled("stop")
+    with pytest.raises(Cancelled):
+        RadiositySystem(clutter_room(n=6), DRAFT, progress=cancel)
+    assert len(calls) == 2
