@@ -7,7 +7,8 @@ A 6 x 5 x 2.8 m room (walls, floor and ceiling as grids, a ceiling light panel) 
 legs, chairs, bookcases whose boards carry rows of books, a sofa, subdivided spheres and
 cylinders (vases, cups) standing on the tables and boards, and boxes on the floor: many small
 objects resting on other surfaces, the case clustering and contact handling must deal with.
-The size preset scales the counts and the tessellation; the layout is deterministic (seeded).
+The size preset scales the counts and the tessellation; the layout is deterministic (seeded), and
+nothing interpenetrates (placements that would overlap are retried, then skipped).
 Counts are triangles as Blender's loop_triangles would give (a quad is two).
 """
 import sys
@@ -24,10 +25,10 @@ WOOD, WALL, FLOOR, FABRIC, CERAMIC = (0.45, 0.3, 0.18), (0.75, 0.73, 0.7), (0.5,
 # size -> (wall grid, bookcases, books per row, table count, chairs, cylinder segments, sphere subdiv,
 #          objects on tables, floor boxes)
 PRESETS = {
-    "2k": dict(grid=8, cases=1, books=12, tables=1, chairs=2, seg=12, sphere=2, clutter=3, boxes=6),
-    "20k": dict(grid=20, cases=3, books=32, tables=2, chairs=6, seg=24, sphere=3, clutter=20, boxes=30),
-    "100k": dict(grid=40, cases=6, books=48, tables=4, chairs=12, seg=32, sphere=4, clutter=48, boxes=80),
-    "1M": dict(grid=128, cases=12, books=96, tables=10, chairs=30, seg=64, sphere=5, clutter=150, boxes=200),
+    "2k": dict(grid=8, cases=1, books=12, tables=1, chairs=2, seg=12, balls=1, sphere=2, clutter=4, boxes=6),
+    "20k": dict(grid=26, cases=4, books=44, tables=2, chairs=6, seg=24, balls=2, sphere=3, clutter=28, boxes=40),
+    "100k": dict(grid=64, cases=12, books=80, tables=4, chairs=14, seg=48, balls=3, sphere=4, clutter=80, boxes=120),
+    "1M": dict(grid=300, cases=24, books=200, tables=10, chairs=40, seg=160, balls=8, sphere=5, clutter=300, boxes=300),
 }
 
 
@@ -212,8 +213,8 @@ def furnished_room(size="20k", seed=1):
         if not tops:
             break
         z = tops[k % len(tops)][4]
-        kind = k % 3
-        r = rng.uniform(0.05, 0.1) if kind == 0 else rng.uniform(0.04, 0.07) if kind == 1 else 0.035
+        kind = 0 if k < P["balls"] else 1 + k % 3
+        r = rng.uniform(0.07, 0.1) if kind == 0 else rng.uniform(0.04, 0.07) if kind == 1 else 0.035 if kind == 2 else 0.06
         spot = on_top[k % len(tops)].place(2 * r, 2 * r)
         if spot is None:
             continue
@@ -222,8 +223,14 @@ def furnished_room(size="20k", seed=1):
             b.add(f"ball{k}", *icosphere([x, y, z + r], r, P["sphere"]), CERAMIC)
         elif kind == 1:
             b.add(f"vase{k}", *cylinder([x, y, z], r, rng.uniform(0.15, 0.3), P["seg"]), CERAMIC)
-        else:
+        elif kind == 2:
             b.add(f"cup{k}", *cylinder([x, y, z], r, 0.09, P["seg"]), CERAMIC)
+        else:   # a stack of books lying flat
+            zz = z
+            for j in range(int(rng.integers(2, 6))):
+                t = rng.uniform(0.02, 0.04)
+                b.add(f"stack{k}_{j}", *box([x - r, y - 0.8 * r, zz], [x + r, y + 0.8 * r, zz + t], 1), rng.uniform(0.1, 0.8, 3))
+                zz += t
     # boxes on the floor and a few stacked
     for k in range(P["boxes"]):
         s = rng.uniform(0.1, 0.35)

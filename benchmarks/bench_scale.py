@@ -1,0 +1,120 @@
+"""Scale benchmark: hierarchy build on furnished rooms of ~2k to ~1M triangles, with and without
+clustering, plus light events on the built system. Prints a table, writes JSON and a chart.
+
+    .venv/bin/python benchmarks/bench_scale.py [--sizes 2k,20k,100k,1M] [--plain 2k,20k]
+                                               [--quality draft] [--events 100k] [--out benchmarks/out]
+
+Every run is a separate process, so its peak memory (ru_maxrss) is its own. Timings are wall
+seconds on this machine; other jobs sharing the cores make them noisy, so read ratios.
+"""
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def run_one(size, cluster, quality, events):
+    """Child process: build, solve, optionally time an FE and an AUTO event; print one JSON line."""
+    import dataclasses
+    import resource
+
+    import numpy as np
+
+    from benchmarks.furnished import furnished_room
+    from hr_addon.core import shapes as S
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.core.radiosity import RadiositySystem
+    from hr_addon.core.refine import RefineParams
+
+    mesh, info = furnished_room(size)
+    params = dataclasses.replace(RefineParams.preset(quality), cluster=cluster)
+    t0 = time.perf_counter()
+    s = RadiositySystem(mesh, params)
+    build = time.perf_counter() - t0
+    s.solve()
+    r = s.build.refine
+    out = dict(size=size, cluster=cluster, quality=quality, triangles=info["triangles"], polygons=info["polygons"],
+               objects=info["objects"], build_s=build, links=len(s.links), far_links=s.links.n_far,
+               corrections=s.links.n_corrections, nodes=s.h.n, rays=r["rays"], cluster_pairs=r.get("cluster_pairs", 0),
+               patch_pairs=r["pairs_tested"], solve_s=s.report.seconds, iterations=s.report.iterations,
+               energy_error=s.report.energy_error, t_vis=r["t_vis"], t_ff=r["t_ff"], t_refine=r["t_refine"],
+               t_clusters=r.get("t_clusters", 0.0))
+    if events:
+        _, frame = info["light_wall"]
+        window = LightShape(S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window")
+        for method in ("FE", "AUTO"):
+            dyn = DynamicRadiosity(s.copy(), method=method)
+            t1 = time.perf_counter()
+            rep = dyn.add("w", window)
+            out[f"{method.lower()}_event_s"] = time.perf_counter() - t1
+            out[f"{method.lower()}_iterations"] = rep.iterations
+            del dyn
+    out["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    print(json.dumps(out), flush=True)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", default="2k,20k,100k,1M")
+    ap.add_argument("--plain", default="2k,20k", help="sizes also built without clustering (all patch pairs)")
+    ap.add_argument("--quality", default="draft")
+    ap.add_argument("--events", default="100k", help="sizes on which FE and AUTO events are timed")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out"))
+    ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child:
+        size, cluster, events = args.child
+        return run_one(size, cluster == "1", args.quality, events == "1")
+    os.makedirs(args.out, exist_ok=True)
+    runs = [(s, True) for s in args.sizes.split(",") if s] + [(s, False) for s in args.plain.split(",") if s]
+    results = []
+    for size, cluster in runs:
+        ev = cluster and size in args.events.split(",")
+        cmd = [sys.executable, __file__, "--quality", args.quality, "--child", size, "1" if cluster else "0", "1" if ev else "0"]
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        if p.returncode != 0:
+            print(f"{size} cluster={cluster}: failed\n{p.stderr[-2000:]}", flush=True)
+            continue
+        res = json.loads(p.stdout.strip().splitlines()[-1])
+        results.append(res)
+        ev_txt = (f", FE event {res['fe_event_s']:.2f} s, AUTO event {res['auto_event_s']:.2f} s" if "fe_event_s" in res else "")
+        print(f"{size:>5} {'clusters' if cluster else 'all pairs':>9}: {res['triangles']:,} triangles, build {res['build_s']:.1f} s, "
+              f"{res['links']:,} links ({res['far_links']:,} far), {res['links'] / res['triangles']:.1f} per triangle, "
+              f"peak {res['peak_rss_gb']:.2f} GB, solve {res['solve_s']:.1f} s ({res['iterations']} it){ev_txt}", flush=True)
+    path = Path(args.out) / f"scale_{args.quality}.json"
+    path.write_text(json.dumps(results, indent=1))
+    plot(results, ROOT / "benchmarks" / "scale.png")
+    print(f"wrote {path} and benchmarks/scale.png")
+
+
+def plot(results, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for cluster, style, label in ((True, "o-", "clusters"), (False, "s--", "all patch pairs")):
+        rs = sorted((r for r in results if r["cluster"] == cluster), key=lambda r: r["triangles"])
+        if not rs:
+            continue
+        tri = [r["triangles"] for r in rs]
+        axes[0].loglog(tri, [r["build_s"] for r in rs], style, label=label)
+        axes[1].loglog(tri, [r["links"] for r in rs], style, label=label)
+    for ax, what in zip(axes, ("build time (s)", "links")):
+        ax.set_xlabel("triangles (furnished room)")
+        ax.set_ylabel(what)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    axes[0].set_title("Hierarchy build at draft quality")
+    axes[1].set_title("Links")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+if __name__ == "__main__":
+    main()
