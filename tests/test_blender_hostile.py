@@ -259,3 +259,31 @@ def test_unwritable_cache_folder_fails_before_the_build(tmp_path):
     gen = bake_frames(bpy.context.scene, frames=(1, 1), quality="draft", cache_dir=str(blocker / "cornell"))
     with pytest.raises(InputError, match=f"Cannot write the cache folder '{blocker}'"):
         next(gen)                                # before the first progress report (the build's)
+
+
+def test_damaged_texture_frames_are_reported_and_rebaked(tmp_path):
+    """Texture bakes: a truncated lightmap file kept its frame in the cache (a sub-range re-bake
+    linked or filled it from another frame) and playback said nothing."""
+    bpy = load_bpy()
+    from hr_addon.blender import playback
+    from hr_addon.blender.texture import image_file_problem
+    open_sample("cornell", tmp_path)
+    scene = bpy.context.scene
+    res = _bake(output="texture", resolution=16, frames=(1, 12))
+    d = Path(playback.bake_dir_abs(scene)) / "textures"
+    f8 = d / "floor_000008.exr"
+    assert image_file_problem(f8, 16) == ""
+    data = f8.read_bytes()
+    os.remove(f8)                                    # (frames 6-12 are hard links of one file)
+    f8.write_bytes(data[:len(data) // 2])
+    os.remove(d / "back_000010.exr")
+    assert image_file_problem(f8, 16) == "truncated" and image_file_problem(d / "back_000010.exr", 16) == "missing"
+    scene.frame_set(8)
+    msg = playback.status(scene)
+    assert "floor_000008.exr" in msg and "truncated" in msg and "magenta" in msg, msg
+    res = _bake(output="texture", resolution=16, frames=(1, 2))
+    assert res.rebaked == [8, 10], res.rebaked
+    assert image_file_problem(f8, 16) == "" and image_file_problem(d / "back_000010.exr", 16) == ""
+    scene.frame_set(9)
+    scene.frame_set(8)
+    assert playback.status(scene) == ""
