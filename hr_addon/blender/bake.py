@@ -275,8 +275,10 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         if extent.distant:
             far = extent.distant
             names = ", ".join(f"'{n}'" for n, _, _ in far[:5]) + (f" and {len(far) - 5} more" if len(far) > 5 else "")
-            warn([f"{len(far)} object(s) lie far from the rest of the scene ({names}, {_length(far[-1][1])} "
-                  f"to {_length(far[0][1])} away; the rest is {_length(extent.main_size)} across): they "
+            near, farthest = _length(far[-1][1]), _length(far[0][1])
+            dist = farthest if near == farthest else f"{near} to {farthest}"
+            warn([f"{len(far)} object(s) lie far from the rest of the scene ({names}, {dist} away; the rest "
+                  f"is {_length(extent.main_size)} across): they "
                   "exchange almost no light with it and do not change its element sizes. Exclude them "
                   "(Object > HR Radiosity > Exclude) if they are not meant to be there."])
             params = dataclasses.replace(params, aeps=params.aeps * area_ratio)

@@ -171,10 +171,12 @@ def changed_objects(old: dict, new: dict):
 def settings_difference(old: dict, new: dict):
     """Why the bake described by manifest `old` cannot share frames with `new` ('' if it can)."""
     why = []
-    for key, label in (("output", "output"), ("domain", "domain"), ("method", "method"), ("quality", "quality")):
+    for key in ("output", "domain", "method", "quality"):
         a, b = old.get(key), new.get(key)
+        if key == "domain" and old.get("output") != new.get("output"):
+            continue                      # follows from the output
         if a is not None and b is not None and a != b:
-            why.append(f"{label} {str(a).lower()} (this bake: {str(b).lower()})")
+            why.append(f"{key} {str(a).lower()} (this bake: {str(b).lower()})")
     if not why and old.get("quality") == "CUSTOM" and (old.get("feps"), old.get("aeps")) != (new.get("feps"), new.get("aeps")):
         why.append(f"feps {old.get('feps')}, aeps {old.get('aeps')} (this bake: {new.get('feps')}, {new.get('aeps')})")
     if "geometry" in old and "geometry" in new:
