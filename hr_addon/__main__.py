@@ -16,6 +16,18 @@ def usage():
 
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
+    # Ctrl-C / SIGTERM from here on are recorded, not raised: a KeyboardInterrupt inside bpy's
+    # start-up (add-on registration) prints tracebacks and can crash it. The bake checks them.
+    from .blender.interrupt import INTERRUPTS
+    if argv and argv[0] == "bake":
+        INTERRUPTS.install()
+    try:
+        return _main(argv, INTERRUPTS)
+    finally:
+        INTERRUPTS.restore()
+
+
+def _main(argv, INTERRUPTS):
     if not argv or argv[0] in ("-h", "--help"):
         print(usage())
         return 0 if argv else 2
@@ -37,10 +49,9 @@ def main(argv=None):
     except cli.UsageError as exc:
         print(f"{cli.PROG}: error: {exc}", file=sys.stderr, flush=True)
         return 2
-    # Ctrl-C / SIGTERM from here on are recorded, not raised: a KeyboardInterrupt inside bpy's
-    # start-up (add-on registration) would print tracebacks and can crash it.
-    from .blender.interrupt import INTERRUPTS
-    INTERRUPTS.install()
+    if INTERRUPTS.requested:
+        print(cli.cancelled_message(), file=sys.stderr, flush=True)
+        return 130
     try:
         import bpy  # noqa: F401
     except ImportError:
