@@ -287,3 +287,23 @@ def test_damaged_texture_frames_are_reported_and_rebaked(tmp_path):
     scene.frame_set(9)
     scene.frame_set(8)
     assert playback.status(scene) == ""
+
+
+def test_edits_made_during_a_background_bake_are_named_when_it_finishes(tmp_path):
+    """The background worker bakes a copy taken at the start: a wall moved meanwhile is not in the
+    bake, and loading the result said nothing."""
+    import time
+    bpy = load_bpy()
+    from hr_addon.blender import background, playback
+    open_sample("cornell", tmp_path)
+    scene = bpy.context.scene
+    job = background.BackgroundBake(scene, quality="draft", frames=(1, 2)).start()
+    bpy.data.objects["back"].location.y += 0.25
+    bpy.context.view_layer.update()
+    t0 = time.monotonic()
+    while job.poll():
+        assert time.monotonic() - t0 < 600, job.status      # bounds a hang only
+        time.sleep(0.05)
+    assert job.state == "done", (job.error, job.status)
+    assert any("The scene changed since the bake (re-bake): 'back' changed" in w for w in job.warnings), job.warnings
+    assert "'back' changed" in playback.status(scene)

@@ -240,6 +240,10 @@ class BackgroundBake:
         use_bake(scene, self.final_dir, self.output)
         playback.forget_loaded()
         self.loaded = playback.load_frame(scene)
+        # edits made while the worker baked a copy are not in the bake: the panel names them
+        stale = playback.check_scene(scene)
+        if stale:
+            self.warnings.append(stale)
 
     def cancel(self, timeout=15.0):
         """Stop the worker; its partial bake is removed and the previous bake is kept."""
