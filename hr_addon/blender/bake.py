@@ -484,7 +484,9 @@ def run_bake(scene, log=print, status=None, **kwargs):
         if status is not None:
             status(p)
 
-    collected = kwargs.pop("warnings", None) or Warnings()
+    collected = kwargs.pop("warnings", None)
+    if collected is None:
+        collected = Warnings()
     gen = bake_frames(scene, progress=report, warnings=collected, **kwargs)
     try:
         while True:
