@@ -934,10 +934,28 @@ def outline_problem(rings2d, chunk=200_000):
     m = np.array([len(r) for r in rings])[ring]
     tol = 1e-9 * size * size
     E = len(a)
-    i, j = np.triu_indices(E, 1)
     touch = False
-    for s0 in range(0, len(i), chunk):
-        ii, jj = i[s0:s0 + chunk], j[s0:s0 + chunk]
+    # candidate pairs: edges whose bounding boxes overlap (sweep along x, then y), in chunks
+    pad = 1e-9 * size
+    lo, hi = np.minimum(a, b) - pad, np.maximum(a, b) + pad
+    order = np.argsort(lo[:, 0], kind="stable")
+    end = np.searchsorted(lo[order, 0], hi[order, 0], side="right")
+    first = np.arange(E) + 1
+    counts = np.maximum(end - first, 0)
+    cum = np.cumsum(counts)
+    r0 = 0
+    while r0 < E:
+        r1 = max(int(np.searchsorted(cum, (cum[r0 - 1] if r0 else 0) + chunk, side="right")), r0 + 1)
+        r1 = min(r1, E)
+        rws = np.arange(r0, r1)
+        n = counts[rws]
+        base = np.repeat(first[rws], n)
+        k = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+        p1, p2 = order[np.repeat(rws, n)], order[base + k]
+        r0 = r1
+        ii, jj = np.minimum(p1, p2), np.maximum(p1, p2)
+        ov = (lo[ii, 1] <= hi[jj, 1]) & (lo[jj, 1] <= hi[ii, 1])
+        ii, jj = ii[ov], jj[ov]
         same = ring[ii] == ring[jj]
         adj = same & ((jj - ii == 1) | ((idx[ii] == 0) & (idx[jj] == m[jj] - 1)))
         ii, jj = ii[~adj], jj[~adj]
