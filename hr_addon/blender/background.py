@@ -59,6 +59,7 @@ class BackgroundBake:
         self.error = ""
         self.summary = ""
         self.warnings = []
+        self._start_warnings = []
         self.proc = None
         self.tmp = None
         self.final_dir = ""
@@ -162,7 +163,8 @@ class BackgroundBake:
             # The lightmap UV maps belong to the user's meshes: make them here, the copy gets them.
             res = int(self.overrides.get("resolution") or scene.hr.texture_resolution)
             try:
-                self.warnings += texture.ensure_lightmaps(geometry_objects(view_layer), res)
+                self._start_warnings = texture.ensure_lightmaps(geometry_objects(view_layer), res)
+                self.warnings += self._start_warnings
             except texture.TextureError as exc:
                 raise SceneError(str(exc)) from None
         self.tmp = Path(tempfile.mkdtemp(prefix="hr_bake_"))
@@ -217,6 +219,9 @@ class BackgroundBake:
         s = self._read() or self.status
         if s.get("state") == "done" and rc == 0:
             self.summary = s.get("summary", "")
+            # the worker's final list: every warning once, repeats counted
+            self.warnings = list(self._start_warnings) + [w for w in s.get("warnings", [])
+                                                          if w not in self._start_warnings]
             self.state = "done"
             self._use_result()
         elif s.get("state") == "cancelled":
@@ -235,6 +240,10 @@ class BackgroundBake:
         use_bake(scene, self.final_dir, self.output)
         playback.forget_loaded()
         self.loaded = playback.load_frame(scene)
+        # edits made while the worker baked a copy are not in the bake: the panel names them
+        stale = playback.check_scene(scene)
+        if stale:
+            self.warnings.append(stale)
 
     def cancel(self, timeout=15.0):
         """Stop the worker; its partial bake is removed and the previous bake is kept."""
@@ -256,8 +265,10 @@ class BackgroundBake:
         final = Path(self.final_dir) if self.final_dir else None
         if final is not None and self.proc is not None and final.parent.is_dir():
             # the worker's temporary cache folder, if it could not remove it itself (killed)
-            for d in final.parent.glob(f".{final.name}.baking-{self.proc.pid}-*"):
-                shutil.rmtree(d, ignore_errors=True)
+            from .cache import HOST, temp_dirs
+            for d, kind, host, pid, _ in temp_dirs(final):
+                if kind == "baking" and pid == self.proc.pid and host in ("", HOST):
+                    shutil.rmtree(d, ignore_errors=True)
         if self.tmp is not None:
             shutil.rmtree(self.tmp, ignore_errors=True)
         if _active is self and self.state != "running":

@@ -7,19 +7,23 @@ through the `progress` callback (core.progress), frames through the yielded Bake
 """
 import dataclasses
 import hashlib
+import inspect
 import os
+import re
 import time
+from collections import OrderedDict
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 
 import bpy
 import numpy as np
 
-from ..core.geometry import InputError
+from ..core.geometry import InputError, isolated_objects
 from ..core.progress import Cancelled
 from ..core.radiosity import RadiositySystem
 from ..core.refine import RefineParams
-from . import playback, texture
-from .cache import CacheWriter
+from . import playback, signatures, texture
+from .cache import CacheError, CacheWriter, check_writable, frame_ranges
 from .scene_in import (SceneError, collect_geometry, collect_light_shapes, geometry_objects,
                        light_shape_objects, shapes_signature)
 
@@ -71,6 +75,55 @@ def ray_backend_note(name):
     return "numpy tracer"
 
 
+class Warnings:
+    """The bake's warnings, each shown once: repeats (the same shape on every frame, numbers
+    aside) are counted, with the frames they came from."""
+
+    def __init__(self):
+        self.items = OrderedDict()          # key -> [first text, count, frames]
+
+    @staticmethod
+    def key(text):
+        return re.sub(r"\d+(?:\.\d+)?", "#", text)
+
+    def add(self, text, frame=None):
+        """Count one occurrence; True if it is the first of its kind."""
+        k = self.key(text)
+        item = self.items.get(k)
+        if item is None:
+            self.items[k] = [text, 1, [] if frame is None else [frame]]
+            return True
+        item[1] += 1
+        if frame is not None and frame not in item[2]:
+            item[2].append(frame)
+        return False
+
+    def texts(self):
+        return [v[0] for v in self.items.values()]
+
+    def lines(self):
+        out = []
+        for text, count, frames in self.items.values():
+            if count > 1:
+                where = f" on frames {frame_ranges(frames)}" if frames else ""
+                text = f"{text} [{count} times{where}]"
+            out.append(text)
+        return out
+
+    def __len__(self):
+        return len(self.items)
+
+
+class _NoInterrupts:
+    """Stand-in for blender.interrupt.Interrupts when the caller does not handle signals."""
+
+    def check(self):
+        pass
+
+    def raising(self):
+        return nullcontext()
+
+
 @dataclass
 class BakeResult:
     cache_dir: str = ""
@@ -78,20 +131,27 @@ class BakeResult:
     solved: int = 0       # frames that needed a new solution
     reused: int = 0       # frames identical to the previous one
     kept: int = 0         # frames of the previous bake kept outside the range
-    warnings: list = field(default_factory=list)
+    rebaked: list = field(default_factory=list)   # damaged frames of the previous bake baked again
+    warnings: list = field(default_factory=list)  # each warning once (first text); see warning_lines
+    log: object = None    # the Warnings collector (counts and frames of repeats)
     build_seconds: float = 0.0
     seconds: float = 0.0
     build_report: object = None
     rays: str = ""        # ray backend of the build ("embree", "numpy", ...)
     rays_note: str = ""   # why not embree, if not
 
+    def warning_lines(self):
+        """Every warning once, repeats counted ('... [8 times on frames 6-13]')."""
+        return self.log.lines() if self.log is not None else list(self.warnings)
+
     @property
     def rays_text(self):
         return f"rays: {self.rays}" + (f" ({self.rays_note})" if self.rays_note else "")
 
     def summary(self):
+        again = f", {len(self.rebaked)} damaged re-baked" if self.rebaked else ""
         return (f"baked frames {self.frames[0]}-{self.frames[1]} into {self.cache_dir}: "
-                f"{self.solved} solved, {self.reused} unchanged, {self.kept} kept from the previous bake "
+                f"{self.solved} solved, {self.reused} unchanged, {self.kept} kept from the previous bake{again} "
                 f"(hierarchy {self.build_seconds:.1f} s, total {self.seconds:.1f} s, {self.rays_text})")
 
 
@@ -134,11 +194,14 @@ def _signature(mesh, params, domain, targets):
 
 def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, domain=None,
                 feps=None, aeps=None, output=None, resolution=None, texture_format=None,
-                cache_dir=None, progress=None):
+                cache_dir=None, progress=None, interrupts=None, warnings=None):
     """Generator: yields BakeProgress, returns (StopIteration.value) a BakeResult.
 
     progress: callable(BakeProgress) called during the hierarchy build (between batches); it may
     raise core.progress.Cancelled (or anything) to stop the bake, which keeps the previous cache.
+    interrupts: a blender.interrupt.Interrupts (Ctrl-C / SIGTERM): checked between batches of the
+    build and of every frame, and raising at once inside the core's computations (pure numpy).
+    warnings: a Warnings collector to fill (the caller keeps it when the bake fails).
     cache_dir: absolute cache directory (default: from the scene's settings and the .blend path;
     the background bake passes the real one because it bakes a copy of the file elsewhere).
 
@@ -170,11 +233,24 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
     if output == "TEXTURE" and start < 0:
         raise SceneError("Texture output needs frame numbers >= 0 (image sequence file names).")
     final_dir = os.path.abspath(cache_dir) if cache_dir else cache_dir_for(scene)
+    intr = interrupts or _NoInterrupts()
+    log = warnings if warnings is not None else Warnings()
+    try:
+        check_writable(final_dir)        # before the (long) build, not after it
+    except CacheError as exc:
+        raise SceneError(str(exc)) from None
     t_start = time.perf_counter()
-    result = BakeResult(cache_dir=final_dir, frames=(start, end))
+    result = BakeResult(cache_dir=final_dir, frames=(start, end), log=log)
     original_frame = scene.frame_current
     writer = None
     committed = False
+
+    def warn(items, frame=None):
+        """Count warnings; returns the new ones (shown in progress reports)."""
+        new = [w for w in items if log.add(w, frame)]
+        result.warnings[:] = log.texts()
+        return new
+
     playback.state["baking"] = True
     try:
         scene.frame_set(scene.frame_start)
@@ -182,12 +258,30 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         geo_objects = geometry_objects(view_layer)
         if output == "TEXTURE":
             try:
-                result.warnings += texture.ensure_lightmaps(geo_objects, resolution)
+                warn(texture.ensure_lightmaps(geo_objects, resolution))
             except texture.TextureError as exc:
                 raise SceneError(str(exc)) from None
         with texture.source_materials(geo_objects):    # texture preview copies stand for these
             scene_in = collect_geometry(view_layer, depsgraph)
-        result.warnings += scene_in.warnings
+        warn(scene_in.warnings)
+        intr.check()
+        geometry_sig = signatures.geometry_signatures(view_layer, depsgraph)
+        shapes_id = signatures.light_shape_identity(view_layer)
+        # Objects far from the rest exchange practically no light with it; the area thresholds
+        # (Aeps, AR/AUTO's smallest element) are made relative to the rest only, so that the
+        # rest gets the same light with or without them.
+        extent = isolated_objects(scene_in.mesh)
+        area_ratio = extent.area_ratio
+        if extent.distant:
+            far = extent.distant
+            names = ", ".join(f"'{n}'" for n, _, _ in far[:5]) + (f" and {len(far) - 5} more" if len(far) > 5 else "")
+            near, farthest = _length(far[-1][1]), _length(far[0][1])
+            dist = farthest if near == farthest else f"{near} to {farthest}"
+            warn([f"{len(far)} object(s) lie far from the rest of the scene ({names}, {dist} away; the rest "
+                  f"is {_length(extent.main_size)} across): they "
+                  "exchange almost no light with it and do not change its element sizes. Exclude them "
+                  "(Object > HR Radiosity > Exclude) if they are not meant to be there."])
+            params = dataclasses.replace(params, aeps=params.aeps * area_ratio)
         has_shapes = bool(light_shape_objects(view_layer, include_hidden=True))
         if has_shapes and DynamicRadiosity is None:
             raise SceneError("Light shapes need the dynamic solver (hr_addon.core.events), "
@@ -196,23 +290,29 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         total = end - start + 1
         yield BakeProgress("build", total=total, warnings=list(result.warnings),
                            message=f"Building the hierarchy ({npoly} polygons, {quality.lower()} quality)")
+        intr.check()
         t0 = time.perf_counter()
 
         def on_build(info):
+            intr.check()
             if progress is not None:
                 progress(BakeProgress("build", total=total, fraction=BUILD_SHARE * float(info.fraction),
                                       eta=float(info.eta), message=f"Building the hierarchy: {info.message}"))
 
-        system = RadiositySystem(scene_in.mesh, params, progress=on_build)
-        dyn = DynamicRadiosity(system, method=method) if has_shapes else None
+        with intr.raising():
+            system = RadiositySystem(scene_in.mesh, params, progress=on_build)
+            dyn = None
+            if has_shapes:
+                dyn = DynamicRadiosity(system, method=method, min_area_rel=_MIN_AREA_REL * area_ratio)
         result.build_seconds = time.perf_counter() - t0
         result.build_report = system.build
         result.rays = ray_backend_name(system)
         result.rays_note = ray_backend_note(result.rays)
-        result.warnings += [w for w in system.build.warnings if w not in result.warnings]
+        warn(system.build.warnings)
         info = {"blend": os.path.basename(bpy.data.filepath), "scene": scene.name, "method": method,
                 "quality": quality, "feps": params.feps, "aeps": params.aeps, "output": output,
-                "rays": result.rays, "created": time.strftime("%Y-%m-%d %H:%M:%S")}
+                "rays": result.rays, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
+                "view_layer": view_layer.name, "geometry": geometry_sig, "light_shapes": shapes_id}
         if result.rays_note:
             info["rays_note"] = result.rays_note
         baker = None
@@ -222,7 +322,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
                                              resolution, texture_format)
             except texture.TextureError as exc:
                 raise SceneError(str(exc)) from None
-            result.warnings += [w for w in baker.warnings if w not in result.warnings]
+            warn(baker.warnings)
             objects = baker.objects_info(scene_in.targets)
             writer = CacheWriter(final_dir, objects, "TEXTURE",
                                  baker.signature(_signature(scene_in.mesh, params, "TEXTURE", scene_in.targets)), info)
@@ -231,9 +331,25 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
             objects = {t.name: {"mesh": t.mesh_name, "count": t.n_corner if domain == "CORNER" else t.n_point}
                        for t in scene_in.targets}
             writer = CacheWriter(final_dir, objects, domain, _signature(scene_in.mesh, params, domain, scene_in.targets), info)
+        # Frames of the previous bake that this one keeps but whose files are missing or damaged
+        # are baked again (not kept, not dropped).
+        in_range = set(range(start, end + 1))
+        damaged = writer.damaged_frames(in_range)
+        if baker is not None:
+            old, why = writer.previous()
+            if old is not None and not why:
+                damaged.update(baker.damaged_frames(writer.final, [f for f in old.frames if f not in in_range]))
+        frames_todo = sorted(in_range | set(damaged))
+        if damaged:
+            result.rebaked = sorted(damaged)
+            reasons = sorted(set(damaged.values()))
+            warn([f"Frames {frame_ranges(damaged)} of the previous bake were missing or damaged "
+                  f"({'; '.join(reasons[:3])}): baked them again."])
+        total = len(frames_todo)
         prev_sig = prev_frame = None
         t_frames = time.perf_counter()
-        for i, f in enumerate(range(start, end + 1)):
+        for i, f in enumerate(frames_todo):
+            intr.check()
             frame_warnings = []
             if has_shapes:
                 scene.frame_set(f)
@@ -241,6 +357,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
                 sig = shapes_signature(shapes)
             else:
                 shapes, sig = None, "static"
+            intr.check()
             if sig == prev_sig:
                 writer.reuse(f, prev_frame)
                 if baker is not None:
@@ -248,32 +365,39 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
                 result.reused += 1
                 reused = True
             else:
-                if dyn is not None:
-                    report = dyn.apply(shapes)
-                    frame_warnings += list(getattr(report, "messages", []) or [])
-                else:
-                    system.solve()
+                with intr.raising():
+                    if dyn is not None:
+                        report = dyn.apply(shapes)
+                        frame_warnings += [m for m in (getattr(report, "messages", []) or [])
+                                           if "response reused from the cache" not in m]
+                    else:
+                        system.solve()
+                    if baker is not None:
+                        values = baker.radiance(dyn, system)
+                    else:
+                        values = dyn.loop_radiance(domain) if dyn is not None else system.loop_radiance(domain)
+                        values = {t.name: t.extract(values, domain) for t in scene_in.targets}
+                intr.check()
                 if baker is not None:
-                    baker.write(f, baker.radiance(dyn, system))
+                    baker.write(f, values)
                     writer.write(f, {})      # the frame's entry in the manifest (textures hold the values)
                 else:
-                    values = dyn.loop_radiance(domain) if dyn is not None else system.loop_radiance(domain)
-                    writer.write(f, {t.name: t.extract(values, domain) for t in scene_in.targets})
+                    writer.write(f, values)
                 result.solved += 1
                 reused = False
             prev_sig, prev_frame = sig, f
-            new_w = [w for w in frame_warnings if w not in result.warnings]
-            result.warnings += new_w
+            new_w = warn(frame_warnings, f)
             left = (time.perf_counter() - t_frames) / (i + 1) * (total - i - 1)
             yield BakeProgress("frame", frame=f, done=i + 1, total=total, reused=reused, warnings=new_w,
                                fraction=BUILD_SHARE + (1 - BUILD_SHARE) * (i + 1) / total, eta=left,
                                message=f"Frame {f} ({i + 1}/{total}){' unchanged' if reused else ''}")
         if baker is not None:
             baker.finish(writer)
+        intr.check()                      # the last moment a cancel keeps the previous bake
         writer.commit()
         committed = True
         result.kept = writer.kept
-        result.warnings += writer.messages
+        warn(writer.messages)
         use_bake(scene, final_dir, output, geo_objects)
     finally:
         if writer is not None and not committed:
@@ -284,6 +408,14 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         playback.load_frame(scene)
     result.seconds = time.perf_counter() - t_start
     return result
+
+
+_MIN_AREA_REL = (inspect.signature(DynamicRadiosity).parameters["min_area_rel"].default
+                 if DynamicRadiosity is not None else 1e-5)
+
+
+def _length(m):
+    return f"{m / 1000:.3g} km" if m >= 1000 else (f"{m:.3g} m" if m >= 0.1 else f"{m * 100:.3g} cm")
 
 
 class BakeJob:
@@ -341,28 +473,40 @@ def use_bake(scene, final_dir, output, geo_objects=None):
 
 
 def run_bake(scene, log=print, status=None, **kwargs):
-    """Headless bake: a plain loop printing progress lines; returns the BakeResult.
+    """Headless bake: a plain loop printing progress lines, then every warning once (repeats
+    counted: 'HR Radiosity: warning: ... [8 times on frames 6-13]'); returns the BakeResult. The
+    warnings are printed when the bake fails or is cancelled too (then the exception propagates).
 
     status: optional callable(BakeProgress) receiving every progress report (build and frames),
     e.g. the background worker's status file writer."""
     def report(p):
-        for w in p.warnings:
-            log(f"HR Radiosity: warning: {w}", flush=True)
         log(f"HR Radiosity: {p.message}", flush=True)
         if status is not None:
             status(p)
 
-    gen = bake_frames(scene, progress=report, **kwargs)
-    while True:
-        try:
-            p = next(gen)
-        except StopIteration as stop:
-            res = stop.value
-            break
-        report(p)
+    collected = kwargs.pop("warnings", None)
+    if collected is None:
+        collected = Warnings()
+    gen = bake_frames(scene, progress=report, warnings=collected, **kwargs)
+    try:
+        while True:
+            try:
+                p = next(gen)
+            except StopIteration as stop:
+                res = stop.value
+                break
+            report(p)
+    except BaseException:
+        gen.close()
+        for w in collected.lines():
+            log(f"HR Radiosity: warning: {w}", flush=True)
+        raise
     log(f"HR Radiosity: {res.summary()}", flush=True)
+    for w in res.warning_lines():
+        log(f"HR Radiosity: warning: {w}", flush=True)
     return res
 
 
-__all__ = ["bake_frames", "run_bake", "use_bake", "BakeJob", "BakeProgress", "BakeResult", "SceneError", "InputError", "Cancelled",
+__all__ = ["bake_frames", "run_bake", "use_bake", "BakeJob", "BakeProgress", "BakeResult", "Warnings", "SceneError",
+           "InputError", "Cancelled",
            "METHODS", "QUALITIES", "DOMAINS", "OUTPUTS"]

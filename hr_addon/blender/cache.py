@@ -5,16 +5,23 @@ Layout of a cache directory (default //hr_cache/<blend name>/):
     frame_000001.npz      one float32 (count, 4) RGBA array per object: linear outgoing radiance
 Frames whose light state did not change point at the previous frame's file (no new file).
 
-Safety: a bake writes into a sibling temporary directory and only replaces the cache at the end
-(CacheWriter.commit), every file is written to a temporary name and os.replace()d, so a
-cancelled or failed bake leaves the previous cache untouched. Frames of the previous cache that
-the new bake did not cover are kept when the geometry and settings are identical, so baking
-frames 1-50 and 51-100 separately yields the same cache as baking 1-100 once.
+Safety: a bake writes into a sibling temporary directory (.<name>.baking-<host>-<pid>-<ms>) and
+only replaces the cache at the end (CacheWriter.commit), every file is written to a temporary name
+and os.replace()d, so a cancelled or failed bake leaves the previous cache untouched. Temporary
+directories left by killed processes of this machine are removed by the next bake of that cache.
+Frames of the previous cache that the new bake did not cover are kept when the geometry and
+settings (method, quality, output, objects) are identical, so baking frames 1-50 and 51-100
+separately yields the same cache as baking 1-100 once; otherwise they are discarded and
+CacheWriter.messages says why. Kept frames whose file is missing or damaged are reported by
+CacheWriter.damaged_frames() so that the bake re-bakes them.
 """
 import json
 import os
+import re
 import shutil
+import socket
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -59,11 +66,166 @@ def frame_filename(frame):
     return f"frame_{frame:06d}.npz" if frame >= 0 else f"frame_m{-frame:06d}.npz"
 
 
+HOST = re.sub(r"[^A-Za-z0-9_.]", "_", socket.gethostname() or "host")
+_TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<kind>baking|old)-(?:(?P<host>[A-Za-z0-9_.]+)-)?(?P<pid>\d+)-(?P<ms>\d+)$")
+
+
+def temp_dirs(final_dir):
+    """[(path, kind, host, pid, ms)] of the temporary directories of the cache `final_dir`: bakes in
+    progress or left by killed processes ("baking"), swapped-out old caches ("old")."""
+    final = Path(final_dir)
+    out = []
+    try:
+        entries = list(final.parent.iterdir())
+    except OSError:
+        return out
+    for p in entries:
+        m = _TEMP.match(p.name)
+        if m and m.group("name") == final.name and p.is_dir():
+            out.append((p, m.group("kind"), m.group("host") or "", int(m.group("pid")), int(m.group("ms"))))
+    return out
+
+
+def pid_alive(pid):
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True           # exists (another user's), or cannot tell: keep its folder
+    return True
+
+
+def remove_stale_temp(final_dir):
+    """Remove the temporary directories of `final_dir` left by processes of this machine that no
+    longer run (a bake killed with SIGKILL, a crash). Folders of other machines sharing the cache
+    folder (split bakes) are left alone. Returns the removed paths."""
+    removed = []
+    final = Path(final_dir)
+    for p, kind, host, pid, _ in temp_dirs(final):
+        if host not in ("", HOST) or pid_alive(pid):
+            continue
+        if kind == "old" and not final.exists():
+            continue          # recover() puts it back
+        shutil.rmtree(p, ignore_errors=True)
+        if not p.exists():
+            removed.append(p)
+    return removed
+
+
+def check_writable(final_dir):
+    """Raise CacheError (naming the folder) unless a bake can be written next to `final_dir` and
+    swapped in: checked before the (long) hierarchy build."""
+    final = Path(final_dir)
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        probe = final.parent / f".{final.name}.probe-{HOST}-{os.getpid()}-{int(time.time() * 1000)}"
+        probe.mkdir()
+        try:
+            (probe / "x").write_bytes(b"x")
+        finally:
+            shutil.rmtree(probe, ignore_errors=True)
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        raise CacheError(f"Cannot write the cache folder '{final.parent}': {reason}. Choose a writable "
+                         "Cache Folder (or --cache-dir).") from None
+    if final.exists() and not os.access(final, os.W_OK):
+        raise CacheError(f"Cannot write the cache folder '{final}': it is read-only. Choose a writable "
+                         "Cache Folder (or --cache-dir).")
+
+
+def frame_ranges(frames):
+    """'1-3, 7, 9-12' for a set of frame numbers."""
+    fs = sorted(set(int(f) for f in frames))
+    out = []
+    for f in fs:
+        if out and f == out[-1][1] + 1:
+            out[-1][1] = f
+        else:
+            out.append([f, f])
+    return ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in out)
+
+
+def _names(names, limit=5):
+    names = sorted(names)
+    return ", ".join(f"'{n}'" for n in names[:limit]) + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def changed_objects(old: dict, new: dict):
+    """Phrases naming the objects whose signature differs between two {name: signature} dicts."""
+    parts = []
+    changed = [k for k in new if k in old and old[k] != new[k]]
+    added = [k for k in new if k not in old]
+    gone = [k for k in old if k not in new]
+    if changed:
+        parts.append(f"{_names(changed)} changed")
+    if added:
+        parts.append(f"{_names(added)} {'is' if len(added) == 1 else 'are'} new")
+    if gone:
+        parts.append(f"{_names(gone)} {'is' if len(gone) == 1 else 'are'} gone")
+    return parts
+
+
+def settings_difference(old: dict, new: dict):
+    """Why the bake described by manifest `old` cannot share frames with `new` ('' if it can)."""
+    why = []
+    for key in ("output", "domain", "method", "quality"):
+        a, b = old.get(key), new.get(key)
+        if key == "domain" and old.get("output") != new.get("output"):
+            continue                      # follows from the output
+        if a is not None and b is not None and a != b:
+            why.append(f"{key} {str(a).lower()} (this bake: {str(b).lower()})")
+    if not why and old.get("quality") == "CUSTOM" and (old.get("feps"), old.get("aeps")) != (new.get("feps"), new.get("aeps")):
+        why.append(f"feps {old.get('feps')}, aeps {old.get('aeps')} (this bake: {new.get('feps')}, {new.get('aeps')})")
+    if "geometry" in old and "geometry" in new:
+        geo = changed_objects(old["geometry"], new["geometry"])
+        if geo:
+            why.append("other geometry: " + "; ".join(geo))
+    if "light_shapes" in old and "light_shapes" in new:
+        ls = changed_objects(old["light_shapes"], new["light_shapes"])
+        if ls:
+            why.append("other light shapes: " + "; ".join(ls))
+    if not why and old.get("objects") != new.get("objects"):
+        why.append("other objects or texture settings")
+    if not why and old.get("signature") != new.get("signature"):
+        why.append("other geometry or settings")
+    return "; ".join(why)
+
+
+def npz_problem(path, objects=None):
+    """'' if the frame file at `path` looks complete (a zip of (count, 4) float32 arrays, sizes as the
+    manifest says), else what is wrong. Reads the zip directory and array headers, not the data."""
+    path = Path(path)
+    if not path.is_file():
+        return "missing"
+    try:
+        with zipfile.ZipFile(path) as z:
+            for info in z.infolist():
+                name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+                with z.open(info) as fh:
+                    fmt = np.lib.format
+                    version = fmt.read_magic(fh)
+                    read = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+                    shape, _, dtype = read(fh)
+                    hdr = fh.tell()
+                want = (objects or {}).get(name, {}).get("count")
+                if len(shape) != 2 or shape[1] != 4 or dtype != np.float32 or (want is not None and shape[0] != want):
+                    return f"bad array for '{name}'"
+                if info.file_size != hdr + shape[0] * 16 or info.compress_size < 0:
+                    return f"truncated array for '{name}'"
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as exc:
+        return f"unreadable ({exc})"
+    return ""
+
+
 class CacheWriter:
     def __init__(self, final_dir, objects: dict, domain: str, signature: str, info: dict = None):
         self.final = Path(final_dir)
-        self.final.parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = self.final.parent / f".{self.final.name}.baking-{os.getpid()}-{int(time.time() * 1000)}"
+        check_writable(self.final)
+        self.removed_temp = remove_stale_temp(self.final)
+        self.tmp = self.final.parent / f".{self.final.name}.baking-{HOST}-{os.getpid()}-{int(time.time() * 1000)}"
         self.tmp.mkdir()
         self.objects = objects
         self.domain = domain
@@ -82,17 +244,43 @@ class CacheWriter:
     def reuse(self, frame, prev_frame):
         self.frames[int(frame)] = self.frames[int(prev_frame)]
 
-    def _merge_previous(self):
+    def _manifest_now(self):
+        return dict(self.info, format=FORMAT, domain=self.domain, objects=self.objects, signature=self.signature)
+
+    def previous(self):
+        """(CacheReader of the previous bake or None, why its frames cannot be kept: '' if they can)."""
         try:
             old = CacheReader(self.final)
         except CacheError:
+            return None, ""
+        return old, settings_difference(old.manifest, self._manifest_now())
+
+    def damaged_frames(self, baking=()):
+        """{frame: problem} of the previous bake's frames that this bake would keep (not in `baking`)
+        but whose file is missing or damaged: the bake re-bakes them instead."""
+        old, why = self.previous()
+        if old is None or why:
+            return {}
+        out, seen = {}, {}
+        for f, name in sorted(old.frames.items()):
+            if f in baking or f in self.frames:
+                continue
+            if name not in seen:
+                seen[name] = npz_problem(self.final / name, old.objects)
+            if seen[name]:
+                out[f] = seen[name]
+        return out
+
+    def _merge_previous(self):
+        old, why = self.previous()
+        if old is None:
             return
-        m = old.manifest
-        if m.get("signature") != self.signature or m.get("domain") != self.domain \
-                or m.get("objects") != self.objects:
-            self.messages.append("Previous bake used other geometry or settings; its frames were discarded.")
+        left = sorted(f for f in old.frames if f not in self.frames)
+        if why:
+            if left:
+                self.messages.append(f"The previous bake's frames {frame_ranges(left)} were discarded: it used {why}.")
             return
-        renamed = {}
+        renamed, lost = {}, []
         for f, name in sorted(old.frames.items()):
             if f in self.frames:
                 continue
@@ -103,7 +291,8 @@ class CacheWriter:
                     dst = name.replace(".npz", f"_{k}.npz")
                     k += 1
                 src = self.final / name
-                if not src.is_file():
+                if npz_problem(src, old.objects):
+                    lost.append(f)
                     continue
                 try:
                     os.link(src, self.tmp / dst)
@@ -112,16 +301,18 @@ class CacheWriter:
                 renamed[name] = dst
             self.frames[f] = renamed[name]
             self.kept += 1
+        if lost:
+            self.messages.append(f"Frames {frame_ranges(lost)} of the previous bake became unreadable during "
+                                 "this bake and are not in it: bake them again.")
 
     def commit(self):
         """Merge the kept frames of the previous bake, write the manifest, swap directories."""
         self._merge_previous()
-        manifest = dict(self.info, format=FORMAT, domain=self.domain, objects=self.objects,
-                        signature=self.signature, frames={str(k): v for k, v in sorted(self.frames.items())})
+        manifest = dict(self._manifest_now(), frames={str(k): v for k, v in sorted(self.frames.items())})
         write_json(self.tmp / MANIFEST, manifest)
         old = None
         if self.final.exists():
-            old = self.final.parent / f".{self.final.name}.old-{os.getpid()}-{int(time.time() * 1000)}"
+            old = self.final.parent / f".{self.final.name}.old-{HOST}-{os.getpid()}-{int(time.time() * 1000)}"
             os.replace(self.final, old)
         os.replace(self.tmp, self.final)
         if old is not None:
@@ -137,9 +328,9 @@ def recover(final_dir):
     final = Path(final_dir)
     if final.exists() or not final.parent.is_dir():
         return False
-    olds = sorted(final.parent.glob(f".{final.name}.old-*"))
+    olds = sorted((ms, str(p)) for p, kind, _, _, ms in temp_dirs(final) if kind == "old")
     if olds:
-        os.replace(olds[-1], final)
+        os.replace(olds[-1][1], final)
         return True
     return False
 

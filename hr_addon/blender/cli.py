@@ -2,7 +2,8 @@
 `python -m hr_addon bake scene.blend ...`.
 
 Exit codes: 0 success; 1 the scene cannot be baked (no meshes, invalid geometry, ...);
-2 bad command line (unknown option, bad frame range, missing or unreadable .blend file).
+2 bad command line (unknown option, bad frame range, missing or unreadable .blend file);
+130 cancelled (Ctrl-C or SIGTERM; the previous bake is kept, no temporary folder is left).
 Errors are one line on stderr: "hr_bake: error: <reason>".
 """
 import argparse
@@ -11,6 +12,17 @@ import re
 import sys
 
 PROG = "hr_bake"
+
+EXIT_CODES = """exit codes:
+  0    success
+  1    the scene cannot be baked (no meshes, NaN coordinates, invalid light shape,
+       cannot write the cache)
+  2    bad command line (unknown option, bad frame range, missing or unreadable .blend)
+  130  cancelled by Ctrl-C or SIGTERM: the previous bake is kept, no temporary folder is left
+
+Errors are one line on stderr: "hr_bake: error: <reason>". Warnings are listed once after the
+summary line (repeats counted). Options default to the scene's settings (Render Properties >
+HR Radiosity)."""
 
 
 class UsageError(Exception):
@@ -24,22 +36,30 @@ class _Parser(argparse.ArgumentParser):
 
 def make_parser(prog=PROG, blend_required=False):
     p = _Parser(prog=prog, description="Bake dynamic hierarchical radiosity into the HR_Radiance "
-                                       "attribute cache (or baked textures) of a .blend file.")
+                                       "attribute cache (or baked textures) of a .blend file.",
+                epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("blend", nargs=None if blend_required else "?",
                    help="the .blend file (default: the file Blender opened)")
-    p.add_argument("--frames", metavar="A-B", help="frame range (default: the scene's)")
-    p.add_argument("--method", type=str.lower, choices=["ar", "fe", "naive", "auto"])
+    p.add_argument("--frames", metavar="A-B", help="frame range, e.g. 1-250, or one frame (default: the scene's)")
+    p.add_argument("--method", type=str.lower, choices=["ar", "fe", "naive", "auto"],
+                   help="how light-shape changes are applied: auto (recommended), ar (adaptive "
+                        "refinement), fe (fractional emissivity, fastest), naive (rebuild, slow reference)")
     p.add_argument("--output", type=str.lower, choices=["vertex", "texture"],
                    help="vertex colours (HR_Radiance) or baked textures (default: the scene's)")
-    p.add_argument("--resolution", type=int, metavar="N", help="texture size in texels (texture output)")
-    p.add_argument("--texture-format", type=str.lower, choices=["exr", "png"], help="texture file format")
-    p.add_argument("--quality", type=str.lower, choices=["draft", "medium", "high", "custom"])
-    p.add_argument("--feps", type=float, help="form factor threshold (implies --quality custom)")
-    p.add_argument("--aeps", type=float, help="area threshold (implies --quality custom)")
-    p.add_argument("--domain", type=str.lower, choices=["corner", "point"])
+    p.add_argument("--resolution", type=int, metavar="N", help="texture size in texels, 8 to 16384 (texture output)")
+    p.add_argument("--texture-format", type=str.lower, choices=["exr", "png"],
+                   help="texture files: exr (32-bit float, linear) or png (16-bit, sRGB)")
+    p.add_argument("--quality", type=str.lower, choices=["draft", "medium", "high", "custom"],
+                   help="refinement preset; custom uses --feps and --aeps")
+    p.add_argument("--feps", type=float, help="form factor threshold, 0 < F <= 1 (implies --quality custom)")
+    p.add_argument("--aeps", type=float, help="smallest element area as a fraction of the scene's area, "
+                                              "0 < A < 1 (implies --quality custom)")
+    p.add_argument("--domain", type=str.lower, choices=["corner", "point"],
+                   help="vertex output per face corner (creases stay sharp) or per vertex")
     p.add_argument("--scene", help="scene name (default: the active scene)")
     p.add_argument("--view-layer", help="view layer name (default: the window's, else the first)")
-    p.add_argument("--save", metavar="PATH", help="save the .blend (with the bake settings) to PATH")
+    p.add_argument("--save", metavar="PATH", help="save a copy of the .blend (with the bake settings) to PATH; "
+                                                  "the bake itself is in the input file's cache folder")
     p.add_argument("--cache-dir", metavar="DIR", help="write the bake into DIR (absolute; default: the "
                                                       "scene's cache folder next to the .blend)")
     p.add_argument("--status-file", metavar="PATH", help="keep a JSON progress status in PATH "
@@ -62,8 +82,25 @@ def _err(msg):
     print(f"{PROG}: error: {msg}", file=sys.stderr, flush=True)
 
 
-def run(argv, prog=PROG, blend_required=False):
-    """Parse argv and bake; returns the exit code (never raises for bad input)."""
+def cancelled_message():
+    return f"{PROG}: cancelled; the previous bake is kept"
+
+
+def run(argv, prog=PROG, blend_required=False, interrupts=None):
+    """Parse argv and bake; returns the exit code (never raises for bad input).
+
+    interrupts: an interrupt.Interrupts already installed (python -m hr_addon installs it before
+    importing bpy, so a Ctrl-C then is not lost); otherwise SIGINT and SIGTERM are handled from
+    here on. Either way the previous handlers are back when run() returns."""
+    from .interrupt import INTERRUPTS
+    intr = (interrupts or INTERRUPTS).install()
+    try:
+        return _run(argv, prog, blend_required, intr)
+    finally:
+        intr.restore()
+
+
+def _run(argv, prog, blend_required, intr):
     try:
         args = make_parser(prog, blend_required).parse_args(list(argv))
         frames = parse_frames(args.frames) if args.frames is not None else None
@@ -78,7 +115,7 @@ def run(argv, prog=PROG, blend_required=False):
     import bpy
     from ..core.geometry import InputError
     from ..core.progress import Cancelled
-    from .bake import run_bake
+    from .bake import Warnings, run_bake
     from .jobstatus import StatusWriter
 
     status = None
@@ -95,6 +132,14 @@ def run(argv, prog=PROG, blend_required=False):
             status.write(state="failed", error=msg)
         return code
 
+    def cancelled():
+        print(cancelled_message(), file=sys.stderr, flush=True)
+        if status is not None:
+            status.write(state="cancelled")
+        return 130
+
+    if intr.requested:
+        return cancelled()
     if args.blend is not None:
         try:
             bpy.ops.wm.open_mainfile(filepath=os.path.abspath(args.blend), load_ui=False)
@@ -103,6 +148,8 @@ def run(argv, prog=PROG, blend_required=False):
                            f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else exc}")
     elif not bpy.data.filepath:
         return fail(2, "no .blend file loaded (pass one: blender -b scene.blend -c hr_bake ...)")
+    if intr.requested:
+        return cancelled()
     scene = bpy.context.scene
     if args.scene:
         scene = bpy.data.scenes.get(args.scene)
@@ -122,19 +169,17 @@ def run(argv, prog=PROG, blend_required=False):
     aeps = args.aeps if args.aeps is not None else scene.hr.aeps
     if quality == "custom" and not (0 < feps <= 1 and 0 < aeps < 1):
         return fail(2, f"bad thresholds feps={feps} aeps={aeps} (need 0 < feps <= 1, 0 < aeps < 1)")
-    restore = _terminate_as_exit()
+    collected = Warnings()
     try:
         res = run_bake(scene, view_layer=view_layer,
                        frames=frames, method=args.method, quality=quality, domain=args.domain,
                        feps=feps, aeps=aeps, output=args.output, resolution=args.resolution,
                        texture_format=args.texture_format, cache_dir=args.cache_dir,
-                       status=status.progress if status is not None else None)
+                       status=status.progress if status is not None else None,
+                       interrupts=intr, warnings=collected)
     except (Cancelled, KeyboardInterrupt, SystemExit):
-        # Cancelled (e.g. SIGTERM from the interactive bake's Cancel): the partial bake was removed.
-        print(f"{PROG}: cancelled; the previous bake is kept", file=sys.stderr, flush=True)
-        if status is not None:
-            status.write(state="cancelled")
-        return 130
+        # Ctrl-C or SIGTERM (the interactive bake's Cancel): the partial bake was removed.
+        return cancelled()
     except InputError as exc:
         return fail(1, str(exc).replace("\n", " "))
     except OSError as exc:
@@ -144,9 +189,8 @@ def run(argv, prog=PROG, blend_required=False):
             import traceback
             traceback.print_exc()
         return fail(1, f"internal error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
-    finally:
-        restore()
-    if args.save:
+    late = intr.requested     # came after the commit: the new bake is complete and kept
+    if args.save and not late:
         path = os.path.abspath(args.save)
         try:
             bake_abs = os.path.abspath(bpy.path.abspath(scene.hr.bake_dir))
@@ -160,29 +204,17 @@ def run(argv, prog=PROG, blend_required=False):
             _err(f"cannot save {args.save}: {exc}")
             return 1
         print(f"{PROG}: saved {path}", flush=True)
-    if res.warnings:
-        print(f"{PROG}: {len(res.warnings)} warning(s)", flush=True)
+    lines = res.warning_lines()
+    if lines:
+        print(f"{PROG}: {len(lines)} warning(s) (listed above)", flush=True)
     if status is not None:
         status.write(state="done", fraction=1.0, eta=None, summary=res.summary(), rays=res.rays,
                      cache_dir=res.cache_dir, output=(args.output or scene.hr.output).upper(),
-                     message=f"Baked frames {res.frames[0]}-{res.frames[1]}",
-                     warnings=status.data["warnings"] + [w for w in res.warnings if w not in status.data["warnings"]])
+                     message=f"Baked frames {res.frames[0]}-{res.frames[1]}", warnings=lines)
+    if late:
+        print(f"{PROG}: the cancel came after the bake was complete; the new bake is kept"
+              + (" (the copy was not saved)" if args.save else ""), file=sys.stderr, flush=True)
     return 0
-
-
-def _terminate_as_exit():
-    """SIGTERM raises SystemExit in the main thread, so that the bake's cleanup runs (the partial
-    cache folder is removed). Returns a function restoring the previous handler."""
-    import signal
-
-    def on_term(signum, frame):
-        raise SystemExit(143)
-
-    try:
-        old = signal.signal(signal.SIGTERM, on_term)
-    except (ValueError, OSError, AttributeError):   # not the main thread / no such signal
-        return lambda: None
-    return lambda: signal.signal(signal.SIGTERM, old)
 
 
 def cli_command(argv):

@@ -14,6 +14,21 @@ from .preview import add_preview, has_preview, remove_preview
 from .scene_in import geometry_objects
 
 
+def _report_bake_state(op, context):
+    """Compare the scene with its bake (playback.check_scene) and report it; the message or ''."""
+    try:
+        dg = context.evaluated_depsgraph_get()
+    except (RuntimeError, AttributeError):
+        dg = None
+    msg = playback.check_scene(context.scene, dg, force=True)
+    if msg:
+        op.report({"WARNING"}, msg)
+    problem = playback.state["messages"].get(context.scene.name_full, "")
+    if problem and problem != msg:
+        op.report({"WARNING"}, problem)
+    return msg
+
+
 def _has_bake(scene):
     return bool(playback.bake_dir_abs(scene))
 
@@ -61,8 +76,9 @@ class HR_OT_bake(bpy.types.Operator):
         except (InputError, OSError, RuntimeError, ValueError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        for w in res.warnings:
+        for w in res.warning_lines():
             self.report({"WARNING"}, w)
+        playback.state.setdefault("notes", {})[context.scene.name_full] = res.warning_lines()
         self.report({"INFO"}, f"Baked {res.frames[0]}-{res.frames[1]}: {res.solved} solved, "
                               f"{res.reused} unchanged ({res.rays_text})")
         return {"FINISHED"}
@@ -99,6 +115,8 @@ class HR_OT_bake(bpy.types.Operator):
         for w in job.warnings:
             self.report({"WARNING"}, w)
         if job.state == "done":
+            if getattr(job, "scene_name", None):
+                playback.state.setdefault("notes", {})[job.scene_name] = list(job.warnings)
             self.report({"INFO"}, f"HR Radiosity: {job.summary}")
             return {"FINISHED"}
         if job.state == "cancelled":
@@ -178,11 +196,13 @@ class HR_OT_add_preview(bpy.types.Operator):
                 self.report({"ERROR"}, str(exc))
                 return {"CANCELLED"}
             self.report({"INFO"}, f"Baked textures shown on {n} object(s)")
+            _report_bake_state(self, context)
             return {"FINISHED"}
         texture.remove_material(objs)
         n = add_preview(objs)
         context.scene.render.use_lock_interface = True
         self.report({"INFO"}, f"Preview on {len(objs)} object(s), {n} material(s)")
+        _report_bake_state(self, context)
         return {"FINISHED"}
 
 
@@ -214,9 +234,13 @@ class HR_OT_load_frame(bpy.types.Operator):
 
     def execute(self, context):
         playback.forget_readers()
-        if playback.load_frame(context.scene):
+        ok = playback.load_frame(context.scene)
+        stale = _report_bake_state(self, context)
+        if ok:
             return {"FINISHED"}
-        self.report({"ERROR"}, playback.status(context.scene) or "No radiosity bake to load")
+        msg = playback.state["messages"].get(context.scene.name_full, "")
+        if msg or not stale:
+            self.report({"ERROR"}, msg or "No radiosity bake to load")
         return {"CANCELLED"}
 
 
@@ -238,6 +262,9 @@ class HR_OT_clear_bake(bpy.types.Operator):
 def _forget_bake(scene):
     scene.hr.bake_dir = ""
     scene.hr.playback = False
+    playback.state["stale"].pop(scene.name_full, None)
+    playback.state["messages"].pop(scene.name_full, None)
+    playback.state.setdefault("notes", {}).pop(scene.name_full, None)
     texture.remove_material([o for o in scene.objects if o.type == "MESH"])
     for o in scene.objects:
         if o.type == "MESH" and playback.ATTRIBUTE in o.data.color_attributes:

@@ -24,9 +24,15 @@ def _draw_bake(layout, context):
     msg = playback.status(scene)
     if not msg and hr.playback and d and playback.render_unlocked(scene):
         msg = playback.LOCK_MESSAGE
-    if msg:
-        for i, line in enumerate(_wrap(msg, 60)):
+    for part in msg.split("\n") if msg else []:
+        for i, line in enumerate(_wrap(part, 60)):
             col.label(text=line, icon="ERROR" if i == 0 else "BLANK1")
+    notes = playback.state.get("notes", {}).get(scene.name_full) or []
+    for part in notes[:4]:
+        for i, line in enumerate(_wrap(part, 60)):
+            col.label(text=line, icon="INFO" if i == 0 else "BLANK1")
+    if len(notes) > 4:
+        col.label(text=f"... and {len(notes) - 4} more (see the Info editor)", icon="BLANK1")
     row = col.row(align=True)
     row.operator("hr.add_preview", icon="SHADING_RENDERED")
     row.operator("hr.remove_preview", text="", icon="X")

@@ -1,16 +1,29 @@
-"""Radiance out: cached frames -> colour attribute HR_Radiance, and the persistent handlers."""
+"""Radiance out: cached frames -> colour attribute HR_Radiance, and the persistent handlers.
+
+Never silently wrong: a frame whose file is missing or damaged shows magenta (Blender's colour
+for a missing texture) on the bake's objects, with a message in the panel; a scene that changed
+since the bake (geometry, materials, light shapes: signatures.py against the manifest) is named
+in the panel ("the scene changed since the bake (re-bake)"). The check runs when a bake is
+loaded (file open, Reload, Preview, after a bake), after frame changes when something was edited
+(depsgraph updates mark the scene), and half a second after an edit in the UI.
+"""
 import os
 
 import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from .cache import CacheError, CacheReader
+from .cache import CacheError, CacheReader, changed_objects
 
 ATTRIBUTE = "HR_Radiance"
+MAGENTA = (1.0, 0.0, 1.0, 1.0)
 
 # Set while a bake runs: the bake moves through frames itself, playback must not interfere.
-state = {"baking": False, "messages": {}, "readers": {}, "loaded": {}}
+# messages: load problems per scene; stale: "the scene changed" per scene; changes: memo of the
+# last check (key, message); dirty: scenes edited since; written: meshes whose HR_Radiance we
+# wrote (their next depsgraph update is ours, not an edit).
+state = {"baking": False, "messages": {}, "readers": {}, "loaded": {}, "stale": {}, "changes": {},
+         "dirty": set(), "written": set(), "image_checks": {}, "notes": {}}
 
 LOCK_MESSAGE = ("Frames are not loaded during this render: turn on Render > Lock Interface "
                 "(changing mesh data during a render is unsafe).")
@@ -25,7 +38,17 @@ def _log_once(scene, msg):
 
 
 def status(scene):
-    return state["messages"].get(scene.name_full, "")
+    """What the panel shows: the load problem, then whether the scene changed since the bake."""
+    return "\n".join(m for m in (state["messages"].get(scene.name_full, ""), state["stale"].get(scene.name_full, ""))
+                     if m)
+
+
+def _log_stale(scene, msg):
+    key = scene.name_full
+    if state["stale"].get(key, "") != msg:
+        if msg:
+            print(f"HR Radiosity: {msg}", flush=True)
+        state["stale"][key] = msg
 
 
 def default_cache_dir(scene):
@@ -68,7 +91,103 @@ def get_reader(directory):
 
 def forget_readers():
     state["readers"].clear()
+    state["changes"].clear()
+    state["image_checks"].clear()
     forget_loaded()
+
+
+# -- the scene against the bake ------------------------------------------------------------------
+def stale_message(scene, reader, directory, depsgraph=None, force=False):
+    """'' or 'The scene changed since the bake (re-bake): ...' naming the objects (memoized until
+    the scene is edited or another bake is loaded)."""
+    key = (directory, state["readers"].get(directory, (None,))[0])
+    memo = state["changes"].get(scene.name_full)
+    if memo is not None and memo[0] == key and not force and scene.name_full not in state["dirty"]:
+        return memo[1]
+    m = reader.manifest
+    msg = ""
+    if "geometry" in m:
+        from . import signatures
+        vl = signatures.view_layer_of(scene, m.get("view_layer"))
+        try:
+            same = depsgraph is not None and depsgraph.view_layer.name == vl.name and depsgraph.scene.name == scene.name
+        except (AttributeError, ReferenceError):
+            same = False
+        dg = depsgraph if same else vl.depsgraph
+        try:
+            parts = changed_objects(m["geometry"], signatures.geometry_signatures(vl, dg))
+            ls = changed_objects(m.get("light_shapes", {}), signatures.light_shape_identity(vl))
+        except (RuntimeError, ReferenceError, AttributeError) as exc:   # data going away (undo, file load)
+            parts, ls = [f"cannot compare ({exc})"], []
+        parts += [f"light shape(s) {p}" for p in ls]
+        if parts:
+            msg = "The scene changed since the bake (re-bake): " + "; ".join(parts) + "."
+    state["dirty"].discard(scene.name_full)
+    state["changes"][scene.name_full] = (key, msg)
+    return msg
+
+
+def check_scene(scene, depsgraph=None, force=False):
+    """Compare the scene with its bake now and update the panel's message. Returns the message."""
+    directory = bake_dir_abs(scene)
+    if not directory:
+        _log_stale(scene, "")
+        return ""
+    try:
+        reader = get_reader(directory)
+    except CacheError:
+        return ""
+    msg = stale_message(scene, reader, directory, depsgraph, force)
+    _log_stale(scene, msg)
+    return msg
+
+
+def show_missing(scene, reader=None):
+    """Magenta in HR_Radiance of the bake's objects (all meshes carrying it without a manifest):
+    the frame shown has no valid data, and renders must not use another frame's light."""
+    names = list(reader.objects) if reader is not None else [
+        o.name for o in scene.objects if o.type == "MESH" and ATTRIBUTE in o.data.color_attributes]
+    done = set()
+    for name in names:
+        obj = scene.objects.get(name) or bpy.data.objects.get(name)
+        if obj is None or obj.type != "MESH" or obj.mode == "EDIT" or obj.data.name in done:
+            continue
+        me = obj.data
+        attr = me.color_attributes.get(ATTRIBUTE)
+        if attr is None and reader is not None and reader.domain in ("CORNER", "POINT"):
+            attr = me.color_attributes.new(ATTRIBUTE, "FLOAT_COLOR", reader.domain)
+        if attr is None:
+            continue
+        attr.data.foreach_set("color", np.tile(np.array(MAGENTA, np.float32), len(attr.data)))
+        me.update_tag()
+        state["written"].add(me.name)
+        done.add(me.name)
+    return len(done)
+
+
+def _texture_problem(reader, directory, frame):
+    from .texture import image_file_problem
+    f = reader.nearest(frame)
+    for name, info in reader.objects.items():
+        tex = info.get("texture")
+        if not tex:
+            continue
+        path = os.path.join(directory, *(tex % f).split("/"))
+        try:
+            st = os.stat(path)
+            key = (path, st.st_mtime_ns, st.st_size)
+        except OSError:
+            key = (path, None, None)
+        why = state["image_checks"].get(key)
+        if why is None:
+            why = image_file_problem(path, info.get("resolution"))
+            if len(state["image_checks"]) > 4096:
+                state["image_checks"].clear()
+            state["image_checks"][key] = why
+        if why:
+            return (f"Radiosity cache texture '{path}' of object '{name}' is {why}: Blender shows it "
+                    "magenta (re-bake; a bake of any frame range re-bakes damaged frames).")
+    return ""
 
 
 def forget_loaded():
@@ -91,6 +210,7 @@ def write_attribute(mesh, values, domain):
                          f"cache holds {len(values)}: the mesh changed since the bake (re-bake).")
     attr.data.foreach_set("color", np.ascontiguousarray(values, np.float32).ravel())
     mesh.update_tag()
+    state["written"].add(mesh.name)
 
 
 def apply_arrays(scene, arrays, domain):
@@ -113,23 +233,42 @@ def apply_arrays(scene, arrays, domain):
 
 
 def load_frame(scene, frame=None):
-    """Load `frame` (default: current) of scene's bake into HR_Radiance. True on success."""
+    """Load `frame` (default: current) of scene's bake into HR_Radiance. True on success.
+
+    A missing or damaged frame (or cache) shows magenta and says so in the panel: the frame shown
+    before is not left in place for renders to use."""
     directory = bake_dir_abs(scene)
     if not directory:
         return False
     frame = scene.frame_current if frame is None else frame
     try:
         reader = get_reader(directory)
-        if reader.manifest.get("output") == "TEXTURE":   # image sequences play back by themselves
-            state["messages"].pop(scene.name_full, None)
-            return True
-        name = reader.frames[reader.nearest(frame)]
-        key = (directory, state["readers"].get(directory, (None,))[0], name)   # manifest mtime
-        if state["loaded"].get(scene.name_full) == key and _attributes_present(scene, reader):
-            return True          # same cached file as the frame shown: HR_Radiance is already right
+    except CacheError as exc:
+        if state["loaded"].get(scene.name_full) != ("missing", directory):
+            show_missing(scene)
+            state["loaded"][scene.name_full] = ("missing", directory)
+        _log_once(scene, f"{exc} Showing magenta.")
+        return False
+    if reader.manifest.get("output") == "TEXTURE":   # image sequences play back by themselves
+        problem = _texture_problem(reader, directory, frame)
+        if problem:
+            _log_once(scene, problem)
+            return False
+        state["messages"].pop(scene.name_full, None)
+        return True
+    name = reader.frames[reader.nearest(frame)]
+    key = (directory, state["readers"].get(directory, (None,))[0], name)   # manifest mtime
+    if state["loaded"].get(scene.name_full) == key and _attributes_present(scene, reader):
+        return True          # same cached file as the frame shown: HR_Radiance is already right
+    if state["loaded"].get(scene.name_full) == ("magenta", key):
+        return False         # the same damaged file: already magenta, message shown
+    try:
         arrays = reader.load(frame)
     except CacheError as exc:
-        _log_once(scene, f"{exc}")
+        show_missing(scene, reader)
+        state["loaded"][scene.name_full] = ("magenta", key)
+        _log_once(scene, f"{exc} Frame {frame} shows magenta (re-bake; a bake of any frame range "
+                         "re-bakes damaged frames).")
         return False
     problems = apply_arrays(scene, arrays, reader.domain)
     if problems:
@@ -165,17 +304,87 @@ def on_frame_change_pre(scene, *args):
 
 
 @persistent
+def on_frame_change_post(scene, depsgraph=None):
+    """After a frame change (depsgraph evaluated): compare the scene with the bake if it was
+    edited since the last comparison (or never compared)."""
+    if state["baking"] or not scene.hr.playback or render_unlocked(scene):
+        return
+    memo = state["changes"].get(scene.name_full)
+    if memo is None or scene.name_full in state["dirty"]:
+        check_scene(scene, depsgraph)
+
+
+_RELEVANT = ("Object", "Mesh", "Material", "ShaderNodeTree", "Collection", "Scene", "NodeTree", "Image")
+
+
+@persistent
+def on_depsgraph_update(scene, depsgraph=None):
+    """An edit may have changed what the bake depends on: mark the scene; the UI compares half a
+    second later (a drag does not compare at every step). Our own HR_Radiance writes are skipped."""
+    if state["baking"] or depsgraph is None:
+        return
+    written, state["written"] = state["written"], set()
+    relevant = False
+    for u in depsgraph.updates:
+        idd = u.id
+        kind = type(idd).__name__
+        if not any(kind.endswith(k) for k in _RELEVANT):
+            continue
+        if kind == "Mesh" and idd.name in written and not u.is_updated_transform:
+            continue
+        if kind == "Object" and not u.is_updated_transform:
+            data = getattr(idd, "data", None)
+            if data is not None and getattr(data, "name", None) in written:
+                continue
+        relevant = True
+        break
+    if not relevant:
+        return
+    for sc in bpy.data.scenes:
+        if sc.hr.playback and sc.hr.bake_dir:
+            state["dirty"].add(sc.name_full)
+    if not bpy.app.background and not bpy.app.timers.is_registered(_deferred_check):
+        bpy.app.timers.register(_deferred_check, first_interval=0.5)
+
+
+def _deferred_check():
+    if state["baking"]:
+        return 0.5
+    for sc in bpy.data.scenes:
+        if sc.name_full in state["dirty"] and sc.hr.playback:
+            try:
+                check_scene(sc)
+            except ReferenceError:
+                pass
+    for win in getattr(bpy.context.window_manager, "windows", []):
+        for area in win.screen.areas:
+            if area.type in {"PROPERTIES", "VIEW_3D"}:
+                area.tag_redraw()
+    return None
+
+
+@persistent
 def on_undo_redo(*args):
     forget_loaded()    # undo may bring back HR_Radiance values of another frame
+    for sc in bpy.data.scenes:
+        state["dirty"].add(sc.name_full)
 
 
 @persistent
 def on_load_post(*args):
     forget_readers()
     state["messages"].clear()
+    state["stale"].clear()
+    state["dirty"].clear()
+    state["notes"].clear()
     for scene in bpy.data.scenes:
         if scene.hr.playback and bake_dir_abs(scene):
             load_frame(scene)
+            try:
+                dg = bpy.context.evaluated_depsgraph_get() if bpy.context.scene == scene else None
+            except (RuntimeError, AttributeError):
+                dg = None
+            check_scene(scene, dg)
 
 
 def _remove(lst, fn):
@@ -188,7 +397,8 @@ def _remove(lst, fn):
 
 def _handlers():
     h = bpy.app.handlers
-    return ((h.frame_change_pre, on_frame_change_pre), (h.load_post, on_load_post),
+    return ((h.frame_change_pre, on_frame_change_pre), (h.frame_change_post, on_frame_change_post),
+            (h.depsgraph_update_post, on_depsgraph_update), (h.load_post, on_load_post),
             (h.undo_post, on_undo_redo), (h.redo_post, on_undo_redo))
 
 
@@ -201,3 +411,5 @@ def register():
 def unregister():
     for lst, fn in _handlers():
         _remove(lst, fn)
+    if bpy.app.timers.is_registered(_deferred_check):
+        bpy.app.timers.unregister(_deferred_check)

@@ -194,6 +194,49 @@ def read_image(path):
     return img[..., [chans.index(c) for c in "RGB"]]
 
 
+def image_file_problem(path, res=None):
+    """'' if the texture file at `path` is a complete EXR (offset table and chunks within the file)
+    or PNG (ends with IEND) of size res x res, else what is wrong ('missing', 'truncated', ...)."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        return "missing"
+    except OSError as exc:
+        return f"unreadable ({exc.strerror or exc})"
+    try:
+        if str(path).lower().endswith(".png"):
+            if data[:8] != b"\x89PNG\r\n\x1a\n":
+                return "not a PNG file"
+            if len(data) < 45 or data[-12:] != _png_chunk(b"IEND", b""):
+                return "truncated"
+            W, H = struct.unpack_from(">II", data, 16)
+        else:
+            if len(data) < 8 or struct.unpack_from("<i", data, 0)[0] != 20000630:
+                return "not an OpenEXR file"
+            pos, attrs = 8, {}
+            while data[pos] != 0:
+                e = data.index(b"\0", pos)
+                e2 = data.index(b"\0", e + 1)
+                size = struct.unpack_from("<i", data, e2 + 1)[0]
+                attrs[data[pos:e].decode()] = data[e2 + 5:e2 + 5 + size]
+                pos = e2 + 5 + size
+            pos += 1
+            x0, y0, x1, y1 = struct.unpack("<iiii", attrs["dataWindow"])
+            W, H = x1 - x0 + 1, y1 - y0 + 1
+            lines = {0: 1, 2: 1, 3: 16}.get(attrs["compression"][0], 1)
+            n = -(-H // lines)
+            for off in struct.unpack_from(f"<{n}Q", data, pos):
+                _, size = struct.unpack_from("<ii", data, off)
+                if off + 8 + size > len(data):
+                    return "truncated"
+    except (struct.error, ValueError, KeyError, IndexError, UnicodeDecodeError):
+        return "truncated or not an image of a bake"
+    if res is not None and (W, H) != (res, res):
+        return f"is {W} x {H} texels, not {res} x {res}"
+    return ""
+
+
 def _atomic_write(path, data):
     path = str(path)
     tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.{os.getpid()}.tmp")
@@ -775,6 +818,19 @@ class TextureBaker:
         for o in self.objects:
             _link(self._path(o, prev_frame), self._path(o, frame))
         self.files[int(frame)] = True
+
+    def damaged_frames(self, final_dir, frames):
+        """{frame: problem} of `frames` of the previous bake in final_dir whose texture files are
+        missing or damaged (checked as image_file_problem does: structure, not pixels)."""
+        src_dir = os.path.join(str(final_dir), TEX_DIR)
+        out = {}
+        for f in sorted(frames):
+            for o in self.objects:
+                why = image_file_problem(self._path(o, f, src_dir), o.res)
+                if why:
+                    out[f] = f"{os.path.basename(self._path(o, f, src_dir))} {why}"
+                    break
+        return out
 
     def finish(self, writer):
         """Before writer.commit(): bring over the texture files of the previous bake's frames that the

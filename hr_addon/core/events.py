@@ -4,8 +4,9 @@ A light shape is a planar polygon (outer ring + holes, concave allowed) with RGB
 existing surfaces. Shapes appear, change colour/intensity, move/reshape and disappear; overlapping
 shapes add. Four methods:
 
-- NAIVE: the shapes become new input patches, laid over the surface (offset by `naive_offset` x scene
-  diagonal along the surface normal, so the covered surface is hidden behind them). Overlaps, holes and
+- NAIVE: the shapes become new input patches, laid over the surface (offset by `naive_offset` x the
+  size of the shapes and their surfaces along the surface normal, so the covered surface is hidden
+  behind them); parts of a shape off every surface do not emit, as in the other methods. Overlaps, holes and
   concavity are resolved by a slab (trapezoid) decomposition of all shape and patch edges of a plane, so
   each light patch has one summed emission and the reflectance of the one surface patch under it. A new
   RadiositySystem is built (links from scratch) and solved cold. Baseline and accuracy reference.
@@ -36,7 +37,8 @@ Nodes below the HR leaves are reference-counted by the shapes that need them and
 when none does, so node and link counts return to the baseline.
 
 A shape on no surface is handled by NAIVE (for the whole configuration while it is active), and the
-report says so. Invalid shapes (NaN, not planar, degenerate) raise InputError naming the shape.
+report says so. Invalid shapes (NaN, not planar, degenerate, an outline that crosses itself, holes outside the outline
+or overlapping) raise InputError naming the shape.
 """
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -115,6 +117,7 @@ class _Rec:
     n: np.ndarray = None
     u: np.ndarray = None
     v: np.ndarray = None
+    tol: float = 0.0           # distance tolerance of its plane (plane_tol x its own size)
     rings2d: list = None
     area: float = 0.0
     group: np.ndarray = None   # coplanar root patches (emitting side)
@@ -143,8 +146,8 @@ class DynamicRadiosity:
                  direct_min_area_rel=None):
         """system: a built RadiositySystem (its hierarchy is extended in place below the HR leaves).
         min_area_rel: smallest AR node, fraction of the total scene area. node_budget: most nodes one shape
-        may add (AR/AUTO). plane_tol: distance tolerance of "on a surface", fraction of the scene
-        bounding-box diagonal. emission_tol: AUTO's target relative L1 error of the emission field.
+        may add (AR/AUTO). plane_tol: distance tolerance of "planar" and "on a surface", fraction of
+        the shape's own bounding-box diagonal (never the scene's). emission_tol: AUTO's target relative L1 error of the emission field.
         bf_rel: AUTO's first bounce: a receiver node is kept when rho x the range of F x V over it is
         below bf_rel (radiance per unit emitted radiance). direct_min_area_rel: smallest such receiver
         (and AUTO outline) node, default 4 x min_area_rel. incremental: "response" or "warm" (module
@@ -436,16 +439,40 @@ class DynamicRadiosity:
                 raise InputError(f"Light shape '{name}': ring {i} has NaN or infinite coordinates.")
             out.append(r)
         em = self._check_emission(shape.emission, name)
+        size = _size(out)
         nrm = _newell(out[0])
-        if np.linalg.norm(nrm) <= 1e-12 * self.diag ** 2:
-            raise InputError(f"Light shape '{name}': the outer ring has zero area.")
+        if np.linalg.norm(nrm) <= 1e-9 * size ** 2:
+            # No net area (e.g. a bowtie whose two lobes cancel): the plane from the points instead
+            pts = out[0]
+            sv, vt = np.linalg.svd(pts - pts.mean(0), full_matrices=False)[1:]
+            if len(sv) < 3 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
+                raise InputError(f"Light shape '{name}': the outer ring has zero area (its points lie on a line).")
+            nrm = vt[2]
         n = nrm / np.linalg.norm(nrm)
         c = out[0].mean(0)
         off = max(float(np.abs((r - c) @ n).max()) for r in out)
-        tol = self.plane_tol * self.diag
+        tol = _plane_tolerance(out, self.plane_tol)
         if off > tol:
             raise InputError(f"Light shape '{name}' is not planar: a point is {off:.3g} off its plane "
-                             f"(tolerance {tol:.3g}).")
+                             f"(tolerance {tol:.3g}, {self.plane_tol:.2%} of its size).")
+        key = tuple(r.tobytes() for r in out)
+        problem = self._outline_ok.get(key) if hasattr(self, "_outline_ok") else None
+        if problem is None:
+            axis = np.eye(3)[int(np.argmin(np.abs(n)))]
+            u = np.cross(n, axis)
+            u /= np.linalg.norm(u)
+            v = np.cross(n, u)
+            problem = outline_problem([np.stack([(r - c) @ u, (r - c) @ v], -1) for r in out])
+            cache = self.__dict__.setdefault("_outline_ok", OrderedDict())
+            cache[key] = problem
+            while len(cache) > 256:
+                cache.popitem(last=False)
+        if problem:
+            raise InputError(f"Light shape '{name}': {problem}. A light shape must be a simple outline "
+                             "(no crossings; holes inside it and apart): redraw it, e.g. as faces that "
+                             "do not overlap.")
+        if np.linalg.norm(_newell(out[0])) <= 1e-9 * size ** 2:
+            raise InputError(f"Light shape '{name}': the outer ring has zero area.")
         return out, em, name
 
     def _plane(self, rec):
@@ -457,6 +484,7 @@ class DynamicRadiosity:
         rec.u /= np.linalg.norm(rec.u)
         rec.v = np.cross(rec.n, rec.u)
         rec.rings2d = [self._to2d(rec, r) for r in rec.rings]
+        rec.tol = _plane_tolerance(rec.rings, self.plane_tol)
         a = [abs(clip.polygon_area_2d(r)) for r in rec.rings2d]
         rec.area = a[0] - sum(a[1:])
         if rec.area <= 0:
@@ -469,7 +497,7 @@ class DynamicRadiosity:
 
     def _find_surface(self, rec):
         pt = self.system.patches
-        tol = self.plane_tol * self.diag
+        tol = rec.tol
         dist = np.abs((pt.corners - rec.c) @ rec.n).max(1)
         al = pt.normal @ rec.n
         cand = (dist <= tol) & (np.abs(al) >= 0.999)
@@ -866,6 +894,116 @@ class DynamicRadiosity:
 
 
 # -- helpers --------------------------------------------------------------------------------------------
+def _size(rings):
+    """Bounding-box diagonal of a shape's rings (its own size)."""
+    pts = np.concatenate(rings)
+    return float(np.linalg.norm(pts.max(0) - pts.min(0)))
+
+
+def _plane_tolerance(rings, plane_tol):
+    """Distance tolerance of "in the shape's plane" / "on a surface": plane_tol x the shape's own
+    size, never the scene's (a far-away object must not change it), plus a floor for float32
+    coordinates (Blender's) far from the origin."""
+    pts = np.concatenate(rings)
+    return plane_tol * _size(rings) + 1e-6 * float(np.abs(pts).max())
+
+
+def _winding(pts, ring):
+    """Signed winding number of ring (M, 2) about points (N, 2)."""
+    a, b = ring[None], np.roll(ring, -1, 0)[None]
+    x, y = pts[:, :1], pts[:, 1:2]
+    side = (b[..., 0] - a[..., 0]) * (y - a[..., 1]) - (b[..., 1] - a[..., 1]) * (x - a[..., 0])
+    up = (a[..., 1] <= y) & (b[..., 1] > y) & (side > 0)
+    down = (b[..., 1] <= y) & (a[..., 1] > y) & (side < 0)
+    return up.sum(1) - down.sum(1)
+
+
+def outline_problem(rings2d, chunk=200_000):
+    """'' if the rings (outer first, then holes; 2D) bound one well-defined region, else what is wrong.
+
+    Well defined: no ring crosses itself or another ring, holes lie inside the outline and apart.
+    Only then do the even-odd rule (NAIVE), signed clipped areas (FE, AR, AUTO) and the nonzero
+    rule agree, so every method emits the same power. A self-intersecting outline (a pentagram,
+    a bowtie) is refused rather than given a meaning that would differ from Blender's own."""
+    rings = [np.asarray(r, float) for r in rings2d]
+    size = max(float(np.linalg.norm(np.concatenate(rings).max(0) - np.concatenate(rings).min(0))), 1e-300)
+    a = np.concatenate([r for r in rings])
+    b = np.concatenate([np.roll(r, -1, 0) for r in rings])
+    ring = np.concatenate([np.full(len(r), k) for k, r in enumerate(rings)])
+    idx = np.concatenate([np.arange(len(r)) for r in rings])
+    m = np.array([len(r) for r in rings])[ring]
+    tol = 1e-9 * size * size
+    E = len(a)
+    touch = False
+    # candidate pairs: edges whose bounding boxes overlap (sweep along x, then y), in chunks
+    pad = 1e-9 * size
+    lo, hi = np.minimum(a, b) - pad, np.maximum(a, b) + pad
+    order = np.argsort(lo[:, 0], kind="stable")
+    end = np.searchsorted(lo[order, 0], hi[order, 0], side="right")
+    first = np.arange(E) + 1
+    counts = np.maximum(end - first, 0)
+    cum = np.cumsum(counts)
+    r0 = 0
+    while r0 < E:
+        r1 = max(int(np.searchsorted(cum, (cum[r0 - 1] if r0 else 0) + chunk, side="right")), r0 + 1)
+        r1 = min(r1, E)
+        rws = np.arange(r0, r1)
+        n = counts[rws]
+        base = np.repeat(first[rws], n)
+        k = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+        p1, p2 = order[np.repeat(rws, n)], order[base + k]
+        r0 = r1
+        ii, jj = np.minimum(p1, p2), np.maximum(p1, p2)
+        ov = (lo[ii, 1] <= hi[jj, 1]) & (lo[jj, 1] <= hi[ii, 1])
+        ii, jj = ii[ov], jj[ov]
+        same = ring[ii] == ring[jj]
+        adj = same & ((jj - ii == 1) | ((idx[ii] == 0) & (idx[jj] == m[jj] - 1)))
+        ii, jj = ii[~adj], jj[~adj]
+
+        def orient(p, q, r):
+            return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+        o1, o2 = orient(a[ii], b[ii], a[jj]), orient(a[ii], b[ii], b[jj])
+        o3, o4 = orient(a[jj], b[jj], a[ii]), orient(a[jj], b[jj], b[ii])
+        cross = (o1 * o2 < 0) & (o3 * o4 < 0) & (np.minimum.reduce([abs(o1), abs(o2), abs(o3), abs(o4)]) > tol)
+        if cross.any():
+            k = np.flatnonzero(cross)[0]
+            r1, r2 = sorted((int(ring[ii[k]]), int(ring[jj[k]])))
+            if r1 == r2:
+                return "its outline crosses itself" if r1 == 0 else f"hole {r1} crosses itself"
+            return f"hole {r2} crosses its outline" if r1 == 0 else f"holes {r1} and {r2} cross"
+        # a corner on another edge (or on another corner): weakly simple, checked below
+        for o, p in ((o1, a[jj]), (o2, b[jj])):
+            near = np.abs(o) <= tol * 1e3
+            if near.any():
+                t = np.einsum("ij,ij->i", (p - a[ii])[near], (b[ii] - a[ii])[near])
+                L2 = np.einsum("ij,ij->i", (b[ii] - a[ii])[near], (b[ii] - a[ii])[near])
+                touch |= bool(np.any((t >= 0) & (t <= L2) & (L2 > 0)))
+    for k in range(1, len(rings)):
+        if _in_rings(rings[k], rings[:1]).mean() < 0.5:
+            return f"hole {k} lies outside its outline"
+        for j in range(1, k):
+            if _in_rings(rings[k], [rings[j]]).mean() >= 0.5 or _in_rings(rings[j], [rings[k]]).mean() >= 0.5:
+                return f"holes {j} and {k} overlap"
+    if touch:
+        if E > 2000:
+            return "its outline touches itself"
+        edges = np.stack([a, b], 1)
+        traps = slab_decomposition(edges, 1e-9 * size)
+        if traps:
+            mids = np.array([mid for _, mid in traps])
+            w = np.stack([_winding(mids, r) for r in rings])          # (R, T)
+            s = [np.sign(clip.polygon_area_2d(r)) or 1 for r in rings]
+            for k in range(len(rings)):
+                if not np.isin(w[k], (0, s[k])).all():
+                    return "its outline crosses itself" if k == 0 else f"hole {k} crosses itself"
+            inner = w[1:] != 0
+            if (inner & (w[:1] == 0)).any():
+                return "a hole lies outside its outline"
+            if (inner.sum(0) > 1).any():
+                return "holes overlap"
+    return ""
+
+
 def _facing(h, p, q, tol):
     """Some corner of q is in front of p's plane and vice versa (as refine._facing)."""
     def front(x, y):
@@ -995,8 +1133,6 @@ class _NaiveState:
         t0 = time.perf_counter()
         sysm = dyn.system
         mesh, pt = sysm.mesh, sysm.patches
-        tol = dyn.plane_tol * dyn.diag
-        delta = dyn.naive_offset * dyn.diag
         self.groups = []
         verts, polys, rhos, ems, oids = [], [], [], [], []
         replaced = set()     # input polygons replaced by their pieces around / under the light patches
@@ -1006,8 +1142,17 @@ class _NaiveState:
             if r.n is None:
                 dyn._plane(r)
                 dyn._find_surface(r)
+        # Offset of the light patches off their surface: naive_offset x the size of what the shapes
+        # light (the shapes and their surfaces), not of the scene (a far-away object must not lift
+        # them off the wall); well above the rays' offset.
+        local = [np.concatenate(r.rings) for r in todo] + [pt.corners[r.group].reshape(-1, 3) for r in todo
+                                                           if r.group is not None and len(r.group)]
+        local = np.concatenate(local) if local else np.zeros((1, 3))
+        delta = max(dyn.naive_offset * float(np.linalg.norm(local.max(0) - local.min(0))),
+                    20 * sysm.refiner.eps)
         while todo:
             r0 = todo[0]
+            tol = max(r.tol for r in todo)
             grp = [r for r in todo if abs(r.n @ r0.n) > 0.999 and abs((r.c - r0.c) @ r0.n) <= tol]
             todo = [r for r in todo if r not in grp]
             pats = np.unique(np.concatenate([r.group for r in grp]).astype(np.int64))
@@ -1039,9 +1184,6 @@ class _NaiveState:
             if not traps:
                 continue
             mids = np.array([m for _, m in traps])
-            em = np.zeros((len(mids), 3))
-            for r, rr in zip(grp, rings):
-                em += _in_rings(mids, rr)[:, None] * r.emission[None]
             under = np.full(len(mids), -1)
             repl = np.zeros(len(mids), bool)
             if len(pats):
@@ -1050,6 +1192,12 @@ class _NaiveState:
                 k = np.argmax(inc[has], 1)
                 under[has] = pats[k]
                 repl[has] = grp_repl[k]
+            em = np.zeros((len(mids), 3))
+            for r, rr in zip(grp, rings):
+                # a shape on a surface emits only where it lies on it (as AR, FE and AUTO); a shape
+                # on no surface is a floating emitter
+                emits = (under >= 0) | (not r.on_surface)
+                em += (_in_rings(mids, rr) & emits)[:, None] * r.emission[None]
             lit = em.max(1) > 0
             g_quads, g_patch, g_front = [], [], []
             for t in np.flatnonzero(~lit & repl):    # uncovered pieces of a replaced host polygon

@@ -90,6 +90,32 @@ def _newell(p):
                      np.sum((p[..., 0] - q[..., 0]) * (p[..., 1] + q[..., 1]), -1)], -1)
 
 
+def _per_object(mesh, polys):
+    """'3 in 'Wall', 1 in 'Floor'' for input polygons `polys` (the objects with most first)."""
+    names = list(mesh.object_names)
+    oid = np.asarray(mesh.object_id)[np.asarray(polys, np.int64)]
+    ids, cnt = np.unique(oid, return_counts=True)
+    order = np.lexsort((ids, -cnt))
+    parts = [f"{cnt[i]} in '{names[ids[i]] if 0 <= ids[i] < len(names) else ids[i]}'" for i in order[:5]]
+    return ", ".join(parts) + (f" and {len(ids) - 5} more object(s)" if len(ids) > 5 else "")
+
+
+def _off_plane(verts, starts, sizes, lv, polys):
+    """Largest distance of each polygon's corners from its mean (Newell) plane, relative to its
+    size (the longest distance between two of its corners)."""
+    out = np.zeros(len(polys))
+    for k in np.unique(sizes[polys]):
+        m = np.flatnonzero(sizes[polys] == k)
+        p = verts[lv[starts[polys[m]][:, None] + np.arange(k)]]             # (n, k, 3)
+        nrm = _newell(p)
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+        d = np.abs(np.einsum("nkj,nj->nk", p - p.mean(1, keepdims=True), nrm)).max(1)
+        size = np.sqrt(((p[:, :, None] - p[:, None]) ** 2).sum(-1).max((1, 2))) if k <= 64 else \
+            np.linalg.norm(p.max(1) - p.min(1), axis=1)
+        out[m] = d / np.maximum(size, 1e-300)
+    return out
+
+
 def _ear_clip(pts, idx):
     """Triangulate one simple polygon (any concavity) given its 3D points; returns index triples."""
     n = _newell(pts)
@@ -124,12 +150,15 @@ def _ear_clip(pts, idx):
     return tris
 
 
-def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-10) -> Patches:
+def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar=1e-2) -> Patches:
     """Validate input and convert to convex planar patches.
 
     planar_tol: a quad whose fourth corner is off the plane of the first three by more than
-    planar_tol x its diagonal is split in two triangles. area_tol: polygons with area below
-    area_tol x (scene bounding diagonal)^2 are dropped and counted.
+    planar_tol x its diagonal is split in two triangles. area_tol: patches (triangles and kept
+    quads) whose area is below area_tol x (their own longest edge)^2 are degenerate: dropped and
+    counted. The test is per patch, never relative to the scene's extent, so one object far away
+    cannot make the others "degenerate". warn_planar: split polygons (quads, n-gons) whose corners
+    are off their mean plane by more than warn_planar x their size get a warning naming the object.
     """
     P = len(mesh.loop_start)
     names = list(mesh.object_names)
@@ -159,10 +188,6 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-10) -> Patches
     bad_loops = ~np.isfinite(verts[mesh.loop_verts]).all(1)
     if bad_loops.any():
         raise InputError(f"NaN or infinite vertex coordinates on {who(int(loop_poly[np.argmax(bad_loops)]))}.")
-
-    used = verts[mesh.loop_verts]
-    diag = float(np.linalg.norm(used.max(0) - used.min(0))) or 1.0
-    min_area = area_tol * diag * diag
 
     tri_list, quad_list = [], []  # (poly, v0, v1, v2[, v3])
     sizes = np.asarray(mesh.loop_total)
@@ -229,7 +254,8 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-10) -> Patches
     corners = verts[vidx]
     n = _newell(corners)  # a padded triangle's repeated corner adds a zero-length edge
     area = 0.5 * np.linalg.norm(n, axis=1)
-    ok = area > min_area
+    edge2 = (np.diff(corners, axis=1, append=corners[:, :1]) ** 2).sum(-1).max(1)
+    ok = (area > 0) & (area > area_tol * edge2)
     dropped = dropped_small + int(np.sum(sizes >= 3)) - len(np.unique(poly[ok]))
     order = np.argsort(poly[ok], kind="stable")
     sel = np.flatnonzero(ok)[order]
@@ -249,7 +275,100 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-10) -> Patches
         emission=em[poly[sel]].T.copy(), normal=n[sel] / (2 * area[sel, None]), area=area[sel],
         object_names=names, dropped=dropped)
     if dropped:
-        result.warnings.append(f"Dropped {dropped} degenerate polygon(s) (zero area or fewer than 3 vertices).")
+        lost = np.setdiff1d(np.arange(P), poly[ok])
+        result.warnings.append(f"Dropped {dropped} degenerate polygon(s) (zero area or fewer than 3 vertices): "
+                               f"{_per_object(mesh, lost)}.")
+    split = np.union1d(q[~keep], np.flatnonzero(sizes > 4))
+    if len(split):
+        off = _off_plane(verts, starts, sizes, lv, split)
+        bad = off > warn_planar
+        if bad.any():
+            result.warnings.append(
+                f"{int(bad.sum())} non-planar polygon(s) (corners up to {100 * off.max():.0f}% of their size off "
+                f"their plane) were split into triangles: {_per_object(mesh, split[bad])}. The triangles may "
+                "not be the surface you meant; flatten them (Mesh > Clean Up > Make Planar Faces) or "
+                "triangulate them yourself.")
     if len(sel) == 0:
         raise InputError("All polygons are degenerate (zero area); nothing to compute radiosity on.")
     return result
+
+
+@dataclass
+class SceneExtent:
+    """Objects that lie far away from the rest of the scene (see isolated_objects)."""
+    total_area: float                 # all polygons
+    main_area: float                  # the main group of objects near each other (most polygons)
+    main_size: float                  # bounding-box diagonal of that group
+    distant: list = field(default_factory=list)   # [(object name, distance to the group, own size)]
+
+    @property
+    def area_ratio(self):
+        """main_area / total_area: scale an area threshold relative to the total area by this to
+        make it relative to the main group only."""
+        return self.main_area / self.total_area if self.total_area > 0 else 1.0
+
+
+def isolated_objects(mesh: MeshInput, gap_ratio=10.0, max_objects=4000) -> SceneExtent:
+    """Group the objects that lie near each other (single linkage: two objects are near when the gap
+    between their bounding boxes is at most gap_ratio x the larger one's diagonal) and report the
+    objects outside the main group: the one with the most polygons (where the scene was modelled;
+    ties: the larger area).
+
+    Such an object (a cube 50 km from the room) exchanges practically no light with the rest, but
+    thresholds relative to the whole scene would change because of it: the total area (element
+    sizes, Aeps) grows with its area. Callers use main_area instead of the total area for those
+    thresholds, so the rest of the scene gets the same light with or without it."""
+    P = len(mesh.loop_start)
+    verts = np.asarray(mesh.verts, float)
+    lv = np.asarray(mesh.loop_verts)
+    loop_poly = np.repeat(np.arange(P), mesh.loop_total)
+    nxt = np.arange(len(lv)) + 1
+    nxt[np.asarray(mesh.loop_start) + np.asarray(mesh.loop_total) - 1] = np.asarray(mesh.loop_start)
+    cr = np.cross(verts[lv], verts[lv[nxt]]) if len(lv) else np.zeros((0, 3))
+    n = np.stack([np.bincount(loop_poly, cr[:, k], P) for k in range(3)], 1)
+    area = 0.5 * np.linalg.norm(n, axis=1)
+    area[~np.isfinite(area)] = 0.0
+    oid = np.asarray(mesh.object_id)
+    names = list(mesh.object_names)
+    ids = np.unique(oid)
+    total = float(area.sum())
+    if len(ids) < 2 or len(ids) > max_objects:
+        pts = verts[lv]
+        return SceneExtent(total, total, float(np.linalg.norm(pts.max(0) - pts.min(0))) if len(pts) else 0.0)
+    obj_area = np.bincount(np.searchsorted(ids, oid), area, len(ids))
+    lo = np.full((len(ids), 3), np.inf)
+    hi = np.full((len(ids), 3), -np.inf)
+    lobj = np.searchsorted(ids, oid[loop_poly])
+    np.minimum.at(lo, lobj, verts[lv])
+    np.maximum.at(hi, lobj, verts[lv])
+    size = np.linalg.norm(hi - lo, axis=1)
+    parent = np.arange(len(ids))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    i, j = np.triu_indices(len(ids), 1)
+    for s in range(0, len(i), 1 << 20):
+        a, b = i[s:s + (1 << 20)], j[s:s + (1 << 20)]
+        gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo[a] - hi[b], lo[b] - hi[a])), axis=1)
+        for x, y in zip(a[gap <= gap_ratio * np.maximum(size[a], size[b])],
+                        b[gap <= gap_ratio * np.maximum(size[a], size[b])]):
+            rx, ry = find(x), find(y)
+            if rx != ry:
+                parent[rx] = ry
+    root = np.array([find(k) for k in range(len(ids))])
+    groups, inv = np.unique(root, return_inverse=True)
+    garea = np.bincount(inv, obj_area, len(groups))
+    gpolys = np.bincount(inv, np.bincount(np.searchsorted(ids, oid), minlength=len(ids)), len(groups))
+    main = int(np.lexsort((-garea, -gpolys))[0])
+    m = inv == main
+    mlo, mhi = lo[m].min(0), hi[m].max(0)
+    far = []
+    for k in np.flatnonzero(~m):
+        d = float(np.linalg.norm(np.maximum(0.0, np.maximum(mlo - hi[k], lo[k] - mhi))))
+        far.append((names[ids[k]] if 0 <= ids[k] < len(names) else str(ids[k]), d, float(size[k])))
+    far.sort(key=lambda t: -t[1])
+    return SceneExtent(total, float(garea[main]), float(np.linalg.norm(mhi - mlo)), far)
