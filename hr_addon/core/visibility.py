@@ -94,8 +94,11 @@ class RayBackend:
             lo, hi = self.triangles.min(axis=(0, 1)), self.triangles.max(axis=(0, 1))
         else:
             lo = hi = np.zeros(3)
-        self.center = 0.5 * (lo + hi)
         self.half_extent = max(float(np.max(hi - lo)) / 2, 1e-30)
+        # The float32 tracers work relative to this point: the median of the triangles' centres,
+        # so that one object far from the rest does not move it (and the precision of every
+        # other ray with it) out of the scene.
+        self.center = np.median(self.triangles.mean(1), axis=0) if len(self.triangles) else np.zeros(3)
 
     def occluded(self, a, b):
         """a, b: (..., 3), broadcastable. Boolean (...): True where the open segment a->b hits a triangle."""
@@ -293,7 +296,7 @@ class _Float32Backend(RayBackend):
     def _occluded(self, a, d):
         o = a - self.center
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
-        mag = np.maximum(np.sqrt(np.einsum("ij,ij->i", o, o)) + length, self.half_extent)  # >= max |coord|
+        mag = np.sqrt(np.einsum("ij,ij->i", o, o)) + length     # >= the ray's largest |coord|
         o += TMIN * d
         short = length < F32_SHORT * mag
         trace = np.flatnonzero(~short) if short.any() else None  # None: all (saves two gathers)
