@@ -46,7 +46,8 @@ class RefineParams:
     @staticmethod
     def preset(name):
         presets = {
-            "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3, cluster_veps=3e-3),
+            "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3, cluster_ratio=0.4,
+                                  cluster_veps=1e-2, vis_inherit=0.5),
             "medium": RefineParams(),
             "high": RefineParams(feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vcorr=1e-5,
                                  cluster_veps=2e-4),
