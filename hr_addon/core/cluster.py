@@ -156,15 +156,11 @@ class ClusterTree:
         """(C, SLOTS) source slots of every cluster from L (K,), the radiance of the patch roots:
         the SH power coefficients sum A L Y(n) (the l = 1 part is the power vector sum A L n,
         times SH_C1), then the first moment of the l = 1 part about the cluster's centre,
-        sum A L Y1(n) (x - c) (3 components x 3 axes). Leaf clusters sum their patches (one
-        prefix sum in tree order), the others their children, level by level."""
+        sum A L Y1(n) (x - c) (3 components x 3 axes). Leaf clusters sum their patches (their
+        ranges tile the tree order), the others their children, level by level."""
         out = np.empty((self.C, SLOTS))
-        cs = np.empty((self.K + 1, SLOTS))
-        cs[0] = 0.0
-        Lp = L[self.perm, None]
-        np.cumsum(np.concatenate([self._aY * Lp, self._aY1x * Lp], 1), axis=0, out=cs[1:])
-        leaf = self._leaves
-        out[leaf] = cs[self.end[leaf]] - cs[self.start[leaf]]
+        leaf, first = self._leaf_runs
+        out[leaf] = np.add.reduceat(self._aYT * L[self.perm], first, axis=1).T
         for ids, kids in self._up:
             out[ids] = out[kids].sum(1)
         out[:, 9:] -= (out[:, 1:4, None] * self.centre[:, None, :]).reshape(-1, 9)
@@ -185,9 +181,9 @@ class ClusterTree:
 
     def _transfer_tables(self, normal, area, centre):
         self._Y = sh9(normal[self.perm])
-        self._aY = self._Y * area[self.perm, None]
+        aY = self._Y * area[self.perm, None]
         self._X = centre[self.perm]
-        self._aY1x = (self._aY[:, 1:4, None] * self._X[:, None, :]).reshape(-1, 9)
+        aY1x = (aY[:, 1:4, None] * self._X[:, None, :]).reshape(-1, 9)
         # level-by-level sums, deepest first: inner clusters by their number of children (two
         # below the classes), children one level down
         self._leaves = np.flatnonzero(self.is_leaf)
@@ -200,6 +196,10 @@ class ClusterTree:
                 self._up.append((sel, decode(self.child_ids[self.child_start[sel][:, None] + np.arange(k)])))
         self._down = [(ids, self.parent[ids]) for ids in self.levels[1:]]
         self._leaf_of_sorted = self.leaf_of[self.perm]
+        # patch weights of the source slots, slot-major for fast runs over the leaves' ranges
+        self._aYT = np.ascontiguousarray(np.concatenate([aY, aY1x], 1).T)
+        order = np.argsort(self.start[self._leaves], kind="stable")
+        self._leaf_runs = (self._leaves[order], self.start[self._leaves][order])
         keys = []
         for pos in (self.start, self.end):
             order = np.argsort(pos, kind="stable")
