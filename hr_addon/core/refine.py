@@ -61,7 +61,7 @@ class Links:
     """Symmetric link pairs plus the directed, receiver-sorted (CSR) arrays the solver gathers over."""
 
     def __init__(self, a, b, f_ab, f_ba, vis, corr=None, far=None):
-        self.a, self.b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+        self.a, self.b = np.asarray(a, np.int32), np.asarray(b, np.int32)
         self.far = far   # cluster.FarLinks: links with a cluster end (None without clustering)
         self.f_ab, self.f_ba, self.vis = np.asarray(f_ab, float), np.asarray(f_ba, float), np.asarray(vis, float)
         # Push corrections (see push_corrections): directed (leaf, source, dF) terms whose dF sum to
@@ -140,6 +140,7 @@ class Links:
                     np.concatenate([f, fw])[order], np.concatenate([corr, fc])[order])
             o1 = np.argsort(pass1[0], kind="stable")
             self._ext = (tuple(x[o1] for x in pass1), main)
+            self._csr = None   # held inside main (shifted); directed() rebuilds it if asked
         return self._ext
 
     @property
