@@ -1,4 +1,4 @@
-"""Face clusters (hr_addon/core/cluster.py): the tree, the far-link kernel against exact form
+"""Face clusters (hr_addon/core/cluster.py, farlinks.py): the tree, the far-link kernel against exact form
 factors, reciprocity and energy balance, oracles with clutter, light events through cluster
 links, progress and cancel. No bpy."""
 import dataclasses
@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from hr_addon.core import cluster as C
+from hr_addon.core import farlinks as FL
 from hr_addon.core import formfactor as ff
 from hr_addon.core import scenes
 from hr_addon.core import shapes as S
@@ -127,9 +128,9 @@ def test_far_link_transfer_matches_exact_form_factors(dist, size, n):
     r = R()
     r.h, r.eps, r.stats, r.backend = h, 1e-9, {"rays": 0, "t_vis": 0.0}, make_backend(p.triangles, "numpy")
     a, b = np.array([0]), C.encode([cl])
-    vis, mask, scale = C.far_visibility(r, t, a, b)
+    vis, mask, scale = FL.far_visibility(r, t, a, b)
     links = Links.empty()
-    links.far = C.FarLinks(t, a, b, vis, mask, [False], [False], 1e-9, 0.0, scale)
+    links.far = FL.FarLinks(t, a, b, vis, mask, [False], [False], 1e-9, 0.0, scale)
     op = Operator(h, links)
     G = op.push(op.gather(np.ones((1, h.n))))[0]
     f_wall, f_sq = link_form_factors(h, np.zeros(n * n, int), np.arange(1, n * n + 1))

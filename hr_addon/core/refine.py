@@ -62,7 +62,7 @@ class Links:
 
     def __init__(self, a, b, f_ab, f_ba, vis, corr=None, far=None):
         self.a, self.b = np.asarray(a, np.int32), np.asarray(b, np.int32)
-        self.far = far   # cluster.FarLinks: links with a cluster end (None without clustering)
+        self.far = far   # farlinks.FarLinks: links with a cluster end (None without clustering)
         self.f_ab, self.f_ba, self.vis = np.asarray(f_ab, float), np.asarray(f_ba, float), np.asarray(vis, float)
         # Push corrections (see push_corrections): directed (leaf, source, dF) terms whose dF sum to
         # zero, area-weighted, over each corrected link's receiver. Dropped by select/concat.
@@ -120,7 +120,7 @@ class Links:
 
     def extended(self, h):
         """The solver's gather terms. Without far links: directed() (recv, src, f, is_correction).
-        With them, the two passes of cluster.FarLinks.terms(): (pass1, main) where pass1 =
+        With them, the two passes of farlinks.FarLinks.terms(): (pass1, main) where pass1 =
         (t_slot, src, w) fills one intermediate value per far-link direction from the X space
         (cluster slots first, patch node i at SLOTS x C + i), and main = (recv, src, f,
         is_correction) gathers into the Y space (same layout) from Z = [intermediates | X]:
@@ -365,7 +365,8 @@ class Refiner:
         all pairs of patches (quadratic: small scenes only)."""
         if not self.params.cluster:
             return self.refine(*initial_pairs(self.h))
-        from .cluster import ClusterTree, link_clusters
+        from .cluster import ClusterTree
+        from .farlinks import link_clusters
         import time
         t0 = time.perf_counter()
         tree = ClusterTree(self.h.patches, leaf_size=self.params.cluster_leaf)

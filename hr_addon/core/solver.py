@@ -43,7 +43,7 @@ class Operator:
     def __init__(self, h: Hierarchy, links: Links):
         self.h, self.links, self.version = h, links, h.version
         # Far links (with a cluster end) gather in an extended index space: the clusters' slots
-        # (SH power / irradiance and its gradient) first, then the nodes (cluster.FarLinks).
+        # (SH power / irradiance and its gradient) first, then the nodes (farlinks.FarLinks).
         far = links.far
         self.tree = far.tree if far is not None and len(far) else None
         ext = links.extended(h)

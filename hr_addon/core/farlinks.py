@@ -1,0 +1,379 @@
+"""Far links: links with a cluster end, how their transfer enters the solver, and the linking
+that makes them (HSA refinement from the root's self-pair down through the face clusters of
+cluster.py into the patch quadtrees). numpy only."""
+import numpy as np
+
+from .cluster import (CURVED, GRAD_CONE, SH_CLAMPED, SH_LINEAR, SLOTS, ClusterTree, Ends, decode, encode,
+                      estimate, faces, sample_normals, sample_points, sh9)
+
+
+class FarLinks:
+    """Links with at least one cluster end: ends a, b (shared ids), visibility (fraction and the
+    mask of unoccluded sample segments), and whether each end is partial (its members do not all
+    face the other end: SH kernel of the clamped cosine) or faces wholly (exact linear kernel).
+    Their transfer weights live in the solver's extended index space: cluster c's 9 SH slots at
+    9c .. 9c + 8, patch node i at 9C + i (so nodes added later do not shift them)."""
+
+    def __init__(self, tree: ClusterTree, a, b, vis, mask, part_a=None, part_b=None, eps=0.0, grad_eps=0.0,
+                 scale=None):
+        self.tree, self.eps = tree, eps   # eps: the sample points' offset off their surfaces
+        self.grad_eps = grad_eps          # gradients only where they matter (terms())
+        # visibility of weak links traced with 4 segments only (their mask is full)
+        self.scale = np.ones(len(a)) if scale is None else np.asarray(scale, float)
+        self.a, self.b, self.vis = np.asarray(a, np.int64), np.asarray(b, np.int64), np.asarray(vis, float)
+        self.mask = np.asarray(mask, np.uint16)
+        z = np.zeros(len(self.a), bool)
+        self.part_a = z if part_a is None else np.asarray(part_a, bool)
+        self.part_b = z if part_b is None else np.asarray(part_b, bool)
+
+    def __len__(self):
+        return len(self.a)
+
+    def remap(self, remap):
+        """After Hierarchy.compact: renumber the patch-node ends."""
+        ren = lambda x: np.where(x >= 0, remap[np.maximum(x, 0)], x)
+        return FarLinks(self.tree, ren(self.a), ren(self.b), self.vis, self.mask, self.part_a, self.part_b,
+                        self.eps, self.grad_eps, self.scale)
+
+    def terms(self, h, chunk=8192):
+        """The links' transfer in two passes through one intermediate value per link direction
+        (slot 2 l for "a gathers from b", 2 l + 1 for the reverse):
+
+        pass 1 (t_slot, t_src, t_w): t = sum of t_w x the source's slots (X space: a cluster's
+          SH power, a node's radiance);
+        pass 2 (recv, r_slot, r_w, is_gradient): the receiver's slots (Y space: a cluster's SH
+          irradiance and gradient, a node's gathered radiance) += r_w x t.
+
+        The kernel is averaged over the link's 4 x 4 sample segments (those the visibility mask
+        says are unoccluded): V cos cos / (pi r^2), with a node end's cosine and a cluster end's
+        SH kernel evaluated along each segment, so the transfer stays accurate for ends that are
+        not small against their distance; each end's factor is its kernel-weighted mean over
+        the segments (rank one), and the same factor serves it as a source and as a receiver,
+        so one symmetric kernel serves both directions (reciprocity). Flat, wholly facing cluster
+        ends also weight their members by the kernel's gradient over the end, where the link is
+        strong and uneven enough (link form factor x relative change over the cluster above
+        grad_eps): as receivers through gradient slots, as sources through their power's first
+        moment, so the kernel stays symmetric."""
+        tree = self.tree
+        off = SLOTS * tree.C
+        p1, p2 = [], []
+        for i in range(0, len(self.a), chunk):
+            sl = slice(i, i + chunk)
+            a, b = self.a[sl], self.b[sl]
+            ea, eb = Ends(tree, h, a), Ends(tree, h, b)
+            (pa, wa), (pb, wb) = sample_points(tree, h, a, self.eps), sample_points(tree, h, b, self.eps)
+            d = pb[:, None, :, :] - pa[:, :, None, :]                          # (N, 4 on a, 4 on b, 3)
+            r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
+            u = d / np.sqrt(r2)[..., None]
+            vis = ((self.mask[sl, None] >> np.arange(16)) & 1).reshape(-1, 4, 4)
+            kg = 1.0 / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]     # geometry only: the gradient fit
+            k = vis * self.scale[sl, None, None] * kg
+            K = k.sum((1, 2))
+            Kn = np.where(K > 0, K, 1.0)
+            fa = np.einsum("nis,nisc->nc", k, _end_factors(a, ea, self.part_a[sl], u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9)) / Kn[:, None]
+            fb = np.einsum("nis,nisc->nc", k, _end_factors(b, eb, self.part_b[sl], -u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9)) / Kn[:, None]
+            link = 2 * (i + np.arange(len(a)))
+            fmax = K * np.maximum(ea.area, eb.area)
+            # relative gradients of the kernel over each cluster end (zero where not worth it)
+            ga = self._grad(h, ea, pa, wa, kg, u, eb, self.part_a[sl])
+            gb = self._grad(h, eb, pb, wb, kg.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl])
+            for g_, e_ in ((ga, ea), (gb, eb)):
+                g_ *= (fmax * np.linalg.norm(g_, axis=1) * e_.radius >= self.grad_eps)[:, None]
+            for t, (r, er, fr, gr), (s_, es, fs, gs) in ((link, (a, ea, fa, ga), (b, eb, fb, gb)),
+                                                         (link + 1, (b, eb, fb, gb), (a, ea, fa, ga))):
+                # pass 1: a node source's slot holds radiance, a cluster's its power (area inside)
+                # and the power's first moment, weighted by the source-side gradient
+                w1 = np.zeros((len(r), SLOTS))
+                w1[:, :9] = K[:, None] * fs * np.where(es.cl, 1.0, es.area)[:, None]
+                w1[:, 9:] = (K[:, None, None] * fs[:, 1:4, None] * gs[:, None, :]).reshape(-1, 9)
+                S = _slots(s_, es, off)
+                live = w1 != 0
+                p1.append((np.broadcast_to(t[:, None], w1.shape)[live], S[live], w1[live]))
+                # pass 2: the receiver's kernel, with its gradient about the cluster's centre
+                # (members evaluate it at their absolute positions, hence the - G c term)
+                R = _slots(r, er, off)
+                w2 = np.zeros((len(r), SLOTS))
+                w2[:, :9] = fr
+                Gm = fr[:, 1:4, None] * gr[:, None, :]                           # (N, 3, 3 axes)
+                w2[:, 9:] = Gm.reshape(-1, 9)
+                w2[:, 1:4] -= np.einsum("nmk,nk->nm", Gm, er.centre)
+                live = w2 != 0
+                p2.append((R[live], np.broadcast_to(t[:, None], w2.shape)[live], w2[live],
+                           np.zeros(int(live.sum()), bool)))
+        cat = lambda parts, n: tuple(np.concatenate(x) for x in zip(*parts)) if parts else \
+            tuple(np.zeros(0, dt) for dt in (np.int64, np.int64, float, bool)[:n])
+        return cat(p1, 3), cat(p2, 4)
+
+    @staticmethod
+    def _grad(h, er, pr, wr, k, u, es, part_r):
+        """(N, 3) relative gradient gamma of each link's kernel over one end (zero for nodes,
+        partial ends and curved clusters): a least-squares linear fit over the end's sample
+        points of the unoccluded scalar kernel (cosines about both ends' axes; which of four
+        samples happen to be shadowed is too noisy to extrapolate). Member j of the end then
+        couples with weight 1 + gamma . (x_j - c), as a receiver and as a source alike, so the
+        kernel stays symmetric. Capped so that no member gets below half or above 1.5 times
+        the mean."""
+        gam = np.zeros((len(pr), 3))
+        grad = er.cl & ~part_r & (er.theta < GRAD_CONE)
+        if not grad.any():
+            return gam
+        x, wg = pr[grad], wr[grad]
+        dx = x - np.einsum("ni,nij->nj", wg, x)[:, None]
+        ug = u[grad]
+        ks = k[grad] * np.maximum(np.einsum("nisk,nk->nis", ug, er.axis[grad]), 0) \
+            * np.maximum(-np.einsum("nisk,nk->nis", ug, es.axis[grad]), 0)
+        Ki = ks.sum(2) / wg
+        Km = np.einsum("ni,ni->n", Ki, wg)
+        rel = np.where(Km[:, None] > 0, Ki / np.where(Km > 0, Km, 1)[:, None] - 1, 0)
+        g = np.einsum("nki,ni->nk", np.linalg.pinv(dx, rcond=0.05), rel)
+        gn = np.linalg.norm(g, axis=1) * er.radius[grad]
+        gam[grad] = g * np.minimum(1.0, 0.5 / np.maximum(gn, 1e-300))[:, None]
+        return gam
+
+
+def _slots(ids, e, off):
+    """(N, SLOTS) slot indices of link ends: a node's one slot (repeated), a cluster's SLOTS."""
+    return np.where(~e.cl[:, None], off + np.maximum(ids, 0)[:, None],
+                    SLOTS * decode(np.minimum(ids, -1))[:, None] + np.arange(SLOTS))
+
+
+def _end_factors(ids, e, part, u):
+    """Kernel factors (N, S, 9) of one end of each link along the segments u (N, S, 3) leaving
+    it: a patch node's cosine (slot 0); a cluster's SH kernel, linear (wholly facing) or the
+    clamped cosine (partial)."""
+    node = ~e.cl
+    w = sh9(u.reshape(-1, 3)).reshape(u.shape[:2] + (9,)) * np.where(part[:, None], SH_CLAMPED, SH_LINEAR)[:, None, :]
+    w[node] = 0.0
+    w[node, :, 0] = np.maximum(np.einsum("nsk,nk->ns", u[node], e.axis[node]), 0)
+    return w
+
+
+# -- linking through the clusters -----------------------------------------------------------------------
+CHUNK = 200_000
+
+
+def link_clusters(refiner, tree: ClusterTree, progress=None):
+    """HSA refinement from the root's self-pair down through the clusters.
+
+    A pair with a cluster end becomes a far link when each end lies wholly in front of the other's
+    members (`faces`), both estimated form factors are below Feps, the ends are small against
+    their distance (radius sum < cluster_ratio x distance: the point-to-point kernel holds), and,
+    for links above shadow_feps, visibility is not partial. Pairs wholly behind one end are
+    dropped. Otherwise an end is split: a cluster into its children, a patch node into its
+    quadtree children. Pairs of two patch nodes are returned for the ordinary patch refinement.
+    Returns (FarLinks, node pairs p, q, and their known visibility: 1 or nan)."""
+    h, prm = refiner.h, refiner.params
+    aeps = prm.aeps * refiner.total_area
+    far, nodes = [], []
+    root = encode([0])
+    total_w = 0.5 * tree.area[0] ** 2
+    done_w = 0.0
+    # pending pairs carry what is known of their visibility: nan unknown, 1 wholly visible (a
+    # parent's 16 segments were all unoccluded: its children need no rays, as in HR)
+    pending = [(root, root, np.full(1, np.nan))]
+    full = np.uint16(0xFFFF)
+
+    def weight(a, b):
+        aa, ab = _area(tree, h, a), _area(tree, h, b)
+        return np.where(a == b, 0.5 * aa * aa, aa * ab).sum()
+
+    while pending:
+        a, b, known = pending.pop()
+        if len(a) > CHUNK:
+            pending.append((a[CHUNK:], b[CHUNK:], known[CHUNK:]))
+            a, b, known = a[:CHUNK], b[:CHUNK], known[:CHUNK]
+        refiner.stats["cluster_pairs"] += len(a)
+        same = a == b
+        if same.any():
+            s = a[same & (a < 0)]
+            done_w += weight(a[same & (a >= 0)], a[same & (a >= 0)])
+            if len(s):
+                sa, sb = _self_pairs(tree, decode(s))
+                pending.append((sa, sb, np.full(len(sa), np.nan)))
+            a, b, known = a[~same], b[~same], known[~same]
+        both = (a >= 0) & (b >= 0)
+        if both.any():
+            nodes.append((a[both], b[both], known[both]))
+            done_w += weight(a[both], b[both])
+            a, b, known = a[~both], b[~both], known[~both]
+        if not len(a):
+            continue
+        ea, eb = Ends(tree, h, a), Ends(tree, h, b)
+        fa, ba = faces(ea, eb)
+        fb, bb = faces(eb, ea)
+        f_ab, dist = estimate(ea, eb)
+        f_ba, _ = estimate(eb, ea)
+        fmax = np.maximum(f_ab, f_ba)
+        drop = ba | bb | (fmax <= 0)
+        # A cluster end whose members do not all face the other end is "partial": its kernel is
+        # the SH approximation of the clamped cosine, allowed on one end of weak links only. A
+        # patch node whose plane cuts the other end cannot be partial (split the other end).
+        pa, pb = ~fa & ~ba & ea.cl, ~fb & ~bb & eb.cl
+        facing = (fa | pa) & (fb | pb) & ~(pa & pb)
+        # Small against the distance: a cluster end is seen through 4 member samples and one
+        # kernel direction, so its radius counts fully; a patch node end is integrated at 2 x 2
+        # Gauss points, so half its radius counts. And the link's transfer times its relative
+        # variation across either end below cluster_veps: strong, uneven links (near lights) go
+        # down to where the variation is resolved.
+        rho_a = np.where(ea.cl, np.where(ea.theta < GRAD_CONE, 1.0, CURVED), 0.5) * ea.radius
+        rho_b = np.where(eb.cl, np.where(eb.theta < GRAD_CONE, 1.0, CURVED), 0.5) * eb.radius
+        size = (rho_a + rho_b) / np.maximum(dist, 1e-300)
+        small = size < prm.cluster_ratio
+        cand = ~drop & facing & small
+        var_a, var_b = np.zeros(len(a)), np.zeros(len(a))
+        if cand.any():
+            var_a[cand], var_b[cand] = _variation(tree, h, a[cand], b[cand], refiner.eps)
+        even = fmax * np.maximum(var_a, var_b) < prm.cluster_veps
+        ok = ~drop & facing & small & even & (fmax < np.where(pa | pb, prm.partial_feps * prm.feps, prm.feps))
+        vis = known.copy()
+        mask = np.where(known == 1, full, np.uint16(0))
+        if prm.shadow_feps > 0:
+            shadow = ok & (fmax > prm.shadow_feps) & np.isnan(vis)
+            if shadow.any():
+                vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow])
+                ok &= ~(shadow & (vis > 0) & (vis < 1))
+        if ok.any():
+            far.append((a[ok], b[ok], vis[ok], mask[ok], pa[ok], pb[ok], fmax[ok]))
+        done_w += weight(a[drop | ok], b[drop | ok])
+        todo = ~drop & ~ok
+        # Which end to split, by the first test that failed. Facing (a node whose plane cuts the
+        # other end, or two partial ends): the end whose cone, or angular radius seen from the
+        # other, is larger (a node's cone is 0: its children share its plane). Size and shadow:
+        # the end that looks larger. Feps: the end with the larger form factor as seen from the
+        # other (as in HSA).
+        a, b = a[todo], b[todo]
+        th_a, th_b = ea.theta[todo], eb.theta[todo]
+        phi_a = np.arcsin(np.clip(rho_a[todo] / np.maximum(dist[todo], 1e-300), 0, 1))
+        phi_b = np.arcsin(np.clip(rho_b[todo] / np.maximum(dist[todo], 1e-300), 0, 1))
+        fa, fb = fa[todo], fb[todo]
+        face_a = np.maximum(np.where(~fa, th_a, 0), np.where(~fb, phi_a, 0))
+        face_b = np.maximum(np.where(~fa, phi_b, 0), np.where(~fb, th_b, 0))
+        by_face = ~facing[todo]
+        by_size = ~by_face & ~small[todo]
+        by_var = ~by_face & ~by_size & ~even[todo]
+        prefer_a = np.where(by_face, face_a >= face_b,
+                   np.where(by_size, phi_a >= phi_b,
+                   np.where(by_var, phi_a >= phi_b,
+                   np.where(fmax[todo] < prm.feps, phi_a >= phi_b, f_ba[todo] >= f_ab[todo]))))
+        can_a = ea.cl[todo] | (ea.area[todo] > aeps)
+        can_b = eb.cl[todo] | (eb.area[todo] > aeps)
+        # Too strong, too uneven or half shadowed, but the end that should be split cannot be (a
+        # patch node at Aeps): splitting the other end would not lower the form factor or the
+        # variation on that end, so link here, as HSA does with two unsplittable nodes.
+        take = ~by_face & ~by_size & np.where(prefer_a, ~can_a, ~can_b)
+        if take.any():
+            idx = np.flatnonzero(todo)[take]
+            far.append((a[take], b[take], vis[idx], mask[idx], pa[idx], pb[idx], fmax[idx]))
+            done_w += weight(a[take], b[take])
+        split_a = ~take & can_a & (prefer_a | ~can_b)
+        split_b = ~take & ~split_a & can_b
+        # Visibility of pairs about to be split whose ends are small against their distance
+        # (size < vis_inherit; the 4 x 4 segments then see most of what lies between): wholly
+        # occluded pairs are dropped with all their descendants, wholly visible ones hand that
+        # on; partly visible ones leave it to their children.
+        kv = vis[todo]
+        test = (split_a | split_b) & np.isnan(kv) & (size[todo] < prm.vis_inherit)
+        if test.any():
+            kv[test] = far_visibility(refiner, tree, a[test], b[test])[0]
+            hidden = test & (kv == 0)
+            done_w += weight(a[hidden], b[hidden])
+            split_a &= ~hidden
+            split_b &= ~hidden
+        kv = np.where(kv == 1, 1.0, np.nan)
+        new_a, new_b, new_k = [], [], []
+        for sel, x, y in ((split_a, a, b), (split_b, b, a)):
+            xs, ys, ks = x[sel], y[sel], kv[sel]
+            cl = xs < 0
+            if cl.any():
+                kids, owner = tree.children(decode(xs[cl]))
+                new_a.append(kids)
+                new_b.append(ys[cl][owner])
+                new_k.append(ks[cl][owner])
+            nd = xs[~cl]
+            if len(nd):
+                h.subdivide(np.unique(nd[h.child0[nd] < 0]))
+                new_a.append(h.children(nd).ravel())
+                new_b.append(np.repeat(ys[~cl], 4))
+                new_k.append(np.repeat(ks[~cl], 4))
+        if new_a:
+            pending.append((np.concatenate(new_a), np.concatenate(new_b), np.concatenate(new_k)))
+        if progress is not None:
+            progress.update("clusters", done_w, total_w)
+    if far:
+        fa_, fb_, fv, fm, pa_, pb_, ff_ = (np.concatenate(x) for x in zip(*far))
+        fs = np.ones(len(fv))
+        todo = np.flatnonzero(np.isnan(fv))
+        for i in range(0, len(todo), CHUNK):
+            t = todo[i:i + CHUNK]
+            fv[t], fm[t], fs[t] = far_visibility(refiner, tree, fa_[t], fb_[t], ff_[t] < prm.shadow_feps)
+        keep = fv > 0
+        links = FarLinks(tree, fa_[keep], fb_[keep], fv[keep], fm[keep], pa_[keep], pb_[keep], refiner.eps,
+                         0.1 * prm.cluster_veps, fs[keep])
+    else:
+        z = np.zeros(0)
+        links = FarLinks(tree, z.astype(np.int64), z.astype(np.int64), z, z.astype(np.uint16))
+    p, q, kv = ((np.concatenate(x) for x in zip(*nodes)) if nodes else
+                (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)))
+    return links, p, q, kv
+
+
+def _variation(tree, h, a, b, eps):
+    """(var_a, var_b): relative range, over each end's sample points, of the kernel cos cos / r^2
+    summed over the other end's samples (cosines about the samples' own normals; no visibility)."""
+    (pa, wa), (pb, wb) = sample_points(tree, h, a, eps), sample_points(tree, h, b, eps)
+    d = pb[:, None, :, :] - pa[:, :, None, :]
+    r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
+    na, nb = sample_normals(tree, h, a), sample_normals(tree, h, b)
+    k = (np.maximum(np.einsum("nijk,nik->nij", d, na), 0) * np.maximum(-np.einsum("nijk,njk->nij", d, nb), 0)
+         / (r2 * r2))
+    out = []
+    for ks in ((k * wb[:, None, :]).sum(2), (k * wa[:, :, None]).sum(1)):
+        m = ks.mean(1)
+        out.append((ks.max(1) - ks.min(1)) / np.maximum(m, 1e-300) * (m > 0))
+    return out
+
+
+def _area(tree, h, ids):
+    return np.where(ids < 0, tree.area[decode(np.minimum(ids, -1))], h.area[np.maximum(ids, 0)])
+
+
+def _self_pairs(tree, c):
+    """All pairs (i <= j) of the children of each cluster c; patch self-pairs left out (planar)."""
+    cnt = tree.child_start[c + 1] - tree.child_start[c]
+    out_a, out_b = [], []
+    for k in np.unique(cnt):
+        cs = c[cnt == k]
+        kids = tree.child_ids[tree.child_start[cs][:, None] + np.arange(k)]
+        iu, ju = np.triu_indices(k)
+        pa, pb = kids[:, iu].ravel(), kids[:, ju].ravel()
+        keep = (pa != pb) | (pa < 0)
+        out_a.append(pa[keep])
+        out_b.append(pb[keep])
+    return np.concatenate(out_a), np.concatenate(out_b)
+
+
+def far_visibility(refiner, tree, a, b, weak=None):
+    """(vis, mask, scale) of far links: the unoccluded fraction of the 4 x 4 segments between the
+    ends' sample points and which of them are unoccluded (bit 4 i + j: sample i of a, j of b).
+    Weak links (mask `weak`) trace only the 4 segments i -> 3 - i: their mask is full and
+    `scale` holds their visibility fraction instead (1 for the others)."""
+    import time
+    t0 = time.perf_counter()
+    h, eps = refiner.h, refiner.eps
+    pa, pb = sample_points(tree, h, a, eps)[0], sample_points(tree, h, b, eps)[0]
+    weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)
+    vis, mask, scale = np.empty(len(a)), np.empty(len(a), np.uint16), np.ones(len(a))
+    st = ~weak
+    if st.any():
+        occ = refiner.backend.occluded(np.repeat(pa[st], 4, axis=1).reshape(-1, 3),
+                                       np.tile(pb[st], (1, 4, 1)).reshape(-1, 3)).reshape(-1, 16)
+        vis[st] = 1.0 - occ.mean(1)
+        mask[st] = ((~occ) * (1 << np.arange(16))).sum(1)
+        refiner.stats["rays"] += occ.size
+    if weak.any():
+        occ = refiner.backend.occluded(pa[weak], pb[weak][:, ::-1]).reshape(-1, 4)
+        vis[weak] = scale[weak] = 1.0 - occ.mean(1)
+        mask[weak] = 0xFFFF
+        refiner.stats["rays"] += occ.size
+    refiner.stats["t_vis"] += time.perf_counter() - t0
+    return vis, mask, scale
