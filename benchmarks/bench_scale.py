@@ -1,7 +1,7 @@
 """Scale benchmark: hierarchy build on furnished rooms of ~2k to ~1M triangles, with and without
 clustering, plus light events on the built system. Prints a table, writes JSON and a chart.
 
-    .venv/bin/python benchmarks/bench_scale.py [--sizes 2k,20k,100k,1M] [--plain 2k,20k]
+    .venv/bin/python benchmarks/bench_scale.py [--sizes 2k,10k,20k,100k,1M] [--plain 2k,20k]
                                                [--quality draft] [--events 100k] [--out benchmarks/out]
 
 Every run is a separate process, so its peak memory (ru_maxrss) is its own. Timings are wall
@@ -10,6 +10,7 @@ seconds on this machine; other jobs sharing the cores make them noisy, so read r
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -22,7 +23,6 @@ sys.path.insert(0, str(ROOT))
 def run_one(size, cluster, quality, events):
     """Child process: build, solve, optionally time an FE and an AUTO event; print one JSON line."""
     import dataclasses
-    import resource
 
     import numpy as np
 
@@ -35,8 +35,10 @@ def run_one(size, cluster, quality, events):
     mesh, info = furnished_room(size)
     params = dataclasses.replace(RefineParams.preset(quality), cluster=cluster)
     t0 = time.perf_counter()
-    s = RadiositySystem(mesh, params)
+    # progress to stderr: the parent keeps the last line when it stops a run at its time limit
+    s = RadiositySystem(mesh, params, progress=lambda p: print(f"{p.message} [{p.elapsed:.0f} s]", file=sys.stderr, flush=True))
     build = time.perf_counter() - t0
+    build_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6   # before the solve and events
     s.solve()
     r = s.build.refine
     out = dict(size=size, cluster=cluster, quality=quality, triangles=info["triangles"], polygons=info["polygons"],
@@ -44,7 +46,7 @@ def run_one(size, cluster, quality, events):
                corrections=s.links.n_corrections, nodes=s.h.n, rays=r["rays"], cluster_pairs=r.get("cluster_pairs", 0),
                patch_pairs=r["pairs_tested"], solve_s=s.report.seconds, iterations=s.report.iterations,
                energy_error=s.report.energy_error, t_vis=r["t_vis"], t_ff=r["t_ff"], t_refine=r["t_refine"],
-               t_clusters=r.get("t_clusters", 0.0))
+               t_clusters=r.get("t_clusters", 0.0), build_peak_gb=build_rss)
     if events:
         _, frame = info["light_wall"]
         window = LightShape(S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window")
@@ -61,11 +63,12 @@ def run_one(size, cluster, quality, events):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--sizes", default="2k,20k,100k,1M")
+    ap.add_argument("--sizes", default="2k,10k,20k,100k,1M")
     ap.add_argument("--plain", default="2k,20k", help="sizes also built without clustering (all patch pairs)")
     ap.add_argument("--quality", default="draft")
     ap.add_argument("--events", default="100k", help="sizes on which FE and AUTO events are timed")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out"))
+    ap.add_argument("--timeout", type=float, default=1800, help="seconds per run before it is stopped")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
@@ -77,7 +80,16 @@ def main(argv=None):
     for size, cluster in runs:
         ev = cluster and size in args.events.split(",")
         cmd = [sys.executable, __file__, "--quality", args.quality, "--child", size, "1" if cluster else "0", "1" if ev else "0"]
-        p = subprocess.run(cmd, capture_output=True, text=True)
+        rss0 = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        try:
+            p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
+        except subprocess.TimeoutExpired as e:
+            rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+            last = (e.stderr or b"").decode(errors="replace").strip().splitlines()[-1:] or ["no progress"]
+            results.append(dict(size=size, cluster=cluster, quality=args.quality, timeout_s=args.timeout,
+                                peak_rss_gb=rss / 1e6 if rss > rss0 else None, last_progress=last[0]))
+            print(f"{size} cluster={cluster}: stopped after {args.timeout:.0f} s at '{last[0]}'", flush=True)
+            continue
         if p.returncode != 0:
             print(f"{size} cluster={cluster}: failed\n{p.stderr[-2000:]}", flush=True)
             continue
@@ -88,6 +100,10 @@ def main(argv=None):
               f"{res['links']:,} links ({res['far_links']:,} far), {res['links'] / res['triangles']:.1f} per triangle, "
               f"peak {res['peak_rss_gb']:.2f} GB, solve {res['solve_s']:.1f} s ({res['iterations']} it){ev_txt}", flush=True)
     path = Path(args.out) / f"scale_{args.quality}.json"
+    # runs of other sizes measured earlier stay (each entry is one process of one run)
+    old = json.loads(path.read_text()) if path.exists() else []
+    new = {(r["size"], r["cluster"]) for r in results}
+    results = [r for r in old if (r["size"], r["cluster"]) not in new] + results
     path.write_text(json.dumps(results, indent=1))
     plot(results, ROOT / "benchmarks" / "scale.png")
     print(f"wrote {path} and benchmarks/scale.png")
@@ -99,7 +115,7 @@ def plot(results, path):
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     for cluster, style, label in ((True, "o-", "clusters"), (False, "s--", "all patch pairs")):
-        rs = sorted((r for r in results if r["cluster"] == cluster), key=lambda r: r["triangles"])
+        rs = sorted((r for r in results if r["cluster"] == cluster and "build_s" in r), key=lambda r: r["triangles"])
         if not rs:
             continue
         tri = [r["triangles"] for r in rs]

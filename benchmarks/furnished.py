@@ -26,6 +26,7 @@ WOOD, WALL, FLOOR, FABRIC, CERAMIC = (0.45, 0.3, 0.18), (0.75, 0.73, 0.7), (0.5,
 #          objects on tables, floor boxes)
 PRESETS = {
     "2k": dict(grid=8, cases=1, books=12, tables=1, chairs=2, seg=12, balls=1, sphere=2, clutter=4, boxes=6),
+    "10k": dict(grid=18, cases=2, books=30, tables=2, chairs=4, seg=20, balls=2, sphere=3, clutter=14, boxes=20),
     "20k": dict(grid=26, cases=4, books=44, tables=2, chairs=6, seg=24, balls=2, sphere=3, clutter=28, boxes=40),
     "100k": dict(grid=64, cases=12, books=80, tables=4, chairs=14, seg=48, balls=3, sphere=4, clutter=80, boxes=120),
     "1M": dict(grid=300, cases=24, books=200, tables=10, chairs=40, seg=160, balls=8, sphere=5, clutter=300, boxes=300),

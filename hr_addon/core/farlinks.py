@@ -161,27 +161,28 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     for links above shadow_feps, visibility is not partial. Pairs wholly behind one end are
     dropped. Otherwise an end is split: a cluster into its children, a patch node into its
     quadtree children. Pairs of two patch nodes are returned for the ordinary patch refinement.
-    Returns (FarLinks, node pairs p, q, and their known visibility: 1 or nan)."""
+    Returns (FarLinks, node pairs p, q)."""
     h, prm = refiner.h, refiner.params
     aeps = prm.aeps * refiner.total_area
     far, nodes = [], []
     root = encode([0])
     total_w = 0.5 * tree.area[0] ** 2
     done_w = 0.0
-    # pending pairs carry what is known of their visibility: nan unknown, 1 wholly visible (a
-    # parent's 16 segments were all unoccluded: its children need no rays, as in HR)
-    pending = [(root, root, np.full(1, np.nan))]
-    full = np.uint16(0xFFFF)
+    # Visibility is not inherited from a parent pair: 16 segments between 4 samples per end miss
+    # thin occluders (legs, gaps between books). Measured on the 20k furnished room: passing
+    # "wholly visible" down made objects 3.9% brighter on average (121% at worst), dropping
+    # "wholly occluded" pairs 9% darker (83%), and the extra tests cost more rays than they saved.
+    pending = [(root, root)]
 
     def weight(a, b):
         aa, ab = _area(tree, h, a), _area(tree, h, b)
         return np.where(a == b, 0.5 * aa * aa, aa * ab).sum()
 
     while pending:
-        a, b, known = pending.pop()
+        a, b = pending.pop()
         if len(a) > CHUNK:
-            pending.append((a[CHUNK:], b[CHUNK:], known[CHUNK:]))
-            a, b, known = a[:CHUNK], b[:CHUNK], known[:CHUNK]
+            pending.append((a[CHUNK:], b[CHUNK:]))
+            a, b = a[:CHUNK], b[:CHUNK]
         refiner.stats["cluster_pairs"] += len(a)
         same = a == b
         if same.any():
@@ -189,13 +190,13 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             done_w += weight(a[same & (a >= 0)], a[same & (a >= 0)])
             if len(s):
                 sa, sb = _self_pairs(tree, decode(s))
-                pending.append((sa, sb, np.full(len(sa), np.nan)))
-            a, b, known = a[~same], b[~same], known[~same]
+                pending.append((sa, sb))
+            a, b = a[~same], b[~same]
         both = (a >= 0) & (b >= 0)
         if both.any():
-            nodes.append((a[both], b[both], known[both]))
+            nodes.append((a[both], b[both]))
             done_w += weight(a[both], b[both])
-            a, b, known = a[~both], b[~both], known[~both]
+            a, b = a[~both], b[~both]
         if not len(a):
             continue
         ea, eb = Ends(tree, h, a), Ends(tree, h, b)
@@ -225,10 +226,9 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             var_a[cand], var_b[cand] = _variation(tree, h, a[cand], b[cand], refiner.eps)
         even = fmax * np.maximum(var_a, var_b) < prm.cluster_veps
         ok = ~drop & facing & small & even & (fmax < np.where(pa | pb, prm.partial_feps * prm.feps, prm.feps))
-        vis = known.copy()
-        mask = np.where(known == 1, full, np.uint16(0))
+        vis, mask = np.full(len(a), np.nan), np.zeros(len(a), np.uint16)
         if prm.shadow_feps > 0:
-            shadow = ok & (fmax > prm.shadow_feps) & np.isnan(vis)
+            shadow = ok & (fmax > prm.shadow_feps)
             if shadow.any():
                 vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow])
                 ok &= ~(shadow & (vis > 0) & (vis < 1))
@@ -267,36 +267,21 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             done_w += weight(a[take], b[take])
         split_a = ~take & can_a & (prefer_a | ~can_b)
         split_b = ~take & ~split_a & can_b
-        # Visibility of pairs about to be split whose ends are small against their distance
-        # (size < vis_inherit; the 4 x 4 segments then see most of what lies between): wholly
-        # occluded pairs are dropped with all their descendants, wholly visible ones hand that
-        # on; partly visible ones leave it to their children.
-        kv = vis[todo]
-        test = (split_a | split_b) & np.isnan(kv) & (size[todo] < prm.vis_inherit)
-        if test.any():
-            kv[test] = far_visibility(refiner, tree, a[test], b[test])[0]
-            hidden = test & (kv == 0)
-            done_w += weight(a[hidden], b[hidden])
-            split_a &= ~hidden
-            split_b &= ~hidden
-        kv = np.where(kv == 1, 1.0, np.nan)
-        new_a, new_b, new_k = [], [], []
+        new_a, new_b = [], []
         for sel, x, y in ((split_a, a, b), (split_b, b, a)):
-            xs, ys, ks = x[sel], y[sel], kv[sel]
+            xs, ys = x[sel], y[sel]
             cl = xs < 0
             if cl.any():
                 kids, owner = tree.children(decode(xs[cl]))
                 new_a.append(kids)
                 new_b.append(ys[cl][owner])
-                new_k.append(ks[cl][owner])
             nd = xs[~cl]
             if len(nd):
                 h.subdivide(np.unique(nd[h.child0[nd] < 0]))
                 new_a.append(h.children(nd).ravel())
                 new_b.append(np.repeat(ys[~cl], 4))
-                new_k.append(np.repeat(ks[~cl], 4))
         if new_a:
-            pending.append((np.concatenate(new_a), np.concatenate(new_b), np.concatenate(new_k)))
+            pending.append((np.concatenate(new_a), np.concatenate(new_b)))
         if progress is not None:
             progress.update("clusters", done_w, total_w)
     if far:
@@ -312,9 +297,8 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     else:
         z = np.zeros(0)
         links = FarLinks(tree, z.astype(np.int64), z.astype(np.int64), z, z.astype(np.uint16))
-    p, q, kv = ((np.concatenate(x) for x in zip(*nodes)) if nodes else
-                (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)))
-    return links, p, q, kv
+    p, q = ((np.concatenate(x) for x in zip(*nodes)) if nodes else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
+    return links, p, q
 
 
 def _variation(tree, h, a, b, eps):

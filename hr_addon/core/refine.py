@@ -41,13 +41,12 @@ class RefineParams:
     cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
     cluster_leaf: int = 4       # most patches in a leaf cluster
     ff_order: int = 3           # most Gauss points per side for a link's form factor (near pairs)
-    vis_inherit: float = 0.3  # split pairs at most this size (radii / distance) pass on full or no visibility
 
     @staticmethod
     def preset(name):
         presets = {
             "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3, cluster_ratio=0.4,
-                                  cluster_veps=1e-2, vis_inherit=0.5),
+                                  cluster_veps=1e-2),
             "medium": RefineParams(),
             "high": RefineParams(feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vcorr=1e-5,
                                  cluster_veps=2e-4),
@@ -274,19 +273,19 @@ class Refiner:
         self.stats["t_vis"] += time.perf_counter() - t0
         return vis
 
-    def refine(self, p, q, good_enough=None, known=None):
+    def refine(self, p, q, good_enough=None):
         """HSA loop from candidate pairs (p, q); returns the new Links.
 
         good_enough(p, q, f_pq, f_qp) -> bool mask may replace the Feps test (BF refinement).
-        known: per pair, 1 where it is known to be wholly visible (no rays needed for it or the
-        pairs it splits into), else nan."""
+        A pair whose shadow test found all its vis_k^2 x vis_k^2 segments unoccluded hands that
+        on: the pairs it splits into need no rays (as in HR)."""
         import time
         t0 = time.perf_counter()
         h, prm = self.h, self.params
         aeps = prm.aeps * self.total_area
         out = []
         p, q = np.asarray(p, np.int64), np.asarray(q, np.int64)
-        kv = np.full(len(p), np.nan) if known is None else np.asarray(known, float)
+        kv = np.full(len(p), np.nan)   # 1: known to be wholly visible, nan: unknown
         tol = 1e-9 * np.sqrt(self.total_area)
         pending = [(p, q, kv)]
         done, total = 0, len(p)
@@ -372,9 +371,9 @@ class Refiner:
         tree = ClusterTree(self.h.patches, leaf_size=self.params.cluster_leaf)
         self.stats["t_tree"] = time.perf_counter() - t0
         self.stats["clusters"] = tree.C
-        far, p, q, known = link_clusters(self, tree, self.progress)
+        far, p, q = link_clusters(self, tree, self.progress)
         self.stats["t_clusters"] = time.perf_counter() - t0
-        links = self.refine(p, q, known=known)
+        links = self.refine(p, q)
         links.far = far
         return links
 
