@@ -5,7 +5,8 @@ clustering, plus light events on the built system. Prints a table, writes JSON a
                                                [--quality draft] [--events 100k] [--out benchmarks/out]
 
 Every run is a separate process, so its peak memory (ru_maxrss) is its own. Timings are wall
-seconds on this machine; other jobs sharing the cores make them noisy, so read ratios.
+seconds on this machine, plus the build's CPU seconds (user + system), which other jobs sharing
+the cores distort much less than wall time.
 """
 import argparse
 import json
@@ -34,10 +35,11 @@ def run_one(size, cluster, quality, events):
 
     mesh, info = furnished_room(size)
     params = dataclasses.replace(RefineParams.preset(quality), cluster=cluster)
-    t0 = time.perf_counter()
+    cpu = lambda: sum(resource.getrusage(resource.RUSAGE_SELF)[:2])   # user + system seconds
+    t0, c0 = time.perf_counter(), cpu()
     # progress to stderr: the parent keeps the last line when it stops a run at its time limit
     s = RadiositySystem(mesh, params, progress=lambda p: print(f"{p.message} [{p.elapsed:.0f} s]", file=sys.stderr, flush=True))
-    build = time.perf_counter() - t0
+    build, build_cpu = time.perf_counter() - t0, cpu() - c0
     build_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6   # before the solve and events
     s.solve()
     r = s.build.refine
@@ -46,7 +48,7 @@ def run_one(size, cluster, quality, events):
                corrections=s.links.n_corrections, nodes=s.h.n, rays=r["rays"], cluster_pairs=r.get("cluster_pairs", 0),
                patch_pairs=r["pairs_tested"], solve_s=s.report.seconds, iterations=s.report.iterations,
                energy_error=s.report.energy_error, t_vis=r["t_vis"], t_ff=r["t_ff"], t_refine=r["t_refine"],
-               t_clusters=r.get("t_clusters", 0.0), build_peak_gb=build_rss)
+               t_clusters=r.get("t_clusters", 0.0), build_peak_gb=build_rss, build_cpu_s=build_cpu)
     if events:
         _, frame = info["light_wall"]
         window = LightShape(S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window")
@@ -96,7 +98,7 @@ def main(argv=None):
         res = json.loads(p.stdout.strip().splitlines()[-1])
         results.append(res)
         ev_txt = (f", FE event {res['fe_event_s']:.2f} s, AUTO event {res['auto_event_s']:.2f} s" if "fe_event_s" in res else "")
-        print(f"{size:>5} {'clusters' if cluster else 'all pairs':>9}: {res['triangles']:,} triangles, build {res['build_s']:.1f} s, "
+        print(f"{size:>5} {'clusters' if cluster else 'all pairs':>9}: {res['triangles']:,} triangles, build {res['build_s']:.1f} s ({res['build_cpu_s']:.1f} s CPU), "
               f"{res['links']:,} links ({res['far_links']:,} far), {res['links'] / res['triangles']:.1f} per triangle, "
               f"peak {res['peak_rss_gb']:.2f} GB, solve {res['solve_s']:.1f} s ({res['iterations']} it){ev_txt}", flush=True)
     path = Path(args.out) / f"scale_{args.quality}.json"
@@ -114,14 +116,16 @@ def plot(results, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    done = [r for r in results if "build_s" in r]
+    key = "build_cpu_s" if done and all("build_cpu_s" in r for r in done) else "build_s"
     for cluster, style, label in ((True, "o-", "clusters"), (False, "s--", "all patch pairs")):
         rs = sorted((r for r in results if r["cluster"] == cluster and "build_s" in r), key=lambda r: r["triangles"])
         if not rs:
             continue
         tri = [r["triangles"] for r in rs]
-        axes[0].loglog(tri, [r["build_s"] for r in rs], style, label=label)
+        axes[0].loglog(tri, [r[key] for r in rs], style, label=label)
         axes[1].loglog(tri, [r["links"] for r in rs], style, label=label)
-    for ax, what in zip(axes, ("build time (s)", "links")):
+    for ax, what in zip(axes, ("build CPU time (s)" if key == "build_cpu_s" else "build time (s)", "links")):
         ax.set_xlabel("triangles (furnished room)")
         ax.set_ylabel(what)
         ax.grid(True, which="both", alpha=0.3)

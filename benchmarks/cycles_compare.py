@@ -51,7 +51,7 @@ SCENES = {
                    qualities=["medium"], methods=["FE", "AUTO"], texel_rel=1 / 48),
     # the ~20k-triangle furnished room (850 objects): per-object means, clusters at work
     "furnished": dict(frames=[1, 3], sweep_frame=None, ref_spp=128, sweep=[],
-                      qualities=["draft", "medium"], methods=["FE", "AUTO"], texel_rel=1 / 300),
+                      qualities=["draft", "medium"], methods=["FE", "AUTO"], texel_rel=1 / 150),
 }
 QUICK = {"frames": [1, 13], "sweep": [4, 16], "ref_spp": 64, "qualities": ["draft"], "methods": ["FE", "AUTO"]}
 REF_SEEDS = (1, 2)
@@ -209,9 +209,12 @@ def run_scene(name, cfg, results, maps=None):
     scene = open_scene(name)
     rs = C.prepare(scene, texel_rel=cfg["texel_rel"])
     n_tex = sum(rs.atlases[n].n for n in rs.objects)
+    small = [w for w in rs.warnings if w.endswith("smaller than a texel, not compared")]
+    if small:
+        log(f"[{name}] {len(small)} objects smaller than a texel light the others but are not compared")
     log(f"[{name}] {len(rs.objects)} objects, {n_tex} texels "
         f"(texel {1000 * rs.atlases[rs.objects[0]].texel:.1f} mm), {len(rs.scene_in.mesh.loop_start)} polygons")
-    out = {"scene": name, "config": cfg, "texels": n_tex, "texel_m": rs.atlases[rs.objects[0]].texel,
+    out = {"scene": name, "config": cfg, "texels": n_tex, "not_compared": len(small), "texel_m": rs.atlases[rs.objects[0]].texel,
            "objects": {n: {"texels": rs.atlases[n].n, "size": [rs.atlases[n].width, rs.atlases[n].height]}
                        for n in rs.objects},
            "frames": {}, "cycles_sweep": [], "ours": []}

@@ -197,6 +197,8 @@ class Atlas:
             s_idx.append(np.column_stack([xs.ravel()[inside], ys.ravel()[inside]]))
             s_tri.append(np.full(int(inside.sum()), t))
             s_bary.append(np.column_stack([l0, l1, l2])[inside])
+        if not s_idx:
+            raise NoTexels(self.name)
         sub = np.concatenate(s_idx)
         tri = np.concatenate(s_tri)
         bary = np.clip(np.concatenate(s_bary), 0, 1)
@@ -303,6 +305,10 @@ def one_sided_material(name, rho, emission, transparent=False):
     return m
 
 
+class NoTexels(Exception):
+    pass
+
+
 @dataclass
 class RefScene:
     """A sample scene prepared for reference bakes and for our solution."""
@@ -342,7 +348,13 @@ def prepare(scene, texel_rel=1 / 100, k=3, texel=None):
             continue
         if obj.modifiers:
             raise RuntimeError(f"{obj.name}: modifiers are not supported by the comparison (apply them)")
-        at = Atlas.build(obj, texel, k)
+        try:
+            at = Atlas.build(obj, texel, k)
+        except NoTexels:
+            # lights the others but is not compared (no texel centre falls on it)
+            names.remove(obj.name)
+            rs.warnings.append(f"{obj.name}: smaller than a texel, not compared")
+            continue
         rs.atlases[obj.name] = at
         img = bpy.data.images.new(f"REF_{obj.name}", at.width, at.height, alpha=True, float_buffer=True)
         img.colorspace_settings.name = "Non-Color"
