@@ -32,10 +32,8 @@ import time
 
 import numpy as np
 
-try:  # smooth evaluation inside leaves (the texture output's interpolation), newer cores only
-    from hr_addon.core.output import radiance_at
-except ImportError:  # pragma: no cover
-    radiance_at = None
+from hr_addon.core.geometry import components, newell
+from hr_addon.core.output import radiance_at
 
 UV_NAME = "HR_Ref"
 REF_TAG = "hr_ref"
@@ -62,13 +60,6 @@ def _world_mesh(obj):
     me.loop_triangles.foreach_get("loops", tl)
     me.loop_triangles.foreach_get("polygon_index", tp)
     return verts, ls.astype(np.int64), lt.astype(np.int64), lv.astype(np.int64), tl.reshape(-1, 3), tp
-
-
-def _newell(p):
-    q = np.roll(p, -1, axis=0)
-    return np.array([np.sum((p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2])),
-                     np.sum((p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0])),
-                     np.sum((p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1]))])
 
 
 @dataclass
@@ -104,28 +95,22 @@ class Atlas:
         nrm = np.zeros((P, 3))
         area = np.zeros(P)
         for i, p in enumerate(polys):
-            n = _newell(verts[p])
+            n = newell(verts[p])
             area[i] = 0.5 * np.linalg.norm(n)
             nrm[i] = n / max(2 * area[i], 1e-300)
         off = np.einsum("ij,ij->i", nrm, np.array([verts[p].mean(0) for p in polys]))
         scale = max(float(np.abs(verts).max()), 1e-9)
-        # charts: union-find over shared edges of coplanar polygons
-        parent = np.arange(P)
-
-        def find(i):
-            while parent[i] != i:
-                parent[i] = parent[parent[i]]
-                i = parent[i]
-            return i
+        # charts: shared edges of coplanar polygons
+        pairs = []
         owner = {}
         for i, p in enumerate(polys):
             for a, b in zip(p, np.roll(p, -1)):
                 key = (min(a, b), max(a, b))
                 j = owner.get(key)
                 if j is not None and nrm[i] @ nrm[j] > 1 - 1e-3 and abs(off[i] - off[j]) < 1e-3 * scale:
-                    parent[find(i)] = find(j)
+                    pairs.append((i, j))
                 owner[key] = i
-        roots = np.array([find(i) for i in range(P)])
+        roots = components(P, *np.array(pairs, np.int64).reshape(-1, 2).T)
         charts = [np.flatnonzero(roots == r) for r in np.unique(roots)]
         # project each chart to 2D (texel units)
         loop_uv = np.zeros((len(lv), 2))
@@ -412,7 +397,7 @@ def shape_proxies(rs: RefScene, frame):
             n = _surface_front(rs, em.verts[p])
             base = len(verts)
             pts = em.verts[p] + eps * n
-            if _newell(pts) @ n < 0:     # emit towards the surface's front, as the core does
+            if newell(pts) @ n < 0:     # emit towards the surface's front, as the core does
                 pts = pts[::-1]
             verts += list(pts)
             faces.append(list(range(base, base + len(p))))
@@ -437,7 +422,7 @@ def shape_orientation(rs: RefScene, shapes):
     out = {}
     for k, s in shapes.items():
         ring = np.asarray(s.rings[0], float)
-        n = _newell(ring)
+        n = newell(ring)
         out[k] = bool(_surface_front(rs, ring) @ n > 0)
     return out
 
@@ -446,14 +431,14 @@ def _surface_front(rs: RefScene, ring, plane_tol=1e-3):
     """Front normal of the surface a light-shape polygon lies on. The core (events._find_surface)
     takes coplanar surfaces facing either way and emits on the side the surface faces (preferring a
     surface facing like the shape), so a shape wound against its wall still lights the room."""
-    n = _newell(ring)
+    n = newell(ring)
     n /= np.linalg.norm(n)
     c = ring.mean(0)
     m = rs.scene_in.mesh
     best = None
     for s, k in zip(m.loop_start, m.loop_total):
         q = m.verts[m.loop_verts[s:s + k]]
-        qn = _newell(q)
+        qn = newell(q)
         qn /= max(np.linalg.norm(qn), 1e-300)
         if abs(qn @ n) >= 0.999 and np.abs((q - c) @ n).max() <= plane_tol * rs.diag:
             if qn @ n > 0:
@@ -551,7 +536,7 @@ class Ours:
         names = rs.objects
         allp = np.concatenate([self.samples[n][0] for n in names])
         allx = np.concatenate([rs.atlases[n].s_point for n in names])
-        want_smooth, smooth = smooth and radiance_at is not None, None
+        want_smooth, smooth = smooth, None
         if self.dyn is not None:
             B, E = self.dyn.evaluate(allx, allp)
             loops = self.dyn.loop_radiance("CORNER")
@@ -596,7 +581,7 @@ def shape_emission(shapes, points, diag, plane_tol=1e-3):
     E = np.zeros((len(points), 3))
     for s in shapes.values():
         outer = np.asarray(s.rings[0], float)
-        n = sum(_newell(np.asarray(r, float)) for r in s.rings[:1])
+        n = sum(newell(np.asarray(r, float)) for r in s.rings[:1])
         n /= np.linalg.norm(n)
         c = outer.mean(0)
         u = outer[1] - outer[0]

@@ -19,10 +19,10 @@ def _collect(bpy):
 
 
 def _normals(mi):
-    from hr_addon.core.geometry import _newell
+    from hr_addon.core.geometry import newell
     out = []
     for s, n in zip(mi.loop_start, mi.loop_total):
-        v = _newell(mi.verts[mi.loop_verts[s:s + n]][None])[0]
+        v = newell(mi.verts[mi.loop_verts[s:s + n]][None])[0]
         out.append(v / np.linalg.norm(v))
     return np.array(out)
 
@@ -91,8 +91,8 @@ def _outline(ms, bpy, verts, polys):
 
 
 def _signed_area(r, n=(0, 0, 1)):
-    from hr_addon.core.geometry import _newell
-    return float(_newell(np.asarray(r)[None])[0] @ n) / 2
+    from hr_addon.core.geometry import newell
+    return float(newell(np.asarray(r)[None])[0] @ n) / 2
 
 
 def test_coplanar_polygons_merge_into_outlines(env):

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.geometry import InputError, MeshInput
+from ..core.geometry import InputError, MeshInput, components, newell
 from .materials import read_material
 
 
@@ -62,25 +62,38 @@ class EvalMesh:
     tri_loops: np.ndarray = None   # (T, 3) Blender's loop_triangles (loop indices)
 
 
-def _mesh_arrays(me):
-    """Local coordinates, topology, material indices and loop triangles of a Mesh datablock."""
+def mesh_topology(me):
+    """Local vertex coordinates (V, 3) float32 and loop_start, loop_total, loop_verts (int64) of a Mesh."""
     V, P, L = len(me.vertices), len(me.polygons), len(me.loops)
     co = np.empty(V * 3, np.float32)
     me.vertices.foreach_get("co", co)
-    ls = np.empty(P, np.int32)
-    lt = np.empty(P, np.int32)
-    lv = np.empty(L, np.int32)
-    mi = np.zeros(P, np.int32)
+    ls, lt, lv = np.empty(P, np.int32), np.empty(P, np.int32), np.empty(L, np.int32)
     me.polygons.foreach_get("loop_start", ls)
     me.polygons.foreach_get("loop_total", lt)
     me.loops.foreach_get("vertex_index", lv)
-    if P:
+    return co.reshape(-1, 3), ls.astype(np.int64), lt.astype(np.int64), lv.astype(np.int64)
+
+
+def _mesh_arrays(me):
+    """Local coordinates, topology, material indices and loop triangles of a Mesh datablock."""
+    co, ls, lt, lv = mesh_topology(me)
+    mi = np.zeros(len(ls), np.int32)
+    if len(ls):
         me.polygons.foreach_get("material_index", mi)
     me.calc_loop_triangles()
     tri = np.empty(len(me.loop_triangles) * 3, np.int32)
     me.loop_triangles.foreach_get("loops", tri)
-    return (co.reshape(-1, 3).astype(np.float64), ls.astype(np.int64), lt.astype(np.int64), lv.astype(np.int64),
-            mi, tri.reshape(-1, 3).astype(np.int64))
+    return co.astype(np.float64), ls, lt, lv, mi, tri.reshape(-1, 3).astype(np.int64)
+
+
+def evaluated(obj, depsgraph, read=_mesh_arrays):
+    """(evaluated object, read(its evaluated mesh)); the temporary mesh is freed again."""
+    ob = obj.evaluated_get(depsgraph)
+    me = ob.to_mesh()
+    try:
+        return ob, read(me)
+    finally:
+        ob.to_mesh_clear()
 
 
 def _placed(arrays, matrix, mats):
@@ -92,12 +105,7 @@ def _placed(arrays, matrix, mats):
 
 def read_mesh(obj, depsgraph) -> EvalMesh:
     """Evaluated mesh of `obj` in world space, vectorised with foreach_get."""
-    ob = obj.evaluated_get(depsgraph)
-    me = ob.to_mesh()
-    try:
-        arrays = _mesh_arrays(me)
-    finally:
-        ob.to_mesh_clear()
+    ob, arrays = evaluated(obj, depsgraph)
     return _placed(arrays, ob.matrix_world, [s.material for s in ob.material_slots] or [None])
 
 
@@ -315,13 +323,6 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
 
 # --- light shapes -------------------------------------------------------------------------------
 
-def _newell(p):
-    q = np.roll(p, -1, axis=0)
-    return np.array([np.sum((p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2])),
-                     np.sum((p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0])),
-                     np.sum((p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1]))])
-
-
 def _drop_collinear(ring, tol=1e-9):
     while len(ring) > 3:
         a, b = np.roll(ring, 1, 0), np.roll(ring, -1, 0)
@@ -363,8 +364,8 @@ def _group_outline(verts, polys):
             ring.append(v)
             v = nxt.pop(v)
         rings.append(verts[ring])
-    normal = sum(_newell(verts[p]) for p in polys)
-    areas = [float(_newell(r) @ normal) for r in rings]
+    normal = sum(newell(verts[p]) for p in polys)
+    areas = [float(newell(r) @ normal) for r in rings]
     outer = [r for r, a in zip(rings, areas) if a > 0]
     holes = [r for r, a in zip(rings, areas) if a < 0]
     if len(outer) != 1:
@@ -384,32 +385,26 @@ def mesh_outlines(em: EvalMesh):
              for s, n in zip(em.loop_start, em.loop_total)]
     nrm, off = np.zeros((P, 3)), np.zeros(P)
     for i, p in enumerate(polys):
-        n = _newell(em.verts[p])
+        n = newell(em.verts[p])
         ln = np.linalg.norm(n)
         nrm[i] = n / ln if ln > 0 else 0
         off[i] = nrm[i] @ em.verts[p].mean(0)
     scale = float(np.abs(em.verts).max()) if len(em.verts) else 1.0
-    parent = list(range(P))
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
+    pairs = []
     edge_owner = {}
     for i, p in enumerate(polys):
         for a, b in zip(p, p[1:] + p[:1]):
             j = edge_owner.get((b, a))
             if j is not None and em.material_index[i] == em.material_index[j] \
                     and nrm[i] @ nrm[j] > 1 - 1e-9 and abs(off[i] - off[j]) <= 1e-7 * max(scale, 1.0):
-                parent[find(i)] = find(j)
+                pairs.append((i, j))
             edge_owner[(a, b)] = i
-    groups = {}
-    for i in range(P):
-        groups.setdefault(find(i), []).append(i)
+    i, j = np.array(pairs, np.int64).reshape(-1, 2).T
+    label = components(P, i, j)
+    order = np.argsort(label, kind="stable")          # groups by their first polygon
+    groups = [g.tolist() for g in np.split(order, np.flatnonzero(np.diff(label[order])) + 1)] if P else []
     out = []
-    for g in sorted(groups.values(), key=min):
+    for g in groups:
         rings = _group_outline(em.verts, [polys[i] for i in g]) if len(g) > 1 else None
         if rings is not None:
             out.append((g, rings, int(em.material_index[g[0]])))

@@ -13,7 +13,7 @@ import bpy
 import numpy as np
 
 from .materials import read_material
-from .scene_in import _hidden_instancer, _mesh_arrays, geometry_objects, light_shape_objects, _walk_collections
+from .scene_in import _hidden_instancer, _mesh_arrays, _walk_collections, evaluated, geometry_objects, light_shape_objects
 
 
 def _source_material(m):
@@ -77,12 +77,7 @@ def geometry_signatures(view_layer, depsgraph):
     for obj in geometry_objects(view_layer):
         if _hidden_instancer(obj):
             continue
-        ob = obj.evaluated_get(depsgraph)
-        me = ob.to_mesh()
-        try:
-            arrays = _mesh_arrays(me)
-        finally:
-            ob.to_mesh_clear()
+        ob, arrays = evaluated(obj, depsgraph)
         if len(arrays[1]) == 0:
             continue
         co, topo = _mesh_digest(arrays)

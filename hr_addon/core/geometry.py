@@ -82,12 +82,59 @@ class Patches:
         return np.concatenate([tri, self.corners[quads][:, [0, 2, 3]]])
 
 
-def _newell(p):
-    """Newell normal (unnormalised, length = 2 x area) of polygons p (..., n, 3)."""
+def newell(p):
+    """Newell normal (unnormalised, length = 2 x area) of polygons p (..., n, 3): the exact normal
+    of a planar polygon, a best-fit one of a slightly warped polygon, zero for a degenerate one."""
     q = np.roll(p, -1, axis=-2)
     return np.stack([np.sum((p[..., 1] - q[..., 1]) * (p[..., 2] + q[..., 2]), -1),
                      np.sum((p[..., 2] - q[..., 2]) * (p[..., 0] + q[..., 0]), -1),
                      np.sum((p[..., 0] - q[..., 0]) * (p[..., 1] + q[..., 1]), -1)], -1)
+
+
+_newell = newell      # the name events.py imports
+
+
+def loop_tables(loop_start, loop_total):
+    """Blender-style polygons: (loop -> polygon, loop -> next loop of the same polygon)."""
+    loop_start, loop_total = np.asarray(loop_start, np.int64), np.asarray(loop_total, np.int64)
+    lp = np.repeat(np.arange(len(loop_start)), loop_total)
+    nxt = np.arange(len(lp)) + 1
+    m = loop_total > 0
+    nxt[(loop_start + loop_total - 1)[m]] = loop_start[m]
+    return lp, nxt
+
+
+def polygon_newell(verts, loop_start, loop_total, loop_verts):
+    """newell() of every polygon of a Blender-style mesh, polygons of any size: (P, 3)."""
+    lp, nxt = loop_tables(loop_start, loop_total)
+    lv = np.asarray(loop_verts, np.int64)
+    p, q = verts[lv], verts[lv[nxt]]
+    t = np.stack([(p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2]), (p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0]),
+                  (p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1])], 1)
+    return np.stack([np.bincount(lp, t[:, k], len(loop_start)) for k in range(3)], 1)
+
+
+def components(n, i, j):
+    """Connected-component label of n items joined by the pairs (i[k], j[k]): each item's label is
+    the smallest item of its component. Vectorised union-find: every tree's root hooks onto the
+    smallest root it is joined to, then pointers are jumped until each item points at its root; a
+    handful of passes even for long chains in scrambled order (hooking items instead of roots would
+    need as many passes as the longest chain)."""
+    lab = np.arange(n)
+    i, j = np.asarray(i, np.int64), np.asarray(j, np.int64)
+    while len(i):
+        li, lj = lab[i], lab[j]
+        if np.array_equal(li, lj):
+            break
+        m = np.minimum(li, lj)
+        np.minimum.at(lab, li, m)           # labels only decrease: no cycles
+        np.minimum.at(lab, lj, m)
+        while True:
+            jumped = lab[lab]
+            if np.array_equal(jumped, lab):
+                break
+            lab = jumped
+    return lab
 
 
 def _per_object(mesh, polys):
@@ -107,7 +154,7 @@ def _off_plane(verts, starts, sizes, lv, polys):
     for k in np.unique(sizes[polys]):
         m = np.flatnonzero(sizes[polys] == k)
         p = verts[lv[starts[polys[m]][:, None] + np.arange(k)]]             # (n, k, 3)
-        nrm = _newell(p)
+        nrm = newell(p)
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
         d = np.abs(np.einsum("nkj,nj->nk", p - p.mean(1, keepdims=True), nrm)).max(1)
         size = np.sqrt(((p[:, :, None] - p[:, None]) ** 2).sum(-1).max((1, 2))) if k <= 64 else \
@@ -118,7 +165,7 @@ def _off_plane(verts, starts, sizes, lv, polys):
 
 def _ear_clip(pts, idx):
     """Triangulate one simple polygon (any concavity) given its 3D points; returns index triples."""
-    n = _newell(pts)
+    n = newell(pts)
     axis = int(np.argmax(np.abs(n)))
     uv = np.delete(pts, axis, axis=1)
     if n[axis] < 0:  # keep CCW orientation in the projected plane
@@ -201,7 +248,7 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
     q = np.flatnonzero(sizes == 4)
     qv = lv[starts[q][:, None] + np.arange(4)]
     qp = verts[qv]
-    n = _newell(qp)
+    n = newell(qp)
     nn = np.linalg.norm(n, axis=1, keepdims=True)
     nu = n / np.where(nn > 0, nn, 1)
     d_off = np.abs(np.einsum("ij,ij->i", qp[:, 3] - qp[:, 0], nu))
@@ -252,7 +299,7 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
     vidx = np.concatenate([np.column_stack([tris[:, 1:], tris[:, 3]]), quads[:, 1:]])
     nv = np.concatenate([np.full(len(tris), 3), np.full(len(quads), 4)])
     corners = verts[vidx]
-    n = _newell(corners)  # a padded triangle's repeated corner adds a zero-length edge
+    n = newell(corners)  # a padded triangle's repeated corner adds a zero-length edge
     area = 0.5 * np.linalg.norm(n, axis=1)
     edge2 = (np.diff(corners, axis=1, append=corners[:, :1]) ** 2).sum(-1).max(1)
     ok = (area > 0) & (area > area_tol * edge2)
@@ -318,15 +365,10 @@ def isolated_objects(mesh: MeshInput, gap_ratio=10.0, max_objects=4000) -> Scene
     thresholds relative to the whole scene would change because of it: the total area (element
     sizes, Aeps) grows with its area. Callers use main_area instead of the total area for those
     thresholds, so the rest of the scene gets the same light with or without it."""
-    P = len(mesh.loop_start)
     verts = np.asarray(mesh.verts, float)
     lv = np.asarray(mesh.loop_verts)
-    loop_poly = np.repeat(np.arange(P), mesh.loop_total)
-    nxt = np.arange(len(lv)) + 1
-    nxt[np.asarray(mesh.loop_start) + np.asarray(mesh.loop_total) - 1] = np.asarray(mesh.loop_start)
-    cr = np.cross(verts[lv], verts[lv[nxt]]) if len(lv) else np.zeros((0, 3))
-    n = np.stack([np.bincount(loop_poly, cr[:, k], P) for k in range(3)], 1)
-    area = 0.5 * np.linalg.norm(n, axis=1)
+    loop_poly, _ = loop_tables(mesh.loop_start, mesh.loop_total)
+    area = 0.5 * np.linalg.norm(polygon_newell(verts, mesh.loop_start, mesh.loop_total, lv), axis=1)
     area[~np.isfinite(area)] = 0.0
     oid = np.asarray(mesh.object_id)
     names = list(mesh.object_names)
@@ -342,24 +384,14 @@ def isolated_objects(mesh: MeshInput, gap_ratio=10.0, max_objects=4000) -> Scene
     np.minimum.at(lo, lobj, verts[lv])
     np.maximum.at(hi, lobj, verts[lv])
     size = np.linalg.norm(hi - lo, axis=1)
-    parent = np.arange(len(ids))
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
     i, j = np.triu_indices(len(ids), 1)
+    near = []
     for s in range(0, len(i), 1 << 20):
         a, b = i[s:s + (1 << 20)], j[s:s + (1 << 20)]
         gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo[a] - hi[b], lo[b] - hi[a])), axis=1)
-        for x, y in zip(a[gap <= gap_ratio * np.maximum(size[a], size[b])],
-                        b[gap <= gap_ratio * np.maximum(size[a], size[b])]):
-            rx, ry = find(x), find(y)
-            if rx != ry:
-                parent[rx] = ry
-    root = np.array([find(k) for k in range(len(ids))])
+        near.append(np.flatnonzero(gap <= gap_ratio * np.maximum(size[a], size[b])) + s)
+    near = np.concatenate(near)
+    root = components(len(ids), i[near], j[near])
     groups, inv = np.unique(root, return_inverse=True)
     garea = np.bincount(inv, obj_area, len(groups))
     gpolys = np.bincount(inv, np.bincount(np.searchsorted(ids, oid), minlength=len(ids)), len(groups))
