@@ -1,7 +1,8 @@
 """Dynamic Hierarchical Radiosity: a Blender extension.
 
-The physics lives in `hr_addon.core` (numpy only). Blender glue is imported only when Blender
-registers the extension, so the core can be imported and tested without bpy.
+The physics lives in `hr_addon.core`, the bake files in `hr_addon.io` and the lightmap texel work in
+`hr_addon.lightmap` (numpy only). The Blender glue (`hr_addon.blender`) is imported only when
+Blender registers the extension, so the rest can be imported and tested without bpy.
 """
 
 

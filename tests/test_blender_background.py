@@ -31,7 +31,7 @@ def test_background_bake_reports_progress_and_loads_result(tmp_path):
     bpy = load_bpy()
     path = open_sample("searchbeam", tmp_path)
     from hr_addon.blender import background
-    from hr_addon.blender.cache import CacheReader
+    from hr_addon.io.cache import CacheReader
     scene = bpy.context.scene
     scene.frame_set(7)
     mtime = path.stat().st_mtime_ns

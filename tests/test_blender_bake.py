@@ -222,7 +222,7 @@ def test_operators_mark_bake_preview(tmp_path):
     scene.hr.feps, scene.hr.aeps = 0.08, 2e-3
     scene.hr.method = "FE"
     assert bpy.ops.hr.bake() == {"FINISHED"}
-    from hr_addon.blender.cache import CacheReader
+    from hr_addon.io.cache import CacheReader
     r = CacheReader(tmp_path / "hr_cache" / "cornell")
     assert sorted(r.frames) == [5, 6] and r.manifest["feps"] == pytest.approx(0.08) and r.manifest["method"] == "FE"
     # Preview: an emission branch becomes the active output; reading the material ignores it.

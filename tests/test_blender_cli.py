@@ -105,7 +105,7 @@ def test_reflectance_at_least_one_is_clamped_with_warning(tmp_path):
 
 
 def _frames(directory):
-    from hr_addon.blender.cache import CacheReader
+    from hr_addon.io.cache import CacheReader
     r = CacheReader(directory)
     return {f: r.load(f) for f in sorted(r.frames)}
 

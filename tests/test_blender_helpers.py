@@ -60,3 +60,17 @@ def attribute(obj, name="HR_Radiance"):
     return v.reshape(-1, 4)
 
 
+
+
+def read_image(path):
+    """(H, W, 3) float32 pixels of an image file as Blender decodes it (row 0 at the bottom; PNGs
+    linearised from sRGB): the independent reader of our EXR and PNG writers."""
+    bpy = load_bpy()
+    img = bpy.data.images.load(str(path), check_existing=False)
+    try:
+        W, H = img.size
+        px = np.empty(W * H * img.channels, np.float32)
+        img.pixels.foreach_get(px)
+        return px.reshape(H, W, img.channels)[..., :3].copy()
+    finally:
+        bpy.data.images.remove(img)

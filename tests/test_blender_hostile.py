@@ -143,7 +143,7 @@ def test_damaged_frames_show_magenta_and_a_subrange_bake_rebakes_them(tmp_path):
     another range re-bakes the damaged frames."""
     bpy = load_bpy()
     from hr_addon.blender import playback
-    from hr_addon.blender.cache import CacheReader
+    from hr_addon.io.cache import CacheReader
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     res = _bake()
@@ -203,7 +203,7 @@ def test_other_method_or_quality_discards_the_old_frames_and_says_why(tmp_path):
     said NAIVE; a quality change discarded them with a hidden, vague message."""
     bpy = load_bpy()
     from hr_addon.blender import playback
-    from hr_addon.blender.cache import CacheReader
+    from hr_addon.io.cache import CacheReader
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     _bake(method="fe", frames=(1, 8))
@@ -266,7 +266,7 @@ def test_damaged_texture_frames_are_reported_and_rebaked(tmp_path):
     linked or filled it from another frame) and playback said nothing."""
     bpy = load_bpy()
     from hr_addon.blender import playback
-    from hr_addon.blender.texture import image_file_problem
+    from hr_addon.io.images import image_file_problem
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     res = _bake(output="texture", resolution=16, frames=(1, 12))

@@ -1,11 +1,13 @@
-"""Baked textures (hr_addon/blender/texture.py): lightmap UVs, texel values, image sequences, helper."""
+"""Baked textures (blender/texture.py and lightmap/): lightmap UVs, texel values, image sequences,
+helper material. Image files are read with Blender's own loader (test_blender_helpers.read_image)."""
 import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from test_blender_helpers import load_bpy, open_sample
+from test_blender_helpers import load_bpy, open_sample, read_image
+from test_lightmap import texels_in_polygon
 
 
 RES = 64
@@ -32,25 +34,6 @@ def _polys(me):
     return [list(p.loop_indices) for p in me.polygons]
 
 
-def _texels_in_polygon(uv_poly, res, margin=1e-6):
-    """Texel centres strictly inside a convex UV polygon (fan): x (n,), y (n,), bary (n, 3), tri (n,)."""
-    out = []
-    for t in range(1, len(uv_poly) - 1):
-        a, b, c = uv_poly[0] * res - 0.5, uv_poly[t] * res - 0.5, uv_poly[t + 1] * res - 0.5
-        lo = np.floor(np.minimum(np.minimum(a, b), c)).astype(int)
-        hi = np.ceil(np.maximum(np.maximum(a, b), c)).astype(int)
-        xs, ys = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
-        q = np.stack([xs.ravel(), ys.ravel()], 1).astype(float)
-        m = np.array([b - a, c - a]).T
-        if abs(np.linalg.det(m)) < 1e-12:
-            continue
-        l12 = np.linalg.solve(m, (q - a).T).T
-        bary = np.column_stack([1 - l12.sum(1), l12])
-        ok = (bary > margin).all(1)
-        out.append((q[ok, 0].astype(int), q[ok, 1].astype(int), bary[ok], np.full(ok.sum(), t)))
-    return [np.concatenate(z) for z in zip(*out)] if out else [np.zeros(0, int)] * 2 + [np.zeros((0, 3)), np.zeros(0, int)]
-
-
 def _files(cache, name, frames, ext=".exr"):
     return [cache / "textures" / f"{name}_{f:06d}{ext}" for f in frames]
 
@@ -62,7 +45,6 @@ def _snapshot(d):
 def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
-    from hr_addon.blender import texture
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.output import radiance_at
     from hr_addon.core.radiosity import RadiositySystem
@@ -83,7 +65,7 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
     res = _bake(frames=(5, 7))
     assert res.solved == 2 and res.reused == 1 and res.warnings == [], res
     cache = tmp_path / "hr_cache" / "cornell"
-    from hr_addon.blender.cache import CacheReader
+    from hr_addon.io.cache import CacheReader
     m = CacheReader(cache).manifest
     assert m["output"] == "TEXTURE" and sorted(m["objects"]) == GEOMETRY
     # One file per object and frame number (4: the frame before the start, which Blender asks for).
@@ -104,13 +86,10 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
         if o.type == "MESH":
             assert ("HR_Lightmap" in o.data.uv_layers) == (o.name in GEOMETRY), o.name
 
-    # Float images that Blender reads as such, same values as our reader.
+    # Float images that Blender reads as such.
     f6 = _files(cache, "right_green", [6])[0]
     img = bpy.data.images.load(str(f6))
     assert img.is_float and tuple(img.size) == (RES, RES)
-    px = np.empty(RES * RES * 4, np.float32)
-    img.pixels.foreach_get(px)
-    np.testing.assert_array_equal(px.reshape(RES, RES, 4)[..., :3], texture.read_image(f6))
 
     # Texel values against the core's radiance_at at the same surface points (independent reference).
     mesh, names = _reference_mesh(bpy)
@@ -128,16 +107,16 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
         M = np.array(ob.matrix_world)
         co = np.array([v.co for v in me.vertices], float) @ M[:3, :3].T + M[:3, 3]
         lv = np.array([lp.vertex_index for lp in me.loops])
-        image = texture.read_image(_files(cache, name, [6])[0])
+        image = read_image(_files(cache, name, [6])[0])
         count = np.zeros((4 * RES, 4 * RES), int)
         area = 0.0
         xs, ys, pts, patch = [], [], [], []
         for i, loops in enumerate(_polys(me)):
             q = uv[loops]
             area += 0.5 * abs(np.cross(q[1] - q[0], q[2] - q[0])) + 0.5 * abs(np.cross(q[2] - q[0], q[3] - q[0]))
-            x4, y4, _, _ = _texels_in_polygon(q, 4 * RES)
+            x4, y4, _, _ = texels_in_polygon(q, 4 * RES)
             count[y4, x4] += 1                                 # no two polygons share a texel centre
-            x, y, bary, t = _texels_in_polygon(q, RES)
+            x, y, bary, t = texels_in_polygon(q, RES)
             tri = np.stack([np.zeros_like(t), t, t + 1], 1)
             pts.append(np.einsum("nk,nkj->nj", bary, co[lv[np.array(loops)][tri]]))
             xs.append(x)
@@ -155,8 +134,8 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
         assert (image.max(-1) > 0).sum() > inside.sum() + 4 * RES * 0.5
         poly0 += len(me.polygons)
     # The window (frame 6) lights the right wall; frame 5 is darker.
-    right5 = texture.read_image(_files(cache, "right_green", [5])[0])
-    assert texture.read_image(f6)[..., 1].mean() > 1.5 * right5[..., 1].mean()
+    right5 = read_image(_files(cache, "right_green", [5])[0])
+    assert read_image(f6)[..., 1].mean() > 1.5 * right5[..., 1].mean()
 
 
 def test_material_helper_plays_the_sequence(tmp_path):
@@ -222,7 +201,6 @@ def test_cancel_partial_bakes_and_png(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     from hr_addon.blender import bake as bake_mod
-    from hr_addon.blender import texture
     from hr_addon.blender.bake import BakeJob
     _bake(frames=(5, 6), resolution=32, texture_format="png")
     cache = tmp_path / "hr_cache" / "cornell"
@@ -232,7 +210,7 @@ def test_cancel_partial_bakes_and_png(tmp_path):
     assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[24:26] == bytes([16, 2])   # 16-bit RGB
     img = bpy.data.images.load(str(png))
     assert img.is_float                                       # Blender reads 16-bit PNGs as float
-    a = texture.read_image(png)
+    a = read_image(png)
     assert a.shape == (32, 32, 3) and 0 < a.max() <= 1
     # Cancel (ESC) after a few frames: the previous bake stays, the temporary folder goes.
     scene = bpy.context.scene
@@ -265,51 +243,23 @@ def test_command_line_texture_output(tmp_path, capsys):
     assert files == sorted(f"{n}_{f:06d}.png" for n in GEOMETRY for f in (5, 6))
 
 
-def test_per_leaf_evaluation_and_packing_units():
-    """radiance_per_leaf equals radiance_at; EXR round trip; packed UVs of a sphere do not overlap."""
-    pytest.importorskip("bpy")
-    from hr_addon.blender import texture
-    from hr_addon.core import scenes
-    from hr_addon.core.output import radiance_at
-    from hr_addon.core.radiosity import RadiositySystem
-    from hr_addon.core.refine import RefineParams
-    sysm = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
-    sysm.solve()
-    pt = sysm.patches
+def test_image_writers_read_back_by_blender(tmp_path):
+    """EXR (ZIP and uncompressed) and 16-bit PNG files as Blender decodes them: EXR bit-exact,
+    PNG within 16-bit sRGB quantisation (Blender linearises it), values above 1 clipped."""
+    load_bpy()
+    from hr_addon.io.images import encode_exr, encode_png16
     rng = np.random.default_rng(0)
-    k = rng.integers(0, len(pt.nv), 3000)
-    c = pt.corners[k]
-    r = rng.random((len(k), 2))
-    r[r.sum(1) > 1] = 1 - r[r.sum(1) > 1]
-    p = c[:, 0] + r[:, :1] * (c[:, 1] - c[:, 0]) + r[:, 1:] * (c[:, 2] - c[:, 0])
-    p[::7] = c[::7, 0]                                        # corners and edges too
-    p[1::7] = 0.5 * (c[1::7, 1] + c[1::7, 2])
-    np.testing.assert_allclose(texture.radiance_per_leaf(sysm.h, sysm.B, k, p), radiance_at(sysm.h, sysm.B, k, p),
-                               rtol=1e-9, atol=1e-12)
-    # TexelLocator: leaves found from representatives (here: the first point of each patch) and,
-    # on the next call, from the remembered nodes, are those of a descent from the patch.
-    from hr_addon.core.output import locate
-    first = np.unique(k, return_index=True)
-    rep = first[1][np.searchsorted(first[0], k)]
-    loc = texture.TexelLocator(k, p, rep)
-    for _ in range(2):
-        np.testing.assert_array_equal(loc.leaves(sysm.h), locate(sysm.h, k, p))
-    np.testing.assert_allclose(texture.radiance_per_leaf(sysm.h, sysm.B, k, p, locator=loc),
-                               radiance_at(sysm.h, sysm.B, k, p), rtol=1e-6, atol=1e-9)
-    img = rng.random((5, 7, 3)).astype(np.float32) * 100
+    img = rng.random((5, 7, 3)).astype(np.float32)
+    img[0, 0] = (0.0, 0.5, 1.0)                          # row 0 is the bottom row in both
     for comp in ("ZIP", "NONE"):
-        back, ch = texture.decode_exr(texture.encode_exr(img, comp))
-        assert ch == ["B", "G", "R"] and np.array_equal(back[..., ::-1], img)
-    sph = scenes.sphere()
-    res = 64
-    uv = texture.pack_lightmap(sph.verts, sph.loop_start, sph.loop_total, sph.loop_verts, res)
-    assert uv.min() >= 0 and uv.max() <= 1
-    texel, tri, bary, inside = texture.rasterise(
-        np.stack([uv[sph.loop_start + i] for i in (0, 1, 2)], 1), res, ring=0)
-    assert inside.all() and len(texel) > 0
-    # every polygon gets its own island: no texel centre inside two polygons' UV triangles
-    hits = np.zeros(res * 4 * res * 4, int)
-    for s, n in zip(sph.loop_start, sph.loop_total):
-        x, y, _, _ = _texels_in_polygon(uv[s:s + n], 4 * res)
-        hits[y * 4 * res + x] += 1
-    assert hits.max() == 1
+        (tmp_path / f"{comp}.exr").write_bytes(encode_exr(img * 100, comp))
+        np.testing.assert_array_equal(read_image(tmp_path / f"{comp}.exr"), img * 100)
+    big = rng.random((40, 33, 3)).astype(np.float32) * 5e3   # several ZIP chunks of 16 lines
+    (tmp_path / "big.exr").write_bytes(encode_exr(big))
+    np.testing.assert_array_equal(read_image(tmp_path / "big.exr"), big)
+    (tmp_path / "a.png").write_bytes(encode_png16(np.concatenate([img, img + 1], 0)))
+    back = read_image(tmp_path / "a.png")
+    # half a 16-bit sRGB step is at most 1.7e-5 in linear (slope <= 2.3); Blender's own sRGB
+    # conversion adds up to ~2.5e-5 (it reads 1.0 as 1.000024)
+    np.testing.assert_allclose(back[:5], img, atol=5e-5)
+    np.testing.assert_allclose(back[5:], 1.0, atol=5e-5)

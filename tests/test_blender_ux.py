@@ -57,7 +57,7 @@ def test_delete_bake_removes_the_files(tmp_path):
 
 def test_delete_refuses_a_folder_that_is_not_a_bake(tmp_path):
     load_bpy()
-    from hr_addon.blender.cache import CacheError
+    from hr_addon.io.cache import CacheError
     from hr_addon.blender.ops import delete_cache_files
     d = tmp_path / "precious"
     d.mkdir()
@@ -155,7 +155,7 @@ def test_without_embreex_the_bake_says_numpy(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "embreex", None)          # import embreex -> ImportError
     lines = []
     from hr_addon.blender.bake import run_bake
-    from hr_addon.blender.cache import CacheReader
+    from hr_addon.io.cache import CacheReader
     res = run_bake(bpy.context.scene, log=lambda m, **k: lines.append(m), frames=(1, 1), quality="draft")
     assert res.rays == "numpy" and "embreex not available" in res.rays_note
     assert "rays: numpy (embreex not available" in lines[-1], lines[-1]

@@ -1,6 +1,7 @@
-"""hr_addon.core must not depend on Blender: numpy only (mathutils/embreex optional, in visibility.py).
+"""The bpy-free packages must not depend on Blender: hr_addon.core (numpy only; mathutils/embreex
+optional, in visibility.py), hr_addon.io (bake files) and hr_addon.lightmap (texel plans).
 
-Two checks, both discovering whatever modules exist under hr_addon/core at the time:
+Two checks, both discovering whatever modules exist under those packages at the time:
 - dynamic: every module is imported in a fresh subprocess whose meta-path hook makes `import bpy`
   (and the other Blender-only modules) raise; any *attempt* is recorded, even if the module catches
   the ImportError, so `try: import bpy except ImportError` in core fails too;
@@ -19,7 +20,7 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-CORE_DIR = REPO_ROOT / "hr_addon" / "core"
+PACKAGES = ("core", "io", "lightmap")
 BLOCKED = ("bpy", "bmesh", "bpy_extras", "_bpy", "bpy_types", "gpu", "gpu_extras", "blf", "bl_math",
            "bgl", "aud", "idprop", "imbuf", "freestyle", "addon_utils")
 
@@ -34,8 +35,10 @@ def _discover(path: Path, prefix: str) -> list[str]:
     return names
 
 
-CORE_MODULES = ["hr_addon.core"] + _discover(CORE_DIR, "hr_addon.core.")
-CORE_FILES = sorted(p for p in CORE_DIR.rglob("*.py") if "__pycache__" not in p.parts)
+CORE_MODULES = [m for pkg in PACKAGES
+                for m in [f"hr_addon.{pkg}"] + _discover(REPO_ROOT / "hr_addon" / pkg, f"hr_addon.{pkg}.")]
+CORE_FILES = sorted(p for pkg in PACKAGES for p in (REPO_ROOT / "hr_addon" / pkg).rglob("*.py")
+                    if "__pycache__" not in p.parts)
 
 CHILD = textwrap.dedent(r'''
     import importlib, json, sys, traceback
@@ -47,7 +50,7 @@ CHILD = textwrap.dedent(r'''
         def find_spec(self, name, path=None, target=None):
             if name.split(".")[0] in blocked:
                 attempts.append(name)
-                raise ImportError("hr_addon.core must not import " + name + " (blocked by the test)")
+                raise ImportError("bpy-free packages must not import " + name + " (blocked by the test)")
             return None
 
     sys.meta_path.insert(0, BlockBlender())
@@ -114,6 +117,7 @@ def test_core_source_has_no_blender_import(path):
         assert not bad, "{}:{} imports {}".format(path, node.lineno, bad)
 
 
-def test_discovery_found_core():
-    assert (CORE_DIR / "__init__.py").is_file()
-    assert len(CORE_FILES) >= 1
+def test_discovery_found_the_packages():
+    for pkg in PACKAGES:
+        assert (REPO_ROOT / "hr_addon" / pkg / "__init__.py").is_file()
+    assert {"hr_addon.io.cache", "hr_addon.lightmap.plan", "hr_addon.core.texels"} <= set(CORE_MODULES)

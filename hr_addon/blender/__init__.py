@@ -1,8 +1,10 @@
-"""Blender glue: reads the scene, writes results, UI. All physics is in ..core.
+"""Blender glue: reads the scene, writes results, UI. All physics is in ..core, the bake files in
+..io, the lightmap texel work in ..lightmap (all three bpy-free).
 
-Modules: props (Scene.hr / Object.hr), materials + scene_in (scene in), bake (the frame loop),
-cache (on-disk frames, no bpy), playback (HR_Radiance, handlers), preview, background + jobstatus
-(the interactive bake's worker process and its status file), ops, panels, cli.
+Modules: props (Scene.hr / Object.hr), materials + scene_in (scene in), signatures (what a bake
+depends on), bake (the frame loop), texture (lightmap UV layers, texel plans, helper material),
+playback (HR_Radiance, handlers), preview, background + jobstatus (the interactive bake's worker
+process and its status file), interrupt (Ctrl-C / SIGTERM), ops, panels, cli.
 """
 _cli_handle = None
 

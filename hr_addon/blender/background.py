@@ -27,6 +27,7 @@ from pathlib import Path
 import bpy
 from bpy.app.handlers import persistent
 
+from ..lightmap import TextureError
 from . import jobstatus, playback, texture
 from .bake import cache_dir_for, frame_range_for, use_bake
 from .scene_in import SceneError, geometry_objects
@@ -165,7 +166,7 @@ class BackgroundBake:
             try:
                 self._start_warnings = texture.ensure_lightmaps(geometry_objects(view_layer), res)
                 self.warnings += self._start_warnings
-            except texture.TextureError as exc:
+            except TextureError as exc:
                 raise SceneError(str(exc)) from None
         self.tmp = Path(tempfile.mkdtemp(prefix="hr_bake_"))
         copy = str(self.tmp / (os.path.basename(self.blend) or "untitled.blend"))
@@ -265,7 +266,7 @@ class BackgroundBake:
         final = Path(self.final_dir) if self.final_dir else None
         if final is not None and self.proc is not None and final.parent.is_dir():
             # the worker's temporary cache folder, if it could not remove it itself (killed)
-            from .cache import HOST, temp_dirs
+            from ..io.cache import HOST, temp_dirs
             for d, kind, host, pid, _ in temp_dirs(final):
                 if kind == "baking" and pid == self.proc.pid and host in ("", HOST):
                     shutil.rmtree(d, ignore_errors=True)

@@ -22,8 +22,10 @@ from ..core.geometry import InputError, isolated_objects
 from ..core.progress import Cancelled
 from ..core.radiosity import RadiositySystem
 from ..core.refine import RefineParams
+from ..io.cache import CacheError, CacheWriter, check_writable, frame_ranges
+from ..lightmap import TextureError
+from ..lightmap.plan import FORMATS as TEXTURE_FORMATS
 from . import playback, signatures, texture
-from .cache import CacheError, CacheWriter, check_writable, frame_ranges
 from .scene_in import (SceneError, collect_geometry, collect_light_shapes, geometry_objects,
                        light_shape_objects, shapes_signature)
 
@@ -224,7 +226,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
     if output not in OUTPUTS:
         raise SceneError(f"Unknown output '{output}' (VERTEX or TEXTURE).")
     texture_format = (texture_format or hr.texture_format).upper()
-    if texture_format not in texture.FORMATS:
+    if texture_format not in TEXTURE_FORMATS:
         raise SceneError(f"Unknown texture format '{texture_format}' (EXR or PNG).")
     resolution = int(resolution or hr.texture_resolution)
     if not 8 <= resolution <= 16384:
@@ -259,7 +261,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         if output == "TEXTURE":
             try:
                 warn(texture.ensure_lightmaps(geo_objects, resolution))
-            except texture.TextureError as exc:
+            except TextureError as exc:
                 raise SceneError(str(exc)) from None
         with texture.source_materials(geo_objects):    # texture preview copies stand for these
             scene_in = collect_geometry(view_layer, depsgraph)
@@ -318,9 +320,9 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         baker = None
         if output == "TEXTURE":
             try:
-                baker = texture.TextureBaker(scene_in, system.patches, view_layer, view_layer.depsgraph,
+                baker = texture.texture_plan(scene_in, system.patches, view_layer, view_layer.depsgraph,
                                              resolution, texture_format)
-            except texture.TextureError as exc:
+            except TextureError as exc:
                 raise SceneError(str(exc)) from None
             warn(baker.warnings)
             objects = baker.objects_info(scene_in.targets)

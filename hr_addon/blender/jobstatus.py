@@ -14,6 +14,8 @@ import math
 import os
 import time
 
+from ..io.files import atomic_write
+
 VERSION = 1
 STATES = ("running", "done", "failed", "cancelled")
 
@@ -29,10 +31,7 @@ class StatusWriter:
     def write(self, **changes):
         self.data.update(changes)
         self.data["updated"] = time.time()
-        tmp = f"{self.path}.{os.getpid()}.tmp"
-        with open(tmp, "w", encoding="utf-8") as fh:
-            json.dump(self.data, fh)
-        os.replace(tmp, self.path)
+        atomic_write(self.path, json.dumps(self.data).encode(), sync=False)   # read, not kept
 
     def progress(self, p):
         """A bake.BakeProgress."""

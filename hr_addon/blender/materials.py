@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
+from ..io.images import srgb_to_linear
+
 DEFAULT_REFLECTANCE = 0.8     # objects without a material, and unsupported shaders
 MAX_REFLECTANCE = 0.99        # a diffuse surface must absorb some light (the solver needs rho < 1)
 PREVIEW = "HR Preview"        # name prefix of the preview nodes / material (ignored when reading)
@@ -29,11 +31,6 @@ class Surface:
 
 class _Unsupported(Exception):
     pass
-
-
-def srgb_to_linear(c):
-    c = np.asarray(c, np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 _image_cache = {}

@@ -7,9 +7,10 @@ import bpy
 from bpy.props import BoolProperty
 
 from ..core.geometry import InputError
+from ..io.cache import MANIFEST, CacheError, CacheReader
+from ..lightmap.plan import TEX_DIR
 from . import background, playback, texture
 from .bake import run_bake
-from .cache import MANIFEST, CacheError, CacheReader
 from .preview import add_preview, has_preview, remove_preview
 from .scene_in import geometry_objects
 
@@ -283,7 +284,7 @@ def delete_cache_files(directory):
         if os.path.isfile(p):
             os.remove(p)
             n += 1
-    tex = os.path.join(directory, texture.TEX_DIR)
+    tex = os.path.join(directory, TEX_DIR)
     if os.path.isdir(tex):
         n += sum(len(f) for _, _, f in os.walk(tex))
         shutil.rmtree(tex)

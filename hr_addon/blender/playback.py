@@ -13,7 +13,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from .cache import CacheError, CacheReader, changed_objects
+from ..io.cache import CacheError, CacheReader, changed_objects
 
 ATTRIBUTE = "HR_Radiance"
 MAGENTA = (1.0, 0.0, 1.0, 1.0)
@@ -166,7 +166,7 @@ def show_missing(scene, reader=None):
 
 
 def _texture_problem(reader, directory, frame):
-    from .texture import image_file_problem
+    from ..io.images import image_file_problem
     f = reader.nearest(frame)
     for name, info in reader.objects.items():
         tex = info.get("texture")

@@ -892,6 +892,14 @@ class DynamicRadiosity:
         B, rep = solve(self.system.h, self.links, E, B0=B0, tol=self.tol, op=self._operator())
         return np.maximum(B, 0.0), rep
 
+    def solution_at(self, points, patch_ids):
+        """(h, B (3, h.n), patch_ids, points) of the current solution, the points on input patches
+        mapped into h (NAIVE: onto the rebuilt system's patches, under a light patch onto it)."""
+        if self._naive is not None:
+            return (self._naive.system.h, self._naive.system.B) + self._naive.remap(points, patch_ids)
+        self._sync()
+        return self.system.h, self._B, patch_ids, points
+
 
 # -- helpers --------------------------------------------------------------------------------------------
 def _size(rings):

@@ -7,8 +7,8 @@ Frames whose light state did not change point at the previous frame's file (no n
 
 Safety: a bake writes into a sibling temporary directory (.<name>.baking-<host>-<pid>-<ms>) and
 only replaces the cache at the end (CacheWriter.commit), every file is written to a temporary name
-and os.replace()d, so a cancelled or failed bake leaves the previous cache untouched. Temporary
-directories left by killed processes of this machine are removed by the next bake of that cache.
+and os.replace()d (files.atomic_write), so a cancelled or failed bake leaves the previous cache
+untouched. Temporary directories left by killed processes of this machine are removed by the next bake of that cache.
 Frames of the previous cache that the new bake did not cover are kept when the geometry and
 settings (method, quality, output, objects) are identical, so baking frames 1-50 and 51-100
 separately yields the same cache as baking 1-100 once; otherwise they are discarded and
@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .files import atomic_write, link_or_copy
+
 FORMAT = 1
 MANIFEST = "manifest.json"
 
@@ -34,21 +36,8 @@ class CacheError(RuntimeError):
     """Missing, corrupt or mismatched cache; the message says which and what to do."""
 
 
-def _atomic_write_bytes(path: Path, write):
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def write_json(path: Path, data):
-    _atomic_write_bytes(Path(path), lambda fh: fh.write(json.dumps(data, indent=1, sort_keys=True).encode()))
+    atomic_write(path, json.dumps(data, indent=1, sort_keys=True).encode())
 
 
 def write_frame(path: Path, arrays: dict):
@@ -59,7 +48,7 @@ def write_frame(path: Path, arrays: dict):
         if a.shape[1] == 3:
             a = np.concatenate([a, np.ones((len(a), 1), np.float32)], 1)
         out[name] = np.ascontiguousarray(a)
-    _atomic_write_bytes(Path(path), lambda fh: np.savez(fh, **out))
+    atomic_write(path, lambda fh: np.savez(fh, **out))
 
 
 def frame_filename(frame):
@@ -294,10 +283,7 @@ class CacheWriter:
                 if npz_problem(src, old.objects):
                     lost.append(f)
                     continue
-                try:
-                    os.link(src, self.tmp / dst)
-                except OSError:
-                    shutil.copy2(src, self.tmp / dst)
+                link_or_copy(src, self.tmp / dst)
                 renamed[name] = dst
             self.frames[f] = renamed[name]
             self.kept += 1

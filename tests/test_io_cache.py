@@ -1,11 +1,11 @@
-"""The on-disk bake cache (hr_addon/blender/cache.py is bpy-free)."""
+"""The on-disk bake cache (hr_addon/io/cache.py, no bpy)."""
 import json
 import os
 
 import numpy as np
 import pytest
 
-from hr_addon.blender.cache import CacheError, CacheReader, CacheWriter, recover
+from hr_addon.io.cache import CacheError, CacheReader, CacheWriter, recover
 
 OBJS = {"a": {"mesh": "a", "count": 3}, "b": {"mesh": "b", "count": 2}}
 

@@ -1,0 +1,207 @@
+"""Per-frame texel plans and the image sequences written from them (no bpy).
+
+A TexturePlan is made once per bake (geometry is static during a bake): for every object, which
+texels its UV triangles cover (raster.py), the surface point and patch of each, and the dilation
+steps. Each frame the solution is evaluated at all points at once (core.texels) and every object's
+image is written (io.images) into the bake's temporary cache directory, as
+textures/<stem>_<frame:06d>.exr|.png. Frames whose light state is unchanged are hard links of the
+previous frame's files, so the sequence has one file per frame number and Blender can play it.
+"""
+import hashlib
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from ..core.texels import TexelLocator, solution_radiance
+from ..io.cache import CacheError, CacheReader
+from ..io.files import atomic_write, link_or_copy
+from ..io.images import encode_exr, encode_png16, image_file_problem
+from . import TextureError
+from .raster import dilation_steps, rasterise
+
+TEX_DIR = "textures"
+FORMATS = {"EXR": ".exr", "PNG": ".png"}
+REP_BLOCK = 4     # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
+
+
+class ObjectTexels:
+    """Where one object's texels are: flat texel indices, their slice of the plan's points."""
+
+    def __init__(self, name, res, stem, texel, inside, lo, hi, steps, uv_digest):
+        self.name, self.res, self.stem = name, res, stem
+        self.texel, self.inside = texel, inside
+        self.lo, self.hi = lo, hi                   # slice of the concatenated points
+        self.steps = steps
+        self.uv_digest = uv_digest
+
+    def image(self, values):
+        """(res, res, 3) float32 image of the values at the texels, dilated."""
+        img = np.zeros((self.res * self.res, 3), np.float32)
+        img[self.texel] = values
+        for dst, inv, src, w in self.steps:
+            for ch in range(3):
+                img[dst, ch] = np.bincount(inv, w * img[src, ch], len(dst))
+        return img.reshape(self.res, self.res, 3)
+
+
+def frame_file(stem, frame, ext):
+    return f"{stem}_{frame:06d}{ext}"
+
+
+def triangle_uvs(patches, oid, uv, loop_start, loop_total, loop_verts, poly0, vert0, n_verts):
+    """UVs (T, 3, 2), corners (T, 3, 3) and patch (T,) of the triangles of object `oid`'s patches
+    (quads: two triangles), each corner's UV that of the same (polygon, vertex) of the object's
+    mesh (loops; poly0 / vert0: the object's first polygon / vertex in the scene), and the number
+    of triangles skipped because a corner has no such loop."""
+    lpoly = np.repeat(np.arange(len(loop_start)), loop_total)
+    key = lpoly * (n_verts + 1) + loop_verts
+    ko = np.argsort(key, kind="stable")
+    sel = np.flatnonzero(patches.object_id == oid)
+    nv = patches.nv[sel]
+    quad = nv == 4
+    tri_rows = np.concatenate([sel, sel[quad]])
+    tri_c = np.concatenate([np.tile([0, 1, 2], (len(sel), 1)), np.tile([0, 2, 3], (int(quad.sum()), 1))])
+    rows = np.concatenate([np.arange(len(sel)), np.flatnonzero(quad)])
+    corners = patches.corners[tri_rows[:, None], tri_c]
+    ck = (patches.poly[tri_rows] - poly0)[:, None] * (n_verts + 1) + patches.vert_index[sel][rows[:, None], tri_c] - vert0
+    pos = np.clip(np.searchsorted(key[ko], ck), 0, max(len(ko) - 1, 0))
+    good = (key[ko][pos] == ck).all(1) if len(ko) else np.zeros(len(ck), bool)
+    tri_uv = np.asarray(uv, np.float64)[ko[pos]] if len(ko) else np.zeros((len(ck), 3, 2))
+    return tri_uv[good], corners[good], tri_rows[good], int((~good).sum())
+
+
+class TexturePlan:
+    """Texel plans of every object of a texture bake, and the files of its frames."""
+
+    def __init__(self, fmt="EXR"):
+        fmt = fmt.upper()
+        if fmt not in FORMATS:
+            raise TextureError(f"Unknown texture format '{fmt}' (EXR or PNG).")
+        self.fmt, self.ext = fmt, FORMATS[fmt]
+        self.objects = []
+        self.warnings = []
+        self.tmp = None
+        self.files = {}                          # frame -> True once written / linked
+        self._parts = []                         # per object: (points, patches, representatives)
+        self._locator = None
+
+    def add_object(self, name, stem, res, tri_uv, corners, tri_patch, uv_digest):
+        """Plan the texels of one object's triangles (from triangle_uvs) in a res x res image."""
+        texel, tri, bary, inside = rasterise(tri_uv, res)
+        own = tri_patch[tri]
+        # representative texel: the one at the corner of its block, if it lies in the same patch
+        dense = np.full(res * res, -1, np.int64)
+        dense[texel] = np.arange(len(texel))
+        x, y = texel % res, texel // res
+        r = dense[(y - y % REP_BLOCK) * res + (x - x % REP_BLOCK)]
+        r = np.where((r >= 0) & (own[np.maximum(r, 0)] == own), r, np.arange(len(texel)))
+        n = self.objects[-1].hi if self.objects else 0
+        self._parts.append((np.einsum("nk,nkj->nj", bary, corners[tri]), own.astype(np.int64), r + n))
+        self.objects.append(ObjectTexels(name, res, stem, texel, inside, n, n + len(texel),
+                                         dilation_steps(texel, res), uv_digest))
+        self._locator = None
+
+    @property
+    def locator(self):
+        """TexelLocator of all objects' texel points (made on first use)."""
+        if self._locator is None:
+            pts, patch, rep = ([np.concatenate(z) for z in zip(*self._parts)] if self._parts
+                               else (np.zeros((0, 3)), np.zeros(0, np.int64), None))
+            self._locator = TexelLocator(patch, pts, rep)
+        return self._locator
+
+    def radiance(self, dyn, system):
+        """(N, 3) radiance of the current solution at the texel points of all objects."""
+        loc = self.locator
+        return solution_radiance(dyn, system, loc.patch, loc.points, loc)
+
+    # cache manifest entries
+    def objects_info(self, targets):
+        mesh_of = {t.name: t.mesh_name for t in targets}
+        return {o.name: {"mesh": mesh_of[o.name], "count": 0, "resolution": o.res, "format": self.fmt,
+                         "texture": f"{TEX_DIR}/{o.stem}_%06d{self.ext}"} for o in self.objects}
+
+    def signature(self, base):
+        h = hashlib.sha1(base.encode())
+        for o in self.objects:
+            h.update(f"{o.name}|{o.res}|{self.fmt}|{o.uv_digest}".encode())
+        return h.hexdigest()
+
+    def bind(self, tmp_dir):
+        self.tmp = os.path.join(str(tmp_dir), TEX_DIR)
+        os.makedirs(self.tmp, exist_ok=True)
+
+    def _path(self, o, frame, root=None):
+        return os.path.join(root or self.tmp, frame_file(o.stem, frame, self.ext))
+
+    def write(self, frame, values):
+        """values (N, 3) at the plan's points (all objects); files encoded in parallel (zlib frees
+        the GIL)."""
+        def one(o):
+            img = o.image(values[o.lo:o.hi])
+            atomic_write(self._path(o, frame), encode_exr(img) if self.fmt == "EXR" else encode_png16(img))
+
+        workers = max(1, min(len(self.objects), os.cpu_count() or 1, 8))
+        if workers == 1:
+            for o in self.objects:
+                one(o)
+        else:
+            with ThreadPoolExecutor(workers) as pool:
+                for fut in [pool.submit(one, o) for o in self.objects]:
+                    fut.result()
+        self.files[int(frame)] = True
+
+    def reuse(self, frame, prev_frame):
+        for o in self.objects:
+            link_or_copy(self._path(o, prev_frame), self._path(o, frame))
+        self.files[int(frame)] = True
+
+    def damaged_frames(self, final_dir, frames):
+        """{frame: problem} of `frames` of the previous bake in final_dir whose texture files are
+        missing or damaged (checked as image_file_problem does: structure, not pixels)."""
+        src_dir = os.path.join(str(final_dir), TEX_DIR)
+        out = {}
+        for f in sorted(frames):
+            for o in self.objects:
+                why = image_file_problem(self._path(o, f, src_dir), o.res)
+                if why:
+                    out[f] = f"{os.path.basename(self._path(o, f, src_dir))} {why}"
+                    break
+        return out
+
+    def finish(self, writer):
+        """Before writer.commit(): bring over the texture files of the previous bake's frames that the
+        commit keeps, and fill every frame number of the sequence (gaps hold the frame before; the
+        number before the first frame, which Blender asks for before the start, holds the first)."""
+        frames = set(self.files)
+        try:
+            old = CacheReader(writer.final)
+            m = old.manifest
+            same = (m.get("signature") == writer.signature and m.get("domain") == writer.domain
+                    and m.get("objects") == writer.objects)
+        except CacheError:
+            same = False
+        if same:
+            src_dir = os.path.join(str(writer.final), TEX_DIR)
+            for f in sorted(old.frames):
+                if f in frames:
+                    continue
+                srcs = [self._path(o, f, src_dir) for o in self.objects]
+                if all(os.path.isfile(s) for s in srcs):
+                    for o, s in zip(self.objects, srcs):
+                        link_or_copy(s, self._path(o, f))
+                    frames.add(f)
+        if not frames:
+            return
+        first, last = min(frames), max(frames)
+        prev = first
+        for f in range(first, last + 1):
+            if f in frames:
+                prev = f
+                continue
+            for o in self.objects:
+                link_or_copy(self._path(o, prev), self._path(o, f))
+        if first >= 1:
+            for o in self.objects:
+                link_or_copy(self._path(o, first), self._path(o, first - 1))

@@ -1,0 +1,195 @@
+"""Lightmaps without Blender (hr_addon/lightmap, core/texels.py, io/images.py structure checks):
+per-leaf evaluation, UV charts and packing, rasterisation, dilation, the image sequence of a plan."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from hr_addon.core import scenes
+from hr_addon.core.output import locate, radiance_at
+from hr_addon.core.radiosity import RadiositySystem
+from hr_addon.core.refine import RefineParams
+from hr_addon.core.texels import TexelLocator, radiance_per_leaf
+from hr_addon.io.cache import CacheWriter
+from hr_addon.io.images import encode_exr, encode_png16, image_file_problem
+from hr_addon.lightmap import TextureError
+from hr_addon.lightmap.charts import find_charts, pack_lightmap
+from hr_addon.lightmap.plan import TexturePlan, triangle_uvs
+from hr_addon.lightmap.raster import dilation_steps, rasterise
+
+
+def texels_in_polygon(uv_poly, res, margin=1e-6):
+    """Texel centres strictly inside a convex UV polygon (fan), by brute force over its bounding
+    box: x (n,), y (n,), bary (n, 3), tri (n,)."""
+    out = []
+    for t in range(1, len(uv_poly) - 1):
+        a, b, c = uv_poly[0] * res - 0.5, uv_poly[t] * res - 0.5, uv_poly[t + 1] * res - 0.5
+        lo = np.floor(np.minimum(np.minimum(a, b), c)).astype(int)
+        hi = np.ceil(np.maximum(np.maximum(a, b), c)).astype(int)
+        xs, ys = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+        q = np.stack([xs.ravel(), ys.ravel()], 1).astype(float)
+        m = np.array([b - a, c - a]).T
+        if abs(np.linalg.det(m)) < 1e-12:
+            continue
+        l12 = np.linalg.solve(m, (q - a).T).T
+        bary = np.column_stack([1 - l12.sum(1), l12])
+        ok = (bary > margin).all(1)
+        out.append((q[ok, 0].astype(int), q[ok, 1].astype(int), bary[ok], np.full(ok.sum(), t)))
+    return [np.concatenate(z) for z in zip(*out)] if out else [np.zeros(0, int)] * 2 + [np.zeros((0, 3)), np.zeros(0, int)]
+
+
+@pytest.fixture(scope="module")
+def cornell():
+    s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    s.solve()
+    return s
+
+
+def _surface_points(pt, n, seed=0):
+    rng = np.random.default_rng(seed)
+    k = rng.integers(0, len(pt.nv), n)
+    c = pt.corners[k]
+    r = rng.random((n, 2))
+    r[r.sum(1) > 1] = 1 - r[r.sum(1) > 1]
+    p = c[:, 0] + r[:, :1] * (c[:, 1] - c[:, 0]) + r[:, 1:] * (c[:, 2] - c[:, 0])
+    p[::7] = c[::7, 0]                                        # corners and edges too
+    p[1::7] = 0.5 * (c[1::7, 1] + c[1::7, 2])
+    return k, p
+
+
+def test_per_leaf_evaluation_equals_radiance_at(cornell):
+    k, p = _surface_points(cornell.patches, 3000)
+    h, B = cornell.h, cornell.B
+    np.testing.assert_allclose(radiance_per_leaf(h, B, k, p), radiance_at(h, B, k, p), rtol=1e-9, atol=1e-12)
+    # TexelLocator: leaves found from representatives (here: the first point of each patch) and,
+    # on the next call, from the remembered nodes, are those of a descent from the patch.
+    first = np.unique(k, return_index=True)
+    loc = TexelLocator(k, p, first[1][np.searchsorted(first[0], k)])
+    for _ in range(2):
+        np.testing.assert_array_equal(loc.leaves(h), locate(h, k, p))
+    np.testing.assert_allclose(radiance_per_leaf(h, B, k, p, locator=loc), radiance_at(h, B, k, p),
+                               rtol=1e-6, atol=1e-9)
+
+
+def test_packed_sphere_islands_do_not_overlap():
+    sph = scenes.sphere()
+    res = 64
+    uv = pack_lightmap(sph.verts, sph.loop_start, sph.loop_total, sph.loop_verts, res)
+    assert uv.min() >= 0 and uv.max() <= 1
+    chart, _ = find_charts(sph.verts, sph.loop_start, sph.loop_total, sph.loop_verts)
+    assert len(np.unique(chart)) == len(sph.loop_start)          # curved: one chart per polygon
+    hits = np.zeros(res * 4 * res * 4, int)
+    for s, n in zip(sph.loop_start, sph.loop_total):
+        x, y, _, _ = texels_in_polygon(uv[s:s + n], 4 * res)
+        hits[y * 4 * res + x] += 1
+    assert hits.max() == 1
+    with pytest.raises(TextureError, match="do not fit"):
+        pack_lightmap(sph.verts, sph.loop_start, sph.loop_total, sph.loop_verts, 8)
+
+
+def test_flat_grid_is_one_chart_at_one_texel_density():
+    n = 5                                   # a 2 m x 1 m wall of n x n quads, tilted
+    u, v = np.meshgrid(np.linspace(0, 2, n + 1), np.linspace(0, 1, n + 1))
+    rot = np.array([[1.0, 0, 0], [0, np.cos(0.4), -np.sin(0.4)], [0, np.sin(0.4), np.cos(0.4)]])
+    verts = np.column_stack([u.ravel(), v.ravel(), np.zeros(u.size)]) @ rot.T
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    quads = np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 4)
+    ls, lt = np.arange(len(quads)) * 4, np.full(len(quads), 4)
+    chart, _ = find_charts(verts, ls, lt, quads.ravel())
+    assert (chart == 0).all()
+    uv = pack_lightmap(verts, ls, lt, quads.ravel(), 64)
+    # one isometric projection: UV distances are world distances times one scale, the 2 m side
+    # spanning the map but the 2-texel margins on each side
+    lv = quads.ravel()
+    a, b = np.triu_indices(len(lv), 1)
+    w = np.linalg.norm(verts[lv[a]] - verts[lv[b]], axis=1)
+    s = np.linalg.norm(uv[a] - uv[b], axis=1)[w > 0] / w[w > 0]
+    assert np.ptp(s) < 1e-9 * s.mean()
+    assert 2 * s.mean() == pytest.approx((64 - 4) / 64)
+
+
+def test_rasterise_matches_brute_force_texel_centres():
+    rng = np.random.default_rng(4)
+    res = 32
+    tri = rng.random((40, 3, 2)) * 0.3 + rng.random((40, 1, 2)) * 0.7
+    texel, which, bary, inside = rasterise(tri, res, ring=0)
+    assert len(np.unique(texel)) == len(texel)                     # each texel once
+    centre = np.stack([texel % res, texel // res], 1) + 0.5
+    np.testing.assert_allclose(np.einsum("nk,nkj->nj", bary, tri[which] * res), centre, atol=1e-9)
+    want = set()
+    for t in tri:
+        x, y, _, _ = texels_in_polygon(t, res)
+        want |= set((y * res + x).tolist())
+    got = set(texel[inside].tolist())
+    assert want <= got and len(got - want) <= 0.02 * len(got)     # centres on an edge may go either way
+    # ring texels: outside the triangles, at most RING texels from the nearest triangle point
+    t2, w2, b2, in2 = rasterise(tri, res, ring=1.5)
+    assert set(texel.tolist()) <= set(t2.tolist()) and (~in2).any()
+    near = np.einsum("nk,nkj->nj", b2[~in2], tri[w2[~in2]] * res)
+    c2 = np.stack([t2[~in2] % res, t2[~in2] // res], 1) + 0.5
+    assert np.linalg.norm(near - c2, axis=1).max() <= 1.5 + 1e-9
+
+
+def test_dilation_fills_neighbours_with_their_mean():
+    res = 6
+    covered = np.array([2 * res + 2, 2 * res + 3])
+    img = np.zeros(res * res)
+    img[covered] = [1.0, 3.0]
+    for dst, inv, src, w in dilation_steps(covered, res, steps=1):
+        img[dst] = np.bincount(inv, w * img[src], len(dst))
+    img = img.reshape(res, res)
+    assert img[2, 1] == 1.0 and img[2, 4] == 3.0 and img[1, 2] == 2.0 and img[3, 3] == 2.0
+    assert img[0].sum() == 0 and img[:, 0].sum() == 0                # one step: one ring
+
+
+def test_image_structure_check(tmp_path):
+    img = np.ones((16, 16, 3), np.float32)
+    for name, data in (("a.exr", encode_exr(img)), ("b.exr", encode_exr(img, "NONE")), ("c.png", encode_png16(img))):
+        f = tmp_path / name
+        f.write_bytes(data)
+        assert image_file_problem(f, 16) == ""
+        assert image_file_problem(f, 32) == "is 16 x 16 texels, not 32 x 32"
+        f.write_bytes(data[:len(data) - 20])
+        assert image_file_problem(f, 16) in ("truncated", "truncated or not an image of a bake"), name
+        f.write_bytes(b"hello world, not an image")
+        assert image_file_problem(f, 16).startswith("not a")
+    assert image_file_problem(tmp_path / "none.exr") == "missing"
+
+
+def test_plan_texels_lie_on_their_patches_and_fill_the_sequence(tmp_path, cornell):
+    """A plan of the Cornell box's back wall (one quad, UVs = its own corners): texel points lie in
+    their patch's plane, radiance() is radiance_at there, and the file sequence has one complete
+    file per frame number (gaps and the frame before the first filled by links)."""
+    mesh, pt = cornell.mesh, cornell.patches
+    oid = mesh.object_names.index("back")
+    polys = np.flatnonzero(mesh.object_id == oid)
+    p0 = int(polys[0])
+    ls, lt = mesh.loop_start[polys] - mesh.loop_start[p0], mesh.loop_total[polys]
+    lv_g = np.concatenate([mesh.loop_verts[s:s + n] for s, n in zip(mesh.loop_start[polys], lt)])
+    v0 = int(lv_g.min())
+    q = mesh.verts[lv_g]
+    e1, e2 = q[1] - q[0], q[3] - q[0]                       # the wall's two edge directions
+    uv = np.column_stack([(q - q[0]) @ e1 / (e1 @ e1), (q - q[0]) @ e2 / (e2 @ e2)]) * 0.9 + 0.05
+    tri_uv, corners, tri_patch, skipped = triangle_uvs(pt, oid, uv, ls, lt, lv_g - v0, p0, v0, len(mesh.verts) - v0)
+    assert skipped == 0 and len(tri_uv) == 2 * (pt.object_id == oid).sum()
+    plan = TexturePlan("exr")
+    plan.add_object("back", "back", 16, tri_uv, corners, tri_patch, "uv")
+    loc = plan.locator
+    d = np.einsum("ij,ij->i", loc.points - pt.corners[loc.patch, 0], pt.normal[loc.patch])
+    assert len(loc.points) > 150 and np.abs(d).max() < 1e-12
+    np.testing.assert_allclose(plan.radiance(None, cornell), radiance_at(cornell.h, cornell.B, loc.patch, loc.points),
+                               rtol=1e-5, atol=1e-6)
+    w = CacheWriter(tmp_path / "cache", plan.objects_info([SimpleNamespace(name="back", mesh_name="m")]),
+                    "TEXTURE", plan.signature("s"))
+    plan.bind(w.tmp)
+    values = plan.radiance(None, cornell)
+    for f in (2, 4):
+        plan.write(f, values)
+        w.write(f, {})
+    plan.finish(w)
+    w.commit()
+    files = sorted(p.name for p in (tmp_path / "cache" / "textures").iterdir())
+    assert files == [f"back_{f:06d}.exr" for f in (1, 2, 3, 4)]
+    assert all(image_file_problem(tmp_path / "cache" / "textures" / n, 16) == "" for n in files)
+    with pytest.raises(TextureError):
+        TexturePlan("tiff")
