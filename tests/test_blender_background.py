@@ -11,6 +11,8 @@ import pytest
 
 from test_blender_helpers import attribute, load_bpy, open_sample
 
+pytestmark = pytest.mark.bpy
+
 
 def _wait(job, until=lambda job: False, limit=600):
     """poll() the job every 20 ms until it ends or until(job); the limit only bounds a hang."""

@@ -7,6 +7,8 @@ import pytest
 
 from test_blender_helpers import attribute, load_bpy, make_samples_module, open_sample
 
+pytestmark = pytest.mark.bpy
+
 
 FRAMES = {1: (), 6: ("window",), 13: ("window", "patch"), 21: ("patch",)}   # cornell.blend states
 

@@ -9,6 +9,8 @@ import pytest
 
 from test_blender_helpers import REPO_ROOT, SAMPLES, load_bpy, make_samples_module, open_sample
 
+pytestmark = pytest.mark.bpy
+
 pytest.importorskip("bpy")
 
 

@@ -15,6 +15,8 @@ import pytest
 from test_blender_helpers import REPO_ROOT, SAMPLES, load_bpy, make_samples_module, open_sample
 from test_blender_cli import finish_cli, run_cli, start_cli
 
+pytestmark = pytest.mark.bpy
+
 pytest.importorskip("bpy")
 
 

@@ -9,6 +9,8 @@ import pytest
 
 from test_blender_helpers import attribute, load_bpy, open_sample
 
+pytestmark = pytest.mark.bpy
+
 pytest.importorskip("bpy")
 
 ROOM = ("floor", "ceiling", "back", "right_green", "left_red", "light", "short_block", "tall_block")

@@ -5,6 +5,8 @@ import pytest
 
 from test_blender_helpers import empty_scene
 
+pytestmark = pytest.mark.bpy
+
 # A non-planar quad whose shorter diagonal is 1-3 (the core's own rule would split it there),
 # a concave (U-shaped) octagon, and a planar concave quad (arrowhead).
 TWISTED = [(0, 0, 0), (2, 0, 0), (2, 1, 0.5), (0, 1, 0)]

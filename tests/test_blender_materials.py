@@ -4,6 +4,8 @@ import pytest
 
 from test_blender_helpers import empty_scene, load_bpy
 
+pytestmark = pytest.mark.bpy
+
 
 @pytest.fixture
 def env():
@@ -67,7 +69,7 @@ def test_mix_and_add(env):
 
 def test_image_texture_average(env):
     bpy, ms, _ = env
-    from hr_addon.blender.materials import srgb_to_linear
+    from mathutils import Color
     img = bpy.data.images.new("Tex", 4, 4)   # 8-bit sRGB
     px = np.zeros((16, 4), np.float32)
     px[:8] = (1.0, 0.0, 0.0, 1.0)
@@ -84,12 +86,27 @@ def test_image_texture_average(env):
     img.pixels.foreach_set(px.ravel())
     img.update()
     s = _read(m)
-    assert np.allclose(s.reflectance, srgb_to_linear(128 / 255), atol=1e-4)
+    assert np.allclose(s.reflectance, Color((128 / 255,) * 3).from_srgb_to_scene_linear()[0], atol=1e-4)
     # A float (linear) image is averaged as is.
     imgf = bpy.data.images.new("TexF", 2, 2, float_buffer=True)
     imgf.pixels.foreach_set(np.array([0.2, 0.2, 0.2, 1] * 2 + [0.6, 0.6, 0.6, 1] * 2, np.float32))
     tex.image = imgf
     assert np.allclose(_read(m).reflectance, 0.4, atol=1e-6)
+
+
+def test_srgb_curves_match_blender():
+    """io.images' sRGB pair (material textures, PNG lightmaps) against Blender's colour management."""
+    load_bpy()
+    from mathutils import Color
+    from hr_addon.io.images import linear_to_srgb, srgb_to_linear
+    x = np.linspace(0.0, 1.0, 501)
+    to_lin = np.array([Color((v, v, v)).from_srgb_to_scene_linear()[0] for v in x])
+    to_srgb = np.array([Color((v, v, v)).from_scene_linear_to_srgb()[0] for v in x])
+    np.testing.assert_allclose(srgb_to_linear(x), to_lin, atol=1e-6)
+    # Blender's linear -> sRGB direction is an approximation (up to 1.1e-4 off the curve; its
+    # sRGB -> linear is exact to 4e-7), hence the looser bound, and the exact round trip
+    np.testing.assert_allclose(linear_to_srgb(x), to_srgb, atol=2e-4)
+    np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(x)), x, atol=1e-12)
 
 
 def test_unsupported_shader_warns_and_falls_back(env):

@@ -4,6 +4,7 @@ import pytest
 
 from test_blender_helpers import load_bpy, open_sample
 
+pytestmark = [pytest.mark.bpy, pytest.mark.cycles]
 
 
 def test_render_two_frames_show_the_bake(tmp_path):

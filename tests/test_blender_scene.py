@@ -4,6 +4,8 @@ import pytest
 
 from test_blender_helpers import empty_scene, open_sample
 
+pytestmark = pytest.mark.bpy
+
 QUAD = ([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [[0, 1, 2, 3]])
 
 

@@ -9,6 +9,8 @@ import pytest
 from test_blender_helpers import load_bpy, open_sample, read_image
 from test_lightmap import texels_in_polygon
 
+pytestmark = pytest.mark.bpy
+
 
 RES = 64
 GEOMETRY = ["back", "ceiling", "floor", "left_red", "light", "right_green", "short_block", "tall_block"]
@@ -138,6 +140,7 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
     assert read_image(f6)[..., 1].mean() > 1.5 * right5[..., 1].mean()
 
 
+@pytest.mark.cycles
 def test_material_helper_plays_the_sequence(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)

@@ -6,6 +6,8 @@ import pytest
 
 from test_blender_helpers import attribute, load_bpy, open_sample
 
+pytestmark = pytest.mark.bpy
+
 
 def _bake(**kw):
     import bpy

@@ -23,6 +23,8 @@ import pytest
 
 from test_blender_helpers import load_bpy, open_sample
 
+pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.shared_scene, pytest.mark.slow]
+
 
 BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
 

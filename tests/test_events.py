@@ -10,7 +10,8 @@ from hr_addon.core import scenes
 from hr_addon.core import shapes as S
 from hr_addon.core import formfactor as ff
 from hr_addon.core.events import DynamicRadiosity, LightShape, locate, surface_samples
-from hr_addon.core.geometry import InputError
+from hr_addon.core.geometry import InputError, MeshInput
+from hr_addon.core.output import radiance_at
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 from hr_addon.core.solver import solve
@@ -327,20 +328,102 @@ def test_apply_diffs_frames(base):
     assert dyn.radiance_at(pts, np.arange(len(pts))).shape == (len(pts), 3)
 
 
-def test_naive_method_matches_its_own_rebuild(base, samples):
-    """NAIVE: light patches laid over the wall; overlapping shapes add (slab decomposition)."""
-    pts, ids, w = samples
-    dyn = DynamicRadiosity(base.copy(), method="NAIVE")
-    a = shape(S.rect(0.2, 0.2, (0.25, 0.25), 0.3), BACK, (1.0, 1.0, 1.0))
-    b = shape(S.ellipse(0.1, 0.08, (0.35, 0.3), 0.0), BACK, (2.0, 0.0, 0.0))
-    rep = dyn.apply({"a": a, "b": b})
-    assert rep.method == "NAIVE"
-    E = dyn.evaluate(pts, ids)[1] - base.patches.emission[:, ids].T
-    fe = DynamicRadiosity(base.copy(), method="FE")
-    fe.apply({"a": a, "b": b})
-    # same emitted power as the exact clipped coverage (point samples: a few percent)
-    np.testing.assert_allclose((E * w[:, None]).sum(0)[:1], leaf_power(fe)[:1], rtol=0.1)
-    assert dyn.loop_radiance("POINT").shape == (len(base.mesh.verts), 3)
+def _wall_rect(y0, y1, z0, z1):
+    """Rectangle on the wall x = 0 of closed_box, counter-clockwise seen from inside (+x)."""
+    return np.array([(0, y0, z0), (0, y1, z0), (0, y1, z1), (0, y0, z1)], float)
+
+
+def test_naive_method_matches_its_own_rebuild():
+    """NAIVE against a system the test builds itself: the same room with the wall cells under the
+    shapes lifted by NAIVE's offset and emitting the shapes' emission (two overlapping shapes add).
+    The shapes follow the wall's 4 x 4 grid, so NAIVE's pieces are those cells: all channels agree
+    to rounding."""
+    room = scenes.closed_box(rho=0.5, emission=(0.2, 0.1, 0.0), subdiv=4)
+    a = LightShape([_wall_rect(0.25, 0.75, 0.25, 0.5)], np.array([8.0, 7.0, 5.0]), "a")
+    b = LightShape([_wall_rect(0.5, 0.75, 0.25, 0.75)], np.array([1.0, 0.0, 3.0]), "b")
+    sysm = RadiositySystem(room, COARSE)
+    dyn = DynamicRadiosity(sysm.copy(), method="NAIVE")
+    assert dyn.apply({"a": a, "b": b}).method == "NAIVE"
+    delta = dyn._naive.delta                           # NAIVE's offset: a parameter, not a result
+    # the rebuild: each wall cell under a shape becomes a polygon of its own, lifted by delta
+    verts = [room.verts]
+    polys = [list(room.loop_verts[s:s + n]) for s, n in zip(room.loop_start, room.loop_total)]
+    E = room.emission.copy()
+    nv = len(room.verts)
+    lifted = []
+    for i, (s, n) in enumerate(zip(room.loop_start, room.loop_total)):
+        q = room.verts[room.loop_verts[s:s + n]]
+        c = q.mean(0)
+        under = [sh for sh in (a, b) if c[0] == 0
+                 and np.all((sh.rings[0].min(0)[1:] < c[1:]) & (c[1:] < sh.rings[0].max(0)[1:]))]
+        if under:
+            verts.append(q + [delta, 0, 0])
+            polys[i] = list(range(nv, nv + n))
+            nv += n
+            E[i] += sum(sh.emission for sh in under)
+            lifted.append(i)
+    assert len(lifted) == 3                            # a alone, a + b, b alone
+    rebuilt = RadiositySystem(MeshInput.from_polygons(np.concatenate(verts), polys, room.reflectance, E,
+                                                      room.object_id, room.object_names), COARSE)
+    rebuilt.solve()
+    pts, ids, _ = surface_samples(sysm.patches, 1500)
+    poly = sysm.patches.poly[ids]
+    moved = pts + np.isin(poly, lifted)[:, None] * [delta, 0, 0]
+    k = np.searchsorted(rebuilt.patches.poly, poly)       # the same polygon's patch in the rebuild
+    assert np.array_equal(rebuilt.patches.poly[k], poly)
+    want = radiance_at(rebuilt.h, rebuilt.B, k, moved)
+    got = dyn.radiance_at(pts, ids)
+    assert np.ptp(want, 0).min() > 1.0                  # light and shadow in every channel
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
+    # emitted radiance where the points are: the shapes' where they lie, the room's elsewhere
+    B, Em = dyn.evaluate(pts, ids)
+    leaf = locate(rebuilt.h, k, moved)
+    np.testing.assert_allclose(Em, rebuilt.base_emission()[:, leaf].T, rtol=0, atol=1e-12)
+    assert dyn.loop_radiance("POINT").shape == (len(room.verts), 3)
+
+
+def _shoelace(p):
+    return 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+
+
+@pytest.mark.bpy
+def test_naive_overlay_power_matches_blender_cdt():
+    """NAIVE's light patches emit each shape's emission over exactly the part of the shape that lies
+    on a surface, overlaps adding: their power against the arrangement of the wall polygons and
+    the outlines that Blender's constrained Delaunay triangulation (mathutils) computes."""
+    from mathutils import Vector
+    from mathutils.geometry import delaunay_2d_cdt
+    sysm = RadiositySystem(scenes.cornell_box(subdiv=2), COARSE)
+    outlines = {"star": (S.star(0.1, 0.04, 5, centre=(0.25, 0.3), angle=0.2), [2.0, 3.0, 6.0]),
+                "ellipse": (S.ellipse(0.12, 0.05, centre=(0.3, 0.25), angle=0.5), [5.0, 0.0, 1.0]),
+                "half off": (S.rect(0.2, 0.1, (0.55, 0.4), 0.3), [1.0, 1.0, 1.0])}
+    dyn = DynamicRadiosity(sysm.copy(), method="NAIVE")
+    dyn.apply({k: shape(o, BACK, em, k) for k, (o, em) in outlines.items()})
+    pt, rebuilt = sysm.patches, dyn._naive.system.patches
+    power = (rebuilt.emission * rebuilt.area).sum(1) - (pt.emission * pt.area).sum(1)
+    # the oracle: the back wall's polygons and the outlines in the wall's 2D frame, triangulated
+    # with every triangle naming the input faces it lies in (output type 1)
+    o, u, v = BACK
+    mesh = sysm.mesh
+    faces = []
+    for s, n in zip(mesh.loop_start, mesh.loop_total):
+        q = mesh.verts[mesh.loop_verts[s:s + n]] - o
+        if np.abs(q @ np.cross(u, v)).max() < 1e-9:                 # on the back wall's plane
+            q2 = np.column_stack([q @ u, q @ v])
+            faces.append(q2 if _shoelace(q2) > 0 else q2[::-1])
+    n_wall = len(faces)
+    faces += [o2 for o2, _ in outlines.values()]
+    start = np.cumsum([0] + [len(f) for f in faces])
+    verts, _, tris, _, _, orig = delaunay_2d_cdt([Vector(p) for f in faces for p in f], [],
+                                                 [list(range(a, b)) for a, b in zip(start[:-1], start[1:])], 1, 1e-9)
+    verts = np.array([tuple(p) for p in verts])
+    em = [np.array(e) for _, e in outlines.values()]
+    want = np.zeros(3)
+    for t, of in zip(tris, orig):
+        if min(of) < n_wall:                                        # on the wall
+            want += abs(_shoelace(verts[list(t)])) * sum((em[i - n_wall] for i in set(of) if i >= n_wall), np.zeros(3))
+    assert n_wall == 4 and want.min() > 0.04
+    np.testing.assert_allclose(power, want, rtol=1e-6)              # mathutils works in float32
 
 
 def test_naive_splits_host_along_shape_outlines():

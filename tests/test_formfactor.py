@@ -1,9 +1,10 @@
-"""Form factors against the closed forms in /work/shared/reference/README.md."""
+"""Form factors against the closed forms of tests/closed_forms.py."""
 import math
 
 import numpy as np
 import pytest
 
+import closed_forms as cf
 from hr_addon.core.formfactor import (estimate, patch_to_patch, point_to_polygon, polygon_normal_area,
                                       sample_points)
 
@@ -29,21 +30,6 @@ def fan(center, radius, n, facing_up=True):
     return np.stack([c, p, q, q], axis=1), np.full(n, 3)
 
 
-def parallel_rect_corner(a, b, c):
-    x, y = a / c, b / c
-    return (x / math.sqrt(1 + x * x) * math.atan(y / math.sqrt(1 + x * x))
-            + y / math.sqrt(1 + y * y) * math.atan(x / math.sqrt(1 + y * y))) / (2 * math.pi)
-
-
-def opposed_rects(a, b, c):
-    x, y = a / c, b / c
-    x1, y1 = 1 + x * x, 1 + y * y
-    return 2 / (math.pi * x * y) * (math.log(math.sqrt(x1 * y1 / (x1 + y1 - 1)))
-                                    + x * math.sqrt(y1) * math.atan(x / math.sqrt(y1))
-                                    + y * math.sqrt(x1) * math.atan(y / math.sqrt(x1))
-                                    - x * math.atan(x) - y * math.atan(y))
-
-
 # ---------------------------------------------------------------------------------------------------
 def test_normal_area_quad_and_padded_triangle():
     c = np.array([[[0, 0, 0], [2, 0, 0], [2, 3, 0], [0, 3, 0]],
@@ -54,12 +40,24 @@ def test_normal_area_quad_and_padded_triangle():
     np.testing.assert_allclose(n, [[0, 0, 1], [-1, 0, 0], [0, 0, 0]], atol=1e-15)
 
 
+def test_closed_forms_match_the_catalog_and_each_other():
+    """The oracles themselves: values tabulated in Howell's catalog, and the unit cube's floor
+    seeing exactly its ceiling and four walls."""
+    assert cf.point_to_rect_corner(1, 1, 1) == pytest.approx(0.1385, abs=1e-4)
+    assert cf.opposed_rects(1, 1, 1) == pytest.approx(0.1998, abs=1e-4)
+    assert cf.opposed_rects(2, 1, 1) == pytest.approx(0.2859, abs=1e-4)
+    assert cf.perpendicular_rects(1, 1, 1) == pytest.approx(0.2000, abs=1e-4)
+    assert cf.opposed_rects(1, 1, 1) + 4 * cf.perpendicular_rects(1, 1, 1) == pytest.approx(1.0, abs=1e-12)
+    assert cf.point_to_parallel_rect(0.5, 0.5, 0, 1, 0, 1, 1) == pytest.approx(4 * cf.point_to_rect_corner(0.5, 0.5, 1))
+
+
 def test_reference_points():
     sq = rect_xy(0, 1, 0, 1, 1.0, facing_up=False)                     # faces the origin
-    assert point_to_polygon(np.zeros((1, 3)), UP[None], sq)[0] == pytest.approx(0.138532, abs=1e-6)
-    assert point_to_polygon([[0.5, 0.5, 0]], UP[None], sq)[0] == pytest.approx(0.239456, abs=1e-6)
+    for p in ([0, 0], [0.5, 0.5], [0.2, 0.7], [1.6, -0.3]):
+        assert point_to_polygon([[*p, 0]], UP[None], sq)[0] == pytest.approx(
+            cf.point_to_parallel_rect(*p, 0, 1, 0, 1, 1.0), abs=1e-12)
     assert point_to_polygon([[0, 0, 0]], UP[None], rect_xy(0, 2, 0, 3, 1.5, False))[0] == pytest.approx(
-        parallel_rect_corner(2, 3, 1.5), abs=1e-12)
+        cf.point_to_rect_corner(2, 3, 1.5), abs=1e-12)
 
 
 def test_one_sided_and_padding():
@@ -81,7 +79,7 @@ def test_coaxial_disc():
     """Differential area on the axis of a disc of radius R at height h: F = R^2 / (R^2 + h^2)."""
     corners, nv = fan([0, 0, 1.0], 1.5, 4096, facing_up=False)
     f = point_to_polygon(np.zeros(3), UP, corners, nv).sum()
-    assert f == pytest.approx(2.25 / 3.25, rel=1e-5)                   # inscribed 4096-gon: ~4e-7 off
+    assert f == pytest.approx(cf.point_to_coaxial_disc(1.5, 1.0), rel=1e-5)                   # inscribed 4096-gon: ~4e-7 off
 
 
 @pytest.mark.parametrize("theta_deg", [30, 60, 90, 120, 150])
@@ -92,7 +90,7 @@ def test_horizon_clipping_half_plane(theta_deg):
     big = 1e6
     plane = rect_xy(-big, big, -big, big, 1.0, facing_up=False)
     f = point_to_polygon(np.zeros(3), [math.sin(t), 0, math.cos(t)], plane)
-    assert f[0] == pytest.approx((1 + math.cos(t)) / 2, abs=1e-5)
+    assert f[0] == pytest.approx(cf.tilted_under_plane(math.cos(t)), abs=1e-5)
 
 
 def test_clipped_equals_upper_part():
@@ -165,8 +163,9 @@ def _unit_squares():
 def test_patch_to_patch_unit_squares(n_samples, tol_opp, tol_perp):
     floor, ceiling, wall = _unit_squares()
     four = np.array([4])
-    assert patch_to_patch(floor, four, ceiling, four, n_samples)[0] == pytest.approx(0.199825, rel=tol_opp)
-    assert patch_to_patch(floor, four, wall, four, n_samples)[0] == pytest.approx(0.200044, rel=tol_perp)
+    assert patch_to_patch(floor, four, ceiling, four, n_samples)[0] == pytest.approx(cf.opposed_rects(1, 1, 1), rel=tol_opp)
+    assert patch_to_patch(floor, four, wall, four, n_samples)[0] == pytest.approx(cf.perpendicular_rects(1, 1, 1),
+                                                                               rel=tol_perp)
 
 
 def test_cube_closure_and_2x1():
@@ -179,8 +178,7 @@ def test_cube_closure_and_2x1():
     f = patch_to_patch(np.repeat(floor, 5, 0), np.full(5, 4), q, np.full(5, 4), 256)
     assert f.sum() == pytest.approx(1.0, abs=2e-4)
     assert patch_to_patch(rect_xy(0, 2, 0, 1, 0, True), [4], rect_xy(0, 2, 0, 1, 1, False), [4], 64)[0] \
-        == pytest.approx(opposed_rects(2, 1, 1), rel=5e-3)
-    assert opposed_rects(2, 1, 1) == pytest.approx(0.285875, abs=1e-6)
+        == pytest.approx(cf.opposed_rects(2, 1, 1), rel=5e-3)
 
 
 def test_reciprocity_unequal_rectangles_and_triangles():

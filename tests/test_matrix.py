@@ -20,7 +20,8 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="installs the linux-x64 zip")
+pytestmark = [pytest.mark.bpy, pytest.mark.slow,
+              pytest.mark.skipif(not sys.platform.startswith("linux"), reason="installs the linux-x64 zip")]
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,54 @@
+"""Closed-form view factors, computed (the tests' analytic oracles; no numbers typed in elsewhere).
+
+The formulas are those of J. R. Howell's "A Catalog of Radiation Heat Transfer Configuration
+Factors" (http://www.thermalradiation.net/indexCat.html): differential area to a parallel
+rectangle with the normal through a corner (section B), directly opposed parallel rectangles
+(C-11), perpendicular rectangles with a common edge (C-14), differential area on the axis of a
+parallel disc; a tilted differential area under an infinite plane sees (1 + cos theta) / 2.
+Superposition gives any point under a parallel rectangle (point_to_parallel_rect).
+tests/test_formfactor.py checks them against the catalog's tabulated values and each other.
+"""
+from math import atan, log, pi, sqrt
+
+
+def point_to_rect_corner(a, b, c):
+    """Element at distance c below the corner of an a x b rectangle, both parallel."""
+    x, y = a / c, b / c
+    return (x / sqrt(1 + x * x) * atan(y / sqrt(1 + x * x)) + y / sqrt(1 + y * y) * atan(x / sqrt(1 + y * y))) / (2 * pi)
+
+
+def point_to_parallel_rect(px, py, x0, x1, y0, y1, c):
+    """Element at (px, py), distance c below the rectangle [x0, x1] x [y0, y1] (parallel, facing it):
+    the four corner rectangles meeting at the foot point, signed (superposition)."""
+    def corner(x, y):
+        s = (1 if x >= 0 else -1) * (1 if y >= 0 else -1)
+        return s * point_to_rect_corner(abs(x), abs(y), c) if x and y else 0.0
+    return (corner(x1 - px, y1 - py) - corner(x0 - px, y1 - py) - corner(x1 - px, y0 - py)
+            + corner(x0 - px, y0 - py))
+
+
+def opposed_rects(a, b, c):
+    """C-11: a x b rectangle to the same rectangle directly opposite at distance c."""
+    x, y = a / c, b / c
+    x1, y1 = 1 + x * x, 1 + y * y
+    return 2 / (pi * x * y) * (log(sqrt(x1 * y1 / (x1 + y1 - 1))) + x * sqrt(y1) * atan(x / sqrt(y1))
+                               + y * sqrt(x1) * atan(y / sqrt(x1)) - x * atan(x) - y * atan(y))
+
+
+def perpendicular_rects(l, w, h):
+    """C-14: rectangle l x w to the rectangle l x h at right angles to it, sharing the edge of length l."""
+    W, H = w / l, h / l
+    W2, H2, S = W * W, H * H, W * W + H * H
+    t = log((1 + W2) * (1 + H2) / (1 + S) * (W2 * (1 + S) / ((1 + W2) * S)) ** W2
+            * (H2 * (1 + S) / ((1 + H2) * S)) ** H2)
+    return (W * atan(1 / W) + H * atan(1 / H) - sqrt(S) * atan(1 / sqrt(S)) + t / 4) / (pi * W)
+
+
+def point_to_coaxial_disc(r, h):
+    """Element facing a disc of radius r on its axis at distance h."""
+    return r * r / (r * r + h * h)
+
+
+def tilted_under_plane(cos_theta):
+    """Element under an infinite plane, its normal at angle theta to the plane's normal."""
+    return (1 + cos_theta) / 2
