@@ -28,7 +28,7 @@ def run_one(size, cluster, quality, events):
     import numpy as np
 
     from benchmarks.furnished import furnished_room
-    from hr_addon.core import shapes as S
+    from benchmarks import shapes as S
     from hr_addon.core.events import DynamicRadiosity, LightShape
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams

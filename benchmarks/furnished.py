@@ -102,7 +102,7 @@ def cylinder(base, radius, height, seg, caps=True):
 
 
 def icosphere(centre, radius, subdiv):
-    from hr_addon.core.scenes import icosphere as ico
+    from benchmarks.scenes import icosphere as ico
     v, f = ico(subdiv, radius, inward=False)
     return v + centre, [np.array(f)]
 

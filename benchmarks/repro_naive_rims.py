@@ -17,7 +17,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, HERE)
 
-from hr_addon.core import scenes  # noqa: E402
+from benchmarks import scenes  # noqa: E402
 from hr_addon.core.events import DynamicRadiosity, LightShape  # noqa: E402
 from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
 from hr_addon.core.refine import RefineParams  # noqa: E402

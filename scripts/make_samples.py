@@ -2,7 +2,7 @@
 
     .venv/bin/python scripts/make_samples.py [--out sample_blends] [names...]
 
-cornell     Cornell box (hr_addon.core.scenes numbers: metres, z up), walls 8x8 quads, ceiling
+cornell     Cornell box (benchmarks/scenes.py numbers: metres, z up), walls 8x8 quads, ceiling
             light as an emissive mesh; a window (2x2 panes) appears on the green wall at frame 6,
             a patch on the back wall at frame 13, the window disappears at frame 21.
 moonlight   room; an irregular moonlight patch on the floor whose emission strength is keyframed.
@@ -17,7 +17,6 @@ Every light shape lies exactly on the plane of the surface it lights (same float
 has its origin on that plane and only moves / scales within it.
 """
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -29,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 import bpy  # noqa: E402
 
 import hr_addon  # noqa: E402
-from hr_addon.core import scenes  # noqa: E402
+from benchmarks import scenes  # noqa: E402
 
 SUBDIV = 8
 

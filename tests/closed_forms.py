@@ -14,7 +14,8 @@ from math import atan, log, pi, sqrt
 def point_to_rect_corner(a, b, c):
     """Element at distance c below the corner of an a x b rectangle, both parallel."""
     x, y = a / c, b / c
-    return (x / sqrt(1 + x * x) * atan(y / sqrt(1 + x * x)) + y / sqrt(1 + y * y) * atan(x / sqrt(1 + y * y))) / (2 * pi)
+    sx, sy = sqrt(1 + x * x), sqrt(1 + y * y)
+    return (x / sx * atan(y / sx) + y / sy * atan(x / sy)) / (2 * pi)
 
 
 def point_to_parallel_rect(px, py, x0, x1, y0, y1, c):
@@ -35,9 +36,9 @@ def opposed_rects(a, b, c):
                                + y * sqrt(x1) * atan(y / sqrt(x1)) - x * atan(x) - y * atan(y))
 
 
-def perpendicular_rects(l, w, h):
-    """C-14: rectangle l x w to the rectangle l x h at right angles to it, sharing the edge of length l."""
-    W, H = w / l, h / l
+def perpendicular_rects(edge, w, h):
+    """C-14: rectangle edge x w to the rectangle edge x h at right angles to it, sharing the edge."""
+    W, H = w / edge, h / edge
     W2, H2, S = W * W, H * H, W * W + H * H
     t = log((1 + W2) * (1 + H2) / (1 + S) * (W2 * (1 + S) / ((1 + W2) * S)) ** W2
             * (H2 * (1 + S) / ((1 + H2) * S)) ** H2)

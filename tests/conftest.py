@@ -31,6 +31,7 @@ def pytest_collection_modifyitems(config, items):
 
 @pytest.fixture(autouse=True)
 def blender_factory_startup(request):
-    if HAVE_BPY and request.node.get_closest_marker("bpy") and not request.node.get_closest_marker("shared_scene"):
+    marked = request.node.get_closest_marker
+    if HAVE_BPY and marked("bpy") and not marked("shared_scene"):
         import bpy
         bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)

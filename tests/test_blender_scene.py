@@ -117,20 +117,11 @@ def test_coplanar_polygons_merge_into_outlines(env):
 
 
 def _shapes(bpy, scene, frame):
-    from hr_addon.blender.bake import LightShape as CoreLightShape
     from hr_addon.blender.scene_in import collect_light_shapes
-    LS = CoreLightShape
-    if LS is None:
-        from dataclasses import dataclass
-
-        @dataclass
-        class LS:
-            rings: list
-            emission: np.ndarray
-            name: str = ""
+    from hr_addon.core.events import LightShape
     scene.frame_set(frame)
     vl = bpy.context.view_layer
-    return collect_light_shapes(vl, vl.depsgraph, LS)
+    return collect_light_shapes(vl, vl.depsgraph, LightShape)
 
 
 def test_cornell_light_shapes_per_frame(tmp_path):

@@ -1,6 +1,4 @@
 """Core engine against analytic oracles (tests/closed_forms.py, furnace and sphere identities). No bpy."""
-import warnings
-
 import numpy as np
 import pytest
 
@@ -11,7 +9,7 @@ from hr_addon.core.hierarchy import Hierarchy
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 from hr_addon.core.solver import ConvergenceWarning, solve
-from hr_addon.core import scenes
+from benchmarks import scenes
 
 FAST = RefineParams.preset("draft")
 

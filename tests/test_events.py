@@ -6,8 +6,8 @@ One coarse Cornell box is built once; every test works on a clone (the hierarchy
 import numpy as np
 import pytest
 
-from hr_addon.core import scenes
-from hr_addon.core import shapes as S
+from benchmarks import scenes
+from benchmarks import shapes as S
 from hr_addon.core import formfactor as ff
 from hr_addon.core.events import DynamicRadiosity, LightShape, locate, surface_samples
 from hr_addon.core.geometry import InputError, MeshInput
@@ -415,13 +415,15 @@ def test_naive_overlay_power_matches_blender_cdt():
     faces += [o2 for o2, _ in outlines.values()]
     start = np.cumsum([0] + [len(f) for f in faces])
     verts, _, tris, _, _, orig = delaunay_2d_cdt([Vector(p) for f in faces for p in f], [],
-                                                 [list(range(a, b)) for a, b in zip(start[:-1], start[1:])], 1, 1e-9)
+                                                 [list(range(a, b)) for a, b in zip(start[:-1], start[1:])],
+                                                 1, 1e-9)
     verts = np.array([tuple(p) for p in verts])
     em = [np.array(e) for _, e in outlines.values()]
     want = np.zeros(3)
     for t, of in zip(tris, orig):
         if min(of) < n_wall:                                        # on the wall
-            want += abs(_shoelace(verts[list(t)])) * sum((em[i - n_wall] for i in set(of) if i >= n_wall), np.zeros(3))
+            over = [em[i - n_wall] for i in set(of) if i >= n_wall]
+            want += abs(_shoelace(verts[list(t)])) * sum(over, np.zeros(3))
     assert n_wall == 4 and want.min() > 0.04
     np.testing.assert_allclose(power, want, rtol=1e-6)              # mathutils works in float32
 

@@ -75,6 +75,8 @@ def test_zip_layout(built_zip):
     assert "hr_addon/__init__.py" in names
     assert "hr_addon/core/__init__.py" in names
     assert "hr_addon/blender/__init__.py" in names
+    assert "hr_addon/io/__init__.py" in names and "hr_addon/lightmap/__init__.py" in names
+    assert not [n for n in names if n.endswith(("/scenes.py", "/shapes.py"))]     # test scenes stay out
     assert not (tops & FORBIDDEN_TOP), sorted(tops & FORBIDDEN_TOP)
     assert tops <= {"blender_manifest.toml", "__init__.py", "LICENSE", "hr_addon", "wheels"}, sorted(tops)
     assert not [n for n in names if "__pycache__" in n or n.endswith((".pyc", ".pyo"))]

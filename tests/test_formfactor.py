@@ -48,7 +48,8 @@ def test_closed_forms_match_the_catalog_and_each_other():
     assert cf.opposed_rects(2, 1, 1) == pytest.approx(0.2859, abs=1e-4)
     assert cf.perpendicular_rects(1, 1, 1) == pytest.approx(0.2000, abs=1e-4)
     assert cf.opposed_rects(1, 1, 1) + 4 * cf.perpendicular_rects(1, 1, 1) == pytest.approx(1.0, abs=1e-12)
-    assert cf.point_to_parallel_rect(0.5, 0.5, 0, 1, 0, 1, 1) == pytest.approx(4 * cf.point_to_rect_corner(0.5, 0.5, 1))
+    centre = cf.point_to_parallel_rect(0.5, 0.5, 0, 1, 0, 1, 1)
+    assert centre == pytest.approx(4 * cf.point_to_rect_corner(0.5, 0.5, 1))
 
 
 def test_reference_points():
@@ -163,9 +164,9 @@ def _unit_squares():
 def test_patch_to_patch_unit_squares(n_samples, tol_opp, tol_perp):
     floor, ceiling, wall = _unit_squares()
     four = np.array([4])
-    assert patch_to_patch(floor, four, ceiling, four, n_samples)[0] == pytest.approx(cf.opposed_rects(1, 1, 1), rel=tol_opp)
-    assert patch_to_patch(floor, four, wall, four, n_samples)[0] == pytest.approx(cf.perpendicular_rects(1, 1, 1),
-                                                                               rel=tol_perp)
+    opposite, perpendicular = cf.opposed_rects(1, 1, 1), cf.perpendicular_rects(1, 1, 1)
+    assert patch_to_patch(floor, four, ceiling, four, n_samples)[0] == pytest.approx(opposite, rel=tol_opp)
+    assert patch_to_patch(floor, four, wall, four, n_samples)[0] == pytest.approx(perpendicular, rel=tol_perp)
 
 
 def test_cube_closure_and_2x1():

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hr_addon.core import scenes
+from benchmarks import scenes
 from hr_addon.core.output import locate, radiance_at
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
@@ -35,7 +35,9 @@ def texels_in_polygon(uv_poly, res, margin=1e-6):
         bary = np.column_stack([1 - l12.sum(1), l12])
         ok = (bary > margin).all(1)
         out.append((q[ok, 0].astype(int), q[ok, 1].astype(int), bary[ok], np.full(ok.sum(), t)))
-    return [np.concatenate(z) for z in zip(*out)] if out else [np.zeros(0, int)] * 2 + [np.zeros((0, 3)), np.zeros(0, int)]
+    if not out:
+        return [np.zeros(0, int)] * 2 + [np.zeros((0, 3)), np.zeros(0, int)]
+    return [np.concatenate(z) for z in zip(*out)]
 
 
 @pytest.fixture(scope="module")
@@ -144,7 +146,8 @@ def test_dilation_fills_neighbours_with_their_mean():
 
 def test_image_structure_check(tmp_path):
     img = np.ones((16, 16, 3), np.float32)
-    for name, data in (("a.exr", encode_exr(img)), ("b.exr", encode_exr(img, "NONE")), ("c.png", encode_png16(img))):
+    files = {"a.exr": encode_exr(img), "b.exr": encode_exr(img, "NONE"), "c.png": encode_png16(img)}
+    for name, data in files.items():
         f = tmp_path / name
         f.write_bytes(data)
         assert image_file_problem(f, 16) == ""
@@ -170,15 +173,16 @@ def test_plan_texels_lie_on_their_patches_and_fill_the_sequence(tmp_path, cornel
     q = mesh.verts[lv_g]
     e1, e2 = q[1] - q[0], q[3] - q[0]                       # the wall's two edge directions
     uv = np.column_stack([(q - q[0]) @ e1 / (e1 @ e1), (q - q[0]) @ e2 / (e2 @ e2)]) * 0.9 + 0.05
-    tri_uv, corners, tri_patch, skipped = triangle_uvs(pt, oid, uv, ls, lt, lv_g - v0, p0, v0, len(mesh.verts) - v0)
+    tri_uv, corners, tri_patch, skipped = triangle_uvs(pt, oid, uv, ls, lt, lv_g - v0, p0, v0,
+                                                       len(mesh.verts) - v0)
     assert skipped == 0 and len(tri_uv) == 2 * (pt.object_id == oid).sum()
     plan = TexturePlan("exr")
     plan.add_object("back", "back", 16, tri_uv, corners, tri_patch, "uv")
     loc = plan.locator
     d = np.einsum("ij,ij->i", loc.points - pt.corners[loc.patch, 0], pt.normal[loc.patch])
     assert len(loc.points) > 150 and np.abs(d).max() < 1e-12
-    np.testing.assert_allclose(plan.radiance(None, cornell), radiance_at(cornell.h, cornell.B, loc.patch, loc.points),
-                               rtol=1e-5, atol=1e-6)
+    want = radiance_at(cornell.h, cornell.B, loc.patch, loc.points)
+    np.testing.assert_allclose(plan.radiance(None, cornell), want, rtol=1e-5, atol=1e-6)
     w = CacheWriter(tmp_path / "cache", plan.objects_info([SimpleNamespace(name="back", mesh_name="m")]),
                     "TEXTURE", plan.signature("s"))
     plan.bind(w.tmp)

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
+from ..core.events import DynamicRadiosity, LightShape
 from ..core.geometry import InputError, isolated_objects
 from ..core.progress import Cancelled
 from ..core.radiosity import RadiositySystem
@@ -28,11 +29,6 @@ from ..lightmap.plan import FORMATS as TEXTURE_FORMATS
 from . import playback, signatures, texture
 from .scene_in import (SceneError, collect_geometry, collect_light_shapes, geometry_objects,
                        light_shape_objects, shapes_signature)
-
-try:  # the dynamic (light-event) solver
-    from ..core.events import DynamicRadiosity, LightShape
-except ImportError:  # pragma: no cover - older core
-    DynamicRadiosity = LightShape = None
 
 METHODS = ("AUTO", "AR", "FE", "NAIVE")
 QUALITIES = ("DRAFT", "MEDIUM", "HIGH", "CUSTOM")
@@ -285,9 +281,6 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
                   "(Object > HR Radiosity > Exclude) if they are not meant to be there."])
             params = dataclasses.replace(params, aeps=params.aeps * area_ratio)
         has_shapes = bool(light_shape_objects(view_layer, include_hidden=True))
-        if has_shapes and DynamicRadiosity is None:
-            raise SceneError("Light shapes need the dynamic solver (hr_addon.core.events), "
-                             "which this version does not have.")
         npoly = len(scene_in.mesh.loop_start)
         total = end - start + 1
         yield BakeProgress("build", total=total, warnings=list(result.warnings),
@@ -412,8 +405,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
     return result
 
 
-_MIN_AREA_REL = (inspect.signature(DynamicRadiosity).parameters["min_area_rel"].default
-                 if DynamicRadiosity is not None else 1e-5)
+_MIN_AREA_REL = inspect.signature(DynamicRadiosity).parameters["min_area_rel"].default
 
 
 def _length(m):

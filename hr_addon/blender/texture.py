@@ -167,7 +167,8 @@ def _manifest(scene):
         raise CacheError("No radiosity bake: bake first.")
     reader = CacheReader(directory)
     if reader.manifest.get("output") != "TEXTURE":
-        raise CacheError("The radiosity bake holds vertex colours, not textures (Output: Baked Textures, then bake).")
+        raise CacheError("The radiosity bake holds vertex colours, not textures "
+                         "(Output: Baked Textures, then bake).")
     return directory, reader
 
 

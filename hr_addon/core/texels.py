@@ -28,7 +28,8 @@ def radiance_per_leaf(h, B, patch, points, leaf=None, locator=None, chunk=200_00
         U, inv = locator.leaf_u, locator.inv
     else:
         if leaf is None:
-            leaf = np.concatenate([locate(h, patch[a:a + chunk], pts[a:a + chunk]) for a in range(0, len(pts), chunk)])
+            leaf = np.concatenate([locate(h, patch[a:a + chunk], pts[a:a + chunk])
+                                   for a in range(0, len(pts), chunk)])
         U, inv = np.unique(leaf, return_inverse=True)
         inv = inv.ravel()
         locator = None
@@ -125,7 +126,8 @@ class TexelLocator:
             anc[:, d] = node
             node = np.where(node >= 0, h.parent[np.maximum(node, 0)], -1).astype(np.int64)
         self.h, self.leaf_u, self.inv = h, U, inv.ravel().astype(np.int32)
-        self.anc, self.anc_corners, self.anc_patch = anc, h.corners[np.maximum(anc, 0)].copy(), h.patch[U].copy()
+        self.anc, self.anc_patch = anc, h.patch[U].copy()
+        self.anc_corners = h.corners[np.maximum(anc, 0)].copy()
         return leaf
 
     def _from_representatives(self, h, chunk):

@@ -8,7 +8,8 @@ Frames whose light state did not change point at the previous frame's file (no n
 Safety: a bake writes into a sibling temporary directory (.<name>.baking-<host>-<pid>-<ms>) and
 only replaces the cache at the end (CacheWriter.commit), every file is written to a temporary name
 and os.replace()d (files.atomic_write), so a cancelled or failed bake leaves the previous cache
-untouched. Temporary directories left by killed processes of this machine are removed by the next bake of that cache.
+untouched. Temporary directories left by killed processes of this machine are removed by the next
+bake of that cache.
 Frames of the previous cache that the new bake did not cover are kept when the geometry and
 settings (method, quality, output, objects) are identical, so baking frames 1-50 and 51-100
 separately yields the same cache as baking 1-100 once; otherwise they are discarded and
@@ -56,7 +57,8 @@ def frame_filename(frame):
 
 
 HOST = re.sub(r"[^A-Za-z0-9_.]", "_", socket.gethostname() or "host")
-_TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<kind>baking|old)-(?:(?P<host>[A-Za-z0-9_.]+)-)?(?P<pid>\d+)-(?P<ms>\d+)$")
+_TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<kind>baking|old)-(?:(?P<host>[A-Za-z0-9_.]+)-)?"
+                   r"(?P<pid>\d+)-(?P<ms>\d+)$")
 
 
 def temp_dirs(final_dir):
@@ -139,7 +141,8 @@ def frame_ranges(frames):
 
 def _names(names, limit=5):
     names = sorted(names)
-    return ", ".join(f"'{n}'" for n in names[:limit]) + (f" and {len(names) - limit} more" if len(names) > limit else "")
+    more = f" and {len(names) - limit} more" if len(names) > limit else ""
+    return ", ".join(f"'{n}'" for n in names[:limit]) + more
 
 
 def changed_objects(old: dict, new: dict):
@@ -166,8 +169,9 @@ def settings_difference(old: dict, new: dict):
             continue                      # follows from the output
         if a is not None and b is not None and a != b:
             why.append(f"{key} {str(a).lower()} (this bake: {str(b).lower()})")
-    if not why and old.get("quality") == "CUSTOM" and (old.get("feps"), old.get("aeps")) != (new.get("feps"), new.get("aeps")):
-        why.append(f"feps {old.get('feps')}, aeps {old.get('aeps')} (this bake: {new.get('feps')}, {new.get('aeps')})")
+    a, b = (old.get("feps"), old.get("aeps")), (new.get("feps"), new.get("aeps"))
+    if not why and old.get("quality") == "CUSTOM" and a != b:
+        why.append(f"feps {a[0]}, aeps {a[1]} (this bake: {b[0]}, {b[1]})")
     if "geometry" in old and "geometry" in new:
         geo = changed_objects(old["geometry"], new["geometry"])
         if geo:
@@ -200,7 +204,8 @@ def npz_problem(path, objects=None):
                     shape, _, dtype = read(fh)
                     hdr = fh.tell()
                 want = (objects or {}).get(name, {}).get("count")
-                if len(shape) != 2 or shape[1] != 4 or dtype != np.float32 or (want is not None and shape[0] != want):
+                if (len(shape) != 2 or shape[1] != 4 or dtype != np.float32
+                        or (want is not None and shape[0] != want)):
                     return f"bad array for '{name}'"
                 if info.file_size != hdr + shape[0] * 16 or info.compress_size < 0:
                     return f"truncated array for '{name}'"
@@ -214,7 +219,8 @@ class CacheWriter:
         self.final = Path(final_dir)
         check_writable(self.final)
         self.removed_temp = remove_stale_temp(self.final)
-        self.tmp = self.final.parent / f".{self.final.name}.baking-{HOST}-{os.getpid()}-{int(time.time() * 1000)}"
+        stamp = f"{HOST}-{os.getpid()}-{int(time.time() * 1000)}"
+        self.tmp = self.final.parent / f".{self.final.name}.baking-{stamp}"
         self.tmp.mkdir()
         self.objects = objects
         self.domain = domain
@@ -234,7 +240,8 @@ class CacheWriter:
         self.frames[int(frame)] = self.frames[int(prev_frame)]
 
     def _manifest_now(self):
-        return dict(self.info, format=FORMAT, domain=self.domain, objects=self.objects, signature=self.signature)
+        return dict(self.info, format=FORMAT, domain=self.domain, objects=self.objects,
+                    signature=self.signature)
 
     def previous(self):
         """(CacheReader of the previous bake or None, why its frames cannot be kept: '' if they can)."""
@@ -267,7 +274,8 @@ class CacheWriter:
         left = sorted(f for f in old.frames if f not in self.frames)
         if why:
             if left:
-                self.messages.append(f"The previous bake's frames {frame_ranges(left)} were discarded: it used {why}.")
+                self.messages.append(f"The previous bake's frames {frame_ranges(left)} were discarded: "
+                                     f"it used {why}.")
             return
         renamed, lost = {}, []
         for f, name in sorted(old.frames.items()):

@@ -59,7 +59,8 @@ def find_charts(co, loop_start, loop_total, loop_verts):
     cn = np.stack([np.bincount(ch, n[:, k], C) for k in range(3)], 1)
     cn /= np.maximum(np.linalg.norm(cn, axis=1), 1e-300)[:, None]
     w = 0.5 * ln
-    cc = np.stack([np.bincount(ch, w * cen[:, k], C) for k in range(3)], 1) / np.maximum(np.bincount(ch, w, C), 1e-300)[:, None]
+    cc = np.stack([np.bincount(ch, w * cen[:, k], C) for k in range(3)], 1) \
+        / np.maximum(np.bincount(ch, w, C), 1e-300)[:, None]
     lch = ch[lp]
     thick = np.zeros(C)
     np.maximum.at(thick, lch, np.abs(np.einsum("ij,ij->i", p - cc[lch], cn[lch])))

@@ -64,7 +64,8 @@ def triangle_uvs(patches, oid, uv, loop_start, loop_total, loop_verts, poly0, ve
     tri_c = np.concatenate([np.tile([0, 1, 2], (len(sel), 1)), np.tile([0, 2, 3], (int(quad.sum()), 1))])
     rows = np.concatenate([np.arange(len(sel)), np.flatnonzero(quad)])
     corners = patches.corners[tri_rows[:, None], tri_c]
-    ck = (patches.poly[tri_rows] - poly0)[:, None] * (n_verts + 1) + patches.vert_index[sel][rows[:, None], tri_c] - vert0
+    corner_vert = patches.vert_index[sel][rows[:, None], tri_c] - vert0
+    ck = (patches.poly[tri_rows] - poly0)[:, None] * (n_verts + 1) + corner_vert
     pos = np.clip(np.searchsorted(key[ko], ck), 0, max(len(ko) - 1, 0))
     good = (key[ko][pos] == ck).all(1) if len(ko) else np.zeros(len(ck), bool)
     tri_uv = np.asarray(uv, np.float64)[ko[pos]] if len(ko) else np.zeros((len(ck), 3, 2))

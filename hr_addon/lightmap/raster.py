@@ -57,7 +57,8 @@ def rasterise(tri_uv, res, ring=RING, budget=400_000):
             for i, j in ((0, 1), (1, 2), (2, 0)):
                 pa, pb = Pt[tt, i], Pt[tt, j]
                 e = pb - pa
-                s = np.clip(np.einsum("ij,ij->i", qq - pa, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
+                s = np.einsum("ij,ij->i", qq - pa, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300)
+                s = np.clip(s, 0, 1)
                 d = np.linalg.norm(qq - pa - s[:, None] * e, axis=1)
                 better = d < best_d
                 best_d = np.where(better, d, best_d)

@@ -1,4 +1,4 @@
-"""Light-shape geometry helpers and the office benchmark scene (numpy only).
+"""Light-shape outlines and the office benchmark scene (numpy only; tests and benchmarks, not shipped).
 
 2D outlines (M, 2) are built in a wall's own frame and lifted to world-space rings with `on_plane`.
 A frame is (origin, u, v): u x v is the wall's front normal, so a counter-clockwise 2D outline is

@@ -1,14 +1,17 @@
-"""Test and benchmark scenes built from numbers, in Blender's frame (z up, metres)."""
+"""Scenes built from numbers, in Blender's frame (z up, metres): the Cornell box, a closed box,
+spheres, parallel plates. For the tests, the benchmarks and scripts/make_samples.py (import it as
+`benchmarks.scenes`, with the repository root on sys.path); not shipped in the extension."""
 import numpy as np
 
-from .geometry import MeshInput
+from hr_addon.core.geometry import MeshInput
 
 WHITE = (0.725, 0.71, 0.68)
 RED = (0.63, 0.065, 0.05)
 GREEN = (0.14, 0.45, 0.091)
 CORNELL_LIGHT = (17.0, 12.0, 4.0)
 
-# Cornell Program of Computer Graphics data, mm, y up (see shared/reference/README.md).
+# Cornell Program of Computer Graphics, "Cornell Box Data" (https://www.graphics.cornell.edu/online/box/data.html):
+# mm, y up.
 _CORNELL = {
     "floor": ([(552.8, 0, 0), (0, 0, 0), (0, 0, 559.2), (549.6, 0, 559.2)], WHITE),
     "ceiling": ([(556, 548.8, 0), (556, 548.8, 559.2), (0, 548.8, 559.2), (0, 548.8, 0)], WHITE),
