@@ -64,6 +64,7 @@ def test_background_bake_reports_progress_and_loads_result(tmp_path):
     assert sorted(p.name for p in cache.parent.iterdir()) == ["searchbeam"]
 
 
+@pytest.mark.slow
 def test_background_cancel_keeps_previous_bake(tmp_path):
     bpy = load_bpy()
     open_sample("searchbeam", tmp_path)

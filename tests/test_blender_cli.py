@@ -112,6 +112,7 @@ def _frames(directory):
     return {f: r.load(f) for f in sorted(r.frames)}
 
 
+@pytest.mark.slow
 def test_split_bake_in_two_processes_equals_single_bake(tmp_path):
     for sub in ("split", "single"):
         (tmp_path / sub).mkdir()

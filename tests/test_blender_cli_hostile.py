@@ -33,6 +33,7 @@ def _wait_for(proc, pattern, lines):
     raise AssertionError(f"never saw {pattern!r}:\n{''.join(lines)}\n{proc.stderr.read()}")
 
 
+@pytest.mark.slow
 def test_ctrl_c_and_sigterm_cancel_at_every_phase_and_keep_the_previous_bake(tmp_path):
     """SIGINT during bpy's start-up killed the process with tracebacks (add-on registration broke,
     then a crash); elsewhere Ctrl-C gave a KeyboardInterrupt. Now, at every phase (start-up,
@@ -85,6 +86,7 @@ def _warnings_scene(path):
     bpy.ops.wm.save_as_mainfile(filepath=str(path), check_existing=False)
 
 
+@pytest.mark.slow
 def test_every_warning_is_printed_once_with_counts(tmp_path):
     """The CLI ended with 'hr_bake: N warning(s)' but warnings from the build and the cache commit
     were never printed, and one shape reported on 8 frames gave 8 lines."""

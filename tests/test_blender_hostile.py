@@ -200,6 +200,7 @@ def test_deleted_cache_shows_magenta(tmp_path):
 
 
 # -- method and quality changes in sub-range re-bakes -------------------------------------------------
+@pytest.mark.slow
 def test_other_method_or_quality_discards_the_old_frames_and_says_why(tmp_path):
     """A sub-range re-bake that changed only the method kept FE frames inside a bake whose manifest
     said NAIVE; a quality change discarded them with a hidden, vague message."""

@@ -44,6 +44,7 @@ def _snapshot(d):
     return {str(p.relative_to(d)): p.read_bytes() for p in Path(d).rglob("*") if p.is_file()}
 
 
+@pytest.mark.slow
 def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
@@ -200,6 +201,7 @@ def test_material_helper_plays_the_sequence(tmp_path):
     assert not [m for m in bpy.data.materials if m.get(texture.TAG)]
 
 
+@pytest.mark.slow
 def test_cancel_partial_bakes_and_png(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)

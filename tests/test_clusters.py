@@ -159,7 +159,8 @@ def test_reciprocity_and_energy_balance_with_clusters(clutter):
 
 
 # -- oracles with clutter ------------------------------------------------------------------------------
-@pytest.mark.parametrize("quality, worst, p99", [("draft", 0.07, 0.045), ("medium", 0.04, 0.02)])
+@pytest.mark.parametrize("quality, worst, p99", [("draft", 0.07, 0.045),
+                                                pytest.param("medium", 0.04, 0.02, marks=pytest.mark.slow)])
 def test_furnace_with_clutter(clutter, quality, worst, p99):
     """Same reflectance and emission everywhere, nothing touching: B = E / (1 - rho) = 2 on
     every leaf. Measured (worst leaf / 99th percentile): all-pairs HR at draft 4.2% / 1.9% with
@@ -176,6 +177,7 @@ def test_furnace_with_clutter(clutter, quality, worst, p99):
         assert len(s.links) < 0.5 * len(plain.links)
 
 
+@pytest.mark.slow
 def test_sphere_of_5000_triangles_keeps_uniform_irradiance():
     """Inside a closed sphere the irradiance is uniform for any emission layout (flat facets
     on 5,120 triangles: 0.5%); random emitting triangles, clusters on. Measured at medium 1.4%

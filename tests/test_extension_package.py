@@ -65,6 +65,7 @@ def test_manifest_fields():
 
 
 @pytest.mark.bpy
+@pytest.mark.slow      # the module builds the five zips once
 def test_zip_layout(built_zip):
     with zipfile.ZipFile(built_zip) as zf:
         names = zf.namelist()
@@ -106,6 +107,7 @@ def test_manifest_wheels_cover_platforms_and_pythons():
 
 
 @pytest.mark.bpy
+@pytest.mark.slow      # the module builds the five zips once
 def test_each_platform_zip_has_only_its_wheels(built_zips):
     expect = {"linux-x64": "manylinux", "windows-x64": "win_amd64", "macos-arm64": "macosx_13_0_arm64",
               "macos-x64": "x86_64.whl"}
@@ -161,6 +163,7 @@ INSTALL_SCRIPT = textwrap.dedent(r'''
 
 
 @pytest.mark.bpy
+@pytest.mark.slow      # the module builds the five zips once
 def test_install_in_blender(built_zip, tmp_path):
     pytest.importorskip("bpy")  # only checks it is installed; the import happens in the subprocess
     home = tmp_path / "home"
