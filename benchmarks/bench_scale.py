@@ -71,11 +71,15 @@ def main(argv=None):
     ap.add_argument("--events", default="100k", help="sizes on which FE and AUTO events are timed")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out"))
     ap.add_argument("--timeout", type=float, default=1800, help="seconds per run before it is stopped")
+    ap.add_argument("--table", action="store_true", help="print the markdown table of the JSON and stop")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
         size, cluster, events = args.child
         return run_one(size, cluster == "1", args.quality, events == "1")
+    if args.table:
+        print(table(json.loads((Path(args.out) / f"scale_{args.quality}.json").read_text())))
+        return
     os.makedirs(args.out, exist_ok=True)
     runs = [(s, True) for s in args.sizes.split(",") if s] + [(s, False) for s in args.plain.split(",") if s]
     results = []
@@ -108,7 +112,26 @@ def main(argv=None):
     results = [r for r in old if (r["size"], r["cluster"]) not in new] + results
     path.write_text(json.dumps(results, indent=1))
     plot(results, ROOT / "benchmarks" / "scale.png")
+    print(table(results))
     print(f"wrote {path} and benchmarks/scale.png")
+
+
+def table(results):
+    """Markdown table of the runs in the JSON (README, docs/scale.md)."""
+    L = ["| triangles | linking | build (wall) | build (CPU) | links | links / triangle | far links | "
+         "peak memory, build | solve (iterations) | FE / AUTO event |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(results, key=lambda r: (not r["cluster"], r.get("triangles", 0))):
+        kind = "clusters" if r["cluster"] else "all pairs"
+        if "build_s" not in r:
+            L.append(f"| ~{r['size']} | {kind} | stopped after {r['timeout_s']:.0f} s ({r['last_progress']}) | | | | | "
+                     f"{r['peak_rss_gb'] or 0:.1f} GB | | |")
+            continue
+        ev = (f"{r['fe_event_s']:.1f} s / {r['auto_event_s']:.1f} s" if "fe_event_s" in r else "")
+        cpu = f"{r['build_cpu_s']:.1f} s" if "build_cpu_s" in r else ""
+        mem = f"{r['build_peak_gb']:.2f} GB" if "build_peak_gb" in r else ""
+        L.append(f"| {r['triangles']:,} | {kind} | {r['build_s']:.1f} s | {cpu} | {r['links']:,} | "
+                 f"{r['links'] / r['triangles']:.1f} | {r['far_links']:,} | {mem} | {r['solve_s']:.1f} s ({r['iterations']}) | {ev} |")
+    return "\n".join(L)
 
 
 def plot(results, path):

@@ -1,4 +1,4 @@
-"""Furnished rooms of about 2k, 20k, 100k and 1M triangles, built from numbers (numpy only).
+"""Furnished rooms of about 2k, 10k, 20k, 100k and 1M triangles, built from numbers (numpy only).
 
     from benchmarks.furnished import furnished_room
     mesh, info = furnished_room("20k")        # MeshInput (z up, metres) and a dict of facts
