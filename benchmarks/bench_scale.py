@@ -120,7 +120,7 @@ def table(results):
     """Markdown table of the runs in the JSON (README, docs/scale.md)."""
     L = ["| triangles | linking | build (wall) | build (CPU) | links | links / triangle | far links | "
          "peak memory, build | solve (iterations) | FE / AUTO event |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in sorted(results, key=lambda r: (not r["cluster"], r.get("triangles", 0))):
+    for r in sorted(results, key=lambda r: (not r["cluster"], r.get("triangles", float("inf")))):
         kind = "clusters" if r["cluster"] else "all pairs"
         if "build_s" not in r:
             L.append(f"| ~{r['size']} | {kind} | stopped after {r['timeout_s']:.0f} s ({r['last_progress']}) | | | | | "

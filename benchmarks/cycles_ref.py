@@ -633,7 +633,9 @@ def metrics(ours, ref, mask=None):
 
 def noise(a, b, mask=None):
     """Per-bake noise from two seeds: RMS of (a - b) / sqrt 2, and of the surface mean."""
-    ok = np.ones(len(a), bool) if mask is None else mask
+    ok = np.isfinite(a).all(1) & np.isfinite(b).all(1)   # texels the bake did not write are NaN
+    if mask is not None:
+        ok &= mask
     d = (a - b)[ok]
     return float(np.sqrt(np.mean(d ** 2) / 2)), float(np.mean(np.abs(d.mean(0)) / np.maximum(
         (a[ok] + b[ok]).mean(0) / 2, 1e-12)) / np.sqrt(2))
