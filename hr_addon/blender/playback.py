@@ -21,9 +21,10 @@ MAGENTA = (1.0, 0.0, 1.0, 1.0)
 # Set while a bake runs: the bake moves through frames itself, playback must not interfere.
 # messages: load problems per scene; stale: "the scene changed" per scene; changes: memo of the
 # last check (key, message); dirty: scenes edited since; written: meshes whose HR_Radiance we
-# wrote (their next depsgraph update is ours, not an edit).
+# wrote (their next depsgraph update is ours, not an edit); live: scenes whose HR_Radiance Live
+# Relight writes (live.py; playback leaves them alone, except during renders).
 state = {"baking": False, "messages": {}, "readers": {}, "loaded": {}, "stale": {}, "changes": {},
-         "dirty": set(), "written": set(), "image_checks": {}, "notes": {}}
+         "dirty": set(), "written": set(), "image_checks": {}, "notes": {}, "live": set()}
 
 LOCK_MESSAGE = ("Frames are not loaded during this render: turn on Render > Lock Interface "
                 "(changing mesh data during a render is unsafe).")
@@ -293,9 +294,14 @@ def render_unlocked(scene):
             and bpy.app.is_job_running("RENDER"))
 
 
+def live_shown(scene):
+    """True while Live Relight shows its own light on scene (live.py); renders play the bake back."""
+    return scene.name_full in state.get("live", ()) and not bpy.app.is_job_running("RENDER")
+
+
 @persistent
 def on_frame_change_pre(scene, *args):
-    if state["baking"] or not scene.hr.playback:
+    if state["baking"] or not scene.hr.playback or live_shown(scene):
         return
     if render_unlocked(scene):
         _log_once(scene, LOCK_MESSAGE)     # printed once, and shown in the panel
