@@ -38,9 +38,14 @@ class LiveError(SceneError):
 
 BAKE_RUNNING = ("A radiosity bake is running: Live Relight cannot start until it has finished "
                 "(or is cancelled).")
-TICK, IDLE_POLL, GEOMETRY_SETTLE = 0.02, 0.5, 0.25    # seconds
+TICK, IDLE_POLL, GEOMETRY_SETTLE, WATCH = 0.02, 0.5, 0.25, 1.0    # seconds
 
 _sessions = {}       # scene name_full -> Session
+_messages = {}       # scene name_full -> why Live is not running (refused, stopped), for the panel
+
+
+def message(scene):
+    return _messages.get(scene.name_full, "") if scene is not None else ""
 
 
 def session(scene):
@@ -105,11 +110,12 @@ class Session:
             return f"Live: {self.error} Showing the light of the last valid state."
         if self.last is None:
             return "Live: computing"
+        if w.pending or self.dirty:
+            return "Live: updating (showing the previous state until the new one is ready)"
         r = self.last
         n = len(r.report.events) if r.report is not None else 0
-        busy = " (updating)" if w.pending else ""
         ms = 1000 * (r.t_apply + r.t_output)
-        return f"Live: up to date{busy}, last edit {ms:.0f} ms ({n} light event(s), {w.spec.method})"
+        return f"Live: up to date; last update {ms:.0f} ms ({n} light event(s), {w.spec.method})"
 
 
 def _scene_of(sess):
@@ -152,26 +158,31 @@ def start(scene, view_layer=None, threaded=None):
     if sess is not None:
         return sess
     if bake_running():
-        scene.hr.live = False
-        raise LiveError(BAKE_RUNNING)
+        _refuse(scene, BAKE_RUNNING)
     view_layer = view_layer or (bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0])
     if not geometry_objects(view_layer):
-        scene.hr.live = False
-        raise LiveError("No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
+        _refuse(scene, "No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
+    _messages.pop(scene.name_full, None)
     threaded = (not bpy.app.background) if threaded is None else threaded
     sess = Session(scene, view_layer, threaded)
     _sessions[scene.name_full] = sess
     playback.state.setdefault("live", set()).add(scene.name_full)
     scene.hr.live = True
     try:
-        _reconcile(sess, scene, view_layer, check_geometry=True)
         _show_through_attribute(sess, scene, view_layer)
+        _reconcile(sess, scene, view_layer, check_geometry=True)
     except Exception:
-        stop(scene, restore=False)
+        stop(scene)
         raise
     print(f"HR Radiosity: Live Relight on ({sess.reason})", flush=True)
     _ensure_timer()
     return sess
+
+
+def _refuse(scene, why):
+    scene.hr.live = False
+    _messages[scene.name_full] = why
+    raise LiveError(why)
 
 
 def stop(scene, restore=True):
@@ -201,6 +212,7 @@ def end_for_bake(scene):
     """A bake starts: it shows its own result when it finishes, so Live ends (without restoring)."""
     if is_live(scene):
         stop(scene, restore=False)
+        _messages[scene.name_full] = "Live Relight turned off for the bake."
         print("HR Radiosity: Live Relight turned off for the bake", flush=True)
         return True
     return False
@@ -297,10 +309,20 @@ def _geometry_change(sess, view_layer, depsgraph, full):
 
 
 def _reconcile(sess, scene, view_layer, check_geometry):
-    """Hand the worker what changed: a rebuild (settings or geometry), else the light state."""
+    """Hand the worker what changed: a rebuild (settings or geometry), else the light state.
+    Depsgraph updates that fire while it reads the scene are of what it has read: it clears the
+    session's marks at the end."""
+    try:
+        _reconcile_now(sess, scene, view_layer, check_geometry)
+    finally:
+        sess.dirty = False
+        if check_geometry:
+            sess.geometry_dirty = 0.0
+        sess.last_poll = time.monotonic()
+
+
+def _reconcile_now(sess, scene, view_layer, check_geometry):
     dg = _depsgraph(scene, view_layer)
-    sess.dirty = False
-    sess.last_poll = time.monotonic()
     if sess.settings is None:
         return _build(sess, scene, view_layer, dg, "first build")
     if _settings(scene) != sess.settings:
@@ -369,7 +391,7 @@ def update(scene, view_layer=None, check_geometry=True):
         return None, f"Live Relight off: {what}"
     if bake_running():
         stop(scene, restore=False)
-        raise LiveError(BAKE_RUNNING)
+        _refuse(scene, BAKE_RUNNING)
     if sess is None:
         sess = start(scene, view_layer)
     else:
@@ -381,7 +403,7 @@ def update(scene, view_layer=None, check_geometry=True):
     if sess.fatal:
         msg = sess.fatal
         stop(scene)
-        raise LiveError(msg)
+        _refuse(scene, msg)
     if sess.error:
         raise LiveError(sess.error)
     if sess.problems:
@@ -398,13 +420,32 @@ def _redraw():
                 area.tag_redraw()
 
 
-def _ensure_timer():
-    if not bpy.app.background and not bpy.app.timers.is_registered(_tick):
-        bpy.app.timers.register(_tick, first_interval=0.0)
+_in_tick = False
+
+
+def _ensure_timer(first=0.0):
+    """Run the timer in `first` seconds (sooner if it was due later; inside the timer, it returns
+    its own next interval)."""
+    if bpy.app.background or _in_tick:
+        return
+    if bpy.app.timers.is_registered(_tick):
+        if first > 0:
+            return
+        bpy.app.timers.unregister(_tick)
+    bpy.app.timers.register(_tick, first_interval=first, persistent=True)
 
 
 def _tick():
     """Main thread, every TICK s while something is pending (IDLE_POLL s otherwise)."""
+    global _in_tick
+    _in_tick = True
+    try:
+        return _tick_body()
+    finally:
+        _in_tick = False
+
+
+def _tick_body():
     if playback.state["baking"]:
         return IDLE_POLL
     now = time.monotonic()
@@ -415,7 +456,9 @@ def _tick():
                 start(scene)
             except (SceneError, ValueError, RuntimeError) as exc:
                 print(f"HR Radiosity: Live Relight: {exc}", flush=True)
-                playback.state["messages"][scene.name_full] = f"Live Relight: {exc}"
+                _messages[scene.name_full] = str(exc)
+                if scene.hr.live:
+                    scene.hr.live = False
             redraw = True
     for name, sess in list(_sessions.items()):
         scene, vl = _scene_of(sess)
@@ -431,6 +474,7 @@ def _tick():
             continue
         if background.running():
             stop(scene, restore=False)
+            _messages[scene.name_full] = "Live Relight turned off for the bake."
             redraw = True
             continue
         building = sess.building
@@ -441,18 +485,16 @@ def _tick():
                 _reconcile(sess, scene, vl, check_geometry=bool(settle))
             except (SceneError, ValueError, RuntimeError) as exc:
                 sess.error = str(exc)
-            if settle:
-                sess.geometry_dirty = 0.0
             redraw = True
     if redraw:
         _redraw()
     if not _sessions:
-        return None
+        return WATCH          # keeps watching Scene.hr.live (a script may set it: no depsgraph update)
     busy = any(s.worker.pending or s.dirty or s.geometry_dirty or s.force_write for s in _sessions.values())
     return TICK if busy else IDLE_POLL / 2
 
 
-_GEOMETRY_KINDS = ("Collection", "Image", "World", "NodeTree")
+_GEOMETRY_KINDS = ("Image", "NodeTree")       # images (averaged colours) and node groups
 
 
 @persistent
@@ -471,24 +513,28 @@ def on_depsgraph_update(scene, depsgraph=None):
         idd = u.id
         kind = type(idd).__name__
         if kind == "Mesh":
-            if idd.name in own and not u.is_updated_transform:
+            if idd.name in own:          # (a mesh's update says is_updated_transform too)
                 continue
             dirty = True
             geometry |= idd.name not in sess.shape_meshes
         elif kind == "Object":
-            ob = idd.original if hasattr(idd, "original") else idd
+            ob = getattr(idd, "original", idd)
             data = getattr(ob, "data", None)
             if not u.is_updated_transform and data is not None and getattr(data, "name", None) in own:
                 continue
             dirty = True
-            if not ob.hr.is_light_shape and ob.type not in {"CAMERA", "LIGHT", "SPEAKER", "LIGHT_PROBE"}:
+            # visibility and the set of objects: the cheap name check of every reconcile
+            if (u.is_updated_geometry or u.is_updated_transform) and not ob.hr.is_light_shape \
+                    and ob.type not in {"CAMERA", "LIGHT", "SPEAKER", "LIGHT_PROBE"}:
                 geometry = True
         elif kind.endswith("Material"):
             dirty = True
-            geometry |= idd.name_full in sess.geo_materials or getattr(idd, "original", idd).name_full in sess.geo_materials
+            geometry |= getattr(idd, "original", idd).name_full in sess.geo_materials
+        elif kind.endswith("NodeTree") and getattr(idd, "is_embedded_data", False):
+            dirty = True            # a material's own tree: its Material is in the updates too
         elif kind.endswith(_GEOMETRY_KINDS):
             dirty = geometry = True
-        elif kind == "Scene":
+        elif kind in ("Scene", "Collection"):
             dirty = True
     if geometry:
         sess.geometry_dirty = time.monotonic()
@@ -535,6 +581,7 @@ def on_load_pre(*args):
 @persistent
 def on_load_post(*args):
     """Live is a session, not saved state: a file saved with Live on opens with it off."""
+    _messages.clear()
     for scene in bpy.data.scenes:
         if scene.hr.live:
             scene.hr.live = False
@@ -551,6 +598,7 @@ def register():
     for lst, fn in _handlers():
         playback._remove(lst, fn)
         lst.append(fn)
+    _ensure_timer(WATCH)
 
 
 def unregister():

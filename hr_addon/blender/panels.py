@@ -50,6 +50,9 @@ def _draw_live(col, scene):
     row = col.row(align=True)
     row.operator("hr.live_toggle", text="Live Relight", icon="LIGHT_AREA", depress=sess is not None)
     if sess is None:
+        msg = live.message(scene)
+        for i, line in enumerate(_wrap(msg, 60) if msg else []):
+            col.label(text=line, icon="INFO" if i == 0 else "BLANK1")
         return
     if sess.building:
         w = sess.worker
