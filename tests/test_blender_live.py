@@ -243,9 +243,16 @@ def test_geometry_or_settings_change_rebuilds_and_says_so(tmp_path, capsys):
     assert sess.reason == "geometry changed: 'tall_block' changed"
     assert "Live: the geometry changed ('tall_block' changed): rebuilding the hierarchy" in capsys.readouterr().out
     assert _differs(_shown(bpy, sess), before)
+    # without the comparison of every object, what the depsgraph reports still rebuilds
+    bpy.data.objects["short_block"].location.y -= 0.02
+    assert bpy.ops.hr.live_update(check_geometry=False) == {"FINISHED"}
+    assert sess.worker.builds == 3 and sess.reason == "geometry changed: 'short_block' changed"
+    bpy.data.objects["Window"].location.z += 0.01                    # a light edit: no rebuild
+    assert bpy.ops.hr.live_update(check_geometry=False) == {"FINISHED"}
+    assert sess.worker.builds == 3
     scene.hr.method = "AR"
     _update(bpy)
-    assert sess.worker.builds == 3 and sess.reason == "settings changed: method ar"
+    assert sess.worker.builds == 4 and sess.reason == "settings changed: method ar"
     assert sess.worker.spec.method == "AR"
     values = _shown(bpy, sess)
     _bake_current(bpy, scene)

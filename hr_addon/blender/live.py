@@ -70,6 +70,9 @@ class Session:
         self.geo_names = None         # names of the geometry objects then
         self.geo_materials = set()    # their materials (a depsgraph update of one may change the light)
         self.shape_meshes = set()     # mesh data of the light shapes (their edits are light events)
+        self.shape_objects = []       # names of the light-shape objects (all, hidden ones too)
+        self.shape_materials = set()  # their materials
+        self.full_read = True         # an update other than of known light shapes: read everything
         self.domain = "CORNER"
         self.targets = []             # object names that get HR_Radiance
         self.reason = ""              # why the hierarchy is (being) built
@@ -258,10 +261,19 @@ def _restore(sess, scene):
 
 
 # -- reading the scene -----------------------------------------------------------------------------
-def _read_shapes(sess, view_layer, depsgraph):
+def _read_shapes(sess, view_layer, depsgraph, fast=False):
+    """The active light shapes, their digest and warnings. fast: only known light shapes were
+    edited since the last read: read those (no walk over every object of the scene)."""
     warnings = []
-    shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings)
-    sess.shape_meshes = {o.data.name for o in light_shape_objects(view_layer, include_hidden=True)}
+    known = [bpy.data.objects.get(n) for n in sess.shape_objects] if fast else None
+    if known is not None and all(o is not None for o in known):
+        shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, objects=known)
+    else:
+        objs = light_shape_objects(view_layer, include_hidden=True)
+        sess.shape_objects = [o.name for o in objs]
+        sess.shape_meshes = {o.data.name for o in objs}
+        sess.shape_materials = {s.material.name_full for o in objs for s in o.material_slots if s.material is not None}
+        shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, objects=[o for o in objs if not o.hide_render])
     return shapes, shapes_signature(shapes), warnings
 
 
@@ -308,21 +320,33 @@ def _geometry_change(sess, view_layer, depsgraph, full):
     return "; ".join(changed_objects(sess.geometry, new)) or "the geometry changed"
 
 
-def _reconcile(sess, scene, view_layer, check_geometry):
+def _reconcile(sess, scene, view_layer, check_geometry, fast=False):
     """Hand the worker what changed: a rebuild (settings or geometry), else the light state.
-    Depsgraph updates that fire while it reads the scene are of what it has read: it clears the
-    session's marks at the end."""
+    check_geometry: compare every participating object with the hierarchy's geometry (else only
+    which objects take part). fast: only known light shapes changed (the depsgraph said so):
+    read just those. Depsgraph updates that fire while it reads the scene are of what it has
+    read: it clears the session's marks at the end."""
     try:
-        _reconcile_now(sess, scene, view_layer, check_geometry)
+        _reconcile_now(sess, scene, view_layer, check_geometry, fast and not check_geometry and not sess.full_read)
     finally:
         sess.dirty = False
         if check_geometry:
             sess.geometry_dirty = 0.0
-        sess.last_poll = time.monotonic()
+        if not fast:
+            sess.full_read = False
+            sess.last_poll = time.monotonic()
 
 
-def _reconcile_now(sess, scene, view_layer, check_geometry):
+def _reconcile_now(sess, scene, view_layer, check_geometry, fast):
     dg = _depsgraph(scene, view_layer)
+    if fast and _settings(scene) == sess.settings and sess.worker.phase != "failed":
+        shapes, sig, warnings = _read_shapes(sess, view_layer, dg, fast=True)
+        sess.light_notes = warnings
+        if sig != sess.requested_sig:
+            sess.serial += 1
+            sess.requested_sig = sig
+            sess.worker.request(sess.serial, sig, shapes)
+        return
     if sess.settings is None:
         return _build(sess, scene, view_layer, dg, "first build")
     if _settings(scene) != sess.settings:
@@ -380,8 +404,10 @@ def _deliver(sess, scene):
 # -- the synchronous entry point ---------------------------------------------------------------------
 def update(scene, view_layer=None, check_geometry=True):
     """Make HR_Radiance current for Live on scene (operator hr.live_update): start Live if
-    Scene.hr.live is on and it does not run, end it if Scene.hr.live is off, else read the light
-    shapes (and the geometry), compute and write. Returns (session or None, what it did).
+    Scene.hr.live is on and it does not run, end it if Scene.hr.live is off, else read every light
+    shape and the geometry, compute and write. check_geometry False: compare only which objects
+    take part and the objects the depsgraph reported as changed (not every object: on a big
+    scene that comparison costs more than a light event). Returns (session or None, what it did).
     Raises LiveError when the current state cannot be shown."""
     sess = session(scene)
     if not scene.hr.live:
@@ -396,7 +422,7 @@ def update(scene, view_layer=None, check_geometry=True):
         sess = start(scene, view_layer)
     else:
         s, vl = _scene_of(sess)
-        _reconcile(sess, s, vl, check_geometry)
+        _reconcile(sess, s, vl, check_geometry or bool(sess.geometry_dirty))
     if not sess.worker.flush(timeout=None):
         raise LiveError("the Live Relight worker stopped")
     _deliver(sess, scene)
@@ -480,9 +506,10 @@ def _tick_body():
         building = sess.building
         redraw |= _deliver(sess, scene) or building
         settle = sess.geometry_dirty and now - sess.geometry_dirty >= GEOMETRY_SETTLE
-        if sess.dirty or settle or now - sess.last_poll >= IDLE_POLL:
+        poll = now - sess.last_poll >= IDLE_POLL
+        if sess.dirty or settle or poll:
             try:
-                _reconcile(sess, scene, vl, check_geometry=bool(settle))
+                _reconcile(sess, scene, vl, check_geometry=bool(settle), fast=not (settle or poll))
             except (SceneError, ValueError, RuntimeError) as exc:
                 sess.error = str(exc)
             redraw = True
@@ -508,7 +535,7 @@ def on_depsgraph_update(scene, depsgraph=None):
     if sess is None:
         return
     own, sess.own_writes = sess.own_writes, set()
-    dirty = geometry = False
+    dirty = geometry = full = False
     for u in depsgraph.updates:
         idd = u.id
         kind = type(idd).__name__
@@ -516,28 +543,33 @@ def on_depsgraph_update(scene, depsgraph=None):
             if idd.name in own:          # (a mesh's update says is_updated_transform too)
                 continue
             dirty = True
-            geometry |= idd.name not in sess.shape_meshes
+            if idd.name not in sess.shape_meshes:
+                geometry = full = True
         elif kind == "Object":
             ob = getattr(idd, "original", idd)
             data = getattr(ob, "data", None)
             if not u.is_updated_transform and data is not None and getattr(data, "name", None) in own:
                 continue
             dirty = True
-            # visibility and the set of objects: the cheap name check of every reconcile
+            if ob.name not in sess.shape_objects:
+                full = True          # visibility and the set of objects: the name check of a full read
             if (u.is_updated_geometry or u.is_updated_transform) and not ob.hr.is_light_shape \
                     and ob.type not in {"CAMERA", "LIGHT", "SPEAKER", "LIGHT_PROBE"}:
                 geometry = True
         elif kind.endswith("Material"):
             dirty = True
-            geometry |= getattr(idd, "original", idd).name_full in sess.geo_materials
+            name = getattr(idd, "original", idd).name_full
+            geometry |= name in sess.geo_materials
+            full |= name not in sess.shape_materials
         elif kind.endswith("NodeTree") and getattr(idd, "is_embedded_data", False):
             dirty = True            # a material's own tree: its Material is in the updates too
         elif kind.endswith(_GEOMETRY_KINDS):
-            dirty = geometry = True
+            dirty = geometry = full = True
         elif kind in ("Scene", "Collection"):
-            dirty = True
+            dirty = full = True
     if geometry:
         sess.geometry_dirty = time.monotonic()
+    sess.full_read |= full or geometry
     if dirty or geometry:
         sess.dirty = sess.dirty or dirty
         _ensure_timer()

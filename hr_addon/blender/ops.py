@@ -377,6 +377,12 @@ class HR_OT_live_update(bpy.types.Operator):
     bl_label = "Update Live Relight"
     bl_options = {"REGISTER"}
 
+    check_geometry: BoolProperty(
+        name="Check Geometry", default=True,
+        description="Compare every participating object with the geometry the hierarchy was built "
+                    "from (off: only which objects take part and what the depsgraph reported as "
+                    "changed; faster on big scenes)")
+
     @classmethod
     def poll(cls, context):
         return context.scene is not None and hasattr(context.scene, "hr")
@@ -384,7 +390,7 @@ class HR_OT_live_update(bpy.types.Operator):
     def execute(self, context):
         scene = context.scene
         try:
-            sess, what = live.update(scene, context.view_layer)
+            sess, what = live.update(scene, context.view_layer, check_geometry=self.check_geometry)
         except (InputError, RuntimeError, ValueError) as exc:
             self.report({"ERROR"}, f"Live Relight: {exc}")
             return {"CANCELLED"}
