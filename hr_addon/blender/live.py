@@ -92,6 +92,7 @@ class Session:
         self.added_preview = False
         self.texture_objects = []     # objects whose baked-texture preview Live took off (restored)
         self.last_poll = 0.0
+        self.render_note = ""          # said once per render (see on_frame_change_pre)
         self.latencies = deque(maxlen=500)   # seconds from a light-state request to HR_Radiance written
         self.updates = 0
 
@@ -597,10 +598,23 @@ def on_undo_redo(*args):
 
 
 @persistent
+def on_frame_change_pre(scene, *args):
+    """During an animation render Live steps aside (playback loads the bake, playback.live_shown).
+    Without a bake every frame would render the Live light of the moment: say so, once per render."""
+    if is_live(scene) and bpy.app.is_job_running("RENDER") and not playback.bake_dir_abs(scene):
+        sess = session(scene)
+        if not sess.render_note:
+            sess.render_note = ("Live Relight: an animation render shows the Live light of the moment on every "
+                                "frame (there is no bake to play back): bake to render the light of each frame.")
+            print(f"HR Radiosity: {sess.render_note}", flush=True)
+
+
+@persistent
 def on_render_done(*args):
     """An animation render played the bake back (Live steps aside while rendering): write again."""
     for sess in _sessions.values():
         sess.force_write = sess.dirty = True
+        sess.render_note = ""
     if _sessions:
         _ensure_timer()
 
@@ -621,7 +635,8 @@ def on_load_post(*args):
 
 def _handlers():
     h = bpy.app.handlers
-    return ((h.depsgraph_update_post, on_depsgraph_update), (h.frame_change_post, on_frame_change_post),
+    return ((h.depsgraph_update_post, on_depsgraph_update), (h.frame_change_pre, on_frame_change_pre),
+            (h.frame_change_post, on_frame_change_post),
             (h.undo_post, on_undo_redo), (h.redo_post, on_undo_redo), (h.render_complete, on_render_done),
             (h.render_cancel, on_render_done), (h.load_pre, on_load_pre), (h.load_post, on_load_post))
 
@@ -634,7 +649,10 @@ def register():
 
 
 def unregister():
+    workers = [s.worker for s in _sessions.values()]
     stop_all(restore=False)
+    for w in workers:          # do not leave a thread computing in an add-on that is going away
+        w.join(10.0)
     for lst, fn in _handlers():
         playback._remove(lst, fn)
     if bpy.app.timers.is_registered(_tick):

@@ -148,6 +148,12 @@ class LiveWorker:
             self._cond.notify_all()
         self.dyn = None
 
+    def join(self, timeout=None):
+        """Wait for the worker thread to end (after close(): it finishes the light state it is
+        computing; a build stops at its next progress report)."""
+        if self.thread is not None:
+            self.thread.join(timeout)
+
     # -- the worker thread -------------------------------------------------------------------------
     def _ensure_thread(self):
         if self.threaded and (self.thread is None or not self.thread.is_alive()) and not self._closed:
