@@ -49,6 +49,9 @@ SCENES = {
                        qualities=["medium"], methods=["FE", "AUTO"], texel_rel=1 / 48),
     "office": dict(frames=[1, 4, 8], sweep_frame=None, ref_spp=256, sweep=[],
                    qualities=["medium"], methods=["FE", "AUTO"], texel_rel=1 / 48),
+    # the ~20k-triangle furnished room (850 objects): per-object means, clusters at work
+    "furnished": dict(frames=[1, 3], sweep_frame=None, ref_spp=128, sweep=[],
+                      qualities=["draft", "medium"], methods=["FE", "AUTO"], texel_rel=1 / 300),
 }
 QUICK = {"frames": [1, 13], "sweep": [4, 16], "ref_spp": 64, "qualities": ["draft"], "methods": ["FE", "AUTO"]}
 REF_SEEDS = (1, 2)

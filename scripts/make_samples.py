@@ -9,6 +9,9 @@ moonlight   room; an irregular moonlight patch on the floor whose emission stren
 curtain     room; a slit on a wall widening into a window (keyframed scale).
 searchbeam  room; an ellipse sweeping the back wall (keyframed location).
 office      room with a desk and two monitors whose screens switch on (frames 4 and 8).
+furnished   benchmarks/furnished.py's furnished room of ~20k triangles (850 objects: tables,
+            chairs, bookcases full of books, a sofa, spheres, vases, cups, boxes) lit by a ceiling
+            panel; a window patch on the west wall is on from frame 3 to frame 7.
 
 Every light shape lies exactly on the plane of the surface it lights (same float32 coordinate),
 has its origin on that plane and only moves / scales within it.
@@ -389,8 +392,36 @@ def make_office(path):
     finish(scene, path, (1, 10))
 
 
+def make_furnished(path):
+    from benchmarks.furnished import furnished_room
+    scene = reset()
+    mi, info = furnished_room("20k")
+    mats = {}
+
+    def material(rho, em):
+        key = (tuple(np.round(rho, 2)), tuple(np.round(em, 3)))
+        if key not in mats:
+            if max(em) > 0:
+                strength = float(max(em))
+                mats[key] = emission(f"Light {len(mats)}", tuple(float(e) / strength for e in em), strength)
+            else:
+                mats[key] = diffuse(f"Diffuse {len(mats)}", tuple(float(x) for x in key[0]))
+        return mats[key]
+
+    first = np.searchsorted(mi.object_id, np.arange(len(mi.object_names)))   # polygons are grouped by object
+    for k, name in enumerate(mi.object_names):
+        verts, polys = from_mesh_input(mi, [k])
+        mesh_object(name, verts, polys, material(mi.reflectance[first[k]], mi.emission[first[k]]))
+    _, (o, u, v) = info["light_wall"]
+    corners = [o + a * u + b * v for a, b in ((0.25, 0.25), (1.15, 0.25), (1.15, 0.95), (0.25, 0.95))]   # faces +x
+    ob = light_shape("Window", corners, [[0, 1, 2, 3]], emission("Window", (1.0, 0.95, 0.85), 12.0))
+    key_visibility(ob, [(3, 8)])
+    camera((5.6, 0.4, 1.7), (1.5, 3.5, 0.7), lens=20)
+    finish(scene, path, (1, 10))
+
+
 MAKERS = {"cornell": make_cornell, "moonlight": make_moonlight, "curtain": make_curtain,
-          "searchbeam": make_searchbeam, "office": make_office}
+          "searchbeam": make_searchbeam, "office": make_office, "furnished": make_furnished}
 
 
 def main(argv=None):

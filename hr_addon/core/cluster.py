@@ -88,7 +88,9 @@ class ClusterTree:
             perm[idx] = perm[idx[order]]
             key = key[order]
             half = 0.5 * (lo_s + hi_s)[np.arange(len(s)), axis]
-            mid = s + np.bincount(pos, weights=key < half[pos], minlength=len(s)).astype(np.int64)
+            ext = (hi_s - lo_s)[np.arange(len(s)), axis]
+            # centroids on the midplane (regular grids) go left at any scale
+            mid = s + np.bincount(pos, weights=key <= (half + 1e-9 * ext)[pos], minlength=len(s)).astype(np.int64)
             bad = (mid <= s) | (mid >= e)
             mid = np.where(bad, (s + e) // 2, mid)
             depth += 1
@@ -154,24 +156,24 @@ class ClusterTree:
         """(C, SLOTS) source slots of every cluster from L (K,), the radiance of the patch roots:
         the SH power coefficients sum A L Y(n) (the l = 1 part is the power vector sum A L n,
         times SH_C1), then the first moment of the l = 1 part about the cluster's centre,
-        sum A L Y1(n) (x - c) (3 components x 3 axes)."""
-        cs = np.zeros((self.K + 1, SLOTS))
-        Lp = L[self.perm, None]
-        np.cumsum(np.concatenate([self._aY * Lp, self._aY1x * Lp], 1), axis=0, out=cs[1:])
-        out = cs[self.end] - cs[self.start]
+        sum A L Y1(n) (x - c) (3 components x 3 axes). Leaf clusters sum their patches (their
+        ranges tile the tree order), the others their children, level by level."""
+        out = np.empty((self.C, SLOTS))
+        leaf, first = self._leaf_runs
+        out[leaf] = np.add.reduceat(self._aYT * L[self.perm], first, axis=1).T
+        for ids, kids in self._up:
+            out[ids] = out[kids].sum(1)
         out[:, 9:] -= (out[:, 1:4, None] * self.centre[:, None, :]).reshape(-1, 9)
         return out
 
     def distribute(self, E):
         """(K,) irradiance of every patch root from the clusters' gathered slots E (C, SLOTS):
-        summed over the patch's clusters (a difference array over their ranges), the SH
-        coefficients evaluated at the patch normal plus the l = 1 gradient terms at its centre."""
-        acc = np.zeros((self.K + 1, SLOTS))
-        for key, sign in ((self._by_start, 1.0), (self._by_end, -1.0)):
-            order, at, first = key
-            acc[at] += sign * np.add.reduceat(E[order], first, axis=0)
-        np.cumsum(acc, axis=0, out=acc)
-        acc = acc[:-1]
+        summed over the patch's clusters (root to leaf, level by level), the SH coefficients
+        evaluated at the patch normal plus the l = 1 gradient terms at its centre."""
+        acc = E.copy()
+        for ids, par in self._down:
+            acc[ids] += acc[par]
+        acc = acc[self._leaf_of_sorted]
         out = np.empty(self.K)
         out[self.perm] = (np.einsum("kj,kj->k", acc[:, :9], self._Y)
                           + np.einsum("kmj,km,kj->k", acc[:, 9:].reshape(-1, 3, 3), self._Y[:, 1:4], self._X))
@@ -179,9 +181,25 @@ class ClusterTree:
 
     def _transfer_tables(self, normal, area, centre):
         self._Y = sh9(normal[self.perm])
-        self._aY = self._Y * area[self.perm, None]
+        aY = self._Y * area[self.perm, None]
         self._X = centre[self.perm]
-        self._aY1x = (self._aY[:, 1:4, None] * self._X[:, None, :]).reshape(-1, 9)
+        aY1x = (aY[:, 1:4, None] * self._X[:, None, :]).reshape(-1, 9)
+        # level-by-level sums, deepest first: inner clusters by their number of children (two
+        # below the classes), children one level down
+        self._leaves = np.flatnonzero(self.is_leaf)
+        self._up = []
+        nk = self.child_start[1:] - self.child_start[:-1]
+        for ids in self.levels[::-1]:
+            inner = ids[~self.is_leaf[ids]]
+            for k in np.unique(nk[inner]):
+                sel = inner[nk[inner] == k]
+                self._up.append((sel, decode(self.child_ids[self.child_start[sel][:, None] + np.arange(k)])))
+        self._down = [(ids, self.parent[ids]) for ids in self.levels[1:]]
+        self._leaf_of_sorted = self.leaf_of[self.perm]
+        # patch weights of the source slots, slot-major for fast runs over the leaves' ranges
+        self._aYT = np.ascontiguousarray(np.concatenate([aY, aY1x], 1).T)
+        order = np.argsort(self.start[self._leaves], kind="stable")
+        self._leaf_runs = (self._leaves[order], self.start[self._leaves][order])
         keys = []
         for pos in (self.start, self.end):
             order = np.argsort(pos, kind="stable")
@@ -292,8 +310,11 @@ def faces(x: Ends, y: Ends):
     gap_front = _support(y.lo, y.hi, x.axis, -1) - _support(x.lo, x.hi, x.axis, +1)
     gap_back = _support(y.lo, y.hi, x.axis, +1) - _support(x.lo, x.hi, x.axis, -1)
     slack = x.sin_t * dmax
-    front = (x.cos_t > 0) & (gap_front * x.cos_t >= slack)
-    behind = (x.cos_t > 0) & (gap_back * x.cos_t + slack <= 0)
+    # touching (a box standing on the floor) is decided the same at any scale: gaps within
+    # rounding of zero count as in front, and as behind for what lies in the plane itself
+    tol = 1e-9 * dmax
+    front = (x.cos_t > 0) & (gap_front * x.cos_t >= slack - tol)
+    behind = (x.cos_t > 0) & (gap_back * x.cos_t + slack <= tol)
     return front, behind
 
 

@@ -40,12 +40,14 @@ class RefineParams:
     partial_feps: float = 0.5   # far links with a partly facing cluster end need F < partial_feps x feps
     cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
     cluster_leaf: int = 4       # most patches in a leaf cluster
+    ff_order: int = 3           # most Gauss points per side for a link's form factor (near pairs)
     vis_inherit: float = 0.3  # split pairs at most this size (radii / distance) pass on full or no visibility
 
     @staticmethod
     def preset(name):
         presets = {
-            "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3, cluster_veps=3e-3),
+            "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3, cluster_ratio=0.4,
+                                  cluster_veps=1e-2, vis_inherit=0.5),
             "medium": RefineParams(),
             "high": RefineParams(feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vcorr=1e-5,
                                  cluster_veps=2e-4),
@@ -171,8 +173,9 @@ def initial_pairs(h: Hierarchy, chunk=2_000_000):
     return np.concatenate(ps) if ps else np.zeros(0, np.int64), np.concatenate(qs) if qs else np.zeros(0, np.int64)
 
 
-def link_form_factors(h: Hierarchy, a, b):
-    """Unoccluded F[a->b] and F[b->a] by integrating from the smaller node to the larger."""
+def link_form_factors(h: Hierarchy, a, b, max_order=3):
+    """Unoccluded F[a->b] and F[b->a] by integrating from the smaller node to the larger, with
+    at most max_order x max_order Gauss points on it."""
     small = h.area[a] <= h.area[b]
     s, l = np.where(small, a, b), np.where(small, b, a)
     d2 = np.sum((h.centre[s] - h.centre[l]) ** 2, axis=1)
@@ -180,7 +183,7 @@ def link_form_factors(h: Hierarchy, a, b):
     # Gauss points by proximity: the contour integral over the large node is exact, the error comes
     # from the small node's extent, which matters only when it is close (3 x 3 Gauss: ~1e-4 on
     # touching unit squares, measured).
-    k = np.where(d2 < 4 * size2, 3, np.where(d2 < 40 * size2, 2, 1))
+    k = np.minimum(np.where(d2 < 4 * size2, 3, np.where(d2 < 40 * size2, 2, 1)), max_order)
     f_sl = np.zeros(len(s))
     for kk in (1, 2, 3):
         m = np.flatnonzero(k == kk)
@@ -345,7 +348,7 @@ class Refiner:
         f_ab, f_ba = np.empty(len(a)), np.empty(len(a))
         for i in range(0, len(a), CHUNK):
             sl = slice(i, i + CHUNK)
-            f_ab[sl], f_ba[sl] = link_form_factors(self.h, a[sl], b[sl])
+            f_ab[sl], f_ba[sl] = link_form_factors(self.h, a[sl], b[sl], self.params.ff_order)
         self.stats["t_ff"] += time.perf_counter() - t0
         # links too weak to need a shadow test need no more than a few rays either
         weak = np.maximum(f_ab, f_ba) < self.params.shadow_feps
