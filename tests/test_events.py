@@ -129,6 +129,23 @@ def test_cycles_with_refinement(base, incremental):
     assert rel(dyn.B, ref) < 1e-6
 
 
+@pytest.mark.parametrize("method", ["FE", "AR", "AUTO"])
+def test_a_moved_shape_equals_a_fresh_add_in_fewer_iterations(base, samples, method):
+    """A move starts the new response from the old one's scattered light (the nodes AR/AUTO
+    delete and split on the way are remapped): the result is a fresh add's, to the tolerance."""
+    pts, ids, _ = samples
+    moved = shape(S.window(0.2, 0.16, 0.02, centre=(0.31, 0.3), angle=0.3, shear=0.3), name="window")
+    dyn = DynamicRadiosity(base.copy(), method=method, cache_size=0)
+    dyn.apply({"w": WINDOW, "s": STAR})
+    rep = dyn.apply({"w": moved, "s": STAR})
+    assert [e.kind for e in rep.events] == ["reshape"]
+    fresh = DynamicRadiosity(base.copy(), method=method)
+    fresh.add("s", STAR)
+    ref = fresh.add("w", moved)
+    assert rel(dyn.evaluate(pts, ids)[0], fresh.evaluate(pts, ids)[0]) < 2e-6
+    assert rep.iterations < ref.iterations
+
+
 # -- FE / AR emission is exactly the shape's area x emission ------------------------------------------------
 CASES = {
     "rotated": (S.rect(0.2, 0.1, (0.3, 0.3), 0.7), GREEN),

@@ -29,8 +29,10 @@ Incremental solution (AR/FE/AUTO), `incremental=`:
 - "response" (default): the system is linear, so B = B_base + sum_s E_s * U_s with U_s the solution for
   shape s at unit emission (per channel). Adding a shape is one cold solve of its own response; a colour
   or intensity change is a scale, a removal drops a term: no solve, history independent (the sum is
-  recomputed, nothing is subtracted), radiance never negative. Responses stay valid when other shapes add or remove nodes below HR leaves (such nodes
-  carry no links: their solution is the parent's, extended by copy).
+  recomputed, nothing is subtracted), radiance never negative. A moved or reshaped shape's solve
+  starts from its old response's scattered light (equal to a fresh add to the tolerance). Responses
+  stay valid when other shapes add or remove nodes below HR leaves (such nodes carry no links: their
+  solution is the parent's, extended by copy).
 - "warm": one state, re-solved with the total emission, warm-started from the previous solution
   (solver.solve(B0=...)), as in the paper.
 Nodes below the HR leaves are reference-counted by the shapes that need them and deleted (Hierarchy.compact)
@@ -188,6 +190,7 @@ class DynamicRadiosity:
         self._op = None
         self._op_version = None
         self._naive = None                   # active NAIVE rebuild (_NaiveState) or None
+        self._guess = None                   # (3, n) first guess of a reshaped shape's response
         E0 = system.base_emission()
         self._Bbase, rep = self._solve(E0)
         self._X = self._Bbase.copy()          # warm mode state
@@ -247,8 +250,14 @@ class DynamicRadiosity:
                 continue
             same_geom = len(rec.rings) == len(rings) and all(np.array_equal(a, b) for a, b in zip(rec.rings, rings))
             if not same_geom:
-                r1 = self._remove(k)
-                r2 = self._add(k, LightShape(rings, em, name), validated=(rings, em, name))
+                # the new response is solved from the new emission plus the old one's scattered
+                # light: a moved shape lights the room much as before (fewer iterations)
+                self._guess = self._scattered(rec)
+                try:
+                    r1 = self._remove(k)
+                    r2 = self._add(k, LightShape(rings, em, name), validated=(rings, em, name))
+                finally:
+                    self._guess = None
                 r2.kind = "reshape"
                 r2.nodes_removed += r1.nodes_removed
                 r2.seconds += r1.seconds
@@ -541,7 +550,7 @@ class DynamicRadiosity:
             E = np.repeat(cov[None], 3, 0)
         if self.incremental == "warm":
             return 0
-        U, rep = self._solve(E)
+        U, rep = self._solve(E, B0=None if self._guess is None else E + self._guess, response=True)
         if rec.method == "AUTO":
             U = U + self._operator().pull(np.repeat(cov[None], 3, 0))
         rec.U = U
@@ -825,6 +834,8 @@ class DynamicRadiosity:
         self._Bbase = self._Bbase[:, keep]
         self._X = self._X[:, keep]
         self._B = self._B[:, keep] if self._B.shape[1] == n else self._B
+        if self._guess is not None:
+            self._guess = self._guess[:, keep]
         for rec in list(self.shapes.values()) + list(self._cache.values()) + list(extra):
             for name in ("U", "D"):
                 a = getattr(rec, name)
@@ -848,6 +859,8 @@ class DynamicRadiosity:
         self._Bbase = h.extend(self._Bbase)
         self._X = h.extend(self._X)
         self._B = h.extend(self._B)
+        if self._guess is not None:
+            self._guess = h.extend(self._guess)
         for rec in list(self.shapes.values()) + list(self._cache.values()) + list(extra):
             if rec.U is not None:
                 rec.U = h.extend(rec.U)
@@ -871,6 +884,17 @@ class DynamicRadiosity:
             s[m] = True
         return self._operator().pull(c[None].copy())[0]
 
+    def _scattered(self, rec):
+        """The part of rec's response carried by the links (its solve minus its emission), pulled:
+        a reshaped or moved shape's new response is solved from its new emission plus this."""
+        if rec.U is None or rec.used == "NAIVE" or self.incremental != "response":
+            return None
+        self._sync()
+        cov = self._coverage(rec)[None]
+        if rec.method == "AUTO":     # U = solve(push(D)) + pull(coverage)
+            return self._operator().pull(rec.U - cov - (self._push(rec.D) if rec.D is not None else 0.0))
+        return rec.U - cov
+
     def _push(self, D):
         h = self.system.h
         D = D.copy()
@@ -886,10 +910,11 @@ class DynamicRadiosity:
             self._op_version = h.version
         return self._op
 
-    def _solve(self, E, B0=None):
+    def _solve(self, E, B0=None, response=False):
         """Solve with non-negative emission; the exact solution is non-negative, so the solver's
-        tiny negative excursions (GMRES is not monotone) are clipped."""
-        B, rep = solve(self.system.h, self.links, E, B0=B0, tol=self.tol, op=self._operator())
+        tiny negative excursions (GMRES is not monotone) are clipped. response: a shape's response
+        (its power balance is not reported)."""
+        B, rep = solve(self.system.h, self.links, E, B0=B0, tol=self.tol, op=self._operator(), energy=not response)
         return np.maximum(B, 0.0), rep
 
 
