@@ -146,6 +146,19 @@ def test_a_moved_shape_equals_a_fresh_add_in_fewer_iterations(base, samples, met
     assert rep.iterations < ref.iterations
 
 
+@pytest.mark.parametrize("method", ["FE", "AUTO"])
+def test_live_response_settings_stay_at_float32_rounding(base, samples, method):
+    """Live's responses (tolerance 1e-5, float32 gathers) against the batch settings: within float32
+    rounding of the brightest value, in fewer iterations."""
+    pts, ids, _ = samples
+    batch = DynamicRadiosity(base.copy(), method=method)
+    live = DynamicRadiosity(base.copy(), method=method, response_tol=1e-5, response_float32=True)
+    rb, rl = batch.apply({"w": WINDOW, "s": STAR}), live.apply({"w": WINDOW, "s": STAR})
+    assert rel(live.evaluate(pts, ids)[0], batch.evaluate(pts, ids)[0]) < 1e-6
+    assert rl.iterations < rb.iterations
+    assert rel(live._Bbase, batch._Bbase) == 0.0         # the base solution keeps the batch settings
+
+
 # -- FE / AR emission is exactly the shape's area x emission ------------------------------------------------
 CASES = {
     "rotated": (S.rect(0.2, 0.1, (0.3, 0.3), 0.7), GREEN),

@@ -145,7 +145,7 @@ class DynamicRadiosity:
     def __init__(self, system: RadiositySystem, method="AUTO", min_area_rel=1e-5, node_budget=20000,
                  plane_tol=1e-3, incremental="response", emission_tol=0.05, bf_rel=3e-3,
                  naive_params=None, naive_offset=1e-4, cache_size=8,
-                 direct_min_area_rel=None):
+                 direct_min_area_rel=None, response_tol=None, response_float32=False):
         """system: a built RadiositySystem (its hierarchy is extended in place below the HR leaves).
         min_area_rel: smallest AR node, fraction of the total scene area. node_budget: most nodes one shape
         may add (AR/AUTO). plane_tol: distance tolerance of "planar" and "on a surface", fraction of
@@ -154,7 +154,10 @@ class DynamicRadiosity:
         below bf_rel (radiance per unit emitted radiance). direct_min_area_rel: smallest such receiver
         (and AUTO outline) node, default 4 x min_area_rel. incremental: "response" or "warm" (module
         doc). naive_params: RefineParams for NAIVE rebuilds (default: the system's). cache_size: removed
-        shapes whose responses need no extra nodes are kept for instant re-adding (0: off)."""
+        shapes whose responses need no extra nodes are kept for instant re-adding (0: off).
+        response_tol: solver tolerance of the shapes' responses (default: the system's, as the
+        base solution); response_float32: those solves gather in float32 (Live Relight, whose
+        output is float32, uses both: see docs/events.md)."""
         method = method.upper()
         if method not in METHODS:
             raise ValueError(f"Unknown method '{method}' (choose from {', '.join(METHODS)})")
@@ -168,6 +171,8 @@ class DynamicRadiosity:
         self.direct_min_area_rel = direct_min_area_rel if direct_min_area_rel is not None else 4 * min_area_rel
         self.naive_params, self.naive_offset, self.cache_size = naive_params, naive_offset, cache_size
         self.tol = system.tol
+        self.response_tol = response_tol if response_tol is not None else system.tol
+        self.response_float32 = response_float32
         self.links = system.links
         h = system.h
         self.n_hr = h.n
@@ -913,8 +918,12 @@ class DynamicRadiosity:
     def _solve(self, E, B0=None, response=False):
         """Solve with non-negative emission; the exact solution is non-negative, so the solver's
         tiny negative excursions (GMRES is not monotone) are clipped. response: a shape's response
-        (its power balance is not reported)."""
-        B, rep = solve(self.system.h, self.links, E, B0=B0, tol=self.tol, op=self._operator(), energy=not response)
+        (response_tol, response_float32; its power balance is not reported)."""
+        op = self._operator()
+        if response and self.response_float32:
+            op = op.float32()
+        B, rep = solve(self.system.h, self.links, E, B0=B0, tol=self.response_tol if response else self.tol, op=op,
+                       energy=not response)
         return np.maximum(B, 0.0), rep
 
 
