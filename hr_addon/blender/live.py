@@ -240,7 +240,7 @@ def _show_through_attribute(sess, scene, view_layer):
 
 
 def _restore(sess, scene):
-    objs = [o for o in (bpy.data.objects.get(n) for n in sess.targets) if o is not None and o.type == "MESH"]
+    objs = [o for o in playback.objects_by_name(scene, sess.targets).values() if o is not None and o.type == "MESH"]
     if sess.added_preview:
         preview.remove_preview(objs)
     has_bake = bool(playback.bake_dir_abs(scene))
@@ -388,8 +388,7 @@ def _deliver(sess, scene):
         sess.error = r.error
         return True
     problems = playback.apply_arrays(scene, r.values, sess.domain)
-    for name in r.values:
-        obj = scene.objects.get(name) or bpy.data.objects.get(name)
+    for obj in playback.objects_by_name(scene, r.values).values():
         if obj is not None and obj.type == "MESH":
             sess.own_writes.add(obj.data.name)
     sess.problems = "; ".join(problems)

@@ -149,8 +149,9 @@ def show_missing(scene, reader=None):
     names = list(reader.objects) if reader is not None else [
         o.name for o in scene.objects if o.type == "MESH" and ATTRIBUTE in o.data.color_attributes]
     done = set()
+    objs = objects_by_name(scene, names)
     for name in names:
-        obj = scene.objects.get(name) or bpy.data.objects.get(name)
+        obj = objs[name]
         if obj is None or obj.type != "MESH" or obj.mode == "EDIT" or obj.data.name in done:
             continue
         me = obj.data
@@ -214,12 +215,22 @@ def write_attribute(mesh, values, domain):
     state["written"].add(mesh.name)
 
 
+def objects_by_name(scene, names):
+    """{name: object or None} for names, from the scene's objects, else bpy.data's. One pass over
+    the scene: a collection's get() searches linearly (3 s per Live update of 3,882 objects)."""
+    found = {}
+    for o in scene.objects:
+        found.setdefault(o.name, o)
+    return {n: found.get(n) or bpy.data.objects.get(n) for n in names}
+
+
 def apply_arrays(scene, arrays, domain):
     """Write {object name: values} to the objects' meshes; returns the list of problems."""
     problems = []
     state["loaded"].pop(scene.name_full, None)
+    objs = objects_by_name(scene, arrays)
     for name, values in arrays.items():
-        obj = scene.objects.get(name) or bpy.data.objects.get(name)
+        obj = objs[name]
         if obj is None or obj.type != "MESH":
             problems.append(f"object '{name}' of the bake is missing")
             continue
@@ -281,8 +292,9 @@ def load_frame(scene, frame=None):
 
 
 def _attributes_present(scene, reader):
+    objs = objects_by_name(scene, reader.objects)
     for name in reader.objects:
-        obj = scene.objects.get(name) or bpy.data.objects.get(name)
+        obj = objs[name]
         if obj is None or obj.type != "MESH" or ATTRIBUTE not in obj.data.color_attributes:
             return False
     return True
