@@ -11,6 +11,7 @@ from hr_addon.core import shapes as S
 from hr_addon.core import formfactor as ff
 from hr_addon.core.events import DynamicRadiosity, LightShape, locate, surface_samples
 from hr_addon.core.geometry import InputError
+from hr_addon.core.output import loop_radiance
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 from hr_addon.core.solver import solve
@@ -355,6 +356,17 @@ def test_apply_diffs_frames(base):
     assert out.dtype == np.float32 and out.shape == (len(base.mesh.loop_verts), 3)
     pts = base.patches.corners.mean(1)
     assert dyn.radiance_at(pts, np.arange(len(pts))).shape == (len(pts), 3)
+
+
+def test_loop_radiance_plan_follows_the_hierarchy(base):
+    """loop_radiance() reuses its geometry plan while the hierarchy stays the same; AR splits and
+    deletes nodes on every event, so the plan must follow."""
+    dyn = DynamicRadiosity(base.copy(), method="AR", cache_size=0)
+    for shapes in ({}, {"w": WINDOW}, {"w": WINDOW, "s": STAR}, {"s": STAR}, {}):
+        dyn.apply(shapes)
+        for domain in ("CORNER", "CORNER", "POINT"):
+            np.testing.assert_array_equal(dyn.loop_radiance(domain),
+                                          loop_radiance(dyn.system.h, dyn.B, dyn.system.mesh, 30.0, domain))
 
 
 def test_naive_method_matches_its_own_rebuild(base, samples):

@@ -52,6 +52,7 @@ from . import clip
 from . import formfactor as ff
 from .geometry import InputError, MeshInput, _newell
 from .output import locate, radiance_at
+from .output import loop_plan as _loop_plan
 from .output import loop_radiance as _loop_radiance
 from .radiosity import RadiositySystem
 from .refine import link_form_factors
@@ -196,6 +197,7 @@ class DynamicRadiosity:
         self._op_version = None
         self._naive = None                   # active NAIVE rebuild (_NaiveState) or None
         self._guess = None                   # (3, n) first guess of a reshaped shape's response
+        self._plan = None                    # (key, output.loop_plan) of loop_radiance
         E0 = system.base_emission()
         self._Bbase, rep = self._solve(E0)
         self._X = self._Bbase.copy()          # warm mode state
@@ -221,7 +223,11 @@ class DynamicRadiosity:
         """(L, 3) float32 per input loop (or (V, 3) per vertex for domain='POINT') of the input mesh."""
         if self._naive is not None:
             return self._naive.loop_radiance(self.system.mesh, domain, smooth_angle)
-        return _loop_radiance(self.system.h, self._B, self.system.mesh, smooth_angle, domain)
+        h = self.system.h
+        key = (id(h), h.version, h.n, domain, smooth_angle)     # the plan depends on geometry only
+        if self._plan is None or self._plan[0] != key:
+            self._plan = (key, _loop_plan(h, self.system.mesh, smooth_angle, domain))
+        return _loop_radiance(h, self._B, self.system.mesh, smooth_angle, domain, plan=self._plan[1])
 
     def add(self, key, shape):
         t0 = time.perf_counter()
