@@ -11,7 +11,7 @@ from benchmarks import shapes as S
 from hr_addon.core import formfactor as ff
 from hr_addon.core.events import DynamicRadiosity, LightShape, locate, surface_samples
 from hr_addon.core.geometry import InputError, MeshInput
-from hr_addon.core.output import radiance_at
+from hr_addon.core.output import loop_radiance, radiance_at
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 from hr_addon.core.solver import solve
@@ -128,6 +128,36 @@ def test_cycles_with_refinement(base, incremental):
         assert dyn.B.min() >= 0.0
         assert (dyn.system.h.n, len(dyn.links)) == (n0, l0)
     assert rel(dyn.B, ref) < 1e-6
+
+
+@pytest.mark.parametrize("method", ["FE", "AR", "AUTO"])
+def test_a_moved_shape_equals_a_fresh_add_in_fewer_iterations(base, samples, method):
+    """A move starts the new response from the old one's scattered light (the nodes AR/AUTO
+    delete and split on the way are remapped): the result is a fresh add's, to the tolerance."""
+    pts, ids, _ = samples
+    moved = shape(S.window(0.2, 0.16, 0.02, centre=(0.31, 0.3), angle=0.3, shear=0.3), name="window")
+    dyn = DynamicRadiosity(base.copy(), method=method, cache_size=0)
+    dyn.apply({"w": WINDOW, "s": STAR})
+    rep = dyn.apply({"w": moved, "s": STAR})
+    assert [e.kind for e in rep.events] == ["reshape"]
+    fresh = DynamicRadiosity(base.copy(), method=method)
+    fresh.add("s", STAR)
+    ref = fresh.add("w", moved)
+    assert rel(dyn.evaluate(pts, ids)[0], fresh.evaluate(pts, ids)[0]) < 2e-6
+    assert rep.iterations < ref.iterations
+
+
+@pytest.mark.parametrize("method", ["FE", "AUTO"])
+def test_live_response_settings_stay_at_float32_rounding(base, samples, method):
+    """Live's responses (tolerance 1e-5, float32 gathers) against the batch settings: within float32
+    rounding of the brightest value, in fewer iterations."""
+    pts, ids, _ = samples
+    batch = DynamicRadiosity(base.copy(), method=method)
+    live = DynamicRadiosity(base.copy(), method=method, response_tol=1e-5, response_float32=True)
+    rb, rl = batch.apply({"w": WINDOW, "s": STAR}), live.apply({"w": WINDOW, "s": STAR})
+    assert rel(live.evaluate(pts, ids)[0], batch.evaluate(pts, ids)[0]) < 1e-6
+    assert rl.iterations < rb.iterations
+    assert rel(live._Bbase, batch._Bbase) == 0.0         # the base solution keeps the batch settings
 
 
 # -- FE / AR emission is exactly the shape's area x emission ------------------------------------------------
@@ -326,6 +356,17 @@ def test_apply_diffs_frames(base):
     assert out.dtype == np.float32 and out.shape == (len(base.mesh.loop_verts), 3)
     pts = base.patches.corners.mean(1)
     assert dyn.radiance_at(pts, np.arange(len(pts))).shape == (len(pts), 3)
+
+
+def test_loop_radiance_plan_follows_the_hierarchy(base):
+    """loop_radiance() reuses its geometry plan while the hierarchy stays the same; AR splits and
+    deletes nodes on every event, so the plan must follow."""
+    dyn = DynamicRadiosity(base.copy(), method="AR", cache_size=0)
+    for shapes in ({}, {"w": WINDOW}, {"w": WINDOW, "s": STAR}, {"s": STAR}, {}):
+        dyn.apply(shapes)
+        for domain in ("CORNER", "CORNER", "POINT"):
+            np.testing.assert_array_equal(dyn.loop_radiance(domain),
+                                          loop_radiance(dyn.system.h, dyn.B, dyn.system.mesh, 30.0, domain))
 
 
 def _wall_rect(y0, y1, z0, z1):

@@ -4,26 +4,28 @@
 Modules: props (Scene.hr / Object.hr), materials + scene_in (scene in), signatures (what a bake
 depends on), bake (the frame loop), texture (lightmap UV layers, texel plans, helper material),
 playback (HR_Radiance, handlers), preview, background + jobstatus (the interactive bake's worker
-process and its status file), interrupt (Ctrl-C / SIGTERM), ops, panels, cli.
+process and its status file), live + live_worker (Live Relight: the session and handlers, the
+worker thread, no bpy), interrupt (Ctrl-C / SIGTERM), ops, panels, cli.
 """
 _cli_handle = None
 
 
 def _modules():
-    from . import background, ops, panels, playback, props
-    return props, ops, panels, playback, background
+    from . import background, live, ops, panels, playback, props
+    return props, ops, panels, playback, background, live
 
 
 def register():
     global _cli_handle
     import bpy
     from . import cli
-    props, ops, panels, playback, background = _modules()
+    props, ops, panels, playback, background, live = _modules()
     props.register()
     for c in ops.classes + panels.classes:
         bpy.utils.register_class(c)
     playback.register()
     background.register()
+    live.register()
     if _cli_handle is None:
         _cli_handle = bpy.utils.register_cli_command("hr_bake", cli.cli_command)
     global _atexit_set
@@ -58,8 +60,9 @@ def _unregister_cli():
 
 def unregister():
     import bpy
-    props, ops, panels, playback, background = _modules()
+    props, ops, panels, playback, background, live = _modules()
     _unregister_cli()
+    live.unregister()
     background.unregister()
     playback.unregister()
     for c in reversed(ops.classes + panels.classes):

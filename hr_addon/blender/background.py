@@ -168,6 +168,8 @@ class BackgroundBake:
                 self.warnings += self._start_warnings
             except TextureError as exc:
                 raise SceneError(str(exc)) from None
+        from . import live
+        live.end_for_bake(scene)      # the bake shows its own result when it has finished
         self.tmp = Path(tempfile.mkdtemp(prefix="hr_bake_"))
         copy = str(self.tmp / (os.path.basename(self.blend) or "untitled.blend"))
         status_path = str(self.tmp / "status.json")

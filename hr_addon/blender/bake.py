@@ -249,6 +249,8 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         result.warnings[:] = log.texts()
         return new
 
+    from . import live
+    live.end_for_bake(scene)      # the bake shows its own result when it has finished
     playback.state["baking"] = True
     try:
         scene.frame_set(scene.frame_start)
@@ -265,21 +267,9 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         intr.check()
         geometry_sig = signatures.geometry_signatures(view_layer, depsgraph)
         shapes_id = signatures.light_shape_identity(view_layer)
-        # Objects far from the rest exchange practically no light with it; the area thresholds
-        # (Aeps, AR/AUTO's smallest element) are made relative to the rest only, so that the
-        # rest gets the same light with or without them.
-        extent = isolated_objects(scene_in.mesh)
-        area_ratio = extent.area_ratio
-        if extent.distant:
-            far = extent.distant
-            names = ", ".join(f"'{n}'" for n, _, _ in far[:5]) + (f" and {len(far) - 5} more" if len(far) > 5 else "")
-            near, farthest = _length(far[-1][1]), _length(far[0][1])
-            dist = farthest if near == farthest else f"{near} to {farthest}"
-            warn([f"{len(far)} object(s) lie far from the rest of the scene ({names}, {dist} away; the rest "
-                  f"is {_length(extent.main_size)} across): they "
-                  "exchange almost no light with it and do not change its element sizes. Exclude them "
-                  "(Object > HR Radiosity > Exclude) if they are not meant to be there."])
-            params = dataclasses.replace(params, aeps=params.aeps * area_ratio)
+        params, min_area_rel, far_warning = solver_setup(scene_in.mesh, params)
+        if far_warning:
+            warn([far_warning])
         has_shapes = bool(light_shape_objects(view_layer, include_hidden=True))
         npoly = len(scene_in.mesh.loop_start)
         total = end - start + 1
@@ -298,7 +288,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
             system = RadiositySystem(scene_in.mesh, params, progress=on_build)
             dyn = None
             if has_shapes:
-                dyn = DynamicRadiosity(system, method=method, min_area_rel=_MIN_AREA_REL * area_ratio)
+                dyn = DynamicRadiosity(system, method=method, min_area_rel=min_area_rel)
         result.build_seconds = time.perf_counter() - t0
         result.build_report = system.build
         result.rays = ray_backend_name(system)
@@ -403,6 +393,27 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         playback.load_frame(scene)
     result.seconds = time.perf_counter() - t_start
     return result
+
+
+def solver_setup(mesh, params):
+    """(params, min_area_rel, warning or '') for solving `mesh` (a core MeshInput), as every bake and
+    Live Relight set the solver up. Objects far from the rest exchange practically no light with
+    it; the area thresholds (Aeps, AR/AUTO's smallest element) are made relative to the rest only,
+    so that the rest gets the same light with or without them (the warning names them)."""
+    extent = isolated_objects(mesh)
+    area_ratio = extent.area_ratio
+    warning = ""
+    if extent.distant:
+        far = extent.distant
+        names = ", ".join(f"'{n}'" for n, _, _ in far[:5]) + (f" and {len(far) - 5} more" if len(far) > 5 else "")
+        near, farthest = _length(far[-1][1]), _length(far[0][1])
+        dist = farthest if near == farthest else f"{near} to {farthest}"
+        warning = (f"{len(far)} object(s) lie far from the rest of the scene ({names}, {dist} away; the rest "
+                   f"is {_length(extent.main_size)} across): they "
+                   "exchange almost no light with it and do not change its element sizes. Exclude them "
+                   "(Object > HR Radiosity > Exclude) if they are not meant to be there.")
+        params = dataclasses.replace(params, aeps=params.aeps * area_ratio)
+    return params, _MIN_AREA_REL * area_ratio, warning
 
 
 _MIN_AREA_REL = inspect.signature(DynamicRadiosity).parameters["min_area_rel"].default

@@ -1,5 +1,5 @@
 """Operators: bake (a background process with progress; Cancel keeps the previous bake), light
-shapes, preview, cache (reload, clear, delete)."""
+shapes, preview, cache (reload, clear, delete), Live Relight (toggle, synchronous update)."""
 import os
 import shutil
 
@@ -9,7 +9,7 @@ from bpy.props import BoolProperty
 from ..core.geometry import InputError
 from ..io.cache import MANIFEST, CacheError, CacheReader
 from ..lightmap.plan import TEX_DIR
-from . import background, playback, texture
+from . import background, live, playback, texture
 from .bake import run_bake
 from .preview import add_preview, has_preview, remove_preview
 from .scene_in import geometry_objects
@@ -331,5 +331,75 @@ class HR_OT_delete_bake(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class HR_OT_live_toggle(bpy.types.Operator):
+    """Live Relight: keep the hierarchy in memory and update HR_Radiance whenever a light shape is
+    moved, reshaped, recoloured, hidden or shown (press again: the baked playback comes back)"""
+    bl_idname = "hr.live_toggle"
+    bl_label = "Live Relight"
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        if context.scene is None or not hasattr(context.scene, "hr"):
+            return False
+        if live.bake_running() and not live.is_live(context.scene):
+            cls.poll_message_set(live.BAKE_RUNNING)
+            return False
+        return True
+
+    def execute(self, context):
+        scene = context.scene
+        if live.is_live(scene) or scene.hr.live:
+            what = live.stop(scene)
+            self.report({"INFO"}, f"Live Relight off: {what or 'it was not running'}")
+            _redraw(context)
+            return {"FINISHED"}
+        try:
+            if bpy.app.background:        # no event loop: build and compute here
+                scene.hr.live = True
+                live.update(scene, context.view_layer)
+                self.report({"INFO"}, "Live Relight on: HR_Radiance is current")
+            else:
+                live.start(scene, context.view_layer)
+                self.report({"INFO"}, "Live Relight on: building the hierarchy in the background")
+        except (InputError, RuntimeError, ValueError) as exc:
+            self.report({"ERROR"}, f"Live Relight: {exc}")
+            return {"CANCELLED"}
+        _redraw(context)
+        return {"FINISHED"}
+
+
+class HR_OT_live_update(bpy.types.Operator):
+    """Make HR_Radiance current for Live Relight now: read every light shape (hide_render: on or
+    off) and the geometry, apply what changed since the last update and write HR_Radiance. It
+    starts Live when Scene.hr.live is on, and ends it (the baked playback again) when it is off.
+    Synchronous: what scripts and Blender in background mode use"""
+    bl_idname = "hr.live_update"
+    bl_label = "Update Live Relight"
+    bl_options = {"REGISTER"}
+
+    check_geometry: BoolProperty(
+        name="Check Geometry", default=True,
+        description="Compare every participating object with the geometry the hierarchy was built "
+                    "from (off: only which objects take part and what the depsgraph reported as "
+                    "changed; faster on big scenes)")
+
+    @classmethod
+    def poll(cls, context):
+        return context.scene is not None and hasattr(context.scene, "hr")
+
+    def execute(self, context):
+        scene = context.scene
+        try:
+            sess, what = live.update(scene, context.view_layer, check_geometry=self.check_geometry)
+        except (InputError, RuntimeError, ValueError) as exc:
+            self.report({"ERROR"}, f"Live Relight: {exc}")
+            return {"CANCELLED"}
+        if sess is None:
+            self.report({"INFO"} if scene.hr.live or what.startswith("Live Relight off") else {"WARNING"}, what)
+            return {"FINISHED"} if what.startswith("Live Relight off") else {"CANCELLED"}
+        return {"FINISHED"}
+
+
 classes = (HR_OT_bake, HR_OT_cancel_bake, HR_OT_mark_light_shape, HR_OT_add_preview, HR_OT_remove_preview,
-           HR_OT_load_frame, HR_OT_clear_bake, HR_OT_delete_bake)
+           HR_OT_load_frame, HR_OT_clear_bake, HR_OT_delete_bake, HR_OT_live_toggle, HR_OT_live_update)

@@ -2,7 +2,7 @@
 3D View sidebar tab "HR"."""
 import bpy
 
-from . import background, playback
+from . import background, live, playback
 
 
 def _draw_bake(layout, context):
@@ -18,6 +18,7 @@ def _draw_bake(layout, context):
         row = col.row()
         row.scale_y = 1.4
         row.operator("hr.bake", icon="RENDER_ANIMATION")
+    _draw_live(col, scene)
     d = playback.bake_dir_abs(scene)
     if d:
         col.label(text=f"Cache: {hr.bake_dir or d}", icon="FILE_CACHE")
@@ -41,6 +42,26 @@ def _draw_bake(layout, context):
     row.operator("hr.load_frame", text="", icon="FILE_REFRESH")
     row.operator("hr.clear_bake", text="", icon="X")
     row.operator("hr.delete_bake", text="", icon="TRASH")
+
+
+def _draw_live(col, scene):
+    """The Live Relight button, the build's progress bar and the session's state."""
+    sess = live.session(scene)
+    row = col.row(align=True)
+    row.operator("hr.live_toggle", text="Live Relight", icon="LIGHT_AREA", depress=sess is not None)
+    if sess is None:
+        msg = live.message(scene)
+        for i, line in enumerate(_wrap(msg, 60) if msg else []):
+            col.label(text=line, icon="INFO" if i == 0 else "BLANK1")
+        return
+    if sess.building:
+        w = sess.worker
+        eta = "" if w.eta != w.eta else f" \u00b7 about {w.eta:.0f} s left"
+        col.progress(factor=w.fraction, type="BAR", text=f"{100 * w.fraction:.0f}% \u00b7 building the hierarchy{eta}")
+    icon = "ERROR" if (sess.error or sess.fatal or sess.problems) else "INFO"
+    for part in [sess.text()] + ([sess.problems] if sess.problems else []) + sess.light_notes[:2]:
+        for i, line in enumerate(_wrap(part, 60)):
+            col.label(text=line, icon=icon if i == 0 else "BLANK1")
 
 
 def _wrap(text, width):

@@ -21,9 +21,10 @@ MAGENTA = (1.0, 0.0, 1.0, 1.0)
 # Set while a bake runs: the bake moves through frames itself, playback must not interfere.
 # messages: load problems per scene; stale: "the scene changed" per scene; changes: memo of the
 # last check (key, message); dirty: scenes edited since; written: meshes whose HR_Radiance we
-# wrote (their next depsgraph update is ours, not an edit).
+# wrote (their next depsgraph update is ours, not an edit); live: scenes whose HR_Radiance Live
+# Relight writes (live.py; playback leaves them alone, except during renders).
 state = {"baking": False, "messages": {}, "readers": {}, "loaded": {}, "stale": {}, "changes": {},
-         "dirty": set(), "written": set(), "image_checks": {}, "notes": {}}
+         "dirty": set(), "written": set(), "image_checks": {}, "notes": {}, "live": set()}
 
 LOCK_MESSAGE = ("Frames are not loaded during this render: turn on Render > Lock Interface "
                 "(changing mesh data during a render is unsafe).")
@@ -148,8 +149,9 @@ def show_missing(scene, reader=None):
     names = list(reader.objects) if reader is not None else [
         o.name for o in scene.objects if o.type == "MESH" and ATTRIBUTE in o.data.color_attributes]
     done = set()
+    objs = objects_by_name(scene, names)
     for name in names:
-        obj = scene.objects.get(name) or bpy.data.objects.get(name)
+        obj = objs[name]
         if obj is None or obj.type != "MESH" or obj.mode == "EDIT" or obj.data.name in done:
             continue
         me = obj.data
@@ -213,12 +215,22 @@ def write_attribute(mesh, values, domain):
     state["written"].add(mesh.name)
 
 
+def objects_by_name(scene, names):
+    """{name: object or None} for names, from the scene's objects, else bpy.data's. One pass over
+    the scene: a collection's get() searches linearly (3 s per Live update of 3,882 objects)."""
+    found = {}
+    for o in scene.objects:
+        found.setdefault(o.name, o)
+    return {n: found.get(n) or bpy.data.objects.get(n) for n in names}
+
+
 def apply_arrays(scene, arrays, domain):
     """Write {object name: values} to the objects' meshes; returns the list of problems."""
     problems = []
     state["loaded"].pop(scene.name_full, None)
+    objs = objects_by_name(scene, arrays)
     for name, values in arrays.items():
-        obj = scene.objects.get(name) or bpy.data.objects.get(name)
+        obj = objs[name]
         if obj is None or obj.type != "MESH":
             problems.append(f"object '{name}' of the bake is missing")
             continue
@@ -280,8 +292,9 @@ def load_frame(scene, frame=None):
 
 
 def _attributes_present(scene, reader):
+    objs = objects_by_name(scene, reader.objects)
     for name in reader.objects:
-        obj = scene.objects.get(name) or bpy.data.objects.get(name)
+        obj = objs[name]
         if obj is None or obj.type != "MESH" or ATTRIBUTE not in obj.data.color_attributes:
             return False
     return True
@@ -293,9 +306,14 @@ def render_unlocked(scene):
             and bpy.app.is_job_running("RENDER"))
 
 
+def live_shown(scene):
+    """True while Live Relight shows its own light on scene (live.py); renders play the bake back."""
+    return scene.name_full in state.get("live", ()) and not bpy.app.is_job_running("RENDER")
+
+
 @persistent
 def on_frame_change_pre(scene, *args):
-    if state["baking"] or not scene.hr.playback:
+    if state["baking"] or not scene.hr.playback or live_shown(scene):
         return
     if render_unlocked(scene):
         _log_once(scene, LOCK_MESSAGE)     # printed once, and shown in the panel

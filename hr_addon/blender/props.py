@@ -65,6 +65,11 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
                              description="Cache directory of the last bake (empty: not baked)")
     playback: BoolProperty(name="Playback", default=True,
                            description="Load the baked radiance into HR_Radiance on frame change")
+    # Live Relight (live.py). No update callback (see quality): the "Live Relight" button
+    # (hr.live_toggle), hr.live_update and, in the UI, a timer act on it.
+    live: BoolProperty(name="Live Relight", default=False,
+                       description="Keep the hierarchy in memory and update HR_Radiance in the viewport "
+                                   "whenever a light shape is edited (off: the baked playback again)")
 
 
 class HR_ObjectSettings(bpy.types.PropertyGroup):

@@ -413,12 +413,18 @@ def mesh_outlines(em: EvalMesh):
     return out
 
 
-def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None):
-    """{stable id: LightShape} of the light shapes active in the current (evaluated) frame."""
+def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objects=None):
+    """{stable id: LightShape} of the light shapes active in the current (evaluated) frame.
+
+    objects: the light-shape objects of view_layer if the caller knows them (Live Relight between
+    two edits of known shapes: walking every collection of a big scene costs more than reading the
+    shapes); default: light_shape_objects(view_layer)."""
     shapes = {}
     mat_cache = {}
     warnings = [] if warnings is None else warnings
-    for obj in light_shape_objects(view_layer):
+    for obj in (light_shape_objects(view_layer) if objects is None else objects):
+        if obj.type != "MESH" or not obj.hr.is_light_shape or obj.hr.exclude or obj.hide_render:
+            continue
         ob = obj.evaluated_get(depsgraph)
         if ob.hide_render:
             continue

@@ -20,8 +20,24 @@ def _weld_ids(mesh: MeshInput, loop_obj):
     return np.unique(key, axis=0, return_inverse=True)[1].ravel()
 
 
-def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="CORNER"):
-    """Radiance (L, 3) per input loop (CORNER) or (V, 3) per input vertex (POINT), float32."""
+def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="CORNER", plan=None):
+    """Radiance (L, 3) per input loop (CORNER) or (V, 3) per input vertex (POINT), float32.
+    plan: loop_plan() of the same arguments and hierarchy state, reused (it is nearly all the cost)."""
+    leaf, li, w, den, n = plan or loop_plan(h, mesh, smooth_angle, domain)
+    num = np.zeros((n, 3))
+    for c in range(3):
+        num[:, c] = np.bincount(li, weights=w * B[c, leaf], minlength=n)
+    out = num / np.maximum(den, 1e-300)[:, None]
+    if domain == "POINT":
+        res = np.zeros((len(mesh.verts), 3))
+        res[mesh.loop_verts] = out
+        return res.astype(np.float32)
+    return out.astype(np.float32)
+
+
+def loop_plan(h: Hierarchy, mesh: MeshInput, smooth_angle=30.0, domain="CORNER"):
+    """What loop_radiance() weighs, independent of B: (leaf, output index, weight) per (loop,
+    patch corner) pair, the weight sums and the number of welded loops."""
     pt = h.patches
     K = len(pt.nv)
     P = len(mesh.loop_start)
@@ -32,14 +48,13 @@ def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="C
     v2w = np.full(len(mesh.verts), -1, np.int64)
     v2w[mesh.loop_verts] = weld
 
-    # Table of patch corners: weld id, value, weight, normal.
+    # Table of patch corners: weld id, weight, normal.
     jj, kk = np.nonzero(pt.vert_index >= 0)
     leaf = np.empty(len(jj), np.int64)
     for k in range(4):
         m = kk == k
         leaf[m] = h.leaf_at_corner(jj[m], k)
     w_id = v2w[pt.vert_index[jj, kk]]
-    val = B[:, leaf].T
     wgt = h.area[leaf]
     nrm = pt.normal[jj]
 
@@ -62,16 +77,7 @@ def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="C
         pn = poly_normal[loop_poly[li]]
         ok = (np.einsum("ij,ij->i", pn, nrm[ci]) >= np.cos(np.radians(smooth_angle))) | ~pn.any(1)
     w = wgt[ci] * ok
-    num = np.zeros((len(weld), 3))
-    for c in range(3):
-        num[:, c] = np.bincount(li, weights=w * val[ci, c], minlength=len(weld))
-    den = np.bincount(li, weights=w, minlength=len(weld))
-    out = num / np.maximum(den, 1e-300)[:, None]
-    if domain == "POINT":
-        res = np.zeros((len(mesh.verts), 3))
-        res[mesh.loop_verts] = out
-        return res.astype(np.float32)
-    return out.astype(np.float32)
+    return leaf[ci], li, w, np.bincount(li, weights=w, minlength=len(weld)), len(weld)
 
 
 def _insideness(c, nrm, pts):

@@ -1,0 +1,340 @@
+"""Live Relight benchmark: time per light-shape edit, in bpy, through the extension's own Live code.
+
+    .venv/bin/python benchmarks/bench_live.py [--quality draft,medium] [--methods FE,AUTO]
+                                              [--furnished] [--furnished-quality draft] [--out benchmarks/out]
+    .venv/bin/python benchmarks/bench_live.py --plot          # chart and table from the JSON only
+
+Scenes: the Cornell sample (sample_blends/cornell.blend: its window stays on, the back-wall patch is
+edited) and, with --furnished, the furnished room of benchmarks/furnished.py (furnished_room("100k"):
+~100k triangles, 3,882 objects, made into Blender objects here; a window on the west wall is edited).
+
+Each run turns Live on (hr.live_update, which builds the hierarchy), then makes a fixed sequence
+of edits of one light shape: drag steps across its wall, scaling, rotation in its plane, a
+reshape (a corner moved), strength and colour changes, hide / show. Per edit it measures, with
+time.perf_counter():
+  - `ui`: what the interactive path does after the depsgraph handler fired: read the light shapes
+    and hand them over (main thread), the worker's DynamicRadiosity.apply + per-object values
+    (`apply`, `output`), writing HR_Radiance (main thread). The timer's polling interval (20 ms)
+    and the viewport redraw are not included;
+  - `op`: the same edits again through bpy.ops.hr.live_update() (the synchronous entry point),
+    which also compares every participating object with the hierarchy's geometry (signatures);
+  - `op_fast`: again with hr.live_update(check_geometry=False) (only which objects take part and
+    what the depsgraph reported are compared).
+Medians and 95th percentiles per edit kind and over all edits go to benchmarks/out/live.json and
+benchmarks/live_edits.png. Timings are wall seconds on this machine; other jobs sharing the two
+cores make them noisy. Benchmarks print and plot; no test asserts on time.
+"""
+import argparse
+import json
+import math
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+OUT = ROOT / "benchmarks" / "out"
+TARGETS = {("cornell", "draft"): 0.030, ("cornell", "medium"): 0.100, ("furnished_100k", "draft"): 0.300,
+           ("furnished_100k", "medium"): 0.300}
+
+
+# -- scenes --------------------------------------------------------------------------------------
+def open_cornell(tmp):
+    import bpy
+    path = Path(tmp) / "cornell.blend"
+    shutil.copy(ROOT / "sample_blends" / "cornell.blend", path)
+    bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
+    scene = bpy.context.scene
+    for o in scene.objects:
+        if o.hr.is_light_shape:
+            o.animation_data_clear()
+            o.hide_render = False
+    patch = bpy.data.objects["Back Patch"]
+    _origin_to_centre(patch)
+    # the patch slides along the back wall (plane y = 0.5592, normal -y): x in the wall, z up
+    return scene, patch, "EMISSION", np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 0.016
+
+
+def make_furnished(tmp, size="100k"):
+    """The furnished room as Blender objects (one per object of the core builder, materials shared
+    per distinct colour), a window light shape on the west wall."""
+    import bpy
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from benchmarks.furnished import furnished_room
+    import make_samples as ms
+    mesh, info = furnished_room(size)
+    ms.reset()
+    mats = {}
+    order = np.argsort(mesh.object_id, kind="stable")
+    bounds = np.searchsorted(mesh.object_id[order], np.arange(len(mesh.object_names) + 1))
+    for k, name in enumerate(mesh.object_names):
+        polys = order[bounds[k]:bounds[k + 1]]
+        if not len(polys):
+            continue
+        loops = [mesh.loop_verts[mesh.loop_start[p]:mesh.loop_start[p] + mesh.loop_total[p]] for p in polys]
+        used = np.unique(np.concatenate(loops))
+        remap = np.full(len(mesh.verts), -1, np.int64)
+        remap[used] = np.arange(len(used))
+        rho, em = tuple(np.round(mesh.reflectance[polys[0]], 6)), tuple(np.round(mesh.emission[polys[0]], 6))
+        key = (rho, em)
+        if key not in mats:
+            if max(em) > 0:
+                s = max(em)
+                mats[key] = ms.principled(f"m{len(mats)}", rho, tuple(e / s for e in em), s)
+            else:
+                mats[key] = ms.diffuse(f"m{len(mats)}", rho)
+        ms.mesh_object(name, mesh.verts[used], [remap[lp].tolist() for lp in loops], mats[key])
+    wall, (o, u, v) = info["light_wall"]
+    c = o + 0.6 * u + 0.5 * v
+    w, h = 0.9, 0.7
+    corners = [c - w / 2 * u - h / 2 * v, c + w / 2 * u - h / 2 * v, c + w / 2 * u + h / 2 * v, c - w / 2 * u + h / 2 * v]
+    win = ms.light_shape("Window", [tuple(p - c) for p in corners], [[0, 1, 2, 3]],
+                         ms.emission("Window Light", (1.0, 0.95, 0.85), 20.0), location=tuple(c))
+    scene = bpy.context.scene
+    path = Path(tmp) / f"furnished_{size}.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), check_existing=False)
+    return scene, win, "EMISSION", u, np.cross(u, v), 0.05, info
+
+
+def _origin_to_centre(obj):
+    """Put the object's origin at its mesh's centre (so it rotates and scales about itself)."""
+    me = obj.data
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3).astype(np.float64)
+    c = co.mean(0)
+    me.vertices.foreach_set("co", (co - c).astype(np.float32).ravel())
+    me.update()
+    obj.location = tuple(np.asarray(obj.location) + c)
+
+
+# -- edits ---------------------------------------------------------------------------------------
+def edit_sequence(obj, kind, along, normal, step, drag=24):
+    """[(kind, callable)] of edits of one light shape: drag steps in its plane (first along
+    `along`, then across it: every position a new one, so no response is reused from the cache of
+    recently removed shapes), scale, rotate about its normal, reshape, strength, colour, hide / show
+    (these last ones do reuse the cached response: a shape switched back on)."""
+    from mathutils import Matrix, Vector
+    node = next(n for n in obj.data.materials[0].node_tree.nodes if n.type == kind)
+    strength = node.inputs["Strength"]
+    colour = node.inputs["Color"]
+    up = np.cross(normal, along)
+    edits = []
+    for i in range(drag):
+        d = step * along if i < drag // 2 else 0.5 * step * up
+        edits.append(("move", lambda d=d: setattr(obj, "location", Vector(obj.location) + Vector(d))))
+    for f in (1.1, 1.1, 0.9, 0.9, 1.05, 0.95):
+        edits.append(("scale", lambda f=f: setattr(obj, "scale", Vector(obj.scale) * f)))
+    for a in (8, 8, -8, -8, 5, -5):
+        R = Matrix.Rotation(math.radians(a), 4, Vector(normal))
+
+        def rot(R=R):
+            obj.matrix_world = Matrix.Translation(obj.matrix_world.translation) @ R @ \
+                Matrix.Translation(-obj.matrix_world.translation) @ obj.matrix_world
+        edits.append(("rotate", rot))
+    for d in (0.3, -0.3, 0.2, -0.2):
+        def reshape(d=d):
+            v = obj.data.vertices[2]
+            v.co = Vector(v.co) + Vector(d * step * np.array([1.0, 1.0, 1.0]) * (along + np.cross(normal, along)))
+            obj.data.update()
+        edits.append(("reshape", reshape))
+    for s in (1.5, 0.8, 1.2, 0.9, 1.1, 0.7):
+        edits.append(("strength", lambda s=s: setattr(strength, "default_value", strength.default_value * s)))
+    for c in ((1.0, 0.6, 0.4), (0.5, 0.7, 1.0), (1.0, 1.0, 0.8), (0.8, 1.0, 0.8)):
+        edits.append(("colour", lambda c=c: setattr(colour, "default_value", (*c, 1.0))))
+    for _ in range(3):
+        edits.append(("hide", lambda: setattr(obj, "hide_render", True)))
+        edits.append(("show", lambda: setattr(obj, "hide_render", False)))
+    return edits
+
+
+def _stats(xs):
+    xs = np.asarray(xs, float)
+    return {"n": int(len(xs)), "median": float(np.median(xs)), "p95": float(np.percentile(xs, 95)),
+            "max": float(xs.max())}
+
+
+def run(scene_name, quality, method, furnished_size="100k"):
+    import bpy
+    import hr_addon
+    if not hasattr(bpy.types.Scene, "hr"):
+        hr_addon.register()
+    from hr_addon.blender import live
+    tmp = tempfile.mkdtemp(prefix="hr_bench_live_")
+    try:
+        info = {}
+        if scene_name == "cornell":
+            scene, obj, kind, along, normal, step = open_cornell(tmp)
+        else:
+            t0 = time.perf_counter()
+            scene, obj, kind, along, normal, step, info = make_furnished(tmp, furnished_size)
+            info = {"scene_seconds": time.perf_counter() - t0, **info}
+            info.pop("light_wall", None)
+        scene.hr.method = method
+        scene.hr.quality = quality.upper()
+        vl = bpy.context.view_layer
+        scene.hr.live = True
+        t0 = time.perf_counter()
+        assert bpy.ops.hr.live_update() == {"FINISHED"}
+        first = time.perf_counter() - t0
+        sess = live.session(scene)
+        w = sess.worker
+        out = {"scene": scene_name, "quality": quality, "method": method, "first_update_s": first,
+               "build_s": w.build_seconds, "nodes": int(w.dyn.h.n), "links": int(len(w.dyn.links)),
+               "polygons": int(w.spec.polygons), "edits": {}, **info}
+        start = (np.array(obj.location), tuple(obj.rotation_euler), tuple(obj.scale))
+        for m, mode in enumerate(("ui", "op", "op_fast")):
+            # each pass starts a third of a step further across: its positions are new ones
+            obj.location, obj.rotation_euler, obj.scale = start[0] - m / 3 * step * np.cross(normal, along), *start[1:]
+            assert bpy.ops.hr.live_update() == {"FINISHED"}
+            rows = []
+            for k, edit in edit_sequence(obj, kind, along, normal, step):
+                edit()
+                if mode == "ui":
+                    bpy.context.view_layer.update()          # the depsgraph handler fires, as in the UI
+                    t0 = time.perf_counter()
+                    live._reconcile(sess, scene, vl, check_geometry=False, fast=True)   # as the timer
+                    t1 = time.perf_counter()
+                    w.flush()
+                    t2 = time.perf_counter()
+                    live._deliver(sess, scene)
+                    t3 = time.perf_counter()
+                    assert not sess.error and not sess.problems, (sess.error, sess.problems)
+                    r = sess.last
+                    rows.append({"kind": k, "total": t3 - t0, "read": t1 - t0, "apply": r.t_apply,
+                                 "output": r.t_output, "write": t3 - t2,
+                                 "events": [e.kind for e in r.report.events],
+                                 "iterations": int(r.report.iterations)})
+                else:
+                    t0 = time.perf_counter()
+                    assert bpy.ops.hr.live_update(check_geometry=(mode == "op")) == {"FINISHED"}
+                    rows.append({"kind": k, "total": time.perf_counter() - t0})
+            kinds = sorted({r["kind"] for r in rows}, key=[r["kind"] for r in rows].index)
+            res = {"all": _stats([r["total"] for r in rows])}
+            res.update({k: _stats([r["total"] for r in rows if r["kind"] == k]) for k in kinds})
+            if mode == "ui":
+                for part in ("read", "apply", "output", "write"):
+                    res[f"part_{part}"] = _stats([r[part] for r in rows])
+                res["moves_iterations"] = _stats([r["iterations"] for r in rows if r["kind"] == "move"])
+                out["rows"] = rows
+            out["edits"][mode] = res
+            print(f"{scene_name} {quality} {method} [{mode}] per edit: median {1000 * res['all']['median']:.1f} ms, "
+                  f"p95 {1000 * res['all']['p95']:.1f} ms; move median {1000 * res['move']['median']:.1f} ms",
+                  flush=True)
+        scene.hr.live = False
+        bpy.ops.hr.live_update()
+        return out
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+# -- report --------------------------------------------------------------------------------------
+def table(results):
+    """Markdown: per scene / quality / method, median / p95 ms of each edit kind (the UI path), of
+    all edits, and of all edits through hr.live_update() (with and without the geometry check)."""
+    kinds = ("move", "scale", "rotate", "reshape", "strength", "colour", "hide", "show")
+    lines = ["| scene | quality | method | build | all edits | " + " | ".join(kinds) +
+             " | hr.live_update() | same, check_geometry=False | target (p95) |",
+             "|---" * (9 + len(kinds)) + "|"]
+
+    def ms(s):
+        return f"{1000 * s:.0f}" if s >= 0.0095 else f"{1000 * s:.1f}"
+
+    def mp(st):
+        return f"{ms(st['median'])} / {ms(st['p95'])}"
+
+    for r in results:
+        e, o, f = r["edits"]["ui"], r["edits"]["op"], r["edits"]["op_fast"]
+        tgt = TARGETS.get((r["scene"], r["quality"]))
+        met = "" if tgt is None else f"{ms(tgt)} ({'met' if e['all']['p95'] <= tgt else 'not met'})"
+        lines.append(f"| {r['scene']} | {r['quality']} | {r['method']} | {r['build_s']:.1f} s | {mp(e['all'])} | " +
+                     " | ".join(mp(e[k]) for k in kinds) + f" | {mp(o['all'])} | {mp(f['all'])} | {met} |")
+    return "\n".join(lines)
+
+
+def plot(results, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    labels, med, p95, tg = [], [], [], []
+    kinds = ("move", "scale", "rotate", "reshape", "strength", "colour", "hide", "show")
+    fig, axes = plt.subplots(1, 2, figsize=(12, 0.55 * len(results) + 2.8), gridspec_kw={"width_ratios": [1, 1.4]})
+    for r in results:
+        e = r["edits"]["ui"]
+        labels.append(f"{r['scene']} {r['quality']} {r['method']}")
+        med.append(1000 * e["all"]["median"])
+        p95.append(1000 * e["all"]["p95"])
+        tg.append(1000 * TARGETS.get((r["scene"], r["quality"]), float("nan")))
+    y = np.arange(len(results))
+    ax = axes[0]
+    ax.barh(y, med, color="#4c72b0", label="median")
+    ax.scatter(p95, y, color="k", marker="|", s=200, label="95th percentile", zorder=3)
+    ax.scatter(tg, y, color="#c44e52", marker="x", s=60, label="target", zorder=3)
+    ax.set_yticks(y, labels)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    ax.set_xlabel("ms per edit (read shapes + light events + write HR_Radiance)")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=8)
+    ax.set_title("All edits")
+    ax = axes[1]
+    width = 0.8 / len(kinds)
+    for j, k in enumerate(kinds):
+        vals = [1000 * r["edits"]["ui"][k]["median"] for r in results]
+        ax.barh(y + (j - len(kinds) / 2 + 0.5) * width, vals, height=width, label=k)
+    ax.set_yticks(y, [""] * len(y))
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    ax.set_xlabel("median ms per edit, by kind")
+    ax.legend(fontsize=7, ncol=8, loc="upper center", bbox_to_anchor=(0.5, -0.16))
+    ax.set_title("By edit kind")
+    fig.suptitle("Live Relight: time per light-shape edit (benchmarks/bench_live.py)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"wrote {path}", flush=True)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quality", default="draft,medium")
+    ap.add_argument("--methods", default="FE,AUTO")
+    ap.add_argument("--furnished", action="store_true", help="also the furnished 100k-triangle room (slow build)")
+    ap.add_argument("--furnished-quality", default="draft")
+    ap.add_argument("--furnished-methods", default="FE")
+    ap.add_argument("--skip-cornell", action="store_true")
+    ap.add_argument("--out", default=str(OUT))
+    ap.add_argument("--plot", action="store_true", help="only redraw the chart and table from the JSON")
+    args = ap.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    jpath = out / "live.json"
+    old = json.loads(jpath.read_text()) if jpath.exists() else {"runs": []}
+    if not args.plot:
+        runs = []
+        if not args.skip_cornell:
+            for q in args.quality.split(","):
+                for m in args.methods.split(","):
+                    runs.append(run("cornell", q, m))
+        if args.furnished:
+            for q in args.furnished_quality.split(","):
+                for m in args.furnished_methods.split(","):
+                    runs.append(run("furnished_100k", q, m))
+        keep = [r for r in old["runs"] if (r["scene"], r["quality"], r["method"]) not in
+                {(n["scene"], n["quality"], n["method"]) for n in runs}]
+        old = {"machine": f"{platform.machine()} {os.cpu_count()} cores, {platform.python_version()}",
+               "date": time.strftime("%Y-%m-%d"), "runs": keep + runs}
+        jpath.write_text(json.dumps(old, indent=1))
+        print(f"wrote {jpath}")
+    order = {"cornell": 0, "furnished_100k": 1}
+    res = sorted(old["runs"], key=lambda r: (order.get(r["scene"], 9), r["quality"] != "draft", r["method"]))
+    print(table(res))
+    plot(res, ROOT / "benchmarks" / "live_edits.png")
+
+
+if __name__ == "__main__":
+    main()
