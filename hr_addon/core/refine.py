@@ -337,6 +337,7 @@ class Refiner:
                                 np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()]),
                                 np.concatenate([np.repeat(kn[split_p], 4), np.repeat(kn[split_q], 4)])))
         self.stats["t_refine"] += time.perf_counter() - t0
+        self.progress.done("linking")   # every phase reports its end, however fast it was
         return self._finish(out)
 
     def _finish(self, out):
