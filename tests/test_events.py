@@ -1,4 +1,4 @@
-"""Dynamic light shapes (hr_addon/core/events.py): NAIVE, AR, FE, AUTO.
+"""Dynamic light shapes (hr_addon/core/events/): NAIVE, AR, FE, AUTO.
 
 One coarse Cornell box is built once; every test works on a clone (the hierarchy is extended in place).
 """

@@ -91,9 +91,6 @@ def newell(p):
                      np.sum((p[..., 0] - q[..., 0]) * (p[..., 1] + q[..., 1]), -1)], -1)
 
 
-_newell = newell      # the name events.py imports
-
-
 def loop_tables(loop_start, loop_total):
     """Blender-style polygons: (loop -> polygon, loop -> next loop of the same polygon)."""
     loop_start, loop_total = np.asarray(loop_start, np.int64), np.asarray(loop_total, np.int64)

@@ -1,0 +1,205 @@
+"""AUTO's first bounce: exact point-to-shape form factors x visibility at receivers split by the
+B x F criterion."""
+import numpy as np
+
+from .. import formfactor as ff
+from ..geometry import newell
+from .planar import _in_convex, _in_rings, slab_decomposition
+
+
+class _DirectMixin:
+    """DynamicRadiosity's first bounce of a shape (AUTO)."""
+
+    def _direct(self, rec):
+        """AUTO: the shape's first bounce, per unit emission, at receiver nodes (3, n, not pushed) and
+        the nodes it needs.
+
+        Receivers are evaluated at 2 x 2 Gauss points: exact unoccluded point-to-shape form factor
+        (contour integral over the rings; convex pieces with horizon clipping where the receiver's
+        plane cuts the shape) times a kernel-weighted visibility ratio (rays to points on the shape).
+        Starting at the roots, a node takes the value if the light on it is weak (HR internal nodes:
+        rho F < bf_rel) or even (own leaves: rho x range of F V < bf_rel); otherwise it is split
+        (below the HR leaves down to direct_min_area_rel x scene area, node budget permitting).
+        """
+        h, pt = self.system.h, self.system.patches
+        rho, rho_max = pt.reflectance, pt.reflectance.max(0)
+        min_area, thr = self.direct_min_area_rel * self.total_area, self.bf_rel
+        corners, nv, area, nf = self._pieces(rec)
+        if len(corners) == 0:
+            return np.zeros((3, h.n)), np.zeros(0, np.int64)
+        # points on the shape for the visibility ratio: 2 x 2 Gauss points of the pieces, thinned to
+        # at most 16 by systematic sampling along their cumulative area (deterministic)
+        sp, sw = ff.quadrature(corners, nv, 2)
+        sp, sw = sp.reshape(-1, 3), (sw * area[:, None]).ravel()
+        if len(sp) > 16:
+            cum = np.cumsum(sw)
+            pick = np.minimum(np.searchsorted(cum, (np.arange(16) + 0.5) / 16 * cum[-1]), len(sp) - 1)
+            sp, sw = sp[pick], np.full(16, cum[-1] / 16)
+        eps = self.system.refiner.eps
+        rings = None
+        if rec.covered >= 1 - 1e-9:          # contour over the rings: outer CCW about nf, holes CW
+            rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
+        allv = np.concatenate(rec.rings)
+        shape_lo, shape_hi = corners.reshape(-1, 3).min(0), corners.reshape(-1, 3).max(0)
+        shape_plane = self._plane_id(rec.roots[0])
+
+        def unoccluded(nodes):
+            """(m, 4) unoccluded point-to-shape form factors at the nodes' Gauss points, points, weights."""
+            x, gw = ff.quadrature(h.corners[nodes], h.nv[nodes], 2)
+            xn = np.repeat(h.normal[nodes], 4, 0)
+            x = x.reshape(-1, 3)
+            F = np.zeros(len(x))
+            front = (x - rec.c) @ nf > eps
+            above = ((allv[None] - x[:, None]) * xn[:, None]).sum(-1).min(1) > eps
+            ok = front & above & (rings is not None)
+            if ok.any():
+                F[ok] = _contour(x[ok], xn[ok], rings)
+            rest = np.flatnonzero(front & ~ok)
+            if len(rest):
+                T = len(corners)
+                F[rest] = ff.point_to_polygon(np.repeat(x[rest], T, 0), np.repeat(xn[rest], T, 0),
+                                              np.tile(corners, (len(rest), 1, 1)),
+                                              np.tile(nv, len(rest))).reshape(-1, T).sum(1)
+            return F.reshape(-1, 4), x, xn, gw
+
+        def visible(nodes, F, x, xn):
+            """F x kernel-weighted visibility ratio; rays only where an occluder may be in the way."""
+            FV = F.ravel().copy()
+            may = self._maybe_occluded(nodes, shape_lo, shape_hi, shape_plane)
+            lit = np.flatnonzero((FV > 0) & np.repeat(may, 4))
+            if len(lit):
+                K = len(sp)
+                a = np.repeat(x[lit] + eps * xn[lit], K, 0)
+                b = np.tile(sp + eps * nf, (len(lit), 1))
+                d = b - a
+                r2 = np.einsum("ij,ij->i", d, d)
+                kern = (np.maximum(np.einsum("ij,ij->i", d, np.repeat(xn[lit], K, 0)), 0)
+                        * np.maximum(-(d @ nf), 0) / np.maximum(r2, 1e-300) ** 2 * np.tile(sw, len(lit)))
+                vis = ~self.system.backend.occluded(a, b)
+                kern, vis = kern.reshape(-1, K), vis.reshape(-1, K)
+                ks = kern.sum(1)
+                FV[lit] *= np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
+            return FV.reshape(-1, 4)
+
+        in_group = np.zeros(len(pt.nv), bool)
+        in_group[rec.group] = True
+        roots = np.flatnonzero(~in_group)
+        # cull receivers wholly behind the shape or facing away from all of it
+        rc = pt.corners[roots]
+        front = ((rc - rec.c) @ nf > eps).any(1)
+        sees = ((allv[None] - pt.corners[roots][:, :1]) * pt.normal[roots][:, None]).sum(-1).max(1) > eps
+        frontier = roots[front & sees]
+        n_start = getattr(self, "_event_n0", h.n)
+        acc_nodes, acc_vals = [], []
+        budget_msg = False
+        while len(frontier):
+            F, x, xn, gw = unoccluded(frontier)
+            rm = rho_max[h.patch[frontier]]
+            hr = self._hr_internal(frontier)
+            # HR internal nodes keep the light if it is weak on them, else they are descended
+            acc = hr & (rm * F.max(1) < thr) & (F.max(1) > 0)
+            leaf = ~hr & (F.max(1) > 0)
+            ev = np.flatnonzero(acc | leaf)
+            FV = np.zeros_like(F)
+            if len(ev):
+                sel = (ev[:, None] * 4 + np.arange(4)).ravel()
+                FV[ev] = visible(frontier[ev], F[ev], x[sel], xn[sel])
+            val = (FV * gw).sum(1)
+            var = rm * (FV.max(1) - FV.min(1))
+            split = leaf & (h.area[frontier] > min_area) & (var >= thr)
+            room = max((self.node_budget - (h.n - n_start)) // 4, 0)
+            if split.sum() > room:       # over budget: split the most uneven nodes only
+                budget_msg = True
+                idx = np.flatnonzero(split)
+                cen = h.centre[frontier[idx]]
+                keep = idx[np.lexsort((cen[:, 2], cen[:, 1], cen[:, 0], -np.round(var[idx], 12)))[:room]]
+                split[:] = False
+                split[keep] = True
+            take = (acc | (leaf & ~split)) & (val > 0)
+            acc_nodes.append(frontier[take])
+            acc_vals.append(val[take])
+            down = frontier[(hr & ~acc & (F.max(1) > 0)) | split]
+            h.subdivide(down[h.child0[down] < 0])
+            frontier = (h.child0[down][:, None] + np.arange(4)).ravel()
+        if budget_msg:
+            rec.msgs.append(f"shape '{rec.name}': first-bounce refinement reached the node budget "
+                            f"({self.node_budget} nodes)")
+        nodes = np.concatenate(acc_nodes)
+        vals = np.concatenate(acc_vals)
+        rec.direct_links = len(nodes)
+        D = np.zeros((3, h.n))
+        D[:, nodes] = rho[:, h.patch[nodes]] * vals
+        return D, nodes
+
+    def _pieces(self, rec):
+        """Convex pieces (trapezoids) of the shape on its covered patches: corners (T, 4, 3) CCW about
+        the emitting side's normal, nv, areas, and that normal."""
+        pt = self.system.patches
+        roots = rec.roots
+        nf = pt.normal[roots[0]] if len(roots) else rec.n
+        if len(roots) == 0:
+            return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
+        p2 = self._to2d(rec, pt.corners[roots])
+        edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
+        edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in p2]
+        edges = np.concatenate(edges)
+        traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
+        if not traps:
+            return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
+        mids = np.array([m for _, m in traps])
+        keep = _in_rings(mids, rec.rings2d) & _in_convex(mids, p2).any(1)
+        out, nvs = [], []
+        for t in np.flatnonzero(keep):
+            q = traps[t][0]
+            p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
+            if newell(p3) @ nf < 0:
+                p3 = p3[::-1]
+            nvs.append(len(p3))
+            out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
+        c = np.array(out)
+        _, a = ff.polygon_normal_area(c, np.array(nvs))
+        return c, np.array(nvs), a, nf
+
+    def _plane_id(self, patch):
+        return int(self._patch_plane[patch])
+
+    def _maybe_occluded(self, nodes, lo, hi, shape_plane, budget=4_000_000):
+        """Conservative shaft test between nodes and the shape's box: False where no occluder
+        triangle (outside both planes) meets the joint bounding box, so no rays are needed."""
+        h = self.system.h
+        T = len(self._tri_lo)
+        if T > 1024 or len(nodes) == 0:
+            return np.ones(len(nodes), bool)
+        c = h.corners[nodes]
+        e = self.system.refiner.eps
+        nlo = np.minimum(c.min(1), lo) - e
+        nhi = np.maximum(c.max(1), hi) + e
+        pp = self._patch_plane[h.patch[nodes]]
+        out = np.ones(len(nodes), bool)
+        step = max(1, budget // max(T, 1))
+        tlo, thi = self._tri_lo, self._tri_hi
+        for s0 in range(0, len(nodes), step):
+            sl = slice(s0, s0 + step)
+            # one axis at a time on (nodes, triangles): 4.5x faster than np.all over a last axis of 3
+            hit = (self._tri_plane[None] != pp[sl, None]) & (self._tri_plane != shape_plane)[None]
+            for k in range(3):
+                hit &= tlo[None, :, k] <= nhi[sl, k, None]
+                hit &= thi[None, :, k] >= nlo[sl, k, None]
+            out[sl] = hit.any(1)
+        return out
+
+
+def _contour(x, n, rings):
+    """Unoccluded form factor from points x (N, 3) with normals n to a polygon with holes lying wholly
+    above their horizons: Lambert's contour integral over all rings (outer CCW about the polygon's
+    normal, holes CW)."""
+    f = np.zeros(len(x))
+    for r in rings:
+        R = r[None] - x[:, None]                                      # (N, M, 3)
+        Rn = np.roll(R, -1, axis=1)
+        cr = np.cross(R, Rn)
+        cl = np.linalg.norm(cr, axis=-1)
+        g = np.arctan2(cl, np.einsum("nmk,nmk->nm", R, Rn))
+        t = np.where(cl > 0, g * np.einsum("nmk,nk->nm", cr, n) / np.where(cl > 0, cl, 1), 0.0)
+        f -= t.sum(1) / (2 * np.pi)
+    return np.clip(f, 0.0, 1.0)

@@ -1,0 +1,356 @@
+"""DynamicRadiosity: add, remove, apply and re-colour light shapes, the cached responses and the
+solves (the methods' work is in validation.py, coverage.py, direct.py and naive.py)."""
+from collections import OrderedDict
+import time
+
+import numpy as np
+
+from ..output import locate, radiance_at
+from ..output import loop_plan as _loop_plan
+from ..output import loop_radiance as _loop_radiance
+from ..radiosity import RadiositySystem
+from ..solver import Operator, solve
+from .coverage import _CoverageMixin
+from .direct import _DirectMixin
+from .naive import _NaiveState
+from .records import METHODS, EventReport, FrameReport, LightShape, _Rec
+from .validation import _ShapeMixin
+
+
+class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
+    def __init__(self, system: RadiositySystem, method="AUTO", min_area_rel=1e-5, node_budget=20000,
+                 plane_tol=1e-3, incremental="response", emission_tol=0.05, bf_rel=3e-3,
+                 naive_params=None, naive_offset=1e-4, cache_size=8,
+                 direct_min_area_rel=None, response_tol=None, response_float32=False):
+        """system: a built RadiositySystem (its hierarchy is extended in place below the HR leaves).
+        min_area_rel: smallest AR node, fraction of the total scene area. node_budget: most nodes one shape
+        may add (AR/AUTO). plane_tol: distance tolerance of "planar" and "on a surface", fraction of
+        the shape's own bounding-box diagonal (never the scene's). emission_tol: AUTO's target relative
+        L1 error of the emission field.
+        bf_rel: AUTO's first bounce: a receiver node is kept when rho x the range of F x V over it is
+        below bf_rel (radiance per unit emitted radiance). direct_min_area_rel: smallest such receiver
+        (and AUTO outline) node, default 4 x min_area_rel. incremental: "response" or "warm" (module
+        doc). naive_params: RefineParams for NAIVE rebuilds (default: the system's). cache_size: removed
+        shapes whose responses need no extra nodes are kept for instant re-adding (0: off).
+        response_tol: solver tolerance of the shapes' responses (default: the system's, as the
+        base solution); response_float32: those solves gather in float32 (Live Relight, whose
+        output is float32, uses both: see docs/events.md)."""
+        method = method.upper()
+        if method not in METHODS:
+            raise ValueError(f"Unknown method '{method}' (choose from {', '.join(METHODS)})")
+        if incremental not in ("response", "warm"):
+            raise ValueError("incremental must be 'response' or 'warm'")
+        self.system = system
+        self.method = method
+        self.incremental = incremental
+        self.min_area_rel, self.node_budget, self.plane_tol = min_area_rel, int(node_budget), plane_tol
+        self.emission_tol, self.bf_rel = emission_tol, bf_rel
+        self.direct_min_area_rel = (direct_min_area_rel if direct_min_area_rel is not None
+                                    else 4 * min_area_rel)
+        self.naive_params, self.naive_offset, self.cache_size = naive_params, naive_offset, cache_size
+        self.tol = system.tol
+        self.response_tol = response_tol if response_tol is not None else system.tol
+        self.response_float32 = response_float32
+        self.links = system.links
+        h = system.h
+        self.n_hr = h.n
+        self.hr_internal = h.child0[:h.n] >= 0
+        pt = system.patches
+        self.total_area = float(pt.area.sum())
+        lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
+        self.diag = float(np.linalg.norm(hi - lo)) or 1.0
+        # occluder triangles (bounds, plane ids) for the first-bounce shaft test
+        tris = pt.triangles
+        tri_patch = np.concatenate([np.arange(len(pt.nv)), np.flatnonzero(pt.nv == 4)])
+        self._tri_lo, self._tri_hi = tris.min(1), tris.max(1)
+        scale = 1e-6 * np.sqrt(self.total_area)
+        key = np.column_stack([np.round(pt.normal * 1e6),
+                               np.round(np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0]) / scale)])
+        self._patch_plane = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+        self._tri_plane = self._patch_plane[tri_patch]
+        self.shapes = OrderedDict()          # key -> _Rec
+        self._cache = OrderedDict()          # (geom_key, method) -> _Rec
+        self._ref = np.zeros(h.n, np.int64)  # shapes needing each node's split
+        self._op = None
+        self._op_version = None
+        self._naive = None                   # active NAIVE rebuild (_NaiveState) or None
+        self._guess = None                   # (3, n) first guess of a reshaped shape's response
+        self._plan = None                    # (key, output.loop_plan) of loop_radiance
+        E0 = system.base_emission()
+        self._Bbase, rep = self._solve(E0)
+        self._X = self._Bbase.copy()          # warm mode state
+        self._B = self._Bbase.copy()
+        self.base_iterations = rep.iterations
+
+    # -- public API ---------------------------------------------------------------------------------
+    @property
+    def h(self):
+        """The hierarchy B lives on (the NAIVE rebuild's while one is active)."""
+        return self._naive.system.h if self._naive is not None else self.system.h
+
+    @property
+    def B(self):
+        """(3, n) current node radiance on self.h."""
+        return self._naive.system.B if self._naive is not None else self._B
+
+    @property
+    def naive_active(self):
+        return self._naive is not None
+
+    def loop_radiance(self, domain="CORNER", smooth_angle=30.0):
+        """(L, 3) float32 per input loop (or (V, 3) per vertex for domain='POINT') of the input mesh."""
+        if self._naive is not None:
+            return self._naive.loop_radiance(self.system.mesh, domain, smooth_angle)
+        h = self.system.h
+        key = (id(h), h.version, h.n, domain, smooth_angle)     # the plan depends on geometry only
+        if self._plan is None or self._plan[0] != key:
+            self._plan = (key, _loop_plan(h, self.system.mesh, smooth_angle, domain))
+        return _loop_radiance(h, self._B, self.system.mesh, smooth_angle, domain, plan=self._plan[1])
+
+    def add(self, key, shape):
+        t0 = time.perf_counter()
+        rep = self._add(key, shape)
+        rep.iterations += self._finish([rep])
+        return self._stamp(rep, t0)
+
+    def remove(self, key):
+        t0 = time.perf_counter()
+        rep = self._remove(key)
+        rep.iterations += self._finish([rep])
+        return self._stamp(rep, t0)
+
+    def set_emission(self, key, emission):
+        t0 = time.perf_counter()
+        rep = self._set_emission(key, emission)
+        rep.iterations += self._finish([rep])
+        return self._stamp(rep, t0)
+
+    def apply(self, shapes: dict) -> FrameReport:
+        """Make `shapes` (key -> LightShape, the full active set) current with as little work as possible."""
+        t0 = time.perf_counter()
+        fr = FrameReport()
+        valid = {k: self._validate(k, s) for k, s in shapes.items()}   # raise before changing anything
+        evs = []
+        for k in [k for k in self.shapes if k not in valid]:
+            evs.append(self._remove(k))
+        for k, (rings, em, name) in valid.items():
+            rec = self.shapes.get(k)
+            if rec is None:
+                continue
+            same_geom = len(rec.rings) == len(rings) and all(np.array_equal(a, b)
+                                                              for a, b in zip(rec.rings, rings))
+            if not same_geom:
+                # the new response is solved from the new emission plus the old one's scattered
+                # light: a moved shape lights the room much as before (fewer iterations)
+                self._guess = self._scattered(rec)
+                try:
+                    r1 = self._remove(k)
+                    r2 = self._add(k, LightShape(rings, em, name), validated=(rings, em, name))
+                finally:
+                    self._guess = None
+                r2.kind = "reshape"
+                r2.nodes_removed += r1.nodes_removed
+                r2.seconds += r1.seconds
+                evs.append(r2)
+            elif not np.array_equal(rec.emission, em):
+                evs.append(self._set_emission(k, em))
+        for k, (rings, em, name) in valid.items():
+            if k not in self.shapes:
+                evs.append(self._add(k, LightShape(rings, em, name), validated=(rings, em, name)))
+        if evs:
+            fr.iterations += self._finish(evs)
+        fr.events = evs
+        for e in evs:
+            fr.iterations += e.iterations
+            fr.messages += e.messages
+        fr.nodes_added = sum(e.nodes_added for e in evs)
+        fr.nodes_removed = sum(e.nodes_removed for e in evs)
+        fr.seconds = time.perf_counter() - t0
+        self._counts(fr)
+        return fr
+
+    def emission(self):
+        """(3, n) leaf emission currently in effect on system.h (base + shapes' coverage fields)."""
+        self._sync()
+        E = self.system.base_emission()
+        for rec in self.shapes.values():
+            if rec.on_surface and rec.cov_nodes is not None:
+                E += rec.emission[:, None] * self._coverage(rec)[None]
+        return E
+
+    def memory_bytes(self):
+        from ..hierarchy import Hierarchy
+        h = self.h
+        links = len(self._naive.system.links) if self._naive is not None else len(self.links)
+        cached = sum(sum(a.nbytes for a in (r.U, r.D) if a is not None)
+                     for r in list(self.shapes.values()) + list(self._cache.values()))
+        return h.n * Hierarchy.node_bytes() + links * 32 + cached
+
+    def evaluate(self, points, patch_ids):
+        """Radiance at surface points (N, 3) lying on input patches patch_ids (N,): returns
+        (B (N, 3), E (N, 3)), total and emitted radiance of the leaf holding each point."""
+        if self._naive is not None:
+            return self._naive.evaluate(points, patch_ids)
+        self._sync()
+        h = self.system.h
+        leaf = locate(h, patch_ids, points)
+        return self._B[:, leaf].T.copy(), self.emission()[:, leaf].T.copy()
+
+    def radiance_at(self, points, patch_ids, smooth=True):
+        """Radiance (N, 3) at surface points lying on input patches (output.radiance_at on the current
+        solution; under NAIVE, points covered by a light patch read that patch)."""
+        if self._naive is not None:
+            roots, pts = self._naive.remap(points, patch_ids)
+            return radiance_at(self._naive.system.h, self._naive.system.B, roots, pts, smooth)
+        self._sync()
+        return radiance_at(self.system.h, self._B, patch_ids, points, smooth)
+
+    # -- events -------------------------------------------------------------------------------------
+    def _stamp(self, rep, t0):
+        rep.seconds = time.perf_counter() - t0
+        self._counts(rep)
+        return rep
+
+    def _counts(self, rep):
+        rep.nodes = self.h.n
+        rep.links = len(self._naive.system.links) if self._naive is not None else len(self.links)
+        rep.memory_bytes = self.memory_bytes()
+
+    def _add(self, key, shape, validated=None):
+        t0 = time.perf_counter()
+        if key in self.shapes:
+            raise KeyError(f"A light shape with key {key!r} is already active "
+                           "(use apply() or remove it first).")
+        rings, em, name = validated or self._validate(key, shape)
+        rep = EventReport("add", key, name)
+        n0 = self.system.h.n
+        rec = _Rec(key, name, rings, em, self.method)
+        cached = self._cache.pop((rec.geom_key, rec.method), None) if self.method != "NAIVE" else None
+        if cached is not None:
+            cached.emission, cached.key, cached.name = em, key, name
+            rec = cached
+            rep.messages.append(f"shape '{name}': response reused from the cache")
+        else:
+            self._plane(rec)
+            self._find_surface(rec)
+            if not rec.on_surface:
+                rec.used = "NAIVE"
+                rec.msgs.append(f"shape '{name}' lies on no surface: handled by NAIVE")
+            elif self.method == "NAIVE":
+                rec.used = "NAIVE"
+            else:
+                rep.iterations += self._incremental_add(rec)
+        self.shapes[key] = rec
+        rep.method, rep.covered, rep.emission_l1 = rec.used, rec.covered, rec.emission_l1
+        rep.direct_links = rec.direct_links
+        rep.messages += rec.msgs
+        rep.nodes_added = self.system.h.n - n0
+        rep.seconds = time.perf_counter() - t0
+        return rep
+
+    def _remove(self, key):
+        t0 = time.perf_counter()
+        if key not in self.shapes:
+            raise KeyError(f"No active light shape with key {key!r}.")
+        rec = self.shapes.pop(key)
+        rep = EventReport("remove", key, rec.name, rec.used)
+        if rec.owned is not None and len(rec.owned):
+            self._ref[rec.owned] -= 1
+            rep.nodes_removed = self._gc()
+        elif rec.U is not None and self.cache_size > 0 and rec.used != "NAIVE":
+            self._cache[(rec.geom_key, rec.method)] = rec
+            while len(self._cache) > self.cache_size:
+                self._cache.popitem(last=False)
+        rep.seconds = time.perf_counter() - t0
+        return rep
+
+    def _set_emission(self, key, emission):
+        t0 = time.perf_counter()
+        if key not in self.shapes:
+            raise KeyError(f"No active light shape with key {key!r}.")
+        rec = self.shapes[key]
+        em = self._check_emission(emission, rec.name)
+        rec.emission = em
+        rep = EventReport("emission", key, rec.name, rec.used)
+        rep.seconds = time.perf_counter() - t0
+        return rep
+
+    def _finish(self, reps):
+        """Bring B up to date after a batch of events; returns solver iterations spent here."""
+        its = 0
+        naive = [r for r in self.shapes.values() if r.used == "NAIVE"]
+        if naive:
+            t0 = time.perf_counter()
+            self._naive = _NaiveState(self, list(self.shapes.values()))
+            its += self._naive.iterations
+            names = ", ".join(f"'{r.name}'" for r in naive if not r.on_surface)
+            if self.method != "NAIVE" and names:
+                reps[-1].messages.append(f"NAIVE rebuild of all {len(self.shapes)} active shape(s) "
+                                         f"because {names} lie(s) on no surface ({time.perf_counter() - t0:.2f} s)")
+            return its
+        self._naive = None
+        self._sync()
+        if self.incremental == "response":
+            B = self._Bbase.copy()
+            for rec in self.shapes.values():
+                B += rec.emission[:, None] * rec.U
+            self._B = B
+        else:
+            E = self.system.base_emission()
+            extra = np.zeros_like(E)
+            for rec in self.shapes.values():
+                cov = self._coverage(rec)[None] * rec.emission[:, None]
+                if rec.used == "AUTO":
+                    E += rec.emission[:, None] * self._push(rec.D)
+                    extra += cov
+                else:
+                    E += cov
+            self._X, rep = self._solve(E, B0=self._X)
+            its += rep.iterations
+            self._B = self._X + self._operator().pull(extra)
+        return its
+
+    def _scattered(self, rec):
+        """The part of rec's response carried by the links (its solve minus its emission), pulled:
+        a reshaped or moved shape's new response is solved from its new emission plus this."""
+        if rec.U is None or rec.used == "NAIVE" or self.incremental != "response":
+            return None
+        self._sync()
+        cov = self._coverage(rec)[None]
+        if rec.method == "AUTO":     # U = solve(push(D)) + pull(coverage)
+            return self._operator().pull(rec.U - cov - (self._push(rec.D) if rec.D is not None else 0.0))
+        return rec.U - cov
+
+    def _push(self, D):
+        h = self.system.h
+        D = D.copy()
+        par = h.parent[:h.n]
+        for lv in h.levels()[1:]:
+            D[:, lv] += D[:, par[lv]]
+        return D
+
+    def _operator(self):
+        h = self.system.h
+        if self._op is None or self._op_version != h.version or self._op.n != h.n:
+            self._op = Operator(h, self.links)
+            self._op_version = h.version
+        return self._op
+
+    def _solve(self, E, B0=None, response=False):
+        """Solve with non-negative emission; the exact solution is non-negative, so the solver's
+        tiny negative excursions (GMRES is not monotone) are clipped. response: a shape's response
+        (response_tol, response_float32; its power balance is not reported)."""
+        op = self._operator()
+        if response and self.response_float32:
+            op = op.float32()
+        B, rep = solve(self.system.h, self.links, E, B0=B0, tol=self.response_tol if response else self.tol,
+                       op=op, energy=not response)
+        return np.maximum(B, 0.0), rep
+
+    def solution_at(self, points, patch_ids):
+        """(h, B (3, h.n), patch_ids, points) of the current solution, the points on input patches
+        mapped into h (NAIVE: onto the rebuilt system's patches, under a light patch onto it)."""
+        if self._naive is not None:
+            return (self._naive.system.h, self._naive.system.B) + self._naive.remap(points, patch_ids)
+        self._sync()
+        return self.system.h, self._B, patch_ids, points
