@@ -9,9 +9,11 @@ Blender (pytest collects the repository root as a package) has no side effects.
 
 def register():
     from .hr_addon import register as _register
+
     _register()
 
 
 def unregister():
     from .hr_addon import unregister as _unregister
+
     _unregister()

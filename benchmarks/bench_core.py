@@ -2,6 +2,7 @@
 against a converged reference. Prints a table, writes benchmarks/out/core.json and
 benchmarks/core_speed_accuracy.png. Usage: python benchmarks/bench_core.py [--quick]
 """
+
 import argparse
 import json
 import os
@@ -18,7 +19,9 @@ from hr_addon.core.refine import RefineParams  # noqa: E402
 
 OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "out")
 # The reference: the high preset pushed further (finer Aeps and Feps, more shadow refinement).
-REFERENCE = RefineParams(feps=0.004, veps=0.003, aeps=1.5e-5, shadow_feps=2e-4, vis_k=3, vcorr=1e-5, corr_budget=8_000_000)
+REFERENCE = RefineParams(
+    feps=0.004, veps=0.003, aeps=1.5e-5, shadow_feps=2e-4, vis_k=3, vcorr=1e-5, corr_budget=8_000_000
+)
 
 
 def run(name, params, mesh, backend="auto", repeat_solve=3):
@@ -47,25 +50,48 @@ def run(name, params, mesh, backend="auto", repeat_solve=3):
         op.apply(B, s.base_emission())
     t_iter = (time.perf_counter() - t1) / 10
     return s, dict(
-        name=name, backend=s.build.backend, polygons=len(mesh.loop_start), patches=s.build.patches,
-        nodes=s.h.n, links=len(s.links), directed_links=len(op.recv), corrections=s.links.n_corrections,
-        memory_mb=(s.h.n * s.h.node_bytes() + len(op.recv) * 16) / 1e6, peak_build_mb=peak / 1e6,
-        t_build=t_build, t_refine=st.get("t_refine", 0), t_ff=st.get("t_ff", 0), t_vis=st.get("t_vis", 0),
-        t_corr=st.get("t_corr", 0), rays=st.get("rays", 0), rays_per_s=st.get("rays", 0) / max(st.get("t_vis", 1e-9), 1e-9),
-        t_solve=min(times), iterations=rep.iterations, residual=rep.residual, energy_error=rep.energy_error,
-        links_per_s=len(op.recv) * rep.iterations / min(times), t_gather_bare=t_bare, t_iteration=t_iter,
-        iteration_over_bare_gather=t_iter / t_bare)
+        name=name,
+        backend=s.build.backend,
+        polygons=len(mesh.loop_start),
+        patches=s.build.patches,
+        nodes=s.h.n,
+        links=len(s.links),
+        directed_links=len(op.recv),
+        corrections=s.links.n_corrections,
+        memory_mb=(s.h.n * s.h.node_bytes() + len(op.recv) * 16) / 1e6,
+        peak_build_mb=peak / 1e6,
+        t_build=t_build,
+        t_refine=st.get("t_refine", 0),
+        t_ff=st.get("t_ff", 0),
+        t_vis=st.get("t_vis", 0),
+        t_corr=st.get("t_corr", 0),
+        rays=st.get("rays", 0),
+        rays_per_s=st.get("rays", 0) / max(st.get("t_vis", 1e-9), 1e-9),
+        t_solve=min(times),
+        iterations=rep.iterations,
+        residual=rep.residual,
+        energy_error=rep.energy_error,
+        links_per_s=len(op.recv) * rep.iterations / min(times),
+        t_gather_bare=t_bare,
+        t_iteration=t_iter,
+        iteration_over_bare_gather=t_iter / t_bare,
+    )
 
 
 def errors(s, ref, mesh):
     """Vertex radiance RMSE / max / mean relative against the reference, on the same fine mesh."""
     a = s.loop_radiance("CORNER").astype(float)
     b = ref.loop_radiance("CORNER").astype(float)
-    lamp = mesh.object_id[np.repeat(np.arange(len(mesh.loop_start)), mesh.loop_total)] == mesh.object_names.index("light")
+    lamp = mesh.object_id[
+        np.repeat(np.arange(len(mesh.loop_start)), mesh.loop_total)
+    ] == mesh.object_names.index("light")
     a, b = a[~lamp], b[~lamp]
     d = a - b
-    return dict(rmse=float(np.sqrt(np.mean(d ** 2))), max_abs=float(np.abs(d).max()),
-                mean_rel=float(np.abs(d).sum() / np.abs(b).sum()))
+    return dict(
+        rmse=float(np.sqrt(np.mean(d**2))),
+        max_abs=float(np.abs(d).max()),
+        mean_rel=float(np.abs(d).sum() / np.abs(b).sum()),
+    )
 
 
 def main():
@@ -73,12 +99,14 @@ def main():
     ap.add_argument("--quick", action="store_true", help="skip the high preset and use a coarser reference")
     args = ap.parse_args()
     os.makedirs(OUT, exist_ok=True)
-    mesh = scenes.cornell_box(subdiv=8)   # the output mesh: errors are measured at its vertices
+    mesh = scenes.cornell_box(subdiv=8)  # the output mesh: errors are measured at its vertices
     settings = [("draft", RefineParams.preset("draft")), ("medium", RefineParams.preset("medium"))]
     if not args.quick:
         settings.append(("high", RefineParams.preset("high")))
-    settings += [("medium, no push corrections", RefineParams(vcorr=0)),
-                 ("medium, numpy rays", RefineParams.preset("medium"))]
+    settings += [
+        ("medium, no push corrections", RefineParams(vcorr=0)),
+        ("medium, numpy rays", RefineParams.preset("medium")),
+    ]
     ref_params = RefineParams.preset("high") if args.quick else REFERENCE
     print("building the reference ...", flush=True)
     ref, ref_row = run("reference", ref_params, mesh, repeat_solve=1)
@@ -89,9 +117,28 @@ def main():
         rows.append(row)
     ref_row.update(rmse=0.0, max_abs=0.0, mean_rel=0.0)
     rows.append(ref_row)
-    cols = ["name", "backend", "polygons", "nodes", "links", "corrections", "memory_mb", "t_build", "t_refine", "t_ff",
-            "t_vis", "t_corr", "rays_per_s", "t_solve", "iterations", "links_per_s", "iteration_over_bare_gather",
-            "energy_error", "rmse", "mean_rel"]
+    cols = [
+        "name",
+        "backend",
+        "polygons",
+        "nodes",
+        "links",
+        "corrections",
+        "memory_mb",
+        "t_build",
+        "t_refine",
+        "t_ff",
+        "t_vis",
+        "t_corr",
+        "rays_per_s",
+        "t_solve",
+        "iterations",
+        "links_per_s",
+        "iteration_over_bare_gather",
+        "energy_error",
+        "rmse",
+        "mean_rel",
+    ]
     print(" | ".join(cols))
     for r in rows:
         print(" | ".join(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols), flush=True)
@@ -102,8 +149,10 @@ def main():
 
 def plot(rows):
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for r in rows:
         if r["name"] == "reference":

@@ -18,6 +18,7 @@ seconds are kept too); incremental methods are run `--repeat` times and the fast
     .venv/bin/python benchmarks/bench_events.py [--quick] [--out benchmarks/out/events.json]
     .venv/bin/python benchmarks/plot_events.py
 """
+
 import argparse
 import hashlib
 import json
@@ -58,31 +59,49 @@ def ls(outline, frame, em, name):
 
 
 def cornell_scenario():
-    win = ls(S.window(0.2, 0.16, 0.02, centre=(0.3, 0.3), angle=0.3, shear=0.3), S.CORNELL_GREEN_WALL,
-             (8.0, 7.0, 5.0), "window")
-    east = ls(S.ellipse(0.1, 0.06, centre=(0.3, 0.3), angle=0.5), S.CORNELL_BACK_WALL, (3.0, 4.0, 8.0), "east")
-    return [("window appears", {"window": win}), ("second light appears", {"window": win, "east": east}),
-            ("window disappears", {"east": east})]
+    win = ls(
+        S.window(0.2, 0.16, 0.02, centre=(0.3, 0.3), angle=0.3, shear=0.3),
+        S.CORNELL_GREEN_WALL,
+        (8.0, 7.0, 5.0),
+        "window",
+    )
+    east = ls(
+        S.ellipse(0.1, 0.06, centre=(0.3, 0.3), angle=0.5), S.CORNELL_BACK_WALL, (3.0, 4.0, 8.0), "east"
+    )
+    return [
+        ("window appears", {"window": win}),
+        ("second light appears", {"window": win, "east": east}),
+        ("window disappears", {"east": east}),
+    ]
 
 
 def office_scenario(frames):
     def screen(i, em):
         return ls(S.rect(0.56, 0.34, (0.28, 0.17)), frames[i], em, f"screen{i}")
+
     s0, s1 = screen(0, (2.0, 2.5, 4.0)), screen(1, (2.0, 2.5, 4.0))
     s0b = screen(0, (4.0, 4.0, 3.5))
-    return [("screen 0 on", {"s0": s0}), ("screen 1 on", {"s0": s0, "s1": s1}),
-            ("screen 0 colour", {"s0": s0b, "s1": s1})]
+    return [
+        ("screen 0 on", {"s0": s0}),
+        ("screen 1 on", {"s0": s0, "s1": s1}),
+        ("screen 0 colour", {"s0": s0b, "s1": s1}),
+    ]
 
 
 def beam_scenario(n=30):
     out = []
     for k in range(n):
         t = k / (n - 1)
-        sh = ls(S.ellipse(0.09, 0.05, centre=(0.1 + 0.35 * t, 0.3 + 0.08 * np.sin(2 * np.pi * t)), angle=0.4 + 0.5 * t),
-                S.CORNELL_BACK_WALL, (10.0, 10.0, 8.0), "beam")
+        sh = ls(
+            S.ellipse(
+                0.09, 0.05, centre=(0.1 + 0.35 * t, 0.3 + 0.08 * np.sin(2 * np.pi * t)), angle=0.4 + 0.5 * t
+            ),
+            S.CORNELL_BACK_WALL,
+            (10.0, 10.0, 8.0),
+            "beam",
+        )
         out.append((f"frame {k}", {"beam": sh}))
     return out
-
 
 
 def config_key(scene, config, params):
@@ -134,11 +153,20 @@ def run_variant(base, method, kw, events, pts, ids, eval_at):
         c0 = time.process_time()
         fr = dyn.apply(config)
         cpu = time.process_time() - c0
-        rec = {"event": label, "seconds": fr.seconds, "cpu_seconds": cpu, "iterations": fr.iterations,
-               "nodes_added": fr.nodes_added, "nodes_removed": fr.nodes_removed, "nodes": fr.nodes,
-               "links": fr.links, "memory_bytes": fr.memory_bytes, "method_used": fr.method,
-               "emission_l1": max([e.emission_l1 for e in fr.events] + [0.0]),
-               "messages": fr.messages}
+        rec = {
+            "event": label,
+            "seconds": fr.seconds,
+            "cpu_seconds": cpu,
+            "iterations": fr.iterations,
+            "nodes_added": fr.nodes_added,
+            "nodes_removed": fr.nodes_removed,
+            "nodes": fr.nodes,
+            "links": fr.links,
+            "memory_bytes": fr.memory_bytes,
+            "method_used": fr.method,
+            "emission_l1": max([e.emission_l1 for e in fr.events] + [0.0]),
+            "messages": fr.messages,
+        }
         if i in eval_at:
             B, E = dyn.evaluate(pts, ids)
             refl[i] = B - E
@@ -148,6 +176,7 @@ def run_variant(base, method, kw, events, pts, ids, eval_at):
 
 def run_scenario(name, mesh, events, qualities, variants, repeat, per_area, eval_at, cache_dir, log):
     from hr_addon.core.geometry import prepare_patches
+
     pts, ids, w = surface_samples(prepare_patches(mesh), per_area)
     t0 = time.perf_counter()
     cheap = RadiositySystem(mesh, QUALITY["coarse"])
@@ -156,12 +185,19 @@ def run_scenario(name, mesh, events, qualities, variants, repeat, per_area, eval
     for i in eval_at:
         refs[i], _ = reference(name, mesh, events[i][1], pts, ids, cache_dir, cheap)
     log(f"[{name}] references: {time.perf_counter() - t0:.1f} s ({len(pts)} sample points)")
-    result = {"scene": name, "sample_points": int(len(pts)), "events": [e[0] for e in events],
-              "eval_at": sorted(eval_at), "runs": []}
+    result = {
+        "scene": name,
+        "sample_points": int(len(pts)),
+        "events": [e[0] for e in events],
+        "eval_at": sorted(eval_at),
+        "runs": [],
+    }
     for q in qualities:
         t0 = time.perf_counter()
         base = RadiositySystem(mesh, QUALITY[q])
-        log(f"[{name}/{q}] base system: {base.h.n} nodes, {len(base.links)} links, {time.perf_counter() - t0:.1f} s")
+        log(
+            f"[{name}/{q}] base system: {base.h.n} nodes, {len(base.links)} links, {time.perf_counter() - t0:.1f} s"
+        )
         for label, method, kw in variants:
             reps = 1 if method == "NAIVE" else repeat
             best = None
@@ -180,14 +216,18 @@ def run_scenario(name, mesh, events, qualities, variants, repeat, per_area, eval
             result["runs"].append(run)
             tt = [e["cpu_seconds"] for e in best]
             ee = [best[i]["err_delta_rmse"] for i in eval_at]
-            log(f"  {label:13s} mean {np.mean(tt):7.3f} s/event  delta RMSE {np.sqrt(np.mean(np.square(ee))):.4f}"
-                f"  nodes+ {max(e['nodes_added'] for e in best)}")
+            log(
+                f"  {label:13s} mean {np.mean(tt):7.3f} s/event  delta RMSE {np.sqrt(np.mean(np.square(ee))):.4f}"
+                f"  nodes+ {max(e['nodes_added'] for e in best)}"
+            )
         # ratios in the same run
         naive = next(r for r in result["runs"] if r["quality"] == q and r["method"] == "NAIVE")
         for r in result["runs"]:
             if r["quality"] == q:
-                r["naive_ratio"] = [n["cpu_seconds"] / max(e["cpu_seconds"], 1e-9)
-                                    for n, e in zip(naive["events"], r["events"])]
+                r["naive_ratio"] = [
+                    n["cpu_seconds"] / max(e["cpu_seconds"], 1e-9)
+                    for n, e in zip(naive["events"], r["events"])
+                ]
     return result
 
 
@@ -207,20 +247,49 @@ def main():
     office, frames = S.office_scene()
     beam = beam_scenario(6 if args.quick else 30)
     plan = [
-        ("cornell", scenes.cornell_box(), cornell_scenario(), ["coarse"] if args.quick else ["coarse", "draft", "medium"],
-         2000, None),
-        ("office", office, office_scenario(frames), ["coarse"] if args.quick else ["coarse", "draft"], 60, None),
-        ("beam", scenes.cornell_box(), beam, ["coarse"] if args.quick else ["coarse", "draft"], 2000,
-         {0, len(beam) // 3, 2 * len(beam) // 3, len(beam) - 1}),
+        (
+            "cornell",
+            scenes.cornell_box(),
+            cornell_scenario(),
+            ["coarse"] if args.quick else ["coarse", "draft", "medium"],
+            2000,
+            None,
+        ),
+        (
+            "office",
+            office,
+            office_scenario(frames),
+            ["coarse"] if args.quick else ["coarse", "draft"],
+            60,
+            None,
+        ),
+        (
+            "beam",
+            scenes.cornell_box(),
+            beam,
+            ["coarse"] if args.quick else ["coarse", "draft"],
+            2000,
+            {0, len(beam) // 3, 2 * len(beam) // 3, len(beam) - 1},
+        ),
     ]
     results = []
     for name, mesh, events, quals, per_area, eval_at in plan:
         eval_at = set(range(len(events))) if eval_at is None else eval_at
-        results.append(run_scenario(name, mesh, events, quals, VARIANTS, repeat, per_area, eval_at, args.cache, log))
-    out = {"reference_params": repr(REFERENCE), "quality": {k: repr(v) for k, v in QUALITY.items()},
-           "variants": [(l, m, kw) for l, m, kw in VARIANTS], "machine": {
-               "cpu_count": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__},
-           "total_seconds": time.perf_counter() - t_start, "scenarios": results}
+        results.append(
+            run_scenario(name, mesh, events, quals, VARIANTS, repeat, per_area, eval_at, args.cache, log)
+        )
+    out = {
+        "reference_params": repr(REFERENCE),
+        "quality": {k: repr(v) for k, v in QUALITY.items()},
+        "variants": [(l, m, kw) for l, m, kw in VARIANTS],
+        "machine": {
+            "cpu_count": os.cpu_count(),
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+        },
+        "total_seconds": time.perf_counter() - t_start,
+        "scenarios": results,
+    }
     os.makedirs(os.path.dirname(args.out), exist_ok=True)
     with open(args.out, "w") as f:
         json.dump(out, f, indent=1)

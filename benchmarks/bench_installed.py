@@ -11,6 +11,7 @@ Usage: python benchmarks/bench_installed.py [--sample cornell|office|...|furnish
 Prints one line per mode and the ratios; writes benchmarks/out/installed.json. Timings depend on the
 machine and its load: compare the ratio, not the seconds.
 """
+
 import argparse
 import json
 import os
@@ -22,7 +23,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 
-SCRIPT = textwrap.dedent(r'''
+SCRIPT = textwrap.dedent(r"""
     import importlib.abc, importlib.machinery, json, os, sys, time
     zip_path, blend, mode, quality, frames = sys.argv[1:6]
     RES = os.path.realpath(os.environ["BLENDER_USER_RESOURCES"])
@@ -52,10 +53,10 @@ SCRIPT = textwrap.dedent(r'''
            "bake_s": time.perf_counter() - t0, "nodes": res.build_report.nodes, "links": res.build_report.links,
            "summary": res.summary()}
     print("RESULT:" + json.dumps(out), flush=True)
-''')
+""")
 
 
-FURNISHED = textwrap.dedent(r'''
+FURNISHED = textwrap.dedent(r"""
     # A 4 x 4 x 2.6 m room (8x8 quads per wall) lit by a ceiling panel, furnished with 20 boxes:
     # collection instances of one "Box" (its collection excluded from the view layer).
     import sys
@@ -82,7 +83,7 @@ FURNISHED = textwrap.dedent(r'''
         e.rotation_euler[2] = 6.283 * rng.random()
         scene.collection.objects.link(e)
     ms.finish(scene, Path(sys.argv[1]), (1, 1), quality="MEDIUM")
-''')
+""")
 
 
 def build_zip():
@@ -90,8 +91,12 @@ def build_zip():
     if given:
         return given
     out = REPO / "build" / "bench_dist"
-    p = subprocess.run([sys.executable, str(REPO / "scripts" / "build_extension.py"), "--output-dir", str(out)],
-                       capture_output=True, text=True, check=True)
+    p = subprocess.run(
+        [sys.executable, str(REPO / "scripts" / "build_extension.py"), "--output-dir", str(out)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return [ln for ln in p.stdout.splitlines() if ln.endswith("-linux_x64.zip")][-1]
 
 
@@ -112,31 +117,54 @@ def main(argv=None):
             (tmp / "furnished.py").write_text(FURNISHED)
             cmd = [args.python, str(tmp / "furnished.py"), str(blend), str(REPO / "scripts")]
         else:
-            cmd = [args.python, str(REPO / "scripts" / "make_samples.py"), args.sample, "--out", str(blend.parent)]
+            cmd = [
+                args.python,
+                str(REPO / "scripts" / "make_samples.py"),
+                args.sample,
+                "--out",
+                str(blend.parent),
+            ]
         subprocess.run(cmd, env=env, capture_output=True, check=True)
         (tmp / "script.py").write_text(SCRIPT)
         for mode in ("embree", "numpy"):
             res = tmp / f"user_{mode}"
             res.mkdir()
             e = dict(env, BLENDER_USER_RESOURCES=str(res), HOME=str(res))
-            p = subprocess.run([args.python, str(tmp / "script.py"), zip_path, str(blend), mode, args.quality,
-                                args.frames], env=e, capture_output=True, text=True)
+            p = subprocess.run(
+                [args.python, str(tmp / "script.py"), zip_path, str(blend), mode, args.quality, args.frames],
+                env=e,
+                capture_output=True,
+                text=True,
+            )
             lines = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT:")]
             if p.returncode != 0 or not lines:
                 raise SystemExit(p.stdout + p.stderr)
             r = json.loads(lines[-1][7:])
             results.append(r)
-            print(f"bpy {r['bpy']} {args.sample} {args.quality} frames {args.frames}: rays {r['rays']}: "
-                  f"hierarchy {r['build_s']:.1f} s, bake {r['bake_s']:.1f} s ({r['nodes']} nodes, {r['links']} links)",
-                  flush=True)
+            print(
+                f"bpy {r['bpy']} {args.sample} {args.quality} frames {args.frames}: rays {r['rays']}: "
+                f"hierarchy {r['build_s']:.1f} s, bake {r['bake_s']:.1f} s ({r['nodes']} nodes, {r['links']} links)",
+                flush=True,
+            )
     e, n = results
-    print(f"numpy / embree: hierarchy {n['build_s'] / e['build_s']:.1f}x, whole bake {n['bake_s'] / e['bake_s']:.1f}x")
+    print(
+        f"numpy / embree: hierarchy {n['build_s'] / e['build_s']:.1f}x, whole bake {n['bake_s'] / e['bake_s']:.1f}x"
+    )
     out = REPO / "benchmarks" / "out"
     out.mkdir(exist_ok=True)
-    (out / f"installed_{args.sample}_{results[0]['bpy'].split()[0]}.json").write_text(json.dumps({"sample": args.sample, "quality": args.quality,
-                                                    "frames": args.frames, "zip": os.path.basename(zip_path),
-                                                    "zip_bytes": os.path.getsize(zip_path), "results": results},
-                                                   indent=1))
+    (out / f"installed_{args.sample}_{results[0]['bpy'].split()[0]}.json").write_text(
+        json.dumps(
+            {
+                "sample": args.sample,
+                "quality": args.quality,
+                "frames": args.frames,
+                "zip": os.path.basename(zip_path),
+                "zip_bytes": os.path.getsize(zip_path),
+                "results": results,
+            },
+            indent=1,
+        )
+    )
 
 
 if __name__ == "__main__":

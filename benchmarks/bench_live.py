@@ -24,6 +24,7 @@ Medians and 95th percentiles per edit kind and over all edits go to benchmarks/o
 benchmarks/live_edits.png. Timings are wall seconds on this machine; other jobs sharing the two
 cores make them noisy. Benchmarks print and plot; no test asserts on time.
 """
+
 import argparse
 import json
 import math
@@ -40,13 +41,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 OUT = ROOT / "benchmarks" / "out"
-TARGETS = {("cornell", "draft"): 0.030, ("cornell", "medium"): 0.100, ("furnished_100k", "draft"): 0.300,
-           ("furnished_100k", "medium"): 0.300}
+TARGETS = {
+    ("cornell", "draft"): 0.030,
+    ("cornell", "medium"): 0.100,
+    ("furnished_100k", "draft"): 0.300,
+    ("furnished_100k", "medium"): 0.300,
+}
 
 
 # -- scenes --------------------------------------------------------------------------------------
 def open_cornell(tmp):
     import bpy
+
     path = Path(tmp) / "cornell.blend"
     shutil.copy(ROOT / "sample_blends" / "cornell.blend", path)
     bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
@@ -65,19 +71,21 @@ def make_furnished(tmp, size="100k"):
     """The furnished room as Blender objects (one per object of the core builder, materials shared
     per distinct colour), a window light shape on the west wall."""
     import bpy
+
     sys.path.insert(0, str(ROOT / "scripts"))
     from benchmarks.furnished import furnished_room
     import make_samples as ms
+
     mesh, info = furnished_room(size)
     ms.reset()
     mats = {}
     order = np.argsort(mesh.object_id, kind="stable")
     bounds = np.searchsorted(mesh.object_id[order], np.arange(len(mesh.object_names) + 1))
     for k, name in enumerate(mesh.object_names):
-        polys = order[bounds[k]:bounds[k + 1]]
+        polys = order[bounds[k] : bounds[k + 1]]
         if not len(polys):
             continue
-        loops = [mesh.loop_verts[mesh.loop_start[p]:mesh.loop_start[p] + mesh.loop_total[p]] for p in polys]
+        loops = [mesh.loop_verts[mesh.loop_start[p] : mesh.loop_start[p] + mesh.loop_total[p]] for p in polys]
         used = np.unique(np.concatenate(loops))
         remap = np.full(len(mesh.verts), -1, np.int64)
         remap[used] = np.arange(len(used))
@@ -93,9 +101,19 @@ def make_furnished(tmp, size="100k"):
     wall, (o, u, v) = info["light_wall"]
     c = o + 0.6 * u + 0.5 * v
     w, h = 0.9, 0.7
-    corners = [c - w / 2 * u - h / 2 * v, c + w / 2 * u - h / 2 * v, c + w / 2 * u + h / 2 * v, c - w / 2 * u + h / 2 * v]
-    win = ms.light_shape("Window", [tuple(p - c) for p in corners], [[0, 1, 2, 3]],
-                         ms.emission("Window Light", (1.0, 0.95, 0.85), 20.0), location=tuple(c))
+    corners = [
+        c - w / 2 * u - h / 2 * v,
+        c + w / 2 * u - h / 2 * v,
+        c + w / 2 * u + h / 2 * v,
+        c - w / 2 * u + h / 2 * v,
+    ]
+    win = ms.light_shape(
+        "Window",
+        [tuple(p - c) for p in corners],
+        [[0, 1, 2, 3]],
+        ms.emission("Window Light", (1.0, 0.95, 0.85), 20.0),
+        location=tuple(c),
+    )
     scene = bpy.context.scene
     path = Path(tmp) / f"furnished_{size}.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path), check_existing=False)
@@ -121,6 +139,7 @@ def edit_sequence(obj, kind, along, normal, step, drag=24):
     recently removed shapes), scale, rotate about its normal, reshape, strength, colour, hide / show
     (these last ones do reuse the cached response: a shape switched back on)."""
     from mathutils import Matrix, Vector
+
     node = next(n for n in obj.data.materials[0].node_tree.nodes if n.type == kind)
     strength = node.inputs["Strength"]
     colour = node.inputs["Color"]
@@ -135,14 +154,23 @@ def edit_sequence(obj, kind, along, normal, step, drag=24):
         R = Matrix.Rotation(math.radians(a), 4, Vector(normal))
 
         def rot(R=R):
-            obj.matrix_world = Matrix.Translation(obj.matrix_world.translation) @ R @ \
-                Matrix.Translation(-obj.matrix_world.translation) @ obj.matrix_world
+            obj.matrix_world = (
+                Matrix.Translation(obj.matrix_world.translation)
+                @ R
+                @ Matrix.Translation(-obj.matrix_world.translation)
+                @ obj.matrix_world
+            )
+
         edits.append(("rotate", rot))
     for d in (0.3, -0.3, 0.2, -0.2):
+
         def reshape(d=d):
             v = obj.data.vertices[2]
-            v.co = Vector(v.co) + Vector(d * step * np.array([1.0, 1.0, 1.0]) * (along + np.cross(normal, along)))
+            v.co = Vector(v.co) + Vector(
+                d * step * np.array([1.0, 1.0, 1.0]) * (along + np.cross(normal, along))
+            )
             obj.data.update()
+
         edits.append(("reshape", reshape))
     for s in (1.5, 0.8, 1.2, 0.9, 1.1, 0.7):
         edits.append(("strength", lambda s=s: setattr(strength, "default_value", strength.default_value * s)))
@@ -156,16 +184,22 @@ def edit_sequence(obj, kind, along, normal, step, drag=24):
 
 def _stats(xs):
     xs = np.asarray(xs, float)
-    return {"n": int(len(xs)), "median": float(np.median(xs)), "p95": float(np.percentile(xs, 95)),
-            "max": float(xs.max())}
+    return {
+        "n": int(len(xs)),
+        "median": float(np.median(xs)),
+        "p95": float(np.percentile(xs, 95)),
+        "max": float(xs.max()),
+    }
 
 
 def run(scene_name, quality, method, furnished_size="100k"):
     import bpy
     import hr_addon
+
     if not hasattr(bpy.types.Scene, "hr"):
         hr_addon.register()
     from hr_addon.blender import live
+
     tmp = tempfile.mkdtemp(prefix="hr_bench_live_")
     try:
         info = {}
@@ -185,21 +219,33 @@ def run(scene_name, quality, method, furnished_size="100k"):
         first = time.perf_counter() - t0
         sess = live.session(scene)
         w = sess.worker
-        out = {"scene": scene_name, "quality": quality, "method": method, "first_update_s": first,
-               "build_s": w.build_seconds, "nodes": int(w.dyn.h.n), "links": int(len(w.dyn.links)),
-               "polygons": int(w.spec.polygons), "edits": {}, **info}
+        out = {
+            "scene": scene_name,
+            "quality": quality,
+            "method": method,
+            "first_update_s": first,
+            "build_s": w.build_seconds,
+            "nodes": int(w.dyn.h.n),
+            "links": int(len(w.dyn.links)),
+            "polygons": int(w.spec.polygons),
+            "edits": {},
+            **info,
+        }
         start = (np.array(obj.location), tuple(obj.rotation_euler), tuple(obj.scale))
         for m, mode in enumerate(("ui", "op", "op_fast")):
             # each pass starts a third of a step further across: its positions are new ones
-            obj.location, obj.rotation_euler, obj.scale = start[0] - m / 3 * step * np.cross(normal, along), *start[1:]
+            obj.location, obj.rotation_euler, obj.scale = (
+                start[0] - m / 3 * step * np.cross(normal, along),
+                *start[1:],
+            )
             assert bpy.ops.hr.live_update() == {"FINISHED"}
             rows = []
             for k, edit in edit_sequence(obj, kind, along, normal, step):
                 edit()
                 if mode == "ui":
-                    bpy.context.view_layer.update()          # the depsgraph handler fires, as in the UI
+                    bpy.context.view_layer.update()  # the depsgraph handler fires, as in the UI
                     t0 = time.perf_counter()
-                    live._reconcile(sess, scene, vl, check_geometry=False, fast=True)   # as the timer
+                    live._reconcile(sess, scene, vl, check_geometry=False, fast=True)  # as the timer
                     t1 = time.perf_counter()
                     w.flush()
                     t2 = time.perf_counter()
@@ -207,10 +253,18 @@ def run(scene_name, quality, method, furnished_size="100k"):
                     t3 = time.perf_counter()
                     assert not sess.error and not sess.problems, (sess.error, sess.problems)
                     r = sess.last
-                    rows.append({"kind": k, "total": t3 - t0, "read": t1 - t0, "apply": r.t_apply,
-                                 "output": r.t_output, "write": t3 - t2,
-                                 "events": [e.kind for e in r.report.events],
-                                 "iterations": int(r.report.iterations)})
+                    rows.append(
+                        {
+                            "kind": k,
+                            "total": t3 - t0,
+                            "read": t1 - t0,
+                            "apply": r.t_apply,
+                            "output": r.t_output,
+                            "write": t3 - t2,
+                            "events": [e.kind for e in r.report.events],
+                            "iterations": int(r.report.iterations),
+                        }
+                    )
                 else:
                     t0 = time.perf_counter()
                     assert bpy.ops.hr.live_update(check_geometry=(mode == "op")) == {"FINISHED"}
@@ -224,9 +278,11 @@ def run(scene_name, quality, method, furnished_size="100k"):
                 res["moves_iterations"] = _stats([r["iterations"] for r in rows if r["kind"] == "move"])
                 out["rows"] = rows
             out["edits"][mode] = res
-            print(f"{scene_name} {quality} {method} [{mode}] per edit: median {1000 * res['all']['median']:.1f} ms, "
-                  f"p95 {1000 * res['all']['p95']:.1f} ms; move median {1000 * res['move']['median']:.1f} ms",
-                  flush=True)
+            print(
+                f"{scene_name} {quality} {method} [{mode}] per edit: median {1000 * res['all']['median']:.1f} ms, "
+                f"p95 {1000 * res['all']['p95']:.1f} ms; move median {1000 * res['move']['median']:.1f} ms",
+                flush=True,
+            )
         scene.hr.live = False
         bpy.ops.hr.live_update()
         return out
@@ -239,9 +295,12 @@ def table(results):
     """Markdown: per scene / quality / method, median / p95 ms of each edit kind (the UI path), of
     all edits, and of all edits through hr.live_update() (with and without the geometry check)."""
     kinds = ("move", "scale", "rotate", "reshape", "strength", "colour", "hide", "show")
-    lines = ["| scene | quality | method | build | all edits | " + " | ".join(kinds) +
-             " | hr.live_update() | same, check_geometry=False | target (p95) |",
-             "|---" * (9 + len(kinds)) + "|"]
+    lines = [
+        "| scene | quality | method | build | all edits | "
+        + " | ".join(kinds)
+        + " | hr.live_update() | same, check_geometry=False | target (p95) |",
+        "|---" * (9 + len(kinds)) + "|",
+    ]
 
     def ms(s):
         return f"{1000 * s:.0f}" if s >= 0.0095 else f"{1000 * s:.1f}"
@@ -253,18 +312,25 @@ def table(results):
         e, o, f = r["edits"]["ui"], r["edits"]["op"], r["edits"]["op_fast"]
         tgt = TARGETS.get((r["scene"], r["quality"]))
         met = "" if tgt is None else f"{ms(tgt)} ({'met' if e['all']['p95'] <= tgt else 'not met'})"
-        lines.append(f"| {r['scene']} | {r['quality']} | {r['method']} | {r['build_s']:.1f} s | {mp(e['all'])} | " +
-                     " | ".join(mp(e[k]) for k in kinds) + f" | {mp(o['all'])} | {mp(f['all'])} | {met} |")
+        lines.append(
+            f"| {r['scene']} | {r['quality']} | {r['method']} | {r['build_s']:.1f} s | {mp(e['all'])} | "
+            + " | ".join(mp(e[k]) for k in kinds)
+            + f" | {mp(o['all'])} | {mp(f['all'])} | {met} |"
+        )
     return "\n".join(lines)
 
 
 def plot(results, path):
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     labels, med, p95, tg = [], [], [], []
     kinds = ("move", "scale", "rotate", "reshape", "strength", "colour", "hide", "show")
-    fig, axes = plt.subplots(1, 2, figsize=(12, 0.55 * len(results) + 2.8), gridspec_kw={"width_ratios": [1, 1.4]})
+    fig, axes = plt.subplots(
+        1, 2, figsize=(12, 0.55 * len(results) + 2.8), gridspec_kw={"width_ratios": [1, 1.4]}
+    )
     for r in results:
         e = r["edits"]["ui"]
         labels.append(f"{r['scene']} {r['quality']} {r['method']}")
@@ -303,7 +369,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quality", default="draft,medium")
     ap.add_argument("--methods", default="FE,AUTO")
-    ap.add_argument("--furnished", action="store_true", help="also the furnished 100k-triangle room (slow build)")
+    ap.add_argument(
+        "--furnished", action="store_true", help="also the furnished 100k-triangle room (slow build)"
+    )
     ap.add_argument("--furnished-quality", default="draft")
     ap.add_argument("--furnished-methods", default="FE")
     ap.add_argument("--skip-cornell", action="store_true")
@@ -324,10 +392,17 @@ def main():
             for q in args.furnished_quality.split(","):
                 for m in args.furnished_methods.split(","):
                     runs.append(run("furnished_100k", q, m))
-        keep = [r for r in old["runs"] if (r["scene"], r["quality"], r["method"]) not in
-                {(n["scene"], n["quality"], n["method"]) for n in runs}]
-        old = {"machine": f"{platform.machine()} {os.cpu_count()} cores, {platform.python_version()}",
-               "date": time.strftime("%Y-%m-%d"), "runs": keep + runs}
+        keep = [
+            r
+            for r in old["runs"]
+            if (r["scene"], r["quality"], r["method"])
+            not in {(n["scene"], n["quality"], n["method"]) for n in runs}
+        ]
+        old = {
+            "machine": f"{platform.machine()} {os.cpu_count()} cores, {platform.python_version()}",
+            "date": time.strftime("%Y-%m-%d"),
+            "runs": keep + runs,
+        }
         jpath.write_text(json.dumps(old, indent=1))
         print(f"wrote {jpath}")
     order = {"cornell": 0, "furnished_100k": 1}

@@ -8,6 +8,7 @@ lazily built numpy fallback is warmed up first. Writes benchmarks/out/rays.json.
 
     .venv/bin/python benchmarks/bench_rays.py [--rays 1000000] [--slow-rays 20000]
 """
+
 import argparse
 import json
 import os
@@ -36,20 +37,30 @@ def box(lo, hi):
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     s = hi - lo
     ex, ey, ez = np.diag(s)
-    return (quad(lo, ey, ex) + quad(lo + ez, ex, ey) + quad(lo, ex, ez) + quad(lo + ey, ez, ex)
-            + quad(lo, ez, ey) + quad(lo + ex, ey, ez))
+    return (
+        quad(lo, ey, ex)
+        + quad(lo + ez, ex, ey)
+        + quad(lo, ex, ez)
+        + quad(lo + ey, ez, ex)
+        + quad(lo, ez, ey)
+        + quad(lo + ex, ey, ez)
+    )
 
 
 def cornell():
-    return np.array(box([0, 0, 0], [5.5, 5.5, 5.5]) + box([1.3, 0.65, 0], [2.9, 2.25, 1.65])
-                    + box([3.7, 2.95, 0], [5.3, 4.55, 3.3]))
+    return np.array(
+        box([0, 0, 0], [5.5, 5.5, 5.5])
+        + box([1.3, 0.65, 0], [2.9, 2.25, 1.65])
+        + box([3.7, 2.95, 0], [5.3, 4.55, 3.3])
+    )
 
 
 def sphere(c, r, n):
     th, ph = np.linspace(0, np.pi, n + 1), np.linspace(0, 2 * np.pi, 2 * n + 1)
     p = np.stack(np.meshgrid(th, ph, indexing="ij"), -1)
-    p = c + r * np.stack([np.sin(p[..., 0]) * np.cos(p[..., 1]), np.sin(p[..., 0]) * np.sin(p[..., 1]),
-                          np.cos(p[..., 0])], -1)
+    p = c + r * np.stack(
+        [np.sin(p[..., 0]) * np.cos(p[..., 1]), np.sin(p[..., 0]) * np.sin(p[..., 1]), np.cos(p[..., 0])], -1
+    )
     a, b, cc, d = p[:-1, :-1], p[1:, :-1], p[1:, 1:], p[:-1, 1:]
     tri = np.concatenate([np.stack([a, b, cc], -2), np.stack([a, cc, d], -2)]).reshape(-1, 3, 3)
     e = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -88,7 +99,9 @@ def main():
     scenes = {"cornell": cornell(), "2k": spheres_scene(8, 11), "20k": spheres_scene(10, 31)}
     rng = np.random.default_rng(0)
     results = []
-    print(f"{'scene':8s} {'tris':>6s} {'backend':10s} {'rays':>8s} {'build s':>8s} {'rays/s':>11s} {'occl':>6s}")
+    print(
+        f"{'scene':8s} {'tris':>6s} {'backend':10s} {'rays':>8s} {'build s':>8s} {'rays/s':>11s} {'occl':>6s}"
+    )
     for sname, tri in scenes.items():
         a, b = segments(tri, args.rays, rng)
         for name in available_backends():
@@ -100,11 +113,23 @@ def main():
             t2 = time.perf_counter()
             occ = be.occluded(a[:r], b[:r])
             dt = time.perf_counter() - t2
-            results.append(dict(scene=sname, triangles=len(tri), backend=name, rays=r, build_s=t1 - t0,
-                                seconds=dt, rays_per_s=r / dt, occluded_fraction=float(occ.mean()),
-                                retraced=getattr(be, "last_retraced", 0)))
-            print(f"{sname:8s} {len(tri):6d} {name:10s} {r:8d} {t1 - t0:8.3f} {r / dt:11.3e} {occ.mean():6.3f}",
-                  flush=True)
+            results.append(
+                dict(
+                    scene=sname,
+                    triangles=len(tri),
+                    backend=name,
+                    rays=r,
+                    build_s=t1 - t0,
+                    seconds=dt,
+                    rays_per_s=r / dt,
+                    occluded_fraction=float(occ.mean()),
+                    retraced=getattr(be, "last_retraced", 0),
+                )
+            )
+            print(
+                f"{sname:8s} {len(tri):6d} {name:10s} {r:8d} {t1 - t0:8.3f} {r / dt:11.3e} {occ.mean():6.3f}",
+                flush=True,
+            )
     out = os.path.join(ROOT, "benchmarks", "out")
     os.makedirs(out, exist_ok=True)
     with open(os.path.join(out, "rays.json"), "w") as f:

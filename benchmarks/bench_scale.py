@@ -8,6 +8,7 @@ Every run is a separate process, so its peak memory (ru_maxrss) is its own. Timi
 seconds on this machine, plus the build's CPU seconds (user + system), which other jobs sharing
 the cores distort much less than wall time.
 """
+
 import argparse
 import json
 import os
@@ -35,23 +36,48 @@ def run_one(size, cluster, quality, events):
 
     mesh, info = furnished_room(size)
     params = dataclasses.replace(RefineParams.preset(quality), cluster=cluster)
-    cpu = lambda: sum(resource.getrusage(resource.RUSAGE_SELF)[:2])   # user + system seconds
+    cpu = lambda: sum(resource.getrusage(resource.RUSAGE_SELF)[:2])  # user + system seconds
     t0, c0 = time.perf_counter(), cpu()
     # progress to stderr: the parent keeps the last line when it stops a run at its time limit
-    s = RadiositySystem(mesh, params, progress=lambda p: print(f"{p.message} [{p.elapsed:.0f} s]", file=sys.stderr, flush=True))
+    s = RadiositySystem(
+        mesh,
+        params,
+        progress=lambda p: print(f"{p.message} [{p.elapsed:.0f} s]", file=sys.stderr, flush=True),
+    )
     build, build_cpu = time.perf_counter() - t0, cpu() - c0
-    build_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6   # before the solve and events
+    build_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6  # before the solve and events
     s.solve()
     r = s.build.refine
-    out = dict(size=size, cluster=cluster, quality=quality, triangles=info["triangles"], polygons=info["polygons"],
-               objects=info["objects"], build_s=build, links=len(s.links), far_links=s.links.n_far,
-               corrections=s.links.n_corrections, nodes=s.h.n, rays=r["rays"], cluster_pairs=r.get("cluster_pairs", 0),
-               patch_pairs=r["pairs_tested"], solve_s=s.report.seconds, iterations=s.report.iterations,
-               energy_error=s.report.energy_error, t_vis=r["t_vis"], t_ff=r["t_ff"], t_refine=r["t_refine"],
-               t_clusters=r.get("t_clusters", 0.0), build_peak_gb=build_rss, build_cpu_s=build_cpu)
+    out = dict(
+        size=size,
+        cluster=cluster,
+        quality=quality,
+        triangles=info["triangles"],
+        polygons=info["polygons"],
+        objects=info["objects"],
+        build_s=build,
+        links=len(s.links),
+        far_links=s.links.n_far,
+        corrections=s.links.n_corrections,
+        nodes=s.h.n,
+        rays=r["rays"],
+        cluster_pairs=r.get("cluster_pairs", 0),
+        patch_pairs=r["pairs_tested"],
+        solve_s=s.report.seconds,
+        iterations=s.report.iterations,
+        energy_error=s.report.energy_error,
+        t_vis=r["t_vis"],
+        t_ff=r["t_ff"],
+        t_refine=r["t_refine"],
+        t_clusters=r.get("t_clusters", 0.0),
+        build_peak_gb=build_rss,
+        build_cpu_s=build_cpu,
+    )
     if events:
         _, frame = info["light_wall"]
-        window = LightShape(S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window")
+        window = LightShape(
+            S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        )
         for method in ("FE", "AUTO"):
             dyn = DynamicRadiosity(s.copy(), method=method)
             t1 = time.perf_counter()
@@ -85,15 +111,32 @@ def main(argv=None):
     results = []
     for size, cluster in runs:
         ev = cluster and size in args.events.split(",")
-        cmd = [sys.executable, __file__, "--quality", args.quality, "--child", size, "1" if cluster else "0", "1" if ev else "0"]
+        cmd = [
+            sys.executable,
+            __file__,
+            "--quality",
+            args.quality,
+            "--child",
+            size,
+            "1" if cluster else "0",
+            "1" if ev else "0",
+        ]
         rss0 = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
         try:
             p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout)
         except subprocess.TimeoutExpired as e:
             rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
             last = (e.stderr or b"").decode(errors="replace").strip().splitlines()[-1:] or ["no progress"]
-            results.append(dict(size=size, cluster=cluster, quality=args.quality, timeout_s=args.timeout,
-                                peak_rss_gb=rss / 1e6 if rss > rss0 else None, last_progress=last[0]))
+            results.append(
+                dict(
+                    size=size,
+                    cluster=cluster,
+                    quality=args.quality,
+                    timeout_s=args.timeout,
+                    peak_rss_gb=rss / 1e6 if rss > rss0 else None,
+                    last_progress=last[0],
+                )
+            )
             print(f"{size} cluster={cluster}: stopped after {args.timeout:.0f} s at '{last[0]}'", flush=True)
             continue
         if p.returncode != 0:
@@ -101,10 +144,17 @@ def main(argv=None):
             continue
         res = json.loads(p.stdout.strip().splitlines()[-1])
         results.append(res)
-        ev_txt = (f", FE event {res['fe_event_s']:.2f} s, AUTO event {res['auto_event_s']:.2f} s" if "fe_event_s" in res else "")
-        print(f"{size:>5} {'clusters' if cluster else 'all pairs':>9}: {res['triangles']:,} triangles, build {res['build_s']:.1f} s ({res['build_cpu_s']:.1f} s CPU), "
-              f"{res['links']:,} links ({res['far_links']:,} far), {res['links'] / res['triangles']:.1f} per triangle, "
-              f"peak {res['peak_rss_gb']:.2f} GB, solve {res['solve_s']:.1f} s ({res['iterations']} it){ev_txt}", flush=True)
+        ev_txt = (
+            f", FE event {res['fe_event_s']:.2f} s, AUTO event {res['auto_event_s']:.2f} s"
+            if "fe_event_s" in res
+            else ""
+        )
+        print(
+            f"{size:>5} {'clusters' if cluster else 'all pairs':>9}: {res['triangles']:,} triangles, build {res['build_s']:.1f} s ({res['build_cpu_s']:.1f} s CPU), "
+            f"{res['links']:,} links ({res['far_links']:,} far), {res['links'] / res['triangles']:.1f} per triangle, "
+            f"peak {res['peak_rss_gb']:.2f} GB, solve {res['solve_s']:.1f} s ({res['iterations']} it){ev_txt}",
+            flush=True,
+        )
     path = Path(args.out) / f"scale_{args.quality}.json"
     # runs of other sizes measured earlier stay (each entry is one process of one run)
     old = json.loads(path.read_text()) if path.exists() else []
@@ -118,31 +168,42 @@ def main(argv=None):
 
 def table(results):
     """Markdown table of the runs in the JSON (README, docs/scale.md)."""
-    L = ["| triangles | linking | build (wall) | build (CPU) | links | links / triangle | far links | "
-         "peak memory, build | solve (iterations) | FE / AUTO event |", "|---|---|---|---|---|---|---|---|---|---|"]
+    L = [
+        "| triangles | linking | build (wall) | build (CPU) | links | links / triangle | far links | "
+        "peak memory, build | solve (iterations) | FE / AUTO event |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in sorted(results, key=lambda r: (not r["cluster"], r.get("triangles", float("inf")))):
         kind = "clusters" if r["cluster"] else "all pairs"
         if "build_s" not in r:
-            L.append(f"| ~{r['size']} | {kind} | stopped after {r['timeout_s']:.0f} s ({r['last_progress']}) | | | | | "
-                     f"{r['peak_rss_gb'] or 0:.1f} GB | | |")
+            L.append(
+                f"| ~{r['size']} | {kind} | stopped after {r['timeout_s']:.0f} s ({r['last_progress']}) | | | | | "
+                f"{r['peak_rss_gb'] or 0:.1f} GB | | |"
+            )
             continue
-        ev = (f"{r['fe_event_s']:.1f} s / {r['auto_event_s']:.1f} s" if "fe_event_s" in r else "")
+        ev = f"{r['fe_event_s']:.1f} s / {r['auto_event_s']:.1f} s" if "fe_event_s" in r else ""
         cpu = f"{r['build_cpu_s']:.1f} s" if "build_cpu_s" in r else ""
         mem = f"{r['build_peak_gb']:.2f} GB" if "build_peak_gb" in r else ""
-        L.append(f"| {r['triangles']:,} | {kind} | {r['build_s']:.1f} s | {cpu} | {r['links']:,} | "
-                 f"{r['links'] / r['triangles']:.1f} | {r['far_links']:,} | {mem} | {r['solve_s']:.1f} s ({r['iterations']}) | {ev} |")
+        L.append(
+            f"| {r['triangles']:,} | {kind} | {r['build_s']:.1f} s | {cpu} | {r['links']:,} | "
+            f"{r['links'] / r['triangles']:.1f} | {r['far_links']:,} | {mem} | {r['solve_s']:.1f} s ({r['iterations']}) | {ev} |"
+        )
     return "\n".join(L)
 
 
 def plot(results, path):
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, axes = plt.subplots(1, 2, figsize=(10, 4))
     done = [r for r in results if "build_s" in r]
     key = "build_cpu_s" if done and all("build_cpu_s" in r for r in done) else "build_s"
     for cluster, style, label in ((True, "o-", "clusters"), (False, "s--", "all patch pairs")):
-        rs = sorted((r for r in results if r["cluster"] == cluster and "build_s" in r), key=lambda r: r["triangles"])
+        rs = sorted(
+            (r for r in results if r["cluster"] == cluster and "build_s" in r), key=lambda r: r["triangles"]
+        )
         if not rs:
             continue
         tri = [r["triangles"] for r in rs]

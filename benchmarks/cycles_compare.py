@@ -17,6 +17,7 @@ process (all threads: Cycles is asked for one thread but may use more, BLAS is s
 that other users of the machine do not distort them. About 16 min of CPU from scratch, 8.5 min
 with cached references.
 """
+
 import os
 
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -42,18 +43,51 @@ CHART = os.path.join(HERE, "cycles_speed_accuracy.png")
 
 SCENES = {
     # frames in bake order; sweep_frame: Cycles at several sample counts (two seeds each)
-    "cornell": dict(frames=[1, 6, 13, 21], sweep_frame=13, ref_spp=512, sweep=[1, 4, 16, 64, 256],
-                    qualities=["draft", "medium", "high"], methods=["NAIVE", "AR", "FE", "AUTO"],
-                    texel_rel=1 / 64),
-    "searchbeam": dict(frames=[1, 6, 12], sweep_frame=None, ref_spp=256, sweep=[],
-                       qualities=["medium"], methods=["FE", "AUTO"], texel_rel=1 / 48),
-    "office": dict(frames=[1, 4, 8], sweep_frame=None, ref_spp=256, sweep=[],
-                   qualities=["medium"], methods=["FE", "AUTO"], texel_rel=1 / 48),
+    "cornell": dict(
+        frames=[1, 6, 13, 21],
+        sweep_frame=13,
+        ref_spp=512,
+        sweep=[1, 4, 16, 64, 256],
+        qualities=["draft", "medium", "high"],
+        methods=["NAIVE", "AR", "FE", "AUTO"],
+        texel_rel=1 / 64,
+    ),
+    "searchbeam": dict(
+        frames=[1, 6, 12],
+        sweep_frame=None,
+        ref_spp=256,
+        sweep=[],
+        qualities=["medium"],
+        methods=["FE", "AUTO"],
+        texel_rel=1 / 48,
+    ),
+    "office": dict(
+        frames=[1, 4, 8],
+        sweep_frame=None,
+        ref_spp=256,
+        sweep=[],
+        qualities=["medium"],
+        methods=["FE", "AUTO"],
+        texel_rel=1 / 48,
+    ),
     # the ~20k-triangle furnished room (850 objects): per-object means, clusters at work
-    "furnished": dict(frames=[1], sweep_frame=None, ref_spp=128, sweep=[],
-                      qualities=["draft", "medium"], methods=["FE", "AUTO"], texel_rel=1 / 150),
+    "furnished": dict(
+        frames=[1],
+        sweep_frame=None,
+        ref_spp=128,
+        sweep=[],
+        qualities=["draft", "medium"],
+        methods=["FE", "AUTO"],
+        texel_rel=1 / 150,
+    ),
 }
-QUICK = {"frames": [1, 13], "sweep": [4, 16], "ref_spp": 64, "qualities": ["draft"], "methods": ["FE", "AUTO"]}
+QUICK = {
+    "frames": [1, 13],
+    "sweep": [4, 16],
+    "ref_spp": 64,
+    "qualities": ["draft"],
+    "methods": ["FE", "AUTO"],
+}
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
 MIN_SURFACE_SHARE = 0.01
@@ -67,6 +101,7 @@ def log(msg, t0=[time.perf_counter()]):
 def load_bpy():
     import bpy
     import hr_addon
+
     if not hasattr(bpy.types.Scene, "hr"):
         hr_addon.register()
     return bpy
@@ -78,10 +113,10 @@ def open_scene(name):
     return bpy.context.scene
 
 
-
 # --------------------------------------------------------------------------------------------
 # Cycles side (cached)
 # --------------------------------------------------------------------------------------------
+
 
 def _atlas_key(rs):
     m = hashlib.sha1()
@@ -99,6 +134,7 @@ def cycles_bake(rs, scene, frame, spp, seed, need_time=False):
     bakes are reused (values only matter for references); need_time re-bakes cached bakes that
     have no CPU time."""
     import cycles_ref as C
+
     key = f"{scene}_f{frame}_s{spp}_seed{seed}_{_atlas_key(rs)}"
     path = os.path.join(CACHE, key + ".npz")
     if USE_CACHE and os.path.exists(path):
@@ -113,13 +149,16 @@ def cycles_bake(rs, scene, frame, spp, seed, need_time=False):
     for n in rs.objects:
         vals[n][~mask[n]] = np.nan
     os.makedirs(CACHE, exist_ok=True)
-    np.savez(path, __seconds=dt["wall"], __cpu=dt["cpu"], **{n: v.astype(np.float32) for n, v in vals.items()})
+    np.savez(
+        path, __seconds=dt["wall"], __cpu=dt["cpu"], **{n: v.astype(np.float32) for n, v in vals.items()}
+    )
     return vals, dt, False
 
 
 # --------------------------------------------------------------------------------------------
 # metrics
 # --------------------------------------------------------------------------------------------
+
 
 def pooled(d):
     """Concatenate {name: (N, 3)} in a fixed order."""
@@ -129,11 +168,15 @@ def pooled(d):
 def compare(res, ref, sigma_ref, objects):
     """Metrics of every variant against the reference, per surface and pooled."""
     import cycles_ref as C
+
     out = {}
     for var in VARIANTS:
         kind, src = var.split("_")
-        key = {"leaf": "leaf_refl" if kind == "refl" else "leaf_total",
-               "smooth": "smooth_refl" if kind == "refl" else "smooth_total", "vertex": "vertex_total"}[src]
+        key = {
+            "leaf": "leaf_refl" if kind == "refl" else "leaf_total",
+            "smooth": "smooth_refl" if kind == "refl" else "smooth_total",
+            "vertex": "vertex_total",
+        }[src]
         if key not in res[objects[0]]:
             continue
         per, ours_all, ref_all = {}, {}, {}
@@ -141,12 +184,12 @@ def compare(res, ref, sigma_ref, objects):
             r = ref[n] if kind == "refl" else ref[n] + res[n]["emission"]
             o = res[n][key]
             m = C.metrics(o, r)
-            if m is None:            # no texel the Cycles bake wrote
+            if m is None:  # no texel the Cycles bake wrote
                 continue
             per[n] = m
             ours_all[n], ref_all[n] = o, r
         pa = C.metrics(pooled(ours_all), pooled(ref_all))
-        s2 = sigma_ref ** 2
+        s2 = sigma_ref**2
         pa["rmse_corrected"] = float(np.sqrt(max(pa["rmse"] ** 2 - s2, 0.0)))
         # worst surface among those holding >= 1% of the texels (the Cornell light, 0.5%, is left out:
         # its reflected radiance is invisible next to its emission and very noisy in Cycles)
@@ -163,6 +206,7 @@ def footprint_masks(rs, surface, occluders, band):
     """(inside, near) texel masks of `surface`: texel centres under the vertical (z) projection of
     the occluders (the blocks on the floor, the light under the ceiling) and within `band` of it."""
     import bpy
+
     at = rs.atlases[surface]
     cen = at.s_centre
     pts = np.zeros((at.n, 3))
@@ -179,7 +223,7 @@ def footprint_masks(rs, surface, occluders, band):
         hull = _convex_hull(v[:, :2])
         e = np.roll(hull, -1, 0) - hull
         nrm = np.column_stack([e[:, 1], -e[:, 0]]) / np.linalg.norm(e, axis=1)[:, None]
-        sd = ((p[:, None, :] - hull[None]) * nrm[None]).sum(-1).max(1)   # > 0 outside (CCW hull)
+        sd = ((p[:, None, :] - hull[None]) * nrm[None]).sum(-1).max(1)  # > 0 outside (CCW hull)
         inside |= sd < 0
         dist = np.minimum(dist, np.where(sd < 0, np.inf, sd))
     return inside, (~inside) & (dist < band)
@@ -196,6 +240,7 @@ def _convex_hull(pts):
                 h.pop()
             h.append(q)
         return h
+
     lower, upper = half(pts), half(pts[::-1])
     return np.array(lower[:-1] + upper[:-1])
 
@@ -204,23 +249,37 @@ def _convex_hull(pts):
 # one scene
 # --------------------------------------------------------------------------------------------
 
+
 def run_scene(name, cfg, results, maps=None):
     import cycles_ref as C
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
+
     scene = open_scene(name)
     rs = C.prepare(scene, texel_rel=cfg["texel_rel"])
     n_tex = sum(rs.atlases[n].n for n in rs.objects)
     small = [w for w in rs.warnings if w.endswith("smaller than a texel, not compared")]
     if small:
         log(f"[{name}] {len(small)} objects smaller than a texel light the others but are not compared")
-    log(f"[{name}] {len(rs.objects)} objects, {n_tex} texels "
-        f"(texel {1000 * rs.atlases[rs.objects[0]].texel:.1f} mm), {len(rs.scene_in.mesh.loop_start)} polygons")
-    out = {"scene": name, "config": cfg, "texels": n_tex, "not_compared": len(small), "texel_m": rs.atlases[rs.objects[0]].texel,
-           "objects": {n: {"texels": rs.atlases[n].n, "size": [rs.atlases[n].width, rs.atlases[n].height]}
-                       for n in rs.objects},
-           "frames": {}, "cycles_sweep": [], "ours": []}
+    log(
+        f"[{name}] {len(rs.objects)} objects, {n_tex} texels "
+        f"(texel {1000 * rs.atlases[rs.objects[0]].texel:.1f} mm), {len(rs.scene_in.mesh.loop_start)} polygons"
+    )
+    out = {
+        "scene": name,
+        "config": cfg,
+        "texels": n_tex,
+        "not_compared": len(small),
+        "texel_m": rs.atlases[rs.objects[0]].texel,
+        "objects": {
+            n: {"texels": rs.atlases[n].n, "size": [rs.atlases[n].width, rs.atlases[n].height]}
+            for n in rs.objects
+        },
+        "frames": {},
+        "cycles_sweep": [],
+        "ours": [],
+    }
     shapes_at, refs = {}, {}
     # Cycles: reference per frame, sweep on one frame
     for f in cfg["frames"]:
@@ -231,34 +290,57 @@ def run_scene(name, cfg, results, maps=None):
         pa, pb = pooled(a), pooled(b)
         sig, sig_mean = C.noise(pa, pb)
         refs[f] = ref
-        fr = {"shapes": sorted(shapes_at[f]), "ref_spp": 2 * cfg["ref_spp"], "ref_bake_seconds": [ta, tb],
-              "shape_faces_its_surface": C.shape_orientation(rs, shapes_at[f]),
-              "ref_sigma": sig / np.sqrt(2), "ref_sigma_surface_mean": {},
-              "ref_mean": {n: ref[n].mean(0).tolist() for n in rs.objects}}
+        fr = {
+            "shapes": sorted(shapes_at[f]),
+            "ref_spp": 2 * cfg["ref_spp"],
+            "ref_bake_seconds": [ta, tb],
+            "shape_faces_its_surface": C.shape_orientation(rs, shapes_at[f]),
+            "ref_sigma": sig / np.sqrt(2),
+            "ref_sigma_surface_mean": {},
+            "ref_mean": {n: ref[n].mean(0).tolist() for n in rs.objects},
+        }
         for n in rs.objects:
             fr["ref_sigma_surface_mean"][n] = C.noise(a[n], b[n])[1] / np.sqrt(2)
         out["frames"][str(f)] = fr
         rev = [k for k, ok in fr["shape_faces_its_surface"].items() if not ok]
         if rev:
-            log(f"  note: light shape(s) {rev} are wound against the surface they lie on "
-                "(they emit on the surface's side)")
+            log(
+                f"  note: light shape(s) {rev} are wound against the surface they lie on "
+                "(they emit on the surface's side)"
+            )
         cached = ", cached" if ca and cb else ""
-        log(f"[{name}] frame {f}: reference {2 * cfg['ref_spp']} spp ({ta['wall'] + tb['wall']:.1f} s{cached}), "
-            f"texel noise of the reference {fr['ref_sigma']:.4f}, shapes {len(shapes_at[f])}")
+        log(
+            f"[{name}] frame {f}: reference {2 * cfg['ref_spp']} spp ({ta['wall'] + tb['wall']:.1f} s{cached}), "
+            f"texel noise of the reference {fr['ref_sigma']:.4f}, shapes {len(shapes_at[f])}"
+        )
         if f == cfg.get("sweep_frame"):
             for spp in cfg["sweep"]:
                 x, tx, _ = cycles_bake(rs, name, f, spp, SWEEP_SEEDS[0], need_time=True)
                 y, ty, _ = cycles_bake(rs, name, f, spp, SWEEP_SEEDS[1], need_time=True)
                 sig_n, sig_n_mean = C.noise(pooled(x), pooled(y))
-                cmp_ = compare({n: {"leaf_refl": x[n], "emission": 0 * x[n]} for n in rs.objects}, ref,
-                               fr["ref_sigma"], rs.objects)["refl_leaf"]
-                out["cycles_sweep"].append({"frame": f, "spp": spp, "seconds": [tx["cpu"], ty["cpu"]],
-                                            "wall_seconds": [tx["wall"], ty["wall"]], "noise_rmse": sig_n,
-                                            "noise_surface_mean": sig_n_mean, "vs_ref": cmp_["all"],
-                                            "vs_ref_surfaces": {n: cmp_["surfaces"][n]["mre"] for n in rs.objects}})
-                log(f"[{name}] cycles {spp:4d} spp: {np.mean([tx['cpu'], ty['cpu']]):6.2f} s CPU/bake "
+                cmp_ = compare(
+                    {n: {"leaf_refl": x[n], "emission": 0 * x[n]} for n in rs.objects},
+                    ref,
+                    fr["ref_sigma"],
+                    rs.objects,
+                )["refl_leaf"]
+                out["cycles_sweep"].append(
+                    {
+                        "frame": f,
+                        "spp": spp,
+                        "seconds": [tx["cpu"], ty["cpu"]],
+                        "wall_seconds": [tx["wall"], ty["wall"]],
+                        "noise_rmse": sig_n,
+                        "noise_surface_mean": sig_n_mean,
+                        "vs_ref": cmp_["all"],
+                        "vs_ref_surfaces": {n: cmp_["surfaces"][n]["mre"] for n in rs.objects},
+                    }
+                )
+                log(
+                    f"[{name}] cycles {spp:4d} spp: {np.mean([tx['cpu'], ty['cpu']]):6.2f} s CPU/bake "
                     f"({np.mean([tx['wall'], ty['wall']]):.2f} s wall), texel noise {sig_n:.4f}, "
-                    f"worst surface-mean error vs ref {100 * cmp_['all']['worst_mre']:.2f}%")
+                    f"worst surface-mean error vs ref {100 * cmp_['all']['worst_mre']:.2f}%"
+                )
     # ours
     for q in cfg["qualities"]:
         t0 = time.process_time()
@@ -267,33 +349,49 @@ def run_scene(name, cfg, results, maps=None):
         log(f"[{name}/{q}] hierarchy: {base.h.n} nodes, {len(base.links)} links, {t_build:.1f} s")
         for meth in cfg["methods"]:
             if meth == "NAIVE" and q == "high":
-                continue   # a full high-quality rebuild per event (~30 s each): off the chart anyway
+                continue  # a full high-quality rebuild per event (~30 s each): off the chart anyway
             t0 = time.process_time()
             dyn = DynamicRadiosity(base.copy(), method=meth)
             t_init = time.process_time() - t0
             ours = C.Ours(rs, dyn.system, dyn)
-            run = {"quality": q, "method": meth, "build_seconds": t_build, "init_seconds": t_init,
-                   "nodes": base.h.n, "links": len(base.links), "frames": {}}
+            run = {
+                "quality": q,
+                "method": meth,
+                "build_seconds": t_build,
+                "init_seconds": t_init,
+                "nodes": base.h.n,
+                "links": len(base.links),
+                "frames": {},
+            }
             for f in cfg["frames"]:
                 c0 = time.process_time()
                 fr = dyn.apply(shapes_at[f])
                 cpu = time.process_time() - c0
                 res = ours.evaluate(shapes_at[f], smooth=(meth == "AUTO" and q != "draft"))
                 cmp_ = compare(res, refs[f], out["frames"][str(f)]["ref_sigma"], rs.objects)
-                ev = {"seconds": cpu, "wall_seconds": fr.seconds, "events": [e.kind for e in fr.events],
-                      "method_used": fr.method,
-                      "nodes": fr.nodes, "links": fr.links, "messages": fr.messages, "metrics": cmp_}
+                ev = {
+                    "seconds": cpu,
+                    "wall_seconds": fr.seconds,
+                    "events": [e.kind for e in fr.events],
+                    "method_used": fr.method,
+                    "nodes": fr.nodes,
+                    "links": fr.links,
+                    "messages": fr.messages,
+                    "metrics": cmp_,
+                }
                 if meth == "AUTO" and name in CONTACTS:
                     ev["contacts"] = contact_metrics(rs, res, refs[f], name)
                 run["frames"][str(f)] = ev
                 if maps is not None and q == "medium" and meth == "AUTO" and f == cfg.get("sweep_frame"):
                     maps.update(rs=rs, res=res, ref=refs[f], frame=f, scene=name)
                 a = cmp_["refl_leaf"]["all"]
-                log(f"[{name}/{q}/{meth}] frame {f}: {cpu:7.3f} s CPU {'+'.join(ev['events']) or '-':12s} "
+                log(
+                    f"[{name}/{q}/{meth}] frame {f}: {cpu:7.3f} s CPU {'+'.join(ev['events']) or '-':12s} "
                     f"reflected: worst surface {100 * a['worst_mre']:5.2f}% ({a['worst_surface']}), "
                     f"bias {100 * a['bias']:+.2f}%, RMSE {a['rmse']:.4f} "
                     f"(ref-noise corrected {a['rmse_corrected']:.4f}), "
-                    f"p95 {a['p95']:.4f}")
+                    f"p95 {a['p95']:.4f}"
+                )
             out["ours"].append(run)
         del base
     results[name] = out
@@ -307,6 +405,7 @@ def contact_metrics(rs, res, ref, scene):
     """Reflected-radiance error under occluders touching a surface (blocks on the floor; the light
     0.5 mm under the ceiling), in a band of 2 texels around them, and on the rest of the surface."""
     import cycles_ref as C
+
     out = {}
     for surface, occ in CONTACTS.get(scene, []):
         if surface not in rs.objects:
@@ -336,13 +435,17 @@ COL = {"draft": "#9ecae1", "medium": "#3182bd", "high": "#08306b"}
 
 def plot(results, path=CHART):
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     r = results["cornell"]
     f = str(r["config"]["sweep_frame"])
     fig, axes = plt.subplots(1, 2, figsize=(12, 5))
-    for ax, metric, label in ((axes[0], "rmse", "texel RMSE of reflected radiance [W sr$^{-1}$ m$^{-2}$]"),
-                              (axes[1], "worst_mre", "worst per-surface mean error (relative)")):
+    for ax, metric, label in (
+        (axes[0], "rmse", "texel RMSE of reflected radiance [W sr$^{-1}$ m$^{-2}$]"),
+        (axes[1], "worst_mre", "worst per-surface mean error (relative)"),
+    ):
         sw = r["cycles_sweep"]
         t = [np.mean(s["seconds"]) for s in sw]
         e = [s["noise_rmse"] if metric == "rmse" else s["vs_ref"]["worst_mre"] for s in sw]
@@ -354,15 +457,30 @@ def plot(results, path=CHART):
             fr = run["frames"][f]
             a = fr["metrics"]["refl_leaf"]["all"]
             y = a["rmse_corrected"] if metric == "rmse" else a["worst_mre"]
-            ax.plot([fr["seconds"]], [y], MARK[run["method"]], color=COL[run["quality"]], ms=8, mec="k",
-                    label=f"{run['method']} {run['quality']}")
+            ax.plot(
+                [fr["seconds"]],
+                [y],
+                MARK[run["method"]],
+                color=COL[run["quality"]],
+                ms=8,
+                mec="k",
+                label=f"{run['method']} {run['quality']}",
+            )
         ax.set_xscale("log")
         ax.set_yscale("log")
         if metric == "worst_mre":
             ax.axhline(0.03, color="r", ls=":", lw=1)
-            ax.text(0.02, 0.03, " 3% target", color="r", fontsize=8, va="bottom",
-                    transform=ax.get_yaxis_transform())
+            ax.text(
+                0.02,
+                0.03,
+                " 3% target",
+                color="r",
+                fontsize=8,
+                va="bottom",
+                transform=ax.get_yaxis_transform(),
+            )
             from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+
             ax.yaxis.set_major_locator(FixedLocator([0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1]))
             ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{100 * v:g}%"))
             ax.yaxis.set_minor_formatter(NullFormatter())
@@ -372,10 +490,13 @@ def plot(results, path=CHART):
     h, lab = axes[0].get_legend_handles_labels()
     uniq = dict(zip(lab, h))
     fig.legend(uniq.values(), uniq.keys(), loc="lower center", ncol=7, fontsize=8, frameon=False)
-    fig.suptitle(f"Cornell box frame {f} (the back patch appears, the window is on): error against a converged "
-                 f"Cycles bake ({r['frames'][f]['ref_spp']} spp), {r['texels']} texels of {1000 * r['texel_m']:.0f} mm.\n"
-                 "Ours: CPU time of the light event (the hierarchy, built once per bake, is not counted); "
-                 "Cycles: CPU time of one bake of all surfaces", fontsize=9)
+    fig.suptitle(
+        f"Cornell box frame {f} (the back patch appears, the window is on): error against a converged "
+        f"Cycles bake ({r['frames'][f]['ref_spp']} spp), {r['texels']} texels of {1000 * r['texel_m']:.0f} mm.\n"
+        "Ours: CPU time of the light event (the hierarchy, built once per bake, is not counted); "
+        "Cycles: CPU time of one bake of all surfaces",
+        fontsize=9,
+    )
     fig.tight_layout(rect=(0, 0.08, 1, 0.93))
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -386,8 +507,10 @@ def plot_maps(maps, path):
     if not maps:
         return
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     rs, res, ref = maps["rs"], maps["res"], maps["ref"]
     names = [n for n in ("floor", "back", "right_green", "ceiling") if n in rs.objects]
     cols = ["Cycles (reflected)", "ours: leaves", "ours: vertex output - emission", "leaves - Cycles"]
@@ -399,10 +522,15 @@ def plot_maps(maps, path):
             a = np.full((at.height, at.width), np.nan)
             a[at.ty, at.tx] = v.mean(1)
             return a
+
         r = ref[n]
         vmax = np.nanpercentile(img(r), 99)
-        data = [img(r), img(res[n]["leaf_refl"]), img(res[n]["vertex_total"] - res[n]["emission"]),
-                img(res[n]["leaf_refl"] - r)]
+        data = [
+            img(r),
+            img(res[n]["leaf_refl"]),
+            img(res[n]["vertex_total"] - res[n]["emission"]),
+            img(res[n]["leaf_refl"] - r),
+        ]
         for j, d in enumerate(data):
             ax = axes[i, j]
             if j < 3:
@@ -416,8 +544,10 @@ def plot_maps(maps, path):
             if i == 0:
                 ax.set_title(cols[j], fontsize=9)
         axes[i, 0].set_ylabel(n)
-    fig.suptitle(f"{maps['scene']} frame {maps['frame']}, medium AUTO: mean of RGB, radiance units (charts in UV layout)",
-                 fontsize=10)
+    fig.suptitle(
+        f"{maps['scene']} frame {maps['frame']}, medium AUTO: mean of RGB, radiance units (charts in UV layout)",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
@@ -434,8 +564,10 @@ def equal_error(results):
     sw = r["cycles_sweep"]
     spp = np.array([s["spp"] for s in sw], float)
     t = np.array([np.mean(s["seconds"]) for s in sw])
-    curves = {"rmse": np.minimum.accumulate(np.array([s["noise_rmse"] for s in sw])),
-              "worst_mre": np.minimum.accumulate(np.array([s["vs_ref"]["worst_mre"] for s in sw]))}
+    curves = {
+        "rmse": np.minimum.accumulate(np.array([s["noise_rmse"] for s in sw])),
+        "worst_mre": np.minimum.accumulate(np.array([s["vs_ref"]["worst_mre"] for s in sw])),
+    }
     c, t0 = np.polyfit(spp, t, 1)
 
     def spp_at(curve, err):
@@ -443,14 +575,20 @@ def equal_error(results):
             return float(spp[0] * (curve[0] / err) ** 2)
         if err <= curve[-1]:
             return float(spp[-1] * (curve[-1] / err) ** 2)
-        i = int(np.searchsorted(-curve, -err))          # curve[i-1] > err >= curve[i]
+        i = int(np.searchsorted(-curve, -err))  # curve[i-1] > err >= curve[i]
         x0, x1, y0, y1 = np.log(spp[i - 1]), np.log(spp[i]), np.log(curve[i - 1]), np.log(curve[i])
         return float(np.exp(x0 + (np.log(err) - y0) * (x1 - x0) / (y1 - y0))) if y1 != y0 else float(spp[i])
 
     f = str(r["config"]["sweep_frame"])
-    out = {"fit": {"t0": t0, "seconds_per_spp": c,
-                   "note": "spp at equal error: log-log interpolation of the measured curves (monotone "
-                           "envelope, 1/sqrt(spp) beyond them), at least 1; time = t0 + c spp"}, "runs": []}
+    out = {
+        "fit": {
+            "t0": t0,
+            "seconds_per_spp": c,
+            "note": "spp at equal error: log-log interpolation of the measured curves (monotone "
+            "envelope, 1/sqrt(spp) beyond them), at least 1; time = t0 + c spp",
+        },
+        "runs": [],
+    }
     for run in r["ours"]:
         fr = run["frames"][f]
         al = fr["metrics"]["refl_leaf"]["all"]
@@ -458,8 +596,12 @@ def equal_error(results):
         for key, err in (("rmse", al["rmse_corrected"]), ("worst_mre", al["worst_mre"])):
             n_eq = max(spp_at(curves[key], max(err, 1e-12)), 1.0)
             t_eq = max(t0, 0.0) + c * n_eq
-            rows[key] = {"error": err, "cycles_spp": n_eq, "cycles_seconds": t_eq,
-                         "speedup": t_eq / max(fr["seconds"], 1e-9)}
+            rows[key] = {
+                "error": err,
+                "cycles_spp": n_eq,
+                "cycles_seconds": t_eq,
+                "speedup": t_eq / max(fr["seconds"], 1e-9),
+            }
         out["runs"].append(rows)
     return out
 
@@ -468,23 +610,29 @@ def summary_table(results, eq):
     lines = []
     for name, r in results.items():
         lines.append(f"\n{name}: reflected radiance, leaf values (texel RMSE corrected for reference noise)")
-        lines.append(f"{'quality':7s} {'method':6s} {'frame':>5s} {'event s':>8s} {'worst %':>8s} {'surface':12s} "
-                     f"{'bias %':>7s} {'RMSE':>7s} {'p95':>7s} {'vtx RMSE':>8s}")
+        lines.append(
+            f"{'quality':7s} {'method':6s} {'frame':>5s} {'event s':>8s} {'worst %':>8s} {'surface':12s} "
+            f"{'bias %':>7s} {'RMSE':>7s} {'p95':>7s} {'vtx RMSE':>8s}"
+        )
         for run in r["ours"]:
             for f, fr in run["frames"].items():
                 a = fr["metrics"]["refl_leaf"]["all"]
                 v = fr["metrics"]["total_vertex"]["all"]
-                lines.append(f"{run['quality']:7s} {run['method']:6s} {f:>5s} {fr['seconds']:8.3f} "
-                             f"{100 * a['worst_mre']:8.2f} {a['worst_surface']:12s} {100 * a['bias']:+7.2f} "
-                             f"{a['rmse_corrected']:7.4f} {a['p95']:7.4f} {v['rmse']:8.4f}")
+                lines.append(
+                    f"{run['quality']:7s} {run['method']:6s} {f:>5s} {fr['seconds']:8.3f} "
+                    f"{100 * a['worst_mre']:8.2f} {a['worst_surface']:12s} {100 * a['bias']:+7.2f} "
+                    f"{a['rmse_corrected']:7.4f} {a['p95']:7.4f} {v['rmse']:8.4f}"
+                )
     if eq:
         lines.append("\nequal-error Cycles time (Cornell, sweep frame)")
         for row in eq["runs"]:
-            lines.append(f"{row['quality']:7s} {row['method']:6s} event {row['event_seconds']:.3f} s | RMSE "
-                         f"{row['rmse']['error']:.4f} ~ Cycles {row['rmse']['cycles_spp']:.0f} spp "
-                         f"{row['rmse']['cycles_seconds']:.2f} s (x{row['rmse']['speedup']:.1f}) | worst surface "
-                         f"{100 * row['worst_mre']['error']:.2f}% ~ {row['worst_mre']['cycles_spp']:.1f} spp "
-                         f"{row['worst_mre']['cycles_seconds']:.2f} s (x{row['worst_mre']['speedup']:.2f})")
+            lines.append(
+                f"{row['quality']:7s} {row['method']:6s} event {row['event_seconds']:.3f} s | RMSE "
+                f"{row['rmse']['error']:.4f} ~ Cycles {row['rmse']['cycles_spp']:.0f} spp "
+                f"{row['rmse']['cycles_seconds']:.2f} s (x{row['rmse']['speedup']:.1f}) | worst surface "
+                f"{100 * row['worst_mre']['error']:.2f}% ~ {row['worst_mre']['cycles_spp']:.1f} spp "
+                f"{row['worst_mre']['cycles_seconds']:.2f} s (x{row['worst_mre']['speedup']:.2f})"
+            )
     return "\n".join(lines)
 
 
@@ -496,12 +644,18 @@ def markdown(data):
     if r:
         frames = list(r["frames"])
         sf = str(r["config"]["sweep_frame"])
-        L.append(f"Cornell box, reflected radiance at {r['texels']} texels ({1000 * r['texel_m']:.0f} mm), "
-                 f"reference {r['frames'][sf]['ref_spp']} spp per frame. Worst surface = largest per-surface "
-                 "mean error; bias, RMSE (corrected for the reference's noise) and p95 over all texels at frame "
-                 f"{sf}; vertex = HR_Radiance interpolated, total radiance, RMSE at frame {sf}.\n")
-        L.append("| quality | method | worst surface, frames " + " / ".join(frames) + f" | bias f{sf} | RMSE f{sf} "
-                 f"| p95 f{sf} | total radiance RMSE f{sf}: leaves / texture / vertex output |")
+        L.append(
+            f"Cornell box, reflected radiance at {r['texels']} texels ({1000 * r['texel_m']:.0f} mm), "
+            f"reference {r['frames'][sf]['ref_spp']} spp per frame. Worst surface = largest per-surface "
+            "mean error; bias, RMSE (corrected for the reference's noise) and p95 over all texels at frame "
+            f"{sf}; vertex = HR_Radiance interpolated, total radiance, RMSE at frame {sf}.\n"
+        )
+        L.append(
+            "| quality | method | worst surface, frames "
+            + " / ".join(frames)
+            + f" | bias f{sf} | RMSE f{sf} "
+            f"| p95 f{sf} | total radiance RMSE f{sf}: leaves / texture / vertex output |"
+        )
         L.append("|---|---|---|---|---|---|---|")
         for run in r["ours"]:
             fr = run["frames"]
@@ -509,12 +663,17 @@ def markdown(data):
             a = fr[sf]["metrics"]["refl_leaf"]["all"]
             mt = fr[sf]["metrics"]
             tex = f"{mt['total_smooth']['all']['rmse']:.3f}" if "total_smooth" in mt else "-"
-            L.append(f"| {run['quality']} | {run['method']} | {w} | {100 * a['bias']:+.2f}% | {a['rmse_corrected']:.4f} "
-                     f"| {a['p95']:.4f} | {mt['total_leaf']['all']['rmse']:.3f} / {tex} / "
-                     f"{mt['total_vertex']['all']['rmse']:.3f} |")
+            L.append(
+                f"| {run['quality']} | {run['method']} | {w} | {100 * a['bias']:+.2f}% | {a['rmse_corrected']:.4f} "
+                f"| {a['p95']:.4f} | {mt['total_leaf']['all']['rmse']:.3f} / {tex} / "
+                f"{mt['total_vertex']['all']['rmse']:.3f} |"
+            )
         L.append("")
-        L.append("| quality | method | hierarchy CPU s | event CPU s, frames " + " / ".join(frames[1:]) +
-                 f" | Cycles at equal RMSE (f{sf}) | speed-up | Cycles at equal worst surface | speed-up |")
+        L.append(
+            "| quality | method | hierarchy CPU s | event CPU s, frames "
+            + " / ".join(frames[1:])
+            + f" | Cycles at equal RMSE (f{sf}) | speed-up | Cycles at equal worst surface | speed-up |"
+        )
         L.append("|---|---|---|---|---|---|---|---|")
         eqr = {(x["quality"], x["method"]): x for x in eq.get("runs", [])}
         for run in r["ours"]:
@@ -523,18 +682,24 @@ def markdown(data):
             x = eqr.get((run["quality"], run["method"]))
             if x:
                 a, b = x["rmse"], x["worst_mre"]
-                tail = (f"{a['cycles_spp']:.0f} spp, {a['cycles_seconds']:.1f} s | x{a['speedup']:.1f} | "
-                        f"{'<= 1' if b['cycles_spp'] <= 1 else format(b['cycles_spp'], '.0f')} spp, "
-                        f"{b['cycles_seconds']:.1f} s | x{b['speedup']:.2f} |")
+                tail = (
+                    f"{a['cycles_spp']:.0f} spp, {a['cycles_seconds']:.1f} s | x{a['speedup']:.1f} | "
+                    f"{'<= 1' if b['cycles_spp'] <= 1 else format(b['cycles_spp'], '.0f')} spp, "
+                    f"{b['cycles_seconds']:.1f} s | x{b['speedup']:.2f} |"
+                )
             else:
                 tail = " | | | |"
             L.append(f"| {run['quality']} | {run['method']} | {run['build_seconds']:.1f} | {ev} | {tail}")
         L.append("")
-        L.append(f"| Cycles spp (frame {sf}) | CPU s / bake | texel noise (RMS) | worst surface vs reference |")
+        L.append(
+            f"| Cycles spp (frame {sf}) | CPU s / bake | texel noise (RMS) | worst surface vs reference |"
+        )
         L.append("|---|---|---|---|")
         for sw in r["cycles_sweep"]:
-            L.append(f"| {sw['spp']} | {np.mean(sw['seconds']):.2f} | {sw['noise_rmse']:.4f} | "
-                     f"{100 * sw['vs_ref']['worst_mre']:.2f}% ({sw['vs_ref']['worst_surface']}) |")
+            L.append(
+                f"| {sw['spp']} | {np.mean(sw['seconds']):.2f} | {sw['noise_rmse']:.4f} | "
+                f"{100 * sw['vs_ref']['worst_mre']:.2f}% ({sw['vs_ref']['worst_surface']}) |"
+            )
         L.append("")
         rows = []
         for run in r["ours"]:
@@ -545,18 +710,28 @@ def markdown(data):
                 for key, d in c.items():
                     row = [f"| {run['method']} {run['quality']} f{f} | {key} "]
                     u = d.get("under")
-                    row.append(f"| {np.mean(u['mean_ref']):.4f} / {np.mean(u['mean_ours']):.4f} / "
-                               f"{np.mean(u['vertex']['mean_ours']) - np.mean(u['vertex']['mean_ref']) + np.mean(u['mean_ref']):.4f} "
-                               f"({u['texels']}) " if u else "| - ")
+                    row.append(
+                        f"| {np.mean(u['mean_ref']):.4f} / {np.mean(u['mean_ours']):.4f} / "
+                        f"{np.mean(u['vertex']['mean_ours']) - np.mean(u['vertex']['mean_ref']) + np.mean(u['mean_ref']):.4f} "
+                        f"({u['texels']}) "
+                        if u
+                        else "| - "
+                    )
                     for lab in ("around", "rest"):
                         m = d.get(lab)
-                        row.append(f"| {np.mean(m['mean_ref']):.4f}: {100 * m['bias']:+.0f}% / "
-                                   f"{100 * m['vertex']['bias']:+.0f}% ({m['texels']}) " if m else "| - ")
+                        row.append(
+                            f"| {np.mean(m['mean_ref']):.4f}: {100 * m['bias']:+.0f}% / "
+                            f"{100 * m['vertex']['bias']:+.0f}% ({m['texels']}) "
+                            if m
+                            else "| - "
+                        )
                     rows.append("".join(row) + "|")
         if rows:
-            L.append("Contacts: reflected radiance of the surface under the occluder (Cycles / leaves / vertex "
-                     "output; texels), and Cycles' mean with the bias of leaves / vertex output in a band of 2 texels "
-                     "around the occluder and on the rest of the surface:\n")
+            L.append(
+                "Contacts: reflected radiance of the surface under the occluder (Cycles / leaves / vertex "
+                "output; texels), and Cycles' mean with the bias of leaves / vertex output in a band of 2 texels "
+                "around the occluder and on the rest of the surface:\n"
+            )
             L.append("| run | surface / occluders | under | band around | rest of the surface |")
             L.append("|---|---|---|---|---|")
             L += rows
@@ -565,18 +740,22 @@ def markdown(data):
         if name == "cornell":
             continue
         frames = list(r["frames"])
-        L.append(f"{name}: {r['texels']} texels ({1000 * r['texel_m']:.0f} mm), reference "
-                 f"{r['frames'][frames[0]]['ref_spp']} spp.\n")
+        L.append(
+            f"{name}: {r['texels']} texels ({1000 * r['texel_m']:.0f} mm), reference "
+            f"{r['frames'][frames[0]]['ref_spp']} spp.\n"
+        )
         L.append("| quality | method | frame | event | CPU s | worst surface | bias | RMSE | vertex RMSE |")
         L.append("|---|---|---|---|---|---|---|---|---|")
         for run in r["ours"]:
             for f in frames:
                 fr = run["frames"][f]
                 a = fr["metrics"]["refl_leaf"]["all"]
-                L.append(f"| {run['quality']} | {run['method']} | {f} | {'+'.join(fr['events']) or '-'} | "
-                         f"{fr['seconds']:.3f} | {100 * a['worst_mre']:.1f}% ({a['worst_surface']}) | "
-                         f"{100 * a['bias']:+.2f}% | {a['rmse_corrected']:.4f} | "
-                         f"{fr['metrics']['total_vertex']['all']['rmse']:.4f} |")
+                L.append(
+                    f"| {run['quality']} | {run['method']} | {f} | {'+'.join(fr['events']) or '-'} | "
+                    f"{fr['seconds']:.3f} | {100 * a['worst_mre']:.1f}% ({a['worst_surface']}) | "
+                    f"{100 * a['bias']:+.2f}% | {a['rmse_corrected']:.4f} | "
+                    f"{fr['metrics']['total_vertex']['all']['rmse']:.4f} |"
+                )
         L.append("")
     return "\n".join(L)
 
@@ -614,14 +793,29 @@ def main():
             cfg["sweep_frame"] = 13
         run_scene(name, cfg, results, maps if name == "cornell" else None)
     eq = equal_error(results)
-    data = {"scenes": results, "equal_error": eq, "total_seconds": time.perf_counter() - t_start,
-            "total_cpu_seconds": time.process_time(),
-            "machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(),
-                        "numpy": np.__version__, "load_avg_end": os.getloadavg()},
-            "settings": {"cycles_threads": 1, "ref_seeds": REF_SEEDS, "sweep_seeds": SWEEP_SEEDS,
-                         "bounces": 64, "filter": "box 1 px", "sub_texels": 3}}
+    data = {
+        "scenes": results,
+        "equal_error": eq,
+        "total_seconds": time.perf_counter() - t_start,
+        "total_cpu_seconds": time.process_time(),
+        "machine": {
+            "cpu_count": os.cpu_count(),
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "load_avg_end": os.getloadavg(),
+        },
+        "settings": {
+            "cycles_threads": 1,
+            "ref_seeds": REF_SEEDS,
+            "sweep_seeds": SWEEP_SEEDS,
+            "bounces": 64,
+            "filter": "box 1 px",
+            "sub_texels": 3,
+        },
+    }
     try:
         import bpy
+
         data["machine"]["blender"] = bpy.app.version_string
     except ImportError:
         pass

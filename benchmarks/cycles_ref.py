@@ -27,6 +27,7 @@ Pipeline per scene:
    corner values interpolated over Blender's loop triangles, what a render shows), averaged per
    texel, plus the exact emission at each texel (polygon emission + active shapes covering it).
 """
+
 from dataclasses import dataclass, field
 import time
 
@@ -42,6 +43,7 @@ REF_TAG = "hr_ref"
 # --------------------------------------------------------------------------------------------
 # Atlas
 # --------------------------------------------------------------------------------------------
+
 
 def _world_mesh(obj):
     me = obj.data
@@ -67,16 +69,16 @@ class Atlas:
     name: str
     width: int
     height: int
-    k: int                     # sub-texels per texel side
-    texel: float               # world length of a texel side
+    k: int  # sub-texels per texel side
+    texel: float  # world length of a texel side
     # per texel (N)
-    tx: np.ndarray = None      # texel column
-    ty: np.ndarray = None      # texel row (row 0 = v 0, as Blender stores pixels)
+    tx: np.ndarray = None  # texel column
+    ty: np.ndarray = None  # texel row (row 0 = v 0, as Blender stores pixels)
     # per sub-sample (S)
     s_texel: np.ndarray = None  # texel index 0..N-1
-    s_poly: np.ndarray = None   # object polygon
+    s_poly: np.ndarray = None  # object polygon
     s_loops: np.ndarray = None  # (S, 3) loop indices of the loop triangle
-    s_bary: np.ndarray = None   # (S, 3)
+    s_bary: np.ndarray = None  # (S, 3)
     s_point: np.ndarray = None  # (S, 3) world
     s_centre: np.ndarray = None  # bool: the texel's centre sample
     area: float = 0.0
@@ -91,7 +93,7 @@ class Atlas:
         """UV layer UV_NAME on obj (made active for render/bake) and the texel -> surface map."""
         verts, ls, lt, lv, tri_loops, tri_poly = _world_mesh(obj)
         P = len(ls)
-        polys = [lv[s:s + n] for s, n in zip(ls, lt)]
+        polys = [lv[s : s + n] for s, n in zip(ls, lt)]
         nrm = np.zeros((P, 3))
         area = np.zeros(P)
         for i, p in enumerate(polys):
@@ -130,7 +132,9 @@ class Atlas:
             rects.append((loops, int(np.ceil(ext[0])) + 2 * pad, int(np.ceil(ext[1])) + 2 * pad))
         # shelf packing into the smallest square that fits (tallest first)
         order = sorted(range(len(rects)), key=lambda i: -rects[i][2])
-        side = max(int(np.ceil(np.sqrt(sum(r[1] * r[2] for r in rects)))), max(max(r[1], r[2]) for r in rects))
+        side = max(
+            int(np.ceil(np.sqrt(sum(r[1] * r[2] for r in rects)))), max(max(r[1], r[2]) for r in rects)
+        )
         while True:
             x = y = shelf = 0
             place = {}
@@ -165,7 +169,7 @@ class Atlas:
         k = self.k
         s_idx, s_tri, s_bary = [], [], []
         for t, lo in enumerate(tri_loops):
-            a, b, c = loop_uv[lo] * k          # sub-texel units
+            a, b, c = loop_uv[lo] * k  # sub-texel units
             lo_x, lo_y = np.floor(np.minimum(np.minimum(a, b), c)).astype(int)
             hi_x, hi_y = np.ceil(np.maximum(np.maximum(a, b), c)).astype(int)
             xs, ys = np.meshgrid(np.arange(lo_x, hi_x + 1), np.arange(lo_y, hi_y + 1), indexing="ij")
@@ -194,7 +198,7 @@ class Atlas:
         tx, ty = sub[:, 0] // k, sub[:, 1] // k
         centre = (sub[:, 0] % k == k // 2) & (sub[:, 1] % k == k // 2)
         tkey = ty * self.width + tx
-        texels = np.unique(tkey[centre])        # texels whose centre is inside the object
+        texels = np.unique(tkey[centre])  # texels whose centre is inside the object
         keep = np.isin(tkey, texels)
         self.tx, self.ty = texels % self.width, texels // self.width
         self.s_texel = np.searchsorted(texels, tkey[keep])
@@ -214,12 +218,13 @@ class Atlas:
 
     def texel_weights(self):
         """World area per texel (same for every texel: uniform density), for area averages."""
-        return np.full(self.n, self.texel ** 2)
+        return np.full(self.n, self.texel**2)
 
 
 # --------------------------------------------------------------------------------------------
 # Cycles reference scene
 # --------------------------------------------------------------------------------------------
+
 
 def configure_cycles(scene, samples, seed=0, threads=1, bounces=64):
     scene.render.engine = "CYCLES"
@@ -248,6 +253,7 @@ def configure_cycles(scene, samples, seed=0, threads=1, bounces=64):
 
 def _new_material(name):
     import bpy
+
     m = bpy.data.materials.new(name)
     if bpy.app.version < (5, 0, 0):
         m.use_nodes = True
@@ -297,13 +303,14 @@ class NoTexels(Exception):
 @dataclass
 class RefScene:
     """A sample scene prepared for reference bakes and for our solution."""
+
     scene: object
     view_layer: object
-    objects: list                 # compared geometry objects (names)
-    atlases: dict                 # name -> Atlas
-    images: dict                  # name -> bpy image
-    scene_in: object              # hr_addon.blender.scene_in.SceneInput
-    poly_offset: dict             # object name -> first polygon in scene_in.mesh
+    objects: list  # compared geometry objects (names)
+    atlases: dict  # name -> Atlas
+    images: dict  # name -> bpy image
+    scene_in: object  # hr_addon.blender.scene_in.SceneInput
+    poly_offset: dict  # object name -> first polygon in scene_in.mesh
     diag: float = 1.0
     proxies: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
@@ -315,6 +322,7 @@ def prepare(scene, texel_rel=1 / 100, k=3, texel=None):
     import bpy
     from hr_addon.blender.scene_in import collect_geometry, geometry_objects
     from hr_addon.blender.materials import read_material
+
     vl = bpy.context.view_layer
     scene.frame_set(scene.frame_start)
     sin = collect_geometry(vl, vl.depsgraph)
@@ -377,6 +385,7 @@ def shape_proxies(rs: RefScene, frame):
     from hr_addon.blender.scene_in import collect_light_shapes, light_shape_objects, read_mesh
     from hr_addon.blender.materials import read_material
     from hr_addon.core.events import LightShape
+
     for ob in rs.proxies:
         me = ob.data
         bpy.data.objects.remove(ob, do_unlink=True)
@@ -390,14 +399,16 @@ def shape_proxies(rs: RefScene, frame):
         if obj.evaluated_get(dg).hide_render:
             continue
         em = read_mesh(obj, dg)
-        polys = [list(em.loop_verts[s:s + n][::-1] if em.flipped else em.loop_verts[s:s + n])
-                 for s, n in zip(em.loop_start, em.loop_total)]
+        polys = [
+            list(em.loop_verts[s : s + n][::-1] if em.flipped else em.loop_verts[s : s + n])
+            for s, n in zip(em.loop_start, em.loop_total)
+        ]
         verts, faces, mats = [], [], []
         for i, p in enumerate(polys):
             n = _surface_front(rs, em.verts[p])
             base = len(verts)
             pts = em.verts[p] + eps * n
-            if newell(pts) @ n < 0:     # emit towards the surface's front, as the core does
+            if newell(pts) @ n < 0:  # emit towards the surface's front, as the core does
                 pts = pts[::-1]
             verts += list(pts)
             faces.append(list(range(base, base + len(p))))
@@ -406,7 +417,9 @@ def shape_proxies(rs: RefScene, frame):
         me.from_pydata([tuple(v) for v in verts], [], faces)
         for slot, m in enumerate(em.materials):
             e = read_material(m).emission
-            me.materials.append(one_sided_material(f"REFPROXY_{obj.name}_{slot}", (0, 0, 0), e, transparent=True))
+            me.materials.append(
+                one_sided_material(f"REFPROXY_{obj.name}_{slot}", (0, 0, 0), e, transparent=True)
+            )
         me.polygons.foreach_set("material_index", np.array(mats, np.int32))
         ob = bpy.data.objects.new(f"REFPROXY_{obj.name}", me)
         ob[REF_TAG] = True
@@ -437,7 +450,7 @@ def _surface_front(rs: RefScene, ring, plane_tol=1e-3):
     m = rs.scene_in.mesh
     best = None
     for s, k in zip(m.loop_start, m.loop_total):
-        q = m.verts[m.loop_verts[s:s + k]]
+        q = m.verts[m.loop_verts[s : s + k]]
         qn = newell(q)
         qn /= max(np.linalg.norm(qn), 1e-300)
         if abs(qn @ n) >= 0.999 and np.abs((q - c) @ n).max() <= plane_tol * rs.diag:
@@ -451,6 +464,7 @@ def bake(rs: RefScene, samples, seed=0, threads=1):
     """Bake reflected radiance (rho H / pi) of every compared object. Returns ({name: (N, 3)},
     {"wall": s, "cpu": s} of the bake call, {name: baked mask (N,)})."""
     import bpy
+
     configure_cycles(rs.scene, samples, seed, threads)
     # the light-shape originals must not take part (their ray visibility is off already)
     for ob in bpy.context.view_layer.objects:
@@ -466,8 +480,13 @@ def bake(rs: RefScene, samples, seed=0, threads=1):
     rb.target = "IMAGE_TEXTURES"
     rb.use_selected_to_active = False
     t0, c0 = time.perf_counter(), time.process_time()
-    bpy.ops.object.bake(type="DIFFUSE", pass_filter={"DIRECT", "INDIRECT", "COLOR"}, margin=0,
-                        use_clear=False, target="IMAGE_TEXTURES")
+    bpy.ops.object.bake(
+        type="DIFFUSE",
+        pass_filter={"DIRECT", "INDIRECT", "COLOR"},
+        margin=0,
+        use_clear=False,
+        target="IMAGE_TEXTURES",
+    )
     dt = {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0}
     out, mask = {}, {}
     for name in rs.objects:
@@ -484,6 +503,7 @@ def bake(rs: RefScene, samples, seed=0, threads=1):
 # --------------------------------------------------------------------------------------------
 # Our side
 # --------------------------------------------------------------------------------------------
+
 
 def _patch_of(patches, polys, points):
     """Patch (quadtree root) holding each point of input polygons `polys`."""
@@ -532,6 +552,7 @@ class Ours:
         applied it), vertex output interpolated, exact emission, and the texture output's smooth
         in-leaf interpolation (core.output.radiance_at) of reflected and total radiance."""
         from hr_addon.core.events import locate
+
         rs = self.rs
         names = rs.objects
         allp = np.concatenate([self.samples[n][0] for n in names])
@@ -542,8 +563,10 @@ class Ours:
             loops = self.dyn.loop_radiance("CORNER")
             if want_smooth and not self.dyn.naive_active:
                 h, Bn = self.dyn.system.h, self.dyn.B
-                smooth = (radiance_at(h, Bn - self.dyn.emission(), allp, allx, smooth=True),
-                          radiance_at(h, Bn, allp, allx, smooth=True))
+                smooth = (
+                    radiance_at(h, Bn - self.dyn.emission(), allp, allx, smooth=True),
+                    radiance_at(h, Bn, allp, allx, smooth=True),
+                )
         else:
             h = self.system.h
             leaf = locate(h, allp, allx)
@@ -553,24 +576,30 @@ class Ours:
             E = self.system.base_emission()[:, leaf].T
             loops = self.system.loop_radiance("CORNER")
             if want_smooth:
-                smooth = (radiance_at(h, self.system.B - self.system.base_emission(), allp, allx, smooth=True),
-                          radiance_at(h, self.system.B, allp, allx, smooth=True))
+                smooth = (
+                    radiance_at(h, self.system.B - self.system.base_emission(), allp, allx, smooth=True),
+                    radiance_at(h, self.system.B, allp, allx, smooth=True),
+                )
         out, s = {}, 0
         targets = {t.name: t for t in rs.scene_in.targets}
         for name in names:
             at = rs.atlases[name]
             patch, missing, P = self.samples[name]
             m = len(patch)
-            b, e = B[s:s + m], E[s:s + m]
-            sm = None if smooth is None else (smooth[0][s:s + m], smooth[1][s:s + m])
+            b, e = B[s : s + m], E[s : s + m]
+            sm = None if smooth is None else (smooth[0][s : s + m], smooth[1][s : s + m])
             s += m
             corner = targets[name].extract(loops, "CORNER").astype(np.float64)
             vert = np.einsum("sk,skc->sc", at.s_bary, corner[at.s_loops])
             etrue = self.base_emission_poly[P] + shape_emission(shapes or {}, at.s_point, rs.diag)
             b = np.where(missing[:, None], np.nan, b)
-            out[name] = {"leaf_total": at.texel_mean(b), "leaf_refl": at.texel_mean(b - e),
-                         "vertex_total": at.texel_mean(vert), "emission": at.texel_mean(etrue)}
-            if sm is not None:   # the texture output's interpolation (core.output.radiance_at)
+            out[name] = {
+                "leaf_total": at.texel_mean(b),
+                "leaf_refl": at.texel_mean(b - e),
+                "vertex_total": at.texel_mean(vert),
+                "emission": at.texel_mean(etrue),
+            }
+            if sm is not None:  # the texture output's interpolation (core.output.radiance_at)
                 out[name]["smooth_refl"] = at.texel_mean(np.where(missing[:, None], np.nan, sm[0]))
                 out[name]["smooth_total"] = at.texel_mean(np.where(missing[:, None], np.nan, sm[1]))
         return out
@@ -611,6 +640,7 @@ def shape_emission(shapes, points, diag, plane_tol=1e-3):
 # Metrics
 # --------------------------------------------------------------------------------------------
 
+
 def metrics(ours, ref, mask=None):
     """Error of ours against ref, (N, 3) per texel in radiance units. mre: relative error of the
     surface's mean radiance (mean over RGB of |mean ours - mean ref| / mean ref); rmse over texels
@@ -623,19 +653,25 @@ def metrics(ours, ref, mask=None):
         return None
     mo, mr = o.mean(0), r.mean(0)
     d = o - r
-    rmse = float(np.sqrt(np.mean(d ** 2)))
-    return {"texels": int(len(o)), "mean_ref": mr.tolist(), "mean_ours": mo.tolist(),
-            "mre": float(np.mean(np.abs(mo - mr) / np.maximum(mr, 1e-12))),
-            "bias": float(np.mean((mo - mr) / np.maximum(mr, 1e-12))),
-            "rmse": rmse, "rel_rmse": rmse / max(float(mr.mean()), 1e-12),
-            "p95": float(np.percentile(np.abs(d).mean(1), 95))}
+    rmse = float(np.sqrt(np.mean(d**2)))
+    return {
+        "texels": int(len(o)),
+        "mean_ref": mr.tolist(),
+        "mean_ours": mo.tolist(),
+        "mre": float(np.mean(np.abs(mo - mr) / np.maximum(mr, 1e-12))),
+        "bias": float(np.mean((mo - mr) / np.maximum(mr, 1e-12))),
+        "rmse": rmse,
+        "rel_rmse": rmse / max(float(mr.mean()), 1e-12),
+        "p95": float(np.percentile(np.abs(d).mean(1), 95)),
+    }
 
 
 def noise(a, b, mask=None):
     """Per-bake noise from two seeds: RMS of (a - b) / sqrt 2, and of the surface mean."""
-    ok = np.isfinite(a).all(1) & np.isfinite(b).all(1)   # texels the bake did not write are NaN
+    ok = np.isfinite(a).all(1) & np.isfinite(b).all(1)  # texels the bake did not write are NaN
     if mask is not None:
         ok &= mask
     d = (a - b)[ok]
-    return float(np.sqrt(np.mean(d ** 2) / 2)), float(np.mean(np.abs(d.mean(0)) / np.maximum(
-        (a[ok] + b[ok]).mean(0) / 2, 1e-12)) / np.sqrt(2))
+    return float(np.sqrt(np.mean(d**2) / 2)), float(
+        np.mean(np.abs(d.mean(0)) / np.maximum((a[ok] + b[ok]).mean(0) / 2, 1e-12)) / np.sqrt(2)
+    )

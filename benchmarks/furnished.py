@@ -11,6 +11,7 @@ The size preset scales the counts and the tessellation; the layout is determinis
 nothing interpenetrates (placements that would overlap are retried, then skipped).
 Counts are triangles as Blender's loop_triangles would give (a quad is two).
 """
+
 import sys
 from pathlib import Path
 
@@ -20,16 +21,39 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from hr_addon.core.geometry import MeshInput  # noqa: E402
 
 W, D, H = 6.0, 5.0, 2.8
-WOOD, WALL, FLOOR, FABRIC, CERAMIC = (0.45, 0.3, 0.18), (0.75, 0.73, 0.7), (0.5, 0.42, 0.35), (0.3, 0.35, 0.5), (0.8, 0.8, 0.75)
+WOOD, WALL, FLOOR, FABRIC, CERAMIC = (
+    (0.45, 0.3, 0.18),
+    (0.75, 0.73, 0.7),
+    (0.5, 0.42, 0.35),
+    (0.3, 0.35, 0.5),
+    (0.8, 0.8, 0.75),
+)
 
 # size -> (wall grid, bookcases, books per row, table count, chairs, cylinder segments, sphere subdiv,
 #          objects on tables, floor boxes)
 PRESETS = {
     "2k": dict(grid=8, cases=1, books=12, tables=1, chairs=2, seg=12, balls=1, sphere=2, clutter=4, boxes=6),
-    "10k": dict(grid=18, cases=2, books=30, tables=2, chairs=4, seg=20, balls=2, sphere=3, clutter=14, boxes=20),
-    "20k": dict(grid=26, cases=4, books=44, tables=2, chairs=6, seg=24, balls=2, sphere=3, clutter=28, boxes=40),
-    "100k": dict(grid=64, cases=12, books=80, tables=4, chairs=14, seg=48, balls=3, sphere=4, clutter=80, boxes=120),
-    "1M": dict(grid=300, cases=24, books=200, tables=10, chairs=40, seg=160, balls=8, sphere=5, clutter=300, boxes=300),
+    "10k": dict(
+        grid=18, cases=2, books=30, tables=2, chairs=4, seg=20, balls=2, sphere=3, clutter=14, boxes=20
+    ),
+    "20k": dict(
+        grid=26, cases=4, books=44, tables=2, chairs=6, seg=24, balls=2, sphere=3, clutter=28, boxes=40
+    ),
+    "100k": dict(
+        grid=64, cases=12, books=80, tables=4, chairs=14, seg=48, balls=3, sphere=4, clutter=80, boxes=120
+    ),
+    "1M": dict(
+        grid=300,
+        cases=24,
+        books=200,
+        tables=10,
+        chairs=40,
+        seg=160,
+        balls=8,
+        sphere=5,
+        clutter=300,
+        boxes=300,
+    ),
 }
 
 
@@ -58,8 +82,16 @@ class Builder:
         sizes = np.concatenate([np.full(len(f), f.shape[1]) for f in self.faces])
         loops = np.concatenate([f.ravel() for f in self.faces])
         starts = np.r_[0, np.cumsum(sizes)[:-1]]
-        return MeshInput(verts, starts, sizes, loops, np.concatenate(self.rho), np.concatenate(self.em),
-                         np.concatenate(self.oid), list(self.names))
+        return MeshInput(
+            verts,
+            starts,
+            sizes,
+            loops,
+            np.concatenate(self.rho),
+            np.concatenate(self.em),
+            np.concatenate(self.oid),
+            list(self.names),
+        )
 
 
 def grid_quad(o, u, v, nu, nv):
@@ -97,12 +129,16 @@ def cylinder(base, radius, height, seg, caps=True):
     if caps:
         c0, c1 = len(verts), len(verts) + 1
         verts = np.concatenate([verts, [base, np.asarray(base) + [0, 0, height]]])
-        faces += [np.column_stack([np.full(seg, c0), j, i]), np.column_stack([np.full(seg, c1), seg + i, seg + j])]
+        faces += [
+            np.column_stack([np.full(seg, c0), j, i]),
+            np.column_stack([np.full(seg, c1), seg + i, seg + j]),
+        ]
     return verts, faces
 
 
 def icosphere(centre, radius, subdiv):
     from benchmarks.scenes import icosphere as ico
+
     v, f = ico(subdiv, radius, inward=False)
     return v + centre, [np.array(f)]
 
@@ -112,7 +148,13 @@ class Footprints:
     rooms have no interpenetrating furniture; rejected placements are retried, then skipped)."""
 
     def __init__(self, rng, lo, hi, gap=0.01):
-        self.rng, self.lo, self.hi, self.gap, self.rects = rng, np.asarray(lo, float), np.asarray(hi, float), gap, []
+        self.rng, self.lo, self.hi, self.gap, self.rects = (
+            rng,
+            np.asarray(lo, float),
+            np.asarray(hi, float),
+            gap,
+            [],
+        )
 
     def place(self, w, d, tries=60):
         for _ in range(tries):
@@ -127,7 +169,9 @@ class Footprints:
 
     def free(self, x, y, w, d):
         g = self.gap
-        return all(x + w + g <= r[0] or r[2] + g <= x or y + d + g <= r[1] or r[3] + g <= y for r in self.rects)
+        return all(
+            x + w + g <= r[0] or r[2] + g <= x or y + d + g <= r[1] or r[3] + g <= y for r in self.rects
+        )
 
     def take(self, x, y, w, d):
         self.rects.append((x, y, x + w, y + d))
@@ -149,8 +193,13 @@ def furnished_room(size="20k", seed=1):
     b.add("wall_north", *_q(grid_quad([0, D, 0], [W, 0, 0], [0, 0, H], g, nz)), WALL)
     b.add("wall_west", *_q(grid_quad(np.zeros(3), [0, D, 0], [0, 0, H], int(g * D / W), nz)), WALL)
     b.add("wall_east", *_q(grid_quad([W, 0, 0], [0, 0, H], [0, D, 0], nz, int(g * D / W))), WALL)
-    b.add("ceiling_light", *_q(grid_quad([2.4, 2.0, H - 0.005], [0, 1.0, 0], [1.2, 0, 0], 1, 1)), (0.8,) * 3, (6.0, 5.6, 5.0))
-    tops = []   # (x0, y0, x1, y1, z) surfaces small things can stand on
+    b.add(
+        "ceiling_light",
+        *_q(grid_quad([2.4, 2.0, H - 0.005], [0, 1.0, 0], [1.2, 0, 0], 1, 1)),
+        (0.8,) * 3,
+        (6.0, 5.6, 5.0),
+    )
+    tops = []  # (x0, y0, x1, y1, z) surfaces small things can stand on
     # tables on legs
     # bookcases first: they stand along the north wall
     cw, cd = 0.9, 0.32
@@ -169,8 +218,14 @@ def furnished_room(size="20k", seed=1):
             continue
         x0, y0 = spot
         b.add(f"table{k}_top", *box([x0, y0, th - 0.04], [x0 + tw, y0 + td, th], 1), WOOD)
-        for i, (lx, ly) in enumerate([(x0 + 0.06, y0 + 0.06), (x0 + tw - 0.06, y0 + 0.06),
-                                      (x0 + 0.06, y0 + td - 0.06), (x0 + tw - 0.06, y0 + td - 0.06)]):
+        for i, (lx, ly) in enumerate(
+            [
+                (x0 + 0.06, y0 + 0.06),
+                (x0 + tw - 0.06, y0 + 0.06),
+                (x0 + 0.06, y0 + td - 0.06),
+                (x0 + tw - 0.06, y0 + td - 0.06),
+            ]
+        ):
             b.add(f"table{k}_leg{i}", *cylinder([lx, ly, 0], 0.025, th - 0.04, P["seg"] // 2), WOOD)
         tops.append((x0 + 0.1, y0 + 0.1, x0 + tw - 0.1, y0 + td - 0.1, th))
     # chairs: seat, four legs, backrest
@@ -181,8 +236,14 @@ def furnished_room(size="20k", seed=1):
             continue
         x0, y0 = spot
         b.add(f"chair{k}_seat", *box([x0, y0, 0.42], [x0 + s, y0 + s, 0.46], 1), FABRIC)
-        for i, (lx, ly) in enumerate([(x0 + 0.03, y0 + 0.03), (x0 + s - 0.03, y0 + 0.03),
-                                      (x0 + 0.03, y0 + s - 0.03), (x0 + s - 0.03, y0 + s - 0.03)]):
+        for i, (lx, ly) in enumerate(
+            [
+                (x0 + 0.03, y0 + 0.03),
+                (x0 + s - 0.03, y0 + 0.03),
+                (x0 + 0.03, y0 + s - 0.03),
+                (x0 + s - 0.03, y0 + s - 0.03),
+            ]
+        ):
             b.add(f"chair{k}_leg{i}", *cylinder([lx, ly, 0], 0.018, 0.42, max(6, P["seg"] // 3)), WOOD)
         b.add(f"chair{k}_back", *box([x0, y0 + s - 0.04, 0.46], [x0 + s, y0 + s, 0.9], 1), FABRIC)
     # bookcases along the north wall, boards carrying rows of books
@@ -200,14 +261,22 @@ def furnished_room(size="20k", seed=1):
                 bh = rng.uniform(0.18, 0.33)
                 bd = rng.uniform(0.15, 0.28)
                 col = rng.uniform(0.1, 0.8, 3)
-                b.add(f"case{k}_book{j}_{nb}", *box([x, y0 + 0.01, z + 0.02], [x + bw, y0 + 0.01 + bd, z + 0.02 + bh], 1), col)
+                b.add(
+                    f"case{k}_book{j}_{nb}",
+                    *box([x, y0 + 0.01, z + 0.02], [x + bw, y0 + 0.01 + bd, z + 0.02 + bh], 1),
+                    col,
+                )
                 x += bw + 0.002
                 nb += 1
     # sofa
     b.add("sofa_base", *box([sx, sy, 0.0], [sx + 2.0, sy + 0.9, 0.45], 2), FABRIC)
     b.add("sofa_back", *box([sx, sy, 0.45], [sx + 2.0, sy + 0.2, 0.9], 2), FABRIC)
     for i in range(3):
-        b.add(f"sofa_cushion{i}", *box([sx + 0.05 + i * 0.64, sy + 0.25, 0.45], [sx + 0.64 + i * 0.64, sy + 0.85, 0.58], 2), FABRIC)
+        b.add(
+            f"sofa_cushion{i}",
+            *box([sx + 0.05 + i * 0.64, sy + 0.25, 0.45], [sx + 0.64 + i * 0.64, sy + 0.85, 0.58], 2),
+            FABRIC,
+        )
     # clutter on the tables: spheres, vases, cups
     on_top = [Footprints(rng, t[:2], t[2:4]) for t in tops]
     for k in range(P["clutter"]):
@@ -215,7 +284,15 @@ def furnished_room(size="20k", seed=1):
             break
         z = tops[k % len(tops)][4]
         kind = 0 if k < P["balls"] else 1 + k % 3
-        r = rng.uniform(0.07, 0.1) if kind == 0 else rng.uniform(0.04, 0.07) if kind == 1 else 0.035 if kind == 2 else 0.06
+        r = (
+            rng.uniform(0.07, 0.1)
+            if kind == 0
+            else rng.uniform(0.04, 0.07)
+            if kind == 1
+            else 0.035
+            if kind == 2
+            else 0.06
+        )
         spot = on_top[k % len(tops)].place(2 * r, 2 * r)
         if spot is None:
             continue
@@ -226,11 +303,15 @@ def furnished_room(size="20k", seed=1):
             b.add(f"vase{k}", *cylinder([x, y, z], r, rng.uniform(0.15, 0.3), P["seg"]), CERAMIC)
         elif kind == 2:
             b.add(f"cup{k}", *cylinder([x, y, z], r, 0.09, P["seg"]), CERAMIC)
-        else:   # a stack of books lying flat
+        else:  # a stack of books lying flat
             zz = z
             for j in range(int(rng.integers(2, 6))):
                 t = rng.uniform(0.02, 0.04)
-                b.add(f"stack{k}_{j}", *box([x - r, y - 0.8 * r, zz], [x + r, y + 0.8 * r, zz + t], 1), rng.uniform(0.1, 0.8, 3))
+                b.add(
+                    f"stack{k}_{j}",
+                    *box([x - r, y - 0.8 * r, zz], [x + r, y + 0.8 * r, zz + t], 1),
+                    rng.uniform(0.1, 0.8, 3),
+                )
                 zz += t
     # boxes on the floor and a few stacked
     for k in range(P["boxes"]):
@@ -243,11 +324,23 @@ def furnished_room(size="20k", seed=1):
         b.add(f"box{k}", *box([x, y, z], [x + s, y + s, z + s * 0.8], 1), rng.uniform(0.2, 0.8, 3))
         if k % 4 == 0:
             t = s * 0.6
-            b.add(f"box{k}_top", *box([x + 0.1 * s, y + 0.1 * s, s * 0.8], [x + 0.1 * s + t, y + 0.1 * s + t, s * 0.8 + t]), rng.uniform(0.2, 0.8, 3))
+            b.add(
+                f"box{k}_top",
+                *box([x + 0.1 * s, y + 0.1 * s, s * 0.8], [x + 0.1 * s + t, y + 0.1 * s + t, s * 0.8 + t]),
+                rng.uniform(0.2, 0.8, 3),
+            )
     mesh = b.build()
     tris = int(np.sum(mesh.loop_total - 2))
-    return mesh, {"size": size, "polygons": len(mesh.loop_total), "triangles": tris, "objects": len(mesh.object_names),
-                  "light_wall": ("wall_west", (np.array([0.0, 0.8, 0.9]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])))}
+    return mesh, {
+        "size": size,
+        "polygons": len(mesh.loop_total),
+        "triangles": tris,
+        "objects": len(mesh.object_names),
+        "light_wall": (
+            "wall_west",
+            (np.array([0.0, 0.8, 0.9]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])),
+        ),
+    }
 
 
 def _q(vq):
@@ -257,6 +350,7 @@ def _q(vq):
 
 if __name__ == "__main__":
     import sys
+
     for s in sys.argv[1:] or list(PRESETS):
         m, info = furnished_room(s)
         print(info)

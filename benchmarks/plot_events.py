@@ -8,6 +8,7 @@ table used in docs/events.md.
     .venv/bin/python benchmarks/plot_events.py [--json benchmarks/out/events.json]
         [--png benchmarks/events_speed_accuracy.png]
 """
+
 import argparse
 import json
 import os
@@ -16,8 +17,14 @@ from collections import defaultdict
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-COLORS = {"NAIVE": "tab:red", "FE": "tab:blue", "FE warm": "tab:cyan", "AR": "tab:green", "AUTO": "tab:purple",
-          "AUTO bf=1e-2": "tab:pink"}
+COLORS = {
+    "NAIVE": "tab:red",
+    "FE": "tab:blue",
+    "FE warm": "tab:cyan",
+    "AR": "tab:green",
+    "AUTO": "tab:purple",
+    "AUTO bf=1e-2": "tab:pink",
+}
 MARKERS = {"coarse": "o", "draft": "s", "medium": "D"}
 
 
@@ -38,15 +45,22 @@ def aggregate(data):
                     a["et"].append(e["err_total_rmse"])
     out = {}
     for k, a in acc.items():
-        out[k] = {"time": float(np.mean(a["time"])), "err_delta": float(np.sqrt(np.mean(np.square(a["ed"])))),
-                  "err_total": float(np.sqrt(np.mean(np.square(a["et"])))), "ratio": float(np.sum(a["naive_time"]) / np.sum(a["time"])),
-                  "nodes_added": int(np.max(a["nodes_added"])), "scenes": sorted(set(a["scenes"]))}
+        out[k] = {
+            "time": float(np.mean(a["time"])),
+            "err_delta": float(np.sqrt(np.mean(np.square(a["ed"])))),
+            "err_total": float(np.sqrt(np.mean(np.square(a["et"])))),
+            "ratio": float(np.sum(a["naive_time"]) / np.sum(a["time"])),
+            "nodes_added": int(np.max(a["nodes_added"])),
+            "scenes": sorted(set(a["scenes"])),
+        }
     return out
 
 
 def table(data):
-    lines = ["| scenario | quality | method | CPU s/event | naive/method | delta RMSE | delta max | total RMSE | nodes+ | emission L1 |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| scenario | quality | method | CPU s/event | naive/method | delta RMSE | delta max | total RMSE | nodes+ | emission L1 |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for sc in data["scenarios"]:
         for run in sc["runs"]:
             ev = run["events"]
@@ -58,8 +72,10 @@ def table(data):
             em = max(ev[i]["err_delta_max"] for i in ix)
             et = np.sqrt(np.mean([ev[i]["err_total_rmse"] ** 2 for i in ix]))
             l1 = max(e["emission_l1"] for e in ev)
-            lines.append(f"| {sc['scene']} | {run['quality']} | {run['variant']} | {t:.3f} | {r:.1f} | {ed:.4f} | "
-                         f"{em:.3f} | {et:.4f} | {max(e['nodes_added'] for e in ev)} | {100 * l1:.1f}% |")
+            lines.append(
+                f"| {sc['scene']} | {run['quality']} | {run['variant']} | {t:.3f} | {r:.1f} | {ed:.4f} | "
+                f"{em:.3f} | {et:.4f} | {max(e['nodes_added'] for e in ev)} | {100 * l1:.1f}% |"
+            )
     return "\n".join(lines)
 
 
@@ -72,13 +88,23 @@ def main():
         data = json.load(f)
     agg = aggregate(data)
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(9.5, 5.6))
-    groups = defaultdict(list)   # same quality and error (FE / FE warm / AR): one label
+    groups = defaultdict(list)  # same quality and error (FE / FE warm / AR): one label
     for (variant, quality), a in agg.items():
-        ax.scatter(a["time"], a["err_delta"], s=70, color=COLORS.get(variant, "k"), marker=MARKERS.get(quality, "x"),
-                   edgecolor="k", linewidth=0.5, zorder=3)
+        ax.scatter(
+            a["time"],
+            a["err_delta"],
+            s=70,
+            color=COLORS.get(variant, "k"),
+            marker=MARKERS.get(quality, "x"),
+            edgecolor="k",
+            linewidth=0.5,
+            zorder=3,
+        )
         groups[(quality, round(a["err_delta"], 6))].append((a["time"], variant, a))
     for (quality, e), members in groups.items():
         members.sort(key=lambda m: m[0])
@@ -95,8 +121,11 @@ def main():
     ax.set_yscale("log")
     ax.set_xlabel("mean CPU time per light event (s)")
     ax.set_ylabel("error of the light's contribution: RMSE (radiance)")
-    ax.set_title("Dynamic light events: cornell + office + 30-frame beam\n"
-                 "error vs NAIVE at reference quality; lower left is better", fontsize=10)
+    ax.set_title(
+        "Dynamic light events: cornell + office + 30-frame beam\n"
+        "error vs NAIVE at reference quality; lower left is better",
+        fontsize=10,
+    )
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
@@ -105,8 +134,10 @@ def main():
     print(table(data))
     print()
     for (variant, quality), a in sorted(agg.items(), key=lambda kv: (kv[0][1], kv[1]["time"])):
-        print(f"{quality:7s} {variant:13s} {a['time']:.3f} s/event  naive/method {a['ratio']:6.1f}  "
-              f"delta RMSE {a['err_delta']:.4f}  total RMSE {a['err_total']:.4f}  nodes+ {a['nodes_added']}")
+        print(
+            f"{quality:7s} {variant:13s} {a['time']:.3f} s/event  naive/method {a['ratio']:6.1f}  "
+            f"delta RMSE {a['err_delta']:.4f}  total RMSE {a['err_total']:.4f}  nodes+ {a['nodes_added']}"
+        )
 
 
 if __name__ == "__main__":

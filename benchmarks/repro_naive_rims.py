@@ -8,6 +8,7 @@ pane outline averaged hidden and visible parts. Fixed in c8dfb47 (NAIVE splits t
 the shape outlines). Exit status 1 if the mullion is darker than 0.8 x AUTO's again (Cycles: the
 mullion is as bright as AUTO's, 0.106 against 0.105).
 """
+
 import os
 import sys
 
@@ -48,6 +49,7 @@ def wall_points():
 
 def reflected(dyn, pts):
     from cycles_ref import _patch_of
+
     pt = dyn.system.patches
     mesh = dyn.system.mesh
     green = mesh.object_names.index("right_green")
@@ -56,8 +58,13 @@ def reflected(dyn, pts):
     cand = []
     for p in pts:
         for poly in polys:
-            v = mesh.verts[mesh.loop_verts[mesh.loop_start[poly]:mesh.loop_start[poly] + mesh.loop_total[poly]]]
-            if v[:, 1].min() - 1e-9 <= p[1] <= v[:, 1].max() + 1e-9 and v[:, 2].min() - 1e-9 <= p[2] <= v[:, 2].max() + 1e-9:
+            v = mesh.verts[
+                mesh.loop_verts[mesh.loop_start[poly] : mesh.loop_start[poly] + mesh.loop_total[poly]]
+            ]
+            if (
+                v[:, 1].min() - 1e-9 <= p[1] <= v[:, 1].max() + 1e-9
+                and v[:, 2].min() - 1e-9 <= p[2] <= v[:, 2].max() + 1e-9
+            ):
                 cand.append(poly)
                 break
     patch, _ = _patch_of(pt, np.array(cand), pts)
@@ -74,11 +81,15 @@ def main():
         dyn = DynamicRadiosity(RadiositySystem(mesh, params), method=method)
         dyn.apply(panes())
         res[method] = (reflected(dyn, mullion), reflected(dyn, outside))
-        print(f"{method:5s} reflected radiance in the mullion {res[method][0].mean():.4f}, "
-              f"7 cm outside the window {res[method][1].mean():.4f}")
+        print(
+            f"{method:5s} reflected radiance in the mullion {res[method][0].mean():.4f}, "
+            f"7 cm outside the window {res[method][1].mean():.4f}"
+        )
     ratio = res["NAIVE"][0].mean() / res["AUTO"][0].mean()
-    print(f"NAIVE / AUTO in the mullion: {ratio:.2f} (Cycles, 1024 spp, sample scene frame 6: 0.106 in the mullion, "
-          "0.101 outside)")
+    print(
+        f"NAIVE / AUTO in the mullion: {ratio:.2f} (Cycles, 1024 spp, sample scene frame 6: 0.106 in the mullion, "
+        "0.101 outside)"
+    )
     if ratio < 0.8:
         print("FAIL: NAIVE leaves the wall between light shapes dark")
         sys.exit(1)

@@ -8,6 +8,7 @@ surfaces facing either way and emits on the surface's side), so the bakes were a
 one-sided Cycles emitter made from these objects lit the inside of the wall. make_samples.py now
 winds them -y; this script fails (exit status 1) if a sample shape faces into its surface again.
 """
+
 import os
 import sys
 
@@ -21,6 +22,7 @@ def main():
     import bpy
     import hr_addon
     from hr_addon.blender.scene_in import collect_geometry, light_shape_objects, read_mesh
+
     hr_addon.register()
     bad = []
     for name in ("cornell", "moonlight", "curtain", "searchbeam", "office"):
@@ -30,21 +32,23 @@ def main():
         for ob in light_shape_objects(vl, include_hidden=True):
             em = read_mesh(ob, vl.depsgraph)
             for s, k in zip(em.loop_start, em.loop_total):
-                ring = em.verts[em.loop_verts[s:s + k]]
+                ring = em.verts[em.loop_verts[s : s + k]]
                 n = np.cross(ring[1] - ring[0], ring[2] - ring[0])
                 n /= np.linalg.norm(n)
                 for ps, pk in zip(mesh.loop_start, mesh.loop_total):
-                    q = mesh.verts[mesh.loop_verts[ps:ps + pk]]
+                    q = mesh.verts[mesh.loop_verts[ps : ps + pk]]
                     qn = np.cross(q[1] - q[0], q[2] - q[0])
                     qn /= np.linalg.norm(qn)
                     if abs(qn @ n) > 0.999 and np.abs((q - ring[0]) @ qn).max() < 1e-4:
                         ok = qn @ n > 0
-                        print(f"{name:10s} {ob.name:12s} shape normal {np.round(n, 3)} surface normal "
-                              f"{np.round(qn, 3)}: {'ok' if ok else 'FACES INTO THE SURFACE'}")
+                        print(
+                            f"{name:10s} {ob.name:12s} shape normal {np.round(n, 3)} surface normal "
+                            f"{np.round(qn, 3)}: {'ok' if ok else 'FACES INTO THE SURFACE'}"
+                        )
                         if not ok:
                             bad.append((name, ob.name))
                         break
-                break   # first polygon of each shape is enough
+                break  # first polygon of each shape is enough
     if bad:
         print(f"FAIL: {bad}")
         sys.exit(1)

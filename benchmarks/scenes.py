@@ -1,6 +1,7 @@
 """Scenes built from numbers, in Blender's frame (z up, metres): the Cornell box, a closed box,
 spheres, parallel plates. For the tests, the benchmarks and scripts/make_samples.py (import it as
 `benchmarks.scenes`, with the repository root on sys.path); not shipped in the extension."""
+
 import numpy as np
 
 from hr_addon.core.geometry import MeshInput
@@ -42,7 +43,12 @@ def _grid(quad, n):
     a, b, c, d = quad
     u = np.linspace(0, 1, n + 1)
     U, V = np.meshgrid(u, u, indexing="ij")
-    P = ((1 - U) * (1 - V))[..., None] * a + (U * (1 - V))[..., None] * b + (U * V)[..., None] * c + ((1 - U) * V)[..., None] * d
+    P = (
+        ((1 - U) * (1 - V))[..., None] * a
+        + (U * (1 - V))[..., None] * b
+        + (U * V)[..., None] * c
+        + ((1 - U) * V)[..., None] * d
+    )
     verts = P.reshape(-1, 3)
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
     polys = [[idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]] for i in range(n) for j in range(n)]
@@ -72,8 +78,14 @@ class SceneBuilder:
         return self.add(name, v, p, rho, emission)
 
     def build(self) -> MeshInput:
-        return MeshInput.from_polygons(np.concatenate(self.verts), self.polys, np.array(self.rho),
-                                       np.array(self.em), np.array(self.oid), self.names)
+        return MeshInput.from_polygons(
+            np.concatenate(self.verts),
+            self.polys,
+            np.array(self.rho),
+            np.array(self.em),
+            np.array(self.oid),
+            self.names,
+        )
 
 
 def cornell_box(subdiv=1, light=True, light_drop_mm=0.5, light_emission=CORNELL_LIGHT) -> MeshInput:
@@ -87,8 +99,10 @@ def cornell_box(subdiv=1, light=True, light_drop_mm=0.5, light_emission=CORNELL_
         bottom = top.copy()
         bottom[:, 2] = 0.0
         bc = np.r_[top.mean(0)[:2], top[0, 2] / 2]
-        away = lambda q: 2 * q.mean(0) - bc   # point outside the block, beyond the face
-        faces = [top] + [np.array([bottom[i], bottom[(i + 1) % 4], top[(i + 1) % 4], top[i]]) for i in range(4)]
+        away = lambda q: 2 * q.mean(0) - bc  # point outside the block, beyond the face
+        faces = [top] + [
+            np.array([bottom[i], bottom[(i + 1) % 4], top[(i + 1) % 4], top[i]]) for i in range(4)
+        ]
         for k, f in enumerate(faces):
             sb.add_quad(f"{name}_{k}", _orient(f, away(f)), WHITE, subdiv=max(1, subdiv // 2))
     if light:
@@ -112,12 +126,43 @@ def closed_box(size=1.0, rho=0.5, emission=(1, 1, 1), subdiv=1) -> MeshInput:
 
 def icosphere(subdiv=2, radius=1.0, inward=True):
     """Vertices and triangles of an icosphere (normals inward by default)."""
-    t = (1 + 5 ** 0.5) / 2
-    v = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
-         (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6),
-         (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
-         (8, 6, 7), (9, 8, 1)]
+    t = (1 + 5**0.5) / 2
+    v = [
+        (-1, t, 0),
+        (1, t, 0),
+        (-1, -t, 0),
+        (1, -t, 0),
+        (0, -1, t),
+        (0, 1, t),
+        (0, -1, -t),
+        (0, 1, -t),
+        (t, 0, -1),
+        (t, 0, 1),
+        (-t, 0, -1),
+        (-t, 0, 1),
+    ]
+    f = [
+        (0, 11, 5),
+        (0, 5, 1),
+        (0, 1, 7),
+        (0, 7, 10),
+        (0, 10, 11),
+        (1, 5, 9),
+        (5, 11, 4),
+        (11, 10, 2),
+        (10, 7, 6),
+        (7, 1, 8),
+        (3, 9, 4),
+        (3, 4, 2),
+        (3, 2, 6),
+        (3, 6, 8),
+        (3, 8, 9),
+        (4, 9, 5),
+        (2, 4, 11),
+        (6, 2, 10),
+        (8, 6, 7),
+        (9, 8, 1),
+    ]
     verts = [np.array(p, float) / np.linalg.norm(p) for p in v]
     cache = {}
 
@@ -130,8 +175,16 @@ def icosphere(subdiv=2, radius=1.0, inward=True):
         return cache[key]
 
     for _ in range(subdiv):
-        f = [g for a, b, c in f for g in ((a, mid(a, b), mid(c, a)), (b, mid(b, c), mid(a, b)),
-                                          (c, mid(c, a), mid(b, c)), (mid(a, b), mid(b, c), mid(c, a)))]
+        f = [
+            g
+            for a, b, c in f
+            for g in (
+                (a, mid(a, b), mid(c, a)),
+                (b, mid(b, c), mid(a, b)),
+                (c, mid(c, a), mid(b, c)),
+                (mid(a, b), mid(b, c), mid(c, a)),
+            )
+        ]
     faces = [tuple(reversed(x)) for x in f] if inward else f
     return np.array(verts) * radius, [list(x) for x in faces]
 
@@ -149,6 +202,11 @@ def parallel_plates(size=1.0, distance=1.0, rho_receiver=0.5, emission=1.0, subd
     s = size
     sb = SceneBuilder()
     sb.add_quad("receiver", [(0, 0, 0), (s, 0, 0), (s, s, 0), (0, s, 0)], (rho_receiver,) * 3, subdiv=subdiv)
-    sb.add_quad("emitter", [(0, 0, distance), (0, s, distance), (s, s, distance), (s, 0, distance)],
-                (0, 0, 0), (emission,) * 3, subdiv=1)
+    sb.add_quad(
+        "emitter",
+        [(0, 0, distance), (0, s, distance), (s, s, distance), (s, 0, distance)],
+        (0, 0, 0),
+        (emission,) * 3,
+        subdiv=1,
+    )
     return sb.build()

@@ -4,6 +4,7 @@
 A frame is (origin, u, v): u x v is the wall's front normal, so a counter-clockwise 2D outline is
 counter-clockwise seen from the front (the convention LightShape rings follow).
 """
+
 import numpy as np
 
 from .scenes import WHITE, SceneBuilder, _orient
@@ -29,8 +30,22 @@ def star(r_out, r_in, points=5, centre=(0.0, 0.0), angle=0.0):
 def cross(w, h, bar, centre=(0.0, 0.0), angle=0.0):
     """A plus sign w x h with arms `bar` wide (concave, 12 corners)."""
     a, b, c = w / 2, h / 2, bar / 2
-    p = np.array([(c, -b), (c, -c), (a, -c), (a, c), (c, c), (c, b), (-c, b), (-c, c), (-a, c), (-a, -c),
-                  (-c, -c), (-c, -b)])
+    p = np.array(
+        [
+            (c, -b),
+            (c, -c),
+            (a, -c),
+            (a, c),
+            (c, c),
+            (c, b),
+            (-c, b),
+            (-c, c),
+            (-a, c),
+            (-a, -c),
+            (-c, -c),
+            (-c, -b),
+        ]
+    )
     return _place(p, centre, angle)
 
 
@@ -57,9 +72,13 @@ def on_plane(rings2d, frame):
 
 
 # Cornell box walls (scenes.cornell_box, metres, z up). 2D coordinates are metres from the wall's corner.
-CORNELL_GREEN_WALL = (np.zeros(3), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))        # x = 0, faces +x
-CORNELL_BACK_WALL = (np.array([0.0, 0.5592, 0.0]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))  # faces -y
-CORNELL_FLOOR = (np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))              # z = 0, faces +z
+CORNELL_GREEN_WALL = (np.zeros(3), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))  # x = 0, faces +x
+CORNELL_BACK_WALL = (
+    np.array([0.0, 0.5592, 0.0]),
+    np.array([1.0, 0.0, 0.0]),
+    np.array([0.0, 0.0, 1.0]),
+)  # faces -y
+CORNELL_FLOOR = (np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))  # z = 0, faces +z
 
 
 def office_scene(subdiv=2):
@@ -75,19 +94,26 @@ def office_scene(subdiv=2):
         c = (lo + hi) / 2
         x0, y0, z0 = lo
         x1, y1, z1 = hi
-        quads = [[(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0)],   # bottom
-                 [(x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)],   # top
-                 [(x0, y0, z0), (x1, y0, z0), (x1, y0, z1), (x0, y0, z1)],   # front (-y)
-                 [(x0, y1, z0), (x1, y1, z0), (x1, y1, z1), (x0, y1, z1)],   # back (+y)
-                 [(x0, y0, z0), (x0, y1, z0), (x0, y1, z1), (x0, y0, z1)],   # left (-x)
-                 [(x1, y0, z0), (x1, y1, z0), (x1, y1, z1), (x1, y0, z1)]]   # right (+x)
+        quads = [
+            [(x0, y0, z0), (x1, y0, z0), (x1, y1, z0), (x0, y1, z0)],  # bottom
+            [(x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)],  # top
+            [(x0, y0, z0), (x1, y0, z0), (x1, y0, z1), (x0, y0, z1)],  # front (-y)
+            [(x0, y1, z0), (x1, y1, z0), (x1, y1, z1), (x0, y1, z1)],  # back (+y)
+            [(x0, y0, z0), (x0, y1, z0), (x0, y1, z1), (x0, y0, z1)],  # left (-x)
+            [(x1, y0, z0), (x1, y1, z0), (x1, y1, z1), (x1, y0, z1)],
+        ]  # right (+x)
         for k in faces:
             q = np.array(quads[k])
             sb.add_quad(f"{name}_{k}", _orient(q, 2 * q.mean(0) - c), rho, subdiv=sub)
 
-    room = [[(0, 0, 0), (W, 0, 0), (W, D, 0), (0, D, 0)], [(0, 0, H), (W, 0, H), (W, D, H), (0, D, H)],
-            [(0, 0, 0), (W, 0, 0), (W, 0, H), (0, 0, H)], [(0, D, 0), (W, D, 0), (W, D, H), (0, D, H)],
-            [(0, 0, 0), (0, D, 0), (0, D, H), (0, 0, H)], [(W, 0, 0), (W, D, 0), (W, D, H), (W, 0, H)]]
+    room = [
+        [(0, 0, 0), (W, 0, 0), (W, D, 0), (0, D, 0)],
+        [(0, 0, H), (W, 0, H), (W, D, H), (0, D, H)],
+        [(0, 0, 0), (W, 0, 0), (W, 0, H), (0, 0, H)],
+        [(0, D, 0), (W, D, 0), (W, D, H), (0, D, H)],
+        [(0, 0, 0), (0, D, 0), (0, D, H), (0, 0, H)],
+        [(W, 0, 0), (W, D, 0), (W, D, H), (W, 0, H)],
+    ]
     names = ["floor", "ceiling", "wall_south", "wall_north", "wall_west", "wall_east"]
     rhos = [(0.45, 0.4, 0.35), WHITE, WHITE, (0.6, 0.65, 0.7), WHITE, WHITE]
     for name, q, rho in zip(names, room, rhos):
@@ -97,8 +123,13 @@ def office_scene(subdiv=2):
     frames = []
     for i, x in enumerate((1.2, 3.2)):
         box(f"desk{i}", (x - 0.7, 2.6, 0.72), (x + 0.7, 3.4, 0.76), (0.55, 0.4, 0.25), faces=(0, 1, 2, 4, 5))
-        box(f"monitor{i}", (x - 0.3, 3.0, 0.85), (x + 0.3, 3.04, 1.23), (0.05, 0.05, 0.05),
-            faces=(0, 1, 2, 3, 4, 5))
+        box(
+            f"monitor{i}",
+            (x - 0.3, 3.0, 0.85),
+            (x + 0.3, 3.04, 1.23),
+            (0.05, 0.05, 0.05),
+            faces=(0, 1, 2, 3, 4, 5),
+        )
         box(f"stand{i}", (x - 0.04, 3.02, 0.76), (x + 0.04, 3.06, 0.85), (0.1, 0.1, 0.1), faces=(2, 3, 4, 5))
         # screen = the monitor's front face (y = 3.0, facing -y) inset by a 2 cm bezel
         frames.append((np.array([x - 0.28, 3.0, 0.87]), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])))

@@ -8,9 +8,11 @@ Blender registers the extension, so the rest can be imported and tested without 
 
 def register():
     from .blender import register as _register
+
     _register()
 
 
 def unregister():
     from .blender import unregister as _unregister
+
     _unregister()

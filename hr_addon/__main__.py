@@ -2,6 +2,7 @@
 
 The same options as `blender -b scene.blend -c hr_bake [options]`; see hr_addon/blender/cli.py.
 """
+
 import os
 import sys
 
@@ -9,9 +10,12 @@ import sys
 def usage():
     """The usage line, from the bake command's own parser (never out of date)."""
     from .blender.cli import make_parser
+
     u = make_parser("python -m hr_addon bake", blend_required=True).format_usage().strip()
-    return (f"{u}\n\nBake dynamic hierarchical radiosity into a .blend file's cache. "
-            "Options and exit codes: python -m hr_addon bake --help")
+    return (
+        f"{u}\n\nBake dynamic hierarchical radiosity into a .blend file's cache. "
+        "Options and exit codes: python -m hr_addon bake --help"
+    )
 
 
 def main(argv=None):
@@ -19,6 +23,7 @@ def main(argv=None):
     # Ctrl-C / SIGTERM from here on are recorded, not raised: a KeyboardInterrupt inside bpy's
     # start-up (add-on registration) prints tracebacks and can crash it. The bake checks them.
     from .blender.interrupt import INTERRUPTS
+
     if argv and argv[0] == "bake":
         INTERRUPTS.install()
     try:
@@ -36,10 +41,12 @@ def _main(argv, INTERRUPTS):
         return 2
     if any(a in ("-h", "--help") for a in argv[1:]):
         from .blender.cli import make_parser
+
         make_parser("python -m hr_addon bake", blend_required=True).print_help()
         return 0
     # Validate the arguments before the (slow) bpy import.
     from .blender import cli
+
     try:
         args = cli.make_parser("python -m hr_addon bake", blend_required=True).parse_args(argv[1:])
         if args.frames is not None:
@@ -61,6 +68,7 @@ def _main(argv, INTERRUPTS):
         print(cli.cancelled_message(), file=sys.stderr, flush=True)
         return 130
     from . import register
+
     register()
     return cli.run(argv[1:], prog="python -m hr_addon bake", blend_required=True, interrupts=INTERRUPTS)
 

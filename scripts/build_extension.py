@@ -53,7 +53,9 @@ def find_blender_ext() -> tuple[Path, Path | None]:
             "install requirements-dev.txt or pass --blender-ext".format(sys.executable)
         )
     bpy_dir = Path(list(spec.submodule_search_locations)[0])
-    hits = sorted(glob.glob(str(bpy_dir / "*" / "scripts" / "addons_core" / "bl_pkg" / "cli" / "blender_ext.py")))
+    hits = sorted(
+        glob.glob(str(bpy_dir / "*" / "scripts" / "addons_core" / "bl_pkg" / "cli" / "blender_ext.py"))
+    )
     if not hits:
         raise SystemExit("error: blender_ext.py not found under {}".format(bpy_dir))
     ext_py = Path(hits[-1])
@@ -71,15 +73,24 @@ def run(cmd: list[str]) -> None:
 
 def wheel_download_args(filename: str) -> list[str]:
     """pip download arguments that fetch exactly the wheel `filename` (name-version-py-abi-plat)."""
-    parts = filename[:-len(".whl")].split("-")
+    parts = filename[: -len(".whl")].split("-")
     if not filename.endswith(".whl") or len(parts) not in (5, 6):
         raise SystemExit("error: not a wheel file name: {}".format(filename))
     name, version, py, abi, plat = parts[0], parts[1], parts[-3], parts[-2], parts[-1]
     if not (py.startswith("cp") and py[2:].isdigit()):
         raise SystemExit("error: {}: expected a CPython wheel (cpXY), got {}".format(filename, py))
-    args = ["{}=={}".format(name, version), "--no-deps", "--only-binary=:all:",
-            "--python-version", py[2:], "--implementation", "cp", "--abi", abi]
-    for tag in plat.split("."):   # compressed tag sets, e.g. manylinux_2_27_x86_64.manylinux_2_28_x86_64
+    args = [
+        "{}=={}".format(name, version),
+        "--no-deps",
+        "--only-binary=:all:",
+        "--python-version",
+        py[2:],
+        "--implementation",
+        "cp",
+        "--abi",
+        abi,
+    ]
+    for tag in plat.split("."):  # compressed tag sets, e.g. manylinux_2_27_x86_64.manylinux_2_28_x86_64
         args += ["--platform", tag]
     return args
 
@@ -97,12 +108,26 @@ def fetch_wheels(manifest: dict) -> list[Path]:
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir()
         try:
-            run([sys.executable, "-m", "pip", "download", "-q", "--disable-pip-version-check",
-                 "--dest", str(tmp), *wheel_download_args(path.name)])
+            run(
+                [
+                    sys.executable,
+                    "-m",
+                    "pip",
+                    "download",
+                    "-q",
+                    "--disable-pip-version-check",
+                    "--dest",
+                    str(tmp),
+                    *wheel_download_args(path.name),
+                ]
+            )
             got = tmp / path.name
             if not got.is_file():
-                raise SystemExit("error: pip did not download {} (got: {})".format(
-                    path.name, ", ".join(sorted(p.name for p in tmp.iterdir())) or "nothing"))
+                raise SystemExit(
+                    "error: pip did not download {} (got: {})".format(
+                        path.name, ", ".join(sorted(p.name for p in tmp.iterdir())) or "nothing"
+                    )
+                )
             os.replace(got, path)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -135,13 +160,19 @@ def build(output_dir: Path, blender_ext: Path | None = None) -> list[Path]:
             z.unlink()
 
     run([sys.executable, str(blender_ext), "validate", str(REPO_ROOT), *tags_args])
-    run([
-        sys.executable, str(blender_ext), "build",
-        "--source-dir", str(REPO_ROOT),
-        "--output-dir", str(output_dir),
-        *(["--split-platforms"] if manifest.get("platforms") else []),
-        *tags_args,
-    ])
+    run(
+        [
+            sys.executable,
+            str(blender_ext),
+            "build",
+            "--source-dir",
+            str(REPO_ROOT),
+            "--output-dir",
+            str(output_dir),
+            *(["--split-platforms"] if manifest.get("platforms") else []),
+            *tags_args,
+        ]
+    )
     missing = [str(z) for z in zips if not z.is_file()]
     if missing:
         raise SystemExit("error: expected {} to have been built".format(", ".join(missing)))
@@ -150,11 +181,18 @@ def build(output_dir: Path, blender_ext: Path | None = None) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--output-dir", type=Path, default=REPO_ROOT / "dist",
-                        help="where to write the zip (default: <repo>/dist)")
-    parser.add_argument("--blender-ext", type=Path, default=None,
-                        help="path to blender_ext.py (default: the one in the installed bpy wheel; "
-                             "or set BLENDER_EXT_PY)")
+    parser.add_argument(
+        "--output-dir",
+        type=Path,
+        default=REPO_ROOT / "dist",
+        help="where to write the zip (default: <repo>/dist)",
+    )
+    parser.add_argument(
+        "--blender-ext",
+        type=Path,
+        default=None,
+        help="path to blender_ext.py (default: the one in the installed bpy wheel; or set BLENDER_EXT_PY)",
+    )
     args = parser.parse_args(argv)
     zips = build(args.output_dir, args.blender_ext)
     for z in zips:

@@ -16,6 +16,7 @@ furnished   benchmarks/furnished.py's furnished room of ~20k triangles (850 obje
 Every light shape lies exactly on the plane of the surface it lights (same float32 coordinate),
 has its origin on that plane and only moves / scales within it.
 """
+
 import argparse
 import sys
 from pathlib import Path
@@ -34,6 +35,7 @@ SUBDIV = 8
 
 
 # --- helpers ------------------------------------------------------------------------------------
+
 
 def reset():
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -117,7 +119,7 @@ def mesh_object(name, verts, polys, material=None, location=(0, 0, 0)):
 def from_mesh_input(mi, object_ids):
     """Vertices and polygons of the given objects of a core MeshInput (vertices compacted)."""
     sel = np.flatnonzero(np.isin(mi.object_id, list(object_ids)))
-    polys = [mi.loop_verts[mi.loop_start[i]:mi.loop_start[i] + mi.loop_total[i]] for i in sel]
+    polys = [mi.loop_verts[mi.loop_start[i] : mi.loop_start[i] + mi.loop_total[i]] for i in sel]
     used = np.unique(np.concatenate(polys))
     remap = {int(v): k for k, v in enumerate(used)}
     return mi.verts[used], [[remap[int(v)] for v in p] for p in polys]
@@ -133,11 +135,16 @@ def grid(quad, n):
     a, b, c, d = np.asarray(quad, float)
     u = np.linspace(0, 1, n + 1)
     U, V = np.meshgrid(u, u, indexing="ij")
-    P = ((1 - U) * (1 - V))[..., None] * a + (U * (1 - V))[..., None] * b \
-        + (U * V)[..., None] * c + ((1 - U) * V)[..., None] * d
+    P = (
+        ((1 - U) * (1 - V))[..., None] * a
+        + (U * (1 - V))[..., None] * b
+        + (U * V)[..., None] * c
+        + ((1 - U) * V)[..., None] * d
+    )
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    return P.reshape(-1, 3), [[idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]]
-                              for i in range(n) for j in range(n)]
+    return P.reshape(-1, 3), [
+        [idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]] for i in range(n) for j in range(n)
+    ]
 
 
 def box_quads(lo, hi, inward, skip=()):
@@ -184,8 +191,14 @@ def room(size, materials, subdiv=SUBDIV):
 def light_shape(name, verts, polys, material, location=(0, 0, 0)):
     ob = mesh_object(name, verts, polys, material, location)
     ob.hr.is_light_shape = True
-    for attr in ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
-                 "visible_volume_scatter", "visible_shadow"):
+    for attr in (
+        "visible_camera",
+        "visible_diffuse",
+        "visible_glossy",
+        "visible_transmission",
+        "visible_volume_scatter",
+        "visible_shadow",
+    ):
         setattr(ob, attr, False)
     ob.show_in_front = True
     return ob
@@ -231,6 +244,7 @@ def camera(location, target, lens=35):
     ob.location = location
     d = np.asarray(target, float) - np.asarray(location, float)
     from mathutils import Vector
+
     ob.rotation_euler = Vector(d).to_track_quat("-Z", "Y").to_euler()
     bpy.context.scene.camera = ob
     return ob
@@ -242,7 +256,7 @@ def finish(scene, path, frames, quality="DRAFT"):
     scene.hr.quality = quality
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.exists():
-        path.unlink()          # no .blend1 backup next to the committed file
+        path.unlink()  # no .blend1 backup next to the committed file
     bpy.ops.wm.save_as_mainfile(filepath=str(path), compress=True, check_existing=False)
     print(f"wrote {path} ({path.stat().st_size // 1024} KB)", flush=True)
 
@@ -255,7 +269,7 @@ WINDOW_PANE, WINDOW_BAR = 0.09, 0.02
 WINDOW_EMISSION = ((1.0, 0.95, 0.85), 8.0)
 # Patch on the back wall (plane y = 0.5592, normal -y).
 BACK_Y = 0.5592
-PATCH_RECT = (0.20, 0.36, 0.26, 0.38)   # x0, x1, z0, z1
+PATCH_RECT = (0.20, 0.36, 0.26, 0.38)  # x0, x1, z0, z1
 PATCH_EMISSION = ((0.6, 0.7, 1.0), 6.0)
 CORNELL_FRAMES = (1, 24)
 WINDOW_ON = (6, 21)
@@ -271,13 +285,15 @@ def window_polys():
             y0, z0 = cy + dy, cz + dz
             k = len(verts)
             verts += [(0.0, y0, z0), (0.0, y0 + p, z0), (0.0, y0 + p, z0 + p), (0.0, y0, z0 + p)]
-            polys.append([k, k + 1, k + 2, k + 3])   # normal +x
+            polys.append([k, k + 1, k + 2, k + 3])  # normal +x
     return verts, polys
 
 
 def patch_polys():
     x0, x1, z0, z1 = PATCH_RECT
-    return [(x0, BACK_Y, z0), (x1, BACK_Y, z0), (x1, BACK_Y, z1), (x0, BACK_Y, z1)], [[0, 1, 2, 3]]  # normal -y
+    return [(x0, BACK_Y, z0), (x1, BACK_Y, z0), (x1, BACK_Y, z1), (x0, BACK_Y, z1)], [
+        [0, 1, 2, 3]
+    ]  # normal -y
 
 
 def make_cornell(path):
@@ -292,7 +308,15 @@ def make_cornell(path):
     for i, n in enumerate(names):
         if n.startswith(("short_block", "tall_block")):
             continue
-        mat = mats["red"] if "red" in n else mats["green"] if "green" in n else light_mat if n == "light" else white
+        mat = (
+            mats["red"]
+            if "red" in n
+            else mats["green"]
+            if "green" in n
+            else light_mat
+            if n == "light"
+            else white
+        )
         v, p = from_mesh_input(mi, [i])
         mesh_object(n, v, p, mat)
     for blk in ("short_block", "tall_block"):
@@ -313,15 +337,22 @@ ROOM = (4.0, 3.0, 2.5)
 
 
 def room_materials():
-    return {"default": diffuse("Wall", (0.7, 0.7, 0.68)), "floor": diffuse("Floor", (0.45, 0.35, 0.25)),
-            "ceiling": diffuse("Ceiling", (0.8, 0.8, 0.8))}
+    return {
+        "default": diffuse("Wall", (0.7, 0.7, 0.68)),
+        "floor": diffuse("Floor", (0.45, 0.35, 0.25)),
+        "ceiling": diffuse("Ceiling", (0.8, 0.8, 0.8)),
+    }
 
 
 def make_moonlight(path):
     scene = reset()
     room(ROOM, room_materials())
-    quads_object("Bed", list(box_quads((2.4, 0.3, 0.0), (3.6, 1.3, 0.45), inward=False, skip=("floor",)).values()),
-                 diffuse("Blanket", (0.3, 0.35, 0.6)), 2)
+    quads_object(
+        "Bed",
+        list(box_quads((2.4, 0.3, 0.0), (3.6, 1.3, 0.45), inward=False, skip=("floor",)).values()),
+        diffuse("Blanket", (0.3, 0.35, 0.6)),
+        2,
+    )
     # Irregular (concave) moonlight patch on the floor (plane z = 0, normal +z), an n-gon.
     pts = [(0.6, 0.9), (1.5, 0.7), (2.1, 1.2), (1.8, 1.5), (2.3, 2.2), (1.2, 2.4), (0.9, 1.7)]
     verts = [(x, y, 0.0) for x, y in pts]
@@ -338,12 +369,21 @@ def make_moonlight(path):
 def make_curtain(path):
     scene = reset()
     room(ROOM, room_materials())
-    quads_object("Table", list(box_quads((1.2, 1.0, 0.0), (2.0, 1.8, 0.7), inward=False, skip=("floor",)).values()),
-                 diffuse("Wood", (0.5, 0.3, 0.15)), 2)
+    quads_object(
+        "Table",
+        list(box_quads((1.2, 1.0, 0.0), (2.0, 1.8, 0.7), inward=False, skip=("floor",)).values()),
+        diffuse("Wood", (0.5, 0.3, 0.15)),
+        2,
+    )
     # A slit on the wall x = 0 (normal +x) centred at (y, z) = (1.5, 1.4); it widens along y.
     verts = [(0.0, -0.05, -0.6), (0.0, 0.05, -0.6), (0.0, 0.05, 0.6), (0.0, -0.05, 0.6)]
-    ob = light_shape("Curtain Gap", verts, [[0, 1, 2, 3]], principled("Daylight", (0, 0, 0), (1.0, 0.97, 0.9), 6.0),
-                     location=(0.0, 1.5, 1.4))
+    ob = light_shape(
+        "Curtain Gap",
+        verts,
+        [[0, 1, 2, 3]],
+        principled("Daylight", (0, 0, 0), (1.0, 0.97, 0.9), 6.0),
+        location=(0.0, 1.5, 1.4),
+    )
     for f, s in ((1, 1.0), (12, 12.0)):
         ob.scale = (1.0, s, 1.0)
         ob.keyframe_insert("scale", frame=f)
@@ -357,8 +397,13 @@ def make_searchbeam(path):
     # Ellipse (32-gon) on the back wall y = 3 (normal -y), origin on the wall, moving along x.
     t = np.linspace(0, 2 * np.pi, 32, endpoint=False)
     verts = [(0.4 * np.cos(a), 0.0, 0.25 * np.sin(a)) for a in t]  # counter-clockwise seen from -y: normal -y
-    ob = light_shape("Searchbeam", verts, [list(range(32))], emission("Beam", (1.0, 1.0, 0.9), 20.0),
-                     location=(0.8, ROOM[1], 1.6))
+    ob = light_shape(
+        "Searchbeam",
+        verts,
+        [list(range(32))],
+        emission("Beam", (1.0, 1.0, 0.9), 20.0),
+        location=(0.8, ROOM[1], 1.6),
+    )
     for f, x in ((1, 0.8), (12, 3.2)):
         ob.location.x = x
         ob.keyframe_insert("location", index=0, frame=f)
@@ -369,20 +414,40 @@ def make_searchbeam(path):
 def make_office(path):
     scene = reset()
     room((5.0, 4.0, 2.7), room_materials())
-    mesh_ceiling = quads_object("Ceiling Panel", [orient([(2.2, 1.7, 2.699), (2.8, 1.7, 2.699), (2.8, 2.3, 2.699),
-                                                          (2.2, 2.3, 2.699)], (2.5, 2.0, 0.0))],
-                                principled("Panel", (0.8, 0.8, 0.8), (1, 1, 1), 1.5), 2)
+    mesh_ceiling = quads_object(
+        "Ceiling Panel",
+        [
+            orient(
+                [(2.2, 1.7, 2.699), (2.8, 1.7, 2.699), (2.8, 2.3, 2.699), (2.2, 2.3, 2.699)], (2.5, 2.0, 0.0)
+            )
+        ],
+        principled("Panel", (0.8, 0.8, 0.8), (1, 1, 1), 1.5),
+        2,
+    )
     mesh_ceiling.name = "Ceiling Panel"
-    quads_object("Desk", list(box_quads((1.5, 2.6, 0.0), (3.5, 3.4, 0.75), inward=False, skip=("floor",)).values()),
-                 diffuse("Desk", (0.55, 0.4, 0.25)), 2)
+    quads_object(
+        "Desk",
+        list(box_quads((1.5, 2.6, 0.0), (3.5, 3.4, 0.75), inward=False, skip=("floor",)).values()),
+        diffuse("Desk", (0.55, 0.4, 0.25)),
+        2,
+    )
     screen_mats = []
     for i, x0 in enumerate((1.75, 2.65)):
         x1 = x0 + 0.6
-        y0, y1, z0, z1 = 2.9, 2.95, 0.85, 1.2     # the screen is the y = 2.9 face, normal -y
-        quads_object(f"Monitor {i + 1}", list(box_quads((x0, y0, z0), (x1, y1, z1), inward=False).values()),
-                     principled(f"Monitor Case {i + 1}", (0.05, 0.05, 0.05)), 1)
+        y0, y1, z0, z1 = 2.9, 2.95, 0.85, 1.2  # the screen is the y = 2.9 face, normal -y
+        quads_object(
+            f"Monitor {i + 1}",
+            list(box_quads((x0, y0, z0), (x1, y1, z1), inward=False).values()),
+            principled(f"Monitor Case {i + 1}", (0.05, 0.05, 0.05)),
+            1,
+        )
         d = 0.02
-        verts = [(x0 + d, y0, z0 + d), (x1 - d, y0, z0 + d), (x1 - d, y0, z1 - d), (x0 + d, y0, z1 - d)]  # normal -y
+        verts = [
+            (x0 + d, y0, z0 + d),
+            (x1 - d, y0, z0 + d),
+            (x1 - d, y0, z1 - d),
+            (x0 + d, y0, z1 - d),
+        ]  # normal -y
         mat = emission(f"Screen {i + 1}", (0.8, 0.9, 1.0), 5.0)
         screen_mats.append(mat)
         ob = light_shape(f"Screen {i + 1}", verts, [[0, 1, 2, 3]], mat)
@@ -393,6 +458,7 @@ def make_office(path):
 
 def make_furnished(path):
     from benchmarks.furnished import furnished_room
+
     scene = reset()
     mi, info = furnished_room("20k")
     mats = {}
@@ -407,20 +473,28 @@ def make_furnished(path):
                 mats[key] = diffuse(f"Diffuse {len(mats)}", tuple(float(x) for x in key[0]))
         return mats[key]
 
-    first = np.searchsorted(mi.object_id, np.arange(len(mi.object_names)))   # polygons are grouped by object
+    first = np.searchsorted(mi.object_id, np.arange(len(mi.object_names)))  # polygons are grouped by object
     for k, name in enumerate(mi.object_names):
         verts, polys = from_mesh_input(mi, [k])
         mesh_object(name, verts, polys, material(mi.reflectance[first[k]], mi.emission[first[k]]))
     _, (o, u, v) = info["light_wall"]
-    corners = [o + a * u + b * v for a, b in ((0.25, 0.25), (1.15, 0.25), (1.15, 0.95), (0.25, 0.95))]   # faces +x
+    corners = [
+        o + a * u + b * v for a, b in ((0.25, 0.25), (1.15, 0.25), (1.15, 0.95), (0.25, 0.95))
+    ]  # faces +x
     ob = light_shape("Window", corners, [[0, 1, 2, 3]], emission("Window", (1.0, 0.95, 0.85), 12.0))
     key_visibility(ob, [(3, 8)])
     camera((5.6, 0.4, 1.7), (1.5, 3.5, 0.7), lens=20)
     finish(scene, path, (1, 10))
 
 
-MAKERS = {"cornell": make_cornell, "moonlight": make_moonlight, "curtain": make_curtain,
-          "searchbeam": make_searchbeam, "office": make_office, "furnished": make_furnished}
+MAKERS = {
+    "cornell": make_cornell,
+    "moonlight": make_moonlight,
+    "curtain": make_curtain,
+    "searchbeam": make_searchbeam,
+    "office": make_office,
+    "furnished": make_furnished,
+}
 
 
 def main(argv=None):

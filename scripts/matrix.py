@@ -13,6 +13,7 @@ tests/test_matrix.py hides the venv's embreex from the Blender process it starts
 The linux-x64 zip is built once (scripts/build_extension.py, with 5.0's extension builder) and
 passed to every run through HR_EXTENSION_ZIP. Exit code: 0 when every version passed.
 """
+
 import argparse
 import os
 import subprocess
@@ -22,7 +23,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 VENVS = REPO / ".venvs"
-EXTRA = {"4.2": "4.2.23", "4.5": "4.5.15"}     # bpy versions (cp311 wheels, like 5.0.1)
+EXTRA = {"4.2": "4.2.23", "4.5": "4.5.15"}  # bpy versions (cp311 wheels, like 5.0.1)
 MAIN_PY = REPO / ".venv" / "bin" / "python"
 
 
@@ -44,7 +45,10 @@ def setup(python="python3"):
             continue
         if run([python, "-m", "venv", py.parent.parent]) != 0:
             return 1
-        if run([py, "-m", "pip", "install", "-q", f"bpy=={version}", "-r", REPO / "requirements-matrix.txt"]) != 0:
+        if (
+            run([py, "-m", "pip", "install", "-q", f"bpy=={version}", "-r", REPO / "requirements-matrix.txt"])
+            != 0
+        ):
             return 1
         marker.write_text(version + "\n")
     return 0
@@ -52,8 +56,13 @@ def setup(python="python3"):
 
 def build_zip():
     out = REPO / "build" / "matrix_dist"
-    proc = subprocess.run([str(MAIN_PY), str(REPO / "scripts" / "build_extension.py"), "--output-dir", str(out)],
-                          cwd=REPO, stdin=subprocess.DEVNULL, capture_output=True, text=True)
+    proc = subprocess.run(
+        [str(MAIN_PY), str(REPO / "scripts" / "build_extension.py"), "--output-dir", str(out)],
+        cwd=REPO,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+    )
     zips = [ln for ln in proc.stdout.splitlines() if ln.endswith("-linux_x64.zip")]
     if proc.returncode != 0 or not zips:
         print(proc.stdout + proc.stderr, file=sys.stderr)

@@ -6,6 +6,7 @@ you see is exactly the HR_Radiance the bake wrote. Writes docs/images/<scene>.pn
 
 Usage: python scripts/render_figures.py [scene ...] [--size 240] [--quality medium]
 """
+
 import argparse
 import os
 import shutil
@@ -16,8 +17,13 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 # Frames to show per sample: chosen to show the light events of each animation.
-FRAMES = {"cornell": [1, 7, 13, 21], "curtain": [1, 12, 24], "searchbeam": [1, 15, 30],
-          "moonlight": [1, 12, 24], "office": [1, 12, 24]}
+FRAMES = {
+    "cornell": [1, 7, 13, 21],
+    "curtain": [1, 12, 24],
+    "searchbeam": [1, 15, 30],
+    "moonlight": [1, 12, 24],
+    "office": [1, 12, 24],
+}
 
 
 def render_scene(name, size, quality, out_dir):
@@ -35,14 +41,14 @@ def render_scene(name, size, quality, out_dir):
         run_bake(scene, log=lambda *a, **k: None, quality=quality)
         meshes = [o for o in scene.objects if o.type == "MESH" and not o.hr.is_light_shape]
         preview.add_preview(meshes)
-        for o in scene.objects:          # the light shapes are not geometry of the solution
+        for o in scene.objects:  # the light shapes are not geometry of the solution
             if o.type == "MESH" and o.hr.is_light_shape:
                 o.hide_render = True
                 o.animation_data_clear()
         scene.render.engine = "CYCLES"
         scene.cycles.device = "CPU"
         scene.cycles.samples = 8
-        scene.cycles.max_bounces = 0      # camera rays see the baked emission, nothing else
+        scene.cycles.max_bounces = 0  # camera rays see the baked emission, nothing else
         scene.cycles.use_denoising = False
         scene.render.resolution_x = scene.render.resolution_y = size
         scene.render.resolution_percentage = 100
@@ -75,6 +81,7 @@ def main():
     ap.add_argument("--quality", default="medium")
     args = ap.parse_args()
     import hr_addon
+
     hr_addon.register()
     for name in args.scenes:
         render_scene(name, args.size, args.quality, os.path.join(ROOT, "docs", "images"))

@@ -8,6 +8,7 @@ docs/images/live_drag.png, a strip of the steps with the time each update took.
 
 Usage: python scripts/render_live.py [--size 240] [--quality medium] [--steps 4]
 """
+
 import argparse
 import os
 import shutil
@@ -33,7 +34,7 @@ def render(size, quality, steps, out):
         bpy.ops.wm.open_mainfile(filepath=blend)
         scene = bpy.context.scene
         scene.hr.quality = quality.upper()
-        for o in scene.objects:               # a still scene: the shapes are edited, not animated
+        for o in scene.objects:  # a still scene: the shapes are edited, not animated
             if o.hr.is_light_shape:
                 o.animation_data_clear()
         bpy.data.objects["Window"].hide_render = True
@@ -52,11 +53,11 @@ def render(size, quality, steps, out):
         node.inputs["Color"].default_value = (1.0, 0.75, 0.45, 1.0)
         node.inputs["Strength"].default_value = 14.0
         x0, x1 = float(co[:, 0].min()), float(co[:, 0].max())
-        left, right = 0.03 - x0, 0.53 - x1              # the back wall spans x = 0 .. 0.556
+        left, right = 0.03 - x0, 0.53 - x1  # the back wall spans x = 0 .. 0.556
         scene.render.engine = "CYCLES"
         scene.cycles.device = "CPU"
         scene.cycles.samples = 8
-        scene.cycles.max_bounces = 0          # camera rays see the Live emission, nothing else
+        scene.cycles.max_bounces = 0  # camera rays see the Live emission, nothing else
         scene.cycles.use_denoising = False
         scene.render.resolution_x = scene.render.resolution_y = size
         scene.render.resolution_percentage = 100
@@ -64,8 +65,10 @@ def render(size, quality, steps, out):
         scene.render.image_settings.file_format = "PNG"
         scene.hr.live = True
         t0 = time.perf_counter()
-        bpy.ops.hr.live_update()              # builds the hierarchy once
-        print(f"Live on: {time.perf_counter() - t0:.1f} s (hierarchy build and first light state)", flush=True)
+        bpy.ops.hr.live_update()  # builds the hierarchy once
+        print(
+            f"Live on: {time.perf_counter() - t0:.1f} s (hierarchy build and first light state)", flush=True
+        )
         tiles = []
         for i in range(steps):
             patch.location.x = left + (right - left) * i / max(steps - 1, 1)
@@ -78,8 +81,11 @@ def render(size, quality, steps, out):
             img = Image.open(path).convert("RGB")
             ImageDraw.Draw(img).text((6, 4), f"step {i + 1}: {1000 * dt:.0f} ms", fill=(255, 255, 255))
             tiles.append(img)
-            print(f"step {i + 1}: x = {patch.location.x:+.3f} m, update {1000 * dt:.0f} ms "
-                  f"({live.session(scene).last.report.method})", flush=True)
+            print(
+                f"step {i + 1}: x = {patch.location.x:+.3f} m, update {1000 * dt:.0f} ms "
+                f"({live.session(scene).last.report.method})",
+                flush=True,
+            )
         strip = Image.new("RGB", (size * len(tiles) + 4 * (len(tiles) - 1), size), (255, 255, 255))
         for i, t in enumerate(tiles):
             strip.paste(t, (i * (size + 4), 0))
@@ -98,6 +104,7 @@ def main():
     ap.add_argument("--out", default=os.path.join(ROOT, "docs", "images", "live_drag.png"))
     args = ap.parse_args()
     import hr_addon
+
     hr_addon.register()
     render(args.size, args.quality, args.steps, args.out)
 

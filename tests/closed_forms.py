@@ -8,6 +8,7 @@ parallel disc; a tilted differential area under an infinite plane sees (1 + cos 
 Superposition gives any point under a parallel rectangle (point_to_parallel_rect).
 tests/test_formfactor.py checks them against the catalog's tabulated values and each other.
 """
+
 from math import atan, log, pi, sqrt
 
 
@@ -21,27 +22,47 @@ def point_to_rect_corner(a, b, c):
 def point_to_parallel_rect(px, py, x0, x1, y0, y1, c):
     """Element at (px, py), distance c below the rectangle [x0, x1] x [y0, y1] (parallel, facing it):
     the four corner rectangles meeting at the foot point, signed (superposition)."""
+
     def corner(x, y):
         s = (1 if x >= 0 else -1) * (1 if y >= 0 else -1)
         return s * point_to_rect_corner(abs(x), abs(y), c) if x and y else 0.0
-    return (corner(x1 - px, y1 - py) - corner(x0 - px, y1 - py) - corner(x1 - px, y0 - py)
-            + corner(x0 - px, y0 - py))
+
+    return (
+        corner(x1 - px, y1 - py)
+        - corner(x0 - px, y1 - py)
+        - corner(x1 - px, y0 - py)
+        + corner(x0 - px, y0 - py)
+    )
 
 
 def opposed_rects(a, b, c):
     """C-11: a x b rectangle to the same rectangle directly opposite at distance c."""
     x, y = a / c, b / c
     x1, y1 = 1 + x * x, 1 + y * y
-    return 2 / (pi * x * y) * (log(sqrt(x1 * y1 / (x1 + y1 - 1))) + x * sqrt(y1) * atan(x / sqrt(y1))
-                               + y * sqrt(x1) * atan(y / sqrt(x1)) - x * atan(x) - y * atan(y))
+    return (
+        2
+        / (pi * x * y)
+        * (
+            log(sqrt(x1 * y1 / (x1 + y1 - 1)))
+            + x * sqrt(y1) * atan(x / sqrt(y1))
+            + y * sqrt(x1) * atan(y / sqrt(x1))
+            - x * atan(x)
+            - y * atan(y)
+        )
+    )
 
 
 def perpendicular_rects(edge, w, h):
     """C-14: rectangle edge x w to the rectangle edge x h at right angles to it, sharing the edge."""
     W, H = w / edge, h / edge
     W2, H2, S = W * W, H * H, W * W + H * H
-    t = log((1 + W2) * (1 + H2) / (1 + S) * (W2 * (1 + S) / ((1 + W2) * S)) ** W2
-            * (H2 * (1 + S) / ((1 + H2) * S)) ** H2)
+    t = log(
+        (1 + W2)
+        * (1 + H2)
+        / (1 + S)
+        * (W2 * (1 + S) / ((1 + W2) * S)) ** W2
+        * (H2 * (1 + S) / ((1 + H2) * S)) ** H2
+    )
     return (W * atan(1 / W) + H * atan(1 / H) - sqrt(S) * atan(1 / sqrt(S)) + t / 4) / (pi * W)
 
 

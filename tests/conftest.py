@@ -7,6 +7,7 @@ leaves the preferences alone, so Blender does not re-register its bundled add-on
 (pose_library adds one more load_post handler each time), and takes ~15 ms instead of ~100 ms.
 Tests marked `shared_scene` work on Blender data that a module-scoped fixture made and keep it.
 """
+
 import importlib.util
 import sys
 from pathlib import Path
@@ -34,4 +35,5 @@ def blender_factory_startup(request):
     marked = request.node.get_closest_marker
     if HAVE_BPY and marked("bpy") and not marked("shared_scene"):
         import bpy
+
         bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)

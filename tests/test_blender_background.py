@@ -1,6 +1,7 @@
 """The interactive bake's background worker (hr_addon/blender/background.py) driven like the
 modal operator does: start(), poll() in a loop, cancel(). In tests the worker is
 `python -m hr_addon bake` (the bpy module has no Blender binary)."""
+
 import json
 import os
 import time
@@ -34,12 +35,13 @@ def test_background_bake_reports_progress_and_loads_result(tmp_path):
     path = open_sample("searchbeam", tmp_path)
     from hr_addon.blender import background
     from hr_addon.io.cache import CacheReader
+
     scene = bpy.context.scene
     scene.frame_set(7)
     mtime = path.stat().st_mtime_ns
     job = background.BackgroundBake(scene, method="FE", quality="draft").start()
     assert background.running() and background.active() is job
-    assert job.proc.pid > 0 and (job.tmp / path.name).is_file()     # the worker bakes a saved copy
+    assert job.proc.pid > 0 and (job.tmp / path.name).is_file()  # the worker bakes a saved copy
     _wait(job)
     assert job.state == "done", (job.error, job.status)
     assert not background.running()
@@ -59,8 +61,8 @@ def test_background_bake_reports_progress_and_loads_result(tmp_path):
     want = reader.load(7)
     for name, values in want.items():
         np.testing.assert_array_equal(attribute(bpy.data.objects[name]), values)
-    assert path.stat().st_mtime_ns == mtime              # the user's file was not written
-    assert not job.tmp.exists()                          # the copy and status file are gone
+    assert path.stat().st_mtime_ns == mtime  # the user's file was not written
+    assert not job.tmp.exists()  # the copy and status file are gone
     assert sorted(p.name for p in cache.parent.iterdir()) == ["searchbeam"]
 
 
@@ -70,6 +72,7 @@ def test_background_cancel_keeps_previous_bake(tmp_path):
     open_sample("searchbeam", tmp_path)
     from hr_addon.blender import background
     from hr_addon.blender.bake import run_bake
+
     scene = bpy.context.scene
     run_bake(scene, log=lambda *a, **k: None, frames=(1, 3), method="FE", quality="draft")
     cache = tmp_path / "hr_cache" / "searchbeam"
@@ -83,7 +86,7 @@ def test_background_cancel_keeps_previous_bake(tmp_path):
     assert job.state == "cancelled" and not background.running()
     assert job.proc.poll() is not None
     assert _cache_snapshot(cache) == before
-    assert sorted(p.name for p in cache.parent.iterdir()) == ["searchbeam"]   # partial bake removed
+    assert sorted(p.name for p in cache.parent.iterdir()) == ["searchbeam"]  # partial bake removed
     assert not job.tmp.exists()
     assert scene.hr.bake_dir == "//hr_cache/searchbeam/"
     np.testing.assert_array_equal(attribute(bpy.data.objects["wall_x0"]), shown)
@@ -94,7 +97,10 @@ def test_background_failure_is_reported(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     from hr_addon.blender import background
-    job = background.BackgroundBake(bpy.context.scene, output="texture", frames=(-2, 1), quality="draft").start()
+
+    job = background.BackgroundBake(
+        bpy.context.scene, output="texture", frames=(-2, 1), quality="draft"
+    ).start()
     _wait(job)
     assert job.state == "failed"
     assert "frame numbers >= 0" in job.error, job.error
@@ -105,6 +111,7 @@ def test_background_start_refuses_unsaved_file():
     bpy = load_bpy()
     from hr_addon.blender import background
     from hr_addon.blender.scene_in import SceneError
+
     bpy.ops.wm.read_factory_settings(use_empty=False)
     with pytest.raises(SceneError, match="Save the .blend file first"):
         background.BackgroundBake(bpy.context.scene).start()
@@ -113,15 +120,16 @@ def test_background_start_refuses_unsaved_file():
 
 def test_status_file_reader_is_robust(tmp_path):
     from hr_addon.blender.jobstatus import StatusWriter, read_status
+
     p = tmp_path / "status.json"
-    assert read_status(p) is None                         # missing
+    assert read_status(p) is None  # missing
     w = StatusWriter(p, cache_dir="/x")
     s = read_status(p)
     assert s["state"] == "running" and s["fraction"] == 0.0 and s["pid"] == os.getpid()
-    w.write(fraction=0.25, eta=float("nan"))              # NaN is written as JSON NaN: read back as unknown
+    w.write(fraction=0.25, eta=float("nan"))  # NaN is written as JSON NaN: read back as unknown
     assert read_status(p)["eta"] is None and read_status(p)["fraction"] == 0.25
     text = p.read_text()
-    p.write_text(text[: len(text) // 2])                  # a torn write (not possible with replace, but)
+    p.write_text(text[: len(text) // 2])  # a torn write (not possible with replace, but)
     assert read_status(p) is None
     p.write_text(json.dumps({"version": 99, "state": "done"}))
     assert read_status(p) is None

@@ -1,4 +1,5 @@
 """Bake, cache and playback in bpy on the sample scenes (hr_addon/blender/bake.py, playback.py)."""
+
 import os
 from pathlib import Path
 
@@ -10,12 +11,13 @@ from test_blender_helpers import attribute, load_bpy, make_samples_module, open_
 pytestmark = pytest.mark.bpy
 
 
-FRAMES = {1: (), 6: ("window",), 13: ("window", "patch"), 21: ("patch",)}   # cornell.blend states
+FRAMES = {1: (), 6: ("window",), 13: ("window", "patch"), 21: ("patch",)}  # cornell.blend states
 
 
 def _bake(**kw):
     import bpy
     from hr_addon.blender.bake import run_bake
+
     kw.setdefault("quality", "draft")
     return run_bake(bpy.context.scene, log=lambda *a, **k: None, **kw)
 
@@ -24,9 +26,12 @@ def _reference_mesh(bpy):
     """MeshInput built independently of hr_addon.blender (plain loops over the mesh data)."""
     from hr_addon.core.geometry import MeshInput
     from hr_addon.blender.materials import read_material
+
     verts, polys, rho, em, oid, names = [], [], [], [], [], []
-    for ob in sorted((o for o in bpy.context.scene.objects if o.type == "MESH" and not o.hr.is_light_shape),
-                     key=lambda o: o.name):
+    for ob in sorted(
+        (o for o in bpy.context.scene.objects if o.type == "MESH" and not o.hr.is_light_shape),
+        key=lambda o: o.name,
+    ):
         M = np.array(ob.matrix_world)
         base = len(verts)
         verts += [tuple(M[:3, :3] @ np.array(v.co, float) + M[:3, 3]) for v in ob.data.vertices]
@@ -37,18 +42,23 @@ def _reference_mesh(bpy):
             em.append(s.emission)
             oid.append(len(names))
         names.append(ob.name)
-    return MeshInput.from_polygons(np.array(verts), polys, np.array(rho), np.array(em), np.array(oid), names), names
+    return MeshInput.from_polygons(
+        np.array(verts), polys, np.array(rho), np.array(em), np.array(oid), names
+    ), names
 
 
 def _reference_shapes(state):
     from hr_addon.core.events import LightShape
+
     ms = make_samples_module()
     f32 = lambda v: np.asarray(v, np.float32).astype(np.float64)  # noqa: E731  (Blender stores float32)
     shapes = {}
     if "window" in state:
         wv, wp = ms.window_polys()
         for i, p in enumerate(wp):
-            shapes[f"w{i}"] = LightShape([f32(wv)[p]], np.array(ms.WINDOW_EMISSION[0]) * ms.WINDOW_EMISSION[1])
+            shapes[f"w{i}"] = LightShape(
+                [f32(wv)[p]], np.array(ms.WINDOW_EMISSION[0]) * ms.WINDOW_EMISSION[1]
+            )
     if "patch" in state:
         pv, pp = ms.patch_polys()
         shapes["p"] = LightShape([f32(pv)[pp[0]]], np.array(ms.PATCH_EMISSION[0]) * ms.PATCH_EMISSION[1])
@@ -61,12 +71,18 @@ def test_hr_radiance_matches_core_per_frame(tmp_path):
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
+
     res = _bake(method="FE")
-    assert res.solved == 4 and res.reused == 20, res        # only frames 1, 6, 13, 21 change
+    assert res.solved == 4 and res.reused == 20, res  # only frames 1, 6, 13, 21 change
     scene = bpy.context.scene
     assert scene.hr.bake_dir == "//hr_cache/cornell/"
     assert sorted(os.listdir(tmp_path / "hr_cache" / "cornell")) == [
-        "frame_000001.npz", "frame_000006.npz", "frame_000013.npz", "frame_000021.npz", "manifest.json"]
+        "frame_000001.npz",
+        "frame_000006.npz",
+        "frame_000013.npz",
+        "frame_000021.npz",
+        "manifest.json",
+    ]
 
     mesh, names = _reference_mesh(bpy)
     dyn = DynamicRadiosity(RadiositySystem(mesh, RefineParams.preset("draft")), method="FE")
@@ -75,12 +91,17 @@ def test_hr_radiance_matches_core_per_frame(tmp_path):
     for f, state in list(FRAMES.items()) + [(9, FRAMES[6]), (24, FRAMES[21])]:
         dyn.apply(_reference_shapes(state))
         ref = dyn.loop_radiance("CORNER")
-        scene.frame_set(f)                                   # the handler loads frame f
+        scene.frame_set(f)  # the handler loads frame f
         for i, n in enumerate(names):
             got = attribute(bpy.data.objects[n])
             assert got.shape == (starts[i + 1] - starts[i], 4)
-            np.testing.assert_allclose(got[:, :3], ref[starts[i]:starts[i + 1]], rtol=2e-4, atol=1e-6,
-                                       err_msg=f"frame {f}, object {n}")
+            np.testing.assert_allclose(
+                got[:, :3],
+                ref[starts[i] : starts[i + 1]],
+                rtol=2e-4,
+                atol=1e-6,
+                err_msg=f"frame {f}, object {n}",
+            )
             assert np.all(got[:, 3] == 1)
         seen[f] = attribute(bpy.data.objects["right_green"])[:, :3].mean(0)
     # The window lights the wall it lies on (emission included in the outgoing radiance).
@@ -93,7 +114,7 @@ def test_hr_radiance_matches_core_per_frame(tmp_path):
 def test_auto_method_and_point_domain(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
-    res = _bake(frames=(12, 14), domain="POINT")           # default method: AUTO
+    res = _bake(frames=(12, 14), domain="POINT")  # default method: AUTO
     assert res.solved == 2 and res.reused == 1
     scene = bpy.context.scene
     scene.frame_set(13)
@@ -110,7 +131,11 @@ def test_scene_scale_does_not_change_results(tmp_path):
     open_sample("cornell", tmp_path / "a")
     _bake(frames=(13, 13), method="FE")
     bpy.context.scene.frame_set(13)
-    ref = {o.name: attribute(o) for o in bpy.context.scene.objects if o.type == "MESH" and not o.hr.is_light_shape}
+    ref = {
+        o.name: attribute(o)
+        for o in bpy.context.scene.objects
+        if o.type == "MESH" and not o.hr.is_light_shape
+    }
     open_sample("cornell", tmp_path / "b")
     scene = bpy.context.scene
     root = bpy.data.objects.new("Scale", None)
@@ -136,6 +161,7 @@ def test_cancel_and_failure_keep_previous_bake(tmp_path, monkeypatch):
     open_sample("cornell", tmp_path)
     from hr_addon.blender import bake as bake_mod
     from hr_addon.blender.bake import BakeJob
+
     _bake(frames=(5, 7), method="FE")
     cache = tmp_path / "hr_cache" / "cornell"
     before = _cache_snapshot(cache)
@@ -150,7 +176,7 @@ def test_cancel_and_failure_keep_previous_bake(tmp_path, monkeypatch):
     assert job.progress.stage == "frame"
     job.cancel()
     assert _cache_snapshot(cache) == before
-    assert sorted(p.name for p in cache.parent.iterdir()) == ["cornell"]    # temporary dir removed
+    assert sorted(p.name for p in cache.parent.iterdir()) == ["cornell"]  # temporary dir removed
     assert scene.frame_current == 3
     scene.frame_set(6)
     np.testing.assert_array_equal(attribute(bpy.data.objects["right_green"]), shown)
@@ -180,18 +206,19 @@ def test_reopen_restores_playback_and_reports_missing_cache(tmp_path, capsys):
     scene = bpy.context.scene
     scene.frame_set(13)
     expect = attribute(bpy.data.objects["back"])
-    for o in scene.objects:                  # the .blend does not store the values: the cache does
+    for o in scene.objects:  # the .blend does not store the values: the cache does
         if o.type == "MESH" and "HR_Radiance" in o.data.color_attributes:
             o.data.color_attributes.remove(o.data.color_attributes["HR_Radiance"])
     bpy.ops.wm.save_mainfile()
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)     # load_post handler
+    bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)  # load_post handler
     assert bpy.context.scene.frame_current == 13
     np.testing.assert_array_equal(attribute(bpy.data.objects["back"]), expect)
     bpy.context.scene.frame_set(2)
     assert not np.array_equal(attribute(bpy.data.objects["back"]), expect)
     # Missing cache: a clear message, no exception, playback simply stops.
     from hr_addon.blender import playback
+
     os.rename(tmp_path / "hr_cache", tmp_path / "moved")
     capsys.readouterr()
     bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
@@ -204,7 +231,7 @@ def test_reopen_restores_playback_and_reports_missing_cache(tmp_path, capsys):
     bpy.context.scene.frame_set(7)
     assert "Corrupt radiosity cache file" in playback.status(bpy.context.scene)
     with pytest.raises(RuntimeError, match="Corrupt radiosity cache file"):
-        bpy.ops.hr.load_frame()     # the operator reports the error
+        bpy.ops.hr.load_frame()  # the operator reports the error
 
 
 def test_operators_mark_bake_preview(tmp_path):
@@ -225,10 +252,16 @@ def test_operators_mark_bake_preview(tmp_path):
     scene.hr.method = "FE"
     assert bpy.ops.hr.bake() == {"FINISHED"}
     from hr_addon.io.cache import CacheReader
+
     r = CacheReader(tmp_path / "hr_cache" / "cornell")
-    assert sorted(r.frames) == [5, 6] and r.manifest["feps"] == pytest.approx(0.08) and r.manifest["method"] == "FE"
+    assert (
+        sorted(r.frames) == [5, 6]
+        and r.manifest["feps"] == pytest.approx(0.08)
+        and r.manifest["method"] == "FE"
+    )
     # Preview: an emission branch becomes the active output; reading the material ignores it.
     from hr_addon.blender.materials import read_material
+
     red = bpy.data.materials["Red"]
     before = read_material(red)
     assert bpy.ops.hr.add_preview() == {"FINISHED"}
@@ -245,8 +278,10 @@ def test_operators_mark_bake_preview(tmp_path):
     assert "HR_Radiance" not in bpy.data.objects["floor"].data.color_attributes
 
 
-@pytest.mark.parametrize("name, frames", [("moonlight", (5, 6)), ("curtain", (11, 12)),
-                                          ("searchbeam", (12, 12)), ("office", (9, 10))])
+@pytest.mark.parametrize(
+    "name, frames",
+    [("moonlight", (5, 6)), ("curtain", (11, 12)), ("searchbeam", (12, 12)), ("office", (9, 10))],
+)
 def test_samples_bake_cleanly(tmp_path, name, frames):
     """Every sample's light shapes lie on surfaces: no warnings, radiance above the unlit state."""
     bpy = load_bpy()
@@ -257,6 +292,9 @@ def test_samples_bake_cleanly(tmp_path, name, frames):
     scene.frame_set(frames[1])
     shapes = [o for o in scene.objects if o.hr.is_light_shape]
     assert shapes and all("HR_Radiance" not in o.data.color_attributes for o in shapes)
-    lit = max(float(attribute(o)[:, :3].max()) for o in scene.objects
-              if o.type == "MESH" and not o.hr.is_light_shape)
-    assert lit > 0.5      # the surface under the shape carries its emission
+    lit = max(
+        float(attribute(o)[:, :3].max())
+        for o in scene.objects
+        if o.type == "MESH" and not o.hr.is_light_shape
+    )
+    assert lit > 0.5  # the surface under the shape carries its emission

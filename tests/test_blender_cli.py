@@ -1,4 +1,5 @@
 """Command line: `python -m hr_addon bake ...` (subprocesses) and the `blender -c hr_bake` callback."""
+
 import os
 import subprocess
 import sys
@@ -17,9 +18,15 @@ pytest.importorskip("bpy")
 def start_cli(*args):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONHOME",)}
     env["PYTHONPATH"] = str(REPO_ROOT)
-    return subprocess.Popen([sys.executable, "-m", "hr_addon", "bake", *map(str, args)], cwd=REPO_ROOT,
-                            env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "hr_addon", "bake", *map(str, args)],
+        cwd=REPO_ROOT,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def finish_cli(p, timeout=120):
@@ -37,14 +44,17 @@ def _error_line(proc):
     return lines[0]
 
 
-@pytest.mark.parametrize("args, code, text", [
-    (["missing.blend"], 2, "file not found: missing.blend"),
-    ([SAMPLES / "cornell.blend", "--frames", "10-5"], 2, "end frame is before the start frame"),
-    ([SAMPLES / "cornell.blend", "--frames", "one-two"], 2, "bad frame range"),
-    ([SAMPLES / "cornell.blend", "--method", "magic"], 2, "invalid choice: 'magic'"),
-    ([], 2, "required: blend"),
-    (["NOT_A_BLEND"], 2, "cannot open"),
-])
+@pytest.mark.parametrize(
+    "args, code, text",
+    [
+        (["missing.blend"], 2, "file not found: missing.blend"),
+        ([SAMPLES / "cornell.blend", "--frames", "10-5"], 2, "end frame is before the start frame"),
+        ([SAMPLES / "cornell.blend", "--frames", "one-two"], 2, "bad frame range"),
+        ([SAMPLES / "cornell.blend", "--method", "magic"], 2, "invalid choice: 'magic'"),
+        ([], 2, "required: blend"),
+        (["NOT_A_BLEND"], 2, "cannot open"),
+    ],
+)
 def test_bad_command_lines(args, code, text, tmp_path):
     if args and args[0] == "NOT_A_BLEND":
         args = [tmp_path / "not_a.blend"] + args[1:]
@@ -69,8 +79,10 @@ QUAD = ([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [[0, 1, 2, 3]])
 
 
 def _box(bpy, ms, wall_material=None):
-    mats = {"default": wall_material or ms.diffuse("Wall", (0.5, 0.5, 0.5)),
-            "ceiling": ms.emission("Lamp", (1, 1, 1), 2.0)}
+    mats = {
+        "default": wall_material or ms.diffuse("Wall", (0.5, 0.5, 0.5)),
+        "ceiling": ms.emission("Lamp", (1, 1, 1), 2.0),
+    }
     ms.room((1.0, 1.0, 1.0), mats, subdiv=2)
 
 
@@ -89,6 +101,7 @@ def test_nan_vertices(tmp_path):
         ob.data.vertices.foreach_get("co", co)
         co[4] = np.nan
         ob.data.vertices.foreach_set("co", co)
+
     path = _save_scene(tmp_path / "nan.blend", build)
     proc = run_cli(path, "--frames", "1-1", "--quality", "draft")
     assert proc.returncode == 1, proc.stdout + proc.stderr
@@ -97,8 +110,9 @@ def test_nan_vertices(tmp_path):
 
 
 def test_reflectance_at_least_one_is_clamped_with_warning(tmp_path):
-    path = _save_scene(tmp_path / "white.blend",
-                       lambda bpy, ms: _box(bpy, ms, ms.diffuse("Snow", (1.0, 1.0, 1.0))))
+    path = _save_scene(
+        tmp_path / "white.blend", lambda bpy, ms: _box(bpy, ms, ms.diffuse("Snow", (1.0, 1.0, 1.0)))
+    )
     proc = run_cli(path, "--frames", "1-2", "--quality", "draft", "--domain", "point")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "warning: Material 'Snow': reflectance (1.0, 1.0, 1.0) clamped to 0.99" in proc.stdout
@@ -108,6 +122,7 @@ def test_reflectance_at_least_one_is_clamped_with_warning(tmp_path):
 
 def _frames(directory):
     from hr_addon.io.cache import CacheReader
+
     r = CacheReader(directory)
     return {f: r.load(f) for f in sorted(r.frames)}
 
@@ -119,31 +134,36 @@ def test_split_bake_in_two_processes_equals_single_bake(tmp_path):
         (tmp_path / sub / "cornell.blend").write_bytes((SAMPLES / "cornell.blend").read_bytes())
     common = ["--quality", "draft", "--method", "auto"]
     single_proc = start_cli(tmp_path / "single" / "cornell.blend", "--frames", "1-24", *common)
-    for rng in ("1-12", "13-24"):    # one after the other: the second merges into the first's cache
+    for rng in ("1-12", "13-24"):  # one after the other: the second merges into the first's cache
         proc = run_cli(tmp_path / "split" / "cornell.blend", "--frames", rng, *common)
         assert proc.returncode == 0, proc.stdout + proc.stderr
     proc = finish_cli(single_proc)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "4 solved, 20 unchanged" in proc.stdout
-    split, single = _frames(tmp_path / "split" / "hr_cache" / "cornell"), _frames(tmp_path / "single" / "hr_cache" / "cornell")
+    split, single = (
+        _frames(tmp_path / "split" / "hr_cache" / "cornell"),
+        _frames(tmp_path / "single" / "hr_cache" / "cornell"),
+    )
     assert sorted(split) == sorted(single) == list(range(1, 25))
     for f in single:
         assert sorted(split[f]) == sorted(single[f])
         for name in single[f]:
-            np.testing.assert_allclose(split[f][name], single[f][name], rtol=1e-4, atol=1e-6,
-                                       err_msg=f"frame {f} object {name}")
+            np.testing.assert_allclose(
+                split[f][name], single[f][name], rtol=1e-4, atol=1e-6, err_msg=f"frame {f} object {name}"
+            )
 
 
 def test_save_option_and_blender_command_callback(tmp_path, capsys):
     bpy = load_bpy()
     import hr_addon.blender as glue
     from hr_addon.blender import cli
-    assert glue._cli_handle is not None          # `blender -c hr_bake` is registered
+
+    assert glue._cli_handle is not None  # `blender -c hr_bake` is registered
     bpy.ops.wm.read_factory_settings(use_empty=True)
     assert cli.cli_command(["--frames", "1-2"]) == 2
     assert "no .blend file loaded" in capsys.readouterr().err
     src = open_sample("cornell", tmp_path / "src")
-    for o in bpy.context.scene.objects:          # static scene: quick
+    for o in bpy.context.scene.objects:  # static scene: quick
         o.hr.exclude = o.hr.is_light_shape
     bpy.ops.wm.save_mainfile()
     assert cli.cli_command(["--frames", "5-1"]) == 2
@@ -155,6 +175,8 @@ def test_save_option_and_blender_command_callback(tmp_path, capsys):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.open_mainfile(filepath=str(out), load_ui=False)
     assert "HR_Radiance" in bpy.data.objects["floor"].data.color_attributes
-    assert Path(bpy.path.abspath(bpy.context.scene.hr.bake_dir)).resolve() == \
-        (tmp_path / "src" / "hr_cache" / "cornell").resolve()
+    assert (
+        Path(bpy.path.abspath(bpy.context.scene.hr.bake_dir)).resolve()
+        == (tmp_path / "src" / "hr_cache" / "cornell").resolve()
+    )
     assert src.is_file()

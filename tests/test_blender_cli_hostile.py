@@ -1,5 +1,6 @@
 """The command line under hostile use (issue 10): Ctrl-C / SIGTERM at any phase, warnings shown
 once with counts, --help, and the README's sample command."""
+
 import os
 import re
 import shutil
@@ -45,16 +46,18 @@ def test_ctrl_c_and_sigterm_cancel_at_every_phase_and_keep_the_previous_bake(tmp
     assert proc.returncode == 0, proc.stdout + proc.stderr
     cache = tmp_path / "hr_cache" / "cornell"
     before = _snapshot(cache)
-    cases = [("start-up", None, signal.SIGINT),
-             ("build", r"Building the hierarchy: ", signal.SIGINT),
-             ("build", r"Building the hierarchy: ", signal.SIGTERM),
-             ("frames", r"HR Radiosity: Frame 1 \(", signal.SIGINT),
-             ("frames", r"HR Radiosity: Frame 1 \(", signal.SIGTERM)]
+    cases = [
+        ("start-up", None, signal.SIGINT),
+        ("build", r"Building the hierarchy: ", signal.SIGINT),
+        ("build", r"Building the hierarchy: ", signal.SIGTERM),
+        ("frames", r"HR Radiosity: Frame 1 \(", signal.SIGINT),
+        ("frames", r"HR Radiosity: Frame 1 \(", signal.SIGTERM),
+    ]
     for phase, pattern, sig in cases:
         p = start_cli(blend, "--quality", "medium", "--method", "auto")
         lines = []
         if pattern is None:
-            time.sleep(0.5)        # inside `import bpy` (about a second): nothing is printed before it
+            time.sleep(0.5)  # inside `import bpy` (about a second): nothing is printed before it
         else:
             _wait_for(p, pattern, lines)
         p.send_signal(sig)
@@ -76,9 +79,17 @@ def _warnings_scene(path):
     scene = bpy.context.scene
     ms.mesh_object("Sliver", [(0.1, 0.1, 0.2), (0.2, 0.1, 0.2), (0.3, 0.1, 0.2)], [[0, 1, 2]])
     top = 0.5488
-    ob = ms.light_shape("Edge", [(0.1, 0.5592, top - 0.05), (0.2, 0.5592, top - 0.05),
-                                 (0.2, 0.5592, top + 0.05), (0.1, 0.5592, top + 0.05)][::-1], [[0, 1, 2, 3]],
-                        ms.emission("Edge light", (1, 1, 1), 4.0))
+    ob = ms.light_shape(
+        "Edge",
+        [
+            (0.1, 0.5592, top - 0.05),
+            (0.2, 0.5592, top - 0.05),
+            (0.2, 0.5592, top + 0.05),
+            (0.1, 0.5592, top + 0.05),
+        ][::-1],
+        [[0, 1, 2, 3]],
+        ms.emission("Edge light", (1, 1, 1), 4.0),
+    )
     for f in range(1, 9):
         ob.location = (0.03 * f, 0, 0)
         ob.keyframe_insert("location", frame=f)
@@ -97,25 +108,44 @@ def test_every_warning_is_printed_once_with_counts(tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr
     lines = proc.stdout.splitlines()
     warn = [ln for ln in lines if ln.startswith("HR Radiosity: warning: ")]
-    assert len([w for w in warn if "Dropped 1 degenerate polygon(s)" in w and "'Sliver'" in w]) == 1, proc.stdout
+    assert len([w for w in warn if "Dropped 1 degenerate polygon(s)" in w and "'Sliver'" in w]) == 1, (
+        proc.stdout
+    )
     edge = [w for w in warn if "shape 'Edge': only 50.0% of its area lies on surfaces" in w]
     assert len(edge) == 1 and "[8 times on frames 1-8]" in edge[0], proc.stdout
-    assert len(warn) == len(set(warn)) and f"hr_bake: {len(warn)} warning(s) (listed above)" in lines, proc.stdout
+    assert len(warn) == len(set(warn)) and f"hr_bake: {len(warn)} warning(s) (listed above)" in lines, (
+        proc.stdout
+    )
     proc = run_cli(blend, "--quality", "medium", "--method", "fe", "--frames", "1-2", timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "HR Radiosity: warning: The previous bake's frames 3-8 were discarded: it used quality draft " \
-           "(this bake: medium)." in proc.stdout.splitlines(), proc.stdout
+    assert (
+        "HR Radiosity: warning: The previous bake's frames 3-8 were discarded: it used quality draft "
+        "(this bake: medium)." in proc.stdout.splitlines()
+    ), proc.stdout
 
 
 def test_help_lists_every_option_and_the_exit_codes():
     """`python -m hr_addon --help` showed an outdated usage line; `bake --help` had no help for several
     options and no exit codes."""
     from hr_addon.blender.cli import make_parser
+
     env = dict(os.environ, PYTHONPATH=str(REPO_ROOT))
-    top = subprocess.run([sys.executable, "-m", "hr_addon", "--help"], capture_output=True, text=True, env=env,
-                         cwd=REPO_ROOT, timeout=60)
-    bake = subprocess.run([sys.executable, "-m", "hr_addon", "bake", "--help"], capture_output=True, text=True,
-                          env=env, cwd=REPO_ROOT, timeout=60)
+    top = subprocess.run(
+        [sys.executable, "-m", "hr_addon", "--help"],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=REPO_ROOT,
+        timeout=60,
+    )
+    bake = subprocess.run(
+        [sys.executable, "-m", "hr_addon", "bake", "--help"],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=REPO_ROOT,
+        timeout=60,
+    )
     assert top.returncode == 0 and bake.returncode == 0
     parser = make_parser()
     for action in parser._actions:
@@ -126,7 +156,7 @@ def test_help_lists_every_option_and_the_exit_codes():
             assert opt in top.stdout, (opt, top.stdout)
             assert opt in bake.stdout, (opt, bake.stdout)
     assert "python -m hr_addon bake --help" in top.stdout
-    codes = bake.stdout[bake.stdout.index("exit codes:"):]
+    codes = bake.stdout[bake.stdout.index("exit codes:") :]
     for code in ("0", "1", "2", "130"):
         assert re.search(rf"^\s+{code}\s+\S", codes, re.M), codes
 
@@ -151,11 +181,15 @@ def test_readme_sample_command_writes_what_the_readme_says(tmp_path):
     shutil.copy(SAMPLES / "cornell.blend", tmp_path / "sample_blends" / "cornell.blend")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONHOME"}
     env["PYTHONPATH"] = str(REPO_ROOT)
-    proc = subprocess.run([sys.executable, *bake[1:]], cwd=tmp_path, env=env, capture_output=True, text=True,
-                          timeout=300)
+    proc = subprocess.run(
+        [sys.executable, *bake[1:]], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert saved.is_file(), claim
-    assert (cache / "manifest.json").is_file(), (claim, sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("manifest.json")))
+    assert (cache / "manifest.json").is_file(), (
+        claim,
+        sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("manifest.json")),
+    )
 
 
 def test_readme_caption_names_the_qualities_used():

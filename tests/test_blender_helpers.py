@@ -3,6 +3,7 @@
 bpy (Blender as a Python module) is one global state per process: the add-on is registered
 once, each test starts from factory settings or opens a copy of a sample .blend in tmp_path.
 """
+
 import importlib.util
 import shutil
 import sys
@@ -19,6 +20,7 @@ PYTHON = sys.executable
 def load_bpy():
     bpy = pytest.importorskip("bpy")
     import hr_addon
+
     if not hasattr(bpy.types.Scene, "hr"):
         hr_addon.register()
     return bpy
@@ -27,7 +29,9 @@ def load_bpy():
 def make_samples_module():
     """scripts/make_samples.py as a module (scene-building helpers)."""
     if "make_samples" not in sys.modules:
-        spec = importlib.util.spec_from_file_location("make_samples", REPO_ROOT / "scripts" / "make_samples.py")
+        spec = importlib.util.spec_from_file_location(
+            "make_samples", REPO_ROOT / "scripts" / "make_samples.py"
+        )
         mod = importlib.util.module_from_spec(spec)
         sys.modules["make_samples"] = mod
         spec.loader.exec_module(mod)
@@ -58,8 +62,6 @@ def attribute(obj, name="HR_Radiance"):
     v = np.empty(len(attr.data) * 4, np.float32)
     attr.data.foreach_get("color", v)
     return v.reshape(-1, 4)
-
-
 
 
 def read_image(path):

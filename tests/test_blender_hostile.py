@@ -1,5 +1,6 @@
 """Never silently wrong (issue 10), in Blender: a far-away object, stale caches, damaged frames,
 method or quality changes in sub-range re-bakes, leftover temporary folders, unwritable caches."""
+
 import json
 import os
 from pathlib import Path
@@ -18,6 +19,7 @@ ROOM = ("floor", "ceiling", "back", "right_green", "left_red", "light", "short_b
 
 def _bake(**kw):
     from hr_addon.blender.bake import run_bake
+
     kw.setdefault("quality", "draft")
     return run_bake(load_bpy().context.scene, log=lambda *a, **k: None, **kw)
 
@@ -28,6 +30,7 @@ def _room_values(bpy):
 
 def _add_cube(bpy, name, location, size=1.0):
     import bmesh
+
     me = bpy.data.meshes.new(name)
     bm = bmesh.new()
     bmesh.ops.create_cube(bm, size=size)
@@ -44,11 +47,21 @@ def _add_cube(bpy, name, location, size=1.0):
 def _small_room(bpy, ms):
     """A 1 m room (walls 2 x 2 quads), a lamp on the ceiling and a window light shape on a wall."""
     grey = ms.diffuse("Grey", (0.7, 0.7, 0.7))
-    walls = ms.room((1.0, 1.0, 1.0), {"default": grey, "wall_x0": ms.diffuse("Green", (0.2, 0.6, 0.2))}, subdiv=2)
-    ms.mesh_object("lamp", [(0.4, 0.4, 0.999), (0.6, 0.4, 0.999), (0.6, 0.6, 0.999), (0.4, 0.6, 0.999)][::-1],
-                   [[0, 1, 2, 3]], ms.emission("Lamp", (1, 1, 1), 5.0))
-    ms.light_shape("Window", [(0, 0.3, 0.3), (0, 0.7, 0.3), (0, 0.7, 0.7), (0, 0.3, 0.7)], [[0, 1, 2, 3]],
-                   ms.emission("Sun", (1.0, 0.9, 0.8), 8.0))
+    walls = ms.room(
+        (1.0, 1.0, 1.0), {"default": grey, "wall_x0": ms.diffuse("Green", (0.2, 0.6, 0.2))}, subdiv=2
+    )
+    ms.mesh_object(
+        "lamp",
+        [(0.4, 0.4, 0.999), (0.6, 0.4, 0.999), (0.6, 0.6, 0.999), (0.4, 0.6, 0.999)][::-1],
+        [[0, 1, 2, 3]],
+        ms.emission("Lamp", (1, 1, 1), 5.0),
+    )
+    ms.light_shape(
+        "Window",
+        [(0, 0.3, 0.3), (0, 0.7, 0.3), (0, 0.7, 0.7), (0, 0.3, 0.7)],
+        [[0, 1, 2, 3]],
+        ms.emission("Sun", (1.0, 0.9, 0.8), 8.0),
+    )
     return list(walls) + ["lamp"]
 
 
@@ -63,6 +76,7 @@ def test_far_cube_leaves_the_room_light_unchanged(tmp_path, distance):
     coarsened by the cube's area (tests/test_hostile_core.py)."""
     bpy = load_bpy()
     from test_blender_helpers import make_samples_module
+
     ms = make_samples_module()
     ms.reset()
     names = _small_room(bpy, ms)
@@ -87,6 +101,7 @@ def test_moved_wall_and_block_are_named_as_changed_since_the_bake(tmp_path):
     caught) and the old light played back. Playback, Preview, Reload and the panel say so now."""
     bpy = load_bpy()
     from hr_addon.blender import playback
+
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     _bake(frames=(1, 2))
@@ -94,23 +109,23 @@ def test_moved_wall_and_block_are_named_as_changed_since_the_bake(tmp_path):
     assert set(m["geometry"]) == set(ROOM) and set(m["light_shapes"]) == {"Window", "Back Patch"}
     scene.frame_set(2)
     assert playback.status(scene) == ""
-    bpy.data.objects["back"].location.y += 0.25            # the wall 25 cm back
+    bpy.data.objects["back"].location.y += 0.25  # the wall 25 cm back
     bpy.context.view_layer.update()
-    scene.frame_set(1)                                     # playback
+    scene.frame_set(1)  # playback
     msg = playback.status(scene)
     assert "The scene changed since the bake (re-bake)" in msg and "'back' changed" in msg, msg
-    blk = bpy.data.objects["short_block"].data              # the block 10 cm, in its mesh data
+    blk = bpy.data.objects["short_block"].data  # the block 10 cm, in its mesh data
     co = np.empty(len(blk.vertices) * 3, np.float32)
     blk.vertices.foreach_get("co", co)
     for v in blk.vertices:
         v.co.x += 0.1
     blk.update()
     bpy.context.view_layer.update()
-    assert bpy.ops.hr.add_preview() == {"FINISHED"}         # Preview says it (and the panel)
+    assert bpy.ops.hr.add_preview() == {"FINISHED"}  # Preview says it (and the panel)
     msg = playback.status(scene)
     assert "'back'" in msg and "'short_block'" in msg, msg
-    bpy.data.objects["Window"].hr.is_light_shape = False     # a light shape is no longer one
-    assert bpy.ops.hr.load_frame() in ({"FINISHED"}, {"CANCELLED"})   # Reload compares again
+    bpy.data.objects["Window"].hr.is_light_shape = False  # a light shape is no longer one
+    assert bpy.ops.hr.load_frame() in ({"FINISHED"}, {"CANCELLED"})  # Reload compares again
     msg = playback.status(scene)
     assert "light shape(s) 'Window' is gone" in msg, msg
     bpy.data.objects["Window"].hr.is_light_shape = True
@@ -119,15 +134,16 @@ def test_moved_wall_and_block_are_named_as_changed_since_the_bake(tmp_path):
     blk.update()
     bpy.context.view_layer.update()
     scene.frame_set(2)
-    assert playback.status(scene) == ""                     # as baked again: no message
+    assert playback.status(scene) == ""  # as baked again: no message
 
 
 def test_changed_material_value_is_a_change(tmp_path):
     bpy = load_bpy()
     from hr_addon.blender import playback
+
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
-    for o in scene.objects:                                 # static scene: quick
+    for o in scene.objects:  # static scene: quick
         o.hr.exclude = o.hr.is_light_shape
     _bake(frames=(1, 1))
     mat = bpy.data.objects["left_red"].material_slots[0].material
@@ -146,20 +162,21 @@ def test_damaged_frames_show_magenta_and_a_subrange_bake_rebakes_them(tmp_path):
     bpy = load_bpy()
     from hr_addon.blender import playback
     from hr_addon.io.cache import CacheReader
+
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     res = _bake()
     assert res.solved == 4
     d = Path(playback.bake_dir_abs(scene))
     r = CacheReader(d)
-    files = sorted(set(r.frames.values()))                 # frames 1-5, 6-12, 13-20, 21-24
+    files = sorted(set(r.frames.values()))  # frames 1-5, 6-12, 13-20, 21-24
     assert len(files) == 4
     scene.frame_set(3)
     lit = _room_values(bpy)
     data = (d / r.frames[8]).read_bytes()
-    (d / r.frames[8]).write_bytes(data[:len(data) // 2])   # truncated
-    (d / r.frames[15]).write_bytes(b"garbage" * 100)       # garbage
-    os.remove(d / r.frames[22])                              # deleted
+    (d / r.frames[8]).write_bytes(data[: len(data) // 2])  # truncated
+    (d / r.frames[15]).write_bytes(b"garbage" * 100)  # garbage
+    os.remove(d / r.frames[22])  # deleted
     for f, what in ((8, "Corrupt"), (15, "Corrupt"), (22, "missing")):
         scene.frame_set(f)
         msg = playback.status(scene)
@@ -167,17 +184,17 @@ def test_damaged_frames_show_magenta_and_a_subrange_bake_rebakes_them(tmp_path):
         for name in ROOM:
             v = attribute(bpy.data.objects[name])
             assert np.all(v == np.array([1, 0, 1, 1], np.float32)), (f, name)
-    scene.frame_set(3)                                      # a good frame loads again
+    scene.frame_set(3)  # a good frame loads again
     assert playback.status(scene) == ""
     for name in ROOM:
         np.testing.assert_array_equal(attribute(bpy.data.objects[name]), lit[name])
-    res = _bake(frames=(1, 2))                              # another range: the damaged frames too
+    res = _bake(frames=(1, 2))  # another range: the damaged frames too
     assert res.rebaked == list(range(6, 13)) + list(range(13, 21)) + list(range(21, 25))
     assert any("missing or damaged" in w and "baked them again" in w for w in res.warnings), res.warnings
     r = CacheReader(d)
     assert sorted(r.frames) == list(range(1, 25))
     for f in (8, 15, 22):
-        r.load(f)                                           # readable again
+        r.load(f)  # readable again
         scene.frame_set(f)
         assert playback.status(scene) == ""
         assert not np.all(attribute(bpy.data.objects["floor"]) == np.array([1, 0, 1, 1], np.float32))
@@ -187,6 +204,7 @@ def test_deleted_cache_shows_magenta(tmp_path):
     bpy = load_bpy()
     import shutil
     from hr_addon.blender import playback
+
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     for o in scene.objects:
@@ -207,17 +225,24 @@ def test_other_method_or_quality_discards_the_old_frames_and_says_why(tmp_path):
     bpy = load_bpy()
     from hr_addon.blender import playback
     from hr_addon.io.cache import CacheReader
+
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     _bake(method="fe", frames=(1, 8))
     res = _bake(method="naive", frames=(6, 7))
     r = CacheReader(playback.bake_dir_abs(scene))
     assert r.manifest["method"] == "NAIVE" and sorted(r.frames) == [6, 7]
-    assert "The previous bake's frames 1-5, 8 were discarded: it used method fe (this bake: naive)." in res.warnings
+    assert (
+        "The previous bake's frames 1-5, 8 were discarded: it used method fe (this bake: naive)."
+        in res.warnings
+    )
     res = _bake(method="naive", quality="medium", frames=(7, 7))
-    assert "The previous bake's frames 6 were discarded: it used quality draft (this bake: medium)." in res.warnings
+    assert (
+        "The previous bake's frames 6 were discarded: it used quality draft (this bake: medium)."
+        in res.warnings
+    )
     assert res.kept == 0 and sorted(CacheReader(playback.bake_dir_abs(scene)).frames) == [7]
-    res = _bake(method="naive", quality="medium", frames=(8, 8))   # same settings: kept
+    res = _bake(method="naive", quality="medium", frames=(8, 8))  # same settings: kept
     assert res.kept == 1 and not any("discarded" in w for w in res.warnings)
 
 
@@ -227,20 +252,24 @@ def test_temporary_folders_of_killed_bakes_are_removed_by_the_next_bake(tmp_path
     import socket
     import subprocess
     import sys
+
     HOST = re.sub(r"[^A-Za-z0-9_.]", "_", socket.gethostname() or "host")
     bpy = load_bpy()
     from hr_addon.blender import playback
+
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     for o in scene.objects:
         o.hr.exclude = o.hr.is_light_shape
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
-    dead.wait()                                               # a pid that no longer runs
+    dead.wait()  # a pid that no longer runs
     parent = tmp_path / "hr_cache"
     parent.mkdir()
-    stale = [parent / f".cornell.baking-{dead.pid}-1700000000000",          # older naming
-             parent / f".cornell.baking-{HOST}-{dead.pid}-1700000000001"]
-    alive = parent / f".cornell.baking-{HOST}-{os.getpid()}-1700000000002"   # a bake still running
+    stale = [
+        parent / f".cornell.baking-{dead.pid}-1700000000000",  # older naming
+        parent / f".cornell.baking-{HOST}-{dead.pid}-1700000000001",
+    ]
+    alive = parent / f".cornell.baking-{HOST}-{os.getpid()}-1700000000002"  # a bake still running
     other = parent / f".cornell.baking-othermachine-{dead.pid}-1700000000003"  # another machine's
     for p in stale + [alive, other]:
         p.mkdir()
@@ -256,12 +285,13 @@ def test_unwritable_cache_folder_fails_before_the_build(tmp_path):
     bpy = load_bpy()
     from hr_addon.blender.bake import bake_frames
     from hr_addon.core.geometry import InputError
+
     open_sample("cornell", tmp_path)
     blocker = tmp_path / "not_a_folder"
     blocker.write_text("a file where the cache folder should be")
     gen = bake_frames(bpy.context.scene, frames=(1, 1), quality="draft", cache_dir=str(blocker / "cornell"))
     with pytest.raises(InputError, match=f"Cannot write the cache folder '{blocker}'"):
-        next(gen)                                # before the first progress report (the build's)
+        next(gen)  # before the first progress report (the build's)
 
 
 def test_damaged_texture_frames_are_reported_and_rebaked(tmp_path):
@@ -270,6 +300,7 @@ def test_damaged_texture_frames_are_reported_and_rebaked(tmp_path):
     bpy = load_bpy()
     from hr_addon.blender import playback
     from hr_addon.io.images import image_file_problem
+
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     res = _bake(output="texture", resolution=16, frames=(1, 12))
@@ -277,10 +308,13 @@ def test_damaged_texture_frames_are_reported_and_rebaked(tmp_path):
     f8 = d / "floor_000008.exr"
     assert image_file_problem(f8, 16) == ""
     data = f8.read_bytes()
-    os.remove(f8)                                    # (frames 6-12 are hard links of one file)
-    f8.write_bytes(data[:len(data) // 2])
+    os.remove(f8)  # (frames 6-12 are hard links of one file)
+    f8.write_bytes(data[: len(data) // 2])
     os.remove(d / "back_000010.exr")
-    assert image_file_problem(f8, 16) == "truncated" and image_file_problem(d / "back_000010.exr", 16) == "missing"
+    assert (
+        image_file_problem(f8, 16) == "truncated"
+        and image_file_problem(d / "back_000010.exr", 16) == "missing"
+    )
     scene.frame_set(8)
     msg = playback.status(scene)
     assert "floor_000008.exr" in msg and "truncated" in msg and "magenta" in msg, msg
@@ -296,8 +330,10 @@ def test_edits_made_during_a_background_bake_are_named_when_it_finishes(tmp_path
     """The background worker bakes a copy taken at the start: a wall moved meanwhile is not in the
     bake, and loading the result said nothing."""
     import time
+
     bpy = load_bpy()
     from hr_addon.blender import background, playback
+
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
     job = background.BackgroundBake(scene, quality="draft", frames=(1, 2)).start()
@@ -305,8 +341,10 @@ def test_edits_made_during_a_background_bake_are_named_when_it_finishes(tmp_path
     bpy.context.view_layer.update()
     t0 = time.monotonic()
     while job.poll():
-        assert time.monotonic() - t0 < 600, job.status      # bounds a hang only
+        assert time.monotonic() - t0 < 600, job.status  # bounds a hang only
         time.sleep(0.05)
     assert job.state == "done", (job.error, job.status)
-    assert any("The scene changed since the bake (re-bake): 'back' changed" in w for w in job.warnings), job.warnings
+    assert any("The scene changed since the bake (re-bake): 'back' changed" in w for w in job.warnings), (
+        job.warnings
+    )
     assert "'back' changed" in playback.status(scene)

@@ -1,5 +1,6 @@
 """Geometry as Blender renders it: polygons that must be split follow mesh.loop_triangles, and
 instances (collection instances, geometry-nodes instances) take part (scene_in.py)."""
+
 import numpy as np
 import pytest
 
@@ -16,6 +17,7 @@ ARROW = [(0, 0, 0), (2, 1, 0), (0, 2, 0), (0.7, 1, 0)]
 
 def _collect(bpy):
     from hr_addon.blender.scene_in import collect_geometry
+
     vl = bpy.context.view_layer
     return collect_geometry(vl, vl.depsgraph)
 
@@ -28,6 +30,7 @@ def _canon(tri):
 
 def _core_triangles(mesh):
     from hr_addon.core.geometry import prepare_patches
+
     p = prepare_patches(mesh)
     tri = p.nv == 3
     return sorted(_canon(v[:3]) for v in p.vert_index[tri])
@@ -36,10 +39,14 @@ def _core_triangles(mesh):
 def _blender_triangles(obj, reverse=False):
     me = obj.data
     me.calc_loop_triangles()
-    return sorted(_canon(np.array(t.vertices)[::-1] if reverse else np.array(t.vertices)) for t in me.loop_triangles)
+    return sorted(
+        _canon(np.array(t.vertices)[::-1] if reverse else np.array(t.vertices)) for t in me.loop_triangles
+    )
 
 
-@pytest.mark.parametrize("verts", [TWISTED, U_SHAPE, ARROW], ids=["nonplanar_quad", "concave_ngon", "concave_quad"])
+@pytest.mark.parametrize(
+    "verts", [TWISTED, U_SHAPE, ARROW], ids=["nonplanar_quad", "concave_ngon", "concave_quad"]
+)
 @pytest.mark.parametrize("mirrored", [False, True], ids=["", "mirrored"])
 def test_split_polygons_follow_loop_triangles(verts, mirrored):
     bpy, ms, scene = empty_scene()
@@ -49,7 +56,7 @@ def test_split_polygons_follow_loop_triangles(verts, mirrored):
     si = _collect(bpy)
     assert len(si.mesh.loop_start) == 1
     got = _core_triangles(si.mesh)
-    assert got == _blender_triangles(ob, reverse=mirrored)     # a mirrored polygon is wound the other way
+    assert got == _blender_triangles(ob, reverse=mirrored)  # a mirrored polygon is wound the other way
     assert len(got) == len(verts) - 2
 
 
@@ -60,11 +67,10 @@ def test_twisted_quad_is_where_the_core_alone_differs():
     ob = ms.mesh_object("P", TWISTED, [[0, 1, 2, 3]], None)
     si = _collect(bpy)
     import dataclasses
+
     own = _core_triangles(dataclasses.replace(si.mesh, tri_loops=None))
     assert own != _blender_triangles(ob)
     assert own == sorted([_canon(np.array(t)) for t in ((0, 1, 3), (1, 2, 3))])
-
-
 
 
 def _box(ms, name="Box", material=None, size=0.5):
@@ -78,8 +84,11 @@ def _floor_and_lamp(ms):
     lamp = ms.emission("Lamp", (1, 1, 1), 5.0)
     n = 8
     verts = [(x * 4 / n, y * 4 / n, 0) for y in range(n + 1) for x in range(n + 1)]
-    quads = [[y * (n + 1) + x, y * (n + 1) + x + 1, (y + 1) * (n + 1) + x + 1, (y + 1) * (n + 1) + x]
-             for y in range(n) for x in range(n)]
+    quads = [
+        [y * (n + 1) + x, y * (n + 1) + x + 1, (y + 1) * (n + 1) + x + 1, (y + 1) * (n + 1) + x]
+        for y in range(n)
+        for x in range(n)
+    ]
     floor = ms.mesh_object("Floor", verts, quads, grey)
     ms.mesh_object("Ceiling", [(0, 0, 2), (0, 4, 2), (4, 4, 2), (4, 0, 2)], [[0, 1, 2, 3]], lamp)
     return floor, grey
@@ -105,7 +114,7 @@ def test_collection_instances_take_part(tmp_path):
     box = _box(ms, material=grey)
     scene.collection.objects.unlink(box)
     props.objects.link(box)
-    bpy.context.view_layer.layer_collection.children["Props"].exclude = True   # the usual set-up
+    bpy.context.view_layer.layer_collection.children["Props"].exclude = True  # the usual set-up
     empties = []
     for i, loc in enumerate([(1, 1, 0), (2.5, 2.5, 0)]):
         e = bpy.data.objects.new(f"Inst{i}", None)
@@ -118,15 +127,18 @@ def test_collection_instances_take_part(tmp_path):
     si = _collect(bpy)
     assert {k: v.count for k, v in si.instances.items()} == {("Inst0", "Box"): 1, ("Inst1", "Box"): 1}
     assert len(si.mesh.loop_start) == 64 + 1 + 2 * 6
-    assert [t.name for t in si.targets] == ["Ceiling", "Floor"]            # instances get no output
+    assert [t.name for t in si.targets] == ["Ceiling", "Floor"]  # instances get no output
     box_local = np.array([v.co for v in box.data.vertices], float)
     assert _world_verts_ok(si, box_local, [e.matrix_world for e in empties])
-    assert any("2 instance(s) take part" in w and "Make Instances Real" in w for w in si.warnings), si.warnings
+    assert any("2 instance(s) take part" in w and "Make Instances Real" in w for w in si.warnings), (
+        si.warnings
+    )
     # They cast shadows and reflect: the floor's radiance changes when they are there
     scene.render.filepath = str(tmp_path)
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "inst.blend"))
     from hr_addon.blender.bake import run_bake
     from test_blender_helpers import attribute
+
     run_bake(scene, log=lambda *a, **k: None, frames=(1, 1), quality="draft")
     with_inst = attribute(floor).copy()
     for e in empties:
@@ -135,15 +147,15 @@ def test_collection_instances_take_part(tmp_path):
     without = attribute(floor)
     assert not any("instance" in w for w in res.warnings)
     assert np.abs(with_inst - without)[:, :3].max() > 0.01
-    assert with_inst[:, :3].mean() < without[:, :3].mean()              # boxes shade the floor
+    assert with_inst[:, :3].mean() < without[:, :3].mean()  # boxes shade the floor
 
 
 def test_geometry_nodes_instances_take_part():
     bpy, ms, scene = empty_scene()
     floor, grey = _floor_and_lamp(ms)
     box = _box(ms, material=grey, size=0.3)
-    box.hide_render = True                      # only its instances render
-    host = ms.mesh_object("Host", [(1, 1, 0), (3, 1, 0), (2, 3, 0)], [], None)   # three points
+    box.hide_render = True  # only its instances render
+    host = ms.mesh_object("Host", [(1, 1, 0), (3, 1, 0), (2, 3, 0)], [], None)  # three points
     tree = bpy.data.node_groups.new("Scatter", "GeometryNodeTree")
     tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
     tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
@@ -162,9 +174,12 @@ def test_geometry_nodes_instances_take_part():
     si = _collect(bpy)
     assert {k: v.count for k, v in si.instances.items()} == {("Host", "Box"): 3}, si.instances
     assert len(si.mesh.loop_start) == 64 + 1 + 3 * 6
-    assert not any("'Host' has no faces" in w for w in si.warnings)          # it instances
+    assert not any("'Host' has no faces" in w for w in si.warnings)  # it instances
     box_local = np.array([v.co for v in box.data.vertices], float)
-    mats = [np.array([[1, 0, 0, x], [0, 1, 0, y], [0, 0, 1, 0], [0, 0, 0, 1.0]]) for x, y in ((1, 1), (3, 1), (2, 3))]
+    mats = [
+        np.array([[1, 0, 0, x], [0, 1, 0, y], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+        for x, y in ((1, 1), (3, 1), (2, 3))
+    ]
     assert _world_verts_ok(si, box_local, mats)
     # an excluded source takes no part
     box.hr.exclude = True
@@ -176,7 +191,9 @@ def test_particle_instances_take_part():
     floor, grey = _floor_and_lamp(ms)
     box = _box(ms, material=grey, size=0.2)
     box.hide_render = True
-    emitter = ms.mesh_object("Emitter", [(1, 1, 0.5), (3, 1, 0.5), (3, 3, 0.5), (1, 3, 0.5)], [[0, 1, 2, 3]], None)
+    emitter = ms.mesh_object(
+        "Emitter", [(1, 1, 0.5), (3, 1, 0.5), (3, 3, 0.5), (1, 3, 0.5)], [[0, 1, 2, 3]], None
+    )
     emitter.modifiers.new("Particles", "PARTICLE_SYSTEM")
     ps = emitter.particle_systems[0].settings
     ps.type = "HAIR"
@@ -184,11 +201,11 @@ def test_particle_instances_take_part():
     ps.render_type = "OBJECT"
     ps.instance_object = box
     ps.particle_size = 1.0
-    emitter.show_instancer_for_render = False      # the emitter plane itself does not render
+    emitter.show_instancer_for_render = False  # the emitter plane itself does not render
     bpy.context.view_layer.update()
     si = _collect(bpy)
     assert {k: v.count for k, v in si.instances.items()} == {("Emitter", "Box"): 5}, si.instances
-    assert len(si.mesh.loop_start) == 64 + 1 + 5 * 6     # floor, ceiling, 5 boxes (not the emitter plane)
+    assert len(si.mesh.loop_start) == 64 + 1 + 5 * 6  # floor, ceiling, 5 boxes (not the emitter plane)
     assert "Emitter" not in [t.name for t in si.targets]
     emitter.show_instancer_for_render = True
     assert len(_collect(bpy).mesh.loop_start) == 64 + 1 + 1 + 5 * 6

@@ -4,6 +4,7 @@ Background mode has no event loop: Live is driven by hr.live_update() (synchrono
 do. The threaded path (the timer and the worker thread) is driven by calling the timer function
 live._tick() directly, with the worker held at a known point (threading.Event), never by timing.
 """
+
 import math
 import threading
 
@@ -29,6 +30,7 @@ def _open(tmp_path, method="FE", animated=False):
 
 def _live(bpy):
     from hr_addon.blender import live
+
     return live, live.session(bpy.context.scene)
 
 
@@ -46,6 +48,7 @@ def _update(bpy):
 
 def _edit_mode_move(bpy, obj, vertex, delta):
     import bmesh
+
     vl = bpy.context.view_layer
     for o in vl.objects:
         o.select_set(False)
@@ -64,6 +67,7 @@ def _emission_node(mat, kind):
 
 def _bake_current(bpy, scene):
     from hr_addon.blender.bake import run_bake
+
     f = scene.frame_current
     return run_bake(scene, log=lambda *a, **k: None, frames=(f, f))
 
@@ -81,31 +85,56 @@ def test_live_edits_equal_a_bake_of_the_final_state(tmp_path, method):
     prev = _shown(bpy, sess)
 
     def edit_mode_reshape():
-        _edit_mode_move(bpy, window, 2, (0.0, 0.03, 0.01))        # one pane's corner, in Edit Mode
+        _edit_mode_move(bpy, window, 2, (0.0, 0.03, 0.01))  # one pane's corner, in Edit Mode
 
     def add_shape():
         nonlocal floor_light
-        floor_light = ms.light_shape("Floor Light", [(0.36, 0.30, 0.0), (0.46, 0.30, 0.0), (0.46, 0.42, 0.0),
-                                                     (0.36, 0.42, 0.0)], [[0, 1, 2, 3]],
-                                     ms.emission("Floor Glow", (1.0, 0.5, 0.2), 5.0))
+        floor_light = ms.light_shape(
+            "Floor Light",
+            [(0.36, 0.30, 0.0), (0.46, 0.30, 0.0), (0.46, 0.42, 0.0), (0.36, 0.42, 0.0)],
+            [[0, 1, 2, 3]],
+            ms.emission("Floor Glow", (1.0, 0.5, 0.2), 5.0),
+        )
 
     edits = [
         ("move", lambda: setattr(window, "location", (0.0, 0.05, -0.02))),
         ("rotate in its plane", lambda: setattr(window, "rotation_euler", (math.radians(10), 0, 0))),
         ("scale", lambda: setattr(window, "scale", (1.0, 1.2, 0.9))),
         ("reshape in Edit Mode", edit_mode_reshape),
-        ("back to Object Mode, move", lambda: (bpy.ops.object.mode_set(mode="OBJECT"),
-                                               setattr(patch, "location", (0.04, 0.0, 0.03)))),
-        ("recolour", lambda: setattr(_emission_node(bpy.data.materials["Window Light"], "BSDF_PRINCIPLED")
-                                     .inputs["Emission Color"], "default_value", (0.4, 0.8, 1.0, 1.0))),
-        ("strength", lambda: setattr(_emission_node(bpy.data.materials["Patch Light"], "EMISSION")
-                                     .inputs["Strength"], "default_value", 11.0)),
+        (
+            "back to Object Mode, move",
+            lambda: (bpy.ops.object.mode_set(mode="OBJECT"), setattr(patch, "location", (0.04, 0.0, 0.03))),
+        ),
+        (
+            "recolour",
+            lambda: setattr(
+                _emission_node(bpy.data.materials["Window Light"], "BSDF_PRINCIPLED").inputs[
+                    "Emission Color"
+                ],
+                "default_value",
+                (0.4, 0.8, 1.0, 1.0),
+            ),
+        ),
+        (
+            "strength",
+            lambda: setattr(
+                _emission_node(bpy.data.materials["Patch Light"], "EMISSION").inputs["Strength"],
+                "default_value",
+                11.0,
+            ),
+        ),
         ("hide", lambda: setattr(patch, "hide_render", True)),
         ("add a shape", add_shape),
         ("show", lambda: setattr(patch, "hide_render", False)),
         ("remove a shape", lambda: bpy.data.objects.remove(floor_light)),
-        ("strength again", lambda: setattr(_emission_node(bpy.data.materials["Patch Light"], "EMISSION")
-                                           .inputs["Strength"], "default_value", 4.0)),
+        (
+            "strength again",
+            lambda: setattr(
+                _emission_node(bpy.data.materials["Patch Light"], "EMISSION").inputs["Strength"],
+                "default_value",
+                4.0,
+            ),
+        ),
     ]
     for what, edit in edits:
         edit()
@@ -113,10 +142,10 @@ def test_live_edits_equal_a_bake_of_the_final_state(tmp_path, method):
         now = _shown(bpy, sess)
         assert _differs(now, prev), f"HR_Radiance did not change after: {what}"
         prev = now
-    assert sess.worker.builds == 1                       # light edits never rebuild
+    assert sess.worker.builds == 1  # light edits never rebuild
     assert sess.updates == len(edits) + 1
     live_values = prev
-    res = _bake_current(bpy, scene)                      # ends Live; bakes the same final configuration
+    res = _bake_current(bpy, scene)  # ends Live; bakes the same final configuration
     assert res.solved == 1 and not live.is_live(scene) and not scene.hr.live
     for name, values in live_values.items():
         baked = attribute(bpy.data.objects[name])[:, :3]
@@ -141,41 +170,44 @@ def test_strength_edit_is_an_exact_scaling(tmp_path, method):
         _update(bpy)
         if k != 1.0:
             assert [e.kind for e in sess.last.report.events] == ["emission"]
-            assert sess.last.report.iterations == 0                       # a scale, no solve
+            assert sess.last.report.iterations == 0  # a scale, no solve
         shown[k] = _shown(bpy, sess)
     for name in shown[1.0]:
-        lit = (shown[2.5][name] - shown[1.0][name]) / 1.5                # the patch's light per unit strength
+        lit = (shown[2.5][name] - shown[1.0][name]) / 1.5  # the patch's light per unit strength
         if name == "back":
-            assert lit.max() > 0.05                                      # the patch is on the back wall
-        atol = 1e-6 * float(shown[2.5][name].max())                       # float32 rounding
-        np.testing.assert_allclose(shown[0.4][name], shown[1.0][name] - 0.6 * lit, rtol=0, atol=atol, err_msg=name)
+            assert lit.max() > 0.05  # the patch is on the back wall
+        atol = 1e-6 * float(shown[2.5][name].max())  # float32 rounding
+        np.testing.assert_allclose(
+            shown[0.4][name], shown[1.0][name] - 0.6 * lit, rtol=0, atol=atol, err_msg=name
+        )
 
 
 def test_toggling_live_off_restores_the_baked_playback(tmp_path):
     bpy, scene = _open(tmp_path, "FE", animated=True)
     from hr_addon.blender import playback
     from hr_addon.blender.bake import run_bake
+
     run_bake(scene, log=lambda *a, **k: None)
     reader = playback.get_reader(playback.bake_dir_abs(scene))
     objs = sorted(reader.objects)
     scene.frame_set(13)
-    assert bpy.ops.hr.live_toggle() == {"FINISHED"}     # on: builds and computes (background mode)
+    assert bpy.ops.hr.live_toggle() == {"FINISHED"}  # on: builds and computes (background mode)
     live, sess = _live(bpy)
     assert sess is not None and scene.hr.live
     bpy.data.objects["Window"].location.y += 0.06
     _update(bpy)
     moved13 = _shown(bpy, sess)
     assert _differs(moved13, {n: v[:, :3] for n, v in reader.load(13).items()})
-    scene.frame_set(6)                                   # playback leaves Live's light alone
+    scene.frame_set(6)  # playback leaves Live's light alone
     assert not _differs(_shown(bpy, sess), moved13)
-    _update(bpy)                                         # Live follows the animation: frame 6's shapes
+    _update(bpy)  # Live follows the animation: frame 6's shapes
     assert _differs(_shown(bpy, sess), moved13)
-    assert _differs(_shown(bpy, sess), {n: v[:, :3] for n, v in reader.load(6).items()})   # window moved
-    assert bpy.ops.hr.live_toggle() == {"FINISHED"}     # off
+    assert _differs(_shown(bpy, sess), {n: v[:, :3] for n, v in reader.load(6).items()})  # window moved
+    assert bpy.ops.hr.live_toggle() == {"FINISHED"}  # off
     assert not live.is_live(scene) and not scene.hr.live
     for n in objs:
         np.testing.assert_array_equal(attribute(bpy.data.objects[n]), reader.load(6)[n], err_msg=n)
-    scene.frame_set(13)                                  # and playback plays on
+    scene.frame_set(13)  # and playback plays on
     for n in objs:
         np.testing.assert_array_equal(attribute(bpy.data.objects[n]), reader.load(13)[n], err_msg=n)
 
@@ -183,32 +215,34 @@ def test_toggling_live_off_restores_the_baked_playback(tmp_path):
 def test_live_off_without_a_bake_clears_hr_radiance(tmp_path):
     bpy, scene = _open(tmp_path, "FE")
     from hr_addon.blender import preview
+
     scene.hr.live = True
     _update(bpy)
     live, sess = _live(bpy)
     targets = list(sess.targets)
     assert targets and all("HR_Radiance" in bpy.data.objects[n].data.color_attributes for n in targets)
-    assert preview.has_preview()                         # the viewport shows HR_Radiance
+    assert preview.has_preview()  # the viewport shows HR_Radiance
     scene.hr.live = False
-    assert bpy.ops.hr.live_update() == {"FINISHED"}     # Scene.hr.live off: Live ends
+    assert bpy.ops.hr.live_update() == {"FINISHED"}  # Scene.hr.live off: Live ends
     assert not live.is_live(scene)
     assert not any("HR_Radiance" in bpy.data.objects[n].data.color_attributes for n in targets)
-    assert not preview.has_preview()                     # the preview Live added is gone again
-    assert bpy.ops.hr.live_update() == {"CANCELLED"}    # nothing to do: Live is off
+    assert not preview.has_preview()  # the preview Live added is gone again
+    assert bpy.ops.hr.live_update() == {"CANCELLED"}  # nothing to do: Live is off
 
 
 def test_live_refuses_while_a_bake_runs(tmp_path):
     bpy, scene = _open(tmp_path, "FE", animated=True)
     from hr_addon.blender import background, live
+
     job = background.BackgroundBake(scene, method="NAIVE", quality="medium", frames=(1, 12)).start()
     try:
         assert background.running()
-        assert not bpy.ops.hr.live_toggle.poll()             # the button is greyed out, saying why
+        assert not bpy.ops.hr.live_toggle.poll()  # the button is greyed out, saying why
         scene.hr.live = True
         with pytest.raises(RuntimeError, match="A radiosity bake is running: Live Relight cannot start"):
             bpy.ops.hr.live_update()
         assert not scene.hr.live and not live.is_live(scene)
-        assert "bake is running" in live.message(scene)      # what the panel shows
+        assert "bake is running" in live.message(scene)  # what the panel shows
         assert "HR_Radiance" not in bpy.data.objects["back"].data.color_attributes
     finally:
         job.cancel()
@@ -218,6 +252,7 @@ def test_live_refuses_while_a_bake_runs(tmp_path):
 def test_a_bake_that_starts_ends_live(tmp_path):
     bpy, scene = _open(tmp_path, "FE", animated=True)
     from hr_addon.blender import background, live
+
     scene.hr.live = True
     _update(bpy)
     assert live.is_live(scene)
@@ -235,19 +270,22 @@ def test_geometry_or_settings_change_rebuilds_and_says_so(tmp_path, capsys):
     _update(bpy)
     live, sess = _live(bpy)
     before = _shown(bpy, sess)
-    _update(bpy)                                       # nothing changed: no rebuild, no new light state
+    _update(bpy)  # nothing changed: no rebuild, no new light state
     assert sess.worker.builds == 1 and sess.updates == 1
     bpy.data.objects["tall_block"].location.x += 0.03
     _update(bpy)
     assert sess.worker.builds == 2
     assert sess.reason == "geometry changed: 'tall_block' changed"
-    assert "Live: the geometry changed ('tall_block' changed): rebuilding the hierarchy" in capsys.readouterr().out
+    assert (
+        "Live: the geometry changed ('tall_block' changed): rebuilding the hierarchy"
+        in capsys.readouterr().out
+    )
     assert _differs(_shown(bpy, sess), before)
     # without the comparison of every object, what the depsgraph reports still rebuilds
     bpy.data.objects["short_block"].location.y -= 0.02
     assert bpy.ops.hr.live_update(check_geometry=False) == {"FINISHED"}
     assert sess.worker.builds == 3 and sess.reason == "geometry changed: 'short_block' changed"
-    bpy.data.objects["Window"].location.z += 0.01                    # a light edit: no rebuild
+    bpy.data.objects["Window"].location.z += 0.01  # a light edit: no rebuild
     assert bpy.ops.hr.live_update(check_geometry=False) == {"FINISHED"}
     assert sess.worker.builds == 3
     scene.hr.method = "AR"
@@ -269,12 +307,12 @@ def test_an_invalid_light_shape_is_named_and_the_last_light_stays(tmp_path):
     before = _shown(bpy, sess)
     me = bpy.data.objects["Back Patch"].data
     good = [tuple(v.co) for v in me.vertices]
-    me.vertices[1].co, me.vertices[2].co = good[2], good[1]      # a bowtie: the outline crosses itself
+    me.vertices[1].co, me.vertices[2].co = good[2], good[1]  # a bowtie: the outline crosses itself
     me.update()
     with pytest.raises(RuntimeError, match="Light shape 'Back Patch': its outline crosses itself"):
         bpy.ops.hr.live_update()
-    assert not _differs(_shown(bpy, sess), before)             # the last valid light stays shown ...
-    assert "Showing the light of the last valid state" in sess.text()   # ... and the panel says so
+    assert not _differs(_shown(bpy, sess), before)  # the last valid light stays shown ...
+    assert "Showing the light of the last valid state" in sess.text()  # ... and the panel says so
     me.vertices[1].co, me.vertices[2].co = good[1], good[2]
     me.update()
     _update(bpy)
@@ -287,6 +325,7 @@ def test_threaded_live_keeps_the_previous_light_and_coalesces_edits(tmp_path):
     Blender's event loop would) reads the shapes and hands them to the worker thread."""
     bpy, scene = _open(tmp_path, "FE")
     from hr_addon.blender import live
+
     sess = live.start(scene, threaded=True)
     try:
         assert sess.worker.thread is not None
@@ -306,20 +345,20 @@ def test_threaded_live_keeps_the_previous_light_and_coalesces_edits(tmp_path):
         window = bpy.data.objects["Window"]
         computed = sess.worker.computed
         window.location.y += 0.02
-        bpy.context.view_layer.update()                  # the depsgraph handler fires
+        bpy.context.view_layer.update()  # the depsgraph handler fires
         assert sess.dirty
         live._tick()
-        assert entered.wait(120)                         # the worker computes this state ...
-        for _ in range(3):                               # ... while three more edits arrive
+        assert entered.wait(120)  # the worker computes this state ...
+        for _ in range(3):  # ... while three more edits arrive
             window.location.y += 0.02
             bpy.context.view_layer.update()
             live._tick()
-            assert not _differs(_shown(bpy, sess), first)    # the previous light stays on screen
+            assert not _differs(_shown(bpy, sess), first)  # the previous light stays on screen
         assert sess.text().startswith("Live: updating")
         release.set()
         assert sess.worker.flush(timeout=600)
         live._tick()
-        assert sess.worker.computed == computed + 2      # the held state and the newest one only
+        assert sess.worker.computed == computed + 2  # the held state and the newest one only
         assert not sess.worker.pending and not sess.dirty
         shown = _shown(bpy, sess)
         assert _differs(shown, first)
@@ -335,6 +374,7 @@ def test_threaded_live_keeps_the_previous_light_and_coalesces_edits(tmp_path):
 def test_a_file_opened_starts_with_live_off(tmp_path):
     bpy, scene = _open(tmp_path, "FE")
     from hr_addon.blender import live
+
     scene.hr.live = True
     _update(bpy)
     saved = tmp_path / "saved_live.blend"

@@ -1,4 +1,5 @@
 """Reading reflectance and emission from Blender materials (hr_addon/blender/materials.py)."""
+
 import numpy as np
 import pytest
 
@@ -14,6 +15,7 @@ def env():
 
 def _read(mat):
     from hr_addon.blender.materials import read_material
+
     return read_material(mat)
 
 
@@ -35,6 +37,7 @@ def test_diffuse_and_emission(env):
 
 def test_no_material_is_default_grey(env):
     from hr_addon.blender.materials import DEFAULT_REFLECTANCE
+
     s = _read(None)
     assert DEFAULT_REFLECTANCE == 0.8
     assert np.allclose(s.reflectance, 0.8) and np.allclose(s.emission, 0) and s.warnings == []
@@ -70,7 +73,8 @@ def test_mix_and_add(env):
 def test_image_texture_average(env):
     bpy, ms, _ = env
     from mathutils import Color
-    img = bpy.data.images.new("Tex", 4, 4)   # 8-bit sRGB
+
+    img = bpy.data.images.new("Tex", 4, 4)  # 8-bit sRGB
     px = np.zeros((16, 4), np.float32)
     px[:8] = (1.0, 0.0, 0.0, 1.0)
     px[8:] = (0.0, 0.0, 1.0, 1.0)
@@ -99,6 +103,7 @@ def test_srgb_curves_match_blender():
     load_bpy()
     from mathutils import Color
     from hr_addon.io.images import linear_to_srgb, srgb_to_linear
+
     x = np.linspace(0.0, 1.0, 501)
     to_lin = np.array([Color((v, v, v)).from_srgb_to_scene_linear()[0] for v in x])
     to_srgb = np.array([Color((v, v, v)).from_scene_linear_to_srgb()[0] for v in x])
@@ -143,8 +148,11 @@ def test_reflectance_clamped_with_warning(env):
 def test_emission_keyframes_are_evaluated(env):
     bpy, ms, scene = env
     from hr_addon.blender.materials import read_material
+
     m = ms.emission("Anim", (1, 1, 1), 1.0)
-    ms.mesh_object("Plane", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [[0, 1, 2, 3]], m)  # in the depsgraph
+    ms.mesh_object(
+        "Plane", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [[0, 1, 2, 3]], m
+    )  # in the depsgraph
     s = m.node_tree.nodes["Emission"].inputs["Strength"]
     s.keyframe_insert("default_value", frame=1)
     s.default_value = 9.0

@@ -1,4 +1,5 @@
 """Scene in: evaluated meshes -> MeshInput, light-shape objects -> rings (hr_addon/blender/scene_in.py)."""
+
 import numpy as np
 import pytest
 
@@ -16,15 +17,17 @@ def env():
 
 def _collect(bpy):
     from hr_addon.blender.scene_in import collect_geometry
+
     vl = bpy.context.view_layer
     return collect_geometry(vl, vl.depsgraph)
 
 
 def _normals(mi):
     from hr_addon.core.geometry import newell
+
     out = []
     for s, n in zip(mi.loop_start, mi.loop_total):
-        v = newell(mi.verts[mi.loop_verts[s:s + n]][None])[0]
+        v = newell(mi.verts[mi.loop_verts[s : s + n]][None])[0]
         out.append(v / np.linalg.norm(v))
     return np.array(out)
 
@@ -36,7 +39,7 @@ def test_world_space_materials_and_filters(env):
     a = ms.mesh_object("A", *QUAD, red, location=(0, 0, 2))
     a.data.materials.append(lamp)
     a.data.polygons[0].material_index = 1
-    ms.mesh_object("B", *QUAD, None, location=(5, 0, 0))                  # no material: grey
+    ms.mesh_object("B", *QUAD, None, location=(5, 0, 0))  # no material: grey
     ms.mesh_object("Hidden", *QUAD, red).hide_render = True
     ms.mesh_object("Excluded", *QUAD, red).hr.exclude = True
     ms.mesh_object("Shape", *QUAD, lamp).hr.is_light_shape = True
@@ -57,7 +60,7 @@ def test_modifiers_scale_and_mirror(env):
     bpy, ms, scene = env
     v, p = ms.grid([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], 2)
     a = ms.mesh_object("Mirrored", v, p, None)
-    a.scale = (-2, 1, 1)                       # negative determinant: winding is reversed back
+    a.scale = (-2, 1, 1)  # negative determinant: winding is reversed back
     si = _collect(bpy)
     assert np.allclose(_normals(si.mesh), [0, 0, 1])
     assert np.isclose(si.mesh.verts[:, 0].min(), -2)
@@ -70,16 +73,17 @@ def test_modifiers_scale_and_mirror(env):
     mod = a.modifiers.new("Sub", "SUBSURF")
     mod.levels = 1
     si = _collect(bpy)
-    assert len(si.mesh.loop_start) == 16       # evaluated: 4 quads -> 16
+    assert len(si.mesh.loop_start) == 16  # evaluated: 4 quads -> 16
     assert any("topology" in w for w in si.warnings)
     t = si.targets[0]
     out = t.extract(np.ones((len(si.mesh.loop_verts), 3), np.float32), "CORNER")
-    assert out.shape == (16, 3)                # back on the original mesh's 16 corners
+    assert out.shape == (16, 3)  # back on the original mesh's 16 corners
 
 
 def test_no_meshes(env):
     bpy, ms, scene = env
     from hr_addon.blender.scene_in import SceneError
+
     ms.mesh_object("Shape", *QUAD, None).hr.is_light_shape = True
     with pytest.raises(SceneError, match="No mesh objects"):
         _collect(bpy)
@@ -87,6 +91,7 @@ def test_no_meshes(env):
 
 def _outline(ms, bpy, verts, polys):
     from hr_addon.blender.scene_in import mesh_outlines, read_mesh
+
     ob = ms.mesh_object("S", verts, polys, None)
     em = read_mesh(ob, bpy.context.view_layer.depsgraph)
     return mesh_outlines(em)
@@ -94,6 +99,7 @@ def _outline(ms, bpy, verts, polys):
 
 def _signed_area(r, n=(0, 0, 1)):
     from hr_addon.core.geometry import newell
+
     return float(newell(np.asarray(r)[None])[0] @ n) / 2
 
 
@@ -103,22 +109,39 @@ def test_coplanar_polygons_merge_into_outlines(env):
     groups = _outline(ms, bpy, v, p)
     assert len(groups) == 1 and len(groups[0][1]) == 1
     ring = groups[0][1][0]
-    assert len(ring) == 4 and np.isclose(_signed_area(ring), 9)        # collinear points dropped, CCW
+    assert len(ring) == 4 and np.isclose(_signed_area(ring), 9)  # collinear points dropped, CCW
     # Drop the centre quad: outer ring + one hole (clockwise).
     holes = _outline(ms, bpy, v, [q for i, q in enumerate(p) if i != 4])
     assert len(holes) == 1
     outer, hole = holes[0][1]
     assert np.isclose(_signed_area(outer), 9) and np.isclose(_signed_area(hole), -1)
     # Two separate quads and one at another height stay separate.
-    sep = _outline(ms, bpy, [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (3, 0, 0), (3, 1, 0),
-                             (2, 1, 0), (1, 0, 1), (2, 0, 1), (2, 1, 1), (1, 1, 1)],
-                   [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]])
+    sep = _outline(
+        ms,
+        bpy,
+        [
+            (0, 0, 0),
+            (1, 0, 0),
+            (1, 1, 0),
+            (0, 1, 0),
+            (2, 0, 0),
+            (3, 0, 0),
+            (3, 1, 0),
+            (2, 1, 0),
+            (1, 0, 1),
+            (2, 0, 1),
+            (2, 1, 1),
+            (1, 1, 1),
+        ],
+        [[0, 1, 2, 3], [4, 5, 6, 7], [8, 9, 10, 11]],
+    )
     assert [len(g[1]) for g in sep] == [1, 1, 1]
 
 
 def _shapes(bpy, scene, frame):
     from hr_addon.blender.scene_in import collect_light_shapes
     from hr_addon.core.events import LightShape
+
     scene.frame_set(frame)
     vl = bpy.context.view_layer
     return collect_light_shapes(vl, vl.depsgraph, LightShape)
@@ -127,6 +150,7 @@ def _shapes(bpy, scene, frame):
 def test_cornell_light_shapes_per_frame(tmp_path):
     open_sample("cornell", tmp_path)
     import bpy
+
     ms = __import__("make_samples")
     scene = bpy.context.scene
     assert _shapes(bpy, scene, 1) == {}
@@ -136,8 +160,8 @@ def test_cornell_light_shapes_per_frame(tmp_path):
     for s in s6.values():
         assert np.allclose(s.emission, np.array(rgb) * strength)
         (ring,) = s.rings
-        assert np.all(ring[:, 0] == 0.0)             # exactly on the green wall plane x = 0
-        assert np.isclose(_signed_area(ring, (1, 0, 0)), ms.WINDOW_PANE ** 2, rtol=1e-5)  # faces +x
+        assert np.all(ring[:, 0] == 0.0)  # exactly on the green wall plane x = 0
+        assert np.isclose(_signed_area(ring, (1, 0, 0)), ms.WINDOW_PANE**2, rtol=1e-5)  # faces +x
     s13 = _shapes(bpy, scene, 13)
     assert sorted(s13) == sorted(list(s6) + ["Back Patch:0"])
     back = s13["Back Patch:0"]
@@ -151,6 +175,7 @@ def test_cornell_light_shapes_per_frame(tmp_path):
 def test_keyframed_transform_and_strength(tmp_path):
     open_sample("curtain", tmp_path)
     import bpy
+
     scene = bpy.context.scene
     w = {f: np.ptp(_shapes(bpy, scene, f)["Curtain Gap:0"].rings[0][:, 1]) for f in (1, 12)}
     assert np.isclose(w[1], 0.1, rtol=1e-5) and np.isclose(w[12], 1.2, rtol=1e-5)

@@ -1,5 +1,6 @@
 """Baked textures (blender/texture.py and lightmap/): lightmap UVs, texel values, image sequences,
 helper material. Image files are read with Blender's own loader (test_blender_helpers.read_image)."""
+
 import os
 from pathlib import Path
 
@@ -19,6 +20,7 @@ GEOMETRY = ["back", "ceiling", "floor", "left_red", "light", "right_green", "sho
 def _bake(**kw):
     import bpy
     from hr_addon.blender.bake import run_bake
+
     kw.setdefault("quality", "draft")
     kw.setdefault("method", "FE")
     kw.setdefault("output", "texture")
@@ -69,6 +71,7 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
     assert res.solved == 2 and res.reused == 1 and res.warnings == [], res
     cache = tmp_path / "hr_cache" / "cornell"
     from hr_addon.io.cache import CacheReader
+
     m = CacheReader(cache).manifest
     assert m["output"] == "TEXTURE" and sorted(m["objects"]) == GEOMETRY
     # One file per object and frame number (4: the frame before the start, which Blender asks for).
@@ -116,17 +119,19 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
         xs, ys, pts, patch = [], [], [], []
         for i, loops in enumerate(_polys(me)):
             q = uv[loops]
-            area += 0.5 * abs(np.cross(q[1] - q[0], q[2] - q[0])) + 0.5 * abs(np.cross(q[2] - q[0], q[3] - q[0]))
+            area += 0.5 * abs(np.cross(q[1] - q[0], q[2] - q[0])) + 0.5 * abs(
+                np.cross(q[2] - q[0], q[3] - q[0])
+            )
             x4, y4, _, _ = texels_in_polygon(q, 4 * RES)
-            count[y4, x4] += 1                                 # no two polygons share a texel centre
+            count[y4, x4] += 1  # no two polygons share a texel centre
             x, y, bary, t = texels_in_polygon(q, RES)
             tri = np.stack([np.zeros_like(t), t, t + 1], 1)
             pts.append(np.einsum("nk,nkj->nj", bary, co[lv[np.array(loops)][tri]]))
             xs.append(x)
             ys.append(y)
             patch.append(np.full(len(x), poly0 + i))
-        assert count.max() == 1, name                       # islands do not overlap
-        assert area > 0.3, (name, area)                     # and are packed (5 cube faces: ~1/3)
+        assert count.max() == 1, name  # islands do not overlap
+        assert area > 0.3, (name, area)  # and are packed (5 cube faces: ~1/3)
         x, y, pts, patch = map(np.concatenate, (xs, ys, pts, patch))
         ref = radiance_at(dyn.h, dyn.B, patch, pts)
         got = image[y, x]
@@ -147,6 +152,7 @@ def test_material_helper_plays_the_sequence(tmp_path):
     open_sample("cornell", tmp_path)
     from hr_addon.blender import texture
     from hr_addon.blender.materials import read_material
+
     scene = bpy.context.scene
     scene.hr.output = "TEXTURE"
     scene.hr.texture_resolution = 32
@@ -158,9 +164,11 @@ def test_material_helper_plays_the_sequence(tmp_path):
     slot = floor.material_slots[0]
     mat = slot.material
     assert slot.link == "OBJECT" and mat is not white and mat[texture.TAG] == "floor"
-    assert floor.data.materials[0] is white and len(white.node_tree.nodes) == n_nodes   # user's data intact
+    assert floor.data.materials[0] is white and len(white.node_tree.nodes) == n_nodes  # user's data intact
     tex = mat.node_tree.nodes[texture.N_TEX]
-    assert tex.image.source == "SEQUENCE" and tex.image.filepath.startswith("//hr_cache/cornell/textures/floor_")
+    assert tex.image.source == "SEQUENCE" and tex.image.filepath.startswith(
+        "//hr_cache/cornell/textures/floor_"
+    )
     assert mat.node_tree.nodes[texture.N_UV].uv_map == "HR_Lightmap"
     assert tex.inputs["Vector"].links[0].from_node.name == texture.N_UV
     iu = tex.image_user
@@ -181,7 +189,7 @@ def test_material_helper_plays_the_sequence(tmp_path):
     r.resolution_x = r.resolution_y = 16
     r.resolution_percentage = 100
     r.image_settings.file_format = "OPEN_EXR"
-    scene.hr.playback = False                            # prove that the images alone do it
+    scene.hr.playback = False  # prove that the images alone do it
     px = {}
     for f in (3, 5, 6, 7):
         scene.frame_set(f)
@@ -192,7 +200,7 @@ def test_material_helper_plays_the_sequence(tmp_path):
         img.pixels.foreach_get(a)
         px[f] = a.reshape(16, 16, 4)[..., :3]
     assert np.all(np.isfinite(px[5])) and px[5].mean() > 0.01
-    assert px[6][:, :8].mean() > 1.2 * px[5][:, :8].mean()          # the window on the right wall
+    assert px[6][:, :8].mean() > 1.2 * px[5][:, :8].mean()  # the window on the right wall
     np.testing.assert_allclose(px[7], px[6], rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(px[3], px[5], rtol=1e-5, atol=1e-6)  # before the bake: the first frame
     # Remove: the slots show the mesh's materials again, the copies are gone.
@@ -207,20 +215,30 @@ def test_cancel_partial_bakes_and_png(tmp_path):
     open_sample("cornell", tmp_path)
     from hr_addon.blender import bake as bake_mod
     from hr_addon.blender.bake import BakeJob
+
     _bake(frames=(5, 6), resolution=32, texture_format="png")
     cache = tmp_path / "hr_cache" / "cornell"
     before = _snapshot(cache)
     png = _files(cache, "back", [6], ".png")[0]
     head = png.read_bytes()[:26]
-    assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[24:26] == bytes([16, 2])   # 16-bit RGB
+    assert head[:8] == b"\x89PNG\r\n\x1a\n" and head[24:26] == bytes([16, 2])  # 16-bit RGB
     img = bpy.data.images.load(str(png))
-    assert img.is_float                                       # Blender reads 16-bit PNGs as float
+    assert img.is_float  # Blender reads 16-bit PNGs as float
     a = read_image(png)
     assert a.shape == (32, 32, 3) and 0 < a.max() <= 1
     # Cancel (ESC) after a few frames: the previous bake stays, the temporary folder goes.
     scene = bpy.context.scene
-    job = BakeJob(bake_mod.bake_frames(scene, frames=(1, 24), method="FE", quality="draft", output="TEXTURE",
-                                       resolution=32, texture_format="PNG"))
+    job = BakeJob(
+        bake_mod.bake_frames(
+            scene,
+            frames=(1, 24),
+            method="FE",
+            quality="draft",
+            output="TEXTURE",
+            resolution=32,
+            texture_format="PNG",
+        )
+    )
     for _ in range(8):
         assert job.step()
     assert job.progress.stage == "frame"
@@ -233,17 +251,38 @@ def test_cancel_partial_bakes_and_png(tmp_path):
     names = sorted(p.name for p in (cache / "textures").glob("back_*"))
     assert names == [f"back_{f:06d}.png" for f in range(4, 10)]
     assert _files(cache, "back", [6], ".png")[0].read_bytes() == before["textures/back_000006.png"]
-    assert _files(cache, "back", [7], ".png")[0].read_bytes() == before["textures/back_000006.png"]  # gap held
+    assert (
+        _files(cache, "back", [7], ".png")[0].read_bytes() == before["textures/back_000006.png"]
+    )  # gap held
 
 
 def test_command_line_texture_output(tmp_path, capsys):
     load_bpy()
     from hr_addon.blender import cli
+
     path = open_sample("cornell", tmp_path)
     assert cli.run([str(path), "--resolution", "4"]) == 2
     assert "bad texture resolution" in capsys.readouterr().err
-    assert cli.run([str(path), "--frames", "6-6", "--output", "texture", "--resolution", "16",
-                    "--texture-format", "png", "--quality", "draft", "--method", "fe"]) == 0
+    assert (
+        cli.run(
+            [
+                str(path),
+                "--frames",
+                "6-6",
+                "--output",
+                "texture",
+                "--resolution",
+                "16",
+                "--texture-format",
+                "png",
+                "--quality",
+                "draft",
+                "--method",
+                "fe",
+            ]
+        )
+        == 0
+    )
     files = sorted(p.name for p in (tmp_path / "hr_cache" / "cornell" / "textures").iterdir())
     assert files == sorted(f"{n}_{f:06d}.png" for n in GEOMETRY for f in (5, 6))
 
@@ -253,13 +292,14 @@ def test_image_writers_read_back_by_blender(tmp_path):
     PNG within 16-bit sRGB quantisation (Blender linearises it), values above 1 clipped."""
     load_bpy()
     from hr_addon.io.images import encode_exr, encode_png16
+
     rng = np.random.default_rng(0)
     img = rng.random((5, 7, 3)).astype(np.float32)
-    img[0, 0] = (0.0, 0.5, 1.0)                          # row 0 is the bottom row in both
+    img[0, 0] = (0.0, 0.5, 1.0)  # row 0 is the bottom row in both
     for comp in ("ZIP", "NONE"):
         (tmp_path / f"{comp}.exr").write_bytes(encode_exr(img * 100, comp))
         np.testing.assert_array_equal(read_image(tmp_path / f"{comp}.exr"), img * 100)
-    big = rng.random((40, 33, 3)).astype(np.float32) * 5e3   # several ZIP chunks of 16 lines
+    big = rng.random((40, 33, 3)).astype(np.float32) * 5e3  # several ZIP chunks of 16 lines
     (tmp_path / "big.exr").write_bytes(encode_exr(big))
     np.testing.assert_array_equal(read_image(tmp_path / "big.exr"), big)
     (tmp_path / "a.png").write_bytes(encode_png16(np.concatenate([img, img + 1], 0)))

@@ -1,6 +1,7 @@
 """Bake UX: operator polls, Preview without a bake, Delete Bake, the Lock Interface message in the
 panel, playback that does not rewrite HR_Radiance for frames mapping to the same cached file,
 descriptive labels, and the build's progress reaching the headless bake's output."""
+
 import numpy as np
 import pytest
 
@@ -12,6 +13,7 @@ pytestmark = pytest.mark.bpy
 def _bake(**kw):
     import bpy
     from hr_addon.blender.bake import run_bake
+
     kw.setdefault("quality", "draft")
     return run_bake(bpy.context.scene, log=lambda *a, **k: None, **kw)
 
@@ -23,8 +25,8 @@ def test_preview_and_cache_operators_need_a_bake(tmp_path):
         assert not op.poll()
     with pytest.raises(RuntimeError, match="bake first"):
         bpy.ops.hr.add_preview()
-    assert not bpy.ops.hr.remove_preview.poll()       # nothing to remove
-    assert not bpy.ops.hr.cancel_bake.poll()          # nothing running
+    assert not bpy.ops.hr.remove_preview.poll()  # nothing to remove
+    assert not bpy.ops.hr.cancel_bake.poll()  # nothing running
     assert bpy.ops.hr.bake.poll()
     _bake(frames=(1, 2), method="FE")
     assert bpy.ops.hr.add_preview.poll() and bpy.ops.hr.load_frame.poll() and bpy.ops.hr.delete_bake.poll()
@@ -49,9 +51,9 @@ def test_delete_bake_removes_the_files(tmp_path):
     scene = bpy.context.scene
     scene.frame_set(6)
     assert "HR_Radiance" in bpy.data.objects["floor"].data.color_attributes
-    assert bpy.ops.hr.delete_bake() == {"FINISHED"}       # EXEC: the confirmation is invoke()'s
+    assert bpy.ops.hr.delete_bake() == {"FINISHED"}  # EXEC: the confirmation is invoke()'s
     assert not cache.exists()
-    assert other.read_text() == "not ours"                 # only the bake's own files go
+    assert other.read_text() == "not ours"  # only the bake's own files go
     assert scene.hr.bake_dir == "" and not scene.hr.playback
     assert "HR_Radiance" not in bpy.data.objects["floor"].data.color_attributes
     assert not bpy.ops.hr.delete_bake.poll()
@@ -61,6 +63,7 @@ def test_delete_refuses_a_folder_that_is_not_a_bake(tmp_path):
     load_bpy()
     from hr_addon.io.cache import CacheError
     from hr_addon.blender.ops import delete_cache_files
+
     d = tmp_path / "precious"
     d.mkdir()
     (d / "frame_000001.npz").write_bytes(b"mine")
@@ -73,20 +76,23 @@ def test_playback_skips_rewriting_same_cached_file(tmp_path, monkeypatch):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     from hr_addon.blender import playback
-    _bake(frames=(1, 24), method="FE")        # files for frames 1, 6, 13, 21 only
+
+    _bake(frames=(1, 24), method="FE")  # files for frames 1, 6, 13, 21 only
     scene = bpy.context.scene
     writes = []
     original = playback.write_attribute
-    monkeypatch.setattr(playback, "write_attribute", lambda me, v, d: (writes.append(me.name), original(me, v, d)))
+    monkeypatch.setattr(
+        playback, "write_attribute", lambda me, v, d: (writes.append(me.name), original(me, v, d))
+    )
     scene.frame_set(6)
     n = len(writes)
     assert n > 0
     shown = attribute(bpy.data.objects["back"])
-    for f in (7, 8, 12):                      # all map to frame_000006.npz
+    for f in (7, 8, 12):  # all map to frame_000006.npz
         scene.frame_set(f)
     assert len(writes) == n
     np.testing.assert_array_equal(attribute(bpy.data.objects["back"]), shown)
-    scene.frame_set(13)                       # another file
+    scene.frame_set(13)  # another file
     assert len(writes) == 2 * n
     # removing the attribute (or undo) makes the next frame change write it again
     me = bpy.data.objects["back"].data
@@ -99,14 +105,15 @@ def test_lock_interface_message_in_panel(tmp_path, monkeypatch):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     from hr_addon.blender import playback
+
     _bake(frames=(1, 7), method="FE")
     scene = bpy.context.scene
     scene.frame_set(1)
-    monkeypatch.setattr(playback, "render_unlocked", lambda s: True)   # a render without Lock Interface
+    monkeypatch.setattr(playback, "render_unlocked", lambda s: True)  # a render without Lock Interface
     before = attribute(bpy.data.objects["right_green"])
     scene.frame_set(6)
-    assert playback.status(scene) == playback.LOCK_MESSAGE              # what the panel shows
-    np.testing.assert_array_equal(attribute(bpy.data.objects["right_green"]), before)   # not loaded
+    assert playback.status(scene) == playback.LOCK_MESSAGE  # what the panel shows
+    np.testing.assert_array_equal(attribute(bpy.data.objects["right_green"]), before)  # not loaded
     monkeypatch.setattr(playback, "render_unlocked", lambda s: False)
     scene.frame_set(7)
     assert playback.status(scene) == ""
@@ -123,10 +130,17 @@ def test_headless_bake_prints_build_progress_and_rays(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     from hr_addon.blender.bake import run_bake
+
     lines = []
     seen = []
-    res = run_bake(bpy.context.scene, log=lambda m, **k: lines.append(m), status=seen.append,
-                   frames=(1, 3), method="FE", quality="medium")
+    res = run_bake(
+        bpy.context.scene,
+        log=lambda m, **k: lines.append(m),
+        status=seen.append,
+        frames=(1, 3),
+        method="FE",
+        quality="medium",
+    )
     build = [p for p in seen if p.stage == "build"]
     assert len(build) >= 2 and all(0 <= p.fraction <= 0.5 for p in build), [p.fraction for p in build]
     assert any(ln.startswith("HR Radiosity: Building the hierarchy: ") for ln in lines), lines
@@ -138,6 +152,7 @@ def test_invoke_in_background_mode_bakes_synchronously(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     from hr_addon.blender import background
+
     scene = bpy.context.scene
     scene.hr.use_frame_range = True
     scene.hr.frame_start = scene.hr.frame_end = 6
@@ -150,14 +165,16 @@ def test_invoke_in_background_mode_bakes_synchronously(tmp_path):
 def test_without_embreex_the_bake_says_numpy(tmp_path, monkeypatch):
     """A platform without a wheel: the numpy tracer, and the summary and manifest say so."""
     import sys
+
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     for name in [m for m in sys.modules if m == "embreex" or m.startswith("embreex.")]:
         monkeypatch.delitem(sys.modules, name)
-    monkeypatch.setitem(sys.modules, "embreex", None)          # import embreex -> ImportError
+    monkeypatch.setitem(sys.modules, "embreex", None)  # import embreex -> ImportError
     lines = []
     from hr_addon.blender.bake import run_bake
     from hr_addon.io.cache import CacheReader
+
     res = run_bake(bpy.context.scene, log=lambda m, **k: lines.append(m), frames=(1, 1), quality="draft")
     assert res.rays == "numpy" and "embreex not available" in res.rays_note
     assert "rays: numpy (embreex not available" in lines[-1], lines[-1]
@@ -194,10 +211,14 @@ def test_modal_bake_passes_every_event_through(tmp_path):
     timer, other_timer = object(), object()
     reports, status = [], []
     workspace = SimpleNamespace(status_text_set=status.append)
-    wm = SimpleNamespace(windows=[SimpleNamespace(workspace=workspace, screen=SimpleNamespace(areas=[]))],
-                         event_timer_remove=lambda t: reports.append(("timer removed", t is timer)))
+    wm = SimpleNamespace(
+        windows=[SimpleNamespace(workspace=workspace, screen=SimpleNamespace(areas=[]))],
+        event_timer_remove=lambda t: reports.append(("timer removed", t is timer)),
+    )
     context = SimpleNamespace(window_manager=wm)
-    op = SimpleNamespace(_job=Job(), _timer=timer, report=lambda kind, msg: reports.append((sorted(kind)[0], msg)))
+    op = SimpleNamespace(
+        _job=Job(), _timer=timer, report=lambda kind, msg: reports.append((sorted(kind)[0], msg))
+    )
     for ev in ("MOUSEMOVE", "LEFTMOUSE", "ESC", "SPACE", "WHEELUPMOUSE", "A"):
         assert HR_OT_bake.modal(op, context, _Event(ev)) == {"PASS_THROUGH"}
     assert HR_OT_bake.modal(op, context, _Event("TIMER", other_timer)) == {"PASS_THROUGH"}
@@ -214,5 +235,6 @@ def test_ray_backend_name_from_the_build_report():
     load_bpy()
     from types import SimpleNamespace
     from hr_addon.blender.bake import ray_backend_name
+
     assert ray_backend_name(SimpleNamespace(backend=SimpleNamespace(name="embree"))) == "embree"
     assert ray_backend_name(SimpleNamespace(build=SimpleNamespace(backend="NumpyBackend"))) == "numpy"

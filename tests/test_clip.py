@@ -1,5 +1,6 @@
 """2D clipping and overlap areas: exact area conservation over tilings, agreement with the reference
 single-polygon clipper and with a raster estimate."""
+
 import math
 
 import numpy as np
@@ -31,7 +32,7 @@ def quad_grid(lo, hi, n, jitter=0.0, seed=0):
     h = (hi - lo) / n
     v[1:-1, 1:-1] += np.random.default_rng(seed).uniform(-jitter, jitter, v[1:-1, 1:-1].shape) * h
     nodes = np.stack([v[:-1, :-1], v[1:, :-1], v[1:, 1:], v[:-1, 1:]], 2).reshape(-1, 4, 2)
-    nodes[::2] = nodes[::2, ::-1]                                      # clockwise: must be normalised
+    nodes[::2] = nodes[::2, ::-1]  # clockwise: must be normalised
     return nodes, np.full(len(nodes), 4)
 
 
@@ -40,7 +41,7 @@ def tri_grid(lo, hi, n):
     q, _ = quad_grid(lo, hi, n)
     t1 = q[:, [0, 1, 2, 2]]
     t2 = q[:, [0, 2, 3, 3]]
-    t2[::3] = t2[::3][:, [2, 1, 0, 0]]                                 # some clockwise
+    t2[::3] = t2[::3][:, [2, 1, 0, 0]]  # some clockwise
     t2[::3, 3] = t2[::3, 2]
     tris = np.concatenate([t1, t2])
     return tris, np.full(len(tris), 3)
@@ -54,9 +55,9 @@ SHAPES = {
     "star64": [star(32, 1.2, 0.5)],
     "star_with_hole": [star(5, 1.2, 0.5), star(5, 0.3, 0.15, phase=0.3)[::-1]],
     "star_with_same_orientation_hole": [star(5, 1.2, 0.5), rect(0.05, 0.02, 0.3, 0.2, 0.3)],
-    "sliver": [np.array([[-1.1, -0.3], [1.2, 0.9], [1.2, 0.9 + 2.6e-4]])],        # aspect ~1e-4
-    "tiny": [rect(0.137, 0.1, 1.3e-4 * 0.15, 0.77e-4 * 0.15, 0.3)],               # ~1e-8 node area
-    "tiny_on_corner": [rect(0.1, 0.1, 2e-5, 1e-5, 0.2)],                           # on a grid vertex
+    "sliver": [np.array([[-1.1, -0.3], [1.2, 0.9], [1.2, 0.9 + 2.6e-4]])],  # aspect ~1e-4
+    "tiny": [rect(0.137, 0.1, 1.3e-4 * 0.15, 0.77e-4 * 0.15, 0.3)],  # ~1e-8 node area
+    "tiny_on_corner": [rect(0.1, 0.1, 2e-5, 1e-5, 0.2)],  # on a grid vertex
     "covering": [rect(0.0, 0.0, 5.0, 5.0, 0.1)],
 }
 
@@ -69,9 +70,11 @@ def shape_area(rings):
 @pytest.mark.parametrize("name", [k for k in SHAPES if k != "covering"])
 def test_tiling_conserves_area(name, grid):
     rings = SHAPES[name]
-    nodes, nv = {"quads": lambda: quad_grid(-1.5, 1.5, 15),
-                 "jittered": lambda: quad_grid(-1.5, 1.5, 15, jitter=0.3),
-                 "triangles": lambda: tri_grid(-1.5, 1.5, 15)}[grid]()
+    nodes, nv = {
+        "quads": lambda: quad_grid(-1.5, 1.5, 15),
+        "jittered": lambda: quad_grid(-1.5, 1.5, 15, jitter=0.3),
+        "triangles": lambda: tri_grid(-1.5, 1.5, 15),
+    }[grid]()
     ov = overlap_areas(rings, nodes, nv)
     assert ov.min() >= 0
     assert ov.sum() == pytest.approx(shape_area(rings), rel=1e-9)
@@ -93,17 +96,21 @@ def test_matches_reference_clipper():
     for name in ("l_shape", "star", "star_with_hole", "sliver"):
         rings = SHAPES[name]
         ov = overlap_areas(rings, nodes, np.r_[nv, np.full(len(qn), 4)])
-        ref = [abs(polygon_area_2d(clip_convex(rings[0], nd)))
-               - sum(abs(polygon_area_2d(clip_convex(h, nd))) for h in rings[1:]) for nd in nodes]
+        ref = [
+            abs(polygon_area_2d(clip_convex(rings[0], nd)))
+            - sum(abs(polygon_area_2d(clip_convex(h, nd))) for h in rings[1:])
+            for nd in nodes
+        ]
         np.testing.assert_allclose(ov, ref, rtol=1e-12, atol=1e-15)
 
 
 def test_clip_convex_basics():
     sq = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
     # concave subject: U shape whose two arms poke through the top edge; clipped result has a bridge
-    u = np.array([[0.2, 0.2], [0.8, 0.2], [0.8, 1.5], [0.6, 1.5], [0.6, 0.5], [0.4, 0.5], [0.4, 1.5],
-                  [0.2, 1.5]])
-    out = clip_convex(u, sq[::-1])                                      # clip given clockwise
+    u = np.array(
+        [[0.2, 0.2], [0.8, 0.2], [0.8, 1.5], [0.6, 1.5], [0.6, 0.5], [0.4, 0.5], [0.4, 1.5], [0.2, 1.5]]
+    )
+    out = clip_convex(u, sq[::-1])  # clip given clockwise
     assert polygon_area_2d(out) == pytest.approx(0.6 * 0.3 + 2 * 0.2 * 0.5)
     assert len(clip_convex(sq + 5, sq)) == 0
     assert polygon_area_2d(clip_convex(sq * 0.5 + 0.25, sq)) == pytest.approx(0.25)
@@ -116,7 +123,7 @@ def test_outside_and_classify():
     # bounding box overlaps the corner node, shape itself does not
     near = [np.array([[1.45, 1.65], [1.65, 1.45], [1.7, 1.7]])]
     np.testing.assert_array_equal(overlap_areas(near, nodes, nv), 0.0)
-    frac, inside, outside = classify([rect(0, 0, 1.2, 1.2)], nodes, nv)   # exactly the central 4 x 4
+    frac, inside, outside = classify([rect(0, 0, 1.2, 1.2)], nodes, nv)  # exactly the central 4 x 4
     assert inside.sum() == 16 and outside.sum() == 84
     # tiny overlaps are neither inside nor outside with the default tolerance
     frac, inside, outside = classify(SHAPES["tiny"], nodes, nv)
@@ -136,7 +143,7 @@ def raster_overlap(rings, nodes, res=1200):
             crosses = (y0 > y) != (y1 > y)
             xc = x0 + (y - y0) * (x1 - x0) / np.where(y1 != y0, y1 - y0, 1.0)
             in_shape ^= crosses & (x < xc)
-    cell = (hi - lo).prod() / res ** 2
+    cell = (hi - lo).prod() / res**2
     out = []
     for nd in nodes:
         if polygon_area_2d(nd) < 0:

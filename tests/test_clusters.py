@@ -1,6 +1,7 @@
 """Face clusters (hr_addon/core/cluster.py, farlinks.py): the tree, the far-link kernel against exact form
 factors, reciprocity and energy balance, oracles with clutter, light events through cluster
 links, progress and cancel. No bpy."""
+
 import dataclasses
 
 import numpy as np
@@ -25,7 +26,11 @@ DRAFT = RefineParams.preset("draft")
 
 def _grid(o, u, v, n):
     s, t = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
-    verts = np.asarray(o, float) + s.reshape(-1, 1) * np.asarray(u, float) + t.reshape(-1, 1) * np.asarray(v, float)
+    verts = (
+        np.asarray(o, float)
+        + s.reshape(-1, 1) * np.asarray(u, float)
+        + t.reshape(-1, 1) * np.asarray(v, float)
+    )
     idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
     return verts, np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
 
@@ -49,9 +54,14 @@ def clutter_room(rho=0.5, E=1.0, n=12, seed=3):
     rng = np.random.default_rng(seed)
     W, D, H = 3.0, 3.0, 2.5
     parts = []
-    for o, u, v in (((0, 0, 0), (W, 0, 0), (0, D, 0)), ((0, 0, H), (0, D, 0), (W, 0, 0)),
-                    ((0, 0, 0), (0, 0, H), (W, 0, 0)), ((0, D, 0), (W, 0, 0), (0, 0, H)),
-                    ((0, 0, 0), (0, D, 0), (0, 0, H)), ((W, 0, 0), (0, 0, H), (0, D, 0))):
+    for o, u, v in (
+        ((0, 0, 0), (W, 0, 0), (0, D, 0)),
+        ((0, 0, H), (0, D, 0), (W, 0, 0)),
+        ((0, 0, 0), (0, 0, H), (W, 0, 0)),
+        ((0, D, 0), (W, 0, 0), (0, 0, H)),
+        ((0, 0, 0), (0, D, 0), (0, 0, H)),
+        ((W, 0, 0), (0, 0, H), (0, D, 0)),
+    ):
         parts.append(_grid(o, u, v, 6))
     placed = []
     for k in range(n):
@@ -70,17 +80,26 @@ def clutter_room(rho=0.5, E=1.0, n=12, seed=3):
             ring = np.column_stack([0.6 * r * np.cos(t), 0.6 * r * np.sin(t), np.zeros(16)]) + c - [0, 0, r]
             i, j = np.arange(16), (np.arange(16) + 1) % 16
             verts = np.concatenate([ring, ring + [0, 0, 2 * r], [c - [0, 0, r], c + [0, 0, r]]])
-            parts.append((verts, [np.column_stack([i, j, 16 + j, 16 + i]),
-                                  np.column_stack([np.full(16, 32), j, i]), np.column_stack([np.full(16, 33), 16 + i, 16 + j])]))
+            parts.append(
+                (
+                    verts,
+                    [
+                        np.column_stack([i, j, 16 + j, 16 + i]),
+                        np.column_stack([np.full(16, 32), j, i]),
+                        np.column_stack([np.full(16, 33), 16 + i, 16 + j]),
+                    ],
+                )
+            )
     verts, polys, oid, off = [], [], [], 0
     for k, (v, f) in enumerate(parts):
-        for ff_ in (f if isinstance(f, list) else [f]):
+        for ff_ in f if isinstance(f, list) else [f]:
             polys += [list(p + off) for p in ff_]
             oid += [k] * len(ff_)
         verts.append(v)
         off += len(v)
-    return MeshInput.from_polygons(np.concatenate(verts), polys, rho, (E, E, E), np.array(oid),
-                                   [f"part{k}" for k in range(len(parts))])
+    return MeshInput.from_polygons(
+        np.concatenate(verts), polys, rho, (E, E, E), np.array(oid), [f"part{k}" for k in range(len(parts))]
+    )
 
 
 @pytest.fixture(scope="module")
@@ -93,16 +112,16 @@ def test_tree_covers_every_patch_once_and_bounds_its_members():
     p = prepare_patches(clutter_room())
     t = C.ClusterTree(p)
     leaves = np.flatnonzero(t.is_leaf)
-    kids = np.concatenate([t.child_ids[t.child_start[c]:t.child_start[c + 1]] for c in leaves])
-    assert np.array_equal(np.sort(kids), np.arange(t.K))           # each patch in one leaf cluster
+    kids = np.concatenate([t.child_ids[t.child_start[c] : t.child_start[c + 1]] for c in leaves])
+    assert np.array_equal(np.sort(kids), np.arange(t.K))  # each patch in one leaf cluster
     assert t.area[0] == pytest.approx(p.area.sum(), rel=1e-12)
     for c in np.random.default_rng(0).choice(t.C, 60, replace=False):
-        mem = t.perm[t.start[c]:t.end[c]]
-        corners = np.concatenate([p.corners[m, :p.nv[m]] for m in mem])
+        mem = t.perm[t.start[c] : t.end[c]]
+        corners = np.concatenate([p.corners[m, : p.nv[m]] for m in mem])
         assert (corners >= t.lo[c] - 1e-12).all() and (corners <= t.hi[c] + 1e-12).all()
         assert np.linalg.norm(corners - t.centre[c], axis=1).max() <= t.radius[c] + 1e-12
         cos = p.normal[mem] @ t.axis[c]
-        assert cos.min() >= np.cos(t.theta[c]) - 1e-9                # the normal cone holds them
+        assert cos.min() >= np.cos(t.theta[c]) - 1e-9  # the normal cone holds them
         if c > 0:
             par = t.parent[c]
             assert t.start[par] <= t.start[c] and t.end[c] <= t.end[par]
@@ -116,7 +135,11 @@ def test_far_link_transfer_matches_exact_form_factors(dist, size, n):
     verts, polys = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [[0, 1, 2, 3]]
     for i in range(n):
         for j in range(n):
-            x, y, e = 0.5 - size / 2 + (i + 0.5) * size / n, 0.5 - size / 2 + (j + 0.5) * size / n, 0.4 * size / n
+            x, y, e = (
+                0.5 - size / 2 + (i + 0.5) * size / n,
+                0.5 - size / 2 + (j + 0.5) * size / n,
+                0.4 * size / n,
+            )
             polys.append(list(range(len(verts), len(verts) + 4)))
             verts += [(x - e, y - e, dist), (x - e, y + e, dist), (x + e, y + e, dist), (x + e, y - e, dist)]
     p = prepare_patches(MeshInput.from_polygons(np.array(verts, float), polys, 0.5))
@@ -125,6 +148,7 @@ def test_far_link_transfer_matches_exact_form_factors(dist, size, n):
 
     class R:
         pass
+
     r = R()
     r.h, r.eps, r.stats, r.backend = h, 1e-9, {"rays": 0, "t_vis": 0.0}, make_backend(p.triangles, "numpy")
     a, b = np.array([0]), C.encode([cl])
@@ -152,15 +176,17 @@ def test_reciprocity_and_energy_balance_with_clusters(clutter):
         e = np.zeros((1, h.n))
         e[0, src] = 1.0
         K[:, j] = op.push(op.gather(op.pull(e), base=True))[0][pick]
-    AK = h.area[pick][:, None] * K            # A_i F_ij: the power leaf j's radiance sends to leaf i
+    AK = h.area[pick][:, None] * K  # A_i F_ij: the power leaf j's radiance sends to leaf i
     assert np.abs(AK - AK.T).max() <= 1e-9 * np.abs(AK).max()
     s.solve()
     assert s.report.energy_error < 1e-9
 
 
 # -- oracles with clutter ------------------------------------------------------------------------------
-@pytest.mark.parametrize("quality, worst, p99", [("draft", 0.07, 0.045),
-                                                pytest.param("medium", 0.04, 0.02, marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "quality, worst, p99",
+    [("draft", 0.07, 0.045), pytest.param("medium", 0.04, 0.02, marks=pytest.mark.slow)],
+)
 def test_furnace_with_clutter(clutter, quality, worst, p99):
     """Same reflectance and emission everywhere, nothing touching: B = E / (1 - rho) = 2 on
     every leaf. Measured (worst leaf / 99th percentile): all-pairs HR at draft 4.2% / 1.9% with
@@ -184,8 +210,11 @@ def test_sphere_of_5000_triangles_keeps_uniform_irradiance():
     (at draft 2.8%)."""
     rng = np.random.default_rng(0)
     rho = 0.6
-    mesh = scenes.sphere(subdiv=4, rho=rho,
-                         emission_fn=lambda c: rng.uniform(0, 2, (len(c), 3)) * (rng.random((len(c), 1)) < 0.1))
+    mesh = scenes.sphere(
+        subdiv=4,
+        rho=rho,
+        emission_fn=lambda c: rng.uniform(0, 2, (len(c), 3)) * (rng.random((len(c), 1)) < 0.1),
+    )
     s = RadiositySystem(mesh, RefineParams.preset("medium"))
     assert s.links.n_far > 0
     B = s.solve()
@@ -201,15 +230,22 @@ def test_sphere_of_5000_triangles_keeps_uniform_irradiance():
 def test_light_shape_sends_its_power_through_cluster_links(clutter):
     """An FE window on a wall of the clutter room (objects linked to the wall at cluster level):
     the objects receive what all-pairs HR gives them, and the emitted power is exact."""
+
     def absorbed_by_objects(system):
         dyn = DynamicRadiosity(system.copy(), method="FE")
         frame = (np.array([0.0, 0.8, 0.6]), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))
-        dyn.add("w", LightShape(S.on_plane(S.rect(0.9, 0.7, centre=(0.5, 0.45), angle=0.3), frame), np.full(3, 10.0), "w"))
-        B = dyn.B - dyn._Bbase                       # the window's own light
+        dyn.add(
+            "w",
+            LightShape(
+                S.on_plane(S.rect(0.9, 0.7, centre=(0.5, 0.45), angle=0.3), frame), np.full(3, 10.0), "w"
+            ),
+        )
+        B = dyn.B - dyn._Bbase  # the window's own light
         h = dyn.system.h
         lf = h.leaves()
         obj = dyn.system.patches.object_id[h.patch[lf]]
         return np.bincount(obj, weights=B[1, lf] * h.area[lf] * (obj >= 6)), dyn
+
     mesh = clutter_room(rho=0.5, E=0.0)
     ours, dyn = absorbed_by_objects(RadiositySystem(mesh, DRAFT))
     ref, _ = absorbed_by_objects(RadiositySystem(mesh, dataclasses.replace(DRAFT, cluster=False)))
@@ -226,7 +262,7 @@ def test_build_reports_progress_and_cancels():
     RadiositySystem(clutter_room(n=6), DRAFT, progress=lambda i: infos.append(i))
     fr = [i.fraction for i in infos]
     assert len(infos) >= 3 and fr[-1] == pytest.approx(1.0)
-    assert all(b >= a - 1e-12 for a, b in zip(fr, fr[1:]))            # never goes back
+    assert all(b >= a - 1e-12 for a, b in zip(fr, fr[1:]))  # never goes back
     assert {"clusters", "linking"} <= {i.phase for i in infos}
 
     calls = []
@@ -235,6 +271,7 @@ def test_build_reports_progress_and_cancels():
         calls.append(info)
         if len(calls) == 2:
             raise Cancelled("stop")
+
     with pytest.raises(Cancelled):
         RadiositySystem(clutter_room(n=6), DRAFT, progress=cancel)
     assert len(calls) == 2

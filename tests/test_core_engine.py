@@ -1,4 +1,5 @@
 """Core engine against analytic oracles (tests/closed_forms.py, furnace and sphere identities). No bpy."""
+
 import numpy as np
 import pytest
 
@@ -16,10 +17,28 @@ FAST = RefineParams.preset("draft")
 
 # -- input -----------------------------------------------------------------------------------------
 def test_triangulation_and_degenerates():
-    v = np.array([[0, 0, 0], [2, 0, 0], [2, 1, 0], [1, 1, 0], [1, 2, 0], [0, 2, 0],    # L-shaped hexagon
-                  [3, 0, 0], [4, 0, 0], [4, 1, 0.5], [3, 1, 0],                        # non-planar quad
-                  [5, 0, 0], [6, 0, 0], [5.2, 0.2, 0], [5, 1, 0],                      # concave quad (dart)
-                  [7, 0, 0], [8, 0, 0], [9, 0, 0]], float)                             # collinear: degenerate
+    v = np.array(
+        [
+            [0, 0, 0],
+            [2, 0, 0],
+            [2, 1, 0],
+            [1, 1, 0],
+            [1, 2, 0],
+            [0, 2, 0],  # L-shaped hexagon
+            [3, 0, 0],
+            [4, 0, 0],
+            [4, 1, 0.5],
+            [3, 1, 0],  # non-planar quad
+            [5, 0, 0],
+            [6, 0, 0],
+            [5.2, 0.2, 0],
+            [5, 1, 0],  # concave quad (dart)
+            [7, 0, 0],
+            [8, 0, 0],
+            [9, 0, 0],
+        ],
+        float,
+    )  # collinear: degenerate
     mesh = MeshInput.from_polygons(v, [[0, 1, 2, 3, 4, 5], [6, 7, 8, 9], [10, 11, 12, 13], [14, 15, 16]], 0.5)
     p = prepare_patches(mesh)
     assert p.dropped == 1 and "Dropped 1" in p.warnings[0]
@@ -34,12 +53,15 @@ def test_triangulation_and_degenerates():
     assert np.all(np.einsum("ij,ij->i", np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]), p.normal) > 0)
 
 
-@pytest.mark.parametrize("bad, message", [
-    (dict(verts_nan=True), "NaN or infinite vertex coordinates on polygon 1 of object 'wall'"),
-    (dict(rho=1.0), "outside [0, 1)"),
-    (dict(rho=np.nan), "Non-finite reflectance"),
-    (dict(emission=-1.0), "Negative emission"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (dict(verts_nan=True), "NaN or infinite vertex coordinates on polygon 1 of object 'wall'"),
+        (dict(rho=1.0), "outside [0, 1)"),
+        (dict(rho=np.nan), "Non-finite reflectance"),
+        (dict(emission=-1.0), "Negative emission"),
+    ],
+)
 def test_bad_input_names_the_culprit(bad, message):
     v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]], float)
     rho = np.full((2, 3), 0.5)
@@ -70,9 +92,9 @@ def test_subdivision_preserves_area_orientation_and_corners():
     inner = np.flatnonzero(~h.is_leaf)
     kids = h.children(inner)
     assert np.allclose(h.area[kids].sum(1), h.area[inner], rtol=1e-12)
-    c = h.corners[:h.n]
+    c = h.corners[: h.n]
     n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    assert np.all(np.einsum("ij,ij->i", n, h.normal[:h.n]) > 0)
+    assert np.all(np.einsum("ij,ij->i", n, h.normal[: h.n]) > 0)
     for k in range(4):  # child k holds its parent's corner k (output relies on it)
         has = k < h.nv[inner]
         assert np.allclose(h.corners[kids[has, k], k], h.corners[inner[has], k])
@@ -86,7 +108,7 @@ def test_links_reciprocal_and_bounded():
     assert L.f_ab.max() <= 1 and L.f_ba.max() <= 1 and L.f_ab.min() >= 0
     assert 0 <= L.vis.min() and L.vis.max() <= 1
     recv, _, f = L.directed()
-    assert np.all(np.diff(recv) >= 0)          # CSR: sorted by receiver
+    assert np.all(np.diff(recv) >= 0)  # CSR: sorted by receiver
     # Every leaf's total form factor (its links, its ancestors' and the push corrections) stays
     # <= 1 up to integration error, except where visibility varies across a coarse receiver:
     # measured, 0.5% of the area (floor in the slot between the tall block and the back wall)
@@ -100,8 +122,10 @@ def test_links_reciprocal_and_bounded():
 
 
 def test_smaller_feps_never_gives_fewer_links():
-    counts = [len(RadiositySystem(scenes.cornell_box(), RefineParams(feps=fe, veps=0, aeps=1e-3)).links)
-              for fe in (0.1, 0.05, 0.02, 0.01)]
+    counts = [
+        len(RadiositySystem(scenes.cornell_box(), RefineParams(feps=fe, veps=0, aeps=1e-3)).links)
+        for fe in (0.1, 0.05, 0.02, 0.01)
+    ]
     assert counts == sorted(counts) and counts[0] < counts[-1]
 
 
@@ -115,21 +139,23 @@ def test_furnace_box_uniform(rho):
     a = s.h.area[lf]
     rel = B[:, lf] / (E / (1 - rho)) - 1
     assert s.report.energy_error < 1e-5 and s.report.escaped < 1e-3 * s.report.emitted  # closed
-    assert np.abs(rel).max() < 0.005                    # everywhere, not just on average
+    assert np.abs(rel).max() < 0.005  # everywhere, not just on average
 
 
 def test_push_corrections_are_what_makes_the_furnace_exact():
     s = RadiositySystem(scenes.closed_box(rho=0.5), RefineParams(vcorr=0))
     lf = s.h.leaves()
-    assert np.abs(s.solve()[:, lf] / 2 - 1).max() > 0.03   # plain HR push: a few % off near edges
+    assert np.abs(s.solve()[:, lf] / 2 - 1).max() > 0.03  # plain HR push: a few % off near edges
 
 
 def _sphere_irradiance_error(subdiv, rho=0.6):
-    mesh = scenes.sphere(subdiv=subdiv, rho=rho, emission_fn=lambda c: np.where(c[:, :1] > 0.3, [[3.0, 1.0, 0.0]], 0.0))
+    mesh = scenes.sphere(
+        subdiv=subdiv, rho=rho, emission_fn=lambda c: np.where(c[:, :1] > 0.3, [[3.0, 1.0, 0.0]], 0.0)
+    )
     s = RadiositySystem(mesh, RefineParams.preset("medium"))
     B = s.solve()
     lf = s.h.leaves()
-    H = (B - s.base_emission())[:, lf] / rho            # gathered radiance: uniform on a sphere
+    H = (B - s.base_emission())[:, lf] / rho  # gathered radiance: uniform on a sphere
     a = s.h.area[lf]
     expected = (s.base_emission()[:, lf] * a).sum(1) / a.sum() / (1 - rho)
     assert s.report.energy_error < 1e-5
@@ -180,7 +206,7 @@ def test_cornell_box_solves_and_conserves_energy():
     assert r.converged and r.residual < 1e-6
     assert B.min() >= 0
     assert r.energy_error < 1e-4
-    assert 0 < r.escaped < r.emitted        # the box is open at the front
+    assert 0 < r.escaped < r.emitted  # the box is open at the front
     # The lamp (reflectance 0.78) reads its emission plus what it reflects; the red wall reflects
     # more red than green, the green wall the opposite.
     h = s.h
@@ -197,12 +223,12 @@ def test_cornell_box_solves_and_conserves_energy():
 
 def test_reflectance_near_one_converges_or_stops_with_a_warning():
     s = RadiositySystem(scenes.closed_box(rho=0.999, emission=(1, 1, 1)), FAST)
-    B, rep = solve(s.h, s.links, s.base_emission(), max_iter=50)            # GMRES copes
+    B, rep = solve(s.h, s.links, s.base_emission(), max_iter=50)  # GMRES copes
     lf = s.h.leaves()
     assert rep.converged and rep.iterations < 50
     # B = E / (1 - rho sum F): at rho = 0.999 a 5e-5 form factor deficit already costs 5%.
     assert np.allclose(B[:, lf], 1000, rtol=0.1)
-    with pytest.warns(ConvergenceWarning, match="did not converge"):      # plain sweeps do not
+    with pytest.warns(ConvergenceWarning, match="did not converge"):  # plain sweeps do not
         B, rep = solve(s.h, s.links, s.base_emission(), max_iter=50, method="jacobi")
     assert rep.iterations == 50 and not rep.converged and np.isfinite(B).all()
 
@@ -232,6 +258,7 @@ def test_vertex_output_shared_vertices_agree_and_creases_stay_sharp():
 
 def test_backends_give_the_same_solution():
     from hr_addon.core.visibility import available_backends
+
     if len(available_backends()) < 2:
         pytest.skip("only one ray backend available")
     res = [RadiositySystem(scenes.cornell_box(), FAST, backend=b) for b in ("numpy", "embree")]
@@ -239,7 +266,6 @@ def test_backends_give_the_same_solution():
         s.solve()
     assert len(res[0].links) == len(res[1].links)
     assert np.allclose(res[0].B, res[1].B, rtol=1e-3, atol=1e-6)
-
 
 
 def test_bf_refinement_bounds_rho_f_b_on_every_splittable_link():
@@ -254,12 +280,15 @@ def test_bf_refinement_bounds_rho_f_b_on_every_splittable_link():
         B = s.solve()
         L, h = s.links, s.h
         rho = s.patches.reflectance[:, h.view("patch")]
-        bfv = np.maximum((rho[:, L.a] * B[:, L.b]).max(0) * L.f_ab * L.vis, (rho[:, L.b] * B[:, L.a]).max(0) * L.f_ba * L.vis)
+        bfv = np.maximum(
+            (rho[:, L.a] * B[:, L.b]).max(0) * L.f_ab * L.vis,
+            (rho[:, L.b] * B[:, L.a]).max(0) * L.f_ba * L.vis,
+        )
         splittable = np.maximum(h.area[L.a], h.area[L.b]) > base.aeps * s.patches.area.sum()
         return bfv[splittable].max()
 
-    assert worst(plain) > 2 * thr                 # the F oracle alone leaves bright links coarse
-    assert worst(bf) < 2 * thr                    # BF refined them (B moved a little after the last pass)
+    assert worst(plain) > 2 * thr  # the F oracle alone leaves bright links coarse
+    assert worst(bf) < 2 * thr  # BF refined them (B moved a little after the last pass)
     assert len(bf.links) > len(plain.links) and bf.report.energy_error < 1e-4
 
 
@@ -276,12 +305,13 @@ def test_twisted_wall_is_lit_and_results_are_scale_invariant():
         lf = s.h.leaves()
         red = lf[obj[lf] == s.patches.object_names.index("left_red")]
         res.append((len(s.links), B[:, red].mean(1)))
-    assert res[0][1][0] > 0.05                      # lit (its floor neighbour is ~0.1)
+    assert res[0][1][0] > 0.05  # lit (its floor neighbour is ~0.1)
     assert res[0][0] == res[1][0] and np.allclose(res[0][1], res[1][1], rtol=1e-6)
 
 
 def test_radiance_at_points_finds_leaves_and_interpolates_continuously():
     from hr_addon.core.output import locate, radiance_at
+
     s = RadiositySystem(scenes.cornell_box(), FAST)
     B = s.solve()
     h = s.h
@@ -304,6 +334,7 @@ def test_radiance_at_points_finds_leaves_and_interpolates_continuously():
 
 def test_radiance_at_has_no_seams_between_input_polygons():
     from hr_addon.core.output import radiance_at
+
     s = RadiositySystem(scenes.cornell_box(subdiv=8), FAST)
     B = s.solve()
     pt = s.patches
@@ -320,6 +351,6 @@ def test_radiance_at_has_no_seams_between_input_polygons():
         va = radiance_at(s.h, B, [i], [mid + d])
         vb = radiance_at(s.h, B, [across[0]], [mid - d])
         jumps.append(np.abs(va - vb).max())
-        steps.append(np.abs(radiance_at(s.h, B, [i], [mid + 2500 * d]) - va).max())   # a quarter patch in
+        steps.append(np.abs(radiance_at(s.h, B, [i], [mid + 2500 * d]) - va).max())  # a quarter patch in
     assert len(jumps) > 20
     assert np.median(jumps) < 0.05 * np.median(steps) and max(jumps) < 0.02 * B[:, s.h.leaves()].max()

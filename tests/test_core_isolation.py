@@ -8,6 +8,7 @@ Two checks, both discovering whatever modules exist under those packages at the 
 - static: no core source file contains an import of those modules (also catches imports hidden
   inside functions, which the dynamic check cannot see).
 """
+
 import ast
 import json
 import pkgutil
@@ -21,8 +22,23 @@ import pytest
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("core", "io", "lightmap")
-BLOCKED = ("bpy", "bmesh", "bpy_extras", "_bpy", "bpy_types", "gpu", "gpu_extras", "blf", "bl_math",
-           "bgl", "aud", "idprop", "imbuf", "freestyle", "addon_utils")
+BLOCKED = (
+    "bpy",
+    "bmesh",
+    "bpy_extras",
+    "_bpy",
+    "bpy_types",
+    "gpu",
+    "gpu_extras",
+    "blf",
+    "bl_math",
+    "bgl",
+    "aud",
+    "idprop",
+    "imbuf",
+    "freestyle",
+    "addon_utils",
+)
 
 
 def _discover(path: Path, prefix: str) -> list[str]:
@@ -35,10 +51,17 @@ def _discover(path: Path, prefix: str) -> list[str]:
     return names
 
 
-CORE_MODULES = [m for pkg in PACKAGES
-                for m in [f"hr_addon.{pkg}"] + _discover(REPO_ROOT / "hr_addon" / pkg, f"hr_addon.{pkg}.")]
-CORE_FILES = sorted(p for pkg in PACKAGES for p in (REPO_ROOT / "hr_addon" / pkg).rglob("*.py")
-                    if "__pycache__" not in p.parts)
+CORE_MODULES = [
+    m
+    for pkg in PACKAGES
+    for m in [f"hr_addon.{pkg}"] + _discover(REPO_ROOT / "hr_addon" / pkg, f"hr_addon.{pkg}.")
+]
+CORE_FILES = sorted(
+    p
+    for pkg in PACKAGES
+    for p in (REPO_ROOT / "hr_addon" / pkg).rglob("*.py")
+    if "__pycache__" not in p.parts
+)
 
 CHILD = textwrap.dedent(r'''
     import importlib, json, sys, traceback
@@ -74,11 +97,15 @@ CHILD = textwrap.dedent(r'''
 def isolated_imports():
     proc = subprocess.run(
         [sys.executable, "-c", CHILD, json.dumps(BLOCKED), json.dumps(CORE_MODULES)],
-        cwd=REPO_ROOT, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=120,
+        cwd=REPO_ROOT,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT:")]
     assert proc.returncode == 0 and lines, proc.stdout + proc.stderr
-    return json.loads(lines[-1][len("RESULT:"):])
+    return json.loads(lines[-1][len("RESULT:") :])
 
 
 @pytest.mark.parametrize("module", CORE_MODULES)
@@ -108,10 +135,16 @@ def test_core_source_has_no_blender_import(path):
             names = [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             names = [node.module]
-        elif (isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant)
-              and isinstance(node.args[0].value, str)
-              and ((isinstance(node.func, ast.Name) and node.func.id == "__import__")
-                   or (isinstance(node.func, ast.Attribute) and node.func.attr == "import_module"))):
+        elif (
+            isinstance(node, ast.Call)
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)
+            and (
+                (isinstance(node.func, ast.Name) and node.func.id == "__import__")
+                or (isinstance(node.func, ast.Attribute) and node.func.attr == "import_module")
+            )
+        ):
             names = [node.args[0].value]
         bad = [n for n in names if n.split(".")[0] in BLOCKED]
         assert not bad, "{}:{} imports {}".format(path, node.lineno, bad)

@@ -14,6 +14,7 @@ Tolerances, from measurement with margin (5 Cycles seeds at these settings, see 
   that catches misplaced light, e.g. a shape emitting on the wrong side or a shifted shadow).
 A position bake checks that our texel -> surface point map is the one Cycles bakes.
 """
+
 import os
 import sys
 from pathlib import Path
@@ -46,6 +47,7 @@ def comparison(tmp_path_factory):
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
+
     open_sample("cornell", tmp_path_factory.mktemp("cycles"))
     rs = C.prepare(bpy.context.scene, texel_rel=TEXEL_REL)
     system = RadiositySystem(rs.scene_in.mesh, RefineParams.preset("medium"))
@@ -67,6 +69,7 @@ def test_texel_map_matches_cycles_position_bake(comparison):
     """Cycles' Position bake at every texel = the mean of our sub-texel points (within 0.25 texel)."""
     bpy = load_bpy()
     import cycles_ref as C
+
     rs = comparison[1][0]
     spp = 16
     C.configure_cycles(rs.scene, spp)
@@ -90,6 +93,7 @@ def test_texel_map_matches_cycles_position_bake(comparison):
 @pytest.mark.parametrize("frame", [1, 13])
 def test_reflected_radiance_agrees_with_cycles(comparison, frame):
     import cycles_ref as C
+
     rs, res, ref, mask, shapes = comparison[frame]
     assert len(shapes) == (0 if frame == 1 else 5)
     assert all(m.all() for m in mask.values()), "Cycles left texels of the UV islands unbaked"
@@ -112,6 +116,7 @@ def test_reflected_radiance_agrees_with_cycles(comparison, frame):
 def test_light_shapes_add_light_like_cycles(comparison):
     """Frame 13 minus frame 1: the light of the window and the back patch alone (both sides)."""
     import cycles_ref as C
+
     rs, r1, c1, _, _ = comparison[1]
     _, r13, c13, _, _ = comparison[13]
     o = np.concatenate([r13[n]["leaf_refl"] - r1[n]["leaf_refl"] for n in rs.objects])

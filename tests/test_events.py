@@ -29,7 +29,6 @@ STAR = shape(S.star(0.1, 0.04, 5, centre=(0.25, 0.3), angle=0.2), BACK, (2.0, 3.
 ELLIPSE = shape(S.ellipse(0.12, 0.05, centre=(0.3, 0.25), angle=0.5), BACK, (5.0, 5.0, 5.0), "ellipse")
 
 
-
 @pytest.fixture(scope="module")
 def base():
     return RadiositySystem(scenes.cornell_box(), COARSE)
@@ -85,7 +84,7 @@ def test_history_independence(base, samples, method):
     assert rel(dyn.evaluate(pts, ids)[0], ref) < 1e-8
     assert dyn.system.h.n == alone.system.h.n
     dyn.remove("B")
-    assert (dyn.system.h.n, len(dyn.links)) == (n0, l0)      # memory back to the baseline
+    assert (dyn.system.h.n, len(dyn.links)) == (n0, l0)  # memory back to the baseline
     assert rel(dyn.B, dyn._Bbase) == 0.0
 
 
@@ -157,7 +156,7 @@ def test_live_response_settings_stay_at_float32_rounding(base, samples, method):
     rb, rl = batch.apply({"w": WINDOW, "s": STAR}), live.apply({"w": WINDOW, "s": STAR})
     assert rel(live.evaluate(pts, ids)[0], batch.evaluate(pts, ids)[0]) < 1e-6
     assert rl.iterations < rb.iterations
-    assert rel(live._Bbase, batch._Bbase) == 0.0         # the base solution keeps the batch settings
+    assert rel(live._Bbase, batch._Bbase) == 0.0  # the base solution keeps the batch settings
 
 
 # -- FE / AR emission is exactly the shape's area x emission ------------------------------------------------
@@ -188,6 +187,7 @@ def test_emission_sums_to_area_times_emission(base, case, method):
 
 def S_area(r):
     from hr_addon.core.clip import polygon_area_2d
+
     return polygon_area_2d(np.asarray(r))
 
 
@@ -209,14 +209,18 @@ def test_ar_node_budget_falls_back_to_fe(base):
     """A non-axis-aligned, boundary-heavy shape with a tiny minimum area: AR would add far more nodes;
     the budget caps them, the rest of the boundary uses FE, the report says so, power stays exact."""
     sh = shape(S.star(0.15, 0.05, 9, (0.28, 0.27), 0.13), BACK)
-    free = DynamicRadiosity(base.copy(), method="AR", min_area_rel=1e-7, node_budget=10 ** 7).add("x", sh)
+    free = DynamicRadiosity(base.copy(), method="AR", min_area_rel=1e-7, node_budget=10**7).add("x", sh)
     budget = 2000
     dyn = DynamicRadiosity(base.copy(), method="AR", min_area_rel=1e-7, node_budget=budget)
     rep = dyn.add("x", sh)
-    assert free.nodes_added > 5 * budget          # the growth the budget protects against
+    assert free.nodes_added > 5 * budget  # the growth the budget protects against
     assert 0 < rep.nodes_added <= budget
     assert rep.method == "AR+FE" and any("node budget" in m for m in rep.messages)
-    assert free.emission_l1 < rep.emission_l1 < DynamicRadiosity(base.copy(), method="FE").add("x", sh).emission_l1
+    assert (
+        free.emission_l1
+        < rep.emission_l1
+        < DynamicRadiosity(base.copy(), method="FE").add("x", sh).emission_l1
+    )
     np.testing.assert_allclose(leaf_power(dyn), dyn.shapes["x"].area * sh.emission, rtol=1e-9)
     # AUTO: one budget for the outline and the first-bounce receivers together
     auto = DynamicRadiosity(base.copy(), method="AUTO", bf_rel=1e-4, node_budget=600).add("x", sh)
@@ -228,7 +232,9 @@ def test_fe_error_shrinks_with_finer_hierarchy():
     sh = shape(S.ellipse(0.12, 0.07, (0.28, 0.27), 0.4), BACK)
     errs = []
     for aeps in (1.6e-2, 4e-3, 1e-3):
-        sysm = RadiositySystem(scenes.cornell_box(), RefineParams(feps=0.1, aeps=aeps, shadow_feps=0.02, veps=0.02))
+        sysm = RadiositySystem(
+            scenes.cornell_box(), RefineParams(feps=0.1, aeps=aeps, shadow_feps=0.02, veps=0.02)
+        )
         errs.append(DynamicRadiosity(sysm, method="FE").add("x", sh).emission_l1)
     assert errs[0] > errs[1] > errs[2], errs
     assert errs[2] < 0.6 * errs[0]
@@ -251,27 +257,37 @@ def test_auto_first_bounce_beats_links(base, samples):
     fe.add("w", WINDOW)
     op = fe._operator()
     cov = np.repeat(fe._coverage(fe.shapes["w"])[None], 3, 0)
-    got_fe = (rho * op.push(op.gather(op.pull(cov)))[:, locate(fe.system.h, ids, pts)])
+    got_fe = rho * op.push(op.gather(op.pull(cov)))[:, locate(fe.system.h, ids, pts)]
     # brute force
     corners, nv, area, nf = auto._pieces(rec)
     off = ~np.isin(ids, rec.group)
     x, xn = pts[off], base.patches.normal[ids[off]]
     T = len(corners)
-    F = ff.point_to_polygon(np.repeat(x, T, 0), np.repeat(xn, T, 0), np.tile(corners, (len(x), 1, 1)),
-                            np.tile(nv, len(x))).reshape(-1, T).sum(1)
+    F = (
+        ff.point_to_polygon(
+            np.repeat(x, T, 0), np.repeat(xn, T, 0), np.tile(corners, (len(x), 1, 1)), np.tile(nv, len(x))
+        )
+        .reshape(-1, T)
+        .sum(1)
+    )
     sp, sw = ff.quadrature(corners, nv, 3)
     sp, sw = sp.reshape(-1, 3), (sw * area[:, None]).ravel()
     K, eps = len(sp), 1e-6
     a, b = np.repeat(x + eps * xn, K, 0), np.tile(sp + eps * nf, (len(x), 1))
     d = b - a
-    kern = (np.maximum((d * np.repeat(xn, K, 0)).sum(1), 0) * np.maximum(-(d @ nf), 0)
-            / (d * d).sum(1) ** 2 * np.tile(sw, len(x))).reshape(-1, K)
+    kern = (
+        np.maximum((d * np.repeat(xn, K, 0)).sum(1), 0)
+        * np.maximum(-(d @ nf), 0)
+        / (d * d).sum(1) ** 2
+        * np.tile(sw, len(x))
+    ).reshape(-1, K)
     vis = ~base.backend.occluded(a, b).reshape(-1, K)
     V = np.where(kern.sum(1) > 0, (kern * vis).sum(1) / np.maximum(kern.sum(1), 1e-300), 1.0)
     exact = rho[:, off] * F * V
 
     def rms(v):
         return np.sqrt(np.average(((v[:, off] - exact) ** 2).sum(0), weights=w[off]))
+
     print("first bounce rms AUTO %.4g FE %.4g" % (rms(got_auto), rms(got_fe)))
     assert rms(got_auto) < 0.5 * rms(got_fe), (rms(got_auto), rms(got_fe))
     fe_pts, ar = fe.evaluate(pts, ids), DynamicRadiosity(base.copy(), method="AR")
@@ -295,14 +311,14 @@ def test_shape_spanning_two_objects_in_one_plane():
         rec = dyn.shapes["x"]
         assert len(set(sysm.patches.object_id[rec.roots])) == 2 and rep.covered == pytest.approx(1.0)
         np.testing.assert_allclose(leaf_power(dyn), rec.area * sh.emission, rtol=1e-9)
-        assert dyn.B[:, np.flatnonzero(sysm.patches.object_id == 2)].min() > 0      # the ceiling is lit
+        assert dyn.B[:, np.flatnonzero(sysm.patches.object_id == 2)].min() > 0  # the ceiling is lit
 
 
 def test_shape_off_every_surface_uses_naive(base, samples):
     pts, ids, _ = samples
     dyn = DynamicRadiosity(base.copy(), method="AR")
     dyn.add("w", WINDOW)
-    floating = (np.array([0.2, 0.2, 0.3]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))   # mid-air, facing up
+    floating = (np.array([0.2, 0.2, 0.3]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))  # mid-air, facing up
     rep = dyn.add("f", shape(S.rect(0.1, 0.1, (0.05, 0.05)), floating, (5.0, 5.0, 5.0), "lamp"))
     assert rep.method == "NAIVE" and dyn.naive_active
     assert any("'lamp' lies on no surface: handled by NAIVE" in m for m in rep.messages)
@@ -312,17 +328,19 @@ def test_shape_off_every_surface_uses_naive(base, samples):
     np.testing.assert_allclose(dyn.radiance_at(pts[ceiling], ids[ceiling], smooth=False), lit)
     dyn.remove("f")
     assert not dyn.naive_active
-    assert lit.mean() > 1.1 * dyn.evaluate(pts[ceiling], ids[ceiling])[0].mean()   # the lamp lit the ceiling
+    assert lit.mean() > 1.1 * dyn.evaluate(pts[ceiling], ids[ceiling])[0].mean()  # the lamp lit the ceiling
 
 
 def test_partly_off_surface_is_reported(base):
     dyn = DynamicRadiosity(base.copy(), method="FE")
-    rep = dyn.add("x", shape(S.rect(0.2, 0.2, (0.0, 0.3)), GREEN, name="edge"))   # half beyond the wall
+    rep = dyn.add("x", shape(S.rect(0.2, 0.2, (0.0, 0.3)), GREEN, name="edge"))  # half beyond the wall
     assert rep.covered == pytest.approx(0.5, rel=1e-6) and any("50.0%" in m for m in rep.messages)
 
 
-@pytest.mark.parametrize("bad, what", [
-    ("nan", "NaN or infinite"), ("emission", "not finite"), ("bent", "not planar"), ("flat", "zero area")])
+@pytest.mark.parametrize(
+    "bad, what",
+    [("nan", "NaN or infinite"), ("emission", "not finite"), ("bent", "not planar"), ("flat", "zero area")],
+)
 def test_bad_shape_errors_name_the_shape(base, bad, what):
     dyn = DynamicRadiosity(base.copy(), method="FE")
     rings = [r.copy() for r in WINDOW.rings]
@@ -337,7 +355,7 @@ def test_bad_shape_errors_name_the_shape(base, bad, what):
         rings[0][:] = rings[0][0]
     with pytest.raises(InputError, match=f"'broken'.*{what}|{what}.*'broken'"):
         dyn.apply({"ok": WINDOW, "b": LightShape(rings, em, "broken")})
-    assert not dyn.shapes    # nothing applied
+    assert not dyn.shapes  # nothing applied
 
 
 # -- frames ------------------------------------------------------------------------------------------------
@@ -365,8 +383,9 @@ def test_loop_radiance_plan_follows_the_hierarchy(base):
     for shapes in ({}, {"w": WINDOW}, {"w": WINDOW, "s": STAR}, {"s": STAR}, {}):
         dyn.apply(shapes)
         for domain in ("CORNER", "CORNER", "POINT"):
-            np.testing.assert_array_equal(dyn.loop_radiance(domain),
-                                          loop_radiance(dyn.system.h, dyn.B, dyn.system.mesh, 30.0, domain))
+            np.testing.assert_array_equal(
+                dyn.loop_radiance(domain), loop_radiance(dyn.system.h, dyn.B, dyn.system.mesh, 30.0, domain)
+            )
 
 
 def _wall_rect(y0, y1, z0, z1):
@@ -385,36 +404,43 @@ def test_naive_method_matches_its_own_rebuild():
     sysm = RadiositySystem(room, COARSE)
     dyn = DynamicRadiosity(sysm.copy(), method="NAIVE")
     assert dyn.apply({"a": a, "b": b}).method == "NAIVE"
-    delta = dyn._naive.delta                           # NAIVE's offset: a parameter, not a result
+    delta = dyn._naive.delta  # NAIVE's offset: a parameter, not a result
     # the rebuild: each wall cell under a shape becomes a polygon of its own, lifted by delta
     verts = [room.verts]
-    polys = [list(room.loop_verts[s:s + n]) for s, n in zip(room.loop_start, room.loop_total)]
+    polys = [list(room.loop_verts[s : s + n]) for s, n in zip(room.loop_start, room.loop_total)]
     E = room.emission.copy()
     nv = len(room.verts)
     lifted = []
     for i, (s, n) in enumerate(zip(room.loop_start, room.loop_total)):
-        q = room.verts[room.loop_verts[s:s + n]]
+        q = room.verts[room.loop_verts[s : s + n]]
         c = q.mean(0)
-        under = [sh for sh in (a, b) if c[0] == 0
-                 and np.all((sh.rings[0].min(0)[1:] < c[1:]) & (c[1:] < sh.rings[0].max(0)[1:]))]
+        under = [
+            sh
+            for sh in (a, b)
+            if c[0] == 0 and np.all((sh.rings[0].min(0)[1:] < c[1:]) & (c[1:] < sh.rings[0].max(0)[1:]))
+        ]
         if under:
             verts.append(q + [delta, 0, 0])
             polys[i] = list(range(nv, nv + n))
             nv += n
             E[i] += sum(sh.emission for sh in under)
             lifted.append(i)
-    assert len(lifted) == 3                            # a alone, a + b, b alone
-    rebuilt = RadiositySystem(MeshInput.from_polygons(np.concatenate(verts), polys, room.reflectance, E,
-                                                      room.object_id, room.object_names), COARSE)
+    assert len(lifted) == 3  # a alone, a + b, b alone
+    rebuilt = RadiositySystem(
+        MeshInput.from_polygons(
+            np.concatenate(verts), polys, room.reflectance, E, room.object_id, room.object_names
+        ),
+        COARSE,
+    )
     rebuilt.solve()
     pts, ids, _ = surface_samples(sysm.patches, 1500)
     poly = sysm.patches.poly[ids]
     moved = pts + np.isin(poly, lifted)[:, None] * [delta, 0, 0]
-    k = np.searchsorted(rebuilt.patches.poly, poly)       # the same polygon's patch in the rebuild
+    k = np.searchsorted(rebuilt.patches.poly, poly)  # the same polygon's patch in the rebuild
     assert np.array_equal(rebuilt.patches.poly[k], poly)
     want = radiance_at(rebuilt.h, rebuilt.B, k, moved)
     got = dyn.radiance_at(pts, ids)
-    assert np.ptp(want, 0).min() > 1.0                  # light and shadow in every channel
+    assert np.ptp(want, 0).min() > 1.0  # light and shadow in every channel
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
     # emitted radiance where the points are: the shapes' where they lie, the room's elsewhere
     B, Em = dyn.evaluate(pts, ids)
@@ -434,10 +460,13 @@ def test_naive_overlay_power_matches_blender_cdt():
     the outlines that Blender's constrained Delaunay triangulation (mathutils) computes."""
     from mathutils import Vector
     from mathutils.geometry import delaunay_2d_cdt
+
     sysm = RadiositySystem(scenes.cornell_box(subdiv=2), COARSE)
-    outlines = {"star": (S.star(0.1, 0.04, 5, centre=(0.25, 0.3), angle=0.2), [2.0, 3.0, 6.0]),
-                "ellipse": (S.ellipse(0.12, 0.05, centre=(0.3, 0.25), angle=0.5), [5.0, 0.0, 1.0]),
-                "half off": (S.rect(0.2, 0.1, (0.55, 0.4), 0.3), [1.0, 1.0, 1.0])}
+    outlines = {
+        "star": (S.star(0.1, 0.04, 5, centre=(0.25, 0.3), angle=0.2), [2.0, 3.0, 6.0]),
+        "ellipse": (S.ellipse(0.12, 0.05, centre=(0.3, 0.25), angle=0.5), [5.0, 0.0, 1.0]),
+        "half off": (S.rect(0.2, 0.1, (0.55, 0.4), 0.3), [1.0, 1.0, 1.0]),
+    }
     dyn = DynamicRadiosity(sysm.copy(), method="NAIVE")
     dyn.apply({k: shape(o, BACK, em, k) for k, (o, em) in outlines.items()})
     pt, rebuilt = sysm.patches, dyn._naive.system.patches
@@ -448,25 +477,29 @@ def test_naive_overlay_power_matches_blender_cdt():
     mesh = sysm.mesh
     faces = []
     for s, n in zip(mesh.loop_start, mesh.loop_total):
-        q = mesh.verts[mesh.loop_verts[s:s + n]] - o
-        if np.abs(q @ np.cross(u, v)).max() < 1e-9:                 # on the back wall's plane
+        q = mesh.verts[mesh.loop_verts[s : s + n]] - o
+        if np.abs(q @ np.cross(u, v)).max() < 1e-9:  # on the back wall's plane
             q2 = np.column_stack([q @ u, q @ v])
             faces.append(q2 if _shoelace(q2) > 0 else q2[::-1])
     n_wall = len(faces)
     faces += [o2 for o2, _ in outlines.values()]
     start = np.cumsum([0] + [len(f) for f in faces])
-    verts, _, tris, _, _, orig = delaunay_2d_cdt([Vector(p) for f in faces for p in f], [],
-                                                 [list(range(a, b)) for a, b in zip(start[:-1], start[1:])],
-                                                 1, 1e-9)
+    verts, _, tris, _, _, orig = delaunay_2d_cdt(
+        [Vector(p) for f in faces for p in f],
+        [],
+        [list(range(a, b)) for a, b in zip(start[:-1], start[1:])],
+        1,
+        1e-9,
+    )
     verts = np.array([tuple(p) for p in verts])
     em = [np.array(e) for _, e in outlines.values()]
     want = np.zeros(3)
     for t, of in zip(tris, orig):
-        if min(of) < n_wall:                                        # on the wall
+        if min(of) < n_wall:  # on the wall
             over = [em[i - n_wall] for i in set(of) if i >= n_wall]
             want += abs(_shoelace(verts[list(t)])) * sum(over, np.zeros(3))
     assert n_wall == 4 and want.min() > 0.04
-    np.testing.assert_allclose(power, want, rtol=1e-6)              # mathutils works in float32
+    np.testing.assert_allclose(power, want, rtol=1e-6)  # mathutils works in float32
 
 
 def test_naive_splits_host_along_shape_outlines():
@@ -494,8 +527,12 @@ def test_naive_splits_host_along_shape_outlines():
         out = []
         for q in pts:
             c = pt.corners[cand]
-            ok = (c[:, :, 1].min(1) <= q[1] + 1e-9) & (c[:, :, 1].max(1) >= q[1] - 1e-9) & \
-                 (c[:, :, 2].min(1) <= q[2] + 1e-9) & (c[:, :, 2].max(1) >= q[2] - 1e-9)
+            ok = (
+                (c[:, :, 1].min(1) <= q[1] + 1e-9)
+                & (c[:, :, 1].max(1) >= q[1] - 1e-9)
+                & (c[:, :, 2].min(1) <= q[2] + 1e-9)
+                & (c[:, :, 2].max(1) >= q[2] - 1e-9)
+            )
             out.append(cand[np.argmax(ok)])
         return np.array(out)
 

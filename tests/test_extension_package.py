@@ -4,6 +4,7 @@ embreex wheels) and install the linux-x64 one into Blender (bpy module).
 The install runs in a subprocess with a throw-away user-resource directory (BLENDER_USER_RESOURCES)
 and HOME, so neither this test process's bpy state nor ~/.config/blender is touched.
 """
+
 import json
 import os
 import subprocess
@@ -24,8 +25,22 @@ EXT_ID = MANIFEST["id"]
 ADDON_MODULE = "bl_ext.user_default." + EXT_ID
 
 # Top-level entries that must never be shipped.
-FORBIDDEN_TOP = {"tests", "sample_blends", "benchmarks", "docs", "scripts", ".ci", ".venv", ".git",
-                 "dist", "build", ".pytest_cache", "requirements-dev.txt", "pytest.ini", ".gitignore"}
+FORBIDDEN_TOP = {
+    "tests",
+    "sample_blends",
+    "benchmarks",
+    "docs",
+    "scripts",
+    ".ci",
+    ".venv",
+    ".git",
+    "dist",
+    "build",
+    ".pytest_cache",
+    "requirements-dev.txt",
+    "pytest.ini",
+    ".gitignore",
+}
 
 
 PLATFORMS = ["linux-x64", "windows-x64", "macos-arm64", "macos-x64", "windows-arm64"]
@@ -37,15 +52,20 @@ def built_zips(tmp_path_factory):
     out = tmp_path_factory.mktemp("dist")
     proc = subprocess.run(
         [sys.executable, str(BUILD_SCRIPT), "--output-dir", str(out)],
-        cwd=REPO_ROOT, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=600,
+        cwd=REPO_ROOT,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    paths = [Path(ln) for ln in proc.stdout.strip().splitlines()[-len(PLATFORMS):]]
+    paths = [Path(ln) for ln in proc.stdout.strip().splitlines()[-len(PLATFORMS) :]]
     for p in paths:
         assert p.is_file(), proc.stdout
         assert p.parent == out
-    assert [p.name for p in paths] == ["{}-{}-{}.zip".format(EXT_ID, MANIFEST["version"], pl.replace("-", "_"))
-                                       for pl in PLATFORMS]
+    assert [p.name for p in paths] == [
+        "{}-{}-{}.zip".format(EXT_ID, MANIFEST["version"], pl.replace("-", "_")) for pl in PLATFORMS
+    ]
     return dict(zip(PLATFORMS, paths))
 
 
@@ -65,7 +85,7 @@ def test_manifest_fields():
 
 
 @pytest.mark.bpy
-@pytest.mark.slow      # the module builds the five zips once
+@pytest.mark.slow  # the module builds the five zips once
 def test_zip_layout(built_zip):
     with zipfile.ZipFile(built_zip) as zf:
         names = zf.namelist()
@@ -77,14 +97,17 @@ def test_zip_layout(built_zip):
     assert "hr_addon/core/__init__.py" in names
     assert "hr_addon/blender/__init__.py" in names
     assert "hr_addon/io/__init__.py" in names and "hr_addon/lightmap/__init__.py" in names
-    assert not [n for n in names if n.endswith(("/scenes.py", "/shapes.py"))]     # test scenes stay out
+    assert not [n for n in names if n.endswith(("/scenes.py", "/shapes.py"))]  # test scenes stay out
     assert not (tops & FORBIDDEN_TOP), sorted(tops & FORBIDDEN_TOP)
     assert tops <= {"blender_manifest.toml", "__init__.py", "LICENSE", "hr_addon", "wheels"}, sorted(tops)
     assert not [n for n in names if "__pycache__" in n or n.endswith((".pyc", ".pyo"))]
     assert not [n for n in names if any(p.startswith(".") for p in n.split("/"))]
     # Every .py under hr_addon/ in the source tree is shipped.
-    src = {p.relative_to(REPO_ROOT).as_posix() for p in (REPO_ROOT / "hr_addon").rglob("*.py")
-           if "__pycache__" not in p.parts}
+    src = {
+        p.relative_to(REPO_ROOT).as_posix()
+        for p in (REPO_ROOT / "hr_addon").rglob("*.py")
+        if "__pycache__" not in p.parts
+    }
     assert src <= set(names), sorted(src - set(names))
 
 
@@ -101,21 +124,27 @@ def test_manifest_wheels_cover_platforms_and_pythons():
     assert all(w.startswith("embreex-") for w in wheels), wheels
     assert not [w for w in MANIFEST["wheels"] if not w.startswith("./wheels/")]
     for plat_tag in ("manylinux", "win_amd64", "arm64", "x86_64"):
-        tags = {w.split("-")[2] for w in wheels if plat_tag in w and not (plat_tag == "x86_64" and "linux" in w)}
+        tags = {
+            w.split("-")[2] for w in wheels if plat_tag in w and not (plat_tag == "x86_64" and "linux" in w)
+        }
         assert tags == {"cp311", "cp313"}, (plat_tag, wheels)
     assert not [w for w in wheels if "numpy" in w], "numpy ships with Blender"
 
 
 @pytest.mark.bpy
-@pytest.mark.slow      # the module builds the five zips once
+@pytest.mark.slow  # the module builds the five zips once
 def test_each_platform_zip_has_only_its_wheels(built_zips):
-    expect = {"linux-x64": "manylinux", "windows-x64": "win_amd64", "macos-arm64": "macosx_13_0_arm64",
-              "macos-x64": "x86_64.whl"}
+    expect = {
+        "linux-x64": "manylinux",
+        "windows-x64": "win_amd64",
+        "macos-arm64": "macosx_13_0_arm64",
+        "macos-x64": "x86_64.whl",
+    }
     for platform, path in built_zips.items():
         names, generated = _zip_wheels(path)
         assert generated["platforms"] == [platform]
         assert [w.rsplit("/", 1)[-1] for w in generated["wheels"]] == [n.rsplit("/", 1)[-1] for n in names]
-        if platform == "windows-arm64":      # no embreex wheel exists: the numpy tracer is used
+        if platform == "windows-arm64":  # no embreex wheel exists: the numpy tracer is used
             assert names == [], names
             continue
         assert len(names) == 2 and all(expect[platform] in n for n in names), (platform, names)
@@ -123,7 +152,7 @@ def test_each_platform_zip_has_only_its_wheels(built_zips):
         print(f"{path.name}: {path.stat().st_size / 1e6:.1f} MB")
 
 
-INSTALL_SCRIPT = textwrap.dedent(r'''
+INSTALL_SCRIPT = textwrap.dedent(r"""
     import importlib, importlib.util, json, os, pkgutil, sys, traceback
     zip_path, ext_id = sys.argv[1], sys.argv[2]
     # The installed copy must be what gets imported, not the source tree.
@@ -159,32 +188,44 @@ INSTALL_SCRIPT = textwrap.dedent(r'''
     out["disable_result"] = sorted(res)
     out["enabled_after_disable"] = mod_name in bpy.context.preferences.addons
     print("RESULT:" + json.dumps(out))
-''')
+""")
 
 
 @pytest.mark.bpy
-@pytest.mark.slow      # the module builds the five zips once
+@pytest.mark.slow  # the module builds the five zips once
 def test_install_in_blender(built_zip, tmp_path):
     pytest.importorskip("bpy")  # only checks it is installed; the import happens in the subprocess
     home = tmp_path / "home"
     resources = tmp_path / "blender_user"
     home.mkdir()
     resources.mkdir()
-    env = {k: v for k, v in os.environ.items()
-           if not k.startswith("BLENDER_USER_") and k not in ("PYTHONPATH", "PYTHONHOME")}
-    env.update(HOME=str(home), BLENDER_USER_RESOURCES=str(resources),
-               XDG_CONFIG_HOME=str(home / ".config"), PYTHONDONTWRITEBYTECODE="1")
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith("BLENDER_USER_") and k not in ("PYTHONPATH", "PYTHONHOME")
+    }
+    env.update(
+        HOME=str(home),
+        BLENDER_USER_RESOURCES=str(resources),
+        XDG_CONFIG_HOME=str(home / ".config"),
+        PYTHONDONTWRITEBYTECODE="1",
+    )
     script = tmp_path / "install_check.py"
     script.write_text(INSTALL_SCRIPT)
     proc = subprocess.run(
         [sys.executable, str(script), str(built_zip), EXT_ID],
-        cwd=tmp_path, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=50,
+        cwd=tmp_path,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=50,
     )
     log = proc.stdout + proc.stderr
     assert proc.returncode == 0, log
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT:")]
     assert lines, log
-    out = json.loads(lines[-1][len("RESULT:"):])
+    out = json.loads(lines[-1][len("RESULT:") :])
 
     assert Path(out["user_extensions"]).resolve().is_relative_to(resources.resolve()), out
     assert out["install_result"] == ["FINISHED"], log

@@ -1,12 +1,18 @@
 """Form factors against the closed forms of tests/closed_forms.py."""
+
 import math
 
 import numpy as np
 import pytest
 
 import closed_forms as cf
-from hr_addon.core.formfactor import (estimate, patch_to_patch, point_to_polygon, polygon_normal_area,
-                                      sample_points)
+from hr_addon.core.formfactor import (
+    estimate,
+    patch_to_patch,
+    point_to_polygon,
+    polygon_normal_area,
+    sample_points,
+)
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -32,9 +38,14 @@ def fan(center, radius, n, facing_up=True):
 
 # ---------------------------------------------------------------------------------------------------
 def test_normal_area_quad_and_padded_triangle():
-    c = np.array([[[0, 0, 0], [2, 0, 0], [2, 3, 0], [0, 3, 0]],
-                  [[0, 0, 0], [0, 0, 1], [0, 1, 0], [0, 1, 0]],      # padded triangle in x=0, normal -x
-                  [[1, 1, 1], [1, 1, 1], [1, 1, 1], [1, 1, 1]]], float)
+    c = np.array(
+        [
+            [[0, 0, 0], [2, 0, 0], [2, 3, 0], [0, 3, 0]],
+            [[0, 0, 0], [0, 0, 1], [0, 1, 0], [0, 1, 0]],  # padded triangle in x=0, normal -x
+            [[1, 1, 1], [1, 1, 1], [1, 1, 1], [1, 1, 1]],
+        ],
+        float,
+    )
     n, a = polygon_normal_area(c, np.array([4, 3, 4]))
     np.testing.assert_allclose(a, [6.0, 0.5, 0.0])
     np.testing.assert_allclose(n, [[0, 0, 1], [-1, 0, 0], [0, 0, 0]], atol=1e-15)
@@ -53,16 +64,18 @@ def test_closed_forms_match_the_catalog_and_each_other():
 
 
 def test_reference_points():
-    sq = rect_xy(0, 1, 0, 1, 1.0, facing_up=False)                     # faces the origin
+    sq = rect_xy(0, 1, 0, 1, 1.0, facing_up=False)  # faces the origin
     for p in ([0, 0], [0.5, 0.5], [0.2, 0.7], [1.6, -0.3]):
         assert point_to_polygon([[*p, 0]], UP[None], sq)[0] == pytest.approx(
-            cf.point_to_parallel_rect(*p, 0, 1, 0, 1, 1.0), abs=1e-12)
+            cf.point_to_parallel_rect(*p, 0, 1, 0, 1, 1.0), abs=1e-12
+        )
     assert point_to_polygon([[0, 0, 0]], UP[None], rect_xy(0, 2, 0, 3, 1.5, False))[0] == pytest.approx(
-        cf.point_to_rect_corner(2, 3, 1.5), abs=1e-12)
+        cf.point_to_rect_corner(2, 3, 1.5), abs=1e-12
+    )
 
 
 def test_one_sided_and_padding():
-    sq = rect_xy(0, 1, 0, 1, 1.0, facing_up=True)                      # back faces the origin
+    sq = rect_xy(0, 1, 0, 1, 1.0, facing_up=True)  # back faces the origin
     assert point_to_polygon([[0.5, 0.5, 0]], UP[None], sq)[0] == 0.0
     # in the polygon's plane (also outside it): 0, no NaN
     sq = rect_xy(0, 1, 0, 1, 0.0, facing_up=False)
@@ -80,7 +93,7 @@ def test_coaxial_disc():
     """Differential area on the axis of a disc of radius R at height h: F = R^2 / (R^2 + h^2)."""
     corners, nv = fan([0, 0, 1.0], 1.5, 4096, facing_up=False)
     f = point_to_polygon(np.zeros(3), UP, corners, nv).sum()
-    assert f == pytest.approx(cf.point_to_coaxial_disc(1.5, 1.0), rel=1e-5)                   # inscribed 4096-gon: ~4e-7 off
+    assert f == pytest.approx(cf.point_to_coaxial_disc(1.5, 1.0), rel=1e-5)  # inscribed 4096-gon: ~4e-7 off
 
 
 @pytest.mark.parametrize("theta_deg", [30, 60, 90, 120, 150])
@@ -96,7 +109,7 @@ def test_horizon_clipping_half_plane(theta_deg):
 
 def test_clipped_equals_upper_part():
     """A polygon straddling the horizon gives the same F as its upper part computed separately."""
-    n = np.array([1.0, 0.0, 0.0])                                       # horizon: plane x = 0
+    n = np.array([1.0, 0.0, 0.0])  # horizon: plane x = 0
     whole = rect_xy(-0.7, 0.9, -0.5, 0.6, 1.0, facing_up=False)
     upper = rect_xy(0.0, 0.9, -0.5, 0.6, 1.0, facing_up=False)
     lower = rect_xy(-0.7, 0.0, -0.5, 0.6, 1.0, facing_up=False)
@@ -106,13 +119,14 @@ def test_clipped_equals_upper_part():
     # over a fine subdivision (pieces wholly above, wholly below, and a few straddling ones).
     n = np.array([0.3, 0.5, 0.2])
     n /= np.linalg.norm(n)
-    a, b, c = np.array([[0, 0, 2], [1.5, -1, 1], [-1, -1, 1]], float)   # faces the origin; b above, c below
+    a, b, c = np.array([[0, 0, 2], [1.5, -1, 1], [-1, -1, 1]], float)  # faces the origin; b above, c below
     k = 64
     u, v = np.meshgrid(np.arange(k + 1) / k, np.arange(k + 1) / k, indexing="ij")
     g = a + u[..., None] * (b - a) + v[..., None] * (c - a)
     subs = [[g[i, j], g[i + 1, j], g[i, j + 1], g[i, j + 1]] for i in range(k) for j in range(k - i)]
-    subs += [[g[i + 1, j], g[i + 1, j + 1], g[i, j + 1], g[i, j + 1]]
-             for i in range(k) for j in range(k - i - 1)]
+    subs += [
+        [g[i + 1, j], g[i + 1, j + 1], g[i, j + 1], g[i, j + 1]] for i in range(k) for j in range(k - i - 1)
+    ]
     subs = np.array(subs)
     f_parts = point_to_polygon(np.zeros(3), n, subs, np.full(len(subs), 3))
     assert (f_parts == 0).sum() > 100 and (f_parts > 0).sum() > 100
@@ -124,11 +138,11 @@ def test_range_and_no_nan():
     rng = np.random.default_rng(1)
     m = 20000
     corners = rng.normal(size=(m, 1, 3)) + rng.normal(size=(m, 4, 3)) * 0.3
-    corners[:, 3] = corners[:, 2]                                       # random triangles
+    corners[:, 3] = corners[:, 2]  # random triangles
     normals = rng.normal(size=(m, 3))
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     pts = np.zeros((m, 3))
-    pts[: m // 10] = corners[: m // 10, 0]                              # point on a vertex
+    pts[: m // 10] = corners[: m // 10, 0]  # point on a vertex
     f = point_to_polygon(pts, normals, corners, np.full(m, 3))
     assert np.all(np.isfinite(f)) and f.min() >= 0.0 and f.max() <= 1.0
     assert np.all(f[: m // 10] == 0.0)
@@ -137,30 +151,35 @@ def test_range_and_no_nan():
 
 # ---------------------------------------------------------------------------------------------------
 def test_sample_points():
-    quads = np.array([[[0, 0, 0], [2, 0, 0], [3, 1, 0], [1, 1, 0]]], float)    # parallelogram
+    quads = np.array([[[0, 0, 0], [2, 0, 0], [3, 1, 0], [1, 1, 0]]], float)  # parallelogram
     tri = np.array([[[0, 0, 0], [3, 0, 0], [0, 3, 0], [0, 3, 0]]], float)
     for k in (1, 2, 3, 5):
         pq = sample_points(quads, [4], k)[0]
         pt = sample_points(tri, [3], k)[0]
         assert pq.shape == pt.shape == (k * k, 3)
-        np.testing.assert_allclose(pq.mean(0), quads[0].mean(0), atol=1e-14)     # equal-area cells
+        np.testing.assert_allclose(pq.mean(0), quads[0].mean(0), atol=1e-14)  # equal-area cells
         np.testing.assert_allclose(pt.mean(0), tri[0, :3].mean(0), atol=1e-14)
         assert len(np.unique(np.round(pt, 12), axis=0)) == k * k
-        assert np.all(pt[:, 0] + pt[:, 1] < 3) and np.all(pt[:, :2] > 0)        # strictly inside
+        assert np.all(pt[:, 0] + pt[:, 1] < 3) and np.all(pt[:, :2] > 0)  # strictly inside
     # k = 2 triangle: three corner sub-triangles plus the central (inverted) one
-    np.testing.assert_allclose(np.sort(sample_points(tri, [3], 2)[0][:, :2], axis=0),
-                               [[0.5, 0.5], [0.5, 0.5], [1.0, 1.0], [2.0, 2.0]], atol=1e-14)
+    np.testing.assert_allclose(
+        np.sort(sample_points(tri, [3], 2)[0][:, :2], axis=0),
+        [[0.5, 0.5], [0.5, 0.5], [1.0, 1.0], [2.0, 2.0]],
+        atol=1e-14,
+    )
 
 
 def _unit_squares():
     floor = rect_xy(0, 1, 0, 1, 0.0, facing_up=True)
     ceiling = rect_xy(0, 1, 0, 1, 1.0, facing_up=False)
-    wall = quad((0, 0, 0), (0, 0, 1), (1, 0, 1), (1, 0, 0))             # plane y = 0, normal +y
+    wall = quad((0, 0, 0), (0, 0, 1), (1, 0, 1), (1, 0, 0))  # plane y = 0, normal +y
     return floor, ceiling, wall
 
 
-@pytest.mark.parametrize("n_samples, tol_opp, tol_perp", [(16, 0.01, 0.005), (36, 0.005, 0.002),
-                                                          (9, 0.02, 0.005), (4, 0.05, 0.011)])
+@pytest.mark.parametrize(
+    "n_samples, tol_opp, tol_perp",
+    [(16, 0.01, 0.005), (36, 0.005, 0.002), (9, 0.02, 0.005), (4, 0.05, 0.011)],
+)
 def test_patch_to_patch_unit_squares(n_samples, tol_opp, tol_perp):
     floor, ceiling, wall = _unit_squares()
     four = np.array([4])
@@ -171,25 +190,28 @@ def test_patch_to_patch_unit_squares(n_samples, tol_opp, tol_perp):
 
 def test_cube_closure_and_2x1():
     floor, ceiling, wall = _unit_squares()
-    walls = [wall,
-             quad((1, 0, 0), (1, 0, 1), (1, 1, 1), (1, 1, 0)),          # x = 1, normal -x
-             quad((1, 1, 0), (1, 1, 1), (0, 1, 1), (0, 1, 0)),          # y = 1, normal -y
-             quad((0, 1, 0), (0, 1, 1), (0, 0, 1), (0, 0, 0))]          # x = 0, normal +x
+    walls = [
+        wall,
+        quad((1, 0, 0), (1, 0, 1), (1, 1, 1), (1, 1, 0)),  # x = 1, normal -x
+        quad((1, 1, 0), (1, 1, 1), (0, 1, 1), (0, 1, 0)),  # y = 1, normal -y
+        quad((0, 1, 0), (0, 1, 1), (0, 0, 1), (0, 0, 0)),
+    ]  # x = 0, normal +x
     q = np.concatenate([ceiling] + walls)
     f = patch_to_patch(np.repeat(floor, 5, 0), np.full(5, 4), q, np.full(5, 4), 256)
     assert f.sum() == pytest.approx(1.0, abs=2e-4)
-    assert patch_to_patch(rect_xy(0, 2, 0, 1, 0, True), [4], rect_xy(0, 2, 0, 1, 1, False), [4], 64)[0] \
-        == pytest.approx(cf.opposed_rects(2, 1, 1), rel=5e-3)
+    assert patch_to_patch(rect_xy(0, 2, 0, 1, 0, True), [4], rect_xy(0, 2, 0, 1, 1, False), [4], 64)[
+        0
+    ] == pytest.approx(cf.opposed_rects(2, 1, 1), rel=5e-3)
 
 
 def test_reciprocity_unequal_rectangles_and_triangles():
     p = quad((0, 0, 0), (2, 0, 0), (2, 1, 0), (0, 1, 0))
-    q = quad((0.5, 1.5, 0.3), (0.5, 1.5, 1.0), (1.5, 2.0, 1.4), (1.5, 2.0, 0.7))   # tilted parallelogram
+    q = quad((0.5, 1.5, 0.3), (0.5, 1.5, 1.0), (1.5, 2.0, 1.4), (1.5, 2.0, 0.7))  # tilted parallelogram
     t = np.array([[[0.2, 0.3, 1.0], [0.0, 2.0, 1.5], [1.0, 0.5, 1.2], [1.0, 0.5, 1.2]]])  # tilted triangle
     four, three = np.array([4]), np.array([3])
     for (a, na), (b, nb) in [((p, four), (q, four)), ((p, four), (t, three))]:
         if polygon_normal_area(b, nb)[0][0] @ (a[0].mean(0) - b[0].mean(0)) < 0:
-            b = b[:, [0, 2, 1, 3]] if nb[0] == 3 else b[:, ::-1]          # make b face a
+            b = b[:, [0, 2, 1, 3]] if nb[0] == 3 else b[:, ::-1]  # make b face a
         aa, ab = polygon_normal_area(a, na)[1][0], polygon_normal_area(b, nb)[1][0]
         fab = patch_to_patch(a, na, b, nb, 256)[0]
         fba = patch_to_patch(b, nb, a, na, 256)[0]
@@ -199,12 +221,12 @@ def test_reciprocity_unequal_rectangles_and_triangles():
 
 def test_patch_to_patch_batch_matches_single():
     floor, ceiling, wall = _unit_squares()
-    tri = np.array([[[0, 0, 1], [0, 1, 1], [1, 0, 1], [1, 0, 1]]], float)          # faces down
+    tri = np.array([[[0, 0, 1], [0, 1, 1], [1, 0, 1], [1, 0, 1]]], float)  # faces down
     p = np.concatenate([floor, floor, floor])
     q = np.concatenate([ceiling, wall, tri])
     nvq = np.array([4, 4, 3])
     batch = patch_to_patch(p, np.full(3, 4), q, nvq, 16)
-    single = [patch_to_patch(floor, [4], q[i:i + 1], nvq[i:i + 1], 16)[0] for i in range(3)]
+    single = [patch_to_patch(floor, [4], q[i : i + 1], nvq[i : i + 1], 16)[0] for i in range(3)]
     np.testing.assert_allclose(batch, single, rtol=1e-14)
     with pytest.raises(ValueError):
         patch_to_patch(floor, [4], ceiling, [4], 8)
@@ -238,14 +260,14 @@ def test_estimate_conservative_cases():
     cq, nq, aq = _props(below, [4])
     assert estimate(cp, np_, ap, below, cq, nq, aq)[0] == 0.0
     # q's centre below p's horizon but a corner above: cos_p from the corner keeps it > 0
-    tilted = quad((1.2, 0, 0.4), (1.2, 1, 0.4), (2.0, 1, -0.8), (2.0, 0, -0.8))     # faces -x (towards p)
+    tilted = quad((1.2, 0, 0.4), (1.2, 1, 0.4), (2.0, 1, -0.8), (2.0, 0, -0.8))  # faces -x (towards p)
     cq, nq, aq = _props(tilted, [4])
     assert nq[0, 0] < 0 and cq[0, 2] < 0
     assert estimate(cp, np_, ap, tilted, cq, nq, aq)[0] > 0.0
-    assert patch_to_patch(floor, [4], tilted, [4], 64)[0] > 0.0                     # and it is real
+    assert patch_to_patch(floor, [4], tilted, [4], 64)[0] > 0.0  # and it is real
     # p's centre behind q's plane but p reaching in front of it: cos_q falls back
-    p2 = quad((0, 0, 0.3), (1, 0, 0.3), (1, 0, -0.5), (0, 0, -0.5))                # plane y = 0, normal +y
-    q2 = quad((-1, 1, 0), (2, 1, 0), (2, 3, 0), (-1, 3, 0))                         # z = 0 facing up
+    p2 = quad((0, 0, 0.3), (1, 0, 0.3), (1, 0, -0.5), (0, 0, -0.5))  # plane y = 0, normal +y
+    q2 = quad((-1, 1, 0), (2, 1, 0), (2, 3, 0), (-1, 3, 0))  # z = 0 facing up
     cp2, np2, ap2 = _props(p2, [4])
     cq2, nq2, aq2 = _props(q2, [4])
     assert (cp2 - cq2)[0] @ nq2[0] < 0

@@ -1,4 +1,5 @@
 """Shared geometry helpers (hr_addon/core/geometry.py): Newell normals and connected components."""
+
 import numpy as np
 
 from hr_addon.core.geometry import components, loop_tables, newell, polygon_newell
@@ -36,7 +37,7 @@ def test_newell_is_twice_the_area_along_the_normal():
     hexagon = np.column_stack([r * np.cos(t), r * np.sin(t), np.zeros(6)])
     rot = np.linalg.qr(np.random.default_rng(2).normal(size=(3, 3)))[0]
     rot *= np.sign(np.linalg.det(rot))
-    p = hexagon @ rot.T + [100.0, -50.0, 3.0]          # anywhere, any orientation
+    p = hexagon @ rot.T + [100.0, -50.0, 3.0]  # anywhere, any orientation
     n = newell(p)
     np.testing.assert_allclose(np.linalg.norm(n), 3 * np.sqrt(3) * r * r, rtol=1e-12)
     np.testing.assert_allclose(n / np.linalg.norm(n), rot[:, 2], atol=1e-12)

@@ -1,5 +1,6 @@
 """core.geometry: a given triangulation (MeshInput.tri_loops, e.g. Blender's loop_triangles) is
 used for the polygons that must be split; planar convex quads stay quads; bad input is refused."""
+
 import numpy as np
 import pytest
 
@@ -22,10 +23,10 @@ def _mesh(tri_loops=None):
 
 def test_given_triangulation_is_used_for_split_polygons():
     own = prepare_patches(_mesh())
-    assert _tris(own, 0) == [(0, 1, 3), (1, 2, 3)]          # the core's rule: the shorter diagonal
+    assert _tris(own, 0) == [(0, 1, 3), (1, 2, 3)]  # the core's rule: the shorter diagonal
     given = prepare_patches(_mesh(np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])))
     assert _tris(given, 0) == [(0, 1, 2), (0, 2, 3)]
-    assert list(given.nv[given.poly == 1]) == [4]           # a planar convex quad stays one patch
+    assert list(given.nv[given.poly == 1]) == [4]  # a planar convex quad stays one patch
     assert np.isclose(given.area[given.poly == 0].sum(), own.area[own.poly == 0].sum(), rtol=0.05)
 
 

@@ -1,5 +1,6 @@
 """Hostile inputs in the core (issue 10): a far-away object, self-intersecting light-shape outlines,
 a light shape half off its wall under NAIVE, non-planar n-gons. No bpy."""
+
 import dataclasses
 import inspect
 
@@ -78,11 +79,13 @@ def test_far_object_gives_the_room_the_same_light(method):
     out = []
     for mesh in (room, both):
         ratio = isolated_objects(mesh).area_ratio
-        params = dataclasses.replace(RefineParams.preset("draft"), aeps=RefineParams.preset("draft").aeps * ratio)
+        params = dataclasses.replace(
+            RefineParams.preset("draft"), aeps=RefineParams.preset("draft").aeps * ratio
+        )
         dyn = DynamicRadiosity(RadiositySystem(mesh, params), method=method, min_area_rel=default_min * ratio)
         rep = dyn.apply({"w": sh})
         assert not any("no surface" in m for m in rep.messages), rep.messages
-        L = dyn.loop_radiance()[:len(room.loop_verts)]
+        L = dyn.loop_radiance()[: len(room.loop_verts)]
         oid = room.object_id[np.repeat(np.arange(len(room.loop_start)), room.loop_total)]
         out.append(np.array([L[oid == k].mean(0) for k in range(len(room.object_names))]))
     assert out[0].min() > 0
@@ -105,8 +108,9 @@ def test_far_object_does_not_move_the_on_surface_tolerance(base):
 
 
 # -- self-intersecting outlines ------------------------------------------------------------------------
-PENTAGRAM = np.column_stack([0.1 * np.cos(np.deg2rad(90 + 144 * np.arange(5))),
-                             0.1 * np.sin(np.deg2rad(90 + 144 * np.arange(5)))]) + [0.28, 0.3]
+PENTAGRAM = np.column_stack(
+    [0.1 * np.cos(np.deg2rad(90 + 144 * np.arange(5))), 0.1 * np.sin(np.deg2rad(90 + 144 * np.arange(5)))]
+) + [0.28, 0.3]
 BOWTIE = np.array([(0.2, 0.2), (0.3, 0.3), (0.3, 0.2), (0.2, 0.3)])
 
 
@@ -130,12 +134,21 @@ def test_self_intersecting_outline_is_refused_by_every_method(base, method, name
     np.testing.assert_allclose(shape_power(dyn), area, rtol=1e-6)
 
 
-@pytest.mark.parametrize("rings, what", [
-    ([S.rect(0.3, 0.3, (0.3, 0.3)), S.rect(0.1, 0.1, (0.6, 0.6))], "hole 1 lies outside its outline"),
-    ([S.rect(0.3, 0.3, (0.3, 0.3)), S.rect(0.1, 0.1, (0.42, 0.3))], "hole 1 crosses its outline"),
-    ([S.rect(0.3, 0.3, (0.3, 0.3)), S.rect(0.1, 0.1, (0.3, 0.3)), S.rect(0.1, 0.1, (0.33, 0.32))], "holes 1 and 2 cross"),
-    ([S.rect(0.3, 0.3, (0.3, 0.3)), S.rect(0.1, 0.1, (0.3, 0.3)), S.rect(0.04, 0.04, (0.3, 0.3))], "holes 1 and 2 overlap"),
-])
+@pytest.mark.parametrize(
+    "rings, what",
+    [
+        ([S.rect(0.3, 0.3, (0.3, 0.3)), S.rect(0.1, 0.1, (0.6, 0.6))], "hole 1 lies outside its outline"),
+        ([S.rect(0.3, 0.3, (0.3, 0.3)), S.rect(0.1, 0.1, (0.42, 0.3))], "hole 1 crosses its outline"),
+        (
+            [S.rect(0.3, 0.3, (0.3, 0.3)), S.rect(0.1, 0.1, (0.3, 0.3)), S.rect(0.1, 0.1, (0.33, 0.32))],
+            "holes 1 and 2 cross",
+        ),
+        (
+            [S.rect(0.3, 0.3, (0.3, 0.3)), S.rect(0.1, 0.1, (0.3, 0.3)), S.rect(0.04, 0.04, (0.3, 0.3))],
+            "holes 1 and 2 overlap",
+        ),
+    ],
+)
 def test_bad_holes_are_refused(base, rings, what):
     dyn = DynamicRadiosity(base.copy(), method="FE")
     with pytest.raises(InputError, match=f"'holes': {what}"):
@@ -145,7 +158,7 @@ def test_bad_holes_are_refused(base, rings, what):
 def test_outline_check_accepts_the_shapes_blender_makes():
     assert outline_problem(S.window(0.2, 0.16, 0.02, centre=(0.3, 0.3), angle=0.3, shear=0.3)) == ""
     assert outline_problem([S.ellipse(0.12, 0.05, n=256)]) == ""
-    assert outline_problem([S.cross(0.3, 0.2, 0.05)[::-1]]) == ""   # either winding
+    assert outline_problem([S.cross(0.3, 0.2, 0.05)[::-1]]) == ""  # either winding
     # touching itself at a corner with both parts wound the same way is one region: accepted;
     # wound opposite ways (a bowtie pinched at a corner) it is not
     same = np.array([(0, 0), (1, 0), (1, 1), (2, 1), (2, 2), (1, 2), (1, 1), (0, 1)], float)
@@ -159,12 +172,17 @@ def test_outline_check_accepts_the_shapes_blender_makes():
 def test_shape_half_off_its_wall_emits_the_same_power_in_every_method(base, centre):
     """Half of the shape hangs off the green wall: AR, FE and AUTO emit 50% (as the message says);
     NAIVE emitted 100%, sending the rest out of the room."""
-    sh = LightShape(S.on_plane(S.rect(0.2, 0.2, centre), S.CORNELL_GREEN_WALL), np.array([1.0, 2.0, 3.0]), "edge")
+    sh = LightShape(
+        S.on_plane(S.rect(0.2, 0.2, centre), S.CORNELL_GREEN_WALL), np.array([1.0, 2.0, 3.0]), "edge"
+    )
     power = {}
     for method in METHODS:
         dyn = DynamicRadiosity(base.copy(), method=method)
         rep = dyn.apply({"x": sh})
-        assert any("only 50.0% of its area lies on surfaces" in m for m in rep.messages), (method, rep.messages)
+        assert any("only 50.0% of its area lies on surfaces" in m for m in rep.messages), (
+            method,
+            rep.messages,
+        )
         power[method] = shape_power(dyn)
     for method in METHODS:
         np.testing.assert_allclose(power[method], 0.02 * sh.emission, rtol=1e-6, err_msg=method)
@@ -181,10 +199,19 @@ def test_strongly_non_planar_polygons_are_reported_by_object():
     a word; a slightly twisted quad (0.5%, below the 1% threshold) is still split silently."""
     hexagon = [(np.cos(a), np.sin(a), 0.0) for a in np.arange(6) * np.pi / 3]
     hexagon[2] = (hexagon[2][0], hexagon[2][1], 0.6)
-    v = np.array(hexagon + [(3, 0, 0), (5, 0, 0), (5, 2, 0.02), (3, 2, 0)]
-                 + [(6, 0, 0), (8, 0, 0), (8, 2, 0.8), (6, 2, 0)], float)
-    mesh = MeshInput.from_polygons(v, [list(range(6)), [6, 7, 8, 9], [10, 11, 12, 13]], 0.5,
-                                   object_id=[0, 1, 2], object_names=["lamp", "wall", "sail"])
+    v = np.array(
+        hexagon
+        + [(3, 0, 0), (5, 0, 0), (5, 2, 0.02), (3, 2, 0)]
+        + [(6, 0, 0), (8, 0, 0), (8, 2, 0.8), (6, 2, 0)],
+        float,
+    )
+    mesh = MeshInput.from_polygons(
+        v,
+        [list(range(6)), [6, 7, 8, 9], [10, 11, 12, 13]],
+        0.5,
+        object_id=[0, 1, 2],
+        object_names=["lamp", "wall", "sail"],
+    )
     p = prepare_patches(mesh)
     assert len(p.warnings) == 1
     w = p.warnings[0]
@@ -194,8 +221,10 @@ def test_strongly_non_planar_polygons_are_reported_by_object():
 
 def test_degenerate_polygons_are_reported_by_object():
     v = np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (3, 0, 0), (4, 0, 0)], float)
-    mesh = MeshInput.from_polygons(v, [[0, 1, 2, 3], [4, 5, 6], [4, 6, 5]], 0.5, object_id=[0, 1, 1],
-                                   object_names=["floor", "sliver"])
+    mesh = MeshInput.from_polygons(
+        v, [[0, 1, 2, 3], [4, 5, 6], [4, 6, 5]], 0.5, object_id=[0, 1, 1], object_names=["floor", "sliver"]
+    )
     p = prepare_patches(mesh)
     assert p.dropped == 2 and p.warnings == [
-        "Dropped 2 degenerate polygon(s) (zero area or fewer than 3 vertices): 2 in 'sliver'."]
+        "Dropped 2 degenerate polygon(s) (zero area or fewer than 3 vertices): 2 in 'sliver'."
+    ]

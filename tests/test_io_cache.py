@@ -1,4 +1,5 @@
 """The on-disk bake cache (hr_addon/io/cache.py, no bpy)."""
+
 import json
 import os
 
@@ -36,7 +37,7 @@ def test_write_read_roundtrip(tmp_path):
     a = r.load(2)["a"]
     assert a.shape == (3, 4) and a.dtype == np.float32
     assert np.all(a[:, :3] == 2) and np.all(a[:, 3] == 1)
-    assert np.all(r.load(5)["b"][:, :3] == 3)          # frames 4, 5 reuse frame 3's file
+    assert np.all(r.load(5)["b"][:, :3] == 3)  # frames 4, 5 reuse frame 3's file
     assert r.frames[5] == r.frames[3]
     assert len(list(d.glob("*.npz"))) == 3
     # Outside the baked range: held / clamped.
@@ -71,8 +72,8 @@ def test_split_bakes_merge(tmp_path):
 
 def test_rebake_subrange_keeps_shared_files_consistent(tmp_path):
     d = tmp_path / "s"
-    _bake(d, range(1, 11), lambda f: 1, reuse_after=1)     # every frame points at frame_000001
-    _bake(d, range(1, 4), lambda f: 7)                      # re-bake 1-3 with other values
+    _bake(d, range(1, 11), lambda f: 1, reuse_after=1)  # every frame points at frame_000001
+    _bake(d, range(1, 4), lambda f: 7)  # re-bake 1-3 with other values
     r = CacheReader(d)
     assert [r.load(f)["a"][0, 0] for f in range(1, 11)] == [7] * 3 + [1] * 7
 
@@ -115,6 +116,6 @@ def test_missing_and_corrupt(tmp_path):
 def test_recover_after_interrupted_swap(tmp_path):
     d = tmp_path / "s"
     _bake(d, [1], lambda f: 3)
-    os.replace(d, tmp_path / ".s.old-1-2")      # crash between the two renames of commit()
+    os.replace(d, tmp_path / ".s.old-1-2")  # crash between the two renames of commit()
     assert recover(d)
     assert np.all(CacheReader(d).load(1)["a"][:, :3] == 3)

@@ -1,5 +1,6 @@
 """Lightmaps without Blender (hr_addon/lightmap, core/texels.py, io/images.py structure checks):
 per-leaf evaluation, UV charts and packing, rasterisation, dilation, the image sequence of a plan."""
+
 from types import SimpleNamespace
 
 import numpy as np
@@ -54,7 +55,7 @@ def _surface_points(pt, n, seed=0):
     r = rng.random((n, 2))
     r[r.sum(1) > 1] = 1 - r[r.sum(1) > 1]
     p = c[:, 0] + r[:, :1] * (c[:, 1] - c[:, 0]) + r[:, 1:] * (c[:, 2] - c[:, 0])
-    p[::7] = c[::7, 0]                                        # corners and edges too
+    p[::7] = c[::7, 0]  # corners and edges too
     p[1::7] = 0.5 * (c[1::7, 1] + c[1::7, 2])
     return k, p
 
@@ -69,8 +70,9 @@ def test_per_leaf_evaluation_equals_radiance_at(cornell):
     loc = TexelLocator(k, p, first[1][np.searchsorted(first[0], k)])
     for _ in range(2):
         np.testing.assert_array_equal(loc.leaves(h), locate(h, k, p))
-    np.testing.assert_allclose(radiance_per_leaf(h, B, k, p, locator=loc), radiance_at(h, B, k, p),
-                               rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(
+        radiance_per_leaf(h, B, k, p, locator=loc), radiance_at(h, B, k, p), rtol=1e-6, atol=1e-9
+    )
 
 
 def test_packed_sphere_islands_do_not_overlap():
@@ -79,10 +81,10 @@ def test_packed_sphere_islands_do_not_overlap():
     uv = pack_lightmap(sph.verts, sph.loop_start, sph.loop_total, sph.loop_verts, res)
     assert uv.min() >= 0 and uv.max() <= 1
     chart, _ = find_charts(sph.verts, sph.loop_start, sph.loop_total, sph.loop_verts)
-    assert len(np.unique(chart)) == len(sph.loop_start)          # curved: one chart per polygon
+    assert len(np.unique(chart)) == len(sph.loop_start)  # curved: one chart per polygon
     hits = np.zeros(res * 4 * res * 4, int)
     for s, n in zip(sph.loop_start, sph.loop_total):
-        x, y, _, _ = texels_in_polygon(uv[s:s + n], 4 * res)
+        x, y, _, _ = texels_in_polygon(uv[s : s + n], 4 * res)
         hits[y * 4 * res + x] += 1
     assert hits.max() == 1
     with pytest.raises(TextureError, match="do not fit"):
@@ -90,7 +92,7 @@ def test_packed_sphere_islands_do_not_overlap():
 
 
 def test_flat_grid_is_one_chart_at_one_texel_density():
-    n = 5                                   # a 2 m x 1 m wall of n x n quads, tilted
+    n = 5  # a 2 m x 1 m wall of n x n quads, tilted
     u, v = np.meshgrid(np.linspace(0, 2, n + 1), np.linspace(0, 1, n + 1))
     rot = np.array([[1.0, 0, 0], [0, np.cos(0.4), -np.sin(0.4)], [0, np.sin(0.4), np.cos(0.4)]])
     verts = np.column_stack([u.ravel(), v.ravel(), np.zeros(u.size)]) @ rot.T
@@ -115,7 +117,7 @@ def test_rasterise_matches_brute_force_texel_centres():
     res = 32
     tri = rng.random((40, 3, 2)) * 0.3 + rng.random((40, 1, 2)) * 0.7
     texel, which, bary, inside = rasterise(tri, res, ring=0)
-    assert len(np.unique(texel)) == len(texel)                     # each texel once
+    assert len(np.unique(texel)) == len(texel)  # each texel once
     centre = np.stack([texel % res, texel // res], 1) + 0.5
     np.testing.assert_allclose(np.einsum("nk,nkj->nj", bary, tri[which] * res), centre, atol=1e-9)
     want = set()
@@ -123,7 +125,7 @@ def test_rasterise_matches_brute_force_texel_centres():
         x, y, _, _ = texels_in_polygon(t, res)
         want |= set((y * res + x).tolist())
     got = set(texel[inside].tolist())
-    assert want <= got and len(got - want) <= 0.02 * len(got)     # centres on an edge may go either way
+    assert want <= got and len(got - want) <= 0.02 * len(got)  # centres on an edge may go either way
     # ring texels: outside the triangles, at most RING texels from the nearest triangle point
     t2, w2, b2, in2 = rasterise(tri, res, ring=1.5)
     assert set(texel.tolist()) <= set(t2.tolist()) and (~in2).any()
@@ -141,7 +143,7 @@ def test_dilation_fills_neighbours_with_their_mean():
         img[dst] = np.bincount(inv, w * img[src], len(dst))
     img = img.reshape(res, res)
     assert img[2, 1] == 1.0 and img[2, 4] == 3.0 and img[1, 2] == 2.0 and img[3, 3] == 2.0
-    assert img[0].sum() == 0 and img[:, 0].sum() == 0                # one step: one ring
+    assert img[0].sum() == 0 and img[:, 0].sum() == 0  # one step: one ring
 
 
 def test_image_structure_check(tmp_path):
@@ -152,7 +154,7 @@ def test_image_structure_check(tmp_path):
         f.write_bytes(data)
         assert image_file_problem(f, 16) == ""
         assert image_file_problem(f, 32) == "is 16 x 16 texels, not 32 x 32"
-        f.write_bytes(data[:len(data) - 20])
+        f.write_bytes(data[: len(data) - 20])
         assert image_file_problem(f, 16) in ("truncated", "truncated or not an image of a bake"), name
         f.write_bytes(b"hello world, not an image")
         assert image_file_problem(f, 16).startswith("not a")
@@ -168,13 +170,14 @@ def test_plan_texels_lie_on_their_patches_and_fill_the_sequence(tmp_path, cornel
     polys = np.flatnonzero(mesh.object_id == oid)
     p0 = int(polys[0])
     ls, lt = mesh.loop_start[polys] - mesh.loop_start[p0], mesh.loop_total[polys]
-    lv_g = np.concatenate([mesh.loop_verts[s:s + n] for s, n in zip(mesh.loop_start[polys], lt)])
+    lv_g = np.concatenate([mesh.loop_verts[s : s + n] for s, n in zip(mesh.loop_start[polys], lt)])
     v0 = int(lv_g.min())
     q = mesh.verts[lv_g]
-    e1, e2 = q[1] - q[0], q[3] - q[0]                       # the wall's two edge directions
+    e1, e2 = q[1] - q[0], q[3] - q[0]  # the wall's two edge directions
     uv = np.column_stack([(q - q[0]) @ e1 / (e1 @ e1), (q - q[0]) @ e2 / (e2 @ e2)]) * 0.9 + 0.05
-    tri_uv, corners, tri_patch, skipped = triangle_uvs(pt, oid, uv, ls, lt, lv_g - v0, p0, v0,
-                                                       len(mesh.verts) - v0)
+    tri_uv, corners, tri_patch, skipped = triangle_uvs(
+        pt, oid, uv, ls, lt, lv_g - v0, p0, v0, len(mesh.verts) - v0
+    )
     assert skipped == 0 and len(tri_uv) == 2 * (pt.object_id == oid).sum()
     plan = TexturePlan("exr")
     plan.add_object("back", "back", 16, tri_uv, corners, tri_patch, "uv")
@@ -183,8 +186,12 @@ def test_plan_texels_lie_on_their_patches_and_fill_the_sequence(tmp_path, cornel
     assert len(loc.points) > 150 and np.abs(d).max() < 1e-12
     want = radiance_at(cornell.h, cornell.B, loc.patch, loc.points)
     np.testing.assert_allclose(plan.radiance(None, cornell), want, rtol=1e-5, atol=1e-6)
-    w = CacheWriter(tmp_path / "cache", plan.objects_info([SimpleNamespace(name="back", mesh_name="m")]),
-                    "TEXTURE", plan.signature("s"))
+    w = CacheWriter(
+        tmp_path / "cache",
+        plan.objects_info([SimpleNamespace(name="back", mesh_name="m")]),
+        "TEXTURE",
+        plan.signature("s"),
+    )
     plan.bind(w.tmp)
     values = plan.radiance(None, cornell)
     for f in (2, 4):

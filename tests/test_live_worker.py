@@ -3,6 +3,7 @@ calling thread, light states computed in order, edits coalesced, superseded buil
 
 The worker thread is held at a known point with threading.Event (never with sleeps or timings),
 so what is asserted does not depend on the machine's speed."""
+
 import threading
 
 import numpy as np
@@ -19,8 +20,11 @@ COARSE = RefineParams(feps=0.1, aeps=4e-3, shadow_feps=0.02, veps=0.02)
 
 
 def _shape(x, em=(8.0, 7.0, 5.0)):
-    return {"w": LightShape(S.on_plane(S.rect(0.1, 0.08, centre=(x, 0.3)), S.CORNELL_GREEN_WALL),
-                            np.array(em, float), "w")}
+    return {
+        "w": LightShape(
+            S.on_plane(S.rect(0.1, 0.08, centre=(x, 0.3)), S.CORNELL_GREEN_WALL), np.array(em, float), "w"
+        )
+    }
 
 
 def _spec(mesh):
@@ -35,8 +39,13 @@ def mesh():
 def _reference(mesh, shapes):
     """What a DynamicRadiosity with Live's settings computes (tests/test_events.py and
     tests/test_blender_live.py compare those with the batch settings and a bake)."""
-    dyn = DynamicRadiosity(RadiositySystem(mesh, COARSE), method="FE", min_area_rel=1e-5,
-                           response_tol=RESPONSE_TOL, response_float32=True)
+    dyn = DynamicRadiosity(
+        RadiositySystem(mesh, COARSE),
+        method="FE",
+        min_area_rel=1e-5,
+        response_tol=RESPONSE_TOL,
+        response_float32=True,
+    )
     dyn.apply(shapes)
     return dyn.loop_radiance("CORNER")
 
@@ -66,17 +75,17 @@ def _hold(worker):
 def test_unthreaded_worker_computes_on_flush(mesh):
     w = LiveWorker(threaded=False)
     w.request_build(_spec(mesh), 1, "a", _shape(0.2))
-    assert w.pending and w.take() == (None, None)       # nothing happens before flush()
+    assert w.pending and w.take() == (None, None)  # nothing happens before flush()
     assert w.flush()
     b, r = w.take()
     assert b is not None and not b.error and r is not None and r.serial == 1 and r.sig == "a"
     np.testing.assert_array_equal(r.values["all"][:, :3], _reference(mesh, _shape(0.2)))
-    assert (r.values["all"][:, 3] == 1).all()            # RGBA, alpha 1
+    assert (r.values["all"][:, 3] == 1).all()  # RGBA, alpha 1
     w.request(2, "b", _shape(0.3))
     w.flush()
     _, r = w.take()
     _assert_close(r.values["all"][:, :3], _reference(mesh, _shape(0.3)))
-    assert [e.kind for e in r.report.events] == ["reshape"]      # a move: remove + add
+    assert [e.kind for e in r.report.events] == ["reshape"]  # a move: remove + add
     assert w.computed == 2 and w.builds == 1
 
 
@@ -89,10 +98,10 @@ def test_edits_during_a_computation_are_coalesced(mesh):
         assert first.serial == 1 and w.computed == 1
         entered, release = _hold(w)
         w.request(2, "s2", _shape(0.2))
-        assert entered.wait(60)                          # the worker computes state 2 ...
-        for i, x in enumerate((0.25, 0.3, 0.35, 0.4)):   # ... while four more edits arrive
+        assert entered.wait(60)  # the worker computes state 2 ...
+        for i, x in enumerate((0.25, 0.3, 0.35, 0.4)):  # ... while four more edits arrive
             w.request(3 + i, f"s{3 + i}", _shape(x))
-        assert w.take() == (None, None)                  # nothing new yet: the old result stays shown
+        assert w.take() == (None, None)  # nothing new yet: the old result stays shown
         release.set()
         assert w.flush(timeout=600)
         _, r = w.take()
@@ -112,14 +121,16 @@ def test_results_of_a_replaced_hierarchy_are_dropped(mesh):
         entered, release = _hold(w)
         w.request(2, "b", _shape(0.3))
         assert entered.wait(60)
-        other = scenes.cornell_box(light=False)           # the geometry changed meanwhile
+        other = scenes.cornell_box(light=False)  # the geometry changed meanwhile
         w.request_build(_spec(other), 3, "c", _shape(0.3))
         release.set()
         assert w.flush(timeout=600)
         b, r = w.take()
         assert b is not None and w.builds == 2
-        assert r.serial == 3 and r.generation == w.generation     # state 2 (old hierarchy) was dropped
-        np.testing.assert_allclose(r.values["all"][:, :3], _reference(other, _shape(0.3)), rtol=1e-5, atol=1e-7)
+        assert r.serial == 3 and r.generation == w.generation  # state 2 (old hierarchy) was dropped
+        np.testing.assert_allclose(
+            r.values["all"][:, :3], _reference(other, _shape(0.3)), rtol=1e-5, atol=1e-7
+        )
     finally:
         w.close()
 
@@ -134,7 +145,7 @@ def test_invalid_shape_is_reported_and_state_kept(mesh):
     w.flush()
     _, r = w.take()
     assert r.values is None and "Bowtie" in r.error and "crosses itself" in r.error
-    w.request(3, "a", _shape(0.2))            # back to the valid state: same light as before
+    w.request(3, "a", _shape(0.2))  # back to the valid state: same light as before
     w.flush()
     _, r = w.take()
     np.testing.assert_allclose(r.values["all"], good.values["all"], rtol=1e-6, atol=1e-8)

@@ -10,6 +10,7 @@ one the extension installed, and the test first checks that embreex is not impor
 
 HR_EXTENSION_ZIP: a built linux-x64 zip to install (default: built here).
 """
+
 import json
 import os
 import subprocess
@@ -20,8 +21,11 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
-pytestmark = [pytest.mark.bpy, pytest.mark.slow,
-              pytest.mark.skipif(not sys.platform.startswith("linux"), reason="installs the linux-x64 zip")]
+pytestmark = [
+    pytest.mark.bpy,
+    pytest.mark.slow,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="installs the linux-x64 zip"),
+]
 
 
 @pytest.fixture(scope="module")
@@ -31,13 +35,19 @@ def linux_zip(tmp_path_factory):
     if given:
         return Path(given)
     out = tmp_path_factory.mktemp("dist")
-    proc = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "build_extension.py"), "--output-dir", str(out)],
-                          cwd=REPO_ROOT, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, str(REPO_ROOT / "scripts" / "build_extension.py"), "--output-dir", str(out)],
+        cwd=REPO_ROOT,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     return Path([ln for ln in proc.stdout.splitlines() if ln.endswith("-linux_x64.zip")][-1])
 
 
-PRELUDE = textwrap.dedent(r'''
+PRELUDE = textwrap.dedent(r"""
     import importlib, importlib.abc, importlib.machinery, importlib.util, json, os, sys, time
     zip_path, blend = sys.argv[1], sys.argv[2]
     RES = os.path.realpath(os.environ["BLENDER_USER_RESOURCES"])
@@ -87,9 +97,9 @@ PRELUDE = textwrap.dedent(r'''
         d = bpy.path.abspath(scene.hr.bake_dir)
         m = json.load(open(os.path.join(d, "manifest.json")))
         return m, np.load(os.path.join(d, m["frames"][str(frame)]))[name]
-''')
+""")
 
-BAKE_SCRIPT = PRELUDE + textwrap.dedent(r'''
+BAKE_SCRIPT = PRELUDE + textwrap.dedent(r"""
     out["bake"] = sorted(bpy.ops.hr.bake())          # the installed extension's operator (EXEC)
     m, _ = cache_values(1, "right_green")
     out["manifest_rays"] = m.get("rays")
@@ -106,9 +116,9 @@ BAKE_SCRIPT = PRELUDE + textwrap.dedent(r'''
                        "held": bool(np.array_equal(c9, c6)), "back": bool(np.array_equal(colours("right_green"), c1)),
                        "brighter": float(c6[:, :3].mean() - c1[:, :3].mean())}
     print("RESULT:" + json.dumps(out))
-''')
+""")
 
-BACKGROUND_SCRIPT = PRELUDE + textwrap.dedent(r'''
+BACKGROUND_SCRIPT = PRELUDE + textwrap.dedent(r"""
     background = importlib.import_module(MOD + ".hr_addon.blender.background")
     scene.frame_set(6)
     job = background.BackgroundBake(scene).start()
@@ -126,10 +136,10 @@ BACKGROUND_SCRIPT = PRELUDE + textwrap.dedent(r'''
         out["manifest_rays"] = m.get("rays")
         out["shows_frame_6"] = bool(np.array_equal(colours("right_green"), want6))
     print("RESULT:" + json.dumps(out))
-''')
+""")
 
 
-BINARY_SCRIPT = PRELUDE + textwrap.dedent(r'''
+BINARY_SCRIPT = PRELUDE + textwrap.dedent(r"""
     # The worker command used inside Blender (Blender's binary, -b --python-expr ... -- args),
     # with the bpy module standing in for the binary: the same expression (enable the installed
     # extension in a fresh process, run its hr_bake) and the same arguments.
@@ -154,34 +164,60 @@ BINARY_SCRIPT = PRELUDE + textwrap.dedent(r'''
         time.sleep(0.02)
     out["state"], out["error"], out["summary"], out["loaded"] = job.state, job.error, job.summary, job.loaded
     print("RESULT:" + json.dumps(out))
-''')
+""")
 
 
 def _run(script, zip_path, tmp_path):
     home, resources = tmp_path / "home", tmp_path / "blender_user"
     home.mkdir()
     resources.mkdir()
-    env = {k: v for k, v in os.environ.items()
-           if not k.startswith("BLENDER_USER_") and k not in ("PYTHONPATH", "PYTHONHOME")}
-    env.update(HOME=str(home), BLENDER_USER_RESOURCES=str(resources), XDG_CONFIG_HOME=str(home / ".config"),
-               PYTHONDONTWRITEBYTECODE="1")
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith("BLENDER_USER_") and k not in ("PYTHONPATH", "PYTHONHOME")
+    }
+    env.update(
+        HOME=str(home),
+        BLENDER_USER_RESOURCES=str(resources),
+        XDG_CONFIG_HOME=str(home / ".config"),
+        PYTHONDONTWRITEBYTECODE="1",
+    )
     # The sample is made by this Blender version (files saved by 5.0 do not open in 4.x).
     blend = tmp_path / "scene" / "cornell.blend"
-    proc = subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "make_samples.py"), "cornell",
-                           "--out", str(blend.parent)], cwd=tmp_path, env=env, stdin=subprocess.DEVNULL,
-                          capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(REPO_ROOT / "scripts" / "make_samples.py"),
+            "cornell",
+            "--out",
+            str(blend.parent),
+        ],
+        cwd=tmp_path,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert proc.returncode == 0 and blend.is_file(), proc.stdout + proc.stderr
     path = tmp_path / "check.py"
     path.write_text(script)
-    proc = subprocess.run([sys.executable, str(path), str(zip_path), str(blend)], cwd=tmp_path, env=env,
-                          stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(
+        [sys.executable, str(path), str(zip_path), str(blend)],
+        cwd=tmp_path,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     log = proc.stdout + proc.stderr
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT:")]
     assert proc.returncode == 0 and lines, log
-    out = json.loads(lines[-1][len("RESULT:"):])
+    out = json.loads(lines[-1][len("RESULT:") :])
     assert out["embreex_before"] is None, "embreex must not be importable before the install"
     assert out["install"] == ["FINISHED"] and out["enabled"], log
-    assert out["embreex_after"].startswith(os.path.realpath(resources)), out   # the extension's wheel
+    assert out["embreex_after"].startswith(os.path.realpath(resources)), out  # the extension's wheel
     print(f"bpy {out['bpy']}, embreex {out['embreex_version']} from the extension")
     return out, log
 
@@ -199,7 +235,7 @@ def test_installed_extension_bakes_with_bundled_embree(linux_zip, tmp_path):
 def test_installed_extension_background_bake(linux_zip, tmp_path):
     out, log = _run(BACKGROUND_SCRIPT, linux_zip, tmp_path)
     assert out["state"] == "done", (out, log)
-    assert out["worker"][1:3] == ["-m", "hr_addon"], out["worker"]   # the bpy module has no Blender binary
+    assert out["worker"][1:3] == ["-m", "hr_addon"], out["worker"]  # the bpy module has no Blender binary
     assert "rays: embree" in out["summary"] and out["manifest_rays"] == "embree", out
     assert {"build", "frame"} <= set(out["stages"]), out
     assert any(0 < f < 1 for f in out["fractions"]), out["fractions"]

@@ -5,6 +5,7 @@ ending exactly on surfaces, backends may disagree only on rays passing within ED
 of a triangle edge, and on at most 1e-3 of the rays. Rays built to pass exactly through an edge are a tie
 at float64 precision: there only the "near an edge" part of the rule is checked.
 """
+
 import importlib
 import sys
 
@@ -50,6 +51,7 @@ MAX_DISAGREE = 1e-3
 
 # ---------------------------------------------------------------------------------------------- scenes
 
+
 def quad(p, u, v):
     p, u, v = (np.asarray(x, float) for x in (p, u, v))
     return [[p, p + u, p + u + v], [p, p + u + v, p + v]]
@@ -58,14 +60,21 @@ def quad(p, u, v):
 def box(lo, hi):
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     ex, ey, ez = np.diag(hi - lo)
-    return (quad(lo, ey, ex) + quad(lo + ez, ex, ey) + quad(lo, ex, ez) + quad(lo + ey, ez, ex)
-            + quad(lo, ez, ey) + quad(lo + ex, ey, ez))
+    return (
+        quad(lo, ey, ex)
+        + quad(lo + ez, ex, ey)
+        + quad(lo, ex, ez)
+        + quad(lo + ey, ez, ex)
+        + quad(lo, ez, ey)
+        + quad(lo + ex, ey, ez)
+    )
 
 
 def cornell():
     """Closed unit box with two blocks standing on its floor (36 triangles)."""
-    return np.array(box([0, 0, 0], [1, 1, 1]) + box([0.2, 0.1, 0], [0.5, 0.4, 0.3])
-                    + box([0.6, 0.5, 0], [0.9, 0.8, 0.6]))
+    return np.array(
+        box([0, 0, 0], [1, 1, 1]) + box([0.2, 0.1, 0], [0.5, 0.4, 0.3]) + box([0.6, 0.5, 0], [0.9, 0.8, 0.6])
+    )
 
 
 def random_triangles(rng, n, size=0.25):
@@ -80,8 +89,16 @@ def scene(seed=0):
 
 def degenerate_triangles():
     p, q = np.array([0.3, 0.3, 0.3]), np.array([0.7, 0.6, 0.5])
-    return np.array([[p, p, p], [p, q, q], [p, q, 0.5 * (p + q)],  # point, repeated vertex, collinear
-                     [p, q, p + 2 * (q - p)], [p, q, [np.nan, 0, 0]], [p, q, [np.inf, 0, 0]]])
+    return np.array(
+        [
+            [p, p, p],
+            [p, q, q],
+            [p, q, 0.5 * (p + q)],  # point, repeated vertex, collinear
+            [p, q, p + 2 * (q - p)],
+            [p, q, [np.nan, 0, 0]],
+            [p, q, [np.inf, 0, 0]],
+        ]
+    )
 
 
 def surface_points(tri, k, rng):
@@ -145,12 +162,15 @@ def ray_sets(tri, rng, n=6000):
 
 # ---------------------------------------------------------------------------------------------- tests
 
+
 def test_known_answers(name):
     tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], float)
     be = vis.make_backend(tri, name)
     assert be.name == name
     a = np.array([[0.2, 0.2, -1], [0.2, 0.2, -1], [0.2, 0.2, 1], [0.2, 0.2, 0.5], [2, 2, -1], [0.2, 0.2, 1]])
-    b = np.array([[0.2, 0.2, 1], [0.2, 0.2, -1e-3], [0.2, 0.2, 3], [0.2, 0.2, -0.5], [2, 2, 1], [0.2, 0.2, 0]])
+    b = np.array(
+        [[0.2, 0.2, 1], [0.2, 0.2, -1e-3], [0.2, 0.2, 3], [0.2, 0.2, -0.5], [2, 2, 1], [0.2, 0.2, 0]]
+    )
     # through; stops short; starts beyond; through (from the back side: two-sided); misses; ends on it
     assert be.occluded(a, b).tolist() == [True, False, False, True, False, False]
     # endpoints exactly on the triangle never hit it, in either direction
@@ -186,8 +206,8 @@ def test_degenerate_triangles_are_ignored(name):
     a2 = np.concatenate([a, d - 0.1, d + [0, 0, 0.1]])
     b2 = np.concatenate([b, d + 0.1, d - [0, 0, 0.1]])
     got = be.occluded(a2, b2)
-    assert got.dtype == bool and np.array_equal(got[:len(a)], ref)
-    assert np.array_equal(got[len(a):], vis.make_backend(tri, name).occluded(a2[len(a):], b2[len(a):]))
+    assert got.dtype == bool and np.array_equal(got[: len(a)], ref)
+    assert np.array_equal(got[len(a) :], vis.make_backend(tri, name).occluded(a2[len(a) :], b2[len(a) :]))
     only = vis.make_backend(degenerate_triangles(), name)
     assert len(only.triangles) == 0 and not only.occluded(a2, b2).any()
 
@@ -231,7 +251,9 @@ def test_closed_box_blocks_everything_from_outside(name):
     rng = np.random.default_rng(5)
     inside = rng.uniform(0.01, 0.99, (3000, 3))
     u = rng.normal(size=(3000, 3))
-    outside = 0.5 + u / np.abs(u).max(axis=1, keepdims=True) * rng.uniform(0.51, 5, (3000, 1))  # |.|_inf > 0.5
+    outside = 0.5 + u / np.abs(u).max(axis=1, keepdims=True) * rng.uniform(
+        0.51, 5, (3000, 1)
+    )  # |.|_inf > 0.5
     assert be.occluded(inside, outside).all()
     # and points on the inner faces of the walls see each other unless a block is in the way
     assert be.occluded([[0.35, 0.25, 1.0]], [[0.35, 0.25, 0.0]]).all()  # ceiling -> floor through block 1

@@ -7,11 +7,13 @@ playback (HR_Radiance, handlers), preview, background + jobstatus (the interacti
 process and its status file), live + live_worker (Live Relight: the session and handlers, the
 worker thread, no bpy), interrupt (Ctrl-C / SIGTERM), ops, panels, cli.
 """
+
 _cli_handle = None
 
 
 def _modules():
     from . import background, live, ops, panels, playback, props
+
     return props, ops, panels, playback, background, live
 
 
@@ -19,6 +21,7 @@ def register():
     global _cli_handle
     import bpy
     from . import cli
+
     props, ops, panels, playback, background, live = _modules()
     props.register()
     for c in ops.classes + panels.classes:
@@ -34,6 +37,7 @@ def register():
         # the add-on still registered (handlers, CLI command, ...): unregister it first, as
         # Blender itself does on exit.
         import atexit
+
         atexit.register(_at_exit)
         _atexit_set = True
 
@@ -43,10 +47,11 @@ _atexit_set = False
 
 def _at_exit():
     import bpy
+
     if hasattr(bpy.types.Scene, "hr"):
         try:
             unregister()
-        except Exception:     # exiting anyway
+        except Exception:  # exiting anyway
             pass
 
 
@@ -54,12 +59,14 @@ def _unregister_cli():
     global _cli_handle
     if _cli_handle is not None:
         import bpy
+
         bpy.utils.unregister_cli_command(_cli_handle)
         _cli_handle = None
 
 
 def unregister():
     import bpy
+
     props, ops, panels, playback, background, live = _modules()
     _unregister_cli()
     live.unregister()

@@ -16,6 +16,7 @@ No bpy state is touched by the worker: the user's file, scene and meshes stay as
 The modal operator (ops.HR_OT_bake) only calls start(), poll() on a timer and cancel(); tests
 drive the same class in a loop.
 """
+
 import os
 import shutil
 import subprocess
@@ -32,7 +33,7 @@ from . import jobstatus, playback, texture
 from .bake import cache_dir_for, frame_range_for, use_bake
 from .scene_in import SceneError, geometry_objects
 
-PACKAGE_DIR = Path(__file__).resolve().parents[1]          # .../hr_addon
+PACKAGE_DIR = Path(__file__).resolve().parents[1]  # .../hr_addon
 ADDON_MODULE = __package__.rsplit(".hr_addon.blender", 1)[0] if ".hr_addon.blender" in __package__ else ""
 
 _active = None
@@ -55,8 +56,8 @@ class BackgroundBake:
         self.view_layer_name = (view_layer or scene.view_layers[0]).name
         self.overrides = overrides
         self.blend = bpy.data.filepath
-        self.state = "new"          # new, running, done, failed, cancelled
-        self.status = {}            # the last good status read from the worker
+        self.state = "new"  # new, running, done, failed, cancelled
+        self.status = {}  # the last good status read from the worker
         self.error = ""
         self.summary = ""
         self.warnings = []
@@ -67,7 +68,7 @@ class BackgroundBake:
         self.output = ""
         self.loaded = False
         self.started = 0.0
-        self.seen = []              # (fraction, stage, frame, eta) of every status read (tests)
+        self.seen = []  # (fraction, stage, frame, eta) of every status read (tests)
 
     # -- what the UI shows ----------------------------------------------------------------------
     @property
@@ -107,8 +108,13 @@ class BackgroundBake:
     def _args(self, copy, status_path, scene):
         o = self.overrides
         # --option=value throughout: values may start with "-" (negative frames, names)
-        args = [copy, f"--scene={scene.name}", f"--view-layer={self.view_layer_name}",
-                f"--cache-dir={self.final_dir}", f"--status-file={status_path}"]
+        args = [
+            copy,
+            f"--scene={scene.name}",
+            f"--view-layer={self.view_layer_name}",
+            f"--cache-dir={self.final_dir}",
+            f"--status-file={status_path}",
+        ]
         frames = frame_range_for(scene, o.get("frames"))
         args.append(f"--frames={frames[0]}..{frames[1]}")
         for key in ("method", "quality", "domain", "output", "texture_format"):
@@ -129,18 +135,21 @@ class BackgroundBake:
         binary = bpy.app.binary_path if binary is None else binary
         module = ADDON_MODULE if module is None else module
         if binary and module:
-            expr = ("import sys, addon_utils, bpy\n"
-                    f"m = {module!r}\n"
-                    "if m not in bpy.context.preferences.addons:\n"
-                    "    addon_utils.enable(m, default_set=False)\n"
-                    "from importlib import import_module\n"
-                    "cli = import_module(m + '.hr_addon.blender.cli')\n"
-                    "sys.exit(cli.run(sys.argv[sys.argv.index('--') + 1:]))\n")
+            expr = (
+                "import sys, addon_utils, bpy\n"
+                f"m = {module!r}\n"
+                "if m not in bpy.context.preferences.addons:\n"
+                "    addon_utils.enable(m, default_set=False)\n"
+                "from importlib import import_module\n"
+                "cli = import_module(m + '.hr_addon.blender.cli')\n"
+                "sys.exit(cli.run(sys.argv[sys.argv.index('--') + 1:]))\n"
+            )
             return [binary, "-b", "--python-exit-code", "1", "--python-expr", expr, "--", *args], env
         # bpy module (tests, scripts): this package runs as `python -m hr_addon`
         paths = [str(PACKAGE_DIR.parent)]
         try:
             import embreex
+
             paths.append(str(Path(embreex.__file__).resolve().parents[1]))
         except ImportError:
             pass
@@ -157,7 +166,9 @@ class BackgroundBake:
         view_layer = scene.view_layers.get(self.view_layer_name)
         self.final_dir = cache_dir_for(scene)
         if not geometry_objects(view_layer):
-            raise SceneError("No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
+            raise SceneError(
+                "No mesh objects to compute radiosity on (all hidden, excluded or light shapes)."
+            )
         frame_range_for(scene, self.overrides.get("frames"))
         self.output = (self.overrides.get("output") or scene.hr.output).upper()
         if self.output == "TEXTURE":
@@ -169,7 +180,8 @@ class BackgroundBake:
             except TextureError as exc:
                 raise SceneError(str(exc)) from None
         from . import live
-        live.end_for_bake(scene)      # the bake shows its own result when it has finished
+
+        live.end_for_bake(scene)  # the bake shows its own result when it has finished
         self.tmp = Path(tempfile.mkdtemp(prefix="hr_bake_"))
         copy = str(self.tmp / (os.path.basename(self.blend) or "untitled.blend"))
         status_path = str(self.tmp / "status.json")
@@ -183,8 +195,14 @@ class BackgroundBake:
         self.log_path = self.tmp / "worker.log"
         log = open(self.log_path, "wb")
         try:
-            self.proc = subprocess.Popen(argv, env=env, cwd=str(self.tmp), stdin=subprocess.DEVNULL,
-                                         stdout=log, stderr=subprocess.STDOUT)
+            self.proc = subprocess.Popen(
+                argv,
+                env=env,
+                cwd=str(self.tmp),
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
         except OSError as exc:
             self._cleanup()
             raise SceneError(f"Cannot start the background bake ({argv[0]}): {exc}") from None
@@ -197,7 +215,7 @@ class BackgroundBake:
 
     def _read(self):
         s = jobstatus.read_status(self.status_path)
-        if s is not None and s.get("pid") == self.proc.pid:     # not a stale file of another worker
+        if s is not None and s.get("pid") == self.proc.pid:  # not a stale file of another worker
             self.status = s
             self.warnings += [w for w in s["warnings"] if w not in self.warnings]
             self.seen.append((s["fraction"], s.get("stage"), s.get("frame"), s.get("eta")))
@@ -223,8 +241,9 @@ class BackgroundBake:
         if s.get("state") == "done" and rc == 0:
             self.summary = s.get("summary", "")
             # the worker's final list: every warning once, repeats counted
-            self.warnings = list(self._start_warnings) + [w for w in s.get("warnings", [])
-                                                          if w not in self._start_warnings]
+            self.warnings = list(self._start_warnings) + [
+                w for w in s.get("warnings", []) if w not in self._start_warnings
+            ]
             self.state = "done"
             self._use_result()
         elif s.get("state") == "cancelled":
@@ -254,7 +273,7 @@ class BackgroundBake:
             return
         proc = self.proc
         if proc.poll() is None:
-            proc.terminate()                 # SIGTERM: the worker removes its partial bake
+            proc.terminate()  # SIGTERM: the worker removes its partial bake
             try:
                 proc.wait(timeout)
             except subprocess.TimeoutExpired:
@@ -269,6 +288,7 @@ class BackgroundBake:
         if final is not None and self.proc is not None and final.parent.is_dir():
             # the worker's temporary cache folder, if it could not remove it itself (killed)
             from ..io.cache import HOST, temp_dirs
+
             for d, kind, host, pid, _ in temp_dirs(final):
                 if kind == "baking" and pid == self.proc.pid and host in ("", HOST):
                     shutil.rmtree(d, ignore_errors=True)

@@ -5,6 +5,7 @@ background worker of the interactive bake runs, see background.py) and tests; cl
 discards the partial bake and keeps the previous cache. The hierarchy build reports its progress
 through the `progress` callback (core.progress), frames through the yielded BakeProgress.
 """
+
 import dataclasses
 import hashlib
 import inspect
@@ -27,8 +28,14 @@ from ..io.cache import CacheError, CacheWriter, check_writable, frame_ranges
 from ..lightmap import TextureError
 from ..lightmap.plan import FORMATS as TEXTURE_FORMATS
 from . import playback, signatures, texture
-from .scene_in import (SceneError, collect_geometry, collect_light_shapes, geometry_objects,
-                       light_shape_objects, shapes_signature)
+from .scene_in import (
+    SceneError,
+    collect_geometry,
+    collect_light_shapes,
+    geometry_objects,
+    light_shape_objects,
+    shapes_signature,
+)
 
 METHODS = ("AUTO", "AR", "FE", "NAIVE")
 QUALITIES = ("DRAFT", "MEDIUM", "HIGH", "CUSTOM")
@@ -38,26 +45,26 @@ OUTPUTS = ("VERTEX", "TEXTURE")
 
 @dataclass
 class BakeProgress:
-    stage: str            # "build", "frame"
+    stage: str  # "build", "frame"
     frame: int = 0
-    done: int = 0         # frames finished
+    done: int = 0  # frames finished
     total: int = 0
     message: str = ""
     reused: bool = False
     warnings: list = field(default_factory=list)
-    fraction: float = 0.0          # of the whole bake (estimate: the build counts as BUILD_SHARE)
-    eta: float = float("nan")      # seconds left of the current stage (nan: unknown yet)
+    fraction: float = 0.0  # of the whole bake (estimate: the build counts as BUILD_SHARE)
+    eta: float = float("nan")  # seconds left of the current stage (nan: unknown yet)
 
 
-BUILD_SHARE = 0.5   # share of the progress bar given to the hierarchy build
+BUILD_SHARE = 0.5  # share of the progress bar given to the hierarchy build
 
 
 def ray_backend_name(system):
-    """"embree", "numpy", ... of the ray backend a RadiositySystem was built with."""
+    """ "embree", "numpy", ... of the ray backend a RadiositySystem was built with."""
     name = getattr(getattr(system, "backend", None), "name", "")
-    if not name:   # BuildReport.backend holds the class name, e.g. "EmbreeBackend"
+    if not name:  # BuildReport.backend holds the class name, e.g. "EmbreeBackend"
         cls = str(getattr(getattr(system, "build", None), "backend", "") or "unknown")
-        name = cls[:-len("Backend")].lower() if cls.endswith("Backend") else cls.lower()
+        name = cls[: -len("Backend")].lower() if cls.endswith("Backend") else cls.lower()
     return name
 
 
@@ -78,7 +85,7 @@ class Warnings:
     aside) are counted, with the frames they came from."""
 
     def __init__(self):
-        self.items = OrderedDict()          # key -> [first text, count, frames]
+        self.items = OrderedDict()  # key -> [first text, count, frames]
 
     @staticmethod
     def key(text):
@@ -126,17 +133,17 @@ class _NoInterrupts:
 class BakeResult:
     cache_dir: str = ""
     frames: tuple = (0, 0)
-    solved: int = 0       # frames that needed a new solution
-    reused: int = 0       # frames identical to the previous one
-    kept: int = 0         # frames of the previous bake kept outside the range
-    rebaked: list = field(default_factory=list)   # damaged frames of the previous bake baked again
+    solved: int = 0  # frames that needed a new solution
+    reused: int = 0  # frames identical to the previous one
+    kept: int = 0  # frames of the previous bake kept outside the range
+    rebaked: list = field(default_factory=list)  # damaged frames of the previous bake baked again
     warnings: list = field(default_factory=list)  # each warning once (first text); see warning_lines
-    log: object = None    # the Warnings collector (counts and frames of repeats)
+    log: object = None  # the Warnings collector (counts and frames of repeats)
     build_seconds: float = 0.0
     seconds: float = 0.0
     build_report: object = None
-    rays: str = ""        # ray backend of the build ("embree", "numpy", ...)
-    rays_note: str = ""   # why not embree, if not
+    rays: str = ""  # ray backend of the build ("embree", "numpy", ...)
+    rays_note: str = ""  # why not embree, if not
 
     def warning_lines(self):
         """Every warning once, repeats counted ('... [8 times on frames 6-13]')."""
@@ -148,15 +155,19 @@ class BakeResult:
 
     def summary(self):
         again = f", {len(self.rebaked)} damaged re-baked" if self.rebaked else ""
-        return (f"baked frames {self.frames[0]}-{self.frames[1]} into {self.cache_dir}: "
-                f"{self.solved} solved, {self.reused} unchanged, {self.kept} kept from the previous bake{again} "
-                f"(hierarchy {self.build_seconds:.1f} s, total {self.seconds:.1f} s, {self.rays_text})")
+        return (
+            f"baked frames {self.frames[0]}-{self.frames[1]} into {self.cache_dir}: "
+            f"{self.solved} solved, {self.reused} unchanged, {self.kept} kept from the previous bake{again} "
+            f"(hierarchy {self.build_seconds:.1f} s, total {self.seconds:.1f} s, {self.rays_text})"
+        )
 
 
 def refine_params(quality, feps=None, aeps=None):
     quality = quality.upper()
     if quality not in QUALITIES:
-        raise SceneError(f"Unknown quality '{quality}' (choose from {', '.join(q.lower() for q in QUALITIES)}).")
+        raise SceneError(
+            f"Unknown quality '{quality}' (choose from {', '.join(q.lower() for q in QUALITIES)})."
+        )
     if quality == "CUSTOM":
         return dataclasses.replace(RefineParams.preset("medium"), feps=float(feps), aeps=float(aeps))
     return RefineParams.preset(quality.lower())
@@ -173,7 +184,9 @@ def cache_dir_for(scene):
 def frame_range_for(scene, frames=None):
     if frames is None:
         hr = scene.hr
-        frames = (hr.frame_start, hr.frame_end) if hr.use_frame_range else (scene.frame_start, scene.frame_end)
+        frames = (
+            (hr.frame_start, hr.frame_end) if hr.use_frame_range else (scene.frame_start, scene.frame_end)
+        )
     a, b = int(frames[0]), int(frames[1])
     if b < a:
         raise SceneError(f"Bad frame range {a}-{b}: the end frame is before the start frame.")
@@ -182,7 +195,14 @@ def frame_range_for(scene, frames=None):
 
 def _signature(mesh, params, domain, targets):
     h = hashlib.sha1()
-    for arr in (mesh.verts, mesh.loop_start, mesh.loop_total, mesh.loop_verts, mesh.reflectance, mesh.emission):
+    for arr in (
+        mesh.verts,
+        mesh.loop_start,
+        mesh.loop_total,
+        mesh.loop_verts,
+        mesh.reflectance,
+        mesh.emission,
+    ):
         h.update(np.ascontiguousarray(arr, np.float64).tobytes())
     h.update(repr(dataclasses.astuple(params)).encode())
     h.update(domain.encode())
@@ -190,9 +210,23 @@ def _signature(mesh, params, domain, targets):
     return h.hexdigest()
 
 
-def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, domain=None,
-                feps=None, aeps=None, output=None, resolution=None, texture_format=None,
-                cache_dir=None, progress=None, interrupts=None, warnings=None):
+def bake_frames(
+    scene,
+    view_layer=None,
+    frames=None,
+    method=None,
+    quality=None,
+    domain=None,
+    feps=None,
+    aeps=None,
+    output=None,
+    resolution=None,
+    texture_format=None,
+    cache_dir=None,
+    progress=None,
+    interrupts=None,
+    warnings=None,
+):
     """Generator: yields BakeProgress, returns (StopIteration.value) a BakeResult.
 
     progress: callable(BakeProgress) called during the hierarchy build (between batches); it may
@@ -209,7 +243,9 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
     at `resolution` (objects may override it) in `texture_format` EXR or PNG.
     """
     hr = scene.hr
-    view_layer = view_layer or (bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0])
+    view_layer = view_layer or (
+        bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0]
+    )
     method = (method or hr.method).upper()
     if method not in METHODS:
         raise SceneError(f"Unknown method '{method}' (choose from {', '.join(m.lower() for m in METHODS)}).")
@@ -234,7 +270,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
     intr = interrupts or _NoInterrupts()
     log = warnings if warnings is not None else Warnings()
     try:
-        check_writable(final_dir)        # before the (long) build, not after it
+        check_writable(final_dir)  # before the (long) build, not after it
     except CacheError as exc:
         raise SceneError(str(exc)) from None
     t_start = time.perf_counter()
@@ -250,7 +286,8 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         return new
 
     from . import live
-    live.end_for_bake(scene)      # the bake shows its own result when it has finished
+
+    live.end_for_bake(scene)  # the bake shows its own result when it has finished
     playback.state["baking"] = True
     try:
         scene.frame_set(scene.frame_start)
@@ -261,7 +298,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
                 warn(texture.ensure_lightmaps(geo_objects, resolution))
             except TextureError as exc:
                 raise SceneError(str(exc)) from None
-        with texture.source_materials(geo_objects):    # texture preview copies stand for these
+        with texture.source_materials(geo_objects):  # texture preview copies stand for these
             scene_in = collect_geometry(view_layer, depsgraph)
         warn(scene_in.warnings)
         intr.check()
@@ -273,16 +310,27 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         has_shapes = bool(light_shape_objects(view_layer, include_hidden=True))
         npoly = len(scene_in.mesh.loop_start)
         total = end - start + 1
-        yield BakeProgress("build", total=total, warnings=list(result.warnings),
-                           message=f"Building the hierarchy ({npoly} polygons, {quality.lower()} quality)")
+        yield BakeProgress(
+            "build",
+            total=total,
+            warnings=list(result.warnings),
+            message=f"Building the hierarchy ({npoly} polygons, {quality.lower()} quality)",
+        )
         intr.check()
         t0 = time.perf_counter()
 
         def on_build(info):
             intr.check()
             if progress is not None:
-                progress(BakeProgress("build", total=total, fraction=BUILD_SHARE * float(info.fraction),
-                                      eta=float(info.eta), message=f"Building the hierarchy: {info.message}"))
+                progress(
+                    BakeProgress(
+                        "build",
+                        total=total,
+                        fraction=BUILD_SHARE * float(info.fraction),
+                        eta=float(info.eta),
+                        message=f"Building the hierarchy: {info.message}",
+                    )
+                )
 
         with intr.raising():
             system = RadiositySystem(scene_in.mesh, params, progress=on_build)
@@ -294,28 +342,48 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         result.rays = ray_backend_name(system)
         result.rays_note = ray_backend_note(result.rays)
         warn(system.build.warnings)
-        info = {"blend": os.path.basename(bpy.data.filepath), "scene": scene.name, "method": method,
-                "quality": quality, "feps": params.feps, "aeps": params.aeps, "output": output,
-                "rays": result.rays, "created": time.strftime("%Y-%m-%d %H:%M:%S"),
-                "view_layer": view_layer.name, "geometry": geometry_sig, "light_shapes": shapes_id}
+        info = {
+            "blend": os.path.basename(bpy.data.filepath),
+            "scene": scene.name,
+            "method": method,
+            "quality": quality,
+            "feps": params.feps,
+            "aeps": params.aeps,
+            "output": output,
+            "rays": result.rays,
+            "created": time.strftime("%Y-%m-%d %H:%M:%S"),
+            "view_layer": view_layer.name,
+            "geometry": geometry_sig,
+            "light_shapes": shapes_id,
+        }
         if result.rays_note:
             info["rays_note"] = result.rays_note
         baker = None
         if output == "TEXTURE":
             try:
-                baker = texture.texture_plan(scene_in, system.patches, view_layer, view_layer.depsgraph,
-                                             resolution, texture_format)
+                baker = texture.texture_plan(
+                    scene_in, system.patches, view_layer, view_layer.depsgraph, resolution, texture_format
+                )
             except TextureError as exc:
                 raise SceneError(str(exc)) from None
             warn(baker.warnings)
             objects = baker.objects_info(scene_in.targets)
-            writer = CacheWriter(final_dir, objects, "TEXTURE",
-                                 baker.signature(_signature(scene_in.mesh, params, "TEXTURE", scene_in.targets)), info)
+            writer = CacheWriter(
+                final_dir,
+                objects,
+                "TEXTURE",
+                baker.signature(_signature(scene_in.mesh, params, "TEXTURE", scene_in.targets)),
+                info,
+            )
             baker.bind(writer.tmp)
         else:
-            objects = {t.name: {"mesh": t.mesh_name, "count": t.n_corner if domain == "CORNER" else t.n_point}
-                       for t in scene_in.targets}
-            writer = CacheWriter(final_dir, objects, domain, _signature(scene_in.mesh, params, domain, scene_in.targets), info)
+            objects = {
+                t.name: {"mesh": t.mesh_name, "count": t.n_corner if domain == "CORNER" else t.n_point}
+                for t in scene_in.targets
+            }
+            writer = CacheWriter(
+                final_dir, objects, domain, _signature(scene_in.mesh, params, domain, scene_in.targets), info
+            )
         # Frames of the previous bake that this one keeps but whose files are missing or damaged
         # are baked again (not kept, not dropped).
         in_range = set(range(start, end + 1))
@@ -323,13 +391,19 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         if baker is not None:
             old, why = writer.previous()
             if old is not None and not why:
-                damaged.update(baker.damaged_frames(writer.final, [f for f in old.frames if f not in in_range]))
+                damaged.update(
+                    baker.damaged_frames(writer.final, [f for f in old.frames if f not in in_range])
+                )
         frames_todo = sorted(in_range | set(damaged))
         if damaged:
             result.rebaked = sorted(damaged)
             reasons = sorted(set(damaged.values()))
-            warn([f"Frames {frame_ranges(damaged)} of the previous bake were missing or damaged "
-                  f"({'; '.join(reasons[:3])}): baked them again."])
+            warn(
+                [
+                    f"Frames {frame_ranges(damaged)} of the previous bake were missing or damaged "
+                    f"({'; '.join(reasons[:3])}): baked them again."
+                ]
+            )
         total = len(frames_todo)
         prev_sig = prev_frame = None
         t_frames = time.perf_counter()
@@ -353,19 +427,24 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
                 with intr.raising():
                     if dyn is not None:
                         report = dyn.apply(shapes)
-                        frame_warnings += [m for m in (getattr(report, "messages", []) or [])
-                                           if "response reused from the cache" not in m]
+                        frame_warnings += [
+                            m
+                            for m in (getattr(report, "messages", []) or [])
+                            if "response reused from the cache" not in m
+                        ]
                     else:
                         system.solve()
                     if baker is not None:
                         values = baker.radiance(dyn, system)
                     else:
-                        values = dyn.loop_radiance(domain) if dyn is not None else system.loop_radiance(domain)
+                        values = (
+                            dyn.loop_radiance(domain) if dyn is not None else system.loop_radiance(domain)
+                        )
                         values = {t.name: t.extract(values, domain) for t in scene_in.targets}
                 intr.check()
                 if baker is not None:
                     baker.write(f, values)
-                    writer.write(f, {})      # the frame's entry in the manifest (textures hold the values)
+                    writer.write(f, {})  # the frame's entry in the manifest (textures hold the values)
                 else:
                     writer.write(f, values)
                 result.solved += 1
@@ -373,12 +452,20 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
             prev_sig, prev_frame = sig, f
             new_w = warn(frame_warnings, f)
             left = (time.perf_counter() - t_frames) / (i + 1) * (total - i - 1)
-            yield BakeProgress("frame", frame=f, done=i + 1, total=total, reused=reused, warnings=new_w,
-                               fraction=BUILD_SHARE + (1 - BUILD_SHARE) * (i + 1) / total, eta=left,
-                               message=f"Frame {f} ({i + 1}/{total}){' unchanged' if reused else ''}")
+            yield BakeProgress(
+                "frame",
+                frame=f,
+                done=i + 1,
+                total=total,
+                reused=reused,
+                warnings=new_w,
+                fraction=BUILD_SHARE + (1 - BUILD_SHARE) * (i + 1) / total,
+                eta=left,
+                message=f"Frame {f} ({i + 1}/{total}){' unchanged' if reused else ''}",
+            )
         if baker is not None:
             baker.finish(writer)
-        intr.check()                      # the last moment a cancel keeps the previous bake
+        intr.check()  # the last moment a cancel keeps the previous bake
         writer.commit()
         committed = True
         result.kept = writer.kept
@@ -388,7 +475,7 @@ def bake_frames(scene, view_layer=None, frames=None, method=None, quality=None, 
         if writer is not None and not committed:
             writer.abort()
         playback.state["baking"] = False
-        scene.frame_set(original_frame)   # also loads this frame through the handler
+        scene.frame_set(original_frame)  # also loads this frame through the handler
     if committed and not hr.playback:
         playback.load_frame(scene)
     result.seconds = time.perf_counter() - t_start
@@ -405,13 +492,17 @@ def solver_setup(mesh, params):
     warning = ""
     if extent.distant:
         far = extent.distant
-        names = ", ".join(f"'{n}'" for n, _, _ in far[:5]) + (f" and {len(far) - 5} more" if len(far) > 5 else "")
+        names = ", ".join(f"'{n}'" for n, _, _ in far[:5]) + (
+            f" and {len(far) - 5} more" if len(far) > 5 else ""
+        )
         near, farthest = _length(far[-1][1]), _length(far[0][1])
         dist = farthest if near == farthest else f"{near} to {farthest}"
-        warning = (f"{len(far)} object(s) lie far from the rest of the scene ({names}, {dist} away; the rest "
-                   f"is {_length(extent.main_size)} across): they "
-                   "exchange almost no light with it and do not change its element sizes. Exclude them "
-                   "(Object > HR Radiosity > Exclude) if they are not meant to be there.")
+        warning = (
+            f"{len(far)} object(s) lie far from the rest of the scene ({names}, {dist} away; the rest "
+            f"is {_length(extent.main_size)} across): they "
+            "exchange almost no light with it and do not change its element sizes. Exclude them "
+            "(Object > HR Radiosity > Exclude) if they are not meant to be there."
+        )
         params = dataclasses.replace(params, aeps=params.aeps * area_ratio)
     return params, _MIN_AREA_REL * area_ratio, warning
 
@@ -451,7 +542,7 @@ class BakeJob:
         return 0.0 if p is None else p.fraction
 
     def cancel(self):
-        self.gen.close()   # the generator's finally block discards the partial bake
+        self.gen.close()  # the generator's finally block discards the partial bake
 
 
 def use_bake(scene, final_dir, output, geo_objects=None):
@@ -472,9 +563,15 @@ def use_bake(scene, final_dir, output, geo_objects=None):
         texture.after_bake(scene, final_dir)
     else:
         from .scene_in import geometry_objects
-        objs = geo_objects if geo_objects is not None else geometry_objects(
-            bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0])
-        texture.remove_material(objs)    # a texture preview would show deleted files
+
+        objs = (
+            geo_objects
+            if geo_objects is not None
+            else geometry_objects(
+                bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0]
+            )
+        )
+        texture.remove_material(objs)  # a texture preview would show deleted files
 
 
 def run_bake(scene, log=print, status=None, **kwargs):
@@ -484,6 +581,7 @@ def run_bake(scene, log=print, status=None, **kwargs):
 
     status: optional callable(BakeProgress) receiving every progress report (build and frames),
     e.g. the background worker's status file writer."""
+
     def report(p):
         log(f"HR Radiosity: {p.message}", flush=True)
         if status is not None:
@@ -512,6 +610,19 @@ def run_bake(scene, log=print, status=None, **kwargs):
     return res
 
 
-__all__ = ["bake_frames", "run_bake", "use_bake", "BakeJob", "BakeProgress", "BakeResult", "Warnings", "SceneError",
-           "InputError", "Cancelled",
-           "METHODS", "QUALITIES", "DOMAINS", "OUTPUTS"]
+__all__ = [
+    "bake_frames",
+    "run_bake",
+    "use_bake",
+    "BakeJob",
+    "BakeProgress",
+    "BakeResult",
+    "Warnings",
+    "SceneError",
+    "InputError",
+    "Cancelled",
+    "METHODS",
+    "QUALITIES",
+    "DOMAINS",
+    "OUTPUTS",
+]

@@ -6,6 +6,7 @@ Exit codes: 0 success; 1 the scene cannot be baked (no meshes, invalid geometry,
 130 cancelled (Ctrl-C or SIGTERM; the previous bake is kept, no temporary folder is left).
 Errors are one line on stderr: "hr_bake: error: <reason>".
 """
+
 import argparse
 import os
 import re
@@ -35,35 +36,79 @@ class _Parser(argparse.ArgumentParser):
 
 
 def make_parser(prog=PROG, blend_required=False):
-    p = _Parser(prog=prog, description="Bake dynamic hierarchical radiosity into the HR_Radiance "
-                                       "attribute cache (or baked textures) of a .blend file.",
-                epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("blend", nargs=None if blend_required else "?",
-                   help="the .blend file (default: the file Blender opened)")
-    p.add_argument("--frames", metavar="A-B", help="frame range, e.g. 1-250, or one frame (default: the scene's)")
-    p.add_argument("--method", type=str.lower, choices=["ar", "fe", "naive", "auto"],
-                   help="how light-shape changes are applied: auto (recommended), ar (adaptive "
-                        "refinement), fe (fractional emissivity, fastest), naive (rebuild, slow reference)")
-    p.add_argument("--output", type=str.lower, choices=["vertex", "texture"],
-                   help="vertex colours (HR_Radiance) or baked textures (default: the scene's)")
-    p.add_argument("--resolution", type=int, metavar="N", help="texture size in texels, 8 to 16384 (texture output)")
-    p.add_argument("--texture-format", type=str.lower, choices=["exr", "png"],
-                   help="texture files: exr (32-bit float, linear) or png (16-bit, sRGB)")
-    p.add_argument("--quality", type=str.lower, choices=["draft", "medium", "high", "custom"],
-                   help="refinement preset; custom uses --feps and --aeps")
+    p = _Parser(
+        prog=prog,
+        description="Bake dynamic hierarchical radiosity into the HR_Radiance "
+        "attribute cache (or baked textures) of a .blend file.",
+        epilog=EXIT_CODES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "blend",
+        nargs=None if blend_required else "?",
+        help="the .blend file (default: the file Blender opened)",
+    )
+    p.add_argument(
+        "--frames", metavar="A-B", help="frame range, e.g. 1-250, or one frame (default: the scene's)"
+    )
+    p.add_argument(
+        "--method",
+        type=str.lower,
+        choices=["ar", "fe", "naive", "auto"],
+        help="how light-shape changes are applied: auto (recommended), ar (adaptive "
+        "refinement), fe (fractional emissivity, fastest), naive (rebuild, slow reference)",
+    )
+    p.add_argument(
+        "--output",
+        type=str.lower,
+        choices=["vertex", "texture"],
+        help="vertex colours (HR_Radiance) or baked textures (default: the scene's)",
+    )
+    p.add_argument(
+        "--resolution", type=int, metavar="N", help="texture size in texels, 8 to 16384 (texture output)"
+    )
+    p.add_argument(
+        "--texture-format",
+        type=str.lower,
+        choices=["exr", "png"],
+        help="texture files: exr (32-bit float, linear) or png (16-bit, sRGB)",
+    )
+    p.add_argument(
+        "--quality",
+        type=str.lower,
+        choices=["draft", "medium", "high", "custom"],
+        help="refinement preset; custom uses --feps and --aeps",
+    )
     p.add_argument("--feps", type=float, help="form factor threshold, 0 < F <= 1 (implies --quality custom)")
-    p.add_argument("--aeps", type=float, help="smallest element area as a fraction of the scene's area, "
-                                              "0 < A < 1 (implies --quality custom)")
-    p.add_argument("--domain", type=str.lower, choices=["corner", "point"],
-                   help="vertex output per face corner (creases stay sharp) or per vertex")
+    p.add_argument(
+        "--aeps",
+        type=float,
+        help="smallest element area as a fraction of the scene's area, 0 < A < 1 (implies --quality custom)",
+    )
+    p.add_argument(
+        "--domain",
+        type=str.lower,
+        choices=["corner", "point"],
+        help="vertex output per face corner (creases stay sharp) or per vertex",
+    )
     p.add_argument("--scene", help="scene name (default: the active scene)")
     p.add_argument("--view-layer", help="view layer name (default: the window's, else the first)")
-    p.add_argument("--save", metavar="PATH", help="save a copy of the .blend (with the bake settings) to PATH; "
-                                                  "the bake itself is in the input file's cache folder")
-    p.add_argument("--cache-dir", metavar="DIR", help="write the bake into DIR (absolute; default: the "
-                                                      "scene's cache folder next to the .blend)")
-    p.add_argument("--status-file", metavar="PATH", help="keep a JSON progress status in PATH "
-                                                         "(the interactive background bake reads it)")
+    p.add_argument(
+        "--save",
+        metavar="PATH",
+        help="save a copy of the .blend (with the bake settings) to PATH; "
+        "the bake itself is in the input file's cache folder",
+    )
+    p.add_argument(
+        "--cache-dir",
+        metavar="DIR",
+        help="write the bake into DIR (absolute; default: the scene's cache folder next to the .blend)",
+    )
+    p.add_argument(
+        "--status-file",
+        metavar="PATH",
+        help="keep a JSON progress status in PATH (the interactive background bake reads it)",
+    )
     return p
 
 
@@ -93,6 +138,7 @@ def run(argv, prog=PROG, blend_required=False, interrupts=None):
     importing bpy, so a Ctrl-C then is not lost); otherwise SIGINT and SIGTERM are handled from
     here on. Either way the previous handlers are back when run() returns."""
     from .interrupt import INTERRUPTS
+
     intr = (interrupts or INTERRUPTS).install()
     try:
         return _run(argv, prog, blend_required, intr)
@@ -144,8 +190,10 @@ def _run(argv, prog, blend_required, intr):
         try:
             bpy.ops.wm.open_mainfile(filepath=os.path.abspath(args.blend), load_ui=False)
         except RuntimeError as exc:
-            return fail(2, f"cannot open {args.blend}: "
-                           f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else exc}")
+            return fail(
+                2,
+                f"cannot open {args.blend}: {str(exc).strip().splitlines()[-1] if str(exc).strip() else exc}",
+            )
     elif not bpy.data.filepath:
         return fail(2, "no .blend file loaded (pass one: blender -b scene.blend -c hr_bake ...)")
     if intr.requested:
@@ -171,12 +219,23 @@ def _run(argv, prog, blend_required, intr):
         return fail(2, f"bad thresholds feps={feps} aeps={aeps} (need 0 < feps <= 1, 0 < aeps < 1)")
     collected = Warnings()
     try:
-        res = run_bake(scene, view_layer=view_layer,
-                       frames=frames, method=args.method, quality=quality, domain=args.domain,
-                       feps=feps, aeps=aeps, output=args.output, resolution=args.resolution,
-                       texture_format=args.texture_format, cache_dir=args.cache_dir,
-                       status=status.progress if status is not None else None,
-                       interrupts=intr, warnings=collected)
+        res = run_bake(
+            scene,
+            view_layer=view_layer,
+            frames=frames,
+            method=args.method,
+            quality=quality,
+            domain=args.domain,
+            feps=feps,
+            aeps=aeps,
+            output=args.output,
+            resolution=args.resolution,
+            texture_format=args.texture_format,
+            cache_dir=args.cache_dir,
+            status=status.progress if status is not None else None,
+            interrupts=intr,
+            warnings=collected,
+        )
     except (Cancelled, KeyboardInterrupt, SystemExit):
         # Ctrl-C or SIGTERM (the interactive bake's Cancel): the partial bake was removed.
         return cancelled()
@@ -187,9 +246,12 @@ def _run(argv, prog, blend_required, intr):
     except Exception as exc:  # a bug: still one line (HR_DEBUG=1 prints the traceback)
         if os.environ.get("HR_DEBUG"):
             import traceback
+
             traceback.print_exc()
-        return fail(1, f"internal error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
-    late = intr.requested     # came after the commit: the new bake is complete and kept
+        return fail(
+            1, f"internal error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        )
+    late = intr.requested  # came after the commit: the new bake is complete and kept
     if args.save and not late:
         path = os.path.abspath(args.save)
         try:
@@ -208,12 +270,24 @@ def _run(argv, prog, blend_required, intr):
     if lines:
         print(f"{PROG}: {len(lines)} warning(s) (listed above)", flush=True)
     if status is not None:
-        status.write(state="done", fraction=1.0, eta=None, summary=res.summary(), rays=res.rays,
-                     cache_dir=res.cache_dir, output=(args.output or scene.hr.output).upper(),
-                     message=f"Baked frames {res.frames[0]}-{res.frames[1]}", warnings=lines)
+        status.write(
+            state="done",
+            fraction=1.0,
+            eta=None,
+            summary=res.summary(),
+            rays=res.rays,
+            cache_dir=res.cache_dir,
+            output=(args.output or scene.hr.output).upper(),
+            message=f"Baked frames {res.frames[0]}-{res.frames[1]}",
+            warnings=lines,
+        )
     if late:
-        print(f"{PROG}: the cancel came after the bake was complete; the new bake is kept"
-              + (" (the copy was not saved)" if args.save else ""), file=sys.stderr, flush=True)
+        print(
+            f"{PROG}: the cancel came after the bake was complete; the new bake is kept"
+            + (" (the copy was not saved)" if args.save else ""),
+            file=sys.stderr,
+            flush=True,
+        )
     return 0
 
 

@@ -7,17 +7,20 @@ frames), so the cancel comes within a second or two in any phase and never insid
 that would swallow the exception and print a traceback, nor inside the cache's commit. The bake's
 cleanup (removing its temporary folder) then runs as for any other error.
 """
+
 import signal
 from contextlib import contextmanager
 
 from ..core.progress import Cancelled
 
-SIGNALS = tuple(s for s in (getattr(signal, "SIGINT", None), getattr(signal, "SIGTERM", None)) if s is not None)
+SIGNALS = tuple(
+    s for s in (getattr(signal, "SIGINT", None), getattr(signal, "SIGTERM", None)) if s is not None
+)
 
 
 class Interrupts:
     def __init__(self):
-        self.signum = 0          # the first signal received (0: none)
+        self.signum = 0  # the first signal received (0: none)
         self._raising = 0
         self._old = {}
 
@@ -39,7 +42,7 @@ class Interrupts:
                 continue
             try:
                 self._old[s] = signal.signal(s, self._handler)
-            except (ValueError, OSError):    # not the main thread
+            except (ValueError, OSError):  # not the main thread
                 pass
         return self
 
@@ -55,7 +58,7 @@ class Interrupts:
         if not self.signum:
             self.signum = signum
         if self._raising > 0:
-            self._raising = 0            # once: the cleanup that follows must not be interrupted
+            self._raising = 0  # once: the cleanup that follows must not be interrupted
             raise Cancelled(f"cancelled ({self.name})")
 
     def check(self):

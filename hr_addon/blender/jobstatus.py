@@ -9,6 +9,7 @@ Fields: version, pid, state ("running", "done", "failed", "cancelled"), stage ("
 "frame"), fraction (0..1 of the whole bake), frame, done, total, eta (seconds or null), message,
 warnings (all so far), and once finished: summary, rays, error.
 """
+
 import json
 import math
 import os
@@ -23,22 +24,41 @@ STATES = ("running", "done", "failed", "cancelled")
 class StatusWriter:
     def __init__(self, path, **fixed):
         self.path = os.path.abspath(path)
-        self.data = {"version": VERSION, "pid": os.getpid(), "state": "running", "stage": "start",
-                     "fraction": 0.0, "frame": None, "done": 0, "total": 0, "eta": None, "message": "",
-                     "warnings": [], **fixed}
+        self.data = {
+            "version": VERSION,
+            "pid": os.getpid(),
+            "state": "running",
+            "stage": "start",
+            "fraction": 0.0,
+            "frame": None,
+            "done": 0,
+            "total": 0,
+            "eta": None,
+            "message": "",
+            "warnings": [],
+            **fixed,
+        }
         self.write()
 
     def write(self, **changes):
         self.data.update(changes)
         self.data["updated"] = time.time()
-        atomic_write(self.path, json.dumps(self.data).encode(), sync=False)   # read, not kept
+        atomic_write(self.path, json.dumps(self.data).encode(), sync=False)  # read, not kept
 
     def progress(self, p):
         """A bake.BakeProgress."""
         warnings = self.data["warnings"] + [w for w in p.warnings if w not in self.data["warnings"]]
         eta = p.eta if isinstance(p.eta, (int, float)) and math.isfinite(p.eta) else None
-        self.write(stage=p.stage, fraction=float(p.fraction), frame=p.frame if p.stage == "frame" else None,
-                   done=int(p.done), total=int(p.total), eta=eta, message=p.message, warnings=warnings)
+        self.write(
+            stage=p.stage,
+            fraction=float(p.fraction),
+            frame=p.frame if p.stage == "frame" else None,
+            done=int(p.done),
+            total=int(p.total),
+            eta=eta,
+            message=p.message,
+            warnings=warnings,
+        )
 
 
 def read_status(path):

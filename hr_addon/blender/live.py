@@ -17,6 +17,7 @@ event loop, so no timer and no thread.
 Live never runs together with a bake: it refuses to start while one runs, and a bake that starts
 ends it. Turning it off restores the baked playback (or removes HR_Radiance when there is no bake).
 """
+
 import time
 from collections import deque
 
@@ -28,20 +29,27 @@ from . import background, playback, preview, signatures, texture
 from .bake import refine_params, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
-from .scene_in import (SceneError, collect_geometry, collect_light_shapes, geometry_objects, light_shape_objects,
-                       shapes_signature)
+from .scene_in import (
+    SceneError,
+    collect_geometry,
+    collect_light_shapes,
+    geometry_objects,
+    light_shape_objects,
+    shapes_signature,
+)
 
 
 class LiveError(SceneError):
     """Live Relight cannot do what was asked (one-line reason)."""
 
 
-BAKE_RUNNING = ("A radiosity bake is running: Live Relight cannot start until it has finished "
-                "(or is cancelled).")
-TICK, IDLE_POLL, GEOMETRY_SETTLE, WATCH = 0.02, 0.5, 0.25, 1.0    # seconds
+BAKE_RUNNING = (
+    "A radiosity bake is running: Live Relight cannot start until it has finished (or is cancelled)."
+)
+TICK, IDLE_POLL, GEOMETRY_SETTLE, WATCH = 0.02, 0.5, 0.25, 1.0  # seconds
 
-_sessions = {}       # scene name_full -> Session
-_messages = {}       # scene name_full -> why Live is not running (refused, stopped), for the panel
+_sessions = {}  # scene name_full -> Session
+_messages = {}  # scene name_full -> why Live is not running (refused, stopped), for the panel
 
 
 def message(scene):
@@ -65,35 +73,35 @@ class Session:
         self.scene_name = scene.name_full
         self.view_layer_name = view_layer.name
         self.worker = LiveWorker(threaded)
-        self.settings = None          # settings of the last build request
-        self.geometry = None          # geometry signatures of the last build request
-        self.geo_names = None         # names of the geometry objects then
-        self.geo_materials = set()    # their materials (a depsgraph update of one may change the light)
-        self.shape_meshes = set()     # mesh data of the light shapes (their edits are light events)
-        self.shape_objects = []       # names of the light-shape objects (all, hidden ones too)
+        self.settings = None  # settings of the last build request
+        self.geometry = None  # geometry signatures of the last build request
+        self.geo_names = None  # names of the geometry objects then
+        self.geo_materials = set()  # their materials (a depsgraph update of one may change the light)
+        self.shape_meshes = set()  # mesh data of the light shapes (their edits are light events)
+        self.shape_objects = []  # names of the light-shape objects (all, hidden ones too)
         self.shape_materials = set()  # their materials
-        self.full_read = True         # an update other than of known light shapes: read everything
+        self.full_read = True  # an update other than of known light shapes: read everything
         self.domain = "CORNER"
-        self.targets = []             # object names that get HR_Radiance
-        self.reason = ""              # why the hierarchy is (being) built
+        self.targets = []  # object names that get HR_Radiance
+        self.reason = ""  # why the hierarchy is (being) built
         self.serial = 0
-        self.requested_sig = None     # light state handed to the worker last
-        self.shown_sig = None         # light state whose result is in HR_Radiance
-        self.last = None              # the Result shown
-        self.error = ""               # the current light state cannot be computed (the last valid one shows)
-        self.problems = ""            # writing HR_Radiance failed for some objects
+        self.requested_sig = None  # light state handed to the worker last
+        self.shown_sig = None  # light state whose result is in HR_Radiance
+        self.last = None  # the Result shown
+        self.error = ""  # the current light state cannot be computed (the last valid one shows)
+        self.problems = ""  # writing HR_Radiance failed for some objects
         self.fatal = ""
-        self.notes = []               # warnings of the geometry read and of the build
-        self.light_notes = []         # warnings of the current light state
-        self.dirty = True             # something may have changed: read the light shapes again
-        self.geometry_dirty = 0.0     # time of the last update that may have changed the geometry (0: none)
-        self.force_write = False      # HR_Radiance must be written again (undo, render)
-        self.own_writes = set()       # meshes written by us since the last depsgraph update
+        self.notes = []  # warnings of the geometry read and of the build
+        self.light_notes = []  # warnings of the current light state
+        self.dirty = True  # something may have changed: read the light shapes again
+        self.geometry_dirty = 0.0  # time of the last update that may have changed the geometry (0: none)
+        self.force_write = False  # HR_Radiance must be written again (undo, render)
+        self.own_writes = set()  # meshes written by us since the last depsgraph update
         self.added_preview = False
-        self.texture_objects = []     # objects whose baked-texture preview Live took off (restored)
+        self.texture_objects = []  # objects whose baked-texture preview Live took off (restored)
         self.last_poll = 0.0
-        self.render_note = ""          # said once per render (see on_frame_change_pre)
-        self.latencies = deque(maxlen=500)   # seconds from a light-state request to HR_Radiance written
+        self.render_note = ""  # said once per render (see on_frame_change_pre)
+        self.latencies = deque(maxlen=500)  # seconds from a light-state request to HR_Radiance written
         self.updates = 0
 
     # -- what the panel shows --------------------------------------------------------------------
@@ -151,8 +159,10 @@ def _settings(scene):
 
 def _describe_settings(old, new):
     names = ("method", "quality", "thresholds", "domain")
-    return ", ".join(f"{n} {str(b).lower()}" for n, a, b in zip(names, old, new) if a != b and n != "thresholds") \
+    return (
+        ", ".join(f"{n} {str(b).lower()}" for n, a, b in zip(names, old, new) if a != b and n != "thresholds")
         or "thresholds"
+    )
 
 
 # -- start, stop -----------------------------------------------------------------------------------
@@ -163,7 +173,9 @@ def start(scene, view_layer=None, threaded=None):
         return sess
     if bake_running():
         _refuse(scene, BAKE_RUNNING)
-    view_layer = view_layer or (bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0])
+    view_layer = view_layer or (
+        bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0]
+    )
     if not geometry_objects(view_layer):
         _refuse(scene, "No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
     _messages.pop(scene.name_full, None)
@@ -228,19 +240,25 @@ def _show_through_attribute(sess, scene, view_layer):
     objs = geometry_objects(view_layer)
     if texture.is_texture_bake(scene):
         from .texture import _helper
+
         sess.texture_objects = [o.name for o in objs if any(_helper(s) for s in o.material_slots)]
         if sess.texture_objects:
             texture.remove_material(objs)
     mats = [s.material for o in objs for s in o.material_slots if s.material is not None]
-    shown = all(m.node_tree is not None and preview.N_OUT in m.node_tree.nodes for m in mats) and \
-        all(o.material_slots for o in objs)
+    shown = all(m.node_tree is not None and preview.N_OUT in m.node_tree.nodes for m in mats) and all(
+        o.material_slots for o in objs
+    )
     if not shown:
         preview.add_preview(objs)
         sess.added_preview = True
 
 
 def _restore(sess, scene):
-    objs = [o for o in playback.objects_by_name(scene, sess.targets).values() if o is not None and o.type == "MESH"]
+    objs = [
+        o
+        for o in playback.objects_by_name(scene, sess.targets).values()
+        if o is not None and o.type == "MESH"
+    ]
     if sess.added_preview:
         preview.remove_preview(objs)
     has_bake = bool(playback.bake_dir_abs(scene))
@@ -255,7 +273,7 @@ def _restore(sess, scene):
     if sess.texture_objects:
         try:
             texture.add_material(scene, [o for o in objs if o.name in sess.texture_objects])
-        except Exception as exc:      # noqa: BLE001  (the cache may be gone: say so, go on)
+        except Exception as exc:  # noqa: BLE001  (the cache may be gone: say so, go on)
             print(f"HR Radiosity: the baked-texture preview could not be restored: {exc}", flush=True)
         return "the baked textures"
     return "the baked playback" if has_bake else "no HR_Radiance (there is no bake)"
@@ -273,8 +291,12 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
         objs = light_shape_objects(view_layer, include_hidden=True)
         sess.shape_objects = [o.name for o in objs]
         sess.shape_meshes = {o.data.name for o in objs}
-        sess.shape_materials = {s.material.name_full for o in objs for s in o.material_slots if s.material is not None}
-        shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, objects=[o for o in objs if not o.hide_render])
+        sess.shape_materials = {
+            s.material.name_full for o in objs for s in o.material_slots if s.material is not None
+        }
+        shapes = collect_light_shapes(
+            view_layer, depsgraph, LightShape, warnings, objects=[o for o in objs if not o.hide_render]
+        )
     return shapes, shapes_signature(shapes), warnings
 
 
@@ -291,12 +313,15 @@ def _build(sess, scene, view_layer, depsgraph, reason):
     def extract(values, targets=targets, domain=domain):
         return {t.name: t.extract(values, domain) for t in targets}
 
-    spec = BuildSpec(scene_in.mesh, params, method, min_area_rel, domain, extract, reason,
-                     len(scene_in.mesh.loop_start))
+    spec = BuildSpec(
+        scene_in.mesh, params, method, min_area_rel, domain, extract, reason, len(scene_in.mesh.loop_start)
+    )
     sess.settings = _settings(scene)
     sess.geometry = signatures.geometry_signatures(view_layer, depsgraph)
     sess.geo_names = [o.name for o in objs]
-    sess.geo_materials = {s.material.name_full for o in objs for s in o.material_slots if s.material is not None}
+    sess.geo_materials = {
+        s.material.name_full for o in objs for s in o.material_slots if s.material is not None
+    }
     sess.domain = domain
     sess.targets = [t.name for t in targets]
     sess.notes = list(scene_in.warnings) + ([far] if far else [])
@@ -328,7 +353,9 @@ def _reconcile(sess, scene, view_layer, check_geometry, fast=False):
     read just those. Depsgraph updates that fire while it reads the scene are of what it has
     read: it clears the session's marks at the end."""
     try:
-        _reconcile_now(sess, scene, view_layer, check_geometry, fast and not check_geometry and not sess.full_read)
+        _reconcile_now(
+            sess, scene, view_layer, check_geometry, fast and not check_geometry and not sess.full_read
+        )
     finally:
         sess.dirty = False
         if check_geometry:
@@ -351,7 +378,13 @@ def _reconcile_now(sess, scene, view_layer, check_geometry, fast):
     if sess.settings is None:
         return _build(sess, scene, view_layer, dg, "first build")
     if _settings(scene) != sess.settings:
-        return _build(sess, scene, view_layer, dg, f"settings changed: {_describe_settings(sess.settings, _settings(scene))}")
+        return _build(
+            sess,
+            scene,
+            view_layer,
+            dg,
+            f"settings changed: {_describe_settings(sess.settings, _settings(scene))}",
+        )
     change = _geometry_change(sess, view_layer, dg, check_geometry)
     if change:
         print(f"HR Radiosity: Live: the geometry changed ({change}): rebuilding the hierarchy", flush=True)
@@ -516,12 +549,12 @@ def _tick_body():
     if redraw:
         _redraw()
     if not _sessions:
-        return WATCH          # keeps watching Scene.hr.live (a script may set it: no depsgraph update)
+        return WATCH  # keeps watching Scene.hr.live (a script may set it: no depsgraph update)
     busy = any(s.worker.pending or s.dirty or s.geometry_dirty or s.force_write for s in _sessions.values())
     return TICK if busy else IDLE_POLL / 2
 
 
-_GEOMETRY_KINDS = ("Image", "NodeTree")       # images (averaged colours) and node groups
+_GEOMETRY_KINDS = ("Image", "NodeTree")  # images (averaged colours) and node groups
 
 
 @persistent
@@ -530,7 +563,7 @@ def on_depsgraph_update(scene, depsgraph=None):
     if playback.state["baking"] or depsgraph is None:
         return
     if scene.hr.live != is_live(scene):
-        _ensure_timer()            # Scene.hr.live set by a script: the timer starts / ends Live
+        _ensure_timer()  # Scene.hr.live set by a script: the timer starts / ends Live
     sess = session(scene)
     if sess is None:
         return
@@ -540,7 +573,7 @@ def on_depsgraph_update(scene, depsgraph=None):
         idd = u.id
         kind = type(idd).__name__
         if kind == "Mesh":
-            if idd.name in own:          # (a mesh's update says is_updated_transform too)
+            if idd.name in own:  # (a mesh's update says is_updated_transform too)
                 continue
             dirty = True
             if idd.name not in sess.shape_meshes:
@@ -552,9 +585,12 @@ def on_depsgraph_update(scene, depsgraph=None):
                 continue
             dirty = True
             if ob.name not in sess.shape_objects:
-                full = True          # visibility and the set of objects: the name check of a full read
-            if (u.is_updated_geometry or u.is_updated_transform) and not ob.hr.is_light_shape \
-                    and ob.type not in {"CAMERA", "LIGHT", "SPEAKER", "LIGHT_PROBE"}:
+                full = True  # visibility and the set of objects: the name check of a full read
+            if (
+                (u.is_updated_geometry or u.is_updated_transform)
+                and not ob.hr.is_light_shape
+                and ob.type not in {"CAMERA", "LIGHT", "SPEAKER", "LIGHT_PROBE"}
+            ):
                 geometry = True
         elif kind.endswith("Material"):
             dirty = True
@@ -562,7 +598,7 @@ def on_depsgraph_update(scene, depsgraph=None):
             geometry |= name in sess.geo_materials
             full |= name not in sess.shape_materials
         elif kind.endswith("NodeTree") and getattr(idd, "is_embedded_data", False):
-            dirty = True            # a material's own tree: its Material is in the updates too
+            dirty = True  # a material's own tree: its Material is in the updates too
         elif kind.endswith(_GEOMETRY_KINDS):
             dirty = geometry = full = True
         elif kind in ("Scene", "Collection"):
@@ -589,7 +625,7 @@ def on_undo_redo(*args):
     for name, sess in _sessions.items():
         scene = bpy.data.scenes.get(name)
         if scene is not None and not scene.hr.live:
-            scene.hr.live = True     # Live is a session, not an undo step
+            scene.hr.live = True  # Live is a session, not an undo step
         sess.force_write = sess.dirty = True
         sess.geometry_dirty = time.monotonic()
     if _sessions:
@@ -603,8 +639,10 @@ def on_frame_change_pre(scene, *args):
     if is_live(scene) and bpy.app.is_job_running("RENDER") and not playback.bake_dir_abs(scene):
         sess = session(scene)
         if not sess.render_note:
-            sess.render_note = ("Live Relight: an animation render shows the Live light of the moment on every "
-                                "frame (there is no bake to play back): bake to render the light of each frame.")
+            sess.render_note = (
+                "Live Relight: an animation render shows the Live light of the moment on every "
+                "frame (there is no bake to play back): bake to render the light of each frame."
+            )
             print(f"HR Radiosity: {sess.render_note}", flush=True)
 
 
@@ -634,10 +672,17 @@ def on_load_post(*args):
 
 def _handlers():
     h = bpy.app.handlers
-    return ((h.depsgraph_update_post, on_depsgraph_update), (h.frame_change_pre, on_frame_change_pre),
-            (h.frame_change_post, on_frame_change_post),
-            (h.undo_post, on_undo_redo), (h.redo_post, on_undo_redo), (h.render_complete, on_render_done),
-            (h.render_cancel, on_render_done), (h.load_pre, on_load_pre), (h.load_post, on_load_post))
+    return (
+        (h.depsgraph_update_post, on_depsgraph_update),
+        (h.frame_change_pre, on_frame_change_pre),
+        (h.frame_change_post, on_frame_change_post),
+        (h.undo_post, on_undo_redo),
+        (h.redo_post, on_undo_redo),
+        (h.render_complete, on_render_done),
+        (h.render_cancel, on_render_done),
+        (h.load_pre, on_load_pre),
+        (h.load_post, on_load_post),
+    )
 
 
 def register():
@@ -650,7 +695,7 @@ def register():
 def unregister():
     workers = [s.worker for s in _sessions.values()]
     stop_all(restore=False)
-    for w in workers:          # do not leave a thread computing in an add-on that is going away
+    for w in workers:  # do not leave a thread computing in an add-on that is going away
         w.join(10.0)
     for lst, fn in _handlers():
         playback._remove(lst, fn)

@@ -13,6 +13,7 @@ previous result stays on screen.
 threaded=False (Blender in background mode, tests, scripts) computes in the caller's thread when
 flush() is called. The DynamicRadiosity is only ever used by one thread at a time.
 """
+
 import threading
 import time
 import traceback
@@ -29,29 +30,30 @@ from ..core.radiosity import RadiositySystem
 @dataclass
 class BuildSpec:
     """Everything the worker needs to build (read from the scene by the UI thread)."""
-    mesh: object                 # core MeshInput
-    params: object               # core RefineParams (already scaled as the bake scales them)
-    method: str                  # AUTO, AR, FE, NAIVE
+
+    mesh: object  # core MeshInput
+    params: object  # core RefineParams (already scaled as the bake scales them)
+    method: str  # AUTO, AR, FE, NAIVE
     min_area_rel: float
-    domain: str                  # CORNER or POINT
-    extract: object              # callable((L, 3) loop radiance) -> {object name: (N, 3) values}
-    reason: str = ""             # shown while building ("first build", "'back' changed")
+    domain: str  # CORNER or POINT
+    extract: object  # callable((L, 3) loop radiance) -> {object name: (N, 3) values}
+    reason: str = ""  # shown while building ("first build", "'back' changed")
     polygons: int = 0
 
 
 @dataclass
 class Result:
-    generation: int              # build it belongs to
-    serial: int = 0              # the light-state request it answers
-    sig: str = ""                # digest of that light state
-    values: dict = None          # {object name: (N, 4) float32 RGBA}, None on error
-    report: object = None        # core FrameReport of the apply
+    generation: int  # build it belongs to
+    serial: int = 0  # the light-state request it answers
+    sig: str = ""  # digest of that light state
+    values: dict = None  # {object name: (N, 4) float32 RGBA}, None on error
+    report: object = None  # core FrameReport of the apply
     error: str = ""
-    fatal: bool = False          # the worker cannot go on (build failed, internal error)
-    kind: str = "frame"          # "frame" or "build"
-    t_apply: float = 0.0         # seconds in DynamicRadiosity.apply
-    t_output: float = 0.0        # seconds computing the per-object values
-    requested: float = 0.0       # time.perf_counter() of the request (latency)
+    fatal: bool = False  # the worker cannot go on (build failed, internal error)
+    kind: str = "frame"  # "frame" or "build"
+    t_apply: float = 0.0  # seconds in DynamicRadiosity.apply
+    t_output: float = 0.0  # seconds computing the per-object values
+    requested: float = 0.0  # time.perf_counter() of the request (latency)
     messages: list = field(default_factory=list)
 
 
@@ -72,24 +74,24 @@ class LiveWorker:
         self._cond = threading.Condition()
         self._busy = False
         self._closed = False
-        self._build = None           # pending (generation, BuildSpec)
-        self._shapes = None          # pending (serial, sig, shapes, t_request)
-        self._last_shapes = None     # the newest light-state request (re-applied after a rebuild)
-        self._result = None          # newest finished frame Result, not yet taken
-        self._build_result = None    # newest finished build Result, not yet taken
+        self._build = None  # pending (generation, BuildSpec)
+        self._shapes = None  # pending (serial, sig, shapes, t_request)
+        self._last_shapes = None  # the newest light-state request (re-applied after a rebuild)
+        self._result = None  # newest finished frame Result, not yet taken
+        self._build_result = None  # newest finished build Result, not yet taken
         self.thread = None
         self.dyn = None
         self.spec = None
-        self.generation = 0          # builds requested
-        self.built = 0               # generation of self.dyn (0: none yet)
-        self.phase = "idle"          # idle, building, computing, failed, closed
-        self.fraction = 0.0          # of the build
+        self.generation = 0  # builds requested
+        self.built = 0  # generation of self.dyn (0: none yet)
+        self.phase = "idle"  # idle, building, computing, failed, closed
+        self.fraction = 0.0  # of the build
         self.eta = float("nan")
         self.build_message = ""
         self.build_seconds = 0.0
         self.build_report = None
-        self.computed = 0            # light states computed (the coalescing test counts them)
-        self.builds = 0              # builds finished
+        self.computed = 0  # light states computed (the coalescing test counts them)
+        self.builds = 0  # builds finished
 
     # -- the UI thread ---------------------------------------------------------------------------
     def request_build(self, spec, serial, sig, shapes):
@@ -119,7 +121,7 @@ class LiveWorker:
             b, r = self._build_result, self._result
             self._build_result = self._result = None
         if r is not None and r.generation != self.generation:
-            r = None                 # computed on a hierarchy that has been replaced since
+            r = None  # computed on a hierarchy that has been replaced since
         return b, r
 
     @property
@@ -189,12 +191,14 @@ class LiveWorker:
                 self._do_build(*job[1:])
             else:
                 self._do_shapes(*job[1:])
-        except BaseException as exc:     # never leave the UI waiting for a thread that died
+        except BaseException as exc:  # never leave the UI waiting for a thread that died
             msg = "".join(traceback.format_exception_only(type(exc), exc)).strip()
             with self._cond:
                 self.dyn = None
                 self.phase = "failed"
-                self._build_result = Result(self.generation, error=f"internal error: {msg}", fatal=True, kind="build")
+                self._build_result = Result(
+                    self.generation, error=f"internal error: {msg}", fatal=True, kind="build"
+                )
             traceback.print_exc()
         finally:
             with self._cond:
@@ -213,13 +217,18 @@ class LiveWorker:
                 raise Cancelled()
             self.fraction, self.eta, self.build_message = float(info.fraction), float(info.eta), info.message
 
-        self.dyn = None                 # the old one is of no use any more (and may be large)
+        self.dyn = None  # the old one is of no use any more (and may be large)
         try:
             system = RadiositySystem(spec.mesh, spec.params, progress=progress)
             if self._superseded():
                 return
-            dyn = DynamicRadiosity(system, method=spec.method, min_area_rel=spec.min_area_rel,
-                                   response_tol=RESPONSE_TOL, response_float32=True)
+            dyn = DynamicRadiosity(
+                system,
+                method=spec.method,
+                min_area_rel=spec.min_area_rel,
+                response_tol=RESPONSE_TOL,
+                response_float32=True,
+            )
         except Cancelled:
             return
         except (InputError, ValueError, RuntimeError, MemoryError) as exc:
@@ -238,17 +247,17 @@ class LiveWorker:
             self.phase = "computing"
             self._build_result = Result(generation, kind="build", messages=list(system.build.warnings))
             if self._shapes is None and self._last_shapes is not None:
-                self._shapes = self._last_shapes          # the newest light state, on the new hierarchy
+                self._shapes = self._last_shapes  # the newest light state, on the new hierarchy
 
     def _do_shapes(self, serial, sig, shapes, t_request):
         dyn, spec, generation = self.dyn, self.spec, self.built
         if dyn is None or generation != self.generation:
-            return                        # no hierarchy yet (its build re-queues the newest state)
+            return  # no hierarchy yet (its build re-queues the newest state)
         self.phase = "computing"
         t0 = time.perf_counter()
         try:
             report = dyn.apply(shapes)
-        except InputError as exc:         # an invalid shape: apply() validates before changing anything
+        except InputError as exc:  # an invalid shape: apply() validates before changing anything
             with self._cond:
                 self._result = Result(generation, serial, sig, error=str(exc), requested=t_request)
                 self.phase = "idle"
@@ -258,6 +267,15 @@ class LiveWorker:
         t2 = time.perf_counter()
         self.computed += 1
         with self._cond:
-            self._result = Result(generation, serial, sig, values, report, t_apply=t1 - t0, t_output=t2 - t1,
-                                  requested=t_request, messages=list(report.messages))
+            self._result = Result(
+                generation,
+                serial,
+                sig,
+                values,
+                report,
+                t_apply=t1 - t0,
+                t_output=t2 - t1,
+                requested=t_request,
+                messages=list(report.messages),
+            )
             self.phase = "idle"

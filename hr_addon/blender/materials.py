@@ -10,6 +10,7 @@ images) or an RGB node; a strength socket by a Value node. Anything else gives a
 the material and falls back to the socket's own value (or, for an unknown shader, the default
 grey). Emission is radiance in Cycles units (W sr^-1 m^-2: strength x colour).
 """
+
 from dataclasses import dataclass, field
 
 import bpy
@@ -17,9 +18,9 @@ import numpy as np
 
 from ..io.images import srgb_to_linear
 
-DEFAULT_REFLECTANCE = 0.8     # objects without a material, and unsupported shaders
-MAX_REFLECTANCE = 0.99        # a diffuse surface must absorb some light (the solver needs rho < 1)
-PREVIEW = "HR Preview"        # name prefix of the preview nodes / material (ignored when reading)
+DEFAULT_REFLECTANCE = 0.8  # objects without a material, and unsupported shaders
+MAX_REFLECTANCE = 0.99  # a diffuse surface must absorb some light (the solver needs rho < 1)
+PREVIEW = "HR Preview"  # name prefix of the preview nodes / material (ignored when reading)
 
 
 @dataclass
@@ -103,8 +104,10 @@ class _Reader:
             return avg
         if node.type == "RGB":
             return np.array(node.outputs[0].default_value[:3], float)
-        self.warn(f"'{socket.name}' is driven by a '{node.bl_label}' node, which is not supported; "
-                  "using the socket's own colour")
+        self.warn(
+            f"'{socket.name}' is driven by a '{node.bl_label}' node, which is not supported; "
+            "using the socket's own colour"
+        )
         return np.array(socket.default_value[:3], float)
 
     def value(self, socket):
@@ -113,8 +116,10 @@ class _Reader:
             return float(socket.default_value)
         if node.type == "VALUE":
             return float(node.outputs[0].default_value)
-        self.warn(f"'{socket.name}' is driven by a '{node.bl_label}' node, which is not supported; "
-                  "using the socket's own value")
+        self.warn(
+            f"'{socket.name}' is driven by a '{node.bl_label}' node, which is not supported; "
+            "using the socket's own value"
+        )
         return float(socket.default_value)
 
     def shader(self, socket, depth=0):
@@ -128,8 +133,10 @@ class _Reader:
         t = node.type
         zero = np.zeros(3)
         if t == "BSDF_PRINCIPLED":
-            return (self.color(node.inputs["Base Color"]),
-                    self.color(node.inputs["Emission Color"]) * self.value(node.inputs["Emission Strength"]))
+            return (
+                self.color(node.inputs["Base Color"]),
+                self.color(node.inputs["Emission Color"]) * self.value(node.inputs["Emission Strength"]),
+            )
         if t == "BSDF_DIFFUSE":
             return self.color(node.inputs["Color"]), zero
         if t == "EMISSION":
@@ -141,14 +148,18 @@ class _Reader:
             f = min(max(self.value(node.inputs[0]), 0.0), 1.0)
             a, b = self.shader(node.inputs[1], depth + 1), self.shader(node.inputs[2], depth + 1)
             return (1 - f) * a[0] + f * b[0], (1 - f) * a[1] + f * b[1]
-        raise _Unsupported(f"the '{node.bl_label}' shader is not supported "
-                           "(use Principled BSDF, Diffuse BSDF or Emission)")
+        raise _Unsupported(
+            f"the '{node.bl_label}' shader is not supported (use Principled BSDF, Diffuse BSDF or Emission)"
+        )
 
 
 def _output_node(tree):
     outs = [n for n in tree.nodes if n.type == "OUTPUT_MATERIAL" and not n.name.startswith(PREVIEW)]
-    for test in (lambda n: n.is_active_output and n.target in ("ALL", "CYCLES"),
-                 lambda n: n.target in ("ALL", "CYCLES"), lambda n: True):
+    for test in (
+        lambda n: n.is_active_output and n.target in ("ALL", "CYCLES"),
+        lambda n: n.target in ("ALL", "CYCLES"),
+        lambda n: True,
+    ):
         for n in outs:
             if test(n):
                 return n
@@ -180,8 +191,10 @@ def read_material(mat) -> Surface:
         r.warn("non-finite colour or strength; using grey without emission")
         rho, em = grey.copy(), np.zeros(3)
     if (rho > MAX_REFLECTANCE).any():
-        r.warn(f"reflectance {tuple(round(float(x), 4) for x in rho)} clamped to {MAX_REFLECTANCE} "
-               "(a diffuse surface cannot reflect all the light it receives)")
+        r.warn(
+            f"reflectance {tuple(round(float(x), 4) for x in rho)} clamped to {MAX_REFLECTANCE} "
+            "(a diffuse surface cannot reflect all the light it receives)"
+        )
     if (rho < 0).any() or (em < 0).any():
         r.warn("negative colour or strength clamped to 0")
     return Surface(np.clip(rho, 0.0, MAX_REFLECTANCE), np.maximum(em, 0.0), r.warnings)

@@ -1,5 +1,6 @@
 """Operators: bake (a background process with progress; Cancel keeps the previous bake), light
 shapes, preview, cache (reload, clear, delete), Live Relight (toggle, synchronous update)."""
+
 import os
 import shutil
 
@@ -51,6 +52,7 @@ def _status_text(context, text):
 class HR_OT_bake(bpy.types.Operator):
     """Bake dynamic hierarchical radiosity over the frame range, in a background process
     (Blender stays usable; Cancel keeps the previous bake)"""
+
     bl_idname = "hr.bake"
     bl_label = "Bake Radiosity"
     bl_options = {"REGISTER"}
@@ -80,12 +82,15 @@ class HR_OT_bake(bpy.types.Operator):
         for w in res.warning_lines():
             self.report({"WARNING"}, w)
         playback.state.setdefault("notes", {})[context.scene.name_full] = res.warning_lines()
-        self.report({"INFO"}, f"Baked {res.frames[0]}-{res.frames[1]}: {res.solved} solved, "
-                              f"{res.reused} unchanged ({res.rays_text})")
+        self.report(
+            {"INFO"},
+            f"Baked {res.frames[0]}-{res.frames[1]}: {res.solved} solved, "
+            f"{res.reused} unchanged ({res.rays_text})",
+        )
         return {"FINISHED"}
 
     def invoke(self, context, event):
-        if bpy.app.background:          # no event loop: bake here
+        if bpy.app.background:  # no event loop: bake here
             return self.execute(context)
         job = background.BackgroundBake(context.scene, context.view_layer)
         try:
@@ -129,6 +134,7 @@ class HR_OT_bake(bpy.types.Operator):
 
 class HR_OT_cancel_bake(bpy.types.Operator):
     """Stop the running radiosity bake; the previous bake is kept"""
+
     bl_idname = "hr.cancel_bake"
     bl_label = "Cancel Bake"
 
@@ -146,11 +152,14 @@ class HR_OT_cancel_bake(bpy.types.Operator):
 class HR_OT_mark_light_shape(bpy.types.Operator):
     """Mark the selected meshes as light shapes: emissive patches lying on scene surfaces.
     They are not geometry, and are hidden from render rays (the bake carries their light)"""
+
     bl_idname = "hr.mark_light_shape"
     bl_label = "Mark as Light Shape"
     bl_options = {"REGISTER", "UNDO"}
 
-    clear: BoolProperty(name="Clear", default=False, description="Turn the selected light shapes back into geometry")
+    clear: BoolProperty(
+        name="Clear", default=False, description="Turn the selected light shapes back into geometry"
+    )
 
     @classmethod
     def poll(cls, context):
@@ -162,8 +171,14 @@ class HR_OT_mark_light_shape(bpy.types.Operator):
             if o.type != "MESH":
                 continue
             o.hr.is_light_shape = not self.clear
-            for attr in ("visible_camera", "visible_diffuse", "visible_glossy", "visible_transmission",
-                         "visible_volume_scatter", "visible_shadow"):
+            for attr in (
+                "visible_camera",
+                "visible_diffuse",
+                "visible_glossy",
+                "visible_transmission",
+                "visible_volume_scatter",
+                "visible_shadow",
+            ):
                 setattr(o, attr, self.clear)
             o.show_in_front = not self.clear
             n += 1
@@ -174,6 +189,7 @@ class HR_OT_mark_light_shape(bpy.types.Operator):
 class HR_OT_add_preview(bpy.types.Operator):
     """Show the bake in the viewport and renders through an Emission shader: HR_Radiance, or for
     baked textures the image sequences on object-level material copies (restored by Remove Preview)"""
+
     bl_idname = "hr.add_preview"
     bl_label = "Preview Bake"
     bl_options = {"REGISTER", "UNDO"}
@@ -209,6 +225,7 @@ class HR_OT_add_preview(bpy.types.Operator):
 
 class HR_OT_remove_preview(bpy.types.Operator):
     """Remove the preview nodes and give the materials their own shaders back"""
+
     bl_idname = "hr.remove_preview"
     bl_label = "Remove Preview"
     bl_options = {"REGISTER", "UNDO"}
@@ -226,6 +243,7 @@ class HR_OT_remove_preview(bpy.types.Operator):
 
 class HR_OT_load_frame(bpy.types.Operator):
     """Reload the current frame from the radiosity cache"""
+
     bl_idname = "hr.load_frame"
     bl_label = "Reload Cache"
 
@@ -247,6 +265,7 @@ class HR_OT_load_frame(bpy.types.Operator):
 
 class HR_OT_clear_bake(bpy.types.Operator):
     """Forget the bake (the cache files stay on disk) and remove HR_Radiance from the meshes"""
+
     bl_idname = "hr.clear_bake"
     bl_label = "Clear Bake"
     bl_options = {"REGISTER", "UNDO"}
@@ -277,7 +296,7 @@ def delete_cache_files(directory):
     """Remove the files of the bake in `directory`: the ones its manifest names, its textures
     folder and the manifest; then the folder if it is empty. Returns the number of files removed.
     Nothing is removed from a folder without a radiosity manifest (CacheError)."""
-    reader = CacheReader(directory)        # raises CacheError unless it is a radiosity cache
+    reader = CacheReader(directory)  # raises CacheError unless it is a radiosity cache
     n = 0
     for name in sorted(set(reader.frames.values())):
         p = os.path.join(directory, os.path.basename(name))
@@ -293,12 +312,13 @@ def delete_cache_files(directory):
     try:
         os.rmdir(directory)
     except OSError:
-        pass      # other files in it: not ours, left alone
+        pass  # other files in it: not ours, left alone
     return n
 
 
 class HR_OT_delete_bake(bpy.types.Operator):
     """Delete the baked files from disk and remove HR_Radiance (asks for confirmation)"""
+
     bl_idname = "hr.delete_bake"
     bl_label = "Delete Bake"
     bl_options = {"REGISTER"}
@@ -313,10 +333,18 @@ class HR_OT_delete_bake(bpy.types.Operator):
         return True
 
     def invoke(self, context, event):
-        return context.window_manager.invoke_confirm(
-            self, event, title="Delete Bake", message=f"Delete the files of the radiosity bake in "
-            f"{playback.bake_dir_abs(context.scene)}?", confirm_text="Delete", icon="WARNING") \
-            if bpy.app.version >= (4, 1, 0) else context.window_manager.invoke_confirm(self, event)
+        return (
+            context.window_manager.invoke_confirm(
+                self,
+                event,
+                title="Delete Bake",
+                message=f"Delete the files of the radiosity bake in {playback.bake_dir_abs(context.scene)}?",
+                confirm_text="Delete",
+                icon="WARNING",
+            )
+            if bpy.app.version >= (4, 1, 0)
+            else context.window_manager.invoke_confirm(self, event)
+        )
 
     def execute(self, context):
         scene = context.scene
@@ -334,6 +362,7 @@ class HR_OT_delete_bake(bpy.types.Operator):
 class HR_OT_live_toggle(bpy.types.Operator):
     """Live Relight: keep the hierarchy in memory and update HR_Radiance whenever a light shape is
     moved, reshaped, recoloured, hidden or shown (press again: the baked playback comes back)"""
+
     bl_idname = "hr.live_toggle"
     bl_label = "Live Relight"
     bl_options = {"REGISTER"}
@@ -355,7 +384,7 @@ class HR_OT_live_toggle(bpy.types.Operator):
             _redraw(context)
             return {"FINISHED"}
         try:
-            if bpy.app.background:        # no event loop: build and compute here
+            if bpy.app.background:  # no event loop: build and compute here
                 scene.hr.live = True
                 live.update(scene, context.view_layer)
                 self.report({"INFO"}, "Live Relight on: HR_Radiance is current")
@@ -374,15 +403,18 @@ class HR_OT_live_update(bpy.types.Operator):
     off) and the geometry, apply what changed since the last update and write HR_Radiance. It
     starts Live when Scene.hr.live is on, and ends it (the baked playback again) when it is off.
     Synchronous: what scripts and Blender in background mode use"""
+
     bl_idname = "hr.live_update"
     bl_label = "Update Live Relight"
     bl_options = {"REGISTER"}
 
     check_geometry: BoolProperty(
-        name="Check Geometry", default=True,
+        name="Check Geometry",
+        default=True,
         description="Compare every participating object with the geometry the hierarchy was built "
-                    "from (off: only which objects take part and what the depsgraph reported as "
-                    "changed; faster on big scenes)")
+        "from (off: only which objects take part and what the depsgraph reported as "
+        "changed; faster on big scenes)",
+    )
 
     @classmethod
     def poll(cls, context):
@@ -396,10 +428,22 @@ class HR_OT_live_update(bpy.types.Operator):
             self.report({"ERROR"}, f"Live Relight: {exc}")
             return {"CANCELLED"}
         if sess is None:
-            self.report({"INFO"} if scene.hr.live or what.startswith("Live Relight off") else {"WARNING"}, what)
+            self.report(
+                {"INFO"} if scene.hr.live or what.startswith("Live Relight off") else {"WARNING"}, what
+            )
             return {"FINISHED"} if what.startswith("Live Relight off") else {"CANCELLED"}
         return {"FINISHED"}
 
 
-classes = (HR_OT_bake, HR_OT_cancel_bake, HR_OT_mark_light_shape, HR_OT_add_preview, HR_OT_remove_preview,
-           HR_OT_load_frame, HR_OT_clear_bake, HR_OT_delete_bake, HR_OT_live_toggle, HR_OT_live_update)
+classes = (
+    HR_OT_bake,
+    HR_OT_cancel_bake,
+    HR_OT_mark_light_shape,
+    HR_OT_add_preview,
+    HR_OT_remove_preview,
+    HR_OT_load_frame,
+    HR_OT_clear_bake,
+    HR_OT_delete_bake,
+    HR_OT_live_toggle,
+    HR_OT_live_update,
+)

@@ -1,5 +1,6 @@
 """Panels: Properties > Render > HR Radiosity, Properties > Object > HR Radiosity, and the
 3D View sidebar tab "HR"."""
+
 import bpy
 
 from . import background, live, playback
@@ -57,7 +58,9 @@ def _draw_live(col, scene):
     if sess.building:
         w = sess.worker
         eta = "" if w.eta != w.eta else f" \u00b7 about {w.eta:.0f} s left"
-        col.progress(factor=w.fraction, type="BAR", text=f"{100 * w.fraction:.0f}% \u00b7 building the hierarchy{eta}")
+        col.progress(
+            factor=w.fraction, type="BAR", text=f"{100 * w.fraction:.0f}% \u00b7 building the hierarchy{eta}"
+        )
     icon = "ERROR" if (sess.error or sess.fatal or sess.problems) else "INFO"
     for part in [sess.text()] + ([sess.problems] if sess.problems else []) + sess.light_notes[:2]:
         for i, line in enumerate(_wrap(part, 60)):
@@ -66,6 +69,7 @@ def _draw_live(col, scene):
 
 def _wrap(text, width):
     import textwrap
+
     return textwrap.wrap(text, width) or [text]
 
 
@@ -97,8 +101,9 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
         if hr.quality == "CUSTOM":
             sub.prop(hr, "feps")
             sub.prop(hr, "aeps")
-        else:   # the preset's thresholds, read only (the bake takes the whole preset)
+        else:  # the preset's thresholds, read only (the bake takes the whole preset)
             from ..core.refine import RefineParams
+
             p = RefineParams.preset(hr.quality.lower())
             sub.enabled = False
             sub.label(text=f"Link threshold (Feps): {p.feps:g}")

@@ -7,6 +7,7 @@ in the panel ("the scene changed since the bake (re-bake)"). The check runs when
 loaded (file open, Reload, Preview, after a bake), after frame changes when something was edited
 (depsgraph updates mark the scene), and half a second after an edit in the UI.
 """
+
 import os
 
 import bpy
@@ -23,11 +24,24 @@ MAGENTA = (1.0, 0.0, 1.0, 1.0)
 # last check (key, message); dirty: scenes edited since; written: meshes whose HR_Radiance we
 # wrote (their next depsgraph update is ours, not an edit); live: scenes whose HR_Radiance Live
 # Relight writes (live.py; playback leaves them alone, except during renders).
-state = {"baking": False, "messages": {}, "readers": {}, "loaded": {}, "stale": {}, "changes": {},
-         "dirty": set(), "written": set(), "image_checks": {}, "notes": {}, "live": set()}
+state = {
+    "baking": False,
+    "messages": {},
+    "readers": {},
+    "loaded": {},
+    "stale": {},
+    "changes": {},
+    "dirty": set(),
+    "written": set(),
+    "image_checks": {},
+    "notes": {},
+    "live": set(),
+}
 
-LOCK_MESSAGE = ("Frames are not loaded during this render: turn on Render > Lock Interface "
-                "(changing mesh data during a render is unsafe).")
+LOCK_MESSAGE = (
+    "Frames are not loaded during this render: turn on Render > Lock Interface "
+    "(changing mesh data during a render is unsafe)."
+)
 
 
 def _log_once(scene, msg):
@@ -40,8 +54,9 @@ def _log_once(scene, msg):
 
 def status(scene):
     """What the panel shows: the load problem, then whether the scene changed since the bake."""
-    return "\n".join(m for m in (state["messages"].get(scene.name_full, ""), state["stale"].get(scene.name_full, ""))
-                     if m)
+    return "\n".join(
+        m for m in (state["messages"].get(scene.name_full, ""), state["stale"].get(scene.name_full, "")) if m
+    )
 
 
 def _log_stale(scene, msg):
@@ -109,16 +124,21 @@ def stale_message(scene, reader, directory, depsgraph=None, force=False):
     msg = ""
     if "geometry" in m:
         from . import signatures
+
         vl = signatures.view_layer_of(scene, m.get("view_layer"))
         try:
-            same = depsgraph is not None and depsgraph.view_layer.name == vl.name and depsgraph.scene.name == scene.name
+            same = (
+                depsgraph is not None
+                and depsgraph.view_layer.name == vl.name
+                and depsgraph.scene.name == scene.name
+            )
         except (AttributeError, ReferenceError):
             same = False
         dg = depsgraph if same else vl.depsgraph
         try:
             parts = changed_objects(m["geometry"], signatures.geometry_signatures(vl, dg))
             ls = changed_objects(m.get("light_shapes", {}), signatures.light_shape_identity(vl))
-        except (RuntimeError, ReferenceError, AttributeError) as exc:   # data going away (undo, file load)
+        except (RuntimeError, ReferenceError, AttributeError) as exc:  # data going away (undo, file load)
             parts, ls = [f"cannot compare ({exc})"], []
         parts += [f"light shape(s) {p}" for p in ls]
         if parts:
@@ -146,8 +166,11 @@ def check_scene(scene, depsgraph=None, force=False):
 def show_missing(scene, reader=None):
     """Magenta in HR_Radiance of the bake's objects (all meshes carrying it without a manifest):
     the frame shown has no valid data, and renders must not use another frame's light."""
-    names = list(reader.objects) if reader is not None else [
-        o.name for o in scene.objects if o.type == "MESH" and ATTRIBUTE in o.data.color_attributes]
+    names = (
+        list(reader.objects)
+        if reader is not None
+        else [o.name for o in scene.objects if o.type == "MESH" and ATTRIBUTE in o.data.color_attributes]
+    )
     done = set()
     objs = objects_by_name(scene, names)
     for name in names:
@@ -169,6 +192,7 @@ def show_missing(scene, reader=None):
 
 def _texture_problem(reader, directory, frame):
     from ..io.images import image_file_problem
+
     f = reader.nearest(frame)
     for name, info in reader.objects.items():
         tex = info.get("texture")
@@ -187,8 +211,10 @@ def _texture_problem(reader, directory, frame):
                 state["image_checks"].clear()
             state["image_checks"][key] = why
         if why:
-            return (f"Radiosity cache texture '{path}' of object '{name}' is {why}: Blender shows it "
-                    "magenta (re-bake; a bake of any frame range re-bakes damaged frames).")
+            return (
+                f"Radiosity cache texture '{path}' of object '{name}' is {why}: Blender shows it "
+                "magenta (re-bake; a bake of any frame range re-bakes damaged frames)."
+            )
     return ""
 
 
@@ -208,8 +234,10 @@ def write_attribute(mesh, values, domain):
         if mesh.color_attributes.active_color is None:
             mesh.color_attributes.active_color = attr
     if len(attr.data) != len(values):
-        raise CacheError(f"Mesh '{mesh.name}' has {len(attr.data)} {domain.lower()} elements but the "
-                         f"cache holds {len(values)}: the mesh changed since the bake (re-bake).")
+        raise CacheError(
+            f"Mesh '{mesh.name}' has {len(attr.data)} {domain.lower()} elements but the "
+            f"cache holds {len(values)}: the mesh changed since the bake (re-bake)."
+        )
     attr.data.foreach_set("color", np.ascontiguousarray(values, np.float32).ravel())
     mesh.update_tag()
     state["written"].add(mesh.name)
@@ -261,7 +289,7 @@ def load_frame(scene, frame=None):
             state["loaded"][scene.name_full] = ("missing", directory)
         _log_once(scene, f"{exc} Showing magenta.")
         return False
-    if reader.manifest.get("output") == "TEXTURE":   # image sequences play back by themselves
+    if reader.manifest.get("output") == "TEXTURE":  # image sequences play back by themselves
         problem = _texture_problem(reader, directory, frame)
         if problem:
             _log_once(scene, problem)
@@ -269,18 +297,21 @@ def load_frame(scene, frame=None):
         state["messages"].pop(scene.name_full, None)
         return True
     name = reader.frames[reader.nearest(frame)]
-    key = (directory, state["readers"].get(directory, (None,))[0], name)   # manifest mtime
+    key = (directory, state["readers"].get(directory, (None,))[0], name)  # manifest mtime
     if state["loaded"].get(scene.name_full) == key and _attributes_present(scene, reader):
-        return True          # same cached file as the frame shown: HR_Radiance is already right
+        return True  # same cached file as the frame shown: HR_Radiance is already right
     if state["loaded"].get(scene.name_full) == ("magenta", key):
-        return False         # the same damaged file: already magenta, message shown
+        return False  # the same damaged file: already magenta, message shown
     try:
         arrays = reader.load(frame)
     except CacheError as exc:
         show_missing(scene, reader)
         state["loaded"][scene.name_full] = ("magenta", key)
-        _log_once(scene, f"{exc} Frame {frame} shows magenta (re-bake; a bake of any frame range "
-                         "re-bakes damaged frames).")
+        _log_once(
+            scene,
+            f"{exc} Frame {frame} shows magenta (re-bake; a bake of any frame range "
+            "re-bakes damaged frames).",
+        )
         return False
     problems = apply_arrays(scene, arrays, reader.domain)
     if problems:
@@ -302,8 +333,7 @@ def _attributes_present(scene, reader):
 
 def render_unlocked(scene):
     """True when an interactive render runs without Lock Interface (frames must not be loaded)."""
-    return (not bpy.app.background and not scene.render.use_lock_interface
-            and bpy.app.is_job_running("RENDER"))
+    return not bpy.app.background and not scene.render.use_lock_interface and bpy.app.is_job_running("RENDER")
 
 
 def live_shown(scene):
@@ -316,7 +346,7 @@ def on_frame_change_pre(scene, *args):
     if state["baking"] or not scene.hr.playback or live_shown(scene):
         return
     if render_unlocked(scene):
-        _log_once(scene, LOCK_MESSAGE)     # printed once, and shown in the panel
+        _log_once(scene, LOCK_MESSAGE)  # printed once, and shown in the panel
         return
     load_frame(scene)
 
@@ -383,7 +413,7 @@ def _deferred_check():
 
 @persistent
 def on_undo_redo(*args):
-    forget_loaded()    # undo may bring back HR_Radiance values of another frame
+    forget_loaded()  # undo may bring back HR_Radiance values of another frame
     for sc in bpy.data.scenes:
         state["dirty"].add(sc.name_full)
 
@@ -408,16 +438,22 @@ def on_load_post(*args):
 def _remove(lst, fn):
     """Remove fn and stale copies of it (same module and name, e.g. after an add-on reload)."""
     for h in list(lst):
-        if h is fn or (getattr(h, "__name__", None) == fn.__name__
-                       and getattr(h, "__module__", None) == fn.__module__):
+        if h is fn or (
+            getattr(h, "__name__", None) == fn.__name__ and getattr(h, "__module__", None) == fn.__module__
+        ):
             lst.remove(h)
 
 
 def _handlers():
     h = bpy.app.handlers
-    return ((h.frame_change_pre, on_frame_change_pre), (h.frame_change_post, on_frame_change_post),
-            (h.depsgraph_update_post, on_depsgraph_update), (h.load_post, on_load_post),
-            (h.undo_post, on_undo_redo), (h.redo_post, on_undo_redo))
+    return (
+        (h.frame_change_pre, on_frame_change_pre),
+        (h.frame_change_post, on_frame_change_post),
+        (h.depsgraph_update_post, on_depsgraph_update),
+        (h.load_post, on_load_post),
+        (h.undo_post, on_undo_redo),
+        (h.redo_post, on_undo_redo),
+    )
 
 
 def register():

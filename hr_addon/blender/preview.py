@@ -6,6 +6,7 @@ one; the original nodes stay untouched and are restored by remove_preview(). Obj
 material get the shared "HR Preview" material, which the bake treats as no material (grey 0.8).
 Emission strength 1 reproduces the cached radiance exactly (view transform Standard).
 """
+
 import bpy
 
 from .materials import PREVIEW
@@ -73,8 +74,11 @@ def add_preview(objects):
 
 def remove_preview(objects=None):
     """Remove the preview nodes from every material (or those of `objects`)."""
-    mats = bpy.data.materials if objects is None else {s.material for o in objects for s in o.material_slots
-                                                       if s.material is not None}
+    mats = (
+        bpy.data.materials
+        if objects is None
+        else {s.material for o in objects for s in o.material_slots if s.material is not None}
+    )
     n = 0
     for m in list(mats):
         if m.get("hr_preview"):
@@ -89,7 +93,7 @@ def remove_preview(objects=None):
         if outs and not any(x.is_active_output for x in outs):
             outs[0].is_active_output = True
         n += 1
-    for o in (bpy.data.objects if objects is None else objects):
+    for o in bpy.data.objects if objects is None else objects:
         if o.type == "MESH":
             for i in reversed(range(len(o.data.materials))):
                 m = o.data.materials[i]
@@ -102,6 +106,7 @@ def has_preview():
     """True when some material carries preview nodes, is the shared preview material, or is a
     baked-texture helper material (what Remove Preview removes)."""
     from .texture import TAG
+
     for m in bpy.data.materials:
         if m.get("hr_preview") or m.get(TAG) is not None:
             return True

@@ -1,10 +1,15 @@
 """Settings: Scene.hr (bake settings and bake state) and Object.hr (per-object flags)."""
+
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
 METHOD_ITEMS = [
-    ("AUTO", "Auto", "Per element fractional emission or refinement, chosen by an error bound "
-                     "(accurate and fast; recommended)"),
+    (
+        "AUTO",
+        "Auto",
+        "Per element fractional emission or refinement, chosen by an error bound "
+        "(accurate and fast; recommended)",
+    ),
     ("AR", "AR", "Adaptive refinement: subdivide the elements under the light shape's outline"),
     ("FE", "FE", "Fractional emissivity: elements partly covered emit the covered fraction (fastest)"),
     ("NAIVE", "Naive", "Light shapes become new patches and the solution is rebuilt (slow reference)"),
@@ -17,8 +22,12 @@ QUALITY_ITEMS = [
 ]
 OUTPUT_ITEMS = [
     ("VERTEX", "Vertex", "Colour attribute HR_Radiance on each mesh"),
-    ("TEXTURE", "Baked Textures", "One float image per object and frame (image sequence in the cache), "
-                                  "mapped by the UV map HR_Lightmap"),
+    (
+        "TEXTURE",
+        "Baked Textures",
+        "One float image per object and frame (image sequence in the cache), "
+        "mapped by the UV map HR_Lightmap",
+    ),
 ]
 TEXTURE_FORMAT_ITEMS = [
     ("EXR", "OpenEXR", "32-bit float, linear (exact radiance)"),
@@ -35,51 +44,112 @@ _REL = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set
 
 
 class HR_SceneSettings(bpy.types.PropertyGroup):
-    method: EnumProperty(name="Method", items=METHOD_ITEMS, default="AUTO",
-                         description="How light-shape changes are applied from one frame to the next")
+    method: EnumProperty(
+        name="Method",
+        items=METHOD_ITEMS,
+        default="AUTO",
+        description="How light-shape changes are applied from one frame to the next",
+    )
     # No update callback (it would copy the preset into feps/aeps): the bpy module of Blender 4.2 and
     # 4.5 crashes at exit when a property has one. The panel shows the preset's values instead.
-    quality: EnumProperty(name="Quality", items=QUALITY_ITEMS, default="MEDIUM",
-                          description="Refinement preset (Custom: the thresholds below)")
-    feps: FloatProperty(name="Link threshold (Feps)", default=0.02, min=1e-4, max=1.0, precision=4,
-                        description="Form factor threshold: links transporting more are subdivided (Custom quality)")
-    aeps: FloatProperty(name="Smallest element (Aeps)", default=2e-4, min=1e-7, max=0.1, precision=6,
-                        description="Smallest element area as a fraction of the total scene area (Custom quality)")
-    output: EnumProperty(name="Output", items=OUTPUT_ITEMS, default="VERTEX",
-                         description="Where the baked radiance goes")
-    texture_resolution: IntProperty(name="Texture Size", default=128, min=8, soft_min=16, max=16384,
-                                    soft_max=4096, description="Width and height of each object's lightmap "
-                                    "in texels (objects may override it)")
-    texture_format: EnumProperty(name="Texture Format", items=TEXTURE_FORMAT_ITEMS, default="EXR",
-                                 description="File format of the baked image sequences")
-    domain: EnumProperty(name="Domain", items=DOMAIN_ITEMS, default="CORNER",
-                         description="Domain of the HR_Radiance colour attribute")
-    use_frame_range: BoolProperty(name="Custom Frame Range", default=False,
-                                  description="Bake frames Start..End below instead of the scene frame range")
+    quality: EnumProperty(
+        name="Quality",
+        items=QUALITY_ITEMS,
+        default="MEDIUM",
+        description="Refinement preset (Custom: the thresholds below)",
+    )
+    feps: FloatProperty(
+        name="Link threshold (Feps)",
+        default=0.02,
+        min=1e-4,
+        max=1.0,
+        precision=4,
+        description="Form factor threshold: links transporting more are subdivided (Custom quality)",
+    )
+    aeps: FloatProperty(
+        name="Smallest element (Aeps)",
+        default=2e-4,
+        min=1e-7,
+        max=0.1,
+        precision=6,
+        description="Smallest element area as a fraction of the total scene area (Custom quality)",
+    )
+    output: EnumProperty(
+        name="Output", items=OUTPUT_ITEMS, default="VERTEX", description="Where the baked radiance goes"
+    )
+    texture_resolution: IntProperty(
+        name="Texture Size",
+        default=128,
+        min=8,
+        soft_min=16,
+        max=16384,
+        soft_max=4096,
+        description="Width and height of each object's lightmap in texels (objects may override it)",
+    )
+    texture_format: EnumProperty(
+        name="Texture Format",
+        items=TEXTURE_FORMAT_ITEMS,
+        default="EXR",
+        description="File format of the baked image sequences",
+    )
+    domain: EnumProperty(
+        name="Domain",
+        items=DOMAIN_ITEMS,
+        default="CORNER",
+        description="Domain of the HR_Radiance colour attribute",
+    )
+    use_frame_range: BoolProperty(
+        name="Custom Frame Range",
+        default=False,
+        description="Bake frames Start..End below instead of the scene frame range",
+    )
     frame_start: IntProperty(name="Start", default=1)
     frame_end: IntProperty(name="End", default=250)
-    cache_folder: StringProperty(name="Cache Folder", default="//hr_cache/", subtype="DIR_PATH", options=_REL,
-                                 description="Folder for the per-frame radiance files (relative to the .blend)")
+    cache_folder: StringProperty(
+        name="Cache Folder",
+        default="//hr_cache/",
+        subtype="DIR_PATH",
+        options=_REL,
+        description="Folder for the per-frame radiance files (relative to the .blend)",
+    )
     # Bake state, written by the bake. Relative ("//...") when the .blend is saved.
-    bake_dir: StringProperty(name="Baked Cache", default="", subtype="DIR_PATH", options=_REL,
-                             description="Cache directory of the last bake (empty: not baked)")
-    playback: BoolProperty(name="Playback", default=True,
-                           description="Load the baked radiance into HR_Radiance on frame change")
+    bake_dir: StringProperty(
+        name="Baked Cache",
+        default="",
+        subtype="DIR_PATH",
+        options=_REL,
+        description="Cache directory of the last bake (empty: not baked)",
+    )
+    playback: BoolProperty(
+        name="Playback", default=True, description="Load the baked radiance into HR_Radiance on frame change"
+    )
     # Live Relight (live.py). No update callback (see quality): the "Live Relight" button
     # (hr.live_toggle), hr.live_update and, in the UI, a timer act on it.
-    live: BoolProperty(name="Live Relight", default=False,
-                       description="Keep the hierarchy in memory and update HR_Radiance in the viewport "
-                                   "whenever a light shape is edited (off: the baked playback again)")
+    live: BoolProperty(
+        name="Live Relight",
+        default=False,
+        description="Keep the hierarchy in memory and update HR_Radiance in the viewport "
+        "whenever a light shape is edited (off: the baked playback again)",
+    )
 
 
 class HR_ObjectSettings(bpy.types.PropertyGroup):
-    exclude: BoolProperty(name="Exclude", default=False,
-                          description="Leave this object out of the radiosity solution")
-    is_light_shape: BoolProperty(name="Light Shape", default=False,
-                                 description="Emissive patch lying on scene surfaces; not geometry itself")
-    lightmap_resolution: IntProperty(name="Lightmap Size", default=0, min=0, max=16384, soft_max=4096,
-                                     description="Lightmap width and height in texels for baked textures "
-                                     "(0: the scene's Texture Size)")
+    exclude: BoolProperty(
+        name="Exclude", default=False, description="Leave this object out of the radiosity solution"
+    )
+    is_light_shape: BoolProperty(
+        name="Light Shape",
+        default=False,
+        description="Emissive patch lying on scene surfaces; not geometry itself",
+    )
+    lightmap_resolution: IntProperty(
+        name="Lightmap Size",
+        default=0,
+        min=0,
+        max=16384,
+        soft_max=4096,
+        description="Lightmap width and height in texels for baked textures (0: the scene's Texture Size)",
+    )
 
 
 classes = (HR_SceneSettings, HR_ObjectSettings)

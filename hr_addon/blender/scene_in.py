@@ -10,6 +10,7 @@ value per element; the bake says so. Each instanced mesh is read once and placed
 Per polygon reflectance/emission come from the material slot (see materials.py). Polygons that
 must be split are triangulated as Blender's loop_triangles are (what Cycles and EEVEE render).
 """
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,26 +41,34 @@ def _walk_collections(view_layer):
 
 
 def geometry_objects(view_layer):
-    return [o for o in _walk_collections(view_layer)
-            if o.type == "MESH" and not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape]
+    return [
+        o
+        for o in _walk_collections(view_layer)
+        if o.type == "MESH" and not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape
+    ]
 
 
 def light_shape_objects(view_layer, include_hidden=False):
-    return [o for o in _walk_collections(view_layer)
-            if o.type == "MESH" and o.hr.is_light_shape and not o.hr.exclude
-            and (include_hidden or not o.hide_render)]
+    return [
+        o
+        for o in _walk_collections(view_layer)
+        if o.type == "MESH"
+        and o.hr.is_light_shape
+        and not o.hr.exclude
+        and (include_hidden or not o.hide_render)
+    ]
 
 
 @dataclass
 class EvalMesh:
-    verts: np.ndarray        # (V, 3) world
+    verts: np.ndarray  # (V, 3) world
     loop_start: np.ndarray
     loop_total: np.ndarray
     loop_verts: np.ndarray
     material_index: np.ndarray
-    materials: list          # material per slot (evaluated), [None] if no slots
-    flipped: bool            # negative-determinant transform
-    tri_loops: np.ndarray = None   # (T, 3) Blender's loop_triangles (loop indices)
+    materials: list  # material per slot (evaluated), [None] if no slots
+    flipped: bool  # negative-determinant transform
+    tri_loops: np.ndarray = None  # (T, 3) Blender's loop_triangles (loop indices)
 
 
 def mesh_topology(me):
@@ -100,7 +109,9 @@ def _placed(arrays, matrix, mats):
     co, ls, lt, lv, mi, tri = arrays
     M = np.asarray(matrix, dtype=np.float64)
     verts = co @ M[:3, :3].T + M[:3, 3]
-    return EvalMesh(verts, ls, lt, lv, np.clip(mi, 0, len(mats) - 1), mats, bool(np.linalg.det(M[:3, :3]) < 0), tri)
+    return EvalMesh(
+        verts, ls, lt, lv, np.clip(mi, 0, len(mats) - 1), mats, bool(np.linalg.det(M[:3, :3]) < 0), tri
+    )
 
 
 def read_mesh(obj, depsgraph) -> EvalMesh:
@@ -119,25 +130,26 @@ def _reversed_loops(loop_start, loop_total):
 @dataclass
 class Target:
     """Where one object's share of the solution goes: HR_Radiance on its (original) mesh."""
+
     name: str
     mesh_name: str
-    loops: tuple             # (start, stop) of its loops in the MeshInput
-    verts: tuple             # (start, stop) of its vertices in the MeshInput
-    loop_perm: np.ndarray    # input loop j comes from evaluated loop loop_perm[j]
+    loops: tuple  # (start, stop) of its loops in the MeshInput
+    verts: tuple  # (start, stop) of its vertices in the MeshInput
+    loop_perm: np.ndarray  # input loop j comes from evaluated loop loop_perm[j]
     eval_loop_verts: np.ndarray
     n_eval_verts: int
-    n_corner: int            # output sizes on the original mesh
+    n_corner: int  # output sizes on the original mesh
     n_point: int
-    vert_map: np.ndarray = None       # original vertex -> evaluated vertex (topology changed)
+    vert_map: np.ndarray = None  # original vertex -> evaluated vertex (topology changed)
     orig_loop_verts: np.ndarray = None
 
     def extract(self, values, domain):
         """(N, 3) values on the original mesh's domain from the full solution array."""
         if domain == "POINT":
-            seg = values[self.verts[0]:self.verts[1]]
+            seg = values[self.verts[0] : self.verts[1]]
             return seg if self.vert_map is None else seg[self.vert_map]
         seg = np.empty((self.loops[1] - self.loops[0], 3), np.float32)
-        seg[self.loop_perm] = values[self.loops[0]:self.loops[1]]
+        seg[self.loop_perm] = values[self.loops[0] : self.loops[1]]
         if self.vert_map is None:
             return seg
         # Topology changed by modifiers: average per evaluated vertex, nearest vertex per corner.
@@ -152,7 +164,7 @@ class SceneInput:
     mesh: MeshInput
     targets: list
     warnings: list = field(default_factory=list)
-    instances: dict = field(default_factory=dict)   # {(instancer, source): InstanceInfo}
+    instances: dict = field(default_factory=dict)  # {(instancer, source): InstanceInfo}
 
 
 def _surfaces(materials, warnings, cache):
@@ -171,6 +183,7 @@ def _surfaces(materials, warnings, cache):
 def _topology_map(obj, em: EvalMesh, depsgraph):
     """Nearest evaluated vertex for each original vertex (modifiers that change topology)."""
     from mathutils import kdtree
+
     me = obj.data
     V = len(me.vertices)
     co = np.empty(V * 3, np.float32)
@@ -196,18 +209,25 @@ def _mesh_input(em: EvalMesh, name, warnings, mat_cache):
         # input loop j is evaluated loop perm[j] (perm is its own inverse); a mirrored object's
         # reversed polygons get reversed triangles
         tri = perm[em.tri_loops][:, ::-1] if em.flipped else em.tri_loops
-    return MeshInput(em.verts, em.loop_start, em.loop_total, em.loop_verts[perm],
-                     rho_t[em.material_index], em_t[em.material_index],
-                     np.zeros(len(em.loop_start), np.int64), [name],
-                     None if tri is None else np.ascontiguousarray(tri)), perm
+    return MeshInput(
+        em.verts,
+        em.loop_start,
+        em.loop_total,
+        em.loop_verts[perm],
+        rho_t[em.material_index],
+        em_t[em.material_index],
+        np.zeros(len(em.loop_start), np.int64),
+        [name],
+        None if tri is None else np.ascontiguousarray(tri),
+    ), perm
 
 
 @dataclass
 class InstanceInfo:
-    instancer: str           # the object that instances (collection-instance empty, emitter, ...)
-    source: str              # the instanced object
+    instancer: str  # the object that instances (collection-instance empty, emitter, ...)
+    source: str  # the instanced object
     count: int = 0
-    polygons: int = 0        # per instance
+    polygons: int = 0  # per instance
 
 
 def collect_instances(view_layer, depsgraph, mat_cache, warnings):
@@ -216,8 +236,11 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings):
     An instance takes part when its instancer renders and is not excluded, and the instanced object
     is neither a light shape nor excluded. Each instanced mesh is read once (its evaluated data is
     shared by all its instances) and placed by each instance's world matrix."""
-    ok = {o.name for o in _walk_collections(view_layer)
-          if not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape}
+    ok = {
+        o.name
+        for o in _walk_collections(view_layer)
+        if not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape
+    }
     shapes = {o.name for o in _walk_collections(view_layer) if o.hr.is_light_shape}
     meshes, parts, info = {}, [], {}
     for inst in depsgraph.object_instances:
@@ -255,9 +278,11 @@ def instances_warning(info):
     n = sum(i.count for i in info.values())
     what = ", ".join(f"{i.count} x '{i.source}' (by '{i.instancer}')" for i in list(info.values())[:4])
     more = ", ..." if len(info) > 4 else ""
-    return (f"{n} instance(s) take part in the light (they receive and cast it) but get no baked output: "
-            f"{what}{more}. Instances share their mesh data, which holds one value per element; "
-            "make them real (Object > Apply > Make Instances Real) to bake their own light.")
+    return (
+        f"{n} instance(s) take part in the light (they receive and cast it) but get no baked output: "
+        f"{what}{more}. Instances share their mesh data, which holds one value per element; "
+        "make them real (Object > Apply > Make Instances Real) to bake their own light."
+    )
 
 
 def _hidden_instancer(obj):
@@ -266,7 +291,8 @@ def _hidden_instancer(obj):
     if obj.show_instancer_for_render:
         return False
     return obj.instance_type in {"VERTS", "FACES"} or any(
-        p.settings.render_type in {"OBJECT", "COLLECTION"} for p in obj.particle_systems)
+        p.settings.render_type in {"OBJECT", "COLLECTION"} for p in obj.particle_systems
+    )
 
 
 def collect_geometry(view_layer, depsgraph) -> SceneInput:
@@ -289,27 +315,43 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
         part, perm = _mesh_input(em, obj.name, warnings, mat_cache)
         parts.append(part)
         me = obj.data
-        same_topology = (len(me.loops) == len(em.loop_verts) and len(me.vertices) == len(em.verts)
-                         and len(me.polygons) == len(em.loop_start))
+        same_topology = (
+            len(me.loops) == len(em.loop_verts)
+            and len(me.vertices) == len(em.verts)
+            and len(me.polygons) == len(em.loop_start)
+        )
         if same_topology:
             olv = np.empty(len(me.loops), np.int32)
             me.loops.foreach_get("vertex_index", olv)
             same_topology = np.array_equal(olv, em.loop_verts)
-        t = Target(obj.name, me.name, (nloop, nloop + len(em.loop_verts)), (nvert, nvert + len(em.verts)),
-                   perm, em.loop_verts, len(em.verts), len(me.loops), len(me.vertices))
+        t = Target(
+            obj.name,
+            me.name,
+            (nloop, nloop + len(em.loop_verts)),
+            (nvert, nvert + len(em.verts)),
+            perm,
+            em.loop_verts,
+            len(em.verts),
+            len(me.loops),
+            len(me.vertices),
+        )
         if not same_topology:
             t.vert_map, t.orig_loop_verts = _topology_map(obj, em, depsgraph)
-            warnings.append(f"Object '{obj.name}': modifiers change the topology; HR_Radiance is "
-                            "transferred to the original mesh by nearest vertex.")
+            warnings.append(
+                f"Object '{obj.name}': modifiers change the topology; HR_Radiance is "
+                "transferred to the original mesh by nearest vertex."
+            )
         if me.name in seen_mesh:
-            warnings.append(f"Objects '{seen_mesh[me.name]}' and '{obj.name}' share mesh data "
-                            f"'{me.name}'; HR_Radiance can hold only one of them (make them single user).")
+            warnings.append(
+                f"Objects '{seen_mesh[me.name]}' and '{obj.name}' share mesh data "
+                f"'{me.name}'; HR_Radiance can hold only one of them (make them single user)."
+            )
         else:
             seen_mesh[me.name] = obj.name
         targets.append(t)
         nloop += len(em.loop_verts)
         nvert += len(em.verts)
-    parts += inst_parts                   # after the targets' parts: their offsets stay valid
+    parts += inst_parts  # after the targets' parts: their offsets stay valid
     w = instances_warning(inst_info)
     if w:
         warnings.append(w)
@@ -322,6 +364,7 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
 
 
 # --- light shapes -------------------------------------------------------------------------------
+
 
 def _drop_collinear(ring, tol=1e-9):
     while len(ring) > 3:
@@ -348,7 +391,7 @@ def _group_outline(verts, polys):
                 return None  # inconsistent winding or duplicate face
             edges[(a, b)] = True
     nxt = {}
-    for (a, b) in edges:
+    for a, b in edges:
         if (b, a) not in edges:
             if a in nxt:
                 return None  # two boundary loops touch at a vertex
@@ -381,8 +424,10 @@ def mesh_outlines(em: EvalMesh):
     to one ring per polygon.
     """
     P = len(em.loop_start)
-    polys = [list(em.loop_verts[s:s + n][::-1] if em.flipped else em.loop_verts[s:s + n])
-             for s, n in zip(em.loop_start, em.loop_total)]
+    polys = [
+        list(em.loop_verts[s : s + n][::-1] if em.flipped else em.loop_verts[s : s + n])
+        for s, n in zip(em.loop_start, em.loop_total)
+    ]
     nrm, off = np.zeros((P, 3)), np.zeros(P)
     for i, p in enumerate(polys):
         n = newell(em.verts[p])
@@ -395,13 +440,17 @@ def mesh_outlines(em: EvalMesh):
     for i, p in enumerate(polys):
         for a, b in zip(p, p[1:] + p[:1]):
             j = edge_owner.get((b, a))
-            if j is not None and em.material_index[i] == em.material_index[j] \
-                    and nrm[i] @ nrm[j] > 1 - 1e-9 and abs(off[i] - off[j]) <= 1e-7 * max(scale, 1.0):
+            if (
+                j is not None
+                and em.material_index[i] == em.material_index[j]
+                and nrm[i] @ nrm[j] > 1 - 1e-9
+                and abs(off[i] - off[j]) <= 1e-7 * max(scale, 1.0)
+            ):
                 pairs.append((i, j))
             edge_owner[(a, b)] = i
     i, j = np.array(pairs, np.int64).reshape(-1, 2).T
     label = components(P, i, j)
-    order = np.argsort(label, kind="stable")          # groups by their first polygon
+    order = np.argsort(label, kind="stable")  # groups by their first polygon
     groups = [g.tolist() for g in np.split(order, np.flatnonzero(np.diff(label[order])) + 1)] if P else []
     out = []
     for g in groups:
@@ -422,7 +471,7 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
     shapes = {}
     mat_cache = {}
     warnings = [] if warnings is None else warnings
-    for obj in (light_shape_objects(view_layer) if objects is None else objects):
+    for obj in light_shape_objects(view_layer) if objects is None else objects:
         if obj.type != "MESH" or not obj.hr.is_light_shape or obj.hr.exclude or obj.hide_render:
             continue
         ob = obj.evaluated_get(depsgraph)
@@ -436,15 +485,19 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
             e = em_t[slot]
             if not (e > 0).any():
                 continue
-            key = f"{obj.name}:{g[0]}"   # first polygon of the outline: stable while the mesh is
-            shapes[key] = LightShape(rings=[np.ascontiguousarray(r, np.float64) for r in rings],
-                                     emission=np.asarray(e, np.float64), name=obj.name)
+            key = f"{obj.name}:{g[0]}"  # first polygon of the outline: stable while the mesh is
+            shapes[key] = LightShape(
+                rings=[np.ascontiguousarray(r, np.float64) for r in rings],
+                emission=np.asarray(e, np.float64),
+                name=obj.name,
+            )
     return shapes
 
 
 def shapes_signature(shapes):
     """Hashable digest of a frame's light state (identical frames -> identical digest)."""
     import hashlib
+
     h = hashlib.sha1()
     for key in sorted(shapes):
         s = shapes[key]

@@ -7,18 +7,27 @@ identity (name, mesh data, vertex and polygon counts, materials: light shapes ar
 not their positions). Instances are digested per (instancer, instanced object). Playback,
 Preview, Reload and the panel compute the same digests and name the objects that differ.
 """
+
 import hashlib
 
 import bpy
 import numpy as np
 
 from .materials import read_material
-from .scene_in import _hidden_instancer, _mesh_arrays, _walk_collections, evaluated, geometry_objects, light_shape_objects
+from .scene_in import (
+    _hidden_instancer,
+    _mesh_arrays,
+    _walk_collections,
+    evaluated,
+    geometry_objects,
+    light_shape_objects,
+)
 
 
 def _source_material(m):
     """The material a texture-preview helper copy stands for (the bake reads that one)."""
     from .texture import TAG
+
     if m is None:
         return None
     orig = getattr(m, "original", m)
@@ -34,7 +43,7 @@ def _materials(ob):
     out = []
     for i, slot in enumerate(ob.material_slots):
         m = _source_material(slot.material)
-        if m == "DATA":       # helper on an object-level slot whose original link was the mesh's
+        if m == "DATA":  # helper on an object-level slot whose original link was the mesh's
             me = ob.original.data
             m = me.materials[i] if i < len(me.materials) else None
         out.append(m)
@@ -47,8 +56,9 @@ def _material_values(mats, cache):
         key = None if m is None else m.name_full
         if key not in cache:
             s = read_material(m)
-            cache[key] = np.concatenate([np.asarray(s.reflectance, np.float64).ravel(),
-                                         np.asarray(s.emission, np.float64).ravel()]).tobytes()
+            cache[key] = np.concatenate(
+                [np.asarray(s.reflectance, np.float64).ravel(), np.asarray(s.emission, np.float64).ravel()]
+            ).tobytes()
         h.update(cache[key])
     return h.digest()
 
@@ -81,9 +91,14 @@ def geometry_signatures(view_layer, depsgraph):
         if len(arrays[1]) == 0:
             continue
         co, topo = _mesh_digest(arrays)
-        out[obj.name] = _placed_digest(co, topo, ob.matrix_world, _material_values(_materials(ob), mat_cache)).hexdigest()
-    ok = {o.name for o in _walk_collections(view_layer)
-          if not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape}
+        out[obj.name] = _placed_digest(
+            co, topo, ob.matrix_world, _material_values(_materials(ob), mat_cache)
+        ).hexdigest()
+    ok = {
+        o.name
+        for o in _walk_collections(view_layer)
+        if not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape
+    }
     inst = {}
     for di in depsgraph.object_instances:
         if not di.is_instance or di.object is None or di.object.type != "MESH" or di.parent is None:

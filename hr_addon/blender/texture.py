@@ -17,6 +17,7 @@ The material helper (add_material) gives each object object-level copies of its 
 extra branch UV Map (HR_Lightmap) -> Image Texture (the sequence) -> Emission -> Material Output, all
 plain nodes, so the result plays back where the extension is not installed.
 """
+
 import hashlib
 import os
 from contextlib import contextmanager
@@ -36,10 +37,11 @@ PACK_VERSION = 1
 
 N_UV, N_TEX = PREVIEW + " Lightmap UV", PREVIEW + " Lightmap"
 N_EMIT, N_OUT, N_ATTR = PREVIEW + " Emission", PREVIEW + " Output", PREVIEW + " Attribute"
-TAG = "hr_lightmap_of"          # on helper materials and images: the object's name
+TAG = "hr_lightmap_of"  # on helper materials and images: the object's name
 
 
 # --- lightmap UV layers --------------------------------------------------------------------------
+
 
 def read_uv(me, name=UV_NAME):
     layer = me.uv_layers.get(name)
@@ -70,7 +72,7 @@ def ensure_lightmap(obj, res):
     me = obj.data
     layer = me.uv_layers.get(UV_NAME)
     if layer is not None and "hr_lightmap" not in me:
-        return None                                  # the user's own lightmap UVs
+        return None  # the user's own lightmap UVs
     if len(me.polygons) == 0:
         return None
     co, ls, lt, lv = mesh_topology(me)
@@ -81,8 +83,10 @@ def ensure_lightmap(obj, res):
     if obj.mode == "EDIT":
         raise TextureError(f"Object '{obj.name}' is in Edit Mode: leave it to make its {UV_NAME} UV map.")
     if me.library is not None or not me.is_editable:
-        raise TextureError(f"Mesh '{me.name}' of object '{obj.name}' is not editable (linked): "
-                           f"give it a UV map named {UV_NAME} in its library file.")
+        raise TextureError(
+            f"Mesh '{me.name}' of object '{obj.name}' is not editable (linked): "
+            f"give it a UV map named {UV_NAME} in its library file."
+        )
     uv = pack_lightmap(co * scale, ls, lt, lv, res)
     active = me.uv_layers.active_index
     render = [lay.active_render for lay in me.uv_layers]
@@ -91,9 +95,9 @@ def ensure_lightmap(obj, res):
         if layer is None:
             raise TextureError(f"Mesh '{me.name}' cannot take another UV map (the limit is 8).")
     layer.uv.foreach_set("vector", np.ascontiguousarray(uv, np.float32).ravel())
-    if render:                                       # restore the user's active / render UV maps
+    if render:  # restore the user's active / render UV maps
         me.uv_layers.active_index = active
-        for lay, r in zip(list(me.uv_layers)[:len(render)], render):
+        for lay, r in zip(list(me.uv_layers)[: len(render)], render):
             if r:
                 lay.active_render = True
     me["hr_lightmap"] = sig
@@ -128,6 +132,7 @@ def _stems(names):
 
 # --- texel plans ---------------------------------------------------------------------------------
 
+
 def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR"):
     """The bake's TexturePlan: every target object's evaluated HR_Lightmap UVs on its patches."""
     plan = TexturePlan(fmt)
@@ -136,39 +141,57 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
     for oid, t in enumerate(scene_in.targets):
         obj = view_layer.objects.get(t.name) or bpy.data.objects[t.name]
         p0 = int(np.searchsorted(mesh.loop_start, t.loops[0]))
-        p1 = int(np.searchsorted(mesh.loop_start, t.loops[1])) if t.loops[1] < len(mesh.loop_verts) \
+        p1 = (
+            int(np.searchsorted(mesh.loop_start, t.loops[1]))
+            if t.loops[1] < len(mesh.loop_verts)
             else len(mesh.loop_start)
+        )
         _, (uv, (_, ls, lt, lv)) = evaluated(obj, depsgraph, lambda me: (read_uv(me), mesh_topology(me)))
         if uv is None:
-            plan.warnings.append(f"Object '{t.name}': its evaluated mesh has no {UV_NAME} UV map "
-                                 "(a modifier removed it); no texture.")
+            plan.warnings.append(
+                f"Object '{t.name}': its evaluated mesh has no {UV_NAME} UV map "
+                "(a modifier removed it); no texture."
+            )
             continue
         if len(ls) != p1 - p0 or len(lv) != t.loops[1] - t.loops[0]:
             plan.warnings.append(f"Object '{t.name}': mesh changed while reading; no texture.")
             continue
         if t.vert_map is not None:
-            plan.warnings.append(f"Object '{t.name}': modifiers change the topology; its "
-                                 f"{UV_NAME} islands may overlap (apply the modifiers).")
-        tri_uv, corners, tri_patch, skipped = triangle_uvs(patches, oid, uv, ls, lt, lv, p0, t.verts[0],
-                                                           t.verts[1] - t.verts[0])
+            plan.warnings.append(
+                f"Object '{t.name}': modifiers change the topology; its "
+                f"{UV_NAME} islands may overlap (apply the modifiers)."
+            )
+        tri_uv, corners, tri_patch, skipped = triangle_uvs(
+            patches, oid, uv, ls, lt, lv, p0, t.verts[0], t.verts[1] - t.verts[0]
+        )
         if skipped:
             plan.warnings.append(f"Object '{t.name}': {skipped} triangle(s) without UVs skipped.")
-        plan.add_object(t.name, stems[t.name], resolution_for(obj, default_res), tri_uv, corners, tri_patch,
-                        hashlib.sha1(np.ascontiguousarray(uv).tobytes()).hexdigest())
+        plan.add_object(
+            t.name,
+            stems[t.name],
+            resolution_for(obj, default_res),
+            tri_uv,
+            corners,
+            tri_patch,
+            hashlib.sha1(np.ascontiguousarray(uv).tobytes()).hexdigest(),
+        )
     return plan
 
 
 # --- material helper -----------------------------------------------------------------------------
 
+
 def _manifest(scene):
     from . import playback
+
     directory = playback.bake_dir_abs(scene)
     if not directory:
         raise CacheError("No radiosity bake: bake first.")
     reader = CacheReader(directory)
     if reader.manifest.get("output") != "TEXTURE":
-        raise CacheError("The radiosity bake holds vertex colours, not textures "
-                         "(Output: Baked Textures, then bake).")
+        raise CacheError(
+            "The radiosity bake holds vertex colours, not textures (Output: Baked Textures, then bake)."
+        )
     return directory, reader
 
 
@@ -194,11 +217,11 @@ def _sequence_image(obj, path, fmt):
     img.source = "FILE"
     img.filepath = fp
     img.source = "SEQUENCE"
-    for name in (("sRGB",) if fmt == "PNG" else ("Linear Rec.709", "Linear")):
+    for name in ("sRGB",) if fmt == "PNG" else ("Linear Rec.709", "Linear"):
         try:
-            img.colorspace_settings.name = name       # PNG files are sRGB-encoded, EXR linear
+            img.colorspace_settings.name = name  # PNG files are sRGB-encoded, EXR linear
             break
-        except TypeError:                             # colour space not in this configuration
+        except TypeError:  # colour space not in this configuration
             pass
     img.reload()
     return img
@@ -221,7 +244,7 @@ def _wire(mat, img, first, last):
     if mat.node_tree is None or (bpy.app.version < (5, 0, 0) and not mat.use_nodes):
         mat.use_nodes = True
     tree = mat.node_tree
-    if N_ATTR in tree.nodes:                       # a vertex-colour preview copied from the material
+    if N_ATTR in tree.nodes:  # a vertex-colour preview copied from the material
         tree.nodes.remove(tree.nodes[N_ATTR])
     x = max((n.location.x for n in tree.nodes if not n.name.startswith(PREVIEW)), default=0) + 300
     uvn = _node(tree, N_UV, "ShaderNodeUVMap", (x, -400))
@@ -283,7 +306,7 @@ def add_material(scene, objects=None):
                     mat.name = f"{src.name} (HR {obj.name})"
                 else:
                     mat = bpy.data.materials.new(f"HR Lightmap {obj.name}")
-                    mat["hr_preview"] = True        # read as "no material" by the bake
+                    mat["hr_preview"] = True  # read as "no material" by the bake
                 mat[TAG] = obj.name
                 mat["hr_lightmap_link"] = link
                 if link == "OBJECT" and src is not None:

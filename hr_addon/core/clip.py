@@ -9,6 +9,7 @@ zero-width "bridges" along the clip boundary where the subject leaves and re-ent
 once in each direction, so they enclose no area and the shoelace area of the result is still exactly the
 overlap area. All areas here are shoelace areas, so the bridges are harmless.
 """
+
 import numpy as np
 
 # Nodes are processed in chunks: bounds memory, and the padded width is the max vertex count within a
@@ -21,7 +22,7 @@ def polygon_area_2d(pts):
     p = np.asarray(pts, dtype=np.float64)
     if len(p) < 3:
         return 0.0
-    p = p - p[0]                      # shift to a local origin: avoids cancellation far from (0, 0)
+    p = p - p[0]  # shift to a local origin: avoids cancellation far from (0, 0)
     q = np.roll(p, -1, axis=0)
     return 0.5 * float(np.sum(p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]))
 
@@ -41,8 +42,8 @@ def clip_convex(subject, clip):
             break
         e = b - a
         if not e.any():
-            continue                  # zero-length edge (padded triangle): no constraint
-        d = e[0] * (out[:, 1] - a[1]) - e[1] * (out[:, 0] - a[0])   # > 0 left of the edge = inside
+            continue  # zero-length edge (padded triangle): no constraint
+        d = e[0] * (out[:, 1] - a[1]) - e[1] * (out[:, 0] - a[0])  # > 0 left of the edge = inside
         nxt, d_next = np.roll(out, -1, axis=0), np.roll(d, -1)
         res = []
         for p, q, dp, dq in zip(out, nxt, d, d_next):
@@ -66,7 +67,7 @@ def _clip_halfplane(x, y, a, b):
     n, m = x.shape
     ex, ey = (b - a).T
     d = ex[:, None] * (y - a[:, None, 1]) - ey[:, None] * (x - a[:, None, 0])
-    d[(ex == 0) & (ey == 0)] = 1.0    # zero-length edge (padded triangle): everything inside
+    d[(ex == 0) & (ey == 0)] = 1.0  # zero-length edge (padded triangle): everything inside
     inside = d >= 0.0
     d_next = np.roll(d, -1, axis=1)
     crosses = inside != np.roll(inside, -1, axis=1)
@@ -125,15 +126,16 @@ def overlap_areas(shape_rings, nodes, nv=None):
     hi = rings[0].max(axis=0)
     origin = 0.5 * (lo + hi)
     rings = [r - origin for r in rings]
-    rings = [r if polygon_area_2d(r) >= 0 else r[::-1] for r in rings]   # all counter-clockwise
+    rings = [r if polygon_area_2d(r) >= 0 else r[::-1] for r in rings]  # all counter-clockwise
     nodes, _ = _ccw_nodes(nodes, nv)
     nodes = nodes - origin
     result = np.zeros(len(nodes))
     # Only nodes whose bounding box meets the shape's can overlap it.
-    cand = np.flatnonzero(np.all(nodes.min(axis=1) <= hi - origin, axis=1)
-                          & np.all(nodes.max(axis=1) >= lo - origin, axis=1))
+    cand = np.flatnonzero(
+        np.all(nodes.min(axis=1) <= hi - origin, axis=1) & np.all(nodes.max(axis=1) >= lo - origin, axis=1)
+    )
     for start in range(0, len(cand), _CHUNK):
-        idx = cand[start:start + _CHUNK]
+        idx = cand[start : start + _CHUNK]
         nd = nodes[idx]
         total = np.zeros(len(idx))
         for k, ring in enumerate(rings):

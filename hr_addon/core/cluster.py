@@ -26,6 +26,7 @@ per link serves both directions: reciprocity and energy balance hold by construc
 `power` sums members' radiance into source slots, `distribute` hands the received slots back to
 members by orientation and position, both through prefix sums over contiguous leaf ranges.
 """
+
 import numpy as np
 
 from . import formfactor as ff
@@ -38,7 +39,7 @@ def encode(c):
     return -1 - np.asarray(c, np.int64)
 
 
-decode = encode   # the map is its own inverse
+decode = encode  # the map is its own inverse
 
 
 class ClusterTree:
@@ -93,7 +94,9 @@ class ClusterTree:
             half = 0.5 * (lo_s + hi_s)[np.arange(len(s)), axis]
             ext = (hi_s - lo_s)[np.arange(len(s)), axis]
             # centroids on the midplane (regular grids) go left at any scale
-            mid = s + np.bincount(pos, weights=key <= (half + 1e-9 * ext)[pos], minlength=len(s)).astype(np.int64)
+            mid = s + np.bincount(pos, weights=key <= (half + 1e-9 * ext)[pos], minlength=len(s)).astype(
+                np.int64
+            )
             bad = (mid <= s) | (mid >= e)
             mid = np.where(bad, (s + e) // 2, mid)
             depth += 1
@@ -126,7 +129,9 @@ class ClusterTree:
         w = area[perm]
         self.area = _range_sum(w, self.start, self.end)
         self.avec = _range_sum(w[:, None] * nrm[perm], self.start, self.end)
-        self.centre = _range_sum(w[:, None] * cen[perm], self.start, self.end) / np.maximum(self.area, 1e-300)[:, None]
+        self.centre = (
+            _range_sum(w[:, None] * cen[perm], self.start, self.end) / np.maximum(self.area, 1e-300)[:, None]
+        )
         self.axis = self.avec / np.maximum(np.linalg.norm(self.avec, axis=1), 1e-300)[:, None]
         # exact boxes, bounding radii and normal cones: the clusters of one depth hold disjoint
         # ranges, so each depth is one pass over (at most) all patches
@@ -138,7 +143,9 @@ class ClusterTree:
             cut = np.r_[0, np.cumsum(self.end[ids] - self.start[ids])[:-1]]
             self.lo[ids] = np.minimum.reduceat(lo_p[p], cut, axis=0)
             self.hi[ids] = np.maximum.reduceat(hi_p[p], cut, axis=0)
-            self.radius[ids] = np.maximum.reduceat(np.linalg.norm(c[p] - self.centre[oc][:, None], axis=2).max(1), cut)
+            self.radius[ids] = np.maximum.reduceat(
+                np.linalg.norm(c[p] - self.centre[oc][:, None], axis=2).max(1), cut
+            )
             dots = np.einsum("ij,ij->i", nrm[p], self.axis[oc])
             theta[ids] = np.arccos(np.clip(np.minimum.reduceat(dots, cut), -1, 1))
         # a cluster whose area vector nearly cancels has no meaningful axis: treat as unbounded
@@ -147,8 +154,9 @@ class ClusterTree:
         self.cos_t, self.sin_t = np.cos(self.theta), np.sin(self.theta)
         # visibility samples: area-stratified member patches (their centroids), in tree order
         cum = np.cumsum(w)
-        tgt = (cum[self.start] - w[self.start])[:, None] + \
-            (np.arange(n_samples) + 0.5)[None] / n_samples * self.area[:, None]
+        tgt = (cum[self.start] - w[self.start])[:, None] + (np.arange(n_samples) + 0.5)[
+            None
+        ] / n_samples * self.area[:, None]
         pos = np.clip(np.searchsorted(cum, tgt), self.start[:, None], self.end[:, None] - 1)
         self.samples = cen[perm[pos]]
         self.sample_n = nrm[perm[pos]]
@@ -178,8 +186,9 @@ class ClusterTree:
             acc[ids] += acc[par]
         acc = acc[self._leaf_of_sorted]
         out = np.empty(self.K)
-        out[self.perm] = (np.einsum("kj,kj->k", acc[:, :9], self._Y)
-                          + np.einsum("kmj,km,kj->k", acc[:, 9:].reshape(-1, 3, 3), self._Y[:, 1:4], self._X))
+        out[self.perm] = np.einsum("kj,kj->k", acc[:, :9], self._Y) + np.einsum(
+            "kmj,km,kj->k", acc[:, 9:].reshape(-1, 3, 3), self._Y[:, 1:4], self._X
+        )
         return out
 
     def _transfer_tables(self, normal, area, centre):
@@ -262,16 +271,26 @@ CURVED = 1.5
 # max(0, n . u) ~ sum_lm A_l Y_lm(u) Y_lm(n) (Ramamoorthi & Hanrahan 2001: A = pi, 2 pi / 3, pi / 4)
 SH_CLAMPED = np.array([np.pi] + [2 * np.pi / 3] * 3 + [np.pi / 4] * 5)
 # n . u = sum_m Y_1m(u) Y_1m(n) / SH_C1^2: the exact kernel of ends that wholly face each other
-SH_LINEAR = np.array([0.0] + [1 / SH_C1 ** 2] * 3 + [0.0] * 5)
+SH_LINEAR = np.array([0.0] + [1 / SH_C1**2] * 3 + [0.0] * 5)
 
 
 def sh9(d):
     """(N, 9) real spherical harmonics up to l = 2 of unit directions d (N, 3)."""
     x, y, z = d[:, 0], d[:, 1], d[:, 2]
-    return np.stack([np.full_like(x, 0.28209479177387814), SH_C1 * y, SH_C1 * z, SH_C1 * x,
-                     1.0925484305920792 * x * y, 1.0925484305920792 * y * z,
-                     0.31539156525252005 * (3 * z * z - 1), 1.0925484305920792 * x * z,
-                     0.5462742152960396 * (x * x - y * y)], 1)
+    return np.stack(
+        [
+            np.full_like(x, 0.28209479177387814),
+            SH_C1 * y,
+            SH_C1 * z,
+            SH_C1 * x,
+            1.0925484305920792 * x * y,
+            1.0925484305920792 * y * z,
+            0.31539156525252005 * (3 * z * z - 1),
+            1.0925484305920792 * x * z,
+            0.5462742152960396 * (x * x - y * y),
+        ],
+        1,
+    )
 
 
 # -- ends of links: patch nodes (>= 0) and clusters (< 0) in one vectorised view -----------------------
@@ -334,7 +353,7 @@ def estimate(x: Ends, y: Ends):
     cos_x = np.cos(np.clip(ax - x.theta - spread_y, 0, np.pi / 2))
     cos_y = np.cos(np.clip(ay - y.theta - spread_x, 0, np.pi / 2))
     s_y = y.area * cos_y
-    return np.clip(s_y * cos_x / (np.pi * dist ** 2 + s_y), 0, 1), dist
+    return np.clip(s_y * cos_x / (np.pi * dist**2 + s_y), 0, 1), dist
 
 
 def sample_points(tree: ClusterTree, h, ids, eps):

@@ -1,10 +1,25 @@
 """Far links: links with a cluster end, how their transfer enters the solver, and the linking
 that makes them (HSA refinement from the root's self-pair down through the face clusters of
 cluster.py into the patch quadtrees). numpy only."""
+
 import numpy as np
 
-from .cluster import (CURVED, GRAD_CONE, SH_CLAMPED, SH_LINEAR, SLOTS, ClusterTree, Ends, decode, encode,
-                      estimate, faces, sample_normals, sample_points, sh9)
+from .cluster import (
+    CURVED,
+    GRAD_CONE,
+    SH_CLAMPED,
+    SH_LINEAR,
+    SLOTS,
+    ClusterTree,
+    Ends,
+    decode,
+    encode,
+    estimate,
+    faces,
+    sample_normals,
+    sample_points,
+    sh9,
+)
 
 
 class FarLinks:
@@ -14,10 +29,11 @@ class FarLinks:
     Their transfer weights live in the solver's extended index space: cluster c's 9 SH slots at
     9c .. 9c + 8, patch node i at 9C + i (so nodes added later do not shift them)."""
 
-    def __init__(self, tree: ClusterTree, a, b, vis, mask, part_a=None, part_b=None, eps=0.0, grad_eps=0.0,
-                 scale=None):
-        self.tree, self.eps = tree, eps   # eps: the sample points' offset off their surfaces
-        self.grad_eps = grad_eps          # gradients only where they matter (terms())
+    def __init__(
+        self, tree: ClusterTree, a, b, vis, mask, part_a=None, part_b=None, eps=0.0, grad_eps=0.0, scale=None
+    ):
+        self.tree, self.eps = tree, eps  # eps: the sample points' offset off their surfaces
+        self.grad_eps = grad_eps  # gradients only where they matter (terms())
         # visibility of weak links traced with 4 segments only (their mask is full)
         self.scale = np.ones(len(a)) if scale is None else np.asarray(scale, float)
         self.a, self.b, self.vis = np.asarray(a, np.int64), np.asarray(b, np.int64), np.asarray(vis, float)
@@ -32,8 +48,18 @@ class FarLinks:
     def remap(self, remap):
         """After Hierarchy.compact: renumber the patch-node ends."""
         ren = lambda x: np.where(x >= 0, remap[np.maximum(x, 0)], x)
-        return FarLinks(self.tree, ren(self.a), ren(self.b), self.vis, self.mask, self.part_a, self.part_b,
-                        self.eps, self.grad_eps, self.scale)
+        return FarLinks(
+            self.tree,
+            ren(self.a),
+            ren(self.b),
+            self.vis,
+            self.mask,
+            self.part_a,
+            self.part_b,
+            self.eps,
+            self.grad_eps,
+            self.scale,
+        )
 
     def terms(self, h, chunk=8192):
         """The links' transfer in two passes through one intermediate value per link direction
@@ -62,25 +88,43 @@ class FarLinks:
             a, b = self.a[sl], self.b[sl]
             ea, eb = Ends(tree, h, a), Ends(tree, h, b)
             (pa, wa), (pb, wb) = sample_points(tree, h, a, self.eps), sample_points(tree, h, b, self.eps)
-            d = pb[:, None, :, :] - pa[:, :, None, :]                          # (N, 4 on a, 4 on b, 3)
+            d = pb[:, None, :, :] - pa[:, :, None, :]  # (N, 4 on a, 4 on b, 3)
             r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
             u = d / np.sqrt(r2)[..., None]
             vis = ((self.mask[sl, None] >> np.arange(16)) & 1).reshape(-1, 4, 4)
-            kg = 1.0 / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]     # geometry only: the gradient fit
+            kg = 1.0 / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]  # geometry only: the gradient fit
             k = vis * self.scale[sl, None, None] * kg
             K = k.sum((1, 2))
             Kn = np.where(K > 0, K, 1.0)
-            fa = np.einsum("nis,nisc->nc", k, _end_factors(a, ea, self.part_a[sl], u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9)) / Kn[:, None]
-            fb = np.einsum("nis,nisc->nc", k, _end_factors(b, eb, self.part_b[sl], -u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9)) / Kn[:, None]
+            fa = (
+                np.einsum(
+                    "nis,nisc->nc",
+                    k,
+                    _end_factors(a, ea, self.part_a[sl], u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9),
+                )
+                / Kn[:, None]
+            )
+            fb = (
+                np.einsum(
+                    "nis,nisc->nc",
+                    k,
+                    _end_factors(b, eb, self.part_b[sl], -u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9),
+                )
+                / Kn[:, None]
+            )
             link = 2 * (i + np.arange(len(a)))
             fmax = K * np.maximum(ea.area, eb.area)
             # relative gradients of the kernel over each cluster end (zero where not worth it)
             ga = self._grad(h, ea, pa, wa, kg, u, eb, self.part_a[sl])
-            gb = self._grad(h, eb, pb, wb, kg.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl])
+            gb = self._grad(
+                h, eb, pb, wb, kg.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl]
+            )
             for g_, e_ in ((ga, ea), (gb, eb)):
                 g_ *= (fmax * np.linalg.norm(g_, axis=1) * e_.radius >= self.grad_eps)[:, None]
-            for t, (r, er, fr, gr), (s_, es, fs, gs) in ((link, (a, ea, fa, ga), (b, eb, fb, gb)),
-                                                         (link + 1, (b, eb, fb, gb), (a, ea, fa, ga))):
+            for t, (r, er, fr, gr), (s_, es, fs, gs) in (
+                (link, (a, ea, fa, ga), (b, eb, fb, gb)),
+                (link + 1, (b, eb, fb, gb), (a, ea, fa, ga)),
+            ):
                 # pass 1: a node source's slot holds radiance, a cluster's its power (area inside)
                 # and the power's first moment, weighted by the source-side gradient
                 w1 = np.zeros((len(r), SLOTS))
@@ -94,14 +138,23 @@ class FarLinks:
                 R = _slots(r, er, off)
                 w2 = np.zeros((len(r), SLOTS))
                 w2[:, :9] = fr
-                Gm = fr[:, 1:4, None] * gr[:, None, :]                           # (N, 3, 3 axes)
+                Gm = fr[:, 1:4, None] * gr[:, None, :]  # (N, 3, 3 axes)
                 w2[:, 9:] = Gm.reshape(-1, 9)
                 w2[:, 1:4] -= np.einsum("nmk,nk->nm", Gm, er.centre)
                 live = w2 != 0
-                p2.append((R[live], np.broadcast_to(t[:, None], w2.shape)[live], w2[live],
-                           np.zeros(int(live.sum()), bool)))
-        cat = lambda parts, n: tuple(np.concatenate(x) for x in zip(*parts)) if parts else \
-            tuple(np.zeros(0, dt) for dt in (np.int64, np.int64, float, bool)[:n])
+                p2.append(
+                    (
+                        R[live],
+                        np.broadcast_to(t[:, None], w2.shape)[live],
+                        w2[live],
+                        np.zeros(int(live.sum()), bool),
+                    )
+                )
+        cat = lambda parts, n: (
+            tuple(np.concatenate(x) for x in zip(*parts))
+            if parts
+            else tuple(np.zeros(0, dt) for dt in (np.int64, np.int64, float, bool)[:n])
+        )
         return cat(p1, 3), cat(p2, 4)
 
     @staticmethod
@@ -120,8 +173,11 @@ class FarLinks:
         x, wg = pr[grad], wr[grad]
         dx = x - np.einsum("ni,nij->nj", wg, x)[:, None]
         ug = u[grad]
-        ks = k[grad] * np.maximum(np.einsum("nisk,nk->nis", ug, er.axis[grad]), 0) \
+        ks = (
+            k[grad]
+            * np.maximum(np.einsum("nisk,nk->nis", ug, er.axis[grad]), 0)
             * np.maximum(-np.einsum("nisk,nk->nis", ug, es.axis[grad]), 0)
+        )
         Ki = ks.sum(2) / wg
         Km = np.einsum("ni,ni->n", Ki, wg)
         rel = np.where(Km[:, None] > 0, Ki / np.where(Km > 0, Km, 1)[:, None] - 1, 0)
@@ -133,8 +189,11 @@ class FarLinks:
 
 def _slots(ids, e, off):
     """(N, SLOTS) slot indices of link ends: a node's one slot (repeated), a cluster's SLOTS."""
-    return np.where(~e.cl[:, None], off + np.maximum(ids, 0)[:, None],
-                    SLOTS * decode(np.minimum(ids, -1))[:, None] + np.arange(SLOTS))
+    return np.where(
+        ~e.cl[:, None],
+        off + np.maximum(ids, 0)[:, None],
+        SLOTS * decode(np.minimum(ids, -1))[:, None] + np.arange(SLOTS),
+    )
 
 
 def _end_factors(ids, e, part, u):
@@ -142,7 +201,10 @@ def _end_factors(ids, e, part, u):
     it: a patch node's cosine (slot 0); a cluster's SH kernel, linear (wholly facing) or the
     clamped cosine (partial)."""
     node = ~e.cl
-    w = sh9(u.reshape(-1, 3)).reshape(u.shape[:2] + (9,)) * np.where(part[:, None], SH_CLAMPED, SH_LINEAR)[:, None, :]
+    w = (
+        sh9(u.reshape(-1, 3)).reshape(u.shape[:2] + (9,))
+        * np.where(part[:, None], SH_CLAMPED, SH_LINEAR)[:, None, :]
+    )
     w[node] = 0.0
     w[node, :, 0] = np.maximum(np.einsum("nsk,nk->ns", u[node], e.axis[node]), 0)
     return w
@@ -251,10 +313,19 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         by_face = ~facing[todo]
         by_size = ~by_face & ~small[todo]
         by_var = ~by_face & ~by_size & ~even[todo]
-        prefer_a = np.where(by_face, face_a >= face_b,
-                   np.where(by_size, phi_a >= phi_b,
-                   np.where(by_var, phi_a >= phi_b,
-                   np.where(fmax[todo] < prm.feps, phi_a >= phi_b, f_ba[todo] >= f_ab[todo]))))
+        prefer_a = np.where(
+            by_face,
+            face_a >= face_b,
+            np.where(
+                by_size,
+                phi_a >= phi_b,
+                np.where(
+                    by_var,
+                    phi_a >= phi_b,
+                    np.where(fmax[todo] < prm.feps, phi_a >= phi_b, f_ba[todo] >= f_ab[todo]),
+                ),
+            ),
+        )
         can_a = ea.cl[todo] | (ea.area[todo] > aeps)
         can_b = eb.cl[todo] | (eb.area[todo] > aeps)
         # Too strong, too uneven or half shadowed, but the end that should be split cannot be (a
@@ -291,15 +362,27 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         fs = np.ones(len(fv))
         todo = np.flatnonzero(np.isnan(fv))
         for i in range(0, len(todo), CHUNK):
-            t = todo[i:i + CHUNK]
+            t = todo[i : i + CHUNK]
             fv[t], fm[t], fs[t] = far_visibility(refiner, tree, fa_[t], fb_[t], ff_[t] < prm.shadow_feps)
         keep = fv > 0
-        links = FarLinks(tree, fa_[keep], fb_[keep], fv[keep], fm[keep], pa_[keep], pb_[keep], refiner.eps,
-                         0.1 * prm.cluster_veps, fs[keep])
+        links = FarLinks(
+            tree,
+            fa_[keep],
+            fb_[keep],
+            fv[keep],
+            fm[keep],
+            pa_[keep],
+            pb_[keep],
+            refiner.eps,
+            0.1 * prm.cluster_veps,
+            fs[keep],
+        )
     else:
         z = np.zeros(0)
         links = FarLinks(tree, z.astype(np.int64), z.astype(np.int64), z, z.astype(np.uint16))
-    p, q = ((np.concatenate(x) for x in zip(*nodes)) if nodes else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
+    p, q = (
+        (np.concatenate(x) for x in zip(*nodes)) if nodes else (np.zeros(0, np.int64), np.zeros(0, np.int64))
+    )
     return links, p, q
 
 
@@ -310,8 +393,11 @@ def _variation(tree, h, a, b, eps):
     d = pb[:, None, :, :] - pa[:, :, None, :]
     r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
     na, nb = sample_normals(tree, h, a), sample_normals(tree, h, b)
-    k = (np.maximum(np.einsum("nijk,nik->nij", d, na), 0) * np.maximum(-np.einsum("nijk,njk->nij", d, nb), 0)
-         / (r2 * r2))
+    k = (
+        np.maximum(np.einsum("nijk,nik->nij", d, na), 0)
+        * np.maximum(-np.einsum("nijk,njk->nij", d, nb), 0)
+        / (r2 * r2)
+    )
     out = []
     for ks in ((k * wb[:, None, :]).sum(2), (k * wa[:, :, None]).sum(1)):
         m = ks.mean(1)
@@ -344,6 +430,7 @@ def far_visibility(refiner, tree, a, b, weak=None):
     Weak links (mask `weak`) trace only the 4 segments i -> 3 - i: their mask is full and
     `scale` holds their visibility fraction instead (1 for the others)."""
     import time
+
     t0 = time.perf_counter()
     h, eps = refiner.h, refiner.eps
     pa, pb = sample_points(tree, h, a, eps)[0], sample_points(tree, h, b, eps)[0]
@@ -351,8 +438,9 @@ def far_visibility(refiner, tree, a, b, weak=None):
     vis, mask, scale = np.empty(len(a)), np.empty(len(a), np.uint16), np.ones(len(a))
     st = ~weak
     if st.any():
-        occ = refiner.backend.occluded(np.repeat(pa[st], 4, axis=1).reshape(-1, 3),
-                                       np.tile(pb[st], (1, 4, 1)).reshape(-1, 3)).reshape(-1, 16)
+        occ = refiner.backend.occluded(
+            np.repeat(pa[st], 4, axis=1).reshape(-1, 3), np.tile(pb[st], (1, 4, 1)).reshape(-1, 3)
+        ).reshape(-1, 16)
         vis[st] = 1.0 - occ.mean(1)
         mask[st] = ((~occ) * (1 << np.arange(16))).sum(1)
         refiner.stats["rays"] += occ.size

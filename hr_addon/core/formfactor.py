@@ -8,6 +8,7 @@ repeating corner 2, counter-clockwise seen from the (only) emitting/receiving fr
 - `patch_to_patch`: average of the above over a deterministic stratified set of points on p.
 - `estimate`: cheap conservative disc approximation used as the refinement oracle.
 """
+
 import math
 
 import numpy as np
@@ -21,9 +22,14 @@ COS_FLOOR = 0.05
 
 def _cross(a, b):
     # np.cross is slow on small trailing axes (it moves axes around); explicit components are faster.
-    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                     a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+    return np.stack(
+        [
+            a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+            a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+            a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0],
+        ],
+        axis=-1,
+    )
 
 
 def _dot(a, b):
@@ -64,7 +70,7 @@ def _clip_to_halfspace(verts, point, normal):
     vertex left.
     """
     n, v = verts.shape[:2]
-    d = _dot(verts - point[:, None, :], normal[:, None, :])          # signed heights above the horizon
+    d = _dot(verts - point[:, None, :], normal[:, None, :])  # signed heights above the horizon
     inside = d >= 0.0
     nxt = np.roll(verts, -1, axis=1)
     d_next = np.roll(d, -1, axis=1)
@@ -80,7 +86,7 @@ def _clip_to_halfspace(verts, point, normal):
     last = idx[:, -1:]
     idx = np.where(idx < 0, last, idx)
     any_valid = last[:, 0] >= 0
-    idx = np.maximum(idx, 0)                                           # rows with nothing left: masked out
+    idx = np.maximum(idx, 0)  # rows with nothing left: masked out
     return np.take_along_axis(slots, idx[..., None], axis=1), any_valid
 
 
@@ -95,15 +101,15 @@ def point_to_polygon(points, normals, corners, nv=None):
     p = np.asarray(points, dtype=np.float64)
     n = np.asarray(normals, dtype=np.float64)
     c = _padded(corners, nv)
-    shape = np.broadcast_shapes(p.shape[:-1], n.shape[:-1], c.shape[:-2])   # leading dims broadcast
+    shape = np.broadcast_shapes(p.shape[:-1], n.shape[:-1], c.shape[:-2])  # leading dims broadcast
     p = np.broadcast_to(p, shape + (3,)).reshape(-1, 3)
     n = np.broadcast_to(n, shape + (3,)).reshape(-1, 3)
     c = np.broadcast_to(c, shape + (4, 3)).reshape(-1, 4, 3)
 
     qn, qa = polygon_normal_area(c)
     height = _dot(p - c[:, 0], qn)
-    front = height > _PLANE_EPS * np.sqrt(qa)                          # one-sided emitter
-    above = _dot(c - p[:, None, :], n[:, None, :]) >= 0.0             # corners above the horizon
+    front = height > _PLANE_EPS * np.sqrt(qa)  # one-sided emitter
+    above = _dot(c - p[:, None, :], n[:, None, :]) >= 0.0  # corners above the horizon
     f = np.zeros(len(p))
     # Most polygons lie wholly above the receiver's horizon: no clipping needed for those.
     whole = np.flatnonzero(front & above.all(1))
@@ -138,8 +144,12 @@ def _unit_cell_params(k):
     i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
     up = (i + j) <= k - 1
     down = (i + j) <= k - 2
-    tri = np.concatenate([np.stack([i[up] + 1 / 3, j[up] + 1 / 3], -1),
-                          np.stack([i[down] + 2 / 3, j[down] + 2 / 3], -1)]) / k
+    tri = (
+        np.concatenate(
+            [np.stack([i[up] + 1 / 3, j[up] + 1 / 3], -1), np.stack([i[down] + 2 / 3, j[down] + 2 / 3], -1)]
+        )
+        / k
+    )
     return quad, tri
 
 
@@ -165,9 +175,9 @@ def patch_to_patch(corners_p, nv_p, corners_q, nv_q, n_samples=4):
     if k * k != n_samples or k < 1:
         raise ValueError(f"n_samples must be a perfect square, got {n_samples}")
     cq = _padded(corners_q, nv_q)
-    pts = sample_points(corners_p, nv_p, k)                           # (N, S, 3)
+    pts = sample_points(corners_p, nv_p, k)  # (N, S, 3)
     normals, _ = polygon_normal_area(corners_p, nv_p)
-    return point_to_polygon(pts, normals[:, None, :], cq[:, None]).mean(axis=1)   # broadcast over S
+    return point_to_polygon(pts, normals[:, None, :], cq[:, None]).mean(axis=1)  # broadcast over S
 
 
 def _unit(v):

@@ -5,6 +5,7 @@ non-planar or concave quads and n-gons are triangulated: as MeshInput.tri_loops 
 given (Blender's loop_triangles, what Cycles and EEVEE render), else here (quads along the inner or
 shorter diagonal, n-gons by ear clipping).
 """
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,13 +18,14 @@ class InputError(ValueError):
 @dataclass
 class MeshInput:
     """Polygons in world space, laid out like Blender's mesh arrays (all objects concatenated)."""
-    verts: np.ndarray          # (V, 3)
-    loop_start: np.ndarray     # (P,) first loop of each polygon
-    loop_total: np.ndarray     # (P,) vertex count of each polygon
-    loop_verts: np.ndarray     # (L,) vertex index of each loop
-    reflectance: np.ndarray    # (P, 3) in [0, 1)
-    emission: np.ndarray       # (P, 3) emitted radiance, >= 0
-    object_id: np.ndarray      # (P,) index into object_names
+
+    verts: np.ndarray  # (V, 3)
+    loop_start: np.ndarray  # (P,) first loop of each polygon
+    loop_total: np.ndarray  # (P,) vertex count of each polygon
+    loop_verts: np.ndarray  # (L,) vertex index of each loop
+    reflectance: np.ndarray  # (P, 3) in [0, 1)
+    emission: np.ndarray  # (P, 3) emitted radiance, >= 0
+    object_id: np.ndarray  # (P,) index into object_names
     object_names: list = field(default_factory=list)
     # Optional triangulation, (T, 3) loop indices (into loop_verts), each triangle wound like its
     # polygon, e.g. Blender's mesh.loop_triangles. The polygons that must be split use it (those it
@@ -34,19 +36,35 @@ class MeshInput:
     def from_polygons(verts, polys, reflectance, emission=None, object_id=None, object_names=None):
         """Convenience constructor from a list of vertex-index lists."""
         sizes = np.array([len(p) for p in polys], dtype=np.int64)
-        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64) if len(polys) else np.zeros(0, np.int64)
+        starts = (
+            np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+            if len(polys)
+            else np.zeros(0, np.int64)
+        )
         loops = np.array([i for p in polys for i in p], dtype=np.int64)
         n = len(polys)
         rho = np.broadcast_to(np.asarray(reflectance, float), (n, 3)).copy()
-        em = np.zeros((n, 3)) if emission is None else np.broadcast_to(np.asarray(emission, float), (n, 3)).copy()
+        em = (
+            np.zeros((n, 3))
+            if emission is None
+            else np.broadcast_to(np.asarray(emission, float), (n, 3)).copy()
+        )
         oid = np.zeros(n, np.int64) if object_id is None else np.asarray(object_id, np.int64)
         names = object_names or [f"object{i}" for i in range(int(oid.max()) + 1 if n else 1)]
         return MeshInput(np.asarray(verts, float), starts, sizes, loops, rho, em, oid, names)
 
     def concat(self, other):
         off = len(self.verts)
-        tris = [t for t in (self.tri_loops, None if other.tri_loops is None
-                            else np.asarray(other.tri_loops, np.int64) + len(self.loop_verts)) if t is not None]
+        tris = [
+            t
+            for t in (
+                self.tri_loops,
+                None
+                if other.tri_loops is None
+                else np.asarray(other.tri_loops, np.int64) + len(self.loop_verts),
+            )
+            if t is not None
+        ]
         return MeshInput(
             np.concatenate([self.verts, other.verts]),
             np.concatenate([self.loop_start, other.loop_start + len(self.loop_verts)]),
@@ -56,22 +74,23 @@ class MeshInput:
             np.concatenate([self.emission, other.emission]),
             np.concatenate([self.object_id, other.object_id + len(self.object_names)]),
             list(self.object_names) + list(other.object_names),
-            np.concatenate([np.asarray(t, np.int64).reshape(-1, 3) for t in tris]) if tris else None)
+            np.concatenate([np.asarray(t, np.int64).reshape(-1, 3) for t in tris]) if tris else None,
+        )
 
 
 @dataclass
 class Patches:
-    corners: np.ndarray      # (K, 4, 3) convex planar, CCW; triangles repeat corner 2
-    nv: np.ndarray           # (K,) 3 or 4
-    vert_index: np.ndarray   # (K, 4) input vertex index of each corner (-1 padding)
-    poly: np.ndarray         # (K,) input polygon each patch came from
-    object_id: np.ndarray    # (K,)
+    corners: np.ndarray  # (K, 4, 3) convex planar, CCW; triangles repeat corner 2
+    nv: np.ndarray  # (K,) 3 or 4
+    vert_index: np.ndarray  # (K, 4) input vertex index of each corner (-1 padding)
+    poly: np.ndarray  # (K,) input polygon each patch came from
+    object_id: np.ndarray  # (K,)
     reflectance: np.ndarray  # (3, K)
-    emission: np.ndarray     # (3, K)
-    normal: np.ndarray       # (K, 3)
-    area: np.ndarray         # (K,)
+    emission: np.ndarray  # (3, K)
+    normal: np.ndarray  # (K, 3)
+    area: np.ndarray  # (K,)
     object_names: list
-    dropped: int = 0         # degenerate polygons (or triangles) removed
+    dropped: int = 0  # degenerate polygons (or triangles) removed
     warnings: list = field(default_factory=list)
 
     @property
@@ -86,9 +105,14 @@ def newell(p):
     """Newell normal (unnormalised, length = 2 x area) of polygons p (..., n, 3): the exact normal
     of a planar polygon, a best-fit one of a slightly warped polygon, zero for a degenerate one."""
     q = np.roll(p, -1, axis=-2)
-    return np.stack([np.sum((p[..., 1] - q[..., 1]) * (p[..., 2] + q[..., 2]), -1),
-                     np.sum((p[..., 2] - q[..., 2]) * (p[..., 0] + q[..., 0]), -1),
-                     np.sum((p[..., 0] - q[..., 0]) * (p[..., 1] + q[..., 1]), -1)], -1)
+    return np.stack(
+        [
+            np.sum((p[..., 1] - q[..., 1]) * (p[..., 2] + q[..., 2]), -1),
+            np.sum((p[..., 2] - q[..., 2]) * (p[..., 0] + q[..., 0]), -1),
+            np.sum((p[..., 0] - q[..., 0]) * (p[..., 1] + q[..., 1]), -1),
+        ],
+        -1,
+    )
 
 
 def loop_tables(loop_start, loop_total):
@@ -106,8 +130,14 @@ def polygon_newell(verts, loop_start, loop_total, loop_verts):
     lp, nxt = loop_tables(loop_start, loop_total)
     lv = np.asarray(loop_verts, np.int64)
     p, q = verts[lv], verts[lv[nxt]]
-    t = np.stack([(p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2]), (p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0]),
-                  (p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1])], 1)
+    t = np.stack(
+        [
+            (p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2]),
+            (p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0]),
+            (p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1]),
+        ],
+        1,
+    )
     return np.stack([np.bincount(lp, t[:, k], len(loop_start)) for k in range(3)], 1)
 
 
@@ -124,7 +154,7 @@ def components(n, i, j):
         if np.array_equal(li, lj):
             break
         m = np.minimum(li, lj)
-        np.minimum.at(lab, li, m)           # labels only decrease: no cycles
+        np.minimum.at(lab, li, m)  # labels only decrease: no cycles
         np.minimum.at(lab, lj, m)
         while True:
             jumped = lab[lab]
@@ -150,12 +180,15 @@ def _off_plane(verts, starts, sizes, lv, polys):
     out = np.zeros(len(polys))
     for k in np.unique(sizes[polys]):
         m = np.flatnonzero(sizes[polys] == k)
-        p = verts[lv[starts[polys[m]][:, None] + np.arange(k)]]             # (n, k, 3)
+        p = verts[lv[starts[polys[m]][:, None] + np.arange(k)]]  # (n, k, 3)
         nrm = newell(p)
         nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
         d = np.abs(np.einsum("nkj,nj->nk", p - p.mean(1, keepdims=True), nrm)).max(1)
-        size = np.sqrt(((p[:, :, None] - p[:, None]) ** 2).sum(-1).max((1, 2))) if k <= 64 else \
-            np.linalg.norm(p.max(1) - p.min(1), axis=1)
+        size = (
+            np.sqrt(((p[:, :, None] - p[:, None]) ** 2).sum(-1).max((1, 2)))
+            if k <= 64
+            else np.linalg.norm(p.max(1) - p.min(1), axis=1)
+        )
         out[m] = d / np.maximum(size, 1e-300)
     return out
 
@@ -181,8 +214,10 @@ def _ear_clip(pts, idx):
             others = [j for j in rem if j not in (a, b, c)]
             if others:
                 p = uv[others]
+
                 def side(u, v):
                     return (v[0] - u[0]) * (p[:, 1] - u[1]) - (v[1] - u[1]) * (p[:, 0] - u[0])
+
                 if np.any((side(uv[a], uv[b]) >= 0) & (side(uv[b], uv[c]) >= 0) & (side(uv[c], uv[a]) >= 0)):
                     continue
             tris.append((idx[a], idx[b], idx[c]))
@@ -223,15 +258,19 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
     bad = ((rho < 0) | (rho >= 1)).any(1)
     if bad.any():
         i = int(np.argmax(bad))
-        raise InputError(f"Reflectance {tuple(np.round(rho[i], 4))} on {who(i)} is outside [0, 1): "
-                         "a diffuse surface cannot reflect all the light it receives.")
+        raise InputError(
+            f"Reflectance {tuple(np.round(rho[i], 4))} on {who(i)} is outside [0, 1): "
+            "a diffuse surface cannot reflect all the light it receives."
+        )
     bad = (em < 0).any(1)
     if bad.any():
         raise InputError(f"Negative emission on {who(int(np.argmax(bad)))}.")
     loop_poly = np.repeat(np.arange(P), mesh.loop_total)
     bad_loops = ~np.isfinite(verts[mesh.loop_verts]).all(1)
     if bad_loops.any():
-        raise InputError(f"NaN or infinite vertex coordinates on {who(int(loop_poly[np.argmax(bad_loops)]))}.")
+        raise InputError(
+            f"NaN or infinite vertex coordinates on {who(int(loop_poly[np.argmax(bad_loops)]))}."
+        )
 
     tri_list, quad_list = [], []  # (poly, v0, v1, v2[, v3])
     sizes = np.asarray(mesh.loop_total)
@@ -250,7 +289,9 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
     nu = n / np.where(nn > 0, nn, 1)
     d_off = np.abs(np.einsum("ij,ij->i", qp[:, 3] - qp[:, 0], nu))
     d_off = np.maximum(d_off, np.abs(np.einsum("ij,ij->i", qp[:, 2] - qp[:, 0], nu)))
-    diag_len = np.maximum(np.linalg.norm(qp[:, 2] - qp[:, 0], axis=1), np.linalg.norm(qp[:, 3] - qp[:, 1], axis=1))
+    diag_len = np.maximum(
+        np.linalg.norm(qp[:, 2] - qp[:, 0], axis=1), np.linalg.norm(qp[:, 3] - qp[:, 1], axis=1)
+    )
     planar = d_off <= planar_tol * np.maximum(diag_len, 1e-300)
     e = np.roll(qp, -1, axis=1) - qp
     turn = np.einsum("ijk,ik->ij", np.cross(e, np.roll(e, -1, axis=1)), nu)
@@ -266,7 +307,9 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
         tpoly = loop_poly[tl]
         bad = (tpoly != tpoly[:, :1]).any(1)
         if bad.any():
-            raise InputError(f"Triangulation (tri_loops) mixes the loops of several polygons at {who(int(tpoly[np.argmax(bad), 0]))}.")
+            raise InputError(
+                f"Triangulation (tri_loops) mixes the loops of several polygons at {who(int(tpoly[np.argmax(bad), 0]))}."
+            )
         tpoly = tpoly[:, 0]
         need = np.zeros(P, bool)
         need[q[~keep]] = True
@@ -279,16 +322,21 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
     # or, for non-planar quads, the shorter one.
     own = ~keep & ~given[q]
     sq, sqv, sturn = q[own], qv[own], turn[own]
-    reflex13 = (sturn[:, 0] <= 0) | (sturn[:, 2] <= 0)   # turn k is at corner k+1
-    use02 = np.where(planar[own], ~reflex13,
-                     np.linalg.norm(qp[own][:, 2] - qp[own][:, 0], axis=1)
-                     <= np.linalg.norm(qp[own][:, 3] - qp[own][:, 1], axis=1))
+    reflex13 = (sturn[:, 0] <= 0) | (sturn[:, 2] <= 0)  # turn k is at corner k+1
+    use02 = np.where(
+        planar[own],
+        ~reflex13,
+        np.linalg.norm(qp[own][:, 2] - qp[own][:, 0], axis=1)
+        <= np.linalg.norm(qp[own][:, 3] - qp[own][:, 1], axis=1),
+    )
     tri_list.append(np.column_stack([sq, np.where(use02[:, None], sqv[:, [0, 1, 2]], sqv[:, [0, 1, 3]])]))
     tri_list.append(np.column_stack([sq, np.where(use02[:, None], sqv[:, [0, 2, 3]], sqv[:, [1, 2, 3]])]))
 
     for i in np.flatnonzero((sizes > 4) & ~given):
-        idx = lv[starts[i]:starts[i] + sizes[i]]
-        tri_list.append(np.array([(i, *tr) for tr in _ear_clip(verts[idx], idx)], dtype=np.int64).reshape(-1, 4))
+        idx = lv[starts[i] : starts[i] + sizes[i]]
+        tri_list.append(
+            np.array([(i, *tr) for tr in _ear_clip(verts[idx], idx)], dtype=np.int64).reshape(-1, 4)
+        )
 
     tris = np.concatenate(tri_list).astype(np.int64)
     quads = np.concatenate(quad_list).astype(np.int64)
@@ -314,14 +362,24 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
     cen = corners[q4].mean(1, keepdims=True)
     corners[q4] -= np.einsum("nkj,nj->nk", corners[q4] - cen, nrm[q4])[..., None] * nrm[q4][:, None]
     result = Patches(
-        corners=corners, nv=nv[sel], vert_index=vidx, poly=poly[sel],
-        object_id=np.asarray(mesh.object_id)[poly[sel]], reflectance=rho[poly[sel]].T.copy(),
-        emission=em[poly[sel]].T.copy(), normal=n[sel] / (2 * area[sel, None]), area=area[sel],
-        object_names=names, dropped=dropped)
+        corners=corners,
+        nv=nv[sel],
+        vert_index=vidx,
+        poly=poly[sel],
+        object_id=np.asarray(mesh.object_id)[poly[sel]],
+        reflectance=rho[poly[sel]].T.copy(),
+        emission=em[poly[sel]].T.copy(),
+        normal=n[sel] / (2 * area[sel, None]),
+        area=area[sel],
+        object_names=names,
+        dropped=dropped,
+    )
     if dropped:
         lost = np.setdiff1d(np.arange(P), poly[ok])
-        result.warnings.append(f"Dropped {dropped} degenerate polygon(s) (zero area or fewer than 3 vertices): "
-                               f"{_per_object(mesh, lost)}.")
+        result.warnings.append(
+            f"Dropped {dropped} degenerate polygon(s) (zero area or fewer than 3 vertices): "
+            f"{_per_object(mesh, lost)}."
+        )
     split = np.union1d(q[~keep], np.flatnonzero(sizes > 4))
     if len(split):
         off = _off_plane(verts, starts, sizes, lv, split)
@@ -331,7 +389,8 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
                 f"{int(bad.sum())} non-planar polygon(s) (corners up to {100 * off.max():.0f}% of their size off "
                 f"their plane) were split into triangles: {_per_object(mesh, split[bad])}. The triangles may "
                 "not be the surface you meant; flatten them (Mesh > Clean Up > Make Planar Faces) or "
-                "triangulate them yourself.")
+                "triangulate them yourself."
+            )
     if len(sel) == 0:
         raise InputError("All polygons are degenerate (zero area); nothing to compute radiosity on.")
     return result
@@ -340,10 +399,11 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
 @dataclass
 class SceneExtent:
     """Objects that lie far away from the rest of the scene (see isolated_objects)."""
-    total_area: float                 # all polygons
-    main_area: float                  # the main group of objects near each other (most polygons)
-    main_size: float                  # bounding-box diagonal of that group
-    distant: list = field(default_factory=list)   # [(object name, distance to the group, own size)]
+
+    total_area: float  # all polygons
+    main_area: float  # the main group of objects near each other (most polygons)
+    main_size: float  # bounding-box diagonal of that group
+    distant: list = field(default_factory=list)  # [(object name, distance to the group, own size)]
 
     @property
     def area_ratio(self):
@@ -384,7 +444,7 @@ def isolated_objects(mesh: MeshInput, gap_ratio=10.0, max_objects=4000) -> Scene
     i, j = np.triu_indices(len(ids), 1)
     near = []
     for s in range(0, len(i), 1 << 20):
-        a, b = i[s:s + (1 << 20)], j[s:s + (1 << 20)]
+        a, b = i[s : s + (1 << 20)], j[s : s + (1 << 20)]
         gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo[a] - hi[b], lo[b] - hi[a])), axis=1)
         near.append(np.flatnonzero(gap <= gap_ratio * np.maximum(size[a], size[b])) + s)
     near = np.concatenate(near)

@@ -8,6 +8,7 @@ Quads split at edge midpoints and the centroid of the corners (the bilinear cent
 a planar convex quad stay planar and convex. Triangles split at edge midpoints; child 3 is the
 middle triangle. Child k (k < nv) holds the parent's corner k, which output.py relies on.
 """
+
 import numpy as np
 
 from .geometry import Patches
@@ -28,13 +29,21 @@ class Hierarchy:
         self.level[:k] = 0
         self.patch[:k] = np.arange(k)
         self._set_derived(np.arange(k))
-        self.version = 0   # bumped on every structural change (caches key on it)
+        self.version = 0  # bumped on every structural change (caches key on it)
         self._levels = None
 
     # -- storage -------------------------------------------------------------------------------------
-    _fields = (("corners", (4, 3), np.float64), ("nv", (), np.int8), ("parent", (), np.int32),
-               ("child0", (), np.int32), ("level", (), np.int16), ("patch", (), np.int32),
-               ("area", (), np.float64), ("centre", (3,), np.float64), ("normal", (3,), np.float64))
+    _fields = (
+        ("corners", (4, 3), np.float64),
+        ("nv", (), np.int8),
+        ("parent", (), np.int32),
+        ("child0", (), np.int32),
+        ("level", (), np.int16),
+        ("patch", (), np.int32),
+        ("area", (), np.float64),
+        ("centre", (3,), np.float64),
+        ("normal", (3,), np.float64),
+    )
 
     def _grow(self, need):
         if need <= self._cap:
@@ -43,7 +52,7 @@ class Hierarchy:
         for name, shape, dt in self._fields:
             new = np.zeros((cap,) + shape, dt)
             if self._cap:
-                new[:self.n] = getattr(self, name)[:self.n]
+                new[: self.n] = getattr(self, name)[: self.n]
             setattr(self, name, new)
         self._cap = cap
 
@@ -54,16 +63,18 @@ class Hierarchy:
         a = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]) + np.cross(c[:, 2] - c[:, 0], c[:, 3] - c[:, 0])
         self.area[ids] = 0.5 * np.linalg.norm(a, axis=1)
         nv = self.nv[ids].astype(float)
-        self.centre[ids] = (c[:, 0] + c[:, 1] + c[:, 2] + np.where(nv[:, None] == 4, c[:, 3], 0)) / nv[:, None]
+        self.centre[ids] = (c[:, 0] + c[:, 1] + c[:, 2] + np.where(nv[:, None] == 4, c[:, 3], 0)) / nv[
+            :, None
+        ]
 
     def view(self, name):
         """The live part of a field, e.g. h.view('area')."""
-        return getattr(self, name)[:self.n]
+        return getattr(self, name)[: self.n]
 
     # -- structure -----------------------------------------------------------------------------------
     @property
     def is_leaf(self):
-        return self.child0[:self.n] < 0
+        return self.child0[: self.n] < 0
 
     def leaves(self):
         return np.flatnonzero(self.is_leaf)
@@ -83,10 +94,24 @@ class Hierarchy:
         ab, bc, cd, da = (a + b) / 2, (b + cc) / 2, (cc + d) / 2, (d + a) / 2
         ca = (cc + a) / 2
         m_q = (a + b + cc + d) / 4
-        quad_children = np.stack([np.stack([a, ab, m_q, da], 1), np.stack([ab, b, bc, m_q], 1),
-                                  np.stack([m_q, bc, cc, cd], 1), np.stack([da, m_q, cd, d], 1)], 1)
-        tri_children = np.stack([np.stack([a, ab, ca, ca], 1), np.stack([ab, b, bc, bc], 1),
-                                 np.stack([ca, bc, cc, cc], 1), np.stack([bc, ca, ab, ab], 1)], 1)
+        quad_children = np.stack(
+            [
+                np.stack([a, ab, m_q, da], 1),
+                np.stack([ab, b, bc, m_q], 1),
+                np.stack([m_q, bc, cc, cd], 1),
+                np.stack([da, m_q, cd, d], 1),
+            ],
+            1,
+        )
+        tri_children = np.stack(
+            [
+                np.stack([a, ab, ca, ca], 1),
+                np.stack([ab, b, bc, bc], 1),
+                np.stack([ca, bc, cc, cc], 1),
+                np.stack([bc, ca, ab, ab], 1),
+            ],
+            1,
+        )
         kids = np.where(tri[:, None, None, None], tri_children, quad_children)  # (m, 4, 4, 3)
         new = start + np.arange(4 * m)
         self.corners[new] = kids.reshape(-1, 4, 3)
@@ -108,17 +133,17 @@ class Hierarchy:
     def compact(self, keep):
         """Delete nodes where keep is False (whole subtrees: a kept node's parent must be kept and
         a parent keeps all four children or none). Returns remap old -> new index (-1 deleted)."""
-        keep = np.asarray(keep, bool)[:self.n]
+        keep = np.asarray(keep, bool)[: self.n]
         remap = np.full(self.n, -1, np.int64)
         remap[keep] = np.arange(int(keep.sum()))
         for name, _, _ in self._fields:
             arr = getattr(self, name)
-            kept = arr[:self.n][keep]
-            arr[:len(kept)] = kept
+            kept = arr[: self.n][keep]
+            arr[: len(kept)] = kept
         self.n = int(keep.sum())
-        p = self.parent[:self.n]
+        p = self.parent[: self.n]
         p[p >= 0] = remap[p[p >= 0]]
-        c0 = self.child0[:self.n]
+        c0 = self.child0[: self.n]
         has = c0 >= 0
         c0[has] = remap[c0[has]]
         self._changed()
@@ -131,15 +156,15 @@ class Hierarchy:
     def levels(self):
         """Node ids grouped by depth: list over levels of index arrays (for push-pull)."""
         if self._levels is None:
-            lv = self.level[:self.n]
+            lv = self.level[: self.n]
             order = np.argsort(lv, kind="stable")
             bounds = np.searchsorted(lv[order], np.arange(int(lv.max()) + 2))
-            self._levels = [order[bounds[i]:bounds[i + 1]] for i in range(len(bounds) - 1)]
+            self._levels = [order[bounds[i] : bounds[i + 1]] for i in range(len(bounds) - 1)]
         return self._levels
 
     def node_rho(self):
         """(3, n) reflectance of every node (inherited from its patch)."""
-        return self.patches.reflectance[:, self.patch[:self.n]]
+        return self.patches.reflectance[:, self.patch[: self.n]]
 
     def leaf_at_corner(self, roots, k):
         """Descend from roots to the leaf holding corner k of each root (vectorised)."""
@@ -166,4 +191,6 @@ class Hierarchy:
     @classmethod
     def node_bytes(cls):
         """Bytes of storage per node (all per-node arrays, solver state excluded)."""
-        return sum(int(np.prod(shape, dtype=np.int64)) * np.dtype(dt).itemsize for _, shape, dt in cls._fields)
+        return sum(
+            int(np.prod(shape, dtype=np.int64)) * np.dtype(dt).itemsize for _, shape, dt in cls._fields
+        )

@@ -6,6 +6,7 @@ of the same object whose patch normal lies within `smooth_angle` of the polygon'
 polygons that meet smoothly share one value (no cracks, also across T-junctions of the hierarchy,
 which never reach the output) while creases (a wall meeting the floor) stay sharp.
 """
+
 import numpy as np
 
 from .geometry import MeshInput
@@ -85,7 +86,7 @@ def _insideness(c, nrm, pts):
     e = np.roll(c, -1, axis=2) - c
     length = np.linalg.norm(e, axis=-1)
     d = np.einsum("mkvj,mkj->mkv", np.cross(e, pts[:, None, None] - c), nrm) / np.maximum(length, 1e-300)
-    return np.where(length > 0, d, np.inf).min(-1)                   # padded triangle edge ignored
+    return np.where(length > 0, d, np.inf).min(-1)  # padded triangle edge ignored
 
 
 def locate(h: Hierarchy, patch, points):
@@ -99,7 +100,7 @@ def locate(h: Hierarchy, patch, points):
         inner = np.flatnonzero(h.child0[node] >= 0)
         if len(inner) == 0:
             return node
-        kids = h.child0[node[inner]][:, None] + np.arange(4)            # (m, 4)
+        kids = h.child0[node[inner]][:, None] + np.arange(4)  # (m, 4)
         d = _insideness(h.corners[kids], h.normal[kids], pts[inner])
         node[inner] = kids[np.arange(len(inner)), np.argmax(d, axis=1)]
 
@@ -137,7 +138,7 @@ def locate_near(h: Hierarchy, patch, points):
     """Like locate, but a point just outside its patch goes to the smooth neighbour holding it."""
     patch = np.asarray(patch, np.int64)
     pts = np.asarray(points, float)
-    cand = np.column_stack([patch, patch_neighbours(h)[patch]])          # (M, 1 + D)
+    cand = np.column_stack([patch, patch_neighbours(h)[patch]])  # (M, 1 + D)
     valid = cand >= 0
     cc = np.where(valid, cand, patch[:, None])
     d = np.where(valid, _insideness(h.corners[cc], h.normal[cc], pts), -np.inf)
@@ -158,7 +159,7 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
     leaf = locate(h, patch, pts)
     if not smooth:
         return B[:, leaf].T.copy()
-    c = h.corners[leaf]                                                  # (M, 4, 3)
+    c = h.corners[leaf]  # (M, 4, 3)
     size = np.sqrt(h.area[leaf])[:, None, None]
     unit = lambda v: v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
     u, w = unit(np.roll(c, -1, axis=1) - c), unit(np.roll(c, 1, axis=1) - c)

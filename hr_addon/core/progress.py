@@ -5,6 +5,7 @@ given by the caller (the bake, the CLI, a test) receives a `ProgressInfo` and ca
 raising `Cancelled` (or any exception): nothing the core computed so far is kept, and the
 exception propagates out of the constructor that was building.
 """
+
 import time
 from dataclasses import dataclass
 
@@ -15,12 +16,12 @@ class Cancelled(Exception):
 
 @dataclass
 class ProgressInfo:
-    phase: str          # e.g. "linking", "visibility", "push corrections"
-    fraction: float     # 0..1 of the whole build (estimated)
-    done: int           # work units finished in this phase
-    total: int          # work units known so far in this phase (may grow while refining)
-    elapsed: float      # seconds since the build started
-    eta: float          # estimated seconds left (nan while unknown)
+    phase: str  # e.g. "linking", "visibility", "push corrections"
+    fraction: float  # 0..1 of the whole build (estimated)
+    done: int  # work units finished in this phase
+    total: int  # work units known so far in this phase (may grow while refining)
+    elapsed: float  # seconds since the build started
+    eta: float  # estimated seconds left (nan while unknown)
 
     @property
     def message(self):

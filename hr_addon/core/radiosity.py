@@ -1,4 +1,5 @@
 """The engine in one object: input mesh -> patches -> hierarchy -> links -> solution."""
+
 import copy
 import time
 from dataclasses import dataclass, field
@@ -61,10 +62,17 @@ class RadiositySystem:
             self.refiner.stats["t_corr"] = time.perf_counter() - t1
         self.refiner.progress.done("push corrections")
         self._op = None
-        self.B = None   # a BF pass solved with links that have changed since
-        self.build = BuildReport(len(self.patches.nv), self.patches.dropped, self.h.n, len(self.links),
-                                 time.perf_counter() - t0, dict(self.refiner.stats), type(self.backend).__name__,
-                                 list(self.patches.warnings))
+        self.B = None  # a BF pass solved with links that have changed since
+        self.build = BuildReport(
+            len(self.patches.nv),
+            self.patches.dropped,
+            self.h.n,
+            len(self.links),
+            time.perf_counter() - t0,
+            dict(self.refiner.stats),
+            type(self.backend).__name__,
+            list(self.patches.warnings),
+        )
 
     def copy(self):
         """An independent copy for light events: its own hierarchy (events add nodes below the

@@ -10,6 +10,7 @@ One geometric computation serves both directions: F is integrated from the small
 larger (sample points on the small one, exact contour integral over the large one) and the other
 direction follows from reciprocity, so A_p F_pq = A_q F_qp exactly and neither exceeds 1.
 """
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,31 +26,33 @@ CHUNK = 100_000  # node pairs processed at once
 
 @dataclass
 class RefineParams:
-    feps: float = 0.02          # form factor threshold (dimensionless)
-    veps: float = 0.0           # max variation of a link's point form factor across either node (0: off)
-    near: float = 4.0           # pairs closer than sqrt(near x (A_p + A_q)) get the variation test
-    aeps: float = 2e-4          # minimum node area, as a fraction of the total scene area
+    feps: float = 0.02  # form factor threshold (dimensionless)
+    veps: float = 0.0  # max variation of a link's point form factor across either node (0: off)
+    near: float = 4.0  # pairs closer than sqrt(near x (A_p + A_q)) get the variation test
+    aeps: float = 2e-4  # minimum node area, as a fraction of the total scene area
     shadow_feps: float = 0.002  # partly visible links above this are split (0 disables)
-    vis_k: int = 2              # visibility samples per node: vis_k^2, rays per link: vis_k^4
-    bfeps: float = 0.0          # BF refinement threshold, relative to the brightest emitter (0: off)
+    vis_k: int = 2  # visibility samples per node: vis_k^2, rays per link: vis_k^4
+    bfeps: float = 0.0  # BF refinement threshold, relative to the brightest emitter (0: off)
     bf_passes: int = 2
-    vcorr: float = 1e-4         # push corrections for links varying more than this (0: off)
+    vcorr: float = 1e-4  # push corrections for links varying more than this (0: off)
     corr_budget: int = 3_000_000
-    cluster: bool = True        # link through face clusters (cluster.py) instead of all patch pairs
+    cluster: bool = True  # link through face clusters (cluster.py) instead of all patch pairs
     cluster_ratio: float = 0.3  # far links need (radius_a + radius_b) < cluster_ratio x distance
-    partial_feps: float = 0.5   # far links with a partly facing cluster end need F < partial_feps x feps
+    partial_feps: float = 0.5  # far links with a partly facing cluster end need F < partial_feps x feps
     cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
-    cluster_leaf: int = 4       # most patches in a leaf cluster
-    ff_order: int = 3           # most Gauss points per side for a link's form factor (near pairs)
+    cluster_leaf: int = 4  # most patches in a leaf cluster
+    ff_order: int = 3  # most Gauss points per side for a link's form factor (near pairs)
 
     @staticmethod
     def preset(name):
         presets = {
-            "draft": RefineParams(feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3, cluster_ratio=0.4,
-                                  cluster_veps=1e-2),
+            "draft": RefineParams(
+                feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3, cluster_ratio=0.4, cluster_veps=1e-2
+            ),
             "medium": RefineParams(),
-            "high": RefineParams(feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vcorr=1e-5,
-                                 cluster_veps=2e-4),
+            "high": RefineParams(
+                feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vcorr=1e-5, cluster_veps=2e-4
+            ),
         }
         if name not in presets:
             raise ValueError(f"Unknown quality preset '{name}' (choose from {', '.join(presets)})")
@@ -61,8 +64,12 @@ class Links:
 
     def __init__(self, a, b, f_ab, f_ba, vis, corr=None, far=None):
         self.a, self.b = np.asarray(a, np.int32), np.asarray(b, np.int32)
-        self.far = far   # farlinks.FarLinks: links with a cluster end (None without clustering)
-        self.f_ab, self.f_ba, self.vis = np.asarray(f_ab, float), np.asarray(f_ba, float), np.asarray(vis, float)
+        self.far = far  # farlinks.FarLinks: links with a cluster end (None without clustering)
+        self.f_ab, self.f_ba, self.vis = (
+            np.asarray(f_ab, float),
+            np.asarray(f_ba, float),
+            np.asarray(vis, float),
+        )
         # Push corrections (see push_corrections): directed (leaf, source, dF) terms whose dF sum to
         # zero, area-weighted, over each corrected link's receiver. Dropped by select/concat.
         self.corr = corr
@@ -83,12 +90,19 @@ class Links:
 
     def concat(self, other):
         """Patch-node links of both; far links of self."""
-        return Links(*(np.concatenate([getattr(self, k), getattr(other, k)]) for k in ("a", "b", "f_ab", "f_ba", "vis")),
-                     far=self.far)
+        return Links(
+            *(
+                np.concatenate([getattr(self, k), getattr(other, k)])
+                for k in ("a", "b", "f_ab", "f_ba", "vis")
+            ),
+            far=self.far,
+        )
 
     def select(self, mask):
         """A subset of the patch-node links (mask over them); far links kept."""
-        return Links(self.a[mask], self.b[mask], self.f_ab[mask], self.f_ba[mask], self.vis[mask], far=self.far)
+        return Links(
+            self.a[mask], self.b[mask], self.f_ab[mask], self.f_ba[mask], self.vis[mask], far=self.far
+        )
 
     def remap(self, remap):
         """After Hierarchy.compact: renumber nodes (links must not touch deleted nodes)."""
@@ -113,8 +127,12 @@ class Links:
                 corr = np.concatenate([corr, np.ones(len(self.corr[0]), bool)])
                 keep = np.concatenate([keep, self.corr[2] != 0])
             order = np.argsort(recv[keep], kind="stable")
-            self._csr = (recv[keep][order].astype(np.int32), src[keep][order].astype(np.int32), f[keep][order],
-                         corr[keep][order])
+            self._csr = (
+                recv[keep][order].astype(np.int32),
+                src[keep][order].astype(np.int32),
+                f[keep][order],
+                corr[keep][order],
+            )
         return self._csr
 
     def extended(self, h):
@@ -135,11 +153,15 @@ class Links:
             pass1, (fr, fs, fw, fc) = self.far.terms(h)
             r = np.concatenate([recv.astype(np.int64) + off, fr])
             order = np.argsort(r, kind="stable")
-            main = (r[order].astype(np.int32), np.concatenate([src.astype(np.int64) + off + nT, fs])[order].astype(np.int32),
-                    np.concatenate([f, fw])[order], np.concatenate([corr, fc])[order])
+            main = (
+                r[order].astype(np.int32),
+                np.concatenate([src.astype(np.int64) + off + nT, fs])[order].astype(np.int32),
+                np.concatenate([f, fw])[order],
+                np.concatenate([corr, fc])[order],
+            )
             o1 = np.argsort(pass1[0], kind="stable")
             self._ext = (tuple(x[o1] for x in pass1), main)
-            self._csr = None   # held inside main (shifted); directed() rebuilds it if asked
+            self._csr = None  # held inside main (shifted); directed() rebuilds it if asked
         return self._ext
 
     @property
@@ -153,9 +175,11 @@ class Links:
 
 def _facing(h, p, q, tol):
     """True where some corner of q is in front of p's plane and vice versa (else no exchange)."""
+
     def front(x, y):
         d = np.einsum("nkj,nj->nk", h.corners[y] - h.centre[x][:, None], h.normal[x])
         return (d > tol).any(1)
+
     return front(p, q) & front(q, p)
 
 
@@ -166,11 +190,13 @@ def initial_pairs(h: Hierarchy, chunk=2_000_000):
     ps, qs = [], []
     iu, ju = np.triu_indices(k, 1)
     for s in range(0, len(iu), chunk):
-        p, q = iu[s:s + chunk], ju[s:s + chunk]
+        p, q = iu[s : s + chunk], ju[s : s + chunk]
         ok = _facing(h, p, q, tol)
         ps.append(p[ok])
         qs.append(q[ok])
-    return np.concatenate(ps) if ps else np.zeros(0, np.int64), np.concatenate(qs) if qs else np.zeros(0, np.int64)
+    return np.concatenate(ps) if ps else np.zeros(0, np.int64), np.concatenate(qs) if qs else np.zeros(
+        0, np.int64
+    )
 
 
 def link_form_factors(h: Hierarchy, a, b, max_order=3):
@@ -189,10 +215,14 @@ def link_form_factors(h: Hierarchy, a, b, max_order=3):
         m = np.flatnonzero(k == kk)
         if len(m) == 0:
             continue
-        pts, w = ff.quadrature(h.corners[s[m]], h.nv[s[m]], kk)               # (M, kk^2, 3)
+        pts, w = ff.quadrature(h.corners[s[m]], h.nv[s[m]], kk)  # (M, kk^2, 3)
         ns = kk * kk
-        vals = ff.point_to_polygon(pts.reshape(-1, 3), np.repeat(h.normal[s[m]], ns, 0),
-                                   np.repeat(h.corners[l[m]], ns, 0), np.repeat(h.nv[l[m]], ns))
+        vals = ff.point_to_polygon(
+            pts.reshape(-1, 3),
+            np.repeat(h.normal[s[m]], ns, 0),
+            np.repeat(h.corners[l[m]], ns, 0),
+            np.repeat(h.nv[l[m]], ns),
+        )
         f_sl[m] = np.sum(vals.reshape(-1, ns) * w, axis=1)
     f_sl = np.clip(f_sl, 0.0, 1.0)
     f_ls = f_sl * h.area[s] / h.area[l]
@@ -205,9 +235,17 @@ class Refiner:
     def __init__(self, h: Hierarchy, backend, params: RefineParams):
         self.h, self.backend, self.params = h, backend, params
         self.total_area = float(h.patches.area.sum())
-        self.eps = 1e-6 * np.sqrt(self.total_area)   # ray end offset along normals
+        self.eps = 1e-6 * np.sqrt(self.total_area)  # ray end offset along normals
         self.progress = NO_PROGRESS
-        self.stats = {"rays": 0, "pairs_tested": 0, "pairs_culled": 0, "cluster_pairs": 0, "t_vis": 0.0, "t_ff": 0.0, "t_refine": 0.0}
+        self.stats = {
+            "rays": 0,
+            "pairs_tested": 0,
+            "pairs_culled": 0,
+            "cluster_pairs": 0,
+            "t_vis": 0.0,
+            "t_ff": 0.0,
+            "t_refine": 0.0,
+        }
         self._occluder_boxes()
 
     def _occluder_boxes(self):
@@ -215,11 +253,15 @@ class Refiner:
         front of planes P and Q cannot hit a triangle lying in P or Q, so such triangles are ignored
         by the bounding-box shaft test below."""
         pt = self.h.patches
-        tri_patch = np.concatenate([np.arange(len(pt.nv)), np.flatnonzero(pt.nv == 4)])  # order of Patches.triangles
+        tri_patch = np.concatenate(
+            [np.arange(len(pt.nv)), np.flatnonzero(pt.nv == 4)]
+        )  # order of Patches.triangles
         tris = pt.triangles
         self.tri_lo, self.tri_hi = tris.min(1), tris.max(1)
         scale = 1e-6 * np.sqrt(self.total_area)
-        key = np.column_stack([np.round(pt.normal * 1e6), np.round(np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0]) / scale)])
+        key = np.column_stack(
+            [np.round(pt.normal * 1e6), np.round(np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0]) / scale)]
+        )
         self.patch_plane = np.unique(key, axis=0, return_inverse=True)[1].ravel()
         self.tri_plane = self.patch_plane[tri_patch]
 
@@ -228,7 +270,9 @@ class Refiner:
         the pair is certainly unoccluded and needs no rays."""
         h = self.h
         T = len(self.tri_lo)
-        if T > 512:  # measured: past a few hundred occluders, the brute-force box test costs more than the rays
+        if (
+            T > 512
+        ):  # measured: past a few hundred occluders, the brute-force box test costs more than the rays
             return np.ones(len(a), bool)
         lo = np.minimum(h.corners[a].min(1), h.corners[b].min(1)) - self.eps
         hi = np.maximum(h.corners[a].max(1), h.corners[b].max(1)) + self.eps
@@ -246,6 +290,7 @@ class Refiner:
         """Fraction of vis_k^2 x vis_k^2 segments between the two nodes that are unoccluded;
         weak links (mask) trace only the vis_k^2 segments from point i to point s - 1 - i."""
         import time
+
         t0 = time.perf_counter()
         h, k = self.h, self.params.vis_k
         vis = np.ones(len(a))
@@ -280,12 +325,13 @@ class Refiner:
         A pair whose shadow test found all its vis_k^2 x vis_k^2 segments unoccluded hands that
         on: the pairs it splits into need no rays (as in HR)."""
         import time
+
         t0 = time.perf_counter()
         h, prm = self.h, self.params
         aeps = prm.aeps * self.total_area
         out = []
         p, q = np.asarray(p, np.int64), np.asarray(q, np.int64)
-        kv = np.full(len(p), np.nan)   # 1: known to be wholly visible, nan: unknown
+        kv = np.full(len(p), np.nan)  # 1: known to be wholly visible, nan: unknown
         tol = 1e-9 * np.sqrt(self.total_area)
         pending = [(p, q, kv)]
         done, total = 0, len(p)
@@ -299,8 +345,12 @@ class Refiner:
             self.stats["pairs_tested"] += len(p)
             done += len(p)
             self.progress.update("linking", done, total)
-            f_pq = ff.estimate(h.centre[p], h.normal[p], h.area[p], h.corners[q], h.centre[q], h.normal[q], h.area[q])
-            f_qp = ff.estimate(h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p])
+            f_pq = ff.estimate(
+                h.centre[p], h.normal[p], h.area[p], h.corners[q], h.centre[q], h.normal[q], h.area[q]
+            )
+            f_qp = ff.estimate(
+                h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p]
+            )
             fmax = np.maximum(f_pq, f_qp)
             alive = (fmax > 0) & _facing(h, p, q, tol)
             p, q, f_pq, f_qp, fmax, kv = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive], kv[alive]
@@ -316,7 +366,11 @@ class Refiner:
                 ok &= np.maximum(v_p, v_q) < prm.veps
             vis = kv.copy()
             # Links that pass the oracle but straddle a shadow boundary get split further.
-            shadow = ok & (fmax > prm.shadow_feps) & (can_p | can_q) & np.isnan(vis) if prm.shadow_feps > 0 else np.zeros(len(p), bool)
+            shadow = (
+                ok & (fmax > prm.shadow_feps) & (can_p | can_q) & np.isnan(vis)
+                if prm.shadow_feps > 0
+                else np.zeros(len(p), bool)
+            )
             if shadow.any():
                 vis[shadow] = self.visibility(p[shadow], q[shadow])
                 ok &= ~(shadow & (vis > 0) & (vis < 1))
@@ -327,21 +381,26 @@ class Refiner:
             link = ~split_q & ~split_p
             if link.any():
                 out.append((p[link], q[link], vis[link]))
-            sp_p, sp_q = p[split_p], q[split_p]   # p split: pairs (child of p, q)
-            sq_p, sq_q = p[split_q], q[split_q]   # q split: pairs (p, child of q)
+            sp_p, sp_q = p[split_p], q[split_p]  # p split: pairs (child of p, q)
+            sq_p, sq_q = p[split_q], q[split_q]  # q split: pairs (p, child of q)
             h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
             total += 4 * (len(sp_p) + len(sq_p))
             if len(sp_p) + len(sq_p):
                 kn = np.where(vis == 1, 1.0, np.nan)
-                pending.append((np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)]),
-                                np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()]),
-                                np.concatenate([np.repeat(kn[split_p], 4), np.repeat(kn[split_q], 4)])))
+                pending.append(
+                    (
+                        np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)]),
+                        np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()]),
+                        np.concatenate([np.repeat(kn[split_p], 4), np.repeat(kn[split_q], 4)]),
+                    )
+                )
         self.stats["t_refine"] += time.perf_counter() - t0
-        self.progress.done("linking")   # every phase reports its end, however fast it was
+        self.progress.done("linking")  # every phase reports its end, however fast it was
         return self._finish(out)
 
     def _finish(self, out):
         import time
+
         if not out:
             return Links.empty()
         a, b, vis = (np.concatenate(x) for x in zip(*out))
@@ -355,7 +414,7 @@ class Refiner:
         weak = np.maximum(f_ab, f_ba) < self.params.shadow_feps
         todo = np.flatnonzero(np.isnan(vis))
         for i in range(0, len(todo), CHUNK):
-            t = todo[i:i + CHUNK]
+            t = todo[i : i + CHUNK]
             vis[t] = self.visibility(a[t], b[t], weak[t])
         keep = (vis > 0) & ((f_ab > 0) | (f_ba > 0))
         return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])
@@ -368,6 +427,7 @@ class Refiner:
         from .cluster import ClusterTree
         from .farlinks import link_clusters
         import time
+
         t0 = time.perf_counter()
         tree = ClusterTree(self.h.patches, leaf_size=self.params.cluster_leaf)
         self.stats["t_tree"] = time.perf_counter() - t0
@@ -389,8 +449,13 @@ class Refiner:
 
         def bf(p, q, f_pq, f_qp):
             Bn = h.extend(B)
-            return np.maximum((rho[:, h.patch[p]] * Bn[:, q]).max(0) * f_pq,
-                              (rho[:, h.patch[q]] * Bn[:, p]).max(0) * f_qp) < thr
+            return (
+                np.maximum(
+                    (rho[:, h.patch[p]] * Bn[:, q]).max(0) * f_pq,
+                    (rho[:, h.patch[q]] * Bn[:, p]).max(0) * f_qp,
+                )
+                < thr
+            )
 
         f_ab, f_ba = links.f_ab * links.vis, links.f_ba * links.vis
         bad = ~bf(links.a, links.b, f_ab, f_ba)
@@ -406,8 +471,9 @@ def _variation(h, x, y):
     pulled 1% towards the centre: a corner on an edge shared with y is a singular configuration."""
     pts = np.concatenate([h.corners[x], h.centre[x][:, None]], 1)
     pts += 0.01 * (h.centre[x][:, None] - pts)
-    f = ff.point_to_polygon(pts.reshape(-1, 3), np.repeat(h.normal[x], 5, 0),
-                            np.repeat(h.corners[y], 5, 0), np.repeat(h.nv[y], 5)).reshape(-1, 5)
+    f = ff.point_to_polygon(
+        pts.reshape(-1, 3), np.repeat(h.normal[x], 5, 0), np.repeat(h.corners[y], 5, 0), np.repeat(h.nv[y], 5)
+    ).reshape(-1, 5)
     return f.max(1) - f.min(1)
 
 
@@ -471,12 +537,17 @@ def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000):
     m = np.flatnonzero(far)
     w = h.centre[src_of[m]] - h.centre[leaf[m]]
     r2 = np.einsum("ij,ij->i", w, w)
-    fc[m] = (np.maximum(np.einsum("ij,ij->i", w, h.normal[leaf[m]]), 0)
-             * np.maximum(-np.einsum("ij,ij->i", w, h.normal[src_of[m]]), 0) / (r2 * r2))
+    fc[m] = (
+        np.maximum(np.einsum("ij,ij->i", w, h.normal[leaf[m]]), 0)
+        * np.maximum(-np.einsum("ij,ij->i", w, h.normal[src_of[m]]), 0)
+        / (r2 * r2)
+    )
     m = np.flatnonzero(~far)
     for a in range(0, len(m), 1_000_000):
-        mm = m[a:a + 1_000_000]
-        fc[mm] = ff.point_to_polygon(h.centre[leaf[mm]], h.normal[leaf[mm]], h.corners[src_of[mm]], h.nv[src_of[mm]])
+        mm = m[a : a + 1_000_000]
+        fc[mm] = ff.point_to_polygon(
+            h.centre[leaf[mm]], h.normal[leaf[mm]], h.corners[src_of[mm]], h.nv[src_of[mm]]
+        )
     mean = np.bincount(li, weights=fc * h.area[leaf], minlength=len(r)) / h.area[r]
     ok = mean[li] > 0
     dF = np.where(ok, fl[li] * (fc / np.where(ok, mean[li], 1.0) - 1.0), 0.0)

@@ -4,6 +4,7 @@ Everything is in radiance units (the system L = L_e + rho sum F L is linear, so 
 State B is (3, n): every node's radiance, internal nodes holding the area-weighted mean of their
 children. Emission lives on leaves; E (3, n) entries of internal nodes are ignored.
 """
+
 import copy
 from dataclasses import dataclass, field
 import time
@@ -27,9 +28,9 @@ class SolveReport:
     converged: bool = False
     seconds: float = 0.0
     links_per_second: float = 0.0
-    emitted: float = 0.0    # total power, W (pi x radiance x area)
+    emitted: float = 0.0  # total power, W (pi x radiance x area)
     absorbed: float = 0.0
-    escaped: float = 0.0    # leaving surfaces towards nothing (open scenes)
+    escaped: float = 0.0  # leaving surfaces towards nothing (open scenes)
     messages: list = field(default_factory=list)
 
     @property
@@ -116,14 +117,14 @@ class Operator:
             if tree is None:
                 G[c] = _sum_runs(self._rows, f * B[c].astype(dt, copy=False)[self.src], self.n)
                 continue
-            Z = np.zeros(self.nT + off + self.n, dt)    # [far-link intermediates | X]
-            X = Z[self.nT:]
-            X[:off] = tree.power(B[c, :tree.K]).ravel()
+            Z = np.zeros(self.nT + off + self.n, dt)  # [far-link intermediates | X]
+            X = Z[self.nT :]
+            X[:off] = tree.power(B[c, : tree.K]).ravel()
             X[off:] = B[c]
-            Z[:self.nT] = _sum_runs(self._t_rows, self.t_w * X[self.t_src], self.nT)
+            Z[: self.nT] = _sum_runs(self._t_rows, self.t_w * X[self.t_src], self.nT)
             Y = _sum_runs(self._rows, f * Z[self.src], off + self.n)
             G[c] = Y[off:]
-            G[c, :tree.K] += tree.distribute(Y[:off].reshape(-1, SLOTS))
+            G[c, : tree.K] += tree.distribute(Y[:off].reshape(-1, SLOTS))
         return G
 
     def push(self, G):
@@ -158,8 +159,17 @@ def _sum_runs(runs, w, n):
     return out
 
 
-def solve(h: Hierarchy, links: Links, E, B0=None, tol=1e-7, max_iter=2000, op: Operator = None, method="gmres",
-          energy=True):
+def solve(
+    h: Hierarchy,
+    links: Links,
+    E,
+    B0=None,
+    tol=1e-7,
+    max_iter=2000,
+    op: Operator = None,
+    method="gmres",
+    energy=True,
+):
     """Solve B = E + rho K B to a relative residual max|E + rho K B - B| / max|B| below tol.
 
     E: (3, n) leaf emission (radiance). B0: warm start (3, n), e.g. the previous frame's solution.
@@ -178,8 +188,10 @@ def solve(h: Hierarchy, links: Links, E, B0=None, tol=1e-7, max_iter=2000, op: O
     else:
         B = _gmres(op, E, B, tol, max_iter, rep)
     if not rep.converged:
-        msg = (f"Radiosity did not converge: relative residual {rep.residual:.2e} after {rep.iterations} "
-               f"iterations (max reflectance {float(op.rho.max()):.3f}; reflectance close to 1 converges slowly).")
+        msg = (
+            f"Radiosity did not converge: relative residual {rep.residual:.2e} after {rep.iterations} "
+            f"iterations (max reflectance {float(op.rho.max()):.3f}; reflectance close to 1 converges slowly)."
+        )
         rep.messages.append(msg)
         warnings.warn(msg, ConvergenceWarning, stacklevel=2)
     rep.seconds = time.perf_counter() - t0
@@ -243,14 +255,17 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30):
             w = V[j] - K(V[j])
             count += 1
             for _ in range(2):  # classical Gram-Schmidt, twice: orthogonal to working precision
-                hcol = np.einsum("ij,j->i", V[:j + 1], w)
-                w -= np.einsum("i,ij->j", hcol, V[:j + 1])
-                Hm[:j + 1, j] += hcol
+                hcol = np.einsum("ij,j->i", V[: j + 1], w)
+                w -= np.einsum("i,ij->j", hcol, V[: j + 1])
+                Hm[: j + 1, j] += hcol
             Hm[j + 1, j] = _norm(w)
             if Hm[j + 1, j] > 0:
                 V[j + 1] = w / Hm[j + 1, j]
             for i in range(j):  # apply the previous Givens rotations to the new column
-                Hm[i, j], Hm[i + 1, j] = cs[i] * Hm[i, j] + sn[i] * Hm[i + 1, j], -sn[i] * Hm[i, j] + cs[i] * Hm[i + 1, j]
+                Hm[i, j], Hm[i + 1, j] = (
+                    cs[i] * Hm[i, j] + sn[i] * Hm[i + 1, j],
+                    -sn[i] * Hm[i, j] + cs[i] * Hm[i + 1, j],
+                )
             d = np.hypot(Hm[j, j], Hm[j + 1, j])
             cs[j], sn[j] = (Hm[j, j] / d, Hm[j + 1, j] / d) if d > 0 else (1.0, 0.0)
             Hm[j, j], Hm[j + 1, j] = d, 0.0
@@ -259,7 +274,10 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30):
             # The 2-norm estimate bounds the max-norm residual; stop the cycle once it is small.
             if abs(g[j + 1]) < 0.1 * tol * scale or Hm[j + 1, j] == 0 and d == 0:
                 break
-        y = np.linalg.solve(np.triu(Hm[:j_end, :j_end]) + np.diag(np.where(np.diag(Hm[:j_end, :j_end]) == 0, 1.0, 0.0)), g[:j_end])
+        y = np.linalg.solve(
+            np.triu(Hm[:j_end, :j_end]) + np.diag(np.where(np.diag(Hm[:j_end, :j_end]) == 0, 1.0, 0.0)),
+            g[:j_end],
+        )
         x += np.einsum("i,ij->j", y, V[:j_end])
     # Krylov iterates can undershoot by ~tol where the answer is 0; radiance is never negative.
     np.maximum(x, 0.0, out=x)

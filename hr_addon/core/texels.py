@@ -5,11 +5,12 @@ frame would repeat the same work per leaf. radiance_per_leaf probes each leaf ho
 (four corner values) and interpolates; TexelLocator remembers the points' leaves between frames,
 since light events change the hierarchy only a little. Used by lightmap.plan for texture bakes.
 """
+
 import numpy as np
 
 from .output import corner_weights, locate, radiance_at
 
-_NUDGE = 0.05     # corner probes: this fraction of the way from each corner to the leaf centre
+_NUDGE = 0.05  # corner probes: this fraction of the way from each corner to the leaf centre
 
 
 def radiance_per_leaf(h, B, patch, points, leaf=None, locator=None, chunk=200_000):
@@ -28,36 +29,45 @@ def radiance_per_leaf(h, B, patch, points, leaf=None, locator=None, chunk=200_00
         U, inv = locator.leaf_u, locator.inv
     else:
         if leaf is None:
-            leaf = np.concatenate([locate(h, patch[a:a + chunk], pts[a:a + chunk])
-                                   for a in range(0, len(pts), chunk)])
+            leaf = np.concatenate(
+                [locate(h, patch[a : a + chunk], pts[a : a + chunk]) for a in range(0, len(pts), chunk)]
+            )
         U, inv = np.unique(leaf, return_inverse=True)
         inv = inv.ravel()
         locator = None
-    c = h.corners[U]                                                      # (u, 4, 3)
+    c = h.corners[U]  # (u, 4, 3)
     nv = h.nv[U].astype(np.int64)
     nrm = h.normal[U]
     g = np.where((nv == 4)[:, None], c.mean(1), c[:, :3].mean(1))
-    q = c + _NUDGE * (g[:, None] - c)                                     # just inside each corner
+    q = c + _NUDGE * (g[:, None] - c)  # just inside each corner
     quad = nv == 4
     rows = np.concatenate([np.repeat(np.arange(len(U)), 3), np.flatnonzero(quad)])
     ks = np.concatenate([np.tile([0, 1, 2], len(U)), np.full(int(quad.sum()), 3)])
     sp = q[rows, ks]
     roots = h.patch[U][rows].astype(np.int64)
-    s = np.concatenate([radiance_at(h, B, roots[a:a + chunk], sp[a:a + chunk], smooth=True)
-                        for a in range(0, len(sp), chunk)])
+    s = np.concatenate(
+        [
+            radiance_at(h, B, roots[a : a + chunk], sp[a : a + chunk], smooth=True)
+            for a in range(0, len(sp), chunk)
+        ]
+    )
     M = np.zeros((len(U), 4, 4))
     rhs = np.zeros((len(U), 4, 3))
     M[rows, ks] = corner_weights(c[rows], nv[rows], nrm[rows], sp)
     rhs[rows, ks] = s
-    tri = ~quad                                   # triangles: corner 3 repeats corner 2
+    tri = ~quad  # triangles: corner 3 repeats corner 2
     M[tri, 3] = [0.0, 0.0, -1.0, 1.0]
     try:
-        val = np.linalg.solve(M, rhs)                                     # (u, 4, 3) corner values
-    except np.linalg.LinAlgError:                 # a degenerate leaf: evaluate every point instead
+        val = np.linalg.solve(M, rhs)  # (u, 4, 3) corner values
+    except np.linalg.LinAlgError:  # a degenerate leaf: evaluate every point instead
         if locator is not None:
             locator.valid[:] = False
-        return np.concatenate([radiance_at(h, B, patch[a:a + chunk], pts[a:a + chunk], smooth=True)
-                               for a in range(0, len(pts), chunk)])
+        return np.concatenate(
+            [
+                radiance_at(h, B, patch[a : a + chunk], pts[a : a + chunk], smooth=True)
+                for a in range(0, len(pts), chunk)
+            ]
+        )
     if locator is not None:
         w = locator.weights
         todo = np.flatnonzero(~locator.valid)
@@ -65,13 +75,13 @@ def radiance_per_leaf(h, B, patch, points, leaf=None, locator=None, chunk=200_00
         w = np.empty((len(pts), 4))
         todo = np.arange(len(pts))
     for a in range(0, len(todo), chunk):
-        i = todo[a:a + chunk]
+        i = todo[a : a + chunk]
         w[i] = corner_weights(c[inv[i]], nv[inv[i]], nrm[inv[i]], pts[i])
     if locator is not None:
         locator.valid[:] = True
     out = np.empty((len(pts), 3))
     for a in range(0, len(pts), chunk):
-        out[a:a + chunk] = np.einsum("mk,mkc->mc", w[a:a + chunk], val[inv[a:a + chunk]])
+        out[a : a + chunk] = np.einsum("mk,mkc->mc", w[a : a + chunk], val[inv[a : a + chunk]])
     return out
 
 
@@ -82,6 +92,7 @@ class TexelLocator:
     descent starts from the deepest remembered node that still has the same corners in the same
     patch (then it is the same cell of the same quadtree, so descending from it reaches the leaf a
     descent from the patch reaches), else from the patch. Per point it keeps 4-byte indices only."""
+
     DEPTH = 4
 
     def __init__(self, patch, points, rep=None):
@@ -93,11 +104,11 @@ class TexelLocator:
         self.points = np.asarray(points, float)
         self.rep = None if rep is None else np.asarray(rep, np.int64)
         self.h = None
-        self.leaf_u = None                        # unique leaves of the last call
-        self.inv = None                           # (N,) int32: each point's entry in leaf_u
+        self.leaf_u = None  # unique leaves of the last call
+        self.inv = None  # (N,) int32: each point's entry in leaf_u
         self.anc = self.anc_corners = self.anc_patch = None
-        self.weights = np.zeros((len(self.patch), 4), np.float32)   # see radiance_per_leaf
-        self.valid = np.zeros(len(self.patch), bool)     # weights computed for the current leaf
+        self.weights = np.zeros((len(self.patch), 4), np.float32)  # see radiance_per_leaf
+        self.valid = np.zeros(len(self.patch), bool)  # weights computed for the current leaf
 
     def leaves(self, h, chunk=200_000):
         start = self.patch.copy()
@@ -107,16 +118,25 @@ class TexelLocator:
             for d in range(self.DEPTH):
                 nodes = self.anc[:, d]
                 i = np.flatnonzero((best < 0) & (nodes >= 0) & (nodes < h.n))
-                good = (h.corners[nodes[i]] == self.anc_corners[i, d]).all((1, 2)) \
-                    & (h.patch[nodes[i]] == self.anc_patch[i])
+                good = (h.corners[nodes[i]] == self.anc_corners[i, d]).all((1, 2)) & (
+                    h.patch[nodes[i]] == self.anc_patch[i]
+                )
                 best[i[good]] = nodes[i[good]]
             sel = best[self.inv]
             start = np.where(sel >= 0, sel, start)
             prev = self.leaf_u[self.inv]
         elif self.rep is not None and len(start):
             start = self._from_representatives(h, chunk)
-        leaf = np.concatenate([locate(h, start[a:a + chunk], self.points[a:a + chunk])
-                               for a in range(0, len(start), chunk)]) if len(start) else start
+        leaf = (
+            np.concatenate(
+                [
+                    locate(h, start[a : a + chunk], self.points[a : a + chunk])
+                    for a in range(0, len(start), chunk)
+                ]
+            )
+            if len(start)
+            else start
+        )
         same = (start == leaf) & (leaf == prev) if prev is not None else np.zeros(len(leaf), bool)
         self.valid &= same
         U, inv = np.unique(leaf, return_inverse=True)
@@ -133,11 +153,15 @@ class TexelLocator:
     def _from_representatives(self, h, chunk):
         start = self.patch.copy()
         samp = np.flatnonzero(self.rep == np.arange(len(self.rep)))
-        start[samp] = np.concatenate([locate(h, self.patch[samp[a:a + chunk]], self.points[samp[a:a + chunk]])
-                                      for a in range(0, len(samp), chunk)])
+        start[samp] = np.concatenate(
+            [
+                locate(h, self.patch[samp[a : a + chunk]], self.points[samp[a : a + chunk]])
+                for a in range(0, len(samp), chunk)
+            ]
+        )
         others = np.flatnonzero(self.rep != np.arange(len(self.rep)))
         for a in range(0, len(others), chunk):
-            o = others[a:a + chunk]
+            o = others[a : a + chunk]
             cand = start[self.rep[o]]
             todo = np.ones(len(o), bool)
             for _ in range(64):

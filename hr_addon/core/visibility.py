@@ -15,13 +15,14 @@ numpy backend. So all backends agree except for rays within ~1 float32 ulp of a 
 
 Only numpy is imported at module level: mathutils / embreex are imported lazily by their backends.
 """
+
 import numpy as np
 
 TMIN = 1e-6
 
 # float32 backends: segments shorter than this fraction of their coordinates' magnitude (~500 float32 ulps)
 # have too imprecise a float32 direction; they go to the numpy backend instead.
-F32_SHORT = 2.0 ** -15
+F32_SHORT = 2.0**-15
 
 
 def _clean_triangles(triangles):
@@ -126,6 +127,7 @@ class RayBackend:
 
 # ---------------------------------------------------------------------------------------------- numpy
 
+
 class NumpyBackend(RayBackend):
     """Float64 reference: brute force for tiny scenes, else a uniform grid walked by a vectorised 3D-DDA.
 
@@ -138,12 +140,12 @@ class NumpyBackend(RayBackend):
     """
 
     name = "numpy"
-    BRUTE_MAX = 80          # up to this many triangles brute force beats the grid walk (measured)
-    GRID_DENSITY = 2.0      # cells per triangle; 0.5..4 measured within 15%
+    BRUTE_MAX = 80  # up to this many triangles brute force beats the grid walk (measured)
+    GRID_DENSITY = 2.0  # cells per triangle; 0.5..4 measured within 15%
     MAX_CELL_REFS = 1 << 24  # caps (cell, triangle) candidates when big slanted triangles span many cells
-    CHUNK_RAYS = 1 << 16    # rays walked together
-    CHUNK_PAIRS = 1 << 20   # (ray, triangle) index pairs expanded at once
-    CHUNK_ELEMS = 1 << 14   # ray x triangle elements per kernel call: temporaries stay in cache
+    CHUNK_RAYS = 1 << 16  # rays walked together
+    CHUNK_PAIRS = 1 << 20  # (ray, triangle) index pairs expanded at once
+    CHUNK_ELEMS = 1 << 14  # ray x triangle elements per kernel call: temporaries stay in cache
 
     def __init__(self, triangles, grid=None):
         super().__init__(triangles)
@@ -192,7 +194,9 @@ class NumpyBackend(RayBackend):
                 return self._brute(a, d)
             out = np.zeros(len(a), dtype=bool)
             for s in range(0, len(a), self.CHUNK_RAYS):
-                out[s:s + self.CHUNK_RAYS] = self._walk(a[s:s + self.CHUNK_RAYS], d[s:s + self.CHUNK_RAYS])
+                out[s : s + self.CHUNK_RAYS] = self._walk(
+                    a[s : s + self.CHUNK_RAYS], d[s : s + self.CHUNK_RAYS]
+                )
             return out
 
     def _brute(self, a, d):
@@ -200,16 +204,18 @@ class NumpyBackend(RayBackend):
         step = max(1, self.CHUNK_ELEMS // len(self.triangles))
         out = np.empty(len(a), dtype=bool)
         for s in range(0, len(a), step):
-            o, e = a[s:s + step, :, None], d[s:s + step, :, None]
-            out[s:s + step] = _hit_kernel(g, o[:, 0], o[:, 1], o[:, 2], e[:, 0], e[:, 1], e[:, 2]).any(axis=1)
+            o, e = a[s : s + step, :, None], d[s : s + step, :, None]
+            out[s : s + step] = _hit_kernel(g, o[:, 0], o[:, 1], o[:, 2], e[:, 0], e[:, 1], e[:, 2]).any(
+                axis=1
+            )
         return out
 
     def _hit_pairs(self, ad, ray, tri):
         """Hit per pair (ray[i], tri[i]); ad: the rays' 6 coordinate rows (a, d). In CHUNK_ELEMS slices."""
         hit = np.empty(len(ray), dtype=bool)
         for s in range(0, len(ray), self.CHUNK_ELEMS):
-            r, t = ray[s:s + self.CHUNK_ELEMS], tri[s:s + self.CHUNK_ELEMS]
-            hit[s:s + self.CHUNK_ELEMS] = _hit_kernel([m[t] for m in self._m], *(x[r] for x in ad))
+            r, t = ray[s : s + self.CHUNK_ELEMS], tri[s : s + self.CHUNK_ELEMS]
+            hit[s : s + self.CHUNK_ELEMS] = _hit_kernel([m[t] for m in self._m], *(x[r] for x in ad))
         return hit
 
     def _walk(self, a, d):
@@ -265,6 +271,7 @@ class NumpyBackend(RayBackend):
 
 # ---------------------------------------------------------------------------------------------- float32
 
+
 class _Float32Backend(RayBackend):
     """Shared by the float32 tracers: they propose each ray's nearest hit, float64 decides.
 
@@ -281,7 +288,7 @@ class _Float32Backend(RayBackend):
     """
 
     _rows = _exact = None  # float64 triangle rows and numpy backend, built on first need
-    last_retraced = 0      # diagnostics: rays of the last call that the numpy backend re-traced
+    last_retraced = 0  # diagnostics: rays of the last call that the numpy backend re-traced
 
     # Proposed hits farther than this (relative to the segment) from both ends are genuine: a
     # rounding self-hit of an endpoint lying on a surface happens next to that endpoint (a ray
@@ -296,13 +303,14 @@ class _Float32Backend(RayBackend):
     def _occluded(self, a, d):
         o = a - self.center
         length = np.sqrt(np.einsum("ij,ij->i", d, d))
-        mag = np.sqrt(np.einsum("ij,ij->i", o, o)) + length     # >= the ray's largest |coord|
+        mag = np.sqrt(np.einsum("ij,ij->i", o, o)) + length  # >= the ray's largest |coord|
         o += TMIN * d
         short = length < F32_SHORT * mag
         trace = np.flatnonzero(~short) if short.any() else None  # None: all (saves two gathers)
         o, e = (o, d) if trace is None else (o[trace], d[trace])
-        prim, t_hit = self._nearest(o.astype(np.float32), e.astype(np.float32),
-                                    np.full(len(o), 1.0 - 2.0 * TMIN, dtype=np.float32))
+        prim, t_hit = self._nearest(
+            o.astype(np.float32), e.astype(np.float32), np.full(len(o), 1.0 - 2.0 * TMIN, dtype=np.float32)
+        )
         hit = prim >= 0
         sure = hit & (t_hit > self.SURE) & (t_hit < 1.0 - self.SURE)
         out = np.zeros(len(a), dtype=bool)
@@ -335,6 +343,7 @@ class EmbreeBackend(_Float32Backend):
         super().__init__(triangles)
         from embreex import rtcore_scene as rtcs
         from embreex.mesh_construction import TriangleMesh
+
         self._scene = rtcs.EmbreeScene()
         if len(self.triangles):
             TriangleMesh(self._scene, (self.triangles - self.center).astype(np.float32))
@@ -364,9 +373,11 @@ class MathutilsBackend(_Float32Backend):
     def __init__(self, triangles):
         super().__init__(triangles)
         from mathutils.bvhtree import BVHTree
+
         verts = (self.triangles - self.center).reshape(-1, 3)
-        self._tree = BVHTree.FromPolygons(verts.tolist(), np.arange(len(verts)).reshape(-1, 3).tolist(),
-                                          all_triangles=True)
+        self._tree = BVHTree.FromPolygons(
+            verts.tolist(), np.arange(len(verts)).reshape(-1, 3).tolist(), all_triangles=True
+        )
 
     def _nearest(self, o, d, tfar):
         length = np.linalg.norm(d, axis=1)

@@ -16,6 +16,7 @@ separately yields the same cache as baking 1-100 once; otherwise they are discar
 CacheWriter.messages says why. Kept frames whose file is missing or damaged are reported by
 CacheWriter.damaged_frames() so that the bake re-bakes them.
 """
+
 import json
 import os
 import re
@@ -57,8 +58,10 @@ def frame_filename(frame):
 
 
 HOST = re.sub(r"[^A-Za-z0-9_.]", "_", socket.gethostname() or "host")
-_TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<kind>baking|old)-(?:(?P<host>[A-Za-z0-9_.]+)-)?"
-                   r"(?P<pid>\d+)-(?P<ms>\d+)$")
+_TEMP = re.compile(
+    r"^\.(?P<name>.+)\.(?P<kind>baking|old)-(?:(?P<host>[A-Za-z0-9_.]+)-)?"
+    r"(?P<pid>\d+)-(?P<ms>\d+)$"
+)
 
 
 def temp_dirs(final_dir):
@@ -85,7 +88,7 @@ def pid_alive(pid):
     except ProcessLookupError:
         return False
     except (PermissionError, OSError):
-        return True           # exists (another user's), or cannot tell: keep its folder
+        return True  # exists (another user's), or cannot tell: keep its folder
     return True
 
 
@@ -99,7 +102,7 @@ def remove_stale_temp(final_dir):
         if host not in ("", HOST) or pid_alive(pid):
             continue
         if kind == "old" and not final.exists():
-            continue          # recover() puts it back
+            continue  # recover() puts it back
         shutil.rmtree(p, ignore_errors=True)
         if not p.exists():
             removed.append(p)
@@ -120,11 +123,15 @@ def check_writable(final_dir):
             shutil.rmtree(probe, ignore_errors=True)
     except OSError as exc:
         reason = exc.strerror or str(exc)
-        raise CacheError(f"Cannot write the cache folder '{final.parent}': {reason}. Choose a writable "
-                         "Cache Folder (or --cache-dir).") from None
+        raise CacheError(
+            f"Cannot write the cache folder '{final.parent}': {reason}. Choose a writable "
+            "Cache Folder (or --cache-dir)."
+        ) from None
     if final.exists() and not os.access(final, os.W_OK):
-        raise CacheError(f"Cannot write the cache folder '{final}': it is read-only. Choose a writable "
-                         "Cache Folder (or --cache-dir).")
+        raise CacheError(
+            f"Cannot write the cache folder '{final}': it is read-only. Choose a writable "
+            "Cache Folder (or --cache-dir)."
+        )
 
 
 def frame_ranges(frames):
@@ -166,7 +173,7 @@ def settings_difference(old: dict, new: dict):
     for key in ("output", "domain", "method", "quality"):
         a, b = old.get(key), new.get(key)
         if key == "domain" and old.get("output") != new.get("output"):
-            continue                      # follows from the output
+            continue  # follows from the output
         if a is not None and b is not None and a != b:
             why.append(f"{key} {str(a).lower()} (this bake: {str(b).lower()})")
     a, b = (old.get("feps"), old.get("aeps")), (new.get("feps"), new.get("aeps"))
@@ -204,8 +211,12 @@ def npz_problem(path, objects=None):
                     shape, _, dtype = read(fh)
                     hdr = fh.tell()
                 want = (objects or {}).get(name, {}).get("count")
-                if (len(shape) != 2 or shape[1] != 4 or dtype != np.float32
-                        or (want is not None and shape[0] != want)):
+                if (
+                    len(shape) != 2
+                    or shape[1] != 4
+                    or dtype != np.float32
+                    or (want is not None and shape[0] != want)
+                ):
                     return f"bad array for '{name}'"
                 if info.file_size != hdr + shape[0] * 16 or info.compress_size < 0:
                     return f"truncated array for '{name}'"
@@ -240,8 +251,9 @@ class CacheWriter:
         self.frames[int(frame)] = self.frames[int(prev_frame)]
 
     def _manifest_now(self):
-        return dict(self.info, format=FORMAT, domain=self.domain, objects=self.objects,
-                    signature=self.signature)
+        return dict(
+            self.info, format=FORMAT, domain=self.domain, objects=self.objects, signature=self.signature
+        )
 
     def previous(self):
         """(CacheReader of the previous bake or None, why its frames cannot be kept: '' if they can)."""
@@ -274,8 +286,9 @@ class CacheWriter:
         left = sorted(f for f in old.frames if f not in self.frames)
         if why:
             if left:
-                self.messages.append(f"The previous bake's frames {frame_ranges(left)} were discarded: "
-                                     f"it used {why}.")
+                self.messages.append(
+                    f"The previous bake's frames {frame_ranges(left)} were discarded: it used {why}."
+                )
             return
         renamed, lost = {}, []
         for f, name in sorted(old.frames.items()):
@@ -296,8 +309,10 @@ class CacheWriter:
             self.frames[f] = renamed[name]
             self.kept += 1
         if lost:
-            self.messages.append(f"Frames {frame_ranges(lost)} of the previous bake became unreadable during "
-                                 "this bake and are not in it: bake them again.")
+            self.messages.append(
+                f"Frames {frame_ranges(lost)} of the previous bake became unreadable during "
+                "this bake and are not in it: bake them again."
+            )
 
     def commit(self):
         """Merge the kept frames of the previous bake, write the manifest, swap directories."""
@@ -330,7 +345,7 @@ def recover(final_dir):
 
 
 class CacheReader:
-    _files = {}   # (path, mtime) -> arrays; small LRU shared by readers
+    _files = {}  # (path, mtime) -> arrays; small LRU shared by readers
 
     def __init__(self, directory):
         self.dir = Path(directory)

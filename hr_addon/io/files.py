@@ -5,6 +5,7 @@ into place, so a reader, a crash or a cancelled bake sees the old file or the ne
 of one. Frames whose content repeats are hard links of the first file (copies where the file
 system has no hard links).
 """
+
 import os
 import shutil
 

@@ -8,6 +8,7 @@ truncated, without decoding megabytes per frame change.
 
 Pixel order is Blender's: (H, W, 3), row 0 at the bottom.
 """
+
 import struct
 import zlib
 
@@ -15,7 +16,7 @@ import numpy as np
 
 EXR_MAGIC = 20000630
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-_EXR_LINES = {0: 1, 2: 1, 3: 16}          # scanlines per chunk: NONE, ZIPS, ZIP
+_EXR_LINES = {0: 1, 2: 1, 3: 16}  # scanlines per chunk: NONE, ZIPS, ZIP
 
 
 def linear_to_srgb(x):
@@ -31,6 +32,7 @@ def srgb_to_linear(x):
 
 
 # --- OpenEXR -------------------------------------------------------------------------------------
+
 
 def _attr(name, typ, data):
     return name.encode() + b"\0" + typ.encode() + b"\0" + struct.pack("<i", len(data)) + data
@@ -49,21 +51,27 @@ def _exr_zip(raw):
 def encode_exr(rgb, compression="ZIP"):
     """(H, W, 3) linear RGB -> scanline OpenEXR bytes, channels B, G, R as 32-bit float,
     compression "ZIP" (16 lines per chunk) or "NONE"."""
-    img = np.ascontiguousarray(np.asarray(rgb, np.float32)[::-1])           # EXR stores the top row first
+    img = np.ascontiguousarray(np.asarray(rgb, np.float32)[::-1])  # EXR stores the top row first
     H, W = img.shape[:2]
     comp, lines = (3, 16) if compression == "ZIP" else (0, 1)
     ch = b"".join(c.encode() + b"\0" + struct.pack("<iB3xii", 2, 0, 1, 1) for c in "BGR") + b"\0"
     box = struct.pack("<iiii", 0, 0, W - 1, H - 1)
-    header = (struct.pack("<ii", EXR_MAGIC, 2) + _attr("channels", "chlist", ch)
-              + _attr("compression", "compression", bytes([comp])) + _attr("dataWindow", "box2i", box)
-              + _attr("displayWindow", "box2i", box) + _attr("lineOrder", "lineOrder", b"\0")
-              + _attr("pixelAspectRatio", "float", struct.pack("<f", 1.0))
-              + _attr("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0))
-              + _attr("screenWindowWidth", "float", struct.pack("<f", 1.0)) + b"\0")
-    planar = img[:, :, ::-1].transpose(0, 2, 1).astype("<f4")              # (H, [B, G, R], W)
+    header = (
+        struct.pack("<ii", EXR_MAGIC, 2)
+        + _attr("channels", "chlist", ch)
+        + _attr("compression", "compression", bytes([comp]))
+        + _attr("dataWindow", "box2i", box)
+        + _attr("displayWindow", "box2i", box)
+        + _attr("lineOrder", "lineOrder", b"\0")
+        + _attr("pixelAspectRatio", "float", struct.pack("<f", 1.0))
+        + _attr("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0))
+        + _attr("screenWindowWidth", "float", struct.pack("<f", 1.0))
+        + b"\0"
+    )
+    planar = img[:, :, ::-1].transpose(0, 2, 1).astype("<f4")  # (H, [B, G, R], W)
     chunks = []
     for y in range(0, H, lines):
-        raw = np.ascontiguousarray(planar[y:y + lines]).tobytes()
+        raw = np.ascontiguousarray(planar[y : y + lines]).tobytes()
         data = _exr_zip(raw) if comp else raw
         chunks.append(struct.pack("<ii", y, len(data)) + data)
     pos = len(header) + 8 * len(chunks)
@@ -79,11 +87,11 @@ def _exr_problem(data):
     if len(data) < 8 or struct.unpack_from("<i", data, 0)[0] != EXR_MAGIC:
         return 0, 0, "not an OpenEXR file"
     pos, attrs = 8, {}
-    while data[pos] != 0:                                     # name \0 type \0 size value
+    while data[pos] != 0:  # name \0 type \0 size value
         e = data.index(b"\0", pos)
         e2 = data.index(b"\0", e + 1)
         size = struct.unpack_from("<i", data, e2 + 1)[0]
-        attrs[data[pos:e].decode()] = data[e2 + 5:e2 + 5 + size]
+        attrs[data[pos:e].decode()] = data[e2 + 5 : e2 + 5 + size]
         pos = e2 + 5 + size
     x0, y0, x1, y1 = struct.unpack("<iiii", attrs["dataWindow"])
     W, H = x1 - x0 + 1, y1 - y0 + 1
@@ -97,6 +105,7 @@ def _exr_problem(data):
 
 # --- PNG -----------------------------------------------------------------------------------------
 
+
 def _png_chunk(tag, data):
     return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
 
@@ -109,9 +118,14 @@ def encode_png16(rgb):
     img = np.asarray(rgb, np.float64)[::-1]
     H, W = img.shape[:2]
     q = np.round(linear_to_srgb(img) * 65535).astype(">u2").reshape(H, W * 3).view(np.uint8)
-    raw = np.concatenate([np.zeros((H, 1), np.uint8), q], 1).tobytes()     # filter type 0 per row
-    return (PNG_MAGIC + _png_chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 16, 2, 0, 0, 0))
-            + _png_chunk(b"sRGB", b"\0") + _png_chunk(b"IDAT", zlib.compress(raw, 6)) + PNG_END)
+    raw = np.concatenate([np.zeros((H, 1), np.uint8), q], 1).tobytes()  # filter type 0 per row
+    return (
+        PNG_MAGIC
+        + _png_chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 16, 2, 0, 0, 0))
+        + _png_chunk(b"sRGB", b"\0")
+        + _png_chunk(b"IDAT", zlib.compress(raw, 6))
+        + PNG_END
+    )
 
 
 def _png_problem(data):

@@ -7,15 +7,16 @@ without overlaps; a curved surface gives one chart per polygon. Charts are turne
 smallest bounding rectangle and shelf-packed with MARGIN texels around each, so that bilinear
 filtering and the dilation (raster.py) never mix two charts.
 """
+
 import numpy as np
 
 from ..core.geometry import components, loop_tables, polygon_newell
 from . import TextureError
 
-MARGIN = 2            # texels of padding on each side of a packed island (islands are 2 x MARGIN apart)
-NEAR_ANGLE = 2.0      # degrees between neighbouring polygons of a nearly planar chart
-CHART_ANGLE = 10.0    # degrees between any polygon of such a chart and its mean plane
-CHART_FLAT = 0.005    # its thickness off the mean plane, fraction of its size
+MARGIN = 2  # texels of padding on each side of a packed island (islands are 2 x MARGIN apart)
+NEAR_ANGLE = 2.0  # degrees between neighbouring polygons of a nearly planar chart
+CHART_ANGLE = 10.0  # degrees between any polygon of such a chart and its mean plane
+CHART_FLAT = 0.005  # its thickness off the mean plane, fraction of its size
 
 
 def find_charts(co, loop_start, loop_total, loop_verts):
@@ -59,8 +60,10 @@ def find_charts(co, loop_start, loop_total, loop_verts):
     cn = np.stack([np.bincount(ch, n[:, k], C) for k in range(3)], 1)
     cn /= np.maximum(np.linalg.norm(cn, axis=1), 1e-300)[:, None]
     w = 0.5 * ln
-    cc = np.stack([np.bincount(ch, w * cen[:, k], C) for k in range(3)], 1) \
+    cc = (
+        np.stack([np.bincount(ch, w * cen[:, k], C) for k in range(3)], 1)
         / np.maximum(np.bincount(ch, w, C), 1e-300)[:, None]
+    )
     lch = ch[lp]
     thick = np.zeros(C)
     np.maximum.at(thick, lch, np.abs(np.einsum("ij,ij->i", p - cc[lch], cn[lch])))
@@ -138,8 +141,9 @@ def pack_lightmap(co, loop_start, loop_total, loop_verts, res, margin=MARGIN):
     idx = lorder[np.repeat(cstart[cc], reps) + np.arange(reps.sum()) - np.repeat(seg, reps)]
     ca, sa = np.repeat(np.cos(ang), reps), np.repeat(np.sin(ang), reps)
     rx, ry = x[idx] * ca + y[idx] * sa, -x[idx] * sa + y[idx] * ca
-    area = (np.maximum.reduceat(rx, seg) - np.minimum.reduceat(rx, seg)) \
-        * (np.maximum.reduceat(ry, seg) - np.minimum.reduceat(ry, seg))
+    area = (np.maximum.reduceat(rx, seg) - np.minimum.reduceat(rx, seg)) * (
+        np.maximum.reduceat(ry, seg) - np.minimum.reduceat(ry, seg)
+    )
     o = np.lexsort((area, cc))
     best = np.full(C, 0.0)
     firsts = o[np.r_[True, cc[o][1:] != cc[o][:-1]]]
@@ -155,7 +159,7 @@ def pack_lightmap(co, loop_start, loop_total, loop_verts, res, margin=MARGIN):
         return lo, hi - lo
 
     lo, size = extent(x, y)
-    tall = size[:, 1] > size[:, 0]                 # turn by 90 degrees so that width >= height
+    tall = size[:, 1] > size[:, 0]  # turn by 90 degrees so that width >= height
     t = tall[lc]
     x, y = np.where(t, y, x), np.where(t, -x, y)
     lo, size = extent(x, y)

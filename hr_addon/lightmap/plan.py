@@ -7,6 +7,7 @@ image is written (io.images) into the bake's temporary cache directory, as
 textures/<stem>_<frame:06d>.exr|.png. Frames whose light state is unchanged are hard links of the
 previous frame's files, so the sequence has one file per frame number and Blender can play it.
 """
+
 import hashlib
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -22,7 +23,7 @@ from .raster import dilation_steps, rasterise
 
 TEX_DIR = "textures"
 FORMATS = {"EXR": ".exr", "PNG": ".png"}
-REP_BLOCK = 4     # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
+REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
 
 
 class ObjectTexels:
@@ -31,7 +32,7 @@ class ObjectTexels:
     def __init__(self, name, res, stem, texel, inside, lo, hi, steps, uv_digest):
         self.name, self.res, self.stem = name, res, stem
         self.texel, self.inside = texel, inside
-        self.lo, self.hi = lo, hi                   # slice of the concatenated points
+        self.lo, self.hi = lo, hi  # slice of the concatenated points
         self.steps = steps
         self.uv_digest = uv_digest
 
@@ -83,8 +84,8 @@ class TexturePlan:
         self.objects = []
         self.warnings = []
         self.tmp = None
-        self.files = {}                          # frame -> True once written / linked
-        self._parts = []                         # per object: (points, patches, representatives)
+        self.files = {}  # frame -> True once written / linked
+        self._parts = []  # per object: (points, patches, representatives)
         self._locator = None
 
     def add_object(self, name, stem, res, tri_uv, corners, tri_patch, uv_digest):
@@ -99,16 +100,22 @@ class TexturePlan:
         r = np.where((r >= 0) & (own[np.maximum(r, 0)] == own), r, np.arange(len(texel)))
         n = self.objects[-1].hi if self.objects else 0
         self._parts.append((np.einsum("nk,nkj->nj", bary, corners[tri]), own.astype(np.int64), r + n))
-        self.objects.append(ObjectTexels(name, res, stem, texel, inside, n, n + len(texel),
-                                         dilation_steps(texel, res), uv_digest))
+        self.objects.append(
+            ObjectTexels(
+                name, res, stem, texel, inside, n, n + len(texel), dilation_steps(texel, res), uv_digest
+            )
+        )
         self._locator = None
 
     @property
     def locator(self):
         """TexelLocator of all objects' texel points (made on first use)."""
         if self._locator is None:
-            pts, patch, rep = ([np.concatenate(z) for z in zip(*self._parts)] if self._parts
-                               else (np.zeros((0, 3)), np.zeros(0, np.int64), None))
+            pts, patch, rep = (
+                [np.concatenate(z) for z in zip(*self._parts)]
+                if self._parts
+                else (np.zeros((0, 3)), np.zeros(0, np.int64), None)
+            )
             self._locator = TexelLocator(patch, pts, rep)
         return self._locator
 
@@ -120,8 +127,16 @@ class TexturePlan:
     # cache manifest entries
     def objects_info(self, targets):
         mesh_of = {t.name: t.mesh_name for t in targets}
-        return {o.name: {"mesh": mesh_of[o.name], "count": 0, "resolution": o.res, "format": self.fmt,
-                         "texture": f"{TEX_DIR}/{o.stem}_%06d{self.ext}"} for o in self.objects}
+        return {
+            o.name: {
+                "mesh": mesh_of[o.name],
+                "count": 0,
+                "resolution": o.res,
+                "format": self.fmt,
+                "texture": f"{TEX_DIR}/{o.stem}_%06d{self.ext}",
+            }
+            for o in self.objects
+        }
 
     def signature(self, base):
         h = hashlib.sha1(base.encode())
@@ -139,8 +154,9 @@ class TexturePlan:
     def write(self, frame, values):
         """values (N, 3) at the plan's points (all objects); files encoded in parallel (zlib frees
         the GIL)."""
+
         def one(o):
-            img = o.image(values[o.lo:o.hi])
+            img = o.image(values[o.lo : o.hi])
             atomic_write(self._path(o, frame), encode_exr(img) if self.fmt == "EXR" else encode_png16(img))
 
         workers = max(1, min(len(self.objects), os.cpu_count() or 1, 8))
@@ -179,8 +195,11 @@ class TexturePlan:
         try:
             old = CacheReader(writer.final)
             m = old.manifest
-            same = (m.get("signature") == writer.signature and m.get("domain") == writer.domain
-                    and m.get("objects") == writer.objects)
+            same = (
+                m.get("signature") == writer.signature
+                and m.get("domain") == writer.domain
+                and m.get("objects") == writer.objects
+            )
         except CacheError:
             same = False
         if same:

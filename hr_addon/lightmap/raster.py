@@ -6,10 +6,11 @@ row 0 is at v = 0, as Blender stores pixels. Texels inside a triangle get the su
 their centre; ring texels (within RING texels) the nearest point of the triangle, so that texels
 that bilinear filtering reads at island edges hold the surface's value, not black.
 """
+
 import numpy as np
 
-RING = 1.5        # texels outside an island evaluated at the nearest point of the island
-DILATE = 2        # further texels filled with the mean of their filled neighbours
+RING = 1.5  # texels outside an island evaluated at the nearest point of the island
+DILATE = 2  # further texels filled with the mean of their filled neighbours
 
 
 def rasterise(tri_uv, res, ring=RING, budget=400_000):
@@ -18,7 +19,7 @@ def rasterise(tri_uv, res, ring=RING, budget=400_000):
     Returns texel (N,) flat index y * res + x (row 0 at v = 0), tri (N,), bary (N, 3), inside (N,):
     texels whose centre lies in a triangle (barycentric coordinates of the centre) or within `ring`
     texels of one (coordinates of the nearest triangle point), each texel once."""
-    Pt = np.asarray(tri_uv, np.float64) * res - 0.5               # texel (i, j) has its centre at (i, j)
+    Pt = np.asarray(tri_uv, np.float64) * res - 0.5  # texel (i, j) has its centre at (i, j)
     a, b, c = Pt[:, 0], Pt[:, 1], Pt[:, 2]
     v0, v1 = b - a, c - a
     den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
@@ -88,7 +89,7 @@ def dilation_steps(covered, res, steps=DILATE):
     offs = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
     for _ in range(steps):
         pad = np.pad(filled, 1)
-        cnt = sum(pad[1 + dy:1 + dy + res, 1 + dx:1 + dx + res].astype(np.int64) for dy, dx in offs)
+        cnt = sum(pad[1 + dy : 1 + dy + res, 1 + dx : 1 + dx + res].astype(np.int64) for dy, dx in offs)
         new = ~filled & (cnt > 0)
         ys, xs = np.nonzero(new)
         if not len(ys):

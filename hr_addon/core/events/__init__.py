@@ -42,11 +42,21 @@ A shape on no surface is handled by NAIVE (for the whole configuration while it 
 report says so. Invalid shapes (NaN, not planar, degenerate, an outline that crosses itself, holes outside
 the outline or overlapping) raise InputError naming the shape.
 """
+
 from ..output import locate
 from .dynamic import DynamicRadiosity
 from .planar import slab_decomposition, surface_samples
 from .records import METHODS, EventReport, FrameReport, LightShape
 from .validation import outline_problem
 
-__all__ = ["METHODS", "DynamicRadiosity", "EventReport", "FrameReport", "LightShape", "locate",
-           "outline_problem", "slab_decomposition", "surface_samples"]
+__all__ = [
+    "METHODS",
+    "DynamicRadiosity",
+    "EventReport",
+    "FrameReport",
+    "LightShape",
+    "locate",
+    "outline_problem",
+    "slab_decomposition",
+    "surface_samples",
+]

@@ -1,5 +1,6 @@
 """FE and AR (and AUTO's outline): the clipped coverage of a shape on the hierarchy, AR subdivision,
 and the reference-counted nodes below the HR leaves."""
+
 import numpy as np
 
 
@@ -9,7 +10,7 @@ class _CoverageMixin:
     def _incremental_add(self, rec):
         h = self.system.h
         rec.used = rec.method
-        self._event_n0 = h.n      # the node budget covers the outline and the first bounce together
+        self._event_n0 = h.n  # the node budget covers the outline and the first bounce together
         self._cover(rec)
         required = [rec.cov_nodes]
         if rec.method == "AUTO":
@@ -18,12 +19,15 @@ class _CoverageMixin:
         rec.owned = self._owned_ancestors(np.concatenate(required))
         self._sync(extra=[rec])
         self._ref[rec.owned] += 1
-        self._gc(extra=[rec])       # splits made on the way that turned out unnecessary
+        self._gc(extra=[rec])  # splits made on the way that turned out unnecessary
         self._sync(extra=[rec])
         cov = self._coverage(rec)
         if rec.method == "AUTO":
-            E = (np.broadcast_to(self._push(rec.D), (3, h.n)).copy() if rec.D is not None
-                 else np.zeros((3, h.n)))
+            E = (
+                np.broadcast_to(self._push(rec.D), (3, h.n)).copy()
+                if rec.D is not None
+                else np.zeros((3, h.n))
+            )
         else:
             E = np.repeat(cov[None], 3, 0)
         if self.incremental == "warm":
@@ -70,10 +74,10 @@ class _CoverageMixin:
             order = idx[np.lexsort((cen[:, 2], cen[:, 1], cen[:, 0], -err[idx]))]
             if rec.method == "AUTO":
                 cum = np.cumsum(err[order])
-                order = order[:int(np.searchsorted(cum, 0.5 * cum[-1])) + 1]
+                order = order[: int(np.searchsorted(cum, 0.5 * cum[-1])) + 1]
             room = (self.node_budget - 4 * n_split) // 4
             if len(order) > room:
-                order = order[:max(room, 0)]
+                order = order[: max(room, 0)]
                 rec.budget_hit = True
             if len(order) == 0:
                 break
@@ -94,9 +98,11 @@ class _CoverageMixin:
         rec.emission_l1 = float(np.sum(2 * pfrac * (1 - pfrac) * h.area[part])) / rec.area
         if rec.budget_hit:
             rec.used = rec.method + "+FE"
-            rec.msgs.append(f"shape '{rec.name}': {rec.method} reached the node budget "
-                            f"({self.node_budget} nodes); {len(part)} boundary nodes use FE "
-                            f"(emission L1 error {100 * rec.emission_l1:.2f}%)")
+            rec.msgs.append(
+                f"shape '{rec.name}': {rec.method} reached the node budget "
+                f"({self.node_budget} nodes); {len(part)} boundary nodes use FE "
+                f"(emission L1 error {100 * rec.emission_l1:.2f}%)"
+            )
 
     # -- node bookkeeping ----------------------------------------------------------------------------
     def _hr_internal(self, nodes):
@@ -134,7 +140,7 @@ class _CoverageMixin:
             dead[lv] = collapse[par] | dead[par]
         keep = ~dead
         remap = h.compact(keep)
-        assert (remap[:self.n_hr] == np.arange(self.n_hr)).all()
+        assert (remap[: self.n_hr] == np.arange(self.n_hr)).all()
         self._ref = self._ref[:n][keep]
         self._Bbase = self._Bbase[:, keep]
         self._X = self._X[:, keep]

@@ -1,5 +1,6 @@
 """AUTO's first bounce: exact point-to-shape form factors x visibility at receivers split by the
 B x F criterion."""
+
 import numpy as np
 
 from .. import formfactor as ff
@@ -37,7 +38,7 @@ class _DirectMixin:
             sp, sw = sp[pick], np.full(16, cum[-1] / 16)
         eps = self.system.refiner.eps
         rings = None
-        if rec.covered >= 1 - 1e-9:          # contour over the rings: outer CCW about nf, holes CW
+        if rec.covered >= 1 - 1e-9:  # contour over the rings: outer CCW about nf, holes CW
             rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
         allv = np.concatenate(rec.rings)
         shape_lo, shape_hi = corners.reshape(-1, 3).min(0), corners.reshape(-1, 3).max(0)
@@ -57,9 +58,16 @@ class _DirectMixin:
             rest = np.flatnonzero(front & ~ok)
             if len(rest):
                 T = len(corners)
-                F[rest] = ff.point_to_polygon(np.repeat(x[rest], T, 0), np.repeat(xn[rest], T, 0),
-                                              np.tile(corners, (len(rest), 1, 1)),
-                                              np.tile(nv, len(rest))).reshape(-1, T).sum(1)
+                F[rest] = (
+                    ff.point_to_polygon(
+                        np.repeat(x[rest], T, 0),
+                        np.repeat(xn[rest], T, 0),
+                        np.tile(corners, (len(rest), 1, 1)),
+                        np.tile(nv, len(rest)),
+                    )
+                    .reshape(-1, T)
+                    .sum(1)
+                )
             return F.reshape(-1, 4), x, xn, gw
 
         def visible(nodes, F, x, xn):
@@ -73,8 +81,12 @@ class _DirectMixin:
                 b = np.tile(sp + eps * nf, (len(lit), 1))
                 d = b - a
                 r2 = np.einsum("ij,ij->i", d, d)
-                kern = (np.maximum(np.einsum("ij,ij->i", d, np.repeat(xn[lit], K, 0)), 0)
-                        * np.maximum(-(d @ nf), 0) / np.maximum(r2, 1e-300) ** 2 * np.tile(sw, len(lit)))
+                kern = (
+                    np.maximum(np.einsum("ij,ij->i", d, np.repeat(xn[lit], K, 0)), 0)
+                    * np.maximum(-(d @ nf), 0)
+                    / np.maximum(r2, 1e-300) ** 2
+                    * np.tile(sw, len(lit))
+                )
                 vis = ~self.system.backend.occluded(a, b)
                 kern, vis = kern.reshape(-1, K), vis.reshape(-1, K)
                 ks = kern.sum(1)
@@ -108,7 +120,7 @@ class _DirectMixin:
             var = rm * (FV.max(1) - FV.min(1))
             split = leaf & (h.area[frontier] > min_area) & (var >= thr)
             room = max((self.node_budget - (h.n - n_start)) // 4, 0)
-            if split.sum() > room:       # over budget: split the most uneven nodes only
+            if split.sum() > room:  # over budget: split the most uneven nodes only
                 budget_msg = True
                 idx = np.flatnonzero(split)
                 cen = h.centre[frontier[idx]]
@@ -122,8 +134,10 @@ class _DirectMixin:
             h.subdivide(down[h.child0[down] < 0])
             frontier = (h.child0[down][:, None] + np.arange(4)).ravel()
         if budget_msg:
-            rec.msgs.append(f"shape '{rec.name}': first-bounce refinement reached the node budget "
-                            f"({self.node_budget} nodes)")
+            rec.msgs.append(
+                f"shape '{rec.name}': first-bounce refinement reached the node budget "
+                f"({self.node_budget} nodes)"
+            )
         nodes = np.concatenate(acc_nodes)
         vals = np.concatenate(acc_vals)
         rec.direct_links = len(nodes)
@@ -195,7 +209,7 @@ def _contour(x, n, rings):
     normal, holes CW)."""
     f = np.zeros(len(x))
     for r in rings:
-        R = r[None] - x[:, None]                                      # (N, M, 3)
+        R = r[None] - x[:, None]  # (N, M, 3)
         Rn = np.roll(R, -1, axis=1)
         cr = np.cross(R, Rn)
         cl = np.linalg.norm(cr, axis=-1)

@@ -1,5 +1,6 @@
 """DynamicRadiosity: add, remove, apply and re-colour light shapes, the cached responses and the
 solves (the methods' work is in validation.py, coverage.py, direct.py and naive.py)."""
+
 from collections import OrderedDict
 import time
 
@@ -18,10 +19,23 @@ from .validation import _ShapeMixin
 
 
 class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
-    def __init__(self, system: RadiositySystem, method="AUTO", min_area_rel=1e-5, node_budget=20000,
-                 plane_tol=1e-3, incremental="response", emission_tol=0.05, bf_rel=3e-3,
-                 naive_params=None, naive_offset=1e-4, cache_size=8,
-                 direct_min_area_rel=None, response_tol=None, response_float32=False):
+    def __init__(
+        self,
+        system: RadiositySystem,
+        method="AUTO",
+        min_area_rel=1e-5,
+        node_budget=20000,
+        plane_tol=1e-3,
+        incremental="response",
+        emission_tol=0.05,
+        bf_rel=3e-3,
+        naive_params=None,
+        naive_offset=1e-4,
+        cache_size=8,
+        direct_min_area_rel=None,
+        response_tol=None,
+        response_float32=False,
+    ):
         """system: a built RadiositySystem (its hierarchy is extended in place below the HR leaves).
         min_area_rel: smallest AR node, fraction of the total scene area. node_budget: most nodes one shape
         may add (AR/AUTO). plane_tol: distance tolerance of "planar" and "on a surface", fraction of
@@ -45,8 +59,9 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         self.incremental = incremental
         self.min_area_rel, self.node_budget, self.plane_tol = min_area_rel, int(node_budget), plane_tol
         self.emission_tol, self.bf_rel = emission_tol, bf_rel
-        self.direct_min_area_rel = (direct_min_area_rel if direct_min_area_rel is not None
-                                    else 4 * min_area_rel)
+        self.direct_min_area_rel = (
+            direct_min_area_rel if direct_min_area_rel is not None else 4 * min_area_rel
+        )
         self.naive_params, self.naive_offset, self.cache_size = naive_params, naive_offset, cache_size
         self.tol = system.tol
         self.response_tol = response_tol if response_tol is not None else system.tol
@@ -54,7 +69,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         self.links = system.links
         h = system.h
         self.n_hr = h.n
-        self.hr_internal = h.child0[:h.n] >= 0
+        self.hr_internal = h.child0[: h.n] >= 0
         pt = system.patches
         self.total_area = float(pt.area.sum())
         lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
@@ -64,21 +79,22 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         tri_patch = np.concatenate([np.arange(len(pt.nv)), np.flatnonzero(pt.nv == 4)])
         self._tri_lo, self._tri_hi = tris.min(1), tris.max(1)
         scale = 1e-6 * np.sqrt(self.total_area)
-        key = np.column_stack([np.round(pt.normal * 1e6),
-                               np.round(np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0]) / scale)])
+        key = np.column_stack(
+            [np.round(pt.normal * 1e6), np.round(np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0]) / scale)]
+        )
         self._patch_plane = np.unique(key, axis=0, return_inverse=True)[1].ravel()
         self._tri_plane = self._patch_plane[tri_patch]
-        self.shapes = OrderedDict()          # key -> _Rec
-        self._cache = OrderedDict()          # (geom_key, method) -> _Rec
+        self.shapes = OrderedDict()  # key -> _Rec
+        self._cache = OrderedDict()  # (geom_key, method) -> _Rec
         self._ref = np.zeros(h.n, np.int64)  # shapes needing each node's split
         self._op = None
         self._op_version = None
-        self._naive = None                   # active NAIVE rebuild (_NaiveState) or None
-        self._guess = None                   # (3, n) first guess of a reshaped shape's response
-        self._plan = None                    # (key, output.loop_plan) of loop_radiance
+        self._naive = None  # active NAIVE rebuild (_NaiveState) or None
+        self._guess = None  # (3, n) first guess of a reshaped shape's response
+        self._plan = None  # (key, output.loop_plan) of loop_radiance
         E0 = system.base_emission()
         self._Bbase, rep = self._solve(E0)
-        self._X = self._Bbase.copy()          # warm mode state
+        self._X = self._Bbase.copy()  # warm mode state
         self._B = self._Bbase.copy()
         self.base_iterations = rep.iterations
 
@@ -102,7 +118,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         if self._naive is not None:
             return self._naive.loop_radiance(self.system.mesh, domain, smooth_angle)
         h = self.system.h
-        key = (id(h), h.version, h.n, domain, smooth_angle)     # the plan depends on geometry only
+        key = (id(h), h.version, h.n, domain, smooth_angle)  # the plan depends on geometry only
         if self._plan is None or self._plan[0] != key:
             self._plan = (key, _loop_plan(h, self.system.mesh, smooth_angle, domain))
         return _loop_radiance(h, self._B, self.system.mesh, smooth_angle, domain, plan=self._plan[1])
@@ -129,7 +145,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         """Make `shapes` (key -> LightShape, the full active set) current with as little work as possible."""
         t0 = time.perf_counter()
         fr = FrameReport()
-        valid = {k: self._validate(k, s) for k, s in shapes.items()}   # raise before changing anything
+        valid = {k: self._validate(k, s) for k, s in shapes.items()}  # raise before changing anything
         evs = []
         for k in [k for k in self.shapes if k not in valid]:
             evs.append(self._remove(k))
@@ -137,8 +153,9 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
             rec = self.shapes.get(k)
             if rec is None:
                 continue
-            same_geom = len(rec.rings) == len(rings) and all(np.array_equal(a, b)
-                                                              for a, b in zip(rec.rings, rings))
+            same_geom = len(rec.rings) == len(rings) and all(
+                np.array_equal(a, b) for a, b in zip(rec.rings, rings)
+            )
             if not same_geom:
                 # the new response is solved from the new emission plus the old one's scattered
                 # light: a moved shape lights the room much as before (fewer iterations)
@@ -180,10 +197,13 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
 
     def memory_bytes(self):
         from ..hierarchy import Hierarchy
+
         h = self.h
         links = len(self._naive.system.links) if self._naive is not None else len(self.links)
-        cached = sum(sum(a.nbytes for a in (r.U, r.D) if a is not None)
-                     for r in list(self.shapes.values()) + list(self._cache.values()))
+        cached = sum(
+            sum(a.nbytes for a in (r.U, r.D) if a is not None)
+            for r in list(self.shapes.values()) + list(self._cache.values())
+        )
         return h.n * Hierarchy.node_bytes() + links * 32 + cached
 
     def evaluate(self, points, patch_ids):
@@ -219,8 +239,9 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
     def _add(self, key, shape, validated=None):
         t0 = time.perf_counter()
         if key in self.shapes:
-            raise KeyError(f"A light shape with key {key!r} is already active "
-                           "(use apply() or remove it first).")
+            raise KeyError(
+                f"A light shape with key {key!r} is already active (use apply() or remove it first)."
+            )
         rings, em, name = validated or self._validate(key, shape)
         rep = EventReport("add", key, name)
         n0 = self.system.h.n
@@ -285,8 +306,10 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
             its += self._naive.iterations
             names = ", ".join(f"'{r.name}'" for r in naive if not r.on_surface)
             if self.method != "NAIVE" and names:
-                reps[-1].messages.append(f"NAIVE rebuild of all {len(self.shapes)} active shape(s) "
-                                         f"because {names} lie(s) on no surface ({time.perf_counter() - t0:.2f} s)")
+                reps[-1].messages.append(
+                    f"NAIVE rebuild of all {len(self.shapes)} active shape(s) "
+                    f"because {names} lie(s) on no surface ({time.perf_counter() - t0:.2f} s)"
+                )
             return its
         self._naive = None
         self._sync()
@@ -317,14 +340,14 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
             return None
         self._sync()
         cov = self._coverage(rec)[None]
-        if rec.method == "AUTO":     # U = solve(push(D)) + pull(coverage)
+        if rec.method == "AUTO":  # U = solve(push(D)) + pull(coverage)
             return self._operator().pull(rec.U - cov - (self._push(rec.D) if rec.D is not None else 0.0))
         return rec.U - cov
 
     def _push(self, D):
         h = self.system.h
         D = D.copy()
-        par = h.parent[:h.n]
+        par = h.parent[: h.n]
         for lv in h.levels()[1:]:
             D[:, lv] += D[:, par[lv]]
         return D
@@ -343,8 +366,15 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         op = self._operator()
         if response and self.response_float32:
             op = op.float32()
-        B, rep = solve(self.system.h, self.links, E, B0=B0, tol=self.response_tol if response else self.tol,
-                       op=op, energy=not response)
+        B, rep = solve(
+            self.system.h,
+            self.links,
+            E,
+            B0=B0,
+            tol=self.response_tol if response else self.tol,
+            op=op,
+            energy=not response,
+        )
         return np.maximum(B, 0.0), rep
 
     def solution_at(self, points, patch_ids):

@@ -1,4 +1,5 @@
 """NAIVE: the active shapes as offset input patches over their surfaces, a new RadiositySystem."""
+
 import time
 from typing import TYPE_CHECKING
 
@@ -23,7 +24,7 @@ class _NaiveState:
         mesh, pt = sysm.mesh, sysm.patches
         self.groups = []
         verts, polys, rhos, ems, oids = [], [], [], [], []
-        replaced = set()     # input polygons replaced by their pieces around / under the light patches
+        replaced = set()  # input polygons replaced by their pieces around / under the light patches
         P0 = len(mesh.loop_start)
         todo = [r for r in recs]
         for r in todo:
@@ -33,11 +34,13 @@ class _NaiveState:
         # Offset of the light patches off their surface: naive_offset x the size of what the shapes
         # light (the shapes and their surfaces), not of the scene (a far-away object must not lift
         # them off the wall); well above the rays' offset.
-        local = [np.concatenate(r.rings) for r in todo] + [pt.corners[r.group].reshape(-1, 3) for r in todo
-                                                           if r.group is not None and len(r.group)]
+        local = [np.concatenate(r.rings) for r in todo] + [
+            pt.corners[r.group].reshape(-1, 3) for r in todo if r.group is not None and len(r.group)
+        ]
         local = np.concatenate(local) if local else np.zeros((1, 3))
-        delta = max(dyn.naive_offset * float(np.linalg.norm(local.max(0) - local.min(0))),
-                    20 * sysm.refiner.eps)
+        delta = max(
+            dyn.naive_offset * float(np.linalg.norm(local.max(0) - local.min(0))), 20 * sysm.refiner.eps
+        )
         while todo:
             r0 = todo[0]
             tol = max(r.tol for r in todo)
@@ -88,7 +91,7 @@ class _NaiveState:
                 em += (_in_rings(mids, rr) & emits)[:, None] * r.emission[None]
             lit = em.max(1) > 0
             g_quads, g_patch, g_front = [], [], []
-            for t in np.flatnonzero(~lit & repl):    # uncovered pieces of a replaced host polygon
+            for t in np.flatnonzero(~lit & repl):  # uncovered pieces of a replaced host polygon
                 poly2 = traps[t][0]
                 hn = pt.normal[under[t]]
                 p3 = r0.c + poly2[:, :1] * r0.u + poly2[:, 1:2] * r0.v
@@ -106,8 +109,11 @@ class _NaiveState:
                 g_front.append(np.zeros(3))
             for t in np.flatnonzero(lit):
                 poly2 = traps[t][0]
-                front = pt.normal[under[t]] if under[t] >= 0 else next(
-                    r.n for r, rr in zip(grp, rings) if _in_rings(mids[t:t + 1], rr)[0])
+                front = (
+                    pt.normal[under[t]]
+                    if under[t] >= 0
+                    else next(r.n for r, rr in zip(grp, rings) if _in_rings(mids[t : t + 1], rr)[0])
+                )
                 p3 = r0.c + poly2[:, :1] * r0.u + poly2[:, 1:2] * r0.v + delta * front
                 if newell(p3) @ front < 0:
                     p3, poly2 = p3[::-1], poly2[::-1]
@@ -122,34 +128,42 @@ class _NaiveState:
                 g_patch.append(P0 + len(polys) - 1)
                 g_front.append(front)
             if g_quads:
-                self.groups.append((r0, set(pats.tolist()), np.array(g_quads), np.array(g_patch),
-                                    np.array(g_front)))
+                self.groups.append(
+                    (r0, set(pats.tolist()), np.array(g_quads), np.array(g_patch), np.array(g_front))
+                )
         self.P0, self.L0, self.V0 = P0, len(mesh.loop_verts), len(mesh.verts)
         self.delta = delta
         self.replaced = np.array(sorted(replaced), np.int64)
         if polys:
-            light = MeshInput.from_polygons(np.concatenate(verts), polys, np.array(rhos), np.array(ems),
-                                            np.zeros(len(polys), np.int64), ["light shapes (NAIVE)"])
+            light = MeshInput.from_polygons(
+                np.concatenate(verts),
+                polys,
+                np.array(rhos),
+                np.array(ems),
+                np.zeros(len(polys), np.int64),
+                ["light shapes (NAIVE)"],
+            )
             nm = mesh.concat(light)
             oids = np.array(oids, np.int64)
-            nm.object_id[P0:][oids >= 0] = oids[oids >= 0]    # pieces weld with their host object
-            if len(self.replaced):   # collapse the replaced polygons (dropped as degenerate)
+            nm.object_id[P0:][oids >= 0] = oids[oids >= 0]  # pieces weld with their host object
+            if len(self.replaced):  # collapse the replaced polygons (dropped as degenerate)
                 nm.loop_verts = nm.loop_verts.copy()
                 for q in self.replaced:
                     a, k = mesh.loop_start[q], mesh.loop_total[q]
-                    nm.loop_verts[a:a + k] = nm.loop_verts[a]
+                    nm.loop_verts[a : a + k] = nm.loop_verts[a]
         else:
             nm = mesh
         # original patch -> patch of the same polygon in the NAIVE system (-1: polygon replaced)
         kept = ~np.isin(pt.poly, self.replaced)
         self.patch_map = np.where(kept, np.cumsum(kept) - 1, -1)
         self.orig_poly = pt.poly
-        self.system = RadiositySystem(nm, dyn.naive_params or sysm.params, backend=sysm.backend.name,
-                                      tol=sysm.tol)
+        self.system = RadiositySystem(
+            nm, dyn.naive_params or sysm.params, backend=sysm.backend.name, tol=sysm.tol
+        )
         self.system.solve()
         self.iterations = self.system.report.iterations
         poly = self.system.patches.poly
-        for g in self.groups:   # input polygon -> patch index (-1 if dropped as degenerate)
+        for g in self.groups:  # input polygon -> patch index (-1 if dropped as degenerate)
             pi = np.searchsorted(poly, g[3])
             pi = np.minimum(pi, len(poly) - 1)
             g[3][:] = np.where(poly[pi] == g[3], pi, -1)
@@ -189,16 +203,16 @@ class _NaiveState:
         return roots, pts
 
     def loop_radiance(self, mesh, domain, smooth_angle):
-        out = self.system.loop_radiance("CORNER", smooth_angle)[:self.L0].astype(np.float64)
+        out = self.system.loop_radiance("CORNER", smooth_angle)[: self.L0].astype(np.float64)
         # corners under a light patch show the light, not the hidden surface behind it
         loop_poly = np.repeat(np.arange(self.P0), mesh.loop_total)
-        first = np.searchsorted(self.orig_poly, loop_poly)   # a patch of the ORIGINAL system
+        first = np.searchsorted(self.orig_poly, loop_poly)  # a patch of the ORIGINAL system
         pos = mesh.verts[mesh.loop_verts]
         covered = np.zeros(len(pos), bool)
         for r0, pats, quads, pidx, front in self.groups:
             m = np.flatnonzero(np.isin(first, list(pats)))
             if len(m):
-                lit = front.any(1)   # unlit pieces (zero offset) are handled below
+                lit = front.any(1)  # unlit pieces (zero offset) are handled below
                 covered[m] = _in_convex(_ShapeMixin._to2d(r0, pos[m]), quads[lit]).any(1)
         if covered.any():
             out[covered] = self.evaluate(pos[covered], first[covered])[0]

@@ -1,5 +1,6 @@
 """Planar polygon helpers of the light shapes (winding, point in polygon, slab decomposition) and
 stratified surface samples."""
+
 import numpy as np
 
 from .. import formfactor as ff
@@ -13,7 +14,6 @@ def _winding(pts, ring):
     up = (a[..., 1] <= y) & (b[..., 1] > y) & (side > 0)
     down = (b[..., 1] <= y) & (a[..., 1] > y) & (side < 0)
     return up.sum(1) - down.sum(1)
-
 
 
 def surface_samples(patches, per_area, min_k=2):
@@ -46,8 +46,8 @@ def _in_rings(pts, rings):
 
 def _in_convex(pts, poly):
     """pts (N, 2) inside convex polygons poly (T, M, 2) of either orientation (zero edges ignored): (N, T)."""
-    e = np.roll(poly, -1, 1) - poly                                    # (T, M, 2)
-    w = pts[:, None, None, :] - poly[None]                             # (N, T, M, 2)
+    e = np.roll(poly, -1, 1) - poly  # (T, M, 2)
+    w = pts[:, None, None, :] - poly[None]  # (N, T, M, 2)
     cr = e[None, ..., 0] * w[..., 1] - e[None, ..., 1] * w[..., 0]
     zero = (np.abs(e).sum(-1) == 0)[None]
     return (np.where(zero, 0, cr) >= 0).all(-1) | (np.where(zero, 0, cr) <= 0).all(-1)
@@ -103,4 +103,3 @@ def slab_decomposition(edges, eps):
                 continue
             out.append((np.array(poly), mid))
     return out
-

@@ -1,4 +1,5 @@
 """Light shapes and event reports of DynamicRadiosity, and its per-shape record."""
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -6,29 +7,30 @@ import numpy as np
 
 METHODS = ("NAIVE", "AR", "FE", "AUTO")
 
+
 @dataclass
 class LightShape:
-    rings: list            # world-space rings (M_i, 3): outer first, then holes; planar
-    emission: np.ndarray   # (3,) radiance (Cycles strength x colour)
+    rings: list  # world-space rings (M_i, 3): outer first, then holes; planar
+    emission: np.ndarray  # (3,) radiance (Cycles strength x colour)
     name: str = ""
 
 
 @dataclass
 class EventReport:
-    kind: str                  # "add", "remove", "emission", "reshape"
+    kind: str  # "add", "remove", "emission", "reshape"
     key: object = None
     name: str = ""
-    method: str = ""           # method actually used: NAIVE, AR, FE, AUTO, "AR+FE" (AR stopped at the budget)
+    method: str = ""  # method actually used: NAIVE, AR, FE, AUTO, "AR+FE" (AR stopped at the budget)
     seconds: float = 0.0
-    iterations: int = 0        # solver iterations
+    iterations: int = 0  # solver iterations
     nodes_added: int = 0
     nodes_removed: int = 0
-    nodes: int = 0             # after the event
-    links: int = 0             # after the event (the solver's links)
-    direct_links: int = 0      # AUTO: links from the shape computed for its first bounce (not kept)
-    memory_bytes: int = 0      # nodes + links + cached responses
-    emission_l1: float = 0.0   # relative L1 error of the shape's emission field (exact for FE/AR/AUTO)
-    covered: float = 1.0       # fraction of the shape's area lying on surfaces
+    nodes: int = 0  # after the event
+    links: int = 0  # after the event (the solver's links)
+    direct_links: int = 0  # AUTO: links from the shape computed for its first bounce (not kept)
+    memory_bytes: int = 0  # nodes + links + cached responses
+    emission_l1: float = 0.0  # relative L1 error of the shape's emission field (exact for FE/AR/AUTO)
+    covered: float = 1.0  # fraction of the shape's area lying on surfaces
     messages: list = field(default_factory=list)
 
 
@@ -57,26 +59,26 @@ class FrameReport:
 class _Rec:
     key: object
     name: str
-    rings: list                # validated world rings
-    emission: np.ndarray       # (3,)
-    method: str                # requested
+    rings: list  # validated world rings
+    emission: np.ndarray  # (3,)
+    method: str  # requested
     used: str = ""
-    c: np.ndarray = None       # plane: point, normal, in-plane basis
+    c: np.ndarray = None  # plane: point, normal, in-plane basis
     n: np.ndarray = None
     u: np.ndarray = None
     v: np.ndarray = None
-    tol: float = 0.0           # distance tolerance of its plane (plane_tol x its own size)
+    tol: float = 0.0  # distance tolerance of its plane (plane_tol x its own size)
     rings2d: list = None
     area: float = 0.0
-    group: np.ndarray = None   # coplanar root patches (emitting side)
-    roots: np.ndarray = None   # coplanar root patches the shape overlaps
+    group: np.ndarray = None  # coplanar root patches (emitting side)
+    roots: np.ndarray = None  # coplanar root patches the shape overlaps
     covered: float = 0.0
     on_surface: bool = False
     cov_nodes: np.ndarray = None
     cov_vals: np.ndarray = None
-    owned: np.ndarray = None   # nodes whose split this shape needs (reference counted)
-    U: np.ndarray = None       # (3, n) response at unit emission
-    D: np.ndarray = None       # (3, n) AUTO: first-bounce radiance per unit emission, at link receivers
+    owned: np.ndarray = None  # nodes whose split this shape needs (reference counted)
+    U: np.ndarray = None  # (3, n) response at unit emission
+    D: np.ndarray = None  # (3, n) AUTO: first-bounce radiance per unit emission, at link receivers
     emission_l1: float = 0.0
     budget_hit: bool = False
     direct_links: int = 0
@@ -85,4 +87,3 @@ class _Rec:
     @property
     def geom_key(self):
         return tuple(r.tobytes() for r in self.rings)
-

@@ -1,4 +1,5 @@
 """Light shape validation (finite, planar, simple outline), its plane and the surfaces it lies on."""
+
 from collections import OrderedDict
 
 import numpy as np
@@ -20,7 +21,6 @@ def _plane_tolerance(rings, plane_tol):
     coordinates (Blender's) far from the origin."""
     pts = np.concatenate(rings)
     return plane_tol * _size(rings) + 1e-6 * float(np.abs(pts).max())
-
 
 
 def outline_problem(rings2d, chunk=200_000):
@@ -67,10 +67,12 @@ def outline_problem(rings2d, chunk=200_000):
 
         def orient(p, q, r):
             return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+
         o1, o2 = orient(a[ii], b[ii], a[jj]), orient(a[ii], b[ii], b[jj])
         o3, o4 = orient(a[jj], b[jj], a[ii]), orient(a[jj], b[jj], b[ii])
-        cross = ((o1 * o2 < 0) & (o3 * o4 < 0)
-                 & (np.minimum.reduce([abs(o1), abs(o2), abs(o3), abs(o4)]) > tol))
+        cross = (
+            (o1 * o2 < 0) & (o3 * o4 < 0) & (np.minimum.reduce([abs(o1), abs(o2), abs(o3), abs(o4)]) > tol)
+        )
         if cross.any():
             k = np.flatnonzero(cross)[0]
             r1, r2 = sorted((int(ring[ii[k]]), int(ring[jj[k]])))
@@ -97,7 +99,7 @@ def outline_problem(rings2d, chunk=200_000):
         traps = slab_decomposition(edges, 1e-9 * size)
         if traps:
             mids = np.array([mid for _, mid in traps])
-            w = np.stack([_winding(mids, r) for r in rings])          # (R, T)
+            w = np.stack([_winding(mids, r) for r in rings])  # (R, T)
             s = [np.sign(clip.polygon_area_2d(r)) or 1 for r in rings]
             for k in range(len(rings)):
                 if not np.isin(w[k], (0, s[k])).all():
@@ -108,8 +110,6 @@ def outline_problem(rings2d, chunk=200_000):
             if (inner.sum(0) > 1).any():
                 return "holes overlap"
     return ""
-
-
 
 
 class _ShapeMixin:
@@ -127,7 +127,7 @@ class _ShapeMixin:
         return em
 
     def _validate(self, key, shape):
-        name = (getattr(shape, "name", "") or str(key))
+        name = getattr(shape, "name", "") or str(key)
         rings = getattr(shape, "rings", None)
         if rings is None or len(rings) == 0:
             raise InputError(f"Light shape '{name}' has no rings.")
@@ -145,21 +145,24 @@ class _ShapeMixin:
         em = self._check_emission(shape.emission, name)
         size = _size(out)
         nrm = newell(out[0])
-        if np.linalg.norm(nrm) <= 1e-9 * size ** 2:
+        if np.linalg.norm(nrm) <= 1e-9 * size**2:
             # No net area (e.g. a bowtie whose two lobes cancel): the plane from the points instead
             pts = out[0]
             sv, vt = np.linalg.svd(pts - pts.mean(0), full_matrices=False)[1:]
             if len(sv) < 3 or sv[1] <= 1e-9 * max(sv[0], 1e-300):
-                raise InputError(f"Light shape '{name}': the outer ring has zero area "
-                                 "(its points lie on a line).")
+                raise InputError(
+                    f"Light shape '{name}': the outer ring has zero area (its points lie on a line)."
+                )
             nrm = vt[2]
         n = nrm / np.linalg.norm(nrm)
         c = out[0].mean(0)
         off = max(float(np.abs((r - c) @ n).max()) for r in out)
         tol = _plane_tolerance(out, self.plane_tol)
         if off > tol:
-            raise InputError(f"Light shape '{name}' is not planar: a point is {off:.3g} off its plane "
-                             f"(tolerance {tol:.3g}, {self.plane_tol:.2%} of its size).")
+            raise InputError(
+                f"Light shape '{name}' is not planar: a point is {off:.3g} off its plane "
+                f"(tolerance {tol:.3g}, {self.plane_tol:.2%} of its size)."
+            )
         key = tuple(r.tobytes() for r in out)
         problem = self._outline_ok.get(key) if hasattr(self, "_outline_ok") else None
         if problem is None:
@@ -173,10 +176,12 @@ class _ShapeMixin:
             while len(cache) > 256:
                 cache.popitem(last=False)
         if problem:
-            raise InputError(f"Light shape '{name}': {problem}. A light shape must be a simple outline "
-                             "(no crossings; holes inside it and apart): redraw it, e.g. as faces that "
-                             "do not overlap.")
-        if np.linalg.norm(newell(out[0])) <= 1e-9 * size ** 2:
+            raise InputError(
+                f"Light shape '{name}': {problem}. A light shape must be a simple outline "
+                "(no crossings; holes inside it and apart): redraw it, e.g. as faces that "
+                "do not overlap."
+            )
+        if np.linalg.norm(newell(out[0])) <= 1e-9 * size**2:
             raise InputError(f"Light shape '{name}': the outer ring has zero area.")
         return out, em, name
 
@@ -207,7 +212,7 @@ class _ShapeMixin:
         al = pt.normal @ rec.n
         cand = (dist <= tol) & (np.abs(al) >= 0.999)
         if (cand & (al > 0)).any():
-            cand &= al > 0   # surfaces on both sides of the plane: the shape emits on its front side
+            cand &= al > 0  # surfaces on both sides of the plane: the shape emits on its front side
         rec.group = np.flatnonzero(cand)
         rec.roots = np.zeros(0, np.int64)
         rec.covered = 0.0
@@ -217,8 +222,10 @@ class _ShapeMixin:
             rec.covered = float(np.sum(frac[~out] * self.system.h.area[rec.roots])) / rec.area
         rec.on_surface = rec.covered > 1e-6
         if rec.on_surface and rec.covered < 0.999:
-            rec.msgs.append(f"shape '{rec.name}': only {100 * rec.covered:.1f}% of its area lies on "
-                            "surfaces; the rest does not emit")
+            rec.msgs.append(
+                f"shape '{rec.name}': only {100 * rec.covered:.1f}% of its area lies on "
+                "surfaces; the rest does not emit"
+            )
 
     def _classify(self, rec, nodes):
         h = self.system.h
