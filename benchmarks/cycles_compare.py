@@ -259,7 +259,7 @@ def run_scene(name, cfg, results, maps=None):
     scene = open_scene(name)
     rs = C.prepare(scene, texel_rel=cfg["texel_rel"])
     n_tex = sum(rs.atlases[n].n for n in rs.objects)
-    small = [w for w in rs.warnings if w.endswith("smaller than a texel, not compared")]
+    small = rs.not_compared
     if small:
         log(f"[{name}] {len(small)} objects smaller than a texel light the others but are not compared")
     log(

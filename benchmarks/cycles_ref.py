@@ -314,6 +314,9 @@ class RefScene:
     diag: float = 1.0
     proxies: list = field(default_factory=list)
     warnings: list = field(default_factory=list)
+    not_compared: list = field(
+        default_factory=list
+    )  # objects smaller than a texel (they still light the rest)
 
 
 def prepare(scene, texel_rel=1 / 100, k=3, texel=None):
@@ -344,9 +347,9 @@ def prepare(scene, texel_rel=1 / 100, k=3, texel=None):
         try:
             at = Atlas.build(obj, texel, k)
         except NoTexels:
-            # lights the others but is not compared (no texel centre falls on it)
+            # lights the others but is not compared (no sub-texel sample falls on it)
             names.remove(obj.name)
-            rs.warnings.append(f"{obj.name}: smaller than a texel, not compared")
+            rs.not_compared.append(obj.name)
             continue
         rs.atlases[obj.name] = at
         img = bpy.data.images.new(f"REF_{obj.name}", at.width, at.height, alpha=True, float_buffer=True)

@@ -355,8 +355,6 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             pending.append((np.concatenate(new_a), np.concatenate(new_b)))
         if progress is not None:
             progress.update("clusters", done_w, total_w)
-    if progress is not None:
-        progress.done("clusters")
     if far:
         fa_, fb_, fv, fm, pa_, pb_, ff_ = (np.concatenate(x) for x in zip(*far))
         fs = np.ones(len(fv))

@@ -395,7 +395,6 @@ class Refiner:
                     )
                 )
         self.stats["t_refine"] += time.perf_counter() - t0
-        self.progress.done("linking")  # every phase reports its end, however fast it was
         return self._finish(out)
 
     def _finish(self, out):
@@ -422,8 +421,11 @@ class Refiner:
     def build(self):
         """Initial HSA refinement: down from the root cluster's self-pair (clustering), or over
         all pairs of patches (quadratic: small scenes only)."""
+        # every phase reports its end, however fast it was (reports are throttled)
         if not self.params.cluster:
-            return self.refine(*initial_pairs(self.h))
+            links = self.refine(*initial_pairs(self.h))
+            self.progress.done("linking")
+            return links
         from .cluster import ClusterTree
         from .farlinks import link_clusters
         import time
@@ -433,8 +435,10 @@ class Refiner:
         self.stats["t_tree"] = time.perf_counter() - t0
         self.stats["clusters"] = tree.C
         far, p, q = link_clusters(self, tree, self.progress)
+        self.progress.done("clusters")
         self.stats["t_clusters"] = time.perf_counter() - t0
         links = self.refine(p, q)
+        self.progress.done("linking")
         links.far = far
         return links
 
