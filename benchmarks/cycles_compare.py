@@ -764,6 +764,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="Cornell only, 2 frames, few samples, draft")
     ap.add_argument("--scenes", default="cornell,searchbeam,office")
+    ap.add_argument("--qualities", help="comma-separated, overrides each scene's list")
+    ap.add_argument("--methods", help="comma-separated, overrides each scene's list")
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
@@ -791,6 +793,9 @@ def main():
         if args.quick:
             cfg.update(QUICK)
             cfg["sweep_frame"] = 13
+        for key in ("qualities", "methods"):
+            if getattr(args, key):
+                cfg[key] = getattr(args, key).split(",")
         run_scene(name, cfg, results, maps if name == "cornell" else None)
     eq = equal_error(results)
     data = {

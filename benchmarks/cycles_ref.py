@@ -575,7 +575,7 @@ class Ours:
             leaf = locate(h, allp, allx)
             if self.system.B is None:
                 self.system.solve()
-            B = self.system.B[:, leaf].T
+            B = h.shown(self.system.B)[:, leaf].T
             E = self.system.base_emission()[:, leaf].T
             loops = self.system.loop_radiance("CORNER")
             if want_smooth:

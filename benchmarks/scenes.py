@@ -103,8 +103,13 @@ def cornell_box(subdiv=1, light=True, light_drop_mm=0.5, light_emission=CORNELL_
         faces = [top] + [
             np.array([bottom[i], bottom[(i + 1) % 4], top[(i + 1) % 4], top[i]]) for i in range(4)
         ]
-        for k, f in enumerate(faces):
-            sb.add_quad(f"{name}_{k}", _orient(f, away(f)), WHITE, subdiv=max(1, subdiv // 2))
+        # one object per block, as in the sample .blend (contacts.py joins its faces by position)
+        vs, ps = [], []
+        for f in faces:
+            v, p = _grid(_orient(f, away(f)), max(1, subdiv // 2))
+            ps += [[i + sum(len(x) for x in vs) for i in q] for q in p]
+            vs.append(v)
+        sb.add(name, np.concatenate(vs), ps, WHITE)
     if light:
         q = _to_blender(_LIGHT)
         q[:, 2] -= light_drop_mm * 0.001

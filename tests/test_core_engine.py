@@ -113,12 +113,17 @@ def test_links_reciprocal_and_bounded():
     # <= 1 up to integration error, except where visibility varies across a coarse receiver:
     # measured, 0.5% of the area (floor in the slot between the tall block and the back wall)
     # exceeds 1.01, by at most 8%. The push corrections sum to zero per link and area.
+    # Contacts (contacts.py): a source covered in part is seen through its exposed fraction
+    # only, and covered leaves receive nothing.
     op = s.operator()
-    fsum = op.push(np.bincount(recv, weights=f, minlength=h.n)[None].copy())[0][op.leaves]
-    a = h.area[op.leaves]
+    _, src, _ = L.directed()
+    ex = h.view("exposure")
+    fsum = op.push(np.bincount(recv, weights=f * ex[src], minlength=h.n)[None].copy())[0][op.leaves]
+    a = h.area[op.leaves] * ex[op.leaves]
     assert a[fsum > 1.01].sum() < 0.01 * a.sum() and fsum.max() < 1.1
     leaf, src, dF = L.corr
-    assert len(dF) > 0 and abs(np.sum(h.area[leaf] * dF)) < 1e-9 * np.sum(h.area[leaf] * np.abs(dF))
+    ea = h.area[leaf] * ex[leaf]
+    assert len(dF) > 0 and abs(np.sum(ea * dF)) < 1e-9 * np.sum(ea * np.abs(dF))
 
 
 def test_smaller_feps_never_gives_fewer_links():
@@ -316,9 +321,12 @@ def test_radiance_at_points_finds_leaves_and_interpolates_continuously():
     B = s.solve()
     h = s.h
     lf = h.leaves()
-    # Leaf centres locate to themselves; flat values are the leaf values.
+    # Leaf centres locate to themselves; flat values are the leaf values (of their uncovered part:
+    # contacts.py; the floor under the blocks reads 0).
     assert np.array_equal(locate(h, h.patch[lf], h.centre[lf]), lf)
-    assert np.allclose(radiance_at(h, B, h.patch[lf], h.centre[lf], smooth=False), B[:, lf].T)
+    shown = h.shown(B)
+    assert np.allclose(radiance_at(h, B, h.patch[lf], h.centre[lf], smooth=False), shown[:, lf].T)
+    assert (h.exposure[lf] == 0).any() and not shown[:, lf[h.exposure[lf] == 0]].any()
     # Smooth values stay within the range of the surface and vary continuously along a line
     # across the floor (no jumps bigger than the local gradient allows).
     floor = s.patches.object_names.index("floor")
@@ -328,7 +336,7 @@ def test_radiance_at_points_finds_leaves_and_interpolates_continuously():
     line = c[0] + t[:, None] * (c[2] - c[0])
     v = radiance_at(h, B, np.full(len(t), root), line)
     flat = radiance_at(h, B, np.full(len(t), root), line, smooth=False)
-    assert v.min() >= 0 and v.max() <= B[:, lf].max()
+    assert v.min() >= 0 and v.max() <= shown[:, lf].max()
     assert np.abs(np.diff(v, axis=0)).max() < 0.5 * np.abs(np.diff(flat, axis=0)).max()
 
 

@@ -28,6 +28,7 @@ class Hierarchy:
         self.child0[:k] = -1
         self.level[:k] = 0
         self.patch[:k] = np.arange(k)
+        self.exposure[:k] = 1.0
         self._set_derived(np.arange(k))
         self.version = 0  # bumped on every structural change (caches key on it)
         self._levels = None
@@ -43,6 +44,7 @@ class Hierarchy:
         ("area", (), np.float64),
         ("centre", (3,), np.float64),
         ("normal", (3,), np.float64),
+        ("exposure", (), np.float32),
     )
 
     def _grow(self, need):
@@ -120,6 +122,7 @@ class Hierarchy:
         self.child0[new] = -1
         self.level[new] = np.repeat(self.level[ids] + 1, 4)
         self.patch[new] = np.repeat(self.patch[ids], 4)
+        self.exposure[new] = np.repeat(self.exposure[ids], 4)  # refined again where it matters
         self.child0[ids] = start + 4 * np.arange(m)
         self.n += 4 * m
         self._set_derived(new)
@@ -165,6 +168,14 @@ class Hierarchy:
     def node_rho(self):
         """(3, n) reflectance of every node (inherited from its patch)."""
         return self.patches.reflectance[:, self.patch[: self.n]]
+
+    def shown(self, B):
+        """Radiance of the uncovered part of each node: B holds node means over the whole node
+        (covered parts contribute nothing), so divide by the exposure; fully covered nodes show 0."""
+        ex = self.exposure[: B.shape[-1]]
+        if ex.min() >= 1:
+            return B
+        return np.where(ex > 0, B / np.maximum(ex, 1e-30), 0.0)
 
     def leaf_at_corner(self, roots, k):
         """Descend from roots to the leaf holding corner k of each root (vectorised)."""

@@ -78,7 +78,9 @@ def loop_plan(h: Hierarchy, mesh: MeshInput, smooth_angle=30.0, domain="CORNER")
         pn = poly_normal[loop_poly[li]]
         ok = (np.einsum("ij,ij->i", pn, nrm[ci]) >= np.cos(np.radians(smooth_angle))) | ~pn.any(1)
     w = wgt[ci] * ok
-    return leaf[ci], li, w, np.bincount(li, weights=w, minlength=len(weld)), len(weld)
+    # B holds node means, covered parts included: weigh by exposed area below (contacts.py)
+    den = np.bincount(li, weights=w * h.exposure[leaf[ci]], minlength=len(weld))
+    return leaf[ci], li, w, den, len(weld)
 
 
 def _insideness(c, nrm, pts):
@@ -158,7 +160,7 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
     pts = np.asarray(points, float)
     leaf = locate(h, patch, pts)
     if not smooth:
-        return B[:, leaf].T.copy()
+        return h.shown(B)[:, leaf].T.copy()
     c = h.corners[leaf]  # (M, 4, 3)
     size = np.sqrt(h.area[leaf])[:, None, None]
     unit = lambda v: v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
@@ -170,9 +172,11 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
         pl = locate_near(h, np.repeat(patch, 4), probe).reshape(-1, 4)
         a = h.area[pl]
         num += a[..., None] * B[:, pl].transpose(1, 2, 0)
-        den += a
-    val = num / den[..., None]
-    return np.einsum("mk,mkc->mc", corner_weights(c, h.nv[leaf], h.normal[leaf], pts), val)
+        den += a * h.exposure[pl]  # node means over exposed area: the light on the uncovered part
+    val = num / np.maximum(den, 1e-300)[..., None]
+    out = np.einsum("mk,mkc->mc", corner_weights(c, h.nv[leaf], h.normal[leaf], pts), val)
+    out[h.exposure[leaf] == 0] = 0.0  # covered leaves stay dark: no light interpolated under a block
+    return out
 
 
 _TRIS = np.array([[0, 1, 2], [0, 2, 3]])

@@ -41,6 +41,9 @@ class RefineParams:
     partial_feps: float = 0.5  # far links with a partly facing cluster end need F < partial_feps x feps
     cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
     cluster_leaf: int = 4  # most patches in a leaf cluster
+    contacts: bool = True  # find surfaces covered by touching geometry (contacts.py) and refine along them
+    contact_gap: float = 1e-3  # how close counts as touching, relative to sqrt(total scene area)
+    contact_levels: int = 2  # contact refinement goes this many quadtree levels below aeps
     ff_order: int = 3  # most Gauss points per side for a link's form factor (near pairs)
 
     @staticmethod
@@ -237,6 +240,7 @@ class Refiner:
         self.total_area = float(h.patches.area.sum())
         self.eps = 1e-6 * np.sqrt(self.total_area)  # ray end offset along normals
         self.progress = NO_PROGRESS
+        self._vis_nodes = self._vis_pts = None  # exposed sample points of partly covered nodes
         self.stats = {
             "rays": 0,
             "pairs_tested": 0,
@@ -301,8 +305,8 @@ class Refiner:
         if len(a) == 0:
             self.stats["t_vis"] += time.perf_counter() - t0
             return vis
-        pa = ff.sample_points(h.corners[a], h.nv[a], k) + self.eps * h.normal[a][:, None]
-        pb = ff.sample_points(h.corners[b], h.nv[b], k) + self.eps * h.normal[b][:, None]
+        pa = self.sample_points(a) + self.eps * h.normal[a][:, None]
+        pb = self.sample_points(b) + self.eps * h.normal[b][:, None]
         s = k * k
         out = np.empty(len(a))
         st = ~weak
@@ -317,6 +321,35 @@ class Refiner:
         vis[test] = out
         self.stats["t_vis"] += time.perf_counter() - t0
         return vis
+
+    def contacts(self):
+        """Refine partly covered receivers along their contacts and set node exposures
+        (contacts.py) before any link is made. Returns the Contacts (None if off or none)."""
+        from .contacts import Contacts, exposed_points, refine_contacts
+
+        prm, h = self.params, self.h
+        if not prm.contacts:
+            return None
+        c = Contacts(h.patches, prm.contact_gap * np.sqrt(self.total_area))
+        if c.any:
+            min_area = prm.aeps * self.total_area / 4**prm.contact_levels
+            self.stats["contact_nodes"] = refine_contacts(h, c, min_area)
+            ex = h.view("exposure")
+            part = np.flatnonzero((ex > 0) & (ex < 1))
+            self._vis_nodes, self._vis_pts = part, exposed_points(h, c, part, prm.vis_k)
+        self.stats["contact_receivers"] = len(c.receivers)
+        return c
+
+    def sample_points(self, nodes):
+        """Visibility sample points (N, vis_k^2, 3): stratified over each node, moved off its
+        covered part for partly covered nodes."""
+        h, k = self.h, self.params.vis_k
+        pts = ff.sample_points(h.corners[nodes], h.nv[nodes], k)
+        if self._vis_nodes is not None and len(self._vis_nodes):
+            i = np.minimum(np.searchsorted(self._vis_nodes, nodes), len(self._vis_nodes) - 1)
+            hit = self._vis_nodes[i] == nodes
+            pts[hit] = self._vis_pts[i[hit]]
+        return pts
 
     def refine(self, p, q, good_enough=None):
         """HSA loop from candidate pairs (p, q); returns the new Links.
@@ -352,7 +385,7 @@ class Refiner:
                 h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p]
             )
             fmax = np.maximum(f_pq, f_qp)
-            alive = (fmax > 0) & _facing(h, p, q, tol)
+            alive = (fmax > 0) & _facing(h, p, q, tol) & (h.exposure[p] > 0) & (h.exposure[q] > 0)
             p, q, f_pq, f_qp, fmax, kv = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive], kv[alive]
             ok = fmax < prm.feps if good_enough is None else good_enough(p, q, f_pq, f_qp)
             can_p, can_q = h.area[p] > aeps, h.area[q] > aeps
@@ -422,6 +455,11 @@ class Refiner:
         """Initial HSA refinement: down from the root cluster's self-pair (clustering), or over
         all pairs of patches (quadratic: small scenes only)."""
         # every phase reports its end, however fast it was (reports are throttled)
+        import time
+
+        t0 = time.perf_counter()
+        self.contacts()
+        self.stats["t_contacts"] = time.perf_counter() - t0
         if not self.params.cluster:
             links = self.refine(*initial_pairs(self.h))
             self.progress.done("linking")
@@ -552,7 +590,11 @@ def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000):
         fc[mm] = ff.point_to_polygon(
             h.centre[leaf[mm]], h.normal[leaf[mm]], h.corners[src_of[mm]], h.nv[src_of[mm]]
         )
-    mean = np.bincount(li, weights=fc * h.area[leaf], minlength=len(r)) / h.area[r]
+    # normalised over the exposed area (contacts.py), where the link's light lands
+    ea = h.area[leaf] * h.exposure[leaf]
+    mean = np.bincount(li, weights=fc * ea, minlength=len(r)) / np.maximum(
+        np.bincount(li, weights=ea, minlength=len(r)), 1e-300
+    )
     ok = mean[li] > 0
     dF = np.where(ok, fl[li] * (fc / np.where(ok, mean[li], 1.0) - 1.0), 0.0)
     links.corr = (leaf, src_of, dF)

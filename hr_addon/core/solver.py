@@ -70,6 +70,12 @@ class Operator:
         self.area = h.view("area").copy()
         self.normal = h.view("normal")
         self.rho = h.node_rho()
+        # Contacts (contacts.py): a leaf's radiance is its mean over the whole leaf, of which only
+        # the exposed fraction emits and reflects; None where nothing is covered.
+        ex = h.view("exposure").astype(np.float64)
+        self.expo = ex if ex.min() < 1 else None
+        if self.expo is not None:
+            self.rho = self.rho * ex
         self.parent = h.view("parent")
         self.child0 = h.view("child0")
         # Per level, the internal nodes and their 4 children, for the pull.
@@ -133,12 +139,16 @@ class Operator:
             G[:, lv] += G[:, self.parent[lv]]
         return G
 
+    def emitted(self, E):
+        """Emission as node means: E (radiance of the emitting surface) x exposure."""
+        return E if self.expo is None else E * self.expo
+
     def apply(self, B, E):
         """One Jacobi sweep: new leaf radiance E + rho G from the current B. Returns (B_new, G)."""
         G = self.push(self.gather(B))
         Bn = np.zeros_like(B)
         lf = self.leaves
-        Bn[:, lf] = E[:, lf] + self.rho[:, lf] * G[:, lf]
+        Bn[:, lf] = self.emitted(E)[:, lf] + self.rho[:, lf] * G[:, lf]
         return self.pull(Bn), G
 
 
@@ -231,7 +241,7 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30):
         Bn, _ = op.apply(op.pull(full), zeroE)
         return Bn[:, lf].ravel()
 
-    b = E[:, lf].ravel()
+    b = op.emitted(E)[:, lf].ravel()
     x = B[:, lf].ravel().copy()
     count = 0
     while True:
@@ -291,7 +301,7 @@ def _norm(v):
 
 def _leaf_only(E, op):
     B = np.zeros((E.shape[0], op.n))
-    B[:, op.leaves] = E[:, op.leaves]
+    B[:, op.leaves] = op.emitted(E)[:, op.leaves]
     return B
 
 
@@ -299,12 +309,13 @@ def _energy(op, B, E, G, rep):
     """Power balance from independent sums: emitted, absorbed (1 - rho) x incident, and escaped:
     what leaves each linked node towards no surface (1 - sum of its outgoing F x V)."""
     lf, a = op.leaves, op.area
-    rep.emitted = float(np.pi * np.sum(E[:, lf] * a[lf]))
+    ex = np.ones(op.n) if op.expo is None else op.expo
+    rep.emitted = float(np.pi * np.sum(op.emitted(E)[:, lf] * a[lf]))
     G = op.push(op.gather(B)) if G is None else G
-    rep.absorbed = float(np.pi * np.sum((1 - op.rho[:, lf]) * G[:, lf] * a[lf]))
+    rep.absorbed = float(np.pi * np.sum((ex[lf] - op.rho[:, lf]) * G[:, lf] * a[lf]))
     # Each node's outgoing form factor sum as a source, counting links held by it and by its
     # ancestors (and clusters): the gather of unit radiance, pushed down to the leaves. Push
     # corrections only reshape what a receiver gathers (they sum to zero per link), so they do
-    # not count here.
-    fsum = op.push(op.gather(np.ones((1, op.n)), base=True))[0]
+    # not count here; only the exposed part of a receiver takes what a link sends it.
+    fsum = op.push(op.gather(ex[None], base=True))[0]
     rep.escaped = float(np.pi * np.sum(B[:, lf] * a[lf] * (1 - fsum[lf])))

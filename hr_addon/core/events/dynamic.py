@@ -214,7 +214,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         self._sync()
         h = self.system.h
         leaf = locate(h, patch_ids, points)
-        return self._B[:, leaf].T.copy(), self.emission()[:, leaf].T.copy()
+        return h.shown(self._B)[:, leaf].T.copy(), self.emission()[:, leaf].T.copy()
 
     def radiance_at(self, points, patch_ids, smooth=True):
         """Radiance (N, 3) at surface points lying on input patches (output.radiance_at on the current

@@ -1,0 +1,301 @@
+"""Contacts: which parts of a surface are covered by geometry touching it (a block standing on a
+floor, a book on a board, a light panel a hair below the ceiling), so they get no light.
+
+Meshes that touch without being cut leave the covered part of the receiver in the model. Its
+points see nothing (every ray from them hits the covering object), but HR's push-down hands them
+the light of links made at coarser levels, and pulls it back into the visible part: light leaks
+under the block and the band beside it comes out too dark. This module finds covered points
+geometrically, without rays, in each receiver plane:
+
+- covering faces: polygons parallel to the receiver within `gap` in front of it, facing it (a
+  box's bottom on the floor) or facing the same way (the light panel below the ceiling);
+- crossing chains: where the faces of another connected piece of mesh meet or cross the
+  receiver's plane (snapped within `gap`), as segments oriented by the faces' normals
+  (s = m x n). A solid with outward normals standing on, or sunk into, the receiver gives a
+  closed chain of generalised winding number -1 inside its footprint (open-bottomed blocks
+  included); a room's inward walls give +1, an isolated wall or a sphere's tangent point at most
+  +-1/2 in magnitude, so only winding < -1/2 counts as covered.
+
+Pieces are connected by shared vertices; each chain's winding is summed on its own, so a room's
++1 never cancels a block's -1. Everything is vectorised over (point, chain segment) pairs found
+through per-chain bounding boxes, so the cost follows the number of contacts, not all pairs.
+"""
+
+import numpy as np
+
+from .geometry import components
+
+
+def _plane_keys(normal, offset, scale):
+    """Integer key per patch: one per plane (normals to 1e-6, offsets to 1e-6 x scene size)."""
+    key = np.column_stack([np.round(normal * 1e6), np.round(offset / scale)])
+    return np.unique(key, axis=0, return_inverse=True)[1].ravel()
+
+
+def _frames(normal):
+    """Orthonormal (u, v) with u x v = n for each normal (N, 3)."""
+    a = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
+    u = np.cross(a, normal)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, np.cross(normal, u)
+
+
+def _box_pairs(lo_a, hi_a, lo_b, hi_b, max_pairs=50_000_000):
+    """Index pairs (i, j) whose axis-aligned boxes overlap: sweep along x (sorted starts), then a
+    y/z filter. Output-sensitive up to the x-overlaps."""
+    order = np.argsort(lo_b[:, 0], kind="stable")
+    starts = lo_b[order, 0]
+    # b overlaps a in x iff lo_b <= hi_a and hi_b >= lo_a; the first is a prefix of `order`
+    end = np.searchsorted(starts, hi_a[:, 0], "right")
+    out_i, out_j = [], []
+    chunk = max(1, max_pairs // max(int(np.median(end)) if len(end) else 1, 1))
+    for s in range(0, len(lo_a), chunk):
+        e = end[s : s + chunk]
+        i = np.repeat(np.arange(s, s + len(e)), e)
+        j = order[np.arange(len(i)) - np.repeat(np.cumsum(e) - e, e)]
+        ok = np.all((lo_b[j] <= hi_a[i]) & (hi_b[j] >= lo_a[i]), axis=1)
+        out_i.append(i[ok])
+        out_j.append(j[ok])
+    if not out_i:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(out_i), np.concatenate(out_j)
+
+
+class Contacts:
+    """Covered-point test for points on the patches of `patches` (geometry.Patches).
+
+    gap: how far (scene units) in front of a receiver a face may be and still cover it, and how
+    close to its plane an edge or vertex is taken as lying on it."""
+
+    def __init__(self, patches, gap):
+        pt = self.patches = patches
+        K = len(pt.nv)
+        self.gap = float(gap)
+        size = float(np.sqrt(pt.area.sum())) or 1.0
+        self.pen = 1e-6 * size  # a face this far behind a receiver (or level with it) is not in front
+        offset = np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0])
+        self.plane = _plane_keys(pt.normal, offset, 1e-6 * size)
+        G = int(self.plane.max()) + 1 if K else 0
+        first = np.zeros(G, np.int64)
+        first[self.plane[::-1]] = np.arange(K)[::-1]
+        self.n_g, self.o_g = pt.normal[first], pt.corners[first, 0]
+        self.u_g, self.v_g = _frames(self.n_g) if G else (np.zeros((0, 3)), np.zeros((0, 3)))
+        self.piece = self._pieces(size)
+        self._build()
+
+    def _pieces(self, size):
+        """Connected pieces: patches sharing an input vertex, or a corner position within one
+        object (faces modelled apart, like the Cornell blocks', are one solid)."""
+        pt = self.patches
+        jj, kk = np.nonzero(pt.vert_index >= 0)
+        q = np.round(pt.corners[jj, kk] / (1e-5 * size)).astype(np.int64)
+        ii, jn = [], []
+        for key in (pt.vert_index[jj, kk][:, None], np.column_stack([pt.object_id[jj], q])):
+            inv = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+            order = np.argsort(inv, kind="stable")
+            same = inv[order][1:] == inv[order][:-1]
+            ii.append(jj[order][:-1][same])
+            jn.append(jj[order][1:][same])
+        return components(len(pt.nv), np.concatenate(ii), np.concatenate(jn))
+
+    # -- chains per receiver plane --------------------------------------------------------------------
+    def _build(self):
+        pt = self.patches
+        c = pt.corners
+        lo, hi = c.min(1), c.max(1)
+        g = self.gap
+        i, j = _box_pairs(lo - g, hi + g, lo, hi)
+        keep = (i != j) & (self.plane[i] != self.plane[j])
+        gi, t = self.plane[i[keep]], j[keep]
+        pair = np.unique(gi.astype(np.int64) * len(pt.nv) + t)  # (plane, occluder patch), once each
+        gi, t = pair // len(pt.nv), pair % len(pt.nv)
+        n, o = self.n_g[gi], self.o_g[gi]
+        d = np.einsum("pkj,pj->pk", c[t] - o[:, None], n)  # (P, 4) corner heights over the plane
+        nv = pt.nv[t]
+        d[nv == 3, 3] = d[nv == 3, 2]
+        mn, mx = d.min(1), d.max(1)
+        near = (mn <= g) & (mx >= -g)
+        gi, t, d, nv, n, o = gi[near], t[near], d[near], nv[near], n[near], o[near]
+        cosang = np.einsum("ij,ij->i", pt.normal[t], n)
+        flat = (np.abs(cosang) > 1 - 1e-6) & (d.max(1) - d.min(1) <= g)
+        cover = flat & (((cosang < 0) & (d.mean(1) >= -self.pen)) | ((cosang > 0) & (d.min(1) > self.pen)))
+        cover &= d.max(1) <= g
+        segs = []  # (plane, a2d, b2d, chain, signed)
+        # covering faces: their outline as a chain of its own, |winding| = 1 inside
+        cv = np.flatnonzero(cover)
+        if len(cv):
+            p2 = self._to2d(gi[cv], c[t[cv]])  # (C, 4, 2)
+            pc = self.piece[t[cv]]
+            nxt = np.array([1, 2, 3, 0])
+            for k in range(4):
+                use = (k < nv[cv]) if k < 3 else (nv[cv] == 4)
+                kn = np.where((k == 2) & (nv[cv] == 3), 0, nxt[k])
+                a = p2[np.flatnonzero(use), k]
+                b = p2[np.flatnonzero(use), kn[use]]
+                segs.append((gi[cv][use], a, b, t[cv][use], np.zeros(use.sum(), bool), pc[use]))
+        # crossing chains: the zero set of the snapped heights on each polygon reaching in front of
+        # the plane (a thick table top's own sides, below its top, are not)
+        cr = np.flatnonzero(~flat & (d.max(1) > g))
+        if len(cr):
+            ds = np.where(np.abs(d[cr]) <= g, 0.0, d[cr])
+            P3 = c[t[cr]]
+            cand = np.full((len(cr), 8, 3), np.nan)
+            for k in range(4):
+                kn = np.where((k == 2) & (nv[cr] == 3), 0, (k + 1) % 4)
+                valid = (k < nv[cr]) if k < 3 else (nv[cr] == 4)
+                dk, dn = ds[:, k], ds[np.arange(len(cr)), kn]
+                on = valid & (dk == 0)
+                cand[on, 2 * k] = P3[on, k]
+                x = valid & (dk * dn < 0)
+                tt = (dk / np.where(x, dk - dn, 1.0))[:, None]
+                pk, pn = P3[:, k], P3[np.arange(len(cr)), kn]
+                cand[x, 2 * k + 1] = (pk + tt * (pn - pk))[x]
+            s_dir = np.cross(pt.normal[t[cr]], n[cr])  # chain direction m x n
+            proj = np.einsum("pkj,pj->pk", cand, s_dir)
+            okp = ~np.isnan(proj)
+            has = okp.sum(1) >= 2
+            lo_k = np.where(okp, proj, np.inf).argmin(1)
+            hi_k = np.where(okp, proj, -np.inf).argmax(1)
+            r = np.arange(len(cr))
+            a3, b3 = cand[r, lo_k], cand[r, hi_k]
+            long = has & (np.linalg.norm(b3 - a3, axis=1) > self.pen)
+            sel = np.flatnonzero(long)
+            if len(sel):
+                a2 = self._to2d(gi[cr][sel], a3[sel][:, None])[:, 0]
+                b2 = self._to2d(gi[cr][sel], b3[sel][:, None])[:, 0]
+                pc = self.piece[t[cr][sel]]
+                segs.append((gi[cr][sel], a2, b2, -1 - pc, np.ones(len(sel), bool), pc))
+        if segs:
+            g_, a_, b_, ch_, sg_, pc_ = (np.concatenate(x) for x in zip(*segs))
+        else:
+            g_, ch_, pc_ = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+            sg_, a_, b_ = np.zeros(0, bool), np.zeros((0, 2)), np.zeros((0, 2))
+        # chain = (plane, piece or covering patch): sort segments by chain
+        key = np.unique(np.column_stack([g_, ch_]), axis=0, return_inverse=True)[1].ravel()
+        order = np.argsort(key, kind="stable")
+        self.seg_a, self.seg_b, self.seg_chain = a_[order], b_[order], key[order]
+        nC = int(key.max()) + 1 if len(key) else 0
+        self.chain_start = np.searchsorted(self.seg_chain, np.arange(nC + 1))
+        first = self.chain_start[:-1]
+        self.chain_plane = g_[order][first] if nC else np.zeros(0, np.int64)
+        self.chain_signed = sg_[order][first] if nC else np.zeros(0, bool)
+        self.chain_piece = pc_[order][first] if nC else np.zeros(0, np.int64)
+        both = np.concatenate([self.seg_a, self.seg_b])
+        ch2 = np.concatenate([self.seg_chain, self.seg_chain])
+        self.chain_lo = np.full((nC, 2), np.inf)
+        self.chain_hi = np.full((nC, 2), -np.inf)
+        for k in range(2):
+            np.minimum.at(self.chain_lo[:, k], ch2, both[:, k])
+            np.maximum.at(self.chain_hi[:, k], ch2, both[:, k])
+        # receivers that have a chain over them
+        self.receivers = self._receivers()
+
+    def _to2d(self, gi, p):
+        """Points p (N, M, 3) into the frame of planes gi (N,): (N, M, 2)."""
+        q = p - self.o_g[gi][:, None]
+        return np.stack(
+            [np.einsum("nmj,nj->nm", q, self.u_g[gi]), np.einsum("nmj,nj->nm", q, self.v_g[gi])], -1
+        )
+
+    def _receivers(self):
+        """Patches whose 2D box meets a chain box of their plane."""
+        pt = self.patches
+        if not len(self.chain_plane):
+            return np.zeros(0, np.int64)
+        K = len(pt.nv)
+        p2 = self._to2d(self.plane, pt.corners)
+        lo = np.concatenate([p2.min(1), self.plane[:, None].astype(float)], 1)
+        hi = np.concatenate([p2.max(1), self.plane[:, None].astype(float)], 1)
+        clo = np.concatenate([self.chain_lo, self.chain_plane[:, None].astype(float)], 1)
+        chi = np.concatenate([self.chain_hi, self.chain_plane[:, None].astype(float)], 1)
+        i, _ = _box_pairs(lo, hi, clo, chi)
+        return np.unique(i) if K else i
+
+    @property
+    def any(self):
+        return len(self.receivers) > 0
+
+    # -- the covered-point test -----------------------------------------------------------------------
+    def covered(self, points, patch, budget=4_000_000):
+        """Boolean (N,): points (N, 3) lying on patches patch (N,) are covered."""
+        points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
+        out = np.zeros(len(points), bool)
+        if not len(self.chain_plane) or not len(points):
+            return out
+        gi = self.plane[patch]
+        p2 = self._to2d(gi, points[:, None])[:, 0]
+        lo = np.concatenate([p2, gi[:, None].astype(float)], 1)
+        clo = np.concatenate([self.chain_lo, self.chain_plane[:, None].astype(float)], 1)
+        chi = np.concatenate([self.chain_hi, self.chain_plane[:, None].astype(float)], 1)
+        i, ch = _box_pairs(lo, lo, clo, chi)  # (point, chain) with the point in the chain's box
+        # a piece never covers itself (a room's walls its floor, a table's sides its top)
+        own = self.chain_piece[ch] == self.piece[patch[i]]
+        i, ch = i[~own], ch[~own]
+        if not len(i):
+            return out
+        n_seg = self.chain_start[ch + 1] - self.chain_start[ch]
+        w = np.zeros(len(i))
+        step = max(1, budget // max(int(n_seg.max()), 1))
+        for s in range(0, len(i), step):
+            sl = slice(s, s + step)
+            ns = n_seg[sl]
+            pr = np.repeat(np.arange(len(ns)), ns)
+            sg = np.repeat(self.chain_start[ch[sl]] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+            a = self.seg_a[sg] - p2[i[sl]][pr]
+            b = self.seg_b[sg] - p2[i[sl]][pr]
+            ang = np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], np.einsum("ij,ij->i", a, b))
+            w[sl] = np.bincount(pr, ang, len(ns)) / (2 * np.pi)
+        signed = self.chain_signed[ch]
+        hit = np.where(signed, w < -0.5, np.abs(w) > 0.5)
+        out[i[hit]] = True
+        return out
+
+
+def refine_contacts(h, contacts: Contacts, min_area, k=6, max_nodes=2_000_000):
+    """Split the nodes of contact receivers that are partly covered down to min_area and set
+    every node's exposure (uncovered area fraction, from k x k stratified points; internal nodes
+    the area-weighted mean of their children). Returns the number of nodes added."""
+    from . import formfactor as ff
+
+    n0 = h.n
+    frontier = np.asarray(contacts.receivers, np.int64)
+    while len(frontier):
+        pts = ff.sample_points(h.corners[frontier], h.nv[frontier], k)
+        cov = contacts.covered(pts.reshape(-1, 3), np.repeat(h.patch[frontier], k * k)).reshape(-1, k * k)
+        frac = cov.mean(1)
+        h.exposure[frontier] = 1.0 - frac
+        split = (frac > 0) & (frac < 1) & (h.area[frontier] > min_area) & (h.child0[frontier] < 0)
+        if h.n - n0 + 4 * int(split.sum()) > max_nodes:
+            break
+        h.subdivide(frontier[split])
+        frontier = h.children(frontier[split]).ravel()
+    # internal nodes: area-weighted mean of their children, deepest first
+    for lv in h.levels()[::-1]:
+        inner = lv[h.child0[lv] >= 0]
+        if len(inner):
+            kids = h.children(inner)
+            h.exposure[inner] = (h.exposure[kids] * h.area[kids]).sum(1) / h.area[inner]
+    return h.n - n0
+
+
+def exposed_points(h, contacts: Contacts, nodes, k, fine=6):
+    """Visibility sample points (len(nodes), k*k, 3) of partly covered nodes: each of the k x k
+    stratified points that is covered is replaced by the nearest uncovered one of a fine x fine
+    grid, so the node's links see from the part that receives light. Nodes without an uncovered
+    point keep theirs."""
+    from . import formfactor as ff
+
+    nodes = np.asarray(nodes, np.int64)
+    base = ff.sample_points(h.corners[nodes], h.nv[nodes], k)
+    if not len(nodes):
+        return base
+    pid = h.patch[nodes]
+    cb = contacts.covered(base.reshape(-1, 3), np.repeat(pid, k * k)).reshape(-1, k * k)
+    fp = ff.sample_points(h.corners[nodes], h.nv[nodes], fine)
+    cf = contacts.covered(fp.reshape(-1, 3), np.repeat(pid, fine * fine)).reshape(-1, fine * fine)
+    d2 = np.sum((base[:, :, None] - fp[:, None]) ** 2, -1)  # (N, s, S)
+    d2 = np.where(cf[:, None], np.inf, d2)
+    best = d2.argmin(-1)
+    alt = np.take_along_axis(fp, best[..., None].repeat(3, -1), 1)
+    swap = cb & np.isfinite(d2.min(-1))
+    return np.where(swap[..., None], alt, base)
