@@ -51,7 +51,10 @@ class ClusterTree:
     lo/hi (box), axis + cos_t/sin_t (normal cone), samples/sample_n (points for visibility rays).
     """
 
-    def __init__(self, patches, leaf_size=4, n_samples=4):
+    def __init__(self, patches, leaf_size=4, n_samples=4, exposure=None, sample_at=None):
+        """exposure (K,): uncovered fraction of each patch, and sample_at (K, 3): a point on its
+        uncovered part (contacts.py); visibility samples are stratified by uncovered area, so a
+        box's bottom on the floor is never one."""
         K = len(patches.nv)
         self.K = K
         nrm, area = patches.normal, patches.area
@@ -153,12 +156,13 @@ class ClusterTree:
         self.theta = np.where(flat, theta, np.pi)
         self.cos_t, self.sin_t = np.cos(self.theta), np.sin(self.theta)
         # visibility samples: area-stratified member patches (their centroids), in tree order
-        cum = np.cumsum(w)
-        tgt = (cum[self.start] - w[self.start])[:, None] + (np.arange(n_samples) + 0.5)[
+        ws = w if exposure is None else w * np.asarray(exposure, float)[perm]
+        cum = np.cumsum(ws)
+        tgt = (cum[self.start] - ws[self.start])[:, None] + (np.arange(n_samples) + 0.5)[
             None
-        ] / n_samples * self.area[:, None]
+        ] / n_samples * _range_sum(ws[:, None], self.start, self.end)[:, 0][:, None]
         pos = np.clip(np.searchsorted(cum, tgt), self.start[:, None], self.end[:, None] - 1)
-        self.samples = cen[perm[pos]]
+        self.samples = (cen if sample_at is None else sample_at)[perm[pos]]
         self.sample_n = nrm[perm[pos]]
         self._transfer_tables(nrm, area, cen)
 

@@ -200,16 +200,31 @@ class Contacts:
     def _receivers(self):
         """Patches whose 2D box meets a chain box of their plane."""
         pt = self.patches
+        K = len(pt.nv)
+        self.touch = np.zeros(0, np.int64)
         if not len(self.chain_plane):
             return np.zeros(0, np.int64)
-        K = len(pt.nv)
         p2 = self._to2d(self.plane, pt.corners)
         lo = np.concatenate([p2.min(1), self.plane[:, None].astype(float)], 1)
         hi = np.concatenate([p2.max(1), self.plane[:, None].astype(float)], 1)
         clo = np.concatenate([self.chain_lo, self.chain_plane[:, None].astype(float)], 1)
         chi = np.concatenate([self.chain_hi, self.chain_plane[:, None].astype(float)], 1)
-        i, _ = _box_pairs(lo, hi, clo, chi)
-        return np.unique(i) if K else i
+        i, ch = _box_pairs(lo, hi, clo, chi)
+        # (receiver patch, touching piece) keys: their links are refined (Refiner.refine)
+        self.touch = np.unique(i * K + self.chain_piece[ch])
+        return np.unique(i)
+
+    def touching(self, p, q):
+        """True where patch q belongs to a piece with a contact over patch p, or the reverse."""
+        K = len(self.patches.nv)
+        if not len(self.touch):
+            return np.zeros(len(p), bool)
+
+        def has(keys):
+            i = np.minimum(np.searchsorted(self.touch, keys), len(self.touch) - 1)
+            return self.touch[i] == keys
+
+        return has(p * K + self.piece[q]) | has(q * K + self.piece[p])
 
     @property
     def any(self):

@@ -31,6 +31,7 @@ class Hierarchy:
         self.exposure[:k] = 1.0
         self._set_derived(np.arange(k))
         self.version = 0  # bumped on every structural change (caches key on it)
+        self.contacts = None  # contacts.Contacts: which points of partly covered leaves are covered
         self._levels = None
 
     # -- storage -------------------------------------------------------------------------------------
@@ -176,6 +177,16 @@ class Hierarchy:
         if ex.min() >= 1:
             return B
         return np.where(ex > 0, B / np.maximum(ex, 1e-30), 0.0)
+
+    def dark(self, leaf, points):
+        """True where points (N, 3) in leaves `leaf` (N,) are covered: the whole leaf when its
+        exposure is 0, by the contact test when it is partly covered."""
+        ex = self.exposure[leaf]
+        out = ex == 0
+        part = np.flatnonzero((ex > 0) & (ex < 1))
+        if len(part) and self.contacts is not None:
+            out[part] = self.contacts.covered(points[part], self.patch[leaf[part]])
+        return out
 
     def leaf_at_corner(self, roots, k):
         """Descend from roots to the leaf holding corner k of each root (vectorised)."""

@@ -160,7 +160,9 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
     pts = np.asarray(points, float)
     leaf = locate(h, patch, pts)
     if not smooth:
-        return h.shown(B)[:, leaf].T.copy()
+        out = h.shown(B)[:, leaf].T.copy()
+        out[h.dark(leaf, pts)] = 0.0
+        return out
     c = h.corners[leaf]  # (M, 4, 3)
     size = np.sqrt(h.area[leaf])[:, None, None]
     unit = lambda v: v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
@@ -175,7 +177,7 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
         den += a * h.exposure[pl]  # node means over exposed area: the light on the uncovered part
     val = num / np.maximum(den, 1e-300)[..., None]
     out = np.einsum("mk,mkc->mc", corner_weights(c, h.nv[leaf], h.normal[leaf], pts), val)
-    out[h.exposure[leaf] == 0] = 0.0  # covered leaves stay dark: no light interpolated under a block
+    out[h.dark(leaf, pts)] = 0.0  # covered points stay dark: no light interpolated under a block
     return out
 
 

@@ -58,7 +58,9 @@ class RadiositySystem:
         if self.params.vcorr > 0:
             self.refiner.progress.update("push corrections", 0, 1, force=True)
             t1 = time.perf_counter()
-            self.links = push_corrections(self.h, self.links, self.params.vcorr, self.params.corr_budget)
+            self.links = push_corrections(
+                self.h, self.links, self.params.vcorr, self.params.corr_budget, self.refiner.centres
+            )
             self.refiner.stats["t_corr"] = time.perf_counter() - t1
         self.refiner.progress.done("push corrections")
         self._op = None

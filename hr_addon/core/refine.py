@@ -240,7 +240,9 @@ class Refiner:
         self.total_area = float(h.patches.area.sum())
         self.eps = 1e-6 * np.sqrt(self.total_area)  # ray end offset along normals
         self.progress = NO_PROGRESS
-        self._vis_nodes = self._vis_pts = None  # exposed sample points of partly covered nodes
+        self._contacts = None  # contacts.Contacts when some surface is touched
+        # partly covered nodes (sorted) and their exposed sample points, form factor points, centres
+        self._vis_nodes = self._vis_pts = self._ff_pts = self._ff_w = self._ex_centre = None
         self.stats = {
             "rays": 0,
             "pairs_tested": 0,
@@ -331,13 +333,71 @@ class Refiner:
         if not prm.contacts:
             return None
         c = Contacts(h.patches, prm.contact_gap * np.sqrt(self.total_area))
+        self._contacts = h.contacts = c if c.any else None
         if c.any:
             min_area = prm.aeps * self.total_area / 4**prm.contact_levels
             self.stats["contact_nodes"] = refine_contacts(h, c, min_area)
             ex = h.view("exposure")
             part = np.flatnonzero((ex > 0) & (ex < 1))
             self._vis_nodes, self._vis_pts = part, exposed_points(h, c, part, prm.vis_k)
+            # form factors of partly covered nodes: from their exposed points of a 6 x 6 grid
+            fp = ff.sample_points(h.corners[part], h.nv[part], 6)
+            seen = ~c.covered(fp.reshape(-1, 3), np.repeat(h.patch[part], 36)).reshape(-1, 36)
+            self._ff_pts, self._ff_w = fp, seen / np.maximum(seen.sum(1, keepdims=True), 1)
+            # the oracle estimates F from centres: a partly covered node's is that of its exposed
+            # part (its own centre may lie under a box, behind the box's side)
+            has = seen.any(1)
+            self._ex_centre = h.centre[part].copy()
+            self._ex_centre[has] = np.einsum("nk,nkj->nj", self._ff_w[has], fp[has])
         self.stats["contact_receivers"] = len(c.receivers)
+        return c
+
+    def _exposed_form_factors(self, a, b, f_ab, f_ba, chunk=20_000):
+        """Links with a partly covered end: F integrated over that end's exposed part (its
+        covered part sees nothing; a box's side, say, is behind it), the other direction by
+        reciprocity, so the kernel stays symmetric (in place)."""
+        nodes = self._vis_nodes
+        if nodes is None or not len(nodes):
+            return
+        h = self.h
+
+        def lookup(x):
+            i = np.minimum(np.searchsorted(nodes, x), len(nodes) - 1)
+            return np.where(nodes[i] == x, i, -1)
+
+        ia, ib = lookup(a), lookup(b)
+        ia[ia >= 0] = np.where(self._ff_w[ia[ia >= 0]].any(1), ia[ia >= 0], -1)
+        ib[ib >= 0] = np.where(self._ff_w[ib[ib >= 0]].any(1), ib[ib >= 0], -1)
+        # far apart, the kernel is smooth across the node: its Gauss points do (as in
+        # link_form_factors' choice of order)
+        near = np.sum((h.centre[a] - h.centre[b]) ** 2, 1) < 40 * (h.area[a] + h.area[b])
+        use_a = near & (ia >= 0) & ((ib < 0) | (h.area[a] <= h.area[b]))
+        use_b = near & (ib >= 0) & ~use_a
+        for sel, x, y, ix in ((use_a, a, b, ia), (use_b, b, a, ib)):
+            m = np.flatnonzero(sel)
+            for s0 in range(0, len(m), chunk):
+                mm = m[s0 : s0 + chunk]
+                xs, ys, k = x[mm], y[mm], ix[mm]
+                vals = ff.point_to_polygon(
+                    self._ff_pts[k],
+                    h.normal[xs][:, None],
+                    h.corners[ys][:, None],
+                    h.nv[ys][:, None],
+                )
+                fx = np.clip((vals * self._ff_w[k]).sum(1), 0.0, 1.0)
+                fy = fx * h.area[xs] / h.area[ys]
+                if x is a:
+                    f_ab[mm], f_ba[mm] = fx, fy
+                else:
+                    f_ba[mm], f_ab[mm] = fx, fy
+
+    def centres(self, nodes):
+        """Node centres for the oracle, of the exposed part where a node is partly covered."""
+        c = self.h.centre[nodes]
+        if self._vis_nodes is not None and len(self._vis_nodes):
+            i = np.minimum(np.searchsorted(self._vis_nodes, nodes), len(self._vis_nodes) - 1)
+            hit = self._vis_nodes[i] == nodes
+            c[hit] = self._ex_centre[i[hit]]
         return c
 
     def sample_points(self, nodes):
@@ -378,22 +438,20 @@ class Refiner:
             self.stats["pairs_tested"] += len(p)
             done += len(p)
             self.progress.update("linking", done, total)
-            f_pq = ff.estimate(
-                h.centre[p], h.normal[p], h.area[p], h.corners[q], h.centre[q], h.normal[q], h.area[q]
-            )
-            f_qp = ff.estimate(
-                h.centre[q], h.normal[q], h.area[q], h.corners[p], h.centre[p], h.normal[p], h.area[p]
-            )
+            cp, cq = self.centres(p), self.centres(q)
+            f_pq = ff.estimate(cp, h.normal[p], h.area[p], h.corners[q], cq, h.normal[q], h.area[q])
+            f_qp = ff.estimate(cq, h.normal[q], h.area[q], h.corners[p], cp, h.normal[p], h.area[p])
             fmax = np.maximum(f_pq, f_qp)
             alive = (fmax > 0) & _facing(h, p, q, tol) & (h.exposure[p] > 0) & (h.exposure[q] > 0)
             p, q, f_pq, f_qp, fmax, kv = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive], kv[alive]
+            cp, cq = cp[alive], cq[alive]
             ok = fmax < prm.feps if good_enough is None else good_enough(p, q, f_pq, f_qp)
             can_p, can_q = h.area[p] > aeps, h.area[q] > aeps
             # Push-down hands a link's average to every descendant of the receiver, so what matters
             # is how much the point form factor varies across each node; measure it where it can be
             # large (near pairs) and split the node whose variation is larger.
             v_p, v_q = np.zeros(len(p)), np.zeros(len(p))
-            near = ok & (np.sum((h.centre[p] - h.centre[q]) ** 2, 1) < prm.near * (h.area[p] + h.area[q]))
+            near = ok & (np.sum((cp - cq) ** 2, 1) < prm.near * (h.area[p] + h.area[q]))
             if prm.veps > 0 and near.any():
                 v_p[near], v_q[near] = _variation(h, p[near], q[near]), _variation(h, q[near], p[near])
                 ok &= np.maximum(v_p, v_q) < prm.veps
@@ -407,6 +465,17 @@ class Refiner:
             if shadow.any():
                 vis[shadow] = self.visibility(p[shadow], q[shadow])
                 ok &= ~(shadow & (vis > 0) & (vis < 1))
+            if self._contacts is not None:
+                # An object and the surface it stands on exchange the strongest light of all, half
+                # hidden from each other: the few rays of a coarse pair can all miss it (a floor
+                # quad mostly under a box and the box's side), so such pairs with a partly covered
+                # end that see nothing are split rather than dropped (down to Aeps).
+                touch = ok & (can_p | can_q) & ((h.exposure[p] < 1) | (h.exposure[q] < 1))
+                touch[touch] = self._contacts.touching(h.patch[p[touch]], h.patch[q[touch]])
+                todo = touch & np.isnan(vis)
+                if todo.any():
+                    vis[todo] = self.visibility(p[todo], q[todo])
+                ok &= ~(touch & (vis == 0))
             by_var = (v_p + v_q) > 0
             prefer_q = np.where(by_var, v_q > v_p, f_pq >= f_qp)
             split_q = ~ok & can_q & (prefer_q | ~can_p)
@@ -441,6 +510,7 @@ class Refiner:
         for i in range(0, len(a), CHUNK):
             sl = slice(i, i + CHUNK)
             f_ab[sl], f_ba[sl] = link_form_factors(self.h, a[sl], b[sl], self.params.ff_order)
+        self._exposed_form_factors(a, b, f_ab, f_ba)
         self.stats["t_ff"] += time.perf_counter() - t0
         # links too weak to need a shadow test need no more than a few rays either
         weak = np.maximum(f_ab, f_ba) < self.params.shadow_feps
@@ -469,7 +539,14 @@ class Refiner:
         import time
 
         t0 = time.perf_counter()
-        tree = ClusterTree(self.h.patches, leaf_size=self.params.cluster_leaf)
+        K = len(self.h.patches.nv)
+        covered = self._contacts is not None
+        tree = ClusterTree(
+            self.h.patches,
+            leaf_size=self.params.cluster_leaf,
+            exposure=self.h.exposure[:K] if covered else None,
+            sample_at=self.centres(np.arange(K)) if covered else None,
+        )
         self.stats["t_tree"] = time.perf_counter() - t0
         self.stats["clusters"] = tree.C
         far, p, q = link_clusters(self, tree, self.progress)
@@ -544,12 +621,13 @@ def _leaf_ranges(h):
     return order, lo, hi
 
 
-def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000):
+def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000, centres=None):
     """Correct HR's push-down, which hands a link's average form factor to every leaf below the
     receiver. For links whose form factor varies across the receiver by more than ~vcorr, each
     leaf below gets F_link x (F(leaf centre -> source) / area-mean of those values) - F_link: the
     shape of the form factor across the receiver, normalised so the link's total transfer (and
     with it reciprocity and energy balance) is unchanged. Budget bounds the (leaf, link) pairs.
+    centres(nodes): where each leaf's value is taken (Refiner.centres: off covered parts).
     Returns the Links with corrections attached."""
     links = Links(links.a, links.b, links.f_ab, links.f_ba, links.vis, far=links.far)
     recv, src, f = links.directed()
@@ -575,9 +653,10 @@ def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000):
     # differential kernel cos cos / r^2, near ones the exact contour integral.
     far = (d[pick] > 2 * (np.sqrt(h.area[r]) + np.sqrt(h.area[s_])))[li]
     src_of = s_[li]
+    at = h.centre[leaf] if centres is None else centres(leaf)
     fc = np.zeros(len(li))
     m = np.flatnonzero(far)
-    w = h.centre[src_of[m]] - h.centre[leaf[m]]
+    w = h.centre[src_of[m]] - at[m]
     r2 = np.einsum("ij,ij->i", w, w)
     fc[m] = (
         np.maximum(np.einsum("ij,ij->i", w, h.normal[leaf[m]]), 0)
@@ -587,9 +666,7 @@ def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000):
     m = np.flatnonzero(~far)
     for a in range(0, len(m), 1_000_000):
         mm = m[a : a + 1_000_000]
-        fc[mm] = ff.point_to_polygon(
-            h.centre[leaf[mm]], h.normal[leaf[mm]], h.corners[src_of[mm]], h.nv[src_of[mm]]
-        )
+        fc[mm] = ff.point_to_polygon(at[mm], h.normal[leaf[mm]], h.corners[src_of[mm]], h.nv[src_of[mm]])
     # normalised over the exposed area (contacts.py), where the link's light lands
     ea = h.area[leaf] * h.exposure[leaf]
     mean = np.bincount(li, weights=fc * ea, minlength=len(r)) / np.maximum(
