@@ -244,3 +244,23 @@ def solution_radiance(dyn, system, patch, points, locator=None, kind="radiance")
         B = incident_radiance(h, B, E, links)
     leaf = locator.leaves(h) if locator is not None else None
     return radiance_per_leaf(h, B, patch, points, leaf=leaf, locator=locator).astype(np.float32)
+
+
+def loop_incident(dyn, system, domain="CORNER", smooth_angle=30.0):
+    """Irradiance / pi per input loop (or vertex), as loop_radiance() gives radiance: the same
+    interpolation run on the incident field (swapped in for B for the call, so NAIVE's special
+    cases apply alike)."""
+    h, B, E, links = _current(dyn, system)
+    inc = incident_radiance(h, B, E, links)
+    if dyn is None:
+        holder, attr, call = system, "B", system.loop_radiance
+    elif dyn.naive_active:
+        holder, attr, call = dyn._naive.system, "B", dyn.loop_radiance
+    else:
+        holder, attr, call = dyn, "_B", dyn.loop_radiance
+    saved = getattr(holder, attr)
+    setattr(holder, attr, inc)
+    try:
+        return call(domain, smooth_angle)
+    finally:
+        setattr(holder, attr, saved)

@@ -170,8 +170,8 @@ def changed_objects(old: dict, new: dict):
 def settings_difference(old: dict, new: dict):
     """Why the bake described by manifest `old` cannot share frames with `new` ('' if it can)."""
     why = []
-    for key in ("output", "domain", "method", "quality"):
-        a, b = old.get(key), new.get(key)
+    for key in ("output", "domain", "method", "quality", "radiance_mode"):
+        a, b = old.get(key, "RADIANCE" if key == "radiance_mode" else None), new.get(key)
         if key == "domain" and old.get("output") != new.get("output"):
             continue  # follows from the output
         if a is not None and b is not None and a != b:
