@@ -459,12 +459,13 @@ def bake_frames(
                         system.solve()
                     if baker is not None:
                         values = baker.radiance(dyn, system, radiance_mode)
-                    elif radiance_mode == "IRRADIANCE":
-                        values = loop_incident(dyn, system, domain)
                     else:
-                        values = (
-                            dyn.loop_radiance(domain) if dyn is not None else system.loop_radiance(domain)
-                        )
+                        if radiance_mode == "IRRADIANCE":
+                            values = loop_incident(dyn, system, domain)
+                        elif dyn is not None:
+                            values = dyn.loop_radiance(domain)
+                        else:
+                            values = system.loop_radiance(domain)
                         values = {t.name: t.extract(values, domain) for t in scene_in.targets}
                 intr.check()
                 if baker is not None:
