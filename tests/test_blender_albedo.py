@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_blender_helpers import empty_scene, load_bpy, read_image
+from test_blender_helpers import empty_scene, read_image
 
 pytestmark = [pytest.mark.bpy]
 
