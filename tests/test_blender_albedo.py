@@ -276,3 +276,24 @@ def test_unfollowed_texture_setup_keeps_the_average_and_says_so(tmp_path):
     assert len(w) == 1 and "average colour" in w[0], res.warnings
     img = read_image(tmp_path / "hr_cache" / "room" / "textures" / "floor_000001.exr")
     assert img[4:12, 4:12, 0].max() < 2.0 * img[4:12, 4:12, 0].min()  # smooth light, no checker
+
+
+def test_command_line_radiance_mode_and_partial_bakes(tmp_path, capsys):
+    """--radiance-mode goes into the manifest; a bake in the other mode does not keep its frames."""
+    bpy, ms, scene = empty_scene()
+    ms.textured_room()
+    path = tmp_path / "room.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    from hr_addon.blender import cli
+    from hr_addon.io.cache import CacheReader
+
+    args = [str(path), "--quality", "draft", "--output", "vertex"]
+    assert cli.run(args + ["--frames", "1-1", "--radiance-mode", "irradiance"]) == 0
+    cache = tmp_path / "hr_cache" / "room"
+    assert CacheReader(cache).manifest["radiance_mode"] == "IRRADIANCE"
+    capsys.readouterr()
+    assert cli.run(args + ["--frames", "2-2"]) == 0  # the scene's setting: outgoing radiance
+    out = capsys.readouterr().out
+    assert "discarded: it used radiance mode irradiance (this bake: radiance)" in out, out
+    m = CacheReader(cache).manifest
+    assert m["radiance_mode"] == "RADIANCE" and sorted(m["frames"]) == ["2"], m["frames"]

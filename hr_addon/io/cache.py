@@ -175,7 +175,7 @@ def settings_difference(old: dict, new: dict):
         if key == "domain" and old.get("output") != new.get("output"):
             continue  # follows from the output
         if a is not None and b is not None and a != b:
-            why.append(f"{key} {str(a).lower()} (this bake: {str(b).lower()})")
+            why.append(f"{key.replace('_', ' ')} {str(a).lower()} (this bake: {str(b).lower()})")
     a, b = (old.get("feps"), old.get("aeps")), (new.get("feps"), new.get("aeps"))
     if not why and old.get("quality") == "CUSTOM" and a != b:
         why.append(f"feps {a[0]}, aeps {a[1]} (this bake: {b[0]}, {b[1]})")
