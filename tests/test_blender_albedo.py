@@ -297,3 +297,22 @@ def test_command_line_radiance_mode_and_partial_bakes(tmp_path, capsys):
     assert "discarded: it used radiance mode irradiance (this bake: radiance)" in out, out
     m = CacheReader(cache).manifest
     assert m["radiance_mode"] == "RADIANCE" and sorted(m["frames"]) == ["2"], m["frames"]
+
+
+def test_live_relight_shows_radiance_through_an_irradiance_preview(tmp_path):
+    """Live writes outgoing radiance: while it runs the preview does not multiply by the base colour;
+    when it ends the irradiance bake's preview multiplies again."""
+    bpy, ms, scene = empty_scene()
+    objs = ms.textured_room()
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "room.blend"))
+    from hr_addon.blender import preview
+    from hr_addon.blender.bake import run_bake
+
+    run_bake(scene, log=lambda *a, **k: None, frames=(1, 1), quality="draft", radiance_mode="IRRADIANCE")
+    assert bpy.ops.hr.add_preview() == {"FINISHED"}
+    tree = objs["floor"].data.materials[0].node_tree
+    assert preview.N_MUL in tree.nodes
+    assert bpy.ops.hr.live_toggle() == {"FINISHED"}  # on (background mode: computes at once)
+    assert preview.N_MUL not in tree.nodes and preview.N_OUT in tree.nodes
+    assert bpy.ops.hr.live_toggle() == {"FINISHED"}  # off: the bake's playback and preview again
+    assert preview.N_MUL in tree.nodes
