@@ -316,3 +316,55 @@ def test_live_relight_shows_radiance_through_an_irradiance_preview(tmp_path):
     assert preview.N_MUL not in tree.nodes and preview.N_OUT in tree.nodes
     assert bpy.ops.hr.live_toggle() == {"FINISHED"}  # off: the bake's playback and preview again
     assert preview.N_MUL in tree.nodes
+
+
+@pytest.mark.cycles
+@pytest.mark.parametrize("float_image", [False, True])
+def test_texel_albedo_samples_the_image_like_cycles(float_image):
+    """The albedo the texture output uses (albedo_texture + lightmap.albedo.sample_image) against
+    Cycles' Emit bake of the same Image Texture into an Emission shader (128 x 4 texels over a 4 x 1
+    image): bilinear between pixel centres, Repeat at the edges, 8-bit sRGB interpolated as stored,
+    then linearised, as Cycles does (linearising first is up to 0.28 off between the pixels)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.materials import albedo_texture
+    from hr_addon.io.images import srgb_to_linear
+    from hr_addon.lightmap.albedo import sample_image
+
+    img = bpy.data.images.new("Row", 4, 1, float_buffer=float_image)
+    img.pixels.foreach_set(
+        np.array([[v, 0.5 * v, 1 - v, 1] for v in (0.0, 1.0, 0.2, 0.7)], np.float32).ravel()
+    )
+    m, t = ms._bare_material("Tex")
+    bsdf = t.nodes.new("ShaderNodeBsdfDiffuse")
+    tex = t.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    t.links.new(tex.outputs["Color"], bsdf.inputs["Color"])
+    t.links.new(bsdf.outputs[0], t.nodes["Material Output"].inputs["Surface"])
+    spec, why = albedo_texture(m)
+    assert why == "" and spec.srgb is not float_image
+    # Cycles: the same texture as emission, baked in the plane's UV map
+    em = t.nodes.new("ShaderNodeEmission")
+    t.links.new(tex.outputs["Color"], em.inputs["Color"])
+    t.links.new(em.outputs[0], t.nodes["Material Output"].inputs["Surface"])
+    out = bpy.data.images.new("Out", 128, 4, float_buffer=True)
+    out.colorspace_settings.name = "Non-Color"
+    target = t.nodes.new("ShaderNodeTexImage")
+    target.image = out
+    t.nodes.active = target
+    ob = ms.mesh_object("P", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [[0, 1, 2, 3]], m)
+    ob.data.uv_layers.new(name="UVMap").uv.foreach_set(
+        "vector", np.array([0, 0, 1, 0, 1, 1, 0, 1], np.float32)
+    )
+    bpy.context.view_layer.objects.active = ob
+    ob.select_set(True)
+    scene.cycles.samples = 16
+    bpy.ops.object.bake(type="EMIT", margin=0)
+    px = np.empty(128 * 4 * 4, np.float32)
+    out.pixels.foreach_get(px)
+    got = px.reshape(4, 128, 4)[2, :, :3]  # v = 0.625: the image has one row
+    uv = np.column_stack([(np.arange(128) + 0.5) / 128, np.full(128, 0.625)])
+    want = sample_image(spec.pixels, uv, spec.interpolation, spec.extension)
+    want = srgb_to_linear(want) if spec.srgb else want
+    np.testing.assert_allclose(got, want, atol=0.015)
+    if not float_image:
+        assert np.abs(sample_image(srgb_to_linear(spec.pixels), uv) - got).max() > 0.1

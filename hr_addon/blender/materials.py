@@ -40,9 +40,13 @@ class _Unsupported(Exception):
 _image_cache = {}
 
 
-def image_pixels(img):
-    """(H, W, 3) linear RGB float32 of an image (row 0 at the bottom), or None if it has no pixels.
-    8-bit sRGB images are linearised, as Cycles reads them."""
+def _srgb_bytes(img):
+    return not img.is_float and img.colorspace_settings.name in ("sRGB", "Filmic sRGB", "AgX Base sRGB")
+
+
+def image_pixels(img, linear=True):
+    """(H, W, 3) RGB float32 of an image (row 0 at the bottom), or None if it has no pixels.
+    linear: 8-bit sRGB images are linearised (else returned as stored)."""
     w, h = img.size
     if w * h == 0 or not img.has_data and not _try_load(img):
         return None
@@ -50,7 +54,7 @@ def image_pixels(img):
     img.pixels.foreach_get(px)
     px = px.reshape(-1, img.channels)
     rgb = px[:, :3] if img.channels >= 3 else np.repeat(px[:, :1], 3, 1)
-    if not img.is_float and img.colorspace_settings.name in ("sRGB", "Filmic sRGB", "AgX Base sRGB"):
+    if linear and _srgb_bytes(img):
         rgb = srgb_to_linear(rgb.astype(np.float64)).astype(np.float32)
     return rgb.reshape(h, w, 3)
 
@@ -222,7 +226,8 @@ class AlbedoTexture:
     extension: str
     mix: tuple  # None or (blend, factor, other colour (3,), texture is input A)
     average: np.ndarray  # (3,) the colour the light exchange used for this input
-    pixels: np.ndarray = None  # (H, W, 3) linear, read by albedo_texture
+    pixels: np.ndarray = None  # (H, W, 3) as stored, read by albedo_texture
+    srgb: bool = False  # 8-bit sRGB: Cycles interpolates the stored values, then linearises
 
 
 def _uv_source(r, tex):
@@ -283,11 +288,11 @@ def albedo_texture(mat):
     uv = _uv_source(r, node)
     if img is None or uv is None or node.projection != "FLAT" or img.source not in ("FILE", "GENERATED"):
         return None, why
-    px = image_pixels(img)
+    px = image_pixels(img, linear=False)
     if px is None:
         return None, f"image texture '{node.name}' has no pixels"
-    avg = r.color(sock)
-    return AlbedoTexture(img, uv, node.interpolation, node.extension, mix, np.asarray(avg, float), px), ""
+    avg = np.asarray(r.color(sock), float)
+    return AlbedoTexture(img, uv, node.interpolation, node.extension, mix, avg, px, _srgb_bytes(img)), ""
 
 
 def _output_node(tree):

@@ -29,6 +29,7 @@ from ..io.cache import CacheError, CacheReader
 from ..lightmap import TextureError
 from ..lightmap.charts import MARGIN, pack_lightmap
 from ..lightmap.plan import TexturePlan, triangle_uvs
+from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
 from .materials import PREVIEW, albedo_texture
 from .preview import colour_chain
@@ -179,7 +180,8 @@ def _albedo_factor(specs, uvs, mat_index, poly, loops, bary):
         if spec is None or not len(sel) or spec.uv_map not in uvs:
             continue
         uv = texel_uv(uvs[spec.uv_map], loops[sel], bary[sel])
-        tex = mix_colour(sample_image(spec.pixels, uv, spec.interpolation, spec.extension), spec.mix)
+        tex = sample_image(spec.pixels, uv, spec.interpolation, spec.extension)
+        tex = mix_colour(srgb_to_linear(tex) if spec.srgb else tex, spec.mix)
         factor[sel] = albedo_factor(tex, spec.average)
         hit = True
     return factor if hit else None
