@@ -98,7 +98,7 @@ def main():
         def bake_and_render(key, mode, flat=False):
             keep = texture._albedo_specs
             if flat:  # the output before this change: every material at its average colour
-                texture._albedo_specs = lambda obj, warned: []
+                texture._albedo_specs = lambda obj, warned, cache: []
             try:
                 run_bake(
                     scene,

@@ -151,14 +151,18 @@ def _material_uvs(me):
     return out, mi
 
 
-def _albedo_specs(obj, warned):
+def _albedo_specs(obj, warned, cache):
     """Per material slot of obj an AlbedoTexture or None; warns once per material that has a
-    texture this cannot follow (it keeps the average colour)."""
+    texture this cannot follow (it keeps the average colour). cache: material -> (spec, why), so
+    a material shared by many objects reads its image once."""
     with source_materials([obj]):
         mats = [s.material for s in obj.material_slots]
     specs = []
     for m in mats:
-        spec, why = albedo_texture(m)
+        key = None if m is None else m.name_full
+        if key not in cache:
+            cache[key] = albedo_texture(m)
+        spec, why = cache[key]
         if why and m.name not in warned:
             warned[m.name] = (
                 f"Material '{m.name}': {why}; the baked texture shows its average colour (connect an "
@@ -192,7 +196,7 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
     albedo: textured materials (materials.albedo_texture) modulate their objects' texels by the
     texture's albedo / its average (radiance mode)."""
     plan = TexturePlan(fmt)
-    warned = {}
+    warned, specs_of = {}, {}
     mesh = scene_in.mesh
     stems = _stems([t.name for t in scene_in.targets])
     for oid, t in enumerate(scene_in.targets):
@@ -203,7 +207,7 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
             if t.loops[1] < len(mesh.loop_verts)
             else len(mesh.loop_start)
         )
-        specs = _albedo_specs(obj, warned) if albedo else []
+        specs = _albedo_specs(obj, warned, specs_of) if albedo else []
         want = any(sp is not None for sp in specs)
         _, (uv, (_, ls, lt, lv), mat_uvs) = evaluated(
             obj, depsgraph, lambda me: (read_uv(me), mesh_topology(me), _material_uvs(me) if want else None)
