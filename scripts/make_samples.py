@@ -344,6 +344,44 @@ def room_materials():
     }
 
 
+def checker_image(name="Checker", n=8, px=64, light=(0.8, 0.62, 0.4), dark=(0.08, 0.09, 0.12)):
+    """A float (linear) n x n checker image of px x px pixels, made with numpy."""
+    img = bpy.data.images.new(name, px, px, float_buffer=True)
+    i = np.arange(px) * n // px
+    on = (i[:, None] + i[None, :]) % 2 == 0
+    rgba = np.ones((px, px, 4), np.float32)
+    rgba[..., :3] = np.where(on[..., None], light, dark)
+    img.pixels.foreach_set(rgba.ravel())
+    img.pack()
+    return img
+
+
+def textured_room(size=(3.0, 3.0, 2.4), light=0.8, strength=12.0, checker=8):
+    """A room lit by a square ceiling emitter whose floor is a checker Image Texture (Principled
+    Base Color, default UV map "UVMap" spanning the floor): the textured-surfaces test scene."""
+    mats = {
+        "default": diffuse("Wall", (0.7, 0.7, 0.68)),
+        "wall_x0": diffuse("Red", (0.7, 0.2, 0.15)),
+        "ceiling": diffuse("Ceiling", (0.8, 0.8, 0.8)),
+    }
+    floor_mat = principled("Checker Floor", (0.5, 0.5, 0.5))
+    t = floor_mat.node_tree
+    tex = t.nodes.new("ShaderNodeTexImage")
+    tex.image = checker_image(n=checker)
+    t.links.new(tex.outputs["Color"], t.nodes["Principled BSDF"].inputs["Base Color"])
+    mats["floor"] = floor_mat
+    objs = room(size, mats, subdiv=1)
+    me = objs["floor"].data
+    uv = me.uv_layers.new(name="UVMap")
+    co = np.array([me.vertices[lp.vertex_index].co[:2] for lp in me.loops]) / np.array(size[:2])
+    uv.uv.foreach_set("vector", co.astype(np.float32).ravel())
+    cx, cy, z = size[0] / 2, size[1] / 2, size[2] - 0.002
+    h = light / 2
+    quad = [(cx - h, cy - h, z), (cx - h, cy + h, z), (cx + h, cy + h, z), (cx + h, cy - h, z)]  # faces -z
+    objs["light"] = mesh_object("light", quad, [[0, 1, 2, 3]], emission("Lamp", (1.0, 0.95, 0.85), strength))
+    return objs
+
+
 def make_moonlight(path):
     scene = reset()
     room(ROOM, room_materials())

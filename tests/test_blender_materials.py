@@ -163,3 +163,48 @@ def test_emission_keyframes_are_evaluated(env):
     scene.frame_set(1)
     dg = bpy.context.evaluated_depsgraph_get()
     assert np.allclose(read_material(m.evaluated_get(dg)).emission, 1.0)
+
+
+def test_albedo_texture_simple_cases_only(env):
+    """materials.albedo_texture: an Image Texture on Base Color (default UV map, or a UV Map node,
+    or through one Mix node with a colour) qualifies; the reader's average goes with it. Other
+    setups give a reason naming why (the bake then keeps the average and says so)."""
+    bpy, ms, _ = env
+    from hr_addon.blender.materials import albedo_texture, base_color_socket
+
+    img = bpy.data.images.new("T", 2, 2, float_buffer=True)
+    img.pixels.foreach_set(np.array([0.2, 0.4, 0.6, 1] * 2 + [0.6, 0.4, 0.2, 1] * 2, np.float32))
+    m = ms.principled("Tex", (0.5, 0.5, 0.5))
+    t = m.node_tree
+    bsdf = t.nodes["Principled BSDF"]
+    tex = t.nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    t.links.new(tex.outputs["Color"], bsdf.inputs["Base Color"])
+    spec, why = albedo_texture(m)
+    assert why == "" and spec.uv_map == "" and spec.mix is None and spec.pixels.shape == (2, 2, 3)
+    np.testing.assert_allclose(spec.average, 0.4, atol=1e-6)
+    assert base_color_socket(m) == bsdf.inputs["Base Color"]
+    uvn = t.nodes.new("ShaderNodeUVMap")
+    uvn.uv_map = "Paint"
+    t.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
+    assert albedo_texture(m)[0].uv_map == "Paint"
+    # through a Multiply with a colour: the reader averages the mix, the spec carries it
+    mix = t.nodes.new("ShaderNodeMix")
+    mix.data_type, mix.blend_type = "RGBA", "MULTIPLY"
+    ids = {s.identifier: s for s in mix.inputs}
+    ids["Factor_Float"].default_value = 1.0
+    ids["B_Color"].default_value = (0.5, 1.0, 1.0, 1.0)
+    t.links.new(tex.outputs["Color"], ids["A_Color"])
+    t.links.new(next(s for s in mix.outputs if s.identifier == "Result_Color"), bsdf.inputs["Base Color"])
+    spec, why = albedo_texture(m)
+    assert why == "" and spec.mix[0] == "MULTIPLY" and spec.mix[3] is True
+    np.testing.assert_allclose(spec.average, [0.2, 0.4, 0.4], atol=1e-6)
+    np.testing.assert_allclose(_read(m).reflectance, [0.2, 0.4, 0.4], atol=1e-6)
+    # a Mapping node on the vector: not followed
+    mp = t.nodes.new("ShaderNodeMapping")
+    t.links.new(mp.outputs[0], tex.inputs["Vector"])
+    spec, why = albedo_texture(m)
+    assert spec is None and "Image Texture" in why
+    # no texture at all: nothing to say
+    assert albedo_texture(ms.diffuse("Plain", (0.3, 0.3, 0.3))) == (None, "")
+    assert albedo_texture(None) == (None, "")

@@ -204,3 +204,25 @@ def test_plan_texels_lie_on_their_patches_and_fill_the_sequence(tmp_path, cornel
     assert all(image_file_problem(tmp_path / "cache" / "textures" / n, 16) == "" for n in files)
     with pytest.raises(TextureError):
         TexturePlan("tiff")
+
+
+def test_sample_image_like_an_image_texture():
+    """lightmap.albedo.sample_image: pixel centres give the pixels, bilinear between them, REPEAT
+    wraps, EXTEND clamps, Closest picks the nearest; texel_uv interpolates loop UVs."""
+    from hr_addon.lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
+
+    px = np.arange(2 * 4 * 3, dtype=np.float32).reshape(2, 4, 3)  # H 2, W 4
+    centres = np.array([[(i + 0.5) / 4, (j + 0.5) / 2] for j in range(2) for i in range(4)])
+    np.testing.assert_allclose(sample_image(px, centres), px.reshape(-1, 3))
+    mid = np.array([[0.25, 0.25]])  # between pixels (0, 0) and (1, 0)
+    np.testing.assert_allclose(sample_image(px, mid), [(px[0, 0] + px[0, 1]) / 2])
+    edge = np.array([[0.0, 0.25]])  # between the last and the first column
+    np.testing.assert_allclose(sample_image(px, edge), [(px[0, 3] + px[0, 0]) / 2])
+    np.testing.assert_allclose(sample_image(px, edge, extension="EXTEND"), [px[0, 0]])
+    np.testing.assert_allclose(sample_image(px, [[0.3, 0.3]], "Closest"), [px[0, 1]])
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    np.testing.assert_allclose(texel_uv(uv, [[0, 1, 2]], [[0.5, 0.25, 0.25]]), [[0.25, 0.25]])
+    tex = np.array([[0.2, 0.4, 0.8]])
+    np.testing.assert_allclose(mix_colour(tex, ("MULTIPLY", 1.0, (0.5, 0.5, 0.5), True)), [[0.1, 0.2, 0.4]])
+    np.testing.assert_allclose(mix_colour(tex, ("MIX", 0.5, (0, 0, 0), False)), [[0.1, 0.2, 0.4]])
+    np.testing.assert_allclose(albedo_factor(tex, [0.4, 0.4, 0.0]), [[0.5, 1.0, 1.0]])

@@ -117,7 +117,7 @@ class BackgroundBake:
         ]
         frames = frame_range_for(scene, o.get("frames"))
         args.append(f"--frames={frames[0]}..{frames[1]}")
-        for key in ("method", "quality", "domain", "output", "texture_format"):
+        for key in ("method", "quality", "domain", "output", "texture_format", "radiance_mode"):
             if o.get(key):
                 args.append(f"--{key.replace('_', '-')}={str(o[key]).lower()}")
         for key in ("feps", "aeps", "resolution"):

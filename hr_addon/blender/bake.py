@@ -24,6 +24,7 @@ from ..core.geometry import InputError, isolated_objects
 from ..core.progress import Cancelled
 from ..core.radiosity import RadiositySystem
 from ..core.refine import RefineParams
+from ..core.texels import loop_incident
 from ..io.cache import CacheError, CacheWriter, check_writable, frame_ranges
 from ..lightmap import TextureError
 from ..lightmap.plan import FORMATS as TEXTURE_FORMATS
@@ -41,6 +42,7 @@ METHODS = ("AUTO", "AR", "FE", "NAIVE")
 QUALITIES = ("DRAFT", "MEDIUM", "HIGH", "CUSTOM")
 DOMAINS = ("CORNER", "POINT")
 OUTPUTS = ("VERTEX", "TEXTURE")
+RADIANCE_MODES = ("RADIANCE", "IRRADIANCE")
 
 
 @dataclass
@@ -193,7 +195,7 @@ def frame_range_for(scene, frames=None):
     return a, b
 
 
-def _signature(mesh, params, domain, targets):
+def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE"):
     h = hashlib.sha1()
     for arr in (
         mesh.verts,
@@ -206,6 +208,8 @@ def _signature(mesh, params, domain, targets):
         h.update(np.ascontiguousarray(arr, np.float64).tobytes())
     h.update(repr(dataclasses.astuple(params)).encode())
     h.update(domain.encode())
+    if radiance_mode != "RADIANCE":  # (radiance bakes keep the signature they had before the mode)
+        h.update(radiance_mode.encode())
     h.update(repr([(t.name, t.n_corner, t.n_point) for t in targets]).encode())
     return h.hexdigest()
 
@@ -222,6 +226,7 @@ def bake_frames(
     output=None,
     resolution=None,
     texture_format=None,
+    radiance_mode=None,
     cache_dir=None,
     progress=None,
     interrupts=None,
@@ -241,6 +246,8 @@ def bake_frames(
     split bakes agree); light shapes are evaluated from scratch at every frame.
     output VERTEX: colour attribute HR_Radiance; TEXTURE: per-object image sequences (texture.py)
     at `resolution` (objects may override it) in `texture_format` EXR or PNG.
+    radiance_mode RADIANCE: outgoing radiance (textured materials modulate texture output per
+    texel); IRRADIANCE: irradiance / pi without emission (the material's colour multiplies it).
     """
     hr = scene.hr
     view_layer = view_layer or (
@@ -260,6 +267,9 @@ def bake_frames(
     texture_format = (texture_format or hr.texture_format).upper()
     if texture_format not in TEXTURE_FORMATS:
         raise SceneError(f"Unknown texture format '{texture_format}' (EXR or PNG).")
+    radiance_mode = (radiance_mode or hr.radiance_mode).upper()
+    if radiance_mode not in RADIANCE_MODES:
+        raise SceneError(f"Unknown radiance mode '{radiance_mode}' (RADIANCE or IRRADIANCE).")
     resolution = int(resolution or hr.texture_resolution)
     if not 8 <= resolution <= 16384:
         raise SceneError(f"Bad texture resolution {resolution} (8 to 16384).")
@@ -350,6 +360,7 @@ def bake_frames(
             "feps": params.feps,
             "aeps": params.aeps,
             "output": output,
+            "radiance_mode": radiance_mode,
             "rays": result.rays,
             "created": time.strftime("%Y-%m-%d %H:%M:%S"),
             "view_layer": view_layer.name,
@@ -362,7 +373,13 @@ def bake_frames(
         if output == "TEXTURE":
             try:
                 baker = texture.texture_plan(
-                    scene_in, system.patches, view_layer, view_layer.depsgraph, resolution, texture_format
+                    scene_in,
+                    system.patches,
+                    view_layer,
+                    view_layer.depsgraph,
+                    resolution,
+                    texture_format,
+                    albedo=radiance_mode == "RADIANCE",
                 )
             except TextureError as exc:
                 raise SceneError(str(exc)) from None
@@ -372,7 +389,9 @@ def bake_frames(
                 final_dir,
                 objects,
                 "TEXTURE",
-                baker.signature(_signature(scene_in.mesh, params, "TEXTURE", scene_in.targets)),
+                baker.signature(
+                    _signature(scene_in.mesh, params, "TEXTURE", scene_in.targets, radiance_mode)
+                ),
                 info,
             )
             baker.bind(writer.tmp)
@@ -382,7 +401,11 @@ def bake_frames(
                 for t in scene_in.targets
             }
             writer = CacheWriter(
-                final_dir, objects, domain, _signature(scene_in.mesh, params, domain, scene_in.targets), info
+                final_dir,
+                objects,
+                domain,
+                _signature(scene_in.mesh, params, domain, scene_in.targets, radiance_mode),
+                info,
             )
         # Frames of the previous bake that this one keeps but whose files are missing or damaged
         # are baked again (not kept, not dropped).
@@ -435,11 +458,14 @@ def bake_frames(
                     else:
                         system.solve()
                     if baker is not None:
-                        values = baker.radiance(dyn, system)
+                        values = baker.radiance(dyn, system, radiance_mode)
                     else:
-                        values = (
-                            dyn.loop_radiance(domain) if dyn is not None else system.loop_radiance(domain)
-                        )
+                        if radiance_mode == "IRRADIANCE":
+                            values = loop_incident(dyn, system, domain)
+                        elif dyn is not None:
+                            values = dyn.loop_radiance(domain)
+                        else:
+                            values = system.loop_radiance(domain)
                         values = {t.name: t.extract(values, domain) for t in scene_in.targets}
                 intr.check()
                 if baker is not None:
@@ -572,6 +598,9 @@ def use_bake(scene, final_dir, output, geo_objects=None):
             )
         )
         texture.remove_material(objs)  # a texture preview would show deleted files
+        from .preview import bake_mode, refresh_preview
+
+        refresh_preview(objs, bake_mode(scene) == "IRRADIANCE")
 
 
 def run_bake(scene, log=print, status=None, **kwargs):

@@ -65,6 +65,13 @@ def make_parser(prog=PROG, blend_required=False):
         help="vertex colours (HR_Radiance) or baked textures (default: the scene's)",
     )
     p.add_argument(
+        "--radiance-mode",
+        type=str.lower,
+        choices=["radiance", "irradiance"],
+        help="values: outgoing radiance, or irradiance / pi for lightmaps the material colour "
+        "multiplies (default: the scene's)",
+    )
+    p.add_argument(
         "--resolution", type=int, metavar="N", help="texture size in texels, 8 to 16384 (texture output)"
     )
     p.add_argument(
@@ -231,6 +238,7 @@ def _run(argv, prog, blend_required, intr):
             output=args.output,
             resolution=args.resolution,
             texture_format=args.texture_format,
+            radiance_mode=args.radiance_mode,
             cache_dir=args.cache_dir,
             status=status.progress if status is not None else None,
             interrupts=intr,

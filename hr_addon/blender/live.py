@@ -98,6 +98,7 @@ class Session:
         self.force_write = False  # HR_Radiance must be written again (undo, render)
         self.own_writes = set()  # meshes written by us since the last depsgraph update
         self.added_preview = False
+        self.rewired_preview = False  # an irradiance bake's preview shown as radiance while Live runs
         self.texture_objects = []  # objects whose baked-texture preview Live took off (restored)
         self.last_poll = 0.0
         self.render_note = ""  # said once per render (see on_frame_change_pre)
@@ -251,6 +252,9 @@ def _show_through_attribute(sess, scene, view_layer):
     if not shown:
         preview.add_preview(objs)
         sess.added_preview = True
+    elif any(preview.N_MUL in m.node_tree.nodes for m in mats):
+        preview.refresh_preview(objs, irradiance=False)  # Live shows outgoing radiance
+        sess.rewired_preview = True
 
 
 def _restore(sess, scene):
@@ -261,6 +265,8 @@ def _restore(sess, scene):
     ]
     if sess.added_preview:
         preview.remove_preview(objs)
+    elif sess.rewired_preview:
+        preview.refresh_preview(objs, preview.bake_mode(scene) == "IRRADIANCE")
     has_bake = bool(playback.bake_dir_abs(scene))
     if has_bake and scene.hr.playback and not texture.is_texture_bake(scene):
         playback.forget_loaded()

@@ -6,7 +6,10 @@ Supported (walking back from the active Material Output's Surface socket):
 - Emission: emission = Color x Strength (reflectance 0, like Cycles);
 - Add Shader (sum) and Mix Shader (mix by an unconnected Fac) of the above; Reroute nodes.
 A colour socket may be fed by an Image Texture (its average colour, linearised from sRGB for 8-bit
-images) or an RGB node; a strength socket by a Value node. Anything else gives a warning naming
+images), an RGB node or a Mix node (Color: Mix or Multiply, of those, by an unconnected Factor); a
+strength socket by a Value node. albedo_texture() describes the simple textured case (one diffuse
+shader whose colour is an Image Texture in its UV map, optionally through one Mix node with a
+colour) so that the texture output can show the texture per texel. Anything else gives a warning naming
 the material and falls back to the socket's own value (or, for an unknown shader, the default
 grey). Emission is radiance in Cycles units (W sr^-1 m^-2: strength x colour).
 """
@@ -37,11 +40,13 @@ class _Unsupported(Exception):
 _image_cache = {}
 
 
-def image_average(img):
-    """Average linear RGB of an image, or None if it has no pixels."""
-    key = (img.name_full, img.filepath, tuple(img.size), img.is_dirty, img.colorspace_settings.name)
-    if key in _image_cache and not img.is_dirty:
-        return _image_cache[key]
+def _srgb_bytes(img):
+    return not img.is_float and img.colorspace_settings.name in ("sRGB", "Filmic sRGB", "AgX Base sRGB")
+
+
+def image_pixels(img, linear=True):
+    """(H, W, 3) RGB float32 of an image (row 0 at the bottom), or None if it has no pixels.
+    linear: 8-bit sRGB images are linearised (else returned as stored)."""
     w, h = img.size
     if w * h == 0 or not img.has_data and not _try_load(img):
         return None
@@ -49,9 +54,20 @@ def image_average(img):
     img.pixels.foreach_get(px)
     px = px.reshape(-1, img.channels)
     rgb = px[:, :3] if img.channels >= 3 else np.repeat(px[:, :1], 3, 1)
-    avg = rgb.astype(np.float64).mean(0)
-    if not img.is_float and img.colorspace_settings.name in ("sRGB", "Filmic sRGB", "AgX Base sRGB"):
-        avg = srgb_to_linear(rgb.astype(np.float64)).mean(0)
+    if linear and _srgb_bytes(img):
+        rgb = srgb_to_linear(rgb.astype(np.float64)).astype(np.float32)
+    return rgb.reshape(h, w, 3)
+
+
+def image_average(img):
+    """Average linear RGB of an image, or None if it has no pixels."""
+    key = (img.name_full, img.filepath, tuple(img.size), img.is_dirty, img.colorspace_settings.name)
+    if key in _image_cache and not img.is_dirty:
+        return _image_cache[key]
+    px = image_pixels(img)
+    if px is None:
+        return None
+    avg = px.reshape(-1, 3).astype(np.float64).mean(0)
     if len(_image_cache) > 64:
         _image_cache.clear()
     _image_cache[key] = avg
@@ -104,6 +120,12 @@ class _Reader:
             return avg
         if node.type == "RGB":
             return np.array(node.outputs[0].default_value[:3], float)
+        mix = _mix_sockets(node)
+        if mix is not None:  # linear in each input: the average of the mix is the mix of the averages
+            fac, a, b = mix
+            f = min(max(self.value(fac), 0.0), 1.0)
+            ca, cb = self.color(a), self.color(b)
+            return (1 - f) * ca + f * (ca * cb if node.blend_type == "MULTIPLY" else cb)
         self.warn(
             f"'{socket.name}' is driven by a '{node.bl_label}' node, which is not supported; "
             "using the socket's own colour"
@@ -151,6 +173,126 @@ class _Reader:
         raise _Unsupported(
             f"the '{node.bl_label}' shader is not supported (use Principled BSDF, Diffuse BSDF or Emission)"
         )
+
+
+def _mix_sockets(node):
+    """(factor, A, B) input sockets of a colour Mix node blending by Mix or Multiply, else None."""
+    if (
+        node.type != "MIX"
+        or getattr(node, "data_type", "") != "RGBA"
+        or node.blend_type not in ("MIX", "MULTIPLY")
+    ):
+        return None
+    ids = {s.identifier: s for s in node.inputs}
+    return ids["Factor_Float"], ids["A_Color"], ids["B_Color"]
+
+
+def _bsdfs(r, socket, depth=0):
+    """Diffuse-reflecting shader nodes (Principled, Diffuse) reached from `socket`, and whether a
+    Mix Shader was on the way (then one BSDF's colour no longer is the material's)."""
+    node, _ = r.source(socket)
+    if node is None or depth > 16 or node.mute:
+        return [], False
+    if node.type in ("BSDF_PRINCIPLED", "BSDF_DIFFUSE"):
+        return [node], False
+    if node.type in ("ADD_SHADER", "MIX_SHADER"):
+        got = [_bsdfs(r, s, depth + 1) for s in node.inputs if s.type == "SHADER"]
+        return [n for g in got for n in g[0]], node.type == "MIX_SHADER" or any(g[1] for g in got)
+    return [], False
+
+
+def base_color_socket(mat):
+    """The colour input (Principled Base Color / Diffuse Color) of the one diffuse shader of `mat`
+    reached from its active output, or None (no nodes, none or several such shaders)."""
+    tree = None if mat is None else mat.node_tree
+    if tree is None or mat.get("hr_preview") or (bpy.app.version < (5, 0, 0) and not mat.use_nodes):
+        return None
+    out = _output_node(tree)
+    if out is None:
+        return None
+    nodes, _ = _bsdfs(_Reader(mat), out.inputs["Surface"])
+    if len(nodes) != 1:
+        return None
+    return nodes[0].inputs["Base Color" if nodes[0].type == "BSDF_PRINCIPLED" else "Color"]
+
+
+@dataclass
+class AlbedoTexture:
+    """An Image Texture that is a material's diffuse colour, for per-texel albedo (lightmap.albedo)."""
+
+    image: object
+    uv_map: str  # "" : the mesh's active render UV map (the Image Texture's default)
+    interpolation: str
+    extension: str
+    mix: tuple  # None or (blend, factor, other colour (3,), texture is input A)
+    average: np.ndarray  # (3,) the colour the light exchange used for this input
+    pixels: np.ndarray = None  # (H, W, 3) as stored, read by albedo_texture
+    srgb: bool = False  # 8-bit sRGB: Cycles interpolates the stored values, then linearises
+
+
+def _uv_source(r, tex):
+    """UV map name of an Image Texture's vector input ("" default), or None if it is not a UV map."""
+    node, out = r.source(tex.inputs["Vector"])
+    if node is None:
+        return ""
+    if node.type == "UVMAP":
+        return node.uv_map
+    if node.type == "TEX_COORD" and out.name == "UV":
+        return ""
+    return None
+
+
+def albedo_texture(mat):
+    """(AlbedoTexture or None, reason or ""): the texture that is `mat`'s diffuse colour when the
+    material is one Principled / Diffuse BSDF (plus emission) whose colour input is an Image
+    Texture (UV mapped, flat projection, a single image) directly or through one Mix node with a
+    constant colour and factor. reason says why a textured material does not qualify ("" when it
+    has no texture at all)."""
+    sock = base_color_socket(mat)
+    textured = (
+        mat is not None
+        and mat.node_tree is not None
+        and any(n.type == "TEX_IMAGE" and any(o.is_linked for o in n.outputs) for n in mat.node_tree.nodes)
+    )
+    why = "its colour texture is not an Image Texture (UV map) on the Base Color of a single diffuse shader"
+    if sock is None:
+        return None, why if textured else ""
+    r = _Reader(mat)
+    out = _output_node(mat.node_tree)
+    if _bsdfs(r, out.inputs["Surface"])[1]:
+        return None, (why if textured else "")
+    node, o = r.source(sock)
+    mix = None
+    if node is not None and _mix_sockets(node) is not None:
+        fac, a, b = _mix_sockets(node)
+        na, oa = r.source(a)
+        nb, ob = r.source(b)
+        tex_a = na is not None and na.type == "TEX_IMAGE"
+        other = b if tex_a else a
+        if (
+            fac.is_linked
+            or r.source(other)[0] is not None
+            or not (tex_a or nb is not None and nb.type == "TEX_IMAGE")
+        ):
+            return None, why if textured else ""
+        mix = (
+            node.blend_type,
+            min(max(float(fac.default_value), 0.0), 1.0),
+            np.array(other.default_value[:3], float),
+            tex_a,
+        )
+        node, o = (na, oa) if tex_a else (nb, ob)
+    if node is None or node.type != "TEX_IMAGE" or o.name != "Color":
+        return None, why if textured else ""
+    img = node.image
+    uv = _uv_source(r, node)
+    if img is None or uv is None or node.projection != "FLAT" or img.source not in ("FILE", "GENERATED"):
+        return None, why
+    px = image_pixels(img, linear=False)
+    if px is None:
+        return None, f"image texture '{node.name}' has no pixels"
+    avg = np.asarray(r.color(sock), float)
+    return AlbedoTexture(img, uv, node.interpolation, node.extension, mix, avg, px, _srgb_bytes(img)), ""
 
 
 def _output_node(tree):

@@ -12,7 +12,7 @@ from ..io.cache import MANIFEST, CacheError, CacheReader
 from ..lightmap.plan import TEX_DIR
 from . import background, live, playback, texture
 from .bake import run_bake
-from .preview import add_preview, has_preview, remove_preview
+from .preview import add_preview, bake_mode, has_preview, remove_preview
 from .scene_in import geometry_objects
 
 
@@ -216,7 +216,7 @@ class HR_OT_add_preview(bpy.types.Operator):
             _report_bake_state(self, context)
             return {"FINISHED"}
         texture.remove_material(objs)
-        n = add_preview(objs)
+        n = add_preview(objs, bake_mode(context.scene) == "IRRADIANCE")
         context.scene.render.use_lock_interface = True
         self.report({"INFO"}, f"Preview on {len(objs)} object(s), {n} material(s)")
         _report_bake_state(self, context)

@@ -109,6 +109,7 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
             sub.label(text=f"Link threshold (Feps): {p.feps:g}")
             sub.label(text=f"Smallest element (Aeps): {p.aeps:g}")
         layout.prop(hr, "output")
+        layout.prop(hr, "radiance_mode")
         if hr.output == "TEXTURE":
             layout.prop(hr, "texture_resolution")
             layout.prop(hr, "texture_format")

@@ -1,42 +1,93 @@
 """Preview: show HR_Radiance through an Emission shader (viewport and renders).
 
-Each material of the participating objects gets three extra nodes (Attribute "HR_Radiance" ->
+Each material of the participating objects gets extra nodes (Attribute "HR_Radiance" ->
 Emission -> Material Output, all named "HR Preview ...") and that output becomes the active
 one; the original nodes stay untouched and are restored by remove_preview(). Objects without a
 material get the shared "HR Preview" material, which the bake treats as no material (grey 0.8).
 Emission strength 1 reproduces the cached radiance exactly (view transform Standard).
+An irradiance bake (Scene.hr.radiance_mode IRRADIANCE) is shown times the material's own base
+colour (the node output feeding it, textures included) plus its emission (colour_chain), so a
+textured surface shows its texture.
 """
 
 import bpy
 
-from .materials import PREVIEW
+from .materials import PREVIEW, base_color_socket, read_material
 from .playback import ATTRIBUTE
 
 N_ATTR, N_EMIT, N_OUT = PREVIEW + " Attribute", PREVIEW + " Emission", PREVIEW + " Output"
+N_MUL, N_ADD = PREVIEW + " Base Color", PREVIEW + " Add Emission"
 
 
-def _add_nodes(mat):
+def bake_mode(scene):
+    """Radiance mode of the scene's bake ("RADIANCE" or "IRRADIANCE"; the setting if not baked)."""
+    from ..io.cache import CacheError, CacheReader
+    from .playback import bake_dir_abs
+
+    d = bake_dir_abs(scene)
+    try:
+        return CacheReader(d).manifest.get("radiance_mode", "RADIANCE") if d else scene.hr.radiance_mode
+    except CacheError:
+        return scene.hr.radiance_mode
+
+
+def _get(tree, name, kind, location):
+    n = tree.nodes.get(name)
+    if n is not None and n.bl_idname != kind:
+        tree.nodes.remove(n)
+        n = None
+    if n is None:
+        n = tree.nodes.new(kind)
+        n.name = n.label = name
+        n.location = location
+    return n
+
+
+def colour_chain(mat, tree, src, location, irradiance):
+    """The colour output the preview's Emission shows: src itself (radiance), or for irradiance src
+    x the material's base colour (the same upstream output, linked, or the socket's colour) + its
+    emission (read_material's value). Removes the chain's nodes when not needed."""
+    for name in (N_MUL, N_ADD):
+        if not irradiance and name in tree.nodes:
+            tree.nodes.remove(tree.nodes[name])
+    if not irradiance:
+        return src
+    x, y = location
+    mul = _get(tree, N_MUL, "ShaderNodeMix", (x, y))
+    mul.data_type, mul.blend_type, mul.clamp_result = "RGBA", "MULTIPLY", False
+    ids = {s.identifier: s for s in mul.inputs}
+    ids["Factor_Float"].default_value = 1.0
+    tree.links.new(src, ids["A_Color"])
+    base = base_color_socket(mat)
+    for lk in list(ids["B_Color"].links):
+        tree.links.remove(lk)
+    if base is not None and base.is_linked:
+        tree.links.new(base.links[0].from_socket, ids["B_Color"])
+    else:
+        rho = base.default_value[:3] if base is not None else read_material(mat).reflectance
+        ids["B_Color"].default_value = (*map(float, rho), 1.0)
+    res = next(s for s in mul.outputs if s.identifier == "Result_Color")
+    add = _get(tree, N_ADD, "ShaderNodeVectorMath", (x + 200, y))
+    add.operation = "ADD"
+    add.inputs[1].default_value = tuple(map(float, read_material(mat).emission))
+    tree.links.new(res, add.inputs[0])
+    return add.outputs["Vector"]
+
+
+def _add_nodes(mat, irradiance=False):
     tree = mat.node_tree
     if tree is None:
         return False
-    if N_OUT in tree.nodes:
-        tree.nodes[N_OUT].is_active_output = True
-        return True
-    x = max((n.location.x for n in tree.nodes), default=0) + 300
-    attr = tree.nodes.new("ShaderNodeAttribute")
-    attr.name = attr.label = N_ATTR
+    x = max((n.location.x for n in tree.nodes if not n.name.startswith(PREVIEW)), default=0) + 300
+    attr = _get(tree, N_ATTR, "ShaderNodeAttribute", (x, -400))
     attr.attribute_type = "GEOMETRY"
     attr.attribute_name = ATTRIBUTE
-    attr.location = (x, -400)
-    emit = tree.nodes.new("ShaderNodeEmission")
-    emit.name = emit.label = N_EMIT
+    emit = _get(tree, N_EMIT, "ShaderNodeEmission", (x + 600, -400))
     emit.inputs["Strength"].default_value = 1.0
-    emit.location = (x + 200, -400)
-    out = tree.nodes.new("ShaderNodeOutputMaterial")
-    out.name = out.label = N_OUT
+    out = _get(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 800, -400))
     out.target = "ALL"
-    out.location = (x + 400, -400)
-    tree.links.new(attr.outputs["Color"], emit.inputs["Color"])
+    col = colour_chain(mat, tree, attr.outputs["Color"], (x + 200, -400), irradiance)
+    tree.links.new(col, emit.inputs["Color"])
     tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
     out.is_active_output = True
     return True
@@ -49,25 +100,27 @@ def _preview_material():
         mat["hr_preview"] = True
         if bpy.app.version < (5, 0, 0):
             mat.use_nodes = True
-    _add_nodes(mat)
     return mat
 
 
-def add_preview(objects):
-    """Returns the number of materials switched to the preview."""
+def add_preview(objects, irradiance=False):
+    """Returns the number of materials switched to the preview. irradiance: the bake holds
+    irradiance (see colour_chain)."""
     done = set()
     for obj in objects:
         if obj.type != "MESH":
             continue
         mats = [s.material for s in obj.material_slots if s.material is not None]
         if not mats:
-            obj.data.materials.append(_preview_material())
+            mat = _preview_material()
+            _add_nodes(mat, irradiance)
+            obj.data.materials.append(mat)
             continue
         for m in mats:
             if m.name_full not in done:
                 if bpy.app.version < (5, 0, 0) and not m.use_nodes:
                     m.use_nodes = True
-                _add_nodes(m)
+                _add_nodes(m, irradiance)
                 done.add(m.name_full)
     return len(done)
 
@@ -86,7 +139,7 @@ def remove_preview(objects=None):
         tree = m.node_tree
         if tree is None or N_OUT not in tree.nodes:
             continue
-        for name in (N_OUT, N_EMIT, N_ATTR):
+        for name in (N_OUT, N_EMIT, N_ATTR, N_MUL, N_ADD):
             if name in tree.nodes:
                 tree.nodes.remove(tree.nodes[name])
         outs = [x for x in tree.nodes if x.type == "OUTPUT_MATERIAL"]
@@ -114,3 +167,11 @@ def has_preview():
         if tree is not None and N_OUT in tree.nodes:
             return True
     return False
+
+
+def refresh_preview(objects, irradiance):
+    """Re-wire the materials of `objects` that show the preview (a new bake may change the mode)."""
+    mats = {s.material for o in objects if o.type == "MESH" for s in o.material_slots if s.material}
+    for m in mats:
+        if m.node_tree is not None and N_OUT in m.node_tree.nodes:
+            _add_nodes(m, irradiance)

@@ -33,6 +33,20 @@ TEXTURE_FORMAT_ITEMS = [
     ("EXR", "OpenEXR", "32-bit float, linear (exact radiance)"),
     ("PNG", "PNG", "16-bit, sRGB-encoded; radiance above 1 is clipped"),
 ]
+RADIANCE_MODE_ITEMS = [
+    (
+        "RADIANCE",
+        "Outgoing radiance",
+        "The light leaving each surface (emission included, the material's colour baked in): shown as it is",
+    ),
+    (
+        "IRRADIANCE",
+        "Irradiance (lightmap)",
+        "The diffuse light arriving at each surface (irradiance / pi, no emission), which the "
+        "material multiplies by its own base colour: game-engine lightmaps, Cycles' Diffuse bake "
+        "without Color",
+    ),
+]
 DOMAIN_ITEMS = [
     ("CORNER", "Face Corner", "One value per face corner: creases between walls stay sharp"),
     ("POINT", "Vertex", "One value per vertex: smooth everywhere, smaller"),
@@ -76,6 +90,13 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
     )
     output: EnumProperty(
         name="Output", items=OUTPUT_ITEMS, default="VERTEX", description="Where the baked radiance goes"
+    )
+    radiance_mode: EnumProperty(
+        name="Values",
+        items=RADIANCE_MODE_ITEMS,
+        default="RADIANCE",
+        description="What the bake stores: outgoing radiance, or irradiance for lightmaps that "
+        "the material's base colour (textures included) multiplies",
     )
     texture_resolution: IntProperty(
         name="Texture Size",

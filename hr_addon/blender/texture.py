@@ -29,7 +29,10 @@ from ..io.cache import CacheError, CacheReader
 from ..lightmap import TextureError
 from ..lightmap.charts import MARGIN, pack_lightmap
 from ..lightmap.plan import TexturePlan, triangle_uvs
-from .materials import PREVIEW
+from ..io.images import srgb_to_linear
+from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
+from .materials import PREVIEW, albedo_texture
+from .preview import colour_chain
 from .scene_in import evaluated, mesh_topology
 
 UV_NAME = "HR_Lightmap"
@@ -133,9 +136,67 @@ def _stems(names):
 # --- texel plans ---------------------------------------------------------------------------------
 
 
-def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR"):
-    """The bake's TexturePlan: every target object's evaluated HR_Lightmap UVs on its patches."""
+def _material_uvs(me):
+    """{UV map name: (L, 2)} of a mesh, with "" for the active render map (the Image Texture's
+    default), and the material index per polygon."""
+    out = {}
+    for lay in me.uv_layers:
+        a = np.empty(len(me.loops) * 2, np.float32)
+        lay.uv.foreach_get("vector", a)
+        out[lay.name] = a.reshape(-1, 2)
+        if lay.active_render:
+            out[""] = out[lay.name]
+    mi = np.zeros(len(me.polygons), np.int32)
+    me.polygons.foreach_get("material_index", mi)
+    return out, mi
+
+
+def _albedo_specs(obj, warned, cache):
+    """Per material slot of obj an AlbedoTexture or None; warns once per material that has a
+    texture this cannot follow (it keeps the average colour). cache: material -> (spec, why), so
+    a material shared by many objects reads its image once."""
+    with source_materials([obj]):
+        mats = [s.material for s in obj.material_slots]
+    specs = []
+    for m in mats:
+        key = None if m is None else m.name_full
+        if key not in cache:
+            cache[key] = albedo_texture(m)
+        spec, why = cache[key]
+        if why and m.name not in warned:
+            warned[m.name] = (
+                f"Material '{m.name}': {why}; the baked texture shows its average colour (connect an "
+                "Image Texture, optionally through one Mix node with a colour, to Base Color)."
+            )
+        specs.append(spec)
+    return specs
+
+
+def _albedo_factor(specs, uvs, mat_index, poly, loops, bary):
+    """(N, 3) albedo / average at the texels (lightmap.albedo), 1 where no texture applies; None if
+    no texel has a texture. poly (N,): each texel's polygon of the object; loops (N, 3), bary (N, 3):
+    the texel point on the loops of its triangle."""
+    slot = np.clip(mat_index[poly], 0, max(len(specs) - 1, 0)) if specs else np.zeros(len(poly), int)
+    factor = np.ones((len(poly), 3), np.float32)
+    hit = False
+    for k, spec in enumerate(specs):
+        sel = np.flatnonzero(slot == k)
+        if spec is None or not len(sel) or spec.uv_map not in uvs:
+            continue
+        uv = texel_uv(uvs[spec.uv_map], loops[sel], bary[sel])
+        tex = sample_image(spec.pixels, uv, spec.interpolation, spec.extension)
+        tex = mix_colour(srgb_to_linear(tex) if spec.srgb else tex, spec.mix)
+        factor[sel] = albedo_factor(tex, spec.average)
+        hit = True
+    return factor if hit else None
+
+
+def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR", albedo=False):
+    """The bake's TexturePlan: every target object's evaluated HR_Lightmap UVs on its patches.
+    albedo: textured materials (materials.albedo_texture) modulate their objects' texels by the
+    texture's albedo / its average (radiance mode)."""
     plan = TexturePlan(fmt)
+    warned, specs_of = {}, {}
     mesh = scene_in.mesh
     stems = _stems([t.name for t in scene_in.targets])
     for oid, t in enumerate(scene_in.targets):
@@ -146,7 +207,11 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
             if t.loops[1] < len(mesh.loop_verts)
             else len(mesh.loop_start)
         )
-        _, (uv, (_, ls, lt, lv)) = evaluated(obj, depsgraph, lambda me: (read_uv(me), mesh_topology(me)))
+        specs = _albedo_specs(obj, warned, specs_of) if albedo else []
+        want = any(sp is not None for sp in specs)
+        _, (uv, (_, ls, lt, lv), mat_uvs) = evaluated(
+            obj, depsgraph, lambda me: (read_uv(me), mesh_topology(me), _material_uvs(me) if want else None)
+        )
         if uv is None:
             plan.warnings.append(
                 f"Object '{t.name}': its evaluated mesh has no {UV_NAME} UV map "
@@ -161,12 +226,12 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
                 f"Object '{t.name}': modifiers change the topology; its "
                 f"{UV_NAME} islands may overlap (apply the modifiers)."
             )
-        tri_uv, corners, tri_patch, skipped = triangle_uvs(
-            patches, oid, uv, ls, lt, lv, p0, t.verts[0], t.verts[1] - t.verts[0]
+        tri_uv, corners, tri_patch, skipped, tri_loops = triangle_uvs(
+            patches, oid, uv, ls, lt, lv, p0, t.verts[0], t.verts[1] - t.verts[0], loops=True
         )
         if skipped:
             plan.warnings.append(f"Object '{t.name}': {skipped} triangle(s) without UVs skipped.")
-        plan.add_object(
+        placed = plan.add_object(
             t.name,
             stems[t.name],
             resolution_for(obj, default_res),
@@ -175,6 +240,20 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
             tri_patch,
             hashlib.sha1(np.ascontiguousarray(uv).tobytes()).hexdigest(),
         )
+        if want:
+            tri, bary = placed
+            uvs, mi = mat_uvs
+            missing = {sp.uv_map for sp in specs if sp is not None and sp.uv_map not in uvs}
+            for name in sorted(missing):
+                plan.warnings.append(
+                    f"Object '{t.name}': its material's texture uses the UV map '{name or 'default'}', "
+                    "which the mesh does not have; the baked texture shows the average colour."
+                )
+            poly = patches.poly[tri_patch[tri]] - p0
+            f = _albedo_factor(specs, uvs, mi, poly, tri_loops[tri], bary)
+            if f is not None:
+                plan.set_albedo(len(plan.objects) - 1, f)
+    plan.warnings += list(warned.values())
     return plan
 
 
@@ -239,8 +318,10 @@ def _node(tree, name, kind, location):
     return n
 
 
-def _wire(mat, img, first, last):
-    """Add (or update) UV Map -> Image Texture -> Emission -> Material Output, the active output."""
+def _wire(mat, img, first, last, irradiance=False):
+    """Add (or update) UV Map -> Image Texture -> Emission -> Material Output, the active output;
+    for an irradiance bake the image times the material's base colour plus its emission
+    (preview.colour_chain) feeds the Emission."""
     if mat.node_tree is None or (bpy.app.version < (5, 0, 0) and not mat.use_nodes):
         mat.use_nodes = True
     tree = mat.node_tree
@@ -259,12 +340,13 @@ def _wire(mat, img, first, last):
     iu.frame_offset = first - 1
     iu.use_cyclic = False
     iu.use_auto_refresh = True
-    emit = _node(tree, N_EMIT, "ShaderNodeEmission", (x + 500, -400))
+    emit = _node(tree, N_EMIT, "ShaderNodeEmission", (x + 900, -400))
     emit.inputs["Strength"].default_value = 1.0
-    out = _node(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 700, -400))
+    out = _node(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 1100, -400))
     out.target = "ALL"
     tree.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
-    tree.links.new(tex.outputs["Color"], emit.inputs["Color"])
+    col = colour_chain(mat, tree, tex.outputs["Color"], (x + 500, -400), irradiance)
+    tree.links.new(col, emit.inputs["Color"])
     tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
     out.is_active_output = True
 
@@ -281,6 +363,7 @@ def add_material(scene, objects=None):
     objects wired; raises CacheError without a texture bake."""
     directory, reader = _manifest(scene)
     first, last = reader.frame_range
+    irradiance = reader.manifest.get("radiance_mode") == "IRRADIANCE"
     names = None if objects is None else {o.name for o in objects}
     n = 0
     for name, info in reader.objects.items():
@@ -313,7 +396,7 @@ def add_material(scene, objects=None):
                     mat["hr_lightmap_source"] = src
                 slot.link = "OBJECT"
                 slot.material = mat
-            _wire(mat, img, first, last)
+            _wire(mat, img, first, last, irradiance)
         n += 1
     return n
 

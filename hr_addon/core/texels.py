@@ -186,18 +186,81 @@ def _strictly_inside(h, nodes, pts, rel=1e-7):
     return d.min(1) > rel * np.sqrt(h.area[nodes])
 
 
-def solution_radiance(dyn, system, patch, points, locator=None):
+def incident_radiance(h, B, E, links):
+    """(3, n) irradiance / pi at every leaf (other nodes 0): the light a white diffuse surface
+    would reflect there, what a game-engine lightmap or Cycles' Diffuse bake without Color holds.
+
+    B - E is the reflected radiance rho H / pi (this holds whatever the solver folded into it,
+    e.g. AUTO's first bounce), so where rho > 0 it is divided by rho. Channels with rho = 0 reflect
+    nothing and keep no trace of H: for them the links are gathered from B once (solver.Operator,
+    gather + push), which misses only light a method added to E premultiplied by rho (AUTO's first
+    bounce from light shapes), i.e. nothing on black surfaces except that."""
+    from .solver import Operator
+
+    rho = h.node_rho()
+    out = np.zeros_like(B)
+    lf = h.leaves()
+    r = rho[:, lf]
+    out[:, lf] = np.where(r > 0, (B - E)[:, lf] / np.where(r > 0, r, 1.0), 0.0)
+    if (r <= 0).any():
+        op = Operator(h, links)
+        G = op.push(op.gather(B))[:, lf]
+        out[:, lf] = np.where(r > 0, out[:, lf], G)
+    return np.maximum(out, 0.0)
+
+
+KINDS = ("radiance", "reflected", "incident")
+
+
+def _current(dyn, system):
+    """(h, B, E, links) of the solution in effect (NAIVE: its rebuilt system)."""
+    if dyn is None:
+        if system.B is None:
+            system.solve()
+        return system.h, system.B, system.base_emission(), system.links
+    if dyn.naive_active:
+        s = dyn._naive.system
+        return s.h, s.B, s.base_emission(), s.links
+    return dyn.h, dyn.B, dyn.emission(), dyn.links
+
+
+def solution_radiance(dyn, system, patch, points, locator=None, kind="radiance"):
     """Radiance (N, 3) float32 of the current solution at surface points of the given input patches.
     dyn: a DynamicRadiosity or None (then the static `system`, solved if it is not); locator: a
     TexelLocator of these points, to find their leaves faster (not used while NAIVE's rebuilt
-    system is current: the points then lie on its patches, not the input's)."""
+    system is current: the points then lie on its patches, not the input's).
+    kind: "radiance" (outgoing, emission included), "reflected" (without emission) or "incident"
+    (irradiance / pi, see incident_radiance)."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown kind {kind!r} ({', '.join(KINDS)})")
     if dyn is not None:
-        h, B, patch, points = dyn.solution_at(points, patch)
+        _, _, patch, points = dyn.solution_at(points, patch)
         if dyn.naive_active:
             locator = None
-    else:
-        if system.B is None:
-            system.solve()
-        h, B = system.h, system.B
+    h, B, E, links = _current(dyn, system)
+    if kind == "reflected":
+        B = B - E
+    elif kind == "incident":
+        B = incident_radiance(h, B, E, links)
     leaf = locator.leaves(h) if locator is not None else None
     return radiance_per_leaf(h, B, patch, points, leaf=leaf, locator=locator).astype(np.float32)
+
+
+def loop_incident(dyn, system, domain="CORNER", smooth_angle=30.0):
+    """Irradiance / pi per input loop (or vertex), as loop_radiance() gives radiance: the same
+    interpolation run on the incident field (swapped in for B for the call, so NAIVE's special
+    cases apply alike)."""
+    h, B, E, links = _current(dyn, system)
+    inc = incident_radiance(h, B, E, links)
+    if dyn is None:
+        holder, attr, call = system, "B", system.loop_radiance
+    elif dyn.naive_active:
+        holder, attr, call = dyn._naive.system, "B", dyn.loop_radiance
+    else:
+        holder, attr, call = dyn, "_B", dyn.loop_radiance
+    saved = getattr(holder, attr)
+    setattr(holder, attr, inc)
+    try:
+        return call(domain, smooth_angle)
+    finally:
+        setattr(holder, attr, saved)

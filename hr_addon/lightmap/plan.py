@@ -50,11 +50,12 @@ def frame_file(stem, frame, ext):
     return f"{stem}_{frame:06d}{ext}"
 
 
-def triangle_uvs(patches, oid, uv, loop_start, loop_total, loop_verts, poly0, vert0, n_verts):
+def triangle_uvs(patches, oid, uv, loop_start, loop_total, loop_verts, poly0, vert0, n_verts, loops=False):
     """UVs (T, 3, 2), corners (T, 3, 3) and patch (T,) of the triangles of object `oid`'s patches
     (quads: two triangles), each corner's UV that of the same (polygon, vertex) of the object's
     mesh (loops; poly0 / vert0: the object's first polygon / vertex in the scene), and the number
-    of triangles skipped because a corner has no such loop."""
+    of triangles skipped because a corner has no such loop. loops: also return the corners' loops
+    (T, 3) of the object's mesh (to interpolate its other UV maps), last."""
     lpoly = np.repeat(np.arange(len(loop_start)), loop_total)
     key = lpoly * (n_verts + 1) + loop_verts
     ko = np.argsort(key, kind="stable")
@@ -70,7 +71,10 @@ def triangle_uvs(patches, oid, uv, loop_start, loop_total, loop_verts, poly0, ve
     pos = np.clip(np.searchsorted(key[ko], ck), 0, max(len(ko) - 1, 0))
     good = (key[ko][pos] == ck).all(1) if len(ko) else np.zeros(len(ck), bool)
     tri_uv = np.asarray(uv, np.float64)[ko[pos]] if len(ko) else np.zeros((len(ck), 3, 2))
-    return tri_uv[good], corners[good], tri_rows[good], int((~good).sum())
+    out = tri_uv[good], corners[good], tri_rows[good], int((~good).sum())
+    if loops:
+        out += ((ko[pos] if len(ko) else np.zeros((len(ck), 3), np.int64))[good],)
+    return out
 
 
 class TexturePlan:
@@ -87,9 +91,11 @@ class TexturePlan:
         self.files = {}  # frame -> True once written / linked
         self._parts = []  # per object: (points, patches, representatives)
         self._locator = None
+        self.albedo = {}  # object index -> (N, 3) float32 texture albedo / average at its texels
 
     def add_object(self, name, stem, res, tri_uv, corners, tri_patch, uv_digest):
-        """Plan the texels of one object's triangles (from triangle_uvs) in a res x res image."""
+        """Plan the texels of one object's triangles (from triangle_uvs) in a res x res image.
+        Returns each texel's triangle (N,) and barycentric coordinates (N, 3) (see set_albedo)."""
         texel, tri, bary, inside = rasterise(tri_uv, res)
         own = tri_patch[tri]
         # representative texel: the one at the corner of its block, if it lies in the same patch
@@ -106,6 +112,16 @@ class TexturePlan:
             )
         )
         self._locator = None
+        return tri, bary
+
+    def set_albedo(self, index, factor):
+        """Object `index`'s texels show their reflected radiance times factor (N, 3): the texture's
+        albedo / the average albedo the light exchange used (lightmap.albedo), in radiance mode."""
+        o = self.objects[index]
+        factor = np.asarray(factor, np.float32)
+        if factor.shape != (o.hi - o.lo, 3):
+            raise ValueError(f"albedo factor of '{o.name}': shape {factor.shape}, {o.hi - o.lo} texels")
+        self.albedo[index] = factor
 
     @property
     def locator(self):
@@ -119,10 +135,20 @@ class TexturePlan:
             self._locator = TexelLocator(patch, pts, rep)
         return self._locator
 
-    def radiance(self, dyn, system):
-        """(N, 3) radiance of the current solution at the texel points of all objects."""
+    def radiance(self, dyn, system, mode="RADIANCE"):
+        """(N, 3) values of the current solution at the texel points of all objects. mode RADIANCE:
+        outgoing radiance, reflected part times the albedo factor where set_albedo gave one, i.e.
+        reflected x albedo / average + emission; IRRADIANCE: irradiance / pi (no emission)."""
         loc = self.locator
-        return solution_radiance(dyn, system, loc.patch, loc.points, loc)
+        if mode == "IRRADIANCE":
+            return solution_radiance(dyn, system, loc.patch, loc.points, loc, kind="incident")
+        out = solution_radiance(dyn, system, loc.patch, loc.points, loc)
+        if self.albedo:
+            refl = solution_radiance(dyn, system, loc.patch, loc.points, loc, kind="reflected")
+            for i, f in self.albedo.items():
+                o = self.objects[i]
+                out[o.lo : o.hi] += (f - 1.0) * refl[o.lo : o.hi]
+        return out
 
     # cache manifest entries
     def objects_info(self, targets):
@@ -142,6 +168,8 @@ class TexturePlan:
         h = hashlib.sha1(base.encode())
         for o in self.objects:
             h.update(f"{o.name}|{o.res}|{self.fmt}|{o.uv_digest}".encode())
+        for i in sorted(self.albedo):  # textured materials: their texels' colours
+            h.update(f"albedo {i}".encode() + self.albedo[i].tobytes())
         return h.hexdigest()
 
     def bind(self, tmp_dir):
