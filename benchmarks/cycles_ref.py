@@ -567,7 +567,7 @@ class Ours:
             if want_smooth and not self.dyn.naive_active:
                 h, Bn = self.dyn.system.h, self.dyn.B
                 smooth = (
-                    radiance_at(h, Bn - self.dyn.emission(), allp, allx, smooth=True),
+                    radiance_at(h, Bn - self.dyn.emission() * h.exposure[: h.n], allp, allx, smooth=True),
                     radiance_at(h, Bn, allp, allx, smooth=True),
                 )
         else:
@@ -576,11 +576,14 @@ class Ours:
             if self.system.B is None:
                 self.system.solve()
             B = h.shown(self.system.B)[:, leaf].T
+            B[h.dark(leaf, allx)] = 0.0
             E = self.system.base_emission()[:, leaf].T
             loops = self.system.loop_radiance("CORNER")
             if want_smooth:
                 smooth = (
-                    radiance_at(h, self.system.B - self.system.base_emission(), allp, allx, smooth=True),
+                    radiance_at(
+                        h, self.system.B - self.system.base_emission() * h.exposure[: h.n], allp, allx, smooth=True
+                    ),
                     radiance_at(h, self.system.B, allp, allx, smooth=True),
                 )
         out, s = {}, 0

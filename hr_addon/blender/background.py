@@ -123,6 +123,8 @@ class BackgroundBake:
         for key in ("feps", "aeps", "resolution"):
             if o.get(key) is not None:
                 args.append(f"--{key}={o[key]!r}")
+        if o.get("contacts") is False:
+            args.append("--no-contacts")
         hr = scene.hr
         if not o.get("quality") and hr.quality == "CUSTOM" and o.get("feps") is None:
             args += [f"--feps={float(hr.feps)!r}", f"--aeps={float(hr.aeps)!r}"]

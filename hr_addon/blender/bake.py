@@ -164,7 +164,11 @@ class BakeResult:
         )
 
 
-def refine_params(quality, feps=None, aeps=None):
+def refine_params(quality, feps=None, aeps=None, contacts=True):
+    return dataclasses.replace(_preset(quality, feps, aeps), contacts=bool(contacts))
+
+
+def _preset(quality, feps, aeps):
     quality = quality.upper()
     if quality not in QUALITIES:
         raise SceneError(
@@ -227,6 +231,7 @@ def bake_frames(
     resolution=None,
     texture_format=None,
     radiance_mode=None,
+    contacts=None,
     cache_dir=None,
     progress=None,
     interrupts=None,
@@ -260,7 +265,12 @@ def bake_frames(
     if domain not in DOMAINS:
         raise SceneError(f"Unknown domain '{domain}' (CORNER or POINT).")
     quality = (quality or hr.quality).upper()
-    params = refine_params(quality, hr.feps if feps is None else feps, hr.aeps if aeps is None else aeps)
+    params = refine_params(
+        quality,
+        hr.feps if feps is None else feps,
+        hr.aeps if aeps is None else aeps,
+        hr.contacts if contacts is None else contacts,
+    )
     output = (output or hr.output).upper()
     if output not in OUTPUTS:
         raise SceneError(f"Unknown output '{output}' (VERTEX or TEXTURE).")
@@ -359,6 +369,7 @@ def bake_frames(
             "quality": quality,
             "feps": params.feps,
             "aeps": params.aeps,
+            "contacts": params.contacts,
             "output": output,
             "radiance_mode": radiance_mode,
             "rays": result.rays,

@@ -93,6 +93,11 @@ def make_parser(prog=PROG, blend_required=False):
         help="smallest element area as a fraction of the scene's area, 0 < A < 1 (implies --quality custom)",
     )
     p.add_argument(
+        "--no-contacts",
+        action="store_true",
+        help="do not look for surfaces covered by objects standing on them (Scene setting Contacts)",
+    )
+    p.add_argument(
         "--domain",
         type=str.lower,
         choices=["corner", "point"],
@@ -239,6 +244,7 @@ def _run(argv, prog, blend_required, intr):
             resolution=args.resolution,
             texture_format=args.texture_format,
             radiance_mode=args.radiance_mode,
+            contacts=False if args.no_contacts else None,
             cache_dir=args.cache_dir,
             status=status.progress if status is not None else None,
             interrupts=intr,

@@ -155,11 +155,11 @@ def _depsgraph(scene, view_layer):
 def _settings(scene):
     hr = scene.hr
     custom = (float(hr.feps), float(hr.aeps)) if hr.quality == "CUSTOM" else ()
-    return (hr.method, hr.quality, custom, hr.domain)
+    return (hr.method, hr.quality, custom, hr.domain, bool(hr.contacts))
 
 
 def _describe_settings(old, new):
-    names = ("method", "quality", "thresholds", "domain")
+    names = ("method", "quality", "thresholds", "domain", "contacts")
     return (
         ", ".join(f"{n} {str(b).lower()}" for n, a, b in zip(names, old, new) if a != b and n != "thresholds")
         or "thresholds"
@@ -308,8 +308,8 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
 
 def _build(sess, scene, view_layer, depsgraph, reason):
     hr = scene.hr
-    method, quality, _, domain = _settings(scene)
-    params = refine_params(quality, hr.feps, hr.aeps)
+    method, quality, _, domain, _ = _settings(scene)
+    params = refine_params(quality, hr.feps, hr.aeps, hr.contacts)
     objs = geometry_objects(view_layer)
     with texture.source_materials(objs):
         scene_in = collect_geometry(view_layer, depsgraph)

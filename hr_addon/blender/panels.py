@@ -108,6 +108,7 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
             sub.enabled = False
             sub.label(text=f"Link threshold (Feps): {p.feps:g}")
             sub.label(text=f"Smallest element (Aeps): {p.aeps:g}")
+        layout.prop(hr, "contacts")
         layout.prop(hr, "output")
         layout.prop(hr, "radiance_mode")
         if hr.output == "TEXTURE":

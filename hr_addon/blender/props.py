@@ -88,6 +88,13 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         precision=6,
         description="Smallest element area as a fraction of the total scene area (Custom quality)",
     )
+    contacts: BoolProperty(
+        name="Contacts",
+        default=True,
+        description="Find surfaces covered by objects standing on them (a box on a floor, a book on "
+        "a shelf) and refine along the contact, so no light leaks under them and the band beside "
+        "them is right",
+    )
     output: EnumProperty(
         name="Output", items=OUTPUT_ITEMS, default="VERTEX", description="Where the baked radiance goes"
     )

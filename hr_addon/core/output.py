@@ -28,7 +28,8 @@ def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="C
     num = np.zeros((n, 3))
     for c in range(3):
         num[:, c] = np.bincount(li, weights=w * B[c, leaf], minlength=n)
-    out = num / np.maximum(den, 1e-300)[:, None]
+    # corners whose every leaf is covered (contacts.py) show 0
+    out = np.where(den[:, None] > 0, num / np.maximum(den, 1e-300)[:, None], 0.0)
     if domain == "POINT":
         res = np.zeros((len(mesh.verts), 3))
         res[mesh.loop_verts] = out

@@ -201,12 +201,13 @@ def incident_radiance(h, B, E, links):
     out = np.zeros_like(B)
     lf = h.leaves()
     r = rho[:, lf]
-    out[:, lf] = np.where(r > 0, (B - E)[:, lf] / np.where(r > 0, r, 1.0), 0.0)
+    out[:, lf] = np.where(r > 0, (h.shown(B) - E)[:, lf] / np.where(r > 0, r, 1.0), 0.0)
     if (r <= 0).any():
         op = Operator(h, links)
         G = op.push(op.gather(B))[:, lf]
         out[:, lf] = np.where(r > 0, out[:, lf], G)
-    return np.maximum(out, 0.0)
+    # node means, as B: covered parts (contacts.py) receive nothing
+    return np.maximum(out, 0.0) * h.exposure[: B.shape[1]]
 
 
 KINDS = ("radiance", "reflected", "incident")
@@ -239,7 +240,7 @@ def solution_radiance(dyn, system, patch, points, locator=None, kind="radiance")
             locator = None
     h, B, E, links = _current(dyn, system)
     if kind == "reflected":
-        B = B - E
+        B = B - E * h.exposure[: B.shape[1]]  # B holds node means (contacts.py)
     elif kind == "incident":
         B = incident_radiance(h, B, E, links)
     leaf = locator.leaves(h) if locator is not None else None

@@ -34,7 +34,7 @@ class _CoverageMixin:
             return 0
         U, rep = self._solve(E, B0=None if self._guess is None else E + self._guess, response=True)
         if rec.method == "AUTO":
-            U = U + self._operator().pull(np.repeat(cov[None], 3, 0))
+            U = U + np.repeat(self._coverage(rec, mean=True)[None], 3, 0)
         rec.U = U
         return rep.iterations
 
@@ -178,8 +178,9 @@ class _CoverageMixin:
             if rec.D is not None and rec.D.shape[1] < n:
                 rec.D = np.concatenate([rec.D, np.zeros((3, n - rec.D.shape[1]))], 1)
 
-    def _coverage(self, rec):
-        """(n,) coverage fraction of every leaf (internal nodes: area-weighted mean)."""
+    def _coverage(self, rec, mean=False):
+        """(n,) coverage fraction of every leaf (internal nodes: area-weighted mean). mean: as
+        node means, the solver's convention (x the leaf's exposure: covered parts emit nothing)."""
         h = self.system.h
         n = h.n
         c = np.zeros(n)
@@ -193,4 +194,6 @@ class _CoverageMixin:
             m = lv[~s[lv] & s[par[lv]]]
             c[m] = c[par[m]]
             s[m] = True
+        if mean:
+            c *= h.exposure[:n]
         return self._operator().pull(c[None].copy())[0]

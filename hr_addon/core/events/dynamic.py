@@ -214,7 +214,9 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         self._sync()
         h = self.system.h
         leaf = locate(h, patch_ids, points)
-        return h.shown(self._B)[:, leaf].T.copy(), self.emission()[:, leaf].T.copy()
+        B = h.shown(self._B)[:, leaf].T.copy()
+        B[h.dark(leaf, np.asarray(points, float))] = 0.0
+        return B, self.emission()[:, leaf].T.copy()
 
     def radiance_at(self, points, patch_ids, smooth=True):
         """Radiance (N, 3) at surface points lying on input patches (output.radiance_at on the current
@@ -322,12 +324,11 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
             E = self.system.base_emission()
             extra = np.zeros_like(E)
             for rec in self.shapes.values():
-                cov = self._coverage(rec)[None] * rec.emission[:, None]
                 if rec.used == "AUTO":
                     E += rec.emission[:, None] * self._push(rec.D)
-                    extra += cov
+                    extra += self._coverage(rec, mean=True)[None] * rec.emission[:, None]
                 else:
-                    E += cov
+                    E += self._coverage(rec)[None] * rec.emission[:, None]
             self._X, rep = self._solve(E, B0=self._X)
             its += rep.iterations
             self._B = self._X + self._operator().pull(extra)
@@ -339,9 +340,11 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         if rec.U is None or rec.used == "NAIVE" or self.incremental != "response":
             return None
         self._sync()
-        cov = self._coverage(rec)[None]
+        cov = self._coverage(rec, mean=True)[None]  # its emission, as node means
         if rec.method == "AUTO":  # U = solve(push(D)) + pull(coverage)
-            return self._operator().pull(rec.U - cov - (self._push(rec.D) if rec.D is not None else 0.0))
+            ex = self.system.h.exposure[: rec.U.shape[1]]
+            pushed = self._push(rec.D) * ex if rec.D is not None else 0.0
+            return self._operator().pull(rec.U - cov - pushed)
         return rec.U - cov
 
     def _push(self, D):
