@@ -40,25 +40,52 @@ def _frames(normal):
     return u, np.cross(normal, u)
 
 
-def _box_pairs(lo_a, hi_a, lo_b, hi_b, max_pairs=50_000_000):
-    """Index pairs (i, j) whose axis-aligned boxes overlap: sweep along x (sorted starts), then a
-    y/z filter. Output-sensitive up to the x-overlaps."""
-    order = np.argsort(lo_b[:, 0], kind="stable")
-    starts = lo_b[order, 0]
-    # b overlaps a in x iff lo_b <= hi_a and hi_b >= lo_a; the first is a prefix of `order`
-    end = np.searchsorted(starts, hi_a[:, 0], "right")
-    out_i, out_j = [], []
-    chunk = max(1, max_pairs // max(int(np.median(end)) if len(end) else 1, 1))
-    for s in range(0, len(lo_a), chunk):
-        e = end[s : s + chunk]
-        i = np.repeat(np.arange(s, s + len(e)), e)
-        j = order[np.arange(len(i)) - np.repeat(np.cumsum(e) - e, e)]
-        ok = np.all((lo_b[j] <= hi_a[i]) & (hi_b[j] >= lo_a[i]), axis=1)
-        out_i.append(i[ok])
-        out_j.append(j[ok])
-    if not out_i:
+def _cells(lo, hi, origin, size, dims, group):
+    """(box index, cell key) for every grid cell each box overlaps; boxes of different groups
+    never share a cell."""
+    c0 = np.floor((lo - origin) / size).astype(np.int64)
+    c1 = np.floor((hi - origin) / size).astype(np.int64)
+    span = c1 - c0 + 1
+    cnt = span.prod(1)
+    box = np.repeat(np.arange(len(lo)), cnt)
+    k = np.arange(len(box)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    key = np.zeros(len(box), np.int64) if group is None else np.asarray(group, np.int64)[box]
+    for ax in range(3):
+        key = key * dims[ax] + c0[box, ax] + k % span[box, ax]
+        k //= span[box, ax]
+    return box, key
+
+
+def _box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=20_000_000):
+    """Index pairs (i, j) whose axis-aligned boxes overlap (and whose groups are equal, if
+    given), through a uniform grid: cells about the median box size, coarsened until the cell
+    lists fit, so the cost follows the overlaps rather than all pairs."""
+    if not len(lo_a) or not len(lo_b):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    return np.concatenate(out_i), np.concatenate(out_j)
+    origin = np.minimum(lo_a.min(0), lo_b.min(0))
+    ext = np.maximum(hi_a.max(0), hi_b.max(0)) - origin
+    span = float(ext.max()) or 1.0
+    size = max(float(np.median(np.concatenate([hi_a - lo_a, hi_b - lo_b]).max(1))), 1e-3 * span)
+    while True:
+        n = sum(
+            int(np.prod(np.floor((h - origin) / size) - np.floor((l - origin) / size) + 1, axis=1).sum())
+            for l, h in ((lo_a, hi_a), (lo_b, hi_b))
+        )
+        if n <= max_refs or size >= span:
+            break
+        size *= 2
+    dims = (np.floor(ext / size) + 1).astype(np.int64)
+    ba, ka = _cells(lo_a, hi_a, origin, size, dims, group_a)
+    bb, kb = _cells(lo_b, hi_b, origin, size, dims, group_b)
+    order = np.argsort(kb, kind="stable")
+    kb, bb = kb[order], bb[order]
+    first = np.searchsorted(kb, ka, "left")
+    cnt = np.searchsorted(kb, ka, "right") - first
+    i = np.repeat(ba, cnt)
+    j = bb[np.repeat(first, cnt) + np.arange(len(i)) - np.repeat(np.cumsum(cnt) - cnt, cnt)]
+    ok = np.all((lo_b[j] <= hi_a[i]) & (hi_b[j] >= lo_a[i]), axis=1)
+    key = np.unique(i[ok] * len(lo_b) + j[ok])
+    return key // len(lo_b), key % len(lo_b)
 
 
 class Contacts:
@@ -205,11 +232,11 @@ class Contacts:
         if not len(self.chain_plane):
             return np.zeros(0, np.int64)
         p2 = self._to2d(self.plane, pt.corners)
-        lo = np.concatenate([p2.min(1), self.plane[:, None].astype(float)], 1)
-        hi = np.concatenate([p2.max(1), self.plane[:, None].astype(float)], 1)
-        clo = np.concatenate([self.chain_lo, self.chain_plane[:, None].astype(float)], 1)
-        chi = np.concatenate([self.chain_hi, self.chain_plane[:, None].astype(float)], 1)
-        i, ch = _box_pairs(lo, hi, clo, chi)
+        z = np.zeros((K, 1))
+        lo, hi = np.concatenate([p2.min(1), z], 1), np.concatenate([p2.max(1), z], 1)
+        zc = np.zeros((len(self.chain_plane), 1))
+        clo, chi = np.concatenate([self.chain_lo, zc], 1), np.concatenate([self.chain_hi, zc], 1)
+        i, ch = _box_pairs(lo, hi, clo, chi, self.plane, self.chain_plane)
         # (receiver patch, touching piece) keys: their links are refined (Refiner.refine)
         self.touch = np.unique(i * K + self.chain_piece[ch])
         return np.unique(i)
@@ -239,10 +266,11 @@ class Contacts:
             return out
         gi = self.plane[patch]
         p2 = self._to2d(gi, points[:, None])[:, 0]
-        lo = np.concatenate([p2, gi[:, None].astype(float)], 1)
-        clo = np.concatenate([self.chain_lo, self.chain_plane[:, None].astype(float)], 1)
-        chi = np.concatenate([self.chain_hi, self.chain_plane[:, None].astype(float)], 1)
-        i, ch = _box_pairs(lo, lo, clo, chi)  # (point, chain) with the point in the chain's box
+        lo = np.concatenate([p2, np.zeros((len(p2), 1))], 1)
+        zc = np.zeros((len(self.chain_plane), 1))
+        clo, chi = np.concatenate([self.chain_lo, zc], 1), np.concatenate([self.chain_hi, zc], 1)
+        # (point, chain) with the point in the chain's box
+        i, ch = _box_pairs(lo, lo, clo, chi, gi, self.chain_plane)
         # a piece never covers itself (a room's walls its floor, a table's sides its top)
         own = self.chain_piece[ch] == self.piece[patch[i]]
         i, ch = i[~own], ch[~own]
