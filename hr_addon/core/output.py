@@ -148,7 +148,7 @@ def locate_near(h: Hierarchy, patch, points):
     return locate(h, cc[np.arange(len(cc)), np.argmax(d, axis=1)], pts)
 
 
-def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
+def radiance_at(h: Hierarchy, B, patch, points, smooth=True, mask=True):
     """Radiance (M, 3) at surface points of the given patches (texel centres for texture baking).
 
     smooth=False returns the leaf values: the piecewise-constant HR solution. smooth=True
@@ -156,13 +156,15 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
     area-weighted mean of the leaves touching that corner, found by probing just beside it, also
     in the neighbouring patches of a smooth surface (so input polygon edges leave no seam). The
     result is continuous across edges between leaves of equal size; at a T-vertex the jump is a
-    fraction of the neighbouring leaves' difference."""
+    fraction of the neighbouring leaves' difference. mask: points on covered parts of surfaces
+    (contacts.py) read 0 (False: the interpolated field, for texels.radiance_per_leaf's probes)."""
     patch = np.asarray(patch, np.int64)
     pts = np.asarray(points, float)
     leaf = locate(h, patch, pts)
     if not smooth:
         out = h.shown(B)[:, leaf].T.copy()
-        out[h.dark(leaf, pts)] = 0.0
+        if mask:
+            out[h.dark(leaf, pts)] = 0.0
         return out
     c = h.corners[leaf]  # (M, 4, 3)
     size = np.sqrt(h.area[leaf])[:, None, None]
@@ -178,7 +180,8 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True):
         den += a * h.exposure[pl]  # node means over exposed area: the light on the uncovered part
     val = num / np.maximum(den, 1e-300)[..., None]
     out = np.einsum("mk,mkc->mc", corner_weights(c, h.nv[leaf], h.normal[leaf], pts), val)
-    out[h.dark(leaf, pts)] = 0.0  # covered points stay dark: no light interpolated under a block
+    if mask:  # covered points stay dark: no light interpolated under a block
+        out[h.dark(leaf, pts)] = 0.0
     return out
 
 

@@ -47,7 +47,7 @@ def radiance_per_leaf(h, B, patch, points, leaf=None, locator=None, chunk=200_00
     roots = h.patch[U][rows].astype(np.int64)
     s = np.concatenate(
         [
-            radiance_at(h, B, roots[a : a + chunk], sp[a : a + chunk], smooth=True)
+            radiance_at(h, B, roots[a : a + chunk], sp[a : a + chunk], smooth=True, mask=False)
             for a in range(0, len(sp), chunk)
         ]
     )
@@ -82,6 +82,7 @@ def radiance_per_leaf(h, B, patch, points, leaf=None, locator=None, chunk=200_00
     out = np.empty((len(pts), 3))
     for a in range(0, len(pts), chunk):
         out[a : a + chunk] = np.einsum("mk,mkc->mc", w[a : a + chunk], val[inv[a : a + chunk]])
+    out[h.dark(U[inv], pts)] = 0.0  # covered points (contacts.py), as radiance_at
     return out
 
 
