@@ -24,6 +24,7 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import hashlib  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
@@ -88,6 +89,7 @@ QUICK = {
     "qualities": ["draft"],
     "methods": ["FE", "AUTO"],
 }
+PARAMS = {}  # --params
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
 MIN_SURFACE_SHARE = 0.01
@@ -344,7 +346,7 @@ def run_scene(name, cfg, results, maps=None):
     # ours
     for q in cfg["qualities"]:
         t0 = time.process_time()
-        base = RadiositySystem(rs.scene_in.mesh, RefineParams.preset(q))
+        base = RadiositySystem(rs.scene_in.mesh, dataclasses.replace(RefineParams.preset(q), **PARAMS))
         t_build = time.process_time() - t0
         log(f"[{name}/{q}] hierarchy: {base.h.n} nodes, {len(base.links)} links, {t_build:.1f} s")
         for meth in cfg["methods"]:
@@ -766,12 +768,18 @@ def main():
     ap.add_argument("--scenes", default="cornell,searchbeam,office")
     ap.add_argument("--qualities", help="comma-separated, overrides each scene's list")
     ap.add_argument("--methods", help="comma-separated, overrides each scene's list")
+    ap.add_argument(
+        "--params", default="", help="RefineParams overrides for every preset, e.g. shadow_feps=5e-4,contacts=0"
+    )
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
     args = ap.parse_args()
     global USE_CACHE
     USE_CACHE = not args.no_cache
+    for kv in filter(None, args.params.split(",")):
+        k, v = kv.split("=")
+        PARAMS[k] = type(getattr(RefineParams(), k))(float(v))
     if args.plot_only:
         with open(args.out) as fh:
             data = json.load(fh)
