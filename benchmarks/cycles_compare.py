@@ -777,6 +777,8 @@ def main():
     args = ap.parse_args()
     global USE_CACHE
     USE_CACHE = not args.no_cache
+    from hr_addon.core.refine import RefineParams
+
     for kv in filter(None, args.params.split(",")):
         k, v = kv.split("=")
         PARAMS[k] = type(getattr(RefineParams(), k))(float(v))

@@ -56,7 +56,7 @@ def _cells(lo, hi, origin, size, dims, group):
     return box, key
 
 
-def _box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=20_000_000):
+def _box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000_000):
     """Index pairs (i, j) whose axis-aligned boxes overlap (and whose groups are equal, if
     given), through a uniform grid: cells about the median box size, coarsened until the cell
     lists fit, so the cost follows the overlaps rather than all pairs."""
@@ -258,9 +258,17 @@ class Contacts:
         return len(self.receivers) > 0
 
     # -- the covered-point test -----------------------------------------------------------------------
-    def covered(self, points, patch, budget=4_000_000):
-        """Boolean (N,): points (N, 3) lying on patches patch (N,) are covered."""
+    def covered(self, points, patch, budget=4_000_000, chunk=200_000):
+        """Boolean (N,): points (N, 3) lying on patches patch (N,) are covered (in chunks of
+        points: the temporaries stay small whatever the scene size)."""
         points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
+        if len(points) > chunk:
+            return np.concatenate(
+                [
+                    self.covered(points[s : s + chunk], patch[s : s + chunk], budget, chunk)
+                    for s in range(0, len(points), chunk)
+                ]
+            )
         out = np.zeros(len(points), bool)
         if not len(self.chain_plane) or not len(points):
             return out
@@ -294,17 +302,20 @@ class Contacts:
         return out
 
 
-def refine_contacts(h, contacts: Contacts, min_area, k=6, max_nodes=2_000_000):
+def refine_contacts(h, contacts: Contacts, min_area, k=(6, 4), max_nodes=2_000_000):
     """Split the nodes of contact receivers that are partly covered down to min_area and set
-    every node's exposure (uncovered area fraction, from k x k stratified points; internal nodes
-    the area-weighted mean of their children). Returns the number of nodes added."""
+    every node's exposure (uncovered area fraction, from k x k stratified points: k[0] on the
+    receivers, which may be large, k[1] below; internal nodes the area-weighted mean of their
+    children). Returns the number of nodes added."""
     from . import formfactor as ff
 
     n0 = h.n
     frontier = np.asarray(contacts.receivers, np.int64)
+    kk = k[0]
     while len(frontier):
-        pts = ff.sample_points(h.corners[frontier], h.nv[frontier], k)
-        cov = contacts.covered(pts.reshape(-1, 3), np.repeat(h.patch[frontier], k * k)).reshape(-1, k * k)
+        pts = ff.sample_points(h.corners[frontier], h.nv[frontier], kk)
+        cov = contacts.covered(pts.reshape(-1, 3), np.repeat(h.patch[frontier], kk * kk)).reshape(-1, kk * kk)
+        kk = k[1]
         frac = cov.mean(1)
         h.exposure[frontier] = 1.0 - frac
         split = (frac > 0) & (frac < 1) & (h.area[frontier] > min_area) & (h.child0[frontier] < 0)
@@ -321,21 +332,19 @@ def refine_contacts(h, contacts: Contacts, min_area, k=6, max_nodes=2_000_000):
     return h.n - n0
 
 
-def exposed_points(h, contacts: Contacts, nodes, k, fine=6):
+def exposed_points(h, contacts: Contacts, nodes, k, fp, seen):
     """Visibility sample points (len(nodes), k*k, 3) of partly covered nodes: each of the k x k
-    stratified points that is covered is replaced by the nearest uncovered one of a fine x fine
-    grid, so the node's links see from the part that receives light. Nodes without an uncovered
-    point keep theirs."""
+    stratified points that is covered is replaced by the nearest uncovered one of the finer grid
+    fp (N, S, 3) (`seen`: its uncovered points), so the node's links see from the part that
+    receives light. Nodes without an uncovered point keep theirs."""
     from . import formfactor as ff
 
     nodes = np.asarray(nodes, np.int64)
     base = ff.sample_points(h.corners[nodes], h.nv[nodes], k)
     if not len(nodes):
         return base
-    pid = h.patch[nodes]
-    cb = contacts.covered(base.reshape(-1, 3), np.repeat(pid, k * k)).reshape(-1, k * k)
-    fp = ff.sample_points(h.corners[nodes], h.nv[nodes], fine)
-    cf = contacts.covered(fp.reshape(-1, 3), np.repeat(pid, fine * fine)).reshape(-1, fine * fine)
+    cb = contacts.covered(base.reshape(-1, 3), np.repeat(h.patch[nodes], k * k)).reshape(-1, k * k)
+    cf = ~seen
     d2 = np.sum((base[:, :, None] - fp[:, None]) ** 2, -1)  # (N, s, S)
     d2 = np.where(cf[:, None], np.inf, d2)
     best = d2.argmin(-1)

@@ -339,10 +339,11 @@ class Refiner:
             self.stats["contact_nodes"] = refine_contacts(h, c, min_area)
             ex = h.view("exposure")
             part = np.flatnonzero((ex > 0) & (ex < 1))
-            self._vis_nodes, self._vis_pts = part, exposed_points(h, c, part, prm.vis_k)
-            # form factors of partly covered nodes: from their exposed points of a 6 x 6 grid
-            fp = ff.sample_points(h.corners[part], h.nv[part], 6)
-            seen = ~c.covered(fp.reshape(-1, 3), np.repeat(h.patch[part], 36)).reshape(-1, 36)
+            # form factors (and visibility points) of partly covered nodes: from their exposed
+            # points of a 4 x 4 grid
+            fp = ff.sample_points(h.corners[part], h.nv[part], 4)
+            seen = ~c.covered(fp.reshape(-1, 3), np.repeat(h.patch[part], 16)).reshape(-1, 16)
+            self._vis_nodes, self._vis_pts = part, exposed_points(h, c, part, prm.vis_k, fp, seen)
             self._ff_pts, self._ff_w = fp, seen / np.maximum(seen.sum(1, keepdims=True), 1)
             # the oracle estimates F from centres: a partly covered node's is that of its exposed
             # part (its own centre may lie under a box, behind the box's side)
