@@ -68,8 +68,8 @@ def _box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_00
     size = max(float(np.median(np.concatenate([hi_a - lo_a, hi_b - lo_b]).max(1))), 1e-3 * span)
     while True:
         n = sum(
-            int(np.prod(np.floor((h - origin) / size) - np.floor((l - origin) / size) + 1, axis=1).sum())
-            for l, h in ((lo_a, hi_a), (lo_b, hi_b))
+            int(np.prod(np.floor((top - origin) / size) - np.floor((bot - origin) / size) + 1, axis=1).sum())
+            for bot, top in ((lo_a, hi_a), (lo_b, hi_b))
         )
         if n <= max_refs or size >= span:
             break
@@ -81,10 +81,17 @@ def _box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_00
     kb, bb = kb[order], bb[order]
     first = np.searchsorted(kb, ka, "left")
     cnt = np.searchsorted(kb, ka, "right") - first
-    i = np.repeat(ba, cnt)
-    j = bb[np.repeat(first, cnt) + np.arange(len(i)) - np.repeat(np.cumsum(cnt) - cnt, cnt)]
-    ok = np.all((lo_b[j] <= hi_a[i]) & (hi_b[j] >= lo_a[i]), axis=1)
-    key = np.unique(i[ok] * len(lo_b) + j[ok])
+    # candidate pairs in blocks of about max_refs: their temporaries stay bounded
+    ends = np.cumsum(cnt)
+    cuts = np.searchsorted(ends, np.arange(max_refs, int(ends[-1]) if len(ends) else 0, max_refs))
+    keys = []
+    for s, e in zip(np.r_[0, cuts], np.r_[cuts, len(ka)]):
+        c = cnt[s:e]
+        i = np.repeat(ba[s:e], c)
+        j = bb[np.repeat(first[s:e], c) + np.arange(len(i)) - np.repeat(np.cumsum(c) - c, c)]
+        ok = np.all((lo_b[j] <= hi_a[i]) & (hi_b[j] >= lo_a[i]), axis=1)
+        keys.append(np.unique(i[ok] * len(lo_b) + j[ok]))
+    key = np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
     return key // len(lo_b), key % len(lo_b)
 
 
@@ -126,16 +133,11 @@ class Contacts:
         return components(len(pt.nv), np.concatenate(ii), np.concatenate(jn))
 
     # -- chains per receiver plane --------------------------------------------------------------------
-    def _build(self):
-        pt = self.patches
+    def _segments(self, gi, t):
+        """Chain segments (plane, a2d, b2d, chain id, signed, piece) of occluder patches t in
+        the planes gi."""
+        pt, g = self.patches, self.gap
         c = pt.corners
-        lo, hi = c.min(1), c.max(1)
-        g = self.gap
-        i, j = _box_pairs(lo - g, hi + g, lo, hi)
-        keep = (i != j) & (self.plane[i] != self.plane[j])
-        gi, t = self.plane[i[keep]], j[keep]
-        pair = np.unique(gi.astype(np.int64) * len(pt.nv) + t)  # (plane, occluder patch), once each
-        gi, t = pair // len(pt.nv), pair % len(pt.nv)
         n, o = self.n_g[gi], self.o_g[gi]
         d = np.einsum("pkj,pj->pk", c[t] - o[:, None], n)  # (P, 4) corner heights over the plane
         nv = pt.nv[t]
@@ -192,6 +194,21 @@ class Contacts:
                 b2 = self._to2d(gi[cr][sel], b3[sel][:, None])[:, 0]
                 pc = self.piece[t[cr][sel]]
                 segs.append((gi[cr][sel], a2, b2, -1 - pc, np.ones(len(sel), bool), pc))
+        return segs
+
+    def _build(self):
+        pt = self.patches
+        c = pt.corners
+        lo, hi = c.min(1), c.max(1)
+        g = self.gap
+        i, j = _box_pairs(lo - g, hi + g, lo, hi)
+        keep = (i != j) & (self.plane[i] != self.plane[j])
+        gi, t = self.plane[i[keep]], j[keep]
+        pair = np.unique(gi.astype(np.int64) * len(pt.nv) + t)  # (plane, occluder patch), once each
+        gi, t = pair // len(pt.nv), pair % len(pt.nv)
+        segs = []
+        for s0 in range(0, len(t), 500_000):  # bounded temporaries at any scene size
+            segs += self._segments(gi[s0 : s0 + 500_000], t[s0 : s0 + 500_000])
         if segs:
             g_, a_, b_, ch_, sg_, pc_ = (np.concatenate(x) for x in zip(*segs))
         else:
