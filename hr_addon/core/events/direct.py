@@ -117,6 +117,20 @@ class _DirectMixin:
                 sel = (ev[:, None] * 4 + np.arange(4)).ravel()
                 FV[ev] = visible(frontier[ev], F[ev], x[sel], xn[sel])
             val = (FV * gw).sum(1)
+            if h.contacts is not None and len(ev):
+                # partly covered nodes (contacts.py): the light on their exposed part; the solve
+                # counts the exposure itself
+                ex = h.exposure[frontier[ev]]
+                part = np.flatnonzero((ex > 0) & (ex < 1))
+                if len(part):
+                    rows = ev[part]
+                    pts = x.reshape(-1, 4, 3)[rows]
+                    lit = ~h.dark(np.repeat(frontier[rows], 4), pts.reshape(-1, 3)).reshape(-1, 4)
+                    w = gw[rows] * lit
+                    ws = w.sum(1)
+                    val[rows] = np.where(
+                        ws > 0, (FV[rows] * w).sum(1) / np.where(ws > 0, ws, 1) * gw[rows].sum(1), val[rows]
+                    )
             var = rm * (FV.max(1) - FV.min(1))
             split = leaf & (h.area[frontier] > min_area) & (var >= thr)
             room = max((self.node_budget - (h.n - n_start)) // 4, 0)
