@@ -575,14 +575,17 @@ class Ours:
             leaf = locate(h, allp, allx)
             if self.system.B is None:
                 self.system.solve()
-            B = h.shown(self.system.B)[:, leaf].T
-            B[h.dark(leaf, allx)] = 0.0
+            B = h.values_at(self.system.B, leaf, allx)
             E = self.system.base_emission()[:, leaf].T
             loops = self.system.loop_radiance("CORNER")
             if want_smooth:
                 smooth = (
                     radiance_at(
-                        h, self.system.B - self.system.base_emission() * h.exposure[: h.n], allp, allx, smooth=True
+                        h,
+                        self.system.B - self.system.base_emission() * h.exposure[: h.n],
+                        allp,
+                        allx,
+                        smooth=True,
                     ),
                     radiance_at(h, self.system.B, allp, allx, smooth=True),
                 )

@@ -23,7 +23,7 @@ import numpy as np
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path[:0] = [ROOT, os.path.join(ROOT, "scripts"), os.path.join(ROOT, "benchmarks")]
 
-from render_textured import _render  # noqa: E402  (same render settings)
+from render_textured import _against, _render, _tile  # noqa: E402  (same settings and measures)
 
 
 def _reference_materials(bpy, scene):
@@ -56,12 +56,6 @@ def _close_up(bpy, scene):
     c.location = target + np.array([-0.07, -0.16, 0.09])
     c.rotation_euler = Vector(target - np.array(c.location)).to_track_quat("-Z", "Y").to_euler()
     return c
-
-
-def _tile(img, label, Image, ImageDraw, linear_to_srgb):
-    im = Image.fromarray((np.clip(linear_to_srgb(np.clip(img, 0, 1)), 0, 1) * 255 + 0.5).astype(np.uint8))
-    ImageDraw.Draw(im).text((6, 4), label, fill=(255, 255, 255))
-    return im
 
 
 def _box_blur(img, r):
@@ -125,7 +119,6 @@ def main():
     import hr_addon
     from hr_addon.blender import texture
     from hr_addon.blender.bake import run_bake
-    from hr_addon.io.images import linear_to_srgb
 
     if not hasattr(bpy.types.Scene, "hr"):
         hr_addon.register()
@@ -170,23 +163,18 @@ def main():
         for (key, view), img in shots.items():
             if key == "cycles":
                 continue
-            ref = shots[("cycles", view)]
-            keep = ref.max(-1) < 1.0  # the light seen directly is left out
-            d = (img - ref)[keep]
-            print(
-                f"{key}, {view} view: relative RMSE {np.sqrt(np.mean(d**2)) / ref[keep].mean():.3f}, "
-                f"mean {img[keep].mean() / ref[keep].mean() - 1:+.2%} against the path-traced render"
-            )
+            rel, bias = _against(img, shots[("cycles", view)])
+            print(f"{key}, {view} view: relative RMSE {rel:.3f}, mean {bias:+.2%} against path tracing")
         ours, ref = shots[("with contacts", "full")], shots[("cycles", "full")]
         keep = ref.max(-1) < 1.0
         top = [
-            _tile(ours, "HR bake, medium (texture output)", Image, ImageDraw, linear_to_srgb),
-            _tile(ref, f"Cycles path traced, {args.spp} spp", Image, ImageDraw, linear_to_srgb),
+            _tile(ours, "HR bake, medium (texture output)"),
+            _tile(ref, f"Cycles path traced, {args.spp} spp"),
             _diff_tile(ours, ref, keep, 0.2, Image, ImageDraw),
         ]
         gain = 2.0  # the close-ups one stop brighter, all three alike
         bottom = [
-            _tile(gain * shots[(k, "close")], f"block foot: {t} (+1 stop)", Image, ImageDraw, linear_to_srgb)
+            _tile(gain * shots[(k, "close")], f"block foot: {t} (+1 stop)")
             for k, t in (
                 ("without contacts", "contacts off"),
                 ("with contacts", "contacts on"),

@@ -45,6 +45,24 @@ def _render(bpy, scene, path, spp, bounces):
     return px.reshape(h, w, 4)[::-1, :, :3].astype(np.float64)  # row 0 at the top
 
 
+def _tile(img, label):
+    """A linear float image as an 8-bit sRGB PIL image with a label."""
+    from PIL import Image, ImageDraw
+
+    from hr_addon.io.images import linear_to_srgb
+
+    im = Image.fromarray((np.clip(linear_to_srgb(np.clip(img, 0, 1)), 0, 1) * 255 + 0.5).astype(np.uint8))
+    ImageDraw.Draw(im).text((6, 4), label, fill=(255, 255, 255))
+    return im
+
+
+def _against(img, ref):
+    """(relative pixel RMSE, relative mean error) of img against ref, the emitter (>= 1) left out."""
+    keep = ref.max(-1) < 1.0
+    d = (img - ref)[keep]
+    return float(np.sqrt(np.mean(d**2)) / ref[keep].mean()), float(img[keep].mean() / ref[keep].mean() - 1)
+
+
 def _reference_materials(bpy, objs):
     """One-sided Diffuse (+ Emission) copies of what our reader reads; the floor's colour is the
     same image through the same UV map."""
@@ -78,12 +96,11 @@ def main():
     ap.add_argument("--out", default=os.path.join(ROOT, "docs", "images", "textured_albedo.png"))
     args = ap.parse_args()
     import bpy
-    from PIL import Image, ImageDraw
+    from PIL import Image
 
     import make_samples as ms
     from hr_addon.blender import texture
     from hr_addon.blender.bake import run_bake
-    from hr_addon.io.images import linear_to_srgb
 
     scene = ms.reset()
     objs = ms.textured_room()
@@ -122,19 +139,10 @@ def main():
         _reference_materials(bpy, objs)
         ref = _render(bpy, scene, os.path.join(tmp, "cycles.exr"), args.spp, 64)
         panels[f"Cycles path traced, {args.spp} spp"] = ref
-        keep = ref.max(-1) < 1.0  # the emitter seen directly is left out
         for k, img in list(panels.items())[:-1]:
-            d = (img - ref)[keep]
-            rel = float(np.sqrt(np.mean(d**2)) / ref[keep].mean())
-            bias = float(img[keep].mean() / ref[keep].mean() - 1)
+            rel, bias = _against(img, ref)
             print(f"{k}: relative RMSE {rel:.3f}, mean {bias:+.3%} against the path-traced render")
-        tiles = []
-        for k, img in panels.items():
-            im = Image.fromarray(
-                (np.clip(linear_to_srgb(np.clip(img, 0, 1)), 0, 1) * 255 + 0.5).astype(np.uint8)
-            )
-            ImageDraw.Draw(im).text((6, 4), k, fill=(255, 255, 255))
-            tiles.append(im)
+        tiles = [_tile(img, k) for k, img in panels.items()]
         w, h = tiles[0].size
         strip = Image.new("RGB", (w * 2 + 4, h * 2 + 4), (255, 255, 255))
         for i, t in enumerate(tiles):

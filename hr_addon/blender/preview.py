@@ -31,7 +31,8 @@ def bake_mode(scene):
         return scene.hr.radiance_mode
 
 
-def _get(tree, name, kind, location):
+def node_named(tree, name, kind, location):
+    """The node called `name` in tree, made (or remade, if of another kind) at location."""
     n = tree.nodes.get(name)
     if n is not None and n.bl_idname != kind:
         tree.nodes.remove(n)
@@ -53,7 +54,7 @@ def colour_chain(mat, tree, src, location, irradiance):
     if not irradiance:
         return src
     x, y = location
-    mul = _get(tree, N_MUL, "ShaderNodeMix", (x, y))
+    mul = node_named(tree, N_MUL, "ShaderNodeMix", (x, y))
     mul.data_type, mul.blend_type, mul.clamp_result = "RGBA", "MULTIPLY", False
     ids = {s.identifier: s for s in mul.inputs}
     ids["Factor_Float"].default_value = 1.0
@@ -67,7 +68,7 @@ def colour_chain(mat, tree, src, location, irradiance):
         rho = base.default_value[:3] if base is not None else read_material(mat).reflectance
         ids["B_Color"].default_value = (*map(float, rho), 1.0)
     res = next(s for s in mul.outputs if s.identifier == "Result_Color")
-    add = _get(tree, N_ADD, "ShaderNodeVectorMath", (x + 200, y))
+    add = node_named(tree, N_ADD, "ShaderNodeVectorMath", (x + 200, y))
     add.operation = "ADD"
     add.inputs[1].default_value = tuple(map(float, read_material(mat).emission))
     tree.links.new(res, add.inputs[0])
@@ -79,12 +80,12 @@ def _add_nodes(mat, irradiance=False):
     if tree is None:
         return False
     x = max((n.location.x for n in tree.nodes if not n.name.startswith(PREVIEW)), default=0) + 300
-    attr = _get(tree, N_ATTR, "ShaderNodeAttribute", (x, -400))
+    attr = node_named(tree, N_ATTR, "ShaderNodeAttribute", (x, -400))
     attr.attribute_type = "GEOMETRY"
     attr.attribute_name = ATTRIBUTE
-    emit = _get(tree, N_EMIT, "ShaderNodeEmission", (x + 600, -400))
+    emit = node_named(tree, N_EMIT, "ShaderNodeEmission", (x + 600, -400))
     emit.inputs["Strength"].default_value = 1.0
-    out = _get(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 800, -400))
+    out = node_named(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 800, -400))
     out.target = "ALL"
     col = colour_chain(mat, tree, attr.outputs["Color"], (x + 200, -400), irradiance)
     tree.links.new(col, emit.inputs["Color"])

@@ -32,7 +32,7 @@ from ..lightmap.plan import TexturePlan, triangle_uvs
 from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
 from .materials import PREVIEW, albedo_texture
-from .preview import colour_chain
+from .preview import colour_chain, node_named
 from .scene_in import evaluated, mesh_topology
 
 UV_NAME = "HR_Lightmap"
@@ -306,18 +306,6 @@ def _sequence_image(obj, path, fmt):
     return img
 
 
-def _node(tree, name, kind, location):
-    n = tree.nodes.get(name)
-    if n is not None and n.bl_idname != kind:
-        tree.nodes.remove(n)
-        n = None
-    if n is None:
-        n = tree.nodes.new(kind)
-        n.name = n.label = name
-        n.location = location
-    return n
-
-
 def _wire(mat, img, first, last, irradiance=False):
     """Add (or update) UV Map -> Image Texture -> Emission -> Material Output, the active output;
     for an irradiance bake the image times the material's base colour plus its emission
@@ -328,9 +316,9 @@ def _wire(mat, img, first, last, irradiance=False):
     if N_ATTR in tree.nodes:  # a vertex-colour preview copied from the material
         tree.nodes.remove(tree.nodes[N_ATTR])
     x = max((n.location.x for n in tree.nodes if not n.name.startswith(PREVIEW)), default=0) + 300
-    uvn = _node(tree, N_UV, "ShaderNodeUVMap", (x, -400))
+    uvn = node_named(tree, N_UV, "ShaderNodeUVMap", (x, -400))
     uvn.uv_map = UV_NAME
-    tex = _node(tree, N_TEX, "ShaderNodeTexImage", (x + 200, -400))
+    tex = node_named(tree, N_TEX, "ShaderNodeTexImage", (x + 200, -400))
     tex.image = img
     tex.interpolation = "Linear"
     tex.extension = "EXTEND"
@@ -340,9 +328,9 @@ def _wire(mat, img, first, last, irradiance=False):
     iu.frame_offset = first - 1
     iu.use_cyclic = False
     iu.use_auto_refresh = True
-    emit = _node(tree, N_EMIT, "ShaderNodeEmission", (x + 900, -400))
+    emit = node_named(tree, N_EMIT, "ShaderNodeEmission", (x + 900, -400))
     emit.inputs["Strength"].default_value = 1.0
-    out = _node(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 1100, -400))
+    out = node_named(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 1100, -400))
     out.target = "ALL"
     tree.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
     col = colour_chain(mat, tree, tex.outputs["Color"], (x + 500, -400), irradiance)

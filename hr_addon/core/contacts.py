@@ -40,6 +40,15 @@ def _frames(normal):
     return u, np.cross(normal, u)
 
 
+def sorted_index(table, keys):
+    """Index of each key in the sorted array table, -1 where it is absent."""
+    keys = np.asarray(keys)
+    if not len(table):
+        return np.full(keys.shape, -1, np.int64)
+    i = np.minimum(np.searchsorted(table, keys), len(table) - 1)
+    return np.where(table[i] == keys, i, -1)
+
+
 def _cells(lo, hi, origin, size, dims, group):
     """(box index, cell key) for every grid cell each box overlaps; boxes of different groups
     never share a cell."""
@@ -226,8 +235,9 @@ class Contacts:
         self.chain_piece = pc_[order][first] if nC else np.zeros(0, np.int64)
         both = np.concatenate([self.seg_a, self.seg_b])
         ch2 = np.concatenate([self.seg_chain, self.seg_chain])
-        self.chain_lo = np.full((nC, 2), np.inf)
-        self.chain_hi = np.full((nC, 2), -np.inf)
+        # chain boxes in the plane's frame (a third coordinate 0, as _box_pairs takes 3D boxes)
+        self.chain_lo, self.chain_hi = np.full((nC, 3), np.inf), np.full((nC, 3), -np.inf)
+        self.chain_lo[:, 2] = self.chain_hi[:, 2] = 0.0
         for k in range(2):
             np.minimum.at(self.chain_lo[:, k], ch2, both[:, k])
             np.maximum.at(self.chain_hi[:, k], ch2, both[:, k])
@@ -251,9 +261,7 @@ class Contacts:
         p2 = self._to2d(self.plane, pt.corners)
         z = np.zeros((K, 1))
         lo, hi = np.concatenate([p2.min(1), z], 1), np.concatenate([p2.max(1), z], 1)
-        zc = np.zeros((len(self.chain_plane), 1))
-        clo, chi = np.concatenate([self.chain_lo, zc], 1), np.concatenate([self.chain_hi, zc], 1)
-        i, ch = _box_pairs(lo, hi, clo, chi, self.plane, self.chain_plane)
+        i, ch = _box_pairs(lo, hi, self.chain_lo, self.chain_hi, self.plane, self.chain_plane)
         # (receiver patch, touching piece) keys: their links are refined (Refiner.refine)
         self.touch = np.unique(i * K + self.chain_piece[ch])
         return np.unique(i)
@@ -261,14 +269,9 @@ class Contacts:
     def touching(self, p, q):
         """True where patch q belongs to a piece with a contact over patch p, or the reverse."""
         K = len(self.patches.nv)
-        if not len(self.touch):
-            return np.zeros(len(p), bool)
-
-        def has(keys):
-            i = np.minimum(np.searchsorted(self.touch, keys), len(self.touch) - 1)
-            return self.touch[i] == keys
-
-        return has(p * K + self.piece[q]) | has(q * K + self.piece[p])
+        return (sorted_index(self.touch, p * K + self.piece[q]) >= 0) | (
+            sorted_index(self.touch, q * K + self.piece[p]) >= 0
+        )
 
     @property
     def any(self):
@@ -292,10 +295,8 @@ class Contacts:
         gi = self.plane[patch]
         p2 = self._to2d(gi, points[:, None])[:, 0]
         lo = np.concatenate([p2, np.zeros((len(p2), 1))], 1)
-        zc = np.zeros((len(self.chain_plane), 1))
-        clo, chi = np.concatenate([self.chain_lo, zc], 1), np.concatenate([self.chain_hi, zc], 1)
         # (point, chain) with the point in the chain's box
-        i, ch = _box_pairs(lo, lo, clo, chi, gi, self.chain_plane)
+        i, ch = _box_pairs(lo, lo, self.chain_lo, self.chain_hi, gi, self.chain_plane)
         # a piece never covers itself (a room's walls its floor, a table's sides its top)
         own = self.chain_piece[ch] == self.piece[patch[i]]
         i, ch = i[~own], ch[~own]

@@ -178,6 +178,14 @@ class Hierarchy:
             return B
         return np.where(ex > 0, B / np.maximum(ex, 1e-30), 0.0)
 
+    def values_at(self, B, leaf, points):
+        """(N, 3) radiance at points (N, 3) lying in nodes `leaf` (N,): shown() of their node,
+        0 where the point is covered (dark())."""
+        ex = self.exposure[leaf].astype(np.float64)
+        out = np.where(ex > 0, B[:, leaf] / np.maximum(ex, 1e-30), 0.0).T
+        out[self.dark(leaf, np.asarray(points, float))] = 0.0
+        return out
+
     def dark(self, leaf, points):
         """True where points (N, 3) in leaves `leaf` (N,) are covered: the whole leaf when its
         exposure is 0, by the contact test when it is partly covered."""

@@ -162,10 +162,7 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True, mask=True):
     pts = np.asarray(points, float)
     leaf = locate(h, patch, pts)
     if not smooth:
-        out = h.shown(B)[:, leaf].T.copy()
-        if mask:
-            out[h.dark(leaf, pts)] = 0.0
-        return out
+        return h.values_at(B, leaf, pts) if mask else h.shown(B)[:, leaf].T.copy()
     c = h.corners[leaf]  # (M, 4, 3)
     size = np.sqrt(h.area[leaf])[:, None, None]
     unit = lambda v: v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)

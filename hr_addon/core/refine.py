@@ -17,6 +17,7 @@ import numpy as np
 
 from . import cluster
 from . import formfactor as ff
+from .contacts import sorted_index
 from .hierarchy import Hierarchy
 from .progress import NO_PROGRESS
 
@@ -357,16 +358,10 @@ class Refiner:
         """Links with a partly covered end: F integrated over that end's exposed part (its
         covered part sees nothing; a box's side, say, is behind it), the other direction by
         reciprocity, so the kernel stays symmetric (in place)."""
-        nodes = self._vis_nodes
-        if nodes is None or not len(nodes):
+        if self._vis_nodes is None or not len(self._vis_nodes):
             return
         h = self.h
-
-        def lookup(x):
-            i = np.minimum(np.searchsorted(nodes, x), len(nodes) - 1)
-            return np.where(nodes[i] == x, i, -1)
-
-        ia, ib = lookup(a), lookup(b)
+        ia, ib = self._partial(a), self._partial(b)
         ia[ia >= 0] = np.where(self._ff_w[ia[ia >= 0]].any(1), ia[ia >= 0], -1)
         ib[ib >= 0] = np.where(self._ff_w[ib[ib >= 0]].any(1), ib[ib >= 0], -1)
         # far apart, the kernel is smooth across the node: its Gauss points do (as in
@@ -397,9 +392,9 @@ class Refiner:
     def centres(self, nodes):
         """Node centres for the oracle, of the exposed part where a node is partly covered."""
         c = self.h.centre[nodes]
-        if self._vis_nodes is not None and len(self._vis_nodes):
-            i = np.minimum(np.searchsorted(self._vis_nodes, nodes), len(self._vis_nodes) - 1)
-            hit = self._vis_nodes[i] == nodes
+        i = self._partial(nodes)
+        hit = i >= 0
+        if hit.any():
             c[hit] = self._ex_centre[i[hit]]
         return c
 
@@ -408,11 +403,15 @@ class Refiner:
         covered part for partly covered nodes."""
         h, k = self.h, self.params.vis_k
         pts = ff.sample_points(h.corners[nodes], h.nv[nodes], k)
-        if self._vis_nodes is not None and len(self._vis_nodes):
-            i = np.minimum(np.searchsorted(self._vis_nodes, nodes), len(self._vis_nodes) - 1)
-            hit = self._vis_nodes[i] == nodes
+        i = self._partial(nodes)
+        hit = i >= 0
+        if hit.any():
             pts[hit] = self._vis_pts[i[hit]]
         return pts
+
+    def _partial(self, nodes):
+        """Index of each node among the partly covered ones (_vis_nodes, sorted), -1 if not one."""
+        return sorted_index(np.zeros(0, np.int64) if self._vis_nodes is None else self._vis_nodes, nodes)
 
     def refine(self, p, q, good_enough=None):
         """HSA loop from candidate pairs (p, q); returns the new Links.

@@ -214,9 +214,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         self._sync()
         h = self.system.h
         leaf = locate(h, patch_ids, points)
-        B = h.shown(self._B)[:, leaf].T.copy()
-        B[h.dark(leaf, np.asarray(points, float))] = 0.0
-        return B, self.emission()[:, leaf].T.copy()
+        return h.values_at(self._B, leaf, points), self.emission()[:, leaf].T.copy()
 
     def radiance_at(self, points, patch_ids, smooth=True):
         """Radiance (N, 3) at surface points lying on input patches (output.radiance_at on the current

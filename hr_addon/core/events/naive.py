@@ -174,10 +174,7 @@ class _NaiveState:
         h = self.system.h
         leaf = locate(h, roots, pts)
         E = self.system.base_emission()
-        h = self.system.h
-        B = h.shown(self.system.B)[:, leaf].T.copy()
-        B[h.dark(leaf, np.asarray(pts, float))] = 0.0
-        return B, E[:, leaf].T.copy()
+        return h.values_at(self.system.B, leaf, pts), E[:, leaf].T.copy()
 
     def remap(self, points, patch_ids):
         """Points on input patches -> (root patch, point) in the NAIVE system: points under a light
