@@ -180,3 +180,23 @@ def test_save_option_and_blender_command_callback(tmp_path, capsys):
         == (tmp_path / "src" / "hr_cache" / "cornell").resolve()
     )
     assert src.is_file()
+
+
+def test_bake_never_touches_a_folder_it_did_not_write(tmp_path):
+    """`--cache-dir DIR` with a user's files in DIR deleted them all and exited 0 (issue 18); a
+    plain file in the way was replaced by a folder."""
+    d = tmp_path / "mine"
+    (d / "sub").mkdir(parents=True)
+    (d / "notes.txt").write_text("notes")
+    (d / "sub" / "y.txt").write_text("y")
+    proc = run_cli(SAMPLES / "cornell.blend", "--frames", "1", "--cache-dir", d)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    line = _error_line(proc)
+    assert f"'{d}' holds files no radiosity bake wrote (notes.txt, sub)" in line
+    assert (d / "notes.txt").read_text() == "notes" and (d / "sub" / "y.txt").read_text() == "y"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
+    f = tmp_path / "plain"
+    f.write_text("file")
+    proc = run_cli(SAMPLES / "cornell.blend", "--frames", "1", "--cache-dir", f)
+    assert proc.returncode == 1 and f"'{f}' is a file, not a folder" in _error_line(proc)
+    assert f.read_text() == "file"

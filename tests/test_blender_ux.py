@@ -72,6 +72,22 @@ def test_delete_refuses_a_folder_that_is_not_a_bake(tmp_path):
     assert (d / "frame_000001.npz").read_bytes() == b"mine"
 
 
+def test_delete_keeps_a_users_files_inside_the_cache_folder(tmp_path):
+    load_bpy()
+    from hr_addon.blender.ops import delete_cache_files
+    from hr_addon.io.cache import CacheWriter
+
+    d = tmp_path / "cache"
+    w = CacheWriter(d, {"a": {"mesh": "a", "count": 1}}, "CORNER", "s")
+    w.write(1, {"a": np.ones((1, 3))})
+    w.commit()
+    (d / "mine.txt").write_text("mine")
+    (d / "textures").mkdir()
+    (d / "textures" / "wood.png").write_bytes(b"png")
+    assert delete_cache_files(str(d)) == 3  # frame, manifest, marker
+    assert sorted(str(p.relative_to(d)) for p in d.rglob("*")) == ["mine.txt", "textures", "textures/wood.png"]
+
+
 def test_playback_skips_rewriting_same_cached_file(tmp_path, monkeypatch):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)

@@ -6,7 +6,16 @@ import os
 import numpy as np
 import pytest
 
-from hr_addon.io.cache import CacheError, CacheReader, CacheWriter, recover
+from hr_addon.io.cache import (
+    MARKER,
+    CacheError,
+    CacheReader,
+    CacheWriter,
+    check_writable,
+    owned_files,
+    recover,
+    remove_stale_temp,
+)
 
 OBJS = {"a": {"mesh": "a", "count": 3}, "b": {"mesh": "b", "count": 2}}
 
@@ -44,7 +53,7 @@ def test_write_read_roundtrip(tmp_path):
     assert np.all(r.load(100)["a"][:, :3] == 3) and np.all(r.load(-7)["a"][:, :3] == 1)
     # No temporary directories or files are left behind.
     assert sorted(p.name for p in d.parent.iterdir()) == ["scene"]
-    assert not [p for p in d.iterdir() if p.name.startswith(".")]
+    assert [p.name for p in d.iterdir() if p.name.startswith(".")] == [MARKER]
 
 
 def test_abort_keeps_previous(tmp_path):
@@ -119,3 +128,121 @@ def test_recover_after_interrupted_swap(tmp_path):
     os.replace(d, tmp_path / ".s.old-1-2")  # crash between the two renames of commit()
     assert recover(d)
     assert np.all(CacheReader(d).load(1)["a"][:, :3] == 3)
+
+
+# ---------------------------------------------------------------------------- never lose a user's files
+
+
+def _user_files(d):
+    (d / "sub").mkdir(parents=True)
+    (d / "notes.txt").write_text("mine")
+    (d / "sub" / "y.txt").write_text("also mine")
+
+
+def _tree(d):
+    return sorted(str(p.relative_to(d)) for p in d.rglob("*"))
+
+
+def test_folder_with_foreign_files_is_refused_and_kept(tmp_path):
+    """A bake deleted everything in the folder it was pointed at (issue 18)."""
+    d = tmp_path / "textures"
+    _user_files(d)
+    before = _tree(d)
+    for attempt in (lambda: check_writable(d), lambda: CacheWriter(d, OBJS, "CORNER", "s")):
+        with pytest.raises(CacheError, match=r"holds files no radiosity bake wrote \(notes.txt, sub\)") as e:
+            attempt()
+        assert str(d) in str(e.value)
+    assert _tree(d) == before and (d / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["textures"]  # no temporary folder left
+
+
+def test_plain_file_in_the_way_is_refused_and_kept(tmp_path):
+    f = tmp_path / "cache"
+    f.write_text("a file")
+    with pytest.raises(CacheError, match="is a file, not a folder") as e:
+        CacheWriter(f, OBJS, "CORNER", "s")
+    assert str(f) in str(e.value) and f.read_text() == "a file"
+
+
+def test_unwritable_folder_names_the_cache_folder(tmp_path):
+    with pytest.raises(CacheError, match="Cannot write the cache folder '/proc/x'"):
+        check_writable("/proc/x")
+
+
+def test_empty_folder_is_used(tmp_path):
+    d = tmp_path / "empty"
+    d.mkdir()
+    _bake(d, [1], lambda f: 1)
+    assert sorted(CacheReader(d).frames) == [1]
+
+
+def test_rebake_deletes_only_what_a_bake_wrote(tmp_path):
+    """Files a user put into a cache folder survive every later bake, and a bake that discards the
+    previous frames deletes their files."""
+    d = tmp_path / "s"
+    _bake(d, range(1, 4), lambda f: f)
+    _user_files(d)
+    (d / "textures").mkdir()
+    (d / "textures" / "wood.png").write_bytes(b"png")
+    _bake(d, [7], lambda f: 7, sig="other")  # other settings: frames 1-3 discarded
+    r = CacheReader(d)
+    assert sorted(r.frames) == [7]
+    assert (d / "notes.txt").read_text() == "mine" and (d / "sub" / "y.txt").read_text() == "also mine"
+    assert (d / "textures" / "wood.png").read_bytes() == b"png"
+    assert sorted(p.name for p in d.glob("*.npz")) == [r.frames[7]]
+    assert owned_files(d) == {MARKER, "manifest.json", r.frames[7]}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_cache_of_an_earlier_version_without_marker_is_ours(tmp_path):
+    d = tmp_path / "s"
+    _bake(d, [1, 2], lambda f: f)
+    (d / MARKER).unlink()
+    m = json.loads((d / "manifest.json").read_text())
+    del m["files"]
+    (d / "manifest.json").write_text(json.dumps(m))
+    (d / "readme.txt").write_text("mine")
+    _bake(d, [3], lambda f: 3, sig="other")
+    assert sorted(CacheReader(d).frames) == [3] and (d / "readme.txt").read_text() == "mine"
+    assert not (d / "frame_000001.npz").exists()
+
+
+def test_swapped_out_cache_of_a_killed_bake_gives_user_files_back(tmp_path):
+    d = tmp_path / "s"
+    _bake(d, [1], lambda f: 1)
+    (d / "notes.txt").write_text("mine")
+    old = tmp_path / ".s.old-999999999-1"  # a crash after the swap, before the old folder went
+    os.replace(d, old)
+    _bake(tmp_path / "fresh", [1], lambda f: 2)
+    os.replace(tmp_path / "fresh", d)
+    assert remove_stale_temp(d) == [old]
+    assert (d / "notes.txt").read_text() == "mine" and not old.exists()
+
+
+def test_stale_temporary_folder_with_foreign_files_is_kept(tmp_path):
+    d = tmp_path / "s"
+    odd = tmp_path / ".s.baking-999999999-1"  # named like ours, holds something else
+    odd.mkdir()
+    (odd / "diary.txt").write_text("mine")
+    assert remove_stale_temp(d) == [] and (odd / "diary.txt").exists()
+
+
+@pytest.mark.parametrize("name", ["../../x.npz", "/etc/passwd", "sub/frame_000001.npz"])
+def test_manifest_frame_names_stay_inside_the_cache_folder(tmp_path, name):
+    d = tmp_path / "s"
+    _bake(d, [1], lambda f: 1)
+    m = json.loads((d / "manifest.json").read_text())
+    m["frames"]["1"] = name
+    (d / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(CacheError, match="frame file name"):
+        CacheReader(d)
+
+
+def test_manifest_with_a_bad_domain_is_named(tmp_path):
+    d = tmp_path / "s"
+    _bake(d, [1], lambda f: 1)
+    m = json.loads((d / "manifest.json").read_text())
+    m["domain"] = 5
+    (d / "manifest.json").write_text(json.dumps(m))
+    with pytest.raises(CacheError, match="domain 5"):
+        CacheReader(d)

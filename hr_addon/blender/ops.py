@@ -2,14 +2,12 @@
 shapes, preview, cache (reload, clear, delete), Live Relight (toggle, synchronous update)."""
 
 import os
-import shutil
 
 import bpy
 from bpy.props import BoolProperty
 
 from ..core.geometry import InputError
-from ..io.cache import MANIFEST, CacheError, CacheReader
-from ..lightmap.plan import TEX_DIR
+from ..io.cache import MANIFEST, MARKER, TEX_DIR, CacheError, CacheReader, owned_files
 from . import background, live, playback, texture
 from .bake import run_bake
 from .preview import add_preview, bake_mode, has_preview, remove_preview
@@ -293,27 +291,21 @@ def _forget_bake(scene):
 
 
 def delete_cache_files(directory):
-    """Remove the files of the bake in `directory`: the ones its manifest names, its textures
-    folder and the manifest; then the folder if it is empty. Returns the number of files removed.
-    Nothing is removed from a folder without a radiosity manifest (CacheError)."""
-    reader = CacheReader(directory)  # raises CacheError unless it is a radiosity cache
-    n = 0
-    for name in sorted(set(reader.frames.values())):
-        p = os.path.join(directory, os.path.basename(name))
-        if os.path.isfile(p):
-            os.remove(p)
-            n += 1
-    tex = os.path.join(directory, TEX_DIR)
-    if os.path.isdir(tex):
-        n += sum(len(f) for _, _, f in os.walk(tex))
-        shutil.rmtree(tex)
-    os.remove(os.path.join(directory, MANIFEST))
-    n += 1
-    try:
-        os.rmdir(directory)
-    except OSError:
-        pass  # other files in it: not ours, left alone
-    return n
+    """Remove the files a bake wrote in `directory` (io.cache.owned_files: the ones its manifest
+    lists, its marker and manifest), then its textures folder and the folder itself if nothing else
+    is left in them. Returns the number of files removed. Nothing is removed from a folder that is
+    not a radiosity cache (CacheError), nor any file a bake did not write."""
+    CacheReader(directory)  # raises CacheError unless it is a radiosity cache
+    # the manifest and the marker last: an interrupted delete leaves a cache folder that says so
+    own = sorted(owned_files(directory), key=lambda r: (r == MARKER, r == MANIFEST, r))
+    for r in own:
+        os.remove(os.path.join(directory, r))
+    for d in (os.path.join(directory, TEX_DIR), directory):
+        try:
+            os.rmdir(d)
+        except OSError:
+            pass  # absent, or other files in it: not ours, left alone
+    return len(own)
 
 
 class HR_OT_delete_bake(bpy.types.Operator):

@@ -15,13 +15,12 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..core.texels import TexelLocator, solution_radiance
-from ..io.cache import CacheError, CacheReader
+from ..io.cache import TEX_DIR, CacheError, CacheReader
 from ..io.files import atomic_write, link_or_copy
 from ..io.images import encode_exr, encode_png16, image_file_problem
 from . import TextureError
 from .raster import dilation_steps, rasterise
 
-TEX_DIR = "textures"
 FORMATS = {"EXR": ".exr", "PNG": ".png"}
 REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
 
