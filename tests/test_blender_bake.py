@@ -77,6 +77,7 @@ def test_hr_radiance_matches_core_per_frame(tmp_path):
     scene = bpy.context.scene
     assert scene.hr.bake_dir == "//hr_cache/cornell/"
     assert sorted(os.listdir(tmp_path / "hr_cache" / "cornell")) == [
+        ".hr_radiosity",
         "frame_000001.npz",
         "frame_000006.npz",
         "frame_000013.npz",
