@@ -51,3 +51,38 @@ def test_newell_is_twice_the_area_along_the_normal():
     lp, nxt = loop_tables(ls, lt)
     np.testing.assert_array_equal(lp, [0] * 6 + [1] * 3)
     np.testing.assert_array_equal(nxt, [1, 2, 3, 4, 5, 0, 7, 8, 6])
+
+
+def _quads(quads, oids, names):
+    """MeshInput of quads (Q, 4, 3) with one object id each."""
+    from hr_addon.core.geometry import MeshInput
+
+    q = np.asarray(quads, float)
+    n = len(q)
+    return MeshInput(
+        verts=q.reshape(-1, 3),
+        loop_start=np.arange(n) * 4,
+        loop_total=np.full(n, 4),
+        loop_verts=np.arange(4 * n),
+        reflectance=np.full((n, 3), 0.5),
+        emission=np.zeros((n, 3)),
+        object_id=np.asarray(oids),
+        object_names=names,
+    )
+
+
+def test_duplicated_faces_are_named_back_to_back_faces_are_not():
+    """A second copy of a wall on top of it made the other walls 15% brighter, silently (issue 18)."""
+    from hr_addon.core.geometry import coincident_patches, prepare_patches
+
+    wall = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    floor = wall[:, [0, 2, 1]] + [0, 0, 0.0]
+    shifted = wall[[1, 2, 3, 0]]  # the same face, its corners listed from another start
+    back = wall[::-1]  # back to back: the other side of a thin wall
+    p = prepare_patches(
+        _quads([wall, floor, shifted, back], [0, 1, 2, 3], ["Wall", "Floor", "Wall.001", "Back"])
+    )
+    assert coincident_patches(p).tolist() == [2]
+    assert any("lie exactly on another polygon" in w and "'Wall.001'" in w for w in p.warnings), p.warnings
+    p = prepare_patches(_quads([wall, floor, back], [0, 1, 2], ["Wall", "Floor", "Back"]))
+    assert len(coincident_patches(p)) == 0 and not p.warnings

@@ -393,7 +393,29 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
             )
     if len(sel) == 0:
         raise InputError("All polygons are degenerate (zero area); nothing to compute radiosity on.")
+    twins = coincident_patches(result)
+    if len(twins):
+        result.warnings.append(
+            f"{len(twins)} polygon(s) lie exactly on another polygon facing the same way: "
+            f"{_per_object(mesh, result.poly[twins])}. Each copy reflects and emits as if it were "
+            "alone, so the room gets extra light; delete the duplicates (Mesh > Clean Up > Merge by "
+            "Distance, or the duplicated object)."
+        )
     return result
+
+
+def coincident_patches(p: Patches, rel=1e-6):
+    """Patches with the same corners (to rel x the scene's size) and facing the same way as an
+    earlier patch: the second copy of a duplicated face (back-to-back faces are not duplicates)."""
+    pts = p.corners.reshape(-1, 3)
+    q = np.round(pts / max(float(np.ptp(pts, 0).max()) * rel, 1e-300)).astype(np.int64).reshape(-1, 4, 3)
+    q = np.sort(q.view([("", q.dtype)] * 3).reshape(len(q), 4), axis=1).view(np.int64).reshape(len(q), 12)
+    side = np.sign(np.round(p.normal, 3)).astype(np.int64)
+    key = np.column_stack([q, side, p.nv])
+    _, first = np.unique(key, axis=0, return_index=True)
+    dup = np.ones(len(key), bool)
+    dup[first] = False
+    return np.flatnonzero(dup)
 
 
 @dataclass
