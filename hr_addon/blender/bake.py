@@ -34,6 +34,7 @@ from .scene_in import (
     collect_geometry,
     collect_light_shapes,
     geometry_objects,
+    light_check,
     light_shape_objects,
     shapes_signature,
 )
@@ -321,6 +322,11 @@ def bake_frames(
         with texture.source_materials(geo_objects):  # texture preview copies stand for these
             scene_in = collect_geometry(view_layer, depsgraph)
         warn(scene_in.warnings)
+        # never a black bake without a word: nothing emits -> refused before the build
+        error, light_warnings = light_check(view_layer, scene, depsgraph, bool(scene_in.mesh.emission.any()))
+        if error:
+            raise SceneError(error)
+        warn(light_warnings)
         intr.check()
         geometry_sig = signatures.geometry_signatures(view_layer, depsgraph)
         shapes_id = signatures.light_shape_identity(view_layer)

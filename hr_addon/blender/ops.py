@@ -35,6 +35,12 @@ def _has_bake(scene):
     return bool(playback.bake_dir_abs(scene))
 
 
+def _bake_ended(scene, warnings, error=""):
+    """Keep what the panel shows after a bake: its warnings, and why it failed ('' if it did not)."""
+    playback.state["notes"][scene.name_full] = list(warnings)
+    playback.state["errors"][scene.name_full] = error
+
+
 def _redraw(context):
     wm = context.window_manager
     for win in wm.windows:
@@ -77,11 +83,12 @@ class HR_OT_bake(bpy.types.Operator):
         try:
             res = run_bake(context.scene, view_layer=context.view_layer)
         except (InputError, OSError, RuntimeError, ValueError) as exc:
+            _bake_ended(context.scene, [], str(exc))
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         for w in res.warning_lines():
             self.report({"WARNING"}, w)
-        playback.state.setdefault("notes", {})[context.scene.name_full] = res.warning_lines()
+        _bake_ended(context.scene, res.warning_lines())
         self.report(
             {"INFO"},
             f"Baked {res.frames[0]}-{res.frames[1]}: {res.solved} solved, "
@@ -96,8 +103,10 @@ class HR_OT_bake(bpy.types.Operator):
         try:
             job.start()
         except (InputError, OSError, RuntimeError, ValueError) as exc:
+            _bake_ended(context.scene, job.warnings, str(exc))
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+        playback.state["errors"].pop(context.scene.name_full, None)
         self._job = job
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.25, window=context.window)
@@ -120,14 +129,17 @@ class HR_OT_bake(bpy.types.Operator):
         _redraw(context)
         for w in job.warnings:
             self.report({"WARNING"}, w)
+        scene = bpy.data.scenes.get(getattr(job, "scene_name", "") or "")
         if job.state == "done":
-            if getattr(job, "scene_name", None):
-                playback.state.setdefault("notes", {})[job.scene_name] = list(job.warnings)
+            if scene is not None:
+                _bake_ended(scene, job.warnings)
             self.report({"INFO"}, f"HR Radiosity: {job.summary}")
             return {"FINISHED"}
         if job.state == "cancelled":
             self.report({"WARNING"}, "Radiosity bake cancelled; the previous bake is kept")
         else:
+            if scene is not None:
+                _bake_ended(scene, job.warnings, job.error)
             self.report({"ERROR"}, f"Radiosity bake failed: {job.error}")
         return {"CANCELLED"}
 
@@ -284,7 +296,8 @@ def _forget_bake(scene):
     scene.hr.playback = False
     playback.state["stale"].pop(scene.name_full, None)
     playback.state["messages"].pop(scene.name_full, None)
-    playback.state.setdefault("notes", {}).pop(scene.name_full, None)
+    playback.state["notes"].pop(scene.name_full, None)
+    playback.state["errors"].pop(scene.name_full, None)
     texture.remove_material([o for o in scene.objects if o.type == "MESH"])
     for o in scene.objects:
         if o.type == "MESH" and playback.ATTRIBUTE in o.data.color_attributes:

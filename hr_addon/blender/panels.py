@@ -29,7 +29,10 @@ def _draw_bake(layout, context):
     for part in msg.split("\n") if msg else []:
         for i, line in enumerate(_wrap(part, 60)):
             col.label(text=line, icon="ERROR" if i == 0 else "BLANK1")
-    notes = playback.state.get("notes", {}).get(scene.name_full) or []
+    error = playback.state["errors"].get(scene.name_full)
+    for i, line in enumerate(_wrap(f"Bake failed: {error}", 60) if error else []):
+        col.label(text=line, icon="ERROR" if i == 0 else "BLANK1")
+    notes = playback.state["notes"].get(scene.name_full) or []
     for part in notes[:4]:
         for i, line in enumerate(_wrap(part, 60)):
             col.label(text=line, icon="INFO" if i == 0 else "BLANK1")

@@ -23,7 +23,8 @@ MAGENTA = (1.0, 0.0, 1.0, 1.0)
 # messages: load problems per scene; stale: "the scene changed" per scene; changes: memo of the
 # last check (key, message); dirty: scenes edited since; written: meshes whose HR_Radiance we
 # wrote (their next depsgraph update is ours, not an edit); live: scenes whose HR_Radiance Live
-# Relight writes (live.py; playback leaves them alone, except during renders).
+# Relight writes (live.py; playback leaves them alone, except during renders). notes: the last
+# bake's warnings per scene; errors: why the last bake failed or was refused (the panel shows both).
 state = {
     "baking": False,
     "messages": {},
@@ -35,6 +36,7 @@ state = {
     "written": set(),
     "image_checks": {},
     "notes": {},
+    "errors": {},
     "live": set(),
 }
 
@@ -425,6 +427,7 @@ def on_load_post(*args):
     state["stale"].clear()
     state["dirty"].clear()
     state["notes"].clear()
+    state["errors"].clear()
     for scene in bpy.data.scenes:
         if scene.hr.playback and bake_dir_abs(scene):
             load_frame(scene)

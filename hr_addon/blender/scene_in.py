@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.geometry import InputError, MeshInput, components, newell
-from .materials import read_material
+from ..io.cache import _names
+from .materials import read_material, world_lights
 
 
 class SceneError(InputError):
@@ -507,3 +508,110 @@ def shapes_signature(shapes):
             h.update(np.asarray(r, np.float64).tobytes())
             h.update(b"|")
     return h.hexdigest()
+
+
+# --- what lights the scene ----------------------------------------------------------------------
+
+
+def _emits(mat):
+    """True if `mat` emits, or may on another frame (its emission is animated or driven)."""
+    if mat is None:
+        return False
+    anim = [d.animation_data for d in (mat, mat.node_tree) if d is not None and d.animation_data]
+    return bool((read_material(mat).emission > 0).any() or any(a.action or a.drivers for a in anim))
+
+
+def _flat(em: EvalMesh):
+    """True if every connected piece of a light-shape mesh lies in one plane and faces one way (a
+    closed box or a bent strip does not: each of its faces becomes a shape of its own)."""
+    P, V = len(em.loop_start), len(em.verts)
+    if P < 2:
+        return True
+    # polygons joined through their vertices; a label is the piece's smallest polygon index
+    label = components(P + V, np.repeat(np.arange(P), em.loop_total), P + em.loop_verts)
+    n = np.array([newell(em.verts[em.loop_verts[s : s + k]]) for s, k in zip(em.loop_start, em.loop_total)])
+    piece = np.zeros((P + V, 3))
+    np.add.at(piece, label[:P], n)  # area-weighted: a closed box sums to 0
+    ln = np.linalg.norm(piece, axis=1)
+    piece /= np.maximum(ln, 1e-300)[:, None]
+    unit = n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    faces_one_way = np.einsum("ij,ij->i", unit, piece[label[:P]]) > 1 - 1e-6
+    degenerate = np.linalg.norm(n, axis=1) == 0
+    used = np.zeros(V, bool)
+    used[em.loop_verts] = True
+    vl = label[P:][used]
+    d = np.einsum("ij,ij->i", em.verts[used], piece[vl])
+    lo, hi = np.full(P + V, np.inf), np.full(P + V, -np.inf)
+    np.minimum.at(lo, vl, d)
+    np.maximum.at(hi, vl, d)
+    tol = 1e-5 * float(np.ptp(em.verts[used], axis=0).max()) + 1e-6 * float(np.abs(em.verts).max())
+    return bool((faces_one_way | degenerate).all() and (hi[vl] - lo[vl] <= tol).all())
+
+
+def light_shape_problem(obj, depsgraph):
+    """(emits, why): whether the light shape `obj` emits (or may on another frame), and '' or why
+    it cannot give its light as a light shape (no emission, or not flat)."""
+    em = read_mesh(obj, depsgraph)
+    used = np.unique(em.material_index) if len(em.loop_start) else []
+    if not any(_emits(em.materials[int(i)]) for i in used):
+        return False, (
+            "its material does not emit (no Emission shader, or Emission Strength 0), so it adds "
+            "no light; give it an emissive material"
+        )
+    if not _flat(em):
+        return True, (
+            "it is not flat (its faces do not lie in one plane, like a closed box); a light shape is "
+            "a flat patch on a surface, so each face is taken as a shape of its own"
+        )
+    return True, ""
+
+
+def materials_emit(depsgraph):
+    """True if a mesh of the depsgraph (instances included) that is not a light shape has a material
+    that emits: a quick, generous check before a background bake (the bake checks the polygons)."""
+    seen = set()
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        if ob is None or ob.type != "MESH" or ob.original.hr.is_light_shape:
+            continue
+        for m in {s.material for s in ob.material_slots} - seen:
+            seen.add(m)
+            if _emits(m):
+                return True
+    return False
+
+
+def light_check(view_layer, scene, depsgraph, geometry_emits):
+    """(error, warnings) about the scene's light before a bake. error ('' if none): nothing emits,
+    so the bake would be black. warnings: the Blender lights and the World the bake ignores
+    (Blender lights take no part yet), light shapes that cannot emit (light_shape_problem)."""
+    lights = [
+        o.name for o in _walk_collections(view_layer) if o.type == "LIGHT" and not o.hide_render and o.data.energy > 0
+    ]
+    ignored = " and ".join(
+        ([f"Blender light(s) {_names(lights)}"] if lights else [])
+        + (["the World's background"] if world_lights(scene.world) else [])
+    )
+    ignored = ignored[:1].upper() + ignored[1:]
+    warnings, shapes_emit = [], False
+    for o in light_shape_objects(view_layer, include_hidden=True):
+        emits, why = light_shape_problem(o, depsgraph)
+        shapes_emit |= emits
+        if why:
+            warnings.append(f"Light shape '{o.name}': {why}.")
+    if not (geometry_emits or shapes_emit):
+        return (
+            "Nothing in the scene emits light, so the bake would be black: no mesh has an emissive "
+            "material (an Emission shader, or a Principled BSDF with Emission Strength > 0) and no "
+            "light shape emits."
+            + (f" {ignored} light the render but not the bake (not supported yet)." if ignored else "")
+            + " Give a mesh an emissive material, or mark a flat emissive mesh as a light shape.",
+            warnings,
+        )
+    if ignored:
+        warnings.insert(
+            0,
+            f"{ignored} light the render but are ignored by the bake (not supported yet): only "
+            "emissive materials and light shapes give light.",
+        )
+    return "", warnings

@@ -1,0 +1,77 @@
+"""Issue 18, a new user's trial: no black bake without a word (nothing emits; Blender lights and
+the World are ignored), light shapes that cannot emit, checks before the build, a clean
+unregister, the words a user reads and what the saved file carries."""
+
+import pytest
+
+from test_blender_helpers import load_bpy, make_samples_module, open_sample
+from test_blender_cli import run_cli
+
+pytestmark = pytest.mark.bpy
+
+pytest.importorskip("bpy")
+
+
+def _bake(**kw):
+    import bpy
+    from hr_addon.blender.bake import run_bake
+
+    kw.setdefault("quality", "draft")
+    kw.setdefault("frames", (1, 1))
+    return run_bake(bpy.context.scene, log=lambda *a, **k: None, **kw)
+
+
+def _factory_file(path):
+    """Blender's factory scene (a cube, a point light, a grey World), saved to path."""
+    bpy = load_bpy()
+    bpy.ops.wm.read_homefile(use_factory_startup=True)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path), check_existing=False)
+    return path
+
+
+def test_factory_scene_is_refused_before_the_build_naming_the_light_and_the_world(tmp_path):
+    """The factory scene baked to all 0.0 with exit 0."""
+    blend = _factory_file(tmp_path / "factory.blend")
+    proc = run_cli(blend, "--cache-dir", tmp_path / "cache")
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    err = [ln for ln in proc.stderr.splitlines() if ln.startswith("hr_bake: error:")]
+    assert len(err) == 1, proc.stderr
+    assert "Nothing in the scene emits light, so the bake would be black" in err[0]
+    assert "Blender light(s) 'Light' and the World's background" in err[0] and "not supported yet" in err[0]
+    assert "Building the hierarchy" not in proc.stdout and "Traceback" not in proc.stderr
+    assert not (tmp_path / "cache").exists()
+
+
+def test_operator_refuses_a_black_scene_and_the_panel_says_why(tmp_path):
+    bpy = load_bpy()
+    from hr_addon.blender import background, playback
+    from hr_addon.blender.scene_in import SceneError
+
+    _factory_file(tmp_path / "factory.blend")
+    scene = bpy.context.scene
+    with pytest.raises(SceneError, match="Nothing in the scene emits light"):  # the interactive bake
+        background.BackgroundBake(scene, bpy.context.view_layer).start()
+    assert not background.running()
+    with pytest.raises(RuntimeError, match="Nothing in the scene emits light"):  # bpy.ops.hr.bake()
+        bpy.ops.hr.bake()
+    assert "Nothing in the scene emits light" in playback.state["errors"][scene.name_full]  # panel
+    assert not scene.hr.bake_dir
+
+
+def test_blender_lights_and_the_world_are_named_as_ignored(tmp_path):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "AREA"))
+    bpy.context.scene.collection.objects.link(lamp)
+    bg = bpy.context.scene.world.node_tree.nodes["Background"]
+    bg.inputs["Strength"].default_value = 1.0
+    bg.inputs["Color"].default_value = (0.2, 0.3, 0.4, 1)
+    res = _bake(method="FE")
+    ignored = [w for w in res.warnings if "not supported yet" in w]
+    assert ignored == [
+        "Blender light(s) 'Lamp' and the World's background light the render but are ignored by the "
+        "bake (not supported yet): only emissive materials and light shapes give light."
+    ], res.warnings
+    bg.inputs["Strength"].default_value = 0.0
+    lamp.hide_render = True
+    assert not [w for w in _bake(method="FE").warnings if "not supported yet" in w]
