@@ -75,3 +75,41 @@ def test_blender_lights_and_the_world_are_named_as_ignored(tmp_path):
     bg.inputs["Strength"].default_value = 0.0
     lamp.hide_render = True
     assert not [w for w in _bake(method="FE").warnings if "not supported yet" in w]
+
+
+def test_light_shapes_that_cannot_emit_are_named_when_marked_and_at_bake_time(tmp_path, capfd):
+    """Marking a closed box or a non-emissive object said "1 object(s) marked", and the bake said
+    nothing more."""
+    bpy = load_bpy()
+    ms = make_samples_module()
+    open_sample("cornell", tmp_path)
+    bpy.ops.mesh.primitive_cube_add(size=0.05, location=(0.3, 0.3, 0.2))
+    box = bpy.context.object
+    box.name = "Lantern"
+    box.data.materials.append(ms.emission("Lantern light", (1, 1, 1), 3.0))
+    dull = ms.mesh_object(
+        "Poster", [(0.1, 0.5592, 0.1), (0.2, 0.5592, 0.1), (0.2, 0.5592, 0.2), (0.1, 0.5592, 0.2)][::-1],
+        [[0, 1, 2, 3]], ms.diffuse("Paper", (0.5, 0.5, 0.5)),
+    )
+    bpy.ops.object.select_all(action="DESELECT")
+    for o in (box, dull):
+        o.select_set(True)
+    capfd.readouterr()
+    assert bpy.ops.hr.mark_light_shape() == {"FINISHED"}
+    out = capfd.readouterr().out
+    assert "Light shape 'Lantern': it is not flat (its faces do not lie in one plane, like a closed box)" in out
+    assert "Light shape 'Poster': its material does not emit" in out
+    assert "2 object(s) marked as light shapes; 2 with a problem (see the warnings)" in out
+    bpy.ops.object.select_all(action="DESELECT")
+    for name in ("Window", "Back Patch"):  # the sample's shapes: flat and emissive
+        bpy.data.objects[name].select_set(True)
+    capfd.readouterr()
+    bpy.ops.hr.mark_light_shape()
+    assert "Warning" not in capfd.readouterr().out
+    res = _bake(method="FE")
+    assert [w for w in res.warnings if w.startswith("Light shape ")] == [
+        "Light shape 'Lantern': it is not flat (its faces do not lie in one plane, like a closed box); a "
+        "light shape is a flat patch on a surface, so each face is taken as a shape of its own.",
+        "Light shape 'Poster': its material does not emit (no Emission shader, or Emission Strength 0), "
+        "so it adds no light; give it an emissive material.",
+    ], res.warnings

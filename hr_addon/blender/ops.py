@@ -13,7 +13,7 @@ from ..lightmap.plan import TEX_DIR
 from . import background, live, playback, texture
 from .bake import run_bake
 from .preview import add_preview, bake_mode, has_preview, remove_preview
-from .scene_in import geometry_objects
+from .scene_in import geometry_objects, light_shape_problem
 
 
 def _report_bake_state(op, context):
@@ -194,7 +194,17 @@ class HR_OT_mark_light_shape(bpy.types.Operator):
                 setattr(o, attr, self.clear)
             o.show_in_front = not self.clear
             n += 1
-        self.report({"INFO"}, f"{n} object(s) {'unmarked' if self.clear else 'marked as light shapes'}")
+        problems = []
+        if not self.clear:  # said now, not first at bake time (and again then)
+            dg = context.evaluated_depsgraph_get()
+            for o in context.selected_objects:
+                why = o.type == "MESH" and light_shape_problem(o, dg)[1]
+                if why:
+                    problems.append(f"Light shape '{o.name}': {why}.")
+        for p in problems:
+            self.report({"WARNING"}, p)
+        more = f"; {len(problems)} with a problem (see the warnings)" if problems else ""
+        self.report({"INFO"}, f"{n} object(s) {'unmarked' if self.clear else 'marked as light shapes'}{more}")
         return {"FINISHED"}
 
 
