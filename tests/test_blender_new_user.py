@@ -4,7 +4,7 @@ unregister, the words a user reads and what the saved file carries."""
 
 import pytest
 
-from test_blender_helpers import load_bpy, make_samples_module, open_sample
+from test_blender_helpers import SAMPLES, load_bpy, make_samples_module, open_sample
 from test_blender_cli import run_cli
 
 pytestmark = pytest.mark.bpy
@@ -88,8 +88,10 @@ def test_light_shapes_that_cannot_emit_are_named_when_marked_and_at_bake_time(tm
     box.name = "Lantern"
     box.data.materials.append(ms.emission("Lantern light", (1, 1, 1), 3.0))
     dull = ms.mesh_object(
-        "Poster", [(0.1, 0.5592, 0.1), (0.2, 0.5592, 0.1), (0.2, 0.5592, 0.2), (0.1, 0.5592, 0.2)][::-1],
-        [[0, 1, 2, 3]], ms.diffuse("Paper", (0.5, 0.5, 0.5)),
+        "Poster",
+        [(0.1, 0.5592, 0.1), (0.2, 0.5592, 0.1), (0.2, 0.5592, 0.2), (0.1, 0.5592, 0.2)][::-1],
+        [[0, 1, 2, 3]],
+        ms.diffuse("Paper", (0.5, 0.5, 0.5)),
     )
     bpy.ops.object.select_all(action="DESELECT")
     for o in (box, dull):
@@ -97,7 +99,9 @@ def test_light_shapes_that_cannot_emit_are_named_when_marked_and_at_bake_time(tm
     capfd.readouterr()
     assert bpy.ops.hr.mark_light_shape() == {"FINISHED"}
     out = capfd.readouterr().out
-    assert "Light shape 'Lantern': it is not flat (its faces do not lie in one plane, like a closed box)" in out
+    assert (
+        "Light shape 'Lantern': it is not flat (its faces do not lie in one plane, like a closed box)" in out
+    )
     assert "Light shape 'Poster': its material does not emit" in out
     assert "2 object(s) marked as light shapes; 2 with a problem (see the warnings)" in out
     bpy.ops.object.select_all(action="DESELECT")
@@ -113,3 +117,38 @@ def test_light_shapes_that_cannot_emit_are_named_when_marked_and_at_bake_time(tm
         "Light shape 'Poster': its material does not emit (no Emission shader, or Emission Strength 0), "
         "so it adds no light; give it an emissive material.",
     ], res.warnings
+
+
+@pytest.mark.parametrize(
+    "save, text",
+    [
+        ("missing_folder/copy.blend", "the folder {tmp}/missing_folder does not exist"),
+        ("copy.txt", "the copy needs a .blend file name"),
+        ("a_folder.blend", "{tmp}/a_folder.blend is a folder"),
+    ],
+)
+def test_save_path_is_checked_before_the_build_and_said_once(tmp_path, save, text):
+    """A bad --save path was found only after the whole bake, and its error printed twice."""
+    (tmp_path / "a_folder.blend").mkdir()
+    proc = run_cli(SAMPLES / "cornell.blend", "--cache-dir", tmp_path / "cache", "--save", tmp_path / save)
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        f"hr_bake: error: --save {tmp_path / save}: {text.format(tmp=tmp_path)}"
+    ], proc.stderr
+    assert "Building the hierarchy" not in proc.stdout and not (tmp_path / "cache").exists()
+
+
+def test_frames_outside_the_scene_range_are_named_and_thresholds_print_rounded(tmp_path):
+    proc = run_cli(
+        SAMPLES / "cornell.blend", "--cache-dir", tmp_path / "c", "--quality", "draft", "--frames", "23-26"
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert (
+        "HR Radiosity: warning: Frames 25-26 lie outside the scene's frame range 1-24: baked as asked "
+        "(is the frame range right?)." in proc.stdout.splitlines()
+    ), proc.stdout
+    proc = run_cli(SAMPLES / "cornell.blend", "--feps", "2")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1] == (
+        "hr_bake: error: bad thresholds feps=2 aeps=0.001 (need 0 < feps <= 1, 0 < aeps < 1)"
+    )

@@ -285,6 +285,13 @@ def bake_frames(
     if not 8 <= resolution <= 16384:
         raise SceneError(f"Bad texture resolution {resolution} (8 to 16384).")
     start, end = frame_range_for(scene, frames)
+    # frames outside the scene's range are baked as asked, but said (a typo, another scene's range)
+    s0, s1 = scene.frame_start, scene.frame_end
+    outside = [
+        f"{a}-{b}" if a < b else str(a)
+        for a, b in ((start, min(end, s0 - 1)), (max(start, s1 + 1), end))
+        if a <= b
+    ]
     if output == "TEXTURE" and start < 0:
         raise SceneError("Texture output needs frame numbers >= 0 (image sequence file names).")
     final_dir = os.path.abspath(cache_dir) if cache_dir else cache_dir_for(scene)
@@ -305,6 +312,14 @@ def bake_frames(
         new = [w for w in items if log.add(w, frame)]
         result.warnings[:] = log.texts()
         return new
+
+    if outside:
+        warn(
+            [
+                f"Frames {' and '.join(outside)} lie outside the scene's frame range {s0}-{s1}: baked "
+                "as asked (is the frame range right?)."
+            ]
+        )
 
     from . import live
 

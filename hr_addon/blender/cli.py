@@ -135,6 +135,29 @@ def parse_frames(text):
     return a, b
 
 
+def check_args(args):
+    """The checks that need no bpy (before its slow import and before the build): the frame range,
+    the .blend file, the texture size and the --save path. Returns the frames (or None); raises
+    UsageError."""
+    frames = parse_frames(args.frames) if args.frames is not None else None
+    if args.blend is not None and not os.path.isfile(args.blend):
+        raise UsageError(f"file not found: {args.blend}")
+    if args.resolution is not None and not 8 <= args.resolution <= 16384:
+        raise UsageError(f"bad texture resolution {args.resolution} (8 to 16384)")
+    if args.save:
+        path = os.path.abspath(args.save)
+        folder = os.path.dirname(path)
+        if not path.lower().endswith(".blend"):
+            raise UsageError(f"--save {args.save}: the copy needs a .blend file name")
+        if not os.path.isdir(folder):
+            raise UsageError(f"--save {args.save}: the folder {folder} does not exist")
+        if os.path.isdir(path):
+            raise UsageError(f"--save {args.save}: {path} is a folder")
+        if not os.access(folder, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+            raise UsageError(f"--save {args.save}: cannot write {path} (permission denied)")
+    return frames
+
+
 def _err(msg):
     print(f"{PROG}: error: {msg}", file=sys.stderr, flush=True)
 
@@ -161,11 +184,7 @@ def run(argv, prog=PROG, blend_required=False, interrupts=None):
 def _run(argv, prog, blend_required, intr):
     try:
         args = make_parser(prog, blend_required).parse_args(list(argv))
-        frames = parse_frames(args.frames) if args.frames is not None else None
-        if args.blend is not None and not os.path.isfile(args.blend):
-            raise UsageError(f"file not found: {args.blend}")
-        if args.resolution is not None and not 8 <= args.resolution <= 16384:
-            raise UsageError(f"bad texture resolution {args.resolution} (8 to 16384)")
+        frames = check_args(args)
     except UsageError as exc:
         _err(str(exc))
         return 2
@@ -228,7 +247,8 @@ def _run(argv, prog, blend_required, intr):
     feps = args.feps if args.feps is not None else scene.hr.feps
     aeps = args.aeps if args.aeps is not None else scene.hr.aeps
     if quality == "custom" and not (0 < feps <= 1 and 0 < aeps < 1):
-        return fail(2, f"bad thresholds feps={feps} aeps={aeps} (need 0 < feps <= 1, 0 < aeps < 1)")
+        # :g - the scene's values are float32 (aeps=0.0010000000474974513)
+        return fail(2, f"bad thresholds feps={feps:g} aeps={aeps:g} (need 0 < feps <= 1, 0 < aeps < 1)")
     collected = Warnings()
     try:
         res = run_bake(

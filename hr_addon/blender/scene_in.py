@@ -586,7 +586,9 @@ def light_check(view_layer, scene, depsgraph, geometry_emits):
     so the bake would be black. warnings: the Blender lights and the World the bake ignores
     (Blender lights take no part yet), light shapes that cannot emit (light_shape_problem)."""
     lights = [
-        o.name for o in _walk_collections(view_layer) if o.type == "LIGHT" and not o.hide_render and o.data.energy > 0
+        o.name
+        for o in _walk_collections(view_layer)
+        if o.type == "LIGHT" and not o.hide_render and o.data.energy > 0
     ]
     ignored = " and ".join(
         ([f"Blender light(s) {_names(lights)}"] if lights else [])
