@@ -2,9 +2,13 @@
 the World are ignored), light shapes that cannot emit, checks before the build, a clean
 unregister, the words a user reads and what the saved file carries."""
 
+import os
+import subprocess
+import sys
+
 import pytest
 
-from test_blender_helpers import SAMPLES, load_bpy, make_samples_module, open_sample
+from test_blender_helpers import REPO_ROOT, SAMPLES, load_bpy, make_samples_module, open_sample
 from test_blender_cli import run_cli
 
 pytestmark = pytest.mark.bpy
@@ -152,3 +156,32 @@ def test_frames_outside_the_scene_range_are_named_and_thresholds_print_rounded(t
     assert proc.stderr.strip().splitlines()[-1] == (
         "hr_bake: error: bad thresholds feps=2 aeps=0.001 (need 0 < feps <= 1, 0 < aeps < 1)"
     )
+
+
+def _python(code, cwd):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    return subprocess.run(
+        [sys.executable, "-c", code], cwd=cwd, env=env, capture_output=True, text=True, timeout=120
+    )
+
+
+def test_unregister_is_clean_at_exit(tmp_path):
+    """ "Exception in module unregister() ... missing bl_rna attribute" at exit: our atexit hook
+    unregistered the enabled extension, then Blender's exit disabled it again."""
+    proc = _python("import bpy, hr_addon; hr_addon.register(); hr_addon.unregister()", REPO_ROOT)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr + proc.stdout, proc.stderr
+    (tmp_path / "addons").mkdir()
+    (tmp_path / "addons" / "hr_radiosity").symlink_to(REPO_ROOT, target_is_directory=True)
+    proc = _python(
+        f"import sys; sys.path.insert(0, {str(tmp_path / 'addons')!r})\n"
+        "import bpy, addon_utils\n"
+        "addon_utils.enable('hr_radiosity', default_set=True, handle_error=None)\n"
+        "assert hasattr(bpy.types.Scene, 'hr')\n",
+        tmp_path,
+    )
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0 and "Exception" not in out and "Traceback" not in out, out
+    proc = run_cli(
+        SAMPLES / "cornell.blend", "--cache-dir", tmp_path / "c", "--frames", "1", "--quality", "draft"
+    )
+    assert proc.returncode == 0 and "Traceback" not in proc.stdout + proc.stderr, proc.stderr
