@@ -185,3 +185,75 @@ def test_unregister_is_clean_at_exit(tmp_path):
         SAMPLES / "cornell.blend", "--cache-dir", tmp_path / "c", "--frames", "1", "--quality", "draft"
     )
     assert proc.returncode == 0 and "Traceback" not in proc.stdout + proc.stderr, proc.stderr
+
+
+def test_method_names_and_a_tooltip_on_every_setting():
+    bpy = load_bpy()
+    scene_props = bpy.types.Scene.bl_rna.properties["hr"].fixed_type.properties
+    names = {i.identifier: i.name for i in scene_props["method"].enum_items}
+    assert names == {
+        "AUTO": "Auto: chosen per element by an error bound",
+        "AR": "Adaptive refinement (AR)",
+        "FE": "Fractional emission (FE)",
+        "NAIVE": "Rebuild (naive)",
+    }
+    for owner in (bpy.types.Scene, bpy.types.Object):
+        for p in owner.bl_rna.properties["hr"].fixed_type.properties:
+            if p.identifier in ("rna_type", "name"):  # Blender's own
+                continue
+            assert p.description.strip(), f"{owner.__name__}.hr.{p.identifier} has no tooltip"
+            for item in getattr(p, "enum_items", ()):
+                assert item.description.strip(), (p.identifier, item.identifier)
+
+
+def test_custom_frame_range_starts_from_the_scene_range(tmp_path):
+    """It started at 1-250 whatever the scene's range."""
+    bpy = load_bpy()
+    from hr_addon.blender.bake import frame_range_for
+
+    open_sample("cornell", tmp_path)  # frames 1-24
+    scene = bpy.context.scene
+    scene.frame_start = 3
+    hr = scene.hr
+    hr.use_frame_range = True  # by a script: Start and End not set yet are the scene's
+    assert frame_range_for(scene) == (3, 24)
+    hr.use_frame_range = False
+    bpy.ops.hr.custom_frame_range()  # the panel's checkbox: copies the scene's range
+    assert hr.use_frame_range and (hr.frame_start, hr.frame_end) == (3, 24)
+    hr.frame_end = 10
+    bpy.ops.hr.custom_frame_range()
+    assert not hr.use_frame_range and frame_range_for(scene) == (3, 24)
+    bpy.ops.hr.custom_frame_range()  # a range once set is kept
+    assert frame_range_for(scene) == (3, 10)
+
+
+def test_progress_lines_give_real_fractions_and_each_frames_time(tmp_path):
+    """The build printed "clusters: 50% (1/1)" (the build's share next to the phase's count) and
+    "push corrections: 90% (0/1)"; frame lines had no time."""
+    import re
+
+    bpy = load_bpy()
+    from hr_addon.blender.bake import run_bake
+
+    open_sample("cornell", tmp_path)
+    lines = []
+    run_bake(
+        bpy.context.scene, log=lambda m, **k: lines.append(m), frames=(5, 7), method="FE", quality="draft"
+    )
+    build = [ln for ln in lines if ln.startswith("HR Radiosity: Building the hierarchy: ")]
+    assert build, lines
+    for ln in build:
+        m = re.fullmatch(
+            r".*: ([a-z ]+) (\d+)%(?: \(([\d,]+)/([\d,]+)\))?, build (\d+)%(, about .* left)?", ln
+        )
+        assert m, ln
+        if m[3]:
+            done, total = int(m[3].replace(",", "")), int(m[4].replace(",", ""))
+            assert int(m[2]) == round(100 * done / total), ln
+    assert build[-1].endswith("push corrections 100%, build 100%"), build
+    frames = [ln for ln in lines if ln.startswith("HR Radiosity: Frame ")]
+    assert [re.sub(r"\d+\.\d\d s$", "T s", ln) for ln in frames] == [
+        "HR Radiosity: Frame 5 (1/3): T s",
+        "HR Radiosity: Frame 6 (2/3): T s",
+        "HR Radiosity: Frame 7 (3/3): unchanged",
+    ], frames

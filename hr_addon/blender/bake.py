@@ -29,6 +29,7 @@ from ..io.cache import CacheError, CacheWriter, check_writable, frame_ranges
 from ..lightmap import TextureError
 from ..lightmap.plan import FORMATS as TEXTURE_FORMATS
 from . import playback, signatures, texture
+from .props import custom_range
 from .scene_in import (
     SceneError,
     collect_geometry,
@@ -190,10 +191,7 @@ def cache_dir_for(scene):
 
 def frame_range_for(scene, frames=None):
     if frames is None:
-        hr = scene.hr
-        frames = (
-            (hr.frame_start, hr.frame_end) if hr.use_frame_range else (scene.frame_start, scene.frame_end)
-        )
+        frames = custom_range(scene) if scene.hr.use_frame_range else (scene.frame_start, scene.frame_end)
     a, b = int(frames[0]), int(frames[1])
     if b < a:
         raise SceneError(f"Bad frame range {a}-{b}: the end frame is before the start frame.")
@@ -463,6 +461,7 @@ def bake_frames(
         prev_sig = prev_frame = None
         t_frames = time.perf_counter()
         for i, f in enumerate(frames_todo):
+            t_frame = time.perf_counter()
             intr.check()
             frame_warnings = []
             if has_shapes:
@@ -519,7 +518,8 @@ def bake_frames(
                 warnings=new_w,
                 fraction=BUILD_SHARE + (1 - BUILD_SHARE) * (i + 1) / total,
                 eta=left,
-                message=f"Frame {f} ({i + 1}/{total}){' unchanged' if reused else ''}",
+                message=f"Frame {f} ({i + 1}/{total}): "
+                + ("unchanged" if reused else f"{time.perf_counter() - t_frame:.2f} s"),
             )
         if baker is not None:
             baker.finish(writer)

@@ -55,8 +55,9 @@ def make_parser(prog=PROG, blend_required=False):
         "--method",
         type=str.lower,
         choices=["ar", "fe", "naive", "auto"],
-        help="how light-shape changes are applied: auto (recommended), ar (adaptive "
-        "refinement), fe (fractional emissivity, fastest), naive (rebuild, slow reference)",
+        help="how light-shape changes are applied: auto (chosen per element by an error bound; "
+        "recommended), ar (adaptive refinement), fe (fractional emission, fastest), naive (rebuild, "
+        "slow reference)",
     )
     p.add_argument(
         "--output",

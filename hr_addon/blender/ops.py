@@ -12,6 +12,7 @@ from ..io.cache import MANIFEST, CacheError, CacheReader
 from ..lightmap.plan import TEX_DIR
 from . import background, live, playback, texture
 from .bake import run_bake
+from .props import custom_range
 from .preview import add_preview, bake_mode, has_preview, remove_preview
 from .scene_in import geometry_objects, light_shape_problem
 
@@ -208,6 +209,23 @@ class HR_OT_mark_light_shape(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class HR_OT_custom_frame_range(bpy.types.Operator):
+    """Bake a custom frame range instead of the scene's (turned on, it starts from the scene's
+    range until Start and End are set)"""
+
+    bl_idname = "hr.custom_frame_range"
+    bl_label = "Custom Frame Range"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        hr = context.scene.hr
+        if not hr.use_frame_range:
+            # an operator, not an update callback on use_frame_range (see props.py)
+            hr.frame_start, hr.frame_end = custom_range(context.scene)
+        hr.use_frame_range = not hr.use_frame_range
+        return {"FINISHED"}
+
+
 class HR_OT_add_preview(bpy.types.Operator):
     """Show the bake in the viewport and renders through an Emission shader: HR_Radiance, or for
     baked textures the image sequences on object-level material copies (restored by Remove Preview)"""
@@ -294,7 +312,12 @@ class HR_OT_clear_bake(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene is not None and not background.running()
+        if context.scene is None or background.running():
+            return False
+        if not _has_bake(context.scene):
+            cls.poll_message_set("There is no radiosity bake to clear")
+            return False
+        return True
 
     def execute(self, context):
         _forget_bake(context.scene)
@@ -462,6 +485,7 @@ classes = (
     HR_OT_bake,
     HR_OT_cancel_bake,
     HR_OT_mark_light_shape,
+    HR_OT_custom_frame_range,
     HR_OT_add_preview,
     HR_OT_remove_preview,
     HR_OT_load_frame,
