@@ -257,3 +257,33 @@ def test_progress_lines_give_real_fractions_and_each_frames_time(tmp_path):
         "HR Radiosity: Frame 6 (2/3): T s",
         "HR Radiosity: Frame 7 (3/3): unchanged",
     ], frames
+
+
+def test_texture_bake_from_the_cli_can_be_shown_with_or_without_save(tmp_path):
+    """After `--output texture --save copy.blend` the copy said Output: Vertex; without --save the
+    HR_Lightmap UV map existed only in the process that baked, so the file could not show it."""
+    bpy = load_bpy()
+    from hr_addon.blender import texture
+    from hr_addon.io.cache import CacheReader
+
+    blend = open_sample("cornell", tmp_path)
+    args = ["--frames", "1-2", "--quality", "draft", "--method", "fe", "--output", "texture"]
+    proc = run_cli(blend, *args, "--resolution", "32", "--feps", "0.03", "--save", tmp_path / "copy.blend")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "copy.blend"), load_ui=False)
+    hr = bpy.context.scene.hr
+    assert (hr.output, hr.method, hr.quality, hr.texture_resolution) == ("TEXTURE", "FE", "CUSTOM", 32)
+    assert hr.feps == pytest.approx(0.03) and hr.bake_dir
+    assert "HR_Lightmap" in bpy.data.objects["floor"].data.uv_layers
+
+    proc = run_cli(blend, *args)  # the bake goes to the default cache of cornell.blend, no copy
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    bpy.ops.wm.open_mainfile(filepath=str(blend), load_ui=False)
+    objs = [o for o in bpy.context.scene.objects if o.type == "MESH" and not o.hr.is_light_shape]
+    assert not any("HR_Lightmap" in o.data.uv_layers for o in objs)
+    assert bpy.ops.hr.add_preview() == {"FINISHED"}  # makes the map again, as the bake made it
+    reader = CacheReader(str(tmp_path / "hr_cache" / "cornell"))
+    dg = bpy.context.evaluated_depsgraph_get()
+    for o in objs:
+        assert texture.uv_digest(o, dg) == reader.objects[o.name]["uv"], o.name
+        assert o.material_slots[0].material.get(texture.TAG) == o.name  # the helper shows the images

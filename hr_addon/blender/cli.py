@@ -1,8 +1,8 @@
 """Command line bake, shared by `blender -b scene.blend -c hr_bake ...` and
 `python -m hr_addon bake scene.blend ...`.
 
-Exit codes: 0 success; 1 the scene cannot be baked (no meshes, invalid geometry, ...);
-2 bad command line (unknown option, bad frame range, missing or unreadable .blend file);
+Exit codes: 0 success; 1 the scene cannot be baked (no meshes, nothing emits, invalid geometry, ...);
+2 bad command line (unknown option, bad frame range, missing or unreadable .blend file, bad --save);
 130 cancelled (Ctrl-C or SIGTERM; the previous bake is kept, no temporary folder is left).
 Errors are one line on stderr: "hr_bake: error: <reason>".
 """
@@ -16,9 +16,10 @@ PROG = "hr_bake"
 
 EXIT_CODES = """exit codes:
   0    success
-  1    the scene cannot be baked (no meshes, NaN coordinates, invalid light shape,
-       cannot write the cache)
-  2    bad command line (unknown option, bad frame range, missing or unreadable .blend)
+  1    the scene cannot be baked (no meshes, nothing emits light, NaN coordinates,
+       invalid light shape, cannot write the cache)
+  2    bad command line (unknown option, bad frame range, missing or unreadable .blend,
+       bad --save path)
   130  cancelled by Ctrl-C or SIGTERM: the previous bake is kept, no temporary folder is left
 
 Errors are one line on stderr: "hr_bake: error: <reason>". Warnings are listed once after the
@@ -288,6 +289,7 @@ def _run(argv, prog, blend_required, intr):
         )
     late = intr.requested  # came after the commit: the new bake is complete and kept
     if args.save and not late:
+        keep_settings(scene.hr, args, quality, feps, aeps)
         path = os.path.abspath(args.save)
         try:
             bake_abs = os.path.abspath(bpy.path.abspath(scene.hr.bake_dir))
@@ -324,6 +326,22 @@ def _run(argv, prog, blend_required, intr):
             flush=True,
         )
     return 0
+
+
+def keep_settings(hr, args, quality, feps, aeps):
+    """Write the options the bake used into Scene.hr, so that the saved copy's panel and its next
+    bake show them (a texture bake left Output on Vertex)."""
+    for key in ("method", "output", "domain", "radiance_mode", "texture_format"):
+        if getattr(args, key):
+            setattr(hr, key, getattr(args, key).upper())
+    if quality:
+        hr.quality = quality.upper()
+    if hr.quality == "CUSTOM":
+        hr.feps, hr.aeps = feps, aeps
+    if args.resolution:
+        hr.texture_resolution = args.resolution
+    if args.no_contacts:
+        hr.contacts = False
 
 
 def cli_command(argv):

@@ -247,11 +247,14 @@ class HR_OT_add_preview(bpy.types.Operator):
             return {"CANCELLED"}
         objs = geometry_objects(context.view_layer)
         if texture.is_texture_bake(context.scene):
+            warnings = []
             try:
-                n = texture.add_material(context.scene, objs)
+                n = texture.add_material(context.scene, objs, warnings)
             except (CacheError, RuntimeError) as exc:
                 self.report({"ERROR"}, str(exc))
                 return {"CANCELLED"}
+            for w in warnings:
+                self.report({"WARNING"}, w)
             self.report({"INFO"}, f"Baked textures shown on {n} object(s)")
             _report_bake_state(self, context)
             return {"FINISHED"}
