@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from test_blender_helpers import REPO_ROOT, SAMPLES, load_bpy, make_samples_module, open_sample
@@ -287,3 +288,96 @@ def test_texture_bake_from_the_cli_can_be_shown_with_or_without_save(tmp_path):
     for o in objs:
         assert texture.uv_digest(o, dg) == reader.objects[o.name]["uv"], o.name
         assert o.material_slots[0].material.get(texture.TAG) == o.name  # the helper shows the images
+
+
+# -- more silently wrong light: warnings --------------------------------------------------------------
+def test_metal_glass_and_alpha_are_named_as_read_diffuse():
+    load_bpy()
+    ms = make_samples_module()
+    ms.reset()
+    from hr_addon.blender.materials import read_material
+
+    for name, socket, value in (
+        ("Steel", "Metallic", 1.0),
+        ("Window Glass", "Transmission Weight", 1.0),
+        ("Leaves", "Alpha", 0.3),
+    ):
+        m = ms.principled(name, (0.5, 0.5, 0.5))
+        m.node_tree.nodes["Principled BSDF"].inputs[socket].default_value = value
+        what = {"Metallic": "metallic", "Transmission Weight": "transmission", "Alpha": "alpha"}[socket]
+        assert read_material(m).warnings == [
+            f"Material '{name}': {what} read as opaque diffuse: the bake has no metal, glass or see-through "
+            "surfaces, so the light this surface reflects or lets through differs from a render"
+        ]
+    assert read_material(ms.principled("Plain", (0.5, 0.5, 0.5))).warnings == []
+
+
+def test_animated_emission_on_geometry_is_named_as_not_followed(tmp_path):
+    """A keyframed emission strength or a moving emissive plate was frozen at the first frame."""
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    light = bpy.data.objects["light"]
+    strength = light.active_material.node_tree.nodes["Principled BSDF"].inputs["Emission Strength"]
+    strength.keyframe_insert("default_value", frame=1)
+    res = _bake(method="FE")
+    assert any(
+        w.startswith(
+            "Object 'light' emits light and is animated (material 'Ceiling Light'), but ordinary "
+            "geometry is read once, on frame 1"
+        )
+        for w in res.warnings
+    ), res.warnings
+    light.active_material.node_tree.animation_data_clear()
+    light.keyframe_insert("location", frame=1)
+    assert any(
+        "Object 'light' emits light and is animated (it moves)" in w for w in _bake(method="FE").warnings
+    )
+    light.animation_data_clear()
+    assert not any("is animated" in w for w in _bake(method="FE").warnings)
+
+
+def test_a_light_shape_without_area_on_one_frame_is_off_on_that_frame(tmp_path):
+    """A shape keyed to scale 0 on one frame aborted the whole bake, with nothing written."""
+    bpy = load_bpy()
+    from test_blender_helpers import attribute
+
+    open_sample("cornell", tmp_path)
+    win = bpy.data.objects["Window"]  # on from frame 6
+    for f, s in ((6, 1.0), (7, 0.0), (8, 1.0)):
+        win.scale = (s, s, s)
+        win.keyframe_insert("scale", frame=f)
+    make_samples_module().constant_interpolation(win)
+    res = _bake(method="FE", frames=(5, 8))
+    assert [w for w in res.warnings if "no area" in w] == [
+        "Light shape 'Window' has no area on frame 7 (scaled to 0 or squashed to a line): off on that frame."
+    ], res.warnings
+    scene = bpy.context.scene
+    shown = {}
+    for f in (5, 6, 7):
+        scene.frame_set(f)
+        shown[f] = attribute(bpy.data.objects["floor"]).copy()
+    np.testing.assert_array_equal(shown[7], shown[5])  # the window is off on frame 7
+    assert not np.array_equal(shown[6], shown[5])
+
+
+def test_linked_meshes_are_named_as_unwritable(tmp_path):
+    """Linked-library meshes played back white (1, 1, 1) with no message."""
+    bpy, ms = load_bpy(), make_samples_module()
+    ms.reset()
+    ms.mesh_object("Statue", *_box(0.1), ms.diffuse("Stone", (0.5, 0.5, 0.5)), location=(0.2, 0.2, 0.0))
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "lib.blend"), check_existing=False)
+    open_sample("cornell", tmp_path)
+    with bpy.data.libraries.load(str(tmp_path / "lib.blend"), link=True) as (src, dst):
+        dst.objects = ["Statue"]
+    bpy.context.scene.collection.objects.link(dst.objects[0])
+    res = _bake(method="FE")
+    assert any(
+        w.startswith("1 object(s) use a mesh linked from a library ('Statue'): HR_Radiance cannot be written")
+        for w in res.warnings
+    ), res.warnings
+
+
+def _box(s):
+    v = [(x, y, z) for x in (0, s) for y in (0, s) for z in (0, s)]
+    f = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    return v, f

@@ -34,6 +34,7 @@ from .scene_in import (
     SceneError,
     collect_geometry,
     collect_light_shapes,
+    frozen_emitters,
     geometry_objects,
     light_check,
     light_shape_objects,
@@ -327,6 +328,8 @@ def bake_frames(
         scene.frame_set(scene.frame_start)
         depsgraph = view_layer.depsgraph
         geo_objects = geometry_objects(view_layer)
+        if output == "VERTEX":
+            warn(playback.linked_meshes(geo_objects))
         if output == "TEXTURE":
             try:
                 warn(texture.ensure_lightmaps(geo_objects, resolution))
@@ -339,7 +342,7 @@ def bake_frames(
         error, light_warnings = light_check(view_layer, scene, depsgraph, bool(scene_in.mesh.emission.any()))
         if error:
             raise SceneError(error)
-        warn(light_warnings)
+        warn(light_warnings + frozen_emitters(view_layer, scene.frame_start))
         intr.check()
         geometry_sig = signatures.geometry_signatures(view_layer, depsgraph)
         shapes_id = signatures.light_shape_identity(view_layer)

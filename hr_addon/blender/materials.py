@@ -144,6 +144,26 @@ class _Reader:
         )
         return float(socket.default_value)
 
+    def not_diffuse(self, node):
+        """Name what a Principled BSDF does that the bake reads as opaque diffuse (a warning was
+        missing, the reflectance clamp hid it): metal, glass (transmission), cut-outs (alpha)."""
+        found = [
+            label
+            for label, name, plain in (
+                ("metallic", "Metallic", 0.0),
+                ("transmission", "Transmission Weight", 0.0),
+                ("alpha", "Alpha", 1.0),
+            )
+            if (s := node.inputs.get(name)) is not None
+            and (s.is_linked or abs(float(s.default_value) - plain) > 1e-6)
+        ]
+        if found:
+            self.warn(
+                f"{' and '.join(found)} read as opaque diffuse: the bake has no metal, glass or "
+                "see-through surfaces, so the light this surface reflects or lets through differs "
+                "from a render"
+            )
+
     def shader(self, socket, depth=0):
         node, _ = self.source(socket)
         if node is None:
@@ -155,6 +175,7 @@ class _Reader:
         t = node.type
         zero = np.zeros(3)
         if t == "BSDF_PRINCIPLED":
+            self.not_diffuse(node)
             return (
                 self.color(node.inputs["Base Color"]),
                 self.color(node.inputs["Emission Color"]) * self.value(node.inputs["Emission Strength"]),

@@ -14,7 +14,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from ..io.cache import CacheError, CacheReader, changed_objects
+from ..io.cache import CacheError, CacheReader, _names, changed_objects
 
 ATTRIBUTE = "HR_Radiance"
 MAGENTA = (1.0, 0.0, 1.0, 1.0)
@@ -243,6 +243,21 @@ def write_attribute(mesh, values, domain):
     attr.data.foreach_set("color", np.ascontiguousarray(values, np.float32).ravel())
     mesh.update_tag()
     state["written"].add(mesh.name)
+
+
+def linked_meshes(objects):
+    """A warning (or none) naming the objects whose mesh is linked from a library: Blender does not
+    let HR_Radiance be written into linked data (foreach_set fails without a word), so they would
+    play back white."""
+    linked = [o.name for o in objects if o.data.library is not None]
+    if not linked:
+        return []
+    return [
+        f"{len(linked)} object(s) use a mesh linked from a library ({_names(linked)}): HR_Radiance cannot be "
+        "written into linked data, so they show no baked light. Make their meshes local (Object > "
+        "Relations > Make Local > Selected Objects and Data), or bake textures with a HR_Lightmap UV "
+        "map made in the library file."
+    ]
 
 
 def objects_by_name(scene, names):

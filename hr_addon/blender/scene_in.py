@@ -482,15 +482,25 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
         if len(em.loop_start) == 0:
             continue
         _, em_t = _surfaces(em.materials, warnings, mat_cache)
+        flat = False
         for g, rings, slot in mesh_outlines(em):
             e = em_t[slot]
             if not (e > 0).any():
+                continue
+            size = float(np.ptp(rings[0], axis=0).max())
+            if np.linalg.norm(newell(rings[0])) <= 1e-9 * size * size:
+                flat = True  # no area (keyed to scale 0, squashed to a line): off, not an error
                 continue
             key = f"{obj.name}:{g[0]}"  # first polygon of the outline: stable while the mesh is
             shapes[key] = LightShape(
                 rings=[np.ascontiguousarray(r, np.float64) for r in rings],
                 emission=np.asarray(e, np.float64),
                 name=obj.name,
+            )
+        if flat:
+            warnings.append(
+                f"Light shape '{obj.name}' has no area on frame {depsgraph.scene.frame_current} "
+                "(scaled to 0 or squashed to a line): off on that frame."
             )
     return shapes
 
@@ -513,12 +523,46 @@ def shapes_signature(shapes):
 # --- what lights the scene ----------------------------------------------------------------------
 
 
+def _animated(*blocks):
+    """True if one of the ID blocks (None allowed) has keyframes or drivers."""
+    return any(
+        b is not None and b.animation_data and (b.animation_data.action or b.animation_data.drivers)
+        for b in blocks
+    )
+
+
 def _emits(mat):
     """True if `mat` emits, or may on another frame (its emission is animated or driven)."""
-    if mat is None:
-        return False
-    anim = [d.animation_data for d in (mat, mat.node_tree) if d is not None and d.animation_data]
-    return bool((read_material(mat).emission > 0).any() or any(a.action or a.drivers for a in anim))
+    return mat is not None and bool((read_material(mat).emission > 0).any() or _animated(mat, mat.node_tree))
+
+
+def _moves(obj):
+    while obj is not None:
+        if _animated(obj):
+            return True
+        obj = obj.parent
+    return False
+
+
+def frozen_emitters(view_layer, frame):
+    """Warnings naming the emitting geometry (not light shapes) whose material or object is animated:
+    ordinary geometry is read once, at the bake's start frame, so that animation is not followed."""
+    out, emits = [], {}
+    for o in geometry_objects(view_layer):
+        mats = {s.material for s in o.material_slots} - {None}
+        for m in mats - emits.keys():
+            emits[m] = _emits(m)
+        lit = [m for m in mats if emits[m]]
+        what = [f"material '{m.name}'" for m in lit if _animated(m, m.node_tree)] + (
+            ["it moves"] if lit and _moves(o) else []
+        )
+        if what:
+            out.append(
+                f"Object '{o.name}' emits light and is animated ({', '.join(what)}), but ordinary geometry "
+                f"is read once, on frame {frame}: its light stays as on that frame. Make it a light shape "
+                "(a flat emitter on a surface) to follow it."
+            )
+    return out
 
 
 def _flat(em: EvalMesh):
