@@ -42,7 +42,10 @@ def test_factory_scene_is_refused_before_the_build_naming_the_light_and_the_worl
     err = [ln for ln in proc.stderr.splitlines() if ln.startswith("hr_bake: error:")]
     assert len(err) == 1, proc.stderr
     assert "Nothing in the scene emits light, so the bake would be black" in err[0]
-    assert "Blender light(s) 'Light' and the World's background" in err[0] and "not supported yet" in err[0]
+    assert (
+        "Blender light 'Light' and the World's background light the render" in err[0]
+        and "not supported yet" in err[0]
+    )
     assert "Building the hierarchy" not in proc.stdout and "Traceback" not in proc.stderr
     assert not (tmp_path / "cache").exists()
 
@@ -74,10 +77,14 @@ def test_blender_lights_and_the_world_are_named_as_ignored(tmp_path):
     res = _bake(method="FE")
     ignored = [w for w in res.warnings if "not supported yet" in w]
     assert ignored == [
-        "Blender light(s) 'Lamp' and the World's background light the render but are ignored by the "
+        "Blender light 'Lamp' and the World's background light the render but are ignored by the "
         "bake (not supported yet): only emissive materials and light shapes give light."
     ], res.warnings
     bg.inputs["Strength"].default_value = 0.0
+    assert [w for w in _bake(method="FE").warnings if "not supported yet" in w] == [
+        "Blender light 'Lamp' lights the render but is ignored by the bake (not supported yet): only "
+        "emissive materials and light shapes give light."
+    ]
     lamp.hide_render = True
     assert not [w for w in _bake(method="FE").warnings if "not supported yet" in w]
 

@@ -634,11 +634,14 @@ def light_check(view_layer, scene, depsgraph, geometry_emits):
         for o in _walk_collections(view_layer)
         if o.type == "LIGHT" and not o.hide_render and o.data.energy > 0
     ]
+    world = world_lights(scene.world)
     ignored = " and ".join(
-        ([f"Blender light(s) {_names(lights)}"] if lights else [])
-        + (["the World's background"] if world_lights(scene.world) else [])
+        ([f"Blender light{'s' * (len(lights) > 1)} {_names(lights)}"] if lights else [])
+        + (["the World's background"] if world else [])
     )
     ignored = ignored[:1].upper() + ignored[1:]
+    one = len(lights) + world == 1
+    light, are = ("lights", "is") if one else ("light", "are")
     warnings, shapes_emit = [], False
     for o in light_shape_objects(view_layer, include_hidden=True):
         emits, why = light_shape_problem(o, depsgraph)
@@ -650,14 +653,14 @@ def light_check(view_layer, scene, depsgraph, geometry_emits):
             "Nothing in the scene emits light, so the bake would be black: no mesh has an emissive "
             "material (an Emission shader, or a Principled BSDF with Emission Strength > 0) and no "
             "light shape emits."
-            + (f" {ignored} light the render but not the bake (not supported yet)." if ignored else "")
+            + (f" {ignored} {light} the render but not the bake (not supported yet)." if ignored else "")
             + " Give a mesh an emissive material, or mark a flat emissive mesh as a light shape.",
             warnings,
         )
     if ignored:
         warnings.insert(
             0,
-            f"{ignored} light the render but are ignored by the bake (not supported yet): only "
+            f"{ignored} {light} the render but {are} ignored by the bake (not supported yet): only "
             "emissive materials and light shapes give light.",
         )
     return "", warnings
