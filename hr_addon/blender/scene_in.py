@@ -487,9 +487,11 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
             e = em_t[slot]
             if not (e > 0).any():
                 continue
-            size = float(np.ptp(rings[0], axis=0).max())
-            if np.linalg.norm(newell(rings[0])) <= 1e-9 * size * size:
-                flat = True  # no area (keyed to scale 0, squashed to a line): off, not an error
+            # points in one spot or on a line (keyed to scale 0, squashed): off, not an error; a
+            # bowtie (no net area, but points spread in a plane) stays the shape check's error
+            sv = np.linalg.svd(rings[0] - rings[0].mean(0), compute_uv=False)
+            if sv[1] <= 1e-9 * max(sv[0], 1e-300):
+                flat = True
                 continue
             key = f"{obj.name}:{g[0]}"  # first polygon of the outline: stable while the mesh is
             shapes[key] = LightShape(
