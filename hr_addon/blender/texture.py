@@ -62,6 +62,11 @@ def _uv_signature(co, ls, lt, lv, scale, res):
     return h.hexdigest()
 
 
+def _uv_hash(uv):
+    """The digest of a (L, 2) float32 UV array that the manifest keeps per object ("uv")."""
+    return hashlib.sha1(np.ascontiguousarray(uv).tobytes()).hexdigest()
+
+
 def resolution_for(obj, default):
     r = int(getattr(obj.hr, "lightmap_resolution", 0) or 0)
     return r if r > 0 else int(default)
@@ -238,7 +243,7 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
             tri_uv,
             corners,
             tri_patch,
-            hashlib.sha1(np.ascontiguousarray(uv).tobytes()).hexdigest(),
+            _uv_hash(uv),
         )
         if want:
             tri, bary = placed
@@ -347,7 +352,7 @@ def _helper(slot):
 def uv_digest(obj, depsgraph):
     """Digest of obj's evaluated HR_Lightmap UVs, as the bake computes it (None: no such map)."""
     _, uv = evaluated(obj, depsgraph, read_uv)
-    return None if uv is None else hashlib.sha1(np.ascontiguousarray(uv).tobytes()).hexdigest()
+    return None if uv is None else _uv_hash(uv)
 
 
 def restore_lightmaps(reader, objects):
