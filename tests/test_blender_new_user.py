@@ -267,7 +267,7 @@ def test_progress_lines_give_real_fractions_and_each_frames_time(tmp_path):
     ], frames
 
 
-def test_texture_bake_from_the_cli_can_be_shown_with_or_without_save(tmp_path):
+def test_texture_bake_from_the_cli_can_be_shown_with_or_without_save(tmp_path, capfd):
     """After `--output texture --save copy.blend` the copy said Output: Vertex; without --save the
     HR_Lightmap UV map existed only in the process that baked, so the file could not show it."""
     bpy = load_bpy()
@@ -295,6 +295,11 @@ def test_texture_bake_from_the_cli_can_be_shown_with_or_without_save(tmp_path):
     for o in objs:
         assert texture.uv_digest(o, dg) == reader.objects[o.name]["uv"], o.name
         assert o.material_slots[0].material.get(texture.TAG) == o.name  # the helper shows the images
+    bpy.ops.wm.open_mainfile(filepath=str(blend), load_ui=False)
+    bpy.data.objects["floor"].scale = (3, 1, 1)  # edited since the bake: packed otherwise
+    capfd.readouterr()
+    assert bpy.ops.hr.add_preview() == {"FINISHED"}
+    assert "The HR_Lightmap UV map made again differs from the bake's on 'floor'" in capfd.readouterr().out
 
 
 # -- more silently wrong light: warnings --------------------------------------------------------------
