@@ -299,7 +299,7 @@ def table(results):
         "| scene | quality | method | build | all edits | "
         + " | ".join(kinds)
         + " | hr.live_update() | same, check_geometry=False | target (p95) |",
-        "|---" * (9 + len(kinds)) + "|",
+        "|---" * (8 + len(kinds)) + "|",  # 5 + kinds + 3 columns
     ]
 
     def ms(s):

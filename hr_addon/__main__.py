@@ -3,7 +3,6 @@
 The same options as `blender -b scene.blend -c hr_bake [options]`; see hr_addon/blender/cli.py.
 """
 
-import os
 import sys
 
 
@@ -48,11 +47,7 @@ def _main(argv, INTERRUPTS):
     from .blender import cli
 
     try:
-        args = cli.make_parser("python -m hr_addon bake", blend_required=True).parse_args(argv[1:])
-        if args.frames is not None:
-            cli.parse_frames(args.frames)
-        if not os.path.isfile(args.blend):
-            raise cli.UsageError(f"file not found: {args.blend}")
+        cli.check_args(cli.make_parser("python -m hr_addon bake", blend_required=True).parse_args(argv[1:]))
     except cli.UsageError as exc:
         print(f"{cli.PROG}: error: {exc}", file=sys.stderr, flush=True)
         return 2

@@ -21,7 +21,8 @@ def _bake(**kw):
 def test_preview_and_cache_operators_need_a_bake(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
-    for op in (bpy.ops.hr.add_preview, bpy.ops.hr.load_frame, bpy.ops.hr.delete_bake):
+    ops = (bpy.ops.hr.add_preview, bpy.ops.hr.load_frame, bpy.ops.hr.delete_bake, bpy.ops.hr.clear_bake)
+    for op in ops:
         assert not op.poll()
     with pytest.raises(RuntimeError, match="bake first"):
         bpy.ops.hr.add_preview()
@@ -29,7 +30,7 @@ def test_preview_and_cache_operators_need_a_bake(tmp_path):
     assert not bpy.ops.hr.cancel_bake.poll()  # nothing running
     assert bpy.ops.hr.bake.poll()
     _bake(frames=(1, 2), method="FE")
-    assert bpy.ops.hr.add_preview.poll() and bpy.ops.hr.load_frame.poll() and bpy.ops.hr.delete_bake.poll()
+    assert all(op.poll() for op in ops)
     assert bpy.ops.hr.add_preview() == {"FINISHED"}
     assert bpy.ops.hr.remove_preview.poll()
 

@@ -9,6 +9,9 @@ worker thread, no bpy), interrupt (Ctrl-C / SIGTERM), ops, panels, cli.
 """
 
 _cli_handle = None
+# Unregistering twice raised "missing bl_rna attribute": the bpy module runs our atexit hook
+# (below), then Blender's own exit disables the enabled extension again.
+_registered = False
 
 
 def _modules():
@@ -18,7 +21,7 @@ def _modules():
 
 
 def register():
-    global _cli_handle
+    global _cli_handle, _registered
     import bpy
     from . import cli
 
@@ -31,6 +34,7 @@ def register():
     live.register()
     if _cli_handle is None:
         _cli_handle = bpy.utils.register_cli_command("hr_bake", cli.cli_command)
+    _registered = True
     global _atexit_set
     if not bpy.app.binary_path and not _atexit_set:
         # The bpy module of Blender 4.2 and 4.5 crashes (4.2) or hangs (4.5) when Python exits with
@@ -46,13 +50,10 @@ _atexit_set = False
 
 
 def _at_exit():
-    import bpy
-
-    if hasattr(bpy.types.Scene, "hr"):
-        try:
-            unregister()
-        except Exception:  # exiting anyway
-            pass
+    try:
+        unregister()
+    except Exception:  # exiting anyway
+        pass
 
 
 def _unregister_cli():
@@ -65,6 +66,10 @@ def _unregister_cli():
 
 
 def unregister():
+    global _registered
+    if not _registered:
+        return
+    _registered = False
     import bpy
 
     props, ops, panels, playback, background, live = _modules()

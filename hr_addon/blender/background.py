@@ -31,7 +31,7 @@ from bpy.app.handlers import persistent
 from ..lightmap import TextureError
 from . import jobstatus, playback, texture
 from .bake import cache_dir_for, frame_range_for, use_bake
-from .scene_in import SceneError, geometry_objects
+from .scene_in import SceneError, geometry_objects, light_check, materials_emit
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]  # .../hr_addon
 ADDON_MODULE = __package__.rsplit(".hr_addon.blender", 1)[0] if ".hr_addon.blender" in __package__ else ""
@@ -172,6 +172,11 @@ class BackgroundBake:
                 "No mesh objects to compute radiosity on (all hidden, excluded or light shapes)."
             )
         frame_range_for(scene, self.overrides.get("frames"))
+        depsgraph = view_layer.depsgraph
+        depsgraph.update()
+        error, _ = light_check(view_layer, scene, depsgraph, materials_emit(depsgraph))
+        if error:  # at once, not from the worker after it has loaded the file
+            raise SceneError(error)
         self.output = (self.overrides.get("output") or scene.hr.output).upper()
         if self.output == "TEXTURE":
             # The lightmap UV maps belong to the user's meshes: make them here, the copy gets them.

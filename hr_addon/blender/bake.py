@@ -29,11 +29,14 @@ from ..io.cache import CacheError, CacheWriter, check_writable, frame_ranges
 from ..lightmap import TextureError
 from ..lightmap.plan import FORMATS as TEXTURE_FORMATS
 from . import playback, signatures, texture
+from .props import custom_range
 from .scene_in import (
     SceneError,
     collect_geometry,
     collect_light_shapes,
+    frozen_emitters,
     geometry_objects,
+    light_check,
     light_shape_objects,
     shapes_signature,
 )
@@ -189,10 +192,7 @@ def cache_dir_for(scene):
 
 def frame_range_for(scene, frames=None):
     if frames is None:
-        hr = scene.hr
-        frames = (
-            (hr.frame_start, hr.frame_end) if hr.use_frame_range else (scene.frame_start, scene.frame_end)
-        )
+        frames = custom_range(scene) if scene.hr.use_frame_range else (scene.frame_start, scene.frame_end)
     a, b = int(frames[0]), int(frames[1])
     if b < a:
         raise SceneError(f"Bad frame range {a}-{b}: the end frame is before the start frame.")
@@ -284,6 +284,13 @@ def bake_frames(
     if not 8 <= resolution <= 16384:
         raise SceneError(f"Bad texture resolution {resolution} (8 to 16384).")
     start, end = frame_range_for(scene, frames)
+    # frames outside the scene's range are baked as asked, but said (a typo, another scene's range)
+    s0, s1 = scene.frame_start, scene.frame_end
+    outside = [
+        f"{a}-{b}" if a < b else str(a)
+        for a, b in ((start, min(end, s0 - 1)), (max(start, s1 + 1), end))
+        if a <= b
+    ]
     if output == "TEXTURE" and start < 0:
         raise SceneError("Texture output needs frame numbers >= 0 (image sequence file names).")
     final_dir = os.path.abspath(cache_dir) if cache_dir else cache_dir_for(scene)
@@ -305,6 +312,14 @@ def bake_frames(
         result.warnings[:] = log.texts()
         return new
 
+    if outside:
+        warn(
+            [
+                f"Frames {' and '.join(outside)} lie outside the scene's frame range {s0}-{s1}: baked "
+                "as asked (is the frame range right?)."
+            ]
+        )
+
     from . import live
 
     live.end_for_bake(scene)  # the bake shows its own result when it has finished
@@ -313,6 +328,8 @@ def bake_frames(
         scene.frame_set(scene.frame_start)
         depsgraph = view_layer.depsgraph
         geo_objects = geometry_objects(view_layer)
+        if output == "VERTEX":
+            warn(playback.linked_meshes(geo_objects))
         if output == "TEXTURE":
             try:
                 warn(texture.ensure_lightmaps(geo_objects, resolution))
@@ -321,6 +338,11 @@ def bake_frames(
         with texture.source_materials(geo_objects):  # texture preview copies stand for these
             scene_in = collect_geometry(view_layer, depsgraph)
         warn(scene_in.warnings)
+        # never a black bake without a word: nothing emits -> refused before the build
+        error, light_warnings = light_check(view_layer, scene, depsgraph, bool(scene_in.mesh.emission.any()))
+        if error:
+            raise SceneError(error)
+        warn(light_warnings + frozen_emitters(view_layer, scene.frame_start))
         intr.check()
         geometry_sig = signatures.geometry_signatures(view_layer, depsgraph)
         shapes_id = signatures.light_shape_identity(view_layer)
@@ -442,6 +464,7 @@ def bake_frames(
         prev_sig = prev_frame = None
         t_frames = time.perf_counter()
         for i, f in enumerate(frames_todo):
+            t_frame = time.perf_counter()
             intr.check()
             frame_warnings = []
             if has_shapes:
@@ -498,7 +521,8 @@ def bake_frames(
                 warnings=new_w,
                 fraction=BUILD_SHARE + (1 - BUILD_SHARE) * (i + 1) / total,
                 eta=left,
-                message=f"Frame {f} ({i + 1}/{total}){' unchanged' if reused else ''}",
+                message=f"Frame {f} ({i + 1}/{total}): "
+                + ("unchanged" if reused else f"{time.perf_counter() - t_frame:.2f} s"),
             )
         if baker is not None:
             baker.finish(writer)

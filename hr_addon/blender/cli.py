@@ -1,8 +1,8 @@
 """Command line bake, shared by `blender -b scene.blend -c hr_bake ...` and
 `python -m hr_addon bake scene.blend ...`.
 
-Exit codes: 0 success; 1 the scene cannot be baked (no meshes, invalid geometry, ...);
-2 bad command line (unknown option, bad frame range, missing or unreadable .blend file);
+Exit codes: 0 success; 1 the scene cannot be baked (no meshes, nothing emits, invalid geometry, ...);
+2 bad command line (unknown option, bad frame range, missing or unreadable .blend file, bad --save);
 130 cancelled (Ctrl-C or SIGTERM; the previous bake is kept, no temporary folder is left).
 Errors are one line on stderr: "hr_bake: error: <reason>".
 """
@@ -16,9 +16,10 @@ PROG = "hr_bake"
 
 EXIT_CODES = """exit codes:
   0    success
-  1    the scene cannot be baked (no meshes, NaN coordinates, invalid light shape,
-       cannot write the cache)
-  2    bad command line (unknown option, bad frame range, missing or unreadable .blend)
+  1    the scene cannot be baked (no meshes, nothing emits light, NaN coordinates,
+       invalid light shape, cannot write the cache)
+  2    bad command line (unknown option, bad frame range, missing or unreadable .blend,
+       bad --save path)
   130  cancelled by Ctrl-C or SIGTERM: the previous bake is kept, no temporary folder is left
 
 Errors are one line on stderr: "hr_bake: error: <reason>". Warnings are listed once after the
@@ -55,8 +56,9 @@ def make_parser(prog=PROG, blend_required=False):
         "--method",
         type=str.lower,
         choices=["ar", "fe", "naive", "auto"],
-        help="how light-shape changes are applied: auto (recommended), ar (adaptive "
-        "refinement), fe (fractional emissivity, fastest), naive (rebuild, slow reference)",
+        help="how light-shape changes are applied: auto (chosen per element by an error bound; "
+        "recommended), ar (adaptive refinement), fe (fractional emission, fastest), naive (rebuild, "
+        "slow reference)",
     )
     p.add_argument(
         "--output",
@@ -135,6 +137,29 @@ def parse_frames(text):
     return a, b
 
 
+def check_args(args):
+    """The checks that need no bpy (before its slow import and before the build): the frame range,
+    the .blend file, the texture size and the --save path. Returns the frames (or None); raises
+    UsageError."""
+    frames = parse_frames(args.frames) if args.frames is not None else None
+    if args.blend is not None and not os.path.isfile(args.blend):
+        raise UsageError(f"file not found: {args.blend}")
+    if args.resolution is not None and not 8 <= args.resolution <= 16384:
+        raise UsageError(f"bad texture resolution {args.resolution} (8 to 16384)")
+    if args.save:
+        path = os.path.abspath(args.save)
+        folder = os.path.dirname(path)
+        if not path.lower().endswith(".blend"):
+            raise UsageError(f"--save {args.save}: the copy needs a .blend file name")
+        if not os.path.isdir(folder):
+            raise UsageError(f"--save {args.save}: the folder {folder} does not exist")
+        if os.path.isdir(path):
+            raise UsageError(f"--save {args.save}: {path} is a folder")
+        if not os.access(folder, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+            raise UsageError(f"--save {args.save}: cannot write {path} (permission denied)")
+    return frames
+
+
 def _err(msg):
     print(f"{PROG}: error: {msg}", file=sys.stderr, flush=True)
 
@@ -161,11 +186,7 @@ def run(argv, prog=PROG, blend_required=False, interrupts=None):
 def _run(argv, prog, blend_required, intr):
     try:
         args = make_parser(prog, blend_required).parse_args(list(argv))
-        frames = parse_frames(args.frames) if args.frames is not None else None
-        if args.blend is not None and not os.path.isfile(args.blend):
-            raise UsageError(f"file not found: {args.blend}")
-        if args.resolution is not None and not 8 <= args.resolution <= 16384:
-            raise UsageError(f"bad texture resolution {args.resolution} (8 to 16384)")
+        frames = check_args(args)
     except UsageError as exc:
         _err(str(exc))
         return 2
@@ -228,7 +249,8 @@ def _run(argv, prog, blend_required, intr):
     feps = args.feps if args.feps is not None else scene.hr.feps
     aeps = args.aeps if args.aeps is not None else scene.hr.aeps
     if quality == "custom" and not (0 < feps <= 1 and 0 < aeps < 1):
-        return fail(2, f"bad thresholds feps={feps} aeps={aeps} (need 0 < feps <= 1, 0 < aeps < 1)")
+        # :g - the scene's values are float32 (aeps=0.0010000000474974513)
+        return fail(2, f"bad thresholds feps={feps:g} aeps={aeps:g} (need 0 < feps <= 1, 0 < aeps < 1)")
     collected = Warnings()
     try:
         res = run_bake(
@@ -267,6 +289,7 @@ def _run(argv, prog, blend_required, intr):
         )
     late = intr.requested  # came after the commit: the new bake is complete and kept
     if args.save and not late:
+        keep_settings(scene.hr, args, quality, feps, aeps)
         path = os.path.abspath(args.save)
         try:
             bake_abs = os.path.abspath(bpy.path.abspath(scene.hr.bake_dir))
@@ -303,6 +326,22 @@ def _run(argv, prog, blend_required, intr):
             flush=True,
         )
     return 0
+
+
+def keep_settings(hr, args, quality, feps, aeps):
+    """Write the options the bake used into Scene.hr, so that the saved copy's panel and its next
+    bake show them (a texture bake left Output on Vertex)."""
+    for key in ("method", "output", "domain", "radiance_mode", "texture_format"):
+        if getattr(args, key):
+            setattr(hr, key, getattr(args, key).upper())
+    if quality:
+        hr.quality = quality.upper()
+    if hr.quality == "CUSTOM":
+        hr.feps, hr.aeps = feps, aeps
+    if args.resolution:
+        hr.texture_resolution = args.resolution
+    if args.no_contacts:
+        hr.contacts = False
 
 
 def cli_command(argv):

@@ -144,6 +144,26 @@ class _Reader:
         )
         return float(socket.default_value)
 
+    def not_diffuse(self, node):
+        """Name what a Principled BSDF does that the bake reads as opaque diffuse (a warning was
+        missing, the reflectance clamp hid it): metal, glass (transmission), cut-outs (alpha)."""
+        found = [
+            label
+            for label, name, plain in (
+                ("metallic", "Metallic", 0.0),
+                ("transmission", "Transmission Weight", 0.0),
+                ("alpha", "Alpha", 1.0),
+            )
+            if (s := node.inputs.get(name)) is not None
+            and (s.is_linked or abs(float(s.default_value) - plain) > 1e-6)
+        ]
+        if found:
+            self.warn(
+                f"{' and '.join(found)} read as opaque diffuse: the bake has no metal, glass or "
+                "see-through surfaces, so the light this surface reflects or lets through differs "
+                "from a render"
+            )
+
     def shader(self, socket, depth=0):
         node, _ = self.source(socket)
         if node is None:
@@ -155,6 +175,7 @@ class _Reader:
         t = node.type
         zero = np.zeros(3)
         if t == "BSDF_PRINCIPLED":
+            self.not_diffuse(node)
             return (
                 self.color(node.inputs["Base Color"]),
                 self.color(node.inputs["Emission Color"]) * self.value(node.inputs["Emission Strength"]),
@@ -306,6 +327,30 @@ def _output_node(tree):
             if test(n):
                 return n
     return None
+
+
+def world_lights(world):
+    """True if `world` would light a Cycles render (a background that is not black): the bake
+    ignores it (not supported yet), so the bake names it."""
+    if world is None:
+        return False
+    tree = world.node_tree
+    if tree is None or (bpy.app.version < (5, 0, 0) and not world.use_nodes):
+        return any(c > 0 for c in world.color[:3])
+    outs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]
+    out = next((n for n in outs if n.is_active_output), outs[0] if outs else None)
+    if out is None:
+        return False
+    r = _Reader(world)
+    node, _ = r.source(out.inputs["Surface"])
+    if node is None or node.mute:
+        return False
+    if node.type != "BACKGROUND":
+        return True  # a sky or environment texture, a mix of shaders, ...: assume it lights
+    color, strength = node.inputs["Color"], node.inputs["Strength"]
+    if color.is_linked or strength.is_linked:
+        return True
+    return strength.default_value > 0 and any(c > 0 for c in color.default_value[:3])
 
 
 def read_material(mat) -> Surface:

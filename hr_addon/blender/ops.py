@@ -10,8 +10,9 @@ from ..core.geometry import InputError
 from ..io.cache import MANIFEST, MARKER, TEX_DIR, CacheError, CacheReader, owned_files
 from . import background, live, playback, texture
 from .bake import run_bake
+from .props import custom_range
 from .preview import add_preview, bake_mode, has_preview, remove_preview
-from .scene_in import geometry_objects
+from .scene_in import geometry_objects, light_shape_problem
 
 
 def _report_bake_state(op, context):
@@ -31,6 +32,12 @@ def _report_bake_state(op, context):
 
 def _has_bake(scene):
     return bool(playback.bake_dir_abs(scene))
+
+
+def _bake_ended(scene, warnings, error=""):
+    """Keep what the panel shows after a bake: its warnings, and why it failed ('' if it did not)."""
+    playback.state["notes"][scene.name_full] = list(warnings)
+    playback.state["errors"][scene.name_full] = error
 
 
 def _redraw(context):
@@ -75,11 +82,12 @@ class HR_OT_bake(bpy.types.Operator):
         try:
             res = run_bake(context.scene, view_layer=context.view_layer)
         except (InputError, OSError, RuntimeError, ValueError) as exc:
+            _bake_ended(context.scene, [], str(exc))
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
         for w in res.warning_lines():
             self.report({"WARNING"}, w)
-        playback.state.setdefault("notes", {})[context.scene.name_full] = res.warning_lines()
+        _bake_ended(context.scene, res.warning_lines())
         self.report(
             {"INFO"},
             f"Baked {res.frames[0]}-{res.frames[1]}: {res.solved} solved, "
@@ -94,8 +102,10 @@ class HR_OT_bake(bpy.types.Operator):
         try:
             job.start()
         except (InputError, OSError, RuntimeError, ValueError) as exc:
+            _bake_ended(context.scene, job.warnings, str(exc))
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+        playback.state["errors"].pop(context.scene.name_full, None)
         self._job = job
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.25, window=context.window)
@@ -118,14 +128,17 @@ class HR_OT_bake(bpy.types.Operator):
         _redraw(context)
         for w in job.warnings:
             self.report({"WARNING"}, w)
+        scene = bpy.data.scenes.get(getattr(job, "scene_name", "") or "")
         if job.state == "done":
-            if getattr(job, "scene_name", None):
-                playback.state.setdefault("notes", {})[job.scene_name] = list(job.warnings)
+            if scene is not None:
+                _bake_ended(scene, job.warnings)
             self.report({"INFO"}, f"HR Radiosity: {job.summary}")
             return {"FINISHED"}
         if job.state == "cancelled":
             self.report({"WARNING"}, "Radiosity bake cancelled; the previous bake is kept")
         else:
+            if scene is not None:
+                _bake_ended(scene, job.warnings, job.error)
             self.report({"ERROR"}, f"Radiosity bake failed: {job.error}")
         return {"CANCELLED"}
 
@@ -180,7 +193,34 @@ class HR_OT_mark_light_shape(bpy.types.Operator):
                 setattr(o, attr, self.clear)
             o.show_in_front = not self.clear
             n += 1
-        self.report({"INFO"}, f"{n} object(s) {'unmarked' if self.clear else 'marked as light shapes'}")
+        problems = []
+        if not self.clear:  # said now, not first at bake time (and again then)
+            dg = context.evaluated_depsgraph_get()
+            for o in context.selected_objects:
+                why = o.type == "MESH" and light_shape_problem(o, dg)[1]
+                if why:
+                    problems.append(f"Light shape '{o.name}': {why}.")
+        for p in problems:
+            self.report({"WARNING"}, p)
+        more = f"; {len(problems)} with a problem (see the warnings)" if problems else ""
+        self.report({"INFO"}, f"{n} object(s) {'unmarked' if self.clear else 'marked as light shapes'}{more}")
+        return {"FINISHED"}
+
+
+class HR_OT_custom_frame_range(bpy.types.Operator):
+    """Bake a custom frame range instead of the scene's (turned on, it starts from the scene's
+    range until Start and End are set)"""
+
+    bl_idname = "hr.custom_frame_range"
+    bl_label = "Custom Frame Range"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        hr = context.scene.hr
+        if not hr.use_frame_range:
+            # an operator, not an update callback on use_frame_range (see props.py)
+            hr.frame_start, hr.frame_end = custom_range(context.scene)
+        hr.use_frame_range = not hr.use_frame_range
         return {"FINISHED"}
 
 
@@ -205,11 +245,14 @@ class HR_OT_add_preview(bpy.types.Operator):
             return {"CANCELLED"}
         objs = geometry_objects(context.view_layer)
         if texture.is_texture_bake(context.scene):
+            warnings = []
             try:
-                n = texture.add_material(context.scene, objs)
+                n = texture.add_material(context.scene, objs, warnings)
             except (CacheError, RuntimeError) as exc:
                 self.report({"ERROR"}, str(exc))
                 return {"CANCELLED"}
+            for w in warnings:
+                self.report({"WARNING"}, w)
             self.report({"INFO"}, f"Baked textures shown on {n} object(s)")
             _report_bake_state(self, context)
             return {"FINISHED"}
@@ -270,7 +313,12 @@ class HR_OT_clear_bake(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.scene is not None and not background.running()
+        if context.scene is None or background.running():
+            return False
+        if not _has_bake(context.scene):
+            cls.poll_message_set("There is no radiosity bake to clear")
+            return False
+        return True
 
     def execute(self, context):
         _forget_bake(context.scene)
@@ -282,7 +330,8 @@ def _forget_bake(scene):
     scene.hr.playback = False
     playback.state["stale"].pop(scene.name_full, None)
     playback.state["messages"].pop(scene.name_full, None)
-    playback.state.setdefault("notes", {}).pop(scene.name_full, None)
+    playback.state["notes"].pop(scene.name_full, None)
+    playback.state["errors"].pop(scene.name_full, None)
     texture.remove_material([o for o in scene.objects if o.type == "MESH"])
     for o in scene.objects:
         if o.type == "MESH" and playback.ATTRIBUTE in o.data.color_attributes:
@@ -431,6 +480,7 @@ classes = (
     HR_OT_bake,
     HR_OT_cancel_bake,
     HR_OT_mark_light_shape,
+    HR_OT_custom_frame_range,
     HR_OT_add_preview,
     HR_OT_remove_preview,
     HR_OT_load_frame,

@@ -29,7 +29,10 @@ def _draw_bake(layout, context):
     for part in msg.split("\n") if msg else []:
         for i, line in enumerate(_wrap(part, 60)):
             col.label(text=line, icon="ERROR" if i == 0 else "BLANK1")
-    notes = playback.state.get("notes", {}).get(scene.name_full) or []
+    error = playback.state["errors"].get(scene.name_full)
+    for i, line in enumerate(_wrap(f"Bake failed: {error}", 60) if error else []):
+        col.label(text=line, icon="ERROR" if i == 0 else "BLANK1")
+    notes = playback.state["notes"].get(scene.name_full) or []
     for part in notes[:4]:
         for i, line in enumerate(_wrap(part, 60)):
             col.label(text=line, icon="INFO" if i == 0 else "BLANK1")
@@ -117,11 +120,21 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
         else:
             layout.prop(hr, "domain")
         layout.prop(hr, "cache_folder")
-        layout.prop(hr, "use_frame_range")
+        # an operator for the checkbox: turned on, it starts from the scene's range (props.py)
+        row = layout.row()
+        row.operator(
+            "hr.custom_frame_range",
+            icon="CHECKBOX_HLT" if hr.use_frame_range else "CHECKBOX_DEHLT",
+            emboss=False,
+            depress=hr.use_frame_range,
+        )
         sub = layout.column(align=True)
-        sub.enabled = hr.use_frame_range
-        sub.prop(hr, "frame_start")
-        sub.prop(hr, "frame_end")
+        if hr.use_frame_range:
+            sub.prop(hr, "frame_start")
+            sub.prop(hr, "frame_end")
+        else:  # what the bake takes: the scene's range
+            sub.enabled = False
+            sub.label(text=f"Frames {context.scene.frame_start}-{context.scene.frame_end} (the scene's)")
 
 
 class HR_PT_object(bpy.types.Panel):

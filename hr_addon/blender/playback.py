@@ -14,7 +14,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from ..io.cache import CacheError, CacheReader, changed_objects
+from ..io.cache import CacheError, CacheReader, _names, changed_objects
 
 ATTRIBUTE = "HR_Radiance"
 MAGENTA = (1.0, 0.0, 1.0, 1.0)
@@ -23,7 +23,8 @@ MAGENTA = (1.0, 0.0, 1.0, 1.0)
 # messages: load problems per scene; stale: "the scene changed" per scene; changes: memo of the
 # last check (key, message); dirty: scenes edited since; written: meshes whose HR_Radiance we
 # wrote (their next depsgraph update is ours, not an edit); live: scenes whose HR_Radiance Live
-# Relight writes (live.py; playback leaves them alone, except during renders).
+# Relight writes (live.py; playback leaves them alone, except during renders). notes: the last
+# bake's warnings per scene; errors: why the last bake failed or was refused (the panel shows both).
 state = {
     "baking": False,
     "messages": {},
@@ -35,6 +36,7 @@ state = {
     "written": set(),
     "image_checks": {},
     "notes": {},
+    "errors": {},
     "live": set(),
 }
 
@@ -243,6 +245,21 @@ def write_attribute(mesh, values, domain):
     state["written"].add(mesh.name)
 
 
+def linked_meshes(objects):
+    """A warning (or none) naming the objects whose mesh is linked from a library: Blender does not
+    let HR_Radiance be written into linked data (foreach_set fails without a word), so they would
+    play back white."""
+    linked = [o.name for o in objects if o.data.library is not None]
+    if not linked:
+        return []
+    return [
+        f"{len(linked)} object(s) use a mesh linked from a library ({_names(linked)}): HR_Radiance cannot be "
+        "written into linked data, so they show no baked light. Make their meshes local (Object > "
+        "Relations > Make Local > Selected Objects and Data), or bake textures with a HR_Lightmap UV "
+        "map made in the library file."
+    ]
+
+
 def objects_by_name(scene, names):
     """{name: object or None} for names, from the scene's objects, else bpy.data's. One pass over
     the scene: a collection's get() searches linearly (3 s per Live update of 3,882 objects)."""
@@ -425,6 +442,7 @@ def on_load_post(*args):
     state["stale"].clear()
     state["dirty"].clear()
     state["notes"].clear()
+    state["errors"].clear()
     for scene in bpy.data.scenes:
         if scene.hr.playback and bake_dir_abs(scene):
             load_frame(scene)

@@ -6,13 +6,21 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, Po
 METHOD_ITEMS = [
     (
         "AUTO",
-        "Auto",
-        "Per element fractional emission or refinement, chosen by an error bound "
+        "Auto: chosen per element by an error bound",
+        "Fractional emission or adaptive refinement, chosen per element by an error bound "
         "(accurate and fast; recommended)",
     ),
-    ("AR", "AR", "Adaptive refinement: subdivide the elements under the light shape's outline"),
-    ("FE", "FE", "Fractional emissivity: elements partly covered emit the covered fraction (fastest)"),
-    ("NAIVE", "Naive", "Light shapes become new patches and the solution is rebuilt (slow reference)"),
+    ("AR", "Adaptive refinement (AR)", "Subdivide the elements under the light shape's outline"),
+    (
+        "FE",
+        "Fractional emission (FE)",
+        "Elements partly covered by a light shape emit the covered fraction (fastest)",
+    ),
+    (
+        "NAIVE",
+        "Rebuild (naive)",
+        "Light shapes become new patches and the solution is rebuilt (slow reference)",
+    ),
 ]
 QUALITY_ITEMS = [
     ("DRAFT", "Draft", "Coarse and fast"),
@@ -131,8 +139,19 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         default=False,
         description="Bake frames Start..End below instead of the scene frame range",
     )
-    frame_start: IntProperty(name="Start", default=1)
-    frame_end: IntProperty(name="End", default=250)
+    # Until set (turning Custom Frame Range on in the panel copies the scene's range), Start and
+    # End are the scene's: the bake reads them through custom_range(). No update callback (see
+    # quality), and get/set functions crash the bpy module of Blender 4.2 at exit too.
+    frame_start: IntProperty(
+        name="Start",
+        default=1,
+        description="First frame of the custom frame range (until set: the scene's Frame Start)",
+    )
+    frame_end: IntProperty(
+        name="End",
+        default=250,
+        description="Last frame of the custom frame range (until set: the scene's Frame End)",
+    )
     cache_folder: StringProperty(
         name="Cache Folder",
         default="//hr_cache/",
@@ -177,6 +196,15 @@ class HR_ObjectSettings(bpy.types.PropertyGroup):
         max=16384,
         soft_max=4096,
         description="Lightmap width and height in texels for baked textures (0: the scene's Texture Size)",
+    )
+
+
+def custom_range(scene):
+    """(start, end) of the custom frame range: Scene.hr's Start and End, each one the scene's own
+    until it is set."""
+    hr = scene.hr
+    return tuple(
+        getattr(hr, k) if hr.is_property_set(k) else getattr(scene, k) for k in ("frame_start", "frame_end")
     )
 
 

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.geometry import InputError, MeshInput, components, newell
-from .materials import read_material
+from ..io.cache import _names
+from .materials import read_material, world_lights
 
 
 class SceneError(InputError):
@@ -481,15 +482,27 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
         if len(em.loop_start) == 0:
             continue
         _, em_t = _surfaces(em.materials, warnings, mat_cache)
+        flat = False
         for g, rings, slot in mesh_outlines(em):
             e = em_t[slot]
             if not (e > 0).any():
+                continue
+            # points in one spot or on a line (keyed to scale 0, squashed): off, not an error; a
+            # bowtie (no net area, but points spread in a plane) stays the shape check's error
+            sv = np.linalg.svd(rings[0] - rings[0].mean(0), compute_uv=False)
+            if sv[1] <= 1e-9 * max(sv[0], 1e-300):
+                flat = True
                 continue
             key = f"{obj.name}:{g[0]}"  # first polygon of the outline: stable while the mesh is
             shapes[key] = LightShape(
                 rings=[np.ascontiguousarray(r, np.float64) for r in rings],
                 emission=np.asarray(e, np.float64),
                 name=obj.name,
+            )
+        if flat:
+            warnings.append(
+                f"Light shape '{obj.name}' has no area on frame {depsgraph.scene.frame_current} "
+                "(scaled to 0 or squashed to a line): off on that frame."
             )
     return shapes
 
@@ -507,3 +520,149 @@ def shapes_signature(shapes):
             h.update(np.asarray(r, np.float64).tobytes())
             h.update(b"|")
     return h.hexdigest()
+
+
+# --- what lights the scene ----------------------------------------------------------------------
+
+
+def _animated(*blocks):
+    """True if one of the ID blocks (None allowed) has keyframes or drivers."""
+    return any(
+        b is not None and b.animation_data and (b.animation_data.action or b.animation_data.drivers)
+        for b in blocks
+    )
+
+
+def _emits(mat):
+    """True if `mat` emits, or may on another frame (its emission is animated or driven)."""
+    return mat is not None and bool((read_material(mat).emission > 0).any() or _animated(mat, mat.node_tree))
+
+
+def _moves(obj):
+    while obj is not None:
+        if _animated(obj):
+            return True
+        obj = obj.parent
+    return False
+
+
+def frozen_emitters(view_layer, frame):
+    """Warnings naming the emitting geometry (not light shapes) whose material or object is animated:
+    ordinary geometry is read once, at the bake's start frame, so that animation is not followed."""
+    out, emits = [], {}
+    for o in geometry_objects(view_layer):
+        mats = {s.material for s in o.material_slots} - {None}
+        for m in mats - emits.keys():
+            emits[m] = _emits(m)
+        lit = [m for m in mats if emits[m]]
+        what = [f"material '{m.name}'" for m in lit if _animated(m, m.node_tree)] + (
+            ["it moves"] if lit and _moves(o) else []
+        )
+        if what:
+            out.append(
+                f"Object '{o.name}' emits light and is animated ({', '.join(what)}), but ordinary geometry "
+                f"is read once, on frame {frame}: its light stays as on that frame. Make it a light shape "
+                "(a flat emitter on a surface) to follow it."
+            )
+    return out
+
+
+def _flat(em: EvalMesh):
+    """True if every connected piece of a light-shape mesh lies in one plane and faces one way (a
+    closed box or a bent strip does not: each of its faces becomes a shape of its own)."""
+    P, V = len(em.loop_start), len(em.verts)
+    if P < 2:
+        return True
+    # polygons joined through their vertices; a label is the piece's smallest polygon index
+    label = components(P + V, np.repeat(np.arange(P), em.loop_total), P + em.loop_verts)
+    n = np.array([newell(em.verts[em.loop_verts[s : s + k]]) for s, k in zip(em.loop_start, em.loop_total)])
+    piece = np.zeros((P + V, 3))
+    np.add.at(piece, label[:P], n)  # area-weighted: a closed box sums to 0
+    ln = np.linalg.norm(piece, axis=1)
+    piece /= np.maximum(ln, 1e-300)[:, None]
+    unit = n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    faces_one_way = np.einsum("ij,ij->i", unit, piece[label[:P]]) > 1 - 1e-6
+    degenerate = np.linalg.norm(n, axis=1) == 0
+    used = np.zeros(V, bool)
+    used[em.loop_verts] = True
+    vl = label[P:][used]
+    d = np.einsum("ij,ij->i", em.verts[used], piece[vl])
+    lo, hi = np.full(P + V, np.inf), np.full(P + V, -np.inf)
+    np.minimum.at(lo, vl, d)
+    np.maximum.at(hi, vl, d)
+    tol = 1e-5 * float(np.ptp(em.verts[used], axis=0).max()) + 1e-6 * float(np.abs(em.verts).max())
+    return bool((faces_one_way | degenerate).all() and (hi[vl] - lo[vl] <= tol).all())
+
+
+def light_shape_problem(obj, depsgraph):
+    """(emits, why): whether the light shape `obj` emits (or may on another frame), and '' or why
+    it cannot give its light as a light shape (no emission, or not flat)."""
+    em = read_mesh(obj, depsgraph)
+    used = np.unique(em.material_index) if len(em.loop_start) else []
+    if not any(_emits(em.materials[int(i)]) for i in used):
+        return False, (
+            "its material does not emit (no Emission shader, or Emission Strength 0), so it adds "
+            "no light; give it an emissive material"
+        )
+    if not _flat(em):
+        return True, (
+            "it is not flat (its faces do not lie in one plane, like a closed box); a light shape is "
+            "a flat patch on a surface, so each face is taken as a shape of its own"
+        )
+    return True, ""
+
+
+def materials_emit(depsgraph):
+    """True if a mesh of the depsgraph (instances included) that is not a light shape has a material
+    that emits: a quick, generous check before a background bake (the bake checks the polygons)."""
+    seen = set()
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        if ob is None or ob.type != "MESH" or ob.original.hr.is_light_shape:
+            continue
+        for m in {s.material for s in ob.material_slots} - seen:
+            seen.add(m)
+            if _emits(m):
+                return True
+    return False
+
+
+def light_check(view_layer, scene, depsgraph, geometry_emits):
+    """(error, warnings) about the scene's light before a bake. error ('' if none): nothing emits,
+    so the bake would be black. warnings: the Blender lights and the World the bake ignores
+    (Blender lights take no part yet), light shapes that cannot emit (light_shape_problem)."""
+    lights = [
+        o.name
+        for o in _walk_collections(view_layer)
+        if o.type == "LIGHT" and not o.hide_render and o.data.energy > 0
+    ]
+    world = world_lights(scene.world)
+    ignored = " and ".join(
+        ([f"Blender light{'s' * (len(lights) > 1)} {_names(lights)}"] if lights else [])
+        + (["the World's background"] if world else [])
+    )
+    ignored = ignored[:1].upper() + ignored[1:]
+    one = len(lights) + world == 1
+    light, are = ("lights", "is") if one else ("light", "are")
+    warnings, shapes_emit = [], False
+    for o in light_shape_objects(view_layer, include_hidden=True):
+        emits, why = light_shape_problem(o, depsgraph)
+        shapes_emit |= emits
+        if why:
+            warnings.append(f"Light shape '{o.name}': {why}.")
+    if not (geometry_emits or shapes_emit):
+        return (
+            "Nothing in the scene emits light, so the bake would be black: no mesh has an emissive "
+            "material (an Emission shader, or a Principled BSDF with Emission Strength > 0) and no "
+            "light shape emits."
+            + (f" {ignored} {light} the render but not the bake (not supported yet)." if ignored else "")
+            + " Give a mesh an emissive material, or mark a flat emissive mesh as a light shape.",
+            warnings,
+        )
+    if ignored:
+        warnings.insert(
+            0,
+            f"{ignored} {light} the render but {are} ignored by the bake (not supported yet): only "
+            "emissive materials and light shapes give light.",
+        )
+    return "", warnings

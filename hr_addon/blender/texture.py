@@ -62,6 +62,11 @@ def _uv_signature(co, ls, lt, lv, scale, res):
     return h.hexdigest()
 
 
+def _uv_hash(uv):
+    """The digest of a (L, 2) float32 UV array that the manifest keeps per object ("uv")."""
+    return hashlib.sha1(np.ascontiguousarray(uv).tobytes()).hexdigest()
+
+
 def resolution_for(obj, default):
     r = int(getattr(obj.hr, "lightmap_resolution", 0) or 0)
     return r if r > 0 else int(default)
@@ -238,7 +243,7 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
             tri_uv,
             corners,
             tri_patch,
-            hashlib.sha1(np.ascontiguousarray(uv).tobytes()).hexdigest(),
+            _uv_hash(uv),
         )
         if want:
             tri, bary = placed
@@ -344,12 +349,49 @@ def _helper(slot):
     return m if slot.link == "OBJECT" and m is not None and m.get(TAG) is not None else None
 
 
-def add_material(scene, objects=None):
+def uv_digest(obj, depsgraph):
+    """Digest of obj's evaluated HR_Lightmap UVs, as the bake computes it (None: no such map)."""
+    _, uv = evaluated(obj, depsgraph, read_uv)
+    return None if uv is None else _uv_hash(uv)
+
+
+def restore_lightmaps(reader, objects):
+    """Make the HR_Lightmap UV map again on the objects of a texture bake that lack it (a bake from
+    the command line without --save made it in its own process only). The packing is a function of
+    the mesh, its scale and the resolution the manifest keeps, so the map comes out as it was; the
+    digest in the manifest tells whether it did. Returns warnings naming the objects that differ."""
+    made, warnings = [], []
+    for obj in objects:
+        info = reader.objects.get(obj.name)
+        if info is None or obj.type != "MESH" or obj.data.uv_layers.get(UV_NAME) is not None:
+            continue
+        try:
+            ensure_lightmap(obj, info.get("resolution") or 128)
+        except TextureError as exc:
+            warnings.append(str(exc))
+            continue
+        made.append(obj)
+    if made:
+        dg = bpy.context.evaluated_depsgraph_get()
+        changed = [o.name for o in made if reader.objects[o.name].get("uv") not in (None, uv_digest(o, dg))]
+        if changed:
+            warnings.append(
+                f"The {UV_NAME} UV map made again differs from the bake's on {', '.join(map(repr, changed))} "
+                "(the mesh changed since the bake?): re-bake."
+            )
+    return warnings
+
+
+def add_material(scene, objects=None, warnings=None):
     """Show the scene's texture bake: every object of the bake gets, per material slot, an
     object-level copy of its material whose active output is UV Map (HR_Lightmap) -> Image Texture
-    (the image sequence) -> Emission. The mesh's materials are untouched. Returns the number of
+    (the image sequence) -> Emission. The mesh's materials are untouched; a lost HR_Lightmap UV map
+    is made again (restore_lightmaps; its warnings go to `warnings`). Returns the number of
     objects wired; raises CacheError without a texture bake."""
     directory, reader = _manifest(scene)
+    w = restore_lightmaps(reader, [o for o in scene.objects if objects is None or o in objects])
+    if warnings is not None:
+        warnings += w
     first, last = reader.frame_range
     irradiance = reader.manifest.get("radiance_mode") == "IRRADIANCE"
     names = None if objects is None else {o.name for o in objects}

@@ -22,11 +22,15 @@ class ProgressInfo:
     total: int  # work units known so far in this phase (may grow while refining)
     elapsed: float  # seconds since the build started
     eta: float  # estimated seconds left (nan while unknown)
+    part: float = 0.0  # 0..1 of this phase
 
     @property
     def message(self):
+        """'linking 40% (1,200/3,000), build 66%': the phase's own share done, then the build's
+        (a phase's single unit of work, as '(1/1)', says nothing and is left out)."""
         eta = "" if self.eta != self.eta else f", about {_duration(self.eta)} left"
-        return f"{self.phase}: {100 * self.fraction:.0f}% ({self.done:,}/{self.total:,}){eta}"
+        units = f" ({self.done:,}/{self.total:,})" if self.total > 1 else ""
+        return f"{self.phase} {100 * self.part:.0f}%{units}, build {100 * self.fraction:.0f}%{eta}"
 
 
 def _duration(s):
@@ -63,7 +67,7 @@ class Progress:
         frac = self._start.get(phase, 0.0) + self._weight.get(phase, 0.0) * part
         el = now - self.t0
         eta = el * (1 - frac) / frac if frac > 0.02 and el > 1.0 else float("nan")
-        self.callback(ProgressInfo(phase, frac, int(done), int(total), el, eta))
+        self.callback(ProgressInfo(phase, frac, int(done), int(total), el, eta, part))
 
     def done(self, phase):
         self.update(phase, 1, 1, force=True)

@@ -159,6 +159,7 @@ class TexturePlan:
                 "resolution": o.res,
                 "format": self.fmt,
                 "texture": f"{TEX_DIR}/{o.stem}_%06d{self.ext}",
+                "uv": o.uv_digest,  # the lightmap UVs baked on: a file that lost them can check them
             }
             for o in self.objects
         }
