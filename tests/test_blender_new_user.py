@@ -161,8 +161,9 @@ def test_frames_outside_the_scene_range_are_named_and_thresholds_print_rounded(t
     ), proc.stdout
     proc = run_cli(SAMPLES / "cornell.blend", "--feps", "2")
     assert proc.returncode == 2
+    # the sample's own aeps (a float32 property: 0.00019999999494757503), printed rounded
     assert proc.stderr.strip().splitlines()[-1] == (
-        "hr_bake: error: bad thresholds feps=2 aeps=0.001 (need 0 < feps <= 1, 0 < aeps < 1)"
+        "hr_bake: error: bad thresholds feps=2 aeps=0.0002 (need 0 < feps <= 1, 0 < aeps < 1)"
     )
 
 
