@@ -350,3 +350,31 @@ def test_edits_made_during_a_background_bake_are_named_when_it_finishes(tmp_path
         job.warnings
     )
     assert "'back' changed" in playback.status(scene)
+
+
+def test_frame_copied_from_another_bake_shows_magenta(tmp_path):
+    """A frame file copied from another bake of the same objects played back silently; now it is
+    named as another bake's and shows magenta."""
+    bpy = load_bpy()
+    import shutil
+    from hr_addon.blender import playback
+    from hr_addon.io.cache import CacheReader
+
+    open_sample("cornell", tmp_path)
+    scene = bpy.context.scene
+    for o in scene.objects:
+        o.hr.exclude = o.hr.is_light_shape
+    scene.hr.cache_folder = str(tmp_path / "other")
+    _bake(frames=(1, 1))
+    other = CacheReader(playback.bake_dir_abs(scene))
+    scene.hr.cache_folder = str(tmp_path / "mine")
+    _bake(frames=(1, 1))
+    mine = CacheReader(playback.bake_dir_abs(scene))
+    scene.frame_set(1)
+    assert playback.status(scene) == ""
+    shutil.copyfile(other.dir / other.frames[1], mine.dir / mine.frames[1])
+    playback.forget_readers()
+    scene.frame_set(1)
+    msg = playback.status(scene)
+    assert "belongs to another bake" in msg and mine.frames[1] in msg and "magenta" in msg, msg
+    assert np.all(attribute(bpy.data.objects["floor"]) == np.array([1, 0, 1, 1], np.float32))
