@@ -168,7 +168,8 @@ class BakeResult:
 
 
 def refine_params(quality, feps=None, aeps=None, contacts=True):
-    return dataclasses.replace(_preset(quality, feps, aeps), contacts=bool(contacts))
+    # orient: faces facing the wrong way are turned around, as Cycles (two-sided) shows them
+    return dataclasses.replace(_preset(quality, feps, aeps), contacts=bool(contacts), orient=True)
 
 
 def _preset(quality, feps, aeps):
