@@ -184,3 +184,31 @@ def test_a_room_with_every_wall_reversed_is_not_recognised():
     """The documented limit: each wall sees only the others' backs, so nothing is turned around."""
     s = RadiositySystem(_room(reversed_walls=WALLS), RefineParams.preset("draft"))
     assert find_reversed(s.patches, s.backend)[1] == {}
+
+
+def test_vertex_values_of_a_turned_wall_land_on_its_own_vertices():
+    """Output follows vert_index: the reversed room's values per vertex are the correct room's."""
+    good = RadiositySystem(_room(), PARAMS)
+    bad = RadiositySystem(_room(reversed_walls=("x0",)), PARAMS)
+    a, b = good.loop_radiance("POINT"), bad.loop_radiance("POINT")
+    assert a.shape == b.shape and a.max() > 0
+    np.testing.assert_allclose(b, a, rtol=RTOL, atol=RTOL * a.max())
+
+
+@pytest.mark.parametrize("method", ["NAIVE", "AUTO"])
+def test_light_shape_on_a_turned_wall(method):
+    """A window on the reversed wall: NAIVE rebuilds a system from the input polygons (turned again
+    by its own check), AUTO covers the turned patches; both equal the correct room's light."""
+    from benchmarks import shapes as S
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+
+    frame = (np.zeros(3), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))  # x = 0, faces +x
+    window = LightShape(S.on_plane(S.rect(0.3, 0.2, (0.5, 0.5)), frame), np.array([4.0, 4.0, 4.0]), "window")
+    out = []
+    for walls in ((), ("x0",)):
+        dyn = DynamicRadiosity(RadiositySystem(_room(reversed_walls=walls), PARAMS), method=method)
+        rep = dyn.apply({"w": window})
+        assert not any("no surface" in m or "off the" in m for m in rep.messages), rep.messages
+        out.append(dyn.loop_radiance("POINT"))
+    assert out[0].max() > 0
+    np.testing.assert_allclose(out[1], out[0], rtol=RTOL, atol=RTOL * out[0].max())
