@@ -178,6 +178,7 @@ def find_reversed(patches, backend, seed=0):
         if hit is None:
             return np.zeros(K, bool), None
         hit = hit.reshape(K, S)
+        hit[hit == np.arange(K)[:, None]] = -1  # float32 rounding: a grazing ray meeting its own patch
         dist = (tt * L).reshape(K, S)
         h = hit >= 0
         facing = np.zeros((K, S), bool)
