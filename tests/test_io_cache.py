@@ -260,6 +260,8 @@ def test_frame_copied_from_another_bake_is_named(tmp_path):
     ra = CacheReader(a)
     assert ra.manifest["bake_id"] != CacheReader(b).manifest["bake_id"]
     assert set(ra.load(1)) == {"a", "b"}  # the id is not an object's array
+    with np.load(a / "frame_000001.npz") as z:
+        assert sorted(z.files) == ["a", "b"]  # other readers of the file see the objects only
     (a / "frame_000002.npz").write_bytes((b / "frame_000002.npz").read_bytes())
     with pytest.raises(CacheError, match=r"frame_000002\.npz' belongs to another bake"):
         CacheReader(a).load(2)

@@ -2,11 +2,13 @@
 
 Layout of a cache directory (default //hr_cache/<blend name>/):
     manifest.json         domain, objects {name: {mesh, count}}, frames {"1": "frame_000001.npz", ...}
-    frame_000001.npz      one float32 (count, 4) RGBA array per object: linear outgoing radiance,
-                          and BAKE_KEY: the id of the bake that wrote it (uint8, ASCII hex)
+    frame_000001.npz      one float32 (count, 4) RGBA array per object: linear outgoing radiance;
+                          the zip comment names the bake that wrote it ("hr_radiosity bake <id>")
 Frames whose light state did not change point at the previous frame's file (no new file).
 
-Bake ids: every bake has an id (manifest "bake_id") written into each frame file it writes. The
+Bake ids: every bake has an id (manifest "bake_id") written into each frame file it writes (as the
+zip's comment: no array, so no object name can collide with it and readers of the arrays see only
+the objects). The
 manifest's "frame_ids" maps each frame file to the id it must hold: a file kept from the previous
 bake (see below) keeps that bake's id. A frame file whose id differs (copied from another bake of
 objects with the same names) is refused by CacheReader.load and counts as damaged for a re-bake.
@@ -31,6 +33,7 @@ CacheWriter.messages says why. Kept frames whose file is missing or damaged are 
 CacheWriter.damaged_frames() so that the bake re-bakes them.
 """
 
+import io
 import json
 import os
 import re
@@ -46,8 +49,7 @@ import numpy as np
 from .files import atomic_write, link_or_copy
 
 FORMAT = 1
-BAKE_KEY = "__bake__"  # the array in a frame file holding the bake id (never an object name: Blender
-#                        names may hold underscores, but our own key is skipped wherever arrays are read)
+_ID_PREFIX = "hr_radiosity bake "  # a frame file's zip comment: this prefix, then the bake id
 MANIFEST = "manifest.json"
 MARKER = ".hr_radiosity"  # "this folder is a radiosity cache": written first, into every cache folder
 _MARKER_TEXT = b"Written by HR Radiosity bakes. A bake replaces only the files its manifest.json lists.\n"
@@ -81,19 +83,30 @@ def new_bake_id():
 
 
 def write_frame(path: Path, arrays: dict, bake_id=None):
-    """Atomically write {object name: (N, 3|4) values} as float32 RGBA arrays, plus the bake id
-    (BAKE_KEY, ASCII bytes as uint8) when given."""
+    """Atomically write {object name: (N, 3|4) values} as float32 RGBA arrays; the bake id, when
+    given, goes into the zip's comment."""
     out = {}
     for name, a in arrays.items():
-        if name == BAKE_KEY:
-            raise ValueError(f"'{BAKE_KEY}' is reserved for the bake id")
         a = np.asarray(a, np.float32)
         if a.shape[1] == 3:
             a = np.concatenate([a, np.ones((len(a), 1), np.float32)], 1)
         out[name] = np.ascontiguousarray(a)
-    if bake_id:
-        out[BAKE_KEY] = np.frombuffer(str(bake_id).encode("ascii"), np.uint8).copy()
-    atomic_write(path, lambda fh: np.savez(fh, **out))
+
+    def save(fh):
+        buf = io.BytesIO()
+        np.savez(buf, **out)
+        if bake_id:
+            with zipfile.ZipFile(buf, "a") as z:
+                z.comment = (_ID_PREFIX + str(bake_id)).encode("ascii")
+        fh.write(buf.getbuffer())
+
+    atomic_write(path, save)
+
+
+def _zip_bake_id(z):
+    """The bake id in the comment of an open frame zip, or None (no id: an earlier version's file)."""
+    c = z.comment.decode("ascii", "replace")
+    return c[len(_ID_PREFIX) :] if c.startswith(_ID_PREFIX) else None
 
 
 def frame_ids(manifest):
@@ -377,13 +390,13 @@ def settings_difference(old: dict, new: dict):
 def npz_problem(path, objects=None, bake_id=None):
     """'' if the frame file at `path` looks complete (a zip of (count, 4) float32 arrays, sizes as the
     manifest says) and, if `bake_id` is given, holds that bake id; else what is wrong. Reads the zip
-    directory and array headers (and the small id array), not the data."""
+    directory, its comment and the array headers, not the data."""
     path = Path(path)
     if not path.is_file():
         return "missing"
-    found = None
     try:
         with zipfile.ZipFile(path) as z:
+            found = _zip_bake_id(z)
             for info in z.infolist():
                 name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
                 with z.open(info) as fh:
@@ -392,11 +405,6 @@ def npz_problem(path, objects=None, bake_id=None):
                     read = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
                     shape, _, dtype = read(fh)
                     hdr = fh.tell()
-                    if name == BAKE_KEY:
-                        if len(shape) != 1 or dtype != np.uint8 or shape[0] > 64:
-                            return f"bad bake id in '{path.name}'"
-                        found = fh.read(shape[0]).decode("ascii", "replace")
-                        continue
                 want = (objects or {}).get(name, {}).get("count")
                 if (
                     len(shape) != 2
@@ -609,8 +617,8 @@ class CacheReader:
         if hit is None:
             try:
                 with np.load(path, allow_pickle=False) as z:
-                    found = bytes(z[BAKE_KEY]).decode("ascii", "replace") if BAKE_KEY in z.files else None
-                    data = {k: np.ascontiguousarray(z[k], np.float32) for k in z.files if k != BAKE_KEY}
+                    found = _zip_bake_id(z.zip)
+                    data = {k: np.ascontiguousarray(z[k], np.float32) for k in z.files}
             except Exception as exc:
                 raise CacheError(f"Corrupt radiosity cache file '{path}': {exc}") from None
             for k, a in data.items():
