@@ -350,3 +350,56 @@ def test_edits_made_during_a_background_bake_are_named_when_it_finishes(tmp_path
         job.warnings
     )
     assert "'back' changed" in playback.status(scene)
+
+
+def test_frame_copied_from_another_bake_shows_magenta(tmp_path):
+    """A frame file copied from another bake of the same objects played back silently; now it is
+    named as another bake's and shows magenta."""
+    bpy = load_bpy()
+    import shutil
+    from hr_addon.blender import playback
+    from hr_addon.io.cache import CacheReader
+
+    open_sample("cornell", tmp_path)
+    scene = bpy.context.scene
+    for o in scene.objects:
+        o.hr.exclude = o.hr.is_light_shape
+    scene.hr.cache_folder = str(tmp_path / "other")
+    _bake(frames=(1, 1))
+    other = CacheReader(playback.bake_dir_abs(scene))
+    scene.hr.cache_folder = str(tmp_path / "mine")
+    _bake(frames=(1, 1))
+    mine = CacheReader(playback.bake_dir_abs(scene))
+    scene.frame_set(1)
+    assert playback.status(scene) == ""
+    shutil.copyfile(other.dir / other.frames[1], mine.dir / mine.frames[1])
+    playback.forget_readers()
+    scene.frame_set(1)
+    msg = playback.status(scene)
+    assert "belongs to another bake" in msg and mine.frames[1] in msg and "magenta" in msg, msg
+    assert np.all(attribute(bpy.data.objects["floor"]) == np.array([1, 0, 1, 1], np.float32))
+
+
+def test_wall_with_flipped_normals_bakes_like_the_correct_room(tmp_path):
+    """A wall with reversed normals baked to 0 and took 16% of the other walls' light; Cycles
+    renders it as if it faced the room. Now it is turned around, named in a warning, and the room
+    gets the same light (1e-3: the turned wall's quadtree numbers its children in another order,
+    tests/test_orientation.py)."""
+    bpy = load_bpy()
+    from test_blender_helpers import make_samples_module
+
+    ms = make_samples_module()
+    ms.reset()
+    names = _small_room(bpy, ms)
+    bpy.data.objects["Window"].hr.exclude = True
+    ok = _bake(frames=(1, 1), cache_dir=str(tmp_path / "ok"))
+    assert not any("turned around" in w for w in ok.warnings), ok.warnings
+    ref = {n: attribute(bpy.data.objects[n])[:, :3].mean(0) for n in names}
+    bpy.data.objects["wall_y0"].data.flip_normals()
+    res = _bake(frames=(1, 1), cache_dir=str(tmp_path / "flipped"))
+    turned = [w for w in res.warnings if "turned around" in w]
+    assert len(turned) == 1 and "in 'wall_y0'" in turned[0], res.warnings
+    for name in names:
+        assert ref[name].mean() > 0, name
+        got = attribute(bpy.data.objects[name])[:, :3].mean(0)
+        np.testing.assert_allclose(got, ref[name], rtol=1e-3, err_msg=name)

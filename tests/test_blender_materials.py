@@ -208,3 +208,92 @@ def test_albedo_texture_simple_cases_only(env):
     # no texture at all: nothing to say
     assert albedo_texture(ms.diffuse("Plain", (0.3, 0.3, 0.3))) == (None, "")
     assert albedo_texture(None) == (None, "")
+
+
+def _group_material(bpy, name, color_outside):
+    """A material whose Emission shader sits inside a node group (Group node -> Material Output).
+    color_outside: the group's Color and Strength inputs are set on the Group node (else inside)."""
+    g = bpy.data.node_groups.new(name + "Group", "ShaderNodeTree")
+    g.interface.new_socket("Shader", in_out="OUTPUT", socket_type="NodeSocketShader")
+    gin = g.nodes.new("NodeGroupInput")
+    gout = g.nodes.new("NodeGroupOutput")
+    e = g.nodes.new("ShaderNodeEmission")
+    reroute = g.nodes.new("NodeReroute")
+    g.links.new(e.outputs[0], reroute.inputs[0])
+    g.links.new(reroute.outputs[0], gout.inputs[0])
+    if color_outside:
+        g.interface.new_socket("Color", in_out="INPUT", socket_type="NodeSocketColor")
+        g.interface.new_socket("Strength", in_out="INPUT", socket_type="NodeSocketFloat")
+        g.links.new(gin.outputs["Color"], e.inputs["Color"])
+        g.links.new(gin.outputs["Strength"], e.inputs["Strength"])
+        e.inputs["Color"].default_value = (0.1, 0.1, 0.1, 1)  # not used: the Group node's are
+        e.inputs["Strength"].default_value = 99.0
+    else:
+        e.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1)
+        e.inputs["Strength"].default_value = 4.0
+    m = bpy.data.materials.new(name)
+    t = m.node_tree
+    for n in list(t.nodes):
+        if n.type != "OUTPUT_MATERIAL":
+            t.nodes.remove(n)
+    grp = t.nodes.new("ShaderNodeGroup")
+    grp.node_tree = g
+    if color_outside:
+        grp.inputs["Color"].default_value = (1.0, 0.5, 0.25, 1)
+        val = t.nodes.new("ShaderNodeValue")
+        val.outputs[0].default_value = 4.0
+        t.links.new(val.outputs[0], grp.inputs["Strength"])
+    out = next(n for n in t.nodes if n.type == "OUTPUT_MATERIAL")
+    t.links.new(grp.outputs[0], out.inputs["Surface"])
+    return m
+
+
+@pytest.mark.parametrize("color_outside", [False, True])
+def test_emission_inside_a_node_group(env, color_outside):
+    """A node group used as the material output turned an emitter black (grey, no emission): the
+    Group node is followed to its Group Output, and its inputs back out to the Group node's."""
+    bpy, ms, _ = env
+    s = _read(_group_material(bpy, "Grouped", color_outside))
+    assert s.warnings == []
+    assert np.allclose(s.emission, [4.0, 2.0, 1.0]) and np.allclose(s.reflectance, 0)
+
+
+def test_diffuse_colour_inside_a_node_group_and_two_uses(env):
+    """The same group used twice (its Color input set differently) is read per use."""
+    bpy, ms, _ = env
+    g = bpy.data.node_groups.new("Paint", "ShaderNodeTree")
+    g.interface.new_socket("Color", in_out="INPUT", socket_type="NodeSocketColor")
+    g.interface.new_socket("BSDF", in_out="OUTPUT", socket_type="NodeSocketShader")
+    gin, gout = g.nodes.new("NodeGroupInput"), g.nodes.new("NodeGroupOutput")
+    d = g.nodes.new("ShaderNodeBsdfDiffuse")
+    g.links.new(gin.outputs["Color"], d.inputs["Color"])
+    g.links.new(d.outputs[0], gout.inputs["BSDF"])
+    m = bpy.data.materials.new("TwoPaints")
+    t = m.node_tree
+    for n in list(t.nodes):
+        if n.type != "OUTPUT_MATERIAL":
+            t.nodes.remove(n)
+    a, b = t.nodes.new("ShaderNodeGroup"), t.nodes.new("ShaderNodeGroup")
+    a.node_tree = b.node_tree = g
+    a.inputs["Color"].default_value = (0.2, 0.4, 0.6, 1)
+    b.inputs["Color"].default_value = (0.6, 0.2, 0.0, 1)
+    mix = t.nodes.new("ShaderNodeMixShader")
+    mix.inputs["Fac"].default_value = 0.5
+    t.links.new(a.outputs[0], mix.inputs[1])
+    t.links.new(b.outputs[0], mix.inputs[2])
+    out = next(n for n in t.nodes if n.type == "OUTPUT_MATERIAL")
+    t.links.new(mix.outputs[0], out.inputs["Surface"])
+    s = _read(m)
+    assert s.warnings == []
+    assert np.allclose(s.reflectance, [0.4, 0.3, 0.3]) and np.allclose(s.emission, 0)
+
+
+def test_node_group_without_output_is_named(env):
+    bpy, ms, _ = env
+    m = _group_material(bpy, "Broken", False)
+    g = bpy.data.node_groups["BrokenGroup"]
+    for lk in list(g.links):
+        if lk.to_node.type == "GROUP_OUTPUT":
+            g.links.remove(lk)
+    s = _read(m)
+    assert any("'Broken'" in w and "node group 'BrokenGroup'" in w for w in s.warnings), s.warnings

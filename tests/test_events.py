@@ -331,6 +331,40 @@ def test_shape_off_every_surface_uses_naive(base, samples):
     assert lit.mean() > 1.1 * dyn.evaluate(pts[ceiling], ids[ceiling])[0].mean()  # the lamp lit the ceiling
 
 
+@pytest.mark.parametrize("offset", [0.001, -0.001])
+def test_shape_just_off_its_wall_says_what_happens_to_its_glow(base, samples, offset):
+    """A shape 1 mm in front of or behind its wall lost its glow or vanished, and the only message
+    was "handled by NAIVE": the message names the distance, the surface and what the user sees."""
+    pts, ids, _ = samples
+    o, u, v = GREEN
+    frame = (o + np.array([offset, 0.0, 0.0]), u, v)  # the green wall is x = 0, facing +x
+    dyn = DynamicRadiosity(base.copy(), method="AR")
+    ref = dyn.evaluate(pts, ids)[0].copy()
+    rep = dyn.add("w", shape(S.rect(0.2, 0.15, (0.3, 0.3)), frame, (5.0, 5.0, 5.0), "window"))
+    assert rep.method == "NAIVE"
+    msg = " ".join(rep.messages)
+    side = "in front of" if offset > 0 else "behind"
+    assert f"Light shape 'window' is 1.0 mm {side} the surface of 'right_green'" in msg, msg
+    assert "more than the plane tolerance" in msg and "NAIVE" in msg, msg
+    lit = dyn.evaluate(pts, ids)[0]
+    if offset > 0:
+        assert "does not show its glow" in msg, msg
+        assert lit.sum() > 1.05 * ref.sum()  # it still lights the room
+    else:
+        assert "lights nothing and does not show" in msg, msg
+        assert lit.sum() < 1.0001 * ref.sum()  # its light goes into the back of the wall
+
+
+def test_shape_facing_its_wall_from_just_in_front_is_named(base):
+    o, u, v = GREEN
+    frame = (o + np.array([0.001, 0.0, 0.0]), v, u)  # u, v swapped: faces -x, into the wall
+    dyn = DynamicRadiosity(base.copy(), method="AR")
+    rep = dyn.add("w", shape(S.rect(0.2, 0.15, (0.3, 0.3)), frame, (5.0, 5.0, 5.0), "panel"))
+    msg = " ".join(rep.messages)
+    assert "Light shape 'panel' faces the surface of 'right_green' 1.0 mm in front of it" in msg, msg
+    assert "flip its normals" in msg, msg
+
+
 def test_partly_off_surface_is_reported(base):
     dyn = DynamicRadiosity(base.copy(), method="FE")
     rep = dyn.add("x", shape(S.rect(0.2, 0.2, (0.0, 0.3)), GREEN, name="edge"))  # half beyond the wall

@@ -246,3 +246,64 @@ def test_manifest_with_a_bad_domain_is_named(tmp_path):
     (d / "manifest.json").write_text(json.dumps(m))
     with pytest.raises(CacheError, match="domain 5"):
         CacheReader(d)
+
+
+# ---------------------------------------------------------------------------- frames bound to their bake
+
+
+def test_frame_copied_from_another_bake_is_named(tmp_path):
+    """Two bakes of objects with the same names: a frame file of one copied into the other is
+    refused by name (not played back silently), and counts as damaged for the next bake."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    _bake(a, [1, 2], lambda f: 1)
+    _bake(b, [1, 2], lambda f: 5)
+    ra = CacheReader(a)
+    assert ra.manifest["bake_id"] != CacheReader(b).manifest["bake_id"]
+    assert set(ra.load(1)) == {"a", "b"}  # the id is not an object's array
+    with np.load(a / "frame_000001.npz") as z:
+        assert sorted(z.files) == ["a", "b"]  # other readers of the file see the objects only
+    (a / "frame_000002.npz").write_bytes((b / "frame_000002.npz").read_bytes())
+    with pytest.raises(CacheError, match=r"frame_000002\.npz' belongs to another bake"):
+        CacheReader(a).load(2)
+    assert np.all(CacheReader(a).load(1)["a"][:, :3] == 1)
+    # A frame file without an id (an older version's) in a cache with ids: not this bake's either.
+    np.savez(a / "frame_000001.npz", a=np.zeros((3, 4), np.float32), b=np.zeros((2, 4), np.float32))
+    with pytest.raises(CacheError, match=r"frame_000001\.npz' belongs to another bake"):
+        CacheReader(a).load(1)
+    # The next bake of another range re-bakes both instead of keeping them.
+    w = CacheWriter(a, OBJS, "CORNER", "s")
+    damaged = w.damaged_frames({3})
+    assert sorted(damaged) == [1, 2] and all("belongs to another bake" in v for v in damaged.values())
+    w.abort()
+
+
+def test_frames_kept_from_the_previous_bake_keep_their_id(tmp_path):
+    d = tmp_path / "s"
+    w1 = _bake(d, [1, 2, 3], lambda f: f)
+    w2 = _bake(d, [3, 4], lambda f: 10 * f)  # keeps frames 1-2 of the first bake
+    assert w2.kept == 2 and w1.bake_id != w2.bake_id
+    r = CacheReader(d)
+    assert r.manifest["bake_id"] == w2.bake_id
+    assert r.frame_ids[r.frames[1]] == w1.bake_id and r.frame_ids[r.frames[4]] == w2.bake_id
+    assert [r.load(f)["a"][0, 0] for f in (1, 2, 3, 4)] == [1, 2, 30, 40]
+    w3 = _bake(d, [5], lambda f: 0)  # kept twice: still the first bake's id, still readable
+    r = CacheReader(d)
+    assert w3.kept == 4 and r.frame_ids[r.frames[1]] == w1.bake_id
+    assert [r.load(f)["a"][0, 0] for f in (1, 2, 3, 4, 5)] == [1, 2, 30, 40, 0]
+    assert CacheWriter(d, OBJS, "CORNER", "s").damaged_frames({5}) == {}
+
+
+def test_cache_without_bake_ids_stays_readable(tmp_path):
+    """Caches of versions before bake ids: no id in the manifest or the frames."""
+    d = tmp_path / "s"
+    _bake(d, [1, 2], lambda f: f)
+    m = json.loads((d / "manifest.json").read_text())
+    del m["bake_id"], m["frame_ids"]
+    (d / "manifest.json").write_text(json.dumps(m))
+    for f in (1, 2):
+        np.savez(d / f"frame_00000{f}.npz", a=np.full((3, 4), f, np.float32), b=np.ones((2, 4), np.float32))
+    r = CacheReader(d)
+    assert r.frame_ids == {} and r.load(2)["a"][0, 0] == 2
+    w = _bake(d, [3], lambda f: 3)  # its frames are kept by a new bake, and read without a check
+    r = CacheReader(d)
+    assert w.kept == 2 and [r.load(f)["a"][0, 0] for f in (1, 2, 3)] == [1, 2, 3]

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core.events import DynamicRadiosity, LightShape
 from ..core.geometry import InputError, isolated_objects
-from ..core.progress import Cancelled
+from ..core.progress import Cancelled, FrameEta
 from ..core.radiosity import RadiositySystem
 from ..core.refine import RefineParams
 from ..core.texels import loop_incident
@@ -168,7 +168,8 @@ class BakeResult:
 
 
 def refine_params(quality, feps=None, aeps=None, contacts=True):
-    return dataclasses.replace(_preset(quality, feps, aeps), contacts=bool(contacts))
+    # orient: faces facing the wrong way are turned around, as Cycles (two-sided) shows them
+    return dataclasses.replace(_preset(quality, feps, aeps), contacts=bool(contacts), orient=True)
 
 
 def _preset(quality, feps, aeps):
@@ -462,7 +463,7 @@ def bake_frames(
             )
         total = len(frames_todo)
         prev_sig = prev_frame = None
-        t_frames = time.perf_counter()
+        time_left = FrameEta(total)  # steady: an average of the frames' times, counting down
         for i, f in enumerate(frames_todo):
             t_frame = time.perf_counter()
             intr.check()
@@ -511,7 +512,7 @@ def bake_frames(
                 reused = False
             prev_sig, prev_frame = sig, f
             new_w = warn(frame_warnings, f)
-            left = (time.perf_counter() - t_frames) / (i + 1) * (total - i - 1)
+            left = time_left.done(time.perf_counter() - t_frame)
             yield BakeProgress(
                 "frame",
                 frame=f,

@@ -4,7 +4,9 @@ Supported (walking back from the active Material Output's Surface socket):
 - Principled BSDF: reflectance = Base Color, emission = Emission Color x Emission Strength;
 - Diffuse BSDF: reflectance = Color;
 - Emission: emission = Color x Strength (reflectance 0, like Cycles);
-- Add Shader (sum) and Mix Shader (mix by an unconnected Fac) of the above; Reroute nodes.
+- Add Shader (sum) and Mix Shader (mix by an unconnected Fac) of the above; Reroute nodes;
+- node groups: a Group node is followed into its tree (the Group Output's input, and back out
+  through the Group Input to the Group node's inputs), so a shader inside a group is read.
 A colour socket may be fed by an Image Texture (its average colour, linearised from sRGB for 8-bit
 images), an RGB node or a Mix node (Color: Mix or Multiply, of those, by an unconnected Factor); a
 strength socket by a Value node. albedo_texture() describes the simple textured case (one diffuse
@@ -82,33 +84,84 @@ def _try_load(img):
     return img.has_data
 
 
+def _by_identifier(sockets, identifier):
+    return next((s for s in sockets if s.identifier == identifier), None)
+
+
+def _group_output(tree):
+    outs = [n for n in tree.nodes if n.type == "GROUP_OUTPUT"]
+    return next((n for n in outs if n.is_active_output), outs[0] if outs else None)
+
+
+def _default_color(socket):
+    v = socket.default_value
+    try:
+        return np.array(v[:3], float)
+    except TypeError:  # a float socket feeding a colour (Blender repeats it)
+        return np.full(3, float(v))
+
+
+def _default_float(socket):
+    v = socket.default_value
+    try:
+        return float(v)
+    except TypeError:  # a colour socket feeding a float: Blender takes its luminance
+        return float(np.dot(np.array(v[:3], float), (0.2126, 0.7152, 0.0722)))
+
+
 class _Reader:
     def __init__(self, mat):
         self.mat = mat
         self.warnings = []
+        # node (as_pointer) -> the Group nodes (outermost first) it was reached through: its inputs
+        # linked to a Group Input read the innermost Group node's inputs
+        self._groups = {}
 
     def warn(self, msg):
         self.warnings.append(f"Material '{self.mat.name}': {msg}")
 
     def source(self, socket):
-        """The node and output socket feeding `socket`, skipping reroutes and muted links."""
-        seen = 0
-        while socket.is_linked and seen < 64:
+        """The node and output socket feeding `socket`, skipping reroutes and muted links and
+        following node groups."""
+        node, out, _ = self.trace(socket)
+        return node, out
+
+    def trace(self, socket):
+        """(node, output socket, last input socket) feeding `socket`: reroutes are skipped, a Group
+        node is entered (its Group Output's input), a Group Input is left (the Group node's input).
+        The last input socket holds the value when nothing feeds it (node None)."""
+        groups = self._groups.get(socket.node.as_pointer(), ())
+        for _ in range(64):
+            if not socket.is_linked:
+                return None, None, socket
             link = socket.links[0]
             if getattr(link, "is_muted", False):
-                return None, None
+                return None, None, socket
             node = link.from_node
             if node.type == "REROUTE":
                 socket = node.inputs[0]
-                seen += 1
                 continue
-            return node, link.from_socket
-        return None, None
+            if node.type == "GROUP" and node.node_tree is not None and not node.mute:
+                out = _group_output(node.node_tree)
+                inner = None if out is None else _by_identifier(out.inputs, link.from_socket.identifier)
+                if inner is not None:
+                    groups = groups + (node,)
+                    socket = inner
+                    continue
+            if node.type == "GROUP_INPUT" and groups:
+                outer = _by_identifier(groups[-1].inputs, link.from_socket.identifier)
+                if outer is not None:
+                    groups = groups[:-1]
+                    socket = outer
+                    continue
+            self._groups[node.as_pointer()] = groups
+            return node, link.from_socket, socket
+        return None, None, socket
 
     def color(self, socket):
-        node, out = self.source(socket)
+        node, out, last = self.trace(socket)
         if node is None:
-            return np.array(socket.default_value[:3], float)
+            return _default_color(last)
         if node.type == "TEX_IMAGE":
             img = node.image
             avg = image_average(img) if img is not None else None
@@ -133,9 +186,9 @@ class _Reader:
         return np.array(socket.default_value[:3], float)
 
     def value(self, socket):
-        node, _ = self.source(socket)
+        node, _, last = self.trace(socket)
         if node is None:
-            return float(socket.default_value)
+            return _default_float(last)
         if node.type == "VALUE":
             return float(node.outputs[0].default_value)
         self.warn(
@@ -165,7 +218,12 @@ class _Reader:
             )
 
     def shader(self, socket, depth=0):
-        node, _ = self.source(socket)
+        node, _, last = self.trace(socket)
+        if node is None and last.node.type == "GROUP_OUTPUT":
+            raise _Unsupported(
+                f"nothing is connected to the output '{last.name}' inside the node group "
+                f"'{last.id_data.name}'"
+            )
         if node is None:
             raise _Unsupported("nothing is connected to the Surface output")
         if depth > 16:
@@ -191,6 +249,16 @@ class _Reader:
             f = min(max(self.value(node.inputs[0]), 0.0), 1.0)
             a, b = self.shader(node.inputs[1], depth + 1), self.shader(node.inputs[2], depth + 1)
             return (1 - f) * a[0] + f * b[0], (1 - f) * a[1] + f * b[1]
+        if t == "GROUP":
+            tree = node.node_tree
+            raise _Unsupported(
+                f"the node group '{tree.name if tree else node.name}' used as the shader has no "
+                "Group Output connected inside it"
+                if tree is not None
+                else f"the Group node '{node.name}' has no node group"
+            )
+        if t == "GROUP_INPUT":
+            raise _Unsupported("a Group Input is used as the shader")
         raise _Unsupported(
             f"the '{node.bl_label}' shader is not supported (use Principled BSDF, Diffuse BSDF or Emission)"
         )
@@ -222,16 +290,17 @@ def _bsdfs(r, socket, depth=0):
     return [], False
 
 
-def base_color_socket(mat):
+def base_color_socket(mat, reader=None):
     """The colour input (Principled Base Color / Diffuse Color) of the one diffuse shader of `mat`
-    reached from its active output, or None (no nodes, none or several such shaders)."""
+    reached from its active output, or None (no nodes, none or several such shaders). `reader`: the
+    _Reader that follows the socket on (it knows the node groups the shader sits in)."""
     tree = None if mat is None else mat.node_tree
     if tree is None or mat.get("hr_preview") or (bpy.app.version < (5, 0, 0) and not mat.use_nodes):
         return None
     out = _output_node(tree)
     if out is None:
         return None
-    nodes, _ = _bsdfs(_Reader(mat), out.inputs["Surface"])
+    nodes, _ = _bsdfs(reader or _Reader(mat), out.inputs["Surface"])
     if len(nodes) != 1:
         return None
     return nodes[0].inputs["Base Color" if nodes[0].type == "BSDF_PRINCIPLED" else "Color"]
@@ -269,7 +338,8 @@ def albedo_texture(mat):
     Texture (UV mapped, flat projection, a single image) directly or through one Mix node with a
     constant colour and factor. reason says why a textured material does not qualify ("" when it
     has no texture at all)."""
-    sock = base_color_socket(mat)
+    r = _Reader(mat)
+    sock = base_color_socket(mat, r)
     textured = (
         mat is not None
         and mat.node_tree is not None
@@ -278,7 +348,6 @@ def albedo_texture(mat):
     why = "its colour texture is not an Image Texture (UV map) on the Base Color of a single diffuse shader"
     if sock is None:
         return None, why if textured else ""
-    r = _Reader(mat)
     out = _output_node(mat.node_tree)
     if _bsdfs(r, out.inputs["Surface"])[1]:
         return None, (why if textured else "")

@@ -60,6 +60,8 @@ def colour_chain(mat, tree, src, location, irradiance):
     ids["Factor_Float"].default_value = 1.0
     tree.links.new(src, ids["A_Color"])
     base = base_color_socket(mat)
+    if base is not None and base.id_data != tree:
+        base = None  # the shader sits in a node group: its links cannot be used here; the average
     for lk in list(ids["B_Color"].links):
         tree.links.remove(lk)
     if base is not None and base.is_linked:

@@ -9,6 +9,8 @@ exception propagates out of the constructor that was building.
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 
 class Cancelled(Exception):
     """Raised by a progress callback (or the core on its behalf) to stop a computation."""
@@ -33,6 +35,66 @@ class ProgressInfo:
         return f"{self.phase} {100 * self.part:.0f}%{units}, build {100 * self.fraction:.0f}%{eta}"
 
 
+class SteadyEta:
+    """A time left that counts down steadily instead of following every noisy estimate.
+
+    Between two estimates the shown value counts down by the time that passed (the countdown). A
+    new raw estimate within a band around the countdown (`slack` of it, or the caller's absolute
+    `band`, whichever is wider) leaves the countdown as it is; one outside moves the value by
+    `gain` of its distance to the band (down when the work goes faster than shown, up only when it
+    is clearly slower). So the shown value does not jump with each estimate's noise and rises only
+    when the work really is slower than shown."""
+
+    def __init__(self, gain=0.3, slack=0.1, clock=time.perf_counter):
+        self.gain, self.slack, self.clock = gain, slack, clock
+        self.value = float("nan")
+        self.t = None
+
+    def update(self, raw, now=None, band=0.0):
+        """Feed a raw estimate (seconds left, nan: unknown); returns the value to show. band:
+        seconds by which raw may differ from the countdown without moving it (e.g. the time of one
+        costly step, by which an estimate counted in steps runs ahead or behind the clock)."""
+        now = self.clock() if now is None else now
+        if self.t is not None and self.value == self.value:
+            countdown = max(self.value - (now - self.t), 0.0)
+            tol = max(self.slack * countdown, band)
+            if raw == raw and abs(raw - countdown) > tol:  # a step of `gain` towards the band's edge
+                self.value = countdown + self.gain * (raw - countdown - np.sign(raw - countdown) * tol)
+            else:
+                self.value = countdown
+        else:
+            self.value = float(raw)
+        self.t = now
+        return self.value
+
+
+class FrameEta:
+    """Time left of a run of `total` work units (a bake's frames) from the time each one took: an
+    exponential moving average of the per-unit time (the plain mean over the first units, then
+    weight `alpha` for the newest), times the units left, shown through SteadyEta with the longest
+    recent unit as its band. Frames that reuse the previous file take almost no time and solved
+    frames seconds: counted in frames, the estimate runs ahead of the clock over cheap frames and
+    behind it over a costly one, by about one costly frame; the band absorbs that."""
+
+    def __init__(self, total, alpha=0.05, window=32, clock=time.perf_counter, **steady):
+        self.total, self.alpha, self.window = int(total), alpha, int(window)
+        self.n, self.mean = 0, 0.0
+        self.recent = []
+        self.steady = SteadyEta(clock=clock, **steady)
+
+    def done(self, seconds, now=None):
+        """One unit finished after `seconds`; returns the seconds left to show."""
+        self.n += 1
+        a = max(1.0 / self.n, self.alpha)
+        self.mean += a * (float(seconds) - self.mean)
+        self.recent = (self.recent + [float(seconds)])[-self.window :]
+        left = self.total - self.n
+        if left <= 0:
+            self.steady.value = 0.0
+            return 0.0
+        return self.steady.update(self.mean * left, now, band=max(self.recent))
+
+
 def _duration(s):
     return f"{s:.0f} s" if s < 90 else f"{s / 60:.1f} min"
 
@@ -55,6 +117,7 @@ class Progress:
         self.t0 = time.perf_counter()
         self._last = -1e9
         self.interval = interval
+        self._eta = SteadyEta()
 
     def update(self, phase, done, total, force=False):
         if self.callback is None:
@@ -66,7 +129,8 @@ class Progress:
         part = min(max(done / total, 0.0), 1.0) if total > 0 else 0.0
         frac = self._start.get(phase, 0.0) + self._weight.get(phase, 0.0) * part
         el = now - self.t0
-        eta = el * (1 - frac) / frac if frac > 0.02 and el > 1.0 else float("nan")
+        raw = el * (1 - frac) / frac if frac > 0.02 and el > 1.0 else float("nan")
+        eta = self._eta.update(raw, now) if raw == raw or self._eta.value == self._eta.value else raw
         self.callback(ProgressInfo(phase, frac, int(done), int(total), el, eta, part))
 
     def done(self, phase):

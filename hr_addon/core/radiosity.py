@@ -8,6 +8,7 @@ import numpy as np
 
 from .geometry import MeshInput, prepare_patches
 from .hierarchy import Hierarchy
+from .orientation import orient
 from .output import loop_radiance
 from .progress import Progress
 from .refine import Refiner, RefineParams, push_corrections
@@ -40,8 +41,10 @@ class RadiositySystem:
         self.params = params or RefineParams()
         self.tol = tol
         self.patches = prepare_patches(mesh)
+        self.backend = make_backend(self.patches.triangles, backend)  # occluders: two-sided
+        if self.params.orient:  # faces turned the wrong way are turned around, as Cycles shows them
+            orient(self.patches, self.backend)
         self.h = Hierarchy(self.patches)
-        self.backend = make_backend(self.patches.triangles, backend)
         self.refiner = Refiner(self.h, self.backend, self.params)
         self.refiner.progress = Progress(progress, {"clusters": 0.5, "linking": 0.4, "push corrections": 0.1})
         self.links = self.refiner.build()

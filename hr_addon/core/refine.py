@@ -46,6 +46,7 @@ class RefineParams:
     contact_gap: float = 1e-3  # how close counts as touching, relative to sqrt(total scene area)
     contact_levels: int = 2  # contact refinement goes this many quadtree levels below aeps
     ff_order: int = 3  # most Gauss points per side for a link's form factor (near pairs)
+    orient: bool = False  # turn around faces facing the wrong way before the build (orientation.py)
 
     @staticmethod
     def preset(name):

@@ -2,8 +2,18 @@
 
 Layout of a cache directory (default //hr_cache/<blend name>/):
     manifest.json         domain, objects {name: {mesh, count}}, frames {"1": "frame_000001.npz", ...}
-    frame_000001.npz      one float32 (count, 4) RGBA array per object: linear outgoing radiance
+    frame_000001.npz      one float32 (count, 4) RGBA array per object: linear outgoing radiance;
+                          the zip comment names the bake that wrote it ("hr_radiosity bake <id>")
 Frames whose light state did not change point at the previous frame's file (no new file).
+
+Bake ids: every bake has an id (manifest "bake_id") written into each frame file it writes (as the
+zip's comment: no array, so no object name can collide with it and readers of the arrays see only
+the objects). The
+manifest's "frame_ids" maps each frame file to the id it must hold: a file kept from the previous
+bake (see below) keeps that bake's id. A frame file whose id differs (copied from another bake of
+objects with the same names) is refused by CacheReader.load and counts as damaged for a re-bake.
+Caches of versions before the ids (no "bake_id") are read without the check. Texture bakes'
+EXR/PNG sequences cannot hold the id; their .npz frame entries do.
 
 Safety: a bake writes into a sibling temporary directory (.<name>.baking-<host>-<pid>-<ms>) and
 only replaces the cache at the end (CacheWriter.commit), every file is written to a temporary name
@@ -23,12 +33,14 @@ CacheWriter.messages says why. Kept frames whose file is missing or damaged are 
 CacheWriter.damaged_frames() so that the bake re-bakes them.
 """
 
+import io
 import json
 import os
 import re
 import shutil
 import socket
 import time
+import uuid
 import zipfile
 from pathlib import Path
 
@@ -37,6 +49,7 @@ import numpy as np
 from .files import atomic_write, link_or_copy
 
 FORMAT = 1
+_ID_PREFIX = "hr_radiosity bake "  # a frame file's zip comment: this prefix, then the bake id
 MANIFEST = "manifest.json"
 MARKER = ".hr_radiosity"  # "this folder is a radiosity cache": written first, into every cache folder
 _MARKER_TEXT = b"Written by HR Radiosity bakes. A bake replaces only the files its manifest.json lists.\n"
@@ -65,15 +78,56 @@ def write_json(path: Path, data):
     atomic_write(path, json.dumps(data, indent=1, sort_keys=True).encode())
 
 
-def write_frame(path: Path, arrays: dict):
-    """Atomically write {object name: (N, 3|4) values} as float32 RGBA arrays."""
+def new_bake_id():
+    return uuid.uuid4().hex
+
+
+def write_frame(path: Path, arrays: dict, bake_id=None):
+    """Atomically write {object name: (N, 3|4) values} as float32 RGBA arrays; the bake id, when
+    given, goes into the zip's comment."""
     out = {}
     for name, a in arrays.items():
         a = np.asarray(a, np.float32)
         if a.shape[1] == 3:
             a = np.concatenate([a, np.ones((len(a), 1), np.float32)], 1)
         out[name] = np.ascontiguousarray(a)
-    atomic_write(path, lambda fh: np.savez(fh, **out))
+
+    def save(fh):
+        buf = io.BytesIO()
+        np.savez(buf, **out)
+        if bake_id:
+            with zipfile.ZipFile(buf, "a") as z:
+                z.comment = (_ID_PREFIX + str(bake_id)).encode("ascii")
+        fh.write(buf.getbuffer())
+
+    atomic_write(path, save)
+
+
+def _zip_bake_id(z):
+    """The bake id in the comment of an open frame zip, or None (no id: an earlier version's file)."""
+    c = z.comment.decode("ascii", "replace")
+    return c[len(_ID_PREFIX) :] if c.startswith(_ID_PREFIX) else None
+
+
+def frame_ids(manifest):
+    """{frame file: bake id it must hold ("": none, no check)} from a manifest ({} for caches
+    written before the ids)."""
+    own = manifest.get("bake_id")
+    if not isinstance(own, str) or not own:
+        return {}
+    ids = manifest.get("frame_ids")
+    ids = ids if isinstance(ids, dict) else {}
+    return {str(v): str(ids.get(str(v), own)) for v in manifest.get("frames", {}).values()}
+
+
+def _id_problem(found, want):
+    """'' if a frame file holding bake id `found` (None: no id) belongs to the bake that wants `want`
+    (None: no check), else why not (a phrase following the file's name)."""
+    if not want or found == want:
+        return ""
+    if found is None:
+        return "belongs to another bake (it carries no bake id; this bake's is " f"{want[:8]})"
+    return f"belongs to another bake (bake id {found[:8]}; this bake's is {want[:8]})"
 
 
 def frame_filename(frame):
@@ -333,14 +387,16 @@ def settings_difference(old: dict, new: dict):
     return "; ".join(why)
 
 
-def npz_problem(path, objects=None):
+def npz_problem(path, objects=None, bake_id=None):
     """'' if the frame file at `path` looks complete (a zip of (count, 4) float32 arrays, sizes as the
-    manifest says), else what is wrong. Reads the zip directory and array headers, not the data."""
+    manifest says) and, if `bake_id` is given, holds that bake id; else what is wrong. Reads the zip
+    directory, its comment and the array headers, not the data."""
     path = Path(path)
     if not path.is_file():
         return "missing"
     try:
         with zipfile.ZipFile(path) as z:
+            found = _zip_bake_id(z)
             for info in z.infolist():
                 name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
                 with z.open(info) as fh:
@@ -361,7 +417,8 @@ def npz_problem(path, objects=None):
                     return f"truncated array for '{name}'"
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as exc:
         return f"unreadable ({exc})"
-    return ""
+    why = _id_problem(found, bake_id)
+    return f"'{path.name}' {why}" if why else ""
 
 
 class CacheWriter:
@@ -377,13 +434,15 @@ class CacheWriter:
         self.domain = domain
         self.signature = signature
         self.info = dict(info or {})
+        self.bake_id = new_bake_id()
+        self.frame_ids = {}  # frame file -> bake id, for files kept from the previous bake
         self.frames = {}
         self.kept = 0
         self.messages = []
 
     def write(self, frame, arrays):
         name = frame_filename(frame)
-        write_frame(self.tmp / name, arrays)
+        write_frame(self.tmp / name, arrays, self.bake_id)
         self.frames[int(frame)] = name
         return name
 
@@ -392,7 +451,12 @@ class CacheWriter:
 
     def _manifest_now(self):
         return dict(
-            self.info, format=FORMAT, domain=self.domain, objects=self.objects, signature=self.signature
+            self.info,
+            format=FORMAT,
+            domain=self.domain,
+            objects=self.objects,
+            signature=self.signature,
+            bake_id=self.bake_id,
         )
 
     def previous(self):
@@ -410,11 +474,12 @@ class CacheWriter:
         if old is None or why:
             return {}
         out, seen = {}, {}
+        ids = frame_ids(old.manifest)
         for f, name in sorted(old.frames.items()):
             if f in baking or f in self.frames:
                 continue
             if name not in seen:
-                seen[name] = npz_problem(self.final / name, old.objects)
+                seen[name] = npz_problem(self.final / name, old.objects, ids.get(name))
             if seen[name]:
                 out[f] = seen[name]
         return out
@@ -431,6 +496,7 @@ class CacheWriter:
                 )
             return
         renamed, lost = {}, []
+        ids = frame_ids(old.manifest)
         for f, name in sorted(old.frames.items()):
             if f in self.frames:
                 continue
@@ -441,11 +507,13 @@ class CacheWriter:
                     dst = name.replace(".npz", f"_{k}.npz")
                     k += 1
                 src = self.final / name
-                if npz_problem(src, old.objects):
+                if npz_problem(src, old.objects, ids.get(name)):
                     lost.append(f)
                     continue
                 link_or_copy(src, self.tmp / dst)
                 renamed[name] = dst
+                # a kept file holds the previous bake's id ("": none, a cache of an earlier version)
+                self.frame_ids[dst] = ids.get(name, "")
             self.frames[f] = renamed[name]
             self.kept += 1
         if lost:
@@ -467,6 +535,7 @@ class CacheWriter:
         manifest = dict(
             self._manifest_now(),
             frames={str(k): v for k, v in sorted(self.frames.items())},
+            frame_ids=dict(sorted(self.frame_ids.items())),
             files=sorted(set(files) | {MANIFEST}),
         )
         write_json(self.tmp / MANIFEST, manifest)
@@ -523,6 +592,7 @@ class CacheReader:
         if not self.frames:
             raise CacheError(f"Radiosity cache '{self.dir}' holds no frames.")
         self.manifest = m
+        self.frame_ids = frame_ids(m)  # {} for caches written before bake ids
         self._sorted = np.array(sorted(self.frames))
 
     @property
@@ -543,10 +613,11 @@ class CacheReader:
             key = (str(path), path.stat().st_mtime_ns)
         except OSError:
             raise CacheError(f"Radiosity cache file '{path}' is missing (re-bake).") from None
-        data = self._files.get(key)
-        if data is None:
+        hit = self._files.get(key)
+        if hit is None:
             try:
                 with np.load(path, allow_pickle=False) as z:
+                    found = _zip_bake_id(z.zip)
                     data = {k: np.ascontiguousarray(z[k], np.float32) for k in z.files}
             except Exception as exc:
                 raise CacheError(f"Corrupt radiosity cache file '{path}': {exc}") from None
@@ -556,5 +627,13 @@ class CacheReader:
                     raise CacheError(f"Corrupt radiosity cache file '{path}': bad array for '{k}'.")
             if len(self._files) > 32:
                 self._files.clear()
-            self._files[key] = data
+            hit = self._files[key] = (data, found)
+        data, found = hit
+        # checked on every load: the shared LRU may hold the file for a reader of another manifest
+        why = _id_problem(found, self.frame_ids.get(name))
+        if why:
+            raise CacheError(
+                f"Radiosity cache file '{path}' {why}: it was copied from another cache. Re-bake "
+                "(a bake of any frame range re-bakes such frames)."
+            )
         return data

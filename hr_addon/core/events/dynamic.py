@@ -256,7 +256,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
             self._find_surface(rec)
             if not rec.on_surface:
                 rec.used = "NAIVE"
-                rec.msgs.append(f"shape '{name}' lies on no surface: handled by NAIVE")
+                rec.msgs.append(self.off_surface_message(rec))
             elif self.method == "NAIVE":
                 rec.used = "NAIVE"
             else:

@@ -23,6 +23,19 @@ def _plane_tolerance(rings, plane_tol):
     return plane_tol * _size(rings) + 1e-6 * float(np.abs(pts).max())
 
 
+NEAR_SURFACE = 0.05  # a shape this close to a parallel surface (x its size) was meant to lie on it
+
+
+def _length(d):
+    """A distance in scene units (metres) as a user reads it: '1.0 mm', '2.5 cm', '1.2 m'."""
+    d = abs(float(d))
+    if d < 0.01:
+        return f"{d * 1000:.1f} mm"
+    if d < 1.0:
+        return f"{d * 100:.1f} cm"
+    return f"{d:.3g} m"
+
+
 def outline_problem(rings2d, chunk=200_000):
     """'' if the rings (outer first, then holes; 2D) bound one well-defined region, else what is wrong.
 
@@ -226,6 +239,56 @@ class _ShapeMixin:
                 f"shape '{rec.name}': only {100 * rec.covered:.1f}% of its area lies on "
                 "surfaces; the rest does not emit"
             )
+
+    def off_surface_message(self, rec):
+        """Why a shape that lies on no surface (rec.on_surface False, after _find_surface) looks as it
+        does: NAIVE takes it as a separate emitter, so it shows on no surface. Names the nearest
+        parallel surface under its outline (within NEAR_SURFACE x the shape's size: a shape meant to
+        lie on it), the distance and the side."""
+        pt = self.system.patches
+        size = _size(rec.rings)
+        al = pt.normal @ rec.n
+        signed = ((pt.corners - rec.c) @ rec.n).mean(1)  # the patches' offset along the shape's normal
+        cand = np.flatnonzero((np.abs(al) >= 0.999) & (np.abs(signed) <= NEAR_SURFACE * size))
+        if len(cand):
+            _, _, out = self._classify(rec, cand)
+            cand = cand[~out]
+        tail = f"(more than the plane tolerance {_length(rec.tol)})"
+        if not len(cand):
+            return (
+                f"shape '{rec.name}' lies on no surface: handled by NAIVE as a separate emitter; it "
+                "lights the scene, but no surface shows its glow. To show it on a wall, put it in "
+                "the wall's plane (same coordinate), facing the same way"
+            )
+        k = cand[np.argmin(np.abs(signed[cand]))]
+        names = list(self.system.mesh.object_names)
+        oid = int(pt.object_id[k])
+        obj = names[oid] if 0 <= oid < len(names) else f"object {oid}"
+        d = _length(signed[k])
+        if al[k] > 0 and signed[k] < 0:
+            return (
+                f"Light shape '{rec.name}' is {d} in front of the surface of '{obj}' {tail}: it is "
+                f"handled as a separate emitter (NAIVE); it lights the scene, but '{obj}' does not "
+                "show its glow (the surface under it lies in its shadow). Move the shape onto the "
+                f"surface (same coordinate) to show it on '{obj}'"
+            )
+        if al[k] > 0:
+            return (
+                f"Light shape '{rec.name}' is {d} behind the surface of '{obj}' {tail}: it is "
+                f"handled as a separate emitter (NAIVE) that shines into the back of '{obj}', so it "
+                "lights nothing and does not show. Move the shape onto the surface (same coordinate)"
+            )
+        if signed[k] > 0:
+            return (
+                f"Light shape '{rec.name}' faces the surface of '{obj}' {d} in front of it {tail}: it "
+                f"is handled as a separate emitter (NAIVE) whose light falls only on '{obj}' right "
+                f"under it. Turn the shape to face away from '{obj}' (flip its normals) and move it "
+                "onto the surface"
+            )
+        return (
+            f"Light shape '{rec.name}' is {d} off the back of '{obj}' and faces away from it {tail}: it "
+            "is handled as a separate emitter (NAIVE); no surface shows its glow"
+        )
 
     def _classify(self, rec, nodes):
         h = self.system.h

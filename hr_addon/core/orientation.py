@@ -1,0 +1,289 @@
+"""Surfaces facing the wrong way: found by rays, turned around before the hierarchy is built.
+
+Surfaces are one-sided here (they emit and reflect on their front only), but Cycles renders a mesh
+from both sides: a wall whose winding is reversed looks right in a render and bakes to black, taking
+light from the rest of the room; a ceiling panel facing the ceiling sends its light into the strip of
+ceiling right above it. Two cases are turned around (their corners reversed), as Cycles in effect
+shows them:
+
+- a polygon whose front exchanges light with nothing (every ray leaving its front escapes the scene
+  or meets the back of a surface) while at least MIN_BACK of the rays leaving its back meet the
+  fronts of other surfaces (a reversed wall of a room: its front looks out of the room), unless it
+  lies on a surface facing it (a sofa's bottom on the floor: covered, its front rays start under
+  the floor);
+- an emitting polygon whose front faces a surface right in front of it (its front rays all hit,
+  on average within NEAR x its size) while its back sees the fronts of the scene, FAR times
+  farther away (a ceiling panel turned towards the ceiling).
+
+Rays: SIDE_RAYS per side of each patch, stratified over the patch and cosine-weighted over the
+hemisphere, traced to their first hit. The nearest-hit query of the float32 backends
+(`_nearest`) is used when the build's backend has one; otherwise Embree or Blender's BVH tree are
+built here for the check when importable, else a brute-force float64 search (small scenes only).
+Decisions are per input polygon (the counts of all its patches), so a polygon is never split.
+"""
+
+import numpy as np
+
+SIDE_RAYS = 16  # rays per side of each patch (a 4 x 4 stratification)
+MIN_BACK = 0.25  # share of a polygon's back rays that must meet the fronts of other surfaces
+NEAR = 0.25  # an emitter's front hits this close (x its size) face "a surface right in front of it"
+FAR = 4.0  # ... while its back rays travel this many times farther
+BRUTE_MAX = 3e8  # ray x triangle pairs the float64 fallback may test
+GAP = 1e-3  # faces this close (x sqrt(total area), as contacts' gap) facing each other touch
+
+
+def _touching(pt, cand, pts, n, gap):
+    """(len(cand), S) whether each sample point `pts` of the patches `cand` lies on another patch
+    facing it (opposite normal, within `gap` of its plane): the face lies on another surface."""
+    out = np.zeros(pts.shape[:2], bool)
+    lo, hi = pt.corners.min(1) - gap, pt.corners.max(1) + gap
+    for i, k in enumerate(cand):
+        p = pts[i]
+        near = np.flatnonzero(
+            (n @ n[k] < -0.999)
+            & (np.abs(np.einsum("ij,j->i", pt.corners[:, 0] - p.mean(0), n[k])) <= gap)
+            & (lo <= p.max(0)).all(1)
+            & (hi >= p.min(0)).all(1)
+        )
+        for q in near:
+            c = pt.corners[q, : pt.nv[q]]
+            e = np.roll(c, -1, 0) - c  # point in the convex patch: left of every edge (seen from q)
+            side = np.einsum("ek,sek->se", np.cross(np.broadcast_to(n[q], e.shape), e), p[:, None] - c[None])
+            out[i] |= (side >= -gap * np.linalg.norm(e, axis=1)).all(1)
+    return out
+
+
+def _kept(tri):
+    """The triangles a RayBackend keeps (visibility._clean_triangles' test), as a mask."""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    c = np.cross(e1, e2)
+    n2 = np.einsum("ij,ij->i", c, c)
+    ok = n2 > 1e-24 * np.einsum("ij,ij->i", e1, e1) * np.einsum("ij,ij->i", e2, e2)
+    return np.isfinite(tri).all(axis=(1, 2)) & ok & (n2 > 0)
+
+
+def _brute_nearest(tri, o, d):
+    """(index of the nearest triangle hit by o + t d, t in (0, 1], or -1; t), float64, brute force."""
+    prim = np.full(len(o), -1, np.intp)
+    best = np.full(len(o), np.inf)
+    v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    step = max(1, int(2e6 // max(len(tri), 1)))
+    with np.errstate(all="ignore"):
+        for s in range(0, len(o), step):
+            oo, dd = o[s : s + step, None], d[s : s + step, None]
+            p = np.cross(dd, e2)
+            det = np.einsum("rtk,tk->rt", p, e1)
+            inv = 1.0 / det
+            tv = oo - v0
+            u = np.einsum("rtk,rtk->rt", tv, p) * inv
+            q = np.cross(tv, e1)
+            v = np.einsum("rtk,rtk->rt", np.broadcast_to(dd, q.shape), q) * inv
+            t = np.einsum("rtk,tk->rt", q, e2) * inv
+            hit = (np.abs(det) > 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9) & (t <= 1)
+            t = np.where(hit, t, np.inf)
+            k = np.argmin(t, 1)
+            tk = t[np.arange(len(t)), k]
+            found = np.isfinite(tk)
+            prim[s : s + step] = np.where(found, k, -1)
+            best[s : s + step] = tk
+    return prim, np.where(prim >= 0, best, 0.0)
+
+
+def _first_hits(backend, triangles, owner, o, d):
+    """Patch first hit by each segment o -> o + d (-1: none) and its parameter t in [0, 1]."""
+    tracer = backend if hasattr(backend, "_nearest") else None
+    if tracer is None:
+        from . import visibility
+
+        for name in ("embree", "mathutils"):
+            if name == "mathutils" and len(o) * len(triangles) <= BRUTE_MAX:
+                break  # the float64 search is fast enough, and Python-level ray casts are slow
+            if visibility._importable(name):
+                tracer = visibility.make_backend(triangles, name)
+                break
+    if tracer is not None:
+        keep = _kept(triangles)
+        if keep.sum() == len(tracer.triangles):
+            c = tracer.center
+            prim, t = tracer._nearest(
+                (o - c).astype(np.float32), d.astype(np.float32), np.ones(len(o), np.float32)
+            )
+            kept_owner = owner[keep]
+            return np.where(prim >= 0, kept_owner[np.maximum(prim, 0)], -1), np.asarray(t, float)
+    if len(o) * len(triangles) > BRUTE_MAX:
+        return None, None
+    keep = _kept(triangles)
+    prim, t = _brute_nearest(triangles[keep], o, d)
+    return np.where(prim >= 0, owner[keep][np.maximum(prim, 0)], -1), t
+
+
+def _stratified(n, rng):
+    """(n, 2) stratified samples in [0, 1)^2 (n a square number), in a random order."""
+    k = int(round(np.sqrt(n)))
+    i, j = np.divmod(np.arange(k * k), k)
+    s = np.stack([(i + rng.random(k * k)) / k, (j + rng.random(k * k)) / k], 1)
+    return s[rng.permutation(k * k)]
+
+
+def _frames(n):
+    """Tangent frames (t, b) of unit normals n (K, 3)."""
+    axis = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    t = np.cross(n, axis)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    return t, np.cross(n, t)
+
+
+def find_reversed(patches, backend, seed=0):
+    """(flip, reasons): boolean (K,) per patch, True for the patches of polygons to turn around, and
+    {input polygon: "back" | "emitter"} of those polygons. `None` reasons when the scene is too big
+    for the rays available (no check)."""
+    pt = patches
+    K = len(pt.nv)
+    if K == 0:
+        return np.zeros(0, bool), {}
+    rng = np.random.default_rng(seed)
+    S = SIDE_RAYS
+    tri = pt.triangles
+    owner = np.concatenate([np.arange(K), np.flatnonzero(pt.nv == 4)])
+    lo, hi = tri.reshape(-1, 3).min(0), tri.reshape(-1, 3).max(0)
+    L = 2.0 * float(np.linalg.norm(hi - lo)) or 1.0  # longer than any path inside the scene
+    eps = 1e-6 * L
+    # points: bilinear over the (padded) corners, stratified; a triangle's repeated corner folds the
+    # square onto it
+    uv = _stratified(S, rng)
+    u, v = uv[:, 0][None, :, None], uv[:, 1][None, :, None]
+    c = pt.corners[:, None]
+    pts = (
+        (1 - u) * (1 - v) * c[:, :, 0]
+        + u * (1 - v) * c[:, :, 1]
+        + u * v * c[:, :, 2]
+        + (1 - u) * v * c[:, :, 3]
+    )
+    ab = _stratified(S, rng)
+    r, phi = np.sqrt(ab[:, 0]), 2 * np.pi * ab[:, 1]
+    local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1 - ab[:, 0], 0))], 1)
+    n = pt.normal / np.maximum(np.linalg.norm(pt.normal, axis=1, keepdims=True), 1e-300)
+    t, b = _frames(n)
+    out = {}
+    for side in (1.0, -1.0):
+        ns = side * n
+        dirs = (
+            local[None, :, :1] * t[:, None]
+            + local[None, :, 1:2] * (side * b)[:, None]
+            + local[None, :, 2:] * ns[:, None]
+        )
+        o = (pts + eps * ns[:, None]).reshape(-1, 3)
+        d = (dirs * L).reshape(-1, 3)
+        hit, tt = _first_hits(backend, tri, owner, o, d)
+        if hit is None:
+            return np.zeros(K, bool), None
+        hit = hit.reshape(K, S)
+        hit[hit == np.arange(K)[:, None]] = -1  # float32 rounding: a grazing ray meeting its own patch
+        dist = (tt * L).reshape(K, S)
+        h = hit >= 0
+        facing = np.zeros((K, S), bool)
+        facing[h] = np.einsum("ij,ij->i", dirs[h], n[hit[h]]) < 0  # met the front of what it hit
+        out[side] = (h, facing, dist)
+    npoly = int(pt.poly.max()) + 1
+    rays = np.bincount(pt.poly, minlength=npoly) * S
+
+    def per_poly(x):
+        return np.bincount(pt.poly, x.sum(1), minlength=npoly)
+
+    fh, ff, fd = out[1.0]
+    bh, bf, bd = out[-1.0]
+    front_front, back_front = per_poly(ff), per_poly(bf)
+    front_hits, back_hits = per_poly(fh), per_poly(bh)
+    has = rays > 0
+    reasons = {}
+    back = has & (front_front == 0) & (back_front >= MIN_BACK * rays)
+    if back.any():  # a face lying on another one (a sofa's bottom on the floor) is covered, not reversed
+        gap = GAP * np.sqrt(pt.area.sum())
+        cand = np.flatnonzero(back[pt.poly])
+        touching = _touching(pt, cand, pts[cand], n, gap)
+        lying = np.bincount(pt.poly[cand], touching.sum(1), minlength=npoly)
+        back &= lying < MIN_BACK * rays
+    for p in np.flatnonzero(back):
+        reasons[int(p)] = "back"
+    emits = np.bincount(pt.poly, pt.emission.max(0) * pt.area, minlength=npoly) > 0
+    size = np.sqrt(np.bincount(pt.poly, pt.area, minlength=npoly))
+    front_mean = per_poly(np.where(fh, fd, 0.0)) / np.maximum(front_hits, 1)
+    back_mean = per_poly(np.where(bh, bd, 0.0)) / np.maximum(back_hits, 1)
+    blocked = (
+        has
+        & emits
+        & ~back
+        & (front_hits == rays)
+        & (front_mean < NEAR * size)
+        & (back_front >= MIN_BACK * rays)
+        & (back_mean > FAR * front_mean)
+    )
+    for p in np.flatnonzero(blocked):
+        reasons[int(p)] = "emitter"
+    flip = np.isin(pt.poly, np.array(sorted(reasons), np.int64))
+    return flip, reasons
+
+
+def turn_around(patches, flip):
+    """Reverse the corner order (and vert_index) of the patches `flip` in place: their front becomes
+    their back. Triangles keep the padded convention (corner 3 repeats corner 2)."""
+    pt = patches
+    if not flip.any():
+        return
+    quad = flip & (pt.nv == 4)
+    tri = flip & (pt.nv == 3)
+    pt.corners[quad] = pt.corners[quad][:, [0, 3, 2, 1]]
+    pt.vert_index[quad] = pt.vert_index[quad][:, [0, 3, 2, 1]]
+    pt.corners[tri] = pt.corners[tri][:, [0, 2, 1, 1]]
+    vi = pt.vert_index[tri][:, [0, 2, 1, 3]]
+    pt.vert_index[tri] = vi
+    pt.normal[flip] = -pt.normal[flip]
+
+
+def _count_by_object(patches, polys):
+    names = list(patches.object_names)
+    first = {}
+    for k, p in zip(patches.object_id, patches.poly):
+        first.setdefault(int(p), int(k))
+    per = {}
+    for p in polys:
+        oid = first[int(p)]
+        per[oid] = per.get(oid, 0) + 1
+    parts = [
+        f"{cnt} in '{names[oid] if 0 <= oid < len(names) else oid}'"
+        for oid, cnt in sorted(per.items(), key=lambda x: -x[1])[:5]
+    ]
+    more = f" and {len(per) - 5} more object(s)" if len(per) > 5 else ""
+    return ", ".join(parts) + more
+
+
+def orient(patches, backend, seed=0):
+    """Find and turn around the polygons facing the wrong way (find_reversed) in `patches`; returns
+    the messages naming them (also appended to patches.warnings)."""
+    flip, reasons = find_reversed(patches, backend, seed)
+    msgs = []
+    if reasons is None:
+        msgs.append(
+            "Faces facing the wrong way were not looked for: the scene is too big for the rays "
+            "available without Embree."
+        )
+    elif reasons:
+        turn_around(patches, flip)
+        back = [p for p, r in reasons.items() if r == "back"]
+        emit = [p for p, r in reasons.items() if r == "emitter"]
+        if back:
+            msgs.append(
+                f"{len(back)} polygon(s) faced away from everything they could light, with their back "
+                f"towards the scene: {_count_by_object(patches, back)}. They were turned around (Cycles "
+                "renders both sides of a face); flip their normals (Mesh > Normals > Flip) to make "
+                "the mesh say what the bake uses."
+            )
+        if emit:
+            msgs.append(
+                f"{len(emit)} emitting polygon(s) faced a surface right in front of them, with their "
+                f"back towards the scene: {_count_by_object(patches, emit)}. They were turned around "
+                "to shine into the scene (as Cycles shows them); flip their normals (Mesh > Normals > "
+                "Flip) if that is what you meant."
+            )
+    patches.warnings.extend(msgs)
+    return msgs
