@@ -1,0 +1,679 @@
+"""Final gather: the output stage of issue 19 (numpy only; rays through the visibility backends).
+
+Every output sample (a welded vertex / corner, or a texel centre) computes its own incident light
+instead of reading the hierarchy leaf it lies in:
+
+    out = E_point + rho_point x (D + I)          radiance, linear RGB, per channel
+
+- D, direct light, exact: for every emitter (the input's emissive patches, the current light
+  shapes) the point-to-polygon form factor (formfactor.py's contour integral; light shapes as
+  their outline with holes, or their convex pieces with horizon clipping) times a visibility ratio
+  from shadow rays toward stratified points on the emitter (kernel-weighted, as AUTO's first
+  bounce in events/direct.py), times the emitter's radiance. Cached per emitter and sample at unit
+  radiance, so a strength or colour change is a scale; a shape's D is computed only at samples in
+  front of its plane that face it.
+- I, indirect light: R cosine-weighted hemisphere rays per sample, traced once per static
+  geometry (first_hit), each hit recorded on the hierarchy leaf holding it; per sample a sparse CSR
+  row of weights over those leaves (hits / R, duplicates merged; rays that escape, hit a back face
+  or a covered point contribute nothing). At run time I = W @ (reflected radiance of the solution
+  at the leaves): B - E (the node's own, possibly fractional, emission is taken out: the exact
+  direct term carries all emission), shown on the node's uncovered part (Hierarchy.shown).
+- E_point: the emitter's own radiance exactly at the point: the input patch's emission, plus a
+  light shape's radiance inside its outline (point in polygon with holes, on the surface it lies
+  on); outside the outline 0, whatever fraction of it the coarse nodes carry for transport.
+- Points Hierarchy.dark() calls covered (contacts) output exactly 0.
+
+Where the hits are recorded. Weights are kept on the leaves of the hierarchy as built (the HR
+leaves, node ids below DynamicRadiosity.n_hr). Light events add nodes only below those leaves and
+delete only nodes they added, so the HR ids never move (DynamicRadiosity._gc asserts it) and the
+weights stay valid for the system's lifetime with no re-location per frame. When an event has split
+an HR leaf, the leaf's value is the area mean of its current sub-leaves' reflected radiance. What
+that gives up: detail of the reflected light below an HR leaf (AR/FE sub-nodes carry no links, so
+their reflected radiance is the parent's anyway; AUTO's first bounce on split receivers is
+averaged over the HR leaf). Each gather reads hundreds of leaves, so this averaging is far below the
+ray noise. Under NAIVE (a rebuilt system, other patches) each HR leaf reads the rebuilt solution at
+its 2 x 2 Gauss points.
+
+Randomness is a fixed pattern per sample: Hammersley points rotated (Cranley-Patterson) by a hash
+of (seed, sample index, stream), so results do not depend on batching or thread count. The
+precompute and the direct light work in independent batches over sample ranges
+(`gather_batch`, `direct_batch`) whose partial results are merged; ~1 M rays per batch.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import formfactor as ff
+from .geometry import newell
+from .output import _insideness
+
+KINDS = ("radiance", "reflected", "incident")
+_GOLD = np.uint64(0x9E3779B97F4A7C15)
+
+
+# ---------------------------------------------------------------------------------------------- random
+
+
+def _mix(x):
+    """splitmix64 finaliser on uint64 arrays (wrapping arithmetic)."""
+    x = x ^ (x >> np.uint64(30))
+    x = x * np.uint64(0xBF58476D1CE4E5B9)
+    x = x ^ (x >> np.uint64(27))
+    x = x * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+def hash_uniform(seed, index, stream, k=2):
+    """(len(index), k) uniforms in [0, 1) from (seed, index, stream): the same for a sample whatever
+    batch it is computed in."""
+    with np.errstate(over="ignore"):
+        base = _mix(np.uint64(seed & 0xFFFFFFFF) * _GOLD + np.uint64(stream & 0xFFFFFFFF))
+        x = np.asarray(index, np.uint64)[:, None] * _GOLD + base + np.arange(k, dtype=np.uint64)[None] * _GOLD
+        x = _mix(_mix(x))
+    return (x >> np.uint64(11)).astype(np.float64) * 2.0**-53
+
+
+def hammersley(n):
+    """(n, 2) Hammersley points: ((i + 0.5) / n, radical inverse base 2 of i)."""
+    i = np.arange(n, dtype=np.uint64)
+    r = np.zeros(n)
+    f, b = 0.5, i.copy()
+    while b.any():
+        r += f * (b & np.uint64(1))
+        b >>= np.uint64(1)
+        f /= 2
+    return np.column_stack([(np.arange(n) + 0.5) / n, r])
+
+
+def _frame(n):
+    """Orthonormal tangents (t, b) of unit normals n (N, 3) (Duff et al. 2017, branchless)."""
+    s = np.where(n[:, 2] >= 0, 1.0, -1.0)
+    a = -1.0 / (s + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t = np.column_stack([1 + s * n[:, 0] ** 2 * a, s * b, -s * n[:, 0]])
+    bb = np.column_stack([b, s + n[:, 1] ** 2 * a, -n[:, 1]])
+    return t, bb
+
+
+def cosine_directions(normals, index, rays, seed, stream=0):
+    """(N, rays, 3) cosine-weighted unit directions about normals (N, 3): a Hammersley pattern
+    rotated per sample by hash_uniform(seed, index)."""
+    u = (hammersley(rays)[None] + hash_uniform(seed, index, stream)[:, None]) % 1.0  # (N, R, 2)
+    r = np.sqrt(u[..., 0])
+    phi = 2 * np.pi * u[..., 1]
+    z = np.sqrt(np.maximum(1 - u[..., 0], 0))
+    t, b = _frame(normals)
+    return (
+        (r * np.cos(phi))[..., None] * t[:, None]
+        + (r * np.sin(phi))[..., None] * b[:, None]
+        + z[..., None] * normals[:, None]
+    )
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+
+
+def locate_below(h, patch, points, n_hr):
+    """output.locate restricted to the first n_hr nodes: the HR leaf holding each point (nodes whose
+    children were added later count as leaves)."""
+    node = np.asarray(patch, np.int64).copy()
+    pts = np.asarray(points, float)
+    while True:
+        c0 = h.child0[node]
+        inner = np.flatnonzero((c0 >= 0) & (c0 < n_hr))
+        if len(inner) == 0:
+            return node
+        kids = h.child0[node[inner]][:, None] + np.arange(4)
+        d = _insideness(h.corners[kids], h.normal[kids], pts[inner])
+        node[inner] = kids[np.arange(len(inner)), np.argmax(d, axis=1)]
+
+
+def _csr_matvec(indptr, cols, w, V, chunk=1 << 21):
+    """(n, C) = W @ V for a CSR matrix (indptr, cols, w) and dense V (m, C)."""
+    n = len(indptr) - 1
+    out = np.zeros((n, V.shape[1]))
+    if len(cols) == 0:
+        return out
+    counts = np.diff(indptr)
+    # rows in blocks of about `chunk` entries bound the (entries, C) temporaries
+    r0 = 0
+    while r0 < n:
+        r1 = int(np.searchsorted(indptr, indptr[r0] + chunk, "right")) - 1
+        r1 = min(max(r1, r0 + 1), n)
+        a, b = indptr[r0], indptr[r1]
+        if b > a:
+            prod = w[a:b, None].astype(np.float64) * V[cols[a:b]]
+            rows = np.repeat(np.arange(r1 - r0), counts[r0:r1])
+            for c in range(V.shape[1]):
+                out[r0:r1, c] = np.bincount(rows, weights=prod[:, c], minlength=r1 - r0)
+        r0 = r1
+    return out
+
+
+@dataclass
+class Emitter:
+    """A polygonal emitter: convex pieces (T, 4, 3) CCW about their own emitting normals, nv (T,),
+    areas (T,), normals (T, 3); rings (outer CCW about `normal`, holes CW) when the whole emitter is
+    one planar polygon with holes (the contour fast path), else None; `normal`/`point` its plane
+    when planar (None otherwise)."""
+
+    corners: np.ndarray
+    nv: np.ndarray
+    area: np.ndarray
+    normals: np.ndarray
+    rings: list = None
+    normal: np.ndarray = None
+    point: np.ndarray = None
+    stream: int = 0  # random stream of its shadow rays
+
+    def __post_init__(self):
+        # triangles for area-uniform sampling: (0, 1, 2) and, for quads, (0, 2, 3)
+        c, nv = self.corners, self.nv
+        tri = [c[:, [0, 1, 2]]]
+        tn = [self.normals]
+        q = np.flatnonzero(nv == 4)
+        tri.append(c[q][:, [0, 2, 3]])
+        tn.append(self.normals[q])
+        self.tri = np.concatenate(tri)
+        self.tri_normal = np.concatenate(tn)
+        a = 0.5 * np.linalg.norm(np.cross(self.tri[:, 1] - self.tri[:, 0], self.tri[:, 2] - self.tri[:, 0]), axis=1)
+        self.cdf = np.cumsum(a)
+        self.total = float(self.cdf[-1]) if len(a) else 0.0
+        self.verts = c.reshape(-1, 3)
+        self.lo, self.hi = self.verts.min(0), self.verts.max(0)
+
+    def sample(self, u):
+        """Points (..., 3) and their normals on the emitter, area-uniform, from uniforms u (..., 2):
+        u[..., 0] picks the triangle along the cumulative area (stratification carries over)."""
+        x = u[..., 0] * self.total
+        k = np.minimum(np.searchsorted(self.cdf, x, "right"), len(self.cdf) - 1)
+        lo = np.where(k > 0, self.cdf[np.maximum(k - 1, 0)], 0.0)
+        s = np.clip((x - lo) / np.maximum(self.cdf[k] - lo, 1e-300), 0, 1)  # reused within the triangle
+        r1 = np.sqrt(s)
+        t = self.tri[k]
+        p = (1 - r1)[..., None] * t[..., 0, :] + (r1 * (1 - u[..., 1]))[..., None] * t[..., 1, :]
+        p += (r1 * u[..., 1])[..., None] * t[..., 2, :]
+        return p, self.tri_normal[k]
+
+
+def _contour_rings(x, n, rings):
+    """Unoccluded form factor from points x (N, 3), normals n to a planar polygon with holes above
+    their horizons (rings: outer CCW about the emitting normal, holes CW)."""
+    f = np.zeros(len(x))
+    for r in rings:
+        R = r[None] - x[:, None]
+        Rn = np.roll(R, -1, axis=1)
+        cr = np.cross(R, Rn)
+        cl = np.linalg.norm(cr, axis=-1)
+        g = np.arctan2(cl, np.einsum("nmk,nmk->nm", R, Rn))
+        t = np.where(cl > 0, g * np.einsum("nmk,nk->nm", cr, n) / np.where(cl > 0, cl, 1), 0.0)
+        f -= t.sum(1) / (2 * np.pi)
+    return np.clip(f, 0.0, 1.0)
+
+
+# ---------------------------------------------------------------------------------------------- gather
+
+
+class FinalGather:
+    """Per-sample final gather over a RadiositySystem (see the module doc).
+
+    FinalGather(system_or_dyn, points (n, 3), normals (n, 3) unit, facing the side the surface
+    emits to, patch_ids (n,) input patches the points lie on, rho (n, 3) reflectance at the points
+    (default: the patches'), rays: hemisphere rays per sample, shadow_rays: per sample and emitter,
+    seed). The hemisphere rays are traced here (once per static geometry); direct light of the
+    static emitters on the first evaluate(); a light shape's on its first appearance.
+    `evaluate(dyn_or_system, kind)` -> (n, 3) float64."""
+
+    BATCH_RAYS = 1 << 20
+
+    def __init__(
+        self,
+        system,
+        points,
+        normals,
+        patch_ids,
+        rho=None,
+        rays=128,
+        shadow_rays=32,
+        seed=0,
+        offsets=None,
+        batch_rays=None,
+    ):
+        dyn = system if hasattr(system, "n_hr") else None
+        self.system = dyn.system if dyn is not None else system
+        s = self.system
+        h, pt = s.h, s.patches
+        self.n_hr = dyn.n_hr if dyn is not None else h.n
+        self.points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        nrm = np.asarray(normals, np.float64).reshape(-1, 3)
+        self.normals = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+        self.patch = np.asarray(patch_ids, np.int64).ravel()
+        n = len(self.points)
+        self.n = n
+        self.rho = (
+            pt.reflectance[:, self.patch].T.copy()
+            if rho is None
+            else np.broadcast_to(np.asarray(rho, np.float64), (n, 3)).copy()
+        )
+        self.rays, self.shadow_rays, self.seed = int(rays), int(shadow_rays), int(seed)
+        self.batch_rays = int(batch_rays or self.BATCH_RAYS)
+        self.eps = float(s.refiner.eps)
+        self.origins = self.points + self.eps * self.normals if offsets is None else np.asarray(offsets, float)
+        lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
+        self.tmax = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
+        self.tri_patch = pt.triangle_patch
+        # contacts: covered samples output 0 (static geometry)
+        self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr) if n else np.zeros(0, np.int64)
+        self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
+        self.E_static = pt.emission[:, self.patch].T.copy()
+        self.stats = {}
+        import time
+
+        t0 = time.process_time()
+        parts = [self.gather_batch(a, b) for a, b in self.batches(self.rays)]
+        self.indptr, self.cols, self.w = self.merge(parts)
+        self.stats["precompute_cpu"] = time.process_time() - t0
+        self._D_static = None
+        self._shape_cache = {}  # geom_key -> (unit D (n,) float32, indices inside the outline)
+        self._naive_key = None
+        self._naive_V = None
+
+    # -- batching ------------------------------------------------------------------------------------
+    def batches(self, per_sample):
+        """Sample ranges of about batch_rays rays each (independent: any order, any thread)."""
+        step = max(1, self.batch_rays // max(per_sample, 1))
+        return [(a, min(a + step, self.n)) for a in range(0, self.n, step)]
+
+    @staticmethod
+    def merge(parts):
+        """Concatenate the partial CSR rows of consecutive batches."""
+        counts = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
+        indptr = np.zeros(len(counts) + 1, np.int64)
+        np.cumsum(counts, out=indptr[1:])
+        cols = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
+        w = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.float32)
+        return indptr, cols, w
+
+    @property
+    def weights_bytes(self):
+        return self.indptr.nbytes + self.cols.nbytes + self.w.nbytes
+
+    # -- precompute: hemisphere rays -> CSR rows over HR leaves -------------------------------------
+    def gather_batch(self, a, b):
+        """Samples a..b-1: (hits per row (m,), HR leaf per entry int32, weight per entry float32)."""
+        s = self.system
+        h, pt = s.h, s.patches
+        R = self.rays
+        idx = np.arange(a, b)
+        m = len(idx)
+        keep = ~self.dark[a:b]
+        dirs = cosine_directions(self.normals[a:b], idx, R, self.seed, stream=0).reshape(-1, 3)
+        org = np.repeat(self.origins[a:b], R, 0)
+        prim, t = s.backend.first_hit(org, dirs, self.tmax)
+        row = np.repeat(np.arange(m), R)
+        ok = (prim >= 0) & np.repeat(keep, R)
+        patch = np.where(ok, self.tri_patch[np.maximum(prim, 0)], 0)
+        ok &= np.einsum("ij,ij->i", dirs, pt.normal[patch]) < 0  # back faces reflect nothing
+        i = np.flatnonzero(ok)
+        hit = org[i] + t[i, None] * dirs[i]
+        leaf = locate_below(h, patch[i], hit, self.n_hr)
+        lit = ~h.dark(leaf, hit)  # covered points read 0
+        i, leaf = i[lit], leaf[lit]
+        key = row[i].astype(np.int64) * self.n_hr + leaf
+        u, cnt = np.unique(key, return_counts=True)
+        r = u // self.n_hr
+        counts = np.bincount(r, minlength=m).astype(np.int64)
+        return counts, (u % self.n_hr).astype(np.int32), (cnt / R).astype(np.float32)
+
+    # -- run time: values at the HR leaves -----------------------------------------------------------
+    def _state(self, dyn):
+        """(h, B, E) of the solution in effect on self.system's hierarchy, or None under NAIVE."""
+        if dyn is None or not hasattr(dyn, "n_hr"):
+            s = dyn if dyn is not None else self.system
+            if s.B is None:
+                s.solve()
+            return s.h, s.B, s.base_emission()
+        if dyn.naive_active:
+            return None
+        return dyn.system.h, dyn.B, dyn.emission()
+
+    def leaf_values(self, dyn):
+        """(n_hr, 3) reflected radiance on the uncovered part of every HR leaf (0 elsewhere)."""
+        st = self._state(dyn)
+        if st is None:
+            return self._naive_values(dyn)
+        h, B, E = st
+        n, m = h.n, self.n_hr
+        ex = h.exposure[:n].astype(np.float64)
+        X = (B[:, :n] - E[:, :n] * ex) * h.area[:n]  # reflected power-like: node means x area
+        if n > m:  # HR leaves split by light events: the area mean of their current leaves
+            leaf = h.child0[:n] < 0
+            Y = np.where(leaf, X, 0.0)
+            par = h.parent[:n]
+            for lv in reversed(h.levels()[1:]):
+                sel = lv[lv >= m]
+                if len(sel):
+                    for c in range(3):
+                        Y[c] += np.bincount(par[sel], weights=Y[c, sel], minlength=n)
+            X = np.where((np.arange(n) < m) & ~leaf & (h.child0[:n] >= m), Y, X)
+        V = X[:, :m] / np.maximum(h.area[:m], 1e-300)
+        exm = ex[:m]
+        V = np.where(exm > 0, V / np.maximum(exm, 1e-30), 0.0)
+        return np.maximum(V, 0.0).T
+
+    def _naive_values(self, dyn):
+        """NAIVE: each used HR leaf reads the rebuilt solution (reflected, shown) at its 2 x 2 Gauss
+        points (cached per rebuild)."""
+        nv = dyn._naive
+        if self._naive_key is nv:
+            return self._naive_V
+        h = self.system.h
+        used = np.unique(self.cols).astype(np.int64)
+        x, gw = ff.quadrature(h.corners[used], h.nv[used], 2)
+        pts = x.reshape(-1, 3)
+        roots, p2 = nv.remap(pts, np.repeat(h.patch[used], 4))
+        from .output import locate
+
+        hs = nv.system.h
+        leaf = locate(hs, roots, p2)
+        R = hs.shown(nv.system.B - nv.system.base_emission() * hs.exposure[: hs.n])
+        val = R[:, leaf].T.reshape(-1, 4, 3)
+        V = np.zeros((self.n_hr, 3))
+        V[used] = np.maximum((val * gw[..., None]).sum(1), 0.0)
+        self._naive_key, self._naive_V = nv, V
+        return V
+
+    def indirect(self, dyn=None):
+        """(n, 3) I = W @ leaf_values: the solution's reflected radiance seen by the hemisphere."""
+        return _csr_matvec(self.indptr, self.cols, self.w, self.leaf_values(dyn))
+
+    # -- direct light --------------------------------------------------------------------------------
+    def direct_batch(self, em: Emitter, a, b):
+        """(b - a,) float32: unit-radiance direct light F x V of emitter em at samples a..b-1."""
+        x, nx = self.points[a:b], self.normals[a:b]
+        out = np.zeros(b - a)
+        eps = self.eps
+        # cull: a vertex of the emitter above the horizon, and (planar) the point in front of it
+        ok = ~self.dark[a:b]
+        if em.normal is not None:
+            ok &= (x - em.point) @ em.normal > eps
+        top = np.full(len(x), -np.inf)
+        for s0 in range(0, len(em.verts), 64):
+            v = em.verts[s0 : s0 + 64]
+            top = np.maximum(top, (nx @ v.T - np.einsum("mk,mk->m", x, nx)[:, None]).max(1))
+        ok &= top > eps
+        i = np.flatnonzero(ok)
+        if len(i) == 0:
+            return out.astype(np.float32)
+        xi, ni = x[i], nx[i]
+        F = np.zeros(len(i))
+        whole = np.zeros(len(i), bool)
+        if em.rings is not None:
+            allv = np.concatenate(em.rings)
+            whole = ((allv[None] - xi[:, None]) * ni[:, None]).sum(-1).min(1) > eps
+            if whole.any():
+                F[whole] = _contour_rings(xi[whole], ni[whole], em.rings)
+        rest = np.flatnonzero(~whole)
+        T = len(em.corners)
+        step = max(1, (1 << 18) // max(T, 1))
+        for s0 in range(0, len(rest), step):
+            r = rest[s0 : s0 + step]
+            F[r] = (
+                ff.point_to_polygon(
+                    np.repeat(xi[r], T, 0), np.repeat(ni[r], T, 0), np.tile(em.corners, (len(r), 1, 1)), np.tile(em.nv, len(r))
+                )
+                .reshape(-1, T)
+                .sum(1)
+            )
+        lit = np.flatnonzero(F > 0)
+        if len(lit) and self.shadow_rays > 0:
+            S = self.shadow_rays
+            gi = i[lit] + a
+            u = (hammersley(S)[None] + hash_uniform(self.seed, gi, 1000 + em.stream)[:, None]) % 1.0
+            y, ny = em.sample(u)  # (L, S, 3)
+            o = (xi[lit] + eps * ni[lit])[:, None]
+            e = y + eps * ny
+            d = e - o
+            r2 = np.einsum("lsk,lsk->ls", d, d)
+            kern = (
+                np.maximum(np.einsum("lsk,lk->ls", d, ni[lit]), 0)
+                * np.maximum(-np.einsum("lsk,lsk->ls", d, ny), 0)
+                / np.maximum(r2, 1e-300) ** 2
+            )
+            vis = ~self.system.backend.occluded(np.broadcast_to(o, d.shape).reshape(-1, 3), e.reshape(-1, 3))
+            vis = vis.reshape(kern.shape)
+            ks = kern.sum(1)
+            F[lit] *= np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
+        out[i] = F
+        return out.astype(np.float32)
+
+    def direct_light(self, em: Emitter):
+        """(n,) float32 unit-radiance direct light of em at every sample (batches merged)."""
+        per = max(self.shadow_rays, 1) * 4
+        return np.concatenate([self.direct_batch(em, a, b) for a, b in self.batches(per)] or [np.zeros(0)])
+
+    def static_emitters(self):
+        """The input's emissive patches, one Emitter per (object, emission)."""
+        pt = self.system.patches
+        em = pt.emission
+        out = []
+        idx = np.flatnonzero(em.max(0) > 0)
+        if len(idx) == 0:
+            return out
+        key = np.column_stack([pt.object_id[idx], em[:, idx].T])
+        _, inv = np.unique(key, axis=0, return_inverse=True)
+        for g in range(inv.max() + 1):
+            p = idx[inv.ravel() == g]
+            _, area = ff.polygon_normal_area(pt.corners[p], pt.nv[p])
+            nrm = pt.normal[p]
+            planar = np.allclose(nrm, nrm[0], atol=1e-9) and np.allclose(
+                (pt.corners[p].reshape(-1, 3) - pt.corners[p[0], 0]) @ nrm[0], 0, atol=1e-9 * np.sqrt(area.sum())
+            )
+            e = Emitter(
+                pt.corners[p],
+                pt.nv[p],
+                area,
+                nrm,
+                None,
+                nrm[0] if planar else None,
+                pt.corners[p[0], 0] if planar else None,
+                stream=int(p[0]),
+            )
+            out.append((e, em[:, p[0]].copy()))
+        return out
+
+    def direct_static(self):
+        if self._D_static is None:
+            D = np.zeros((self.n, 3))
+            for e, rad in self.static_emitters():
+                D += self.direct_light(e)[:, None].astype(np.float64) * rad[None]
+            self._D_static = D
+        return self._D_static
+
+    # -- light shapes ---------------------------------------------------------------------------------
+    def _shape_emitter(self, dyn, rec):
+        """Emitter of a light shape (its part on surfaces when it lies on one) and the samples inside
+        its outline on that surface."""
+        from .events.planar import _in_rings, slab_decomposition
+
+        stream = int(_mix(np.frombuffer(b"".join(rec.geom_key)[:8].ljust(8, b"\0"), np.uint64))[0] & 0x7FFFFFFF)
+        if rec.on_surface:
+            corners, nv, area, nf = dyn._pieces(rec)
+        else:
+            nf = rec.n
+            edges = np.concatenate([np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d])
+            traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
+            out, nvs = [], []
+            for q, mid in traps:
+                if not _in_rings(mid[None], rec.rings2d)[0]:
+                    continue
+                p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
+                if newell(p3) @ nf < 0:
+                    p3 = p3[::-1]
+                nvs.append(len(p3))
+                out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
+            corners = np.array(out).reshape(-1, 4, 3)
+            nv = np.array(nvs, int)
+            _, area = ff.polygon_normal_area(corners, nv)
+        inside = np.zeros(0, np.int64)
+        if len(corners) == 0:
+            return None, inside, nf
+        rings = None
+        if rec.covered >= 1 - 1e-9 or not rec.on_surface:
+            rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
+        em = Emitter(corners, nv, area, np.repeat(nf[None], len(corners), 0), rings, nf, rec.c, stream=stream)
+        if rec.on_surface:
+            on = np.isin(self.patch, rec.roots) & (self.normals @ nf > 0.999)
+            on &= np.abs((self.points - rec.c) @ nf) <= max(rec.tol, 10 * self.eps)
+            c = np.flatnonzero(on)
+            if len(c):
+                inside = c[_in_rings(dyn._to2d(rec, self.points[c]), rec.rings2d)]
+        return em, inside, nf
+
+    def _shape(self, dyn, rec):
+        key = rec.geom_key
+        got = self._shape_cache.get(key)
+        if got is None:
+            em, inside, _ = self._shape_emitter(dyn, rec)
+            D = self.direct_light(em) if em is not None else np.zeros(self.n, np.float32)
+            got = (D, inside)
+            self._shape_cache[key] = got
+        return got
+
+    def direct_and_emission(self, dyn=None):
+        """(D (n, 3) direct light, E (n, 3) emission at the points) of the current emitters."""
+        D = self.direct_static().copy()
+        E = self.E_static.copy()
+        shapes = getattr(dyn, "shapes", None) if dyn is not None and hasattr(dyn, "n_hr") else None
+        live = set()
+        for rec in (shapes or {}).values():
+            Ds, inside = self._shape(dyn, rec)
+            live.add(rec.geom_key)
+            D += Ds[:, None] * rec.emission[None]
+            E[inside] += rec.emission[None]
+        # forget shapes gone for good (keep a few recent ones: a shape toggled back is instant)
+        gone = [k for k in self._shape_cache if k not in live]
+        for k in gone[: max(len(gone) - 8, 0)]:
+            del self._shape_cache[k]
+        return D, E
+
+    # -- output ----------------------------------------------------------------------------------------
+    def evaluate(self, dyn=None, kind="radiance"):
+        """(n, 3) at the samples: "radiance" E + rho (D + I), "reflected" rho (D + I), "incident"
+        D + I (irradiance / pi). dyn: a DynamicRadiosity, or a RadiositySystem (static emission
+        only), or None (self.system). Covered samples read 0."""
+        if kind not in KINDS:
+            raise ValueError(f"unknown kind {kind!r} ({', '.join(KINDS)})")
+        D, E = self.direct_and_emission(dyn)
+        inc = D + self.indirect(dyn)
+        if kind == "incident":
+            out = inc
+        elif kind == "reflected":
+            out = self.rho * inc
+        else:
+            out = E + self.rho * inc
+        out[self.dark] = 0.0
+        return out
+
+
+# ---------------------------------------------------------------------------------------------- layouts
+
+
+def loop_samples(system, smooth_angle=30.0, nudge=1e-3):
+    """Gather samples at the input mesh's corners, the layout of core.output.loop_radiance.
+
+    One sample per welded vertex and smooth normal: loops at the same position of the same object
+    whose polygons' normals lie within smooth_angle of each other share a normal (the area-weighted
+    mean of those polygons' normals) and, when their material is the same, one sample. The sample
+    point is moved from the corner towards its patch's centre by `nudge` of the way (at most 50 x
+    the refiner's eps), so rays leaving a corner where two surfaces meet start inside the room.
+    Returns (points (S, 3), normals (S, 3), patch ids (S,), loop -> sample index (L,); -1 for loops
+    of polygons dropped as degenerate)."""
+    from .output import _weld_ids
+
+    mesh, pt = system.mesh, system.patches
+    P = len(mesh.loop_start)
+    loop_poly = np.repeat(np.arange(P), mesh.loop_total)
+    loop_obj = np.asarray(mesh.object_id)[loop_poly]
+    weld = _weld_ids(mesh, loop_obj)
+    # the patch of each loop: the patch of its polygon holding its vertex
+    jj, kk = np.nonzero(pt.vert_index >= 0)
+    key_p = pt.poly[jj].astype(np.int64) * (len(mesh.verts) + 1) + pt.vert_index[jj, kk]
+    order = np.argsort(key_p, kind="stable")
+    key_l = loop_poly.astype(np.int64) * (len(mesh.verts) + 1) + np.asarray(mesh.loop_verts, np.int64)
+    pos = np.minimum(np.searchsorted(key_p[order], key_l), len(order) - 1)
+    found = key_p[order][pos] == key_l
+    lpatch = np.where(found, jj[order][pos], -1)
+    # polygon normal and area (from their patches)
+    pn = np.zeros((P, 3))
+    np.add.at(pn, pt.poly, pt.normal * pt.area[:, None])
+    parea = np.linalg.norm(pn, axis=1)
+    pn = pn / np.maximum(parea, 1e-300)[:, None]
+    # smooth normal per loop: polygons at the same weld within smooth_angle
+    L = len(weld)
+    o = np.argsort(weld, kind="stable")
+    ws = weld[o]
+    start = np.searchsorted(ws, weld, "left")
+    count = np.searchsorted(ws, weld, "right") - start
+    li = np.repeat(np.arange(L), count)
+    offs = np.arange(len(li)) - np.repeat(np.cumsum(count) - count, count)
+    lj = o[np.repeat(start, count) + offs]
+    a, b = loop_poly[li], loop_poly[lj]
+    ok = np.einsum("ij,ij->i", pn[a], pn[b]) >= np.cos(np.radians(smooth_angle))
+    sn = np.zeros((L, 3))
+    # each polygon once per loop: loops of the same polygon at one weld are rare (degenerate)
+    for c in range(3):
+        sn[:, c] = np.bincount(li, weights=ok * pn[b, c] * parea[b], minlength=L)
+    nl = np.linalg.norm(sn, axis=1)
+    sn = np.where(nl[:, None] > 0, sn / np.maximum(nl, 1e-300)[:, None], pn[loop_poly])
+    valid = lpatch >= 0
+    mat = np.column_stack([pt.reflectance[:, np.maximum(lpatch, 0)].T, pt.emission[:, np.maximum(lpatch, 0)].T])
+    key = np.column_stack([weld, np.round(sn * 1e4).astype(np.int64), np.round(mat * 1e6).astype(np.int64)])
+    key = key[valid]
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    vl = np.flatnonzero(valid)
+    rep = vl[first]
+    loop_index = np.full(L, -1, np.int64)
+    loop_index[vl] = inv.ravel()
+    p = np.asarray(mesh.verts, float)[np.asarray(mesh.loop_verts)[rep]]
+    patch = lpatch[rep]
+    towards = pt.corners[patch].mean(1) - p  # the patch's centre (padded triangles: close enough)
+    dist = np.linalg.norm(towards, axis=1)
+    f = np.minimum(nudge, 50 * system.refiner.eps / np.maximum(dist, 1e-300))
+    pts = p + f[:, None] * towards
+    # the normal: the smooth one, turned to the patch's side if it points away
+    nrm = sn[rep]
+    flip = np.einsum("ij,ij->i", nrm, pt.normal[patch]) <= 0
+    nrm[flip] = pt.normal[patch[flip]]
+    return pts, nrm, patch, loop_index
+
+
+class LoopGather(FinalGather):
+    """FinalGather at the input mesh's corners: loop_radiance() in the layout of
+    DynamicRadiosity.loop_radiance (CORNER: (L, 3) per loop; POINT: (V, 3) per vertex), float32."""
+
+    def __init__(self, system, smooth_angle=30.0, **kw):
+        s = system.system if hasattr(system, "n_hr") else system
+        pts, nrm, patch, self.loop_index = loop_samples(s, smooth_angle)
+        self.smooth_angle = smooth_angle
+        super().__init__(system, pts, nrm, patch, **kw)
+
+    def loop_radiance(self, dyn=None, domain="CORNER", kind="radiance"):
+        v = self.evaluate(dyn, kind)
+        out = np.where((self.loop_index >= 0)[:, None], v[np.maximum(self.loop_index, 0)], 0.0)
+        if domain == "POINT":
+            mesh = self.system.mesh
+            res = np.zeros((len(mesh.verts), 3))
+            res[mesh.loop_verts] = out
+            return res.astype(np.float32)
+        return out.astype(np.float32)
+
+
+def texel_gather(system, patch, points, **kw):
+    """FinalGather at texel centres (lightmap.plan's points on input patches), normals from the
+    patches: evaluate(dyn, kind) replaces core.texels.solution_radiance(dyn, system, patch, points,
+    kind=kind) (same kinds; float64, cast as needed)."""
+    s = system.system if hasattr(system, "n_hr") else system
+    patch = np.asarray(patch, np.int64)
+    return FinalGather(system, points, s.patches.normal[patch], patch, **kw)
