@@ -151,6 +151,42 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 21):
     return out
 
 
+def _unit_rows(v):
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
+
+
+def solid_angles(A, B, C):
+    """Solid angles (...) of the triangles with unit vertex directions A, B, C (..., 3)
+    (Van Oosterom & Strackee 1983)."""
+    num = np.abs(np.einsum("...k,...k->...", A, np.cross(B, C)))
+    den = 1 + np.einsum("...k,...k->...", A, B) + np.einsum("...k,...k->...", B, C)
+    den += np.einsum("...k,...k->...", C, A)
+    return 2 * np.arctan2(num, den)
+
+
+def sample_spherical_triangle(A, B, C, u1, u2):
+    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995)."""
+    dot = lambda x, y: np.einsum("nk,nk->n", x, y)
+    nab, nac = _unit_rows(np.cross(A, B)), _unit_rows(np.cross(A, C))
+    nba, nbc = _unit_rows(np.cross(B, A)), _unit_rows(np.cross(B, C))
+    nca, ncb = _unit_rows(np.cross(C, A)), _unit_rows(np.cross(C, B))
+    alpha = np.arccos(np.clip(dot(nab, nac), -1, 1))
+    beta = np.arccos(np.clip(dot(nba, nbc), -1, 1))
+    gamma = np.arccos(np.clip(dot(nca, ncb), -1, 1))
+    area = alpha + beta + gamma - np.pi
+    ah = u1 * area
+    s, t = np.sin(ah - alpha), np.cos(ah - alpha)
+    u = t - np.cos(alpha)
+    v = s + np.sin(alpha) * dot(A, B)
+    q = ((v * t - u * s) * np.cos(alpha) - v) / np.where(
+        np.abs((v * s + u * t) * np.sin(alpha)) > 1e-300, (v * s + u * t) * np.sin(alpha), 1e-300
+    )
+    q = np.clip(q, -1, 1)
+    ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * _unit_rows(C - dot(C, A)[:, None] * A)
+    z = 1 - u2 * (1 - dot(ch, B))
+    return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(ch - dot(ch, B)[:, None] * B)
+
+
 @dataclass
 class Emitter:
     """A polygonal emitter: convex pieces (T, 4, 3) CCW about their own emitting normals, nv (T,),
@@ -182,6 +218,65 @@ class Emitter:
         self.total = float(self.cdf[-1]) if len(a) else 0.0
         self.verts = c.reshape(-1, 3)
         self.lo, self.hi = self.verts.min(0), self.verts.max(0)
+
+    SOLID_MIN = 1e-4  # triangles smaller than this (sr) seen from the point are sampled by area
+    MAX_TRIANGLES = 256  # more: area sampling only (the per-point solid angles would cost too much)
+
+    def sample_at(self, x, u):
+        """Points (L, S, 3) on the emitter seen from points x (L, 3), their normals and densities
+        relative to solid angle: triangles are picked by their solid angle seen from x and sampled
+        uniformly in solid angle (Arvo) or, when tiny, by area. Returns (y, ny, pdf_ratio) with
+        pdf_ratio = (density in solid angle) x total solid angle: ~1 where sampling is exact."""
+        L, S = u.shape[:2]
+        T = len(self.tri)
+        if T > self.MAX_TRIANGLES:
+            y, ny = self.sample(u)
+            d = y - x[:, None]
+            r2 = np.einsum("lsk,lsk->ls", d, d)
+            cos_y = np.abs(np.einsum("lsk,lsk->ls", d, ny)) / np.sqrt(np.maximum(r2, 1e-300))
+            # area density 1 / total -> solid-angle density r^2 / (cos_y total); normalised later
+            return y, ny, np.maximum(r2, 1e-300) / np.maximum(cos_y, 1e-12) / self.total
+        V = _unit_rows(self.tri[None] - x[:, None, None])  # (L, T, 3, 3)
+        om = solid_angles(V[..., 0, :], V[..., 1, :], V[..., 2, :])  # (L, T)
+        cdf = np.cumsum(om, axis=1)
+        tot = np.maximum(cdf[:, -1:], 1e-300)
+        xs = u[..., 0] * tot
+        k = np.minimum((cdf[:, None, :] <= xs[..., None]).sum(-1), T - 1)  # (L, S)
+        lo = np.where(k > 0, np.take_along_axis(cdf, np.maximum(k - 1, 0), 1), 0.0)
+        ok_ = np.take_along_axis(om, k, 1)
+        s1 = np.clip((xs - lo) / np.maximum(ok_, 1e-300), 0, 1)
+        li = np.repeat(np.arange(L), S)
+        kk = k.ravel()
+        t3 = self.tri[kk]
+        big = ok_.ravel() >= self.SOLID_MIN
+        y = np.empty((L * S, 3))
+        if big.any():
+            Vb = V[li[big], kk[big]]
+            w = sample_spherical_triangle(Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big])
+            # the point where direction w meets the triangle's plane
+            n = self.tri_normal[kk[big]]
+            xo = x[li[big]]
+            tt = np.einsum("nk,nk->n", t3[big, 0] - xo, n) / np.where(
+                np.abs(np.einsum("nk,nk->n", w, n)) > 1e-300, np.einsum("nk,nk->n", w, n), 1e-300
+            )
+            y[big] = xo + tt[:, None] * w
+        small = ~big
+        if small.any():
+            r1 = np.sqrt(s1.ravel()[small])
+            u2 = u[..., 1].ravel()[small]
+            tri = t3[small]
+            y[small] = (1 - r1)[:, None] * tri[:, 0] + (r1 * (1 - u2))[:, None] * tri[:, 1] + (r1 * u2)[:, None] * tri[:, 2]
+        y = y.reshape(L, S, 3)
+        ny = self.tri_normal[k]
+        d = y - x[:, None]
+        r2 = np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300)
+        cos_y = np.abs(np.einsum("lsk,lsk->ls", d, ny)) / np.sqrt(r2)
+        # density in solid angle: (om_k / tot) x (1 / om_k) for exact sampling, (om_k / tot) x
+        # r^2 / (cos_y A_k) for area sampling; times tot
+        area_k = 0.5 * np.linalg.norm(np.cross(self.tri[k][..., 1, :] - self.tri[k][..., 0, :], self.tri[k][..., 2, :] - self.tri[k][..., 0, :]), axis=-1)
+        bigm = big.reshape(L, S)
+        ratio = np.where(bigm, 1.0, ok_ * r2 / np.maximum(cos_y * area_k, 1e-300))
+        return y, ny, ratio
 
     def sample(self, u):
         """Points (..., 3) and their normals on the emitter, area-uniform, from uniforms u (..., 2):
@@ -431,15 +526,18 @@ class FinalGather:
             S = self.shadow_rays
             gi = i[lit] + a
             u = (hammersley(S)[None] + hash_uniform(self.seed, gi, 1000 + em.stream)[:, None]) % 1.0
-            y, ny = em.sample(u)  # (L, S, 3)
-            o = (xi[lit] + eps * ni[lit])[:, None]
+            xo = xi[lit]
+            y, ny, ratio = em.sample_at(xo, u)  # (L, S, 3)
+            o = (xo + eps * ni[lit])[:, None]
             e = y + eps * ny
-            d = e - o
-            r2 = np.einsum("lsk,lsk->ls", d, d)
+            d = y - xo[:, None]
+            r = np.sqrt(np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300))
+            # ratio estimator of the visible fraction of the projected solid angle: weight cos_x
+            # over the samples' solid-angle density (and only where the emitter faces the point)
             kern = (
-                np.maximum(np.einsum("lsk,lk->ls", d, ni[lit]), 0)
-                * np.maximum(-np.einsum("lsk,lsk->ls", d, ny), 0)
-                / np.maximum(r2, 1e-300) ** 2
+                np.maximum(np.einsum("lsk,lk->ls", d, ni[lit]) / r, 0)
+                * (np.einsum("lsk,lsk->ls", d, ny) < 0)
+                / np.maximum(ratio, 1e-300)
             )
             vis = ~self.system.backend.occluded(np.broadcast_to(o, d.shape).reshape(-1, 3), e.reshape(-1, 3))
             vis = vis.reshape(kern.shape)
@@ -450,7 +548,7 @@ class FinalGather:
 
     def direct_light(self, em: Emitter):
         """(n,) float32 unit-radiance direct light of em at every sample (batches merged)."""
-        per = max(self.shadow_rays, 1) * 4
+        per = max(self.shadow_rays, 1) * 4 + 12 * min(len(em.tri), em.MAX_TRIANGLES)
         return np.concatenate([self.direct_batch(em, a, b) for a, b in self.batches(per)] or [np.zeros(0)])
 
     def static_emitters(self):
@@ -497,7 +595,9 @@ class FinalGather:
         its outline on that surface."""
         from .events.planar import _in_rings, slab_decomposition
 
-        stream = int(_mix(np.frombuffer(b"".join(rec.geom_key)[:8].ljust(8, b"\0"), np.uint64))[0] & 0x7FFFFFFF)
+        import zlib
+
+        stream = zlib.crc32(b"".join(rec.geom_key)) & 0x7FFFFFFF  # the shape's own random stream
         if rec.on_surface:
             corners, nv, area, nf = dyn._pieces(rec)
         else:
