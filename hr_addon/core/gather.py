@@ -114,9 +114,24 @@ def cosine_directions(normals, index, rays, seed, stream=0):
 # ---------------------------------------------------------------------------------------------- helpers
 
 
+def _triple(e, w, n):
+    """det[e, w, n] = (e x w) . n, rows (m, 3)."""
+    return (
+        (e[:, 1] * w[:, 2] - e[:, 2] * w[:, 1]) * n[:, 0]
+        + (e[:, 2] * w[:, 0] - e[:, 0] * w[:, 2]) * n[:, 1]
+        + (e[:, 0] * w[:, 1] - e[:, 1] * w[:, 0]) * n[:, 2]
+    )
+
+
 def locate_below(h, patch, points, n_hr):
-    """output.locate restricted to the first n_hr nodes: the HR leaf holding each point (nodes whose
-    children were added later count as leaves)."""
+    """The HR leaf holding each point (M,) <- patch (M,), points (M, 3): the leaf of the first
+    n_hr nodes (nodes whose children were added later, by light events, count as leaves).
+
+    Children of a quad are the bilinear images of the parameter square's quarters, split by the
+    straight lines from edge midpoint to edge midpoint; children of a triangle are its corner
+    triangles and the middle one. So one level costs two (quads) or three (triangles) side tests
+    against those lines instead of output.locate's test against every child's edges; ties on a
+    line go to either side, as locate's."""
     node = np.asarray(patch, np.int64).copy()
     pts = np.asarray(points, float)
     while True:
@@ -124,9 +139,36 @@ def locate_below(h, patch, points, n_hr):
         inner = np.flatnonzero((c0 >= 0) & (c0 < n_hr))
         if len(inner) == 0:
             return node
-        kids = h.child0[node[inner]][:, None] + np.arange(4)
-        d = _insideness(h.corners[kids], h.normal[kids], pts[inner])
-        node[inner] = kids[np.arange(len(inner)), np.argmax(d, axis=1)]
+        nd = node[inner]
+        c = h.corners[nd]
+        n = h.normal[nd]
+        p = pts[inner]
+        a, b, cc, d = c[:, 0], c[:, 1], c[:, 2], c[:, 3]
+        ab, bc, cd, da, ca = (a + b) / 2, (b + cc) / 2, (cc + d) / 2, (d + a) / 2, (cc + a) / 2
+        k = np.zeros(len(nd), np.int64)
+        quad = h.nv[nd] == 4
+        q = np.flatnonzero(quad)
+        if len(q):
+            # line ab -> cd separates u < 1/2 (a's side) from u > 1/2; line da -> bc: v
+            e1 = cd[q] - ab[q]
+            right = _triple(e1, p[q] - ab[q], n[q]) * _triple(e1, a[q] - ab[q], n[q]) < 0
+            e2 = bc[q] - da[q]
+            top = _triple(e2, p[q] - da[q], n[q]) * _triple(e2, a[q] - da[q], n[q]) < 0
+            k[q] = np.where(top, np.where(right, 2, 3), np.where(right, 1, 0))
+        t = np.flatnonzero(~quad)
+        if len(t):
+            nn = n[t]
+            pt_ = p[t]
+
+            def corner_side(m0, m1, corner):
+                e = m1 - m0
+                return _triple(e, pt_ - m0, nn) * _triple(e, corner - m0, nn) > 0
+
+            in_a = corner_side(ab[t], ca[t], a[t])
+            in_b = corner_side(ab[t], bc[t], b[t])
+            in_c = corner_side(ca[t], bc[t], cc[t])
+            k[t] = np.where(in_a, 0, np.where(in_b, 1, np.where(in_c, 2, 3)))
+        node[inner] = c0[inner] + k
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 21):
