@@ -382,10 +382,15 @@ class FinalGather:
         s = self.system
         h, pt = s.h, s.patches
         self.n_hr = dyn.n_hr if dyn is not None else h.n
-        self.points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         nrm = np.asarray(normals, np.float64).reshape(-1, 3)
         self.normals = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
         self.patch = np.asarray(patch_ids, np.int64).ravel()
+        # onto the plane of their patch: points on a renderer's triangulation of a slightly warped
+        # polygon lie off the patch (behind it by more than eps, every ray would hit its back)
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        pn = pt.normal[self.patch]
+        p = p - np.einsum("ij,ij->i", p - pt.corners[self.patch, 0], pn)[:, None] * pn
+        self.points = np.ascontiguousarray(p)
         n = len(self.points)
         self.n = n
         self.rho = (
