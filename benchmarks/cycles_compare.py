@@ -681,7 +681,7 @@ def markdown(data):
     r = res.get("cornell")
     if r:
         frames = list(r["frames"])
-        sf = str(r["config"]["sweep_frame"])
+        sf = str(r["config"]["sweep_frame"] or r["config"]["frames"][0])
         L.append(
             f"Cornell box, reflected radiance at {r['texels']} texels ({1000 * r['texel_m']:.0f} mm), "
             f"reference {r['frames'][sf]['ref_spp']} spp per frame. Worst surface = largest per-surface "
