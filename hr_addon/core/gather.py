@@ -710,17 +710,26 @@ class FinalGather:
         """(n, 3) at the samples: "radiance" E + rho (D + I), "reflected" rho (D + I), "incident"
         D + I (irradiance / pi). dyn: a DynamicRadiosity, or a RadiositySystem (static emission
         only), or None (self.system). Covered samples read 0."""
-        if kind not in KINDS:
-            raise ValueError(f"unknown kind {kind!r} ({', '.join(KINDS)})")
+        return self.evaluate_kinds(dyn, (kind,))[kind]
+
+    def evaluate_kinds(self, dyn=None, kinds=KINDS):
+        """{kind: (n, 3)} for several kinds from one gather (see evaluate)."""
+        for k in kinds:
+            if k not in KINDS:
+                raise ValueError(f"unknown kind {k!r} ({', '.join(KINDS)})")
         D, E = self.direct_and_emission(dyn)
         inc = D + self.indirect(dyn)
-        if kind == "incident":
-            out = inc
-        elif kind == "reflected":
-            out = self.rho * inc
-        else:
-            out = E + self.rho * inc
-        out[self.dark] = 0.0
+        inc[self.dark] = 0.0
+        out = {}
+        for k in kinds:
+            if k == "incident":
+                out[k] = inc
+            elif k == "reflected":
+                out[k] = self.rho * inc
+            else:
+                v = E + self.rho * inc
+                v[self.dark] = 0.0
+                out[k] = v
         return out
 
 

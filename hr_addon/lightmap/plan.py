@@ -154,9 +154,10 @@ class TexturePlan:
             src = dyn if dyn is not None else system
             if mode == "IRRADIANCE":
                 return gather.evaluate(src, "incident").astype(np.float32)
-            out = gather.evaluate(src, "radiance")
+            v = gather.evaluate_kinds(src, ("radiance", "reflected") if self.albedo else ("radiance",))
+            out = v["radiance"]
             if self.albedo:
-                refl = gather.evaluate(src, "reflected")
+                refl = v["reflected"]
                 for i, f in self.albedo.items():
                     o = self.objects[i]
                     out[o.lo : o.hi] += (f - 1.0) * refl[o.lo : o.hi]
