@@ -171,6 +171,28 @@ def locate_below(h, patch, points, n_hr):
         node[inner] = c0[inner] + k
 
 
+def _into_patch(pt, patch, p, inset=1e-4):
+    """Points (M, 3) in their patches' planes moved into the patch where they lie outside it: to
+    the nearest point of its outline, then `inset` x its size towards its centre."""
+    c = pt.corners[patch]
+    d = _insideness(c[:, None], pt.normal[patch][:, None], p)[:, 0]
+    size = np.sqrt(pt.area[patch])
+    out = np.flatnonzero(d < -1e-9 * size)
+    if len(out) == 0:
+        return p
+    p = p.copy()
+    q, cc = p[out], c[out]
+    a, b = cc, np.roll(cc, -1, axis=1)
+    ab = b - a
+    t = np.clip(np.einsum("mkj,mkj->mk", q[:, None] - a, ab) / np.maximum(np.einsum("mkj,mkj->mk", ab, ab), 1e-300), 0, 1)
+    near = a + t[..., None] * ab
+    k = np.argmin(np.linalg.norm(near - q[:, None], axis=-1), axis=1)
+    foot = near[np.arange(len(out)), k]
+    centre = cc.mean(1)
+    p[out] = foot + inset * (centre - foot)
+    return p
+
+
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 21):
     """(n, C) = W @ V for a CSR matrix (indptr, cols, w) and dense V (m, C)."""
     n = len(indptr) - 1
@@ -390,7 +412,8 @@ class FinalGather:
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         pn = pt.normal[self.patch]
         p = p - np.einsum("ij,ij->i", p - pt.corners[self.patch, 0], pn)[:, None] * pn
-        self.points = np.ascontiguousarray(p)
+        # and into it: texels of a lightmap's dilation ring lie beyond their polygon's edge
+        self.points = np.ascontiguousarray(_into_patch(pt, self.patch, p))
         n = len(self.points)
         self.n = n
         self.rho = (
