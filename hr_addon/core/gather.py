@@ -171,25 +171,36 @@ def locate_below(h, patch, points, n_hr):
         node[inner] = c0[inner] + k
 
 
-def _into_patch(pt, patch, p, inset=1e-4):
-    """Points (M, 3) in their patches' planes moved into the patch where they lie outside it: to
-    the nearest point of its outline, then `inset` x its size towards its centre."""
+def _into_patch(pt, patch, p, margin):
+    """Points (M, 3) in their patches' planes moved to at least `margin` inside their patch: points
+    beyond its outline (a lightmap's dilation ring) to the nearest point of it, then those closer
+    than margin to it (texels and vertices on an edge where two surfaces meet: rays from there
+    would start on the other surface and pass through it) towards the patch's centre."""
     c = pt.corners[patch]
     d = _insideness(c[:, None], pt.normal[patch][:, None], p)[:, 0]
     size = np.sqrt(pt.area[patch])
-    out = np.flatnonzero(d < -1e-9 * size)
-    if len(out) == 0:
-        return p
     p = p.copy()
-    q, cc = p[out], c[out]
-    a, b = cc, np.roll(cc, -1, axis=1)
-    ab = b - a
-    t = np.clip(np.einsum("mkj,mkj->mk", q[:, None] - a, ab) / np.maximum(np.einsum("mkj,mkj->mk", ab, ab), 1e-300), 0, 1)
-    near = a + t[..., None] * ab
-    k = np.argmin(np.linalg.norm(near - q[:, None], axis=-1), axis=1)
-    foot = near[np.arange(len(out)), k]
-    centre = cc.mean(1)
-    p[out] = foot + inset * (centre - foot)
+    out = np.flatnonzero(d < 0)
+    if len(out):
+        q, cc = p[out], c[out]
+        a, b = cc, np.roll(cc, -1, axis=1)
+        ab = b - a
+        t = np.einsum("mkj,mkj->mk", q[:, None] - a, ab) / np.maximum(np.einsum("mkj,mkj->mk", ab, ab), 1e-300)
+        near = a + np.clip(t, 0, 1)[..., None] * ab
+        k = np.argmin(np.linalg.norm(near - q[:, None], axis=-1), axis=1)
+        p[out] = near[np.arange(len(out)), k]
+        d[out] = 0.0
+    close = np.flatnonzero(d < margin)
+    if len(close):
+        nv = pt.nv[patch[close]]
+        cc = c[close]
+        centre = np.where((nv == 4)[:, None], cc.mean(1), cc[:, :3].mean(1))
+        to = centre - p[close]
+        # the inradius-like distance of the centre bounds how far moving towards it can go
+        dc = _insideness(cc[:, None], pt.normal[patch[close]][:, None], centre)[:, 0]
+        f = np.clip((margin - d[close]) / np.maximum(dc - d[close], 1e-300), 0, 0.5)
+        f = np.where(margin < 0.25 * size[close], f, np.minimum(f, 1e-3))
+        p[close] += f[:, None] * to
     return p
 
 
@@ -413,7 +424,11 @@ class FinalGather:
         pn = pt.normal[self.patch]
         p = p - np.einsum("ij,ij->i", p - pt.corners[self.patch, 0], pn)[:, None] * pn
         # and into it: texels of a lightmap's dilation ring lie beyond their polygon's edge
-        self.points = np.ascontiguousarray(_into_patch(pt, self.patch, p))
+        lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
+        self.tmax = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
+        self.eps = float(s.refiner.eps)
+        margin = max(50 * self.eps, 10 * 1e-6 * self.tmax)
+        self.points = np.ascontiguousarray(_into_patch(pt, self.patch, p, margin))
         n = len(self.points)
         self.n = n
         self.rho = (
@@ -423,10 +438,7 @@ class FinalGather:
         )
         self.rays, self.shadow_rays, self.seed = int(rays), int(shadow_rays), int(seed)
         self.batch_rays = int(batch_rays or self.BATCH_RAYS)
-        self.eps = float(s.refiner.eps)
         self.origins = self.points + self.eps * self.normals if offsets is None else np.asarray(offsets, float)
-        lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
-        self.tmax = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
         self.tri_patch = pt.triangle_patch
         # contacts: covered samples output 0 (static geometry)
         self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr) if n else np.zeros(0, np.int64)
