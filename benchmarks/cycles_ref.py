@@ -614,11 +614,12 @@ class Ours:
         return out
 
 
-def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=None):
+def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=None, **kw):
     """The final gather (hr_addon.core.gather) on our solution: per object and texel
     gather_refl / gather_total (a FinalGather at every texel's centre) and gvertex_total (a
     LoopGather at the mesh's corners, interpolated over Blender's loop triangles as vertex_total).
     cache: a dict keeping the gathers between frames (their precompute depends on geometry only).
+    kw: more FinalGather settings (levels=2: the two-level gather).
     Returns ({name: {...}}, {"precompute_s", "evaluate_s", "weights_mb", "samples"} of each)."""
     import time as _t
 
@@ -632,7 +633,7 @@ def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=N
         allp = np.concatenate([ours.samples[n][0][cen[n]] for n in names])
         allx = np.concatenate([rs.atlases[n].s_point[cen[n]] for n in names])
         c0 = _t.process_time()
-        cache["texel"] = texel_gather(dyn, allp, allx, rays=rays, shadow_rays=shadow_rays)
+        cache["texel"] = texel_gather(dyn, allp, allx, rays=rays, shadow_rays=shadow_rays, **kw)
         cost["texel_precompute_s"] = _t.process_time() - c0
     g = cache["texel"]
     c0 = _t.process_time()
@@ -644,7 +645,7 @@ def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=N
     if vertex:
         if "loops" not in cache:
             c0 = _t.process_time()
-            cache["loops"] = LoopGather(dyn, rays=rays, shadow_rays=shadow_rays)
+            cache["loops"] = LoopGather(dyn, rays=rays, shadow_rays=shadow_rays, **kw)
             cost["loop_precompute_s"] = _t.process_time() - c0
         lg = cache["loops"]
         c0 = _t.process_time()

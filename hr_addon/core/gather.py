@@ -409,6 +409,9 @@ class FinalGather:
         seed=0,
         offsets=None,
         batch_rays=None,
+        levels=1,
+        second_rays=None,
+        leaf_points=2,
     ):
         dyn = system if hasattr(system, "n_hr") else None
         self.system = dyn.system if dyn is not None else system
@@ -450,6 +453,27 @@ class FinalGather:
         t0 = time.process_time()
         parts = [self.gather_batch(a, b) for a, b in self.batches(self.rays)]
         self.indptr, self.cols, self.w = self.merge(parts)
+        self.second = None
+        if levels >= 2:
+            # two-level gather (issue 19, as Hasan et al. 2006): every HR leaf the rays hit gets
+            # leaf_points^2 gather samples of its own (Gauss points) with exact direct light and a
+            # one-level gather of the solution; the outputs' rays read those instead of the leaf
+            h = s.h
+            used = np.unique(self.cols).astype(np.int64)
+            x, gw = ff.quadrature(h.corners[used], h.nv[used], int(leaf_points))
+            k2 = x.shape[1]
+            self.second = FinalGather(
+                system,
+                x.reshape(-1, 3),
+                np.repeat(h.normal[used], k2, 0),
+                np.repeat(h.patch[used], k2),
+                rays=int(second_rays or max(self.rays // 2, 16)),
+                shadow_rays=max(self.shadow_rays // 2, 8),
+                seed=self.seed + 7919,
+                batch_rays=self.batch_rays,
+                levels=1,
+            )
+            self._second_map = (used, gw)
         self.stats["precompute_cpu"] = time.process_time() - t0
         self._D_static = None
         self._shape_cache = {}  # geom_key -> (unit D (n,) float32, indices inside the outline)
@@ -516,7 +540,23 @@ class FinalGather:
         return dyn.system.h, dyn.B, dyn.emission()
 
     def leaf_values(self, dyn):
-        """(n_hr, 3) reflected radiance on the uncovered part of every HR leaf (0 elsewhere)."""
+        """(n_hr, 3) reflected radiance on the uncovered part of every HR leaf (0 elsewhere); with
+        a second level, of the leaves the rays hit: the mean of their gather samples (exact direct
+        light + the solution one bounce further) over the uncovered ones."""
+        V = self.solution_values(dyn)
+        if self.second is None:
+            return V
+        used, gw = self._second_map
+        y = self.second.evaluate(dyn, "reflected").reshape(len(used), -1, 3)
+        w = gw * ~self.second.dark.reshape(len(used), -1)
+        ws = w.sum(1)
+        Y = V.copy()
+        ok = ws > 0
+        Y[used[ok]] = np.einsum("uk,ukc->uc", w[ok], y[ok]) / ws[ok, None]
+        return Y
+
+    def solution_values(self, dyn):
+        """(n_hr, 3) the solution's reflected radiance on the uncovered part of every HR leaf."""
         st = self._state(dyn)
         if st is None:
             return self._naive_values(dyn)
