@@ -69,9 +69,12 @@ for name, kw in variants.items():
     )
     # objects lit well enough for a relative error to mean something (Cycles noise, near-black objects)
     lit = [n for n in per if np.mean(per[n]["mean_ref"]) > 0.05 * np.mean(al["mean_ref"])]
+    dump = {"variant": name, "quality": q, "method": method, "gather": gkw, "objects": {}}
     for var in ("refl_leaf", "total_vertex", "refl_gather", "total_gvertex"):
         if var not in allcmp:
             continue
+        for n, m in allcmp[var]["surfaces"].items():
+            dump["objects"].setdefault(n, {})[var] = {k: m[k] for k in ("mre", "bias", "texels", "mean_ref")}
         pv = allcmp[var]["surfaces"]
         ll = [n for n in lit if n in pv]
         w = np.array([pv[n]["texels"] for n in ll])
@@ -83,3 +86,10 @@ for name, kw in variants.items():
             f"pooled bias {100 * allcmp[var]['all']['bias']:+.2f}%",
             flush=True,
         )
+    dump["lit"] = lit
+    if gkw is not None:
+        dump["gather_cost"] = cost
+    import json
+
+    with open(os.path.join(HERE, "out", f"furnished_vs_cycles_{name}.json"), "w") as fh:
+        json.dump(dump, fh, indent=1, default=float)
