@@ -663,6 +663,7 @@ def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=N
             tex = np.full((at.n, 3), np.nan)
             tex[at.s_texel[cen[name]]] = arr[s : s + m]
             r[key] = tex
+        r["gather_dark_frac"] = float(g.dark[s : s + m].mean()) if m else 0.0
         s += m
         if loops is not None:
             corner = targets[name].extract(loops, "CORNER").astype(np.float64)

@@ -87,6 +87,9 @@ for name, kw in variants.items():
             flush=True,
         )
     dump["lit"] = lit
+    for n in rs.objects:
+        if "gather_dark_frac" in res[n]:
+            dump["objects"].setdefault(n, {})["gather_dark_frac"] = res[n]["gather_dark_frac"]
     if gkw is not None:
         dump["gather_cost"] = cost
     import json
