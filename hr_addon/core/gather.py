@@ -412,6 +412,7 @@ class FinalGather:
         levels=1,
         second_rays=None,
         leaf_points=2,
+        covered_hits="zero",
     ):
         dyn = system if hasattr(system, "n_hr") else None
         self.system = dyn.system if dyn is not None else system
@@ -441,6 +442,12 @@ class FinalGather:
         )
         self.rays, self.shadow_rays, self.seed = int(rays), int(shadow_rays), int(seed)
         self.batch_rays = int(batch_rays or self.BATCH_RAYS)
+        if covered_hits not in ("zero", "shown"):
+            raise ValueError("covered_hits must be 'zero' or 'shown'")
+        # "zero": rays reaching a point contacts.py calls covered read 0 (values_at); "shown": they
+        # read their leaf's light on its uncovered part (the covered test's gap tolerance lets some
+        # rays from exposed points reach "covered" points that a renderer sees lit)
+        self.covered_hits = covered_hits
         self.origins = self.points + self.eps * self.normals if offsets is None else np.asarray(offsets, float)
         self.tri_patch = pt.triangle_patch
         # contacts: covered samples output 0 (static geometry)
@@ -472,6 +479,7 @@ class FinalGather:
                 seed=self.seed + 7919,
                 batch_rays=self.batch_rays,
                 levels=1,
+                covered_hits=covered_hits,
             )
             self._second_map = (used, gw)
         self.stats["precompute_cpu"] = time.process_time() - t0
@@ -519,7 +527,10 @@ class FinalGather:
         i = np.flatnonzero(ok)
         hit = org[i] + t[i, None] * dirs[i]
         leaf = locate_below(h, patch[i], hit, self.n_hr)
-        lit = ~h.dark(leaf, hit)  # covered points read 0
+        if self.covered_hits == "zero":
+            lit = ~h.dark(leaf, hit)  # covered points read 0
+        else:
+            lit = h.exposure[leaf] > 0
         i, leaf = i[lit], leaf[lit]
         key = row[i].astype(np.int64) * self.n_hr + leaf
         u, cnt = np.unique(key, return_counts=True)
