@@ -204,24 +204,25 @@ def _into_patch(pt, patch, p, margin):
     return p
 
 
-def _csr_matvec(indptr, cols, w, V, chunk=1 << 21):
-    """(n, C) = W @ V for a CSR matrix (indptr, cols, w) and dense V (m, C)."""
+def _csr_matvec(indptr, cols, w, V, chunk=1 << 22):
+    """(n, C) float64 = W @ V for a CSR matrix (indptr, cols, w float32) and dense V (m, C): float32
+    products summed per row by np.add.reduceat, in blocks of about `chunk` entries."""
     n = len(indptr) - 1
     out = np.zeros((n, V.shape[1]))
     if len(cols) == 0:
         return out
-    counts = np.diff(indptr)
-    # rows in blocks of about `chunk` entries bound the (entries, C) temporaries
+    V32 = np.ascontiguousarray(V, dtype=np.float32)
     r0 = 0
     while r0 < n:
         r1 = int(np.searchsorted(indptr, indptr[r0] + chunk, "right")) - 1
         r1 = min(max(r1, r0 + 1), n)
         a, b = indptr[r0], indptr[r1]
         if b > a:
-            prod = w[a:b, None].astype(np.float64) * V[cols[a:b]]
-            rows = np.repeat(np.arange(r1 - r0), counts[r0:r1])
-            for c in range(V.shape[1]):
-                out[r0:r1, c] = np.bincount(rows, weights=prod[:, c], minlength=r1 - r0)
+            prod = V32[cols[a:b]]
+            prod *= w[a:b, None]
+            starts = indptr[r0:r1] - a
+            nonempty = np.flatnonzero(indptr[r0 + 1 : r1 + 1] > indptr[r0:r1])
+            out[r0 + nonempty] = np.add.reduceat(prod, starts[nonempty], axis=0)
         r0 = r1
     return out
 
