@@ -465,7 +465,8 @@ class FinalGather:
         if levels >= 2:
             # two-level gather (issue 19, as Hasan et al. 2006): every HR leaf the rays hit gets
             # leaf_points^2 gather samples of its own (Gauss points) with exact direct light and a
-            # one-level gather of the solution; the outputs' rays read those instead of the leaf
+            # gather of its own (levels - 1 levels, half the rays); the outputs' rays read those
+            # instead of the leaf
             h = s.h
             used = np.unique(self.cols).astype(np.int64)
             x, gw = ff.quadrature(h.corners[used], h.nv[used], int(leaf_points))
@@ -479,7 +480,9 @@ class FinalGather:
                 shadow_rays=max(self.shadow_rays // 2, 8),
                 seed=self.seed + 7919,
                 batch_rays=self.batch_rays,
-                levels=1,
+                levels=levels - 1,
+                second_rays=max(int(second_rays or max(self.rays // 2, 16)) // 2, 16),
+                leaf_points=leaf_points,
                 covered_hits=covered_hits,
             )
             self._second_map = (used, gw)
