@@ -414,6 +414,7 @@ class FinalGather:
         second_rays=None,
         leaf_points=2,
         covered_hits="zero",
+        covered_samples="zero",
     ):
         dyn = system if hasattr(system, "n_hr") else None
         self.system = dyn.system if dyn is not None else system
@@ -454,6 +455,8 @@ class FinalGather:
         # contacts: covered samples output 0 (static geometry)
         self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr) if n else np.zeros(0, np.int64)
         self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
+        if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
+            self.dark[:] = False
         self.E_static = pt.emission[:, self.patch].T.copy()
         self.stats = {}
         import time
