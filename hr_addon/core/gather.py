@@ -513,7 +513,9 @@ class FinalGather:
 
     @property
     def weights_bytes(self):
-        return self.indptr.nbytes + self.cols.nbytes + self.w.nbytes
+        """Bytes of the CSR weights, the lower levels' included."""
+        own = self.indptr.nbytes + self.cols.nbytes + self.w.nbytes
+        return own + (self.second.weights_bytes if self.second is not None else 0)
 
     # -- precompute: hemisphere rays -> CSR rows over HR leaves -------------------------------------
     def gather_batch(self, a, b):
