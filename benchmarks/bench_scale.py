@@ -85,6 +85,40 @@ def run_one(size, cluster, quality, events):
             out[f"{method.lower()}_event_s"] = time.perf_counter() - t1
             out[f"{method.lower()}_iterations"] = rep.iterations
             del dyn
+    rays = int(os.environ.get("HR_GATHER_RAYS", "0"))
+    if rays:  # the final gather at the mesh's corners (hr_addon.core.gather.LoopGather)
+        from hr_addon.core.gather import LoopGather
+
+        _, frame = info["light_wall"]
+        window = LightShape(
+            S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        )
+        dyn = DynamicRadiosity(s.copy(), method="FE")
+        dyn.add("w", window)
+        c1 = cpu()
+        levels = int(os.environ.get("HR_GATHER_LEVELS", "1"))
+        g = LoopGather(dyn, rays=rays, levels=levels)
+        out.update(gather_levels=levels, gather_rays=rays, gather_samples=g.n, gather_precompute_cpu_s=cpu() - c1)
+        out["gather_weights_mb"] = g.weights_bytes / 1e6
+        out["gather_nnz"] = int(len(g.w))
+        c1 = cpu()
+        g.loop_radiance(dyn)
+        out["gather_first_evaluate_cpu_s"] = cpu() - c1  # direct light of every emitter
+        c1 = cpu()
+        g.loop_radiance(dyn)
+        out["gather_evaluate_cpu_s"] = cpu() - c1  # a frame with no emitter changed: the matvec
+        dyn.apply({"w": LightShape(window.rings, np.array([10.0, 20.0, 30.0]), "window")})
+        c1 = cpu()
+        g.loop_radiance(dyn)
+        out["gather_colour_edit_evaluate_cpu_s"] = cpu() - c1
+        moved = LightShape(
+            S.on_plane(S.rect(0.9, 0.7, centre=(1.2, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        )
+        dyn.apply({"w": moved})
+        c1 = cpu()
+        g.loop_radiance(dyn)
+        out["gather_moved_shape_evaluate_cpu_s"] = cpu() - c1  # the moved shape's direct light
+        del dyn, g
     out["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     print(json.dumps(out), flush=True)
 
@@ -98,8 +132,13 @@ def main(argv=None):
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out"))
     ap.add_argument("--timeout", type=float, default=1800, help="seconds per run before it is stopped")
     ap.add_argument("--table", action="store_true", help="print the markdown table of the JSON and stop")
+    ap.add_argument("--gather", type=int, default=0, help="also time the final gather with this many rays")
+    ap.add_argument("--gather-levels", type=int, default=1, help="1 or 2 (the two-level gather)")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.gather:
+        os.environ["HR_GATHER_RAYS"] = str(args.gather)
+        os.environ["HR_GATHER_LEVELS"] = str(args.gather_levels)
     if args.child:
         size, cluster, events = args.child
         return run_one(size, cluster == "1", args.quality, events == "1")
@@ -149,18 +188,23 @@ def main(argv=None):
             if "fe_event_s" in res
             else ""
         )
+        if "gather_rays" in res:
+            print("   final gather: " + ", ".join(f"{k} {v:.3g}" for k, v in res.items() if k.startswith("gather")))
         print(
             f"{size:>5} {'clusters' if cluster else 'all pairs':>9}: {res['triangles']:,} triangles, build {res['build_s']:.1f} s ({res['build_cpu_s']:.1f} s CPU), "
             f"{res['links']:,} links ({res['far_links']:,} far), {res['links'] / res['triangles']:.1f} per triangle, "
             f"peak {res['peak_rss_gb']:.2f} GB, solve {res['solve_s']:.1f} s ({res['iterations']} it){ev_txt}",
             flush=True,
         )
-    path = Path(args.out) / f"scale_{args.quality}.json"
+    path = Path(args.out) / f"scale_{args.quality}{'_gather' if args.gather else ''}.json"
     # runs of other sizes measured earlier stay (each entry is one process of one run)
     old = json.loads(path.read_text()) if path.exists() else []
     new = {(r["size"], r["cluster"]) for r in results}
     results = [r for r in old if (r["size"], r["cluster"]) not in new] + results
     path.write_text(json.dumps(results, indent=1))
+    if args.gather:
+        print(f"wrote {path}")
+        return
     plot(results, ROOT / "benchmarks" / "scale.png")
     print(table(results))
     print(f"wrote {path} and benchmarks/scale.png")

@@ -90,10 +90,21 @@ QUICK = {
     "methods": ["FE", "AUTO"],
 }
 PARAMS = {}  # --params
+GATHER = 0  # --gather: hemisphere rays of the final gather compared alongside (0: off)
+GATHER_LEVELS = 1  # --gather-levels
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
 MIN_SURFACE_SHARE = 0.01
-VARIANTS = ("refl_leaf", "refl_smooth", "total_leaf", "total_smooth", "total_vertex")
+VARIANTS = (
+    "refl_leaf",
+    "refl_smooth",
+    "total_leaf",
+    "total_smooth",
+    "total_vertex",
+    "refl_gather",  # the final gather at texel centres (--gather; cycles_ref.gather_results)
+    "total_gather",
+    "total_gvertex",  # the final gather at the mesh's corners, interpolated as total_vertex
+)
 
 
 def log(msg, t0=[time.perf_counter()]):
@@ -178,6 +189,8 @@ def compare(res, ref, sigma_ref, objects):
             "leaf": "leaf_refl" if kind == "refl" else "leaf_total",
             "smooth": "smooth_refl" if kind == "refl" else "smooth_total",
             "vertex": "vertex_total",
+            "gather": "gather_refl" if kind == "refl" else "gather_total",
+            "gvertex": "gvertex_total",
         }[src]
         if key not in res[objects[0]]:
             continue
@@ -356,6 +369,7 @@ def run_scene(name, cfg, results, maps=None):
             dyn = DynamicRadiosity(base.copy(), method=meth)
             t_init = time.process_time() - t0
             ours = C.Ours(rs, dyn.system, dyn)
+            gcache = {}  # the final gather's precompute, once per run (geometry only)
             run = {
                 "quality": q,
                 "method": meth,
@@ -370,6 +384,11 @@ def run_scene(name, cfg, results, maps=None):
                 fr = dyn.apply(shapes_at[f])
                 cpu = time.process_time() - c0
                 res = ours.evaluate(shapes_at[f], smooth=(meth == "AUTO" and q != "draft"))
+                gcost = None
+                if GATHER:
+                    gres, gcost = C.gather_results(rs, ours, dyn, rays=GATHER, cache=gcache, levels=GATHER_LEVELS)
+                    for n in rs.objects:
+                        res[n].update(gres[n])
                 cmp_ = compare(res, refs[f], out["frames"][str(f)]["ref_sigma"], rs.objects)
                 ev = {
                     "seconds": cpu,
@@ -381,7 +400,9 @@ def run_scene(name, cfg, results, maps=None):
                     "messages": fr.messages,
                     "metrics": cmp_,
                 }
-                if meth == "AUTO" and name in CONTACTS:
+                if gcost is not None:
+                    ev["gather_cost"] = gcost
+                if (meth == "AUTO" or GATHER) and name in CONTACTS:
                     ev["contacts"] = contact_metrics(rs, res, refs[f], name)
                 run["frames"][str(f)] = ev
                 if maps is not None and q == "medium" and meth == "AUTO" and f == cfg.get("sweep_frame"):
@@ -394,6 +415,20 @@ def run_scene(name, cfg, results, maps=None):
                     f"(ref-noise corrected {a['rmse_corrected']:.4f}), "
                     f"p95 {a['p95']:.4f}"
                 )
+                for var in ("refl_gather", "total_gvertex", "total_vertex"):
+                    if GATHER and var in cmp_:
+                        g = cmp_[var]["all"]
+                        log(
+                            f"      {var}: worst surface {100 * g['worst_mre']:5.2f}% ({g['worst_surface']}), "
+                            f"bias {100 * g['bias']:+.2f}%, RMSE {g['rmse']:.4f}, p95 {g['p95']:.4f}"
+                        )
+                if GATHER and "contacts" in ev:
+                    for k, d in ev["contacts"].items():
+                        for lab in ("under", "around"):
+                            if lab in d:
+                                x = d[lab]
+                                gb = x.get("gather", {}).get("bias", float("nan"))
+                                log(f"      {k} {lab}: leaf bias {100 * x['bias']:+.1f}%, gather bias {100 * gb:+.1f}%")
             out["ours"].append(run)
         del base
     results[name] = out
@@ -422,6 +457,8 @@ def contact_metrics(rs, res, ref, scene):
                 mm["vertex"] = C.metrics(res[surface]["vertex_total"], r + res[surface]["emission"], m)
                 if "smooth_refl" in res[surface]:
                     mm["smooth"] = C.metrics(res[surface]["smooth_refl"], r, m)
+                if "gather_refl" in res[surface]:
+                    mm["gather"] = C.metrics(res[surface]["gather_refl"], r, m)
                 d[label] = mm
         out[f"{surface}/{'+'.join(occ)}"] = d
     return out
@@ -645,7 +682,7 @@ def markdown(data):
     r = res.get("cornell")
     if r:
         frames = list(r["frames"])
-        sf = str(r["config"]["sweep_frame"])
+        sf = str(r["config"]["sweep_frame"] or r["config"]["frames"][0])
         L.append(
             f"Cornell box, reflected radiance at {r['texels']} texels ({1000 * r['texel_m']:.0f} mm), "
             f"reference {r['frames'][sf]['ref_spp']} spp per frame. Worst surface = largest per-surface "
@@ -771,12 +808,17 @@ def main():
     ap.add_argument(
         "--params", default="", help="RefineParams overrides for every preset, e.g. shadow_feps=5e-4,contacts=0"
     )
+    ap.add_argument("--frames", help="comma-separated, overrides each scene's frames")
+    ap.add_argument("--no-sweep", action="store_true", help="no Cycles sample-count sweep")
+    ap.add_argument("--gather", type=int, default=0, help="also the final gather, with this many rays")
+    ap.add_argument("--gather-levels", type=int, default=1, help="1: one-level gather, 2: two-level")
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
     args = ap.parse_args()
-    global USE_CACHE
+    global USE_CACHE, GATHER, GATHER_LEVELS
     USE_CACHE = not args.no_cache
+    GATHER, GATHER_LEVELS = args.gather, args.gather_levels
     from hr_addon.core.refine import RefineParams
 
     for kv in filter(None, args.params.split(",")):
@@ -806,6 +848,10 @@ def main():
         for key in ("qualities", "methods"):
             if getattr(args, key):
                 cfg[key] = getattr(args, key).split(",")
+        if args.frames:
+            cfg["frames"] = [int(x) for x in args.frames.split(",")]
+        if args.no_sweep:
+            cfg["sweep_frame"] = None
         run_scene(name, cfg, results, maps if name == "cornell" else None)
     eq = equal_error(results)
     data = {

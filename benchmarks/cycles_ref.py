@@ -614,6 +614,65 @@ class Ours:
         return out
 
 
+def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=None, **kw):
+    """The final gather (hr_addon.core.gather) on our solution: per object and texel
+    gather_refl / gather_total (a FinalGather at every texel's centre) and gvertex_total (a
+    LoopGather at the mesh's corners, interpolated over Blender's loop triangles as vertex_total).
+    cache: a dict keeping the gathers between frames (their precompute depends on geometry only).
+    kw: more FinalGather settings (levels=2: the two-level gather).
+    Returns ({name: {...}}, {"precompute_s", "evaluate_s", "weights_mb", "samples"} of each)."""
+    import time as _t
+
+    from hr_addon.core.gather import LoopGather, texel_gather
+
+    cache = {} if cache is None else cache
+    names = rs.objects
+    cen = {n: np.flatnonzero(rs.atlases[n].s_centre) for n in names}
+    cost = {}
+    if "texel" not in cache:
+        allp = np.concatenate([ours.samples[n][0][cen[n]] for n in names])
+        allx = np.concatenate([rs.atlases[n].s_point[cen[n]] for n in names])
+        c0 = _t.process_time()
+        cache["texel"] = texel_gather(dyn, allp, allx, rays=rays, shadow_rays=shadow_rays, **kw)
+        cost["texel_precompute_s"] = _t.process_time() - c0
+    g = cache["texel"]
+    c0 = _t.process_time()
+    refl = g.evaluate(dyn, "reflected")
+    total = g.evaluate(dyn, "radiance")
+    cost["texel_evaluate_s"] = (_t.process_time() - c0) / 2
+    cost["texel_samples"], cost["texel_weights_mb"] = g.n, g.weights_bytes / 1e6
+    loops = None
+    if vertex:
+        if "loops" not in cache:
+            c0 = _t.process_time()
+            cache["loops"] = LoopGather(dyn, rays=rays, shadow_rays=shadow_rays, **kw)
+            cost["loop_precompute_s"] = _t.process_time() - c0
+        lg = cache["loops"]
+        c0 = _t.process_time()
+        loops = lg.loop_radiance(dyn)
+        cost["loop_evaluate_s"] = _t.process_time() - c0
+        cost["loop_samples"], cost["loop_weights_mb"] = lg.n, lg.weights_bytes / 1e6
+    targets = {t.name: t for t in rs.scene_in.targets}
+    out, s = {}, 0
+    for name in names:
+        at = rs.atlases[name]
+        m = len(cen[name])
+        tex = np.full((at.n, 3), np.nan)
+        r = {}
+        for key, arr in (("gather_refl", refl), ("gather_total", total)):
+            tex = np.full((at.n, 3), np.nan)
+            tex[at.s_texel[cen[name]]] = arr[s : s + m]
+            r[key] = tex
+        r["gather_dark_frac"] = float(g.dark[s : s + m].mean()) if m else 0.0
+        s += m
+        if loops is not None:
+            corner = targets[name].extract(loops, "CORNER").astype(np.float64)
+            vert = np.einsum("sk,skc->sc", at.s_bary, corner[at.s_loops])
+            r["gvertex_total"] = at.texel_mean(vert)
+        out[name] = r
+    return out, cost
+
+
 def shape_emission(shapes, points, diag, plane_tol=1e-3):
     """Exact emitted radiance of the light shapes at surface points (N, 3)."""
     E = np.zeros((len(points), 3))

@@ -4,7 +4,12 @@ setting moves which surface. Needs the reference of `cycles_compare.py --scenes 
     .venv/bin/python benchmarks/furnished_vs_cycles.py 'clusters={}' 'plain=dict(cluster=False)' \
         'nograd=dict(grad_cone=0.0)' 'med=dict(q="medium")'
 
-Each argument is name=dict(RefineParams fields, q=preset, grad_cone=cluster.GRAD_CONE).
+Each argument is name=dict(RefineParams fields, q=preset, grad_cone=cluster.GRAD_CONE,
+method="FE", gather=dict(rays=128, shadow_rays=32, vertex=True)). With `gather` the final gather
+(hr_addon.core.gather) is compared too: at texel centres (refl_gather) and at the mesh's corners
+(total_gvertex, against today's vertex output total_vertex), with its cost:
+
+    .venv/bin/python benchmarks/furnished_vs_cycles.py 'fg=dict(gather=dict(rays=128))'
 """
 
 import dataclasses
@@ -32,6 +37,8 @@ shapes = C.shape_proxies(rs, 1)
 variants = {k: eval(v) for k, v in (x.split("=", 1) for x in sys.argv[1:])}
 for name, kw in variants.items():
     q = kw.pop("q", "draft")
+    gkw = kw.pop("gather", None)
+    method = kw.pop("method", "FE")
     import hr_addon.core.cluster as CL, hr_addon.core.farlinks as FL
 
     g = kw.pop("grad_cone", 0.03)
@@ -39,10 +46,17 @@ for name, kw in variants.items():
     t0 = time.process_time()
     base = RadiositySystem(rs.scene_in.mesh, dataclasses.replace(RefineParams.preset(q), **kw))
     tb = time.process_time() - t0
-    dyn = DynamicRadiosity(base, method="FE")
+    dyn = DynamicRadiosity(base, method=method)
     dyn.apply(shapes)
-    res = C.Ours(rs, dyn.system, dyn).evaluate(shapes, smooth=False)
-    cmp_ = CC.compare(res, ref, 0.0, rs.objects)["refl_leaf"]
+    ours = C.Ours(rs, dyn.system, dyn)
+    res = ours.evaluate(shapes, smooth=False)
+    if gkw is not None:
+        gres, cost = C.gather_results(rs, ours, dyn, **gkw)
+        for n in rs.objects:
+            res[n].update(gres[n])
+        print(f"   final gather cost ({gkw}): " + ", ".join(f"{k} {v:.3g}" for k, v in cost.items()), flush=True)
+    allcmp = CC.compare(res, ref, 0.0, rs.objects)
+    cmp_ = allcmp["refl_leaf"]
     al, per = cmp_["all"], cmp_["surfaces"]
     big = sorted((n for n in per if per[n]["texels"] >= 0.01 * al["texels"]), key=lambda n: -per[n]["texels"])
     print(
@@ -55,11 +69,30 @@ for name, kw in variants.items():
     )
     # objects lit well enough for a relative error to mean something (Cycles noise, near-black objects)
     lit = [n for n in per if np.mean(per[n]["mean_ref"]) > 0.05 * np.mean(al["mean_ref"])]
-    w = np.array([per[n]["texels"] for n in lit])
-    e = np.array([per[n]["mre"] for n in lit])
-    print(
-        f"   {len(lit)} lit objects: texel-weighted error of the mean {100 * np.sum(w * e) / w.sum():.1f}%, "
-        f"within 5%: {np.mean(e < 0.05) * 100:.0f}%, median {100 * np.median(e):.1f}%, median signed "
-        f"{100 * np.median([per[n]['bias'] for n in lit]):+.1f}%",
-        flush=True,
-    )
+    dump = {"variant": name, "quality": q, "method": method, "gather": gkw, "objects": {}}
+    for var in ("refl_leaf", "total_vertex", "refl_gather", "total_gvertex"):
+        if var not in allcmp:
+            continue
+        for n, m in allcmp[var]["surfaces"].items():
+            dump["objects"].setdefault(n, {})[var] = {k: m[k] for k in ("mre", "bias", "texels", "mean_ref")}
+        pv = allcmp[var]["surfaces"]
+        ll = [n for n in lit if n in pv]
+        w = np.array([pv[n]["texels"] for n in ll])
+        e = np.array([pv[n]["mre"] for n in ll])
+        print(
+            f"   {var:13s} {len(ll)} lit objects: texel-weighted error of the mean "
+            f"{100 * np.sum(w * e) / w.sum():.1f}%, within 5%: {np.mean(e < 0.05) * 100:.0f}%, median "
+            f"{100 * np.median(e):.1f}%, median signed {100 * np.median([pv[n]['bias'] for n in ll]):+.1f}%, "
+            f"pooled bias {100 * allcmp[var]['all']['bias']:+.2f}%",
+            flush=True,
+        )
+    dump["lit"] = lit
+    for n in rs.objects:
+        if "gather_dark_frac" in res[n]:
+            dump["objects"].setdefault(n, {})["gather_dark_frac"] = res[n]["gather_dark_frac"]
+    if gkw is not None:
+        dump["gather_cost"] = cost
+    import json
+
+    with open(os.path.join(HERE, "out", f"furnished_vs_cycles_{name}.json"), "w") as fh:
+        json.dump(dump, fh, indent=1, default=float)

@@ -100,6 +100,12 @@ class Patches:
         quads = self.nv == 4
         return np.concatenate([tri, self.corners[quads][:, [0, 2, 3]]])
 
+    @property
+    def triangle_patch(self):
+        """(T,) patch of each triangle of `triangles` (the index first_hit() of a backend built
+        from them reports)."""
+        return np.concatenate([np.arange(len(self.nv)), np.flatnonzero(self.nv == 4)])
+
 
 def newell(p):
     """Newell normal (unnormalised, length = 2 x area) of polygons p (..., n, 3): the exact normal

@@ -25,15 +25,19 @@ TMIN = 1e-6
 F32_SHORT = 2.0**-15
 
 
-def _clean_triangles(triangles):
-    """(T,3,3) float64 without non-finite or (numerically) zero-area triangles."""
+def _clean_triangles(triangles, return_index=False):
+    """(T,3,3) float64 without non-finite or (numerically) zero-area triangles (and, with
+    return_index, the index of each kept triangle in the input)."""
     tri = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
-    tri = tri[np.isfinite(tri).all(axis=(1, 2))]
+    idx = np.flatnonzero(np.isfinite(tri).all(axis=(1, 2)))
+    tri = tri[idx]
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     n2 = np.einsum("ij,ij->i", *(2 * [np.cross(e1, e2)]))
     # sin(angle) below 1e-12 is a sliver of no measurable area whose plane is ill-defined: drop it too
     ok = n2 > 1e-24 * np.einsum("ij,ij->i", e1, e1) * np.einsum("ij,ij->i", e2, e2)
-    return np.ascontiguousarray(tri[ok & (n2 > 0)])
+    ok &= n2 > 0
+    out = np.ascontiguousarray(tri[ok])
+    return (out, idx[ok]) if return_index else out
 
 
 def _triangle_rows(tri):
@@ -84,13 +88,45 @@ def _hit_kernel(g, ox, oy, oz, dx, dy, dz):
     return hit
 
 
+def _hit_t_kernel(g, ox, oy, oz, dx, dy, dz):
+    """As _hit_kernel, but the segment parameter t of the hit (inf where the segment misses)."""
+    t = g[8] * ox
+    t += g[9] * oy
+    t += g[10] * oz
+    t += g[11]
+    wd = g[8] * dx
+    wd += g[9] * dy
+    wd += g[10] * dz
+    np.divide(t, wd, out=t)
+    np.negative(t, out=t)
+    px, py, pz = t * dx, t * dy, t * dz
+    px += ox
+    py += oy
+    pz += oz
+    u = g[0] * px
+    u += g[1] * py
+    u += g[2] * pz
+    u += g[3]
+    v = g[4] * px
+    v += g[5] * py
+    v += g[6] * pz
+    v += g[7]
+    hit = u >= 0
+    hit &= v >= 0
+    u += v
+    hit &= u <= 1
+    hit &= np.abs(t - 0.5) < 0.5 - TMIN
+    return np.where(hit, t, np.inf)
+
+
 class RayBackend:
     """Base class: input normalisation shared by all backends; subclasses implement `_occluded`."""
 
     name = "base"
 
     def __init__(self, triangles):
-        self.triangles = _clean_triangles(triangles)
+        # source[i]: index in the input array of the i-th kept triangle (first_hit reports input indices)
+        self.triangles, self.source = _clean_triangles(triangles, return_index=True)
         if len(self.triangles):
             lo, hi = self.triangles.min(axis=(0, 1)), self.triangles.max(axis=(0, 1))
         else:
@@ -119,6 +155,32 @@ class RayBackend:
         return out.reshape(shape)
 
     def _occluded(self, a, d):  # segments a -> a + d, (R,3) float64, finite, nonzero length
+        raise NotImplementedError
+
+    def first_hit(self, origins, directions, tmax):
+        """Nearest hit of rays o + t d, t in (TMIN tmax, (1 - TMIN) tmax) (the open segment
+        o -> o + tmax d of occluded(): a ray hits something iff that segment is occluded).
+        origins, directions (R, 3), tmax scalar or (R,). Returns (index of the triangle hit in the
+        array given to the backend, -1 for none (R,) int64; t (R,) float64 in units of d, inf for
+        none). Float64 decides every reported hit, as for occluded()."""
+        o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(directions, dtype=np.float64).reshape(-1, 3) * np.broadcast_to(
+            np.asarray(tmax, dtype=np.float64), (len(o),)
+        )[:, None]
+        prim = np.full(len(o), -1, np.int64)
+        t = np.full(len(o), np.inf)
+        ok = np.flatnonzero(
+            np.isfinite(o).all(1) & np.isfinite(d).all(1) & (np.einsum("ij,ij->i", d, d) > 0)
+        )
+        if len(ok) and len(self.triangles):
+            p, ts = self._first(o[ok], d[ok])
+            hit = p >= 0
+            prim[ok[hit]] = self.source[p[hit]]
+            t[ok[hit]] = ts[hit]
+        scale = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(o),))
+        return prim, t * scale
+
+    def _first(self, a, d):  # segments a -> a + d: (kept triangle or -1, segment parameter t)
         raise NotImplementedError
 
     def __repr__(self):
@@ -199,6 +261,30 @@ class NumpyBackend(RayBackend):
                 )
             return out
 
+    def _first(self, a, d):
+        with np.errstate(all="ignore"):
+            if not self.grid:
+                return self._brute_first(a, d)
+            prim = np.empty(len(a), np.int64)
+            t = np.empty(len(a))
+            for s in range(0, len(a), self.CHUNK_RAYS):
+                sl = slice(s, s + self.CHUNK_RAYS)
+                prim[sl], t[sl] = self._walk(a[sl], d[sl], nearest=True)
+            return prim, t
+
+    def _brute_first(self, a, d):
+        g = [m[None, :] for m in self._m]
+        step = max(1, self.CHUNK_ELEMS // len(self.triangles))
+        prim = np.empty(len(a), np.int64)
+        t = np.empty(len(a))
+        for s in range(0, len(a), step):
+            o, e = a[s : s + step, :, None], d[s : s + step, :, None]
+            tt = _hit_t_kernel(g, o[:, 0], o[:, 1], o[:, 2], e[:, 0], e[:, 1], e[:, 2])
+            k = np.argmin(tt, axis=1)
+            t[s : s + step] = tt[np.arange(len(k)), k]
+            prim[s : s + step] = np.where(np.isfinite(t[s : s + step]), k, -1)
+        return prim, t
+
     def _brute(self, a, d):
         g = [m[None, :] for m in self._m]
         step = max(1, self.CHUNK_ELEMS // len(self.triangles))
@@ -218,7 +304,9 @@ class NumpyBackend(RayBackend):
             hit[s : s + self.CHUNK_ELEMS] = _hit_kernel([m[t] for m in self._m], *(x[r] for x in ad))
         return hit
 
-    def _walk(self, a, d):
+    def _walk(self, a, d, nearest=False):
+        """Occlusion (R,) bool; nearest: (nearest kept triangle or -1, its t) instead, the walk going
+        on until the best hit found lies before the current cell's exit."""
         lo, size, res = self._lo[:, None], self._size[:, None], self._res[:, None]
         a, d = a.T, d.T  # (3, R): per-axis rows are contiguous
         ad = np.ascontiguousarray(np.concatenate([a, d]))
@@ -229,6 +317,8 @@ class NumpyBackend(RayBackend):
         t_in = np.maximum(np.minimum(t0, t1).max(axis=0), 0.0)
         t_out = np.minimum(np.maximum(t0, t1).min(axis=0), 1.0)
         out = np.zeros(a.shape[1], dtype=bool)
+        best_t = np.full(a.shape[1], np.inf)
+        best_p = np.full(a.shape[1], -1, np.int64)
         ray = np.flatnonzero(t_in <= t_out)  # segments that touch the grid
         a, inv, t_out = a[:, ray], inv[:, ray], t_out[ray]
         fwd = inv > 0
@@ -253,11 +343,28 @@ class NumpyBackend(RayBackend):
                     continue
                 pair = np.repeat(np.arange(i, j), n)
                 tri = cell_tri[np.repeat(first[i:j] - (np.cumsum(n) - n), n) + np.arange(len(pair))]
-                occ[pair[self._hit_pairs(ad, ray[pair], tri)]] = True
+                if nearest:
+                    tt = self._hit_pairs_t(ad, ray[pair], tri)
+                    h = np.flatnonzero(np.isfinite(tt))
+                    if len(h):
+                        # per ray the smallest t: sort by (ray, t), first of each ray
+                        o = np.lexsort((tt[h], pair[h]))
+                        h = h[o]
+                        firsts = np.r_[True, pair[h][1:] != pair[h][:-1]]
+                        h = h[firsts]
+                        r = ray[pair[h]]
+                        better = tt[h] < best_t[r]
+                        best_t[r[better]] = tt[h][better]
+                        best_p[r[better]] = tri[h][better]
+                else:
+                    occ[pair[self._hit_pairs(ad, ray[pair], tri)]] = True
             out[ray[occ]] = True
             # step along the axis whose cell wall comes first
             tx, ty, tz = t_next
-            alive = ~occ & (np.minimum(np.minimum(tx, ty), tz) < t_out)
+            t_exit = np.minimum(np.minimum(tx, ty), tz)
+            if nearest:
+                occ = best_t[ray] <= t_exit  # the best hit lies in a cell already walked
+            alive = ~occ & (t_exit < t_out)
             mx = (tx <= ty) & (tx <= tz)
             my = ~mx & (ty <= tz)
             for k, m in enumerate((mx, my, ~(mx | my))):
@@ -266,7 +373,14 @@ class NumpyBackend(RayBackend):
             np.clip(cell, 0, res - 1, out=cell)  # rounding at the grid's far side
             ray, t_out = ray[alive], t_out[alive]
             cell, t_next, t_step, step = cell[:, alive], t_next[:, alive], t_step[:, alive], step[:, alive]
-        return out
+        return (best_p, best_t) if nearest else out
+
+    def _hit_pairs_t(self, ad, ray, tri):
+        t = np.empty(len(ray))
+        for s in range(0, len(ray), self.CHUNK_ELEMS):
+            r, k = ray[s : s + self.CHUNK_ELEMS], tri[s : s + self.CHUNK_ELEMS]
+            t[s : s + self.CHUNK_ELEMS] = _hit_t_kernel([m[k] for m in self._m], *(x[r] for x in ad))
+        return t
 
 
 # ---------------------------------------------------------------------------------------------- float32
@@ -331,6 +445,34 @@ class _Float32Backend(RayBackend):
             out[retry] = self._exact._occluded(a[retry], d[retry])
         self.last_retraced = len(retry)
         return out
+
+    def _first(self, a, d):
+        """The tracer proposes the nearest hit, float64 re-tests it on the
+        original segment (and gives its t); refuted proposals and short segments go to numpy."""
+        o = a - self.center
+        length = np.sqrt(np.einsum("ij,ij->i", d, d))
+        mag = np.sqrt(np.einsum("ij,ij->i", o, o)) + length
+        o += TMIN * d
+        short = length < F32_SHORT * mag
+        prim, _ = self._nearest(
+            o.astype(np.float32), d.astype(np.float32), np.full(len(o), 1.0 - 2.0 * TMIN, dtype=np.float32)
+        )
+        prim = np.where(short, -1, prim).astype(np.int64)
+        t = np.full(len(a), np.inf)
+        ray = np.flatnonzero(prim >= 0)
+        if self._rows is None:
+            self._rows = _triangle_rows(self.triangles)
+        with np.errstate(all="ignore"):
+            t[ray] = _hit_t_kernel([m[prim[ray]] for m in self._rows], *a[ray].T, *d[ray].T)
+        bad = ray[~np.isfinite(t[ray])]
+        prim[bad] = -1
+        retry = np.concatenate([bad, np.flatnonzero(short)])
+        if len(retry):
+            if self._exact is None:
+                self._exact = NumpyBackend(self.triangles)
+            prim[retry], t[retry] = self._exact._first(a[retry], d[retry])
+        self.last_retraced = len(retry)
+        return prim, t
 
 
 class EmbreeBackend(_Float32Backend):
