@@ -65,14 +65,19 @@ def _reference_shapes(state):
     return shapes
 
 
-def test_hr_radiance_matches_core_per_frame(tmp_path):
+@pytest.mark.parametrize("final_gather", [True, False])
+def test_hr_radiance_matches_core_per_frame(tmp_path, final_gather):
+    """The colour attribute holds what the core computes for the same mesh and shapes: the final
+    gather's loop output, or (off) the hierarchy's leaves as before the final gather."""
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
+    from hr_addon.blender.bake import gather_params
     from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.gather import LoopGather
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
 
-    res = _bake(method="FE")
+    res = _bake(method="FE", final_gather=final_gather)
     assert res.solved == 4 and res.reused == 20, res  # only frames 1, 6, 13, 21 change
     scene = bpy.context.scene
     assert scene.hr.bake_dir == "//hr_cache/cornell/"
@@ -87,11 +92,12 @@ def test_hr_radiance_matches_core_per_frame(tmp_path):
 
     mesh, names = _reference_mesh(bpy)
     dyn = DynamicRadiosity(RadiositySystem(mesh, RefineParams.preset("draft")), method="FE")
+    gather = LoopGather(dyn, **gather_params("draft")) if final_gather else None
     starts = np.concatenate([[0], np.cumsum([len(bpy.data.objects[n].data.loops) for n in names])])
     seen = {}
     for f, state in list(FRAMES.items()) + [(9, FRAMES[6]), (24, FRAMES[21])]:
         dyn.apply(_reference_shapes(state))
-        ref = dyn.loop_radiance("CORNER")
+        ref = gather.loop_radiance(dyn, "CORNER") if gather else dyn.loop_radiance("CORNER")
         scene.frame_set(f)  # the handler loads frame f
         for i, n in enumerate(names):
             got = attribute(bpy.data.objects[n])

@@ -47,10 +47,15 @@ def _snapshot(d):
 
 
 @pytest.mark.slow
-def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
+@pytest.mark.parametrize("final_gather", [True, False])
+def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path, final_gather):
+    """Texel values equal the core's at the texel centres the test finds itself: the final gather
+    there, or (off) radiance_at on the hierarchy's leaves."""
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
+    from hr_addon.blender.bake import gather_params
     from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.gather import texel_gather
     from hr_addon.core.output import radiance_at
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
@@ -67,7 +72,7 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
     floor.uv_layers.active = other
     mine.active_render = True
 
-    res = _bake(frames=(5, 7))
+    res = _bake(frames=(5, 7), final_gather=final_gather)
     assert res.solved == 2 and res.reused == 1 and res.warnings == [], res
     cache = tmp_path / "hr_cache" / "cornell"
     from hr_addon.io.cache import CacheReader
@@ -133,7 +138,10 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path):
         assert count.max() == 1, name  # islands do not overlap
         assert area > 0.3, (name, area)  # and are packed (5 cube faces: ~1/3)
         x, y, pts, patch = map(np.concatenate, (xs, ys, pts, patch))
-        ref = radiance_at(dyn.h, dyn.B, patch, pts)
+        if final_gather:
+            ref = texel_gather(dyn, patch, pts, **gather_params("draft")).evaluate(dyn)
+        else:
+            ref = radiance_at(dyn.h, dyn.B, patch, pts)
         got = image[y, x]
         np.testing.assert_allclose(got, ref, rtol=5e-4, atol=1e-5, err_msg=name)
         # Dilation: texels just outside the islands carry values too.

@@ -125,6 +125,8 @@ class BackgroundBake:
                 args.append(f"--{key}={o[key]!r}")
         if o.get("contacts") is False:
             args.append("--no-contacts")
+        if o.get("final_gather") is False:
+            args.append("--no-final-gather")
         hr = scene.hr
         if not o.get("quality") and hr.quality == "CUSTOM" and o.get("feps") is None:
             args += [f"--feps={float(hr.feps)!r}", f"--aeps={float(hr.aeps)!r}"]

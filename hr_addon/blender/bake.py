@@ -145,6 +145,7 @@ class BakeResult:
     warnings: list = field(default_factory=list)  # each warning once (first text); see warning_lines
     log: object = None  # the Warnings collector (counts and frames of repeats)
     build_seconds: float = 0.0
+    gather_seconds: float = 0.0  # the final gather's precompute (0: off)
     seconds: float = 0.0
     build_report: object = None
     rays: str = ""  # ray backend of the build ("embree", "numpy", ...)
@@ -163,8 +164,38 @@ class BakeResult:
         return (
             f"baked frames {self.frames[0]}-{self.frames[1]} into {self.cache_dir}: "
             f"{self.solved} solved, {self.reused} unchanged, {self.kept} kept from the previous bake{again} "
-            f"(hierarchy {self.build_seconds:.1f} s, total {self.seconds:.1f} s, {self.rays_text})"
+            f"(hierarchy {self.build_seconds:.1f} s, "
+            + (f"final gather {self.gather_seconds:.1f} s, " if self.gather_seconds else "final gather off, ")
+            + f"total {self.seconds:.1f} s, {self.rays_text})"
         )
+
+
+# Final gather (core/gather.py, docs/gather.md) per quality: hemisphere rays per output sample,
+# shadow rays per sample and emitter, levels (2: the hits gather exact direct light of their own)
+GATHER = {
+    "DRAFT": dict(rays=128, shadow_rays=16, levels=2),
+    "MEDIUM": dict(rays=128, shadow_rays=32, levels=2),
+    "HIGH": dict(rays=256, shadow_rays=64, levels=3),
+    "CUSTOM": dict(rays=128, shadow_rays=32, levels=2),
+}
+
+
+def gather_params(quality, final_gather=True):
+    """The final gather's settings for `quality`, or None when it is off (the hierarchy's leaves
+    are shown, as before the final gather)."""
+    return dict(GATHER[quality.upper()]) if final_gather else None
+
+
+def make_gather(solution, output_plan=None, settings=None, smooth_angle=30.0):
+    """The output stage for a solution (DynamicRadiosity or RadiositySystem): a LoopGather for
+    vertex output, the texture plan's texel gather for texture output, None when it is off."""
+    if settings is None:
+        return None
+    if output_plan is not None:
+        return output_plan.final_gather(solution, **settings)
+    from ..core.gather import LoopGather
+
+    return LoopGather(solution, smooth_angle=smooth_angle, **settings)
 
 
 def refine_params(quality, feps=None, aeps=None, contacts=True):
@@ -200,7 +231,7 @@ def frame_range_for(scene, frames=None):
     return a, b
 
 
-def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE"):
+def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=None):
     h = hashlib.sha1()
     for arr in (
         mesh.verts,
@@ -216,6 +247,8 @@ def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE"):
     if radiance_mode != "RADIANCE":  # (radiance bakes keep the signature they had before the mode)
         h.update(radiance_mode.encode())
     h.update(repr([(t.name, t.n_corner, t.n_point) for t in targets]).encode())
+    if gather is not None:  # (bakes without the final gather keep the signature they had)
+        h.update(repr(sorted(gather.items())).encode())
     return h.hexdigest()
 
 
@@ -233,6 +266,7 @@ def bake_frames(
     texture_format=None,
     radiance_mode=None,
     contacts=None,
+    final_gather=None,
     cache_dir=None,
     progress=None,
     interrupts=None,
@@ -254,6 +288,8 @@ def bake_frames(
     at `resolution` (objects may override it) in `texture_format` EXR or PNG.
     radiance_mode RADIANCE: outgoing radiance (textured materials modulate texture output per
     texel); IRRADIANCE: irradiance / pi without emission (the material's colour multiplies it).
+    final_gather (default Scene.hr.final_gather): every output sample gathers its own light from
+    the solution (core/gather.py); off, the output reads the hierarchy's leaves.
     """
     hr = scene.hr
     view_layer = view_layer or (
@@ -272,6 +308,7 @@ def bake_frames(
         hr.aeps if aeps is None else aeps,
         hr.contacts if contacts is None else contacts,
     )
+    gather = gather_params(quality, hr.final_gather if final_gather is None else final_gather)
     output = (output or hr.output).upper()
     if output not in OUTPUTS:
         raise SceneError(f"Unknown output '{output}' (VERTEX or TEXTURE).")
@@ -393,6 +430,7 @@ def bake_frames(
             "feps": params.feps,
             "aeps": params.aeps,
             "contacts": params.contacts,
+            "final_gather": gather is not None,
             "output": output,
             "radiance_mode": radiance_mode,
             "rays": result.rays,
@@ -424,7 +462,7 @@ def bake_frames(
                 objects,
                 "TEXTURE",
                 baker.signature(
-                    _signature(scene_in.mesh, params, "TEXTURE", scene_in.targets, radiance_mode)
+                    _signature(scene_in.mesh, params, "TEXTURE", scene_in.targets, radiance_mode, gather)
                 ),
                 info,
             )
@@ -438,9 +476,21 @@ def bake_frames(
                 final_dir,
                 objects,
                 domain,
-                _signature(scene_in.mesh, params, domain, scene_in.targets, radiance_mode),
+                _signature(scene_in.mesh, params, domain, scene_in.targets, radiance_mode, gather),
                 info,
             )
+        final = None
+        if gather is not None:
+            yield BakeProgress(
+                "build",
+                total=total,
+                fraction=BUILD_SHARE,
+                message=f"Final gather: tracing {gather['rays']} rays per output sample",
+            )
+            t1 = time.perf_counter()
+            with intr.raising():
+                final = make_gather(dyn if dyn is not None else system, baker, gather)
+            result.gather_seconds = time.perf_counter() - t1
         # Frames of the previous bake that this one keeps but whose files are missing or damaged
         # are baked again (not kept, not dropped).
         in_range = set(range(start, end + 1))
@@ -493,9 +543,12 @@ def bake_frames(
                     else:
                         system.solve()
                     if baker is not None:
-                        values = baker.radiance(dyn, system, radiance_mode)
+                        values = baker.radiance(dyn, system, radiance_mode, gather=final)
                     else:
-                        if radiance_mode == "IRRADIANCE":
+                        if final is not None:
+                            kind = "incident" if radiance_mode == "IRRADIANCE" else "radiance"
+                            values = final.loop_radiance(dyn if dyn is not None else system, domain, kind)
+                        elif radiance_mode == "IRRADIANCE":
                             values = loop_incident(dyn, system, domain)
                         elif dyn is not None:
                             values = dyn.loop_radiance(domain)

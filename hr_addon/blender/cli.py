@@ -100,6 +100,12 @@ def make_parser(prog=PROG, blend_required=False):
         help="do not look for surfaces covered by objects standing on them (Scene setting Contacts)",
     )
     p.add_argument(
+        "--no-final-gather",
+        action="store_true",
+        help="show the hierarchy's elements instead of gathering each output point's own light "
+        "(Scene setting Final Gather; the classic hierarchical radiosity output)",
+    )
+    p.add_argument(
         "--domain",
         type=str.lower,
         choices=["corner", "point"],
@@ -267,6 +273,7 @@ def _run(argv, prog, blend_required, intr):
             texture_format=args.texture_format,
             radiance_mode=args.radiance_mode,
             contacts=False if args.no_contacts else None,
+            final_gather=False if args.no_final_gather else None,
             cache_dir=args.cache_dir,
             status=status.progress if status is not None else None,
             interrupts=intr,
@@ -342,6 +349,8 @@ def keep_settings(hr, args, quality, feps, aeps):
         hr.texture_resolution = args.resolution
     if args.no_contacts:
         hr.contacts = False
+    if args.no_final_gather:
+        hr.final_gather = False
 
 
 def cli_command(argv):

@@ -26,7 +26,7 @@ from bpy.app.handlers import persistent
 
 from ..core.events import LightShape
 from . import background, playback, preview, signatures, texture
-from .bake import refine_params, solver_setup
+from .bake import gather_params, refine_params, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
 from .scene_in import (
@@ -155,11 +155,11 @@ def _depsgraph(scene, view_layer):
 def _settings(scene):
     hr = scene.hr
     custom = (float(hr.feps), float(hr.aeps)) if hr.quality == "CUSTOM" else ()
-    return (hr.method, hr.quality, custom, hr.domain, bool(hr.contacts))
+    return (hr.method, hr.quality, custom, hr.domain, bool(hr.contacts), bool(hr.final_gather))
 
 
 def _describe_settings(old, new):
-    names = ("method", "quality", "thresholds", "domain", "contacts")
+    names = ("method", "quality", "thresholds", "domain", "contacts", "final gather")
     return (
         ", ".join(f"{n} {str(b).lower()}" for n, a, b in zip(names, old, new) if a != b and n != "thresholds")
         or "thresholds"
@@ -308,7 +308,7 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
 
 def _build(sess, scene, view_layer, depsgraph, reason):
     hr = scene.hr
-    method, quality, _, domain, _ = _settings(scene)
+    method, quality, _, domain, _, final_gather = _settings(scene)
     params = refine_params(quality, hr.feps, hr.aeps, hr.contacts)
     objs = geometry_objects(view_layer)
     with texture.source_materials(objs):
@@ -320,7 +320,15 @@ def _build(sess, scene, view_layer, depsgraph, reason):
         return {t.name: t.extract(values, domain) for t in targets}
 
     spec = BuildSpec(
-        scene_in.mesh, params, method, min_area_rel, domain, extract, reason, len(scene_in.mesh.loop_start)
+        scene_in.mesh,
+        params,
+        method,
+        min_area_rel,
+        domain,
+        extract,
+        reason,
+        len(scene_in.mesh.loop_start),
+        gather_params(quality, final_gather),
     )
     sess.settings = _settings(scene)
     sess.geometry = signatures.geometry_signatures(view_layer, depsgraph)

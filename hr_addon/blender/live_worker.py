@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.events import DynamicRadiosity
+from ..core.gather import LoopGather
 from ..core.geometry import InputError
 from ..core.progress import Cancelled
 from ..core.radiosity import RadiositySystem
@@ -39,6 +40,7 @@ class BuildSpec:
     extract: object  # callable((L, 3) loop radiance) -> {object name: (N, 3) values}
     reason: str = ""  # shown while building ("first build", "'back' changed")
     polygons: int = 0
+    gather: dict = None  # the final gather's settings (bake.gather_params), None: off
 
 
 @dataclass
@@ -80,7 +82,7 @@ class LiveWorker:
         self._result = None  # newest finished frame Result, not yet taken
         self._build_result = None  # newest finished build Result, not yet taken
         self.thread = None
-        self.dyn = None
+        self.dyn = self.gather = None
         self.spec = None
         self.generation = 0  # builds requested
         self.built = 0  # generation of self.dyn (0: none yet)
@@ -154,7 +156,7 @@ class LiveWorker:
             self._build = self._shapes = None
             self.phase = "closed"
             self._cond.notify_all()
-        self.dyn = None
+        self.dyn = self.gather = None
 
     def join(self, timeout=None):
         """Wait for the worker thread to end (after close(): it finishes the light state it is
@@ -194,7 +196,7 @@ class LiveWorker:
         except BaseException as exc:  # never leave the UI waiting for a thread that died
             msg = "".join(traceback.format_exception_only(type(exc), exc)).strip()
             with self._cond:
-                self.dyn = None
+                self.dyn = self.gather = None
                 self.phase = "failed"
                 self._build_result = Result(
                     self.generation, error=f"internal error: {msg}", fatal=True, kind="build"
@@ -217,7 +219,7 @@ class LiveWorker:
                 raise Cancelled()
             self.fraction, self.eta, self.build_message = float(info.fraction), float(info.eta), info.message
 
-        self.dyn = None  # the old one is of no use any more (and may be large)
+        self.dyn = self.gather = None  # the old ones are of no use any more (and may be large)
         try:
             system = RadiositySystem(spec.mesh, spec.params, progress=progress)
             if self._superseded():
@@ -229,6 +231,10 @@ class LiveWorker:
                 response_tol=RESPONSE_TOL,
                 response_float32=True,
             )
+            if self._superseded():
+                return
+            # the output stage: its rays are traced once here, each edit is a sparse product
+            gather = LoopGather(dyn, **spec.gather) if spec.gather is not None else None
         except Cancelled:
             return
         except (InputError, ValueError, RuntimeError, MemoryError) as exc:
@@ -239,7 +245,7 @@ class LiveWorker:
         with self._cond:
             if self._superseded():
                 return
-            self.dyn, self.spec, self.built = dyn, spec, generation
+            self.dyn, self.gather, self.spec, self.built = dyn, gather, spec, generation
             self.build_seconds = time.perf_counter() - t0
             self.build_report = system.build
             self.builds += 1
@@ -263,7 +269,11 @@ class LiveWorker:
                 self.phase = "idle"
             return
         t1 = time.perf_counter()
-        values = {k: _rgba(v) for k, v in spec.extract(dyn.loop_radiance(spec.domain)).items()}
+        gather = self.gather
+        loops = (
+            gather.loop_radiance(dyn, spec.domain) if gather is not None else dyn.loop_radiance(spec.domain)
+        )
+        values = {k: _rgba(v) for k, v in spec.extract(loops).items()}
         t2 = time.perf_counter()
         self.computed += 1
         with self._cond:

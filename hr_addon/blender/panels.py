@@ -112,6 +112,7 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
             sub.label(text=f"Link threshold (Feps): {p.feps:g}")
             sub.label(text=f"Smallest element (Aeps): {p.aeps:g}")
         layout.prop(hr, "contacts")
+        layout.prop(hr, "final_gather")
         layout.prop(hr, "output")
         layout.prop(hr, "radiance_mode")
         if hr.output == "TEXTURE":

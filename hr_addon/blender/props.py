@@ -103,6 +103,15 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         "a shelf) and refine along the contact, so no light leaks under them and the band beside "
         "them is right",
     )
+    final_gather: BoolProperty(
+        name="Final Gather",
+        default=True,
+        description="Every output point (vertex corner or texel) gathers its own light: exact direct "
+        "light from every emitter with shadow rays, and the bounced light from the hierarchy's "
+        "solution through rays traced once per geometry. Sharp shadows and light-shape outlines, "
+        "right on small objects. Off: each point shows the hierarchy element it lies in (the classic "
+        "hierarchical radiosity output, faster to set up)",
+    )
     output: EnumProperty(
         name="Output", items=OUTPUT_ITEMS, default="VERTEX", description="Where the baked radiance goes"
     )

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import formfactor as ff
-from .geometry import newell
+from .geometry import isolated_objects, newell
 from .output import _insideness
 
 KINDS = ("radiance", "reflected", "incident")
@@ -72,6 +72,14 @@ def hash_uniform(seed, index, stream, k=2):
         x = np.asarray(index, np.uint64)[:, None] * _GOLD + base + np.arange(k, dtype=np.uint64)[None] * _GOLD
         x = _mix(_mix(x))
     return (x >> np.uint64(11)).astype(np.float64) * 2.0**-53
+
+
+def position_keys(points, unit):
+    """uint64 keys of points (n, 3) quantised to `unit`: a sample's random stream follows where it
+    is, not its index, so adding or reordering objects elsewhere leaves its rays alone."""
+    q = np.floor(np.asarray(points, np.float64) / unit).astype(np.int64).view(np.uint64)
+    with np.errstate(over="ignore"):
+        return _mix(_mix(_mix(q[:, 0]) + q[:, 1]) + q[:, 2])
 
 
 def hammersley(n):
@@ -185,7 +193,9 @@ def _into_patch(pt, patch, p, margin):
         q, cc = p[out], c[out]
         a, b = cc, np.roll(cc, -1, axis=1)
         ab = b - a
-        t = np.einsum("mkj,mkj->mk", q[:, None] - a, ab) / np.maximum(np.einsum("mkj,mkj->mk", ab, ab), 1e-300)
+        t = np.einsum("mkj,mkj->mk", q[:, None] - a, ab) / np.maximum(
+            np.einsum("mkj,mkj->mk", ab, ab), 1e-300
+        )
         near = a + np.clip(t, 0, 1)[..., None] * ab
         k = np.argmin(np.linalg.norm(near - q[:, None], axis=-1), axis=1)
         p[out] = near[np.arange(len(out)), k]
@@ -260,7 +270,9 @@ def sample_spherical_triangle(A, B, C, u1, u2):
     q = np.clip(q, -1, 1)
     ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * _unit_rows(C - dot(C, A)[:, None] * A)
     z = 1 - u2 * (1 - dot(ch, B))
-    return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(ch - dot(ch, B)[:, None] * B)
+    return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(
+        ch - dot(ch, B)[:, None] * B
+    )
 
 
 @dataclass
@@ -289,7 +301,9 @@ class Emitter:
         tn.append(self.normals[q])
         self.tri = np.concatenate(tri)
         self.tri_normal = np.concatenate(tn)
-        a = 0.5 * np.linalg.norm(np.cross(self.tri[:, 1] - self.tri[:, 0], self.tri[:, 2] - self.tri[:, 0]), axis=1)
+        a = 0.5 * np.linalg.norm(
+            np.cross(self.tri[:, 1] - self.tri[:, 0], self.tri[:, 2] - self.tri[:, 0]), axis=1
+        )
         self.cdf = np.cumsum(a)
         self.total = float(self.cdf[-1]) if len(a) else 0.0
         self.verts = c.reshape(-1, 3)
@@ -328,7 +342,9 @@ class Emitter:
         y = np.empty((L * S, 3))
         if big.any():
             Vb = V[li[big], kk[big]]
-            w = sample_spherical_triangle(Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big])
+            w = sample_spherical_triangle(
+                Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big]
+            )
             # the point where direction w meets the triangle's plane
             n = self.tri_normal[kk[big]]
             xo = x[li[big]]
@@ -341,7 +357,11 @@ class Emitter:
             r1 = np.sqrt(s1.ravel()[small])
             u2 = u[..., 1].ravel()[small]
             tri = t3[small]
-            y[small] = (1 - r1)[:, None] * tri[:, 0] + (r1 * (1 - u2))[:, None] * tri[:, 1] + (r1 * u2)[:, None] * tri[:, 2]
+            y[small] = (
+                (1 - r1)[:, None] * tri[:, 0]
+                + (r1 * (1 - u2))[:, None] * tri[:, 1]
+                + (r1 * u2)[:, None] * tri[:, 2]
+            )
         y = y.reshape(L, S, 3)
         ny = self.tri_normal[k]
         d = y - x[:, None]
@@ -349,7 +369,13 @@ class Emitter:
         cos_y = np.abs(np.einsum("lsk,lsk->ls", d, ny)) / np.sqrt(r2)
         # density in solid angle: (om_k / tot) x (1 / om_k) for exact sampling, (om_k / tot) x
         # r^2 / (cos_y A_k) for area sampling; times tot
-        area_k = 0.5 * np.linalg.norm(np.cross(self.tri[k][..., 1, :] - self.tri[k][..., 0, :], self.tri[k][..., 2, :] - self.tri[k][..., 0, :]), axis=-1)
+        area_k = 0.5 * np.linalg.norm(
+            np.cross(
+                self.tri[k][..., 1, :] - self.tri[k][..., 0, :],
+                self.tri[k][..., 2, :] - self.tri[k][..., 0, :],
+            ),
+            axis=-1,
+        )
         bigm = big.reshape(L, S)
         ratio = np.where(bigm, 1.0, ok_ * r2 / np.maximum(cos_y * area_k, 1e-300))
         return y, ny, ratio
@@ -432,9 +458,19 @@ class FinalGather:
         # and into it: texels of a lightmap's dilation ring lie beyond their polygon's edge
         lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
         self.tmax = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
+        # rays are traced to `reach` first, then the misses on to tmax: the ray contract's minimum
+        # distance is relative to the segment, so one long segment (a stray object 50 km away
+        # makes the box 100 km wide) would skip every hit within 20 cm. reach follows the surface
+        # area, which a small far object hardly changes (as the refiner's eps does).
+        # lengths from the main group of objects (geometry.isolated_objects): a stray object far
+        # away changes neither the reach nor the samples' random streams
+        size = float(np.sqrt(isolated_objects(s.mesh).main_area))
+        self.unit = 2.0 ** (np.floor(np.log2(size)) - 12)  # a power of two: exact under 2^k scaling
+        self.reach = min(4.0 * size, self.tmax)
         self.eps = float(s.refiner.eps)
-        margin = max(50 * self.eps, 10 * 1e-6 * self.tmax)
+        margin = max(50 * self.eps, 5e-5 * size)
         self.points = np.ascontiguousarray(_into_patch(pt, self.patch, p, margin))
+        self.keys = position_keys(self.points, self.unit)
         n = len(self.points)
         self.n = n
         self.rho = (
@@ -450,7 +486,9 @@ class FinalGather:
         # read their leaf's light on its uncovered part (the covered test's gap tolerance lets some
         # rays from exposed points reach "covered" points that a renderer sees lit)
         self.covered_hits = covered_hits
-        self.origins = self.points + self.eps * self.normals if offsets is None else np.asarray(offsets, float)
+        self.origins = (
+            self.points + self.eps * self.normals if offsets is None else np.asarray(offsets, float)
+        )
         self.tri_patch = pt.triangle_patch
         # contacts: covered samples output 0 (static geometry)
         self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr) if n else np.zeros(0, np.int64)
@@ -523,12 +561,11 @@ class FinalGather:
         s = self.system
         h, pt = s.h, s.patches
         R = self.rays
-        idx = np.arange(a, b)
-        m = len(idx)
+        m = b - a
         keep = ~self.dark[a:b]
-        dirs = cosine_directions(self.normals[a:b], idx, R, self.seed, stream=0).reshape(-1, 3)
+        dirs = cosine_directions(self.normals[a:b], self.keys[a:b], R, self.seed, stream=0).reshape(-1, 3)
         org = np.repeat(self.origins[a:b], R, 0)
-        prim, t = s.backend.first_hit(org, dirs, self.tmax)
+        prim, t = self.first_hit(org, dirs)
         row = np.repeat(np.arange(m), R)
         ok = (prim >= 0) & np.repeat(keep, R)
         patch = np.where(ok, self.tri_patch[np.maximum(prim, 0)], 0)
@@ -546,6 +583,19 @@ class FinalGather:
         r = u // self.n_hr
         counts = np.bincount(r, minlength=m).astype(np.int64)
         return counts, (u % self.n_hr).astype(np.int32), (cnt / R).astype(np.float32)
+
+    def first_hit(self, org, dirs):
+        """backend.first_hit of unit rays, near hits to self.reach, then the misses on to tmax."""
+        b = self.system.backend
+        prim, t = b.first_hit(org, dirs, self.reach)
+        if self.tmax > self.reach:
+            miss = np.flatnonzero(prim < 0)
+            if len(miss):
+                start = self.reach * (1 - 4e-6)  # overlaps the first segment's open end
+                p2, t2 = b.first_hit(org[miss] + start * dirs[miss], dirs[miss], self.tmax)
+                hit = p2 >= 0
+                prim[miss[hit]], t[miss[hit]] = p2[hit], start + t2[hit]
+        return prim, t
 
     # -- run time: values at the HR leaves -----------------------------------------------------------
     def _state(self, dyn):
@@ -658,7 +708,10 @@ class FinalGather:
             r = rest[s0 : s0 + step]
             F[r] = (
                 ff.point_to_polygon(
-                    np.repeat(xi[r], T, 0), np.repeat(ni[r], T, 0), np.tile(em.corners, (len(r), 1, 1)), np.tile(em.nv, len(r))
+                    np.repeat(xi[r], T, 0),
+                    np.repeat(ni[r], T, 0),
+                    np.tile(em.corners, (len(r), 1, 1)),
+                    np.tile(em.nv, len(r)),
                 )
                 .reshape(-1, T)
                 .sum(1)
@@ -667,7 +720,9 @@ class FinalGather:
         if len(lit) and self.shadow_rays > 0:
             S = self.shadow_rays
             gi = i[lit] + a
-            u = (hammersley(S)[None] + hash_uniform(self.seed, gi, 1000 + em.stream)[:, None]) % 1.0
+            u = (
+                hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
+            ) % 1.0
             xo = xi[lit]
             y, ny, ratio = em.sample_at(xo, u)  # (L, S, 3)
             o = (xo + eps * ni[lit])[:, None]
@@ -708,7 +763,9 @@ class FinalGather:
             _, area = ff.polygon_normal_area(pt.corners[p], pt.nv[p])
             nrm = pt.normal[p]
             planar = np.allclose(nrm, nrm[0], atol=1e-9) and np.allclose(
-                (pt.corners[p].reshape(-1, 3) - pt.corners[p[0], 0]) @ nrm[0], 0, atol=1e-9 * np.sqrt(area.sum())
+                (pt.corners[p].reshape(-1, 3) - pt.corners[p[0], 0]) @ nrm[0],
+                0,
+                atol=1e-9 * np.sqrt(area.sum()),
             )
             e = Emitter(
                 pt.corners[p],
@@ -718,7 +775,7 @@ class FinalGather:
                 None,
                 nrm[0] if planar else None,
                 pt.corners[p[0], 0] if planar else None,
-                stream=int(p[0]),
+                stream=int(position_keys(pt.corners[p[:1], 0], self.unit)[0] & np.uint64(0x7FFFFFFF)),
             )
             out.append((e, em[:, p[0]].copy()))
         return out
@@ -739,7 +796,9 @@ class FinalGather:
 
         import zlib
 
-        stream = zlib.crc32(b"".join(rec.geom_key)) & 0x7FFFFFFF  # the shape's own random stream
+        # the shape's own random stream, from its outline relative to the scene's box: the same
+        # outline gives the same shadow rays at any scene scale or position
+        stream = zlib.crc32(b"".join(position_keys(r, self.unit).tobytes() for r in rec.rings)) & 0x7FFFFFFF
         if rec.on_surface:
             corners, nv, area, nf = dyn._pieces(rec)
         else:
@@ -897,7 +956,9 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
         sn[:, c] = np.bincount(li, weights=ok * pn[b, c] * parea[b], minlength=L)
     nl = np.linalg.norm(sn, axis=1)
     sn = np.where(nl[:, None] > 0, sn / np.maximum(nl, 1e-300)[:, None], pn[loop_poly])
-    mat = np.column_stack([pt.reflectance[:, np.maximum(lpatch, 0)].T, pt.emission[:, np.maximum(lpatch, 0)].T])
+    mat = np.column_stack(
+        [pt.reflectance[:, np.maximum(lpatch, 0)].T, pt.emission[:, np.maximum(lpatch, 0)].T]
+    )
     key = np.column_stack([weld, np.round(sn * 1e4).astype(np.int64), np.round(mat * 1e6).astype(np.int64)])
     _, first, inv = np.unique(key[valid], axis=0, return_index=True, return_inverse=True)
     rep = vl[first]

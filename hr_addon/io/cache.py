@@ -363,12 +363,14 @@ def changed_objects(old: dict, new: dict):
 def settings_difference(old: dict, new: dict):
     """Why the bake described by manifest `old` cannot share frames with `new` ('' if it can)."""
     why = []
-    for key in ("output", "domain", "method", "quality", "radiance_mode"):
-        a, b = old.get(key, "RADIANCE" if key == "radiance_mode" else None), new.get(key)
+    default = {"radiance_mode": "RADIANCE", "final_gather": False}  # bakes from before the setting
+    for key in ("output", "domain", "method", "quality", "radiance_mode", "final_gather"):
+        a, b = old.get(key, default.get(key)), new.get(key)
         if key == "domain" and old.get("output") != new.get("output"):
             continue  # follows from the output
         if a is not None and b is not None and a != b:
-            why.append(f"{key.replace('_', ' ')} {str(a).lower()} (this bake: {str(b).lower()})")
+            a, b = ({True: "on", False: "off"}.get(x, str(x).lower()) for x in (a, b))
+            why.append(f"{key.replace('_', ' ')} {a} (this bake: {b})")
     a, b = (old.get("feps"), old.get("aeps")), (new.get("feps"), new.get("aeps"))
     if not why and old.get("quality") == "CUSTOM" and a != b:
         why.append(f"feps {a[0]}, aeps {a[1]} (this bake: {b[0]}, {b[1]})")
