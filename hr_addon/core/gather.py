@@ -415,6 +415,7 @@ class FinalGather:
         leaf_points=2,
         covered_hits="zero",
         covered_samples="zero",
+        iterations=0,
     ):
         dyn = system if hasattr(system, "n_hr") else None
         self.system = dyn.system if dyn is not None else system
@@ -465,6 +466,7 @@ class FinalGather:
         parts = [self.gather_batch(a, b) for a, b in self.batches(self.rays)]
         self.indptr, self.cols, self.w = self.merge(parts)
         self.second = None
+        self.iterations = int(iterations) if levels == 2 else 0
         if levels >= 2:
             # two-level gather (issue 19, as Hasan et al. 2006): every HR leaf the rays hit gets
             # leaf_points^2 gather samples of its own (Gauss points) with exact direct light and a
@@ -472,6 +474,11 @@ class FinalGather:
             # instead of the leaf
             h = s.h
             used = np.unique(self.cols).astype(np.int64)
+            if iterations > 0:
+                # the gather samples' own rays must find gather samples wherever they land: every
+                # HR leaf gets them
+                c0 = h.child0[: self.n_hr]
+                used = np.flatnonzero((c0 < 0) | (c0 >= self.n_hr)).astype(np.int64)
             x, gw = ff.quadrature(h.corners[used], h.nv[used], int(leaf_points))
             k2 = x.shape[1]
             self.second = FinalGather(
@@ -487,6 +494,7 @@ class FinalGather:
                 second_rays=max(int(second_rays or max(self.rays // 2, 16)) // 2, 16),
                 leaf_points=leaf_points,
                 covered_hits=covered_hits,
+                covered_samples=covered_samples,
             )
             self._second_map = (used, gw)
         self.stats["precompute_cpu"] = time.process_time() - t0
@@ -567,12 +575,20 @@ class FinalGather:
         if self.second is None:
             return V
         used, gw = self._second_map
-        y = self.second.evaluate(dyn, "reflected").reshape(len(used), -1, 3)
-        w = gw * ~self.second.dark.reshape(len(used), -1)
+        g2 = self.second
+        w = gw * ~g2.dark.reshape(len(used), -1)
         ws = w.sum(1)
-        Y = V.copy()
         ok = ws > 0
-        Y[used[ok]] = np.einsum("uk,ukc->uc", w[ok], y[ok]) / ws[ok, None]
+        w = w[ok] / ws[ok, None]
+        D2, _ = g2.direct_and_emission(dyn)
+        Y = g2.leaf_values(dyn) if g2.second is not None else V  # levels > 2: its own levels
+        # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
+        # direct light): every pass moves the solution one bounce further away
+        for _ in range(1 + self.iterations):
+            y = (g2.rho * (D2 + _csr_matvec(g2.indptr, g2.cols, g2.w, Y))).reshape(len(used), -1, 3)
+            Ynew = V.copy()
+            Ynew[used[ok]] = np.einsum("uk,ukc->uc", w, y[ok])
+            Y = Ynew
         return Y
 
     def solution_values(self, dyn):
@@ -607,6 +623,8 @@ class FinalGather:
             return self._naive_V
         h = self.system.h
         used = np.unique(self.cols).astype(np.int64)
+        if self.second is not None:  # the gather samples' rays land on other leaves too
+            used = np.union1d(used, self.second.cols).astype(np.int64)
         x, gw = ff.quadrature(h.corners[used], h.nv[used], 2)
         pts = x.reshape(-1, 3)
         roots, p2 = nv.remap(pts, np.repeat(h.patch[used], 4))
