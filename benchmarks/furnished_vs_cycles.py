@@ -54,7 +54,8 @@ for name, kw in variants.items():
         gres, cost = C.gather_results(rs, ours, dyn, **gkw)
         for n in rs.objects:
             res[n].update(gres[n])
-        print(f"   final gather cost ({gkw}): " + ", ".join(f"{k} {v:.3g}" for k, v in cost.items()), flush=True)
+        txt = ", ".join(f"{k} {v:.3g}" for k, v in cost.items())
+        print(f"   final gather cost ({gkw}): {txt}", flush=True)
     allcmp = CC.compare(res, ref, 0.0, rs.objects)
     cmp_ = allcmp["refl_leaf"]
     al, per = cmp_["all"], cmp_["surfaces"]

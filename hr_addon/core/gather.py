@@ -185,7 +185,9 @@ def _into_patch(pt, patch, p, margin):
         q, cc = p[out], c[out]
         a, b = cc, np.roll(cc, -1, axis=1)
         ab = b - a
-        t = np.einsum("mkj,mkj->mk", q[:, None] - a, ab) / np.maximum(np.einsum("mkj,mkj->mk", ab, ab), 1e-300)
+        t = np.einsum("mkj,mkj->mk", q[:, None] - a, ab) / np.maximum(
+            np.einsum("mkj,mkj->mk", ab, ab), 1e-300
+        )
         near = a + np.clip(t, 0, 1)[..., None] * ab
         k = np.argmin(np.linalg.norm(near - q[:, None], axis=-1), axis=1)
         p[out] = near[np.arange(len(out)), k]
@@ -260,7 +262,9 @@ def sample_spherical_triangle(A, B, C, u1, u2):
     q = np.clip(q, -1, 1)
     ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * _unit_rows(C - dot(C, A)[:, None] * A)
     z = 1 - u2 * (1 - dot(ch, B))
-    return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(ch - dot(ch, B)[:, None] * B)
+    return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(
+        ch - dot(ch, B)[:, None] * B
+    )
 
 
 @dataclass
@@ -289,7 +293,9 @@ class Emitter:
         tn.append(self.normals[q])
         self.tri = np.concatenate(tri)
         self.tri_normal = np.concatenate(tn)
-        a = 0.5 * np.linalg.norm(np.cross(self.tri[:, 1] - self.tri[:, 0], self.tri[:, 2] - self.tri[:, 0]), axis=1)
+        a = 0.5 * np.linalg.norm(
+            np.cross(self.tri[:, 1] - self.tri[:, 0], self.tri[:, 2] - self.tri[:, 0]), axis=1
+        )
         self.cdf = np.cumsum(a)
         self.total = float(self.cdf[-1]) if len(a) else 0.0
         self.verts = c.reshape(-1, 3)
@@ -328,7 +334,9 @@ class Emitter:
         y = np.empty((L * S, 3))
         if big.any():
             Vb = V[li[big], kk[big]]
-            w = sample_spherical_triangle(Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big])
+            w = sample_spherical_triangle(
+                Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big]
+            )
             # the point where direction w meets the triangle's plane
             n = self.tri_normal[kk[big]]
             xo = x[li[big]]
@@ -341,7 +349,11 @@ class Emitter:
             r1 = np.sqrt(s1.ravel()[small])
             u2 = u[..., 1].ravel()[small]
             tri = t3[small]
-            y[small] = (1 - r1)[:, None] * tri[:, 0] + (r1 * (1 - u2))[:, None] * tri[:, 1] + (r1 * u2)[:, None] * tri[:, 2]
+            y[small] = (
+                (1 - r1)[:, None] * tri[:, 0]
+                + (r1 * (1 - u2))[:, None] * tri[:, 1]
+                + (r1 * u2)[:, None] * tri[:, 2]
+            )
         y = y.reshape(L, S, 3)
         ny = self.tri_normal[k]
         d = y - x[:, None]
@@ -349,7 +361,13 @@ class Emitter:
         cos_y = np.abs(np.einsum("lsk,lsk->ls", d, ny)) / np.sqrt(r2)
         # density in solid angle: (om_k / tot) x (1 / om_k) for exact sampling, (om_k / tot) x
         # r^2 / (cos_y A_k) for area sampling; times tot
-        area_k = 0.5 * np.linalg.norm(np.cross(self.tri[k][..., 1, :] - self.tri[k][..., 0, :], self.tri[k][..., 2, :] - self.tri[k][..., 0, :]), axis=-1)
+        area_k = 0.5 * np.linalg.norm(
+            np.cross(
+                self.tri[k][..., 1, :] - self.tri[k][..., 0, :],
+                self.tri[k][..., 2, :] - self.tri[k][..., 0, :],
+            ),
+            axis=-1,
+        )
         bigm = big.reshape(L, S)
         ratio = np.where(bigm, 1.0, ok_ * r2 / np.maximum(cos_y * area_k, 1e-300))
         return y, ny, ratio
@@ -451,7 +469,9 @@ class FinalGather:
         # read their leaf's light on its uncovered part (the covered test's gap tolerance lets some
         # rays from exposed points reach "covered" points that a renderer sees lit)
         self.covered_hits = covered_hits
-        self.origins = self.points + self.eps * self.normals if offsets is None else np.asarray(offsets, float)
+        self.origins = (
+            self.points + self.eps * self.normals if offsets is None else np.asarray(offsets, float)
+        )
         self.tri_patch = pt.triangle_patch
         # contacts: covered samples output 0 (static geometry)
         self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr) if n else np.zeros(0, np.int64)
@@ -676,7 +696,10 @@ class FinalGather:
             r = rest[s0 : s0 + step]
             F[r] = (
                 ff.point_to_polygon(
-                    np.repeat(xi[r], T, 0), np.repeat(ni[r], T, 0), np.tile(em.corners, (len(r), 1, 1)), np.tile(em.nv, len(r))
+                    np.repeat(xi[r], T, 0),
+                    np.repeat(ni[r], T, 0),
+                    np.tile(em.corners, (len(r), 1, 1)),
+                    np.tile(em.nv, len(r)),
                 )
                 .reshape(-1, T)
                 .sum(1)
@@ -726,7 +749,9 @@ class FinalGather:
             _, area = ff.polygon_normal_area(pt.corners[p], pt.nv[p])
             nrm = pt.normal[p]
             planar = np.allclose(nrm, nrm[0], atol=1e-9) and np.allclose(
-                (pt.corners[p].reshape(-1, 3) - pt.corners[p[0], 0]) @ nrm[0], 0, atol=1e-9 * np.sqrt(area.sum())
+                (pt.corners[p].reshape(-1, 3) - pt.corners[p[0], 0]) @ nrm[0],
+                0,
+                atol=1e-9 * np.sqrt(area.sum()),
             )
             e = Emitter(
                 pt.corners[p],
@@ -915,7 +940,9 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
         sn[:, c] = np.bincount(li, weights=ok * pn[b, c] * parea[b], minlength=L)
     nl = np.linalg.norm(sn, axis=1)
     sn = np.where(nl[:, None] > 0, sn / np.maximum(nl, 1e-300)[:, None], pn[loop_poly])
-    mat = np.column_stack([pt.reflectance[:, np.maximum(lpatch, 0)].T, pt.emission[:, np.maximum(lpatch, 0)].T])
+    mat = np.column_stack(
+        [pt.reflectance[:, np.maximum(lpatch, 0)].T, pt.emission[:, np.maximum(lpatch, 0)].T]
+    )
     key = np.column_stack([weld, np.round(sn * 1e4).astype(np.int64), np.round(mat * 1e6).astype(np.int64)])
     _, first, inv = np.unique(key[valid], axis=0, return_index=True, return_inverse=True)
     rep = vl[first]
