@@ -430,3 +430,30 @@ def test_more_levels_and_iterations_fade_the_solutions_error():
         errs.append(abs(g.evaluate(s)[~g.dark, 0].mean() / 2.0 - 1))
     print("mean error per setting", np.round(errs, 4))
     assert errs[0] > errs[1] > errs[2] > errs[3] and errs[3] < 0.003
+
+
+@pytest.mark.parametrize("method", ["FE", "AUTO"])
+def test_cached_responses_equal_the_full_gather(method):
+    """In "response" mode the gather keeps the base solution's part and each shape's part at unit
+    emission (an emission edit is a weighted sum); through adds, a colour edit and a removal it
+    equals the gather of the current solution (float32 parts: 1e-6)."""
+    base = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    dyn = DynamicRadiosity(base.copy(), method=method)
+    a = LightShape(S.on_plane(RECT, S.CORNELL_BACK_WALL), np.array([4.0, 3, 2]), "a")
+    b = LightShape(
+        S.on_plane(S.star(0.1, 0.04, 5, centre=(0.25, 0.3)), S.CORNELL_GREEN_WALL), np.array([1.0, 2, 6]), "b"
+    )
+    pts, patch, _ = surface_samples(dyn.system.patches, 30)
+    nrm = dyn.system.patches.normal[patch]
+    cached = FinalGather(dyn, pts, nrm, patch, rays=32, levels=2, iterations=2)
+    full = FinalGather(dyn, pts, nrm, patch, rays=32, levels=2, iterations=2, cache_responses=False)
+    for shapes in (
+        {"a": a},
+        {"a": a, "b": b},
+        {"a": LightShape(a.rings, np.array([1.0, 5, 0.5]), "a"), "b": b},
+        {"b": b},
+    ):
+        dyn.apply(shapes)
+        x, y = cached.evaluate(dyn), full.evaluate(dyn)
+        assert np.abs(x - y).max() <= 1e-6 * np.abs(y).max()
+    assert len(cached._responses) >= 3 and not full._responses

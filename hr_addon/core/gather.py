@@ -434,6 +434,7 @@ class FinalGather:
         covered_hits="zero",
         covered_samples="zero",
         iterations=0,
+        cache_responses=True,
     ):
         dyn = system if hasattr(system, "n_hr") else None
         self.system = dyn.system if dyn is not None else system
@@ -520,6 +521,10 @@ class FinalGather:
         self.stats["precompute_cpu"] = time.process_time() - t0
         self._D_static = None
         self._shape_cache = {}  # geom_key -> (unit D (n,) float32, indices inside the outline)
+        # DynamicRadiosity in "response" mode: D + I of the base solution and of each shape's
+        # response at unit emission, so an emission edit is a weighted sum (_incident_by_response)
+        self.cache_responses = bool(cache_responses)
+        self._responses = {}
         self._naive_key = None
         self._naive_V = None
 
@@ -591,7 +596,12 @@ class FinalGather:
         """(n_hr, 3) reflected radiance on the uncovered part of every HR leaf (0 elsewhere); with
         a second level, of the leaves the rays hit: the mean of their gather samples (exact direct
         light + the solution one bounce further) over the uncovered ones."""
-        V = self.solution_values(dyn)
+        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0])
+
+    def _levels(self, V, direct):
+        """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
+        direct(g) -> (g.n, 3) direct light at a level's samples: V itself with one level; with
+        more, the lower levels' gathers (linear in V and the direct light)."""
         if self.second is None:
             return V
         used, gw = self._second_map
@@ -600,8 +610,8 @@ class FinalGather:
         ws = w.sum(1)
         ok = ws > 0
         w = w[ok] / ws[ok, None]
-        D2, _ = g2.direct_and_emission(dyn)
-        Y = g2.leaf_values(dyn) if g2.second is not None else V  # levels > 2: its own levels
+        D2 = direct(g2)
+        Y = g2._levels(V, direct) if g2.second is not None else V  # levels > 2: its own levels
         # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
         # direct light): every pass moves the solution one bounce further away
         for _ in range(1 + self.iterations):
@@ -617,9 +627,15 @@ class FinalGather:
         if st is None:
             return self._naive_values(dyn)
         h, B, E = st
+        n = h.n
+        X = B[:, :n] - E[:, :n] * h.exposure[:n].astype(np.float64)
+        return np.maximum(self._values_from(h, X), 0.0)
+
+    def _values_from(self, h, X):
+        """(n_hr, 3) shown values of the HR leaves from reflected node means X (3, n) (linear)."""
         n, m = h.n, self.n_hr
         ex = h.exposure[:n].astype(np.float64)
-        X = (B[:, :n] - E[:, :n] * ex) * h.area[:n]  # reflected power-like: node means x area
+        X = X[:, :n] * h.area[:n]  # reflected power-like: node means x area
         if n > m:  # HR leaves split by light events: the area mean of their current leaves
             leaf = h.child0[:n] < 0
             Y = np.where(leaf, X, 0.0)
@@ -632,8 +648,49 @@ class FinalGather:
             X = np.where((np.arange(n) < m) & ~leaf & (h.child0[:n] >= m), Y, X)
         V = X[:, :m] / np.maximum(h.area[:m], 1e-300)
         exm = ex[:m]
-        V = np.where(exm > 0, V / np.maximum(exm, 1e-30), 0.0)
-        return np.maximum(V, 0.0).T
+        return np.where(exm > 0, V / np.maximum(exm, 1e-30), 0.0).T
+
+    def _incident_by_response(self, dyn):
+        """(n, 3) D + I of a DynamicRadiosity in "response" mode as a sum of cached parts: the
+        base solution's, and per light shape its response's at unit emission times the shape's
+        emission (a colour or strength edit: one weighted sum). None where that does not apply
+        (NAIVE, warm mode, a static system)."""
+        if not self.cache_responses or dyn is None or not hasattr(dyn, "n_hr"):
+            return None
+        if dyn.incremental != "response" or dyn.naive_active:
+            return None
+        recs = list(dyn.shapes.values())
+        if any(r.U is None or r.used == "NAIVE" or not r.on_surface for r in recs):
+            return None
+        dyn._sync()
+        h = dyn.system.h
+        n = h.n
+        ex = h.exposure[:n].astype(np.float64)
+        key0 = ("base", id(dyn))
+        if key0 not in self._responses:
+            X = dyn._Bbase[:, :n] - dyn.system.base_emission()[:, :n] * ex
+            V = self._values_from(h, X)
+            Y = self._levels(V, lambda g: g.direct_static())
+            self._responses[key0] = self.direct_static() + _csr_matvec(self.indptr, self.cols, self.w, Y)
+        total = self._responses[key0].copy()
+        live = {key0}
+        for rec in recs:
+            k = ("shape", id(dyn), rec.geom_key, rec.used)
+            live.add(k)
+            if k not in self._responses:
+                X = rec.U[:, :n] - dyn._coverage(rec)[None, :n] * ex
+
+                def unit(g, rec=rec):
+                    return np.repeat(g._shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
+
+                Y = self._levels(self._values_from(h, X), unit)
+                part = unit(self) + _csr_matvec(self.indptr, self.cols, self.w, Y)
+                self._responses[k] = part.astype(np.float32)
+            total += rec.emission[None] * self._responses[k]
+        gone = [k for k in self._responses if k not in live]
+        for k in gone[: max(len(gone) - 8, 0)]:
+            del self._responses[k]
+        return total
 
     def _naive_values(self, dyn):
         """NAIVE: each used HR leaf reads the rebuilt solution (reflected, shown) at its 2 x 2 Gauss
@@ -856,7 +913,9 @@ class FinalGather:
             if k not in KINDS:
                 raise ValueError(f"unknown kind {k!r} ({', '.join(KINDS)})")
         D, E = self.direct_and_emission(dyn)
-        inc = D + self.indirect(dyn)
+        inc = self._incident_by_response(dyn)
+        if inc is None:
+            inc = D + self.indirect(dyn)
         inc[self.dark] = 0.0
         out = {}
         for k in kinds:
