@@ -525,6 +525,7 @@ class FinalGather:
         # response at unit emission, so an emission edit is a weighted sum (_incident_by_response)
         self.cache_responses = bool(cache_responses)
         self._responses = {}
+        self._responses_of = None
         self._naive_key = None
         self._naive_V = None
 
@@ -662,11 +663,14 @@ class FinalGather:
         recs = list(dyn.shapes.values())
         if any(r.U is None or r.used == "NAIVE" or not r.on_surface for r in recs):
             return None
+        if self._responses_of is not dyn:  # parts of another DynamicRadiosity (ids may be reused)
+            self._responses.clear()
+            self._responses_of = dyn
         dyn._sync()
         h = dyn.system.h
         n = h.n
         ex = h.exposure[:n].astype(np.float64)
-        key0 = ("base", id(dyn))
+        key0 = ("base",)
         if key0 not in self._responses:
             X = dyn._Bbase[:, :n] - dyn.system.base_emission()[:, :n] * ex
             V = self._values_from(h, X)
@@ -675,7 +679,7 @@ class FinalGather:
         total = self._responses[key0].copy()
         live = {key0}
         for rec in recs:
-            k = ("shape", id(dyn), rec.geom_key, rec.used)
+            k = ("shape", rec.geom_key, rec.used)
             live.add(k)
             if k not in self._responses:
                 X = rec.U[:, :n] - dyn._coverage(rec)[None, :n] * ex
