@@ -230,36 +230,33 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 22):
 
 
 def _unit_rows(v):
-    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
+    return v / np.maximum(np.sqrt(np.einsum("...k,...k->...", v, v)), 1e-300)[..., None]
 
 
 def solid_angles(A, B, C):
     """Solid angles (...) of the triangles with unit vertex directions A, B, C (..., 3)
     (Van Oosterom & Strackee 1983)."""
-    num = np.abs(np.einsum("...k,...k->...", A, np.cross(B, C)))
+    num = np.abs(np.einsum("...k,...k->...", A, ff._cross(B, C)))
     den = 1 + np.einsum("...k,...k->...", A, B) + np.einsum("...k,...k->...", B, C)
     den += np.einsum("...k,...k->...", C, A)
     return 2 * np.arctan2(num, den)
 
 
-def sample_spherical_triangle(A, B, C, u1, u2):
-    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995)."""
+def sample_spherical_triangle(A, B, C, u1, u2, area=None):
+    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995);
+    area: their solid angles if known (solid_angles)."""
     dot = lambda x, y: np.einsum("nk,nk->n", x, y)
-    nab, nac = _unit_rows(np.cross(A, B)), _unit_rows(np.cross(A, C))
-    nba, nbc = _unit_rows(np.cross(B, A)), _unit_rows(np.cross(B, C))
-    nca, ncb = _unit_rows(np.cross(C, A)), _unit_rows(np.cross(C, B))
-    alpha = np.arccos(np.clip(dot(nab, nac), -1, 1))
-    beta = np.arccos(np.clip(dot(nba, nbc), -1, 1))
-    gamma = np.arccos(np.clip(dot(nca, ncb), -1, 1))
-    area = alpha + beta + gamma - np.pi
+    # the angle at A between the great circles AB and AC
+    alpha = np.arccos(np.clip(dot(_unit_rows(ff._cross(A, B)), _unit_rows(ff._cross(A, C))), -1, 1))
+    if area is None:
+        area = solid_angles(A, B, C)
     ah = u1 * area
     s, t = np.sin(ah - alpha), np.cos(ah - alpha)
-    u = t - np.cos(alpha)
-    v = s + np.sin(alpha) * dot(A, B)
-    q = ((v * t - u * s) * np.cos(alpha) - v) / np.where(
-        np.abs((v * s + u * t) * np.sin(alpha)) > 1e-300, (v * s + u * t) * np.sin(alpha), 1e-300
-    )
-    q = np.clip(q, -1, 1)
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    u = t - ca
+    v = s + sa * dot(A, B)
+    den = (v * s + u * t) * sa
+    q = np.clip(((v * t - u * s) * ca - v) / np.where(np.abs(den) > 1e-300, den, 1e-300), -1, 1)
     ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * _unit_rows(C - dot(C, A)[:, None] * A)
     z = 1 - u2 * (1 - dot(ch, B))
     return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(
@@ -335,7 +332,7 @@ class Emitter:
         if big.any():
             Vb = V[li[big], kk[big]]
             w = sample_spherical_triangle(
-                Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big]
+                Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big], ok_.ravel()[big]
             )
             # the point where direction w meets the triangle's plane
             n = self.tri_normal[kk[big]]
