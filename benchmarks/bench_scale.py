@@ -97,8 +97,9 @@ def run_one(size, cluster, quality, events):
         dyn.add("w", window)
         c1 = cpu()
         levels = int(os.environ.get("HR_GATHER_LEVELS", "1"))
-        g = LoopGather(dyn, rays=rays, levels=levels)
-        out.update(gather_levels=levels, gather_rays=rays, gather_samples=g.n, gather_precompute_cpu_s=cpu() - c1)
+        its = int(os.environ.get("HR_GATHER_ITERATIONS", "0"))
+        g = LoopGather(dyn, rays=rays, levels=levels, iterations=its)
+        out.update(gather_levels=levels, gather_iterations=its, gather_rays=rays, gather_samples=g.n, gather_precompute_cpu_s=cpu() - c1)
         out["gather_weights_mb"] = g.weights_bytes / 1e6
         out["gather_nnz"] = int(len(g.w))
         c1 = cpu()
@@ -133,12 +134,14 @@ def main(argv=None):
     ap.add_argument("--timeout", type=float, default=1800, help="seconds per run before it is stopped")
     ap.add_argument("--table", action="store_true", help="print the markdown table of the JSON and stop")
     ap.add_argument("--gather", type=int, default=0, help="also time the final gather with this many rays")
-    ap.add_argument("--gather-levels", type=int, default=1, help="1 or 2 (the two-level gather)")
+    ap.add_argument("--gather-levels", type=int, default=1, help="1, 2 (the two-level gather), 3, ...")
+    ap.add_argument("--gather-iterations", type=int, default=0, help="two levels: passes among the gather samples")
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.gather:
         os.environ["HR_GATHER_RAYS"] = str(args.gather)
         os.environ["HR_GATHER_LEVELS"] = str(args.gather_levels)
+        os.environ["HR_GATHER_ITERATIONS"] = str(args.gather_iterations)
     if args.child:
         size, cluster, events = args.child
         return run_one(size, cluster == "1", args.quality, events == "1")

@@ -92,6 +92,7 @@ QUICK = {
 PARAMS = {}  # --params
 GATHER = 0  # --gather: hemisphere rays of the final gather compared alongside (0: off)
 GATHER_LEVELS = 1  # --gather-levels
+GATHER_ITERATIONS = 0  # --gather-iterations
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
 MIN_SURFACE_SHARE = 0.01
@@ -386,7 +387,9 @@ def run_scene(name, cfg, results, maps=None):
                 res = ours.evaluate(shapes_at[f], smooth=(meth == "AUTO" and q != "draft"))
                 gcost = None
                 if GATHER:
-                    gres, gcost = C.gather_results(rs, ours, dyn, rays=GATHER, cache=gcache, levels=GATHER_LEVELS)
+                    gres, gcost = C.gather_results(
+                        rs, ours, dyn, rays=GATHER, cache=gcache, levels=GATHER_LEVELS, iterations=GATHER_ITERATIONS
+                    )
                     for n in rs.objects:
                         res[n].update(gres[n])
                 cmp_ = compare(res, refs[f], out["frames"][str(f)]["ref_sigma"], rs.objects)
@@ -812,13 +815,14 @@ def main():
     ap.add_argument("--no-sweep", action="store_true", help="no Cycles sample-count sweep")
     ap.add_argument("--gather", type=int, default=0, help="also the final gather, with this many rays")
     ap.add_argument("--gather-levels", type=int, default=1, help="1: one-level gather, 2: two-level")
+    ap.add_argument("--gather-iterations", type=int, default=0, help="two levels: passes among gather samples")
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
     args = ap.parse_args()
-    global USE_CACHE, GATHER, GATHER_LEVELS
+    global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS
     USE_CACHE = not args.no_cache
-    GATHER, GATHER_LEVELS = args.gather, args.gather_levels
+    GATHER, GATHER_LEVELS, GATHER_ITERATIONS = args.gather, args.gather_levels, args.gather_iterations
     from hr_addon.core.refine import RefineParams
 
     for kv in filter(None, args.params.split(",")):

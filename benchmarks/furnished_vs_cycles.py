@@ -54,7 +54,8 @@ for name, kw in variants.items():
         gres, cost = C.gather_results(rs, ours, dyn, **gkw)
         for n in rs.objects:
             res[n].update(gres[n])
-        print(f"   final gather cost ({gkw}): " + ", ".join(f"{k} {v:.3g}" for k, v in cost.items()), flush=True)
+        txt = ", ".join(f"{k} {v:.3g}" for k, v in cost.items())
+        print(f"   final gather cost ({gkw}): {txt}", flush=True)
     allcmp = CC.compare(res, ref, 0.0, rs.objects)
     cmp_ = allcmp["refl_leaf"]
     al, per = cmp_["all"], cmp_["surfaces"]
@@ -94,5 +95,14 @@ for name, kw in variants.items():
         dump["gather_cost"] = cost
     import json
 
+    def rnd(x):  # 4 significant digits, compact: one file per variant stays small
+        if isinstance(x, float):
+            return float(f"{x:.4g}")
+        if isinstance(x, (list, tuple)):
+            return [rnd(v) for v in x]
+        if isinstance(x, dict):
+            return {k: rnd(v) for k, v in x.items()}
+        return x
+
     with open(os.path.join(HERE, "out", f"furnished_vs_cycles_{name}.json"), "w") as fh:
-        json.dump(dump, fh, indent=1, default=float)
+        json.dump(rnd(dump), fh, separators=(",", ":"), default=float)

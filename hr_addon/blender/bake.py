@@ -171,12 +171,13 @@ class BakeResult:
 
 
 # Final gather (core/gather.py, docs/gather.md) per quality: hemisphere rays per output sample,
-# shadow rays per sample and emitter, levels (2: the hits gather exact direct light of their own)
+# shadow rays per sample and emitter, levels (2: the hits gather exact direct light of their own),
+# iterations (the second level's samples gather from each other: light after more bounces)
 GATHER = {
-    "DRAFT": dict(rays=128, shadow_rays=16, levels=2),
-    "MEDIUM": dict(rays=128, shadow_rays=32, levels=2),
-    "HIGH": dict(rays=256, shadow_rays=64, levels=3),
-    "CUSTOM": dict(rays=128, shadow_rays=32, levels=2),
+    "DRAFT": dict(rays=128, shadow_rays=16, levels=2, iterations=4),
+    "MEDIUM": dict(rays=128, shadow_rays=32, levels=2, iterations=4),
+    "HIGH": dict(rays=256, shadow_rays=64, levels=2, iterations=8),
+    "CUSTOM": dict(rays=128, shadow_rays=32, levels=2, iterations=4),
 }
 
 

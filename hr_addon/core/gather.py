@@ -238,36 +238,33 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 22):
 
 
 def _unit_rows(v):
-    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-300)
+    return v / np.maximum(np.sqrt(np.einsum("...k,...k->...", v, v)), 1e-300)[..., None]
 
 
 def solid_angles(A, B, C):
     """Solid angles (...) of the triangles with unit vertex directions A, B, C (..., 3)
     (Van Oosterom & Strackee 1983)."""
-    num = np.abs(np.einsum("...k,...k->...", A, np.cross(B, C)))
+    num = np.abs(np.einsum("...k,...k->...", A, ff._cross(B, C)))
     den = 1 + np.einsum("...k,...k->...", A, B) + np.einsum("...k,...k->...", B, C)
     den += np.einsum("...k,...k->...", C, A)
     return 2 * np.arctan2(num, den)
 
 
-def sample_spherical_triangle(A, B, C, u1, u2):
-    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995)."""
+def sample_spherical_triangle(A, B, C, u1, u2, area=None):
+    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995);
+    area: their solid angles if known (solid_angles)."""
     dot = lambda x, y: np.einsum("nk,nk->n", x, y)
-    nab, nac = _unit_rows(np.cross(A, B)), _unit_rows(np.cross(A, C))
-    nba, nbc = _unit_rows(np.cross(B, A)), _unit_rows(np.cross(B, C))
-    nca, ncb = _unit_rows(np.cross(C, A)), _unit_rows(np.cross(C, B))
-    alpha = np.arccos(np.clip(dot(nab, nac), -1, 1))
-    beta = np.arccos(np.clip(dot(nba, nbc), -1, 1))
-    gamma = np.arccos(np.clip(dot(nca, ncb), -1, 1))
-    area = alpha + beta + gamma - np.pi
+    # the angle at A between the great circles AB and AC
+    alpha = np.arccos(np.clip(dot(_unit_rows(ff._cross(A, B)), _unit_rows(ff._cross(A, C))), -1, 1))
+    if area is None:
+        area = solid_angles(A, B, C)
     ah = u1 * area
     s, t = np.sin(ah - alpha), np.cos(ah - alpha)
-    u = t - np.cos(alpha)
-    v = s + np.sin(alpha) * dot(A, B)
-    q = ((v * t - u * s) * np.cos(alpha) - v) / np.where(
-        np.abs((v * s + u * t) * np.sin(alpha)) > 1e-300, (v * s + u * t) * np.sin(alpha), 1e-300
-    )
-    q = np.clip(q, -1, 1)
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    u = t - ca
+    v = s + sa * dot(A, B)
+    den = (v * s + u * t) * sa
+    q = np.clip(((v * t - u * s) * ca - v) / np.where(np.abs(den) > 1e-300, den, 1e-300), -1, 1)
     ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * _unit_rows(C - dot(C, A)[:, None] * A)
     z = 1 - u2 * (1 - dot(ch, B))
     return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(
@@ -343,7 +340,7 @@ class Emitter:
         if big.any():
             Vb = V[li[big], kk[big]]
             w = sample_spherical_triangle(
-                Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big]
+                Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big], ok_.ravel()[big]
             )
             # the point where direction w meets the triangle's plane
             n = self.tri_normal[kk[big]]
@@ -441,6 +438,8 @@ class FinalGather:
         leaf_points=2,
         covered_hits="zero",
         covered_samples="zero",
+        iterations=0,
+        cache_responses=True,
     ):
         dyn = system if hasattr(system, "n_hr") else None
         self.system = dyn.system if dyn is not None else system
@@ -503,6 +502,7 @@ class FinalGather:
         parts = [self.gather_batch(a, b) for a, b in self.batches(self.rays)]
         self.indptr, self.cols, self.w = self.merge(parts)
         self.second = None
+        self.iterations = int(iterations) if levels == 2 else 0
         if levels >= 2:
             # two-level gather (issue 19, as Hasan et al. 2006): every HR leaf the rays hit gets
             # leaf_points^2 gather samples of its own (Gauss points) with exact direct light and a
@@ -510,6 +510,11 @@ class FinalGather:
             # instead of the leaf
             h = s.h
             used = np.unique(self.cols).astype(np.int64)
+            if iterations > 0:
+                # the gather samples' own rays must find gather samples wherever they land: every
+                # HR leaf gets them
+                c0 = h.child0[: self.n_hr]
+                used = np.flatnonzero((c0 < 0) | (c0 >= self.n_hr)).astype(np.int64)
             x, gw = ff.quadrature(h.corners[used], h.nv[used], int(leaf_points))
             k2 = x.shape[1]
             self.second = FinalGather(
@@ -525,11 +530,17 @@ class FinalGather:
                 second_rays=max(int(second_rays or max(self.rays // 2, 16)) // 2, 16),
                 leaf_points=leaf_points,
                 covered_hits=covered_hits,
+                covered_samples=covered_samples,
             )
             self._second_map = (used, gw)
         self.stats["precompute_cpu"] = time.process_time() - t0
         self._D_static = None
         self._shape_cache = {}  # geom_key -> (unit D (n,) float32, indices inside the outline)
+        # DynamicRadiosity in "response" mode: D + I of the base solution and of each shape's
+        # response at unit emission, so an emission edit is a weighted sum (_incident_by_response)
+        self.cache_responses = bool(cache_responses)
+        self._responses = {}
+        self._responses_of = None
         self._naive_key = None
         self._naive_V = None
 
@@ -613,16 +624,29 @@ class FinalGather:
         """(n_hr, 3) reflected radiance on the uncovered part of every HR leaf (0 elsewhere); with
         a second level, of the leaves the rays hit: the mean of their gather samples (exact direct
         light + the solution one bounce further) over the uncovered ones."""
-        V = self.solution_values(dyn)
+        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0])
+
+    def _levels(self, V, direct):
+        """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
+        direct(g) -> (g.n, 3) direct light at a level's samples: V itself with one level; with
+        more, the lower levels' gathers (linear in V and the direct light)."""
         if self.second is None:
             return V
         used, gw = self._second_map
-        y = self.second.evaluate(dyn, "reflected").reshape(len(used), -1, 3)
-        w = gw * ~self.second.dark.reshape(len(used), -1)
+        g2 = self.second
+        w = gw * ~g2.dark.reshape(len(used), -1)
         ws = w.sum(1)
-        Y = V.copy()
         ok = ws > 0
-        Y[used[ok]] = np.einsum("uk,ukc->uc", w[ok], y[ok]) / ws[ok, None]
+        w = w[ok] / ws[ok, None]
+        D2 = direct(g2)
+        Y = g2._levels(V, direct) if g2.second is not None else V  # levels > 2: its own levels
+        # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
+        # direct light): every pass moves the solution one bounce further away
+        for _ in range(1 + self.iterations):
+            y = (g2.rho * (D2 + _csr_matvec(g2.indptr, g2.cols, g2.w, Y))).reshape(len(used), -1, 3)
+            Ynew = V.copy()
+            Ynew[used[ok]] = np.einsum("uk,ukc->uc", w, y[ok])
+            Y = Ynew
         return Y
 
     def solution_values(self, dyn):
@@ -631,9 +655,15 @@ class FinalGather:
         if st is None:
             return self._naive_values(dyn)
         h, B, E = st
+        n = h.n
+        X = B[:, :n] - E[:, :n] * h.exposure[:n].astype(np.float64)
+        return np.maximum(self._values_from(h, X), 0.0)
+
+    def _values_from(self, h, X):
+        """(n_hr, 3) shown values of the HR leaves from reflected node means X (3, n) (linear)."""
         n, m = h.n, self.n_hr
         ex = h.exposure[:n].astype(np.float64)
-        X = (B[:, :n] - E[:, :n] * ex) * h.area[:n]  # reflected power-like: node means x area
+        X = X[:, :n] * h.area[:n]  # reflected power-like: node means x area
         if n > m:  # HR leaves split by light events: the area mean of their current leaves
             leaf = h.child0[:n] < 0
             Y = np.where(leaf, X, 0.0)
@@ -646,8 +676,52 @@ class FinalGather:
             X = np.where((np.arange(n) < m) & ~leaf & (h.child0[:n] >= m), Y, X)
         V = X[:, :m] / np.maximum(h.area[:m], 1e-300)
         exm = ex[:m]
-        V = np.where(exm > 0, V / np.maximum(exm, 1e-30), 0.0)
-        return np.maximum(V, 0.0).T
+        return np.where(exm > 0, V / np.maximum(exm, 1e-30), 0.0).T
+
+    def _incident_by_response(self, dyn):
+        """(n, 3) D + I of a DynamicRadiosity in "response" mode as a sum of cached parts: the
+        base solution's, and per light shape its response's at unit emission times the shape's
+        emission (a colour or strength edit: one weighted sum). None where that does not apply
+        (NAIVE, warm mode, a static system)."""
+        if not self.cache_responses or dyn is None or not hasattr(dyn, "n_hr"):
+            return None
+        if dyn.incremental != "response" or dyn.naive_active:
+            return None
+        recs = list(dyn.shapes.values())
+        if any(r.U is None or r.used == "NAIVE" or not r.on_surface for r in recs):
+            return None
+        if self._responses_of is not dyn:  # parts of another DynamicRadiosity (ids may be reused)
+            self._responses.clear()
+            self._responses_of = dyn
+        dyn._sync()
+        h = dyn.system.h
+        n = h.n
+        ex = h.exposure[:n].astype(np.float64)
+        key0 = ("base",)
+        if key0 not in self._responses:
+            X = dyn._Bbase[:, :n] - dyn.system.base_emission()[:, :n] * ex
+            V = self._values_from(h, X)
+            Y = self._levels(V, lambda g: g.direct_static())
+            self._responses[key0] = self.direct_static() + _csr_matvec(self.indptr, self.cols, self.w, Y)
+        total = self._responses[key0].copy()
+        live = {key0}
+        for rec in recs:
+            k = ("shape", rec.geom_key, rec.used)
+            live.add(k)
+            if k not in self._responses:
+                X = rec.U[:, :n] - dyn._coverage(rec)[None, :n] * ex
+
+                def unit(g, rec=rec):
+                    return np.repeat(g._shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
+
+                Y = self._levels(self._values_from(h, X), unit)
+                part = unit(self) + _csr_matvec(self.indptr, self.cols, self.w, Y)
+                self._responses[k] = part.astype(np.float32)
+            total += rec.emission[None] * self._responses[k]
+        gone = [k for k in self._responses if k not in live]
+        for k in gone[: max(len(gone) - 8, 0)]:
+            del self._responses[k]
+        return total
 
     def _naive_values(self, dyn):
         """NAIVE: each used HR leaf reads the rebuilt solution (reflected, shown) at its 2 x 2 Gauss
@@ -657,6 +731,8 @@ class FinalGather:
             return self._naive_V
         h = self.system.h
         used = np.unique(self.cols).astype(np.int64)
+        if self.second is not None:  # the gather samples' rays land on other leaves too
+            used = np.union1d(used, self.second.cols).astype(np.int64)
         x, gw = ff.quadrature(h.corners[used], h.nv[used], 2)
         pts = x.reshape(-1, 3)
         roots, p2 = nv.remap(pts, np.repeat(h.patch[used], 4))
@@ -872,7 +948,9 @@ class FinalGather:
             if k not in KINDS:
                 raise ValueError(f"unknown kind {k!r} ({', '.join(KINDS)})")
         D, E = self.direct_and_emission(dyn)
-        inc = D + self.indirect(dyn)
+        inc = self._incident_by_response(dyn)
+        if inc is None:
+            inc = D + self.indirect(dyn)
         inc[self.dark] = 0.0
         out = {}
         for k in kinds:
