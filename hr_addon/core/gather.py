@@ -46,6 +46,7 @@ import numpy as np
 
 from . import formfactor as ff
 from .geometry import isolated_objects, newell
+from .visibility import first_hit_within
 from .output import _insideness
 
 KINDS = ("radiance", "reflected", "incident")
@@ -596,17 +597,8 @@ class FinalGather:
         return counts, (u % self.n_hr).astype(np.int32), (cnt / R).astype(np.float32)
 
     def first_hit(self, org, dirs):
-        """backend.first_hit of unit rays, near hits to self.reach, then the misses on to tmax."""
-        b = self.system.backend
-        prim, t = b.first_hit(org, dirs, self.reach)
-        if self.tmax > self.reach:
-            miss = np.flatnonzero(prim < 0)
-            if len(miss):
-                start = self.reach * (1 - 4e-6)  # overlaps the first segment's open end
-                p2, t2 = b.first_hit(org[miss] + start * dirs[miss], dirs[miss], self.tmax)
-                hit = p2 >= 0
-                prim[miss[hit]], t[miss[hit]] = p2[hit], start + t2[hit]
-        return prim, t
+        """Nearest hits of unit rays (visibility.first_hit_within: near hits to self.reach first)."""
+        return first_hit_within(self.system.backend, org, dirs, self.reach, self.tmax)
 
     # -- run time: values at the HR leaves -----------------------------------------------------------
     def _state(self, dyn):

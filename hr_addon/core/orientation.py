@@ -16,19 +16,19 @@ shows them:
   farther away (a ceiling panel turned towards the ceiling).
 
 Rays: SIDE_RAYS per side of each patch, stratified over the patch and cosine-weighted over the
-hemisphere, traced to their first hit. The nearest-hit query of the float32 backends
-(`_nearest`) is used when the build's backend has one; otherwise Embree or Blender's BVH tree are
-built here for the check when importable, else a brute-force float64 search (small scenes only).
-Decisions are per input polygon (the counts of all its patches), so a polygon is never split.
+hemisphere, traced to their first hit by the build's ray backend (first_hit_within: near hits
+first, so a stray object far away does not blur them). Decisions are per input polygon (the counts
+of all its patches), so a polygon is never split.
 """
 
 import numpy as np
+
+from .visibility import first_hit_within
 
 SIDE_RAYS = 16  # rays per side of each patch (a 4 x 4 stratification)
 MIN_BACK = 0.25  # share of a polygon's back rays that must meet the fronts of other surfaces
 NEAR = 0.25  # an emitter's front hits this close (x its size) face "a surface right in front of it"
 FAR = 4.0  # ... while its back rays travel this many times farther
-BRUTE_MAX = 3e8  # ray x triangle pairs the float64 fallback may test
 GAP = 1e-3  # faces this close (x sqrt(total area), as contacts' gap) facing each other touch
 
 
@@ -53,70 +53,6 @@ def _touching(pt, cand, pts, n, gap):
     return out
 
 
-def _kept(tri):
-    """The triangles a RayBackend keeps (visibility._clean_triangles' test), as a mask."""
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    c = np.cross(e1, e2)
-    n2 = np.einsum("ij,ij->i", c, c)
-    ok = n2 > 1e-24 * np.einsum("ij,ij->i", e1, e1) * np.einsum("ij,ij->i", e2, e2)
-    return np.isfinite(tri).all(axis=(1, 2)) & ok & (n2 > 0)
-
-
-def _brute_nearest(tri, o, d):
-    """(index of the nearest triangle hit by o + t d, t in (0, 1], or -1; t), float64, brute force."""
-    prim = np.full(len(o), -1, np.intp)
-    best = np.full(len(o), np.inf)
-    v0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    step = max(1, int(2e6 // max(len(tri), 1)))
-    with np.errstate(all="ignore"):
-        for s in range(0, len(o), step):
-            oo, dd = o[s : s + step, None], d[s : s + step, None]
-            p = np.cross(dd, e2)
-            det = np.einsum("rtk,tk->rt", p, e1)
-            inv = 1.0 / det
-            tv = oo - v0
-            u = np.einsum("rtk,rtk->rt", tv, p) * inv
-            q = np.cross(tv, e1)
-            v = np.einsum("rtk,rtk->rt", np.broadcast_to(dd, q.shape), q) * inv
-            t = np.einsum("rtk,tk->rt", q, e2) * inv
-            hit = (np.abs(det) > 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-9) & (t <= 1)
-            t = np.where(hit, t, np.inf)
-            k = np.argmin(t, 1)
-            tk = t[np.arange(len(t)), k]
-            found = np.isfinite(tk)
-            prim[s : s + step] = np.where(found, k, -1)
-            best[s : s + step] = tk
-    return prim, np.where(prim >= 0, best, 0.0)
-
-
-def _first_hits(backend, triangles, owner, o, d):
-    """Patch first hit by each segment o -> o + d (-1: none) and its parameter t in [0, 1]."""
-    tracer = backend if hasattr(backend, "_nearest") else None
-    if tracer is None:
-        from . import visibility
-
-        for name in ("embree", "mathutils"):
-            if name == "mathutils" and len(o) * len(triangles) <= BRUTE_MAX:
-                break  # the float64 search is fast enough, and Python-level ray casts are slow
-            if visibility._importable(name):
-                tracer = visibility.make_backend(triangles, name)
-                break
-    if tracer is not None:
-        keep = _kept(triangles)
-        if keep.sum() == len(tracer.triangles):
-            c = tracer.center
-            prim, t = tracer._nearest(
-                (o - c).astype(np.float32), d.astype(np.float32), np.ones(len(o), np.float32)
-            )
-            kept_owner = owner[keep]
-            return np.where(prim >= 0, kept_owner[np.maximum(prim, 0)], -1), np.asarray(t, float)
-    if len(o) * len(triangles) > BRUTE_MAX:
-        return None, None
-    keep = _kept(triangles)
-    prim, t = _brute_nearest(triangles[keep], o, d)
-    return np.where(prim >= 0, owner[keep][np.maximum(prim, 0)], -1), t
-
-
 def _stratified(n, rng):
     """(n, 2) stratified samples in [0, 1)^2 (n a square number), in a random order."""
     k = int(round(np.sqrt(n)))
@@ -135,19 +71,18 @@ def _frames(n):
 
 def find_reversed(patches, backend, seed=0):
     """(flip, reasons): boolean (K,) per patch, True for the patches of polygons to turn around, and
-    {input polygon: "back" | "emitter"} of those polygons. `None` reasons when the scene is too big
-    for the rays available (no check)."""
+    {input polygon: "back" | "emitter"} of those polygons."""
     pt = patches
     K = len(pt.nv)
     if K == 0:
         return np.zeros(0, bool), {}
     rng = np.random.default_rng(seed)
     S = SIDE_RAYS
-    tri = pt.triangles
-    owner = np.concatenate([np.arange(K), np.flatnonzero(pt.nv == 4)])
-    lo, hi = tri.reshape(-1, 3).min(0), tri.reshape(-1, 3).max(0)
+    lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
     L = 2.0 * float(np.linalg.norm(hi - lo)) or 1.0  # longer than any path inside the scene
-    eps = 1e-6 * L
+    size = float(np.sqrt(pt.area.sum()))
+    eps = 1e-6 * size  # as the refiner's
+    owner = pt.triangle_patch
     # points: bilinear over the (padded) corners, stratified; a triangle's repeated corner folds the
     # square onto it
     uv = _stratified(S, rng)
@@ -173,13 +108,10 @@ def find_reversed(patches, backend, seed=0):
             + local[None, :, 2:] * ns[:, None]
         )
         o = (pts + eps * ns[:, None]).reshape(-1, 3)
-        d = (dirs * L).reshape(-1, 3)
-        hit, tt = _first_hits(backend, tri, owner, o, d)
-        if hit is None:
-            return np.zeros(K, bool), None
-        hit = hit.reshape(K, S)
-        hit[hit == np.arange(K)[:, None]] = -1  # float32 rounding: a grazing ray meeting its own patch
-        dist = (tt * L).reshape(K, S)
+        prim, dist = first_hit_within(backend, o, dirs.reshape(-1, 3), min(4.0 * size, L), L)
+        hit = np.where(prim >= 0, owner[np.maximum(prim, 0)], -1).reshape(K, S)
+        hit[hit == np.arange(K)[:, None]] = -1  # a grazing ray meeting its own patch
+        dist = np.where(prim >= 0, dist, 0.0).reshape(K, S)
         h = hit >= 0
         facing = np.zeros((K, S), bool)
         facing[h] = np.einsum("ij,ij->i", dirs[h], n[hit[h]]) < 0  # met the front of what it hit
@@ -262,12 +194,7 @@ def orient(patches, backend, seed=0):
     the messages naming them (also appended to patches.warnings)."""
     flip, reasons = find_reversed(patches, backend, seed)
     msgs = []
-    if reasons is None:
-        msgs.append(
-            "Faces facing the wrong way were not looked for: the scene is too big for the rays "
-            "available without Embree."
-        )
-    elif reasons:
+    if reasons:
         turn_around(patches, flip)
         back = [p for p, r in reasons.items() if r == "back"]
         emit = [p for p, r in reasons.items() if r == "emitter"]

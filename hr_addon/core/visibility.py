@@ -164,14 +164,13 @@ class RayBackend:
         array given to the backend, -1 for none (R,) int64; t (R,) float64 in units of d, inf for
         none). Float64 decides every reported hit, as for occluded()."""
         o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-        d = np.asarray(directions, dtype=np.float64).reshape(-1, 3) * np.broadcast_to(
-            np.asarray(tmax, dtype=np.float64), (len(o),)
-        )[:, None]
+        d = (
+            np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+            * np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(o),))[:, None]
+        )
         prim = np.full(len(o), -1, np.int64)
         t = np.full(len(o), np.inf)
-        ok = np.flatnonzero(
-            np.isfinite(o).all(1) & np.isfinite(d).all(1) & (np.einsum("ij,ij->i", d, d) > 0)
-        )
+        ok = np.flatnonzero(np.isfinite(o).all(1) & np.isfinite(d).all(1) & (np.einsum("ij,ij->i", d, d) > 0))
         if len(ok) and len(self.triangles):
             p, ts = self._first(o[ok], d[ok])
             hit = p >= 0
@@ -560,6 +559,22 @@ def make_backend(triangles, prefer="auto"):
     if prefer not in _BACKENDS:
         raise ValueError(f"unknown ray backend {prefer!r}; expected auto or one of {sorted(_BACKENDS)}")
     return _BACKENDS[prefer](triangles)
+
+
+def first_hit_within(backend, origins, directions, reach, tmax):
+    """backend.first_hit of unit rays to `reach`, then of the misses on to `tmax`. The contract's
+    minimum distance is relative to the segment: one segment as long as a scene with a stray object
+    50 km away (tmax 100 km) would skip every hit within 10 cm; `reach` (a few times the size of
+    the main group of objects) keeps it relative to the rays' own surroundings."""
+    prim, t = backend.first_hit(origins, directions, reach)
+    if tmax > reach:
+        miss = np.flatnonzero(prim < 0)
+        if len(miss):
+            start = reach * (1 - 4 * TMIN)  # overlaps the first segment's open end
+            p2, t2 = backend.first_hit(origins[miss] + start * directions[miss], directions[miss], tmax)
+            hit = p2 >= 0
+            prim[miss[hit]], t[miss[hit]] = p2[hit], start + t2[hit]
+    return prim, t
 
 
 def visibility_fraction(backend, a, b):
