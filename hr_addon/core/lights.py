@@ -170,8 +170,9 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
     with unit normals n, as irradiance / pi (the gather's "incident" unit), shadow rays through
     `backend` (visibility.RayBackend). rays: shadow rays per point for lights with a size (radius,
     sun angle, area); a point light of radius 0 casts one. keys: per-point random keys
-    (gather.position_keys), default the point index. far: a sun's shadow ray length (default 1e6
-    x eps). -> (N,) float64."""
+    (gather.position_keys), default the point index. far: a sun's shadow ray length, beyond the
+    scene but not far beyond it (ray backends' minimum hit distance is relative to the segment;
+    default 1e4 x eps). -> (N,) float64."""
     x = np.asarray(x, np.float64).reshape(-1, 3)
     n = np.asarray(n, np.float64).reshape(-1, 3)
     N = len(x)
@@ -211,7 +212,7 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
         val = np.maximum(cos, 0) * SUN_IRRADIANCE / np.pi
         lit = np.flatnonzero(val > 0)
         if len(lit):
-            far = float(far or 1e6 * eps)
+            far = float(far or 1e4 * eps)
             if light.angle > 0 and rays > 1:
                 # directions uniform in the sun's cone (half angle angle / 2)
                 u = _uniforms(len(lit), rays, seed, keys[lit], 3000 + stream)
@@ -270,7 +271,7 @@ def area_emitter(light, stream=0):
                    light.outline[0].copy(), stream=stream)
 
 
-def node_incident(h, nodes, light, backend, eps, rays=4, seed=0, unit=1.0):
+def node_incident(h, nodes, light, backend, eps, rays=4, seed=0, unit=1.0, far=None):
     """(len(nodes),) unit direct light (irradiance / pi) averaged over each node's 2 x 2 Gauss
     points, on its uncovered part (contacts: Hierarchy.dark)."""
     from .gather import position_keys
@@ -282,7 +283,8 @@ def node_incident(h, nodes, light, backend, eps, rays=4, seed=0, unit=1.0):
     k = x.shape[1]
     pts = x.reshape(-1, 3)
     nrm = np.repeat(h.normal[nodes], k, 0)
-    v = unit_incident(light, pts, nrm, backend, eps, rays, seed, position_keys(pts, unit)).reshape(-1, k)
+    v = unit_incident(light, pts, nrm, backend, eps, rays, seed, position_keys(pts, unit), far=far)
+    v = v.reshape(-1, k)
     ex = h.exposure[nodes]
     part = np.flatnonzero((ex > 0) & (ex < 1))
     w = gw.copy()

@@ -70,7 +70,9 @@ class _LightsMixin:
         leaves = self._hr_leaves()
         eps = self.system.refiner.eps
         unit = 2.0 ** (np.floor(np.log2(np.sqrt(self.total_area))) - 12)
-        v = node_incident(h, leaves, rec.light, self.system.backend, eps, self.LIGHT_RAYS, unit=unit)
+        v = node_incident(
+            h, leaves, rec.light, self.system.backend, eps, self.LIGHT_RAYS, unit=unit, far=2 * self.diag + 1
+        )
         D = np.zeros((3, h.n))
         D[:, leaves] = pt.reflectance[:, h.patch[leaves]] * v
         rec.D = D
