@@ -262,7 +262,10 @@ class LiveWorker:
         self.phase = "computing"
         t0 = time.perf_counter()
         try:
-            report = dyn.apply(shapes)
+            from ..core.lights import Light
+
+            lights = {k: v for k, v in shapes.items() if isinstance(v, Light)}
+            report = dyn.apply({k: v for k, v in shapes.items() if k not in lights}, lights)
         except InputError as exc:  # an invalid shape: apply() validates before changing anything
             with self._cond:
                 self._result = Result(generation, serial, sig, error=str(exc), requested=t_request)
