@@ -79,10 +79,11 @@ def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=N
     out = {"kind": kind, "spp": spp, "seeds": list(seeds), "ours_cpu_s": round(ours_s, 1),
            "cycles_wall_s": round(cyc_s, 1), "surfaces": {}}
     for n in rs.objects:
-        ref = sum(refs) / len(refs)
+        ref = sum(r[n] for r in refs) / len(refs)
         m = C.metrics(g[n]["gather_refl"], ref)
         ml = C.metrics(leaf[n]["leaf_refl"], ref)
-        nz = C.noise(refs[0], refs[1])[1] / math.sqrt(len(refs)) if len(refs) > 1 else float("nan")
+        # the noise of the two seeds' mean (C.noise: of one bake's surface mean)
+        nz = C.noise(refs[0][n], refs[1][n])[1] / math.sqrt(len(refs)) if len(refs) > 1 else float("nan")
         out["surfaces"][n] = {"texels": m["texels"], "gather": round(m["bias"], 4), "leaves": round(ml["bias"], 4),
                               "ref_noise_of_mean": round(nz, 4)}
     return out

@@ -176,3 +176,17 @@ def test_live_follows_a_light_power_edit_as_a_scale_and_a_move(tmp_path):
     d = attribute(cube)[:, :3]
     # Live solves responses to 1e-5 in float32 (docs/ARCHITECTURE.md); direct light is the same rays
     assert np.allclose(c, d, rtol=1e-4, atol=1e-5 * d.max())
+
+
+def test_a_partial_bake_drops_frames_baked_with_other_lights(tmp_path):
+    bpy = _factory(tmp_path)
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, 2
+    res = _bake(tmp_path, frames=(1, 2), final_gather=False)
+    assert res.solved + res.reused == 2
+    lamp = bpy.data.objects.new("Fill", bpy.data.lights.new("Fill", "POINT"))
+    lamp.location = (-3, -3, 3)
+    scene.collection.objects.link(lamp)
+    res = _bake(tmp_path, frames=(1, 1), final_gather=False)
+    assert not res.kept, res.warnings
+    assert any("other Blender lights: 'Fill' is new" in w for w in res.warnings), res.warnings

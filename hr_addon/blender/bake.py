@@ -446,6 +446,8 @@ def bake_frames(
             "geometry": geometry_sig,
             "light_shapes": shapes_id,
         }
+        if has_lights:  # which Blender lights took part (not their animated values)
+            info["lights"] = {o.name: f"{o.data.type} {o.data.name}" for o in _walk_lights(view_layer)}
         if result.rays_note:
             info["rays_note"] = result.rays_note
         baker = None
