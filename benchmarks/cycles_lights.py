@@ -28,15 +28,16 @@ def add_light(kind):
     ob = bpy.data.objects.new("Lamp", ld)
     ob.location = (0.278, 0.2795, 0.5438)
     ld.color = (1.0, 0.85, 0.6)
-    if kind == "POINT":
+    if kind == "POINT":  # lower: 5 mm under the ceiling its hot spot makes Cycles' indirect noisy
         ld.energy, ld.shadow_soft_size = 20.0, 0.0
+        ob.location = (0.278, 0.2795, 0.40)
     elif kind == "AREA":
         ld.shape, ld.size, ld.size_y, ld.energy = "RECTANGLE", 0.13, 0.105, 20.0
     elif kind == "SPOT":  # aimed at the back wall
         ld.energy, ld.shadow_soft_size = 60.0, 0.0
         ld.spot_size, ld.spot_blend = math.radians(50), 0.2
         ob.location = (0.278, 0.1, 0.45)
-        ob.rotation_euler = (math.radians(-70), 0, 0)  # -Z turned towards +Y (the back wall)
+        ob.rotation_euler = (math.radians(70), 0, 0)  # -Z turned towards +Y (the back wall)
     elif kind == "SUN":
         ld.energy, ld.angle = 2.0, 0.0
         ob.rotation_euler = (math.radians(20), math.radians(15), 0)
