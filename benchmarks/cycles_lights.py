@@ -12,7 +12,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks"), str(ROOT / "tests")]
@@ -77,16 +76,26 @@ def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=N
         ref, _, mask = C.bake(rs, spp, seed=s)
         refs.append(ref)
     cyc_s = time.perf_counter() - t1
-    out = {"kind": kind, "spp": spp, "seeds": list(seeds), "ours_cpu_s": round(ours_s, 1),
-           "cycles_wall_s": round(cyc_s, 1), "surfaces": {}}
+    out = {
+        "kind": kind,
+        "spp": spp,
+        "seeds": list(seeds),
+        "ours_cpu_s": round(ours_s, 1),
+        "cycles_wall_s": round(cyc_s, 1),
+        "surfaces": {},
+    }
     for n in rs.objects:
         ref = sum(r[n] for r in refs) / len(refs)
         m = C.metrics(g[n]["gather_refl"], ref)
         ml = C.metrics(leaf[n]["leaf_refl"], ref)
         # the noise of the two seeds' mean (C.noise: of one bake's surface mean)
         nz = C.noise(refs[0][n], refs[1][n])[1] / math.sqrt(len(refs)) if len(refs) > 1 else float("nan")
-        out["surfaces"][n] = {"texels": m["texels"], "gather": round(m["bias"], 4), "leaves": round(ml["bias"], 4),
-                              "ref_noise_of_mean": round(nz, 4)}
+        out["surfaces"][n] = {
+            "texels": m["texels"],
+            "gather": round(m["bias"], 4),
+            "leaves": round(ml["bias"], 4),
+            "ref_noise_of_mean": round(nz, 4),
+        }
     return out
 
 

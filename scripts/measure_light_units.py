@@ -94,9 +94,10 @@ def centre(px, k=8):
 def rect_factor(a, b, h):
     """Form factor from a point on the axis of a parallel a x b rectangle at distance h."""
     x, y = a / 2 / h, b / 2 / h
-    f = lambda x, y: (x / math.sqrt(1 + x * x)) * math.atan(y / math.sqrt(1 + x * x)) + (
-        y / math.sqrt(1 + y * y)
-    ) * math.atan(x / math.sqrt(1 + y * y))
+    f = lambda x, y: (
+        (x / math.sqrt(1 + x * x)) * math.atan(y / math.sqrt(1 + x * x))
+        + (y / math.sqrt(1 + y * y)) * math.atan(x / math.sqrt(1 + y * y))
+    )
     return 4 * f(x, y) / (2 * math.pi)
 
 
@@ -108,20 +109,42 @@ def main(samples):
     light(sc, "POINT", energy=P, shadow_soft_size=0.0)
     L, se = centre(render(sc))
     E = math.pi * L / RHO
-    out.append(dict(light="POINT", P=P, h=h, L=L, se=L and se / L, K=E * h * h / P, K_x_4pi=E * h * h / P * 4 * math.pi))
+    out.append(
+        dict(
+            light="POINT",
+            P=P,
+            h=h,
+            L=L,
+            se=L and se / L,
+            K=E * h * h / P,
+            K_x_4pi=E * h * h / P * 4 * math.pi,
+        )
+    )
     # point light radius 0.5 (sphere light): same K far away?
     sc = scene(samples=samples)
     light(sc, "POINT", energy=P, shadow_soft_size=0.5)
     L, se = centre(render(sc))
     E = math.pi * L / RHO
-    out.append(dict(light="POINT r=0.5", P=P, h=h, L=L, se=se / L, K=E * h * h / P, K_x_4pi=E * h * h / P * 4 * math.pi))
+    out.append(
+        dict(
+            light="POINT r=0.5",
+            P=P,
+            h=h,
+            L=L,
+            se=se / L,
+            K=E * h * h / P,
+            K_x_4pi=E * h * h / P * 4 * math.pi,
+        )
+    )
     # sun: E = K S cos
     for tilt in (0.0, 60.0):
         sc = scene(samples=samples)
         light(sc, "SUN", rot=(math.radians(tilt), 0, 0), energy=3.0, angle=0.0)
         L, se = centre(render(sc))
         E = math.pi * L / RHO
-        out.append(dict(light=f"SUN tilt {tilt}", S=3.0, L=L, se=se / L, K=E / 3.0 / math.cos(math.radians(tilt))))
+        out.append(
+            dict(light=f"SUN tilt {tilt}", S=3.0, L=L, se=se / L, K=E / 3.0 / math.cos(math.radians(tilt)))
+        )
     # area square 1 m at h: E = pi L_e F, L_e = K P / A
     for shape, sx, sy in (("SQUARE", 1.0, 1.0), ("RECTANGLE", 1.0, 0.5)):
         sc = scene(samples=samples)
@@ -133,7 +156,18 @@ def main(samples):
         E = math.pi * L / RHO
         F = rect_factor(sx, sy, h)
         Le = E / (math.pi * F)
-        out.append(dict(light=f"AREA {shape}", P=P, A=sx * sy, L=L, se=se / L, F=F, K=Le * sx * sy / P, K_x_pi=Le * sx * sy / P * math.pi))
+        out.append(
+            dict(
+                light=f"AREA {shape}",
+                P=P,
+                A=sx * sy,
+                L=L,
+                se=se / L,
+                F=F,
+                K=Le * sx * sy / P,
+                K_x_pi=Le * sx * sy / P * math.pi,
+            )
+        )
     # spot: profile across the cone edge (ortho 3 m wide at h = 2)
     ortho = 4.0
     sc = scene(ortho=ortho, samples=samples)
@@ -152,7 +186,11 @@ def main(samples):
     cand_a = t * t * (3 - 2 * t)
     out.append(
         dict(
-            light="SPOT", size_deg=60, blend=blend, x=x.round(4).tolist(), att=att.round(4).tolist(),
+            light="SPOT",
+            size_deg=60,
+            blend=blend,
+            x=x.round(4).tolist(),
+            att=att.round(4).tolist(),
             cand_smoothstep=cand_a.round(4).tolist(),
             max_abs_diff=float(np.abs(att - cand_a).max()),
         )

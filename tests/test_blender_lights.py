@@ -43,12 +43,14 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
     v = attribute(cube)[:, :3].astype(np.float64)
     me = cube.data
     M = np.array(cube.matrix_world)
-    rho = np.array(cube.active_material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value[:3])
+    rho = np.array(
+        cube.active_material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value[:3]
+    )
     c = np.array(light.location)
     r, P = light.data.shadow_soft_size, light.data.energy
     lit_faces = 0
     for poly in me.polygons:
-        nrm = (M[:3, :3] @ np.array(poly.normal))
+        nrm = M[:3, :3] @ np.array(poly.normal)
         nrm /= np.linalg.norm(nrm)
         loops = list(poly.loop_indices)
         centre = M[:3, :3] @ np.array(poly.center) + M[:3, 3]
@@ -99,10 +101,14 @@ def test_unsupported_light_features_are_named(tmp_path):
     bpy.context.scene.collection.objects.link(area)
     res = _bake(tmp_path, final_gather=False)
     named = [w for w in res.warnings if "is not supported by the bake" in w]
-    assert "Light 'Light': light nodes (IES profiles, textures: the node setup is ignored) is not " \
-        "supported by the bake." in named, res.warnings
+    assert (
+        "Light 'Light': light nodes (IES profiles, textures: the node setup is ignored) is not "
+        "supported by the bake." in named
+    ), res.warnings
     assert "Light 'Spot': a square spot (a round cone is used) is not supported by the bake." in named
-    assert any("'Panel': light linking" in w for w in named) and any("'Panel': area spread" in w for w in named)
+    assert any("'Panel': light linking" in w for w in named) and any(
+        "'Panel': area spread" in w for w in named
+    )
     assert any("World" in w for w in res.warnings)  # the World's background is still named
     # and the bake still used the lights
     assert attribute(bpy.data.objects["Cube"])[:, :3].max() > 0

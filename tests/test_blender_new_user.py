@@ -1,6 +1,6 @@
 """Issue 18, a new user's trial: no black bake without a word (nothing emits; the World is
-ignored; Blender lights take part since issue 20), light shapes that cannot emit, checks before the build, a clean
-unregister, the words a user reads and what the saved file carries."""
+ignored; Blender lights take part since issue 20), light shapes that cannot emit, checks before
+the build, a clean unregister, the words a user reads and what the saved file carries."""
 
 import os
 import subprocess

@@ -94,9 +94,15 @@ def test_area_light_is_the_closed_form_rectangle_factor():
     L = Light("AREA", (1, 1, 1), P, direction=(0, 0, -1), outline=area_outline("RECTANGLE", a, b, M))
     assert L.area == pytest.approx(a * b)
     Le = cf.area_light_radiance(P, a * b)
-    want = np.array(
-        [cf.point_to_parallel_rect(p[0], p[1], 0.2 - a / 2, 0.2 + a / 2, 0.1 - b / 2, 0.1 + b / 2, h) for p in x]
-    ) * Le  # irradiance / pi = L F
+    want = (
+        np.array(
+            [
+                cf.point_to_parallel_rect(p[0], p[1], 0.2 - a / 2, 0.2 + a / 2, 0.1 - b / 2, 0.1 + b / 2, h)
+                for p in x
+            ]
+        )
+        * Le
+    )  # irradiance / pi = L F
     got = unit_incident(L, x, n, s.backend, 1e-6) * P
     assert np.allclose(got, want, rtol=1e-9)
     dyn = DynamicRadiosity(s, method="FE")
@@ -114,15 +120,25 @@ def test_spot_cone_boundary_and_blend():
     ch = math.cos(size / 2)
     # points along x at chosen angles off the axis: well inside, inside the blend, on the edge, out
     cos_in = ch + (1 - ch) * blend  # where the blend ends (full light inside)
-    angles = [0.0, 0.5 * math.acos(cos_in), math.acos(ch + 0.5 * (cos_in - ch)), math.acos(ch) - 1e-4,
-              math.acos(ch) + 1e-4, math.radians(40)]
+    angles = [
+        0.0,
+        0.5 * math.acos(cos_in),
+        math.acos(ch + 0.5 * (cos_in - ch)),
+        math.acos(ch) - 1e-4,
+        math.acos(ch) + 1e-4,
+        math.radians(40),
+    ]
     x = np.array([[h * math.tan(t), 0, 0] for t in angles])
     n = np.tile([0.0, 0.0, 1.0], (len(x), 1))
-    L = Light("SPOT", (1, 1, 1), P, position=(0, 0, h), direction=(0, 0, -1), spot_size=size, spot_blend=blend)
+    L = Light(
+        "SPOT", (1, 1, 1), P, position=(0, 0, h), direction=(0, 0, -1), spot_size=size, spot_blend=blend
+    )
     got = unit_incident(L, x, n, s.backend, 1e-6) * P
     r = np.linalg.norm(x - L.position, axis=1)
     cosa = h / r
-    want = np.array([cf.point_light_irradiance(P, ri, c) * cf.spot_factor(c, size, blend) for ri, c in zip(r, cosa)])
+    want = np.array(
+        [cf.point_light_irradiance(P, ri, c) * cf.spot_factor(c, size, blend) for ri, c in zip(r, cosa)]
+    )
     assert np.allclose(got, want / np.pi, rtol=1e-12)
     assert got[0] > 0 and got[1] == pytest.approx(cf.point_light_irradiance(P, r[1], cosa[1]) / np.pi)
     assert got[2] == pytest.approx(0.5 * cf.point_light_irradiance(P, r[2], cosa[2]) / np.pi, rel=1e-9)
@@ -175,8 +191,15 @@ def test_turning_spot_equals_fresh_solutions(method):
 
     def spot(a):
         d = np.array([math.sin(a), 0.3, -math.cos(a)])
-        return Light("SPOT", (1, 0.9, 0.7), 200.0, position=(1.0, 1.0, 1.8), direction=d,
-                     spot_size=math.radians(45), spot_blend=0.2)
+        return Light(
+            "SPOT",
+            (1, 0.9, 0.7),
+            200.0,
+            position=(1.0, 1.0, 1.8),
+            direction=d,
+            spot_size=math.radians(45),
+            spot_blend=0.2,
+        )
 
     for a in (0.0, 0.4, 0.8):
         dyn.apply({}, {"s": spot(a)})

@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.geometry import InputError, MeshInput, components, newell
-from ..io.cache import _names
 from .materials import read_material, world_lights
 
 
@@ -685,10 +684,16 @@ def collect_lights(view_layer, depsgraph, Light, warnings=None, objects=None):
         pos = M[:3, 3]
         z = M[:3, 2]
         direction = -z / max(float(np.linalg.norm(z)), 1e-300)
-        kw = dict(color=np.array(ld.color[:3], np.float64), strength=strength, position=pos,
-                  direction=direction, name=obj.name)
+        kw = dict(
+            color=np.array(ld.color[:3], np.float64),
+            strength=strength,
+            position=pos,
+            direction=direction,
+            name=obj.name,
+        )
         if ld.type in ("POINT", "SPOT"):
-            kw.update(radius=float(ld.shadow_soft_size), soft_falloff=bool(getattr(ld, "use_soft_falloff", True)))
+            soft = bool(getattr(ld, "use_soft_falloff", True))
+            kw.update(radius=float(ld.shadow_soft_size), soft_falloff=soft)
         if ld.type == "SPOT":
             kw.update(spot_size=float(ld.spot_size), spot_blend=float(ld.spot_blend))
         if ld.type == "SUN":

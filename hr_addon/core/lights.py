@@ -239,8 +239,9 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
         return out
     T = len(pieces)
     F = (
-        ff.point_to_polygon(np.repeat(x[i], T, 0), np.repeat(n[i], T, 0), np.tile(pieces, (len(i), 1, 1)),
-                            np.tile(nv, len(i)))
+        ff.point_to_polygon(
+            np.repeat(x[i], T, 0), np.repeat(n[i], T, 0), np.tile(pieces, (len(i), 1, 1)), np.tile(nv, len(i))
+        )
         .reshape(-1, T)
         .sum(1)
     )
@@ -267,8 +268,16 @@ def area_emitter(light, stream=0):
 
     pieces, nv, area = light.pieces()
     nf = light.direction
-    return Emitter(pieces, nv, area, np.repeat(nf[None], len(pieces), 0), [light.outline], nf,
-                   light.outline[0].copy(), stream=stream)
+    return Emitter(
+        pieces,
+        nv,
+        area,
+        np.repeat(nf[None], len(pieces), 0),
+        [light.outline],
+        nf,
+        light.outline[0].copy(),
+        stream=stream,
+    )
 
 
 def node_incident(h, nodes, light, backend, eps, rays=4, seed=0, unit=1.0, far=None, uneven=0.2, fine=6):
