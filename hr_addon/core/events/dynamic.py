@@ -310,11 +310,6 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
             t0 = time.perf_counter()
             self._naive = _NaiveState(self, list(self.shapes.values()))
             its += self._naive.iterations
-            if self.lights:
-                reps[-1].messages.append(
-                    "Blender lights under NAIVE: their bounce light is not in the rebuilt solution "
-                    "(their direct light is, with the final gather)"
-                )
             names = ", ".join(f"'{r.name}'" for r in naive if not r.on_surface)
             if self.method != "NAIVE" and names:
                 reps[-1].messages.append(
