@@ -196,3 +196,19 @@ def test_a_partial_bake_drops_frames_baked_with_other_lights(tmp_path):
     res = _bake(tmp_path, frames=(1, 1), final_gather=False)
     assert not res.kept, res.warnings
     assert any("other Blender lights: 'Fill' is new" in w for w in res.warnings), res.warnings
+
+
+@pytest.mark.parametrize("final_gather", [True, False])
+def test_factory_scene_bakes_lit_textures(tmp_path, final_gather):
+    """Texture output: the cube's baked image is lit where the light reaches (faces turned away: 0),
+    its brightest texel close to the brightest corner value of the vertex bake."""
+    from test_blender_helpers import read_image
+
+    bpy = _factory(tmp_path)
+    _bake(tmp_path, "verts", final_gather=final_gather)
+    vmax = float(attribute(bpy.data.objects["Cube"])[:, :3].max())
+    _bake(tmp_path, "tex", output="TEXTURE", resolution=32, final_gather=final_gather)
+    px = read_image(tmp_path / "tex" / "textures" / "Cube_000001.exr")
+    assert px.max() > 0 and (px.max(-1) == 0).any()
+    # texels reach nearer the light's corner than the corner samples (half way to the centre)
+    assert 0.8 * vmax < px.max() < 3 * vmax
