@@ -212,3 +212,24 @@ def test_factory_scene_bakes_lit_textures(tmp_path, final_gather):
     assert px.max() > 0 and (px.max(-1) == 0).any()
     # texels reach nearer the light's corner than the corner samples (half way to the centre)
     assert 0.8 * vmax < px.max() < 3 * vmax
+
+
+def test_a_light_excluded_in_the_panel_takes_no_part(tmp_path):
+    bpy = _factory(tmp_path)
+    from hr_addon.blender import panels
+    from hr_addon.blender.scene_in import SceneError
+
+    assert bpy.types.HR_PT_radiosity_lights.bl_parent_id == "HR_PT_radiosity"
+    assert panels.HR_PT_object.poll(type("C", (), {"object": bpy.data.objects["Light"]})())
+    lamp = bpy.data.objects.new("Fill", bpy.data.lights.new("Fill", "SUN"))
+    lamp.rotation_euler = (0.3, 0.2, 0)
+    bpy.context.scene.collection.objects.link(lamp)
+    _bake(tmp_path, "both", final_gather=False)
+    both = attribute(bpy.data.objects["Cube"])[:, :3].copy()
+    lamp.hr.exclude = True
+    _bake(tmp_path, "one", final_gather=False)
+    one = attribute(bpy.data.objects["Cube"])[:, :3].copy()
+    assert both.sum() > one.sum() > 0
+    bpy.data.objects["Light"].hr.exclude = True
+    with pytest.raises(SceneError, match="Nothing in the scene emits light"):
+        _bake(tmp_path, "none", final_gather=False)

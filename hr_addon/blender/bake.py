@@ -615,11 +615,11 @@ def bake_frames(
 
 
 def _walk_lights(view_layer):
-    """Light objects of the view layer's rendered collections, hidden ones included (they may be
-    shown on another frame)."""
-    from .scene_in import _walk_collections
+    """Light objects of the view layer's rendered collections not excluded from the bake, hidden
+    ones included (they may be shown on another frame)."""
+    from .scene_in import light_objects
 
-    return [o for o in _walk_collections(view_layer) if o.type == "LIGHT"]
+    return light_objects(view_layer, include_hidden=True)
 
 
 def solver_setup(mesh, params):

@@ -626,9 +626,15 @@ def materials_emit(depsgraph):
     return False
 
 
-def light_objects(view_layer):
-    """Blender Light objects of the view layer that render (collections not excluded or hidden)."""
-    return [o for o in _walk_collections(view_layer) if o.type == "LIGHT" and not o.hide_render]
+def light_objects(view_layer, include_hidden=False):
+    """Blender Light objects of the view layer that render (collections not excluded or hidden)
+    and are not excluded from the bake (Object.hr.exclude, the panel's per-light switch);
+    include_hidden: hidden for render too (they may be shown on another frame)."""
+    return [
+        o
+        for o in _walk_collections(view_layer)
+        if o.type == "LIGHT" and (include_hidden or not o.hide_render) and not o.hr.exclude
+    ]
 
 
 def light_features(obj, ld=None):
