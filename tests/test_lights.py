@@ -229,3 +229,15 @@ def test_naive_rebuild_carries_the_lights_bounce():
         assert np.allclose(power, rho * P / (1 - rho), rtol=0.01), (method, power)
         out[method] = dyn.loop_radiance()
     assert out["NAIVE"].mean() == pytest.approx(out["FE"].mean(), rel=0.01)
+
+
+def test_warm_mode_equals_response_mode_with_lights():
+    s1 = RadiositySystem(closed_box(1.0, 0.6, emission=(0, 0, 0), subdiv=2), RefineParams())
+    s2 = RadiositySystem(closed_box(1.0, 0.6, emission=(0, 0, 0), subdiv=2), RefineParams())
+    a = DynamicRadiosity(s1, method="FE", incremental="response")
+    b = DynamicRadiosity(s2, method="FE", incremental="warm")
+    for pos, k in (((0.5, 0.5, 0.8), 10.0), ((0.3, 0.6, 0.7), 10.0), ((0.3, 0.6, 0.7), 25.0)):
+        lights = {"p": Light("POINT", (1, 0.8, 0.5), k, position=pos)}
+        a.apply({}, lights)
+        b.apply({}, lights)
+        assert np.allclose(a.B, b.B, rtol=1e-5, atol=1e-6 * a.B.max())
