@@ -233,3 +233,24 @@ def test_a_light_excluded_in_the_panel_takes_no_part(tmp_path):
     bpy.data.objects["Light"].hr.exclude = True
     with pytest.raises(SceneError, match="Nothing in the scene emits light"):
         _bake(tmp_path, "none", final_gather=False)
+
+
+def test_keyframed_light_visibility_and_power(tmp_path):
+    """hide_render and energy keyframed: frame 2 dark, frame 3 back at twice the power of frame 1."""
+    bpy = _factory(tmp_path)
+    scene = bpy.context.scene
+    light = bpy.data.objects["Light"]
+    for f, hidden, energy in ((1, False, 1000.0), (2, True, 1000.0), (3, False, 2000.0)):
+        light.hide_render = hidden
+        light.keyframe_insert("hide_render", frame=f)
+        light.data.energy = energy
+        light.data.keyframe_insert("energy", frame=f)
+    scene.frame_start, scene.frame_end = 1, 3
+    res = _bake(tmp_path, frames=(1, 3), method="FE")
+    assert res.solved == 3
+    vals = {}
+    for f in (1, 2, 3):
+        scene.frame_set(f)
+        vals[f] = attribute(bpy.data.objects["Cube"])[:, :3].copy()
+    assert vals[1].max() > 0 and vals[2].max() == 0
+    assert np.allclose(vals[3], 2 * vals[1], rtol=1e-5, atol=1e-7 * vals[1].max())
