@@ -533,6 +533,10 @@ class FinalGather:
                 covered_samples=covered_samples,
             )
             self._second_map = (used, gw)
+            # Blender lights at the second level: the leaf's mean direct light integrated over the
+            # leaf (lights.node_incident: finer where it is uneven, a spot's edge), not its 2 x 2
+            # points (issue 20: the spot's bounce read 2% dark through them)
+            self.second._leaf_nodes = (used, k2)
         self.stats["precompute_cpu"] = time.process_time() - t0
         self._D_static = None
         self._shape_cache = {}  # geom_key -> (unit D (n,) float32, indices inside the outline)
@@ -949,15 +953,38 @@ class FinalGather:
 
             L = rec.light
             stream = zlib.crc32(repr(key).encode()) & 0x7FFFFFFF
-            if L.kind == "AREA":
+            leaf_nodes = getattr(self, "_leaf_nodes", None)
+            if leaf_nodes is not None:
+                used, k2 = leaf_nodes
+                v = lt.node_incident(
+                    self.system.h,
+                    used,
+                    L,
+                    self.system.backend,
+                    self.eps,
+                    rays=max(self.shadow_rays // 4, 4),
+                    seed=self.seed,
+                    unit=self.unit,
+                    far=self.tmax,
+                )
+                got = np.repeat(v, k2).astype(np.float32)
+                got[self.dark] = 0.0
+            elif L.kind == "AREA":
                 em = lt.area_emitter(L, stream)
                 got = self.direct_light(em) * np.float32(lt.AREA_RADIANCE / max(L.area, 1e-300))
             else:
                 got = np.zeros(self.n)
                 ok = np.flatnonzero(~self.dark)
                 got[ok] = lt.unit_incident(
-                    L, self.points[ok], self.normals[ok], self.system.backend, self.eps,
-                    rays=max(self.shadow_rays // 4, 4), seed=self.seed, keys=self.keys[ok], stream=stream,
+                    L,
+                    self.points[ok],
+                    self.normals[ok],
+                    self.system.backend,
+                    self.eps,
+                    rays=max(self.shadow_rays // 4, 4),
+                    seed=self.seed,
+                    keys=self.keys[ok],
+                    stream=stream,
                     far=self.tmax,
                 )
                 got = got.astype(np.float32)
