@@ -1,6 +1,6 @@
-"""Issue 18, a new user's trial: no black bake without a word (nothing emits; Blender lights and
-the World are ignored), light shapes that cannot emit, checks before the build, a clean
-unregister, the words a user reads and what the saved file carries."""
+"""Issue 18, a new user's trial: no black bake without a word (nothing emits; the World is
+ignored; Blender lights take part since issue 20), light shapes that cannot emit, checks before
+the build, a clean unregister, the words a user reads and what the saved file carries."""
 
 import os
 import subprocess
@@ -34,18 +34,21 @@ def _factory_file(path):
     return path
 
 
-def test_factory_scene_is_refused_before_the_build_naming_the_light_and_the_world(tmp_path):
-    """The factory scene baked to all 0.0 with exit 0."""
-    blend = _factory_file(tmp_path / "factory.blend")
+def test_factory_scene_without_its_light_is_refused_before_the_build_naming_the_world(tmp_path):
+    """The factory scene baked to all 0.0 with exit 0. Its point light now lights the bake (issue
+    20, tests/test_blender_lights.py); without it nothing emits and the bake is refused."""
+    bpy = load_bpy()
+    bpy.ops.wm.read_homefile(use_factory_startup=True)
+    bpy.data.objects.remove(bpy.data.objects["Light"])
+    blend = tmp_path / "factory.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
     proc = run_cli(blend, "--cache-dir", tmp_path / "cache")
     assert proc.returncode == 1, proc.stdout + proc.stderr
     err = [ln for ln in proc.stderr.splitlines() if ln.startswith("hr_bake: error:")]
     assert len(err) == 1, proc.stderr
     assert "Nothing in the scene emits light, so the bake would be black" in err[0]
-    assert (
-        "Blender light 'Light' and the World's background light the render" in err[0]
-        and "not supported yet" in err[0]
-    )
+    assert "The World's background lights the render but is ignored by the bake" in err[0]
+    assert "not supported yet" in err[0]
     assert "Building the hierarchy" not in proc.stdout and "Traceback" not in proc.stderr
     assert not (tmp_path / "cache").exists()
 
@@ -56,6 +59,7 @@ def test_operator_refuses_a_black_scene_and_the_panel_says_why(tmp_path):
     from hr_addon.blender.scene_in import SceneError
 
     _factory_file(tmp_path / "factory.blend")
+    bpy.data.lights["Light"].energy = 0.0  # a light with no power gives no light
     scene = bpy.context.scene
     with pytest.raises(SceneError, match="Nothing in the scene emits light"):  # the interactive bake
         background.BackgroundBake(scene, bpy.context.view_layer).start()
@@ -66,7 +70,7 @@ def test_operator_refuses_a_black_scene_and_the_panel_says_why(tmp_path):
     assert not scene.hr.bake_dir
 
 
-def test_blender_lights_and_the_world_are_named_as_ignored(tmp_path):
+def test_the_world_is_named_as_ignored_and_blender_lights_take_part(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "AREA"))
@@ -77,16 +81,11 @@ def test_blender_lights_and_the_world_are_named_as_ignored(tmp_path):
     res = _bake(method="FE")
     ignored = [w for w in res.warnings if "not supported yet" in w]
     assert ignored == [
-        "Blender light 'Lamp' and the World's background light the render but are ignored by the "
-        "bake (not supported yet): only emissive materials and light shapes give light."
+        "The World's background lights the render but is ignored by the bake (not supported yet): only "
+        "Blender lights, emissive materials and light shapes give light."
     ], res.warnings
     bg.inputs["Strength"].default_value = 0.0
-    assert [w for w in _bake(method="FE").warnings if "not supported yet" in w] == [
-        "Blender light 'Lamp' lights the render but is ignored by the bake (not supported yet): only "
-        "emissive materials and light shapes give light."
-    ]
-    lamp.hide_render = True
-    assert not [w for w in _bake(method="FE").warnings if "not supported yet" in w]
+    assert not [w for w in _bake(method="FE").warnings if "not supported" in w]
 
 
 def test_light_shapes_that_cannot_emit_are_named_when_marked_and_at_bake_time(tmp_path, capfd):

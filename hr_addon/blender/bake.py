@@ -21,6 +21,7 @@ import numpy as np
 
 from ..core.events import DynamicRadiosity, LightShape
 from ..core.geometry import InputError, isolated_objects
+from ..core.lights import Light
 from ..core.progress import Cancelled, FrameEta
 from ..core.radiosity import RadiositySystem
 from ..core.refine import RefineParams
@@ -34,6 +35,8 @@ from .scene_in import (
     SceneError,
     collect_geometry,
     collect_light_shapes,
+    collect_lights,
+    lights_signature,
     frozen_emitters,
     geometry_objects,
     light_check,
@@ -389,6 +392,9 @@ def bake_frames(
         if far_warning:
             warn([far_warning])
         has_shapes = bool(light_shape_objects(view_layer, include_hidden=True))
+        # Blender lights (issue 20): read per frame like light shapes (keyframed transform, colour,
+        # power, cone); hidden ones may appear on another frame
+        has_lights = bool([o for o in _walk_lights(view_layer)])
         npoly = len(scene_in.mesh.loop_start)
         total = end - start + 1
         yield BakeProgress(
@@ -416,7 +422,7 @@ def bake_frames(
         with intr.raising():
             system = RadiositySystem(scene_in.mesh, params, progress=on_build)
             dyn = None
-            if has_shapes:
+            if has_shapes or has_lights:
                 dyn = DynamicRadiosity(system, method=method, min_area_rel=min_area_rel)
         result.build_seconds = time.perf_counter() - t0
         result.build_report = system.build
@@ -440,6 +446,8 @@ def bake_frames(
             "geometry": geometry_sig,
             "light_shapes": shapes_id,
         }
+        if has_lights:  # which Blender lights took part (not their animated values)
+            info["lights"] = {o.name: f"{o.data.type} {o.data.name}" for o in _walk_lights(view_layer)}
         if result.rays_note:
             info["rays_note"] = result.rays_note
         baker = None
@@ -519,10 +527,18 @@ def bake_frames(
             t_frame = time.perf_counter()
             intr.check()
             frame_warnings = []
-            if has_shapes:
+            lights = None
+            if has_shapes or has_lights:
                 scene.frame_set(f)
-                shapes = collect_light_shapes(view_layer, view_layer.depsgraph, LightShape, frame_warnings)
+                shapes = (
+                    collect_light_shapes(view_layer, view_layer.depsgraph, LightShape, frame_warnings)
+                    if has_shapes
+                    else {}
+                )
                 sig = shapes_signature(shapes)
+                if has_lights:
+                    lights = collect_lights(view_layer, view_layer.depsgraph, Light, frame_warnings)
+                    sig += lights_signature(lights)
             else:
                 shapes, sig = None, "static"
             intr.check()
@@ -535,7 +551,7 @@ def bake_frames(
             else:
                 with intr.raising():
                     if dyn is not None:
-                        report = dyn.apply(shapes)
+                        report = dyn.apply(shapes, lights)
                         frame_warnings += [
                             m
                             for m in (getattr(report, "messages", []) or [])
@@ -596,6 +612,14 @@ def bake_frames(
         playback.load_frame(scene)
     result.seconds = time.perf_counter() - t_start
     return result
+
+
+def _walk_lights(view_layer):
+    """Light objects of the view layer's rendered collections not excluded from the bake, hidden
+    ones included (they may be shown on another frame)."""
+    from .scene_in import light_objects
+
+    return light_objects(view_layer, include_hidden=True)
 
 
 def solver_setup(mesh, params):

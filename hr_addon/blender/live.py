@@ -33,6 +33,8 @@ from .scene_in import (
     SceneError,
     collect_geometry,
     collect_light_shapes,
+    collect_lights,
+    lights_signature,
     geometry_objects,
     light_shape_objects,
     shapes_signature,
@@ -303,7 +305,16 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
         shapes = collect_light_shapes(
             view_layer, depsgraph, LightShape, warnings, objects=[o for o in objs if not o.hide_render]
         )
-    return shapes, shapes_signature(shapes), warnings
+    sig = shapes_signature(shapes)
+    # Blender lights (issue 20) ride along in the same dict under "light:" keys (core.lights.Light
+    # values); the worker hands them to DynamicRadiosity.apply as its lights
+    from ..core.lights import Light
+
+    lights = collect_lights(view_layer, depsgraph, Light, warnings)
+    if lights:
+        sig += lights_signature(lights)
+        shapes = {**shapes, **lights}
+    return shapes, sig, warnings
 
 
 def _build(sess, scene, view_layer, depsgraph, reason):
@@ -611,6 +622,8 @@ def on_depsgraph_update(scene, depsgraph=None):
             name = getattr(idd, "original", idd).name_full
             geometry |= name in sess.geo_materials
             full |= name not in sess.shape_materials
+        elif kind.endswith("Light"):  # a Blender light's data (energy, colour, cone, size)
+            dirty = True
         elif kind.endswith("NodeTree") and getattr(idd, "is_embedded_data", False):
             dirty = True  # a material's own tree: its Material is in the updates too
         elif kind.endswith(_GEOMETRY_KINDS):

@@ -138,6 +138,35 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
             sub.label(text=f"Frames {context.scene.frame_start}-{context.scene.frame_end} (the scene's)")
 
 
+class HR_PT_radiosity_lights(bpy.types.Panel):
+    """The Blender lights the bake uses (issue 20), each with its switch to leave it out."""
+
+    bl_label = "Lights"
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "render"
+    bl_parent_id = "HR_PT_radiosity"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        from .scene_in import _walk_collections
+
+        layout = self.layout
+        lights = [o for o in _walk_collections(context.view_layer) if o.type == "LIGHT"]
+        if not lights:
+            layout.label(text="No Blender lights (emissive meshes and light shapes only)")
+            return
+        for o in lights:
+            row = layout.row()
+            used = not o.hr.exclude and not o.hide_render and o.data.energy > 0
+            unit = "W/m²" if o.data.type == "SUN" else "W"
+            row.label(
+                text=f"{o.name}: {o.data.type.lower()}, {o.data.energy:g} {unit}",
+                icon="LIGHT" if used else "BLANK1",
+            )
+            row.prop(o.hr, "exclude", text="Exclude")
+
+
 class HR_PT_object(bpy.types.Panel):
     bl_label = "HR Radiosity"
     bl_space_type = "PROPERTIES"
@@ -146,12 +175,14 @@ class HR_PT_object(bpy.types.Panel):
 
     @classmethod
     def poll(cls, context):
-        return context.object is not None and context.object.type == "MESH"
+        return context.object is not None and context.object.type in ("MESH", "LIGHT")
 
     def draw(self, context):
         obj = context.object
         layout = self.layout
         layout.prop(obj.hr, "exclude")
+        if obj.type == "LIGHT":  # a Blender light takes part unless excluded (docs/lights.md)
+            return
         layout.prop(obj.hr, "is_light_shape")
         if context.scene.hr.output == "TEXTURE":
             layout.prop(obj.hr, "lightmap_resolution")
@@ -171,4 +202,4 @@ class HR_PT_view3d(bpy.types.Panel):
         self.layout.operator("hr.mark_light_shape", icon="LIGHT_AREA")
 
 
-classes = (HR_PT_radiosity, HR_PT_radiosity_settings, HR_PT_object, HR_PT_view3d)
+classes = (HR_PT_radiosity, HR_PT_radiosity_settings, HR_PT_radiosity_lights, HR_PT_object, HR_PT_view3d)

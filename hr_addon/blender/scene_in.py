@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.geometry import InputError, MeshInput, components, newell
-from ..io.cache import _names
 from .materials import read_material, world_lights
 
 
@@ -627,42 +626,138 @@ def materials_emit(depsgraph):
     return False
 
 
-def light_check(view_layer, scene, depsgraph, geometry_emits):
-    """(error, warnings) about the scene's light before a bake. error ('' if none): nothing emits,
-    so the bake would be black. warnings: the Blender lights and the World the bake ignores
-    (Blender lights take no part yet), light shapes that cannot emit (light_shape_problem)."""
-    lights = [
-        o.name
+def light_objects(view_layer, include_hidden=False):
+    """Blender Light objects of the view layer that render (collections not excluded or hidden)
+    and are not excluded from the bake (Object.hr.exclude, the panel's per-light switch);
+    include_hidden: hidden for render too (they may be shown on another frame)."""
+    return [
+        o
         for o in _walk_collections(view_layer)
-        if o.type == "LIGHT" and not o.hide_render and o.data.energy > 0
+        if o.type == "LIGHT" and (include_hidden or not o.hide_render) and not o.hr.exclude
     ]
+
+
+def light_features(obj, ld=None):
+    """Names of what the bake does not follow of the light `obj` (its evaluated data `ld`): light
+    nodes (IES profiles among them), light linking, blackbody temperature, an area light's spread,
+    unnormalised power, shadows switched off, a square spot, a spot's non-uniform scale."""
+    ld = ld or obj.data
+    out = []
+    if getattr(ld, "use_nodes", False):
+        out.append("light nodes (IES profiles, textures: the node setup is ignored)")
+    link = getattr(obj, "light_linking", None)
+    if link is not None and (link.receiver_collection is not None or link.blocker_collection is not None):
+        out.append("light linking (it lights every object)")
+    if getattr(ld, "use_temperature", False):
+        out.append("blackbody temperature (its Color is used)")
+    if ld.type == "AREA" and float(getattr(ld, "spread", np.pi)) < np.pi - 1e-6:
+        out.append("area spread below 180 degrees (lights as 180)")
+    if not getattr(ld, "normalize", True):
+        out.append("unnormalized power (taken as normalized)")
+    if not getattr(ld, "use_shadow", True):
+        out.append("shadows off (it casts shadows)")
+    if ld.type == "SPOT" and getattr(ld, "use_square", False):
+        out.append("a square spot (a round cone is used)")
+    if ld.type == "SPOT":
+        sc = np.asarray(obj.matrix_world.to_scale())
+        if np.ptp(sc[:2]) > 1e-6 * max(float(np.abs(sc[:2]).max()), 1e-30):
+            out.append("non-uniform scale of the spot's cone (a round cone is used)")
+    return out
+
+
+def collect_lights(view_layer, depsgraph, Light, warnings=None, objects=None):
+    """{"light:" + name: core.lights.Light} of the Blender lights that render in the current
+    (evaluated) frame: transform, colour, power/strength, radius, spot size and blend, sun angle,
+    area shape and size, all as evaluated (keyframes and drivers followed). Lights with no power,
+    hidden from render or not lighting diffuse surfaces are left out. `warnings` gets what a light
+    has that the bake does not follow (light_features), once per light."""
+    import math
+
+    out = {}
+    warnings = [] if warnings is None else warnings
+    for obj in light_objects(view_layer) if objects is None else objects:
+        ob = obj.evaluated_get(depsgraph)
+        if ob.hide_render or not getattr(ob, "visible_diffuse", True):
+            continue
+        ld = ob.data
+        factor = 2.0 ** float(getattr(ld, "exposure", 0.0)) * float(getattr(ld, "diffuse_factor", 1.0))
+        strength = float(ld.energy) * factor
+        if not strength > 0 or not max(ld.color) > 0:
+            continue
+        for f in light_features(ob, ld):
+            warnings.append(f"Light '{obj.name}': {f} is not supported by the bake.")
+        M = np.array(ob.matrix_world, np.float64)
+        pos = M[:3, 3]
+        z = M[:3, 2]
+        direction = -z / max(float(np.linalg.norm(z)), 1e-300)
+        kw = dict(
+            color=np.array(ld.color[:3], np.float64),
+            strength=strength,
+            position=pos,
+            direction=direction,
+            name=obj.name,
+        )
+        if ld.type in ("POINT", "SPOT"):
+            soft = bool(getattr(ld, "use_soft_falloff", True))
+            kw.update(radius=float(ld.shadow_soft_size), soft_falloff=soft)
+        if ld.type == "SPOT":
+            kw.update(spot_size=float(ld.spot_size), spot_blend=float(ld.spot_blend))
+        if ld.type == "SUN":
+            kw.update(angle=float(ld.angle))
+        if ld.type == "AREA":
+            from ..core.lights import area_outline
+
+            kw.update(outline=area_outline(ld.shape, ld.size, ld.size_y, M))
+        try:
+            out["light:" + obj.name] = Light(ld.type, **kw)
+        except ValueError as exc:
+            warnings.append(f"Light '{obj.name}': {exc}; left out.")
+        if not all(math.isfinite(v) for v in (strength, *pos)):
+            out.pop("light:" + obj.name, None)
+            warnings.append(f"Light '{obj.name}': its position or power is not finite; left out.")
+    return out
+
+
+def lights_signature(lights):
+    """Hashable digest of the lights' state (identical frames -> identical digest)."""
+    import hashlib
+
+    h = hashlib.sha1()
+    for key in sorted(lights):
+        L = lights[key]
+        h.update(key.encode())
+        h.update(repr(L.geom_key).encode())
+        h.update(np.asarray(L.scale, np.float64).tobytes())
+    return h.hexdigest()
+
+
+def light_check(view_layer, scene, depsgraph, geometry_emits):
+    """(error, warnings) about the scene's light before a bake. error ('' if none): nothing emits
+    and no Blender light shines, so the bake would be black. warnings: the World the bake ignores,
+    what Blender lights have that the bake does not follow (light_features), light shapes that
+    cannot emit (light_shape_problem)."""
+    lights = [o for o in light_objects(view_layer) if o.data.energy > 0 and max(o.data.color) > 0]
     world = world_lights(scene.world)
-    ignored = " and ".join(
-        ([f"Blender light{'s' * (len(lights) > 1)} {_names(lights)}"] if lights else [])
-        + (["the World's background"] if world else [])
-    )
-    ignored = ignored[:1].upper() + ignored[1:]
-    one = len(lights) + world == 1
-    light, are = ("lights", "is") if one else ("light", "are")
     warnings, shapes_emit = [], False
     for o in light_shape_objects(view_layer, include_hidden=True):
         emits, why = light_shape_problem(o, depsgraph)
         shapes_emit |= emits
         if why:
             warnings.append(f"Light shape '{o.name}': {why}.")
-    if not (geometry_emits or shapes_emit):
+    for o in lights:
+        for f in light_features(o):
+            warnings.append(f"Light '{o.name}': {f} is not supported by the bake.")
+    ignored = "The World's background lights the render but is ignored by the bake (not supported yet)"
+    if not (geometry_emits or shapes_emit or lights):
         return (
-            "Nothing in the scene emits light, so the bake would be black: no mesh has an emissive "
-            "material (an Emission shader, or a Principled BSDF with Emission Strength > 0) and no "
-            "light shape emits."
-            + (f" {ignored} {light} the render but not the bake (not supported yet)." if ignored else "")
-            + " Give a mesh an emissive material, or mark a flat emissive mesh as a light shape.",
+            "Nothing in the scene emits light, so the bake would be black: no Blender light (with "
+            "power > 0, rendered), no mesh with an emissive material (an Emission shader, or a "
+            "Principled BSDF with Emission Strength > 0) and no light shape that emits."
+            + (f" {ignored}." if world else "")
+            + " Add a light, give a mesh an emissive material, or mark a flat emissive mesh as a "
+            "light shape.",
             warnings,
         )
-    if ignored:
-        warnings.insert(
-            0,
-            f"{ignored} {light} the render but {are} ignored by the bake (not supported yet): only "
-            "emissive materials and light shapes give light.",
-        )
+    if world:
+        warnings.insert(0, ignored + ": only Blender lights, emissive materials and light shapes give light.")
     return "", warnings

@@ -382,6 +382,9 @@ def settings_difference(old: dict, new: dict):
         ls = changed_objects(old["light_shapes"], new["light_shapes"])
         if ls:
             why.append("other light shapes: " + "; ".join(ls))
+    if old.get("lights", {}) != new.get("lights", {}):  # Blender lights (issue 20)
+        ls = changed_objects(old.get("lights", {}), new.get("lights", {}))
+        why.append("other Blender lights" + (": " + "; ".join(ls) if ls else ""))
     if not why and old.get("objects") != new.get("objects"):
         why.append("other objects or texture settings")
     if not why and old.get("signature") != new.get("signature"):

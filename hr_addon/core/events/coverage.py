@@ -147,6 +147,9 @@ class _CoverageMixin:
         self._B = self._B[:, keep] if self._B.shape[1] == n else self._B
         if self._guess is not None:
             self._guess = self._guess[:, keep]
+        for rec in list(getattr(self, "lights", {}).values()):
+            rec.U = rec.U[:, keep] if rec.U is not None else None
+            rec.D = rec.D[:, keep] if rec.D is not None else None
         for rec in list(self.shapes.values()) + list(self._cache.values()) + list(extra):
             for name in ("U", "D"):
                 a = getattr(rec, name)
@@ -172,6 +175,11 @@ class _CoverageMixin:
         self._B = h.extend(self._B)
         if self._guess is not None:
             self._guess = h.extend(self._guess)
+        for rec in list(getattr(self, "lights", {}).values()):
+            if rec.U is not None:
+                rec.U = h.extend(rec.U)
+            if rec.D is not None and rec.D.shape[1] < n:
+                rec.D = np.concatenate([rec.D, np.zeros((3, n - rec.D.shape[1]))], 1)
         for rec in list(self.shapes.values()) + list(self._cache.values()) + list(extra):
             if rec.U is not None:
                 rec.U = h.extend(rec.U)

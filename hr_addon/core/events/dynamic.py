@@ -13,12 +13,13 @@ from ..radiosity import RadiositySystem
 from ..solver import Operator, solve
 from .coverage import _CoverageMixin
 from .direct import _DirectMixin
+from .lightsrc import _LightsMixin
 from .naive import _NaiveState
 from .records import METHODS, EventReport, FrameReport, LightShape, _Rec
 from .validation import _ShapeMixin
 
 
-class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
+class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
     def __init__(
         self,
         system: RadiositySystem,
@@ -85,6 +86,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         self._patch_plane = np.unique(key, axis=0, return_inverse=True)[1].ravel()
         self._tri_plane = self._patch_plane[tri_patch]
         self.shapes = OrderedDict()  # key -> _Rec
+        self.lights = OrderedDict()  # key -> lightsrc._LightRec (Blender lights, issue 20)
         self._cache = OrderedDict()  # (geom_key, method) -> _Rec
         self._ref = np.zeros(h.n, np.int64)  # shapes needing each node's split
         self._op = None
@@ -141,8 +143,10 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         rep.iterations += self._finish([rep])
         return self._stamp(rep, t0)
 
-    def apply(self, shapes: dict) -> FrameReport:
-        """Make `shapes` (key -> LightShape, the full active set) current with as little work as possible."""
+    def apply(self, shapes: dict, lights: dict = None) -> FrameReport:
+        """Make `shapes` (key -> LightShape, the full active set) current with as little work as possible.
+        lights: key -> core.lights.Light, the full set of Blender lights (None: leave them as they are);
+        a moved or re-aimed light is one response solve, a colour or strength change a scale."""
         t0 = time.perf_counter()
         fr = FrameReport()
         valid = {k: self._validate(k, s) for k, s in shapes.items()}  # raise before changing anything
@@ -174,6 +178,8 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
         for k, (rings, em, name) in valid.items():
             if k not in self.shapes:
                 evs.append(self._add(k, LightShape(rings, em, name), validated=(rings, em, name)))
+        if lights is not None:
+            evs += self._lights_diff(lights)
         if evs:
             fr.iterations += self._finish(evs)
         fr.events = evs
@@ -317,6 +323,8 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
             B = self._Bbase.copy()
             for rec in self.shapes.values():
                 B += rec.emission[:, None] * rec.U
+            for rec in self.lights.values():
+                B += rec.scale[:, None] * rec.U
             self._B = B
         else:
             E = self.system.base_emission()
@@ -327,6 +335,8 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin):
                     extra += self._coverage(rec, mean=True)[None] * rec.emission[:, None]
                 else:
                     E += self._coverage(rec)[None] * rec.emission[:, None]
+            for rec in self.lights.values():
+                E += rec.scale[:, None] * self._push(rec.D)
             self._X, rep = self._solve(E, B0=self._X)
             its += rep.iterations
             self._B = self._X + self._operator().pull(extra)

@@ -160,7 +160,26 @@ class _NaiveState:
         self.system = RadiositySystem(
             nm, dyn.naive_params or sysm.params, backend=sysm.backend.name, tol=sysm.tol
         )
-        self.system.solve()
+        E = self.system.base_emission()
+        if getattr(dyn, "lights", None):
+            # Blender lights (issue 20): their first bounce on the rebuilt system's leaves
+            from ..lights import node_incident
+
+            h2, pt2 = self.system.h, self.system.patches
+            leaves = np.flatnonzero(h2.child0[: h2.n] < 0)
+            rho = pt2.reflectance[:, h2.patch[leaves]]
+            for rec in dyn.lights.values():
+                v = node_incident(
+                    h2,
+                    leaves,
+                    rec.light,
+                    self.system.backend,
+                    self.system.refiner.eps,
+                    dyn.LIGHT_RAYS,
+                    far=2 * dyn.diag + 1,
+                )
+                E[:, leaves] += rec.scale[:, None] * rho * v
+        self.system.solve(E)
         self.iterations = self.system.report.iterations
         poly = self.system.patches.poly
         for g in self.groups:  # input polygon -> patch index (-1 if dropped as degenerate)

@@ -1,0 +1,317 @@
+"""Blender's own lights as light sources (issue 20), numpy only: point, spot, sun and area lights in
+Cycles' units, their exact direct light at surface points (shadow rays), and their first bounce
+on the hierarchy's nodes (the seed's "irregular light source", handled by DynamicRadiosity).
+
+Units, each fitted against a Cycles render of a diffuse plane under the light
+(scripts/measure_light_units.py, docs/lights.md):
+- point and spot, power P watts: radiant intensity I = P / (4 pi) W/sr (measured 0.99984 x).
+  With a radius r and soft falloff (Blender's default) Cycles lights like a disk of radius r facing
+  the point: E = I cos / (d^2 + r^2) (measured at r = 0.5, d = 2: 0.9408 x I / d^2; the formula
+  gives 0.9412).
+- spot: the point light's intensity times smoothstep((cos a - cos(size / 2)) /
+  ((1 - cos(size / 2)) blend)), a the angle off the spot's axis (size 60 deg, blend 0.5: within
+  0.007 of the rendered profile once the pixels' footprint is averaged). Inside the cone it is not
+  brighter than a point light of the same power.
+- sun, strength S W/m^2: irradiance S cos on a surface (measured 1.0000 x, at 0 and 60 degrees).
+- area, power P watts over an area A (world size): emitted radiance L = P / (pi A) (measured
+  0.9996 x for a 1 x 1 square and 0.9997 x for a 1 x 0.5 rectangle), one-sided along the light's -Z.
+
+Everything here is per unit strength ("unit" direct light): the light's colour x power (or x
+strength for the sun) is a scale applied afterwards, so a strength or colour edit never recomputes
+rays. Direct light is returned in the gather's "incident" unit: irradiance / pi (what a white
+Lambertian surface would reflect as radiance).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import formfactor as ff
+
+KINDS = ("POINT", "SPOT", "SUN", "AREA")
+POINT_INTENSITY = 1.0 / (4.0 * np.pi)  # W/sr per watt (measured: 0.99984 / (4 pi))
+SUN_IRRADIANCE = 1.0  # W/m^2 per unit strength (measured: 1.0000)
+AREA_RADIANCE = 1.0 / np.pi  # W/(sr m^2) per watt per m^2 (measured: 0.9996 / pi)
+DISK_SEGMENTS = 32
+
+
+def smoothstep(t):
+    t = np.clip(t, 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+@dataclass
+class Light:
+    """One Blender light in world space.
+
+    kind: POINT, SPOT, SUN or AREA. color (3,) linear RGB; strength: watts (point, spot, area) or
+    W/m^2 (sun). position (3,): the light's origin. direction (3,) unit: where it shines (the
+    object's -Z). radius: point/spot sphere radius (m); soft_falloff: Cycles' "Soft Falloff".
+    spot_size (rad, full cone angle), spot_blend. angle (rad): the sun's angular diameter.
+    outline (M, 3): an area light's polygon, counter-clockwise about `direction` (its emitting
+    side); see area_outline()."""
+
+    kind: str
+    color: np.ndarray
+    strength: float
+    position: np.ndarray = None
+    direction: np.ndarray = None
+    radius: float = 0.0
+    soft_falloff: bool = True
+    spot_size: float = np.pi
+    spot_blend: float = 0.0
+    angle: float = 0.0
+    outline: np.ndarray = None
+    name: str = ""
+    notes: list = field(default_factory=list)
+
+    def __post_init__(self):
+        self.kind = self.kind.upper()
+        if self.kind not in KINDS:
+            raise ValueError(f"light '{self.name}': unknown kind {self.kind!r} ({', '.join(KINDS)})")
+        self.color = np.broadcast_to(np.asarray(self.color, np.float64), (3,)).copy()
+        d = np.asarray(self.direction if self.direction is not None else (0, 0, -1), np.float64)
+        self.direction = d / max(float(np.linalg.norm(d)), 1e-300)
+        self.position = np.asarray(self.position if self.position is not None else (0, 0, 0), np.float64)
+        if self.kind == "AREA":
+            if self.outline is None or len(self.outline) < 3:
+                raise ValueError(f"light '{self.name}': an area light needs an outline")
+            self.outline = np.asarray(self.outline, np.float64)
+
+    @property
+    def scale(self):
+        """(3,) colour x strength: multiplies the unit direct light and the unit response."""
+        return self.color * float(self.strength)
+
+    @property
+    def geom_key(self):
+        """Everything but colour and strength: equal keys give equal unit light."""
+        parts = [self.kind, self.position.tobytes(), self.direction.tobytes()]
+        if self.kind in ("POINT", "SPOT"):
+            parts += [float(self.radius), bool(self.soft_falloff)]
+        if self.kind == "SPOT":
+            parts += [float(self.spot_size), float(self.spot_blend)]
+        if self.kind == "SUN":
+            parts += [float(self.angle)]
+        if self.kind == "AREA":
+            parts += [self.outline.tobytes()]
+        return tuple(parts)
+
+    @property
+    def area(self):
+        """World area of an area light's polygon."""
+        return float(np.linalg.norm(_newell(self.outline))) if self.kind == "AREA" else 0.0
+
+    def pieces(self):
+        """An area light's polygon as convex pieces (T, 4, 3) (a fan about its centre for many
+        corners), nv (T,), areas (T,), CCW about its direction."""
+        c = self.outline
+        if len(c) <= 4:
+            p = np.concatenate([c, c[-1:]]) if len(c) == 3 else c
+            nv = np.array([len(c)])
+            pieces = p[None]
+        else:
+            m = c.mean(0)
+            pieces = np.stack([np.broadcast_to(m, c.shape), c, np.roll(c, -1, 0), np.roll(c, -1, 0)], 1)
+            nv = np.full(len(c), 3)
+        _, a = ff.polygon_normal_area(pieces, nv)
+        return pieces, nv, a
+
+
+def _newell(p):
+    p = np.asarray(p, np.float64)
+    q = np.roll(p, -1, 0)
+    return 0.5 * np.array(
+        [
+            np.sum((p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2])),
+            np.sum((p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0])),
+            np.sum((p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1])),
+        ]
+    )
+
+
+def area_outline(shape, size, size_y, matrix, segments=DISK_SEGMENTS):
+    """World outline (M, 3) of a Blender area light: shape SQUARE / RECTANGLE (size x size_y) /
+    DISK / ELLIPSE (diameters), in the light's local XY plane, mapped by the 4 x 4 world matrix;
+    counter-clockwise about the emitting direction (local -Z)."""
+    shape = shape.upper()
+    sx = float(size)
+    sy = float(size if shape in ("SQUARE", "DISK") else size_y)
+    if shape in ("SQUARE", "RECTANGLE"):
+        loc = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], np.float64) * [sx / 2, sy / 2]
+    else:
+        # clockwise seen from +Z = counter-clockwise about -Z; the polygon keeps the ellipse's area
+        t = -2 * np.pi * np.arange(segments) / segments
+        k = np.sqrt(2 * np.pi / (segments * np.sin(2 * np.pi / segments)))
+        loc = np.column_stack([np.cos(t) * sx / 2, np.sin(t) * sy / 2]) * k
+    M = np.asarray(matrix, np.float64)
+    p = np.column_stack([loc, np.zeros(len(loc)), np.ones(len(loc))]) @ M.T
+    return p[:, :3]
+
+
+def _uniforms(n, k, seed, keys, stream):
+    from .gather import hammersley, hash_uniform
+
+    return (hammersley(k)[None] + hash_uniform(seed, keys, stream)[:, None]) % 1.0  # (n, k, 2)
+
+
+def _disk_points(c, axis, r, u):
+    """Points (n, k, 3) on disks of radius r about centres c (3,), perpendicular to axis (n, 3)."""
+    from .gather import _frame
+
+    t, b = _frame(axis)
+    rr = r * np.sqrt(u[..., 0])
+    ph = 2 * np.pi * u[..., 1]
+    return c + (rr * np.cos(ph))[..., None] * t[:, None] + (rr * np.sin(ph))[..., None] * b[:, None]
+
+
+def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0, far=None):
+    """Unit direct light of `light` (per watt, or per W/m^2 for the sun) at surface points x (N, 3)
+    with unit normals n, as irradiance / pi (the gather's "incident" unit), shadow rays through
+    `backend` (visibility.RayBackend). rays: shadow rays per point for lights with a size (radius,
+    sun angle, area); a point light of radius 0 casts one. keys: per-point random keys
+    (gather.position_keys), default the point index. far: a sun's shadow ray length, beyond the
+    scene but not far beyond it (ray backends' minimum hit distance is relative to the segment;
+    default 1e4 x eps). -> (N,) float64."""
+    x = np.asarray(x, np.float64).reshape(-1, 3)
+    n = np.asarray(n, np.float64).reshape(-1, 3)
+    N = len(x)
+    out = np.zeros(N)
+    if N == 0:
+        return out
+    keys = np.arange(N, dtype=np.uint64) if keys is None else keys
+    o = x + eps * n
+    if light.kind in ("POINT", "SPOT"):
+        d = light.position - x
+        r2 = np.einsum("ij,ij->i", d, d)
+        dist = np.sqrt(np.maximum(r2, 1e-300))
+        w = d / dist[:, None]
+        cos = np.einsum("ij,ij->i", w, n)
+        fall = r2 + light.radius**2 if light.soft_falloff else np.maximum(r2, light.radius**2)
+        val = np.maximum(cos, 0) * POINT_INTENSITY / np.maximum(fall, 1e-300) / np.pi
+        if light.kind == "SPOT":
+            ca = -(w @ light.direction)
+            ch = np.cos(light.spot_size / 2)
+            if light.spot_blend > 0:
+                val *= smoothstep((ca - ch) / ((1 - ch) * light.spot_blend))
+            else:
+                val *= ca > ch
+        lit = np.flatnonzero(val > 0)
+        if len(lit):
+            if light.radius > 0 and rays > 1:
+                u = _uniforms(len(lit), rays, seed, keys[lit], 2000 + stream)
+                y = _disk_points(light.position, w[lit], light.radius, u)
+                vis = ~backend.occluded(np.broadcast_to(o[lit, None], y.shape), y)
+                val[lit] *= vis.mean(1)
+            else:
+                val[lit] *= ~backend.occluded(o[lit], np.broadcast_to(light.position, (len(lit), 3)))
+        return val
+    if light.kind == "SUN":
+        to_sun = -light.direction
+        cos = n @ to_sun
+        val = np.maximum(cos, 0) * SUN_IRRADIANCE / np.pi
+        lit = np.flatnonzero(val > 0)
+        if len(lit):
+            far = float(far or 1e4 * eps)
+            if light.angle > 0 and rays > 1:
+                # directions uniform in the sun's cone (half angle angle / 2)
+                u = _uniforms(len(lit), rays, seed, keys[lit], 3000 + stream)
+                cz = 1 - u[..., 0] * (1 - np.cos(light.angle / 2))
+                sz = np.sqrt(np.maximum(1 - cz * cz, 0))
+                from .gather import _frame
+
+                t, b = _frame(to_sun[None])
+                ph = 2 * np.pi * u[..., 1]
+                dirs = (sz * np.cos(ph))[..., None] * t[0] + (sz * np.sin(ph))[..., None] * b[0]
+                dirs = dirs + cz[..., None] * to_sun
+                vis = ~backend.occluded(np.broadcast_to(o[lit, None], dirs.shape), o[lit, None] + far * dirs)
+                val[lit] *= vis.mean(1)
+            else:
+                val[lit] *= ~backend.occluded(o[lit], o[lit] + far * to_sun)
+        return val
+    # AREA: exact form factor of the polygon (horizon clipped) x a kernel-weighted visibility ratio
+    pieces, nv, area = light.pieces()
+    nf = light.direction
+    A = float(area.sum())
+    front = (x - light.outline[0]) @ nf > eps
+    i = np.flatnonzero(front)
+    if len(i) == 0 or A <= 0:
+        return out
+    T = len(pieces)
+    F = (
+        ff.point_to_polygon(
+            np.repeat(x[i], T, 0), np.repeat(n[i], T, 0), np.tile(pieces, (len(i), 1, 1)), np.tile(nv, len(i))
+        )
+        .reshape(-1, T)
+        .sum(1)
+    )
+    lit = np.flatnonzero(F > 0)
+    if len(lit) and rays > 0:
+        from .gather import Emitter
+
+        em = Emitter(pieces, nv, area, np.repeat(nf[None], T, 0))
+        u = _uniforms(len(lit), rays, seed, keys[i[lit]], 4000 + stream)
+        y, ny = em.sample(u)  # area-uniform
+        d = y - x[i[lit], None]
+        r2 = np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300)
+        kern = np.maximum(np.einsum("lsk,lk->ls", d, n[i[lit]]), 0) * np.maximum(-(d @ nf), 0) / r2**2
+        vis = ~backend.occluded(np.broadcast_to(o[i[lit], None], y.shape), y + eps * nf)
+        ks = kern.sum(1)
+        F[lit] *= np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
+    out[i] = F * AREA_RADIANCE / A
+    return out
+
+
+def area_emitter(light, stream=0):
+    """gather.Emitter of an area light (its polygon; the contour fast path over its outline)."""
+    from .gather import Emitter
+
+    pieces, nv, area = light.pieces()
+    nf = light.direction
+    return Emitter(
+        pieces,
+        nv,
+        area,
+        np.repeat(nf[None], len(pieces), 0),
+        [light.outline],
+        nf,
+        light.outline[0].copy(),
+        stream=stream,
+    )
+
+
+def node_incident(h, nodes, light, backend, eps, rays=4, seed=0, unit=1.0, far=None, uneven=0.2, fine=6):
+    """(len(nodes),) unit direct light (irradiance / pi) averaged over each node's 2 x 2 Gauss
+    points, on its uncovered part (contacts: Hierarchy.dark). Nodes where those values differ by
+    more than `uneven` x their largest (a spot's edge, a shadow boundary crossing the node) are
+    integrated again with fine x fine points: 2 x 2 points under a smoothstep edge or a shadow
+    are off by tens of percent on a coarse node, and that node's light is bounce light for the
+    whole room."""
+    nodes = np.asarray(nodes, np.int64)
+    if len(nodes) == 0:
+        return np.zeros(0)
+    v, vmin, vmax = _node_mean(h, nodes, light, backend, eps, rays, seed, unit, far, 2)
+    redo = np.flatnonzero((vmax > 0) & (vmax - vmin > uneven * vmax))
+    if len(redo) and fine > 2:
+        v[redo] = _node_mean(h, nodes[redo], light, backend, eps, rays, seed, unit, far, fine)[0]
+    return v
+
+
+def _node_mean(h, nodes, light, backend, eps, rays, seed, unit, far, q):
+    from .gather import position_keys
+
+    x, gw = ff.quadrature(h.corners[nodes], h.nv[nodes], q)
+    k = x.shape[1]
+    pts = x.reshape(-1, 3)
+    nrm = np.repeat(h.normal[nodes], k, 0)
+    v = unit_incident(light, pts, nrm, backend, eps, rays, seed, position_keys(pts, unit), far=far)
+    v = v.reshape(-1, k)
+    ex = h.exposure[nodes]
+    part = np.flatnonzero((ex > 0) & (ex < 1))
+    w = gw.copy()
+    if len(part) and h.contacts is not None:
+        lit = ~h.dark(np.repeat(nodes[part], k), x[part].reshape(-1, 3)).reshape(-1, k)
+        w[part] *= lit
+    ws = w.sum(1)
+    mean = np.where(ws > 0, (v * w).sum(1) / np.where(ws > 0, ws, 1), 0.0)
+    return mean, v.min(1), v.max(1)

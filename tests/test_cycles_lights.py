@@ -1,0 +1,38 @@
+"""Cornell box lit by a Blender light in place of its emitter, against Cycles (issue 20):
+reflected radiance per surface, our final gather (two levels + 4 iterations, medium solution)
+against a Cycles DIFFUSE bake (direct + indirect x colour) of the same texels, 32 spp, two seeds
+(benchmarks/cycles_lights.py, docs/lights.md).
+
+Tolerance: the issue's target, every surface within 2%. Measured (this machine, Blender 5.0.1):
+area light worst surface 0.37%, point light 0.41%; the reference's own noise of a surface mean
+(two seeds) at most 0.37% (area) and 0.36% (point), so 2% is more than 4 sigma of the reference
+noise above the worst error seen."""
+
+import math
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.slow]
+
+pytest.importorskip("bpy")
+
+BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
+TOL = 0.02
+
+
+@pytest.mark.parametrize("kind", ["AREA", "POINT"])
+def test_cornell_lit_by_a_blender_light_agrees_with_cycles(kind):
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    if str(BENCH) not in sys.path:
+        sys.path.insert(0, str(BENCH))
+    import cycles_lights
+
+    out = cycles_lights.run(kind, spp=32, seeds=(1, 2))
+    surf = out["surfaces"]
+    assert len(surf) == 7
+    bad = {n: s["gather"] for n, s in surf.items() if not abs(s["gather"]) <= TOL}
+    assert not bad, (kind, bad, surf)
+    assert all(math.isfinite(s["ref_noise_of_mean"]) for s in surf.values())

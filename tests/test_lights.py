@@ -1,0 +1,243 @@
+"""Blender lights in the core (issue 20, core/lights.py, events/lightsrc.py): direct light against
+closed forms in Cycles' units (tests/closed_forms.py, fitted against Cycles), the first bounce as
+a response, a strength change a scale, a moved light equal to a fresh one. No bpy."""
+
+import math
+
+import numpy as np
+import pytest
+
+from benchmarks.scenes import SceneBuilder, closed_box
+from hr_addon.core.events import DynamicRadiosity
+from hr_addon.core.gather import FinalGather
+from hr_addon.core.lights import Light, area_outline, unit_incident
+from hr_addon.core.radiosity import RadiositySystem
+from hr_addon.core.refine import RefineParams
+from tests import closed_forms as cf
+
+
+def plane(size=4.0, rho=0.5, subdiv=1, occluder=None):
+    sb = SceneBuilder()
+    s = size / 2
+    sb.add_quad("floor", [(-s, -s, 0), (s, -s, 0), (s, s, 0), (-s, s, 0)], (rho,) * 3, subdiv=subdiv)
+    if occluder is not None:
+        sb.add_quad("blocker", occluder, (0.5,) * 3)
+    return RadiositySystem(sb.build(), RefineParams())
+
+
+def floor_points(n=40, extent=1.8, seed=1):
+    rng = np.random.default_rng(seed)
+    x = np.column_stack([rng.uniform(-extent, extent, (n, 2)), np.zeros(n)])
+    return x, np.tile([0.0, 0.0, 1.0], (n, 1))
+
+
+def gather_incident(system, dyn, x, **kw):
+    g = FinalGather(dyn, x, np.tile([0.0, 0.0, 1.0], (len(x), 1)), np.zeros(len(x), int), rays=8, **kw)
+    return g.evaluate(dyn, "incident")
+
+
+# -- direct light against closed forms ---------------------------------------------------------------
+def test_point_light_falls_off_as_cos_over_r2():
+    s = plane()
+    x, n = floor_points()
+    c = np.array([0.3, -0.2, 1.7])
+    L = Light("POINT", (1, 1, 1), 250.0, position=c, radius=0.0)
+    got = unit_incident(L, x, n, s.backend, 1e-6) * 250.0
+    d = c - x
+    r = np.linalg.norm(d, axis=1)
+    want = np.array([cf.point_light_irradiance(250.0, ri, di[2] / ri) for ri, di in zip(r, d)]) / np.pi
+    assert np.allclose(got, want, rtol=1e-12)
+    # through the final gather: the direct part, scaled by colour x power, exact
+    dyn = DynamicRadiosity(s, method="FE")
+    dyn.apply({}, {"p": Light("POINT", (1, 0.5, 0.25), 250.0, position=c)})
+    inc = gather_incident(s, dyn, x)
+    # plus the floor's bounce light: the floor alone sees nothing of itself, so none
+    assert np.allclose(inc, want[:, None] * [1, 0.5, 0.25], rtol=1e-6)
+
+
+def test_point_light_radius_is_a_disc_on_the_axis_soft_falloff():
+    s = plane()
+    x = np.array([[0.0, 0.0, 0.0]])
+    n = np.array([[0.0, 0.0, 1.0]])
+    for r in (0.1, 0.5, 1.0):
+        L = Light("POINT", (1, 1, 1), 100.0, position=(0, 0, 2.0), radius=r)
+        got = unit_incident(L, x, n, s.backend, 1e-6, rays=16) * 100.0
+        assert got[0] == pytest.approx(cf.point_light_irradiance(100.0, 2.0, 1.0, r) / np.pi, rel=1e-12)
+
+
+def test_sun_is_cos_only_and_shadowed_by_an_occluder():
+    blocker = [(-0.5, -0.5, 1.0), (0.5, -0.5, 1.0), (0.5, 0.5, 1.0), (-0.5, 0.5, 1.0)]
+    s = plane(occluder=blocker)
+    x, n = floor_points(60)
+    for tilt in (0.0, 30.0, 75.0):
+        t = math.radians(tilt)
+        L = Light("SUN", (1, 1, 1), 3.0, direction=(math.sin(t), 0, -math.cos(t)), angle=0.0)
+        got = unit_incident(L, x, n, s.backend, 1e-6, far=10.0) * 3.0
+        # shadow: the blocker's square moved by its height along the sun's direction
+        sx = x[:, 0] - 1.0 * math.tan(t)
+        shadow = (np.abs(sx) < 0.5) & (np.abs(x[:, 1]) < 0.5)
+        want = np.where(shadow, 0.0, cf.sun_irradiance(3.0, math.cos(t)) / np.pi)
+        assert np.allclose(got, want, rtol=1e-12), tilt
+    # a sun with an angle: the shadow's edge is soft, the open floor the same
+    L = Light("SUN", (1, 1, 1), 3.0, direction=(0, 0, -1), angle=math.radians(10))
+    got = unit_incident(L, x, n, s.backend, 1e-6, rays=64, far=10.0) * 3.0
+    far = (np.abs(x[:, 0]) > 0.8) | (np.abs(x[:, 1]) > 0.8)  # beyond the penumbra (1 m x tan 5 deg)
+    assert np.allclose(got[far], 3.0 / np.pi, rtol=1e-12)
+
+
+def test_area_light_is_the_closed_form_rectangle_factor():
+    s = plane()
+    x, n = floor_points(30, extent=1.5)
+    a, b, h, P = 1.0, 0.6, 1.2, 80.0
+    M = np.eye(4)
+    M[:3, 3] = (0.2, 0.1, h)  # local -Z (the emitting side) points down at the floor
+    L = Light("AREA", (1, 1, 1), P, direction=(0, 0, -1), outline=area_outline("RECTANGLE", a, b, M))
+    assert L.area == pytest.approx(a * b)
+    Le = cf.area_light_radiance(P, a * b)
+    want = (
+        np.array(
+            [
+                cf.point_to_parallel_rect(p[0], p[1], 0.2 - a / 2, 0.2 + a / 2, 0.1 - b / 2, 0.1 + b / 2, h)
+                for p in x
+            ]
+        )
+        * Le
+    )  # irradiance / pi = L F
+    got = unit_incident(L, x, n, s.backend, 1e-6) * P
+    assert np.allclose(got, want, rtol=1e-9)
+    dyn = DynamicRadiosity(s, method="FE")
+    dyn.apply({}, {"a": L})
+    inc = gather_incident(s, dyn, x)  # the gather's Emitter path (solid-angle sampled shadow rays)
+    assert np.allclose(inc[:, 0], want, rtol=1e-6)
+    # a disk keeps its area (the polygon is scaled to it)
+    D = Light("AREA", (1, 1, 1), P, outline=area_outline("DISK", 0.8, 0.8, M))
+    assert D.area == pytest.approx(math.pi * 0.16, rel=1e-12)
+
+
+def test_spot_cone_boundary_and_blend():
+    s = plane(size=10.0)
+    h, size, blend, P = 2.0, math.radians(60), 0.3, 100.0
+    ch = math.cos(size / 2)
+    # points along x at chosen angles off the axis: well inside, inside the blend, on the edge, out
+    cos_in = ch + (1 - ch) * blend  # where the blend ends (full light inside)
+    angles = [
+        0.0,
+        0.5 * math.acos(cos_in),
+        math.acos(ch + 0.5 * (cos_in - ch)),
+        math.acos(ch) - 1e-4,
+        math.acos(ch) + 1e-4,
+        math.radians(40),
+    ]
+    x = np.array([[h * math.tan(t), 0, 0] for t in angles])
+    n = np.tile([0.0, 0.0, 1.0], (len(x), 1))
+    L = Light(
+        "SPOT", (1, 1, 1), P, position=(0, 0, h), direction=(0, 0, -1), spot_size=size, spot_blend=blend
+    )
+    got = unit_incident(L, x, n, s.backend, 1e-6) * P
+    r = np.linalg.norm(x - L.position, axis=1)
+    cosa = h / r
+    want = np.array(
+        [cf.point_light_irradiance(P, ri, c) * cf.spot_factor(c, size, blend) for ri, c in zip(r, cosa)]
+    )
+    assert np.allclose(got, want / np.pi, rtol=1e-12)
+    assert got[0] > 0 and got[1] == pytest.approx(cf.point_light_irradiance(P, r[1], cosa[1]) / np.pi)
+    assert got[2] == pytest.approx(0.5 * cf.point_light_irradiance(P, r[2], cosa[2]) / np.pi, rel=1e-9)
+    assert got[3] > 0 and got[4] == 0 and got[5] == 0
+    # blend 0: a hard edge
+    L0 = Light("SPOT", (1, 1, 1), P, position=(0, 0, h), direction=(0, 0, -1), spot_size=size, spot_blend=0.0)
+    g0 = unit_incident(L0, x, n, s.backend, 1e-6) * P
+    assert (g0[:4] > 0).all() and (g0[4:] == 0).all()
+
+
+# -- the hierarchy: first bounce as a response -------------------------------------------------------
+def test_point_light_in_a_closed_box_conserves_power():
+    """Every watt the light sends is reflected rho / (1 - rho) times in all (a closed box): the
+    solution's radiated power sum(pi B A) over the leaves is rho P / (1 - rho)."""
+    rho, P = 0.5, 100.0
+    s = RadiositySystem(closed_box(1.0, rho, emission=(0, 0, 0), subdiv=4), RefineParams())
+    dyn = DynamicRadiosity(s, method="FE")
+    dyn.apply({}, {"p": Light("POINT", (1, 1, 1), P, position=(0.5, 0.45, 0.55))})
+    h = s.h
+    leaf = np.flatnonzero(h.child0[: h.n] < 0)
+    power = np.pi * (dyn.B[:, leaf] * h.area[leaf]).sum(1)
+    # the 2 x 2 Gauss points per leaf integrate the 1/r^2 irradiance to about 1% on a 4 x 4 face
+    assert np.allclose(power, rho * P / (1 - rho), rtol=0.01), power
+
+
+def test_strength_and_colour_are_a_scale_and_nothing_changed_is_no_event():
+    s = RadiositySystem(closed_box(1.0, 0.5, emission=(0, 0, 0), subdiv=2), RefineParams())
+    dyn = DynamicRadiosity(s, method="FE")
+    c = (0.5, 0.5, 0.8)
+    dyn.apply({}, {"p": Light("POINT", (1, 1, 1), 10.0, position=c)})
+    B1 = dyn.B.copy()
+    fr = dyn.apply({}, {"p": Light("POINT", (1, 1, 1), 10.0, position=c)})
+    assert not fr.changed
+    fr = dyn.apply({}, {"p": Light("POINT", (0.2, 1, 3), 30.0, position=c)})
+    assert [e.kind for e in fr.events] == ["emission"] and fr.iterations == 0
+    assert np.allclose(dyn.B, B1 * np.array([0.6, 3, 9.0])[:, None], rtol=1e-12)
+    fr = dyn.apply({}, {})
+    assert [e.kind for e in fr.events] == ["remove"] and np.abs(dyn.B).max() == 0
+
+
+@pytest.mark.parametrize("method", ["FE", "AUTO"])
+def test_turning_spot_equals_fresh_solutions(method):
+    """A spot turned frame by frame (a light event each) equals a fresh DynamicRadiosity per frame,
+    in the hierarchy's values and in the final gather's output."""
+    s = RadiositySystem(closed_box(2.0, 0.6, emission=(0, 0, 0), subdiv=4), RefineParams())
+    dyn = DynamicRadiosity(s, method=method)
+    x, _ = floor_points(20, extent=0.9)
+    x += [1.0, 1.0, 0.0]
+    from hr_addon.core.output import locate  # noqa: F401  (points are on the floor's patches)
+
+    def spot(a):
+        d = np.array([math.sin(a), 0.3, -math.cos(a)])
+        return Light(
+            "SPOT",
+            (1, 0.9, 0.7),
+            200.0,
+            position=(1.0, 1.0, 1.8),
+            direction=d,
+            spot_size=math.radians(45),
+            spot_blend=0.2,
+        )
+
+    for a in (0.0, 0.4, 0.8):
+        dyn.apply({}, {"s": spot(a)})
+        fresh = DynamicRadiosity(RadiositySystem(s.mesh, RefineParams()), method=method)
+        fresh.apply({}, {"s": spot(a)})
+        assert np.allclose(dyn.loop_radiance(), fresh.loop_radiance(), rtol=1e-5, atol=1e-6 * dyn.B.max())
+
+
+def test_naive_rebuild_carries_the_lights_bounce():
+    """Under NAIVE (a light shape active) the rebuilt system gets the lights' first bounce too:
+    the closed box's power balance holds on it, and it matches FE's solution on average."""
+    from hr_addon.core.events import LightShape
+
+    rho, P = 0.5, 100.0
+    light = {"p": Light("POINT", (1, 1, 1), P, position=(0.5, 0.45, 0.55))}
+    ring = np.array([[0.3, 0.3, 0.0], [0.5, 0.3, 0.0], [0.5, 0.5, 0.0], [0.3, 0.5, 0.0]])
+    shapes = {"dim": LightShape([ring], np.full(3, 1e-9), "dim")}
+    out = {}
+    for method in ("NAIVE", "FE"):
+        s = RadiositySystem(closed_box(1.0, rho, emission=(0, 0, 0), subdiv=4), RefineParams())
+        dyn = DynamicRadiosity(s, method=method)
+        dyn.apply(shapes, light)
+        assert dyn.naive_active == (method == "NAIVE")
+        h = dyn.h
+        leaf = np.flatnonzero(h.child0[: h.n] < 0)
+        power = np.pi * (dyn.B[:, leaf] * h.area[leaf]).sum(1)
+        assert np.allclose(power, rho * P / (1 - rho), rtol=0.01), (method, power)
+        out[method] = dyn.loop_radiance()
+    assert out["NAIVE"].mean() == pytest.approx(out["FE"].mean(), rel=0.01)
+
+
+def test_warm_mode_equals_response_mode_with_lights():
+    s1 = RadiositySystem(closed_box(1.0, 0.6, emission=(0, 0, 0), subdiv=2), RefineParams())
+    s2 = RadiositySystem(closed_box(1.0, 0.6, emission=(0, 0, 0), subdiv=2), RefineParams())
+    a = DynamicRadiosity(s1, method="FE", incremental="response")
+    b = DynamicRadiosity(s2, method="FE", incremental="warm")
+    for pos, k in (((0.5, 0.5, 0.8), 10.0), ((0.3, 0.6, 0.7), 10.0), ((0.3, 0.6, 0.7), 25.0)):
+        lights = {"p": Light("POINT", (1, 0.8, 0.5), k, position=pos)}
+        a.apply({}, lights)
+        b.apply({}, lights)
+        assert np.allclose(a.B, b.B, rtol=1e-5, atol=1e-6 * a.B.max())
