@@ -250,22 +250,31 @@ def solid_angles(A, B, C):
     return 2 * np.arctan2(num, den)
 
 
-def sample_spherical_triangle(A, B, C, u1, u2, area=None):
-    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995);
-    area: their solid angles if known (solid_angles)."""
+def spherical_setup(A, B, C):
+    """What Arvo's sampling of the spherical triangles A, B, C (N, 3) needs that does not depend
+    on the sample: (the angle at A, A . B, the unit direction of C orthogonal to A), (N,), (N,),
+    (N, 3). Computed once per point and triangle, shared by all of its shadow rays."""
     dot = lambda x, y: np.einsum("nk,nk->n", x, y)
     # the angle at A between the great circles AB and AC
     alpha = np.arccos(np.clip(dot(_unit_rows(ff._cross(A, B)), _unit_rows(ff._cross(A, C))), -1, 1))
+    return alpha, dot(A, B), _unit_rows(C - dot(C, A)[:, None] * A)
+
+
+def sample_spherical_triangle(A, B, C, u1, u2, area=None, setup=None):
+    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995);
+    area: their solid angles if known (solid_angles); setup: spherical_setup(A, B, C) if known."""
+    dot = lambda x, y: np.einsum("nk,nk->n", x, y)
+    alpha, ab, c_perp = spherical_setup(A, B, C) if setup is None else setup
     if area is None:
         area = solid_angles(A, B, C)
     ah = u1 * area
     s, t = np.sin(ah - alpha), np.cos(ah - alpha)
     sa, ca = np.sin(alpha), np.cos(alpha)
     u = t - ca
-    v = s + sa * dot(A, B)
+    v = s + sa * ab
     den = (v * s + u * t) * sa
     q = np.clip(((v * t - u * s) * ca - v) / np.where(np.abs(den) > 1e-300, den, 1e-300), -1, 1)
-    ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * _unit_rows(C - dot(C, A)[:, None] * A)
+    ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * c_perp
     z = 1 - u2 * (1 - dot(ch, B))
     return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(
         ch - dot(ch, B)[:, None] * B
@@ -301,6 +310,7 @@ class Emitter:
         a = 0.5 * np.linalg.norm(
             np.cross(self.tri[:, 1] - self.tri[:, 0], self.tri[:, 2] - self.tri[:, 0]), axis=1
         )
+        self.tri_area = a
         self.cdf = np.cumsum(a)
         self.total = float(self.cdf[-1]) if len(a) else 0.0
         self.verts = c.reshape(-1, 3)
@@ -338,9 +348,19 @@ class Emitter:
         big = ok_.ravel() >= self.SOLID_MIN
         y = np.empty((L * S, 3))
         if big.any():
-            Vb = V[li[big], kk[big]]
+            # the sample-independent part of Arvo's method once per point and triangle
+            Vf = V.reshape(L * T, 3, 3)
+            alpha, ab, c_perp = spherical_setup(Vf[:, 0], Vf[:, 1], Vf[:, 2])
+            j = li[big] * T + kk[big]
+            Vb = Vf[j]
             w = sample_spherical_triangle(
-                Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big], ok_.ravel()[big]
+                Vb[:, 0],
+                Vb[:, 1],
+                Vb[:, 2],
+                s1.ravel()[big],
+                u[..., 1].ravel()[big],
+                ok_.ravel()[big],
+                setup=(alpha[j], ab[j], c_perp[j]),
             )
             # the point where direction w meets the triangle's plane
             n = self.tri_normal[kk[big]]
@@ -366,13 +386,7 @@ class Emitter:
         cos_y = np.abs(np.einsum("lsk,lsk->ls", d, ny)) / np.sqrt(r2)
         # density in solid angle: (om_k / tot) x (1 / om_k) for exact sampling, (om_k / tot) x
         # r^2 / (cos_y A_k) for area sampling; times tot
-        area_k = 0.5 * np.linalg.norm(
-            np.cross(
-                self.tri[k][..., 1, :] - self.tri[k][..., 0, :],
-                self.tri[k][..., 2, :] - self.tri[k][..., 0, :],
-            ),
-            axis=-1,
-        )
+        area_k = self.tri_area[k]
         bigm = big.reshape(L, S)
         ratio = np.where(bigm, 1.0, ok_ * r2 / np.maximum(cos_y * area_k, 1e-300))
         return y, ny, ratio

@@ -11,6 +11,7 @@ larger (sample points on the small one, exact contour integral over the large on
 direction follows from reciprocity, so A_p F_pq = A_q F_qp exactly and neither exceeds 1.
 """
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,6 +63,23 @@ class RefineParams:
         if name not in presets:
             raise ValueError(f"Unknown quality preset '{name}' (choose from {', '.join(presets)})")
         return presets[name]
+
+    @staticmethod
+    def for_gather(name):
+        """The transport's preset when the final gather is on (core/gather.py, docs/gather.md):
+        the gather reads exact direct light at two levels and the hierarchy's solution only after
+        its iterations, so the links may be coarser than for showing the leaves (measured: the
+        gathered output within 1% per object of the preset's, docs/gather.md, Transport)."""
+        p = RefineParams.preset(name)
+        return dataclasses.replace(p, **GATHER_TRANSPORT[name])
+
+
+# RefineParams.for_gather: fields changed from the quality's preset when the final gather is on
+GATHER_TRANSPORT = {
+    "draft": dict(),
+    "medium": dict(),
+    "high": dict(),
+}
 
 
 class Links:
