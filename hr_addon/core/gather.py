@@ -420,6 +420,17 @@ def _contour_rings(x, n, rings):
     return np.clip(f, 0.0, 1.0)
 
 
+def _clipped_rings(x, n, rings):
+    """Unoccluded form factor from points x (N, 3), normals n to a planar polygon with holes cut by
+    their horizons: each ring clipped to the point's upper half-space (Sutherland-Hodgman; a hole's
+    clipped ring subtracts its clipped part), then Lambert's contour integral."""
+    f = np.zeros(len(x))
+    for r in rings:
+        verts, ok = ff._clip_to_halfspace(np.broadcast_to(r, (len(x),) + r.shape), x, n)
+        f += np.where(ok, ff._contour(verts - x[:, None], n), 0.0)
+    return np.clip(f, 0.0, 1.0)
+
+
 # ---------------------------------------------------------------------------------------------- gather
 
 
@@ -792,6 +803,11 @@ class FinalGather:
             if whole.any():
                 F[whole] = _contour_rings(xi[whole], ni[whole], em.rings)
         rest = np.flatnonzero(~whole)
+        if em.rings is not None and len(rest):
+            # the horizon cuts the outline: its rings clipped to the point's upper half-space
+            # (exact, as the pieces' sum, for a handful of edges instead of every piece's)
+            F[rest] = _clipped_rings(xi[rest], ni[rest], em.rings)
+            rest = rest[:0]
         T = len(em.corners)
         step = max(1, (1 << 18) // max(T, 1))
         for s0 in range(0, len(rest), step):
@@ -835,7 +851,12 @@ class FinalGather:
 
     def direct_light(self, em: Emitter):
         """(n,) float32 unit-radiance direct light of em at every sample (batches merged)."""
-        per = max(self.shadow_rays, 1) * 4 + 12 * min(len(em.tri), em.MAX_TRIANGLES)
+        edges = sum(len(r) for r in em.rings) if em.rings is not None else 4 * len(em.corners)
+        per = (
+            max(self.shadow_rays, 1) * 4
+            + 3 * min(edges, 4 * em.MAX_TRIANGLES)
+            + 12 * min(len(em.tri), em.MAX_TRIANGLES)
+        )
         return np.concatenate([self.direct_batch(em, a, b) for a, b in self.batches(per)] or [np.zeros(0)])
 
     def static_emitters(self):
@@ -889,10 +910,9 @@ class FinalGather:
         # the shape's own random stream, from its outline relative to the scene's box: the same
         # outline gives the same shadow rays at any scene scale or position
         stream = zlib.crc32(b"".join(position_keys(r, self.unit).tobytes() for r in rec.rings)) & 0x7FFFFFFF
-        if rec.on_surface:
-            corners, nv, area, nf = dyn._pieces(rec)
-        else:
-            nf = rec.n
+
+        def outline_pieces(nf):
+            """The outline's own convex pieces (slabs of its rings)."""
             edges = np.concatenate([np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d])
             traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
             out, nvs = [], []
@@ -907,11 +927,25 @@ class FinalGather:
             corners = np.array(out).reshape(-1, 4, 3)
             nv = np.array(nvs, int)
             _, area = ff.polygon_normal_area(corners, nv)
+            return corners, nv, area
+
+        whole = rec.covered >= 1 - 1e-9 or not rec.on_surface
+        if rec.on_surface:
+            corners, nv, area, nf = dyn._pieces(rec)
+            if whole and len(corners):
+                # wholly on surfaces: the emitting region is the outline itself; its few slabs
+                # instead of its pieces on every patch below it (hundreds on a finely meshed
+                # wall) make the shadow rays' sampling cheap (the same region, uniform in solid
+                # angle)
+                corners, nv, area = outline_pieces(nf)
+        else:
+            nf = rec.n
+            corners, nv, area = outline_pieces(nf)
         inside = np.zeros(0, np.int64)
         if len(corners) == 0:
             return None, inside, nf
         rings = None
-        if rec.covered >= 1 - 1e-9 or not rec.on_surface:
+        if whole:
             rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
         em = Emitter(corners, nv, area, np.repeat(nf[None], len(corners), 0), rings, nf, rec.c, stream=stream)
         if rec.on_surface:
