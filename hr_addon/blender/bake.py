@@ -434,7 +434,10 @@ def bake_frames(
             dyn = None
             if has_shapes:
                 dyn = DynamicRadiosity(
-                    system, method=method, min_area_rel=min_area_rel, **solve_options(quality, gather is not None)
+                    system,
+                    method=method,
+                    min_area_rel=min_area_rel,
+                    **solve_options(quality, gather is not None),
                 )
         result.build_seconds = time.perf_counter() - t0
         result.build_report = system.build
