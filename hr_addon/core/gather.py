@@ -420,15 +420,7 @@ def _contour_rings(x, n, rings):
     return np.clip(f, 0.0, 1.0)
 
 
-def _clipped_rings(x, n, rings):
-    """Unoccluded form factor from points x (N, 3), normals n to a planar polygon with holes cut by
-    their horizons: each ring clipped to the point's upper half-space (Sutherland-Hodgman; a hole's
-    clipped ring subtracts its clipped part), then Lambert's contour integral."""
-    f = np.zeros(len(x))
-    for r in rings:
-        verts, ok = ff._clip_to_halfspace(np.broadcast_to(r, (len(x),) + r.shape), x, n)
-        f += np.where(ok, ff._contour(verts - x[:, None], n), 0.0)
-    return np.clip(f, 0.0, 1.0)
+_clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
 
 # ---------------------------------------------------------------------------------------------- gather
