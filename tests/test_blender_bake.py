@@ -91,7 +91,10 @@ def test_hr_radiance_matches_core_per_frame(tmp_path, final_gather):
     ]
 
     mesh, names = _reference_mesh(bpy)
-    dyn = DynamicRadiosity(RadiositySystem(mesh, RefineParams.preset("draft")), method="FE")
+    # with the final gather the bake's transport is the gather's (bake.refine_params, solve_options)
+    params = RefineParams.for_gather("draft") if final_gather else RefineParams.preset("draft")
+    opts = DynamicRadiosity.gather_options("draft") if final_gather else {}
+    dyn = DynamicRadiosity(RadiositySystem(mesh, params), method="FE", **opts)
     gather = LoopGather(dyn, **gather_params("draft")) if final_gather else None
     starts = np.concatenate([[0], np.cumsum([len(bpy.data.objects[n].data.loops) for n in names])])
     seen = {}

@@ -105,7 +105,10 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path, final_gather):
     # Texel values against the core's radiance_at at the same surface points (independent reference).
     mesh, names = _reference_mesh(bpy)
     assert names == GEOMETRY
-    dyn = DynamicRadiosity(RadiositySystem(mesh, RefineParams.preset("draft")), method="FE")
+    # with the final gather the bake's transport is the gather's (bake.refine_params, solve_options)
+    params = RefineParams.for_gather("draft") if final_gather else RefineParams.preset("draft")
+    opts = DynamicRadiosity.gather_options("draft") if final_gather else {}
+    dyn = DynamicRadiosity(RadiositySystem(mesh, params), method="FE", **opts)
     pt = dyn.system.patches
     assert np.array_equal(pt.poly, np.arange(len(mesh.loop_start))) and (pt.nv == 4).all()
     dyn.apply(_reference_shapes(FRAMES[6]))

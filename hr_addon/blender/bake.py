@@ -202,9 +202,24 @@ def make_gather(solution, output_plan=None, settings=None, smooth_angle=30.0):
     return LoopGather(solution, smooth_angle=smooth_angle, **settings)
 
 
-def refine_params(quality, feps=None, aeps=None, contacts=True):
-    # orient: faces facing the wrong way are turned around, as Cycles (two-sided) shows them
-    return dataclasses.replace(_preset(quality, feps, aeps), contacts=bool(contacts), orient=True)
+def refine_params(quality, feps=None, aeps=None, contacts=True, final_gather=False):
+    # orient: faces facing the wrong way are turned around, as Cycles (two-sided) shows them.
+    # final_gather: the output gathers its own light, the hierarchy only carries what the gather
+    # reads: the quality's transport preset for that (RefineParams.for_gather, coarser links;
+    # docs/gather.md, Transport). Custom feps / aeps stay the user's.
+    p = _preset(quality, feps, aeps)
+    if final_gather and quality.upper() != "CUSTOM":
+        p = RefineParams.for_gather(quality.lower())
+    return dataclasses.replace(p, contacts=bool(contacts), orient=True)
+
+
+def solve_options(quality, final_gather=False):
+    """DynamicRadiosity's solver options: with the final gather, tolerances matched to the output
+    (DynamicRadiosity.gather_options); off, the defaults (1e-7)."""
+    if not final_gather:
+        return {}
+    q = quality.upper()
+    return DynamicRadiosity.gather_options("medium" if q == "CUSTOM" else q.lower())
 
 
 def _preset(quality, feps, aeps):
@@ -306,13 +321,14 @@ def bake_frames(
     if domain not in DOMAINS:
         raise SceneError(f"Unknown domain '{domain}' (CORNER or POINT).")
     quality = (quality or hr.quality).upper()
+    gather = gather_params(quality, hr.final_gather if final_gather is None else final_gather)
     params = refine_params(
         quality,
         hr.feps if feps is None else feps,
         hr.aeps if aeps is None else aeps,
         hr.contacts if contacts is None else contacts,
+        final_gather=gather is not None,
     )
-    gather = gather_params(quality, hr.final_gather if final_gather is None else final_gather)
     output = (output or hr.output).upper()
     if output not in OUTPUTS:
         raise SceneError(f"Unknown output '{output}' (VERTEX or TEXTURE).")
@@ -423,7 +439,12 @@ def bake_frames(
             system = RadiositySystem(scene_in.mesh, params, progress=on_build)
             dyn = None
             if has_shapes or has_lights:
-                dyn = DynamicRadiosity(system, method=method, min_area_rel=min_area_rel)
+                dyn = DynamicRadiosity(
+                    system,
+                    method=method,
+                    min_area_rel=min_area_rel,
+                    **solve_options(quality, gather is not None),
+                )
         result.build_seconds = time.perf_counter() - t0
         result.build_report = system.build
         result.rays = ray_backend_name(system)

@@ -320,7 +320,7 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
 def _build(sess, scene, view_layer, depsgraph, reason):
     hr = scene.hr
     method, quality, _, domain, _, final_gather = _settings(scene)
-    params = refine_params(quality, hr.feps, hr.aeps, hr.contacts)
+    params = refine_params(quality, hr.feps, hr.aeps, hr.contacts, final_gather=final_gather)
     objs = geometry_objects(view_layer)
     with texture.source_materials(objs):
         scene_in = collect_geometry(view_layer, depsgraph)

@@ -121,6 +121,19 @@ def point_to_polygon(points, normals, corners, nv=None):
     return np.clip(f, 0.0, 1.0).reshape(shape)
 
 
+def clipped_rings(x, n, rings):
+    """Unoccluded form factor from points x (N, 3), normals n to a planar polygon with holes (rings:
+    outer CCW about the emitting normal, holes CW) cut by the points' horizons: each ring clipped
+    to the point's upper half-space (Sutherland-Hodgman; a hole's clipped ring takes its clipped
+    part away), then Lambert's contour integral. The same as the sum over the polygon's convex
+    pieces, for a handful of edges."""
+    f = np.zeros(len(x))
+    for r in rings:
+        verts, ok = _clip_to_halfspace(np.broadcast_to(r, (len(x),) + r.shape), x, n)
+        f += np.where(ok, _contour(verts - x[:, None], n), 0.0)
+    return np.clip(f, 0.0, 1.0)
+
+
 def _contour(r, n):
     """Lambert's contour integral over polygons given as vertex offsets r (N, V, 3) from the point."""
     r_next = np.roll(r, -1, axis=1)

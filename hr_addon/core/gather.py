@@ -251,22 +251,31 @@ def solid_angles(A, B, C):
     return 2 * np.arctan2(num, den)
 
 
-def sample_spherical_triangle(A, B, C, u1, u2, area=None):
-    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995);
-    area: their solid angles if known (solid_angles)."""
+def spherical_setup(A, B, C):
+    """What Arvo's sampling of the spherical triangles A, B, C (N, 3) needs that does not depend
+    on the sample: (the angle at A, A . B, the unit direction of C orthogonal to A), (N,), (N,),
+    (N, 3). Computed once per point and triangle, shared by all of its shadow rays."""
     dot = lambda x, y: np.einsum("nk,nk->n", x, y)
     # the angle at A between the great circles AB and AC
     alpha = np.arccos(np.clip(dot(_unit_rows(ff._cross(A, B)), _unit_rows(ff._cross(A, C))), -1, 1))
+    return alpha, dot(A, B), _unit_rows(C - dot(C, A)[:, None] * A)
+
+
+def sample_spherical_triangle(A, B, C, u1, u2, area=None, setup=None):
+    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995);
+    area: their solid angles if known (solid_angles); setup: spherical_setup(A, B, C) if known."""
+    dot = lambda x, y: np.einsum("nk,nk->n", x, y)
+    alpha, ab, c_perp = spherical_setup(A, B, C) if setup is None else setup
     if area is None:
         area = solid_angles(A, B, C)
     ah = u1 * area
     s, t = np.sin(ah - alpha), np.cos(ah - alpha)
     sa, ca = np.sin(alpha), np.cos(alpha)
     u = t - ca
-    v = s + sa * dot(A, B)
+    v = s + sa * ab
     den = (v * s + u * t) * sa
     q = np.clip(((v * t - u * s) * ca - v) / np.where(np.abs(den) > 1e-300, den, 1e-300), -1, 1)
-    ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * _unit_rows(C - dot(C, A)[:, None] * A)
+    ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * c_perp
     z = 1 - u2 * (1 - dot(ch, B))
     return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(
         ch - dot(ch, B)[:, None] * B
@@ -302,6 +311,7 @@ class Emitter:
         a = 0.5 * np.linalg.norm(
             np.cross(self.tri[:, 1] - self.tri[:, 0], self.tri[:, 2] - self.tri[:, 0]), axis=1
         )
+        self.tri_area = a
         self.cdf = np.cumsum(a)
         self.total = float(self.cdf[-1]) if len(a) else 0.0
         self.verts = c.reshape(-1, 3)
@@ -339,9 +349,19 @@ class Emitter:
         big = ok_.ravel() >= self.SOLID_MIN
         y = np.empty((L * S, 3))
         if big.any():
-            Vb = V[li[big], kk[big]]
+            # the sample-independent part of Arvo's method once per point and triangle
+            Vf = V.reshape(L * T, 3, 3)
+            alpha, ab, c_perp = spherical_setup(Vf[:, 0], Vf[:, 1], Vf[:, 2])
+            j = li[big] * T + kk[big]
+            Vb = Vf[j]
             w = sample_spherical_triangle(
-                Vb[:, 0], Vb[:, 1], Vb[:, 2], s1.ravel()[big], u[..., 1].ravel()[big], ok_.ravel()[big]
+                Vb[:, 0],
+                Vb[:, 1],
+                Vb[:, 2],
+                s1.ravel()[big],
+                u[..., 1].ravel()[big],
+                ok_.ravel()[big],
+                setup=(alpha[j], ab[j], c_perp[j]),
             )
             # the point where direction w meets the triangle's plane
             n = self.tri_normal[kk[big]]
@@ -367,13 +387,7 @@ class Emitter:
         cos_y = np.abs(np.einsum("lsk,lsk->ls", d, ny)) / np.sqrt(r2)
         # density in solid angle: (om_k / tot) x (1 / om_k) for exact sampling, (om_k / tot) x
         # r^2 / (cos_y A_k) for area sampling; times tot
-        area_k = 0.5 * np.linalg.norm(
-            np.cross(
-                self.tri[k][..., 1, :] - self.tri[k][..., 0, :],
-                self.tri[k][..., 2, :] - self.tri[k][..., 0, :],
-            ),
-            axis=-1,
-        )
+        area_k = self.tri_area[k]
         bigm = big.reshape(L, S)
         ratio = np.where(bigm, 1.0, ok_ * r2 / np.maximum(cos_y * area_k, 1e-300))
         return y, ny, ratio
@@ -405,6 +419,9 @@ def _contour_rings(x, n, rings):
         t = np.where(cl > 0, g * np.einsum("nmk,nk->nm", cr, n) / np.where(cl > 0, cl, 1), 0.0)
         f -= t.sum(1) / (2 * np.pi)
     return np.clip(f, 0.0, 1.0)
+
+
+_clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
 
 # ---------------------------------------------------------------------------------------------- gather
@@ -789,6 +806,11 @@ class FinalGather:
             if whole.any():
                 F[whole] = _contour_rings(xi[whole], ni[whole], em.rings)
         rest = np.flatnonzero(~whole)
+        if em.rings is not None and len(rest):
+            # the horizon cuts the outline: its rings clipped to the point's upper half-space
+            # (exact, as the pieces' sum, for a handful of edges instead of every piece's)
+            F[rest] = _clipped_rings(xi[rest], ni[rest], em.rings)
+            rest = rest[:0]
         T = len(em.corners)
         step = max(1, (1 << 18) // max(T, 1))
         for s0 in range(0, len(rest), step):
@@ -832,7 +854,12 @@ class FinalGather:
 
     def direct_light(self, em: Emitter):
         """(n,) float32 unit-radiance direct light of em at every sample (batches merged)."""
-        per = max(self.shadow_rays, 1) * 4 + 12 * min(len(em.tri), em.MAX_TRIANGLES)
+        edges = sum(len(r) for r in em.rings) if em.rings is not None else 4 * len(em.corners)
+        per = (
+            max(self.shadow_rays, 1) * 4
+            + 3 * min(edges, 4 * em.MAX_TRIANGLES)
+            + 12 * min(len(em.tri), em.MAX_TRIANGLES)
+        )
         return np.concatenate([self.direct_batch(em, a, b) for a, b in self.batches(per)] or [np.zeros(0)])
 
     def static_emitters(self):
@@ -886,10 +913,9 @@ class FinalGather:
         # the shape's own random stream, from its outline relative to the scene's box: the same
         # outline gives the same shadow rays at any scene scale or position
         stream = zlib.crc32(b"".join(position_keys(r, self.unit).tobytes() for r in rec.rings)) & 0x7FFFFFFF
-        if rec.on_surface:
-            corners, nv, area, nf = dyn._pieces(rec)
-        else:
-            nf = rec.n
+
+        def outline_pieces(nf):
+            """The outline's own convex pieces (slabs of its rings)."""
             edges = np.concatenate([np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d])
             traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
             out, nvs = [], []
@@ -904,11 +930,25 @@ class FinalGather:
             corners = np.array(out).reshape(-1, 4, 3)
             nv = np.array(nvs, int)
             _, area = ff.polygon_normal_area(corners, nv)
+            return corners, nv, area
+
+        whole = rec.covered >= 1 - 1e-9 or not rec.on_surface
+        if rec.on_surface:
+            corners, nv, area, nf = dyn._pieces(rec)
+            if whole and len(corners):
+                # wholly on surfaces: the emitting region is the outline itself; its few slabs
+                # instead of its pieces on every patch below it (hundreds on a finely meshed
+                # wall) make the shadow rays' sampling cheap (the same region, uniform in solid
+                # angle)
+                corners, nv, area = outline_pieces(nf)
+        else:
+            nf = rec.n
+            corners, nv, area = outline_pieces(nf)
         inside = np.zeros(0, np.int64)
         if len(corners) == 0:
             return None, inside, nf
         rings = None
-        if rec.covered >= 1 - 1e-9 or not rec.on_surface:
+        if whole:
             rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
         em = Emitter(corners, nv, area, np.repeat(nf[None], len(corners), 0), rings, nf, rec.c, stream=stream)
         if rec.on_surface:

@@ -56,7 +56,10 @@ class _DirectMixin:
             if ok.any():
                 F[ok] = _contour(x[ok], xn[ok], rings)
             rest = np.flatnonzero(front & ~ok)
-            if len(rest):
+            if len(rest) and rings is not None:
+                # the horizon cuts the outline: its rings clipped (not every piece on every patch)
+                F[rest] = ff.clipped_rings(x[rest], xn[rest], rings)
+            elif len(rest):
                 T = len(corners)
                 F[rest] = (
                     ff.point_to_polygon(

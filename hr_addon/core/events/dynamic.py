@@ -19,6 +19,14 @@ from .records import METHODS, EventReport, FrameReport, LightShape, _Rec
 from .validation import _ShapeMixin
 
 
+# DynamicRadiosity.gather_options: the solves' tolerances when the final gather is on
+GATHER_SOLVE = {
+    "draft": dict(tol=1e-5, response_tol=1e-4, response_float32=True),
+    "medium": dict(tol=1e-5, response_tol=1e-4, response_float32=True),
+    "high": dict(tol=1e-6, response_tol=1e-5, response_float32=True),
+}
+
+
 class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
     def __init__(
         self,
@@ -36,6 +44,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         direct_min_area_rel=None,
         response_tol=None,
         response_float32=False,
+        tol=None,
     ):
         """system: a built RadiositySystem (its hierarchy is extended in place below the HR leaves).
         min_area_rel: smallest AR node, fraction of the total scene area. node_budget: most nodes one shape
@@ -49,7 +58,9 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         shapes whose responses need no extra nodes are kept for instant re-adding (0: off).
         response_tol: solver tolerance of the shapes' responses (default: the system's, as the
         base solution); response_float32: those solves gather in float32 (Live Relight, whose
-        output is float32, uses both: see docs/events.md)."""
+        output is float32, uses both: see docs/events.md). tol: solver tolerance of the base
+        solution and of warm mode (default: the system's). With the final gather on, see
+        gather_options()."""
         method = method.upper()
         if method not in METHODS:
             raise ValueError(f"Unknown method '{method}' (choose from {', '.join(METHODS)})")
@@ -64,7 +75,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
             direct_min_area_rel if direct_min_area_rel is not None else 4 * min_area_rel
         )
         self.naive_params, self.naive_offset, self.cache_size = naive_params, naive_offset, cache_size
-        self.tol = system.tol
+        self.tol = tol if tol is not None else system.tol
         self.response_tol = response_tol if response_tol is not None else system.tol
         self.response_float32 = response_float32
         self.links = system.links
@@ -99,6 +110,13 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         self._X = self._Bbase.copy()  # warm mode state
         self._B = self._Bbase.copy()
         self.base_iterations = rep.iterations
+
+    @staticmethod
+    def gather_options(quality="draft"):
+        """Solver options when the final gather is on (docs/gather.md, Transport): the gather
+        reads the solution only after its exact direct light and its iterations, so it is solved
+        to a tolerance matched to the output, not to 1e-7."""
+        return dict(GATHER_SOLVE[quality.lower()])
 
     # -- public API ---------------------------------------------------------------------------------
     @property

@@ -1,0 +1,154 @@
+"""Light events with the final gather on, on a furnished room: build, gather precompute, FE and
+AUTO events (a new window, a moved window, a colour edit), each until the gathered output is
+ready; CPU seconds (time.process_time), one run. Optionally a cProfile of the events and a dump of
+the gathered output for comparing transport settings (coarse vs fine).
+
+    .venv/bin/python benchmarks/bench_gather_events.py --size 100k --quality draft \
+        [--transport gather] [--params 'dict(feps=0.1)'] [--response-tol 1e-4] \
+        [--profile out.txt] [--dump out.npz] [--json out.json]
+
+--transport gather: the transport settings used when the final gather is on
+(RefineParams.for_gather / DynamicRadiosity's gather options); default: today's presets.
+"""
+
+import argparse
+import dataclasses
+import json
+import resource
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--size", default="20k")
+    ap.add_argument("--quality", default="draft")
+    ap.add_argument("--transport", default="classic", choices=("classic", "gather"))
+    ap.add_argument("--params", default="dict()", help="RefineParams overrides (a Python dict)")
+    ap.add_argument("--response-tol", type=float, default=None)
+    ap.add_argument("--f32", action="store_true", help="responses gather in float32")
+    ap.add_argument("--rays", type=int, default=128)
+    ap.add_argument("--shadow-rays", type=int, default=None)
+    ap.add_argument("--levels", type=int, default=2)
+    ap.add_argument("--iterations", type=int, default=4)
+    ap.add_argument("--methods", default="FE,AUTO")
+    ap.add_argument("--profile", default=None, help="write a cProfile summary of the events here")
+    ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+
+    from benchmarks import shapes as S
+    from benchmarks.furnished import furnished_room
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.core.gather import LoopGather
+    from hr_addon.core.radiosity import RadiositySystem
+    from hr_addon.core.refine import RefineParams
+
+    cpu = time.process_time
+    mesh, info = furnished_room(args.size)
+    q = args.quality
+    base = RefineParams.preset(q)
+    dkw = {}
+    if args.transport == "gather":
+        base = RefineParams.for_gather(q)
+        dkw = DynamicRadiosity.gather_options(q)
+    params = dataclasses.replace(base, **eval(args.params))
+    if args.response_tol is not None:
+        dkw["response_tol"] = args.response_tol
+    if args.f32:
+        dkw["response_float32"] = True
+    out = dict(size=args.size, quality=q, transport=args.transport, params=dataclasses.asdict(params))
+    out["dyn_options"] = dict(dkw)
+    c0 = cpu()
+    s = RadiositySystem(mesh, params)
+    out["build_cpu_s"] = cpu() - c0
+    out["links"], out["nodes"] = len(s.links), s.h.n
+    out["build_peak_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    print(f"build {out['build_cpu_s']:.1f} s CPU, {out['links']:,} links, {s.h.n:,} nodes", flush=True)
+    _, frame = info["light_wall"]
+
+    def window(cx, em=20.0):
+        rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)
+        return LightShape(rect, np.broadcast_to(np.asarray(em, float), (3,)).copy(), "window")
+
+    # the bake's settings (hr_addon/blender/bake.py GATHER): 16 shadow rays at draft, 32 above
+    gkw = dict(rays=args.rays, levels=args.levels, iterations=args.iterations)
+    gkw["shadow_rays"] = args.shadow_rays or (16 if q == "draft" else 32)
+    prof = None
+    if args.profile:
+        import cProfile
+
+        prof = cProfile.Profile()
+    dumps = {}
+    g = None
+    for method in args.methods.split(","):
+        c0 = cpu()
+        dyn = DynamicRadiosity(s.copy(), method=method, **dkw)
+        out[f"{method}_base_solve_cpu_s"] = cpu() - c0
+        if g is None:
+            c0 = cpu()
+            g = LoopGather(dyn, **gkw)
+            out["gather_precompute_cpu_s"] = cpu() - c0
+            out["gather_samples"], out["gather_weights_mb"] = g.n, g.weights_bytes / 1e6
+            c0 = cpu()
+            g.loop_radiance(dyn)
+            out["gather_first_frame_cpu_s"] = cpu() - c0
+            print(f"gather precompute {out['gather_precompute_cpu_s']:.1f} s CPU", flush=True)
+        else:
+            lv = g
+            while lv is not None:  # the shape's direct light is the method's event cost too
+                lv._shape_cache.clear()
+                lv = lv.second
+            g.loop_radiance(dyn)  # base parts of this DynamicRadiosity
+        steps = [
+            ("add", lambda: dyn.add("w", window(0.7))),
+            ("move", lambda: dyn.apply({"w": window(1.2)})),
+            ("colour", lambda: dyn.apply({"w": window(1.2, (10.0, 20.0, 30.0))})),
+            ("strength", lambda: dyn.apply({"w": window(1.2, (20.0, 40.0, 60.0))})),
+        ]
+        for name, ev in steps:
+            if prof is not None:
+                prof.enable()
+            c0 = cpu()
+            rep = ev()
+            c1 = cpu()
+            v = g.loop_radiance(dyn)
+            c2 = cpu()
+            if prof is not None:
+                prof.disable()
+            out[f"{method}_{name}_cpu_s"] = c2 - c0
+            out[f"{method}_{name}_solve_cpu_s"] = c1 - c0
+            out[f"{method}_{name}_iterations"] = int(rep.iterations)
+            dumps[f"{method}_{name}"] = v
+            print(
+                f"{method} {name}: {c2 - c0:.3f} s CPU (event {c1 - c0:.3f} s, {rep.iterations} it; "
+                f"gather {c2 - c1:.3f} s)",
+                flush=True,
+            )
+        dyn = None  # noqa: F841 (frees it before the next method)
+    out["peak_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    print(json.dumps({k: v for k, v in out.items() if k != "params"}), flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    if args.dump:
+        obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
+        np.savez_compressed(args.dump, loop_object=obj, **dumps)
+    if prof is not None:
+        import io
+        import pstats
+
+        buf = io.StringIO()
+        st = pstats.Stats(prof, stream=buf).sort_stats("cumulative")
+        st.print_stats(45)
+        st.sort_stats("tottime").print_stats(30)
+        Path(args.profile).write_text(buf.getvalue())
+
+
+if __name__ == "__main__":
+    main()
