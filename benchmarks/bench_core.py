@@ -26,15 +26,16 @@ REFERENCE = RefineParams(
 
 def run(name, params, mesh, backend="auto", repeat_solve=3):
     tracemalloc.start()
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU seconds: the two cores are shared
     s = RadiositySystem(mesh, params, backend=backend)
-    t_build = time.perf_counter() - t0
+    t_build = time.process_time() - t0
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     times = []
     for _ in range(repeat_solve):
+        c0 = time.process_time()
         s.solve(warm=False)
-        times.append(s.report.seconds)
+        times.append(time.process_time() - c0)
     rep = s.report
     st = s.build.refine
     op = s.operator()
@@ -144,25 +145,41 @@ def main():
         print(" | ".join(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols), flush=True)
     with open(os.path.join(OUT, "core.json"), "w") as f:
         json.dump(rows, f, indent=1)
-    plot(rows)
+    plot(rows, time.strftime("%Y-%m-%d", time.gmtime()))
 
 
-def plot(rows):
+def plot(rows, date=""):
     import matplotlib
+    from matplotlib.ticker import FuncFormatter
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    from benchmarks.plot_events import label_log_axis
+
+    fig, ax = plt.subplots(figsize=(7.2, 4.6))
+    offsets = {"medium, no push corrections": (6, -12), "medium, numpy rays": (-8, 8)}
     for r in rows:
         if r["name"] == "reference":
             continue
         t = r["t_build"] + r["t_solve"]
-        ax.loglog(t, r["mean_rel"], "o")
-        ax.annotate(r["name"], (t, r["mean_rel"]), textcoords="offset points", xytext=(5, 4), fontsize=8)
-    ax.set_xlabel("build + solve time (s), 2-core CPU")
-    ax.set_ylabel("mean relative error vs converged reference")
-    ax.set_title("Cornell box: hierarchical radiosity quality settings")
+        ax.loglog(t, r["mean_rel"], "o", ms=7, mec="k")
+        dx, dy = offsets.get(r["name"], (6, 4))
+        ax.annotate(
+            r["name"], (t, r["mean_rel"]), textcoords="offset points", xytext=(dx, dy), fontsize=8,
+            ha="right" if dx < 0 else "left",
+        )
+    ax.margins(x=0.25, y=0.15)
+    label_log_axis(ax.xaxis)
+    label_log_axis(ax.yaxis)
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{100 * v:g}%"))
+    ax.set_xlabel("build + solve, CPU seconds")
+    ax.set_ylabel("mean relative error at the vertices")
+    when = f", measured {date}" if date else ""
+    ax.set_title(
+        f"Cornell box, 8 x 8 output mesh per wall: error vs a converged reference\n(clusters and contacts on{when})",
+        fontsize=9,
+    )
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(os.path.join(os.path.dirname(OUT), "core_speed_accuracy.png"), dpi=120)
