@@ -166,7 +166,11 @@ def plot(rows, date=""):
         ax.loglog(t, r["mean_rel"], "o", ms=7, mec="k")
         dx, dy = offsets.get(r["name"], (6, 4))
         ax.annotate(
-            r["name"], (t, r["mean_rel"]), textcoords="offset points", xytext=(dx, dy), fontsize=8,
+            r["name"],
+            (t, r["mean_rel"]),
+            textcoords="offset points",
+            xytext=(dx, dy),
+            fontsize=8,
             ha="right" if dx < 0 else "left",
         )
     ax.margins(x=0.25, y=0.15)

@@ -132,7 +132,9 @@ def main():
     for q, m in MARKERS.items():
         only = "" if scenes.get(q, set()) == all_scenes else " (" + ", ".join(sorted(scenes[q])) + " only)"
         ax.scatter([], [], color="w", edgecolor="k", marker=m, label=f"base: {q}{only}", s=60)
-    ax.scatter([], [], color="w", edgecolor="w", label="FE, FE warm, AR on one spot:\nconcentric, FE outermost")
+    ax.scatter(
+        [], [], color="w", edgecolor="w", label="FE, FE warm, AR on one spot:\nconcentric, FE outermost"
+    )
     ax.set_xscale("log")
     ax.margins(x=0.12, y=0.08)
     ax.set_yscale("log")
@@ -140,7 +142,8 @@ def main():
     ax.set_ylabel("error of the light's contribution: RMSE (radiance)")
     ax.set_title(
         "Dynamic light events: cornell + office + 30-frame beam\n"
-        "error vs NAIVE at reference quality; lower left is better" + (f"; measured {args.date}" if args.date else ""),
+        "error vs NAIVE at reference quality; lower left is better"
+        + (f"; measured {args.date}" if args.date else ""),
         fontsize=10,
     )
     label_log_axis(ax.yaxis)
