@@ -192,7 +192,7 @@ def _stats(xs):
     }
 
 
-def run(scene_name, quality, method, furnished_size="100k"):
+def run(scene_name, quality, method, furnished_size="100k", final_gather=True):
     import bpy
     import hr_addon
 
@@ -212,6 +212,7 @@ def run(scene_name, quality, method, furnished_size="100k"):
             info.pop("light_wall", None)
         scene.hr.method = method
         scene.hr.quality = quality.upper()
+        scene.hr.final_gather = final_gather
         vl = bpy.context.view_layer
         scene.hr.live = True
         t0 = time.perf_counter()
@@ -223,6 +224,7 @@ def run(scene_name, quality, method, furnished_size="100k"):
             "scene": scene_name,
             "quality": quality,
             "method": method,
+            "final_gather": bool(scene.hr.final_gather),
             "first_update_s": first,
             "build_s": w.build_seconds,
             "nodes": int(w.dyn.h.n),
@@ -244,19 +246,20 @@ def run(scene_name, quality, method, furnished_size="100k"):
                 edit()
                 if mode == "ui":
                     bpy.context.view_layer.update()  # the depsgraph handler fires, as in the UI
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.process_time()
                     live._reconcile(sess, scene, vl, check_geometry=False, fast=True)  # as the timer
                     t1 = time.perf_counter()
                     w.flush()
                     t2 = time.perf_counter()
                     live._deliver(sess, scene)
-                    t3 = time.perf_counter()
+                    t3, c3 = time.perf_counter(), time.process_time()
                     assert not sess.error and not sess.problems, (sess.error, sess.problems)
                     r = sess.last
                     rows.append(
                         {
                             "kind": k,
                             "total": t3 - t0,
+                            "cpu": c3 - c0,  # CPU seconds of the process (main thread + worker)
                             "read": t1 - t0,
                             "apply": r.t_apply,
                             "output": r.t_output,
@@ -275,6 +278,7 @@ def run(scene_name, quality, method, furnished_size="100k"):
             if mode == "ui":
                 for part in ("read", "apply", "output", "write"):
                     res[f"part_{part}"] = _stats([r[part] for r in rows])
+                res["all_cpu"] = _stats([r["cpu"] for r in rows])
                 res["moves_iterations"] = _stats([r["iterations"] for r in rows if r["kind"] == "move"])
                 out["rows"] = rows
             out["edits"][mode] = res
@@ -375,6 +379,7 @@ def main():
     ap.add_argument("--furnished-quality", default="draft")
     ap.add_argument("--furnished-methods", default="FE")
     ap.add_argument("--skip-cornell", action="store_true")
+    ap.add_argument("--no-final-gather", action="store_true", help="Live with the final gather off")
     ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--plot", action="store_true", help="only redraw the chart and table from the JSON")
     args = ap.parse_args()
@@ -387,11 +392,11 @@ def main():
         if not args.skip_cornell:
             for q in args.quality.split(","):
                 for m in args.methods.split(","):
-                    runs.append(run("cornell", q, m))
+                    runs.append(run("cornell", q, m, final_gather=not args.no_final_gather))
         if args.furnished:
             for q in args.furnished_quality.split(","):
                 for m in args.furnished_methods.split(","):
-                    runs.append(run("furnished_100k", q, m))
+                    runs.append(run("furnished_100k", q, m, final_gather=not args.no_final_gather))
         keep = [
             r
             for r in old["runs"]
