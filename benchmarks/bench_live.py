@@ -300,10 +300,10 @@ def table(results):
     all edits, and of all edits through hr.live_update() (with and without the geometry check)."""
     kinds = ("move", "scale", "rotate", "reshape", "strength", "colour", "hide", "show")
     lines = [
-        "| scene | quality | method | build | all edits | "
+        "| scene | quality | method | final gather | build | all edits | "
         + " | ".join(kinds)
         + " | hr.live_update() | same, check_geometry=False | target (p95) |",
-        "|---" * (8 + len(kinds)) + "|",  # 5 + kinds + 3 columns
+        "|---" * (9 + len(kinds)) + "|",  # 6 + kinds + 3 columns
     ]
 
     def ms(s):
@@ -317,14 +317,15 @@ def table(results):
         tgt = TARGETS.get((r["scene"], r["quality"]))
         met = "" if tgt is None else f"{ms(tgt)} ({'met' if e['all']['p95'] <= tgt else 'not met'})"
         lines.append(
-            f"| {r['scene']} | {r['quality']} | {r['method']} | {r['build_s']:.1f} s | {mp(e['all'])} | "
+            f"| {r['scene']} | {r['quality']} | {r['method']} | "
+            f"{ {True: 'on', False: 'off'}.get(r.get('final_gather'), 'before it') } | {r['build_s']:.1f} s | {mp(e['all'])} | "
             + " | ".join(mp(e[k]) for k in kinds)
             + f" | {mp(o['all'])} | {mp(f['all'])} | {met} |"
         )
     return "\n".join(lines)
 
 
-def plot(results, path):
+def plot(results, path, date=""):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -337,7 +338,8 @@ def plot(results, path):
     )
     for r in results:
         e = r["edits"]["ui"]
-        labels.append(f"{r['scene']} {r['quality']} {r['method']}")
+        fg = {True: ", gather", False: ", leaves"}.get(r.get("final_gather"), "")
+        labels.append(f"{r['scene']} {r['quality']} {r['method']}{fg}")
         med.append(1000 * e["all"]["median"])
         p95.append(1000 * e["all"]["p95"])
         tg.append(1000 * TARGETS.get((r["scene"], r["quality"]), float("nan")))
@@ -363,7 +365,8 @@ def plot(results, path):
     ax.set_xlabel("median ms per edit, by kind")
     ax.legend(fontsize=7, ncol=8, loc="upper center", bbox_to_anchor=(0.5, -0.16))
     ax.set_title("By edit kind")
-    fig.suptitle("Live Relight: time per light-shape edit (benchmarks/bench_live.py)")
+    when = f", measured {date} (wall ms, 2 shared cores)" if date else ""
+    fig.suptitle(f"Live Relight: time per light-shape edit (benchmarks/bench_live.py){when}")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     print(f"wrote {path}", flush=True)
@@ -413,7 +416,7 @@ def main():
     order = {"cornell": 0, "furnished_100k": 1}
     res = sorted(old["runs"], key=lambda r: (order.get(r["scene"], 9), r["quality"] != "draft", r["method"]))
     print(table(res))
-    plot(res, ROOT / "benchmarks" / "live_edits.png")
+    plot(res, ROOT / "benchmarks" / "live_edits.png", old.get("date", ""))
 
 
 if __name__ == "__main__":
