@@ -42,9 +42,17 @@ def run(name, params, mesh, backend="auto", repeat_solve=3):
     # Bare gather on the same links (the memory-bound limit): one bincount per channel.
     B = s.B
     t1 = time.perf_counter()
+    # With clusters the links gather in an extended index space (far-link intermediates, cluster
+    # slots, then the nodes: solver.Operator); the bare gather runs over the same terms.
+    n_ext = op.nT + op.off + op.n
     for _ in range(10):
         for c in range(3):
-            np.bincount(op.recv, weights=op.f * B[c, op.src], minlength=op.n)
+            Z = np.zeros(n_ext)
+            Z[n_ext - op.n :] = B[c]
+            if op.tree is not None:
+                X = Z[op.nT :]
+                Z[: op.nT] = np.bincount(op.t_slot, weights=op.t_w * X[op.t_src], minlength=op.nT)
+            np.bincount(op.recv, weights=op.f * Z[op.src], minlength=op.off + op.n)
     t_bare = (time.perf_counter() - t1) / 10
     t1 = time.perf_counter()
     for _ in range(10):
