@@ -854,6 +854,39 @@ def markdown(data):
             L.append("|---|---|---|---|---|")
             L += rows
             L.append("")
+    if r and any("refl_gather" in fr["metrics"] for run in r["ours"] for fr in run["frames"].values()):
+        frames = list(r["frames"])
+        sf = str(r["config"]["sweep_frame"] or r["config"]["frames"][0])
+        eqg = {(x["quality"], x["method"], x.get("output", "leaf")): x for x in eq.get("runs", [])}
+        L.append(
+            f"Final gather ({r.get('gather_settings', {})}) against the leaf values, reflected radiance at "
+            f"texel centres; per frame = light event + the gather's first evaluate of frame {sf}, CPU s; "
+            "Cycles at equal error from its sample-count sweep (xN = its CPU time / ours):\n"
+        )
+        L.append(
+            "| quality | method | output | worst surface, frames " + " / ".join(frames) + f" | bias f{sf} "
+            f"| RMSE f{sf} (noise removed) | per frame f{sf} | x Cycles, equal worst surface | x Cycles, equal RMSE |"
+        )
+        L.append("|---|---|---|---|---|---|---|---|---|")
+        for run in r["ours"]:
+            fr = run["frames"]
+            for out_, var in (("leaf", "refl_leaf"), ("gather", "refl_gather")):
+                if var not in fr[sf]["metrics"]:
+                    continue
+                w = " / ".join(f"{100 * fr[f]['metrics'][var]['all']['worst_mre']:.2f}%" for f in frames)
+                a = fr[sf]["metrics"][var]["all"]
+                x = eqg.get((run["quality"], run["method"], out_))
+                sp = (
+                    f"x{x['worst_mre']['speedup']:.1f}{' (extrapolated)' if x['worst_mre'].get('extrapolated') else ''}"
+                    f" | x{x['rmse']['speedup']:.1f}"
+                    if x
+                    else " | "
+                )
+                L.append(
+                    f"| {run['quality']} | {run['method']} | {out_} | {w} | {100 * a['bias']:+.2f}% | "
+                    f"{a['rmse_corrected']:.4f} | {frame_cost(fr[sf], out_):.3f} s | {sp} |"
+                )
+        L.append("")
     for name, r in res.items():
         if name == "cornell":
             continue
