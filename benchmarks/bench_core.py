@@ -106,7 +106,12 @@ def errors(s, ref, mesh):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="skip the high preset and use a coarser reference")
+    ap.add_argument("--table", action="store_true", help="print the markdown table of core.json and stop")
     args = ap.parse_args()
+    if args.table:
+        with open(os.path.join(OUT, "core.json")) as f:
+            print(table(json.load(f)))
+        return
     os.makedirs(OUT, exist_ok=True)
     mesh = scenes.cornell_box(subdiv=8)  # the output mesh: errors are measured at its vertices
     settings = [("draft", RefineParams.preset("draft")), ("medium", RefineParams.preset("medium"))]
@@ -154,6 +159,20 @@ def main():
     with open(os.path.join(OUT, "core.json"), "w") as f:
         json.dump(rows, f, indent=1)
     plot(rows, time.strftime("%Y-%m-%d", time.gmtime()))
+
+
+def table(rows):
+    """The README's markdown table from core.json."""
+    L = [
+        "| setting | nodes | links (+ push corrections) | memory | build CPU | solve CPU (iterations) | mean rel. error | RMSE |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        L.append(
+            f"| {r['name']} | {r['nodes']:,} | {r['links']:,} (+{r['corrections']:,}) | {r['memory_mb']:.0f} MB | "
+            f"{r['t_build']:.2f} s | {r['t_solve']:.2f} s ({r['iterations']}) | {100 * r['mean_rel']:.1f}% | {r['rmse']:.4f} |"
+        )
+    return "\n".join(L)
 
 
 def plot(rows, date=""):
