@@ -515,7 +515,7 @@ def plot(results, path=CHART, eq=None, date=""):
     r = results["cornell"]
     f = str(r["config"]["sweep_frame"])
     eqr = {(x["quality"], x["method"], x.get("output", "leaf")): x for x in (eq or {}).get("runs", [])}
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.8))
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2))
     for ax, metric, label in (
         (axes[0], "worst_mre", "per-surface error: worst surface's mean radiance vs Cycles"),
         (axes[1], "rmse", "texel RMSE of reflected radiance (reference noise removed)"),
@@ -524,6 +524,29 @@ def plot(results, path=CHART, eq=None, date=""):
         t = [np.mean(s["seconds"]) for s in sw]
         e = [s["noise_rmse"] if metric == "rmse" else s["vs_ref"]["worst_mre"] for s in sw]
         ax.plot(t, e, "k-", marker="D", label="Cycles bake (one frame, all surfaces)")
+        lines = []
+        for run in r["ours"]:
+            row = eqr.get((run["quality"], run["method"], "gather"))
+            if row and metric in row:
+                x = row[metric]
+                ext = ", extrapolated" if x.get("extrapolated") else ""
+                lines.append(
+                    f"{run['method']}: x{x['speedup']:.0f} (Cycles {x['cycles_spp']:.0f} spp, "
+                    f"{x['cycles_seconds']:.0f} s{ext})"
+                )
+        if lines:
+            corner = (0.02, 0.02, "left", "bottom") if metric == "worst_mre" else (0.98, 0.98, "right", "top")
+            ax.text(
+                corner[0],
+                corner[1],
+                "final gather, per frame, faster than\nCycles at equal error (target x100):\n"
+                + "\n".join(lines),
+                transform=ax.transAxes,
+                ha=corner[2],
+                va=corner[3],
+                fontsize=8,
+                bbox=dict(boxstyle="round", fc="w", ec="0.7"),
+            )
         for ti, ei, s in zip(t, e, sw):
             ax.annotate(f"{s['spp']} spp", (ti, ei), textcoords="offset points", xytext=(5, 4), fontsize=8)
         for run in r["ours"]:
@@ -552,20 +575,10 @@ def plot(results, path=CHART, eq=None, date=""):
                     mew=1.5,
                     label=lab,
                 )
-                row = eqr.get(("medium", run["method"], output))
-                if row and output == "gather" and metric in row:
-                    ax.annotate(
-                        f"x{row[metric]['speedup']:.0f}",
-                        (x, y),
-                        textcoords="offset points",
-                        xytext=(-8, -4),
-                        ha="right",
-                        fontsize=8,
-                        color=MCOL[run["method"]],
-                    )
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.margins(x=0.1, y=0.1)
+        ax.set_xlim(left=0.001)  # room for the box at the lower left (left panel)
         label_log_axis(ax.xaxis)
         label_log_axis(ax.yaxis)
         if metric == "worst_mre":
@@ -599,11 +612,11 @@ def plot(results, path=CHART, eq=None, date=""):
         + "\n"
         + gtxt
         + build_txt
-        + ".  xN = Cycles CPU time at equal error / ours per frame (interpolated on the Cycles curve, "
-        "1/sqrt(spp) beyond it)",
+        + ".\nxN = Cycles CPU time at equal error / ours per frame (Cycles' error interpolated between its "
+        "sample counts, 1/sqrt(spp) beyond 256 spp); CPU seconds of one process each, same run",
         fontsize=9,
     )
-    fig.tight_layout(rect=(0, 0.1, 1, 0.92))
+    fig.tight_layout(rect=(0, 0.1, 1, 0.89))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     log(f"wrote {path}")
@@ -954,7 +967,9 @@ def main():
             )
         with open(args.out, "w") as fh:
             json.dump(data, fh, indent=1, default=float)
-        plot(data["scenes"], eq=data["equal_error"], date=data.get("date", ""))
+        if "date" not in data:  # JSON written before the date was kept: the file's own
+            data["date"] = time.strftime("%Y-%m-%d", time.gmtime(os.path.getmtime(args.out)))
+        plot(data["scenes"], eq=data["equal_error"], date=data["date"])
         print(summary_table(data["scenes"], data["equal_error"]))
         md = markdown(data)
         with open(os.path.join(OUT, "cycles_tables.md"), "w") as fh:

@@ -37,7 +37,15 @@ def label_log_axis(axis):
 
     lo, hi = sorted(axis.get_view_interval())
     decades = np.log10(hi / lo)
-    subs = np.arange(1, 10, 0.5) if decades < 1.2 else (1, 2, 3, 5, 7) if decades < 3 else (1, 2, 5)
+    subs = (
+        np.arange(1, 10, 0.5)
+        if decades < 1.2
+        else (1, 2, 3, 5, 7)
+        if decades < 3
+        else (1, 2, 5)
+        if decades < 3.6
+        else (1, 3)
+    )
     axis.set_major_locator(LogLocator(base=10, subs=subs))
     axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     axis.set_minor_locator(NullLocator())
