@@ -338,7 +338,7 @@ def plot(results, path, date=""):
     )
     for r in results:
         e = r["edits"]["ui"]
-        fg = {True: ", gather", False: ", leaves"}.get(r.get("final_gather"), "")
+        fg = {True: ", gather", False: ", leaves"}.get(r.get("final_gather"), ", before the gather (earlier run)")
         labels.append(f"{r['scene']} {r['quality']} {r['method']}{fg}")
         med.append(1000 * e["all"]["median"])
         p95.append(1000 * e["all"]["p95"])
