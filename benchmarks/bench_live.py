@@ -192,7 +192,7 @@ def _stats(xs):
     }
 
 
-def run(scene_name, quality, method, furnished_size="100k"):
+def run(scene_name, quality, method, furnished_size="100k", final_gather=True):
     import bpy
     import hr_addon
 
@@ -212,6 +212,7 @@ def run(scene_name, quality, method, furnished_size="100k"):
             info.pop("light_wall", None)
         scene.hr.method = method
         scene.hr.quality = quality.upper()
+        scene.hr.final_gather = final_gather
         vl = bpy.context.view_layer
         scene.hr.live = True
         t0 = time.perf_counter()
@@ -223,6 +224,7 @@ def run(scene_name, quality, method, furnished_size="100k"):
             "scene": scene_name,
             "quality": quality,
             "method": method,
+            "final_gather": bool(scene.hr.final_gather),
             "first_update_s": first,
             "build_s": w.build_seconds,
             "nodes": int(w.dyn.h.n),
@@ -244,19 +246,20 @@ def run(scene_name, quality, method, furnished_size="100k"):
                 edit()
                 if mode == "ui":
                     bpy.context.view_layer.update()  # the depsgraph handler fires, as in the UI
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.process_time()
                     live._reconcile(sess, scene, vl, check_geometry=False, fast=True)  # as the timer
                     t1 = time.perf_counter()
                     w.flush()
                     t2 = time.perf_counter()
                     live._deliver(sess, scene)
-                    t3 = time.perf_counter()
+                    t3, c3 = time.perf_counter(), time.process_time()
                     assert not sess.error and not sess.problems, (sess.error, sess.problems)
                     r = sess.last
                     rows.append(
                         {
                             "kind": k,
                             "total": t3 - t0,
+                            "cpu": c3 - c0,  # CPU seconds of the process (main thread + worker)
                             "read": t1 - t0,
                             "apply": r.t_apply,
                             "output": r.t_output,
@@ -275,6 +278,7 @@ def run(scene_name, quality, method, furnished_size="100k"):
             if mode == "ui":
                 for part in ("read", "apply", "output", "write"):
                     res[f"part_{part}"] = _stats([r[part] for r in rows])
+                res["all_cpu"] = _stats([r["cpu"] for r in rows])
                 res["moves_iterations"] = _stats([r["iterations"] for r in rows if r["kind"] == "move"])
                 out["rows"] = rows
             out["edits"][mode] = res
@@ -296,10 +300,10 @@ def table(results):
     all edits, and of all edits through hr.live_update() (with and without the geometry check)."""
     kinds = ("move", "scale", "rotate", "reshape", "strength", "colour", "hide", "show")
     lines = [
-        "| scene | quality | method | build | all edits | "
+        "| scene | quality | method | final gather | build | all edits | "
         + " | ".join(kinds)
         + " | hr.live_update() | same, check_geometry=False | target (p95) |",
-        "|---" * (8 + len(kinds)) + "|",  # 5 + kinds + 3 columns
+        "|---" * (9 + len(kinds)) + "|",  # 6 + kinds + 3 columns
     ]
 
     def ms(s):
@@ -313,14 +317,15 @@ def table(results):
         tgt = TARGETS.get((r["scene"], r["quality"]))
         met = "" if tgt is None else f"{ms(tgt)} ({'met' if e['all']['p95'] <= tgt else 'not met'})"
         lines.append(
-            f"| {r['scene']} | {r['quality']} | {r['method']} | {r['build_s']:.1f} s | {mp(e['all'])} | "
+            f"| {r['scene']} | {r['quality']} | {r['method']} | "
+            f"{ {True: 'on', False: 'off'}.get(r.get('final_gather'), 'before it') } | {r['build_s']:.1f} s | {mp(e['all'])} | "
             + " | ".join(mp(e[k]) for k in kinds)
             + f" | {mp(o['all'])} | {mp(f['all'])} | {met} |"
         )
     return "\n".join(lines)
 
 
-def plot(results, path):
+def plot(results, path, date=""):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -333,7 +338,8 @@ def plot(results, path):
     )
     for r in results:
         e = r["edits"]["ui"]
-        labels.append(f"{r['scene']} {r['quality']} {r['method']}")
+        fg = {True: ", gather", False: ", leaves"}.get(r.get("final_gather"), ", before the gather (earlier run)")
+        labels.append(f"{r['scene']} {r['quality']} {r['method']}{fg}")
         med.append(1000 * e["all"]["median"])
         p95.append(1000 * e["all"]["p95"])
         tg.append(1000 * TARGETS.get((r["scene"], r["quality"]), float("nan")))
@@ -359,7 +365,8 @@ def plot(results, path):
     ax.set_xlabel("median ms per edit, by kind")
     ax.legend(fontsize=7, ncol=8, loc="upper center", bbox_to_anchor=(0.5, -0.16))
     ax.set_title("By edit kind")
-    fig.suptitle("Live Relight: time per light-shape edit (benchmarks/bench_live.py)")
+    when = f", measured {date} (wall ms, 2 shared cores)" if date else ""
+    fig.suptitle(f"Live Relight: time per light-shape edit (benchmarks/bench_live.py){when}")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     print(f"wrote {path}", flush=True)
@@ -375,6 +382,7 @@ def main():
     ap.add_argument("--furnished-quality", default="draft")
     ap.add_argument("--furnished-methods", default="FE")
     ap.add_argument("--skip-cornell", action="store_true")
+    ap.add_argument("--no-final-gather", action="store_true", help="Live with the final gather off")
     ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--plot", action="store_true", help="only redraw the chart and table from the JSON")
     args = ap.parse_args()
@@ -387,11 +395,11 @@ def main():
         if not args.skip_cornell:
             for q in args.quality.split(","):
                 for m in args.methods.split(","):
-                    runs.append(run("cornell", q, m))
+                    runs.append(run("cornell", q, m, final_gather=not args.no_final_gather))
         if args.furnished:
             for q in args.furnished_quality.split(","):
                 for m in args.furnished_methods.split(","):
-                    runs.append(run("furnished_100k", q, m))
+                    runs.append(run("furnished_100k", q, m, final_gather=not args.no_final_gather))
         keep = [
             r
             for r in old["runs"]
@@ -408,7 +416,7 @@ def main():
     order = {"cornell": 0, "furnished_100k": 1}
     res = sorted(old["runs"], key=lambda r: (order.get(r["scene"], 9), r["quality"] != "draft", r["method"]))
     print(table(res))
-    plot(res, ROOT / "benchmarks" / "live_edits.png")
+    plot(res, ROOT / "benchmarks" / "live_edits.png", old.get("date", ""))
 
 
 if __name__ == "__main__":

@@ -80,9 +80,10 @@ def run_one(size, cluster, quality, events):
         )
         for method in ("FE", "AUTO"):
             dyn = DynamicRadiosity(s.copy(), method=method)
-            t1 = time.perf_counter()
+            t1, c1 = time.perf_counter(), cpu()
             rep = dyn.add("w", window)
             out[f"{method.lower()}_event_s"] = time.perf_counter() - t1
+            out[f"{method.lower()}_event_cpu_s"] = cpu() - c1
             out[f"{method.lower()}_iterations"] = rep.iterations
             del dyn
     rays = int(os.environ.get("HR_GATHER_RAYS", "0"))
@@ -98,8 +99,16 @@ def run_one(size, cluster, quality, events):
         c1 = cpu()
         levels = int(os.environ.get("HR_GATHER_LEVELS", "1"))
         its = int(os.environ.get("HR_GATHER_ITERATIONS", "0"))
-        g = LoopGather(dyn, rays=rays, levels=levels, iterations=its)
-        out.update(gather_levels=levels, gather_iterations=its, gather_rays=rays, gather_samples=g.n, gather_precompute_cpu_s=cpu() - c1)
+        srays = int(os.environ.get("HR_GATHER_SHADOW_RAYS", "32"))
+        g = LoopGather(dyn, rays=rays, shadow_rays=srays, levels=levels, iterations=its)
+        out.update(
+            gather_levels=levels,
+            gather_iterations=its,
+            gather_rays=rays,
+            gather_shadow_rays=srays,
+            gather_samples=g.n,
+            gather_precompute_cpu_s=cpu() - c1,
+        )
         out["gather_weights_mb"] = g.weights_bytes / 1e6
         out["gather_nnz"] = int(len(g.w))
         c1 = cpu()
@@ -115,7 +124,9 @@ def run_one(size, cluster, quality, events):
         moved = LightShape(
             S.on_plane(S.rect(0.9, 0.7, centre=(1.2, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
         )
+        c1 = cpu()
         dyn.apply({"w": moved})
+        out["fe_moved_apply_cpu_s"] = cpu() - c1  # the light event of the move (FE), before the gather
         c1 = cpu()
         g.loop_radiance(dyn)
         out["gather_moved_shape_evaluate_cpu_s"] = cpu() - c1  # the moved shape's direct light
@@ -135,13 +146,19 @@ def main(argv=None):
     ap.add_argument("--table", action="store_true", help="print the markdown table of the JSON and stop")
     ap.add_argument("--gather", type=int, default=0, help="also time the final gather with this many rays")
     ap.add_argument("--gather-levels", type=int, default=1, help="1, 2 (the two-level gather), 3, ...")
-    ap.add_argument("--gather-iterations", type=int, default=0, help="two levels: passes among the gather samples")
+    ap.add_argument(
+        "--gather-iterations", type=int, default=0, help="two levels: passes among the gather samples"
+    )
+    ap.add_argument(
+        "--gather-shadow-rays", type=int, default=32, help="shadow rays per emitter (bakes: 16 at draft)"
+    )
     ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.gather:
         os.environ["HR_GATHER_RAYS"] = str(args.gather)
         os.environ["HR_GATHER_LEVELS"] = str(args.gather_levels)
         os.environ["HR_GATHER_ITERATIONS"] = str(args.gather_iterations)
+        os.environ["HR_GATHER_SHADOW_RAYS"] = str(args.gather_shadow_rays)
     if args.child:
         size, cluster, events = args.child
         return run_one(size, cluster == "1", args.quality, events == "1")
@@ -192,7 +209,10 @@ def main(argv=None):
             else ""
         )
         if "gather_rays" in res:
-            print("   final gather: " + ", ".join(f"{k} {v:.3g}" for k, v in res.items() if k.startswith("gather")))
+            print(
+                "   final gather: "
+                + ", ".join(f"{k} {v:.3g}" for k, v in res.items() if k.startswith("gather"))
+            )
         print(
             f"{size:>5} {'clusters' if cluster else 'all pairs':>9}: {res['triangles']:,} triangles, build {res['build_s']:.1f} s ({res['build_cpu_s']:.1f} s CPU), "
             f"{res['links']:,} links ({res['far_links']:,} far), {res['links'] / res['triangles']:.1f} per triangle, "

@@ -285,6 +285,9 @@ def run_scene(name, cfg, results, maps=None):
     out = {
         "scene": name,
         "config": cfg,
+        "gather_settings": dict(rays=GATHER, levels=GATHER_LEVELS, iterations=GATHER_ITERATIONS)
+        if GATHER
+        else {},
         "texels": n_tex,
         "not_compared": len(small),
         "texel_m": rs.atlases[rs.objects[0]].texel,
@@ -388,7 +391,13 @@ def run_scene(name, cfg, results, maps=None):
                 gcost = None
                 if GATHER:
                     gres, gcost = C.gather_results(
-                        rs, ours, dyn, rays=GATHER, cache=gcache, levels=GATHER_LEVELS, iterations=GATHER_ITERATIONS
+                        rs,
+                        ours,
+                        dyn,
+                        rays=GATHER,
+                        cache=gcache,
+                        levels=GATHER_LEVELS,
+                        iterations=GATHER_ITERATIONS,
                     )
                     for n in rs.objects:
                         res[n].update(gres[n])
@@ -431,7 +440,9 @@ def run_scene(name, cfg, results, maps=None):
                             if lab in d:
                                 x = d[lab]
                                 gb = x.get("gather", {}).get("bias", float("nan"))
-                                log(f"      {k} {lab}: leaf bias {100 * x['bias']:+.1f}%, gather bias {100 * gb:+.1f}%")
+                                log(
+                                    f"      {k} {lab}: leaf bias {100 * x['bias']:+.1f}%, gather bias {100 * gb:+.1f}%"
+                                )
             out["ours"].append(run)
         del base
     results[name] = out
@@ -473,73 +484,139 @@ def contact_metrics(rs, res, ref, scene):
 
 MARK = {"NAIVE": "s", "AR": "^", "FE": "v", "AUTO": "o"}
 COL = {"draft": "#9ecae1", "medium": "#3182bd", "high": "#08306b"}
+MCOL = {"NAIVE": "tab:red", "AR": "tab:green", "FE": "tab:blue", "AUTO": "tab:purple"}
 
 
-def plot(results, path=CHART):
+def frame_cost(fr, output):
+    """CPU seconds of one frame: the light event (DynamicRadiosity.apply), plus for the final gather
+    its first evaluate of the frame (new shapes' direct light and responses, the weighted sum)."""
+    t = fr["seconds"]
+    if output == "gather":
+        g = fr.get("gather_cost", {})
+        t += g.get("texel_evaluate_first_s", g.get("texel_evaluate_s", 0.0))
+    return t
+
+
+def build_cost(run, fr_all):
+    """CPU seconds once per bake: the hierarchy, and the final gather's precompute (texel gather)."""
+    pre = sum(fr.get("gather_cost", {}).get("texel_precompute_s", 0.0) for fr in fr_all.values())
+    return run["build_seconds"] + run.get("init_seconds", 0.0), pre
+
+
+def plot(results, path=CHART, eq=None, date=""):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
+
+    from plot_events import label_log_axis
 
     r = results["cornell"]
     f = str(r["config"]["sweep_frame"])
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    eqr = {(x["quality"], x["method"], x.get("output", "leaf")): x for x in (eq or {}).get("runs", [])}
+    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2))
     for ax, metric, label in (
-        (axes[0], "rmse", "texel RMSE of reflected radiance [W sr$^{-1}$ m$^{-2}$]"),
-        (axes[1], "worst_mre", "worst per-surface mean error (relative)"),
+        (axes[0], "worst_mre", "per-surface error: worst surface's mean radiance vs Cycles"),
+        (axes[1], "rmse", "texel RMSE of reflected radiance (reference noise removed)"),
     ):
         sw = r["cycles_sweep"]
         t = [np.mean(s["seconds"]) for s in sw]
         e = [s["noise_rmse"] if metric == "rmse" else s["vs_ref"]["worst_mre"] for s in sw]
-        ax.plot(t, e, "k-", marker="D", label="Cycles bake")
-        ax.plot(np.array(t) / 100, e, color="0.6", ls="--", lw=1, label="Cycles time / 100 (target)")
+        ax.plot(t, e, "k-", marker="D", label="Cycles bake (one frame, all surfaces)")
+        lines = []
+        for run in r["ours"]:
+            row = eqr.get((run["quality"], run["method"], "gather"))
+            if row and metric in row:
+                x = row[metric]
+                ext = ", extrapolated" if x.get("extrapolated") else ""
+                lines.append(
+                    f"{run['method']}: x{x['speedup']:.0f} (Cycles {x['cycles_spp']:.0f} spp, "
+                    f"{x['cycles_seconds']:.0f} s{ext})"
+                )
+        if lines:
+            corner = (0.02, 0.02, "left", "bottom") if metric == "worst_mre" else (0.98, 0.98, "right", "top")
+            ax.text(
+                corner[0],
+                corner[1],
+                "final gather, per frame, faster than\nCycles at equal error (target x100):\n"
+                + "\n".join(lines),
+                transform=ax.transAxes,
+                ha=corner[2],
+                va=corner[3],
+                fontsize=8,
+                bbox=dict(boxstyle="round", fc="w", ec="0.7"),
+            )
         for ti, ei, s in zip(t, e, sw):
             ax.annotate(f"{s['spp']} spp", (ti, ei), textcoords="offset points", xytext=(5, 4), fontsize=8)
         for run in r["ours"]:
+            if run["quality"] != "medium":
+                continue
             fr = run["frames"][f]
-            a = fr["metrics"]["refl_leaf"]["all"]
-            y = a["rmse_corrected"] if metric == "rmse" else a["worst_mre"]
-            ax.plot(
-                [fr["seconds"]],
-                [y],
-                MARK[run["method"]],
-                color=COL[run["quality"]],
-                ms=8,
-                mec="k",
-                label=f"{run['method']} {run['quality']}",
-            )
+            for output, key, fill in (
+                ("leaf", "refl_leaf", "none"),
+                ("gather", "refl_gather", MCOL[run["method"]]),
+            ):
+                if key not in fr["metrics"]:
+                    continue
+                al = fr["metrics"][key]["all"]
+                y = al["rmse_corrected"] if metric == "rmse" else al["worst_mre"]
+                x = frame_cost(fr, output)
+                lab = f"{run['method']}: " + (
+                    "final gather" if output == "gather" else "leaf values (before)"
+                )
+                ax.plot(
+                    [x],
+                    [y],
+                    MARK[run["method"]],
+                    color=MCOL[run["method"]],
+                    mfc=fill,
+                    ms=9,
+                    mew=1.5,
+                    label=lab,
+                )
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.margins(x=0.1, y=0.1)
+        ax.set_xlim(left=0.001)  # room for the box at the lower left (left panel)
+        label_log_axis(ax.xaxis)
+        label_log_axis(ax.yaxis)
         if metric == "worst_mre":
-            ax.axhline(0.03, color="r", ls=":", lw=1)
-            ax.text(
-                0.02,
-                0.03,
-                " 3% target",
-                color="r",
-                fontsize=8,
-                va="bottom",
-                transform=ax.get_yaxis_transform(),
-            )
-            from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
-
-            ax.yaxis.set_major_locator(FixedLocator([0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1]))
             ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{100 * v:g}%"))
-            ax.yaxis.set_minor_formatter(NullFormatter())
-        ax.set_xlabel("CPU seconds (all threads): per light event (ours), per bake (Cycles)")
+        ax.set_xlabel("CPU seconds per frame: ours = light event (+ final gather); Cycles = one bake")
         ax.set_ylabel(label)
         ax.grid(True, which="both", alpha=0.3)
     h, lab = axes[0].get_legend_handles_labels()
     uniq = dict(zip(lab, h))
-    fig.legend(uniq.values(), uniq.keys(), loc="lower center", ncol=7, fontsize=8, frameon=False)
+    fig.legend(uniq.values(), uniq.keys(), loc="lower center", ncol=5, fontsize=8, frameon=False)
+    meds = [x for x in r["ours"] if x["quality"] == "medium"]
+    bt = [build_cost(x, x["frames"]) for x in meds]
+    build_txt = ""
+    if bt:
+        h_s = np.mean([b[0] for b in bt])
+        pre = [b[1] for b in bt if b[1] > 0]
+        build_txt = f"once per bake, not in x: hierarchy {h_s:.1f} s" + (
+            f" + final gather precompute {np.mean(pre):.1f} s CPU" if pre else ""
+        )
+    gs = r.get("gather_settings", {})
+    gtxt = (
+        f"final gather: {gs.get('rays')} rays, {gs.get('levels')} levels, {gs.get('iterations')} iterations; "
+        if gs
+        else ""
+    )
     fig.suptitle(
-        f"Cornell box frame {f} (the back patch appears, the window is on): error against a converged "
-        f"Cycles bake ({r['frames'][f]['ref_spp']} spp), {r['texels']} texels of {1000 * r['texel_m']:.0f} mm.\n"
-        "Ours: CPU time of the light event (the hierarchy, built once per bake, is not counted); "
-        "Cycles: CPU time of one bake of all surfaces",
+        f"Cornell sample, medium quality, frame {f} (the back-wall shape appears; the window is on): "
+        f"error against a {r['frames'][f]['ref_spp']}-spp Cycles bake, {r['texels']} texels of "
+        f"{1000 * r['texel_m']:.0f} mm"
+        + (f"; measured {date}" if date else "")
+        + "\n"
+        + gtxt
+        + build_txt
+        + ".\nxN = Cycles CPU time at equal error / ours per frame (Cycles' error interpolated between its "
+        "sample counts, 1/sqrt(spp) beyond 256 spp); CPU seconds of one process each, same run",
         fontsize=9,
     )
-    fig.tight_layout(rect=(0, 0.08, 1, 0.93))
+    fig.tight_layout(rect=(0, 0.1, 1, 0.89))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     log(f"wrote {path}")
@@ -633,18 +710,28 @@ def equal_error(results):
     }
     for run in r["ours"]:
         fr = run["frames"][f]
-        al = fr["metrics"]["refl_leaf"]["all"]
-        rows = {"quality": run["quality"], "method": run["method"], "event_seconds": fr["seconds"]}
-        for key, err in (("rmse", al["rmse_corrected"]), ("worst_mre", al["worst_mre"])):
-            n_eq = max(spp_at(curves[key], max(err, 1e-12)), 1.0)
-            t_eq = max(t0, 0.0) + c * n_eq
-            rows[key] = {
-                "error": err,
-                "cycles_spp": n_eq,
-                "cycles_seconds": t_eq,
-                "speedup": t_eq / max(fr["seconds"], 1e-9),
+        for output, var in (("leaf", "refl_leaf"), ("gather", "refl_gather")):
+            if var not in fr["metrics"]:
+                continue
+            al = fr["metrics"][var]["all"]
+            sec = frame_cost(fr, output)
+            rows = {
+                "quality": run["quality"],
+                "method": run["method"],
+                "output": output,
+                "event_seconds": sec,
             }
-        out["runs"].append(rows)
+            for key, err in (("rmse", al["rmse_corrected"]), ("worst_mre", al["worst_mre"])):
+                n_eq = max(spp_at(curves[key], max(err, 1e-12)), 1.0)
+                t_eq = max(t0, 0.0) + c * n_eq
+                rows[key] = {
+                    "error": err,
+                    "cycles_spp": n_eq,
+                    "cycles_seconds": t_eq,
+                    "speedup": t_eq / max(sec, 1e-9),
+                    "extrapolated": bool(n_eq > spp[-1]),
+                }
+            out["runs"].append(rows)
     return out
 
 
@@ -666,10 +753,10 @@ def summary_table(results, eq):
                     f"{a['rmse_corrected']:7.4f} {a['p95']:7.4f} {v['rmse']:8.4f}"
                 )
     if eq:
-        lines.append("\nequal-error Cycles time (Cornell, sweep frame)")
+        lines.append("\nequal-error Cycles time (Cornell, sweep frame; per frame: event + final gather)")
         for row in eq["runs"]:
             lines.append(
-                f"{row['quality']:7s} {row['method']:6s} event {row['event_seconds']:.3f} s | RMSE "
+                f"{row['quality']:7s} {row['method']:6s} {row.get('output', 'leaf'):6s} frame {row['event_seconds']:.3f} s | RMSE "
                 f"{row['rmse']['error']:.4f} ~ Cycles {row['rmse']['cycles_spp']:.0f} spp "
                 f"{row['rmse']['cycles_seconds']:.2f} s (x{row['rmse']['speedup']:.1f}) | worst surface "
                 f"{100 * row['worst_mre']['error']:.2f}% ~ {row['worst_mre']['cycles_spp']:.1f} spp "
@@ -717,7 +804,9 @@ def markdown(data):
             + f" | Cycles at equal RMSE (f{sf}) | speed-up | Cycles at equal worst surface | speed-up |"
         )
         L.append("|---|---|---|---|---|---|---|---|")
-        eqr = {(x["quality"], x["method"]): x for x in eq.get("runs", [])}
+        eqr = {
+            (x["quality"], x["method"]): x for x in eq.get("runs", []) if x.get("output", "leaf") == "leaf"
+        }
         for run in r["ours"]:
             fr = run["frames"]
             ev = " / ".join(f"{fr[f]['seconds']:.3f}" for f in frames[1:])
@@ -778,6 +867,39 @@ def markdown(data):
             L.append("|---|---|---|---|---|")
             L += rows
             L.append("")
+    if r and any("refl_gather" in fr["metrics"] for run in r["ours"] for fr in run["frames"].values()):
+        frames = list(r["frames"])
+        sf = str(r["config"]["sweep_frame"] or r["config"]["frames"][0])
+        eqg = {(x["quality"], x["method"], x.get("output", "leaf")): x for x in eq.get("runs", [])}
+        L.append(
+            f"Final gather ({r.get('gather_settings', {})}) against the leaf values, reflected radiance at "
+            f"texel centres; per frame = light event + the gather's first evaluate of frame {sf}, CPU s; "
+            "Cycles at equal error from its sample-count sweep (xN = its CPU time / ours):\n"
+        )
+        L.append(
+            "| quality | method | output | worst surface, frames " + " / ".join(frames) + f" | bias f{sf} "
+            f"| RMSE f{sf} (noise removed) | per frame f{sf} | x Cycles, equal worst surface | x Cycles, equal RMSE |"
+        )
+        L.append("|---|---|---|---|---|---|---|---|---|")
+        for run in r["ours"]:
+            fr = run["frames"]
+            for out_, var in (("leaf", "refl_leaf"), ("gather", "refl_gather")):
+                if var not in fr[sf]["metrics"]:
+                    continue
+                w = " / ".join(f"{100 * fr[f]['metrics'][var]['all']['worst_mre']:.2f}%" for f in frames)
+                a = fr[sf]["metrics"][var]["all"]
+                x = eqg.get((run["quality"], run["method"], out_))
+                sp = (
+                    f"x{x['worst_mre']['speedup']:.1f}{' (extrapolated)' if x['worst_mre'].get('extrapolated') else ''}"
+                    f" | x{x['rmse']['speedup']:.1f}"
+                    if x
+                    else " | "
+                )
+                L.append(
+                    f"| {run['quality']} | {run['method']} | {out_} | {w} | {100 * a['bias']:+.2f}% | "
+                    f"{a['rmse_corrected']:.4f} | {frame_cost(fr[sf], out_):.3f} s | {sp} |"
+                )
+        L.append("")
     for name, r in res.items():
         if name == "cornell":
             continue
@@ -809,13 +931,17 @@ def main():
     ap.add_argument("--qualities", help="comma-separated, overrides each scene's list")
     ap.add_argument("--methods", help="comma-separated, overrides each scene's list")
     ap.add_argument(
-        "--params", default="", help="RefineParams overrides for every preset, e.g. shadow_feps=5e-4,contacts=0"
+        "--params",
+        default="",
+        help="RefineParams overrides for every preset, e.g. shadow_feps=5e-4,contacts=0",
     )
     ap.add_argument("--frames", help="comma-separated, overrides each scene's frames")
     ap.add_argument("--no-sweep", action="store_true", help="no Cycles sample-count sweep")
     ap.add_argument("--gather", type=int, default=0, help="also the final gather, with this many rays")
     ap.add_argument("--gather-levels", type=int, default=1, help="1: one-level gather, 2: two-level")
-    ap.add_argument("--gather-iterations", type=int, default=0, help="two levels: passes among gather samples")
+    ap.add_argument(
+        "--gather-iterations", type=int, default=0, help="two levels: passes among gather samples"
+    )
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
@@ -832,9 +958,18 @@ def main():
         with open(args.out) as fh:
             data = json.load(fh)
         data["equal_error"] = equal_error(data["scenes"])
+        c = data["scenes"].get("cornell")
+        if (
+            c is not None and not c.get("gather_settings") and args.gather
+        ):  # JSON written before they were kept
+            c["gather_settings"] = dict(
+                rays=args.gather, levels=args.gather_levels, iterations=args.gather_iterations
+            )
         with open(args.out, "w") as fh:
             json.dump(data, fh, indent=1, default=float)
-        plot(data["scenes"])
+        if "date" not in data:  # JSON written before the date was kept: the file's own
+            data["date"] = time.strftime("%Y-%m-%d", time.gmtime(os.path.getmtime(args.out)))
+        plot(data["scenes"], eq=data["equal_error"], date=data["date"])
         print(summary_table(data["scenes"], data["equal_error"]))
         md = markdown(data)
         with open(os.path.join(OUT, "cycles_tables.md"), "w") as fh:
@@ -861,6 +996,7 @@ def main():
     data = {
         "scenes": results,
         "equal_error": eq,
+        "date": time.strftime("%Y-%m-%d", time.gmtime()),
         "total_seconds": time.perf_counter() - t_start,
         "total_cpu_seconds": time.process_time(),
         "machine": {
@@ -890,7 +1026,7 @@ def main():
         json.dump(data, fh, indent=1, default=float)
     log(f"wrote {out}")
     if "cornell" in results and results["cornell"]["cycles_sweep"] and not args.quick:
-        plot(results)
+        plot(results, eq=eq, date=data["date"])
         plot_maps(maps, os.path.join(OUT, "cycles_maps_cornell.png"))
     print(summary_table(results, eq))
     md = markdown(data)

@@ -30,8 +30,8 @@ from hr_addon.core.refine import RefineParams
 cfg = CC.SCENES["furnished"]
 scene = CC.open_scene("furnished")
 rs = C.prepare(scene, texel_rel=cfg["texel_rel"])
-a, _, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[0])
-b, _, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[1])
+a, ta, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[0])
+b, tb_, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[1])
 ref = {n: (a[n] + b[n]) / 2 for n in rs.objects}
 shapes = C.shape_proxies(rs, 1)
 variants = {k: eval(v) for k, v in (x.split("=", 1) for x in sys.argv[1:])}
@@ -46,8 +46,10 @@ for name, kw in variants.items():
     t0 = time.process_time()
     base = RadiositySystem(rs.scene_in.mesh, dataclasses.replace(RefineParams.preset(q), **kw))
     tb = time.process_time() - t0
+    t0 = time.process_time()
     dyn = DynamicRadiosity(base, method=method)
     dyn.apply(shapes)
+    t_apply = time.process_time() - t0
     ours = C.Ours(rs, dyn.system, dyn)
     res = ours.evaluate(shapes, smooth=False)
     if gkw is not None:
@@ -71,6 +73,10 @@ for name, kw in variants.items():
     # objects lit well enough for a relative error to mean something (Cycles noise, near-black objects)
     lit = [n for n in per if np.mean(per[n]["mean_ref"]) > 0.05 * np.mean(al["mean_ref"])]
     dump = {"variant": name, "quality": q, "method": method, "gather": gkw, "objects": {}}
+    # CPU seconds: the hierarchy's build, DynamicRadiosity + frame 1 (all shapes appear), and each
+    # Cycles reference bake (cached bakes keep the time of the run that baked them)
+    dump["cpu_seconds"] = {"build": tb, "frame1_apply": t_apply, "cycles_ref_bakes": [ta, tb_]}
+    dump["cycles_ref_spp"] = cfg["ref_spp"]
     for var in ("refl_leaf", "total_vertex", "refl_gather", "total_gvertex"):
         if var not in allcmp:
             continue

@@ -28,6 +28,30 @@ COLORS = {
 MARKERS = {"coarse": "o", "draft": "s", "medium": "D"}
 
 
+def label_log_axis(axis):
+    """Labelled ticks on a log axis in plain numbers (matplotlib labels only the decades, often one
+    or two in a narrow range): 1, 1.5, 2, 2.5, ... x 10^k within one decade, 1, 2, 3, 5, 7 within
+    three, 1, 2, 5 beyond. Call after the data are drawn."""
+    import numpy as np
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter, NullLocator
+
+    lo, hi = sorted(axis.get_view_interval())
+    decades = np.log10(hi / lo)
+    subs = (
+        np.arange(1, 10, 0.5)
+        if decades < 1.2
+        else (1, 2, 3, 5, 7)
+        if decades < 3
+        else (1, 2, 5)
+        if decades < 3.6
+        else (1, 3)
+    )
+    axis.set_major_locator(LogLocator(base=10, subs=subs))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_locator(NullLocator())
+    axis.set_minor_formatter(NullFormatter())
+
+
 def aggregate(data):
     """(variant, quality) -> dict(time, err_delta, err_total, nodes_added, ratio) over all scenarios;
     ratio = total NAIVE time / total time of the method over the same events (same run)."""
@@ -83,6 +107,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--json", default=os.path.join(ROOT, "benchmarks", "out", "events.json"))
     ap.add_argument("--png", default=os.path.join(ROOT, "benchmarks", "events_speed_accuracy.png"))
+    ap.add_argument("--date", default="", help="when the JSON was measured, shown in the title")
     args = ap.parse_args()
     with open(args.json) as f:
         data = json.load(f)
@@ -93,29 +118,31 @@ def main():
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(9.5, 5.6))
-    groups = defaultdict(list)  # same quality and error (FE / FE warm / AR): one label
-    for (variant, quality), a in agg.items():
+    # No text at the points (they overlap: FE, FE warm and AR send the same light). Colour = method,
+    # marker = quality; methods on the same spot are drawn as concentric markers, the larger first.
+    size = {"FE": 230, "FE warm": 150, "AR": 80, "NAIVE": 80, "AUTO": 80, "AUTO bf=1e-2": 80}
+    scenes = {q: set() for q in MARKERS}
+    for (variant, quality), a in sorted(agg.items(), key=lambda kv: -size.get(kv[0][0], 80)):
+        scenes.setdefault(quality, set()).update(a["scenes"])
         ax.scatter(
             a["time"],
             a["err_delta"],
-            s=70,
+            s=size.get(variant, 80),
             color=COLORS.get(variant, "k"),
             marker=MARKERS.get(quality, "x"),
             edgecolor="k",
-            linewidth=0.5,
+            linewidth=0.6,
             zorder=3,
         )
-        groups[(quality, round(a["err_delta"], 6))].append((a["time"], variant, a))
-    for (quality, e), members in groups.items():
-        members.sort(key=lambda m: m[0])
-        a = members[-1][2]
-        only = "" if len(a["scenes"]) > 1 else ", " + a["scenes"][0] + " only"
-        label = " / ".join(m[1] for m in members) + f" ({quality}{only})"
-        ax.annotate(label, (members[-1][0], e), textcoords="offset points", xytext=(7, -3), fontsize=7)
     for variant, c in COLORS.items():
-        ax.scatter([], [], color=c, label=variant, edgecolor="k", linewidth=0.5)
+        ax.scatter([], [], color=c, label=variant, edgecolor="k", linewidth=0.5, s=60)
+    all_scenes = set().union(*scenes.values())
     for q, m in MARKERS.items():
-        ax.scatter([], [], color="w", edgecolor="k", marker=m, label=f"base: {q}")
+        only = "" if scenes.get(q, set()) == all_scenes else " (" + ", ".join(sorted(scenes[q])) + " only)"
+        ax.scatter([], [], color="w", edgecolor="k", marker=m, label=f"base: {q}{only}", s=60)
+    ax.scatter(
+        [], [], color="w", edgecolor="w", label="FE, FE warm, AR on one spot:\nconcentric, FE outermost"
+    )
     ax.set_xscale("log")
     ax.margins(x=0.12, y=0.08)
     ax.set_yscale("log")
@@ -123,9 +150,12 @@ def main():
     ax.set_ylabel("error of the light's contribution: RMSE (radiance)")
     ax.set_title(
         "Dynamic light events: cornell + office + 30-frame beam\n"
-        "error vs NAIVE at reference quality; lower left is better",
+        "error vs NAIVE at reference quality; lower left is better"
+        + (f"; measured {args.date}" if args.date else ""),
         fontsize=10,
     )
+    label_log_axis(ax.yaxis)
+    label_log_axis(ax.xaxis)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
