@@ -46,6 +46,7 @@ import numpy as np
 
 from . import formfactor as ff
 from .geometry import isolated_objects, newell
+from .events.direct import _contour
 from .visibility import first_hit_within
 from .output import _insideness
 
@@ -404,21 +405,6 @@ class Emitter:
         p = (1 - r1)[..., None] * t[..., 0, :] + (r1 * (1 - u[..., 1]))[..., None] * t[..., 1, :]
         p += (r1 * u[..., 1])[..., None] * t[..., 2, :]
         return p, self.tri_normal[k]
-
-
-def _contour_rings(x, n, rings):
-    """Unoccluded form factor from points x (N, 3), normals n to a planar polygon with holes above
-    their horizons (rings: outer CCW about the emitting normal, holes CW)."""
-    f = np.zeros(len(x))
-    for r in rings:
-        R = r[None] - x[:, None]
-        Rn = np.roll(R, -1, axis=1)
-        cr = np.cross(R, Rn)
-        cl = np.linalg.norm(cr, axis=-1)
-        g = np.arctan2(cl, np.einsum("nmk,nmk->nm", R, Rn))
-        t = np.where(cl > 0, g * np.einsum("nmk,nk->nm", cr, n) / np.where(cl > 0, cl, 1), 0.0)
-        f -= t.sum(1) / (2 * np.pi)
-    return np.clip(f, 0.0, 1.0)
 
 
 _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
@@ -804,7 +790,7 @@ class FinalGather:
             allv = np.concatenate(em.rings)
             whole = ((allv[None] - xi[:, None]) * ni[:, None]).sum(-1).min(1) > eps
             if whole.any():
-                F[whole] = _contour_rings(xi[whole], ni[whole], em.rings)
+                F[whole] = _contour(xi[whole], ni[whole], em.rings)
         rest = np.flatnonzero(~whole)
         if em.rings is not None and len(rest):
             # the horizon cuts the outline: its rings clipped to the point's upper half-space

@@ -53,9 +53,11 @@ def _triangle_rows(tri):
     return [np.ascontiguousarray(m[:, k]) for k in range(12)]
 
 
-def _hit_kernel(g, ox, oy, oz, dx, dy, dz):
-    """Segments o + t d vs triangles with rows g, broadcasting: t in (TMIN, 1 - TMIN) and inside. In-place
-    updates keep the number of temporaries (the cost in numpy) low. Call under np.errstate(all="ignore")."""
+def _hit_plane(g, ox, oy, oz, dx, dy, dz):
+    """(t, inside): the segment parameter where o + t d meets each triangle's plane, and whether
+    that point lies inside the triangle (closed edges: a ray through an edge shared by two
+    triangles is blocked, as in watertight tracers). In-place updates keep the number of
+    temporaries (the cost in numpy) low. Call under np.errstate(all="ignore")."""
     t = g[8] * ox
     t += g[9] * oy
     t += g[10] * oz
@@ -77,11 +79,16 @@ def _hit_kernel(g, ox, oy, oz, dx, dy, dz):
     v += g[5] * py
     v += g[6] * pz
     v += g[7]
-    # closed edges: a ray through an edge shared by two triangles is blocked (as in watertight tracers)
     hit = u >= 0
     hit &= v >= 0
     u += v
     hit &= u <= 1
+    return t, hit
+
+
+def _hit_kernel(g, ox, oy, oz, dx, dy, dz):
+    """Segments o + t d vs triangles with rows g, broadcasting: t in (TMIN, 1 - TMIN) and inside."""
+    t, hit = _hit_plane(g, ox, oy, oz, dx, dy, dz)
     t -= 0.5
     np.abs(t, out=t)
     hit &= t < 0.5 - TMIN
@@ -90,31 +97,7 @@ def _hit_kernel(g, ox, oy, oz, dx, dy, dz):
 
 def _hit_t_kernel(g, ox, oy, oz, dx, dy, dz):
     """As _hit_kernel, but the segment parameter t of the hit (inf where the segment misses)."""
-    t = g[8] * ox
-    t += g[9] * oy
-    t += g[10] * oz
-    t += g[11]
-    wd = g[8] * dx
-    wd += g[9] * dy
-    wd += g[10] * dz
-    np.divide(t, wd, out=t)
-    np.negative(t, out=t)
-    px, py, pz = t * dx, t * dy, t * dz
-    px += ox
-    py += oy
-    pz += oz
-    u = g[0] * px
-    u += g[1] * py
-    u += g[2] * pz
-    u += g[3]
-    v = g[4] * px
-    v += g[5] * py
-    v += g[6] * pz
-    v += g[7]
-    hit = u >= 0
-    hit &= v >= 0
-    u += v
-    hit &= u <= 1
+    t, hit = _hit_plane(g, ox, oy, oz, dx, dy, dz)
     hit &= np.abs(t - 0.5) < 0.5 - TMIN
     return np.where(hit, t, np.inf)
 
