@@ -15,22 +15,15 @@ objects with the same names) is refused by CacheReader.load and counts as damage
 Caches of versions before the ids (no "bake_id") are read without the check. Texture bakes'
 EXR/PNG sequences cannot hold the id; their .npz frame entries do.
 
-Safety: a bake writes into a sibling temporary directory (.<name>.baking-<host>-<pid>-<ms>) and
-only replaces the cache at the end (CacheWriter.commit), every file is written to a temporary name
-and os.replace()d (files.atomic_write), so a cancelled or failed bake leaves the previous cache
-untouched. Temporary directories left by killed processes of this machine are removed by the next
-bake of that cache.
-
-Ownership: a bake only ever deletes or replaces what a bake of this extension wrote. Every cache
-folder carries the marker file MARKER and its manifest lists the files the bake wrote ("files").
-A bake into an existing folder without the marker (and without a readable manifest of ours: caches
-of earlier versions) that is not empty, or onto a plain file, is refused (folder_problem). Files of
-anyone else found in a cache folder are moved into the new cache at the swap, never deleted.
 Frames of the previous cache that the new bake did not cover are kept when the geometry and
 settings (method, quality, output, objects) are identical, so baking frames 1-50 and 51-100
 separately yields the same cache as baking 1-100 once; otherwise they are discarded and
 CacheWriter.messages says why. Kept frames whose file is missing or damaged are reported by
 CacheWriter.damaged_frames() so that the bake re-bakes them.
+
+Safety and ownership (a bake writes beside the cache and swaps it in at the end; it only ever
+deletes or replaces what a bake of this extension wrote) are cache_folder.py's: its names are
+importable from here too.
 """
 
 import io
@@ -38,40 +31,35 @@ import json
 import os
 import re
 import shutil
-import socket
-import time
 import uuid
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
+from .cache_folder import (  # noqa: F401  (re-exported: hr_addon.io.cache is the cache's one import)
+    HOST,
+    MANIFEST,
+    MARKER,
+    TEX_DIR,
+    CacheError,
+    check_writable,
+    folder_problem,
+    is_cache_folder,
+    new_temp_dir,
+    owned_files,
+    pid_alive,
+    recover,
+    remove_stale_temp,
+    swap_in,
+    temp_dirs,
+)
 from .files import atomic_write, link_or_copy
 
 FORMAT = 1
 _ID_PREFIX = "hr_radiosity bake "  # a frame file's zip comment: this prefix, then the bake id
-MANIFEST = "manifest.json"
-MARKER = ".hr_radiosity"  # "this folder is a radiosity cache": written first, into every cache folder
-_MARKER_TEXT = b"Written by HR Radiosity bakes. A bake replaces only the files its manifest.json lists.\n"
-# names our bakes write (frames, texture sequences, atomic_write temporaries): ours in a marked folder
-_OWN_NAME = re.compile(r"^(frame_m?\d{6}(_\d+)?\.npz|\..+\.\d+\.tmp)$")
-_OWN_TEXTURE = re.compile(r"^.+_-?\d{5,}\.(exr|png)$")
-
-
-def _own_name(rel_dir, name):
-    """Whether `name` in the sub-folder `rel_dir` (posix, "." for the top) is named as bakes name
-    their files."""
-    if rel_dir == ".":
-        return name in (MANIFEST, MARKER) or bool(_OWN_NAME.match(name))
-    return rel_dir == TEX_DIR and bool(_OWN_TEXTURE.match(name) or _OWN_NAME.match(name))
-
-TEX_DIR = "textures"
 DOMAINS = ("CORNER", "POINT", "TEXTURE")  # where the values go: face corners, vertices, texels
 _FRAME_NAME = re.compile(r"^[A-Za-z0-9_.-]+\.npz$")  # a file in the cache folder itself, never a path
-
-
-class CacheError(RuntimeError):
-    """Missing, corrupt or mismatched cache; the message says which and what to do."""
 
 
 def write_json(path: Path, data):
@@ -126,205 +114,12 @@ def _id_problem(found, want):
     if not want or found == want:
         return ""
     if found is None:
-        return "belongs to another bake (it carries no bake id; this bake's is " f"{want[:8]})"
+        return f"belongs to another bake (it carries no bake id; this bake's is {want[:8]})"
     return f"belongs to another bake (bake id {found[:8]}; this bake's is {want[:8]})"
 
 
 def frame_filename(frame):
     return f"frame_{frame:06d}.npz" if frame >= 0 else f"frame_m{-frame:06d}.npz"
-
-
-HOST = re.sub(r"[^A-Za-z0-9_.]", "_", socket.gethostname() or "host")
-_TEMP = re.compile(
-    r"^\.(?P<name>.+)\.(?P<kind>baking|old)-(?:(?P<host>[A-Za-z0-9_.]+)-)?"
-    r"(?P<pid>\d+)-(?P<ms>\d+)$"
-)
-
-
-def temp_dirs(final_dir):
-    """[(path, kind, host, pid, ms)] of the temporary directories of the cache `final_dir`: bakes in
-    progress or left by killed processes ("baking"), swapped-out old caches ("old")."""
-    final = Path(final_dir)
-    out = []
-    try:
-        entries = list(final.parent.iterdir())
-    except OSError:
-        return out
-    for p in entries:
-        m = _TEMP.match(p.name)
-        if m and m.group("name") == final.name and p.is_dir():
-            out.append((p, m.group("kind"), m.group("host") or "", int(m.group("pid")), int(m.group("ms"))))
-    return out
-
-
-def pid_alive(pid):
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except (PermissionError, OSError):
-        return True  # exists (another user's), or cannot tell: keep its folder
-    return True
-
-
-def _manifest_of(folder):
-    """The folder's manifest dict, or None if it has none or it is unreadable."""
-    try:
-        m = json.loads((Path(folder) / MANIFEST).read_text())
-    except (OSError, ValueError):
-        return None
-    return m if isinstance(m, dict) and isinstance(m.get("frames"), dict) else None
-
-
-def is_cache_folder(folder):
-    """Whether `folder` was written by a bake: it has the marker, or a readable manifest of ours
-    (caches of versions before the marker)."""
-    folder = Path(folder)
-    return (folder / MARKER).is_file() or _manifest_of(folder) is not None
-
-
-def owned_files(folder):
-    """Relative paths (posix) of the files in cache folder `folder` that a bake wrote: those its
-    manifest lists, the manifest and the marker, and files named as bakes name theirs. Empty for a
-    folder that is not a cache folder."""
-    folder = Path(folder)
-    if not is_cache_folder(folder):
-        return set()
-    m = _manifest_of(folder) or {}
-    listed = set(m.get("files") or ()) | {str(v) for v in m.get("frames", {}).values()} | {MANIFEST, MARKER}
-    out = set()
-    for root, dirs, files in os.walk(folder):
-        rel = Path(root).relative_to(folder)
-        for f in files:
-            r = (rel / f).as_posix()
-            if r in listed or _own_name(rel.as_posix(), f):
-                out.add(r)
-    return out
-
-
-def folder_problem(final_dir):
-    """'' if a bake may write the cache folder `final_dir` (absent, empty, or a cache folder), else
-    why not, naming it."""
-    final = Path(final_dir)
-    if not final.exists() and not final.is_symlink():
-        return ""
-    if not final.is_dir():
-        return (
-            f"'{final}' is a file, not a folder: a bake never replaces a file it did not write. Choose "
-            "another Cache Folder (or --cache-dir)."
-        )
-    if is_cache_folder(final):
-        return ""
-    try:
-        entries = sorted(p.name for p in final.iterdir())
-    except OSError as exc:
-        return f"Cannot read the cache folder '{final}': {exc.strerror or exc}."
-    if not entries:
-        return ""
-    shown = ", ".join(entries[:3]) + (f" and {len(entries) - 3} more" if len(entries) > 3 else "")
-    return (
-        f"The cache folder '{final}' holds files no radiosity bake wrote ({shown}): a bake only "
-        "replaces its own files. Choose an empty or new Cache Folder (or --cache-dir)."
-    )
-
-
-def _retire(old, final):
-    """After a swap: delete what a bake wrote in the swapped-out folder `old`, move everything else
-    (the user's files) into `final`. Returns the paths that could not be moved (a name the new bake
-    also uses): they stay in a visible folder beside the cache, whose path the message gives."""
-    old, final = Path(old), Path(final)
-    for r in sorted(owned_files(old), key=lambda r: -r.count("/")):
-        try:
-            (old / r).unlink()
-        except OSError:
-            pass
-    stuck = []
-    for p in sorted(old.iterdir()) if old.is_dir() else ():
-        if p.is_dir() and p.name == TEX_DIR and (final / TEX_DIR).is_dir():
-            for q in sorted(p.iterdir()):  # the user's files among our texture folder's
-                if (final / TEX_DIR / q.name).exists():
-                    stuck.append(q)
-                else:
-                    os.replace(q, final / TEX_DIR / q.name)
-            try:
-                p.rmdir()
-            except OSError:
-                pass
-            continue
-        if (final / p.name).exists():
-            stuck.append(p)
-        else:
-            os.replace(p, final / p.name)
-    if not stuck:
-        try:
-            old.rmdir()
-        except OSError:
-            pass
-        return []
-    kept = final.parent / f"{final.name}.kept-{int(time.time())}"
-    os.replace(old, kept)
-    return [kept / p.relative_to(old) for p in stuck]
-
-
-def _ours_only(folder):
-    """Whether every file under `folder` is named as a bake names its files (temporary folders of
-    versions before the marker)."""
-    for root, _, files in os.walk(folder):
-        rel = Path(root).relative_to(folder).as_posix()
-        if not all(_own_name(rel, f) for f in files):
-            return False
-    return True
-
-
-def remove_stale_temp(final_dir):
-    """Remove the temporary directories of `final_dir` left by processes of this machine that no
-    longer run (a bake killed with SIGKILL, a crash). Folders of other machines sharing the cache
-    folder (split bakes) are left alone, and so is anything a bake did not write: a swapped-out old
-    cache gives its other files back to the cache (_retire). Returns the removed paths."""
-    removed = []
-    final = Path(final_dir)
-    for p, kind, host, pid, _ in temp_dirs(final):
-        if host not in ("", HOST) or pid_alive(pid):
-            continue
-        if kind == "old":
-            if not final.exists():
-                continue  # recover() puts it back
-            _retire(p, final)
-        elif (p / MARKER).is_file() or _ours_only(p):
-            shutil.rmtree(p, ignore_errors=True)
-        if not p.exists():
-            removed.append(p)
-    return removed
-
-
-def check_writable(final_dir):
-    """Raise CacheError (naming the folder) unless a bake can be written next to `final_dir` and
-    swapped in without touching anything a bake did not write: checked before the (long) build."""
-    final = Path(final_dir)
-    why = folder_problem(final)
-    if why:
-        raise CacheError(why)
-    try:
-        final.parent.mkdir(parents=True, exist_ok=True)
-        probe = final.parent / f".{final.name}.probe-{HOST}-{os.getpid()}-{int(time.time() * 1000)}"
-        probe.mkdir()
-        try:
-            (probe / "x").write_bytes(b"x")
-        finally:
-            shutil.rmtree(probe, ignore_errors=True)
-    except OSError as exc:
-        reason = exc.strerror or str(exc)
-        raise CacheError(
-            f"Cannot write the cache folder '{final}' (in '{final.parent}': {reason}). Choose a "
-            "writable Cache Folder (or --cache-dir)."
-        ) from None
-    if final.exists() and not os.access(final, os.W_OK):
-        raise CacheError(
-            f"Cannot write the cache folder '{final}': it is read-only. Choose a writable "
-            "Cache Folder (or --cache-dir)."
-        )
 
 
 def frame_ranges(frames):
@@ -374,14 +169,10 @@ def settings_difference(old: dict, new: dict):
     a, b = (old.get("feps"), old.get("aeps")), (new.get("feps"), new.get("aeps"))
     if not why and old.get("quality") == "CUSTOM" and a != b:
         why.append(f"feps {a[0]}, aeps {a[1]} (this bake: {b[0]}, {b[1]})")
-    if "geometry" in old and "geometry" in new:
-        geo = changed_objects(old["geometry"], new["geometry"])
-        if geo:
-            why.append("other geometry: " + "; ".join(geo))
-    if "light_shapes" in old and "light_shapes" in new:
-        ls = changed_objects(old["light_shapes"], new["light_shapes"])
-        if ls:
-            why.append("other light shapes: " + "; ".join(ls))
+    for key in ("geometry", "light_shapes"):
+        diff = changed_objects(old[key], new[key]) if key in old and key in new else []
+        if diff:
+            why.append(f"other {key.replace('_', ' ')}: " + "; ".join(diff))
     if old.get("lights", {}) != new.get("lights", {}):  # Blender lights (issue 20)
         ls = changed_objects(old.get("lights", {}), new.get("lights", {}))
         why.append("other Blender lights" + (": " + "; ".join(ls) if ls else ""))
@@ -431,10 +222,7 @@ class CacheWriter:
         self.final = Path(final_dir)
         check_writable(self.final)
         self.removed_temp = remove_stale_temp(self.final)
-        stamp = f"{HOST}-{os.getpid()}-{int(time.time() * 1000)}"
-        self.tmp = self.final.parent / f".{self.final.name}.baking-{stamp}"
-        self.tmp.mkdir()
-        atomic_write(self.tmp / MARKER, _MARKER_TEXT, sync=False)
+        self.tmp = new_temp_dir(self.final)
         self.objects = objects
         self.domain = domain
         self.signature = signature
@@ -544,34 +332,16 @@ class CacheWriter:
             files=sorted(set(files) | {MANIFEST}),
         )
         write_json(self.tmp / MANIFEST, manifest)
-        old = None
-        if self.final.exists():
-            old = self.final.parent / f".{self.final.name}.old-{HOST}-{os.getpid()}-{int(time.time() * 1000)}"
-            os.replace(self.final, old)
-        os.replace(self.tmp, self.final)
-        if old is not None:
-            stuck = _retire(old, self.final)
-            if stuck:
-                self.messages.append(
-                    f"Files in the cache folder that no bake wrote have the names of this bake's files; "
-                    f"they were kept in '{stuck[0].parent}'."
-                )
+        stuck = swap_in(self.tmp, self.final)
+        if stuck:
+            self.messages.append(
+                f"Files in the cache folder that no bake wrote have the names of this bake's files; "
+                f"they were kept in '{stuck[0].parent}'."
+            )
         return manifest
 
     def abort(self):
         shutil.rmtree(self.tmp, ignore_errors=True)
-
-
-def recover(final_dir):
-    """If a crash happened between the two renames of commit(), put the old cache back."""
-    final = Path(final_dir)
-    if final.exists() or not final.parent.is_dir():
-        return False
-    olds = sorted((ms, str(p)) for p, kind, _, _, ms in temp_dirs(final) if kind == "old")
-    if olds:
-        os.replace(olds[-1][1], final)
-        return True
-    return False
 
 
 class CacheReader:
