@@ -13,7 +13,7 @@ import tracemalloc
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-from benchmarks import scenes  # noqa: E402
+from hr_testing import scenes  # noqa: E402
 from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
 from hr_addon.core.refine import RefineParams  # noqa: E402
 

@@ -31,8 +31,8 @@ import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
-from benchmarks import scenes  # noqa: E402
-from benchmarks import shapes as S  # noqa: E402
+from hr_testing import scenes  # noqa: E402
+from hr_testing import shapes as S  # noqa: E402
 from hr_addon.core.events import DynamicRadiosity, LightShape, surface_samples  # noqa: E402
 from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
 from hr_addon.core.refine import RefineParams  # noqa: E402

@@ -43,8 +43,8 @@ def main(argv=None):
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
-    from benchmarks import shapes as S
-    from benchmarks.furnished import furnished_room
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
     from hr_addon.core.events import DynamicRadiosity, LightShape
     from hr_addon.core.gather import LoopGather
     from hr_addon.core.radiosity import RadiositySystem

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path[:0] = [str(Path(__file__).resolve().parent.parent), str(Path(__file__).resolve().parent)]
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks import scenes  # noqa: E402
-from benchmarks import shapes as S  # noqa: E402
+from hr_testing import scenes  # noqa: E402
+from hr_testing import shapes as S  # noqa: E402
 from hr_addon.core.events import DynamicRadiosity, LightShape  # noqa: E402
 from hr_addon.core.gather import LoopGather  # noqa: E402
 from hr_addon.core.lights import Light  # noqa: E402

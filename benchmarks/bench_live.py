@@ -73,7 +73,7 @@ def make_furnished(tmp, size="100k"):
     import bpy
 
     sys.path.insert(0, str(ROOT / "scripts"))
-    from benchmarks.furnished import furnished_room
+    from hr_testing.furnished import furnished_room
     import make_samples as ms
 
     mesh, info = furnished_room(size)

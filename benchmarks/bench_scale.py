@@ -28,8 +28,8 @@ def run_one(size, cluster, quality, events):
 
     import numpy as np
 
-    from benchmarks.furnished import furnished_room
-    from benchmarks import shapes as S
+    from hr_testing.furnished import furnished_room
+    from hr_testing import shapes as S
     from hr_addon.core.events import DynamicRadiosity, LightShape
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams

@@ -147,7 +147,7 @@ def cycles_bake(rs, scene, frame, spp, seed, need_time=False):
     """Reflected radiance per texel {name: (N, 3)}, bake times {wall, cpu}, cached flag. Cached
     bakes are reused (values only matter for references); need_time re-bakes cached bakes that
     have no CPU time."""
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
 
     key = f"{scene}_f{frame}_s{spp}_seed{seed}_{_atlas_key(rs)}"
     path = os.path.join(CACHE, key + ".npz")
@@ -181,7 +181,7 @@ def pooled(d):
 
 def compare(res, ref, sigma_ref, objects):
     """Metrics of every variant against the reference, per surface and pooled."""
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
 
     out = {}
     for var in VARIANTS:
@@ -267,7 +267,7 @@ def _convex_hull(pts):
 
 
 def run_scene(name, cfg, results, maps=None):
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
@@ -455,7 +455,7 @@ CONTACTS = {"cornell": [("floor", ("short_block", "tall_block")), ("ceiling", ("
 def contact_metrics(rs, res, ref, scene):
     """Reflected-radiance error under occluders touching a surface (blocks on the floor; the light
     0.5 mm under the ceiling), in a band of 2 texels around them, and on the rest of the surface."""
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
 
     out = {}
     for surface, occ in CONTACTS.get(scene, []):

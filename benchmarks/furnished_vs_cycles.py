@@ -22,7 +22,7 @@ sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.dirname(HERE))
 import numpy as np
 import cycles_compare as CC
-import cycles_ref as C
+from hr_testing import cycles_ref as C
 from hr_addon.core.events import DynamicRadiosity
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams

@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 import bpy  # noqa: E402
 
 import hr_addon  # noqa: E402
-from benchmarks import scenes  # noqa: E402
+from hr_testing import scenes  # noqa: E402
 
 SUBDIV = 8
 
@@ -495,7 +495,7 @@ def make_office(path):
 
 
 def make_furnished(path):
-    from benchmarks.furnished import furnished_room
+    from hr_testing.furnished import furnished_room
 
     scene = reset()
     mi, info = furnished_room("20k")

@@ -21,13 +21,13 @@ import tempfile
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path[:0] = [ROOT, os.path.join(ROOT, "scripts"), os.path.join(ROOT, "benchmarks")]
+sys.path[:0] = [ROOT, os.path.join(ROOT, "scripts")]
 
 from render_textured import _against, _render, _tile  # noqa: E402  (same settings and measures)
 
 
 def _reference_materials(bpy, scene):
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
     from hr_addon.blender.materials import read_material
 
     for ob in scene.objects:

@@ -24,7 +24,7 @@ import tempfile
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path[:0] = [ROOT, os.path.join(ROOT, "scripts"), os.path.join(ROOT, "benchmarks")]
+sys.path[:0] = [ROOT, os.path.join(ROOT, "scripts")]
 
 
 def _render(bpy, scene, path, spp, bounces):
@@ -66,7 +66,7 @@ def _against(img, ref):
 def _reference_materials(bpy, objs):
     """One-sided Diffuse (+ Emission) copies of what our reader reads; the floor's colour is the
     same image through the same UV map."""
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
     from hr_addon.blender.materials import read_material
 
     for name, ob in objs.items():

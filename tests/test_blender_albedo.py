@@ -20,8 +20,6 @@ Tolerances (see docs/accuracy.md, "Textured surfaces"), with the values measured
 """
 
 import os
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,7 +28,6 @@ from test_blender_helpers import empty_scene, read_image
 
 pytestmark = [pytest.mark.bpy]
 
-BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
 RES = 48
 SPP = 64
 MRE_TOL = 0.04
@@ -54,9 +51,7 @@ def _textures(cache):
 
 def _cycles_bakes(bpy, objs, passes):
     """Cycles Diffuse bakes into RES x RES images in HR_Lightmap: {pass name: {object: (RES, RES, 4)}}."""
-    if str(BENCH) not in sys.path:
-        sys.path.insert(0, str(BENCH))
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
     from hr_addon.blender.materials import read_material
 
     scene = bpy.context.scene
@@ -139,7 +134,7 @@ def _pairs(ours, ref):
 
 @pytest.mark.cycles
 def test_irradiance_mode_matches_cycles_diffuse_bake_without_color(room):
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
 
     per, allo, allr = {}, [], []
     for n in SURFACES:
@@ -160,7 +155,7 @@ def test_irradiance_mode_matches_cycles_diffuse_bake_without_color(room):
 def test_texture_output_carries_the_albedo_texture(room):
     """Outgoing radiance on the textured floor = Cycles' Diffuse bake with Color per texel; the same
     light with the average albedo (what the output was before) is not."""
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
 
     ref = room["cyc"]["col"]["floor"]
     o, r = _pairs(room["rad"]["floor"], ref)

@@ -5,25 +5,20 @@ once, each test starts from factory settings or opens a copy of a sample .blend 
 """
 
 import importlib.util
-import shutil
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-SAMPLES = REPO_ROOT / "sample_blends"
+from hr_testing import blend
+from hr_testing.blend import REPO_ROOT, SAMPLES, open_sample  # noqa: F401  (the tests import them from here)
+
 PYTHON = sys.executable
 
 
 def load_bpy():
-    bpy = pytest.importorskip("bpy")
-    import hr_addon
-
-    if not hasattr(bpy.types.Scene, "hr"):
-        hr_addon.register()
-    return bpy
+    pytest.importorskip("bpy")
+    return blend.load_bpy()
 
 
 def make_samples_module():
@@ -43,17 +38,6 @@ def empty_scene():
     ms = make_samples_module()
     scene = ms.reset()
     return bpy, ms, scene
-
-
-def open_sample(name, tmp_path, sub="") -> Path:
-    """Copy sample_blends/<name>.blend into tmp_path[/sub] and open it; returns the copy's path."""
-    bpy = load_bpy()
-    d = Path(tmp_path) / sub if sub else Path(tmp_path)
-    d.mkdir(parents=True, exist_ok=True)
-    dst = d / f"{name}.blend"
-    shutil.copy(SAMPLES / f"{name}.blend", dst)
-    bpy.ops.wm.open_mainfile(filepath=str(dst), load_ui=False)
-    return dst
 
 
 def attribute(obj, name="HR_Radiance"):

@@ -188,3 +188,34 @@ def test_keyframed_transform_and_strength(tmp_path):
     scene = bpy.context.scene
     em = [_shapes(bpy, scene, f)["Moonlight:0"].emission[2] for f in (1, 6)]
     assert np.allclose(em, [0.5, 4.0])
+
+
+@pytest.mark.parametrize("sample", ["cornell", "moonlight", "curtain", "searchbeam", "office"])
+def test_sample_light_shapes_face_like_their_surface(sample, tmp_path):
+    """Every polygon of every light shape in the sample scenes lies on a surface and faces the way
+    it does (the user guide's rule). The core accepts either winding (it emits on the surface's
+    side), so a wrong one changes no bake; but a one-sided Cycles emitter made from such a shape
+    (the Cycles comparison) lights the inside of the wall, as 'Back Patch', 'Searchbeam' and the
+    office screens did while make_samples.py wound them into their surfaces."""
+    from hr_addon.blender.scene_in import collect_geometry, light_shape_objects, read_mesh
+    from hr_addon.core.geometry import newell
+
+    open_sample(sample, tmp_path)
+    import bpy
+
+    vl = bpy.context.view_layer
+    mesh = collect_geometry(vl, vl.depsgraph).mesh
+    polys = [mesh.verts[mesh.loop_verts[s : s + k]] for s, k in zip(mesh.loop_start, mesh.loop_total)]
+    qn = np.array([newell(q) for q in polys])
+    qn /= np.linalg.norm(qn, axis=1, keepdims=True)
+    centre = np.array([q.mean(0) for q in polys])
+    shapes = light_shape_objects(vl, include_hidden=True)
+    assert shapes
+    for ob in shapes:
+        em = read_mesh(ob, vl.depsgraph)
+        for s, k in zip(em.loop_start, em.loop_total):
+            ring = em.verts[em.loop_verts[s : s + k]]
+            n = newell(ring) / np.linalg.norm(newell(ring))
+            on = (np.abs(qn @ n) > 0.999) & (np.abs((ring[None] - centre[:, None]) @ n).max(1) < 1e-4)
+            assert on.any(), f"{sample}: a polygon of '{ob.name}' lies on no surface"
+            assert (qn[on] @ n > 0).all(), f"{sample}: '{ob.name}' faces into its surface"

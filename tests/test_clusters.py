@@ -10,8 +10,8 @@ import pytest
 from hr_addon.core import cluster as C
 from hr_addon.core import farlinks as FL
 from hr_addon.core import formfactor as ff
-from benchmarks import scenes
-from benchmarks import shapes as S
+from hr_testing import scenes
+from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape
 from hr_addon.core.geometry import MeshInput, prepare_patches
 from hr_addon.core.hierarchy import Hierarchy

@@ -7,15 +7,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from benchmarks import scenes
-from benchmarks.furnished import Builder, box, cylinder, grid_quad
+from hr_testing import scenes
+from hr_testing.contact_scenes import contact_furnace, floor_with, sky_points, sky_reference, sky_scene
+from hr_testing.furnished import box, cylinder
 from hr_addon.core import formfactor as ff
 from hr_addon.core.contacts import Contacts
 from hr_addon.core.geometry import prepare_patches
 from hr_addon.core.output import radiance_at
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
-from hr_addon.core.visibility import make_backend
 
 
 def covered_area(mesh, gap_rel=1e-3, k=8):
@@ -27,15 +27,6 @@ def covered_area(mesh, gap_rel=1e-3, k=8):
     frac = cov.reshape(K, -1).mean(1)
     names = np.array(pt.object_names)[pt.object_id]
     return {n: float((frac * pt.area)[names == n].sum()) for n in pt.object_names}
-
-
-def floor_with(*objects, n=8, size=2.0):
-    b = Builder()
-    v, q = grid_quad(np.array([-size / 2, -size / 2, 0]), [size, 0, 0], [0, size, 0], n, n)
-    b.add("floor", v, [q], 0.5)
-    for name, (v, f) in objects:
-        b.add(name, v, f, 0.5)
-    return b
 
 
 def test_cornell_covers_block_footprints_and_the_ceiling_over_the_light():
@@ -76,33 +67,6 @@ def test_solids_cover_their_footprint_and_nothing_else():
     assert a["leg"] == 0.0 and a["top"] == 0.0 and a["sphere"] == 0.0 and a["panel"] == 0.0
 
 
-def sky_scene():
-    """A 2 x 2 m floor (reflectance 0.5) with a black 0.4 m cube standing on it, under a 4 x 4 m
-    emitter 1 m up (radiance 1, black): the floor's light is direct only."""
-    v, f = box([-0.2, -0.2, 0], [0.2, 0.2, 0.4])
-    b = floor_with()
-    b.add("box", v, f, 0.0)
-    v, q = grid_quad(np.array([-2.0, -2, 1]), [0, 4, 0], [4, 0, 0], 4, 4)
-    b.add("sky", v, [q], 0.0, (1.0, 1.0, 1.0))
-    return b.build()
-
-
-def sky_reference(mesh, pts, n=64):
-    """Reflected radiance 0.5 x H / pi at floor points: the emitter in n x n cells, each seen
-    through a shadow ray (independent of the hierarchy)."""
-    be = make_backend(prepare_patches(mesh).triangles)
-    s = (np.arange(n) + 0.5) / n * 4 - 2
-    X, Y = np.meshgrid(s, s)
-    em = np.column_stack([X.ravel(), Y.ravel(), np.ones(n * n)])
-    out = np.zeros(len(pts))
-    for i, p in enumerate(pts):
-        d = em - p
-        r2 = (d**2).sum(1)
-        vis = ~be.occluded(np.repeat(p[None] + [0, 0, 1e-6], len(em), 0), em - [0, 0, 1e-6])
-        out[i] = np.sum(d[:, 2] ** 2 / r2 / (np.pi * r2) * (4 / n) ** 2 * vis)
-    return 0.5 * out
-
-
 def _floor_values(s, pts, smooth):
     floor = np.flatnonzero(np.array(s.patches.object_names)[s.patches.object_id] == "floor")
     lo, hi = s.patches.corners[floor].min(1), s.patches.corners[floor].max(1)
@@ -117,13 +81,7 @@ def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
     Without contacts the leaves straddling the box's outline see the emitter through sample
     points under the box: the band's leaves read 0 there (-100%)."""
     m = sky_scene()
-    rng = np.random.default_rng(1)
-    side, t, off = rng.integers(0, 4, 200), rng.uniform(-0.19, 0.19, 200), rng.uniform(0.001, 0.04, 200)
-    band = np.zeros((200, 3))
-    for k, (ax, sg) in enumerate([(0, 1), (0, -1), (1, 1), (1, -1)]):
-        band[side == k, ax] = sg * (0.2 + off[side == k])
-        band[side == k, 1 - ax] = t[side == k]
-    under = np.column_stack([rng.uniform(-0.195, 0.195, (50, 2)), np.zeros(50)])
+    band, under = sky_points()
     ref = sky_reference(m, band)
     s = RadiositySystem(m, RefineParams.preset("medium"))
     s.solve()
@@ -135,33 +93,6 @@ def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
     off = RadiositySystem(m, dataclasses.replace(RefineParams.preset("medium"), contacts=False))
     off.solve()
     assert _floor_values(off, band, False).mean() < 0.5 * ref.mean()
-
-
-def contact_furnace(rho=0.5):
-    """A closed 3 x 3 x 2.5 m room with boxes standing on the floor, against a wall and on each
-    other, and a leg standing on a box; reflectance and emission the same everywhere, so every
-    exposed point has B = E / (1 - rho) = 2 whatever covers what."""
-    W, D, H = 3.0, 3.0, 2.5
-    b = Builder()
-    for name, o, u, v in (
-        ("floor", (0, 0, 0), (W, 0, 0), (0, D, 0)),
-        ("ceiling", (0, 0, H), (0, D, 0), (W, 0, 0)),
-        ("wall0", (0, 0, 0), (0, 0, H), (W, 0, 0)),
-        ("wall1", (0, D, 0), (W, 0, 0), (0, 0, H)),
-        ("wall2", (0, 0, 0), (0, D, 0), (0, 0, H)),
-        ("wall3", (W, 0, 0), (0, 0, H), (0, D, 0)),
-    ):
-        gv, gq = grid_quad(np.array(o, float), u, v, 6, 6)
-        b.add(name, gv, [gq], rho, (1, 1, 1))
-    for name, (v, f) in (
-        ("box", box([0.5, 0.5, 0], [1.1, 1.0, 0.5])),
-        ("stacked", box([0.6, 0.6, 0.5], [0.9, 0.85, 0.8])),
-        ("against_wall", box([2.0, 0.0, 0], [2.6, 0.4, 0.7])),
-        ("post", box([1.8, 2.0, 0], [2.3, 2.4, 0.4])),
-        ("leg", cylinder([2.0, 2.2, 0.4], 0.08, 0.9, 12)),
-    ):
-        b.add(name, v, f, rho, (1, 1, 1))
-    return b.build()
 
 
 @pytest.mark.parametrize("quality, worst, p99", [("draft", 0.26, 0.15), ("medium", 0.2, 0.08)])

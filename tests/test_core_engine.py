@@ -10,7 +10,7 @@ from hr_addon.core.hierarchy import Hierarchy
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 from hr_addon.core.solver import ConvergenceWarning, solve
-from benchmarks import scenes
+from hr_testing import scenes
 
 FAST = RefineParams.preset("draft")
 

@@ -16,8 +16,6 @@ A position bake checks that our texel -> surface point map is the one Cycles bak
 """
 
 import os
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -26,8 +24,6 @@ from test_blender_helpers import load_bpy, open_sample
 
 pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.shared_scene, pytest.mark.slow]
 
-
-BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
 
 SPP = 32
 TEXEL_REL = 1 / 56
@@ -41,9 +37,7 @@ RMSE_TOL = 0.22
 def comparison(tmp_path_factory):
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     bpy = load_bpy()
-    if str(BENCH) not in sys.path:
-        sys.path.insert(0, str(BENCH))
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
@@ -68,7 +62,7 @@ def comparison(tmp_path_factory):
 def test_texel_map_matches_cycles_position_bake(comparison):
     """Cycles' Position bake at every texel = the mean of our sub-texel points (within 0.25 texel)."""
     bpy = load_bpy()
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
 
     rs = comparison[1][0]
     spp = 16
@@ -92,7 +86,7 @@ def test_texel_map_matches_cycles_position_bake(comparison):
 
 @pytest.mark.parametrize("frame", [1, 13])
 def test_reflected_radiance_agrees_with_cycles(comparison, frame):
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
 
     rs, res, ref, mask, shapes = comparison[frame]
     assert len(shapes) == (0 if frame == 1 else 5)
@@ -115,7 +109,7 @@ def test_reflected_radiance_agrees_with_cycles(comparison, frame):
 
 def test_light_shapes_add_light_like_cycles(comparison):
     """Frame 13 minus frame 1: the light of the window and the back patch alone (both sides)."""
-    import cycles_ref as C
+    from hr_testing import cycles_ref as C
 
     rs, r1, c1, _, _ = comparison[1]
     _, r13, c13, _, _ = comparison[13]

@@ -10,8 +10,6 @@ noise above the worst error seen."""
 
 import math
 import os
-import sys
-from pathlib import Path
 
 import pytest
 
@@ -19,16 +17,13 @@ pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.slow]
 
 pytest.importorskip("bpy")
 
-BENCH = Path(__file__).resolve().parent.parent / "benchmarks"
 TOL = 0.02
 
 
 @pytest.mark.parametrize("kind", ["AREA", "POINT"])
 def test_cornell_lit_by_a_blender_light_agrees_with_cycles(kind):
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    if str(BENCH) not in sys.path:
-        sys.path.insert(0, str(BENCH))
-    import cycles_lights
+    from hr_testing import cycles_lights
 
     out = cycles_lights.run(kind, spp=32, seeds=(1, 2))
     surf = out["surfaces"]

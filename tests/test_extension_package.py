@@ -29,6 +29,7 @@ FORBIDDEN_TOP = {
     "tests",
     "sample_blends",
     "benchmarks",
+    "hr_testing",
     "docs",
     "scripts",
     ".ci",

@@ -6,9 +6,9 @@ No bpy. Tolerances are justified where they are set; nothing here asserts on tim
 import numpy as np
 import pytest
 
-from benchmarks import scenes
-from benchmarks import shapes as S
-from benchmarks.furnished import Builder, box, grid_quad
+from hr_testing import scenes
+from hr_testing import shapes as S
+from hr_testing.furnished import Builder, box, grid_quad
 from hr_addon.core import formfactor as ff
 from hr_addon.core.events import DynamicRadiosity, LightShape, surface_samples
 from hr_addon.core.gather import FinalGather, LoopGather, cosine_directions, texel_gather
@@ -18,7 +18,7 @@ from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 from hr_addon.core.visibility import NumpyBackend, make_backend
 from tests import closed_forms as cf
-from tests.test_contacts import contact_furnace, sky_reference, sky_scene
+from hr_testing.contact_scenes import contact_furnace, sky_points, sky_reference, sky_scene
 
 
 def patch_of(pt, pts, candidates):
@@ -94,13 +94,7 @@ def test_black_box_on_a_floor_under_a_sky_against_shadow_rays():
     m = sky_scene()
     s = RadiositySystem(m, RefineParams.preset("draft"))
     pt = s.patches
-    rng = np.random.default_rng(1)
-    side, t, off = rng.integers(0, 4, 200), rng.uniform(-0.19, 0.19, 200), rng.uniform(0.001, 0.04, 200)
-    band = np.zeros((200, 3))
-    for k, (ax, sg) in enumerate([(0, 1), (0, -1), (1, 1), (1, -1)]):
-        band[side == k, ax] = sg * (0.2 + off[side == k])
-        band[side == k, 1 - ax] = t[side == k]
-    under = np.column_stack([rng.uniform(-0.195, 0.195, (50, 2)), np.zeros(50)])
+    band, under = sky_points()
     pts = np.concatenate([band, under])
     patch = patch_of(pt, pts, named(pt, "floor"))
     S_ = 128
@@ -509,7 +503,7 @@ def test_loose_transport_keeps_the_gathered_output(method):
     float32): the gathered output of a furnished room with a window, per object, within 2% of the
     strict transport's (draft preset, 1e-7) and within 0.5% in the mean over objects (measured
     on the 20k room: median 0.1%, 99% of objects within 1%, docs/gather.md)."""
-    from benchmarks.furnished import furnished_room
+    from hr_testing.furnished import furnished_room
 
     mesh, info = furnished_room("2k")
     _, frame = info["light_wall"]

@@ -7,8 +7,8 @@ import inspect
 import numpy as np
 import pytest
 
-from benchmarks import scenes
-from benchmarks import shapes as S
+from hr_testing import scenes
+from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape, outline_problem
 from hr_addon.core.geometry import InputError, MeshInput, isolated_objects, prepare_patches
 from hr_addon.core.radiosity import RadiositySystem

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from benchmarks import scenes
+from hr_testing import scenes
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 from hr_addon.core.texels import incident_radiance, solution_radiance
@@ -33,7 +33,7 @@ def test_furnace_incident_equals_radiance_and_zero_reflectance_is_gathered():
 def test_incident_with_light_shapes(method):
     """With a light shape (each method's own way of adding it): reflected = rho x incident at texel
     points, no emission in the incident field, and loop_incident leaves the solution as it was."""
-    from benchmarks import shapes as S
+    from hr_testing import shapes as S
     from hr_addon.core.events import DynamicRadiosity, LightShape, surface_samples
     from hr_addon.core.texels import loop_incident
 

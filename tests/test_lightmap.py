@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from benchmarks import scenes
+from hr_testing import scenes
 from hr_addon.core.output import locate, radiance_at
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams

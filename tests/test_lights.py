@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from benchmarks.scenes import SceneBuilder, closed_box
+from hr_testing.scenes import SceneBuilder, closed_box
 from hr_addon.core.events import DynamicRadiosity
 from hr_addon.core.gather import FinalGather
 from hr_addon.core.lights import Light, area_outline, unit_incident

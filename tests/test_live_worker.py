@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from hr_addon.blender.live_worker import RESPONSE_TOL, BuildSpec, LiveWorker
-from benchmarks import scenes
-from benchmarks import shapes as S
+from hr_testing import scenes
+from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from benchmarks import scenes
+from hr_testing import scenes
 from hr_addon.core.orientation import find_reversed, turn_around
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
@@ -199,7 +199,7 @@ def test_vertex_values_of_a_turned_wall_land_on_its_own_vertices():
 def test_light_shape_on_a_turned_wall(method):
     """A window on the reversed wall: NAIVE rebuilds a system from the input polygons (turned again
     by its own check), AUTO covers the turned patches; both equal the correct room's light."""
-    from benchmarks import shapes as S
+    from hr_testing import shapes as S
     from hr_addon.core.events import DynamicRadiosity, LightShape
 
     frame = (np.zeros(3), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]))  # x = 0, faces +x

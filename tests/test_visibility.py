@@ -287,7 +287,7 @@ def test_available_and_auto(monkeypatch):
 def test_first_hit_of_every_backend_matches_the_float64_reference(name):
     """first_hit (the final gather's rays): the nearest triangle and its t agree with the numpy
     backend's brute force, and a hit exists exactly where occluded() says the segment is blocked."""
-    from benchmarks import scenes
+    from hr_testing import scenes
     from hr_addon.core.geometry import prepare_patches
 
     tri = prepare_patches(scenes.cornell_box(subdiv=2)).triangles

@@ -1,6 +1,6 @@
 """Furnished rooms of about 2k, 10k, 20k, 100k and 1M triangles, built from numbers (numpy only).
 
-    from benchmarks.furnished import furnished_room
+    from hr_testing.furnished import furnished_room
     mesh, info = furnished_room("20k")        # MeshInput (z up, metres) and a dict of facts
 
 A 6 x 5 x 2.8 m room (walls, floor and ceiling as grids, a ceiling light panel) with tables on
@@ -12,13 +12,11 @@ nothing interpenetrates (placements that would overlap are retried, then skipped
 Counts are triangles as Blender's loop_triangles would give (a quad is two).
 """
 
-import sys
-from pathlib import Path
-
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from hr_addon.core.geometry import MeshInput  # noqa: E402
+from hr_addon.core.geometry import MeshInput
+
+from .scenes import icosphere as _icosphere
 
 W, D, H = 6.0, 5.0, 2.8
 WOOD, WALL, FLOOR, FABRIC, CERAMIC = (
@@ -137,9 +135,7 @@ def cylinder(base, radius, height, seg, caps=True):
 
 
 def icosphere(centre, radius, subdiv):
-    from benchmarks.scenes import icosphere as ico
-
-    v, f = ico(subdiv, radius, inward=False)
+    v, f = _icosphere(subdiv, radius, inward=False)
     return v + centre, [np.array(f)]
 
 

@@ -1,6 +1,7 @@
 """Scenes built from numbers, in Blender's frame (z up, metres): the Cornell box, a closed box,
-spheres, parallel plates. For the tests, the benchmarks and scripts/make_samples.py (import it as
-`benchmarks.scenes`, with the repository root on sys.path); not shipped in the extension."""
+spheres, parallel plates. For the tests, the benchmarks and scripts/make_samples.py
+(`from hr_testing import scenes`, with the repository root on sys.path); not shipped in the
+extension."""
 
 import numpy as np
 

@@ -1,6 +1,7 @@
 """Cycles reference bakes and texel-level comparison with the radiosity solution (bpy required).
 
-Used by benchmarks/cycles_compare.py and tests/test_cycles_agreement.py. Nothing here changes
+Used by benchmarks/cycles_compare.py, tests/test_cycles_agreement.py and tests/test_blender_albedo.py
+(its own checks: tests/test_cycles_ref.py). Nothing here changes
 hr_addon; the scene is read with the add-on's own reader (scene_in), so both sides see the same
 polygons, reflectances and emissions.
 
@@ -520,7 +521,6 @@ def _patch_of(patches, polys, points):
             cand = np.minimum(first + j, len(pp) - 1)
             valid = first + j < last
             C = patches.corners[cand]
-            nv = patches.nv[cand]
             e = np.roll(C, -1, axis=1) - C
             w = points[:, None, :] - C
             s = np.einsum("nkj,nj->nk", np.cross(e, w), patches.normal[cand])

@@ -1,0 +1,91 @@
+"""Cornell box lit by a Blender light in place of its emitter (issue 20) against Cycles: reflected
+radiance per surface (Cycles DIFFUSE bake, direct + indirect x colour) and our final gather
+(two levels + 4 iterations) on a medium solution. Two Cycles seeds give the reference's noise.
+
+The benchmark benchmarks/cycles_lights.py prints run()'s result per light kind; the test
+tests/test_cycles_lights.py runs a smaller version."""
+
+import math
+import tempfile
+import time
+
+from . import cycles_ref as C
+from .blend import load_bpy, open_sample
+
+
+def add_light(kind):
+    """The Cornell emitter's place (its centre, 5 mm lower): a light of comparable power."""
+    import bpy
+
+    for name in ("light", "Window", "Back Patch"):
+        bpy.data.objects.remove(bpy.data.objects[name])
+    ld = bpy.data.lights.new("Lamp", kind)
+    ob = bpy.data.objects.new("Lamp", ld)
+    ob.location = (0.278, 0.2795, 0.5438)
+    ld.color = (1.0, 0.85, 0.6)
+    if kind == "POINT":  # lower: 5 mm under the ceiling its hot spot makes Cycles' indirect noisy
+        ld.energy, ld.shadow_soft_size = 20.0, 0.0
+        ob.location = (0.278, 0.2795, 0.40)
+    elif kind == "AREA":
+        ld.shape, ld.size, ld.size_y, ld.energy = "RECTANGLE", 0.13, 0.105, 20.0
+    elif kind == "SPOT":  # aimed at the back wall
+        ld.energy, ld.shadow_soft_size = 60.0, 0.0
+        ld.spot_size, ld.spot_blend = math.radians(50), 0.2
+        ob.location = (0.278, 0.1, 0.45)
+        ob.rotation_euler = (math.radians(70), 0, 0)  # -Z turned towards +Y (the back wall)
+    elif kind == "SUN":
+        ld.energy, ld.angle = 2.0, 0.0
+        ob.rotation_euler = (math.radians(20), math.radians(15), 0)
+    ob.visible_camera = False
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=None):
+    bpy = load_bpy()
+    from hr_addon.blender.scene_in import collect_lights
+    from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.lights import Light
+    from hr_addon.core.radiosity import RadiositySystem
+    from hr_addon.core.refine import RefineParams
+
+    open_sample("cornell", tempfile.mkdtemp())
+    add_light(kind)
+    rs = C.prepare(bpy.context.scene, texel_rel=texel_rel)
+    vl = bpy.context.view_layer
+    lights = collect_lights(vl, vl.depsgraph, Light)
+    t0 = time.process_time()
+    system = RadiositySystem(rs.scene_in.mesh, RefineParams.preset(quality))
+    dyn = DynamicRadiosity(system, method="FE")
+    dyn.apply({}, lights)
+    ours = C.Ours(rs, system, dyn)
+    g, _ = C.gather_results(rs, ours, dyn, vertex=False, **(gather or dict(levels=2, iterations=4)))
+    leaf = ours.evaluate({}, smooth=False)
+    ours_s = time.process_time() - t0
+    refs = []
+    t1 = time.perf_counter()
+    for s in seeds:
+        ref, _, mask = C.bake(rs, spp, seed=s)
+        refs.append(ref)
+    cyc_s = time.perf_counter() - t1
+    out = {
+        "kind": kind,
+        "spp": spp,
+        "seeds": list(seeds),
+        "ours_cpu_s": round(ours_s, 1),
+        "cycles_wall_s": round(cyc_s, 1),
+        "surfaces": {},
+    }
+    for n in rs.objects:
+        ref = sum(r[n] for r in refs) / len(refs)
+        m = C.metrics(g[n]["gather_refl"], ref)
+        ml = C.metrics(leaf[n]["leaf_refl"], ref)
+        # the noise of the two seeds' mean (C.noise: of one bake's surface mean)
+        nz = C.noise(refs[0][n], refs[1][n])[1] / math.sqrt(len(refs)) if len(refs) > 1 else float("nan")
+        out["surfaces"][n] = {
+            "texels": m["texels"],
+            "gather": round(m["bias"], 4),
+            "leaves": round(ml["bias"], 4),
+            "ref_noise_of_mean": round(nz, 4),
+        }
+    return out
