@@ -1,0 +1,173 @@
+"""The Cycles comparison's own helpers (hr_testing/cycles_ref.py): error statistics, exact shape
+emission, the point -> patch map and the texel atlas. The Cycles agreement tests rest on these, so
+each is checked here against something computed another way; no Cycles render."""
+
+import numpy as np
+import pytest
+
+from hr_addon.core.events import LightShape
+from hr_addon.core.geometry import MeshInput, prepare_patches
+from hr_testing import cycles_ref as C
+from hr_testing import shapes as S
+
+
+def test_metrics_of_a_uniform_ten_percent_error_leave_out_masked_and_unbaked_texels():
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(0.2, 1.0, (50, 3))
+    ours = 1.1 * ref
+    ours[3] = np.nan  # a texel without a sample on our side
+    mask = np.ones(50, bool)
+    mask[7] = False  # a texel Cycles did not bake
+    ours[7] = 100.0
+    m = C.metrics(ours, ref, mask)
+    ok = np.ones(50, bool)
+    ok[[3, 7]] = False
+    assert m["texels"] == 48
+    assert m["mre"] == pytest.approx(0.1) and m["bias"] == pytest.approx(0.1)
+    d = 0.1 * ref[ok]
+    assert m["rmse"] == pytest.approx(np.sqrt(np.mean(d**2)))
+    assert m["rel_rmse"] == pytest.approx(m["rmse"] / ref[ok].mean())
+    assert m["p95"] == pytest.approx(np.percentile(d.mean(1), 95))
+    assert C.metrics(0.9 * ref, ref)["bias"] == pytest.approx(-0.1)  # signed; mre is not
+    assert C.metrics(ours, ref, np.zeros(50, bool)) is None
+
+
+def test_noise_of_two_seeds_is_the_per_bake_standard_deviation():
+    """Two bakes x + e1, x + e2 with independent errors of standard deviation s: RMS((a - b) / sqrt 2)
+    estimates s; the surface-mean noise is |mean(a - b)| / sqrt 2 relative to the mean."""
+    rng = np.random.default_rng(1)
+    x = np.full((20000, 3), 0.5)
+    a, b = x + rng.normal(0, 0.05, x.shape), x + rng.normal(0, 0.05, x.shape)
+    rms, of_mean = C.noise(a, b)
+    assert rms == pytest.approx(0.05, rel=0.02)
+    want = np.mean(np.abs((a - b).mean(0)) / ((a + b).mean(0) / 2)) / np.sqrt(2)
+    assert of_mean == pytest.approx(want)
+    b[5] = np.nan  # unbaked texel: left out
+    assert np.isfinite(C.noise(a, b)[0])
+
+
+def test_shape_emission_is_the_window_outline_minus_its_mullions():
+    """A window (outer frame minus a cross of mullions, shapes.window) on the Cornell green wall:
+    emission at points inside the panes, none on the mullions, outside or off the wall's plane;
+    overlapping shapes add."""
+    w, h, bar = 0.4, 0.3, 0.04
+    rings = S.on_plane(S.window(w, h, bar, centre=(0.25, 0.3)), S.CORNELL_GREEN_WALL)
+    em = np.array([1.0, 2.0, 3.0])
+    shapes = {"w": LightShape(rings, em, "w")}
+    rng = np.random.default_rng(2)
+    p2 = rng.uniform(-0.3, 0.3, (4000, 2))
+    x, y = np.abs(p2[:, 0]), np.abs(p2[:, 1])
+    a, b, c = (w - 2 * bar) / 2, (h - 2 * bar) / 2, bar / 2
+    edges = np.array([w / 2, a, c]), np.array([h / 2, b, c])
+    clear = (np.abs(x[:, None] - edges[0]).min(1) > 1e-6) & (np.abs(y[:, None] - edges[1]).min(1) > 1e-6)
+    p2, x, y = p2[clear], x[clear], y[clear]
+    lit = (x < w / 2) & (y < h / 2) & ~(((x < a) & (y < c)) | ((x < c) & (y < b)))
+    pts = S.on_plane([p2 + (0.25, 0.3)], S.CORNELL_GREEN_WALL)[0]
+    E = C.shape_emission(shapes, pts, diag=1.0)
+    assert lit.any() and (~lit).any()
+    np.testing.assert_array_equal(E[lit], np.broadcast_to(em, (lit.sum(), 3)))
+    assert not E[~lit].any()
+    off = pts + [0.01, 0, 0]  # 1 cm in front of the wall: beyond plane_tol x diag = 1 mm
+    assert not C.shape_emission(shapes, off, diag=1.0).any()
+    two = dict(shapes, v=LightShape(rings, em, "v"))
+    np.testing.assert_array_equal(C.shape_emission(two, pts, diag=1.0), 2 * E)
+
+
+def test_patch_of_finds_the_patch_holding_each_point_of_a_split_polygon():
+    """An L-shaped hexagon and a concave 8-corner polygon are split into several patches: each
+    point gets the patch (of its own polygon) whose outline holds it, by a containment test of the
+    patch corners; a polygon with no patch reports missing."""
+    L = [(0, 0, 0), (2, 0, 0), (2, 1, 0), (1, 1, 0), (1, 2, 0), (0, 2, 0)]
+    U = [(3, 0, 0), (6, 0, 0), (6, 2, 0), (5, 2, 0), (5, 1, 0), (4, 1, 0), (4, 2, 0), (3, 2, 0)]
+    mesh = MeshInput.from_polygons(np.array(L + U, float), [list(range(6)), list(range(6, 14))], 0.5)
+    pt = prepare_patches(mesh)
+    assert np.bincount(pt.poly).min() > 1  # both are split
+    rng = np.random.default_rng(3)
+    q = rng.uniform(0, 2, (3000, 2))
+    inL = ~((q[:, 0] > 1) & (q[:, 1] > 1))
+    qu = rng.uniform(0, 2, (3000, 2)) * [1.5, 1] + [3, 0]
+    inU = ~((qu[:, 0] > 4) & (qu[:, 0] < 5) & (qu[:, 1] > 1))
+    pts = np.concatenate([q[inL], qu[inU]])
+    pts = np.column_stack([pts, np.zeros(len(pts))])
+    polys = np.r_[np.zeros(inL.sum(), int), np.ones(inU.sum(), int)]
+    patch, missing = C._patch_of(pt, polys, pts)
+    assert not missing.any()
+    assert (pt.poly[patch] == polys).all()
+    c, nv = pt.corners[patch], pt.nv[patch][:, None]
+    idx = np.arange(c.shape[1])[None]
+    e = np.take_along_axis(c, ((idx + 1) % nv)[:, :, None], 1) - c
+    side = np.cross(e, pts[:, None] - c)[:, :, 2]
+    assert (side[idx < nv] >= -1e-9).all()  # inside every edge of its (convex, CCW) patch
+    _, gone = C._patch_of(pt, np.array([2]), pts[:1])
+    assert gone.all()
+
+
+@pytest.mark.bpy
+def test_atlas_of_a_cube_has_one_texel_per_texel_area_and_samples_on_the_surface():
+    """A 0.5 m cube (moved and scaled by its object transform) at 5 cm texels: six 10 x 10 charts
+    that do not share a texel, 3 x 3 sub-samples per texel, every sample on the world-space cube,
+    each texel's mean point within its texel; UVs in the active "HR_Ref" layer, inside [0, 1]."""
+    from test_blender_helpers import load_bpy
+
+    bpy = load_bpy()
+    v = [(x, y, z) for x in (0, 1) for y in (0, 1) for z in (0, 1)]
+    f = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    me = bpy.data.meshes.new("cube")
+    me.from_pydata(v, [], f)
+    ob = bpy.data.objects.new("cube", me)
+    bpy.context.scene.collection.objects.link(ob)
+    ob.location, ob.scale = (2.0, -1.0, 0.5), (0.5, 0.5, 0.5)
+    bpy.context.view_layer.update()
+    at = C.Atlas.build(ob, texel=0.05, k=3)
+    assert at.n == 600 and len(at.s_texel) == 600 * 9 and at.s_centre.sum() == 600
+    assert len(set(zip(at.tx, at.ty))) == 600 and at.area == pytest.approx(1.5)
+    lo, hi = np.array([2.0, -1.0, 0.5]), np.array([2.5, -0.5, 1.0])
+    p = at.s_point
+    assert ((p >= lo - 1e-9) & (p <= hi + 1e-9)).all()
+    on_face = np.minimum(np.abs(p - lo), np.abs(p - hi)).min(1)
+    assert on_face.max() < 1e-9
+    centre = at.texel_mean(p)
+    assert np.abs(at.s_point - centre[at.s_texel]).max() <= at.texel / 2 + 1e-9
+    layer = me.uv_layers.active
+    assert layer.name == C.UV_NAME and layer.active_render
+    uv = np.empty(len(me.loops) * 2, np.float32)
+    layer.data.foreach_get("uv", uv)
+    assert uv.min() >= 0 and uv.max() <= 1
+    np.testing.assert_allclose(at.texel_mean(np.ones((len(p), 3))), 1.0)
+
+
+@pytest.mark.bpy
+@pytest.mark.cycles
+def test_tiny_cycles_bake_of_parallel_plates_matches_the_closed_form():
+    """The whole reference pipeline (prepare: atlases, images, one-sided reference materials; bake;
+    texel read-back) on the parallel-plates oracle: a grey 1 x 1 m receiver (reflectance 0.5) under
+    a black emitter (radiance 1) 0.5 m above, facing it. The receiver's reflected radiance is
+    0.5 x F(point -> emitter) exactly (nothing else lights it); the black emitter reflects nothing.
+    At 16 samples a texel is noisy; the mean over the 400 texels is within 3% of the closed form
+    averaged over the same sub-samples, and so is the centre's light relative to the rim's."""
+    import os
+
+    from test_blender_helpers import empty_scene
+    from tests import closed_forms as cf
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    bpy, ms, scene = empty_scene()
+    quad = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]
+    ms.mesh_object("receiver", quad, [[0, 1, 2, 3]], ms.diffuse("grey", (0.5, 0.5, 0.5)))
+    ms.mesh_object(
+        "emitter", [(x, y, 0.5) for x, y, _ in quad], [[3, 2, 1, 0]], ms.emission("em", (1, 1, 1), 1)
+    )
+    rs = C.prepare(scene, texel=0.05)
+    assert sorted(rs.objects) == ["emitter", "receiver"] and rs.atlases["receiver"].n == 400
+    ref, _, mask = C.bake(rs, samples=16, seed=1)
+    assert all(m.all() for m in mask.values())
+    assert np.abs(ref["emitter"]).max() < 1e-6
+    at = rs.atlases["receiver"]
+    F = np.array([cf.point_to_parallel_rect(x, y, 0, 1, 0, 1, 0.5) for x, y, _ in at.s_point])
+    want = at.texel_mean(0.5 * F[:, None].repeat(3, 1))
+    got = ref["receiver"]
+    assert got.mean() == pytest.approx(want.mean(), rel=0.03)
+    centre = (np.abs(at.texel_mean(at.s_point)[:, :2] - 0.5) < 0.25).all(1)
+    ratio, exact = got[centre].mean() / got[~centre].mean(), want[centre].mean() / want[~centre].mean()
+    print(f"mean {got.mean() / want.mean() - 1:+.4f}, centre / rim {ratio:.4f} (exact {exact:.4f})")
+    assert ratio == pytest.approx(exact, rel=0.03)
