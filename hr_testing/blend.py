@@ -27,3 +27,26 @@ def open_sample(name, directory, sub="") -> Path:
     shutil.copy(SAMPLES / f"{name}.blend", dst)
     bpy.ops.wm.open_mainfile(filepath=str(dst), load_ui=False)
     return dst
+
+
+def isolated_env(directory):
+    """The environment of a Blender subprocess that touches neither ~/.config/blender nor this
+    process's add-ons: a throw-away HOME and user-resource folder in `directory`, no inherited
+    PYTHONPATH. Returns (env, the user-resource folder)."""
+    import os
+
+    home, resources = Path(directory) / "home", Path(directory) / "blender_user"
+    home.mkdir()
+    resources.mkdir()
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith("BLENDER_USER_") and k not in ("PYTHONPATH", "PYTHONHOME")
+    }
+    env.update(
+        HOME=str(home),
+        BLENDER_USER_RESOURCES=str(resources),
+        XDG_CONFIG_HOME=str(home / ".config"),
+        PYTHONDONTWRITEBYTECODE="1",
+    )
+    return env, resources

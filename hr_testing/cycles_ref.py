@@ -297,6 +297,28 @@ def one_sided_material(name, rho, emission, transparent=False):
     return m
 
 
+def reference_material(name, src, textured=False):
+    """The one-sided reference copy of the user's material `src` as our reader reads it
+    (hr_addon.blender.materials.read_material); `textured`: the front's colour is src's image
+    texture through the same UV map ("UVMap"), as the user's material shows it."""
+    from hr_addon.blender.materials import read_material
+
+    s = read_material(src)
+    ref = one_sided_material(name, s.reflectance, s.emission)
+    if textured:
+        t = ref.node_tree
+        tex = t.nodes.new("ShaderNodeTexImage")
+        tex.image = next(n for n in src.node_tree.nodes if n.type == "TEX_IMAGE").image
+        uvn = t.nodes.new("ShaderNodeUVMap")
+        uvn.uv_map = "UVMap"
+        t.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
+        front = next(
+            n for n in t.nodes if n.type == "BSDF_DIFFUSE" and n.inputs["Color"].default_value[0] > 0
+        )
+        t.links.new(tex.outputs["Color"], front.inputs["Color"])
+    return ref
+
+
 class NoTexels(Exception):
     pass
 

@@ -39,9 +39,9 @@ def _orient(quad, towards):
     return q[::-1] if np.dot(n, towards - q.mean(0)) < 0 else q
 
 
-def _grid(quad, n):
+def grid(quad, n):
     """Split a planar quad into n x n bilinear sub-quads (vertices shared)."""
-    a, b, c, d = quad
+    a, b, c, d = np.asarray(quad, float)
     u = np.linspace(0, 1, n + 1)
     U, V = np.meshgrid(u, u, indexing="ij")
     P = (
@@ -75,7 +75,7 @@ class SceneBuilder:
         return self
 
     def add_quad(self, name, quad, rho, emission=(0, 0, 0), subdiv=1):
-        v, p = _grid(np.asarray(quad, float), subdiv)
+        v, p = grid(np.asarray(quad, float), subdiv)
         return self.add(name, v, p, rho, emission)
 
     def build(self) -> MeshInput:
@@ -107,7 +107,7 @@ def cornell_box(subdiv=1, light=True, light_drop_mm=0.5, light_emission=CORNELL_
         # one object per block, as in the sample .blend (contacts.py joins its faces by position)
         vs, ps = [], []
         for f in faces:
-            v, p = _grid(_orient(f, away(f)), max(1, subdiv // 2))
+            v, p = grid(_orient(f, away(f)), max(1, subdiv // 2))
             ps += [[i + sum(len(x) for x in vs) for i in q] for q in p]
             vs.append(v)
         sb.add(name, np.concatenate(vs), ps, WHITE)

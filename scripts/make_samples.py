@@ -30,6 +30,7 @@ import bpy  # noqa: E402
 
 import hr_addon  # noqa: E402
 from hr_testing import scenes  # noqa: E402
+from hr_testing.scenes import grid  # noqa: E402
 
 SUBDIV = 8
 
@@ -129,22 +130,6 @@ def orient(quad, towards):
     q = np.asarray(quad, float)
     n = np.cross(q[1] - q[0], q[2] - q[0])
     return q[::-1] if np.dot(n, np.asarray(towards, float) - q.mean(0)) < 0 else q
-
-
-def grid(quad, n):
-    a, b, c, d = np.asarray(quad, float)
-    u = np.linspace(0, 1, n + 1)
-    U, V = np.meshgrid(u, u, indexing="ij")
-    P = (
-        ((1 - U) * (1 - V))[..., None] * a
-        + (U * (1 - V))[..., None] * b
-        + (U * V)[..., None] * c
-        + ((1 - U) * V)[..., None] * d
-    )
-    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    return P.reshape(-1, 3), [
-        [idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]] for i in range(n) for j in range(n)
-    ]
 
 
 def box_quads(lo, hi, inward, skip=()):

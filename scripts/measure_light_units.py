@@ -104,38 +104,14 @@ def rect_factor(a, b, h):
 def main(samples):
     out = []
     h, P = 2.0, 100.0
-    # point light, radius 0: E = K P / h^2
-    sc = scene(samples=samples)
-    light(sc, "POINT", energy=P, shadow_soft_size=0.0)
-    L, se = centre(render(sc))
-    E = math.pi * L / RHO
-    out.append(
-        dict(
-            light="POINT",
-            P=P,
-            h=h,
-            L=L,
-            se=L and se / L,
-            K=E * h * h / P,
-            K_x_4pi=E * h * h / P * 4 * math.pi,
-        )
-    )
-    # point light radius 0.5 (sphere light): same K far away?
-    sc = scene(samples=samples)
-    light(sc, "POINT", energy=P, shadow_soft_size=0.5)
-    L, se = centre(render(sc))
-    E = math.pi * L / RHO
-    out.append(
-        dict(
-            light="POINT r=0.5",
-            P=P,
-            h=h,
-            L=L,
-            se=se / L,
-            K=E * h * h / P,
-            K_x_4pi=E * h * h / P * 4 * math.pi,
-        )
-    )
+    # point light, radius 0: E = K P / h^2; radius 0.5 (a sphere light): the same K this far away?
+    for label, radius in (("POINT", 0.0), ("POINT r=0.5", 0.5)):
+        sc = scene(samples=samples)
+        light(sc, "POINT", energy=P, shadow_soft_size=radius)
+        L, se = centre(render(sc))
+        E = math.pi * L / RHO
+        K = E * h * h / P
+        out.append(dict(light=label, P=P, h=h, L=L, se=L and se / L, K=K, K_x_4pi=K * 4 * math.pi))
     # sun: E = K S cos
     for tilt in (0.0, 60.0):
         sc = scene(samples=samples)

@@ -67,23 +67,9 @@ def _reference_materials(bpy, objs):
     """One-sided Diffuse (+ Emission) copies of what our reader reads; the floor's colour is the
     same image through the same UV map."""
     from hr_testing import cycles_ref as C
-    from hr_addon.blender.materials import read_material
 
     for name, ob in objs.items():
-        src = ob.data.materials[0]
-        s = read_material(src)
-        ref = C.one_sided_material(f"REF_{name}", s.reflectance, s.emission)
-        if name == "floor":
-            t = ref.node_tree
-            tex = t.nodes.new("ShaderNodeTexImage")
-            tex.image = next(n for n in src.node_tree.nodes if n.type == "TEX_IMAGE").image
-            uvn = t.nodes.new("ShaderNodeUVMap")
-            uvn.uv_map = "UVMap"
-            t.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
-            front = next(
-                n for n in t.nodes if n.type == "BSDF_DIFFUSE" and n.inputs["Color"].default_value[0] > 0
-            )
-            t.links.new(tex.outputs["Color"], front.inputs["Color"])
+        ref = C.reference_material(f"REF_{name}", ob.data.materials[0], textured=name == "floor")
         ob.material_slots[0].link = "OBJECT"
         ob.material_slots[0].material = ref
 

@@ -52,25 +52,13 @@ def _textures(cache):
 def _cycles_bakes(bpy, objs, passes):
     """Cycles Diffuse bakes into RES x RES images in HR_Lightmap: {pass name: {object: (RES, RES, 4)}}."""
     from hr_testing import cycles_ref as C
-    from hr_addon.blender.materials import read_material
 
     scene = bpy.context.scene
     images = {}
     for name, ob in objs.items():
-        src = ob.material_slots[0].material
-        s = read_material(src)
-        ref = C.one_sided_material(f"REF_{name}", s.reflectance, s.emission)
+        # the floor: the same image through the same UV map as the user's material
+        ref = C.reference_material(f"REF_{name}", ob.material_slots[0].material, textured=name == "floor")
         t = ref.node_tree
-        if name == "floor":  # the same image through the same UV map as the user's material
-            tex = t.nodes.new("ShaderNodeTexImage")
-            tex.image = next(n for n in src.node_tree.nodes if n.type == "TEX_IMAGE").image
-            uvn = t.nodes.new("ShaderNodeUVMap")
-            uvn.uv_map = "UVMap"
-            t.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
-            front = next(
-                n for n in t.nodes if n.type == "BSDF_DIFFUSE" and n.inputs["Color"].default_value[0] > 0
-            )
-            t.links.new(tex.outputs["Color"], front.inputs["Color"])
         img = bpy.data.images.new(f"REFIMG_{name}", RES, RES, alpha=True, float_buffer=True)
         img.colorspace_settings.name = "Non-Color"
         target = t.nodes.new("ShaderNodeTexImage")

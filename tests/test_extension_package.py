@@ -6,7 +6,6 @@ and HOME, so neither this test process's bpy state nor ~/.config/blender is touc
 """
 
 import json
-import os
 import subprocess
 import sys
 import textwrap
@@ -15,6 +14,8 @@ import zipfile
 from pathlib import Path
 
 import pytest
+
+from hr_testing.blend import isolated_env
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 BUILD_SCRIPT = REPO_ROOT / "scripts" / "build_extension.py"
@@ -196,21 +197,7 @@ INSTALL_SCRIPT = textwrap.dedent(r"""
 @pytest.mark.slow  # the module builds the five zips once
 def test_install_in_blender(built_zip, tmp_path):
     pytest.importorskip("bpy")  # only checks it is installed; the import happens in the subprocess
-    home = tmp_path / "home"
-    resources = tmp_path / "blender_user"
-    home.mkdir()
-    resources.mkdir()
-    env = {
-        k: v
-        for k, v in os.environ.items()
-        if not k.startswith("BLENDER_USER_") and k not in ("PYTHONPATH", "PYTHONHOME")
-    }
-    env.update(
-        HOME=str(home),
-        BLENDER_USER_RESOURCES=str(resources),
-        XDG_CONFIG_HOME=str(home / ".config"),
-        PYTHONDONTWRITEBYTECODE="1",
-    )
+    env, resources = isolated_env(tmp_path)
     script = tmp_path / "install_check.py"
     script.write_text(INSTALL_SCRIPT)
     proc = subprocess.run(

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from hr_testing.blend import isolated_env
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 pytestmark = [
     pytest.mark.bpy,
@@ -191,20 +193,7 @@ SAMPLES_SCRIPT = PRELUDE + textwrap.dedent(r"""
 
 
 def _run(script, zip_path, tmp_path, blends=None):
-    home, resources = tmp_path / "home", tmp_path / "blender_user"
-    home.mkdir()
-    resources.mkdir()
-    env = {
-        k: v
-        for k, v in os.environ.items()
-        if not k.startswith("BLENDER_USER_") and k not in ("PYTHONPATH", "PYTHONHOME")
-    }
-    env.update(
-        HOME=str(home),
-        BLENDER_USER_RESOURCES=str(resources),
-        XDG_CONFIG_HOME=str(home / ".config"),
-        PYTHONDONTWRITEBYTECODE="1",
-    )
+    env, resources = isolated_env(tmp_path)
     if blends is None:  # the sample is made by this Blender version
         blends = [_make_cornell(tmp_path, env)]
     path = tmp_path / "check.py"

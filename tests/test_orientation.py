@@ -35,7 +35,7 @@ def _room(reversed_walls=(), panel_up=False, panel_drop=0.01, triangles=()):
     }
     for name, f in faces.items():
         quad = scenes._orient(box[list(f)], c)
-        v, polys = scenes._grid(quad, 2)
+        v, polys = scenes.grid(quad, 2)
         if name in triangles:
             polys = [t for p in polys for t in ([p[0], p[1], p[2]], [p[0], p[2], p[3]])]
         if name in reversed_walls:
