@@ -24,34 +24,16 @@ try:  # the bpy module provides mathutils; without it the mathutils backend is j
 except ImportError:
     pass
 from hr_addon.core.visibility import available_backends, make_backend  # noqa: E402
+from hr_testing.scenes import box_triangles  # noqa: E402
 
 SLOW = {"mathutils"}  # Python-loop backends get fewer rays
 
 
-def quad(p, u, v):
-    p, u, v = map(np.asarray, (p, u, v))
-    return [[p, p + u, p + u + v], [p, p + u + v, p + v]]
-
-
-def box(lo, hi):
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    s = hi - lo
-    ex, ey, ez = np.diag(s)
-    return (
-        quad(lo, ey, ex)
-        + quad(lo + ez, ex, ey)
-        + quad(lo, ex, ez)
-        + quad(lo + ey, ez, ex)
-        + quad(lo, ez, ey)
-        + quad(lo + ex, ey, ez)
-    )
-
-
 def cornell():
     return np.array(
-        box([0, 0, 0], [5.5, 5.5, 5.5])
-        + box([1.3, 0.65, 0], [2.9, 2.25, 1.65])
-        + box([3.7, 2.95, 0], [5.3, 4.55, 3.3])
+        box_triangles([0, 0, 0], [5.5, 5.5, 5.5])
+        + box_triangles([1.3, 0.65, 0], [2.9, 2.25, 1.65])
+        + box_triangles([3.7, 2.95, 0], [5.3, 4.55, 3.3])
     )
 
 

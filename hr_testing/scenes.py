@@ -118,6 +118,25 @@ def cornell_box(subdiv=1, light=True, light_drop_mm=0.5, light_emission=CORNELL_
     return sb.build()
 
 
+def box_triangles(lo, hi):
+    """The 12 triangles (list of (3, 3) corner lists) of an axis-aligned box, normals outward: a
+    triangle soup for the ray backends."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    ex, ey, ez = np.diag(hi - lo)
+
+    def quad(p, u, v):
+        return [[p, p + u, p + u + v], [p, p + u + v, p + v]]
+
+    return (
+        quad(lo, ey, ex)
+        + quad(lo + ez, ex, ey)
+        + quad(lo, ex, ez)
+        + quad(lo + ey, ez, ex)
+        + quad(lo, ez, ey)
+        + quad(lo + ex, ey, ez)
+    )
+
+
 def closed_box(size=1.0, rho=0.5, emission=(1, 1, 1), subdiv=1) -> MeshInput:
     """A closed cube with inward faces: the furnace test."""
     s = size

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from hr_addon.core import visibility as vis
+from hr_testing.scenes import box_triangles
 
 
 def _importable(name):
@@ -52,28 +53,12 @@ MAX_DISAGREE = 1e-3
 # ---------------------------------------------------------------------------------------------- scenes
 
 
-def quad(p, u, v):
-    p, u, v = (np.asarray(x, float) for x in (p, u, v))
-    return [[p, p + u, p + u + v], [p, p + u + v, p + v]]
-
-
-def box(lo, hi):
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    ex, ey, ez = np.diag(hi - lo)
-    return (
-        quad(lo, ey, ex)
-        + quad(lo + ez, ex, ey)
-        + quad(lo, ex, ez)
-        + quad(lo + ey, ez, ex)
-        + quad(lo, ez, ey)
-        + quad(lo + ex, ey, ez)
-    )
-
-
 def cornell():
     """Closed unit box with two blocks standing on its floor (36 triangles)."""
     return np.array(
-        box([0, 0, 0], [1, 1, 1]) + box([0.2, 0.1, 0], [0.5, 0.4, 0.3]) + box([0.6, 0.5, 0], [0.9, 0.8, 0.6])
+        box_triangles([0, 0, 0], [1, 1, 1])
+        + box_triangles([0.2, 0.1, 0], [0.5, 0.4, 0.3])
+        + box_triangles([0.6, 0.5, 0], [0.9, 0.8, 0.6])
     )
 
 
