@@ -28,7 +28,6 @@ from render_textured import _against, _render, _tile  # noqa: E402  (same settin
 
 def _reference_materials(bpy, scene):
     from hr_testing import cycles_ref as C
-    from hr_addon.blender.materials import read_material
 
     for ob in scene.objects:
         if ob.type != "MESH":
@@ -36,8 +35,7 @@ def _reference_materials(bpy, scene):
         if ob.hr.is_light_shape:
             ob.hide_render = True  # frame 1: no light shape is on
             continue
-        s = read_material(ob.data.materials[0])
-        ref = C.one_sided_material(f"REF_{ob.name}", s.reflectance, s.emission)
+        ref = C.reference_material(f"REF_{ob.name}", ob.data.materials[0])
         ob.material_slots[0].link = "OBJECT"
         ob.material_slots[0].material = ref
 

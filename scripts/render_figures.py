@@ -26,6 +26,20 @@ FRAMES = {
 }
 
 
+def emission_render(scene, size):
+    """Cycles on the CPU, 8 samples, no bounces: camera rays see the preview material's emission (the
+    baked radiance), nothing else; a size x size PNG."""
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = 8
+    scene.cycles.max_bounces = 0
+    scene.cycles.use_denoising = False
+    scene.render.resolution_x = scene.render.resolution_y = size
+    scene.render.resolution_percentage = 100
+    scene.view_settings.view_transform = "AgX"
+    scene.render.image_settings.file_format = "PNG"
+
+
 def render_scene(name, size, quality, out_dir):
     import bpy
     from hr_addon.blender.bake import run_bake
@@ -45,15 +59,7 @@ def render_scene(name, size, quality, out_dir):
             if o.type == "MESH" and o.hr.is_light_shape:
                 o.hide_render = True
                 o.animation_data_clear()
-        scene.render.engine = "CYCLES"
-        scene.cycles.device = "CPU"
-        scene.cycles.samples = 8
-        scene.cycles.max_bounces = 0  # camera rays see the baked emission, nothing else
-        scene.cycles.use_denoising = False
-        scene.render.resolution_x = scene.render.resolution_y = size
-        scene.render.resolution_percentage = 100
-        scene.view_settings.view_transform = "AgX"
-        scene.render.image_settings.file_format = "PNG"
+        emission_render(scene, size)
         tiles = []
         for f in FRAMES[name]:
             scene.frame_set(f)

@@ -19,7 +19,8 @@ import time
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, ROOT)
+sys.path[:0] = [ROOT, os.path.join(ROOT, "scripts")]
+from render_figures import emission_render  # noqa: E402  (the README pictures' settings)
 
 
 def render(size, quality, steps, out):
@@ -54,15 +55,7 @@ def render(size, quality, steps, out):
         node.inputs["Strength"].default_value = 14.0
         x0, x1 = float(co[:, 0].min()), float(co[:, 0].max())
         left, right = 0.03 - x0, 0.53 - x1  # the back wall spans x = 0 .. 0.556
-        scene.render.engine = "CYCLES"
-        scene.cycles.device = "CPU"
-        scene.cycles.samples = 8
-        scene.cycles.max_bounces = 0  # camera rays see the Live emission, nothing else
-        scene.cycles.use_denoising = False
-        scene.render.resolution_x = scene.render.resolution_y = size
-        scene.render.resolution_percentage = 100
-        scene.view_settings.view_transform = "AgX"
-        scene.render.image_settings.file_format = "PNG"
+        emission_render(scene, size)  # the Live result's emission, nothing else
         scene.hr.live = True
         t0 = time.perf_counter()
         bpy.ops.hr.live_update()  # builds the hierarchy once
