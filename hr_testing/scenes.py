@@ -235,3 +235,22 @@ def parallel_plates(size=1.0, distance=1.0, rho_receiver=0.5, emission=1.0, subd
         subdiv=1,
     )
     return sb.build()
+
+
+def wall_lightmap(system, name="back"):
+    """The lightmap triangles of the single-quad wall `name` of `system`'s mesh (the Cornell box's
+    back wall), its UVs the quad's own corners scaled into [0.05, 0.95]: (object id, triangle UVs,
+    corners, patches, skipped triangles) from lightmap.plan.triangle_uvs."""
+    from hr_addon.lightmap.plan import triangle_uvs
+
+    mesh, pt = system.mesh, system.patches
+    oid = mesh.object_names.index(name)
+    polys = np.flatnonzero(mesh.object_id == oid)
+    p0 = int(polys[0])
+    ls, lt = mesh.loop_start[polys] - mesh.loop_start[p0], mesh.loop_total[polys]
+    lv_g = np.concatenate([mesh.loop_verts[s : s + n] for s, n in zip(mesh.loop_start[polys], lt)])
+    v0 = int(lv_g.min())
+    q = mesh.verts[lv_g]
+    e1, e2 = q[1] - q[0], q[3] - q[0]  # the wall's two edge directions
+    uv = np.column_stack([(q - q[0]) @ e1 / (e1 @ e1), (q - q[0]) @ e2 / (e2 @ e2)]) * 0.9 + 0.05
+    return (oid,) + tuple(triangle_uvs(pt, oid, uv, ls, lt, lv_g - v0, p0, v0, len(mesh.verts) - v0))

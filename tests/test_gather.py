@@ -376,21 +376,11 @@ def test_texture_plan_with_a_final_gather():
     modes); without a gather it is unchanged (tests/test_lightmap.py). The back wall's mean from the
     gather on the draft solution close to today's output on the medium one (within 3%; today's
     draft output reads 6% high there)."""
-    from hr_addon.lightmap.plan import TexturePlan, triangle_uvs
+    from hr_addon.lightmap.plan import TexturePlan
 
     s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
     s.solve()
-    mesh, pt = s.mesh, s.patches
-    oid = mesh.object_names.index("back")
-    polys = np.flatnonzero(mesh.object_id == oid)
-    p0 = int(polys[0])
-    ls, lt = mesh.loop_start[polys] - mesh.loop_start[p0], mesh.loop_total[polys]
-    lv_g = np.concatenate([mesh.loop_verts[a : a + n] for a, n in zip(mesh.loop_start[polys], lt)])
-    v0 = int(lv_g.min())
-    q = mesh.verts[lv_g]
-    e1, e2 = q[1] - q[0], q[3] - q[0]
-    uv = np.column_stack([(q - q[0]) @ e1 / (e1 @ e1), (q - q[0]) @ e2 / (e2 @ e2)]) * 0.9 + 0.05
-    tri_uv, corners, tri_patch, _ = triangle_uvs(pt, oid, uv, ls, lt, lv_g - v0, p0, v0, len(mesh.verts) - v0)
+    _, tri_uv, corners, tri_patch, _ = scenes.wall_lightmap(s, "back")
     plan = TexturePlan("exr")
     plan.add_object("back", "back", 16, tri_uv, corners, tri_patch, "uv")
     today = plan.radiance(None, s)

@@ -15,7 +15,7 @@ from hr_addon.io.cache import CacheWriter
 from hr_addon.io.images import encode_exr, encode_png16, image_file_problem
 from hr_addon.lightmap import TextureError
 from hr_addon.lightmap.charts import find_charts, pack_lightmap
-from hr_addon.lightmap.plan import TexturePlan, triangle_uvs
+from hr_addon.lightmap.plan import TexturePlan
 from hr_addon.lightmap.raster import dilation_steps, rasterise
 
 
@@ -165,19 +165,8 @@ def test_plan_texels_lie_on_their_patches_and_fill_the_sequence(tmp_path, cornel
     """A plan of the Cornell box's back wall (one quad, UVs = its own corners): texel points lie in
     their patch's plane, radiance() is radiance_at there, and the file sequence has one complete
     file per frame number (gaps and the frame before the first filled by links)."""
-    mesh, pt = cornell.mesh, cornell.patches
-    oid = mesh.object_names.index("back")
-    polys = np.flatnonzero(mesh.object_id == oid)
-    p0 = int(polys[0])
-    ls, lt = mesh.loop_start[polys] - mesh.loop_start[p0], mesh.loop_total[polys]
-    lv_g = np.concatenate([mesh.loop_verts[s : s + n] for s, n in zip(mesh.loop_start[polys], lt)])
-    v0 = int(lv_g.min())
-    q = mesh.verts[lv_g]
-    e1, e2 = q[1] - q[0], q[3] - q[0]  # the wall's two edge directions
-    uv = np.column_stack([(q - q[0]) @ e1 / (e1 @ e1), (q - q[0]) @ e2 / (e2 @ e2)]) * 0.9 + 0.05
-    tri_uv, corners, tri_patch, skipped = triangle_uvs(
-        pt, oid, uv, ls, lt, lv_g - v0, p0, v0, len(mesh.verts) - v0
-    )
+    pt = cornell.patches
+    oid, tri_uv, corners, tri_patch, skipped = scenes.wall_lightmap(cornell, "back")
     assert skipped == 0 and len(tri_uv) == 2 * (pt.object_id == oid).sum()
     plan = TexturePlan("exr")
     plan.add_object("back", "back", 16, tri_uv, corners, tri_patch, "uv")
