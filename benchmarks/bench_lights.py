@@ -1,5 +1,5 @@
 """Cost of Blender-light events against light-shape events on the same scene, same run (issue 20's
-speed target): the Cornell box (benchmarks/scenes.py, its ceiling emitter kept), FE, the final
+speed target): the Cornell box (hr_testing/scenes.py, its ceiling emitter kept), FE, the final
 gather at the corners (LoopGather, two levels + 4 iterations); a spot aimed at the back wall
 with a footprint about the size of a 0.2 x 0.2 m light shape on that wall. Each event: apply()
 plus the gather's evaluation, CPU seconds, median of 3 moves.

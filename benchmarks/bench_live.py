@@ -5,7 +5,7 @@
     .venv/bin/python benchmarks/bench_live.py --plot          # chart and table from the JSON only
 
 Scenes: the Cornell sample (sample_blends/cornell.blend: its window stays on, the back-wall patch is
-edited) and, with --furnished, the furnished room of benchmarks/furnished.py (furnished_room("100k"):
+edited) and, with --furnished, the furnished room of hr_testing/furnished.py (furnished_room("100k"):
 ~100k triangles, 3,882 objects, made into Blender objects here; a window on the west wall is edited).
 
 Each run turns Live on (hr.live_update, which builds the hierarchy), then makes a fixed sequence

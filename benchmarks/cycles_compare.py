@@ -2,7 +2,7 @@
 
 For each sample scene and a few frames: a converged Cycles reference bake (Diffuse, Direct +
 Indirect + Color = reflected radiance, one-sided emitters, 64 bounces, no clamping, float
-Non-Color images, margin 0; helpers in benchmarks/cycles_ref.py) and our solution (the add-on's
+Non-Color images, margin 0; helpers in hr_testing/cycles_ref.py) and our solution (the add-on's
 own scene reader, RadiositySystem + DynamicRadiosity, every method and quality preset, frames
 applied in order as the bake does) compared texel by texel on the same surfaces. Cycles is also
 baked at several sample counts with two seeds (its noise = error of an unbiased estimate).

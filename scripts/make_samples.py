@@ -2,14 +2,14 @@
 
     .venv/bin/python scripts/make_samples.py [--out sample_blends] [names...]
 
-cornell     Cornell box (benchmarks/scenes.py numbers: metres, z up), walls 8x8 quads, ceiling
+cornell     Cornell box (hr_testing/scenes.py numbers: metres, z up), walls 8x8 quads, ceiling
             light as an emissive mesh; a window (2x2 panes) appears on the green wall at frame 6,
             a patch on the back wall at frame 13, the window disappears at frame 21.
 moonlight   room; an irregular moonlight patch on the floor whose emission strength is keyframed.
 curtain     room; a slit on a wall widening into a window (keyframed scale).
 searchbeam  room; an ellipse sweeping the back wall (keyframed location).
 office      room with a desk and two monitors whose screens switch on (frames 4 and 8).
-furnished   benchmarks/furnished.py's furnished room of ~20k triangles (850 objects: tables,
+furnished   hr_testing/furnished.py's furnished room of ~20k triangles (850 objects: tables,
             chairs, bookcases full of books, a sofa, spheres, vases, cups, boxes) lit by a ceiling
             panel; a window patch on the west wall is on from frame 3 to frame 7.
 

@@ -3,7 +3,7 @@
 The Cornell sample at frame 1 (ceiling light only) baked at medium quality as Baked Textures and
 rendered through the helper material (Emission of the lightmap, zero bounces: what the bake
 stores), next to a Cycles path-traced render of the same scene (one-sided Diffuse + Emission
-reference materials, benchmarks/cycles_ref.py), their relative difference with a scale bar, and
+reference materials, hr_testing/cycles_ref.py), their relative difference with a scale bar, and
 a close-up of the short block's foot: the bake without contact handling (Scene setting Contacts
 off: the floor under the block lit, the band beside it too dark), with it, and Cycles.
 Prints the relative RMSE of each bake against the path-traced render (float pixels, the light

@@ -3,7 +3,7 @@
 The textured room (make_samples.textured_room: a checker Image Texture on the floor's Principled
 Base Color) baked as Baked Textures and rendered through the helper material (Emission of the
 lightmap, zero bounces: what the bake stores), next to a Cycles path-traced render of the same
-scene (one-sided Diffuse reference materials, benchmarks/cycles_ref.py):
+scene (one-sided Diffuse reference materials, hr_testing/cycles_ref.py):
   1. before: outgoing radiance with the average albedo (the output before this change: the texture
      modulation switched off for this bake only),
   2. after: outgoing radiance modulated per texel by the texture (the default mode),

@@ -6,7 +6,7 @@ Scene: make_samples.textured_room(), a 3 x 3 x 2.4 m room, a 0.8 m ceiling emitt
 the floor a Principled BSDF whose Base Color is an 8 x 8 checker Image Texture (0.8/0.62/0.4 and
 0.08/0.09/0.12, float image) in the default UV map. Our bake: Baked Textures at RES texels, medium
 quality. Cycles: the same HR_Lightmap UVs, one-sided Diffuse reference materials (the floor's fed
-by the same image through the same UV map), SPP samples (benchmarks/cycles_ref.py settings).
+by the same image through the same UV map), SPP samples (hr_testing/cycles_ref.py settings).
 Only texels whose centre lies in a UV triangle are compared (what Cycles bakes with margin 0).
 
 Tolerances (see docs/accuracy.md, "Textured surfaces"), with the values measured at these settings:
