@@ -29,7 +29,8 @@ from ..core.texels import loop_incident
 from ..io.cache import CacheError, CacheWriter, check_writable, frame_ranges
 from ..lightmap import TextureError
 from ..lightmap.plan import FORMATS as TEXTURE_FORMATS
-from . import playback, signatures, texture
+from .state import STATE
+from . import paths, playback, signatures, texture
 from .props import custom_range
 from .scene_in import (
     SceneError,
@@ -235,7 +236,7 @@ def _preset(quality, feps, aeps):
 
 def cache_dir_for(scene):
     """Absolute cache directory for scene's settings and the current .blend file."""
-    d = playback.default_cache_dir(scene)
+    d = paths.default_cache_dir(scene)
     if d is None:
         raise SceneError("Save the .blend file first: the cache folder is relative to it.")
     return d
@@ -378,10 +379,8 @@ def bake_frames(
             ]
         )
 
-    from . import live
-
-    live.end_for_bake(scene)  # the bake shows its own result when it has finished
-    playback.state["baking"] = True
+    STATE.bake_starts(scene)  # Live ends: the bake shows its own result when it has finished
+    STATE.baking = True
     try:
         scene.frame_set(scene.frame_start)
         depsgraph = view_layer.depsgraph
@@ -627,7 +626,7 @@ def bake_frames(
     finally:
         if writer is not None and not committed:
             writer.abort()
-        playback.state["baking"] = False
+        STATE.baking = False
         scene.frame_set(original_frame)  # also loads this frame through the handler
     if committed and not hr.playback:
         playback.load_frame(scene)

@@ -25,7 +25,8 @@ import bpy
 from bpy.app.handlers import persistent
 
 from ..core.events import LightShape
-from . import background, playback, preview, signatures, texture
+from .state import STATE
+from . import names, paths, playback, preview, signatures, texture
 from .bake import gather_params, refine_params, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
@@ -50,24 +51,17 @@ BAKE_RUNNING = (
 )
 TICK, IDLE_POLL, GEOMETRY_SETTLE, WATCH = 0.02, 0.5, 0.25, 1.0  # seconds
 
-_sessions = {}  # scene name_full -> Session
-_messages = {}  # scene name_full -> why Live is not running (refused, stopped), for the panel
-
 
 def message(scene):
-    return _messages.get(scene.name_full, "") if scene is not None else ""
+    return STATE.live_messages.get(scene.name_full, "") if scene is not None else ""
 
 
 def session(scene):
-    return _sessions.get(scene.name_full) if scene is not None else None
+    return STATE.live_sessions.get(scene.name_full) if scene is not None else None
 
 
 def is_live(scene):
     return session(scene) is not None
-
-
-def bake_running():
-    return background.running() or playback.state["baking"]
 
 
 class Session:
@@ -98,7 +92,6 @@ class Session:
         self.dirty = True  # something may have changed: read the light shapes again
         self.geometry_dirty = 0.0  # time of the last update that may have changed the geometry (0: none)
         self.force_write = False  # HR_Radiance must be written again (undo, render)
-        self.own_writes = set()  # meshes written by us since the last depsgraph update
         self.added_preview = False
         self.rewired_preview = False  # an irradiance bake's preview shown as radiance while Live runs
         self.texture_objects = []  # objects whose baked-texture preview Live took off (restored)
@@ -174,18 +167,17 @@ def start(scene, view_layer=None, threaded=None):
     sess = session(scene)
     if sess is not None:
         return sess
-    if bake_running():
+    if STATE.bake_running():
         _refuse(scene, BAKE_RUNNING)
     view_layer = view_layer or (
         bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0]
     )
     if not geometry_objects(view_layer):
         _refuse(scene, "No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
-    _messages.pop(scene.name_full, None)
+    STATE.live_messages.pop(scene.name_full, None)
     threaded = (not bpy.app.background) if threaded is None else threaded
     sess = Session(scene, view_layer, threaded)
-    _sessions[scene.name_full] = sess
-    playback.state.setdefault("live", set()).add(scene.name_full)
+    STATE.live_sessions[scene.name_full] = sess
     scene.hr.live = True
     try:
         _show_through_attribute(sess, scene, view_layer)
@@ -200,15 +192,14 @@ def start(scene, view_layer=None, threaded=None):
 
 def _refuse(scene, why):
     scene.hr.live = False
-    _messages[scene.name_full] = why
+    STATE.live_messages[scene.name_full] = why
     raise LiveError(why)
 
 
 def stop(scene, restore=True):
     """End Live on scene. restore: the baked playback again (or no HR_Radiance without a bake).
     Returns what was restored ('' when Live was not on)."""
-    sess = _sessions.pop(scene.name_full, None)
-    playback.state.setdefault("live", set()).discard(scene.name_full)
+    sess = STATE.live_sessions.pop(scene.name_full, None)
     if scene.hr.live:
         scene.hr.live = False
     if sess is None:
@@ -218,23 +209,25 @@ def stop(scene, restore=True):
 
 
 def stop_all(restore=False):
-    for name in list(_sessions):
+    for name in list(STATE.live_sessions):
         scene = bpy.data.scenes.get(name)
         if scene is not None:
             stop(scene, restore)
         else:
-            _sessions.pop(name).worker.close()
-    playback.state.setdefault("live", set()).clear()
+            STATE.live_sessions.pop(name).worker.close()
 
 
 def end_for_bake(scene):
     """A bake starts: it shows its own result when it finishes, so Live ends (without restoring)."""
     if is_live(scene):
         stop(scene, restore=False)
-        _messages[scene.name_full] = "Live Relight turned off for the bake."
+        STATE.live_messages[scene.name_full] = "Live Relight turned off for the bake."
         print("HR Radiosity: Live Relight turned off for the bake", flush=True)
         return True
     return False
+
+
+STATE.on_bake_start(end_for_bake)  # a bake ends Live: it shows its own result when it has finished
 
 
 def _show_through_attribute(sess, scene, view_layer):
@@ -248,13 +241,13 @@ def _show_through_attribute(sess, scene, view_layer):
         if sess.texture_objects:
             texture.remove_material(objs)
     mats = [s.material for o in objs for s in o.material_slots if s.material is not None]
-    shown = all(m.node_tree is not None and preview.N_OUT in m.node_tree.nodes for m in mats) and all(
+    shown = all(m.node_tree is not None and names.N_OUT in m.node_tree.nodes for m in mats) and all(
         o.material_slots for o in objs
     )
     if not shown:
         preview.add_preview(objs)
         sess.added_preview = True
-    elif any(preview.N_MUL in m.node_tree.nodes for m in mats):
+    elif any(names.N_MUL in m.node_tree.nodes for m in mats):
         preview.refresh_preview(objs, irradiance=False)  # Live shows outgoing radiance
         sess.rewired_preview = True
 
@@ -269,13 +262,13 @@ def _restore(sess, scene):
         preview.remove_preview(objs)
     elif sess.rewired_preview:
         preview.refresh_preview(objs, preview.bake_mode(scene) == "IRRADIANCE")
-    has_bake = bool(playback.bake_dir_abs(scene))
+    has_bake = bool(paths.bake_dir_abs(scene))
     if has_bake and scene.hr.playback and not texture.is_texture_bake(scene):
         playback.forget_loaded()
         playback.load_frame(scene)
         return "the baked playback"
     for o in objs:
-        attr = o.data.color_attributes.get(playback.ATTRIBUTE)
+        attr = o.data.color_attributes.get(names.ATTRIBUTE)
         if attr is not None:
             o.data.color_attributes.remove(attr)
     if sess.texture_objects:
@@ -448,7 +441,7 @@ def _deliver(sess, scene):
     problems = playback.apply_arrays(scene, r.values, sess.domain)
     for obj in playback.objects_by_name(scene, r.values).values():
         if obj is not None and obj.type == "MESH":
-            sess.own_writes.add(obj.data.name)
+            STATE.writes.mark(obj.data.name, reader=sess.scene_name)
     sess.problems = "; ".join(problems)
     sess.error = ""
     if r is not sess.last:
@@ -473,7 +466,7 @@ def update(scene, view_layer=None, check_geometry=True):
             return None, "Live Relight is off (Scene.hr.live)"
         what = stop(scene)
         return None, f"Live Relight off: {what}"
-    if bake_running():
+    if STATE.bake_running():
         stop(scene, restore=False)
         _refuse(scene, BAKE_RUNNING)
     if sess is None:
@@ -504,13 +497,10 @@ def _redraw():
                 area.tag_redraw()
 
 
-_in_tick = False
-
-
 def _ensure_timer(first=0.0):
     """Run the timer in `first` seconds (sooner if it was due later; inside the timer, it returns
     its own next interval)."""
-    if bpy.app.background or _in_tick:
+    if bpy.app.background or STATE.in_tick:
         return
     if bpy.app.timers.is_registered(_tick):
         if first > 0:
@@ -521,16 +511,15 @@ def _ensure_timer(first=0.0):
 
 def _tick():
     """Main thread, every TICK s while something is pending (IDLE_POLL s otherwise)."""
-    global _in_tick
-    _in_tick = True
+    STATE.in_tick = True
     try:
         return _tick_body()
     finally:
-        _in_tick = False
+        STATE.in_tick = False
 
 
 def _tick_body():
-    if playback.state["baking"]:
+    if STATE.baking:
         return IDLE_POLL
     now = time.monotonic()
     redraw = False
@@ -540,14 +529,14 @@ def _tick_body():
                 start(scene)
             except (SceneError, ValueError, RuntimeError) as exc:
                 print(f"HR Radiosity: Live Relight: {exc}", flush=True)
-                _messages[scene.name_full] = str(exc)
+                STATE.live_messages[scene.name_full] = str(exc)
                 if scene.hr.live:
                     scene.hr.live = False
             redraw = True
-    for name, sess in list(_sessions.items()):
+    for name, sess in list(STATE.live_sessions.items()):
         scene, vl = _scene_of(sess)
         if scene is None:
-            _sessions.pop(name).worker.close()
+            STATE.live_sessions.pop(name).worker.close()
             continue
         if not scene.hr.live:
             what = stop(scene)
@@ -556,9 +545,9 @@ def _tick_body():
             continue
         if sess.fatal:
             continue
-        if background.running():
+        if STATE.bake_running():
             stop(scene, restore=False)
-            _messages[scene.name_full] = "Live Relight turned off for the bake."
+            STATE.live_messages[scene.name_full] = "Live Relight turned off for the bake."
             redraw = True
             continue
         building = sess.building
@@ -573,9 +562,11 @@ def _tick_body():
             redraw = True
     if redraw:
         _redraw()
-    if not _sessions:
+    if not STATE.live_sessions:
         return WATCH  # keeps watching Scene.hr.live (a script may set it: no depsgraph update)
-    busy = any(s.worker.pending or s.dirty or s.geometry_dirty or s.force_write for s in _sessions.values())
+    busy = any(
+        s.worker.pending or s.dirty or s.geometry_dirty or s.force_write for s in STATE.live_sessions.values()
+    )
     return TICK if busy else IDLE_POLL / 2
 
 
@@ -585,14 +576,14 @@ _GEOMETRY_KINDS = ("Image", "NodeTree")  # images (averaged colours) and node gr
 @persistent
 def on_depsgraph_update(scene, depsgraph=None):
     """Mark the session dirty (the timer reads the scene); our own HR_Radiance writes are skipped."""
-    if playback.state["baking"] or depsgraph is None:
+    if STATE.baking or depsgraph is None:
         return
     if scene.hr.live != is_live(scene):
         _ensure_timer()  # Scene.hr.live set by a script: the timer starts / ends Live
     sess = session(scene)
     if sess is None:
         return
-    own, sess.own_writes = sess.own_writes, set()
+    own = STATE.writes.take(reader=sess.scene_name)
     dirty = geometry = full = False
     for u in depsgraph.updates:
         idd = u.id
@@ -641,7 +632,7 @@ def on_depsgraph_update(scene, depsgraph=None):
 @persistent
 def on_frame_change_post(scene, *args):
     sess = session(scene)
-    if sess is not None and not playback.state["baking"]:
+    if sess is not None and not STATE.baking:
         sess.dirty = True
         _ensure_timer()
 
@@ -649,13 +640,13 @@ def on_frame_change_post(scene, *args):
 @persistent
 def on_undo_redo(*args):
     """Undo brings back HR_Radiance values (and Scene.hr.live) of another moment: write again."""
-    for name, sess in _sessions.items():
+    for name, sess in STATE.live_sessions.items():
         scene = bpy.data.scenes.get(name)
         if scene is not None and not scene.hr.live:
             scene.hr.live = True  # Live is a session, not an undo step
         sess.force_write = sess.dirty = True
         sess.geometry_dirty = time.monotonic()
-    if _sessions:
+    if STATE.live_sessions:
         _ensure_timer()
 
 
@@ -663,7 +654,7 @@ def on_undo_redo(*args):
 def on_frame_change_pre(scene, *args):
     """During an animation render Live steps aside (playback loads the bake, playback.live_shown).
     Without a bake every frame would render the Live light of the moment: say so, once per render."""
-    if is_live(scene) and bpy.app.is_job_running("RENDER") and not playback.bake_dir_abs(scene):
+    if is_live(scene) and bpy.app.is_job_running("RENDER") and not paths.bake_dir_abs(scene):
         sess = session(scene)
         if not sess.render_note:
             sess.render_note = (
@@ -676,10 +667,10 @@ def on_frame_change_pre(scene, *args):
 @persistent
 def on_render_done(*args):
     """An animation render played the bake back (Live steps aside while rendering): write again."""
-    for sess in _sessions.values():
+    for sess in STATE.live_sessions.values():
         sess.force_write = sess.dirty = True
         sess.render_note = ""
-    if _sessions:
+    if STATE.live_sessions:
         _ensure_timer()
 
 
@@ -691,7 +682,7 @@ def on_load_pre(*args):
 @persistent
 def on_load_post(*args):
     """Live is a session, not saved state: a file saved with Live on opens with it off."""
-    _messages.clear()
+    STATE.live_messages.clear()
     for scene in bpy.data.scenes:
         if scene.hr.live:
             scene.hr.live = False
@@ -720,7 +711,7 @@ def register():
 
 
 def unregister():
-    workers = [s.worker for s in _sessions.values()]
+    workers = [s.worker for s in STATE.live_sessions.values()]
     stop_all(restore=False)
     for w in workers:  # do not leave a thread computing in an add-on that is going away
         w.join(10.0)

@@ -14,6 +14,7 @@ import bpy
 import numpy as np
 
 from .materials import read_material
+from .names import TAG
 from .scene_in import (
     _hidden_instancer,
     _mesh_arrays,
@@ -26,8 +27,6 @@ from .scene_in import (
 
 def _source_material(m):
     """The material a texture-preview helper copy stands for (the bake reads that one)."""
-    from .texture import TAG
-
     if m is None:
         return None
     orig = getattr(m, "original", m)
