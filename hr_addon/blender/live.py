@@ -27,7 +27,7 @@ from bpy.app.handlers import persistent
 from ..core.events import LightShape
 from .state import STATE
 from . import names, paths, playback, preview, signatures, texture
-from .bake import gather_params, refine_params, solver_setup
+from .settings import BakeConfig, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
 from .scene_in import (
@@ -311,13 +311,12 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
 
 
 def _build(sess, scene, view_layer, depsgraph, reason):
-    hr = scene.hr
-    method, quality, _, domain, _, final_gather = _settings(scene)
-    params = refine_params(quality, hr.feps, hr.aeps, hr.contacts, final_gather=final_gather)
+    cfg = BakeConfig.resolve(scene.hr)
+    method, domain = cfg.method, cfg.domain
     objs = geometry_objects(view_layer)
     with texture.source_materials(objs):
         scene_in = collect_geometry(view_layer, depsgraph)
-    params, min_area_rel, far = solver_setup(scene_in.mesh, params)
+    params, min_area_rel, far = solver_setup(scene_in.mesh, cfg.params)
     targets = list(scene_in.targets)
 
     def extract(values, targets=targets, domain=domain):
@@ -332,7 +331,7 @@ def _build(sess, scene, view_layer, depsgraph, reason):
         extract,
         reason,
         len(scene_in.mesh.loop_start),
-        gather_params(quality, final_gather),
+        cfg.gather,
     )
     sess.settings = _settings(scene)
     sess.geometry = signatures.geometry_signatures(view_layer, depsgraph)
