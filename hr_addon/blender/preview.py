@@ -172,3 +172,27 @@ def refresh_preview(objects, irradiance):
     for m in mats:
         if m.node_tree is not None and N_OUT in m.node_tree.nodes:
             _add_nodes(m, irradiance)
+
+
+def show_radiance(objects):
+    """Make `objects` show HR_Radiance as it is (outgoing radiance; Live Relight): the preview
+    nodes where they are missing ("added"), or an irradiance preview re-wired ("rewired"); ""
+    when they show it already. undo_show_radiance() puts back what this changed."""
+    mats = [s.material for o in objects for s in o.material_slots if s.material is not None]
+    shown = all(m.node_tree is not None and N_OUT in m.node_tree.nodes for m in mats) and all(
+        o.material_slots for o in objects
+    )
+    if not shown:
+        add_preview(objects)
+        return "added"
+    if any(N_MUL in m.node_tree.nodes for m in mats):
+        refresh_preview(objects, irradiance=False)
+        return "rewired"
+    return ""
+
+
+def undo_show_radiance(scene, objects, change):
+    if change == "added":
+        remove_preview(objects)
+    elif change == "rewired":
+        refresh_preview(objects, bake_mode(scene) == "IRRADIANCE")
