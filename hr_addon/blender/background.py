@@ -32,7 +32,8 @@ from ..lightmap import TextureError
 from . import jobstatus, playback, texture
 from .state import STATE
 from .bake import cache_dir_for, frame_range_for, use_bake
-from .scene_in import SceneError, geometry_objects, light_check, materials_emit
+from .lights_in import light_check, materials_emit
+from .scene_in import SceneError, geometry_objects
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]  # .../hr_addon
 ADDON_MODULE = __package__.rsplit(".hr_addon.blender", 1)[0] if ".hr_addon.blender" in __package__ else ""

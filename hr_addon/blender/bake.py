@@ -28,19 +28,16 @@ from . import paths, playback, signatures, texture
 from .preview import bake_mode, refresh_preview
 from .props import custom_range
 from .report import BUILD_SHARE, BakeProgress, BakeResult, Warnings, ray_backend_name, ray_backend_note
-from .scene_in import (
-    SceneError,
-    collect_geometry,
+from .lights_in import (
     collect_light_shapes,
     collect_lights,
     frozen_emitters,
-    geometry_objects,
     light_check,
     light_objects,
-    light_shape_objects,
     lights_signature,
     shapes_signature,
 )
+from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
 from .settings import BakeConfig, solver_setup
 from .state import STATE
 

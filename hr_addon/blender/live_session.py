@@ -30,16 +30,8 @@ from . import names, paths, playback, preview, signatures, texture
 from .settings import BakeConfig, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
-from .scene_in import (
-    SceneError,
-    collect_geometry,
-    collect_light_shapes,
-    collect_lights,
-    lights_signature,
-    geometry_objects,
-    light_shape_objects,
-    shapes_signature,
-)
+from .lights_in import collect_light_shapes, collect_lights, lights_signature, shapes_signature
+from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
 
 
 class LiveError(SceneError):

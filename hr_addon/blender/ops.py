@@ -13,7 +13,8 @@ from . import background, live, names, paths, playback, texture
 from .bake import run_bake
 from .props import custom_range
 from .preview import add_preview, bake_mode, has_preview, remove_preview
-from .scene_in import geometry_objects, light_shape_problem
+from .lights_in import light_shape_problem
+from .scene_in import geometry_objects
 
 
 def _report_bake_state(op, context):
