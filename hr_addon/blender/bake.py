@@ -275,7 +275,7 @@ class _Bake:
         return _Snapshot(
             objects,
             scene_in,
-            signatures.geometry_signatures(view_layer, depsgraph),
+            scene_in.signatures,
             signatures.light_shape_identity(view_layer),
             bool(light_shape_objects(view_layer, include_hidden=True)),
             # Blender lights (issue 20): read per frame like light shapes (keyframed transform,

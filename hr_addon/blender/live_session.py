@@ -312,7 +312,7 @@ def _build(sess, scene, view_layer, depsgraph, reason):
         cfg.gather,
     )
     sess.settings = _settings(scene)
-    sess.geometry = signatures.geometry_signatures(view_layer, depsgraph)
+    sess.geometry = scene_in.signatures
     sess.geo_names = [o.name for o in objs]
     sess.geo_materials = {
         s.material.name_full for o in objs for s in o.material_slots if s.material is not None

@@ -11,12 +11,14 @@ Per polygon reflectance/emission come from the material slot (see materials.py).
 must be split are triangulated as Blender's loop_triangles are (what Cycles and EEVEE render).
 """
 
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..core.geometry import InputError, MeshInput
 from .materials import read_material
+from .names import TAG
 
 
 class SceneError(InputError):
@@ -165,6 +167,9 @@ class SceneInput:
     targets: list
     warnings: list = field(default_factory=list)
     instances: dict = field(default_factory=dict)  # {(instancer, source): InstanceInfo}
+    # {object name (or 'instancer/source'): digest} read in the same walk: the bake's manifest,
+    # against which signatures.geometry_signatures tells that the scene changed since the bake
+    signatures: dict = field(default_factory=dict)
 
 
 def _surfaces(materials, warnings, cache):
@@ -222,6 +227,76 @@ def _mesh_input(em: EvalMesh, name, warnings, mat_cache):
     ), perm
 
 
+def _source_material(m):
+    """The material a texture-preview helper copy stands for (the bake reads that one)."""
+    if m is None:
+        return None
+    orig = getattr(m, "original", m)
+    if orig.get(TAG) is None:
+        return orig
+    if orig.get("hr_lightmap_link", "DATA") == "OBJECT":
+        return orig.get("hr_lightmap_source")
+    return "DATA"
+
+
+def _materials(ob):
+    """Materials of an (evaluated) object's slots as the bake reads them."""
+    out = []
+    for i, slot in enumerate(ob.material_slots):
+        m = _source_material(slot.material)
+        if m == "DATA":  # helper on an object-level slot whose original link was the mesh's
+            me = ob.original.data
+            m = me.materials[i] if i < len(me.materials) else None
+        out.append(m)
+    return out or [None]
+
+
+def _material_values(mats, cache):
+    h = hashlib.sha1()
+    for m in mats:
+        key = None if m is None else m.name_full
+        if key not in cache:
+            s = read_material(m)
+            cache[key] = np.concatenate(
+                [np.asarray(s.reflectance, np.float64).ravel(), np.asarray(s.emission, np.float64).ravel()]
+            ).tobytes()
+        h.update(cache[key])
+    return h.digest()
+
+
+def _mesh_digest(arrays):
+    co, ls, lt, lv, mi, _ = arrays
+    h = hashlib.sha1()
+    for a, t in ((ls, np.int64), (lt, np.int64), (lv, np.int64), (mi, np.int64)):
+        h.update(np.ascontiguousarray(a, t).tobytes())
+    return co, h.digest()
+
+
+def _placed_digest(co, topo, matrix, matvals):
+    M = np.asarray(matrix, np.float64)
+    world = (co @ M[:3, :3].T + M[:3, 3]).astype(np.float32)
+    h = hashlib.sha1(np.ascontiguousarray(world).tobytes())
+    h.update(topo)
+    h.update(matvals)
+    return h
+
+
+def _object_digest(ob, arrays, cache):
+    """An evaluated object's world-space geometry and material values, as the bake reads them."""
+    co, topo = _mesh_digest(arrays)
+    return _placed_digest(co, topo, ob.matrix_world, _material_values(_materials(ob), cache))
+
+
+def _instance_digest(di, mesh_digest, cache):
+    co, topo = mesh_digest
+    return _placed_digest(co, topo, di.matrix_world, _material_values(_materials(di.object), cache)).digest()
+
+
+def _joined(instance_digests):
+    """{instancer/source: one digest of all its instances (in any order)}"""
+    return {k: hashlib.sha1(b"".join(sorted(d))).hexdigest() for k, d in instance_digests.items()}
+
+
 @dataclass
 class InstanceInfo:
     instancer: str  # the object that instances (collection-instance empty, emitter, ...)
@@ -230,19 +305,15 @@ class InstanceInfo:
     polygons: int = 0  # per instance
 
 
-def collect_instances(view_layer, depsgraph, mat_cache, warnings):
-    """MeshInput parts of the mesh instances of the depsgraph, and {(instancer, source): InstanceInfo}.
-
-    An instance takes part when its instancer renders and is not excluded, and the instanced object
-    is neither a light shape nor excluded. Each instanced mesh is read once (its evaluated data is
-    shared by all its instances) and placed by each instance's world matrix."""
+def participating_instances(view_layer, depsgraph):
+    """(depsgraph instance, 'instancer/source') of the mesh instances that take part: the instancer
+    renders and is not excluded, the instanced object is neither a light shape nor excluded."""
     ok = {
         o.name
         for o in _walk_collections(view_layer)
         if not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape
     }
     shapes = {o.name for o in _walk_collections(view_layer) if o.hr.is_light_shape}
-    meshes, parts, info = {}, [], {}
     for inst in depsgraph.object_instances:
         if not inst.is_instance:
             continue
@@ -255,6 +326,18 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings):
         source = ob.original
         if source.hr.exclude or source.hr.is_light_shape or source.name in shapes:
             continue
+        yield inst, f"{instancer.name}/{source.name}"
+
+
+def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, digest_cache=None):
+    """MeshInput parts of the mesh instances of the depsgraph, and {(instancer, source): InstanceInfo}.
+
+    Each instanced mesh is read once (its evaluated data is shared by all its instances) and placed
+    by each instance's world matrix. digests: {'instancer/source': [digest per instance]} to fill
+    (the bake's signatures, signatures.py)."""
+    meshes, parts, info = {}, [], {}
+    for inst, label in participating_instances(view_layer, depsgraph):
+        ob = inst.object
         me = ob.data
         key = (me.as_pointer(), me.name)
         arrays = meshes.get(key)
@@ -262,9 +345,11 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings):
             arrays = meshes[key] = _mesh_arrays(me)
         if len(arrays[1]) == 0:
             continue
+        if digests is not None:
+            digests.setdefault(label, []).append(_instance_digest(inst, _mesh_digest(arrays), digest_cache))
         em = _placed(arrays, inst.matrix_world, [s.material for s in ob.material_slots] or [None])
-        label = f"{instancer.name}/{source.name}"
-        i = info.setdefault((instancer.name, source.name), InstanceInfo(instancer.name, source.name))
+        instancer, source = label.split("/", 1)
+        i = info.setdefault((instancer, source), InstanceInfo(instancer, source))
         i.count += 1
         i.polygons = len(arrays[1])
         part, _ = _mesh_input(em, f"{label}#{i.count}", warnings, mat_cache)
@@ -298,20 +383,24 @@ def _hidden_instancer(obj):
 def collect_geometry(view_layer, depsgraph) -> SceneInput:
     objs = [o for o in geometry_objects(view_layer) if not _hidden_instancer(o)]
     depsgraph.update()
-    warnings, mat_cache = [], {}
-    inst_parts, inst_info = collect_instances(view_layer, depsgraph, mat_cache, warnings)
+    warnings, mat_cache, digest_cache, inst_digests = [], {}, {}, {}
+    inst_parts, inst_info = collect_instances(
+        view_layer, depsgraph, mat_cache, warnings, inst_digests, digest_cache
+    )
     if not objs and not inst_parts:
         raise SceneError("No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
-    parts, targets = [], []
+    parts, targets, signatures = [], [], {}
     seen_mesh = {}
     instancers = {i.instancer for i in inst_info.values()}
     nloop = nvert = 0
     for oid, obj in enumerate(objs):
-        em = read_mesh(obj, depsgraph)
+        ob, arrays = evaluated(obj, depsgraph)
+        em = _placed(arrays, ob.matrix_world, [s.material for s in ob.material_slots] or [None])
         if len(em.loop_start) == 0:
             if obj.name not in instancers:
                 warnings.append(f"Object '{obj.name}' has no faces; skipped.")
             continue
+        signatures[obj.name] = _object_digest(ob, arrays, digest_cache).hexdigest()
         part, perm = _mesh_input(em, obj.name, warnings, mat_cache)
         parts.append(part)
         me = obj.data
@@ -360,4 +449,5 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
     mesh = parts[0]
     for p in parts[1:]:
         mesh = mesh.concat(p)
-    return SceneInput(mesh, targets, warnings, inst_info)
+    signatures.update(_joined(inst_digests))
+    return SceneInput(mesh, targets, warnings, inst_info, signatures)
