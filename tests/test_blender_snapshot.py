@@ -5,7 +5,7 @@ compares with the bake's manifest to say "the scene changed since the bake")."""
 import pytest
 
 from test_blender_helpers import empty_scene
-from test_blender_instances_triangles import _box, _floor_and_lamp
+from test_blender_instances_triangles import _box, _floor_and_lamp, collection_instances
 
 pytestmark = pytest.mark.bpy
 
@@ -25,20 +25,7 @@ def test_the_scene_read_signs_objects_and_instances_as_the_stale_check_does():
     mirrored = _box(ms, "Mirrored", ms.diffuse("Red", (0.8, 0.1, 0.1)))
     mirrored.scale = (-1, 1, 1)
     ms.mesh_object("Edges", [(0, 0, 1), (1, 0, 1)], [], None)  # no faces: skipped by both
-    props = bpy.data.collections.new("Props")
-    scene.collection.children.link(props)
-    box = _box(ms, material=grey)
-    scene.collection.objects.unlink(box)
-    props.objects.link(box)
-    bpy.context.view_layer.layer_collection.children["Props"].exclude = True
-    empties = []
-    for i, loc in enumerate([(1, 1, 0), (2.5, 2.5, 0)]):
-        e = bpy.data.objects.new(f"Inst{i}", None)
-        e.instance_type = "COLLECTION"
-        e.instance_collection = props
-        e.location = loc
-        scene.collection.objects.link(e)
-        empties.append(e)
+    _, empties = collection_instances(bpy, ms, scene, grey)
     read, own = _both(bpy)
     assert set(read) == {"Floor", "Ceiling", "Mirrored", "Inst0/Box", "Inst1/Box"}
     assert read == own
