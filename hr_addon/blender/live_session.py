@@ -363,13 +363,7 @@ def _reconcile(sess, scene, view_layer, check_geometry, fast=False):
 def _reconcile_now(sess, scene, view_layer, check_geometry, fast):
     dg = _depsgraph(scene, view_layer)
     if fast and _settings(scene) == sess.settings and sess.worker.phase != "failed":
-        shapes, sig, warnings = _read_shapes(sess, view_layer, dg, fast=True)
-        sess.light_notes = warnings
-        if sig != sess.requested_sig:
-            sess.serial += 1
-            sess.requested_sig = sig
-            sess.worker.request(sess.serial, sig, shapes)
-        return
+        return _request(sess, view_layer, dg, fast=True)
     if sess.settings is None:
         return _build(sess, scene, view_layer, dg, "first build")
     if _settings(scene) != sess.settings:
@@ -386,7 +380,12 @@ def _reconcile_now(sess, scene, view_layer, check_geometry, fast):
         return _build(sess, scene, view_layer, dg, f"geometry changed: {change}")
     if sess.worker.phase == "failed" and not sess.fatal:
         return _build(sess, scene, view_layer, dg, "rebuilding after a failure")
-    shapes, sig, warnings = _read_shapes(sess, view_layer, dg)
+    _request(sess, view_layer, dg)
+
+
+def _request(sess, view_layer, dg, fast=False):
+    """Read the light state; hand it to the worker when it differs from the last one asked for."""
+    shapes, sig, warnings = _read_shapes(sess, view_layer, dg, fast=fast)
     sess.light_notes = warnings
     if sig != sess.requested_sig:
         sess.serial += 1
