@@ -30,6 +30,7 @@ from bpy.app.handlers import persistent
 
 from ..lightmap import TextureError
 from . import jobstatus, playback, texture
+from .settings import BakeConfig
 from .state import STATE
 from .bake import cache_dir_for, frame_range_for, use_bake
 from .lights_in import light_check, materials_emit
@@ -174,17 +175,18 @@ class BackgroundBake:
                 "No mesh objects to compute radiosity on (all hidden, excluded or light shapes)."
             )
         frame_range_for(scene, self.overrides.get("frames"))
+        # the settings are checked here, at once, as the worker's bake will check them
+        cfg = BakeConfig.resolve(scene.hr, **{k: v for k, v in self.overrides.items() if k != "frames"})
         depsgraph = view_layer.depsgraph
         depsgraph.update()
         error, _ = light_check(view_layer, scene, depsgraph, materials_emit(depsgraph))
         if error:  # at once, not from the worker after it has loaded the file
             raise SceneError(error)
-        self.output = (self.overrides.get("output") or scene.hr.output).upper()
+        self.output = cfg.output
         if self.output == "TEXTURE":
             # The lightmap UV maps belong to the user's meshes: make them here, the copy gets them.
-            res = int(self.overrides.get("resolution") or scene.hr.texture_resolution)
             try:
-                self._start_warnings = texture.ensure_lightmaps(geometry_objects(view_layer), res)
+                self._start_warnings = texture.ensure_lightmaps(geometry_objects(view_layer), cfg.resolution)
                 self.warnings += self._start_warnings
             except TextureError as exc:
                 raise SceneError(str(exc)) from None
