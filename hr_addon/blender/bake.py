@@ -518,13 +518,7 @@ def use_bake(scene, final_dir, output, geo_objects=None):
     """Point the scene at the bake in final_dir (after the bake, or after a background bake
     finished): Scene.hr.bake_dir, playback on, Lock Interface on, texture preview re-wired."""
     hr = scene.hr
-    bpy_dir = final_dir
-    if bpy.data.filepath:
-        try:
-            bpy_dir = bpy.path.relpath(final_dir)
-        except ValueError:  # other drive (Windows)
-            pass
-    hr.bake_dir = bpy_dir.rstrip("/\\") + "/"
+    hr.bake_dir = paths.blend_relative(final_dir).rstrip("/\\") + "/"
     hr.playback = True
     scene.render.use_lock_interface = True  # renders read HR_Radiance in frame_change_pre
     playback.forget_readers()

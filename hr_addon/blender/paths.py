@@ -26,3 +26,13 @@ def bake_dir_abs(scene):
         return ""
     d = default_cache_dir(scene)
     return d if d and os.path.isfile(os.path.join(d, "manifest.json")) else ""
+
+
+def blend_relative(path):
+    """`path` relative to the saved .blend ("//..."), else as it is (unsaved, other drive)."""
+    if bpy.data.filepath:
+        try:
+            return bpy.path.relpath(path)
+        except ValueError:  # other drive (Windows)
+            pass
+    return path

@@ -172,17 +172,20 @@ class SceneInput:
     signatures: dict = field(default_factory=dict)
 
 
+def _material(m, cache, warnings=None):
+    """read_material(m), once per material (cache: name -> MaterialSettings); its warnings are
+    added to `warnings` when read."""
+    key = None if m is None else m.name_full
+    if key not in cache:
+        cache[key] = read_material(m)
+        if warnings is not None:
+            warnings.extend(w for w in cache[key].warnings if w not in warnings)
+    return cache[key]
+
+
 def _surfaces(materials, warnings, cache):
-    rho, em = [], []
-    for m in materials:
-        key = None if m is None else m.name_full
-        if key not in cache:
-            s = read_material(m)
-            cache[key] = s
-            warnings.extend(w for w in s.warnings if w not in warnings)
-        rho.append(cache[key].reflectance)
-        em.append(cache[key].emission)
-    return np.array(rho), np.array(em)
+    s = [_material(m, cache, warnings) for m in materials]
+    return np.array([x.reflectance for x in s]), np.array([x.emission for x in s])
 
 
 def _topology_map(obj, em: EvalMesh, depsgraph):
@@ -254,13 +257,10 @@ def _materials(ob):
 def _material_values(mats, cache):
     h = hashlib.sha1()
     for m in mats:
-        key = None if m is None else m.name_full
-        if key not in cache:
-            s = read_material(m)
-            cache[key] = np.concatenate(
-                [np.asarray(s.reflectance, np.float64).ravel(), np.asarray(s.emission, np.float64).ravel()]
-            ).tobytes()
-        h.update(cache[key])
+        s = _material(m, cache)
+        h.update(
+            np.asarray(s.reflectance, np.float64).tobytes() + np.asarray(s.emission, np.float64).tobytes()
+        )
     return h.digest()
 
 

@@ -33,7 +33,7 @@ from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
 from .materials import albedo_texture
 from .names import N_ATTR, N_EMIT, N_OUT, N_TEX, N_UV, PREVIEW, TAG, UV_NAME
-from .paths import bake_dir_abs
+from .paths import bake_dir_abs, blend_relative
 from .preview import colour_chain, node_named
 from .scene_in import evaluated, mesh_topology
 
@@ -287,12 +287,7 @@ def _sequence_image(obj, path, fmt):
     if img is None:
         img = bpy.data.images.new(f"HR Lightmap {obj.name}", 4, 4, float_buffer=True)
         img[TAG] = obj.name
-    fp = path
-    if bpy.data.filepath:
-        try:
-            fp = bpy.path.relpath(path)
-        except ValueError:
-            pass
+    fp = blend_relative(path)
     img.source = "FILE"
     img.filepath = fp
     img.source = "SEQUENCE"
