@@ -77,7 +77,7 @@ def main(argv=None):
         rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)
         return LightShape(rect, np.broadcast_to(np.asarray(em, float), (3,)).copy(), "window")
 
-    # the bake's settings (hr_addon/blender/bake.py GATHER): 16 shadow rays at draft, 32 above
+    # the bake's settings (hr_addon/blender/settings.py GATHER): 16 shadow rays at draft, 32 above
     gkw = dict(rays=args.rays, levels=args.levels, iterations=args.iterations)
     gkw["shadow_rays"] = args.shadow_rays or (16 if q == "draft" else 32)
     prof = None

@@ -31,6 +31,15 @@ def main(argv=None):
         INTERRUPTS.restore()
 
 
+def _cancelled(INTERRUPTS):
+    """A Ctrl-C or SIGTERM came during the start-up: say so (exit code 130)."""
+    from .blender import cli
+
+    if INTERRUPTS.requested:
+        print(cli.cancelled_message(), file=sys.stderr, flush=True)
+    return INTERRUPTS.requested
+
+
 def _main(argv, INTERRUPTS):
     if not argv or argv[0] in ("-h", "--help"):
         print(usage())
@@ -51,16 +60,14 @@ def _main(argv, INTERRUPTS):
     except cli.UsageError as exc:
         print(f"{cli.PROG}: error: {exc}", file=sys.stderr, flush=True)
         return 2
-    if INTERRUPTS.requested:
-        print(cli.cancelled_message(), file=sys.stderr, flush=True)
+    if _cancelled(INTERRUPTS):
         return 130
     try:
         import bpy  # noqa: F401
     except ImportError:
         print(f"{cli.PROG}: error: the bpy module is not installed (pip install bpy)", file=sys.stderr)
         return 1
-    if INTERRUPTS.requested:
-        print(cli.cancelled_message(), file=sys.stderr, flush=True)
+    if _cancelled(INTERRUPTS):
         return 130
     from . import register
 

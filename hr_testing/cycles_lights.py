@@ -43,7 +43,7 @@ def add_light(kind):
 
 def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=None):
     bpy = load_bpy()
-    from hr_addon.blender.scene_in import collect_lights
+    from hr_addon.blender.lights_in import collect_lights
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.lights import Light
     from hr_addon.core.radiosity import RadiositySystem

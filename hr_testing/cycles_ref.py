@@ -408,7 +408,8 @@ def shape_proxies(rs: RefScene, frame):
     """Replace the previous proxies with emitting, otherwise transparent, copies of the light
     shapes active at `frame`. Returns the core LightShape dict of the frame (our input)."""
     import bpy
-    from hr_addon.blender.scene_in import collect_light_shapes, light_shape_objects, read_mesh
+    from hr_addon.blender.lights_in import collect_light_shapes
+    from hr_addon.blender.scene_in import light_shape_objects, read_mesh
     from hr_addon.blender.materials import read_material
     from hr_addon.core.events import LightShape
 

@@ -71,7 +71,7 @@ def test_hr_radiance_matches_core_per_frame(tmp_path, final_gather):
     gather's loop output, or (off) the hierarchy's leaves as before the final gather."""
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
-    from hr_addon.blender.bake import gather_params
+    from hr_addon.blender.settings import gather_params
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.gather import LoopGather
     from hr_addon.core.radiosity import RadiositySystem
@@ -91,7 +91,7 @@ def test_hr_radiance_matches_core_per_frame(tmp_path, final_gather):
     ]
 
     mesh, names = _reference_mesh(bpy)
-    # with the final gather the bake's transport is the gather's (bake.refine_params, solve_options)
+    # with the final gather the bake's transport is the gather's (settings.refine_params, solve_options)
     params = RefineParams.for_gather("draft") if final_gather else RefineParams.preset("draft")
     opts = DynamicRadiosity.gather_options("draft") if final_gather else {}
     dyn = DynamicRadiosity(RadiositySystem(mesh, params), method="FE", **opts)

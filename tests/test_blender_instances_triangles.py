@@ -106,17 +106,17 @@ def _world_verts_ok(si, box_local, matrices):
     return True
 
 
-def test_collection_instances_take_part(tmp_path):
-    bpy, ms, scene = empty_scene()
-    floor, grey = _floor_and_lamp(ms)
+def collection_instances(bpy, ms, scene, material, locations=((1, 1, 0), (2.5, 2.5, 0))):
+    """(box, empties): a box in an excluded collection "Props" (the usual set-up), instanced by
+    the empties Inst0, Inst1, ... at `locations`."""
     props = bpy.data.collections.new("Props")
     scene.collection.children.link(props)
-    box = _box(ms, material=grey)
+    box = _box(ms, material=material)
     scene.collection.objects.unlink(box)
     props.objects.link(box)
-    bpy.context.view_layer.layer_collection.children["Props"].exclude = True  # the usual set-up
+    bpy.context.view_layer.layer_collection.children["Props"].exclude = True
     empties = []
-    for i, loc in enumerate([(1, 1, 0), (2.5, 2.5, 0)]):
+    for i, loc in enumerate(locations):
         e = bpy.data.objects.new(f"Inst{i}", None)
         e.instance_type = "COLLECTION"
         e.instance_collection = props
@@ -124,6 +124,13 @@ def test_collection_instances_take_part(tmp_path):
         scene.collection.objects.link(e)
         empties.append(e)
     bpy.context.view_layer.update()
+    return box, empties
+
+
+def test_collection_instances_take_part(tmp_path):
+    bpy, ms, scene = empty_scene()
+    floor, grey = _floor_and_lamp(ms)
+    box, empties = collection_instances(bpy, ms, scene, grey)
     si = _collect(bpy)
     assert {k: v.count for k, v in si.instances.items()} == {("Inst0", "Box"): 1, ("Inst1", "Box"): 1}
     assert len(si.mesh.loop_start) == 64 + 1 + 2 * 6

@@ -374,6 +374,7 @@ def test_threaded_live_keeps_the_previous_light_and_coalesces_edits(tmp_path):
 def test_a_file_opened_starts_with_live_off(tmp_path):
     bpy, scene = _open(tmp_path, "FE")
     from hr_addon.blender import live
+    from hr_addon.blender.state import STATE
 
     scene.hr.live = True
     _update(bpy)
@@ -381,4 +382,4 @@ def test_a_file_opened_starts_with_live_off(tmp_path):
     bpy.ops.wm.save_as_mainfile(filepath=str(saved), copy=True)
     bpy.ops.wm.open_mainfile(filepath=str(saved), load_ui=False)
     scene = bpy.context.scene
-    assert not scene.hr.live and not live.is_live(scene) and not live._sessions
+    assert not scene.hr.live and not live.is_live(scene) and not STATE.live_sessions

@@ -55,7 +55,8 @@ def test_factory_scene_without_its_light_is_refused_before_the_build_naming_the_
 
 def test_operator_refuses_a_black_scene_and_the_panel_says_why(tmp_path):
     bpy = load_bpy()
-    from hr_addon.blender import background, playback
+    from hr_addon.blender import background
+    from hr_addon.blender.state import STATE
     from hr_addon.blender.scene_in import SceneError
 
     _factory_file(tmp_path / "factory.blend")
@@ -66,7 +67,7 @@ def test_operator_refuses_a_black_scene_and_the_panel_says_why(tmp_path):
     assert not background.running()
     with pytest.raises(RuntimeError, match="Nothing in the scene emits light"):  # bpy.ops.hr.bake()
         bpy.ops.hr.bake()
-    assert "Nothing in the scene emits light" in playback.state["errors"][scene.name_full]  # panel
+    assert "Nothing in the scene emits light" in STATE.errors[scene.name_full]  # panel
     assert not scene.hr.bake_dir
 
 

@@ -90,7 +90,8 @@ def test_no_meshes(env):
 
 
 def _outline(ms, bpy, verts, polys):
-    from hr_addon.blender.scene_in import mesh_outlines, read_mesh
+    from hr_addon.blender.lights_in import mesh_outlines
+    from hr_addon.blender.scene_in import read_mesh
 
     ob = ms.mesh_object("S", verts, polys, None)
     em = read_mesh(ob, bpy.context.view_layer.depsgraph)
@@ -139,7 +140,7 @@ def test_coplanar_polygons_merge_into_outlines(env):
 
 
 def _shapes(bpy, scene, frame):
-    from hr_addon.blender.scene_in import collect_light_shapes
+    from hr_addon.blender.lights_in import collect_light_shapes
     from hr_addon.core.events import LightShape
 
     scene.frame_set(frame)

@@ -53,7 +53,7 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path, final_gather):
     there, or (off) radiance_at on the hierarchy's leaves."""
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
-    from hr_addon.blender.bake import gather_params
+    from hr_addon.blender.settings import gather_params
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.gather import texel_gather
     from hr_addon.core.output import radiance_at
@@ -105,7 +105,7 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path, final_gather):
     # Texel values against the core's radiance_at at the same surface points (independent reference).
     mesh, names = _reference_mesh(bpy)
     assert names == GEOMETRY
-    # with the final gather the bake's transport is the gather's (bake.refine_params, solve_options)
+    # with the final gather the bake's transport is the gather's (settings.refine_params, solve_options)
     params = RefineParams.for_gather("draft") if final_gather else RefineParams.preset("draft")
     opts = DynamicRadiosity.gather_options("draft") if final_gather else {}
     dyn = DynamicRadiosity(RadiositySystem(mesh, params), method="FE", **opts)

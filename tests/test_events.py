@@ -591,3 +591,14 @@ def test_naive_splits_host_along_shape_outlines():
     wall = np.isin(loop_poly, dyn._naive.replaced)
     assert (lr[wall].mean(1) > 0).all()
     assert dyn.loop_radiance(domain="POINT").shape == (len(mesh.verts), 3)
+
+
+def test_a_response_from_the_cache_is_flagged_not_a_message(base):
+    """Re-adding a removed shape takes its response from the cache: EventReport.reused says so and
+    the report's messages stay warnings for the user (the bake lists them as they are)."""
+    dyn = DynamicRadiosity(base.copy(), method="FE")
+    first = dyn.add("w", WINDOW)
+    dyn.remove("w")
+    again = dyn.add("w", WINDOW)
+    assert not first.reused and again.reused
+    assert again.messages == [] and dyn.apply({"w": WINDOW}).messages == []

@@ -30,22 +30,24 @@ from bpy.app.handlers import persistent
 
 from ..lightmap import TextureError
 from . import jobstatus, playback, texture
+from .settings import BakeConfig
+from .state import STATE
 from .bake import cache_dir_for, frame_range_for, use_bake
-from .scene_in import SceneError, geometry_objects, light_check, materials_emit
+from .lights_in import light_check, materials_emit
+from .scene_in import SceneError, geometry_objects
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]  # .../hr_addon
 ADDON_MODULE = __package__.rsplit(".hr_addon.blender", 1)[0] if ".hr_addon.blender" in __package__ else ""
 
-_active = None
-
 
 def active():
     """The BackgroundBake that is running (or has just finished and not been collected)."""
-    return _active
+    return STATE.background
 
 
 def running():
-    return _active is not None and _active.state == "running"
+    b = STATE.background
+    return b is not None and b.state == "running"
 
 
 class BackgroundBake:
@@ -163,7 +165,6 @@ class BackgroundBake:
 
     def start(self):
         """Save the copy and start the worker. Raises SceneError (one-line reason) if it cannot."""
-        global _active
         if running():
             raise SceneError("A radiosity bake is already running.")
         scene = self._scene()
@@ -174,23 +175,22 @@ class BackgroundBake:
                 "No mesh objects to compute radiosity on (all hidden, excluded or light shapes)."
             )
         frame_range_for(scene, self.overrides.get("frames"))
+        # the settings are checked here, at once, as the worker's bake will check them
+        cfg = BakeConfig.resolve(scene.hr, **{k: v for k, v in self.overrides.items() if k != "frames"})
         depsgraph = view_layer.depsgraph
         depsgraph.update()
         error, _ = light_check(view_layer, scene, depsgraph, materials_emit(depsgraph))
         if error:  # at once, not from the worker after it has loaded the file
             raise SceneError(error)
-        self.output = (self.overrides.get("output") or scene.hr.output).upper()
+        self.output = cfg.output
         if self.output == "TEXTURE":
             # The lightmap UV maps belong to the user's meshes: make them here, the copy gets them.
-            res = int(self.overrides.get("resolution") or scene.hr.texture_resolution)
             try:
-                self._start_warnings = texture.ensure_lightmaps(geometry_objects(view_layer), res)
+                self._start_warnings = texture.ensure_lightmaps(geometry_objects(view_layer), cfg.resolution)
                 self.warnings += self._start_warnings
             except TextureError as exc:
                 raise SceneError(str(exc)) from None
-        from . import live
-
-        live.end_for_bake(scene)  # the bake shows its own result when it has finished
+        STATE.bake_starts(scene)  # Live ends: the bake shows its own result when it has finished
         self.tmp = Path(tempfile.mkdtemp(prefix="hr_bake_"))
         copy = str(self.tmp / (os.path.basename(self.blend) or "untitled.blend"))
         status_path = str(self.tmp / "status.json")
@@ -219,7 +219,7 @@ class BackgroundBake:
             log.close()
         self.state = "running"
         self.started = time.monotonic()
-        _active = self
+        STATE.background = self
         return self
 
     def _read(self):
@@ -292,7 +292,6 @@ class BackgroundBake:
         self._cleanup()
 
     def _cleanup(self):
-        global _active
         final = Path(self.final_dir) if self.final_dir else None
         if final is not None and self.proc is not None and final.parent.is_dir():
             # the worker's temporary cache folder, if it could not remove it itself (killed)
@@ -303,15 +302,15 @@ class BackgroundBake:
                     shutil.rmtree(d, ignore_errors=True)
         if self.tmp is not None:
             shutil.rmtree(self.tmp, ignore_errors=True)
-        if _active is self and self.state != "running":
-            _active = None
+        if STATE.background is self and self.state != "running":
+            STATE.background = None
 
 
 @persistent
 def _on_load_pre(*args):
     """Opening another file while a bake runs: stop the bake (its scene is going away)."""
     if running():
-        _active.cancel()
+        STATE.background.cancel()
 
 
 def register():
@@ -321,5 +320,5 @@ def register():
 
 def unregister():
     if running():
-        _active.cancel()
+        STATE.background.cancel()
     playback._remove(bpy.app.handlers.load_pre, _on_load_pre)

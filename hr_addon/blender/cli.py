@@ -12,6 +12,8 @@ import os
 import re
 import sys
 
+from .settings import choices, resolution_problem, thresholds_problem
+
 PROG = "hr_bake"
 
 EXIT_CODES = """exit codes:
@@ -55,7 +57,7 @@ def make_parser(prog=PROG, blend_required=False):
     p.add_argument(
         "--method",
         type=str.lower,
-        choices=["ar", "fe", "naive", "auto"],
+        choices=choices("method"),
         help="how light-shape changes are applied: auto (chosen per element by an error bound; "
         "recommended), ar (adaptive refinement), fe (fractional emission, fastest), naive (rebuild, "
         "slow reference)",
@@ -63,13 +65,13 @@ def make_parser(prog=PROG, blend_required=False):
     p.add_argument(
         "--output",
         type=str.lower,
-        choices=["vertex", "texture"],
+        choices=choices("output"),
         help="vertex colours (HR_Radiance) or baked textures (default: the scene's)",
     )
     p.add_argument(
         "--radiance-mode",
         type=str.lower,
-        choices=["radiance", "irradiance"],
+        choices=choices("radiance_mode"),
         help="values: outgoing radiance, or irradiance / pi for lightmaps the material colour "
         "multiplies (default: the scene's)",
     )
@@ -79,13 +81,13 @@ def make_parser(prog=PROG, blend_required=False):
     p.add_argument(
         "--texture-format",
         type=str.lower,
-        choices=["exr", "png"],
+        choices=choices("texture_format"),
         help="texture files: exr (32-bit float, linear) or png (16-bit, sRGB)",
     )
     p.add_argument(
         "--quality",
         type=str.lower,
-        choices=["draft", "medium", "high", "custom"],
+        choices=choices("quality"),
         help="refinement preset; custom uses --feps and --aeps",
     )
     p.add_argument("--feps", type=float, help="form factor threshold, 0 < F <= 1 (implies --quality custom)")
@@ -108,7 +110,7 @@ def make_parser(prog=PROG, blend_required=False):
     p.add_argument(
         "--domain",
         type=str.lower,
-        choices=["corner", "point"],
+        choices=choices("domain"),
         help="vertex output per face corner (creases stay sharp) or per vertex",
     )
     p.add_argument("--scene", help="scene name (default: the active scene)")
@@ -150,8 +152,8 @@ def check_args(args):
     frames = parse_frames(args.frames) if args.frames is not None else None
     if args.blend is not None and not os.path.isfile(args.blend):
         raise UsageError(f"file not found: {args.blend}")
-    if args.resolution is not None and not 8 <= args.resolution <= 16384:
-        raise UsageError(f"bad texture resolution {args.resolution} (8 to 16384)")
+    if args.resolution is not None and resolution_problem(args.resolution):
+        raise UsageError(resolution_problem(args.resolution))
     if args.save:
         path = os.path.abspath(args.save)
         folder = os.path.dirname(path)
@@ -254,9 +256,8 @@ def _run(argv, prog, blend_required, intr):
         quality = "custom"
     feps = args.feps if args.feps is not None else scene.hr.feps
     aeps = args.aeps if args.aeps is not None else scene.hr.aeps
-    if quality == "custom" and not (0 < feps <= 1 and 0 < aeps < 1):
-        # :g - the scene's values are float32 (aeps=0.0010000000474974513)
-        return fail(2, f"bad thresholds feps={feps:g} aeps={aeps:g} (need 0 < feps <= 1, 0 < aeps < 1)")
+    if quality == "custom" and thresholds_problem(feps, aeps):
+        return fail(2, thresholds_problem(feps, aeps))
     collected = Warnings()
     try:
         res = run_bake(

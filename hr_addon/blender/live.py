@@ -1,498 +1,55 @@
-"""Live Relight (Scene.hr.live): edit a light shape, see HR_Radiance follow.
+"""Live Relight in the UI: the timer that drives the sessions (live_session.py) and the
+handlers that mark them dirty (depsgraph updates, frame changes, undo, renders, file loads).
 
-A session per scene keeps one hierarchy in memory (built once, off the UI thread, with progress)
-and turns every light-shape edit into light events on it: move, scale, rotate, reshape in Edit
-Mode, strength or colour, hide_render, new or removed shapes. Blender data is read and written on
-the main thread only: the depsgraph handler marks the session dirty, the timer (`_tick`) reads the
-light shapes, hands the full set to the worker (live_worker.py: numpy only, its own thread, edits
-coalesced) and writes each finished result into HR_Radiance; the previous result stays on screen
-until then. Participating geometry or settings that change (signatures.py, as the bake's stale
-check) rebuild the hierarchy, and the panel says why.
-
-`update()` (operator hr.live_update) is the synchronous entry point: it reads the current state of
-everything, applies what changed since the last update (whether or not a handler fired) and
-returns when HR_Radiance is current. In background mode it is how Live is driven: there is no
-event loop, so no timer and no thread.
-
-Live never runs together with a bake: it refuses to start while one runs, and a bake that starts
-ends it. Turning it off restores the baked playback (or removes HR_Radiance when there is no bake).
+The public face of Live for operators, panels and scripts: start() (which also starts the
+timer), stop(), update(), is_live(), message(), session().
 """
 
 import time
-from collections import deque
 
 import bpy
 from bpy.app.handlers import persistent
 
-from ..core.events import LightShape
-from . import background, playback, preview, signatures, texture
-from .bake import gather_params, refine_params, solver_setup
-from ..io.cache import changed_objects
-from .live_worker import BuildSpec, LiveWorker
-from .scene_in import (
-    SceneError,
-    collect_geometry,
-    collect_light_shapes,
-    collect_lights,
-    lights_signature,
-    geometry_objects,
-    light_shape_objects,
-    shapes_signature,
+from . import paths, playback
+from .live_session import (
+    BAKE_RUNNING,
+    GEOMETRY_SETTLE,
+    IDLE_POLL,
+    TICK,
+    WATCH,
+    LiveError,
+    _deliver,
+    _reconcile,
+    _scene_of,
+    is_live,
+    message,
+    session,
+    stop,
+    stop_all,
+    update,
 )
+from .live_session import start as _start_session
+from .scene_in import SceneError
+from .state import STATE
+
+__all__ = [
+    "BAKE_RUNNING",
+    "LiveError",
+    "is_live",
+    "message",
+    "session",
+    "start",
+    "stop",
+    "stop_all",
+    "update",
+]
 
 
-class LiveError(SceneError):
-    """Live Relight cannot do what was asked (one-line reason)."""
-
-
-BAKE_RUNNING = (
-    "A radiosity bake is running: Live Relight cannot start until it has finished (or is cancelled)."
-)
-TICK, IDLE_POLL, GEOMETRY_SETTLE, WATCH = 0.02, 0.5, 0.25, 1.0  # seconds
-
-_sessions = {}  # scene name_full -> Session
-_messages = {}  # scene name_full -> why Live is not running (refused, stopped), for the panel
-
-
-def message(scene):
-    return _messages.get(scene.name_full, "") if scene is not None else ""
-
-
-def session(scene):
-    return _sessions.get(scene.name_full) if scene is not None else None
-
-
-def is_live(scene):
-    return session(scene) is not None
-
-
-def bake_running():
-    return background.running() or playback.state["baking"]
-
-
-class Session:
-    def __init__(self, scene, view_layer, threaded):
-        self.scene_name = scene.name_full
-        self.view_layer_name = view_layer.name
-        self.worker = LiveWorker(threaded)
-        self.settings = None  # settings of the last build request
-        self.geometry = None  # geometry signatures of the last build request
-        self.geo_names = None  # names of the geometry objects then
-        self.geo_materials = set()  # their materials (a depsgraph update of one may change the light)
-        self.shape_meshes = set()  # mesh data of the light shapes (their edits are light events)
-        self.shape_objects = []  # names of the light-shape objects (all, hidden ones too)
-        self.shape_materials = set()  # their materials
-        self.full_read = True  # an update other than of known light shapes: read everything
-        self.domain = "CORNER"
-        self.targets = []  # object names that get HR_Radiance
-        self.reason = ""  # why the hierarchy is (being) built
-        self.serial = 0
-        self.requested_sig = None  # light state handed to the worker last
-        self.shown_sig = None  # light state whose result is in HR_Radiance
-        self.last = None  # the Result shown
-        self.error = ""  # the current light state cannot be computed (the last valid one shows)
-        self.problems = ""  # writing HR_Radiance failed for some objects
-        self.fatal = ""
-        self.notes = []  # warnings of the geometry read and of the build
-        self.light_notes = []  # warnings of the current light state
-        self.dirty = True  # something may have changed: read the light shapes again
-        self.geometry_dirty = 0.0  # time of the last update that may have changed the geometry (0: none)
-        self.force_write = False  # HR_Radiance must be written again (undo, render)
-        self.own_writes = set()  # meshes written by us since the last depsgraph update
-        self.added_preview = False
-        self.rewired_preview = False  # an irradiance bake's preview shown as radiance while Live runs
-        self.texture_objects = []  # objects whose baked-texture preview Live took off (restored)
-        self.last_poll = 0.0
-        self.render_note = ""  # said once per render (see on_frame_change_pre)
-        self.latencies = deque(maxlen=500)  # seconds from a light-state request to HR_Radiance written
-        self.updates = 0
-
-    # -- what the panel shows --------------------------------------------------------------------
-    @property
-    def building(self):
-        w = self.worker
-        return w.generation > w.built and w.phase not in ("failed", "closed")
-
-    def text(self):
-        w = self.worker
-        if self.fatal:
-            return f"Live Relight stopped: {self.fatal}"
-        if self.building:
-            pct = f"{100 * w.fraction:.0f}%"
-            eta = "" if w.eta != w.eta else f", about {w.eta:.0f} s left"
-            return f"Live: building the hierarchy ({self.reason}): {pct}{eta}"
-        if self.error:
-            return f"Live: {self.error} Showing the light of the last valid state."
-        if self.last is None:
-            return "Live: computing"
-        if w.pending or self.dirty:
-            return "Live: updating (showing the previous state until the new one is ready)"
-        r = self.last
-        n = len(r.report.events) if r.report is not None else 0
-        ms = 1000 * (r.t_apply + r.t_output)
-        return f"Live: up to date; last update {ms:.0f} ms ({n} light event(s), {w.spec.method})"
-
-
-def _scene_of(sess):
-    scene = bpy.data.scenes.get(sess.scene_name)
-    if scene is None:
-        return None, None
-    vl = scene.view_layers.get(sess.view_layer_name) or scene.view_layers[0]
-    return scene, vl
-
-
-def _depsgraph(scene, view_layer):
-    """The evaluated depsgraph of scene / view_layer, up to date."""
-    ctx = bpy.context
-    try:
-        if ctx.scene == scene and ctx.view_layer == view_layer:
-            return ctx.evaluated_depsgraph_get()
-    except (AttributeError, RuntimeError, ReferenceError):
-        pass
-    dg = view_layer.depsgraph
-    dg.update()
-    return dg
-
-
-def _settings(scene):
-    hr = scene.hr
-    custom = (float(hr.feps), float(hr.aeps)) if hr.quality == "CUSTOM" else ()
-    return (hr.method, hr.quality, custom, hr.domain, bool(hr.contacts), bool(hr.final_gather))
-
-
-def _describe_settings(old, new):
-    names = ("method", "quality", "thresholds", "domain", "contacts", "final gather")
-    return (
-        ", ".join(f"{n} {str(b).lower()}" for n, a, b in zip(names, old, new) if a != b and n != "thresholds")
-        or "thresholds"
-    )
-
-
-# -- start, stop -----------------------------------------------------------------------------------
 def start(scene, view_layer=None, threaded=None):
-    """Start Live on scene (no-op if it runs). Raises LiveError with the reason when it cannot."""
-    sess = session(scene)
-    if sess is not None:
-        return sess
-    if bake_running():
-        _refuse(scene, BAKE_RUNNING)
-    view_layer = view_layer or (
-        bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0]
-    )
-    if not geometry_objects(view_layer):
-        _refuse(scene, "No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
-    _messages.pop(scene.name_full, None)
-    threaded = (not bpy.app.background) if threaded is None else threaded
-    sess = Session(scene, view_layer, threaded)
-    _sessions[scene.name_full] = sess
-    playback.state.setdefault("live", set()).add(scene.name_full)
-    scene.hr.live = True
-    try:
-        _show_through_attribute(sess, scene, view_layer)
-        _reconcile(sess, scene, view_layer, check_geometry=True)
-    except Exception:
-        stop(scene)
-        raise
-    print(f"HR Radiosity: Live Relight on ({sess.reason})", flush=True)
+    """Start Live on scene (live_session.start) and the timer that drives it."""
+    sess = _start_session(scene, view_layer, threaded)
     _ensure_timer()
     return sess
-
-
-def _refuse(scene, why):
-    scene.hr.live = False
-    _messages[scene.name_full] = why
-    raise LiveError(why)
-
-
-def stop(scene, restore=True):
-    """End Live on scene. restore: the baked playback again (or no HR_Radiance without a bake).
-    Returns what was restored ('' when Live was not on)."""
-    sess = _sessions.pop(scene.name_full, None)
-    playback.state.setdefault("live", set()).discard(scene.name_full)
-    if scene.hr.live:
-        scene.hr.live = False
-    if sess is None:
-        return ""
-    sess.worker.close()
-    return _restore(sess, scene) if restore else ""
-
-
-def stop_all(restore=False):
-    for name in list(_sessions):
-        scene = bpy.data.scenes.get(name)
-        if scene is not None:
-            stop(scene, restore)
-        else:
-            _sessions.pop(name).worker.close()
-    playback.state.setdefault("live", set()).clear()
-
-
-def end_for_bake(scene):
-    """A bake starts: it shows its own result when it finishes, so Live ends (without restoring)."""
-    if is_live(scene):
-        stop(scene, restore=False)
-        _messages[scene.name_full] = "Live Relight turned off for the bake."
-        print("HR Radiosity: Live Relight turned off for the bake", flush=True)
-        return True
-    return False
-
-
-def _show_through_attribute(sess, scene, view_layer):
-    """Make the viewport show HR_Radiance: the preview nodes (Attribute -> Emission) on the
-    participating materials, instead of a baked-texture preview (put back by _restore)."""
-    objs = geometry_objects(view_layer)
-    if texture.is_texture_bake(scene):
-        from .texture import _helper
-
-        sess.texture_objects = [o.name for o in objs if any(_helper(s) for s in o.material_slots)]
-        if sess.texture_objects:
-            texture.remove_material(objs)
-    mats = [s.material for o in objs for s in o.material_slots if s.material is not None]
-    shown = all(m.node_tree is not None and preview.N_OUT in m.node_tree.nodes for m in mats) and all(
-        o.material_slots for o in objs
-    )
-    if not shown:
-        preview.add_preview(objs)
-        sess.added_preview = True
-    elif any(preview.N_MUL in m.node_tree.nodes for m in mats):
-        preview.refresh_preview(objs, irradiance=False)  # Live shows outgoing radiance
-        sess.rewired_preview = True
-
-
-def _restore(sess, scene):
-    objs = [
-        o
-        for o in playback.objects_by_name(scene, sess.targets).values()
-        if o is not None and o.type == "MESH"
-    ]
-    if sess.added_preview:
-        preview.remove_preview(objs)
-    elif sess.rewired_preview:
-        preview.refresh_preview(objs, preview.bake_mode(scene) == "IRRADIANCE")
-    has_bake = bool(playback.bake_dir_abs(scene))
-    if has_bake and scene.hr.playback and not texture.is_texture_bake(scene):
-        playback.forget_loaded()
-        playback.load_frame(scene)
-        return "the baked playback"
-    for o in objs:
-        attr = o.data.color_attributes.get(playback.ATTRIBUTE)
-        if attr is not None:
-            o.data.color_attributes.remove(attr)
-    if sess.texture_objects:
-        try:
-            texture.add_material(scene, [o for o in objs if o.name in sess.texture_objects])
-        except Exception as exc:  # noqa: BLE001  (the cache may be gone: say so, go on)
-            print(f"HR Radiosity: the baked-texture preview could not be restored: {exc}", flush=True)
-        return "the baked textures"
-    return "the baked playback" if has_bake else "no HR_Radiance (there is no bake)"
-
-
-# -- reading the scene -----------------------------------------------------------------------------
-def _read_shapes(sess, view_layer, depsgraph, fast=False):
-    """The active light shapes, their digest and warnings. fast: only known light shapes were
-    edited since the last read: read those (no walk over every object of the scene)."""
-    warnings = []
-    known = [bpy.data.objects.get(n) for n in sess.shape_objects] if fast else None
-    if known is not None and all(o is not None for o in known):
-        shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, objects=known)
-    else:
-        objs = light_shape_objects(view_layer, include_hidden=True)
-        sess.shape_objects = [o.name for o in objs]
-        sess.shape_meshes = {o.data.name for o in objs}
-        sess.shape_materials = {
-            s.material.name_full for o in objs for s in o.material_slots if s.material is not None
-        }
-        shapes = collect_light_shapes(
-            view_layer, depsgraph, LightShape, warnings, objects=[o for o in objs if not o.hide_render]
-        )
-    sig = shapes_signature(shapes)
-    # Blender lights (issue 20) ride along in the same dict under "light:" keys (core.lights.Light
-    # values); the worker hands them to DynamicRadiosity.apply as its lights
-    from ..core.lights import Light
-
-    lights = collect_lights(view_layer, depsgraph, Light, warnings)
-    if lights:
-        sig += lights_signature(lights)
-        shapes = {**shapes, **lights}
-    return shapes, sig, warnings
-
-
-def _build(sess, scene, view_layer, depsgraph, reason):
-    hr = scene.hr
-    method, quality, _, domain, _, final_gather = _settings(scene)
-    params = refine_params(quality, hr.feps, hr.aeps, hr.contacts, final_gather=final_gather)
-    objs = geometry_objects(view_layer)
-    with texture.source_materials(objs):
-        scene_in = collect_geometry(view_layer, depsgraph)
-    params, min_area_rel, far = solver_setup(scene_in.mesh, params)
-    targets = list(scene_in.targets)
-
-    def extract(values, targets=targets, domain=domain):
-        return {t.name: t.extract(values, domain) for t in targets}
-
-    spec = BuildSpec(
-        scene_in.mesh,
-        params,
-        method,
-        min_area_rel,
-        domain,
-        extract,
-        reason,
-        len(scene_in.mesh.loop_start),
-        gather_params(quality, final_gather),
-    )
-    sess.settings = _settings(scene)
-    sess.geometry = signatures.geometry_signatures(view_layer, depsgraph)
-    sess.geo_names = [o.name for o in objs]
-    sess.geo_materials = {
-        s.material.name_full for o in objs for s in o.material_slots if s.material is not None
-    }
-    sess.domain = domain
-    sess.targets = [t.name for t in targets]
-    sess.notes = list(scene_in.warnings) + ([far] if far else [])
-    sess.reason = reason
-    sess.error = sess.fatal = ""
-    shapes, sig, warnings = _read_shapes(sess, view_layer, depsgraph)
-    sess.light_notes = warnings
-    sess.serial += 1
-    sess.requested_sig = sig
-    sess.worker.request_build(spec, sess.serial, sig, shapes)
-
-
-def _geometry_change(sess, view_layer, depsgraph, full):
-    """'' or what changed in the participating geometry since the last build."""
-    names = [o.name for o in geometry_objects(view_layer)]
-    if not full and names == sess.geo_names:
-        return ""
-    new = signatures.geometry_signatures(view_layer, depsgraph)
-    if new == sess.geometry:
-        sess.geo_names = names
-        return ""
-    return "; ".join(changed_objects(sess.geometry, new)) or "the geometry changed"
-
-
-def _reconcile(sess, scene, view_layer, check_geometry, fast=False):
-    """Hand the worker what changed: a rebuild (settings or geometry), else the light state.
-    check_geometry: compare every participating object with the hierarchy's geometry (else only
-    which objects take part). fast: only known light shapes changed (the depsgraph said so):
-    read just those. Depsgraph updates that fire while it reads the scene are of what it has
-    read: it clears the session's marks at the end."""
-    try:
-        _reconcile_now(
-            sess, scene, view_layer, check_geometry, fast and not check_geometry and not sess.full_read
-        )
-    finally:
-        sess.dirty = False
-        if check_geometry:
-            sess.geometry_dirty = 0.0
-        if not fast:
-            sess.full_read = False
-            sess.last_poll = time.monotonic()
-
-
-def _reconcile_now(sess, scene, view_layer, check_geometry, fast):
-    dg = _depsgraph(scene, view_layer)
-    if fast and _settings(scene) == sess.settings and sess.worker.phase != "failed":
-        shapes, sig, warnings = _read_shapes(sess, view_layer, dg, fast=True)
-        sess.light_notes = warnings
-        if sig != sess.requested_sig:
-            sess.serial += 1
-            sess.requested_sig = sig
-            sess.worker.request(sess.serial, sig, shapes)
-        return
-    if sess.settings is None:
-        return _build(sess, scene, view_layer, dg, "first build")
-    if _settings(scene) != sess.settings:
-        return _build(
-            sess,
-            scene,
-            view_layer,
-            dg,
-            f"settings changed: {_describe_settings(sess.settings, _settings(scene))}",
-        )
-    change = _geometry_change(sess, view_layer, dg, check_geometry)
-    if change:
-        print(f"HR Radiosity: Live: the geometry changed ({change}): rebuilding the hierarchy", flush=True)
-        return _build(sess, scene, view_layer, dg, f"geometry changed: {change}")
-    if sess.worker.phase == "failed" and not sess.fatal:
-        return _build(sess, scene, view_layer, dg, "rebuilding after a failure")
-    shapes, sig, warnings = _read_shapes(sess, view_layer, dg)
-    sess.light_notes = warnings
-    if sig != sess.requested_sig:
-        sess.serial += 1
-        sess.requested_sig = sig
-        sess.worker.request(sess.serial, sig, shapes)
-
-
-def _deliver(sess, scene):
-    """Write the worker's newest result into HR_Radiance. True if something was written or changed."""
-    b, r = sess.worker.take()
-    changed = False
-    if b is not None:
-        changed = True
-        sess.notes += [m for m in b.messages if m not in sess.notes]
-        if b.fatal:
-            sess.fatal = f"the hierarchy build failed: {b.error}"
-            print(f"HR Radiosity: Live: {sess.fatal}", flush=True)
-    if r is None:
-        if sess.force_write and sess.last is not None and sess.last.values is not None:
-            r = sess.last
-        else:
-            return changed
-    sess.force_write = False
-    if r.error:
-        if sess.error != r.error:
-            print(f"HR Radiosity: Live: {r.error}", flush=True)
-        sess.error = r.error
-        return True
-    problems = playback.apply_arrays(scene, r.values, sess.domain)
-    for obj in playback.objects_by_name(scene, r.values).values():
-        if obj is not None and obj.type == "MESH":
-            sess.own_writes.add(obj.data.name)
-    sess.problems = "; ".join(problems)
-    sess.error = ""
-    if r is not sess.last:
-        sess.latencies.append(time.perf_counter() - r.requested)
-        sess.updates += 1
-    sess.last = r
-    sess.shown_sig = r.sig
-    return True
-
-
-# -- the synchronous entry point ---------------------------------------------------------------------
-def update(scene, view_layer=None, check_geometry=True):
-    """Make HR_Radiance current for Live on scene (operator hr.live_update): start Live if
-    Scene.hr.live is on and it does not run, end it if Scene.hr.live is off, else read every light
-    shape and the geometry, compute and write. check_geometry False: compare only which objects
-    take part and the objects the depsgraph reported as changed (not every object: on a big
-    scene that comparison costs more than a light event). Returns (session or None, what it did).
-    Raises LiveError when the current state cannot be shown."""
-    sess = session(scene)
-    if not scene.hr.live:
-        if sess is None:
-            return None, "Live Relight is off (Scene.hr.live)"
-        what = stop(scene)
-        return None, f"Live Relight off: {what}"
-    if bake_running():
-        stop(scene, restore=False)
-        _refuse(scene, BAKE_RUNNING)
-    if sess is None:
-        sess = start(scene, view_layer)
-    else:
-        s, vl = _scene_of(sess)
-        _reconcile(sess, s, vl, check_geometry or bool(sess.geometry_dirty))
-    if not sess.worker.flush(timeout=None):
-        raise LiveError("the Live Relight worker stopped")
-    _deliver(sess, scene)
-    if sess.fatal:
-        msg = sess.fatal
-        stop(scene)
-        _refuse(scene, msg)
-    if sess.error:
-        raise LiveError(sess.error)
-    if sess.problems:
-        raise LiveError(f"HR_Radiance could not be written: {sess.problems}")
-    return sess, "HR_Radiance is current"
 
 
 # -- the UI: handlers and the timer -------------------------------------------------------------------
@@ -504,13 +61,10 @@ def _redraw():
                 area.tag_redraw()
 
 
-_in_tick = False
-
-
 def _ensure_timer(first=0.0):
     """Run the timer in `first` seconds (sooner if it was due later; inside the timer, it returns
     its own next interval)."""
-    if bpy.app.background or _in_tick:
+    if bpy.app.background or STATE.in_tick:
         return
     if bpy.app.timers.is_registered(_tick):
         if first > 0:
@@ -521,16 +75,15 @@ def _ensure_timer(first=0.0):
 
 def _tick():
     """Main thread, every TICK s while something is pending (IDLE_POLL s otherwise)."""
-    global _in_tick
-    _in_tick = True
+    STATE.in_tick = True
     try:
         return _tick_body()
     finally:
-        _in_tick = False
+        STATE.in_tick = False
 
 
 def _tick_body():
-    if playback.state["baking"]:
+    if STATE.baking:
         return IDLE_POLL
     now = time.monotonic()
     redraw = False
@@ -540,14 +93,14 @@ def _tick_body():
                 start(scene)
             except (SceneError, ValueError, RuntimeError) as exc:
                 print(f"HR Radiosity: Live Relight: {exc}", flush=True)
-                _messages[scene.name_full] = str(exc)
+                STATE.live_messages[scene.name_full] = str(exc)
                 if scene.hr.live:
                     scene.hr.live = False
             redraw = True
-    for name, sess in list(_sessions.items()):
+    for name, sess in list(STATE.live_sessions.items()):
         scene, vl = _scene_of(sess)
         if scene is None:
-            _sessions.pop(name).worker.close()
+            STATE.live_sessions.pop(name).worker.close()
             continue
         if not scene.hr.live:
             what = stop(scene)
@@ -556,9 +109,9 @@ def _tick_body():
             continue
         if sess.fatal:
             continue
-        if background.running():
+        if STATE.bake_running():
             stop(scene, restore=False)
-            _messages[scene.name_full] = "Live Relight turned off for the bake."
+            STATE.live_messages[scene.name_full] = "Live Relight turned off for the bake."
             redraw = True
             continue
         building = sess.building
@@ -573,9 +126,11 @@ def _tick_body():
             redraw = True
     if redraw:
         _redraw()
-    if not _sessions:
+    if not STATE.live_sessions:
         return WATCH  # keeps watching Scene.hr.live (a script may set it: no depsgraph update)
-    busy = any(s.worker.pending or s.dirty or s.geometry_dirty or s.force_write for s in _sessions.values())
+    busy = any(
+        s.worker.pending or s.dirty or s.geometry_dirty or s.force_write for s in STATE.live_sessions.values()
+    )
     return TICK if busy else IDLE_POLL / 2
 
 
@@ -585,14 +140,14 @@ _GEOMETRY_KINDS = ("Image", "NodeTree")  # images (averaged colours) and node gr
 @persistent
 def on_depsgraph_update(scene, depsgraph=None):
     """Mark the session dirty (the timer reads the scene); our own HR_Radiance writes are skipped."""
-    if playback.state["baking"] or depsgraph is None:
+    if STATE.baking or depsgraph is None:
         return
     if scene.hr.live != is_live(scene):
         _ensure_timer()  # Scene.hr.live set by a script: the timer starts / ends Live
     sess = session(scene)
     if sess is None:
         return
-    own, sess.own_writes = sess.own_writes, set()
+    own = STATE.writes.take(reader=sess.scene_name)
     dirty = geometry = full = False
     for u in depsgraph.updates:
         idd = u.id
@@ -641,7 +196,7 @@ def on_depsgraph_update(scene, depsgraph=None):
 @persistent
 def on_frame_change_post(scene, *args):
     sess = session(scene)
-    if sess is not None and not playback.state["baking"]:
+    if sess is not None and not STATE.baking:
         sess.dirty = True
         _ensure_timer()
 
@@ -649,13 +204,13 @@ def on_frame_change_post(scene, *args):
 @persistent
 def on_undo_redo(*args):
     """Undo brings back HR_Radiance values (and Scene.hr.live) of another moment: write again."""
-    for name, sess in _sessions.items():
+    for name, sess in STATE.live_sessions.items():
         scene = bpy.data.scenes.get(name)
         if scene is not None and not scene.hr.live:
             scene.hr.live = True  # Live is a session, not an undo step
         sess.force_write = sess.dirty = True
         sess.geometry_dirty = time.monotonic()
-    if _sessions:
+    if STATE.live_sessions:
         _ensure_timer()
 
 
@@ -663,7 +218,7 @@ def on_undo_redo(*args):
 def on_frame_change_pre(scene, *args):
     """During an animation render Live steps aside (playback loads the bake, playback.live_shown).
     Without a bake every frame would render the Live light of the moment: say so, once per render."""
-    if is_live(scene) and bpy.app.is_job_running("RENDER") and not playback.bake_dir_abs(scene):
+    if is_live(scene) and bpy.app.is_job_running("RENDER") and not paths.bake_dir_abs(scene):
         sess = session(scene)
         if not sess.render_note:
             sess.render_note = (
@@ -676,10 +231,10 @@ def on_frame_change_pre(scene, *args):
 @persistent
 def on_render_done(*args):
     """An animation render played the bake back (Live steps aside while rendering): write again."""
-    for sess in _sessions.values():
+    for sess in STATE.live_sessions.values():
         sess.force_write = sess.dirty = True
         sess.render_note = ""
-    if _sessions:
+    if STATE.live_sessions:
         _ensure_timer()
 
 
@@ -691,7 +246,7 @@ def on_load_pre(*args):
 @persistent
 def on_load_post(*args):
     """Live is a session, not saved state: a file saved with Live on opens with it off."""
-    _messages.clear()
+    STATE.live_messages.clear()
     for scene in bpy.data.scenes:
         if scene.hr.live:
             scene.hr.live = False
@@ -720,7 +275,7 @@ def register():
 
 
 def unregister():
-    workers = [s.worker for s in _sessions.values()]
+    workers = [s.worker for s in STATE.live_sessions.values()]
     stop_all(restore=False)
     for w in workers:  # do not leave a thread computing in an add-on that is going away
         w.join(10.0)

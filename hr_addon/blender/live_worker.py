@@ -40,7 +40,7 @@ class BuildSpec:
     extract: object  # callable((L, 3) loop radiance) -> {object name: (N, 3) values}
     reason: str = ""  # shown while building ("first build", "'back' changed")
     polygons: int = 0
-    gather: dict = None  # the final gather's settings (bake.gather_params), None: off
+    gather: dict = None  # the final gather's settings (settings.gather_params), None: off
 
 
 @dataclass

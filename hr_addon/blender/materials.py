@@ -22,10 +22,10 @@ import bpy
 import numpy as np
 
 from ..io.images import srgb_to_linear
+from .names import PREVIEW
 
 DEFAULT_REFLECTANCE = 0.8  # objects without a material, and unsupported shaders
 MAX_REFLECTANCE = 0.99  # a diffuse surface must absorb some light (the solver needs rho < 1)
-PREVIEW = "HR Preview"  # name prefix of the preview nodes / material (ignored when reading)
 
 
 @dataclass

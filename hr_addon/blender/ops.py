@@ -8,11 +8,13 @@ from bpy.props import BoolProperty
 
 from ..core.geometry import InputError
 from ..io.cache import MANIFEST, MARKER, TEX_DIR, CacheError, CacheReader, owned_files
-from . import background, live, playback, texture
+from .state import STATE
+from . import background, live, names, paths, playback, texture
 from .bake import run_bake
 from .props import custom_range
 from .preview import add_preview, bake_mode, has_preview, remove_preview
-from .scene_in import geometry_objects, light_shape_problem
+from .lights_in import light_shape_problem
+from .scene_in import geometry_objects
 
 
 def _report_bake_state(op, context):
@@ -24,20 +26,20 @@ def _report_bake_state(op, context):
     msg = playback.check_scene(context.scene, dg, force=True)
     if msg:
         op.report({"WARNING"}, msg)
-    problem = playback.state["messages"].get(context.scene.name_full, "")
+    problem = STATE.messages.get(context.scene.name_full, "")
     if problem and problem != msg:
         op.report({"WARNING"}, problem)
     return msg
 
 
 def _has_bake(scene):
-    return bool(playback.bake_dir_abs(scene))
+    return bool(paths.bake_dir_abs(scene))
 
 
 def _bake_ended(scene, warnings, error=""):
     """Keep what the panel shows after a bake: its warnings, and why it failed ('' if it did not)."""
-    playback.state["notes"][scene.name_full] = list(warnings)
-    playback.state["errors"][scene.name_full] = error
+    STATE.notes[scene.name_full] = list(warnings)
+    STATE.errors[scene.name_full] = error
 
 
 def _redraw(context):
@@ -72,7 +74,7 @@ class HR_OT_bake(bpy.types.Operator):
         if background.running():
             cls.poll_message_set("A radiosity bake is running")
             return False
-        if playback.default_cache_dir(context.scene) is None:
+        if paths.default_cache_dir(context.scene) is None:
             cls.poll_message_set("Save the .blend file first: the cache folder is relative to it")
             return False
         return True
@@ -105,7 +107,7 @@ class HR_OT_bake(bpy.types.Operator):
             _bake_ended(context.scene, job.warnings, str(exc))
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        playback.state["errors"].pop(context.scene.name_full, None)
+        STATE.errors.pop(context.scene.name_full, None)
         self._job = job
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.25, window=context.window)
@@ -298,7 +300,7 @@ class HR_OT_load_frame(bpy.types.Operator):
         stale = _report_bake_state(self, context)
         if ok:
             return {"FINISHED"}
-        msg = playback.state["messages"].get(context.scene.name_full, "")
+        msg = STATE.messages.get(context.scene.name_full, "")
         if msg or not stale:
             self.report({"ERROR"}, msg or "No radiosity bake to load")
         return {"CANCELLED"}
@@ -328,14 +330,14 @@ class HR_OT_clear_bake(bpy.types.Operator):
 def _forget_bake(scene):
     scene.hr.bake_dir = ""
     scene.hr.playback = False
-    playback.state["stale"].pop(scene.name_full, None)
-    playback.state["messages"].pop(scene.name_full, None)
-    playback.state["notes"].pop(scene.name_full, None)
-    playback.state["errors"].pop(scene.name_full, None)
+    STATE.stale.pop(scene.name_full, None)
+    STATE.messages.pop(scene.name_full, None)
+    STATE.notes.pop(scene.name_full, None)
+    STATE.errors.pop(scene.name_full, None)
     texture.remove_material([o for o in scene.objects if o.type == "MESH"])
     for o in scene.objects:
-        if o.type == "MESH" and playback.ATTRIBUTE in o.data.color_attributes:
-            o.data.color_attributes.remove(o.data.color_attributes[playback.ATTRIBUTE])
+        if o.type == "MESH" and names.ATTRIBUTE in o.data.color_attributes:
+            o.data.color_attributes.remove(o.data.color_attributes[names.ATTRIBUTE])
     playback.forget_readers()
 
 
@@ -379,7 +381,7 @@ class HR_OT_delete_bake(bpy.types.Operator):
                 self,
                 event,
                 title="Delete Bake",
-                message=f"Delete the files of the radiosity bake in {playback.bake_dir_abs(context.scene)}?",
+                message=f"Delete the files of the radiosity bake in {paths.bake_dir_abs(context.scene)}?",
                 confirm_text="Delete",
                 icon="WARNING",
             )
@@ -389,7 +391,7 @@ class HR_OT_delete_bake(bpy.types.Operator):
 
     def execute(self, context):
         scene = context.scene
-        directory = playback.bake_dir_abs(scene)
+        directory = paths.bake_dir_abs(scene)
         try:
             n = delete_cache_files(directory)
         except (CacheError, OSError) as exc:
@@ -412,7 +414,7 @@ class HR_OT_live_toggle(bpy.types.Operator):
     def poll(cls, context):
         if context.scene is None or not hasattr(context.scene, "hr"):
             return False
-        if live.bake_running() and not live.is_live(context.scene):
+        if STATE.bake_running() and not live.is_live(context.scene):
             cls.poll_message_set(live.BAKE_RUNNING)
             return False
         return True

@@ -3,7 +3,8 @@
 
 import bpy
 
-from . import background, live, playback
+from .state import STATE
+from . import background, live, paths, playback
 
 
 def _draw_bake(layout, context):
@@ -20,7 +21,7 @@ def _draw_bake(layout, context):
         row.scale_y = 1.4
         row.operator("hr.bake", icon="RENDER_ANIMATION")
     _draw_live(col, scene)
-    d = playback.bake_dir_abs(scene)
+    d = paths.bake_dir_abs(scene)
     if d:
         col.label(text=f"Cache: {hr.bake_dir or d}", icon="FILE_CACHE")
     msg = playback.status(scene)
@@ -29,10 +30,10 @@ def _draw_bake(layout, context):
     for part in msg.split("\n") if msg else []:
         for i, line in enumerate(_wrap(part, 60)):
             col.label(text=line, icon="ERROR" if i == 0 else "BLANK1")
-    error = playback.state["errors"].get(scene.name_full)
+    error = STATE.errors.get(scene.name_full)
     for i, line in enumerate(_wrap(f"Bake failed: {error}", 60) if error else []):
         col.label(text=line, icon="ERROR" if i == 0 else "BLANK1")
-    notes = playback.state["notes"].get(scene.name_full) or []
+    notes = STATE.notes.get(scene.name_full) or []
     for part in notes[:4]:
         for i, line in enumerate(_wrap(part, 60)):
             col.label(text=line, icon="INFO" if i == 0 else "BLANK1")

@@ -15,30 +15,11 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from ..io.cache import CacheError, CacheReader, _names, changed_objects
+from .names import ATTRIBUTE
+from .paths import bake_dir_abs
+from .state import STATE
 
-ATTRIBUTE = "HR_Radiance"
 MAGENTA = (1.0, 0.0, 1.0, 1.0)
-
-# Set while a bake runs: the bake moves through frames itself, playback must not interfere.
-# messages: load problems per scene; stale: "the scene changed" per scene; changes: memo of the
-# last check (key, message); dirty: scenes edited since; written: meshes whose HR_Radiance we
-# wrote (their next depsgraph update is ours, not an edit); live: scenes whose HR_Radiance Live
-# Relight writes (live.py; playback leaves them alone, except during renders). notes: the last
-# bake's warnings per scene; errors: why the last bake failed or was refused (the panel shows both).
-state = {
-    "baking": False,
-    "messages": {},
-    "readers": {},
-    "loaded": {},
-    "stale": {},
-    "changes": {},
-    "dirty": set(),
-    "written": set(),
-    "image_checks": {},
-    "notes": {},
-    "errors": {},
-    "live": set(),
-}
 
 LOCK_MESSAGE = (
     "Frames are not loaded during this render: turn on Render > Lock Interface "
@@ -49,47 +30,24 @@ LOCK_MESSAGE = (
 def _log_once(scene, msg):
     """Print a message once per scene and message; the panel shows the latest one."""
     key = scene.name_full if scene is not None else ""
-    if state["messages"].get(key) != msg:
-        state["messages"][key] = msg
+    if STATE.messages.get(key) != msg:
+        STATE.messages[key] = msg
         print(f"HR Radiosity: {msg}", flush=True)
 
 
 def status(scene):
     """What the panel shows: the load problem, then whether the scene changed since the bake."""
     return "\n".join(
-        m for m in (state["messages"].get(scene.name_full, ""), state["stale"].get(scene.name_full, "")) if m
+        m for m in (STATE.messages.get(scene.name_full, ""), STATE.stale.get(scene.name_full, "")) if m
     )
 
 
 def _log_stale(scene, msg):
     key = scene.name_full
-    if state["stale"].get(key, "") != msg:
+    if STATE.stale.get(key, "") != msg:
         if msg:
             print(f"HR Radiosity: {msg}", flush=True)
-        state["stale"][key] = msg
-
-
-def default_cache_dir(scene):
-    """Cache directory for scene's settings and the current .blend (None: relative, unsaved)."""
-    folder = scene.hr.cache_folder or "//hr_cache/"
-    if folder.startswith("//") and not bpy.data.filepath:
-        return None
-    stem = os.path.splitext(os.path.basename(bpy.data.filepath))[0] if bpy.data.filepath else "untitled"
-    if len(bpy.data.scenes) > 1:
-        stem += "_" + bpy.path.clean_name(scene.name)
-    return os.path.join(os.path.abspath(bpy.path.abspath(folder)), stem)
-
-
-def bake_dir_abs(scene):
-    """The scene's bake: Scene.hr.bake_dir, else a bake found at the default location (a
-    command-line bake that did not save the .blend)."""
-    d = scene.hr.bake_dir
-    if d:
-        return os.path.abspath(bpy.path.abspath(d))
-    if not scene.hr.playback:
-        return ""
-    d = default_cache_dir(scene)
-    return d if d and os.path.isfile(os.path.join(d, "manifest.json")) else ""
+        STATE.stale[key] = msg
 
 
 def get_reader(directory):
@@ -99,18 +57,18 @@ def get_reader(directory):
         mtime = os.stat(mpath).st_mtime_ns
     except OSError:
         mtime = None
-    hit = state["readers"].get(directory)
+    hit = STATE.readers.get(directory)
     if hit is not None and hit[0] == mtime and mtime is not None:
         return hit[1]
     reader = CacheReader(directory)
-    state["readers"][directory] = (mtime, reader)
+    STATE.readers[directory] = (mtime, reader)
     return reader
 
 
 def forget_readers():
-    state["readers"].clear()
-    state["changes"].clear()
-    state["image_checks"].clear()
+    STATE.readers.clear()
+    STATE.changes.clear()
+    STATE.image_checks.clear()
     forget_loaded()
 
 
@@ -118,9 +76,9 @@ def forget_readers():
 def stale_message(scene, reader, directory, depsgraph=None, force=False):
     """'' or 'The scene changed since the bake (re-bake): ...' naming the objects (memoized until
     the scene is edited or another bake is loaded)."""
-    key = (directory, state["readers"].get(directory, (None,))[0])
-    memo = state["changes"].get(scene.name_full)
-    if memo is not None and memo[0] == key and not force and scene.name_full not in state["dirty"]:
+    key = (directory, STATE.readers.get(directory, (None,))[0])
+    memo = STATE.changes.get(scene.name_full)
+    if memo is not None and memo[0] == key and not force and scene.name_full not in STATE.dirty:
         return memo[1]
     m = reader.manifest
     msg = ""
@@ -145,8 +103,8 @@ def stale_message(scene, reader, directory, depsgraph=None, force=False):
         parts += [f"light shape(s) {p}" for p in ls]
         if parts:
             msg = "The scene changed since the bake (re-bake): " + "; ".join(parts) + "."
-    state["dirty"].discard(scene.name_full)
-    state["changes"][scene.name_full] = (key, msg)
+    STATE.dirty.discard(scene.name_full)
+    STATE.changes[scene.name_full] = (key, msg)
     return msg
 
 
@@ -187,7 +145,7 @@ def show_missing(scene, reader=None):
             continue
         attr.data.foreach_set("color", np.tile(np.array(MAGENTA, np.float32), len(attr.data)))
         me.update_tag()
-        state["written"].add(me.name)
+        STATE.writes.mark(me.name)
         done.add(me.name)
     return len(done)
 
@@ -206,12 +164,12 @@ def _texture_problem(reader, directory, frame):
             key = (path, st.st_mtime_ns, st.st_size)
         except OSError:
             key = (path, None, None)
-        why = state["image_checks"].get(key)
+        why = STATE.image_checks.get(key)
         if why is None:
             why = image_file_problem(path, info.get("resolution"))
-            if len(state["image_checks"]) > 4096:
-                state["image_checks"].clear()
-            state["image_checks"][key] = why
+            if len(STATE.image_checks) > 4096:
+                STATE.image_checks.clear()
+            STATE.image_checks[key] = why
         if why:
             return (
                 f"Radiosity cache texture '{path}' of object '{name}' is {why}: Blender shows it "
@@ -222,7 +180,7 @@ def _texture_problem(reader, directory, frame):
 
 def forget_loaded():
     """Forget which cached file each scene shows (the next load_frame writes HR_Radiance again)."""
-    state["loaded"].clear()
+    STATE.loaded.clear()
 
 
 def write_attribute(mesh, values, domain):
@@ -242,7 +200,7 @@ def write_attribute(mesh, values, domain):
         )
     attr.data.foreach_set("color", np.ascontiguousarray(values, np.float32).ravel())
     mesh.update_tag()
-    state["written"].add(mesh.name)
+    STATE.writes.mark(mesh.name)
 
 
 def linked_meshes(objects):
@@ -272,7 +230,7 @@ def objects_by_name(scene, names):
 def apply_arrays(scene, arrays, domain):
     """Write {object name: values} to the objects' meshes; returns the list of problems."""
     problems = []
-    state["loaded"].pop(scene.name_full, None)
+    STATE.loaded.pop(scene.name_full, None)
     objs = objects_by_name(scene, arrays)
     for name, values in arrays.items():
         obj = objs[name]
@@ -301,9 +259,9 @@ def load_frame(scene, frame=None):
     try:
         reader = get_reader(directory)
     except CacheError as exc:
-        if state["loaded"].get(scene.name_full) != ("missing", directory):
+        if STATE.loaded.get(scene.name_full) != ("missing", directory):
             show_missing(scene)
-            state["loaded"][scene.name_full] = ("missing", directory)
+            STATE.loaded[scene.name_full] = ("missing", directory)
         _log_once(scene, f"{exc} Showing magenta.")
         return False
     if reader.manifest.get("output") == "TEXTURE":  # image sequences play back by themselves
@@ -311,19 +269,19 @@ def load_frame(scene, frame=None):
         if problem:
             _log_once(scene, problem)
             return False
-        state["messages"].pop(scene.name_full, None)
+        STATE.messages.pop(scene.name_full, None)
         return True
     name = reader.frames[reader.nearest(frame)]
-    key = (directory, state["readers"].get(directory, (None,))[0], name)  # manifest mtime
-    if state["loaded"].get(scene.name_full) == key and _attributes_present(scene, reader):
+    key = (directory, STATE.readers.get(directory, (None,))[0], name)  # manifest mtime
+    if STATE.loaded.get(scene.name_full) == key and _attributes_present(scene, reader):
         return True  # same cached file as the frame shown: HR_Radiance is already right
-    if state["loaded"].get(scene.name_full) == ("magenta", key):
+    if STATE.loaded.get(scene.name_full) == ("magenta", key):
         return False  # the same damaged file: already magenta, message shown
     try:
         arrays = reader.load(frame)
     except CacheError as exc:
         show_missing(scene, reader)
-        state["loaded"][scene.name_full] = ("magenta", key)
+        STATE.loaded[scene.name_full] = ("magenta", key)
         _log_once(
             scene,
             f"{exc} Frame {frame} shows magenta (re-bake; a bake of any frame range "
@@ -334,8 +292,8 @@ def load_frame(scene, frame=None):
     if problems:
         _log_once(scene, "; ".join(problems))
         return False
-    state["loaded"][scene.name_full] = key
-    state["messages"].pop(scene.name_full, None)
+    STATE.loaded[scene.name_full] = key
+    STATE.messages.pop(scene.name_full, None)
     return True
 
 
@@ -355,12 +313,12 @@ def render_unlocked(scene):
 
 def live_shown(scene):
     """True while Live Relight shows its own light on scene (live.py); renders play the bake back."""
-    return scene.name_full in state.get("live", ()) and not bpy.app.is_job_running("RENDER")
+    return scene.name_full in STATE.live_sessions and not bpy.app.is_job_running("RENDER")
 
 
 @persistent
 def on_frame_change_pre(scene, *args):
-    if state["baking"] or not scene.hr.playback or live_shown(scene):
+    if STATE.baking or not scene.hr.playback or live_shown(scene):
         return
     if render_unlocked(scene):
         _log_once(scene, LOCK_MESSAGE)  # printed once, and shown in the panel
@@ -372,10 +330,10 @@ def on_frame_change_pre(scene, *args):
 def on_frame_change_post(scene, depsgraph=None):
     """After a frame change (depsgraph evaluated): compare the scene with the bake if it was
     edited since the last comparison (or never compared)."""
-    if state["baking"] or not scene.hr.playback or render_unlocked(scene):
+    if STATE.baking or not scene.hr.playback or render_unlocked(scene):
         return
-    memo = state["changes"].get(scene.name_full)
-    if memo is None or scene.name_full in state["dirty"]:
+    memo = STATE.changes.get(scene.name_full)
+    if memo is None or scene.name_full in STATE.dirty:
         check_scene(scene, depsgraph)
 
 
@@ -386,9 +344,9 @@ _RELEVANT = ("Object", "Mesh", "Material", "ShaderNodeTree", "Collection", "Scen
 def on_depsgraph_update(scene, depsgraph=None):
     """An edit may have changed what the bake depends on: mark the scene; the UI compares half a
     second later (a drag does not compare at every step). Our own HR_Radiance writes are skipped."""
-    if state["baking"] or depsgraph is None:
+    if STATE.baking or depsgraph is None:
         return
-    written, state["written"] = state["written"], set()
+    written = STATE.writes.take()
     relevant = False
     for u in depsgraph.updates:
         idd = u.id
@@ -407,16 +365,16 @@ def on_depsgraph_update(scene, depsgraph=None):
         return
     for sc in bpy.data.scenes:
         if sc.hr.playback and sc.hr.bake_dir:
-            state["dirty"].add(sc.name_full)
+            STATE.dirty.add(sc.name_full)
     if not bpy.app.background and not bpy.app.timers.is_registered(_deferred_check):
         bpy.app.timers.register(_deferred_check, first_interval=0.5)
 
 
 def _deferred_check():
-    if state["baking"]:
+    if STATE.baking:
         return 0.5
     for sc in bpy.data.scenes:
-        if sc.name_full in state["dirty"] and sc.hr.playback:
+        if sc.name_full in STATE.dirty and sc.hr.playback:
             try:
                 check_scene(sc)
             except ReferenceError:
@@ -432,17 +390,17 @@ def _deferred_check():
 def on_undo_redo(*args):
     forget_loaded()  # undo may bring back HR_Radiance values of another frame
     for sc in bpy.data.scenes:
-        state["dirty"].add(sc.name_full)
+        STATE.dirty.add(sc.name_full)
 
 
 @persistent
 def on_load_post(*args):
     forget_readers()
-    state["messages"].clear()
-    state["stale"].clear()
-    state["dirty"].clear()
-    state["notes"].clear()
-    state["errors"].clear()
+    STATE.messages.clear()
+    STATE.stale.clear()
+    STATE.dirty.clear()
+    STATE.notes.clear()
+    STATE.errors.clear()
     for scene in bpy.data.scenes:
         if scene.hr.playback and bake_dir_abs(scene):
             load_frame(scene)

@@ -12,18 +12,14 @@ textured surface shows its texture.
 
 import bpy
 
-from .materials import PREVIEW, base_color_socket, read_material
-from .playback import ATTRIBUTE
-
-N_ATTR, N_EMIT, N_OUT = PREVIEW + " Attribute", PREVIEW + " Emission", PREVIEW + " Output"
-N_MUL, N_ADD = PREVIEW + " Base Color", PREVIEW + " Add Emission"
+from ..io.cache import CacheError, CacheReader
+from .materials import base_color_socket, read_material
+from .names import ATTRIBUTE, N_ADD, N_ATTR, N_EMIT, N_MUL, N_OUT, PREVIEW, TAG
+from .paths import bake_dir_abs
 
 
 def bake_mode(scene):
     """Radiance mode of the scene's bake ("RADIANCE" or "IRRADIANCE"; the setting if not baked)."""
-    from ..io.cache import CacheError, CacheReader
-    from .playback import bake_dir_abs
-
     d = bake_dir_abs(scene)
     try:
         return CacheReader(d).manifest.get("radiance_mode", "RADIANCE") if d else scene.hr.radiance_mode
@@ -161,8 +157,6 @@ def remove_preview(objects=None):
 def has_preview():
     """True when some material carries preview nodes, is the shared preview material, or is a
     baked-texture helper material (what Remove Preview removes)."""
-    from .texture import TAG
-
     for m in bpy.data.materials:
         if m.get("hr_preview") or m.get(TAG) is not None:
             return True
@@ -178,3 +172,27 @@ def refresh_preview(objects, irradiance):
     for m in mats:
         if m.node_tree is not None and N_OUT in m.node_tree.nodes:
             _add_nodes(m, irradiance)
+
+
+def show_radiance(objects):
+    """Make `objects` show HR_Radiance as it is (outgoing radiance; Live Relight): the preview
+    nodes where they are missing ("added"), or an irradiance preview re-wired ("rewired"); ""
+    when they show it already. undo_show_radiance() puts back what this changed."""
+    mats = [s.material for o in objects for s in o.material_slots if s.material is not None]
+    shown = all(m.node_tree is not None and N_OUT in m.node_tree.nodes for m in mats) and all(
+        o.material_slots for o in objects
+    )
+    if not shown:
+        add_preview(objects)
+        return "added"
+    if any(N_MUL in m.node_tree.nodes for m in mats):
+        refresh_preview(objects, irradiance=False)
+        return "rewired"
+    return ""
+
+
+def undo_show_radiance(scene, objects, change):
+    if change == "added":
+        remove_preview(objects)
+    elif change == "rewired":
+        refresh_preview(objects, bake_mode(scene) == "IRRADIANCE")

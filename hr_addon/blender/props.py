@@ -3,63 +3,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-METHOD_ITEMS = [
-    (
-        "AUTO",
-        "Auto: chosen per element by an error bound",
-        "Fractional emission or adaptive refinement, chosen per element by an error bound "
-        "(accurate and fast; recommended)",
-    ),
-    ("AR", "Adaptive refinement (AR)", "Subdivide the elements under the light shape's outline"),
-    (
-        "FE",
-        "Fractional emission (FE)",
-        "Elements partly covered by a light shape emit the covered fraction (fastest)",
-    ),
-    (
-        "NAIVE",
-        "Rebuild (naive)",
-        "Light shapes become new patches and the solution is rebuilt (slow reference)",
-    ),
-]
-QUALITY_ITEMS = [
-    ("DRAFT", "Draft", "Coarse and fast"),
-    ("MEDIUM", "Medium", "Balanced"),
-    ("HIGH", "High", "Fine subdivision, slow"),
-    ("CUSTOM", "Custom", "Use the form factor (Feps) and area (Aeps) thresholds below"),
-]
-OUTPUT_ITEMS = [
-    ("VERTEX", "Vertex", "Colour attribute HR_Radiance on each mesh"),
-    (
-        "TEXTURE",
-        "Baked Textures",
-        "One float image per object and frame (image sequence in the cache), "
-        "mapped by the UV map HR_Lightmap",
-    ),
-]
-TEXTURE_FORMAT_ITEMS = [
-    ("EXR", "OpenEXR", "32-bit float, linear (exact radiance)"),
-    ("PNG", "PNG", "16-bit, sRGB-encoded; radiance above 1 is clipped"),
-]
-RADIANCE_MODE_ITEMS = [
-    (
-        "RADIANCE",
-        "Outgoing radiance",
-        "The light leaving each surface (emission included, the material's colour baked in): shown as it is",
-    ),
-    (
-        "IRRADIANCE",
-        "Irradiance (lightmap)",
-        "The diffuse light arriving at each surface (irradiance / pi, no emission), which the "
-        "material multiplies by its own base colour: game-engine lightmaps, Cycles' Diffuse bake "
-        "without Color",
-    ),
-]
-DOMAIN_ITEMS = [
-    ("CORNER", "Face Corner", "One value per face corner: creases between walls stay sharp"),
-    ("POINT", "Vertex", "One value per vertex: smooth everywhere, smaller"),
-]
-
+from .settings import DEFAULTS, RESOLUTION, items
 
 # Blender 4.5+ warns about "//" in path properties unless they declare blend-relative support.
 _REL = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
@@ -68,16 +12,16 @@ _REL = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set
 class HR_SceneSettings(bpy.types.PropertyGroup):
     method: EnumProperty(
         name="Method",
-        items=METHOD_ITEMS,
-        default="AUTO",
+        items=items("method"),
+        default=DEFAULTS["method"],
         description="How light-shape changes are applied from one frame to the next",
     )
     # No update callback (it would copy the preset into feps/aeps): the bpy module of Blender 4.2 and
     # 4.5 crashes at exit when a property has one. The panel shows the preset's values instead.
     quality: EnumProperty(
         name="Quality",
-        items=QUALITY_ITEMS,
-        default="MEDIUM",
+        items=items("quality"),
+        default=DEFAULTS["quality"],
         description="Refinement preset (Custom: the thresholds below)",
     )
     feps: FloatProperty(
@@ -113,34 +57,37 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         "hierarchical radiosity output, faster to set up)",
     )
     output: EnumProperty(
-        name="Output", items=OUTPUT_ITEMS, default="VERTEX", description="Where the baked radiance goes"
+        name="Output",
+        items=items("output"),
+        default=DEFAULTS["output"],
+        description="Where the baked radiance goes",
     )
     radiance_mode: EnumProperty(
         name="Values",
-        items=RADIANCE_MODE_ITEMS,
-        default="RADIANCE",
+        items=items("radiance_mode"),
+        default=DEFAULTS["radiance_mode"],
         description="What the bake stores: outgoing radiance, or irradiance for lightmaps that "
         "the material's base colour (textures included) multiplies",
     )
     texture_resolution: IntProperty(
         name="Texture Size",
         default=128,
-        min=8,
+        min=RESOLUTION[0],
         soft_min=16,
-        max=16384,
+        max=RESOLUTION[1],
         soft_max=4096,
         description="Width and height of each object's lightmap in texels (objects may override it)",
     )
     texture_format: EnumProperty(
         name="Texture Format",
-        items=TEXTURE_FORMAT_ITEMS,
-        default="EXR",
+        items=items("texture_format"),
+        default=DEFAULTS["texture_format"],
         description="File format of the baked image sequences",
     )
     domain: EnumProperty(
         name="Domain",
-        items=DOMAIN_ITEMS,
-        default="CORNER",
+        items=items("domain"),
+        default=DEFAULTS["domain"],
         description="Domain of the HR_Radiance colour attribute",
     )
     use_frame_range: BoolProperty(

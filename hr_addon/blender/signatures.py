@@ -5,119 +5,50 @@ as the bake reads it (evaluated mesh: float32 world positions, polygons, loops) 
 material values used (reflectance and emission per material slot), and, per light shape, its
 identity (name, mesh data, vertex and polygon counts, materials: light shapes are animated, so
 not their positions). Instances are digested per (instancer, instanced object). Playback,
-Preview, Reload and the panel compute the same digests and name the objects that differ.
+Preview, Reload and the panel compute the same digests and name the objects that differ. The bake
+takes its digests from the same walk that reads the meshes (scene_in.collect_geometry); the digest
+helpers live there.
 """
 
 import hashlib
 
 import bpy
-import numpy as np
 
-from .materials import read_material
 from .scene_in import (
     _hidden_instancer,
+    _instance_digest,
+    _joined,
     _mesh_arrays,
-    _walk_collections,
+    _mesh_digest,
+    _object_digest,
     evaluated,
     geometry_objects,
     light_shape_objects,
+    participating_instances,
 )
-
-
-def _source_material(m):
-    """The material a texture-preview helper copy stands for (the bake reads that one)."""
-    from .texture import TAG
-
-    if m is None:
-        return None
-    orig = getattr(m, "original", m)
-    if orig.get(TAG) is None:
-        return orig
-    if orig.get("hr_lightmap_link", "DATA") == "OBJECT":
-        return orig.get("hr_lightmap_source")
-    return "DATA"
-
-
-def _materials(ob):
-    """Materials of an (evaluated) object's slots as the bake reads them."""
-    out = []
-    for i, slot in enumerate(ob.material_slots):
-        m = _source_material(slot.material)
-        if m == "DATA":  # helper on an object-level slot whose original link was the mesh's
-            me = ob.original.data
-            m = me.materials[i] if i < len(me.materials) else None
-        out.append(m)
-    return out or [None]
-
-
-def _material_values(mats, cache):
-    h = hashlib.sha1()
-    for m in mats:
-        key = None if m is None else m.name_full
-        if key not in cache:
-            s = read_material(m)
-            cache[key] = np.concatenate(
-                [np.asarray(s.reflectance, np.float64).ravel(), np.asarray(s.emission, np.float64).ravel()]
-            ).tobytes()
-        h.update(cache[key])
-    return h.digest()
-
-
-def _mesh_digest(arrays):
-    co, ls, lt, lv, mi, _ = arrays
-    h = hashlib.sha1()
-    for a, t in ((ls, np.int64), (lt, np.int64), (lv, np.int64), (mi, np.int64)):
-        h.update(np.ascontiguousarray(a, t).tobytes())
-    return co, h.digest()
-
-
-def _placed_digest(co, topo, matrix, matvals):
-    M = np.asarray(matrix, np.float64)
-    world = (co @ M[:3, :3].T + M[:3, 3]).astype(np.float32)
-    h = hashlib.sha1(np.ascontiguousarray(world).tobytes())
-    h.update(topo)
-    h.update(matvals)
-    return h
 
 
 def geometry_signatures(view_layer, depsgraph):
     """{object name (or 'instancer/source' for instances): hex digest} of everything that takes
     part in the light, as the bake reads it."""
-    out, mat_cache, mesh_cache = {}, {}, {}
+    out, mat_cache = {}, {}
     for obj in geometry_objects(view_layer):
         if _hidden_instancer(obj):
             continue
         ob, arrays = evaluated(obj, depsgraph)
         if len(arrays[1]) == 0:
             continue
-        co, topo = _mesh_digest(arrays)
-        out[obj.name] = _placed_digest(
-            co, topo, ob.matrix_world, _material_values(_materials(ob), mat_cache)
-        ).hexdigest()
-    ok = {
-        o.name
-        for o in _walk_collections(view_layer)
-        if not o.hide_render and not o.hr.exclude and not o.hr.is_light_shape
-    }
-    inst = {}
-    for di in depsgraph.object_instances:
-        if not di.is_instance or di.object is None or di.object.type != "MESH" or di.parent is None:
-            continue
-        instancer, source = di.parent.original, di.object.original
-        if instancer.name not in ok or source.hr.exclude or source.hr.is_light_shape:
-            continue
+        out[obj.name] = _object_digest(ob, arrays, mat_cache).hexdigest()
+    inst, mesh_cache = {}, {}
+    for di, label in participating_instances(view_layer, depsgraph):
         me = di.object.data
         key = (me.as_pointer(), me.name)
         if key not in mesh_cache:
             arrays = _mesh_arrays(me)
             mesh_cache[key] = _mesh_digest(arrays) if len(arrays[1]) else None
-        if mesh_cache[key] is None:
-            continue
-        co, topo = mesh_cache[key]
-        h = _placed_digest(co, topo, di.matrix_world, _material_values(_materials(di.object), mat_cache))
-        inst.setdefault(f"{instancer.name}/{source.name}", []).append(h.digest())
-    for k, digests in inst.items():
-        out[k] = hashlib.sha1(b"".join(sorted(digests))).hexdigest()
+        if mesh_cache[key] is not None:
+            inst.setdefault(label, []).append(_instance_digest(di, mesh_cache[key], mat_cache))
+    out.update(_joined(inst))
     return out
 
 

@@ -31,16 +31,13 @@ from ..lightmap.charts import MARGIN, pack_lightmap
 from ..lightmap.plan import TexturePlan, triangle_uvs
 from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
-from .materials import PREVIEW, albedo_texture
+from .materials import albedo_texture
+from .names import N_ATTR, N_EMIT, N_OUT, N_TEX, N_UV, PREVIEW, TAG, UV_NAME
+from .paths import bake_dir_abs, blend_relative
 from .preview import colour_chain, node_named
 from .scene_in import evaluated, mesh_topology
 
-UV_NAME = "HR_Lightmap"
 PACK_VERSION = 1
-
-N_UV, N_TEX = PREVIEW + " Lightmap UV", PREVIEW + " Lightmap"
-N_EMIT, N_OUT, N_ATTR = PREVIEW + " Emission", PREVIEW + " Output", PREVIEW + " Attribute"
-TAG = "hr_lightmap_of"  # on helper materials and images: the object's name
 
 
 # --- lightmap UV layers --------------------------------------------------------------------------
@@ -266,9 +263,7 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
 
 
 def _manifest(scene):
-    from . import playback
-
-    directory = playback.bake_dir_abs(scene)
+    directory = bake_dir_abs(scene)
     if not directory:
         raise CacheError("No radiosity bake: bake first.")
     reader = CacheReader(directory)
@@ -292,12 +287,7 @@ def _sequence_image(obj, path, fmt):
     if img is None:
         img = bpy.data.images.new(f"HR Lightmap {obj.name}", 4, 4, float_buffer=True)
         img[TAG] = obj.name
-    fp = path
-    if bpy.data.filepath:
-        try:
-            fp = bpy.path.relpath(path)
-        except ValueError:
-            pass
+    fp = blend_relative(path)
     img.source = "FILE"
     img.filepath = fp
     img.source = "SEQUENCE"

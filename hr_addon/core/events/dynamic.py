@@ -274,7 +274,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         if cached is not None:
             cached.emission, cached.key, cached.name = em, key, name
             rec = cached
-            rep.messages.append(f"shape '{name}': response reused from the cache")
+            rep.reused = True
         else:
             self._plane(rec)
             self._find_surface(rec)

@@ -31,7 +31,8 @@ class EventReport:
     memory_bytes: int = 0  # nodes + links + cached responses
     emission_l1: float = 0.0  # relative L1 error of the shape's emission field (exact for FE/AR/AUTO)
     covered: float = 1.0  # fraction of the shape's area lying on surfaces
-    messages: list = field(default_factory=list)
+    reused: bool = False  # the shape's response came from the cache (same shape seen before)
+    messages: list = field(default_factory=list)  # warnings for the user
 
 
 @dataclass

@@ -1,0 +1,415 @@
+"""Light in: light-shape objects -> core LightShape rings, Blender lights -> core Light, and the
+checks of what lights the scene before a bake (nothing emits, unsupported light features, the
+World, shapes that cannot emit, emitters animated in ways the bake does not follow).
+"""
+
+import hashlib
+
+import numpy as np
+
+from ..core.geometry import components, newell
+from .materials import read_material, world_lights
+from .scene_in import (
+    EvalMesh,
+    _surfaces,
+    _walk_collections,
+    geometry_objects,
+    light_shape_objects,
+    read_mesh,
+)
+
+
+# --- light shapes -------------------------------------------------------------------------------
+
+
+def _drop_collinear(ring, tol=1e-9):
+    while len(ring) > 3:
+        a, b = np.roll(ring, 1, 0), np.roll(ring, -1, 0)
+        cr = np.linalg.norm(np.cross(ring - a, b - ring), axis=1)
+        scale = np.linalg.norm(ring - a, axis=1) * np.linalg.norm(b - ring, axis=1)
+        bad = np.flatnonzero(cr <= tol * np.maximum(scale, 1e-300))
+        if not len(bad):
+            break
+        ring = np.delete(ring, bad[0], 0)
+    return ring
+
+
+def _group_outline(verts, polys):
+    """Boundary rings (outer first, then holes) of a connected set of coplanar polygons.
+
+    polys: list of vertex-index lists with consistent winding. Returns None when the boundary is
+    not a set of simple loops (the caller then passes the polygons one by one).
+    """
+    edges = {}
+    for p in polys:
+        for a, b in zip(p, p[1:] + p[:1]):
+            if (a, b) in edges:
+                return None  # inconsistent winding or duplicate face
+            edges[(a, b)] = True
+    nxt = {}
+    for a, b in edges:
+        if (b, a) not in edges:
+            if a in nxt:
+                return None  # two boundary loops touch at a vertex
+            nxt[a] = b
+    rings = []
+    while nxt:
+        start = next(iter(nxt))
+        ring = [start]
+        v = nxt.pop(start)
+        while v != start:
+            if v not in nxt:
+                return None
+            ring.append(v)
+            v = nxt.pop(v)
+        rings.append(verts[ring])
+    normal = sum(newell(verts[p]) for p in polys)
+    areas = [float(newell(r) @ normal) for r in rings]
+    outer = [r for r, a in zip(rings, areas) if a > 0]
+    holes = [r for r, a in zip(rings, areas) if a < 0]
+    if len(outer) != 1:
+        return None
+    return [_drop_collinear(outer[0])] + [_drop_collinear(h) for h in holes]
+
+
+def mesh_outlines(em: EvalMesh):
+    """[(group_polys, rings, material_slot)] for an evaluated light-shape mesh.
+
+    Polygons are grouped when they share an edge, lie in one plane and use one material; each
+    group becomes one outline (outer ring + holes). Groups whose outline is not simple fall back
+    to one ring per polygon.
+    """
+    P = len(em.loop_start)
+    polys = [
+        list(em.loop_verts[s : s + n][::-1] if em.flipped else em.loop_verts[s : s + n])
+        for s, n in zip(em.loop_start, em.loop_total)
+    ]
+    nrm, off = np.zeros((P, 3)), np.zeros(P)
+    for i, p in enumerate(polys):
+        n = newell(em.verts[p])
+        ln = np.linalg.norm(n)
+        nrm[i] = n / ln if ln > 0 else 0
+        off[i] = nrm[i] @ em.verts[p].mean(0)
+    scale = float(np.abs(em.verts).max()) if len(em.verts) else 1.0
+    pairs = []
+    edge_owner = {}
+    for i, p in enumerate(polys):
+        for a, b in zip(p, p[1:] + p[:1]):
+            j = edge_owner.get((b, a))
+            if (
+                j is not None
+                and em.material_index[i] == em.material_index[j]
+                and nrm[i] @ nrm[j] > 1 - 1e-9
+                and abs(off[i] - off[j]) <= 1e-7 * max(scale, 1.0)
+            ):
+                pairs.append((i, j))
+            edge_owner[(a, b)] = i
+    i, j = np.array(pairs, np.int64).reshape(-1, 2).T
+    label = components(P, i, j)
+    order = np.argsort(label, kind="stable")  # groups by their first polygon
+    groups = [g.tolist() for g in np.split(order, np.flatnonzero(np.diff(label[order])) + 1)] if P else []
+    out = []
+    for g in groups:
+        rings = _group_outline(em.verts, [polys[i] for i in g]) if len(g) > 1 else None
+        if rings is not None:
+            out.append((g, rings, int(em.material_index[g[0]])))
+        else:
+            out += [([i], [_drop_collinear(em.verts[polys[i]])], int(em.material_index[i])) for i in g]
+    return out
+
+
+def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objects=None):
+    """{stable id: LightShape} of the light shapes active in the current (evaluated) frame.
+
+    objects: the light-shape objects of view_layer if the caller knows them (Live Relight between
+    two edits of known shapes: walking every collection of a big scene costs more than reading the
+    shapes); default: light_shape_objects(view_layer)."""
+    shapes = {}
+    mat_cache = {}
+    warnings = [] if warnings is None else warnings
+    for obj in light_shape_objects(view_layer) if objects is None else objects:
+        if obj.type != "MESH" or not obj.hr.is_light_shape or obj.hr.exclude or obj.hide_render:
+            continue
+        ob = obj.evaluated_get(depsgraph)
+        if ob.hide_render:
+            continue
+        em = read_mesh(obj, depsgraph)
+        if len(em.loop_start) == 0:
+            continue
+        _, em_t = _surfaces(em.materials, warnings, mat_cache)
+        flat = False
+        for g, rings, slot in mesh_outlines(em):
+            e = em_t[slot]
+            if not (e > 0).any():
+                continue
+            # points in one spot or on a line (keyed to scale 0, squashed): off, not an error; a
+            # bowtie (no net area, but points spread in a plane) stays the shape check's error
+            sv = np.linalg.svd(rings[0] - rings[0].mean(0), compute_uv=False)
+            if sv[1] <= 1e-9 * max(sv[0], 1e-300):
+                flat = True
+                continue
+            key = f"{obj.name}:{g[0]}"  # first polygon of the outline: stable while the mesh is
+            shapes[key] = LightShape(
+                rings=[np.ascontiguousarray(r, np.float64) for r in rings],
+                emission=np.asarray(e, np.float64),
+                name=obj.name,
+            )
+        if flat:
+            warnings.append(
+                f"Light shape '{obj.name}' has no area on frame {depsgraph.scene.frame_current} "
+                "(scaled to 0 or squashed to a line): off on that frame."
+            )
+    return shapes
+
+
+def shapes_signature(shapes):
+    """Hashable digest of a frame's light state (identical frames -> identical digest)."""
+    h = hashlib.sha1()
+    for key in sorted(shapes):
+        s = shapes[key]
+        h.update(key.encode())
+        h.update(np.asarray(s.emission, np.float64).tobytes())
+        for r in s.rings:
+            h.update(np.asarray(r, np.float64).tobytes())
+            h.update(b"|")
+    return h.hexdigest()
+
+
+# --- what lights the scene ----------------------------------------------------------------------
+
+
+def _animated(*blocks):
+    """True if one of the ID blocks (None allowed) has keyframes or drivers."""
+    return any(
+        b is not None and b.animation_data and (b.animation_data.action or b.animation_data.drivers)
+        for b in blocks
+    )
+
+
+def _emits(mat):
+    """True if `mat` emits, or may on another frame (its emission is animated or driven)."""
+    return mat is not None and bool((read_material(mat).emission > 0).any() or _animated(mat, mat.node_tree))
+
+
+def _moves(obj):
+    while obj is not None:
+        if _animated(obj):
+            return True
+        obj = obj.parent
+    return False
+
+
+def frozen_emitters(view_layer, frame):
+    """Warnings naming the emitting geometry (not light shapes) whose material or object is animated:
+    ordinary geometry is read once, at the bake's start frame, so that animation is not followed."""
+    out, emits = [], {}
+    for o in geometry_objects(view_layer):
+        mats = {s.material for s in o.material_slots} - {None}
+        for m in mats - emits.keys():
+            emits[m] = _emits(m)
+        lit = [m for m in mats if emits[m]]
+        what = [f"material '{m.name}'" for m in lit if _animated(m, m.node_tree)] + (
+            ["it moves"] if lit and _moves(o) else []
+        )
+        if what:
+            out.append(
+                f"Object '{o.name}' emits light and is animated ({', '.join(what)}), but ordinary geometry "
+                f"is read once, on frame {frame}: its light stays as on that frame. Make it a light shape "
+                "(a flat emitter on a surface) to follow it."
+            )
+    return out
+
+
+def _flat(em: EvalMesh):
+    """True if every connected piece of a light-shape mesh lies in one plane and faces one way (a
+    closed box or a bent strip does not: each of its faces becomes a shape of its own)."""
+    P, V = len(em.loop_start), len(em.verts)
+    if P < 2:
+        return True
+    # polygons joined through their vertices; a label is the piece's smallest polygon index
+    label = components(P + V, np.repeat(np.arange(P), em.loop_total), P + em.loop_verts)
+    n = np.array([newell(em.verts[em.loop_verts[s : s + k]]) for s, k in zip(em.loop_start, em.loop_total)])
+    piece = np.zeros((P + V, 3))
+    np.add.at(piece, label[:P], n)  # area-weighted: a closed box sums to 0
+    ln = np.linalg.norm(piece, axis=1)
+    piece /= np.maximum(ln, 1e-300)[:, None]
+    unit = n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+    faces_one_way = np.einsum("ij,ij->i", unit, piece[label[:P]]) > 1 - 1e-6
+    degenerate = np.linalg.norm(n, axis=1) == 0
+    used = np.zeros(V, bool)
+    used[em.loop_verts] = True
+    vl = label[P:][used]
+    d = np.einsum("ij,ij->i", em.verts[used], piece[vl])
+    lo, hi = np.full(P + V, np.inf), np.full(P + V, -np.inf)
+    np.minimum.at(lo, vl, d)
+    np.maximum.at(hi, vl, d)
+    tol = 1e-5 * float(np.ptp(em.verts[used], axis=0).max()) + 1e-6 * float(np.abs(em.verts).max())
+    return bool((faces_one_way | degenerate).all() and (hi[vl] - lo[vl] <= tol).all())
+
+
+def light_shape_problem(obj, depsgraph):
+    """(emits, why): whether the light shape `obj` emits (or may on another frame), and '' or why
+    it cannot give its light as a light shape (no emission, or not flat)."""
+    em = read_mesh(obj, depsgraph)
+    used = np.unique(em.material_index) if len(em.loop_start) else []
+    if not any(_emits(em.materials[int(i)]) for i in used):
+        return False, (
+            "its material does not emit (no Emission shader, or Emission Strength 0), so it adds "
+            "no light; give it an emissive material"
+        )
+    if not _flat(em):
+        return True, (
+            "it is not flat (its faces do not lie in one plane, like a closed box); a light shape is "
+            "a flat patch on a surface, so each face is taken as a shape of its own"
+        )
+    return True, ""
+
+
+def materials_emit(depsgraph):
+    """True if a mesh of the depsgraph (instances included) that is not a light shape has a material
+    that emits: a quick, generous check before a background bake (the bake checks the polygons)."""
+    seen = set()
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        if ob is None or ob.type != "MESH" or ob.original.hr.is_light_shape:
+            continue
+        for m in {s.material for s in ob.material_slots} - seen:
+            seen.add(m)
+            if _emits(m):
+                return True
+    return False
+
+
+def light_objects(view_layer, include_hidden=False):
+    """Blender Light objects of the view layer that render (collections not excluded or hidden)
+    and are not excluded from the bake (Object.hr.exclude, the panel's per-light switch);
+    include_hidden: hidden for render too (they may be shown on another frame)."""
+    return [
+        o
+        for o in _walk_collections(view_layer)
+        if o.type == "LIGHT" and (include_hidden or not o.hide_render) and not o.hr.exclude
+    ]
+
+
+def light_features(obj, ld=None):
+    """Names of what the bake does not follow of the light `obj` (its evaluated data `ld`): light
+    nodes (IES profiles among them), light linking, blackbody temperature, an area light's spread,
+    unnormalised power, shadows switched off, a square spot, a spot's non-uniform scale."""
+    ld = ld or obj.data
+    out = []
+    if getattr(ld, "use_nodes", False):
+        out.append("light nodes (IES profiles, textures: the node setup is ignored)")
+    link = getattr(obj, "light_linking", None)
+    if link is not None and (link.receiver_collection is not None or link.blocker_collection is not None):
+        out.append("light linking (it lights every object)")
+    if getattr(ld, "use_temperature", False):
+        out.append("blackbody temperature (its Color is used)")
+    if ld.type == "AREA" and float(getattr(ld, "spread", np.pi)) < np.pi - 1e-6:
+        out.append("area spread below 180 degrees (lights as 180)")
+    if not getattr(ld, "normalize", True):
+        out.append("unnormalized power (taken as normalized)")
+    if not getattr(ld, "use_shadow", True):
+        out.append("shadows off (it casts shadows)")
+    if ld.type == "SPOT" and getattr(ld, "use_square", False):
+        out.append("a square spot (a round cone is used)")
+    if ld.type == "SPOT":
+        sc = np.asarray(obj.matrix_world.to_scale())
+        if np.ptp(sc[:2]) > 1e-6 * max(float(np.abs(sc[:2]).max()), 1e-30):
+            out.append("non-uniform scale of the spot's cone (a round cone is used)")
+    return out
+
+
+def collect_lights(view_layer, depsgraph, Light, warnings=None, objects=None):
+    """{"light:" + name: core.lights.Light} of the Blender lights that render in the current
+    (evaluated) frame: transform, colour, power/strength, radius, spot size and blend, sun angle,
+    area shape and size, all as evaluated (keyframes and drivers followed). Lights with no power,
+    hidden from render or not lighting diffuse surfaces are left out. `warnings` gets what a light
+    has that the bake does not follow (light_features), once per light."""
+    import math
+
+    out = {}
+    warnings = [] if warnings is None else warnings
+    for obj in light_objects(view_layer) if objects is None else objects:
+        ob = obj.evaluated_get(depsgraph)
+        if ob.hide_render or not getattr(ob, "visible_diffuse", True):
+            continue
+        ld = ob.data
+        factor = 2.0 ** float(getattr(ld, "exposure", 0.0)) * float(getattr(ld, "diffuse_factor", 1.0))
+        strength = float(ld.energy) * factor
+        if not strength > 0 or not max(ld.color) > 0:
+            continue
+        for f in light_features(ob, ld):
+            warnings.append(f"Light '{obj.name}': {f} is not supported by the bake.")
+        M = np.array(ob.matrix_world, np.float64)
+        pos = M[:3, 3]
+        z = M[:3, 2]
+        direction = -z / max(float(np.linalg.norm(z)), 1e-300)
+        kw = dict(
+            color=np.array(ld.color[:3], np.float64),
+            strength=strength,
+            position=pos,
+            direction=direction,
+            name=obj.name,
+        )
+        if ld.type in ("POINT", "SPOT"):
+            soft = bool(getattr(ld, "use_soft_falloff", True))
+            kw.update(radius=float(ld.shadow_soft_size), soft_falloff=soft)
+        if ld.type == "SPOT":
+            kw.update(spot_size=float(ld.spot_size), spot_blend=float(ld.spot_blend))
+        if ld.type == "SUN":
+            kw.update(angle=float(ld.angle))
+        if ld.type == "AREA":
+            from ..core.lights import area_outline
+
+            kw.update(outline=area_outline(ld.shape, ld.size, ld.size_y, M))
+        try:
+            out["light:" + obj.name] = Light(ld.type, **kw)
+        except ValueError as exc:
+            warnings.append(f"Light '{obj.name}': {exc}; left out.")
+        if not all(math.isfinite(v) for v in (strength, *pos)):
+            out.pop("light:" + obj.name, None)
+            warnings.append(f"Light '{obj.name}': its position or power is not finite; left out.")
+    return out
+
+
+def lights_signature(lights):
+    """Hashable digest of the lights' state (identical frames -> identical digest)."""
+    h = hashlib.sha1()
+    for key in sorted(lights):
+        L = lights[key]
+        h.update(key.encode())
+        h.update(repr(L.geom_key).encode())
+        h.update(np.asarray(L.scale, np.float64).tobytes())
+    return h.hexdigest()
+
+
+def light_check(view_layer, scene, depsgraph, geometry_emits):
+    """(error, warnings) about the scene's light before a bake. error ('' if none): nothing emits
+    and no Blender light shines, so the bake would be black. warnings: the World the bake ignores,
+    what Blender lights have that the bake does not follow (light_features), light shapes that
+    cannot emit (light_shape_problem)."""
+    lights = [o for o in light_objects(view_layer) if o.data.energy > 0 and max(o.data.color) > 0]
+    world = world_lights(scene.world)
+    warnings, shapes_emit = [], False
+    for o in light_shape_objects(view_layer, include_hidden=True):
+        emits, why = light_shape_problem(o, depsgraph)
+        shapes_emit |= emits
+        if why:
+            warnings.append(f"Light shape '{o.name}': {why}.")
+    for o in lights:
+        for f in light_features(o):
+            warnings.append(f"Light '{o.name}': {f} is not supported by the bake.")
+    ignored = "The World's background lights the render but is ignored by the bake (not supported yet)"
+    if not (geometry_emits or shapes_emit or lights):
+        return (
+            "Nothing in the scene emits light, so the bake would be black: no Blender light (with "
+            "power > 0, rendered), no mesh with an emissive material (an Emission shader, or a "
+            "Principled BSDF with Emission Strength > 0) and no light shape that emits."
+            + (f" {ignored}." if world else "")
+            + " Add a light, give a mesh an emissive material, or mark a flat emissive mesh as a "
+            "light shape.",
+            warnings,
+        )
+    if world:
+        warnings.insert(0, ignored + ": only Blender lights, emissive materials and light shapes give light.")
+    return "", warnings

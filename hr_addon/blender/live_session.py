@@ -1,0 +1,464 @@
+"""Live Relight's sessions (Scene.hr.live): edit a light shape, see HR_Radiance follow.
+
+A session per scene keeps one hierarchy in memory (built once, off the UI thread, with progress)
+and turns every light-shape edit into light events on it: move, scale, rotate, reshape in Edit
+Mode, strength or colour, hide_render, new or removed shapes. Blender data is read and written on
+the main thread only: live.py's depsgraph handler marks the session dirty, its timer reads the
+light shapes (_reconcile), hands the full set to the worker (live_worker.py: numpy only, its own
+thread, edits coalesced) and writes each finished result into HR_Radiance (_deliver); the previous
+result stays on screen until then. Participating geometry or settings that change (signatures.py,
+as the bake's stale check) rebuild the hierarchy, and the panel says why.
+
+`update()` (operator hr.live_update) is the synchronous entry point: it reads the current state of
+everything, applies what changed since the last update (whether or not a handler fired) and
+returns when HR_Radiance is current. In background mode it is how Live is driven: there is no
+event loop, so no timer and no thread.
+
+Live never runs together with a bake: it refuses to start while one runs, and a bake that starts
+ends it (the bake-start hook of state.py). Turning it off restores the baked playback (or removes
+HR_Radiance when there is no bake).
+"""
+
+import time
+from collections import deque
+
+import bpy
+
+from ..core.events import LightShape
+from .state import STATE
+from . import names, paths, playback, preview, signatures, texture
+from .settings import BakeConfig, solver_setup
+from ..io.cache import changed_objects
+from .live_worker import BuildSpec, LiveWorker
+from .lights_in import collect_light_shapes, collect_lights, lights_signature, shapes_signature
+from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
+
+
+class LiveError(SceneError):
+    """Live Relight cannot do what was asked (one-line reason)."""
+
+
+BAKE_RUNNING = (
+    "A radiosity bake is running: Live Relight cannot start until it has finished (or is cancelled)."
+)
+TICK, IDLE_POLL, GEOMETRY_SETTLE, WATCH = 0.02, 0.5, 0.25, 1.0  # seconds
+
+
+def message(scene):
+    return STATE.live_messages.get(scene.name_full, "") if scene is not None else ""
+
+
+def session(scene):
+    return STATE.live_sessions.get(scene.name_full) if scene is not None else None
+
+
+def is_live(scene):
+    return session(scene) is not None
+
+
+class Session:
+    def __init__(self, scene, view_layer, threaded):
+        self.scene_name = scene.name_full
+        self.view_layer_name = view_layer.name
+        self.worker = LiveWorker(threaded)
+        self.settings = None  # settings of the last build request
+        self.geometry = None  # geometry signatures of the last build request
+        self.geo_names = None  # names of the geometry objects then
+        self.geo_materials = set()  # their materials (a depsgraph update of one may change the light)
+        self.shape_meshes = set()  # mesh data of the light shapes (their edits are light events)
+        self.shape_objects = []  # names of the light-shape objects (all, hidden ones too)
+        self.shape_materials = set()  # their materials
+        self.full_read = True  # an update other than of known light shapes: read everything
+        self.domain = "CORNER"
+        self.targets = []  # object names that get HR_Radiance
+        self.reason = ""  # why the hierarchy is (being) built
+        self.serial = 0
+        self.requested_sig = None  # light state handed to the worker last
+        self.shown_sig = None  # light state whose result is in HR_Radiance
+        self.last = None  # the Result shown
+        self.error = ""  # the current light state cannot be computed (the last valid one shows)
+        self.problems = ""  # writing HR_Radiance failed for some objects
+        self.fatal = ""
+        self.notes = []  # warnings of the geometry read and of the build
+        self.light_notes = []  # warnings of the current light state
+        self.dirty = True  # something may have changed: read the light shapes again
+        self.geometry_dirty = 0.0  # time of the last update that may have changed the geometry (0: none)
+        self.force_write = False  # HR_Radiance must be written again (undo, render)
+        self.preview_change = ""  # what preview.show_radiance changed (undone when Live ends)
+        self.texture_objects = []  # objects whose baked-texture preview Live took off (restored)
+        self.last_poll = 0.0
+        self.render_note = ""  # said once per render (see on_frame_change_pre)
+        self.latencies = deque(maxlen=500)  # seconds from a light-state request to HR_Radiance written
+        self.updates = 0
+
+    # -- what the panel shows --------------------------------------------------------------------
+    @property
+    def building(self):
+        w = self.worker
+        return w.generation > w.built and w.phase not in ("failed", "closed")
+
+    def text(self):
+        w = self.worker
+        if self.fatal:
+            return f"Live Relight stopped: {self.fatal}"
+        if self.building:
+            pct = f"{100 * w.fraction:.0f}%"
+            eta = "" if w.eta != w.eta else f", about {w.eta:.0f} s left"
+            return f"Live: building the hierarchy ({self.reason}): {pct}{eta}"
+        if self.error:
+            return f"Live: {self.error} Showing the light of the last valid state."
+        if self.last is None:
+            return "Live: computing"
+        if w.pending or self.dirty:
+            return "Live: updating (showing the previous state until the new one is ready)"
+        r = self.last
+        n = len(r.report.events) if r.report is not None else 0
+        ms = 1000 * (r.t_apply + r.t_output)
+        return f"Live: up to date; last update {ms:.0f} ms ({n} light event(s), {w.spec.method})"
+
+
+def _scene_of(sess):
+    scene = bpy.data.scenes.get(sess.scene_name)
+    if scene is None:
+        return None, None
+    vl = scene.view_layers.get(sess.view_layer_name) or scene.view_layers[0]
+    return scene, vl
+
+
+def _depsgraph(scene, view_layer):
+    """The evaluated depsgraph of scene / view_layer, up to date."""
+    ctx = bpy.context
+    try:
+        if ctx.scene == scene and ctx.view_layer == view_layer:
+            return ctx.evaluated_depsgraph_get()
+    except (AttributeError, RuntimeError, ReferenceError):
+        pass
+    dg = view_layer.depsgraph
+    dg.update()
+    return dg
+
+
+def _settings(scene):
+    hr = scene.hr
+    custom = (float(hr.feps), float(hr.aeps)) if hr.quality == "CUSTOM" else ()
+    return (hr.method, hr.quality, custom, hr.domain, bool(hr.contacts), bool(hr.final_gather))
+
+
+def _describe_settings(old, new):
+    names = ("method", "quality", "thresholds", "domain", "contacts", "final gather")
+    return (
+        ", ".join(f"{n} {str(b).lower()}" for n, a, b in zip(names, old, new) if a != b and n != "thresholds")
+        or "thresholds"
+    )
+
+
+# -- start, stop -----------------------------------------------------------------------------------
+def start(scene, view_layer=None, threaded=None):
+    """Start Live on scene (no-op if it runs). Raises LiveError with the reason when it cannot."""
+    sess = session(scene)
+    if sess is not None:
+        return sess
+    if STATE.bake_running():
+        _refuse(scene, BAKE_RUNNING)
+    view_layer = view_layer or (
+        bpy.context.view_layer if bpy.context.scene == scene else scene.view_layers[0]
+    )
+    if not geometry_objects(view_layer):
+        _refuse(scene, "No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
+    STATE.live_messages.pop(scene.name_full, None)
+    threaded = (not bpy.app.background) if threaded is None else threaded
+    sess = Session(scene, view_layer, threaded)
+    STATE.live_sessions[scene.name_full] = sess
+    scene.hr.live = True
+    try:
+        _show_through_attribute(sess, scene, view_layer)
+        _reconcile(sess, scene, view_layer, check_geometry=True)
+    except Exception:
+        stop(scene)
+        raise
+    print(f"HR Radiosity: Live Relight on ({sess.reason})", flush=True)
+    return sess
+
+
+def _refuse(scene, why):
+    scene.hr.live = False
+    STATE.live_messages[scene.name_full] = why
+    raise LiveError(why)
+
+
+def stop(scene, restore=True):
+    """End Live on scene. restore: the baked playback again (or no HR_Radiance without a bake).
+    Returns what was restored ('' when Live was not on)."""
+    sess = STATE.live_sessions.pop(scene.name_full, None)
+    if scene.hr.live:
+        scene.hr.live = False
+    if sess is None:
+        return ""
+    sess.worker.close()
+    return _restore(sess, scene) if restore else ""
+
+
+def stop_all(restore=False):
+    for name in list(STATE.live_sessions):
+        scene = bpy.data.scenes.get(name)
+        if scene is not None:
+            stop(scene, restore)
+        else:
+            STATE.live_sessions.pop(name).worker.close()
+
+
+def end_for_bake(scene):
+    """A bake starts: it shows its own result when it finishes, so Live ends (without restoring)."""
+    if is_live(scene):
+        stop(scene, restore=False)
+        STATE.live_messages[scene.name_full] = "Live Relight turned off for the bake."
+        print("HR Radiosity: Live Relight turned off for the bake", flush=True)
+        return True
+    return False
+
+
+STATE.on_bake_start(end_for_bake)  # a bake ends Live: it shows its own result when it has finished
+
+
+def _show_through_attribute(sess, scene, view_layer):
+    """Make the viewport show HR_Radiance: the preview nodes (Attribute -> Emission) on the
+    participating materials, instead of a baked-texture preview (put back by _restore)."""
+    objs = geometry_objects(view_layer)
+    if texture.is_texture_bake(scene):
+        from .texture import _helper
+
+        sess.texture_objects = [o.name for o in objs if any(_helper(s) for s in o.material_slots)]
+        if sess.texture_objects:
+            texture.remove_material(objs)
+    sess.preview_change = preview.show_radiance(objs)
+
+
+def _restore(sess, scene):
+    objs = [
+        o
+        for o in playback.objects_by_name(scene, sess.targets).values()
+        if o is not None and o.type == "MESH"
+    ]
+    preview.undo_show_radiance(scene, objs, sess.preview_change)
+    has_bake = bool(paths.bake_dir_abs(scene))
+    if has_bake and scene.hr.playback and not texture.is_texture_bake(scene):
+        playback.forget_loaded()
+        playback.load_frame(scene)
+        return "the baked playback"
+    for o in objs:
+        attr = o.data.color_attributes.get(names.ATTRIBUTE)
+        if attr is not None:
+            o.data.color_attributes.remove(attr)
+    if sess.texture_objects:
+        try:
+            texture.add_material(scene, [o for o in objs if o.name in sess.texture_objects])
+        except Exception as exc:  # noqa: BLE001  (the cache may be gone: say so, go on)
+            print(f"HR Radiosity: the baked-texture preview could not be restored: {exc}", flush=True)
+        return "the baked textures"
+    return "the baked playback" if has_bake else "no HR_Radiance (there is no bake)"
+
+
+# -- reading the scene -----------------------------------------------------------------------------
+def _read_shapes(sess, view_layer, depsgraph, fast=False):
+    """The active light shapes, their digest and warnings. fast: only known light shapes were
+    edited since the last read: read those (no walk over every object of the scene)."""
+    warnings = []
+    known = [bpy.data.objects.get(n) for n in sess.shape_objects] if fast else None
+    if known is not None and all(o is not None for o in known):
+        shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, objects=known)
+    else:
+        objs = light_shape_objects(view_layer, include_hidden=True)
+        sess.shape_objects = [o.name for o in objs]
+        sess.shape_meshes = {o.data.name for o in objs}
+        sess.shape_materials = {
+            s.material.name_full for o in objs for s in o.material_slots if s.material is not None
+        }
+        shapes = collect_light_shapes(
+            view_layer, depsgraph, LightShape, warnings, objects=[o for o in objs if not o.hide_render]
+        )
+    sig = shapes_signature(shapes)
+    # Blender lights (issue 20) ride along in the same dict under "light:" keys (core.lights.Light
+    # values); the worker hands them to DynamicRadiosity.apply as its lights
+    from ..core.lights import Light
+
+    lights = collect_lights(view_layer, depsgraph, Light, warnings)
+    if lights:
+        sig += lights_signature(lights)
+        shapes = {**shapes, **lights}
+    return shapes, sig, warnings
+
+
+def _build(sess, scene, view_layer, depsgraph, reason):
+    cfg = BakeConfig.resolve(scene.hr)
+    method, domain = cfg.method, cfg.domain
+    objs = geometry_objects(view_layer)
+    with texture.source_materials(objs):
+        scene_in = collect_geometry(view_layer, depsgraph)
+    params, min_area_rel, far = solver_setup(scene_in.mesh, cfg.params)
+    targets = list(scene_in.targets)
+
+    def extract(values, targets=targets, domain=domain):
+        return {t.name: t.extract(values, domain) for t in targets}
+
+    spec = BuildSpec(
+        scene_in.mesh,
+        params,
+        method,
+        min_area_rel,
+        domain,
+        extract,
+        reason,
+        len(scene_in.mesh.loop_start),
+        cfg.gather,
+    )
+    sess.settings = _settings(scene)
+    sess.geometry = scene_in.signatures
+    sess.geo_names = [o.name for o in objs]
+    sess.geo_materials = {
+        s.material.name_full for o in objs for s in o.material_slots if s.material is not None
+    }
+    sess.domain = domain
+    sess.targets = [t.name for t in targets]
+    sess.notes = list(scene_in.warnings) + ([far] if far else [])
+    sess.reason = reason
+    sess.error = sess.fatal = ""
+    shapes, sig, warnings = _read_shapes(sess, view_layer, depsgraph)
+    sess.light_notes = warnings
+    sess.serial += 1
+    sess.requested_sig = sig
+    sess.worker.request_build(spec, sess.serial, sig, shapes)
+
+
+def _geometry_change(sess, view_layer, depsgraph, full):
+    """'' or what changed in the participating geometry since the last build."""
+    names = [o.name for o in geometry_objects(view_layer)]
+    if not full and names == sess.geo_names:
+        return ""
+    new = signatures.geometry_signatures(view_layer, depsgraph)
+    if new == sess.geometry:
+        sess.geo_names = names
+        return ""
+    return "; ".join(changed_objects(sess.geometry, new)) or "the geometry changed"
+
+
+def _reconcile(sess, scene, view_layer, check_geometry, fast=False):
+    """Hand the worker what changed: a rebuild (settings or geometry), else the light state.
+    check_geometry: compare every participating object with the hierarchy's geometry (else only
+    which objects take part). fast: only known light shapes changed (the depsgraph said so):
+    read just those. Depsgraph updates that fire while it reads the scene are of what it has
+    read: it clears the session's marks at the end."""
+    try:
+        _reconcile_now(
+            sess, scene, view_layer, check_geometry, fast and not check_geometry and not sess.full_read
+        )
+    finally:
+        sess.dirty = False
+        if check_geometry:
+            sess.geometry_dirty = 0.0
+        if not fast:
+            sess.full_read = False
+            sess.last_poll = time.monotonic()
+
+
+def _reconcile_now(sess, scene, view_layer, check_geometry, fast):
+    dg = _depsgraph(scene, view_layer)
+    if fast and _settings(scene) == sess.settings and sess.worker.phase != "failed":
+        return _request(sess, view_layer, dg, fast=True)
+    if sess.settings is None:
+        return _build(sess, scene, view_layer, dg, "first build")
+    if _settings(scene) != sess.settings:
+        return _build(
+            sess,
+            scene,
+            view_layer,
+            dg,
+            f"settings changed: {_describe_settings(sess.settings, _settings(scene))}",
+        )
+    change = _geometry_change(sess, view_layer, dg, check_geometry)
+    if change:
+        print(f"HR Radiosity: Live: the geometry changed ({change}): rebuilding the hierarchy", flush=True)
+        return _build(sess, scene, view_layer, dg, f"geometry changed: {change}")
+    if sess.worker.phase == "failed" and not sess.fatal:
+        return _build(sess, scene, view_layer, dg, "rebuilding after a failure")
+    _request(sess, view_layer, dg)
+
+
+def _request(sess, view_layer, dg, fast=False):
+    """Read the light state; hand it to the worker when it differs from the last one asked for."""
+    shapes, sig, warnings = _read_shapes(sess, view_layer, dg, fast=fast)
+    sess.light_notes = warnings
+    if sig != sess.requested_sig:
+        sess.serial += 1
+        sess.requested_sig = sig
+        sess.worker.request(sess.serial, sig, shapes)
+
+
+def _deliver(sess, scene):
+    """Write the worker's newest result into HR_Radiance. True if something was written or changed."""
+    b, r = sess.worker.take()
+    changed = False
+    if b is not None:
+        changed = True
+        sess.notes += [m for m in b.messages if m not in sess.notes]
+        if b.fatal:
+            sess.fatal = f"the hierarchy build failed: {b.error}"
+            print(f"HR Radiosity: Live: {sess.fatal}", flush=True)
+    if r is None:
+        if sess.force_write and sess.last is not None and sess.last.values is not None:
+            r = sess.last
+        else:
+            return changed
+    sess.force_write = False
+    if r.error:
+        if sess.error != r.error:
+            print(f"HR Radiosity: Live: {r.error}", flush=True)
+        sess.error = r.error
+        return True
+    problems = playback.apply_arrays(scene, r.values, sess.domain)
+    for obj in playback.objects_by_name(scene, r.values).values():
+        if obj is not None and obj.type == "MESH":
+            STATE.writes.mark(obj.data.name, reader=sess.scene_name)
+    sess.problems = "; ".join(problems)
+    sess.error = ""
+    if r is not sess.last:
+        sess.latencies.append(time.perf_counter() - r.requested)
+        sess.updates += 1
+    sess.last = r
+    sess.shown_sig = r.sig
+    return True
+
+
+# -- the synchronous entry point ---------------------------------------------------------------------
+def update(scene, view_layer=None, check_geometry=True):
+    """Make HR_Radiance current for Live on scene (operator hr.live_update): start Live if
+    Scene.hr.live is on and it does not run, end it if Scene.hr.live is off, else read every light
+    shape and the geometry, compute and write. check_geometry False: compare only which objects
+    take part and the objects the depsgraph reported as changed (not every object: on a big
+    scene that comparison costs more than a light event). Returns (session or None, what it did).
+    Raises LiveError when the current state cannot be shown."""
+    sess = session(scene)
+    if not scene.hr.live:
+        if sess is None:
+            return None, "Live Relight is off (Scene.hr.live)"
+        what = stop(scene)
+        return None, f"Live Relight off: {what}"
+    if STATE.bake_running():
+        stop(scene, restore=False)
+        _refuse(scene, BAKE_RUNNING)
+    if sess is None:
+        sess = start(scene, view_layer)
+    else:
+        s, vl = _scene_of(sess)
+        _reconcile(sess, s, vl, check_geometry or bool(sess.geometry_dirty))
+    if not sess.worker.flush(timeout=None):
+        raise LiveError("the Live Relight worker stopped")
+    _deliver(sess, scene)
+    if sess.fatal:
+        msg = sess.fatal
+        stop(scene)
+        _refuse(scene, msg)
+    if sess.error:
+        raise LiveError(sess.error)
+    if sess.problems:
+        raise LiveError(f"HR_Radiance could not be written: {sess.problems}")
+    return sess, "HR_Radiance is current"

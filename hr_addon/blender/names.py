@@ -1,0 +1,14 @@
+"""Names the add-on gives to what it writes into a .blend: attributes, UV layers, tags, nodes.
+
+One home so that modules reading them (playback, preview, signatures, texture) need not import
+each other; pure constants, no bpy.
+"""
+
+ATTRIBUTE = "HR_Radiance"  # colour attribute with the per-frame radiance
+UV_NAME = "HR_Lightmap"  # UV layer of the baked textures
+TAG = "hr_lightmap_of"  # on helper materials and images: the object's name
+
+PREVIEW = "HR Preview"  # name prefix of the preview nodes / material (ignored when reading)
+N_ATTR, N_EMIT, N_OUT = PREVIEW + " Attribute", PREVIEW + " Emission", PREVIEW + " Output"
+N_MUL, N_ADD = PREVIEW + " Base Color", PREVIEW + " Add Emission"
+N_UV, N_TEX = PREVIEW + " Lightmap UV", PREVIEW + " Lightmap"

@@ -1,0 +1,263 @@
+"""Bake settings: one table of the choices (Scene.hr's enum items and the command line's choices
+are made from it), and BakeConfig.resolve(), the one place where Scene.hr plus overrides become
+checked settings. The bake, Live Relight, the command line and the background worker use it.
+
+No bpy, and core is imported inside the functions that need it: the command line builds its
+parser from this table and checks its arguments before the slow imports (numpy, bpy).
+"""
+
+import dataclasses
+from dataclasses import dataclass
+
+# identifier, UI name, description, in the order the UI lists them
+ENUMS = {
+    "method": (
+        (
+            "AUTO",
+            "Auto: chosen per element by an error bound",
+            "Fractional emission or adaptive refinement, chosen per element by an error bound "
+            "(accurate and fast; recommended)",
+        ),
+        ("AR", "Adaptive refinement (AR)", "Subdivide the elements under the light shape's outline"),
+        (
+            "FE",
+            "Fractional emission (FE)",
+            "Elements partly covered by a light shape emit the covered fraction (fastest)",
+        ),
+        (
+            "NAIVE",
+            "Rebuild (naive)",
+            "Light shapes become new patches and the solution is rebuilt (slow reference)",
+        ),
+    ),
+    "quality": (
+        ("DRAFT", "Draft", "Coarse and fast"),
+        ("MEDIUM", "Medium", "Balanced"),
+        ("HIGH", "High", "Fine subdivision, slow"),
+        ("CUSTOM", "Custom", "Use the form factor (Feps) and area (Aeps) thresholds below"),
+    ),
+    "output": (
+        ("VERTEX", "Vertex", "Colour attribute HR_Radiance on each mesh"),
+        (
+            "TEXTURE",
+            "Baked Textures",
+            "One float image per object and frame (image sequence in the cache), "
+            "mapped by the UV map HR_Lightmap",
+        ),
+    ),
+    "texture_format": (
+        ("EXR", "OpenEXR", "32-bit float, linear (exact radiance)"),
+        ("PNG", "PNG", "16-bit, sRGB-encoded; radiance above 1 is clipped"),
+    ),
+    "radiance_mode": (
+        (
+            "RADIANCE",
+            "Outgoing radiance",
+            "The light leaving each surface (emission included, the material's colour baked in): "
+            "shown as it is",
+        ),
+        (
+            "IRRADIANCE",
+            "Irradiance (lightmap)",
+            "The diffuse light arriving at each surface (irradiance / pi, no emission), which the "
+            "material multiplies by its own base colour: game-engine lightmaps, Cycles' Diffuse bake "
+            "without Color",
+        ),
+    ),
+    "domain": (
+        ("CORNER", "Face Corner", "One value per face corner: creases between walls stay sharp"),
+        ("POINT", "Vertex", "One value per vertex: smooth everywhere, smaller"),
+    ),
+}
+DEFAULTS = {
+    "method": "AUTO",
+    "quality": "MEDIUM",
+    "output": "VERTEX",
+    "texture_format": "EXR",
+    "radiance_mode": "RADIANCE",
+    "domain": "CORNER",
+}
+
+RESOLUTION = (8, 16384)  # texture size in texels
+
+
+def ids(name):
+    return tuple(e[0] for e in ENUMS[name])
+
+
+def items(name):
+    """EnumProperty items of setting `name`."""
+    return list(ENUMS[name])
+
+
+def choices(name):
+    """The command line's choices of setting `name` (lower case)."""
+    return [i.lower() for i in ids(name)]
+
+
+def resolution_problem(n):
+    return (
+        f"bad texture resolution {n} ({RESOLUTION[0]} to {RESOLUTION[1]})"
+        if not (RESOLUTION[0] <= n <= RESOLUTION[1])
+        else ""
+    )
+
+
+def thresholds_problem(feps, aeps):
+    # :g - the scene's values are float32 (aeps=0.0010000000474974513)
+    if 0 < feps <= 1 and 0 < aeps < 1:
+        return ""
+    return f"bad thresholds feps={feps:g} aeps={aeps:g} (need 0 < feps <= 1, 0 < aeps < 1)"
+
+
+def _choice(name, value, label):
+    value = str(value).upper()
+    if value not in ids(name):
+        from .scene_in import SceneError
+
+        raise SceneError(f"Unknown {label} '{value}' (choose from {', '.join(choices(name))}).")
+    return value
+
+
+@dataclass(frozen=True)
+class BakeConfig:
+    """Checked bake settings (identifiers upper case)."""
+
+    method: str
+    quality: str
+    domain: str
+    output: str
+    texture_format: str
+    radiance_mode: str
+    resolution: int
+    feps: float
+    aeps: float
+    contacts: bool
+    final_gather: bool
+
+    @classmethod
+    def resolve(cls, hr, **overrides):
+        """Scene.hr's settings, each replaced by its override unless that is None. Raises
+        SceneError (one line) for an unknown choice or a value out of range."""
+        from .scene_in import SceneError
+
+        def get(key):
+            v = overrides.get(key)
+            return getattr(hr, key) if v is None else v
+
+        unknown = set(overrides) - {f.name for f in dataclasses.fields(cls)}
+        if unknown:
+            raise TypeError(f"unknown bake settings: {', '.join(sorted(unknown))}")
+        cfg = cls(
+            method=_choice("method", get("method"), "method"),
+            quality=_choice("quality", get("quality"), "quality"),
+            domain=_choice("domain", get("domain"), "domain"),
+            output=_choice("output", get("output"), "output"),
+            texture_format=_choice("texture_format", get("texture_format"), "texture format"),
+            radiance_mode=_choice("radiance_mode", get("radiance_mode"), "radiance mode"),
+            resolution=int(overrides.get("resolution") or hr.texture_resolution),
+            feps=float(get("feps")),
+            aeps=float(get("aeps")),
+            contacts=bool(get("contacts")),
+            final_gather=bool(get("final_gather")),
+        )
+        problem = resolution_problem(cfg.resolution) or (
+            thresholds_problem(cfg.feps, cfg.aeps) if cfg.quality == "CUSTOM" else ""
+        )
+        if problem:
+            raise SceneError(problem[0].upper() + problem[1:] + ".")
+        return cfg
+
+    @property
+    def gather(self):
+        """The final gather's settings, or None when it is off."""
+        return gather_params(self.quality, self.final_gather)
+
+    @property
+    def params(self):
+        """The hierarchy's RefineParams (before solver_setup scales them to the scene)."""
+        return refine_params(self.quality, self.feps, self.aeps, self.contacts, self.final_gather)
+
+    @property
+    def solve_options(self):
+        return solve_options(self.quality, self.final_gather)
+
+
+# Final gather (core/gather.py, docs/gather.md) per quality: hemisphere rays per output sample,
+# shadow rays per sample and emitter, levels (2: the hits gather exact direct light of their own),
+# iterations (the second level's samples gather from each other: light after more bounces)
+GATHER = {
+    "DRAFT": dict(rays=128, shadow_rays=16, levels=2, iterations=4),
+    "MEDIUM": dict(rays=128, shadow_rays=32, levels=2, iterations=4),
+    "HIGH": dict(rays=256, shadow_rays=64, levels=2, iterations=8),
+    "CUSTOM": dict(rays=128, shadow_rays=32, levels=2, iterations=4),
+}
+
+
+def gather_params(quality, final_gather=True):
+    """The final gather's settings for `quality`, or None when it is off (the hierarchy's leaves
+    are shown, as before the final gather)."""
+    return dict(GATHER[quality.upper()]) if final_gather else None
+
+
+def refine_params(quality, feps=None, aeps=None, contacts=True, final_gather=False):
+    # orient: faces facing the wrong way are turned around, as Cycles (two-sided) shows them.
+    # final_gather: the output gathers its own light, the hierarchy only carries what the gather
+    # reads: the quality's transport preset for that (RefineParams.for_gather, coarser links;
+    # docs/gather.md, Transport). Custom feps / aeps stay the user's.
+    from ..core.refine import RefineParams
+
+    quality = _choice("quality", quality, "quality")
+    if quality == "CUSTOM":
+        p = dataclasses.replace(RefineParams.preset("medium"), feps=float(feps), aeps=float(aeps))
+    elif final_gather:
+        p = RefineParams.for_gather(quality.lower())
+    else:
+        p = RefineParams.preset(quality.lower())
+    return dataclasses.replace(p, contacts=bool(contacts), orient=True)
+
+
+def solve_options(quality, final_gather=False):
+    """DynamicRadiosity's solver options: with the final gather, tolerances matched to the output
+    (DynamicRadiosity.gather_options); off, the defaults (1e-7)."""
+    if not final_gather:
+        return {}
+    from ..core.events import DynamicRadiosity
+
+    q = quality.upper()
+    return DynamicRadiosity.gather_options("medium" if q == "CUSTOM" else q.lower())
+
+
+def solver_setup(mesh, params):
+    """(params, min_area_rel, warning or '') for solving `mesh` (a core MeshInput), as every bake and
+    Live Relight set the solver up. Objects far from the rest exchange practically no light with
+    it; the area thresholds (Aeps, AR/AUTO's smallest element) are made relative to the rest only,
+    so that the rest gets the same light with or without them (the warning names them)."""
+    import inspect
+
+    from ..core.events import DynamicRadiosity
+    from ..core.geometry import isolated_objects
+
+    min_area_rel = inspect.signature(DynamicRadiosity).parameters["min_area_rel"].default
+    extent = isolated_objects(mesh)
+    area_ratio = extent.area_ratio
+    warning = ""
+    if extent.distant:
+        far = extent.distant
+        names = ", ".join(f"'{n}'" for n, _, _ in far[:5]) + (
+            f" and {len(far) - 5} more" if len(far) > 5 else ""
+        )
+        near, farthest = _length(far[-1][1]), _length(far[0][1])
+        dist = farthest if near == farthest else f"{near} to {farthest}"
+        warning = (
+            f"{len(far)} object(s) lie far from the rest of the scene ({names}, {dist} away; the rest "
+            f"is {_length(extent.main_size)} across): they "
+            "exchange almost no light with it and do not change its element sizes. Exclude them "
+            "(Object > HR Radiosity > Exclude) if they are not meant to be there."
+        )
+        params = dataclasses.replace(params, aeps=params.aeps * area_ratio)
+    return params, min_area_rel * area_ratio, warning
+
+
+def _length(m):
+    return f"{m / 1000:.3g} km" if m >= 1000 else (f"{m:.3g} m" if m >= 0.1 else f"{m * 100:.3g} cm")
