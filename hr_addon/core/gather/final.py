@@ -55,9 +55,14 @@ class FinalGather(DirectLight):
     (default: the patches'), rays: hemisphere rays per sample, shadow_rays: per sample and emitter,
     seed). The hemisphere rays are traced here (once per static geometry); direct light of the
     static emitters on the first evaluate(); a light shape's on its first appearance.
-    `evaluate(dyn_or_system, kind)` -> (n, 3) float64."""
+    `evaluate(dyn_or_system, kind)` -> (n, 3) float64.
+    threads: core.parallel's batch map for the rays, the direct light and the matvecs (1: inline,
+    None: every core; the values are the same for any count). progress: callable(ProgressInfo),
+    called from the calling thread as batches of hemisphere rays finish; raising cancels."""
 
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
+    threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
+    # restored from stored arrays runs inline until told otherwise)
 
     def __init__(
         self,
