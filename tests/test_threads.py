@@ -112,7 +112,7 @@ def cornell_events():
 
 
 def _gathers(dyn, threads):
-    kw = dict(rays=32, shadow_rays=8, levels=2, iterations=2, batch_rays=2048, threads=threads)
+    kw = dict(rays=32, shadow_rays=8, levels=2, iterations=2, batch_rays=512, threads=threads)
     s = dyn.system
     g = LoopGather(dyn, **kw)
     rng = np.random.default_rng(3)
@@ -169,3 +169,18 @@ def test_ray_backend_threads_give_identical_hits(cornell_events):
         p2, t2 = two.first_hit(a, d, 2.0)
         assert np.array_equal(p1, p2) and np.array_equal(t1, t2)
     assert not _workers()
+
+
+def test_a_cancel_during_the_gather_precompute_leaves_no_worker(cornell_events):
+    """The gather's progress callback (ProgressInfo, from the calling thread) cancels the
+    precompute while its batches of hemisphere rays run on 2 threads."""
+    seen = []
+
+    def progress(info):
+        seen.append((info.done, info.total, threading.current_thread() is threading.main_thread()))
+        raise Cancelled("stop")  # at the first report: the first batch done, the others not
+
+    with pytest.raises(Cancelled):
+        LoopGather(cornell_events[0], rays=32, batch_rays=128, threads=2, progress=progress)
+    assert not _workers()
+    assert len(seen) == 1 and seen[0][0] == 1 < seen[0][1] and seen[0][2]
