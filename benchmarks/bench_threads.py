@@ -1,11 +1,12 @@
 """Threads (issue 23): a furnished room's phases with 1 and 2 threads, each run in its own
 process pinned with taskset (-c 0 for 1 thread, -c 0,1 for 2); wall time per phase and the
-speed-up. A control run, 1 thread allowed on both cores (taskset -c 0,1), separates the threads'
-gain from what a second core gives a single thread on a shared machine. Phases: build
-(RadiositySystem), the FE base solve, the gather precompute (LoopGather, two levels + 4
-iterations, 128 rays, the bake's draft transport), the first output (direct light of the static
-emitters + the gather), one FE event (a new window) and its output, one AUTO event and its
-output. The values of all runs are compared too (they must be equal).
+speed-up, and each run's CPU time over its wall time (the cores it kept busy). A control run, 1
+thread allowed on both cores (taskset -c 0,1), separates the threads' gain from what a second
+core gives a single thread on a shared machine. Phases: build (RadiositySystem), the FE base
+solve, the gather precompute (LoopGather, two levels + 4 iterations, 128 rays, the bake's draft
+transport), the first output (direct light of the static emitters + the gather), one FE event (a
+new window) and its output, one AUTO event and its output. The values of all runs are compared
+too (they must be equal).
 
     .venv/bin/python benchmarks/bench_threads.py [--size 20k] [--runs 1@0,1@0-1,2@0-1] [--json out.json]
 """
@@ -41,10 +42,13 @@ def child(size, threads, quality, dump):
     dkw = DynamicRadiosity.gather_options(quality)
     out, values = {}, {}
 
+    cpu = {}
+
     def phase(name, fn):
-        t0 = wall()
+        t0, c0 = wall(), time.process_time()
         r = fn()
         out[name] = wall() - t0
+        cpu[name] = time.process_time() - c0
         print(f"  {name:22s} {out[name]:7.2f} s", file=sys.stderr, flush=True)
         return r
 
@@ -63,7 +67,7 @@ def child(size, threads, quality, dump):
     g.loop_radiance(dyn2)  # the base parts of this DynamicRadiosity
     phase("AUTO event", lambda: dyn2.add("w", window))
     values["AUTO"] = phase("AUTO output", lambda: g.loop_radiance(dyn2))
-    out["samples"], out["links"] = g.n, len(s.links)
+    out["samples"], out["links"], out["cpu"] = g.n, len(s.links), cpu
     if dump:
         np.savez(dump, **values)
     return out
@@ -92,7 +96,7 @@ def main(argv=None):
         runs[run] = json.loads(r.stdout.strip().splitlines()[-1])
     ks = list(runs)
     first, last = ks[0], ks[-1]
-    names = [k for k in runs[first] if k not in ("samples", "links")]
+    names = [k for k in runs[first] if k not in ("samples", "links", "cpu")]
     print(f"\n{args.size} room, {runs[first]['samples']:,} samples, {runs[first]['links']:,} links; wall s")
     head = f"{'phase':22s}" + "".join(f"{'thr ' + k:>12s}" for k in ks) + f"{'speed-up':>10s}"
     if len(ks) > 2:
@@ -105,6 +109,11 @@ def main(argv=None):
         if len(ks) > 2:
             row += f"{v[ks[-2]] / v[last]:12.2f}"
         print(row)
+    # CPU / wall of each run: how many cores a run kept busy (2 threads on a loaded machine: the
+    # share of a phase that ran in parallel, whatever the wall time lost to other jobs)
+    print("CPU s / wall s per run:")
+    for n in names:
+        print(f"{n:22s}" + "".join(f"{runs[k]['cpu'][n] / runs[k][n]:12.2f}" for k in ks))
     loaded = [np.load(dumps[k]) for k in ks]
     equal = {f: all(bool(np.array_equal(loaded[0][f], x[f])) for x in loaded[1:]) for f in loaded[0].files}
     print("values equal across runs:", equal)
