@@ -33,15 +33,18 @@ class BuildReport:
 
 
 class RadiositySystem:
-    def __init__(self, mesh: MeshInput, params: RefineParams = None, backend="auto", tol=1e-7, progress=None):
+    def __init__(
+        self, mesh: MeshInput, params: RefineParams = None, backend="auto", tol=1e-7, progress=None, threads=1
+    ):
         """progress: callable(ProgressInfo) called between batches of the build; it cancels the
-        build by raising (core.progress.Cancelled), which propagates out of this constructor."""
+        build by raising (core.progress.Cancelled), which propagates out of this constructor.
+        threads: for the ray backend's large batches (core.parallel; None: every core)."""
         t0 = time.perf_counter()
         self.mesh = mesh
         self.params = params or RefineParams()
         self.tol = tol
         self.patches = prepare_patches(mesh)
-        self.backend = make_backend(self.patches.triangles, backend)  # occluders: two-sided
+        self.backend = make_backend(self.patches.triangles, backend, threads)  # occluders: two-sided
         if self.params.orient:  # faces turned the wrong way are turned around, as Cycles shows them
             orient(self.patches, self.backend)
         self.h = Hierarchy(self.patches)

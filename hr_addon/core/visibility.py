@@ -14,9 +14,19 @@ and rays whose proposal is refuted (rounding self-hits of endpoints lying on sur
 numpy backend. So all backends agree except for rays within ~1 float32 ulp of a triangle edge.
 
 Only numpy is imported at module level: mathutils / embreex are imported lazily by their backends.
+
+Threads (issue 23, docs/threads.md): `backend.threads` > 1 runs large occluded() / first_hit()
+calls over fixed chunks of PARALLEL_CHUNK rays on core.parallel's threads (embreex and numpy
+release the GIL); every ray's result is its own, so any thread count gives the same values. Inside
+another batch map's worker a call runs inline. The backends keep no per-call state but the
+diagnostic `last_retraced`.
 """
 
+import threading
+
 import numpy as np
+
+from .parallel import batch_map, in_worker, ranges
 
 TMIN = 1e-6
 
@@ -106,6 +116,8 @@ class RayBackend:
     """Base class: input normalisation shared by all backends; subclasses implement `_occluded`."""
 
     name = "base"
+    threads = 1  # threads for large ray batches (core.parallel; 1: inline)
+    PARALLEL_CHUNK = 1 << 16  # rays per batch on threads: fixed, so results do not depend on threads
 
     def __init__(self, triangles):
         # source[i]: index in the input array of the i-th kept triangle (first_hit reports input indices)
@@ -132,10 +144,22 @@ class RayBackend:
         out = np.zeros(len(a), dtype=bool)
         if len(self.triangles) and live.any():
             if live.all():
-                out = self._occluded(a, d)
+                out = self._map(self._occluded, a, d)
             else:
-                out[live] = self._occluded(a[live], d[live])
+                out[live] = self._map(self._occluded, a[live], d[live])
         return out.reshape(shape)
+
+    def _map(self, kernel, a, d):
+        """kernel(a, d) over chunks of PARALLEL_CHUNK rays on self.threads threads, concatenated
+        (a tuple of arrays per chunk for first_hit's kernel)."""
+        if self.threads == 1 or len(a) <= self.PARALLEL_CHUNK or in_worker():
+            return kernel(a, d)
+        parts = batch_map(
+            lambda i, j: kernel(a[i:j], d[i:j]), ranges(len(a), self.PARALLEL_CHUNK), self.threads
+        )
+        if isinstance(parts[0], tuple):
+            return tuple(np.concatenate(x) for x in zip(*parts))
+        return np.concatenate(parts)
 
     def _occluded(self, a, d):  # segments a -> a + d, (R,3) float64, finite, nonzero length
         raise NotImplementedError
@@ -155,7 +179,7 @@ class RayBackend:
         t = np.full(len(o), np.inf)
         ok = np.flatnonzero(np.isfinite(o).all(1) & np.isfinite(d).all(1) & (np.einsum("ij,ij->i", d, d) > 0))
         if len(ok) and len(self.triangles):
-            p, ts = self._first(o[ok], d[ok])
+            p, ts = self._map(self._first, o[ok], d[ok])
             hit = p >= 0
             prim[ok[hit]] = self.source[p[hit]]
             t[ok[hit]] = ts[hit]
@@ -383,8 +407,19 @@ class _Float32Backend(RayBackend):
     nearest hit, and a refuted one may hide a genuine one behind it.
     """
 
-    _rows = _exact = None  # float64 triangle rows and numpy backend, built on first need
+    _exact = None  # the numpy backend for re-traced rays, built on first need (_numpy())
     last_retraced = 0  # diagnostics: rays of the last call that the numpy backend re-traced
+
+    def __init__(self, triangles):
+        super().__init__(triangles)
+        self._rows = _triangle_rows(self.triangles)  # float64 rows deciding every proposed hit
+        self._lock = threading.Lock()  # the numpy backend is built once, whichever thread needs it
+
+    def _numpy(self):
+        with self._lock:
+            if self._exact is None:
+                self._exact = NumpyBackend(self.triangles)
+        return self._exact
 
     # Proposed hits farther than this (relative to the segment) from both ends are genuine: a
     # rounding self-hit of an endpoint lying on a surface happens next to that endpoint (a ray
@@ -415,16 +450,12 @@ class _Float32Backend(RayBackend):
         prim = prim[ray]
         if trace is not None:
             ray = trace[ray]
-        if self._rows is None:
-            self._rows = _triangle_rows(self.triangles)
         with np.errstate(all="ignore"):
             ok = _hit_kernel([m[prim] for m in self._rows], *a.take(ray, axis=0).T, *d.take(ray, axis=0).T)
         out[ray[ok]] = True
         retry = np.concatenate([ray[~ok], np.flatnonzero(short)])
         if len(retry):
-            if self._exact is None:
-                self._exact = NumpyBackend(self.triangles)
-            out[retry] = self._exact._occluded(a[retry], d[retry])
+            out[retry] = self._numpy()._occluded(a[retry], d[retry])
         self.last_retraced = len(retry)
         return out
 
@@ -442,17 +473,13 @@ class _Float32Backend(RayBackend):
         prim = np.where(short, -1, prim).astype(np.int64)
         t = np.full(len(a), np.inf)
         ray = np.flatnonzero(prim >= 0)
-        if self._rows is None:
-            self._rows = _triangle_rows(self.triangles)
         with np.errstate(all="ignore"):
             t[ray] = _hit_t_kernel([m[prim[ray]] for m in self._rows], *a[ray].T, *d[ray].T)
         bad = ray[~np.isfinite(t[ray])]
         prim[bad] = -1
         retry = np.concatenate([bad, np.flatnonzero(short)])
         if len(retry):
-            if self._exact is None:
-                self._exact = NumpyBackend(self.triangles)
-            prim[retry], t[retry] = self._exact._first(a[retry], d[retry])
+            prim[retry], t[retry] = self._numpy()._first(a[retry], d[retry])
         self.last_retraced = len(retry)
         return prim, t
 
@@ -535,13 +562,16 @@ def available_backends():
     return [n for n in ("embree", "numpy", "mathutils") if _importable(n)]
 
 
-def make_backend(triangles, prefer="auto"):
-    """Backend for `triangles` (T,3,3). "auto": embree if importable, else numpy."""
+def make_backend(triangles, prefer="auto", threads=1):
+    """Backend for `triangles` (T,3,3). "auto": embree if importable, else numpy. threads: for large
+    ray batches (core.parallel.resolve_threads: None every core)."""
     if prefer == "auto":
         prefer = "embree" if _importable("embree") else "numpy"
     if prefer not in _BACKENDS:
         raise ValueError(f"unknown ray backend {prefer!r}; expected auto or one of {sorted(_BACKENDS)}")
-    return _BACKENDS[prefer](triangles)
+    backend = _BACKENDS[prefer](triangles)
+    backend.threads = threads
+    return backend
 
 
 def first_hit_within(backend, origins, directions, reach, tmax):

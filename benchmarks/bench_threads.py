@@ -1,0 +1,127 @@
+"""Threads (issue 23): a furnished room's phases with 1 and 2 threads, each run in its own
+process pinned with taskset (-c 0 for 1 thread, -c 0,1 for 2); wall time per phase and the
+speed-up, and each run's CPU time over its wall time (the cores it kept busy). A control run, 1
+thread allowed on both cores (taskset -c 0,1), separates the threads' gain from what a second
+core gives a single thread on a shared machine. Phases: build (RadiositySystem), the FE base
+solve, the gather precompute (LoopGather, two levels + 4 iterations, 128 rays, the bake's draft
+transport), the first output (direct light of the static emitters + the gather), one FE event (a
+new window) and its output, one AUTO event and its output. The values of all runs are compared
+too (they must be equal).
+
+    .venv/bin/python benchmarks/bench_threads.py [--size 20k] [--runs 1@0,1@0-1,2@0-1] [--json out.json]
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+
+def child(size, threads, quality, dump):
+    from benchmarks import shapes as S
+    from benchmarks.furnished import furnished_room
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.core.gather import LoopGather
+    from hr_addon.core.radiosity import RadiositySystem
+    from hr_addon.core.refine import RefineParams
+
+    wall = time.perf_counter
+    mesh, info = furnished_room(size)
+    _, frame = info["light_wall"]
+    window = LightShape(
+        S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+    )
+    dkw = DynamicRadiosity.gather_options(quality)
+    out, values = {}, {}
+
+    cpu = {}
+
+    def phase(name, fn):
+        t0, c0 = wall(), time.process_time()
+        r = fn()
+        out[name] = wall() - t0
+        cpu[name] = time.process_time() - c0
+        print(f"  {name:22s} {out[name]:7.2f} s", file=sys.stderr, flush=True)
+        return r
+
+    s = phase("build", lambda: RadiositySystem(mesh, RefineParams.for_gather(quality), threads=threads))
+    dyn = phase("FE base solve", lambda: DynamicRadiosity(s.copy(), method="FE", **dkw))
+    gkw = dict(rays=128, shadow_rays=16 if quality == "draft" else 32, levels=2, iterations=4)
+    g = phase("gather precompute", lambda: LoopGather(dyn, threads=threads, **gkw))
+    values["first"] = phase("first output", lambda: g.loop_radiance(dyn))
+    phase("FE event", lambda: dyn.add("w", window))
+    values["FE"] = phase("FE output", lambda: g.loop_radiance(dyn))
+    dyn2 = DynamicRadiosity(s.copy(), method="AUTO", **dkw)
+    lv = g
+    while lv is not None:  # the shape's direct light is part of each method's event cost
+        lv._shape_cache.clear()
+        lv = lv.second
+    g.loop_radiance(dyn2)  # the base parts of this DynamicRadiosity
+    phase("AUTO event", lambda: dyn2.add("w", window))
+    values["AUTO"] = phase("AUTO output", lambda: g.loop_radiance(dyn2))
+    out["samples"], out["links"], out["cpu"] = g.n, len(s.links), cpu
+    if dump:
+        np.savez(dump, **values)
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--size", default="20k")
+    ap.add_argument("--quality", default="draft")
+    ap.add_argument("--runs", default="1@0,1@0-1,2@0-1", help="threads@cpus (taskset -c)")
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--dump", default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child is not None:
+        print(json.dumps(child(args.size, args.child, args.quality, args.dump)))
+        return
+    runs, dumps = {}, {}
+    for run in args.runs.split(","):
+        t, cpus = run.split("@")
+        dumps[run] = f"/tmp/bench_threads_{os.getpid()}_{len(dumps)}.npz"
+        cmd = ["taskset", "-c", cpus, sys.executable, __file__, "--size", args.size, "--quality"]
+        cmd += [args.quality, "--child", t, "--dump", dumps[run]]
+        print(f"{t} thread(s), taskset -c {cpus}, load {os.getloadavg()[0]:.2f}", flush=True)
+        r = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True)
+        runs[run] = json.loads(r.stdout.strip().splitlines()[-1])
+    ks = list(runs)
+    first, last = ks[0], ks[-1]
+    names = [k for k in runs[first] if k not in ("samples", "links", "cpu")]
+    print(f"\n{args.size} room, {runs[first]['samples']:,} samples, {runs[first]['links']:,} links; wall s")
+    head = f"{'phase':22s}" + "".join(f"{'thr ' + k:>12s}" for k in ks) + f"{'speed-up':>10s}"
+    if len(ks) > 2:
+        head += f"{'vs ' + ks[-2]:>12s}"
+    print(head)
+    tot = {k: sum(runs[k][n] for n in names) for k in ks}
+    for n in [*names, "total"]:
+        v = {k: tot[k] if n == "total" else runs[k][n] for k in ks}
+        row = f"{n:22s}" + "".join(f"{v[k]:12.2f}" for k in ks) + f"{v[first] / v[last]:10.2f}"
+        if len(ks) > 2:
+            row += f"{v[ks[-2]] / v[last]:12.2f}"
+        print(row)
+    # CPU / wall of each run: how many cores a run kept busy (2 threads on a loaded machine: the
+    # share of a phase that ran in parallel, whatever the wall time lost to other jobs)
+    print("CPU s / wall s per run:")
+    for n in names:
+        print(f"{n:22s}" + "".join(f"{runs[k]['cpu'][n] / runs[k][n]:12.2f}" for k in ks))
+    loaded = [np.load(dumps[k]) for k in ks]
+    equal = {f: all(bool(np.array_equal(loaded[0][f], x[f])) for x in loaded[1:]) for f in loaded[0].files}
+    print("values equal across runs:", equal)
+    for p in dumps.values():
+        os.remove(p)
+    if args.json:
+        Path(args.json).write_text(json.dumps(dict(size=args.size, runs=runs, equal=equal), indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,291 @@
+"""Direct light of the final gather: per emitter (the input's emissive patches, light shapes,
+Blender lights) the exact form factor times a visibility ratio from shadow rays, at unit radiance,
+cached so that a strength or colour change is a scale (docs/gather.md)."""
+
+import numpy as np
+
+from .. import formfactor as ff
+from ..events.direct import _contour
+from ..geometry import newell
+from ..parallel import batch_map, ranges
+from .sampling import Emitter, hammersley, hash_uniform, position_keys
+
+_clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
+
+
+class DirectLight:
+    """FinalGather's direct light (a mixin: it reads the gather's samples, points, normals, keys,
+    dark, eps, seed, shadow_rays, system and its batching)."""
+
+    # -- direct light --------------------------------------------------------------------------------
+    def direct_batch(self, em: Emitter, a, b):
+        """(b - a,) float32: unit-radiance direct light F x V of emitter em at samples a..b-1."""
+        x, nx = self.points[a:b], self.normals[a:b]
+        out = np.zeros(b - a)
+        eps = self.eps
+        # cull: a vertex of the emitter above the horizon, and (planar) the point in front of it
+        ok = ~self.dark[a:b]
+        if em.normal is not None:
+            ok &= (x - em.point) @ em.normal > eps
+        top = np.full(len(x), -np.inf)
+        for s0 in range(0, len(em.verts), 64):
+            v = em.verts[s0 : s0 + 64]
+            top = np.maximum(top, (nx @ v.T - np.einsum("mk,mk->m", x, nx)[:, None]).max(1))
+        ok &= top > eps
+        i = np.flatnonzero(ok)
+        if len(i) == 0:
+            return out.astype(np.float32)
+        xi, ni = x[i], nx[i]
+        F = np.zeros(len(i))
+        whole = np.zeros(len(i), bool)
+        if em.rings is not None:
+            allv = np.concatenate(em.rings)
+            whole = ((allv[None] - xi[:, None]) * ni[:, None]).sum(-1).min(1) > eps
+            if whole.any():
+                F[whole] = _contour(xi[whole], ni[whole], em.rings)
+        rest = np.flatnonzero(~whole)
+        if em.rings is not None and len(rest):
+            # the horizon cuts the outline: its rings clipped to the point's upper half-space
+            # (exact, as the pieces' sum, for a handful of edges instead of every piece's)
+            F[rest] = _clipped_rings(xi[rest], ni[rest], em.rings)
+            rest = rest[:0]
+        T = len(em.corners)
+        step = max(1, (1 << 18) // max(T, 1))
+        for s0 in range(0, len(rest), step):
+            r = rest[s0 : s0 + step]
+            F[r] = (
+                ff.point_to_polygon(
+                    np.repeat(xi[r], T, 0),
+                    np.repeat(ni[r], T, 0),
+                    np.tile(em.corners, (len(r), 1, 1)),
+                    np.tile(em.nv, len(r)),
+                )
+                .reshape(-1, T)
+                .sum(1)
+            )
+        lit = np.flatnonzero(F > 0)
+        if len(lit) and self.shadow_rays > 0:
+            S = self.shadow_rays
+            gi = i[lit] + a
+            u = (
+                hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
+            ) % 1.0
+            xo = xi[lit]
+            y, ny, ratio = em.sample_at(xo, u)  # (L, S, 3)
+            o = (xo + eps * ni[lit])[:, None]
+            e = y + eps * ny
+            d = y - xo[:, None]
+            r = np.sqrt(np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300))
+            # ratio estimator of the visible fraction of the projected solid angle: weight cos_x
+            # over the samples' solid-angle density (and only where the emitter faces the point)
+            kern = (
+                np.maximum(np.einsum("lsk,lk->ls", d, ni[lit]) / r, 0)
+                * (np.einsum("lsk,lsk->ls", d, ny) < 0)
+                / np.maximum(ratio, 1e-300)
+            )
+            vis = ~self.system.backend.occluded(np.broadcast_to(o, d.shape).reshape(-1, 3), e.reshape(-1, 3))
+            vis = vis.reshape(kern.shape)
+            ks = kern.sum(1)
+            F[lit] *= np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
+        out[i] = F
+        return out.astype(np.float32)
+
+    def direct_light(self, em: Emitter):
+        """(n,) float32 unit-radiance direct light of em at every sample (batches merged)."""
+        edges = sum(len(r) for r in em.rings) if em.rings is not None else 4 * len(em.corners)
+        per = (
+            max(self.shadow_rays, 1) * 4
+            + 3 * min(edges, 4 * em.MAX_TRIANGLES)
+            + 12 * min(len(em.tri), em.MAX_TRIANGLES)
+        )
+        parts = batch_map(lambda a, b: self.direct_batch(em, a, b), self.batches(per), self.threads)
+        return np.concatenate(parts or [np.zeros(0, np.float32)])
+
+    def static_emitters(self):
+        """The input's emissive patches, one Emitter per (object, emission)."""
+        pt = self.system.patches
+        em = pt.emission
+        out = []
+        idx = np.flatnonzero(em.max(0) > 0)
+        if len(idx) == 0:
+            return out
+        key = np.column_stack([pt.object_id[idx], em[:, idx].T])
+        _, inv = np.unique(key, axis=0, return_inverse=True)
+        for g in range(inv.max() + 1):
+            p = idx[inv.ravel() == g]
+            _, area = ff.polygon_normal_area(pt.corners[p], pt.nv[p])
+            nrm = pt.normal[p]
+            planar = np.allclose(nrm, nrm[0], atol=1e-9) and np.allclose(
+                (pt.corners[p].reshape(-1, 3) - pt.corners[p[0], 0]) @ nrm[0],
+                0,
+                atol=1e-9 * np.sqrt(area.sum()),
+            )
+            e = Emitter(
+                pt.corners[p],
+                pt.nv[p],
+                area,
+                nrm,
+                None,
+                nrm[0] if planar else None,
+                pt.corners[p[0], 0] if planar else None,
+                stream=int(position_keys(pt.corners[p[:1], 0], self.unit)[0] & np.uint64(0x7FFFFFFF)),
+            )
+            out.append((e, em[:, p[0]].copy()))
+        return out
+
+    def direct_static(self):
+        if self._D_static is None:
+            D = np.zeros((self.n, 3))
+            for e, rad in self.static_emitters():
+                D += self.direct_light(e)[:, None].astype(np.float64) * rad[None]
+            self._D_static = D
+        return self._D_static
+
+    # -- light shapes ---------------------------------------------------------------------------------
+    def _shape_emitter(self, dyn, rec):
+        """Emitter of a light shape (its part on surfaces when it lies on one) and the samples inside
+        its outline on that surface."""
+        from ..events.planar import _in_rings, slab_decomposition
+
+        import zlib
+
+        # the shape's own random stream, from its outline relative to the scene's box: the same
+        # outline gives the same shadow rays at any scene scale or position
+        stream = zlib.crc32(b"".join(position_keys(r, self.unit).tobytes() for r in rec.rings)) & 0x7FFFFFFF
+
+        def outline_pieces(nf):
+            """The outline's own convex pieces (slabs of its rings)."""
+            edges = np.concatenate([np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d])
+            traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
+            out, nvs = [], []
+            for q, mid in traps:
+                if not _in_rings(mid[None], rec.rings2d)[0]:
+                    continue
+                p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
+                if newell(p3) @ nf < 0:
+                    p3 = p3[::-1]
+                nvs.append(len(p3))
+                out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
+            corners = np.array(out).reshape(-1, 4, 3)
+            nv = np.array(nvs, int)
+            _, area = ff.polygon_normal_area(corners, nv)
+            return corners, nv, area
+
+        whole = rec.covered >= 1 - 1e-9 or not rec.on_surface
+        if rec.on_surface:
+            corners, nv, area, nf = dyn._pieces(rec)
+            if whole and len(corners):
+                # wholly on surfaces: the emitting region is the outline itself; its few slabs
+                # instead of its pieces on every patch below it (hundreds on a finely meshed
+                # wall) make the shadow rays' sampling cheap (the same region, uniform in solid
+                # angle)
+                corners, nv, area = outline_pieces(nf)
+        else:
+            nf = rec.n
+            corners, nv, area = outline_pieces(nf)
+        inside = np.zeros(0, np.int64)
+        if len(corners) == 0:
+            return None, inside, nf
+        rings = None
+        if whole:
+            rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
+        em = Emitter(corners, nv, area, np.repeat(nf[None], len(corners), 0), rings, nf, rec.c, stream=stream)
+        if rec.on_surface:
+            on = np.isin(self.patch, rec.roots) & (self.normals @ nf > 0.999)
+            on &= np.abs((self.points - rec.c) @ nf) <= max(rec.tol, 10 * self.eps)
+            c = np.flatnonzero(on)
+            if len(c):
+                inside = c[_in_rings(dyn._to2d(rec, self.points[c]), rec.rings2d)]
+        return em, inside, nf
+
+    def _shape(self, dyn, rec):
+        key = rec.geom_key
+        got = self._shape_cache.get(key)
+        if got is None:
+            em, inside, _ = self._shape_emitter(dyn, rec)
+            D = self.direct_light(em) if em is not None else np.zeros(self.n, np.float32)
+            got = (D, inside)
+            self._shape_cache[key] = got
+        return got
+
+    # -- Blender lights (issue 20, core/lights.py) -----------------------------------------------------
+    def _light(self, rec):
+        """(n,) float32 unit direct light of a Blender light (DynamicRadiosity.lights record) at the
+        samples, cached per light geometry: area lights through the Emitter path (solid-angle
+        sampled shadow rays), the others with core.lights.unit_incident."""
+        from .. import lights as lt
+
+        if not hasattr(self, "_light_cache"):
+            self._light_cache = {}
+        key = rec.geom_key
+        got = self._light_cache.get(key)
+        if got is None:
+            import zlib
+
+            L = rec.light
+            stream = zlib.crc32(repr(key).encode()) & 0x7FFFFFFF
+            leaf_nodes = getattr(self, "_leaf_nodes", None)
+            if leaf_nodes is not None:
+                used, k2 = leaf_nodes
+                v = lt.node_incident(
+                    self.system.h,
+                    used,
+                    L,
+                    self.system.backend,
+                    self.eps,
+                    rays=max(self.shadow_rays // 4, 4),
+                    seed=self.seed,
+                    unit=self.unit,
+                    far=self.tmax,
+                )
+                got = np.repeat(v, k2).astype(np.float32)
+                got[self.dark] = 0.0
+            elif L.kind == "AREA":
+                em = lt.area_emitter(L, stream)
+                got = self.direct_light(em) * np.float32(lt.AREA_RADIANCE / max(L.area, 1e-300))
+            else:
+                got = np.zeros(self.n)
+                ok = np.flatnonzero(~self.dark)
+                rays = max(self.shadow_rays // 4, 4)
+
+                def part(a, b):  # the samples' own keys: any batching gives the same rays
+                    i = ok[a:b]
+                    got[i] = lt.unit_incident(
+                        L,
+                        self.points[i],
+                        self.normals[i],
+                        self.system.backend,
+                        self.eps,
+                        rays=rays,
+                        seed=self.seed,
+                        keys=self.keys[i],
+                        stream=stream,
+                        far=self.tmax,
+                    )
+
+                batch_map(part, ranges(len(ok), self.batch_rays // rays), self.threads)
+                got = got.astype(np.float32)
+            self._light_cache[key] = got
+            # keep the lights of the current and a few recent geometries
+            for k in list(self._light_cache)[: max(len(self._light_cache) - 16, 0)]:
+                del self._light_cache[k]
+        return got
+
+    def direct_and_emission(self, dyn=None):
+        """(D (n, 3) direct light, E (n, 3) emission at the points) of the current emitters."""
+        D = self.direct_static().copy()
+        E = self.E_static.copy()
+        for rec in getattr(dyn, "lights", {}).values() if dyn is not None and hasattr(dyn, "n_hr") else ():
+            D += self._light(rec)[:, None] * rec.scale[None]
+        shapes = getattr(dyn, "shapes", None) if dyn is not None and hasattr(dyn, "n_hr") else None
+        live = set()
+        for rec in (shapes or {}).values():
+            Ds, inside = self._shape(dyn, rec)
+            live.add(rec.geom_key)
+            D += Ds[:, None] * rec.emission[None]
+            E[inside] += rec.emission[None]
+        # forget shapes gone for good (keep a few recent ones: a shape toggled back is instant)
+        gone = [k for k in self._shape_cache if k not in live]
+        for k in gone[: max(len(gone) - 8, 0)]:
+            del self._shape_cache[k]
+        return D, E

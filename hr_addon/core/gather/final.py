@@ -1,0 +1,450 @@
+"""FinalGather: the hemisphere rays' precompute (CSR weights over the HR leaves), the run-time
+values of the leaves (levels, iterations, cached responses, NAIVE) and the output (docs/gather.md)."""
+
+import numpy as np
+
+from .. import formfactor as ff
+from ..geometry import isolated_objects
+from ..visibility import first_hit_within
+from ..parallel import batch_map, ranges
+from ..progress import Progress
+from .direct import DirectLight
+from .points import _into_patch, locate_below
+from .sampling import cosine_directions, position_keys
+
+KINDS = ("radiance", "reflected", "incident")
+
+
+def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
+    """(n, C) float64 = W @ V for a CSR matrix (indptr, cols, w float32) and dense V (m, C): float32
+    products summed per row by np.add.reduceat, in row blocks of about `chunk` entries (the blocks
+    do not depend on `threads`, and each writes its own rows: equal for any thread count)."""
+    n = len(indptr) - 1
+    out = np.zeros((n, V.shape[1]))
+    if len(cols) == 0:
+        return out
+    V32 = np.ascontiguousarray(V, dtype=np.float32)
+    blocks, r0 = [], 0
+    while r0 < n:
+        r1 = int(np.searchsorted(indptr, indptr[r0] + chunk, "right")) - 1
+        r1 = min(max(r1, r0 + 1), n)
+        blocks.append((r0, r1))
+        r0 = r1
+
+    def block(r0, r1):
+        a, b = indptr[r0], indptr[r1]
+        if b > a:
+            prod = V32[cols[a:b]]
+            prod *= w[a:b, None]
+            starts = indptr[r0:r1] - a
+            nonempty = np.flatnonzero(indptr[r0 + 1 : r1 + 1] > indptr[r0:r1])
+            out[r0 + nonempty] = np.add.reduceat(prod, starts[nonempty], axis=0)
+
+    batch_map(block, blocks, threads)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------- gather
+
+
+class FinalGather(DirectLight):
+    """Per-sample final gather over a RadiositySystem (see the module doc).
+
+    FinalGather(system_or_dyn, points (n, 3), normals (n, 3) unit, facing the side the surface
+    emits to, patch_ids (n,) input patches the points lie on, rho (n, 3) reflectance at the points
+    (default: the patches'), rays: hemisphere rays per sample, shadow_rays: per sample and emitter,
+    seed). The hemisphere rays are traced here (once per static geometry); direct light of the
+    static emitters on the first evaluate(); a light shape's on its first appearance.
+    `evaluate(dyn_or_system, kind)` -> (n, 3) float64.
+    threads: core.parallel's batch map for the rays, the direct light and the matvecs (1: inline,
+    None: every core; the values are the same for any count). progress: callable(ProgressInfo),
+    called from the calling thread as batches of hemisphere rays finish; raising cancels."""
+
+    BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
+    threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
+    # restored from stored arrays runs inline until told otherwise)
+
+    def __init__(
+        self,
+        system,
+        points,
+        normals,
+        patch_ids,
+        rho=None,
+        rays=128,
+        shadow_rays=32,
+        seed=0,
+        offsets=None,
+        batch_rays=None,
+        levels=1,
+        second_rays=None,
+        leaf_points=2,
+        covered_hits="zero",
+        covered_samples="zero",
+        iterations=0,
+        cache_responses=True,
+        threads=1,
+        progress=None,
+    ):
+        dyn = system if hasattr(system, "n_hr") else None
+        self.system = dyn.system if dyn is not None else system
+        s = self.system
+        h, pt = s.h, s.patches
+        self.n_hr = dyn.n_hr if dyn is not None else h.n
+        nrm = np.asarray(normals, np.float64).reshape(-1, 3)
+        self.normals = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+        self.patch = np.asarray(patch_ids, np.int64).ravel()
+        # onto the plane of their patch: points on a renderer's triangulation of a slightly warped
+        # polygon lie off the patch (behind it by more than eps, every ray would hit its back)
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        pn = pt.normal[self.patch]
+        p = p - np.einsum("ij,ij->i", p - pt.corners[self.patch, 0], pn)[:, None] * pn
+        # and into it: texels of a lightmap's dilation ring lie beyond their polygon's edge
+        lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
+        self.tmax = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
+        # rays are traced to `reach` first, then the misses on to tmax: the ray contract's minimum
+        # distance is relative to the segment, so one long segment (a stray object 50 km away
+        # makes the box 100 km wide) would skip every hit within 20 cm. reach follows the surface
+        # area, which a small far object hardly changes (as the refiner's eps does).
+        # lengths from the main group of objects (geometry.isolated_objects): a stray object far
+        # away changes neither the reach nor the samples' random streams
+        size = float(np.sqrt(isolated_objects(s.mesh).main_area))
+        self.unit = 2.0 ** (np.floor(np.log2(size)) - 12)  # a power of two: exact under 2^k scaling
+        self.reach = min(4.0 * size, self.tmax)
+        self.eps = float(s.refiner.eps)
+        margin = max(50 * self.eps, 5e-5 * size)
+        self.points = np.ascontiguousarray(_into_patch(pt, self.patch, p, margin))
+        self.keys = position_keys(self.points, self.unit)
+        n = len(self.points)
+        self.n = n
+        self.rho = (
+            pt.reflectance[:, self.patch].T.copy()
+            if rho is None
+            else np.broadcast_to(np.asarray(rho, np.float64), (n, 3)).copy()
+        )
+        self.rays, self.shadow_rays, self.seed = int(rays), int(shadow_rays), int(seed)
+        self.batch_rays = int(batch_rays or self.BATCH_RAYS)
+        if covered_hits not in ("zero", "shown"):
+            raise ValueError("covered_hits must be 'zero' or 'shown'")
+        # "zero": rays reaching a point contacts.py calls covered read 0 (values_at); "shown": they
+        # read their leaf's light on its uncovered part (the covered test's gap tolerance lets some
+        # rays from exposed points reach "covered" points that a renderer sees lit)
+        self.covered_hits = covered_hits
+        self.origins = (
+            self.points + self.eps * self.normals if offsets is None else np.asarray(offsets, float)
+        )
+        self.tri_patch = pt.triangle_patch
+        # contacts: covered samples output 0 (static geometry)
+        self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr) if n else np.zeros(0, np.int64)
+        self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
+        if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
+            self.dark[:] = False
+        self.E_static = pt.emission[:, self.patch].T.copy()
+        self.stats = {}
+        import time
+
+        t0 = time.process_time()
+        # threads: core.parallel's batch map (1: inline, None: every core); the same values for any
+        # count. progress(ProgressInfo) from the calling thread, raising to cancel (core.progress)
+        self.threads = threads
+        prog = Progress(progress, {"gather rays": 1.0})
+
+        def report(done, total):
+            prog.update("gather rays", done, total, force=done == total)
+
+        parts = batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
+        self.indptr, self.cols, self.w = self.merge(parts)
+        self.second = None
+        self.iterations = int(iterations) if levels == 2 else 0
+        if levels >= 2:
+            # two-level gather (issue 19, as Hasan et al. 2006): every HR leaf the rays hit gets
+            # leaf_points^2 gather samples of its own (Gauss points) with exact direct light and a
+            # gather of its own (levels - 1 levels, half the rays); the outputs' rays read those
+            # instead of the leaf
+            h = s.h
+            used = np.unique(self.cols).astype(np.int64)
+            if iterations > 0:
+                # the gather samples' own rays must find gather samples wherever they land: every
+                # HR leaf gets them
+                c0 = h.child0[: self.n_hr]
+                used = np.flatnonzero((c0 < 0) | (c0 >= self.n_hr)).astype(np.int64)
+            x, gw = ff.quadrature(h.corners[used], h.nv[used], int(leaf_points))
+            k2 = x.shape[1]
+            self.second = FinalGather(
+                system,
+                x.reshape(-1, 3),
+                np.repeat(h.normal[used], k2, 0),
+                np.repeat(h.patch[used], k2),
+                rays=int(second_rays or max(self.rays // 2, 16)),
+                shadow_rays=max(self.shadow_rays // 2, 8),
+                seed=self.seed + 7919,
+                batch_rays=self.batch_rays,
+                levels=levels - 1,
+                second_rays=max(int(second_rays or max(self.rays // 2, 16)) // 2, 16),
+                leaf_points=leaf_points,
+                covered_hits=covered_hits,
+                covered_samples=covered_samples,
+                threads=threads,
+                progress=progress,
+            )
+            self._second_map = (used, gw)
+            # Blender lights at the second level: the leaf's mean direct light integrated over the
+            # leaf (lights.node_incident: finer where it is uneven, a spot's edge), not its 2 x 2
+            # points (issue 20: the spot's bounce read 2% dark through them)
+            self.second._leaf_nodes = (used, k2)
+        self.stats["precompute_cpu"] = time.process_time() - t0
+        self._D_static = None
+        self._shape_cache = {}  # geom_key -> (unit D (n,) float32, indices inside the outline)
+        # DynamicRadiosity in "response" mode: D + I of the base solution and of each shape's
+        # response at unit emission, so an emission edit is a weighted sum (_incident_by_response)
+        self.cache_responses = bool(cache_responses)
+        self._responses = {}
+        self._responses_of = None
+        self._naive_key = None
+        self._naive_V = None
+
+    # -- batching ------------------------------------------------------------------------------------
+    def batches(self, per_sample):
+        """Sample ranges of about batch_rays rays each (independent: any order, any thread; their
+        bounds do not depend on the thread count)."""
+        return ranges(self.n, self.batch_rays // max(per_sample, 1))
+
+    @staticmethod
+    def merge(parts):
+        """Concatenate the partial CSR rows of consecutive batches."""
+        counts = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
+        indptr = np.zeros(len(counts) + 1, np.int64)
+        np.cumsum(counts, out=indptr[1:])
+        cols = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
+        w = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.float32)
+        return indptr, cols, w
+
+    @property
+    def weights_bytes(self):
+        """Bytes of the CSR weights, the lower levels' included."""
+        own = self.indptr.nbytes + self.cols.nbytes + self.w.nbytes
+        return own + (self.second.weights_bytes if self.second is not None else 0)
+
+    # -- precompute: hemisphere rays -> CSR rows over HR leaves -------------------------------------
+    def gather_batch(self, a, b):
+        """Samples a..b-1: (hits per row (m,), HR leaf per entry int32, weight per entry float32)."""
+        s = self.system
+        h, pt = s.h, s.patches
+        R = self.rays
+        m = b - a
+        keep = ~self.dark[a:b]
+        dirs = cosine_directions(self.normals[a:b], self.keys[a:b], R, self.seed, stream=0).reshape(-1, 3)
+        org = np.repeat(self.origins[a:b], R, 0)
+        prim, t = self.first_hit(org, dirs)
+        row = np.repeat(np.arange(m), R)
+        ok = (prim >= 0) & np.repeat(keep, R)
+        patch = np.where(ok, self.tri_patch[np.maximum(prim, 0)], 0)
+        ok &= np.einsum("ij,ij->i", dirs, pt.normal[patch]) < 0  # back faces reflect nothing
+        i = np.flatnonzero(ok)
+        hit = org[i] + t[i, None] * dirs[i]
+        leaf = locate_below(h, patch[i], hit, self.n_hr)
+        if self.covered_hits == "zero":
+            lit = ~h.dark(leaf, hit)  # covered points read 0
+        else:
+            lit = h.exposure[leaf] > 0
+        i, leaf = i[lit], leaf[lit]
+        key = row[i].astype(np.int64) * self.n_hr + leaf
+        u, cnt = np.unique(key, return_counts=True)
+        r = u // self.n_hr
+        counts = np.bincount(r, minlength=m).astype(np.int64)
+        return counts, (u % self.n_hr).astype(np.int32), (cnt / R).astype(np.float32)
+
+    def first_hit(self, org, dirs):
+        """Nearest hits of unit rays (visibility.first_hit_within: near hits to self.reach first)."""
+        return first_hit_within(self.system.backend, org, dirs, self.reach, self.tmax)
+
+    # -- run time: values at the HR leaves -----------------------------------------------------------
+    def _state(self, dyn):
+        """(h, B, E) of the solution in effect on self.system's hierarchy, or None under NAIVE."""
+        if dyn is None or not hasattr(dyn, "n_hr"):
+            s = dyn if dyn is not None else self.system
+            if s.B is None:
+                s.solve()
+            return s.h, s.B, s.base_emission()
+        if dyn.naive_active:
+            return None
+        return dyn.system.h, dyn.B, dyn.emission()
+
+    def leaf_values(self, dyn):
+        """(n_hr, 3) reflected radiance on the uncovered part of every HR leaf (0 elsewhere); with
+        a second level, of the leaves the rays hit: the mean of their gather samples (exact direct
+        light + the solution one bounce further) over the uncovered ones."""
+        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0])
+
+    def _levels(self, V, direct):
+        """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
+        direct(g) -> (g.n, 3) direct light at a level's samples: V itself with one level; with
+        more, the lower levels' gathers (linear in V and the direct light)."""
+        if self.second is None:
+            return V
+        used, gw = self._second_map
+        g2 = self.second
+        w = gw * ~g2.dark.reshape(len(used), -1)
+        ws = w.sum(1)
+        ok = ws > 0
+        w = w[ok] / ws[ok, None]
+        D2 = direct(g2)
+        Y = g2._levels(V, direct) if g2.second is not None else V  # levels > 2: its own levels
+        # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
+        # direct light): every pass moves the solution one bounce further away
+        for _ in range(1 + self.iterations):
+            y = (g2.rho * (D2 + _csr_matvec(g2.indptr, g2.cols, g2.w, Y, threads=self.threads))).reshape(
+                len(used), -1, 3
+            )
+            Ynew = V.copy()
+            Ynew[used[ok]] = np.einsum("uk,ukc->uc", w, y[ok])
+            Y = Ynew
+        return Y
+
+    def solution_values(self, dyn):
+        """(n_hr, 3) the solution's reflected radiance on the uncovered part of every HR leaf."""
+        st = self._state(dyn)
+        if st is None:
+            return self._naive_values(dyn)
+        h, B, E = st
+        n = h.n
+        X = B[:, :n] - E[:, :n] * h.exposure[:n].astype(np.float64)
+        return np.maximum(self._values_from(h, X), 0.0)
+
+    def _values_from(self, h, X):
+        """(n_hr, 3) shown values of the HR leaves from reflected node means X (3, n) (linear)."""
+        n, m = h.n, self.n_hr
+        ex = h.exposure[:n].astype(np.float64)
+        X = X[:, :n] * h.area[:n]  # reflected power-like: node means x area
+        if n > m:  # HR leaves split by light events: the area mean of their current leaves
+            leaf = h.child0[:n] < 0
+            Y = np.where(leaf, X, 0.0)
+            par = h.parent[:n]
+            for lv in reversed(h.levels()[1:]):
+                sel = lv[lv >= m]
+                if len(sel):
+                    for c in range(3):
+                        Y[c] += np.bincount(par[sel], weights=Y[c, sel], minlength=n)
+            X = np.where((np.arange(n) < m) & ~leaf & (h.child0[:n] >= m), Y, X)
+        V = X[:, :m] / np.maximum(h.area[:m], 1e-300)
+        exm = ex[:m]
+        return np.where(exm > 0, V / np.maximum(exm, 1e-30), 0.0).T
+
+    def _incident_by_response(self, dyn):
+        """(n, 3) D + I of a DynamicRadiosity in "response" mode as a sum of cached parts: the
+        base solution's, and per light shape its response's at unit emission times the shape's
+        emission (a colour or strength edit: one weighted sum). None where that does not apply
+        (NAIVE, warm mode, a static system)."""
+        if not self.cache_responses or dyn is None or not hasattr(dyn, "n_hr"):
+            return None
+        if dyn.incremental != "response" or dyn.naive_active:
+            return None
+        recs = list(dyn.shapes.values())
+        if any(r.U is None or r.used == "NAIVE" or not r.on_surface for r in recs):
+            return None
+        if self._responses_of is not dyn:  # parts of another DynamicRadiosity (ids may be reused)
+            self._responses.clear()
+            self._responses_of = dyn
+        dyn._sync()
+        h = dyn.system.h
+        n = h.n
+        ex = h.exposure[:n].astype(np.float64)
+        key0 = ("base",)
+        if key0 not in self._responses:
+            X = dyn._Bbase[:, :n] - dyn.system.base_emission()[:, :n] * ex
+            V = self._values_from(h, X)
+            Y = self._levels(V, lambda g: g.direct_static())
+            self._responses[key0] = self.direct_static() + _csr_matvec(
+                self.indptr, self.cols, self.w, Y, threads=self.threads
+            )
+        total = self._responses[key0].copy()
+        live = {key0}
+        for rec in recs:
+            k = ("shape", rec.geom_key, rec.used)
+            live.add(k)
+            if k not in self._responses:
+                X = rec.U[:, :n] - dyn._coverage(rec)[None, :n] * ex
+
+                def unit(g, rec=rec):
+                    return np.repeat(g._shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
+
+                Y = self._levels(self._values_from(h, X), unit)
+                part = unit(self) + _csr_matvec(self.indptr, self.cols, self.w, Y, threads=self.threads)
+                self._responses[k] = part.astype(np.float32)
+            total += rec.emission[None] * self._responses[k]
+        for rec in dyn.lights.values():
+            if rec.U is None:
+                return None
+            k = ("light", rec.geom_key)
+            live.add(k)
+            if k not in self._responses:
+                X = rec.U[:, :n]  # a light emits nothing at nodes: all of U is reflected light
+
+                def unit(g, rec=rec):
+                    return np.repeat(g._light(rec)[:, None].astype(np.float64), 3, 1)
+
+                Y = self._levels(self._values_from(h, X), unit)
+                part = unit(self) + _csr_matvec(self.indptr, self.cols, self.w, Y, threads=self.threads)
+                self._responses[k] = part.astype(np.float32)
+            total += rec.scale[None] * self._responses[k]
+        gone = [k for k in self._responses if k not in live]
+        for k in gone[: max(len(gone) - 8, 0)]:
+            del self._responses[k]
+        return total
+
+    def _naive_values(self, dyn):
+        """NAIVE: each used HR leaf reads the rebuilt solution (reflected, shown) at its 2 x 2 Gauss
+        points (cached per rebuild)."""
+        nv = dyn._naive
+        if self._naive_key is nv:
+            return self._naive_V
+        h = self.system.h
+        used = np.unique(self.cols).astype(np.int64)
+        if self.second is not None:  # the gather samples' rays land on other leaves too
+            used = np.union1d(used, self.second.cols).astype(np.int64)
+        x, gw = ff.quadrature(h.corners[used], h.nv[used], 2)
+        pts = x.reshape(-1, 3)
+        roots, p2 = nv.remap(pts, np.repeat(h.patch[used], 4))
+        from ..output import locate
+
+        hs = nv.system.h
+        leaf = locate(hs, roots, p2)
+        R = hs.shown(nv.system.B - nv.system.base_emission() * hs.exposure[: hs.n])
+        val = R[:, leaf].T.reshape(-1, 4, 3)
+        V = np.zeros((self.n_hr, 3))
+        V[used] = np.maximum((val * gw[..., None]).sum(1), 0.0)
+        self._naive_key, self._naive_V = nv, V
+        return V
+
+    def indirect(self, dyn=None):
+        """(n, 3) I = W @ leaf_values: the solution's reflected radiance seen by the hemisphere."""
+        return _csr_matvec(self.indptr, self.cols, self.w, self.leaf_values(dyn), threads=self.threads)
+
+    # -- output ----------------------------------------------------------------------------------------
+    def evaluate(self, dyn=None, kind="radiance"):
+        """(n, 3) at the samples: "radiance" E + rho (D + I), "reflected" rho (D + I), "incident"
+        D + I (irradiance / pi). dyn: a DynamicRadiosity, or a RadiositySystem (static emission
+        only), or None (self.system). Covered samples read 0."""
+        return self.evaluate_kinds(dyn, (kind,))[kind]
+
+    def evaluate_kinds(self, dyn=None, kinds=KINDS):
+        """{kind: (n, 3)} for several kinds from one gather (see evaluate)."""
+        for k in kinds:
+            if k not in KINDS:
+                raise ValueError(f"unknown kind {k!r} ({', '.join(KINDS)})")
+        D, E = self.direct_and_emission(dyn)
+        inc = self._incident_by_response(dyn)
+        if inc is None:
+            inc = D + self.indirect(dyn)
+        inc[self.dark] = 0.0
+        out = {}
+        for k in kinds:
+            if k == "incident":
+                out[k] = inc
+            elif k == "reflected":
+                out[k] = self.rho * inc
+            else:
+                v = E + self.rho * inc
+                v[self.dark] = 0.0
+                out[k] = v
+        return out

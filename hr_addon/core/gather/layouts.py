@@ -1,0 +1,132 @@
+"""Gather sample layouts: the input mesh's corners (LoopGather) and texel centres (texel_gather)."""
+
+import numpy as np
+
+from .final import FinalGather
+
+
+def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
+    """Gather samples for the input mesh's corners, the layout of core.output.loop_radiance.
+
+    inset > 0 (default): one sample per loop, inside the corner's own region of its patch: `inset`
+    of the way from the corner to the patch's centre (0.5: the centre of a quad's corner quarter).
+    A corner's value is then the area-weighted mean over the loops at the same position of the same
+    object whose polygons lie within smooth_angle (uncovered samples only), like output.loop_plan's
+    leaves: interpolated over a face, the corner values give the face's mean even on coarse meshes,
+    where values at the corners themselves would stand for the corners only (contacts, concave
+    corners).
+    inset = 0: samples at the corners themselves, one per welded vertex and smooth normal (the area
+    mean of the polygons' normals within smooth_angle) and material, moved `nudge` of the way
+    towards the patch's centre.
+    Returns (points (S, 3), normals (S, 3), patch ids (S,), loop -> sample index (L,), -1 for loops
+    of polygons dropped as degenerate, and (li, lj, w): loop li averages sample loop_index[lj] with
+    weight w (None for inset = 0))."""
+    from ..output import _weld_ids
+
+    mesh, pt = system.mesh, system.patches
+    P = len(mesh.loop_start)
+    loop_poly = np.repeat(np.arange(P), mesh.loop_total)
+    loop_obj = np.asarray(mesh.object_id)[loop_poly]
+    weld = _weld_ids(mesh, loop_obj)
+    # the patch of each loop: the patch of its polygon holding its vertex
+    jj, kk = np.nonzero(pt.vert_index >= 0)
+    key_p = pt.poly[jj].astype(np.int64) * (len(mesh.verts) + 1) + pt.vert_index[jj, kk]
+    order = np.argsort(key_p, kind="stable")
+    key_l = loop_poly.astype(np.int64) * (len(mesh.verts) + 1) + np.asarray(mesh.loop_verts, np.int64)
+    pos = np.minimum(np.searchsorted(key_p[order], key_l), len(order) - 1)
+    found = key_p[order][pos] == key_l
+    lpatch = np.where(found, jj[order][pos], -1)
+    # polygon normal and area (from their patches)
+    pn = np.zeros((P, 3))
+    np.add.at(pn, pt.poly, pt.normal * pt.area[:, None])
+    parea = np.linalg.norm(pn, axis=1)
+    pn = pn / np.maximum(parea, 1e-300)[:, None]
+    # pairs of loops at the same weld whose polygons lie within smooth_angle
+    L = len(weld)
+    o = np.argsort(weld, kind="stable")
+    ws = weld[o]
+    start = np.searchsorted(ws, weld, "left")
+    count = np.searchsorted(ws, weld, "right") - start
+    li = np.repeat(np.arange(L), count)
+    offs = np.arange(len(li)) - np.repeat(np.cumsum(count) - count, count)
+    lj = o[np.repeat(start, count) + offs]
+    a, b = loop_poly[li], loop_poly[lj]
+    ok = np.einsum("ij,ij->i", pn[a], pn[b]) >= np.cos(np.radians(smooth_angle))
+    valid = lpatch >= 0
+    vl = np.flatnonzero(valid)
+    p = np.asarray(mesh.verts, float)[np.asarray(mesh.loop_verts)]
+    if inset > 0:
+        loop_index = np.full(L, -1, np.int64)
+        loop_index[vl] = np.arange(len(vl))
+        patch = lpatch[vl]
+        c = pt.corners[patch]
+        centre = np.where((pt.nv[patch] == 4)[:, None], c.mean(1), c[:, :3].mean(1))
+        pts = p[vl] + inset * (centre - p[vl])
+        keep = ok & valid[lj]
+        lpj = lpatch[lj[keep]]
+        w = pt.area[lpj] / pt.nv[lpj]  # the corner's share of its patch
+        return pts, pt.normal[patch], patch, loop_index, (li[keep], lj[keep], w)
+    sn = np.zeros((L, 3))
+    for c in range(3):
+        sn[:, c] = np.bincount(li, weights=ok * pn[b, c] * parea[b], minlength=L)
+    nl = np.linalg.norm(sn, axis=1)
+    sn = np.where(nl[:, None] > 0, sn / np.maximum(nl, 1e-300)[:, None], pn[loop_poly])
+    mat = np.column_stack(
+        [pt.reflectance[:, np.maximum(lpatch, 0)].T, pt.emission[:, np.maximum(lpatch, 0)].T]
+    )
+    key = np.column_stack([weld, np.round(sn * 1e4).astype(np.int64), np.round(mat * 1e6).astype(np.int64)])
+    _, first, inv = np.unique(key[valid], axis=0, return_index=True, return_inverse=True)
+    rep = vl[first]
+    loop_index = np.full(L, -1, np.int64)
+    loop_index[vl] = inv.ravel()
+    patch = lpatch[rep]
+    q = p[rep]
+    towards = pt.corners[patch].mean(1) - q  # the patch's centre (padded triangles: close enough)
+    dist = np.linalg.norm(towards, axis=1)
+    f = np.minimum(nudge, 50 * system.refiner.eps / np.maximum(dist, 1e-300))
+    pts = q + f[:, None] * towards
+    nrm = sn[rep]
+    flip = np.einsum("ij,ij->i", nrm, pt.normal[patch]) <= 0  # turned to the patch's side
+    nrm[flip] = pt.normal[patch[flip]]
+    return pts, nrm, patch, loop_index, None
+
+
+class LoopGather(FinalGather):
+    """FinalGather for the input mesh's corners: loop_radiance() in the layout of
+    DynamicRadiosity.loop_radiance (CORNER: (L, 3) per loop; POINT: (V, 3) per vertex), float32.
+    inset: see loop_samples (0.5: samples in the corners' regions, averaged; 0: at the corners)."""
+
+    def __init__(self, system, smooth_angle=30.0, inset=0.5, **kw):
+        s = system.system if hasattr(system, "n_hr") else system
+        pts, nrm, patch, self.loop_index, self.average = loop_samples(s, smooth_angle, inset)
+        self.smooth_angle = smooth_angle
+        super().__init__(system, pts, nrm, patch, **kw)
+
+    def loop_radiance(self, dyn=None, domain="CORNER", kind="radiance"):
+        v = self.evaluate(dyn, kind)
+        if self.average is not None:
+            li, lj, w = self.average
+            sj = self.loop_index[lj]
+            w = w * ~self.dark[sj]
+            den = np.bincount(li, w, len(self.loop_index))
+            out = np.zeros((len(self.loop_index), 3))
+            for c in range(3):
+                out[:, c] = np.bincount(li, w * v[sj, c], len(self.loop_index))
+            out = np.where(den[:, None] > 0, out / np.maximum(den, 1e-300)[:, None], 0.0)
+        else:
+            out = np.where((self.loop_index >= 0)[:, None], v[np.maximum(self.loop_index, 0)], 0.0)
+        if domain == "POINT":
+            mesh = self.system.mesh
+            res = np.zeros((len(mesh.verts), 3))
+            res[mesh.loop_verts] = out
+            return res.astype(np.float32)
+        return out.astype(np.float32)
+
+
+def texel_gather(system, patch, points, **kw):
+    """FinalGather at texel centres (lightmap.plan's points on input patches), normals from the
+    patches: evaluate(dyn, kind) replaces core.texels.solution_radiance(dyn, system, patch, points,
+    kind=kind) (same kinds; float64, cast as needed)."""
+    s = system.system if hasattr(system, "n_hr") else system
+    patch = np.asarray(patch, np.int64)
+    return FinalGather(system, points, s.patches.normal[patch], patch, **kw)

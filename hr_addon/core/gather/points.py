@@ -1,0 +1,98 @@
+"""Where the gather's samples and hits lie: HR leaves by side tests (locate_below), samples kept
+inside their patch."""
+
+import numpy as np
+
+from ..output import _insideness
+
+
+def _triple(e, w, n):
+    """det[e, w, n] = (e x w) . n, rows (m, 3)."""
+    return (
+        (e[:, 1] * w[:, 2] - e[:, 2] * w[:, 1]) * n[:, 0]
+        + (e[:, 2] * w[:, 0] - e[:, 0] * w[:, 2]) * n[:, 1]
+        + (e[:, 0] * w[:, 1] - e[:, 1] * w[:, 0]) * n[:, 2]
+    )
+
+
+def locate_below(h, patch, points, n_hr):
+    """The HR leaf holding each point (M,) <- patch (M,), points (M, 3): the leaf of the first
+    n_hr nodes (nodes whose children were added later, by light events, count as leaves).
+
+    Children of a quad are the bilinear images of the parameter square's quarters, split by the
+    straight lines from edge midpoint to edge midpoint; children of a triangle are its corner
+    triangles and the middle one. So one level costs two (quads) or three (triangles) side tests
+    against those lines instead of output.locate's test against every child's edges; ties on a
+    line go to either side, as locate's."""
+    node = np.asarray(patch, np.int64).copy()
+    pts = np.asarray(points, float)
+    while True:
+        c0 = h.child0[node]
+        inner = np.flatnonzero((c0 >= 0) & (c0 < n_hr))
+        if len(inner) == 0:
+            return node
+        nd = node[inner]
+        c = h.corners[nd]
+        n = h.normal[nd]
+        p = pts[inner]
+        a, b, cc, d = c[:, 0], c[:, 1], c[:, 2], c[:, 3]
+        ab, bc, cd, da, ca = (a + b) / 2, (b + cc) / 2, (cc + d) / 2, (d + a) / 2, (cc + a) / 2
+        k = np.zeros(len(nd), np.int64)
+        quad = h.nv[nd] == 4
+        q = np.flatnonzero(quad)
+        if len(q):
+            # line ab -> cd separates u < 1/2 (a's side) from u > 1/2; line da -> bc: v
+            e1 = cd[q] - ab[q]
+            right = _triple(e1, p[q] - ab[q], n[q]) * _triple(e1, a[q] - ab[q], n[q]) < 0
+            e2 = bc[q] - da[q]
+            top = _triple(e2, p[q] - da[q], n[q]) * _triple(e2, a[q] - da[q], n[q]) < 0
+            k[q] = np.where(top, np.where(right, 2, 3), np.where(right, 1, 0))
+        t = np.flatnonzero(~quad)
+        if len(t):
+            nn = n[t]
+            pt_ = p[t]
+
+            def corner_side(m0, m1, corner):
+                e = m1 - m0
+                return _triple(e, pt_ - m0, nn) * _triple(e, corner - m0, nn) > 0
+
+            in_a = corner_side(ab[t], ca[t], a[t])
+            in_b = corner_side(ab[t], bc[t], b[t])
+            in_c = corner_side(ca[t], bc[t], cc[t])
+            k[t] = np.where(in_a, 0, np.where(in_b, 1, np.where(in_c, 2, 3)))
+        node[inner] = c0[inner] + k
+
+
+def _into_patch(pt, patch, p, margin):
+    """Points (M, 3) in their patches' planes moved to at least `margin` inside their patch: points
+    beyond its outline (a lightmap's dilation ring) to the nearest point of it, then those closer
+    than margin to it (texels and vertices on an edge where two surfaces meet: rays from there
+    would start on the other surface and pass through it) towards the patch's centre."""
+    c = pt.corners[patch]
+    d = _insideness(c[:, None], pt.normal[patch][:, None], p)[:, 0]
+    size = np.sqrt(pt.area[patch])
+    p = p.copy()
+    out = np.flatnonzero(d < 0)
+    if len(out):
+        q, cc = p[out], c[out]
+        a, b = cc, np.roll(cc, -1, axis=1)
+        ab = b - a
+        t = np.einsum("mkj,mkj->mk", q[:, None] - a, ab) / np.maximum(
+            np.einsum("mkj,mkj->mk", ab, ab), 1e-300
+        )
+        near = a + np.clip(t, 0, 1)[..., None] * ab
+        k = np.argmin(np.linalg.norm(near - q[:, None], axis=-1), axis=1)
+        p[out] = near[np.arange(len(out)), k]
+        d[out] = 0.0
+    close = np.flatnonzero(d < margin)
+    if len(close):
+        nv = pt.nv[patch[close]]
+        cc = c[close]
+        centre = np.where((nv == 4)[:, None], cc.mean(1), cc[:, :3].mean(1))
+        to = centre - p[close]
+        # the inradius-like distance of the centre bounds how far moving towards it can go
+        dc = _insideness(cc[:, None], pt.normal[patch[close]][:, None], centre)[:, 0]
+        f = np.clip((margin - d[close]) / np.maximum(dc - d[close], 1e-300), 0, 0.5)
+        f = np.where(margin < 0.25 * size[close], f, np.minimum(f, 1e-3))
+        p[close] += f[:, None] * to
+    return p

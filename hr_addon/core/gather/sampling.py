@@ -1,0 +1,252 @@
+"""Random streams and sampling of the final gather: hash-rotated Hammersley patterns (a sample's
+rays do not depend on batching or threads), cosine-weighted hemisphere directions, directions
+uniform in solid angle over spherical triangles (Arvo 1995) and polygonal emitters."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import formfactor as ff
+
+_GOLD = np.uint64(0x9E3779B97F4A7C15)
+
+
+# ---------------------------------------------------------------------------------------------- random
+
+
+def _mix(x):
+    """splitmix64 finaliser on uint64 arrays (wrapping arithmetic)."""
+    x = x ^ (x >> np.uint64(30))
+    x = x * np.uint64(0xBF58476D1CE4E5B9)
+    x = x ^ (x >> np.uint64(27))
+    x = x * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+def hash_uniform(seed, index, stream, k=2):
+    """(len(index), k) uniforms in [0, 1) from (seed, index, stream): the same for a sample whatever
+    batch it is computed in."""
+    with np.errstate(over="ignore"):
+        base = _mix(np.uint64(seed & 0xFFFFFFFF) * _GOLD + np.uint64(stream & 0xFFFFFFFF))
+        x = np.asarray(index, np.uint64)[:, None] * _GOLD + base + np.arange(k, dtype=np.uint64)[None] * _GOLD
+        x = _mix(_mix(x))
+    return (x >> np.uint64(11)).astype(np.float64) * 2.0**-53
+
+
+def position_keys(points, unit):
+    """uint64 keys of points (n, 3) quantised to `unit`: a sample's random stream follows where it
+    is, not its index, so adding or reordering objects elsewhere leaves its rays alone."""
+    q = np.floor(np.asarray(points, np.float64) / unit).astype(np.int64).view(np.uint64)
+    with np.errstate(over="ignore"):
+        return _mix(_mix(_mix(q[:, 0]) + q[:, 1]) + q[:, 2])
+
+
+def hammersley(n):
+    """(n, 2) Hammersley points: ((i + 0.5) / n, radical inverse base 2 of i)."""
+    i = np.arange(n, dtype=np.uint64)
+    r = np.zeros(n)
+    f, b = 0.5, i.copy()
+    while b.any():
+        r += f * (b & np.uint64(1))
+        b >>= np.uint64(1)
+        f /= 2
+    return np.column_stack([(np.arange(n) + 0.5) / n, r])
+
+
+def _frame(n):
+    """Orthonormal tangents (t, b) of unit normals n (N, 3) (Duff et al. 2017, branchless)."""
+    s = np.where(n[:, 2] >= 0, 1.0, -1.0)
+    a = -1.0 / (s + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t = np.column_stack([1 + s * n[:, 0] ** 2 * a, s * b, -s * n[:, 0]])
+    bb = np.column_stack([b, s + n[:, 1] ** 2 * a, -n[:, 1]])
+    return t, bb
+
+
+def cosine_directions(normals, index, rays, seed, stream=0):
+    """(N, rays, 3) cosine-weighted unit directions about normals (N, 3): a Hammersley pattern
+    rotated per sample by hash_uniform(seed, index)."""
+    u = (hammersley(rays)[None] + hash_uniform(seed, index, stream)[:, None]) % 1.0  # (N, R, 2)
+    r = np.sqrt(u[..., 0])
+    phi = 2 * np.pi * u[..., 1]
+    z = np.sqrt(np.maximum(1 - u[..., 0], 0))
+    t, b = _frame(normals)
+    return (
+        (r * np.cos(phi))[..., None] * t[:, None]
+        + (r * np.sin(phi))[..., None] * b[:, None]
+        + z[..., None] * normals[:, None]
+    )
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+
+
+# ---------------------------------------------------------------------------------------------- emitters
+
+
+def _unit_rows(v):
+    return v / np.maximum(np.sqrt(np.einsum("...k,...k->...", v, v)), 1e-300)[..., None]
+
+
+def solid_angles(A, B, C):
+    """Solid angles (...) of the triangles with unit vertex directions A, B, C (..., 3)
+    (Van Oosterom & Strackee 1983)."""
+    num = np.abs(np.einsum("...k,...k->...", A, ff._cross(B, C)))
+    den = 1 + np.einsum("...k,...k->...", A, B) + np.einsum("...k,...k->...", B, C)
+    den += np.einsum("...k,...k->...", C, A)
+    return 2 * np.arctan2(num, den)
+
+
+def spherical_setup(A, B, C):
+    """What Arvo's sampling of the spherical triangles A, B, C (N, 3) needs that does not depend
+    on the sample: (the angle at A, A . B, the unit direction of C orthogonal to A), (N,), (N,),
+    (N, 3). Computed once per point and triangle, shared by all of its shadow rays."""
+    dot = lambda x, y: np.einsum("nk,nk->n", x, y)
+    # the angle at A between the great circles AB and AC
+    alpha = np.arccos(np.clip(dot(_unit_rows(ff._cross(A, B)), _unit_rows(ff._cross(A, C))), -1, 1))
+    return alpha, dot(A, B), _unit_rows(C - dot(C, A)[:, None] * A)
+
+
+def sample_spherical_triangle(A, B, C, u1, u2, area=None, setup=None):
+    """Directions uniform in solid angle over spherical triangles A, B, C (N, 3) unit (Arvo 1995);
+    area: their solid angles if known (solid_angles); setup: spherical_setup(A, B, C) if known."""
+    dot = lambda x, y: np.einsum("nk,nk->n", x, y)
+    alpha, ab, c_perp = spherical_setup(A, B, C) if setup is None else setup
+    if area is None:
+        area = solid_angles(A, B, C)
+    ah = u1 * area
+    s, t = np.sin(ah - alpha), np.cos(ah - alpha)
+    sa, ca = np.sin(alpha), np.cos(alpha)
+    u = t - ca
+    v = s + sa * ab
+    den = (v * s + u * t) * sa
+    q = np.clip(((v * t - u * s) * ca - v) / np.where(np.abs(den) > 1e-300, den, 1e-300), -1, 1)
+    ch = q[:, None] * A + np.sqrt(np.maximum(1 - q * q, 0))[:, None] * c_perp
+    z = 1 - u2 * (1 - dot(ch, B))
+    return z[:, None] * B + np.sqrt(np.maximum(1 - z * z, 0))[:, None] * _unit_rows(
+        ch - dot(ch, B)[:, None] * B
+    )
+
+
+@dataclass
+class Emitter:
+    """A polygonal emitter: convex pieces (T, 4, 3) CCW about their own emitting normals, nv (T,),
+    areas (T,), normals (T, 3); rings (outer CCW about `normal`, holes CW) when the whole emitter is
+    one planar polygon with holes (the contour fast path), else None; `normal`/`point` its plane
+    when planar (None otherwise)."""
+
+    corners: np.ndarray
+    nv: np.ndarray
+    area: np.ndarray
+    normals: np.ndarray
+    rings: list = None
+    normal: np.ndarray = None
+    point: np.ndarray = None
+    stream: int = 0  # random stream of its shadow rays
+
+    def __post_init__(self):
+        # triangles for area-uniform sampling: (0, 1, 2) and, for quads, (0, 2, 3)
+        c, nv = self.corners, self.nv
+        tri = [c[:, [0, 1, 2]]]
+        tn = [self.normals]
+        q = np.flatnonzero(nv == 4)
+        tri.append(c[q][:, [0, 2, 3]])
+        tn.append(self.normals[q])
+        self.tri = np.concatenate(tri)
+        self.tri_normal = np.concatenate(tn)
+        a = 0.5 * np.linalg.norm(
+            np.cross(self.tri[:, 1] - self.tri[:, 0], self.tri[:, 2] - self.tri[:, 0]), axis=1
+        )
+        self.tri_area = a
+        self.cdf = np.cumsum(a)
+        self.total = float(self.cdf[-1]) if len(a) else 0.0
+        self.verts = c.reshape(-1, 3)
+        self.lo, self.hi = self.verts.min(0), self.verts.max(0)
+
+    SOLID_MIN = 1e-4  # triangles smaller than this (sr) seen from the point are sampled by area
+    MAX_TRIANGLES = 256  # more: area sampling only (the per-point solid angles would cost too much)
+
+    def sample_at(self, x, u):
+        """Points (L, S, 3) on the emitter seen from points x (L, 3), their normals and densities
+        relative to solid angle: triangles are picked by their solid angle seen from x and sampled
+        uniformly in solid angle (Arvo) or, when tiny, by area. Returns (y, ny, pdf_ratio) with
+        pdf_ratio = (density in solid angle) x total solid angle: ~1 where sampling is exact."""
+        L, S = u.shape[:2]
+        T = len(self.tri)
+        if T > self.MAX_TRIANGLES:
+            y, ny = self.sample(u)
+            d = y - x[:, None]
+            r2 = np.einsum("lsk,lsk->ls", d, d)
+            cos_y = np.abs(np.einsum("lsk,lsk->ls", d, ny)) / np.sqrt(np.maximum(r2, 1e-300))
+            # area density 1 / total -> solid-angle density r^2 / (cos_y total); normalised later
+            return y, ny, np.maximum(r2, 1e-300) / np.maximum(cos_y, 1e-12) / self.total
+        V = _unit_rows(self.tri[None] - x[:, None, None])  # (L, T, 3, 3)
+        om = solid_angles(V[..., 0, :], V[..., 1, :], V[..., 2, :])  # (L, T)
+        cdf = np.cumsum(om, axis=1)
+        tot = np.maximum(cdf[:, -1:], 1e-300)
+        xs = u[..., 0] * tot
+        k = np.minimum((cdf[:, None, :] <= xs[..., None]).sum(-1), T - 1)  # (L, S)
+        lo = np.where(k > 0, np.take_along_axis(cdf, np.maximum(k - 1, 0), 1), 0.0)
+        ok_ = np.take_along_axis(om, k, 1)
+        s1 = np.clip((xs - lo) / np.maximum(ok_, 1e-300), 0, 1)
+        li = np.repeat(np.arange(L), S)
+        kk = k.ravel()
+        t3 = self.tri[kk]
+        big = ok_.ravel() >= self.SOLID_MIN
+        y = np.empty((L * S, 3))
+        if big.any():
+            # the sample-independent part of Arvo's method once per point and triangle
+            Vf = V.reshape(L * T, 3, 3)
+            alpha, ab, c_perp = spherical_setup(Vf[:, 0], Vf[:, 1], Vf[:, 2])
+            j = li[big] * T + kk[big]
+            Vb = Vf[j]
+            w = sample_spherical_triangle(
+                Vb[:, 0],
+                Vb[:, 1],
+                Vb[:, 2],
+                s1.ravel()[big],
+                u[..., 1].ravel()[big],
+                ok_.ravel()[big],
+                setup=(alpha[j], ab[j], c_perp[j]),
+            )
+            # the point where direction w meets the triangle's plane
+            n = self.tri_normal[kk[big]]
+            xo = x[li[big]]
+            tt = np.einsum("nk,nk->n", t3[big, 0] - xo, n) / np.where(
+                np.abs(np.einsum("nk,nk->n", w, n)) > 1e-300, np.einsum("nk,nk->n", w, n), 1e-300
+            )
+            y[big] = xo + tt[:, None] * w
+        small = ~big
+        if small.any():
+            r1 = np.sqrt(s1.ravel()[small])
+            u2 = u[..., 1].ravel()[small]
+            tri = t3[small]
+            y[small] = (
+                (1 - r1)[:, None] * tri[:, 0]
+                + (r1 * (1 - u2))[:, None] * tri[:, 1]
+                + (r1 * u2)[:, None] * tri[:, 2]
+            )
+        y = y.reshape(L, S, 3)
+        ny = self.tri_normal[k]
+        d = y - x[:, None]
+        r2 = np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300)
+        cos_y = np.abs(np.einsum("lsk,lsk->ls", d, ny)) / np.sqrt(r2)
+        # density in solid angle: (om_k / tot) x (1 / om_k) for exact sampling, (om_k / tot) x
+        # r^2 / (cos_y A_k) for area sampling; times tot
+        area_k = self.tri_area[k]
+        bigm = big.reshape(L, S)
+        ratio = np.where(bigm, 1.0, ok_ * r2 / np.maximum(cos_y * area_k, 1e-300))
+        return y, ny, ratio
+
+    def sample(self, u):
+        """Points (..., 3) and their normals on the emitter, area-uniform, from uniforms u (..., 2):
+        u[..., 0] picks the triangle along the cumulative area (stratification carries over)."""
+        x = u[..., 0] * self.total
+        k = np.minimum(np.searchsorted(self.cdf, x, "right"), len(self.cdf) - 1)
+        lo = np.where(k > 0, self.cdf[np.maximum(k - 1, 0)], 0.0)
+        s = np.clip((x - lo) / np.maximum(self.cdf[k] - lo, 1e-300), 0, 1)  # reused within the triangle
+        r1 = np.sqrt(s)
+        t = self.tri[k]
+        p = (1 - r1)[..., None] * t[..., 0, :] + (r1 * (1 - u[..., 1]))[..., None] * t[..., 1, :]
+        p += (r1 * u[..., 1])[..., None] * t[..., 2, :]
+        return p, self.tri_normal[k]

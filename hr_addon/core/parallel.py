@@ -1,0 +1,99 @@
+"""A deterministic batch map on threads (issue 23, docs/threads.md).
+
+Work is cut into batches whose bounds never depend on the thread count; every batch computes its
+own result and the results come back in batch order, so 1 and N threads give bitwise equal
+values. Threads pay where the kernels release the GIL (embreex's ray queries, numpy's large array
+operations; measured in docs/threads.md).
+
+- threads=1 runs the batches inline: no pool, no thread (the single-core path).
+- A batch map started inside another one's worker runs inline too: no nested pools.
+- Cancellation: `progress(done, total)` is called from the calling thread after each finished
+  batch, in order (done = 1, 2, ...). Whatever it raises (core.progress.Cancelled, or the signal
+  handler's Cancelled / KeyboardInterrupt arriving in the calling thread while it waits) stops the
+  submitting, drops the batches not started, waits for the running ones and propagates: no worker
+  thread is left behind. A batch that raises does the same with its exception.
+"""
+
+import os
+import threading
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+
+_local = threading.local()
+
+
+def available_cores():
+    """Cores this process may run on (its CPU affinity: `taskset` counts)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except AttributeError:  # not on Linux
+        return max(os.cpu_count() or 1, 1)
+
+
+def resolve_threads(threads):
+    """threads: None or 0 -> every available core; n < 0 -> all but |n| (Live keeps one for the
+    UI); otherwise n. At least 1."""
+    cores = available_cores()
+    if threads is None or threads == 0:
+        return cores
+    threads = int(threads)
+    return max(cores + threads if threads < 0 else threads, 1)
+
+
+def ranges(n, step):
+    """[(a, b), ...] covering 0..n in steps of `step` (fixed by the caller, never by the thread
+    count: the bounds of the batches, and so the results, are the same for any thread count)."""
+    step = max(int(step), 1)
+    return [(a, min(a + step, n)) for a in range(0, n, step)]
+
+
+def in_worker():
+    """True inside a batch map's worker thread."""
+    return getattr(_local, "worker", False)
+
+
+def _run_in_worker(fn, args):
+    _local.worker = True
+    try:
+        return fn(*args)
+    finally:
+        _local.worker = False
+
+
+def batch_map(fn, batches, threads=1, progress=None, poll=0.1):
+    """[fn(*batch) for batch in batches], computed on up to `threads` threads, in batch order.
+
+    batches: argument tuples (e.g. ranges()). progress(done, total): see the module doc; it may
+    raise to cancel. At most 2 x threads batches are queued at a time, so a cancel waits for the
+    running batches only (and the queued results bound the memory held)."""
+    batches = list(batches)
+    total = len(batches)
+    threads = min(resolve_threads(threads), total)
+    if threads <= 1 or in_worker():
+        out = []
+        for k, b in enumerate(batches):
+            out.append(fn(*b))
+            if progress is not None:
+                progress(k + 1, total)
+        return out
+    out = [None] * total
+    pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="hr-batch")
+    pending = {}
+    nxt = done = 0
+    try:
+        while done < total:
+            while nxt < total and len(pending) < 2 * threads:
+                pending[pool.submit(_run_in_worker, fn, batches[nxt])] = nxt
+                nxt += 1
+            # a timeout keeps the calling thread responsive to signals while it waits
+            finished, _ = wait(pending, timeout=poll, return_when=FIRST_COMPLETED)
+            for f in sorted(finished, key=pending.get):
+                out[pending.pop(f)] = f.result()  # a batch's exception propagates from here
+                done += 1
+                if progress is not None:
+                    progress(done, total)
+    finally:
+        # normal end, cancel or error alike: nothing new starts, running batches are joined
+        for f in pending:
+            f.cancel()
+        pool.shutdown(wait=True, cancel_futures=True)
+    return out

@@ -1,0 +1,186 @@
+"""Threads (issue 23, core/parallel.py, docs/threads.md): the same values for any thread count,
+cancellation that leaves no worker behind, progress counted in order from the calling thread."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from benchmarks import scenes
+from benchmarks import shapes as S
+from hr_addon.core import parallel
+from hr_addon.core.events import DynamicRadiosity, LightShape
+from hr_addon.core.gather import LoopGather, texel_gather
+from hr_addon.core.lights import Light
+from hr_addon.core.progress import Cancelled
+from hr_addon.core.radiosity import RadiositySystem
+from hr_addon.core.refine import RefineParams
+
+RECT = S.rect(0.16, 0.12, centre=(0.25, 0.3), angle=0.2)
+
+
+def _workers():
+    return [t for t in threading.enumerate() if t.name.startswith("hr-batch")]
+
+
+def test_batch_map_keeps_batch_order_and_runs_inline_on_one_thread():
+    """Results in batch order whatever finishes first; threads=1 runs in the calling thread."""
+    order = []
+
+    def f(a, b):
+        time.sleep(0.02 * ((7 - a) % 3))  # batches finish out of order
+        order.append(threading.current_thread().name)
+        return list(range(a, b))
+
+    got = parallel.batch_map(f, parallel.ranges(20, 3), threads=3)
+    assert sum(got, []) == list(range(20))
+    assert any(n.startswith("hr-batch") for n in order)
+    order.clear()
+    assert sum(parallel.batch_map(f, parallel.ranges(20, 3), threads=1), []) == list(range(20))
+    assert set(order) == {threading.current_thread().name}
+    assert parallel.resolve_threads(None) == parallel.available_cores()
+    assert parallel.resolve_threads(-1) == max(parallel.available_cores() - 1, 1)
+
+
+def test_progress_counts_arrive_in_order_from_the_calling_thread():
+    seen = []
+
+    def f(a, b):
+        time.sleep(0.01 * (a % 4))
+        return a
+
+    def progress(done, total):
+        seen.append((done, total, threading.current_thread() is threading.main_thread()))
+
+    parallel.batch_map(f, parallel.ranges(40, 1), threads=4, progress=progress)
+    assert [d for d, _, _ in seen] == list(range(1, 41))
+    assert all(t == 40 and main for _, t, main in seen)
+
+
+@pytest.mark.parametrize("where", ["progress", "batch"])
+def test_a_cancel_stops_the_map_and_leaves_no_worker(where):
+    """A Cancelled raised by the progress callback (the bake's cancel) or by a batch propagates;
+    batches not started never run and every worker thread has ended when it arrives."""
+    started = []
+
+    def f(a, b):
+        started.append(a)
+        time.sleep(0.05)
+        if where == "batch" and a == 3:
+            raise Cancelled("stop")
+        return a
+
+    def progress(done, total):
+        if where == "progress" and done == 2:
+            raise Cancelled("stop")
+
+    with pytest.raises(Cancelled):
+        parallel.batch_map(f, parallel.ranges(200, 1), threads=2, progress=progress)
+    assert not _workers()
+    assert len(started) < 20  # stopped submitting: at most a few batches beyond the cancel
+
+
+def test_a_keyboard_interrupt_while_waiting_leaves_no_worker():
+    """Ctrl-C reaches the calling thread while it waits for the workers (the signal handler of
+    blender/interrupt.py raises there): the map stops and joins its workers."""
+    import _thread
+
+    def f(a, b):
+        if a == 4:
+            _thread.interrupt_main()  # as a SIGINT arriving while the main thread waits
+        time.sleep(0.05)
+        return a
+
+    with pytest.raises(KeyboardInterrupt):
+        parallel.batch_map(f, parallel.ranges(100, 1), threads=2)
+    assert not _workers()
+
+
+@pytest.fixture(scope="module")
+def cornell_events():
+    """A Cornell box (draft) with an FE and an AUTO light shape, a Blender point light."""
+    base = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    shape = LightShape(S.on_plane(RECT, S.CORNELL_BACK_WALL), np.array([4.0, 3, 2]), "a")
+    lamp = Light("POINT", (1.0, 0.9, 0.8), 5.0, position=(0.3, 0.25, 0.4), radius=0.02, name="lamp")
+    out = []
+    for method in ("FE", "AUTO"):
+        dyn = DynamicRadiosity(base.copy(), method=method)
+        dyn.apply({"a": shape}, {"light:lamp": lamp})
+        out.append(dyn)
+    return out
+
+
+def _gathers(dyn, threads):
+    kw = dict(rays=32, shadow_rays=8, levels=2, iterations=2, batch_rays=512, threads=threads)
+    s = dyn.system
+    g = LoopGather(dyn, **kw)
+    rng = np.random.default_rng(3)
+    patch = rng.integers(0, len(s.patches.nv), 500)
+    c = s.patches.corners[patch]
+    w = rng.dirichlet(np.ones(3), len(patch))
+    pts = np.einsum("nk,nkj->nj", w, c[:, :3])
+    t = texel_gather(dyn, patch, pts, **kw)
+    return g, t
+
+
+def test_gather_with_one_and_two_threads_gives_identical_values(cornell_events):
+    """Precompute (hemisphere rays, weights at both levels), the direct light of the static
+    emitters, a light shape and a Blender light, the matvecs and the output: bitwise equal with 1
+    and 2 threads, for vertex (corner) output and texel output, FE and AUTO (the batches have the
+    same bounds for any thread count and every sample's rays are its own)."""
+    g1, t1 = _gathers(cornell_events[0], 1)  # one precompute serves both methods (same HR leaves)
+    g2, t2 = _gathers(cornell_events[0], 2)
+    for a, b in ((g1, g2), (t1, t2)):
+        while a is not None:  # the weights of every level
+            assert np.array_equal(a.indptr, b.indptr) and np.array_equal(a.cols, b.cols)
+            assert np.array_equal(a.w, b.w)
+            a, b = a.second, b.second
+    for dyn in cornell_events:
+        for kind in ("radiance", "incident"):
+            x, y = g1.loop_radiance(dyn, kind=kind), g2.loop_radiance(dyn, kind=kind)
+            assert np.abs(x).max() > 0
+            assert np.array_equal(x, y)
+            x, y = t1.evaluate(dyn, kind), t2.evaluate(dyn, kind)
+            assert np.abs(x).max() > 0
+            assert np.array_equal(x, y)
+
+
+def test_ray_backend_threads_give_identical_hits(cornell_events):
+    """Large occluded() / first_hit() calls split over threads (backend.threads) give the same
+    answer per ray as one thread."""
+    from hr_addon.core.visibility import make_backend
+
+    tri = cornell_events[0].system.patches.triangles
+    rng = np.random.default_rng(1)
+    lo, hi = tri.reshape(-1, 3).min(0), tri.reshape(-1, 3).max(0)
+    a, b = (lo + rng.random((3000, 3)) * (hi - lo) for _ in range(2))
+    d = (b - a) / np.linalg.norm(b - a, axis=1)[:, None]
+    for name in ("embree", "numpy"):
+        try:
+            one, two = make_backend(tri, name), make_backend(tri, name, threads=2)
+        except ImportError:
+            continue
+        two.PARALLEL_CHUNK = 256
+        occ = one.occluded(a, b)
+        assert 0 < occ.sum() < len(occ)
+        assert np.array_equal(occ, two.occluded(a, b))
+        p1, t1 = one.first_hit(a, d, 2.0)
+        p2, t2 = two.first_hit(a, d, 2.0)
+        assert np.array_equal(p1, p2) and np.array_equal(t1, t2)
+    assert not _workers()
+
+
+def test_a_cancel_during_the_gather_precompute_leaves_no_worker(cornell_events):
+    """The gather's progress callback (ProgressInfo, from the calling thread) cancels the
+    precompute while its batches of hemisphere rays run on 2 threads."""
+    seen = []
+
+    def progress(info):
+        seen.append((info.done, info.total, threading.current_thread() is threading.main_thread()))
+        raise Cancelled("stop")  # at the first report: the first batch done, the others not
+
+    with pytest.raises(Cancelled):
+        LoopGather(cornell_events[0], rays=32, batch_rays=128, threads=2, progress=progress)
+    assert not _workers()
+    assert len(seen) == 1 and seen[0][0] == 1 < seen[0][1] and seen[0][2]
