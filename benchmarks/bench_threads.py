@@ -26,8 +26,8 @@ import numpy as np  # noqa: E402
 
 
 def child(size, threads, quality, dump):
-    from benchmarks import shapes as S
-    from benchmarks.furnished import furnished_room
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
     from hr_addon.core.events import DynamicRadiosity, LightShape
     from hr_addon.core.gather import LoopGather
     from hr_addon.core.radiosity import RadiositySystem

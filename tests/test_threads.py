@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from benchmarks import scenes
-from benchmarks import shapes as S
+from hr_testing import scenes
+from hr_testing import shapes as S
 from hr_addon.core import parallel
 from hr_addon.core.events import DynamicRadiosity, LightShape
 from hr_addon.core.gather import LoopGather, texel_gather
