@@ -150,6 +150,7 @@ def test_stale_precompute_is_rebuilt_saying_why(stored, tmp_path):
     (tmp_path / "c").mkdir()
     for f in (pc.FILENAME, MARKER):
         (tmp_path / "c" / f).write_bytes((d / f).read_bytes())
+    (tmp_path / "c" / f".{pc.FILENAME}.99999.tmp").write_bytes(b"half written by a killed builder")
     log = []
     system, gather, how = pc.load_or_build(
         tmp_path / "c", pc.expected(m, DRAFT, gather=GATHER), lambda: build(m), log.append

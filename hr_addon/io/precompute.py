@@ -97,25 +97,27 @@ def mesh_signatures(mesh):
     oid = np.asarray(mesh.object_id, np.int64)
     loop_poly = np.repeat(np.arange(P), mesh.loop_total)
     pos = np.asarray(mesh.verts, np.float64)[np.asarray(mesh.loop_verts)]
-    tri_poly = tri_rel = None
-    if mesh.tri_loops is not None and len(mesh.tri_loops):
-        tl = np.asarray(mesh.tri_loops, np.int64)
-        tri_poly = loop_poly[tl[:, 0]]
-        tri_rel = tl - np.asarray(mesh.loop_start)[tri_poly][:, None]
+    n = len(mesh.object_names)
+
+    def by_obj(o):  # (order, bounds): items grouped by object, object i at order[bounds[i]:bounds[i + 1]]
+        return np.argsort(o, kind="stable"), np.searchsorted(np.sort(o), np.arange(n + 1))
+
+    (po, pb), (lo, lb) = by_obj(oid), by_obj(oid[loop_poly])
+    tl = np.zeros((0, 3), np.int64) if mesh.tri_loops is None else np.asarray(mesh.tri_loops, np.int64)
+    tri_poly = loop_poly[tl[:, 0]]
+    tri_rel = tl - np.asarray(mesh.loop_start)[tri_poly][:, None]  # the triangulation, per polygon
+    to, tb = by_obj(oid[tri_poly])
+    sizes = np.asarray(mesh.loop_total).astype(np.int64)
+    rho, em = np.asarray(mesh.reflectance, np.float64), np.asarray(mesh.emission, np.float64)
     out = {}
-    order = np.argsort(oid, kind="stable")
-    bounds = np.searchsorted(oid[order], np.arange(len(mesh.object_names) + 1))
     for i, name in enumerate(mesh.object_names):
-        pol = order[bounds[i] : bounds[i + 1]]
-        loops = np.flatnonzero(np.isin(loop_poly, pol)) if len(pol) else np.zeros(0, np.int64)
+        pol, loops, tri = po[pb[i] : pb[i + 1]], lo[lb[i] : lb[i + 1]], to[tb[i] : tb[i + 1]]
         g = hashlib.sha256(np.ascontiguousarray(pos[loops]).tobytes())
-        g.update(np.asarray(mesh.loop_total)[pol].astype(np.int64).tobytes())
-        if tri_poly is not None:
-            g.update(tri_rel[np.isin(tri_poly, pol)].tobytes())
+        g.update(sizes[pol].tobytes() + np.ascontiguousarray(tri_rel[tri]).tobytes())
         out[str(name)] = {
             "geometry": g.hexdigest()[:16],
-            "reflectance": _digest(np.asarray(mesh.reflectance, np.float64)[pol]),
-            "emission": _digest(np.asarray(mesh.emission, np.float64)[pol]),
+            "reflectance": _digest(rho[pol]),
+            "emission": _digest(em[pol]),
         }
     return out
 
@@ -142,13 +144,14 @@ def _plain(v):
 
 def expected(mesh, params, tol=1e-7, gather=None, **extra):
     """What a valid precompute for this scene and these settings must say (validate's `expected`)."""
-    return {
+    want = {
         "format_version": FORMAT_VERSION,
         "extension": extension_version(),
         "code": code_digest(),
         "settings": settings_of(params, tol, gather, **extra),
         "objects": mesh_signatures(mesh),
     }
+    return json.loads(json.dumps(want))  # as a header reads back (tuples as lists)
 
 
 def _names(names, limit=5):
@@ -253,10 +256,7 @@ def _hier_fields(h):
 
 
 def _backend_key(b):
-    from importlib import import_module
-
-    vis = import_module(type(b).__module__)
-    for k, c in vis._BACKENDS.items():
+    for k, c in importlib.import_module(type(b).__module__)._BACKENDS.items():
         if type(b) is c:
             return k
     raise TypeError(f"unknown ray backend {type(b).__name__}")
@@ -429,8 +429,12 @@ def load(cache_dir, want):
     try:
         arrays, header = read(path)
         system, gather = restore(arrays, header["graph"])
-    except (FileNotFoundError, PrecomputeError) as exc:
-        return None, None, str(exc) if not isinstance(exc, FileNotFoundError) else "no precompute yet"
+    except FileNotFoundError:
+        return None, None, "no precompute yet"
+    except PrecomputeError as exc:
+        return None, None, str(exc)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a graph this code cannot follow
+        return None, None, f"'{FILENAME}' cannot be restored ({type(exc).__name__}: {exc})"
     return system, gather, None
 
 
@@ -555,14 +559,19 @@ def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=
             log(f"Precompute loaded from {d / FILENAME} (built by another process)")
             return system, gather, "loaded"
     try:
-        system, gather, why2 = load(d, want)  # finished while we were taking the lock
+        system, gather, _ = load(d, want)  # finished while we were taking the lock
         if system is not None:
             log(f"Precompute loaded from {d / FILENAME}")
             return system, gather, "loaded"
         log(f"Building the precompute: {why}")
+        for p in d.glob(f".{FILENAME}.*.tmp"):  # a killed writer's (only the lock holder writes)
+            p.unlink(missing_ok=True)
         system, gather = build()
-        arrays, graph = capture(system, gather)
-        write(d, arrays, graph, want, info)
+        try:
+            arrays, graph = capture(system, gather)
+            write(d, arrays, graph, want, info)
+        except (OSError, TypeError, ValueError, PrecomputeError) as exc:  # the bake goes on without it
+            log(f"Precompute not stored: {exc}")
         return system, gather, "built"
     finally:
         lock.release()
