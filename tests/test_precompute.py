@@ -122,9 +122,16 @@ def new_reflectance(mesh):
     return m
 
 
+def brighter_light(mesh):
+    m = dataclasses.replace(mesh, emission=mesh.emission.copy())
+    m.emission[np.asarray(mesh.object_id) == mesh.object_names.index("light")] *= 2
+    return m
+
+
 @pytest.mark.parametrize(
     "change, reason",
     [
+        (lambda m, p, w: (brighter_light(m), p, w), "object 'light' changed emission"),
         (lambda m, p, w: (moved_wall(m), p, w), "object 'back' moved or changed shape"),
         (lambda m, p, w: (new_reflectance(m), p, w), "object 'left_red' changed reflectance"),
         (lambda m, p, w: (m, dataclasses.replace(p, feps=0.02), w), "feps 0.05 -> 0.02"),
@@ -142,6 +149,17 @@ def test_every_change_invalidates_and_names_its_cause(stored, change, reason):
     assert why is not None and reason in why, why
     system, gather, why2 = pc.load(d, want)
     assert system is None and reason in why2
+
+
+def test_a_file_of_other_code_is_refused_not_followed(tmp_path):
+    """A class the file names that this code does not have (moved or renamed in a refactor)."""
+    mesh, _ = cornell()
+    arrays, graph = pc.capture(RadiositySystem(mesh, DRAFT))
+    graph["system"]["state"]["links"]["cls"] = "core.refine:OldLinks"
+    want = pc.expected(mesh, DRAFT)
+    pc.write(tmp_path, arrays, graph, want)
+    system, _, why = pc.load(tmp_path, want)
+    assert system is None and "written by other code (class core.refine:OldLinks not found)" in why
 
 
 def test_stale_precompute_is_rebuilt_saying_why(stored, tmp_path):
