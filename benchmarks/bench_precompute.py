@@ -56,11 +56,14 @@ def main(size="20k", quality="draft", mode="gather"):
         system2, gather2, why = pc.load(d, want)
         t_load = time.perf_counter() - t3
     assert why is None, why
+    system_bytes = sum(a.nbytes for a in pc.capture(system)[0].values())  # without the gather
     by_kind = {}
     for v in arrays.values():
         by_kind[str(v.dtype)] = by_kind.get(str(v.dtype), 0) + v.nbytes
     _, frame = info["light_wall"]
-    shape = LightShape(S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "w")
+    shape = LightShape(
+        S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "w"
+    )
     outs = []
     for s, g in ((system, gather), (system2, gather2)):
         dd = DynamicRadiosity(s.copy(), method="FE", **opts)
@@ -87,6 +90,8 @@ def main(size="20k", quality="draft", mode="gather"):
         file_bytes=size_b,
         bytes_per_triangle=round(size_b / tris),
         arrays=len(arrays),
+        array_bytes=sum(a.nbytes for a in arrays.values()),
+        system_array_bytes=system_bytes,
         bytes_by_dtype=by_kind,
         bitwise_equal_fe_event=bool(np.array_equal(outs[0], outs[1])),
         created=time.strftime("%Y-%m-%d %H:%M"),
