@@ -222,6 +222,24 @@ def test_foreign_folder_and_file_are_never_written(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["notes.txt", pc.FILENAME])
 
 
+def test_describe_and_remove_for_the_panel(stored, tmp_path):
+    mesh, d = stored
+    c = tmp_path / "c"
+    c.mkdir()
+    assert pc.describe(c) is None and not pc.remove(c)
+    (c / pc.FILENAME).write_bytes((d / pc.FILENAME).read_bytes())
+    assert not pc.remove(c)  # not a cache folder: not ours to delete
+    (c / MARKER).write_bytes((d / MARKER).read_bytes())
+    info = pc.describe(c, pc.expected(mesh, DRAFT, gather=GATHER))
+    assert info["problem"] == "" and info["bytes"] == (d / pc.FILENAME).stat().st_size
+    assert time.time() - 3600 < info["created"] <= time.time()
+    assert (
+        "feps 0.05 -> 0.02"
+        in pc.describe(c, pc.expected(mesh, dataclasses.replace(DRAFT, feps=0.02), gather=GATHER))["problem"]
+    )
+    assert pc.remove(c) and sorted(p.name for p in c.iterdir()) == [MARKER]
+
+
 # -- several processes on one cache folder -----------------------------------------------------------
 
 WORKER = textwrap.dedent(

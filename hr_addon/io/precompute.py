@@ -438,6 +438,35 @@ def load(cache_dir, want):
     return system, gather, None
 
 
+def describe(cache_dir, want=None):
+    """For the panel: None when the cache folder has no precompute, else {path, bytes, created
+    (epoch seconds), host, problem}; problem is '' when it is valid for `want` (or readable, without
+    `want`), else why not."""
+    path = Path(cache_dir) / FILENAME
+    if not path.is_file():
+        return None
+    out = {"path": str(path), "bytes": path.stat().st_size, "created": None, "host": None, "problem": ""}
+    try:
+        h = read_header(path)
+    except PrecomputeError as exc:
+        out["problem"] = str(exc)
+        return out
+    out.update(created=h.get("created"), host=h.get("host"))
+    out["problem"] = (validate(h, want) if want is not None else None) or ""
+    return out
+
+
+def remove(cache_dir):
+    """Delete the cache folder's precompute (Delete Bake, Rebuild) if it is ours: a file of that
+    name in a cache folder. Returns whether a file was deleted."""
+    d = Path(cache_dir)
+    path = d / FILENAME
+    if not is_cache_folder(d) or path.is_symlink() or not path.is_file():
+        return False
+    path.unlink()
+    return True
+
+
 # -- the build lock ----------------------------------------------------------------------------------
 
 
