@@ -20,7 +20,7 @@ import pytest
 from benchmarks import scenes
 from benchmarks import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape
-from hr_addon.core.gather import LoopGather
+from hr_addon.core.gather import LoopGather, texel_gather
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 from hr_addon.io import precompute as pc
@@ -83,6 +83,30 @@ def test_restored_system_and_gather_equal_the_cold_build_bitwise(scene, tmp_path
     for key in cold:
         assert cold[key].shape == warm[key].shape and np.array_equal(cold[key], warm[key]), key
     assert cold["FE gather"].max() > 0
+
+
+def test_texel_gather_restores_bitwise(tmp_path):
+    """The texture output's gather (FinalGather at texel points) goes through the same graph."""
+    mesh, shape = cornell()
+    system = RadiositySystem(mesh, DRAFT)
+    pt = system.patches
+    rng = np.random.default_rng(3)
+    patch = rng.integers(0, len(pt.nv), 300)
+    w = rng.dirichlet(np.ones(3), 300)  # points inside each patch's first triangle
+    points = np.einsum("nk,nkj->nj", w, pt.corners[patch][:, :3])
+    gather = texel_gather(DynamicRadiosity(system, method="FE"), patch, points, **GATHER)
+    want = pc.expected(mesh, DRAFT, gather=GATHER, output="TEXTURE")
+    pc.write(tmp_path, *pc.capture(system, gather), want)
+    system2, gather2, why = pc.load(tmp_path, want)
+    assert why is None
+
+    def frame(s, g):
+        dyn = DynamicRadiosity(s.copy(), method="AUTO")
+        dyn.apply({"s": shape})
+        return g.evaluate(dyn, "radiance")
+
+    cold, warm = frame(system, gather), frame(system2, gather2)
+    assert np.array_equal(cold, warm) and cold.max() > 0
 
 
 def test_capture_refuses_a_hierarchy_changed_by_light_events():
