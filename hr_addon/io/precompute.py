@@ -339,6 +339,13 @@ def folder_problem(cache_dir):
     return ""
 
 
+def _mark(d):
+    """Create the folder if needed and mark it as a cache folder (io.cache's marker)."""
+    d.mkdir(parents=True, exist_ok=True)
+    if not (d / MARKER).is_file():
+        atomic_write(d / MARKER, _MARKER_TEXT, sync=False)
+
+
 def write(cache_dir, arrays, graph, want, info=None):
     """Write the precompute atomically into `cache_dir` (created and marked as a cache folder if
     absent). want: expected()'s dict, stored as the header's versions, settings and signatures."""
@@ -346,9 +353,7 @@ def write(cache_dir, arrays, graph, want, info=None):
     why = folder_problem(d)
     if why:
         raise PrecomputeError(why)
-    d.mkdir(parents=True, exist_ok=True)
-    if not (d / MARKER).is_file():
-        atomic_write(d / MARKER, _MARKER_TEXT, sync=False)
+    _mark(d)
     blobs = {}
     for name, a in arrays.items():
         buf = io.BytesIO()
@@ -568,9 +573,7 @@ def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=
         log(f"Precompute not stored: {problem}")
         system, gather = build()
         return system, gather, "built"
-    d.mkdir(parents=True, exist_ok=True)
-    if not (d / MARKER).is_file():
-        atomic_write(d / MARKER, _MARKER_TEXT, sync=False)
+    _mark(d)
     lock = Lock(d, beat)
     said_wait = False
     while not lock.try_acquire():
