@@ -1,0 +1,609 @@
+"""The scene precompute (issue 22, docs/precompute.md): what the light does not change, built once
+and kept in the cache folder as one file, reused while the geometry, materials, settings and code
+hold (no bpy).
+
+The file `precompute.hrpc` is an uncompressed zip: `header.json` (versions, the settings and
+per-object signatures it was built from, every array's dtype, shape and CRC-32, and the object
+graph) and one `.npy` per array. capture() walks a built RadiositySystem (and a final gather) into
+that graph: numpy arrays by name, scalars in JSON, objects of the extension's core classes by
+class and attributes, shared objects once; restore() rebuilds the objects from it without running
+the build (the ray backend is rebuilt from the triangles it was built from). A file that cannot be
+read whole, fails a checksum or was written by other code is reported with the reason and rebuilt,
+never used.
+
+Farms: load_or_build() builds under a lock file (O_EXCL; holder pid, host, start time; its mtime
+is the heartbeat) so that processes sharing a cache folder build once; a waiter takes over a lock
+whose holder died (same host: pid gone; any host: heartbeat older than `stale` seconds).
+"""
+
+import dataclasses
+import hashlib
+import importlib
+import io
+import json
+import os
+import socket
+import threading
+import time
+import uuid
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from .cache import MARKER, _MARKER_TEXT, is_cache_folder, pid_alive
+from .files import atomic_write
+
+FILENAME = "precompute.hrpc"
+LOCKNAME = "precompute.lock"
+MAGIC = "hr_radiosity precompute"
+FORMAT_VERSION = 1
+_PKG = __name__.rsplit(".io.", 1)[0]  # "hr_addon", or the extension's package path inside Blender
+_HOST = socket.gethostname() or "host"
+
+# Attributes that depend on the light (caches of a solution, of light shapes, of one
+# DynamicRadiosity) or are rebuilt cheaply on first use: reset, never stored. By class name, so
+# that moving a class between modules does not change the rule.
+_TRANSIENT = {
+    "RadiositySystem": {"B": None, "report": None, "_op": None},
+    "Hierarchy": {"_levels": None},
+    "Links": {"_csr": None, "_ext": None},
+    "FinalGather": {
+        "_shape_cache": dict,
+        "_responses": dict,
+        "_responses_of": None,
+        "_naive_key": None,
+        "_naive_V": None,
+    },
+}
+_TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]
+
+
+class PrecomputeError(RuntimeError):
+    """A precompute that cannot be written, read or used; the message says why."""
+
+
+# -- versions and signatures -------------------------------------------------------------------------
+
+
+def extension_version():
+    """The extension's version from blender_manifest.toml beside the package ('unknown' if absent)."""
+    path = Path(__file__).resolve().parents[2] / "blender_manifest.toml"
+    try:
+        for line in path.read_text().splitlines():
+            if line.strip().startswith("version"):
+                return line.split("=", 1)[1].strip().strip('"')
+    except OSError:
+        pass
+    return "unknown"
+
+
+def code_digest():
+    """Digest of the physics' source (core/*.py and this file): any change of the code that builds
+    or reads a precompute makes older files stale, even without a version bump."""
+    root = Path(__file__).resolve().parents[1]
+    d = hashlib.sha256()
+    for p in sorted((root / "core").rglob("*.py")) + [Path(__file__).resolve()]:
+        d.update(p.relative_to(root).as_posix().encode() + b"\0" + p.read_bytes() + b"\0")
+    return d.hexdigest()[:16]
+
+
+def mesh_signatures(mesh):
+    """{object name: {geometry, reflectance, emission}} digests of what a build reads of each object
+    of a core.geometry.MeshInput: its polygons' world positions (float64, loop order), sizes and
+    triangulation; the reflectance and the emission per polygon."""
+    P = len(mesh.loop_start)
+    oid = np.asarray(mesh.object_id, np.int64)
+    loop_poly = np.repeat(np.arange(P), mesh.loop_total)
+    pos = np.asarray(mesh.verts, np.float64)[np.asarray(mesh.loop_verts)]
+    n = len(mesh.object_names)
+
+    def by_obj(o):  # (order, bounds): items grouped by object, object i at order[bounds[i]:bounds[i + 1]]
+        return np.argsort(o, kind="stable"), np.searchsorted(np.sort(o), np.arange(n + 1))
+
+    (po, pb), (lo, lb) = by_obj(oid), by_obj(oid[loop_poly])
+    tl = np.zeros((0, 3), np.int64) if mesh.tri_loops is None else np.asarray(mesh.tri_loops, np.int64)
+    tri_poly = loop_poly[tl[:, 0]]
+    tri_rel = tl - np.asarray(mesh.loop_start)[tri_poly][:, None]  # the triangulation, per polygon
+    to, tb = by_obj(oid[tri_poly])
+    sizes = np.asarray(mesh.loop_total).astype(np.int64)
+    rho, em = np.asarray(mesh.reflectance, np.float64), np.asarray(mesh.emission, np.float64)
+    out = {}
+    for i, name in enumerate(mesh.object_names):
+        pol, loops, tri = po[pb[i] : pb[i + 1]], lo[lb[i] : lb[i + 1]], to[tb[i] : tb[i + 1]]
+        g = hashlib.sha256(np.ascontiguousarray(pos[loops]).tobytes())
+        g.update(sizes[pol].tobytes() + np.ascontiguousarray(tri_rel[tri]).tobytes())
+        out[str(name)] = {
+            "geometry": g.hexdigest()[:16],
+            "reflectance": _digest(rho[pol]),
+            "emission": _digest(em[pol]),
+        }
+    return out
+
+
+def _digest(a):
+    return hashlib.sha256(np.ascontiguousarray(a).tobytes()).hexdigest()[:16]
+
+
+def settings_of(params, tol=1e-7, gather=None, **extra):
+    """Flat {name: value} of everything a build depends on besides the scene: the RefineParams
+    fields, the solver tolerance, the final gather's settings (prefixed 'gather.') and `extra`
+    (e.g. quality, method, ray backend)."""
+    s = {k: _plain(v) for k, v in dataclasses.asdict(params).items()}
+    s["tol"] = float(tol)
+    for k, v in (gather or {}).items():
+        s[f"gather.{k}"] = _plain(v)
+    s.update({k: _plain(v) for k, v in extra.items()})
+    return s
+
+
+def _plain(v):
+    return v.item() if isinstance(v, np.generic) else v
+
+
+def expected(mesh, params, tol=1e-7, gather=None, **extra):
+    """What a valid precompute for this scene and these settings must say (validate's `expected`)."""
+    want = {
+        "format_version": FORMAT_VERSION,
+        "extension": extension_version(),
+        "code": code_digest(),
+        "settings": settings_of(params, tol, gather, **extra),
+        "objects": mesh_signatures(mesh),
+    }
+    return json.loads(json.dumps(want))  # as a header reads back (tuples as lists)
+
+
+def _names(names, limit=5):
+    names = sorted(names)
+    s = ", ".join(f"'{n}'" for n in names[:limit])
+    return s + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def validate(header, want):
+    """None if a precompute with `header` serves `want` (from expected()), else why not, naming
+    the version, setting or object that changed."""
+    if header.get("magic") != MAGIC:
+        return "not a precompute of this extension"
+    for key, label in (("format_version", "format version"), ("extension", "extension version")):
+        if header.get(key) != want[key]:
+            return f"{label} {header.get(key)} -> {want[key]}"
+    if header.get("code") != want["code"]:
+        return "the extension's code changed since it was built"
+    old, new = header.get("settings", {}), want["settings"]
+    changed = [k for k in sorted(set(old) | set(new)) if old.get(k, "unset") != new.get(k, "unset")]
+    if changed:
+        return ", ".join(f"{k} {old.get(k, 'unset')} -> {new.get(k, 'unset')}" for k in changed[:4])
+    old, new = header.get("objects", {}), want["objects"]
+    if set(old) != set(new):
+        parts = []
+        if set(new) - set(old):
+            parts.append(f"object {_names(set(new) - set(old))} added")
+        if set(old) - set(new):
+            parts.append(f"object {_names(set(old) - set(new))} removed")
+        return "; ".join(parts)
+    for what, text in (
+        ("geometry", "moved or changed shape"),
+        ("reflectance", "changed reflectance (material)"),
+        ("emission", "changed emission (material)"),
+    ):
+        names = [n for n in new if old[n].get(what) != new[n][what]]
+        if names:
+            return f"object {_names(names)} {text}"
+    return None
+
+
+# -- capture / restore -------------------------------------------------------------------------------
+
+
+def capture(system, gather=None):
+    """(arrays {name: ndarray}, graph) of a built RadiositySystem and optionally the final gather
+    built on it (FinalGather / LoopGather over the system or its DynamicRadiosity), taken before any
+    light event: the hierarchy must still be the build's."""
+    if gather is not None and getattr(gather, "system", system) is not system:
+        raise ValueError("the gather was built on another system")
+    if gather is not None and gather.n_hr != system.h.n:
+        raise ValueError("capture before light events: the hierarchy has nodes the build did not make")
+    arrays, memo = {}, {}
+
+    def arr(a):
+        key = id(a)
+        if key not in memo:
+            memo[key] = (a, f"a{len(arrays)}")  # holding `a` keeps its id unique until the end
+            arrays[memo[key][1]] = np.ascontiguousarray(a)
+        return {"$a": memo[key][1]}
+
+    def enc(v, path):
+        if v is None or isinstance(v, (bool, int, float, str)):
+            return v
+        if isinstance(v, np.ndarray):
+            return arr(v)
+        if isinstance(v, np.generic):
+            return {"$g": arr(np.asarray(v))["$a"]}
+        if isinstance(v, tuple):
+            return {"$t": [enc(x, f"{path}[{i}]") for i, x in enumerate(v)]}
+        if isinstance(v, list):
+            return [enc(x, f"{path}[{i}]") for i, x in enumerate(v)]
+        if isinstance(v, dict):
+            return {"$d": [[enc(k, path), enc(x, f"{path}[{k!r}]")] for k, x in v.items()]}
+        cls = type(v)
+        if cls.__name__ == "Progress":
+            return {"$progress": None}
+        if cls.__module__.startswith(_PKG + ".core.visibility") and hasattr(v, "occluded"):
+            return {"$backend": _backend_key(v), "triangles": arr(v.triangles)}
+        if not cls.__module__.startswith(_PKG + ".core."):
+            raise TypeError(f"{path}: cannot store a {cls.__module__}.{cls.__qualname__}")
+        key = id(v)
+        if key in memo:
+            return {"$ref": memo[key][1]}
+        memo[key] = (v, f"o{len(memo)}")
+        state = dict(vars(v))
+        skip = _TRANSIENT.get(cls.__name__, {})
+        if cls.__name__ == "Hierarchy":  # only the live nodes; restore pads to the capacity
+            state = {k: (x[: v.n] if k in _hier_fields(v) else x) for k, x in state.items()}
+        return {
+            "$o": memo[key][1],
+            "cls": cls.__module__[len(_PKG) + 1 :] + ":" + cls.__qualname__,
+            "state": {k: enc(x, f"{path}.{k}") for k, x in state.items() if k not in skip},
+        }
+
+    graph = {"system": enc(system, "system"), "gather": enc(gather, "gather")}
+    return arrays, graph
+
+
+def _hier_fields(h):
+    return {name for name, _, _ in type(h)._fields}
+
+
+def _backend_key(b):
+    for k, c in importlib.import_module(type(b).__module__)._BACKENDS.items():
+        if type(b) is c:
+            return k
+    raise TypeError(f"unknown ray backend {type(b).__name__}")
+
+
+def restore(arrays, graph):
+    """(system, gather or None) rebuilt from capture()'s output; the ray backend is made again from
+    the triangles it was built from. Raises PrecomputeError if the graph names code that does not
+    exist (a precompute of other code)."""
+    objs = {}
+    backends = {}
+
+    def dec(v):
+        if v is None or isinstance(v, (bool, int, float, str)):
+            return v
+        if isinstance(v, list):
+            return [dec(x) for x in v]
+        if "$a" in v:
+            return arrays[v["$a"]]
+        if "$g" in v:
+            return arrays[v["$g"]][()]
+        if "$t" in v:
+            return tuple(dec(x) for x in v["$t"])
+        if "$d" in v:
+            return {_key(dec(k)): dec(x) for k, x in v["$d"]}
+        if "$progress" in v:
+            return importlib.import_module(_PKG + ".core.progress").NO_PROGRESS
+        if "$backend" in v:
+            tris = arrays[v["triangles"]["$a"]]
+            key = (v["$backend"], id(tris))
+            if key not in backends:
+                vis = importlib.import_module(_PKG + ".core.visibility")
+                try:
+                    backends[key] = vis.make_backend(tris, v["$backend"])
+                except (ImportError, ValueError, OSError) as exc:
+                    raise PrecomputeError(f"ray backend {v['$backend']} unavailable here ({exc})") from None
+            return backends[key]
+        if "$ref" in v:
+            return objs[v["$ref"]]
+        mod, _, qual = v["cls"].partition(":")
+        try:
+            cls = getattr(importlib.import_module(f"{_PKG}.{mod}"), qual)
+        except (ImportError, AttributeError):
+            raise PrecomputeError(f"written by other code (class {v['cls']} not found)") from None
+        o = object.__new__(cls)
+        objs[v["$o"]] = o
+        state = {k: dec(x) for k, x in v["state"].items()}
+        for k, x in _TRANSIENT.get(cls.__name__, {}).items():
+            state[k] = x() if callable(x) else x
+        if cls.__name__ == "Hierarchy":
+            for name in _hier_fields(o):
+                a = state[name]
+                full = np.zeros((state["_cap"],) + a.shape[1:], a.dtype)
+                full[: len(a)] = a
+                state[name] = full
+        o.__dict__.update(state)
+        return o
+
+    return dec(graph["system"]), dec(graph["gather"])
+
+
+def _key(k):
+    return tuple(k) if isinstance(k, list) else k
+
+
+# -- the file ----------------------------------------------------------------------------------------
+
+
+def folder_problem(cache_dir):
+    """'' if a precompute may be written into `cache_dir` (absent, empty or a cache folder whose
+    precompute file, if any, is ours), else why not."""
+    d = Path(cache_dir)
+    if d.exists() and not d.is_dir():
+        return f"'{d}' is a file, not a cache folder"
+    if d.is_dir() and any(d.iterdir()) and not is_cache_folder(d):
+        return f"'{d}' holds files no radiosity bake wrote: the precompute is not written there"
+    f = d / FILENAME
+    if f.is_symlink() or (f.exists() and not f.is_file()):
+        return f"'{f}' is not a file a bake wrote: left alone"
+    return ""
+
+
+def _mark(d):
+    """Create the folder if needed and mark it as a cache folder (io.cache's marker)."""
+    d.mkdir(parents=True, exist_ok=True)
+    if not (d / MARKER).is_file():
+        atomic_write(d / MARKER, _MARKER_TEXT, sync=False)
+
+
+def write(cache_dir, arrays, graph, want, info=None):
+    """Write the precompute atomically into `cache_dir` (created and marked as a cache folder if
+    absent). want: expected()'s dict, stored as the header's versions, settings and signatures."""
+    d = Path(cache_dir)
+    why = folder_problem(d)
+    if why:
+        raise PrecomputeError(why)
+    _mark(d)
+    blobs = {}
+    for name, a in arrays.items():
+        buf = io.BytesIO()
+        np.lib.format.write_array(buf, a, allow_pickle=False)
+        blobs[name] = buf.getvalue()
+    header = dict(want)
+    header.update(
+        magic=MAGIC,
+        created=time.time(),
+        host=_HOST,
+        info=info or {},
+        arrays={
+            n: {"dtype": a.dtype.str, "shape": list(a.shape), "crc32": zlib.crc32(blobs[n])}
+            for n, a in arrays.items()
+        },
+        graph=graph,
+    )
+
+    def fill(fh):
+        with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+            z.writestr("header.json", json.dumps(header))
+            for name, b in blobs.items():
+                z.writestr(name + ".npy", b)
+
+    atomic_write(d / FILENAME, fill)
+    return d / FILENAME
+
+
+def read_header(path):
+    """The header of a precompute file, or raise PrecomputeError saying what is wrong with it."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            h = json.loads(z.read("header.json"))
+    except FileNotFoundError:
+        raise
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError, EOFError) as exc:
+        raise PrecomputeError(f"'{Path(path).name}' is damaged or truncated ({exc})") from None
+    if not isinstance(h, dict) or h.get("magic") != MAGIC:
+        raise PrecomputeError(f"'{Path(path).name}' is not a precompute of this extension")
+    return h
+
+
+def read(path):
+    """(arrays, header) of a precompute file; every array checked against its dtype, shape and
+    CRC-32. Raises PrecomputeError naming the damaged part."""
+    h = read_header(path)
+    arrays = {}
+    try:
+        with zipfile.ZipFile(path) as z:
+            for name, meta in h["arrays"].items():
+                b = z.read(name + ".npy")
+                if zlib.crc32(b) != meta["crc32"]:
+                    raise PrecomputeError(f"'{Path(path).name}': array {name} fails its checksum")
+                a = np.lib.format.read_array(io.BytesIO(b), allow_pickle=False)
+                if a.dtype.str != meta["dtype"] or list(a.shape) != meta["shape"]:
+                    raise PrecomputeError(f"'{Path(path).name}': array {name} has the wrong dtype or shape")
+                arrays[name] = a
+    except PrecomputeError:
+        raise
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError, EOFError) as exc:
+        raise PrecomputeError(f"'{Path(path).name}' is damaged or truncated ({exc})") from None
+    return arrays, h
+
+
+def load(cache_dir, want):
+    """(system, gather, None) from the cache folder's precompute if it is valid for `want`, else
+    (None, None, reason): absent, damaged, or which version, setting or object changed."""
+    path = Path(cache_dir) / FILENAME
+    try:
+        header = read_header(path)
+    except FileNotFoundError:
+        return None, None, "no precompute yet"
+    except PrecomputeError as exc:
+        return None, None, str(exc)
+    why = validate(header, want)
+    if why:
+        return None, None, why
+    try:
+        arrays, header = read(path)
+        system, gather = restore(arrays, header["graph"])
+    except FileNotFoundError:
+        return None, None, "no precompute yet"
+    except PrecomputeError as exc:
+        return None, None, str(exc)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a graph this code cannot follow
+        return None, None, f"'{FILENAME}' cannot be restored ({type(exc).__name__}: {exc})"
+    return system, gather, None
+
+
+def describe(cache_dir, want=None):
+    """For the panel: None when the cache folder has no precompute, else {path, bytes, created
+    (epoch seconds), host, problem}; problem is '' when it is valid for `want` (or readable, without
+    `want`), else why not."""
+    path = Path(cache_dir) / FILENAME
+    if not path.is_file():
+        return None
+    out = {"path": str(path), "bytes": path.stat().st_size, "created": None, "host": None, "problem": ""}
+    try:
+        h = read_header(path)
+    except PrecomputeError as exc:
+        out["problem"] = str(exc)
+        return out
+    out.update(created=h.get("created"), host=h.get("host"))
+    out["problem"] = (validate(h, want) if want is not None else None) or ""
+    return out
+
+
+def remove(cache_dir):
+    """Delete the cache folder's precompute (Delete Bake, Rebuild) if it is ours: a file of that
+    name in a cache folder. Returns whether a file was deleted."""
+    d = Path(cache_dir)
+    path = d / FILENAME
+    if not is_cache_folder(d) or path.is_symlink() or not path.is_file():
+        return False
+    path.unlink()
+    return True
+
+
+# -- the build lock ----------------------------------------------------------------------------------
+
+
+class Lock:
+    """The build lock of a cache folder: created with O_EXCL, holding {pid, host, started, token};
+    its mtime is the heartbeat, refreshed every `beat` seconds while held."""
+
+    def __init__(self, cache_dir, beat=2.0):
+        self.path = Path(cache_dir) / LOCKNAME
+        self.token = uuid.uuid4().hex
+        self.beat = beat
+        self._stop = threading.Event()
+        self._thread = None
+
+    def try_acquire(self):
+        info = {"pid": os.getpid(), "host": _HOST, "started": time.time(), "token": self.token}
+        try:
+            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            return False
+        with os.fdopen(fd, "w") as fh:
+            json.dump(info, fh)
+        self._thread = threading.Thread(target=self._heartbeat, daemon=True)
+        self._thread.start()
+        return True
+
+    def _heartbeat(self):
+        while not self._stop.wait(self.beat):
+            try:
+                os.utime(self.path)
+            except OSError:
+                return
+
+    def release(self):
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        if (holder(self.path) or {}).get("token") == self.token:
+            self.path.unlink(missing_ok=True)
+
+    def dead_holder(self, stale):
+        """Why the current holder counts as dead ('' if it is alive or there is none)."""
+        h = holder(self.path)
+        try:
+            age = time.time() - self.path.stat().st_mtime
+        except FileNotFoundError:
+            return ""
+        if h is None:  # unreadable: being written right now, or left half written by a crash
+            return f"unreadable lock, no heartbeat for {age:.0f} s" if age > stale else ""
+        if h.get("host") == _HOST and not pid_alive(int(h.get("pid", -1))):
+            return f"the builder (pid {h.get('pid')}) is gone"
+        if age > stale:
+            return f"no heartbeat from {h.get('host')} pid {h.get('pid')} for {age:.0f} s"
+        return ""
+
+    def take_over(self, stale):
+        """Remove a dead holder's lock (only that one: it is renamed away and checked, and put
+        back if another process's fresh lock was taken by mistake). Returns the reason or ''."""
+        why = self.dead_holder(stale)
+        if not why:
+            return ""
+        old = holder(self.path)
+        aside = self.path.with_name(f".{LOCKNAME}.{self.token}.stale")
+        try:
+            os.rename(self.path, aside)
+        except FileNotFoundError:
+            return ""
+        if holder(aside) != old:  # someone replaced it in between: theirs, give it back
+            try:
+                os.link(aside, self.path)
+            except OSError:
+                pass
+            aside.unlink(missing_ok=True)
+            return ""
+        aside.unlink(missing_ok=True)
+        return why
+
+
+def holder(path):
+    try:
+        h = json.loads(Path(path).read_text())
+        return h if isinstance(h, dict) else None
+    except (OSError, ValueError):
+        return None
+
+
+def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=2.0, info=None):
+    """(system, gather, how) for the scene `want` (expected()) describes: the cache folder's
+    precompute if valid; else built by `build()` -> (system, gather) under the lock and written
+    (when the folder allows it). Processes sharing the folder build once: the others wait for the
+    file, or take the lock over when its holder died. log(str) says what happened and why."""
+    d = Path(cache_dir)
+    system, gather, why = load(d, want)
+    if system is not None:
+        log(f"Precompute loaded from {d / FILENAME}")
+        return system, gather, "loaded"
+    problem = folder_problem(d)
+    if problem:
+        log(f"Precompute not stored: {problem}")
+        system, gather = build()
+        return system, gather, "built"
+    _mark(d)
+    lock = Lock(d, beat)
+    said_wait = False
+    while not lock.try_acquire():
+        taken = lock.take_over(stale)
+        if taken:
+            log(f"Precompute lock taken over: {taken}")
+            continue
+        if not said_wait:
+            h = holder(lock.path) or {}
+            log(f"Waiting for the precompute being built by {h.get('host', '?')} pid {h.get('pid', '?')}")
+            said_wait = True
+        time.sleep(poll)
+        system, gather, _ = load(d, want)
+        if system is not None:
+            log(f"Precompute loaded from {d / FILENAME} (built by another process)")
+            return system, gather, "loaded"
+    try:
+        system, gather, _ = load(d, want)  # finished while we were taking the lock
+        if system is not None:
+            log(f"Precompute loaded from {d / FILENAME}")
+            return system, gather, "loaded"
+        log(f"Building the precompute: {why}")
+        for p in d.glob(f".{FILENAME}.*.tmp"):  # a killed writer's (only the lock holder writes)
+            p.unlink(missing_ok=True)
+        system, gather = build()
+        try:
+            arrays, graph = capture(system, gather)
+            write(d, arrays, graph, want, info)
+        except (OSError, TypeError, ValueError, PrecomputeError) as exc:  # the bake goes on without it
+            log(f"Precompute not stored: {exc}")
+        return system, gather, "built"
+    finally:
+        lock.release()
