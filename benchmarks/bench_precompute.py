@@ -15,8 +15,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks import shapes as S  # noqa: E402
-from benchmarks.furnished import furnished_room  # noqa: E402
+from hr_testing import shapes as S  # noqa: E402
+from hr_testing.furnished import furnished_room  # noqa: E402
 from hr_addon.core.events import DynamicRadiosity, LightShape  # noqa: E402
 from hr_addon.core.gather import LoopGather  # noqa: E402
 from hr_addon.core.radiosity import RadiositySystem  # noqa: E402

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks import scenes
-from benchmarks import shapes as S
+from hr_testing import scenes
+from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape
 from hr_addon.core.gather import LoopGather, texel_gather
 from hr_addon.core.radiosity import RadiositySystem
@@ -40,7 +40,7 @@ def cornell():
 
 
 def furnished():
-    from benchmarks.furnished import furnished_room
+    from hr_testing.furnished import furnished_room
 
     mesh, info = furnished_room("2k")
     _, frame = info["light_wall"]
@@ -270,7 +270,7 @@ WORKER = textwrap.dedent(
     """
     import json, sys, time
     sys.path.insert(0, {root!r})
-    from benchmarks import scenes
+    from hr_testing import scenes
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
     from hr_addon.io import precompute as pc
