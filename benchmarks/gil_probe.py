@@ -40,7 +40,7 @@ def _speedup(fn, k, threads):
 
 
 def kernels(size):
-    from benchmarks.furnished import furnished_room
+    from hr_testing.furnished import furnished_room
     from hr_addon.core.gather import FinalGather, LoopGather, _csr_matvec, cosine_directions
     from hr_addon.core.geometry import prepare_patches
     from hr_addon.core.radiosity import RadiositySystem
