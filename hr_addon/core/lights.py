@@ -150,14 +150,14 @@ def area_outline(shape, size, size_y, matrix, segments=DISK_SEGMENTS):
 
 
 def _uniforms(n, k, seed, keys, stream):
-    from .gather import hammersley, hash_uniform
+    from .gather.sampling import hammersley, hash_uniform
 
     return (hammersley(k)[None] + hash_uniform(seed, keys, stream)[:, None]) % 1.0  # (n, k, 2)
 
 
 def _disk_points(c, axis, r, u):
     """Points (n, k, 3) on disks of radius r about centres c (3,), perpendicular to axis (n, 3)."""
-    from .gather import _frame
+    from .gather.sampling import _frame
 
     t, b = _frame(axis)
     rr = r * np.sqrt(u[..., 0])
@@ -218,7 +218,7 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
                 u = _uniforms(len(lit), rays, seed, keys[lit], 3000 + stream)
                 cz = 1 - u[..., 0] * (1 - np.cos(light.angle / 2))
                 sz = np.sqrt(np.maximum(1 - cz * cz, 0))
-                from .gather import _frame
+                from .gather.sampling import _frame
 
                 t, b = _frame(to_sun[None])
                 ph = 2 * np.pi * u[..., 1]
@@ -247,7 +247,7 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
     )
     lit = np.flatnonzero(F > 0)
     if len(lit) and rays > 0:
-        from .gather import Emitter
+        from .gather.sampling import Emitter
 
         em = Emitter(pieces, nv, area, np.repeat(nf[None], T, 0))
         u = _uniforms(len(lit), rays, seed, keys[i[lit]], 4000 + stream)
@@ -264,7 +264,7 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
 
 def area_emitter(light, stream=0):
     """gather.Emitter of an area light (its polygon; the contour fast path over its outline)."""
-    from .gather import Emitter
+    from .gather.sampling import Emitter
 
     pieces, nv, area = light.pieces()
     nf = light.direction
@@ -298,7 +298,7 @@ def node_incident(h, nodes, light, backend, eps, rays=4, seed=0, unit=1.0, far=N
 
 
 def _node_mean(h, nodes, light, backend, eps, rays, seed, unit, far, q):
-    from .gather import position_keys
+    from .gather.sampling import position_keys
 
     x, gw = ff.quadrature(h.corners[nodes], h.nv[nodes], q)
     k = x.shape[1]

@@ -60,13 +60,21 @@ def _beside(final, kind):
     return final.parent / f".{final.name}.{kind}-{HOST}-{os.getpid()}-{int(time.time() * 1000)}"
 
 
+def mark(folder):
+    """Create `folder` if needed and mark it as a radiosity cache folder."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    if not (folder / MARKER).is_file():
+        atomic_write(folder / MARKER, _MARKER_TEXT, sync=False)
+    return folder
+
+
 def new_temp_dir(final_dir):
     """Create the marked folder a bake of the cache `final_dir` writes into (swap_in puts it in
     place)."""
     tmp = _beside(Path(final_dir), "baking")
     tmp.mkdir()
-    atomic_write(tmp / MARKER, _MARKER_TEXT, sync=False)
-    return tmp
+    return mark(tmp)
 
 
 def swap_in(tmp, final_dir):

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cache import MARKER, _MARKER_TEXT, is_cache_folder, pid_alive
+from .cache_folder import is_cache_folder, mark, pid_alive
 from .files import atomic_write
 
 FILENAME = "precompute.hrpc"
@@ -339,13 +339,6 @@ def folder_problem(cache_dir):
     return ""
 
 
-def _mark(d):
-    """Create the folder if needed and mark it as a cache folder (io.cache's marker)."""
-    d.mkdir(parents=True, exist_ok=True)
-    if not (d / MARKER).is_file():
-        atomic_write(d / MARKER, _MARKER_TEXT, sync=False)
-
-
 def write(cache_dir, arrays, graph, want, info=None):
     """Write the precompute atomically into `cache_dir` (created and marked as a cache folder if
     absent). want: expected()'s dict, stored as the header's versions, settings and signatures."""
@@ -353,7 +346,7 @@ def write(cache_dir, arrays, graph, want, info=None):
     why = folder_problem(d)
     if why:
         raise PrecomputeError(why)
-    _mark(d)
+    mark(d)
     blobs = {}
     for name, a in arrays.items():
         buf = io.BytesIO()
@@ -573,7 +566,7 @@ def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=
         log(f"Precompute not stored: {problem}")
         system, gather = build()
         return system, gather, "built"
-    _mark(d)
+    mark(d)
     lock = Lock(d, beat)
     said_wait = False
     while not lock.try_acquire():
