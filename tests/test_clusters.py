@@ -250,6 +250,13 @@ def test_light_shape_sends_its_power_through_cluster_links(clutter):
     ours, dyn = absorbed_by_objects(RadiositySystem(mesh, DRAFT))
     ref, _ = absorbed_by_objects(RadiositySystem(mesh, dataclasses.replace(DRAFT, cluster=False)))
     assert dyn.links.n_far > 0
+    # emitted power: FE's leaf emission x exposed area sums to the shape's area on surfaces
+    # (clip.classify's overlaps are exact), to rounding
+    h, rec = dyn.system.h, dyn.shapes["w"]
+    lf = h.leaves()
+    own = (dyn.emission() - dyn.system.base_emission())[:, lf] @ (h.area[lf] * h.exposure[lf])
+    assert rec.covered == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(own, 10.0 * rec.area, rtol=1e-12)
     objects = ref[6:] > 0.01 * ref[6:].max()
     assert objects.sum() >= 8
     assert ours[6:].sum() == pytest.approx(ref[6:].sum(), rel=0.05)

@@ -75,9 +75,13 @@ def _floor_values(s, pts, smooth):
 
 
 def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
-    """Points 1-40 mm beside the box, against shadow rays to the emitter. Measured at medium:
-    band mean +2.4% (leaf values) / +7.0% (the smooth interpolation of the texture output, which
-    carries light from brighter leaves into the penumbra), points under the box exactly 0.
+    """Points 1-40 mm beside the box, against shadow rays to the emitter. Measured at medium
+    (2026-12-02): band mean +1.6% (leaf values) / +6.5% (the smooth interpolation of the texture
+    output), points under the box exactly 0. The smooth value is not looser by nature: the leaves
+    1-10 mm beside the box read +8% (their links' form factors are means over few exposed points
+    of partly covered receivers, the cause of test_core_engine's row sums above 1), and the
+    corner values, means of the leaves around a corner, carry that into the next ring of leaves
+    (20-40 mm: leaves -2.6%, smooth +6.2%), hence 8% for it.
     Without contacts the leaves straddling the box's outline see the emitter through sample
     points under the box: the band's leaves read 0 there (-100%)."""
     m = sky_scene()

@@ -24,20 +24,7 @@ through per-chain bounding boxes, so the cost follows the number of contacts, no
 import numpy as np
 
 from .geometry import components
-
-
-def _plane_keys(normal, offset, scale):
-    """Integer key per patch: one per plane (normals to 1e-6, offsets to 1e-6 x scene size)."""
-    key = np.column_stack([np.round(normal * 1e6), np.round(offset / scale)])
-    return np.unique(key, axis=0, return_inverse=True)[1].ravel()
-
-
-def _frames(normal):
-    """Orthonormal (u, v) with u x v = n for each normal (N, 3)."""
-    a = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    u = np.cross(a, normal)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    return u, np.cross(normal, u)
+from .planes import frames, plane_ids
 
 
 def sorted_index(table, keys):
@@ -116,13 +103,12 @@ class Contacts:
         self.gap = float(gap)
         size = float(np.sqrt(pt.area.sum())) or 1.0
         self.pen = 1e-6 * size  # a face this far behind a receiver (or level with it) is not in front
-        offset = np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0])
-        self.plane = _plane_keys(pt.normal, offset, 1e-6 * size)
+        self.plane = plane_ids(pt.normal, pt.corners[:, 0], size)
         G = int(self.plane.max()) + 1 if K else 0
         first = np.zeros(G, np.int64)
         first[self.plane[::-1]] = np.arange(K)[::-1]
         self.n_g, self.o_g = pt.normal[first], pt.corners[first, 0]
-        self.u_g, self.v_g = _frames(self.n_g) if G else (np.zeros((0, 3)), np.zeros((0, 3)))
+        self.u_g, self.v_g = frames(self.n_g) if G else (np.zeros((0, 3)), np.zeros((0, 3)))
         self.piece = self._pieces(size)
         self._build()
 

@@ -23,6 +23,7 @@ of all its patches), so a polygon is never split.
 
 import numpy as np
 
+from .planes import frames
 from .visibility import first_hit_within
 
 SIDE_RAYS = 16  # rays per side of each patch (a 4 x 4 stratification)
@@ -61,14 +62,6 @@ def _stratified(n, rng):
     return s[rng.permutation(k * k)]
 
 
-def _frames(n):
-    """Tangent frames (t, b) of unit normals n (K, 3)."""
-    axis = np.where(np.abs(n[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
-    t = np.cross(n, axis)
-    t /= np.linalg.norm(t, axis=1, keepdims=True)
-    return t, np.cross(n, t)
-
-
 def find_reversed(patches, backend, seed=0):
     """(flip, reasons): boolean (K,) per patch, True for the patches of polygons to turn around, and
     {input polygon: "back" | "emitter"} of those polygons."""
@@ -98,7 +91,7 @@ def find_reversed(patches, backend, seed=0):
     r, phi = np.sqrt(ab[:, 0]), 2 * np.pi * ab[:, 1]
     local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1 - ab[:, 0], 0))], 1)
     n = pt.normal / np.maximum(np.linalg.norm(pt.normal, axis=1, keepdims=True), 1e-300)
-    t, b = _frames(n)
+    t, b = frames(n)
     out = {}
     for side in (1.0, -1.0):
         ns = side * n

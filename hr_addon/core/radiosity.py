@@ -11,7 +11,9 @@ from .hierarchy import Hierarchy
 from .orientation import orient
 from .output import loop_radiance
 from .progress import Progress
-from .refine import Refiner, RefineParams, push_corrections
+from .corrections import push_corrections
+from .params import RefineParams
+from .refine import Refiner
 from .solver import Operator, solve
 from .visibility import make_backend
 

@@ -11,194 +11,31 @@ larger (sample points on the small one, exact contour integral over the large on
 direction follows from reciprocity, so A_p F_pq = A_q F_qp exactly and neither exceeds 1.
 """
 
-import dataclasses
-from dataclasses import dataclass
+import time
 
 import numpy as np
 
-from . import cluster
 from . import formfactor as ff
 from .contacts import sorted_index
+from .corrections import push_corrections
 from .hierarchy import Hierarchy
+from .links import Links
+from .params import RefineParams
+from .planes import Occluders
 from .progress import NO_PROGRESS
 
+# RefineParams, Links and push_corrections have their own modules; importable from here as before
+__all__ = [
+    "CHUNK",
+    "Links",
+    "RefineParams",
+    "Refiner",
+    "initial_pairs",
+    "link_form_factors",
+    "push_corrections",
+]
 
 CHUNK = 100_000  # node pairs processed at once
-
-
-@dataclass
-class RefineParams:
-    feps: float = 0.02  # form factor threshold (dimensionless)
-    veps: float = 0.0  # max variation of a link's point form factor across either node (0: off)
-    near: float = 4.0  # pairs closer than sqrt(near x (A_p + A_q)) get the variation test
-    aeps: float = 2e-4  # minimum node area, as a fraction of the total scene area
-    shadow_feps: float = 0.002  # partly visible links above this are split (0 disables)
-    vis_k: int = 2  # visibility samples per node: vis_k^2, rays per link: vis_k^4
-    bfeps: float = 0.0  # BF refinement threshold, relative to the brightest emitter (0: off)
-    bf_passes: int = 2
-    vcorr: float = 1e-4  # push corrections for links varying more than this (0: off)
-    corr_budget: int = 3_000_000
-    cluster: bool = True  # link through face clusters (cluster.py) instead of all patch pairs
-    cluster_ratio: float = 0.3  # far links need (radius_a + radius_b) < cluster_ratio x distance
-    partial_feps: float = 0.5  # far links with a partly facing cluster end need F < partial_feps x feps
-    cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
-    cluster_leaf: int = 4  # most patches in a leaf cluster
-    contacts: bool = True  # find surfaces covered by touching geometry (contacts.py) and refine along them
-    contact_gap: float = 1e-3  # how close counts as touching, relative to sqrt(total scene area)
-    contact_levels: int = 2  # contact refinement goes this many quadtree levels below aeps
-    ff_order: int = 3  # most Gauss points per side for a link's form factor (near pairs)
-    orient: bool = False  # turn around faces facing the wrong way before the build (orientation.py)
-
-    @staticmethod
-    def preset(name):
-        presets = {
-            "draft": RefineParams(
-                feps=0.05, aeps=1e-3, shadow_feps=0.01, vcorr=1e-3, cluster_ratio=0.4, cluster_veps=1e-2
-            ),
-            "medium": RefineParams(),
-            "high": RefineParams(
-                feps=0.008, veps=0.005, aeps=5e-5, shadow_feps=0.0005, vcorr=1e-5, cluster_veps=2e-4
-            ),
-        }
-        if name not in presets:
-            raise ValueError(f"Unknown quality preset '{name}' (choose from {', '.join(presets)})")
-        return presets[name]
-
-    @staticmethod
-    def for_gather(name):
-        """The transport's preset when the final gather is on (core/gather.py, docs/gather.md):
-        the gather reads exact direct light at two levels and the hierarchy's solution only after
-        its iterations, so the links may be coarser than for showing the leaves (measured: the
-        gathered output within 1% per object of the preset's, docs/gather.md, Transport)."""
-        p = RefineParams.preset(name)
-        return dataclasses.replace(p, **GATHER_TRANSPORT[name])
-
-
-# RefineParams.for_gather: fields changed from the quality's preset when the final gather is on.
-# Draft (measured, docs/gather.md, Transport): coarser link criteria and no push corrections
-# (links 314k -> 181k on the 20k room, the gathered output per object median 0.1% from the
-# preset's, 99% of the objects within 1%). Medium and high: the same rule one step down (the link
-# criteria of the quality below, no push corrections), leaves (aeps) and contacts as the preset's;
-# medium measured on the 20k room (links 1.44 M -> 380k, every object within 0.51%), high not.
-GATHER_TRANSPORT = {
-    "draft": dict(feps=0.1, shadow_feps=0.03, vcorr=0.0, cluster_ratio=0.5, cluster_veps=0.03),
-    "medium": dict(feps=0.05, shadow_feps=0.01, vcorr=0.0, cluster_ratio=0.4, cluster_veps=1e-2),
-    "high": dict(feps=0.02, shadow_feps=0.002, vcorr=0.0, cluster_ratio=0.3, cluster_veps=1e-3),
-}
-
-
-class Links:
-    """Symmetric link pairs plus the directed, receiver-sorted (CSR) arrays the solver gathers over."""
-
-    def __init__(self, a, b, f_ab, f_ba, vis, corr=None, far=None):
-        self.a, self.b = np.asarray(a, np.int32), np.asarray(b, np.int32)
-        self.far = far  # farlinks.FarLinks: links with a cluster end (None without clustering)
-        self.f_ab, self.f_ba, self.vis = (
-            np.asarray(f_ab, float),
-            np.asarray(f_ba, float),
-            np.asarray(vis, float),
-        )
-        # Push corrections (see push_corrections): directed (leaf, source, dF) terms whose dF sum to
-        # zero, area-weighted, over each corrected link's receiver. Dropped by select/concat.
-        self.corr = corr
-        self._csr = self._ext = None
-
-    def __len__(self):
-        """All links: between patch nodes and with a cluster end."""
-        return len(self.a) + self.n_far
-
-    @property
-    def n_far(self):
-        return 0 if self.far is None else len(self.far)
-
-    @staticmethod
-    def empty():
-        z = np.zeros(0)
-        return Links(z.astype(np.int64), z.astype(np.int64), z, z, z)
-
-    def concat(self, other):
-        """Patch-node links of both; far links of self."""
-        return Links(
-            *(
-                np.concatenate([getattr(self, k), getattr(other, k)])
-                for k in ("a", "b", "f_ab", "f_ba", "vis")
-            ),
-            far=self.far,
-        )
-
-    def select(self, mask):
-        """A subset of the patch-node links (mask over them); far links kept."""
-        return Links(
-            self.a[mask], self.b[mask], self.f_ab[mask], self.f_ba[mask], self.vis[mask], far=self.far
-        )
-
-    def remap(self, remap):
-        """After Hierarchy.compact: renumber nodes (links must not touch deleted nodes)."""
-        corr = None if self.corr is None else (remap[self.corr[0]], remap[self.corr[1]], self.corr[2])
-        far = None if self.far is None else self.far.remap(remap)
-        return Links(remap[self.a], remap[self.b], self.f_ab, self.f_ba, self.vis, corr, far)
-
-    def directed(self):
-        """(recv, src, F) with F = form factor x visibility, sorted by receiver, zero links dropped."""
-        return self._directed()[:3]
-
-    def _directed(self):
-        """directed() and a mask of its push-correction terms."""
-        if self._csr is None:
-            recv = np.concatenate([self.a, self.b])
-            src = np.concatenate([self.b, self.a])
-            f = np.concatenate([self.f_ab * self.vis, self.f_ba * self.vis])
-            corr = np.zeros(len(f), bool)
-            keep = f > 0
-            if self.corr is not None:
-                recv, src, f = (np.concatenate([x, c]) for x, c in zip((recv, src, f), self.corr))
-                corr = np.concatenate([corr, np.ones(len(self.corr[0]), bool)])
-                keep = np.concatenate([keep, self.corr[2] != 0])
-            order = np.argsort(recv[keep], kind="stable")
-            self._csr = (
-                recv[keep][order].astype(np.int32),
-                src[keep][order].astype(np.int32),
-                f[keep][order],
-                corr[keep][order],
-            )
-        return self._csr
-
-    def extended(self, h):
-        """The solver's gather terms. Without far links: directed() (recv, src, f, is_correction).
-        With them, the two passes of farlinks.FarLinks.terms(): (pass1, main) where pass1 =
-        (t_slot, src, w) fills one intermediate value per far-link direction from the X space
-        (cluster slots first, patch node i at SLOTS x C + i), and main = (recv, src, f,
-        is_correction) gathers into the Y space (same layout) from Z = [intermediates | X]:
-        the patch-node links and corrections plus the far links' second pass, sorted by
-        receiver. Cached (node geometry never changes under a link set: events only add nodes
-        below the leaves, and compact makes new Links)."""
-        if self.far is None or not len(self.far):
-            return self._directed()
-        if getattr(self, "_ext", None) is None:
-            recv, src, f, corr = self._directed()
-            off = cluster.SLOTS * self.far.tree.C
-            nT = 2 * len(self.far)
-            pass1, (fr, fs, fw, fc) = self.far.terms(h)
-            r = np.concatenate([recv.astype(np.int64) + off, fr])
-            order = np.argsort(r, kind="stable")
-            main = (
-                r[order].astype(np.int32),
-                np.concatenate([src.astype(np.int64) + off + nT, fs])[order].astype(np.int32),
-                np.concatenate([f, fw])[order],
-                np.concatenate([corr, fc])[order],
-            )
-            o1 = np.argsort(pass1[0], kind="stable")
-            self._ext = (tuple(x[o1] for x in pass1), main)
-            self._csr = None  # held inside main (shifted); directed() rebuilds it if asked
-        return self._ext
-
-    @property
-    def n_corrections(self):
-        return 0 if self.corr is None else len(self.corr[0])
-
-    @property
-    def n_directed(self):
-        return len(self.directed()[0])
 
 
 def _facing(h, p, q, tol):
@@ -277,51 +114,23 @@ class Refiner:
             "t_ff": 0.0,
             "t_refine": 0.0,
         }
-        self._occluder_boxes()
+        self.occluders = Occluders(h.patches)
 
-    def _occluder_boxes(self):
-        """Per occluder triangle: bounds and the id of its plane. A segment between two points in
-        front of planes P and Q cannot hit a triangle lying in P or Q, so such triangles are ignored
-        by the bounding-box shaft test below."""
-        pt = self.h.patches
-        tri_patch = np.concatenate(
-            [np.arange(len(pt.nv)), np.flatnonzero(pt.nv == 4)]
-        )  # order of Patches.triangles
-        tris = pt.triangles
-        self.tri_lo, self.tri_hi = tris.min(1), tris.max(1)
-        scale = 1e-6 * np.sqrt(self.total_area)
-        key = np.column_stack(
-            [np.round(pt.normal * 1e6), np.round(np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0]) / scale)]
-        )
-        self.patch_plane = np.unique(key, axis=0, return_inverse=True)[1].ravel()
-        self.tri_plane = self.patch_plane[tri_patch]
-
-    def _maybe_occluded(self, a, b, budget=4_000_000):
-        """Conservative shaft test: False where no occluder's box meets the pair's joint box, so
-        the pair is certainly unoccluded and needs no rays."""
+    def _maybe_occluded(self, a, b):
+        """Shaft test of node pairs (planes.Occluders): False where the pair is certainly
+        unoccluded and needs no rays."""
         h = self.h
-        T = len(self.tri_lo)
-        if (
-            T > 512
-        ):  # measured: past a few hundred occluders, the brute-force box test costs more than the rays
+        if len(self.occluders) > 512:
+            # measured: past a few hundred occluders, the brute-force box test costs more than the rays
             return np.ones(len(a), bool)
         lo = np.minimum(h.corners[a].min(1), h.corners[b].min(1)) - self.eps
         hi = np.maximum(h.corners[a].max(1), h.corners[b].max(1)) + self.eps
-        pa, pb = self.patch_plane[h.patch[a]], self.patch_plane[h.patch[b]]
-        out = np.ones(len(a), bool)
-        step = max(1, budget // max(T, 1))
-        for s in range(0, len(a), step):
-            sl = slice(s, s + step)
-            hit = np.all((self.tri_lo[None] <= hi[sl, None]) & (self.tri_hi[None] >= lo[sl, None]), axis=2)
-            hit &= (self.tri_plane[None] != pa[sl, None]) & (self.tri_plane[None] != pb[sl, None])
-            out[sl] = hit.any(1)
-        return out
+        plane = self.occluders.patch_plane
+        return self.occluders.maybe_occluded(lo, hi, plane[h.patch[a]], plane[h.patch[b]])
 
     def visibility(self, a, b, weak=None):
         """Fraction of vis_k^2 x vis_k^2 segments between the two nodes that are unoccluded;
         weak links (mask) trace only the vis_k^2 segments from point i to point s - 1 - i."""
-        import time
-
         t0 = time.perf_counter()
         h, k = self.h, self.params.vis_k
         vis = np.ones(len(a))
@@ -443,8 +252,6 @@ class Refiner:
         good_enough(p, q, f_pq, f_qp) -> bool mask may replace the Feps test (BF refinement).
         A pair whose shadow test found all its vis_k^2 x vis_k^2 segments unoccluded hands that
         on: the pairs it splits into need no rays (as in HR)."""
-        import time
-
         t0 = time.perf_counter()
         h, prm = self.h, self.params
         aeps = prm.aeps * self.total_area
@@ -526,8 +333,6 @@ class Refiner:
         return self._finish(out)
 
     def _finish(self, out):
-        import time
-
         if not out:
             return Links.empty()
         a, b, vis = (np.concatenate(x) for x in zip(*out))
@@ -551,8 +356,6 @@ class Refiner:
         """Initial HSA refinement: down from the root cluster's self-pair (clustering), or over
         all pairs of patches (quadratic: small scenes only)."""
         # every phase reports its end, however fast it was (reports are throttled)
-        import time
-
         t0 = time.perf_counter()
         self.contacts()
         self.stats["t_contacts"] = time.perf_counter() - t0
@@ -562,7 +365,6 @@ class Refiner:
             return links
         from .cluster import ClusterTree
         from .farlinks import link_clusters
-        import time
 
         t0 = time.perf_counter()
         K = len(self.h.patches.nv)
@@ -620,86 +422,3 @@ def _variation(h, x, y):
         pts.reshape(-1, 3), np.repeat(h.normal[x], 5, 0), np.repeat(h.corners[y], 5, 0), np.repeat(h.nv[y], 5)
     ).reshape(-1, 5)
     return f.max(1) - f.min(1)
-
-
-def _leaf_ranges(h):
-    """Leaves in depth-first order and, per node, the [lo, hi) range of its leaf descendants in it."""
-    n = h.n
-    lv = h.view("level").astype(np.int64)
-    depth = int(lv.max()) if n else 0
-    if depth > 26:
-        raise ValueError("hierarchy deeper than 26 levels")
-    digit = np.zeros(n, np.int64)
-    inner = h.view("parent") >= 0
-    digit[inner] = np.arange(n)[inner] - h.child0[h.parent[:n][inner]]
-    # Path key: root id, then one base-4 digit per level (levels processed shallow to deep).
-    key = np.zeros(n, np.int64)
-    for ids in h.levels():
-        par = h.parent[ids]
-        root = par < 0
-        key[ids[root]] = ids[root].astype(np.int64) << (2 * depth)
-        key[ids[~root]] = key[par[~root]] | (digit[ids[~root]] << (2 * (depth - lv[ids[~root]])))
-    leaves = h.leaves()
-    order = leaves[np.argsort(key[leaves], kind="stable")]
-    ks = key[order]
-    lo = np.searchsorted(ks, key, "left")
-    hi = np.searchsorted(ks, key + (np.int64(1) << (2 * (depth - lv))), "left")
-    return order, lo, hi
-
-
-def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000, centres=None):
-    """Correct HR's push-down, which hands a link's average form factor to every leaf below the
-    receiver. For links whose form factor varies across the receiver by more than ~vcorr, each
-    leaf below gets F_link x (F(leaf centre -> source) / area-mean of those values) - F_link: the
-    shape of the form factor across the receiver, normalised so the link's total transfer (and
-    with it reciprocity and energy balance) is unchanged. Budget bounds the (leaf, link) pairs.
-    centres(nodes): where each leaf's value is taken (Refiner.centres: off covered parts).
-    Returns the Links with corrections attached."""
-    links = Links(links.a, links.b, links.f_ab, links.f_ba, links.vis, far=links.far)
-    recv, src, f = links.directed()
-    cand = np.flatnonzero(h.child0[recv] >= 0)
-    if vcorr <= 0 or len(cand) == 0:
-        return links
-    r, s_, fl = recv[cand].astype(np.int64), src[cand].astype(np.int64), f[cand]
-    d = np.linalg.norm(h.centre[r] - h.centre[s_], axis=1)
-    # Relative change of a point form factor across a receiver of size sqrt(A) at distance d is
-    # about 3 sqrt(A) / d (inverse square law plus the two cosines).
-    v_est = fl * np.minimum(3 * np.sqrt(h.area[r]) / np.maximum(d, 1e-300), 2.0)
-    order, lo, hi = _leaf_ranges(h)
-    count = hi[r] - lo[r]
-    pick = np.argsort(-v_est, kind="stable")
-    pick = pick[v_est[pick] > vcorr]
-    pick = pick[np.cumsum(count[pick]) <= budget]
-    if len(pick) == 0:
-        return links
-    r, s_, fl, count = r[pick], s_[pick], fl[pick], count[pick]
-    li = np.repeat(np.arange(len(r)), count)
-    leaf = order[np.repeat(lo[r], count) + np.arange(len(li)) - np.repeat(np.cumsum(count) - count, count)]
-    # Only the shape across the receiver matters (it is normalised below): far links use the
-    # differential kernel cos cos / r^2, near ones the exact contour integral.
-    far = (d[pick] > 2 * (np.sqrt(h.area[r]) + np.sqrt(h.area[s_])))[li]
-    src_of = s_[li]
-    at = h.centre[leaf] if centres is None else centres(leaf)
-    fc = np.zeros(len(li))
-    m = np.flatnonzero(far)
-    w = h.centre[src_of[m]] - at[m]
-    r2 = np.einsum("ij,ij->i", w, w)
-    fc[m] = (
-        np.maximum(np.einsum("ij,ij->i", w, h.normal[leaf[m]]), 0)
-        * np.maximum(-np.einsum("ij,ij->i", w, h.normal[src_of[m]]), 0)
-        / (r2 * r2)
-    )
-    m = np.flatnonzero(~far)
-    for a in range(0, len(m), 1_000_000):
-        mm = m[a : a + 1_000_000]
-        fc[mm] = ff.point_to_polygon(at[mm], h.normal[leaf[mm]], h.corners[src_of[mm]], h.nv[src_of[mm]])
-    # normalised over the exposed area (contacts.py), where the link's light lands
-    ea = h.area[leaf] * h.exposure[leaf]
-    mean = np.bincount(li, weights=fc * ea, minlength=len(r)) / np.maximum(
-        np.bincount(li, weights=ea, minlength=len(r)), 1e-300
-    )
-    ok = mean[li] > 0
-    dF = np.where(ok, fl[li] * (fc / np.where(ok, mean[li], 1.0) - 1.0), 0.0)
-    links.corr = (leaf, src_of, dF)
-    links._csr = None
-    return links

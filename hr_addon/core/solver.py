@@ -14,7 +14,7 @@ import numpy as np
 
 from .hierarchy import Hierarchy
 from .cluster import SLOTS
-from .refine import Links
+from .links import Links
 
 
 class ConvergenceWarning(RuntimeWarning):

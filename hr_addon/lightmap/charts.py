@@ -11,6 +11,7 @@ filtering and the dilation (raster.py) never mix two charts.
 import numpy as np
 
 from ..core.geometry import components, loop_tables, polygon_newell
+from ..core.planes import frames
 from . import TextureError
 
 MARGIN = 2  # texels of padding on each side of a packed island (islands are 2 x MARGIN apart)
@@ -113,10 +114,7 @@ def pack_lightmap(co, loop_start, loop_total, loop_verts, res, margin=MARGIN):
     lp, nxt = loop_tables(loop_start, loop_total)
     chart, cn = find_charts(co, loop_start, loop_total, loop_verts)
     C = len(cn)
-    axis = np.where(np.abs(cn[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])
-    u = np.cross(cn, axis)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(cn, u)
+    u, v = frames(cn)
     lc = chart[lp]
     p = co[loop_verts]
     x, y = np.einsum("ij,ij->i", p, u[lc]), np.einsum("ij,ij->i", p, v[lc])

@@ -1,57 +1,128 @@
 """FE and AR (and AUTO's outline): the clipped coverage of a shape on the hierarchy, AR subdivision,
-and the reference-counted nodes below the HR leaves."""
+and the per-node state below the HR leaves (reference-counted splits, arrays kept the length of
+the hierarchy)."""
 
 import numpy as np
 
+from .validation import classify
 
-class _CoverageMixin:
-    """DynamicRadiosity's coverage of a shape and node bookkeeping."""
 
-    def _incremental_add(self, rec):
-        h = self.system.h
-        rec.used = rec.method
-        self._event_n0 = h.n  # the node budget covers the outline and the first bounce together
-        self._cover(rec)
-        required = [rec.cov_nodes]
-        if rec.method == "AUTO":
-            rec.D, req = self._direct(rec)
-            required.append(req)
-        rec.owned = self._owned_ancestors(np.concatenate(required))
-        self._sync(extra=[rec])
-        self._ref[rec.owned] += 1
-        self._gc(extra=[rec])  # splits made on the way that turned out unnecessary
-        self._sync(extra=[rec])
-        cov = self._coverage(rec)
-        if rec.method == "AUTO":
-            E = (
-                np.broadcast_to(self._push(rec.D), (3, h.n)).copy()
-                if rec.D is not None
-                else np.zeros((3, h.n))
-            )
-        else:
-            E = np.repeat(cov[None], 3, 0)
-        if self.incremental == "warm":
+class NodeState:
+    """Per-node state of a DynamicRadiosity on its growing hierarchy h: which nodes the HR build
+    made (n_hr; internal ones are never collapsed), how many shapes need each split below the HR
+    leaves (ref), and the solutions: base (no shapes), warm (warm mode's state), current (B),
+    guess (a reshaped shape's first guess). sync() extends them and the records' U and D to new
+    nodes, gc() drops the splits no shape needs and renumbers them."""
+
+    def __init__(self, h, base):
+        self.h = h
+        self.n_hr = h.n
+        self.hr_mask = h.child0[: h.n] >= 0
+        self.ref = np.zeros(h.n, np.int64)
+        self.base, self.warm, self.current = base, base.copy(), base.copy()
+        self.guess = None
+
+    def hr_internal(self, nodes):
+        """True for nodes the HR build split (never collapsed by events)."""
+        nodes = np.asarray(nodes, np.int64)
+        out = np.zeros(len(nodes), bool)
+        m = nodes < self.n_hr
+        out[m] = self.hr_mask[nodes[m]]
+        return out
+
+    def owned_ancestors(self, nodes):
+        """Nodes below the HR leaves (and split HR leaves) on the path to `nodes`: the splits they need."""
+        h = self.h
+        res = []
+        cur = np.unique(h.parent[np.asarray(nodes, np.int64)])
+        cur = cur[cur >= 0]
+        while len(cur):
+            cur = cur[~self.hr_internal(cur)]
+            res.append(cur)
+            cur = np.unique(h.parent[cur])
+            cur = cur[cur >= 0]
+        return np.unique(np.concatenate(res)) if res else np.zeros(0, np.int64)
+
+    def gc(self, recs):
+        """Delete the children of owned splits no shape needs; recs: every record holding node
+        arrays (shapes, cached shapes, lights, one being added). Returns the nodes deleted."""
+        h = self.h
+        self.sync(recs)
+        n = h.n
+        idx = np.arange(n)
+        collapse = (h.child0[:n] >= 0) & ~self.hr_internal(idx) & (self.ref[:n] == 0)
+        if not collapse.any():
             return 0
-        U, rep = self._solve(E, B0=None if self._guess is None else E + self._guess, response=True)
-        if rec.method == "AUTO":
-            U = U + np.repeat(self._coverage(rec, mean=True)[None], 3, 0)
-        rec.U = U
-        return rep.iterations
+        dead = np.zeros(n, bool)
+        for lv in h.levels()[1:]:
+            par = h.parent[lv]
+            dead[lv] = collapse[par] | dead[par]
+        keep = ~dead
+        remap = h.compact(keep)
+        assert (remap[: self.n_hr] == np.arange(self.n_hr)).all()
+        self.ref = self.ref[:n][keep]
+        self.base = self.base[:, keep]
+        self.warm = self.warm[:, keep]
+        self.current = self.current[:, keep] if self.current.shape[1] == n else self.current
+        if self.guess is not None:
+            self.guess = self.guess[:, keep]
+        for rec in recs:
+            for name in ("U", "D"):
+                a = getattr(rec, name)
+                if a is not None:
+                    setattr(rec, name, a[:, keep])
+            for name in ("cov_nodes", "owned"):
+                a = getattr(rec, name, None)
+                if a is not None and len(a):
+                    a = remap[a]
+                    assert (a >= 0).all(), "a live shape lost a node it needs"
+                    setattr(rec, name, a)
+        return int(dead.sum())
 
-    def _cover(self, rec):
+    def sync(self, recs):
+        """Extend per-node arrays to nodes created since: solutions by copy from the parent (new nodes
+        carry no links, so this is exact), first-bounce terms and reference counts with zeros."""
+        h = self.h
+        n = h.n
+        if len(self.ref) < n:
+            self.ref = np.concatenate([self.ref, np.zeros(n - len(self.ref), np.int64)])
+        self.base = h.extend(self.base)
+        self.warm = h.extend(self.warm)
+        self.current = h.extend(self.current)
+        if self.guess is not None:
+            self.guess = h.extend(self.guess)
+        for rec in recs:
+            if rec.U is not None:
+                rec.U = h.extend(rec.U)
+            if rec.D is not None and rec.D.shape[1] < n:
+                rec.D = np.concatenate([rec.D, np.zeros((3, n - rec.D.shape[1]))], 1)
+
+
+class Coverage:
+    """A shape's coverage of the hierarchy (FE, AR, AUTO's outline): which nodes it covers and by
+    how much, AR's splits (min_area, AUTO: direct_min_area; node_budget; AUTO stops at
+    emission_tol x the shape's area of L1 error). pull(x): the solver's pull (node means)."""
+
+    def __init__(self, nodes: NodeState, min_area, direct_min_area, emission_tol, node_budget, pull):
+        self.nodes, self.h = nodes, nodes.h
+        self.min_area, self.direct_min_area = min_area, direct_min_area
+        self.emission_tol, self.node_budget = emission_tol, node_budget
+        self.pull = pull
+
+    def cover(self, rec):
         """Coverage of the shape on the hierarchy: cov_nodes get cov_vals (1 inside, else the overlap
         fraction), inherited by their descendants. Splits by the method's rule (see module doc)."""
-        h = self.system.h
-        # AUTO resolves the outline as finely as the light it casts (direct_min_area_rel)
-        min_area = (self.direct_min_area_rel if rec.method == "AUTO" else self.min_area_rel) * self.total_area
+        h = self.h
+        # AUTO resolves the outline as finely as the light it casts (direct_min_area)
+        min_area = self.direct_min_area if rec.method == "AUTO" else self.min_area
         inside, part, pfrac = [], [], []
         frontier = rec.roots
         while len(frontier):
-            frac, ins, out = self._classify(rec, frontier)
+            frac, ins, out = classify(rec, h, frontier)
             frontier, frac, ins = frontier[~out], frac[~out], ins[~out]
             inside.append(frontier[ins])
             p, f = frontier[~ins], frac[~ins]
-            hr = self._hr_internal(p)
+            hr = self.nodes.hr_internal(p)
             part.append(p[~hr])
             pfrac.append(f[~hr])
             frontier = (h.child0[p[hr]][:, None] + np.arange(4)).ravel()
@@ -88,7 +159,7 @@ class _CoverageMixin:
             keep[order] = False
             part, pfrac = part[keep], pfrac[keep]
             kids = (h.child0[sel][:, None] + np.arange(4)).ravel()
-            frac, ins, out = self._classify(rec, kids)
+            frac, ins, out = classify(rec, h, kids)
             inside = np.concatenate([inside, kids[ins]])
             m = ~ins & ~out
             part = np.concatenate([part, kids[m]])
@@ -104,92 +175,10 @@ class _CoverageMixin:
                 f"(emission L1 error {100 * rec.emission_l1:.2f}%)"
             )
 
-    # -- node bookkeeping ----------------------------------------------------------------------------
-    def _hr_internal(self, nodes):
-        nodes = np.asarray(nodes, np.int64)
-        out = np.zeros(len(nodes), bool)
-        m = nodes < self.n_hr
-        out[m] = self.hr_internal[nodes[m]]
-        return out
-
-    def _owned_ancestors(self, nodes):
-        """Nodes below the HR leaves (and split HR leaves) on the path to `nodes`: the splits they need."""
-        h = self.system.h
-        res = []
-        cur = np.unique(h.parent[np.asarray(nodes, np.int64)])
-        cur = cur[cur >= 0]
-        while len(cur):
-            cur = cur[~self._hr_internal(cur)]
-            res.append(cur)
-            cur = np.unique(h.parent[cur])
-            cur = cur[cur >= 0]
-        return np.unique(np.concatenate(res)) if res else np.zeros(0, np.int64)
-
-    def _gc(self, extra=()):
-        """Delete the children of owned splits no shape needs. Returns the number of nodes deleted."""
-        h = self.system.h
-        self._sync(extra)
-        n = h.n
-        idx = np.arange(n)
-        collapse = (h.child0[:n] >= 0) & ~self._hr_internal(idx) & (self._ref[:n] == 0)
-        if not collapse.any():
-            return 0
-        dead = np.zeros(n, bool)
-        for lv in h.levels()[1:]:
-            par = h.parent[lv]
-            dead[lv] = collapse[par] | dead[par]
-        keep = ~dead
-        remap = h.compact(keep)
-        assert (remap[: self.n_hr] == np.arange(self.n_hr)).all()
-        self._ref = self._ref[:n][keep]
-        self._Bbase = self._Bbase[:, keep]
-        self._X = self._X[:, keep]
-        self._B = self._B[:, keep] if self._B.shape[1] == n else self._B
-        if self._guess is not None:
-            self._guess = self._guess[:, keep]
-        for rec in list(getattr(self, "lights", {}).values()):
-            rec.U = rec.U[:, keep] if rec.U is not None else None
-            rec.D = rec.D[:, keep] if rec.D is not None else None
-        for rec in list(self.shapes.values()) + list(self._cache.values()) + list(extra):
-            for name in ("U", "D"):
-                a = getattr(rec, name)
-                if a is not None:
-                    setattr(rec, name, a[:, keep])
-            for name in ("cov_nodes", "owned"):
-                a = getattr(rec, name)
-                if a is not None and len(a):
-                    a = remap[a]
-                    assert (a >= 0).all(), "a live shape lost a node it needs"
-                    setattr(rec, name, a)
-        return int(dead.sum())
-
-    def _sync(self, extra=()):
-        """Extend per-node arrays to nodes created since: solutions by copy from the parent (new nodes
-        carry no links, so this is exact), first-bounce terms and reference counts with zeros."""
-        h = self.system.h
-        n = h.n
-        if len(self._ref) < n:
-            self._ref = np.concatenate([self._ref, np.zeros(n - len(self._ref), np.int64)])
-        self._Bbase = h.extend(self._Bbase)
-        self._X = h.extend(self._X)
-        self._B = h.extend(self._B)
-        if self._guess is not None:
-            self._guess = h.extend(self._guess)
-        for rec in list(getattr(self, "lights", {}).values()):
-            if rec.U is not None:
-                rec.U = h.extend(rec.U)
-            if rec.D is not None and rec.D.shape[1] < n:
-                rec.D = np.concatenate([rec.D, np.zeros((3, n - rec.D.shape[1]))], 1)
-        for rec in list(self.shapes.values()) + list(self._cache.values()) + list(extra):
-            if rec.U is not None:
-                rec.U = h.extend(rec.U)
-            if rec.D is not None and rec.D.shape[1] < n:
-                rec.D = np.concatenate([rec.D, np.zeros((3, n - rec.D.shape[1]))], 1)
-
-    def _coverage(self, rec, mean=False):
+    def coverage(self, rec, mean=False):
         """(n,) coverage fraction of every leaf (internal nodes: area-weighted mean). mean: as
         node means, the solver's convention (x the leaf's exposure: covered parts emit nothing)."""
-        h = self.system.h
+        h = self.h
         n = h.n
         c = np.zeros(n)
         s = np.zeros(n, bool)
@@ -204,4 +193,4 @@ class _CoverageMixin:
             s[m] = True
         if mean:
             c *= h.exposure[:n]
-        return self._operator().pull(c[None].copy())[0]
+        return self.pull(c[None].copy())[0]

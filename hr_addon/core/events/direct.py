@@ -6,12 +6,19 @@ import numpy as np
 from .. import formfactor as ff
 from ..geometry import newell
 from .planar import _in_convex, _in_rings, slab_decomposition
+from .validation import to2d
 
 
-class _DirectMixin:
-    """DynamicRadiosity's first bounce of a shape (AUTO)."""
+class FirstBounce:
+    """AUTO's first bounce of a shape on a system's hierarchy. nodes: the events' NodeState (which
+    nodes the HR build split); occluders: planes.Occluders of the system's patches; min_area: the
+    smallest receiver; bf_rel, node_budget as in DynamicRadiosity."""
 
-    def _direct(self, rec):
+    def __init__(self, system, nodes, occluders, min_area, bf_rel, node_budget):
+        self.system, self.nodes, self.occluders = system, nodes, occluders
+        self.min_area, self.bf_rel, self.node_budget = min_area, bf_rel, node_budget
+
+    def direct(self, rec, n_start):
         """AUTO: the shape's first bounce, per unit emission, at receiver nodes (3, n, not pushed) and
         the nodes it needs.
 
@@ -20,12 +27,13 @@ class _DirectMixin:
         plane cuts the shape) times a kernel-weighted visibility ratio (rays to points on the shape).
         Starting at the roots, a node takes the value if the light on it is weak (HR internal nodes:
         rho F < bf_rel) or even (own leaves: rho x range of F V < bf_rel); otherwise it is split
-        (below the HR leaves down to direct_min_area_rel x scene area, node budget permitting).
+        (below the HR leaves down to min_area, node budget permitting: the nodes made since
+        n_start count, with the outline's).
         """
         h, pt = self.system.h, self.system.patches
         rho, rho_max = pt.reflectance, pt.reflectance.max(0)
-        min_area, thr = self.direct_min_area_rel * self.total_area, self.bf_rel
-        corners, nv, area, nf = self._pieces(rec)
+        min_area, thr = self.min_area, self.bf_rel
+        corners, nv, area, nf = self.pieces(rec)
         if len(corners) == 0:
             return np.zeros((3, h.n)), np.zeros(0, np.int64)
         # points on the shape for the visibility ratio: 2 x 2 Gauss points of the pieces, thinned to
@@ -42,7 +50,7 @@ class _DirectMixin:
             rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
         allv = np.concatenate(rec.rings)
         shape_lo, shape_hi = corners.reshape(-1, 3).min(0), corners.reshape(-1, 3).max(0)
-        shape_plane = self._plane_id(rec.roots[0])
+        shape_plane = self.occluders.patch_plane[rec.roots[0]]
 
         def unoccluded(nodes):
             """(m, 4) unoccluded point-to-shape form factors at the nodes' Gauss points, points, weights."""
@@ -104,13 +112,12 @@ class _DirectMixin:
         front = ((rc - rec.c) @ nf > eps).any(1)
         sees = ((allv[None] - pt.corners[roots][:, :1]) * pt.normal[roots][:, None]).sum(-1).max(1) > eps
         frontier = roots[front & sees]
-        n_start = getattr(self, "_event_n0", h.n)
         acc_nodes, acc_vals = [], []
         budget_msg = False
         while len(frontier):
             F, x, xn, gw = unoccluded(frontier)
             rm = rho_max[h.patch[frontier]]
-            hr = self._hr_internal(frontier)
+            hr = self.nodes.hr_internal(frontier)
             # HR internal nodes keep the light if it is weak on them, else they are descended
             acc = hr & (rm * F.max(1) < thr) & (F.max(1) > 0)
             leaf = ~hr & (F.max(1) > 0)
@@ -162,7 +169,7 @@ class _DirectMixin:
         D[:, nodes] = rho[:, h.patch[nodes]] * vals
         return D, nodes
 
-    def _pieces(self, rec):
+    def pieces(self, rec):
         """Convex pieces (trapezoids) of the shape on its covered patches: corners (T, 4, 3) CCW about
         the emitting side's normal, nv, areas, and that normal."""
         pt = self.system.patches
@@ -170,7 +177,7 @@ class _DirectMixin:
         nf = pt.normal[roots[0]] if len(roots) else rec.n
         if len(roots) == 0:
             return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
-        p2 = self._to2d(rec, pt.corners[roots])
+        p2 = to2d(rec, pt.corners[roots])
         edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
         edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in p2]
         edges = np.concatenate(edges)
@@ -191,33 +198,17 @@ class _DirectMixin:
         _, a = ff.polygon_normal_area(c, np.array(nvs))
         return c, np.array(nvs), a, nf
 
-    def _plane_id(self, patch):
-        return int(self._patch_plane[patch])
-
-    def _maybe_occluded(self, nodes, lo, hi, shape_plane, budget=4_000_000):
-        """Conservative shaft test between nodes and the shape's box: False where no occluder
-        triangle (outside both planes) meets the joint bounding box, so no rays are needed."""
-        h = self.system.h
-        T = len(self._tri_lo)
-        if T > 1024 or len(nodes) == 0:
+    def _maybe_occluded(self, nodes, lo, hi, shape_plane):
+        """Shaft test between nodes and the shape's box (planes.Occluders): False where no rays
+        are needed."""
+        h, occ = self.system.h, self.occluders
+        if len(occ) > 1024 or len(nodes) == 0:
             return np.ones(len(nodes), bool)
         c = h.corners[nodes]
         e = self.system.refiner.eps
         nlo = np.minimum(c.min(1), lo) - e
         nhi = np.maximum(c.max(1), hi) + e
-        pp = self._patch_plane[h.patch[nodes]]
-        out = np.ones(len(nodes), bool)
-        step = max(1, budget // max(T, 1))
-        tlo, thi = self._tri_lo, self._tri_hi
-        for s0 in range(0, len(nodes), step):
-            sl = slice(s0, s0 + step)
-            # one axis at a time on (nodes, triangles): 4.5x faster than np.all over a last axis of 3
-            hit = (self._tri_plane[None] != pp[sl, None]) & (self._tri_plane != shape_plane)[None]
-            for k in range(3):
-                hit &= tlo[None, :, k] <= nhi[sl, k, None]
-                hit &= thi[None, :, k] >= nlo[sl, k, None]
-            out[sl] = hit.any(1)
-        return out
+        return occ.maybe_occluded(nlo, nhi, occ.patch_plane[h.patch[nodes]], shape_plane)
 
 
 def _contour(x, n, rings):

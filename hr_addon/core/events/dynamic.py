@@ -10,13 +10,13 @@ from ..output import locate, radiance_at
 from ..output import loop_plan as _loop_plan
 from ..output import loop_radiance as _loop_radiance
 from ..radiosity import RadiositySystem
-from ..solver import Operator, solve
-from .coverage import _CoverageMixin
-from .direct import _DirectMixin
-from .lightsrc import _LightsMixin
+from .coverage import Coverage, NodeState
+from .direct import FirstBounce
+from .lightsrc import LIGHT_RAYS, Lights
 from .naive import _NaiveState
 from .records import METHODS, EventReport, FrameReport, LightShape, _Rec
-from .validation import _ShapeMixin
+from .solves import Solves
+from .validation import ShapeValidator, check_emission, find_surface, off_surface_message, shape_plane, to2d
 
 
 # DynamicRadiosity.gather_options: the solves' tolerances when the final gather is on
@@ -27,7 +27,14 @@ GATHER_SOLVE = {
 }
 
 
-class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
+class DynamicRadiosity:
+    """Light shapes (and Blender lights) on a built RadiositySystem, made of parts with explicit
+    state: the validator (validation.py), the per-node state on the growing hierarchy and the
+    coverage (coverage.py), AUTO's first bounce (direct.py), the lights (lightsrc.py), the solves
+    (solves.py); NAIVE rebuilds in naive.py."""
+
+    LIGHT_RAYS = LIGHT_RAYS
+
     def __init__(
         self,
         system: RadiositySystem,
@@ -80,35 +87,40 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         self.response_float32 = response_float32
         self.links = system.links
         h = system.h
-        self.n_hr = h.n
-        self.hr_internal = h.child0[: h.n] >= 0
         pt = system.patches
         self.total_area = float(pt.area.sum())
         lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
         self.diag = float(np.linalg.norm(hi - lo)) or 1.0
-        # occluder triangles (bounds, plane ids) for the first-bounce shaft test
-        tris = pt.triangles
-        tri_patch = np.concatenate([np.arange(len(pt.nv)), np.flatnonzero(pt.nv == 4)])
-        self._tri_lo, self._tri_hi = tris.min(1), tris.max(1)
-        scale = 1e-6 * np.sqrt(self.total_area)
-        key = np.column_stack(
-            [np.round(pt.normal * 1e6), np.round(np.einsum("ij,ij->i", pt.normal, pt.corners[:, 0]) / scale)]
-        )
-        self._patch_plane = np.unique(key, axis=0, return_inverse=True)[1].ravel()
-        self._tri_plane = self._patch_plane[tri_patch]
+        self.occluders = system.refiner.occluders  # the first bounce's shaft test
         self.shapes = OrderedDict()  # key -> _Rec
-        self.lights = OrderedDict()  # key -> lightsrc._LightRec (Blender lights, issue 20)
         self._cache = OrderedDict()  # (geom_key, method) -> _Rec
-        self._ref = np.zeros(h.n, np.int64)  # shapes needing each node's split
-        self._op = None
-        self._op_version = None
         self._naive = None  # active NAIVE rebuild (_NaiveState) or None
-        self._guess = None  # (3, n) first guess of a reshaped shape's response
         self._plan = None  # (key, output.loop_plan) of loop_radiance
+        self.validator = ShapeValidator(plane_tol)
+        self.solves = Solves(h, self.links, self.tol, self.response_tol, response_float32)
         E0 = system.base_emission()
-        self._Bbase, rep = self._solve(E0)
-        self._X = self._Bbase.copy()  # warm mode state
-        self._B = self._Bbase.copy()
+        base, rep = self.solves.solve(E0)
+        self.nodes = NodeState(h, base)
+        self.coverage = Coverage(
+            self.nodes,
+            min_area_rel * self.total_area,
+            self.direct_min_area_rel * self.total_area,
+            emission_tol,
+            self.node_budget,
+            lambda x: self.solves.operator().pull(x),
+        )
+        self.bounce = FirstBounce(
+            system,
+            self.nodes,
+            self.occluders,
+            self.direct_min_area_rel * self.total_area,
+            bf_rel,
+            self.node_budget,
+        )
+        self.light_part = Lights(
+            system, self.nodes, self.solves, 2 * self.diag + 1, incremental, self._records
+        )
+        self.lights = self.light_part.recs  # key -> lightsrc._LightRec (Blender lights, issue 20)
         self.base_iterations = rep.iterations
 
     @staticmethod
@@ -167,7 +179,9 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         a moved or re-aimed light is one response solve, a colour or strength change a scale."""
         t0 = time.perf_counter()
         fr = FrameReport()
-        valid = {k: self._validate(k, s) for k, s in shapes.items()}  # raise before changing anything
+        valid = {
+            k: self.validator.validate(k, s) for k, s in shapes.items()
+        }  # raise before changing anything
         evs = []
         for k in [k for k in self.shapes if k not in valid]:
             evs.append(self._remove(k))
@@ -181,12 +195,12 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
             if not same_geom:
                 # the new response is solved from the new emission plus the old one's scattered
                 # light: a moved shape lights the room much as before (fewer iterations)
-                self._guess = self._scattered(rec)
+                self.nodes.guess = self._scattered(rec)
                 try:
                     r1 = self._remove(k)
                     r2 = self._add(k, LightShape(rings, em, name), validated=(rings, em, name))
                 finally:
-                    self._guess = None
+                    self.nodes.guess = None
                 r2.kind = "reshape"
                 r2.nodes_removed += r1.nodes_removed
                 r2.seconds += r1.seconds
@@ -197,7 +211,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
             if k not in self.shapes:
                 evs.append(self._add(k, LightShape(rings, em, name), validated=(rings, em, name)))
         if lights is not None:
-            evs += self._lights_diff(lights)
+            evs += self.light_part.diff(lights)
         if evs:
             fr.iterations += self._finish(evs)
         fr.events = evs
@@ -249,6 +263,55 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         self._sync()
         return radiance_at(self.system.h, self._B, patch_ids, points, smooth)
 
+    # -- the parts' state, under the names gather.py, texels.py and the tests read ------------------
+    @property
+    def _Bbase(self):
+        """(3, n) the solution without shapes."""
+        return self.nodes.base
+
+    @property
+    def _B(self):
+        return self.nodes.current
+
+    @_B.setter
+    def _B(self, B):
+        self.nodes.current = B
+
+    @property
+    def n_hr(self):
+        """Nodes of the HR build (ids below it); light events add nodes after them."""
+        return self.nodes.n_hr
+
+    def _push(self, D):
+        return self.solves.push(D)
+
+    def _records(self, extra=()):
+        """Every record holding node arrays: shapes, cached shapes, lights, extra."""
+        return (
+            list(self.shapes.values()) + list(self._cache.values()) + list(self.lights.values()) + list(extra)
+        )
+
+    def _sync(self, extra=()):
+        self.nodes.sync(self._records(extra))
+
+    def _gc(self, extra=()):
+        return self.nodes.gc(self._records(extra))
+
+    def _coverage(self, rec, mean=False):
+        return self.coverage.coverage(rec, mean)
+
+    def _pieces(self, rec):
+        return self.bounce.pieces(rec)
+
+    _to2d = staticmethod(to2d)
+
+    def _operator(self):
+        return self.solves.operator()
+
+    def off_surface_message(self, rec):
+        """Why a shape on no surface looks as it does (validation.off_surface_message)."""
+        return off_surface_message(rec, self.system)
+
     # -- events -------------------------------------------------------------------------------------
     def _stamp(self, rep, t0):
         rep.seconds = time.perf_counter() - t0
@@ -266,7 +329,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
             raise KeyError(
                 f"A light shape with key {key!r} is already active (use apply() or remove it first)."
             )
-        rings, em, name = validated or self._validate(key, shape)
+        rings, em, name = validated or self.validator.validate(key, shape)
         rep = EventReport("add", key, name)
         n0 = self.system.h.n
         rec = _Rec(key, name, rings, em, self.method)
@@ -276,8 +339,8 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
             rec = cached
             rep.reused = True
         else:
-            self._plane(rec)
-            self._find_surface(rec)
+            shape_plane(rec, self.plane_tol)
+            find_surface(rec, self.system)
             if not rec.on_surface:
                 rec.used = "NAIVE"
                 rec.msgs.append(self.off_surface_message(rec))
@@ -293,6 +356,39 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         rep.seconds = time.perf_counter() - t0
         return rep
 
+    def _incremental_add(self, rec):
+        """AR, FE, AUTO: cover the hierarchy (AUTO: and gather the first bounce), reference the
+        splits the shape needs, and solve its response (response mode). Returns iterations."""
+        h = self.system.h
+        rec.used = rec.method
+        n0 = h.n  # the node budget covers the outline and the first bounce together
+        self.coverage.cover(rec)
+        required = [rec.cov_nodes]
+        if rec.method == "AUTO":
+            rec.D, req = self.bounce.direct(rec, n0)
+            required.append(req)
+        rec.owned = self.nodes.owned_ancestors(np.concatenate(required))
+        self._sync(extra=[rec])
+        self.nodes.ref[rec.owned] += 1
+        self._gc(extra=[rec])  # splits made on the way that turned out unnecessary
+        self._sync(extra=[rec])
+        if rec.method == "AUTO":
+            E = (
+                np.broadcast_to(self.solves.push(rec.D), (3, h.n)).copy()
+                if rec.D is not None
+                else np.zeros((3, h.n))
+            )
+        else:
+            E = np.repeat(self._coverage(rec)[None], 3, 0)
+        if self.incremental == "warm":
+            return 0
+        guess = self.nodes.guess
+        U, rep = self.solves.solve(E, B0=None if guess is None else E + guess, response=True)
+        if rec.method == "AUTO":
+            U = U + np.repeat(self._coverage(rec, mean=True)[None], 3, 0)
+        rec.U = U
+        return rep.iterations
+
     def _remove(self, key):
         t0 = time.perf_counter()
         if key not in self.shapes:
@@ -300,7 +396,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         rec = self.shapes.pop(key)
         rep = EventReport("remove", key, rec.name, rec.used)
         if rec.owned is not None and len(rec.owned):
-            self._ref[rec.owned] -= 1
+            self.nodes.ref[rec.owned] -= 1
             rep.nodes_removed = self._gc()
         elif rec.U is not None and self.cache_size > 0 and rec.used != "NAIVE":
             self._cache[(rec.geom_key, rec.method)] = rec
@@ -314,7 +410,7 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         if key not in self.shapes:
             raise KeyError(f"No active light shape with key {key!r}.")
         rec = self.shapes[key]
-        em = self._check_emission(emission, rec.name)
+        em = check_emission(emission, rec.name)
         rec.emission = em
         rep = EventReport("emission", key, rec.name, rec.used)
         rep.seconds = time.perf_counter() - t0
@@ -326,7 +422,15 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         naive = [r for r in self.shapes.values() if r.used == "NAIVE"]
         if naive:
             t0 = time.perf_counter()
-            self._naive = _NaiveState(self, list(self.shapes.values()))
+            self._naive = _NaiveState(
+                self.system,
+                list(self.shapes.values()),
+                list(self.lights.values()),
+                self.naive_params,
+                self.naive_offset,
+                self.plane_tol,
+                2 * self.diag + 1,
+            )
             its += self._naive.iterations
             names = ", ".join(f"'{r.name}'" for r in naive if not r.on_surface)
             if self.method != "NAIVE" and names:
@@ -349,15 +453,15 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
             extra = np.zeros_like(E)
             for rec in self.shapes.values():
                 if rec.used == "AUTO":
-                    E += rec.emission[:, None] * self._push(rec.D)
+                    E += rec.emission[:, None] * self.solves.push(rec.D)
                     extra += self._coverage(rec, mean=True)[None] * rec.emission[:, None]
                 else:
                     E += self._coverage(rec)[None] * rec.emission[:, None]
             for rec in self.lights.values():
-                E += rec.scale[:, None] * self._push(rec.D)
-            self._X, rep = self._solve(E, B0=self._X)
+                E += rec.scale[:, None] * self.solves.push(rec.D)
+            self.nodes.warm, rep = self.solves.solve(E, B0=self.nodes.warm)
             its += rep.iterations
-            self._B = self._X + self._operator().pull(extra)
+            self._B = self.nodes.warm + self._operator().pull(extra)
         return its
 
     def _scattered(self, rec):
@@ -369,42 +473,9 @@ class DynamicRadiosity(_ShapeMixin, _CoverageMixin, _DirectMixin, _LightsMixin):
         cov = self._coverage(rec, mean=True)[None]  # its emission, as node means
         if rec.method == "AUTO":  # U = solve(push(D)) + pull(coverage)
             ex = self.system.h.exposure[: rec.U.shape[1]]
-            pushed = self._push(rec.D) * ex if rec.D is not None else 0.0
+            pushed = self.solves.push(rec.D) * ex if rec.D is not None else 0.0
             return self._operator().pull(rec.U - cov - pushed)
         return rec.U - cov
-
-    def _push(self, D):
-        h = self.system.h
-        D = D.copy()
-        par = h.parent[: h.n]
-        for lv in h.levels()[1:]:
-            D[:, lv] += D[:, par[lv]]
-        return D
-
-    def _operator(self):
-        h = self.system.h
-        if self._op is None or self._op_version != h.version or self._op.n != h.n:
-            self._op = Operator(h, self.links)
-            self._op_version = h.version
-        return self._op
-
-    def _solve(self, E, B0=None, response=False):
-        """Solve with non-negative emission; the exact solution is non-negative, so the solver's
-        tiny negative excursions (GMRES is not monotone) are clipped. response: a shape's response
-        (response_tol, response_float32; its power balance is not reported)."""
-        op = self._operator()
-        if response and self.response_float32:
-            op = op.float32()
-        B, rep = solve(
-            self.system.h,
-            self.links,
-            E,
-            B0=B0,
-            tol=self.response_tol if response else self.tol,
-            op=op,
-            energy=not response,
-        )
-        return np.maximum(B, 0.0), rep
 
     def solution_at(self, points, patch_ids):
         """(h, B (3, h.n), patch_ids, points) of the current solution, the points on input patches

@@ -9,6 +9,7 @@ sum_l scale_l U_l. AR-style refinement along a spot's edge or a shadow boundary 
 below the HR level) is not done: the edge is as sharp as the HR leaves in the hierarchy's values;
 the final gather's direct light at the output samples is exact."""
 
+from collections import OrderedDict
 import time
 
 import numpy as np
@@ -29,19 +30,28 @@ class _LightRec:
         self.method = "FE"
 
 
-class _LightsMixin:
-    """DynamicRadiosity's Blender lights."""
+LIGHT_RAYS = 4  # shadow rays per Gauss point for lights with a size
 
-    LIGHT_RAYS = 4  # shadow rays per Gauss point for lights with a size
 
-    def _lights_diff(self, lights):
+class Lights:
+    """The Blender lights on a DynamicRadiosity: recs (key -> _LightRec, the lights in effect) and
+    their first bounce and responses. nodes: the events' NodeState; solves: the events' Solves;
+    far: a distance beyond the scene (sun rays); incremental: "response" or "warm";
+    records(): every record holding node arrays (NodeState.sync)."""
+
+    def __init__(self, system, nodes, solves, far, incremental, records):
+        self.system, self.nodes, self.solves, self.records = system, nodes, solves, records
+        self.far, self.incremental = far, incremental
+        self.recs = OrderedDict()
+
+    def diff(self, lights):
         """Events making `lights` (key -> core.lights.Light, the full set) current."""
         evs = []
-        for k in [k for k in self.lights if k not in lights]:
-            rec = self.lights.pop(k)
+        for k in [k for k in self.recs if k not in lights]:
+            rec = self.recs.pop(k)
             evs.append(EventReport("remove", k, rec.name, "LIGHT"))
         for k, L in lights.items():
-            rec = self.lights.get(k)
+            rec = self.recs.get(k)
             if rec is not None and rec.geom_key == L.geom_key:
                 if not np.array_equal(rec.scale, L.scale):
                     rec.scale, rec.light = L.scale, L
@@ -51,7 +61,7 @@ class _LightsMixin:
             old = rec
             rec = _LightRec(k, L)
             its = self._light_response(rec, old)
-            self.lights[k] = rec
+            self.recs[k] = rec
             ev = EventReport("reshape" if old is not None else "add", k, rec.name, "LIGHT")
             ev.iterations = its
             ev.seconds = time.perf_counter() - t0
@@ -59,29 +69,27 @@ class _LightsMixin:
         return evs
 
     def _hr_leaves(self):
-        h = self.system.h
-        c0 = h.child0[: self.n_hr]
-        return np.flatnonzero((c0 < 0) | (c0 >= self.n_hr))
+        n_hr = self.nodes.n_hr
+        c0 = self.system.h.child0[:n_hr]
+        return np.flatnonzero((c0 < 0) | (c0 >= n_hr))
 
     def _light_response(self, rec, old=None):
         """rec.D: the light's first bounce per unit scale on the HR leaves; rec.U its response."""
-        self._sync()
+        self.nodes.sync(self.records())
         h, pt = self.system.h, self.system.patches
         leaves = self._hr_leaves()
         eps = self.system.refiner.eps
-        unit = 2.0 ** (np.floor(np.log2(np.sqrt(self.total_area))) - 12)
-        v = node_incident(
-            h, leaves, rec.light, self.system.backend, eps, self.LIGHT_RAYS, unit=unit, far=2 * self.diag + 1
-        )
+        unit = 2.0 ** (np.floor(np.log2(np.sqrt(float(pt.area.sum())))) - 12)
+        v = node_incident(h, leaves, rec.light, self.system.backend, eps, LIGHT_RAYS, unit=unit, far=self.far)
         D = np.zeros((3, h.n))
         D[:, leaves] = pt.reflectance[:, h.patch[leaves]] * v
         rec.D = D
         if self.incremental == "warm":
             return 0
-        E = self._push(D)
+        E = self.solves.push(D)
         guess = None
         if old is not None and old.U is not None:  # a moved light lights the room much as before
-            guess = E + (old.U - self._push(old.D))
-        U, rep = self._solve(E, B0=guess, response=True)
+            guess = E + (old.U - self.solves.push(old.D))
+        U, rep = self.solves.solve(E, B0=guess, response=True)
         rec.U = U
         return rep.iterations

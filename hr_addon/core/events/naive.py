@@ -1,26 +1,25 @@
 """NAIVE: the active shapes as offset input patches over their surfaces, a new RadiositySystem."""
 
 import time
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from ..geometry import MeshInput, newell
 from ..output import locate, radiance_at
 from ..radiosity import RadiositySystem
 from .planar import _in_convex, _in_rings, slab_decomposition
-from .validation import _ShapeMixin
-
-if TYPE_CHECKING:
-    from .dynamic import DynamicRadiosity
+from .lightsrc import LIGHT_RAYS
+from .validation import find_surface, shape_plane, to2d
 
 
 class _NaiveState:
     """NAIVE: the active shapes as offset input patches, a new RadiositySystem, solved cold."""
 
-    def __init__(self, dyn: "DynamicRadiosity", recs):
+    def __init__(self, sysm, recs, lights=(), params=None, offset=1e-4, plane_tol=1e-3, far=None):
+        """sysm: the base RadiositySystem; recs: the active shapes' records; lights: the Blender
+        lights' records (lightsrc._LightRec); params: RefineParams of the rebuild (default the
+        system's); offset: naive_offset; plane_tol: as DynamicRadiosity's; far: the lights'
+        distance beyond the scene."""
         t0 = time.perf_counter()
-        sysm = dyn.system
         mesh, pt = sysm.mesh, sysm.patches
         self.groups = []
         verts, polys, rhos, ems, oids = [], [], [], [], []
@@ -29,8 +28,8 @@ class _NaiveState:
         todo = [r for r in recs]
         for r in todo:
             if r.n is None:
-                dyn._plane(r)
-                dyn._find_surface(r)
+                shape_plane(r, plane_tol)
+                find_surface(r, sysm)
         # Offset of the light patches off their surface: naive_offset x the size of what the shapes
         # light (the shapes and their surfaces), not of the scene (a far-away object must not lift
         # them off the wall); well above the rays' offset.
@@ -38,19 +37,17 @@ class _NaiveState:
             pt.corners[r.group].reshape(-1, 3) for r in todo if r.group is not None and len(r.group)
         ]
         local = np.concatenate(local) if local else np.zeros((1, 3))
-        delta = max(
-            dyn.naive_offset * float(np.linalg.norm(local.max(0) - local.min(0))), 20 * sysm.refiner.eps
-        )
+        delta = max(offset * float(np.linalg.norm(local.max(0) - local.min(0))), 20 * sysm.refiner.eps)
         while todo:
             r0 = todo[0]
             tol = max(r.tol for r in todo)
             grp = [r for r in todo if abs(r.n @ r0.n) > 0.999 and abs((r.c - r0.c) @ r0.n) <= tol]
             todo = [r for r in todo if r not in grp]
             pats = np.unique(np.concatenate([r.group for r in grp]).astype(np.int64))
-            rings = [[dyn._to2d(r0, x) for x in r.rings] for r in grp]
+            rings = [[to2d(r0, x) for x in r.rings] for r in grp]
             lo = np.min([x.min(0) for rr in rings for x in rr], 0)
             hi = np.max([x.max(0) for rr in rings for x in rr], 0)
-            p2 = dyn._to2d(r0, pt.corners[pats]) if len(pats) else np.zeros((0, 4, 2))
+            p2 = to2d(r0, pt.corners[pats]) if len(pats) else np.zeros((0, 4, 2))
             near = (p2.min(1) <= hi).all(1) & (p2.max(1) >= lo).all(1) if len(pats) else np.zeros(0, bool)
             pats = pats[near]
             # Host polygons touched by the shapes are replaced by their pieces (below), so no host leaf
@@ -66,7 +63,7 @@ class _NaiveState:
                 grp_repl = np.isin(pt.poly[pats], hp)
             else:
                 grp_repl = np.zeros(0, bool)
-            p2 = dyn._to2d(r0, pt.corners[pats]) if len(pats) else np.zeros((0, 4, 2))
+            p2 = to2d(r0, pt.corners[pats]) if len(pats) else np.zeros((0, 4, 2))
             edges = [np.stack([x, np.roll(x, -1, 0)], 1) for rr in rings for x in rr]
             edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in p2]
             edges = np.concatenate(edges)
@@ -91,22 +88,36 @@ class _NaiveState:
                 em += (_in_rings(mids, rr) & emits)[:, None] * r.emission[None]
             lit = em.max(1) > 0
             g_quads, g_patch, g_front = [], [], []
+
+            def add(p3, poly2, facing, rho, e, oid, front):
+                """One new input polygon p3 (its 2D outline poly2), wound to face `facing`; front:
+                the offset direction of a light patch (0 for pieces left on the surface)."""
+                if newell(p3) @ facing < 0:
+                    p3, poly2 = p3[::-1], poly2[::-1]
+                base = len(np.concatenate(verts)) if verts else 0
+                verts.append(p3)
+                polys.append(list(range(base, base + len(p3))))
+                rhos.append(rho)
+                ems.append(e)
+                oids.append(oid)
+                g_quads.append(np.concatenate([poly2, poly2[-1:]]) if len(poly2) == 3 else poly2)
+                g_patch.append(P0 + len(polys) - 1)
+                g_front.append(front)
+
             for t in np.flatnonzero(~lit & repl):  # uncovered pieces of a replaced host polygon
                 poly2 = traps[t][0]
                 hn = pt.normal[under[t]]
                 p3 = r0.c + poly2[:, :1] * r0.u + poly2[:, 1:2] * r0.v
                 p3 = p3 - (((p3 - pt.corners[under[t], 0]) @ hn) / (r0.n @ hn))[:, None] * r0.n[None]
-                if newell(p3) @ hn < 0:
-                    p3, poly2 = p3[::-1], poly2[::-1]
-                base = len(np.concatenate(verts)) if verts else 0
-                verts.append(p3)
-                polys.append(list(range(base, base + len(p3))))
-                rhos.append(pt.reflectance[:, under[t]])
-                ems.append(pt.emission[:, under[t]])
-                oids.append(int(pt.object_id[under[t]]))
-                g_quads.append(np.concatenate([poly2, poly2[-1:]]) if len(poly2) == 3 else poly2)
-                g_patch.append(P0 + len(polys) - 1)
-                g_front.append(np.zeros(3))
+                add(
+                    p3,
+                    poly2,
+                    hn,
+                    pt.reflectance[:, under[t]],
+                    pt.emission[:, under[t]],
+                    int(pt.object_id[under[t]]),
+                    np.zeros(3),
+                )
             for t in np.flatnonzero(lit):
                 poly2 = traps[t][0]
                 front = (
@@ -115,18 +126,9 @@ class _NaiveState:
                     else next(r.n for r, rr in zip(grp, rings) if _in_rings(mids[t : t + 1], rr)[0])
                 )
                 p3 = r0.c + poly2[:, :1] * r0.u + poly2[:, 1:2] * r0.v + delta * front
-                if newell(p3) @ front < 0:
-                    p3, poly2 = p3[::-1], poly2[::-1]
-                base = len(np.concatenate(verts)) if verts else 0
-                verts.append(p3)
-                polys.append(list(range(base, base + len(p3))))
-                rhos.append(pt.reflectance[:, under[t]] if under[t] >= 0 else np.zeros(3))
-                ems.append(em[t] + (pt.emission[:, under[t]] if under[t] >= 0 else 0))
-                oids.append(-1)
-                q4 = np.concatenate([poly2, poly2[-1:]]) if len(poly2) == 3 else poly2
-                g_quads.append(q4)
-                g_patch.append(P0 + len(polys) - 1)
-                g_front.append(front)
+                rho = pt.reflectance[:, under[t]] if under[t] >= 0 else np.zeros(3)
+                e = em[t] + (pt.emission[:, under[t]] if under[t] >= 0 else 0)
+                add(p3, poly2, front, rho, e, -1, front)
             if g_quads:
                 self.groups.append(
                     (r0, set(pats.tolist()), np.array(g_quads), np.array(g_patch), np.array(g_front))
@@ -157,26 +159,24 @@ class _NaiveState:
         kept = ~np.isin(pt.poly, self.replaced)
         self.patch_map = np.where(kept, np.cumsum(kept) - 1, -1)
         self.orig_poly = pt.poly
-        self.system = RadiositySystem(
-            nm, dyn.naive_params or sysm.params, backend=sysm.backend.name, tol=sysm.tol
-        )
+        self.system = RadiositySystem(nm, params or sysm.params, backend=sysm.backend.name, tol=sysm.tol)
         E = self.system.base_emission()
-        if getattr(dyn, "lights", None):
+        if lights:
             # Blender lights (issue 20): their first bounce on the rebuilt system's leaves
             from ..lights import node_incident
 
             h2, pt2 = self.system.h, self.system.patches
             leaves = np.flatnonzero(h2.child0[: h2.n] < 0)
             rho = pt2.reflectance[:, h2.patch[leaves]]
-            for rec in dyn.lights.values():
+            for rec in lights:
                 v = node_incident(
                     h2,
                     leaves,
                     rec.light,
                     self.system.backend,
                     self.system.refiner.eps,
-                    dyn.LIGHT_RAYS,
-                    far=2 * dyn.diag + 1,
+                    LIGHT_RAYS,
+                    far=far,
                 )
                 E[:, leaves] += rec.scale[:, None] * rho * v
         self.system.solve(E)
@@ -205,7 +205,7 @@ class _NaiveState:
             m = np.flatnonzero(np.isin(orig, list(pats)))
             if len(m) == 0:
                 continue
-            p2 = _ShapeMixin._to2d(r0, pts[m])
+            p2 = to2d(r0, pts[m])
             inc = _in_convex(p2, quads) & (pidx >= 0)[None]
             has = inc.any(1)
             # a point of a replaced polygon just outside every piece (rounding): the nearest piece
@@ -232,7 +232,7 @@ class _NaiveState:
             m = np.flatnonzero(np.isin(first, list(pats)))
             if len(m):
                 lit = front.any(1)  # unlit pieces (zero offset) are handled below
-                covered[m] = _in_convex(_ShapeMixin._to2d(r0, pos[m]), quads[lit]).any(1)
+                covered[m] = _in_convex(to2d(r0, pos[m]), quads[lit]).any(1)
         if covered.any():
             out[covered] = self.evaluate(pos[covered], first[covered])[0]
         # corners of replaced polygons: the pieces' smooth radiance, probed just inside the polygon

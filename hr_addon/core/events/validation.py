@@ -125,21 +125,29 @@ def outline_problem(rings2d, chunk=200_000):
     return ""
 
 
-class _ShapeMixin:
-    """DynamicRadiosity's validation and geometry of a shape (its plane, surfaces, classification)."""
+def check_emission(emission, name):
+    """The emission as 3 finite non-negative floats, else an InputError naming the shape."""
+    em = np.asarray(emission, float).reshape(-1)
+    if em.shape != (3,):
+        raise InputError(f"Light shape '{name}': emission must be 3 values (RGB), got shape {em.shape}.")
+    if not np.isfinite(em).all():
+        raise InputError(f"Light shape '{name}': emission {tuple(em)} is not finite.")
+    if (em < 0).any():
+        raise InputError(f"Light shape '{name}': negative emission {tuple(em)}.")
+    return em
 
-    @staticmethod
-    def _check_emission(emission, name):
-        em = np.asarray(emission, float).reshape(-1)
-        if em.shape != (3,):
-            raise InputError(f"Light shape '{name}': emission must be 3 values (RGB), got shape {em.shape}.")
-        if not np.isfinite(em).all():
-            raise InputError(f"Light shape '{name}': emission {tuple(em)} is not finite.")
-        if (em < 0).any():
-            raise InputError(f"Light shape '{name}': negative emission {tuple(em)}.")
-        return em
 
-    def _validate(self, key, shape):
+class ShapeValidator:
+    """Checks a LightShape before anything changes (finite, planar within plane_tol x its own size,
+    simple outline); remembers the outline checks of the last shapes seen (a shape that did not
+    change between frames is not checked again)."""
+
+    def __init__(self, plane_tol):
+        self.plane_tol = plane_tol
+        self._outline_ok = OrderedDict()  # rings' bytes -> '' or the problem
+
+    def validate(self, key, shape):
+        """(rings, emission, name) of a valid shape, else an InputError naming it."""
         name = getattr(shape, "name", "") or str(key)
         rings = getattr(shape, "rings", None)
         if rings is None or len(rings) == 0:
@@ -155,7 +163,7 @@ class _ShapeMixin:
             if not np.isfinite(r).all():
                 raise InputError(f"Light shape '{name}': ring {i} has NaN or infinite coordinates.")
             out.append(r)
-        em = self._check_emission(shape.emission, name)
+        em = check_emission(shape.emission, name)
         size = _size(out)
         nrm = newell(out[0])
         if np.linalg.norm(nrm) <= 1e-9 * size**2:
@@ -177,17 +185,13 @@ class _ShapeMixin:
                 f"(tolerance {tol:.3g}, {self.plane_tol:.2%} of its size)."
             )
         key = tuple(r.tobytes() for r in out)
-        problem = self._outline_ok.get(key) if hasattr(self, "_outline_ok") else None
+        problem = self._outline_ok.get(key)
         if problem is None:
-            axis = np.eye(3)[int(np.argmin(np.abs(n)))]
-            u = np.cross(n, axis)
-            u /= np.linalg.norm(u)
-            v = np.cross(n, u)
+            u, v = _basis(n)
             problem = outline_problem([np.stack([(r - c) @ u, (r - c) @ v], -1) for r in out])
-            cache = self.__dict__.setdefault("_outline_ok", OrderedDict())
-            cache[key] = problem
-            while len(cache) > 256:
-                cache.popitem(last=False)
+            self._outline_ok[key] = problem
+            while len(self._outline_ok) > 256:
+                self._outline_ok.popitem(last=False)
         if problem:
             raise InputError(
                 f"Light shape '{name}': {problem}. A light shape must be a simple outline "
@@ -198,98 +202,112 @@ class _ShapeMixin:
             raise InputError(f"Light shape '{name}': the outer ring has zero area.")
         return out, em, name
 
-    def _plane(self, rec):
-        nrm = newell(rec.rings[0])
-        rec.n = nrm / np.linalg.norm(nrm)
-        rec.c = rec.rings[0].mean(0)
-        axis = np.eye(3)[int(np.argmin(np.abs(rec.n)))]
-        rec.u = np.cross(rec.n, axis)
-        rec.u /= np.linalg.norm(rec.u)
-        rec.v = np.cross(rec.n, rec.u)
-        rec.rings2d = [self._to2d(rec, r) for r in rec.rings]
-        rec.tol = _plane_tolerance(rec.rings, self.plane_tol)
-        a = [abs(clip.polygon_area_2d(r)) for r in rec.rings2d]
-        rec.area = a[0] - sum(a[1:])
-        if rec.area <= 0:
-            raise InputError(f"Light shape '{rec.name}': its holes cover its whole area.")
 
-    @staticmethod
-    def _to2d(rec, p):
-        d = np.asarray(p, float) - rec.c
-        return np.stack([d @ rec.u, d @ rec.v], -1)
+def _basis(n):
+    """In-plane axes (u, v) of a shape with unit normal n: u is n x the coordinate axis least
+    aligned with n (a shape's own frame; planes.frames is the patches')."""
+    axis = np.eye(3)[int(np.argmin(np.abs(n)))]
+    u = np.cross(n, axis)
+    u /= np.linalg.norm(u)
+    return u, np.cross(n, u)
 
-    def _find_surface(self, rec):
-        pt = self.system.patches
-        tol = rec.tol
-        dist = np.abs((pt.corners - rec.c) @ rec.n).max(1)
-        al = pt.normal @ rec.n
-        cand = (dist <= tol) & (np.abs(al) >= 0.999)
-        if (cand & (al > 0)).any():
-            cand &= al > 0  # surfaces on both sides of the plane: the shape emits on its front side
-        rec.group = np.flatnonzero(cand)
-        rec.roots = np.zeros(0, np.int64)
-        rec.covered = 0.0
-        if len(rec.group):
-            frac, _, out = self._classify(rec, rec.group)
-            rec.roots = rec.group[~out]
-            rec.covered = float(np.sum(frac[~out] * self.system.h.area[rec.roots])) / rec.area
-        rec.on_surface = rec.covered > 1e-6
-        if rec.on_surface and rec.covered < 0.999:
-            rec.msgs.append(
-                f"shape '{rec.name}': only {100 * rec.covered:.1f}% of its area lies on "
-                "surfaces; the rest does not emit"
-            )
 
-    def off_surface_message(self, rec):
-        """Why a shape that lies on no surface (rec.on_surface False, after _find_surface) looks as it
-        does: NAIVE takes it as a separate emitter, so it shows on no surface. Names the nearest
-        parallel surface under its outline (within NEAR_SURFACE x the shape's size: a shape meant to
-        lie on it), the distance and the side."""
-        pt = self.system.patches
-        size = _size(rec.rings)
-        al = pt.normal @ rec.n
-        signed = ((pt.corners - rec.c) @ rec.n).mean(1)  # the patches' offset along the shape's normal
-        cand = np.flatnonzero((np.abs(al) >= 0.999) & (np.abs(signed) <= NEAR_SURFACE * size))
-        if len(cand):
-            _, _, out = self._classify(rec, cand)
-            cand = cand[~out]
-        tail = f"(more than the plane tolerance {_length(rec.tol)})"
-        if not len(cand):
-            return (
-                f"shape '{rec.name}' lies on no surface: handled by NAIVE as a separate emitter; it "
-                "lights the scene, but no surface shows its glow. To show it on a wall, put it in "
-                "the wall's plane (same coordinate), facing the same way"
-            )
-        k = cand[np.argmin(np.abs(signed[cand]))]
-        names = list(self.system.mesh.object_names)
-        oid = int(pt.object_id[k])
-        obj = names[oid] if 0 <= oid < len(names) else f"object {oid}"
-        d = _length(signed[k])
-        if al[k] > 0 and signed[k] < 0:
-            return (
-                f"Light shape '{rec.name}' is {d} in front of the surface of '{obj}' {tail}: it is "
-                f"handled as a separate emitter (NAIVE); it lights the scene, but '{obj}' does not "
-                "show its glow (the surface under it lies in its shadow). Move the shape onto the "
-                f"surface (same coordinate) to show it on '{obj}'"
-            )
-        if al[k] > 0:
-            return (
-                f"Light shape '{rec.name}' is {d} behind the surface of '{obj}' {tail}: it is "
-                f"handled as a separate emitter (NAIVE) that shines into the back of '{obj}', so it "
-                "lights nothing and does not show. Move the shape onto the surface (same coordinate)"
-            )
-        if signed[k] > 0:
-            return (
-                f"Light shape '{rec.name}' faces the surface of '{obj}' {d} in front of it {tail}: it "
-                f"is handled as a separate emitter (NAIVE) whose light falls only on '{obj}' right "
-                f"under it. Turn the shape to face away from '{obj}' (flip its normals) and move it "
-                "onto the surface"
-            )
-        return (
-            f"Light shape '{rec.name}' is {d} off the back of '{obj}' and faces away from it {tail}: it "
-            "is handled as a separate emitter (NAIVE); no surface shows its glow"
+def shape_plane(rec, plane_tol):
+    """Set the shape's plane on its record: normal n, centre c, axes u, v, rings2d, tol, area."""
+    nrm = newell(rec.rings[0])
+    rec.n = nrm / np.linalg.norm(nrm)
+    rec.c = rec.rings[0].mean(0)
+    rec.u, rec.v = _basis(rec.n)
+    rec.rings2d = [to2d(rec, r) for r in rec.rings]
+    rec.tol = _plane_tolerance(rec.rings, plane_tol)
+    a = [abs(clip.polygon_area_2d(r)) for r in rec.rings2d]
+    rec.area = a[0] - sum(a[1:])
+    if rec.area <= 0:
+        raise InputError(f"Light shape '{rec.name}': its holes cover its whole area.")
+
+
+def to2d(rec, p):
+    """Points p (..., 3) into the shape's plane frame: (..., 2)."""
+    d = np.asarray(p, float) - rec.c
+    return np.stack([d @ rec.u, d @ rec.v], -1)
+
+
+def find_surface(rec, system):
+    """The input patches the shape lies on (rec.group: in its plane, facing its way; rec.roots: those
+    it overlaps), the fraction of its area on them (rec.covered) and rec.on_surface."""
+    pt = system.patches
+    tol = rec.tol
+    dist = np.abs((pt.corners - rec.c) @ rec.n).max(1)
+    al = pt.normal @ rec.n
+    cand = (dist <= tol) & (np.abs(al) >= 0.999)
+    if (cand & (al > 0)).any():
+        cand &= al > 0  # surfaces on both sides of the plane: the shape emits on its front side
+    rec.group = np.flatnonzero(cand)
+    rec.roots = np.zeros(0, np.int64)
+    rec.covered = 0.0
+    if len(rec.group):
+        frac, _, out = classify(rec, system.h, rec.group)
+        rec.roots = rec.group[~out]
+        rec.covered = float(np.sum(frac[~out] * system.h.area[rec.roots])) / rec.area
+    rec.on_surface = rec.covered > 1e-6
+    if rec.on_surface and rec.covered < 0.999:
+        rec.msgs.append(
+            f"shape '{rec.name}': only {100 * rec.covered:.1f}% of its area lies on "
+            "surfaces; the rest does not emit"
         )
 
-    def _classify(self, rec, nodes):
-        h = self.system.h
-        return clip.classify(rec.rings2d, self._to2d(rec, h.corners[nodes]), h.nv[nodes])
+
+def off_surface_message(rec, system):
+    """Why a shape that lies on no surface (rec.on_surface False, after _find_surface) looks as it
+    does: NAIVE takes it as a separate emitter, so it shows on no surface. Names the nearest
+    parallel surface under its outline (within NEAR_SURFACE x the shape's size: a shape meant to
+    lie on it), the distance and the side."""
+    pt = system.patches
+    size = _size(rec.rings)
+    al = pt.normal @ rec.n
+    signed = ((pt.corners - rec.c) @ rec.n).mean(1)  # the patches' offset along the shape's normal
+    cand = np.flatnonzero((np.abs(al) >= 0.999) & (np.abs(signed) <= NEAR_SURFACE * size))
+    if len(cand):
+        _, _, out = classify(rec, system.h, cand)
+        cand = cand[~out]
+    tail = f"(more than the plane tolerance {_length(rec.tol)})"
+    if not len(cand):
+        return (
+            f"shape '{rec.name}' lies on no surface: handled by NAIVE as a separate emitter; it "
+            "lights the scene, but no surface shows its glow. To show it on a wall, put it in "
+            "the wall's plane (same coordinate), facing the same way"
+        )
+    k = cand[np.argmin(np.abs(signed[cand]))]
+    names = list(system.mesh.object_names)
+    oid = int(pt.object_id[k])
+    obj = names[oid] if 0 <= oid < len(names) else f"object {oid}"
+    d = _length(signed[k])
+    if al[k] > 0 and signed[k] < 0:
+        return (
+            f"Light shape '{rec.name}' is {d} in front of the surface of '{obj}' {tail}: it is "
+            f"handled as a separate emitter (NAIVE); it lights the scene, but '{obj}' does not "
+            "show its glow (the surface under it lies in its shadow). Move the shape onto the "
+            f"surface (same coordinate) to show it on '{obj}'"
+        )
+    if al[k] > 0:
+        return (
+            f"Light shape '{rec.name}' is {d} behind the surface of '{obj}' {tail}: it is "
+            f"handled as a separate emitter (NAIVE) that shines into the back of '{obj}', so it "
+            "lights nothing and does not show. Move the shape onto the surface (same coordinate)"
+        )
+    if signed[k] > 0:
+        return (
+            f"Light shape '{rec.name}' faces the surface of '{obj}' {d} in front of it {tail}: it "
+            f"is handled as a separate emitter (NAIVE) whose light falls only on '{obj}' right "
+            f"under it. Turn the shape to face away from '{obj}' (flip its normals) and move it "
+            "onto the surface"
+        )
+    return (
+        f"Light shape '{rec.name}' is {d} off the back of '{obj}' and faces away from it {tail}: it "
+        "is handled as a separate emitter (NAIVE); no surface shows its glow"
+    )
+
+
+def classify(rec, h, nodes):
+    """clip.classify of hierarchy nodes against the shape: (overlap fraction, inside, outside)."""
+    return clip.classify(rec.rings2d, to2d(rec, h.corners[nodes]), h.nv[nodes])

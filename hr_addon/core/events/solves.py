@@ -1,0 +1,52 @@
+"""The solves of light events on one hierarchy and link set: the operator (rebuilt when the
+hierarchy changes), base and response solves, and the push of first-bounce terms."""
+
+import numpy as np
+
+from ..solver import Operator, solve
+
+
+class Solves:
+    """tol: the base solution's and warm mode's tolerance; response_tol, response_float32: the
+    shapes' and lights' responses (DynamicRadiosity's docstring)."""
+
+    def __init__(self, h, links, tol, response_tol, response_float32):
+        self.h, self.links = h, links
+        self.tol, self.response_tol, self.response_float32 = tol, response_tol, response_float32
+        self._op = None
+        self._op_version = None
+
+    def operator(self):
+        h = self.h
+        if self._op is None or self._op_version != h.version or self._op.n != h.n:
+            self._op = Operator(h, self.links)
+            self._op_version = h.version
+        return self._op
+
+    def push(self, D):
+        """D (3, n) with every node's value added to its descendants (first-bounce terms are
+        stored per receiver node, not pushed)."""
+        h = self.h
+        D = D.copy()
+        par = h.parent[: h.n]
+        for lv in h.levels()[1:]:
+            D[:, lv] += D[:, par[lv]]
+        return D
+
+    def solve(self, E, B0=None, response=False):
+        """Solve with non-negative emission; the exact solution is non-negative, so the solver's
+        tiny negative excursions (GMRES is not monotone) are clipped. response: a shape's response
+        (response_tol, response_float32; its power balance is not reported)."""
+        op = self.operator()
+        if response and self.response_float32:
+            op = op.float32()
+        B, rep = solve(
+            self.h,
+            self.links,
+            E,
+            B0=B0,
+            tol=self.response_tol if response else self.tol,
+            op=op,
+            energy=not response,
+        )
+        return np.maximum(B, 0.0), rep
