@@ -122,7 +122,7 @@ class BackgroundBake:
         for key in ("method", "quality", "domain", "output", "texture_format", "radiance_mode"):
             if o.get(key):
                 args.append(f"--{key.replace('_', '-')}={str(o[key]).lower()}")
-        for key in ("feps", "aeps", "resolution"):
+        for key in ("feps", "aeps", "resolution", "threads"):
             if o.get(key) is not None:
                 args.append(f"--{key}={o[key]!r}")
         if o.get("contacts") is False:

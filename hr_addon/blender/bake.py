@@ -301,7 +301,7 @@ class _Bake:
                 )
 
         with self.intr.raising():
-            system = RadiositySystem(snap.mesh, params, progress=on_build)
+            system = RadiositySystem(snap.mesh, params, progress=on_build, threads=self.cfg.threads)
             dyn = None
             if snap.has_shapes or snap.lights:
                 dyn = DynamicRadiosity(
@@ -374,7 +374,7 @@ class _Bake:
     def final_gather(self, solution, baker):
         t1 = time.perf_counter()
         with self.intr.raising():
-            final = make_gather(solution, baker, self.cfg.gather)
+            final = make_gather(solution, baker, dict(self.cfg.gather, threads=self.cfg.threads))
         self.result.gather_seconds = time.perf_counter() - t1
         return final
 

@@ -113,6 +113,13 @@ def make_parser(prog=PROG, blend_required=False):
         choices=choices("domain"),
         help="vertex output per face corner (creases stay sharp) or per vertex",
     )
+    p.add_argument(
+        "--threads",
+        type=int,
+        metavar="N",
+        help="threads for the bake (default: the Scene setting Threads; 0: every core). "
+        "The result does not depend on it",
+    )
     p.add_argument("--scene", help="scene name (default: the active scene)")
     p.add_argument("--view-layer", help="view layer name (default: the window's, else the first)")
     p.add_argument(
@@ -152,6 +159,8 @@ def check_args(args):
     frames = parse_frames(args.frames) if args.frames is not None else None
     if args.blend is not None and not os.path.isfile(args.blend):
         raise UsageError(f"file not found: {args.blend}")
+    if args.threads is not None and args.threads < 0:
+        raise UsageError(f"bad --threads {args.threads} (0: every core, or a count)")
     if args.resolution is not None and resolution_problem(args.resolution):
         raise UsageError(resolution_problem(args.resolution))
     if args.save:
@@ -275,6 +284,7 @@ def _run(argv, prog, blend_required, intr):
             radiance_mode=args.radiance_mode,
             contacts=False if args.no_contacts else None,
             final_gather=False if args.no_final_gather else None,
+            threads=args.threads,
             cache_dir=args.cache_dir,
             status=status.progress if status is not None else None,
             interrupts=intr,

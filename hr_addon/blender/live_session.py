@@ -310,6 +310,7 @@ def _build(sess, scene, view_layer, depsgraph, reason):
         reason,
         len(scene_in.mesh.loop_start),
         cfg.gather,
+        cfg.live_threads,
     )
     sess.settings = _settings(scene)
     sess.geometry = scene_in.signatures

@@ -41,6 +41,7 @@ class BuildSpec:
     reason: str = ""  # shown while building ("first build", "'back' changed")
     polygons: int = 0
     gather: dict = None  # the final gather's settings (settings.gather_params), None: off
+    threads: int = 1  # core.parallel's threads (BakeConfig.live_threads: one core kept for the UI)
 
 
 @dataclass
@@ -221,7 +222,7 @@ class LiveWorker:
 
         self.dyn = self.gather = None  # the old ones are of no use any more (and may be large)
         try:
-            system = RadiositySystem(spec.mesh, spec.params, progress=progress)
+            system = RadiositySystem(spec.mesh, spec.params, progress=progress, threads=spec.threads)
             if self._superseded():
                 return
             dyn = DynamicRadiosity(
@@ -234,7 +235,7 @@ class LiveWorker:
             if self._superseded():
                 return
             # the output stage: its rays are traced once here, each edit is a sparse product
-            gather = LoopGather(dyn, **spec.gather) if spec.gather is not None else None
+            gather = LoopGather(dyn, threads=spec.threads, **spec.gather) if spec.gather is not None else None
         except Cancelled:
             return
         except (InputError, ValueError, RuntimeError, MemoryError) as exc:

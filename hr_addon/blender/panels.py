@@ -122,6 +122,7 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
         else:
             layout.prop(hr, "domain")
         layout.prop(hr, "cache_folder")
+        layout.prop(hr, "threads")
         # an operator for the checkbox: turned on, it starts from the scene's range (props.py)
         row = layout.row()
         row.operator(

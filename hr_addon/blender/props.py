@@ -56,6 +56,14 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         "right on small objects. Off: each point shows the hierarchy element it lies in (the classic "
         "hierarchical radiosity output, faster to set up)",
     )
+    threads: IntProperty(
+        name="Threads",
+        default=0,
+        min=0,
+        max=1024,
+        description="Threads for the bake (0: every core, as Cycles' Auto-detect). Live Relight keeps "
+        "one core for the interface. The result does not depend on it",
+    )
     output: EnumProperty(
         name="Output",
         items=items("output"),

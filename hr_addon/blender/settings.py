@@ -134,6 +134,7 @@ class BakeConfig:
     aeps: float
     contacts: bool
     final_gather: bool
+    threads: int = 0  # core.parallel.resolve_threads: 0 every core; never changes the result
 
     @classmethod
     def resolve(cls, hr, **overrides):
@@ -160,6 +161,7 @@ class BakeConfig:
             aeps=float(get("aeps")),
             contacts=bool(get("contacts")),
             final_gather=bool(get("final_gather")),
+            threads=int(get("threads")),
         )
         problem = resolution_problem(cfg.resolution) or (
             thresholds_problem(cfg.feps, cfg.aeps) if cfg.quality == "CUSTOM" else ""
@@ -181,6 +183,14 @@ class BakeConfig:
     @property
     def solve_options(self):
         return solve_options(self.quality, self.final_gather)
+
+    @property
+    def live_threads(self):
+        """Live Relight's threads: the setting, but one core kept for the interface (-1: all but
+        one)."""
+        from ..core.parallel import resolve_threads
+
+        return min(resolve_threads(self.threads), resolve_threads(-1))
 
 
 # Final gather (core/gather.py, docs/gather.md) per quality: hemisphere rays per output sample,

@@ -20,6 +20,7 @@ from .cluster import (
     sample_points,
     sh9,
 )
+from .parallel import batch_map, ranges
 
 
 class FarLinks:
@@ -212,6 +213,9 @@ def _end_factors(ids, e, part, u):
 
 # -- linking through the clusters -----------------------------------------------------------------------
 CHUNK = 200_000
+# pairs per batch of the oracle and the shadow tests on threads (core.parallel): fixed, so the links
+# do not depend on the thread count
+PAIR_BATCH = 1 << 13
 
 
 def link_clusters(refiner, tree: ClusterTree, progress=None):
@@ -261,39 +265,11 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             a, b = a[~both], b[~both]
         if not len(a):
             continue
-        ea, eb = Ends(tree, h, a), Ends(tree, h, b)
-        fa, ba = faces(ea, eb)
-        fb, bb = faces(eb, ea)
-        f_ab, dist = estimate(ea, eb)
-        f_ba, _ = estimate(eb, ea)
-        fmax = np.maximum(f_ab, f_ba)
-        drop = ba | bb | (fmax <= 0)
-        # A cluster end whose members do not all face the other end is "partial": its kernel is
-        # the SH approximation of the clamped cosine, allowed on one end of weak links only. A
-        # patch node whose plane cuts the other end cannot be partial (split the other end).
-        pa, pb = ~fa & ~ba & ea.cl, ~fb & ~bb & eb.cl
-        facing = (fa | pa) & (fb | pb) & ~(pa & pb)
-        # Small against the distance: a cluster end is seen through 4 member samples and one
-        # kernel direction, so its radius counts fully; a patch node end is integrated at 2 x 2
-        # Gauss points, so half its radius counts. And the link's transfer times its relative
-        # variation across either end below cluster_veps: strong, uneven links (near lights) go
-        # down to where the variation is resolved.
-        rho_a = np.where(ea.cl, np.where(ea.theta < GRAD_CONE, 1.0, CURVED), 0.5) * ea.radius
-        rho_b = np.where(eb.cl, np.where(eb.theta < GRAD_CONE, 1.0, CURVED), 0.5) * eb.radius
-        size = (rho_a + rho_b) / np.maximum(dist, 1e-300)
-        small = size < prm.cluster_ratio
-        cand = ~drop & facing & small
-        var_a, var_b = np.zeros(len(a)), np.zeros(len(a))
-        if cand.any():
-            var_a[cand], var_b[cand] = _variation(tree, h, a[cand], b[cand], refiner.eps)
-        even = fmax * np.maximum(var_a, var_b) < prm.cluster_veps
-        ok = ~drop & facing & small & even & (fmax < np.where(pa | pb, prm.partial_feps * prm.feps, prm.feps))
-        vis, mask = np.full(len(a), np.nan), np.zeros(len(a), np.uint16)
-        if prm.shadow_feps > 0:
-            shadow = ok & (fmax > prm.shadow_feps)
-            if shadow.any():
-                vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow])
-                ok &= ~(shadow & (vis > 0) & (vis < 1))
+        parts = batch_map(
+            lambda i, j: _classify(refiner, tree, a[i:j], b[i:j]), ranges(len(a), PAIR_BATCH), refiner.threads
+        )
+        c = {k: np.concatenate([x[k] for x in parts]) for k in parts[0]}
+        drop, ok, vis, mask, pa, pb, fmax = (c[k] for k in ("drop", "ok", "vis", "mask", "pa", "pb", "fmax"))
         if ok.any():
             far.append((a[ok], b[ok], vis[ok], mask[ok], pa[ok], pb[ok], fmax[ok]))
         done_w += weight(a[drop | ok], b[drop | ok])
@@ -304,15 +280,15 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         # the end that looks larger. Feps: the end with the larger form factor as seen from the
         # other (as in HSA).
         a, b = a[todo], b[todo]
-        th_a, th_b = ea.theta[todo], eb.theta[todo]
-        phi_a = np.arcsin(np.clip(rho_a[todo] / np.maximum(dist[todo], 1e-300), 0, 1))
-        phi_b = np.arcsin(np.clip(rho_b[todo] / np.maximum(dist[todo], 1e-300), 0, 1))
-        fa, fb = fa[todo], fb[todo]
+        th_a, th_b = c["theta_a"][todo], c["theta_b"][todo]
+        phi_a = np.arcsin(np.clip(c["rho_a"][todo] / np.maximum(c["dist"][todo], 1e-300), 0, 1))
+        phi_b = np.arcsin(np.clip(c["rho_b"][todo] / np.maximum(c["dist"][todo], 1e-300), 0, 1))
+        fa, fb = c["fa"][todo], c["fb"][todo]
         face_a = np.maximum(np.where(~fa, th_a, 0), np.where(~fb, phi_a, 0))
         face_b = np.maximum(np.where(~fa, phi_b, 0), np.where(~fb, th_b, 0))
-        by_face = ~facing[todo]
-        by_size = ~by_face & ~small[todo]
-        by_var = ~by_face & ~by_size & ~even[todo]
+        by_face = ~c["facing"][todo]
+        by_size = ~by_face & ~c["small"][todo]
+        by_var = ~by_face & ~by_size & ~c["even"][todo]
         prefer_a = np.where(
             by_face,
             face_a >= face_b,
@@ -322,12 +298,12 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
                 np.where(
                     by_var,
                     phi_a >= phi_b,
-                    np.where(fmax[todo] < prm.feps, phi_a >= phi_b, f_ba[todo] >= f_ab[todo]),
+                    np.where(fmax[todo] < prm.feps, phi_a >= phi_b, c["f_ba"][todo] >= c["f_ab"][todo]),
                 ),
             ),
         )
-        can_a = ea.cl[todo] | (ea.area[todo] > aeps)
-        can_b = eb.cl[todo] | (eb.area[todo] > aeps)
+        can_a = c["cl_a"][todo] | (c["area_a"][todo] > aeps)
+        can_b = c["cl_b"][todo] | (c["area_b"][todo] > aeps)
         # Too strong, too uneven or half shadowed, but the end that should be split cannot be (a
         # patch node at Aeps): splitting the other end would not lower the form factor or the
         # variation on that end, so link here, as HSA does with two unsplittable nodes.
@@ -359,9 +335,12 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         fa_, fb_, fv, fm, pa_, pb_, ff_ = (np.concatenate(x) for x in zip(*far))
         fs = np.ones(len(fv))
         todo = np.flatnonzero(np.isnan(fv))
-        for i in range(0, len(todo), CHUNK):
-            t = todo[i : i + CHUNK]
+
+        def shadows(i, j):  # every batch writes its own links
+            t = todo[i:j]
             fv[t], fm[t], fs[t] = far_visibility(refiner, tree, fa_[t], fb_[t], ff_[t] < prm.shadow_feps)
+
+        batch_map(shadows, ranges(len(todo), PAIR_BATCH), refiner.threads)
         keep = fv > 0
         links = FarLinks(
             tree,
@@ -382,6 +361,71 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         (np.concatenate(x) for x in zip(*nodes)) if nodes else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     )
     return links, p, q
+
+
+def _classify(refiner, tree, a, b):
+    """link_clusters' oracle for the pairs (a, b): every pair on its own (no hierarchy edits), so
+    batches of pairs run on threads. A dict of arrays: drop, ok (a far link here; vis, mask, pa,
+    pb, fmax of it) and what chooses the end to split."""
+    h, prm = refiner.h, refiner.params
+    ea, eb = Ends(tree, h, a), Ends(tree, h, b)
+    fa, ba = faces(ea, eb)
+    fb, bb = faces(eb, ea)
+    f_ab, dist = estimate(ea, eb)
+    f_ba, _ = estimate(eb, ea)
+    fmax = np.maximum(f_ab, f_ba)
+    drop = ba | bb | (fmax <= 0)
+    # A cluster end whose members do not all face the other end is "partial": its kernel is
+    # the SH approximation of the clamped cosine, allowed on one end of weak links only. A
+    # patch node whose plane cuts the other end cannot be partial (split the other end).
+    pa, pb = ~fa & ~ba & ea.cl, ~fb & ~bb & eb.cl
+    facing = (fa | pa) & (fb | pb) & ~(pa & pb)
+    # Small against the distance: a cluster end is seen through 4 member samples and one
+    # kernel direction, so its radius counts fully; a patch node end is integrated at 2 x 2
+    # Gauss points, so half its radius counts. And the link's transfer times its relative
+    # variation across either end below cluster_veps: strong, uneven links (near lights) go
+    # down to where the variation is resolved.
+    rho_a = np.where(ea.cl, np.where(ea.theta < GRAD_CONE, 1.0, CURVED), 0.5) * ea.radius
+    rho_b = np.where(eb.cl, np.where(eb.theta < GRAD_CONE, 1.0, CURVED), 0.5) * eb.radius
+    size = (rho_a + rho_b) / np.maximum(dist, 1e-300)
+    small = size < prm.cluster_ratio
+    cand = ~drop & facing & small
+    var_a, var_b = np.zeros(len(a)), np.zeros(len(a))
+    if cand.any():
+        var_a[cand], var_b[cand] = _variation(tree, h, a[cand], b[cand], refiner.eps)
+    even = fmax * np.maximum(var_a, var_b) < prm.cluster_veps
+    ok = ~drop & facing & small & even & (fmax < np.where(pa | pb, prm.partial_feps * prm.feps, prm.feps))
+    vis, mask = np.full(len(a), np.nan), np.zeros(len(a), np.uint16)
+    if prm.shadow_feps > 0:
+        shadow = ok & (fmax > prm.shadow_feps)
+        if shadow.any():
+            vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow])
+            ok &= ~(shadow & (vis > 0) & (vis < 1))
+    return dict(
+        drop=drop,
+        ok=ok,
+        vis=vis,
+        mask=mask,
+        pa=pa,
+        pb=pb,
+        fmax=fmax,
+        f_ab=f_ab,
+        f_ba=f_ba,
+        dist=dist,
+        rho_a=rho_a,
+        rho_b=rho_b,
+        fa=fa,
+        fb=fb,
+        facing=facing,
+        small=small,
+        even=even,
+        theta_a=ea.theta,
+        theta_b=eb.theta,
+        cl_a=ea.cl,
+        cl_b=eb.cl,
+        area_a=ea.area,
+        area_b=eb.area,
+    )
 
 
 def _variation(tree, h, a, b, eps):
@@ -441,11 +485,9 @@ def far_visibility(refiner, tree, a, b, weak=None):
         ).reshape(-1, 16)
         vis[st] = 1.0 - occ.mean(1)
         mask[st] = ((~occ) * (1 << np.arange(16))).sum(1)
-        refiner.stats["rays"] += occ.size
     if weak.any():
         occ = refiner.backend.occluded(pa[weak], pb[weak][:, ::-1]).reshape(-1, 4)
         vis[weak] = scale[weak] = 1.0 - occ.mean(1)
         mask[weak] = 0xFFFF
-        refiner.stats["rays"] += occ.size
-    refiner.stats["t_vis"] += time.perf_counter() - t0
+    refiner._count(rays=16 * int(st.sum()) + 4 * int(weak.sum()), t_vis=time.perf_counter() - t0)
     return vis, mask, scale

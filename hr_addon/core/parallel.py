@@ -14,11 +14,15 @@ operations; measured in docs/threads.md).
   thread is left behind. A batch that raises does the same with its exception.
 """
 
+import heapq
 import os
 import threading
+import time
+from contextlib import contextmanager
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
 _local = threading.local()
+_profile = None  # profiled(): the CPU seconds of each batch of every outermost inline batch map
 
 
 def available_cores():
@@ -69,11 +73,21 @@ def batch_map(fn, batches, threads=1, progress=None, poll=0.1):
     total = len(batches)
     threads = min(resolve_threads(threads), total)
     if threads <= 1 or in_worker():
-        out = []
-        for k, b in enumerate(batches):
-            out.append(fn(*b))
-            if progress is not None:
-                progress(k + 1, total)
+        # profiled(): only the outermost map's batches count (a map inside a batch is part of it)
+        outer = not getattr(_local, "mapping", False)
+        seconds, out = [], []
+        _local.mapping = True
+        try:
+            for k, b in enumerate(batches):
+                t0 = time.thread_time()
+                out.append(fn(*b))
+                seconds.append(time.thread_time() - t0)
+                if progress is not None:
+                    progress(k + 1, total)
+        finally:
+            _local.mapping = not outer
+        if _profile is not None and outer and not in_worker():
+            _profile.append(seconds)
         return out
     out = [None] * total
     pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="hr-batch")
@@ -97,3 +111,26 @@ def batch_map(fn, batches, threads=1, progress=None, poll=0.1):
             f.cancel()
         pool.shutdown(wait=True, cancel_futures=True)
     return out
+
+
+@contextmanager
+def profiled():
+    """Within it, every outermost batch map run inline (threads=1) appends the CPU seconds of its
+    batches to the yielded list: benchmarks/bench_threads.py's measure of what runs on threads and
+    what stays serial (Amdahl's law, docs/threads.md). Not thread-safe; for one bake at a time."""
+    global _profile
+    _profile = []
+    try:
+        yield _profile
+    finally:
+        _profile = None
+
+
+def makespan(seconds, threads):
+    """Wall seconds of batches taking `seconds` each (in order) on `threads` workers that each take
+    the next batch when free, as batch_map's pool does: the model of a map on more cores (it
+    assumes a batch takes as long on any core, i.e. no memory bandwidth or cache limit)."""
+    free = [0.0] * max(int(threads), 1)
+    for s in seconds:
+        heapq.heapreplace(free, free[0] + s)
+    return max(free)

@@ -11,6 +11,7 @@ larger (sample points on the small one, exact contour integral over the large on
 direction follows from reciprocity, so A_p F_pq = A_q F_qp exactly and neither exceeds 1.
 """
 
+import threading
 import time
 
 import numpy as np
@@ -20,6 +21,7 @@ from .contacts import sorted_index
 from .corrections import push_corrections
 from .hierarchy import Hierarchy
 from .links import Links
+from .parallel import batch_map, ranges
 from .params import RefineParams
 from .planes import Occluders
 from .progress import NO_PROGRESS
@@ -36,6 +38,9 @@ __all__ = [
 ]
 
 CHUNK = 100_000  # node pairs processed at once
+# links per batch of the final form factors and shadow tests on threads (core.parallel): fixed, so
+# the values do not depend on the thread count; small enough that a 10k-triangle room has many
+LINK_BATCH = 1 << 13
 
 
 def _facing(h, p, q, tol):
@@ -115,6 +120,11 @@ class Refiner:
             "t_refine": 0.0,
         }
         self.occluders = Occluders(h.patches)
+        self._stats_lock = threading.Lock()  # visibility() runs on core.parallel's threads
+
+    @property
+    def threads(self):
+        return self.backend.threads
 
     def _maybe_occluded(self, a, b):
         """Shaft test of node pairs (planes.Occluders): False where the pair is certainly
@@ -135,11 +145,10 @@ class Refiner:
         h, k = self.h, self.params.vis_k
         vis = np.ones(len(a))
         test = self._maybe_occluded(a, b)
-        self.stats["pairs_culled"] += int(len(a) - test.sum())
         a, b = a[test], b[test]
         weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)[test]
         if len(a) == 0:
-            self.stats["t_vis"] += time.perf_counter() - t0
+            self._count(pairs_culled=len(test), t_vis=time.perf_counter() - t0)
             return vis
         pa = self.sample_points(a) + self.eps * h.normal[a][:, None]
         pb = self.sample_points(b) + self.eps * h.normal[b][:, None]
@@ -150,13 +159,20 @@ class Refiner:
             ra = np.repeat(pa[st], s, axis=1).reshape(-1, 3)
             rb = np.tile(pb[st], (1, s, 1)).reshape(-1, 3)
             out[st] = 1.0 - self.backend.occluded(ra, rb).reshape(-1, s * s).mean(1)
-            self.stats["rays"] += len(ra)
         if weak.any():
             out[weak] = 1.0 - self.backend.occluded(pa[weak], pb[weak][:, ::-1]).mean(1)
-            self.stats["rays"] += int(weak.sum()) * s
         vis[test] = out
-        self.stats["t_vis"] += time.perf_counter() - t0
+        self._count(
+            pairs_culled=len(test) - len(a),
+            rays=int(st.sum()) * s * s + int(weak.sum()) * s,
+            t_vis=time.perf_counter() - t0,
+        )
         return vis
+
+    def _count(self, **add):
+        with self._stats_lock:
+            for key, v in add.items():
+                self.stats[key] += v
 
     def contacts(self):
         """Refine partly covered receivers along their contacts and set node exposures
@@ -187,7 +203,7 @@ class Refiner:
         self.stats["contact_receivers"] = len(c.receivers)
         return c
 
-    def _exposed_form_factors(self, a, b, f_ab, f_ba, chunk=20_000):
+    def _exposed_form_factors(self, a, b, f_ab, f_ba, chunk=LINK_BATCH):
         """Links with a partly covered end: F integrated over that end's exposed part (its
         covered part sees nothing; a box's side, say, is behind it), the other direction by
         reciprocity, so the kernel stays symmetric (in place)."""
@@ -204,8 +220,9 @@ class Refiner:
         use_b = near & (ib >= 0) & ~use_a
         for sel, x, y, ix in ((use_a, a, b, ia), (use_b, b, a, ib)):
             m = np.flatnonzero(sel)
-            for s0 in range(0, len(m), chunk):
-                mm = m[s0 : s0 + chunk]
+
+            def batch(i, j, x=x, y=y, ix=ix, m=m):  # every batch writes its own links
+                mm = m[i:j]
                 xs, ys, k = x[mm], y[mm], ix[mm]
                 vals = ff.point_to_polygon(
                     self._ff_pts[k],
@@ -221,6 +238,8 @@ class Refiner:
                     f_ab[mm], f_ba[mm] = fx, fy
                 else:
                     f_ba[mm], f_ab[mm] = fx, fy
+
+            batch_map(batch, ranges(len(m), chunk), self.threads)
 
     def centres(self, nodes):
         """Node centres for the oracle, of the exposed part where a node is partly covered."""
@@ -338,17 +357,22 @@ class Refiner:
         a, b, vis = (np.concatenate(x) for x in zip(*out))
         t0 = time.perf_counter()
         f_ab, f_ba = np.empty(len(a)), np.empty(len(a))
-        for i in range(0, len(a), CHUNK):
-            sl = slice(i, i + CHUNK)
-            f_ab[sl], f_ba[sl] = link_form_factors(self.h, a[sl], b[sl], self.params.ff_order)
+
+        def form_factors(i, j):  # every batch writes its own links
+            f_ab[i:j], f_ba[i:j] = link_form_factors(self.h, a[i:j], b[i:j], self.params.ff_order)
+
+        batch_map(form_factors, ranges(len(a), LINK_BATCH), self.threads)
         self._exposed_form_factors(a, b, f_ab, f_ba)
         self.stats["t_ff"] += time.perf_counter() - t0
         # links too weak to need a shadow test need no more than a few rays either
         weak = np.maximum(f_ab, f_ba) < self.params.shadow_feps
         todo = np.flatnonzero(np.isnan(vis))
-        for i in range(0, len(todo), CHUNK):
-            t = todo[i : i + CHUNK]
+
+        def shadows(i, j):
+            t = todo[i:j]
             vis[t] = self.visibility(a[t], b[t], weak[t])
+
+        batch_map(shadows, ranges(len(todo), LINK_BATCH), self.threads)
         keep = (vis > 0) & ((f_ab > 0) | (f_ba > 0))
         return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])
 

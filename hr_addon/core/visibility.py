@@ -152,7 +152,7 @@ class RayBackend:
     def _map(self, kernel, a, d):
         """kernel(a, d) over chunks of PARALLEL_CHUNK rays on self.threads threads, concatenated
         (a tuple of arrays per chunk for first_hit's kernel)."""
-        if self.threads == 1 or len(a) <= self.PARALLEL_CHUNK or in_worker():
+        if len(a) <= self.PARALLEL_CHUNK or in_worker():  # 1 thread: the same chunks, inline
             return kernel(a, d)
         parts = batch_map(
             lambda i, j: kernel(a[i:j], d[i:j]), ranges(len(a), self.PARALLEL_CHUNK), self.threads
