@@ -8,10 +8,17 @@ transport), the first output (direct light of the static emitters + the gather),
 new window) and its output, one AUTO event and its output. The values of all runs are compared
 too (they must be equal).
 
+The 1-thread runs also profile (core.parallel.profiled): the CPU seconds of every batch of the
+threaded maps, and so of what stays serial per phase. From those, Amdahl's law with the pool's own
+schedule (parallel.makespan) models each phase on N cores: serial CPU + the batches' makespan on N
+workers. CPU time hardly depends on the load of a shared machine, unlike wall time; the model
+assumes a batch takes as long on any core (no memory bandwidth limit: an upper bound).
+
     .venv/bin/python benchmarks/bench_threads.py [--size 20k] [--runs 1@0,1@0-1,2@0-1] [--json out.json]
 """
 
 import argparse
+import contextlib
 import json
 import os
 import subprocess
@@ -26,6 +33,14 @@ import numpy as np  # noqa: E402
 
 
 def child(size, threads, quality, dump):
+    from hr_addon.core import parallel
+
+    prof = parallel.profiled() if threads == 1 else contextlib.nullcontext([])
+    with prof as maps:
+        return _phases(size, threads, quality, dump, maps)
+
+
+def _phases(size, threads, quality, dump, maps):
     from hr_testing import shapes as S
     from hr_testing.furnished import furnished_room
     from hr_addon.core.events import DynamicRadiosity, LightShape
@@ -42,13 +57,14 @@ def child(size, threads, quality, dump):
     dkw = DynamicRadiosity.gather_options(quality)
     out, values = {}, {}
 
-    cpu = {}
+    cpu, batches = {}, {}
 
     def phase(name, fn):
-        t0, c0 = wall(), time.process_time()
+        t0, c0, m0 = wall(), time.process_time(), len(maps)
         r = fn()
         out[name] = wall() - t0
         cpu[name] = time.process_time() - c0
+        batches[name] = maps[m0:]  # the CPU seconds of the batches of each threaded map
         print(f"  {name:22s} {out[name]:7.2f} s", file=sys.stderr, flush=True)
         return r
 
@@ -67,7 +83,8 @@ def child(size, threads, quality, dump):
     g.loop_radiance(dyn2)  # the base parts of this DynamicRadiosity
     phase("AUTO event", lambda: dyn2.add("w", window))
     values["AUTO"] = phase("AUTO output", lambda: g.loop_radiance(dyn2))
-    out["samples"], out["links"], out["cpu"] = g.n, len(s.links), cpu
+    out["samples"], out["links"], out["cpu"], out["batches"] = g.n, len(s.links), cpu, batches
+    out["profiled"] = threads == 1
     if dump:
         np.savez(dump, **values)
     return out
@@ -96,7 +113,7 @@ def main(argv=None):
         runs[run] = json.loads(r.stdout.strip().splitlines()[-1])
     ks = list(runs)
     first, last = ks[0], ks[-1]
-    names = [k for k in runs[first] if k not in ("samples", "links", "cpu")]
+    names = [k for k in runs[first] if k not in ("samples", "links", "cpu", "batches", "profiled")]
     print(f"\n{args.size} room, {runs[first]['samples']:,} samples, {runs[first]['links']:,} links; wall s")
     head = f"{'phase':22s}" + "".join(f"{'thr ' + k:>12s}" for k in ks) + f"{'speed-up':>10s}"
     if len(ks) > 2:
@@ -114,13 +131,43 @@ def main(argv=None):
     print("CPU s / wall s per run:")
     for n in names:
         print(f"{n:22s}" + "".join(f"{runs[k]['cpu'][n] / runs[k][n]:12.2f}" for k in ks))
+    amdahl = {k: amdahl_table(runs[k], names) for k in ks if runs[k]["profiled"]}
+    for k, table in amdahl.items():
+        print(f"Amdahl model from the profile of run {k} (CPU s; threaded share; modelled speed-up):")
+        print(f"{'phase':22s}{'CPU s':>9s}{'serial s':>10s}{'threaded':>10s}{'2 cores':>9s}{'16 cores':>9s}")
+        for n, r in table.items():
+            print(
+                f"{n:22s}{r['cpu']:9.2f}{r['serial']:10.2f}{r['share']:10.2f}"
+                f"{r['speedup'][2]:9.2f}{r['speedup'][16]:9.2f}"
+            )
     loaded = [np.load(dumps[k]) for k in ks]
     equal = {f: all(bool(np.array_equal(loaded[0][f], x[f])) for x in loaded[1:]) for f in loaded[0].files}
     print("values equal across runs:", equal)
     for p in dumps.values():
         os.remove(p)
     if args.json:
-        Path(args.json).write_text(json.dumps(dict(size=args.size, runs=runs, equal=equal), indent=1))
+        Path(args.json).write_text(json.dumps(dict(size=args.size, runs=runs, equal=equal, amdahl=amdahl)))
+
+
+def amdahl_table(run, names, cores=(2, 4, 8, 16)):
+    """Per phase of a profiled 1-thread run: CPU s, its serial part (outside the threaded maps),
+    the threaded share and the modelled speed-up on each core count (serial + the maps' makespan)."""
+    from hr_addon.core.parallel import makespan
+
+    out = {}
+    names = [*names, "total"]
+    for n in names:
+        maps = [m for k in names[:-1] for m in run["batches"][k]] if n == "total" else run["batches"][n]
+        cpu = sum(run["cpu"][k] for k in names[:-1]) if n == "total" else run["cpu"][n]
+        par = sum(map(sum, maps))
+        serial = max(cpu - par, 0.0)
+        out[n] = dict(
+            cpu=cpu,
+            serial=serial,
+            share=par / cpu if cpu > 0 else 0.0,
+            speedup={c: cpu / (serial + sum(makespan(m, c) for m in maps)) for c in cores},
+        )
+    return out
 
 
 if __name__ == "__main__":

@@ -184,3 +184,85 @@ def test_a_cancel_during_the_gather_precompute_leaves_no_worker(cornell_events):
         LoopGather(cornell_events[0], rays=32, batch_rays=128, threads=2, progress=progress)
     assert not _workers()
     assert len(seen) == 1 and seen[0][0] == 1 < seen[0][1] and seen[0][2]
+
+
+@pytest.fixture
+def small_batches(monkeypatch):
+    """Batches small enough that the small test scenes split into many (the product's sizes are
+    fixed too, larger: the values never depend on the thread count, only on the batch bounds)."""
+    from hr_addon.core import farlinks, refine
+    from hr_addon.core.gather import FinalGather
+    from hr_addon.core.visibility import RayBackend
+
+    monkeypatch.setattr(refine, "LINK_BATCH", 97)
+    monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
+    monkeypatch.setattr(RayBackend, "PARALLEL_CHUNK", 1000)
+    monkeypatch.setattr(FinalGather, "BATCH_RAYS", 4096)
+
+
+def _links(s):
+    L, F = s.links, s.links.far
+    return [L.a, L.b, L.f_ab, L.f_ba, L.vis, s.h.child0, s.h.area, F.a, F.b, F.vis, F.mask]
+
+
+def test_build_with_one_and_two_threads_gives_identical_links(small_batches):
+    """The furnished room (clusters, far links, contacts): links, form factors, visibility and
+    the hierarchy are bitwise equal with 1 and 2 threads, and the rays counted are the same."""
+    from hr_testing.furnished import furnished_room
+
+    mesh = furnished_room("2k")[0]
+    s1, s2 = (RadiositySystem(mesh, RefineParams.for_gather("draft"), threads=t) for t in (1, 2))
+    assert len(s1.links) > 1000
+    for x, y in zip(_links(s1), _links(s2), strict=True):
+        assert np.array_equal(x, y)
+    assert s1.refiner.stats["rays"] == s2.refiner.stats["rays"] > 0
+    assert not _workers()
+
+
+@pytest.mark.parametrize("method", ["FE", "AR", "AUTO", "NAIVE"])
+def test_events_with_one_and_two_threads_give_identical_values(method, small_batches):
+    """Every method: the system built, the event applied (a light shape and a Blender light) and
+    the gathered output, with 1 and 2 threads: equal to rtol 1e-12 (bitwise where the batches
+    are the whole of the work)."""
+    lamp = Light("POINT", (1.0, 0.9, 0.8), 5.0, position=(0.3, 0.25, 0.4), radius=0.02, name="lamp")
+    shape = LightShape(S.on_plane(RECT, S.CORNELL_BACK_WALL), np.array([4.0, 3, 2]), "a")
+    out = []
+    for threads in (1, 2):
+        base = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"), threads=threads)
+        dyn = DynamicRadiosity(base, method=method)
+        dyn.apply({"a": shape}, {"light:lamp": lamp})
+        g = LoopGather(dyn, rays=32, shadow_rays=8, levels=2, iterations=2, threads=threads)
+        out.append((dyn.loop_radiance(), g.loop_radiance(dyn)))
+    for x, y in zip(*out):
+        assert np.abs(x).max() > 0
+        np.testing.assert_allclose(x, y, rtol=1e-12, atol=0)
+    assert not _workers()
+
+
+def test_a_cancel_during_the_threaded_build_leaves_no_worker(small_batches):
+    """Cancel from the build's progress (the bake's Cancel button) and Ctrl-C arriving while
+    the linking's batches run on 2 threads: the build stops, no worker thread is left."""
+    import _thread
+
+    from hr_testing.furnished import furnished_room
+
+    mesh = furnished_room("2k")[0]
+    seen = []
+
+    def cancel(info):
+        seen.append(threading.current_thread() is threading.main_thread())
+        if info.phase == "linking":
+            raise Cancelled("stop")
+
+    with pytest.raises(Cancelled):
+        RadiositySystem(mesh, RefineParams.for_gather("draft"), progress=cancel, threads=2)
+    assert not _workers() and seen and all(seen)
+
+    def ctrl_c(info):  # the signal arrives in the main thread while it waits for the workers
+        if info.phase == "linking":
+            _thread.interrupt_main()
+
+    with pytest.raises(KeyboardInterrupt):
+        RadiositySystem(mesh, RefineParams.for_gather("draft"), progress=ctrl_c, threads=2)
+        time.sleep(5)  # not reached when the interrupt stops the build
+    assert not _workers()

@@ -159,7 +159,9 @@ class _NaiveState:
         kept = ~np.isin(pt.poly, self.replaced)
         self.patch_map = np.where(kept, np.cumsum(kept) - 1, -1)
         self.orig_poly = pt.poly
-        self.system = RadiositySystem(nm, params or sysm.params, backend=sysm.backend.name, tol=sysm.tol)
+        self.system = RadiositySystem(
+            nm, params or sysm.params, backend=sysm.backend.name, tol=sysm.tol, threads=sysm.backend.threads
+        )
         E = self.system.base_emission()
         if lights:
             # Blender lights (issue 20): their first bounce on the rebuilt system's leaves
