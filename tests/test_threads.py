@@ -266,3 +266,34 @@ def test_a_cancel_during_the_threaded_build_leaves_no_worker(small_batches):
         RadiositySystem(mesh, RefineParams.for_gather("draft"), progress=ctrl_c, threads=2)
         time.sleep(5)  # not reached when the interrupt stops the build
     assert not _workers()
+
+
+@pytest.mark.bpy
+@pytest.mark.parametrize("output", ["vertex", "texture"])
+def test_command_line_bakes_with_one_and_two_threads_are_equal(output, tmp_path, small_batches, capsys):
+    """`--threads 1` and `--threads 2` through the command line (in this process, so the small
+    batches apply): the same cache values, vertex colours and texture images alike."""
+    from test_blender_helpers import load_bpy, open_sample
+
+    load_bpy()
+    from hr_addon.blender import cli
+    from hr_addon.io.cache import CacheReader
+
+    path = open_sample("cornell", tmp_path)
+    assert cli.run([str(path), "--threads", "-1"]) == 2
+    assert "bad --threads -1" in capsys.readouterr().err
+    args = [str(path), "--frames", "6-6", "--quality", "draft", "--method", "auto", "--output", output]
+    args += ["--resolution", "16", "--texture-format", "exr"] if output == "texture" else []
+    values = []
+    for threads in (1, 2):
+        cache = tmp_path / f"threads{threads}"
+        assert cli.run([*args, "--threads", str(threads), f"--cache-dir={cache}"]) == 0
+        assert not _workers()
+        if output == "vertex":
+            values.append(CacheReader(cache).load(6))
+        else:
+            values.append({p.name: p.read_bytes() for p in sorted((cache / "textures").iterdir())})
+    assert sorted(values[0]) == sorted(values[1]) and values[0]
+    for name in values[0]:
+        x, y = values[0][name], values[1][name]
+        assert np.array_equal(x, y) if output == "vertex" else x == y, name
