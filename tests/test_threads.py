@@ -297,3 +297,27 @@ def test_command_line_bakes_with_one_and_two_threads_are_equal(output, tmp_path,
     for name in values[0]:
         x, y = values[0][name], values[1][name]
         assert np.array_equal(x, y) if output == "vertex" else x == y, name
+
+
+def test_the_threads_setting_and_live_keeping_one_core(monkeypatch):
+    """Scene.hr.threads (0: every core) reaches the bake's settings; Live uses all cores but one,
+    and never more than the setting."""
+    from types import SimpleNamespace
+
+    from hr_addon.blender.settings import BakeConfig
+
+    monkeypatch.setattr(parallel, "available_cores", lambda: 8)
+    hr = SimpleNamespace(
+        method="AUTO", quality="DRAFT", domain="CORNER", output="VERTEX", texture_format="EXR",
+        radiance_mode="RADIANCE", texture_resolution=256, feps=0.01, aeps=0.001, contacts=True,
+        final_gather=True, threads=0,
+    )  # fmt: skip
+    cfg = BakeConfig.resolve(hr)
+    assert (cfg.threads, parallel.resolve_threads(cfg.threads), cfg.live_threads) == (0, 8, 7)
+    assert (BakeConfig.resolve(hr, threads=3).threads, BakeConfig.resolve(hr, threads=3).live_threads) == (
+        3,
+        3,
+    )
+    assert BakeConfig.resolve(hr, threads=16).live_threads == 7
+    monkeypatch.setattr(parallel, "available_cores", lambda: 1)
+    assert BakeConfig.resolve(hr).live_threads == 1
