@@ -314,10 +314,8 @@ def test_the_threads_setting_and_live_keeping_one_core(monkeypatch):
     )  # fmt: skip
     cfg = BakeConfig.resolve(hr)
     assert (cfg.threads, parallel.resolve_threads(cfg.threads), cfg.live_threads) == (0, 8, 7)
-    assert (BakeConfig.resolve(hr, threads=3).threads, BakeConfig.resolve(hr, threads=3).live_threads) == (
-        3,
-        3,
-    )
+    three = BakeConfig.resolve(hr, threads=3)
+    assert (three.threads, three.live_threads) == (3, 3)
     assert BakeConfig.resolve(hr, threads=16).live_threads == 7
     monkeypatch.setattr(parallel, "available_cores", lambda: 1)
     assert BakeConfig.resolve(hr).live_threads == 1
