@@ -31,6 +31,8 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
+PHASE_KEYS = ("samples", "links", "cpu", "batches", "profiled")  # a run's entries that are no phase
+
 
 def child(size, threads, quality, dump):
     from hr_addon.core import parallel
@@ -113,7 +115,7 @@ def main(argv=None):
         runs[run] = json.loads(r.stdout.strip().splitlines()[-1])
     ks = list(runs)
     first, last = ks[0], ks[-1]
-    names = [k for k in runs[first] if k not in ("samples", "links", "cpu", "batches", "profiled")]
+    names = [k for k in runs[first] if k not in PHASE_KEYS]
     print(f"\n{args.size} room, {runs[first]['samples']:,} samples, {runs[first]['links']:,} links; wall s")
     head = f"{'phase':22s}" + "".join(f"{'thr ' + k:>12s}" for k in ks) + f"{'speed-up':>10s}"
     if len(ks) > 2:
