@@ -20,7 +20,7 @@ from .cluster import (
     sample_points,
     sh9,
 )
-from .parallel import batch_map, ranges
+from .parallel import add_counts, batch_map, ranges
 
 
 class FarLinks:
@@ -489,5 +489,5 @@ def far_visibility(refiner, tree, a, b, weak=None):
         occ = refiner.backend.occluded(pa[weak], pb[weak][:, ::-1]).reshape(-1, 4)
         vis[weak] = scale[weak] = 1.0 - occ.mean(1)
         mask[weak] = 0xFFFF
-    refiner._count(rays=16 * int(st.sum()) + 4 * int(weak.sum()), t_vis=time.perf_counter() - t0)
+    add_counts(refiner.stats, rays=16 * int(st.sum()) + 4 * int(weak.sum()), t_vis=time.perf_counter() - t0)
     return vis, mask, scale

@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
 _local = threading.local()
+_counts_lock = threading.Lock()
 _profile = None  # profiled(): the CPU seconds of each batch of every outermost inline batch map
 
 
@@ -41,6 +42,14 @@ def resolve_threads(threads):
         return cores
     threads = int(threads)
     return max(cores + threads if threads < 0 else threads, 1)
+
+
+def add_counts(stats, **add):
+    """stats[key] += value for each keyword, under a lock: counters that batch_map's workers update
+    (a dict's += is a read and a write: two workers could lose one of them)."""
+    with _counts_lock:
+        for key, v in add.items():
+            stats[key] += v
 
 
 def ranges(n, step):

@@ -11,7 +11,6 @@ larger (sample points on the small one, exact contour integral over the large on
 direction follows from reciprocity, so A_p F_pq = A_q F_qp exactly and neither exceeds 1.
 """
 
-import threading
 import time
 
 import numpy as np
@@ -21,7 +20,7 @@ from .contacts import sorted_index
 from .corrections import push_corrections
 from .hierarchy import Hierarchy
 from .links import Links
-from .parallel import batch_map, ranges
+from .parallel import add_counts, batch_map, ranges
 from .params import RefineParams
 from .planes import Occluders
 from .progress import NO_PROGRESS
@@ -120,7 +119,6 @@ class Refiner:
             "t_refine": 0.0,
         }
         self.occluders = Occluders(h.patches)
-        self._stats_lock = threading.Lock()  # visibility() runs on core.parallel's threads
 
     @property
     def threads(self):
@@ -148,7 +146,7 @@ class Refiner:
         a, b = a[test], b[test]
         weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)[test]
         if len(a) == 0:
-            self._count(pairs_culled=len(test), t_vis=time.perf_counter() - t0)
+            add_counts(self.stats, pairs_culled=len(test), t_vis=time.perf_counter() - t0)
             return vis
         pa = self.sample_points(a) + self.eps * h.normal[a][:, None]
         pb = self.sample_points(b) + self.eps * h.normal[b][:, None]
@@ -162,17 +160,13 @@ class Refiner:
         if weak.any():
             out[weak] = 1.0 - self.backend.occluded(pa[weak], pb[weak][:, ::-1]).mean(1)
         vis[test] = out
-        self._count(
+        add_counts(
+            self.stats,
             pairs_culled=len(test) - len(a),
             rays=int(st.sum()) * s * s + int(weak.sum()) * s,
             t_vis=time.perf_counter() - t0,
         )
         return vis
-
-    def _count(self, **add):
-        with self._stats_lock:
-            for key, v in add.items():
-                self.stats[key] += v
 
     def contacts(self):
         """Refine partly covered receivers along their contacts and set node exposures
