@@ -113,3 +113,39 @@ class RadiositySystem:
         if self.B is None:
             self.solve()
         return loop_radiance(self.h, self.B, self.mesh, smooth_angle, domain)
+
+    # -- the solution interface, shared with DynamicRadiosity (texels, gather, lightmap plan read a
+    # solution through it): a RadiositySystem is the solution without light events ---------------
+    naive_active = False
+    incremental = None  # no cached responses to sum
+
+    @property
+    def system(self):
+        return self
+
+    @property
+    def n_hr(self):
+        return self.h.n
+
+    @property
+    def shapes(self):
+        return {}
+
+    @property
+    def lights(self):
+        return {}
+
+    def current(self):
+        """(h, B, E, links) of the solution in effect (solved if it is not yet)."""
+        if self.B is None:
+            self.solve()
+        return self.h, self.B, self.base_emission(), self.links
+
+    def solution_at(self, points, patch_ids):
+        """(h, B, patch_ids, points): DynamicRadiosity.solution_at without events."""
+        h, B, _, _ = self.current()
+        return h, B, patch_ids, points
+
+    def loop_field(self, X, domain="CORNER", smooth_angle=30.0):
+        """A node field X (3, n) other than B, per input loop (or vertex) as loop_radiance."""
+        return loop_radiance(self.h, X, self.mesh, smooth_angle, domain)

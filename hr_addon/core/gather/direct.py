@@ -271,15 +271,14 @@ class DirectLight:
                 del self._light_cache[k]
         return got
 
-    def direct_and_emission(self, dyn=None):
+    def direct_and_emission(self, dyn):
         """(D (n, 3) direct light, E (n, 3) emission at the points) of the current emitters."""
         D = self.direct_static().copy()
         E = self.E_static.copy()
-        for rec in getattr(dyn, "lights", {}).values() if dyn is not None and hasattr(dyn, "n_hr") else ():
+        for rec in dyn.lights.values():
             D += self._light(rec)[:, None] * rec.scale[None]
-        shapes = getattr(dyn, "shapes", None) if dyn is not None and hasattr(dyn, "n_hr") else None
         live = set()
-        for rec in (shapes or {}).values():
+        for rec in dyn.shapes.values():
             Ds, inside = self._shape(dyn, rec)
             live.add(rec.geom_key)
             D += Ds[:, None] * rec.emission[None]

@@ -97,12 +97,12 @@ class LoopGather(FinalGather):
     inset: see loop_samples (0.5: samples in the corners' regions, averaged; 0: at the corners)."""
 
     def __init__(self, system, smooth_angle=30.0, inset=0.5, **kw):
-        s = system.system if hasattr(system, "n_hr") else system
+        s = system.system
         pts, nrm, patch, self.loop_index, self.average = loop_samples(s, smooth_angle, inset)
         self.smooth_angle = smooth_angle
         super().__init__(system, pts, nrm, patch, **kw)
 
-    def loop_radiance(self, dyn=None, domain="CORNER", kind="radiance"):
+    def loop_radiance(self, dyn, domain="CORNER", kind="radiance"):
         v = self.evaluate(dyn, kind)
         if self.average is not None:
             li, lj, w = self.average
@@ -125,8 +125,8 @@ class LoopGather(FinalGather):
 
 def texel_gather(system, patch, points, **kw):
     """FinalGather at texel centres (lightmap.plan's points on input patches), normals from the
-    patches: evaluate(dyn, kind) replaces core.texels.solution_radiance(dyn, system, patch, points,
+    patches: evaluate(solution, kind) replaces core.texels.solution_radiance(solution, patch, points,
     kind=kind) (same kinds; float64, cast as needed)."""
-    s = system.system if hasattr(system, "n_hr") else system
+    s = system.system
     patch = np.asarray(patch, np.int64)
     return FinalGather(system, points, s.patches.normal[patch], patch, **kw)
