@@ -13,12 +13,26 @@ from .geometry import MeshInput
 from .hierarchy import Hierarchy
 
 
-def _weld_ids(mesh: MeshInput, loop_obj):
-    """Same id for loops whose vertices share object and position (split-edge meshes)."""
+def loop_welds(mesh: MeshInput):
+    """(loop -> polygon, loop -> weld id): the same weld id for loops whose vertices share object
+    and position (split-edge meshes)."""
+    loop_poly = np.repeat(np.arange(len(mesh.loop_start)), mesh.loop_total)
+    loop_obj = np.asarray(mesh.object_id)[loop_poly]
     v = mesh.verts[mesh.loop_verts]
     scale = max(float(np.abs(v).max()), 1e-30) * 1e-9
     key = np.column_stack([loop_obj, np.round(v / scale).astype(np.int64)])
-    return np.unique(key, axis=0, return_inverse=True)[1].ravel()
+    return loop_poly, np.unique(key, axis=0, return_inverse=True)[1].ravel()
+
+
+def equal_key_pairs(queries, keys):
+    """(i, j): every pair of a query i and a key j with queries[i] == keys[j] (i ascending)."""
+    order = np.argsort(keys, kind="stable")
+    ks = keys[order]
+    start = np.searchsorted(ks, queries, "left")
+    count = np.searchsorted(ks, queries, "right") - start
+    i = np.repeat(np.arange(len(queries)), count)
+    offs = np.arange(len(i)) - np.repeat(np.cumsum(count) - count, count)
+    return i, order[np.repeat(start, count) + offs]
 
 
 def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="CORNER", plan=None):
@@ -41,11 +55,8 @@ def loop_plan(h: Hierarchy, mesh: MeshInput, smooth_angle=30.0, domain="CORNER")
     """What loop_radiance() weighs, independent of B: (leaf, output index, weight) per (loop,
     patch corner) pair, the weight sums and the number of welded loops."""
     pt = h.patches
-    K = len(pt.nv)
     P = len(mesh.loop_start)
-    loop_poly = np.repeat(np.arange(P), mesh.loop_total)
-    loop_obj = np.asarray(mesh.object_id)[loop_poly]
-    weld = _weld_ids(mesh, loop_obj)
+    loop_poly, weld = loop_welds(mesh)
     # vertex index -> weld id (any loop using the vertex tells it)
     v2w = np.full(len(mesh.verts), -1, np.int64)
     v2w[mesh.loop_verts] = weld
@@ -65,14 +76,7 @@ def loop_plan(h: Hierarchy, mesh: MeshInput, smooth_angle=30.0, domain="CORNER")
     first = np.unique(pt.poly, return_index=True)
     poly_normal[first[0]] = pt.normal[first[1]]
 
-    order = np.argsort(w_id, kind="stable")
-    w_sorted = w_id[order]
-    start = np.searchsorted(w_sorted, weld, "left")
-    count = np.searchsorted(w_sorted, weld, "right") - start
-    # Expand (loop, candidate corner) pairs, a few per loop.
-    li = np.repeat(np.arange(len(weld)), count)
-    offs = np.arange(len(li)) - np.repeat(np.cumsum(count) - count, count)
-    ci = order[np.repeat(start, count) + offs]
+    li, ci = equal_key_pairs(weld, w_id)  # (loop, candidate corner) pairs, a few per loop
     if domain == "POINT":
         ok = np.ones(len(li), bool)
     else:

@@ -177,26 +177,7 @@ class FirstBounce:
         nf = pt.normal[roots[0]] if len(roots) else rec.n
         if len(roots) == 0:
             return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
-        p2 = to2d(rec, pt.corners[roots])
-        edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
-        edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in p2]
-        edges = np.concatenate(edges)
-        traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
-        if not traps:
-            return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
-        mids = np.array([m for _, m in traps])
-        keep = _in_rings(mids, rec.rings2d) & _in_convex(mids, p2).any(1)
-        out, nvs = [], []
-        for t in np.flatnonzero(keep):
-            q = traps[t][0]
-            p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
-            if newell(p3) @ nf < 0:
-                p3 = p3[::-1]
-            nvs.append(len(p3))
-            out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
-        c = np.array(out)
-        _, a = ff.polygon_normal_area(c, np.array(nvs))
-        return c, np.array(nvs), a, nf
+        return slab_pieces(rec, nf, to2d(rec, pt.corners[roots])) + (nf,)
 
     def _maybe_occluded(self, nodes, lo, hi, shape_plane):
         """Shaft test between nodes and the shape's box (planes.Occluders): False where no rays
@@ -209,6 +190,31 @@ class FirstBounce:
         nlo = np.minimum(c.min(1), lo) - e
         nhi = np.maximum(c.max(1), hi) + e
         return occ.maybe_occluded(nlo, nhi, occ.patch_plane[h.patch[nodes]], shape_plane)
+
+
+def slab_pieces(rec, nf, cells=None):
+    """Convex pieces (slabs) of a shape's outline: corners (T, 4, 3) CCW about nf, nv, areas.
+    cells: convex polygons (P, 4, 2) in the shape's plane (its covered patches): the outline is cut
+    along their edges too and only the pieces inside one of them are kept."""
+    edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
+    if cells is not None:
+        edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in cells]
+    edges = np.concatenate(edges)
+    traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
+    mids = np.array([m for _, m in traps]).reshape(-1, 2)
+    keep = _in_rings(mids, rec.rings2d)
+    if cells is not None:
+        keep &= _in_convex(mids, cells).any(1)
+    out, nvs = [], []
+    for t in np.flatnonzero(keep):
+        q = traps[t][0]
+        p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
+        if newell(p3) @ nf < 0:
+            p3 = p3[::-1]
+        nvs.append(len(p3))
+        out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
+    c, nv = np.array(out).reshape(-1, 4, 3), np.array(nvs, int)
+    return c, nv, ff.polygon_normal_area(c, nv)[1]
 
 
 def _contour(x, n, rings):

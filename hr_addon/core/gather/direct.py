@@ -5,7 +5,7 @@ cached so that a strength or colour change is a scale (docs/gather.md)."""
 import numpy as np
 
 from .. import formfactor as ff
-from ..events.direct import _contour
+from ..events.direct import _contour, slab_pieces
 from ..geometry import newell
 from ..parallel import batch_map, ranges
 from .sampling import Emitter, hammersley, hash_uniform, position_keys
@@ -145,31 +145,13 @@ class DirectLight:
     def _shape_emitter(self, dyn, rec):
         """Emitter of a light shape (its part on surfaces when it lies on one) and the samples inside
         its outline on that surface."""
-        from ..events.planar import _in_rings, slab_decomposition
+        from ..events.planar import _in_rings
 
         import zlib
 
         # the shape's own random stream, from its outline relative to the scene's box: the same
         # outline gives the same shadow rays at any scene scale or position
         stream = zlib.crc32(b"".join(position_keys(r, self.unit).tobytes() for r in rec.rings)) & 0x7FFFFFFF
-
-        def outline_pieces(nf):
-            """The outline's own convex pieces (slabs of its rings)."""
-            edges = np.concatenate([np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d])
-            traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
-            out, nvs = [], []
-            for q, mid in traps:
-                if not _in_rings(mid[None], rec.rings2d)[0]:
-                    continue
-                p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
-                if newell(p3) @ nf < 0:
-                    p3 = p3[::-1]
-                nvs.append(len(p3))
-                out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
-            corners = np.array(out).reshape(-1, 4, 3)
-            nv = np.array(nvs, int)
-            _, area = ff.polygon_normal_area(corners, nv)
-            return corners, nv, area
 
         whole = rec.covered >= 1 - 1e-9 or not rec.on_surface
         if rec.on_surface:
@@ -179,10 +161,10 @@ class DirectLight:
                 # instead of its pieces on every patch below it (hundreds on a finely meshed
                 # wall) make the shadow rays' sampling cheap (the same region, uniform in solid
                 # angle)
-                corners, nv, area = outline_pieces(nf)
+                corners, nv, area = slab_pieces(rec, nf)
         else:
             nf = rec.n
-            corners, nv, area = outline_pieces(nf)
+            corners, nv, area = slab_pieces(rec, nf)
         inside = np.zeros(0, np.int64)
         if len(corners) == 0:
             return None, inside, nf

@@ -21,13 +21,11 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     Returns (points (S, 3), normals (S, 3), patch ids (S,), loop -> sample index (L,), -1 for loops
     of polygons dropped as degenerate, and (li, lj, w): loop li averages sample loop_index[lj] with
     weight w (None for inset = 0))."""
-    from ..output import _weld_ids
+    from ..output import equal_key_pairs, loop_welds
 
     mesh, pt = system.mesh, system.patches
     P = len(mesh.loop_start)
-    loop_poly = np.repeat(np.arange(P), mesh.loop_total)
-    loop_obj = np.asarray(mesh.object_id)[loop_poly]
-    weld = _weld_ids(mesh, loop_obj)
+    loop_poly, weld = loop_welds(mesh)
     # the patch of each loop: the patch of its polygon holding its vertex
     jj, kk = np.nonzero(pt.vert_index >= 0)
     key_p = pt.poly[jj].astype(np.int64) * (len(mesh.verts) + 1) + pt.vert_index[jj, kk]
@@ -43,13 +41,7 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     pn = pn / np.maximum(parea, 1e-300)[:, None]
     # pairs of loops at the same weld whose polygons lie within smooth_angle
     L = len(weld)
-    o = np.argsort(weld, kind="stable")
-    ws = weld[o]
-    start = np.searchsorted(ws, weld, "left")
-    count = np.searchsorted(ws, weld, "right") - start
-    li = np.repeat(np.arange(L), count)
-    offs = np.arange(len(li)) - np.repeat(np.cumsum(count) - count, count)
-    lj = o[np.repeat(start, count) + offs]
+    li, lj = equal_key_pairs(weld, weld)
     a, b = loop_poly[li], loop_poly[lj]
     ok = np.einsum("ij,ij->i", pn[a], pn[b]) >= np.cos(np.radians(smooth_angle))
     valid = lpatch >= 0
