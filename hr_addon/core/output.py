@@ -17,11 +17,15 @@ def loop_welds(mesh: MeshInput):
     """(loop -> polygon, loop -> weld id): the same weld id for loops whose vertices share object
     and position (split-edge meshes)."""
     loop_poly = np.repeat(np.arange(len(mesh.loop_start)), mesh.loop_total)
-    loop_obj = np.asarray(mesh.object_id)[loop_poly]
-    v = mesh.verts[mesh.loop_verts]
-    scale = max(float(np.abs(v).max()), 1e-30) * 1e-9
-    key = np.column_stack([loop_obj, np.round(v / scale).astype(np.int64)])
-    return loop_poly, np.unique(key, axis=0, return_inverse=True)[1].ravel()
+    return loop_poly, weld_ids(np.asarray(mesh.object_id)[loop_poly], mesh.verts[mesh.loop_verts])
+
+
+def weld_ids(object_id, pos):
+    """The same id for points (N, 3) of the same object at the same position (to 1e-9 of the
+    points' extent)."""
+    scale = max(float(np.abs(pos).max()), 1e-30) * 1e-9
+    key = np.column_stack([object_id, np.round(pos / scale).astype(np.int64)])
+    return np.unique(key, axis=0, return_inverse=True)[1].ravel()
 
 
 def equal_key_pairs(queries, keys):
@@ -119,16 +123,9 @@ def patch_neighbours(h: Hierarchy, smooth_angle=30.0):
     if getattr(pt, "_neighbours", None) is not None:
         return pt._neighbours
     jj, kk = np.nonzero(pt.vert_index >= 0)
-    pos = pt.corners[jj, kk]
-    scale = max(float(np.abs(pos).max()), 1e-30) * 1e-9
-    key = np.column_stack([pt.object_id[jj], np.round(pos / scale).astype(np.int64)])
-    g = np.unique(key, axis=0, return_inverse=True)[1].ravel()
-    order = np.argsort(g, kind="stable")
-    gs, js = g[order], jj[order]
-    start = np.searchsorted(gs, gs, "left")
-    count = np.searchsorted(gs, gs, "right") - start
-    a = np.repeat(js, count)
-    b = js[np.repeat(start, count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)]
+    g = weld_ids(pt.object_id[jj], pt.corners[jj, kk])
+    i, j = equal_key_pairs(g, g)
+    a, b = jj[i], jj[j]
     ok = (a != b) & (np.einsum("ij,ij->i", pt.normal[a], pt.normal[b]) >= np.cos(np.radians(smooth_angle)))
     pairs = np.unique(np.column_stack([a[ok], b[ok]]), axis=0)
     K = len(pt.nv)
