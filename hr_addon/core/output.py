@@ -47,11 +47,16 @@ def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="C
     for c in range(3):
         num[:, c] = np.bincount(li, weights=w * B[c, leaf], minlength=n)
     # corners whose every leaf is covered (contacts.py) show 0
-    out = np.where(den[:, None] > 0, num / np.maximum(den, 1e-300)[:, None], 0.0)
+    return in_domain(np.where(den[:, None] > 0, num / np.maximum(den, 1e-300)[:, None], 0.0), mesh, domain)
+
+
+def in_domain(out, mesh: MeshInput, domain):
+    """Per-loop values (L, 3) as float32 output: as they are (CORNER), or per vertex (POINT: a
+    vertex takes its last loop's value)."""
     if domain == "POINT":
         res = np.zeros((len(mesh.verts), 3))
         res[mesh.loop_verts] = out
-        return res.astype(np.float32)
+        out = res
     return out.astype(np.float32)
 
 

@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from ..output import equal_key_pairs, in_domain, loop_welds
 from .final import FinalGather
 
 
@@ -21,8 +22,6 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     Returns (points (S, 3), normals (S, 3), patch ids (S,), loop -> sample index (L,), -1 for loops
     of polygons dropped as degenerate, and (li, lj, w): loop li averages sample loop_index[lj] with
     weight w (None for inset = 0))."""
-    from ..output import equal_key_pairs, loop_welds
-
     mesh, pt = system.mesh, system.patches
     P = len(mesh.loop_start)
     loop_poly, weld = loop_welds(mesh)
@@ -107,12 +106,7 @@ class LoopGather(FinalGather):
             out = np.where(den[:, None] > 0, out / np.maximum(den, 1e-300)[:, None], 0.0)
         else:
             out = np.where((self.loop_index >= 0)[:, None], v[np.maximum(self.loop_index, 0)], 0.0)
-        if domain == "POINT":
-            mesh = self.system.mesh
-            res = np.zeros((len(mesh.verts), 3))
-            res[mesh.loop_verts] = out
-            return res.astype(np.float32)
-        return out.astype(np.float32)
+        return in_domain(out, self.system.mesh, domain)
 
 
 def texel_gather(system, patch, points, **kw):
