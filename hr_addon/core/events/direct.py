@@ -59,26 +59,7 @@ class FirstBounce:
             x = x.reshape(-1, 3)
             F = np.zeros(len(x))
             front = (x - rec.c) @ nf > eps
-            above = ((allv[None] - x[:, None]) * xn[:, None]).sum(-1).min(1) > eps
-            ok = front & above & (rings is not None)
-            if ok.any():
-                F[ok] = _contour(x[ok], xn[ok], rings)
-            rest = np.flatnonzero(front & ~ok)
-            if len(rest) and rings is not None:
-                # the horizon cuts the outline: its rings clipped (not every piece on every patch)
-                F[rest] = ff.clipped_rings(x[rest], xn[rest], rings)
-            elif len(rest):
-                T = len(corners)
-                F[rest] = (
-                    ff.point_to_polygon(
-                        np.repeat(x[rest], T, 0),
-                        np.repeat(xn[rest], T, 0),
-                        np.tile(corners, (len(rest), 1, 1)),
-                        np.tile(nv, len(rest)),
-                    )
-                    .reshape(-1, T)
-                    .sum(1)
-                )
+            F[front] = shape_form_factors(x[front], xn[front], rings, corners, nv, eps)
             return F.reshape(-1, 4), x, xn, gw
 
         def visible(nodes, F, x, xn):
@@ -215,6 +196,38 @@ def slab_pieces(rec, nf, cells=None):
         out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
     c, nv = np.array(out).reshape(-1, 4, 3), np.array(nvs, int)
     return c, nv, ff.polygon_normal_area(c, nv)[1]
+
+
+def shape_form_factors(x, n, rings, corners, nv, eps):
+    """Unoccluded form factors (N,) from points x (N, 3) with normals n in front of a shape: over
+    its rings (outer CCW about its normal, holes CW; None: unknown) by the contour integral where
+    the shape lies wholly above a point's horizon, else the rings clipped to it; without rings the
+    sum over its convex pieces (corners (T, 4, 3), nv)."""
+    F = np.zeros(len(x))
+    if rings is not None:
+        allv = np.concatenate(rings)
+        whole = ((allv[None] - x[:, None]) * n[:, None]).sum(-1).min(1) > eps
+        if whole.any():
+            F[whole] = _contour(x[whole], n[whole], rings)
+        cut = ~whole
+        if cut.any():
+            # the horizon cuts the outline: its rings clipped to the point's upper half-space
+            # (exact, as the pieces' sum, for a handful of edges instead of every piece's)
+            F[cut] = ff.clipped_rings(x[cut], n[cut], rings)
+        return F
+    T = len(corners)
+    step = max(1, (1 << 18) // max(T, 1))  # bounded temporaries
+    for s0 in range(0, len(x), step):
+        r = slice(s0, s0 + step)
+        m = len(x[r])
+        F[r] = (
+            ff.point_to_polygon(
+                np.repeat(x[r], T, 0), np.repeat(n[r], T, 0), np.tile(corners, (m, 1, 1)), np.tile(nv, m)
+            )
+            .reshape(-1, T)
+            .sum(1)
+        )
+    return F
 
 
 def _contour(x, n, rings):

@@ -5,7 +5,7 @@ cached so that a strength or colour change is a scale (docs/gather.md)."""
 import numpy as np
 
 from .. import formfactor as ff
-from ..events.direct import _contour, slab_pieces
+from ..events.direct import shape_form_factors, slab_pieces
 from ..geometry import newell
 from ..parallel import batch_map, ranges
 from .sampling import Emitter, hammersley, hash_uniform, position_keys
@@ -36,33 +36,7 @@ class DirectLight:
         if len(i) == 0:
             return out.astype(np.float32)
         xi, ni = x[i], nx[i]
-        F = np.zeros(len(i))
-        whole = np.zeros(len(i), bool)
-        if em.rings is not None:
-            allv = np.concatenate(em.rings)
-            whole = ((allv[None] - xi[:, None]) * ni[:, None]).sum(-1).min(1) > eps
-            if whole.any():
-                F[whole] = _contour(xi[whole], ni[whole], em.rings)
-        rest = np.flatnonzero(~whole)
-        if em.rings is not None and len(rest):
-            # the horizon cuts the outline: its rings clipped to the point's upper half-space
-            # (exact, as the pieces' sum, for a handful of edges instead of every piece's)
-            F[rest] = _clipped_rings(xi[rest], ni[rest], em.rings)
-            rest = rest[:0]
-        T = len(em.corners)
-        step = max(1, (1 << 18) // max(T, 1))
-        for s0 in range(0, len(rest), step):
-            r = rest[s0 : s0 + step]
-            F[r] = (
-                ff.point_to_polygon(
-                    np.repeat(xi[r], T, 0),
-                    np.repeat(ni[r], T, 0),
-                    np.tile(em.corners, (len(r), 1, 1)),
-                    np.tile(em.nv, len(r)),
-                )
-                .reshape(-1, T)
-                .sum(1)
-            )
+        F = shape_form_factors(xi, ni, em.rings, em.corners, em.nv, eps)
         lit = np.flatnonzero(F > 0)
         if len(lit) and self.shadow_rays > 0:
             S = self.shadow_rays
