@@ -67,7 +67,12 @@ class RadiositySystem:
             self.refiner.progress.update("push corrections", 0, 1, force=True)
             t1 = time.perf_counter()
             self.links = push_corrections(
-                self.h, self.links, self.params.vcorr, self.params.corr_budget, self.refiner.centres
+                self.h,
+                self.links,
+                self.params.vcorr,
+                self.params.corr_budget,
+                self.refiner.centres,
+                self.refiner.leaf_form_factors,
             )
             self.refiner.stats["t_corr"] = time.perf_counter() - t1
         self.refiner.progress.done("push corrections")
