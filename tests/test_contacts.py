@@ -76,12 +76,12 @@ def _floor_values(s, pts, smooth):
 
 def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
     """Points 1-40 mm beside the box, against shadow rays to the emitter. Measured at medium
-    (2026-12-02): band mean +1.6% (leaf values) / +6.5% (the smooth interpolation of the texture
-    output), points under the box exactly 0. The smooth value is not looser by nature: the leaves
-    1-10 mm beside the box read +8% (their links' form factors are means over few exposed points
-    of partly covered receivers, the cause of test_core_engine's row sums above 1), and the
-    corner values, means of the leaves around a corner, carry that into the next ring of leaves
-    (20-40 mm: leaves -2.6%, smooth +6.2%), hence 8% for it.
+    (2026-12-02): band mean -1.3% (leaf values) / +4.1% (the smooth interpolation of the texture
+    output), points under the box exactly 0. The leaves 1-10 mm beside the box read +5% (the
+    visibility of their coarse links, test_core_engine's row sums), and the smooth corner values,
+    means of the leaves around a corner, carry that into the next ring of leaves (20-40 mm:
+    leaves -5.3%, smooth +4.2%). Before partly covered receivers took their form factors from
+    about 6 x 6 exposed points: leaves +1.6% / smooth +6.5% (near-box leaves +8%).
     Without contacts the leaves straddling the box's outline see the emitter through sample
     points under the box: the band's leaves read 0 there (-100%)."""
     m = sky_scene()
@@ -90,7 +90,7 @@ def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
     s = RadiositySystem(m, RefineParams.preset("medium"))
     s.solve()
     assert s.report.energy_error < 1e-8
-    for smooth, tol in ((False, 0.03), (True, 0.08)):
+    for smooth, tol in ((False, 0.03), (True, 0.05)):
         v = _floor_values(s, band, smooth)
         assert abs(v.mean() / ref.mean() - 1) < tol, smooth
         assert not _floor_values(s, under, smooth).any()

@@ -109,25 +109,25 @@ def test_links_reciprocal_and_bounded():
     assert 0 <= L.vis.min() and L.vis.max() <= 1
     recv, _, f = L.directed()
     assert np.all(np.diff(recv) >= 0)  # CSR: sorted by receiver
-    # Every leaf's total form factor (its links, its ancestors' and the push corrections) stays
-    # <= 1 up to integration error, except where visibility varies across a coarse receiver:
-    # measured, 0.5% of the area (floor in the slot between the tall block and the back wall)
-    # exceeds 1.01, by at most 8%. The push corrections sum to zero per link and area.
-    # Contacts (contacts.py): a source covered in part is seen through its exposed fraction
-    # only, and covered leaves receive nothing. Measured with contacts (2026-12-02): 0.8% of the
-    # exposed area exceeds 1.01, by at most 19%. Cause (traced on the worst leaf): a partly
-    # covered receiver's form factor is a mean over the exposed ones of 6 x 6 points over the
-    # whole node; a node 12% exposed beside a block had 4 and read 0.153 to the block's side
-    # where its leaves' mean is 0.092, and the push corrections, which keep a link's total, gave
-    # the leaf beside the block 0.66 from a face that can give at most 0.5. Branch r21-core-rowsum
-    # puts about 6 x 6 points on the exposed part: at most 1.110 (the remaining excess is the
-    # visibility of the first kind).
+    # Every leaf's total form factor (its links, its ancestors' and the push corrections) is a
+    # point's F to the rest of the closed box, <= 1, up to two approximations (measured on this
+    # scene, 2026-12-02):
+    # - a link's visibility is one number for its whole receiver, while the push corrections
+    #   reshape only its unoccluded form factor: a leaf beside a block keeps its share of sources
+    #   the block hides from it (without contacts: 0.5% of the area above 1.01, at most 1.081);
+    # - with contacts, a partly covered receiver's form factor is a mean over its exposed part;
+    #   with 6 x 6 points over the whole node, a node 12% exposed beside a block had 4 points and
+    #   read 0.153 where its leaves' mean is 0.092, and the corrections, which keep the link's
+    #   total, handed the leaf beside the block 0.66 from a wall that gives at most 0.5 (up to
+    #   1.19 in all). Now about 6 x 6 points on the exposed part (Refiner._exposed_grid) and the
+    #   corrections' shape from the leaves' exposed parts: at most 1.110, 0.7% above 1.01; what
+    #   remains is the visibility of the first kind.
     op = s.operator()
     _, src, _ = L.directed()
     ex = h.view("exposure")
     fsum = op.push(np.bincount(recv, weights=f * ex[src], minlength=h.n)[None].copy())[0][op.leaves]
     a = h.area[op.leaves] * ex[op.leaves]
-    assert a[fsum > 1.01].sum() < 0.02 * a.sum() and fsum.max() < 1.25
+    assert a[fsum > 1.01].sum() < 0.01 * a.sum() and fsum.max() < 1.12
     leaf, src, dF = L.corr
     ea = h.area[leaf] * ex[leaf]
     assert len(dF) > 0 and abs(np.sum(ea * dF)) < 1e-9 * np.sum(ea * np.abs(dF))

@@ -23,9 +23,9 @@ def test_furnace_incident_equals_radiance_and_zero_reflectance_is_gathered():
     np.testing.assert_allclose(inc[:, lf], np.broadcast_to(want, (3, len(lf))), rtol=2e-3)
     pts = s.patches.corners[:, :3].mean(1)
     patch = np.arange(len(pts))
-    got = solution_radiance(None, s, patch, pts, kind="incident")
+    got = solution_radiance(s, patch, pts, kind="incident")
     np.testing.assert_allclose(got, np.broadcast_to(want.T, got.shape), rtol=2e-3)
-    refl = solution_radiance(None, s, patch, pts, kind="reflected")
+    refl = solution_radiance(s, patch, pts, kind="reflected")
     np.testing.assert_allclose(refl, got * mesh.reflectance[0], rtol=1e-5, atol=1e-6)
 
 
@@ -44,15 +44,15 @@ def test_incident_with_light_shapes(method):
     window = S.window(0.2, 0.16, 0.02, centre=(0.3, 0.3), angle=0.3, shear=0.3)
     dyn.apply({"w": LightShape(S.on_plane(window, S.CORNELL_GREEN_WALL), np.array([8.0, 7.0, 5.0]), "w")})
     pts, patch = surface_samples(base.patches, 400)[:2]
-    inc = solution_radiance(dyn, base, patch, pts, kind="incident")
-    refl = solution_radiance(dyn, base, patch, pts, kind="reflected")
-    tot = solution_radiance(dyn, base, patch, pts)
+    inc = solution_radiance(dyn, patch, pts, kind="incident")
+    refl = solution_radiance(dyn, patch, pts, kind="reflected")
+    tot = solution_radiance(dyn, patch, pts)
     rho = base.patches.reflectance[:, patch].T
     assert np.isfinite(inc).all() and (inc >= 0).all() and inc.max() > 0
     np.testing.assert_allclose(refl, rho * inc, rtol=1e-4, atol=1e-6 * inc.max())
     assert (tot >= refl - 1e-6).all() and tot.max() > refl.max()  # the window's emission is only in tot
     B = dyn.B.copy()
-    loops = loop_incident(dyn, base, "CORNER")
+    loops = loop_incident(dyn, "CORNER")
     assert loops.shape == (len(base.mesh.loop_verts), 3) and np.isfinite(loops).all()
     np.testing.assert_array_equal(dyn.B, B)
-    assert loop_incident(dyn, base, "POINT").shape == (len(base.mesh.verts), 3)
+    assert loop_incident(dyn, "POINT").shape == (len(base.mesh.verts), 3)

@@ -174,7 +174,7 @@ def test_plan_texels_lie_on_their_patches_and_fill_the_sequence(tmp_path, cornel
     d = np.einsum("ij,ij->i", loc.points - pt.corners[loc.patch, 0], pt.normal[loc.patch])
     assert len(loc.points) > 150 and np.abs(d).max() < 1e-12
     want = radiance_at(cornell.h, cornell.B, loc.patch, loc.points)
-    np.testing.assert_allclose(plan.radiance(None, cornell), want, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(plan.radiance(cornell), want, rtol=1e-5, atol=1e-6)
     w = CacheWriter(
         tmp_path / "cache",
         plan.objects_info([SimpleNamespace(name="back", mesh_name="m")]),
@@ -182,7 +182,7 @@ def test_plan_texels_lie_on_their_patches_and_fill_the_sequence(tmp_path, cornel
         plan.signature("s"),
     )
     plan.bind(w.tmp)
-    values = plan.radiance(None, cornell)
+    values = plan.radiance(cornell)
     for f in (2, 4):
         plan.write(f, values)
         w.write(f, {})

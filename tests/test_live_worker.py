@@ -62,11 +62,11 @@ def _hold(worker):
     entered, release = threading.Event(), threading.Event()
     real = worker.dyn.apply
 
-    def held(shapes):
+    def held(shapes, lights=None):
         entered.set()
         assert release.wait(60), "the test never released the worker"
         worker.dyn.apply = real
-        return real(shapes)
+        return real(shapes, lights)
 
     worker.dyn.apply = held
     return entered, release

@@ -103,3 +103,33 @@ def test_build_progress_time_left_is_steady(monkeypatch):
     assert len(eta) >= 15 and np.all(np.diff(eta) <= 1e-9), eta
     raw = _build_etas(monkeypatch, steady=False)
     assert np.max(np.diff(raw)) > 0.5  # the raw estimate rises when the slow phase starts
+
+
+def test_a_finished_build_tells_no_time_left(monkeypatch):
+    """The build's last line read "push corrections 100%, build 100%, about 0 s left" (or a few
+    seconds: the countdown of the last estimate) whenever the build took over a second."""
+    import hr_addon.core.progress as mod
+
+    clock = [0.0]
+    monkeypatch.setattr(mod.time, "perf_counter", lambda: clock[0])
+    seen = []
+    p = Progress(seen.append, {"a": 0.5, "b": 0.5}, interval=0.0)
+    for phase in ("a", "b"):
+        for k in range(1, 5):
+            clock[0] += 1.0
+            p.update(phase, k, 4)
+    assert "left" in seen[-2].message, seen[-2].message  # still under way: an estimate
+    assert seen[-1].fraction == 1 and seen[-1].message == "b 100% (4/4), build 100%"
+
+
+def test_the_cli_handles_ctrl_c_before_numpy_is_imported():
+    """Ctrl-C in the command-line bake's first second killed it with a traceback: its signal
+    handler's module imported numpy (through core.progress) before it could be installed."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = "import sys, hr_addon.blender.interrupt; print(sorted(m for m in sys.modules if 'numpy' in m))"
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr

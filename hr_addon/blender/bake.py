@@ -178,9 +178,9 @@ def bake_frames(
                 fraction=BUILD_SHARE,
                 message=f"Final gather: tracing {cfg.gather['rays']} rays per output sample",
             )
-            final = run.final_gather(dyn if dyn is not None else system, baker)
+            final = run.final_gather(dyn, baker)
         todo = run.frames_todo(writer, baker, start, end)
-        yield from run.frame_loop(snap, todo, dyn, system, final, writer, baker)
+        yield from run.frame_loop(snap, todo, dyn, final, writer, baker)
         if baker is not None:
             baker.finish(writer)
         run.intr.check()  # the last moment a cancel keeps the previous bake
@@ -284,7 +284,8 @@ class _Bake:
         )
 
     def build(self, snap, params, min_area_rel, progress, total):
-        """The hierarchy (RadiositySystem) and, with light shapes or lights, DynamicRadiosity."""
+        """(system, solution): the hierarchy (RadiositySystem) and the DynamicRadiosity every frame
+        is solved and read through (without light shapes or lights, the base solution)."""
         t0 = time.perf_counter()
 
         def on_build(info):
@@ -302,11 +303,10 @@ class _Bake:
 
         with self.intr.raising():
             system = RadiositySystem(snap.mesh, params, progress=on_build, threads=self.cfg.threads)
-            dyn = None
-            if snap.has_shapes or snap.lights:
-                dyn = DynamicRadiosity(
-                    system, method=self.cfg.method, min_area_rel=min_area_rel, **self.cfg.solve_options
-                )
+            # without light events the solution is the system's, solved to its own tolerance as
+            # it always was: the gather's looser solver options pay off on events only
+            options = self.cfg.solve_options if snap.has_shapes or snap.lights else {}
+            dyn = DynamicRadiosity(system, method=self.cfg.method, min_area_rel=min_area_rel, **options)
         r = self.result
         r.build_seconds = time.perf_counter() - t0
         r.build_report = system.build
@@ -401,9 +401,9 @@ class _Bake:
         return sorted(in_range | set(damaged))
 
     def lights_at(self, snap, frame, frame_warnings):
-        """(light shapes, Blender lights, signature) at frame; ("static") without either."""
+        """(light shapes, Blender lights, signature) at frame; ({}, None, "static") without either."""
         if not (snap.has_shapes or snap.lights):
-            return None, None, "static"
+            return {}, None, "static"
         self.scene.frame_set(frame)
         depsgraph = self.view_layer.depsgraph
         shapes = (
@@ -417,27 +417,22 @@ class _Bake:
             sig += lights_signature(lights)
         return shapes, lights, sig
 
-    def frame_values(self, snap, dyn, system, final, baker, shapes, lights, frame_warnings):
+    def frame_values(self, snap, dyn, final, baker, shapes, lights, frame_warnings):
         """Solve the frame's light and return its values for the writer (texture plan or targets)."""
         cfg = self.cfg
-        if dyn is not None:
-            frame_warnings += dyn.apply(shapes, lights).messages
-        else:
-            system.solve()
+        frame_warnings += dyn.apply(shapes, lights).messages
         if baker is not None:
-            return baker.radiance(dyn, system, cfg.radiance_mode, gather=final)
+            return baker.radiance(dyn, cfg.radiance_mode, gather=final)
         irradiance = cfg.radiance_mode == "IRRADIANCE"
         if final is not None:
-            values = final.loop_radiance(
-                dyn if dyn is not None else system, cfg.domain, "incident" if irradiance else "radiance"
-            )
+            values = final.loop_radiance(dyn, cfg.domain, "incident" if irradiance else "radiance")
         elif irradiance:
-            values = loop_incident(dyn, system, cfg.domain)
+            values = loop_incident(dyn, cfg.domain)
         else:
-            values = (dyn if dyn is not None else system).loop_radiance(cfg.domain)
+            values = dyn.loop_radiance(cfg.domain)
         return {t.name: t.extract(values, cfg.domain) for t in snap.scene_in.targets}
 
-    def frame_loop(self, snap, todo, dyn, system, final, writer, baker):
+    def frame_loop(self, snap, todo, dyn, final, writer, baker):
         """Generator over the frames: a frame whose light equals the previous one's reuses its file."""
         total, r = len(todo), self.result
         prev_sig = prev_frame = None
@@ -456,9 +451,7 @@ class _Bake:
                 r.reused += 1
             else:
                 with self.intr.raising():
-                    values = self.frame_values(
-                        snap, dyn, system, final, baker, shapes, lights, frame_warnings
-                    )
+                    values = self.frame_values(snap, dyn, final, baker, shapes, lights, frame_warnings)
                 self.intr.check()
                 if baker is not None:
                     baker.write(f, values)

@@ -266,10 +266,7 @@ class LiveWorker:
             from ..core.lights import Light
 
             lights = {k: v for k, v in shapes.items() if isinstance(v, Light)}
-            if lights or getattr(dyn, "lights", None):
-                report = dyn.apply({k: v for k, v in shapes.items() if k not in lights}, lights)
-            else:  # no Blender lights: the shapes alone, as before issue 20
-                report = dyn.apply(shapes)
+            report = dyn.apply({k: v for k, v in shapes.items() if k not in lights}, lights)
         except InputError as exc:  # an invalid shape: apply() validates before changing anything
             with self._cond:
                 self._result = Result(generation, serial, sig, error=str(exc), requested=t_request)

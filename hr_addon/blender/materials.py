@@ -120,6 +120,12 @@ class _Reader:
     def warn(self, msg):
         self.warnings.append(f"Material '{self.mat.name}': {msg}")
 
+    def unsupported(self, socket, node, what):
+        self.warn(
+            f"'{socket.name}' is driven by a '{node.bl_label}' node, which is not supported; "
+            f"using the socket's own {what}"
+        )
+
     def source(self, socket):
         """The node and output socket feeding `socket`, skipping reroutes and muted links and
         following node groups."""
@@ -179,10 +185,7 @@ class _Reader:
             f = min(max(self.value(fac), 0.0), 1.0)
             ca, cb = self.color(a), self.color(b)
             return (1 - f) * ca + f * (ca * cb if node.blend_type == "MULTIPLY" else cb)
-        self.warn(
-            f"'{socket.name}' is driven by a '{node.bl_label}' node, which is not supported; "
-            "using the socket's own colour"
-        )
+        self.unsupported(socket, node, "colour")
         return np.array(socket.default_value[:3], float)
 
     def value(self, socket):
@@ -191,10 +194,7 @@ class _Reader:
             return _default_float(last)
         if node.type == "VALUE":
             return float(node.outputs[0].default_value)
-        self.warn(
-            f"'{socket.name}' is driven by a '{node.bl_label}' node, which is not supported; "
-            "using the socket's own value"
-        )
+        self.unsupported(socket, node, "value")
         return float(socket.default_value)
 
     def not_diffuse(self, node):

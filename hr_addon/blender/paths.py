@@ -36,3 +36,10 @@ def blend_relative(path):
         except ValueError:  # other drive (Windows)
             pass
     return path
+
+
+def frame_texture(directory, info, frame):
+    """Path of an object's lightmap image at `frame` in a texture bake (its manifest entry
+    `info`), or None when the object has none."""
+    tex = info.get("texture")
+    return os.path.join(directory, *(tex % frame).split("/")) if tex else None

@@ -16,7 +16,7 @@ from bpy.app.handlers import persistent
 
 from ..io.cache import CacheError, CacheReader, _names, changed_objects
 from .names import ATTRIBUTE
-from .paths import bake_dir_abs
+from .paths import bake_dir_abs, frame_texture
 from .state import STATE
 
 MAGENTA = (1.0, 0.0, 1.0, 1.0)
@@ -155,10 +155,9 @@ def _texture_problem(reader, directory, frame):
 
     f = reader.nearest(frame)
     for name, info in reader.objects.items():
-        tex = info.get("texture")
-        if not tex:
+        path = frame_texture(directory, info, f)
+        if path is None:
             continue
-        path = os.path.join(directory, *(tex % f).split("/"))
         try:
             st = os.stat(path)
             key = (path, st.st_mtime_ns, st.st_size)

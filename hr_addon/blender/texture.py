@@ -33,7 +33,7 @@ from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
 from .materials import albedo_texture
 from .names import N_ATTR, N_EMIT, N_OUT, N_TEX, N_UV, PREVIEW, TAG, UV_NAME
-from .paths import bake_dir_abs, blend_relative
+from .paths import bake_dir_abs, blend_relative, frame_texture
 from .preview import colour_chain, node_named
 from .scene_in import evaluated, mesh_topology
 
@@ -392,10 +392,9 @@ def add_material(scene, objects=None, warnings=None):
         obj = scene.objects.get(name)
         if obj is None or obj.type != "MESH":
             continue
-        tex = info.get("texture")
-        if not tex:
+        path = frame_texture(directory, info, first)
+        if path is None:
             continue
-        path = os.path.join(directory, *(tex % first).split("/"))
         img = _sequence_image(obj, path, info.get("format", "EXR"))
         if not obj.material_slots:
             obj.data.materials.append(None)

@@ -33,13 +33,15 @@ def _leaf_ranges(h):
     return order, lo, hi
 
 
-def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000, centres=None):
+def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000, centres=None, exposed=None):
     """Correct HR's push-down, which hands a link's average form factor to every leaf below the
     receiver. For links whose form factor varies across the receiver by more than ~vcorr, each
     leaf below gets F_link x (F(leaf centre -> source) / area-mean of those values) - F_link: the
     shape of the form factor across the receiver, normalised so the link's total transfer (and
     with it reciprocity and energy balance) is unchanged. Budget bounds the (leaf, link) pairs.
-    centres(nodes): where each leaf's value is taken (Refiner.centres: off covered parts).
+    centres(nodes): where each leaf's value is taken (Refiner.centres: off covered parts);
+    exposed(leaf, src) -> (F, mask): near a source, a partly covered leaf's value averaged over
+    its exposed part (Refiner.leaf_form_factors) where mask.
     Returns the Links with corrections attached."""
     links = Links(links.a, links.b, links.f_ab, links.f_ba, links.vis, far=links.far)
     recv, src, f = links.directed()
@@ -79,6 +81,9 @@ def push_corrections(h: Hierarchy, links: Links, vcorr=1e-3, budget=3_000_000, c
     for a in range(0, len(m), 1_000_000):
         mm = m[a : a + 1_000_000]
         fc[mm] = ff.point_to_polygon(at[mm], h.normal[leaf[mm]], h.corners[src_of[mm]], h.nv[src_of[mm]])
+    if exposed is not None and len(m):
+        fe, has = exposed(leaf[m], src_of[m])
+        fc[m[has]] = fe[has]
     # normalised over the exposed area (contacts.py), where the link's light lands
     ea = h.area[leaf] * h.exposure[leaf]
     mean = np.bincount(li, weights=fc * ea, minlength=len(r)) / np.maximum(

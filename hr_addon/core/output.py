@@ -13,12 +13,30 @@ from .geometry import MeshInput
 from .hierarchy import Hierarchy
 
 
-def _weld_ids(mesh: MeshInput, loop_obj):
-    """Same id for loops whose vertices share object and position (split-edge meshes)."""
-    v = mesh.verts[mesh.loop_verts]
-    scale = max(float(np.abs(v).max()), 1e-30) * 1e-9
-    key = np.column_stack([loop_obj, np.round(v / scale).astype(np.int64)])
+def loop_welds(mesh: MeshInput):
+    """(loop -> polygon, loop -> weld id): the same weld id for loops whose vertices share object
+    and position (split-edge meshes)."""
+    loop_poly = np.repeat(np.arange(len(mesh.loop_start)), mesh.loop_total)
+    return loop_poly, weld_ids(np.asarray(mesh.object_id)[loop_poly], mesh.verts[mesh.loop_verts])
+
+
+def weld_ids(object_id, pos):
+    """The same id for points (N, 3) of the same object at the same position (to 1e-9 of the
+    points' extent)."""
+    scale = max(float(np.abs(pos).max()), 1e-30) * 1e-9
+    key = np.column_stack([object_id, np.round(pos / scale).astype(np.int64)])
     return np.unique(key, axis=0, return_inverse=True)[1].ravel()
+
+
+def equal_key_pairs(queries, keys):
+    """(i, j): every pair of a query i and a key j with queries[i] == keys[j] (i ascending)."""
+    order = np.argsort(keys, kind="stable")
+    ks = keys[order]
+    start = np.searchsorted(ks, queries, "left")
+    count = np.searchsorted(ks, queries, "right") - start
+    i = np.repeat(np.arange(len(queries)), count)
+    offs = np.arange(len(i)) - np.repeat(np.cumsum(count) - count, count)
+    return i, order[np.repeat(start, count) + offs]
 
 
 def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="CORNER", plan=None):
@@ -29,11 +47,16 @@ def loop_radiance(h: Hierarchy, B, mesh: MeshInput, smooth_angle=30.0, domain="C
     for c in range(3):
         num[:, c] = np.bincount(li, weights=w * B[c, leaf], minlength=n)
     # corners whose every leaf is covered (contacts.py) show 0
-    out = np.where(den[:, None] > 0, num / np.maximum(den, 1e-300)[:, None], 0.0)
+    return in_domain(np.where(den[:, None] > 0, num / np.maximum(den, 1e-300)[:, None], 0.0), mesh, domain)
+
+
+def in_domain(out, mesh: MeshInput, domain):
+    """Per-loop values (L, 3) as float32 output: as they are (CORNER), or per vertex (POINT: a
+    vertex takes its last loop's value)."""
     if domain == "POINT":
         res = np.zeros((len(mesh.verts), 3))
         res[mesh.loop_verts] = out
-        return res.astype(np.float32)
+        out = res
     return out.astype(np.float32)
 
 
@@ -41,11 +64,8 @@ def loop_plan(h: Hierarchy, mesh: MeshInput, smooth_angle=30.0, domain="CORNER")
     """What loop_radiance() weighs, independent of B: (leaf, output index, weight) per (loop,
     patch corner) pair, the weight sums and the number of welded loops."""
     pt = h.patches
-    K = len(pt.nv)
     P = len(mesh.loop_start)
-    loop_poly = np.repeat(np.arange(P), mesh.loop_total)
-    loop_obj = np.asarray(mesh.object_id)[loop_poly]
-    weld = _weld_ids(mesh, loop_obj)
+    loop_poly, weld = loop_welds(mesh)
     # vertex index -> weld id (any loop using the vertex tells it)
     v2w = np.full(len(mesh.verts), -1, np.int64)
     v2w[mesh.loop_verts] = weld
@@ -65,14 +85,7 @@ def loop_plan(h: Hierarchy, mesh: MeshInput, smooth_angle=30.0, domain="CORNER")
     first = np.unique(pt.poly, return_index=True)
     poly_normal[first[0]] = pt.normal[first[1]]
 
-    order = np.argsort(w_id, kind="stable")
-    w_sorted = w_id[order]
-    start = np.searchsorted(w_sorted, weld, "left")
-    count = np.searchsorted(w_sorted, weld, "right") - start
-    # Expand (loop, candidate corner) pairs, a few per loop.
-    li = np.repeat(np.arange(len(weld)), count)
-    offs = np.arange(len(li)) - np.repeat(np.cumsum(count) - count, count)
-    ci = order[np.repeat(start, count) + offs]
+    li, ci = equal_key_pairs(weld, w_id)  # (loop, candidate corner) pairs, a few per loop
     if domain == "POINT":
         ok = np.ones(len(li), bool)
     else:
@@ -115,16 +128,9 @@ def patch_neighbours(h: Hierarchy, smooth_angle=30.0):
     if getattr(pt, "_neighbours", None) is not None:
         return pt._neighbours
     jj, kk = np.nonzero(pt.vert_index >= 0)
-    pos = pt.corners[jj, kk]
-    scale = max(float(np.abs(pos).max()), 1e-30) * 1e-9
-    key = np.column_stack([pt.object_id[jj], np.round(pos / scale).astype(np.int64)])
-    g = np.unique(key, axis=0, return_inverse=True)[1].ravel()
-    order = np.argsort(g, kind="stable")
-    gs, js = g[order], jj[order]
-    start = np.searchsorted(gs, gs, "left")
-    count = np.searchsorted(gs, gs, "right") - start
-    a = np.repeat(js, count)
-    b = js[np.repeat(start, count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)]
+    g = weld_ids(pt.object_id[jj], pt.corners[jj, kk])
+    i, j = equal_key_pairs(g, g)
+    a, b = jj[i], jj[j]
     ok = (a != b) & (np.einsum("ij,ij->i", pt.normal[a], pt.normal[b]) >= np.cos(np.radians(smooth_angle)))
     pairs = np.unique(np.column_stack([a[ok], b[ok]]), axis=0)
     K = len(pt.nv)

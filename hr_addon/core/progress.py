@@ -6,10 +6,12 @@ raising `Cancelled` (or any exception): nothing the core computed so far is kept
 exception propagates out of the constructor that was building.
 """
 
+import math
 import time
 from dataclasses import dataclass
 
-import numpy as np
+# no numpy here: the command-line bake imports Cancelled (blender/interrupt.py) before it can
+# handle Ctrl-C, and numpy's import takes a second on a loaded machine
 
 
 class Cancelled(Exception):
@@ -29,8 +31,9 @@ class ProgressInfo:
     @property
     def message(self):
         """'linking 40% (1,200/3,000), build 66%': the phase's own share done, then the build's
-        (a phase's single unit of work, as '(1/1)', says nothing and is left out)."""
-        eta = "" if self.eta != self.eta else f", about {_duration(self.eta)} left"
+        (a phase's single unit of work, as '(1/1)', says nothing and is left out). A finished
+        build has no time left to tell (its countdown may still hold a few seconds)."""
+        eta = "" if self.eta != self.eta or self.fraction >= 1 else f", about {_duration(self.eta)} left"
         units = f" ({self.done:,}/{self.total:,})" if self.total > 1 else ""
         return f"{self.phase} {100 * self.part:.0f}%{units}, build {100 * self.fraction:.0f}%{eta}"
 
@@ -59,7 +62,7 @@ class SteadyEta:
             countdown = max(self.value - (now - self.t), 0.0)
             tol = max(self.slack * countdown, band)
             if raw == raw and abs(raw - countdown) > tol:  # a step of `gain` towards the band's edge
-                self.value = countdown + self.gain * (raw - countdown - np.sign(raw - countdown) * tol)
+                self.value = countdown + self.gain * (raw - countdown - math.copysign(tol, raw - countdown))
             else:
                 self.value = countdown
         else:

@@ -67,7 +67,12 @@ class RadiositySystem:
             self.refiner.progress.update("push corrections", 0, 1, force=True)
             t1 = time.perf_counter()
             self.links = push_corrections(
-                self.h, self.links, self.params.vcorr, self.params.corr_budget, self.refiner.centres
+                self.h,
+                self.links,
+                self.params.vcorr,
+                self.params.corr_budget,
+                self.refiner.centres,
+                self.refiner.leaf_form_factors,
             )
             self.refiner.stats["t_corr"] = time.perf_counter() - t1
         self.refiner.progress.done("push corrections")
@@ -113,3 +118,39 @@ class RadiositySystem:
         if self.B is None:
             self.solve()
         return loop_radiance(self.h, self.B, self.mesh, smooth_angle, domain)
+
+    # -- the solution interface, shared with DynamicRadiosity (texels, gather, lightmap plan read a
+    # solution through it): a RadiositySystem is the solution without light events ---------------
+    naive_active = False
+    incremental = None  # no cached responses to sum
+
+    @property
+    def system(self):
+        return self
+
+    @property
+    def n_hr(self):
+        return self.h.n
+
+    @property
+    def shapes(self):
+        return {}
+
+    @property
+    def lights(self):
+        return {}
+
+    def current(self):
+        """(h, B, E, links) of the solution in effect (solved if it is not yet)."""
+        if self.B is None:
+            self.solve()
+        return self.h, self.B, self.base_emission(), self.links
+
+    def solution_at(self, points, patch_ids):
+        """(h, B, patch_ids, points): DynamicRadiosity.solution_at without events."""
+        h, B, _, _ = self.current()
+        return h, B, patch_ids, points
+
+    def loop_field(self, X, domain="CORNER", smooth_angle=30.0):
+        """A node field X (3, n) other than B, per input loop (or vertex) as loop_radiance."""
+        return loop_radiance(self.h, X, self.mesh, smooth_angle, domain)

@@ -183,10 +183,9 @@ class Refiner:
             self.stats["contact_nodes"] = refine_contacts(h, c, min_area)
             ex = h.view("exposure")
             part = np.flatnonzero((ex > 0) & (ex < 1))
-            # form factors (and visibility points) of partly covered nodes: from their exposed
-            # points of a 6 x 6 grid (4 x 4 measured: leaf form factor sums up to 1.34, not 1.19)
-            fp = ff.sample_points(h.corners[part], h.nv[part], 6)
-            seen = ~c.covered(fp.reshape(-1, 3), np.repeat(h.patch[part], 36)).reshape(-1, 36)
+            # form factors (and visibility points) of partly covered nodes: from about 6 x 6
+            # points on their exposed part (_exposed_grid)
+            fp, seen = self._exposed_grid(part, ex[part])
             self._vis_nodes, self._vis_pts = part, exposed_points(h, c, part, prm.vis_k, fp, seen)
             self._ff_pts, self._ff_w = fp, seen / np.maximum(seen.sum(1, keepdims=True), 1)
             # the oracle estimates F from centres: a partly covered node's is that of its exposed
@@ -196,6 +195,29 @@ class Refiner:
             self._ex_centre[has] = np.einsum("nk,nkj->nj", self._ff_w[has], fp[has])
         self.stats["contact_receivers"] = len(c.receivers)
         return c
+
+    def _exposed_grid(self, nodes, exposure, target=6):
+        """Form-factor points of partly covered nodes: a k x k grid per node with k such that about
+        target^2 points fall on its exposed part (k = target / sqrt(exposure), at most 4 x
+        target), the exposed ones first. Returns points (N, M, 3) and seen (N, M) (padding: False)."""
+        h, c = self.h, self._contacts
+        k = np.clip(np.ceil(target / np.sqrt(np.maximum(exposure, 1e-12))), target, 4 * target).astype(int)
+        groups = []
+        for kk in np.unique(k):
+            sel = np.flatnonzero(k == kk)
+            pts = ff.sample_points(h.corners[nodes[sel]], h.nv[nodes[sel]], int(kk))
+            ok = ~c.covered(pts.reshape(-1, 3), np.repeat(h.patch[nodes[sel]], kk * kk)).reshape(len(sel), -1)
+            order = np.argsort(~ok, axis=1, kind="stable")  # exposed points first, in grid order
+            groups.append(
+                (sel, np.take_along_axis(pts, order[..., None], 1), np.take_along_axis(ok, order, 1))
+            )
+        M = max([max(int(g[2].sum(1).max()), 1) for g in groups] + [target * target])
+        fp = np.repeat(h.centre[nodes][:, None], M, 1)
+        seen = np.zeros((len(nodes), M), bool)
+        for sel, pts, ok in groups:
+            m = min(M, pts.shape[1])
+            fp[sel, :m], seen[sel, :m] = pts[:, :m], ok[:, :m]
+        return fp, seen
 
     def _exposed_form_factors(self, a, b, f_ab, f_ba, chunk=LINK_BATCH):
         """Links with a partly covered end: F integrated over that end's exposed part (its
@@ -217,14 +239,8 @@ class Refiner:
 
             def batch(i, j, x=x, y=y, ix=ix, m=m):  # every batch writes its own links
                 mm = m[i:j]
-                xs, ys, k = x[mm], y[mm], ix[mm]
-                vals = ff.point_to_polygon(
-                    self._ff_pts[k],
-                    h.normal[xs][:, None],
-                    h.corners[ys][:, None],
-                    h.nv[ys][:, None],
-                )
-                fx = np.clip((vals * self._ff_w[k]).sum(1), 0.0, 1.0)
+                xs, ys = x[mm], y[mm]
+                fx = np.clip(self._exposed_ff(ix[mm], xs, ys), 0.0, 1.0)
                 # reciprocity; the larger end integrated can give the smaller one F > 1: clipped
                 fy = np.minimum(fx * h.area[xs] / h.area[ys], 1.0)
                 fx = fy * h.area[ys] / h.area[xs]
@@ -234,6 +250,35 @@ class Refiner:
                     f_ba[mm], f_ab[mm] = fx, fy
 
             batch_map(batch, ranges(len(m), chunk), self.threads)
+
+    def _exposed_ff(self, k, x, y):
+        """F from the exposed part of partly covered nodes x (k: their index in _vis_nodes) to
+        polygons y: the point form factor averaged over their exposed form-factor points."""
+        h = self.h
+        vals = ff.point_to_polygon(
+            self._ff_pts[k],
+            h.normal[x][:, None],
+            h.corners[y][:, None],
+            h.nv[y][:, None],
+        )
+        return (vals * self._ff_w[k]).sum(1)
+
+    def leaf_form_factors(self, leaf, src, chunk=20_000):
+        """(F, mask): for leaves partly covered by contacts (mask), the point form factor to the
+        polygons src averaged over the leaf's exposed part; the push corrections take the shape
+        of a link's form factor from it (a single point beside a contact line is no mean: there
+        F falls from 0.5 to a few percent across one leaf)."""
+        k = self._partial(leaf)
+        has = k >= 0
+        out = np.zeros(len(leaf))
+        if not has.any():
+            return out, has
+        has[has] = self._ff_w[k[has]].any(1)
+        m = np.flatnonzero(has)
+        for s0 in range(0, len(m), chunk):
+            mm = m[s0 : s0 + chunk]
+            out[mm] = self._exposed_ff(k[mm], leaf[mm], src[mm])
+        return out, has
 
     def centres(self, nodes):
         """Node centres for the oracle, of the exposed part where a node is partly covered."""

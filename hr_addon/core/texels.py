@@ -214,32 +214,19 @@ def incident_radiance(h, B, E, links):
 KINDS = ("radiance", "reflected", "incident")
 
 
-def _current(dyn, system):
-    """(h, B, E, links) of the solution in effect (NAIVE: its rebuilt system)."""
-    if dyn is None:
-        if system.B is None:
-            system.solve()
-        return system.h, system.B, system.base_emission(), system.links
-    if dyn.naive_active:
-        s = dyn._naive.system
-        return s.h, s.B, s.base_emission(), s.links
-    return dyn.h, dyn.B, dyn.emission(), dyn.links
-
-
-def solution_radiance(dyn, system, patch, points, locator=None, kind="radiance"):
+def solution_radiance(solution, patch, points, locator=None, kind="radiance"):
     """Radiance (N, 3) float32 of the current solution at surface points of the given input patches.
-    dyn: a DynamicRadiosity or None (then the static `system`, solved if it is not); locator: a
+    solution: a DynamicRadiosity or a RadiositySystem (solved if it is not); locator: a
     TexelLocator of these points, to find their leaves faster (not used while NAIVE's rebuilt
     system is current: the points then lie on its patches, not the input's).
     kind: "radiance" (outgoing, emission included), "reflected" (without emission) or "incident"
     (irradiance / pi, see incident_radiance)."""
     if kind not in KINDS:
         raise ValueError(f"unknown kind {kind!r} ({', '.join(KINDS)})")
-    if dyn is not None:
-        _, _, patch, points = dyn.solution_at(points, patch)
-        if dyn.naive_active:
-            locator = None
-    h, B, E, links = _current(dyn, system)
+    _, _, patch, points = solution.solution_at(points, patch)
+    if solution.naive_active:
+        locator = None
+    h, B, E, links = solution.current()
     if kind == "reflected":
         B = B - E * h.exposure[: B.shape[1]]  # B holds node means (contacts.py)
     elif kind == "incident":
@@ -248,21 +235,8 @@ def solution_radiance(dyn, system, patch, points, locator=None, kind="radiance")
     return radiance_per_leaf(h, B, patch, points, leaf=leaf, locator=locator).astype(np.float32)
 
 
-def loop_incident(dyn, system, domain="CORNER", smooth_angle=30.0):
+def loop_incident(solution, domain="CORNER", smooth_angle=30.0):
     """Irradiance / pi per input loop (or vertex), as loop_radiance() gives radiance: the same
-    interpolation run on the incident field (swapped in for B for the call, so NAIVE's special
-    cases apply alike)."""
-    h, B, E, links = _current(dyn, system)
-    inc = incident_radiance(h, B, E, links)
-    if dyn is None:
-        holder, attr, call = system, "B", system.loop_radiance
-    elif dyn.naive_active:
-        holder, attr, call = dyn._naive.system, "B", dyn.loop_radiance
-    else:
-        holder, attr, call = dyn, "_B", dyn.loop_radiance
-    saved = getattr(holder, attr)
-    setattr(holder, attr, inc)
-    try:
-        return call(domain, smooth_angle)
-    finally:
-        setattr(holder, attr, saved)
+    interpolation run on the incident field (solution.loop_field)."""
+    h, B, E, links = solution.current()
+    return solution.loop_field(incident_radiance(h, B, E, links), domain, smooth_angle)

@@ -143,17 +143,16 @@ class TexturePlan:
         loc = self.locator
         return texel_gather(system, loc.patch, loc.points, **kw)
 
-    def radiance(self, dyn, system, mode="RADIANCE", gather=None):
+    def radiance(self, solution, mode="RADIANCE", gather=None):
         """(N, 3) values of the current solution at the texel points of all objects. mode RADIANCE:
         outgoing radiance, reflected part times the albedo factor where set_albedo gave one, i.e.
         reflected x albedo / average + emission; IRRADIANCE: irradiance / pi (no emission).
         gather: final_gather() of this plan: the texels gather their own light (issue 19); None:
         the solution's leaves, interpolated (today's output, unchanged)."""
         if gather is not None:
-            src = dyn if dyn is not None else system
             if mode == "IRRADIANCE":
-                return gather.evaluate(src, "incident").astype(np.float32)
-            v = gather.evaluate_kinds(src, ("radiance", "reflected") if self.albedo else ("radiance",))
+                return gather.evaluate(solution, "incident").astype(np.float32)
+            v = gather.evaluate_kinds(solution, ("radiance", "reflected") if self.albedo else ("radiance",))
             out = v["radiance"]
             if self.albedo:
                 refl = v["reflected"]
@@ -163,10 +162,10 @@ class TexturePlan:
             return out.astype(np.float32)
         loc = self.locator
         if mode == "IRRADIANCE":
-            return solution_radiance(dyn, system, loc.patch, loc.points, loc, kind="incident")
-        out = solution_radiance(dyn, system, loc.patch, loc.points, loc)
+            return solution_radiance(solution, loc.patch, loc.points, loc, kind="incident")
+        out = solution_radiance(solution, loc.patch, loc.points, loc)
         if self.albedo:
-            refl = solution_radiance(dyn, system, loc.patch, loc.points, loc, kind="reflected")
+            refl = solution_radiance(solution, loc.patch, loc.points, loc, kind="reflected")
             for i, f in self.albedo.items():
                 o = self.objects[i]
                 out[o.lo : o.hi] += (f - 1.0) * refl[o.lo : o.hi]

@@ -59,26 +59,7 @@ class FirstBounce:
             x = x.reshape(-1, 3)
             F = np.zeros(len(x))
             front = (x - rec.c) @ nf > eps
-            above = ((allv[None] - x[:, None]) * xn[:, None]).sum(-1).min(1) > eps
-            ok = front & above & (rings is not None)
-            if ok.any():
-                F[ok] = _contour(x[ok], xn[ok], rings)
-            rest = np.flatnonzero(front & ~ok)
-            if len(rest) and rings is not None:
-                # the horizon cuts the outline: its rings clipped (not every piece on every patch)
-                F[rest] = ff.clipped_rings(x[rest], xn[rest], rings)
-            elif len(rest):
-                T = len(corners)
-                F[rest] = (
-                    ff.point_to_polygon(
-                        np.repeat(x[rest], T, 0),
-                        np.repeat(xn[rest], T, 0),
-                        np.tile(corners, (len(rest), 1, 1)),
-                        np.tile(nv, len(rest)),
-                    )
-                    .reshape(-1, T)
-                    .sum(1)
-                )
+            F[front] = shape_form_factors(x[front], xn[front], rings, corners, nv, eps)
             return F.reshape(-1, 4), x, xn, gw
 
         def visible(nodes, F, x, xn):
@@ -177,26 +158,7 @@ class FirstBounce:
         nf = pt.normal[roots[0]] if len(roots) else rec.n
         if len(roots) == 0:
             return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
-        p2 = to2d(rec, pt.corners[roots])
-        edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
-        edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in p2]
-        edges = np.concatenate(edges)
-        traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
-        if not traps:
-            return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
-        mids = np.array([m for _, m in traps])
-        keep = _in_rings(mids, rec.rings2d) & _in_convex(mids, p2).any(1)
-        out, nvs = [], []
-        for t in np.flatnonzero(keep):
-            q = traps[t][0]
-            p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
-            if newell(p3) @ nf < 0:
-                p3 = p3[::-1]
-            nvs.append(len(p3))
-            out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
-        c = np.array(out)
-        _, a = ff.polygon_normal_area(c, np.array(nvs))
-        return c, np.array(nvs), a, nf
+        return slab_pieces(rec, nf, to2d(rec, pt.corners[roots])) + (nf,)
 
     def _maybe_occluded(self, nodes, lo, hi, shape_plane):
         """Shaft test between nodes and the shape's box (planes.Occluders): False where no rays
@@ -209,6 +171,63 @@ class FirstBounce:
         nlo = np.minimum(c.min(1), lo) - e
         nhi = np.maximum(c.max(1), hi) + e
         return occ.maybe_occluded(nlo, nhi, occ.patch_plane[h.patch[nodes]], shape_plane)
+
+
+def slab_pieces(rec, nf, cells=None):
+    """Convex pieces (slabs) of a shape's outline: corners (T, 4, 3) CCW about nf, nv, areas.
+    cells: convex polygons (P, 4, 2) in the shape's plane (its covered patches): the outline is cut
+    along their edges too and only the pieces inside one of them are kept."""
+    edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
+    if cells is not None:
+        edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in cells]
+    edges = np.concatenate(edges)
+    traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
+    mids = np.array([m for _, m in traps]).reshape(-1, 2)
+    keep = _in_rings(mids, rec.rings2d)
+    if cells is not None:
+        keep &= _in_convex(mids, cells).any(1)
+    out, nvs = [], []
+    for t in np.flatnonzero(keep):
+        q = traps[t][0]
+        p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
+        if newell(p3) @ nf < 0:
+            p3 = p3[::-1]
+        nvs.append(len(p3))
+        out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
+    c, nv = np.array(out).reshape(-1, 4, 3), np.array(nvs, int)
+    return c, nv, ff.polygon_normal_area(c, nv)[1]
+
+
+def shape_form_factors(x, n, rings, corners, nv, eps):
+    """Unoccluded form factors (N,) from points x (N, 3) with normals n in front of a shape: over
+    its rings (outer CCW about its normal, holes CW; None: unknown) by the contour integral where
+    the shape lies wholly above a point's horizon, else the rings clipped to it; without rings the
+    sum over its convex pieces (corners (T, 4, 3), nv)."""
+    F = np.zeros(len(x))
+    if rings is not None:
+        allv = np.concatenate(rings)
+        whole = ((allv[None] - x[:, None]) * n[:, None]).sum(-1).min(1) > eps
+        if whole.any():
+            F[whole] = _contour(x[whole], n[whole], rings)
+        cut = ~whole
+        if cut.any():
+            # the horizon cuts the outline: its rings clipped to the point's upper half-space
+            # (exact, as the pieces' sum, for a handful of edges instead of every piece's)
+            F[cut] = ff.clipped_rings(x[cut], n[cut], rings)
+        return F
+    T = len(corners)
+    step = max(1, (1 << 18) // max(T, 1))  # bounded temporaries
+    for s0 in range(0, len(x), step):
+        r = slice(s0, s0 + step)
+        m = len(x[r])
+        F[r] = (
+            ff.point_to_polygon(
+                np.repeat(x[r], T, 0), np.repeat(n[r], T, 0), np.tile(corners, (m, 1, 1)), np.tile(nv, m)
+            )
+            .reshape(-1, T)
+            .sum(1)
+        )
+    return F
 
 
 def _contour(x, n, rings):

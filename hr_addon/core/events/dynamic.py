@@ -155,6 +155,24 @@ class DynamicRadiosity:
             self._plan = (key, _loop_plan(h, self.system.mesh, smooth_angle, domain))
         return _loop_radiance(h, self._B, self.system.mesh, smooth_angle, domain, plan=self._plan[1])
 
+    def current(self):
+        """(h, B, E, links) of the solution in effect (NAIVE: its rebuilt system's)."""
+        if self._naive is not None:
+            s = self._naive.system
+            return s.h, s.B, s.base_emission(), s.links
+        return self.h, self.B, self.emission(), self.links
+
+    def loop_field(self, X, domain="CORNER", smooth_angle=30.0):
+        """A node field X (3, n) on current()'s hierarchy other than B, per input loop (or
+        vertex) as loop_radiance interpolates B (NAIVE's special cases included)."""
+        holder, attr = (self._naive.system, "B") if self._naive is not None else (self.nodes, "current")
+        saved = getattr(holder, attr)
+        setattr(holder, attr, X)
+        try:
+            return self.loop_radiance(domain, smooth_angle)
+        finally:
+            setattr(holder, attr, saved)
+
     def add(self, key, shape):
         t0 = time.perf_counter()
         rep = self._add(key, shape)

@@ -5,7 +5,7 @@ cached so that a strength or colour change is a scale (docs/gather.md)."""
 import numpy as np
 
 from .. import formfactor as ff
-from ..events.direct import _contour
+from ..events.direct import shape_form_factors, slab_pieces
 from ..geometry import newell
 from ..parallel import batch_map, ranges
 from .sampling import Emitter, hammersley, hash_uniform, position_keys
@@ -36,33 +36,7 @@ class DirectLight:
         if len(i) == 0:
             return out.astype(np.float32)
         xi, ni = x[i], nx[i]
-        F = np.zeros(len(i))
-        whole = np.zeros(len(i), bool)
-        if em.rings is not None:
-            allv = np.concatenate(em.rings)
-            whole = ((allv[None] - xi[:, None]) * ni[:, None]).sum(-1).min(1) > eps
-            if whole.any():
-                F[whole] = _contour(xi[whole], ni[whole], em.rings)
-        rest = np.flatnonzero(~whole)
-        if em.rings is not None and len(rest):
-            # the horizon cuts the outline: its rings clipped to the point's upper half-space
-            # (exact, as the pieces' sum, for a handful of edges instead of every piece's)
-            F[rest] = _clipped_rings(xi[rest], ni[rest], em.rings)
-            rest = rest[:0]
-        T = len(em.corners)
-        step = max(1, (1 << 18) // max(T, 1))
-        for s0 in range(0, len(rest), step):
-            r = rest[s0 : s0 + step]
-            F[r] = (
-                ff.point_to_polygon(
-                    np.repeat(xi[r], T, 0),
-                    np.repeat(ni[r], T, 0),
-                    np.tile(em.corners, (len(r), 1, 1)),
-                    np.tile(em.nv, len(r)),
-                )
-                .reshape(-1, T)
-                .sum(1)
-            )
+        F = shape_form_factors(xi, ni, em.rings, em.corners, em.nv, eps)
         lit = np.flatnonzero(F > 0)
         if len(lit) and self.shadow_rays > 0:
             S = self.shadow_rays
@@ -145,31 +119,13 @@ class DirectLight:
     def _shape_emitter(self, dyn, rec):
         """Emitter of a light shape (its part on surfaces when it lies on one) and the samples inside
         its outline on that surface."""
-        from ..events.planar import _in_rings, slab_decomposition
+        from ..events.planar import _in_rings
 
         import zlib
 
         # the shape's own random stream, from its outline relative to the scene's box: the same
         # outline gives the same shadow rays at any scene scale or position
         stream = zlib.crc32(b"".join(position_keys(r, self.unit).tobytes() for r in rec.rings)) & 0x7FFFFFFF
-
-        def outline_pieces(nf):
-            """The outline's own convex pieces (slabs of its rings)."""
-            edges = np.concatenate([np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d])
-            traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
-            out, nvs = [], []
-            for q, mid in traps:
-                if not _in_rings(mid[None], rec.rings2d)[0]:
-                    continue
-                p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
-                if newell(p3) @ nf < 0:
-                    p3 = p3[::-1]
-                nvs.append(len(p3))
-                out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
-            corners = np.array(out).reshape(-1, 4, 3)
-            nv = np.array(nvs, int)
-            _, area = ff.polygon_normal_area(corners, nv)
-            return corners, nv, area
 
         whole = rec.covered >= 1 - 1e-9 or not rec.on_surface
         if rec.on_surface:
@@ -179,10 +135,10 @@ class DirectLight:
                 # instead of its pieces on every patch below it (hundreds on a finely meshed
                 # wall) make the shadow rays' sampling cheap (the same region, uniform in solid
                 # angle)
-                corners, nv, area = outline_pieces(nf)
+                corners, nv, area = slab_pieces(rec, nf)
         else:
             nf = rec.n
-            corners, nv, area = outline_pieces(nf)
+            corners, nv, area = slab_pieces(rec, nf)
         inside = np.zeros(0, np.int64)
         if len(corners) == 0:
             return None, inside, nf
@@ -271,15 +227,14 @@ class DirectLight:
                 del self._light_cache[k]
         return got
 
-    def direct_and_emission(self, dyn=None):
+    def direct_and_emission(self, dyn):
         """(D (n, 3) direct light, E (n, 3) emission at the points) of the current emitters."""
         D = self.direct_static().copy()
         E = self.E_static.copy()
-        for rec in getattr(dyn, "lights", {}).values() if dyn is not None and hasattr(dyn, "n_hr") else ():
+        for rec in dyn.lights.values():
             D += self._light(rec)[:, None] * rec.scale[None]
-        shapes = getattr(dyn, "shapes", None) if dyn is not None and hasattr(dyn, "n_hr") else None
         live = set()
-        for rec in (shapes or {}).values():
+        for rec in dyn.shapes.values():
             Ds, inside = self._shape(dyn, rec)
             live.add(rec.geom_key)
             D += Ds[:, None] * rec.emission[None]

@@ -86,11 +86,9 @@ class FinalGather(DirectLight):
         threads=1,
         progress=None,
     ):
-        dyn = system if hasattr(system, "n_hr") else None
-        self.system = dyn.system if dyn is not None else system
-        s = self.system
+        self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
-        self.n_hr = dyn.n_hr if dyn is not None else h.n
+        self.n_hr = system.n_hr
         nrm = np.asarray(normals, np.float64).reshape(-1, 3)
         self.normals = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
         self.patch = np.asarray(patch_ids, np.int64).ravel()
@@ -261,14 +259,9 @@ class FinalGather(DirectLight):
     # -- run time: values at the HR leaves -----------------------------------------------------------
     def _state(self, dyn):
         """(h, B, E) of the solution in effect on self.system's hierarchy, or None under NAIVE."""
-        if dyn is None or not hasattr(dyn, "n_hr"):
-            s = dyn if dyn is not None else self.system
-            if s.B is None:
-                s.solve()
-            return s.h, s.B, s.base_emission()
         if dyn.naive_active:
             return None
-        return dyn.system.h, dyn.B, dyn.emission()
+        return dyn.current()[:3]
 
     def leaf_values(self, dyn):
         """(n_hr, 3) reflected radiance on the uncovered part of every HR leaf (0 elsewhere); with
@@ -335,9 +328,7 @@ class FinalGather(DirectLight):
         base solution's, and per light shape its response's at unit emission times the shape's
         emission (a colour or strength edit: one weighted sum). None where that does not apply
         (NAIVE, warm mode, a static system)."""
-        if not self.cache_responses or dyn is None or not hasattr(dyn, "n_hr"):
-            return None
-        if dyn.incremental != "response" or dyn.naive_active:
+        if not self.cache_responses or dyn.incremental != "response" or dyn.naive_active:
             return None
         recs = list(dyn.shapes.values())
         if any(r.U is None or r.used == "NAIVE" or not r.on_surface for r in recs):
@@ -416,18 +407,18 @@ class FinalGather(DirectLight):
         self._naive_key, self._naive_V = nv, V
         return V
 
-    def indirect(self, dyn=None):
+    def indirect(self, dyn):
         """(n, 3) I = W @ leaf_values: the solution's reflected radiance seen by the hemisphere."""
         return _csr_matvec(self.indptr, self.cols, self.w, self.leaf_values(dyn), threads=self.threads)
 
     # -- output ----------------------------------------------------------------------------------------
-    def evaluate(self, dyn=None, kind="radiance"):
+    def evaluate(self, dyn, kind="radiance"):
         """(n, 3) at the samples: "radiance" E + rho (D + I), "reflected" rho (D + I), "incident"
-        D + I (irradiance / pi). dyn: a DynamicRadiosity, or a RadiositySystem (static emission
-        only), or None (self.system). Covered samples read 0."""
+        D + I (irradiance / pi). dyn: the solution (a DynamicRadiosity, or a RadiositySystem: static
+        emission only). Covered samples read 0."""
         return self.evaluate_kinds(dyn, (kind,))[kind]
 
-    def evaluate_kinds(self, dyn=None, kinds=KINDS):
+    def evaluate_kinds(self, dyn, kinds=KINDS):
         """{kind: (n, 3)} for several kinds from one gather (see evaluate)."""
         for k in kinds:
             if k not in KINDS:

@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from ..output import equal_key_pairs, in_domain, loop_welds
 from .final import FinalGather
 
 
@@ -21,13 +22,9 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     Returns (points (S, 3), normals (S, 3), patch ids (S,), loop -> sample index (L,), -1 for loops
     of polygons dropped as degenerate, and (li, lj, w): loop li averages sample loop_index[lj] with
     weight w (None for inset = 0))."""
-    from ..output import _weld_ids
-
     mesh, pt = system.mesh, system.patches
     P = len(mesh.loop_start)
-    loop_poly = np.repeat(np.arange(P), mesh.loop_total)
-    loop_obj = np.asarray(mesh.object_id)[loop_poly]
-    weld = _weld_ids(mesh, loop_obj)
+    loop_poly, weld = loop_welds(mesh)
     # the patch of each loop: the patch of its polygon holding its vertex
     jj, kk = np.nonzero(pt.vert_index >= 0)
     key_p = pt.poly[jj].astype(np.int64) * (len(mesh.verts) + 1) + pt.vert_index[jj, kk]
@@ -43,13 +40,7 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     pn = pn / np.maximum(parea, 1e-300)[:, None]
     # pairs of loops at the same weld whose polygons lie within smooth_angle
     L = len(weld)
-    o = np.argsort(weld, kind="stable")
-    ws = weld[o]
-    start = np.searchsorted(ws, weld, "left")
-    count = np.searchsorted(ws, weld, "right") - start
-    li = np.repeat(np.arange(L), count)
-    offs = np.arange(len(li)) - np.repeat(np.cumsum(count) - count, count)
-    lj = o[np.repeat(start, count) + offs]
+    li, lj = equal_key_pairs(weld, weld)
     a, b = loop_poly[li], loop_poly[lj]
     ok = np.einsum("ij,ij->i", pn[a], pn[b]) >= np.cos(np.radians(smooth_angle))
     valid = lpatch >= 0
@@ -97,12 +88,12 @@ class LoopGather(FinalGather):
     inset: see loop_samples (0.5: samples in the corners' regions, averaged; 0: at the corners)."""
 
     def __init__(self, system, smooth_angle=30.0, inset=0.5, **kw):
-        s = system.system if hasattr(system, "n_hr") else system
+        s = system.system
         pts, nrm, patch, self.loop_index, self.average = loop_samples(s, smooth_angle, inset)
         self.smooth_angle = smooth_angle
         super().__init__(system, pts, nrm, patch, **kw)
 
-    def loop_radiance(self, dyn=None, domain="CORNER", kind="radiance"):
+    def loop_radiance(self, dyn, domain="CORNER", kind="radiance"):
         v = self.evaluate(dyn, kind)
         if self.average is not None:
             li, lj, w = self.average
@@ -115,18 +106,13 @@ class LoopGather(FinalGather):
             out = np.where(den[:, None] > 0, out / np.maximum(den, 1e-300)[:, None], 0.0)
         else:
             out = np.where((self.loop_index >= 0)[:, None], v[np.maximum(self.loop_index, 0)], 0.0)
-        if domain == "POINT":
-            mesh = self.system.mesh
-            res = np.zeros((len(mesh.verts), 3))
-            res[mesh.loop_verts] = out
-            return res.astype(np.float32)
-        return out.astype(np.float32)
+        return in_domain(out, self.system.mesh, domain)
 
 
 def texel_gather(system, patch, points, **kw):
     """FinalGather at texel centres (lightmap.plan's points on input patches), normals from the
-    patches: evaluate(dyn, kind) replaces core.texels.solution_radiance(dyn, system, patch, points,
+    patches: evaluate(solution, kind) replaces core.texels.solution_radiance(solution, patch, points,
     kind=kind) (same kinds; float64, cast as needed)."""
-    s = system.system if hasattr(system, "n_hr") else system
+    s = system.system
     patch = np.asarray(patch, np.int64)
     return FinalGather(system, points, s.patches.normal[patch], patch, **kw)
