@@ -127,6 +127,12 @@ def make_parser(prog=PROG, blend_required=False):
         help="write the bake into DIR (absolute; default: the scene's cache folder next to the .blend)",
     )
     p.add_argument(
+        "--rebuild",
+        action="store_true",
+        help="build the scene precompute (hierarchy, links, final gather) even if the cache folder "
+        "holds a valid one",
+    )
+    p.add_argument(
         "--status-file",
         metavar="PATH",
         help="keep a JSON progress status in PATH (the interactive background bake reads it)",
@@ -276,6 +282,7 @@ def _run(argv, prog, blend_required, intr):
             contacts=False if args.no_contacts else None,
             final_gather=False if args.no_final_gather else None,
             cache_dir=args.cache_dir,
+            rebuild=args.rebuild,
             status=status.progress if status is not None else None,
             interrupts=intr,
             warnings=collected,

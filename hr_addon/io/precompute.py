@@ -39,6 +39,7 @@ FILENAME = "precompute.hrpc"
 LOCKNAME = "precompute.lock"
 MAGIC = "hr_radiosity precompute"
 FORMAT_VERSION = 1
+NONE_YET = "no precompute yet"
 _PKG = __name__.rsplit(".io.", 1)[0]  # "hr_addon", or the extension's package path inside Blender
 _HOST = socket.gethostname() or "host"
 
@@ -418,7 +419,7 @@ def load(cache_dir, want):
     try:
         header = read_header(path)
     except FileNotFoundError:
-        return None, None, "no precompute yet"
+        return None, None, NONE_YET
     except PrecomputeError as exc:
         return None, None, str(exc)
     why = validate(header, want)
@@ -428,7 +429,7 @@ def load(cache_dir, want):
         arrays, header = read(path)
         system, gather = restore(arrays, header["graph"])
     except FileNotFoundError:
-        return None, None, "no precompute yet"
+        return None, None, NONE_YET
     except PrecomputeError as exc:
         return None, None, str(exc)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a graph this code cannot follow
@@ -571,6 +572,10 @@ def _loaded(d):
     return f"precompute loaded (built {age_text(time.time() - h.get('created', time.time()))} ago{took})"
 
 
+def _building(why):
+    return f"precompute {'built' if why == NONE_YET else 'rebuilt'}: {why}"
+
+
 def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=2.0, info=None, force=False):
     """(system, gather, how) for the scene `want` (expected()) describes: the cache folder's
     precompute if valid; else built by `build()` -> (system, gather) under the lock and written
@@ -586,7 +591,7 @@ def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=
         return system, gather, "loaded"
     problem = folder_problem(d)
     if problem:
-        log(f"precompute rebuilt: {why}")
+        log(_building(why))
         log(f"Precompute not stored: {problem}")
         system, gather = build()
         return system, gather, "built"
@@ -612,7 +617,7 @@ def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=
         if system is not None:
             log(_loaded(d))
             return system, gather, "loaded"
-        log(f"precompute rebuilt: {why}")
+        log(_building(why))
         for p in d.glob(f".{FILENAME}.*.tmp"):  # a killed writer's (only the lock holder writes)
             p.unlink(missing_ok=True)
         t0 = time.perf_counter()
