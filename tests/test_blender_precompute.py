@@ -150,9 +150,10 @@ def test_delete_bake_leaves_a_foreign_precompute_named_file(tmp_path):
     from hr_addon.blender.ops import delete_cache_files
 
     d = _cache(tmp_path)
-    os.makedirs(d / "precompute.hrpc")
+    _bake()
+    (d / "precompute.hrpc").unlink()
+    os.makedirs(d / "precompute.hrpc")  # the user's folder, in the cache folder
     res = _bake()
     assert any("Precompute not stored" in w for w in res.warnings), res.warnings
     delete_cache_files(str(d), keep_precompute=False)
     assert (d / "precompute.hrpc").is_dir()
-    assert bpy.context.scene is not None
