@@ -345,8 +345,9 @@ class _Bake:
                 r.precompute.append(line)
                 say(line[:1].upper() + line[1:])
 
-        texels = lightmap_key(snap, self.view_layer, cfg.resolution) if cfg.output == "TEXTURE" else None
-        want = precompute_key(snap.mesh, params, cfg.gather, texels if cfg.gather is not None else None)
+        texture_gather = cfg.output == "TEXTURE" and cfg.gather is not None
+        texels = lightmap_key(snap, self.view_layer, cfg.resolution) if texture_gather else None
+        want = precompute_key(snap.mesh, params, cfg.gather, texels)
         with self.intr.raising():
             system, final, how = pc.load_or_build(cache_dir, want, build, log=log, force=rebuild)
             dyn = made["dyn"] if "dyn" in made else engine(system)
