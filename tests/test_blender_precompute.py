@@ -145,7 +145,7 @@ def test_delete_bake_keeps_or_deletes_the_precompute_and_rebuild_discards_it(tmp
 
 def test_delete_bake_leaves_a_foreign_precompute_named_file(tmp_path):
     """A bake never deletes what it did not write: a directory of that name is left alone."""
-    bpy = load_bpy()
+    load_bpy()
     open_sample("cornell", tmp_path)
     from hr_addon.blender.ops import delete_cache_files
 
