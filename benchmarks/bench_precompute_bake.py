@@ -72,6 +72,7 @@ def main(frame=5):
                 "bake_s": t_cold,
                 "messages": cold.precompute,
             },
+            "rebake_load_s": warm.load_seconds,
             "rebake_after_keyframe": {
                 "build_stage_s": warm.build_seconds,
                 "bake_s": t_warm,
@@ -101,7 +102,9 @@ def _store(out):
     print(json.dumps(out, indent=1), flush=True)
     o = Path(__file__).parent / "out"
     o.mkdir(exist_ok=True)
-    (o / "precompute_bake_20k_draft.json").write_text(json.dumps(out, indent=1))
+    (o / f"precompute_bake_20k_draft{sys.argv[2] if len(sys.argv) > 2 else ''}.json").write_text(
+        json.dumps(out, indent=1)
+    )
 
 
 if __name__ == "__main__":

@@ -350,10 +350,12 @@ class _Bake:
         want = precompute_key(snap.mesh, params, cfg.gather, texels)
         with self.intr.raising():
             system, final, how = pc.load_or_build(cache_dir, want, build, log=log, force=rebuild)
+            t1 = time.perf_counter()
             dyn = made["dyn"] if "dyn" in made else engine(system)
         r.precompute_loaded = how == "loaded"
         if r.precompute_loaded:
-            r.build_seconds = time.perf_counter() - t0
+            r.load_seconds = t1 - t0  # the key (the scene's signatures) and the file read and restored
+            r.build_seconds = time.perf_counter() - t0  # + DynamicRadiosity (its base solve)
         r.build_report = system.build
         r.rays = ray_backend_name(system)
         r.rays_note = ray_backend_note(r.rays)

@@ -98,6 +98,7 @@ class BakeResult:
     gather_seconds: float = 0.0  # the final gather's precompute (0: off or loaded)
     precompute: list = field(default_factory=list)  # what the build stage did, and why
     precompute_loaded: bool = False  # the scene precompute came from the cache folder
+    load_seconds: float = 0.0  # of build_seconds, the precompute's key and load (when loaded)
     seconds: float = 0.0
     build_report: object = None
     rays: str = ""  # ray backend of the build ("embree", "numpy", ...)
