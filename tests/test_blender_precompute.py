@@ -157,3 +157,29 @@ def test_delete_bake_leaves_a_foreign_precompute_named_file(tmp_path):
     assert any("Precompute not stored" in w for w in res.warnings), res.warnings
     delete_cache_files(str(d), keep_precompute=False)
     assert (d / "precompute.hrpc").is_dir()
+
+
+def test_live_loads_the_bakes_precompute_and_never_writes_it(tmp_path):
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import live
+
+    scene = bpy.context.scene
+    scene.hr.quality = "DRAFT"
+    path = _cache(tmp_path) / "precompute.hrpc"
+    sess = live.start(scene, threaded=False)  # no precompute yet: Live builds, and stores nothing
+    try:
+        assert sess.worker.flush(timeout=600)
+        assert sess.worker.precompute == "built (no precompute: no precompute yet)"
+        assert not path.exists()
+    finally:
+        live.stop(scene)
+    _bake()  # vertex output, draft: the key Live uses too
+    stamp = path.stat().st_mtime_ns
+    sess = live.start(scene, threaded=False)
+    try:
+        assert sess.worker.flush(timeout=600)
+        assert sess.worker.precompute == "precompute loaded", sess.worker.precompute
+        assert path.stat().st_mtime_ns == stamp
+    finally:
+        live.stop(scene)
