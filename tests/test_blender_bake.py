@@ -88,6 +88,7 @@ def test_hr_radiance_matches_core_per_frame(tmp_path, final_gather):
         "frame_000013.npz",
         "frame_000021.npz",
         "manifest.json",
+        "precompute.hrpc",  # the scene precompute (issue 22), reused by the next bake
     ]
 
     mesh, names = _reference_mesh(bpy)

@@ -22,7 +22,9 @@ pytest.importorskip("bpy")
 
 
 def _snapshot(d):
-    return {p.name: p.read_bytes() for p in sorted(Path(d).iterdir())}
+    """The bake's files. Not the scene precompute: it is no part of the bake, and a cancel after
+    the build keeps the new one the build finished and stored (checked whole below)."""
+    return {p.name: p.read_bytes() for p in sorted(Path(d).iterdir()) if p.name != "precompute.hrpc"}
 
 
 def _wait_for(proc, pattern, lines):
@@ -40,6 +42,8 @@ def test_ctrl_c_and_sigterm_cancel_at_every_phase_and_keep_the_previous_bake(tmp
     then a crash); elsewhere Ctrl-C gave a KeyboardInterrupt. Now, at every phase (start-up,
     hierarchy build, frames) Ctrl-C and SIGTERM print one line, exit 130, keep the previous bake
     and leave no temporary folder."""
+    from hr_addon.io import precompute
+
     blend = tmp_path / "cornell.blend"
     shutil.copy(SAMPLES / "cornell.blend", blend)
     proc = run_cli(blend, "--frames", "1-2", "--quality", "draft")
@@ -68,6 +72,8 @@ def test_ctrl_c_and_sigterm_cancel_at_every_phase_and_keep_the_previous_bake(tmp
         assert "Traceback" not in out + err, what
         assert _snapshot(cache) == before, what
         assert sorted(x.name for x in cache.parent.iterdir()) == ["cornell"], what
+        precompute.read(cache / "precompute.hrpc")  # whole: the old one or the new one, no lock left
+        assert not (cache / "precompute.lock").exists(), what
 
 
 def _warnings_scene(path):

@@ -52,7 +52,9 @@ def test_delete_bake_removes_the_files(tmp_path):
     scene = bpy.context.scene
     scene.frame_set(6)
     assert "HR_Radiance" in bpy.data.objects["floor"].data.color_attributes
-    assert bpy.ops.hr.delete_bake() == {"FINISHED"}  # EXEC: the confirmation is invoke()'s
+    # EXEC: the confirmation is invoke()'s; the scene precompute goes too (kept by default:
+    # test_blender_precompute)
+    assert bpy.ops.hr.delete_bake(keep_precompute=False) == {"FINISHED"}
     assert not cache.exists()
     assert other.read_text() == "not ours"  # only the bake's own files go
     assert scene.hr.bake_dir == "" and not scene.hr.playback
@@ -86,7 +88,11 @@ def test_delete_keeps_a_users_files_inside_the_cache_folder(tmp_path):
     (d / "textures").mkdir()
     (d / "textures" / "wood.png").write_bytes(b"png")
     assert delete_cache_files(str(d)) == 3  # frame, manifest, marker
-    assert sorted(str(p.relative_to(d)) for p in d.rglob("*")) == ["mine.txt", "textures", "textures/wood.png"]
+    assert sorted(str(p.relative_to(d)) for p in d.rglob("*")) == [
+        "mine.txt",
+        "textures",
+        "textures/wood.png",
+    ]
 
 
 def test_playback_skips_rewriting_same_cached_file(tmp_path, monkeypatch):

@@ -22,6 +22,7 @@ from ..core.lights import Light
 from ..core.progress import Cancelled, FrameEta
 from ..core.radiosity import RadiositySystem
 from ..core.texels import loop_incident
+from ..io import precompute as pc
 from ..io.cache import CacheError, CacheWriter, check_writable, frame_ranges
 from ..lightmap import TextureError
 from . import paths, playback, signatures, texture
@@ -62,6 +63,27 @@ def make_gather(solution, output_plan=None, settings=None, smooth_angle=30.0):
     from ..core.gather import LoopGather
 
     return LoopGather(solution, smooth_angle=smooth_angle, **settings)
+
+
+def precompute_key(mesh, params, gather, texels=None):
+    """What the scene precompute (io/precompute.py) must have been built from: the build's input
+    and settings, and the output the final gather was traced for (vertex loops, or the texels of
+    the lightmaps `texels` describes: {object name: "resolution px, uv digest"}). Not the method
+    nor the light: every method starts from the same RadiositySystem and gather, and a light event
+    changes neither (DynamicRadiosity grows its own nodes past them)."""
+    stage = "off" if gather is None else ("texture" if texels is not None else "vertex")
+    extra = {f"lightmap.{k}": v for k, v in (texels or {}).items()}
+    return pc.expected(mesh, params, gather=gather, final_gather=stage, **extra)
+
+
+def lightmap_key(snap, view_layer, default_res):
+    """The texel gather's dependence on the lightmaps: each target's resolution and UV digest."""
+    out = {}
+    for t in snap.scene_in.targets:
+        obj = view_layer.objects.get(t.name) or bpy.data.objects[t.name]
+        uv = texture.uv_digest(obj, view_layer.depsgraph)
+        out[t.name] = f"{texture.resolution_for(obj, default_res)} px, uv {uv}"
+    return out
 
 
 def cache_dir_for(scene):
@@ -110,6 +132,7 @@ def bake_frames(
     progress=None,
     interrupts=None,
     warnings=None,
+    rebuild=False,
     **overrides,
 ):
     """Generator: yields BakeProgress, returns (StopIteration.value) a BakeResult.
@@ -123,6 +146,7 @@ def bake_frames(
     resolution, texture_format, radiance_mode, contacts, final_gather): settings.BakeConfig.
     cache_dir: absolute cache directory (default: from the scene's settings and the .blend path;
     the background bake passes the real one because it bakes a copy of the file elsewhere).
+    rebuild: build the scene precompute even if the cache folder holds a valid one.
 
     Static geometry is read at the scene's start frame (the same for every partial bake, so
     split bakes agree); light shapes are evaluated from scratch at every frame.
@@ -168,17 +192,8 @@ def bake_frames(
             f"{cfg.quality.lower()} quality)",
         )
         run.intr.check()
-        system, dyn = run.build(snap, params, min_area_rel, progress, total)
+        system, dyn, final = run.build(snap, params, min_area_rel, progress, total, final_dir, rebuild)
         writer, baker = run.open_writer(snap, params, system, final_dir)
-        final = None
-        if cfg.gather is not None:
-            yield BakeProgress(
-                "build",
-                total=total,
-                fraction=BUILD_SHARE,
-                message=f"Final gather: tracing {cfg.gather['rays']} rays per output sample",
-            )
-            final = run.final_gather(dyn, baker)
         todo = run.frames_todo(writer, baker, start, end)
         yield from run.frame_loop(snap, todo, dyn, final, writer, baker)
         if baker is not None:
@@ -245,6 +260,7 @@ class _Bake:
         self.log = warnings if warnings is not None else Warnings()
         self.result = result
         result.log = self.log
+        self._plan = None  # the texture plan, made once per bake (build() or open_writer())
 
     def warn(self, items, frame=None):
         """Count warnings; returns the new ones (shown in progress reports)."""
@@ -283,37 +299,88 @@ class _Bake:
             list(light_objects(view_layer, include_hidden=True)),
         )
 
-    def build(self, snap, params, min_area_rel, progress, total):
-        """(system, solution): the hierarchy (RadiositySystem) and the DynamicRadiosity every frame
-        is solved and read through (without light shapes or lights, the base solution)."""
+    def build(self, snap, params, min_area_rel, progress, total, cache_dir, rebuild=False):
+        """(system, dyn, final gather): the scene precompute (hierarchy and final gather,
+        io/precompute.py) loaded from the cache folder when it is valid, else built and stored
+        there (rebuild: built in any case); the DynamicRadiosity every frame
+        is solved and read through (without light shapes or lights, the base solution).
+        What happened and why goes to the progress messages and result.precompute."""
         t0 = time.perf_counter()
+        cfg, r = self.cfg, self.result
+
+        def say(message, fraction=0.0, eta=float("nan")):
+            if progress is not None:
+                progress(BakeProgress("build", total=total, fraction=fraction, eta=eta, message=message))
 
         def on_build(info):
             self.intr.check()
-            if progress is not None:
-                progress(
-                    BakeProgress(
-                        "build",
-                        total=total,
-                        fraction=BUILD_SHARE * float(info.fraction),
-                        eta=float(info.eta),
-                        message=f"Building the hierarchy: {info.message}",
-                    )
-                )
+            say(
+                f"Building the hierarchy: {info.message}", BUILD_SHARE * float(info.fraction), float(info.eta)
+            )
 
-        with self.intr.raising():
-            system = RadiositySystem(snap.mesh, params, progress=on_build, threads=self.cfg.threads)
+        def engine(system):
             # without light events the solution is the system's, solved to its own tolerance as
             # it always was: the gather's looser solver options pay off on events only
-            options = self.cfg.solve_options if snap.has_shapes or snap.lights else {}
-            dyn = DynamicRadiosity(system, method=self.cfg.method, min_area_rel=min_area_rel, **options)
-        r = self.result
-        r.build_seconds = time.perf_counter() - t0
+            options = cfg.solve_options if snap.has_shapes or snap.lights else {}
+            return DynamicRadiosity(system, method=cfg.method, min_area_rel=min_area_rel, **options)
+
+        made = {}
+
+        def build():
+            system = RadiositySystem(snap.mesh, params, progress=on_build, threads=cfg.threads)
+            made["dyn"] = dyn = engine(system)
+            r.build_seconds = time.perf_counter() - t0
+            final = None
+            if cfg.gather is not None:
+                say(f"Final gather: tracing {cfg.gather['rays']} rays per output sample", BUILD_SHARE)
+                t1 = time.perf_counter()
+                final = make_gather(
+                    dyn, self.texture_plan(snap, system), dict(cfg.gather, threads=cfg.threads)
+                )
+                r.gather_seconds = time.perf_counter() - t1
+            return system, final
+
+        def log(line):
+            r.precompute.append(line)
+            say(line[:1].upper() + line[1:])
+
+        texture_gather = cfg.output == "TEXTURE" and cfg.gather is not None
+        texels = lightmap_key(snap, self.view_layer, cfg.resolution) if texture_gather else None
+        want = precompute_key(snap.mesh, params, cfg.gather, texels)
+        with self.intr.raising():
+            system, final, how = pc.load_or_build(
+                cache_dir, want, build, log=log, force=rebuild, warn=lambda m: self.warn([m])
+            )
+            t1 = time.perf_counter()
+            pc.use_threads(system, final, cfg.threads)  # a loaded precompute has the builder's count
+            dyn = made["dyn"] if "dyn" in made else engine(system)
+        r.precompute_loaded = how == "loaded"
+        if r.precompute_loaded:
+            r.load_seconds = t1 - t0  # the key (the scene's signatures) and the file read and restored
+            r.build_seconds = time.perf_counter() - t0  # + DynamicRadiosity (its base solve)
         r.build_report = system.build
         r.rays = ray_backend_name(system)
         r.rays_note = ray_backend_note(r.rays)
         self.warn(system.build.warnings)
-        return system, dyn
+        return system, dyn, final
+
+    def texture_plan(self, snap, system):
+        """The texture output's plan on the system's patches (None for vertex output)."""
+        if self.cfg.output != "TEXTURE" or self._plan is not None:
+            return self._plan
+        try:
+            self._plan = texture.texture_plan(
+                snap.scene_in,
+                system.patches,
+                self.view_layer,
+                self.view_layer.depsgraph,
+                self.cfg.resolution,
+                self.cfg.texture_format,
+                albedo=self.cfg.radiance_mode == "RADIANCE",
+            )
+        except TextureError as exc:
+            raise SceneError(str(exc)) from None
+        return self._plan
 
     def manifest_info(self, snap, params):
         cfg, r = self.cfg, self.result
@@ -351,18 +418,7 @@ class _Bake:
             }
             sig = _signature(snap.mesh, params, cfg.domain, targets, cfg.radiance_mode, cfg.gather)
             return CacheWriter(final_dir, objects, cfg.domain, sig, info), None
-        try:
-            baker = texture.texture_plan(
-                snap.scene_in,
-                system.patches,
-                self.view_layer,
-                self.view_layer.depsgraph,
-                cfg.resolution,
-                cfg.texture_format,
-                albedo=cfg.radiance_mode == "RADIANCE",
-            )
-        except TextureError as exc:
-            raise SceneError(str(exc)) from None
+        baker = self.texture_plan(snap, system)
         self.warn(baker.warnings)
         sig = baker.signature(
             _signature(snap.mesh, params, "TEXTURE", targets, cfg.radiance_mode, cfg.gather)
@@ -370,13 +426,6 @@ class _Bake:
         writer = CacheWriter(final_dir, baker.objects_info(targets), "TEXTURE", sig, info)
         baker.bind(writer.tmp)
         return writer, baker
-
-    def final_gather(self, solution, baker):
-        t1 = time.perf_counter()
-        with self.intr.raising():
-            final = make_gather(solution, baker, dict(self.cfg.gather, threads=self.cfg.threads))
-        self.result.gather_seconds = time.perf_counter() - t1
-        return final
 
     def frames_todo(self, writer, baker, start, end):
         """The range, and frames of the previous bake that this one keeps but whose files are

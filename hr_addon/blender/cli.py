@@ -134,6 +134,12 @@ def make_parser(prog=PROG, blend_required=False):
         help="write the bake into DIR (absolute; default: the scene's cache folder next to the .blend)",
     )
     p.add_argument(
+        "--rebuild",
+        action="store_true",
+        help="build the scene precompute (hierarchy, links, final gather) even if the cache folder "
+        "holds a valid one",
+    )
+    p.add_argument(
         "--status-file",
         metavar="PATH",
         help="keep a JSON progress status in PATH (the interactive background bake reads it)",
@@ -286,6 +292,7 @@ def _run(argv, prog, blend_required, intr):
             final_gather=False if args.no_final_gather else None,
             threads=args.threads,
             cache_dir=args.cache_dir,
+            rebuild=args.rebuild,
             status=status.progress if status is not None else None,
             interrupts=intr,
             warnings=collected,

@@ -27,6 +27,7 @@ import bpy
 from ..core.events import LightShape
 from .state import STATE
 from . import names, paths, playback, preview, signatures, texture
+from .bake import precompute_key
 from .settings import BakeConfig, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
@@ -114,7 +115,10 @@ class Session:
         r = self.last
         n = len(r.report.events) if r.report is not None else 0
         ms = 1000 * (r.t_apply + r.t_output)
-        return f"Live: up to date; last update {ms:.0f} ms ({n} light event(s), {w.spec.method})"
+        return (
+            f"Live: up to date; last update {ms:.0f} ms ({n} light event(s), {w.spec.method}; "
+            f"hierarchy {w.precompute})"
+        )
 
 
 def _scene_of(sess):
@@ -311,6 +315,8 @@ def _build(sess, scene, view_layer, depsgraph, reason):
         len(scene_in.mesh.loop_start),
         cfg.gather,
         cfg.live_threads,
+        paths.default_cache_dir(scene),
+        precompute_key(scene_in.mesh, params, cfg.gather),
     )
     sess.settings = _settings(scene)
     sess.geometry = scene_in.signatures

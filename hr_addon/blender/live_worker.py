@@ -26,6 +26,7 @@ from ..core.gather import LoopGather
 from ..core.geometry import InputError
 from ..core.progress import Cancelled
 from ..core.radiosity import RadiositySystem
+from ..io import precompute as pc
 
 
 @dataclass
@@ -42,6 +43,8 @@ class BuildSpec:
     polygons: int = 0
     gather: dict = None  # the final gather's settings (settings.gather_params), None: off
     threads: int = 1  # core.parallel's threads (BakeConfig.live_threads: one core kept for the UI)
+    cache_dir: str = None  # where the bake keeps the scene precompute (None: the .blend is not saved)
+    precompute: dict = None  # what it must match (bake.precompute_key): loaded instead of built if valid
 
 
 @dataclass
@@ -93,6 +96,7 @@ class LiveWorker:
         self.build_message = ""
         self.build_seconds = 0.0
         self.build_report = None
+        self.precompute = ""  # how the last build went: "precompute loaded" or "built (no precompute: why)"
         self.computed = 0  # light states computed (the coalescing test counts them)
         self.builds = 0  # builds finished
 
@@ -222,7 +226,16 @@ class LiveWorker:
 
         self.dyn = self.gather = None  # the old ones are of no use any more (and may be large)
         try:
-            system = RadiositySystem(spec.mesh, spec.params, progress=progress, threads=spec.threads)
+            system, gather, why = (
+                pc.load(spec.cache_dir, spec.precompute)
+                if spec.cache_dir
+                else (None, None, "no saved .blend")
+            )
+            # Live only reads the bake's precompute: writing it is the bake's (its lock, its folder)
+            self.precompute = "precompute loaded" if system is not None else f"built (no precompute: {why})"
+            pc.use_threads(system, gather, spec.threads)
+            if system is None:
+                system = RadiositySystem(spec.mesh, spec.params, progress=progress, threads=spec.threads)
             if self._superseded():
                 return
             dyn = DynamicRadiosity(
@@ -235,7 +248,8 @@ class LiveWorker:
             if self._superseded():
                 return
             # the output stage: its rays are traced once here, each edit is a sparse product
-            gather = LoopGather(dyn, threads=spec.threads, **spec.gather) if spec.gather is not None else None
+            if gather is None and spec.gather is not None:
+                gather = LoopGather(dyn, threads=spec.threads, **spec.gather)
         except Cancelled:
             return
         except (InputError, ValueError, RuntimeError, MemoryError) as exc:

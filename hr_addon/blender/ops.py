@@ -7,6 +7,7 @@ import bpy
 from bpy.props import BoolProperty
 
 from ..core.geometry import InputError
+from ..io import precompute as pc
 from ..io.cache import MANIFEST, MARKER, TEX_DIR, CacheError, CacheReader, owned_files
 from .state import STATE
 from . import background, live, names, paths, playback, texture
@@ -341,14 +342,20 @@ def _forget_bake(scene):
     playback.forget_readers()
 
 
-def delete_cache_files(directory):
+def delete_cache_files(directory, keep_precompute=True):
     """Remove the files a bake wrote in `directory` (io.cache.owned_files: the ones its manifest
     lists, its marker and manifest), then its textures folder and the folder itself if nothing else
     is left in them. Returns the number of files removed. Nothing is removed from a folder that is
-    not a radiosity cache (CacheError), nor any file a bake did not write."""
+    not a radiosity cache (CacheError), nor any file a bake did not write.
+    keep_precompute: the scene precompute (io/precompute.py) stays, and with it the folder's
+    marker that makes it ours; else it goes too."""
     CacheReader(directory)  # raises CacheError unless it is a radiosity cache
+    kept = keep_precompute and os.path.isfile(os.path.join(directory, pc.FILENAME))
+    removed = 0 if kept else int(pc.remove(directory))
     # the manifest and the marker last: an interrupted delete leaves a cache folder that says so
     own = sorted(owned_files(directory), key=lambda r: (r == MARKER, r == MANIFEST, r))
+    if kept:
+        own.remove(MARKER)
     for r in own:
         os.remove(os.path.join(directory, r))
     for d in (os.path.join(directory, TEX_DIR), directory):
@@ -356,7 +363,7 @@ def delete_cache_files(directory):
             os.rmdir(d)
         except OSError:
             pass  # absent, or other files in it: not ours, left alone
-    return len(own)
+    return len(own) + removed
 
 
 class HR_OT_delete_bake(bpy.types.Operator):
@@ -365,6 +372,13 @@ class HR_OT_delete_bake(bpy.types.Operator):
     bl_idname = "hr.delete_bake"
     bl_label = "Delete Bake"
     bl_options = {"REGISTER"}
+
+    keep_precompute: BoolProperty(
+        name="Keep the Scene Precompute",
+        description="Keep the precompute (hierarchy, links, final gather) in the cache folder, so that "
+        "the next bake of the unchanged scene skips the build",
+        default=True,
+    )
 
     @classmethod
     def poll(cls, context):
@@ -376,29 +390,60 @@ class HR_OT_delete_bake(bpy.types.Operator):
         return True
 
     def invoke(self, context, event):
-        return (
-            context.window_manager.invoke_confirm(
-                self,
-                event,
-                title="Delete Bake",
-                message=f"Delete the files of the radiosity bake in {paths.bake_dir_abs(context.scene)}?",
-                confirm_text="Delete",
-                icon="WARNING",
-            )
-            if bpy.app.version >= (4, 1, 0)
-            else context.window_manager.invoke_confirm(self, event)
+        wm = context.window_manager
+        if bpy.app.version >= (4, 1, 0):
+            return wm.invoke_props_dialog(self, title="Delete Bake", confirm_text="Delete")
+        return wm.invoke_props_dialog(self)
+
+    def draw(self, context):
+        self.layout.label(
+            text=f"Delete the files of the radiosity bake in {paths.bake_dir_abs(context.scene)}?"
         )
+        if os.path.isfile(os.path.join(paths.bake_dir_abs(context.scene), pc.FILENAME)):
+            self.layout.prop(self, "keep_precompute")
 
     def execute(self, context):
         scene = context.scene
         directory = paths.bake_dir_abs(scene)
         try:
-            n = delete_cache_files(directory)
+            n = delete_cache_files(directory, self.keep_precompute)
         except (CacheError, OSError) as exc:
             self.report({"ERROR"}, f"Cannot delete the bake in '{directory}': {exc}")
             return {"CANCELLED"}
         _forget_bake(scene)
         self.report({"INFO"}, f"Deleted the radiosity bake ({n} file(s)) in {directory}")
+        return {"FINISHED"}
+
+
+class HR_OT_rebuild_precompute(bpy.types.Operator):
+    """Discard the scene precompute, so that the next bake (or Live Relight) builds the hierarchy
+    and the final gather again (the command line: --rebuild)"""
+
+    bl_idname = "hr.rebuild_precompute"
+    bl_label = "Rebuild Precompute"
+    bl_options = {"REGISTER"}
+
+    @classmethod
+    def poll(cls, context):
+        if context.scene is None or STATE.bake_running():
+            return False
+        d = paths.default_cache_dir(context.scene)
+        if not d or not os.path.isfile(os.path.join(d, pc.FILENAME)):
+            cls.poll_message_set("There is no scene precompute")
+            return False
+        return True
+
+    def execute(self, context):
+        d = paths.default_cache_dir(context.scene)
+        try:
+            gone = pc.remove(d)
+        except OSError as exc:
+            self.report({"ERROR"}, f"Cannot delete the scene precompute in '{d}': {exc}")
+            return {"CANCELLED"}
+        if not gone:
+            self.report({"WARNING"}, f"'{pc.FILENAME}' in '{d}' is not a file a bake wrote: left alone")
+            return {"CANCELLED"}
+        self.report({"INFO"}, "Scene precompute discarded: the next bake builds it again")
         return {"FINISHED"}
 
 
@@ -488,6 +533,7 @@ classes = (
     HR_OT_load_frame,
     HR_OT_clear_bake,
     HR_OT_delete_bake,
+    HR_OT_rebuild_precompute,
     HR_OT_live_toggle,
     HR_OT_live_update,
 )

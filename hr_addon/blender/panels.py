@@ -1,8 +1,12 @@
 """Panels: Properties > Render > HR Radiosity, Properties > Object > HR Radiosity, and the
 3D View sidebar tab "HR"."""
 
+import os
+import time
+
 import bpy
 
+from ..io import precompute as pc
 from .state import STATE
 from . import background, live, paths, playback
 
@@ -47,6 +51,43 @@ def _draw_bake(layout, context):
     row.operator("hr.load_frame", text="", icon="FILE_REFRESH")
     row.operator("hr.clear_bake", text="", icon="X")
     row.operator("hr.delete_bake", text="", icon="TRASH")
+    _draw_precompute(col, scene)
+
+
+_described = {}  # file -> ((mtime, size), describe()): the panel redraws often, a file is read once
+
+
+def precompute_text(scene):
+    """The panel's line on the scene precompute of the cache folder the next bake uses: whether it
+    is there and readable, its size and age ('' without a saved .blend). Whether it matches the
+    scene is known when a bake or Live reads the scene (they say so)."""
+    d = paths.default_cache_dir(scene)
+    if not d:
+        return ""
+    path = os.path.join(d, pc.FILENAME)
+    try:
+        st = os.stat(path)
+    except OSError:
+        return "No scene precompute: the next bake builds it"
+    key = (st.st_mtime_ns, st.st_size)
+    if _described.get(path, (None,))[0] != key:
+        _described[path] = (key, pc.describe(d))
+    info = _described[path][1]
+    if info is None:
+        return "No scene precompute: the next bake builds it"
+    if info["problem"]:
+        return f"Scene precompute unusable ({info['problem']}): the next bake builds it again"
+    age = pc.age_text(time.time() - (info["created"] or st.st_mtime))
+    return f"Scene precompute: {info['bytes'] / 1e6:.1f} MB, built {age} ago; reused while the geometry holds"
+
+
+def _draw_precompute(col, scene):
+    text = precompute_text(scene)
+    if not text:
+        return
+    row = col.row(align=True)
+    row.label(text=text, icon="MOD_BUILD")
+    row.operator("hr.rebuild_precompute", text="", icon="FILE_REFRESH")
 
 
 def _draw_live(col, scene):

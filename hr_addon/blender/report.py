@@ -95,7 +95,10 @@ class BakeResult:
     warnings: list = field(default_factory=list)  # each warning once (first text); see warning_lines
     log: object = None  # the Warnings collector (counts and frames of repeats)
     build_seconds: float = 0.0
-    gather_seconds: float = 0.0  # the final gather's precompute (0: off)
+    gather_seconds: float = 0.0  # the final gather's precompute (0: off or loaded)
+    precompute: list = field(default_factory=list)  # what the build stage did, and why
+    precompute_loaded: bool = False  # the scene precompute came from the cache folder
+    load_seconds: float = 0.0  # of build_seconds, the precompute's key and load (when loaded)
     seconds: float = 0.0
     build_report: object = None
     rays: str = ""  # ray backend of the build ("embree", "numpy", ...)
@@ -114,7 +117,17 @@ class BakeResult:
         return (
             f"baked frames {self.frames[0]}-{self.frames[1]} into {self.cache_dir}: "
             f"{self.solved} solved, {self.reused} unchanged, {self.kept} kept from the previous bake{again} "
-            f"(hierarchy {self.build_seconds:.1f} s, "
-            + (f"final gather {self.gather_seconds:.1f} s, " if self.gather_seconds else "final gather off, ")
+            + (
+                f"({self.precompute[0]}: {self.build_seconds:.1f} s, "
+                if self.precompute_loaded
+                else "("
+                + (f"{self.precompute[0]}; " if self.precompute else "")
+                + f"hierarchy {self.build_seconds:.1f} s, "
+                + (
+                    f"final gather {self.gather_seconds:.1f} s, "
+                    if self.gather_seconds
+                    else "final gather off, "
+                )
+            )
             + f"total {self.seconds:.1f} s, {self.rays_text})"
         )

@@ -39,6 +39,7 @@ FILENAME = "precompute.hrpc"
 LOCKNAME = "precompute.lock"
 MAGIC = "hr_radiosity precompute"
 FORMAT_VERSION = 1
+NONE_YET = "no precompute yet"
 _PKG = __name__.rsplit(".io.", 1)[0]  # "hr_addon", or the extension's package path inside Blender
 _HOST = socket.gethostname() or "host"
 
@@ -411,6 +412,16 @@ def read(path):
     return arrays, h
 
 
+def use_threads(system, gather, threads):
+    """Run a loaded precompute on `threads` (core.parallel's count; values do not depend on it): the
+    file holds the count of the process that built it."""
+    if system is not None:
+        system.backend.threads = threads
+    while gather is not None:
+        gather.threads = threads
+        gather = getattr(gather, "second", None)
+
+
 def load(cache_dir, want):
     """(system, gather, None) from the cache folder's precompute if it is valid for `want`, else
     (None, None, reason): absent, damaged, or which version, setting or object changed."""
@@ -418,7 +429,7 @@ def load(cache_dir, want):
     try:
         header = read_header(path)
     except FileNotFoundError:
-        return None, None, "no precompute yet"
+        return None, None, NONE_YET
     except PrecomputeError as exc:
         return None, None, str(exc)
     why = validate(header, want)
@@ -428,7 +439,7 @@ def load(cache_dir, want):
         arrays, header = read(path)
         system, gather = restore(arrays, header["graph"])
     except FileNotFoundError:
-        return None, None, "no precompute yet"
+        return None, None, NONE_YET
     except PrecomputeError as exc:
         return None, None, str(exc)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a graph this code cannot follow
@@ -551,19 +562,50 @@ def holder(path):
         return None
 
 
-def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=2.0, info=None):
+def age_text(seconds):
+    """'40 s', '3 min', '2 h', '5 days' (the panel and the bake's messages)."""
+    s = max(0.0, float(seconds))
+    for unit, size in (("days", 86400), ("h", 3600), ("min", 60)):
+        if s >= 2 * size or (unit != "days" and s >= size):
+            return f"{s / size:.0f} {unit}"
+    return f"{s:.0f} s"
+
+
+def _loaded(d):
+    """'precompute loaded (built 3 min ago on host, in 88 s)': the bake's and Live's message."""
+    try:
+        h = read_header(d / FILENAME)
+    except (OSError, PrecomputeError):
+        return "precompute loaded"
+    took = (h.get("info") or {}).get("build_seconds")
+    took = f", in {took:.0f} s" if isinstance(took, (int, float)) else ""
+    return f"precompute loaded (built {age_text(time.time() - h.get('created', time.time()))} ago{took})"
+
+
+def _building(why):
+    return f"precompute {'built' if why == NONE_YET else 'rebuilt'}: {why}"
+
+
+def load_or_build(
+    cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=2.0, info=None, force=False, warn=None
+):
     """(system, gather, how) for the scene `want` (expected()) describes: the cache folder's
     precompute if valid; else built by `build()` -> (system, gather) under the lock and written
     (when the folder allows it). Processes sharing the folder build once: the others wait for the
-    file, or take the lock over when its holder died. log(str) says what happened and why."""
+    file, or take the lock over when its holder died. log(str) says what happened and why: the
+    first message is "precompute loaded (built ... ago)" or "precompute rebuilt: <reason>".
+    force: build even if a valid precompute exists (Rebuild); the old one stays until the new one
+    replaces it. warn(str): where a precompute that could not be stored is said (default: log)."""
+    warn = warn or log
     d = Path(cache_dir)
-    system, gather, why = load(d, want)
+    system, gather, why = (None, None, "rebuild asked") if force else load(d, want)
     if system is not None:
-        log(f"Precompute loaded from {d / FILENAME}")
+        log(_loaded(d))
         return system, gather, "loaded"
     problem = folder_problem(d)
     if problem:
-        log(f"Precompute not stored: {problem}")
+        log(_building(why))
+        warn(f"Precompute not stored: {problem}")
         system, gather = build()
         return system, gather, "built"
     mark(d)
@@ -579,24 +621,26 @@ def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=
             log(f"Waiting for the precompute being built by {h.get('host', '?')} pid {h.get('pid', '?')}")
             said_wait = True
         time.sleep(poll)
-        system, gather, _ = load(d, want)
+        system, gather, _ = (None, None, None) if force else load(d, want)
         if system is not None:
-            log(f"Precompute loaded from {d / FILENAME} (built by another process)")
+            log(_loaded(d) + " (built by another process)")
             return system, gather, "loaded"
     try:
-        system, gather, _ = load(d, want)  # finished while we were taking the lock
+        system, gather, _ = (None, None, None) if force else load(d, want)  # finished meanwhile
         if system is not None:
-            log(f"Precompute loaded from {d / FILENAME}")
+            log(_loaded(d))
             return system, gather, "loaded"
-        log(f"Building the precompute: {why}")
+        log(_building(why))
         for p in d.glob(f".{FILENAME}.*.tmp"):  # a killed writer's (only the lock holder writes)
             p.unlink(missing_ok=True)
+        t0 = time.perf_counter()
         system, gather = build()
+        info = {**(info or {}), "build_seconds": time.perf_counter() - t0}
         try:
             arrays, graph = capture(system, gather)
             write(d, arrays, graph, want, info)
         except (OSError, TypeError, ValueError, PrecomputeError) as exc:  # the bake goes on without it
-            log(f"Precompute not stored: {exc}")
+            warn(f"Precompute not stored: {exc}")
         return system, gather, "built"
     finally:
         lock.release()
