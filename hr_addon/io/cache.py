@@ -53,6 +53,7 @@ from .cache_folder import (  # noqa: F401  (re-exported: hr_addon.io.cache is th
     _manifest_of,
     check_writable,
     folder_lock,
+    lock_path,
     folder_problem,
     is_cache_folder,
     new_temp_dir,
