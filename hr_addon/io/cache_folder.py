@@ -322,7 +322,8 @@ def lock_path(final_dir):
     return final.parent / f".{final.name}.lock"
 
 
-def _holder(path):
+def holder(path):
+    """The content of a lock file (a dict), or None if absent or unreadable."""
     try:
         h = json.loads(Path(path).read_text())
         return h if isinstance(h, dict) else None
@@ -334,7 +335,7 @@ def _remove_dead(path, stale):
     """Delete the lock file `path` if its holder is dead: same host and its pid gone, or no
     heartbeat (mtime) for `stale` seconds (a node that lost power). Only that lock: it is renamed
     aside and compared, and put back if another process's fresh lock was taken by mistake."""
-    h = _holder(path)
+    h = holder(path)
     try:
         age = time.time() - path.stat().st_mtime
     except FileNotFoundError:
@@ -347,7 +348,7 @@ def _remove_dead(path, stale):
         os.rename(path, aside)
     except FileNotFoundError:
         return
-    if _holder(aside) != h:  # replaced in between: a live holder's, give it back
+    if holder(aside) != h:  # replaced in between: a live holder's, give it back
         with contextlib.suppress(OSError):
             os.link(aside, path)
     aside.unlink(missing_ok=True)
@@ -394,5 +395,5 @@ def folder_lock(final_dir, stale=STALE, poll=0.05, beat=2.0):
             entry[1] = 0
             stop.set()
             beating.join()
-            if (_holder(path) or {}).get("token") == token:
+            if (holder(path) or {}).get("token") == token:
                 path.unlink(missing_ok=True)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cache_folder import folder_lock, is_cache_folder, mark, pid_alive
+from .cache_folder import folder_lock, holder, is_cache_folder, mark, pid_alive
 from .files import atomic_write
 
 FILENAME = "precompute.hrpc"
@@ -551,14 +551,6 @@ class Lock:
             return ""
         aside.unlink(missing_ok=True)
         return why
-
-
-def holder(path):
-    try:
-        h = json.loads(Path(path).read_text())
-        return h if isinstance(h, dict) else None
-    except (OSError, ValueError):
-        return None
 
 
 def load_or_build(cache_dir, want, build, log=print, stale=30.0, poll=0.2, beat=2.0, info=None):
