@@ -196,10 +196,11 @@ def bake_frames(
         writer, baker = run.open_writer(snap, params, system, final_dir)
         todo = run.frames_todo(writer, baker, start, end)
         yield from run.frame_loop(snap, todo, dyn, final, writer, baker)
-        if baker is not None:
-            baker.finish(writer)
         run.intr.check()  # the last moment a cancel keeps the previous bake
-        writer.commit()
+        try:  # under the cache folder's lock, with the texture files of kept frames (farms)
+            writer.commit(before=baker.finish if baker is not None else None)
+        except CacheError as exc:
+            raise SceneError(str(exc)) from None
         committed = True
         run.result.kept = writer.kept
         run.warn(writer.messages)

@@ -9,6 +9,7 @@ from bpy.props import BoolProperty
 from ..core.geometry import InputError
 from ..io import precompute as pc
 from ..io.cache import MANIFEST, MARKER, TEX_DIR, CacheError, CacheReader, owned_files
+from ..io.cache_folder import CARRIED
 from .state import STATE
 from . import background, live, names, paths, playback, texture
 from .bake import run_bake
@@ -354,8 +355,8 @@ def delete_cache_files(directory, keep_precompute=True):
     removed = 0 if kept else int(pc.remove(directory))
     # the manifest and the marker last: an interrupted delete leaves a cache folder that says so
     own = sorted(owned_files(directory), key=lambda r: (r == MARKER, r == MANIFEST, r))
-    if kept:
-        own.remove(MARKER)
+    if kept:  # the precompute and its lock outlive bakes (io.cache_folder.CARRIED), the marker with them
+        own = [r for r in own if r != MARKER and r not in CARRIED]
     for r in own:
         os.remove(os.path.join(directory, r))
     for d in (os.path.join(directory, TEX_DIR), directory):

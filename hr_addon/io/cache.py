@@ -21,6 +21,13 @@ separately yields the same cache as baking 1-100 once; otherwise they are discar
 CacheWriter.messages says why. Kept frames whose file is missing or damaged are reported by
 CacheWriter.damaged_frames() so that the bake re-bakes them.
 
+Farms (docs/farm.md): processes baking disjoint frame ranges of one scene into one cache folder
+commit one at a time under the folder's lock, each merging the frames of the cache as it is at
+that moment, so the last commit holds every node's frames. A node whose settings differ from a
+bake committed into the folder while it ran is refused (CacheError; its frames are not written):
+frames of other settings are never mixed in, nor is another node's work discarded. A previous bake
+that was already there when the bake started is replaced, as a re-bake with new settings should.
+
 Safety and ownership (a bake writes beside the cache and swaps it in at the end; it only ever
 deletes or replaces what a bake of this extension wrote) are cache_folder.py's: its names are
 importable from here too.
@@ -43,7 +50,10 @@ from .cache_folder import (  # noqa: F401  (re-exported: hr_addon.io.cache is th
     MARKER,
     TEX_DIR,
     CacheError,
+    _manifest_of,
     check_writable,
+    folder_lock,
+    lock_path,
     folder_problem,
     is_cache_folder,
     new_temp_dir,
@@ -223,6 +233,8 @@ class CacheWriter:
         check_writable(self.final)
         self.removed_temp = remove_stale_temp(self.final)
         self.tmp = new_temp_dir(self.final)
+        # the bake the cache held when this one started: another one at commit was made meanwhile
+        self.start_id = (_manifest_of(self.final) or {}).get("bake_id")
         self.objects = objects
         self.domain = domain
         self.signature = signature
@@ -283,6 +295,13 @@ class CacheWriter:
             return
         left = sorted(f for f in old.frames if f not in self.frames)
         if why:
+            if old.manifest.get("bake_id") != self.start_id:
+                raise CacheError(
+                    f"Another bake committed frames {frame_ranges(old.frames)} into the cache folder "
+                    f"'{self.final}' while this one ran, and it used {why}. This bake's frames "
+                    f"{frame_ranges(self.frames)} were not written: bake every frame range of a farm "
+                    "job with the same settings, or into another Cache Folder (--cache-dir)."
+                )
             if left:
                 self.messages.append(
                     f"The previous bake's frames {frame_ranges(left)} were discarded: it used {why}."
@@ -315,12 +334,19 @@ class CacheWriter:
                 "this bake and are not in it: bake them again."
             )
 
-    def commit(self):
-        """Merge the kept frames of the previous bake, write the manifest, swap directories; then
-        delete what the previous bake wrote and give every other file back to the cache folder."""
+    def commit(self, before=None):
+        """Under the folder's lock: before(self) (the texture files of kept frames), merge the kept
+        frames of the cache as it is now, write the manifest, swap directories; then delete what the
+        previous bake wrote and give every other file back to the cache folder."""
+        with folder_lock(self.final):
+            return self._commit(before)
+
+    def _commit(self, before):
         why = folder_problem(self.final)  # the folder may have changed during the bake
         if why:
             raise CacheError(why)
+        if before is not None:
+            before(self)
         self._merge_previous()
         files = sorted(
             (Path(r).relative_to(self.tmp) / f).as_posix() for r, _, fs in os.walk(self.tmp) for f in fs

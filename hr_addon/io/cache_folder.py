@@ -14,14 +14,23 @@ A bake into an existing folder without the marker (and without a readable manife
 of earlier versions) that is not empty, or onto a plain file, is refused (folder_problem). Files of
 anyone else found in a cache folder are moved into the new cache at the swap, never deleted
 (_retire).
+
+Farms (docs/farm.md): several processes may bake frame ranges into one cache folder at once. Every
+change of the folder's top level (the commit's merge and swap, recover(), the precompute's file and
+build lock) happens under the folder's lock (folder_lock), a file beside the folder that the swap
+does not move. The precompute (CARRIED) stays in the folder across bakes: the swap moves it into
+the new folder.
 """
 
+import contextlib
 import json
 import os
 import re
 import shutil
 import socket
+import threading
 import time
+import uuid
 from pathlib import Path
 
 from .files import atomic_write
@@ -30,7 +39,9 @@ MANIFEST = "manifest.json"
 MARKER = ".hr_radiosity"  # "this folder is a radiosity cache": written first, into every cache folder
 _MARKER_TEXT = b"Written by HR Radiosity bakes. A bake replaces only the files its manifest.json lists.\n"
 # names our bakes write (frames, texture sequences, atomic_write temporaries): ours in a marked folder
-_OWN_NAME = re.compile(r"^(frame_m?\d{6}(_\d+)?\.npz|\..+\.\d+\.tmp)$")
+_OWN_NAME = re.compile(r"^(frame_m?\d{6}(_\d+)?\.npz|\..+\.\d+\.tmp|precompute\.(hrpc|lock))$")
+# written by io.precompute, not by one bake: they outlive the bake's swap (swap_in moves them along)
+CARRIED = ("precompute.hrpc", "precompute.lock")
 _OWN_TEXTURE = re.compile(r"^.+_-?\d{5,}\.(exr|png)$")
 TEX_DIR = "textures"
 
@@ -78,16 +89,21 @@ def new_temp_dir(final_dir):
 
 
 def swap_in(tmp, final_dir):
-    """Replace the cache `final_dir` by the finished folder `tmp`; then delete what the previous
-    bake wrote and give every other file back to the cache folder. Returns the paths that could
-    not be given back (_retire)."""
+    """Replace the cache `final_dir` by the finished folder `tmp` (call under folder_lock); the
+    precompute moves into the new folder; then delete what the previous bake wrote and give every
+    other file back to the cache folder. Returns the paths that could not be given back (_retire)."""
     final = Path(final_dir)
     old = None
     if final.exists():
         old = _beside(final, "old")
         os.replace(final, old)
     os.replace(tmp, final)
-    return _retire(old, final) if old is not None else []
+    if old is None:
+        return []
+    for name in CARRIED:  # the same files (a lock keeps its holder's token and heartbeat)
+        if (old / name).is_file() and not (final / name).exists():
+            os.replace(old / name, final / name)
+    return _retire(old, final)
 
 
 def temp_dirs(final_dir):
@@ -238,9 +254,10 @@ def remove_stale_temp(final_dir):
         if host not in ("", HOST) or pid_alive(pid):
             continue
         if kind == "old":
-            if not final.exists():
-                continue  # recover() puts it back
-            _retire(p, final)
+            with folder_lock(final):
+                if not final.exists() or not p.exists():
+                    continue  # recover() puts it back; or another process retired it
+                _retire(p, final)
         elif (p / MARKER).is_file() or _ours_only(p):
             shutil.rmtree(p, ignore_errors=True)
         if not p.exists():
@@ -277,12 +294,106 @@ def check_writable(final_dir):
 
 
 def recover(final_dir):
-    """If a crash happened between the two renames of commit(), put the old cache back."""
+    """If a crash happened between the two renames of commit(), put the old cache back. Under the
+    folder lock: a swap in progress on another node holds it, and is waited for, not undone."""
     final = Path(final_dir)
     if final.exists() or not final.parent.is_dir():
         return False
-    olds = sorted((ms, str(p)) for p, kind, _, _, ms in temp_dirs(final) if kind == "old")
-    if olds:
-        os.replace(olds[-1][1], final)
-        return True
-    return False
+    try:
+        with folder_lock(final):
+            olds = sorted((ms, str(p)) for p, kind, _, _, ms in temp_dirs(final) if kind == "old")
+            if final.exists() or not olds:
+                return False
+            os.replace(olds[-1][1], final)
+            return True
+    except OSError:  # a read-only parent folder: nobody can be swapping there
+        return False
+
+
+# -- the folder lock ---------------------------------------------------------------------------------
+
+STALE = 30.0  # seconds without a heartbeat after which another host's lock counts as dead
+_local = {}  # lock path -> [threading.RLock, depth]: re-entrant within a process
+
+
+def lock_path(final_dir):
+    """The folder lock's file: beside the cache folder, so that the swap does not move it."""
+    final = Path(final_dir)
+    return final.parent / f".{final.name}.lock"
+
+
+def holder(path):
+    """The content of a lock file (a dict), or None if absent or unreadable."""
+    try:
+        h = json.loads(Path(path).read_text())
+        return h if isinstance(h, dict) else None
+    except (OSError, ValueError):
+        return None
+
+
+def _remove_dead(path, stale):
+    """Delete the lock file `path` if its holder is dead: same host and its pid gone, or no
+    heartbeat (mtime) for `stale` seconds (a node that lost power). Only that lock: it is renamed
+    aside and compared, and put back if another process's fresh lock was taken by mistake."""
+    h = holder(path)
+    try:
+        age = time.time() - path.stat().st_mtime
+    except FileNotFoundError:
+        return
+    local_dead = h is not None and h.get("host") == HOST and not pid_alive(int(h.get("pid", -1)))
+    if not (local_dead or age > stale):
+        return
+    aside = path.with_name(f"{path.name}.{uuid.uuid4().hex}.stale")
+    try:
+        os.rename(path, aside)
+    except FileNotFoundError:
+        return
+    if holder(aside) != h:  # replaced in between: a live holder's, give it back
+        with contextlib.suppress(OSError):
+            os.link(aside, path)
+    aside.unlink(missing_ok=True)
+
+
+def _beat(path, stop, beat):
+    while not stop.wait(beat):
+        with contextlib.suppress(OSError):
+            os.utime(path)
+
+
+@contextlib.contextmanager
+def folder_lock(final_dir, stale=STALE, poll=0.05, beat=2.0):
+    """Hold the lock of the cache folder `final_dir` (waiting for it; re-entrant in a process).
+    The file holds {pid, host, token}; its mtime is a heartbeat refreshed every `beat` seconds."""
+    path = lock_path(final_dir)
+    entry = _local.setdefault(str(path), [threading.RLock(), 0])
+    with entry[0]:
+        if entry[1]:
+            entry[1] += 1
+            try:
+                yield
+            finally:
+                entry[1] -= 1
+            return
+        token = uuid.uuid4().hex
+        data = json.dumps({"pid": os.getpid(), "host": HOST, "token": token}).encode()
+        while True:
+            try:
+                fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+                break
+            except FileExistsError:
+                _remove_dead(path, stale)
+                time.sleep(poll)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        stop = threading.Event()
+        beating = threading.Thread(target=_beat, args=(path, stop, beat), daemon=True)
+        beating.start()
+        entry[1] = 1
+        try:
+            yield
+        finally:
+            entry[1] = 0
+            stop.set()
+            beating.join()
+            if (holder(path) or {}).get("token") == token:
+                path.unlink(missing_ok=True)

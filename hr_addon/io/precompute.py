@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cache_folder import is_cache_folder, mark, pid_alive
+from .cache_folder import folder_lock, holder, is_cache_folder, mark, pid_alive
 from .files import atomic_write
 
 FILENAME = "precompute.hrpc"
@@ -347,7 +347,6 @@ def write(cache_dir, arrays, graph, want, info=None):
     why = folder_problem(d)
     if why:
         raise PrecomputeError(why)
-    mark(d)
     blobs = {}
     for name, a in arrays.items():
         buf = io.BytesIO()
@@ -372,7 +371,9 @@ def write(cache_dir, arrays, graph, want, info=None):
             for name, b in blobs.items():
                 z.writestr(name + ".npy", b)
 
-    atomic_write(d / FILENAME, fill)
+    with folder_lock(d):  # never into a folder another process's commit is swapping out
+        mark(d)
+        atomic_write(d / FILENAME, fill)
     return d / FILENAME
 
 
@@ -492,12 +493,14 @@ class Lock:
 
     def try_acquire(self):
         info = {"pid": os.getpid(), "host": _HOST, "started": time.time(), "token": self.token}
-        try:
-            fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            return False
-        with os.fdopen(fd, "w") as fh:
-            json.dump(info, fh)
+        with folder_lock(self.path.parent):  # the folder's changes (a commit's swap) wait
+            try:
+                mark(self.path.parent)
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                return False
+            with os.fdopen(fd, "w") as fh:
+                json.dump(info, fh)
         self._thread = threading.Thread(target=self._heartbeat, daemon=True)
         self._thread.start()
         return True
@@ -506,15 +509,16 @@ class Lock:
         while not self._stop.wait(self.beat):
             try:
                 os.utime(self.path)
-            except OSError:
-                return
+            except OSError:  # absent for a moment while a commit swaps the folder (it moves the lock)
+                pass
 
     def release(self):
         self._stop.set()
         if self._thread is not None:
             self._thread.join()
-        if (holder(self.path) or {}).get("token") == self.token:
-            self.path.unlink(missing_ok=True)
+        with folder_lock(self.path.parent):
+            if (holder(self.path) or {}).get("token") == self.token:
+                self.path.unlink(missing_ok=True)
 
     def dead_holder(self, stale):
         """Why the current holder counts as dead ('' if it is alive or there is none)."""
@@ -534,6 +538,12 @@ class Lock:
     def take_over(self, stale):
         """Remove a dead holder's lock (only that one: it is renamed away and checked, and put
         back if another process's fresh lock was taken by mistake). Returns the reason or ''."""
+        if not self.dead_holder(stale):  # the common case while waiting: no folder lock taken
+            return ""
+        with folder_lock(self.path.parent):
+            return self._take_over(stale)
+
+    def _take_over(self, stale):
         why = self.dead_holder(stale)
         if not why:
             return ""
@@ -552,14 +562,6 @@ class Lock:
             return ""
         aside.unlink(missing_ok=True)
         return why
-
-
-def holder(path):
-    try:
-        h = json.loads(Path(path).read_text())
-        return h if isinstance(h, dict) else None
-    except (OSError, ValueError):
-        return None
 
 
 def age_text(seconds):
@@ -608,7 +610,6 @@ def load_or_build(
         warn(f"Precompute not stored: {problem}")
         system, gather = build()
         return system, gather, "built"
-    mark(d)
     lock = Lock(d, beat)
     said_wait = False
     while not lock.try_acquire():
