@@ -39,7 +39,7 @@ from .lights_in import (
     shapes_signature,
 )
 from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
-from .settings import BakeConfig, solver_setup
+from .settings import BakeConfig, make_gather, precompute_key, solver_setup
 from .state import STATE
 
 
@@ -51,39 +51,6 @@ class _NoInterrupts:
 
     def raising(self):
         return nullcontext()
-
-
-def make_gather(solution, output_plan=None, settings=None, smooth_angle=30.0):
-    """The output stage for a solution (DynamicRadiosity or RadiositySystem): a LoopGather for
-    vertex output, the texture plan's texel gather for texture output, None when it is off."""
-    if settings is None:
-        return None
-    if output_plan is not None:
-        return output_plan.final_gather(solution, **settings)
-    from ..core.gather import LoopGather
-
-    return LoopGather(solution, smooth_angle=smooth_angle, **settings)
-
-
-def precompute_key(mesh, params, gather, texels=None):
-    """What the scene precompute (io/precompute.py) must have been built from: the build's input
-    and settings, and the output the final gather was traced for (vertex loops, or the texels of
-    the lightmaps `texels` describes: {object name: "resolution px, uv digest"}). Not the method
-    nor the light: every method starts from the same RadiositySystem and gather, and a light event
-    changes neither (DynamicRadiosity grows its own nodes past them)."""
-    stage = "off" if gather is None else ("texture" if texels is not None else "vertex")
-    extra = {f"lightmap.{k}": v for k, v in (texels or {}).items()}
-    return pc.expected(mesh, params, gather=gather, final_gather=stage, **extra)
-
-
-def lightmap_key(snap, view_layer, default_res):
-    """The texel gather's dependence on the lightmaps: each target's resolution and UV digest."""
-    out = {}
-    for t in snap.scene_in.targets:
-        obj = view_layer.objects.get(t.name) or bpy.data.objects[t.name]
-        uv = texture.uv_digest(obj, view_layer.depsgraph)
-        out[t.name] = f"{texture.resolution_for(obj, default_res)} px, uv {uv}"
-    return out
 
 
 def cache_dir_for(scene):
@@ -346,7 +313,7 @@ class _Bake:
             say(line[:1].upper() + line[1:])
 
         texture_gather = cfg.output == "TEXTURE" and cfg.gather is not None
-        texels = lightmap_key(snap, self.view_layer, cfg.resolution) if texture_gather else None
+        texels = texture.lightmap_key(snap, self.view_layer, cfg.resolution) if texture_gather else None
         want = precompute_key(snap.mesh, params, cfg.gather, texels)
         with self.intr.raising():
             system, final, how = pc.load_or_build(

@@ -27,7 +27,7 @@ import bpy
 from ..core.events import LightShape
 from .state import STATE
 from . import names, paths, playback, preview, signatures, texture
-from .bake import precompute_key
+from .settings import precompute_key
 from .settings import BakeConfig, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker

@@ -44,7 +44,7 @@ class BuildSpec:
     gather: dict = None  # the final gather's settings (settings.gather_params), None: off
     threads: int = 1  # core.parallel's threads (BakeConfig.live_threads: one core kept for the UI)
     cache_dir: str = None  # where the bake keeps the scene precompute (None: the .blend is not saved)
-    precompute: dict = None  # what it must match (bake.precompute_key): loaded instead of built if valid
+    precompute: dict = None  # what it must match (settings.precompute_key): loaded instead of built if valid
 
 
 @dataclass

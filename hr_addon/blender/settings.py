@@ -271,3 +271,28 @@ def solver_setup(mesh, params):
 
 def _length(m):
     return f"{m / 1000:.3g} km" if m >= 1000 else (f"{m:.3g} m" if m >= 0.1 else f"{m * 100:.3g} cm")
+
+
+def make_gather(solution, output_plan=None, settings=None, smooth_angle=30.0):
+    """The output stage for a solution (DynamicRadiosity or RadiositySystem): a LoopGather for
+    vertex output, the texture plan's texel gather for texture output, None when it is off."""
+    if settings is None:
+        return None
+    if output_plan is not None:
+        return output_plan.final_gather(solution, **settings)
+    from ..core.gather import LoopGather
+
+    return LoopGather(solution, smooth_angle=smooth_angle, **settings)
+
+
+def precompute_key(mesh, params, gather, texels=None):
+    """What the scene precompute (io/precompute.py) must have been built from: the build's input
+    and settings, and the output the final gather was traced for (vertex loops, or the texels of
+    the lightmaps `texels` describes: {object name: "resolution px, uv digest"}). Not the method
+    nor the light: every method starts from the same RadiositySystem and gather, and a light event
+    changes neither (DynamicRadiosity grows its own nodes past them)."""
+    from ..io import precompute as pc
+
+    stage = "off" if gather is None else ("texture" if texels is not None else "vertex")
+    extra = {f"lightmap.{k}": v for k, v in (texels or {}).items()}
+    return pc.expected(mesh, params, gather=gather, final_gather=stage, **extra)

@@ -488,3 +488,13 @@ def after_bake(scene, directory):
             add_material(scene, wired)
         except CacheError:
             pass
+
+
+def lightmap_key(snap, view_layer, default_res):
+    """The texel gather's dependence on the lightmaps: each target's resolution and UV digest."""
+    out = {}
+    for t in snap.scene_in.targets:
+        obj = view_layer.objects.get(t.name) or bpy.data.objects[t.name]
+        uv = uv_digest(obj, view_layer.depsgraph)
+        out[t.name] = f"{resolution_for(obj, default_res)} px, uv {uv}"
+    return out
