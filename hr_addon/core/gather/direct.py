@@ -2,6 +2,8 @@
 Blender lights) the exact form factor times a visibility ratio from shadow rays, at unit radiance,
 cached so that a strength or colour change is a scale (docs/gather.md)."""
 
+import weakref
+
 import numpy as np
 
 from .. import formfactor as ff
@@ -11,6 +13,7 @@ from ..parallel import batch_map, ranges
 from ..planes import ClearShafts
 from .sampling import Emitter, hammersley, hash_uniform, position_keys
 
+_SHAFTS = []  # (weak reference to the system, emitter plane, ClearShafts): the last few grids
 _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
 
@@ -83,13 +86,19 @@ class DirectLight:
         return np.concatenate(parts or [np.zeros(0, np.float32)])
 
     def shafts(self, em: Emitter):
-        """ClearShafts of a planar emitter over the system's triangles (None: not planar)."""
+        """ClearShafts of a planar emitter over the system's triangles (None: not planar), shared
+        by the levels of a gather (the same system and emitter plane: the same grid)."""
         if em.normal is None or self.shadow_rays <= 0:
             return None
         s = self.system
-        return ClearShafts(
-            s.patches.triangles, s.refiner.occluders.plane, em.point, em.normal, 1e-3 * self.eps
-        )
+        key = (em.point.tobytes(), em.normal.tobytes())
+        for ref, k, sh in _SHAFTS:
+            if ref() is s and k == key:
+                return sh
+        sh = ClearShafts(s.patches.triangles, s.refiner.occluders.plane, em.point, em.normal, 1e-3 * self.eps)
+        _SHAFTS.append((weakref.ref(s), key, sh))
+        del _SHAFTS[:-4]
+        return sh
 
     def static_emitters(self):
         """The input's emissive patches, one Emitter per (object, emission)."""
