@@ -1,11 +1,11 @@
 """Light events with the final gather on, on a furnished room: build, gather precompute, FE and
 AUTO events (a new window, a moved window, a colour edit), each until the gathered output is
-ready; CPU seconds (time.process_time), one run. Optionally a cProfile of the events and a dump of
-the gathered output for comparing transport settings (coarse vs fine).
+ready; CPU seconds (time.process_time) and wall seconds, one run. Optionally a cProfile of the
+events and a dump of the gathered output for comparing transport settings (coarse vs fine).
 
     .venv/bin/python benchmarks/bench_gather_events.py --size 100k --quality draft \
         [--transport gather] [--params 'dict(feps=0.1)'] [--response-tol 1e-4] \
-        [--profile out.txt] [--dump out.npz] [--json out.json]
+        [--profile out.txt] [--dump out.npz] [--json out.json] [--threads N]
 
 --transport gather: the transport settings used when the final gather is on
 (RefineParams.for_gather / DynamicRadiosity's gather options); default: today's presets.
@@ -14,6 +14,7 @@ the gathered output for comparing transport settings (coarse vs fine).
 import argparse
 import dataclasses
 import json
+import os
 import resource
 import sys
 import time
@@ -41,6 +42,7 @@ def main(argv=None):
     ap.add_argument("--profile", default=None, help="write a cProfile summary of the events here")
     ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--threads", type=int, default=1, help="core.parallel's threads (0: every core)")
     args = ap.parse_args(argv)
 
     from hr_testing import shapes as S
@@ -50,7 +52,7 @@ def main(argv=None):
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
 
-    cpu = time.process_time
+    cpu, wall = time.process_time, time.perf_counter
     mesh, info = furnished_room(args.size)
     q = args.quality
     base = RefineParams.preset(q)
@@ -64,9 +66,10 @@ def main(argv=None):
     if args.f32:
         dkw["response_float32"] = True
     out = dict(size=args.size, quality=q, transport=args.transport, params=dataclasses.asdict(params))
+    out["threads"], out["load_average"] = args.threads, os.getloadavg()[0]
     out["dyn_options"] = dict(dkw)
     c0 = cpu()
-    s = RadiositySystem(mesh, params)
+    s = RadiositySystem(mesh, params, threads=args.threads)
     out["build_cpu_s"] = cpu() - c0
     out["links"], out["nodes"] = len(s.links), s.h.n
     out["build_peak_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
@@ -78,7 +81,7 @@ def main(argv=None):
         return LightShape(rect, np.broadcast_to(np.asarray(em, float), (3,)).copy(), "window")
 
     # the bake's settings (hr_addon/blender/settings.py GATHER): 16 shadow rays at draft, 32 above
-    gkw = dict(rays=args.rays, levels=args.levels, iterations=args.iterations)
+    gkw = dict(rays=args.rays, levels=args.levels, iterations=args.iterations, threads=args.threads)
     gkw["shadow_rays"] = args.shadow_rays or (16 if q == "draft" else 32)
     prof = None
     if args.profile:
@@ -115,20 +118,21 @@ def main(argv=None):
         for name, ev in steps:
             if prof is not None:
                 prof.enable()
-            c0 = cpu()
+            c0, w0 = cpu(), wall()
             rep = ev()
             c1 = cpu()
             v = g.loop_radiance(dyn)
-            c2 = cpu()
+            c2, w2 = cpu(), wall()
             if prof is not None:
                 prof.disable()
             out[f"{method}_{name}_cpu_s"] = c2 - c0
+            out[f"{method}_{name}_wall_s"] = w2 - w0
             out[f"{method}_{name}_solve_cpu_s"] = c1 - c0
             out[f"{method}_{name}_iterations"] = int(rep.iterations)
             dumps[f"{method}_{name}"] = v
             print(
                 f"{method} {name}: {c2 - c0:.3f} s CPU (event {c1 - c0:.3f} s, {rep.iterations} it; "
-                f"gather {c2 - c1:.3f} s)",
+                f"gather {c2 - c1:.3f} s; wall {w2 - w0:.3f} s)",
                 flush=True,
             )
         dyn = None  # noqa: F841 (frees it before the next method)

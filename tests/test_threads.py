@@ -190,10 +190,13 @@ def test_a_cancel_during_the_gather_precompute_leaves_no_worker(cornell_events):
 def small_batches(monkeypatch):
     """Batches small enough that the small test scenes split into many (the product's sizes are
     fixed too, larger: the values never depend on the thread count, only on the batch bounds)."""
-    from hr_addon.core import farlinks, refine
+    from hr_addon.core import farlinks, refine, solver
+    from hr_addon.core.events import direct
     from hr_addon.core.gather import FinalGather
     from hr_addon.core.visibility import RayBackend
 
+    monkeypatch.setattr(solver, "GATHER_BLOCK", 300)
+    monkeypatch.setattr(direct, "NODE_BATCH", 7)
     monkeypatch.setattr(refine, "LINK_BATCH", 97)
     monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
     monkeypatch.setattr(RayBackend, "PARALLEL_CHUNK", 1000)
@@ -221,9 +224,10 @@ def test_build_with_one_and_two_threads_gives_identical_links(small_batches):
 
 @pytest.mark.parametrize("method", ["FE", "AR", "AUTO", "NAIVE"])
 def test_events_with_one_and_two_threads_give_identical_values(method, small_batches):
-    """Every method: the system built, the event applied (a light shape and a Blender light) and
-    the gathered output, with 1 and 2 threads: equal to rtol 1e-12 (bitwise where the batches
-    are the whole of the work)."""
+    """Every method: the system built, the event applied (a light shape and a Blender light: the
+    solver's gathers by receiver ranges, AUTO's first bounce by node ranges) and the gathered
+    output, with 1 and 2 threads: equal to rtol 1e-12 (bitwise where the batches are the whole of
+    the work)."""
     lamp = Light("POINT", (1.0, 0.9, 0.8), 5.0, position=(0.3, 0.25, 0.4), radius=0.02, name="lamp")
     shape = LightShape(S.on_plane(RECT, S.CORNELL_BACK_WALL), np.array([4.0, 3, 2]), "a")
     out = []

@@ -1,5 +1,6 @@
-"""Planes of the input patches: plane ids, in-plane frames, and the conservative shaft test that
-uses them (refinement's link visibility and AUTO's first bounce both skip rays with it)."""
+"""Planes of the input patches: plane ids, in-plane frames, and the conservative shaft tests that
+use them (refinement's link visibility and AUTO's first bounce skip rays with Occluders; the final
+gather's direct light and AUTO's first bounce on large scenes with ClearShafts)."""
 
 import numpy as np
 
@@ -58,3 +59,90 @@ class Occluders:
                 hit &= self.hi[None, :, k] >= lo[sl, k, None]
             out[sl] = hit.any(1)
         return out
+
+
+class ClearShafts:
+    """Where the segments from points to a planar emitter certainly meet no triangle, so that all
+    their shadow rays would come back unoccluded (the visibility ratio is exactly 1 there, and
+    neither the rays nor their sampling are needed). Conservative, as planes.Occluders' shaft
+    test, for any number of triangles: the segments from a point are bounded by STEPS boxes along
+    their length (the box at t between (1 - t) x + t lo and (1 - t) x + t hi of the emitter's box,
+    linear in t); a box is clear when it meets the box of no occluder triangle. Triangles wholly
+    behind the emitter's plane are no occluders (the segments lie in front of it); the triangles
+    of large planes (a room's walls, floor and ceiling: every sample lying on one would see its
+    own plane's triangles in the grid cells around it) are tested by their plane's box, the rest
+    through a uniform grid of counts (a summed-volume table: a box is clear if its cells hold no
+    triangle box)."""
+
+    CELLS = 96  # grid cells along the longest side
+    STEPS = 4  # boxes along the segments
+    BIG_PLANES = 24  # planes tested by their own box
+
+    def __init__(self, tris, plane, point, normal, margin):
+        h = np.einsum("tvk,k->tv", tris - point, normal).max(1)
+        keep = h > 0  # a triangle wholly behind (or in) the emitter's plane blocks no segment
+        area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+        lo, hi, plane, area = tris[keep].min(1), tris[keep].max(1), plane[keep], area[keep]
+        self.m = margin
+        ids, inv = np.unique(plane, return_inverse=True)
+        per = np.bincount(inv.ravel(), area, len(ids))
+        # large planes (at least 1% of the area, the 24 largest): one box each
+        top = np.argsort(-per, kind="stable")[: self.BIG_PLANES]
+        big = ids[top[per[top] >= 0.01 * area.sum()]]
+        isbig = np.isin(plane, big)
+        self.big_lo = np.array([lo[plane == b].min(0) for b in big]).reshape(-1, 3)
+        self.big_hi = np.array([hi[plane == b].max(0) for b in big]).reshape(-1, 3)
+        lo, hi = lo[~isbig], hi[~isbig]
+        if len(lo) == 0:
+            self.sat = None
+            return
+        self.o = lo.min(0)
+        ext = np.maximum(hi.max(0) - self.o, 1e-12)
+        self.size = np.maximum(np.ceil(ext / ext.max() * self.CELLS), 1).astype(np.int64)
+        self.cell = ext / self.size
+        a, b = self._cells(lo), self._cells(hi) + 1
+        # boxes per cell by a difference array: +-1 at the 8 corners of each box's cell range
+        dims = tuple(self.size + 1)
+        diff = np.zeros(int(np.prod(dims)))
+        for cx in (0, 1):
+            for cy in (0, 1):
+                for cz in (0, 1):
+                    c = np.where([cx, cy, cz], b, a)
+                    flat = np.ravel_multi_index((c[:, 0], c[:, 1], c[:, 2]), dims)
+                    diff += (-1.0) ** (cx + cy + cz) * np.bincount(flat, minlength=len(diff))
+        diff = diff.reshape(dims)
+        full = diff.cumsum(0).cumsum(1).cumsum(2)[:-1, :-1, :-1] > 0.5
+        sat = np.zeros(tuple(self.size + 1))
+        sat[1:, 1:, 1:] = full.cumsum(0).cumsum(1).cumsum(2)
+        self.sat = sat
+
+    def _cells(self, p):
+        return np.clip(np.floor((p - self.o) / self.cell), 0, self.size - 1).astype(np.int64)
+
+    def _empty(self, lo, hi):
+        """(N,) True where the boxes lo, hi (N, 3) meet no occluder triangle's box."""
+        ok = np.ones(len(lo), bool)
+        for bl, bh in zip(self.big_lo, self.big_hi):
+            ok &= ~((lo <= bh).all(1) & (hi >= bl).all(1))
+        if self.sat is not None:
+            a, b = self._cells(lo), self._cells(hi) + 1
+            s = self.sat
+            n = s[b[:, 0], b[:, 1], b[:, 2]] - s[a[:, 0], b[:, 1], b[:, 2]] - s[b[:, 0], a[:, 1], b[:, 2]]
+            n -= s[b[:, 0], b[:, 1], a[:, 2]]
+            n += s[a[:, 0], a[:, 1], b[:, 2]] + s[a[:, 0], b[:, 1], a[:, 2]] + s[b[:, 0], a[:, 1], a[:, 2]]
+            n -= s[a[:, 0], a[:, 1], a[:, 2]]
+            ok &= n < 0.5
+        return ok
+
+    def clear(self, o, elo, ehi):
+        """(N,) True where every segment from o (N, 3) to a point of the box elo, ehi (3,) is
+        certainly unoccluded."""
+        ok = np.ones(len(o), bool)
+        for k in range(self.STEPS):
+            t0, t1 = k / self.STEPS, (k + 1) / self.STEPS
+            i = np.flatnonzero(ok)
+            x = o[i]
+            lo = np.minimum((1 - t0) * x + t0 * elo, (1 - t1) * x + t1 * elo) - self.m
+            hi = np.maximum((1 - t0) * x + t0 * ehi, (1 - t1) * x + t1 * ehi) + self.m
+            ok[i] = self._empty(lo, hi)
+        return ok

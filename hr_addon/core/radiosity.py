@@ -105,7 +105,7 @@ class RadiositySystem:
 
     def operator(self):
         if self._op is None or self._op.version != self.h.version or self._op.links is not self.links:
-            self._op = Operator(self.h, self.links)
+            self._op = Operator(self.h, self.links, self.backend.threads)
         return self._op
 
     def solve(self, E=None, warm=True, tol=None):

@@ -15,6 +15,11 @@ import numpy as np
 from .hierarchy import Hierarchy
 from .cluster import SLOTS
 from .links import Links
+from .parallel import batch_map
+
+# terms per batch of a gather (a fixed cut at receiver boundaries: the sums are the same for any
+# thread count; about 2^18 terms keep a batch's temporaries in cache-sized pieces)
+GATHER_BLOCK = 1 << 18
 
 
 class ConvergenceWarning(RuntimeWarning):
@@ -42,8 +47,10 @@ class SolveReport:
 class Operator:
     """The linear map B -> gathered-and-pushed irradiance term, over one hierarchy + link set."""
 
-    def __init__(self, h: Hierarchy, links: Links):
-        self.h, self.links, self.version = h, links, h.version
+    def __init__(self, h: Hierarchy, links: Links, threads=1):
+        """threads: core.parallel's threads for the gathers (receiver ranges; equal values for any
+        count)."""
+        self.h, self.links, self.version, self.threads = h, links, h.version, threads
         # Far links (with a cluster end) gather in an extended index space: the clusters' slots
         # (SH power / irradiance and its gradient) first, then the nodes (farlinks.FarLinks).
         far = links.far
@@ -62,8 +69,8 @@ class Operator:
             self.t_src = self.t_src.astype(np.intp, copy=False)
         self._f_base = None
         self.dtype = np.float64
-        self._rows = _runs(self.recv)
-        self._t_rows = _runs(self.t_slot) if self.tree is not None else None
+        self._rows = _blocks(_runs(self.recv), len(self.recv))
+        self._t_rows = _blocks(_runs(self.t_slot), len(self.t_slot)) if self.tree is not None else None
         self.n = h.n
         self.levels = h.levels()
         self.leaves = h.leaves()
@@ -112,25 +119,25 @@ class Operator:
         With clusters, the sources' SH power comes first and the clusters' gathered SH irradiance
         is handed to their member patches by orientation. base: without the push
         corrections (a node's own form factor sums)."""
-        G = np.empty((B.shape[0], self.n))
         f = self.f
         if base:
             if self._f_base is None:
                 self._f_base = np.where(self._corr, 0.0, self.f)
             f = self._f_base
-        tree, off, dt = self.tree, self.off, self.dtype
-        for c in range(B.shape[0]):
-            if tree is None:
-                G[c] = _sum_runs(self._rows, f * B[c].astype(dt, copy=False)[self.src], self.n)
-                continue
-            Z = np.zeros(self.nT + off + self.n, dt)  # [far-link intermediates | X]
-            X = Z[self.nT :]
-            X[:off] = tree.power(B[c, : tree.K]).ravel()
-            X[off:] = B[c]
-            Z[: self.nT] = _sum_runs(self._t_rows, self.t_w * X[self.t_src], self.nT)
-            Y = _sum_runs(self._rows, f * Z[self.src], off + self.n)
-            G[c] = Y[off:]
-            G[c, : tree.K] += tree.distribute(Y[:off].reshape(-1, SLOTS))
+        tree, off, dt, th = self.tree, self.off, self.dtype, self.threads
+        C = B.shape[0]
+        if tree is None:
+            return _sum_runs(self._rows, f, self.src, B.astype(dt, copy=False), self.n, th)
+        Z = np.zeros((C, self.nT + off + self.n), dt)  # [far-link intermediates | X] per channel
+        X = Z[:, self.nT :]
+        for c in range(C):
+            X[c, :off] = tree.power(B[c, : tree.K]).ravel()
+        X[:, off:] = B
+        Z[:, : self.nT] = _sum_runs(self._t_rows, self.t_w, self.t_src, X, self.nT, th)
+        Y = _sum_runs(self._rows, f, self.src, Z, off + self.n, th)
+        G = Y[:, off:].copy()
+        for c in range(C):
+            G[c, : tree.K] += tree.distribute(Y[c, :off].reshape(-1, SLOTS))
         return G
 
     def push(self, G):
@@ -160,12 +167,30 @@ def _runs(keys):
     return first, keys[first]
 
 
-def _sum_runs(runs, w, n):
-    """(n,) sums of the terms w over each run (receiver), zero where there is none."""
+def _blocks(runs, m):
+    """The runs (first, key) cut into blocks of about GATHER_BLOCK terms at run boundaries:
+    [(first, key, term start, term end)] (the cut depends on the terms only, never on threads)."""
     first, key = runs
-    out = np.zeros(n)
-    if len(first):
-        out[key] = np.add.reduceat(w, first)
+    out, r0 = [], 0
+    while r0 < len(first):
+        r1 = int(np.searchsorted(first, first[r0] + GATHER_BLOCK, "left"))
+        r1 = min(max(r1, r0 + 1), len(first))
+        a, b = int(first[r0]), int(first[r1]) if r1 < len(first) else m
+        out.append((first[r0:r1] - a, key[r0:r1], a, b))
+        r0 = r1
+    return out
+
+
+def _sum_runs(blocks, f, src, X, n, threads=1):
+    """(C, n) per channel c the sums over each run (receiver) of the terms f x X[c][src], zero where
+    there is none; by blocks of runs on `threads` threads (each block writes its own receivers)."""
+    out = np.zeros((len(X), n))
+
+    def block(c, k):
+        first, key, a, b = blocks[k]
+        out[c, key] = np.add.reduceat(f[a:b] * X[c][src[a:b]], first)
+
+    batch_map(block, [(c, k) for c in range(len(X)) for k in range(len(blocks))], threads)
     return out
 
 

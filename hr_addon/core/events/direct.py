@@ -5,8 +5,24 @@ import numpy as np
 
 from .. import formfactor as ff
 from ..geometry import newell
+from ..parallel import batch_map, ranges
+from ..planes import ClearShafts
 from .planar import _in_convex, _in_rings, slab_decomposition
 from .validation import to2d
+
+
+NODE_BATCH = 4096  # receiver nodes per batch on threads (fixed: equal values for any thread count)
+
+
+def _by_nodes(fn, m, threads, *rows):
+    """fn over fixed ranges of m nodes on threads, each range's results concatenated per output;
+    rows: per node arrays (first axis m) or per Gauss point arrays (4 m), cut with the nodes."""
+
+    def part(a, b):
+        return fn(*(r[a * (len(r) // m) : b * (len(r) // m)] for r in rows))
+
+    parts = batch_map(part, ranges(m, NODE_BATCH), threads)
+    return tuple(np.concatenate(p) for p in zip(*parts))
 
 
 class FirstBounce:
@@ -52,8 +68,19 @@ class FirstBounce:
         shape_lo, shape_hi = corners.reshape(-1, 3).min(0), corners.reshape(-1, 3).max(0)
         shape_plane = self.occluders.patch_plane[rec.roots[0]]
 
+        threads = self.system.backend.threads
+        shafts = None
+        if len(self.occluders) > 1024:  # too many triangles for the shaft test: the grid's
+            shafts = ClearShafts(pt.triangles, self.occluders.plane, rec.c, nf, 1e-3 * eps)
+
         def unoccluded(nodes):
-            """(m, 4) unoccluded point-to-shape form factors at the nodes' Gauss points, points, weights."""
+            """(m, 4) unoccluded point-to-shape form factors at the nodes' Gauss points, points, normals,
+            weights (by node ranges on threads)."""
+            if len(nodes) == 0:
+                return unoccluded_part(nodes)
+            return _by_nodes(unoccluded_part, len(nodes), threads, nodes)
+
+        def unoccluded_part(nodes):
             x, gw = ff.quadrature(h.corners[nodes], h.nv[nodes], 2)
             xn = np.repeat(h.normal[nodes], 4, 0)
             x = x.reshape(-1, 3)
@@ -63,10 +90,20 @@ class FirstBounce:
             return F.reshape(-1, 4), x, xn, gw
 
         def visible(nodes, F, x, xn):
-            """F x kernel-weighted visibility ratio; rays only where an occluder may be in the way."""
+            """F x kernel-weighted visibility ratio; rays only where an occluder may be in the way
+            (by node ranges on threads)."""
+            return _by_nodes(visible_part, len(nodes), threads, nodes, F, x, xn)[0]
+
+        def visible_part(nodes, F, x, xn):
             FV = F.ravel().copy()
-            may = self._maybe_occluded(nodes, shape_lo, shape_hi, shape_plane)
-            lit = np.flatnonzero((FV > 0) & np.repeat(may, 4))
+            if shafts is None:
+                lit = np.flatnonzero(
+                    (FV > 0) & np.repeat(self._maybe_occluded(nodes, shape_lo, shape_hi, shape_plane), 4)
+                )
+            else:  # every ray of a clear shaft is unoccluded: the ratio is 1 without them
+                lit = np.flatnonzero(FV > 0)
+                o = x[lit] + eps * xn[lit]
+                lit = lit[~shafts.clear(o, shape_lo + eps * nf, shape_hi + eps * nf)]
             if len(lit):
                 K = len(sp)
                 a = np.repeat(x[lit] + eps * xn[lit], K, 0)
@@ -83,7 +120,7 @@ class FirstBounce:
                 kern, vis = kern.reshape(-1, K), vis.reshape(-1, K)
                 ks = kern.sum(1)
                 FV[lit] *= np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
-            return FV.reshape(-1, 4)
+            return (FV.reshape(-1, 4),)
 
         in_group = np.zeros(len(pt.nv), bool)
         in_group[rec.group] = True

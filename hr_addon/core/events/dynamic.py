@@ -97,7 +97,9 @@ class DynamicRadiosity:
         self._naive = None  # active NAIVE rebuild (_NaiveState) or None
         self._plan = None  # (key, output.loop_plan) of loop_radiance
         self.validator = ShapeValidator(plane_tol)
-        self.solves = Solves(h, self.links, self.tol, self.response_tol, response_float32)
+        self.solves = Solves(
+            h, self.links, self.tol, self.response_tol, response_float32, system.backend.threads
+        )
         E0 = system.base_emission()
         base, rep = self.solves.solve(E0)
         self.nodes = NodeState(h, base)

@@ -8,10 +8,11 @@ from ..solver import Operator, solve
 
 class Solves:
     """tol: the base solution's and warm mode's tolerance; response_tol, response_float32: the
-    shapes' and lights' responses (DynamicRadiosity's docstring)."""
+    shapes' and lights' responses (DynamicRadiosity's docstring); threads: the operator's
+    (core.parallel: the system's ray backend's count)."""
 
-    def __init__(self, h, links, tol, response_tol, response_float32):
-        self.h, self.links = h, links
+    def __init__(self, h, links, tol, response_tol, response_float32, threads=1):
+        self.h, self.links, self.threads = h, links, threads
         self.tol, self.response_tol, self.response_float32 = tol, response_tol, response_float32
         self._op = None
         self._op_version = None
@@ -19,7 +20,7 @@ class Solves:
     def operator(self):
         h = self.h
         if self._op is None or self._op_version != h.version or self._op.n != h.n:
-            self._op = Operator(h, self.links)
+            self._op = Operator(h, self.links, self.threads)
             self._op_version = h.version
         return self._op
 

@@ -2,14 +2,18 @@
 Blender lights) the exact form factor times a visibility ratio from shadow rays, at unit radiance,
 cached so that a strength or colour change is a scale (docs/gather.md)."""
 
+import weakref
+
 import numpy as np
 
 from .. import formfactor as ff
 from ..events.direct import shape_form_factors, slab_pieces
 from ..geometry import newell
 from ..parallel import batch_map, ranges
+from ..planes import ClearShafts
 from .sampling import Emitter, hammersley, hash_uniform, position_keys
 
+_SHAFTS = []  # (weak reference to the system, emitter plane, ClearShafts): the last few grids
 _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
 
@@ -18,8 +22,10 @@ class DirectLight:
     dark, eps, seed, shadow_rays, system and its batching)."""
 
     # -- direct light --------------------------------------------------------------------------------
-    def direct_batch(self, em: Emitter, a, b):
-        """(b - a,) float32: unit-radiance direct light F x V of emitter em at samples a..b-1."""
+    def direct_batch(self, em: Emitter, a, b, shafts=None):
+        """(b - a,) float32: unit-radiance direct light F x V of emitter em at samples a..b-1.
+        shafts: the emitter's ClearShafts (samples whose segments to it are certainly clear get
+        no shadow rays: their ratio would be exactly 1)."""
         x, nx = self.points[a:b], self.normals[a:b]
         out = np.zeros(b - a)
         eps = self.eps
@@ -38,6 +44,9 @@ class DirectLight:
         xi, ni = x[i], nx[i]
         F = shape_form_factors(xi, ni, em.rings, em.corners, em.nv, eps)
         lit = np.flatnonzero(F > 0)
+        if len(lit) and self.shadow_rays > 0 and shafts is not None:
+            e = eps * em.normal
+            lit = lit[~shafts.clear(xi[lit] + eps * ni[lit], em.lo + e, em.hi + e)]
         if len(lit) and self.shadow_rays > 0:
             S = self.shadow_rays
             gi = i[lit] + a
@@ -72,8 +81,24 @@ class DirectLight:
             + 3 * min(edges, 4 * em.MAX_TRIANGLES)
             + 12 * min(len(em.tri), em.MAX_TRIANGLES)
         )
-        parts = batch_map(lambda a, b: self.direct_batch(em, a, b), self.batches(per), self.threads)
+        shafts = self.shafts(em)
+        parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts), self.batches(per), self.threads)
         return np.concatenate(parts or [np.zeros(0, np.float32)])
+
+    def shafts(self, em: Emitter):
+        """ClearShafts of a planar emitter over the system's triangles (None: not planar), shared
+        by the levels of a gather (the same system and emitter plane: the same grid)."""
+        if em.normal is None or self.shadow_rays <= 0:
+            return None
+        s = self.system
+        key = (em.point.tobytes(), em.normal.tobytes())
+        for ref, k, sh in _SHAFTS:
+            if ref() is s and k == key:
+                return sh
+        sh = ClearShafts(s.patches.triangles, s.refiner.occluders.plane, em.point, em.normal, 1e-3 * self.eps)
+        _SHAFTS.append((weakref.ref(s), key, sh))
+        del _SHAFTS[:-4]
+        return sh
 
     def static_emitters(self):
         """The input's emissive patches, one Emitter per (object, emission)."""
