@@ -1,7 +1,7 @@
 """Cornell box lit by a Blender light in place of its emitter (issue 20) against Cycles
 (hr_testing/cycles_lights.py): reflected radiance per surface, Cycles against our final gather.
 
-Run: .venv/bin/python benchmarks/cycles_lights.py [POINT|AREA|SPOT|SUN ...] [--spp N]
+Run: .venv/bin/python benchmarks/cycles_lights.py [POINT|AREA|SPOT|SUN|SUN_HOLE|WORLD ...] [--spp N]
 Prints one JSON line per light kind; the test tests/test_cycles_lights.py runs a smaller version."""
 
 import json

@@ -1,6 +1,7 @@
 """Cornell box lit by a Blender light in place of its emitter (issue 20) against Cycles: reflected
 radiance per surface (Cycles DIFFUSE bake, direct + indirect x colour) and our final gather
-(two levels + 4 iterations) on a medium solution. Two Cycles seeds give the reference's noise.
+(two levels + 4 iterations) on a medium solution; WORLD: a uniform sky through the open front;
+SUN_HOLE: a sun through a square hole in the ceiling. Two Cycles seeds give the reference's noise.
 
 The benchmark benchmarks/cycles_lights.py prints run()'s result per light kind; the test
 tests/test_cycles_lights.py runs a smaller version."""
@@ -13,12 +14,71 @@ from . import cycles_ref as C
 from .blend import load_bpy, open_sample
 
 
+def add_world(colour=(0.5, 0.7, 1.0), strength=1.0):
+    """A uniform sky: an Emission node as the World's surface (cycles_ref.configure_cycles turns
+    Background nodes off for the other references; an Emission node lights Cycles the same way)."""
+    import bpy
+
+    world = bpy.data.worlds.new("Sky")
+    if bpy.app.version < (5, 0, 0):
+        world.use_nodes = True
+    nodes = world.node_tree.nodes
+    nodes.clear()
+    out = nodes.new("ShaderNodeOutputWorld")
+    em = nodes.new("ShaderNodeEmission")
+    em.inputs["Color"].default_value = (*colour, 1.0)
+    em.inputs["Strength"].default_value = strength
+    world.node_tree.links.new(em.outputs[0], out.inputs["Surface"])
+    bpy.context.scene.world = world
+    return world
+
+
+def ceiling_hole(frac=0.3):
+    """The Cornell ceiling with a square hole in its middle (frac of its width and depth): four
+    quads framing it, facing the room as the ceiling did."""
+    import bpy
+    import numpy as np
+
+    ob = bpy.data.objects["ceiling"]
+    M = np.array(ob.matrix_world)
+    v = np.array([M[:3, :3] @ np.array(p.co) + M[:3, 3] for p in ob.data.vertices])
+    down = (M[:3, :3] @ np.array(ob.data.polygons[0].normal))[2] < 0
+    (x0, y0), (x1, y1), z = v[:, :2].min(0), v[:, :2].max(0), float(v[:, 2].mean())
+    cx, cy, hx, hy = (x0 + x1) / 2, (y0 + y1) / 2, frac * (x1 - x0) / 2, frac * (y1 - y0) / 2
+    outer = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+    inner = [(cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy), (cx - hx, cy + hy)]
+    verts = [(x, y, z) for x, y in outer + inner]
+    faces = [[i, (i + 1) % 4, 4 + (i + 1) % 4, 4 + i] for i in range(4)]  # counter-clockwise from above
+    if down:
+        faces = [f[::-1] for f in faces]
+    me = bpy.data.meshes.new("ceiling with hole")
+    me.from_pydata(verts, [], faces)
+    for m in ob.data.materials:
+        me.materials.append(m)
+    ob.data = me
+    from mathutils import Matrix
+
+    ob.matrix_world = Matrix.Identity(4)
+    return (cx - hx, cx + hx, cy - hy, cy + hy)
+
+
 def add_light(kind):
-    """The Cornell emitter's place (its centre, 5 mm lower): a light of comparable power."""
+    """The Cornell emitter's place (its centre, 5 mm lower): a light of comparable power. WORLD: no
+    light, a uniform sky through the box's open front."""
     import bpy
 
     for name in ("light", "Window", "Back Patch"):
         bpy.data.objects.remove(bpy.data.objects[name])
+    if kind == "WORLD":
+        return add_world()
+    if kind == "SUN_HOLE":  # a sun from over the back wall: only the ceiling's hole lets it in
+        ceiling_hole()
+        ld = bpy.data.lights.new("Lamp", "SUN")
+        ob = bpy.data.objects.new("Lamp", ld)
+        ld.energy, ld.angle, ld.color = 20.0, 0.0, (1.0, 0.85, 0.6)
+        ob.rotation_euler = (math.radians(-20), math.radians(10), 0)
+        bpy.context.scene.collection.objects.link(ob)
+        return ob
     ld = bpy.data.lights.new("Lamp", kind)
     ob = bpy.data.objects.new("Lamp", ld)
     ob.location = (0.278, 0.2795, 0.5438)
