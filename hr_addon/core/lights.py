@@ -331,3 +331,16 @@ def _node_mean(h, nodes, light, backend, eps, rays, seed, unit, far, q):
     ws = w.sum(1)
     mean = np.where(ws > 0, (v * w).sum(1) / np.where(ws > 0, ws, 1), 0.0)
     return mean, v.min(1), v.max(1)
+
+
+def indirect_incident(gather, dyn):
+    """(n, 3) incident light (irradiance / pi) at a FinalGather's samples without the direct light
+    of the Blender lights and the World: what EEVEE does not render itself (it renders those
+    lights' direct light and shadows; emissive meshes and light shapes light nothing in EEVEE, so
+    their direct light stays). The lights' bounce light stays. The gather's cached unit direct
+    light of each light (the same rays) is taken out of its incident light."""
+    inc = gather.evaluate(dyn, "incident")
+    for rec in dyn.lights.values():
+        inc -= gather._light(rec)[:, None].astype(np.float64) * rec.scale[None]
+    inc[gather.dark] = 0.0
+    return np.maximum(inc, 0.0)  # the same float32 parts subtracted: rounding only below 0
