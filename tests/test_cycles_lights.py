@@ -34,3 +34,16 @@ def test_cornell_lit_by_a_blender_light_agrees_with_cycles(kind):
     rgb = {n: s["gather_rgb"] for n, s in surf.items() if not max(map(abs, s["gather_rgb"])) <= TOL}
     assert not rgb, (kind, rgb)
     assert all(math.isfinite(s["ref_noise_of_mean"]) for s in surf.values())
+
+
+def test_indirect_only_plus_cycles_direct_light_is_full_cycles():
+    """Values "Indirect only (for EEVEE)" (core.lights.indirect_incident x rho) added to Cycles'
+    DIRECT pass of the same bake is the full Cycles bake (direct + indirect): EEVEE renders the
+    direct light, our bake the bounce. Measured (the area light): worst surface 0.36%, worst
+    channel 0.51% (benchmarks/out/cycles_lights_indirect.log); target 2% as above."""
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from hr_testing import cycles_lights
+
+    surf = cycles_lights.run("AREA", spp=32, seeds=(1, 2), indirect=True)["surfaces"]
+    bad = {n: s["composite_rgb"] for n, s in surf.items() if not max(map(abs, s["composite_rgb"])) <= TOL}
+    assert not bad, bad

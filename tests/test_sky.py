@@ -145,3 +145,28 @@ def test_sky_strength_is_a_scale_and_the_table_is_the_geometry():
     rep = dyn.apply({}, {"world": Light("SKY", (1, 1, 1), 2.5)})
     assert [e.kind for e in rep.events] == ["emission"]
     assert np.allclose(dyn.B, 2.5 * B1, rtol=1e-9)
+
+
+def test_indirect_only_leaves_out_the_direct_light_of_lamps_and_sky():
+    """core.lights.indirect_incident (values "Indirect only (for EEVEE)"): a plane alone under a
+    sky and a lamp has no indirect light at all; in the open box it is the full incident light
+    minus exactly the lamps' and the sky's direct light."""
+    from hr_addon.core.lights import indirect_incident
+
+    sb = SceneBuilder()
+    sb.add_quad("ground", [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)], (0.5,) * 3)
+    s = RadiositySystem(sb.build(), RefineParams())
+    x, n = floor_points(40)
+    lamps = {"world": Light("SKY", (1, 1, 1), 0.5), "p": Light("POINT", (1, 1, 1), 50.0, position=(0, 0, 1))}
+    dyn = DynamicRadiosity(s, method="FE")
+    dyn.apply({}, lamps)
+    g = FinalGather(dyn, x, n, np.zeros(40, int), rays=16)
+    assert g.evaluate(dyn, "incident").min() > 0.5
+    assert np.abs(indirect_incident(g, dyn)).max() < 1e-6
+    box = open_box(lid=None)
+    dyn = DynamicRadiosity(box, method="FE")
+    dyn.apply({}, lamps)
+    g = FinalGather(dyn, *floor_points(60), np.zeros(60, int), rays=64)
+    full, ind = g.evaluate(dyn, "incident"), indirect_incident(g, dyn)
+    direct = sum(g._light(r)[:, None] * r.scale for r in dyn.lights.values())
+    assert ind.min() > 0 and np.allclose(ind, full - direct, atol=1e-6)
