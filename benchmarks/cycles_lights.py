@@ -1,7 +1,8 @@
 """Cornell box lit by a Blender light in place of its emitter (issue 20) against Cycles
 (hr_testing/cycles_lights.py): reflected radiance per surface, Cycles against our final gather.
 
-Run: .venv/bin/python benchmarks/cycles_lights.py [POINT|AREA|SPOT|SUN ...] [--spp N]
+Run: .venv/bin/python benchmarks/cycles_lights.py [POINT|AREA|SPOT|SUN|SUN_HOLE|WORLD|WORLD_ENV ...] [--spp N]
+     [--indirect]  (Cycles' direct light + our "Indirect only" values against the full Cycles bake)
 Prints one JSON line per light kind; the test tests/test_cycles_lights.py runs a smaller version."""
 
 import json
@@ -20,5 +21,7 @@ if __name__ == "__main__":
         i = args.index("--spp")
         spp = int(args[i + 1])
         del args[i : i + 2]
+    indirect = "--indirect" in args  # the "Indirect only (for EEVEE)" composite too
+    args = [a for a in args if a != "--indirect"]
     for kind in args or ["POINT"]:
-        print("RESULT " + json.dumps(run(kind, spp)), flush=True)
+        print("RESULT " + json.dumps(run(kind, spp, indirect=indirect)), flush=True)

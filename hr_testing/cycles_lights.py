@@ -1,6 +1,8 @@
 """Cornell box lit by a Blender light in place of its emitter (issue 20) against Cycles: reflected
 radiance per surface (Cycles DIFFUSE bake, direct + indirect x colour) and our final gather
-(two levels + 4 iterations) on a medium solution. Two Cycles seeds give the reference's noise.
+(two levels + 4 iterations) on a medium solution; WORLD: a uniform sky through the open front;
+SUN_HOLE: a sun through a square hole in the ceiling; WORLD_ENV: an environment image
+(environment_image) through the open front. Two Cycles seeds give the reference's noise.
 
 The benchmark benchmarks/cycles_lights.py prints run()'s result per light kind; the test
 tests/test_cycles_lights.py runs a smaller version."""
@@ -9,16 +11,109 @@ import math
 import tempfile
 import time
 
+import numpy as np
+
 from . import cycles_ref as C
 from .blend import load_bpy, open_sample
 
 
+def environment_image(width=64, height=32):
+    """An equirectangular test sky whose light depends on the direction in every way the mapping
+    could get wrong: red from +x, blue from -y (the Cornell box's open front faces -y), a little
+    green everywhere, all twice as bright above the horizon. Built through core.sky's own mapping
+    inverted (u = 0.5 - atan2(y, x) / 2 pi, v = 0.5 + asin(z) / pi): a mirrored or shifted
+    mapping puts the light where Cycles does not."""
+    import bpy
+
+    u = (np.arange(width) + 0.5) / width
+    v = (np.arange(height) + 0.5) / height
+    phi = (0.5 - u) * 2 * np.pi
+    lat = (v - 0.5) * np.pi
+    x = np.cos(lat)[:, None] * np.cos(phi)[None]
+    y = np.cos(lat)[:, None] * np.sin(phi)[None]
+    px = np.zeros((height, width, 4), np.float32)
+    px[..., 0] = x > 0
+    px[..., 1] = 0.3
+    px[..., 2] = y < 0
+    px[..., :3] *= np.where(lat > 0, 2.0, 1.0)[:, None, None]
+    px[..., 3] = 1
+    img = bpy.data.images.new("Test sky", width, height, float_buffer=True)
+    img.pixels.foreach_set(px.ravel())
+    img.pack()
+    return img
+
+
+def add_world(colour=(0.5, 0.7, 1.0), strength=1.0, image=None):
+    """A uniform sky (or an equirectangular image): an Emission node as the World's surface
+    (cycles_ref.configure_cycles turns Background nodes off for the other references; an Emission
+    node lights Cycles the same way)."""
+    import bpy
+
+    world = bpy.data.worlds.new("Sky")
+    if bpy.app.version < (5, 0, 0):
+        world.use_nodes = True
+    nodes = world.node_tree.nodes
+    nodes.clear()
+    out = nodes.new("ShaderNodeOutputWorld")
+    em = nodes.new("ShaderNodeEmission")
+    em.inputs["Color"].default_value = (*colour, 1.0)
+    em.inputs["Strength"].default_value = strength
+    world.node_tree.links.new(em.outputs[0], out.inputs["Surface"])
+    if image is not None:
+        env = nodes.new("ShaderNodeTexEnvironment")
+        env.image = image
+        world.node_tree.links.new(env.outputs["Color"], em.inputs["Color"])
+    bpy.context.scene.world = world
+    return world
+
+
+def ceiling_hole(frac=0.3):
+    """The Cornell ceiling with a square hole in its middle (frac of its width and depth): four
+    quads framing it, facing the room as the ceiling did."""
+    import bpy
+
+    ob = bpy.data.objects["ceiling"]
+    M = np.array(ob.matrix_world)
+    v = np.array([M[:3, :3] @ np.array(p.co) + M[:3, 3] for p in ob.data.vertices])
+    down = (M[:3, :3] @ np.array(ob.data.polygons[0].normal))[2] < 0
+    (x0, y0), (x1, y1), z = v[:, :2].min(0), v[:, :2].max(0), float(v[:, 2].mean())
+    cx, cy, hx, hy = (x0 + x1) / 2, (y0 + y1) / 2, frac * (x1 - x0) / 2, frac * (y1 - y0) / 2
+    outer = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+    inner = [(cx - hx, cy - hy), (cx + hx, cy - hy), (cx + hx, cy + hy), (cx - hx, cy + hy)]
+    verts = [(x, y, z) for x, y in outer + inner]
+    faces = [[i, (i + 1) % 4, 4 + (i + 1) % 4, 4 + i] for i in range(4)]  # counter-clockwise from above
+    if down:
+        faces = [f[::-1] for f in faces]
+    me = bpy.data.meshes.new("ceiling with hole")
+    me.from_pydata(verts, [], faces)
+    for m in ob.data.materials:
+        me.materials.append(m)
+    ob.data = me
+    from mathutils import Matrix
+
+    ob.matrix_world = Matrix.Identity(4)
+    return (cx - hx, cx + hx, cy - hy, cy + hy)
+
+
 def add_light(kind):
-    """The Cornell emitter's place (its centre, 5 mm lower): a light of comparable power."""
+    """The Cornell emitter's place (its centre, 5 mm lower): a light of comparable power. WORLD: no
+    light, a uniform sky through the box's open front."""
     import bpy
 
     for name in ("light", "Window", "Back Patch"):
         bpy.data.objects.remove(bpy.data.objects[name])
+    if kind == "WORLD":
+        return add_world()
+    if kind == "WORLD_ENV":
+        return add_world(image=environment_image())
+    if kind == "SUN_HOLE":  # a sun from over the back wall: only the ceiling's hole lets it in
+        ceiling_hole()
+        ld = bpy.data.lights.new("Lamp", "SUN")
+        ob = bpy.data.objects.new("Lamp", ld)
+        ld.energy, ld.angle, ld.color = 20.0, 0.0, (1.0, 0.85, 0.6)
+        ob.rotation_euler = (math.radians(-20), math.radians(10), 0)
+        bpy.context.scene.collection.objects.link(ob)
+        return ob
     ld = bpy.data.lights.new("Lamp", kind)
     ob = bpy.data.objects.new("Lamp", ld)
     ob.location = (0.278, 0.2795, 0.5438)
@@ -41,7 +136,10 @@ def add_light(kind):
     return ob
 
 
-def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=None):
+def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=None, indirect=False):
+    """indirect: also the values mode "Indirect only (for EEVEE)" (core.lights.indirect_incident x
+    rho) added to a Cycles bake of the direct light alone (the DIRECT pass, same seeds), against
+    the full Cycles bake: "composite" per surface."""
     bpy = load_bpy()
     from hr_addon.blender.lights_in import collect_lights
     from hr_addon.core.events import DynamicRadiosity
@@ -59,7 +157,23 @@ def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=N
     dyn = DynamicRadiosity(system, method="FE")
     dyn.apply({}, lights)
     ours = C.Ours(rs, system, dyn)
-    g, _ = C.gather_results(rs, ours, dyn, vertex=False, **(gather or dict(levels=2, iterations=4)))
+    cache = {}
+    g, _ = C.gather_results(
+        rs, ours, dyn, vertex=False, cache=cache, **(gather or dict(levels=2, iterations=4))
+    )
+    if indirect:
+        from hr_addon.core.lights import indirect_incident
+
+        tg = cache["texel"]
+        ind = tg.rho * indirect_incident(tg, dyn)
+        s0 = 0
+        for n in rs.objects:  # the texel gather's samples: the objects' texel centres in order
+            at = rs.atlases[n]
+            cen = np.flatnonzero(at.s_centre)
+            tex = np.full((at.n, 3), np.nan)
+            tex[at.s_texel[cen]] = ind[s0 : s0 + len(cen)]
+            g[n]["indirect_refl"] = tex
+            s0 += len(cen)
     leaf = ours.evaluate({}, smooth=False)
     ours_s = time.process_time() - t0
     refs = []
@@ -67,6 +181,7 @@ def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=N
     for s in seeds:
         ref, _, mask = C.bake(rs, spp, seed=s)
         refs.append(ref)
+    direct = [C.bake(rs, spp, seed=s, passes=("DIRECT",))[0] for s in seeds] if indirect else None
     cyc_s = time.perf_counter() - t1
     out = {
         "kind": kind,
@@ -85,7 +200,16 @@ def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=N
         out["surfaces"][n] = {
             "texels": m["texels"],
             "gather": round(m["bias"], 4),
+            # per channel (a coloured sky: a channel's error must not hide in the others' mean)
+            "gather_rgb": [round(a / max(b, 1e-12) - 1, 4) for a, b in zip(m["mean_ours"], m["mean_ref"])],
             "leaves": round(ml["bias"], 4),
             "ref_noise_of_mean": round(nz, 4),
         }
+        if indirect:
+            comp = sum(d[n] for d in direct) / len(direct) + g[n]["indirect_refl"]
+            mc = C.metrics(comp, ref)
+            out["surfaces"][n]["composite"] = round(mc["bias"], 4)
+            out["surfaces"][n]["composite_rgb"] = [
+                round(a / max(b, 1e-12) - 1, 4) for a, b in zip(mc["mean_ours"], mc["mean_ref"])
+            ]
     return out

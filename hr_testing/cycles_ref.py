@@ -487,9 +487,10 @@ def _surface_front(rs: RefScene, ring, plane_tol=1e-3):
     return n if best is None else -n
 
 
-def bake(rs: RefScene, samples, seed=0, threads=1):
-    """Bake reflected radiance (rho H / pi) of every compared object. Returns ({name: (N, 3)},
-    {"wall": s, "cpu": s} of the bake call, {name: baked mask (N,)})."""
+def bake(rs: RefScene, samples, seed=0, threads=1, passes=("DIRECT", "INDIRECT")):
+    """Bake reflected radiance (rho H / pi) of every compared object (passes: Cycles' Diffuse
+    bake's light passes, both by default). Returns ({name: (N, 3)}, {"wall": s, "cpu": s} of the
+    bake call, {name: baked mask (N,)})."""
     import bpy
 
     configure_cycles(rs.scene, samples, seed, threads)
@@ -509,7 +510,7 @@ def bake(rs: RefScene, samples, seed=0, threads=1):
     t0, c0 = time.perf_counter(), time.process_time()
     bpy.ops.object.bake(
         type="DIFFUSE",
-        pass_filter={"DIRECT", "INDIRECT", "COLOR"},
+        pass_filter={*passes, "COLOR"},
         margin=0,
         use_clear=False,
         target="IMAGE_TEXTURES",

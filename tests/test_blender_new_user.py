@@ -1,5 +1,5 @@
-"""Issue 18, a new user's trial: no black bake without a word (nothing emits; the World is
-ignored; Blender lights take part since issue 20), light shapes that cannot emit, checks before
+"""Issue 18, a new user's trial: no black bake without a word (nothing emits; Blender lights and
+the World take part since issue 20), light shapes that cannot emit, checks before
 the build, a clean unregister, the words a user reads and what the saved file carries."""
 
 import os
@@ -34,12 +34,14 @@ def _factory_file(path):
     return path
 
 
-def test_factory_scene_without_its_light_is_refused_before_the_build_naming_the_world(tmp_path):
-    """The factory scene baked to all 0.0 with exit 0. Its point light now lights the bake (issue
-    20, tests/test_blender_lights.py); without it nothing emits and the bake is refused."""
+def test_factory_scene_without_its_light_and_world_is_refused_before_the_build(tmp_path):
+    """The factory scene baked to all 0.0 with exit 0. Its point light and its grey World now light
+    the bake (issue 20, tests/test_blender_lights.py); without both nothing emits and the bake is
+    refused, naming the World left out when it lights the render."""
     bpy = load_bpy()
     bpy.ops.wm.read_homefile(use_factory_startup=True)
     bpy.data.objects.remove(bpy.data.objects["Light"])
+    bpy.context.scene.hr.use_world = False
     blend = tmp_path / "factory.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend), check_existing=False)
     proc = run_cli(blend, "--cache-dir", tmp_path / "cache")
@@ -47,8 +49,7 @@ def test_factory_scene_without_its_light_is_refused_before_the_build_naming_the_
     err = [ln for ln in proc.stderr.splitlines() if ln.startswith("hr_bake: error:")]
     assert len(err) == 1, proc.stderr
     assert "Nothing in the scene emits light, so the bake would be black" in err[0]
-    assert "The World's background lights the render but is ignored by the bake" in err[0]
-    assert "not supported yet" in err[0]
+    assert "The World's background lights the render, but the bake leaves it out" in err[0]
     assert "Building the hierarchy" not in proc.stdout and "Traceback" not in proc.stderr
     assert not (tmp_path / "cache").exists()
 
@@ -61,6 +62,7 @@ def test_operator_refuses_a_black_scene_and_the_panel_says_why(tmp_path):
 
     _factory_file(tmp_path / "factory.blend")
     bpy.data.lights["Light"].energy = 0.0  # a light with no power gives no light
+    bpy.data.worlds["World"].node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
     scene = bpy.context.scene
     with pytest.raises(SceneError, match="Nothing in the scene emits light"):  # the interactive bake
         background.BackgroundBake(scene, bpy.context.view_layer).start()
@@ -71,22 +73,30 @@ def test_operator_refuses_a_black_scene_and_the_panel_says_why(tmp_path):
     assert not scene.hr.bake_dir
 
 
-def test_the_world_is_named_as_ignored_and_blender_lights_take_part(tmp_path):
+def test_the_world_lights_the_bake_and_can_be_left_out(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     lamp = bpy.data.objects.new("Lamp", bpy.data.lights.new("Lamp", "AREA"))
     bpy.context.scene.collection.objects.link(lamp)
+    floor = bpy.data.objects["floor"]
+    dark = _bake(method="FE")
+    assert not [w for w in dark.warnings if "World" in w]
+
+    def floor_mean():
+        return np.mean([d.color[:3] for d in floor.data.color_attributes["HR_Radiance"].data])
+
+    v0 = floor_mean()
     bg = bpy.context.scene.world.node_tree.nodes["Background"]
     bg.inputs["Strength"].default_value = 1.0
     bg.inputs["Color"].default_value = (0.2, 0.3, 0.4, 1)
-    res = _bake(method="FE")
-    ignored = [w for w in res.warnings if "not supported yet" in w]
-    assert ignored == [
-        "The World's background lights the render but is ignored by the bake (not supported yet): only "
-        "Blender lights, emissive materials and light shapes give light."
-    ], res.warnings
-    bg.inputs["Strength"].default_value = 0.0
-    assert not [w for w in _bake(method="FE").warnings if "not supported" in w]
+    res = _bake(method="FE")  # the open front lets the sky in
+    assert not [w for w in res.warnings if "World" in w or "not supported" in w], res.warnings
+    assert floor_mean() > 1.01 * v0
+    bpy.context.scene.hr.use_world = False
+    off = [w for w in _bake(method="FE").warnings if "World" in w]
+    assert off == [
+        "The World's background lights the render, but the bake leaves it out (Lights > World is off)."
+    ]
 
 
 def test_light_shapes_that_cannot_emit_are_named_when_marked_and_at_bake_time(tmp_path, capfd):

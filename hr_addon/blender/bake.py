@@ -37,6 +37,7 @@ from .lights_in import (
     light_objects,
     lights_signature,
     shapes_signature,
+    world_takes_part,
 )
 from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
 from .settings import BakeConfig, make_gather, precompute_key, solver_setup
@@ -213,6 +214,11 @@ class _Snapshot:
     shapes_id: dict  # light-shape identity (manifest)
     has_shapes: bool
     lights: list  # Blender light objects, hidden ones included (they may show on another frame)
+    world: str = ""  # the World's name when its sky takes part (lights_in.world_takes_part)
+
+    @property
+    def has_lights(self):
+        return bool(self.lights or self.world)
 
     @property
     def mesh(self):
@@ -265,6 +271,7 @@ class _Bake:
             # Blender lights (issue 20): read per frame like light shapes (keyframed transform,
             # colour, power, cone)
             list(light_objects(view_layer, include_hidden=True)),
+            scene.world.name if world_takes_part(scene) else "",
         )
 
     def build(self, snap, params, min_area_rel, progress, total, cache_dir, rebuild=False):
@@ -289,7 +296,7 @@ class _Bake:
         def engine(system):
             # without light events the solution is the system's, solved to its own tolerance as
             # it always was: the gather's looser solver options pay off on events only
-            options = cfg.solve_options if snap.has_shapes or snap.lights else {}
+            options = cfg.solve_options if snap.has_shapes or snap.has_lights else {}
             return DynamicRadiosity(system, method=cfg.method, min_area_rel=min_area_rel, **options)
 
         made = {}
@@ -369,8 +376,10 @@ class _Bake:
             "geometry": snap.geometry,
             "light_shapes": snap.shapes_id,
         }
-        if snap.lights:  # which Blender lights took part (not their animated values)
+        if snap.has_lights:  # which Blender lights took part (not their animated values)
             info["lights"] = {o.name: f"{o.data.type} {o.data.name}" for o in snap.lights}
+            if snap.world:
+                info["lights"]["(World)"] = f"WORLD {snap.world}"
         if r.rays_note:
             info["rays_note"] = r.rays_note
         return info
@@ -419,7 +428,7 @@ class _Bake:
 
     def lights_at(self, snap, frame, frame_warnings):
         """(light shapes, Blender lights, signature) at frame; ({}, None, "static") without either."""
-        if not (snap.has_shapes or snap.lights):
+        if not (snap.has_shapes or snap.has_lights):
             return {}, None, "static"
         self.scene.frame_set(frame)
         depsgraph = self.view_layer.depsgraph
@@ -429,7 +438,7 @@ class _Bake:
             else {}
         )
         sig, lights = shapes_signature(shapes), None
-        if snap.lights:
+        if snap.has_lights:
             lights = collect_lights(self.view_layer, depsgraph, Light, frame_warnings)
             sig += lights_signature(lights)
         return shapes, lights, sig

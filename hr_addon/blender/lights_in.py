@@ -1,6 +1,7 @@
-"""Light in: light-shape objects -> core LightShape rings, Blender lights -> core Light, and the
-checks of what lights the scene before a bake (nothing emits, unsupported light features, the
-World, shapes that cannot emit, emitters animated in ways the bake does not follow).
+"""Light in: light-shape objects -> core LightShape rings, Blender lights and the World -> core
+Light, and the checks of what lights the scene before a bake (nothing emits, unsupported light
+features, World node setups not followed, shapes that cannot emit, emitters animated in ways the
+bake does not follow).
 """
 
 import hashlib
@@ -8,7 +9,7 @@ import hashlib
 import numpy as np
 
 from ..core.geometry import components, newell
-from .materials import read_material, world_lights
+from .materials import _Reader, image_pixels, read_material, world_lights
 from .scene_in import (
     EvalMesh,
     _surfaces,
@@ -321,9 +322,10 @@ def light_features(obj, ld=None):
 
 def collect_lights(view_layer, depsgraph, Light, warnings=None, objects=None):
     """{"light:" + name: core.lights.Light} of the Blender lights that render in the current
-    (evaluated) frame: transform, colour, power/strength, radius, spot size and blend, sun angle,
-    area shape and size, all as evaluated (keyframes and drivers followed). Lights with no power,
-    hidden from render or not lighting diffuse surfaces are left out. `warnings` gets what a light
+    (evaluated) frame, and the World's sky (world_sky, keys "world..."): transform, colour,
+    power/strength, radius, spot size and blend, sun angle, area shape and size, all as evaluated
+    (keyframes and drivers followed). Lights with no power, hidden from render or not lighting
+    diffuse surfaces are left out. `warnings` gets what a light
     has that the bake does not follow (light_features), once per light."""
     import math
 
@@ -369,7 +371,134 @@ def collect_lights(view_layer, depsgraph, Light, warnings=None, objects=None):
         if not all(math.isfinite(v) for v in (strength, *pos)):
             out.pop("light:" + obj.name, None)
             warnings.append(f"Light '{obj.name}': its position or power is not finite; left out.")
+    out.update(world_sky(depsgraph.scene, Light, warnings))
     return out
+
+
+# --- the World ----------------------------------------------------------------------------------
+
+_table_cache = {}  # image key -> reduced table (H, W, 3): an HDR is read once, not per frame
+
+
+def _environment_table(img):
+    """The reduced lat-long table (core.sky.reduce_table) of an image, or None without pixels."""
+    from ..core.sky import reduce_table
+
+    key = (img.name_full, img.filepath, tuple(img.size), img.colorspace_settings.name)
+    got = None if img.is_dirty else _table_cache.get(key)
+    if got is None:
+        px = image_pixels(img)
+        if px is None:
+            return None
+        got = reduce_table(px)
+        if len(_table_cache) > 8:
+            _table_cache.clear()
+        _table_cache[key] = got
+    return got
+
+
+def read_world(world):
+    """(colour (3,), strength, table (H, W, 3) or None, problems [str]) of the light a World gives
+    a diffuse scene: a Background (or Emission) node into the active World Output, its Color
+    unlinked (uniform), or fed by an equirectangular Environment Texture with its default vector
+    (the image reduced to a small table). Anything else is its average colour (an image's mean,
+    an RGB node, a mix of those; else the socket's own colour) and a problem naming it."""
+    import bpy
+
+    black = (np.zeros(3), 0.0, None, [])
+    if world is None:
+        return black
+    tree = world.node_tree
+    if tree is None or (bpy.app.version < (5, 0, 0) and not world.use_nodes):
+        return np.array(world.color[:3], np.float64), 1.0, None, []
+    outs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]
+    out = next((n for n in outs if n.is_active_output), outs[0] if outs else None)
+    if out is None:
+        return black
+    r = _Reader(world)
+    node, _ = r.source(out.inputs["Surface"])
+    problems = []
+    if node is None or node.mute:
+        return black
+    if node.type not in ("BACKGROUND", "EMISSION"):
+        # a mix of shaders, a light-path trick: its first Background node stands for it
+        bg = next((n for n in tree.nodes if n.type == "BACKGROUND" and not n.mute), None)
+        problems.append(
+            f"a '{node.bl_label}' node into the World Output is not followed"
+            + ("; its first Background node is used" if bg else "; it gives no light")
+        )
+        if bg is None:
+            return (*black[:3], problems)
+        node = bg
+    strength = r.value(node.inputs["Strength"])
+    src, _ = r.source(node.inputs["Color"])
+    colour, table = None, None
+    if src is not None and src.type == "TEX_ENVIRONMENT" and src.image is not None:
+        table = _environment_table(src.image)
+        follow = src.projection == "EQUIRECTANGULAR" and not src.inputs["Vector"].is_linked
+        if table is None:
+            problems.append(f"the Environment Texture's image '{src.image.name}' has no pixels")
+            colour = np.array(node.inputs["Color"].default_value[:3], np.float64)
+        elif not follow:
+            from ..core.sky import sphere_mean
+
+            problems.append(
+                f"the Environment Texture '{src.name}' ({src.projection.lower().replace('_', ' ')}"
+                + (", its Vector input linked" if src.inputs["Vector"].is_linked else "")
+                + ") is taken as its image's average colour"
+            )
+            colour, table = sphere_mean(table), None
+    else:
+        colour = r.color(node.inputs["Color"])
+    problems += [w.split(": ", 1)[-1] for w in r.warnings]  # the reader names the "Material"
+    if table is not None:
+        return np.ones(3), strength, table, problems
+    return colour, strength, None, problems
+
+
+def world_sky(scene, Light, warnings=None):
+    """{key: core.lights.Light} of kind SKY for the scene's World ({} when it gives no light or
+    Scene.hr.use_world is off): "world" for a uniform sky or a table of one colour, "world:R",
+    "world:G", "world:B" for a coloured table (core.sky.environment_parts). `warnings` gets one
+    line naming the World and what of its node setup the bake does not follow."""
+    from ..core.sky import environment_parts
+
+    world = scene.world
+    if world is None or not scene.hr.use_world:
+        return {}
+    colour, strength, table, problems = read_world(world)
+    if not (strength > 0 and np.isfinite(strength)):
+        return {}
+    if problems and warnings is not None:
+        warnings.append(
+            f"World '{world.name}': {'; '.join(problems)} (the bake lights the scene with a uniform "
+            "sky of the colour it could read)."
+        )
+    if table is None:
+        if not colour.max() > 0:
+            return {}
+        return {"world": Light("SKY", colour, strength, name=world.name)}
+    parts = environment_parts(table)
+    keys = ["world"] if len(parts) == 1 else [f"world:{'RGB'[int(np.argmax(c))]}" for c, _ in parts]
+    return {k: Light("SKY", c, strength, sky=t, name=world.name) for k, (c, t) in zip(keys, parts)}
+
+
+def world_takes_part(scene):
+    """True when the scene's World lights the bake (Lights > World on, a background not black)."""
+    return scene.world is not None and scene.hr.use_world and world_lights(scene.world)
+
+
+def world_summary(scene):
+    """One line for the panel: what the World gives the bake."""
+    world = scene.world
+    if world is None:
+        return "World: none"
+    colour, strength, table, problems = read_world(world)
+    if table is not None:
+        what = f"environment {table.shape[1]} x {table.shape[0]}"
+    else:
+        what = "uniform ({:.3g}, {:.3g}, {:.3g})".format(*colour)
+    return f"World '{world.name}': {what} x {strength:g}" + (" (setup not followed)" if problems else "")
 
 
 def lights_signature(lights):
@@ -384,12 +513,13 @@ def lights_signature(lights):
 
 
 def light_check(view_layer, scene, depsgraph, geometry_emits):
-    """(error, warnings) about the scene's light before a bake. error ('' if none): nothing emits
-    and no Blender light shines, so the bake would be black. warnings: the World the bake ignores,
+    """(error, warnings) about the scene's light before a bake. error ('' if none): nothing emits,
+    no Blender light shines and the World gives no light, so the bake would be black. warnings:
     what Blender lights have that the bake does not follow (light_features), light shapes that
-    cannot emit (light_shape_problem)."""
+    cannot emit (light_shape_problem); the World's own warnings come with collect_lights."""
     lights = [o for o in light_objects(view_layer) if o.data.energy > 0 and max(o.data.color) > 0]
     world = world_lights(scene.world)
+    sky = world_takes_part(scene)
     warnings, shapes_emit = [], False
     for o in light_shape_objects(view_layer, include_hidden=True):
         emits, why = light_shape_problem(o, depsgraph)
@@ -399,17 +529,16 @@ def light_check(view_layer, scene, depsgraph, geometry_emits):
     for o in lights:
         for f in light_features(o):
             warnings.append(f"Light '{o.name}': {f} is not supported by the bake.")
-    ignored = "The World's background lights the render but is ignored by the bake (not supported yet)"
-    if not (geometry_emits or shapes_emit or lights):
+    off = "The World's background lights the render, but the bake leaves it out (Lights > World is off)"
+    if not (geometry_emits or shapes_emit or lights or sky):
         return (
             "Nothing in the scene emits light, so the bake would be black: no Blender light (with "
             "power > 0, rendered), no mesh with an emissive material (an Emission shader, or a "
-            "Principled BSDF with Emission Strength > 0) and no light shape that emits."
-            + (f" {ignored}." if world else "")
-            + " Add a light, give a mesh an emissive material, or mark a flat emissive mesh as a "
-            "light shape.",
+            "Principled BSDF with Emission Strength > 0), no light shape that emits and no World "
+            "background." + (f" {off}." if world else "") + " Add a light, give a mesh an emissive "
+            "material, mark a flat emissive mesh as a light shape, or give the World a colour.",
             warnings,
         )
-    if world:
-        warnings.insert(0, ignored + ": only Blender lights, emissive materials and light shapes give light.")
+    if world and not sky:
+        warnings.insert(0, off + ".")
     return "", warnings

@@ -194,7 +194,12 @@ class HR_PT_radiosity_lights(bpy.types.Panel):
     def draw(self, context):
         from .scene_in import _walk_collections
 
+        from .lights_in import world_summary
+
         layout = self.layout
+        row = layout.row()
+        row.prop(context.scene.hr, "use_world", text="")
+        row.label(text=world_summary(context.scene), icon="WORLD")
         lights = [o for o in _walk_collections(context.view_layer) if o.type == "LIGHT"]
         if not lights:
             layout.label(text="No Blender lights (emissive meshes and light shapes only)")

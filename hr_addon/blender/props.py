@@ -131,6 +131,12 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         options=_REL,
         description="Cache directory of the last bake (empty: not baked)",
     )
+    use_world: BoolProperty(
+        name="World",
+        default=True,
+        description="The World's background lights the bake through the scene's openings, as in a "
+        "render: a uniform colour, or an Environment Texture reduced to a small table (docs/lights.md)",
+    )
     playback: BoolProperty(
         name="Playback", default=True, description="Load the baked radiance into HR_Radiance on frame change"
     )

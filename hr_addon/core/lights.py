@@ -15,6 +15,8 @@ Units, each fitted against a Cycles render of a diffuse plane under the light
 - sun, strength S W/m^2: irradiance S cos on a surface (measured 1.0000 x, at 0 and 60 degrees).
 - area, power P watts over an area A (world size): emitted radiance L = P / (pi A) (measured
   0.9996 x for a 1 x 1 square and 0.9997 x for a 1 x 0.5 rectangle), one-sided along the light's -Z.
+- sky (the World, core/sky.py): radiance colour x strength x its table (mean 1) from every
+  direction a ray escapes the scene in.
 
 Everything here is per unit strength ("unit" direct light): the light's colour x power (or x
 strength for the sun) is a scale applied afterwards, so a strength or colour edit never recomputes
@@ -23,12 +25,13 @@ Lambertian surface would reflect as radiance).
 """
 
 from dataclasses import dataclass, field
+import hashlib
 
 import numpy as np
 
 from . import formfactor as ff
 
-KINDS = ("POINT", "SPOT", "SUN", "AREA")
+KINDS = ("POINT", "SPOT", "SUN", "AREA", "SKY")
 POINT_INTENSITY = 1.0 / (4.0 * np.pi)  # W/sr per watt (measured: 0.99984 / (4 pi))
 SUN_IRRADIANCE = 1.0  # W/m^2 per unit strength (measured: 1.0000)
 AREA_RADIANCE = 1.0 / np.pi  # W/(sr m^2) per watt per m^2 (measured: 0.9996 / pi)
@@ -49,7 +52,8 @@ class Light:
     object's -Z). radius: point/spot sphere radius (m); soft_falloff: Cycles' "Soft Falloff".
     spot_size (rad, full cone angle), spot_blend. angle (rad): the sun's angular diameter.
     outline (M, 3): an area light's polygon, counter-clockwise about `direction` (its emitting
-    side); see area_outline()."""
+    side); see area_outline(). sky (H, W): a SKY's latitude-longitude table of relative radiance
+    (core/sky.py; None: uniform), its colour x strength the mean radiance."""
 
     kind: str
     color: np.ndarray
@@ -62,6 +66,7 @@ class Light:
     spot_blend: float = 0.0
     angle: float = 0.0
     outline: np.ndarray = None
+    sky: np.ndarray = None
     name: str = ""
     notes: list = field(default_factory=list)
 
@@ -77,6 +82,8 @@ class Light:
             if self.outline is None or len(self.outline) < 3:
                 raise ValueError(f"light '{self.name}': an area light needs an outline")
             self.outline = np.asarray(self.outline, np.float64)
+        if self.sky is not None:
+            self.sky = np.ascontiguousarray(self.sky, np.float64)
 
     @property
     def scale(self):
@@ -86,6 +93,10 @@ class Light:
     @property
     def geom_key(self):
         """Everything but colour and strength: equal keys give equal unit light."""
+        if self.kind == "SKY":  # at infinity: no position, no direction
+            if self.sky is None:
+                return (self.kind, None)
+            return (self.kind, self.sky.shape, hashlib.sha1(self.sky.tobytes()).hexdigest())
         parts = [self.kind, self.position.tobytes(), self.direction.tobytes()]
         if self.kind in ("POINT", "SPOT"):
             parts += [float(self.radius), bool(self.soft_falloff)]
@@ -180,6 +191,11 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
     if N == 0:
         return out
     keys = np.arange(N, dtype=np.uint64) if keys is None else keys
+    if light.kind == "SKY":
+        from .sky import RAY_FACTOR, sky_incident
+
+        far = float(far or 1e4 * eps)
+        return sky_incident(light, x, n, backend, eps, rays * RAY_FACTOR, seed, keys, stream, far)
     o = x + eps * n
     if light.kind in ("POINT", "SPOT"):
         d = light.position - x
@@ -315,3 +331,16 @@ def _node_mean(h, nodes, light, backend, eps, rays, seed, unit, far, q):
     ws = w.sum(1)
     mean = np.where(ws > 0, (v * w).sum(1) / np.where(ws > 0, ws, 1), 0.0)
     return mean, v.min(1), v.max(1)
+
+
+def indirect_incident(gather, dyn):
+    """(n, 3) incident light (irradiance / pi) at a FinalGather's samples without the direct light
+    of the Blender lights and the World: what EEVEE does not render itself (it renders those
+    lights' direct light and shadows; emissive meshes and light shapes light nothing in EEVEE, so
+    their direct light stays). The lights' bounce light stays. The gather's cached unit direct
+    light of each light (the same rays) is taken out of its incident light."""
+    inc = gather.evaluate(dyn, "incident")
+    for rec in dyn.lights.values():
+        inc -= gather._light(rec)[:, None].astype(np.float64) * rec.scale[None]
+    inc[gather.dark] = 0.0
+    return np.maximum(inc, 0.0)  # the same float32 parts subtracted: rounding only below 0
