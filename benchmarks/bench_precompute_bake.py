@@ -24,23 +24,26 @@ from hr_testing.blend import load_bpy, open_sample  # noqa: E402
 
 
 def _bake(bpy, frame, **kw):
-    """(BakeResult, CPU seconds {build: to the first frame's report, bake: all})."""
-    from hr_addon.blender.bake import run_bake
+    """(BakeResult, CPU seconds {build: the build stage (_Bake.build), bake: all})."""
+    from hr_addon.blender import bake
 
     cpu, c0 = {}, time.process_time()
+    build = bake._Bake.build
 
-    def status(p):
-        if p.stage != "build":
-            cpu.setdefault("build", round(time.process_time() - c0, 2))
+    def timed(*a, **k):  # the build stage's CPU time (all threads of this process)
+        c = time.process_time()
+        try:
+            return build(*a, **k)
+        finally:
+            cpu["build"] = round(time.process_time() - c, 2)
 
-    res = run_bake(
-        bpy.context.scene,
-        log=lambda *a, **k: None,
-        status=status,
-        frames=(frame, frame),
-        quality="draft",
-        **kw,
-    )
+    bake._Bake.build = timed
+    try:
+        res = bake.run_bake(
+            bpy.context.scene, log=lambda *a, **k: None, frames=(frame, frame), quality="draft", **kw
+        )
+    finally:
+        bake._Bake.build = build
     cpu["bake"] = round(time.process_time() - c0, 2)
     return res, cpu
 
