@@ -4,7 +4,11 @@ it); then one process bakes all frames from a cold build, and the merged cache i
 frame by frame. The light: a window shape sliding along the light wall (FE), one position per
 frame. Numpy only (the engine and io.cache as the bake drives them; docs/farm.md).
 
-    python benchmarks/bench_farm.py [20k] [draft] [frames=8] [nodes=4]
+    python benchmarks/bench_farm.py [20k] [draft] [frames=8] [nodes=4] [FE|AUTO|AR] [cold|warm]
+
+cold (the bake's setting): every frame's responses are solved from their emission alone
+(DynamicRadiosity warm_moves=False); warm: a moved shape's from the previous frame's response. The
+one-process bake is run with both on the same build, to measure what cold moves cost.
 """
 
 import json
@@ -40,28 +44,34 @@ def shape_at(info, f):
     return LightShape(outline, np.full(3, 20.0), "w")
 
 
-def bake(cache, mesh, info, system, frames):
-    """The frames into the cache folder as a bake does: one event per frame, then commit."""
-    dyn = DynamicRadiosity(system, method="FE")
+def bake(cache, mesh, info, system, frames, method, moves):
+    """The frames into the cache folder as a bake does: one event per frame, then commit. Returns
+    [(solver iterations, seconds)] of the frames' events."""
+    dyn = DynamicRadiosity(system, method=method, warm_moves=moves == "warm")
     w = CacheWriter(cache, {"room": {"mesh": "room", "count": len(mesh.loop_verts)}}, "CORNER", "sig", {})
+    cost = []
     for f in frames:
-        dyn.apply({"w": shape_at(info, f)})
+        fr = dyn.apply({"w": shape_at(info, f)})
+        cost.append((fr.iterations, round(fr.seconds, 3)))
         w.write(f, {"room": dyn.loop_radiance()})
     w.commit()
+    return cost
 
 
-def node(cache, size, quality, a, b, out):
+def node(cache, size, quality, a, b, out, method, moves):
     t0 = time.perf_counter()
     mesh, info, params = scene(size, quality)
     log = []
 
-    def build():
+    def build():  # as the bake: the system and its base solution (stored with it)
         log.append("build")
-        return RadiositySystem(mesh, params), None
+        system = RadiositySystem(mesh, params)
+        DynamicRadiosity(system, method=method)
+        return system, None
 
     system, _, how = pc.load_or_build(cache, pc.expected(mesh, params, quality=quality), build, log.append)
     t1 = time.perf_counter()
-    bake(cache, mesh, info, system, range(a, b + 1))
+    bake(cache, mesh, info, system, range(a, b + 1), method, moves)
     t2 = time.perf_counter()
     cpu = time.process_time()
     Path(out).write_text(
@@ -69,7 +79,7 @@ def node(cache, size, quality, a, b, out):
     )
 
 
-def main(size="20k", quality="draft", frames="8", nodes="4"):
+def main(size="20k", quality="draft", frames="8", nodes="4", method="FE", moves="cold"):
     n_frames, n_nodes = int(frames), int(nodes)
     per = n_frames // n_nodes
     ranges = [(1 + i * per, (i + 1) * per if i < n_nodes - 1 else n_frames) for i in range(n_nodes)]
@@ -90,6 +100,8 @@ def main(size="20k", quality="draft", frames="8", nodes="4"):
                     str(a),
                     str(b),
                     str(d / f"n{i}"),
+                    method,
+                    moves,
                 ]
             )
             for i, (a, b) in enumerate(ranges)
@@ -108,8 +120,12 @@ def main(size="20k", quality="draft", frames="8", nodes="4"):
         t1 = time.perf_counter()
         system = RadiositySystem(mesh, params)
         build_s = time.perf_counter() - t1
-        bake(d / "one", mesh, info, system, range(1, n_frames + 1))
-        wall_one = time.perf_counter() - t1
+        cost = {}
+        for other in {"cold", "warm"} - {moves}:  # the other setting's cost, on a copy of the build
+            cost[other] = bake(d / other, mesh, info, system.copy(), range(1, n_frames + 1), method, other)
+        t2 = time.perf_counter()
+        cost[moves] = bake(d / "one", mesh, info, system, range(1, n_frames + 1), method, moves)
+        wall_one = build_s + time.perf_counter() - t2
         merged, one = CacheReader(cache), CacheReader(d / "one")
         per_frame = {}
         for f in range(1, n_frames + 1):
@@ -124,6 +140,8 @@ def main(size="20k", quality="draft", frames="8", nodes="4"):
         date=time.strftime("%Y-%m-%d %H:%M"),
         size=size,
         quality=quality,
+        method=method,
+        moves=moves,
         triangles=tris,
         ranges=ranges,
         nodes=res,
@@ -134,17 +152,20 @@ def main(size="20k", quality="draft", frames="8", nodes="4"):
         debris=debris,
         extra_files=extra,
         frames=per_frame,
+        frame_cost={
+            k: dict(iterations=[i for i, _ in v], seconds=[s for _, s in v]) for k, v in cost.items()
+        },
         load=os.getloadavg(),
     )
     print(json.dumps(out, indent=1))
-    path = ROOT / "benchmarks" / "out" / f"farm_{size}_{quality}.json"
+    path = ROOT / "benchmarks" / "out" / f"farm_{size}_{quality}_{method}_{moves}.json"
     path.parent.mkdir(exist_ok=True)
     path.write_text(json.dumps(out, indent=1))
 
 
 if __name__ == "__main__":
     if sys.argv[1:2] == ["--node"]:
-        c, sz, q, a, b, o = sys.argv[2:8]
-        node(c, sz, q, int(a), int(b), o)
+        c, sz, q, a, b, o, m, mv = sys.argv[2:10]
+        node(c, sz, q, int(a), int(b), o, m, mv)
     else:
         main(*sys.argv[1:])

@@ -1,11 +1,15 @@
 """Issue 22: the scene precompute on the furnished room. Build (RadiositySystem + the final
-gather's rays) vs capture + write vs load + restore, the file's size per input triangle, and the
-restored system's gathered output after an FE event against the cold one's.
+gather's rays, the base solution and the static emitters' direct light: what a cold bake builds
+before its first frame) vs capture + write vs load + restore + DynamicRadiosity on the loaded
+system (what a re-bake after a light edit pays before its first frame), the file's size per input
+triangle, and the restored system's gathered output after an FE event against the cold one's.
+Wall and CPU seconds (process time: the machine is shared) and the load average.
 
     python benchmarks/bench_precompute.py [20k] [draft|medium] [gather|nogather]
 """
 
 import json
+import os
 import sys
 import tempfile
 import time
@@ -30,6 +34,19 @@ GATHER = {
 }
 
 
+class Clock:
+    """lap() -> [wall s, CPU s] since the last lap (CPU: this process's, all threads)."""
+
+    def __init__(self):
+        self.t = (time.perf_counter(), time.process_time())
+
+    def lap(self):
+        now = (time.perf_counter(), time.process_time())
+        out = [round(now[0] - self.t[0], 3), round(now[1] - self.t[1], 3)]
+        self.t = now
+        return out
+
+
 def main(size="20k", quality="draft", mode="gather"):
     mesh, info = furnished_room(size)
     tris = int((np.asarray(mesh.loop_total) - 2).sum())
@@ -37,13 +54,14 @@ def main(size="20k", quality="draft", mode="gather"):
     params = RefineParams.for_gather(quality) if use_gather else RefineParams.preset(quality)
     opts = DynamicRadiosity.gather_options(quality) if use_gather else {}
     settings = GATHER[quality] if use_gather else None
-    t0 = time.perf_counter()
+    clock = Clock()
     system = RadiositySystem(mesh, params)
-    t_system = time.perf_counter() - t0
+    t_system = clock.lap()
     dyn = DynamicRadiosity(system, method="FE", **opts)
-    t1 = time.perf_counter()
+    t_base = clock.lap()
     gather = LoopGather(dyn, **settings) if use_gather else None
-    t_gather = time.perf_counter() - t1
+    pc.prepare(gather)
+    t_gather = clock.lap()
     want = pc.expected(mesh, params, gather=settings, quality=quality)
     with tempfile.TemporaryDirectory() as d:
         t2 = time.perf_counter()
@@ -52,9 +70,11 @@ def main(size="20k", quality="draft", mode="gather"):
         path = pc.write(d, arrays, graph, want)
         t_write = time.perf_counter() - t2
         size_b = path.stat().st_size
-        t3 = time.perf_counter()
+        clock.lap()
         system2, gather2, why = pc.load(d, want)
-        t_load = time.perf_counter() - t3
+        t_load = clock.lap()
+        DynamicRadiosity(system2, method="FE", **opts)  # as a re-bake: no events yet
+        t_dyn = clock.lap()
     assert why is None, why
     system_bytes = sum(a.nbytes for a in pc.capture(system)[0].values())  # without the gather
     by_kind = {}
@@ -80,13 +100,18 @@ def main(size="20k", quality="draft", mode="gather"):
         gather_weights=int(len(gather.w) + (len(gather.second.w) if gather.second is not None else 0))
         if gather is not None
         else 0,
-        t_system=round(t_system, 2),
-        t_gather=round(t_gather, 2),
-        t_build=round(t_system + t_gather, 2),
+        # (wall s, CPU s) each
+        t_system=t_system,
+        t_base_solve=t_base,
+        t_gather=t_gather,
+        t_build=[a + b + c for a, b, c in zip(t_system, t_base, t_gather)],
         t_capture=round(t_capture, 3),
         t_capture_write=round(t_write, 2),
-        t_load_restore=round(t_load, 2),
-        load_share=round(t_load / (t_system + t_gather), 4),
+        t_load_restore=t_load,
+        t_dynamic_on_loaded=t_dyn,
+        load_share=round(t_load[0] / (t_system[0] + t_base[0] + t_gather[0]), 4),
+        rebake_share=round((t_load[0] + t_dyn[0]) / (t_system[0] + t_base[0] + t_gather[0]), 4),
+        rebake_share_cpu=round((t_load[1] + t_dyn[1]) / (t_system[1] + t_base[1] + t_gather[1]), 4),
         file_bytes=size_b,
         bytes_per_triangle=round(size_b / tris),
         arrays=len(arrays),
@@ -95,6 +120,7 @@ def main(size="20k", quality="draft", mode="gather"):
         bytes_by_dtype=by_kind,
         bitwise_equal_fe_event=bool(np.array_equal(outs[0], outs[1])),
         created=time.strftime("%Y-%m-%d %H:%M"),
+        load_average=os.getloadavg(),
     )
     print(json.dumps(res))
     out = Path(__file__).resolve().parent / "out" / f"precompute_{size}_{quality}_{mode}.json"

@@ -2,12 +2,14 @@
 20k room (sample_blends/furnished.blend, draft, final gather as the scene sets it). One run: a
 cold bake of one frame (builds and stores the precompute), then the window's location keyframe
 moved and the same frame baked again (loads it). Prints and stores both build stages, the
-messages, and whether the re-bake's values equal a cold bake's of the moved window.
+messages, and whether the re-bake's values equal a cold bake's of the moved window. Wall and CPU
+seconds (this process's, all threads: the machine is shared) and the load average.
 
     python benchmarks/bench_precompute_bake.py [FRAME]
 """
 
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -22,10 +24,28 @@ from hr_testing.blend import load_bpy, open_sample  # noqa: E402
 
 
 def _bake(bpy, frame, **kw):
-    from hr_addon.blender.bake import run_bake
+    """(BakeResult, CPU seconds {build: the build stage (_Bake.build), bake: all})."""
+    from hr_addon.blender import bake
 
-    res = run_bake(bpy.context.scene, log=lambda *a, **k: None, frames=(frame, frame), quality="draft", **kw)
-    return res
+    cpu, c0 = {}, time.process_time()
+    build = bake._Bake.build
+
+    def timed(*a, **k):  # the build stage's CPU time (all threads of this process)
+        c = time.process_time()
+        try:
+            return build(*a, **k)
+        finally:
+            cpu["build"] = round(time.process_time() - c, 2)
+
+    bake._Bake.build = timed
+    try:
+        res = bake.run_bake(
+            bpy.context.scene, log=lambda *a, **k: None, frames=(frame, frame), quality="draft", **kw
+        )
+    finally:
+        bake._Bake.build = build
+    cpu["bake"] = round(time.process_time() - c0, 2)
+    return res, cpu
 
 
 def _values(bpy):
@@ -48,14 +68,15 @@ def main(frame=5):
             for p in o.data.polygons
         )
         t0 = time.perf_counter()
-        cold = _bake(bpy, frame)
+        load0 = os.getloadavg()
+        cold, cpu_cold = _bake(bpy, frame)
         t_cold = time.perf_counter() - t0
         pc_bytes = (Path(cold.cache_dir) / "precompute.hrpc").stat().st_size
         win = bpy.data.objects["Window"]
         win.location.z += 0.1  # a light-shape keyframe edit: the window moves up 10 cm at this frame
         win.keyframe_insert("location", frame=frame)
         t1 = time.perf_counter()
-        warm = _bake(bpy, frame)
+        warm, cpu_warm = _bake(bpy, frame)
         t_warm = time.perf_counter() - t1
         bpy.context.scene.frame_set(frame)
         v_warm = _values(bpy)
@@ -70,29 +91,36 @@ def main(frame=5):
                 "hierarchy_s": cold.build_seconds,
                 "gather_s": cold.gather_seconds,
                 "bake_s": t_cold,
+                "cpu_s": cpu_cold,
                 "messages": cold.precompute,
             },
             "rebake_load_s": warm.load_seconds,
             "rebake_after_keyframe": {
                 "build_stage_s": warm.build_seconds,
                 "bake_s": t_warm,
+                "cpu_s": cpu_warm,
                 "messages": warm.precompute,
             },
             "ratio_rebake_build_to_cold_build": warm.build_seconds
             / (cold.build_seconds + cold.gather_seconds),
+            "ratio_cpu_rebake_build_to_cold_build": cpu_warm["build"] / cpu_cold["build"],
             "date": time.strftime("%Y-%m-%d %H:%M"),
+            "load_average": [load0, os.getloadavg()],
         }
         _store(out)  # (the check below takes a cold bake's time again)
         t2 = time.perf_counter()
-        cold2 = _bake(bpy, frame, rebuild=True)  # the same light, the precompute rebuilt: reference
+        # the same light, the precompute rebuilt: the reference
+        cold2, cpu_cold2 = _bake(bpy, frame, rebuild=True)
         bpy.context.scene.frame_set(frame)
         v_cold2 = _values(bpy)
         out["rebuild_same_light"] = {
             "build_stage_s": cold2.build_seconds + cold2.gather_seconds,
             "bake_s": time.perf_counter() - t2,
+            "cpu_s": cpu_cold2,
             "messages": cold2.precompute,
         }
         out["rebake_equals_rebuilt_bitwise"] = all(np.array_equal(v_warm[k], v_cold2[k]) for k in v_cold2)
+        out["load_average"].append(os.getloadavg())
         _store(out)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

@@ -102,6 +102,32 @@ def test_changes_rebuild_and_name_their_cause(tmp_path):
     assert res.precompute == ["precompute rebuilt: feps 0.02 -> 0.03"], res.precompute
 
 
+def test_a_brighter_static_emitter_rebuilds_and_equals_a_cold_bake(tmp_path):
+    """The stored base solution (the static emitters' light) is never stale: a changed emission
+    strength of the ceiling light rebuilds the precompute, naming the object, and the new light
+    shows, bit for bit as a bake with the precompute rebuilt from nothing."""
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    _bake(method="FE")
+    before = _values(bpy)
+    mat = bpy.data.objects["light"].material_slots[0].material
+    strength = next(n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED").inputs["Emission Strength"]
+    strength.default_value *= 1.5
+    res = _bake(method="FE")
+    assert res.precompute == ["precompute rebuilt: object 'light' changed emission (material)"], (
+        res.precompute
+    )
+    got = _values(bpy)
+    assert _bake(method="FE").precompute_loaded
+    assert all(np.array_equal(_values(bpy)[k], got[k]) for k in got)  # loaded: the same values
+    cold = _bake(method="FE", rebuild=True)
+    assert not cold.precompute_loaded
+    ref = _values(bpy)
+    assert all(np.array_equal(got[k], ref[k]) for k in ref)
+    # the new light shows: brighter by less than the lamp's 1.5 (the window lights frame 6 too)
+    assert got["back"][:, :3].mean() > 1.1 * before["back"][:, :3].mean()
+
+
 def test_damaged_precompute_is_named_and_rebuilt(tmp_path):
     load_bpy()
     open_sample("cornell", tmp_path)

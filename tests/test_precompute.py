@@ -109,6 +109,87 @@ def test_texel_gather_restores_bitwise(tmp_path):
     assert np.array_equal(cold, warm) and cold.max() > 0
 
 
+def test_the_base_solution_and_static_direct_light_are_stored_and_used(tmp_path, monkeypatch):
+    """DynamicRadiosity's base solve (the static emitters' solution) and the gather's static direct
+    light are in the file: a DynamicRadiosity on the restored system starts without solving, with
+    the cold one's base bit for bit, and the gather does not trace the static emitters again."""
+    from hr_addon.core.events.solves import Solves
+
+    mesh, shape = cornell()
+    system, gather = build(mesh)
+    pc.prepare(gather)
+    assert len(system.bases) == 1 and all(g._D_static is not None for g in pc.levels(gather))
+    cold = DynamicRadiosity(system.copy(), method="FE", tol=1e-5)  # another tolerance: solved, kept
+    assert len(system.bases) == 2
+    want = pc.expected(mesh, DRAFT, gather=GATHER)
+    pc.write(tmp_path, *pc.capture(system, gather), want)
+    system2, gather2, _ = pc.load(tmp_path, want)
+    assert system2.bases.keys() == system.bases.keys()
+    for g, g2 in zip(pc.levels(gather), pc.levels(gather2)):
+        assert np.array_equal(g._D_static, g2._D_static)
+
+    def no_solve(*a, **k):
+        raise AssertionError("the base was solved again")
+
+    with monkeypatch.context() as mp:
+        mp.setattr(Solves, "solve", no_solve)
+        mp.setattr(type(gather2), "direct_light", no_solve)
+        warm = DynamicRadiosity(system2.copy(), method="FE", tol=1e-5)
+        gather2.direct_static()
+    assert np.array_equal(warm._Bbase, cold._Bbase) and warm.base_iterations == cold.base_iterations > 0
+    for d in (cold, warm):
+        d.apply({"s": shape})
+    assert np.array_equal(gather.loop_radiance(cold), gather2.loop_radiance(warm))
+
+
+def test_a_changed_static_emitter_is_solved_again_never_stale():
+    """The base is kept per emission (and tolerance), and only while the hierarchy is the build's:
+    a brighter static emitter is solved anew (equal to a cold build's base), and so is a system
+    whose hierarchy light events have changed. In the file, the objects' emission is part of the
+    key (test_every_change_invalidates_and_names_its_cause: "object 'light' changed emission")."""
+    mesh, shape = cornell()
+    system = RadiositySystem(mesh, DRAFT)
+    base = DynamicRadiosity(system)._Bbase
+    bright = RadiositySystem(brighter_light(mesh), DRAFT)
+    assert system.h.n == bright.h.n  # the same hierarchy: only the emission differs
+    system.patches.emission = bright.patches.emission.copy()  # as if the lamp were turned up in place
+    again = DynamicRadiosity(system)._Bbase
+    assert len(system.bases) == 2 and np.array_equal(again, DynamicRadiosity(bright)._Bbase)
+    assert again.max() > 1.5 * base.max()
+    dyn = DynamicRadiosity(system, method="AUTO")
+    dyn.apply({"s": shape})  # splits below the build's leaves
+    assert system.h.version != system.build_version
+    fresh = DynamicRadiosity(system)._Bbase
+    assert fresh.shape[1] == system.h.n > bright.h.n and len(system.bases) == 2
+
+
+def test_code_key_follows_only_the_code_that_makes_what_is_stored(tmp_path):
+    """The key's code digest covers the build, the gather and the base solve with every module
+    they import, not the rest of the package: an edit of the light events' coverage, the cache or
+    the Blender glue keeps precomputes valid; an edit of the refinement or the base's rule does
+    not."""
+    import shutil
+
+    root = tmp_path / "hr_addon"
+    shutil.copytree(ROOT / "hr_addon", root, ignore=shutil.ignore_patterns("__pycache__"))
+    names = {p.relative_to(root).as_posix() for p in pc.code_files(root)}
+    assert {"core/refine.py", "core/solver.py", "core/gather/final.py", "core/visibility.py"} <= names
+    assert not names & {"core/events/coverage.py", "io/cache.py", "blender/bake.py", "core/texels.py"}
+    d0 = pc.code_digest(root)
+    assert d0 == pc.code_digest()  # the copy is the package
+
+    def edited(rel):
+        with open(root / rel, "a") as fh:
+            fh.write("\n# an edit\n")
+        return pc.code_digest(root)
+
+    for rel in ("core/events/coverage.py", "io/cache.py", "blender/bake.py", "core/texels.py"):
+        assert edited(rel) == d0, rel
+    assert edited("core/refine.py") != d0
+    d1 = pc.code_digest(root)
+    assert edited("core/events/dynamic.py") != d1
+
+
 def test_capture_refuses_a_hierarchy_changed_by_light_events():
     mesh, shape = cornell()
     system, gather = build(mesh)
@@ -159,7 +240,10 @@ def brighter_light(mesh):
         (lambda m, p, w: (moved_wall(m), p, w), "object 'back' moved or changed shape"),
         (lambda m, p, w: (new_reflectance(m), p, w), "object 'left_red' changed reflectance"),
         (lambda m, p, w: (m, dataclasses.replace(p, feps=0.02), w), "feps 0.05 -> 0.02"),
-        (lambda m, p, w: (m, p, {**w, "format_version": 2}), "format version 1 -> 2"),
+        (
+            lambda m, p, w: (m, p, {**w, "format_version": pc.FORMAT_VERSION + 1}),
+            f"format version {pc.FORMAT_VERSION} -> {pc.FORMAT_VERSION + 1}",
+        ),
         (lambda m, p, w: (m, p, {**w, "extension": "9.9.9"}), "extension version"),
     ],
 )

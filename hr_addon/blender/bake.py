@@ -297,7 +297,11 @@ class _Bake:
             # without light events the solution is the system's, solved to its own tolerance as
             # it always was: the gather's looser solver options pay off on events only
             options = cfg.solve_options if snap.has_shapes or snap.has_lights else {}
-            return DynamicRadiosity(system, method=cfg.method, min_area_rel=min_area_rel, **options)
+            # warm_moves off: a frame's values do not depend on the frames baked before it, so
+            # farm nodes' frames equal one process's (docs/farm.md)
+            return DynamicRadiosity(
+                system, method=cfg.method, min_area_rel=min_area_rel, warm_moves=False, **options
+            )
 
         made = {}
 
@@ -312,6 +316,7 @@ class _Bake:
                 final = make_gather(
                     dyn, self.texture_plan(snap, system), dict(cfg.gather, threads=cfg.threads)
                 )
+                pc.prepare(final)  # the static emitters' direct light, stored with the rest
                 r.gather_seconds = time.perf_counter() - t1
             return system, final
 
@@ -332,7 +337,7 @@ class _Bake:
         r.precompute_loaded = how == "loaded"
         if r.precompute_loaded:
             r.load_seconds = t1 - t0  # the key (the scene's signatures) and the file read and restored
-            r.build_seconds = time.perf_counter() - t0  # + DynamicRadiosity (its base solve)
+            r.build_seconds = time.perf_counter() - t0  # + DynamicRadiosity (its stored base)
         r.build_report = system.build
         r.rays = ray_backend_name(system)
         r.rays_note = ray_backend_note(r.rays)

@@ -78,6 +78,11 @@ class RadiositySystem:
         self.refiner.progress.done("push corrections")
         self._op = None
         self.B = None  # a BF pass solved with links that have changed since
+        # DynamicRadiosity's base solutions (no light shapes, no lights) by solver tolerance and
+        # emission, kept while the hierarchy is this build's (build_version); the scene precompute
+        # stores them, so a loaded one starts without that solve
+        self.bases = {}
+        self.build_version = self.h.version
         self.build = BuildReport(
             len(self.patches.nv),
             self.patches.dropped,

@@ -16,6 +16,7 @@ is the heartbeat) so that processes sharing a cache folder build once; a waiter 
 whose holder died (same host: pid gone; any host: heartbeat older than `stale` seconds).
 """
 
+import ast
 import dataclasses
 import hashlib
 import io
@@ -38,7 +39,7 @@ from .precompute_graph import PrecomputeError, capture, restore  # noqa: F401  (
 FILENAME = "precompute.hrpc"
 LOCKNAME = "precompute.lock"
 MAGIC = "hr_radiosity precompute"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: DynamicRadiosity's base solutions and the gather's static direct light
 NONE_YET = "no precompute yet"
 _HOST = socket.gethostname() or "host"
 
@@ -57,12 +58,68 @@ def extension_version():
     return "unknown"
 
 
-def code_digest():
-    """Digest of the physics' source (core/*.py and this file): any change of the code that builds
-    or reads a precompute makes older files stale, even without a version bump."""
-    root = Path(__file__).resolve().parents[1]
+# The code that makes what a precompute holds, relative to the package: the build
+# (RadiositySystem), the final gather and the base solve, with every module of the package they
+# import (followed); the base's key and reuse rule (DynamicRadiosity._base_solution), the texel
+# points of texture output and the file's writer and reader (alone: their imports make nothing that
+# is stored). A change anywhere else (light events, Blender lights, outputs, the cache, the glue)
+# keeps precomputes valid; a change of what is stored that this cannot see (a numpy or ray
+# library's behaviour, a rule moved elsewhere) bumps FORMAT_VERSION.
+CODE_FOLLOWED = ("core/radiosity.py", "core/gather/__init__.py", "core/events/solves.py")
+CODE_ALONE = (
+    "core/events/dynamic.py",
+    "lightmap/plan.py",
+    "lightmap/raster.py",
+    "io/precompute.py",
+    "io/precompute_graph.py",
+)
+
+
+def code_files(root=None):
+    """The package's source files whose code changes what a precompute holds (CODE_FOLLOWED and the
+    modules they import, transitively; CODE_ALONE), sorted. root: the package folder."""
+    root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
+    todo = [root / p for p in CODE_FOLLOWED]
+    seen = set()
+    while todo:
+        f = todo.pop()
+        if f not in seen:
+            seen.add(f)
+            todo.extend(_imported(f, root))
+    return sorted(seen | {root / p for p in CODE_ALONE})
+
+
+def _imported(path, root):
+    """Files of the package's modules that the module `path` imports (anywhere in it)."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = path.parents[node.level - 1]
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == root.name:
+            base = root.parent
+        elif isinstance(node, ast.Import):
+            out += [_module(root.parent.joinpath(*a.name.split("."))) for a in node.names]
+            continue
+        else:
+            continue
+        target = base.joinpath(*(node.module or "").split(".")) if node.module else base
+        out += [_module(target)] + [_module(target / a.name) for a in node.names]  # `from . import m`
+    return [f for f in out if f is not None and root in f.parents]
+
+
+def _module(p):
+    for f in (p.with_suffix(".py"), p / "__init__.py"):
+        if f.is_file():
+            return f
+    return None
+
+
+def code_digest(root=None):
+    """Digest of code_files(): a change of the code that makes or reads what is stored makes older
+    files stale, even without a version bump."""
+    root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
     d = hashlib.sha256()
-    for p in sorted((root / "core").rglob("*.py")) + [Path(__file__).resolve()]:
+    for p in code_files(root):
         d.update(p.relative_to(root).as_posix().encode() + b"\0" + p.read_bytes() + b"\0")
     return d.hexdigest()[:16]
 
@@ -264,14 +321,30 @@ def read(path):
     return arrays, h
 
 
+def levels(gather):
+    """The final gather and its lower levels (FinalGather.second), top first."""
+    out = []
+    while gather is not None:
+        out.append(gather)
+        gather = getattr(gather, "second", None)
+    return out
+
+
+def prepare(gather):
+    """Compute now what a final gather computes on its first frame from the static scene alone: the
+    static emitters' direct light at every level's samples (keyed like the rest by the objects'
+    emission), so that the precompute captured afterwards holds it."""
+    for g in levels(gather):
+        g.direct_static()
+
+
 def use_threads(system, gather, threads):
     """Run a loaded precompute on `threads` (core.parallel's count; values do not depend on it): the
     file holds the count of the process that built it."""
     if system is not None:
         system.backend.threads = threads
-    while gather is not None:
-        gather.threads = threads
-        gather = getattr(gather, "second", None)
+    for g in levels(gather):
+        g.threads = threads
 
 
 def load(cache_dir, want):

@@ -2,6 +2,7 @@
 solves (the methods' work is in validation.py, coverage.py, direct.py and naive.py)."""
 
 from collections import OrderedDict
+import hashlib
 import time
 
 import numpy as np
@@ -52,6 +53,7 @@ class DynamicRadiosity:
         response_tol=None,
         response_float32=False,
         tol=None,
+        warm_moves=True,
     ):
         """system: a built RadiositySystem (its hierarchy is extended in place below the HR leaves).
         min_area_rel: smallest AR node, fraction of the total scene area. node_budget: most nodes one shape
@@ -67,7 +69,11 @@ class DynamicRadiosity:
         base solution); response_float32: those solves gather in float32 (Live Relight, whose
         output is float32, uses both: see docs/events.md). tol: solver tolerance of the base
         solution and of warm mode (default: the system's). With the final gather on, see
-        gather_options()."""
+        gather_options(). warm_moves: a moved shape's or light's response is solved starting from
+        the old one's scattered light (fewer iterations); False: from its emission alone, as when
+        it is added, and the shapes and lights are summed in apply()'s order, so that a frame's
+        values do not depend on the frames solved before it (FE and one AR/AUTO shape: a farm
+        node's first frame equals one process's, docs/farm.md)."""
         method = method.upper()
         if method not in METHODS:
             raise ValueError(f"Unknown method '{method}' (choose from {', '.join(METHODS)})")
@@ -85,6 +91,7 @@ class DynamicRadiosity:
         self.tol = tol if tol is not None else system.tol
         self.response_tol = response_tol if response_tol is not None else system.tol
         self.response_float32 = response_float32
+        self.warm_moves = warm_moves
         self.links = system.links
         h = system.h
         pt = system.patches
@@ -100,8 +107,7 @@ class DynamicRadiosity:
         self.solves = Solves(
             h, self.links, self.tol, self.response_tol, response_float32, system.backend.threads
         )
-        E0 = system.base_emission()
-        base, rep = self.solves.solve(E0)
+        base, self.base_iterations = self._base_solution()
         self.nodes = NodeState(h, base)
         self.coverage = Coverage(
             self.nodes,
@@ -120,10 +126,25 @@ class DynamicRadiosity:
             self.node_budget,
         )
         self.light_part = Lights(
-            system, self.nodes, self.solves, 2 * self.diag + 1, incremental, self._records
+            system, self.nodes, self.solves, 2 * self.diag + 1, incremental, self._records, warm_moves
         )
         self.lights = self.light_part.recs  # key -> lightsrc._LightRec (Blender lights, issue 20)
-        self.base_iterations = rep.iterations
+
+    def _base_solution(self):
+        """(B (3, n), solver iterations) of the static emission alone. Kept on the system per
+        tolerance and emission (system.bases) while its hierarchy is the build's: the scene
+        precompute stores it (io/precompute.py), and a copy of the system reuses it."""
+        s = self.system
+        E0 = s.base_emission()
+        if s.h.version != getattr(s, "build_version", None):  # light events changed the hierarchy
+            B, rep = self.solves.solve(E0)
+            return B, rep.iterations
+        key = (float(self.tol), hashlib.sha256(np.ascontiguousarray(E0).tobytes()).hexdigest()[:16])
+        if key not in s.bases:
+            B, rep = self.solves.solve(E0)
+            s.bases[key] = (B, rep.iterations)
+        B, iterations = s.bases[key]
+        return B.copy(), iterations
 
     @staticmethod
     def gather_options(quality="draft"):
@@ -215,7 +236,7 @@ class DynamicRadiosity:
             if not same_geom:
                 # the new response is solved from the new emission plus the old one's scattered
                 # light: a moved shape lights the room much as before (fewer iterations)
-                self.nodes.guess = self._scattered(rec)
+                self.nodes.guess = self._scattered(rec) if self.warm_moves else None
                 try:
                     r1 = self._remove(k)
                     r2 = self._add(k, LightShape(rings, em, name), validated=(rings, em, name))
@@ -232,6 +253,10 @@ class DynamicRadiosity:
                 evs.append(self._add(k, LightShape(rings, em, name), validated=(rings, em, name)))
         if lights is not None:
             evs += self.light_part.diff(lights)
+        if not self.warm_moves:  # sums in the caller's order, not in the order of past events
+            for recs, keys in ((self.shapes, valid), (self.lights, lights or {})):
+                for k in [k for k in keys if k in recs]:
+                    recs.move_to_end(k)
         if evs:
             fr.iterations += self._finish(evs)
         fr.events = evs

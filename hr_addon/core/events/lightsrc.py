@@ -37,11 +37,12 @@ class Lights:
     """The Blender lights on a DynamicRadiosity: recs (key -> _LightRec, the lights in effect) and
     their first bounce and responses. nodes: the events' NodeState; solves: the events' Solves;
     far: a distance beyond the scene (sun rays); incremental: "response" or "warm";
-    records(): every record holding node arrays (NodeState.sync)."""
+    records(): every record holding node arrays (NodeState.sync); warm_moves: a moved light's
+    response starts from the old one's (DynamicRadiosity's docstring)."""
 
-    def __init__(self, system, nodes, solves, far, incremental, records):
+    def __init__(self, system, nodes, solves, far, incremental, records, warm_moves=True):
         self.system, self.nodes, self.solves, self.records = system, nodes, solves, records
-        self.far, self.incremental = far, incremental
+        self.far, self.incremental, self.warm_moves = far, incremental, warm_moves
         self.recs = OrderedDict()
 
     def diff(self, lights):
@@ -88,7 +89,7 @@ class Lights:
             return 0
         E = self.solves.push(D)
         guess = None
-        if old is not None and old.U is not None:  # a moved light lights the room much as before
+        if self.warm_moves and old is not None and old.U is not None:  # lights the room much as before
             guess = E + (old.U - self.solves.push(old.D))
         U, rep = self.solves.solve(E, B0=guess, response=True)
         rec.U = U
