@@ -122,6 +122,12 @@ def test_links_reciprocal_and_bounded():
     #   1.19 in all). Now about 6 x 6 points on the exposed part (Refiner._exposed_grid) and the
     #   corrections' shape from the leaves' exposed parts: at most 1.110, 0.7% above 1.01; what
     #   remains is the visibility of the first kind.
+    # Traced further (2026-12-02): the worst leaf (floor beside the short block) gets 0.107 from the
+    # back wall (rays from its points: 0.011) and 0.040 from the tall block (0) through ancestors'
+    # links of visibility 1 (all their 16 rays unoccluded, or handed down by the parent pair). A
+    # per-leaf visibility in the corrections' shape takes the maximum to 1.030 (0.10% above 1.01)
+    # but darkens test_contacts' band of leaves beside a box from -2.4% to -4.4% of their exact
+    # means, since each link keeps its own 16-ray total: not adopted (docs/ARCHITECTURE.md, history).
     op = s.operator()
     _, src, _ = L.directed()
     ex = h.view("exposure")

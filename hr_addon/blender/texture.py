@@ -339,6 +339,22 @@ def _helper(slot):
     return m if slot.link == "OBJECT" and m is not None and m.get(TAG) is not None else None
 
 
+def _helper_slots(obj):
+    """(slot, helper material) of each of obj's slots that shows a helper copy."""
+    return [(slot, m) for slot in obj.material_slots if (m := _helper(slot)) is not None]
+
+
+def _show_source(slot, m, clear=False):
+    """The slot shows again what the helper m stands in for: the object's own material (link
+    OBJECT) or the mesh's (link DATA; clear: the object's slot emptied first)."""
+    if m.get("hr_lightmap_link", "DATA") == "OBJECT":
+        slot.material = m.get("hr_lightmap_source")
+    else:
+        if clear:
+            slot.material = None
+        slot.link = "DATA"
+
+
 def uv_digest(obj, depsgraph):
     """Digest of obj's evaluated HR_Lightmap UVs, as the bake computes it (None: no such map)."""
     _, uv = evaluated(obj, depsgraph, read_uv)
@@ -427,16 +443,9 @@ def remove_material(objects=None):
         if obj.type != "MESH":
             continue
         hit = False
-        for slot in obj.material_slots:
-            m = _helper(slot)
-            if m is None:
-                continue
+        for slot, m in _helper_slots(obj):
             hit = True
-            if m.get("hr_lightmap_link", "DATA") == "OBJECT":
-                slot.material = m.get("hr_lightmap_source")
-            else:
-                slot.material = None
-                slot.link = "DATA"
+            _show_source(slot, m, clear=True)
             if m.users == 0:
                 bpy.data.materials.remove(m)
         k = obj.get("hr_lightmap_slot")
@@ -457,15 +466,9 @@ def source_materials(objects):
     """While reading the scene, slots show the materials the helper copies stand in for."""
     saved = []
     for obj in objects:
-        for slot in obj.material_slots:
-            m = _helper(slot)
-            if m is None:
-                continue
+        for slot, m in _helper_slots(obj):
             saved.append((slot, m))
-            if m.get("hr_lightmap_link", "DATA") == "OBJECT":
-                slot.material = m.get("hr_lightmap_source")
-            else:
-                slot.link = "DATA"
+            _show_source(slot, m)
     try:
         yield
     finally:

@@ -63,31 +63,31 @@ def _triangle_rows(tri):
     return [np.ascontiguousarray(m[:, k]) for k in range(12)]
 
 
+def _row(g, k, x, y, z):
+    """g[k] x + g[k + 1] y + g[k + 2] z, updated in place (one temporary)."""
+    r = g[k] * x
+    r += g[k + 1] * y
+    r += g[k + 2] * z
+    return r
+
+
 def _hit_plane(g, ox, oy, oz, dx, dy, dz):
     """(t, inside): the segment parameter where o + t d meets each triangle's plane, and whether
     that point lies inside the triangle (closed edges: a ray through an edge shared by two
     triangles is blocked, as in watertight tracers). In-place updates keep the number of
     temporaries (the cost in numpy) low. Call under np.errstate(all="ignore")."""
-    t = g[8] * ox
-    t += g[9] * oy
-    t += g[10] * oz
+    t = _row(g, 8, ox, oy, oz)
     t += g[11]
-    wd = g[8] * dx
-    wd += g[9] * dy
-    wd += g[10] * dz
+    wd = _row(g, 8, dx, dy, dz)
     np.divide(t, wd, out=t)  # parallel rays give inf / nan, which fail every comparison below
     np.negative(t, out=t)
     px, py, pz = t * dx, t * dy, t * dz
     px += ox
     py += oy
     pz += oz
-    u = g[0] * px
-    u += g[1] * py
-    u += g[2] * pz
+    u = _row(g, 0, px, py, pz)
     u += g[3]
-    v = g[4] * px
-    v += g[5] * py
-    v += g[6] * pz
+    v = _row(g, 4, px, py, pz)
     v += g[7]
     hit = u >= 0
     hit &= v >= 0
@@ -270,7 +270,7 @@ class NumpyBackend(RayBackend):
     def _first(self, a, d):
         with np.errstate(all="ignore"):
             if not self.grid:
-                return self._brute_first(a, d)
+                return self._brute(a, d, nearest=True)
             prim = np.empty(len(a), np.int64)
             t = np.empty(len(a))
             for s in range(0, len(a), self.CHUNK_RAYS):
@@ -278,37 +278,33 @@ class NumpyBackend(RayBackend):
                 prim[sl], t[sl] = self._walk(a[sl], d[sl], nearest=True)
             return prim, t
 
-    def _brute_first(self, a, d):
-        g = [m[None, :] for m in self._m]
-        step = max(1, self.CHUNK_ELEMS // len(self.triangles))
-        prim = np.empty(len(a), np.int64)
-        t = np.empty(len(a))
-        for s in range(0, len(a), step):
-            o, e = a[s : s + step, :, None], d[s : s + step, :, None]
-            tt = _hit_t_kernel(g, o[:, 0], o[:, 1], o[:, 2], e[:, 0], e[:, 1], e[:, 2])
-            k = np.argmin(tt, axis=1)
-            t[s : s + step] = tt[np.arange(len(k)), k]
-            prim[s : s + step] = np.where(np.isfinite(t[s : s + step]), k, -1)
-        return prim, t
-
-    def _brute(self, a, d):
+    def _brute(self, a, d, nearest=False):
+        """Every ray against every triangle: occlusion (R,) bool; nearest: (nearest kept triangle or
+        -1, its t)."""
         g = [m[None, :] for m in self._m]
         step = max(1, self.CHUNK_ELEMS // len(self.triangles))
         out = np.empty(len(a), dtype=bool)
+        prim, t = np.empty(len(a), np.int64), np.empty(len(a))
         for s in range(0, len(a), step):
             o, e = a[s : s + step, :, None], d[s : s + step, :, None]
-            out[s : s + step] = _hit_kernel(g, o[:, 0], o[:, 1], o[:, 2], e[:, 0], e[:, 1], e[:, 2]).any(
-                axis=1
-            )
-        return out
+            rows = (o[:, 0], o[:, 1], o[:, 2], e[:, 0], e[:, 1], e[:, 2])
+            if nearest:
+                tt = _hit_t_kernel(g, *rows)
+                k = np.argmin(tt, axis=1)
+                t[s : s + step] = tt[np.arange(len(k)), k]
+                prim[s : s + step] = np.where(np.isfinite(t[s : s + step]), k, -1)
+            else:
+                out[s : s + step] = _hit_kernel(g, *rows).any(axis=1)
+        return (prim, t) if nearest else out
 
-    def _hit_pairs(self, ad, ray, tri):
-        """Hit per pair (ray[i], tri[i]); ad: the rays' 6 coordinate rows (a, d). In CHUNK_ELEMS slices."""
-        hit = np.empty(len(ray), dtype=bool)
+    def _hit_pairs(self, ad, ray, tri, kernel=_hit_kernel):
+        """kernel per pair (ray[i], tri[i]): hit (_hit_kernel) or t (_hit_t_kernel); ad: the rays'
+        6 coordinate rows (a, d). In CHUNK_ELEMS slices."""
+        out = np.empty(len(ray), dtype=bool if kernel is _hit_kernel else np.float64)
         for s in range(0, len(ray), self.CHUNK_ELEMS):
             r, t = ray[s : s + self.CHUNK_ELEMS], tri[s : s + self.CHUNK_ELEMS]
-            hit[s : s + self.CHUNK_ELEMS] = _hit_kernel([m[t] for m in self._m], *(x[r] for x in ad))
-        return hit
+            out[s : s + self.CHUNK_ELEMS] = kernel([m[t] for m in self._m], *(x[r] for x in ad))
+        return out
 
     def _walk(self, a, d, nearest=False):
         """Occlusion (R,) bool; nearest: (nearest kept triangle or -1, its t) instead, the walk going
@@ -350,7 +346,7 @@ class NumpyBackend(RayBackend):
                 pair = np.repeat(np.arange(i, j), n)
                 tri = cell_tri[np.repeat(first[i:j] - (np.cumsum(n) - n), n) + np.arange(len(pair))]
                 if nearest:
-                    tt = self._hit_pairs_t(ad, ray[pair], tri)
+                    tt = self._hit_pairs(ad, ray[pair], tri, _hit_t_kernel)
                     h = np.flatnonzero(np.isfinite(tt))
                     if len(h):
                         # per ray the smallest t: sort by (ray, t), first of each ray
@@ -380,13 +376,6 @@ class NumpyBackend(RayBackend):
             ray, t_out = ray[alive], t_out[alive]
             cell, t_next, t_step, step = cell[:, alive], t_next[:, alive], t_step[:, alive], step[:, alive]
         return (best_p, best_t) if nearest else out
-
-    def _hit_pairs_t(self, ad, ray, tri):
-        t = np.empty(len(ray))
-        for s in range(0, len(ray), self.CHUNK_ELEMS):
-            r, k = ray[s : s + self.CHUNK_ELEMS], tri[s : s + self.CHUNK_ELEMS]
-            t[s : s + self.CHUNK_ELEMS] = _hit_t_kernel([m[k] for m in self._m], *(x[r] for x in ad))
-        return t
 
 
 # ---------------------------------------------------------------------------------------------- float32

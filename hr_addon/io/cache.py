@@ -60,6 +60,7 @@ from .cache_folder import (  # noqa: F401  (re-exported: hr_addon.io.cache is th
     owned_files,
     pid_alive,
     recover,
+    refuse_problem,
     remove_stale_temp,
     swap_in,
     temp_dirs,
@@ -342,9 +343,7 @@ class CacheWriter:
             return self._commit(before)
 
     def _commit(self, before):
-        why = folder_problem(self.final)  # the folder may have changed during the bake
-        if why:
-            raise CacheError(why)
+        refuse_problem(self.final)  # the folder may have changed during the bake
         if before is not None:
             before(self)
         self._merge_previous()

@@ -195,6 +195,13 @@ def folder_problem(final_dir):
     )
 
 
+def refuse_problem(folder, error=CacheError):
+    """Raise error(why), naming the folder, unless a bake may write `folder` (folder_problem)."""
+    why = folder_problem(folder)
+    if why:
+        raise error(why)
+
+
 def _retire(old, final):
     """After a swap: delete what a bake wrote in the swapped-out folder `old`, move everything else
     (the user's files) into `final`. Returns the paths that could not be moved (a name the new bake
@@ -269,9 +276,7 @@ def check_writable(final_dir):
     """Raise CacheError (naming the folder) unless a bake can be written next to `final_dir` and
     swapped in without touching anything a bake did not write: checked before the (long) build."""
     final = Path(final_dir)
-    why = folder_problem(final)
-    if why:
-        raise CacheError(why)
+    refuse_problem(final)
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
         probe = _beside(final, "probe")
