@@ -194,7 +194,7 @@ def test_preview_multiplies_irradiance_by_the_base_colour(tmp_path):
     bpy, ms, scene = empty_scene()
     objs = ms.textured_room()
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "room.blend"))
-    from hr_addon.blender import preview, texture
+    from hr_addon.blender import names, preview, texture
 
     checker = objs["floor"].data.materials[0].node_tree.nodes["Image Texture"].image
     from hr_addon.blender.bake import run_bake
@@ -212,7 +212,7 @@ def test_preview_multiplies_irradiance_by_the_base_colour(tmp_path):
     assert mul.blend_type == "MULTIPLY" and a.links[0].from_node.name == texture.N_TEX
     src = b.links[0].from_node
     assert src.type == "TEX_IMAGE" and src.image == checker and src.name != texture.N_TEX
-    emit = nodes[texture.N_EMIT]
+    emit = nodes[names.N_EMIT]
     assert emit.inputs["Color"].links[0].from_node.name == preview.N_ADD
     lamp = objs["light"].material_slots[0].material.node_tree.nodes
     np.testing.assert_allclose(lamp[preview.N_ADD].inputs[1].default_value, [12.0, 11.4, 10.2], rtol=1e-6)

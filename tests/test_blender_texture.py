@@ -161,7 +161,7 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path, final_gather):
 def test_material_helper_plays_the_sequence(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
-    from hr_addon.blender import texture
+    from hr_addon.blender import names, texture
     from hr_addon.blender.materials import read_material
 
     scene = bpy.context.scene
@@ -185,7 +185,7 @@ def test_material_helper_plays_the_sequence(tmp_path):
     iu = tex.image_user
     assert (iu.frame_start, iu.frame_duration, iu.frame_offset) == (5, 3, 4)
     out = [n for n in mat.node_tree.nodes if n.type == "OUTPUT_MATERIAL" and n.is_active_output]
-    assert [n.name for n in out] == [texture.N_OUT]
+    assert [n.name for n in out] == [names.N_OUT]
     np.testing.assert_array_equal(read_material(mat).reflectance, read_material(white).reflectance)
     # Another bake while the helper is on: reads the user's materials, re-wires the new range.
     res = _bake(frames=(5, 9), resolution=None, output=None)

@@ -9,7 +9,7 @@ import hashlib
 import numpy as np
 
 from ..core.geometry import components, newell
-from .materials import _Reader, image_pixels, read_material, world_lights
+from .materials import _Reader, image_reduced, read_material, world_lights
 from .scene_in import (
     EvalMesh,
     _surfaces,
@@ -163,17 +163,23 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
     return shapes
 
 
+def _digest(state, parts):
+    """sha1 over `state`'s keys in order, each followed by the bytes `parts(value)` gives."""
+    h = hashlib.sha1()
+    for key in sorted(state):
+        h.update(key.encode())
+        for b in parts(state[key]):
+            h.update(b)
+    return h.hexdigest()
+
+
+def _f64(a):
+    return np.asarray(a, np.float64).tobytes()
+
+
 def shapes_signature(shapes):
     """Hashable digest of a frame's light state (identical frames -> identical digest)."""
-    h = hashlib.sha1()
-    for key in sorted(shapes):
-        s = shapes[key]
-        h.update(key.encode())
-        h.update(np.asarray(s.emission, np.float64).tobytes())
-        for r in s.rings:
-            h.update(np.asarray(r, np.float64).tobytes())
-            h.update(b"|")
-    return h.hexdigest()
+    return _digest(shapes, lambda s: [_f64(s.emission)] + [b for r in s.rings for b in (_f64(r), b"|")])
 
 
 # --- what lights the scene ----------------------------------------------------------------------
@@ -384,17 +390,7 @@ def _environment_table(img):
     """The reduced lat-long table (core.sky.reduce_table) of an image, or None without pixels."""
     from ..core.sky import reduce_table
 
-    key = (img.name_full, img.filepath, tuple(img.size), img.colorspace_settings.name)
-    got = None if img.is_dirty else _table_cache.get(key)
-    if got is None:
-        px = image_pixels(img)
-        if px is None:
-            return None
-        got = reduce_table(px)
-        if len(_table_cache) > 8:
-            _table_cache.clear()
-        _table_cache[key] = got
-    return got
+    return image_reduced(img, reduce_table, _table_cache, 8)
 
 
 def read_world(world):
@@ -503,13 +499,7 @@ def world_summary(scene):
 
 def lights_signature(lights):
     """Hashable digest of the lights' state (identical frames -> identical digest)."""
-    h = hashlib.sha1()
-    for key in sorted(lights):
-        L = lights[key]
-        h.update(key.encode())
-        h.update(repr(L.geom_key).encode())
-        h.update(np.asarray(L.scale, np.float64).tobytes())
-    return h.hexdigest()
+    return _digest(lights, lambda L: [repr(L.geom_key).encode(), _f64(L.scale)])
 
 
 def light_check(view_layer, scene, depsgraph, geometry_emits):

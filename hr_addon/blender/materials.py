@@ -61,19 +61,25 @@ def image_pixels(img, linear=True):
     return rgb.reshape(h, w, 3)
 
 
-def image_average(img):
-    """Average linear RGB of an image, or None if it has no pixels."""
+def image_reduced(img, reduce, cache, limit):
+    """reduce(pixels (H, W, 3)) of an image, kept in `cache` (at most `limit` images) until the image
+    changes, or None if it has no pixels: an image is read once, not per frame."""
     key = (img.name_full, img.filepath, tuple(img.size), img.is_dirty, img.colorspace_settings.name)
-    if key in _image_cache and not img.is_dirty:
-        return _image_cache[key]
+    if key in cache and not img.is_dirty:
+        return cache[key]
     px = image_pixels(img)
     if px is None:
         return None
-    avg = px.reshape(-1, 3).astype(np.float64).mean(0)
-    if len(_image_cache) > 64:
-        _image_cache.clear()
-    _image_cache[key] = avg
-    return avg
+    got = reduce(px)
+    if len(cache) > limit:
+        cache.clear()
+    cache[key] = got
+    return got
+
+
+def image_average(img):
+    """Average linear RGB of an image, or None if it has no pixels."""
+    return image_reduced(img, lambda px: px.reshape(-1, 3).astype(np.float64).mean(0), _image_cache, 64)
 
 
 def _try_load(img):

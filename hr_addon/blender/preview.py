@@ -81,15 +81,21 @@ def _add_nodes(mat, irradiance=False):
     attr = node_named(tree, N_ATTR, "ShaderNodeAttribute", (x, -400))
     attr.attribute_type = "GEOMETRY"
     attr.attribute_name = ATTRIBUTE
-    emit = node_named(tree, N_EMIT, "ShaderNodeEmission", (x + 600, -400))
+    emission_output(mat, tree, attr.outputs["Color"], x + 600, irradiance)
+    return True
+
+
+def emission_output(mat, tree, colour, x, irradiance):
+    """colour -> colour_chain -> Emission (strength 1) at x -> Material Output (all engines), made
+    the active output: how the vertex preview and the baked textures show radiance."""
+    emit = node_named(tree, N_EMIT, "ShaderNodeEmission", (x, -400))
     emit.inputs["Strength"].default_value = 1.0
-    out = node_named(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 800, -400))
+    out = node_named(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 200, -400))
     out.target = "ALL"
-    col = colour_chain(mat, tree, attr.outputs["Color"], (x + 200, -400), irradiance)
+    col = colour_chain(mat, tree, colour, (x - 400, -400), irradiance)
     tree.links.new(col, emit.inputs["Color"])
     tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
     out.is_active_output = True
-    return True
 
 
 def _preview_material():

@@ -32,9 +32,9 @@ from ..lightmap.plan import TexturePlan, triangle_uvs
 from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
 from .materials import albedo_texture
-from .names import N_ATTR, N_EMIT, N_OUT, N_TEX, N_UV, PREVIEW, TAG, UV_NAME
+from .names import N_ATTR, N_TEX, N_UV, PREVIEW, TAG, UV_NAME
 from .paths import bake_dir_abs, blend_relative, frame_texture
-from .preview import colour_chain, node_named
+from .preview import emission_output, node_named
 from .scene_in import evaluated, mesh_topology
 
 PACK_VERSION = 1
@@ -304,7 +304,7 @@ def _sequence_image(obj, path, fmt):
 def _wire(mat, img, first, last, irradiance=False):
     """Add (or update) UV Map -> Image Texture -> Emission -> Material Output, the active output;
     for an irradiance bake the image times the material's base colour plus its emission
-    (preview.colour_chain) feeds the Emission."""
+    (preview.emission_output) feeds the Emission."""
     if mat.node_tree is None or (bpy.app.version < (5, 0, 0) and not mat.use_nodes):
         mat.use_nodes = True
     tree = mat.node_tree
@@ -323,15 +323,8 @@ def _wire(mat, img, first, last, irradiance=False):
     iu.frame_offset = first - 1
     iu.use_cyclic = False
     iu.use_auto_refresh = True
-    emit = node_named(tree, N_EMIT, "ShaderNodeEmission", (x + 900, -400))
-    emit.inputs["Strength"].default_value = 1.0
-    out = node_named(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 1100, -400))
-    out.target = "ALL"
     tree.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
-    col = colour_chain(mat, tree, tex.outputs["Color"], (x + 500, -400), irradiance)
-    tree.links.new(col, emit.inputs["Color"])
-    tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
-    out.is_active_output = True
+    emission_output(mat, tree, tex.outputs["Color"], x + 900, irradiance)
 
 
 def _helper(slot):

@@ -17,6 +17,7 @@ whose holder died (same host: pid gone; any host: heartbeat older than `stale` s
 """
 
 import ast
+import contextlib
 import dataclasses
 import hashlib
 import io
@@ -252,7 +253,7 @@ def write(cache_dir, arrays, graph, want, info=None):
     """Write the precompute atomically into `cache_dir` (created and marked as a cache folder if
     absent). want: expected()'s dict, stored as the header's versions, settings and signatures."""
     d = Path(cache_dir)
-    why = folder_problem(d)
+    why = folder_problem(d)  # this module's own (the precompute file), not cache_folder's
     if why:
         raise PrecomputeError(why)
     blobs = {}
@@ -285,15 +286,22 @@ def write(cache_dir, arrays, graph, want, info=None):
     return d / FILENAME
 
 
-def read_header(path):
-    """The header of a precompute file, or raise PrecomputeError saying what is wrong with it."""
+@contextlib.contextmanager
+def _damaged(path):
+    """Reading `path`: a missing file stays FileNotFoundError, our own PrecomputeError passes, any
+    other failure of the zip or its arrays becomes PrecomputeError naming the file."""
     try:
-        with zipfile.ZipFile(path) as z:
-            h = json.loads(z.read("header.json"))
-    except FileNotFoundError:
+        yield
+    except (FileNotFoundError, PrecomputeError):
         raise
     except (OSError, zipfile.BadZipFile, KeyError, ValueError, EOFError) as exc:
         raise PrecomputeError(f"'{Path(path).name}' is damaged or truncated ({exc})") from None
+
+
+def read_header(path):
+    """The header of a precompute file, or raise PrecomputeError saying what is wrong with it."""
+    with _damaged(path), zipfile.ZipFile(path) as z:
+        h = json.loads(z.read("header.json"))
     if not isinstance(h, dict) or h.get("magic") != MAGIC:
         raise PrecomputeError(f"'{Path(path).name}' is not a precompute of this extension")
     return h
@@ -304,20 +312,15 @@ def read(path):
     CRC-32. Raises PrecomputeError naming the damaged part."""
     h = read_header(path)
     arrays = {}
-    try:
-        with zipfile.ZipFile(path) as z:
-            for name, meta in h["arrays"].items():
-                b = z.read(name + ".npy")
-                if zlib.crc32(b) != meta["crc32"]:
-                    raise PrecomputeError(f"'{Path(path).name}': array {name} fails its checksum")
-                a = np.lib.format.read_array(io.BytesIO(b), allow_pickle=False)
-                if a.dtype.str != meta["dtype"] or list(a.shape) != meta["shape"]:
-                    raise PrecomputeError(f"'{Path(path).name}': array {name} has the wrong dtype or shape")
-                arrays[name] = a
-    except PrecomputeError:
-        raise
-    except (OSError, zipfile.BadZipFile, KeyError, ValueError, EOFError) as exc:
-        raise PrecomputeError(f"'{Path(path).name}' is damaged or truncated ({exc})") from None
+    with _damaged(path), zipfile.ZipFile(path) as z:
+        for name, meta in h["arrays"].items():
+            b = z.read(name + ".npy")
+            if zlib.crc32(b) != meta["crc32"]:
+                raise PrecomputeError(f"'{Path(path).name}': array {name} fails its checksum")
+            a = np.lib.format.read_array(io.BytesIO(b), allow_pickle=False)
+            if a.dtype.str != meta["dtype"] or list(a.shape) != meta["shape"]:
+                raise PrecomputeError(f"'{Path(path).name}': array {name} has the wrong dtype or shape")
+            arrays[name] = a
     return arrays, h
 
 
@@ -351,25 +354,22 @@ def load(cache_dir, want):
     """(system, gather, None) from the cache folder's precompute if it is valid for `want`, else
     (None, None, reason): absent, damaged, or which version, setting or object changed."""
     path = Path(cache_dir) / FILENAME
-    try:
-        header = read_header(path)
-    except FileNotFoundError:
-        return None, None, NONE_YET
-    except PrecomputeError as exc:
-        return None, None, str(exc)
-    why = validate(header, want)
-    if why:
-        return None, None, why
-    try:
+
+    def restored():
+        why = validate(read_header(path), want)
+        if why:
+            return None, None, why
         arrays, header = read(path)
-        system, gather = restore(arrays, header["graph"])
+        return *restore(arrays, header["graph"]), None
+
+    try:
+        return restored()
     except FileNotFoundError:
         return None, None, NONE_YET
     except PrecomputeError as exc:
         return None, None, str(exc)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:  # a graph this code cannot follow
         return None, None, f"'{FILENAME}' cannot be restored ({type(exc).__name__}: {exc})"
-    return system, gather, None
 
 
 def describe(cache_dir, want=None):
