@@ -431,8 +431,10 @@ def run_scene(name, cfg, results, maps=None):
                     if GATHER and var in cmp_:
                         g = cmp_[var]["all"]
                         log(
-                            f"      {var}: worst surface {100 * g['worst_mre']:5.2f}% ({g['worst_surface']}), "
-                            f"bias {100 * g['bias']:+.2f}%, RMSE {g['rmse']:.4f}, p95 {g['p95']:.4f}"
+                            f"      {var}: worst surface {100 * g['worst_mre']:5.2f}% "
+                            f"({g['worst_surface']}), "
+                            f"bias {100 * g['bias']:+.2f}%, RMSE {g['rmse']:.4f} "
+                            f"(corrected {g['rmse_corrected']:.4f}), p95 {g['p95']:.4f}"
                         )
                 if GATHER and "contacts" in ev:
                     for k, d in ev["contacts"].items():
@@ -440,8 +442,11 @@ def run_scene(name, cfg, results, maps=None):
                             if lab in d:
                                 x = d[lab]
                                 gb = x.get("gather", {}).get("bias", float("nan"))
+                                gr = x.get("gather", {}).get("rmse", float("nan"))
                                 log(
-                                    f"      {k} {lab}: leaf bias {100 * x['bias']:+.1f}%, gather bias {100 * gb:+.1f}%"
+                                    f"      {k} {lab}: {x['texels']} texels, "
+                                    f"leaf bias {100 * x['bias']:+.1f}%, "
+                                    f"gather bias {100 * gb:+.1f}%, gather RMSE {gr:.4f}"
                                 )
             out["ours"].append(run)
         del base

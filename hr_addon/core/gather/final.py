@@ -13,6 +13,10 @@ from .points import _into_patch, locate_below
 from .sampling import cosine_directions, position_keys
 
 KINDS = ("radiance", "reflected", "incident")
+# a sample under a covering face at a gap h (books standing side by side) is gathered, not called
+# covered, within OPEN_EDGE x h of the face's open outline, where light enters the slot
+# (contacts.Contacts.covered; docs/gather.md, "Narrow gaps")
+OPEN_EDGE = 5.0
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
@@ -85,6 +89,8 @@ class FinalGather(DirectLight):
         cache_responses=True,
         threads=1,
         progress=None,
+        groups=None,
+        open_edge=OPEN_EDGE,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
@@ -137,6 +143,13 @@ class FinalGather(DirectLight):
         self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
         if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
             self.dark[:] = False
+        elif open_edge > 0 and h.contacts is not None and self.dark.any():
+            d = np.flatnonzero(self.dark)
+            self.dark[d] = h.contacts.covered(self.points[d], self.patch[d], open_edge=open_edge)
+        # groups (n,) non-decreasing: the output of row j is the mean over the samples of group j
+        # (a texel's sub-samples over its area, layouts.texel_samples; covered ones count 0)
+        self.group = None if groups is None else np.asarray(groups, np.int64)
+        self.n_out = n if groups is None else (int(self.group[-1]) + 1 if n else 0)
         self.E_static = pt.emission[:, self.patch].T.copy()
         self.stats = {}
         import time
@@ -184,6 +197,7 @@ class FinalGather(DirectLight):
                 covered_samples=covered_samples,
                 threads=threads,
                 progress=progress,
+                open_edge=0.0,  # the leaves' values stand for their uncovered part, as exposure has it
             )
             self._second_map = (used, gw)
             # Blender lights at the second level: the leaf's mean direct light integrated over the
@@ -438,4 +452,19 @@ class FinalGather(DirectLight):
                 v = E + self.rho * inc
                 v[self.dark] = 0.0
                 out[k] = v
-        return out
+        return {k: self.outputs(v) for k, v in out.items()}
+
+    def outputs(self, v):
+        """Sample values (n, C) -> output values (n_out, C): the means over the groups."""
+        if self.group is None:
+            return v
+        cnt = np.bincount(self.group, minlength=self.n_out)
+        return (
+            np.stack([np.bincount(self.group, v[:, c], self.n_out) for c in range(v.shape[1])], 1)
+            / np.maximum(cnt, 1)[:, None]
+        )
+
+    @property
+    def out_dark(self):
+        """(n_out,) True where every sample of the output is covered."""
+        return self.dark if self.group is None else self.outputs(self.dark[:, None].astype(float))[:, 0] == 1

@@ -2,8 +2,12 @@
 
 import numpy as np
 
+from ..geometry import isolated_objects
 from ..output import equal_key_pairs, in_domain, loop_welds
-from .final import FinalGather
+from .final import OPEN_EDGE, FinalGather
+from .sampling import hash_uniform, position_keys
+
+SUB = 4  # sub-samples per side of a texel whose area straddles a coverage boundary
 
 
 def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
@@ -109,10 +113,68 @@ class LoopGather(FinalGather):
         return in_domain(out, self.system.mesh, domain)
 
 
-def texel_gather(system, patch, points, **kw):
-    """FinalGather at texel centres (lightmap.plan's points on input patches), normals from the
-    patches: evaluate(solution, kind) replaces core.texels.solution_radiance(solution, patch, points,
-    kind=kind) (same kinds; float64, cast as needed)."""
+def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE):
+    """Gather samples of texels: the centre, or sub x sub stratified points over the texel's area
+    where the light changes inside it at a contact: some of those points covered and some not (a
+    block's footprint on a floor), or some in the open band of a slot (between two books, where
+    the light falls off within a few gap widths of the open edge). A renderer's bake
+    integrates the texel's area (Cycles jitters its samples over the pixel); a centre reads one
+    point, 0 or lit. axes (n, 2, 3): the texel's sides on the surface (world vectors of one texel
+    step in u and in v), None: centres only. The jitter is keyed by the texel centre's position.
+    Returns (points (S, 3), patch (S,), group (S,) texel of each sample, non-decreasing)."""
     s = system.system
-    patch = np.asarray(patch, np.int64)
-    return FinalGather(system, points, s.patches.normal[patch], patch, **kw)
+    con = s.h.contacts
+    points, patch = np.asarray(points, np.float64).reshape(-1, 3), np.asarray(patch, np.int64)
+    n = len(points)
+    cand = np.zeros(0, np.int64)
+    if axes is not None and sub > 1 and con is not None and n:
+        cand = np.flatnonzero(np.isin(patch, con.receivers))  # texels on patches with a contact
+    if not len(cand):
+        return points, patch, np.arange(n)
+    k2 = sub * sub
+    size = float(np.sqrt(isolated_objects(s.mesh).main_area))
+    keys = position_keys(points[cand], 2.0 ** (np.floor(np.log2(size)) - 12))
+    gx, gy = np.meshgrid(np.arange(sub), np.arange(sub), indexing="ij")
+    grid = np.stack([gx.ravel(), gy.ravel()], 1)
+    st = (grid[None] + hash_uniform(seed, keys, 2000, 2 * k2).reshape(-1, k2, 2)) / sub - 0.5
+    ax = np.asarray(axes, np.float64).reshape(-1, 2, 3)[cand]
+    sp = points[cand][:, None] + st[..., :1] * ax[:, None, 0] + st[..., 1:] * ax[:, None, 1]
+    # tested at the sub-points and the texel's corners (a boundary between jittered points)
+    corners = (
+        points[cand][:, None]
+        + (
+            np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])[None, :, :1] * ax[:, None, 0]
+            + np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])[None, :, 1:] * ax[:, None, 1]
+        )
+        / 2
+    )
+    test = np.concatenate([sp, corners], 1)
+    m = test.shape[1]
+    flat, fp = test.reshape(-1, 3), np.repeat(patch[cand], m)
+    cov = con.covered(flat, fp, open_edge=open_edge).reshape(-1, m)
+    mixed = cov.any(1) & ~cov.all(1)
+    if open_edge > 0:  # the light of a slot's open band falls off within a few gap widths
+        mixed |= (con.covered(flat, fp) & ~cov.ravel()).reshape(-1, m).any(1)
+    cnt = np.ones(n, np.int64)
+    cnt[cand[mixed]] = k2
+    group = np.repeat(np.arange(n), cnt)
+    pts = points[group]
+    first = np.cumsum(cnt) - cnt
+    rows = (first[cand[mixed]][:, None] + np.arange(k2)).ravel()
+    pts[rows] = sp[mixed].reshape(-1, 3)
+    return pts, patch[group], group
+
+
+def texel_gather(system, patch, points, axes=None, sub=SUB, **kw):
+    """FinalGather at texels (lightmap.plan's points on input patches), normals from the patches:
+    evaluate(solution, kind) replaces core.texels.solution_radiance(solution, patch, points,
+    kind=kind) (same kinds; float64, cast as needed). axes (n, 2, 3): the texels' sides on the
+    surface; texels straddling a contact's edge then gather over their area (texel_samples) and
+    output the mean (gather.n: samples, gather.n_out: texels)."""
+    s = system.system
+    pts, pp, group = texel_samples(
+        system, patch, points, axes, sub, kw.get("seed", 0), kw.get("open_edge", OPEN_EDGE)
+    )
+    if kw.get("rho") is not None and np.ndim(kw["rho"]) == 2:  # per texel: per sample
+        kw["rho"] = np.asarray(kw["rho"])[group]
+    return FinalGather(system, pts, s.patches.normal[pp], pp, groups=None if axes is None else group, **kw)
