@@ -91,6 +91,7 @@ class FinalGather(DirectLight):
         progress=None,
         groups=None,
         open_edge=OPEN_EDGE,
+        sample_rays=None,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
@@ -127,6 +128,8 @@ class FinalGather(DirectLight):
             else np.broadcast_to(np.asarray(rho, np.float64), (n, 3)).copy()
         )
         self.rays, self.shadow_rays, self.seed = int(rays), int(shadow_rays), int(seed)
+        # hemisphere rays per sample where they differ (a texel's sub-samples share its rays)
+        self.sample_rays = None if sample_rays is None else np.asarray(sample_rays, np.int64)
         self.batch_rays = int(batch_rays or self.BATCH_RAYS)
         if covered_hits not in ("zero", "shown"):
             raise ValueError("covered_hits must be 'zero' or 'shown'")
@@ -242,14 +245,20 @@ class FinalGather(DirectLight):
         """Samples a..b-1: (hits per row (m,), HR leaf per entry int32, weight per entry float32)."""
         s = self.system
         h, pt = s.h, s.patches
-        R = self.rays
         m = b - a
-        keep = ~self.dark[a:b]
-        dirs = cosine_directions(self.normals[a:b], self.keys[a:b], R, self.seed, stream=0).reshape(-1, 3)
-        org = np.repeat(self.origins[a:b], R, 0)
+        rr = np.full(m, self.rays) if self.sample_rays is None else self.sample_rays[a:b]
+        rows, dirs = [np.zeros(0, np.int64)], [np.zeros((0, 3))]
+        for R in np.unique(rr):  # covered samples trace nothing
+            sel = np.flatnonzero((rr == R) & ~self.dark[a:b])
+            d = cosine_directions(self.normals[a + sel], self.keys[a + sel], int(R), self.seed, stream=0)
+            rows.append(np.repeat(sel, R))
+            dirs.append(d.reshape(-1, 3))
+        row, dirs = np.concatenate(rows), np.concatenate(dirs)
+        if not len(row):
+            return np.zeros(m, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32)
+        org = self.origins[a + row]
         prim, t = self.first_hit(org, dirs)
-        row = np.repeat(np.arange(m), R)
-        ok = (prim >= 0) & np.repeat(keep, R)
+        ok = prim >= 0
         patch = np.where(ok, self.tri_patch[np.maximum(prim, 0)], 0)
         ok &= np.einsum("ij,ij->i", dirs, pt.normal[patch]) < 0  # back faces reflect nothing
         i = np.flatnonzero(ok)
@@ -264,7 +273,7 @@ class FinalGather(DirectLight):
         u, cnt = np.unique(key, return_counts=True)
         r = u // self.n_hr
         counts = np.bincount(r, minlength=m).astype(np.int64)
-        return counts, (u % self.n_hr).astype(np.int32), (cnt / R).astype(np.float32)
+        return counts, (u % self.n_hr).astype(np.int32), (cnt / rr[r]).astype(np.float32)
 
     def first_hit(self, org, dirs):
         """Nearest hits of unit rays (visibility.first_hit_within: near hits to self.reach first)."""
