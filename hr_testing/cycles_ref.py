@@ -83,6 +83,7 @@ class Atlas:
     s_point: np.ndarray = None  # (S, 3) world
     s_centre: np.ndarray = None  # bool: the texel's centre sample
     s_axes: np.ndarray = None  # (S, 2, 3) world vectors of one texel step in u and v at the sample
+    s_tri: np.ndarray = None  # (S, 3, 3) world corners of the sample's loop triangle (s_bary's order)
     area: float = 0.0
     n_poly: int = 0
 
@@ -209,7 +210,8 @@ class Atlas:
         self.s_poly = tri_poly[tri].astype(np.int64)
         self.s_loops = tri_loops[tri].astype(np.int64)
         self.s_bary = bary
-        self.s_point = np.einsum("sk,skj->sj", bary, verts[lv[self.s_loops]])
+        self.s_tri = verts[lv[self.s_loops]]
+        self.s_point = np.einsum("sk,skj->sj", bary, self.s_tri)
         # the texel's sides on the surface: d(world)/d(texel units) of the sample's triangle
         uvt = loop_uv[self.s_loops]  # (S, 3, 2) texel units
         U = np.stack([uvt[:, 1] - uvt[:, 0], uvt[:, 2] - uvt[:, 0]], 2)
@@ -665,7 +667,10 @@ def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=N
         allx = np.concatenate([rs.atlases[n].s_point[cen[n]] for n in names])
         c0 = _t.process_time()
         axes = np.concatenate([rs.atlases[n].s_axes[cen[n]] for n in names]) if texel_area else None
-        cache["texel"] = texel_gather(dyn, allp, allx, axes=axes, rays=rays, shadow_rays=shadow_rays, **kw)
+        tris = np.concatenate([rs.atlases[n].s_tri[cen[n]] for n in names]) if texel_area else None
+        cache["texel"] = texel_gather(
+            dyn, allp, allx, axes=axes, tris=tris, rays=rays, shadow_rays=shadow_rays, **kw
+        )
         cost["texel_precompute_s"] = _t.process_time() - c0
     g = cache["texel"]
     c0 = _t.process_time()

@@ -105,6 +105,9 @@ class TexturePlan:
         self.files = {}  # frame -> True once written / linked
         self._parts = []  # per object: (points, patches, representatives)
         self._axes = []  # per object: (N, 2, 3) the texels' sides on the surface
+        # per object: (N, 3, 3) the triangle of each texel's centre, corners in the order of Blender's
+        # loop triangles (a quad's (0, 1, 2), (0, 2, 3)), into which Cycles' bake folds the texel
+        self._tris = []
         self._locator = None
         self.albedo = {}  # object index -> (N, 3) float32 texture albedo / average at its texels
 
@@ -122,6 +125,7 @@ class TexturePlan:
         n = self.objects[-1].hi if self.objects else 0
         self._parts.append((np.einsum("nk,nkj->nj", bary, corners[tri]), own.astype(np.int64), r + n))
         self._axes.append(texel_axes(tri_uv, corners, res)[tri])
+        self._tris.append(corners[tri])
         self.objects.append(
             ObjectTexels(
                 name, res, stem, texel, inside, n, n + len(texel), dilation_steps(texel, res), uv_digest
@@ -159,7 +163,8 @@ class TexturePlan:
 
         loc = self.locator
         axes = np.concatenate(self._axes) if self._axes else np.zeros((0, 2, 3))
-        return texel_gather(system, loc.patch, loc.points, axes=axes, **kw)
+        tris = np.concatenate(self._tris) if self._tris else np.zeros((0, 3, 3))
+        return texel_gather(system, loc.patch, loc.points, axes=axes, tris=tris, **kw)
 
     def radiance(self, solution, mode="RADIANCE", gather=None):
         """(N, 3) values of the current solution at the texel points of all objects. mode RADIANCE:

@@ -8,6 +8,10 @@ from .final import OPEN_EDGE, FinalGather
 from .sampling import hash_uniform, position_keys
 
 SUB = 4  # sub-samples per side of a texel whose area straddles a coverage boundary
+# Blender hands Cycles half the barycentric change per pixel as the bake's differentials
+# (render/intern/bake.cc, bake_differentials: A = 0.5f / A), so its samples span the middle half
+# of the texel in each direction
+BAKE_SPAN = 0.5
 
 
 def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
@@ -113,14 +117,55 @@ class LoopGather(FinalGather):
         return in_domain(out, self.system.mesh, domain)
 
 
-def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE):
+def bake_mirror(x, m):
+    """Cycles' bake_clamp_mirror_repeat: x folded into [0, m] by mirror repeat."""
+    m = np.maximum(m, 1e-12)
+    x = x / m
+    f = np.floor(x)
+    x = x - f
+    return np.where(f.astype(np.int64) % 2 == 1, 1 - x, x) * m
+
+
+def bake_points(tris, centres, axes, f):
+    """Where Cycles' bake evaluates a texel at sub-pixel offsets f (..., 2) in [0, 1]^2, 0.5 the
+    centre (kernel/integrator/init_from_bake.h): the centre's barycentrics (u, v) in its triangle
+    tris (n, 3, 3) in the mesh's loop-triangle order (P = u v0 + v v1 + (1 - u - v) v2, Cycles'
+    triangle_point_normal) moved by BAKE_SPAN x the barycentric steps of the texel's sides axes
+    (n, 2, 3), u folded into [0, 1] and then v into [0, 1 - u] by mirror repeat: the samples
+    never leave the centre's triangle, a texel straddling its edge reads its own triangle folded
+    back. Returns (n, ..., 3) points."""
+    t = np.asarray(tris, np.float64)
+    E = np.stack([t[:, 0] - t[:, 2], t[:, 1] - t[:, 2]], 2)  # (n, 3, 2): d P / d (u, v)
+    G = np.einsum("nki,nkj->nij", E, E)
+    rhs = np.concatenate(
+        [(centres - t[:, 2])[:, :, None], BAKE_SPAN * np.swapaxes(axes, 1, 2)], 2
+    )  # (n, 3, 3)
+    B = np.linalg.solve(G, np.einsum("nki,nkj->nij", E, rhs))  # (n, 2, 3): uv of centre, d/dx, d/dy
+    shape = (len(t),) + (1,) * (f.ndim - 2)
+    fx, fy = f[..., 0] - 0.5, f[..., 1] - 0.5
+    u = bake_mirror(
+        B[:, 0, 0].reshape(shape) + B[:, 0, 1].reshape(shape) * fx + B[:, 0, 2].reshape(shape) * fy, 1.0
+    )
+    v = B[:, 1, 0].reshape(shape) + B[:, 1, 1].reshape(shape) * fx + B[:, 1, 2].reshape(shape) * fy
+    v = bake_mirror(v, 1.0 - u)
+    tt = t.reshape((len(t),) + (1,) * (f.ndim - 2) + (3, 3))
+    return (
+        u[..., None] * tt[..., 0, :] + v[..., None] * tt[..., 1, :] + (1 - u - v)[..., None] * tt[..., 2, :]
+    )
+
+
+def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None):
     """Gather samples of texels: the centre, or sub x sub stratified points over the texel's area
     where the light changes inside it at a contact: some of those points covered and some not (a
     block's footprint on a floor), or some in the open band of a slot (between two books, where
     the light falls off within a few gap widths of the open edge). A renderer's bake
     integrates the texel's area (Cycles jitters its samples over the pixel); a centre reads one
     point, 0 or lit. axes (n, 2, 3): the texel's sides on the surface (world vectors of one texel
-    step in u and in v), None: centres only. The jitter is keyed by the texel centre's position.
+    step in u and in v), None: centres only. tris (n, 3, 3): the triangle each centre lies in, in
+    the mesh's loop-triangle order: the points are placed as Cycles' bake places them, over the
+    middle half of the texel folded into that triangle (bake_points); None: over the texel's
+    parallelogram. The jitter is keyed by
+    the texel centre's position.
     Returns (points (S, 3), patch (S,), group (S,) texel of each sample, non-decreasing)."""
     s = system.system
     con = s.h.contacts
@@ -129,6 +174,10 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     cand = np.zeros(0, np.int64)
     if axes is not None and sub > 1 and con is not None and n:
         cand = np.flatnonzero(np.isin(patch, con.receivers))  # texels on patches with a contact
+    if tris is not None and len(cand):
+        t = np.asarray(tris, np.float64).reshape(-1, 3, 3)[cand]
+        a = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        cand = cand[a > 1e-12 * np.maximum(np.abs(t).max((1, 2)), 1e-300) ** 2]  # no triangle: centre
     if not len(cand):
         return points, patch, np.arange(n)
     k2 = sub * sub
@@ -136,19 +185,19 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     keys = position_keys(points[cand], 2.0 ** (np.floor(np.log2(size)) - 12))
     gx, gy = np.meshgrid(np.arange(sub), np.arange(sub), indexing="ij")
     grid = np.stack([gx.ravel(), gy.ravel()], 1)
-    st = (grid[None] + hash_uniform(seed, keys, 2000, 2 * k2).reshape(-1, k2, 2)) / sub - 0.5
-    ax = np.asarray(axes, np.float64).reshape(-1, 2, 3)[cand]
-    sp = points[cand][:, None] + st[..., :1] * ax[:, None, 0] + st[..., 1:] * ax[:, None, 1]
+    f = (grid[None] + hash_uniform(seed, keys, 2000, 2 * k2).reshape(-1, k2, 2)) / sub
     # tested at the sub-points and the texel's corners (a boundary between jittered points)
-    corners = (
-        points[cand][:, None]
-        + (
-            np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])[None, :, :1] * ax[:, None, 0]
-            + np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])[None, :, 1:] * ax[:, None, 1]
-        )
-        / 2
+    f = np.concatenate(
+        [f, np.broadcast_to(np.array([[0.0, 0], [1, 0], [1, 1], [0, 1]]), (len(cand), 4, 2))], 1
     )
-    test = np.concatenate([sp, corners], 1)
+    ax = np.asarray(axes, np.float64).reshape(-1, 2, 3)[cand]
+    if tris is None:
+        test = (
+            points[cand][:, None] + (f[..., :1] - 0.5) * ax[:, None, 0] + (f[..., 1:] - 0.5) * ax[:, None, 1]
+        )
+    else:
+        test = bake_points(np.asarray(tris, np.float64).reshape(-1, 3, 3)[cand], points[cand], ax, f)
+    sp = test[:, :k2]
     m = test.shape[1]
     flat, fp = test.reshape(-1, 3), np.repeat(patch[cand], m)
     cov = con.covered(flat, fp, open_edge=open_edge).reshape(-1, m)
@@ -165,15 +214,16 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     return pts, patch[group], group
 
 
-def texel_gather(system, patch, points, axes=None, sub=SUB, **kw):
+def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
     """FinalGather at texels (lightmap.plan's points on input patches), normals from the patches:
     evaluate(solution, kind) replaces core.texels.solution_radiance(solution, patch, points,
     kind=kind) (same kinds; float64, cast as needed). axes (n, 2, 3): the texels' sides on the
     surface; texels straddling a contact's edge then gather over their area (texel_samples) and
-    output the mean (gather.n: samples, gather.n_out: texels)."""
+    output the mean (gather.n: samples, gather.n_out: texels). tris (n, 3, 3): each centre's
+    triangle in loop-triangle order, the area folded into it as Cycles' bake does."""
     s = system.system
     pts, pp, group = texel_samples(
-        system, patch, points, axes, sub, kw.get("seed", 0), kw.get("open_edge", OPEN_EDGE)
+        system, patch, points, axes, sub, kw.get("seed", 0), kw.get("open_edge", OPEN_EDGE), tris
     )
     if kw.get("rho") is not None and np.ndim(kw["rho"]) == 2:  # per texel: per sample
         kw["rho"] = np.asarray(kw["rho"])[group]
