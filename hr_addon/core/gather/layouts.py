@@ -141,31 +141,25 @@ def bake_points(tris, centres, axes, f):
         [(centres - t[:, 2])[:, :, None], BAKE_SPAN * np.swapaxes(axes, 1, 2)], 2
     )  # (n, 3, 3)
     B = np.linalg.solve(G, np.einsum("nki,nkj->nij", E, rhs))  # (n, 2, 3): uv of centre, d/dx, d/dy
-    shape = (len(t),) + (1,) * (f.ndim - 2)
+    B = B.reshape(B.shape + (1,) * (f.ndim - 2))  # broadcast over f's sample axes
     fx, fy = f[..., 0] - 0.5, f[..., 1] - 0.5
-    u = bake_mirror(
-        B[:, 0, 0].reshape(shape) + B[:, 0, 1].reshape(shape) * fx + B[:, 0, 2].reshape(shape) * fy, 1.0
-    )
-    v = B[:, 1, 0].reshape(shape) + B[:, 1, 1].reshape(shape) * fx + B[:, 1, 2].reshape(shape) * fy
-    v = bake_mirror(v, 1.0 - u)
-    tt = t.reshape((len(t),) + (1,) * (f.ndim - 2) + (3, 3))
-    return (
-        u[..., None] * tt[..., 0, :] + v[..., None] * tt[..., 1, :] + (1 - u - v)[..., None] * tt[..., 2, :]
-    )
+    u = bake_mirror(B[:, 0, 0] + B[:, 0, 1] * fx + B[:, 0, 2] * fy, 1.0)
+    v = bake_mirror(B[:, 1, 0] + B[:, 1, 1] * fx + B[:, 1, 2] * fy, 1.0 - u)
+    t = t.reshape((len(t),) + (1,) * (f.ndim - 2) + (3, 3))
+    return u[..., None] * t[..., 0, :] + v[..., None] * t[..., 1, :] + (1 - u - v)[..., None] * t[..., 2, :]
 
 
 def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None):
     """Gather samples of texels: the centre, or sub x sub stratified points over the texel's area
     where the light changes inside it at a contact: some of those points covered and some not (a
     block's footprint on a floor), or some in the open band of a slot (between two books, where
-    the light falls off within a few gap widths of the open edge). A renderer's bake
-    integrates the texel's area (Cycles jitters its samples over the pixel); a centre reads one
-    point, 0 or lit. axes (n, 2, 3): the texel's sides on the surface (world vectors of one texel
+    the light falls off within a few gap widths of the open edge). A renderer's bake averages
+    over part of the texel (Cycles: its middle half, folded into the centre's triangle); a centre
+    reads one point, 0 or lit. axes (n, 2, 3): the texel's sides on the surface (world vectors of one texel
     step in u and in v), None: centres only. tris (n, 3, 3): the triangle each centre lies in, in
     the mesh's loop-triangle order: the points are placed as Cycles' bake places them, over the
     middle half of the texel folded into that triangle (bake_points); None: over the texel's
-    parallelogram. The jitter is keyed by
-    the texel centre's position.
+    parallelogram. The jitter is keyed by the texel centre's position.
     Returns (points (S, 3), patch (S,), group (S,) texel of each sample, non-decreasing)."""
     s = system.system
     con = s.h.contacts
