@@ -93,6 +93,7 @@ PARAMS = {}  # --params
 GATHER = 0  # --gather: hemisphere rays of the final gather compared alongside (0: off)
 GATHER_LEVELS = 1  # --gather-levels
 GATHER_ITERATIONS = 0  # --gather-iterations
+GATHER_AREA = True  # --gather-centres: texels gather at their centres only (before texel_samples)
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
 MIN_SURFACE_SHARE = 0.01
@@ -285,7 +286,9 @@ def run_scene(name, cfg, results, maps=None):
     out = {
         "scene": name,
         "config": cfg,
-        "gather_settings": dict(rays=GATHER, levels=GATHER_LEVELS, iterations=GATHER_ITERATIONS)
+        "gather_settings": dict(
+            rays=GATHER, levels=GATHER_LEVELS, iterations=GATHER_ITERATIONS, texel_area=GATHER_AREA
+        )
         if GATHER
         else {},
         "texels": n_tex,
@@ -398,6 +401,7 @@ def run_scene(name, cfg, results, maps=None):
                         cache=gcache,
                         levels=GATHER_LEVELS,
                         iterations=GATHER_ITERATIONS,
+                        texel_area=GATHER_AREA,
                     )
                     for n in rs.objects:
                         res[n].update(gres[n])
@@ -431,8 +435,10 @@ def run_scene(name, cfg, results, maps=None):
                     if GATHER and var in cmp_:
                         g = cmp_[var]["all"]
                         log(
-                            f"      {var}: worst surface {100 * g['worst_mre']:5.2f}% ({g['worst_surface']}), "
-                            f"bias {100 * g['bias']:+.2f}%, RMSE {g['rmse']:.4f}, p95 {g['p95']:.4f}"
+                            f"      {var}: worst surface {100 * g['worst_mre']:5.2f}% "
+                            f"({g['worst_surface']}), "
+                            f"bias {100 * g['bias']:+.2f}%, RMSE {g['rmse']:.4f} "
+                            f"(corrected {g['rmse_corrected']:.4f}), p95 {g['p95']:.4f}"
                         )
                 if GATHER and "contacts" in ev:
                     for k, d in ev["contacts"].items():
@@ -440,8 +446,11 @@ def run_scene(name, cfg, results, maps=None):
                             if lab in d:
                                 x = d[lab]
                                 gb = x.get("gather", {}).get("bias", float("nan"))
+                                gr = x.get("gather", {}).get("rmse", float("nan"))
                                 log(
-                                    f"      {k} {lab}: leaf bias {100 * x['bias']:+.1f}%, gather bias {100 * gb:+.1f}%"
+                                    f"      {k} {lab}: {x['texels']} texels, "
+                                    f"leaf bias {100 * x['bias']:+.1f}%, "
+                                    f"gather bias {100 * gb:+.1f}%, gather RMSE {gr:.4f}"
                                 )
             out["ours"].append(run)
         del base
@@ -942,12 +951,16 @@ def main():
     ap.add_argument(
         "--gather-iterations", type=int, default=0, help="two levels: passes among gather samples"
     )
+    ap.add_argument(
+        "--gather-centres", action="store_true", help="texels gather at their centres only (no texel area)"
+    )
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
     args = ap.parse_args()
-    global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS
+    global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS, GATHER_AREA
     USE_CACHE = not args.no_cache
+    GATHER_AREA = not args.gather_centres
     GATHER, GATHER_LEVELS, GATHER_ITERATIONS = args.gather, args.gather_levels, args.gather_iterations
     from hr_addon.core.refine import RefineParams
 

@@ -19,11 +19,11 @@ def floor_with(*objects, n=8, size=2.0):
     return b
 
 
-def sky_scene():
-    """A 2 x 2 m floor (reflectance 0.5) with a black 0.4 m cube standing on it, under a 4 x 4 m
-    emitter 1 m up (radiance 1, black): the floor's light is direct only."""
+def sky_scene(n=8):
+    """A 2 x 2 m floor (reflectance 0.5, n x n quads) with a black 0.4 m cube standing on it, under
+    a 4 x 4 m emitter 1 m up (radiance 1, black): the floor's light is direct only."""
     v, f = box([-0.2, -0.2, 0], [0.2, 0.2, 0.4])
-    b = floor_with()
+    b = floor_with(n=n)
     b.add("box", v, f, 0.0)
     v, q = grid_quad(np.array([-2.0, -2, 1]), [0, 4, 0], [4, 0, 0], 4, 4)
     b.add("sky", v, [q], 0.0, (1.0, 1.0, 1.0))

@@ -82,6 +82,8 @@ class Atlas:
     s_bary: np.ndarray = None  # (S, 3)
     s_point: np.ndarray = None  # (S, 3) world
     s_centre: np.ndarray = None  # bool: the texel's centre sample
+    s_axes: np.ndarray = None  # (S, 2, 3) world vectors of one texel step in u and v at the sample
+    s_tri: np.ndarray = None  # (S, 3, 3) world corners of the sample's loop triangle (s_bary's order)
     area: float = 0.0
     n_poly: int = 0
 
@@ -208,7 +210,14 @@ class Atlas:
         self.s_poly = tri_poly[tri].astype(np.int64)
         self.s_loops = tri_loops[tri].astype(np.int64)
         self.s_bary = bary
-        self.s_point = np.einsum("sk,skj->sj", bary, verts[lv[self.s_loops]])
+        self.s_tri = verts[lv[self.s_loops]]
+        self.s_point = np.einsum("sk,skj->sj", bary, self.s_tri)
+        # the texel's sides on the surface: d(world)/d(texel units) of the sample's triangle
+        uvt = loop_uv[self.s_loops]  # (S, 3, 2) texel units
+        U = np.stack([uvt[:, 1] - uvt[:, 0], uvt[:, 2] - uvt[:, 0]], 2)
+        wt = verts[lv[self.s_loops]]
+        E = np.stack([wt[:, 1] - wt[:, 0], wt[:, 2] - wt[:, 0]], 2)
+        self.s_axes = np.swapaxes(np.einsum("sik,skj->sij", E, np.linalg.inv(U)), 1, 2)
 
     def texel_mean(self, values):
         """(S, C) sub-sample values -> (N, C) texel means."""
@@ -638,12 +647,13 @@ class Ours:
         return out
 
 
-def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=None, **kw):
+def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=None, texel_area=True, **kw):
     """The final gather (hr_addon.core.gather) on our solution: per object and texel
     gather_refl / gather_total (a FinalGather at every texel's centre) and gvertex_total (a
     LoopGather at the mesh's corners, interpolated over Blender's loop triangles as vertex_total).
     cache: a dict keeping the gathers between frames (their precompute depends on geometry only).
-    kw: more FinalGather settings (levels=2: the two-level gather).
+    kw: more FinalGather settings (levels=2: the two-level gather). texel_area: texels straddling a
+    contact's edge gather over their area (core.gather.texel_samples), False: at centres only.
     Returns ({name: {...}}, {"precompute_s", "evaluate_s", "weights_mb", "samples"} of each)."""
     import time as _t
 
@@ -657,7 +667,11 @@ def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=N
         allp = np.concatenate([ours.samples[n][0][cen[n]] for n in names])
         allx = np.concatenate([rs.atlases[n].s_point[cen[n]] for n in names])
         c0 = _t.process_time()
-        cache["texel"] = texel_gather(dyn, allp, allx, rays=rays, shadow_rays=shadow_rays, **kw)
+        axes = np.concatenate([rs.atlases[n].s_axes[cen[n]] for n in names]) if texel_area else None
+        tris = np.concatenate([rs.atlases[n].s_tri[cen[n]] for n in names]) if texel_area else None
+        cache["texel"] = texel_gather(
+            dyn, allp, allx, axes=axes, tris=tris, rays=rays, shadow_rays=shadow_rays, **kw
+        )
         cost["texel_precompute_s"] = _t.process_time() - c0
     g = cache["texel"]
     c0 = _t.process_time()
@@ -669,6 +683,7 @@ def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=N
     # responses, a second kind reuses them
     cost["texel_evaluate_first_s"] = c1 - c0
     cost["texel_samples"], cost["texel_weights_mb"] = g.n, g.weights_bytes / 1e6
+    cost["texels"] = g.n_out
     loops = None
     if vertex:
         if "loops" not in cache:
@@ -691,7 +706,7 @@ def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=N
             tex = np.full((at.n, 3), np.nan)
             tex[at.s_texel[cen[name]]] = arr[s : s + m]
             r[key] = tex
-        r["gather_dark_frac"] = float(g.dark[s : s + m].mean()) if m else 0.0
+        r["gather_dark_frac"] = float(g.out_dark[s : s + m].mean()) if m else 0.0
         s += m
         if loops is not None:
             corner = targets[name].extract(loops, "CORNER").astype(np.float64)

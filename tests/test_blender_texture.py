@@ -56,6 +56,7 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path, final_gather):
     from hr_addon.blender.settings import gather_params
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.gather import texel_gather
+    from hr_addon.lightmap.plan import texel_axes
     from hr_addon.core.output import radiance_at
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
@@ -124,7 +125,7 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path, final_gather):
         image = read_image(_files(cache, name, [6])[0])
         count = np.zeros((4 * RES, 4 * RES), int)
         area = 0.0
-        xs, ys, pts, patch = [], [], [], []
+        xs, ys, pts, patch, axes, tris = [], [], [], [], [], []
         for i, loops in enumerate(_polys(me)):
             q = uv[loops]
             area += 0.5 * abs(np.cross(q[1] - q[0], q[2] - q[0])) + 0.5 * abs(
@@ -135,14 +136,17 @@ def test_texture_bake_matches_core_and_keeps_user_uvs(tmp_path, final_gather):
             x, y, bary, t = texels_in_polygon(q, RES)
             tri = np.stack([np.zeros_like(t), t, t + 1], 1)
             pts.append(np.einsum("nk,nkj->nj", bary, co[lv[np.array(loops)][tri]]))
+            # the texel's sides on the surface: texels straddling a contact gather over their area
+            axes.append(texel_axes(q[tri], co[lv[np.array(loops)][tri]], RES))
+            tris.append(co[lv[np.array(loops)][tri]])  # folded into as Cycles' bake does
             xs.append(x)
             ys.append(y)
             patch.append(np.full(len(x), poly0 + i))
         assert count.max() == 1, name  # islands do not overlap
         assert area > 0.3, (name, area)  # and are packed (5 cube faces: ~1/3)
-        x, y, pts, patch = map(np.concatenate, (xs, ys, pts, patch))
+        x, y, pts, patch, axes, tris = map(np.concatenate, (xs, ys, pts, patch, axes, tris))
         if final_gather:
-            ref = texel_gather(dyn, patch, pts, **gather_params("draft")).evaluate(dyn)
+            ref = texel_gather(dyn, patch, pts, axes=axes, tris=tris, **gather_params("draft")).evaluate(dyn)
         else:
             ref = radiance_at(dyn.h, dyn.B, patch, pts)
         got = image[y, x]

@@ -134,6 +134,15 @@ def test_atlas_of_a_cube_has_one_texel_per_texel_area_and_samples_on_the_surface
     layer.data.foreach_get("uv", uv)
     assert uv.min() >= 0 and uv.max() <= 1
     np.testing.assert_allclose(at.texel_mean(np.ones((len(p), 3))), 1.0)
+    # the texels' sides on the surface (the final gather's texel area): two perpendicular texel
+    # lengths in the face's plane, the steps between the sub-samples of a texel (k = 3)
+    ax = at.s_axes
+    np.testing.assert_allclose(np.linalg.norm(ax, axis=2), at.texel, rtol=1e-9)
+    assert np.abs(np.einsum("sj,sj->s", ax[:, 0], ax[:, 1])).max() < 1e-12
+    c = np.flatnonzero(at.s_centre)
+    off = p - p[c][np.searchsorted(at.s_texel[c], at.s_texel)]
+    coef = np.einsum("sj,skj->sk", off, ax[c][np.searchsorted(at.s_texel[c], at.s_texel)]) / at.texel**2
+    np.testing.assert_allclose(np.sort(np.unique(np.round(coef * 3, 6))), [-1, 0, 1], atol=1e-6)
 
 
 @pytest.mark.bpy

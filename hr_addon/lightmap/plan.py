@@ -45,6 +45,21 @@ class ObjectTexels:
         return img.reshape(self.res, self.res, 3)
 
 
+def texel_axes(tri_uv, corners, res):
+    """(T, 2, 3) world vectors of one texel step in u and in v on each triangle (UV tri_uv (T, 3, 2),
+    corners (T, 3, 3)): the texel's footprint, which texels straddling a contact gather over."""
+    uv = np.asarray(tri_uv, np.float64)
+    c = np.asarray(corners, np.float64)
+    U = np.stack([uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]], 2)  # (T, 2, 2) columns: edges in uv
+    E = np.stack([c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]], 2)  # (T, 3, 2) the same edges in space
+    det = U[:, 0, 0] * U[:, 1, 1] - U[:, 0, 1] * U[:, 1, 0]
+    ok = np.abs(det) > 1e-15
+    inv = np.stack([np.stack([U[:, 1, 1], -U[:, 0, 1]], 1), np.stack([-U[:, 1, 0], U[:, 0, 0]], 1)], 1)
+    inv /= np.where(ok, det, 1.0)[:, None, None]
+    J = np.einsum("tik,tkj->tij", E, inv) * ok[:, None, None]  # (T, 3, 2) d(world) / d(uv)
+    return np.swapaxes(J, 1, 2) / res
+
+
 def frame_file(stem, frame, ext):
     return f"{stem}_{frame:06d}{ext}"
 
@@ -89,6 +104,10 @@ class TexturePlan:
         self.tmp = None
         self.files = {}  # frame -> True once written / linked
         self._parts = []  # per object: (points, patches, representatives)
+        self._axes = []  # per object: (N, 2, 3) the texels' sides on the surface
+        # per object: (N, 3, 3) the triangle of each texel's centre, corners in the order of Blender's
+        # loop triangles (a quad's (0, 1, 2), (0, 2, 3)), into which Cycles' bake folds the texel
+        self._tris = []
         self._locator = None
         self.albedo = {}  # object index -> (N, 3) float32 texture albedo / average at its texels
 
@@ -105,6 +124,8 @@ class TexturePlan:
         r = np.where((r >= 0) & (own[np.maximum(r, 0)] == own), r, np.arange(len(texel)))
         n = self.objects[-1].hi if self.objects else 0
         self._parts.append((np.einsum("nk,nkj->nj", bary, corners[tri]), own.astype(np.int64), r + n))
+        self._axes.append(texel_axes(tri_uv, corners, res)[tri])
+        self._tris.append(corners[tri])
         self.objects.append(
             ObjectTexels(
                 name, res, stem, texel, inside, n, n + len(texel), dilation_steps(texel, res), uv_digest
@@ -141,7 +162,9 @@ class TexturePlan:
         from ..core.gather import texel_gather
 
         loc = self.locator
-        return texel_gather(system, loc.patch, loc.points, **kw)
+        axes = np.concatenate(self._axes) if self._axes else np.zeros((0, 2, 3))
+        tris = np.concatenate(self._tris) if self._tris else np.zeros((0, 3, 3))
+        return texel_gather(system, loc.patch, loc.points, axes=axes, tris=tris, **kw)
 
     def radiance(self, solution, mode="RADIANCE", gather=None):
         """(N, 3) values of the current solution at the texel points of all objects. mode RADIANCE:

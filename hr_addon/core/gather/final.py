@@ -13,6 +13,10 @@ from .points import _into_patch, locate_below
 from .sampling import cosine_directions, position_keys
 
 KINDS = ("radiance", "reflected", "incident")
+# a sample under a covering face at a gap h (books standing side by side) is gathered, not called
+# covered, within OPEN_EDGE x h of the face's open outline, where light enters the slot
+# (contacts.Contacts.covered; docs/gather.md, "Narrow gaps")
+OPEN_EDGE = 5.0
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
@@ -85,6 +89,9 @@ class FinalGather(DirectLight):
         cache_responses=True,
         threads=1,
         progress=None,
+        groups=None,
+        open_edge=OPEN_EDGE,
+        sample_rays=None,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
@@ -121,6 +128,8 @@ class FinalGather(DirectLight):
             else np.broadcast_to(np.asarray(rho, np.float64), (n, 3)).copy()
         )
         self.rays, self.shadow_rays, self.seed = int(rays), int(shadow_rays), int(seed)
+        # hemisphere rays per sample where they differ (a texel's sub-samples share its rays)
+        self.sample_rays = None if sample_rays is None else np.asarray(sample_rays, np.int64)
         self.batch_rays = int(batch_rays or self.BATCH_RAYS)
         if covered_hits not in ("zero", "shown"):
             raise ValueError("covered_hits must be 'zero' or 'shown'")
@@ -137,6 +146,13 @@ class FinalGather(DirectLight):
         self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
         if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
             self.dark[:] = False
+        elif open_edge > 0 and h.contacts is not None and self.dark.any():
+            d = np.flatnonzero(self.dark)
+            self.dark[d] = h.contacts.covered(self.points[d], self.patch[d], open_edge=open_edge)
+        # groups (n,) non-decreasing: the output of row j is the mean over the samples of group j
+        # (a texel's sub-samples over its area, layouts.texel_samples; covered ones count 0)
+        self.group = None if groups is None else np.asarray(groups, np.int64)
+        self.n_out = n if groups is None else (int(self.group[-1]) + 1 if n else 0)
         self.E_static = pt.emission[:, self.patch].T.copy()
         self.stats = {}
         import time
@@ -184,6 +200,7 @@ class FinalGather(DirectLight):
                 covered_samples=covered_samples,
                 threads=threads,
                 progress=progress,
+                open_edge=0.0,  # the leaves' values stand for their uncovered part, as exposure has it
             )
             self._second_map = (used, gw)
             # Blender lights at the second level: the leaf's mean direct light integrated over the
@@ -228,14 +245,20 @@ class FinalGather(DirectLight):
         """Samples a..b-1: (hits per row (m,), HR leaf per entry int32, weight per entry float32)."""
         s = self.system
         h, pt = s.h, s.patches
-        R = self.rays
         m = b - a
-        keep = ~self.dark[a:b]
-        dirs = cosine_directions(self.normals[a:b], self.keys[a:b], R, self.seed, stream=0).reshape(-1, 3)
-        org = np.repeat(self.origins[a:b], R, 0)
+        rr = np.full(m, self.rays) if self.sample_rays is None else self.sample_rays[a:b]
+        rows, dirs = [np.zeros(0, np.int64)], [np.zeros((0, 3))]
+        for R in np.unique(rr):  # covered samples trace nothing
+            sel = np.flatnonzero((rr == R) & ~self.dark[a:b])
+            d = cosine_directions(self.normals[a + sel], self.keys[a + sel], int(R), self.seed, stream=0)
+            rows.append(np.repeat(sel, R))
+            dirs.append(d.reshape(-1, 3))
+        row, dirs = np.concatenate(rows), np.concatenate(dirs)
+        if not len(row):
+            return np.zeros(m, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32)
+        org = self.origins[a + row]
         prim, t = self.first_hit(org, dirs)
-        row = np.repeat(np.arange(m), R)
-        ok = (prim >= 0) & np.repeat(keep, R)
+        ok = prim >= 0
         patch = np.where(ok, self.tri_patch[np.maximum(prim, 0)], 0)
         ok &= np.einsum("ij,ij->i", dirs, pt.normal[patch]) < 0  # back faces reflect nothing
         i = np.flatnonzero(ok)
@@ -250,7 +273,7 @@ class FinalGather(DirectLight):
         u, cnt = np.unique(key, return_counts=True)
         r = u // self.n_hr
         counts = np.bincount(r, minlength=m).astype(np.int64)
-        return counts, (u % self.n_hr).astype(np.int32), (cnt / R).astype(np.float32)
+        return counts, (u % self.n_hr).astype(np.int32), (cnt / rr[r]).astype(np.float32)
 
     def first_hit(self, org, dirs):
         """Nearest hits of unit rays (visibility.first_hit_within: near hits to self.reach first)."""
@@ -438,4 +461,19 @@ class FinalGather(DirectLight):
                 v = E + self.rho * inc
                 v[self.dark] = 0.0
                 out[k] = v
-        return out
+        return {k: self.outputs(v) for k, v in out.items()}
+
+    def outputs(self, v):
+        """Sample values (n, C) -> output values (n_out, C): the means over the groups."""
+        if self.group is None:
+            return v
+        cnt = np.bincount(self.group, minlength=self.n_out)
+        return (
+            np.stack([np.bincount(self.group, v[:, c], self.n_out) for c in range(v.shape[1])], 1)
+            / np.maximum(cnt, 1)[:, None]
+        )
+
+    @property
+    def out_dark(self):
+        """(n_out,) True where every sample of the output is covered."""
+        return self.dark if self.group is None else self.outputs(self.dark[:, None].astype(float))[:, 0] == 1

@@ -2,8 +2,16 @@
 
 import numpy as np
 
+from ..geometry import isolated_objects
 from ..output import equal_key_pairs, in_domain, loop_welds
-from .final import FinalGather
+from .final import OPEN_EDGE, FinalGather
+from .sampling import hash_uniform, position_keys
+
+SUB = 4  # sub-samples per side of a texel whose area straddles a coverage boundary
+# Blender hands Cycles half the barycentric change per pixel as the bake's differentials
+# (render/intern/bake.cc, bake_differentials: A = 0.5f / A), so its samples span the middle half
+# of the texel in each direction
+BAKE_SPAN = 0.5
 
 
 def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
@@ -109,10 +117,120 @@ class LoopGather(FinalGather):
         return in_domain(out, self.system.mesh, domain)
 
 
-def texel_gather(system, patch, points, **kw):
-    """FinalGather at texel centres (lightmap.plan's points on input patches), normals from the
-    patches: evaluate(solution, kind) replaces core.texels.solution_radiance(solution, patch, points,
-    kind=kind) (same kinds; float64, cast as needed)."""
+def bake_mirror(x, m):
+    """Cycles' bake_clamp_mirror_repeat: x folded into [0, m] by mirror repeat."""
+    m = np.maximum(m, 1e-12)
+    x = x / m
+    f = np.floor(x)
+    x = x - f
+    return np.where(f.astype(np.int64) % 2 == 1, 1 - x, x) * m
+
+
+def bake_points(tris, centres, axes, f):
+    """Where Cycles' bake evaluates a texel at sub-pixel offsets f (..., 2) in [0, 1]^2, 0.5 the
+    centre (kernel/integrator/init_from_bake.h): the centre's barycentrics (u, v) in its triangle
+    tris (n, 3, 3) in the mesh's loop-triangle order (P = u v0 + v v1 + (1 - u - v) v2, Cycles'
+    triangle_point_normal) moved by BAKE_SPAN x the barycentric steps of the texel's sides axes
+    (n, 2, 3), u folded into [0, 1] and then v into [0, 1 - u] by mirror repeat: the samples
+    never leave the centre's triangle, a texel straddling its edge reads its own triangle folded
+    back. Returns (n, ..., 3) points."""
+    t = np.asarray(tris, np.float64)
+    E = np.stack([t[:, 0] - t[:, 2], t[:, 1] - t[:, 2]], 2)  # (n, 3, 2): d P / d (u, v)
+    G = np.einsum("nki,nkj->nij", E, E)
+    rhs = np.concatenate(
+        [(centres - t[:, 2])[:, :, None], BAKE_SPAN * np.swapaxes(axes, 1, 2)], 2
+    )  # (n, 3, 3)
+    B = np.linalg.solve(G, np.einsum("nki,nkj->nij", E, rhs))  # (n, 2, 3): uv of centre, d/dx, d/dy
+    B = B.reshape(B.shape + (1,) * (f.ndim - 2))  # broadcast over f's sample axes
+    fx, fy = f[..., 0] - 0.5, f[..., 1] - 0.5
+    u = bake_mirror(B[:, 0, 0] + B[:, 0, 1] * fx + B[:, 0, 2] * fy, 1.0)
+    v = bake_mirror(B[:, 1, 0] + B[:, 1, 1] * fx + B[:, 1, 2] * fy, 1.0 - u)
+    t = t.reshape((len(t),) + (1,) * (f.ndim - 2) + (3, 3))
+    return u[..., None] * t[..., 0, :] + v[..., None] * t[..., 1, :] + (1 - u - v)[..., None] * t[..., 2, :]
+
+
+def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None):
+    """Gather samples of texels: the centre, or sub x sub stratified points over the texel's area
+    where the light changes inside it at a contact: some of those points covered and some not (a
+    block's footprint on a floor), or some in the open band of a slot (between two books, where
+    the light falls off within a few gap widths of the open edge). A renderer's bake averages
+    over part of the texel (Cycles: its middle half, folded into the centre's triangle); a centre
+    reads one point, 0 or lit. axes (n, 2, 3): the texel's sides on the surface (world vectors of one texel
+    step in u and in v), None: centres only. tris (n, 3, 3): the triangle each centre lies in, in
+    the mesh's loop-triangle order: the points are placed as Cycles' bake places them, over the
+    middle half of the texel folded into that triangle (bake_points); None: over the texel's
+    parallelogram. The jitter is keyed by the texel centre's position.
+    Returns (points (S, 3), patch (S,), group (S,) texel of each sample, non-decreasing)."""
     s = system.system
-    patch = np.asarray(patch, np.int64)
-    return FinalGather(system, points, s.patches.normal[patch], patch, **kw)
+    con = s.h.contacts
+    points, patch = np.asarray(points, np.float64).reshape(-1, 3), np.asarray(patch, np.int64)
+    n = len(points)
+    cand = np.zeros(0, np.int64)
+    if axes is not None and sub > 1 and con is not None and n:
+        cand = np.flatnonzero(np.isin(patch, con.receivers))  # texels on patches with a contact
+    if tris is not None and len(cand):
+        t = np.asarray(tris, np.float64).reshape(-1, 3, 3)[cand]
+        a = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        cand = cand[a > 1e-12 * np.maximum(np.abs(t).max((1, 2)), 1e-300) ** 2]  # no triangle: centre
+    if not len(cand):
+        return points, patch, np.arange(n)
+    k2 = sub * sub
+    size = float(np.sqrt(isolated_objects(s.mesh).main_area))
+    keys = position_keys(points[cand], 2.0 ** (np.floor(np.log2(size)) - 12))
+    gx, gy = np.meshgrid(np.arange(sub), np.arange(sub), indexing="ij")
+    grid = np.stack([gx.ravel(), gy.ravel()], 1)
+    f = (grid[None] + hash_uniform(seed, keys, 2000, 2 * k2).reshape(-1, k2, 2)) / sub
+    # tested at the sub-points and the texel's corners (a boundary between jittered points)
+    f = np.concatenate(
+        [f, np.broadcast_to(np.array([[0.0, 0], [1, 0], [1, 1], [0, 1]]), (len(cand), 4, 2))], 1
+    )
+    ax = np.asarray(axes, np.float64).reshape(-1, 2, 3)[cand]
+    if tris is None:
+        test = (
+            points[cand][:, None] + (f[..., :1] - 0.5) * ax[:, None, 0] + (f[..., 1:] - 0.5) * ax[:, None, 1]
+        )
+    else:
+        test = bake_points(np.asarray(tris, np.float64).reshape(-1, 3, 3)[cand], points[cand], ax, f)
+    sp = test[:, :k2]
+    m = test.shape[1]
+    flat, fp = test.reshape(-1, 3), np.repeat(patch[cand], m)
+    cov = con.covered(flat, fp, open_edge=open_edge).reshape(-1, m)
+    mixed = cov.any(1) & ~cov.all(1)
+    if open_edge > 0:  # the light of a slot's open band falls off within a few gap widths
+        mixed |= (con.covered(flat, fp) & ~cov.ravel()).reshape(-1, m).any(1)
+    cnt = np.ones(n, np.int64)
+    cnt[cand[mixed]] = k2
+    group = np.repeat(np.arange(n), cnt)
+    pts = points[group]
+    first = np.cumsum(cnt) - cnt
+    rows = (first[cand[mixed]][:, None] + np.arange(k2)).ravel()
+    pts[rows] = sp[mixed].reshape(-1, 3)
+    return pts, patch[group], group
+
+
+def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
+    """FinalGather at texels (lightmap.plan's points on input patches), normals from the patches:
+    evaluate(solution, kind) replaces core.texels.solution_radiance(solution, patch, points,
+    kind=kind) (same kinds; float64, cast as needed). axes (n, 2, 3): the texels' sides on the
+    surface; texels straddling a contact's edge then gather over their area (texel_samples) and
+    output the mean (gather.n: samples, gather.n_out: texels). tris (n, 3, 3): each centre's
+    triangle in loop-triangle order, the area folded into it as Cycles' bake does."""
+    s = system.system
+    pts, pp, group = texel_samples(
+        system, patch, points, axes, sub, kw.get("seed", 0), kw.get("open_edge", OPEN_EDGE), tris
+    )
+    if kw.get("rho") is not None and np.ndim(kw["rho"]) == 2:  # per texel: per sample
+        kw["rho"] = np.asarray(kw["rho"])[group]
+    sub_rays = None
+    if len(group) > len(points):  # sub-samples: a quarter of the rays each, 4x the texel's in all
+        cnt = np.bincount(group)[group]
+        sub_rays = np.where(cnt > 1, max(kw.get("rays", 128) // 4, 16), kw.get("rays", 128))
+    return FinalGather(
+        system,
+        pts,
+        s.patches.normal[pp],
+        pp,
+        groups=None if axes is None else group,
+        sample_rays=sub_rays,
+        **kw,
+    )

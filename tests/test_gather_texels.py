@@ -1,0 +1,298 @@
+"""Texels that gather over their area (core.gather.texel_samples) and the open band of a narrow slot
+(contacts.Contacts.covered(open_edge=)), against references the tests compute with shadow rays.
+
+No bpy. Nothing here asserts on time; tolerances are justified where they are set."""
+
+import numpy as np
+
+from hr_addon.core.gather import texel_gather
+from hr_addon.core.gather.layouts import bake_points
+from hr_addon.core.geometry import prepare_patches
+from hr_addon.core.radiosity import RadiositySystem
+from hr_addon.core.refine import RefineParams
+from hr_addon.core.visibility import make_backend
+from hr_testing.contact_scenes import sky_reference, sky_scene
+from hr_testing.furnished import Builder, box, grid_quad
+
+T = 0.04  # texel side (m)
+
+
+def _floor_patch(pt, pts):
+    """The floor patch under each point (the floor is an 8 x 8 grid of axis-aligned quads)."""
+    fl = np.flatnonzero(np.array(pt.object_names)[pt.object_id] == "floor")
+    lo, hi = pt.corners[fl].min(1), pt.corners[fl].max(1)
+    inside = (pts[:, None, :2] >= lo[None, :, :2] - 1e-12) & (pts[:, None, :2] <= hi[None, :, :2] + 1e-12)
+    return fl[np.argmax(inside.all(2), 1)]
+
+
+def test_texel_straddling_a_box_footprint_reads_the_uncovered_share_of_its_area():
+    """The sky scene (a black 0.4 m box on a grey floor under a black emitting sky: the floor's
+    light is direct only). 4 cm texels whose footprint straddles the box's footprint, centres 3-15
+    mm inside or outside it. Reference: the texel's uncovered part (a rectangle, exactly) times the
+    mean of sky_reference's 64 x 64 shadow rays over a 6 x 6 grid on it. Tolerances: each texel
+    gathers 16 jittered points; where the edge crosses a column of 4 of them the uncovered share is
+    off by at most 4 x 1/16 x 1/2 in one standard deviation (0.125 of the lit value), so each texel
+    is held to 0.3 of its lit value and each group's mean to 4% (36 texels). A texel centre reads
+    0 or the lit value: the centre-only layout misses by 35-100% in the mean."""
+    m = sky_scene()
+    s = RadiositySystem(m, RefineParams.preset("draft"))
+    pt = s.patches
+    offs = np.array([-0.015, -0.008, -0.003, 0.003, 0.008, 0.015])  # centre beyond the box's side
+    along = np.array([-0.12, 0.0, 0.11])
+    cen, side = [], []
+    for k, (ax, sg) in enumerate([(0, 1), (0, -1), (1, 1), (1, -1)]):
+        for o in offs:
+            for a in along:
+                p = np.zeros(3)
+                p[ax], p[1 - ax] = sg * (0.2 + o), a
+                cen.append(p)
+                side.append((ax, sg))
+    cen = np.array(cen)
+    axes = np.tile(np.array([[T, 0, 0], [0, T, 0]])[None], (len(cen), 1, 1))
+    patch = _floor_patch(pt, cen)
+    # the reference: the texel's part outside the box, on a 6 x 6 midpoint grid
+    g6 = (np.arange(6) + 0.5) / 6
+    ref_pts, share = [], []
+    for p, (ax, sg) in zip(cen, side):
+        lo, hi = p - T / 2, p + T / 2
+        if sg > 0:
+            lo[ax] = 0.2
+        else:
+            hi[ax] = -0.2
+        share.append((hi[ax] - lo[ax]) / T)
+        X, Y = np.meshgrid(lo[0] + g6 * (hi[0] - lo[0]), lo[1] + g6 * (hi[1] - lo[1]))
+        ref_pts.append(np.column_stack([X.ravel(), Y.ravel(), np.zeros(36)]))
+    lit = sky_reference(m, np.concatenate(ref_pts)).reshape(len(cen), 36).mean(1)
+    ref = np.array(share) * lit
+    g = texel_gather(s, patch, cen, axes=axes, rays=16, shadow_rays=64)
+    v = g.evaluate(s)[:, 0]
+    c = texel_gather(s, patch, cen, rays=16, shadow_rays=64).evaluate(s)[:, 0]
+    assert g.n_out == len(cen) and g.n == 16 * len(cen)  # every texel straddles: 16 samples each
+    inside = np.repeat(offs < 0, 3)
+    inside = np.tile(inside, 4)
+    for name, sel in (("centre covered", inside), ("centre lit", ~inside)):
+        e, ec = v[sel].mean() / ref[sel].mean() - 1, c[sel].mean() / ref[sel].mean() - 1
+        print(f"{name}: texel area {e:+.3f}, centre only {ec:+.3f}")
+        assert abs(e) < 0.04
+        assert abs(ec) > 0.3  # the centre-only layout is what this fixes
+    worst = np.abs(v - ref) / lit
+    print(f"worst texel {worst.max():.3f} of its lit value")
+    assert worst.max() < 0.3
+
+
+def _slot(w=0.002):
+    """Two 3 x 10 x 20 cm boxes standing w apart on a black floor under a black 4 x 4 m emitting
+    sky 1 m up (radiance 1): the facing sides form a slot open at the top and at both ends. Only
+    box 'a' reflects (0.5); everything it sees is black, so its light is the sky's, direct."""
+    b = Builder()
+    v, q = grid_quad(np.array([-1.0, -1, 0]), [2, 0, 0], [0, 2, 0], 4, 4)
+    b.add("floor", v, [q], 0.0)
+    b.add("a", *box([-0.03 - w / 2, -0.05, 0], [-w / 2, 0.05, 0.2]), 0.5)
+    b.add("b", *box([w / 2, -0.05, 0], [0.03 + w / 2, 0.05, 0.2]), 0.0)
+    v, q = grid_quad(np.array([-2.0, -2, 1]), [0, 4, 0], [4, 0, 0], 4, 4)
+    b.add("sky", v, [q], 0.0, (1.0, 1.0, 1.0))
+    return b.build()
+
+
+def _slot_reference(mesh, y, z, n=64):
+    """Irradiance / pi from the sky at points (x = -w/2, y, z) of box a's slot side (normal +x),
+    the sky in n x n cells each seen through a shadow ray to a random point of the cell."""
+    pt = prepare_patches(mesh)
+    be = make_backend(pt.triangles)
+    x0 = float(pt.corners[np.array(pt.object_names)[pt.object_id] == "a"][..., 0].max())
+    c = (np.arange(n) + 0.5) / n * 4 - 2
+    X, Y = np.meshgrid(c, c)
+    cells = np.column_stack([X.ravel(), Y.ravel(), np.ones(n * n)])
+    rng = np.random.default_rng(5)
+    out = np.zeros(len(y))
+    for i, (yy, zz) in enumerate(zip(y, z)):
+        # jittered in each cell: deep in the slot the visible strip of sky is narrower than a cell
+        em = cells + np.column_stack([rng.uniform(-0.5, 0.5, (n * n, 2)) * 4 / n, np.zeros(n * n)])
+        p = np.array([x0, yy, zz])
+        d = em - p
+        r2 = (d**2).sum(1)
+        cos_p = np.maximum(d[:, 0], 0) / np.sqrt(r2)
+        cos_s = d[:, 2] / np.sqrt(r2)
+        vis = ~be.occluded(np.repeat(p[None] + [1e-6, 0, 0], len(em), 0), em - [0, 0, 1e-6])
+        out[i] = np.sum(cos_p * cos_s / r2 * (4 / n) ** 2 * vis) / np.pi
+    return out
+
+
+def test_slot_between_two_boxes_gathers_its_open_band():
+    """Box a's side facing box b 2 mm away (the covering face of the contact model): light enters
+    the slot from the top and both ends and falls off within a few gap widths. Reference: the
+    side's light integrated over it by shadow rays (depth from the top on a grid graded towards
+    the edge, 24 columns). The gather (1 cm texels over the side, open_edge = 5 gap widths) holds
+    the light within 5 gap widths of the open outline; beyond it a slot of parallel plates keeps
+    about 1 / (2 x 5) = 10% of its first-bounce light (contacts.covered). Two thirds of the light
+    lies within 2.5 mm of the top, where each of the 40 top texel-cells holds one jittered point
+    over a view factor falling from 0.5 to 0.11 (about 45% spread each): about 5% for the total,
+    so within 0.75-1.15 of the reference. Covered as before (open_edge 0) the side reads 0; at
+    texel centres only, the top row reads its centre's light (5 mm deep), far below its mean."""
+    m = _slot()
+    s = RadiositySystem(m, RefineParams.preset("draft"))
+    pt = s.patches
+    names = np.array(pt.object_names)[pt.object_id]
+    side = np.flatnonzero((names == "a") & (pt.normal[:, 0] > 0.5))
+    assert len(side) == 1
+    assert s.h.contacts is not None and np.isin(side, s.h.contacts.receivers).all()
+    x0 = float(pt.corners[side][..., 0].max())
+    t = 0.01
+    Y, Z = np.meshgrid(np.arange(-0.05 + t / 2, 0.05, t), np.arange(t / 2, 0.2, t))
+    cen = np.column_stack([np.full(Y.size, x0), Y.ravel(), Z.ravel()])
+    patch = np.full(len(cen), side[0])
+    axes = np.tile(np.array([[0, t, 0], [0, 0, t]])[None], (len(cen), 1, 1))
+    area = t * t
+    # reference: integral over the side, depth from the top graded towards the edge
+    u = (np.arange(60) + 0.5) / 60
+    depth, dd = 0.2 * u**3, 0.2 * 3 * u**2 / 60
+    yc = (np.arange(24) + 0.5) / 24 * 0.1 - 0.05
+    YY, DD = np.meshgrid(yc, depth)
+    ref = _slot_reference(m, YY.ravel(), 0.2 - DD.ravel()).reshape(DD.shape)
+    total_ref = float((ref * dd[:, None]).sum() * 0.1 / 24)
+    out = {}
+    for name, kw in (
+        ("area", dict(axes=axes)),
+        ("covered", dict(axes=axes, open_edge=0.0)),
+        ("centres", dict()),
+    ):
+        g = texel_gather(s, patch, cen, rays=16, shadow_rays=64, **kw)
+        out[name] = float(g.evaluate(s, "incident")[:, 0].sum() * area) / total_ref
+    print({k: round(v, 3) for k, v in out.items()})
+    assert 0.75 < out["area"] < 1.15
+    assert out["covered"] < 0.05
+    assert out["centres"] < 0.7
+
+
+def test_texture_plan_gathers_over_the_texels_straddling_the_blocks():
+    """lightmap.plan hands the gather each texel's sides (plan.texel_axes): on the Cornell floor's
+    lightmap (one quad, affine UVs) the steps between neighbouring texel centres. The texels
+    gathered over their area are those whose part that Cycles' bake samples (the middle half,
+    folded into the centre's triangle: bake_points) straddles a block's footprint (its top face
+    seen from above, the blocks being upright: a dense 12 x 12 grid over that part has points on
+    both sides): at least 90% of them do, and they are at least 90% of those that do (the contact
+    test's footprint is the blocks' outline where they meet the floor, snapped within the contact
+    gap, which differs from the top faces' at a few texels; measured 41 of 41 and 41 of 42)."""
+    from hr_addon.lightmap.plan import TexturePlan
+    from hr_testing import scenes
+
+    s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    res = 32
+    _, tri_uv, corners, tri_patch, _ = scenes.wall_lightmap(s, "floor")
+    plan = TexturePlan("exr")
+    plan.add_object("floor", "floor", res, tri_uv, corners, tri_patch, "uv")
+    g = plan.final_gather(s, rays=8, shadow_rays=4)
+    loc = plan.locator
+    axes = np.concatenate(plan._axes)
+    pt = s.patches
+    # a texel's sides are the steps to its neighbours' centres (the floor is flat, UVs affine)
+    o = plan.objects[0]
+    dense = np.full(res * res, -1)
+    dense[o.texel] = np.arange(len(o.texel))
+    for k, step in ((0, 1), (1, res)):
+        a = np.flatnonzero(o.inside & np.isin(o.texel + step, o.texel[o.inside]))
+        b = dense[o.texel[a] + step]
+        assert len(a) > 100 and np.allclose(loc.points[b] - loc.points[a], axes[a, k], atol=1e-9)
+    sub = np.bincount(g.group, minlength=g.n_out) > 1
+    # the blocks' footprints: their top faces (normal +z), as convex polygons in xy
+    names = np.array(pt.object_names)[pt.object_id]
+    tops = [
+        pt.corners[k, : pt.nv[k], :2]
+        for k in np.flatnonzero(np.isin(names, ["short_block", "tall_block"]) & (pt.normal[:, 2] > 0.99))
+    ]
+    g12 = (np.arange(12) + 0.5) / 12
+    f = np.stack(np.meshgrid(g12, g12), -1).reshape(1, -1, 2)
+    q = bake_points(np.concatenate(plan._tris), loc.points, axes, np.broadcast_to(f, (len(axes), 144, 2)))
+
+    def inside(poly, p):
+        e = np.roll(poly, -1, 0) - poly
+        w = p[..., None, :] - poly
+        cr = e[:, 0] * w[..., 1] - e[:, 1] * w[..., 0]
+        return (cr >= 0).all(-1) | (cr <= 0).all(-1)
+
+    cov = np.zeros(q.shape[:2], bool)
+    for poly in tops:
+        cov |= inside(poly, q[..., :2])
+    straddle = cov.any(1) & ~cov.all(1)
+    print(
+        f"{straddle.sum()} texels straddle, {sub.sum()} gathered over their area, "
+        f"{(sub & straddle).sum()} both"
+    )
+    assert len(tops) == 2 and straddle.sum() > 20
+    assert (sub & straddle).sum() >= 0.9 * sub.sum()
+    assert (sub & straddle).sum() >= 0.9 * straddle.sum()
+
+
+def _fold(x, m):
+    """Cycles' bake_clamp_mirror_repeat (kernel/integrator/init_from_bake.h), written out here."""
+    x = x / m
+    f = np.floor(x)
+    x = x - f
+    return np.where(f.astype(int) % 2 == 1, 1 - x, x) * m
+
+
+def test_texel_across_a_triangle_edge_reads_its_own_triangle_folded_as_cycles_bakes():
+    """Cycles' bake moves a texel's samples in the barycentric coordinates of the triangle its
+    centre lies in, over the middle half of the texel (Blender's differentials are half a texel's
+    step), and folds them back into it by mirror repeat (u into [0, 1], then v into [0, 1 - u];
+    P = u v0 + v v1 + (1 - u - v) v2 in loop-triangle order), so a texel straddling
+    the edge between two triangles reads its own triangle only. The sky scene with a 5 x 5 floor
+    grid: the box's side x = 0.2 is the edge between the covered cell under it and a lit cell
+    (each split (0, 1, 2), (0, 2, 3)). Texels centred 3-15 mm either side of it. Reference: the
+    test's own fold of an 8 x 8 midpoint grid over the texel, lit by sky_reference's 64 x 64
+    shadow rays: the lit triangle only, or nothing; the texel's plain area (what the unfolded
+    layout reads) differs from it by 7-22% of the lit value (measured; the light is low at the
+    box's foot). The gather's own points (layouts.bake_points) are the test's to rounding. The
+    texels are then not sub-sampled (each reads one triangle, lit or covered): the centre reads
+    its light through 64 shadow rays, 0 under the box; tolerances 0.1 of the lit value per texel
+    (measured at most 0.054: the light's slope across the strip) and 3% in the mean over the
+    lit texels."""
+    m = sky_scene(n=5)
+    s = RadiositySystem(m, RefineParams.preset("draft"))
+    pt = s.patches
+    offs = np.array([-0.015, -0.008, -0.003, 0.003, 0.008, 0.015])
+    cen = np.array([[0.2 + o, a, 0.0] for o in offs for a in (-0.12, 0.0, 0.11)])
+    fl = np.flatnonzero(np.array(pt.object_names)[pt.object_id] == "floor")
+    lo, hi = pt.corners[fl].min(1), pt.corners[fl].max(1)
+    patch = fl[
+        np.argmax(((cen[:, None, :2] > lo[None, :, :2]) & (cen[:, None, :2] < hi[None, :, :2])).all(2), 1)
+    ]
+    c = pt.corners[patch]
+    assert np.allclose(
+        np.where(cen[:, :1] < 0.2, hi[np.searchsorted(fl, patch), :1], lo[np.searchsorted(fl, patch), :1]),
+        0.2,
+    )
+    # the centre's loop triangle: (0, 1, 2) or (0, 2, 3) of its quad, split along the diagonal 0-2
+    d = c[:, 2, :2] - c[:, 0, :2]
+    q = cen[:, :2] - c[:, 0, :2]
+    first = d[:, 0] * q[:, 1] - d[:, 1] * q[:, 0] < 0  # right of 0 -> 2, the side of corner 1
+    tris = np.where(first[:, None, None], c[:, [0, 1, 2]], c[:, [0, 2, 3]])
+    axes = np.tile(np.array([[T, 0, 0], [0, T, 0]])[None], (len(cen), 1, 1))
+    g8 = (np.arange(8) + 0.5) / 8
+    fx, fy = (a.ravel() for a in np.meshgrid(g8, g8))
+    folded, area = [], []
+    for p, t in zip(cen, tris):
+        M = np.column_stack([t[0, :2] - t[2, :2], t[1, :2] - t[2, :2]])  # d(x, y) / d(u, v)
+        u, v = np.linalg.solve(M, p[:2] - t[2, :2])
+        # Blender's bake passes half the change per texel (render/intern/bake.cc, bake_differentials)
+        (dudx, dvdx), (dudy, dvdy) = (
+            np.linalg.solve(M, np.array([T, 0]) / 2),
+            np.linalg.solve(M, np.array([0, T]) / 2),
+        )
+        uu = _fold(u + dudx * (fx - 0.5) + dudy * (fy - 0.5), 1.0)
+        vv = _fold(v + dvdx * (fx - 0.5) + dvdy * (fy - 0.5), 1.0 - uu)
+        folded.append(uu[:, None] * t[0] + vv[:, None] * t[1] + (1 - uu - vv)[:, None] * t[2])
+        area.append(p + (fx[:, None] - 0.5) * axes[0, 0] + (fy[:, None] - 0.5) * axes[0, 1])
+    ref = sky_reference(m, np.concatenate(folded)).reshape(len(cen), 64).mean(1)
+    plain = sky_reference(m, np.concatenate(area)).reshape(len(cen), 64).mean(1)
+    lit = sky_reference(m, cen + [0.3, 0, 0]).mean()  # away from the box
+    g = texel_gather(s, patch, cen, axes=axes, tris=tris, rays=16, shadow_rays=64)
+    v = g.evaluate(s)[:, 0]
+    print(f"lit {lit:.4f}; folded - area, of the lit value: {np.round((ref - plain) / lit, 2)}")
+    print(f"gather - folded: {np.round((v - ref) / lit, 3)}; sub-sampled {(np.bincount(g.group) > 1).sum()}")
+    f = np.broadcast_to(np.column_stack([fx, fy]), (len(cen), 64, 2))
+    np.testing.assert_allclose(bake_points(tris, cen, axes, f), np.stack(folded), atol=1e-12)
+    assert np.abs(ref - plain).min() > 0.05 * lit  # the fold matters at every texel
+    assert np.abs(v - ref).max() < 0.1 * lit
+    out = cen[:, 0] > 0.2
+    assert abs(v[out].mean() / ref[out].mean() - 1) < 0.03
