@@ -9,7 +9,7 @@ import hashlib
 import numpy as np
 
 from ..core.geometry import components, newell
-from .materials import _Reader, image_reduced, read_material, world_lights
+from .materials import _Reader, image_reduced, read_material
 from .scene_in import (
     EvalMesh,
     _surfaces,
@@ -477,6 +477,14 @@ def world_sky(scene, Light, warnings=None):
     parts = environment_parts(table)
     keys = ["world"] if len(parts) == 1 else [f"world:{'RGB'[int(np.argmax(c))]}" for c, _ in parts]
     return {k: Light("SKY", c, strength, sky=t, name=world.name) for k, (c, t) in zip(keys, parts)}
+
+
+def world_lights(world):
+    """True if `world` lights a render: its background, as read_world reads it, is not black."""
+    if world is None:
+        return False
+    colour, strength, table, _ = read_world(world)
+    return bool(strength > 0 and np.isfinite(strength) and (table is not None or colour.max() > 0))
 
 
 def world_takes_part(scene):

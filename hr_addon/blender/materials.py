@@ -404,30 +404,6 @@ def _output_node(tree):
     return None
 
 
-def world_lights(world):
-    """True if `world` would light a Cycles render (a background that is not black): the bake
-    ignores it (not supported yet), so the bake names it."""
-    if world is None:
-        return False
-    tree = world.node_tree
-    if tree is None or (bpy.app.version < (5, 0, 0) and not world.use_nodes):
-        return any(c > 0 for c in world.color[:3])
-    outs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]
-    out = next((n for n in outs if n.is_active_output), outs[0] if outs else None)
-    if out is None:
-        return False
-    r = _Reader(world)
-    node, _ = r.source(out.inputs["Surface"])
-    if node is None or node.mute:
-        return False
-    if node.type != "BACKGROUND":
-        return True  # a sky or environment texture, a mix of shaders, ...: assume it lights
-    color, strength = node.inputs["Color"], node.inputs["Strength"]
-    if color.is_linked or strength.is_linked:
-        return True
-    return strength.default_value > 0 and any(c > 0 for c in color.default_value[:3])
-
-
 def read_material(mat) -> Surface:
     """Reflectance (3,) and emitted radiance (3,) of `mat` (None: default grey, no emission)."""
     grey = np.full(3, DEFAULT_REFLECTANCE)
