@@ -165,7 +165,7 @@ def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=N
         from hr_addon.core.lights import indirect_incident
 
         tg = cache["texel"]
-        ind = tg.rho * indirect_incident(tg, dyn)
+        ind = tg.outputs(tg.rho) * indirect_incident(tg, dyn)  # per texel (its sub-samples averaged)
         s0 = 0
         for n in rs.objects:  # the texel gather's samples: the objects' texel centres in order
             at = rs.atlases[n]

@@ -334,13 +334,17 @@ def _node_mean(h, nodes, light, backend, eps, rays, seed, unit, far, q):
 
 
 def indirect_incident(gather, dyn):
-    """(n, 3) incident light (irradiance / pi) at a FinalGather's samples without the direct light
-    of the Blender lights and the World: what EEVEE does not render itself (it renders those
+    """(n_out, 3) incident light (irradiance / pi) at a FinalGather's outputs without the direct
+    light of the Blender lights and the World: what EEVEE does not render itself (it renders those
     lights' direct light and shadows; emissive meshes and light shapes light nothing in EEVEE, so
     their direct light stays). The lights' bounce light stays. The gather's cached unit direct
-    light of each light (the same rays) is taken out of its incident light."""
+    light of each light (the same rays) is taken out of its incident light, per sample, then
+    averaged over each output's samples as the incident light is (a texel's sub-samples)."""
     inc = gather.evaluate(dyn, "incident")
+    lit = np.zeros((gather.n, 3))
     for rec in dyn.lights.values():
-        inc -= gather._light(rec)[:, None].astype(np.float64) * rec.scale[None]
-    inc[gather.dark] = 0.0
+        lit += gather._light(rec)[:, None].astype(np.float64) * rec.scale[None]
+    lit[gather.dark] = 0.0
+    inc -= gather.outputs(lit)
+    inc[gather.out_dark] = 0.0
     return np.maximum(inc, 0.0)  # the same float32 parts subtracted: rounding only below 0
