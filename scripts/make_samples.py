@@ -12,7 +12,14 @@ office      room with a desk and two monitors whose screens switch on (frames 4 
 furnished   hr_testing/furnished.py's furnished room of ~20k triangles (850 objects: tables,
             chairs, bookcases full of books, a sofa, spheres, vases, cups, boxes) lit by a ceiling
             panel; a window patch on the west wall is on from frame 3 to frame 7.
+policespot  room at dusk (a deep blue World through a window opening) with a spot light turning
+            once round a vertical axis in 30 frames (keyframed rotation, linear): its footprint
+            sweeps every wall; a table, a cabinet and a crate cast shadows.
+daylight    room with a window opening (no glass) in the south wall, a World sky and a sun whose
+            rotation (and colour) is keyframed from a low morning sun through noon to a low
+            evening sun: the sun patch moves across the floor and the walls.
 
+policespot and daylight use Blender lights and the World instead of light shapes (issue 20).
 Every light shape lies exactly on the plane of the surface it lights (same float32 coordinate),
 has its origin on that plane and only moves / scales within it.
 """
@@ -165,12 +172,52 @@ def quads_object(name, quads, material, subdiv=1):
     return mesh_object(name, np.concatenate(verts), polys, material)
 
 
-def room(size, materials, subdiv=SUBDIV):
-    """Inward-facing room walls, one object each (8x8 quads)."""
+def room(size, materials, subdiv=SUBDIV, openings=None):
+    """Inward-facing room walls, one object each (subdiv x subdiv quads). openings: {wall name:
+    (lo, hi)} world-space corners of a hole in that wall (wall_with_opening)."""
     objs = {}
+    openings = openings or {}
     for k, q in box_quads((0, 0, 0), size, inward=True).items():
-        objs[k] = quads_object(k, [q], materials.get(k, materials["default"]), subdiv)
+        mat = materials.get(k, materials["default"])
+        if k in openings:
+            objs[k] = wall_with_opening(k, q, openings[k], mat, subdiv)
+        else:
+            objs[k] = quads_object(k, [q], mat, subdiv)
     return objs
+
+
+def wall_with_opening(name, quad, hole, material, cells=SUBDIV):
+    """A rectangular wall (corners a, b, c, d, wound as it should face) as a grid whose lines
+    include the edges of the opening, without the cells inside it: a window without glass whose
+    edges the cells around it share (no T-junctions, no cracks for light to leak through).
+    hole: (lo, hi), world-space corners of the opening on the wall."""
+    a, b, _, d = np.asarray(quad, float)
+    u, v = b - a, d - a
+    lu, lv = np.linalg.norm(u), np.linalg.norm(v)
+    lo, hi = np.asarray(hole, float)
+
+    def lines(axis, length):
+        edges = sorted(float((p - a) @ axis) for p in (lo, hi))  # metres along the axis
+        if not 0 < edges[0] < edges[1] < length:
+            raise ValueError(f"the opening in '{name}' does not lie inside the wall")
+        regular = np.linspace(0, length, cells + 1)
+        keep = [t for t in regular if min(abs(t - e) for e in edges) > 0.25 * length / cells]
+        return np.array(sorted(keep + edges)), edges  # regular lines too close to an edge dropped
+
+    us, (u0, u1) = lines(u / lu, lu)
+    vs, (v0, v1) = lines(v / lv, lv)
+    verts = a + us[:, None, None] * (u / lu) + vs[None, :, None] * (v / lv)
+    idx = np.arange(len(us) * len(vs)).reshape(len(us), len(vs))
+    polys = [
+        [idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]]
+        for i in range(len(us) - 1)
+        for j in range(len(vs) - 1)
+        if not (u0 < (us[i] + us[i + 1]) / 2 < u1 and v0 < (vs[j] + vs[j + 1]) / 2 < v1)
+    ]
+    used = np.unique(polys)  # the vertices inside the opening belong to no cell
+    remap = np.zeros(idx.size, int)
+    remap[used] = np.arange(len(used))
+    return mesh_object(name, verts.reshape(-1, 3)[used], [list(remap[p]) for p in polys], material)
 
 
 def light_shape(name, verts, polys, material, location=(0, 0, 0)):
@@ -202,12 +249,17 @@ def key_visibility(ob, frames_on):
 
 
 def constant_interpolation(ob):
-    ad = ob.animation_data
+    interpolation(ob, "CONSTANT")
+
+
+def interpolation(block, kind):
+    """Every keyframe of an object's (or a light's) action gets interpolation `kind`."""
+    ad = block.animation_data
     if ad is None or ad.action is None:
         return
     for fc in _fcurves(ad.action):
         for kp in fc.keyframe_points:
-            kp.interpolation = "CONSTANT"
+            kp.interpolation = kind
 
 
 def _fcurves(action):
@@ -227,12 +279,41 @@ def camera(location, target, lens=35):
     ob = bpy.data.objects.new("Camera", cam)
     bpy.context.scene.collection.objects.link(ob)
     ob.location = location
-    d = np.asarray(target, float) - np.asarray(location, float)
-    from mathutils import Vector
-
-    ob.rotation_euler = Vector(d).to_track_quat("-Z", "Y").to_euler()
+    ob.rotation_euler = pointing(np.asarray(target, float) - np.asarray(location, float))
     bpy.context.scene.camera = ob
     return ob
+
+
+def pointing(direction, compat=None):
+    """The Euler rotation that turns an object's -Z (a camera's view, a light's beam) along
+    `direction`, its Y up; compat: the previous key's rotation (no 360-degree jumps between keys)."""
+    from mathutils import Vector
+
+    q = Vector(tuple(map(float, direction))).to_track_quat("-Z", "Y")
+    return q.to_euler("XYZ", compat) if compat is not None else q.to_euler()
+
+
+def light(name, kind, location=(0, 0, 0), **settings):
+    """A Blender light object of `kind` with the light data's `settings` (energy, color, ...)."""
+    ld = bpy.data.lights.new(name, kind)
+    for k, v in settings.items():
+        setattr(ld, k, v)
+    ob = bpy.data.objects.new(name, ld)
+    ob.location = location
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def sky(rgb, strength):
+    """The scene's World as a uniform sky: its Background node's colour and strength."""
+    world = bpy.context.scene.world
+    if bpy.app.version < (5, 0, 0):
+        world.use_nodes = True
+    bg = world.node_tree.nodes["Background"]
+    bg.inputs["Color"].default_value = (*rgb, 1)
+    bg.inputs["Strength"].default_value = strength
+    world.color = rgb  # the viewport's World colour
+    return world
 
 
 def finish(scene, path, frames, quality="DRAFT"):
@@ -510,6 +591,108 @@ def make_furnished(path):
     finish(scene, path, (1, 10))
 
 
+# policespot and daylight: Blender lights and the World, no light shapes (issue 20).
+DUSK_ROOM = (5.0, 4.0, 2.6)
+DUSK_WINDOW = ((0.0, 1.3, 0.9), (0.0, 2.7, 2.0))  # opening in the wall x = 0 (lo, hi corners)
+DUSK_SKY = ((0.1, 0.16, 0.45), 1.0)  # deep blue, colour and strength
+SPOT = dict(
+    location=(2.5, 2.0, 1.7),
+    tilt=np.radians(12),  # below the horizontal
+    energy=500.0,
+    color=(1.0, 0.92, 0.8),
+    spot_size=np.radians(30),
+    spot_blend=0.3,
+)
+SPOT_TURN = 30  # frames per revolution; the sample is frames 1-30
+FURNITURE_SUBDIV = 2
+
+
+def furniture(items, subdiv=FURNITURE_SUBDIV):
+    """Closed boxes standing on the floor: {name: (lo, hi, material)} (no bottom face)."""
+    return {
+        name: quads_object(name, list(box_quads(lo, hi, inward=False, skip=("floor",)).values()), mat, subdiv)
+        for name, (lo, hi, mat) in items.items()
+    }
+
+
+def make_policespot(path):
+    scene = reset()
+    room(DUSK_ROOM, room_materials(), subdiv=16, openings={"wall_x0": DUSK_WINDOW})
+    wood = diffuse("Wood", (0.5, 0.3, 0.15))
+    furniture(
+        {
+            "Table": ((3.2, 2.6, 0.0), (4.2, 3.4, 0.75), wood),
+            "Cabinet": ((1.0, 3.0, 0.0), (1.5, 3.5, 1.8), diffuse("Cabinet", (0.6, 0.6, 0.55))),
+            "Crate": ((3.6, 0.6, 0.0), (4.2, 1.2, 0.6), wood),
+            "Post": ((2.45, 1.95, 0.0), (2.55, 2.05, 1.6), diffuse("Post", (0.2, 0.2, 0.2))),
+        }
+    )
+    sky(*DUSK_SKY)
+    s = SPOT
+    ob = light(
+        "Police Spot",
+        "SPOT",
+        s["location"],
+        energy=s["energy"],
+        color=s["color"],
+        spot_size=s["spot_size"],
+        spot_blend=s["spot_blend"],
+        shadow_soft_size=0.0,  # a point source: sharp shadows
+    )
+    for f, yaw in ((1, 0.0), (1 + SPOT_TURN, 2 * np.pi)):  # -Z tilted from straight down, turned
+        ob.rotation_euler = (np.pi / 2 - s["tilt"], 0.0, yaw)
+        ob.keyframe_insert("rotation_euler", frame=f)
+    interpolation(ob, "LINEAR")  # a steady turn; frame 31 would equal frame 1
+    camera((4.8, 0.3, 2.3), (0.8, 3.4, 0.9), lens=16)
+    finish(scene, path, (1, SPOT_TURN))
+
+
+DAY_ROOM = (5.0, 4.0, 2.6)
+DAY_WINDOW = ((1.8, 0.0, 0.8), (3.2, 0.0, 2.0))  # opening in the south wall y = 0 (x east, y north)
+DAY_SKY = ((0.35, 0.55, 1.0), 0.8)
+SUN_STRENGTH = 5.0
+SUN_ANGLE = np.radians(0.5)
+# frame: (azimuth from south towards east, altitude) in degrees, and the sun's colour
+SUN_PATH = {
+    1: ((65, 12), (1.0, 0.7, 0.45)),
+    7: ((35, 35), (1.0, 0.9, 0.75)),
+    13: ((0, 50), (1.0, 0.97, 0.92)),
+    19: ((-35, 35), (1.0, 0.9, 0.75)),
+    25: ((-65, 12), (1.0, 0.7, 0.45)),
+}
+
+
+def sun_direction(azimuth, altitude):
+    """Unit vector from the room towards the sun (degrees; azimuth from south (-y) towards east (+x))."""
+    az, alt = np.radians(azimuth), np.radians(altitude)
+    return np.array([np.sin(az) * np.cos(alt), -np.cos(az) * np.cos(alt), np.sin(alt)])
+
+
+def make_daylight(path):
+    scene = reset()
+    room(DAY_ROOM, room_materials(), subdiv=16, openings={"wall_y0": DAY_WINDOW})
+    furniture(
+        {
+            "Table": ((1.0, 2.2, 0.0), (2.0, 3.0, 0.75), diffuse("Wood", (0.5, 0.3, 0.15))),
+            "Sofa": ((4.2, 1.0, 0.0), (4.9, 2.8, 0.45), diffuse("Sofa", (0.25, 0.4, 0.3))),
+            "Shelf": ((0.1, 2.6, 0.0), (0.5, 3.8, 1.6), diffuse("Shelf", (0.6, 0.6, 0.55))),
+        }
+    )
+    sky(*DAY_SKY)
+    ob = light("Sun", "SUN", (2.5, -2.0, 4.0), energy=SUN_STRENGTH, angle=SUN_ANGLE)
+    rot = None
+    for f, ((az, alt), rgb) in SUN_PATH.items():
+        rot = pointing(-sun_direction(az, alt), rot)  # the sun shines along its -Z
+        ob.rotation_euler = rot
+        ob.keyframe_insert("rotation_euler", frame=f)
+        ob.data.color = rgb
+        ob.data.keyframe_insert("color", frame=f)
+    interpolation(ob, "LINEAR")
+    interpolation(ob.data, "LINEAR")
+    camera((2.5, 3.85, 2.0), (2.5, 0.5, 0.7), lens=16)
+    finish(scene, path, (min(SUN_PATH), max(SUN_PATH)))
+
+
 MAKERS = {
     "cornell": make_cornell,
     "moonlight": make_moonlight,
@@ -517,6 +700,8 @@ MAKERS = {
     "searchbeam": make_searchbeam,
     "office": make_office,
     "furnished": make_furnished,
+    "policespot": make_policespot,
+    "daylight": make_daylight,
 }
 
 

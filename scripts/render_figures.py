@@ -16,13 +16,16 @@ import tempfile
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-# Frames to show per sample: chosen to show the light events of each animation.
+# Frames to show per sample (within its frame range): chosen to show the light events of each
+# animation.
 FRAMES = {
     "cornell": [1, 7, 13, 21],
-    "curtain": [1, 12, 24],
-    "searchbeam": [1, 15, 30],
-    "moonlight": [1, 12, 24],
-    "office": [1, 12, 24],
+    "curtain": [1, 6, 12],
+    "searchbeam": [1, 6, 12],
+    "moonlight": [1, 6, 12],
+    "office": [1, 4, 8],
+    "policespot": [1, 6, 11, 16, 21, 26],  # the spot turns 60 degrees between pictures
+    "daylight": [1, 7, 13, 19, 25],  # morning, mid-morning, noon, afternoon, evening
 }
 
 

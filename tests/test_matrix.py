@@ -271,7 +271,7 @@ def test_every_bundled_sample_opens_and_bakes(linux_zip, tmp_path):
     samples = tmp_path / "samples"
     shutil.copytree(REPO_ROOT / "sample_blends", samples)
     blends = sorted(samples.glob("*.blend"))
-    assert len(blends) >= 6
+    assert len(blends) >= 8
     out, log = _run(SAMPLES_SCRIPT, linux_zip, tmp_path, blends)
     for b in blends:
         got = out["samples"].get(b.name)
