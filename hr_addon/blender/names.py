@@ -11,4 +11,5 @@ TAG = "hr_lightmap_of"  # on helper materials and images: the object's name
 PREVIEW = "HR Preview"  # name prefix of the preview nodes / material (ignored when reading)
 N_ATTR, N_EMIT, N_OUT = PREVIEW + " Attribute", PREVIEW + " Emission", PREVIEW + " Output"
 N_MUL, N_ADD = PREVIEW + " Base Color", PREVIEW + " Add Emission"
+N_SHADER = PREVIEW + " Add Shader"  # Indirect only: the material's own shader + the bake's Emission
 N_UV, N_TEX = PREVIEW + " Lightmap UV", PREVIEW + " Lightmap"
