@@ -28,7 +28,7 @@ from ..core.events import LightShape
 from .state import STATE
 from . import names, paths, playback, preview, signatures, texture
 from .settings import precompute_key
-from .settings import BakeConfig, solver_setup
+from .settings import BakeConfig, live_mode, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
 from .lights_in import collect_light_shapes, collect_lights, lights_signature, shapes_signature
@@ -145,8 +145,8 @@ def _depsgraph(scene, view_layer):
 def _settings(scene):
     hr = scene.hr
     custom = (float(hr.feps), float(hr.aeps)) if hr.quality == "CUSTOM" else ()
-    live_mode = "INDIRECT" if hr.radiance_mode == "INDIRECT" else "RADIANCE"  # (BakeConfig.live_mode)
-    return (hr.method, hr.quality, custom, hr.domain, bool(hr.contacts), bool(hr.final_gather), live_mode)
+    mode = live_mode(hr.radiance_mode)
+    return (hr.method, hr.quality, custom, hr.domain, bool(hr.contacts), bool(hr.final_gather), mode)
 
 
 def _describe_settings(old, new):

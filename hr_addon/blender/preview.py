@@ -16,7 +16,7 @@ import bpy
 
 from ..io.cache import CacheError, CacheReader
 from .materials import base_color_socket, read_material
-from .names import ATTRIBUTE, N_ADD, N_ATTR, N_EMIT, N_MUL, N_OUT, N_SHADER, PREVIEW, TAG
+from .names import ATTRIBUTE, N_ADD, N_ATTR, N_EMIT, N_MUL, N_OUT, N_PATH, N_SEEN, N_SHADER, PREVIEW, TAG
 from .paths import bake_dir_abs
 
 
@@ -102,12 +102,15 @@ def emission_output(mat, tree, colour, x, mode):
     """colour -> colour_chain -> Emission (strength 1) at x -> Material Output (all engines), made
     the active output: how the vertex preview and the baked textures show radiance. INDIRECT: the
     Emission is added (Add Shader) to the shader of the material's own output, whose other inputs
-    (volume, displacement) our output takes too, so the material renders as before plus the bake."""
+    (volume, displacement) our output takes too, so the material renders as before plus the bake.
+    Diffuse rays do not see that Emission (Light Path): it is the bounce light already, which a
+    renderer tracing diffuse rays (Cycles, EEVEE's light probes) would otherwise bounce again."""
     emit = node_named(tree, N_EMIT, "ShaderNodeEmission", (x, -400))
     emit.inputs["Strength"].default_value = 1.0
     own = own_output(tree) if mode == "INDIRECT" else None
-    if own is None and N_SHADER in tree.nodes:
-        tree.nodes.remove(tree.nodes[N_SHADER])
+    for name in (N_SHADER, N_PATH, N_SEEN) if own is None else ():
+        if name in tree.nodes:
+            tree.nodes.remove(tree.nodes[name])
     out = node_named(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 400, -400))
     out.target = "ALL"
     add = node_named(tree, N_SHADER, "ShaderNodeAddShader", (x + 200, -300)) if own is not None else None
@@ -124,6 +127,12 @@ def emission_output(mat, tree, colour, x, mode):
                     tree.links.new(s.links[0].from_socket, target)
         tree.links.new(shader, add.inputs[1])
         shader = add.outputs[0]
+        path = node_named(tree, N_PATH, "ShaderNodeLightPath", (x - 400, -100))
+        seen = node_named(tree, N_SEEN, "ShaderNodeMath", (x - 200, -200))
+        seen.operation = "LESS_THAN"
+        seen.inputs[1].default_value = 0.5
+        tree.links.new(path.outputs["Is Diffuse Ray"], seen.inputs[0])
+        tree.links.new(seen.outputs[0], emit.inputs["Strength"])
     tree.links.new(shader, out.inputs["Surface"])
     out.is_active_output = True
 
@@ -174,7 +183,7 @@ def remove_preview(objects=None):
         tree = m.node_tree
         if tree is None or N_OUT not in tree.nodes:
             continue
-        for name in (N_OUT, N_EMIT, N_ATTR, N_MUL, N_ADD, N_SHADER):
+        for name in (N_OUT, N_EMIT, N_ATTR, N_MUL, N_ADD, N_SHADER, N_PATH, N_SEEN):
             if name in tree.nodes:
                 tree.nodes.remove(tree.nodes[name])
         outs = [x for x in tree.nodes if x.type == "OUTPUT_MATERIAL"]

@@ -94,6 +94,12 @@ INDIRECT_NEEDS_GATHER = (
 )
 
 
+def live_mode(radiance_mode):
+    """What Live Relight writes: the indirect light in the Indirect-only mode (the viewport's EEVEE
+    adds its own direct light), else outgoing radiance (shown as it is)."""
+    return "INDIRECT" if radiance_mode == "INDIRECT" else "RADIANCE"
+
+
 def ids(name):
     return tuple(e[0] for e in ENUMS[name])
 
@@ -187,9 +193,7 @@ class BakeConfig:
 
     @property
     def live_mode(self):
-        """What Live Relight writes: the indirect light in the Indirect-only mode (the viewport's
-        EEVEE adds its own direct light), else outgoing radiance (shown as it is)."""
-        return "INDIRECT" if self.radiance_mode == "INDIRECT" else "RADIANCE"
+        return live_mode(self.radiance_mode)
 
     @property
     def gather(self):
