@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.events import DynamicRadiosity, LightShape
 from ..core.geometry import InputError
-from ..core.lights import Light
+from ..core.lights import Light, indirect_incident
 from ..core.progress import Cancelled, FrameEta
 from ..core.radiosity import RadiositySystem
 from ..core.texels import loop_incident
@@ -73,14 +73,8 @@ def frame_range_for(scene, frames=None):
 
 def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=None):
     h = hashlib.sha1()
-    for arr in (
-        mesh.verts,
-        mesh.loop_start,
-        mesh.loop_total,
-        mesh.loop_verts,
-        mesh.reflectance,
-        mesh.emission,
-    ):
+    m = mesh
+    for arr in (m.verts, m.loop_start, m.loop_total, m.loop_verts, m.reflectance, m.emission):
         h.update(np.ascontiguousarray(arr, np.float64).tobytes())
     h.update(repr(dataclasses.astuple(params)).encode())
     h.update(domain.encode())
@@ -121,7 +115,8 @@ def bake_frames(
     output VERTEX: colour attribute HR_Radiance; TEXTURE: per-object image sequences (texture.py)
     at `resolution` (objects may override it) in `texture_format` EXR or PNG.
     radiance_mode RADIANCE: outgoing radiance (textured materials modulate texture output per
-    texel); IRRADIANCE: irradiance / pi without emission (the material's colour multiplies it).
+    texel); IRRADIANCE: irradiance / pi without emission (the material's colour multiplies it);
+    INDIRECT: IRRADIANCE without the Blender lights' and the World's direct light (EEVEE's part).
     final_gather (default Scene.hr.final_gather): every output sample gathers its own light from
     the solution (core/gather.py); off, the output reads the hierarchy's leaves.
     """
@@ -454,10 +449,12 @@ class _Bake:
         frame_warnings += dyn.apply(shapes, lights).messages
         if baker is not None:
             return baker.radiance(dyn, cfg.radiance_mode, gather=final)
-        irradiance = cfg.radiance_mode == "IRRADIANCE"
-        if final is not None:
-            values = final.loop_radiance(dyn, cfg.domain, "incident" if irradiance else "radiance")
-        elif irradiance:
+        mode = cfg.radiance_mode
+        if mode == "INDIRECT":  # (BakeConfig: with the final gather only)
+            values = final.loop_values(indirect_incident(final, dyn), cfg.domain)
+        elif final is not None:
+            values = final.loop_radiance(dyn, cfg.domain, "incident" if mode == "IRRADIANCE" else "radiance")
+        elif mode == "IRRADIANCE":
             values = loop_incident(dyn, cfg.domain)
         else:
             values = dyn.loop_radiance(cfg.domain)
@@ -551,7 +548,7 @@ def use_bake(scene, final_dir, output, geo_objects=None):
     else:
         objs = geo_objects if geo_objects is not None else geometry_objects(_view_layer(scene))
         texture.remove_material(objs)  # a texture preview would show deleted files
-        refresh_preview(objs, bake_mode(scene) == "IRRADIANCE")
+        refresh_preview(objs, bake_mode(scene))
 
 
 def run_bake(scene, log=print, status=None, **kwargs):

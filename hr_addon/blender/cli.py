@@ -72,8 +72,9 @@ def make_parser(prog=PROG, blend_required=False):
         "--radiance-mode",
         type=str.lower,
         choices=choices("radiance_mode"),
-        help="values: outgoing radiance, or irradiance / pi for lightmaps the material colour "
-        "multiplies (default: the scene's)",
+        help="values: outgoing radiance, irradiance / pi for lightmaps the material colour "
+        "multiplies, or indirect: that without the Blender lights' and the World's direct light, "
+        "for EEVEE (needs the final gather; default: the scene's)",
     )
     p.add_argument(
         "--resolution", type=int, metavar="N", help="texture size in texels, 8 to 16384 (texture output)"

@@ -28,7 +28,7 @@ from ..core.events import LightShape
 from .state import STATE
 from . import names, paths, playback, preview, signatures, texture
 from .settings import precompute_key
-from .settings import BakeConfig, solver_setup
+from .settings import BakeConfig, live_mode, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
 from .lights_in import collect_light_shapes, collect_lights, lights_signature, shapes_signature
@@ -145,11 +145,12 @@ def _depsgraph(scene, view_layer):
 def _settings(scene):
     hr = scene.hr
     custom = (float(hr.feps), float(hr.aeps)) if hr.quality == "CUSTOM" else ()
-    return (hr.method, hr.quality, custom, hr.domain, bool(hr.contacts), bool(hr.final_gather))
+    mode = live_mode(hr.radiance_mode)
+    return (hr.method, hr.quality, custom, hr.domain, bool(hr.contacts), bool(hr.final_gather), mode)
 
 
 def _describe_settings(old, new):
-    names = ("method", "quality", "thresholds", "domain", "contacts", "final gather")
+    names = ("method", "quality", "thresholds", "domain", "contacts", "final gather", "values")
     return (
         ", ".join(f"{n} {str(b).lower()}" for n, a, b in zip(names, old, new) if a != b and n != "thresholds")
         or "thresholds"
@@ -175,7 +176,7 @@ def start(scene, view_layer=None, threaded=None):
     STATE.live_sessions[scene.name_full] = sess
     scene.hr.live = True
     try:
-        _show_through_attribute(sess, scene, view_layer)
+        _take_off_textures(sess, scene, view_layer)
         _reconcile(sess, scene, view_layer, check_geometry=True)
     except Exception:
         stop(scene)
@@ -224,9 +225,9 @@ def end_for_bake(scene):
 STATE.on_bake_start(end_for_bake)  # a bake ends Live: it shows its own result when it has finished
 
 
-def _show_through_attribute(sess, scene, view_layer):
-    """Make the viewport show HR_Radiance: the preview nodes (Attribute -> Emission) on the
-    participating materials, instead of a baked-texture preview (put back by _restore)."""
+def _take_off_textures(sess, scene, view_layer):
+    """A baked-texture preview makes way for HR_Radiance (put back by _restore; _build shows
+    HR_Radiance through the preview nodes)."""
     objs = geometry_objects(view_layer)
     if texture.is_texture_bake(scene):
         from .texture import _helper
@@ -234,7 +235,6 @@ def _show_through_attribute(sess, scene, view_layer):
         sess.texture_objects = [o.name for o in objs if any(_helper(s) for s in o.material_slots)]
         if sess.texture_objects:
             texture.remove_material(objs)
-    sess.preview_change = preview.show_radiance(objs)
 
 
 def _restore(sess, scene):
@@ -296,6 +296,8 @@ def _build(sess, scene, view_layer, depsgraph, reason):
     cfg = BakeConfig.resolve(scene.hr)
     method, domain = cfg.method, cfg.domain
     objs = geometry_objects(view_layer)
+    # the preview nodes show HR_Radiance as Live writes it (outgoing radiance or Indirect only)
+    sess.preview_change = sess.preview_change or preview.show_radiance(objs, cfg.live_mode)
     with texture.source_materials(objs):
         scene_in = collect_geometry(view_layer, depsgraph)
     params, min_area_rel, far = solver_setup(scene_in.mesh, cfg.params)
@@ -317,6 +319,7 @@ def _build(sess, scene, view_layer, depsgraph, reason):
         cfg.live_threads,
         paths.default_cache_dir(scene),
         precompute_key(scene_in.mesh, params, cfg.gather),
+        cfg.live_mode,
     )
     sess.settings = _settings(scene)
     sess.geometry = scene_in.signatures

@@ -24,6 +24,7 @@ import numpy as np
 from ..core.events import DynamicRadiosity
 from ..core.gather import LoopGather
 from ..core.geometry import InputError
+from ..core.lights import indirect_incident
 from ..core.progress import Cancelled
 from ..core.radiosity import RadiositySystem
 from ..io import precompute as pc
@@ -45,6 +46,7 @@ class BuildSpec:
     threads: int = 1  # core.parallel's threads (BakeConfig.live_threads: one core kept for the UI)
     cache_dir: str = None  # where the bake keeps the scene precompute (None: the .blend is not saved)
     precompute: dict = None  # what it must match (settings.precompute_key): loaded instead of built if valid
+    mode: str = "RADIANCE"  # what HR_Radiance gets (BakeConfig.live_mode): RADIANCE or INDIRECT
 
 
 @dataclass
@@ -288,9 +290,12 @@ class LiveWorker:
             return
         t1 = time.perf_counter()
         gather = self.gather
-        loops = (
-            gather.loop_radiance(dyn, spec.domain) if gather is not None else dyn.loop_radiance(spec.domain)
-        )
+        if spec.mode == "INDIRECT":  # (BakeConfig: with the final gather only)
+            loops = gather.loop_values(indirect_incident(gather, dyn), spec.domain)
+        elif gather is not None:
+            loops = gather.loop_radiance(dyn, spec.domain)
+        else:
+            loops = dyn.loop_radiance(spec.domain)
         values = {k: _rgba(v) for k, v in spec.extract(loops).items()}
         t2 = time.perf_counter()
         self.computed += 1

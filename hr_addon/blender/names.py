@@ -11,4 +11,6 @@ TAG = "hr_lightmap_of"  # on helper materials and images: the object's name
 PREVIEW = "HR Preview"  # name prefix of the preview nodes / material (ignored when reading)
 N_ATTR, N_EMIT, N_OUT = PREVIEW + " Attribute", PREVIEW + " Emission", PREVIEW + " Output"
 N_MUL, N_ADD = PREVIEW + " Base Color", PREVIEW + " Add Emission"
+# Indirect only: the material's own shader + the bake's Emission, which diffuse rays do not see
+N_SHADER, N_PATH, N_SEEN = PREVIEW + " Add Shader", PREVIEW + " Light Path", PREVIEW + " Not Diffuse"
 N_UV, N_TEX = PREVIEW + " Lightmap UV", PREVIEW + " Lightmap"

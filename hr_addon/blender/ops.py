@@ -261,7 +261,7 @@ class HR_OT_add_preview(bpy.types.Operator):
             _report_bake_state(self, context)
             return {"FINISHED"}
         texture.remove_material(objs)
-        n = add_preview(objs, bake_mode(context.scene) == "IRRADIANCE")
+        n = add_preview(objs, bake_mode(context.scene))
         context.scene.render.use_lock_interface = True
         self.report({"INFO"}, f"Preview on {len(objs)} object(s), {n} material(s)")
         _report_bake_state(self, context)

@@ -7,19 +7,21 @@ material get the shared "HR Preview" material, which the bake treats as no mater
 Emission strength 1 reproduces the cached radiance exactly (view transform Standard).
 An irradiance bake (Scene.hr.radiance_mode IRRADIANCE) is shown times the material's own base
 colour (the node output feeding it, textures included) plus its emission (colour_chain), so a
-textured surface shows its texture.
+textured surface shows its texture. An Indirect-only bake (INDIRECT, for EEVEE) is shown as the
+material's own surface shader plus an Emission of base colour x HR_Radiance (Add Shader): the
+render engine lights the material with the lamps and the World itself, the bake adds the bounce.
 """
 
 import bpy
 
 from ..io.cache import CacheError, CacheReader
 from .materials import base_color_socket, read_material
-from .names import ATTRIBUTE, N_ADD, N_ATTR, N_EMIT, N_MUL, N_OUT, PREVIEW, TAG
+from .names import ATTRIBUTE, N_ADD, N_ATTR, N_EMIT, N_MUL, N_OUT, N_PATH, N_SEEN, N_SHADER, PREVIEW, TAG
 from .paths import bake_dir_abs
 
 
 def bake_mode(scene):
-    """Radiance mode of the scene's bake ("RADIANCE" or "IRRADIANCE"; the setting if not baked)."""
+    """Radiance mode of the scene's bake (settings.ENUMS["radiance_mode"]; the setting if not baked)."""
     d = bake_dir_abs(scene)
     try:
         return CacheReader(d).manifest.get("radiance_mode", "RADIANCE") if d else scene.hr.radiance_mode
@@ -40,14 +42,16 @@ def node_named(tree, name, kind, location):
     return n
 
 
-def colour_chain(mat, tree, src, location, irradiance):
-    """The colour output the preview's Emission shows: src itself (radiance), or for irradiance src
-    x the material's base colour (the same upstream output, linked, or the socket's colour) + its
-    emission (read_material's value). Removes the chain's nodes when not needed."""
-    for name in (N_MUL, N_ADD):
-        if not irradiance and name in tree.nodes:
+def colour_chain(mat, tree, src, location, mode):
+    """The colour output the preview's Emission shows for the bake's radiance mode: src itself
+    (RADIANCE), or src x the material's base colour (the same upstream output, linked, or the
+    socket's colour), for IRRADIANCE + its emission (read_material's value; INDIRECT: the
+    material's own shader emits it). Removes the chain's nodes when not needed."""
+    multiply = mode in ("IRRADIANCE", "INDIRECT")
+    for name, needed in ((N_MUL, multiply), (N_ADD, mode == "IRRADIANCE")):
+        if not needed and name in tree.nodes:
             tree.nodes.remove(tree.nodes[name])
-    if not irradiance:
+    if not multiply:
         return src
     x, y = location
     mul = node_named(tree, N_MUL, "ShaderNodeMix", (x, y))
@@ -66,6 +70,8 @@ def colour_chain(mat, tree, src, location, irradiance):
         rho = base.default_value[:3] if base is not None else read_material(mat).reflectance
         ids["B_Color"].default_value = (*map(float, rho), 1.0)
     res = next(s for s in mul.outputs if s.identifier == "Result_Color")
+    if mode == "INDIRECT":
+        return res
     add = node_named(tree, N_ADD, "ShaderNodeVectorMath", (x + 200, y))
     add.operation = "ADD"
     add.inputs[1].default_value = tuple(map(float, read_material(mat).emission))
@@ -73,7 +79,7 @@ def colour_chain(mat, tree, src, location, irradiance):
     return add.outputs["Vector"]
 
 
-def _add_nodes(mat, irradiance=False):
+def _add_nodes(mat, mode="RADIANCE"):
     tree = mat.node_tree
     if tree is None:
         return False
@@ -81,20 +87,53 @@ def _add_nodes(mat, irradiance=False):
     attr = node_named(tree, N_ATTR, "ShaderNodeAttribute", (x, -400))
     attr.attribute_type = "GEOMETRY"
     attr.attribute_name = ATTRIBUTE
-    emission_output(mat, tree, attr.outputs["Color"], x + 600, irradiance)
+    emission_output(mat, tree, attr.outputs["Color"], x + 600, mode)
     return True
 
 
-def emission_output(mat, tree, colour, x, irradiance):
+def own_output(tree):
+    """The material's own Material Output that EEVEE renders (None: it has none)."""
+    outs = [n for n in tree.nodes if n.type == "OUTPUT_MATERIAL" and not n.name.startswith(PREVIEW)]
+    outs = [n for n in outs if n.target in ("ALL", "EEVEE")] or outs
+    return next((n for n in outs if n.is_active_output), outs[0] if outs else None)
+
+
+def emission_output(mat, tree, colour, x, mode):
     """colour -> colour_chain -> Emission (strength 1) at x -> Material Output (all engines), made
-    the active output: how the vertex preview and the baked textures show radiance."""
+    the active output: how the vertex preview and the baked textures show radiance. INDIRECT: the
+    Emission is added (Add Shader) to the shader of the material's own output, whose other inputs
+    (volume, displacement) our output takes too, so the material renders as before plus the bake.
+    Diffuse rays do not see that Emission (Light Path): it is the bounce light already, which a
+    renderer tracing diffuse rays (Cycles, EEVEE's light probes) would otherwise bounce again."""
     emit = node_named(tree, N_EMIT, "ShaderNodeEmission", (x, -400))
     emit.inputs["Strength"].default_value = 1.0
-    out = node_named(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 200, -400))
+    own = own_output(tree) if mode == "INDIRECT" else None
+    for name in (N_SHADER, N_PATH, N_SEEN) if own is None else ():
+        if name in tree.nodes:
+            tree.nodes.remove(tree.nodes[name])
+    out = node_named(tree, N_OUT, "ShaderNodeOutputMaterial", (x + 400, -400))
     out.target = "ALL"
-    col = colour_chain(mat, tree, colour, (x - 400, -400), irradiance)
+    add = node_named(tree, N_SHADER, "ShaderNodeAddShader", (x + 200, -300)) if own is not None else None
+    for lk in [lk for n in (out, add) if n is not None for s in n.inputs for lk in s.links]:
+        tree.links.remove(lk)  # wired afresh (the mode or the material's own output changed)
+    col = colour_chain(mat, tree, colour, (x - 400, -400), mode)
     tree.links.new(col, emit.inputs["Color"])
-    tree.links.new(emit.outputs["Emission"], out.inputs["Surface"])
+    shader = emit.outputs["Emission"]
+    if add is not None:
+        for s in own.inputs:
+            if s.is_linked:
+                target = add.inputs[0] if s.name == "Surface" else out.inputs.get(s.name)
+                if target is not None:
+                    tree.links.new(s.links[0].from_socket, target)
+        tree.links.new(shader, add.inputs[1])
+        shader = add.outputs[0]
+        path = node_named(tree, N_PATH, "ShaderNodeLightPath", (x - 400, -100))
+        seen = node_named(tree, N_SEEN, "ShaderNodeMath", (x - 200, -200))
+        seen.operation = "LESS_THAN"
+        seen.inputs[1].default_value = 0.5
+        tree.links.new(path.outputs["Is Diffuse Ray"], seen.inputs[0])
+        tree.links.new(seen.outputs[0], emit.inputs["Strength"])
+    tree.links.new(shader, out.inputs["Surface"])
     out.is_active_output = True
 
 
@@ -108,9 +147,9 @@ def _preview_material():
     return mat
 
 
-def add_preview(objects, irradiance=False):
-    """Returns the number of materials switched to the preview. irradiance: the bake holds
-    irradiance (see colour_chain)."""
+def add_preview(objects, mode="RADIANCE"):
+    """Returns the number of materials switched to the preview. mode: the bake's radiance mode
+    (see colour_chain, emission_output)."""
     done = set()
     for obj in objects:
         if obj.type != "MESH":
@@ -118,14 +157,14 @@ def add_preview(objects, irradiance=False):
         mats = [s.material for s in obj.material_slots if s.material is not None]
         if not mats:
             mat = _preview_material()
-            _add_nodes(mat, irradiance)
+            _add_nodes(mat, mode)
             obj.data.materials.append(mat)
             continue
         for m in mats:
             if m.name_full not in done:
                 if bpy.app.version < (5, 0, 0) and not m.use_nodes:
                     m.use_nodes = True
-                _add_nodes(m, irradiance)
+                _add_nodes(m, mode)
                 done.add(m.name_full)
     return len(done)
 
@@ -144,7 +183,7 @@ def remove_preview(objects=None):
         tree = m.node_tree
         if tree is None or N_OUT not in tree.nodes:
             continue
-        for name in (N_OUT, N_EMIT, N_ATTR, N_MUL, N_ADD):
+        for name in (N_OUT, N_EMIT, N_ATTR, N_MUL, N_ADD, N_SHADER, N_PATH, N_SEEN):
             if name in tree.nodes:
                 tree.nodes.remove(tree.nodes[name])
         outs = [x for x in tree.nodes if x.type == "OUTPUT_MATERIAL"]
@@ -172,27 +211,33 @@ def has_preview():
     return False
 
 
-def refresh_preview(objects, irradiance):
+def refresh_preview(objects, mode):
     """Re-wire the materials of `objects` that show the preview (a new bake may change the mode)."""
     mats = {s.material for o in objects if o.type == "MESH" for s in o.material_slots if s.material}
     for m in mats:
         if m.node_tree is not None and N_OUT in m.node_tree.nodes:
-            _add_nodes(m, irradiance)
+            _add_nodes(m, mode)
 
 
-def show_radiance(objects):
-    """Make `objects` show HR_Radiance as it is (outgoing radiance; Live Relight): the preview
-    nodes where they are missing ("added"), or an irradiance preview re-wired ("rewired"); ""
-    when they show it already. undo_show_radiance() puts back what this changed."""
+def wired_mode(tree):
+    """The radiance mode a material's preview nodes show."""
+    return "INDIRECT" if N_SHADER in tree.nodes else "IRRADIANCE" if N_MUL in tree.nodes else "RADIANCE"
+
+
+def show_radiance(objects, mode="RADIANCE"):
+    """Make `objects` show HR_Radiance as values of `mode` (Live Relight: outgoing radiance, or the
+    Indirect-only values): the preview nodes where they are missing ("added"), or a preview of
+    another mode re-wired ("rewired"); "" when they show it already. undo_show_radiance() puts
+    back what this changed."""
     mats = [s.material for o in objects for s in o.material_slots if s.material is not None]
     shown = all(m.node_tree is not None and N_OUT in m.node_tree.nodes for m in mats) and all(
         o.material_slots for o in objects
     )
     if not shown:
-        add_preview(objects)
+        add_preview(objects, mode)
         return "added"
-    if any(N_MUL in m.node_tree.nodes for m in mats):
-        refresh_preview(objects, irradiance=False)
+    if any(wired_mode(m.node_tree) != mode for m in mats):
+        refresh_preview(objects, mode)
         return "rewired"
     return ""
 
@@ -201,4 +246,4 @@ def undo_show_radiance(scene, objects, change):
     if change == "added":
         remove_preview(objects)
     elif change == "rewired":
-        refresh_preview(objects, bake_mode(scene) == "IRRADIANCE")
+        refresh_preview(objects, bake_mode(scene))

@@ -75,7 +75,8 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         items=items("radiance_mode"),
         default=DEFAULTS["radiance_mode"],
         description="What the bake stores: outgoing radiance, or irradiance for lightmaps that "
-        "the material's base colour (textures included) multiplies",
+        "the material's base colour (textures included) multiplies, or that without the Blender "
+        "lights' and the World's direct light (EEVEE renders it)",
     )
     texture_resolution: IntProperty(
         name="Texture Size",

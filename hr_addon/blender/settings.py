@@ -63,6 +63,14 @@ ENUMS = {
             "material multiplies by its own base colour: game-engine lightmaps, Cycles' Diffuse bake "
             "without Color",
         ),
+        (
+            "INDIRECT",
+            "Indirect only (for EEVEE)",
+            "Irradiance / pi like Irradiance, without the direct light of Blender lights and the "
+            "World: the bounce light and the light of emissive meshes and light shapes. The preview "
+            "adds base colour x it to the material's own shader, so EEVEE renders the lamps' direct "
+            "light, shadows and speculars and the bake the moving bounce light (needs Final Gather)",
+        ),
     ),
     "domain": (
         ("CORNER", "Face Corner", "One value per face corner: creases between walls stay sharp"),
@@ -79,6 +87,17 @@ DEFAULTS = {
 }
 
 RESOLUTION = (8, 16384)  # texture size in texels
+# the lamps' direct light taken out is the final gather's own, per sample (core.lights.indirect_incident)
+INDIRECT_NEEDS_GATHER = (
+    "values 'Indirect only (for EEVEE)' need the Final Gather (Render > HR Radiosity): it computes "
+    "the Blender lights' direct light that this mode leaves out"
+)
+
+
+def live_mode(radiance_mode):
+    """What Live Relight writes: the indirect light in the Indirect-only mode (the viewport's EEVEE
+    adds its own direct light), else outgoing radiance (shown as it is)."""
+    return "INDIRECT" if radiance_mode == "INDIRECT" else "RADIANCE"
 
 
 def ids(name):
@@ -163,12 +182,18 @@ class BakeConfig:
             final_gather=bool(get("final_gather")),
             threads=int(get("threads")),
         )
-        problem = resolution_problem(cfg.resolution) or (
-            thresholds_problem(cfg.feps, cfg.aeps) if cfg.quality == "CUSTOM" else ""
+        problem = (
+            resolution_problem(cfg.resolution)
+            or (thresholds_problem(cfg.feps, cfg.aeps) if cfg.quality == "CUSTOM" else "")
+            or (INDIRECT_NEEDS_GATHER if cfg.radiance_mode == "INDIRECT" and not cfg.final_gather else "")
         )
         if problem:
             raise SceneError(problem[0].upper() + problem[1:] + ".")
         return cfg
+
+    @property
+    def live_mode(self):
+        return live_mode(self.radiance_mode)
 
     @property
     def gather(self):

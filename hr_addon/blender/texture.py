@@ -301,10 +301,11 @@ def _sequence_image(obj, path, fmt):
     return img
 
 
-def _wire(mat, img, first, last, irradiance=False):
+def _wire(mat, img, first, last, mode="RADIANCE"):
     """Add (or update) UV Map -> Image Texture -> Emission -> Material Output, the active output;
-    for an irradiance bake the image times the material's base colour plus its emission
-    (preview.emission_output) feeds the Emission."""
+    for an irradiance bake the image times the material's base colour plus its emission feeds the
+    Emission, for Indirect only that Emission is added to the material's own shader
+    (preview.emission_output)."""
     if mat.node_tree is None or (bpy.app.version < (5, 0, 0) and not mat.use_nodes):
         mat.use_nodes = True
     tree = mat.node_tree
@@ -324,7 +325,7 @@ def _wire(mat, img, first, last, irradiance=False):
     iu.use_cyclic = False
     iu.use_auto_refresh = True
     tree.links.new(uvn.outputs["UV"], tex.inputs["Vector"])
-    emission_output(mat, tree, tex.outputs["Color"], x + 900, irradiance)
+    emission_output(mat, tree, tex.outputs["Color"], x + 900, mode)
 
 
 def _helper(slot):
@@ -392,7 +393,7 @@ def add_material(scene, objects=None, warnings=None):
     if warnings is not None:
         warnings += w
     first, last = reader.frame_range
-    irradiance = reader.manifest.get("radiance_mode") == "IRRADIANCE"
+    mode = reader.manifest.get("radiance_mode", "RADIANCE")
     names = None if objects is None else {o.name for o in objects}
     n = 0
     for name, info in reader.objects.items():
@@ -424,7 +425,7 @@ def add_material(scene, objects=None, warnings=None):
                     mat["hr_lightmap_source"] = src
                 slot.link = "OBJECT"
                 slot.material = mat
-            _wire(mat, img, first, last, irradiance)
+            _wire(mat, img, first, last, mode)
         n += 1
     return n
 

@@ -14,6 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ..core.lights import indirect_incident
 from ..core.texels import TexelLocator, solution_radiance
 from ..io.cache import TEX_DIR, CacheError, CacheReader
 from ..io.files import atomic_write, link_or_copy
@@ -169,9 +170,15 @@ class TexturePlan:
     def radiance(self, solution, mode="RADIANCE", gather=None):
         """(N, 3) values of the current solution at the texel points of all objects. mode RADIANCE:
         outgoing radiance, reflected part times the albedo factor where set_albedo gave one, i.e.
-        reflected x albedo / average + emission; IRRADIANCE: irradiance / pi (no emission).
+        reflected x albedo / average + emission; IRRADIANCE: irradiance / pi (no emission);
+        INDIRECT: irradiance / pi without the Blender lights' and the World's direct light
+        (core.lights.indirect_incident; needs the gather).
         gather: final_gather() of this plan: the texels gather their own light (issue 19); None:
         the solution's leaves, interpolated (today's output, unchanged)."""
+        if mode == "INDIRECT":
+            if gather is None:
+                raise ValueError("the Indirect-only values need the final gather")
+            return indirect_incident(gather, solution).astype(np.float32)
         if gather is not None:
             if mode == "IRRADIANCE":
                 return gather.evaluate(solution, "incident").astype(np.float32)

@@ -102,7 +102,11 @@ class LoopGather(FinalGather):
         super().__init__(system, pts, nrm, patch, **kw)
 
     def loop_radiance(self, dyn, domain="CORNER", kind="radiance"):
-        v = self.evaluate(dyn, kind)
+        return self.loop_values(self.evaluate(dyn, kind), domain)
+
+    def loop_values(self, v, domain="CORNER"):
+        """Sample values (n, 3) (evaluate's, or core.lights.indirect_incident's) in the loop_radiance
+        layout."""
         if self.average is not None:
             li, lj, w = self.average
             sj = self.loop_index[lj]
