@@ -76,12 +76,15 @@ def _floor_values(s, pts, smooth):
 
 def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
     """Points 1-40 mm beside the box, against shadow rays to the emitter. Measured at medium
-    (2026-12-02): band mean -1.3% (leaf values) / +4.1% (the smooth interpolation of the texture
-    output), points under the box exactly 0. The leaves 1-10 mm beside the box read +5% (the
-    visibility of their coarse links, test_core_engine's row sums), and the smooth corner values,
-    means of the leaves around a corner, carry that into the next ring of leaves (20-40 mm:
-    leaves -5.3%, smooth +4.2%). Before partly covered receivers took their form factors from
-    about 6 x 6 exposed points: leaves +1.6% / smooth +6.5% (near-box leaves +8%).
+    (2026-12-02): band mean -0.1% (leaf values; 1-10 mm +0.7%, 10-20 mm -1.1%, 20-40 mm +0.1%) /
+    +4.1% (the smooth interpolation of the texture output; +3.0%, +4.1%, +4.5%), points under the
+    box exactly 0. The push corrections give each leaf its own visibility of the sky (weighted by
+    the kernel; before, the leaves near the box kept their ancestors' links' visibility: -1.3%,
+    1-10 mm +5.1%, 20-40 mm -5.3%). The smooth values stay at +4%: with the leaves right, what
+    remains is the interpolation, whose corner values are means of the exposed leaves around a
+    corner, so a corner on the box's outline reads its outer neighbours (the light falls towards
+    the outline and nothing on the covered side pulls it down) and every leaf of the band leans
+    towards the brighter leaves outside it (core/output.py's radiance_at).
     Without contacts the leaves straddling the box's outline see the emitter through sample
     points under the box: the band's leaves read 0 there (-100%)."""
     m = sky_scene()

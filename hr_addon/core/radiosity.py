@@ -73,6 +73,7 @@ class RadiositySystem:
                 self.params.corr_budget,
                 self.refiner.centres,
                 self.refiner.leaf_form_factors,
+                self.refiner.leaf_visibility,
             )
             self.refiner.stats["t_corr"] = time.perf_counter() - t1
         self.refiner.progress.done("push corrections")
