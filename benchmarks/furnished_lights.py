@@ -73,6 +73,8 @@ def main():
     ap.add_argument("--name", default="draft")
     ap.add_argument("--quality", default="DRAFT")
     ap.add_argument("--texel-rel", type=float, default=TEXEL_REL)
+    ap.add_argument("--noise", default="", help="SPP:SEED,SEED: the reference's noise from two bakes at SPP")
+    ap.add_argument("--ours-from", default="", help="NAME: our values of an earlier run (its npz and JSON)")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     scene, info = CL.daylight_scene(args.size)
@@ -89,21 +91,42 @@ def main():
             _, t, cached = CC.cycles_bake(rs, key, 1, args.spp, s)
             print(f"   Cycles seed {s}: {'cached' if cached else 'baked'}, {t}", flush=True)
         return
-    res, cost, our_info = CL.bake_ours(rs, args.quality)
+    if args.ours_from:  # the values and costs of an earlier run (same scene)
+        z = np.load(os.path.join(HERE, "out", f"furnished_lights_{args.ours_from}_ours.npz"))
+        res = {n: {} for n in rs.objects}
+        for k in z.files:
+            if k == "__meta":
+                continue
+            n, var = k.split("|")
+            res[n][var] = z[k].astype(np.float64)
+        cost, our_info = json.loads(str(z["__meta"])) if "__meta" in z.files else ({}, {})
+        our_info["values_from"] = args.ours_from
+    else:
+        res, cost, our_info = CL.bake_ours(rs, args.quality)
+        # our per-texel values for a closer look (not committed: benchmarks/out keeps JSON only)
+        np.savez_compressed(
+            os.path.join(HERE, "out", f"furnished_lights_{args.name}_ours.npz"),
+            **{
+                f"{n}|{k}": v.astype(np.float32)
+                for n in rs.objects
+                for k, v in res[n].items()
+                if np.ndim(v) == 2
+            },
+            __meta=json.dumps([cost, our_info], default=float),
+        )
     print(f"   ours: {', '.join(f'{k} {v:.3g}' for k, v in cost.items())}", flush=True)
-    # our per-texel values for a closer look (not committed: benchmarks/out keeps JSON only)
-    np.savez_compressed(
-        os.path.join(HERE, "out", f"furnished_lights_{args.name}_ours.npz"),
-        **{
-            f"{n}|{k}": v.astype(np.float32) for n in rs.objects for k, v in res[n].items() if np.ndim(v) == 2
-        },
-    )
     refs, ref_times = [], []
     for s in seeds:
         r, t, _ = reference(rs, key, args.spp, s, args.wait)
         refs.append(r)
         ref_times.append(t)
-    objects, lit, summary = CL.per_object(rs, res, refs)
+    noise_pair, noise_note = None, f"{len(seeds)} seeds"
+    if args.noise:  # two bakes at fewer samples: their noise scaled to the reference's samples
+        nspp, nseeds = args.noise.split(":")
+        a, b = (reference(rs, key, int(nspp), int(s), args.wait)[0] for s in nseeds.split(","))
+        noise_pair = (a, b, np.sqrt(int(nspp) / (args.spp * len(seeds))))
+        noise_note = f"seeds {nseeds} at {nspp} spp, scaled"
+    objects, lit, summary = CL.per_object(rs, res, refs, noise_pair)
     for g, st in summary.items():
         print(
             f"   {g:10s} {st['objects']} lit objects: median {100 * st['median']:.1f}%, within 5%: "
@@ -111,9 +134,14 @@ def main():
             f"{100 * st['pooled_bias']:+.2f}%, texel-weighted error {100 * st['weighted']:.1f}%",
             flush=True,
         )
-    if len(refs) > 1:
+    if lit and "ref_noise" in objects[lit[0]]:
         nz = [objects[n]["ref_noise"] for n in lit]
-        print(f"   reference noise of an object's mean: median {100 * np.median(nz):.2f}%", flush=True)
+        print(
+            f"   reference noise of an object's mean ({noise_note}): median {100 * np.median(nz):.2f}%",
+            flush=True,
+        )
+        summary["all"]["ref_noise_median"] = float(np.median(nz))
+        summary["all"]["ref_noise_from"] = noise_note
     room = ["floor", "ceiling", "wall_south", "wall_north", "wall_west", "wall_east"]
     print(
         "   room: "

@@ -177,7 +177,7 @@ def bake_ours(rs, quality="DRAFT", threads=1):
 DIRECT_SHARE = 0.1  # per_object: "sun" / "sky" lit where that light's direct part is >= 10% of ours
 
 
-def per_object(rs, res, refs):
+def per_object(rs, res, refs, noise_pair=None):
     """Our bake (bake_ours' res) against Cycles references (one {name: (N, 3)} per seed; their mean
     is the reference), per object: ({name: {mre, bias, texels, mean_ref, mean_ours (cycles_ref.metrics
     of the final gather's reflected radiance), leaf_bias (the hierarchy's leaves), share_sun,
@@ -185,8 +185,12 @@ def per_object(rs, res, refs):
     else by the sky, else by bounce light only), ref_noise (two seeds or more: the reference's own
     noise of the mean)}}, lit: the objects whose reference mean is above 5% of the pooled mean
     (where a relative error means something), {group: cycles_ref.object_summary} of the lit objects
-    for all (pooled bias: over every texel), books, others, sun-lit, sky-lit, bounce-lit)."""
+    for all (pooled bias: over every texel), books, others, sun-lit, sky-lit, bounce-lit).
+    noise_pair (a, b, factor): ref_noise from two other bakes a and b, x factor (e.g. bakes at a
+    quarter of the samples: factor 1/2); default: from the first two of refs."""
     ref = {n: sum(r[n] for r in refs) / len(refs) for n in rs.objects}
+    if noise_pair is None and len(refs) > 1:  # the noise of the seeds' mean
+        noise_pair = (refs[0], refs[1], 1 / math.sqrt(len(refs)))
     objects = {}
     for n in rs.objects:
         m = C.metrics(res[n]["gather_refl"], ref[n])
@@ -202,8 +206,8 @@ def per_object(rs, res, refs):
         o["kind"] = (
             "sun" if o["share_sun"] >= DIRECT_SHARE else "sky" if o["share_sky"] >= DIRECT_SHARE else "bounce"
         )
-        if len(refs) > 1:  # of the seeds' mean
-            o["ref_noise"] = C.noise(refs[0][n], refs[1][n])[1] / math.sqrt(len(refs))
+        if noise_pair is not None:
+            o["ref_noise"] = C.noise(noise_pair[0][n], noise_pair[1][n])[1] * noise_pair[2]
     pooled = C.metrics(
         np.concatenate([res[n]["gather_refl"] for n in objects]), np.concatenate([ref[n] for n in objects])
     )
