@@ -41,10 +41,11 @@ from hr_testing import furnished as F  # noqa: E402
 TEXEL_REL = CC.SCENES["furnished"]["texel_rel"]
 
 
-def ref_key(size):
+def ref_key(size, portal=False):
     """The Cycles reference's cache name: the scene, its window and its lights."""
     facts = json.dumps([F.SOUTH_WINDOW, F.SUN, F.SKY], sort_keys=True, default=float)
-    return f"furnished_daylight_{size}_{hashlib.sha1(facts.encode()).hexdigest()[:8]}"
+    tag = "_portal" if portal else ""
+    return f"furnished_daylight_{size}{tag}_{hashlib.sha1(facts.encode()).hexdigest()[:8]}"
 
 
 def reference(rs, key, spp, seed, wait):
@@ -73,13 +74,14 @@ def main():
     ap.add_argument("--name", default="draft")
     ap.add_argument("--quality", default="DRAFT")
     ap.add_argument("--texel-rel", type=float, default=TEXEL_REL)
+    ap.add_argument("--portal", action="store_true", help="Cycles samples the sky through a window portal")
     ap.add_argument("--noise", default="", help="SPP:SEED,SEED: the reference's noise from two bakes at SPP")
     ap.add_argument("--ours-from", default="", help="NAME: our values of an earlier run (its npz and JSON)")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
-    scene, info = CL.daylight_scene(args.size)
+    scene, info = CL.daylight_scene(args.size, args.portal)
     rs = C.prepare(scene, texel_rel=args.texel_rel)
-    key = ref_key(args.size)
+    key = ref_key(args.size, args.portal)
     lo, hi = info["window"]
     print(
         f"{key}: {len(rs.objects)} objects compared, {sum(rs.atlases[n].n for n in rs.objects)} texels, "

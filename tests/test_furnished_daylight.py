@@ -3,6 +3,7 @@ target, benchmarks/furnished_lights.py): the furnished room without its ceiling 
 window opening through the south wall; everything else as furnished_room builds it."""
 
 import numpy as np
+import pytest
 
 from hr_addon.core.geometry import newell
 from hr_testing.furnished import SOUTH_WINDOW, SUN, daylight_room, furnished_room
@@ -44,3 +45,25 @@ def test_daylight_room_is_the_furnished_room_with_a_window_and_no_panel():
     assert not np.all((centres > lo) & (centres < hi), 1).any()
     # the sun comes in through the opening and down onto the floor, from outside the south wall
     assert SUN["direction"][1] > 0 and SUN["direction"][2] < 0
+
+
+@pytest.mark.bpy
+def test_daylight_scene_lights_and_a_cycles_portal_is_no_light():
+    """The Blender scene has the sun and the sky as the bake reads them; a Cycles portal in the
+    window (an area light that only guides Cycles' sampling of the World) is not read as a light:
+    it emits nothing in Cycles."""
+    from hr_addon.blender.lights_in import collect_lights
+    from hr_addon.core.lights import Light
+    from hr_testing.cycles_lights import daylight_scene
+
+    for portal in (False, True):
+        daylight_scene("2k", portal=portal)
+        import bpy
+
+        assert ("Window portal" in bpy.data.objects) == portal
+        vl = bpy.context.view_layer
+        lights = collect_lights(vl, vl.depsgraph, Light)
+        assert sorted(L.kind for L in lights.values()) == ["SKY", "SUN"]
+        sun = next(L for L in lights.values() if L.kind == "SUN")
+        assert np.allclose(sun.direction, SUN["direction"], atol=1e-6)
+        assert np.allclose(sun.scale, np.multiply(SUN["color"], SUN["strength"]), rtol=1e-6)
