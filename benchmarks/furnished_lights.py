@@ -144,6 +144,22 @@ def main():
         )
         summary["all"]["ref_noise_median"] = float(np.median(nz))
         summary["all"]["ref_noise_from"] = noise_note
+    sc = np.array([objects[n]["scatter_noise"] for n in lit])
+    err = np.array([objects[n]["mre"] for n in lit])
+    print(
+        f"   texel-scatter bound of the reference's noise: median {100 * np.nanmedian(sc):.1f}%", flush=True
+    )
+    for lim in (0.025, 0.05):  # the objects whose reference mean is known well enough to judge
+        k = sc < lim
+        if k.any():
+            summary[f"scatter_below_{lim}"] = st = C.object_summary(objects, [n for n, y in zip(lit, k) if y])
+            print(
+                f"   reference known within {100 * lim:g}% (scatter): {st['objects']} objects, median "
+                f"{100 * st['median']:.1f}%, within 5%: {100 * st['within_5']:.0f}%",
+                flush=True,
+            )
+    summary["all"]["scatter_noise_median"] = float(np.nanmedian(sc))
+    summary["all"]["beyond_2_scatter"] = int(np.sum(err > 2 * sc))
     room = ["floor", "ceiling", "wall_south", "wall_north", "wall_west", "wall_east"]
     print(
         "   room: "

@@ -194,8 +194,9 @@ def per_object(rs, res, refs, noise_pair=None):
     of the final gather's reflected radiance), leaf_bias (the hierarchy's leaves), share_sun,
     share_sky (our direct light's share), kind ("sun", "sky" or "bounce": lit directly by the sun,
     else by the sky, else by bounce light only), ref_noise (two seeds or more: the reference's own
-    noise of the mean)}}, lit: the objects whose reference mean is above 5% of the pooled mean
-    (where a relative error means something), {group: cycles_ref.object_summary} of the lit objects
+    noise of the mean), scatter_noise (a bound of that from one reference)}}, lit: the objects
+    whose reference mean is above 5% of the pooled mean (where a relative error means something),
+    {group: cycles_ref.object_summary} of the lit objects
     for all (pooled bias: over every texel), books, others, sun-lit, sky-lit, bounce-lit).
     noise_pair (a, b, factor): ref_noise from two other bakes a and b, x factor (e.g. bakes at a
     quarter of the samples: factor 1/2); default: from the first two of refs."""
@@ -219,6 +220,12 @@ def per_object(rs, res, refs, noise_pair=None):
         )
         if noise_pair is not None:
             o["ref_noise"] = C.noise(noise_pair[0][n], noise_pair[1][n])[1] * noise_pair[2]
+        # one reference alone: the standard error of its mean from its texels' scatter about ours (an
+        # upper bound of its noise: it holds our texel-to-texel error too)
+        d = (ref[n] - res[n]["gather_refl"]).mean(1)
+        d = d[np.isfinite(d)]
+        sd = np.std(d, ddof=1) / math.sqrt(len(d)) if len(d) > 1 else np.nan
+        o["scatter_noise"] = float(sd / max(np.mean(m["mean_ref"]), 1e-12))
     pooled = C.metrics(
         np.concatenate([res[n]["gather_refl"] for n in objects]), np.concatenate([ref[n] for n in objects])
     )
