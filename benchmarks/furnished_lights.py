@@ -198,17 +198,7 @@ def main():
         "objects": objects,
     }
 
-    def rnd(x):  # 4 significant digits: the file stays small
-        if isinstance(x, (float, np.floating)):
-            return float(f"{x:.4g}")
-        if isinstance(x, (list, tuple)):
-            return [rnd(v) for v in x]
-        if isinstance(x, dict):
-            return {k: rnd(v) for k, v in x.items()}
-        return x
-
-    with open(os.path.join(HERE, "out", f"furnished_lights_{args.name}.json"), "w") as fh:
-        json.dump(rnd(dump), fh, separators=(",", ":"), default=float)
+    C.write_json(os.path.join(HERE, "out", f"furnished_lights_{args.name}.json"), dump)
 
 
 if __name__ == "__main__":

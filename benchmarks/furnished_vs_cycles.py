@@ -104,16 +104,4 @@ for name, kw in variants.items():
             dump["objects"].setdefault(n, {})["gather_dark_frac"] = res[n]["gather_dark_frac"]
     if gkw is not None:
         dump["gather_cost"] = cost
-    import json
-
-    def rnd(x):  # 4 significant digits, compact: one file per variant stays small
-        if isinstance(x, float):
-            return float(f"{x:.4g}")
-        if isinstance(x, (list, tuple)):
-            return [rnd(v) for v in x]
-        if isinstance(x, dict):
-            return {k: rnd(v) for k, v in x.items()}
-        return x
-
-    with open(os.path.join(HERE, "out", f"furnished_vs_cycles_{name}.json"), "w") as fh:
-        json.dump(rnd(dump), fh, separators=(",", ":"), default=float)
+    C.write_json(os.path.join(HERE, "out", f"furnished_vs_cycles_{name}.json"), dump)

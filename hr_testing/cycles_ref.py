@@ -796,6 +796,23 @@ def object_summary(per, names):
     }
 
 
+def write_json(path, obj):
+    """obj as compact JSON, numbers to 4 significant digits: a benchmark's dump stays small."""
+    import json
+
+    def rnd(x):
+        if isinstance(x, (float, np.floating)):
+            return float(f"{x:.4g}")
+        if isinstance(x, (list, tuple)):
+            return [rnd(v) for v in x]
+        if isinstance(x, dict):
+            return {k: rnd(v) for k, v in x.items()}
+        return x
+
+    with open(path, "w") as fh:
+        json.dump(rnd(obj), fh, separators=(",", ":"), default=float)
+
+
 def noise(a, b, mask=None):
     """Per-bake noise from two seeds: RMS of (a - b) / sqrt 2, and of the surface mean."""
     ok = np.isfinite(a).all(1) & np.isfinite(b).all(1)  # texels the bake did not write are NaN
