@@ -39,7 +39,8 @@ for name, kw in variants.items():
     q = kw.pop("q", "draft")
     gkw = kw.pop("gather", None)
     method = kw.pop("method", "FE")
-    import hr_addon.core.cluster as CL, hr_addon.core.farlinks as FL
+    import hr_addon.core.cluster as CL
+    import hr_addon.core.farlinks as FL
 
     g = kw.pop("grad_cone", 0.03)
     CL.GRAD_CONE = FL.GRAD_CONE = g
