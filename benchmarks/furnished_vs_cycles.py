@@ -39,7 +39,8 @@ for name, kw in variants.items():
     q = kw.pop("q", "draft")
     gkw = kw.pop("gather", None)
     method = kw.pop("method", "FE")
-    import hr_addon.core.cluster as CL, hr_addon.core.farlinks as FL
+    import hr_addon.core.cluster as CL
+    import hr_addon.core.farlinks as FL
 
     g = kw.pop("grad_cone", 0.03)
     CL.GRAD_CONE = FL.GRAD_CONE = g
@@ -89,18 +90,12 @@ for name, kw in variants.items():
             ("books", lambda n: "_book" in n),
             ("others", lambda n: "_book" not in n),
         ):
-            ll = [n for n in lit if n in pv and keep(n)]
-            w = np.array([pv[n]["texels"] for n in ll])
-            e = np.array([pv[n]["mre"] for n in ll])
-            # pooled bias of the subset: texel-weighted mean ours / mean ref - 1 over its objects
-            mo = sum(pv[n]["texels"] * np.mean(pv[n]["mean_ours"]) for n in ll)
-            mr = sum(pv[n]["texels"] * np.mean(pv[n]["mean_ref"]) for n in ll)
-            pooled = allcmp[var]["all"]["bias"] if not part else mo / mr - 1
+            st = C.object_summary(pv, [n for n in lit if keep(n)])
+            pooled = allcmp[var]["all"]["bias"] if not part else st["pooled_bias"]
             print(
-                f"   {var:13s} {part or 'all':6s} {len(ll)} lit objects: texel-weighted error of the mean "
-                f"{100 * np.sum(w * e) / w.sum():.1f}%, within 5%: {np.mean(e < 0.05) * 100:.0f}%, median "
-                f"{100 * np.median(e):.1f}%, "
-                f"median signed {100 * np.median([pv[n]['bias'] for n in ll]):+.1f}%, "
+                f"   {var:13s} {part or 'all':6s} {st['objects']} lit objects: texel-weighted error of the "
+                f"mean {100 * st['weighted']:.1f}%, within 5%: {st['within_5'] * 100:.0f}%, median "
+                f"{100 * st['median']:.1f}%, median signed {100 * st['median_signed']:+.1f}%, "
                 f"pooled bias {100 * pooled:+.2f}%",
                 flush=True,
             )
@@ -110,16 +105,4 @@ for name, kw in variants.items():
             dump["objects"].setdefault(n, {})["gather_dark_frac"] = res[n]["gather_dark_frac"]
     if gkw is not None:
         dump["gather_cost"] = cost
-    import json
-
-    def rnd(x):  # 4 significant digits, compact: one file per variant stays small
-        if isinstance(x, float):
-            return float(f"{x:.4g}")
-        if isinstance(x, (list, tuple)):
-            return [rnd(v) for v in x]
-        if isinstance(x, dict):
-            return {k: rnd(v) for k, v in x.items()}
-        return x
-
-    with open(os.path.join(HERE, "out", f"furnished_vs_cycles_{name}.json"), "w") as fh:
-        json.dump(rnd(dump), fh, separators=(",", ":"), default=float)
+    C.write_json(os.path.join(HERE, "out", f"furnished_vs_cycles_{name}.json"), dump)

@@ -3,6 +3,8 @@ radiance per surface (Cycles DIFFUSE bake, direct + indirect x colour) and our f
 (two levels + 4 iterations) on a medium solution; WORLD: a uniform sky through the open front;
 SUN_HOLE: a sun through a square hole in the ceiling; WORLD_ENV: an environment image
 (environment_image) through the open front. Two Cycles seeds give the reference's noise.
+daylight_scene(): hr_testing.furnished's daylight room in Blender, lit by its sun and sky
+(benchmarks/furnished_lights.py).
 
 The benchmark benchmarks/cycles_lights.py prints run()'s result per light kind; the test
 tests/test_cycles_lights.py runs a smaller version."""
@@ -65,6 +67,180 @@ def add_world(colour=(0.5, 0.7, 1.0), strength=1.0, image=None):
         world.node_tree.links.new(env.outputs["Color"], em.inputs["Color"])
     bpy.context.scene.world = world
     return world
+
+
+def daylight_scene(size="20k", portal=False):
+    """A new empty scene holding furnished.daylight_room(size): one mesh object per room object
+    (a Diffuse BSDF of its reflectance), furnished.SUN as a sun light and furnished.SKY as the
+    World. portal: a Cycles portal filling the window (an area light that emits nothing: Cycles
+    samples the World's light through it, the same result with less noise; the bake skips it).
+    Returns (scene, info of daylight_room)."""
+    bpy = load_bpy()
+    from mathutils import Vector
+
+    from . import furnished as F
+
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    load_bpy()
+    mesh, info = F.daylight_room(size)
+    scene = bpy.context.scene
+    mats = {}
+    starts = np.r_[mesh.loop_start, len(mesh.loop_verts)]
+    for k, name in enumerate(mesh.object_names):
+        polys = np.flatnonzero(mesh.object_id == k)
+        loops = [mesh.loop_verts[starts[i] : starts[i + 1]] for i in polys]
+        used, inv = np.unique(np.concatenate(loops), return_inverse=True)
+        ends = np.cumsum([len(lp) for lp in loops])
+        me = bpy.data.meshes.new(name)
+        me.from_pydata(mesh.verts[used].tolist(), [], [p.tolist() for p in np.split(inv, ends[:-1])])
+        rho = tuple(np.round(mesh.reflectance[polys[0]], 6))
+        if rho not in mats:
+            m = bpy.data.materials.new(f"Diffuse {len(mats)}")
+            if bpy.app.version < (5, 0, 0):
+                m.use_nodes = True
+            t = m.node_tree
+            for n in [n for n in t.nodes if n.type != "OUTPUT_MATERIAL"]:
+                t.nodes.remove(n)
+            d = t.nodes.new("ShaderNodeBsdfDiffuse")
+            d.inputs["Color"].default_value = (*rho, 1)
+            out = next(n for n in t.nodes if n.type == "OUTPUT_MATERIAL")
+            t.links.new(d.outputs[0], out.inputs["Surface"])
+            mats[rho] = m
+        me.materials.append(mats[rho])
+        scene.collection.objects.link(bpy.data.objects.new(name, me))
+    ld = bpy.data.lights.new("Sun", "SUN")
+    ld.energy, ld.angle, ld.color = F.SUN["strength"], F.SUN["angle"], F.SUN["color"]
+    ob = bpy.data.objects.new("Sun", ld)
+    ob.rotation_euler = Vector(F.SUN["direction"]).to_track_quat("-Z", "Y").to_euler()
+    scene.collection.objects.link(ob)
+    add_world(F.SKY["color"], F.SKY["strength"])
+    if portal:
+        lo, hi = info["window"]
+        ld = bpy.data.lights.new("Window portal", "AREA")
+        ld.shape, ld.size, ld.size_y = "RECTANGLE", float(hi[0] - lo[0]), float(hi[2] - lo[2])
+        ld.cycles.is_portal = True
+        ob = bpy.data.objects.new("Window portal", ld)
+        ob.location = (lo + hi) / 2
+        ob.rotation_euler = Vector((0.0, 1.0, 0.0)).to_track_quat("-Z", "Z").to_euler()  # into the room
+        scene.collection.objects.link(ob)
+    bpy.context.view_layer.update()  # the sun's evaluated transform
+    return scene, info
+
+
+def bake_ours(rs, quality="DRAFT", threads=1):
+    """Our bake of the prepared scene `rs` (cycles_ref.prepare) as the Blender bake makes it
+    (BakeConfig at `quality` with the scene's other settings: hierarchy, solver_setup, solver
+    options, the lights and the World read by collect_lights, the final gather's settings), the
+    final gather evaluated at the atlas's texel centres. -> ({name: {leaf_refl, gather_refl, ...,
+    direct_SUN, direct_SKY, ...: (N, 3) per texel}}, cost {seconds, ...}, {config, lights,
+    warnings}); direct_KIND: the reflected direct light of the lights of that kind."""
+    import bpy
+
+    from hr_addon.blender.lights_in import collect_lights
+    from hr_addon.blender.settings import BakeConfig, solver_setup
+    from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.lights import Light
+    from hr_addon.core.radiosity import RadiositySystem
+
+    vl = bpy.context.view_layer
+    warnings = []
+    lights = collect_lights(vl, vl.depsgraph, Light, warnings)
+    cfg = BakeConfig.resolve(rs.scene.hr, quality=quality, threads=threads)
+    params, min_area_rel, _ = solver_setup(rs.scene_in.mesh, cfg.params)
+    t0 = time.process_time()
+    system = RadiositySystem(rs.scene_in.mesh, params, threads=threads)
+    t1 = time.process_time()
+    dyn = DynamicRadiosity(
+        system, method=cfg.method, min_area_rel=min_area_rel, warm_moves=False, **cfg.solve_options
+    )
+    dyn.apply({}, lights)
+    t2 = time.process_time()
+    mine = C.Ours(rs, system, dyn)
+    res = mine.evaluate({}, smooth=False)
+    cache = {}
+    gres, cost = C.gather_results(rs, mine, dyn, vertex=False, cache=cache, threads=threads, **cfg.gather)
+    # each light's direct light reflected at the texels (the gather's cached unit light x scale)
+    tg = cache["texel"]
+    direct = {}
+    for rec in dyn.lights.values():
+        d = tg.rho * (tg._light(rec)[:, None].astype(np.float64) * rec.scale[None])
+        d[tg.dark] = 0.0
+        direct[rec.light.kind] = direct.get(rec.light.kind, 0.0) + tg.outputs(d)
+    s = 0
+    for n in rs.objects:
+        res[n].update(gres[n])
+        at = rs.atlases[n]
+        cen = np.flatnonzero(at.s_centre)
+        for kind, d in direct.items():
+            tex = np.full((at.n, 3), np.nan)
+            tex[at.s_texel[cen]] = d[s : s + len(cen)]
+            res[n][f"direct_{kind}"] = tex
+        s += len(cen)
+    cost.update(build_s=t1 - t0, apply_s=t2 - t1, links=len(system.links))
+    info = {
+        "config": dict(quality=cfg.quality, method=cfg.method, gather=cfg.gather, params=repr(params)),
+        "lights": {k: (L.kind, L.scale.tolist()) for k, L in lights.items()},
+        "warnings": warnings,
+    }
+    return res, cost, info
+
+
+DIRECT_SHARE = 0.1  # per_object: "sun" / "sky" lit where that light's direct part is >= 10% of ours
+
+
+def per_object(rs, res, refs, noise_pair=None):
+    """Our bake (bake_ours' res) against Cycles references (one {name: (N, 3)} per seed; their mean
+    is the reference), per object: ({name: {mre, bias, texels, mean_ref, mean_ours (cycles_ref.metrics
+    of the final gather's reflected radiance), leaf_bias (the hierarchy's leaves), share_sun,
+    share_sky (our direct light's share), kind ("sun", "sky" or "bounce": lit directly by the sun,
+    else by the sky, else by bounce light only), ref_noise (two seeds or more: the reference's own
+    noise of the mean), scatter_noise (a bound of that from one reference)}}, lit: the objects
+    whose reference mean is above 5% of the pooled mean (where a relative error means something),
+    {group: cycles_ref.object_summary} of the lit objects
+    for all (pooled bias: over every texel), books, others, sun-lit, sky-lit, bounce-lit).
+    noise_pair (a, b, factor): ref_noise from two other bakes a and b, x factor (e.g. bakes at a
+    quarter of the samples: factor 1/2); default: from the first two of refs."""
+    ref = {n: sum(r[n] for r in refs) / len(refs) for n in rs.objects}
+    if noise_pair is None and len(refs) > 1:  # the noise of the seeds' mean
+        noise_pair = (refs[0], refs[1], 1 / math.sqrt(len(refs)))
+    objects = {}
+    for n in rs.objects:
+        m = C.metrics(res[n]["gather_refl"], ref[n])
+        if m is None:  # no texel the Cycles bake wrote
+            continue
+        o = objects[n] = {k: m[k] for k in ("mre", "bias", "texels", "mean_ref", "mean_ours")}
+        ml = C.metrics(res[n]["leaf_refl"], ref[n])
+        o["leaf_bias"] = ml["bias"] if ml else float("nan")
+        total = np.nanmean(res[n]["gather_refl"])
+        for kind in ("SUN", "SKY"):
+            d = res[n].get(f"direct_{kind}")
+            o[f"share_{kind.lower()}"] = float(np.nanmean(d) / total) if d is not None and total > 0 else 0.0
+        o["kind"] = (
+            "sun" if o["share_sun"] >= DIRECT_SHARE else "sky" if o["share_sky"] >= DIRECT_SHARE else "bounce"
+        )
+        if noise_pair is not None:
+            o["ref_noise"] = C.noise(noise_pair[0][n], noise_pair[1][n])[1] * noise_pair[2]
+        # one reference alone: the standard error of its mean from its texels' scatter about ours (an
+        # upper bound of its noise: it holds our texel-to-texel error too)
+        d = (ref[n] - res[n]["gather_refl"]).mean(1)
+        d = d[np.isfinite(d)]
+        sd = np.std(d, ddof=1) / math.sqrt(len(d)) if len(d) > 1 else np.nan
+        o["scatter_noise"] = float(sd / max(np.mean(m["mean_ref"]), 1e-12))
+    pooled = C.metrics(
+        np.concatenate([res[n]["gather_refl"] for n in objects]), np.concatenate([ref[n] for n in objects])
+    )
+    lit = [n for n in objects if np.mean(objects[n]["mean_ref"]) > 0.05 * np.mean(pooled["mean_ref"])]
+    groups = {
+        "all": lit,
+        "books": [n for n in lit if "_book" in n],
+        "others": [n for n in lit if "_book" not in n],
+        "sun-lit": [n for n in lit if objects[n]["kind"] == "sun"],
+        "sky-lit": [n for n in lit if objects[n]["kind"] == "sky"],
+        "bounce-lit": [n for n in lit if objects[n]["kind"] == "bounce"],
+    }
+    summary = {g: C.object_summary(objects, names) for g, names in groups.items() if names}
+    summary["all"]["pooled_bias"] = pooled["bias"]
+    return objects, lit, summary
 
 
 def ceiling_hole(frac=0.3):

@@ -777,6 +777,42 @@ def metrics(ours, ref, mask=None):
     }
 
 
+def object_summary(per, names):
+    """Per-object errors over the objects `names` (per: {name: metrics()}): how many, the
+    texel-weighted error of the mean, the share within 5%, the median error, the median signed
+    error and the pooled bias (texel-weighted mean ours / mean reference - 1, grey)."""
+    ll = [n for n in names if n in per]
+    w = np.array([per[n]["texels"] for n in ll], float)
+    e = np.array([per[n]["mre"] for n in ll])
+    mo = sum(w_ * np.mean(per[n]["mean_ours"]) for w_, n in zip(w, ll))
+    mr = sum(w_ * np.mean(per[n]["mean_ref"]) for w_, n in zip(w, ll))
+    return {
+        "objects": len(ll),
+        "weighted": float(np.sum(w * e) / w.sum()),
+        "within_5": float(np.mean(e < 0.05)),
+        "median": float(np.median(e)),
+        "median_signed": float(np.median([per[n]["bias"] for n in ll])),
+        "pooled_bias": float(mo / mr - 1),
+    }
+
+
+def write_json(path, obj):
+    """obj as compact JSON, numbers to 4 significant digits: a benchmark's dump stays small."""
+    import json
+
+    def rnd(x):
+        if isinstance(x, (float, np.floating)):
+            return float(f"{x:.4g}")
+        if isinstance(x, (list, tuple)):
+            return [rnd(v) for v in x]
+        if isinstance(x, dict):
+            return {k: rnd(v) for k, v in x.items()}
+        return x
+
+    with open(path, "w") as fh:
+        json.dump(rnd(obj), fh, separators=(",", ":"), default=float)
+
+
 def noise(a, b, mask=None):
     """Per-bake noise from two seeds: RMS of (a - b) / sqrt 2, and of the surface mean."""
     ok = np.isfinite(a).all(1) & np.isfinite(b).all(1)  # texels the bake did not write are NaN

@@ -10,6 +10,12 @@ objects resting on other surfaces, the case clustering and contact handling must
 The size preset scales the counts and the tessellation; the layout is deterministic (seeded), and
 nothing interpenetrates (placements that would overlap are retried, then skipped).
 Counts are triangles as Blender's loop_triangles would give (a quad is two).
+
+    mesh, info = daylight_room("20k")         # no ceiling panel, a window through the south wall
+
+daylight_room is the same room lit by daylight (issue 20): a window opening without glass through
+the south wall, for a sun (SUN) shining through it onto the floor and a uniform World sky (SKY);
+hr_testing/cycles_lights.py builds it in Blender with both.
 """
 
 import numpy as np
@@ -173,7 +179,31 @@ class Footprints:
         self.rects.append((x, y, x + w, y + d))
 
 
-def furnished_room(size="20k", seed=1):
+# daylight_room: a window opening through the south wall (y = 0), as the box of the wall cells it
+# takes out; the sun shines through it from the south-south-west, 35 degrees up, onto the floor
+# and what stands there; a blue-white uniform sky. Sun and sky bring in about as much light each
+# (the sun 4 W/m^2 x 2.3 m^2 x cos 40 degrees, the sky pi x radiance x 2.3 m^2).
+SOUTH_WINDOW = ((0.9, -0.01, 0.9), (2.6, 0.01, 2.3))
+_ELEV, _AZIM = np.radians(35.0), np.radians(20.0)
+SUN = dict(
+    direction=(np.sin(_AZIM) * np.cos(_ELEV), np.cos(_AZIM) * np.cos(_ELEV), -np.sin(_ELEV)),
+    strength=4.0,
+    color=(1.0, 0.9, 0.75),
+    angle=0.0,
+)
+SKY = dict(color=(0.5, 0.65, 1.0), strength=1.0)
+
+
+def daylight_room(size="20k", seed=1):
+    """furnished_room without its ceiling panel and with SOUTH_WINDOW cut through the south wall;
+    info["window"]: (lo, hi) corners of the opening (the cut cells' box)."""
+    return furnished_room(size, seed, openings=(SOUTH_WINDOW,), panel=False)
+
+
+def furnished_room(size="20k", seed=1, openings=(), panel=True):
+    """openings: boxes (lo, hi) through the room's walls, floor or ceiling: their grid cells whose
+    centre lies inside are left out (the opening follows the grid lines); panel: the ceiling light
+    panel. The defaults give the furnished sample's room."""
     if size not in PRESETS:
         raise ValueError(f"unknown size {size!r} (choose from {', '.join(PRESETS)})")
     P = PRESETS[size]
@@ -182,19 +212,33 @@ def furnished_room(size="20k", seed=1):
     floor = Footprints(rng, (0.05, 0.05), (W - 0.05, D - 0.05))
     g = P["grid"]
     nz = max(2, int(g * H / W))
+    cut = []  # the cells left out for the openings
+
+    def room(vq):
+        v, q = vq
+        if not openings:
+            return v, [q]
+        c = v[q].mean(1)
+        out = np.zeros(len(q), bool)
+        for lo, hi in openings:
+            out |= np.all((c > lo) & (c < hi), 1)
+        cut.append(v[q[out]].reshape(-1, 3))
+        return v, [q[~out]]
+
     # room, normals inward
-    b.add("floor", *_q(grid_quad(np.zeros(3), [W, 0, 0], [0, D, 0], g, int(g * D / W))), FLOOR)
-    b.add("ceiling", *_q(grid_quad([0, 0, H], [0, D, 0], [W, 0, 0], int(g * D / W), g)), WALL)
-    b.add("wall_south", *_q(grid_quad(np.zeros(3), [0, 0, H], [W, 0, 0], nz, g)), WALL)
-    b.add("wall_north", *_q(grid_quad([0, D, 0], [W, 0, 0], [0, 0, H], g, nz)), WALL)
-    b.add("wall_west", *_q(grid_quad(np.zeros(3), [0, D, 0], [0, 0, H], int(g * D / W), nz)), WALL)
-    b.add("wall_east", *_q(grid_quad([W, 0, 0], [0, 0, H], [0, D, 0], nz, int(g * D / W))), WALL)
-    b.add(
-        "ceiling_light",
-        *_q(grid_quad([2.4, 2.0, H - 0.005], [0, 1.0, 0], [1.2, 0, 0], 1, 1)),
-        (0.8,) * 3,
-        (6.0, 5.6, 5.0),
-    )
+    b.add("floor", *room(grid_quad(np.zeros(3), [W, 0, 0], [0, D, 0], g, int(g * D / W))), FLOOR)
+    b.add("ceiling", *room(grid_quad([0, 0, H], [0, D, 0], [W, 0, 0], int(g * D / W), g)), WALL)
+    b.add("wall_south", *room(grid_quad(np.zeros(3), [0, 0, H], [W, 0, 0], nz, g)), WALL)
+    b.add("wall_north", *room(grid_quad([0, D, 0], [W, 0, 0], [0, 0, H], g, nz)), WALL)
+    b.add("wall_west", *room(grid_quad(np.zeros(3), [0, D, 0], [0, 0, H], int(g * D / W), nz)), WALL)
+    b.add("wall_east", *room(grid_quad([W, 0, 0], [0, 0, H], [0, D, 0], nz, int(g * D / W))), WALL)
+    if panel:
+        b.add(
+            "ceiling_light",
+            *_q(grid_quad([2.4, 2.0, H - 0.005], [0, 1.0, 0], [1.2, 0, 0], 1, 1)),
+            (0.8,) * 3,
+            (6.0, 5.6, 5.0),
+        )
     tops = []  # (x0, y0, x1, y1, z) surfaces small things can stand on
     # tables on legs
     # bookcases first: they stand along the north wall
@@ -327,7 +371,9 @@ def furnished_room(size="20k", seed=1):
             )
     mesh = b.build()
     tris = int(np.sum(mesh.loop_total - 2))
+    holes = np.concatenate(cut) if cut else np.zeros((0, 3))
     return mesh, {
+        "window": (holes.min(0), holes.max(0)) if len(holes) else None,
         "size": size,
         "polygons": len(mesh.loop_total),
         "triangles": tris,

@@ -342,6 +342,8 @@ def collect_lights(view_layer, depsgraph, Light, warnings=None, objects=None):
         if ob.hide_render or not getattr(ob, "visible_diffuse", True):
             continue
         ld = ob.data
+        if ld.type == "AREA" and getattr(getattr(ld, "cycles", None), "is_portal", False):
+            continue  # a Cycles portal emits nothing: it guides the sampling of the World
         factor = 2.0 ** float(getattr(ld, "exposure", 0.0)) * float(getattr(ld, "diffuse_factor", 1.0))
         strength = float(ld.energy) * factor
         if not strength > 0 or not max(ld.color) > 0:
