@@ -72,7 +72,8 @@ NODE = textwrap.dedent(
 
 def node(tmp_path, cache, frames, out, **opts):
     script = tmp_path / "node.py"
-    script.write_text(NODE)
+    if not script.exists():  # rewriting it would truncate it under a node that is still reading it
+        script.write_text(NODE)
     a, b = frames
     return subprocess.Popen(
         [sys.executable, str(script), str(cache), str(a), str(b), json.dumps(opts), str(tmp_path / out)],
