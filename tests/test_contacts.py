@@ -77,14 +77,16 @@ def _floor_values(s, pts, smooth):
 def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
     """Points 1-40 mm beside the box, against shadow rays to the emitter. Measured at medium
     (2026-12-02): band mean -0.1% (leaf values; 1-10 mm +0.7%, 10-20 mm -1.1%, 20-40 mm +0.1%) /
-    +4.1% (the smooth interpolation of the texture output; +3.0%, +4.1%, +4.5%), points under the
+    +0.1% (the smooth interpolation of the texture output; +2.1%, +0.7%, -1.0%), points under the
     box exactly 0. The push corrections give each leaf its own visibility of the sky (weighted by
     the kernel; before, the leaves near the box kept their ancestors' links' visibility: -1.3%,
-    1-10 mm +5.1%, 20-40 mm -5.3%). The smooth values stay at +4%: with the leaves right, what
-    remains is the interpolation, whose corner values are means of the exposed leaves around a
-    corner, so a corner on the box's outline reads its outer neighbours (the light falls towards
-    the outline and nothing on the covered side pulls it down) and every leaf of the band leans
-    towards the brighter leaves outside it (core/output.py's radiance_at).
+    1-10 mm +5.1%, 20-40 mm -5.3%). The smooth values were +4.1% (+3.0%, +4.1%, +4.5%) while the
+    interpolation weighed the leaves around a corner by their area: refinement makes the leaves
+    beside the box small (16 mm, 31 mm further out), so a corner between the two sizes read
+    mostly the larger, brighter leaf whose centre lies far from it. Weighed by the inverse
+    distance of their centres (core/output.py's radiance_at) they are +0.1%. What remains in
+    1-10 mm (+2.1% against the leaves' +0.7%) is the box's outline: a corner on it reads the
+    exposed leaves outside it only, while the light falls towards the outline.
     Without contacts the leaves straddling the box's outline see the emitter through sample
     points under the box: the band's leaves read 0 there (-100%)."""
     m = sky_scene()
@@ -93,7 +95,7 @@ def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
     s = RadiositySystem(m, RefineParams.preset("medium"))
     s.solve()
     assert s.report.energy_error < 1e-8
-    for smooth, tol in ((False, 0.03), (True, 0.05)):
+    for smooth, tol in ((False, 0.03), (True, 0.03)):
         v = _floor_values(s, band, smooth)
         assert abs(v.mean() / ref.mean() - 1) < tol, smooth
         assert not _floor_values(s, under, smooth).any()

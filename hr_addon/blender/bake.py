@@ -25,21 +25,13 @@ from ..core.texels import loop_incident
 from ..io import precompute as pc
 from ..io.cache import CacheError, CacheWriter, check_writable, frame_ranges
 from ..lightmap import TextureError
-from . import paths, playback, signatures, texture
+from . import paths, playback, texture
 from .preview import bake_mode, refresh_preview
 from .props import custom_range
 from .report import BUILD_SHARE, BakeProgress, BakeResult, Warnings, ray_backend_name, ray_backend_note
-from .lights_in import (
-    collect_light_shapes,
-    collect_lights,
-    frozen_emitters,
-    light_check,
-    light_objects,
-    lights_signature,
-    shapes_signature,
-    world_takes_part,
-)
-from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
+from .lights_in import collect_light_shapes, collect_lights, lights_signature, shapes_signature
+from .scene_in import SceneError, geometry_objects
+from .snapshot import read_snapshot
 from .settings import BakeConfig, make_gather, precompute_key, solver_setup
 from .state import STATE
 
@@ -142,7 +134,7 @@ def bake_frames(
     STATE.baking = True
     try:
         scene.frame_set(scene.frame_start)
-        snap = run.read_scene()
+        snap = read_snapshot(scene, view_layer, cfg, run.warn)
         run.intr.check()
         params, min_area_rel, far_warning = solver_setup(snap.mesh, cfg.params)
         run.warn([far_warning] if far_warning else [])
@@ -199,27 +191,6 @@ def _outside_scene_range(scene, start, end):
     ]
 
 
-@dataclasses.dataclass
-class _Snapshot:
-    """What the bake reads of the scene once, at its start frame."""
-
-    objects: list  # participating mesh objects
-    scene_in: object  # scene_in.SceneInput: the MeshInput and the Targets
-    geometry: dict  # per-object signatures (manifest; "the scene changed since the bake")
-    shapes_id: dict  # light-shape identity (manifest)
-    has_shapes: bool
-    lights: list  # Blender light objects, hidden ones included (they may show on another frame)
-    world: str = ""  # the World's name when its sky takes part (lights_in.world_takes_part)
-
-    @property
-    def has_lights(self):
-        return bool(self.lights or self.world)
-
-    @property
-    def mesh(self):
-        return self.scene_in.mesh
-
-
 class _Bake:
     """The steps of one bake_frames run, sharing its settings, interrupts and warnings."""
 
@@ -236,38 +207,6 @@ class _Bake:
         new = [w for w in items if self.log.add(w, frame)]
         self.result.warnings[:] = self.log.texts()
         return new
-
-    def read_scene(self):
-        scene, view_layer, cfg = self.scene, self.view_layer, self.cfg
-        depsgraph = view_layer.depsgraph
-        objects = geometry_objects(view_layer)
-        if cfg.output == "VERTEX":
-            self.warn(playback.linked_meshes(objects))
-        if cfg.output == "TEXTURE":
-            try:
-                self.warn(texture.ensure_lightmaps(objects, cfg.resolution))
-            except TextureError as exc:
-                raise SceneError(str(exc)) from None
-        with texture.source_materials(objects):  # texture preview copies stand for these
-            scene_in = collect_geometry(view_layer, depsgraph)
-        self.warn(scene_in.warnings)
-        # never a black bake without a word: nothing emits -> refused before the build
-        error, light_warnings = light_check(view_layer, scene, depsgraph, bool(scene_in.mesh.emission.any()))
-        if error:
-            raise SceneError(error)
-        self.warn(light_warnings + frozen_emitters(view_layer, scene.frame_start))
-        self.intr.check()
-        return _Snapshot(
-            objects,
-            scene_in,
-            scene_in.signatures,
-            signatures.light_shape_identity(view_layer),
-            bool(light_shape_objects(view_layer, include_hidden=True)),
-            # Blender lights (issue 20): read per frame like light shapes (keyframed transform,
-            # colour, power, cone)
-            list(light_objects(view_layer, include_hidden=True)),
-            scene.world.name if world_takes_part(scene) else "",
-        )
 
     def build(self, snap, params, min_area_rel, progress, total, cache_dir, rebuild=False):
         """(system, dyn, final gather): the scene precompute (hierarchy and final gather,

@@ -46,6 +46,10 @@ def make_parser(prog=PROG, blend_required=False):
         epilog=EXIT_CODES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+
+    def setting(flag, text):  # one of a Scene setting's choices (settings.py), case-insensitive
+        p.add_argument(flag, type=str.lower, choices=choices(flag[2:].replace("-", "_")), help=text)
+
     p.add_argument(
         "blend",
         nargs=None if blend_required else "?",
@@ -54,42 +58,32 @@ def make_parser(prog=PROG, blend_required=False):
     p.add_argument(
         "--frames", metavar="A-B", help="frame range, e.g. 1-250, or one frame (default: the scene's)"
     )
-    p.add_argument(
+    setting(
         "--method",
-        type=str.lower,
-        choices=choices("method"),
-        help="how light-shape changes are applied: auto (chosen per element by an error bound; "
+        "how light-shape changes are applied: auto (chosen per element by an error bound; "
         "recommended), ar (adaptive refinement), fe (fractional emission, fastest), naive (rebuild, "
         "slow reference)",
     )
-    p.add_argument(
+    setting(
         "--output",
-        type=str.lower,
-        choices=choices("output"),
-        help="vertex colours (HR_Radiance) or baked textures (default: the scene's)",
+        "vertex colours (HR_Radiance) or baked textures (default: the scene's)",
     )
-    p.add_argument(
+    setting(
         "--radiance-mode",
-        type=str.lower,
-        choices=choices("radiance_mode"),
-        help="values: outgoing radiance, irradiance / pi for lightmaps the material colour "
+        "values: outgoing radiance, irradiance / pi for lightmaps the material colour "
         "multiplies, or indirect: that without the Blender lights' and the World's direct light, "
         "for EEVEE (needs the final gather; default: the scene's)",
     )
     p.add_argument(
         "--resolution", type=int, metavar="N", help="texture size in texels, 8 to 16384 (texture output)"
     )
-    p.add_argument(
+    setting(
         "--texture-format",
-        type=str.lower,
-        choices=choices("texture_format"),
-        help="texture files: exr (32-bit float, linear) or png (16-bit, sRGB)",
+        "texture files: exr (32-bit float, linear) or png (16-bit, sRGB)",
     )
-    p.add_argument(
+    setting(
         "--quality",
-        type=str.lower,
-        choices=choices("quality"),
-        help="refinement preset; custom uses --feps and --aeps",
+        "refinement preset; custom uses --feps and --aeps",
     )
     p.add_argument("--feps", type=float, help="form factor threshold, 0 < F <= 1 (implies --quality custom)")
     p.add_argument(
@@ -108,11 +102,9 @@ def make_parser(prog=PROG, blend_required=False):
         help="show the hierarchy's elements instead of gathering each output point's own light "
         "(Scene setting Final Gather; the classic hierarchical radiosity output)",
     )
-    p.add_argument(
+    setting(
         "--domain",
-        type=str.lower,
-        choices=choices("domain"),
-        help="vertex output per face corner (creases stay sharp) or per vertex",
+        "vertex output per face corner (creases stay sharp) or per vertex",
     )
     p.add_argument(
         "--threads",

@@ -229,7 +229,6 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     quadtree children. Pairs of two patch nodes are returned for the ordinary patch refinement.
     Returns (FarLinks, node pairs p, q)."""
     h, prm = refiner.h, refiner.params
-    aeps = prm.aeps * refiner.total_area
     far, nodes = [], []
     root = encode([0])
     total_w = 0.5 * tree.area[0] ** 2
@@ -268,52 +267,11 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         parts = batch_map(
             lambda i, j: _classify(refiner, tree, a[i:j], b[i:j]), ranges(len(a), PAIR_BATCH), refiner.threads
         )
-        c = {k: np.concatenate([x[k] for x in parts]) for k in parts[0]}
-        drop, ok, vis, mask, pa, pb, fmax = (c[k] for k in ("drop", "ok", "vis", "mask", "pa", "pb", "fmax"))
-        if ok.any():
-            far.append((a[ok], b[ok], vis[ok], mask[ok], pa[ok], pb[ok], fmax[ok]))
-        done_w += weight(a[drop | ok], b[drop | ok])
-        todo = ~drop & ~ok
-        # Which end to split, by the first test that failed. Facing (a node whose plane cuts the
-        # other end, or two partial ends): the end whose cone, or angular radius seen from the
-        # other, is larger (a node's cone is 0: its children share its plane). Size and shadow:
-        # the end that looks larger. Feps: the end with the larger form factor as seen from the
-        # other (as in HSA).
-        a, b = a[todo], b[todo]
-        th_a, th_b = c["theta_a"][todo], c["theta_b"][todo]
-        phi_a = np.arcsin(np.clip(c["rho_a"][todo] / np.maximum(c["dist"][todo], 1e-300), 0, 1))
-        phi_b = np.arcsin(np.clip(c["rho_b"][todo] / np.maximum(c["dist"][todo], 1e-300), 0, 1))
-        fa, fb = c["fa"][todo], c["fb"][todo]
-        face_a = np.maximum(np.where(~fa, th_a, 0), np.where(~fb, phi_a, 0))
-        face_b = np.maximum(np.where(~fa, phi_b, 0), np.where(~fb, th_b, 0))
-        by_face = ~c["facing"][todo]
-        by_size = ~by_face & ~c["small"][todo]
-        by_var = ~by_face & ~by_size & ~c["even"][todo]
-        prefer_a = np.where(
-            by_face,
-            face_a >= face_b,
-            np.where(
-                by_size,
-                phi_a >= phi_b,
-                np.where(
-                    by_var,
-                    phi_a >= phi_b,
-                    np.where(fmax[todo] < prm.feps, phi_a >= phi_b, c["f_ba"][todo] >= c["f_ab"][todo]),
-                ),
-            ),
-        )
-        can_a = c["cl_a"][todo] | (c["area_a"][todo] > aeps)
-        can_b = c["cl_b"][todo] | (c["area_b"][todo] > aeps)
-        # Too strong, too uneven or half shadowed, but the end that should be split cannot be (a
-        # patch node at Aeps): splitting the other end would not lower the form factor or the
-        # variation on that end, so link here, as HSA does with two unsplittable nodes.
-        take = ~by_face & ~by_size & np.where(prefer_a, ~can_a, ~can_b)
-        if take.any():
-            idx = np.flatnonzero(todo)[take]
-            far.append((a[take], b[take], vis[idx], mask[idx], pa[idx], pb[idx], fmax[idx]))
-            done_w += weight(a[take], b[take])
-        split_a = ~take & can_a & (prefer_a | ~can_b)
-        split_b = ~take & ~split_a & can_b
+        drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax = (np.concatenate(x) for x in zip(*parts))
+        for sel in (ok, take):
+            if sel.any():
+                far.append((a[sel], b[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel]))
+        done_w += weight(a[drop | ok | take], b[drop | ok | take])
         new_a, new_b = [], []
         for sel, x, y in ((split_a, a, b), (split_b, b, a)):
             xs, ys = x[sel], y[sel]
@@ -365,8 +323,9 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
 
 def _classify(refiner, tree, a, b):
     """link_clusters' oracle for the pairs (a, b): every pair on its own (no hierarchy edits), so
-    batches of pairs run on threads. A dict of arrays: drop, ok (a far link here; vis, mask, pa,
-    pb, fmax of it) and what chooses the end to split."""
+    batches of pairs run on threads. Boolean arrays drop, ok (a far link), take (a far link: the
+    end to split cannot be split), split_a, split_b (split that end); vis, mask, pa, pb, fmax of
+    the far links."""
     h, prm = refiner.h, refiner.params
     ea, eb = Ends(tree, h, a), Ends(tree, h, b)
     fa, ba = faces(ea, eb)
@@ -401,31 +360,30 @@ def _classify(refiner, tree, a, b):
         if shadow.any():
             vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow])
             ok &= ~(shadow & (vis > 0) & (vis < 1))
-    return dict(
-        drop=drop,
-        ok=ok,
-        vis=vis,
-        mask=mask,
-        pa=pa,
-        pb=pb,
-        fmax=fmax,
-        f_ab=f_ab,
-        f_ba=f_ba,
-        dist=dist,
-        rho_a=rho_a,
-        rho_b=rho_b,
-        fa=fa,
-        fb=fb,
-        facing=facing,
-        small=small,
-        even=even,
-        theta_a=ea.theta,
-        theta_b=eb.theta,
-        cl_a=ea.cl,
-        cl_b=eb.cl,
-        area_a=ea.area,
-        area_b=eb.area,
-    )
+    # Which end to split, by the first test that failed. Facing (a node whose plane cuts the
+    # other end, or two partial ends): the end whose cone, or angular radius seen from the
+    # other, is larger (a node's cone is 0: its children share its plane). Size and shadow:
+    # the end that looks larger. Feps: the end with the larger form factor as seen from the
+    # other (as in HSA).
+    todo = ~drop & ~ok
+    phi_a = np.arcsin(np.clip(rho_a / np.maximum(dist, 1e-300), 0, 1))
+    phi_b = np.arcsin(np.clip(rho_b / np.maximum(dist, 1e-300), 0, 1))
+    face_a = np.maximum(np.where(~fa, ea.theta, 0), np.where(~fb, phi_a, 0))
+    face_b = np.maximum(np.where(~fa, phi_b, 0), np.where(~fb, eb.theta, 0))
+    by_face = ~facing
+    by_size = ~by_face & ~small
+    by_phi = by_size | ~even | (fmax < prm.feps)  # (within ~by_face)
+    prefer_a = np.where(by_face, face_a >= face_b, np.where(by_phi, phi_a >= phi_b, f_ba >= f_ab))
+    aeps = prm.aeps * refiner.total_area
+    can_a = ea.cl | (ea.area > aeps)
+    can_b = eb.cl | (eb.area > aeps)
+    # Too strong, too uneven or half shadowed, but the end that should be split cannot be (a
+    # patch node at Aeps): splitting the other end would not lower the form factor or the
+    # variation on that end, so link here, as HSA does with two unsplittable nodes.
+    take = todo & ~by_face & ~by_size & np.where(prefer_a, ~can_a, ~can_b)
+    split_a = todo & ~take & can_a & (prefer_a | ~can_b)
+    split_b = todo & ~take & ~split_a & can_b
+    return drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax
 
 
 def _variation(tree, h, a, b, eps):

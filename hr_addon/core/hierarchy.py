@@ -97,24 +97,9 @@ class Hierarchy:
         ab, bc, cd, da = (a + b) / 2, (b + cc) / 2, (cc + d) / 2, (d + a) / 2
         ca = (cc + a) / 2
         m_q = (a + b + cc + d) / 4
-        quad_children = np.stack(
-            [
-                np.stack([a, ab, m_q, da], 1),
-                np.stack([ab, b, bc, m_q], 1),
-                np.stack([m_q, bc, cc, cd], 1),
-                np.stack([da, m_q, cd, d], 1),
-            ],
-            1,
-        )
-        tri_children = np.stack(
-            [
-                np.stack([a, ab, ca, ca], 1),
-                np.stack([ab, b, bc, bc], 1),
-                np.stack([ca, bc, cc, cc], 1),
-                np.stack([bc, ca, ab, ab], 1),
-            ],
-            1,
-        )
+        quads = ((a, ab, m_q, da), (ab, b, bc, m_q), (m_q, bc, cc, cd), (da, m_q, cd, d))
+        tris = ((a, ab, ca, ca), (ab, b, bc, bc), (ca, bc, cc, cc), (bc, ca, ab, ab))
+        quad_children, tri_children = (np.stack([np.stack(k, 1) for k in four], 1) for four in (quads, tris))
         kids = np.where(tri[:, None, None, None], tri_children, quad_children)  # (m, 4, 4, 3)
         new = start + np.arange(4 * m)
         self.corners[new] = kids.reshape(-1, 4, 3)

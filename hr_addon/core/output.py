@@ -159,7 +159,8 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True, mask=True):
 
     smooth=False returns the leaf values: the piecewise-constant HR solution. smooth=True
     interpolates linearly inside the leaf (quads as two triangles) between corner values, each the
-    area-weighted mean of the leaves touching that corner, found by probing just beside it, also
+    mean of the leaves touching that corner weighted by the inverse distance of their centres
+    from it, found by probing just beside it, also
     in the neighbouring patches of a smooth surface (so input polygon edges leave no seam). The
     result is continuous across edges between leaves of equal size; at a T-vertex the jump is a
     fraction of the neighbouring leaves' difference. mask: points on covered parts of surfaces
@@ -178,7 +179,11 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True, mask=True):
     for su, sw in ((1, 1), (-1, 1), (1, -1), (-1, -1)):
         probe = (c + 1e-3 * size * (su * u + sw * w)).reshape(-1, 3)
         pl = locate_near(h, np.repeat(patch, 4), probe).reshape(-1, 4)
-        a = h.area[pl]
+        # A leaf's mean is the field near its centre: weigh it by the inverse of that centre's
+        # distance from the corner (linear between the centres along a line). Area weights let a
+        # large leaf, its centre far off, outweigh the small ones refinement made beside the
+        # corner where the light changes fastest: +4.1% in the band beside a box (test_contacts).
+        a = 1.0 / np.maximum(np.linalg.norm(h.centre[pl] - c, axis=-1), 1e-300)
         num += a[..., None] * B[:, pl].transpose(1, 2, 0)
         den += a * h.exposure[pl]  # node means over exposed area: the light on the uncovered part
     val = num / np.maximum(den, 1e-300)[..., None]

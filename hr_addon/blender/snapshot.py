@@ -1,0 +1,62 @@
+"""What a bake reads of the scene once, at its start frame: the participating meshes (one MeshInput
+and the Targets their values go to), each object's signature, the light shapes' identity and the
+Blender lights taking part. Light shapes and lights are read again per frame (bake.py)."""
+
+import dataclasses
+
+from ..lightmap import TextureError
+from . import playback, signatures, texture
+from .lights_in import frozen_emitters, light_check, light_objects, world_takes_part
+from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
+
+
+@dataclasses.dataclass
+class Snapshot:
+    objects: list  # participating mesh objects
+    scene_in: object  # scene_in.SceneInput: the MeshInput and the Targets
+    geometry: dict  # per-object signatures (manifest; "the scene changed since the bake")
+    shapes_id: dict  # light-shape identity (manifest)
+    has_shapes: bool
+    lights: list  # Blender light objects, hidden ones included (they may show on another frame)
+    world: str = ""  # the World's name when its sky takes part (lights_in.world_takes_part)
+
+    @property
+    def has_lights(self):
+        return bool(self.lights or self.world)
+
+    @property
+    def mesh(self):
+        return self.scene_in.mesh
+
+
+def read_snapshot(scene, view_layer, cfg, warn):
+    """The Snapshot for a bake of settings cfg (settings.BakeConfig); warn(list of str) takes the
+    warnings. Raises SceneError for a scene that cannot be baked (nothing emits: refused before
+    the build, never a black bake without a word). Texture output makes the HR_Lightmap UVs first."""
+    depsgraph = view_layer.depsgraph
+    objects = geometry_objects(view_layer)
+    if cfg.output == "VERTEX":
+        warn(playback.linked_meshes(objects))
+    if cfg.output == "TEXTURE":
+        try:
+            warn(texture.ensure_lightmaps(objects, cfg.resolution))
+        except TextureError as exc:
+            raise SceneError(str(exc)) from None
+    with texture.source_materials(objects):  # texture preview copies stand for these
+        scene_in = collect_geometry(view_layer, depsgraph)
+    warn(scene_in.warnings)
+    error, light_warnings = light_check(view_layer, scene, depsgraph, bool(scene_in.mesh.emission.any()))
+    if error:
+        raise SceneError(error)
+    warn(light_warnings + frozen_emitters(view_layer, scene.frame_start))
+    return Snapshot(
+        objects,
+        scene_in,
+        scene_in.signatures,
+        signatures.light_shape_identity(view_layer),
+        bool(light_shape_objects(view_layer, include_hidden=True)),
+        # Blender lights (issue 20): read per frame like light shapes (keyframed transform,
+        # colour, power, cone)
+        list(light_objects(view_layer, include_hidden=True)),
+        scene.world.name if world_takes_part(scene) else "",
+    )
