@@ -82,7 +82,7 @@ class Links:
             )
         return self._csr
 
-    def extended(self, h):
+    def extended(self, h, threads=1):
         """The solver's gather terms. Without far links: directed() (recv, src, f, is_correction).
         With them, the two passes of farlinks.FarLinks.terms(): (pass1, main) where pass1 =
         (t_slot, src, w) fills one intermediate value per far-link direction from the X space
@@ -90,14 +90,15 @@ class Links:
         is_correction) gathers into the Y space (same layout) from Z = [intermediates | X]:
         the patch-node links and corrections plus the far links' second pass, sorted by
         receiver. Cached (node geometry never changes under a link set: events only add nodes
-        below the leaves, and compact makes new Links)."""
+        below the leaves, and compact makes new Links). threads: the far links' terms by chunks
+        (core.parallel; the same terms for any count)."""
         if self.far is None or not len(self.far):
             return self._directed()
         if getattr(self, "_ext", None) is None:
             recv, src, f, corr = self._directed()
             off = cluster.SLOTS * self.far.tree.C
             nT = 2 * len(self.far)
-            pass1, (fr, fs, fw, fc) = self.far.terms(h)
+            pass1, (fr, fs, fw, fc) = self.far.terms(h, threads=threads)
             r = np.concatenate([recv.astype(np.int64) + off, fr])
             order = np.argsort(r, kind="stable")
             main = (

@@ -55,7 +55,7 @@ class Operator:
         # (SH power / irradiance and its gradient) first, then the nodes (farlinks.FarLinks).
         far = links.far
         self.tree = far.tree if far is not None and len(far) else None
-        ext = links.extended(h)
+        ext = links.extended(h, threads)
         if self.tree is None:
             self.recv, self.src, self.f, self._corr = ext
             self.off = self.nT = 0
@@ -67,7 +67,7 @@ class Operator:
         self.src = self.src.astype(np.intp, copy=False)
         if self.tree is not None:
             self.t_src = self.t_src.astype(np.intp, copy=False)
-        self._f_base = None
+        self._f_base = self._fsum = None
         self.dtype = np.float64
         self._rows = _blocks(_runs(self.recv), len(self.recv))
         self._t_rows = _blocks(_runs(self.t_slot), len(self.t_slot)) if self.tree is not None else None
@@ -101,7 +101,7 @@ class Operator:
             return self
         if getattr(self, "_f32", None) is None:
             op = copy.copy(self)
-            op.dtype, op.f, op._f_base = np.float32, self.f.astype(np.float32), None
+            op.dtype, op.f, op._f_base, op._fsum = np.float32, self.f.astype(np.float32), None, None
             if self.tree is not None:
                 op.t_w = self.t_w.astype(np.float32)
             self._f32 = op
@@ -130,14 +130,19 @@ class Operator:
             return _sum_runs(self._rows, f, self.src, B.astype(dt, copy=False), self.n, th)
         Z = np.zeros((C, self.nT + off + self.n), dt)  # [far-link intermediates | X] per channel
         X = Z[:, self.nT :]
-        for c in range(C):
+
+        def power(c):  # the clusters' power and distribution per channel on threads (own rows)
             X[c, :off] = tree.power(B[c, : tree.K]).ravel()
+
+        def distribute(c):
+            G[c, : tree.K] += tree.distribute(Y[c, :off].reshape(-1, SLOTS))
+
+        batch_map(power, _channels(C), th)
         X[:, off:] = B
         Z[:, : self.nT] = _sum_runs(self._t_rows, self.t_w, self.t_src, X, self.nT, th)
         Y = _sum_runs(self._rows, f, self.src, Z, off + self.n, th)
         G = Y[:, off:].copy()
-        for c in range(C):
-            G[c, : tree.K] += tree.distribute(Y[c, :off].reshape(-1, SLOTS))
+        batch_map(distribute, _channels(C), th)
         return G
 
     def push(self, G):
@@ -157,6 +162,10 @@ class Operator:
         lf = self.leaves
         Bn[:, lf] = self.emitted(E)[:, lf] + self.rho[:, lf] * G[:, lf]
         return self.pull(Bn), G
+
+
+def _channels(C):
+    return [(c,) for c in range(C)]
 
 
 def _runs(keys):
@@ -218,10 +227,11 @@ def solve(
     E = np.asarray(E, float)
     rep = SolveReport()
     B = op.pull(np.array(B0, float, copy=True)) if B0 is not None else op.pull(_leaf_only(E, op))
+    G = None  # the gathered G of the returned B where the solver computed it (the power balance's)
     if method == "jacobi":
         B = _jacobi(op, E, B, tol, max_iter, rep)
     else:
-        B = _gmres(op, E, B, tol, max_iter, rep)
+        B, G = _gmres(op, E, B, tol, max_iter, rep)
     if not rep.converged:
         msg = (
             f"Radiosity did not converge: relative residual {rep.residual:.2e} after {rep.iterations} "
@@ -232,7 +242,7 @@ def solve(
     rep.seconds = time.perf_counter() - t0
     rep.links_per_second = len(op.f) * rep.iterations / max(rep.seconds, 1e-12)
     if energy:
-        _energy(op, B, E, None, rep)
+        _energy(op, B, E, G, rep)
     return B, rep
 
 
@@ -260,10 +270,11 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30):
     n = C * len(lf)
     full = np.zeros((C, op.n))
     zeroE = np.zeros_like(E)
+    last = [None]  # G of the latest K(x)
 
     def K(x):  # rho K x: one gather + push-pull, as in a Jacobi sweep without emission
         full[:, lf] = x.reshape(C, -1)
-        Bn, _ = op.apply(op.pull(full), zeroE)
+        Bn, last[0] = op.apply(op.pull(full), zeroE)
         return Bn[:, lf].ravel()
 
     b = op.emitted(E)[:, lf].ravel()
@@ -315,9 +326,11 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30):
         )
         x += np.einsum("i,ij->j", y, V[:j_end])
     # Krylov iterates can undershoot by ~tol where the answer is 0; radiance is never negative.
+    # Both exits follow the residual's K(x): its gather is the solution's unless the clip changes x.
+    G = last[0] if x.min() >= 0 else None
     np.maximum(x, 0.0, out=x)
     full[:, lf] = x.reshape(C, -1)
-    return op.pull(full.copy())
+    return op.pull(full.copy()), G
 
 
 def _norm(v):
@@ -342,5 +355,7 @@ def _energy(op, B, E, G, rep):
     # ancestors (and clusters): the gather of unit radiance, pushed down to the leaves. Push
     # corrections only reshape what a receiver gathers (they sum to zero per link), so they do
     # not count here; only the exposed part of a receiver takes what a link sends it.
-    fsum = op.push(op.gather(ex[None], base=True))[0]
+    if op._fsum is None:  # depends on the operator only
+        op._fsum = op.push(op.gather(ex[None], base=True))[0]
+    fsum = op._fsum
     rep.escaped = float(np.pi * np.sum(B[:, lf] * a[lf] * (1 - fsum[lf])))
