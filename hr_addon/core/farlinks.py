@@ -130,9 +130,7 @@ class FarLinks:
         fmax = K * np.maximum(ea.area, eb.area)
         # relative gradients of the kernel over each cluster end (zero where not worth it)
         ga = self._grad(h, ea, pa, wa, kg, u, eb, self.part_a[sl])
-        gb = self._grad(
-            h, eb, pb, wb, kg.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl]
-        )
+        gb = self._grad(h, eb, pb, wb, kg.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl])
         for g_, e_ in ((ga, ea), (gb, eb)):
             g_ *= (fmax * np.linalg.norm(g_, axis=1) * e_.radius >= self.grad_eps)[:, None]
         for t, (r, er, fr, gr), (s_, es, fs, gs) in (
