@@ -139,9 +139,9 @@ class Operator:
 
         batch_map(power, _channels(C), th)
         X[:, off:] = B
-        Z[:, : self.nT] = _sum_runs(self._t_rows, self.t_w, self.t_src, X, self.nT, th)
+        _sum_runs(self._t_rows, self.t_w, self.t_src, X, self.nT, th, out=Z[:, : self.nT])
         Y = _sum_runs(self._rows, f, self.src, Z, off + self.n, th)
-        G = Y[:, off:].copy()
+        G = Y[:, off:]  # distribute() reads the clusters' part Y[:, :off] only
         batch_map(distribute, _channels(C), th)
         return G
 
@@ -190,10 +190,11 @@ def _blocks(runs, m):
     return out
 
 
-def _sum_runs(blocks, f, src, X, n, threads=1):
+def _sum_runs(blocks, f, src, X, n, threads=1, out=None):
     """(C, n) per channel c the sums over each run (receiver) of the terms f x X[c][src], zero where
-    there is none; by blocks of runs on `threads` threads (each block writes its own receivers)."""
-    out = np.zeros((len(X), n))
+    there is none; by blocks of runs on `threads` threads (each block writes its own receivers).
+    out: a zeroed (C, n) array to write into."""
+    out = np.zeros((len(X), n)) if out is None else out
 
     def block(c, k):
         first, key, a, b = blocks[k]
@@ -269,13 +270,13 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30):
     lf, C = op.leaves, E.shape[0]
     n = C * len(lf)
     full = np.zeros((C, op.n))
-    zeroE = np.zeros_like(E)
+    rho = op.rho[:, lf]
     last = [None]  # G of the latest K(x)
 
-    def K(x):  # rho K x: one gather + push-pull, as in a Jacobi sweep without emission
+    def K(x):  # rho K x: one gather + push, as in a Jacobi sweep without emission (op.apply)
         full[:, lf] = x.reshape(C, -1)
-        Bn, last[0] = op.apply(op.pull(full), zeroE)
-        return Bn[:, lf].ravel()
+        last[0] = G = op.push(op.gather(op.pull(full)))
+        return (rho * G[:, lf]).ravel()
 
     b = op.emitted(E)[:, lf].ravel()
     x = B[:, lf].ravel().copy()
