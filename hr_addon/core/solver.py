@@ -130,19 +130,21 @@ class Operator:
             return _sum_runs(self._rows, f, self.src, B.astype(dt, copy=False), self.n, th)
         Z = np.zeros((C, self.nT + off + self.n), dt)  # [far-link intermediates | X] per channel
         X = Z[:, self.nT :]
-
-        def power(c):  # the clusters' power and distribution per channel on threads (own rows)
-            X[c, :off] = tree.power(B[c, : tree.K]).ravel()
-
-        def distribute(c):
-            G[c, : tree.K] += tree.distribute(Y[c, :off].reshape(-1, SLOTS))
-
-        batch_map(power, _channels(C), th)
+        # the clusters' power and distribution by channel and group of classes on threads (each
+        # batch its own clusters and patches), the root's sums between
+        parts = [(c, g) for c in range(C) for g in range(tree.groups())]
+        P = np.empty((C, tree.C, SLOTS))
+        batch_map(lambda c, g: tree.power_group(B[c, : tree.K], g, P[c]), parts, th)
+        for c in range(C):
+            X[c, :off] = tree.power_root(P[c]).ravel()
         X[:, off:] = B
         _sum_runs(self._t_rows, self.t_w, self.t_src, X, self.nT, th, out=Z[:, : self.nT])
         Y = _sum_runs(self._rows, f, self.src, Z, off + self.n, th)
-        G = Y[:, off:]  # distribute() reads the clusters' part Y[:, :off] only
-        batch_map(distribute, _channels(C), th)
+        G = Y[:, off:]  # distribute_group() reads the clusters' part Y[:, :off] only
+        acc = Y[:, :off].reshape(C, tree.C, SLOTS).copy()
+        D = np.empty((C, tree.K))
+        batch_map(lambda c, g: tree.distribute_group(acc[c], g, D[c]), parts, th)
+        G[:, : tree.K] += D
         return G
 
     def push(self, G):
@@ -162,10 +164,6 @@ class Operator:
         lf = self.leaves
         Bn[:, lf] = self.emitted(E)[:, lf] + self.rho[:, lf] * G[:, lf]
         return self.pull(Bn), G
-
-
-def _channels(C):
-    return [(c,) for c in range(C)]
 
 
 def _runs(keys):
