@@ -180,38 +180,43 @@ class ClusterTree:
 
     def power_group(self, L, g, out):
         """power()'s sums of the clusters below the root in group g (a set of orientation classes:
-        its own rows of `out`, so the groups may run on threads)."""
-        p0, p1, leaf, first, up, _ = self._groups[g]
+        its own rows of `out`, so the groups may run on threads), with their first moments except
+        the classes' (the root sums those first)."""
+        p0, p1, leaf, first, up, _, _, mom = self._groups[g]
         out[leaf] = np.add.reduceat(self._aYT[:, p0:p1] * L[self.perm[p0:p1]], first, axis=1).T
         for ids, kids in up:
             out[ids] = out[kids].sum(1)
+        _moments(out, mom, self.centre)
 
     def power_root(self, out):
-        """power() after every group's power_group(): the root's sum and the first moments."""
+        """power() after every group's power_group(): the root's sum and the first moments of the
+        root and the classes."""
         for ids, kids in self._up_root:
             out[ids] = out[kids].sum(1)
-        out[:, 9:] -= (out[:, 1:4, None] * self.centre[:, None, :]).reshape(-1, 9)
+        _moments(out, self._top, self.centre)
         return out
 
     def distribute(self, E):
         """(K,) irradiance of every patch root from the clusters' gathered slots E (C, SLOTS):
         summed over the patch's clusters (root to leaf, level by level), the SH coefficients
         evaluated at the patch normal plus the l = 1 gradient terms at its centre."""
-        acc, out = E.copy(), np.empty(self.K)
+        acc, out = np.empty_like(E), np.zeros(self.K)
+        acc[0] = E[0]
         for g in range(self.groups()):
-            self.distribute_group(acc, g, out)
+            self.distribute_group(E, acc, g, out)
         return out
 
-    def distribute_group(self, acc, g, out):
-        """distribute() for the patches of group g from acc (C, SLOTS), a copy of the gathered
-        slots: its clusters' rows of acc become their sums from the root down, its patches' values
-        of out (K,) are written (each group its own rows: the groups may run on threads)."""
-        p0, p1, _, _, _, down = self._groups[g]
+    def distribute_group(self, E, acc, g, out):
+        """distribute() for the patches of group g: acc (C, SLOTS), scratch whose root row is E's,
+        gets its clusters' sums from the root down; its patches' values are added to out (K,)
+        (each group its own rows: the groups may run on threads)."""
+        p0, p1, _, _, _, down, own, _ = self._groups[g]
+        acc[own] = E[own]
         for ids, par in down:
             acc[ids] += acc[par]
         a = acc[self._leaf_of_sorted[p0:p1]]
         Y, X = self._Y[p0:p1], self._X[p0:p1]
-        out[self.perm[p0:p1]] = np.einsum("kj,kj->k", a[:, :9], Y) + np.einsum(
+        out[self.perm[p0:p1]] += np.einsum("kj,kj->k", a[:, :9], Y) + np.einsum(
             "kmj,km,kj->k", a[:, 9:].reshape(-1, 3, 3), Y[:, 1:4], X
         )
 
@@ -255,6 +260,7 @@ class ClusterTree:
         group's level steps are the full tree's restricted to its clusters, so the sums are the
         same as over the whole tree. The root's own sum follows the groups (_up_root)."""
         cls = self.levels[1] if len(self.levels) > 1 else np.zeros(0, np.int64)
+        self._top = np.r_[0, cls]
         cuts = np.unique(np.r_[0, self.end[cls], self.K])  # class boundaries in the tree order
         want = np.linspace(0, self.K, GROUPS + 1)[1:-1]
         inner = cuts[np.clip(np.searchsorted(cuts, want), 0, len(cuts) - 1)]
@@ -269,7 +275,9 @@ class ClusterTree:
             up = [(ids[grp[ids] == g], kids[grp[ids] == g]) for ids, kids in self._up]
             down = [(ids[grp[ids] == g], par[grp[ids] == g]) for ids, par in self._down]
             keep = lambda steps: [x for x in steps if len(x[0])]
-            groups.append((p0, p1, lg, first[grp[leaf] == g] - p0, keep(up), keep(down)))
+            own = np.flatnonzero(grp == g)
+            mom = np.setdiff1d(own, self._top)  # the classes' moments come after the root's sum
+            groups.append((p0, p1, lg, first[grp[leaf] == g] - p0, keep(up), keep(down), own, mom))
         self._up_root = [
             (ids[grp[ids] < 0], kids[grp[ids] < 0]) for ids, kids in self._up if (grp[ids] < 0).any()
         ]
@@ -302,6 +310,11 @@ def _ranges(start, end):
     cnt = np.asarray(end) - np.asarray(start)
     owner = np.repeat(np.arange(len(cnt)), cnt)
     return owner, np.repeat(start, cnt) + _rank_within(owner)
+
+
+def _moments(out, ids, centre):
+    """power()'s first moments of clusters ids about their centres (from the origin's)."""
+    out[ids, 9:] -= (out[ids, 1:4, None] * centre[ids, None, :]).reshape(-1, 9)
 
 
 def _range_sum(w, start, end):

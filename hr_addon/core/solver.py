@@ -141,10 +141,10 @@ class Operator:
         _sum_runs(self._t_rows, self.t_w, self.t_src, X, self.nT, th, out=Z[:, : self.nT])
         Y = _sum_runs(self._rows, f, self.src, Z, off + self.n, th)
         G = Y[:, off:]  # distribute_group() reads the clusters' part Y[:, :off] only
-        acc = Y[:, :off].reshape(C, tree.C, SLOTS).copy()
-        D = np.empty((C, tree.K))
-        batch_map(lambda c, g: tree.distribute_group(acc[c], g, D[c]), parts, th)
-        G[:, : tree.K] += D
+        E = Y[:, :off].reshape(C, tree.C, SLOTS)
+        acc = np.empty_like(E)
+        acc[:, 0] = E[:, 0]
+        batch_map(lambda c, g: tree.distribute_group(E[c], acc[c], g, G[c, : tree.K]), parts, th)
         return G
 
     def push(self, G):
