@@ -84,14 +84,15 @@ class FarLinks:
 
         By chunks of `chunk` links on `threads` threads (core.parallel: each chunk its own terms,
         concatenated in order, so the same for any thread count)."""
+        if not len(self.a):
+            return tuple(
+                tuple(np.zeros(0, dt) for dt in (np.int64, np.int64, float, bool)[:n]) for n in (3, 4)
+            )
         parts = batch_map(lambda a, b: self._terms(h, a, b), ranges(len(self.a), chunk), threads)
         p1, p2 = [x for p, _ in parts for x in p], [x for _, p in parts for x in p]
-        cat = lambda parts, n: (
-            tuple(np.concatenate(x) for x in zip(*parts))
-            if parts
-            else tuple(np.zeros(0, dt) for dt in (np.int64, np.int64, float, bool)[:n])
-        )
-        return cat(p1, 3), cat(p2, 4)
+        # each of the seven arrays concatenated on its own (threads)
+        cols = batch_map(lambda *x: np.concatenate(x), [*zip(*p1), *zip(*p2)], threads)
+        return tuple(cols[:3]), tuple(cols[3:])
 
     def _terms(self, h, i, end):
         """terms()' pass 1 and pass 2 parts of links i..end."""
