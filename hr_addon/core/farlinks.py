@@ -62,7 +62,7 @@ class FarLinks:
             self.scale,
         )
 
-    def terms(self, h, chunk=8192, threads=1):
+    def terms(self, h, threads=1):
         """The links' transfer in two passes through one intermediate value per link direction
         (slot 2 l for "a gathers from b", 2 l + 1 for the reverse):
 
@@ -82,13 +82,13 @@ class FarLinks:
         grad_eps): as receivers through gradient slots, as sources through their power's first
         moment, so the kernel stays symmetric.
 
-        By chunks of `chunk` links on `threads` threads (core.parallel: each chunk its own terms,
+        By chunks of TERMS_CHUNK links on `threads` threads (core.parallel: each chunk its own terms,
         concatenated in order, so the same for any thread count)."""
         if not len(self.a):
             return tuple(
                 tuple(np.zeros(0, dt) for dt in (np.int64, np.int64, float, bool)[:n]) for n in (3, 4)
             )
-        parts = batch_map(lambda a, b: self._terms(h, a, b), ranges(len(self.a), chunk), threads)
+        parts = batch_map(lambda a, b: self._terms(h, a, b), ranges(len(self.a), TERMS_CHUNK), threads)
         p1, p2 = [x for p, _ in parts for x in p], [x for _, p in parts for x in p]
         # each of the seven arrays concatenated on its own (threads)
         cols = batch_map(lambda *x: np.concatenate(x), [*zip(*p1), *zip(*p2)], threads)
@@ -220,6 +220,9 @@ def _end_factors(ids, e, part, u):
 
 # -- linking through the clusters -----------------------------------------------------------------------
 CHUNK = 200_000
+# far links per batch of their solver terms (FarLinks.terms): fixed, so the terms do not depend on
+# the thread count
+TERMS_CHUNK = 8192
 # pairs per batch of the oracle and the shadow tests on threads (core.parallel): fixed, so the links
 # do not depend on the thread count
 PAIR_BATCH = 1 << 13
