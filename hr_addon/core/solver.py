@@ -17,6 +17,11 @@ from .cluster import SLOTS
 from .links import Links
 from .parallel import batch_map
 
+# GMRES ends a cycle when the recurrence's max-norm residual is below this share of the tolerance
+# (the true residual is then computed and checked: the margin keeps that check from failing on
+# the recurrence's rounding, which would cost a restart)
+RECURRENCE = 0.5
+
 # terms per batch of a gather (a fixed cut at receiver boundaries: the sums are the same for any
 # thread count; about 2^18 terms keep a batch's temporaries in cache-sized pieces)
 GATHER_BLOCK = 1 << 18
@@ -316,8 +321,7 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30):
             Hm[j, j], Hm[j + 1, j] = d, 0.0
             g[j], g[j + 1] = cs[j] * g[j], -sn[j] * g[j]
             j_end = j + 1
-            # The 2-norm estimate bounds the max-norm residual; stop the cycle once it is small.
-            if abs(g[j + 1]) < 0.1 * tol * scale or Hm[j + 1, j] == 0 and d == 0:
+            if Hm[j + 1, j] == 0 and d == 0 or _max_residual(V, cs, sn, g, j) < RECURRENCE * tol * scale:
                 break
         y = np.linalg.solve(
             np.triu(Hm[:j_end, :j_end]) + np.diag(np.where(np.diag(Hm[:j_end, :j_end]) == 0, 1.0, 0.0)),
@@ -330,6 +334,19 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30):
     np.maximum(x, 0.0, out=x)
     full[:, lf] = x.reshape(C, -1)
     return op.pull(full.copy()), G
+
+
+def _max_residual(V, cs, sn, g, j):
+    """The max norm of GMRES's residual after step j, from the Arnoldi recurrence: |g[j + 1]| is its
+    2-norm, and the vector is V[: j + 2]^T q with q the last unit vector rotated back through the
+    Givens rotations (one pass over V, no operator application). The 2-norm alone bounds the max
+    norm, but it is up to sqrt(n) times larger: stopping on it solved the 20k room's base solution
+    to 1.3e-7 for a tolerance of 1e-5 (14 operator applications)."""
+    q = np.zeros(j + 2)
+    q[j + 1] = 1.0
+    for i in range(j, -1, -1):
+        q[i], q[i + 1] = cs[i] * q[i] - sn[i] * q[i + 1], sn[i] * q[i] + cs[i] * q[i + 1]
+    return abs(g[j + 1]) * float(np.abs(np.einsum("i,ij->j", q, V[: j + 2])).max())
 
 
 def _norm(v):
