@@ -18,9 +18,10 @@ from .links import Links
 from .parallel import batch_map
 
 # GMRES ends a cycle when the recurrence's max-norm residual is below this share of the tolerance
-# (the true residual is then computed and checked: the margin keeps that check from failing on
-# the recurrence's rounding, which would cost a restart)
-RECURRENCE = 0.5
+# (the true residual is then computed and checked). The margin is the one the 2-norm test had:
+# at 0.5, Live's responses (tol 1e-5, float32) moved 2.2e-6 from the batch ones, beyond the
+# 1e-6 that tests/test_events.py holds them to (the tolerance bounds the residual, not the error)
+RECURRENCE = 0.1
 
 # terms per batch of a gather (a fixed cut at receiver boundaries: the sums are the same for any
 # thread count; about 2^18 terms keep a batch's temporaries in cache-sized pieces)
