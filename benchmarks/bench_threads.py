@@ -15,6 +15,12 @@ workers. CPU time hardly depends on the load of a shared machine, unlike wall ti
 assumes a batch takes as long on any core (no memory bandwidth limit: an upper bound).
 
     .venv/bin/python benchmarks/bench_threads.py [--size 20k] [--runs 1@0,1@0-1,2@0-1] [--json out.json]
+        [--system DIR] [--solve-only]
+
+--system DIR keeps the built system in DIR (sys_<size>_<quality>.npz + .json, io.precompute_graph's
+capture) and loads it in later runs: the build phase is then the load (the 100k room's build takes
+5-7 minutes a run). --solve-only runs the solver's phases alone: the FE base solve, the FE event
+and the AUTO event (no gather, no output); their values are the node radiance B.
 """
 
 import argparse
@@ -31,24 +37,44 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-PHASE_KEYS = ("samples", "links", "cpu", "batches", "profiled")  # a run's entries that are no phase
+PHASE_KEYS = ("samples", "links", "cpu", "batches", "profiled", "loaded")  # a run's entries that are no phase
 
 
-def child(size, threads, quality, dump):
+def child(size, threads, quality, dump, system=None, solve_only=False):
     from hr_addon.core import parallel
 
     prof = parallel.profiled() if threads == 1 else contextlib.nullcontext([])
     with prof as maps:
-        return _phases(size, threads, quality, dump, maps)
+        return _phases(size, threads, quality, dump, maps, system, solve_only)
 
 
-def _phases(size, threads, quality, dump, maps):
+def _system(mesh, size, quality, threads, folder):
+    """(RadiositySystem, loaded?): built, or loaded from / saved to `folder` (--system)."""
+    from hr_addon.core.radiosity import RadiositySystem
+    from hr_addon.core.refine import RefineParams
+    from hr_addon.io.precompute import use_threads
+    from hr_addon.io.precompute_graph import capture, restore
+
+    stem = Path(folder or ".") / f"sys_{size}_{quality}"
+    if folder and stem.with_suffix(".json").exists():
+        arrays = dict(np.load(stem.with_suffix(".npz")))
+        s, _ = restore(arrays, json.loads(stem.with_suffix(".json").read_text()))
+        use_threads(s, None, threads)
+        return s, True
+    s = RadiositySystem(mesh, RefineParams.for_gather(quality), threads=threads)
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        arrays, graph = capture(s)
+        np.savez(stem.with_suffix(".npz"), **arrays)
+        stem.with_suffix(".json").write_text(json.dumps(graph))
+    return s, False
+
+
+def _phases(size, threads, quality, dump, maps, system=None, solve_only=False):
     from hr_testing import shapes as S
     from hr_testing.furnished import furnished_room
     from hr_addon.core.events import DynamicRadiosity, LightShape
     from hr_addon.core.gather import LoopGather
-    from hr_addon.core.radiosity import RadiositySystem
-    from hr_addon.core.refine import RefineParams
 
     wall = time.perf_counter
     mesh, info = furnished_room(size)
@@ -70,8 +96,20 @@ def _phases(size, threads, quality, dump, maps):
         print(f"  {name:22s} {out[name]:7.2f} s", file=sys.stderr, flush=True)
         return r
 
-    s = phase("build", lambda: RadiositySystem(mesh, RefineParams.for_gather(quality), threads=threads))
+    s, out["loaded"] = phase("build", lambda: _system(mesh, size, quality, threads, system))
     dyn = phase("FE base solve", lambda: DynamicRadiosity(s.copy(), method="FE", **dkw))
+    if solve_only:
+        values["first"] = dyn.B.copy()
+        phase("FE event", lambda: dyn.add("w", window))
+        values["FE"] = dyn.B.copy()
+        dyn2 = DynamicRadiosity(s.copy(), method="AUTO", **dkw)
+        phase("AUTO event", lambda: dyn2.add("w", window))
+        values["AUTO"] = dyn2.B.copy()
+        out["samples"], out["links"], out["cpu"], out["batches"] = 0, len(s.links), cpu, batches
+        out["profiled"] = threads == 1
+        if dump:
+            np.savez(dump, **values)
+        return out
     gkw = dict(rays=128, shadow_rays=16 if quality == "draft" else 32, levels=2, iterations=4)
     g = phase("gather precompute", lambda: LoopGather(dyn, threads=threads, **gkw))
     values["first"] = phase("first output", lambda: g.loop_radiance(dyn))
@@ -98,11 +136,13 @@ def main(argv=None):
     ap.add_argument("--quality", default="draft")
     ap.add_argument("--runs", default="1@0,1@0-1,2@0-1", help="threads@cpus (taskset -c)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--system", default=None, help="folder to keep / load the built system in")
+    ap.add_argument("--solve-only", action="store_true", help="the solver's phases alone")
     ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--dump", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child is not None:
-        print(json.dumps(child(args.size, args.child, args.quality, args.dump)))
+        print(json.dumps(child(args.size, args.child, args.quality, args.dump, args.system, args.solve_only)))
         return
     runs, dumps = {}, {}
     for run in args.runs.split(","):
@@ -110,6 +150,9 @@ def main(argv=None):
         dumps[run] = f"/tmp/bench_threads_{os.getpid()}_{len(dumps)}.npz"
         cmd = ["taskset", "-c", cpus, sys.executable, __file__, "--size", args.size, "--quality"]
         cmd += [args.quality, "--child", t, "--dump", dumps[run]]
+        cmd += (["--system", args.system] if args.system else []) + (
+            ["--solve-only"] if args.solve_only else []
+        )
         print(f"{t} thread(s), taskset -c {cpus}, load {os.getloadavg()[0]:.2f}", flush=True)
         r = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True)
         runs[run] = json.loads(r.stdout.strip().splitlines()[-1])

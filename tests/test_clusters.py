@@ -163,6 +163,29 @@ def test_far_link_transfer_matches_exact_form_factors(dist, size, n):
     assert (area[1:] * G[1:]).sum() == pytest.approx((area[1:] * f_sq).sum(), rel=0.02)
 
 
+def test_power_and_distribution_by_groups_are_the_sums_over_each_cluster(clutter):
+    """power() and distribute() run by groups of orientation classes (threads) with the root's
+    sums after them: the same as summing every cluster's own patch range (power, its first
+    moment about its centre) and every patch's clusters root to leaf (distribution)."""
+    t = clutter.links.far.tree
+    assert t.groups() == C.GROUPS
+    rng = np.random.default_rng(5)
+    L = rng.random(t.K)
+    P = t.power(L)
+    W = t._aYT * L[t.perm]  # (SLOTS, K) in tree order
+    for c in range(t.C):
+        want = W[:, t.start[c] : t.end[c]].sum(1)
+        want[9:] -= (want[1:4, None] * t.centre[c][None, :]).ravel()
+        np.testing.assert_allclose(P[c], want, rtol=1e-10, atol=1e-12 * np.abs(W).sum())
+    E = rng.random((t.C, C.SLOTS))
+    D = t.distribute(E)
+    for k in rng.choice(t.K, 50, replace=False):
+        pos = np.flatnonzero(t.perm == k)[0]
+        acc = E[(t.start <= pos) & (pos < t.end)].sum(0)
+        want = acc[:9] @ t._Y[pos] + np.einsum("mj,m,j->", acc[9:].reshape(3, 3), t._Y[pos, 1:4], t._X[pos])
+        assert D[k] == pytest.approx(want, rel=1e-10)
+
+
 def test_reciprocity_and_energy_balance_with_clusters(clutter):
     """A_i K_ij = A_j K_ji for the operator's kernel between leaves (far links included: the
     gradient terms act on both ends alike), and the solve's energy balance."""

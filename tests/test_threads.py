@@ -196,6 +196,7 @@ def small_batches(monkeypatch):
     from hr_addon.core.visibility import RayBackend
 
     monkeypatch.setattr(solver, "GATHER_BLOCK", 300)
+    monkeypatch.setattr(farlinks, "TERMS_CHUNK", 50)
     monkeypatch.setattr(direct, "NODE_BATCH", 7)
     monkeypatch.setattr(refine, "LINK_BATCH", 97)
     monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
@@ -210,7 +211,9 @@ def _links(s):
 
 def test_build_with_one_and_two_threads_gives_identical_links(small_batches):
     """The furnished room (clusters, far links, contacts): links, form factors, visibility and
-    the hierarchy are bitwise equal with 1 and 2 threads, and the rays counted are the same."""
+    the hierarchy are bitwise equal with 1 and 2 threads, and the rays counted are the same;
+    so is the solve."""
+    from hr_addon.core import farlinks
     from hr_testing.furnished import furnished_room
 
     mesh = furnished_room("2k")[0]
@@ -219,6 +222,15 @@ def test_build_with_one_and_two_threads_gives_identical_links(small_batches):
     for x, y in zip(_links(s1), _links(s2), strict=True):
         assert np.array_equal(x, y)
     assert s1.refiner.stats["rays"] == s2.refiner.stats["rays"] > 0
+    # the solve (far links' terms by chunks, the gathers by receiver blocks, the clusters' power
+    # and distribution by channel and group of classes): bitwise equal too
+    assert len(s1.links.far) > 10 * farlinks.TERMS_CHUNK and s1.links.far.tree.groups() == 2
+    for x, y in zip(s1.links.extended(s1.h, 1), s2.links.extended(s2.h, 2), strict=True):
+        for a, b in zip(x, y, strict=True):
+            assert np.array_equal(a, b)
+    B1, B2 = s1.solve(), s2.solve()
+    assert s1.report.iterations > 3 and np.abs(B1).max() > 0
+    assert np.array_equal(B1, B2) and s1.report.energy_error == s2.report.energy_error
     assert not _workers()
 
 

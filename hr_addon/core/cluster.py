@@ -174,26 +174,51 @@ class ClusterTree:
         sum A L Y1(n) (x - c) (3 components x 3 axes). Leaf clusters sum their patches (their
         ranges tile the tree order), the others their children, level by level."""
         out = np.empty((self.C, SLOTS))
-        leaf, first = self._leaf_runs
-        out[leaf] = np.add.reduceat(self._aYT * L[self.perm], first, axis=1).T
-        for ids, kids in self._up:
+        for g in range(self.groups()):
+            self.power_group(L, g, out)
+        return self.power_root(out)
+
+    def power_group(self, L, g, out):
+        """power()'s sums of the clusters below the root in group g (a set of orientation classes:
+        its own rows of `out`, so the groups may run on threads), with their first moments except
+        the classes' (the root sums those first)."""
+        p0, p1, leaf, first, up, _, _, mom = self._groups[g]
+        out[leaf] = np.add.reduceat(self._aYT[:, p0:p1] * L[self.perm[p0:p1]], first, axis=1).T
+        for ids, kids in up:
             out[ids] = out[kids].sum(1)
-        out[:, 9:] -= (out[:, 1:4, None] * self.centre[:, None, :]).reshape(-1, 9)
+        _moments(out, mom, self.centre)
+
+    def power_root(self, out):
+        """power() after every group's power_group(): the root's sum and the first moments of the
+        root and the classes."""
+        for ids, kids in self._up_root:
+            out[ids] = out[kids].sum(1)
+        _moments(out, self._top, self.centre)
         return out
 
     def distribute(self, E):
         """(K,) irradiance of every patch root from the clusters' gathered slots E (C, SLOTS):
         summed over the patch's clusters (root to leaf, level by level), the SH coefficients
         evaluated at the patch normal plus the l = 1 gradient terms at its centre."""
-        acc = E.copy()
-        for ids, par in self._down:
-            acc[ids] += acc[par]
-        acc = acc[self._leaf_of_sorted]
-        out = np.empty(self.K)
-        out[self.perm] = np.einsum("kj,kj->k", acc[:, :9], self._Y) + np.einsum(
-            "kmj,km,kj->k", acc[:, 9:].reshape(-1, 3, 3), self._Y[:, 1:4], self._X
-        )
+        acc, out = np.empty_like(E), np.zeros(self.K)
+        acc[0] = E[0]
+        for g in range(self.groups()):
+            self.distribute_group(E, acc, g, out)
         return out
+
+    def distribute_group(self, E, acc, g, out):
+        """distribute() for the patches of group g: acc (C, SLOTS), scratch whose root row is E's,
+        gets its clusters' sums from the root down; its patches' values are added to out (K,)
+        (each group its own rows: the groups may run on threads)."""
+        p0, p1, _, _, _, down, own, _ = self._groups[g]
+        acc[own] = E[own]
+        for ids, par in down:
+            acc[ids] += acc[par]
+        a = acc[self._leaf_of_sorted[p0:p1]]
+        Y, X = self._Y[p0:p1], self._X[p0:p1]
+        out[self.perm[p0:p1]] += np.einsum("kj,kj->k", a[:, :9], Y) + np.einsum(
+            "kmj,km,kj->k", a[:, 9:].reshape(-1, 3, 3), Y[:, 1:4], X
+        )
 
     def _transfer_tables(self, normal, area, centre):
         self._Y = sh9(normal[self.perm])
@@ -222,6 +247,41 @@ class ClusterTree:
             at, first = np.unique(pos[order], return_index=True)
             keys.append((order, at, first))
         self._by_start, self._by_end = keys
+
+    def groups(self):
+        """The number of groups of power_group() and distribute_group() (built on first use)."""
+        if getattr(self, "_groups", None) is None:
+            self._make_groups()
+        return len(self._groups)
+
+    def _make_groups(self):
+        """power() and distribute() by groups of whole orientation classes (the root's children:
+        contiguous ranges of the tree order), cut into GROUPS of about equal patch counts; each
+        group's level steps are the full tree's restricted to its clusters, so the sums are the
+        same as over the whole tree. The root's own sum follows the groups (_up_root)."""
+        cls = self.levels[1] if len(self.levels) > 1 else np.zeros(0, np.int64)
+        self._top = np.r_[0, cls]
+        cuts = np.unique(np.r_[0, self.end[cls], self.K])  # class boundaries in the tree order
+        want = np.linspace(0, self.K, GROUPS + 1)[1:-1]
+        inner = cuts[np.clip(np.searchsorted(cuts, want), 0, len(cuts) - 1)]
+        bounds = np.unique(np.r_[0, inner, self.K])
+        grp = np.searchsorted(bounds, self.start, "right") - 1  # the root (whole range) is group 0
+        grp[0] = -1 if not self.is_leaf[0] else 0
+        leaf, first = self._leaf_runs
+        groups = []
+        for g in range(len(bounds) - 1):
+            p0, p1 = int(bounds[g]), int(bounds[g + 1])
+            lg = leaf[grp[leaf] == g]
+            up = [(ids[grp[ids] == g], kids[grp[ids] == g]) for ids, kids in self._up]
+            down = [(ids[grp[ids] == g], par[grp[ids] == g]) for ids, par in self._down]
+            keep = lambda steps: [x for x in steps if len(x[0])]
+            own = np.flatnonzero(grp == g)
+            mom = np.setdiff1d(own, self._top)  # the classes' moments come after the root's sum
+            groups.append((p0, p1, lg, first[grp[leaf] == g] - p0, keep(up), keep(down), own, mom))
+        self._up_root = [
+            (ids[grp[ids] < 0], kids[grp[ids] < 0]) for ids, kids in self._up if (grp[ids] < 0).any()
+        ]
+        self._groups = groups  # assigned whole: a thread never sees it half built
 
     def children(self, c):
         """Children (shared ids) of clusters c: (flat ids, owner index into c)."""
@@ -252,6 +312,11 @@ def _ranges(start, end):
     return owner, np.repeat(start, cnt) + _rank_within(owner)
 
 
+def _moments(out, ids, centre):
+    """power()'s first moments of clusters ids about their centres (from the origin's)."""
+    out[ids, 9:] -= (out[ids, 1:4, None] * centre[ids, None, :]).reshape(-1, 9)
+
+
 def _range_sum(w, start, end):
     """Sums of w over the ranges [start, end) (prefix-sum differences)."""
     cs = np.concatenate([np.zeros((1,) + w.shape[1:]), np.cumsum(w, axis=0)])
@@ -264,6 +329,9 @@ SH_C1 = 0.4886025119029199
 # as a receiver its irradiance), then for the l = 1 part (3 components x 3 axes) the power's
 # first moment about the cluster's centre (source) or the irradiance's gradient (receiver)
 SLOTS = 18
+# power() and distribute() in this many groups of orientation classes (threads: each group's
+# clusters and patches are its own); fixed, so the sums never depend on the thread count
+GROUPS = 2
 # Irradiance gradients only for flat clusters (normal cone below ~2 degrees: walls, floors, the
 # tops of things): on a curved one the members' orientations change along with their
 # positions, which a linear fit of the distance falloff over four samples would mix up

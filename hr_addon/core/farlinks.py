@@ -62,7 +62,7 @@ class FarLinks:
             self.scale,
         )
 
-    def terms(self, h, chunk=8192):
+    def terms(self, h, threads=1):
         """The links' transfer in two passes through one intermediate value per link direction
         (slot 2 l for "a gathers from b", 2 l + 1 for the reverse):
 
@@ -80,83 +80,90 @@ class FarLinks:
         ends also weight their members by the kernel's gradient over the end, where the link is
         strong and uneven enough (link form factor x relative change over the cluster above
         grad_eps): as receivers through gradient slots, as sources through their power's first
-        moment, so the kernel stays symmetric."""
+        moment, so the kernel stays symmetric.
+
+        By chunks of TERMS_CHUNK links on `threads` threads (core.parallel: each chunk its own terms,
+        concatenated in order, so the same for any thread count)."""
+        if not len(self.a):
+            return tuple(
+                tuple(np.zeros(0, dt) for dt in (np.int64, np.int64, float, bool)[:n]) for n in (3, 4)
+            )
+        parts = batch_map(lambda a, b: self._terms(h, a, b), ranges(len(self.a), TERMS_CHUNK), threads)
+        p1, p2 = [x for p, _ in parts for x in p], [x for _, p in parts for x in p]
+        # each of the seven arrays concatenated on its own (threads)
+        cols = batch_map(lambda *x: np.concatenate(x), [*zip(*p1), *zip(*p2)], threads)
+        return tuple(cols[:3]), tuple(cols[3:])
+
+    def _terms(self, h, i, end):
+        """terms()' pass 1 and pass 2 parts of links i..end."""
         tree = self.tree
         off = SLOTS * tree.C
         p1, p2 = [], []
-        for i in range(0, len(self.a), chunk):
-            sl = slice(i, i + chunk)
-            a, b = self.a[sl], self.b[sl]
-            ea, eb = Ends(tree, h, a), Ends(tree, h, b)
-            (pa, wa), (pb, wb) = sample_points(tree, h, a, self.eps), sample_points(tree, h, b, self.eps)
-            d = pb[:, None, :, :] - pa[:, :, None, :]  # (N, 4 on a, 4 on b, 3)
-            r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
-            u = d / np.sqrt(r2)[..., None]
-            vis = ((self.mask[sl, None] >> np.arange(16)) & 1).reshape(-1, 4, 4)
-            kg = 1.0 / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]  # geometry only: the gradient fit
-            k = vis * self.scale[sl, None, None] * kg
-            K = k.sum((1, 2))
-            Kn = np.where(K > 0, K, 1.0)
-            fa = (
-                np.einsum(
-                    "nis,nisc->nc",
-                    k,
-                    _end_factors(a, ea, self.part_a[sl], u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9),
-                )
-                / Kn[:, None]
+        sl = slice(i, end)
+        a, b = self.a[sl], self.b[sl]
+        ea, eb = Ends(tree, h, a), Ends(tree, h, b)
+        (pa, wa), (pb, wb) = sample_points(tree, h, a, self.eps), sample_points(tree, h, b, self.eps)
+        d = pb[:, None, :, :] - pa[:, :, None, :]  # (N, 4 on a, 4 on b, 3)
+        r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
+        u = d / np.sqrt(r2)[..., None]
+        vis = ((self.mask[sl, None] >> np.arange(16)) & 1).reshape(-1, 4, 4)
+        kg = 1.0 / (np.pi * r2) * wa[:, :, None] * wb[:, None, :]  # geometry only: the gradient fit
+        k = vis * self.scale[sl, None, None] * kg
+        K = k.sum((1, 2))
+        Kn = np.where(K > 0, K, 1.0)
+        fa = (
+            np.einsum(
+                "nis,nisc->nc",
+                k,
+                _end_factors(a, ea, self.part_a[sl], u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9),
             )
-            fb = (
-                np.einsum(
-                    "nis,nisc->nc",
-                    k,
-                    _end_factors(b, eb, self.part_b[sl], -u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9),
-                )
-                / Kn[:, None]
-            )
-            link = 2 * (i + np.arange(len(a)))
-            fmax = K * np.maximum(ea.area, eb.area)
-            # relative gradients of the kernel over each cluster end (zero where not worth it)
-            ga = self._grad(h, ea, pa, wa, kg, u, eb, self.part_a[sl])
-            gb = self._grad(
-                h, eb, pb, wb, kg.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl]
-            )
-            for g_, e_ in ((ga, ea), (gb, eb)):
-                g_ *= (fmax * np.linalg.norm(g_, axis=1) * e_.radius >= self.grad_eps)[:, None]
-            for t, (r, er, fr, gr), (s_, es, fs, gs) in (
-                (link, (a, ea, fa, ga), (b, eb, fb, gb)),
-                (link + 1, (b, eb, fb, gb), (a, ea, fa, ga)),
-            ):
-                # pass 1: a node source's slot holds radiance, a cluster's its power (area inside)
-                # and the power's first moment, weighted by the source-side gradient
-                w1 = np.zeros((len(r), SLOTS))
-                w1[:, :9] = K[:, None] * fs * np.where(es.cl, 1.0, es.area)[:, None]
-                w1[:, 9:] = (K[:, None, None] * fs[:, 1:4, None] * gs[:, None, :]).reshape(-1, 9)
-                S = _slots(s_, es, off)
-                live = w1 != 0
-                p1.append((np.broadcast_to(t[:, None], w1.shape)[live], S[live], w1[live]))
-                # pass 2: the receiver's kernel, with its gradient about the cluster's centre
-                # (members evaluate it at their absolute positions, hence the - G c term)
-                R = _slots(r, er, off)
-                w2 = np.zeros((len(r), SLOTS))
-                w2[:, :9] = fr
-                Gm = fr[:, 1:4, None] * gr[:, None, :]  # (N, 3, 3 axes)
-                w2[:, 9:] = Gm.reshape(-1, 9)
-                w2[:, 1:4] -= np.einsum("nmk,nk->nm", Gm, er.centre)
-                live = w2 != 0
-                p2.append(
-                    (
-                        R[live],
-                        np.broadcast_to(t[:, None], w2.shape)[live],
-                        w2[live],
-                        np.zeros(int(live.sum()), bool),
-                    )
-                )
-        cat = lambda parts, n: (
-            tuple(np.concatenate(x) for x in zip(*parts))
-            if parts
-            else tuple(np.zeros(0, dt) for dt in (np.int64, np.int64, float, bool)[:n])
+            / Kn[:, None]
         )
-        return cat(p1, 3), cat(p2, 4)
+        fb = (
+            np.einsum(
+                "nis,nisc->nc",
+                k,
+                _end_factors(b, eb, self.part_b[sl], -u.reshape(-1, 16, 3)).reshape(-1, 4, 4, 9),
+            )
+            / Kn[:, None]
+        )
+        link = 2 * (i + np.arange(len(a)))
+        fmax = K * np.maximum(ea.area, eb.area)
+        # relative gradients of the kernel over each cluster end (zero where not worth it)
+        ga = self._grad(h, ea, pa, wa, kg, u, eb, self.part_a[sl])
+        gb = self._grad(h, eb, pb, wb, kg.transpose(0, 2, 1), -u.transpose(0, 2, 1, 3), ea, self.part_b[sl])
+        for g_, e_ in ((ga, ea), (gb, eb)):
+            g_ *= (fmax * np.linalg.norm(g_, axis=1) * e_.radius >= self.grad_eps)[:, None]
+        for t, (r, er, fr, gr), (s_, es, fs, gs) in (
+            (link, (a, ea, fa, ga), (b, eb, fb, gb)),
+            (link + 1, (b, eb, fb, gb), (a, ea, fa, ga)),
+        ):
+            # pass 1: a node source's slot holds radiance, a cluster's its power (area inside)
+            # and the power's first moment, weighted by the source-side gradient
+            w1 = np.zeros((len(r), SLOTS))
+            w1[:, :9] = K[:, None] * fs * np.where(es.cl, 1.0, es.area)[:, None]
+            w1[:, 9:] = (K[:, None, None] * fs[:, 1:4, None] * gs[:, None, :]).reshape(-1, 9)
+            S = _slots(s_, es, off)
+            live = w1 != 0
+            p1.append((np.broadcast_to(t[:, None], w1.shape)[live], S[live], w1[live]))
+            # pass 2: the receiver's kernel, with its gradient about the cluster's centre
+            # (members evaluate it at their absolute positions, hence the - G c term)
+            R = _slots(r, er, off)
+            w2 = np.zeros((len(r), SLOTS))
+            w2[:, :9] = fr
+            Gm = fr[:, 1:4, None] * gr[:, None, :]  # (N, 3, 3 axes)
+            w2[:, 9:] = Gm.reshape(-1, 9)
+            w2[:, 1:4] -= np.einsum("nmk,nk->nm", Gm, er.centre)
+            live = w2 != 0
+            p2.append(
+                (
+                    R[live],
+                    np.broadcast_to(t[:, None], w2.shape)[live],
+                    w2[live],
+                    np.zeros(int(live.sum()), bool),
+                )
+            )
+        return p1, p2
 
     @staticmethod
     def _grad(h, er, pr, wr, k, u, es, part_r):
@@ -213,6 +220,9 @@ def _end_factors(ids, e, part, u):
 
 # -- linking through the clusters -----------------------------------------------------------------------
 CHUNK = 200_000
+# far links per batch of their solver terms (FarLinks.terms): fixed, so the terms do not depend on
+# the thread count
+TERMS_CHUNK = 8192
 # pairs per batch of the oracle and the shadow tests on threads (core.parallel): fixed, so the links
 # do not depend on the thread count
 PAIR_BATCH = 1 << 13

@@ -4,6 +4,7 @@ arrays the solver gathers over, with far links (farlinks.py) and push correction
 import numpy as np
 
 from . import cluster
+from .parallel import batch_map
 
 
 class Links:
@@ -82,7 +83,7 @@ class Links:
             )
         return self._csr
 
-    def extended(self, h):
+    def extended(self, h, threads=1):
         """The solver's gather terms. Without far links: directed() (recv, src, f, is_correction).
         With them, the two passes of farlinks.FarLinks.terms(): (pass1, main) where pass1 =
         (t_slot, src, w) fills one intermediate value per far-link direction from the X space
@@ -90,24 +91,28 @@ class Links:
         is_correction) gathers into the Y space (same layout) from Z = [intermediates | X]:
         the patch-node links and corrections plus the far links' second pass, sorted by
         receiver. Cached (node geometry never changes under a link set: events only add nodes
-        below the leaves, and compact makes new Links)."""
+        below the leaves, and compact makes new Links). threads: the far links' terms by chunks
+        (core.parallel; the same terms for any count)."""
         if self.far is None or not len(self.far):
             return self._directed()
         if getattr(self, "_ext", None) is None:
             recv, src, f, corr = self._directed()
             off = cluster.SLOTS * self.far.tree.C
             nT = 2 * len(self.far)
-            pass1, (fr, fs, fw, fc) = self.far.terms(h)
+            pass1, (fr, fs, fw, fc) = self.far.terms(h, threads=threads)
             r = np.concatenate([recv.astype(np.int64) + off, fr])
-            order = np.argsort(r, kind="stable")
-            main = (
-                r[order].astype(np.int32),
-                np.concatenate([src.astype(np.int64) + off + nT, fs])[order].astype(np.int32),
-                np.concatenate([f, fw])[order],
-                np.concatenate([corr, fc])[order],
-            )
-            o1 = np.argsort(pass1[0], kind="stable")
-            self._ext = (tuple(x[o1] for x in pass1), main)
+            # the two sorts, then the seven reorderings, each its own array on the threads
+            sort = lambda k: np.argsort(k, kind="stable")
+            order, o1 = batch_map(sort, [(r,), (pass1[0],)], threads)
+            cols = [
+                (r, order, np.int32),
+                (np.concatenate([src.astype(np.int64) + off + nT, fs]), order, np.int32),
+                (np.concatenate([f, fw]), order, None),
+                (np.concatenate([corr, fc]), order, None),
+                *((x, o1, None) for x in pass1),
+            ]
+            cols = batch_map(lambda x, o, dt: x[o] if dt is None else x[o].astype(dt), cols, threads)
+            self._ext = (tuple(cols[4:]), tuple(cols[:4]))
             self._csr = None  # held inside main (shifted); directed() rebuilds it if asked
         return self._ext
 
