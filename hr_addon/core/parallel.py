@@ -19,9 +19,11 @@ import os
 import threading
 import time
 from contextlib import contextmanager
+from itertools import count
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
 _local = threading.local()
+_pools = count()  # a name per pool, so that its threads can be found (batch_map's finally)
 _counts_lock = threading.Lock()
 _profile = None  # profiled(): the CPU seconds of each batch of every outermost inline batch map
 
@@ -99,7 +101,8 @@ def batch_map(fn, batches, threads=1, progress=None, poll=0.1):
             _profile.append(seconds)
         return out
     out = [None] * total
-    pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="hr-batch")
+    name = f"hr-batch-{next(_pools)}"
+    pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix=name)
     pending = {}
     nxt = done = 0
     try:
@@ -119,6 +122,11 @@ def batch_map(fn, batches, threads=1, progress=None, poll=0.1):
         for f in pending:
             f.cancel()
         pool.shutdown(wait=True, cancel_futures=True)
+        # a Ctrl-C raised inside submit() while it starts a worker leaves that thread outside the
+        # pool's own list, so shutdown does not join it (it ends on the pool's stop signal)
+        for t in threading.enumerate():
+            if t.name.startswith(name + "_"):
+                t.join()
     return out
 
 
