@@ -5,7 +5,11 @@ events and a dump of the gathered output for comparing transport settings (coars
 
     .venv/bin/python benchmarks/bench_gather_events.py --size 100k --quality draft \
         [--transport gather] [--params 'dict(feps=0.1)'] [--response-tol 1e-4] \
-        [--profile out.txt] [--dump out.npz] [--json out.json] [--threads N]
+        [--profile out.txt] [--dump out.npz] [--json out.json] [--threads N] [--cache DIR]
+
+--cache DIR: build the system, its base solution and the gather once and keep them there as a
+scene precompute (io/precompute.py); later runs load them (without checking the code version:
+for timing the events of code that does not change what is stored) and cost only the events.
 
 --transport gather: the transport settings used when the final gather is on
 (RefineParams.for_gather / DynamicRadiosity's gather options); default: today's presets.
@@ -43,6 +47,7 @@ def main(argv=None):
     ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
     ap.add_argument("--json", default=None)
     ap.add_argument("--threads", type=int, default=1, help="core.parallel's threads (0: every core)")
+    ap.add_argument("--cache", default=None, help="folder of a stored build (see the module doc)")
     args = ap.parse_args(argv)
 
     from hr_testing import shapes as S
@@ -51,6 +56,7 @@ def main(argv=None):
     from hr_addon.core.gather import LoopGather
     from hr_addon.core.radiosity import RadiositySystem
     from hr_addon.core.refine import RefineParams
+    from hr_addon.io import precompute as pc
 
     cpu, wall = time.process_time, time.perf_counter
     mesh, info = furnished_room(args.size)
@@ -68,28 +74,51 @@ def main(argv=None):
     out = dict(size=args.size, quality=q, transport=args.transport, params=dataclasses.asdict(params))
     out["threads"], out["load_average"] = args.threads, os.getloadavg()[0]
     out["dyn_options"] = dict(dkw)
-    c0 = cpu()
-    s = RadiositySystem(mesh, params, threads=args.threads)
-    out["build_cpu_s"] = cpu() - c0
+    gkw = dict(rays=args.rays, levels=args.levels, iterations=args.iterations, threads=args.threads)
+    # the bake's settings (hr_addon/blender/settings.py GATHER): 16 shadow rays at draft, 32 above
+    gkw["shadow_rays"] = args.shadow_rays or (16 if q == "draft" else 32)
+    stored = Path(args.cache) / pc.FILENAME if args.cache else None
+    g = None
+    if stored is not None and stored.exists():
+        arrays, header = pc.read(stored)
+        s, g = pc.restore(arrays, header["graph"])
+        pc.use_threads(s, g, args.threads)
+        out.update(header["info"])
+        out["loaded"] = str(stored)
+        # the solver's far-link terms: computed by the build's base solution, not stored (as a
+        # re-bake's first event pays them); here once before the events, as after a build
+        c0 = cpu()
+        s.links.extended(s.h)
+        out["terms_after_load_cpu_s"] = cpu() - c0
+        print(f"loaded {stored}", flush=True)
+    else:
+        c0 = cpu()
+        s = RadiositySystem(mesh, params, threads=args.threads)
+        out["build_cpu_s"] = cpu() - c0
+        out["build_peak_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+        if stored is not None:
+            c0 = cpu()
+            # the base solution (kept on the system) and the gather, as a bake stores them
+            g = LoopGather(DynamicRadiosity(s, method="FE", **dkw), **gkw)
+            pc.prepare(g)
+            meta = {k: out[k] for k in ("build_cpu_s", "build_peak_gb")}
+            meta["gather_precompute_cpu_s"] = cpu() - c0
+            want = pc.expected(mesh, params, gather=gkw, quality=q)
+            pc.write(args.cache, *pc.capture(s, g), want, info=meta)
     out["links"], out["nodes"] = len(s.links), s.h.n
-    out["build_peak_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
-    print(f"build {out['build_cpu_s']:.1f} s CPU, {out['links']:,} links, {s.h.n:,} nodes", flush=True)
+    print(f"build {out.get('build_cpu_s', 0):.1f} s CPU, {out['links']:,} links, {s.h.n:,} nodes", flush=True)
     _, frame = info["light_wall"]
 
     def window(cx, em=20.0):
         rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)
         return LightShape(rect, np.broadcast_to(np.asarray(em, float), (3,)).copy(), "window")
 
-    # the bake's settings (hr_addon/blender/settings.py GATHER): 16 shadow rays at draft, 32 above
-    gkw = dict(rays=args.rays, levels=args.levels, iterations=args.iterations, threads=args.threads)
-    gkw["shadow_rays"] = args.shadow_rays or (16 if q == "draft" else 32)
     prof = None
     if args.profile:
         import cProfile
 
         prof = cProfile.Profile()
     dumps = {}
-    g = None
     for method in args.methods.split(","):
         c0 = cpu()
         dyn = DynamicRadiosity(s.copy(), method=method, **dkw)

@@ -112,3 +112,33 @@ def test_clear_shafts_is_conservative():
     for _ in range(8):
         e = elo + rng.random((ok.sum(), 3)) * (ehi - elo)
         assert not b.occluded(o[ok], e).any()
+
+
+def test_first_bounce_and_gather_share_one_grid(monkeypatch):
+    """An AUTO window on the furnished 2k room: its first bounce on nodes and the gather's direct
+    light at both levels test their shafts against one ClearShafts grid, built once per emitter
+    plane (a copy of the system shares it)."""
+    from hr_testing.furnished import furnished_room
+
+    mesh, info = furnished_room("2k")
+    _, frame = info["light_wall"]
+    s = RadiositySystem(mesh, RefineParams.for_gather("draft"))
+    built = []
+    real = ClearShafts.__init__
+
+    def counting(self, *a, **k):
+        built.append(a[2].copy())  # the emitter's point
+        real(self, *a, **k)
+
+    monkeypatch.setattr(ClearShafts, "__init__", counting)
+    dyn = DynamicRadiosity(s.copy(), method="AUTO")
+    g = LoopGather(dyn, rays=16, shadow_rays=4, levels=2)
+    rect = S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame)
+    dyn.add("w", LightShape(rect, np.full(3, 20.0), "window"))
+    c = dyn.shapes["w"].c
+
+    def grids():  # built for the window's plane (static emitters have their own)
+        return sum(np.array_equal(p, c) for p in built)
+
+    assert dyn.shapes["w"].direct_links > 0 and grids() == 1  # the first bounce built it
+    assert g.loop_radiance(dyn).max() > 0 and grids() == 1  # both levels reused it

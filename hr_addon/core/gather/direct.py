@@ -2,18 +2,14 @@
 Blender lights) the exact form factor times a visibility ratio from shadow rays, at unit radiance,
 cached so that a strength or colour change is a scale (docs/gather.md)."""
 
-import weakref
-
 import numpy as np
 
 from .. import formfactor as ff
-from ..events.direct import shape_form_factors, slab_pieces
+from ..events.direct import clear_shafts, shape_form_factors, slab_pieces
 from ..geometry import newell
 from ..parallel import batch_map, ranges
-from ..planes import ClearShafts
 from .sampling import Emitter, hammersley, hash_uniform, position_keys
 
-_SHAFTS = []  # (weak reference to the system, emitter plane, ClearShafts): the last few grids
 _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
 
@@ -87,18 +83,10 @@ class DirectLight:
 
     def shafts(self, em: Emitter):
         """ClearShafts of a planar emitter over the system's triangles (None: not planar), shared
-        by the levels of a gather (the same system and emitter plane: the same grid)."""
+        by the levels of a gather and AUTO's first bounce (events.direct.clear_shafts)."""
         if em.normal is None or self.shadow_rays <= 0:
             return None
-        s = self.system
-        key = (em.point.tobytes(), em.normal.tobytes())
-        for ref, k, sh in _SHAFTS:
-            if ref() is s and k == key:
-                return sh
-        sh = ClearShafts(s.patches.triangles, s.refiner.occluders.plane, em.point, em.normal, 1e-3 * self.eps)
-        _SHAFTS.append((weakref.ref(s), key, sh))
-        del _SHAFTS[:-4]
-        return sh
+        return clear_shafts(self.system, em.point, em.normal)
 
     def static_emitters(self):
         """The input's emissive patches, one Emitter per (object, emission)."""

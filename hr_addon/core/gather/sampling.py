@@ -191,43 +191,49 @@ class Emitter:
         s1 = np.clip((xs - lo) / np.maximum(ok_, 1e-300), 0, 1)
         li = np.repeat(np.arange(L), S)
         kk = k.ravel()
-        t3 = self.tri[kk]
         big = ok_.ravel() >= self.SOLID_MIN
+        # every triangle seen large (the usual case): slices instead of masks, no copies
+        allbig = bool(big.all())
+        bsel = slice(None) if allbig else big
         y = np.empty((L * S, 3))
         if big.any():
             # the sample-independent part of Arvo's method once per point and triangle
             Vf = V.reshape(L * T, 3, 3)
             alpha, ab, c_perp = spherical_setup(Vf[:, 0], Vf[:, 1], Vf[:, 2])
-            j = li[big] * T + kk[big]
-            Vb = Vf[j]
+            kb, lb = kk[bsel], li[bsel]
+            j = lb * T + kb
+            Vb = np.take(Vf, j, axis=0)
             w = sample_spherical_triangle(
                 Vb[:, 0],
                 Vb[:, 1],
                 Vb[:, 2],
-                s1.ravel()[big],
-                u[..., 1].ravel()[big],
-                ok_.ravel()[big],
-                setup=(alpha[j], ab[j], c_perp[j]),
+                s1.ravel()[bsel],
+                u[..., 1].ravel()[bsel],
+                ok_.ravel()[bsel],
+                setup=(np.take(alpha, j), np.take(ab, j), np.take(c_perp, j, axis=0)),
             )
             # the point where direction w meets the triangle's plane
-            n = self.tri_normal[kk[big]]
-            xo = x[li[big]]
-            tt = np.einsum("nk,nk->n", t3[big, 0] - xo, n) / np.where(
-                np.abs(np.einsum("nk,nk->n", w, n)) > 1e-300, np.einsum("nk,nk->n", w, n), 1e-300
+            n = np.take(self.tri_normal, kb, axis=0)
+            xo = np.take(x, lb, axis=0)
+            wn = np.einsum("nk,nk->n", w, n)
+            tt = np.einsum("nk,nk->n", np.take(self.tri[:, 0], kb, axis=0) - xo, n) / np.where(
+                np.abs(wn) > 1e-300, wn, 1e-300
             )
-            y[big] = xo + tt[:, None] * w
+            y[bsel] = xo + tt[:, None] * w
         small = ~big
-        if small.any():
+        if not allbig and small.any():
             r1 = np.sqrt(s1.ravel()[small])
             u2 = u[..., 1].ravel()[small]
-            tri = t3[small]
+            tri = self.tri[kk[small]]
             y[small] = (
                 (1 - r1)[:, None] * tri[:, 0]
                 + (r1 * (1 - u2))[:, None] * tri[:, 1]
                 + (r1 * u2)[:, None] * tri[:, 2]
             )
         y = y.reshape(L, S, 3)
-        ny = self.tri_normal[k]
+        ny = np.take(self.tri_normal, k, axis=0)
+        if allbig:  # exact solid-angle sampling everywhere: the density ratio is 1
+            return y, ny, np.ones((L, S))
         d = y - x[:, None]
         r2 = np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300)
         cos_y = np.abs(np.einsum("lsk,lsk->ls", d, ny)) / np.sqrt(r2)
