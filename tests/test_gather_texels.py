@@ -94,6 +94,22 @@ def _slot(w=0.002):
     return b.build()
 
 
+def _slot_side_texels(mesh, t=0.01):
+    """The draft system of a _slot scene and t x t texels over box a's side facing the slot:
+    (system, patch (n,), centres (n, 3), axes (n, 2, 3), t)."""
+    s = RadiositySystem(mesh, RefineParams.preset("draft"))
+    pt = s.patches
+    names = np.array(pt.object_names)[pt.object_id]
+    side = np.flatnonzero((names == "a") & (pt.normal[:, 0] > 0.5))
+    assert len(side) == 1
+    assert s.h.contacts is not None and np.isin(side, s.h.contacts.receivers).all()
+    x0 = float(pt.corners[side][..., 0].max())
+    Y, Z = np.meshgrid(np.arange(-0.05 + t / 2, 0.05, t), np.arange(t / 2, 0.2, t))
+    cen = np.column_stack([np.full(Y.size, x0), Y.ravel(), Z.ravel()])
+    axes = np.tile(np.array([[0, t, 0], [0, 0, t]])[None], (len(cen), 1, 1))
+    return s, np.full(len(cen), side[0]), cen, axes, t
+
+
 def _slot_reference(mesh, y, z, n=64):
     """Irradiance / pi from the sky at points (x = -w/2, y, z) of box a's slot side (normal +x),
     the sky in n x n cells each seen through a shadow ray to a random point of the cell."""
@@ -134,18 +150,7 @@ def test_slot_between_two_boxes_gathers_its_open_band():
     before (open_edge 0) the side reads 0; at texel centres only, the top row reads its centre's
     light (5 mm deep), far below its mean."""
     m = _slot()
-    s = RadiositySystem(m, RefineParams.preset("draft"))
-    pt = s.patches
-    names = np.array(pt.object_names)[pt.object_id]
-    side = np.flatnonzero((names == "a") & (pt.normal[:, 0] > 0.5))
-    assert len(side) == 1
-    assert s.h.contacts is not None and np.isin(side, s.h.contacts.receivers).all()
-    x0 = float(pt.corners[side][..., 0].max())
-    t = 0.01
-    Y, Z = np.meshgrid(np.arange(-0.05 + t / 2, 0.05, t), np.arange(t / 2, 0.2, t))
-    cen = np.column_stack([np.full(Y.size, x0), Y.ravel(), Z.ravel()])
-    patch = np.full(len(cen), side[0])
-    axes = np.tile(np.array([[0, t, 0], [0, 0, t]])[None], (len(cen), 1, 1))
+    s, patch, cen, axes, t = _slot_side_texels(m)
     area = t * t
     # reference: integral over the side, depth from the top graded towards the edge
     u = (np.arange(60) + 0.5) / 60
@@ -364,17 +369,8 @@ def test_slot_between_reflecting_boxes_against_path_tracing():
     measured 1.02 for the side, 0.87 deep (the slot's corners and its finite extent); held to
     0.9-1.1 and 0.75-1.25 (nearest mouth only: 0.58 deep)."""
     m = _slot_in_a_furnace()
-    s = RadiositySystem(m, RefineParams.preset("draft"))
-    pt = s.patches
-    names = np.array(pt.object_names)[pt.object_id]
-    side = np.flatnonzero((names == "a") & (pt.normal[:, 0] > 0.5))
-    assert len(side) == 1
-    x0 = float(pt.corners[side][..., 0].max())
-    t = 0.01
-    Y, Z = np.meshgrid(np.arange(-0.05 + t / 2, 0.05, t), np.arange(t / 2, 0.2, t))
-    cen = np.column_stack([np.full(Y.size, x0), Y.ravel(), Z.ravel()])
-    axes = np.tile(np.array([[0, t, 0], [0, 0, t]])[None], (len(cen), 1, 1))
-    g = texel_gather(s, np.full(len(cen), side[0]), cen, axes=axes, rays=64, shadow_rays=16)
+    s, patch, cen, axes, t = _slot_side_texels(m)
+    g = texel_gather(s, patch, cen, axes=axes, rays=64, shadow_rays=16)
     ours = g.evaluate(s, "incident")[:, 0]
     rng = np.random.default_rng(3)
     k = 1024

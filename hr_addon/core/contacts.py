@@ -238,9 +238,11 @@ class Contacts:
         # closes (a book's bottom edge on its board)
         self.seg_mouth = self.seg_open & (self.seg_height > self.min_gap)
         self._mouths_probed = False
-        # a chain covers at a gap only if none of its segments touches the plane (h = 0)
-        self.chain_gap = np.full(nC, np.inf)
-        np.minimum.at(self.chain_gap, self.seg_chain, self.seg_height)
+        # a chain whose segments all touch the plane (a box standing on the floor) makes no slot
+        # under it, even where another chain's slot reaches; one standing off it anywhere (a
+        # tilted block) may
+        self.chain_gap = np.zeros(nC)
+        np.maximum.at(self.chain_gap, self.seg_chain, self.seg_height)
         both = np.concatenate([self.seg_a, self.seg_b])
         ch2 = np.concatenate([self.seg_chain, self.seg_chain])
         # chain boxes in the plane's frame (a third coordinate 0, as _box_pairs takes 3D boxes)
@@ -329,12 +331,13 @@ class Contacts:
         return out
 
     def slots(self, points, patch, budget=4_000_000, chunk=200_000):
-        """Points (N, 3) on patches (N,) covered only at a gap, inside a slot: every chain covering
-        them lies a height h > min_gap in front of their plane (a neighbour book's side 2 mm away; not a
-        box standing on the floor) and one has a mouth (seg_mouth: an open edge the light enters
-        by). Returns (depth (N,): distance to the nearest mouth of their covering chains, h (N,)
-        of that mouth, foot (N, 3): its nearest point, on the points' plane, chain (N,): the
-        chain it belongs to); h = 0, depth inf and chain -1 for the other points."""
+        """Points (N, 3) on patches (N,) covered only at a gap, inside a slot: no chain covering
+        them touches their plane all along (chain_gap: a box standing on the floor) and one has a
+        mouth (seg_mouth: an open edge a height h > min_gap in front, the light enters by: a
+        neighbour book's side 2 mm away). Returns (depth (N,): distance to the nearest mouth of
+        their covering chains, h (N,) of that mouth, foot (N, 3): its nearest point, on the
+        points' plane, chain (N,): the chain it belongs to); h = 0, depth inf and chain -1 for
+        the other points."""
         points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
         if len(points) > chunk:
             parts = [

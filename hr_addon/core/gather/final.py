@@ -155,6 +155,10 @@ class FinalGather(DirectLight):
             self.dark[:] = False
         elif open_edge > 0 and h.contacts is not None and self.dark.any():
             self._slots(h.contacts, margin, slot_area)
+            # the rest within open_edge x h of an open edge of a gap (a tilted block's, whose own
+            # wall closes the mouth the slots test) gather where they lie (contacts.covered)
+            d = np.flatnonzero(self.dark)
+            self.dark[d] = h.contacts.covered(self.points[d], self.patch[d], open_edge=open_edge)
         # groups (n,) non-decreasing: the output of row j is the mean over the samples of group j
         # (a texel's sub-samples over its area, layouts.texel_samples; covered ones count 0)
         self.group = None if groups is None else np.asarray(groups, np.int64)

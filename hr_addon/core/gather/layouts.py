@@ -215,6 +215,8 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
         x[c], hg[c] = con.slots(flat[c], fp[c])[:2]
         x, slot = x.reshape(-1, m), (hg > 0).reshape(-1, m)
         mixed |= (slot & (x < open_edge * hg.reshape(-1, m))).any(1)
+        band = con.covered(flat[c], fp[c], open_edge=open_edge)  # gathered where they lie (FinalGather)
+        mixed |= np.bincount(c[~band] // m, minlength=len(cand)) > 0
         spread = ~mixed & slot.all(1) & (x.max(1) > 2 * x.min(1))
     cnt = np.ones(n, np.int64)
     cnt[cand[mixed]] = k2
