@@ -332,12 +332,12 @@ class Contacts:
 
     def slots(self, points, patch, budget=4_000_000, chunk=200_000):
         """Points (N, 3) on patches (N,) covered only at a gap, inside a slot: no chain covering
-        them touches their plane all along (chain_gap: a box standing on the floor) and one has a
-        mouth (seg_mouth: an open edge a height h > min_gap in front, the light enters by: a
-        neighbour book's side 2 mm away). Returns (depth (N,): distance to the nearest mouth of
-        their covering chains, h (N,) of that mouth, foot (N, 3): its nearest point, on the
-        points' plane, chain (N,): the chain it belongs to); h = 0, depth inf and chain -1 for
-        the other points."""
+        them touches their plane all along (chain_gap: a box standing on the floor) and a covering
+        face parallel to it has a mouth (seg_mouth: an open edge a height h > min_gap in front, the
+        light enters by: a neighbour book's side 2 mm away). Returns (depth (N,): distance to the
+        nearest mouth of their covering faces, h (N,) of that mouth, foot (N, 3): its nearest
+        point, on the points' plane, chain (N,): the chain it belongs to); h = 0, depth inf and
+        chain -1 for the other points."""
         points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
         if len(points) > chunk:
             parts = [
@@ -353,7 +353,9 @@ class Contacts:
         i, ch, hit, _, dist, vec, seg = pairs
         i, ch, dist, vec, seg = i[hit], ch[hit], dist[hit], vec[hit], seg[hit]
         touching = np.bincount(i, self.chain_gap[ch] <= self.min_gap, n) > 0
-        # per point the covering chain with the nearest mouth
+        # per point the covering face (parallel to the plane, as the transfer's walls are: not a
+        # crossing solid's outline, a vase's curved side) with the nearest mouth
+        dist = np.where(self.chain_signed[ch], np.inf, dist)
         order = np.lexsort((dist, i))
         first = order[np.r_[True, i[order][1:] != i[order][:-1]]] if len(order) else order
         k = first[~touching[i[first]] & np.isfinite(dist[first])]
