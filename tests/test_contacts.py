@@ -123,3 +123,26 @@ def test_furnace_with_touching_objects(quality, worst, p99):
     assert err.max() < worst and np.percentile(err, 99) < p99
     assert abs((a * (shown[0, seen] / 2.0 - 1)).sum() / a.sum()) < 0.005
     assert s.report.energy_error < 1e-8
+
+
+def test_slot_transfer_first_bounce_and_energy():
+    """contacts.slot_irradiance, the 2D slot between parallel walls (radiance 1 beyond the mouth):
+    with a black facing wall it is the mouth's view factor (the first bounce, slot_mouth, exact:
+    (1 - xi / sqrt(xi^2 + 1)) / 2); with reflecting walls it is more at every depth; and the walls
+    absorb at most what enters, pi x h per unit length of mouth: the integral of
+    (1 - rho_a) E_a + (1 - rho_b) E_b over the depth is at most 1 gap width (the rest leaves by the
+    mouth), and above the first bounce's (1 - rho_a) / 2 + (1 - rho_b) / 2."""
+    from hr_addon.core.contacts import slot_irradiance, slot_mouth
+
+    xi = np.geomspace(0.01, 500, 4000)
+    dxi = np.gradient(xi)
+    black = slot_irradiance(xi, np.full((len(xi), 1), 0.7), np.zeros((len(xi), 1)))[:, 0]
+    assert np.allclose(black, slot_mouth(xi), rtol=2e-3)
+    for ra, rb in ((0.6, 0.3), (0.8, 0.8), (0.1, 0.9)):
+        Ea = slot_irradiance(xi, np.full((len(xi), 1), ra), np.full((len(xi), 1), rb))[:, 0]
+        Eb = slot_irradiance(xi, np.full((len(xi), 1), rb), np.full((len(xi), 1), ra))[:, 0]
+        assert (Ea >= slot_mouth(xi) * (1 - 1e-3)).all()
+        absorbed = float(np.sum(((1 - ra) * Ea + (1 - rb) * Eb) * dxi))
+        first = (1 - ra) / 2 + (1 - rb) / 2
+        print(f"rho {ra}, {rb}: absorbed {absorbed:.3f} of the entering light (first bounce {first:.3f})")
+        assert first < absorbed <= 1.0 + 1e-2

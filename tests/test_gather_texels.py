@@ -94,6 +94,22 @@ def _slot(w=0.002):
     return b.build()
 
 
+def _slot_side_texels(mesh, t=0.01):
+    """The draft system of a _slot scene and t x t texels over box a's side facing the slot:
+    (system, patch (n,), centres (n, 3), axes (n, 2, 3), t)."""
+    s = RadiositySystem(mesh, RefineParams.preset("draft"))
+    pt = s.patches
+    names = np.array(pt.object_names)[pt.object_id]
+    side = np.flatnonzero((names == "a") & (pt.normal[:, 0] > 0.5))
+    assert len(side) == 1
+    assert s.h.contacts is not None and np.isin(side, s.h.contacts.receivers).all()
+    x0 = float(pt.corners[side][..., 0].max())
+    Y, Z = np.meshgrid(np.arange(-0.05 + t / 2, 0.05, t), np.arange(t / 2, 0.2, t))
+    cen = np.column_stack([np.full(Y.size, x0), Y.ravel(), Z.ravel()])
+    axes = np.tile(np.array([[0, t, 0], [0, 0, t]])[None], (len(cen), 1, 1))
+    return s, np.full(len(cen), side[0]), cen, axes, t
+
+
 def _slot_reference(mesh, y, z, n=64):
     """Irradiance / pi from the sky at points (x = -w/2, y, z) of box a's slot side (normal +x),
     the sky in n x n cells each seen through a shadow ray to a random point of the cell."""
@@ -122,26 +138,19 @@ def test_slot_between_two_boxes_gathers_its_open_band():
     """Box a's side facing box b 2 mm away (the covering face of the contact model): light enters
     the slot from the top and both ends and falls off within a few gap widths. Reference: the
     side's light integrated over it by shadow rays (depth from the top on a grid graded towards
-    the edge, 24 columns). The gather (1 cm texels over the side, open_edge = 5 gap widths) holds
-    the light within 5 gap widths of the open outline; beyond it a slot of parallel plates keeps
-    about 1 / (2 x 5) = 10% of its first-bounce light (contacts.covered). Two thirds of the light
-    lies within 2.5 mm of the top, where each of the 40 top texel-cells holds one jittered point
-    over a view factor falling from 0.5 to 0.11 (about 45% spread each): about 5% for the total,
-    so within 0.75-1.15 of the reference. Covered as before (open_edge 0) the side reads 0; at
-    texel centres only, the top row reads its centre's light (5 mm deep), far below its mean."""
+    the edge, 24 columns). The gather (1 cm texels over the side; slot samples gather a gap width
+    inside their nearest mouth, scaled by the slot's transfer through all its mouths, here the
+    first bounce only as b is black) must hold the side's light. Two thirds of it lies within
+    2.5 mm of the top, where each of the 40 top texel-cells holds one jittered point over a view
+    factor falling from 0.5 to 0.11 (about 45% spread each): about 5% for the total. The transfer
+    takes the radiance beyond the mouths as uniform; here the sky lights the end mouths from
+    above only, while their deeper parts look out near the horizontal (the black floor), so the
+    ends read too much: measured 1.17 (the same slot in a uniform surround:
+    test_slot_between_reflecting_boxes_against_path_tracing, 1.02). Held to 0.75-1.25. Covered as
+    before (open_edge 0) the side reads 0; at texel centres only, the top row reads its centre's
+    light (5 mm deep), far below its mean."""
     m = _slot()
-    s = RadiositySystem(m, RefineParams.preset("draft"))
-    pt = s.patches
-    names = np.array(pt.object_names)[pt.object_id]
-    side = np.flatnonzero((names == "a") & (pt.normal[:, 0] > 0.5))
-    assert len(side) == 1
-    assert s.h.contacts is not None and np.isin(side, s.h.contacts.receivers).all()
-    x0 = float(pt.corners[side][..., 0].max())
-    t = 0.01
-    Y, Z = np.meshgrid(np.arange(-0.05 + t / 2, 0.05, t), np.arange(t / 2, 0.2, t))
-    cen = np.column_stack([np.full(Y.size, x0), Y.ravel(), Z.ravel()])
-    patch = np.full(len(cen), side[0])
-    axes = np.tile(np.array([[0, t, 0], [0, 0, t]])[None], (len(cen), 1, 1))
+    s, patch, cen, axes, t = _slot_side_texels(m)
     area = t * t
     # reference: integral over the side, depth from the top graded towards the edge
     u = (np.arange(60) + 0.5) / 60
@@ -159,7 +168,7 @@ def test_slot_between_two_boxes_gathers_its_open_band():
         g = texel_gather(s, patch, cen, rays=16, shadow_rays=64, **kw)
         out[name] = float(g.evaluate(s, "incident")[:, 0].sum() * area) / total_ref
     print({k: round(v, 3) for k, v in out.items()})
-    assert 0.75 < out["area"] < 1.15
+    assert 0.75 < out["area"] < 1.25
     assert out["covered"] < 0.05
     assert out["centres"] < 0.7
 
@@ -296,3 +305,81 @@ def test_texel_across_a_triangle_edge_reads_its_own_triangle_folded_as_cycles_ba
     assert np.abs(v - ref).max() < 0.1 * lit
     out = cen[:, 0] > 0.2
     assert abs(v[out].mean() / ref[out].mean() - 1) < 0.03
+
+
+def _slot_in_a_furnace(w=0.002, rho_a=0.6, rho_b=0.3):
+    """Two 3 x 10 x 20 cm boxes (reflectance rho_a and rho_b) w apart, floating in a closed 2 m
+    room whose walls emit radiance 1 and reflect nothing: the facing sides form a slot open on all
+    four edges to an outside of radiance about 1 from every direction."""
+    b = Builder()
+    v, f = box([-1.0, -1, -1], [1, 1, 1], 2)
+    b.add("room", v, [q[:, ::-1] for q in f], 0.0, (1.0, 1.0, 1.0))  # inward normals
+    b.add("a", *box([-0.03 - w / 2, -0.05, 0], [-w / 2, 0.05, 0.2]), rho_a)
+    b.add("b", *box([w / 2, -0.05, 0], [0.03 + w / 2, 0.05, 0.2]), rho_b)
+    return b.build()
+
+
+def _path_traced(mesh, pts, normal, rng, bounces=40):
+    """Irradiance / pi at points (N, 3) facing `normal`, one random path each (cosine-sampled
+    directions, throughput x reflectance at every diffuse bounce, emission collected where a path
+    lands): every bounce between the slot's walls included."""
+    pt = prepare_patches(mesh)
+    be = make_backend(pt.triangles)
+    n = len(pts)
+    o = pts + 1e-6 * normal
+    nrm = np.broadcast_to(normal, (n, 3)).copy()
+    thr, acc, alive = np.ones(n), np.zeros(n), np.arange(n)
+    for _ in range(bounces):
+        u = rng.uniform(size=(len(alive), 2))
+        t1 = np.cross(nrm[alive], [0.0, 0, 1] if abs(nrm[alive[0], 2]) < 0.9 else [1.0, 0, 0])
+        t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+        t2 = np.cross(nrm[alive], t1)
+        r, phi = np.sqrt(u[:, 0]), 2 * np.pi * u[:, 1]
+        d = (
+            (r * np.cos(phi))[:, None] * t1
+            + (r * np.sin(phi))[:, None] * t2
+            + np.sqrt(1 - u[:, :1]) * nrm[alive]
+        )
+        prim, t = be.first_hit(o[alive], d, 10.0)
+        hit = prim >= 0
+        a, d, t = alive[hit], d[hit], t[hit]
+        patch = pt.triangle_patch[prim[hit]]
+        acc[a] += thr[a] * pt.emission[0, patch]
+        thr[a] *= pt.reflectance[0, patch]
+        nh = pt.normal[patch] * np.where(np.einsum("ij,ij->i", d, pt.normal[patch]) > 0, -1.0, 1.0)[:, None]
+        o[a] = o[a] + t[:, None] * d + 1e-6 * nh
+        nrm[a] = nh
+        alive = a[thr[a] > 1e-4]
+        if not len(alive):
+            break
+    return acc
+
+
+def test_slot_between_reflecting_boxes_against_path_tracing():
+    """Box a's side facing box b 2 mm away in a furnace-like room (outside radiance 1 from every
+    direction): light enters the slot by its four edges and bounces between the walls (0.6 and 0.3)
+    before it fades, so the walls deep inside get several times the light they see through the
+    mouth directly. Reference: one path per point at 1024 random points in each 1 cm texel of the
+    side, every bounce followed (the test's own tracer). The gather (contacts.slots: samples gather
+    a gap width inside their nearest mouth, scaled by the 2D slot's transfer with every bounce,
+    contacts.slot_irradiance) is held to the reference's side total and its deep part (texels 2 cm
+    or more from every edge, where the old covered test read 0). Noise: the reference's about 1%
+    per part, the gather's 64 rays a sample (about 9 through the mouth) about 3% over the 96 deep
+    texels. The model is a 2D slot per mouth, summed by each mouth's share of the view factor:
+    measured 1.02 for the side, 0.87 deep (the slot's corners and its finite extent); held to
+    0.9-1.1 and 0.75-1.25 (nearest mouth only: 0.58 deep)."""
+    m = _slot_in_a_furnace()
+    s, patch, cen, axes, t = _slot_side_texels(m)
+    g = texel_gather(s, patch, cen, axes=axes, rays=64, shadow_rays=16)
+    ours = g.evaluate(s, "incident")[:, 0]
+    rng = np.random.default_rng(3)
+    k = 1024
+    pts = np.repeat(cen, k, 0) + np.column_stack(
+        [np.zeros(len(cen) * k), rng.uniform(-t / 2, t / 2, (len(cen) * k, 2))]
+    )
+    ref = _path_traced(m, pts, np.array([1.0, 0, 0]), rng).reshape(len(cen), k).mean(1)
+    deep = (np.abs(cen[:, 1]) < 0.03) & (cen[:, 2] > 0.02) & (cen[:, 2] < 0.18)
+    tot, dp = ours.sum() / ref.sum(), ours[deep].sum() / ref[deep].sum()
+    print(f"side total {tot:.3f}, deep part {dp:.3f} of the path-traced light ({deep.sum()} texels)")
+    assert 0.9 < tot < 1.1
+    assert 0.75 < dp < 1.25

@@ -103,6 +103,9 @@ class Contacts:
         self.gap = float(gap)
         size = float(np.sqrt(pt.area.sum())) or 1.0
         self.pen = 1e-6 * size  # a face this far behind a receiver (or level with it) is not in front
+        # a gap narrower than this is a contact, not a slot (gather samples keep about this far inside
+        # their patch: none could stand in it)
+        self.min_gap = 5e-5 * size
         self.plane = plane_ids(pt.normal, pt.corners[:, 0], size)
         G = int(self.plane.max()) + 1 if K else 0
         first = np.zeros(G, np.int64)
@@ -129,9 +132,10 @@ class Contacts:
 
     # -- chains per receiver plane --------------------------------------------------------------------
     def _segments(self, gi, t):
-        """Chain segments (plane, a2d, b2d, chain id, signed, piece, height) of occluder patches t
-        in the planes gi (height: how far in front of the plane the segment really is: a covering
-        face's distance, a crossing chain's snapped corners'; 0 where a solid touches or crosses)."""
+        """Chain segments (plane, a2d, b2d, chain id, signed, piece, height, wall) of occluder
+        patches t in the planes gi (height: how far in front of the plane the segment really is:
+        a covering face's distance, a crossing chain's snapped corners'; 0 where a solid touches or
+        crosses; wall: the patch whose reflectance stands for the gap's other wall, -1: black)."""
         pt, g = self.patches, self.gap
         c = pt.corners
         n, o = self.n_g[gi], self.o_g[gi]
@@ -145,7 +149,7 @@ class Contacts:
         flat = (np.abs(cosang) > 1 - 1e-6) & (d.max(1) - d.min(1) <= g)
         cover = flat & (((cosang < 0) & (d.mean(1) >= -self.pen)) | ((cosang > 0) & (d.min(1) > self.pen)))
         cover &= d.max(1) <= g
-        segs = []  # (plane, a2d, b2d, chain, signed, piece, height)
+        segs = []  # (plane, a2d, b2d, chain, signed, piece, height, wall)
         # covering faces: their outline as a chain of its own, |winding| = 1 inside
         cv = np.flatnonzero(cover)
         if len(cv):
@@ -158,7 +162,10 @@ class Contacts:
                 a = p2[np.flatnonzero(use), k]
                 b = p2[np.flatnonzero(use), kn[use]]
                 hgt = np.maximum(d[cv][use].mean(1), 0.0)
-                segs.append((gi[cv][use], a, b, t[cv][use], np.zeros(use.sum(), bool), pc[use], hgt))
+                # the slot's other wall: the covering face if it faces the receiver, else its back
+                # (black: a one-sided surface reflects nothing behind it)
+                wall = np.where(cosang[cv][use] < 0, t[cv][use], -1)
+                segs.append((gi[cv][use], a, b, t[cv][use], np.zeros(use.sum(), bool), pc[use], hgt, wall))
         # crossing chains: the zero set of the snapped heights on each polygon reaching in front of
         # the plane (a thick table top's own sides, below its top, are not)
         cr = np.flatnonzero(~flat & (d.max(1) > g))
@@ -193,7 +200,7 @@ class Contacts:
                 b2 = self._to2d(gi[cr][sel], b3[sel][:, None])[:, 0]
                 pc = self.piece[t[cr][sel]]
                 hgt = (cand_h[r, lo_k] + cand_h[r, hi_k])[sel] / 2  # > 0: a solid near, not on, the plane
-                segs.append((gi[cr][sel], a2, b2, -1 - pc, np.ones(len(sel), bool), pc, hgt))
+                segs.append((gi[cr][sel], a2, b2, -1 - pc, np.ones(len(sel), bool), pc, hgt, t[cr][sel]))
         return segs
 
     def _build(self):
@@ -210,9 +217,9 @@ class Contacts:
         for s0 in range(0, len(t), 500_000):  # bounded temporaries at any scene size
             segs += self._segments(gi[s0 : s0 + 500_000], t[s0 : s0 + 500_000])
         if segs:
-            g_, a_, b_, ch_, sg_, pc_, hg_ = (np.concatenate(x) for x in zip(*segs))
+            g_, a_, b_, ch_, sg_, pc_, hg_, op_ = (np.concatenate(x) for x in zip(*segs))
         else:
-            g_, ch_, pc_ = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+            g_, ch_, pc_, op_ = (np.zeros(0, np.int64) for _ in range(4))
             sg_, a_, b_, hg_ = np.zeros(0, bool), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
         # chain = (plane, piece or covering patch): sort segments by chain
         key = np.unique(np.column_stack([g_, ch_]), axis=0, return_inverse=True)[1].ravel()
@@ -225,7 +232,17 @@ class Contacts:
         self.chain_signed = sg_[order][first] if nC else np.zeros(0, bool)
         self.chain_piece = pc_[order][first] if nC else np.zeros(0, np.int64)
         self.seg_height = hg_[order]
+        self.seg_wall = op_[order]
         self.seg_open = self._open_edges(g_[order], sg_[order])
+        # a slot's mouth: an open edge of a gap (height > 0); close_mouths() shuts those a surface
+        # closes (a book's bottom edge on its board)
+        self.seg_mouth = self.seg_open & (self.seg_height > self.min_gap)
+        self._mouths_probed = False
+        # a chain whose segments all touch the plane (a box standing on the floor) makes no slot
+        # under it, even where another chain's slot reaches; one standing off it anywhere (a
+        # tilted block) may
+        self.chain_gap = np.zeros(nC)
+        np.maximum.at(self.chain_gap, self.seg_chain, self.seg_height)
         both = np.concatenate([self.seg_a, self.seg_b])
         ch2 = np.concatenate([self.seg_chain, self.seg_chain])
         # chain boxes in the plane's frame (a third coordinate 0, as _box_pairs takes 3D boxes)
@@ -307,21 +324,103 @@ class Contacts:
                 ]
             )
         out = np.zeros(len(points), bool)
-        if not len(self.chain_plane) or not len(points):
+        pairs = self._pairs(points, patch, budget, open_edge)
+        if pairs is not None:
+            i, ch, hit, near = pairs[:4]
+            out[i[hit & ~near]] = True
+        return out
+
+    def slots(self, points, patch, budget=4_000_000, chunk=200_000):
+        """Points (N, 3) on patches (N,) covered only at a gap, inside a slot: no chain covering
+        them touches their plane all along (chain_gap: a box standing on the floor) and a covering
+        face parallel to it has a mouth (seg_mouth: an open edge a height h > min_gap in front, the
+        light enters by: a neighbour book's side 2 mm away). Returns (depth (N,): distance to the
+        nearest mouth of their covering faces, h (N,) of that mouth, foot (N, 3): its nearest
+        point, on the points' plane, chain (N,): the chain it belongs to); h = 0, depth inf and
+        chain -1 for the other points."""
+        points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
+        if len(points) > chunk:
+            parts = [
+                self.slots(points[s : s + chunk], patch[s : s + chunk], budget, chunk)
+                for s in range(0, len(points), chunk)
+            ]
+            return tuple(np.concatenate(x) for x in zip(*parts))
+        n = len(points)
+        depth, hgap, foot, chain = np.full(n, np.inf), np.zeros(n), points.copy(), np.full(n, -1, np.int64)
+        pairs = self._pairs(points, patch, budget, mouths=True)
+        if pairs is None:
+            return depth, hgap, foot, chain
+        i, ch, hit, _, dist, vec, seg = pairs
+        i, ch, dist, vec, seg = i[hit], ch[hit], dist[hit], vec[hit], seg[hit]
+        touching = np.bincount(i, self.chain_gap[ch] <= self.min_gap, n) > 0
+        # per point the covering face (parallel to the plane, as the transfer's walls are: not a
+        # crossing solid's outline, a vase's curved side) with the nearest mouth
+        dist = np.where(self.chain_signed[ch], np.inf, dist)
+        order = np.lexsort((dist, i))
+        first = order[np.r_[True, i[order][1:] != i[order][:-1]]] if len(order) else order
+        k = first[~touching[i[first]] & np.isfinite(dist[first])]
+        p = i[k]
+        depth[p], hgap[p], chain[p] = dist[k], self.seg_height[seg[k]], ch[k]
+        gi = self.plane[patch[p]]
+        foot[p] += vec[k, :1] * self.u_g[gi] + vec[k, 1:] * self.v_g[gi]
+        return depth, hgap, foot, chain
+
+    def slot_transfer(self, points, patch, chain, rho, reflectance):
+        """(N, C) irradiance / pi at points (N, 3) on patches (N,) in the slots of chains (N,)
+        (slots(); -1: none, 0) for an outside of radiance 1 beyond the mouths, every bounce
+        between the walls included: the sum over the chain's mouths of slot_irradiance at the
+        point's depth behind each (rho (N, C): the point's reflectance, the other wall's from
+        reflectance (C, K) of the mouth's seg_wall, 0 where the occluder's back faces the slot),
+        times the share of an endless mouth's view factor that the segment's extent along its
+        edge subtends, (atan(s / x) + s x / (s^2 + x^2)) / pi between its ends (thin strips:
+        h^2 x / (2 pi (s^2 + x^2)^2) ds)."""
+        rho = np.asarray(rho, float)
+        out = np.zeros(rho.shape)
+        j = np.flatnonzero(np.asarray(chain) >= 0)
+        if not len(j):
             return out
+        c = np.asarray(chain)[j]
+        ns = self.chain_start[c + 1] - self.chain_start[c]
+        pr = np.repeat(np.arange(len(j)), ns)
+        sg = np.repeat(self.chain_start[c] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+        m = self.seg_mouth[sg]
+        pr, sg = pr[m], sg[m]
+        p2 = self._to2d(self.plane[np.asarray(patch)[j]], np.asarray(points, float)[j][:, None])[:, 0]
+        a, b = self.seg_a[sg] - p2[pr], self.seg_b[sg] - p2[pr]
+        e = (b - a) / np.maximum(np.linalg.norm(b - a, axis=1), 1e-300)[:, None]
+        x = np.maximum(np.abs(a[:, 0] * e[:, 1] - a[:, 1] * e[:, 0]), 1e-9 * self.seg_height[sg])
+
+        def share(s):
+            return (np.arctan(s / x) + s * x / (s * s + x * x)) / np.pi
+
+        frac = share(np.einsum("ij,ij->i", b, e)) - share(np.einsum("ij,ij->i", a, e))
+        wall = self.seg_wall[sg]
+        other = np.where((wall >= 0)[:, None], np.asarray(reflectance)[:, np.maximum(wall, 0)].T, 0.0)
+        E = frac[:, None] * slot_irradiance(x / self.seg_height[sg], rho[j][pr], other)
+        for k in range(rho.shape[1]):
+            out[j, k] = np.bincount(pr, E[:, k], len(j))
+        return out
+
+    def _pairs(self, points, patch, budget, open_edge=0.0, mouths=False):
+        """The (point, chain) pairs of points (N, 3) on patches (N,) with the point in the chain's
+        box: (i, ch, covering (the chain's winding covers the point), near (within open_edge x h of
+        one of its open edges)[, and with mouths: dist to its nearest mouth, the 2D vector to that
+        point, the mouth's segment]); None without pairs."""
+        if not len(self.chain_plane) or not len(points):
+            return None
         gi = self.plane[patch]
         p2 = self._to2d(gi, points[:, None])[:, 0]
         lo = np.concatenate([p2, np.zeros((len(p2), 1))], 1)
-        # (point, chain) with the point in the chain's box
         i, ch = _box_pairs(lo, lo, self.chain_lo, self.chain_hi, gi, self.chain_plane)
         # a piece never covers itself (a room's walls its floor, a table's sides its top)
         own = self.chain_piece[ch] == self.piece[patch[i]]
         i, ch = i[~own], ch[~own]
         if not len(i):
-            return out
+            return None
         n_seg = self.chain_start[ch + 1] - self.chain_start[ch]
         w = np.zeros(len(i))
         near = np.zeros(len(i), bool)  # in the open band of a gap (open_edge)
+        dist, vec, best = np.full(len(i), np.inf), np.zeros((len(i), 2)), np.full(len(i), -1, np.int64)
         step = max(1, budget // max(int(n_seg.max()), 1))
         for s in range(0, len(i), step):
             sl = slice(s, s + step)
@@ -333,17 +432,108 @@ class Contacts:
             ang = np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], np.einsum("ij,ij->i", a, b))
             w[sl] = np.bincount(pr, ang, len(ns)) / (2 * np.pi)
             band = open_edge * self.seg_height[sg] * self.seg_open[sg]
-            if (band > 0).any():  # within the band of an open edge of a gap
-                e = b - a
-                t = np.clip(
-                    -np.einsum("ij,ij->i", a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1
-                )
-                close = np.linalg.norm(a + t[:, None] * e, axis=1) < band
-                near[sl] = np.bincount(pr, close, len(ns)) > 0
-        signed = self.chain_signed[ch]
-        hit = np.where(signed, w < -0.5, np.abs(w) > 0.5) & ~near
-        out[i[hit]] = True
-        return out
+            if not mouths and not (band > 0).any():
+                continue
+            e = b - a
+            t = np.clip(-np.einsum("ij,ij->i", a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
+            q = a + t[:, None] * e  # the segment's nearest point, relative to the point
+            d = np.linalg.norm(q, axis=1)
+            near[sl] = np.bincount(pr, d < band, len(ns)) > 0  # within the band of an open edge of a gap
+            if mouths:
+                d = np.where(self.seg_mouth[sg], d, np.inf)
+                o = np.lexsort((d, pr))
+                o = o[np.r_[True, pr[o][1:] != pr[o][:-1]]]  # each pair's nearest mouth
+                dist[s + pr[o]], vec[s + pr[o]], best[s + pr[o]] = d[o], q[o], sg[o]
+        hit = np.where(self.chain_signed[ch], w < -0.5, np.abs(w) > 0.5)
+        return i, ch, hit, near, dist, vec, best
+
+    def close_mouths(self, occluded):
+        """Shut the mouths a surface closes (a book's bottom edge on the board it stands on): a
+        segment from h inside the slot, half way across the gap, to h outside it meets a surface.
+        occluded(a, b) -> bool (M,): a ray backend's segment test. Once per Contacts."""
+        if self._mouths_probed:
+            return
+        self._mouths_probed = True
+        m = np.flatnonzero(self.seg_mouth)
+        if not len(m):
+            return
+        a, b, hh = self.seg_a[m], self.seg_b[m], self.seg_height[m]
+        e = (b - a) / np.maximum(np.linalg.norm(b - a, axis=1), 1e-300)[:, None]
+        mid, perp = (a + b) / 2, np.column_stack([-e[:, 1], e[:, 0]])
+        # which side of the segment its chain covers: the winding there (the chain alone)
+        ch = self.seg_chain[m]
+        probe = mid + 0.5 * hh[:, None] * perp
+        ns = self.chain_start[ch + 1] - self.chain_start[ch]
+        pr = np.repeat(np.arange(len(m)), ns)
+        sg = np.repeat(self.chain_start[ch] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+        u, v = self.seg_a[sg] - probe[pr], self.seg_b[sg] - probe[pr]
+        ang = np.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], np.einsum("ij,ij->i", u, v))
+        w = np.bincount(pr, ang, len(m)) / (2 * np.pi)
+        inside = np.where(self.chain_signed[ch], w < -0.5, np.abs(w) > 0.5)
+        inward = np.where(inside, 1.0, -1.0)[:, None] * perp
+        gi = self.chain_plane[ch]
+
+        def at(q2, height):
+            return (
+                self.o_g[gi]
+                + q2[:, :1] * self.u_g[gi]
+                + q2[:, 1:] * self.v_g[gi]
+                + height[:, None] * self.n_g[gi]
+            )
+
+        shut = occluded(at(mid + hh[:, None] * inward, hh / 2), at(mid - hh[:, None] * inward, hh / 2))
+        self.seg_mouth[m[shut]] = False
+
+
+# 2D slot between parallel walls a gap h apart, open at depth 0 to an outside of radiance 1: wall a's
+# irradiance / pi at depth xi = x / h is E_a = F_o + rho_b K E_b, E_b = F_o + rho_a K E_a (K: the
+# view factor between strips of the facing walls, F_o the mouth's), so (1 - p K^2) E_a = F_o +
+# rho_b K F_o with p = rho_a rho_b: tables of U_p = (1 - p K^2)^-1 F_o and V_p = (1 - p K^2)^-1 K F_o
+_SLOT = {}
+
+
+def slot_mouth(xi):
+    """View factor of a slot's mouth from its wall at depth xi gap widths (2D: an edge long
+    against the gap)."""
+    xi = np.asarray(xi, float)
+    return 0.5 * (1.0 - xi / np.sqrt(xi * xi + 1.0))
+
+
+def _slot_tables(n=240, ps=41):
+    if not _SLOT:
+        edges = np.r_[0.0, np.geomspace(0.01, 2000.0, n)]
+        x = (edges[:-1] + edges[1:]) / 2
+        g = lambda s: s / np.sqrt(s * s + 1.0)  # noqa: E731
+        K = 0.5 * (g(edges[None, 1:] - x[:, None]) - g(edges[None, :-1] - x[:, None]))
+        F = slot_mouth(x)
+        K2, KF = K @ K, K @ F
+        p = np.linspace(0.0, 0.98, ps)
+        U = np.stack([np.linalg.solve(np.eye(n) - q * K2, F) for q in p])
+        V = np.stack([np.linalg.solve(np.eye(n) - q * K2, KF) for q in p])
+        _SLOT.update(logx=np.log(x), p=p, U=U, V=V)
+    return _SLOT
+
+
+def slot_irradiance(xi, rho, rho_other):
+    """Irradiance / pi (outside radiance 1) on a slot's wall of reflectance rho (N, C) at depth xi
+    (N,) gap widths from its mouth, facing a wall of reflectance rho_other (N, C), every bounce
+    between the walls included (a semi-infinite slot between parallel walls, the mouth's edge
+    long against the gap). Compare slot_mouth(xi): the first bounce only."""
+    T = _slot_tables()
+    lx = np.log(np.maximum(np.asarray(xi, float), np.exp(T["logx"][0])))
+    j = np.clip(np.searchsorted(T["logx"], lx) - 1, 0, len(T["logx"]) - 2)
+    f = np.clip((lx - T["logx"][j]) / (T["logx"][j + 1] - T["logx"][j]), 0, 1)
+    rho, rho_other = np.asarray(rho, float), np.asarray(rho_other, float)
+    q = np.clip(rho * rho_other, 0, T["p"][-1]) / T["p"][1]
+    k = np.minimum(q.astype(np.int64), len(T["p"]) - 2)
+    fq = q - k
+
+    def tab(M):  # M (P, n) at (p, xi) for every sample and channel
+        at = M[:, j] * (1 - f) + M[:, j + 1] * f  # (P, N)
+        cols = np.arange(len(f))[:, None]
+        return at[k, cols] * (1 - fq) + at[k + 1, cols] * fq
+
+    return tab(T["U"]) + rho_other * tab(T["V"])
 
 
 def refine_contacts(h, contacts: Contacts, min_area, k=(6, 4), max_nodes=2_000_000):

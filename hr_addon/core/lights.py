@@ -345,6 +345,6 @@ def indirect_incident(gather, dyn):
     for rec in dyn.lights.values():
         lit += gather._light(rec)[:, None].astype(np.float64) * rec.scale[None]
     lit[gather.dark] = 0.0
-    inc -= gather.outputs(lit)
+    inc -= gather.outputs(gather.scaled(lit))
     inc[gather.out_dark] = 0.0
     return np.maximum(inc, 0.0)  # the same float32 parts subtracted: rounding only below 0

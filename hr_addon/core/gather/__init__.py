@@ -21,7 +21,10 @@ instead of reading the hierarchy leaf it lies in:
 - E_point: the emitter's own radiance exactly at the point: the input patch's emission, plus a
   light shape's radiance inside its outline (point in polygon with holes, on the surface it lies
   on); outside the outline 0, whatever fraction of it the coarse nodes carry for transport.
-- Points Hierarchy.dark() calls covered (contacts) output exactly 0.
+- Points Hierarchy.dark() calls covered (contacts) output exactly 0, except in a slot (a gap
+  h > 0 under a face lit through its open edges, contacts.Contacts.slots): those gather a gap
+  width inside their nearest mouth, their incident light scaled by the slot's transfer
+  (FinalGather._slots).
 
 Where the hits are recorded. Weights are kept on the leaves of the hierarchy as built (the HR
 leaves, node ids below DynamicRadiosity.n_hr). Light events add nodes only below those leaves and

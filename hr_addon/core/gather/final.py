@@ -4,7 +4,9 @@ values of the leaves (levels, iterations, cached responses, NAIVE) and the outpu
 import numpy as np
 
 from .. import formfactor as ff
+from ..contacts import slot_mouth
 from ..geometry import isolated_objects
+from ..output import _insideness
 from ..visibility import first_hit_within
 from ..parallel import batch_map, ranges
 from ..progress import Progress
@@ -13,10 +15,13 @@ from .points import _into_patch, locate_below
 from .sampling import cosine_directions, position_keys
 
 KINDS = ("radiance", "reflected", "incident")
-# a sample under a covering face at a gap h (books standing side by side) is gathered, not called
-# covered, within OPEN_EDGE x h of the face's open outline, where light enters the slot
-# (contacts.Contacts.covered; docs/gather.md, "Narrow gaps")
+# a sample under a covering face at a gap h (books standing side by side) is in a slot, lit through
+# its open edges (contacts.Contacts.slots): it gathers no deeper than SLOT_DEPTH x h from its
+# nearest mouth, where its hemisphere rays still find the mouth (view factor 0.15), and the slot's
+# transfer carries that light to its own depth (docs/gather.md, "Narrow gaps"); texels within
+# OPEN_EDGE x h of a mouth gather over their area (layouts.texel_samples)
 OPEN_EDGE = 5.0
+SLOT_DEPTH = 1.0
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
@@ -92,6 +97,7 @@ class FinalGather(DirectLight):
         groups=None,
         open_edge=OPEN_EDGE,
         sample_rays=None,
+        slot_area=None,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
@@ -144,9 +150,13 @@ class FinalGather(DirectLight):
         # contacts: covered samples output 0 (static geometry)
         self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr) if n else np.zeros(0, np.int64)
         self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
+        self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
         if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
             self.dark[:] = False
         elif open_edge > 0 and h.contacts is not None and self.dark.any():
+            self._slots(h.contacts, margin, slot_area)
+            # the rest within open_edge x h of an open edge of a gap (a tilted block's, whose own
+            # wall closes the mouth the slots test) gather where they lie (contacts.covered)
             d = np.flatnonzero(self.dark)
             self.dark[d] = h.contacts.covered(self.points[d], self.patch[d], open_edge=open_edge)
         # groups (n,) non-decreasing: the output of row j is the mean over the samples of group j
@@ -217,6 +227,49 @@ class FinalGather(DirectLight):
         self._responses_of = None
         self._naive_key = None
         self._naive_V = None
+
+    def _slots(self, con, margin, area=None):
+        """Covered samples in a slot (contacts.Contacts.slots: under a face or solid a gap h in
+        front, lit through open edges) gather: from SLOT_DEPTH x h inside their nearest mouth,
+        towards their own position (or where they lie, if nearer), and their incident light is
+        scaled by the slot's transfer to their own position through all its mouths, with every
+        bounce between the walls (contacts.slot_transfer / slot_mouth: the light outside uniform
+        over the mouths). Rays from deep in a slot would find its mouth too rarely (view factor
+        about (h / 2x)^2). area: (rows, points (r, k, 3)): the transfer of sample rows[j] is the
+        mean over points[j] (a texel's area, layouts.texel_samples)."""
+        s = self.system
+        con.close_mouths(s.backend.occluded)
+        d = np.flatnonzero(self.dark)
+        x, hg, foot, chain = con.slots(self.points[d], self.patch[d])
+        ok = (hg > 0) & (x > 0)
+        d, x, hg, foot, chain = d[ok], x[ok], hg[ok], foot[ok], chain[ok]
+        if not len(d):
+            return
+        pt = s.patches
+        E = con.slot_transfer(self.points[d], self.patch[d], chain, self.rho[d], pt.reflectance)
+        if area is not None:
+            rows, ap = area
+            j = np.flatnonzero(np.isin(d, rows))
+            r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
+            k = ap.shape[1]
+            pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
+            ca = con.slots(pa, qa)[3]
+            Ea = con.slot_transfer(pa, qa, ca, np.repeat(self.rho[d[j]], k, 0), pt.reflectance)
+            E[j] = Ea.reshape(len(j), k, 3).mean(1)
+        xg = np.minimum(x, SLOT_DEPTH * hg)
+        q = foot + (xg / x)[:, None] * (self.points[d] - foot)
+        c = pt.corners[self.patch[d]]
+        stay = _insideness(c[:, None], pt.normal[self.patch[d]][:, None], q)[:, 0] < margin  # off its patch
+        q[stay], xg[stay] = self.points[d[stay]], x[stay]
+        self.points[d] = q
+        self.origins[d] = q + self.eps * self.normals[d]
+        self.dark[d] = False
+        self.gain = np.ones((self.n, 3))
+        self.gain[d] = E / slot_mouth(xg / hg)[:, None]
+
+    def scaled(self, v):
+        """Incident light at the samples (n, 3) with the slot samples' transfer applied."""
+        return v if self.gain is None else v * self.gain
 
     # -- batching ------------------------------------------------------------------------------------
     def batches(self, per_sample):
@@ -451,6 +504,7 @@ class FinalGather(DirectLight):
         if inc is None:
             inc = D + self.indirect(dyn)
         inc[self.dark] = 0.0
+        inc = self.scaled(inc)
         out = {}
         for k in kinds:
             if k == "incident":

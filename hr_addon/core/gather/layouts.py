@@ -156,15 +156,19 @@ def bake_points(tris, centres, axes, f):
 def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None):
     """Gather samples of texels: the centre, or sub x sub stratified points over the texel's area
     where the light changes inside it at a contact: some of those points covered and some not (a
-    block's footprint on a floor), or some in the open band of a slot (between two books, where
-    the light falls off within a few gap widths of the open edge). A renderer's bake averages
-    over part of the texel (Cycles: its middle half, folded into the centre's triangle); a centre
-    reads one point, 0 or lit. axes (n, 2, 3): the texel's sides on the surface (world vectors of one texel
-    step in u and in v), None: centres only. tris (n, 3, 3): the triangle each centre lies in, in
-    the mesh's loop-triangle order: the points are placed as Cycles' bake places them, over the
-    middle half of the texel folded into that triangle (bake_points); None: over the texel's
-    parallelogram. The jitter is keyed by the texel centre's position.
-    Returns (points (S, 3), patch (S,), group (S,) texel of each sample, non-decreasing)."""
+    block's footprint on a floor), or in a slot (between two books) some within open_edge gap
+    widths of its mouth or at depths more than 2x apart (the light falls off as 1 / depth^2). A
+    renderer's bake averages over part of the texel (Cycles: its middle half, folded into the
+    centre's triangle); a centre reads one point, 0 or lit. axes (n, 2, 3): the texel's sides on
+    the surface (world vectors of one texel step in u and in v), None: centres only. tris (n, 3,
+    3): the triangle each centre lies in, in the mesh's loop-triangle order: the points are placed
+    as Cycles' bake places them, over the middle half of the texel folded into that triangle
+    (bake_points); None: over the texel's parallelogram. The jitter is keyed by the texel centre's
+    position.
+    Texels wholly in a slot whose points lie at depths more than 2x apart gather at their centre,
+    with the slot's transfer averaged over their points (FinalGather's slot_area).
+    Returns (points (S, 3), patch (S,), group (S,) texel of each sample, non-decreasing,
+    slot_area: None or (sample rows (r,), their texels' points (r, sub^2, 3)))."""
     s = system.system
     con = s.h.contacts
     points, patch = np.asarray(points, np.float64).reshape(-1, 3), np.asarray(patch, np.int64)
@@ -177,7 +181,7 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
         a = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
         cand = cand[a > 1e-12 * np.maximum(np.abs(t).max((1, 2)), 1e-300) ** 2]  # no triangle: centre
     if not len(cand):
-        return points, patch, np.arange(n)
+        return points, patch, np.arange(n), None
     k2 = sub * sub
     size = float(np.sqrt(isolated_objects(s.mesh).main_area))
     keys = position_keys(points[cand], 2.0 ** (np.floor(np.log2(size)) - 12))
@@ -198,10 +202,22 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     sp = test[:, :k2]
     m = test.shape[1]
     flat, fp = test.reshape(-1, 3), np.repeat(patch[cand], m)
-    cov = con.covered(flat, fp, open_edge=open_edge).reshape(-1, m)
+    cov = con.covered(flat, fp).reshape(-1, m)
     mixed = cov.any(1) & ~cov.all(1)
-    if open_edge > 0:  # the light of a slot's open band falls off within a few gap widths
-        mixed |= (con.covered(flat, fp) & ~cov.ravel()).reshape(-1, m).any(1)
+    spread = np.zeros(len(cand), bool)
+    if open_edge > 0 and cov.any():
+        # in a slot the light falls off as its mouth's view factor, about (h / 2x)^2 at depth x: a
+        # texel near a mouth, or across depths whose light differs by more than 4x, is sampled
+        # over its area
+        con.close_mouths(s.backend.occluded)
+        c = np.flatnonzero(cov.ravel())
+        x, hg = np.full(cov.size, np.inf), np.zeros(cov.size)
+        x[c], hg[c] = con.slots(flat[c], fp[c])[:2]
+        x, slot = x.reshape(-1, m), (hg > 0).reshape(-1, m)
+        mixed |= (slot & (x < open_edge * hg.reshape(-1, m))).any(1)
+        band = con.covered(flat[c], fp[c], open_edge=open_edge)  # gathered where they lie (FinalGather)
+        mixed |= np.bincount(c[~band] // m, minlength=len(cand)) > 0
+        spread = ~mixed & slot.all(1) & (x.max(1) > 2 * x.min(1))
     cnt = np.ones(n, np.int64)
     cnt[cand[mixed]] = k2
     group = np.repeat(np.arange(n), cnt)
@@ -209,7 +225,11 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     first = np.cumsum(cnt) - cnt
     rows = (first[cand[mixed]][:, None] + np.arange(k2)).ravel()
     pts[rows] = sp[mixed].reshape(-1, 3)
-    return pts, patch[group], group
+    if open_edge > 0 and spread.any():
+        # deep in a slot, across depths whose light differs by more than 4x: the centre gathers the
+        # mouth's light for the whole texel, its transfer is the mean over the texel's points
+        return pts, patch[group], group, (first[cand[spread]], sp[spread])
+    return pts, patch[group], group, None
 
 
 def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
@@ -220,7 +240,7 @@ def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
     output the mean (gather.n: samples, gather.n_out: texels). tris (n, 3, 3): each centre's
     triangle in loop-triangle order, the area folded into it as Cycles' bake does."""
     s = system.system
-    pts, pp, group = texel_samples(
+    pts, pp, group, area = texel_samples(
         system, patch, points, axes, sub, kw.get("seed", 0), kw.get("open_edge", OPEN_EDGE), tris
     )
     if kw.get("rho") is not None and np.ndim(kw["rho"]) == 2:  # per texel: per sample
@@ -236,5 +256,6 @@ def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
         pp,
         groups=None if axes is None else group,
         sample_rays=sub_rays,
+        slot_area=area,
         **kw,
     )

@@ -1,0 +1,174 @@
+"""Where the furnished sample's books keep their light, texel by texel, in Cycles and in the final
+gather (issue 19, docs/gather.md "Narrow gaps"): every book texel classed by the face it lies on
+(the top, the front facing the room, the back, a side) and, on the sides, by whether its centre
+lies in the slot the neighbour book (or the case's side) covers, and how deep: the distance to
+the slot's open front, open top, open back, and to the board it stands on, in gap widths h.
+Needs the cached furnished reference of cycles_compare.py.
+
+    .venv/bin/python benchmarks/books_texels.py [variant ...]
+
+A variant is name=dict(texel_gather keywords) (default: main's bake setting, two levels + 4
+iterations, 128 rays, 16 shadow rays); each gathers at the books' texels only, on one draft FE
+solution. Writes benchmarks/out/books_texels.npz (per texel: class, depths, Cycles, each variant) and
+books_texels.json (the table: each class's share of the books' light in Cycles and ours).
+"""
+
+import os
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+sys.path.insert(0, os.path.dirname(HERE))
+import numpy as np  # noqa: E402
+
+import cycles_compare as CC  # noqa: E402
+from hr_testing import cycles_ref as C  # noqa: E402
+from hr_addon.core.events import DynamicRadiosity  # noqa: E402
+from hr_addon.core.gather import texel_gather  # noqa: E402
+from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
+from hr_addon.core.refine import RefineParams  # noqa: E402
+
+BASE = dict(rays=128, shadow_rays=16, levels=2, iterations=4)
+variants = {"main": {}}
+variants.update({k: eval(v) for k, v in (x.split("=", 1) for x in sys.argv[1:])})
+
+cfg = CC.SCENES["furnished"]
+rs = C.prepare(CC.open_scene("furnished"), texel_rel=cfg["texel_rel"])
+a, _, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[0])
+b, _, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[1])
+t0 = time.process_time()
+s = RadiositySystem(rs.scene_in.mesh, RefineParams.preset("draft"))
+dyn = DynamicRadiosity(s, method="FE")
+dyn.apply(C.shape_proxies(rs, 1))
+print(f"build + frame 1: {time.process_time() - t0:.0f} s CPU", flush=True)
+ours = C.Ours(rs, s, dyn)
+con = s.h.contacts
+H = 0.002  # the books' gap
+
+books = [n for n in rs.objects if "_book" in n]
+mesh = rs.scene_in.mesh
+tg = {t.name: t for t in rs.scene_in.targets}
+# each book's box from its vertices
+box = {}
+for n in books:
+    lo_l, hi_l = tg[n].loops
+    v = mesh.verts[mesh.loop_verts[lo_l:hi_l]]
+    box[n] = (v.min(0), v.max(0))
+
+
+def neighbour(n, side):
+    """The box facing book n's side -x (side 0) or +x (side 1): the next book of its row, the
+    case's side board, or None."""
+    case, row, k = n.split("_")[0], n.split("_")[1], int(n.split("_")[2])
+    m = f"{case}_{row}_{k + (1 if side else -1)}"
+    return box.get(m)  # the case's sides (1 cm from a row's first book) are not looked at
+
+
+rows = []
+for n in books:
+    at = rs.atlases[n]
+    cen = np.flatnonzero(at.s_centre)
+    x = at.s_point[cen]
+    patch = ours.samples[n][0][cen]
+    nrm = s.patches.normal[patch]
+    lo, hi = box[n]
+    ref = ((a[n] + b[n]) / 2)[at.s_texel[cen]]
+    rho = s.patches.reflectance[:, patch].T
+    cls = np.full(len(cen), -1)
+    ax = np.abs(nrm).argmax(1)
+    sg = np.sign(nrm[np.arange(len(nrm)), ax])
+    cls[(ax == 2) & (sg > 0)] = 0  # top
+    cls[(ax == 1) & (sg < 0)] = 1  # front (room side: y decreasing)
+    cls[(ax == 1) & (sg > 0)] = 2  # back
+    cls[ax == 0] = 3  # side
+    cls[(ax == 2) & (sg < 0)] = 4  # bottom (on the board)
+    dep = np.full((len(cen), 4), np.inf)  # front, top, back, bottom, in units of H, inside the overlap
+    inside = np.zeros(len(cen), bool)
+    for side in (0, 1):
+        sel = np.flatnonzero((ax == 0) & ((sg > 0) == bool(side)))
+        nb = neighbour(n, side)
+        if nb is None or not len(sel):
+            continue
+        olo, ohi = np.maximum(lo, nb[0]), np.minimum(hi, nb[1])
+        p = x[sel]
+        ins = (p[:, 1] > olo[1]) & (p[:, 1] < ohi[1]) & (p[:, 2] > olo[2]) & (p[:, 2] < ohi[2])
+        inside[sel] = ins
+        dep[sel, 0] = (p[:, 1] - olo[1]) / H
+        dep[sel, 1] = (ohi[2] - p[:, 2]) / H
+        dep[sel, 2] = (ohi[1] - p[:, 1]) / H
+        dep[sel, 3] = (p[:, 2] - olo[2]) / H
+    cov0 = con.covered(x, patch)
+    rows.append(
+        dict(
+            obj=np.full(len(cen), books.index(n)),
+            cls=cls,
+            inside=inside,
+            dep=dep,
+            cov=cov0,
+            ref=ref,
+            rho=rho,
+            x=x,
+            patch=patch,
+            axes=at.s_axes[cen],
+            tris=at.s_tri[cen],
+        )
+    )
+D = {k: np.concatenate([r[k] for r in rows]) for k in rows[0]}
+print(f"{len(books)} books, {len(D['cls'])} texels", flush=True)
+
+out = {k: D[k] for k in ("obj", "cls", "inside", "dep", "cov", "ref", "rho")}
+for name, kw in variants.items():
+    t0 = time.process_time()
+    g = texel_gather(dyn, D["patch"], D["x"], axes=D["axes"], tris=D["tris"], **{**BASE, **kw})
+    v = g.evaluate(dyn, "reflected")
+    out[name] = v
+    print(f"variant {name} {kw}: {g.n} samples, {time.process_time() - t0:.0f} s CPU", flush=True)
+
+
+table = {}
+
+
+def report(name):
+    ref, v = D["ref"].mean(1), out[name].mean(1)
+    ok = np.isfinite(ref)
+    tot_r, tot_o = ref[ok].sum(), v[ok].sum()
+    gap = 100 * (tot_o / tot_r - 1)
+    print(f"\n[{name}] books (texel sums, grey): Cycles {tot_r:.2f}, ours {tot_o:.2f} ({gap:+.1f}%)")
+    cls, ins = D["cls"], D["inside"]
+    dmin = D["dep"].min(1)
+    which = D["dep"].argmin(1)
+    groups = [
+        ("top", cls == 0),
+        ("front", cls == 1),
+        ("back", cls == 2),
+        ("bottom", cls == 4),
+        ("side, exposed", (cls == 3) & ~ins),
+    ]
+    edges = ["front", "top", "back", "bottom"]
+    for lo_, hi_ in ((0, 5), (5, 10), (10, 20), (20, 50), (50, 1e9)):
+        for e in range(4):
+            groups.append(
+                (
+                    f"side in slot, nearest edge {edges[e]}, {lo_:g}-{hi_:g} h",
+                    (cls == 3) & ins & (which == e) & (dmin >= lo_) & (dmin < hi_),
+                )
+            )
+    print(f"{'class':48s} texels  Cycles share  ours share  ours/Cycles  covered(centre)")
+    for lab, m in groups:
+        m = m & ok
+        if not m.any():
+            continue
+        r, o = ref[m].sum(), v[m].sum()
+        table.setdefault(name, {})[lab] = {"texels": int(m.sum()), "cycles": r / tot_r, "ours": o / tot_r}
+        print(
+            f"{lab:48s} {m.sum():6d}  {100 * r / tot_r:6.2f}%     {100 * o / tot_r:6.2f}%    "
+            f"{o / max(r, 1e-30):6.3f}      {D['cov'][m].mean():.2f}"
+        )
+
+
+for name in variants:
+    report(name)
+np.savez(os.path.join(HERE, "out", "books_texels.npz"), **out)  # per texel (not kept in git)
+# the shares of the books' light in Cycles and ours, per class (JSON, kept)
+C.write_json(os.path.join(HERE, "out", "books_texels.json"), {"variants": variants, "classes": table})
