@@ -3,7 +3,7 @@ gives from the profiled 1-thread run (serial CPU + the threaded maps' batches sc
 workers, bench_threads.amdahl_table), and the measured 2-thread speed-up (wall, one run on a
 shared machine) as points. Also prints the table of the model for docs/threads.md.
 
-    .venv/bin/python benchmarks/plot_threads.py [--json benchmarks/out/threads_100k_quiet.json]
+    .venv/bin/python benchmarks/plot_threads.py [--json benchmarks/out/threads_100k_quiet2.json]
         [--png docs/images/threads.png]
 """
 
@@ -22,7 +22,7 @@ CORES = list(range(1, 17))
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--json", default=os.path.join(HERE, "out", "threads_100k_quiet.json"))
+    ap.add_argument("--json", default=os.path.join(HERE, "out", "threads_100k_quiet2.json"))
     ap.add_argument("--png", default=os.path.join(HERE, "..", "docs", "images", "threads.png"))
     args = ap.parse_args(argv)
     data = json.load(open(args.json))
