@@ -6,7 +6,8 @@ clustering, plus light events on the built system. Prints a table, writes JSON a
 
 Every run is a separate process, so its peak memory (ru_maxrss) is its own. Timings are wall
 seconds on this machine, plus the build's CPU seconds (user + system), which other jobs sharing
-the cores distort much less than wall time.
+the cores distort much less than wall time. With --gather the rooms are built and solved as the
+bake builds them with the final gather on (RefineParams.for_gather, DynamicRadiosity.gather_options).
 """
 
 import argparse
@@ -35,7 +36,11 @@ def run_one(size, cluster, quality, events):
     from hr_addon.core.refine import RefineParams
 
     mesh, info = furnished_room(size)
-    params = dataclasses.replace(RefineParams.preset(quality), cluster=cluster)
+    # with the final gather, the bake's transport: coarser links, solves to the output's tolerance
+    gathered = int(os.environ.get("HR_GATHER_RAYS", "0")) > 0
+    preset = RefineParams.for_gather(quality) if gathered else RefineParams.preset(quality)
+    params = dataclasses.replace(preset, cluster=cluster)
+    opts = DynamicRadiosity.gather_options(quality) if gathered else {}
     cpu = lambda: sum(resource.getrusage(resource.RUSAGE_SELF)[:2])  # user + system seconds
     t0, c0 = time.perf_counter(), cpu()
     # progress to stderr: the parent keeps the last line when it stops a run at its time limit
@@ -79,7 +84,7 @@ def run_one(size, cluster, quality, events):
             S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
         )
         for method in ("FE", "AUTO"):
-            dyn = DynamicRadiosity(s.copy(), method=method)
+            dyn = DynamicRadiosity(s.copy(), method=method, **opts)
             t1, c1 = time.perf_counter(), cpu()
             rep = dyn.add("w", window)
             out[f"{method.lower()}_event_s"] = time.perf_counter() - t1
@@ -94,7 +99,7 @@ def run_one(size, cluster, quality, events):
         window = LightShape(
             S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
         )
-        dyn = DynamicRadiosity(s.copy(), method="FE")
+        dyn = DynamicRadiosity(s.copy(), method="FE", **opts)
         dyn.add("w", window)
         c1 = cpu()
         levels = int(os.environ.get("HR_GATHER_LEVELS", "1"))
