@@ -21,37 +21,20 @@ import os
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-sys.path.insert(0, os.path.dirname(HERE))
-import numpy as np  # noqa: E402
+import numpy as np
 
-import cycles_compare as CC  # noqa: E402
-from hr_testing import cycles_ref as C  # noqa: E402
-from hr_addon.core.contacts import slot_mouth  # noqa: E402
-from hr_addon.core.events import DynamicRadiosity  # noqa: E402
-from hr_addon.core.gather import texel_gather  # noqa: E402
-from hr_addon.core.gather.final import _csr_matvec  # noqa: E402
-from hr_addon.core.gather.layouts import texel_samples  # noqa: E402
-from hr_addon.core.gather.points import locate_below  # noqa: E402
-from hr_addon.core.gather.sampling import cosine_directions  # noqa: E402
-from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
-from hr_addon.core.refine import RefineParams  # noqa: E402
+import books_common as BC
+from hr_testing import cycles_ref as C
+from hr_addon.core.contacts import slot_mouth
+from hr_addon.core.gather import texel_gather
+from hr_addon.core.gather.final import _csr_matvec
+from hr_addon.core.gather.layouts import texel_samples
+from hr_addon.core.gather.points import locate_below
+from hr_addon.core.gather.sampling import cosine_directions
 
-BASE = dict(rays=128, shadow_rays=16, levels=2, iterations=4)
-variants = {"main": {}}
-variants.update({k: eval(v) for k, v in (x.split("=", 1) for x in sys.argv[1:])})
-
-cfg = CC.SCENES["furnished"]
-rs = C.prepare(CC.open_scene("furnished"), texel_rel=cfg["texel_rel"])
-a, _, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[0])
-b, _, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[1])
-t0 = time.process_time()
-s = RadiositySystem(rs.scene_in.mesh, RefineParams.preset("draft"))
-dyn = DynamicRadiosity(s, method="FE")
-dyn.apply(C.shape_proxies(rs, 1))
-print(f"build + frame 1: {time.process_time() - t0:.0f} s CPU", flush=True)
-ours = C.Ours(rs, s, dyn)
+BASE = BC.BASE
+variants = BC.variants(sys.argv[1:])
+rs, (a, b), s, dyn, ours = BC.furnished()
 con = s.h.contacts
 pt = s.patches
 
@@ -232,4 +215,4 @@ for name, kw in variants.items():
                 f"mouth-only {alt_out[m].sum() / REF[m].sum():.3f}"
             )
     report[name] = dict(objects=rep, slot_samples=len(rows), share_inside=share_in, by_mouth=by_mouth)
-C.write_json(os.path.join(HERE, "out", "books_sides.json"), {"variants": variants, "report": report})
+C.write_json(os.path.join(BC.HERE, "out", "books_sides.json"), {"variants": variants, "report": report})
