@@ -17,32 +17,15 @@ import os
 import sys
 import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
-sys.path.insert(0, os.path.dirname(HERE))
-import numpy as np  # noqa: E402
+import numpy as np
 
-import cycles_compare as CC  # noqa: E402
-from hr_testing import cycles_ref as C  # noqa: E402
-from hr_addon.core.events import DynamicRadiosity  # noqa: E402
-from hr_addon.core.gather import texel_gather  # noqa: E402
-from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
-from hr_addon.core.refine import RefineParams  # noqa: E402
+import books_common as BC
+from hr_testing import cycles_ref as C
+from hr_addon.core.gather import texel_gather
 
-BASE = dict(rays=128, shadow_rays=16, levels=2, iterations=4)
-variants = {"main": {}}
-variants.update({k: eval(v) for k, v in (x.split("=", 1) for x in sys.argv[1:])})
-
-cfg = CC.SCENES["furnished"]
-rs = C.prepare(CC.open_scene("furnished"), texel_rel=cfg["texel_rel"])
-a, _, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[0])
-b, _, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[1])
-t0 = time.process_time()
-s = RadiositySystem(rs.scene_in.mesh, RefineParams.preset("draft"))
-dyn = DynamicRadiosity(s, method="FE")
-dyn.apply(C.shape_proxies(rs, 1))
-print(f"build + frame 1: {time.process_time() - t0:.0f} s CPU", flush=True)
-ours = C.Ours(rs, s, dyn)
+BASE = BC.BASE
+variants = BC.variants(sys.argv[1:])
+rs, (a, b), s, dyn, ours = BC.furnished()
 con = s.h.contacts
 H = 0.002  # the books' gap
 
@@ -169,6 +152,6 @@ def report(name):
 
 for name in variants:
     report(name)
-np.savez(os.path.join(HERE, "out", "books_texels.npz"), **out)  # per texel (not kept in git)
+np.savez(os.path.join(BC.HERE, "out", "books_texels.npz"), **out)  # per texel (not kept in git)
 # the shares of the books' light in Cycles and ours, per class (JSON, kept)
-C.write_json(os.path.join(HERE, "out", "books_texels.json"), {"variants": variants, "classes": table})
+C.write_json(os.path.join(BC.HERE, "out", "books_texels.json"), {"variants": variants, "classes": table})
