@@ -3,6 +3,10 @@
 
 Run: .venv/bin/python benchmarks/cycles_lights.py [POINT|AREA|SPOT|SUN|SUN_HOLE|WORLD|WORLD_ENV ...] [--spp N]
      [--indirect]  (Cycles' direct light + our "Indirect only" values against the full Cycles bake)
+     [--leaf-points N]  (the second level's N x N gather samples per HR leaf, default 2)
+     [--seeds 1,2,...]  (the reference: their mean; default 1,2)
+     [--cache]  (Cycles' bakes kept in benchmarks/out/cycles_lights_cache/, git-ignored: a re-run
+     with the same light, spp and seed reads them)
 Prints one JSON line per light kind; the test tests/test_cycles_lights.py runs a smaller version."""
 
 import json
@@ -21,7 +25,24 @@ if __name__ == "__main__":
         i = args.index("--spp")
         spp = int(args[i + 1])
         del args[i : i + 2]
+    seeds = (1, 2)
+    if "--seeds" in args:
+        i = args.index("--seeds")
+        seeds = tuple(int(v) for v in args[i + 1].split(","))
+        del args[i : i + 2]
+    cache = (
+        str(Path(__file__).resolve().parent / "out" / "cycles_lights_cache") if "--cache" in args else None
+    )
+    gather = dict(levels=2, iterations=4)
+    if "--leaf-points" in args:  # the second level's gather samples per HR leaf side (default 2)
+        i = args.index("--leaf-points")
+        gather["leaf_points"] = int(args[i + 1])
+        del args[i : i + 2]
     indirect = "--indirect" in args  # the "Indirect only (for EEVEE)" composite too
-    args = [a for a in args if a != "--indirect"]
+    args = [a for a in args if a not in ("--indirect", "--cache")]
     for kind in args or ["POINT"]:
-        print("RESULT " + json.dumps(run(kind, spp, indirect=indirect)), flush=True)
+        print(
+            "RESULT "
+            + json.dumps(run(kind, spp, seeds=seeds, gather=gather, indirect=indirect, cache_dir=cache)),
+            flush=True,
+        )

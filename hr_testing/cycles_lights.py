@@ -312,10 +312,54 @@ def add_light(kind):
     return ob
 
 
-def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=None, indirect=False):
+def _cached_bake(rs, kind, spp, seed, cache_dir, passes=("DIRECT", "INDIRECT")):
+    """C.bake's values, kept in cache_dir (None: not kept) under a key naming the light kind, the
+    samples, the seed, the passes, the atlas and add_light's source (an edited light re-bakes)."""
+    import hashlib
+    import inspect
+    import os
+
+    if cache_dir is None:
+        return C.bake(rs, spp, seed=seed, passes=passes)[0]
+    m = hashlib.sha1(inspect.getsource(add_light).encode())
+    for n in rs.objects:
+        at = rs.atlases[n]
+        m.update(f"{n}:{at.width}x{at.height}:{at.n}:{at.texel:.6g};".encode())
+    path = os.path.join(cache_dir, f"{kind}_s{spp}_seed{seed}_{'+'.join(passes)}_{m.hexdigest()[:10]}.npz")
+    if os.path.exists(path):
+        z = np.load(path)
+        return {n: z[n].astype(np.float64) for n in rs.objects}
+    vals, dt, _ = C.bake(rs, spp, seed=seed, passes=passes)
+    os.makedirs(cache_dir, exist_ok=True)
+    np.savez(path, __cpu=dt["cpu"], **{n: v.astype(np.float32) for n, v in vals.items()})
+    return vals
+
+
+def _noise_of_mean(vals):
+    """The noise of the seeds' mean of a surface mean (relative, averaged over RGB): the spread
+    (ddof 1) of each seed's surface mean / sqrt(seeds); with two seeds C.noise's / sqrt 2."""
+    if len(vals) < 2:
+        return float("nan")
+    ok = np.logical_and.reduce([np.isfinite(v).all(1) for v in vals])
+    means = np.array([v[ok].mean(0) for v in vals])
+    return float(np.mean(means.std(0, ddof=1) / np.maximum(means.mean(0), 1e-12)) / math.sqrt(len(vals)))
+
+
+def run(
+    kind,
+    spp=32,
+    texel_rel=1 / 56,
+    seeds=(1, 2),
+    quality="medium",
+    gather=None,
+    indirect=False,
+    cache_dir=None,
+):
     """indirect: also the values mode "Indirect only (for EEVEE)" (core.lights.indirect_incident x
     rho) added to a Cycles bake of the direct light alone (the DIRECT pass, same seeds), against
-    the full Cycles bake: "composite" per surface."""
+    the full Cycles bake: "composite" per surface. cache_dir: Cycles' bakes kept there
+    (_cached_bake). The reference is the seeds' mean; its noise of a surface mean: the spread of
+    the seeds' means (two seeds: their difference)."""
     bpy = load_bpy()
     from hr_addon.blender.lights_in import collect_lights
     from hr_addon.core.events import DynamicRadiosity
@@ -334,9 +378,10 @@ def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=N
     dyn.apply({}, lights)
     ours = C.Ours(rs, system, dyn)
     cache = {}
-    g, _ = C.gather_results(
+    g, cost = C.gather_results(
         rs, ours, dyn, vertex=False, cache=cache, **(gather or dict(levels=2, iterations=4))
     )
+    sec = cache["texel"].second
     if indirect:
         from hr_addon.core.lights import indirect_incident
 
@@ -355,15 +400,19 @@ def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=N
     refs = []
     t1 = time.perf_counter()
     for s in seeds:
-        ref, _, mask = C.bake(rs, spp, seed=s)
-        refs.append(ref)
-    direct = [C.bake(rs, spp, seed=s, passes=("DIRECT",))[0] for s in seeds] if indirect else None
+        refs.append(_cached_bake(rs, kind, spp, s, cache_dir))
+    direct = (
+        [_cached_bake(rs, kind, spp, s, cache_dir, passes=("DIRECT",)) for s in seeds] if indirect else None
+    )
     cyc_s = time.perf_counter() - t1
     out = {
         "kind": kind,
         "spp": spp,
         "seeds": list(seeds),
         "ours_cpu_s": round(ours_s, 1),
+        # the texel gather's precompute (CPU s) and its samples: texels' and the second level's
+        "gather_precompute_cpu_s": round(cost["texel_precompute_s"], 2),
+        "gather_samples": [cost["texel_samples"], sec.n if sec is not None else 0],
         "cycles_wall_s": round(cyc_s, 1),
         "surfaces": {},
     }
@@ -371,8 +420,7 @@ def run(kind, spp=32, texel_rel=1 / 56, seeds=(1, 2), quality="medium", gather=N
         ref = sum(r[n] for r in refs) / len(refs)
         m = C.metrics(g[n]["gather_refl"], ref)
         ml = C.metrics(leaf[n]["leaf_refl"], ref)
-        # the noise of the two seeds' mean (C.noise: of one bake's surface mean)
-        nz = C.noise(refs[0][n], refs[1][n])[1] / math.sqrt(len(refs)) if len(refs) > 1 else float("nan")
+        nz = _noise_of_mean([r[n] for r in refs])
         out["surfaces"][n] = {
             "texels": m["texels"],
             "gather": round(m["bias"], 4),
