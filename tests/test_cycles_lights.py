@@ -7,7 +7,14 @@ Tolerance: the issue's target, every surface within 2%. Measured (this machine, 
 area light worst surface 0.37%, point light 0.41%, a uniform World sky through the open front
 (WORLD) 0.58%; the reference's own noise of a surface mean (two seeds) at most 0.37% (area),
 0.36% (point) and 0.49% (WORLD), so 2% is more than 3 sigma of the reference noise above the
-worst error seen. WORLD is checked per channel too (its sky is blue-white)."""
+worst error seen. WORLD is checked per channel too (its sky is blue-white).
+
+SPOT (60 W aimed at the back wall: the other surfaces are lit by its bounce) needs a finer
+reference: at 32 spp a surface mean's noise is up to 2% (per seed, 16 seeds measured; two
+seeds' mean up to 1.4%), and seeds 1 and 2 read 0.6-2.1% above an 8 x 1024-spp reference on the
+six bounce-lit surfaces (docs/lights.md). At 1024 spp, seeds 1 and 2: worst surface -1.15% (short
+block; worst channel -1.21%), noise of the mean at most 0.20%; against 8 seeds x 1024 spp the
+worst is -0.81% (noise 0.12%)."""
 
 import math
 import os
@@ -21,12 +28,12 @@ pytest.importorskip("bpy")
 TOL = 0.02
 
 
-@pytest.mark.parametrize("kind", ["AREA", "POINT", "WORLD"])
-def test_cornell_lit_by_a_blender_light_agrees_with_cycles(kind):
+@pytest.mark.parametrize("kind, spp", [("AREA", 32), ("POINT", 32), ("WORLD", 32), ("SPOT", 1024)])
+def test_cornell_lit_by_a_blender_light_agrees_with_cycles(kind, spp):
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from hr_testing import cycles_lights
 
-    out = cycles_lights.run(kind, spp=32, seeds=(1, 2))
+    out = cycles_lights.run(kind, spp=spp, seeds=(1, 2))
     surf = out["surfaces"]
     assert len(surf) == 7
     bad = {n: s["gather"] for n, s in surf.items() if not abs(s["gather"]) <= TOL}
