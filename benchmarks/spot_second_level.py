@@ -14,7 +14,6 @@ Run: .venv/bin/python benchmarks/spot_second_level.py [n=8] [KIND=SPOT]"""
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -24,32 +23,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 
 def main(n_dense=8, kind="SPOT"):
-    from hr_testing import cycles_ref as C
-    from hr_testing.blend import load_bpy, open_sample
-    from hr_testing.cycles_lights import add_light
-
-    bpy = load_bpy()
-    from hr_addon.blender.lights_in import collect_lights
     from hr_addon.core import formfactor as ff
-    from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.gather import FinalGather
     from hr_addon.core.gather.final import _csr_matvec
-    from hr_addon.core.lights import Light
-    from hr_addon.core.radiosity import RadiositySystem
-    from hr_addon.core.refine import RefineParams
+    from hr_testing.cycles_lights import solve
 
-    open_sample("cornell", tempfile.mkdtemp())
-    add_light(kind)
-    rs = C.prepare(bpy.context.scene, texel_rel=1 / 56)
-    vl = bpy.context.view_layer
-    lights = collect_lights(vl, vl.depsgraph, Light)
-    system = RadiositySystem(rs.scene_in.mesh, RefineParams.preset("medium"))
-    dyn = DynamicRadiosity(system, method="FE")
-    dyn.apply({}, lights)
-    ours = C.Ours(rs, system, dyn)
-    cache = {}
-    C.gather_results(rs, ours, dyn, vertex=False, cache=cache, levels=2, iterations=4)
-    g = cache["texel"]
+    sv = solve(kind)
+    rs, system, dyn, g = sv.rs, sv.system, sv.dyn, sv.gather
     g2 = g.second
     used, gw = g._second_map
     h = system.h

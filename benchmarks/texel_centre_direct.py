@@ -14,7 +14,6 @@ Run: .venv/bin/python benchmarks/texel_centre_direct.py [KIND=SUN] [n=4]"""
 import json
 import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -23,30 +22,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 
 def main(kind="SUN", n_sub=4):
-    from hr_testing import cycles_ref as C
-    from hr_testing.blend import load_bpy, open_sample
-    from hr_testing.cycles_lights import add_light
-
-    bpy = load_bpy()
-    from hr_addon.blender.lights_in import collect_lights
-    from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.gather.points import _insideness, _into_patch
-    from hr_addon.core.lights import Light, unit_incident
-    from hr_addon.core.radiosity import RadiositySystem
-    from hr_addon.core.refine import RefineParams
+    from hr_addon.core.lights import unit_incident
+    from hr_testing.cycles_lights import solve
 
-    open_sample("cornell", tempfile.mkdtemp())
-    add_light(kind)
-    rs = C.prepare(bpy.context.scene, texel_rel=1 / 56)
-    vl = bpy.context.view_layer
-    lights = collect_lights(vl, vl.depsgraph, Light)
-    system = RadiositySystem(rs.scene_in.mesh, RefineParams.preset("medium"))
-    dyn = DynamicRadiosity(system, method="FE")
-    dyn.apply({}, lights)
-    ours = C.Ours(rs, system, dyn)
-    cache = {}
-    g, _ = C.gather_results(rs, ours, dyn, vertex=False, cache=cache, levels=2, iterations=4)
-    far = cache["texel"].tmax  # shadow rays beyond the scene, as the gather's
+    sv = solve(kind)
+    rs, system, ours, lights, g = sv.rs, sv.system, sv.ours, sv.lights, sv.res
+    far = sv.gather.tmax  # shadow rays beyond the scene, as the gather's
     pt = system.patches
     eps = float(system.refiner.eps)
     u = (np.arange(n_sub) + 0.5) / n_sub - 0.5
@@ -67,7 +49,7 @@ def main(kind="SUN", n_sub=4):
         on = (_insideness(pt.corners[pp][:, None], pt.normal[pp][:, None], xs)[:, 0] >= 0).reshape(
             len(cen), -1
         )
-        xs = _into_patch(pt, pp, xs, cache["texel"].eps * 50)
+        xs = _into_patch(pt, pp, xs, sv.gather.eps * 50)
         centre = np.zeros((len(cen), 3))
         area = np.zeros((len(cen), 3))
         for L in lights.values():

@@ -345,6 +345,42 @@ def _noise_of_mean(vals):
     return float(np.mean(means.std(0, ddof=1) / np.maximum(means.mean(0), 1e-12)) / math.sqrt(len(vals)))
 
 
+def solve(kind, texel_rel=1 / 56, quality="medium", gather=None):
+    """The Cornell sample lit by add_light(kind) alone, prepared for Cycles (cycles_ref.prepare),
+    our solution (FE at `quality`) and its final gather at the texel centres (gather: the
+    FinalGather's settings, default two levels + 4 iterations). -> namespace of rs, lights,
+    system, dyn, ours (cycles_ref.Ours), gather (the texel FinalGather), res, cost (gather_results'),
+    setup_cpu_s (opening, preparing and reading the lights: CPU s before the solution)."""
+    from types import SimpleNamespace
+
+    bpy = load_bpy()
+    from hr_addon.blender.lights_in import collect_lights
+    from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.lights import Light
+    from hr_addon.core.radiosity import RadiositySystem
+    from hr_addon.core.refine import RefineParams
+
+    t0 = time.process_time()
+    open_sample("cornell", tempfile.mkdtemp())
+    add_light(kind)
+    rs = C.prepare(bpy.context.scene, texel_rel=texel_rel)
+    vl = bpy.context.view_layer
+    lights = collect_lights(vl, vl.depsgraph, Light)
+    t1 = time.process_time()
+    system = RadiositySystem(rs.scene_in.mesh, RefineParams.preset(quality))
+    dyn = DynamicRadiosity(system, method="FE")
+    dyn.apply({}, lights)
+    ours = C.Ours(rs, system, dyn)
+    cache = {}
+    res, cost = C.gather_results(
+        rs, ours, dyn, vertex=False, cache=cache, **(gather or dict(levels=2, iterations=4))
+    )
+    return SimpleNamespace(
+        rs=rs, lights=lights, system=system, dyn=dyn, ours=ours, gather=cache["texel"], res=res, cost=cost,
+        setup_cpu_s=t1 - t0,
+    )  # fmt: skip
+
+
 def run(
     kind,
     spp=32,
@@ -360,32 +396,12 @@ def run(
     the full Cycles bake: "composite" per surface. cache_dir: Cycles' bakes kept there
     (_cached_bake). The reference is the seeds' mean; its noise of a surface mean: the spread of
     the seeds' means (two seeds: their difference)."""
-    bpy = load_bpy()
-    from hr_addon.blender.lights_in import collect_lights
-    from hr_addon.core.events import DynamicRadiosity
-    from hr_addon.core.lights import Light
-    from hr_addon.core.radiosity import RadiositySystem
-    from hr_addon.core.refine import RefineParams
-
-    open_sample("cornell", tempfile.mkdtemp())
-    add_light(kind)
-    rs = C.prepare(bpy.context.scene, texel_rel=texel_rel)
-    vl = bpy.context.view_layer
-    lights = collect_lights(vl, vl.depsgraph, Light)
     t0 = time.process_time()
-    system = RadiositySystem(rs.scene_in.mesh, RefineParams.preset(quality))
-    dyn = DynamicRadiosity(system, method="FE")
-    dyn.apply({}, lights)
-    ours = C.Ours(rs, system, dyn)
-    cache = {}
-    g, cost = C.gather_results(
-        rs, ours, dyn, vertex=False, cache=cache, **(gather or dict(levels=2, iterations=4))
-    )
-    sec = cache["texel"].second
+    sv = solve(kind, texel_rel, quality, gather)
+    rs, dyn, ours, g, cost, tg = sv.rs, sv.dyn, sv.ours, sv.res, sv.cost, sv.gather
     if indirect:
         from hr_addon.core.lights import indirect_incident
 
-        tg = cache["texel"]
         ind = tg.outputs(tg.rho) * indirect_incident(tg, dyn)  # per texel (its sub-samples averaged)
         s0 = 0
         for n in rs.objects:  # the texel gather's samples: the objects' texel centres in order
@@ -396,7 +412,7 @@ def run(
             g[n]["indirect_refl"] = tex
             s0 += len(cen)
     leaf = ours.evaluate({}, smooth=False)
-    ours_s = time.process_time() - t0
+    ours_s = time.process_time() - t0 - sv.setup_cpu_s
     refs = []
     t1 = time.perf_counter()
     for s in seeds:
@@ -412,7 +428,7 @@ def run(
         "ours_cpu_s": round(ours_s, 1),
         # the texel gather's precompute (CPU s) and its samples: texels' and the second level's
         "gather_precompute_cpu_s": round(cost["texel_precompute_s"], 2),
-        "gather_samples": [cost["texel_samples"], sec.n if sec is not None else 0],
+        "gather_samples": [cost["texel_samples"], tg.second.n if tg.second is not None else 0],
         "cycles_wall_s": round(cyc_s, 1),
         "surfaces": {},
     }
