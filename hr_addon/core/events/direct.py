@@ -23,13 +23,19 @@ _SHAFTS = []  # (weak reference to the patches' corners, emitter plane, ClearSha
 def clear_shafts(system, point, normal):
     """planes.ClearShafts of an emitter plane over a system's triangles, shared by AUTO's first
     bounce and every level of the final gather (the same patches and plane: the same grid;
-    copies of a system share their patches)."""
+    copies of a system share their patches). Keyed by the plane, not the point: a shape moved in
+    its plane (Live's drags) reuses the grid. The grid depends on the point only through which
+    triangles lie behind the plane, and a plane within the margin (1e-3 eps) of the one it was
+    built for leaves out only triangles within that margin of it, which no segment from a sample
+    in front (by eps) to the emitter (eps in front of it) can meet: still conservative, so the
+    values do not change (a clear shaft's ratio is exactly 1 either way)."""
     pt = system.patches
-    key = (point.tobytes(), normal.tobytes())
+    margin = 1e-3 * system.refiner.eps
+    key = (np.round(normal, 12).tobytes(), round(float(point @ normal) / margin))
     for ref, k, sh in _SHAFTS:
         if ref() is pt.corners and k == key:
             return sh
-    sh = ClearShafts(pt.triangles, system.refiner.occluders.plane, point, normal, 1e-3 * system.refiner.eps)
+    sh = ClearShafts(pt.triangles, system.refiner.occluders.plane, point, normal, margin)
     _SHAFTS.append((weakref.ref(pt.corners), key, sh))
     del _SHAFTS[:-4]
     return sh
