@@ -237,19 +237,30 @@ class FirstBounce:
         return occ.maybe_occluded(nlo, nhi, occ.patch_plane[h.patch[nodes]], shape_plane)
 
 
-def slab_pieces(rec, nf, cells=None):
+def slab_pieces(rec, nf, cells=None, merge=False):
     """Convex pieces (slabs) of a shape's outline: corners (T, 4, 3) CCW about nf, nv, areas.
     cells: convex polygons (P, 4, 2) in the shape's plane (its covered patches): the outline is cut
-    along their edges too and only the pieces inside one of them are kept."""
+    along their edges too and only the pieces inside one of them are kept. merge: cut only along
+    the outline of their union (edges two cells share are left out): the same region in a few
+    pieces instead of one per cell and slab (a shape reaching past the edge of a finely meshed
+    wall)."""
     edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
-    if cells is not None:
-        edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in cells]
+    if cells is not None and merge:
+        # only edges reaching into the outline's box can cut it (the others' heights would only
+        # cut its slabs into more pieces)
+        e, lo, hi = _union_edges(cells), np.min(edges[0], (0, 1)), np.max(edges[0], (0, 1))
+        edges.append(e[((e.max(1) >= lo) & (e.min(1) <= hi)).all(1)])
+    elif cells is not None:
+        edges.append(np.stack([cells, np.roll(cells, -1, 1)], 2).reshape(-1, 2, 2))
     edges = np.concatenate(edges)
-    traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
+    scale = float(np.abs(edges).max()) or 1.0
+    traps = slab_decomposition(edges, 1e-9 * scale)
     mids = np.array([m for _, m in traps]).reshape(-1, 2)
     keep = _in_rings(mids, rec.rings2d)
     if cells is not None:
-        keep &= _in_convex(mids, cells).any(1)
+        # merged: a piece lies wholly inside the union or wholly outside it, but its midpoint may
+        # lie on an edge two cells share, so it counts within a rounding tolerance of a cell
+        keep &= _in_convex(mids, cells, 1e-9 * scale if merge else None).any(1)
     out, nvs = [], []
     for t in np.flatnonzero(keep):
         q = traps[t][0]
@@ -260,6 +271,19 @@ def slab_pieces(rec, nf, cells=None):
         out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
     c, nv = np.array(out).reshape(-1, 4, 3), np.array(nvs, int)
     return c, nv, ff.polygon_normal_area(c, nv)[1]
+
+
+def _union_edges(cells):
+    """Edges (E, 2, 2) of convex cells (P, M, 2) that no other cell shares (the outline of their
+    union where they meet edge to edge, as a mesh's patches do; cells meeting at a T-junction keep
+    both edges: more pieces, the same region). Zero-length edges are dropped."""
+    e = np.stack([cells, np.roll(cells, -1, 1)], 2).reshape(-1, 2, 2)
+    e = e[(e[:, 0] != e[:, 1]).any(1)]
+    a, b = e[:, 0], e[:, 1]
+    swap = (a[:, 0] > b[:, 0]) | ((a[:, 0] == b[:, 0]) & (a[:, 1] > b[:, 1]))
+    key = np.where(swap[:, None], np.concatenate([b, a], 1), np.concatenate([a, b], 1))
+    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return e[cnt[inv.ravel()] == 1]
 
 
 def shape_form_factors(x, n, rings, corners, nv, eps):

@@ -6,6 +6,7 @@ import numpy as np
 
 from .. import formfactor as ff
 from ..events.direct import clear_shafts, shape_form_factors, slab_pieces
+from ..events.validation import to2d
 from ..geometry import newell
 from ..parallel import batch_map, ranges
 from .sampling import Emitter, hammersley, hash_uniform, position_keys
@@ -165,7 +166,13 @@ class DirectLight:
             nf = self.system.patches.normal[rec.roots[0]]  # as FirstBounce.pieces
             corners, nv, area = slab_pieces(rec, nf)
         elif rec.on_surface:
-            corners, nv, area, nf = dyn._pieces(rec)
+            # partly on surfaces: the outline's part on them, cut along the outline of the
+            # covered patches' union only (AUTO's first bounce cuts along every patch's edges)
+            pt = self.system.patches
+            nf = pt.normal[rec.roots[0]] if len(rec.roots) else rec.n
+            corners, nv, area = np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0)
+            if len(rec.roots):
+                corners, nv, area = slab_pieces(rec, nf, to2d(rec, pt.corners[rec.roots]), merge=True)
         else:
             nf = rec.n
             corners, nv, area = slab_pieces(rec, nf)
