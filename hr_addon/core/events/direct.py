@@ -89,8 +89,11 @@ class FirstBounce:
             sp, sw = sp[pick], np.full(16, cum[-1] / 16)
         eps = self.system.refiner.eps
         rings = None
+        fc, fnv = corners, nv  # the region whose form factor the receivers take
         if rec.covered >= 1 - 1e-9:  # contour over the rings: outer CCW about nf, holes CW
             rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
+        else:  # the same region cut along the covered patches' union only: a few pieces, not one per patch
+            fc, fnv = slab_pieces(rec, nf, to2d(rec, pt.corners[rec.roots]), merge=True)[:2]
         allv = np.concatenate(rec.rings)
         shape_lo, shape_hi = corners.reshape(-1, 3).min(0), corners.reshape(-1, 3).max(0)
         shape_plane = self.occluders.patch_plane[rec.roots[0]]
@@ -113,7 +116,7 @@ class FirstBounce:
             x = x.reshape(-1, 3)
             F = np.zeros(len(x))
             front = (x - rec.c) @ nf > eps
-            F[front] = shape_form_factors(x[front], xn[front], rings, corners, nv, eps)
+            F[front] = shape_form_factors(x[front], xn[front], rings, fc, fnv, eps)
             return F.reshape(-1, 4), x, xn, gw
 
         def visible(nodes, F, x, xn):
