@@ -31,7 +31,7 @@ def clear_shafts(system, point, normal):
     values do not change (a clear shaft's ratio is exactly 1 either way)."""
     pt = system.patches
     margin = 1e-3 * system.refiner.eps
-    key = (np.round(normal, 12).tobytes(), round(float(point @ normal) / margin))
+    key = ((np.round(normal, 12) + 0.0).tobytes(), round(float(point @ normal) / margin))  # + 0.0: no -0.0
     for ref, k, sh in _SHAFTS:
         if ref() is pt.corners and k == key:
             return sh
