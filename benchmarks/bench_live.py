@@ -22,7 +22,9 @@ time.perf_counter():
     what the depsgraph reported are compared).
 Medians and 95th percentiles per edit kind and over all edits go to benchmarks/out/live.json and
 benchmarks/live_edits.png. Timings are wall seconds on this machine; other jobs sharing the two
-cores make them noisy. Benchmarks print and plot; no test asserts on time.
+cores make them noisy, so the table also has the `ui` path's CPU seconds of the process per edit
+(main thread and worker: the figure to compare on a shared machine). Benchmarks print and plot;
+no test asserts on time.
 """
 
 import argparse
@@ -300,10 +302,10 @@ def table(results):
     all edits, and of all edits through hr.live_update() (with and without the geometry check)."""
     kinds = ("move", "scale", "rotate", "reshape", "strength", "colour", "hide", "show")
     lines = [
-        "| scene | quality | method | final gather | build | all edits | "
+        "| scene | quality | method | final gather | build | all edits | all edits, CPU | "
         + " | ".join(kinds)
         + " | hr.live_update() | same, check_geometry=False | target (p95) |",
-        "|---" * (9 + len(kinds)) + "|",  # 6 + kinds + 3 columns
+        "|---" * (10 + len(kinds)) + "|",  # 7 + kinds + 3 columns
     ]
 
     def ms(s):
@@ -319,6 +321,7 @@ def table(results):
         lines.append(
             f"| {r['scene']} | {r['quality']} | {r['method']} | "
             f"{ {True: 'on', False: 'off'}.get(r.get('final_gather'), 'before it') } | {r['build_s']:.1f} s | {mp(e['all'])} | "
+            f"{mp(e['all_cpu']) if 'all_cpu' in e else '-'} | "
             + " | ".join(mp(e[k]) for k in kinds)
             + f" | {mp(o['all'])} | {mp(f['all'])} | {met} |"
         )
@@ -338,7 +341,9 @@ def plot(results, path, date=""):
     )
     for r in results:
         e = r["edits"]["ui"]
-        fg = {True: ", gather", False: ", leaves"}.get(r.get("final_gather"), ", before the gather (earlier run)")
+        fg = {True: ", gather", False: ", leaves"}.get(
+            r.get("final_gather"), ", before the gather (earlier run)"
+        )
         labels.append(f"{r['scene']} {r['quality']} {r['method']}{fg}")
         med.append(1000 * e["all"]["median"])
         p95.append(1000 * e["all"]["p95"])

@@ -23,13 +23,19 @@ _SHAFTS = []  # (weak reference to the patches' corners, emitter plane, ClearSha
 def clear_shafts(system, point, normal):
     """planes.ClearShafts of an emitter plane over a system's triangles, shared by AUTO's first
     bounce and every level of the final gather (the same patches and plane: the same grid;
-    copies of a system share their patches)."""
+    copies of a system share their patches). Keyed by the plane, not the point: a shape moved in
+    its plane (Live's drags) reuses the grid. The grid depends on the point only through which
+    triangles lie behind the plane, and a plane within the margin (1e-3 eps) of the one it was
+    built for leaves out only triangles within that margin of it, which no segment from a sample
+    in front (by eps) to the emitter (eps in front of it) can meet: still conservative, so the
+    values do not change (a clear shaft's ratio is exactly 1 either way)."""
     pt = system.patches
-    key = (point.tobytes(), normal.tobytes())
+    margin = 1e-3 * system.refiner.eps
+    key = ((np.round(normal, 12) + 0.0).tobytes(), round(float(point @ normal) / margin))  # + 0.0: no -0.0
     for ref, k, sh in _SHAFTS:
         if ref() is pt.corners and k == key:
             return sh
-    sh = ClearShafts(pt.triangles, system.refiner.occluders.plane, point, normal, 1e-3 * system.refiner.eps)
+    sh = ClearShafts(pt.triangles, system.refiner.occluders.plane, point, normal, margin)
     _SHAFTS.append((weakref.ref(pt.corners), key, sh))
     del _SHAFTS[:-4]
     return sh
@@ -83,8 +89,11 @@ class FirstBounce:
             sp, sw = sp[pick], np.full(16, cum[-1] / 16)
         eps = self.system.refiner.eps
         rings = None
+        fc, fnv = corners, nv  # the region whose form factor the receivers take
         if rec.covered >= 1 - 1e-9:  # contour over the rings: outer CCW about nf, holes CW
             rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
+        else:  # the same region cut along the covered patches' union only: a few pieces, not one per patch
+            fc, fnv = slab_pieces(rec, nf, to2d(rec, pt.corners[rec.roots]), merge=True)[:2]
         allv = np.concatenate(rec.rings)
         shape_lo, shape_hi = corners.reshape(-1, 3).min(0), corners.reshape(-1, 3).max(0)
         shape_plane = self.occluders.patch_plane[rec.roots[0]]
@@ -107,7 +116,7 @@ class FirstBounce:
             x = x.reshape(-1, 3)
             F = np.zeros(len(x))
             front = (x - rec.c) @ nf > eps
-            F[front] = shape_form_factors(x[front], xn[front], rings, corners, nv, eps)
+            F[front] = shape_form_factors(x[front], xn[front], rings, fc, fnv, eps)
             return F.reshape(-1, 4), x, xn, gw
 
         def visible(nodes, F, x, xn):
@@ -231,19 +240,30 @@ class FirstBounce:
         return occ.maybe_occluded(nlo, nhi, occ.patch_plane[h.patch[nodes]], shape_plane)
 
 
-def slab_pieces(rec, nf, cells=None):
+def slab_pieces(rec, nf, cells=None, merge=False):
     """Convex pieces (slabs) of a shape's outline: corners (T, 4, 3) CCW about nf, nv, areas.
     cells: convex polygons (P, 4, 2) in the shape's plane (its covered patches): the outline is cut
-    along their edges too and only the pieces inside one of them are kept."""
+    along their edges too and only the pieces inside one of them are kept. merge: cut only along
+    the outline of their union (edges two cells share are left out): the same region in a few
+    pieces instead of one per cell and slab (a shape reaching past the edge of a finely meshed
+    wall)."""
     edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
-    if cells is not None:
-        edges += [np.stack([q, np.roll(q, -1, 0)], 1) for q in cells]
+    if cells is not None and merge:
+        # only edges reaching into the outline's box can cut it (the others' heights would only
+        # cut its slabs into more pieces)
+        e, lo, hi = _union_edges(cells), np.min(edges[0], (0, 1)), np.max(edges[0], (0, 1))
+        edges.append(e[((e.max(1) >= lo) & (e.min(1) <= hi)).all(1)])
+    elif cells is not None:
+        edges.append(np.stack([cells, np.roll(cells, -1, 1)], 2).reshape(-1, 2, 2))
     edges = np.concatenate(edges)
-    traps = slab_decomposition(edges, 1e-9 * (float(np.abs(edges).max()) or 1.0))
+    scale = float(np.abs(edges).max()) or 1.0
+    traps = slab_decomposition(edges, 1e-9 * scale)
     mids = np.array([m for _, m in traps]).reshape(-1, 2)
     keep = _in_rings(mids, rec.rings2d)
     if cells is not None:
-        keep &= _in_convex(mids, cells).any(1)
+        # merged: a piece lies wholly inside the union or wholly outside it, but its midpoint may
+        # lie on an edge two cells share, so it counts within a rounding tolerance of a cell
+        keep &= _in_convex(mids, cells, 1e-9 * scale if merge else None).any(1)
     out, nvs = [], []
     for t in np.flatnonzero(keep):
         q = traps[t][0]
@@ -254,6 +274,19 @@ def slab_pieces(rec, nf, cells=None):
         out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
     c, nv = np.array(out).reshape(-1, 4, 3), np.array(nvs, int)
     return c, nv, ff.polygon_normal_area(c, nv)[1]
+
+
+def _union_edges(cells):
+    """Edges (E, 2, 2) of convex cells (P, M, 2) that no other cell shares (the outline of their
+    union where they meet edge to edge, as a mesh's patches do; cells meeting at a T-junction keep
+    both edges: more pieces, the same region). Zero-length edges are dropped."""
+    e = np.stack([cells, np.roll(cells, -1, 1)], 2).reshape(-1, 2, 2)
+    e = e[(e[:, 0] != e[:, 1]).any(1)]
+    a, b = e[:, 0], e[:, 1]
+    swap = (a[:, 0] > b[:, 0]) | ((a[:, 0] == b[:, 0]) & (a[:, 1] > b[:, 1]))
+    key = np.where(swap[:, None], np.concatenate([b, a], 1), np.concatenate([a, b], 1))
+    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return e[cnt[inv.ravel()] == 1]
 
 
 def shape_form_factors(x, n, rings, corners, nv, eps):

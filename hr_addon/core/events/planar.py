@@ -44,12 +44,17 @@ def _in_rings(pts, rings):
     return inside
 
 
-def _in_convex(pts, poly):
-    """pts (N, 2) inside convex polygons poly (T, M, 2) of either orientation (zero edges ignored): (N, T)."""
+def _in_convex(pts, poly, tol=None):
+    """pts (N, 2) inside convex polygons poly (T, M, 2) of either orientation (zero edges ignored): (N, T).
+    tol: also points up to that distance outside."""
     e = np.roll(poly, -1, 1) - poly  # (T, M, 2)
     w = pts[:, None, None, :] - poly[None]  # (N, T, M, 2)
     cr = e[None, ..., 0] * w[..., 1] - e[None, ..., 1] * w[..., 0]
     zero = (np.abs(e).sum(-1) == 0)[None]
+    if tol is not None:
+        ln = np.sqrt((e * e).sum(-1))[None]
+        cr = np.where(zero, 0, cr / np.where(zero, 1, ln))
+        return (cr >= -tol).all(-1) | (cr <= tol).all(-1)
     return (np.where(zero, 0, cr) >= 0).all(-1) | (np.where(zero, 0, cr) <= 0).all(-1)
 
 

@@ -84,6 +84,7 @@ class _Rec:
     budget_hit: bool = False
     direct_links: int = 0
     msgs: list = field(default_factory=list)
+    emitter: tuple = None  # (unit, Emitter, normal): the final gather's, shared by its levels
 
     @property
     def geom_key(self):

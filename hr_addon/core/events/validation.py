@@ -145,6 +145,7 @@ class ShapeValidator:
     def __init__(self, plane_tol):
         self.plane_tol = plane_tol
         self._outline_ok = OrderedDict()  # rings' bytes -> '' or the problem
+        self._valid = OrderedDict()  # rings' and emission's bytes of shapes found valid
 
     def validate(self, key, shape):
         """(rings, emission, name) of a valid shape, else an InputError naming it."""
@@ -164,6 +165,10 @@ class ShapeValidator:
                 raise InputError(f"Light shape '{name}': ring {i} has NaN or infinite coordinates.")
             out.append(r)
         em = check_emission(shape.emission, name)
+        # a shape that did not change since it was found valid (every other shape of a Live edit)
+        seen = (tuple((r.shape, r.tobytes()) for r in out), em.tobytes())
+        if seen in self._valid:
+            return out, em, name
         size = _size(out)
         nrm = newell(out[0])
         if np.linalg.norm(nrm) <= 1e-9 * size**2:
@@ -200,6 +205,9 @@ class ShapeValidator:
             )
         if np.linalg.norm(newell(out[0])) <= 1e-9 * size**2:
             raise InputError(f"Light shape '{name}': the outer ring has zero area.")
+        self._valid[seen] = True
+        while len(self._valid) > 256:
+            self._valid.popitem(last=False)
         return out, em, name
 
 

@@ -6,6 +6,7 @@ import numpy as np
 
 from .. import formfactor as ff
 from ..events.direct import clear_shafts, shape_form_factors, slab_pieces
+from ..events.validation import to2d
 from ..geometry import newell
 from ..parallel import batch_map, ranges
 from .sampling import Emitter, hammersley, hash_uniform, position_keys
@@ -134,6 +135,22 @@ class DirectLight:
         its outline on that surface."""
         from ..events.planar import _in_rings
 
+        got = rec.emitter
+        if got is None or got[0] != self.unit:
+            got = rec.emitter = (self.unit,) + self._new_shape_emitter(dyn, rec)
+        _, em, nf = got
+        inside = np.zeros(0, np.int64)
+        if em is not None and rec.on_surface:
+            on = np.isin(self.patch, rec.roots) & (self.normals @ nf > 0.999)
+            on &= np.abs((self.points - rec.c) @ nf) <= max(rec.tol, 10 * self.eps)
+            c = np.flatnonzero(on)
+            if len(c):
+                inside = c[_in_rings(dyn._to2d(rec, self.points[c]), rec.rings2d)]
+        return em, inside, nf
+
+    def _new_shape_emitter(self, dyn, rec):
+        """(Emitter or None, emitting normal) of a light shape: the same for every level of a
+        gather (their unit is the system's), so it is kept on the shape's record."""
         import zlib
 
         # the shape's own random stream, from its outline relative to the scene's box: the same
@@ -141,31 +158,31 @@ class DirectLight:
         stream = zlib.crc32(b"".join(position_keys(r, self.unit).tobytes() for r in rec.rings)) & 0x7FFFFFFF
 
         whole = rec.covered >= 1 - 1e-9 or not rec.on_surface
-        if rec.on_surface:
-            corners, nv, area, nf = dyn._pieces(rec)
-            if whole and len(corners):
-                # wholly on surfaces: the emitting region is the outline itself; its few slabs
-                # instead of its pieces on every patch below it (hundreds on a finely meshed
-                # wall) make the shadow rays' sampling cheap (the same region, uniform in solid
-                # angle)
-                corners, nv, area = slab_pieces(rec, nf)
+        if rec.on_surface and whole and len(rec.roots):
+            # wholly on surfaces: the emitting region is the outline itself; its few slabs
+            # instead of its pieces on every patch below it (hundreds on a finely meshed
+            # wall) make the shadow rays' sampling cheap (the same region, uniform in solid
+            # angle)
+            nf = self.system.patches.normal[rec.roots[0]]  # as FirstBounce.pieces
+            corners, nv, area = slab_pieces(rec, nf)
+        elif rec.on_surface:
+            # partly on surfaces: the outline's part on them, cut along the outline of the
+            # covered patches' union only (AUTO's first bounce cuts along every patch's edges)
+            pt = self.system.patches
+            nf = pt.normal[rec.roots[0]] if len(rec.roots) else rec.n
+            corners, nv, area = np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0)
+            if len(rec.roots):
+                corners, nv, area = slab_pieces(rec, nf, to2d(rec, pt.corners[rec.roots]), merge=True)
         else:
             nf = rec.n
             corners, nv, area = slab_pieces(rec, nf)
-        inside = np.zeros(0, np.int64)
         if len(corners) == 0:
-            return None, inside, nf
+            return None, nf
         rings = None
         if whole:
             rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
         em = Emitter(corners, nv, area, np.repeat(nf[None], len(corners), 0), rings, nf, rec.c, stream=stream)
-        if rec.on_surface:
-            on = np.isin(self.patch, rec.roots) & (self.normals @ nf > 0.999)
-            on &= np.abs((self.points - rec.c) @ nf) <= max(rec.tol, 10 * self.eps)
-            c = np.flatnonzero(on)
-            if len(c):
-                inside = c[_in_rings(dyn._to2d(rec, self.points[c]), rec.rings2d)]
-        return em, inside, nf
+        return em, nf
 
     def _shape(self, dyn, rec):
         key = rec.geom_key

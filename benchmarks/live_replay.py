@@ -1,0 +1,152 @@
+"""Live's edits without bpy: record the light-shape states bench_live.py's edit sequence hands to
+the worker on the Cornell sample, then replay them through DynamicRadiosity + LoopGather as
+blender/live_worker.py runs them (CPU seconds per edit, the outputs kept for comparing code
+states; docs/live.md, *Fixed costs cut*).
+
+    .venv/bin/python benchmarks/live_replay.py record --quality draft --out states_draft.pkl   # needs bpy
+    .venv/bin/python benchmarks/live_replay.py replay states_draft.pkl --method FE --dump a.npz [--profile]
+    .venv/bin/python benchmarks/live_replay.py compare a.npz b.npz
+
+Run `replay` from two checkouts (the script imports hr_addon from its own tree) on one recording
+to compare code states; `compare` prints, per edit, "bitwise" or the differences at the corners
+lit above 1e-3 of the brightest. Benchmarks print; no test asserts on time.
+"""
+
+import argparse
+import pickle
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def record(quality, out):
+    import bpy
+
+    import bench_live as bl
+    import hr_addon
+
+    hr_addon.register()
+    from hr_addon.blender import live
+
+    scene, obj, kind, along, normal, step = bl.open_cornell(tempfile.mkdtemp(prefix="hr_live_replay_"))
+    scene.hr.method, scene.hr.quality, scene.hr.final_gather = "FE", quality.upper(), True
+    vl = bpy.context.view_layer
+    scene.hr.live = True
+    assert bpy.ops.hr.live_update() == {"FINISHED"}
+    sess = live.session(scene)
+    w = sess.worker
+    states = []
+    for k, edit in bl.edit_sequence(obj, kind, along, normal, step):
+        edit()
+        vl.update()
+        live._reconcile(sess, scene, vl, check_geometry=False, fast=True)
+        states.append((k, w._last_shapes[2]))  # the full light state the worker was handed
+        w.flush()
+        live._deliver(sess, scene)
+    s = w.spec
+    keep = dict(mesh=s.mesh, params=s.params, gather=s.gather, min_area_rel=s.min_area_rel, domain=s.domain)
+    Path(out).write_bytes(pickle.dumps(dict(keep, states=states)))
+    print(f"{len(states)} states -> {out}")
+
+
+def replay(path, method, dump=None, profile=False):
+    from hr_addon.blender.live_worker import RESPONSE_TOL
+    from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.gather import LoopGather
+    from hr_addon.core.lights import Light
+    from hr_addon.core.radiosity import RadiositySystem
+
+    d = pickle.loads(Path(path).read_bytes())
+    c0 = time.process_time()
+    s = RadiositySystem(d["mesh"], d["params"])
+    dyn = DynamicRadiosity(
+        s, method=method, min_area_rel=d["min_area_rel"], response_tol=RESPONSE_TOL, response_float32=True
+    )
+    g = LoopGather(dyn, **d["gather"])
+    print(f"build {time.process_time() - c0:.1f} s CPU", flush=True)
+    prof = None
+    if profile:
+        import cProfile
+
+        prof = cProfile.Profile(time.process_time)
+    out, rows = {}, []
+    for i, (kind, shapes) in enumerate(d["states"]):
+        c0 = time.process_time()
+        if prof:
+            prof.enable()
+        lights = {k: v for k, v in shapes.items() if isinstance(v, Light)}
+        rep = dyn.apply({k: v for k, v in shapes.items() if k not in lights}, lights)
+        c1 = time.process_time()
+        out[str(i)] = g.loop_radiance(dyn, d["domain"])
+        if prof:
+            prof.disable()
+        c2 = time.process_time()
+        rows.append((kind, c2 - c0, c1 - c0, c2 - c1, rep.iterations))
+        print(
+            f"{i:2d} {kind:8s} CPU {1000 * (c2 - c0):7.1f} ms (apply {1000 * (c1 - c0):6.1f}, output "
+            f"{1000 * (c2 - c1):6.1f}), {rep.iterations} iterations",
+            flush=True,
+        )
+    cpu = np.array([r[1] for r in rows])
+    geo = np.array([r[1] for r in rows if r[0] in ("move", "scale", "rotate", "reshape")])
+    print(
+        f"{method}: all edits median {1000 * np.median(cpu):.1f} / p95 {1000 * np.percentile(cpu, 95):.1f} "
+        f"ms CPU; geometry edits median {1000 * np.median(geo):.1f}; total {cpu.sum():.2f} s"
+    )
+    if dump:
+        np.savez(dump, **out)
+    if prof:
+        import pstats
+
+        pstats.Stats(prof).sort_stats("cumulative").print_stats(50)
+
+
+def compare(a, b):
+    a, b = np.load(a), np.load(b)
+    for k in sorted(a.files, key=int):
+        x, y = a[k], b[k]
+        if np.array_equal(x, y):
+            print(k, "bitwise")
+            continue
+        m = np.abs(x).max(1)
+        lit = m > 1e-3 * m.max()
+        rel = (np.abs(x - y).max(1) / np.maximum(m, 1e-30))[lit]
+        signed = ((y - x).sum(1) / np.maximum(x.sum(1), 1e-30))[lit].mean()
+        print(
+            f"{k} max {rel.max():.2e} median {np.median(rel):.2e} mean signed {signed:+.2e} "
+            f"largest / brightest {np.abs(x - y).max() / np.abs(x).max():.2e}"
+        )
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("record")
+    r.add_argument("--quality", default="draft")
+    r.add_argument("--out", required=True)
+    p = sub.add_parser("replay")
+    p.add_argument("states")
+    p.add_argument("--method", default="FE")
+    p.add_argument("--dump")
+    p.add_argument("--profile", action="store_true")
+    c = sub.add_parser("compare")
+    c.add_argument("a")
+    c.add_argument("b")
+    args = ap.parse_args()
+    if args.cmd == "record":
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+        record(args.quality, args.out)
+    elif args.cmd == "replay":
+        replay(args.states, args.method, args.dump, args.profile)
+    else:
+        compare(args.a, args.b)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,76 @@
+"""A light shape's emitting region when it reaches past the surfaces it lies on, and the grid of
+clear shafts a dragged shape reuses (Live's edits, issue 19)."""
+
+import numpy as np
+import pytest
+
+from hr_testing import scenes
+from hr_testing import shapes as S
+from hr_addon.core.events import DynamicRadiosity, LightShape
+from hr_addon.core.events.direct import shape_form_factors, slab_pieces
+from hr_addon.core.events.validation import to2d
+from hr_addon.core.planes import ClearShafts
+from hr_addon.core.radiosity import RadiositySystem
+from hr_addon.core.refine import RefineParams
+
+
+@pytest.fixture(scope="module")
+def system():
+    # the back wall as a 4 x 4 grid of patches, slightly skewed as in the Cornell data
+    return RadiositySystem(scenes.cornell_box(subdiv=4), RefineParams.preset("draft"))
+
+
+@pytest.mark.parametrize(
+    "centre, size, angle", [((0.5, 0.3), 0.16, 0.0), ((0.52, 0.2), 0.2, 0.3), ((0.3, 0.5), 0.2, 0.5)]
+)
+def test_merged_pieces_are_the_same_region(system, centre, size, angle):
+    """A shape reaching past the wall's edge: its part on the wall cut along the outline of the
+    covered patches' union (merge=True) is the region cut along every patch's edges: the same
+    area (to 1e-12 relative) and form factors at points in front, also where their horizon cuts
+    the shape (to 1e-12 of the largest), in fewer pieces."""
+    dyn = DynamicRadiosity(system.copy(), method="FE")
+    rect = S.on_plane(S.rect(size, 0.75 * size, centre=centre, angle=angle), S.CORNELL_BACK_WALL)
+    dyn.add("a", LightShape(rect, np.full(3, 2.0), "a"))
+    rec = dyn.shapes["a"]
+    assert 0.3 < rec.covered < 1 - 1e-6 and len(rec.roots) > 1
+    pt = system.patches
+    nf = pt.normal[rec.roots[0]]
+    cells = to2d(rec, pt.corners[rec.roots])
+    every = slab_pieces(rec, nf, cells)
+    merged = slab_pieces(rec, nf, cells, merge=True)
+    assert len(merged[0]) < len(every[0])
+    assert abs(merged[2].sum() - every[2].sum()) <= 1e-12 * every[2].sum()
+    assert abs(merged[2].sum() - rec.covered * rec.area) <= 1e-9 * rec.area
+    rng = np.random.default_rng(1)
+    x = np.array([0.05, 0.05, 0.05]) + rng.random((400, 3)) * [0.45, 0.45, 0.45]
+    n = rng.normal(size=(400, 3)) + [0, 2.0, 0]  # most face the wall, some see it cut by their horizon
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    Fa = shape_form_factors(x, n, None, every[0], every[1], 1e-6)
+    Fb = shape_form_factors(x, n, None, merged[0], merged[1], 1e-6)
+    assert Fa.max() > 0.01
+    np.testing.assert_allclose(Fb, Fa, rtol=0, atol=1e-12 * Fa.max())
+
+
+def test_a_dragged_shape_reuses_its_grid(system, monkeypatch):
+    """Moves of a shape within its plane (Live's drags) test their shafts against the grid built
+    for the first position: one ClearShafts for the plane, however many moves."""
+    from hr_addon.core.gather import LoopGather
+
+    built = []
+    real = ClearShafts.__init__
+
+    def counting(self, tris, plane, point, normal, margin):
+        built.append(normal.copy())
+        real(self, tris, plane, point, normal, margin)
+
+    monkeypatch.setattr(ClearShafts, "__init__", counting)
+    dyn = DynamicRadiosity(system.copy(), method="FE")
+    g = LoopGather(dyn, rays=16, shadow_rays=4, levels=2)
+    wall = S.CORNELL_BACK_WALL[1:]
+    for cx in (0.2, 0.23, 0.26, 0.3):
+        rect = S.on_plane(S.rect(0.1, 0.08, centre=(cx, 0.3)), S.CORNELL_BACK_WALL)
+        dyn.apply({"a": LightShape(rect, np.full(3, 2.0), "a")})
+        assert g.loop_radiance(dyn).max() > 0
+    n = np.cross(*wall)
+    on_wall = [b for b in built if abs(abs(b @ n) - 1) < 1e-9]
+    assert len(on_wall) == 1
