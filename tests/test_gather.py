@@ -13,7 +13,7 @@ from hr_addon.core import formfactor as ff
 from hr_addon.core.events import DynamicRadiosity, LightShape, surface_samples
 from hr_addon.core.gather import FinalGather, LoopGather, cosine_directions, texel_gather
 from hr_addon.core.geometry import prepare_patches
-from hr_addon.core.output import _insideness
+from hr_addon.core.geometry import insideness
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 from hr_addon.core.visibility import NumpyBackend, make_backend
@@ -24,7 +24,7 @@ from hr_testing.contact_scenes import contact_furnace, sky_points, sky_reference
 def patch_of(pt, pts, candidates):
     """The candidate patch each point lies in (most inside)."""
     c = np.asarray(candidates)
-    d = _insideness(pt.corners[c][None].repeat(len(pts), 0), pt.normal[c][None].repeat(len(pts), 0), pts)
+    d = insideness(pt.corners[c][None].repeat(len(pts), 0), pt.normal[c][None].repeat(len(pts), 0), pts)
     return c[np.argmax(d, 1)]
 
 

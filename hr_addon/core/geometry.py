@@ -107,6 +107,14 @@ class Patches:
         return np.concatenate([np.arange(len(self.nv)), np.flatnonzero(self.nv == 4)])
 
 
+def insideness(c, nrm, pts):
+    """Min signed distance of pts (M, 3) to the edges of polygons c (M, K, 4, 3), positive inside."""
+    e = np.roll(c, -1, axis=2) - c
+    length = np.linalg.norm(e, axis=-1)
+    d = np.einsum("mkvj,mkj->mkv", np.cross(e, pts[:, None, None] - c), nrm) / np.maximum(length, 1e-300)
+    return np.where(length > 0, d, np.inf).min(-1)  # padded triangle edge ignored
+
+
 def newell(p):
     """Newell normal (unnormalised, length = 2 x area) of polygons p (..., n, 3): the exact normal
     of a planar polygon, a best-fit one of a slightly warped polygon, zero for a degenerate one."""

@@ -9,7 +9,7 @@ which never reach the output) while creases (a wall meeting the floor) stay shar
 
 import numpy as np
 
-from .geometry import MeshInput
+from .geometry import MeshInput, insideness
 from .hierarchy import Hierarchy
 
 
@@ -97,14 +97,6 @@ def loop_plan(h: Hierarchy, mesh: MeshInput, smooth_angle=30.0, domain="CORNER")
     return leaf[ci], li, w, den, len(weld)
 
 
-def _insideness(c, nrm, pts):
-    """Min signed distance of pts (M, 3) to the edges of polygons c (M, K, 4, 3), positive inside."""
-    e = np.roll(c, -1, axis=2) - c
-    length = np.linalg.norm(e, axis=-1)
-    d = np.einsum("mkvj,mkj->mkv", np.cross(e, pts[:, None, None] - c), nrm) / np.maximum(length, 1e-300)
-    return np.where(length > 0, d, np.inf).min(-1)  # padded triangle edge ignored
-
-
 def locate(h: Hierarchy, patch, points):
     """Leaf of `patch`'s quadtree containing each point (M,) <- (M,), (M, 3).
 
@@ -117,7 +109,7 @@ def locate(h: Hierarchy, patch, points):
         if len(inner) == 0:
             return node
         kids = h.child0[node[inner]][:, None] + np.arange(4)  # (m, 4)
-        d = _insideness(h.corners[kids], h.normal[kids], pts[inner])
+        d = insideness(h.corners[kids], h.normal[kids], pts[inner])
         node[inner] = kids[np.arange(len(inner)), np.argmax(d, axis=1)]
 
 
@@ -150,7 +142,7 @@ def locate_near(h: Hierarchy, patch, points):
     cand = np.column_stack([patch, patch_neighbours(h)[patch]])  # (M, 1 + D)
     valid = cand >= 0
     cc = np.where(valid, cand, patch[:, None])
-    d = np.where(valid, _insideness(h.corners[cc], h.normal[cc], pts), -np.inf)
+    d = np.where(valid, insideness(h.corners[cc], h.normal[cc], pts), -np.inf)
     return locate(h, cc[np.arange(len(cc)), np.argmax(d, axis=1)], pts)
 
 

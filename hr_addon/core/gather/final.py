@@ -5,8 +5,7 @@ import numpy as np
 
 from .. import formfactor as ff
 from ..contacts import slot_mouth
-from ..geometry import isolated_objects
-from ..output import _insideness
+from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
 from ..parallel import batch_map, ranges
 from ..progress import Progress
@@ -259,7 +258,7 @@ class FinalGather(DirectLight):
         xg = np.minimum(x, SLOT_DEPTH * hg)
         q = foot + (xg / x)[:, None] * (self.points[d] - foot)
         c = pt.corners[self.patch[d]]
-        stay = _insideness(c[:, None], pt.normal[self.patch[d]][:, None], q)[:, 0] < margin  # off its patch
+        stay = insideness(c[:, None], pt.normal[self.patch[d]][:, None], q)[:, 0] < margin  # off its patch
         q[stay], xg[stay] = self.points[d[stay]], x[stay]
         self.points[d] = q
         self.origins[d] = q + self.eps * self.normals[d]

@@ -3,7 +3,7 @@ inside their patch."""
 
 import numpy as np
 
-from ..output import _insideness
+from ..geometry import insideness
 
 
 def _triple(e, w, n):
@@ -69,7 +69,7 @@ def _into_patch(pt, patch, p, margin):
     than margin to it (texels and vertices on an edge where two surfaces meet: rays from there
     would start on the other surface and pass through it) towards the patch's centre."""
     c = pt.corners[patch]
-    d = _insideness(c[:, None], pt.normal[patch][:, None], p)[:, 0]
+    d = insideness(c[:, None], pt.normal[patch][:, None], p)[:, 0]
     size = np.sqrt(pt.area[patch])
     p = p.copy()
     out = np.flatnonzero(d < 0)
@@ -91,7 +91,7 @@ def _into_patch(pt, patch, p, margin):
         centre = np.where((nv == 4)[:, None], cc.mean(1), cc[:, :3].mean(1))
         to = centre - p[close]
         # the inradius-like distance of the centre bounds how far moving towards it can go
-        dc = _insideness(cc[:, None], pt.normal[patch[close]][:, None], centre)[:, 0]
+        dc = insideness(cc[:, None], pt.normal[patch[close]][:, None], centre)[:, 0]
         f = np.clip((margin - d[close]) / np.maximum(dc - d[close], 1e-300), 0, 0.5)
         f = np.where(margin < 0.25 * size[close], f, np.minimum(f, 1e-3))
         p[close] += f[:, None] * to
