@@ -4,7 +4,6 @@ values of the leaves (levels, iterations, cached responses, NAIVE) and the outpu
 import numpy as np
 
 from .. import formfactor as ff
-from ..contacts import slot_mouth
 from ..geometry import isolated_objects
 from ..output import _insideness
 from ..visibility import first_hit_within
@@ -240,9 +239,9 @@ class FinalGather(DirectLight):
         s = self.system
         con.close_mouths(s.backend.occluded)
         d = np.flatnonzero(self.dark)
-        x, hg, foot, chain = con.slots(self.points[d], self.patch[d])
+        x, hg, foot, chain, mouth = con.slots(self.points[d], self.patch[d])
         ok = (hg > 0) & (x > 0)
-        d, x, hg, foot, chain = d[ok], x[ok], hg[ok], foot[ok], chain[ok]
+        d, x, hg, foot, chain, mouth = d[ok], x[ok], hg[ok], foot[ok], chain[ok], mouth[ok]
         if not len(d):
             return
         pt = s.patches
@@ -265,7 +264,7 @@ class FinalGather(DirectLight):
         self.origins[d] = q + self.eps * self.normals[d]
         self.dark[d] = False
         self.gain = np.ones((self.n, 3))
-        self.gain[d] = E / slot_mouth(xg / hg)[:, None]
+        self.gain[d] = E / con.through_mouth(mouth, xg / hg, self.rho[d], pt.reflectance)
 
     def scaled(self, v):
         """Incident light at the samples (n, 3) with the slot samples' transfer applied."""
