@@ -95,7 +95,7 @@ for k, n in enumerate(books):
 X, P, AX, TR, REF, OBJ, CLS, ZREL = (np.concatenate(v) for v in (X, P, AX, TR, REF, OBJ, CLS, ZREL))
 ok = np.isfinite(REF)  # texels Cycles' bake left out
 X, P, AX, TR, REF, OBJ, CLS, ZREL = (v[ok] for v in (X, P, AX, TR, REF, OBJ, CLS, ZREL))
-depth, hg, foot, chain = con.slots(X, P)
+depth, hg = con.slots(X, P)[:2]
 cov = con.covered(X, P)
 print(f"{len(books)} books, {len(X)} texels", flush=True)
 
