@@ -29,19 +29,8 @@ con.close_mouths(s.backend.occluded)
 H = 0.002  # the books' gap
 
 books = [n for n in rs.objects if "_book" in n]
-mesh = rs.scene_in.mesh
-tg = {t.name: t for t in rs.scene_in.targets}
-box = {}
-for n in books:
-    lo_l, hi_l = tg[n].loops
-    v = mesh.verts[mesh.loop_verts[lo_l:hi_l]]
-    box[n] = (v.min(0), v.max(0))
-
-
-def neighbour(n, side):
-    case, row, k = n.split("_")[0], n.split("_")[1], int(n.split("_")[2])
-    return box.get(f"{case}_{row}_{k + (1 if side else -1)}")
-
+box = BC.book_boxes(rs)
+ref = {n: (a[n] + b[n]) / 2 for n in books}
 
 FACE = (
     "top",
@@ -55,25 +44,22 @@ FACE = (
     "side above the neighbour's top",
     "side, front/back overhang",
 )
-X, P, AX, TR, REF, OBJ, CLS, ZREL = [], [], [], [], [], [], [], []
+cols = {k: [] for k in ("X", "P", "AX", "TR", "REF", "OBJ", "CLS", "ZREL")}
 for k, n in enumerate(books):
-    at = rs.atlases[n]
-    cen = np.flatnonzero(at.s_centre)
-    x = at.s_point[cen]
-    patch = ours.samples[n][0][cen]
+    x, patch, axes, tris, r = BC.centre_texels(rs, ours, ref, n)
     nrm = s.patches.normal[patch]
     lo, hi = box[n]
     ax = np.abs(nrm).argmax(1)
     sg = np.sign(nrm[np.arange(len(nrm)), ax])
-    cls = np.full(len(cen), 4)
+    cls = np.full(len(x), 4)
     cls[(ax == 2) & (sg > 0)] = 0
     cls[(ax == 1) & (sg < 0)] = 1
     cls[(ax == 1) & (sg > 0)] = 2
     cls[(ax == 2) & (sg < 0)] = 3
-    zrel = np.full(len(cen), np.nan)  # height over the overlap's top, in gap widths
+    zrel = np.full(len(x), np.nan)  # height over the overlap's top, in gap widths
     for side in (0, 1):
         sel = np.flatnonzero((ax == 0) & ((sg > 0) == bool(side)))
-        nb = neighbour(n, side)
+        nb = BC.neighbour(box, n, side)
         if nb is None or not len(sel):
             continue
         p = x[sel]
@@ -84,15 +70,9 @@ for k, n in enumerate(books):
         c = np.where(dz < -1e-4, 5, np.where(dz > 1e-4, 6, 7))
         cls[sel] = np.where(iny, np.where(below, c, 8), 9)
         zrel[sel] = (p[:, 2] - top) / H
-    X.append(x)
-    P.append(patch)
-    AX.append(at.s_axes[cen])
-    TR.append(at.s_tri[cen])
-    REF.append(((a[n] + b[n]) / 2)[at.s_texel[cen]].mean(1))
-    OBJ.append(np.full(len(cen), k))
-    CLS.append(cls)
-    ZREL.append(zrel)
-X, P, AX, TR, REF, OBJ, CLS, ZREL = (np.concatenate(v) for v in (X, P, AX, TR, REF, OBJ, CLS, ZREL))
+    for key, v in zip(cols, (x, patch, axes, tris, r, np.full(len(x), k), cls, zrel)):
+        cols[key].append(v)
+X, P, AX, TR, REF, OBJ, CLS, ZREL = (np.concatenate(v) for v in cols.values())
 ok = np.isfinite(REF)  # texels Cycles' bake left out
 X, P, AX, TR, REF, OBJ, CLS, ZREL = (v[ok] for v in (X, P, AX, TR, REF, OBJ, CLS, ZREL))
 depth, hg = con.slots(X, P)[:2]

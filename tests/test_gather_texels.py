@@ -361,6 +361,19 @@ def _path_traced(mesh, pts, normal, rng, bounces=40, drop_first=None):
     return acc
 
 
+def _side_gathered_and_traced(m, s, patch, cen, axes, t, seed, k=1024):
+    """Box a's side texels (_slot_side_texels) in the furnace room: the texel gather's incident
+    light (64 rays a sample) and the path-traced reference, one path at each of k random points
+    of every t x t texel."""
+    g = texel_gather(s, patch, cen, axes=axes, rays=64, shadow_rays=16)
+    rng = np.random.default_rng(seed)
+    pts = np.repeat(cen, k, 0) + np.column_stack(
+        [np.zeros(len(cen) * k), rng.uniform(-t / 2, t / 2, (len(cen) * k, 2))]
+    )
+    ref = _path_traced(m, pts, np.array([1.0, 0, 0]), rng).reshape(len(cen), k).mean(1)
+    return g.evaluate(s, "incident")[:, 0], ref
+
+
 def test_slot_between_reflecting_boxes_against_path_tracing():
     """Box a's side facing box b 2 mm away in a furnace-like room (outside radiance 1 from every
     direction): light enters the slot by its four edges and bounces between the walls (0.6 and 0.3)
@@ -376,14 +389,7 @@ def test_slot_between_reflecting_boxes_against_path_tracing():
     0.9-1.1 and 0.75-1.25 (nearest mouth only: 0.58 deep)."""
     m = _slot_in_a_furnace()
     s, patch, cen, axes, t = _slot_side_texels(m)
-    g = texel_gather(s, patch, cen, axes=axes, rays=64, shadow_rays=16)
-    ours = g.evaluate(s, "incident")[:, 0]
-    rng = np.random.default_rng(3)
-    k = 1024
-    pts = np.repeat(cen, k, 0) + np.column_stack(
-        [np.zeros(len(cen) * k), rng.uniform(-t / 2, t / 2, (len(cen) * k, 2))]
-    )
-    ref = _path_traced(m, pts, np.array([1.0, 0, 0]), rng).reshape(len(cen), k).mean(1)
+    ours, ref = _side_gathered_and_traced(m, s, patch, cen, axes, t, seed=3)
     deep = (np.abs(cen[:, 1]) < 0.03) & (cen[:, 2] > 0.02) & (cen[:, 2] < 0.18)
     tot, dp = ours.sum() / ref.sum(), ours[deep].sum() / ref[deep].sum()
     print(f"side total {tot:.3f}, deep part {dp:.3f} of the path-traced light ({deep.sum()} texels)")
@@ -453,14 +459,7 @@ def test_slot_beside_a_taller_neighbour_against_path_tracing():
     top = cen[:, 2] > 0.13
     near = np.minimum(0.15 - cen[:, 2], 0.05 - np.abs(cen[:, 1]))  # a's top, or the front or back
     assert np.allclose(x[top], near[top]) and np.allclose(h, 0.002)
-    g = texel_gather(s, patch, cen, axes=axes, rays=64, shadow_rays=16)
-    ours = g.evaluate(s, "incident")[:, 0]
-    rng = np.random.default_rng(7)
-    k = 1024
-    pts = np.repeat(cen, k, 0) + np.column_stack(
-        [np.zeros(len(cen) * k), rng.uniform(-t / 2, t / 2, (len(cen) * k, 2))]
-    )
-    ref = _path_traced(m, pts, np.array([1.0, 0, 0]), rng).reshape(len(cen), k).mean(1)
+    ours, ref = _side_gathered_and_traced(m, s, patch, cen, axes, t, seed=7)
     tot, tp = ours.sum() / ref.sum(), ours[top].sum() / ref[top].sum()
     print(f"side total {tot:.3f}, top rows {tp:.3f} of the path-traced light")
     assert 0.9 < tot < 1.1
