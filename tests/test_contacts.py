@@ -178,3 +178,29 @@ def test_slot_transfer_with_a_wall_going_on_beyond_the_mouth():
             ee = np.full(len(xi), e)
             seen = slot_seen(xi, one(ra), one(rb), ee)[:, 0]
             assert (seen <= slot_irradiance(xi, one(ra), one(rb), ee, facing=True)[:, 0] * (1 + 1e-9)).all()
+
+
+def test_slot_mouths_follow_the_surface_not_its_seams():
+    """A plate 2 mm above a floor whose quads meet at a T-junction under it (one quad on the left,
+    two on the right, the seam not shared edge to edge): the slot's mouths are the plate's
+    outline only; the seam, past which the floor goes on, is no mouth (Contacts.slot_mouths), so
+    a point 1 cm from it is 25 cm (the plate's nearer edge) deep in the slot."""
+    from hr_testing.furnished import Builder
+
+    b = Builder()
+    v = np.array(
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 0.5, 0], [1, 0.5, 0], [2, 1, 0]], float
+    )
+    b.add("floor", v, [np.array([[0, 1, 2, 3], [1, 4, 5, 6], [6, 5, 7, 2]])], 0.5)
+    b.add("plate", *box([0.5, 0.25, 0.002], [1.5, 0.75, 0.02]), 0.5)
+    pt = prepare_patches(b.build())
+    c = Contacts(pt, 0.005)
+    M = c.slot_mouths()
+    names = np.array(pt.object_names)[pt.object_id]
+    floor = np.flatnonzero(names == "floor")
+    under = c.chain_plane[M["chain"]] == c.plane[floor[0]]  # the plate's slot over the floor
+    assert under.sum() == 6 and not M["own"][under].any()  # its outline, cut where the seam crosses it
+    p = np.array([[1.01, 0.5, 0.0], [0.99, 0.5, 0.0]])
+    patch = np.array([floor[1], floor[0]])  # right of the seam, left of it
+    x, h = c.slots(p, patch)[:2]
+    assert np.allclose(x, 0.25) and np.allclose(h, 0.002)

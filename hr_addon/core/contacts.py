@@ -613,6 +613,11 @@ class Contacts:
             dist = np.full(len(seg), np.inf)
             np.minimum.at(dist, pr2, np.linalg.norm(u + t[:, None] * e, axis=1))
             inside = (np.abs(w) > 0.5) & (dist > tol)
+            # where the surface really ends: not an edge between two of its patches that do not
+            # share it (a T-junction), past which the surface goes on
+            e = (pb - pa) / np.maximum(np.linalg.norm(pb - pa, axis=1), 1e-300)[:, None]
+            past = mid + 2 * tol * np.column_stack([e[:, 1], -e[:, 0]])
+            inside &= ~self._in_surface(rg[i[seg]], past, 0.0)
             parts.append((ch[seg[inside]], pa[inside], pb[inside], np.ones(inside.sum(), bool)))
         ch, a, b, own = (np.concatenate(x) for x in zip(*parts))
         o = np.argsort(ch, kind="stable")
