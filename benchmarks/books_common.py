@@ -5,6 +5,8 @@ import os
 import sys
 import time
 
+import numpy as np
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.dirname(HERE))
@@ -37,3 +39,36 @@ def furnished():
     dyn.apply(C.shape_proxies(rs, 1))
     print(f"build + frame 1: {time.process_time() - t0:.0f} s CPU", flush=True)
     return rs, (a, b), s, dyn, C.Ours(rs, s, dyn)
+
+
+def book_boxes(rs):
+    """{book: (lo, hi)}: each book's box from its vertices."""
+    mesh = rs.scene_in.mesh
+    tg = {t.name: t for t in rs.scene_in.targets}
+    box = {}
+    for n in (n for n in rs.objects if "_book" in n):
+        lo_l, hi_l = tg[n].loops
+        v = mesh.verts[mesh.loop_verts[lo_l:hi_l]]
+        box[n] = (v.min(0), v.max(0))
+    return box
+
+
+def neighbour(box, n, side):
+    """The box facing book n's side -x (side 0) or +x (side 1): the next book of its row, or None
+    (the case's sides, 1 cm from a row's first book, are not looked at)."""
+    case, row, k = n.split("_")[0], n.split("_")[1], int(n.split("_")[2])
+    return box.get(f"{case}_{row}_{k + (1 if side else -1)}")
+
+
+def centre_texels(rs, ours, ref, n):
+    """Object n's texels sampled at their centre: (points, patches, axes, triangles, the Cycles
+    reference ref[n] at them, grey)."""
+    at = rs.atlases[n]
+    cen = np.flatnonzero(at.s_centre)
+    return (
+        at.s_point[cen],
+        ours.samples[n][0][cen],
+        at.s_axes[cen],
+        at.s_tri[cen],
+        ref[n][at.s_texel[cen]].mean(1),
+    )

@@ -103,13 +103,14 @@ def split_slot_rays(g, pts0):
         a2 = con._to2d(gi, org[:, None])[:, 0]
         b2 = con._to2d(gi, end[:, None])[:, 0]
         ch = np.repeat(chain[sel], r)
-        ns = con.chain_start[ch + 1] - con.chain_start[ch]
+        M = con.slot_mouths()
+        ns = M["start"][ch + 1] - M["start"][ch]
         pr = np.repeat(np.arange(len(ch)), ns)
-        sg = np.repeat(con.chain_start[ch] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
-        m = con.seg_mouth[sg]
+        sg = np.repeat(M["start"][ch] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+        m = M["open"][sg]
         pr, sg = pr[m], sg[m]
         p, e = a2[pr], b2[pr] - a2[pr]
-        c, f = con.seg_a[sg], con.seg_b[sg] - con.seg_a[sg]
+        c, f = M["a"][sg], M["b"][sg] - M["a"][sg]
         den = e[:, 0] * f[:, 1] - e[:, 1] * f[:, 0]
         w = c - p
         tt = (w[:, 0] * f[:, 1] - w[:, 1] * f[:, 0]) / np.where(den == 0, 1, den)

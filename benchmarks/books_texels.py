@@ -30,22 +30,11 @@ con = s.h.contacts
 H = 0.002  # the books' gap
 
 books = [n for n in rs.objects if "_book" in n]
-mesh = rs.scene_in.mesh
-tg = {t.name: t for t in rs.scene_in.targets}
-# each book's box from its vertices
-box = {}
-for n in books:
-    lo_l, hi_l = tg[n].loops
-    v = mesh.verts[mesh.loop_verts[lo_l:hi_l]]
-    box[n] = (v.min(0), v.max(0))
+box = BC.book_boxes(rs)
 
 
 def neighbour(n, side):
-    """The box facing book n's side -x (side 0) or +x (side 1): the next book of its row, the
-    case's side board, or None."""
-    case, row, k = n.split("_")[0], n.split("_")[1], int(n.split("_")[2])
-    m = f"{case}_{row}_{k + (1 if side else -1)}"
-    return box.get(m)  # the case's sides (1 cm from a row's first book) are not looked at
+    return BC.neighbour(box, n, side)
 
 
 rows = []

@@ -146,3 +146,61 @@ def test_slot_transfer_first_bounce_and_energy():
         first = (1 - ra) / 2 + (1 - rb) / 2
         print(f"rho {ra}, {rb}: absorbed {absorbed:.3f} of the entering light (first bounce {first:.3f})")
         assert first < absorbed <= 1.0 + 1e-2
+
+
+def test_slot_transfer_with_a_wall_going_on_beyond_the_mouth():
+    """contacts.slot_irradiance(ext=, facing=): one wall goes on beyond the mouth in its plane by
+    ext gap widths. The receiver going on (a bookcase's side beyond the book 1 cm from it) sees
+    the same mouth whatever ext: with a black facing wall it is the first bounce, slot_mouth, for
+    every ext (to the tables' 2e-3); the facing wall then sees the outside only past the extension
+    and the extension in between, whose radiance is its reflectance times at most the outside's:
+    so the receiver gets less light the farther its wall goes on, never less than the first
+    bounce. The facing wall going on (a taller book's side beyond a shorter one's top): with it
+    black the receiver sees the outside past its end only, slot_mouth(x + ext), which is also
+    what slot_seen gives; with it reflecting, slot_seen is at most the transfer."""
+    from hr_addon.core.contacts import slot_irradiance, slot_mouth, slot_seen
+
+    xi = np.array([0.05, 0.3, 1.0, 2.0, 5.0, 14.0, 40.0])
+    one = lambda v: np.full((len(xi), 1), v)  # noqa: E731
+    exts = [0.0, 0.25, 1.0, 4.0, 16.0, 1000.0]  # the tables' (between them: linear in log(1 + ext))
+    for e in exts:
+        E = np.full(len(xi), e)
+        assert np.allclose(slot_irradiance(xi, one(0.7), one(0.0), E)[:, 0], slot_mouth(xi), rtol=2e-3)
+        far = slot_mouth(xi + e)
+        assert np.allclose(slot_irradiance(xi, one(0.7), one(0.0), E, facing=True)[:, 0], far, rtol=2e-3)
+        assert np.allclose(slot_seen(xi, one(0.7), one(0.0), E)[:, 0], far, rtol=2e-3)
+    for ra, rb in ((0.6, 0.5), (0.9, 0.9), (0.2, 0.8)):
+        E = np.stack([slot_irradiance(xi, one(ra), one(rb), np.full(len(xi), e))[:, 0] for e in exts])
+        assert (np.diff(E, axis=0) <= 1e-9).all()
+        assert (E[-1] >= slot_mouth(xi) * (1 - 2e-3)).all()
+        assert (E[0] > E[-1] * 1.01).all()  # the extension matters at every depth
+        for e in exts:
+            ee = np.full(len(xi), e)
+            seen = slot_seen(xi, one(ra), one(rb), ee)[:, 0]
+            assert (seen <= slot_irradiance(xi, one(ra), one(rb), ee, facing=True)[:, 0] * (1 + 1e-9)).all()
+
+
+def test_slot_mouths_follow_the_surface_not_its_seams():
+    """A plate 2 mm above a floor whose quads meet at a T-junction under it (one quad on the left,
+    two on the right, the seam not shared edge to edge): the slot's mouths are the plate's
+    outline only; the seam, past which the floor goes on, is no mouth (Contacts.slot_mouths), so
+    a point 1 cm from it is 25 cm (the plate's nearer edge) deep in the slot."""
+    from hr_testing.furnished import Builder
+
+    b = Builder()
+    v = np.array(
+        [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 0.5, 0], [1, 0.5, 0], [2, 1, 0]], float
+    )
+    b.add("floor", v, [np.array([[0, 1, 2, 3], [1, 4, 5, 6], [6, 5, 7, 2]])], 0.5)
+    b.add("plate", *box([0.5, 0.25, 0.002], [1.5, 0.75, 0.02]), 0.5)
+    pt = prepare_patches(b.build())
+    c = Contacts(pt, 0.005)
+    M = c.slot_mouths()
+    names = np.array(pt.object_names)[pt.object_id]
+    floor = np.flatnonzero(names == "floor")
+    under = c.chain_plane[M["chain"]] == c.plane[floor[0]]  # the plate's slot over the floor
+    assert under.sum() == 6 and not M["own"][under].any()  # its outline, cut where the seam crosses it
+    p = np.array([[1.01, 0.5, 0.0], [0.99, 0.5, 0.0]])
+    patch = np.array([floor[1], floor[0]])  # right of the seam, left of it
+    x, h = c.slots(p, patch)[:2]
+    assert np.allclose(x, 0.25) and np.allclose(h, 0.002)

@@ -4,7 +4,6 @@ values of the leaves (levels, iterations, cached responses, NAIVE) and the outpu
 import numpy as np
 
 from .. import formfactor as ff
-from ..contacts import slot_mouth
 from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
 from ..parallel import batch_map, ranges
@@ -232,16 +231,17 @@ class FinalGather(DirectLight):
         front, lit through open edges) gather: from SLOT_DEPTH x h inside their nearest mouth,
         towards their own position (or where they lie, if nearer), and their incident light is
         scaled by the slot's transfer to their own position through all its mouths, with every
-        bounce between the walls (contacts.slot_transfer / slot_mouth: the light outside uniform
-        over the mouths). Rays from deep in a slot would find its mouth too rarely (view factor
+        bounce between the walls, over what the gather finds through its nearest mouth
+        (contacts.slot_transfer / Contacts.through_mouth: the light outside uniform over the
+        mouths). Rays from deep in a slot would find its mouth too rarely (view factor
         about (h / 2x)^2). area: (rows, points (r, k, 3)): the transfer of sample rows[j] is the
         mean over points[j] (a texel's area, layouts.texel_samples)."""
         s = self.system
         con.close_mouths(s.backend.occluded)
         d = np.flatnonzero(self.dark)
-        x, hg, foot, chain = con.slots(self.points[d], self.patch[d])
+        x, hg, foot, chain, mouth = con.slots(self.points[d], self.patch[d])
         ok = (hg > 0) & (x > 0)
-        d, x, hg, foot, chain = d[ok], x[ok], hg[ok], foot[ok], chain[ok]
+        d, x, hg, foot, chain, mouth = d[ok], x[ok], hg[ok], foot[ok], chain[ok], mouth[ok]
         if not len(d):
             return
         pt = s.patches
@@ -264,7 +264,7 @@ class FinalGather(DirectLight):
         self.origins[d] = q + self.eps * self.normals[d]
         self.dark[d] = False
         self.gain = np.ones((self.n, 3))
-        self.gain[d] = E / slot_mouth(xg / hg)[:, None]
+        self.gain[d] = E / con.through_mouth(mouth, xg / hg, self.rho[d], pt.reflectance)
 
     def scaled(self, v):
         """Incident light at the samples (n, 3) with the slot samples' transfer applied."""
