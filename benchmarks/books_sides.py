@@ -25,7 +25,7 @@ import numpy as np
 
 import books_common as BC
 from hr_testing import cycles_ref as C
-from hr_addon.core.contacts import slot_mouth
+from hr_addon.core.slots import slot_mouth
 from hr_addon.core.gather import texel_gather
 from hr_addon.core.gather.final import _csr_matvec
 from hr_addon.core.gather.layouts import texel_samples

@@ -132,7 +132,7 @@ def test_slot_transfer_first_bounce_and_energy():
     absorb at most what enters, pi x h per unit length of mouth: the integral of
     (1 - rho_a) E_a + (1 - rho_b) E_b over the depth is at most 1 gap width (the rest leaves by the
     mouth), and above the first bounce's (1 - rho_a) / 2 + (1 - rho_b) / 2."""
-    from hr_addon.core.contacts import slot_irradiance, slot_mouth
+    from hr_addon.core.slots import slot_irradiance, slot_mouth
 
     xi = np.geomspace(0.01, 500, 4000)
     dxi = np.gradient(xi)
@@ -158,7 +158,7 @@ def test_slot_transfer_with_a_wall_going_on_beyond_the_mouth():
     bounce. The facing wall going on (a taller book's side beyond a shorter one's top): with it
     black the receiver sees the outside past its end only, slot_mouth(x + ext), which is also
     what slot_seen gives; with it reflecting, slot_seen is at most the transfer."""
-    from hr_addon.core.contacts import slot_irradiance, slot_mouth, slot_seen
+    from hr_addon.core.slots import slot_irradiance, slot_mouth, slot_seen
 
     xi = np.array([0.05, 0.3, 1.0, 2.0, 5.0, 14.0, 40.0])
     one = lambda v: np.full((len(xi), 1), v)  # noqa: E731

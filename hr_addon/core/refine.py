@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from . import formfactor as ff
-from .contacts import sorted_index
+from .boxes import sorted_index
 from .corrections import push_corrections
 from .hierarchy import Hierarchy
 from .links import Links

@@ -1,0 +1,80 @@
+"""Box and segment helpers shared by contacts.py and slots.py: sorted lookups, pairs of
+overlapping axis-aligned boxes through a uniform grid, 2D ray exits."""
+
+import numpy as np
+
+
+def sorted_index(table, keys):
+    """Index of each key in the sorted array table, -1 where it is absent."""
+    keys = np.asarray(keys)
+    if not len(table):
+        return np.full(keys.shape, -1, np.int64)
+    i = np.minimum(np.searchsorted(table, keys), len(table) - 1)
+    return np.where(table[i] == keys, i, -1)
+
+
+def grid_cells(lo, hi, origin, size, dims, group):
+    """(box index, cell key) for every grid cell each box overlaps; boxes of different groups
+    never share a cell."""
+    c0 = np.floor((lo - origin) / size).astype(np.int64)
+    c1 = np.floor((hi - origin) / size).astype(np.int64)
+    span = c1 - c0 + 1
+    cnt = span.prod(1)
+    box = np.repeat(np.arange(len(lo)), cnt)
+    k = np.arange(len(box)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    key = np.zeros(len(box), np.int64) if group is None else np.asarray(group, np.int64)[box]
+    for ax in range(3):
+        key = key * dims[ax] + c0[box, ax] + k % span[box, ax]
+        k //= span[box, ax]
+    return box, key
+
+
+def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000_000):
+    """Index pairs (i, j) whose axis-aligned boxes overlap (and whose groups are equal, if
+    given), through a uniform grid: cells about the median box size, coarsened until the cell
+    lists fit, so the cost follows the overlaps rather than all pairs."""
+    if not len(lo_a) or not len(lo_b):
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    origin = np.minimum(lo_a.min(0), lo_b.min(0))
+    ext = np.maximum(hi_a.max(0), hi_b.max(0)) - origin
+    span = float(ext.max()) or 1.0
+    size = max(float(np.median(np.concatenate([hi_a - lo_a, hi_b - lo_b]).max(1))), 1e-3 * span)
+    while True:
+        n = sum(
+            int(np.prod(np.floor((top - origin) / size) - np.floor((bot - origin) / size) + 1, axis=1).sum())
+            for bot, top in ((lo_a, hi_a), (lo_b, hi_b))
+        )
+        if n <= max_refs or size >= span:
+            break
+        size *= 2
+    dims = (np.floor(ext / size) + 1).astype(np.int64)
+    ba, ka = grid_cells(lo_a, hi_a, origin, size, dims, group_a)
+    bb, kb = grid_cells(lo_b, hi_b, origin, size, dims, group_b)
+    order = np.argsort(kb, kind="stable")
+    kb, bb = kb[order], bb[order]
+    first = np.searchsorted(kb, ka, "left")
+    cnt = np.searchsorted(kb, ka, "right") - first
+    # candidate pairs in blocks of about max_refs: their temporaries stay bounded
+    ends = np.cumsum(cnt)
+    cuts = np.searchsorted(ends, np.arange(max_refs, int(ends[-1]) if len(ends) else 0, max_refs))
+    keys = []
+    for s, e in zip(np.r_[0, cuts], np.r_[cuts, len(ka)]):
+        c = cnt[s:e]
+        i = np.repeat(ba[s:e], c)
+        j = bb[np.repeat(first[s:e], c) + np.arange(len(i)) - np.repeat(np.cumsum(c) - c, c)]
+        ok = np.all((lo_b[j] <= hi_a[i]) & (hi_b[j] >= lo_a[i]), axis=1)
+        keys.append(np.unique(i[ok] * len(lo_b) + j[ok]))
+    key = np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
+    return key // len(lo_b), key % len(lo_b)
+
+
+def ray_exit(f, u, a, b):
+    """(M,) how far rays from 2D points f (M, 2) along unit u (M, 2) go before they cross the
+    segments a, b (M, 2) (0: they do not)."""
+    d = b - a
+    den = u[:, 0] * d[:, 1] - u[:, 1] * d[:, 0]
+    safe = np.where(den == 0, 1.0, den)
+    w = a - f
+    t = (w[:, 0] * d[:, 1] - w[:, 1] * d[:, 0]) / safe
+    s = (w[:, 0] * u[:, 1] - w[:, 1] * u[:, 0]) / safe
+    return np.where((den != 0) & (s >= 0) & (s <= 1) & (t > 0), t, 0.0)
