@@ -48,8 +48,21 @@ def ref_key(size, portal=False):
     return f"furnished_daylight_{size}{tag}_{hashlib.sha1(facts.encode()).hexdigest()[:8]}"
 
 
-def reference(rs, key, spp, seed, wait):
-    """{name: (N, 3)} Cycles reference of one seed (cycles_compare.cycles_bake's cache)."""
+def reference(rs, key, spp, seed, wait, split=None):
+    """{name: (N, 3)} Cycles reference of one seed (cycles_compare.cycles_bake's cache). split:
+    daylight_scene's info: the sun's and the sky's light baked apart (the sky as an emitter in the
+    window, CL.daylight_part) and summed."""
+    if split is not None:
+        parts = []
+        for part in ("sun", "sky"):
+            CL.daylight_part(part, split)
+            parts.append(reference(rs, f"{key}_{part}", spp, seed, wait))
+        CL.daylight_part("all", split)
+        return (
+            {n: parts[0][0][n] + parts[1][0][n] for n in rs.objects},
+            {k: parts[0][1][k] + parts[1][1][k] for k in parts[0][1]},
+            parts[0][2] and parts[1][2],
+        )
     path = os.path.join(CC.CACHE, f"{key}_f1_s{spp}_seed{seed}_{CC._atlas_key(rs)}.npz")  # its name
     while wait and not os.path.exists(path):
         time.sleep(20)
@@ -75,6 +88,9 @@ def main():
     ap.add_argument("--quality", default="DRAFT")
     ap.add_argument("--texel-rel", type=float, default=TEXEL_REL)
     ap.add_argument("--portal", action="store_true", help="Cycles samples the sky through a window portal")
+    ap.add_argument(
+        "--split-sky", action="store_true", help="the sun and the sky (an emitter in the window) baked apart"
+    )
     ap.add_argument("--noise", default="", help="SPP:SEED,SEED: the reference's noise from two bakes at SPP")
     ap.add_argument("--ours-from", default="", help="NAME: our values of an earlier run (its npz and JSON)")
     args = ap.parse_args()
@@ -82,6 +98,7 @@ def main():
     scene, info = CL.daylight_scene(args.size, args.portal)
     rs = C.prepare(scene, texel_rel=args.texel_rel)
     key = ref_key(args.size, args.portal)
+    split = info if args.split_sky else None
     lo, hi = info["window"]
     print(
         f"{key}: {len(rs.objects)} objects compared, {sum(rs.atlases[n].n for n in rs.objects)} texels, "
@@ -90,7 +107,7 @@ def main():
     )
     if args.ref_only:
         for s in seeds:
-            _, t, cached = CC.cycles_bake(rs, key, 1, args.spp, s)
+            _, t, cached = reference(rs, key, args.spp, s, False, split)
             print(f"   Cycles seed {s}: {'cached' if cached else 'baked'}, {t}", flush=True)
         return
     if args.ours_from:  # the values and costs of an earlier run (same scene)
@@ -119,13 +136,13 @@ def main():
     print(f"   ours: {', '.join(f'{k} {v:.3g}' for k, v in cost.items())}", flush=True)
     refs, ref_times = [], []
     for s in seeds:
-        r, t, _ = reference(rs, key, args.spp, s, args.wait)
+        r, t, _ = reference(rs, key, args.spp, s, args.wait, split)
         refs.append(r)
         ref_times.append(t)
     noise_pair, noise_note = None, f"{len(seeds)} seeds"
     if args.noise:  # two bakes at fewer samples: their noise scaled to the reference's samples
         nspp, nseeds = args.noise.split(":")
-        a, b = (reference(rs, key, int(nspp), int(s), args.wait)[0] for s in nseeds.split(","))
+        a, b = (reference(rs, key, int(nspp), int(s), args.wait, split)[0] for s in nseeds.split(","))
         noise_pair = (a, b, np.sqrt(int(nspp) / (args.spp * len(seeds))))
         noise_note = f"seeds {nseeds} at {nspp} spp, scaled"
     objects, lit, summary = CL.per_object(rs, res, refs, noise_pair)

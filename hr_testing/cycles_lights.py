@@ -127,6 +127,45 @@ def daylight_scene(size="20k", portal=False):
     return scene, info
 
 
+def daylight_part(part, info):
+    """Light the daylight scene by one part of its light, for a reference with less noise: "sun"
+    (the World dark) or "sky" (the sun off, the World dark, and an emissive quad filling the window
+    with the sky's radiance, facing the room). A uniform World seen through an opening with nothing
+    outside is exactly a Lambertian emitter of its radiance in the opening; Cycles finds that quad
+    by light sampling, where it finds the World's window only by chance. "all": as built."""
+    import bpy
+
+    from . import furnished as F
+
+    em = next(n for n in bpy.context.scene.world.node_tree.nodes if n.type == "EMISSION")
+    em.inputs["Strength"].default_value = F.SKY["strength"] if part == "all" else 0.0
+    bpy.data.objects["Sun"].data.energy = 0.0 if part == "sky" else F.SUN["strength"]
+    quad = bpy.data.objects.get("Sky window")
+    if part != "sky":
+        if quad is not None:
+            bpy.data.objects.remove(quad)
+        return
+    if quad is None:
+        lo, hi = (np.asarray(v, float) for v in info["window"])
+        y = lo[1] - 1e-4  # just outside the wall's plane (y = 0, the room at y > 0)
+        me = bpy.data.meshes.new("Sky window")
+        corners = [(lo[0], y, lo[2]), (hi[0], y, lo[2]), (hi[0], y, hi[2]), (lo[0], y, hi[2])]
+        me.from_pydata(corners, [], [(0, 1, 2, 3)])
+        m = bpy.data.materials.new("Sky window")
+        if bpy.app.version < (5, 0, 0):
+            m.use_nodes = True
+        t = m.node_tree
+        t.nodes.clear()
+        e = t.nodes.new("ShaderNodeEmission")
+        e.inputs["Color"].default_value = (*F.SKY["color"], 1.0)
+        e.inputs["Strength"].default_value = F.SKY["strength"]
+        t.links.new(e.outputs[0], t.nodes.new("ShaderNodeOutputMaterial").inputs["Surface"])
+        me.materials.append(m)
+        quad = bpy.data.objects.new("Sky window", me)
+        bpy.context.scene.collection.objects.link(quad)
+    bpy.context.view_layer.update()
+
+
 def bake_ours(rs, quality="DRAFT", threads=1):
     """Our bake of the prepared scene `rs` (cycles_ref.prepare) as the Blender bake makes it
     (BakeConfig at `quality` with the scene's other settings: hierarchy, solver_setup, solver
