@@ -126,7 +126,7 @@ def test_furnace_with_touching_objects(quality, worst, p99):
 
 
 def test_slot_transfer_first_bounce_and_energy():
-    """contacts.slot_irradiance, the 2D slot between parallel walls (radiance 1 beyond the mouth):
+    """slots.slot_irradiance, the 2D slot between parallel walls (radiance 1 beyond the mouth):
     with a black facing wall it is the mouth's view factor (the first bounce, slot_mouth, exact:
     (1 - xi / sqrt(xi^2 + 1)) / 2); with reflecting walls it is more at every depth; and the walls
     absorb at most what enters, pi x h per unit length of mouth: the integral of
@@ -149,7 +149,7 @@ def test_slot_transfer_first_bounce_and_energy():
 
 
 def test_slot_transfer_with_a_wall_going_on_beyond_the_mouth():
-    """contacts.slot_irradiance(ext=, facing=): one wall goes on beyond the mouth in its plane by
+    """slots.slot_irradiance(ext=, facing=): one wall goes on beyond the mouth in its plane by
     ext gap widths. The receiver going on (a bookcase's side beyond the book 1 cm from it) sees
     the same mouth whatever ext: with a black facing wall it is the first bounce, slot_mouth, for
     every ext (to the tables' 2e-3); the facing wall then sees the outside only past the extension

@@ -381,7 +381,7 @@ def test_slot_between_reflecting_boxes_against_path_tracing():
     mouth directly. Reference: one path per point at 1024 random points in each 1 cm texel of the
     side, every bounce followed (the test's own tracer). The gather (contacts.slots: samples gather
     a gap width inside their nearest mouth, scaled by the 2D slot's transfer with every bounce,
-    contacts.slot_irradiance) is held to the reference's side total and its deep part (texels 2 cm
+    slots.slot_irradiance) is held to the reference's side total and its deep part (texels 2 cm
     or more from every edge, where the old covered test read 0). Noise: the reference's about 1%
     per part, the gather's 64 rays a sample (about 9 through the mouth) about 3% over the 96 deep
     texels. The model is a 2D slot per mouth, summed by each mouth's share of the view factor:
@@ -403,7 +403,7 @@ def test_slot_transfer_beside_a_taller_neighbour_against_path_tracing():
     mouth a sees mostly b's side above it, lit by the room, while b's side inside the slot sees
     the room itself: so the light that bounced between the walls is a larger part of a's light
     than in a slot whose walls both end at the mouth. The gain a slot sample's gather gets is the
-    transfer (contacts.slot_transfer) over what the gather finds through its mouth
+    transfer (slots.slot_transfer) over what the gather finds through its mouth
     (Contacts.through_mouth); here both at the point itself, against the test's path tracer: every
     bounce, over the paths whose first hit is not b's side inside the slot (what the gather reads
     through the mouth; 40,000 paths a point). Measured (three seeds) at 0.3 / 1 / 2.5 / 5 gap
@@ -487,7 +487,7 @@ def test_slot_beside_a_longer_wall_against_path_tracing():
     of h = 1 cm, the bookcase's side extending 1 cm beyond its front mouth, 25 cm beyond its
     top and 9 cm beyond its back). References: the test's own path tracer (every bounce; one
     path per point).
-    - The slot's first bounce (contacts.slot_transfer with black walls: each mouth's 2D view
+    - The slot's first bounce (slots.slot_transfer with black walls: each mouth's 2D view
       factor times the share its extent subtends) at 0.1-2 gap widths behind the front mouth,
       12 cm above the board, against the paths' first hits (4000 per point: about 3% noise on
       their sum, 7% at 2 gap widths): measured within 1.5% up to 1 gap width, 7-15% at 2 (two

@@ -121,7 +121,7 @@ class SlotMouths:
         """(N, C) irradiance / pi that points of reflectance rho (N, C) at depth xi (N,) gap widths
         behind mouths (N,) (slots()) receive straight through them from an outside of radiance 1:
         the mouth's view factor, or where the covering face goes on beyond the surface's own edge,
-        the outside past it and its light (contacts.slot_seen). What their gather finds there."""
+        the outside past it and its light (slots.slot_seen). What their gather finds there."""
         M = self.slot_mouths()
         own = M["own"][mouth]
         out = np.repeat(slot_mouth(xi)[:, None], np.shape(rho)[1], 1)

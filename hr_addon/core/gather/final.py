@@ -232,7 +232,7 @@ class FinalGather(DirectLight):
         towards their own position (or where they lie, if nearer), and their incident light is
         scaled by the slot's transfer to their own position through all its mouths, with every
         bounce between the walls, over what the gather finds through its nearest mouth
-        (contacts.slot_transfer / Contacts.through_mouth: the light outside uniform over the
+        (slots.slot_transfer / Contacts.through_mouth: the light outside uniform over the
         mouths). Rays from deep in a slot would find its mouth too rarely (view factor
         about (h / 2x)^2). area: (rows, points (r, k, 3)): the transfer of sample rows[j] is the
         mean over points[j] (a texel's area, layouts.texel_samples)."""
