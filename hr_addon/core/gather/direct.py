@@ -250,6 +250,10 @@ class DirectLight:
                     )
 
                 batch_map(part, ranges(len(ok), self.batch_rays // rays), self.threads)
+                if getattr(self, "texel_area", None) is not None and L.kind != "SKY":
+                    from .texel_edges import edge_direct  # texels a light's edge crosses: their area
+
+                    got = edge_direct(self, L, got, rays, stream)
                 got = got.astype(np.float32)
             self._light_cache[key] = got
             # keep the lights of the current and a few recent geometries

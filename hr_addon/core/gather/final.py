@@ -121,7 +121,7 @@ class FinalGather(DirectLight):
         self.unit = 2.0 ** (np.floor(np.log2(size)) - 12)  # a power of two: exact under 2^k scaling
         self.reach = min(4.0 * size, self.tmax)
         self.eps = float(s.refiner.eps)
-        margin = max(50 * self.eps, 5e-5 * size)
+        self.margin = margin = max(50 * self.eps, 5e-5 * size)
         self.points = np.ascontiguousarray(_into_patch(pt, self.patch, p, margin))
         self.keys = position_keys(self.points, self.unit)
         n = len(self.points)

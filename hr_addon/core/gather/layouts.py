@@ -6,6 +6,7 @@ from ..geometry import isolated_objects
 from ..output import equal_key_pairs, in_domain, loop_welds
 from .final import OPEN_EDGE, FinalGather
 from .sampling import hash_uniform, position_keys
+from .texel_edges import texel_area
 
 SUB = 4  # sub-samples per side of a texel whose area straddles a coverage boundary
 # Blender hands Cycles half the barycentric change per pixel as the bake's differentials
@@ -153,6 +154,17 @@ def bake_points(tris, centres, axes, f):
     return u[..., None] * t[..., 0, :] + v[..., None] * t[..., 1, :] + (1 - u - v)[..., None] * t[..., 2, :]
 
 
+def texel_points(centres, axes, tris, f, rows=slice(None)):
+    """Points at offsets f (n, k, 2) in [0, 1]^2 over texels with centres (n, 3) and sides axes
+    (n, 2, 3): placed as Cycles' bake places them (bake_points) in tris[rows] (the centres'
+    triangles), or over the texel's parallelogram where tris is None. -> (n, k, 3)."""
+    if tris is None:
+        return (
+            centres[:, None] + (f[..., :1] - 0.5) * axes[:, None, 0] + (f[..., 1:] - 0.5) * axes[:, None, 1]
+        )
+    return bake_points(np.asarray(tris, np.float64).reshape(-1, 3, 3)[rows], centres, axes, f)
+
+
 def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None):
     """Gather samples of texels: the centre, or sub x sub stratified points over the texel's area
     where the light changes inside it at a contact: some of those points covered and some not (a
@@ -192,13 +204,7 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     f = np.concatenate(
         [f, np.broadcast_to(np.array([[0.0, 0], [1, 0], [1, 1], [0, 1]]), (len(cand), 4, 2))], 1
     )
-    ax = np.asarray(axes, np.float64).reshape(-1, 2, 3)[cand]
-    if tris is None:
-        test = (
-            points[cand][:, None] + (f[..., :1] - 0.5) * ax[:, None, 0] + (f[..., 1:] - 0.5) * ax[:, None, 1]
-        )
-    else:
-        test = bake_points(np.asarray(tris, np.float64).reshape(-1, 3, 3)[cand], points[cand], ax, f)
+    test = texel_points(points[cand], np.asarray(axes, np.float64).reshape(-1, 2, 3)[cand], tris, f, cand)
     sp = test[:, :k2]
     m = test.shape[1]
     flat, fp = test.reshape(-1, 3), np.repeat(patch[cand], m)
@@ -249,7 +255,7 @@ def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
     if len(group) > len(points):  # sub-samples: a quarter of the rays each, 4x the texel's in all
         cnt = np.bincount(group)[group]
         sub_rays = np.where(cnt > 1, max(kw.get("rays", 128) // 4, 16), kw.get("rays", 128))
-    return FinalGather(
+    g = FinalGather(
         system,
         pts,
         s.patches.normal[pp],
@@ -259,3 +265,14 @@ def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
         slot_area=area,
         **kw,
     )
+    if axes is not None and len(group):
+        # texels gathered at their centre: a Blender light's edge across one is averaged over its
+        # area (texel_edges.edge_direct)
+        one = np.flatnonzero(np.bincount(group)[group] == 1)
+        g.texel_area = texel_area(
+            np.asarray(points, np.float64).reshape(-1, 3)[group[one]],
+            np.asarray(axes, np.float64).reshape(-1, 2, 3)[group[one]],
+            None if tris is None else np.asarray(tris, np.float64).reshape(-1, 3, 3)[group[one]],
+            one,
+        )
+    return g

@@ -1,0 +1,93 @@
+"""Texels whose direct light from a Blender light changes inside them (a shadow's or a spot cone's
+edge across the texel): their direct light is the mean over sub x sub points of the texel's area,
+as a renderer's bake averages it, instead of the value at the centre (issue 20, docs/lights.md).
+A centre decides a whole texel lit or dark where a sharp edge runs along texel rows."""
+
+import numpy as np
+
+from ..parallel import batch_map, ranges
+from .points import _into_patch
+from .sampling import hash_uniform, position_keys
+
+SUB = 4  # points per side of an edge texel
+# an edge texel: the light at its four corners and centre spans more than EDGE_TOL of their
+# maximum (a smooth fall-off changes a texel by a few per cent, nearly linearly: its centre is
+# its mean)
+EDGE_TOL = 0.1
+CORNERS = np.array([[0.0, 0], [1, 0], [1, 1], [0, 1]])
+
+
+def texel_area(points, axes, tris, rows):
+    """The texel areas FinalGather.texel_area holds: (rows (k,) sample of each texel gathered at its
+    centre, centres (k, 3), axes (k, 2, 3), tris (k, 3, 3) or None), texels without a triangle
+    (degenerate) left out."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    axes = np.asarray(axes, np.float64).reshape(-1, 2, 3)
+    if tris is not None:
+        t = np.asarray(tris, np.float64).reshape(-1, 3, 3)
+        a = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        keep = a > 1e-12 * np.maximum(np.abs(t).max((1, 2)), 1e-300) ** 2
+        return rows[keep], points[keep], axes[keep], t[keep]
+    return rows, points, axes, None
+
+
+def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
+    """(n,) unit direct light of `light` (core.lights.Light, not AREA or SKY) at the samples of
+    FinalGather g: `centre` (its values at the samples) with each edge texel of g.texel_area
+    replaced by the mean over sub x sub jittered points of its area (layouts.texel_points: where
+    Cycles' bake samples it), `rays` shadow rays per point. Edge texels: their four corners (one
+    hard shadow ray each) and centre differ by more than tol of their maximum. Texels elsewhere
+    keep their values bitwise. g.stats["edge_texels"]: (tested, edge texels, extra shadow rays)."""
+    from .. import lights as lt
+    from .layouts import texel_points
+
+    rows, cen, axes, tris = g.texel_area
+    live = ~g.dark[rows]
+    if g.gain is not None:  # in a slot: the slot's transfer carries the light (FinalGather._slots)
+        live &= (g.gain[rows] == 1).all(1)
+    j = np.flatnonzero(live)
+    out = np.asarray(centre, np.float64).copy()
+    if not len(j):
+        return out
+    pt, s = g.system.patches, g.system
+
+    def unit(x, patch, r):
+        x = _into_patch(pt, patch, x.reshape(-1, 3), g.margin)
+        keys = position_keys(x, g.unit)
+        return lt.unit_incident(
+            light,
+            x,
+            pt.normal[patch],
+            s.backend,
+            g.eps,
+            rays=r,
+            seed=g.seed,
+            keys=keys,
+            stream=stream,
+            far=g.tmax,
+        )
+
+    k2 = sub * sub
+    gx, gy = np.meshgrid(np.arange(sub), np.arange(sub), indexing="ij")
+    grid = np.stack([gx.ravel(), gy.ravel()], 1)
+    edge = np.zeros(len(rows), bool)
+
+    def part(a, b):
+        i = j[a:b]
+        r, patch = rows[i], g.patch[rows[i]]
+        tr = None if tris is None else tris[i]
+        cp = texel_points(cen[i], axes[i], tr, np.broadcast_to(CORNERS, (len(i), 4, 2)))
+        v = np.concatenate([unit(cp, np.repeat(patch, 4), 1).reshape(-1, 4), out[r, None]], 1)
+        hi = v.max(1)
+        e = np.flatnonzero(hi - v.min(1) > tol * hi)
+        edge[i[e]] = True
+        if len(e):
+            f = (grid[None] + hash_uniform(g.seed, g.keys[r[e]], 2500, 2 * k2).reshape(-1, k2, 2)) / sub
+            sp = texel_points(cen[i[e]], axes[i[e]], None if tr is None else tr[e], f)
+            out[r[e]] = unit(sp, np.repeat(patch[e], k2), rays).reshape(-1, k2).mean(1)
+
+    batch_map(part, ranges(len(j), g.batch_rays // (4 + k2 * rays)), g.threads)
+    ne = int(edge.sum())
+    was = g.stats.get("edge_texels", (0, 0, 0))  # summed over the lights and their geometries
+    g.stats["edge_texels"] = tuple(int(a + b) for a, b in zip(was, (len(j), ne, 4 * len(j) + ne * k2 * rays)))
+    return out
