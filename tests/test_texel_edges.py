@@ -10,6 +10,7 @@ import numpy as np
 
 from hr_addon.core.events import DynamicRadiosity
 from hr_addon.core.gather import texel_gather
+from hr_addon.core.gather.texel_edges import SUB
 from hr_addon.core.lights import Light
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
@@ -48,11 +49,10 @@ def _both(s, light, cen, axes, **kw):
 
 def test_sun_shadow_edge_texels_read_their_lit_share():
     """A sun straight down, the blocker's shadow edge at x = 0.33 across texels [0.3, 0.4]: their
-    exact mean is 0.7 of the lit value, their centre (0.35) reads all of it. Each texel averages 16
-    points, 4 columns of 4, jittered inside their strata: only the column across the edge can be
-    off, each of its 4 points by at most 1/16 of the lit value times the 0.2 of the column's width
-    where it may fall either side (0.05 of the lit value in all): held to 0.1 of it, where the
-    centre is off by 0.3."""
+    exact mean is 0.7 of the lit value, their centre (0.35) reads all of it. Each texel averages
+    SUB x SUB points jittered in their strata (8 x 8): only the column of strata across the edge
+    ([0.325, 0.3375]: 0.4 of it lit) can be off, by at most 0.6 of its share 1/8 (0.075 of the lit
+    value): held to 0.1 of it, where the centre is off by 0.3."""
     s = _scene()
     sun = Light("SUN", (1, 1, 1), 3.0, direction=(0, 0, -1), angle=0.0)
     cen, axes = _texels(np.arange(0.05, 0.8, T), [-0.35, 0.05, 0.45])
@@ -67,7 +67,7 @@ def test_sun_shadow_edge_texels_read_their_lit_share():
     assert np.array_equal(area[~edge], centre[~edge])
     assert np.allclose(centre[~edge], frac[~edge] * lit, rtol=1e-7, atol=0)  # the float32 cache
     tested, n_edge, rays = g.stats["edge_texels"]
-    assert tested == len(cen) and n_edge == 3 and rays == 4 * len(cen) + 3 * 16 * 4  # 4 rays a point
+    assert tested == len(cen) and n_edge == 3 and rays == 4 * len(cen) + 3 * SUB**2 * 4  # 4 rays a point
     # the same values on 2 threads
     g2, area2, _ = _both(s, sun, cen, axes, threads=2)
     assert np.array_equal(area, area2)
@@ -76,10 +76,11 @@ def test_sun_shadow_edge_texels_read_their_lit_share():
 def test_spot_cone_edge_texels_read_their_area_mean():
     """A hard-edged spot 2 m above the floor lighting a disc of radius 0.5 m; 10 cm texels on a
     grid across it. Reference: the texel's mean of the closed-form spot light (cos / r^2 inside the
-    cone) on a 64 x 64 midpoint grid. The jittered 4 x 4 points are unbiased, but a texel the edge
-    crosses is off by up to the share of the strata it cuts (at most 7 of 16, each off by at most
-    1/16 of the texel's peak): each held to 7/16 of its peak, and the root mean square error over
-    the edge texels to half the centres' (which read 0 or all of it)."""
+    cone) on a 64 x 64 midpoint grid. The jittered SUB x SUB points (8 x 8) are unbiased, but a
+    texel the edge crosses is off by up to the share of the strata it cuts (a near-straight edge:
+    at most 2 SUB - 1 of SUB^2, each off by at most 1/SUB^2 of the texel's peak): each held to
+    that, and the root mean square error over the edge texels to half the centres' (which read 0
+    or all of it)."""
     s = _scene(blocker=False)
     P, h, R = 100.0, 2.0, 0.5
     size = 2 * math.atan(R / h)
@@ -104,7 +105,7 @@ def test_spot_cone_edge_texels_read_their_area_mean():
     cut = np.array([0 < (np.linalg.norm(p[:2] + grid, axis=1) < R).mean() < 1 for p in cen])
     assert cut.sum() >= 20 and not (cut & ~edge).any()
     peak = exact(np.array([[0.0, 0, 0]]))[0] / np.pi
-    assert np.all(np.abs(area[cut] - ref[cut]) <= 7 / 16 * peak)
+    assert np.all(np.abs(area[cut] - ref[cut]) <= (2 * SUB - 1) / SUB**2 * peak)
     err_a = np.sqrt(np.mean((area[cut] - ref[cut]) ** 2))
     err_c = np.sqrt(np.mean((centre[cut] - ref[cut]) ** 2))
     assert err_a < 0.5 * err_c

@@ -9,7 +9,7 @@ from ..parallel import batch_map, ranges
 from .points import _into_patch
 from .sampling import hash_uniform, position_keys
 
-SUB = 4  # points per side of an edge texel
+SUB = 8  # points per side of an edge texel (few texels: 64 points keep one texel's quantisation at 1/64)
 # an edge texel: the light at its four corners and centre spans more than EDGE_TOL of their
 # maximum (a smooth fall-off changes a texel by a few per cent, nearly linearly: its centre is
 # its mean)
@@ -37,10 +37,14 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
     replaced by the mean over sub x sub jittered points of its area (layouts.texel_points: where
     Cycles' bake samples it), `rays` shadow rays per point. Edge texels: their four corners (one
     hard shadow ray each) and centre differ by more than tol of their maximum. Texels elsewhere
-    keep their values bitwise. g.stats["edge_texels"]: (tested, edge texels, extra shadow rays)."""
+    keep their values bitwise. g.stats["edge_texels"]: (tested, edge texels, extra shadow rays) and
+    ["edge_texels_cpu"] (process s), summed over calls."""
     from .. import lights as lt
     from .layouts import texel_points
 
+    import time
+
+    t0 = time.process_time()
     rows, cen, axes, tris = g.texel_area
     live = ~g.dark[rows]
     if g.gain is not None:  # in a slot: the slot's transfer carries the light (FinalGather._slots)
@@ -88,6 +92,7 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
 
     batch_map(part, ranges(len(j), g.batch_rays // (4 + k2 * rays)), g.threads)
     ne = int(edge.sum())
+    g.stats["edge_texels_cpu"] = g.stats.get("edge_texels_cpu", 0.0) + time.process_time() - t0
     was = g.stats.get("edge_texels", (0, 0, 0))  # summed over the lights and their geometries
     g.stats["edge_texels"] = tuple(int(a + b) for a, b in zip(was, (len(j), ne, 4 * len(j) + ne * k2 * rays)))
     return out
