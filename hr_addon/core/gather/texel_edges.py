@@ -3,6 +3,8 @@ edge across the texel): their direct light is the mean over sub x sub points of 
 as a renderer's bake averages it, instead of the value at the centre (issue 20, docs/lights.md).
 A centre decides a whole texel lit or dark where a sharp edge runs along texel rows."""
 
+import time
+
 import numpy as np
 
 from ..parallel import batch_map, ranges
@@ -41,8 +43,6 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
     ["edge_texels_cpu"] (process s), summed over calls."""
     from .. import lights as lt
     from .layouts import texel_points
-
-    import time
 
     t0 = time.process_time()
     rows, cen, axes, tris = g.texel_area
