@@ -56,12 +56,17 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
     pt, s = g.system.patches, g.system
 
     def unit(x, patch, r):
-        x = _into_patch(pt, patch, x.reshape(-1, 3), g.margin)
+        # onto the patch's plane and into it, as FinalGather's samples: a bake point on a slightly
+        # warped polygon's triangle lies off the plane (1e-5 on the Cornell box's left wall),
+        # behind it by more than eps its shadow rays hit the wall itself
+        x, nrm = x.reshape(-1, 3), pt.normal[patch]
+        x = x - np.einsum("ij,ij->i", x - pt.corners[patch, 0], nrm)[:, None] * nrm
+        x = _into_patch(pt, patch, x, g.margin)
         keys = position_keys(x, g.unit)
         return lt.unit_incident(
             light,
             x,
-            pt.normal[patch],
+            nrm,
             s.backend,
             g.eps,
             rays=r,
