@@ -6,7 +6,7 @@ No bpy. Nothing here asserts on time; tolerances are justified where they are se
 import numpy as np
 
 from hr_addon.core.gather import texel_gather
-from hr_addon.core.gather.layouts import bake_points
+from hr_addon.core.gather.bakepoints import bake_points
 from hr_addon.core.geometry import prepare_patches
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
@@ -251,7 +251,7 @@ def test_texel_across_a_triangle_edge_reads_its_own_triangle_folded_as_cycles_ba
     test's own fold of an 8 x 8 midpoint grid over the texel, lit by sky_reference's 64 x 64
     shadow rays: the lit triangle only, or nothing; the texel's plain area (what the unfolded
     layout reads) differs from it by 7-22% of the lit value (measured; the light is low at the
-    box's foot). The gather's own points (layouts.bake_points) are the test's to rounding. The
+    box's foot). The gather's own points (bakepoints.bake_points) are the test's to rounding. The
     texels are then not sub-sampled (each reads one triangle, lit or covered): the centre reads
     its light through 64 shadow rays, 0 under the box; tolerances 0.1 of the lit value per texel
     (measured at most 0.054: the light's slope across the strip) and 3% in the mean over the

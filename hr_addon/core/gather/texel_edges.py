@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from ..parallel import batch_map, ranges
+from .bakepoints import texel_points
 from .points import _into_patch
 from .sampling import hash_uniform, position_keys
 
@@ -36,13 +37,12 @@ def texel_area(points, axes, tris, rows):
 def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
     """(n,) unit direct light of `light` (core.lights.Light, not AREA or SKY) at the samples of
     FinalGather g: `centre` (its values at the samples) with each edge texel of g.texel_area
-    replaced by the mean over sub x sub jittered points of its area (layouts.texel_points: where
+    replaced by the mean over sub x sub jittered points of its area (bakepoints.texel_points: where
     Cycles' bake samples it), `rays` shadow rays per point. Edge texels: their four corners (one
     hard shadow ray each) and centre differ by more than tol of their maximum. Texels elsewhere
     keep their values bitwise. g.stats["edge_texels"]: (tested, edge texels, extra shadow rays) and
     ["edge_texels_cpu"] (process s), summed over calls."""
     from .. import lights as lt
-    from .layouts import texel_points
 
     t0 = time.process_time()
     rows, cen, axes, tris = g.texel_area
