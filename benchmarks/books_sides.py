@@ -25,6 +25,7 @@ import numpy as np
 
 import books_common as BC
 from hr_testing import cycles_ref as C
+from hr_addon.core.boxes import csr_rows
 from hr_addon.core.slots import slot_mouth
 from hr_addon.core.gather import texel_gather
 from hr_addon.core.gather.final import _csr_matvec
@@ -104,9 +105,7 @@ def split_slot_rays(g, pts0):
         b2 = con._to2d(gi, end[:, None])[:, 0]
         ch = np.repeat(chain[sel], r)
         M = con.slot_mouths()
-        ns = M["start"][ch + 1] - M["start"][ch]
-        pr = np.repeat(np.arange(len(ch)), ns)
-        sg = np.repeat(M["start"][ch] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+        pr, sg = csr_rows(M["start"], ch)
         m = M["open"][sg]
         pr, sg = pr[m], sg[m]
         p, e = a2[pr], b2[pr] - a2[pr]

@@ -1,5 +1,5 @@
-"""Box and segment helpers shared by contacts.py and slots.py: sorted lookups, pairs of
-overlapping axis-aligned boxes through a uniform grid, 2D ray exits."""
+"""Box and segment helpers shared by contacts.py and slots.py: sorted lookups, CSR row expansion,
+pairs of overlapping axis-aligned boxes through a uniform grid, 2D ray exits."""
 
 import numpy as np
 
@@ -11,6 +11,14 @@ def sorted_index(table, keys):
         return np.full(keys.shape, -1, np.int64)
     i = np.minimum(np.searchsorted(table, keys), len(table) - 1)
     return np.where(table[i] == keys, i, -1)
+
+
+def csr_rows(start, rows):
+    """Every element of the CSR rows `rows` (offsets `start`): (position in `rows` of each, its
+    index), row by row in order."""
+    ns = start[rows + 1] - start[rows]
+    pr = np.repeat(np.arange(len(ns)), ns)
+    return pr, np.repeat(start[rows] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
 
 
 def grid_cells(lo, hi, origin, size, dims, group):

@@ -23,7 +23,7 @@ through per-chain bounding boxes, so the cost follows the number of contacts, no
 
 import numpy as np
 
-from .boxes import box_pairs, sorted_index
+from .boxes import box_pairs, csr_rows, sorted_index
 from .geometry import components
 from .planes import frames, plane_ids
 from .slots import SlotMouths
@@ -291,8 +291,7 @@ class Contacts(SlotMouths):
         for s in range(0, len(i), step):
             sl = slice(s, s + step)
             ns = n_seg[sl]
-            pr = np.repeat(np.arange(len(ns)), ns)
-            sg = np.repeat(self.chain_start[ch[sl]] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+            pr, sg = csr_rows(self.chain_start, ch[sl])
             a = self.seg_a[sg] - p2[i[sl]][pr]
             b = self.seg_b[sg] - p2[i[sl]][pr]
             ang = np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], np.einsum("ij,ij->i", a, b))
@@ -310,9 +309,7 @@ class Contacts(SlotMouths):
     # -- the slots' mouths ----------------------------------------------------------------------------
     def _winding(self, ch, q):
         """Winding number of chains ch (M,) around 2D points q (M, 2) in their planes."""
-        ns = self.chain_start[ch + 1] - self.chain_start[ch]
-        pr = np.repeat(np.arange(len(ch)), ns)
-        sg = np.repeat(self.chain_start[ch] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+        pr, sg = csr_rows(self.chain_start, ch)
         u, v = self.seg_a[sg] - q[pr], self.seg_b[sg] - q[pr]
         ang = np.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], np.einsum("ij,ij->i", u, v))
         return np.bincount(pr, ang, len(ch)) / (2 * np.pi)

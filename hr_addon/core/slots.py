@@ -6,7 +6,7 @@ the 2D slot model between parallel walls and its tables."""
 
 import numpy as np
 
-from .boxes import box_pairs, ray_exit, sorted_index
+from .boxes import box_pairs, csr_rows, ray_exit, sorted_index
 
 
 class SlotMouths:
@@ -41,9 +41,7 @@ class SlotMouths:
         keep = ~self.chain_signed[ch] & ~touching[i]
         i, ch = i[keep], ch[keep]
         M = self.slot_mouths()
-        ns = M["start"][ch + 1] - M["start"][ch]
-        pr = np.repeat(np.arange(len(i)), ns)
-        mk = np.repeat(M["start"][ch] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+        pr, mk = csr_rows(M["start"], ch)
         gi = self.plane[patch]
         p2 = self._to2d(gi, points[:, None])[:, 0]
         a, e = M["a"][mk] - p2[i[pr]], M["b"][mk] - M["a"][mk]
@@ -75,9 +73,7 @@ class SlotMouths:
             return out
         c = np.asarray(chain)[j]
         M = self.slot_mouths()
-        ns = M["start"][c + 1] - M["start"][c]
-        pr = np.repeat(np.arange(len(j)), ns)
-        sg = np.repeat(M["start"][c] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+        pr, sg = csr_rows(M["start"], c)
         m = M["open"][sg]
         pr, sg = pr[m], sg[m]
         hs = M["height"][sg]
@@ -219,16 +215,12 @@ class SlotMouths:
         i, k = box_pairs(lo_r, hi_r, self.chain_lo[c] - tol, self.chain_hi[c] + tol, rg, self.chain_plane[c])
         if len(i):
             ch = c[k]
-            ns = self.chain_start[ch + 1] - self.chain_start[ch]
-            pr = np.repeat(np.arange(len(i)), ns)
-            sg = np.repeat(self.chain_start[ch] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+            pr, sg = csr_rows(self.chain_start, ch)
             seg, pa, pb = self._cut(ra[i], rb[i], pr, self.seg_a[sg], self.seg_b[sg])
             mid = (pa + pb) / 2
             w = self._winding(ch[seg], mid)
             # its distance to the face's outline: a surface edge along the face's edge is that edge
-            ns2 = ns[seg]
-            pr2 = np.repeat(np.arange(len(seg)), ns2)
-            sg2 = np.repeat(self.chain_start[ch[seg]] - (np.cumsum(ns2) - ns2), ns2) + np.arange(len(pr2))
+            pr2, sg2 = csr_rows(self.chain_start, ch[seg])
             u, e = self.seg_a[sg2] - mid[pr2], self.seg_b[sg2] - self.seg_a[sg2]
             t = np.clip(-np.einsum("ij,ij->i", u, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
             dist = np.full(len(seg), np.inf)
@@ -249,9 +241,7 @@ class SlotMouths:
         e = (b - a) / np.maximum(np.linalg.norm(b - a, axis=1), 1e-300)[:, None]
         ext = np.zeros(len(ch))
         k = np.flatnonzero(own)
-        ns = self.chain_start[ch[k] + 1] - self.chain_start[ch[k]]
-        pr = np.repeat(np.arange(len(k)), ns)
-        sg = np.repeat(self.chain_start[ch[k]] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+        pr, sg = csr_rows(self.chain_start, ch[k])
         t = ray_exit(
             (a[k] + b[k])[pr] / 2, np.column_stack([e[k, 1], -e[k, 0]])[pr], self.seg_a[sg], self.seg_b[sg]
         )
