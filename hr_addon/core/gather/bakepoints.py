@@ -10,6 +10,12 @@ import numpy as np
 BAKE_SPAN = 0.5
 
 
+def has_area(t):
+    """(n,) whether triangles t (n, 3, 3) are not degenerate (a texel without one reads its centre)."""
+    a = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    return a > 1e-12 * np.maximum(np.abs(t).max((1, 2)), 1e-300) ** 2
+
+
 def bake_mirror(x, m):
     """Cycles' bake_clamp_mirror_repeat: x folded into [0, m] by mirror repeat."""
     m = np.maximum(m, 1e-12)

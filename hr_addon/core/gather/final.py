@@ -9,7 +9,7 @@ from ..visibility import first_hit_within
 from ..parallel import batch_map, ranges
 from ..progress import Progress
 from .direct import DirectLight
-from .points import _into_patch, locate_below
+from .points import locate_below, onto_patch
 from .sampling import cosine_directions, position_keys
 
 KINDS = ("radiance", "reflected", "incident")
@@ -103,12 +103,6 @@ class FinalGather(DirectLight):
         nrm = np.asarray(normals, np.float64).reshape(-1, 3)
         self.normals = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
         self.patch = np.asarray(patch_ids, np.int64).ravel()
-        # onto the plane of their patch: points on a renderer's triangulation of a slightly warped
-        # polygon lie off the patch (behind it by more than eps, every ray would hit its back)
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        pn = pt.normal[self.patch]
-        p = p - np.einsum("ij,ij->i", p - pt.corners[self.patch, 0], pn)[:, None] * pn
-        # and into it: texels of a lightmap's dilation ring lie beyond their polygon's edge
         lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
         self.tmax = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
         # rays are traced to `reach` first, then the misses on to tmax: the ray contract's minimum
@@ -122,7 +116,7 @@ class FinalGather(DirectLight):
         self.reach = min(4.0 * size, self.tmax)
         self.eps = float(s.refiner.eps)
         self.margin = margin = max(50 * self.eps, 5e-5 * size)
-        self.points = np.ascontiguousarray(_into_patch(pt, self.patch, p, margin))
+        self.points = np.ascontiguousarray(onto_patch(pt, self.patch, points, margin))
         self.keys = position_keys(self.points, self.unit)
         n = len(self.points)
         self.n = n

@@ -4,7 +4,7 @@ import numpy as np
 
 from ..geometry import isolated_objects
 from ..output import equal_key_pairs, in_domain, loop_welds
-from .bakepoints import texel_points
+from .bakepoints import has_area, texel_points
 from .final import OPEN_EDGE, FinalGather
 from .sampling import hash_uniform, position_keys
 from .texel_edges import texel_area
@@ -143,9 +143,7 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     if axes is not None and sub > 1 and con is not None and n:
         cand = np.flatnonzero(np.isin(patch, con.receivers))  # texels on patches with a contact
     if tris is not None and len(cand):
-        t = np.asarray(tris, np.float64).reshape(-1, 3, 3)[cand]
-        a = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
-        cand = cand[a > 1e-12 * np.maximum(np.abs(t).max((1, 2)), 1e-300) ** 2]  # no triangle: centre
+        cand = cand[has_area(np.asarray(tris, np.float64).reshape(-1, 3, 3)[cand])]
     if not len(cand):
         return points, patch, np.arange(n), None
     k2 = sub * sub

@@ -63,6 +63,16 @@ def locate_below(h, patch, points, n_hr):
         node[inner] = c0[inner] + k
 
 
+def onto_patch(pt, patch, p, margin):
+    """Points (M, 3) onto the planes of their patches, then into them (_into_patch): points on a
+    renderer's triangulation of a slightly warped polygon lie off the patch (behind it by more
+    than eps, every ray would hit its back), texels of a lightmap's dilation ring beyond its edge."""
+    p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+    pn = pt.normal[patch]
+    p = p - np.einsum("ij,ij->i", p - pt.corners[patch, 0], pn)[:, None] * pn
+    return _into_patch(pt, patch, p, margin)
+
+
 def _into_patch(pt, patch, p, margin):
     """Points (M, 3) in their patches' planes moved to at least `margin` inside their patch: points
     beyond its outline (a lightmap's dilation ring) to the nearest point of it, then those closer

@@ -8,8 +8,8 @@ import time
 import numpy as np
 
 from ..parallel import batch_map, ranges
-from .bakepoints import texel_points
-from .points import _into_patch
+from .bakepoints import has_area, texel_points
+from .points import onto_patch
 from .sampling import hash_uniform, position_keys
 
 SUB = 8  # points per side of an edge texel (few texels: 64 points keep one texel's quantisation at 1/64)
@@ -28,8 +28,7 @@ def texel_area(points, axes, tris, rows):
     axes = np.asarray(axes, np.float64).reshape(-1, 2, 3)
     if tris is not None:
         t = np.asarray(tris, np.float64).reshape(-1, 3, 3)
-        a = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
-        keep = a > 1e-12 * np.maximum(np.abs(t).max((1, 2)), 1e-300) ** 2
+        keep = has_area(t)
         return rows[keep], points[keep], axes[keep], t[keep]
     return rows, points, axes, None
 
@@ -56,12 +55,9 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
     pt, s = g.system.patches, g.system
 
     def unit(x, patch, r):
-        # onto the patch's plane and into it, as FinalGather's samples: a bake point on a slightly
-        # warped polygon's triangle lies off the plane (1e-5 on the Cornell box's left wall),
-        # behind it by more than eps its shadow rays hit the wall itself
-        x, nrm = x.reshape(-1, 3), pt.normal[patch]
-        x = x - np.einsum("ij,ij->i", x - pt.corners[patch, 0], nrm)[:, None] * nrm
-        x = _into_patch(pt, patch, x, g.margin)
+        # as FinalGather's samples: a bake point on a slightly warped polygon's triangle lies off
+        # its plane (1e-5 on the Cornell box's left wall), and its shadow rays would hit the wall
+        x, nrm = onto_patch(pt, patch, x, g.margin), pt.normal[patch]
         keys = position_keys(x, g.unit)
         return lt.unit_incident(
             light,
