@@ -10,6 +10,7 @@ from ..events.validation import to2d
 from ..geometry import newell
 from ..parallel import batch_map, ranges
 from .sampling import Emitter, hammersley, hash_uniform, position_keys
+from .texel_edges import edge_direct
 
 _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
@@ -17,6 +18,10 @@ _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clippe
 class DirectLight:
     """FinalGather's direct light (a mixin: it reads the gather's samples, points, normals, keys,
     dark, eps, seed, shadow_rays, system and its batching)."""
+
+    # texture output (layouts.texel_gather): the texels gathered at their centre, whose Blender
+    # lights' direct light is averaged over their area where an edge crosses them (texel_edges)
+    texel_area = None
 
     # -- direct light --------------------------------------------------------------------------------
     def direct_batch(self, em: Emitter, a, b, shafts=None):
@@ -250,9 +255,7 @@ class DirectLight:
                     )
 
                 batch_map(part, ranges(len(ok), self.batch_rays // rays), self.threads)
-                if getattr(self, "texel_area", None) is not None and L.kind != "SKY":
-                    from .texel_edges import edge_direct  # texels a light's edge crosses: their area
-
+                if self.texel_area is not None and L.kind != "SKY":
                     got = edge_direct(self, L, got, rays, stream)
                 got = got.astype(np.float32)
             self._light_cache[key] = got
