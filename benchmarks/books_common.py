@@ -60,9 +60,9 @@ def neighbour(box, n, side):
     return box.get(f"{case}_{row}_{k + (1 if side else -1)}")
 
 
-def centre_texels(rs, ours, ref, n):
+def centre_texels(rs, ours, ref, n, grey=True):
     """Object n's texels sampled at their centre: (points, patches, axes, triangles, the Cycles
-    reference ref[n] at them, grey)."""
+    reference ref[n] at them, grey or (k, 3))."""
     at = rs.atlases[n]
     cen = np.flatnonzero(at.s_centre)
     return (
@@ -70,5 +70,56 @@ def centre_texels(rs, ours, ref, n):
         ours.samples[n][0][cen],
         at.s_axes[cen],
         at.s_tri[cen],
-        ref[n][at.s_texel[cen]].mean(1),
+        ref[n][at.s_texel[cen]].mean(1) if grey else ref[n][at.s_texel[cen]],
     )
+
+
+FACE = (
+    "top",
+    "front",
+    "back",
+    "bottom",
+    "side: open (no neighbour book)",
+    "side in slot, receiver shorter",
+    "side in slot, receiver taller",
+    "side in slot, equal",
+    "side above the neighbour's top",
+    "side, front/back overhang",
+)
+
+
+def book_texels(rs, s, ours, ref, books, box, H, grey=True):
+    """The books' texels sampled at their centre, where Cycles' bake has them: (points, patches,
+    axes, triangles, ref at them, book index, face class (FACE), height over the overlap's top in
+    gap widths H (sides facing a neighbour book; nan elsewhere))."""
+    cols = {k: [] for k in ("X", "P", "AX", "TR", "REF", "OBJ", "CLS", "ZREL")}
+    for k, n in enumerate(books):
+        x, patch, axes, tris, r = centre_texels(rs, ours, ref, n, grey)
+        nrm = s.patches.normal[patch]
+        lo, hi = box[n]
+        ax = np.abs(nrm).argmax(1)
+        sg = np.sign(nrm[np.arange(len(nrm)), ax])
+        cls = np.full(len(x), 4)
+        cls[(ax == 2) & (sg > 0)] = 0
+        cls[(ax == 1) & (sg < 0)] = 1
+        cls[(ax == 1) & (sg > 0)] = 2
+        cls[(ax == 2) & (sg < 0)] = 3
+        zrel = np.full(len(x), np.nan)
+        for side in (0, 1):
+            sel = np.flatnonzero((ax == 0) & ((sg > 0) == bool(side)))
+            nb = neighbour(box, n, side)
+            if nb is None or not len(sel):
+                continue
+            p = x[sel]
+            top = min(hi[2], nb[1][2])
+            iny = (p[:, 1] > max(lo[1], nb[0][1])) & (p[:, 1] < min(hi[1], nb[1][1]))
+            below = p[:, 2] < top
+            dz = hi[2] - nb[1][2]
+            c = np.where(dz < -1e-4, 5, np.where(dz > 1e-4, 6, 7))
+            cls[sel] = np.where(iny, np.where(below, c, 8), 9)
+            zrel[sel] = (p[:, 2] - top) / H
+        for key, v in zip(cols, (x, patch, axes, tris, r, np.full(len(x), k), cls, zrel)):
+            cols[key].append(v)
+    out = [np.concatenate(v) for v in cols.values()]
+    ok = np.isfinite(out[4]).reshape(len(out[4]), -1).all(1)  # texels Cycles' bake left out
+    return [v[ok] for v in out]

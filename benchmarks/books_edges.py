@@ -32,49 +32,8 @@ books = [n for n in rs.objects if "_book" in n]
 box = BC.book_boxes(rs)
 ref = {n: (a[n] + b[n]) / 2 for n in books}
 
-FACE = (
-    "top",
-    "front",
-    "back",
-    "bottom",
-    "side: open (no neighbour book)",
-    "side in slot, receiver shorter",
-    "side in slot, receiver taller",
-    "side in slot, equal",
-    "side above the neighbour's top",
-    "side, front/back overhang",
-)
-cols = {k: [] for k in ("X", "P", "AX", "TR", "REF", "OBJ", "CLS", "ZREL")}
-for k, n in enumerate(books):
-    x, patch, axes, tris, r = BC.centre_texels(rs, ours, ref, n)
-    nrm = s.patches.normal[patch]
-    lo, hi = box[n]
-    ax = np.abs(nrm).argmax(1)
-    sg = np.sign(nrm[np.arange(len(nrm)), ax])
-    cls = np.full(len(x), 4)
-    cls[(ax == 2) & (sg > 0)] = 0
-    cls[(ax == 1) & (sg < 0)] = 1
-    cls[(ax == 1) & (sg > 0)] = 2
-    cls[(ax == 2) & (sg < 0)] = 3
-    zrel = np.full(len(x), np.nan)  # height over the overlap's top, in gap widths
-    for side in (0, 1):
-        sel = np.flatnonzero((ax == 0) & ((sg > 0) == bool(side)))
-        nb = BC.neighbour(box, n, side)
-        if nb is None or not len(sel):
-            continue
-        p = x[sel]
-        top = min(hi[2], nb[1][2])
-        iny = (p[:, 1] > max(lo[1], nb[0][1])) & (p[:, 1] < min(hi[1], nb[1][1]))
-        below = p[:, 2] < top
-        dz = hi[2] - nb[1][2]
-        c = np.where(dz < -1e-4, 5, np.where(dz > 1e-4, 6, 7))
-        cls[sel] = np.where(iny, np.where(below, c, 8), 9)
-        zrel[sel] = (p[:, 2] - top) / H
-    for key, v in zip(cols, (x, patch, axes, tris, r, np.full(len(x), k), cls, zrel)):
-        cols[key].append(v)
-X, P, AX, TR, REF, OBJ, CLS, ZREL = (np.concatenate(v) for v in cols.values())
-ok = np.isfinite(REF)  # texels Cycles' bake left out
-X, P, AX, TR, REF, OBJ, CLS, ZREL = (v[ok] for v in (X, P, AX, TR, REF, OBJ, CLS, ZREL))
+FACE = BC.FACE
+X, P, AX, TR, REF, OBJ, CLS, ZREL = BC.book_texels(rs, s, ours, ref, books, box, H)
 depth, hg = con.slots(X, P)[:2]
 cov = con.covered(X, P)
 print(f"{len(books)} books, {len(X)} texels", flush=True)

@@ -51,6 +51,33 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
     return out
 
 
+def _leaf_frame(h, leaf):
+    """(origin, e1, e2) (k, 3) of HR leaves: the first corner, the first edge's direction, and
+    the normal x e1."""
+    c = h.corners[leaf]
+    e1 = c[:, 1] - c[:, 0]
+    e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
+    return c[:, 0], e1, np.cross(h.normal[leaf], e1)
+
+
+def _slope_fit(h, used, x, gw, dark):
+    """(A (u, 2, k), ubar (u, 2)): for leaves `used` with gather samples x (u, k, 3) and area
+    weights gw (u, k), the weighted least-squares slopes of a linear function along the leaf's
+    frame (_leaf_frame) from the samples' values y (u, k, C): A @ y; ubar: the samples' weighted
+    centroid in the frame (the mean's position). Leaves with a covered sample get A = 0."""
+    o, e1, e2 = _leaf_frame(h, used)
+    d = x - o[:, None]
+    q = np.stack([np.einsum("ukj,uj->uk", d, e1), np.einsum("ukj,uj->uk", d, e2)], 2)  # (u, k, 2)
+    ubar = np.einsum("uk,uka->ua", gw, q)
+    r = q - ubar[:, None]
+    M = np.einsum("uk,uka,ukb->uab", gw, r, r)
+    det = M[:, 0, 0] * M[:, 1, 1] - M[:, 0, 1] * M[:, 1, 0]
+    good = (np.abs(det) > 1e-12 * np.einsum("uaa->u", M) ** 2) & ~dark.any(1)
+    inv = np.zeros_like(M)
+    inv[good] = np.linalg.inv(M[good])
+    return np.einsum("uab,ukb->uak", inv, gw[:, :, None] * r), ubar
+
+
 # ---------------------------------------------------------------------------------------------- gather
 
 
@@ -96,6 +123,7 @@ class FinalGather(DirectLight):
         open_edge=OPEN_EDGE,
         sample_rays=None,
         slot_area=None,
+        slopes=None,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
@@ -129,6 +157,11 @@ class FinalGather(DirectLight):
         # hemisphere rays per sample where they differ (a texel's sub-samples share its rays)
         self.sample_rays = None if sample_rays is None else np.asarray(sample_rays, np.int64)
         self.batch_rays = int(batch_rays or self.BATCH_RAYS)
+        # slopes: the rays read a second level's leaf as the linear function its gather samples
+        # fit, at the hit, not as their mean (a ray lands where it lands: near a shelf's front the
+        # rays of a book beside it hit the front of its neighbour's top, lit, whose leaf's mean
+        # takes in its dark back); per entry also the hits' offsets in the leaf's frame (wu, wv)
+        self.slopes = (levels >= 2) if slopes is None else bool(slopes)
         if covered_hits not in ("zero", "shown"):
             raise ValueError("covered_hits must be 'zero' or 'shown'")
         # "zero": rays reaching a point contacts.py calls covered read 0 (values_at); "shown": they
@@ -169,7 +202,7 @@ class FinalGather(DirectLight):
             prog.update("gather rays", done, total, force=done == total)
 
         parts = batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
-        self.indptr, self.cols, self.w = self.merge(parts)
+        self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(parts)
         self.second = None
         self.iterations = int(iterations) if levels == 2 else 0
         if levels >= 2:
@@ -203,8 +236,10 @@ class FinalGather(DirectLight):
                 threads=threads,
                 progress=progress,
                 open_edge=0.0,  # the leaves' values stand for their uncovered part, as exposure has it
+                slopes=levels > 2 or iterations > 0,  # its rays read a level below too
             )
             self._second_map = (used, gw)
+            self._slope_map = _slope_fit(h, used, x, gw, self.second.dark.reshape(len(used), k2))
             # Blender lights at the second level: the leaf's mean direct light integrated over the
             # leaf (lights.node_incident: finer where it is uneven, a spot's edge), not its 2 x 2
             # points (issue 20: the spot's bounce read 2% dark through them)
@@ -278,17 +313,22 @@ class FinalGather(DirectLight):
         np.cumsum(counts, out=indptr[1:])
         cols = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
         w = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.float32)
-        return indptr, cols, w
+        if not parts or parts[0][3] is None:
+            return indptr, cols, w, None, None
+        return indptr, cols, w, np.concatenate([p[3] for p in parts]), np.concatenate([p[4] for p in parts])
 
     @property
     def weights_bytes(self):
         """Bytes of the CSR weights, the lower levels' included."""
         own = self.indptr.nbytes + self.cols.nbytes + self.w.nbytes
+        own += sum(a.nbytes for a in (getattr(self, "wu", None), getattr(self, "wv", None)) if a is not None)
         return own + (self.second.weights_bytes if self.second is not None else 0)
 
     # -- precompute: hemisphere rays -> CSR rows over HR leaves -------------------------------------
     def gather_batch(self, a, b):
-        """Samples a..b-1: (hits per row (m,), HR leaf per entry int32, weight per entry float32)."""
+        """Samples a..b-1: (hits per row (m,), HR leaf per entry int32, weight per entry float32, and
+        with slopes the hits' summed offsets in their leaf's frame per entry (wu, wv) float32, else
+        None, None)."""
         s = self.system
         h, pt = s.h, s.patches
         m = b - a
@@ -301,7 +341,8 @@ class FinalGather(DirectLight):
             dirs.append(d.reshape(-1, 3))
         row, dirs = np.concatenate(rows), np.concatenate(dirs)
         if not len(row):
-            return np.zeros(m, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32)
+            e = np.zeros(0, np.float32) if self.slopes else None
+            return np.zeros(m, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32), e, e
         org = self.origins[a + row]
         prim, t = self.first_hit(org, dirs)
         ok = prim >= 0
@@ -316,10 +357,18 @@ class FinalGather(DirectLight):
             lit = h.exposure[leaf] > 0
         i, leaf = i[lit], leaf[lit]
         key = row[i].astype(np.int64) * self.n_hr + leaf
-        u, cnt = np.unique(key, return_counts=True)
+        u, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
         r = u // self.n_hr
         counts = np.bincount(r, minlength=m).astype(np.int64)
-        return counts, (u % self.n_hr).astype(np.int32), (cnt / rr[r]).astype(np.float32)
+        wu = wv = None
+        if self.slopes:
+            o, e1, e2 = _leaf_frame(h, leaf)
+            d = hit[lit] - o
+            wu, wv = (
+                (np.bincount(inv, np.einsum("ij,ij->i", d, e), len(u)) / rr[r]).astype(np.float32)
+                for e in (e1, e2)
+            )
+        return counts, (u % self.n_hr).astype(np.int32), (cnt / rr[r]).astype(np.float32), wu, wv
 
     def first_hit(self, org, dirs):
         """Nearest hits of unit rays (visibility.first_hit_within: near hits to self.reach first)."""
@@ -336,32 +385,48 @@ class FinalGather(DirectLight):
         """(n_hr, 3) reflected radiance on the uncovered part of every HR leaf (0 elsewhere); with
         a second level, of the leaves the rays hit: the mean of their gather samples (exact direct
         light + the solution one bounce further) over the uncovered ones."""
-        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0])
+        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0])[0]
 
     def _levels(self, V, direct):
         """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
         direct(g) -> (g.n, 3) direct light at a level's samples: V itself with one level; with
         more, the lower levels' gathers (linear in V and the direct light)."""
         if self.second is None:
-            return V
+            return (V, V, None, None)
         used, gw = self._second_map
+        A, ubar = self._slope_map
         g2 = self.second
         w = gw * ~g2.dark.reshape(len(used), -1)
         ws = w.sum(1)
         ok = ws > 0
         w = w[ok] / ws[ok, None]
         D2 = direct(g2)
-        Y = g2._levels(V, direct) if g2.second is not None else V  # levels > 2: its own levels
+        L = g2._levels(V, direct)  # levels > 2: its own levels
         # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
         # direct light): every pass moves the solution one bounce further away
         for _ in range(1 + self.iterations):
-            y = (g2.rho * (D2 + _csr_matvec(g2.indptr, g2.cols, g2.w, Y, threads=self.threads))).reshape(
-                len(used), -1, 3
-            )
-            Ynew = V.copy()
-            Ynew[used[ok]] = np.einsum("uk,ukc->uc", w, y[ok])
-            Y = Ynew
-        return Y
+            y = (g2.rho * (D2 + g2._read(L))).reshape(len(used), -1, 3)
+            Y = V.copy()
+            Y[used[ok]] = np.einsum("uk,ukc->uc", w, y[ok])
+            # the linear function the leaf's samples fit: its slopes along the leaf's frame, and
+            # its value at the frame's origin (0 where a sample is covered: the mean alone)
+            G = np.einsum("uak,ukc->uac", A, y)
+            Y0, Gu, Gv = Y.copy(), np.zeros_like(V), np.zeros_like(V)
+            Y0[used] -= np.einsum("ua,uac->uc", ubar, G)
+            Gu[used], Gv[used] = G[:, 0], G[:, 1]
+            L = (Y, Y0, Gu, Gv)
+        return L
+
+    def _read(self, L):
+        """(n, 3) what the rays read of leaf values L = (mean, value at the frame's origin, slopes
+        along e1 and e2; _levels): the means, or with slopes the linear function at the hits."""
+        Y, Y0, Gu, Gv = L
+        if getattr(self, "wu", None) is None or Gu is None:
+            return _csr_matvec(self.indptr, self.cols, self.w, Y, threads=self.threads)
+        return sum(
+            _csr_matvec(self.indptr, self.cols, w, v, threads=self.threads)
+            for w, v in ((self.w, Y0), (self.wu, Gu), (self.wv, Gv))
+        )
 
     def solution_values(self, dyn):
         """(n_hr, 3) the solution's reflected radiance on the uncovered part of every HR leaf."""
@@ -414,9 +479,7 @@ class FinalGather(DirectLight):
             X = dyn._Bbase[:, :n] - dyn.system.base_emission()[:, :n] * ex
             V = self._values_from(h, X)
             Y = self._levels(V, lambda g: g.direct_static())
-            self._responses[key0] = self.direct_static() + _csr_matvec(
-                self.indptr, self.cols, self.w, Y, threads=self.threads
-            )
+            self._responses[key0] = self.direct_static() + self._read(Y)
         total = self._responses[key0].copy()
         live = {key0}
         for rec in recs:
@@ -429,7 +492,7 @@ class FinalGather(DirectLight):
                     return np.repeat(g._shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
 
                 Y = self._levels(self._values_from(h, X), unit)
-                part = unit(self) + _csr_matvec(self.indptr, self.cols, self.w, Y, threads=self.threads)
+                part = unit(self) + self._read(Y)
                 self._responses[k] = part.astype(np.float32)
             total += rec.emission[None] * self._responses[k]
         for rec in dyn.lights.values():
@@ -444,7 +507,7 @@ class FinalGather(DirectLight):
                     return np.repeat(g._light(rec)[:, None].astype(np.float64), 3, 1)
 
                 Y = self._levels(self._values_from(h, X), unit)
-                part = unit(self) + _csr_matvec(self.indptr, self.cols, self.w, Y, threads=self.threads)
+                part = unit(self) + self._read(Y)
                 self._responses[k] = part.astype(np.float32)
             total += rec.scale[None] * self._responses[k]
         gone = [k for k in self._responses if k not in live]
@@ -478,7 +541,7 @@ class FinalGather(DirectLight):
 
     def indirect(self, dyn):
         """(n, 3) I = W @ leaf_values: the solution's reflected radiance seen by the hemisphere."""
-        return _csr_matvec(self.indptr, self.cols, self.w, self.leaf_values(dyn), threads=self.threads)
+        return self._read(self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0]))
 
     # -- output ----------------------------------------------------------------------------------------
     def evaluate(self, dyn, kind="radiance"):
@@ -497,7 +560,7 @@ class FinalGather(DirectLight):
         if inc is None:
             inc = D + self.indirect(dyn)
         inc[self.dark] = 0.0
-        inc = self.scaled(inc)
+        inc = self.scaled(np.maximum(inc, 0.0))  # (the slopes' linear read can dip below 0 at a hit)
         out = {}
         for k in kinds:
             if k == "incident":
