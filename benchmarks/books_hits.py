@@ -37,7 +37,7 @@ print(f"{len(X)} texels: {(CLS == 0).sum()} tops, {(CLS == 8).sum()} sides above
 t0 = time.process_time()
 g = FinalGather(dyn, X, pt.normal[P], P, **BC.BASE)
 D = g.direct_and_emission(dyn)[0]
-I = g.indirect(dyn)
+Ind = g.indirect(dyn)
 Y = g.leaf_values(dyn)  # what a ray reads at an HR leaf: the second level's mean
 rho = g.rho
 Ic = REF / rho - D  # Cycles' indirect (its direct light is ours to 0.1%, docs/gather.md)
@@ -89,7 +89,9 @@ def kind(k):
         face = "top" if hn[k, 2] > 0.9 else ("side" if abs(hn[k, 0]) > 0.9 else "front/back/bottom")
         return f"{'neighbour' if near else 'other'} book, {face}"
     if o.startswith(bk.split("_")[0] + "_board"):
-        return "shelf board, " + ("underside" if hn[k, 2] < -0.9 else "upper side" if hn[k, 2] > 0.9 else "edge")
+        return "shelf board, " + (
+            "underside" if hn[k, 2] < -0.9 else "upper side" if hn[k, 2] > 0.9 else "edge"
+        )
     if o.startswith(bk.split("_")[0] + "_side"):
         return "case side"
     return "room"
@@ -118,9 +120,9 @@ for c, lab, rows in (
     tot = gr(Ic[m]).sum()
     rep = dict(
         texels=int(m.sum()),
-        cycles_reflected_over_ours=float(gr(REF[m]).sum() / gr(rho[m] * (D[m] + I[m])).sum()),
+        cycles_reflected_over_ours=float(gr(REF[m]).sum() / gr(rho[m] * (D[m] + Ind[m])).sum()),
         direct_share_cycles=float(gr(D[m]).sum() / gr(REF[m] / rho[m]).sum()),
-        indirect_bake_over_cycles=float(gr(I[m]).sum() / tot),
+        indirect_bake_over_cycles=float(gr(Ind[m]).sum() / tot),
         indirect_these_rays_leaf_over_cycles=float(I_leaf[m].sum() / tot),
         indirect_these_rays_point_over_cycles=float(I_pt[m].sum() / tot),
         by_hit={},
@@ -129,7 +131,8 @@ for c, lab, rows in (
     print(
         f"  indirect over Cycles': bake's gather {rep['indirect_bake_over_cycles']:.3f}, these rays "
         f"at leaf values {rep['indirect_these_rays_leaf_over_cycles']:.3f}, at the hit points "
-        f"{rep['indirect_these_rays_point_over_cycles']:.3f}; direct is {rep['direct_share_cycles']:.2f} of Cycles' incident"
+        f"{rep['indirect_these_rays_point_over_cycles']:.3f}; "
+        f"direct is {rep['direct_share_cycles']:.2f} of Cycles' incident"
     )
     sel = m[row[i]]
     print(f"  {'hit':34s} rays  leaf read  point    (point - leaf) / Cycles' indirect   covered")

@@ -25,7 +25,9 @@ opt.update({k: type(opt[k])(v) for k, v in (a.split("=") for a in sys.argv[1:])}
 rs, (a, b), s, dyn, ours = BC.furnished()
 books = [n for n in rs.objects if "_book" in n]
 ref = {n: (a[n] + b[n]) / 2 for n in books}
-X, P, AX, TR, REF, OBJ, CLS, ZREL = BC.book_texels(rs, s, ours, ref, books, BC.book_boxes(rs), 0.002, grey=False)
+X, P, AX, TR, REF, OBJ, CLS, ZREL = BC.book_texels(
+    rs, s, ours, ref, books, BC.book_boxes(rs), 0.002, grey=False
+)
 keep = np.isin(CLS, (0, 8))
 X, P, REF, OBJ, CLS = (v[keep] for v in (X, P, REF, OBJ, CLS))
 pt, h = s.patches, s.h
@@ -46,7 +48,7 @@ def values_at(x, nrm, patch, depth, R, seed):
     g = FinalGather(dyn, x, nrm, patch, rays=1, shadow_rays=16, seed=seed)
     D = g.direct_and_emission(dyn)[0]
     if depth == 0:
-        I = _csr_matvec(*_rows(g, R, seed), Y)
+        Ind = _csr_matvec(*_rows(g, R, seed), Y)
     else:
         dirs = cosine_directions(g.normals, g.keys, R, seed, stream=0).reshape(-1, 3)
         row = np.repeat(np.arange(g.n), R)
@@ -61,8 +63,8 @@ def values_at(x, nrm, patch, depth, R, seed):
         val = np.where(h.dark(leaf, hit)[:, None], 0.0, Y[leaf])
         close = np.flatnonzero(t < opt["near"])
         val[close] = values_at(hit[close], pt.normal[hp[close]], hp[close], depth - 1, opt["inner"], seed + 1)
-        I = np.stack([np.bincount(row, val[:, c], g.n) for c in range(3)], 1) / R
-    inc = D + I
+        Ind = np.stack([np.bincount(row, val[:, c], g.n) for c in range(3)], 1) / R
+    inc = D + Ind
     inc[g.dark] = 0.0
     return g.rho * g.scaled(inc)
 
@@ -88,7 +90,14 @@ for depth in range(opt["depth"] + 1):
         (8, "side above, other columns", (1, 2, 3, 4, 5)),
     ):
         m = (CLS == c) & np.isin(ROW, rows)
-        rep[lab] = dict(texels=int(m.sum()), bake=gr(base[m]).sum() / gr(REF[m]).sum(), ours=gr(v[m]).sum() / gr(REF[m]).sum())
-        print(f"  {lab:28s} {m.sum():5d} texels: ours / Cycles {rep[lab]['ours']:.3f} (the bake's gather {rep[lab]['bake']:.3f})")
+        rep[lab] = dict(
+            texels=int(m.sum()),
+            bake=gr(base[m]).sum() / gr(REF[m]).sum(),
+            ours=gr(v[m]).sum() / gr(REF[m]).sum(),
+        )
+        print(
+            f"  {lab:28s} {m.sum():5d} texels: ours / Cycles {rep[lab]['ours']:.3f} "
+            f"(the bake's gather {rep[lab]['bake']:.3f})"
+        )
     report["levels"][depth] = rep
 C.write_json(os.path.join(BC.HERE, "out", "books_near.json"), report)

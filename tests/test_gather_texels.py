@@ -5,7 +5,7 @@ No bpy. Nothing here asserts on time; tolerances are justified where they are se
 
 import numpy as np
 
-from hr_addon.core.gather import texel_gather
+from hr_addon.core.gather import FinalGather, cosine_directions, locate_below, texel_gather
 from hr_addon.core.gather.bakepoints import bake_points
 from hr_addon.core.geometry import prepare_patches
 from hr_addon.core.radiosity import RadiositySystem
@@ -539,3 +539,76 @@ def test_slot_beside_a_longer_wall_against_path_tracing():
     tot = ours.sum() / ref.sum()
     print(f"slot {tot:.3f} of the path-traced light")
     assert 0.85 < tot < 1.3
+
+
+def _shelf():
+    """A shelf's cavity open at the front only: a grey board (0.8; 30 x 30 cm) under a black
+    one 3 cm above, closed by black boxes at the back and both sides, in the furnace room (walls
+    of radiance 1, reflecting nothing). The lower board's top is lit through the front, its light
+    falling off steeply towards the back."""
+    b = Builder()
+    v, f = box([-1.0, -1, -1], [1, 1, 1], 2)
+    b.add("room", v, [q[:, ::-1] for q in f], 0.0, (1.0, 1.0, 1.0))
+    b.add("low", *box([-0.15, -0.15, -0.02], [0.15, 0.15, 0.0]), 0.8)
+    b.add("up", *box([-0.15, -0.15, 0.03], [0.15, 0.15, 0.05]), 0.0)
+    b.add("back", *box([-0.15, 0.15, -0.02], [0.15, 0.17, 0.05]), 0.0)
+    b.add("left", *box([-0.17, -0.15, -0.02], [-0.15, 0.17, 0.05]), 0.0)
+    b.add("right", *box([0.15, -0.15, -0.02], [0.17, 0.17, 0.05]), 0.0)
+    return b.build()
+
+
+def _under_the_upper_board(s, y):
+    """Points on the upper board's underside at depths y, facing down: (points, normals, patch)."""
+    pt = s.patches
+    names = np.array(pt.object_names)[pt.object_id]
+    up = np.flatnonzero((names == "up") & (pt.normal[:, 2] < -0.5))
+    P = np.column_stack([np.zeros(len(y)), y, np.full(len(y), 0.03)])
+    return P, np.tile([0, 0, -1.0], (len(y), 1)), np.full(len(y), up[0])
+
+
+def test_rays_read_the_linear_function_a_leaf_s_samples_fit_at_their_hits():
+    """Two levels (FinalGather(levels=2)): the output's rays read a second-level leaf as the
+    linear function its gather samples fit, at each hit (FinalGather._read, slopes). With the
+    samples' values set to a linear function of position (through the direct term, no solution
+    behind), what the rays read must equal that function at the hits of the same rays, traced
+    here: exactly, up to float32 weights, on every leaf whose samples are all uncovered (the
+    others read their mean)."""
+    s = RadiositySystem(_shelf(), RefineParams.preset("draft"))
+    P, nrm, patch = _under_the_upper_board(s, np.linspace(-0.145, 0.1, 8))
+    g = FinalGather(s, P, nrm, patch, rays=256, shadow_rays=4, levels=2, slopes=True)
+    assert g.slopes and g.wu is not None and not g.second.slopes
+
+    def f(x):
+        return 2.0 + x @ np.array([5.0, 7.0, 3.0])  # 0.1-3.9 over the grey board
+
+    def direct(q):  # rho (D + 0) = f at the grey samples, 0 on black ones
+        return np.repeat((f(q.points) / np.maximum(q.rho[:, 0], 1e-30))[:, None], 3, 1)
+
+    L = g._levels(np.zeros((g.n_hr, 3)), direct)
+    ours = g._read(L)[:, 0]
+    # the same rays, traced here
+    h, pt = s.h, s.patches
+    R = g.rays
+    d = cosine_directions(g.normals, g.keys, R, g.seed, stream=0).reshape(-1, 3)
+    row = np.repeat(np.arange(g.n), R)
+    o = g.origins[row]
+    prim, t = g.first_hit(o, d)
+    hp = pt.triangle_patch[np.maximum(prim, 0)]
+    ok = (prim >= 0) & (np.einsum("ij,ij->i", d, pt.normal[hp]) < 0)
+    hit = o[ok] + t[ok, None] * d[ok]
+    leaf = locate_below(h, hp[ok], hit, g.n_hr)
+    lit = ~h.dark(leaf, hit)
+    used, _ = g._second_map
+    fitted = np.zeros(g.n_hr, bool)
+    fitted[used] = np.abs(g._slope_map[0]).sum((1, 2)) > 0
+    grey = pt.reflectance[0, h.patch[leaf]] > 0
+    val = np.where(fitted[leaf], f(hit) * grey, L[0][leaf, 0]) * lit
+    ref = np.bincount(row[ok], val, g.n) / R
+    print(
+        f"read {np.round(ours, 4)}\nhere {np.round(ref, 4)}; "
+        f"{fitted[leaf].mean():.2f} of the hits on fitted leaves"
+    )
+    means = np.bincount(row[ok], L[0][leaf, 0] * lit, g.n) / R  # what the means alone give
+    print(f"the means' read {np.round(means, 4)}")
+    assert fitted[leaf].mean() > 0.5 and np.abs(ours - means).max() > 0.01 * ours.max()
+    np.testing.assert_allclose(ours, ref, rtol=1e-4, atol=1e-6)

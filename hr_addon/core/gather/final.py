@@ -123,7 +123,7 @@ class FinalGather(DirectLight):
         open_edge=OPEN_EDGE,
         sample_rays=None,
         slot_area=None,
-        slopes=None,
+        slopes=False,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
@@ -157,11 +157,12 @@ class FinalGather(DirectLight):
         # hemisphere rays per sample where they differ (a texel's sub-samples share its rays)
         self.sample_rays = None if sample_rays is None else np.asarray(sample_rays, np.int64)
         self.batch_rays = int(batch_rays or self.BATCH_RAYS)
-        # slopes: the rays read a second level's leaf as the linear function its gather samples
-        # fit, at the hit, not as their mean (a ray lands where it lands: near a shelf's front the
-        # rays of a book beside it hit the front of its neighbour's top, lit, whose leaf's mean
-        # takes in its dark back); per entry also the hits' offsets in the leaf's frame (wu, wv)
-        self.slopes = (levels >= 2) if slopes is None else bool(slopes)
+        # slopes (two levels; off by default, docs/gather.md "The leaves' means at the shelves'
+        # fronts"): the rays read a second level's leaf as the linear function its gather samples
+        # fit, at the hit, not as their mean (near a shelf's front a book's rays hit the lit front
+        # of its neighbour's top, whose leaf's mean takes in its dark back); per entry also the
+        # hits' summed offsets in the leaf's frame (wu, wv)
+        self.slopes = bool(slopes) and levels >= 2
         if covered_hits not in ("zero", "shown"):
             raise ValueError("covered_hits must be 'zero' or 'shown'")
         # "zero": rays reaching a point contacts.py calls covered read 0 (values_at); "shown": they
@@ -236,10 +237,12 @@ class FinalGather(DirectLight):
                 threads=threads,
                 progress=progress,
                 open_edge=0.0,  # the leaves' values stand for their uncovered part, as exposure has it
-                slopes=levels > 2 or iterations > 0,  # its rays read a level below too
+                slopes=self.slopes and (levels > 2 or iterations > 0),  # its rays read a level below
             )
             self._second_map = (used, gw)
-            self._slope_map = _slope_fit(h, used, x, gw, self.second.dark.reshape(len(used), k2))
+            self._slope_map = (
+                _slope_fit(h, used, x, gw, self.second.dark.reshape(len(used), k2)) if self.slopes else None
+            )
             # Blender lights at the second level: the leaf's mean direct light integrated over the
             # leaf (lights.node_incident: finer where it is uneven, a spot's edge), not its 2 x 2
             # points (issue 20: the spot's bounce read 2% dark through them)
@@ -394,8 +397,8 @@ class FinalGather(DirectLight):
         if self.second is None:
             return (V, V, None, None)
         used, gw = self._second_map
-        A, ubar = self._slope_map
         g2 = self.second
+        fit = getattr(self, "_slope_map", None)  # None: the rays read the means (slopes off)
         w = gw * ~g2.dark.reshape(len(used), -1)
         ws = w.sum(1)
         ok = ws > 0
@@ -408,8 +411,12 @@ class FinalGather(DirectLight):
             y = (g2.rho * (D2 + g2._read(L))).reshape(len(used), -1, 3)
             Y = V.copy()
             Y[used[ok]] = np.einsum("uk,ukc->uc", w, y[ok])
+            if fit is None:
+                L = (Y, Y, None, None)
+                continue
             # the linear function the leaf's samples fit: its slopes along the leaf's frame, and
             # its value at the frame's origin (0 where a sample is covered: the mean alone)
+            A, ubar = fit
             G = np.einsum("uak,ukc->uac", A, y)
             Y0, Gu, Gv = Y.copy(), np.zeros_like(V), np.zeros_like(V)
             Y0[used] -= np.einsum("ua,uac->uc", ubar, G)
