@@ -123,3 +123,20 @@ def book_texels(rs, s, ours, ref, books, box, H, grey=True):
     out = [np.concatenate(v) for v in cols.values()]
     ok = np.isfinite(out[4]).reshape(len(out[4]), -1).all(1)  # texels Cycles' bake left out
     return [v[ok] for v in out]
+
+
+# the top and side-above texels by their row from the book's front (texels of 55 mm)
+FRONT_GROUPS = (
+    (0, "top, front row", (0,)),
+    (0, "top, other rows", (1, 2, 3, 4, 5)),
+    (8, "side above, front column", (0,)),
+    (8, "side above, other columns", (1, 2, 3, 4, 5)),
+)
+
+
+def front_rows(X, OBJ, texel=0.0553):
+    """(n,) each texel's row from its book's front (y grows from the front): 0 the front texel."""
+    front = {}
+    for k in range(len(X)):
+        front[OBJ[k]] = min(front.get(OBJ[k], np.inf), X[k, 1])
+    return np.rint((X[:, 1] - np.array([front[o] for o in OBJ])) / texel).astype(int)

@@ -100,19 +100,10 @@ def kind(k):
 KIND = np.array([kind(k) for k in range(len(i))])
 room = KIND == "room"
 KIND[room] = np.char.add("room: ", np.array([o.split("_")[0] for o in hobj[room]], dtype=str))
-# the texel's row from the book's front (y grows from the front, texels of 55 mm)
-front = {}
-for k in range(len(X)):
-    front[OBJ[k]] = min(front.get(OBJ[k], np.inf), X[k, 1])
-ROW = np.rint((X[:, 1] - np.array([front[o] for o in OBJ])) / 0.0553).astype(int)
+ROW = BC.front_rows(X, OBJ)
 cls_r = CLS[row[i]]
 report = {"options": opt}
-for c, lab, rows in (
-    (0, "top, front row", (0,)),
-    (0, "top, other rows", (1, 2, 3, 4, 5)),
-    (8, "side above, front column", (0,)),
-    (8, "side above, other columns", (1, 2, 3, 4, 5)),
-):
+for c, lab, rows in BC.FRONT_GROUPS:
     m = (CLS == c) & np.isin(ROW, rows)
     gr = lambda v: v.mean(-1)  # noqa: E731
     I_leaf = np.bincount(row[i], gr(read), g.n) / R

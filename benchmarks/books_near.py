@@ -31,10 +31,7 @@ X, P, AX, TR, REF, OBJ, CLS, ZREL = BC.book_texels(
 keep = np.isin(CLS, (0, 8))
 X, P, REF, OBJ, CLS = (v[keep] for v in (X, P, REF, OBJ, CLS))
 pt, h = s.patches, s.h
-front = {}
-for k in range(len(X)):
-    front[OBJ[k]] = min(front.get(OBJ[k], np.inf), X[k, 1])
-ROW = np.rint((X[:, 1] - np.array([front[o] for o in OBJ])) / 0.0553).astype(int)  # 0: the front texel
+ROW = BC.front_rows(X, OBJ)
 
 g0 = FinalGather(dyn, X, pt.normal[P], P, **BC.BASE)
 Y = g0.leaf_values(dyn)  # the second level's values the bake's rays read
@@ -83,12 +80,7 @@ for depth in range(opt["depth"] + 1):
     v = values_at(X, pt.normal[P], P, depth, opt["rays"], 4242)
     print(f"depth {depth}: {time.process_time() - t0:.0f} s CPU", flush=True)
     rep = {}
-    for c, lab, rows in (
-        (0, "top, front row", (0,)),
-        (0, "top, other rows", (1, 2, 3, 4, 5)),
-        (8, "side above, front column", (0,)),
-        (8, "side above, other columns", (1, 2, 3, 4, 5)),
-    ):
+    for c, lab, rows in BC.FRONT_GROUPS:
         m = (CLS == c) & np.isin(ROW, rows)
         rep[lab] = dict(
             texels=int(m.sum()),

@@ -157,11 +157,11 @@ class FinalGather(DirectLight):
         # hemisphere rays per sample where they differ (a texel's sub-samples share its rays)
         self.sample_rays = None if sample_rays is None else np.asarray(sample_rays, np.int64)
         self.batch_rays = int(batch_rays or self.BATCH_RAYS)
-        # slopes (two levels; off by default, docs/gather.md "The leaves' means at the shelves'
-        # fronts"): the rays read a second level's leaf as the linear function its gather samples
-        # fit, at the hit, not as their mean (near a shelf's front a book's rays hit the lit front
-        # of its neighbour's top, whose leaf's mean takes in its dark back); per entry also the
-        # hits' summed offsets in the leaf's frame (wu, wv)
+        # slopes (two levels; off by default, docs/gather.md "The books' fronts"): the rays read a
+        # second level's leaf as the linear function its gather samples fit, at the hit, not as
+        # their mean (near a shelf's front a book's rays hit the lit front of its neighbour's top,
+        # whose leaf's mean takes in its dark back); per entry also the hits' summed offsets in
+        # the leaf's frame (wu, wv)
         self.slopes = bool(slopes) and levels >= 2
         if covered_hits not in ("zero", "shown"):
             raise ValueError("covered_hits must be 'zero' or 'shown'")
@@ -388,7 +388,11 @@ class FinalGather(DirectLight):
         """(n_hr, 3) reflected radiance on the uncovered part of every HR leaf (0 elsewhere); with
         a second level, of the leaves the rays hit: the mean of their gather samples (exact direct
         light + the solution one bounce further) over the uncovered ones."""
-        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0])[0]
+        return self._leaf_levels(dyn)[0]
+
+    def _leaf_levels(self, dyn):
+        """_levels of the solution in effect and the current direct light."""
+        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0])
 
     def _levels(self, V, direct):
         """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
@@ -548,7 +552,7 @@ class FinalGather(DirectLight):
 
     def indirect(self, dyn):
         """(n, 3) I = W @ leaf_values: the solution's reflected radiance seen by the hemisphere."""
-        return self._read(self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0]))
+        return self._read(self._leaf_levels(dyn))
 
     # -- output ----------------------------------------------------------------------------------------
     def evaluate(self, dyn, kind="radiance"):
