@@ -45,7 +45,7 @@ def values_at(x, nrm, patch, depth, R, seed):
     g = FinalGather(dyn, x, nrm, patch, rays=1, shadow_rays=16, seed=seed)
     D = g.direct_and_emission(dyn)[0]
     if depth == 0:
-        Ind = _csr_matvec(*_rows(g, R, seed), Y)
+        Ind = _csr_matvec(*_rows(g, R, seed)[:3], Y)
     else:
         dirs = cosine_directions(g.normals, g.keys, R, seed, stream=0).reshape(-1, 3)
         row = np.repeat(np.arange(g.n), R)
