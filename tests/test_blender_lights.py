@@ -191,6 +191,34 @@ def test_live_follows_a_light_power_edit_as_a_scale_and_a_move(tmp_path):
     assert np.allclose(c, d, rtol=1e-4, atol=1e-5 * d.max())
 
 
+def test_a_world_edit_wakes_live(tmp_path):
+    """Under the World alone, editing its strength marks the Live session dirty from the depsgraph
+    handler (no hr.live_update call needed to notice it), and the next update doubles the values."""
+    bpy = _factory(tmp_path, world=True)
+    from hr_addon.blender import live
+
+    scene = bpy.context.scene
+    scene.hr.quality = "DRAFT"
+    bpy.data.objects.remove(bpy.data.objects["Light"])
+    cube = bpy.data.objects["Cube"]
+    live.start(scene)
+    try:
+        live.update(scene)
+        a = attribute(cube)[:, :3].copy()
+        assert a.min() > 0
+        sess = live.session(scene)
+        sess.dirty = False
+        bpy.context.view_layer.update()
+        assert not sess.dirty  # an evaluation with nothing edited leaves Live asleep
+        scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value *= 2
+        bpy.context.view_layer.update()
+        assert sess.dirty
+        live.update(scene)
+        assert np.allclose(attribute(cube)[:, :3], 2 * a, rtol=1e-5, atol=1e-7 * a.max())
+    finally:
+        live.stop(scene)
+
+
 def test_a_partial_bake_drops_frames_baked_with_other_lights(tmp_path):
     bpy = _factory(tmp_path)
     scene = bpy.context.scene
