@@ -233,6 +233,28 @@ def test_a_partial_bake_drops_frames_baked_with_other_lights(tmp_path):
     assert any("other Blender lights: 'Fill' is new" in w for w in res.warnings), res.warnings
 
 
+def test_a_partial_bake_rebakes_kept_frames_whose_light_changed(tmp_path):
+    """A lamp's power edited after a bake of frames 1-3, then frame 1 baked alone: frames 2-3 were
+    baked with the old power, so they are baked again (named in a warning), not kept stale. With
+    nothing edited, a partial bake keeps the other frames as they are."""
+    bpy = _factory(tmp_path)
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, 3
+    cube = bpy.data.objects["Cube"]
+    _bake(tmp_path, frames=(1, 3), final_gather=False)
+    res = _bake(tmp_path, frames=(1, 1), final_gather=False)
+    assert res.kept == 2 and not res.rebaked, res.warnings
+    scene.frame_set(2)
+    before = attribute(cube)[:, :3].copy()
+    bpy.data.lights["Light"].energy *= 2
+    res = _bake(tmp_path, frames=(1, 1), final_gather=False)
+    assert res.rebaked == [2, 3] and res.kept == 0, (res.rebaked, res.kept)
+    assert any("Frames 2-3 of the previous bake were baked with other light" in w for w in res.warnings)
+    scene.frame_set(1)
+    scene.frame_set(2)
+    assert np.allclose(attribute(cube)[:, :3], 2 * before, rtol=1e-5, atol=1e-7 * before.max())
+
+
 @pytest.mark.parametrize("final_gather", [True, False])
 def test_factory_scene_bakes_lit_textures(tmp_path, final_gather):
     """Texture output: the cube's baked image is lit where the light reaches (faces turned away: 0),
