@@ -395,6 +395,14 @@ def _environment_table(img):
     return image_reduced(img, reduce_table, _table_cache, 8)
 
 
+def _output_shader(world, reader=None):
+    """The shader node feeding the World's active output (None without one)."""
+    tree = world.node_tree
+    outs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"] if tree is not None else []
+    out = next((n for n in outs if n.is_active_output), outs[0] if outs else None)
+    return None if out is None else (reader or _Reader(world)).source(out.inputs["Surface"])[0]
+
+
 def read_world(world):
     """(colour (3,), strength, table (H, W, 3) or None, problems [str]) of the light a World gives
     a diffuse scene: a Background (or Emission) node into the active World Output, its Color
@@ -409,12 +417,8 @@ def read_world(world):
     tree = world.node_tree
     if tree is None or (bpy.app.version < (5, 0, 0) and not world.use_nodes):
         return np.array(world.color[:3], np.float64), 1.0, None, []
-    outs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]
-    out = next((n for n in outs if n.is_active_output), outs[0] if outs else None)
-    if out is None:
-        return black
     r = _Reader(world)
-    node, _ = r.source(out.inputs["Surface"])
+    node = _output_shader(world, r)
     problems = []
     if node is None or node.mute:
         return black
@@ -465,20 +469,48 @@ def world_sky(scene, Light, warnings=None):
     if world is None or not scene.hr.use_world:
         return {}
     colour, strength, table, problems = read_world(world)
+    suns = []
+    if problems:  # a setup the reader cannot follow: rendered with Cycles instead (world_probe)
+        colour, strength, table, suns, problems = _probed(world, colour, strength, problems)
     if not (strength > 0 and np.isfinite(strength)):
         return {}
     if problems and warnings is not None:
-        warnings.append(
-            f"World '{world.name}': {'; '.join(problems)} (the bake lights the scene with a uniform "
-            "sky of the colour it could read)."
+        what = "as rendered" if table is not None else "with a uniform sky of the colour it could read"
+        warnings.append(f"World '{world.name}': {'; '.join(problems)} (the bake lights the scene {what}).")
+    out = {}
+    for i, (d, irr, angle) in enumerate(suns):  # a Sky Texture's sun disc: a sun, exact shadow rays
+        top = float(irr.max())
+        out[f"world:sun{i}"] = Light(
+            "SUN", irr / top, strength * top, direction=-d, angle=angle, name=f"{world.name} (sun)"
         )
     if table is None:
-        if not colour.max() > 0:
-            return {}
-        return {"world": Light("SKY", colour, strength, name=world.name)}
+        if colour.max() > 0:
+            out["world"] = Light("SKY", colour, strength, name=world.name)
+        return out
     parts = environment_parts(table)
     keys = ["world"] if len(parts) == 1 else [f"world:{'RGB'[int(np.argmax(c))]}" for c, _ in parts]
-    return {k: Light("SKY", c, strength, sky=t, name=world.name) for k, (c, t) in zip(keys, parts)}
+    out.update({k: Light("SKY", c, strength, sky=t, name=world.name) for k, (c, t) in zip(keys, parts)})
+    return out
+
+
+def _probed(world, colour, strength, problems):
+    """read_world's result for a World it could not follow, replaced by its Cycles render
+    (world_probe): (colour, strength, table, suns, problems left). The output Background's own
+    Strength stays a separate scale when nothing feeds it; else the render carries it."""
+    from . import world_probe
+
+    node = _output_shader(world)
+    sock = node.inputs.get("Strength") if getattr(node, "type", "") in ("BACKGROUND", "EMISSION") else None
+    if sock is not None and sock.is_linked:
+        sock = None
+    try:
+        table, suns = world_probe.probe(world, sock)
+    except (RuntimeError, OSError) as exc:
+        return colour, strength, None, [], problems + [f"rendering it with Cycles failed ({exc})"]
+    left = []
+    if any(n.type == "LIGHT_PATH" for n in world.node_tree.nodes):
+        left.append("a Light Path node: the World is rendered as the camera sees it")
+    return np.ones(3), strength if sock is not None else 1.0, table, suns, left
 
 
 def world_lights(world):
@@ -504,7 +536,9 @@ def world_summary(scene):
         what = f"environment {table.shape[1]} x {table.shape[0]}"
     else:
         what = "uniform ({:.3g}, {:.3g}, {:.3g})".format(*colour)
-    return f"World '{world.name}': {what} x {strength:g}" + (" (setup not followed)" if problems else "")
+    if problems:  # world_sky renders it with Cycles for the bake; the panel does not
+        return f"World '{world.name}': a node setup rendered with Cycles for the bake"
+    return f"World '{world.name}': {what} x {strength:g}"
 
 
 def lights_signature(lights):
