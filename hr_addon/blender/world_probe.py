@@ -17,7 +17,7 @@ import tempfile
 
 import numpy as np
 
-from ..core.sky import TABLE_COLS, TABLE_ROWS, reduce_table
+from ..core.sky import TABLE_COLS, TABLE_ROWS, reduce_table, split_sun
 
 OVERSAMPLE = 4  # the table's render is 4x its size, reduced by solid-angle weighted block means
 DISC_SAMPLES = 64  # per pixel of the plane lit by a disc: within 0.3% of 1024 (measured)
@@ -179,13 +179,14 @@ def probe(world, strength_socket=None):
             node.sun_disc = False
         _camera_toward(scene, (1.0, 0.0, 0.0))  # the panorama's centre is +X, as an Environment Texture's
         px = _render(scene, folder, "sky", TABLE_COLS * OVERSAMPLE, TABLE_ROWS * OVERSAMPLE)
-        suns = []
+        rest, sun = split_sun(px)  # a sun in an image the setup turns or mixes (16 spp: a noisy one)
+        suns = [sun] if sun is not None else []
         for node in skies:  # (after the sky: the plane lit by a disc is not in the panorama)
             d = sun_direction(node)
             irr = _disc_irradiance(scene, folder, node, d)
             if irr.max() > 0:
                 suns.append((d, irr, float(node.sun_size)))
-        got = (reduce_table(px), suns)
+        got = (reduce_table(rest), suns)
     finally:
         for ob in list(scene.objects):
             data, store = ob.data, bpy.data.cameras if ob.type == "CAMERA" else bpy.data.meshes
