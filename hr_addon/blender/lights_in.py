@@ -511,7 +511,7 @@ def _probed(world, colour, strength, problems):
         sock = None
     try:
         table, suns = world_probe.probe(world, sock)
-    except (RuntimeError, OSError) as exc:
+    except (RuntimeError, OSError, AttributeError, KeyError, TypeError, ValueError) as exc:  # no crash
         return colour, strength, None, [], problems + [f"rendering it with Cycles failed ({exc})"]
     left = []
     if any(n.type == "LIGHT_PATH" for n in world.node_tree.nodes):
