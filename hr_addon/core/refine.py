@@ -227,7 +227,14 @@ class Refiner:
             # form factors (and visibility points) of partly covered nodes: from about 6 x 6
             # points on their exposed part (_exposed_grid)
             fp, seen = self._exposed_grid(part, ex[part])
-            self._vis_nodes, self._vis_pts = part, exposed_points(h, c, part, prm.vis_k, fp, seen)
+            # by blocks of nodes, each cut to its own largest count: exposed_points compares every
+            # sample point with every grid point, (N, vis_k^2, M, 3), 1.1 GB at once at 100k
+            vis_pts = []
+            for i, j in ranges(len(part), 1024):
+                m = max(int(seen[i:j].sum(1).max()), 1)
+                vis_pts.append(exposed_points(h, c, part[i:j], prm.vis_k, fp[i:j, :m], seen[i:j, :m]))
+            self._vis_nodes = part
+            self._vis_pts = np.concatenate(vis_pts) if vis_pts else np.zeros((0, prm.vis_k**2, 3))
             self._ff_pts, self._ff_ptr = fp[seen], np.r_[0, np.cumsum(seen.sum(1))]
             # the oracle estimates F from centres: a partly covered node's is that of its exposed
             # part (its own centre may lie under a box, behind the box's side)
