@@ -168,8 +168,11 @@ class FinalGather(DirectLight):
         def report(done, total):
             prog.update("gather rays", done, total, force=done == total)
 
-        parts = batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
-        self.indptr, self.cols, self.w = self.merge(parts)
+        # the batches' rows are a temporary: held on, they doubled this level's weights in memory
+        # while the lower levels are precomputed
+        self.indptr, self.cols, self.w = self.merge(
+            batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
+        )
         self.second = None
         self.iterations = int(iterations) if levels == 2 else 0
         if levels >= 2:
