@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import formfactor as ff
 
 _GOLD = np.uint64(0x9E3779B97F4A7C15)
 
@@ -247,7 +246,9 @@ class Emitter:
             n = np.take(self.tri_normal.T, kb, axis=1)
             xo = np.take(x.T, lb, axis=1)
             wn = _dot3(w, n)
-            tt = _dot3(np.take(self.tri[:, 0].T, kb, axis=1) - xo, n) / np.where(np.abs(wn) > 1e-300, wn, 1e-300)
+            tt = _dot3(np.take(self.tri[:, 0].T, kb, axis=1) - xo, n) / np.where(
+                np.abs(wn) > 1e-300, wn, 1e-300
+            )
             y[:, bsel] = xo + tt * w
         y = np.ascontiguousarray(y.T)
         small = ~big
