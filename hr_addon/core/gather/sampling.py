@@ -224,15 +224,23 @@ class Emitter:
         bsel = slice(None) if allbig else big
         y = np.empty((3, L * S))
         if big.any():
-            # the sample-independent part of Arvo's method once per point and triangle
-            alpha, ab, c_perp = _setup3(A, B, C)
+            # the sample-independent part of Arvo's method once per point and triangle that a
+            # sample picked (with many triangles most are picked by none of a point's samples)
             kb, lb = kk[bsel], li[bsel]
             j = lb * T + kb
-            row = lambda a: np.take(a.reshape(-1), j)
-            col = lambda a: np.take(a.reshape(3, -1), j, axis=1)
+            A2, B2, C2 = (v.reshape(3, -1) for v in (A, B, C))
+            if T > 2:
+                used = np.zeros(L * T, bool)
+                used[j] = True
+                pairs = np.flatnonzero(used)
+                j = (np.cumsum(used) - 1)[j]
+                A2, B2, C2 = (np.take(v, pairs, axis=1) for v in (A2, B2, C2))
+            alpha, ab, c_perp = _setup3(A2, B2, C2)
+            row = lambda a: np.take(a, j)
+            col = lambda a: np.take(a, j, axis=1)
             w = _arvo3(
-                col(A),
-                col(B),
+                col(A2),
+                col(B2),
                 s1.ravel()[bsel],
                 u[..., 1].ravel()[bsel],
                 ok_.ravel()[bsel],
