@@ -366,6 +366,7 @@ def _node_mean(h, nodes, light, backend, eps, rays, seed, unit, far, q):
 
 BRIGHT_LEAVES = 256  # bright_leaves: at most this many leaves are integrated explicitly
 BRIGHT_SHARE = 0.95  # ... and only when so few hold this share of a light's first bounce
+FAR_SIZES = 5.0  # leaf_bounce: a polygon this many times its size away is a point (its centroid)
 
 
 def bright_leaves(power, most=None, share=BRIGHT_SHARE):
@@ -392,7 +393,7 @@ def leaf_bounce(x, n, keys, corners, nv, radiance, backend, eps, rays=32, seed=0
     exact unoccluded form factor of each (horizon clipped) x the visible share from `rays` shadow
     rays per point, each to an area-uniform point of a polygon picked by form factor x radiance
     (so a point next to the polygons is as well estimated as a far one), the visible share
-    kernel-weighted. keys (N,): the points'
+    kernel-weighted and pooled over the point's rays. keys (N,): the points'
     random keys (gather.position_keys): the same values in any batching."""
 
     from .gather.sampling import hash_uniform
@@ -413,10 +414,32 @@ def leaf_bounce(x, n, keys, corners, nv, radiance, backend, eps, rays=32, seed=0
     a1 = 0.5 * np.linalg.norm(np.cross(c[:, 2] - c[:, 0], c[:, 3] - c[:, 0]), axis=1)
     area = a0 + a1
     split = a0 / np.maximum(area, 1e-300)  # share of triangle (0, 1, 2)
+    cen = (a0[:, None] * (c[:, 0] + c[:, 1] + c[:, 2]) + a1[:, None] * (c[:, 0] + c[:, 2] + c[:, 3])) / (
+        3 * np.maximum(area, 1e-300)[:, None]
+    )
     for s0 in range(0, len(x), chunk):
         xs, ns = x[s0 : s0 + chunk], n[s0 : s0 + chunk]
-        F = ff.point_to_polygon(xs[:, None], ns[:, None], c[None])
-        w = F.reshape(len(xs), m) * lum[None]
+        # only pairs where each faces the other (point_to_polygon would give them 0): a spot's
+        # footprint on a wall is behind most of the room's samples
+        ok = (np.einsum("lk,mk->lm", xs, nrm) > np.einsum("mk,mk->m", c[:, 0], nrm)[None] + eps) & (
+            np.einsum("mvk,lk->lmv", c, ns).max(2) > np.einsum("lk,lk->l", xs, ns)[:, None]
+        )
+        # far pairs (beyond FAR_SIZES x the polygon's size) by the point-to-point kernel at its
+        # centroid, the rest by the exact contour integral (most of the cost)
+        dc = cen[None] - xs[:, None]
+        d2 = np.einsum("lmk,lmk->lm", dc, dc)
+        far = ok & (d2 > FAR_SIZES**2 * area[None])
+        F = np.where(
+            far,
+            np.maximum(np.einsum("lmk,lk->lm", dc, ns), 0)
+            * np.maximum(-np.einsum("lmk,mk->lm", dc, nrm), 0)
+            * area[None]
+            / (np.pi * np.maximum(d2, 1e-300) ** 2),
+            0.0,
+        )
+        a, b = np.nonzero(ok & ~far)
+        F[a, b] = ff.point_to_polygon(xs[a], ns[a], c[b])
+        w = F * lum[None]
         W = w.sum(1)
         i = np.flatnonzero(W > 0)
         if len(i) == 0:
@@ -443,24 +466,23 @@ def leaf_bounce(x, n, keys, corners, nv, radiance, backend, eps, rays=32, seed=0
         y = p0 + (r * (1 - v[..., 1]))[..., None] * (p1 - p0) + (r * v[..., 1])[..., None] * (p2 - p0)
         o = xs[i] + eps * ns[i]
         vis = ~backend.occluded(np.broadcast_to(o[:, None], y.shape), y + eps * nrm[j])
-        # each polygon's visible share from its rays, kernel-weighted as its form factor is (each
-        # ray's kernel over the polygon's mean kernel pi F / A); a polygon no ray went to takes the
-        # point's share over all its rays
+        # the visible share, kernel-weighted as the form factor is: each ray's kernel over its
+        # polygon's mean kernel (pi F / A), pooled over the point's rays per channel (a share per
+        # polygon from its few rays, the rest taking the pooled one, read a back wall 10% bright
+        # through 32 rays on 130 leaves: the unsampled leaves are not the sampled ones' average)
         dv = y - o[:, None]
         r2 = np.maximum(np.einsum("lrk,lrk->lr", dv, dv), 1e-300)
         kern = np.maximum(np.einsum("lrk,lk->lr", dv, ns[i]), 0) * np.maximum(
             -np.einsum("lrk,lrk->lr", dv, nrm[j]), 0
         )
-        Fi = F.reshape(len(xs), m)[i]
+        Fi = F[i]
         q = kern / r2**2 * area[j] / (np.pi * np.maximum(np.take_along_axis(Fi, j, 1), 1e-300))
-        row = np.repeat(np.arange(len(i)), rays)
-        qv = np.zeros((len(i), m))
-        qs = np.zeros((len(i), m))
-        np.add.at(qv, (row, j.ravel()), (q * vis).ravel())
-        np.add.at(qs, (row, j.ravel()), q.ravel())
-        pooled = qv.sum(1) / np.maximum(qs.sum(1), 1e-300)
-        share = np.where(qs > 0, qv / np.where(qs > 0, qs, 1.0), pooled[:, None])
-        out[s0 + i] = (Fi * share) @ radiance
+        # per ray radiance / luminance: rays went to polygons in proportion to F x luminance, so
+        # the ratio's expectation is sum F L V / sum F L per channel (consistent; exact unoccluded)
+        qc = q[..., None] * (radiance / np.where(lum > 0, lum, 1.0)[:, None])[j]  # (l, rays, 3)
+        qs = qc.sum(1)
+        share = np.einsum("lr,lrc->lc", vis, qc) / np.where(qs > 0, qs, 1.0)
+        out[s0 + i] = (Fi @ radiance) * share
     return out
 
 
