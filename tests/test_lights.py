@@ -328,7 +328,8 @@ def test_node_incident_finds_a_holes_image_crossing_coarse_leaves():
     floor = leaves[s.patches.object_id[h.patch[leaves]] == 0]
     c = h.corners[floor][:, :, :2]
     share = np.prod(np.clip(np.minimum(c.max(1), hi) - np.maximum(c.min(1), lo), 0, None), 1) / h.area[floor]
-    got = rec.D[0, floor] / 0.5 / (abs(d[2]) / np.pi)  # unit strength: its lit share, as node_incident read it
+    # rho x unit direct light (irradiance / pi): the leaf's lit share as node_incident read it
+    got = rec.D[0, floor] / 0.5 / (abs(d[2]) / np.pi)
     assert (share > 0).sum() >= 6
     assert np.all(got[share > 0.01] > 0)
     assert np.allclose(got, share, atol=0.05), np.abs(got - share).max()

@@ -531,7 +531,8 @@ class FinalGather(DirectLight):
         return V
 
     def indirect(self, dyn):
-        """(n, 3) I = W @ leaf_values: the solution's reflected radiance seen by the hemisphere."""
+        """(n, 3) I = W @ leaf_values: the solution's reflected radiance seen by the hemisphere (a
+        Blender light's first bounce off a few bright leaves integrated apart: _light_bounce)."""
         Y = self.leaf_values(dyn)
         own = sum(self._light_bounce(rec, Y, rec.scale[None]) for rec in dyn.lights.values())
         return own + _csr_matvec(self.indptr, self.cols, self.w, Y, threads=self.threads)
