@@ -42,6 +42,8 @@ def run_one(size, cluster, quality, events):
     params = dataclasses.replace(preset, cluster=cluster)
     opts = DynamicRadiosity.gather_options(quality) if gathered else {}
     cpu = lambda: sum(resource.getrusage(resource.RUSAGE_SELF)[:2])  # user + system seconds
+    peak = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6  # GB so far (Linux: kB)
+    peaks = {}  # the process's high-water mark after each phase: which one raised it
     t0, c0 = time.perf_counter(), cpu()
     # progress to stderr: the parent keeps the last line when it stops a run at its time limit
     s = RadiositySystem(
@@ -50,8 +52,9 @@ def run_one(size, cluster, quality, events):
         progress=lambda p: print(f"{p.message} [{p.elapsed:.0f} s]", file=sys.stderr, flush=True),
     )
     build, build_cpu = time.perf_counter() - t0, cpu() - c0
-    build_rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6  # before the solve and events
+    build_rss = peak()  # before the solve and events
     s.solve()
+    peaks["solve"] = peak()
     r = s.build.refine
     out = dict(
         size=size,
@@ -90,6 +93,7 @@ def run_one(size, cluster, quality, events):
             out[f"{method.lower()}_event_s"] = time.perf_counter() - t1
             out[f"{method.lower()}_event_cpu_s"] = cpu() - c1
             out[f"{method.lower()}_iterations"] = rep.iterations
+            peaks[f"{method.lower()}_event"] = peak()
             del dyn
     rays = int(os.environ.get("HR_GATHER_RAYS", "0"))
     if rays:  # the final gather at the mesh's corners (hr_addon.core.gather.LoopGather)
@@ -99,8 +103,10 @@ def run_one(size, cluster, quality, events):
         window = LightShape(
             S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
         )
-        dyn = DynamicRadiosity(s.copy(), method="FE", **opts)
+        # the system itself, as a bake has one (copies above: the events start from the same base)
+        dyn = DynamicRadiosity(s, method="FE", **opts)
         dyn.add("w", window)
+        peaks["gather_system"] = peak()
         c1 = cpu()
         levels = int(os.environ.get("HR_GATHER_LEVELS", "1"))
         its = int(os.environ.get("HR_GATHER_ITERATIONS", "0"))
@@ -116,9 +122,11 @@ def run_one(size, cluster, quality, events):
         )
         out["gather_weights_mb"] = g.weights_bytes / 1e6
         out["gather_nnz"] = int(len(g.w))
+        peaks["gather_precompute"] = peak()
         c1 = cpu()
         g.loop_radiance(dyn)
         out["gather_first_evaluate_cpu_s"] = cpu() - c1  # direct light of every emitter
+        peaks["gather_first_evaluate"] = peak()
         c1 = cpu()
         g.loop_radiance(dyn)
         out["gather_evaluate_cpu_s"] = cpu() - c1  # a frame with no emitter changed: the matvec
@@ -135,8 +143,10 @@ def run_one(size, cluster, quality, events):
         c1 = cpu()
         g.loop_radiance(dyn)
         out["gather_moved_shape_evaluate_cpu_s"] = cpu() - c1  # the moved shape's direct light
+        peaks["gather_moved"] = peak()
         del dyn, g
-    out["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    out["peak_rss_gb"] = peak()
+    out["peak_after_gb"] = peaks
     print(json.dumps(out), flush=True)
 
 

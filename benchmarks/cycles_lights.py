@@ -4,6 +4,8 @@
 Run: .venv/bin/python benchmarks/cycles_lights.py [POINT|AREA|SPOT|SUN|SUN_HOLE|WORLD|WORLD_ENV ...] [--spp N]
      [--indirect]  (Cycles' direct light + our "Indirect only" values against the full Cycles bake)
      [--leaf-points N]  (the second level's N x N gather samples per HR leaf, default 2)
+     [--gather-seed N] [--rays N]  (the final gather's seed, default 0, and hemisphere rays per
+     texel, default 128: the spread over seeds is the gather's own noise)
      [--seeds 1,2,...]  (the reference: their mean; default 1,2)
      [--cache]  (Cycles' bakes kept in benchmarks/out/cycles_lights_cache/, git-ignored: a re-run
      with the same light, spp and seed reads them)
@@ -38,6 +40,11 @@ if __name__ == "__main__":
         i = args.index("--leaf-points")
         gather["leaf_points"] = int(args[i + 1])
         del args[i : i + 2]
+    for opt, key in (("--gather-seed", "seed"), ("--rays", "rays")):
+        if opt in args:
+            i = args.index(opt)
+            gather[key] = int(args[i + 1])
+            del args[i : i + 2]
     indirect = "--indirect" in args  # the "Indirect only (for EEVEE)" composite too
     args = [a for a in args if a not in ("--indirect", "--cache")]
     for kind in args or ["POINT"]:

@@ -7,6 +7,11 @@ states; docs/live.md, *Fixed costs cut*).
     .venv/bin/python benchmarks/live_replay.py replay states_draft.pkl --method FE --dump a.npz [--profile]
     .venv/bin/python benchmarks/live_replay.py compare a.npz b.npz
 
+`replay --parts` sums the process time of a few functions over edits 1.. (the direct light, its
+sampling, rays, form factors and clear-shaft test, the GMRES solves and their operator
+applications, the levels' matvecs, AUTO's first bounce, the coverage): cheaper than cProfile,
+whose per-call overhead inflates numpy-heavy code.
+
 Run `replay` from two checkouts (the script imports hr_addon from its own tree) on one recording
 to compare code states; `compare` prints, per edit, "bitwise" or the differences at the corners
 lit above 1e-3 of the brightest. Benchmarks print; no test asserts on time.
@@ -55,7 +60,46 @@ def record(quality, out):
     print(f"{len(states)} states -> {out}")
 
 
-def replay(path, method, dump=None, profile=False):
+PARTS = [  # (module, attribute, label) timed by --parts
+    ("hr_addon.core.gather.direct", "DirectLight.direct_light", "direct light"),
+    ("hr_addon.core.gather.sampling", "Emitter.sample_at", "  its sampling"),
+    ("hr_addon.core.gather.direct", "shape_form_factors", "  form factors (and AUTO's)"),  # two names
+    ("hr_addon.core.events.direct", "shape_form_factors", "  form factors (and AUTO's)"),  # of one function
+    ("hr_addon.core.planes", "ClearShafts.clear", "  clear-shaft test (and AUTO's)"),
+    ("hr_addon.core.solver", "_gmres", "response solves"),
+    ("hr_addon.core.solver", "Operator.gather", "  operator gathers"),
+    ("hr_addon.core.gather.final", "_csr_matvec", "levels' matvecs"),
+    ("hr_addon.core.events.direct", "FirstBounce.direct", "AUTO's first bounce"),
+    ("hr_addon.core.events.coverage", "Coverage.cover", "coverage"),
+]
+
+
+def _timed_parts():
+    """Wrap PARTS with process-time accumulators: {label: [seconds, calls]}."""
+    import importlib
+
+    acc = {}
+    for mod, attr, label in PARTS:
+        owner = importlib.import_module(mod)
+        *path, name = attr.split(".")
+        for p in path:
+            owner = getattr(owner, p)
+        f = getattr(owner, name)
+        acc.setdefault(label, [0.0, 0])
+
+        def timed(*a, _f=f, _k=label, **kw):
+            c0 = time.process_time()
+            try:
+                return _f(*a, **kw)
+            finally:
+                acc[_k][0] += time.process_time() - c0
+                acc[_k][1] += 1
+
+        setattr(owner, name, timed)
+    return acc
+
+
+def replay(path, method, dump=None, profile=False, parts=False):
     from hr_addon.blender.live_worker import RESPONSE_TOL
     from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.gather import LoopGather
@@ -70,6 +114,7 @@ def replay(path, method, dump=None, profile=False):
     )
     g = LoopGather(dyn, **d["gather"])
     print(f"build {time.process_time() - c0:.1f} s CPU", flush=True)
+    acc = _timed_parts() if parts else None
     prof = None
     if profile:
         import cProfile
@@ -77,6 +122,9 @@ def replay(path, method, dump=None, profile=False):
         prof = cProfile.Profile(time.process_time)
     out, rows = {}, []
     for i, (kind, shapes) in enumerate(d["states"]):
+        if acc is not None and i == 1:  # the first edit adds every shape: not a typical one
+            for v in acc.values():
+                v[:] = [0.0, 0]
         c0 = time.process_time()
         if prof:
             prof.enable()
@@ -99,6 +147,10 @@ def replay(path, method, dump=None, profile=False):
         f"{method}: all edits median {1000 * np.median(cpu):.1f} / p95 {1000 * np.percentile(cpu, 95):.1f} "
         f"ms CPU; geometry edits median {1000 * np.median(geo):.1f}; total {cpu.sum():.2f} s"
     )
+    if acc is not None:
+        print(f"edits 1..{len(cpu) - 1}: {cpu[1:].sum():.2f} s CPU; parts (s CPU, calls):")
+        for label, (t, n) in acc.items():
+            print(f"  {label:32s} {t:6.2f} {n:5d}")
     if dump:
         np.savez(dump, **out)
     if prof:
@@ -135,6 +187,7 @@ def main():
     p.add_argument("--method", default="FE")
     p.add_argument("--dump")
     p.add_argument("--profile", action="store_true")
+    p.add_argument("--parts", action="store_true", help="process time of a few functions (see PARTS)")
     c = sub.add_parser("compare")
     c.add_argument("a")
     c.add_argument("b")
@@ -143,7 +196,7 @@ def main():
         sys.path.insert(0, str(ROOT / "benchmarks"))
         record(args.quality, args.out)
     elif args.cmd == "replay":
-        replay(args.states, args.method, args.dump, args.profile)
+        replay(args.states, args.method, args.dump, args.profile, args.parts)
     else:
         compare(args.a, args.b)
 

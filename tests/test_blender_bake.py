@@ -194,11 +194,11 @@ def test_cancel_and_failure_keep_previous_bake(tmp_path, monkeypatch):
     # A failure in the middle of a bake (disk full, ...) leaves the previous bake too.
     calls = []
 
-    def failing_write(self, frame, arrays):
+    def failing_write(self, frame, arrays, *light):
         calls.append(frame)
         if len(calls) > 1:
             raise OSError("No space left on device")
-        return original(self, frame, arrays)
+        return original(self, frame, arrays, *light)
 
     original = bake_mod.CacheWriter.write
     monkeypatch.setattr(bake_mod.CacheWriter, "write", failing_write)

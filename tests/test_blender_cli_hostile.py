@@ -10,11 +10,10 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from test_blender_helpers import REPO_ROOT, SAMPLES, load_bpy, make_samples_module, open_sample
-from test_blender_cli import finish_cli, run_cli, start_cli
+from test_blender_cli import run_cli, start_cli
 
 pytestmark = pytest.mark.bpy
 

@@ -191,6 +191,34 @@ def test_live_follows_a_light_power_edit_as_a_scale_and_a_move(tmp_path):
     assert np.allclose(c, d, rtol=1e-4, atol=1e-5 * d.max())
 
 
+def test_a_world_edit_wakes_live(tmp_path):
+    """Under the World alone, editing its strength marks the Live session dirty from the depsgraph
+    handler (no hr.live_update call needed to notice it), and the next update doubles the values."""
+    bpy = _factory(tmp_path, world=True)
+    from hr_addon.blender import live
+
+    scene = bpy.context.scene
+    scene.hr.quality = "DRAFT"
+    bpy.data.objects.remove(bpy.data.objects["Light"])
+    cube = bpy.data.objects["Cube"]
+    live.start(scene)
+    try:
+        live.update(scene)
+        a = attribute(cube)[:, :3].copy()
+        assert a.min() > 0
+        sess = live.session(scene)
+        sess.dirty = False
+        bpy.context.view_layer.update()
+        assert not sess.dirty  # an evaluation with nothing edited leaves Live asleep
+        scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value *= 2
+        bpy.context.view_layer.update()
+        assert sess.dirty
+        live.update(scene)
+        assert np.allclose(attribute(cube)[:, :3], 2 * a, rtol=1e-5, atol=1e-7 * a.max())
+    finally:
+        live.stop(scene)
+
+
 def test_a_partial_bake_drops_frames_baked_with_other_lights(tmp_path):
     bpy = _factory(tmp_path)
     scene = bpy.context.scene
@@ -203,6 +231,28 @@ def test_a_partial_bake_drops_frames_baked_with_other_lights(tmp_path):
     res = _bake(tmp_path, frames=(1, 1), final_gather=False)
     assert not res.kept, res.warnings
     assert any("other Blender lights: 'Fill' is new" in w for w in res.warnings), res.warnings
+
+
+def test_a_partial_bake_rebakes_kept_frames_whose_light_changed(tmp_path):
+    """A lamp's power edited after a bake of frames 1-3, then frame 1 baked alone: frames 2-3 were
+    baked with the old power, so they are baked again (named in a warning), not kept stale. With
+    nothing edited, a partial bake keeps the other frames as they are."""
+    bpy = _factory(tmp_path)
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = 1, 3
+    cube = bpy.data.objects["Cube"]
+    _bake(tmp_path, frames=(1, 3), final_gather=False)
+    res = _bake(tmp_path, frames=(1, 1), final_gather=False)
+    assert res.kept == 2 and not res.rebaked, res.warnings
+    scene.frame_set(2)
+    before = attribute(cube)[:, :3].copy()
+    bpy.data.lights["Light"].energy *= 2
+    res = _bake(tmp_path, frames=(1, 1), final_gather=False)
+    assert res.rebaked == [2, 3] and res.kept == 0, (res.rebaked, res.kept)
+    assert any("Frames 2-3 of the previous bake were baked with other light" in w for w in res.warnings)
+    scene.frame_set(1)
+    scene.frame_set(2)
+    assert np.allclose(attribute(cube)[:, :3], 2 * before, rtol=1e-5, atol=1e-7 * before.max())
 
 
 @pytest.mark.parametrize("final_gather", [True, False])
@@ -265,9 +315,9 @@ def test_keyframed_light_visibility_and_power(tmp_path):
 
 def test_world_colour_environment_and_setups_not_followed(tmp_path):
     """The World as a sky (core/sky.py): a Background colour x strength; an equirectangular
-    Environment Texture reduced to a table (one light per channel when coloured); a setup the bake
-    cannot follow (a Mapping node on the texture's vector, a Sky Texture) gives its average colour
-    and one warning naming the World."""
+    Environment Texture reduced to a table (one light per channel when coloured); a setup the
+    reader cannot follow (a Mapping node on the texture's vector) rendered with Cycles; a Light Path
+    node, or a render that fails (then its average colour), named in one warning."""
     bpy = _factory(tmp_path, world=True)
     from hr_addon.blender.lights_in import world_sky
     from hr_addon.core.lights import Light
@@ -298,23 +348,90 @@ def test_world_colour_environment_and_setups_not_followed(tmp_path):
     # each half is half the sphere: channel means 0.5 (blue) and 0.25 (red), x strength 2
     assert np.allclose(b.scale, [0, 0, 1.0]) and np.allclose(r.scale, [0.5, 0, 0])
     assert np.allclose(b.sky[16:], 2.0) and np.allclose(b.sky[:16], 0.0)
-    # a Mapping node on the vector: the image's average colour, one warning naming the World
-    mp = tree.nodes.new("ShaderNodeMapping")
+    # a setup the reader does not follow is rendered with Cycles (world_probe): an image that varies
+    # round the horizon, turned a quarter about +Z by a Mapping node, is the direct table turned
+    ramp = np.tile(np.linspace(0.1, 1.0, 64, dtype=np.float32), (32, 1))
+    img.pixels.foreach_set(np.dstack([ramp] * 3 + [px[..., 3]]).ravel())
+    img.pack()
+    direct = world_sky(scene, Light, w)["world"]
+    coords, mp = tree.nodes.new("ShaderNodeTexCoord"), tree.nodes.new("ShaderNodeMapping")
+    tree.links.new(coords.outputs["Generated"], mp.inputs["Vector"])
     tree.links.new(mp.outputs["Vector"], env.inputs["Vector"])
+    mp.inputs["Rotation"].default_value = (0, 0, math.pi / 2)
     w = []
-    sky = world_sky(scene, Light, w)
+    turned = world_sky(scene, Light, w)
+    assert list(turned) == ["world"] and not w, w
+    assert np.allclose(turned["world"].scale, direct.scale, rtol=2e-3)
+    rel = np.abs(turned["world"].sky / np.roll(direct.sky, 16, 1) - 1)
+    seam = [15, 16]  # the image's edge u = 0 turned: the texture interpolates across it there
+    assert np.median(rel) < 1e-3 and np.delete(rel, seam, 1).max() < 0.02, rel.max(0)
+    # a Light Path trick renders as the camera sees it: named
+    tree.nodes.new("ShaderNodeLightPath")
+    w = []
+    world_sky(scene, Light, w)
+    assert len(w) == 1 and "Light Path" in w[0], w
+    # rendering failed (no Cycles): the average colour it could read, named
+    from hr_addon.blender import world_probe
+
+    def no_cycles(*a):
+        raise RuntimeError("no Cycles")
+
+    orig, world_probe.probe = world_probe.probe, no_cycles
+    try:
+        w = []
+        sky = world_sky(scene, Light, w)
+    finally:
+        world_probe.probe = orig
     assert list(sky) == ["world"] and sky["world"].sky is None
-    assert np.allclose(sky["world"].scale, [0.5, 0, 1.0])
-    assert len(w) == 1 and w[0].startswith("World 'World': the Environment Texture"), w
-    # a Sky Texture: the socket's own colour, named
-    st = tree.nodes.new("ShaderNodeTexSky")
-    tree.links.new(st.outputs["Color"], bg.inputs["Color"])
-    w = []
-    sky = world_sky(scene, Light, w)
-    assert len(w) == 1 and w[0].startswith("World 'World': ") and "Sky Texture" in w[0], w
-    assert np.allclose(sky["world"].scale, [0.4, 0.6, 0.8])
+    assert len(w) == 1 and "the Environment Texture" in w[0] and "rendering it with Cycles failed" in w[0], w
     scene.hr.use_world = False
     assert world_sky(scene, Light, w) == {}
+
+
+def test_sky_texture_is_a_rendered_sky_and_a_sun(tmp_path):
+    """A Sky Texture (Nishita): its sky rendered into the table, its sun disc a SUN light toward
+    the node's sun, whose irradiance equals what a Cycles bake of a white plane facing the sun gets
+    from the disc (the bake with the disc minus the bake without it), within 1%."""
+    bpy = _factory(tmp_path, world=True)
+    from mathutils import Vector
+
+    from hr_addon.blender.lights_in import world_sky
+    from hr_addon.core.lights import Light
+
+    scene = bpy.context.scene
+    for ob in list(scene.objects):
+        bpy.data.objects.remove(ob)
+    tree = scene.world.node_tree
+    bg = tree.nodes["Background"]
+    bg.inputs["Strength"].default_value = 0.5
+    st = tree.nodes.new("ShaderNodeTexSky")
+    tree.links.new(st.outputs["Color"], bg.inputs["Color"])
+    st.sun_elevation, st.sun_rotation = 0.6, 0.8
+    w = []
+    lights = world_sky(scene, Light, w)
+    assert not w and "world:sun0" in lights
+    assert any(k != "world:sun0" and lights[k].kind == "SKY" for k in lights)
+    sun = lights["world:sun0"]
+    d = np.array([math.cos(0.6) * math.sin(0.8), math.cos(0.6) * math.cos(0.8), math.sin(0.6)])
+    assert sun.kind == "SUN" and np.allclose(-sun.direction, d) and sun.angle == pytest.approx(st.sun_size)
+    bpy.ops.mesh.primitive_plane_add(size=0.1)
+    plane = bpy.context.object
+    plane.rotation_euler = Vector(d).to_track_quat("Z", "Y").to_euler()
+    mat = bpy.data.materials.new("white")
+    plane.data.materials.append(mat)
+    if mat.node_tree is None:  # (Blender < 5)
+        mat.use_nodes = True
+    mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (1, 1, 1, 1)
+    tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = bpy.data.images.new("bake", 4, 4, float_buffer=True)
+    mat.node_tree.nodes.active = tex
+    scene.render.engine, scene.cycles.samples, scene.cycles.device = "CYCLES", 64, "CPU"
+    baked = []
+    for on in (True, False):
+        st.sun_disc = on
+        bpy.ops.object.bake(type="DIFFUSE", pass_filter={"DIRECT"}, margin=0)
+        baked.append(np.array(tex.image.pixels[:]).reshape(-1, 4)[:, :3].mean(0))
+    np.testing.assert_allclose(sun.color * sun.strength / math.pi, baked[0] - baked[1], rtol=0.01)
 
 
 def test_keyframed_world_strength_is_a_scale_and_the_sky_is_shadowed(tmp_path):

@@ -9,7 +9,6 @@ import pytest
 
 from hr_addon.core import cluster as C
 from hr_addon.core import farlinks as FL
-from hr_addon.core import formfactor as ff
 from hr_testing import scenes
 from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape

@@ -148,7 +148,6 @@ def test_furnace_box_uniform(rho):
     s = RadiositySystem(scenes.closed_box(rho=rho, emission=(E, E, E)), RefineParams.preset("medium"))
     B = s.solve()
     lf = s.h.leaves()
-    a = s.h.area[lf]
     rel = B[:, lf] / (E / (1 - rho)) - 1
     assert s.report.energy_error < 1e-5 and s.report.escaped < 1e-3 * s.report.emitted  # closed
     assert np.abs(rel).max() < 0.005  # everywhere, not just on average
@@ -201,7 +200,7 @@ def test_black_emitter_plate_pointwise():
 
 def test_warm_start_reaches_the_cold_answer():
     s = RadiositySystem(scenes.cornell_box(), FAST)
-    cold = s.solve(warm=False).copy()
+    s.solve(warm=False)  # the solution the warm start begins from
     it_cold = s.report.iterations
     E = s.base_emission() * 1.1
     warm = s.solve(E, warm=True)

@@ -76,9 +76,9 @@ def test_the_cull_leaves_the_cornell_output_unchanged(method, monkeypatch):
 
 @pytest.mark.parametrize("method", ["FE", "AUTO"])
 def test_the_cull_leaves_the_furnished_output_unchanged(method, monkeypatch):
-    """The furnished 2k room (furniture, books, contacts; over 1024 triangles, so AUTO's first
-    bounce takes the grid too): a window in three places on its wall: bitwise equal with and
-    without the cull, which skipped some of the lit samples."""
+    """The furnished 2k room (furniture, books, contacts; AUTO's first bounce takes the grid too,
+    as at any size): a window in three places on its wall: bitwise equal with and without the
+    cull, which skipped some of the lit samples."""
     from hr_testing.furnished import furnished_room
 
     mesh, info = furnished_room("2k")

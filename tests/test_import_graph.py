@@ -11,7 +11,6 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parent.parent / "hr_addon"
 
 
-
 def _modules():
     """name -> (path, package parts the module's relative imports start from)"""
     mods = {}

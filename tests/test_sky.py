@@ -170,3 +170,49 @@ def test_indirect_only_leaves_out_the_direct_light_of_lamps_and_sky():
     full, ind = g.evaluate(dyn, "incident"), indirect_incident(g, dyn)
     direct = sum(g._light(r)[:, None] * r.scale for r in dyn.lights.values())
     assert ind.min() > 0 and np.allclose(ind, full - direct, atol=1e-6)
+
+
+def _sky_with_sun(H=1024, elevation=0.5, azimuth=0.7, radius=np.radians(0.4), sun=(2e4, 1.8e4, 1.6e4)):
+    """An equirectangular image: a uniform sky (0.5, 0.7, 1.0) and a sun disc of `radius` toward
+    (elevation, azimuth); -> (pixels, unit direction toward the sun)."""
+    d, _ = sky.pixel_directions(H, 2 * H)
+    to_sun = np.array(
+        [np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)]
+    )
+    px = np.broadcast_to(np.array([0.5, 0.7, 1.0]), d.shape).copy()
+    px[d @ to_sun > np.cos(radius)] = sun
+    return px, to_sun
+
+
+def test_a_sun_drawn_into_an_environment_is_split_off_as_a_sun():
+    """The sun's pixels become a sun: toward their centre (within a pixel), its irradiance their
+    light above the sky's (light conserved: the image's total is the rest's plus the sun's, to
+    rounding), a disc of their solid angle; the rest is the uniform sky. Checked against the pixel
+    directions of the test's own image (Blender's mapping, sky.directions_to_uv inverted)."""
+    px, to_sun = _sky_with_sun()
+    H, W = px.shape[:2]
+    _, omega = sky.pixel_directions(H, W)
+    u, v = sky.directions_to_uv(sky.pixel_directions(4, 8)[0])
+    assert np.allclose(u * 8 % 1, 0.5) and np.allclose(v * 4 % 1, 0.5)  # pixel centres, both ways
+    rest, got = sky.split_sun(px)
+    assert got is not None
+    d, irr, angle = got
+    assert np.degrees(np.arccos(min(d @ to_sun, 1.0))) < 180 / H  # within a pixel
+    total = np.tensordot(omega, px.sum(1), axes=(0, 0))
+    np.testing.assert_allclose(total, np.tensordot(omega, rest.sum(1), axes=(0, 0)) + irr, rtol=1e-12)
+    np.testing.assert_allclose(rest, np.broadcast_to([0.5, 0.7, 1.0], rest.shape))
+    disc = 2 * np.pi * (1 - np.cos(np.radians(0.4)))  # the drawn disc's solid angle, closed form
+    np.testing.assert_allclose(irr, (np.array([2e4, 1.8e4, 1.6e4]) - [0.5, 0.7, 1.0]) * disc, rtol=0.03)
+    assert angle == pytest.approx(np.radians(0.8), rel=0.02)
+
+
+def test_no_sun_is_split_from_a_sky_without_one_or_from_a_wide_bright_region():
+    """A smooth sky, a faint small spot (under 5% of the light) and a bright region wider than a
+    sun (a 12-degree window of an interior's HDR) stay in the table as they are."""
+    px, _ = _sky_with_sun(H=256, sun=(0.9, 0.9, 0.9))
+    assert sky.split_sun(px)[1] is None
+    px, _ = _sky_with_sun(H=256, radius=np.radians(0.7), sun=(80.0, 80.0, 80.0))
+    assert sky.split_sun(px)[1] is None  # 100 x the median but 0.3% of the light
+    px, _ = _sky_with_sun(H=256, radius=np.radians(12.0), sun=(500.0, 500.0, 500.0))
+    rest, sun = sky.split_sun(px)
+    assert sun is None and rest is not None and np.array_equal(rest, px)

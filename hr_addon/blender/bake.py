@@ -149,7 +149,7 @@ def bake_frames(
         run.intr.check()
         system, dyn, final = run.build(snap, params, min_area_rel, progress, total, final_dir, rebuild)
         writer, baker = run.open_writer(snap, params, system, final_dir)
-        todo = run.frames_todo(writer, baker, start, end)
+        todo = run.frames_todo(snap, writer, baker, start, end)
         yield from run.frame_loop(snap, todo, dyn, final, writer, baker)
         run.intr.check()  # the last moment a cancel keeps the previous bake
         try:  # under the cache folder's lock, with the texture files of kept frames (farms)
@@ -343,11 +343,23 @@ class _Bake:
         baker.bind(writer.tmp)
         return writer, baker
 
-    def frames_todo(self, writer, baker, start, end):
+    def frames_todo(self, snap, writer, baker, start, end):
         """The range, and frames of the previous bake that this one keeps but whose files are
-        missing or damaged: baked again (not kept, not dropped)."""
+        missing or damaged, or whose light changed since: baked again (not kept, not dropped)."""
         in_range = set(range(start, end + 1))
         damaged = writer.damaged_frames(in_range)
+        if snap.has_shapes or snap.has_lights:
+            relit = writer.relit_frames(in_range | set(damaged), lambda f: self.lights_at(snap, f, [])[2])
+            if relit:
+                self.warn(
+                    [
+                        f"Frames {frame_ranges(relit)} of the previous bake were baked with other "
+                        "light (light shapes, Blender lights or the World changed there since): "
+                        "baked them again."
+                    ]
+                )
+                in_range.update(relit)
+                self.result.rebaked = list(relit)
         if baker is not None:
             old, why = writer.previous()
             if old is not None and not why:
@@ -355,7 +367,7 @@ class _Bake:
                     baker.damaged_frames(writer.final, [f for f in old.frames if f not in in_range])
                 )
         if damaged:
-            self.result.rebaked = sorted(damaged)
+            self.result.rebaked = sorted(set(self.result.rebaked) | set(damaged))
             reasons = sorted(set(damaged.values()))
             self.warn(
                 [
@@ -422,9 +434,9 @@ class _Bake:
                 self.intr.check()
                 if baker is not None:
                     baker.write(f, values)
-                    writer.write(f, {})  # the frame's entry in the manifest (textures hold the values)
+                    writer.write(f, {}, sig)  # the frame's entry in the manifest (textures hold the values)
                 else:
-                    writer.write(f, values)
+                    writer.write(f, values, sig)
                 r.solved += 1
             prev_sig, prev_frame = sig, f
             new_w = self.warn(frame_warnings, f)

@@ -389,32 +389,42 @@ _table_cache = {}  # image key -> reduced table (H, W, 3): an HDR is read once, 
 
 
 def _environment_table(img):
-    """The reduced lat-long table (core.sky.reduce_table) of an image, or None without pixels."""
-    from ..core.sky import reduce_table
+    """(reduced lat-long table (core.sky.reduce_table), [its sun] or []) of an image, or None
+    without pixels: a sun drawn into the image is split off as a sun (core.sky.split_sun)."""
+    from ..core.sky import reduce_table, split_sun
 
-    return image_reduced(img, reduce_table, _table_cache, 8)
+    def reduce(px):
+        rest, sun = split_sun(px)
+        return reduce_table(rest), [sun] if sun is not None else []
+
+    return image_reduced(img, reduce, _table_cache, 8)
+
+
+def _output_shader(world, reader=None):
+    """The shader node feeding the World's active output (None without one)."""
+    tree = world.node_tree
+    outs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"] if tree is not None else []
+    out = next((n for n in outs if n.is_active_output), outs[0] if outs else None)
+    return None if out is None else (reader or _Reader(world)).source(out.inputs["Surface"])[0]
 
 
 def read_world(world):
-    """(colour (3,), strength, table (H, W, 3) or None, problems [str]) of the light a World gives
-    a diffuse scene: a Background (or Emission) node into the active World Output, its Color
+    """(colour (3,), strength, table (H, W, 3) or None, suns, problems [str]) of the light a World
+    gives a diffuse scene: a Background (or Emission) node into the active World Output, its Color
     unlinked (uniform), or fed by an equirectangular Environment Texture with its default vector
-    (the image reduced to a small table). Anything else is its average colour (an image's mean,
+    (the image reduced to a small table, a sun drawn into it split off: suns [(unit direction
+    toward it, irradiance (3,), angle)]). Anything else is its average colour (an image's mean,
     an RGB node, a mix of those; else the socket's own colour) and a problem naming it."""
     import bpy
 
-    black = (np.zeros(3), 0.0, None, [])
+    black = (np.zeros(3), 0.0, None, [], [])
     if world is None:
         return black
     tree = world.node_tree
     if tree is None or (bpy.app.version < (5, 0, 0) and not world.use_nodes):
-        return np.array(world.color[:3], np.float64), 1.0, None, []
-    outs = [n for n in tree.nodes if n.type == "OUTPUT_WORLD"]
-    out = next((n for n in outs if n.is_active_output), outs[0] if outs else None)
-    if out is None:
-        return black
+        return np.array(world.color[:3], np.float64), 1.0, None, [], []
     r = _Reader(world)
-    node, _ = r.source(out.inputs["Surface"])
+    node = _output_shader(world, r)
     problems = []
     if node is None or node.mute:
         return black
@@ -426,13 +436,13 @@ def read_world(world):
             + ("; its first Background node is used" if bg else "; it gives no light")
         )
         if bg is None:
-            return (*black[:3], problems)
+            return (*black[:4], problems)
         node = bg
     strength = r.value(node.inputs["Strength"])
     src, _ = r.source(node.inputs["Color"])
-    colour, table = None, None
+    colour, table, suns = None, None, []
     if src is not None and src.type == "TEX_ENVIRONMENT" and src.image is not None:
-        table = _environment_table(src.image)
+        table, suns = _environment_table(src.image) or (None, [])
         follow = src.projection == "EQUIRECTANGULAR" and not src.inputs["Vector"].is_linked
         if table is None:
             problems.append(f"the Environment Texture's image '{src.image.name}' has no pixels")
@@ -445,13 +455,14 @@ def read_world(world):
                 + (", its Vector input linked" if src.inputs["Vector"].is_linked else "")
                 + ") is taken as its image's average colour"
             )
-            colour, table = sphere_mean(table), None
+            colour = sphere_mean(table) + sum(irr for _, irr, _ in suns) / (4 * np.pi)
+            table, suns = None, []
     else:
         colour = r.color(node.inputs["Color"])
     problems += [w.split(": ", 1)[-1] for w in r.warnings]  # the reader names the "Material"
     if table is not None:
-        return np.ones(3), strength, table, problems
-    return colour, strength, None, problems
+        return np.ones(3), strength, table, suns, problems
+    return colour, strength, None, [], problems
 
 
 def world_sky(scene, Light, warnings=None):
@@ -464,28 +475,55 @@ def world_sky(scene, Light, warnings=None):
     world = scene.world
     if world is None or not scene.hr.use_world:
         return {}
-    colour, strength, table, problems = read_world(world)
+    colour, strength, table, suns, problems = read_world(world)
+    if problems:  # a setup the reader cannot follow: rendered with Cycles instead (world_probe)
+        colour, strength, table, suns, problems = _probed(world, colour, strength, problems)
     if not (strength > 0 and np.isfinite(strength)):
         return {}
     if problems and warnings is not None:
-        warnings.append(
-            f"World '{world.name}': {'; '.join(problems)} (the bake lights the scene with a uniform "
-            "sky of the colour it could read)."
+        what = "as rendered" if table is not None else "with a uniform sky of the colour it could read"
+        warnings.append(f"World '{world.name}': {'; '.join(problems)} (the bake lights the scene {what}).")
+    out = {}
+    for i, (d, irr, angle) in enumerate(suns):  # a sun disc or an HDR's sun: exact shadow rays
+        top = float(irr.max())
+        out[f"world:sun{i}"] = Light(
+            "SUN", irr / top, strength * top, direction=-d, angle=angle, name=f"{world.name} (sun)"
         )
     if table is None:
-        if not colour.max() > 0:
-            return {}
-        return {"world": Light("SKY", colour, strength, name=world.name)}
+        if colour.max() > 0:
+            out["world"] = Light("SKY", colour, strength, name=world.name)
+        return out
     parts = environment_parts(table)
     keys = ["world"] if len(parts) == 1 else [f"world:{'RGB'[int(np.argmax(c))]}" for c, _ in parts]
-    return {k: Light("SKY", c, strength, sky=t, name=world.name) for k, (c, t) in zip(keys, parts)}
+    out.update({k: Light("SKY", c, strength, sky=t, name=world.name) for k, (c, t) in zip(keys, parts)})
+    return out
+
+
+def _probed(world, colour, strength, problems):
+    """read_world's result for a World it could not follow, replaced by its Cycles render
+    (world_probe): (colour, strength, table, suns, problems left). The output Background's own
+    Strength stays a separate scale when nothing feeds it; else the render carries it."""
+    from . import world_probe
+
+    node = _output_shader(world)
+    sock = node.inputs.get("Strength") if getattr(node, "type", "") in ("BACKGROUND", "EMISSION") else None
+    if sock is not None and sock.is_linked:
+        sock = None
+    try:
+        table, suns = world_probe.probe(world, sock)
+    except (RuntimeError, OSError, AttributeError, KeyError, TypeError, ValueError) as exc:  # no crash
+        return colour, strength, None, [], problems + [f"rendering it with Cycles failed ({exc})"]
+    left = []
+    if any(n.type == "LIGHT_PATH" for n in world.node_tree.nodes):
+        left.append("a Light Path node: the World is rendered as the camera sees it")
+    return np.ones(3), strength if sock is not None else 1.0, table, suns, left
 
 
 def world_lights(world):
     """True if `world` lights a render: its background, as read_world reads it, is not black."""
     if world is None:
         return False
-    colour, strength, table, _ = read_world(world)
+    colour, strength, table, *_ = read_world(world)
     return bool(strength > 0 and np.isfinite(strength) and (table is not None or colour.max() > 0))
 
 
@@ -499,12 +537,14 @@ def world_summary(scene):
     world = scene.world
     if world is None:
         return "World: none"
-    colour, strength, table, problems = read_world(world)
+    colour, strength, table, suns, problems = read_world(world)
     if table is not None:
-        what = f"environment {table.shape[1]} x {table.shape[0]}"
+        what = f"environment {table.shape[1]} x {table.shape[0]}" + (" and its sun" if suns else "")
     else:
         what = "uniform ({:.3g}, {:.3g}, {:.3g})".format(*colour)
-    return f"World '{world.name}': {what} x {strength:g}" + (" (setup not followed)" if problems else "")
+    if problems:  # world_sky renders it with Cycles for the bake; the panel does not
+        return f"World '{world.name}': a node setup rendered with Cycles for the bake"
+    return f"World '{world.name}': {what} x {strength:g}"
 
 
 def lights_signature(lights):

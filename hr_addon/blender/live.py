@@ -177,8 +177,8 @@ def on_depsgraph_update(scene, depsgraph=None):
             name = getattr(idd, "original", idd).name_full
             geometry |= name in sess.geo_materials
             full |= name not in sess.shape_materials
-        elif kind.endswith("Light"):  # a Blender light's data (energy, colour, cone, size)
-            dirty = True
+        elif kind.endswith("Light") or kind == "World":  # a light's data; the sky (Blender < 5 can
+            dirty = True  # colour a World without a node tree: then no NodeTree update comes)
         elif kind.endswith("NodeTree") and getattr(idd, "is_embedded_data", False):
             dirty = True  # a material's own tree: its Material is in the updates too
         elif kind.endswith(_GEOMETRY_KINDS):

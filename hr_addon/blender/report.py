@@ -91,7 +91,7 @@ class BakeResult:
     solved: int = 0  # frames that needed a new solution
     reused: int = 0  # frames identical to the previous one
     kept: int = 0  # frames of the previous bake kept outside the range
-    rebaked: list = field(default_factory=list)  # damaged frames of the previous bake baked again
+    rebaked: list = field(default_factory=list)  # previous bake's frames baked again: damaged or relit
     warnings: list = field(default_factory=list)  # each warning once (first text); see warning_lines
     log: object = None  # the Warnings collector (counts and frames of repeats)
     build_seconds: float = 0.0
@@ -113,7 +113,7 @@ class BakeResult:
         return f"rays: {self.rays}" + (f" ({self.rays_note})" if self.rays_note else "")
 
     def summary(self):
-        again = f", {len(self.rebaked)} damaged re-baked" if self.rebaked else ""
+        again = f", {len(self.rebaked)} re-baked (damaged or relit)" if self.rebaked else ""
         return (
             f"baked frames {self.frames[0]}-{self.frames[1]} into {self.cache_dir}: "
             f"{self.solved} solved, {self.reused} unchanged, {self.kept} kept from the previous bake{again} "

@@ -76,6 +76,57 @@ def reduce_table(pixels, rows=TABLE_ROWS, cols=TABLE_COLS):
     return num / den
 
 
+SUN_CONTRAST = 100.0  # a sun's pixels are this many times brighter than the sky's median
+SUN_SHARE = 0.05  # ... and carry at least this share of the sky's light (else nothing is split off)
+SUN_RADIUS = np.radians(5.0)  # ... within this of the brightest pixel (a sun, not a bright region)
+
+
+def pixel_directions(H, W):
+    """(H, W, 3) unit directions of an equirectangular image's pixel centres, (H,) solid angle of a
+    pixel per row (row 0 at the bottom, Blender's mapping: directions_to_uv inverted)."""
+    v = (np.arange(H) + 0.5) / H
+    u = (np.arange(W) + 0.5) / W
+    lat = (v - 0.5) * np.pi
+    lon = (0.5 - u) * 2 * np.pi
+    cl = np.cos(lat)[:, None]
+    d = np.stack(np.broadcast_arrays(cl * np.cos(lon), cl * np.sin(lon), np.sin(lat)[:, None]), -1)
+    return d, row_weights(H) * 2 * np.pi / W
+
+
+def split_sun(pixels):
+    """(pixels without the sun, sun or None) of an equirectangular image (H, W, 3), row 0 at the
+    bottom. A sun is the pixels within SUN_RADIUS of the brightest one that are SUN_CONTRAST times
+    the median's luminance, when they carry SUN_SHARE of the image's light and none that bright
+    lies within twice that radius outside them (a bright region that wide is left in the table,
+    a window or a lamp of an interior's HDR, not a sun): (unit direction toward
+    it, irradiance (3,) at normal incidence, angular diameter of a disc of their solid angle). Its
+    pixels are replaced by the median colour of the sky around it (within twice that radius), so
+    the table keeps the sky and the sun gets exact shadow rays: drawn into a table cell of 5.6
+    degrees it would be seen by one cosine-weighted sky ray in hundreds."""
+    px = np.asarray(pixels, np.float64)
+    H, W = px.shape[:2]
+    y = px @ np.array([0.2126, 0.7152, 0.0722])
+    d, omega = pixel_directions(H, W)
+    med = float(np.median(y))
+    top = np.unravel_index(np.argmax(y), y.shape)
+    cos_top = d @ d[top]
+    bright = y > SUN_CONTRAST * max(med, 1e-12)
+    sun = bright & (cos_top > np.cos(SUN_RADIUS))
+    ring = ~sun & (cos_top > np.cos(2 * SUN_RADIUS))
+    flux = y * omega[:, None]
+    if not sun.any() or flux[sun].sum() < SUN_SHARE * flux.sum() or (bright & ring).any():
+        return px, None  # no sun, a faint one, or a bright region wider than a sun (a window)
+    w = omega[:, None] * sun
+    fill = np.median(px[ring], axis=0) if ring.any() else np.zeros(3)
+    irr = np.tensordot(w, np.clip(px - fill, 0, None), axes=([0, 1], [0, 1]))  # the sky stays behind
+    centre = np.tensordot(flux * sun, d, axes=([0, 1], [0, 1]))
+    solid = float(w.sum())
+    out = px.copy()
+    out[sun] = fill
+    angle = 2 * np.arccos(max(1 - solid / (2 * np.pi), -1.0))  # a cap of that solid angle
+    return out, (centre / np.linalg.norm(centre), irr, float(angle))
+
+
 def environment_parts(table_rgb):
     """[(colour (3,), normalised table (H, W))]: the sky lights of an RGB table (H, W, 3). One part
     when the channels are equal up to a scale (within GREY_TOL of the largest), else one per

@@ -243,17 +243,22 @@ class CacheWriter:
         self.bake_id = new_bake_id()
         self.frame_ids = {}  # frame file -> bake id, for files kept from the previous bake
         self.frames = {}
+        self.lights = {}  # frame -> digest of its light (light shapes, Blender lights, World)
         self.kept = 0
         self.messages = []
 
-    def write(self, frame, arrays):
+    def write(self, frame, arrays, light=None):
         name = frame_filename(frame)
         write_frame(self.tmp / name, arrays, self.bake_id)
         self.frames[int(frame)] = name
+        if light is not None:
+            self.lights[int(frame)] = light
         return name
 
     def reuse(self, frame, prev_frame):
         self.frames[int(frame)] = self.frames[int(prev_frame)]
+        if int(prev_frame) in self.lights:
+            self.lights[int(frame)] = self.lights[int(prev_frame)]
 
     def _manifest_now(self):
         return dict(
@@ -289,6 +294,18 @@ class CacheWriter:
             if seen[name]:
                 out[f] = seen[name]
         return out
+
+    def relit_frames(self, baking, light_at):
+        """Frames of the previous bake that this bake would keep (not in `baking`) but whose light
+        differs now: light_at(frame) gives the frame's light digest as write() takes it. A light
+        edited after a bake (a lamp's power, a shape's keyframes) leaves the kept frames stale; the
+        bake re-bakes them instead. Frames of caches from before the digests are not checked."""
+        old, why = self.previous()
+        if old is None or why:
+            return []
+        sigs = old.manifest.get("frame_lights") or {}
+        todo = [f for f in sorted(old.frames) if f not in baking and f not in self.frames and str(f) in sigs]
+        return [f for f in todo if light_at(f) != sigs[str(f)]]
 
     def _merge_previous(self):
         old, why = self.previous()
@@ -328,6 +345,8 @@ class CacheWriter:
                 # a kept file holds the previous bake's id ("": none, a cache of an earlier version)
                 self.frame_ids[dst] = ids.get(name, "")
             self.frames[f] = renamed[name]
+            if str(f) in old.manifest.get("frame_lights", {}):
+                self.lights[f] = old.manifest["frame_lights"][str(f)]
             self.kept += 1
         if lost:
             self.messages.append(
@@ -356,6 +375,8 @@ class CacheWriter:
             frame_ids=dict(sorted(self.frame_ids.items())),
             files=sorted(set(files) | {MANIFEST}),
         )
+        if self.lights:
+            manifest["frame_lights"] = {str(k): v for k, v in sorted(self.lights.items())}
         write_json(self.tmp / MANIFEST, manifest)
         stuck = swap_in(self.tmp, self.final)
         if stuck:

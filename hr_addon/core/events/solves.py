@@ -49,5 +49,6 @@ class Solves:
             tol=self.response_tol if response else self.tol,
             op=op,
             energy=not response,
+            verify=not response,  # a response's own check would be one gather in ten (Live, Cornell)
         )
         return np.maximum(B, 0.0), rep

@@ -36,9 +36,9 @@ class DirectLight:
         if em.normal is not None:
             ok &= (x - em.point) @ em.normal > eps
         top = np.full(len(x), -np.inf)
+        xn = np.einsum("mk,mk->m", x, nx)[:, None]
         for s0 in range(0, len(em.verts), 64):
-            v = em.verts[s0 : s0 + 64]
-            top = np.maximum(top, (nx @ v.T - np.einsum("mk,mk->m", x, nx)[:, None]).max(1))
+            top = np.maximum(top, (nx @ em.verts[s0 : s0 + 64].T - xn).max(1))
         ok &= top > eps
         i = np.flatnonzero(ok)
         if len(i) == 0:

@@ -202,8 +202,11 @@ class FinalGather(DirectLight):
         def report(done, total):
             prog.update("gather rays", done, total, force=done == total)
 
-        parts = batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
-        self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(parts)
+        # the batches' rows are a temporary: held on, they doubled this level's weights in memory
+        # while the lower levels are precomputed
+        self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(
+            batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
+        )
         self.second = None
         self.iterations = int(iterations) if levels == 2 else 0
         if levels >= 2:
@@ -399,45 +402,103 @@ class FinalGather(DirectLight):
         direct(g) -> (g.n, 3) direct light at a level's samples: V itself with one level; with
         more, the lower levels' gathers (linear in V and the direct light)."""
         if self.second is None:
-            return (V, V, None, None)
-        used, gw = self._second_map
+            return (V, None, None, None)
         g2 = self.second
         fit = getattr(self, "_slope_map", None)  # None: the rays read the means (slopes off)
-        w = gw * ~g2.dark.reshape(len(used), -1)
-        ws = w.sum(1)
-        ok = ws > 0
-        w = w[ok] / ws[ok, None]
         D2 = direct(g2)
         L = g2._levels(V, direct)  # levels > 2: its own levels
         # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
         # direct light): every pass moves the solution one bounce further away
         for _ in range(1 + self.iterations):
-            y = (g2.rho * (D2 + g2._read(L))).reshape(len(used), -1, 3)
-            Y = V.copy()
-            Y[used[ok]] = np.einsum("uk,ukc->uc", w, y[ok])
+            y = g2.rho * (D2 + g2._read(L))
+            Y = self._leaf_means(y, V)
             if fit is None:
-                L = (Y, Y, None, None)
+                L = (Y, None, None, None)
                 continue
             # the linear function the leaf's samples fit: its slopes along the leaf's frame, and
-            # its value at the frame's origin (0 where a sample is covered: the mean alone)
+            # S, the slopes times the mean's position (the mean minus S: its value at the frame's
+            # origin; 0 where a sample is covered: the mean alone)
+            used = self._second_map[0]
             A, ubar = fit
-            G = np.einsum("uak,ukc->uac", A, y)
-            Y0, Gu, Gv = Y.copy(), np.zeros_like(V), np.zeros_like(V)
-            Y0[used] -= np.einsum("ua,uac->uc", ubar, G)
+            G = np.einsum("uak,ukc->uac", A, y.reshape(len(used), -1, 3))
+            S, Gu, Gv = np.zeros_like(V), np.zeros_like(V), np.zeros_like(V)
+            S[used] = np.einsum("ua,uac->uc", ubar, G)
             Gu[used], Gv[used] = G[:, 0], G[:, 1]
-            L = (Y, Y0, Gu, Gv)
+            L = (Y, S, Gu, Gv)
         return L
 
     def _read(self, L):
-        """(n, 3) what the rays read of leaf values L = (mean, value at the frame's origin, slopes
-        along e1 and e2; _levels): the means, or with slopes the linear function at the hits."""
-        Y, Y0, Gu, Gv = L
+        """(n, 3) what the rays read of leaf values L = (means Y, S, slopes along e1 and e2;
+        _levels): the means, or with slopes the linear function at the hits (Y - S at the frame's
+        origin; Y may be changed in place after _levels, _light_bounce)."""
+        Y, S, Gu, Gv = L
         if getattr(self, "wu", None) is None or Gu is None:
             return _csr_matvec(self.indptr, self.cols, self.w, Y, threads=self.threads)
         return sum(
             _csr_matvec(self.indptr, self.cols, w, v, threads=self.threads)
-            for w, v in ((self.w, Y0), (self.wu, Gu), (self.wv, Gv))
+            for w, v in ((self.w, Y - S), (self.wu, Gu), (self.wv, Gv))
         )
+
+    def _leaf_means(self, y, V):
+        """V (n_hr, 3) with the leaves that have second-level samples set to the mean of those
+        samples' values y (second.n, 3) over their uncovered ones."""
+        used, gw = self._second_map
+        w = gw * ~self.second.dark.reshape(len(used), -1)
+        ws = w.sum(1)
+        ok = ws > 0
+        out = V.copy()
+        out[used[ok]] = np.einsum("uk,ukc->uc", w[ok] / ws[ok, None], y.reshape(len(used), -1, 3)[ok])
+        return out
+
+    def _light_bounce(self, rec, Y, scale=1.0):
+        """A Blender light's first bounce off the few HR leaves that hold it (a sun through a small
+        opening: lights.bright_leaves), integrated at the samples explicitly (lights.leaf_bounce)
+        and taken out of the leaf values Y (n_hr, 3) the hemisphere rays read (in place, Y holding
+        the light at `scale`). -> (n, 3) incident light at that scale, or 0.0. The rays found such a
+        patch a few times per texel: a surface's mean scattered by +-2.5% with the gather's seed.
+        Per unit scale, cached per light geometry; the top level only (the second level's samples
+        are one bounce further)."""
+        if self.second is None:
+            return 0.0
+        from .. import lights as lt
+
+        cache = self.__dict__.setdefault("_bounce_cache", {})
+        got = cache.get(rec.geom_key)
+        if got is None:
+            h = self.system.h
+            g2 = self.second
+            # the leaves' first bounce as the rays read it: the second level's samples' mean where
+            # a leaf has them, else the hierarchy's (rec.D: the same direct light, a leaf's mean)
+            Y1 = np.zeros((self.n_hr, 3))
+            if getattr(rec, "D", None) is not None:
+                Y1 = rec.D[:, : self.n_hr].T.copy()
+            Y1 = self._leaf_means(g2.rho * g2._light(rec)[:, None], Y1)
+            ex = h.exposure[: self.n_hr].astype(np.float64)
+            idx = lt.bright_leaves(Y1.mean(1) * h.area[: self.n_hr] * ex)
+            B = np.zeros((self.n, 3))
+            ok = np.flatnonzero(~self.dark)
+            if len(idx) and len(ok):
+                # the leaf's value is its uncovered part's mean: spread over its whole polygon
+                B[ok] = lt.leaf_bounce(
+                    self.points[ok],
+                    self.normals[ok],
+                    self.keys[ok],
+                    h.corners[idx],
+                    h.nv[idx],
+                    Y1[idx] * ex[idx, None],
+                    self.system.backend,
+                    self.eps,
+                    rays=self.shadow_rays,
+                    seed=self.seed,
+                )
+            got = cache[rec.geom_key] = (idx, Y1[idx], B)
+            for k in list(cache)[: max(len(cache) - 16, 0)]:
+                del cache[k]
+        idx, Y1, B = got
+        if len(idx) == 0:
+            return 0.0
+        Y[idx] = np.maximum(Y[idx] - scale * Y1, 0.0)
+        return B * scale
 
     def solution_values(self, dyn):
         """(n_hr, 3) the solution's reflected radiance on the uncovered part of every HR leaf."""
@@ -518,7 +579,8 @@ class FinalGather(DirectLight):
                     return np.repeat(g._light(rec)[:, None].astype(np.float64), 3, 1)
 
                 Y = self._levels(self._values_from(h, X), unit)
-                part = unit(self) + self._read(Y)
+                part = unit(self) + self._light_bounce(rec, Y[0])
+                part += self._read(Y)
                 self._responses[k] = part.astype(np.float32)
             total += rec.scale[None] * self._responses[k]
         gone = [k for k in self._responses if k not in live]
@@ -551,8 +613,11 @@ class FinalGather(DirectLight):
         return V
 
     def indirect(self, dyn):
-        """(n, 3) I = W @ leaf_values: the solution's reflected radiance seen by the hemisphere."""
-        return self._read(self._leaf_levels(dyn))
+        """(n, 3) I = W @ leaf_values: the solution's reflected radiance seen by the hemisphere (a
+        Blender light's first bounce off a few bright leaves integrated apart: _light_bounce)."""
+        L = self._leaf_levels(dyn)
+        own = sum(self._light_bounce(rec, L[0], rec.scale[None]) for rec in dyn.lights.values())
+        return own + self._read(L)
 
     # -- output ----------------------------------------------------------------------------------------
     def evaluate(self, dyn, kind="radiance"):
