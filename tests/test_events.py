@@ -296,7 +296,7 @@ def test_auto_first_bounce_beats_links(base, samples):
     assert rel(ar_pts[0] - ar_pts[1], fe_pts[0] - fe_pts[1]) < 1e-6
 
 
-# -- planes, objects, bad input -------------------------------------------------------------------------------
+# -- planes, objects, bad input ------------------------------------------------------------------------------
 def test_shape_spanning_two_objects_in_one_plane():
     sb = scenes.SceneBuilder()
     sb.add_quad("floor_a", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], (0.5, 0.5, 0.5))

@@ -8,11 +8,12 @@ link, and links per input polygon stay roughly constant as the scene grows.
 
 Structure. Patches are first split into six orientation classes (dominant axis and sign of their
 normal) and each class into a binary bounding-volume hierarchy (split at the middle of the longest
-axis of the centroids' box, at the median when one side would be empty) down to leaf clusters of at most `leaf_size` patches. So every
-cluster holds faces of similar orientation, as in face clusters (Willmott, Heckbert & Garland
-1999), while its members need not be adjacent: the tops of all the books on a shelf form one
-cluster. A root cluster joins the classes. Every cluster covers a contiguous range of `perm` (the
-patches in tree order), which makes its sums prefix-sum differences.
+axis of the centroids' box, at the median when one side would be empty) down to leaf clusters of
+at most `leaf_size` patches. So every cluster holds faces of similar orientation, as in face
+clusters (Willmott, Heckbert & Garland 1999), while its members need not be adjacent: the tops of
+all the books on a shelf form one cluster. A root cluster joins the classes. Every cluster covers
+a contiguous range of `perm` (the patches in tree order), which makes its sums prefix-sum
+differences.
 
 Transfer (orientation-aware; the links themselves are in farlinks.py). A cluster end is
 described towards a direction u by spherical harmonics up to l = 2 of its members' cosines: for

@@ -322,7 +322,8 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
         bad = (tpoly != tpoly[:, :1]).any(1)
         if bad.any():
             raise InputError(
-                f"Triangulation (tri_loops) mixes the loops of several polygons at {who(int(tpoly[np.argmax(bad), 0]))}."
+                "Triangulation (tri_loops) mixes the loops of several polygons at "
+                f"{who(int(tpoly[np.argmax(bad), 0]))}."
             )
         tpoly = tpoly[:, 0]
         need = np.zeros(P, bool)
@@ -400,10 +401,10 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
         bad = off > warn_planar
         if bad.any():
             result.warnings.append(
-                f"{int(bad.sum())} non-planar polygon(s) (corners up to {100 * off.max():.0f}% of their size off "
-                f"their plane) were split into triangles: {_per_object(mesh, split[bad])}. The triangles may "
-                "not be the surface you meant; flatten them (Mesh > Clean Up > Make Planar Faces) or "
-                "triangulate them yourself."
+                f"{int(bad.sum())} non-planar polygon(s) (corners up to {100 * off.max():.0f}% of their "
+                f"size off their plane) were split into triangles: {_per_object(mesh, split[bad])}. The "
+                "triangles may not be the surface you meant; flatten them (Mesh > Clean Up > Make Planar "
+                "Faces) or triangulate them yourself."
             )
     if len(sel) == 0:
         raise InputError("All polygons are degenerate (zero area); nothing to compute radiosity on.")

@@ -72,9 +72,9 @@ def link_form_factors(h: Hierarchy, a, b, max_order=3):
     """Unoccluded F[a->b] and F[b->a] by integrating from the smaller node to the larger, with
     at most max_order x max_order Gauss points on it."""
     small = h.area[a] <= h.area[b]
-    s, l = np.where(small, a, b), np.where(small, b, a)
-    d2 = np.sum((h.centre[s] - h.centre[l]) ** 2, axis=1)
-    size2 = h.area[s] + h.area[l]
+    s, big = np.where(small, a, b), np.where(small, b, a)
+    d2 = np.sum((h.centre[s] - h.centre[big]) ** 2, axis=1)
+    size2 = h.area[s] + h.area[big]
     # Gauss points by proximity: the contour integral over the large node is exact, the error comes
     # from the small node's extent, which matters only when it is close (3 x 3 Gauss: ~1e-4 on
     # touching unit squares, measured).
@@ -89,12 +89,12 @@ def link_form_factors(h: Hierarchy, a, b, max_order=3):
         vals = ff.point_to_polygon(
             pts.reshape(-1, 3),
             np.repeat(h.normal[s[m]], ns, 0),
-            np.repeat(h.corners[l[m]], ns, 0),
-            np.repeat(h.nv[l[m]], ns),
+            np.repeat(h.corners[big[m]], ns, 0),
+            np.repeat(h.nv[big[m]], ns),
         )
         f_sl[m] = np.sum(vals.reshape(-1, ns) * w, axis=1)
     f_sl = np.clip(f_sl, 0.0, 1.0)
-    f_ls = f_sl * h.area[s] / h.area[l]
+    f_ls = f_sl * h.area[s] / h.area[big]
     return np.where(small, f_sl, f_ls), np.where(small, f_ls, f_sl)
 
 

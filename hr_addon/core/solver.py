@@ -244,7 +244,8 @@ def solve(
     if not rep.converged:
         msg = (
             f"Radiosity did not converge: relative residual {rep.residual:.2e} after {rep.iterations} "
-            f"iterations (max reflectance {float(op.rho.max()):.3f}; reflectance close to 1 converges slowly)."
+            f"iterations (max reflectance {float(op.rho.max()):.3f}; reflectance close to 1 converges "
+            "slowly)."
         )
         rep.messages.append(msg)
         warnings.warn(msg, ConvergenceWarning, stacklevel=2)
