@@ -76,6 +76,42 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000
     return key // len(lo_b), key % len(lo_b)
 
 
+def box_grid(lo, hi, group=None, max_refs=4_000_000):
+    """A uniform grid over the boxes (lo, hi) (M, 3) for repeated point queries (points_in_boxes):
+    built once, where box_pairs would rebuild it (and size it by the query points too) per call.
+    Cells about the median box size, coarsened until the cell lists fit."""
+    origin = lo.min(0)
+    ext = hi.max(0) - origin
+    span = float(ext.max()) or 1.0
+    size = max(float(np.median((hi - lo).max(1))), 1e-3 * span)
+    while True:
+        n = int(np.prod(np.floor((hi - origin) / size) - np.floor((lo - origin) / size) + 1, axis=1).sum())
+        if n <= max_refs or size >= span:
+            break
+        size *= 2
+    dims = (np.floor(ext / size) + 1).astype(np.int64)
+    box, key = grid_cells(lo, hi, origin, size, dims, group)
+    order = np.argsort(key, kind="stable")
+    return key[order], box[order], origin, size, dims, lo, hi
+
+
+def points_in_boxes(grid, p, group=None):
+    """Index pairs (i, j), sorted by i then j, of the points p (N, 3) lying in box j of grid
+    (box_grid) whose group equals the point's: box_pairs(p, p, lo, hi, group, groups)'s pairs."""
+    keys, box, origin, size, dims, lo, hi = grid
+    c = np.floor((p - origin) / size).astype(np.int64)
+    idx = np.flatnonzero(np.all((c >= 0) & (c < dims), axis=1))
+    key = np.zeros(len(idx), np.int64) if group is None else np.asarray(group, np.int64)[idx]
+    for ax in range(3):
+        key = key * dims[ax] + c[idx, ax]
+    first = np.searchsorted(keys, key, "left")
+    cnt = np.searchsorted(keys, key, "right") - first
+    i = np.repeat(idx, cnt)
+    j = box[np.repeat(first, cnt) + np.arange(len(i)) - np.repeat(np.cumsum(cnt) - cnt, cnt)]
+    ok = np.all((lo[j] <= p[i]) & (hi[j] >= p[i]), axis=1)
+    return i[ok], j[ok]
+
+
 def ray_exit(f, u, a, b):
     """(M,) how far rays from 2D points f (M, 2) along unit u (M, 2) go before they cross the
     segments a, b (M, 2) (0: they do not)."""

@@ -23,7 +23,7 @@ through per-chain bounding boxes, so the cost follows the number of contacts, no
 
 import numpy as np
 
-from .boxes import box_pairs, csr_rows, sorted_index
+from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, sorted_index
 from .geometry import components
 from .planes import frames, plane_ids
 from .slots import SlotMouths
@@ -278,7 +278,10 @@ class Contacts(SlotMouths):
         gi = self.plane[patch]
         p2 = self._to2d(gi, points[:, None])[:, 0]
         lo = np.concatenate([p2, np.zeros((len(p2), 1))], 1)
-        i, ch = box_pairs(lo, lo, self.chain_lo, self.chain_hi, gi, self.chain_plane)
+        grid = getattr(self, "_grid", None)
+        if grid is None:  # built once (one assignment: threads may race to build it, never half)
+            grid = self._grid = box_grid(self.chain_lo, self.chain_hi, self.chain_plane)
+        i, ch = points_in_boxes(grid, lo, gi)
         # a piece never covers itself (a room's walls its floor, a table's sides its top)
         own = self.chain_piece[ch] == self.piece[patch[i]]
         i, ch = i[~own], ch[~own]

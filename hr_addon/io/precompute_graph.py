@@ -17,6 +17,7 @@ _TRANSIENT = {
     "RadiositySystem": {"B": None, "report": None, "_op": None},
     "Hierarchy": {"_levels": None},
     "Links": {"_csr": None, "_ext": None},
+    "Contacts": {"_grid": None},
     "FinalGather": {
         "_shape_cache": dict,
         "_responses": dict,
