@@ -24,6 +24,7 @@ _TRANSIENT = {
         "_responses_of": None,
         "_naive_key": None,
         "_naive_V": None,
+        "_split": None,
     },
 }
 _TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]

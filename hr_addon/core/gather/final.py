@@ -9,7 +9,7 @@ from ..visibility import first_hit_within
 from ..parallel import batch_map, ranges
 from ..progress import Progress
 from .direct import DirectLight
-from .points import locate_below, onto_patch
+from .points import locate_below, onto_patch, split_lines
 from .sampling import cosine_directions, position_keys
 
 KINDS = ("radiance", "reflected", "incident")
@@ -174,7 +174,9 @@ class FinalGather(DirectLight):
         )
         self.tri_patch = pt.triangle_patch
         # contacts: covered samples output 0 (static geometry)
-        self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr) if n else np.zeros(0, np.int64)
+        self.leaf0 = np.zeros(0, np.int64)
+        if n:
+            self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr, self._lines())
         self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
         self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
         if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
@@ -331,6 +333,12 @@ class FinalGather(DirectLight):
         return own + (self.second.weights_bytes if self.second is not None else 0)
 
     # -- precompute: hemisphere rays -> CSR rows over HR leaves -------------------------------------
+    def _lines(self):
+        """The HR nodes' split lines for locate_below, once per gather (not stored: rebuilt)."""
+        if getattr(self, "_split", None) is None:  # one assignment: threads may race, never half
+            self._split = split_lines(self.system.h, self.n_hr)
+        return self._split
+
     def gather_batch(self, a, b):
         """Samples a..b-1: (hits per row (m,), HR leaf per entry int32, weight per entry float32, and
         with slopes the hits' summed offsets in their leaf's frame per entry (wu, wv) float32, else
@@ -356,7 +364,7 @@ class FinalGather(DirectLight):
         ok &= np.einsum("ij,ij->i", dirs, pt.normal[patch]) < 0  # back faces reflect nothing
         i = np.flatnonzero(ok)
         hit = org[i] + t[i, None] * dirs[i]
-        leaf = locate_below(h, patch[i], hit, self.n_hr)
+        leaf = locate_below(h, patch[i], hit, self.n_hr, self._lines())
         if self.covered_hits == "zero":
             lit = ~h.dark(leaf, hit)  # covered points read 0
         else:

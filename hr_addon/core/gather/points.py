@@ -15,15 +15,36 @@ def _triple(e, w, n):
     )
 
 
-def locate_below(h, patch, points, n_hr):
+def split_lines(h, n_hr):
+    """The lines that split each of the first n_hr nodes into its children, computed once for
+    every locate_below of a gather (each level of each batch would redo them): per node up to
+    three lines, origin m (n_hr, 3, 3), direction e, and the side s (n_hr, 3) of the corner the
+    line cuts off (quads: lines 0 and 1 with corner a; triangles: corners a, b, c). The same
+    expressions as the per-level code had, so a point goes to the same child, bit for bit."""
+    c, n = h.corners[:n_hr], h.normal[:n_hr]
+    a, b, cc, d = c[:, 0], c[:, 1], c[:, 2], c[:, 3]
+    ab, bc, cd, da, ca = (a + b) / 2, (b + cc) / 2, (cc + d) / 2, (d + a) / 2, (cc + a) / 2
+    quad = (h.nv[:n_hr] == 4)[:, None]
+    # quads: ab -> cd separates u < 1/2 (a's side) from u > 1/2; da -> bc: v. Triangles: the
+    # corner triangles' inner edges ab -> ca (a), ab -> bc (b), ca -> bc (c)
+    m = np.stack([ab, np.where(quad, da, ab), ca], 1)
+    e = np.stack([np.where(quad, cd, ca), bc, bc], 1) - m
+    corner = np.stack([a, np.where(quad, a, b), cc], 1)
+    s = np.sign(np.stack([_triple(e[:, k], corner[:, k] - m[:, k], n) for k in range(3)], 1))
+    return m, e, s
+
+
+def locate_below(h, patch, points, n_hr, lines=None):
     """The HR leaf holding each point (M,) <- patch (M,), points (M, 3): the leaf of the first
     n_hr nodes (nodes whose children were added later, by light events, count as leaves).
 
     Children of a quad are the bilinear images of the parameter square's quarters, split by the
     straight lines from edge midpoint to edge midpoint; children of a triangle are its corner
     triangles and the middle one. So one level costs two (quads) or three (triangles) side tests
-    against those lines instead of output.locate's test against every child's edges; ties on a
-    line go to either side, as locate's."""
+    against those lines (split_lines; pass them when locating many batches) instead of
+    output.locate's test against every child's edges; ties on a line go to either side, as
+    locate's."""
+    m, e, s = split_lines(h, n_hr) if lines is None else lines
     node = np.asarray(patch, np.int64).copy()
     pts = np.asarray(points, float)
     while True:
@@ -32,33 +53,22 @@ def locate_below(h, patch, points, n_hr):
         if len(inner) == 0:
             return node
         nd = node[inner]
-        c = h.corners[nd]
         n = h.normal[nd]
         p = pts[inner]
-        a, b, cc, d = c[:, 0], c[:, 1], c[:, 2], c[:, 3]
-        ab, bc, cd, da, ca = (a + b) / 2, (b + cc) / 2, (cc + d) / 2, (d + a) / 2, (cc + a) / 2
+
+        def side(k, rows):  # > 0: the point on the corner's side of line k (0 on the line)
+            j = nd[rows]
+            return _triple(e[j, k], p[rows] - m[j, k], n[rows]) * s[j, k]
+
         k = np.zeros(len(nd), np.int64)
         quad = h.nv[nd] == 4
         q = np.flatnonzero(quad)
         if len(q):
-            # line ab -> cd separates u < 1/2 (a's side) from u > 1/2; line da -> bc: v
-            e1 = cd[q] - ab[q]
-            right = _triple(e1, p[q] - ab[q], n[q]) * _triple(e1, a[q] - ab[q], n[q]) < 0
-            e2 = bc[q] - da[q]
-            top = _triple(e2, p[q] - da[q], n[q]) * _triple(e2, a[q] - da[q], n[q]) < 0
+            right, top = side(0, q) < 0, side(1, q) < 0
             k[q] = np.where(top, np.where(right, 2, 3), np.where(right, 1, 0))
         t = np.flatnonzero(~quad)
         if len(t):
-            nn = n[t]
-            pt_ = p[t]
-
-            def corner_side(m0, m1, corner):
-                e = m1 - m0
-                return _triple(e, pt_ - m0, nn) * _triple(e, corner - m0, nn) > 0
-
-            in_a = corner_side(ab[t], ca[t], a[t])
-            in_b = corner_side(ab[t], bc[t], b[t])
-            in_c = corner_side(ca[t], bc[t], cc[t])
+            in_a, in_b, in_c = side(0, t) > 0, side(1, t) > 0, side(2, t) > 0
             k[t] = np.where(in_a, 0, np.where(in_b, 1, np.where(in_c, 2, 3)))
         node[inner] = c0[inner] + k
 
