@@ -335,11 +335,11 @@ def test_threaded_live_keeps_the_previous_light_and_coalesces_edits(tmp_path):
         entered, release = threading.Event(), threading.Event()
         real = sess.worker.dyn.apply
 
-        def held(shapes, lights=None):
+        def held(shapes, lights=None, **kw):
             entered.set()
             assert release.wait(120)
             sess.worker.dyn.apply = real
-            return real(shapes, lights)
+            return real(shapes, lights, **kw)
 
         sess.worker.dyn.apply = held
         window = bpy.data.objects["Window"]
