@@ -79,7 +79,7 @@ RESPONSE_TOL = 1e-5
 
 # Live's preview of a dragged shape (docs/live.md, "Progressive Live"): chosen by its error against
 # the exact result over the 56 recorded Cornell edits (benchmarks/live_replay.py preview)
-PREVIEW = Preview()
+PREVIEW = Preview(method="FE")  # AR and AUTO preview as FE (no splits, no first bounce)
 REFINE_AFTER = 0.25  # seconds without a new request before a preview is refined (the drag paused)
 
 
