@@ -308,8 +308,8 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                     res["refine_cpu"] = _stats([r["cpu"] for r in rows if r["kind"] == "refine"])
                     pv, rf = res["previews_cpu"], res["refine_cpu"]
                     print(
-                        f"[ui] previews CPU median {1000 * pv['median']:.1f} / p95 {1000 * pv['p95']:.1f} ms; "
-                        f"refines CPU median {1000 * rf['median']:.1f} / p95 {1000 * rf['p95']:.1f} ms"
+                        f"[ui] previews CPU median {1000 * pv['median']:.1f} / p95 {1000 * pv['p95']:.1f} ms;"
+                        f" refines CPU median {1000 * rf['median']:.1f} / p95 {1000 * rf['p95']:.1f} ms"
                     )
                 out["rows"] = rows
             out["edits"][mode] = res
