@@ -453,7 +453,8 @@ def main():
     order = {"cornell": 0, "furnished_100k": 1}
     res = sorted(old["runs"], key=lambda r: (order.get(r["scene"], 9), r["quality"] != "draft", r["method"]))
     print(table(res))
-    plot(res, ROOT / "benchmarks" / "live_edits.png", old.get("date", ""))
+    if not args.preview:  # (the chart is the exact path's)
+        plot(res, ROOT / "benchmarks" / "live_edits.png", old.get("date", ""))
 
 
 if __name__ == "__main__":
