@@ -19,11 +19,11 @@ class LightShape:
 class Preview:
     """A cheaper estimate of the shapes a drag moves (Live Relight, docs/live.md "Progressive
     Live"): DynamicRadiosity.apply(..., preview=) solves their responses to `tol` (from the
-    previous response's scattered light) with `method` (None: the DynamicRadiosity's; AUTO
-    previews as FE, without its first bounce) and marks them (_Rec.preview); the final gather
-    gives them `shadow_rays` per output sample and reads the HR leaves (levels 1) or a second
-    level without iterations with `second_shadow_rays` (levels 2). refine() then solves them
-    as apply() without a preview would have."""
+    previous response's scattered light) with `method` (None: the DynamicRadiosity's; Live's
+    PREVIEW: FE, so AR and AUTO preview without splits or first bounce) and marks them
+    (_Rec.preview); the final gather gives them `shadow_rays` per output sample and reads the
+    HR leaves (levels 1) or a second level without iterations with `second_shadow_rays`
+    (levels 2). refine() then solves them as apply() without a preview would have."""
 
     tol: float = 1e-2
     method: str = None
