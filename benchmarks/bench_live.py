@@ -20,6 +20,10 @@ time.perf_counter():
     which also compares every participating object with the hierarchy's geometry (signatures);
   - `op_fast`: again with hr.live_update(check_geometry=False) (only which objects take part and
     what the depsgraph reported are compared).
+With --preview the `ui` path runs as progressive Live (docs/live.md, "Progressive Live"): each
+geometry edit is delivered as the worker's preview (live_worker.PREVIEW, flush(refine=False)), and
+after the last edit of each kind (the drag pauses) the refine is timed apart (`refine` rows); the
+results go to live_preview.json (the `op` paths are synchronous: exact at once, as without it).
 Medians and 95th percentiles per edit kind and over all edits go to benchmarks/out/live.json and
 benchmarks/live_edits.png. Timings are wall seconds on this machine; other jobs sharing the two
 cores make them noisy, so the table also has the `ui` path's CPU seconds of the process per edit
@@ -194,7 +198,7 @@ def _stats(xs):
     }
 
 
-def run(scene_name, quality, method, furnished_size="100k", final_gather=True):
+def run(scene_name, quality, method, furnished_size="100k", final_gather=True, preview=False):
     import bpy
     import hr_addon
 
@@ -222,6 +226,10 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True):
         first = time.perf_counter() - t0
         sess = live.session(scene)
         w = sess.worker
+        if preview:
+            from hr_addon.blender.live_worker import PREVIEW
+
+            w.preview = PREVIEW
         out = {
             "scene": scene_name,
             "quality": quality,
@@ -244,19 +252,28 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True):
             )
             assert bpy.ops.hr.live_update() == {"FINISHED"}
             rows = []
-            for k, edit in edit_sequence(obj, kind, along, normal, step):
+            seq = list(edit_sequence(obj, kind, along, normal, step))
+            for j, (k, edit) in enumerate(seq):
                 edit()
                 if mode == "ui":
                     bpy.context.view_layer.update()  # the depsgraph handler fires, as in the UI
                     t0, c0 = time.perf_counter(), time.process_time()
                     live._reconcile(sess, scene, vl, check_geometry=False, fast=True)  # as the timer
                     t1 = time.perf_counter()
-                    w.flush()
+                    w.flush(refine=not preview)
                     t2 = time.perf_counter()
                     live._deliver(sess, scene)
                     t3, c3 = time.perf_counter(), time.process_time()
                     assert not sess.error and not sess.problems, (sess.error, sess.problems)
                     r = sess.last
+                    if preview and (j + 1 == len(seq) or seq[j + 1][0] != k):  # the drag pauses
+                        c4 = time.process_time()
+                        w.flush()
+                        live._deliver(sess, scene)
+                        t5, c5 = time.perf_counter(), time.process_time()
+                        assert not sess.last.preview and sess.text().startswith("Live: up to date, exact")
+                        if sess.last is not r:
+                            rows.append({"kind": "refine", "total": t5 - t3, "cpu": c5 - c4, "of": k})
                     rows.append(
                         {
                             "kind": k,
@@ -268,20 +285,32 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True):
                             "write": t3 - t2,
                             "events": [e.kind for e in r.report.events],
                             "iterations": int(r.report.iterations),
+                            "preview": bool(r.preview),
                         }
                     )
+                    if preview:  # the refine row (if any) after this edit's
+                        rows[-2:] = sorted(rows[-2:], key=lambda x: x["kind"] == "refine")
                 else:
                     t0 = time.perf_counter()
                     assert bpy.ops.hr.live_update(check_geometry=(mode == "op")) == {"FINISHED"}
                     rows.append({"kind": k, "total": time.perf_counter() - t0})
             kinds = sorted({r["kind"] for r in rows}, key=[r["kind"] for r in rows].index)
-            res = {"all": _stats([r["total"] for r in rows])}
+            edits = [r for r in rows if r["kind"] != "refine"]  # (refines: --preview's own rows)
+            res = {"all": _stats([r["total"] for r in edits])}
             res.update({k: _stats([r["total"] for r in rows if r["kind"] == k]) for k in kinds})
             if mode == "ui":
                 for part in ("read", "apply", "output", "write"):
-                    res[f"part_{part}"] = _stats([r[part] for r in rows])
-                res["all_cpu"] = _stats([r["cpu"] for r in rows])
+                    res[f"part_{part}"] = _stats([r[part] for r in edits])
+                res["all_cpu"] = _stats([r["cpu"] for r in edits])
                 res["moves_iterations"] = _stats([r["iterations"] for r in rows if r["kind"] == "move"])
+                if preview:
+                    res["previews_cpu"] = _stats([r["cpu"] for r in rows if r.get("preview")])
+                    res["refine_cpu"] = _stats([r["cpu"] for r in rows if r["kind"] == "refine"])
+                    pv, rf = res["previews_cpu"], res["refine_cpu"]
+                    print(
+                        f"[ui] previews CPU median {1000 * pv['median']:.1f} / p95 {1000 * pv['p95']:.1f} ms;"
+                        f" refines CPU median {1000 * rf['median']:.1f} / p95 {1000 * rf['p95']:.1f} ms"
+                    )
                 out["rows"] = rows
             out["edits"][mode] = res
             print(
@@ -390,21 +419,24 @@ def main():
     ap.add_argument("--no-final-gather", action="store_true", help="Live with the final gather off")
     ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--plot", action="store_true", help="only redraw the chart and table from the JSON")
+    ap.add_argument("--preview", action="store_true", help="ui path: progressive Live (live_preview.json)")
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    jpath = out / "live.json"
+    jpath = out / ("live_preview.json" if args.preview else "live.json")
     old = json.loads(jpath.read_text()) if jpath.exists() else {"runs": []}
     if not args.plot:
-        runs = []
+        runs, fg_off = [], args.no_final_gather
         if not args.skip_cornell:
             for q in args.quality.split(","):
                 for m in args.methods.split(","):
-                    runs.append(run("cornell", q, m, final_gather=not args.no_final_gather))
+                    runs.append(run("cornell", q, m, final_gather=not fg_off, preview=args.preview))
         if args.furnished:
             for q in args.furnished_quality.split(","):
                 for m in args.furnished_methods.split(","):
-                    runs.append(run("furnished_100k", q, m, final_gather=not args.no_final_gather))
+                    runs.append(
+                        run("furnished_100k", q, m, final_gather=not fg_off, preview=args.preview)
+                    )
         keep = [
             r
             for r in old["runs"]
@@ -421,7 +453,8 @@ def main():
     order = {"cornell": 0, "furnished_100k": 1}
     res = sorted(old["runs"], key=lambda r: (order.get(r["scene"], 9), r["quality"] != "draft", r["method"]))
     print(table(res))
-    plot(res, ROOT / "benchmarks" / "live_edits.png", old.get("date", ""))
+    if not args.preview:  # (the chart is the exact path's)
+        plot(res, ROOT / "benchmarks" / "live_edits.png", old.get("date", ""))
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ lit above 1e-3 of the brightest. Benchmarks print; no test asserts on time.
 """
 
 import argparse
+import dataclasses
 import pickle
 import sys
 import tempfile
@@ -71,6 +72,11 @@ PARTS = [  # (module, attribute, label) timed by --parts
     ("hr_addon.core.gather.final", "_csr_matvec", "levels' matvecs"),
     ("hr_addon.core.events.direct", "FirstBounce.direct", "AUTO's first bounce"),
     ("hr_addon.core.events.coverage", "Coverage.cover", "coverage"),
+    ("hr_addon.core.gather.final", "FinalGather._preview_part", "preview's D + I (both in the output)"),
+    ("hr_addon.core.gather.final", "FinalGather._preview_shape", "  preview's direct light"),
+    ("hr_addon.core.events.dynamic", "DynamicRadiosity.apply", "apply"),
+    ("hr_addon.core.events.dynamic", "DynamicRadiosity.refine", "refine"),
+    ("hr_addon.core.gather.final", "FinalGather.evaluate_kinds", "output (gather)"),
 ]
 
 
@@ -159,6 +165,105 @@ def replay(path, method, dump=None, profile=False, parts=False):
         pstats.Stats(prof).sort_stats("cumulative").print_stats(50)
 
 
+GEOMETRY = ("move", "scale", "rotate", "reshape")
+
+
+def _errors(x, y):
+    """Preview x against exact y (corners, 3), at the corners lit above 1e-3 of the brightest:
+    (max, median, RMS of the per-corner relative error (largest channel), mean signed relative
+    difference (bias))."""
+    m = np.abs(y).max(1)
+    lit = m > 1e-3 * m.max()
+    rel = (np.abs(x - y).max(1) / np.maximum(m, 1e-30))[lit]
+    signed = ((x - y).sum(1) / np.maximum(y.sum(1), 1e-30))[lit]
+    return rel.max(), np.median(rel), np.sqrt(np.mean(rel**2)), signed.mean()
+
+
+def replay_preview(path, method, exact, preview, check=False, parts=False):
+    """Progressive Live over the recorded edits, as live_worker runs it: every geometry edit a
+    preview (events.Preview), a refine after the last of each run of edits of one kind (the drag
+    pauses) and on every other edit. CPU ms of the previews and refines; each preview against
+    `exact` (an npz of `replay --dump`: every state solved exactly, today's Live); check: a second
+    system replays only the states Live computed exactly, with today's apply, and the refined
+    outputs are compared with its bitwise."""
+    from hr_addon.blender.live_worker import RESPONSE_TOL
+    from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.gather import LoopGather
+    from hr_addon.core.lights import Light
+    from hr_addon.core.radiosity import RadiositySystem
+
+    d = pickle.loads(Path(path).read_bytes())
+    ref = np.load(exact)
+
+    def make():
+        s = RadiositySystem(d["mesh"], d["params"])
+        dyn = DynamicRadiosity(
+            s, method=method, min_area_rel=d["min_area_rel"], response_tol=RESPONSE_TOL, response_float32=True
+        )
+        return dyn, LoopGather(dyn, **d["gather"])
+
+    def split(shapes):
+        lights = {k: v for k, v in shapes.items() if isinstance(v, Light)}
+        return {k: v for k, v in shapes.items() if k not in lights}, lights
+
+    dyn, g = make()
+    twin = make() if check else None
+    acc = _timed_parts() if parts else None
+    states = d["states"]
+    pv, rf, errs, bitwise = [], [], [], []
+    for i, (kind, shapes) in enumerate(states):
+        drag = i > 0 and kind in GEOMETRY
+        pause = not drag or i + 1 == len(states) or states[i + 1][0] != kind
+        c0 = time.process_time()
+        rep = dyn.apply(*split(shapes), preview=preview if drag else None)
+        ca = time.process_time()
+        out = g.loop_radiance(dyn, d["domain"])
+        c1 = time.process_time()
+        line = f"{i:2d} {kind:8s}"
+        if drag:
+            pv.append(c1 - c0)
+            e = _errors(out, ref[str(i)])
+            errs.append(e)
+            line += (
+                f" preview {1000 * (c1 - c0):6.1f} ms (apply {1000 * (ca - c0):5.1f}, {rep.iterations} it.), "
+                f"max {e[0]:.2e} median {e[1]:.2e} RMS {e[2]:.2e} bias {e[3]:+.1e}"
+            )
+        if pause:
+            c1 = time.process_time()
+            rep = dyn.refine()
+            if rep.events or not drag:
+                out = g.loop_radiance(dyn, d["domain"])
+            c2 = time.process_time()
+            if drag:
+                rf.append(c2 - c1)
+                line += f"; refine {1000 * (c2 - c1):6.1f} ms"
+            if twin is not None:
+                twin[0].apply(*split(shapes))
+                same = np.array_equal(out, twin[1].loop_radiance(twin[0], d["domain"]))
+                bitwise.append(same)
+                line += "; refined = exact-only replay: " + ("bitwise" if same else "DIFFERS")
+        print(line, flush=True)
+    pv, rf, errs = np.array(pv), np.array(rf), np.array(errs)
+    print(f"{preview}")
+    def ms(x):
+        return f"median {1000 * np.median(x):.1f} / p95 {1000 * np.percentile(x, 95):.1f} ms CPU"
+
+    print(f"previews ({len(pv)}): {ms(pv)}; refines ({len(rf)}): {ms(rf)}")
+    print(
+        "preview errors, median (max) over the previews: max corner {:.2e} ({:.2e}), median {:.2e} ({:.2e}), "
+        "RMS {:.2e} ({:.2e}), bias {:+.2e} (mean {:+.2e})".format(
+            np.median(errs[:, 0]), errs[:, 0].max(), np.median(errs[:, 1]), errs[:, 1].max(),
+            np.median(errs[:, 2]), errs[:, 2].max(), np.median(errs[:, 3]), errs[:, 3].mean(),
+        )
+    )
+    if acc is not None:
+        print("parts over all edits, the first included (s CPU, calls):")
+        for label, (t, n) in acc.items():
+            print(f"  {label:38s} {t:6.2f} {n:5d}")
+    if check:
+        print(f"refined outputs bitwise equal to the exact-only replay: {sum(bitwise)} of {len(bitwise)}")
+
+
 def compare(a, b):
     a, b = np.load(a), np.load(b)
     for k in sorted(a.files, key=int):
@@ -188,6 +293,17 @@ def main():
     p.add_argument("--dump")
     p.add_argument("--profile", action="store_true")
     p.add_argument("--parts", action="store_true", help="process time of a few functions (see PARTS)")
+    v = sub.add_parser("preview", help="progressive Live: previews during drags, refines at pauses")
+    v.add_argument("states")
+    v.add_argument("--exact", required=True, help="npz of `replay --dump` on the same recording")
+    v.add_argument("--method", default="FE")
+    v.add_argument("--tol", type=float, default=None)
+    v.add_argument("--shadow-rays", type=int, default=None)
+    v.add_argument("--levels", type=int, default=None)
+    v.add_argument("--second-shadow-rays", type=int, default=None)
+    v.add_argument("--preview-method", default=None)
+    v.add_argument("--check", action="store_true", help="refined outputs against an exact-only replay")
+    v.add_argument("--parts", action="store_true", help="process time of a few functions (see PARTS)")
     c = sub.add_parser("compare")
     c.add_argument("a")
     c.add_argument("b")
@@ -197,6 +313,23 @@ def main():
         record(args.quality, args.out)
     elif args.cmd == "replay":
         replay(args.states, args.method, args.dump, args.profile, args.parts)
+    elif args.cmd == "preview":
+        from hr_addon.blender.live_worker import PREVIEW
+
+        kw = {
+            k: getattr(args, a)
+            for k, a in (
+                ("tol", "tol"),
+                ("shadow_rays", "shadow_rays"),
+                ("levels", "levels"),
+                ("second_shadow_rays", "second_shadow_rays"),
+                ("method", "preview_method"),
+            )
+            if getattr(args, a) is not None
+        }
+        replay_preview(
+            args.states, args.method, args.exact, dataclasses.replace(PREVIEW, **kw), args.check, args.parts
+        )
     else:
         compare(args.a, args.b)
 

@@ -335,11 +335,11 @@ def test_threaded_live_keeps_the_previous_light_and_coalesces_edits(tmp_path):
         entered, release = threading.Event(), threading.Event()
         real = sess.worker.dyn.apply
 
-        def held(shapes, lights=None):
+        def held(shapes, lights=None, **kw):
             entered.set()
             assert release.wait(120)
             sess.worker.dyn.apply = real
-            return real(shapes, lights)
+            return real(shapes, lights, **kw)
 
         sess.worker.dyn.apply = held
         window = bpy.data.objects["Window"]
@@ -383,3 +383,44 @@ def test_a_file_opened_starts_with_live_off(tmp_path):
     bpy.ops.wm.open_mainfile(filepath=str(saved), load_ui=False)
     scene = bpy.context.scene
     assert not scene.hr.live and not live.is_live(scene) and not STATE.live_sessions
+
+
+def test_a_drag_shows_previews_then_the_exact_light(tmp_path):
+    """Progressive Live (the UI's threaded worker previews; set here on the background session's
+    worker): each drag step is written as a preview and the panel says so; the refine writes the
+    exact light, bitwise what Live without previews shows after the same drag coalesced into one
+    move (Live turned off and on again, the window moved there at once)."""
+    from hr_addon.blender.live_worker import PREVIEW
+
+    bpy, scene = _open(tmp_path, "FE")
+    window = bpy.data.objects["Window"]
+    start = tuple(window.location)
+    scene.hr.live = True
+    _update(bpy)
+    live, sess = _live(bpy)
+    sess.worker.preview = PREVIEW
+    vl = bpy.context.view_layer
+    before = _shown(bpy, sess)
+    for _ in range(3):
+        window.location.y += 0.02
+        vl.update()
+        live._reconcile(sess, scene, vl, check_geometry=False, fast=True)  # as the timer does
+        assert sess.worker.flush(refine=False)
+        live._deliver(sess, scene)
+        assert sess.last.preview and sess.text().startswith("Live: preview")
+        assert _differs(_shown(bpy, sess), before)
+    assert sess.worker.flush()  # the edits paused: the refine
+    live._deliver(sess, scene)
+    assert not sess.last.preview and sess.text().startswith("Live: up to date, exact")
+    refined = _shown(bpy, sess)
+    end = tuple(window.location)
+    scene.hr.live = False
+    _update(bpy)
+    window.location = start
+    scene.hr.live = True
+    _update(bpy)
+    window.location = end
+    _update(bpy)
+    exact = _shown(bpy, _live(bpy)[1])
+    for k in refined:
+        np.testing.assert_array_equal(refined[k], exact[k])

@@ -9,7 +9,7 @@ import threading
 import numpy as np
 import pytest
 
-from hr_addon.blender.live_worker import RESPONSE_TOL, BuildSpec, LiveWorker
+from hr_addon.blender.live_worker import PREVIEW, RESPONSE_TOL, BuildSpec, LiveWorker
 from hr_testing import scenes
 from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape
@@ -62,11 +62,11 @@ def _hold(worker):
     entered, release = threading.Event(), threading.Event()
     real = worker.dyn.apply
 
-    def held(shapes, lights=None):
+    def held(shapes, lights=None, **kw):
         entered.set()
         assert release.wait(60), "the test never released the worker"
         worker.dyn.apply = real
-        return real(shapes, lights)
+        return real(shapes, lights, **kw)
 
     worker.dyn.apply = held
     return entered, release
@@ -158,3 +158,31 @@ def test_close_cancels_a_running_build(mesh):
     w.thread.join(600)
     assert not w.thread.is_alive()
     assert w.dyn is None and w.builds == 0 and w.phase == "closed" and w.take() == (None, None)
+
+
+def test_a_drag_shows_previews_then_the_exact_light(mesh):
+    """With previews (the UI's threaded worker; set here on an unthreaded one), each drag step is
+    a preview; flush() refines, giving bitwise what a worker without previews shows for the
+    states it computed exactly (the start and the end of the drag)."""
+    w = LiveWorker(threaded=False, preview=PREVIEW)
+    ref = LiveWorker(threaded=False)
+    assert ref.preview is None  # unthreaded: exact at once unless told
+    for x in (w, ref):
+        x.request_build(_spec(mesh), 1, "a", _shape(0.2))
+        x.flush()
+    _, start = w.take()
+    assert not start.preview and not w.previewing  # the first state: added, then refined at once
+    for i, x in enumerate((0.24, 0.28, 0.32)):
+        w.request(2 + i, f"s{i}", _shape(x))
+        assert w.flush(refine=False)
+        _, r = w.take()
+        assert r.preview and r.kind == "frame" and w.previewing and w.pending
+    w.flush()
+    _, r = w.take()
+    assert not r.preview and r.kind == "refine" and r.serial == 4 and not w.pending
+    ref.take()
+    ref.request(4, "s2", _shape(0.32))
+    ref.flush()
+    _, exact = ref.take()
+    np.testing.assert_array_equal(r.values["all"], exact.values["all"])
+    assert w.computed == 4 and ref.computed == 2  # refines are not light states of their own

@@ -110,13 +110,15 @@ class Session:
             return f"Live: {self.error} Showing the light of the last valid state."
         if self.last is None:
             return "Live: computing"
+        r = self.last
+        ms = 1000 * (r.t_apply + r.t_output)
+        if r.preview:  # a drag's cheaper estimate (live_worker.PREVIEW): the exact light follows
+            return f"Live: preview ({ms:.0f} ms); the exact light follows when the edits pause"
         if w.pending or self.dirty:
             return "Live: updating (showing the previous state until the new one is ready)"
-        r = self.last
         n = len(r.report.events) if r.report is not None else 0
-        ms = 1000 * (r.t_apply + r.t_output)
         return (
-            f"Live: up to date; last update {ms:.0f} ms ({n} light event(s), {w.spec.method}; "
+            f"Live: up to date, exact; last update {ms:.0f} ms ({n} light event(s), {w.spec.method}; "
             f"hierarchy {w.precompute})"
         )
 
@@ -430,7 +432,7 @@ def _deliver(sess, scene):
             STATE.writes.mark(obj.data.name, reader=sess.scene_name)
     sess.problems = "; ".join(problems)
     sess.error = ""
-    if r is not sess.last:
+    if r is not sess.last and r.kind != "refine":
         sess.latencies.append(time.perf_counter() - r.requested)
         sess.updates += 1
     sess.last = r

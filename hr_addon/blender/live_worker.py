@@ -10,6 +10,12 @@ an add, a strength or colour change scales the shape's stored response). The res
 per object, waits in one slot for the UI thread, which writes it into HR_Radiance; until then the
 previous result stays on screen.
 
+Progressive Live (docs/live.md, "Progressive Live"): with `preview` set (the threaded worker, the
+UI's), a light state that moves, reshapes or adds a shape is first computed as a preview (PREVIEW:
+a cheaper response and output), and once no request arrived for REFINE_AFTER seconds (the drag
+pauses) the worker refines it: the exact result, bitwise what the same requests give without
+previews. flush() refines too (refine=False: only the pending requests, as previews).
+
 threaded=False (Blender in background mode, tests, scripts) computes in the caller's thread when
 flush() is called. The DynamicRadiosity is only ever used by one thread at a time.
 """
@@ -21,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.events import DynamicRadiosity
+from ..core.events import DynamicRadiosity, Preview
 from ..core.gather import LoopGather
 from ..core.geometry import InputError
 from ..core.lights import indirect_incident
@@ -58,9 +64,10 @@ class Result:
     report: object = None  # core FrameReport of the apply
     error: str = ""
     fatal: bool = False  # the worker cannot go on (build failed, internal error)
-    kind: str = "frame"  # "frame" or "build"
+    kind: str = "frame"  # "frame", "build" or "refine" (a preview made exact)
     t_apply: float = 0.0  # seconds in DynamicRadiosity.apply
     t_output: float = 0.0  # seconds computing the per-object values
+    preview: bool = False  # a drag's preview (the exact result follows: refine)
     requested: float = 0.0  # time.perf_counter() of the request (latency)
     messages: list = field(default_factory=list)
 
@@ -70,6 +77,11 @@ class Result:
 # float32 rounding) for 13 instead of 16 GMRES iterations. The base solution keeps the bake's settings.
 RESPONSE_TOL = 1e-5
 
+# Live's preview of a dragged shape (docs/live.md, "Progressive Live"): chosen by its error against
+# the exact result over the 56 recorded Cornell edits (benchmarks/live_replay.py preview)
+PREVIEW = Preview(method="FE")  # AR and AUTO preview as FE (no splits, no first bounce)
+REFINE_AFTER = 0.25  # seconds without a new request before a preview is refined (the drag paused)
+
 
 def _rgba(v):
     v = np.asarray(v, np.float32)
@@ -77,8 +89,12 @@ def _rgba(v):
 
 
 class LiveWorker:
-    def __init__(self, threaded=True):
+    def __init__(self, threaded=True, preview="auto"):
         self.threaded = threaded
+        # previews while edits arrive (the UI's threaded worker); None: every state exact at once
+        self.preview = (PREVIEW if threaded else None) if preview == "auto" else preview
+        self.previewing = False  # the state shown is a preview, its refine not done yet
+        self._shown = None  # (serial, sig, t_request) of the newest state computed
         self._cond = threading.Condition()
         self._busy = False
         self._closed = False
@@ -135,19 +151,21 @@ class LiveWorker:
 
     @property
     def pending(self):
+        """A request or a preview's refine is still to be computed."""
         with self._cond:
-            return self._busy or self._build is not None or self._shapes is not None
+            return self._busy or self._build is not None or self._shapes is not None or self.previewing
 
-    def flush(self, timeout=None):
+    def flush(self, timeout=None, refine=True):
         """Compute every pending request now (in this thread when not threaded, else wait for the
-        worker thread). Returns False if the timeout expired first."""
+        worker thread), and refine a preview (refine=False: not when not threaded; the benchmarks'
+        preview latency). Returns False if the timeout expired first."""
         if not self.threaded or self.thread is None:
-            while self._step(block=False):
+            while self._step(block=False, refine=refine):
                 pass
             return True
         deadline = None if timeout is None else time.monotonic() + timeout
         with self._cond:
-            while self._busy or self._build is not None or self._shapes is not None:
+            while self._busy or self._build is not None or self._shapes is not None or self.previewing:
                 if not self.thread.is_alive():
                     return False
                 left = None if deadline is None else deadline - time.monotonic()
@@ -181,23 +199,34 @@ class LiveWorker:
         while self._step(block=True):
             pass
 
-    def _step(self, block):
-        """Take the newest pending request and compute it. False when there is nothing (more) to do."""
+    def _step(self, block, refine=True):
+        """Take the newest pending request and compute it, or refine a preview once no request
+        arrived for REFINE_AFTER s (at once when not blocking). False when there is nothing (more)
+        to do."""
         with self._cond:
             while block and not self._closed and self._build is None and self._shapes is None:
-                self._cond.wait()
+                wait = None
+                if self.previewing:  # refine once the edits pause
+                    wait = self._shown[2] + REFINE_AFTER - time.perf_counter()
+                    if wait <= 0:
+                        break
+                self._cond.wait(wait)
             if self._closed:
                 return False
             if self._build is not None:
                 job, self._build = ("build",) + self._build, None
             elif self._shapes is not None:
                 job, self._shapes = ("shapes",) + self._shapes, None
+            elif self.previewing and refine:
+                job = ("refine",)
             else:
                 return False
             self._busy = True
         try:
             if job[0] == "build":
                 self._do_build(*job[1:])
+            elif job[0] == "refine":
+                self._do_refine()
             else:
                 self._do_shapes(*job[1:])
         except BaseException as exc:  # never leave the UI waiting for a thread that died
@@ -263,6 +292,7 @@ class LiveWorker:
             if self._superseded():
                 return
             self.dyn, self.gather, self.spec, self.built = dyn, gather, spec, generation
+            self.previewing = False
             self.build_seconds = time.perf_counter() - t0
             self.build_report = system.build
             self.builds += 1
@@ -282,13 +312,32 @@ class LiveWorker:
             from ..core.lights import Light
 
             lights = {k: v for k, v in shapes.items() if isinstance(v, Light)}
-            report = dyn.apply({k: v for k, v in shapes.items() if k not in lights}, lights)
+            shapes = {k: v for k, v in shapes.items() if k not in lights}
+            # (the preview's keyword only when set: tests hold apply(shapes, lights) in a wrapper)
+            report = dyn.apply(shapes, lights, **({} if self.preview is None else {"preview": self.preview}))
         except InputError as exc:  # an invalid shape: apply() validates before changing anything
             with self._cond:
                 self._result = Result(generation, serial, sig, error=str(exc), requested=t_request)
                 self.phase = "idle"
             return
-        t1 = time.perf_counter()
+        self._shown = (serial, sig, t_request)
+        self.computed += 1
+        self._publish(dyn, spec, generation, report, t0, time.perf_counter(), serial, sig, t_request)
+
+    def _do_refine(self):
+        """The shown preview made exact (DynamicRadiosity.refine), delivered as a new result."""
+        dyn, spec, generation = self.dyn, self.spec, self.built
+        if dyn is None or generation != self.generation:
+            with self._cond:
+                self.previewing = False
+            return
+        self.phase = "computing"
+        t0 = time.perf_counter()
+        report = dyn.refine()
+        self._publish(dyn, spec, generation, report, t0, time.perf_counter(), *self._shown, kind="refine")
+
+    def _publish(self, dyn, spec, generation, report, t0, t1, serial, sig, t_request, kind="frame"):
+        """The per-object values of dyn's current state into the result slot."""
         gather = self.gather
         if spec.mode == "INDIRECT":  # (BakeConfig: with the final gather only)
             loops = gather.loop_values(indirect_incident(gather, dyn), spec.domain)
@@ -298,8 +347,8 @@ class LiveWorker:
             loops = dyn.loop_radiance(spec.domain)
         values = {k: _rgba(v) for k, v in spec.extract(loops).items()}
         t2 = time.perf_counter()
-        self.computed += 1
         with self._cond:
+            self.previewing = dyn.previewing
             self._result = Result(
                 generation,
                 serial,
@@ -310,5 +359,7 @@ class LiveWorker:
                 t_output=t2 - t1,
                 requested=t_request,
                 messages=list(report.messages),
+                preview=self.previewing,
+                kind=kind,
             )
             self.phase = "idle"

@@ -46,7 +46,7 @@ the outline or overlapping) raise InputError naming the shape.
 from ..output import locate
 from .dynamic import DynamicRadiosity
 from .planar import slab_decomposition, surface_samples
-from .records import METHODS, EventReport, FrameReport, LightShape
+from .records import METHODS, EventReport, FrameReport, LightShape, Preview
 from .validation import outline_problem
 
 __all__ = [
@@ -55,6 +55,7 @@ __all__ = [
     "EventReport",
     "FrameReport",
     "LightShape",
+    "Preview",
     "locate",
     "outline_problem",
     "slab_decomposition",

@@ -11,8 +11,9 @@ class NodeState:
     """Per-node state of a DynamicRadiosity on its growing hierarchy h: which nodes the HR build
     made (n_hr; internal ones are never collapsed), how many shapes need each split below the HR
     leaves (ref), and the solutions: base (no shapes), warm (warm mode's state), current (B),
-    guess (a reshaped shape's first guess). sync() extends them and the records' U and D to new
-    nodes, gc() drops the splits no shape needs and renumbers them."""
+    guess (a reshaped shape's first guess), guess0 (a preview's: the guess a move without
+    previews would start from). sync() extends them and the records' U, D and G to new nodes,
+    gc() drops the splits no shape needs and renumbers them."""
 
     def __init__(self, h, base):
         self.h = h
@@ -20,7 +21,7 @@ class NodeState:
         self.hr_mask = h.child0[: h.n] >= 0
         self.ref = np.zeros(h.n, np.int64)
         self.base, self.warm, self.current = base, base.copy(), base.copy()
-        self.guess = None
+        self.guess = self.guess0 = None
 
     def hr_internal(self, nodes):
         """True for nodes the HR build split (never collapsed by events)."""
@@ -66,9 +67,11 @@ class NodeState:
         self.current = self.current[:, keep] if self.current.shape[1] == n else self.current
         if self.guess is not None:
             self.guess = self.guess[:, keep]
+        if self.guess0 is not None:
+            self.guess0 = self.guess0[:, keep]
         for rec in recs:
-            for name in ("U", "D"):
-                a = getattr(rec, name)
+            for name in ("U", "D", "G"):
+                a = getattr(rec, name, None)
                 if a is not None:
                     setattr(rec, name, a[:, keep])
             for name in ("cov_nodes", "owned"):
@@ -91,9 +94,13 @@ class NodeState:
         self.current = h.extend(self.current)
         if self.guess is not None:
             self.guess = h.extend(self.guess)
+        if self.guess0 is not None:
+            self.guess0 = h.extend(self.guess0)
         for rec in recs:
             if rec.U is not None:
                 rec.U = h.extend(rec.U)
+            if getattr(rec, "G", None) is not None:  # (light records have none)
+                rec.G = h.extend(rec.G)
             if rec.D is not None and rec.D.shape[1] < n:
                 rec.D = np.concatenate([rec.D, np.zeros((3, n - rec.D.shape[1]))], 1)
 

@@ -15,7 +15,7 @@ from .coverage import Coverage, NodeState
 from .direct import FirstBounce
 from .lightsrc import LIGHT_RAYS, Lights
 from .naive import _NaiveState
-from .records import METHODS, EventReport, FrameReport, LightShape, _Rec
+from .records import METHODS, EventReport, FrameReport, LightShape, Preview, _Rec
 from .solves import Solves
 from .validation import ShapeValidator, check_emission, find_surface, off_surface_message, shape_plane, to2d
 
@@ -220,10 +220,12 @@ class DynamicRadiosity:
         rep.iterations += self._finish([rep])
         return self._stamp(rep, t0)
 
-    def apply(self, shapes: dict, lights: dict = None) -> FrameReport:
+    def apply(self, shapes: dict, lights: dict = None, preview: Preview = None) -> FrameReport:
         """Make `shapes` (key -> LightShape, the full active set) current with as little work as possible.
         lights: key -> core.lights.Light, the full set of Blender lights (None: leave them as they are);
-        a moved or re-aimed light is one response solve, a colour or strength change a scale."""
+        a moved or re-aimed light is one response solve, a colour or strength change a scale.
+        preview: the shapes moved, reshaped or added get a Preview's cheaper response (Live during a
+        drag); refine() solves them as this apply() without it would have."""
         t0 = time.perf_counter()
         fr = FrameReport()
         valid = {
@@ -241,13 +243,23 @@ class DynamicRadiosity:
             )
             if not same_geom:
                 # the new response is solved from the new emission plus the old one's scattered
-                # light: a moved shape lights the room much as before (fewer iterations)
-                self.nodes.guess = self._scattered(rec) if self.warm_moves else None
+                # light: a moved shape lights the room much as before (fewer iterations). After
+                # previews, the exact solve starts from the last exact response's (rec.G), as if
+                # the previews had not been computed (a drag coalesced into one move)
+                guess = None
+                if self.warm_moves:
+                    guess = rec.G if rec.preview is not None else self._scattered(rec)
+                if preview is None:
+                    self.nodes.guess = guess
+                else:  # a preview starts from the response it replaces, the closest
+                    self.nodes.guess = self._scattered(rec) if self.warm_moves else None
+                    self.nodes.guess0 = guess
                 try:
                     r1 = self._remove(k)
-                    r2 = self._add(k, LightShape(rings, em, name), validated=(rings, em, name))
+                    v = (rings, em, name)
+                    r2 = self._add(k, LightShape(*v), validated=v, preview=preview)
                 finally:
-                    self.nodes.guess = None
+                    self.nodes.guess = self.nodes.guess0 = None
                 r2.kind = "reshape"
                 r2.nodes_removed += r1.nodes_removed
                 r2.seconds += r1.seconds
@@ -256,7 +268,9 @@ class DynamicRadiosity:
                 evs.append(self._set_emission(k, em))
         for k, (rings, em, name) in valid.items():
             if k not in self.shapes:
-                evs.append(self._add(k, LightShape(rings, em, name), validated=(rings, em, name)))
+                evs.append(
+                    self._add(k, LightShape(rings, em, name), validated=(rings, em, name), preview=preview)
+                )
         if lights is not None:
             evs += self.light_part.diff(lights)
         if not self.warm_moves:  # sums in the caller's order, not in the order of past events
@@ -271,6 +285,40 @@ class DynamicRadiosity:
             fr.messages += e.messages
         fr.nodes_added = sum(e.nodes_added for e in evs)
         fr.nodes_removed = sum(e.nodes_removed for e in evs)
+        fr.seconds = time.perf_counter() - t0
+        self._counts(fr)
+        return fr
+
+    @property
+    def previewing(self):
+        """True while a shape's response is a preview's (apply(preview=)): refine() replaces it."""
+        return any(r.preview is not None for r in self.shapes.values())
+
+    def refine(self) -> FrameReport:
+        """Solve the previewed shapes as apply() without previews would have (from the last exact
+        response's scattered light, on the hierarchy without the previews' splits): the values
+        are then bitwise those of that apply(). Returns the FrameReport (no events: nothing to do)."""
+        t0 = time.perf_counter()
+        fr = FrameReport()
+        for k in [k for k, r in self.shapes.items() if r.preview is not None]:
+            rec = self.shapes[k]
+            self.nodes.guess = rec.G
+            try:
+                r1 = self._remove(k)
+                v = (rec.rings, rec.emission, rec.name)
+                r2 = self._add(k, LightShape(*v), validated=v)
+            finally:
+                self.nodes.guess = None
+            r2.kind = "reshape"
+            r2.nodes_removed += r1.nodes_removed
+            fr.events.append(r2)
+        if fr.events:
+            fr.iterations += self._finish(fr.events)
+        for e in fr.events:
+            fr.iterations += e.iterations
+            fr.messages += e.messages
+        fr.nodes_added = sum(e.nodes_added for e in fr.events)
+        fr.nodes_removed = sum(e.nodes_removed for e in fr.events)
         fr.seconds = time.perf_counter() - t0
         self._counts(fr)
         return fr
@@ -374,7 +422,7 @@ class DynamicRadiosity:
         rep.links = len(self._naive.system.links) if self._naive is not None else len(self.links)
         rep.memory_bytes = self.memory_bytes()
 
-    def _add(self, key, shape, validated=None):
+    def _add(self, key, shape, validated=None, preview=None):
         t0 = time.perf_counter()
         if key in self.shapes:
             raise KeyError(
@@ -383,8 +431,10 @@ class DynamicRadiosity:
         rings, em, name = validated or self.validator.validate(key, shape)
         rep = EventReport("add", key, name)
         n0 = self.system.h.n
-        rec = _Rec(key, name, rings, em, self.method)
-        cached = self._cache.pop((rec.geom_key, rec.method), None) if self.method != "NAIVE" else None
+        method = self.method if preview is None or preview.method is None else preview.method
+        rec = _Rec(key, name, rings, em, method)
+        # (an exact response cached for this outline serves a preview too)
+        cached = self._cache.pop((rec.geom_key, self.method), None) if self.method != "NAIVE" else None
         if cached is not None:
             cached.emission, cached.key, cached.name = em, key, name
             rec = cached
@@ -398,7 +448,7 @@ class DynamicRadiosity:
             elif self.method == "NAIVE":
                 rec.used = "NAIVE"
             else:
-                rep.iterations += self._incremental_add(rec)
+                rep.iterations += self._incremental_add(rec, preview)
         self.shapes[key] = rec
         rep.method, rep.covered, rep.emission_l1 = rec.used, rec.covered, rec.emission_l1
         rep.direct_links = rec.direct_links
@@ -407,9 +457,10 @@ class DynamicRadiosity:
         rep.seconds = time.perf_counter() - t0
         return rep
 
-    def _incremental_add(self, rec):
+    def _incremental_add(self, rec, preview=None):
         """AR, FE, AUTO: cover the hierarchy (AUTO: and gather the first bounce), reference the
-        splits the shape needs, and solve its response (response mode). Returns iterations."""
+        splits the shape needs, and solve its response (response mode; a preview's: to its tol,
+        the exact solve's guess kept as rec.G). Returns iterations."""
         h = self.system.h
         rec.used = rec.method
         n0 = h.n  # the node budget covers the outline and the first bounce together
@@ -434,7 +485,10 @@ class DynamicRadiosity:
         if self.incremental == "warm":
             return 0
         guess = self.nodes.guess
-        U, rep = self.solves.solve(E, B0=None if guess is None else E + guess, response=True)
+        tol = None if preview is None else preview.tol
+        U, rep = self.solves.solve(E, B0=None if guess is None else E + guess, response=True, tol=tol)
+        if preview is not None:
+            rec.preview, rec.G = preview, self.nodes.guess0
         if rec.method == "AUTO":
             U = U + np.repeat(self._coverage(rec, mean=True)[None], 3, 0)
         rec.U = U
@@ -449,7 +503,7 @@ class DynamicRadiosity:
         if rec.owned is not None and len(rec.owned):
             self.nodes.ref[rec.owned] -= 1
             rep.nodes_removed = self._gc()
-        elif rec.U is not None and self.cache_size > 0 and rec.used != "NAIVE":
+        elif rec.U is not None and self.cache_size > 0 and rec.used != "NAIVE" and rec.preview is None:
             self._cache[(rec.geom_key, rec.method)] = rec
             while len(self._cache) > self.cache_size:
                 self._cache.popitem(last=False)

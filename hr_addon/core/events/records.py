@@ -15,6 +15,23 @@ class LightShape:
     name: str = ""
 
 
+@dataclass(frozen=True)
+class Preview:
+    """A cheaper estimate of the shapes a drag moves (Live Relight, docs/live.md "Progressive
+    Live"): DynamicRadiosity.apply(..., preview=) solves their responses to `tol` (from the
+    previous response's scattered light) with `method` (None: the DynamicRadiosity's; Live's
+    PREVIEW: FE, so AR and AUTO preview without splits or first bounce) and marks them
+    (_Rec.preview); the final gather gives them `shadow_rays` per output sample and reads the
+    HR leaves (levels 1) or a second level without iterations with `second_shadow_rays`
+    (levels 2). refine() then solves them as apply() without a preview would have."""
+
+    tol: float = 1e-2
+    method: str = None
+    shadow_rays: int = 4
+    levels: int = 1
+    second_shadow_rays: int = 2
+
+
 @dataclass
 class EventReport:
     kind: str  # "add", "remove", "emission", "reshape"
@@ -85,6 +102,8 @@ class _Rec:
     direct_links: int = 0
     msgs: list = field(default_factory=list)
     emitter: tuple = None  # (unit, Emitter, normal): the final gather's, shared by its levels
+    preview: Preview = None  # set: U is a preview's (apply(preview=)), refine() replaces it
+    G: np.ndarray = None  # (3, n) a preview's: the guess its exact solve starts from (refine)
 
     @property
     def geom_key(self):

@@ -34,10 +34,11 @@ class Solves:
             D[:, lv] += D[:, par[lv]]
         return D
 
-    def solve(self, E, B0=None, response=False):
+    def solve(self, E, B0=None, response=False, tol=None):
         """Solve with non-negative emission; the exact solution is non-negative, so the solver's
         tiny negative excursions (GMRES is not monotone) are clipped. response: a shape's response
-        (response_tol, response_float32; its power balance is not reported)."""
+        (response_tol, response_float32; its power balance is not reported). tol: instead of
+        those tolerances (a preview's)."""
         op = self.operator()
         if response and self.response_float32:
             op = op.float32()
@@ -46,7 +47,7 @@ class Solves:
             self.links,
             E,
             B0=B0,
-            tol=self.response_tol if response else self.tol,
+            tol=tol if tol is not None else self.response_tol if response else self.tol,
             op=op,
             energy=not response,
             verify=not response,  # a response's own check would be one gather in ten (Live, Cornell)

@@ -272,8 +272,11 @@ class DirectLight:
             D += self._light(rec)[:, None] * rec.scale[None]
         live = set()
         for rec in dyn.shapes.values():
-            Ds, inside = self._shape(dyn, rec)
-            live.add(rec.geom_key)
+            if rec.preview is not None:  # Live during a drag (FinalGather._preview_shape)
+                Ds, inside = self._preview_shape(dyn, rec)
+            else:
+                Ds, inside = self._shape(dyn, rec)
+                live.add(rec.geom_key)
             D += Ds[:, None] * rec.emission[None]
             E[inside] += rec.emission[None]
         # forget shapes gone for good (keep a few recent ones: a shape toggled back is instant)

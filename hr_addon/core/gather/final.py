@@ -1,6 +1,8 @@
 """FinalGather: the hemisphere rays' precompute (CSR weights over the HR leaves), the run-time
 values of the leaves (levels, iterations, cached responses, NAIVE) and the output (docs/gather.md)."""
 
+import copy
+
 import numpy as np
 
 from .. import formfactor as ff
@@ -563,6 +565,9 @@ class FinalGather(DirectLight):
         total = self._responses[key0].copy()
         live = {key0}
         for rec in recs:
+            if rec.preview is not None:
+                total += rec.emission[None] * self._preview_part(dyn, rec)
+                continue
             k = ("shape", rec.geom_key, rec.used)
             live.add(k)
             if k not in self._responses:
@@ -595,6 +600,54 @@ class FinalGather(DirectLight):
         for k in gone[: max(len(gone) - 8, 0)]:
             del self._responses[k]
         return total
+
+    # -- Live's preview of a dragged shape (events.records.Preview, docs/live.md) ---------------------
+    def _preview_shape(self, dyn, rec):
+        """(unit D (n,) float32, indices inside the outline) of a previewed shape: _shape's estimator
+        with the preview's shadow rays (the top level's, or the second level's), the same fixed
+        stratified set per sample (Hammersley, rotated by the sample's hash), so unbiased in
+        expectation; kept for the last few outlines."""
+        P = rec.preview
+        second = getattr(self, "_leaf_nodes", None) is not None  # (set on the second level only)
+        S = P.second_shadow_rays if second else P.shadow_rays
+        if S >= self.shadow_rays:
+            return self._shape(dyn, rec)
+        cache = self.__dict__.setdefault("_preview_cache", {})
+        got = cache.get((rec.geom_key, S))
+        if got is None:
+            em, inside, _ = self._shape_emitter(dyn, rec)
+            g = copy.copy(self)  # this level with fewer shadow rays (the arrays shared)
+            g.shadow_rays = S
+            D = g.direct_light(em) if em is not None else np.zeros(self.n, np.float32)
+            got = cache[(rec.geom_key, S)] = (D, inside)
+            for k in list(cache)[: max(len(cache) - 4, 0)]:
+                del cache[k]
+        return got
+
+    def _preview_part(self, dyn, rec):
+        """(n, 3) float32 a previewed shape's D + I at unit emission: its preview direct light, and
+        the rays reading the HR leaves (levels 1) or a second level without iterations (levels 2)
+        of its preview response. Kept on the record (a colour edit during a drag is a scale)."""
+        got = getattr(rec, "_part", None)
+        if got is not None and got[0] is self:
+            return got[1]
+        h = dyn.system.h
+        n = h.n
+        X = rec.U[:, :n] - dyn._coverage(rec)[None, :n] * h.exposure[:n].astype(np.float64)
+        V = self._values_from(h, X)
+
+        def unit(g):
+            return np.repeat(g._preview_shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
+
+        if rec.preview.levels >= 2 and self.second is not None:
+            g = copy.copy(self)
+            g.iterations = 0
+            Y = g._levels(V, unit)
+        else:
+            Y = (V, None, None, None)
+        part = (unit(self) + self._read(Y)).astype(np.float32)
+        rec._part = (self, part)
+        return part
 
     def _naive_values(self, dyn):
         """NAIVE: each used HR leaf reads the rebuilt solution (reflected, shown) at its 2 x 2 Gauss
