@@ -23,6 +23,8 @@ _TRANSIENT = {
         "_responses_of": None,
         "_naive_key": None,
         "_naive_V": None,
+        "_loop_map_": None,
+        "_loop_parts": dict,
     },
 }
 _TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]
