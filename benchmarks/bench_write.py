@@ -101,6 +101,32 @@ def main(argv=None):
         assert not timed("write: apply_arrays(reader=) flat", deliver_new)
         out["written_equal"] = bool(np.array_equal(read_back(), ref))
         print(f"values equal {out['values_equal']}, written values equal {out['written_equal']}", flush=True)
+
+        def former():  # a copy of the code before edit100k: apply_arrays, write_attribute, Live's marks
+            objs = playback.objects_by_name(scene, old_vals)
+            for name, values in old_vals.items():
+                me = objs[name].data
+                if objs[name].type != "MESH" or objs[name].mode == "EDIT":
+                    continue
+                attr = me.color_attributes.get("HR_Radiance")
+                assert attr.domain == d and attr.data_type == "FLOAT_COLOR" and len(attr.data) == len(values)
+                attr.data.foreach_set("color", np.ascontiguousarray(values, np.float32).ravel())
+                me.update_tag()
+                STATE.writes.mark(me.name)
+            for obj in playback.objects_by_name(scene, old_vals).values():
+                if obj is not None and obj.type == "MESH":
+                    STATE.writes.mark(obj.data.name, reader=scene.name)
+
+        # the two in turn in one process (the load of the shared machine changes within a run)
+        ts = {"former": [], "new": []}
+        for _ in range(args.repeats):
+            for k, fn in (("former", former), ("new", deliver_new)):
+                c0 = cpu()
+                fn()
+                ts[k].append(cpu() - c0)
+        for k, v in ts.items():
+            out[f"write in turn: {k}"] = statistics.median(v) * 1e3
+            print(f"write in turn: {k:20s} {statistics.median(v) * 1e3:7.1f} ms CPU (min {min(v) * 1e3:.1f})")
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     print(json.dumps(out), flush=True)
