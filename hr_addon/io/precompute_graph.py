@@ -23,7 +23,7 @@ _TRANSIENT = {
         "_responses_of": None,
         "_naive_key": None,
         "_naive_V": None,
-        "_loop_map_": None,
+        "_loop_weights": None,
         "_loop_parts": dict,
     },
 }

@@ -109,7 +109,7 @@ class LoopGather(FinalGather):
         """(li, sj, wn, start): loop li takes wn x sample value sj, sorted by sj, start (n + 1,)
         the entries of each sample: loop_values as one constant linear map (the mean over the
         uncovered samples of the corner's loops; a loop with none reads 0). Built on first use."""
-        got = self.__dict__.get("_loop_map_")
+        got = self.__dict__.get("_loop_weights")
         if got is None:
             L = len(self.loop_index)
             if self.average is not None:
@@ -124,7 +124,7 @@ class LoopGather(FinalGather):
             keep = wn > 0
             order = np.argsort(sj[keep], kind="stable")
             li, sj, wn = li[keep][order], sj[keep][order], wn[keep][order]
-            got = self._loop_map_ = (li, sj, wn, np.searchsorted(sj, np.arange(self.n + 1)))
+            got = self._loop_weights = (li, sj, wn, np.searchsorted(sj, np.arange(self.n + 1)))
         return got
 
     def loop_values(self, v, domain="CORNER"):
