@@ -443,6 +443,53 @@ def test_cached_responses_equal_the_full_gather(method):
     assert len(cached._responses) >= 3 and not full._responses
 
 
+def test_loop_radiance_by_response_parts_equals_the_full_gather():
+    """LoopGather.loop_radiance in "response" mode sums each part's own loop values (a colour or
+    strength edit: one sum of (L, 3) arrays): through adds, colour and strength edits, a Blender
+    light and a removal it equals the gather of the current solution mapped to the loops (CORNER
+    and POINT) to float32 rounding (2.5e-7 of the brightest: the parts are float32 as the
+    responses are). The clip at 0 (the slopes' read can dip below 0) is tested by making parts
+    negative at chosen samples, where the sum must be clipped as the full path clips it."""
+    from hr_addon.core.lights import Light
+
+    base = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    dyn = DynamicRadiosity(base.copy(), method="FE")
+    a = LightShape(S.on_plane(RECT, S.CORNELL_BACK_WALL), np.array([4.0, 3, 2]), "a")
+    b = LightShape(
+        S.on_plane(S.star(0.1, 0.04, 5, centre=(0.25, 0.3)), S.CORNELL_GREEN_WALL), np.array([1.0, 2, 6]), "b"
+    )
+    lamp = {"p": Light("POINT", (1, 0.5, 0.25), 5.0, position=(0.28, 0.28, 0.4))}
+    cached = LoopGather(dyn, rays=32)
+    full = LoopGather(dyn, rays=32, cache_responses=False)
+    for shapes, lights in (
+        ({"a": a}, {}),
+        ({"a": a, "b": b}, {}),
+        ({"a": LightShape(a.rings, np.array([1.0, 5, 0.5]), "a"), "b": b}, {}),
+        ({"a": LightShape(a.rings, np.array([2.0, 10, 1]), "a"), "b": b}, lamp),
+        ({"b": b}, lamp),
+    ):
+        dyn.apply(shapes, lights)
+        for domain in ("CORNER", "POINT"):
+            x, y = cached.loop_radiance(dyn, domain), full.loop_radiance(dyn, domain)
+            assert x.dtype == np.float32 and x.shape == y.shape
+            assert np.abs(x - y).max() <= 2.5e-7 * np.abs(y).max()
+    assert len(cached._loop_parts) >= 3 and not full._responses
+    # parts below 0 at some samples (both gathers read the same parts): the sum is clipped there
+    parts = cached._response_parts(dyn)
+    full._responses, full.cache_responses = cached._responses, True
+    full._responses_of = cached._responses_of
+    cached._loop_parts.clear()
+    rng = np.random.default_rng(3)
+    j = rng.choice(np.flatnonzero(~cached.dark), 40, replace=False)
+    parts[1][2][j[:20]] = -0.5 * parts[0][2][j[:20]].max()  # the shape's: the total clipped at 20
+    parts[0][2][j[20:], 0] *= -1e-3  # the base's, red only: a slight dip the shape may lift
+    x = cached.loop_radiance(dyn)
+    inc = full._incident_by_response(dyn)
+    assert (inc[j[:20]] < 0).any(1).all() and (inc[j[:20]] > 0).any()  # clipped per channel
+    y = full.loop_values(full.evaluate(dyn))  # the full path's clip, on the same parts
+    assert np.abs(x - y).max() <= 2.5e-7 * np.abs(y).max() and (x >= 0).all()
+
+
 def test_outline_clipped_by_the_horizon_equals_its_pieces():
     """A light shape's direct light where the point's horizon cuts the outline: the rings (with a
     hole) clipped to the upper half-space give the same form factor as the sum over the outline's

@@ -32,7 +32,7 @@ from .settings import BakeConfig, live_mode, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
 from .lights_in import collect_light_shapes, collect_lights, lights_signature, shapes_signature
-from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
+from .scene_in import FlatExtract, SceneError, collect_geometry, geometry_objects, light_shape_objects
 
 
 class LiveError(SceneError):
@@ -305,9 +305,7 @@ def _build(sess, scene, view_layer, depsgraph, reason):
     params, min_area_rel, far = solver_setup(scene_in.mesh, cfg.params)
     targets = list(scene_in.targets)
 
-    def extract(values, targets=targets, domain=domain):
-        return {t.name: t.extract(values, domain) for t in targets}
-
+    extract = FlatExtract(targets, domain)  # every object's values as slices of one array
     spec = BuildSpec(
         scene_in.mesh,
         params,
@@ -426,10 +424,7 @@ def _deliver(sess, scene):
             print(f"HR Radiosity: Live: {r.error}", flush=True)
         sess.error = r.error
         return True
-    problems = playback.apply_arrays(scene, r.values, sess.domain)
-    for obj in playback.objects_by_name(scene, r.values).values():
-        if obj is not None and obj.type == "MESH":
-            STATE.writes.mark(obj.data.name, reader=sess.scene_name)
+    problems = playback.apply_arrays(scene, r.values, sess.domain, reader=sess.scene_name)
     sess.problems = "; ".join(problems)
     sess.error = ""
     if r is not sess.last and r.kind != "refine":

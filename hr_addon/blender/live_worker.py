@@ -345,7 +345,8 @@ class LiveWorker:
             loops = gather.loop_radiance(dyn, spec.domain)
         else:
             loops = dyn.loop_radiance(spec.domain)
-        values = {k: _rgba(v) for k, v in spec.extract(loops).items()}
+        rgba = getattr(spec.extract, "rgba", None)  # scene_in.FlatExtract: RGBA slices of one array
+        values = rgba(loops) if rgba is not None else {k: _rgba(v) for k, v in spec.extract(loops).items()}
         t2 = time.perf_counter()
         with self._cond:
             self.previewing = dyn.previewing

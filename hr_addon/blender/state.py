@@ -16,6 +16,9 @@ class OwnWrites:
     def mark(self, mesh_name, reader="playback"):
         self._pending.setdefault(reader, set()).add(mesh_name)
 
+    def mark_all(self, mesh_names, reader="playback"):
+        self._pending.setdefault(reader, set()).update(mesh_names)
+
     def take(self, reader="playback"):
         return self._pending.pop(reader, set())
 

@@ -25,6 +25,8 @@ _TRANSIENT = {
         "_naive_key": None,
         "_naive_V": None,
         "_split": None,
+        "_loop_weights": None,
+        "_loop_parts": dict,
     },
 }
 _TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]

@@ -264,23 +264,28 @@ class DirectLight:
                 del self._light_cache[k]
         return got
 
-    def direct_and_emission(self, dyn):
-        """(D (n, 3) direct light, E (n, 3) emission at the points) of the current emitters."""
-        D = self.direct_static().copy()
+    def direct_and_emission(self, dyn, direct=True):
+        """(D (n, 3) direct light, E (n, 3) emission at the points) of the current emitters; D None
+        with direct=False (the cached responses hold it: FinalGather._incident_by_response)."""
+        D = self.direct_static().copy() if direct else None
         E = self.E_static.copy()
-        for rec in dyn.lights.values():
+        for rec in dyn.lights.values() if direct else ():
             D += self._light(rec)[:, None] * rec.scale[None]
-        live = set()
         for rec in dyn.shapes.values():
             if rec.preview is not None:  # Live during a drag (FinalGather._preview_shape)
                 Ds, inside = self._preview_shape(dyn, rec)
             else:
                 Ds, inside = self._shape(dyn, rec)
-                live.add(rec.geom_key)
-            D += Ds[:, None] * rec.emission[None]
+            if direct:
+                D += Ds[:, None] * rec.emission[None]
             E[inside] += rec.emission[None]
-        # forget shapes gone for good (keep a few recent ones: a shape toggled back is instant)
+        self.forget_shapes(dyn)
+        return D, E
+
+    def forget_shapes(self, dyn):
+        """Forget the direct light of shapes gone for good (a few recent ones are kept: a shape
+        toggled back is instant)."""
+        live = {rec.geom_key for rec in dyn.shapes.values() if rec.preview is None}
         gone = [k for k in self._shape_cache if k not in live]
         for k in gone[: max(len(gone) - 8, 0)]:
             del self._shape_cache[k]
-        return D, E

@@ -544,10 +544,25 @@ class FinalGather(DirectLight):
         base solution's, and per light shape its response's at unit emission times the shape's
         emission (a colour or strength edit: one weighted sum). None where that does not apply
         (NAIVE, warm mode, a static system)."""
+        parts = self._response_parts(dyn)
+        if parts is None:
+            return None
+        total = parts[0][2].copy()
+        for _, wt, part, _ in parts[1:]:
+            total += wt[None] * part
+        return total
+
+    def _response_parts(self, dyn):
+        """[(key, weight (3,), part (n, 3), shape record or None)]: the cached parts whose weighted
+        sum is _incident_by_response's D + I, the base solution's first (weight None), then the
+        light shapes' (weight: their emission) and the Blender lights' (their scale), in that order.
+        None where that does not apply."""
         if not self.cache_responses or dyn.incremental != "response" or dyn.naive_active:
             return None
         recs = list(dyn.shapes.values())
         if any(r.U is None or r.used == "NAIVE" or not r.on_surface for r in recs):
+            return None
+        if any(rec.U is None for rec in dyn.lights.values()):
             return None
         if self._responses_of is not dyn:  # parts of another DynamicRadiosity (ids may be reused)
             self._responses.clear()
@@ -562,14 +577,12 @@ class FinalGather(DirectLight):
             V = self._values_from(h, X)
             Y = self._levels(V, lambda g: g.direct_static())
             self._responses[key0] = self.direct_static() + self._read(Y)
-        total = self._responses[key0].copy()
-        live = {key0}
+        out = [(key0, None, self._responses[key0], None)]
         for rec in recs:
             if rec.preview is not None:
-                total += rec.emission[None] * self._preview_part(dyn, rec)
+                out.append((("preview", rec.geom_key), rec.emission, self._preview_part(dyn, rec), rec))
                 continue
             k = ("shape", rec.geom_key, rec.used)
-            live.add(k)
             if k not in self._responses:
                 X = rec.U[:, :n] - dyn._coverage(rec)[None, :n] * ex
 
@@ -579,12 +592,9 @@ class FinalGather(DirectLight):
                 Y = self._levels(self._values_from(h, X), unit)
                 part = unit(self) + self._read(Y)
                 self._responses[k] = part.astype(np.float32)
-            total += rec.emission[None] * self._responses[k]
+            out.append((k, rec.emission, self._responses[k], rec))
         for rec in dyn.lights.values():
-            if rec.U is None:
-                return None
             k = ("light", rec.geom_key)
-            live.add(k)
             if k not in self._responses:
                 X = rec.U[:, :n]  # a light emits nothing at nodes: all of U is reflected light
 
@@ -595,11 +605,12 @@ class FinalGather(DirectLight):
                 part = unit(self) + self._light_bounce(rec, Y[0])
                 part += self._read(Y)
                 self._responses[k] = part.astype(np.float32)
-            total += rec.scale[None] * self._responses[k]
+            out.append((k, rec.scale, self._responses[k], None))
+        live = {p[0] for p in out}
         gone = [k for k in self._responses if k not in live]
         for k in gone[: max(len(gone) - 8, 0)]:
             del self._responses[k]
-        return total
+        return out
 
     # -- Live's preview of a dragged shape (events.records.Preview, docs/live.md) ---------------------
     def _preview_shape(self, dyn, rec):
@@ -692,8 +703,8 @@ class FinalGather(DirectLight):
         for k in kinds:
             if k not in KINDS:
                 raise ValueError(f"unknown kind {k!r} ({', '.join(KINDS)})")
-        D, E = self.direct_and_emission(dyn)
         inc = self._incident_by_response(dyn)
+        D, E = self.direct_and_emission(dyn, direct=inc is None)
         if inc is None:
             inc = D + self.indirect(dyn)
         inc[self.dark] = 0.0

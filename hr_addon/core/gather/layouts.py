@@ -100,23 +100,95 @@ class LoopGather(FinalGather):
         super().__init__(system, pts, nrm, patch, **kw)
 
     def loop_radiance(self, dyn, domain="CORNER", kind="radiance"):
-        return self.loop_values(self.evaluate(dyn, kind), domain)
+        out = self._radiance_by_response(dyn) if kind == "radiance" else None
+        if out is None:
+            return self.loop_values(self.evaluate(dyn, kind), domain)
+        return in_domain(out, self.system.mesh, domain)
+
+    def _loop_map(self):
+        """(li, sj, wn, start): loop li takes wn x sample value sj, sorted by sj, start (n + 1,)
+        the entries of each sample: loop_values as one constant linear map (the mean over the
+        uncovered samples of the corner's loops; a loop with none reads 0). Built on first use."""
+        got = self.__dict__.get("_loop_weights")
+        if got is None:
+            L = len(self.loop_index)
+            if self.average is not None:
+                li, lj, w = self.average
+                sj = self.loop_index[lj]
+                w = w * ~self.dark[sj]
+                den = np.bincount(li, w, L)
+                wn = w / np.where(den > 0, den, 1.0)[li]
+            else:
+                li = np.flatnonzero(self.loop_index >= 0)
+                sj, wn = self.loop_index[li], np.ones(len(li))
+            keep = wn > 0
+            order = np.argsort(sj[keep], kind="stable")
+            li, sj, wn = li[keep][order], sj[keep][order], wn[keep][order]
+            got = self._loop_weights = (li, sj, wn, np.searchsorted(sj, np.arange(self.n + 1)))
+        return got
 
     def loop_values(self, v, domain="CORNER"):
         """Sample values (n, 3) (evaluate's, or core.lights.indirect_incident's) in the loop_radiance
         layout."""
-        if self.average is not None:
-            li, lj, w = self.average
-            sj = self.loop_index[lj]
-            w = w * ~self.dark[sj]
-            den = np.bincount(li, w, len(self.loop_index))
-            out = np.zeros((len(self.loop_index), 3))
-            for c in range(3):
-                out[:, c] = np.bincount(li, w * v[sj, c], len(self.loop_index))
-            out = np.where(den[:, None] > 0, out / np.maximum(den, 1e-300)[:, None], 0.0)
-        else:
-            out = np.where((self.loop_index >= 0)[:, None], v[np.maximum(self.loop_index, 0)], 0.0)
-        return in_domain(out, self.system.mesh, domain)
+        return in_domain(self._loops(v), self.system.mesh, domain)
+
+    def _loops(self, v):
+        """(L, 3) float64 per loop of sample values v (n, 3) (_loop_map)."""
+        li, sj, wn, _ = self._loop_map()
+        L = len(self.loop_index)
+        return np.stack([np.bincount(li, wn * v[sj, c], L) for c in range(v.shape[1])], 1)
+
+    def _radiance_by_response(self, dyn):
+        """(L, 3) loop_radiance (CORNER, float64) as a weighted sum of the response parts' own
+        loop values (FinalGather._response_parts): the output is linear in them but where the
+        incident light sum dips below 0 (clipped to 0: the slopes' read), so each part's loop
+        values are kept with the samples where it is negative, and the sum is corrected at the
+        samples where the total is. A colour or strength edit is then one sum of (L, 3) arrays.
+        None where the responses do not apply (evaluate's path)."""
+        parts = self._response_parts(dyn) if self.group is None else None
+        if parts is None:
+            return None
+        self.forget_shapes(dyn)
+        cache = self.__dict__.setdefault("_loop_parts", {})
+        ok = ~self.dark
+        gain = self.rho if self.gain is None else self.rho * self.gain
+        out, neg = None, []
+        for key, wt, part, rec in parts:
+            got = cache.get(key)
+            if got is None or got[0] is not part:
+                # the output of this part alone: what it adds to E + rho gain (D + I) where uncovered
+                x = gain * part
+                if rec is None and wt is None:
+                    x += self.E_static
+                elif rec is not None:
+                    own = self._shape if rec.preview is None else self._preview_shape
+                    x[own(dyn, rec)[1]] += 1.0  # the shape's own emission, per unit
+                x[self.dark] = 0.0
+                idx = np.flatnonzero((part < 0).any(1) & ok)
+                got = cache[key] = (part, self._loops(x).astype(np.float32), idx)
+            Q, idx = got[1], got[2]
+            out = Q.astype(np.float64) if wt is None else out + wt[None] * Q
+            neg.append(idx)
+        live = {p[0] for p in parts}
+        for k in [k for k in cache if k not in live][:-8]:
+            del cache[k]
+        idx = np.unique(np.concatenate(neg))
+        if len(idx):
+            # the clipped samples: the same total as _incident_by_response there, its part below 0 out
+            tot = parts[0][2][idx].copy()
+            for _, wt, part, _ in parts[1:]:
+                tot += wt[None] * part[idx]
+            d = np.where(tot < 0, -gain[idx] * tot, 0.0)
+            j = np.flatnonzero(d.any(1))
+            if len(j):
+                li, _, wn, start = self._loop_map()
+                a, b = start[idx[j]], start[idx[j] + 1]
+                e = np.repeat(a - np.cumsum(np.r_[0, (b - a)[:-1]]), b - a) + np.arange((b - a).sum())
+                row = np.repeat(j, b - a)
+                for c in range(3):
+                    out[:, c] += np.bincount(li[e], wn[e] * d[row, c], len(out))
+            np.maximum(out, 0.0, out=out)  # a sum of terms >= 0: only the parts' rounding dips below
+        return out
 
 
 def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None):

@@ -1,0 +1,107 @@
+"""Writing HR_Radiance (playback.write_attribute / apply_arrays, scene_in.FlatExtract): the faster
+path writes the values the code before it wrote. Nothing here asserts on time."""
+
+import numpy as np
+
+from test_blender_helpers import empty_scene
+
+
+def _scene(bpy, ms):
+    """A few objects: plain quads, a box, one with a modifier changing its topology, one whose
+    HR_Radiance exists on the wrong domain."""
+    mat = ms.diffuse("grey", (0.5, 0.5, 0.5))
+    for i in range(4):
+        quad = [(i, 0, 0), (i + 0.9, 0, 0), (i + 0.9, 1, 0), (i, 1, 0)]
+        ms.mesh_object(f"quad{i}", quad, [[0, 1, 2, 3]], mat)
+    v = [(x, y, z) for x in (0, 1) for y in (2, 3) for z in (0, 1)]
+    faces = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    ms.mesh_object("box", v, faces, mat)
+    sub = ms.mesh_object("sub", [(0, 4, 0), (1, 4, 0), (1, 5, 0), (0, 5, 0)], [[0, 1, 2, 3]], mat)
+    sub.modifiers.new("s", "SUBSURF").levels = 1
+    bpy.data.objects["quad1"].data.color_attributes.new("HR_Radiance", "FLOAT_COLOR", "POINT")
+
+
+def _old_write(me, values, domain):
+    """playback.write_attribute before this branch (the reference)."""
+    attr = me.color_attributes.get("HR_Radiance")
+    if attr is not None and (attr.domain != domain or attr.data_type != "FLOAT_COLOR"):
+        me.color_attributes.remove(attr)
+        attr = None
+    if attr is None:
+        attr = me.color_attributes.new("HR_Radiance", "FLOAT_COLOR", domain)
+    attr.data.foreach_set("color", np.ascontiguousarray(values, np.float32).ravel())
+    me.update_tag()
+
+
+def _read(bpy, names):
+    out = {}
+    for n in names:
+        attr = bpy.data.objects[n].data.attributes["HR_Radiance"]
+        buf = np.empty(len(attr.data) * 4, np.float32)
+        attr.data.foreach_get("color", buf)
+        out[n] = (attr.domain, attr.data_type, buf)
+    return out
+
+
+def test_faster_write_gives_the_values_written_before():
+    """Per object values from FlatExtract (one array, views per object) written by apply_arrays
+    equal, bitwise, what Target.extract + an RGBA copy per object (the Live worker's way) wrote
+    through the former write_attribute, for CORNER and POINT; the wrong-domain attribute is made
+    anew; the meshes are marked as written for playback and for the given reader."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import playback, scene_in
+    from hr_addon.blender.state import STATE
+
+    _scene(bpy, ms)
+    si = scene_in.collect_geometry(bpy.context.view_layer, bpy.context.evaluated_depsgraph_get())
+    assert any(t.vert_map is not None for t in si.targets)  # the modifier's topology path is covered
+    names = [t.name for t in si.targets]
+    rng = np.random.default_rng(1)
+    for domain in ("CORNER", "POINT"):
+        n = len(si.mesh.verts) if domain == "POINT" else len(si.mesh.loop_verts)
+        values = rng.random((n, 3)).astype(np.float32)
+        ref = {}
+        for t in si.targets:
+            v = np.asarray(t.extract(values, domain), np.float32)
+            ref[t.name] = np.concatenate([v, np.ones((len(v), 1), np.float32)], 1)
+            _old_write(bpy.data.objects[t.name].data, ref[t.name], domain)
+        before = _read(bpy, names)
+        for n_ in names:  # another value in every attribute first: the new path must write them all
+            playback.write_attribute(bpy.data.objects[n_].data, np.zeros_like(ref[n_]), domain)
+        bpy.data.objects["quad1"].data.attributes.remove(
+            bpy.data.objects["quad1"].data.attributes["HR_Radiance"]
+        )
+        bpy.data.objects["quad1"].data.color_attributes.new(
+            "HR_Radiance", "FLOAT_COLOR", "CORNER" if domain == "POINT" else "POINT"
+        )
+        flat = scene_in.FlatExtract(si.targets, domain)
+        new = flat.rgba(values)
+        assert list(new) == names
+        assert all(np.array_equal(new[k], ref[k]) for k in names)
+        assert all(np.array_equal(flat(values)[k], ref[k][:, :3]) for k in names)
+        STATE.writes.take(), STATE.writes.take("mine")
+        assert playback.apply_arrays(scene, new, domain, reader="mine") == []
+        after = _read(bpy, names)
+        for k in names:
+            assert after[k][:2] == (domain, "FLOAT_COLOR") == before[k][:2]
+            assert np.array_equal(after[k][2], before[k][2]), k
+        meshes = {bpy.data.objects[k].data.name for k in names}
+        assert STATE.writes.take() == meshes and STATE.writes.take("mine") == meshes
+
+
+def test_foreach_set_alone_updates_the_evaluated_mesh():
+    """Where write_attribute leaves out mesh.update_tag() (playback.TAG_AFTER_SET False: Blender
+    5.0), foreach_set on the attribute's data must itself make the evaluated mesh show the new
+    values (two writes in turn, each read back from the evaluated mesh)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import playback
+
+    _scene(bpy, ms)
+    obj = bpy.data.objects["box"]
+    n = len(obj.data.loops)
+    for value in (0.25, 0.75):
+        assert playback.apply_arrays(scene, {"box": np.full((n, 4), value, np.float32)}, "CORNER") == []
+        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
+        buf = np.empty(n * 4, np.float32)
+        ev.attributes["HR_Radiance"].data.foreach_get("color", buf)
+        assert (buf == value).all(), (bpy.app.version, playback.TAG_AFTER_SET)
