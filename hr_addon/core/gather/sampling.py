@@ -194,11 +194,13 @@ class Emitter:
     SOLID_MIN = 1e-4  # triangles smaller than this (sr) seen from the point are sampled by area
     MAX_TRIANGLES = 256  # more: area sampling only (the per-point solid angles would cost too much)
 
-    def sample_at(self, x, u):
+    def sample_at(self, x, u, cm=False):
         """Points (L, S, 3) on the emitter seen from points x (L, 3), their normals and densities
         relative to solid angle: triangles are picked by their solid angle seen from x and sampled
         uniformly in solid angle (Arvo) or, when tiny, by area. Returns (y, ny, pdf_ratio) with
-        pdf_ratio = (density in solid angle) x total solid angle: ~1 where sampling is exact."""
+        pdf_ratio = (density in solid angle) x total solid angle: ~1 where sampling is exact.
+        cm: where every pick was sampled exactly (the ratio is 1), (y (3, L S), ny (3, 1) or
+        (3, L S), None) component-major instead (the same values)."""
         L, S = u.shape[:2]
         T = len(self.tri)
         if T > self.MAX_TRIANGLES:
@@ -268,6 +270,9 @@ class Emitter:
             wn = _dot3(w, n)
             tt = row(hn) / np.where(np.abs(wn) > 1e-300, wn, 1e-300)
             y[:, bsel] = np.take(x.T, lb, axis=1) + tt * w
+        if cm and allbig:
+            n = self.normal_all
+            return y, (n[:, None] if n is not None else np.take(self.tri_normal.T, kk, axis=1)), None
         y = np.ascontiguousarray(y.T)
         small = ~big
         if not allbig and small.any():
