@@ -440,7 +440,8 @@ class _Float32Backend(RayBackend):
 
     def _occluded(self, a, d):
         # component-major rows (3, N): the per-axis passes below run over contiguous rows
-        return self._occluded_cm(np.ascontiguousarray(a.T), np.ascontiguousarray(d.T), np.einsum("ij,ij->i", d, d))
+        dd = np.einsum("ij,ij->i", d, d)
+        return self._occluded_cm(np.ascontiguousarray(a.T), np.ascontiguousarray(d.T), dd)
 
     def _occluded_cm(self, a, d, dd):
         """_occluded() of component-major a, d (3, N), dd = |d|^2 (N,)."""
@@ -469,7 +470,8 @@ class _Float32Backend(RayBackend):
         out[ray[ok]] = True
         retry = np.concatenate([ray[~ok], np.flatnonzero(short)])
         if len(retry):
-            out[retry] = self._numpy()._occluded(np.ascontiguousarray(a[:, retry].T), np.ascontiguousarray(d[:, retry].T))
+            ar, dr = (np.ascontiguousarray(v[:, retry].T) for v in (a, d))
+            out[retry] = self._numpy()._occluded(ar, dr)
         self.last_retraced = len(retry)
         return out
 

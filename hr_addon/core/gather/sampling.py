@@ -266,7 +266,8 @@ class Emitter:
                 row(np.cos(alpha)),
             )
             # the point where direction w meets the triangle's plane (one normal for all: no take)
-            n = self.normal_all[:, None] if self.normal_all is not None else np.take(self.tri_normal.T, kb, axis=1)
+            n = self.normal_all
+            n = n[:, None] if n is not None else np.take(self.tri_normal.T, kb, axis=1)
             wn = _dot3(w, n)
             tt = row(hn) / np.where(np.abs(wn) > 1e-300, wn, 1e-300)
             y[:, bsel] = np.take(x.T, lb, axis=1) + tt * w
