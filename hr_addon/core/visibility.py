@@ -153,8 +153,9 @@ class RayBackend:
         """occluded() of the segments a -> a + d given component-major, a, d (3, N) float64 (d: the
         b - a that occluded() computes): the same values without its row-major (N, 3) passes.
         Runs inline (a caller on threads calls it per batch)."""
-        dd = (d[0] * d[0] + d[2] * d[2]) + d[1] * d[1]  # einsum's order for rows of 3
-        live = np.isfinite((a[0] + a[1]) + a[2]) & np.isfinite(dd) & (dd > 0)
+        with np.errstate(over="ignore", invalid="ignore"):  # silent, as occluded()'s einsum
+            dd = (d[0] * d[0] + d[2] * d[2]) + d[1] * d[1]  # einsum's order for rows of 3
+            live = np.isfinite((a[0] + a[1]) + a[2]) & np.isfinite(dd) & (dd > 0)
         out = np.zeros(a.shape[1], dtype=bool)
         if not len(self.triangles) or not live.any():
             return out

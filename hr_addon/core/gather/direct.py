@@ -65,8 +65,9 @@ class DirectLight:
                 X, N = xo.T[:, :, None], no.T[:, :, None]
                 d = y - X
                 dot = lambda a, b: (a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]  # einsum's order for rows of 3
-                r = np.sqrt(np.maximum(dot(d, d), 1e-300))
-                kern = np.maximum(dot(d, N) / r, 0) * (dot(d, ny) < 0)
+                with np.errstate(over="ignore", invalid="ignore"):  # silent as einsum (grazing rays)
+                    r = np.sqrt(np.maximum(dot(d, d), 1e-300))
+                    kern = np.maximum(dot(d, N) / r, 0) * (dot(d, ny) < 0)
                 o = X + eps * N
                 vis = ~self.system.backend.occluded_cm(
                     np.broadcast_to(o, y.shape).reshape(3, -1), ((y + eps * ny) - o).reshape(3, -1)
