@@ -601,3 +601,44 @@ def test_static_scene_through_the_engine_gives_the_system_solve():
         # the same solve (measured: equal bit for bit; the engine's clipping of negative
         # excursions would show at rounding only); the gather's solver options would give 7e-8
         assert diff <= 1e-12, (k, diff)
+
+
+def test_component_major_sampling_equals_the_row_major_one():
+    """Emitter.sample_at(cm=True) (the direct light's shadow rays) returns sample_at's points and
+    normals exactly, component-major, for one shared normal and for pieces facing two ways."""
+    from hr_addon.core.gather.sampling import Emitter
+
+    rng = np.random.default_rng(2)
+    flat = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]
+    quads = np.array([flat, [[1, 0, 0], [2, 0, 0], [2, 1, 0.5], [1, 1, 0.5]]], float)
+    for corners in (quads[:1], quads):
+        n, area = ff.polygon_normal_area(corners, np.full(len(corners), 4))
+        em = Emitter(corners, np.full(len(corners), 4), area, n)
+        assert (em.normal_all is not None) == (len(corners) == 1)
+        x = rng.uniform([-1, -1, 1], [3, 2, 3], (300, 3))
+        u = rng.random((300, 8, 2))
+        y, ny, ratio = em.sample_at(x, u)
+        yc, nyc, rc = em.sample_at(x, u, cm=True)
+        assert rc is None and np.all(ratio == 1)
+        assert np.array_equal(yc.T.reshape(y.shape), y)
+        assert np.array_equal(np.broadcast_to(nyc, yc.shape).T.reshape(ny.shape), ny)
+
+
+def test_csr_matvec_equals_rows_of_three():
+    """The channel-major CSR matvec sums the same float32 products in the same order as the rows-of-C
+    reduceat it replaced (bitwise), empty rows 0."""
+    from hr_addon.core.gather import _csr_matvec
+
+    rng = np.random.default_rng(4)
+    counts = rng.integers(0, 40, 3000)
+    counts[::7] = 0
+    indptr = np.r_[0, np.cumsum(counts)]
+    cols = rng.integers(0, 500, indptr[-1]).astype(np.int32)
+    w = rng.random(indptr[-1]).astype(np.float32)
+    V = rng.random((500, 3))
+    prod = np.take(V.astype(np.float32), cols, axis=0) * w[:, None]
+    ref = np.zeros((3000, 3))
+    ne = np.flatnonzero(counts)
+    ref[ne] = np.add.reduceat(prod, indptr[:-1][ne], axis=0)
+    assert np.array_equal(_csr_matvec(indptr, cols, w, V, chunk=1000), ref)
+    assert np.array_equal(_csr_matvec(indptr, cols, w, V), ref)

@@ -287,3 +287,19 @@ def test_first_hit_of_every_backend_matches_the_float64_reference(name):
     assert np.mean(p == ref_p) > 1 - MAX_DISAGREE
     hit = (p >= 0) & (ref_p >= 0)
     assert np.allclose(t[hit], ref_t[hit], rtol=1e-9)
+
+
+def test_component_major_occlusion_equals_occluded(name):
+    """occluded_cm (the direct light's shadow rays, component-major) gives occluded()'s values
+    exactly, zero-length and non-finite segments included."""
+    tri = scene()
+    be = vis.make_backend(tri, name)
+    rng = np.random.default_rng(11)
+    for kind, (a, b) in ray_sets(tri, rng, 2000 if name == "mathutils" else 5000).items():
+        a, b = np.array(a, float), np.array(b, float)
+        b[:3] = a[:3]  # zero length
+        a[3, 1] = np.nan
+        ref = be.occluded(a, b)
+        got = be.occluded_cm(np.ascontiguousarray(a.T), np.ascontiguousarray((b - a).T))
+        assert ref.any() and not ref.all(), kind
+        assert np.array_equal(got, ref), kind

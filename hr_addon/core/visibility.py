@@ -149,6 +149,25 @@ class RayBackend:
                 out[live] = self._map(self._occluded, a[live], d[live])
         return out.reshape(shape)
 
+    def occluded_cm(self, a, d):
+        """occluded() of the segments a -> a + d given component-major, a, d (3, N) float64 (d: the
+        b - a that occluded() computes): the same values without its row-major (N, 3) passes.
+        Runs inline (a caller on threads calls it per batch)."""
+        with np.errstate(over="ignore", invalid="ignore"):  # silent, as occluded()'s einsum
+            dd = (d[0] * d[0] + d[2] * d[2]) + d[1] * d[1]  # einsum's order for rows of 3
+            live = np.isfinite((a[0] + a[1]) + a[2]) & np.isfinite(dd) & (dd > 0)
+        out = np.zeros(a.shape[1], dtype=bool)
+        if not len(self.triangles) or not live.any():
+            return out
+        if live.all():
+            return self._occluded_cm(a, d, dd)
+        i = np.flatnonzero(live)
+        out[i] = self._occluded_cm(a[:, i], d[:, i], dd[i])
+        return out
+
+    def _occluded_cm(self, a, d, dd):
+        return self._occluded(np.ascontiguousarray(a.T), np.ascontiguousarray(d.T))
+
     def _map(self, kernel, a, d):
         """kernel(a, d) over chunks of PARALLEL_CHUNK rays on self.threads threads, concatenated
         (a tuple of arrays per chunk for first_hit's kernel)."""
@@ -421,30 +440,39 @@ class _Float32Backend(RayBackend):
         raise NotImplementedError
 
     def _occluded(self, a, d):
-        o = a - self.center
-        length = np.sqrt(np.einsum("ij,ij->i", d, d))
-        mag = np.sqrt(np.einsum("ij,ij->i", o, o)) + length  # >= the ray's largest |coord|
+        # component-major rows (3, N): the per-axis passes below run over contiguous rows
+        dd = np.einsum("ij,ij->i", d, d)
+        return self._occluded_cm(np.ascontiguousarray(a.T), np.ascontiguousarray(d.T), dd)
+
+    def _occluded_cm(self, a, d, dd):
+        """_occluded() of component-major a, d (3, N), dd = |d|^2 (N,)."""
+        o = a - self.center[:, None]
+        length = np.sqrt(dd)
+        mag = np.sqrt((o[0] * o[0] + o[2] * o[2]) + o[1] * o[1]) + length  # >= the ray's largest |coord|
         o += TMIN * d
         short = length < F32_SHORT * mag
         trace = np.flatnonzero(~short) if short.any() else None  # None: all (saves two gathers)
-        o, e = (o, d) if trace is None else (o[trace], d[trace])
+        o, e = (o, d) if trace is None else (o[:, trace], d[:, trace])
         prim, t_hit = self._nearest(
-            o.astype(np.float32), e.astype(np.float32), np.full(len(o), 1.0 - 2.0 * TMIN, dtype=np.float32)
+            np.ascontiguousarray(o.T, dtype=np.float32),
+            np.ascontiguousarray(e.T, dtype=np.float32),
+            np.full(o.shape[1], 1.0 - 2.0 * TMIN, dtype=np.float32),
         )
         hit = prim >= 0
         sure = hit & (t_hit > self.SURE) & (t_hit < 1.0 - self.SURE)
-        out = np.zeros(len(a), dtype=bool)
+        out = np.zeros(a.shape[1], dtype=bool)
         out[np.flatnonzero(sure) if trace is None else trace[sure]] = True
         ray = np.flatnonzero(hit & ~sure)
         prim = prim[ray]
         if trace is not None:
             ray = trace[ray]
         with np.errstate(all="ignore"):
-            ok = _hit_kernel([m[prim] for m in self._rows], *a.take(ray, axis=0).T, *d.take(ray, axis=0).T)
+            ok = _hit_kernel([m[prim] for m in self._rows], *a[:, ray], *d[:, ray])
         out[ray[ok]] = True
         retry = np.concatenate([ray[~ok], np.flatnonzero(short)])
         if len(retry):
-            out[retry] = self._numpy()._occluded(a[retry], d[retry])
+            ar, dr = (np.ascontiguousarray(v[:, retry].T) for v in (a, d))
+            out[retry] = self._numpy()._occluded(ar, dr)
         self.last_retraced = len(retry)
         return out
 

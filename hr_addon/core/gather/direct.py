@@ -55,20 +55,35 @@ class DirectLight:
             u = (
                 hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
             ) % 1.0
-            xo = xi[lit]
-            y, ny, ratio = em.sample_at(xo, u)  # (L, S, 3)
-            o = (xo + eps * ni[lit])[:, None]
-            e = y + eps * ny
-            d = y - xo[:, None]
-            r = np.sqrt(np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300))
             # ratio estimator of the visible fraction of the projected solid angle: weight cos_x
             # over the samples' solid-angle density (and only where the emitter faces the point)
-            kern = (
-                np.maximum(np.einsum("lsk,lk->ls", d, ni[lit]) / r, 0)
-                * (np.einsum("lsk,lsk->ls", d, ny) < 0)
-                / np.maximum(ratio, 1e-300)
-            )
-            vis = ~self.system.backend.occluded(np.broadcast_to(o, d.shape).reshape(-1, 3), e.reshape(-1, 3))
+            xo, no = xi[lit], ni[lit]
+            y, ny, ratio = em.sample_at(xo, u, cm=True)
+            if ratio is None:  # exact sampling everywhere: component-major (3, L, S), the same values
+                L = len(lit)
+                y, ny = y.reshape(3, L, S), ny.reshape(3, -1, S if ny.shape[1] > 1 else 1)
+                X, N = xo.T[:, :, None], no.T[:, :, None]
+                d = y - X
+                dot = lambda a, b: (a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]  # einsum's order for rows of 3
+                with np.errstate(over="ignore", invalid="ignore"):  # silent as einsum (grazing rays)
+                    r = np.sqrt(np.maximum(dot(d, d), 1e-300))
+                    kern = np.maximum(dot(d, N) / r, 0) * (dot(d, ny) < 0)
+                o = X + eps * N
+                vis = ~self.system.backend.occluded_cm(
+                    np.broadcast_to(o, y.shape).reshape(3, -1), ((y + eps * ny) - o).reshape(3, -1)
+                )
+            else:
+                o = (xo + eps * no)[:, None]
+                e = y + eps * ny
+                d = y - xo[:, None]
+                r = np.sqrt(np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300))
+                kern = (
+                    np.maximum(np.einsum("lsk,lk->ls", d, no) / r, 0)
+                    * (np.einsum("lsk,lsk->ls", d, ny) < 0)
+                    / np.maximum(ratio, 1e-300)
+                )
+                o = np.broadcast_to(o, d.shape).reshape(-1, 3)
+                vis = ~self.system.backend.occluded(o, e.reshape(-1, 3))
             vis = vis.reshape(kern.shape)
             ks = kern.sum(1)
             F[lit] *= np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)

@@ -32,7 +32,9 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
     out = np.zeros((n, V.shape[1]))
     if len(cols) == 0:
         return out
-    V32 = np.ascontiguousarray(V, dtype=np.float32)
+    # channel-major: a 1-d take and reduceat per channel are 2x faster than rows of C with
+    # reduceat along axis 0 (100k room, measured), and sum the same products in the same order
+    VT = np.ascontiguousarray(V.T, dtype=np.float32)
     blocks, r0 = [], 0
     while r0 < n:
         r1 = int(np.searchsorted(indptr, indptr[r0] + chunk, "right")) - 1
@@ -43,11 +45,14 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
     def block(r0, r1):
         a, b = indptr[r0], indptr[r1]
         if b > a:
-            prod = np.take(V32, cols[a:b], axis=0)  # 1.7x faster than V32[cols] (measured), same values
-            prod *= w[a:b, None]
+            c = cols[a:b].astype(np.intp)  # once for every channel's take (int32 is converted per call)
             starts = indptr[r0:r1] - a
             nonempty = np.flatnonzero(indptr[r0 + 1 : r1 + 1] > indptr[r0:r1])
-            out[r0 + nonempty] = np.add.reduceat(prod, starts[nonempty], axis=0)
+            rows, starts = r0 + nonempty, starts[nonempty]
+            for k in range(len(VT)):
+                prod = np.take(VT[k], c)
+                prod *= w[a:b]
+                out[rows, k] = np.add.reduceat(prod, starts)
 
     batch_map(block, blocks, threads)
     return out

@@ -186,16 +186,21 @@ class Emitter:
         self.cdf = np.cumsum(a)
         self.total = float(self.cdf[-1]) if len(a) else 0.0
         self.verts = c.reshape(-1, 3)
+        # the triangles' normal when they share one (a planar emitter), else None
+        tn = self.tri_normal
+        self.normal_all = tn[0].copy() if len(tn) and (tn == tn[0]).all() else None
         self.lo, self.hi = self.verts.min(0), self.verts.max(0)
 
     SOLID_MIN = 1e-4  # triangles smaller than this (sr) seen from the point are sampled by area
     MAX_TRIANGLES = 256  # more: area sampling only (the per-point solid angles would cost too much)
 
-    def sample_at(self, x, u):
+    def sample_at(self, x, u, cm=False):
         """Points (L, S, 3) on the emitter seen from points x (L, 3), their normals and densities
         relative to solid angle: triangles are picked by their solid angle seen from x and sampled
         uniformly in solid angle (Arvo) or, when tiny, by area. Returns (y, ny, pdf_ratio) with
-        pdf_ratio = (density in solid angle) x total solid angle: ~1 where sampling is exact."""
+        pdf_ratio = (density in solid angle) x total solid angle: ~1 where sampling is exact.
+        cm: where every pick was sampled exactly (the ratio is 1), (y (3, L S), ny (3, 1) or
+        (3, L S), None) component-major instead (the same values)."""
         L, S = u.shape[:2]
         T = len(self.tri)
         if T > self.MAX_TRIANGLES:
@@ -212,7 +217,12 @@ class Emitter:
         cdf = np.cumsum(om, axis=1)
         tot = np.maximum(cdf[:, -1:], 1e-300)
         xs = u[..., 0] * tot
-        k = np.minimum((cdf[:, None, :] <= xs[..., None]).sum(-1), T - 1)  # (L, S)
+        if T <= 16:  # a column at a time: no (L, S, T) temporary (the same counts)
+            k = np.zeros((L, S), np.int64)
+            for t in range(T - 1):
+                k += cdf[:, t : t + 1] <= xs
+        else:
+            k = np.minimum((cdf[:, None, :] <= xs[..., None]).sum(-1), T - 1)  # (L, S)
         lo = np.where(k > 0, np.take_along_axis(cdf, np.maximum(k - 1, 0), 1), 0.0)
         ok_ = np.take_along_axis(om, k, 1)
         s1 = np.clip((xs - lo) / np.maximum(ok_, 1e-300), 0, 1)
@@ -229,12 +239,17 @@ class Emitter:
             kb, lb = kk[bsel], li[bsel]
             j = lb * T + kb
             A2, B2, C2 = (v.reshape(3, -1) for v in (A, B, C))
+            # where a direction meets its triangle's plane: (corner 0 - x) . n per point and
+            # triangle, not per sample (the same products)
+            tn = self.tri_normal.T[:, None]  # (3, 1, T)
+            hn = _dot3(self.tri[:, 0].T[:, None] - x.T[:, :, None], tn).reshape(-1)
             if T > 2:
                 used = np.zeros(L * T, bool)
                 used[j] = True
                 pairs = np.flatnonzero(used)
                 j = (np.cumsum(used) - 1)[j]
                 A2, B2, C2 = (np.take(v, pairs, axis=1) for v in (A2, B2, C2))
+                hn = np.take(hn, pairs)
             alpha, ab, c_perp = _setup3(A2, B2, C2)
             row = lambda a: np.take(a, j)
             col = lambda a: np.take(a, j, axis=1)
@@ -250,14 +265,15 @@ class Emitter:
                 row(np.sin(alpha)),
                 row(np.cos(alpha)),
             )
-            # the point where direction w meets the triangle's plane
-            n = np.take(self.tri_normal.T, kb, axis=1)
-            xo = np.take(x.T, lb, axis=1)
+            # the point where direction w meets the triangle's plane (one normal for all: no take)
+            n = self.normal_all
+            n = n[:, None] if n is not None else np.take(self.tri_normal.T, kb, axis=1)
             wn = _dot3(w, n)
-            tt = _dot3(np.take(self.tri[:, 0].T, kb, axis=1) - xo, n) / np.where(
-                np.abs(wn) > 1e-300, wn, 1e-300
-            )
-            y[:, bsel] = xo + tt * w
+            tt = row(hn) / np.where(np.abs(wn) > 1e-300, wn, 1e-300)
+            y[:, bsel] = np.take(x.T, lb, axis=1) + tt * w
+        if cm and allbig:
+            n = self.normal_all
+            return y, (n[:, None] if n is not None else np.take(self.tri_normal.T, kk, axis=1)), None
         y = np.ascontiguousarray(y.T)
         small = ~big
         if not allbig and small.any():
