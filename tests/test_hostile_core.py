@@ -228,3 +228,47 @@ def test_degenerate_polygons_are_reported_by_object():
     assert p.dropped == 2 and p.warnings == [
         "Dropped 2 degenerate polygon(s) (zero area or fewer than 3 vertices): 2 in 'sliver'."
     ]
+
+
+def test_isolated_objects_groups_as_all_pairs_would():
+    """isolated_objects joins objects from a subset of the pairs (each against the 64 largest,
+    then those left outside that group against all): the same groups as every pair gives, against
+    a union-find over all pairs here. Scenes: a group of large boxes (all of the 64 largest), a
+    larger group of small boxes far away (the main group: most polygons; joined only through each
+    other) and stray boxes."""
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        kinds = [(0.0, 2.0, 3.0)] * int(rng.integers(64, 72)) + [(1e3, 0.1, 1.0)] * int(rng.integers(90, 110))
+        kinds += [(float(rng.uniform(-1e4, 1e4)), 0.5, 1.0) for _ in range(int(rng.integers(1, 6)))]
+        mesh = None
+        for k, (x, s, spread) in enumerate(kinds):
+            box = scenes.closed_box(s * float(np.exp(rng.normal(0.0, 0.2))))
+            box.verts = box.verts + np.array([x, 0.0, 0.0]) + rng.normal(size=3) * spread
+            box.object_id = np.zeros_like(box.object_id)
+            box.object_names = [f"o{k}"]
+            mesh = box if mesh is None else mesh.concat(box)
+        n = len(kinds)
+        lv = np.asarray(mesh.loop_verts)
+        oid = np.repeat(np.asarray(mesh.object_id), mesh.loop_total)
+        lo = np.array([mesh.verts[lv[oid == o]].min(0) for o in range(n)])
+        hi = np.array([mesh.verts[lv[oid == o]].max(0) for o in range(n)])
+        size = np.linalg.norm(hi - lo, axis=1)
+        parent = list(range(n))
+
+        def find(x):
+            while parent[x] != x:
+                x = parent[x]
+            return x
+
+        for a in range(n):
+            for b in range(a + 1, n):
+                gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo[a] - hi[b], lo[b] - hi[a])))
+                if gap <= 10.0 * max(size[a], size[b]):
+                    parent[find(a)] = find(b)
+        roots = np.array([find(a) for a in range(n)])
+        labels, count = np.unique(roots, return_counts=True)
+        main = labels[np.argmax(count)]
+        assert (count == count.max()).sum() == 1 and roots[-1] != main  # a main group, strays
+        assert roots[0] != main  # the large boxes are not the main group
+        want = sorted(f"o{a}" for a in range(n) if roots[a] != main)
+        assert sorted(d[0] for d in isolated_objects(mesh).distant) == want

@@ -478,14 +478,31 @@ def isolated_objects(mesh: MeshInput, gap_ratio=10.0, max_objects=4000) -> Scene
     np.minimum.at(lo, lobj, verts[lv])
     np.maximum.at(hi, lobj, verts[lv])
     size = np.linalg.norm(hi - lo, axis=1)
-    i, j = np.triu_indices(len(ids), 1)
-    near = []
-    for s in range(0, len(i), 1 << 20):
-        a, b = i[s : s + (1 << 20)], j[s : s + (1 << 20)]
-        gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo[a] - hi[b], lo[b] - hi[a])), axis=1)
-        near.append(np.flatnonzero(gap <= gap_ratio * np.maximum(size[a], size[b])) + s)
-    near = np.concatenate(near)
-    root = components(len(ids), i[near], j[near])
+    n = len(ids)
+
+    def near(i, j):  # the pairs (i, j) whose boxes' gap is at most gap_ratio x the larger's size
+        keep = []
+        for s in range(0, len(i), 1 << 20):
+            a, b = i[s : s + (1 << 20)], j[s : s + (1 << 20)]
+            gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo[a] - hi[b], lo[b] - hi[a])), axis=1)
+            keep.append(np.flatnonzero(gap <= gap_ratio * np.maximum(size[a], size[b])) + s)
+        keep = np.concatenate(keep) if keep else np.zeros(0, np.int64)
+        return i[keep], j[keep]
+
+    # the same components as from all n^2 / 2 pairs (7.5 M for the furnished 100k room's 3,882
+    # objects), from fewer: every object against the 64 largest (a room's walls reach everything),
+    # then only the objects left outside the largest component against all (pairs within that
+    # component cannot change the partition)
+    big = np.argsort(-size, kind="stable")[:64]
+    i, j = near(np.repeat(big, n), np.tile(np.arange(n), len(big)))
+    root = components(n, i, j)
+    u = np.flatnonzero(root != np.bincount(root).argmax())
+    k, m = np.repeat(u, n), np.tile(np.arange(n), len(u))
+    outside = np.zeros(n, bool)
+    outside[u] = True
+    k, m = k[~outside[m] | (m > k)], m[~outside[m] | (m > k)]  # a pair within u once
+    k, m = near(k, m)
+    root = components(n, np.r_[i, k], np.r_[j, m])
     groups, inv = np.unique(root, return_inverse=True)
     garea = np.bincount(inv, obj_area, len(groups))
     gpolys = np.bincount(inv, np.bincount(np.searchsorted(ids, oid), minlength=len(ids)), len(groups))
