@@ -430,7 +430,13 @@ def run_scene(name, cfg, results, maps=None):
                             log(
                                 f"      shadow {k} {lab}: {x['texels']} texels, Cycles {x['mean_ref']:.4f}, "
                                 f"gather {100 * x['gather_bias']:+.1f}% "
-                                f"(leaves {100 * x['leaf_bias']:+.1f}%), "
+                                f"(leaves {100 * x['leaf_bias']:+.1f}%"
+                                + (
+                                    f", smooth {100 * x['smooth_bias']:+.1f}%"
+                                    if x["smooth_bias"] is not None
+                                    else ""
+                                )
+                                + "), "
                                 f"per texel {x['gather_rel_rmse']:.3f}; "
                                 f"Cycles' noise: mean {100 * x['ref_noise_of_mean']:.1f}%, "
                                 f"per texel {x['ref_noise_per_texel']:.3f}"
@@ -611,9 +617,10 @@ CONTACTS_OF = {"floor": ("short_block", "tall_block")}
 
 def shadow_metrics(rs, res, a, b, scene, regions):
     """Per region of shadow_regions (kept in `regions` between frames): Cycles' mean (the two
-    seeds a, b averaged), the mean signed error of the final gather and of the leaves (cycles_ref
-    metrics' bias), the root mean square of (gather - Cycles) per texel over the region's mean, and
-    Cycles' own noise of the region's mean and per texel (from the two seeds, of their average)."""
+    seeds a, b averaged), the mean signed error of the final gather, of the leaves and of the
+    texture output's smooth interpolation before the gather (AUTO runs) (cycles_ref metrics'
+    bias), the root mean square of (gather - Cycles) per texel over the region's mean, and Cycles'
+    own noise of the region's mean and per texel (from the two seeds, of their average)."""
     from hr_testing import cycles_ref as C
 
     out = {}
@@ -630,6 +637,8 @@ def shadow_metrics(rs, res, a, b, scene, regions):
                 continue
             g = C.metrics(res[surface]["gather_refl"], ref, ok)
             lf = C.metrics(res[surface]["leaf_refl"], ref, ok)
+            # the texture output before the final gather (its smooth interpolation; AUTO runs)
+            sm = C.metrics(res[surface]["smooth_refl"], ref, ok) if "smooth_refl" in res[surface] else None
             mr = float(np.mean(g["mean_ref"]))
             ma, mb = a[surface][ok].mean(0), b[surface][ok].mean(0)
             d[label] = {
@@ -637,6 +646,7 @@ def shadow_metrics(rs, res, a, b, scene, regions):
                 "mean_ref": mr,
                 "gather_bias": g["bias"],
                 "leaf_bias": lf["bias"],
+                "smooth_bias": sm["bias"] if sm else None,
                 "gather_rel_rmse": float(
                     np.sqrt(np.mean((res[surface]["gather_refl"][ok] - ref[ok]).mean(1) ** 2)) / mr
                 ),
