@@ -95,6 +95,7 @@ PARAMS = {}  # --params
 GATHER = 0  # --gather: hemisphere rays of the final gather compared alongside (0: off)
 GATHER_LEVELS = 1  # --gather-levels
 GATHER_ITERATIONS = 0  # --gather-iterations
+GATHER_SHADOW_RAYS = 32  # --gather-shadow-rays (the bake's medium setting)
 GATHER_AREA = True  # --gather-centres: texels gather at their centres only (before texel_samples)
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
@@ -289,7 +290,11 @@ def run_scene(name, cfg, results, maps=None):
         "scene": name,
         "config": cfg,
         "gather_settings": dict(
-            rays=GATHER, levels=GATHER_LEVELS, iterations=GATHER_ITERATIONS, texel_area=GATHER_AREA
+            rays=GATHER,
+            levels=GATHER_LEVELS,
+            iterations=GATHER_ITERATIONS,
+            texel_area=GATHER_AREA,
+            shadow_rays=GATHER_SHADOW_RAYS,
         )
         if GATHER
         else {},
@@ -405,6 +410,7 @@ def run_scene(name, cfg, results, maps=None):
                         levels=GATHER_LEVELS,
                         iterations=GATHER_ITERATIONS,
                         texel_area=GATHER_AREA,
+                        shadow_rays=GATHER_SHADOW_RAYS,
                     )
                     for n in rs.objects:
                         res[n].update(gres[n])
@@ -1123,6 +1129,7 @@ def main():
     ap.add_argument(
         "--gather-iterations", type=int, default=0, help="two levels: passes among gather samples"
     )
+    ap.add_argument("--gather-shadow-rays", type=int, default=32, help="shadow rays per sample and emitter")
     ap.add_argument(
         "--gather-centres", action="store_true", help="texels gather at their centres only (no texel area)"
     )
@@ -1130,9 +1137,10 @@ def main():
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
     args = ap.parse_args()
-    global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS, GATHER_AREA
+    global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS, GATHER_AREA, GATHER_SHADOW_RAYS
     USE_CACHE = not args.no_cache
     GATHER_AREA = not args.gather_centres
+    GATHER_SHADOW_RAYS = args.gather_shadow_rays
     GATHER, GATHER_LEVELS, GATHER_ITERATIONS = args.gather, args.gather_levels, args.gather_iterations
     from hr_addon.core.refine import RefineParams
 
