@@ -1,6 +1,7 @@
 """Where Cycles' Diffuse/Emit bake samples each texel, against the footprint the comparisons assume
-(core.gather.bakepoints: the middle half of the texel, uniform, folded into the centre's
-triangle). On the Cornell back wall (texel 1/56 of the diagonal, cycles_ref's atlas), two seeds:
+(core.gather.bakepoints: the middle half of the texel, uniform over its part inside the
+centre's triangle; before 2026-12-03 folded into it by mirror repeat, as Cycles 3.x did). On the
+Cornell back wall (texel 1/56 of the diagonal, cycles_ref's atlas), two seeds:
 - Position bake at --spp: each texel's mean sample against the footprint's mean, in texels along
   the texel's sides (mean, spread, and the two seeds' correlation: a placement error that is the
   same at every seed does not show in the seeds' spread);
