@@ -20,7 +20,7 @@ def bake_points(tris, centres, axes, f, clamp=False):
     """Where Cycles' bake evaluates a texel at sub-pixel offsets f (n, ..., 2) in [0, 1]^2, 0.5 the
     centre (kernel/integrator/init_from_bake.h, Blender 5.0): the centre's barycentrics in its
     triangle tris (n, 3, 3) moved by BAKE_SPAN x the barycentric steps of the texel's sides axes
-    (n, 2, 3); Cycles draws an offset that leaves the triangle again (up to BAKE_TRIES, then the
+    (n, 2, 3); Cycles draws an offset that leaves the triangle again (up to 10 tries, then the
     centre), so its samples are uniform over the middle half of the texel inside the centre's
     triangle: a texel straddling the triangle's edge reads its own triangle, never the neighbour.
     Cycles 3.x folded such offsets back by mirror repeat instead (denser near the edge); a
