@@ -11,7 +11,9 @@ baked at several sample counts with two seeds (its noise = error of an unbiased 
     .venv/bin/python benchmarks/cycles_compare.py --plot-only      # chart from the JSON
 
 Writes benchmarks/out/cycles.json, benchmarks/cycles_speed_accuracy.png and
-benchmarks/out/cycles_maps_cornell.png (error maps). Cycles bakes are cached in
+benchmarks/out/cycles_maps_cornell.png (error maps). With --gather, the Cornell floor's texels in
+the short block's shadow from the ceiling light (core, penumbra: shadow_regions) get their own
+figures ("shadows" in the JSON). Cycles bakes are cached in
 benchmarks/out/cycles_cache/ (not committed; --no-cache re-bakes). Times are CPU seconds of the
 process (all threads: Cycles is asked for one thread but may use more, BLAS is single-threaded), so
 that other users of the machine do not distort them. About 16 min of CPU from scratch, 8.5 min
@@ -93,6 +95,7 @@ PARAMS = {}  # --params
 GATHER = 0  # --gather: hemisphere rays of the final gather compared alongside (0: off)
 GATHER_LEVELS = 1  # --gather-levels
 GATHER_ITERATIONS = 0  # --gather-iterations
+GATHER_SHADOW_RAYS = 32  # --gather-shadow-rays (the bake's medium setting)
 GATHER_AREA = True  # --gather-centres: texels gather at their centres only (before texel_samples)
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
@@ -287,7 +290,11 @@ def run_scene(name, cfg, results, maps=None):
         "scene": name,
         "config": cfg,
         "gather_settings": dict(
-            rays=GATHER, levels=GATHER_LEVELS, iterations=GATHER_ITERATIONS, texel_area=GATHER_AREA
+            rays=GATHER,
+            levels=GATHER_LEVELS,
+            iterations=GATHER_ITERATIONS,
+            texel_area=GATHER_AREA,
+            shadow_rays=GATHER_SHADOW_RAYS,
         )
         if GATHER
         else {},
@@ -302,7 +309,7 @@ def run_scene(name, cfg, results, maps=None):
         "cycles_sweep": [],
         "ours": [],
     }
-    shapes_at, refs = {}, {}
+    shapes_at, refs, seeds_of, regions = {}, {}, {}, {}
     # Cycles: reference per frame, sweep on one frame
     for f in cfg["frames"]:
         shapes_at[f] = C.shape_proxies(rs, f)
@@ -312,6 +319,7 @@ def run_scene(name, cfg, results, maps=None):
         pa, pb = pooled(a), pooled(b)
         sig, sig_mean = C.noise(pa, pb)
         refs[f] = ref
+        seeds_of[f] = (a, b)
         fr = {
             "shapes": sorted(shapes_at[f]),
             "ref_spp": 2 * cfg["ref_spp"],
@@ -402,6 +410,7 @@ def run_scene(name, cfg, results, maps=None):
                         levels=GATHER_LEVELS,
                         iterations=GATHER_ITERATIONS,
                         texel_area=GATHER_AREA,
+                        shadow_rays=GATHER_SHADOW_RAYS,
                     )
                     for n in rs.objects:
                         res[n].update(gres[n])
@@ -420,6 +429,24 @@ def run_scene(name, cfg, results, maps=None):
                     ev["gather_cost"] = gcost
                 if (meth == "AUTO" or GATHER) and name in CONTACTS:
                     ev["contacts"] = contact_metrics(rs, res, refs[f], name)
+                if GATHER and name in SHADOWS:
+                    ev["shadows"] = shadow_metrics(rs, res, *seeds_of[f], name, regions)
+                    for k, d in ev["shadows"].items():
+                        for lab, x in d.items():
+                            log(
+                                f"      shadow {k} {lab}: {x['texels']} texels, Cycles {x['mean_ref']:.4f}, "
+                                f"gather {100 * x['gather_bias']:+.1f}% "
+                                f"(leaves {100 * x['leaf_bias']:+.1f}%"
+                                + (
+                                    f", smooth {100 * x['smooth_bias']:+.1f}%"
+                                    if x["smooth_bias"] is not None
+                                    else ""
+                                )
+                                + "), "
+                                f"per texel {x['gather_rel_rmse']:.3f}; "
+                                f"Cycles' noise: mean {100 * x['ref_noise_of_mean']:.1f}%, "
+                                f"per texel {x['ref_noise_per_texel']:.3f}"
+                            )
                 run["frames"][str(f)] = ev
                 if maps is not None and q == "medium" and meth == "AUTO" and f == cfg.get("sweep_frame"):
                     maps.update(rs=rs, res=res, ref=refs[f], frame=f, scene=name)
@@ -484,6 +511,157 @@ def contact_metrics(rs, res, ref, scene):
                     mm["gather"] = C.metrics(res[surface]["gather_refl"], r, m)
                 d[label] = mm
         out[f"{surface}/{'+'.join(occ)}"] = d
+    return out
+
+
+# the short block's shadow on the floor from the ceiling light (issue 19): (surface, occluder, light,
+# occluders whose shadows are left out)
+SHADOWS = {"cornell": [("floor", "short_block", "light", ("tall_block",))]}
+SHADOW_SUB = 4  # points per side of a texel's sampled part
+SHADOW_LIGHT = 8  # light points: SHADOW_LIGHT^2 per triangle of the light
+
+
+def _world_tris(name):
+    """(T, 3, 3) loop triangles of object `name` in world coordinates."""
+    import bpy
+
+    from hr_testing.cycles_ref import _world_mesh
+
+    verts, _, _, lv, tri_loops, _ = _world_mesh(bpy.data.objects[name])
+    return verts[lv[tri_loops]]
+
+
+def _tri_points(tris, k):
+    """Centroids of the k^2 equal sub-triangles of each triangle: points uniform in area, and their
+    weights (the sub-triangle's area)."""
+    b = [((i + 1 / 3) / k, (j + 1 / 3) / k) for i in range(k) for j in range(k - i)]
+    b += [((i + 2 / 3) / k, (j + 2 / 3) / k) for i in range(k) for j in range(k - i - 1)]
+    b = np.array(b)
+    bary = np.column_stack([b, 1 - b.sum(1)])
+    pts = np.einsum("pk,tkj->tpj", bary, tris).reshape(-1, 3)
+    area = 0.5 * np.linalg.norm(np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]), axis=1)
+    return pts, np.repeat(area / k**2, len(b))
+
+
+def shadow_regions(rs, surface, occluder, light, others=(), reach=0.4):
+    """Texels of `surface` classified by how much of `light` (an emitting object) `occluder` hides
+    from the part of the texel Cycles' bake samples (bakepoints.texel_points: SHADOW_SUB^2 points
+    over the middle half, folded into the centre's triangle), against SHADOW_LIGHT^2 area-uniform
+    points per triangle of the light (segments tested against the occluder's triangles alone).
+    Texels within `reach` of the occluder's footprint are tested. Left out: texels with a point
+    under an object standing on the surface (contacts, measured apart) and texels with a point
+    that `others` shadow. -> {core: hidden from every point (umbra), edge: partly (penumbra),
+    edge_inner / edge_outer: its texels less / more than half seen, lit: the rest of the tested
+    texels, seen whole}, (N,) seen fraction (area-weighted, mean over the texel's points; nan
+    untested)."""
+    import bpy
+
+    from hr_addon.core.gather.bakepoints import texel_points
+    from hr_addon.core.visibility import make_backend
+
+    at = rs.atlases[surface]
+    cen = np.flatnonzero(at.s_centre)
+    tex = at.s_texel[cen]
+    occ = _world_tris(occluder)
+    lo, hi = occ.reshape(-1, 3).min(0), occ.reshape(-1, 3).max(0)
+    c = at.s_point[cen]
+    near = np.all((c >= lo - reach) & (c <= hi + reach), axis=1)
+    g = (
+        np.stack(np.meshgrid(np.arange(SHADOW_SUB), np.arange(SHADOW_SUB), indexing="ij"), -1) + 0.5
+    ) / SHADOW_SUB
+    g = g.reshape(-1, 2)
+    pts = texel_points(
+        c[near], at.s_axes[cen[near]], at.s_tri[cen[near]], np.broadcast_to(g, (int(near.sum()),) + g.shape)
+    )
+    k = pts.shape[1]
+    flat = pts.reshape(-1, 3)
+    lp, lw = _tri_points(_world_tris(light), SHADOW_LIGHT)
+    hide = make_backend(occ)
+    seen = (~hide.occluded(flat[:, None], lp[None])) @ lw / lw.sum()
+    other = np.zeros(len(flat), bool)
+    if others:
+        other = (
+            make_backend(np.concatenate([_world_tris(o) for o in others]))
+            .occluded(flat[:, None], lp[None])
+            .any(1)
+        )
+    seen, other = seen.reshape(-1, k), other.reshape(-1, k).any(1)
+    # under an object standing on the surface (a footprint, vertical projection)
+    covered = np.zeros(len(flat), bool)
+    for name in CONTACTS_OF.get(surface, ()):
+        ob = bpy.data.objects.get(name)
+        if ob is None:
+            continue
+        v = _world_tris(name).reshape(-1, 3)
+        hull = _convex_hull(v[:, :2])
+        e = np.roll(hull, -1, 0) - hull
+        nh = np.column_stack([e[:, 1], -e[:, 0]]) / np.linalg.norm(e, axis=1)[:, None]
+        covered |= ((flat[:, None, :2] - hull[None]) * nh[None]).sum(-1).max(1) < 1e-9
+    covered = covered.reshape(-1, k).any(1)
+    keep = ~covered & ~other
+    frac = np.full(at.n, np.nan)
+    frac[tex[near][keep]] = seen[keep].mean(1)
+    core = np.zeros(at.n, bool)
+    edge = np.zeros(at.n, bool)
+    lit = np.zeros(at.n, bool)
+    t = tex[near][keep]
+    core[t] = seen[keep].max(1) == 0
+    lit[t] = seen[keep].min(1) == 1
+    edge[t] = ~core[t] & ~lit[t]
+    masks = {
+        "core": core,
+        "edge": edge,
+        "edge_inner": edge & (frac < 0.5),
+        "edge_outer": edge & (frac >= 0.5),
+        "lit": lit,
+    }
+    return masks, frac
+
+
+CONTACTS_OF = {"floor": ("short_block", "tall_block")}
+
+
+def shadow_metrics(rs, res, a, b, scene, regions):
+    """Per region of shadow_regions (kept in `regions` between frames): Cycles' mean (the two
+    seeds a, b averaged), the mean signed error of the final gather, of the leaves and of the
+    texture output's smooth interpolation before the gather (AUTO runs) (cycles_ref metrics'
+    bias), the root mean square of (gather - Cycles) per texel over the region's mean, and Cycles'
+    own noise of the region's mean and per texel (from the two seeds, of their average)."""
+    from hr_testing import cycles_ref as C
+
+    out = {}
+    for surface, occ, light, others in SHADOWS.get(scene, []):
+        key = f"{surface}/{occ}/{light}"
+        if key not in regions:
+            regions[key] = shadow_regions(rs, surface, occ, light, others)
+        masks, _ = regions[key]
+        ref = (a[surface] + b[surface]) / 2
+        d = {}
+        for label, m in masks.items():
+            ok = m & np.isfinite(ref).all(1) & np.isfinite(res[surface]["gather_refl"]).all(1)
+            if not ok.any():
+                continue
+            g = C.metrics(res[surface]["gather_refl"], ref, ok)
+            lf = C.metrics(res[surface]["leaf_refl"], ref, ok)
+            # the texture output before the final gather (its smooth interpolation; AUTO runs)
+            sm = C.metrics(res[surface]["smooth_refl"], ref, ok) if "smooth_refl" in res[surface] else None
+            mr = float(np.mean(g["mean_ref"]))
+            ma, mb = a[surface][ok].mean(0), b[surface][ok].mean(0)
+            d[label] = {
+                "texels": g["texels"],
+                "mean_ref": mr,
+                "gather_bias": g["bias"],
+                "leaf_bias": lf["bias"],
+                "smooth_bias": sm["bias"] if sm else None,
+                "gather_rel_rmse": float(
+                    np.sqrt(np.mean((res[surface]["gather_refl"][ok] - ref[ok]).mean(1) ** 2)) / mr
+                ),
+                "ref_noise_of_mean": float(np.mean(np.abs(ma - mb) / 2 / np.maximum((ma + mb) / 2, 1e-12))),
+                "ref_noise_per_texel": float(
+                    np.sqrt(np.mean(((a[surface][ok] - b[surface][ok]) / 2).mean(1) ** 2)) / mr
+                ),
+            }
+        out[key] = d
     return out
 
 
@@ -951,6 +1129,7 @@ def main():
     ap.add_argument(
         "--gather-iterations", type=int, default=0, help="two levels: passes among gather samples"
     )
+    ap.add_argument("--gather-shadow-rays", type=int, default=32, help="shadow rays per sample and emitter")
     ap.add_argument(
         "--gather-centres", action="store_true", help="texels gather at their centres only (no texel area)"
     )
@@ -958,9 +1137,10 @@ def main():
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
     args = ap.parse_args()
-    global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS, GATHER_AREA
+    global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS, GATHER_AREA, GATHER_SHADOW_RAYS
     USE_CACHE = not args.no_cache
     GATHER_AREA = not args.gather_centres
+    GATHER_SHADOW_RAYS = args.gather_shadow_rays
     GATHER, GATHER_LEVELS, GATHER_ITERATIONS = args.gather, args.gather_levels, args.gather_iterations
     from hr_addon.core.refine import RefineParams
 

@@ -107,7 +107,7 @@ class TexturePlan:
         self._parts = []  # per object: (points, patches, representatives)
         self._axes = []  # per object: (N, 2, 3) the texels' sides on the surface
         # per object: (N, 3, 3) the triangle of each texel's centre, corners in the order of Blender's
-        # loop triangles (a quad's (0, 1, 2), (0, 2, 3)), into which Cycles' bake folds the texel
+        # loop triangles (a quad's (0, 1, 2), (0, 2, 3)), inside which Cycles' bake samples the texel
         self._tris = []
         self._locator = None
         self.albedo = {}  # object index -> (N, 3) float32 texture albedo / average at its texels

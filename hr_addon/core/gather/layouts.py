@@ -196,11 +196,11 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     where the light changes inside it at a contact: some of those points covered and some not (a
     block's footprint on a floor), or in a slot (between two books) some within open_edge gap
     widths of its mouth or at depths more than 2x apart (the light falls off as 1 / depth^2). A
-    renderer's bake averages over part of the texel (Cycles: its middle half, folded into the
+    renderer's bake averages over part of the texel (Cycles: its middle half, the part inside the
     centre's triangle); a centre reads one point, 0 or lit. axes (n, 2, 3): the texel's sides on
     the surface (world vectors of one texel step in u and in v), None: centres only. tris (n, 3,
     3): the triangle each centre lies in, in the mesh's loop-triangle order: the points are placed
-    as Cycles' bake places them, over the middle half of the texel folded into that triangle
+    as Cycles' bake places them, over the middle half of the texel inside that triangle
     (bake_points); None: over the texel's parallelogram. The jitter is keyed by the texel centre's
     position.
     Texels wholly in a slot whose points lie at depths more than 2x apart gather at their centre,
@@ -268,7 +268,7 @@ def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
     kind=kind) (same kinds; float64, cast as needed). axes (n, 2, 3): the texels' sides on the
     surface; texels straddling a contact's edge then gather over their area (texel_samples) and
     output the mean (gather.n: samples, gather.n_out: texels). tris (n, 3, 3): each centre's
-    triangle in loop-triangle order, the area folded into it as Cycles' bake does."""
+    triangle in loop-triangle order, the area inside it as Cycles' bake takes it."""
     s = system.system
     pts, pp, group, area = texel_samples(
         system, patch, points, axes, sub, kw.get("seed", 0), kw.get("open_edge", OPEN_EDGE), tris

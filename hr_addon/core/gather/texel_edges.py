@@ -81,7 +81,8 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
         i = j[a:b]
         r, patch = rows[i], g.patch[rows[i]]
         tr = None if tris is None else tris[i]
-        cp = texel_points(cen[i], axes[i], tr, np.broadcast_to(CORNERS, (len(i), 4, 2)))
+        # the corners of the sampled part: those outside the centre's triangle on its edge
+        cp = texel_points(cen[i], axes[i], tr, np.broadcast_to(CORNERS, (len(i), 4, 2)), clamp=True)
         v = np.concatenate([unit(cp, np.repeat(patch, 4), 1).reshape(-1, 4), out[r, None]], 1)
         hi = v.max(1)
         e = np.flatnonzero(hi - v.min(1) > tol * hi)
