@@ -116,7 +116,8 @@ class DynamicRadiosity:
         self._plan = None  # (key, output.loop_plan) of loop_radiance
         self.validator = ShapeValidator(plane_tol)
         self.solves = Solves(
-            h, self.links, self.tol, self.response_tol, response_float32, system.backend.threads, response_steps
+            h, self.links, self.tol, self.response_tol, response_float32, system.backend.threads,
+            response_steps,
         )
         base, self.base_iterations = self._base_solution()
         self.nodes = NodeState(h, base)
@@ -278,7 +279,8 @@ class DynamicRadiosity:
                 )
         if lights is not None:
             evs += self.light_part.diff(lights)
-        if not self.warm_moves or self.solves.response_steps:  # sums in the caller's order, not in the order of past events
+        # sums in the caller's order, not in the order of past events (so with fixed steps: Live)
+        if not self.warm_moves or self.solves.response_steps:
             for recs, keys in ((self.shapes, valid), (self.lights, lights or {})):
                 for k in [k for k in keys if k in recs]:
                     recs.move_to_end(k)
