@@ -115,9 +115,9 @@ class DynamicRadiosity:
         self._naive = None  # active NAIVE rebuild (_NaiveState) or None
         self._plan = None  # (key, output.loop_plan) of loop_radiance
         self.validator = ShapeValidator(plane_tol)
+        threads = system.backend.threads
         self.solves = Solves(
-            h, self.links, self.tol, self.response_tol, response_float32, system.backend.threads,
-            response_steps,
+            h, self.links, self.tol, self.response_tol, response_float32, threads, response_steps
         )
         base, self.base_iterations = self._base_solution()
         self.nodes = NodeState(h, base)
