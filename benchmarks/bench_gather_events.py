@@ -37,6 +37,8 @@ def main(argv=None):
     ap.add_argument("--transport", default="classic", choices=("classic", "gather"))
     ap.add_argument("--params", default="dict()", help="RefineParams overrides (a Python dict)")
     ap.add_argument("--response-tol", type=float, default=None)
+    ap.add_argument("--response-steps", type=int, default=None, help="responses: GMRES steps from zero")
+    ap.add_argument("--no-steps", action="store_true", help="responses to response_tol (before the steps)")
     ap.add_argument("--f32", action="store_true", help="responses gather in float32")
     ap.add_argument("--rays", type=int, default=128)
     ap.add_argument("--shadow-rays", type=int, default=None)
@@ -69,6 +71,10 @@ def main(argv=None):
     params = dataclasses.replace(base, **eval(args.params))
     if args.response_tol is not None:
         dkw["response_tol"] = args.response_tol
+    if args.response_steps is not None:
+        dkw["response_steps"] = args.response_steps
+    if args.no_steps:
+        dkw.pop("response_steps", None)
     if args.f32:
         dkw["response_float32"] = True
     out = dict(size=args.size, quality=q, transport=args.transport, params=dataclasses.asdict(params))

@@ -96,6 +96,8 @@ GATHER = 0  # --gather: hemisphere rays of the final gather compared alongside (
 GATHER_LEVELS = 1  # --gather-levels
 GATHER_ITERATIONS = 0  # --gather-iterations
 GATHER_SHADOW_RAYS = 32  # --gather-shadow-rays (the bake's medium setting)
+SOLVE = "default"  # --solve: "gather" the bake's solver options with the gather (gather_options),
+# "gather-tol" those with responses solved to response_tol (before response_steps)
 GATHER_AREA = True  # --gather-centres: texels gather at their centres only (before texel_samples)
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
@@ -381,7 +383,10 @@ def run_scene(name, cfg, results, maps=None):
             if meth == "NAIVE" and q == "high":
                 continue  # a full high-quality rebuild per event (~30 s each): off the chart anyway
             t0 = time.process_time()
-            dyn = DynamicRadiosity(base.copy(), method=meth)
+            opts = {} if SOLVE == "default" else DynamicRadiosity.gather_options(q)
+            if SOLVE == "gather-tol":
+                opts.pop("response_steps")
+            dyn = DynamicRadiosity(base.copy(), method=meth, **opts)
             t_init = time.process_time() - t0
             ours = C.Ours(rs, dyn.system, dyn)
             gcache = {}  # the final gather's precompute, once per run (geometry only)
@@ -1133,14 +1138,16 @@ def main():
     ap.add_argument(
         "--gather-centres", action="store_true", help="texels gather at their centres only (no texel area)"
     )
+    ap.add_argument("--solve", default="default", choices=("default", "gather", "gather-tol"))
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
     args = ap.parse_args()
-    global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS, GATHER_AREA, GATHER_SHADOW_RAYS
+    global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS, GATHER_AREA, GATHER_SHADOW_RAYS, SOLVE
     USE_CACHE = not args.no_cache
     GATHER_AREA = not args.gather_centres
     GATHER_SHADOW_RAYS = args.gather_shadow_rays
+    SOLVE = args.solve
     GATHER, GATHER_LEVELS, GATHER_ITERATIONS = args.gather, args.gather_levels, args.gather_iterations
     from hr_addon.core.refine import RefineParams
 

@@ -68,6 +68,7 @@ PARTS = [  # (module, attribute, label) timed by --parts
     ("hr_addon.core.events.direct", "shape_form_factors", "  form factors (and AUTO's)"),  # of one function
     ("hr_addon.core.planes", "ClearShafts.clear", "  clear-shaft test (and AUTO's)"),
     ("hr_addon.core.solver", "_gmres", "response solves"),
+    ("hr_addon.core.solver", "_gmres_steps", "response solves"),  # fixed steps (the gather's)
     ("hr_addon.core.solver", "Operator.gather", "  operator gathers"),
     ("hr_addon.core.gather.final", "_csr_matvec", "levels' matvecs"),
     ("hr_addon.core.events.direct", "FirstBounce.direct", "AUTO's first bounce"),

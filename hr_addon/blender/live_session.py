@@ -320,6 +320,7 @@ def _build(sess, scene, view_layer, depsgraph, reason):
         paths.default_cache_dir(scene),
         precompute_key(scene_in.mesh, params, cfg.gather),
         cfg.live_mode,
+        cfg.solve_options if cfg.gather is not None else None,
     )
     sess.settings = _settings(scene)
     sess.geometry = scene_in.signatures

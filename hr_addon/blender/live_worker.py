@@ -53,6 +53,7 @@ class BuildSpec:
     cache_dir: str = None  # where the bake keeps the scene precompute (None: the .blend is not saved)
     precompute: dict = None  # what it must match (settings.precompute_key): loaded instead of built if valid
     mode: str = "RADIANCE"  # what HR_Radiance gets (BakeConfig.live_mode): RADIANCE or INDIRECT
+    solve: dict = None  # the bake's solver options (settings.solve_options) with the gather; None: Live's own
 
 
 @dataclass
@@ -75,6 +76,8 @@ class Result:
 # Live's light-shape responses: HR_Radiance is float32, and a relative residual of 1e-5 with float32
 # gathers leaves errors of about 1.5e-7 of the brightest value (measured on the Cornell sample:
 # float32 rounding) for 13 instead of 16 GMRES iterations. The base solution keeps the bake's settings.
+# With the final gather on, Live takes the bake's solver options (BuildSpec.solve): a response is a
+# fixed number of GMRES steps from zero there, so Live shows what a bake of the state gives.
 RESPONSE_TOL = 1e-5
 
 # Live's preview of a dragged shape (docs/live.md, "Progressive Live"): chosen by its error against
@@ -269,13 +272,8 @@ class LiveWorker:
                 system = RadiositySystem(spec.mesh, spec.params, progress=progress, threads=spec.threads)
             if self._superseded():
                 return
-            dyn = DynamicRadiosity(
-                system,
-                method=spec.method,
-                min_area_rel=spec.min_area_rel,
-                response_tol=RESPONSE_TOL,
-                response_float32=True,
-            )
+            options = spec.solve or dict(response_tol=RESPONSE_TOL, response_float32=True)
+            dyn = DynamicRadiosity(system, method=spec.method, min_area_rel=spec.min_area_rel, **options)
             if self._superseded():
                 return
             # the output stage: its rays are traced once here, each edit is a sparse product

@@ -219,6 +219,7 @@ def solve(
     method="gmres",
     energy=True,
     verify=True,
+    steps=None,
 ):
     """Solve B = E + rho K B to a relative residual max|E + rho K B - B| / max|B| below tol.
 
@@ -229,7 +230,9 @@ def solve(
     energy: fill the report's power balance (two more gathers). verify: GMRES computes the true
     residual of its answer (one more gather) instead of trusting the Arnoldi recurrence's, which
     stops at RECURRENCE x tol; equal in exact arithmetic and within the gathers' rounding
-    otherwise (float32: about 1e-7). Returns (B, report).
+    otherwise (float32: about 1e-7). steps: instead of a tolerance, exactly that many GMRES
+    steps (operator applications) from zero, whatever B0 and tol: the result is then the same
+    for every history of warm starts (docs/gather.md, *A fixed response solve*). Returns (B, report).
     """
     t0 = time.perf_counter()
     op = op or Operator(h, links)
@@ -237,7 +240,9 @@ def solve(
     rep = SolveReport()
     B = op.pull(np.array(B0, float, copy=True)) if B0 is not None else op.pull(_leaf_only(E, op))
     G = None  # the gathered G of the returned B where the solver computed it (the power balance's)
-    if method == "jacobi":
+    if steps is not None:
+        B, G = _gmres_steps(op, E, int(steps), rep)
+    elif method == "jacobi":
         B = _jacobi(op, E, B, tol, max_iter, rep)
     else:
         B, G = _gmres(op, E, B, tol, max_iter, rep, verify=verify)
@@ -348,6 +353,54 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30, verify=True):
     np.maximum(x, 0.0, out=x)
     full[:, lf] = x.reshape(C, -1)
     return op.pull(full.copy()), G
+
+
+def _gmres_steps(op, E, steps, rep):
+    """`steps` GMRES steps on (I - rho K) x = E from x = 0: x in span(b, Kb, ..., K^(steps-1) b)
+    minimising the residual's area-weighted 2-norm (one operator application per step, none for
+    the start's residual, which is b). The area weights make the result independent of how the
+    leaves are split where the splits change nothing (another shape's nodes under an HR leaf: a
+    leaf's area is its children's sum): the same for a farm node and one process whatever the
+    hierarchy's other splits. No residual is computed (rep.residual: the recurrence's 2-norm,
+    relative to b's)."""
+    lf, C = op.leaves, E.shape[0]
+    full = np.zeros((C, op.n))
+    rho = op.rho[:, lf]
+    a = op.area[lf]
+    s = np.tile(np.sqrt(a / a.mean()), C)  # x' = s x: the weighted norm is the plain one of x'
+
+    def K(v):  # s rho K (v / s)
+        full[:, lf] = (v / s).reshape(C, -1)
+        return s * (rho * op.push(op.gather(op.pull(full)))[:, lf]).ravel()
+
+    b = s * op.emitted(E)[:, lf].ravel()
+    beta = _norm(b)
+    x = np.zeros_like(b)
+    if beta > 0 and steps > 0:
+        V = np.zeros((steps + 1, len(b)))
+        Hm = np.zeros((steps + 1, steps))
+        V[0] = b / beta
+        m = 0
+        for j in range(steps):
+            w = V[j] - K(V[j])
+            m = j + 1
+            for _ in range(2):  # classical Gram-Schmidt, twice, as _gmres
+                hcol = np.einsum("ij,j->i", V[: j + 1], w)
+                w -= np.einsum("i,ij->j", hcol, V[: j + 1])
+                Hm[: j + 1, j] += hcol
+            Hm[j + 1, j] = _norm(w)
+            if Hm[j + 1, j] == 0:  # the Krylov space is invariant: x is exact
+                break
+            V[j + 1] = w / Hm[j + 1, j]
+        # the least-squares problem min |beta e1 - H y| of the (m + 1) x m Hessenberg matrix
+        rhs = np.zeros(m + 1)
+        rhs[0] = beta
+        y, *_ = np.linalg.lstsq(Hm[: m + 1, :m], rhs, rcond=None)
+        x = np.einsum("i,ij->j", y, V[:m])
+        rep.residual = float(np.linalg.norm(rhs - Hm[: m + 1, :m] @ y)) / beta
+    rep.iterations, rep.converged = steps, True
+    full[:, lf] = np.maximum(x / s, 0.0).reshape(C, -1)  # radiance is never negative
+    return op.pull(full.copy()), None
 
 
 def _max_residual(V, cs, sn, g, j):

@@ -20,17 +20,18 @@ from .solves import Solves
 from .validation import ShapeValidator, check_emission, find_surface, off_surface_message, shape_plane, to2d
 
 
-# DynamicRadiosity.gather_options: the solves' tolerances when the final gather is on. A response
-# reaches the output only after the gather's two levels and iterations (each a bounce, rho < 1).
-# 1e-3 would change the gathered output by at most 2e-4 relative (20k room) for 2 of 12 GMRES
-# iterations, but two solves of one response from different starts then differ by that much:
-# Live (warm starts) against a bake 5e-4, farm nodes against one process 7e-6 (AR/AUTO: each
-# response solved on the hierarchy of its arrival). At 1e-4 they stay within 1e-4 and 1e-6
-# (tests/test_blender_live.py, tests/test_farm.py).
+# DynamicRadiosity.gather_options: the solves' settings when the final gather is on. A response
+# reaches the output only after the gather's two levels and iterations (each a bounce, rho < 1), so
+# it is a fixed number of GMRES steps from zero (response_steps), not a solve to a tolerance: the
+# same for Live (warm starts), a bake and a farm node whatever came before (a tolerance left them
+# apart by its share: 1e-3 gave Live against a bake 5e-4). 6 steps instead of the 9-12 operator
+# applications of 1e-4 change the 20k room's gathered output by at most 0.026% per object, 1.5e-5
+# of the brightest value per corner; 5 steps 0.08% (docs/gather.md, "A fixed response solve").
+# response_tol stays for previews' and callers' explicit tolerances.
 GATHER_SOLVE = {
-    "draft": dict(tol=1e-5, response_tol=1e-4, response_float32=True),
-    "medium": dict(tol=1e-5, response_tol=1e-4, response_float32=True),
-    "high": dict(tol=1e-6, response_tol=1e-5, response_float32=True),
+    "draft": dict(tol=1e-5, response_tol=1e-4, response_float32=True, response_steps=6),
+    "medium": dict(tol=1e-5, response_tol=1e-4, response_float32=True, response_steps=6),
+    "high": dict(tol=1e-6, response_tol=1e-5, response_float32=True, response_steps=8),
 }
 
 
@@ -60,6 +61,7 @@ class DynamicRadiosity:
         response_float32=False,
         tol=None,
         warm_moves=True,
+        response_steps=None,
     ):
         """system: a built RadiositySystem (its hierarchy is extended in place below the HR leaves).
         min_area_rel: smallest AR node, fraction of the total scene area. node_budget: most nodes one shape
@@ -79,7 +81,10 @@ class DynamicRadiosity:
         the old one's scattered light (fewer iterations); False: from its emission alone, as when
         it is added, and the shapes and lights are summed in apply()'s order, so that a frame's
         values do not depend on the frames solved before it (FE and one AR/AUTO shape: a farm
-        node's first frame equals one process's, docs/farm.md)."""
+        node's first frame equals one process's, docs/farm.md). response_steps: each response is
+        that many GMRES steps from zero instead of a solve to response_tol (the final gather's
+        setting, gather_options): the same for Live, a bake and a farm node whatever the order
+        of events, warm starts unused."""
         method = method.upper()
         if method not in METHODS:
             raise ValueError(f"Unknown method '{method}' (choose from {', '.join(METHODS)})")
@@ -110,8 +115,9 @@ class DynamicRadiosity:
         self._naive = None  # active NAIVE rebuild (_NaiveState) or None
         self._plan = None  # (key, output.loop_plan) of loop_radiance
         self.validator = ShapeValidator(plane_tol)
+        threads = system.backend.threads
         self.solves = Solves(
-            h, self.links, self.tol, self.response_tol, response_float32, system.backend.threads
+            h, self.links, self.tol, self.response_tol, response_float32, threads, response_steps
         )
         base, self.base_iterations = self._base_solution()
         self.nodes = NodeState(h, base)
@@ -273,7 +279,8 @@ class DynamicRadiosity:
                 )
         if lights is not None:
             evs += self.light_part.diff(lights)
-        if not self.warm_moves:  # sums in the caller's order, not in the order of past events
+        # sums in the caller's order, not in the order of past events (so with fixed steps: Live)
+        if not self.warm_moves or self.solves.response_steps:
             for recs, keys in ((self.shapes, valid), (self.lights, lights or {})):
                 for k in [k for k in keys if k in recs]:
                     recs.move_to_end(k)

@@ -7,13 +7,14 @@ from ..solver import Operator, solve
 
 
 class Solves:
-    """tol: the base solution's and warm mode's tolerance; response_tol, response_float32: the
-    shapes' and lights' responses (DynamicRadiosity's docstring); threads: the operator's
-    (core.parallel: the system's ray backend's count)."""
+    """tol: the base solution's and warm mode's tolerance; response_tol, response_float32,
+    response_steps: the shapes' and lights' responses (DynamicRadiosity's docstring); threads: the
+    operator's (core.parallel: the system's ray backend's count)."""
 
-    def __init__(self, h, links, tol, response_tol, response_float32, threads=1):
+    def __init__(self, h, links, tol, response_tol, response_float32, threads=1, response_steps=None):
         self.h, self.links, self.threads = h, links, threads
         self.tol, self.response_tol, self.response_float32 = tol, response_tol, response_float32
+        self.response_steps = response_steps
         self._op = None
         self._op_version = None
 
@@ -38,10 +39,12 @@ class Solves:
         """Solve with non-negative emission; the exact solution is non-negative, so the solver's
         tiny negative excursions (GMRES is not monotone) are clipped. response: a shape's response
         (response_tol, response_float32; its power balance is not reported). tol: instead of
-        those tolerances (a preview's)."""
+        those tolerances (a preview's). With response_steps a response (without tol) is that many
+        GMRES steps from zero, B0 ignored: the same whatever the shape's history."""
         op = self.operator()
         if response and self.response_float32:
             op = op.float32()
+        steps = self.response_steps if response and tol is None else None
         B, rep = solve(
             self.h,
             self.links,
@@ -51,5 +54,6 @@ class Solves:
             op=op,
             energy=not response,
             verify=not response,  # a response's own check would be one gather in ten (Live, Cornell)
+            steps=steps,
         )
         return np.maximum(B, 0.0), rep

@@ -1,0 +1,120 @@
+"""Live Relight's edits on the furnished 100k room, core only (no bpy): the stored build
+(bench_gather_events.py --cache) loaded, then Live's engine (DynamicRadiosity with Live's solver
+options, the stored LoopGather) runs a window added on the light wall, drag steps along it, colour
+and strength edits, as live_worker runs them. CPU seconds (time.process_time) per edit, split into
+apply and output, and the parts of live_replay.PARTS summed over the drag steps.
+
+    .venv/bin/python benchmarks/live_100k.py --cache /work/cache/c100k [--method FE] [--steps 6]
+        [--preview] [--options live|gather|old] [--json out.json]
+
+--preview: every drag step is Live's preview (live_worker.PREVIEW), the exact light follows once at
+the end (refine, timed apart); else every step is exact (an unthreaded worker, hr.live_update()).
+--options: "live" the worker's (live_worker: the bake's solver options with the gather), "old"
+Live's before the fixed response steps (responses to 1e-5 in float32, the base to the system's).
+Not in here: reading the shapes in bpy and writing HR_Radiance (docs/live.md: 70-90 ms for 3,882
+objects). Benchmarks print; no test asserts on time.
+"""
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import numpy as np  # noqa: E402
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--cache", required=True, help="folder of bench_gather_events.py's stored build")
+    ap.add_argument("--size", default="100k")
+    ap.add_argument("--method", default="FE")
+    ap.add_argument("--steps", type=int, default=6, help="drag steps")
+    ap.add_argument("--step", type=float, default=0.05, help="metres per drag step")
+    ap.add_argument("--preview", action="store_true")
+    ap.add_argument("--options", default="live", choices=("live", "old"))
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+    from hr_addon.blender.live_worker import PREVIEW, RESPONSE_TOL
+    from hr_addon.blender.settings import solve_options
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.io import precompute as pc
+    import live_replay
+
+    cpu = time.process_time
+    _, info = furnished_room(args.size)
+    arrays, header = pc.read(Path(args.cache) / pc.FILENAME)
+    s, g = pc.restore(arrays, header["graph"])
+    s.links.extended(s.h)  # the solver's far-link terms (a loaded build's first event pays them)
+    opts = solve_options("DRAFT", True) if args.options == "live" else dict(
+        response_tol=RESPONSE_TOL, response_float32=True
+    )
+    c0 = cpu()
+    dyn = DynamicRadiosity(s, method=args.method, **opts)
+    g.loop_radiance(dyn)
+    out = dict(size=args.size, method=args.method, options=args.options, dyn_options=opts,
+               preview=args.preview, load_average=os.getloadavg()[0], start_cpu_s=cpu() - c0)
+    _, frame = info["light_wall"]
+
+    def window(cx, em=(20.0, 20.0, 20.0)):
+        rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)
+        return {"w": LightShape(rect, np.asarray(em, float), "window")}
+
+    acc = live_replay._timed_parts()
+    rows = []
+
+    def edit(kind, shapes, preview=None):
+        c0 = cpu()
+        rep = dyn.apply(shapes, preview=preview)
+        c1 = cpu()
+        g.loop_radiance(dyn)
+        c2 = cpu()
+        rows.append(dict(kind=kind, cpu_ms=1000 * (c2 - c0), apply_ms=1000 * (c1 - c0),
+                         output_ms=1000 * (c2 - c1), iterations=int(rep.iterations)))
+        print(f"{kind:9s} {rows[-1]['cpu_ms']:8.1f} ms CPU (apply {rows[-1]['apply_ms']:7.1f}, output "
+              f"{rows[-1]['output_ms']:7.1f}), {rep.iterations} it", flush=True)
+
+    x = 0.7
+    edit("add", window(x))
+    for v in acc.values():
+        v[:] = [0.0, 0]
+    for _ in range(args.steps):
+        x += args.step
+        edit("drag", window(x), PREVIEW if args.preview else None)
+    drag_parts = {k: v[0] for k, v in acc.items()}
+    if args.preview:
+        c0 = cpu()
+        dyn.refine()
+        c1 = cpu()
+        g.loop_radiance(dyn)
+        rows.append(dict(kind="refine", cpu_ms=1000 * (cpu() - c0), apply_ms=1000 * (c1 - c0),
+                         output_ms=1000 * (cpu() - c1)))
+        print(f"refine    {rows[-1]['cpu_ms']:8.1f} ms CPU (apply {rows[-1]['apply_ms']:7.1f})", flush=True)
+    for i in range(4):
+        edit("colour", window(x, (20.0, 20.0 + i, 20.0 + 2 * i)))
+    for i in range(4):
+        edit("strength", window(x, (20.0 + 5 * i, 20.0 + 5 * i, 20.0 + 5 * i)))
+    for kind in ("drag", "colour", "strength"):
+        v = [r["cpu_ms"] for r in rows if r["kind"] == kind]
+        out[f"{kind}_median_ms"] = float(np.median(v))
+        print(f"{kind}: median {np.median(v):.1f} ms CPU over {len(v)}")
+    n = args.steps
+    print(f"parts over the {n} drag steps, s CPU per step:")
+    for k, t in drag_parts.items():
+        print(f"  {k:38s} {t / n:7.3f}")
+    out["drag_parts_s_per_step"] = {k: t / n for k, t in drag_parts.items()}
+    out["rows"] = rows
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
