@@ -102,16 +102,17 @@ class ClearShafts:
         self.cell = ext / self.size
         a, b = self._cells(lo), self._cells(hi) + 1
         # boxes per cell by a difference array: +-1 at the 8 corners of each box's cell range (one
-        # bincount; int32 throughout: exact counts as before, half the bytes of float64 for the
-        # six cumulative sums, a new emitter plane's grid in a light event)
+        # bincount; the cumulative sums in int32: exact counts as before, half the bytes of float64
+        # for a new emitter plane's grid in a light event)
         dims = tuple(self.size + 1)
         idx = np.stack([np.where(c, b, a) for c in np.ndindex(2, 2, 2)])  # (8, M, 3)
         sign = np.array([(-1.0) ** sum(c) for c in np.ndindex(2, 2, 2)])
         flat = np.ravel_multi_index((idx[..., 0], idx[..., 1], idx[..., 2]), dims)
         diff = np.bincount(flat.ravel(), np.repeat(sign, flat.shape[1]), int(np.prod(dims))).astype(np.int32)
-        full = diff.reshape(dims).cumsum(0, np.int32).cumsum(1, np.int32).cumsum(2, np.int32)[:-1, :-1, :-1] > 0
+        cum = lambda v: v.cumsum(0, np.int32).cumsum(1, np.int32).cumsum(2, np.int32)
+        full = cum(diff.reshape(dims))[:-1, :-1, :-1] > 0
         sat = np.zeros(dims, np.int32)
-        sat[1:, 1:, 1:] = full.cumsum(0, np.int32).cumsum(1, np.int32).cumsum(2, np.int32)
+        sat[1:, 1:, 1:] = cum(full)
         self.sat = sat
 
     def _cells(self, p):
