@@ -99,6 +99,7 @@ GATHER_SHADOW_RAYS = 32  # --gather-shadow-rays (the bake's medium setting)
 SOLVE = "default"  # --solve: "gather" the bake's solver options with the gather (gather_options),
 # "gather-tol" those with responses solved to response_tol (before response_steps)
 GATHER_AREA = True  # --gather-centres: texels gather at their centres only (before texel_samples)
+BAKE_TRANSPORT = False  # --bake-transport: links and tolerances as the bake takes them with the gather
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
 MIN_SURFACE_SHARE = 0.01
@@ -297,6 +298,7 @@ def run_scene(name, cfg, results, maps=None):
             iterations=GATHER_ITERATIONS,
             texel_area=GATHER_AREA,
             shadow_rays=GATHER_SHADOW_RAYS,
+            bake_transport=BAKE_TRANSPORT,
         )
         if GATHER
         else {},
@@ -376,14 +378,19 @@ def run_scene(name, cfg, results, maps=None):
     # ours
     for q in cfg["qualities"]:
         t0 = time.process_time()
-        base = RadiositySystem(rs.scene_in.mesh, dataclasses.replace(RefineParams.preset(q), **PARAMS))
+        # the bake with the final gather on builds RefineParams.for_gather's links and solves to
+        # DynamicRadiosity.gather_options' tolerances (blender/settings.py); without
+        # --bake-transport the quality's preset and the system's tolerance, as before
+        pre = RefineParams.for_gather(q) if BAKE_TRANSPORT else RefineParams.preset(q)
+        base = RadiositySystem(rs.scene_in.mesh, dataclasses.replace(pre, **PARAMS))
         t_build = time.process_time() - t0
         log(f"[{name}/{q}] hierarchy: {base.h.n} nodes, {len(base.links)} links, {t_build:.1f} s")
         for meth in cfg["methods"]:
             if meth == "NAIVE" and q == "high":
                 continue  # a full high-quality rebuild per event (~30 s each): off the chart anyway
             t0 = time.process_time()
-            opts = {} if SOLVE == "default" else DynamicRadiosity.gather_options(q)
+            gather_solve = BAKE_TRANSPORT or SOLVE != "default"
+            opts = DynamicRadiosity.gather_options(q) if gather_solve else {}
             if SOLVE == "gather-tol":
                 opts.pop("response_steps")
             dyn = DynamicRadiosity(base.copy(), method=meth, **opts)
@@ -1139,15 +1146,23 @@ def main():
         "--gather-centres", action="store_true", help="texels gather at their centres only (no texel area)"
     )
     ap.add_argument("--solve", default="default", choices=("default", "gather", "gather-tol"))
+    ap.add_argument(
+        "--bake-transport",
+        action="store_true",
+        help="links and solver tolerances as the bake takes them with the final gather on "
+        "(RefineParams.for_gather, DynamicRadiosity.gather_options)",
+    )
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
     args = ap.parse_args()
     global USE_CACHE, GATHER, GATHER_LEVELS, GATHER_ITERATIONS, GATHER_AREA, GATHER_SHADOW_RAYS, SOLVE
+    global BAKE_TRANSPORT
     USE_CACHE = not args.no_cache
     GATHER_AREA = not args.gather_centres
     GATHER_SHADOW_RAYS = args.gather_shadow_rays
     SOLVE = args.solve
+    BAKE_TRANSPORT = args.bake_transport
     GATHER, GATHER_LEVELS, GATHER_ITERATIONS = args.gather, args.gather_levels, args.gather_iterations
     from hr_addon.core.refine import RefineParams
 

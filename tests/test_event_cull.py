@@ -9,6 +9,7 @@ from hr_testing import scenes
 from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape
 from hr_addon.core.gather import LoopGather
+from hr_addon.core.gather.direct import DirectLight
 from hr_addon.core.planes import ClearShafts
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
@@ -33,6 +34,7 @@ def _outputs(system, g, frames, method):
 def _check(system, frames, method, monkeypatch):
     """Outputs with the cull and with every shaft called blocked (all rays traced): bitwise equal.
     Returns the samples the cull tested and found clear."""
+    monkeypatch.setattr(DirectLight, "CULL_MIN_RAYS", 1)  # the cull at these few shadow rays too
     g = LoopGather(
         DynamicRadiosity(system.copy(), method=method), rays=32, shadow_rays=8, levels=2, iterations=2
     )
@@ -131,6 +133,7 @@ def test_first_bounce_and_gather_share_one_grid(monkeypatch):
         real(self, *a, **k)
 
     monkeypatch.setattr(ClearShafts, "__init__", counting)
+    monkeypatch.setattr(DirectLight, "CULL_MIN_RAYS", 1)  # the gather's cull at 4 / 8 shadow rays too
     dyn = DynamicRadiosity(s.copy(), method="AUTO")
     g = LoopGather(dyn, rays=16, shadow_rays=4, levels=2)
     rect = S.on_plane(S.rect(0.9, 0.7, centre=(0.7, 0.6), angle=0.2), frame)
@@ -142,3 +145,13 @@ def test_first_bounce_and_gather_share_one_grid(monkeypatch):
 
     assert dyn.shapes["w"].direct_links > 0 and grids() == 1  # the first bounce built it
     assert g.loop_radiance(dyn).max() > 0 and grids() == 1  # both levels reused it
+
+
+def test_few_shadow_rays_skip_the_cull():
+    """Below CULL_MIN_RAYS shadow rays the test would cost more than the rays it saves: no grid."""
+    s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    dyn = DynamicRadiosity(s.copy(), method="FE")
+    g = LoopGather(dyn, rays=16, shadow_rays=DirectLight.CULL_MIN_RAYS, levels=2)
+    em = g.static_emitters()[0][0]
+    assert g.shafts(em) is not None and g.second.shadow_rays < DirectLight.CULL_MIN_RAYS
+    assert g.second.shafts(em) is None

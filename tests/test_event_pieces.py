@@ -55,6 +55,7 @@ def test_a_dragged_shape_reuses_its_grid(system, monkeypatch):
     """Moves of a shape within its plane (Live's drags) test their shafts against the grid built
     for the first position: one ClearShafts for the plane, however many moves."""
     from hr_addon.core.gather import LoopGather
+    from hr_addon.core.gather.direct import DirectLight
 
     built = []
     real = ClearShafts.__init__
@@ -64,6 +65,7 @@ def test_a_dragged_shape_reuses_its_grid(system, monkeypatch):
         real(self, tris, plane, point, normal, margin)
 
     monkeypatch.setattr(ClearShafts, "__init__", counting)
+    monkeypatch.setattr(DirectLight, "CULL_MIN_RAYS", 1)  # the gather's cull at 4 / 8 shadow rays too
     dyn = DynamicRadiosity(system.copy(), method="FE")
     g = LoopGather(dyn, rays=16, shadow_rays=4, levels=2)
     wall = S.CORNELL_BACK_WALL[1:]
