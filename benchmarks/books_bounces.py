@@ -9,10 +9,11 @@ exact direct light only (its indirect zeroed); the full gather. Per class of tex
 per bounce.
 
     .venv/bin/python benchmarks/books_bounces.py [--spp 32] [--bounces 0,1,64] [--seeds 1,2]
-        [--bake-only] [--cases case0,case1]
+        [--bake-only] [--cases case0,case1] [--gather 'dict(leaf_points=4)' --name _lp4]
 
 Cycles' bakes are cached in benchmarks/out/books_bounces_cache/ (git-ignored); --bake-only
-stops after them. Writes benchmarks/out/books_bounces.json."""
+stops after them. --gather: texel_gather keywords over the bake's (a variant). Writes
+benchmarks/out/books_bounces[NAME].json."""
 
 import argparse
 import os
@@ -24,7 +25,7 @@ import books_common as BC
 import cycles_compare as CC
 from hr_testing import cycles_ref as C
 from hr_addon.core.events import DynamicRadiosity
-from hr_addon.core.gather import texel_gather
+from hr_addon.core.gather import FinalGather, cosine_directions, texel_gather
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 
@@ -33,7 +34,12 @@ ap.add_argument("--spp", type=int, default=32)
 ap.add_argument("--bounces", default="0,1,64")
 ap.add_argument("--seeds", default="1,2")
 ap.add_argument("--bake-only", action="store_true")
+ap.add_argument(
+    "--hits", type=int, default=64, help="rays a texel for the exact one-bounce estimate (0: off)"
+)
 ap.add_argument("--cases", default="", help="bookcases whose books are compared (default: all)")
+ap.add_argument("--gather", default="{}", help="texel_gather keywords over the bake's: 'dict(leaf_points=4)'")
+ap.add_argument("--name", default="", help="suffix of the output json")
 opt = ap.parse_args()
 BOUNCES = [int(b) for b in opt.bounces.split(",")]
 SEEDS = [int(s) for s in opt.seeds.split(",")]
@@ -84,7 +90,8 @@ REF = REF.reshape(len(REF), len(order), 3).mean(2)  # grey, per bake
 print(f"{len(books)} books, {len(X)} texels", flush=True)
 
 t0 = time.process_time()
-g = texel_gather(dyn, P, X, axes=AX, tris=TR, **BC.BASE)
+GKW = {**BC.BASE, **eval(opt.gather)}
+g = texel_gather(dyn, P, X, axes=AX, tris=TR, **GKW)
 print(f"gather precompute: {time.process_time() - t0:.0f} s CPU, {g.n} samples", flush=True)
 g2 = g.second
 assert g2 is not None and g2.second is None  # two levels
@@ -104,10 +111,20 @@ Y1 = g._leaf_means(g2.rho * g2.direct_and_emission(dyn)[0], np.zeros((g.n_hr, 3)
 no_samples = ~np.isin(g.cols, used)
 print(f"weight on leaves without second-level samples: {g.w[no_samples].sum() / g.w.sum():.2e}")
 OURS = {0: out(D), 1: out(D + g._read((Y1, None, None, None))), 64: g.evaluate(dyn, "reflected").mean(1)}
+# ours bounce by bounce: the second level's passes from a black solution (k passes: k bounces at
+# the texels), against the full gather (4 iterations + the solution read after the last pass)
+ladder, L, D2 = {}, (np.zeros((g.n_hr, 3)), None, None, None), g2.direct_and_emission(dyn)[0]
+for k in range(1, 2 + g.iterations):
+    L = (g._leaf_means(g2.rho * (D2 + g2._read(L)), np.zeros((g.n_hr, 3))), None, None, None)
+    ladder[k] = out(D + g._read(L))
+assert np.allclose(ladder[1], OURS[1])
 check = out(D + g.indirect(dyn))
-print(f"full: evaluate against D + indirect: max rel diff {np.nanmax(np.abs(check / OURS[64] - 1)):.1e}")
+print(f"full: evaluate against D + indirect: max abs diff {np.abs(check - OURS[64]).max():.1e}")
 
-ROW = BC.front_rows(X, OBJ)
+# the tops' rows and the sides above's columns from the book's front (as books_hits.py counts them)
+ROW = np.full(len(X), -1)
+ts = np.isin(CLS, (0, 8))
+ROW[ts] = BC.front_rows(X[ts], OBJ[ts])
 groups = [
     ("all books", np.ones(len(X), bool)),
     ("tops, front row", (CLS == 0) & (ROW == 0)),
@@ -137,23 +154,67 @@ for lab, m in groups:
     for b in BOUNCES:
         c, nz = cyc_sum(m, b)
         o = float(OURS[b][m].sum())
-        row[f"b{b}"] = {"cycles": c, "ours": o, "ratio": o / c, "noise": nz}
-        line += f"   {o / c:6.3f} ({100 * nz:4.1f}%)    "
+        r = o / c if c else float("nan")  # (the slots' deep texels get no direct light)
+        row[f"b{b}"] = {"cycles": c, "ours": o, "ratio": r, "noise": nz}
+        line += f"   {r:6.3f} ({100 * nz:4.1f}%)    "
     for b0, b1 in zip(BOUNCES, BOUNCES[1:]):
         dc = row[f"b{b1}"]["cycles"] - row[f"b{b0}"]["cycles"]
         do = row[f"b{b1}"]["ours"] - row[f"b{b0}"]["ours"]
         row[f"inc_b{b1}"] = {"cycles": dc, "ours": do, "ratio": do / dc if dc else float("nan")}
         line += f" {do / dc if dc else float('nan'):6.3f}"
+    row["ours_by_bounce_of_full"] = {k: float(v[m].sum() / OURS[64][m].sum()) for k, v in ladder.items()}
     table[lab] = row
     print(line, flush=True)
+
+print("\nours up to k bounces (the second level's passes from a black solution), of our full:")
+for lab, m in groups:
+    if m.any() and lab in table:
+        print(
+            f"{lab:34s} "
+            + "  ".join(f"{k}: {v:.3f}" for k, v in table[lab]["ours_by_bounce_of_full"].items())
+        )
+
+# The first bounce read exactly at the hits (the tops and sides above, at their texels' centres):
+# `hits` cosine rays a texel, each reading rho x the exact direct light (16 shadow rays) of the
+# point it hits, not the second level's leaf mean there; back faces and misses read 0.
+exact = {}
+if opt.hits and {0, 1} <= set(BOUNCES):
+    sel = np.flatnonzero(np.isin(CLS, (0, 8)))
+    pt = s.patches
+    t0 = time.process_time()
+    gc = FinalGather(dyn, X[sel], pt.normal[P[sel]], P[sel], rays=1, shadow_rays=16)
+    R = opt.hits
+    dirs = cosine_directions(gc.normals, gc.keys, R, 4321, stream=0).reshape(-1, 3)
+    row_ = np.repeat(np.arange(gc.n), R)
+    org = gc.origins[row_]
+    prim, t = gc.first_hit(org, dirs)
+    hp = np.where(prim >= 0, pt.triangle_patch[np.maximum(prim, 0)], 0)
+    i = np.flatnonzero((prim >= 0) & (np.einsum("ij,ij->i", dirs, pt.normal[hp]) < 0))
+    gh = FinalGather(
+        dyn, org[i] + t[i, None] * dirs[i], pt.normal[hp[i]], hp[i], rays=1, shadow_rays=16, seed=7
+    )
+    hit = gh.rho * gh.direct_and_emission(dyn)[0]
+    one = (np.stack([np.bincount(row_[i], hit[:, c], gc.n) for c in range(3)], 1) / R * gc.rho).mean(1)
+    print(f"exact first bounce at {len(i)} hits: {time.process_time() - t0:.0f} s CPU", flush=True)
+    print(
+        f"\n{'first bounce, centres':34s} texels  Cycles' +b1  gather's +b1 / Cycles'  exact at hits/Cycles'"
+    )
+    for lab, m in groups[1:5]:
+        ms = m[sel]
+        dc = cyc_sum(m, 1)[0] - cyc_sum(m, 0)[0]
+        dg = float((OURS[1] - OURS[0])[m].sum())
+        exact[lab] = {"cycles": dc, "gather": dg / dc, "exact_hits": float(one[ms].sum() / dc)}
+        print(f"{lab:34s} {m.sum():6d} {dc:10.3f}   {dg / dc:10.3f}   {one[ms].sum() / dc:10.3f}", flush=True)
 C.write_json(
-    os.path.join(BC.HERE, "out", "books_bounces.json"),
+    os.path.join(BC.HERE, "out", f"books_bounces{opt.name}.json"),
     {
         "spp": opt.spp,
         "seeds": SEEDS,
         "bounces": BOUNCES,
         "books": len(books),
-        "gather": BC.BASE,
+        "gather": GKW,
+        "cases": cases,
         "classes": table,
+        "first_bounce_exact_at_hits": exact,
     },
 )
