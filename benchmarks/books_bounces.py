@@ -39,6 +39,7 @@ ap.add_argument(
 )
 ap.add_argument("--cases", default="", help="bookcases whose books are compared (default: all)")
 ap.add_argument("--gather", default="{}", help="texel_gather keywords over the bake's: 'dict(leaf_points=4)'")
+ap.add_argument("--direct-area", action="store_true", help="the tops' direct light over the texel's area")
 ap.add_argument("--name", default="", help="suffix of the output json")
 opt = ap.parse_args()
 BOUNCES = [int(b) for b in opt.bounces.split(",")]
@@ -206,6 +207,34 @@ if opt.hits and {0, 1} <= set(BOUNCES):
         dg = float((OURS[1] - OURS[0])[m].sum())
         exact[lab] = {"cycles": dc, "gather": dg / dc, "exact_hits": float(one[ms].sum() / dc)}
         print(f"{lab:34s} {m.sum():6d} {dc:10.3f}   {dg / dc:10.3f}   {one[ms].sum() / dc:10.3f}", flush=True)
+# the tops' direct light at the texel's centre and over its area (the atlas's sub-texel points
+# inside the top, as Cycles' bake spreads its samples), against Cycles' bounces 0
+if opt.direct_area and 0 in BOUNCES:
+    cen_d, area_d, cyc0 = [], [], []
+    for n in books:
+        at = rs.atlases[n]
+        patch = ours.samples[n][0]
+        top = s.patches.normal[patch][:, 2] > 0.9
+        tex = np.unique(at.s_texel[at.s_centre & top])
+        sub = np.isin(at.s_texel, tex) & top
+        gd = FinalGather(
+            dyn, at.s_point[sub], s.patches.normal[patch[sub]], patch[sub], rays=1, shadow_rays=64
+        )
+        v = (gd.rho * gd.direct_and_emission(dyn)[0]).mean(1)
+        st = at.s_texel[sub]
+        am = np.bincount(st, v, at.n)[tex] / np.bincount(st, minlength=at.n)[tex]
+        cm = np.zeros(at.n)
+        cm[st[at.s_centre[sub]]] = v[at.s_centre[sub]]
+        c0 = np.mean([cyc[0, sd][n][tex].mean(1) for sd in SEEDS], 0)
+        ok = np.isfinite(c0)
+        cen_d.append(cm[tex][ok]), area_d.append(am[ok]), cyc0.append(c0[ok])
+    c0 = np.concatenate(cyc0).sum()
+    print(
+        f"\ntops' direct light / Cycles': at the centres {np.concatenate(cen_d).sum() / c0:.3f}, "
+        f"over the texel's area {np.concatenate(area_d).sum() / c0:.3f} (64 shadow rays)",
+        flush=True,
+    )
+
 C.write_json(
     os.path.join(BC.HERE, "out", f"books_bounces{opt.name}.json"),
     {
