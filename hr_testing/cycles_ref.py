@@ -246,7 +246,8 @@ def configure_cycles(scene, samples, seed=0, threads=1, bounces=64):
     c.use_adaptive_sampling = False
     c.use_denoising = False
     c.max_bounces = c.diffuse_bounces = bounces
-    c.transparent_max_bounces = bounces
+    # the light shapes' proxies are transparent: their passes are not light bounces
+    c.transparent_max_bounces = max(bounces, 64)
     c.glossy_bounces = c.transmission_bounces = c.volume_bounces = 0
     c.sample_clamp_direct = c.sample_clamp_indirect = 0.0
     c.pixel_filter_type = "BOX"
@@ -496,13 +497,14 @@ def _surface_front(rs: RefScene, ring, plane_tol=1e-3):
     return n if best is None else -n
 
 
-def bake(rs: RefScene, samples, seed=0, threads=1, passes=("DIRECT", "INDIRECT")):
+def bake(rs: RefScene, samples, seed=0, threads=1, passes=("DIRECT", "INDIRECT"), bounces=64):
     """Bake reflected radiance (rho H / pi) of every compared object (passes: Cycles' Diffuse
-    bake's light passes, both by default). Returns ({name: (N, 3)}, {"wall": s, "cpu": s} of the
-    bake call, {name: baked mask (N,)})."""
+    bake's light passes, both by default; bounces: Cycles' max and diffuse bounces, 0 direct light
+    only, 1 one reflection more: benchmarks/cycles_bounce_check.py). Returns ({name: (N, 3)},
+    {"wall": s, "cpu": s} of the bake call, {name: baked mask (N,)})."""
     import bpy
 
-    configure_cycles(rs.scene, samples, seed, threads)
+    configure_cycles(rs.scene, samples, seed, threads, bounces)
     # the light-shape originals must not take part (their ray visibility is off already)
     for ob in bpy.context.view_layer.objects:
         ob.select_set(False)
