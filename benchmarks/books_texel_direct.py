@@ -66,7 +66,7 @@ for case in cases:
         for b in (0, 64)
         for sd in SEEDS
     ]
-    # (the file names count the books, not the case: case0's 168 books would read case2's bake)
+    # (the file names count the books, not the case: case0's 169 books would read case3's bake)
     if all(map(os.path.exists, z)) and all(bk[0] in np.load(p).files for p in z):
         zz = [np.load(p) for p in z]
         cyc.update({n: np.hstack([q[n].astype(np.float64) for q in zz]) for n in bk})
