@@ -57,7 +57,9 @@ rs.objects = books  # only the books are baked; the whole room lights them
 cyc = {}
 for b in BOUNCES:
     for seed in SEEDS:
-        path = os.path.join(CACHE, f"furnished_f1_{key}_{len(books)}books_b{b}_s{opt.spp}_seed{seed}.npz")
+        # named by the bookcases, not the book count (case0 and case3 both hold 169 books)
+        which = "-".join(sorted(cases)) or "all"
+        path = os.path.join(CACHE, f"furnished_f1_{key}_{which}_{len(books)}books_b{b}_s{opt.spp}_seed{seed}.npz")
         if os.path.exists(path):
             z = np.load(path)
             cyc[b, seed] = {n: z[n].astype(np.float64) for n in books}
