@@ -59,7 +59,8 @@ for b in BOUNCES:
     for seed in SEEDS:
         # named by the bookcases, not the book count (case0 and case3 both hold 169 books)
         which = "-".join(sorted(cases)) or "all"
-        path = os.path.join(CACHE, f"furnished_f1_{key}_{which}_{len(books)}books_b{b}_s{opt.spp}_seed{seed}.npz")
+        name = f"furnished_f1_{key}_{which}_{len(books)}books_b{b}_s{opt.spp}_seed{seed}.npz"
+        path = os.path.join(CACHE, name)
         if os.path.exists(path):
             z = np.load(path)
             cyc[b, seed] = {n: z[n].astype(np.float64) for n in books}
