@@ -62,11 +62,11 @@ cyc = {}
 for case in cases:
     bk = [n for n in rs.objects if n.startswith(case + "_book")]
     z = [
-        os.path.join(CACHE, f"furnished_f1_{key}_{len(bk)}books_b{b}_s{opt.spp}_seed{sd}.npz")
+        os.path.join(CACHE, f"furnished_f1_{key}_{case}_{len(bk)}books_b{b}_s{opt.spp}_seed{sd}.npz")
         for b in (0, 64)
         for sd in SEEDS
     ]
-    # (the file names count the books, not the case: case0's 169 books would read case3's bake)
+    # books_bounces.py --cases CASE names its files by the case; the check stays for older files
     if all(map(os.path.exists, z)) and all(bk[0] in np.load(p).files for p in z):
         zz = [np.load(p) for p in z]
         cyc.update({n: np.hstack([q[n].astype(np.float64) for q in zz]) for n in bk})
