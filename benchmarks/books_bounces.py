@@ -127,16 +127,7 @@ check = out(D + g.indirect(dyn))
 print(f"full: evaluate against D + indirect: max abs diff {np.abs(check - OURS[64]).max():.1e}")
 
 # the tops' rows and the sides above's columns from the book's front (as books_hits.py counts them)
-ROW = np.full(len(X), -1)
-ts = np.isin(CLS, (0, 8))
-ROW[ts] = BC.front_rows(X[ts], OBJ[ts])
-groups = [
-    ("all books", np.ones(len(X), bool)),
-    ("tops, front row", (CLS == 0) & (ROW == 0)),
-    ("tops, rows behind", (CLS == 0) & (ROW > 0)),
-    ("sides above, front column", (CLS == 8) & (ROW == 0)),
-    ("sides above, columns behind", (CLS == 8) & (ROW > 0)),
-] + [(BC.FACE[c], CLS == c) for c in (1, 2, 3, 4, 5, 6, 7, 9)]
+groups = BC.front_groups(X, OBJ, CLS) + [(BC.FACE[c], CLS == c) for c in (1, 2, 3, 4, 5, 6, 7, 9)]
 
 
 def cyc_sum(m, b):

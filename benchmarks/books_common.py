@@ -140,3 +140,18 @@ def front_rows(X, OBJ, texel=0.0553):
     for k in range(len(X)):
         front[OBJ[k]] = min(front.get(OBJ[k], np.inf), X[k, 1])
     return np.rint((X[:, 1] - np.array([front[o] for o in OBJ])) / texel).astype(int)
+
+
+def front_groups(X, OBJ, CLS):
+    """[(name, mask)]: all books, the tops' front row and rows behind, the sides above a shorter
+    neighbour's front column and columns behind (rows counted as front_rows, as books_hits.py)."""
+    row = np.full(len(X), -1)
+    ts = np.isin(CLS, (0, 8))
+    row[ts] = front_rows(X[ts], OBJ[ts])
+    return [
+        ("all books", np.ones(len(X), bool)),
+        ("tops, front row", (CLS == 0) & (row == 0)),
+        ("tops, rows behind", (CLS == 0) & (row > 0)),
+        ("sides above, front column", (CLS == 8) & (row == 0)),
+        ("sides above, columns behind", (CLS == 8) & (row > 0)),
+    ]

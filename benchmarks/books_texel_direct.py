@@ -153,15 +153,7 @@ Dc[r[edge]] = AREA[edge]
 DIR["c"] = out(Dc)
 TOT = {k: FULL - DIR["a"] + d for k, d in DIR.items()}
 
-ROW = np.full(len(X), -1)
-ts = np.isin(CLS, (0, 8))
-ROW[ts] = BC.front_rows(X[ts], OBJ[ts])
-groups = [
-    ("all books", np.ones(len(X), bool)),
-    ("tops, front row", (CLS == 0) & (ROW == 0)),
-    ("tops, rows behind", (CLS == 0) & (ROW > 0)),
-    ("sides above, front column", (CLS == 8) & (ROW == 0)),
-    ("sides above, columns behind", (CLS == 8) & (ROW > 0)),
+groups = BC.front_groups(X, OBJ, CLS) + [
     ("fronts", CLS == 1),
     ("sides, no neighbour book", CLS == 4),
     ("sides, front/back overhang", CLS == 9),
