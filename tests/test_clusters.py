@@ -9,6 +9,7 @@ import pytest
 
 from hr_addon.core import cluster as C
 from hr_addon.core import farlinks as FL
+from hr_addon.core import solver as SV
 from hr_testing import scenes
 from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape
@@ -202,6 +203,33 @@ def test_reciprocity_and_energy_balance_with_clusters(clutter):
     assert np.abs(AK - AK.T).max() <= 1e-9 * np.abs(AK).max()
     s.solve()
     assert s.report.energy_error < 1e-9
+
+
+def test_a_gather_of_few_sources_sums_only_the_runs_they_reach(clutter, monkeypatch):
+    """A B with few nonzero nodes (a light shape's emission) gathers only the receivers' runs
+    with a term from one of them (solver.SPARSE): bit for bit the full sums, float64 and float32,
+    far links and clusters included, on 1 and 2 threads."""
+    s = clutter
+    h = s.h
+    lf = h.leaves()
+    B = np.zeros((3, h.n))
+    pick = np.random.default_rng(3).choice(lf, 4, replace=False)
+    B[:, pick] = np.random.default_rng(4).random((3, 4))
+    cut = []
+    touched = SV._touched
+    monkeypatch.setattr(SV, "_touched", lambda *a: cut.append(a[0]) or touched(*a))
+    for threads in (1, 2):
+        op = Operator(h, s.links, threads)
+        for o in (op, op.float32()):
+            Bp = o.pull(B.copy())
+            cut.clear()
+            monkeypatch.setattr(SV, "SPARSE", 0.5)  # (a small room: a few leaves are more than 2%)
+            sparse = o.gather(Bp)
+            assert len(cut) == len(o._rows) + len(o._t_rows)  # both gathers took the sparse path
+            monkeypatch.setattr(SV, "SPARSE", 0.0)
+            full = o.gather(Bp)
+            assert np.count_nonzero(full) > 0.5 * full.size  # the few sources reach most receivers
+            assert np.array_equal(sparse, full)
 
 
 # -- oracles with clutter ------------------------------------------------------------------------------
