@@ -9,6 +9,7 @@ import copy
 from dataclasses import dataclass, field
 import time
 import warnings
+import weakref
 
 import numpy as np
 
@@ -72,15 +73,21 @@ class Operator:
         else:
             (self.t_slot, self.t_src, self.t_w), (self.recv, self.src, self.f, self._corr) = ext
             self.off, self.nT = SLOTS * self.tree.C, 2 * len(far)
-        # numpy converts other index types to intp on every fancy-indexing call: a gather's take
-        # is 2.8x faster with intp sources (measured), worth their 4 extra bytes per term
-        self.src = self.src.astype(np.intp, copy=False)
+        sh = self._shared = _shared(links, ext)
+        if not sh:
+            # numpy converts other index types to intp on every fancy-indexing call: a gather's
+            # take is 2.8x faster with intp sources (measured), worth their 4 extra bytes per term
+            sh["src"] = self.src.astype(np.intp, copy=False)
+            sh["rows"] = _blocks(_runs(self.recv), len(self.recv))
+            if self.tree is not None:
+                sh["t_src"] = self.t_src.astype(np.intp, copy=False)
+                sh["t_rows"] = _blocks(_runs(self.t_slot), len(self.t_slot))
+        self.src, self._rows = sh["src"], sh["rows"]
+        self._t_rows = None
         if self.tree is not None:
-            self.t_src = self.t_src.astype(np.intp, copy=False)
+            self.t_src, self._t_rows = sh["t_src"], sh["t_rows"]
         self._f_base = self._fsum = None
         self.dtype = np.float64
-        self._rows = _blocks(_runs(self.recv), len(self.recv))
-        self._t_rows = _blocks(_runs(self.t_slot), len(self.t_slot)) if self.tree is not None else None
         self.n = h.n
         self.levels = h.levels()
         self.leaves = h.leaves()
@@ -110,10 +117,15 @@ class Operator:
         if self.dtype == np.float32:
             return self
         if getattr(self, "_f32", None) is None:
+            sh = self._shared
+            if "f32" not in sh:
+                sh["f32"] = self.f.astype(np.float32)
+                if self.tree is not None:
+                    sh["t_w32"] = self.t_w.astype(np.float32)
             op = copy.copy(self)
-            op.dtype, op.f, op._f_base, op._fsum = np.float32, self.f.astype(np.float32), None, None
+            op.dtype, op.f, op._f_base, op._fsum = np.float32, sh["f32"], None, None
             if self.tree is not None:
-                op.t_w = self.t_w.astype(np.float32)
+                op.t_w = sh["t_w32"]
             self._f32 = op
         return self._f32
 
@@ -177,6 +189,22 @@ class Operator:
         lf = self.leaves
         Bn[:, lf] = self.emitted(E)[:, lf] + self.rho[:, lf] * G[:, lf]
         return self.pull(Bn), G
+
+
+# Links -> (its extended() terms, {name: array}): see _shared
+_SHARED = weakref.WeakKeyDictionary()
+
+
+def _shared(links, ext):
+    """The operator's arrays that depend on a link set's terms only (intp sources, the receivers'
+    runs, float32 copies), shared by the operators of every hierarchy version over those terms:
+    AUTO's events add nodes below the leaves, a new Operator per event over the same
+    Links.extended() (cached there: the node geometry under a link set never changes). Dropped
+    with the Links, or when its extended() gives other arrays."""
+    got = _SHARED.get(links)
+    if got is None or got[0] is not ext:
+        got = _SHARED[links] = (ext, {})
+    return got[1]
 
 
 def _runs(keys):
