@@ -232,6 +232,26 @@ def test_a_gather_of_few_sources_sums_only_the_runs_they_reach(clutter, monkeypa
             assert np.array_equal(sparse, full)
 
 
+def test_operators_over_one_link_set_share_its_arrays(clutter, monkeypatch):
+    """A light event's new nodes make a new Operator over the same Links (AUTO: every event): it
+    takes the link set's intp sources, runs and float32 copies from the one before instead of
+    making them again, and gathers what an operator made from scratch gathers, bit for bit."""
+    s = clutter
+    a = Operator(s.h, s.links)
+    c = s.copy()  # an event's system: its own hierarchy, the same links
+    lf = c.h.leaves()
+    c.h.subdivide(lf[:: max(len(lf) // 5, 1)])
+    b = Operator(c.h, c.links)
+    assert b.n > a.n and b.src is a.src and b._rows is a._rows and b.t_src is a.t_src
+    assert b.float32().f is a.float32().f and b.float32().t_w is a.float32().t_w
+    B = b.pull(np.random.default_rng(6).random((3, b.n)))
+    monkeypatch.setattr(SV, "_SHARED", SV.weakref.WeakKeyDictionary())  # none kept: made anew
+    fresh = Operator(c.h, c.links)
+    assert fresh.src is not b.src
+    for o, r in ((b, fresh), (b.float32(), fresh.float32())):
+        assert np.array_equal(o.gather(B), r.gather(B))
+
+
 # -- oracles with clutter ------------------------------------------------------------------------------
 @pytest.mark.parametrize(
     "quality, worst, p99",
