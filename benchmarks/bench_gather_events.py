@@ -46,6 +46,12 @@ def main(argv=None):
     ap.add_argument("--iterations", type=int, default=4)
     ap.add_argument("--methods", default="FE,AUTO")
     ap.add_argument("--profile", default=None, help="write a cProfile summary of the events here")
+    ap.add_argument(
+        "--profile-steps",
+        default=None,
+        help="with --profile: only these steps (e.g. FE_move,AUTO_add), each its own cProfile in "
+        "process time, written to PROFILE.STEP.txt",
+    )
     ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
     ap.add_argument("--json", default=None)
     ap.add_argument("--threads", type=int, default=1, help="core.parallel's threads (0: every core)")
@@ -120,10 +126,11 @@ def main(argv=None):
         return LightShape(rect, np.broadcast_to(np.asarray(em, float), (3,)).copy(), "window")
 
     prof = None
+    only = set(args.profile_steps.split(",")) if args.profile_steps else None
     if args.profile:
         import cProfile
 
-        prof = cProfile.Profile()
+        prof = cProfile.Profile() if only is None else None
     dumps = {}
     for method in args.methods.split(","):
         c0 = cpu()
@@ -151,6 +158,8 @@ def main(argv=None):
             ("strength", lambda: dyn.apply({"w": window(1.2, (20.0, 40.0, 60.0))})),
         ]
         for name, ev in steps:
+            if only is not None and f"{method}_{name}" in only:
+                prof = cProfile.Profile(time.process_time)
             if prof is not None:
                 prof.enable()
             c0, w0 = cpu(), wall()
@@ -160,6 +169,9 @@ def main(argv=None):
             c2, w2 = cpu(), wall()
             if prof is not None:
                 prof.disable()
+                if only is not None:
+                    _write_profile(prof, f"{args.profile}.{method}_{name}.txt")
+                    prof = None
             out[f"{method}_{name}_cpu_s"] = c2 - c0
             out[f"{method}_{name}_wall_s"] = w2 - w0
             out[f"{method}_{name}_solve_cpu_s"] = c1 - c0
@@ -179,14 +191,18 @@ def main(argv=None):
         obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
         np.savez_compressed(args.dump, loop_object=obj, **dumps)
     if prof is not None:
-        import io
-        import pstats
+        _write_profile(prof, args.profile)
 
-        buf = io.StringIO()
-        st = pstats.Stats(prof, stream=buf).sort_stats("cumulative")
-        st.print_stats(45)
-        st.sort_stats("tottime").print_stats(30)
-        Path(args.profile).write_text(buf.getvalue())
+
+def _write_profile(prof, path):
+    import io
+    import pstats
+
+    buf = io.StringIO()
+    st = pstats.Stats(prof, stream=buf).sort_stats("cumulative")
+    st.print_stats(60)
+    st.sort_stats("tottime").print_stats(40)
+    Path(path).write_text(buf.getvalue())
 
 
 if __name__ == "__main__":

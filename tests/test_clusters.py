@@ -9,6 +9,7 @@ import pytest
 
 from hr_addon.core import cluster as C
 from hr_addon.core import farlinks as FL
+from hr_addon.core import solver as SV
 from hr_testing import scenes
 from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape
@@ -202,6 +203,53 @@ def test_reciprocity_and_energy_balance_with_clusters(clutter):
     assert np.abs(AK - AK.T).max() <= 1e-9 * np.abs(AK).max()
     s.solve()
     assert s.report.energy_error < 1e-9
+
+
+def test_a_gather_of_few_sources_sums_only_the_runs_they_reach(clutter, monkeypatch):
+    """A B with few nonzero nodes (a light shape's emission) gathers only the receivers' runs
+    with a term from one of them (solver.SPARSE): bit for bit the full sums, float64 and float32,
+    far links and clusters included, on 1 and 2 threads."""
+    s = clutter
+    h = s.h
+    lf = h.leaves()
+    B = np.zeros((3, h.n))
+    pick = np.random.default_rng(3).choice(lf, 4, replace=False)
+    B[:, pick] = np.random.default_rng(4).random((3, 4))
+    cut = []
+    touched = SV._touched
+    monkeypatch.setattr(SV, "_touched", lambda *a: cut.append(a[0]) or touched(*a))
+    for threads in (1, 2):
+        op = Operator(h, s.links, threads)
+        for o in (op, op.float32()):
+            Bp = o.pull(B.copy())
+            cut.clear()
+            monkeypatch.setattr(SV, "SPARSE", 0.5)  # (a small room: a few leaves are more than 2%)
+            sparse = o.gather(Bp)
+            assert len(cut) == len(o._rows) + len(o._t_rows)  # both gathers took the sparse path
+            monkeypatch.setattr(SV, "SPARSE", 0.0)
+            full = o.gather(Bp)
+            assert np.count_nonzero(full) > 0.5 * full.size  # the few sources reach most receivers
+            assert np.array_equal(sparse, full)
+
+
+def test_operators_over_one_link_set_share_its_arrays(clutter, monkeypatch):
+    """A light event's new nodes make a new Operator over the same Links (AUTO: every event): it
+    takes the link set's intp sources, runs and float32 copies from the one before instead of
+    making them again, and gathers what an operator made from scratch gathers, bit for bit."""
+    s = clutter
+    a = Operator(s.h, s.links)
+    c = s.copy()  # an event's system: its own hierarchy, the same links
+    lf = c.h.leaves()
+    c.h.subdivide(lf[:: max(len(lf) // 5, 1)])
+    b = Operator(c.h, c.links)
+    assert b.n > a.n and b.src is a.src and b._rows is a._rows and b.t_src is a.t_src
+    assert b.float32().f is a.float32().f and b.float32().t_w is a.float32().t_w
+    B = b.pull(np.random.default_rng(6).random((3, b.n)))
+    monkeypatch.setattr(SV, "_SHARED", SV.weakref.WeakKeyDictionary())  # none kept: made anew
+    fresh = Operator(c.h, c.links)
+    assert fresh.src is not b.src
+    for o, r in ((b, fresh), (b.float32(), fresh.float32())):
+        assert np.array_equal(o.gather(B), r.gather(B))
 
 
 # -- oracles with clutter ------------------------------------------------------------------------------

@@ -52,9 +52,8 @@ class DirectLight:
         if len(lit) and self.shadow_rays > 0:
             S = self.shadow_rays
             gi = i[lit] + a
-            u = (
-                hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
-            ) % 1.0
+            u = hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
+            u -= u >= 1.0  # = u % 1.0 (a sum of two numbers in [0, 1): exact, Sterbenz), 2x faster
             # ratio estimator of the visible fraction of the projected solid angle: weight cos_x
             # over the samples' solid-angle density (and only where the emitter faces the point)
             xo, no = xi[lit], ni[lit]
