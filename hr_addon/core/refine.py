@@ -229,6 +229,7 @@ class Refiner:
             # form factors (and visibility points) of partly covered nodes: from about 6 x 6
             # points on their exposed part (_exposed_grid)
             fp, seen = self._exposed_grid(part, ex[part])
+
             # by blocks of nodes, each cut to its own largest count: exposed_points compares every
             # sample point with every grid point, (N, vis_k^2, M, 3), 1.1 GB at once at 100k
             def block(i, j):
