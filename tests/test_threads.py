@@ -217,6 +217,7 @@ def small_batches(monkeypatch):
     monkeypatch.setattr(refine, "LINK_BATCH", 97)
     monkeypatch.setattr(refine, "NODE_BATCH", 13)
     monkeypatch.setattr(contacts, "POINT_BATCH", 1000)
+    monkeypatch.setattr(contacts, "SEGMENT_CHUNK", 2000)
     monkeypatch.setattr(boxes, "PAIR_BLOCK", 5000)
     monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
     monkeypatch.setattr(RayBackend, "PARALLEL_CHUNK", 1000)

@@ -32,6 +32,9 @@ from .slots import SlotMouths
 # points per batch of the covered test on threads (core.parallel): fixed, never by the thread count;
 # every point's answer is its own, so the batches do not change it
 POINT_BATCH = 1 << 15
+# (plane, occluder patch) pairs per chunk of the chain segments: the segments' order follows the
+# chunks, so this is fixed (it was the serial code's chunk: the same chains, bit for bit)
+SEGMENT_CHUNK = 500_000
 
 
 class Contacts(SlotMouths):
@@ -39,7 +42,7 @@ class Contacts(SlotMouths):
 
     gap: how far (scene units) in front of a receiver a face may be and still cover it, and how
     close to its plane an edge or vertex is taken as lying on it. threads: the build's box pairs
-    on threads (boxes.box_pairs; None: serial)."""
+    (boxes.box_pairs) and chain segments on threads (None: serial)."""
 
     def __init__(self, patches, gap, threads=None):
         pt = self.patches = patches
@@ -157,9 +160,14 @@ class Contacts(SlotMouths):
         gi, t = self.plane[i[keep]], j[keep]
         pair = np.unique(gi.astype(np.int64) * len(pt.nv) + t)  # (plane, occluder patch), once each
         gi, t = pair // len(pt.nv), pair % len(pt.nv)
-        segs = []
-        for s0 in range(0, len(t), 500_000):  # bounded temporaries at any scene size
-            segs += self._segments(gi[s0 : s0 + 500_000], t[s0 : s0 + 500_000])
+        # bounded temporaries at any scene size; each chunk's segments are its own (on threads: the
+        # same chunks, so the same segments in the same order)
+        chunks = ranges(len(t), SEGMENT_CHUNK)
+        if threads is None:
+            parts = [self._segments(gi[i:j], t[i:j]) for i, j in chunks]
+        else:
+            parts = batch_map(lambda i, j: self._segments(gi[i:j], t[i:j]), chunks, threads)
+        segs = [x for part in parts for x in part]
         if segs:
             g_, a_, b_, ch_, sg_, pc_, hg_, op_ = (np.concatenate(x) for x in zip(*segs))
         else:
