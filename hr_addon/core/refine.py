@@ -40,8 +40,10 @@ CHUNK = 100_000  # node pairs processed at once
 # links per batch of the final form factors and shadow tests on threads (core.parallel): fixed, so
 # the values do not depend on the thread count; small enough that a 10k-triangle room has many
 LINK_BATCH = 1 << 13
-# partly covered nodes per batch of their exposed grids and visibility points (Refiner.contacts)
-NODE_BATCH = 1 << 10
+# partly covered nodes per batch of their exposed grids and visibility points (Refiner.contacts):
+# a batch's distance array is (N, vis_k^2, its largest exposed count, 3), up to 100 MB at 1024
+# nodes, and every thread holds one
+NODE_BATCH = 1 << 8
 
 
 def _facing(h, p, q, tol):
