@@ -15,12 +15,13 @@ workers. CPU time hardly depends on the load of a shared machine, unlike wall ti
 assumes a batch takes as long on any core (no memory bandwidth limit: an upper bound).
 
     .venv/bin/python benchmarks/bench_threads.py [--size 20k] [--runs 1@0,1@0-1,2@0-1] [--json out.json]
-        [--system DIR] [--solve-only]
+        [--system DIR] [--solve-only] [--build-only]
 
 --system DIR keeps the built system in DIR (sys_<size>_<quality>.npz + .json, io.precompute_graph's
 capture) and loads it in later runs: the build phase is then the load (the 100k room's build takes
 5-7 minutes a run). --solve-only runs the solver's phases alone: the FE base solve, the FE event
-and the AUTO event (no gather, no output); their values are the node radiance B.
+and the AUTO event (no gather, no output); their values are the node radiance B. --build-only runs
+the build alone (its values: the links and the hierarchy's areas).
 """
 
 import argparse
@@ -40,12 +41,12 @@ import numpy as np  # noqa: E402
 PHASE_KEYS = ("samples", "links", "cpu", "batches", "profiled", "loaded")  # a run's entries that are no phase
 
 
-def child(size, threads, quality, dump, system=None, solve_only=False):
+def child(size, threads, quality, dump, system=None, solve_only=False, build_only=False):
     from hr_addon.core import parallel
 
     prof = parallel.profiled() if threads == 1 else contextlib.nullcontext([])
     with prof as maps:
-        return _phases(size, threads, quality, dump, maps, system, solve_only)
+        return _phases(size, threads, quality, dump, maps, system, solve_only, build_only)
 
 
 def _system(mesh, size, quality, threads, folder):
@@ -70,7 +71,7 @@ def _system(mesh, size, quality, threads, folder):
     return s, False
 
 
-def _phases(size, threads, quality, dump, maps, system=None, solve_only=False):
+def _phases(size, threads, quality, dump, maps, system=None, solve_only=False, build_only=False):
     from hr_testing import shapes as S
     from hr_testing.furnished import furnished_room
     from hr_addon.core.events import DynamicRadiosity, LightShape
@@ -97,6 +98,15 @@ def _phases(size, threads, quality, dump, maps, system=None, solve_only=False):
         return r
 
     s, out["loaded"] = phase("build", lambda: _system(mesh, size, quality, threads, system))
+    if build_only:
+        L = s.links
+        values.update(a=L.a, b=L.b, f_ab=L.f_ab, f_ba=L.f_ba, vis=L.vis, area=s.h.view("area"))
+        values.update(far_a=L.far.a, far_b=L.far.b, far_vis=L.far.vis)
+        out["samples"], out["links"], out["cpu"], out["batches"] = 0, len(L), cpu, batches
+        out["profiled"] = threads == 1
+        if dump:
+            np.savez(dump, **values)
+        return out
     dyn = phase("FE base solve", lambda: DynamicRadiosity(s.copy(), method="FE", **dkw))
     if solve_only:
         values["first"] = dyn.B.copy()
@@ -138,11 +148,13 @@ def main(argv=None):
     ap.add_argument("--json", default=None)
     ap.add_argument("--system", default=None, help="folder to keep / load the built system in")
     ap.add_argument("--solve-only", action="store_true", help="the solver's phases alone")
+    ap.add_argument("--build-only", action="store_true", help="the build alone")
     ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--dump", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child is not None:
-        print(json.dumps(child(args.size, args.child, args.quality, args.dump, args.system, args.solve_only)))
+        only = dict(solve_only=args.solve_only, build_only=args.build_only)
+        print(json.dumps(child(args.size, args.child, args.quality, args.dump, args.system, **only)))
         return
     runs, dumps = {}, {}
     for run in args.runs.split(","):
@@ -153,6 +165,7 @@ def main(argv=None):
         cmd += (["--system", args.system] if args.system else []) + (
             ["--solve-only"] if args.solve_only else []
         )
+        cmd += ["--build-only"] if args.build_only else []
         print(f"{t} thread(s), taskset -c {cpus}, load {os.getloadavg()[0]:.2f}", flush=True)
         r = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True)
         runs[run] = json.loads(r.stdout.strip().splitlines()[-1])

@@ -206,7 +206,7 @@ def test_a_cancel_during_the_gather_precompute_leaves_no_worker(cornell_events):
 def small_batches(monkeypatch):
     """Batches small enough that the small test scenes split into many (the product's sizes are
     fixed too, larger: the values never depend on the thread count, only on the batch bounds)."""
-    from hr_addon.core import farlinks, refine, solver
+    from hr_addon.core import boxes, contacts, farlinks, refine, solver
     from hr_addon.core.events import direct
     from hr_addon.core.gather import FinalGather
     from hr_addon.core.visibility import RayBackend
@@ -215,26 +215,37 @@ def small_batches(monkeypatch):
     monkeypatch.setattr(farlinks, "TERMS_CHUNK", 50)
     monkeypatch.setattr(direct, "NODE_BATCH", 7)
     monkeypatch.setattr(refine, "LINK_BATCH", 97)
+    monkeypatch.setattr(refine, "NODE_BATCH", 13)
+    monkeypatch.setattr(contacts, "POINT_BATCH", 1000)
+    monkeypatch.setattr(contacts, "SEGMENT_CHUNK", 2000)
+    monkeypatch.setattr(boxes, "PAIR_BLOCK", 5000)
     monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
     monkeypatch.setattr(RayBackend, "PARALLEL_CHUNK", 1000)
     monkeypatch.setattr(FinalGather, "BATCH_RAYS", 4096)
 
 
 def _links(s):
-    L, F = s.links, s.links.far
-    return [L.a, L.b, L.f_ab, L.f_ba, L.vis, s.h.child0, s.h.area, F.a, F.b, F.vis, F.mask]
+    L, F, r, c = s.links, s.links.far, s.refiner, s.h.contacts
+    links = [L.a, L.b, L.f_ab, L.f_ba, L.vis, s.h.child0, s.h.area, F.a, F.b, F.vis, F.mask]
+    exposed = [s.h.view("exposure"), r._vis_nodes, r._vis_pts, r._ff_pts, r._ff_ptr, r._ex_centre]
+    return links + exposed + [c.seg_a, c.seg_b, c.seg_chain, c.receivers, c.touch]
 
 
 def test_build_with_one_and_two_threads_gives_identical_links(small_batches):
-    """The furnished room (clusters, far links, contacts): links, form factors, visibility and
-    the hierarchy are bitwise equal with 1 and 2 threads, and the rays counted are the same;
-    so is the solve."""
+    """The furnished room (clusters, far links, contacts): links, form factors, visibility, the
+    hierarchy and the contacts (chains, exposures, exposed points) are bitwise equal with 1 and 2
+    threads, and the rays counted are the same; so is the solve."""
     from hr_addon.core import farlinks
     from hr_testing.furnished import furnished_room
+
+    from hr_addon.core import contacts, refine
 
     mesh = furnished_room("2k")[0]
     s1, s2 = (RadiositySystem(mesh, RefineParams.for_gather("draft"), threads=t) for t in (1, 2))
     assert len(s1.links) > 1000
+    # the contacts' stages ran in several batches: box pairs, covered points, partly covered nodes
+    assert len(s1.refiner._vis_nodes) > 10 * refine.NODE_BATCH
+    assert len(s1.refiner._ff_pts) > 10 * contacts.POINT_BATCH and len(s1.h.contacts.touch) > 0
     for x, y in zip(_links(s1), _links(s2), strict=True):
         assert np.array_equal(x, y)
     assert s1.refiner.stats["rays"] == s2.refiner.stats["rays"] > 0

@@ -3,6 +3,12 @@ pairs of overlapping axis-aligned boxes through a uniform grid, 2D ray exits."""
 
 import numpy as np
 
+from .parallel import batch_map
+
+# candidate pairs per batch of box_pairs on threads (core.parallel): fixed, never by the thread
+# count (the pairs come out sorted and unique whatever the blocks)
+PAIR_BLOCK = 1 << 20
+
 
 def sorted_index(table, keys):
     """Index of each key in the sorted array table, -1 where it is absent."""
@@ -37,10 +43,12 @@ def grid_cells(lo, hi, origin, size, dims, group):
     return box, key
 
 
-def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000_000):
+def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000_000, threads=None):
     """Index pairs (i, j) whose axis-aligned boxes overlap (and whose groups are equal, if
     given), through a uniform grid: cells about the median box size, coarsened until the cell
-    lists fit, so the cost follows the overlaps rather than all pairs."""
+    lists fit, so the cost follows the overlaps rather than all pairs. threads: the candidate
+    pairs' blocks (PAIR_BLOCK) as a batch map on that many threads; None: a plain loop over
+    blocks of max_refs."""
     if not len(lo_a) or not len(lo_b):
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     origin = np.minimum(lo_a.min(0), lo_b.min(0))
@@ -62,16 +70,20 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000
     kb, bb = kb[order], bb[order]
     first = np.searchsorted(kb, ka, "left")
     cnt = np.searchsorted(kb, ka, "right") - first
-    # candidate pairs in blocks of about max_refs: their temporaries stay bounded
+    # candidate pairs in blocks of about `block`: their temporaries stay bounded
     ends = np.cumsum(cnt)
-    cuts = np.searchsorted(ends, np.arange(max_refs, int(ends[-1]) if len(ends) else 0, max_refs))
-    keys = []
-    for s, e in zip(np.r_[0, cuts], np.r_[cuts, len(ka)]):
+    block = max_refs if threads is None else PAIR_BLOCK
+    cuts = np.searchsorted(ends, np.arange(block, int(ends[-1]) if len(ends) else 0, block))
+
+    def pairs(s, e):
         c = cnt[s:e]
         i = np.repeat(ba[s:e], c)
         j = bb[np.repeat(first[s:e], c) + np.arange(len(i)) - np.repeat(np.cumsum(c) - c, c)]
         ok = np.all((lo_b[j] <= hi_a[i]) & (hi_b[j] >= lo_a[i]), axis=1)
-        keys.append(np.unique(i[ok] * len(lo_b) + j[ok]))
+        return np.unique(i[ok] * len(lo_b) + j[ok])
+
+    blocks = list(zip(np.r_[0, cuts], np.r_[cuts, len(ka)]))
+    keys = [pairs(s, e) for s, e in blocks] if threads is None else batch_map(pairs, blocks, threads)
     key = np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
     return key // len(lo_b), key % len(lo_b)
 

@@ -25,17 +25,26 @@ import numpy as np
 
 from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, sorted_index
 from .geometry import components
+from .parallel import batch_map, ranges
 from .planes import frames, plane_ids
 from .slots import SlotMouths
+
+# points per batch of the covered test on threads (core.parallel): fixed, never by the thread count;
+# every point's answer is its own, so the batches do not change it
+POINT_BATCH = 1 << 15
+# (plane, occluder patch) pairs per chunk of the chain segments: the segments' order follows the
+# chunks, so this is fixed (it was the serial code's chunk: the same chains, bit for bit)
+SEGMENT_CHUNK = 500_000
 
 
 class Contacts(SlotMouths):
     """Covered-point test for points on the patches of `patches` (geometry.Patches).
 
     gap: how far (scene units) in front of a receiver a face may be and still cover it, and how
-    close to its plane an edge or vertex is taken as lying on it."""
+    close to its plane an edge or vertex is taken as lying on it. threads: the build's box pairs
+    (boxes.box_pairs) and chain segments on threads (None: serial)."""
 
-    def __init__(self, patches, gap):
+    def __init__(self, patches, gap, threads=None):
         pt = self.patches = patches
         K = len(pt.nv)
         self.gap = float(gap)
@@ -51,7 +60,7 @@ class Contacts(SlotMouths):
         self.n_g, self.o_g = pt.normal[first], pt.corners[first, 0]
         self.u_g, self.v_g = frames(self.n_g) if G else (np.zeros((0, 3)), np.zeros((0, 3)))
         self.piece = self._pieces(size)
-        self._build()
+        self._build(threads)
 
     def _pieces(self, size):
         """Connected pieces: patches sharing an input vertex, or a corner position within one
@@ -141,19 +150,24 @@ class Contacts(SlotMouths):
                 segs.append((gi[cr][sel], a2, b2, -1 - pc, np.ones(len(sel), bool), pc, hgt, t[cr][sel]))
         return segs
 
-    def _build(self):
+    def _build(self, threads=None):
         pt = self.patches
         c = pt.corners
         lo, hi = c.min(1), c.max(1)
         g = self.gap
-        i, j = box_pairs(lo - g, hi + g, lo, hi)
+        i, j = box_pairs(lo - g, hi + g, lo, hi, threads=threads)
         keep = (i != j) & (self.plane[i] != self.plane[j])
         gi, t = self.plane[i[keep]], j[keep]
         pair = np.unique(gi.astype(np.int64) * len(pt.nv) + t)  # (plane, occluder patch), once each
         gi, t = pair // len(pt.nv), pair % len(pt.nv)
-        segs = []
-        for s0 in range(0, len(t), 500_000):  # bounded temporaries at any scene size
-            segs += self._segments(gi[s0 : s0 + 500_000], t[s0 : s0 + 500_000])
+        # bounded temporaries at any scene size; each chunk's segments are its own (on threads: the
+        # same chunks, so the same segments in the same order)
+        chunks = ranges(len(t), SEGMENT_CHUNK)
+        if threads is None:
+            parts = [self._segments(gi[i:j], t[i:j]) for i, j in chunks]
+        else:
+            parts = batch_map(lambda i, j: self._segments(gi[i:j], t[i:j]), chunks, threads)
+        segs = [x for part in parts for x in part]
         if segs:
             g_, a_, b_, ch_, sg_, pc_, hg_, op_ = (np.concatenate(x) for x in zip(*segs))
         else:
@@ -244,9 +258,11 @@ class Contacts(SlotMouths):
         return len(self.receivers) > 0
 
     # -- the covered-point test -----------------------------------------------------------------------
-    def covered(self, points, patch, budget=4_000_000, chunk=200_000, open_edge=0.0):
+    def covered(self, points, patch, budget=4_000_000, chunk=200_000, open_edge=0.0, threads=None):
         """Boolean (N,): points (N, 3) lying on patches patch (N,) are covered (in chunks of
-        points: the temporaries stay small whatever the scene size).
+        points: the temporaries stay small whatever the scene size). threads: batches of
+        POINT_BATCH points as a batch map on that many threads (core.parallel; None: serial, in
+        chunks).
 
         open_edge > 0: a point under a covering face or solid at a gap h in front of it (a book's
         side 2 mm from its neighbour's) counts as covered only farther than open_edge x h from the
@@ -255,6 +271,13 @@ class Contacts(SlotMouths):
         h^2 / (4 x^2); its integral over the depth is h / 2, of which x > c h holds a share
         1 / (2 c) (open_edge 5: 10%). Touching faces (h = 0) and crossing solids are unchanged."""
         points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
+        if threads is not None:
+            parts = batch_map(
+                lambda i, j: self.covered(points[i:j], patch[i:j], budget, chunk, open_edge),
+                ranges(len(points), POINT_BATCH),
+                threads,
+            )
+            return np.concatenate(parts) if parts else np.zeros(0, bool)
         if len(points) > chunk:
             return np.concatenate(
                 [
@@ -318,11 +341,11 @@ class Contacts(SlotMouths):
         return np.bincount(pr, ang, len(ch)) / (2 * np.pi)
 
 
-def refine_contacts(h, contacts: Contacts, min_area, k=(6, 4), max_nodes=2_000_000):
+def refine_contacts(h, contacts: Contacts, min_area, k=(6, 4), max_nodes=2_000_000, threads=None):
     """Split the nodes of contact receivers that are partly covered down to min_area and set
     every node's exposure (uncovered area fraction, from k x k stratified points: k[0] on the
     receivers, which may be large, k[1] below; internal nodes the area-weighted mean of their
-    children). Returns the number of nodes added."""
+    children). Returns the number of nodes added. threads: the covered test's (Contacts.covered)."""
     from . import formfactor as ff
 
     n0 = h.n
@@ -330,7 +353,8 @@ def refine_contacts(h, contacts: Contacts, min_area, k=(6, 4), max_nodes=2_000_0
     kk = k[0]
     while len(frontier):
         pts = ff.sample_points(h.corners[frontier], h.nv[frontier], kk)
-        cov = contacts.covered(pts.reshape(-1, 3), np.repeat(h.patch[frontier], kk * kk)).reshape(-1, kk * kk)
+        cov = contacts.covered(pts.reshape(-1, 3), np.repeat(h.patch[frontier], kk * kk), threads=threads)
+        cov = cov.reshape(-1, kk * kk)
         kk = k[1]
         frac = cov.mean(1)
         h.exposure[frontier] = 1.0 - frac

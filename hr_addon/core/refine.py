@@ -40,6 +40,10 @@ CHUNK = 100_000  # node pairs processed at once
 # links per batch of the final form factors and shadow tests on threads (core.parallel): fixed, so
 # the values do not depend on the thread count; small enough that a 10k-triangle room has many
 LINK_BATCH = 1 << 13
+# partly covered nodes per batch of their exposed grids and visibility points (Refiner.contacts):
+# a batch's distance array is (N, vis_k^2, its largest exposed count, 3), up to 100 MB at 1024
+# nodes, and every thread holds one
+NODE_BATCH = 1 << 8
 
 
 def _facing(h, p, q, tol):
@@ -217,22 +221,24 @@ class Refiner:
         prm, h = self.params, self.h
         if not prm.contacts:
             return None
-        c = Contacts(h.patches, prm.contact_gap * np.sqrt(self.total_area))
+        c = Contacts(h.patches, prm.contact_gap * np.sqrt(self.total_area), self.threads)
         self._contacts = h.contacts = c if c.any else None
         if c.any:
             min_area = prm.aeps * self.total_area / 4**prm.contact_levels
-            self.stats["contact_nodes"] = refine_contacts(h, c, min_area)
+            self.stats["contact_nodes"] = refine_contacts(h, c, min_area, threads=self.threads)
             ex = h.view("exposure")
             part = np.flatnonzero((ex > 0) & (ex < 1))
             # form factors (and visibility points) of partly covered nodes: from about 6 x 6
             # points on their exposed part (_exposed_grid)
             fp, seen = self._exposed_grid(part, ex[part])
+
             # by blocks of nodes, each cut to its own largest count: exposed_points compares every
             # sample point with every grid point, (N, vis_k^2, M, 3), 1.1 GB at once at 100k
-            vis_pts = []
-            for i, j in ranges(len(part), 1024):
+            def block(i, j):
                 m = max(int(seen[i:j].sum(1).max()), 1)
-                vis_pts.append(exposed_points(h, c, part[i:j], prm.vis_k, fp[i:j, :m], seen[i:j, :m]))
+                return exposed_points(h, c, part[i:j], prm.vis_k, fp[i:j, :m], seen[i:j, :m])
+
+            vis_pts = batch_map(block, ranges(len(part), NODE_BATCH), self.threads)
             self._vis_nodes = part
             self._vis_pts = np.concatenate(vis_pts) if vis_pts else np.zeros((0, prm.vis_k**2, 3))
             self._ff_pts, self._ff_ptr = fp[seen], np.r_[0, np.cumsum(seen.sum(1))]
@@ -251,15 +257,18 @@ class Refiner:
         target), the exposed ones first. Returns points (N, M, 3) and seen (N, M) (padding: False)."""
         h, c = self.h, self._contacts
         k = np.clip(np.ceil(target / np.sqrt(np.maximum(exposure, 1e-12))), target, 4 * target).astype(int)
-        groups = []
-        for kk in np.unique(k):
-            sel = np.flatnonzero(k == kk)
-            pts = ff.sample_points(h.corners[nodes[sel]], h.nv[nodes[sel]], int(kk))
+
+        def group(kk, sel):  # the nodes sel, all with a kk x kk grid; every node's points are its own
+            pts = ff.sample_points(h.corners[nodes[sel]], h.nv[nodes[sel]], kk)
             ok = ~c.covered(pts.reshape(-1, 3), np.repeat(h.patch[nodes[sel]], kk * kk)).reshape(len(sel), -1)
             order = np.argsort(~ok, axis=1, kind="stable")  # exposed points first, in grid order
-            groups.append(
-                (sel, np.take_along_axis(pts, order[..., None], 1), np.take_along_axis(ok, order, 1))
-            )
+            return sel, np.take_along_axis(pts, order[..., None], 1), np.take_along_axis(ok, order, 1)
+
+        batches = []
+        for kk in np.unique(k):
+            sel = np.flatnonzero(k == kk)
+            batches += [(int(kk), sel[i:j]) for i, j in ranges(len(sel), NODE_BATCH)]
+        groups = batch_map(group, batches, self.threads)
         M = max([max(int(g[2].sum(1).max()), 1) for g in groups] + [target * target])
         fp = np.repeat(h.centre[nodes][:, None], M, 1)
         seen = np.zeros((len(nodes), M), bool)
@@ -381,49 +390,15 @@ class Refiner:
             self.stats["pairs_tested"] += len(p)
             done += len(p)
             self.progress.update("linking", done, total)
-            cp, cq = self.centres(p), self.centres(q)
-            f_pq = ff.estimate(cp, h.normal[p], h.area[p], h.corners[q], cq, h.normal[q], h.area[q])
-            f_qp = ff.estimate(cq, h.normal[q], h.area[q], h.corners[p], cp, h.normal[p], h.area[p])
-            fmax = np.maximum(f_pq, f_qp)
-            alive = (fmax > 0) & _facing(h, p, q, tol) & (h.exposure[p] > 0) & (h.exposure[q] > 0)
-            p, q, f_pq, f_qp, fmax, kv = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive], kv[alive]
-            cp, cq = cp[alive], cq[alive]
-            ok = fmax < prm.feps if good_enough is None else good_enough(p, q, f_pq, f_qp)
-            can_p, can_q = h.area[p] > aeps, h.area[q] > aeps
-            # Push-down hands a link's average to every descendant of the receiver, so what matters
-            # is how much the point form factor varies across each node; measure it where it can be
-            # large (near pairs) and split the node whose variation is larger.
-            v_p, v_q = np.zeros(len(p)), np.zeros(len(p))
-            near = ok & (np.sum((cp - cq) ** 2, 1) < prm.near * (h.area[p] + h.area[q]))
-            if prm.veps > 0 and near.any():
-                v_p[near], v_q[near] = _variation(h, p[near], q[near]), _variation(h, q[near], p[near])
-                ok &= np.maximum(v_p, v_q) < prm.veps
-            vis = kv.copy()
-            # Links that pass the oracle but straddle a shadow boundary get split further.
-            shadow = (
-                ok & (fmax > prm.shadow_feps) & (can_p | can_q) & np.isnan(vis)
-                if prm.shadow_feps > 0
-                else np.zeros(len(p), bool)
+            if not len(p):
+                continue
+            # the oracle by batches of pairs on threads (each pair on its own), then the splits
+            parts = batch_map(
+                lambda i, j: self._oracle(p[i:j], q[i:j], kv[i:j], good_enough, aeps, tol),
+                ranges(len(p), LINK_BATCH),
+                self.threads,
             )
-            if shadow.any():
-                vis[shadow] = self.visibility(p[shadow], q[shadow])
-                ok &= ~(shadow & (vis > 0) & (vis < 1))
-            if self._contacts is not None:
-                # An object and the surface it stands on exchange the strongest light of all, half
-                # hidden from each other: the few rays of a coarse pair can all miss it (a floor
-                # quad mostly under a box and the box's side), so such pairs with a partly covered
-                # end that see nothing are split rather than dropped (down to Aeps).
-                touch = ok & (can_p | can_q) & ((h.exposure[p] < 1) | (h.exposure[q] < 1))
-                touch[touch] = self._contacts.touching(h.patch[p[touch]], h.patch[q[touch]])
-                todo = touch & np.isnan(vis)
-                if todo.any():
-                    vis[todo] = self.visibility(p[todo], q[todo])
-                ok &= ~(touch & (vis == 0))
-            by_var = (v_p + v_q) > 0
-            prefer_q = np.where(by_var, v_q > v_p, f_pq >= f_qp)
-            split_q = ~ok & can_q & (prefer_q | ~can_p)
-            split_p = ~ok & ~split_q & can_p
-            link = ~split_q & ~split_p
+            p, q, vis, link, split_p, split_q = (np.concatenate(x) for x in zip(*parts))
             if link.any():
                 out.append((p[link], q[link], vis[link]))
             sp_p, sp_q = p[split_p], q[split_p]  # p split: pairs (child of p, q)
@@ -441,6 +416,56 @@ class Refiner:
                 )
         self.stats["t_refine"] += time.perf_counter() - t0
         return self._finish(out)
+
+    def _oracle(self, p, q, kv, good_enough, aeps, tol):
+        """refine's test of the pairs (p, q) (kv: known visibility): every pair on its own, no
+        hierarchy edit, so batches of pairs run on threads. Returns the pairs that can exchange
+        light, their visibility (nan: not tested) and the masks link, split p, split q."""
+        h, prm = self.h, self.params
+        cp, cq = self.centres(p), self.centres(q)
+        f_pq = ff.estimate(cp, h.normal[p], h.area[p], h.corners[q], cq, h.normal[q], h.area[q])
+        f_qp = ff.estimate(cq, h.normal[q], h.area[q], h.corners[p], cp, h.normal[p], h.area[p])
+        fmax = np.maximum(f_pq, f_qp)
+        alive = (fmax > 0) & _facing(h, p, q, tol) & (h.exposure[p] > 0) & (h.exposure[q] > 0)
+        p, q, f_pq, f_qp, fmax, kv = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive], kv[alive]
+        cp, cq = cp[alive], cq[alive]
+        ok = fmax < prm.feps if good_enough is None else good_enough(p, q, f_pq, f_qp)
+        can_p, can_q = h.area[p] > aeps, h.area[q] > aeps
+        # Push-down hands a link's average to every descendant of the receiver, so what matters
+        # is how much the point form factor varies across each node; measure it where it can be
+        # large (near pairs) and split the node whose variation is larger.
+        v_p, v_q = np.zeros(len(p)), np.zeros(len(p))
+        near = ok & (np.sum((cp - cq) ** 2, 1) < prm.near * (h.area[p] + h.area[q]))
+        if prm.veps > 0 and near.any():
+            v_p[near], v_q[near] = _variation(h, p[near], q[near]), _variation(h, q[near], p[near])
+            ok &= np.maximum(v_p, v_q) < prm.veps
+        vis = kv.copy()
+        # Links that pass the oracle but straddle a shadow boundary get split further.
+        shadow = (
+            ok & (fmax > prm.shadow_feps) & (can_p | can_q) & np.isnan(vis)
+            if prm.shadow_feps > 0
+            else np.zeros(len(p), bool)
+        )
+        if shadow.any():
+            vis[shadow] = self.visibility(p[shadow], q[shadow])
+            ok &= ~(shadow & (vis > 0) & (vis < 1))
+        if self._contacts is not None:
+            # An object and the surface it stands on exchange the strongest light of all, half
+            # hidden from each other: the few rays of a coarse pair can all miss it (a floor
+            # quad mostly under a box and the box's side), so such pairs with a partly covered
+            # end that see nothing are split rather than dropped (down to Aeps).
+            touch = ok & (can_p | can_q) & ((h.exposure[p] < 1) | (h.exposure[q] < 1))
+            touch[touch] = self._contacts.touching(h.patch[p[touch]], h.patch[q[touch]])
+            todo = touch & np.isnan(vis)
+            if todo.any():
+                vis[todo] = self.visibility(p[todo], q[todo])
+            ok &= ~(touch & (vis == 0))
+        by_var = (v_p + v_q) > 0
+        prefer_q = np.where(by_var, v_q > v_p, f_pq >= f_qp)
+        split_q = ~ok & can_q & (prefer_q | ~can_p)
+        split_p = ~ok & ~split_q & can_p
+        link = ~split_q & ~split_p
+        return p, q, vis, link, split_p, split_q
 
     def _finish(self, out):
         if not out:
