@@ -19,8 +19,9 @@ class DirectLight:
     """FinalGather's direct light (a mixin: it reads the gather's samples, points, normals, keys,
     dark, eps, seed, shadow_rays, system and its batching)."""
 
-    # texture output (layouts.texel_gather): the texels gathered at their centre, whose Blender
-    # lights' direct light is averaged over their area where an edge crosses them (texel_edges)
+    # texture output (layouts.texel_gather): the texels gathered at their centre, whose direct light
+    # (Blender lights, emitters, light shapes) is averaged over their area where an edge crosses
+    # them (texel_edges)
     texel_area = None
 
     # -- direct light --------------------------------------------------------------------------------
@@ -100,7 +101,10 @@ class DirectLight:
         )
         shafts = self.shafts(em)
         parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts), self.batches(per), self.threads)
-        return np.concatenate(parts or [np.zeros(0, np.float32)])
+        out = np.concatenate(parts or [np.zeros(0, np.float32)])
+        if self.texel_area is not None:  # texture output: an edge across a texel, its area's mean
+            out = edge_direct(self, em, out, self.shadow_rays, em.stream, shafts=shafts).astype(np.float32)
+        return out
 
     # the clear-shaft cull costs about 2 us per lit sample and saves a culled sample's sampling and
     # rays, about 0.6 us per shadow ray (Cornell, medium): with a quarter to a third of the lit

@@ -1,8 +1,10 @@
-"""Texels whose direct light from a Blender light changes inside them (a shadow's or a spot cone's
-edge across the texel): their direct light is the mean over sub x sub points of the texel's area,
-as a renderer's bake averages it, instead of the value at the centre (issue 20, docs/lights.md).
-A centre decides a whole texel lit or dark where a sharp edge runs along texel rows."""
+"""Texels whose direct light from a Blender light or an emitter changes inside them (a shadow's or a
+spot cone's edge across the texel, an emitter's penumbra, a book's top between its neighbours): their
+direct light is the mean over sub x sub points of the texel's area, as a renderer's bake averages it,
+instead of the value at the centre (issues 19 and 20, docs/lights.md, docs/gather.md). A centre
+decides a whole texel lit or dark where a sharp edge runs along texel rows."""
 
+import copy
 import time
 
 import numpy as np
@@ -10,7 +12,7 @@ import numpy as np
 from ..parallel import batch_map, ranges
 from .bakepoints import has_area, texel_points
 from .points import onto_patch
-from .sampling import hash_uniform, position_keys
+from .sampling import Emitter, hash_uniform, position_keys
 
 SUB = 8  # points per side of an edge texel (few texels: 64 points keep one texel's quantisation at 1/64)
 # an edge texel: the light at its four corners and centre spans more than EDGE_TOL of their
@@ -33,14 +35,18 @@ def texel_area(points, axes, tris, rows):
     return rows, points, axes, None
 
 
-def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
-    """(n,) unit direct light of `light` (core.lights.Light, not AREA or SKY) at the samples of
-    FinalGather g: `centre` (its values at the samples) with each edge texel of g.texel_area
-    replaced by the mean over sub x sub jittered points of its area (bakepoints.texel_points: where
-    Cycles' bake samples it), `rays` shadow rays per point. Edge texels: their four corners (one
-    hard shadow ray each) and centre differ by more than tol of their maximum. Texels elsewhere
-    keep their values bitwise. g.stats["edge_texels"]: (tested, edge texels, extra shadow rays) and
-    ["edge_texels_cpu"] (process s), summed over calls."""
+def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL, shafts=None):
+    """(n,) unit direct light of `light` at the samples of FinalGather g: `centre` (its values at the
+    samples) with each edge texel of g.texel_area replaced by the mean over sub x sub jittered
+    points of its area (bakepoints.texel_points: where Cycles' bake samples it), `rays` shadow rays
+    per point. light: a core.lights.Light (not AREA or SKY) through core.lights.unit_incident, or a
+    sampling.Emitter (static emitters, light shapes, area lights) through g's direct_batch (shafts:
+    its ClearShafts, or None), whose shadow-ray streams are its own (`stream` unused). Edge
+    texels: their four corners and centre differ by more than tol of their maximum; a Light's
+    corners take one hard shadow ray each, an Emitter's `rays` (one ray in a soft penumbra would
+    call most of its texels edges). Texels elsewhere keep their values bitwise.
+    g.stats["edge_texels"]: (tested, edge texels, extra shadow rays: an Emitter's culled points
+    take fewer) and ["edge_texels_cpu"] (process s), summed over calls."""
     from .. import lights as lt
 
     t0 = time.process_time()
@@ -53,12 +59,18 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
     if not len(j):
         return out
     pt, s = g.system.patches, g.system
+    emitter = isinstance(light, Emitter)
+    corner_rays = rays if emitter else 1
 
     def unit(x, patch, r):
         # as FinalGather's samples: a bake point on a slightly warped polygon's triangle lies off
         # its plane (1e-5 on the Cornell box's left wall), and its shadow rays would hit the wall
         x, nrm = onto_patch(pt, patch, x, g.margin), pt.normal[patch]
         keys = position_keys(x, g.unit)
+        if emitter:
+            p = copy.copy(g)  # the gather at these points (the arrays direct_batch reads)
+            p.points, p.normals, p.keys, p.dark, p.shadow_rays = x, nrm, keys, np.zeros(len(x), bool), r
+            return p.direct_batch(light, 0, len(x), shafts).astype(np.float64)
         return lt.unit_incident(
             light,
             x,
@@ -83,7 +95,7 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
         tr = None if tris is None else tris[i]
         # the corners of the sampled part: those outside the centre's triangle on its edge
         cp = texel_points(cen[i], axes[i], tr, np.broadcast_to(CORNERS, (len(i), 4, 2)), clamp=True)
-        v = np.concatenate([unit(cp, np.repeat(patch, 4), 1).reshape(-1, 4), out[r, None]], 1)
+        v = np.concatenate([unit(cp, np.repeat(patch, 4), corner_rays).reshape(-1, 4), out[r, None]], 1)
         hi = v.max(1)
         e = np.flatnonzero(hi - v.min(1) > tol * hi)
         edge[i[e]] = True
@@ -92,9 +104,10 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL):
             sp = texel_points(cen[i[e]], axes[i[e]], None if tr is None else tr[e], f)
             out[r[e]] = unit(sp, np.repeat(patch[e], k2), rays).reshape(-1, k2).mean(1)
 
-    batch_map(part, ranges(len(j), g.batch_rays // (4 + k2 * rays)), g.threads)
+    batch_map(part, ranges(len(j), g.batch_rays // (4 * corner_rays + k2 * rays)), g.threads)
     ne = int(edge.sum())
     g.stats["edge_texels_cpu"] = g.stats.get("edge_texels_cpu", 0.0) + time.process_time() - t0
     was = g.stats.get("edge_texels", (0, 0, 0))  # summed over the lights and their geometries
-    g.stats["edge_texels"] = tuple(int(a + b) for a, b in zip(was, (len(j), ne, 4 * len(j) + ne * k2 * rays)))
+    now = (len(j), ne, 4 * corner_rays * len(j) + ne * k2 * rays)
+    g.stats["edge_texels"] = tuple(int(a + b) for a, b in zip(was, now))
     return out
