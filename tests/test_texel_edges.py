@@ -170,9 +170,10 @@ def _check_strip(shape):
     # the centres see the whole strip (16 shadow rays, all clear): high by a quarter
     assert np.all(centre[edge] - ref[edge] > 0.2 * centre[edge])
     # the area: 8 x 8 jittered points (the penumbra a smooth ramp over 3 of the 8 strata columns:
-    # the jitter's error a fraction of a per cent), each with 16 shadow rays (a penumbra point's
-    # visible share to about 1/16; ~25 such points per texel, independently rotated): held to 3%
-    # of the lit value, an eighth of the centre's error
+    # the jitter's error a fraction of a per cent), each with emitter_rays(16) = 4 shadow rays (a
+    # penumbra point's visible share to about 1/8; ~25 such points per texel, independently
+    # rotated: ~2.5% of it, on the penumbra's share 0.4 of the texel): held to 3% of the lit value,
+    # an eighth of the centre's error
     assert np.all(np.abs(area[edge] - ref[edge]) <= 0.03 * lit)
     # the rest (dark, or lit with a smooth fall-off of a few per cent): the centres' values bitwise
     assert np.array_equal(area[~edge], centre[~edge])

@@ -91,14 +91,17 @@ class DirectLight:
         out[i] = F
         return out.astype(np.float32)
 
+    @staticmethod
+    def direct_cost(em: Emitter, rays):
+        """A sample's work in direct_batch (its batches' size), in rays: its shadow rays, the form
+        factor's edges and the sampling's triangles."""
+        edges = sum(len(r) for r in em.rings) if em.rings is not None else 4 * len(em.corners)
+        tri = min(len(em.tri), em.MAX_TRIANGLES)
+        return max(rays, 1) * 4 + 3 * min(edges, 4 * em.MAX_TRIANGLES) + 12 * tri
+
     def direct_light(self, em: Emitter):
         """(n,) float32 unit-radiance direct light of em at every sample (batches merged)."""
-        edges = sum(len(r) for r in em.rings) if em.rings is not None else 4 * len(em.corners)
-        per = (
-            max(self.shadow_rays, 1) * 4
-            + 3 * min(edges, 4 * em.MAX_TRIANGLES)
-            + 12 * min(len(em.tri), em.MAX_TRIANGLES)
-        )
+        per = self.direct_cost(em, self.shadow_rays)
         shafts = self.shafts(em)
         parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts), self.batches(per), self.threads)
         out = np.concatenate(parts or [np.zeros(0, np.float32)])
