@@ -158,6 +158,7 @@ def _check_strip(shape):
     cen, axes = _texels(np.arange(0.05, 0.8, T), [-0.35, 0.05, 0.45])
     patch = np.zeros(len(cen), np.int64)  # the floor
     g = texel_gather(dyn, patch, cen, axes=axes, rays=8, shadow_rays=16)
+    g.edge_shapes = True  # (light shapes' edge texels are off by default: their cost per event)
     c = texel_gather(dyn, patch, cen, rays=8, shadow_rays=16)
     area, centre = g.direct_and_emission(dyn)[0][:, 0], c.direct_and_emission(dyn)[0][:, 0]
     u = (np.arange(64) + 0.5) / 64 - 0.5
@@ -188,3 +189,13 @@ def test_static_emitter_shadow_edge_texels_read_their_area_mean():
 
 def test_light_shape_shadow_edge_texels_read_their_area_mean():
     _check_strip(shape=True)
+
+
+def test_light_shape_edge_texels_off_by_default_keep_the_centres():
+    dyn = _strip_scene(True)
+    cen, axes = _texels(np.arange(0.05, 0.8, T), [-0.35, 0.05, 0.45])
+    patch = np.zeros(len(cen), np.int64)
+    g = texel_gather(dyn, patch, cen, axes=axes, rays=8, shadow_rays=16)
+    c = texel_gather(dyn, patch, cen, rays=8, shadow_rays=16)
+    area, centre = g.direct_and_emission(dyn)[0], c.direct_and_emission(dyn)[0]
+    assert np.array_equal(area, centre) and centre.max() > 0

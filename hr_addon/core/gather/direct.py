@@ -23,6 +23,10 @@ class DirectLight:
     # (Blender lights, emitters, light shapes) is averaged over their area where an edge crosses
     # them (texel_edges)
     texel_area = None
+    # light shapes too (off by default): a shape's edge pass is paid again on every event that
+    # moves it (20k room, texture output: 56% of an FE window event; Cornell per frame 1.2 ->
+    # 3.1 s CPU); static emitters and area lights pay it once per geometry
+    edge_shapes = False
 
     # -- direct light --------------------------------------------------------------------------------
     def direct_batch(self, em: Emitter, a, b, shafts=None):
@@ -99,13 +103,14 @@ class DirectLight:
         tri = min(len(em.tri), em.MAX_TRIANGLES)
         return max(rays, 1) * 4 + 3 * min(edges, 4 * em.MAX_TRIANGLES) + 12 * tri
 
-    def direct_light(self, em: Emitter):
-        """(n,) float32 unit-radiance direct light of em at every sample (batches merged)."""
+    def direct_light(self, em: Emitter, edges=True):
+        """(n,) float32 unit-radiance direct light of em at every sample (batches merged); edges:
+        in texture output, an edge texel's value is its area's mean (texel_edges)."""
         per = self.direct_cost(em, self.shadow_rays)
         shafts = self.shafts(em)
         parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts), self.batches(per), self.threads)
         out = np.concatenate(parts or [np.zeros(0, np.float32)])
-        if self.texel_area is not None:  # texture output: an edge across a texel, its area's mean
+        if edges and self.texel_area is not None:  # texture output: an edge across a texel, its area's mean
             out = edge_direct(self, em, out, self.shadow_rays, em.stream, shafts=shafts).astype(np.float32)
         return out
 
@@ -223,7 +228,7 @@ class DirectLight:
         got = self._shape_cache.get(key)
         if got is None:
             em, inside, _ = self._shape_emitter(dyn, rec)
-            D = self.direct_light(em) if em is not None else np.zeros(self.n, np.float32)
+            D = self.direct_light(em, self.edge_shapes) if em is not None else np.zeros(self.n, np.float32)
             got = (D, inside)
             self._shape_cache[key] = got
         return got
