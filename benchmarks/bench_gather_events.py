@@ -5,11 +5,17 @@ events and a dump of the gathered output for comparing transport settings (coars
 
     .venv/bin/python benchmarks/bench_gather_events.py --size 100k --quality draft \
         [--transport gather] [--params 'dict(feps=0.1)'] [--response-tol 1e-4] \
-        [--profile out.txt] [--dump out.npz] [--json out.json] [--threads N] [--cache DIR]
+        [--profile out.txt] [--dump out.npz] [--json out.json] [--threads N] [--cache DIR] \
+        [--texels RES]
 
 --cache DIR: build the system, its base solution and the gather once and keep them there as a
 scene precompute (io/precompute.py); later runs load them (without checking the code version:
 for timing the events of code that does not change what is stored) and cost only the events.
+
+--texels RES: texture output instead of the mesh's corners: the room's polygons packed into one
+RES x RES lightmap (lightmap.charts.pack_lightmap), every object's texels of it gathered by
+TexturePlan.final_gather (texel_gather: texel areas, edge texels); the events end when
+TexturePlan.radiance is ready. With --cache the stored system is used, the texel gather built.
 
 --transport gather: the transport settings used when the final gather is on
 (RefineParams.for_gather / DynamicRadiosity's gather options); default: today's presets.
@@ -56,6 +62,7 @@ def main(argv=None):
     ap.add_argument("--json", default=None)
     ap.add_argument("--threads", type=int, default=1, help="core.parallel's threads (0: every core)")
     ap.add_argument("--cache", default=None, help="folder of a stored build (see the module doc)")
+    ap.add_argument("--texels", type=int, default=0, help="texture output at RES x RES (module doc)")
     args = ap.parse_args(argv)
 
     from hr_testing import shapes as S
@@ -117,9 +124,21 @@ def main(argv=None):
             meta["gather_precompute_cpu_s"] = cpu() - c0
             want = pc.expected(mesh, params, gather=gkw, quality=q)
             pc.write(args.cache, *pc.capture(s, g), want, info=meta)
+    if args.texels:
+        g = None  # the texel gather is built below (the stored one is the corners')
     out["links"], out["nodes"] = len(s.links), s.h.n
     print(f"build {out.get('build_cpu_s', 0):.1f} s CPU, {out['links']:,} links, {s.h.n:,} nodes", flush=True)
     _, frame = info["light_wall"]
+    plan = texture_plan(s, args.texels) if args.texels else None
+    if plan is not None:
+        out["texels"] = plan.objects[-1].hi
+        print(f"{out['texels']:,} texels ({args.texels}^2 lightmap)", flush=True)
+
+    def new_gather(dyn):
+        return LoopGather(dyn, **gkw) if plan is None else plan.final_gather(dyn, **gkw)
+
+    def output(dyn):
+        return g.loop_radiance(dyn) if plan is None else plan.radiance(dyn, gather=g)
 
     def window(cx, em=20.0):
         rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)
@@ -138,11 +157,11 @@ def main(argv=None):
         out[f"{method}_base_solve_cpu_s"] = cpu() - c0
         if g is None:
             c0 = cpu()
-            g = LoopGather(dyn, **gkw)
+            g = new_gather(dyn)
             out["gather_precompute_cpu_s"] = cpu() - c0
             out["gather_samples"], out["gather_weights_mb"] = g.n, g.weights_bytes / 1e6
             c0 = cpu()
-            g.loop_radiance(dyn)
+            output(dyn)
             out["gather_first_frame_cpu_s"] = cpu() - c0
             print(f"gather precompute {out['gather_precompute_cpu_s']:.1f} s CPU", flush=True)
         else:
@@ -150,7 +169,7 @@ def main(argv=None):
             while lv is not None:  # the shape's direct light is the method's event cost too
                 lv._shape_cache.clear()
                 lv = lv.second
-            g.loop_radiance(dyn)  # base parts of this DynamicRadiosity
+            output(dyn)  # base parts of this DynamicRadiosity
         steps = [
             ("add", lambda: dyn.add("w", window(0.7))),
             ("move", lambda: dyn.apply({"w": window(1.2)})),
@@ -162,11 +181,13 @@ def main(argv=None):
                 prof = cProfile.Profile(time.process_time)
             if prof is not None:
                 prof.enable()
+            e0 = g.stats.get("edge_texels_cpu", 0.0)
             c0, w0 = cpu(), wall()
             rep = ev()
             c1 = cpu()
-            v = g.loop_radiance(dyn)
+            v = output(dyn)
             c2, w2 = cpu(), wall()
+            edge = g.stats.get("edge_texels_cpu", 0.0) - e0  # texel_edges.edge_direct (texels)
             if prof is not None:
                 prof.disable()
                 if only is not None:
@@ -176,10 +197,11 @@ def main(argv=None):
             out[f"{method}_{name}_wall_s"] = w2 - w0
             out[f"{method}_{name}_solve_cpu_s"] = c1 - c0
             out[f"{method}_{name}_iterations"] = int(rep.iterations)
+            out[f"{method}_{name}_edge_texels_cpu_s"] = edge
             dumps[f"{method}_{name}"] = v
             print(
                 f"{method} {name}: {c2 - c0:.3f} s CPU (event {c1 - c0:.3f} s, {rep.iterations} it; "
-                f"gather {c2 - c1:.3f} s; wall {w2 - w0:.3f} s)",
+                f"gather {c2 - c1:.3f} s, of it edge texels {edge:.3f} s; wall {w2 - w0:.3f} s)",
                 flush=True,
             )
         dyn = None  # noqa: F841 (frees it before the next method)
@@ -187,7 +209,7 @@ def main(argv=None):
     print(json.dumps({k: v for k, v in out.items() if k != "params"}), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
-    if args.dump:
+    if args.dump and plan is None:
         obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
         np.savez_compressed(args.dump, loop_object=obj, **dumps)
     if prof is not None:
@@ -203,6 +225,24 @@ def _write_profile(prof, path):
     st.print_stats(60)
     st.sort_stats("tottime").print_stats(40)
     Path(path).write_text(buf.getvalue())
+
+
+def texture_plan(s, res):
+    """TexturePlan of the system's mesh: its polygons packed into one res x res lightmap, each
+    object's texels of it an object of the plan."""
+    from hr_addon.lightmap import charts
+    from hr_addon.lightmap.plan import TexturePlan, triangle_uvs
+
+    m = s.mesh
+    uv = charts.pack_lightmap(m.verts, m.loop_start, m.loop_total, m.loop_verts, res)
+    plan = TexturePlan()
+    for oid in np.unique(s.patches.object_id):
+        tri_uv, corners, tri_patch, _ = triangle_uvs(
+            s.patches, oid, uv, m.loop_start, m.loop_total, m.loop_verts, 0, 0, len(m.verts)
+        )
+        if len(tri_uv):
+            plan.add_object(f"o{oid}", f"o{oid}", res, tri_uv, corners, tri_patch, "")
+    return plan
 
 
 if __name__ == "__main__":

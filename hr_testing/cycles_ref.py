@@ -686,6 +686,9 @@ def gather_results(rs, ours, dyn, rays=128, shadow_rays=32, vertex=True, cache=N
     cost["texel_evaluate_first_s"] = c1 - c0
     cost["texel_samples"], cost["texel_weights_mb"] = g.n, g.weights_bytes / 1e6
     cost["texels"] = g.n_out
+    if "edge_texels" in g.stats:  # texel_edges.edge_direct: (tested, edge texels, rays), CPU s
+        cost["edge_texels"] = g.stats["edge_texels"][1]
+        cost["edge_texels_cpu_s"] = g.stats["edge_texels_cpu"]
     loops = None
     if vertex:
         if "loops" not in cache:

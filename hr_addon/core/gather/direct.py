@@ -19,9 +19,14 @@ class DirectLight:
     """FinalGather's direct light (a mixin: it reads the gather's samples, points, normals, keys,
     dark, eps, seed, shadow_rays, system and its batching)."""
 
-    # texture output (layouts.texel_gather): the texels gathered at their centre, whose Blender
-    # lights' direct light is averaged over their area where an edge crosses them (texel_edges)
+    # texture output (layouts.texel_gather): the texels gathered at their centre, whose direct light
+    # (Blender lights, emitters, light shapes) is averaged over their area where an edge crosses
+    # them (texel_edges)
     texel_area = None
+    # light shapes too (off by default): a shape's edge pass is paid again on every event that
+    # moves it (20k room, texture output: 56% of an FE window event; Cornell per frame 1.2 ->
+    # 3.1 s CPU); static emitters and area lights pay it once per geometry
+    edge_shapes = False
 
     # -- direct light --------------------------------------------------------------------------------
     def direct_batch(self, em: Emitter, a, b, shafts=None):
@@ -89,17 +94,24 @@ class DirectLight:
         out[i] = F
         return out.astype(np.float32)
 
-    def direct_light(self, em: Emitter):
-        """(n,) float32 unit-radiance direct light of em at every sample (batches merged)."""
+    @staticmethod
+    def direct_cost(em: Emitter, rays):
+        """A sample's work in direct_batch (its batches' size), in rays: its shadow rays, the form
+        factor's edges and the sampling's triangles."""
         edges = sum(len(r) for r in em.rings) if em.rings is not None else 4 * len(em.corners)
-        per = (
-            max(self.shadow_rays, 1) * 4
-            + 3 * min(edges, 4 * em.MAX_TRIANGLES)
-            + 12 * min(len(em.tri), em.MAX_TRIANGLES)
-        )
+        tri = min(len(em.tri), em.MAX_TRIANGLES)
+        return max(rays, 1) * 4 + 3 * min(edges, 4 * em.MAX_TRIANGLES) + 12 * tri
+
+    def direct_light(self, em: Emitter, edges=True):
+        """(n,) float32 unit-radiance direct light of em at every sample (batches merged); edges:
+        in texture output, an edge texel's value is its area's mean (texel_edges)."""
+        per = self.direct_cost(em, self.shadow_rays)
         shafts = self.shafts(em)
         parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts), self.batches(per), self.threads)
-        return np.concatenate(parts or [np.zeros(0, np.float32)])
+        out = np.concatenate(parts or [np.zeros(0, np.float32)])
+        if edges and self.texel_area is not None:  # texture output: an edge across a texel, its area's mean
+            out = edge_direct(self, em, out, self.shadow_rays, em.stream, shafts=shafts).astype(np.float32)
+        return out
 
     # the clear-shaft cull costs about 2 us per lit sample and saves a culled sample's sampling and
     # rays, about 0.6 us per shadow ray (Cornell, medium): with a quarter to a third of the lit
@@ -215,7 +227,7 @@ class DirectLight:
         got = self._shape_cache.get(key)
         if got is None:
             em, inside, _ = self._shape_emitter(dyn, rec)
-            D = self.direct_light(em) if em is not None else np.zeros(self.n, np.float32)
+            D = self.direct_light(em, self.edge_shapes) if em is not None else np.zeros(self.n, np.float32)
             got = (D, inside)
             self._shape_cache[key] = got
         return got
