@@ -181,12 +181,12 @@ class FinalGather(DirectLight):
         slot_area=None,
         slopes=False,
         second_shadow_rays=None,
-        near_points=0,
+        near_points=4,
         near=0.5,
         near_layout=None,
         near_read="nearest",
         near_second=True,
-        near_share=0.0,
+        near_share=0.1,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
