@@ -609,3 +609,32 @@ def test_rays_read_the_linear_function_a_leaf_s_samples_fit_at_their_hits():
     print(f"the means' read {np.round(means, 4)}")
     assert fitted[leaf].mean() > 0.5 and np.abs(ours - means).max() > 0.01 * ours.max()
     np.testing.assert_allclose(ours, ref, rtol=1e-4, atol=1e-6)
+
+
+def test_near_hits_read_the_nearest_of_finer_samples_against_path_tracing():
+    """Two levels, near hits (FinalGather(near_points=4)): rays that hit an HR leaf nearer than
+    half its diameter read the nearest of 4 x 4 gather samples on it, not the mean of its 2 x 2.
+    The shelf (_shelf): the upper board's underside, 0.5-5 cm from the open front, sees the grey
+    lower board 3 cm below, whose light falls off steeply into the cavity over its 15 cm leaves.
+    Only that board reflects and it cannot see itself, so the underside's indirect light is one
+    bounce: the path tracer's full light minus its direct light (paths of one bounce). Measured
+    (1024 rays, 40,000 paths a point, reference noise 3-5%): the 2 x 2 means read 0.26-0.69 of
+    the paths' indirect light (mean |error| 61%), a 4 x 4 mean (leaf_points=4) 0.32-0.85 (52%),
+    the nearest of 4 x 4 0.91-1.16 (7%). Held to: the near read's mean |error| below 15%, the
+    means' above 40%."""
+    s = RadiositySystem(_shelf(), RefineParams.preset("draft"))
+    P, nrm, patch = _under_the_upper_board(s, -0.15 + np.array([0.5, 1, 2, 3, 5]) * 0.01)
+    k = 20000
+    rng = np.random.default_rng(1)
+    nz = np.array([0, 0, -1.0])
+    full = _path_traced(s.mesh, np.repeat(P, k, 0), nz, rng).reshape(len(P), k).mean(1)
+    direct = _path_traced(s.mesh, np.repeat(P, k, 0), nz, rng, bounces=1).reshape(len(P), k).mean(1)
+    ref = full - direct
+    err = {}
+    for near in (0, 4):
+        g = FinalGather(s, P, nrm, patch, rays=512, shadow_rays=256, levels=2, iterations=4, near_points=near)
+        inc = g.evaluate(s, "incident")[:, 0] - g.direct_and_emission(s)[0][:, 0]
+        err[near] = np.abs(inc / ref - 1).mean()
+        print(f"near_points={near}: indirect / paths {np.round(inc / ref, 3)}, mean |error| {err[near]:.3f}")
+    assert g.stats["near_leaves"] > 0
+    assert err[4] < 0.15 and err[0] > 0.4

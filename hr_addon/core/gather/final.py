@@ -85,6 +85,55 @@ def _slope_fit(h, used, x, gw, dark):
     return np.einsum("uab,ukb->uak", inv, gw[:, :, None] * r), ubar
 
 
+def _diameters(h, leaf):
+    """(k,) the longest distance between two corners of nodes `leaf`."""
+    c, nv = h.corners[leaf], h.nv[leaf]
+    c = np.where((nv == 3)[:, None, None] & (np.arange(c.shape[1]) == 3)[None, :, None], c[:, :1], c)
+    return np.sqrt(((c[:, :, None] - c[:, None]) ** 2).sum(-1).max((1, 2)))
+
+
+def _nearest_point(h, leaf, hit, k):
+    """(m,) the index of the Gauss point (ff.quadrature's k x k) of node leaf[i] nearest hit[i]."""
+    u, inv = np.unique(leaf, return_inverse=True)
+    x = ff.quadrature(h.corners[u], h.nv[u], k)[0]
+    return np.argmin(((x[inv] - hit[:, None]) ** 2).sum(-1), 1)
+
+
+def _grid_read(h, leaf, hit, k):
+    """((m, 4) point indices, (m, 4) weights): the bilinear interpolation, in the leaf's own
+    parameters (ff.quadrature's maps: quads bilinear, triangles collapsed), of its k x k Gauss
+    points (index i k + j at parameters (x_i, x_j)) at hits (m, 3) on nodes leaf (m,); constant
+    beyond the outer points (no extrapolation)."""
+    c = ff._padded(h.corners[leaf], h.nv[leaf])
+    a, b, cc, d = c[:, 0], c[:, 1], c[:, 2], c[:, 3]
+    tri = h.nv[leaf] == 3
+    uv = np.full((len(leaf), 2), 0.5)
+    for _ in range(6):  # Newton on the bilinear map (exact in one step for parallelograms)
+        u, v = uv[:, :1], uv[:, 1:]
+        p = (1 - u) * (1 - v) * a + u * (1 - v) * b + u * v * cc + (1 - u) * v * d
+        pu = (1 - v) * (b - a) + v * (cc - d)
+        pv = (1 - u) * (d - a) + u * (cc - b)
+        # the collapsed map a + u (b - a) + u v (c - b)
+        p = np.where(tri[:, None], a + u * (b - a) + u * v * (cc - b), p)
+        pu = np.where(tri[:, None], b - a + v * (cc - b), pu)
+        pv = np.where(tri[:, None], u * (cc - b), pv)
+        J = np.stack([pu, pv], 2)  # (m, 3, 2): least squares in the leaf's plane
+        JtJ = np.einsum("mia,mib->mab", J, J)
+        r = np.einsum("mia,mi->ma", J, hit - p)
+        det = JtJ[:, 0, 0] * JtJ[:, 1, 1] - JtJ[:, 0, 1] ** 2
+        det = np.where(np.abs(det) > 1e-300, det, 1e-300)
+        du = (JtJ[:, 1, 1] * r[:, 0] - JtJ[:, 0, 1] * r[:, 1]) / det
+        dv = (JtJ[:, 0, 0] * r[:, 1] - JtJ[:, 0, 1] * r[:, 0]) / det
+        uv = np.clip(uv + np.column_stack([du, dv]), 0.0, 1.0)
+    x = (np.polynomial.legendre.leggauss(k)[0] + 1) / 2
+    i = np.clip(np.searchsorted(x, uv, "right") - 1, 0, k - 2)  # (m, 2) lower grid index
+    f = np.clip((uv - x[i]) / (x[i + 1] - x[i]), 0.0, 1.0)
+    fu, fv, iu, iv = f[:, 0], f[:, 1], i[:, 0], i[:, 1]
+    idx = np.stack([iu * k + iv, (iu + 1) * k + iv, iu * k + iv + 1, (iu + 1) * k + iv + 1], 1)
+    wts = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv], 1)
+    return idx, wts
+
+
 # ---------------------------------------------------------------------------------------------- gather
 
 
@@ -132,6 +181,12 @@ class FinalGather(DirectLight):
         slot_area=None,
         slopes=False,
         second_shadow_rays=None,
+        near_points=4,
+        near=0.5,
+        near_layout=None,
+        near_read="nearest",
+        near_second=True,
+        near_share=0.1,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
@@ -171,6 +226,19 @@ class FinalGather(DirectLight):
         # whose leaf's mean takes in its dark back); per entry also the hits' summed offsets in
         # the leaf's frame (wu, wv)
         self.slopes = bool(slopes) and levels >= 2
+        # near hits (two levels; docs/gather.md "Near hits"): a ray that hits an HR leaf nearer
+        # than `near` x the leaf's diameter sees the leaf's light vary across it (a book's top
+        # seen from its neighbour's side), so it reads the nearest of near_points^2 gather samples
+        # on that leaf, not the mean of its leaf_points^2; the leaves any such ray hits get those
+        # samples (the others keep leaf_points^2). The traced column of a near hit is
+        # leaf + n_hr (1 + its nearest point), remapped to n_hr + that sample's index once the
+        # second level's layout is known (_remap_near). near_layout (off (n_hr,) first sample of
+        # each fine leaf or -1, dark (samples,)): the second level's own rays read them alike.
+        two = levels >= 2 or near_layout is not None
+        self.near_points = int(near_points) if two and not self.slopes else 0
+        self.near = float(near)
+        self.near_read = near_read  # "nearest" point, or "bilinear" between the four around the hit
+        self._diam = None
         if covered_hits not in ("zero", "shown"):
             raise ValueError("covered_hits must be 'zero' or 'shown'")
         # "zero": rays reaching a point contacts.py calls covered read 0 (values_at); "shown": they
@@ -217,6 +285,8 @@ class FinalGather(DirectLight):
         self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(
             batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
         )
+        if near_layout is not None:
+            self._remap_near(*near_layout)
         self.second = None
         self.iterations = int(iterations) if levels == 2 else 0
         if levels >= 2:
@@ -225,17 +295,36 @@ class FinalGather(DirectLight):
             # gather of its own (levels - 1 levels, half the rays); the outputs' rays read those
             # instead of the leaf
             h = s.h
-            used = np.unique(self.cols).astype(np.int64)
+            used = np.unique(self.cols % self.n_hr).astype(np.int64)  # (near hits' columns encoded)
             if iterations > 0:
                 # the gather samples' own rays must find gather samples wherever they land: every
                 # HR leaf gets them
                 c0 = h.child0[: self.n_hr]
                 used = np.flatnonzero((c0 < 0) | (c0 >= self.n_hr)).astype(np.int64)
-            x, gw = ff.quadrature(h.corners[used], h.nv[used], int(leaf_points))
-            k2 = x.shape[1]
+            # leaves hit near get near_points^2 samples (their samples first, then the rest's)
+            # (near_share: only where a sample's near hits on the leaf carry that share of its rays)
+            fine = np.zeros(self.n_hr, bool)
+            j = np.flatnonzero(self.cols >= self.n_hr)
+            row = np.repeat(np.arange(self.n), np.diff(self.indptr))[j]
+            key = row * self.n_hr + self.cols[j] % self.n_hr
+            u, inv = np.unique(key, return_inverse=True)
+            share = np.bincount(inv, self.w[j], len(u))
+            fine[u[share >= max(near_share, 1e-30)] % self.n_hr] = True
+            k2 = np.where(fine[used], max(self.near_points, 1), int(leaf_points)) ** 2
+            x, gw = np.zeros((k2.sum(), 3)), np.zeros(k2.sum())
+            start = np.concatenate([[0], np.cumsum(k2)])
+            for kk in np.unique(k2):
+                sel = np.flatnonzero(k2 == kk)
+                xs, ws = ff.quadrature(h.corners[used[sel]], h.nv[used[sel]], int(round(kk**0.5)))
+                at = (start[sel, None] + np.arange(kk)).ravel()
+                x[at], gw[at] = xs.reshape(-1, 3), ws.ravel()
+            off = np.full(self.n_hr, -1, np.int64)
+            off[used[fine[used]]] = start[:-1][fine[used]]
+            self.stats["near_leaves"] = int(fine.sum())
+            second_near = near_second and self.near_points and iterations and levels == 2
             self.second = FinalGather(
                 system,
-                x.reshape(-1, 3),
+                x,
                 np.repeat(h.normal[used], k2, 0),
                 np.repeat(h.patch[used], k2),
                 rays=int(second_rays or max(self.rays // 2, 16)),
@@ -255,10 +344,25 @@ class FinalGather(DirectLight):
                 progress=progress,
                 open_edge=0.0,  # the leaves' values stand for their uncovered part, as exposure has it
                 slopes=self.slopes and (levels > 2 or iterations > 0),  # its rays read a level below
+                # with iterations its rays read the samples of the previous pass (_levels)
+                near_points=self.near_points,
+                near=self.near,
+                near_read=self.near_read,
+                near_layout=(off, None) if second_near else None,
             )
             self._second_map = (used, gw)
+            self._second_start = start
+            self._remap_near(off, self.second.dark)
             self._slope_map = (
-                _slope_fit(h, used, x, gw, self.second.dark.reshape(len(used), k2)) if self.slopes else None
+                _slope_fit(
+                    h,
+                    used,
+                    x.reshape(len(used), -1, 3),
+                    gw.reshape(len(used), -1),
+                    self.second.dark.reshape(len(used), -1),
+                )
+                if self.slopes
+                else None
             )
             # Blender lights at the second level: the leaf's mean direct light integrated over the
             # leaf (lights.node_incident: finer where it is uneven, a spot's edge), not its 2 x 2
@@ -274,6 +378,27 @@ class FinalGather(DirectLight):
         self._responses_of = None
         self._naive_key = None
         self._naive_V = None
+
+    def _remap_near(self, off, dark):
+        """Near hits' traced columns (leaf + n_hr (1 + point)) -> n_hr + the sample's index in
+        the second level (off: each leaf's first sample or -1; dark: the samples' covered flags,
+        None: this level's own); the leaf itself where it has no such sample or it is covered.
+        Entries of a row that land on the same column are not merged (the matvec sums them)."""
+        if not self.near_points:
+            return
+        m = self.n_hr
+        c = self.cols.astype(np.int64)
+        j = np.flatnonzero(c >= m)
+        if not len(j):
+            return
+        leaf, pnt = c[j] % m, c[j] // m - 1
+        s = off[leaf] + pnt
+        dark = self.dark if dark is None else dark
+        ok = (off[leaf] >= 0) & ~dark[np.maximum(s, 0)]
+        c[j] = np.where(ok, m + s, leaf)
+        self.cols = c.astype(np.int32)
+        self.stats["near_entries"] = float(ok.sum()) / max(len(c), 1)
+        self.stats["near_weight"] = float(self.w[j[ok]].sum() / max(self.w.sum(), 1e-300))
 
     def _slots(self, con, margin, area=None):
         """Covered samples in a slot (contacts.Contacts.slots: under a face or solid a gap h in
@@ -382,9 +507,25 @@ class FinalGather(DirectLight):
         else:
             lit = h.exposure[leaf] > 0
         i, leaf = i[lit], leaf[lit]
-        key = row[i].astype(np.int64) * self.n_hr + leaf
-        u, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
-        r = u // self.n_hr
+        col, er, ew = leaf.copy(), row[i], np.ones(len(i))
+        if self.near_points:
+            if self._diam is None:  # one assignment: threads may race, never half
+                self._diam = _diameters(h, np.arange(self.n_hr))
+            nr = np.flatnonzero(t[i] < self.near * self._diam[leaf])
+            k = self.near_points
+            if self.near_read == "bilinear":
+                pnt, pw = _grid_read(h, leaf[nr], hit[lit][nr], k)
+                far = np.setdiff1d(np.arange(len(i)), nr)
+                col = np.concatenate([col[far], (leaf[nr, None] + self.n_hr * (1 + pnt)).ravel()])
+                er = np.concatenate([er[far], np.repeat(er[nr], 4)])
+                ew = np.concatenate([ew[far], pw.ravel()])
+            else:
+                col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(h, leaf[nr], hit[lit][nr], k))
+        span = self.n_hr * (1 + self.near_points**2)
+        key = er.astype(np.int64) * span + col
+        u, inv = np.unique(key, return_inverse=True)
+        cnt = np.bincount(inv, ew, len(u))
+        r = u // span
         counts = np.bincount(r, minlength=m).astype(np.int64)
         wu = wv = None
         if self.slopes:
@@ -394,7 +535,7 @@ class FinalGather(DirectLight):
                 (np.bincount(inv, np.einsum("ij,ij->i", d, e), len(u)) / rr[r]).astype(np.float32)
                 for e in (e1, e2)
             )
-        return counts, (u % self.n_hr).astype(np.int32), (cnt / rr[r]).astype(np.float32), wu, wv
+        return counts, (u % span).astype(np.int32), (cnt / rr[r]).astype(np.float32), wu, wv
 
     def first_hit(self, org, dirs):
         """Nearest hits of unit rays (visibility.first_hit_within: near hits to self.reach first)."""
@@ -427,6 +568,9 @@ class FinalGather(DirectLight):
         fit = getattr(self, "_slope_map", None)  # None: the rays read the means (slopes off)
         D2 = direct(g2)
         L = g2._levels(V, direct)  # levels > 2: its own levels
+        if g2.near_points and len(L[0]) == self.n_hr:  # its near hits first read their leaf's value
+            own = np.repeat(self._second_map[0], np.diff(self._second_start))
+            L = (np.vstack([L[0], L[0][own]]), None, None, None)
         # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
         # direct light): every pass moves the solution one bounce further away
         for _ in range(1 + self.iterations):
@@ -461,14 +605,22 @@ class FinalGather(DirectLight):
 
     def _leaf_means(self, y, V):
         """V (n_hr, 3) with the leaves that have second-level samples set to the mean of those
-        samples' values y (second.n, 3) over their uncovered ones."""
+        samples' values y (second.n, 3) over their uncovered ones; with near hits (near_points)
+        y appended below (the rows n_hr + sample the near hits read)."""
         used, gw = self._second_map
-        w = gw * ~self.second.dark.reshape(len(used), -1)
-        ws = w.sum(1)
-        ok = ws > 0
-        out = V.copy()
-        out[used[ok]] = np.einsum("uk,ukc->uc", w[ok] / ws[ok, None], y.reshape(len(used), -1, 3)[ok])
-        return out
+        start = self._second_start
+        out = V[: self.n_hr].copy()
+        if len(used) and (start[1] - start[0]) * len(used) == start[-1]:  # k^2 samples on every leaf
+            w = gw.reshape(len(used), -1) * ~self.second.dark.reshape(len(used), -1)
+            ws = w.sum(1)
+            ok = ws > 0
+            out[used[ok]] = np.einsum("uk,ukc->uc", w[ok] / ws[ok, None], y.reshape(len(used), -1, 3)[ok])
+        elif len(used):
+            w = gw * ~self.second.dark
+            ws = np.add.reduceat(w, start[:-1])
+            ok = ws > 0
+            out[used[ok]] = np.add.reduceat(w[:, None] * y, start[:-1], 0)[ok] / ws[ok, None]
+        return np.vstack([out, y]) if self.near_points else out
 
     def _light_bounce(self, rec, Y, scale=1.0):
         """A Blender light's first bounce off the few HR leaves that hold it (a sun through a small
@@ -492,7 +644,7 @@ class FinalGather(DirectLight):
             Y1 = np.zeros((self.n_hr, 3))
             if getattr(rec, "D", None) is not None:
                 Y1 = rec.D[:, : self.n_hr].T.copy()
-            Y1 = self._leaf_means(g2.rho * g2._light(rec)[:, None], Y1)
+            Y1 = self._leaf_means(g2.rho * g2._light(rec)[:, None], Y1)[: self.n_hr]
             ex = h.exposure[: self.n_hr].astype(np.float64)
             idx = lt.bright_leaves(Y1.mean(1) * h.area[: self.n_hr] * ex)
             B = np.zeros((self.n, 3))
@@ -518,6 +670,15 @@ class FinalGather(DirectLight):
         if len(idx) == 0:
             return 0.0
         Y[idx] = np.maximum(Y[idx] - scale * Y1, 0.0)
+        if len(Y) > self.n_hr:  # near hits read those leaves' samples: take the leaf's mean out
+            # of them too (exact on average over the leaf, not per sample)
+            used = self._second_map[0]
+            pos = np.minimum(np.searchsorted(used, idx), len(used) - 1)
+            a, b = self._second_start[pos], self._second_start[pos + 1]
+            b = np.where(used[pos] == idx, b, a)  # (a leaf without samples: none)
+            rows = self.n_hr + np.concatenate([np.arange(p, q) for p, q in zip(a, b)] + [[]]).astype(np.int64)
+            Yr = np.repeat(np.broadcast_to(scale * Y1, (len(idx), 3)), b - a, 0)
+            Y[rows] = np.maximum(Y[rows] - Yr, 0.0)
         return B * scale
 
     def solution_values(self, dyn):
@@ -677,9 +838,12 @@ class FinalGather(DirectLight):
         if self._naive_key is nv:
             return self._naive_V
         h = self.system.h
-        used = np.unique(self.cols).astype(np.int64)
-        if self.second is not None:  # the gather samples' rays land on other leaves too
-            used = np.union1d(used, self.second.cols).astype(np.int64)
+        m = self.n_hr
+        used = np.unique(self.cols[self.cols < m]).astype(np.int64)
+        if self.second is not None:  # the gather samples' rays land on other leaves too (near
+            # hits read samples of leaves in _second_map)
+            c2 = self.second.cols
+            used = np.union1d(np.union1d(used, c2[c2 < m]), self._second_map[0]).astype(np.int64)
         x, gw = ff.quadrature(h.corners[used], h.nv[used], 2)
         pts = x.reshape(-1, 3)
         roots, p2 = nv.remap(pts, np.repeat(h.patch[used], 4))
