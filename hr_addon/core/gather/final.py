@@ -153,6 +153,7 @@ class FinalGather(DirectLight):
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
     threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
     # restored from stored arrays runs inline until told otherwise)
+    near_points = 0  # (a class default too: a gather stored before near hits restores without it)
 
     def __init__(
         self,
@@ -181,7 +182,10 @@ class FinalGather(DirectLight):
         slot_area=None,
         slopes=False,
         second_shadow_rays=None,
-        near_points=4,
+        # near hits (docs/gather.md "Near hits"): off by default since a Live AUTO session then
+        # differs from a bake of its final state by one float32 rounding (test_blender_live), a
+        # cause not yet found; on, with the edge texels, the furnished share within 5% 75 -> 80%
+        near_points=0,
         near=0.5,
         near_layout=None,
         near_read="nearest",
