@@ -112,3 +112,23 @@ def test_preview_errors_stay_within_their_bound(mesh):
         noise = _errors(og.loop_radiance(other), e)
         print(f"{x:.2f}: preview {med:.2e} {worst:.2e} {bias:+.2e}, noise {noise[0]:.2e} {noise[1]:.2e}")
         assert med < noise[0] and worst < 0.35 and abs(bias) < 0.03
+
+
+def test_a_one_level_preview_with_near_hits_reads_the_leaves_as_without_them(mesh):
+    """Near hits (FinalGather(near_points=4)): the output's near rays read rows n_hr + sample of
+    the second level. A one-level preview evaluates no second level, so those rows must read the
+    sample's leaf (a Live drag failed with an IndexError before): the previewed shape's part (its
+    direct light + the rays reading the leaves) equals a gather's without near hits, whose rays
+    read that leaf directly, to float32 rounding (the same hits, the same weights per leaf)."""
+    part = {}
+    for near in (0, 4):
+        dyn = _live(mesh)[0]
+        g = LoopGather(dyn, **GATHER, near_points=near, near_share=0.0)
+        dyn.apply(_shapes(DRAG[0]))
+        g.loop_radiance(dyn)
+        dyn.apply(_shapes(DRAG[1]), preview=PREVIEW)
+        g.loop_radiance(dyn)
+        part[near] = g._preview_part(dyn, dyn.shapes["w"])
+        assert near == 0 or g.stats["near_leaves"] > 0
+    assert PREVIEW.levels == 1 and np.abs(part[0]).max() > 0
+    np.testing.assert_allclose(part[4], part[0], rtol=1e-5, atol=1e-6 * np.abs(part[0]).max())

@@ -573,8 +573,7 @@ class FinalGather(DirectLight):
         D2 = direct(g2)
         L = g2._levels(V, direct)  # levels > 2: its own levels
         if g2.near_points and len(L[0]) == self.n_hr:  # its near hits first read their leaf's value
-            own = np.repeat(self._second_map[0], np.diff(self._second_start))
-            L = (np.vstack([L[0], L[0][own]]), None, None, None)
+            L = (self._near_rows(L[0]), None, None, None)
         # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
         # direct light): every pass moves the solution one bounce further away
         for _ in range(1 + self.iterations):
@@ -594,6 +593,15 @@ class FinalGather(DirectLight):
             Gu[used], Gv[used] = G[:, 0], G[:, 1]
             L = (Y, S, Gu, Gv)
         return L
+
+    def _near_rows(self, V):
+        """V (n_hr, 3) leaf values as this level's rays read them when no second level was
+        evaluated: with near hits, the rows n_hr + sample their reads point at hold the sample's
+        leaf's value."""
+        if not self.near_points or self.second is None:
+            return V
+        own = np.repeat(self._second_map[0], np.diff(self._second_start))
+        return np.vstack([V[: self.n_hr], V[own]])
 
     def _read(self, L):
         """(n, 3) what the rays read of leaf values L = (means Y, S, slopes along e1 and e2;
@@ -830,7 +838,7 @@ class FinalGather(DirectLight):
             g.iterations = 0
             Y = g._levels(V, unit)
         else:
-            Y = (V, None, None, None)
+            Y = (self._near_rows(V), None, None, None)
         part = (unit(self) + self._read(Y)).astype(np.float32)
         rec._part = (self, part)
         return part
