@@ -49,7 +49,7 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL, shafts=No
     rays per point; edge texels: their four corners (one hard shadow ray each) and centre differ
     by more than tol of their maximum.
     Or a sampling.Emitter (static emitters, light shapes, area lights) through g's direct_batch
-    (shafts: its ClearShafts, or None; its own ray streams: `stream` unused), EMITTER_RAYS(rays)
+    (shafts: its ClearShafts, or None; its own ray streams: `stream` unused), emitter_rays(rays)
     shadow rays per point; edge texels: the centre differs from the mean of the four corners by
     more than tol of their maximum. An emitter's soft penumbrae and near fall-off are ramps whose
     centre is their mean: the max - min rule flagged 15% of the Cornell sample's texels, 6x the
