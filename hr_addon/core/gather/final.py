@@ -191,6 +191,7 @@ class FinalGather(DirectLight):
         near_read="nearest",
         near_second=True,
         near_share=0.1,
+        reuse=None,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
@@ -284,11 +285,17 @@ class FinalGather(DirectLight):
         def report(done, total):
             prog.update("gather rays", done, total, force=done == total)
 
+        # reuse (take (n,), indptr, cols, w): samples with take >= 0 are row `take` of those CSR
+        # rows (the same sample's, traced by a probe: the fine leaves' rule below), the rest traced.
         # the batches' rows are a temporary: held on, they doubled this level's weights in memory
         # while the lower levels are precomputed
+        self._trace = ~self.dark if reuse is None else ~self.dark & (reuse[0] < 0)
         self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(
             batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
         )
+        del self._trace
+        if reuse is not None:
+            self._reuse_rows(*reuse)
         if near_layout is not None:
             self._remap_near(*near_layout)
         self.second = None
@@ -299,22 +306,47 @@ class FinalGather(DirectLight):
             # gather of its own (levels - 1 levels, half the rays); the outputs' rays read those
             # instead of the leaf
             h = s.h
-            used = np.unique(self.cols % self.n_hr).astype(np.int64)  # (near hits' columns encoded)
-            if iterations > 0:
-                # the gather samples' own rays must find gather samples wherever they land: every
-                # HR leaf gets them
-                c0 = h.child0[: self.n_hr]
-                used = np.flatnonzero((c0 < 0) | (c0 >= self.n_hr)).astype(np.int64)
-            # leaves hit near get near_points^2 samples (their samples first, then the rest's)
-            # (near_share: only where a sample's near hits on the leaf carry that share of its rays)
-            fine = np.zeros(self.n_hr, bool)
-            j = np.flatnonzero(self.cols >= self.n_hr)
-            row = np.repeat(np.arange(self.n), np.diff(self.indptr))[j]
-            key = row * self.n_hr + self.cols[j] % self.n_hr
-            u, inv = np.unique(key, return_inverse=True)
-            share = np.bincount(inv, self.w[j], len(u))
-            fine[u[share >= max(near_share, 1e-30)] % self.n_hr] = True
-            k2 = np.where(fine[used], max(self.near_points, 1), int(leaf_points)) ** 2
+            c0 = h.child0[: self.n_hr]
+            leaves = np.flatnonzero((c0 < 0) | (c0 >= self.n_hr)).astype(np.int64)
+            # the gather samples' own rays must find gather samples wherever they land with
+            # iterations: every HR leaf gets them; else the leaves the rays hit
+            used = leaves if iterations > 0 else np.unique(self.cols % self.n_hr).astype(np.int64)
+            lp, r2 = int(leaf_points), int(second_rays or max(self.rays // 2, 16))
+            # what a second-level sample's rays depend on (the probe's rows are the second level's)
+            rays_kw = dict(
+                rays=r2,
+                seed=self.seed + 7919,
+                batch_rays=self.batch_rays,
+                covered_hits=covered_hits,
+                covered_samples=covered_samples,
+                threads=threads,
+                progress=progress,
+                open_edge=0.0,  # the leaves' values stand for their uncovered part, as exposure has it
+                near=self.near,
+                near_read=self.near_read,
+            )
+            fine, reuse = np.zeros(self.n_hr, bool), None
+            if self.near_points:
+                # fine leaves (near_points^2 samples, their near hits read the nearest): where the
+                # near hits of one of any HR leaf's leaf_points^2 gather samples carry near_share
+                # of its rays. From the static geometry and the HR leaves only, never the output's
+                # rays: an output's light must not depend on what else is gathered with it (a bake
+                # of all objects or of one, a farm's split, Live's re-gathers). Those samples'
+                # rays are the second level's (traced anyway with iterations): it reuses them on
+                # the leaves that are not fine
+                xp = ff.quadrature(h.corners[leaves], h.nv[leaves], lp)[0].reshape(-1, 3)
+                nn = lp * lp
+                probe = FinalGather(
+                    system,
+                    xp,
+                    np.repeat(h.normal[leaves], nn, 0),
+                    np.repeat(h.patch[leaves], nn),
+                    near_points=self.near_points,
+                    near_layout=(None, None),
+                    **rays_kw,
+                )
+                fine[probe._fine_leaves(near_share)] = True
+            k2 = np.where(fine[used], max(self.near_points, 1), lp) ** 2
             x, gw = np.zeros((k2.sum(), 3)), np.zeros(k2.sum())
             start = np.concatenate([[0], np.cumsum(k2)])
             for kk in np.unique(k2):
@@ -324,6 +356,10 @@ class FinalGather(DirectLight):
                 x[at], gw[at] = xs.reshape(-1, 3), ws.ravel()
             off = np.full(self.n_hr, -1, np.int64)
             off[used[fine[used]]] = start[:-1][fine[used]]
+            if self.near_points:  # the probe's row of each sample of a leaf that is not fine
+                at = np.repeat(np.searchsorted(leaves, used) * nn - start[:-1], k2) + np.arange(len(x))
+                reuse = (np.where(np.repeat(fine[used], k2), -1, at), probe.indptr, probe.cols, probe.w)
+                del probe
             self.stats["near_leaves"] = int(fine.sum())
             second_near = near_second and self.near_points and iterations and levels == 2
             self.second = FinalGather(
@@ -331,28 +367,21 @@ class FinalGather(DirectLight):
                 x,
                 np.repeat(h.normal[used], k2, 0),
                 np.repeat(h.patch[used], k2),
-                rays=int(second_rays or max(self.rays // 2, 16)),
                 # the second level's direct light reaches the output only through the rays'
                 # mean over many leaves, each the mean of its 2 x 2 samples: a quarter of the
                 # output's shadow rays (at least 8; was a half: measured against Cycles,
                 # docs/accuracy.md "Per frame, 2026-12-03")
                 shadow_rays=int(second_shadow_rays or max(self.shadow_rays // 4, 8)),
-                seed=self.seed + 7919,
-                batch_rays=self.batch_rays,
                 levels=levels - 1,
-                second_rays=max(int(second_rays or max(self.rays // 2, 16)) // 2, 16),
+                second_rays=max(r2 // 2, 16),
                 leaf_points=leaf_points,
-                covered_hits=covered_hits,
-                covered_samples=covered_samples,
-                threads=threads,
-                progress=progress,
-                open_edge=0.0,  # the leaves' values stand for their uncovered part, as exposure has it
                 slopes=self.slopes and (levels > 2 or iterations > 0),  # its rays read a level below
                 # with iterations its rays read the samples of the previous pass (_levels)
                 near_points=self.near_points,
-                near=self.near,
-                near_read=self.near_read,
                 near_layout=(off, None) if second_near else None,
+                near_share=near_share,
+                reuse=reuse,
+                **rays_kw,
             )
             self._second_map = (used, gw)
             self._second_start = start
@@ -388,7 +417,7 @@ class FinalGather(DirectLight):
         the second level (off: each leaf's first sample or -1; dark: the samples' covered flags,
         None: this level's own); the leaf itself where it has no such sample or it is covered.
         Entries of a row that land on the same column are not merged (the matvec sums them)."""
-        if not self.near_points:
+        if not self.near_points or off is None:  # (None: a probe's, read by _fine_leaves)
             return
         m = self.n_hr
         c = self.cols.astype(np.int64)
@@ -403,6 +432,30 @@ class FinalGather(DirectLight):
         self.cols = c.astype(np.int32)
         self.stats["near_entries"] = float(ok.sum()) / max(len(c), 1)
         self.stats["near_weight"] = float(self.w[j[ok]].sum() / max(self.w.sum(), 1e-300))
+
+    def _fine_leaves(self, share):
+        """HR leaves on which one sample's near hits (traced columns, before _remap_near) carry
+        `share` of its rays."""
+        j = np.flatnonzero(self.cols >= self.n_hr)
+        row = np.repeat(np.arange(self.n), np.diff(self.indptr))[j]
+        u, inv = np.unique(row * self.n_hr + self.cols[j] % self.n_hr, return_inverse=True)
+        got = np.bincount(inv, self.w[j], len(u))
+        return np.unique(u[got >= max(share, 1e-30)] % self.n_hr)
+
+    def _reuse_rows(self, take, indptr, cols, w):
+        """Rows `take` (>= 0) of CSR (indptr, cols, w) in place of this gather's (untraced) rows
+        there; near hits' traced columns read as their leaf where this level reads none."""
+        old = take >= 0
+        cnt = np.diff(self.indptr)
+        cnt[old] = np.diff(indptr)[take[old]]
+        ip = np.zeros(len(cnt) + 1, np.int64)
+        np.cumsum(cnt, out=ip[1:])
+        src = np.where(old, len(self.cols) + indptr[:-1][np.maximum(take, 0)], self.indptr[:-1])
+        src = np.repeat(src - ip[:-1], cnt) + np.arange(ip[-1])
+        self.cols, self.w = np.concatenate([self.cols, cols])[src], np.concatenate([self.w, w])[src]
+        self.indptr = ip
+        if not self.near_points:
+            self.cols %= self.n_hr
 
     def _slots(self, con, margin, area=None):
         """Covered samples in a slot (contacts.Contacts.slots: under a face or solid a gap h in
@@ -490,7 +543,7 @@ class FinalGather(DirectLight):
         rr = np.full(m, self.rays) if self.sample_rays is None else self.sample_rays[a:b]
         rows, dirs = [np.zeros(0, np.int64)], [np.zeros((0, 3))]
         for R in np.unique(rr):  # covered samples trace nothing
-            sel = np.flatnonzero((rr == R) & ~self.dark[a:b])
+            sel = np.flatnonzero((rr == R) & self._trace[a:b])
             d = cosine_directions(self.normals[a + sel], self.keys[a + sel], int(R), self.seed, stream=0)
             rows.append(np.repeat(sel, R))
             dirs.append(d.reshape(-1, 3))
