@@ -111,6 +111,26 @@ class Operator:
                 self.pull_levels.append((inner, kids, self.area[kids] / self.area[inner][:, None]))
         self.push_levels = [lv[self.parent[lv] >= 0] for lv in self.levels[1:]]
 
+    def canonical(self, nodes, fixed):
+        """nodes (ids) in an order of the nodes themselves, not of the ids events gave them: those
+        below `fixed` (the HR build's, the same ids in any history) by id, then the others by
+        depth, their parent's place at its depth and their child index. AUTO's events number
+        their nodes in the order of the edits: a Live session and a bake of its final state
+        number the same nodes below the HR leaves differently."""
+        got = getattr(self, "_canonical", None)
+        if got is None:
+            rank, depth = np.zeros(self.n, np.int64), np.zeros(self.n, np.int64)
+            rank[self.levels[0]] = np.arange(len(self.levels[0]))  # the roots: the patches' order
+            for d, lv in enumerate(self.levels[1:], 1):
+                p = self.parent[lv]
+                rank[lv[np.lexsort((lv - self.child0[p], rank[p]))]] = np.arange(len(lv))
+                depth[lv] = d
+            got = self._canonical = (rank, depth)
+        rank, depth = got
+        nodes = np.sort(nodes)
+        ev = nodes[nodes >= fixed]
+        return np.concatenate([nodes[nodes < fixed], ev[np.lexsort((rank[ev], depth[ev]))]])
+
     def float32(self):
         """This operator gathering in float32 (terms, sources and sums; results float64). About
         1e-7 relative error per gather: for solves whose tolerance is far above that."""
@@ -282,6 +302,7 @@ def solve(
     energy=True,
     verify=True,
     steps=None,
+    inner=None,
 ):
     """Solve B = E + rho K B to a relative residual max|E + rho K B - B| / max|B| below tol.
 
@@ -294,7 +315,8 @@ def solve(
     stops at RECURRENCE x tol; equal in exact arithmetic and within the gathers' rounding
     otherwise (float32: about 1e-7). steps: instead of a tolerance, exactly that many GMRES
     steps (operator applications) from zero, whatever B0 and tol: the result is then the same
-    for every history of warm starts (docs/gather.md, *A fixed response solve*). Returns (B, report).
+    for every history of warm starts (docs/gather.md, *A fixed response solve*). inner (with
+    steps): (n,) True at the splits to solve on (_gmres_steps). Returns (B, report).
     """
     t0 = time.perf_counter()
     op = op or Operator(h, links)
@@ -303,7 +325,7 @@ def solve(
     B = op.pull(np.array(B0, float, copy=True)) if B0 is not None else op.pull(_leaf_only(E, op))
     G = None  # the gathered G of the returned B where the solver computed it (the power balance's)
     if steps is not None:
-        B, G = _gmres_steps(op, E, int(steps), rep)
+        B, G = _gmres_steps(op, E, int(steps), rep, inner)
     elif method == "jacobi":
         B = _jacobi(op, E, B, tol, max_iter, rep)
     else:
@@ -417,15 +439,32 @@ def _gmres(op, E, B, tol, max_iter, rep, restart=30, verify=True):
     return op.pull(full.copy()), G
 
 
-def _gmres_steps(op, E, steps, rep):
+def _gmres_steps(op, E, steps, rep, inner=None):
     """`steps` GMRES steps on (I - rho K) x = E from x = 0: x in span(b, Kb, ..., K^(steps-1) b)
     minimising the residual's area-weighted 2-norm (one operator application per step, none for
     the start's residual, which is b). The area weights make the result independent of how the
     leaves are split where the splits change nothing (another shape's nodes under an HR leaf: a
     leaf's area is its children's sum): the same for a farm node and one process whatever the
     hierarchy's other splits. No residual is computed (rep.residual: the recurrence's 2-norm,
-    relative to b's)."""
-    lf, C = op.leaves, E.shape[0]
+    relative to b's). That holds in exact arithmetic; bit for bit with inner = ((n,) True at the
+    internal nodes of the tree to solve on, the HR build's node count), None: the hierarchy's
+    tree: the tree's leaves are the unknowns, in op.canonical's order, nodes below them read
+    their value (as Hierarchy.extend gives nodes added later): the same in any hierarchy with
+    those splits, however its nodes are numbered."""
+    C = E.shape[0]
+    pull, lf = op.pull, op.leaves
+    if inner is not None:
+        inner, fixed = inner
+        par = op.parent[: op.n]
+        tree = (par < 0) | inner[np.maximum(par, 0)]
+        lf = op.canonical(np.flatnonzero(tree & ~inner), fixed)
+
+        def pull(B):  # the tree's internal nodes, deepest first
+            for p, kids, w in op.pull_levels:
+                k = inner[p]
+                B[:, p[k]] = np.einsum("cnk,nk->cn", B[:, kids[k]], w[k])
+            return B
+
     full = np.zeros((C, op.n))
     rho = op.rho[:, lf]
     a = op.area[lf]
@@ -433,7 +472,7 @@ def _gmres_steps(op, E, steps, rep):
 
     def K(v):  # s rho K (v / s)
         full[:, lf] = (v / s).reshape(C, -1)
-        return s * (rho * op.push(op.gather(op.pull(full)))[:, lf]).ravel()
+        return s * (rho * op.push(op.gather(pull(full)))[:, lf]).ravel()
 
     b = s * op.emitted(E)[:, lf].ravel()
     beta = _norm(b)
@@ -462,7 +501,12 @@ def _gmres_steps(op, E, steps, rep):
         rep.residual = float(np.linalg.norm(rhs - Hm[: m + 1, :m] @ y)) / beta
     rep.iterations, rep.converged = steps, True
     full[:, lf] = np.maximum(x / s, 0.0).reshape(C, -1)  # radiance is never negative
-    return op.pull(full.copy()), None
+    B = pull(full.copy())
+    if inner is not None:  # below the tree's leaves: their value, top down
+        for lv in op.levels[1:]:
+            out = lv[~tree[lv]]
+            B[:, out] = B[:, par[out]]
+    return B, None
 
 
 def _max_residual(V, cs, sn, g, j):

@@ -493,7 +493,9 @@ class DynamicRadiosity:
             return 0
         guess = self.nodes.guess
         tol = None if preview is None else preview.tol
-        U, rep = self.solves.solve(E, B0=None if guess is None else E + guess, response=True, tol=tol)
+        U, rep = self.solves.solve(
+            E, B0=None if guess is None else E + guess, response=True, tol=tol, owned=rec.owned
+        )
         if preview is not None:
             rec.preview, rec.G = preview, self.nodes.guess0
         if rec.method == "AUTO":

@@ -91,6 +91,6 @@ class Lights:
         guess = None
         if self.warm_moves and old is not None and old.U is not None:  # lights the room much as before
             guess = E + (old.U - self.solves.push(old.D))
-        U, rep = self.solves.solve(E, B0=guess, response=True)
+        U, rep = self.solves.solve(E, B0=guess, response=True, owned=())  # (Solves.solve)
         rec.U = U
         return rep.iterations

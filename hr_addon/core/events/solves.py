@@ -15,6 +15,7 @@ class Solves:
         self.h, self.links, self.threads = h, links, threads
         self.tol, self.response_tol, self.response_float32 = tol, response_tol, response_float32
         self.response_steps = response_steps
+        self.n_hr = h.n  # the HR build's nodes (events add theirs after them)
         self._op = None
         self._op_version = None
 
@@ -35,16 +36,29 @@ class Solves:
             D[:, lv] += D[:, par[lv]]
         return D
 
-    def solve(self, E, B0=None, response=False, tol=None):
+    def solve(self, E, B0=None, response=False, tol=None, owned=None):
         """Solve with non-negative emission; the exact solution is non-negative, so the solver's
         tiny negative excursions (GMRES is not monotone) are clipped. response: a shape's response
         (response_tol, response_float32; its power balance is not reported). tol: instead of
         those tolerances (a preview's). With response_steps a response (without tol) is that many
-        GMRES steps from zero, B0 ignored: the same whatever the shape's history."""
+        GMRES steps from zero, B0 ignored: the same whatever the shape's history. owned: the
+        splits below the HR leaves the shape needs (rec.owned, a light's none): such a response is
+        solved on the HR build's splits and those only, other shapes' splits reading as the leaf
+        they split (solver.solve's `inner`), so that it is the same bit for bit whatever other
+        shapes were present when it was solved (a Live session's history against a bake of its
+        final state: equal in exact arithmetic, not in rounding)."""
         op = self.operator()
         if response and self.response_float32:
             op = op.float32()
         steps = self.response_steps if response and tol is None else None
+        inner = None
+        if steps and owned is not None:
+            h, m = self.h, self.n_hr
+            inner = np.zeros(h.n, bool)
+            c0 = h.child0[:m]
+            inner[:m] = (c0 >= 0) & (c0 < m)
+            inner[np.asarray(owned, np.int64)] = True
+            inner = (inner, m)
         B, rep = solve(
             self.h,
             self.links,
@@ -55,5 +69,6 @@ class Solves:
             energy=not response,
             verify=not response,  # a response's own check would be one gather in ten (Live, Cornell)
             steps=steps,
+            inner=inner,
         )
         return np.maximum(B, 0.0), rep
