@@ -182,10 +182,9 @@ class FinalGather(DirectLight):
         slot_area=None,
         slopes=False,
         second_shadow_rays=None,
-        # near hits (docs/gather.md "Near hits"): off by default since a Live AUTO session then
-        # differs from a bake of its final state by one float32 rounding (test_blender_live), a
-        # cause not yet found; on, with the edge texels, the furnished share within 5% 75 -> 80%
-        near_points=0,
+        # near hits (docs/gather.md "Near hits"; 0: off): with the edge texels the furnished
+        # share within 5% 75 -> 80%
+        near_points=4,
         near=0.5,
         near_layout=None,
         near_read="nearest",
