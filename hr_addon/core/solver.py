@@ -454,16 +454,8 @@ def _gmres_steps(op, E, steps, rep, inner=None):
     C = E.shape[0]
     pull, lf = op.pull, op.leaves
     if inner is not None:
-        inner, fixed = inner
-        par = op.parent[: op.n]
-        tree = (par < 0) | inner[np.maximum(par, 0)]
-        lf = op.canonical(np.flatnonzero(tree & ~inner), fixed)
-
-        def pull(B):  # the tree's internal nodes, deepest first
-            for p, kids, w in op.pull_levels:
-                k = inner[p]
-                B[:, p[k]] = np.einsum("cnk,nk->cn", B[:, kids[k]], w[k])
-            return B
+        pull, tree = tree_pull(op, inner[0], fill=False)
+        lf = op.canonical(np.flatnonzero(tree & ~inner[0]), inner[1])
 
     full = np.zeros((C, op.n))
     rho = op.rho[:, lf]
@@ -501,12 +493,28 @@ def _gmres_steps(op, E, steps, rep, inner=None):
         rep.residual = float(np.linalg.norm(rhs - Hm[: m + 1, :m] @ y)) / beta
     rep.iterations, rep.converged = steps, True
     full[:, lf] = np.maximum(x / s, 0.0).reshape(C, -1)  # radiance is never negative
-    B = pull(full.copy())
-    if inner is not None:  # below the tree's leaves: their value, top down
-        for lv in op.levels[1:]:
-            out = lv[~tree[lv]]
-            B[:, out] = B[:, par[out]]
-    return B, None
+    return (op.pull if inner is None else tree_pull(op, inner[0])[0])(full.copy()), None
+
+
+def tree_pull(op, inner, fill=True):
+    """(pull, tree): pull(B) fills the internal nodes of the tree whose internal nodes are
+    `inner` ((n,) bool) with the area-weighted mean of their children, deepest first, and with
+    fill the nodes below its leaves with their value, top down (as Hierarchy.extend); tree: (n,)
+    True at the tree's nodes."""
+    par = op.parent[: op.n]
+    tree = (par < 0) | inner[np.maximum(par, 0)]
+
+    def pull(B):
+        for p, kids, w in op.pull_levels:
+            k = inner[p]
+            B[:, p[k]] = np.einsum("cnk,nk->cn", B[:, kids[k]], w[k])
+        if fill:
+            for lv in op.levels[1:]:
+                out = lv[~tree[lv]]
+                B[:, out] = B[:, par[out]]
+        return B
+
+    return pull, tree
 
 
 def _max_residual(V, cs, sn, g, j):

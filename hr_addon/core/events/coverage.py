@@ -182,9 +182,10 @@ class Coverage:
                 f"(emission L1 error {100 * rec.emission_l1:.2f}%)"
             )
 
-    def coverage(self, rec, mean=False):
+    def coverage(self, rec, mean=False, pull=None):
         """(n,) coverage fraction of every leaf (internal nodes: area-weighted mean). mean: as
-        node means, the solver's convention (x the leaf's exposure: covered parts emit nothing)."""
+        node means, the solver's convention (x the leaf's exposure: covered parts emit nothing).
+        pull: instead of self.pull (Solves.tree_pull: the tree a response is solved on)."""
         h = self.h
         n = h.n
         c = np.zeros(n)
@@ -200,4 +201,4 @@ class Coverage:
             s[m] = True
         if mean:
             c *= h.exposure[:n]
-        return self.pull(c[None].copy())[0]
+        return (pull or self.pull)(c[None].copy())[0]

@@ -498,8 +498,9 @@ class DynamicRadiosity:
         )
         if preview is not None:
             rec.preview, rec.G = preview, self.nodes.guess0
-        if rec.method == "AUTO":
-            U = U + np.repeat(self._coverage(rec, mean=True)[None], 3, 0)
+        if rec.method == "AUTO":  # (pulled over the tree U was solved on: Solves.solve's owned)
+            cov = self.coverage.coverage(rec, True, None if tol else self.solves.tree_pull(rec.owned))
+            U = U + np.repeat(cov[None], 3, 0)
         rec.U = U
         return rep.iterations
 

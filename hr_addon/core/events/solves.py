@@ -3,7 +3,7 @@ hierarchy changes), base and response solves, and the push of first-bounce terms
 
 import numpy as np
 
-from ..solver import Operator, solve
+from ..solver import Operator, solve, tree_pull
 
 
 class Solves:
@@ -36,6 +36,22 @@ class Solves:
             D[:, lv] += D[:, par[lv]]
         return D
 
+    def _tree(self, owned):
+        """((n,) True at the HR build's splits and `owned`, the HR build's node count)."""
+        h, m = self.h, self.n_hr
+        inner = np.zeros(h.n, bool)
+        c0 = h.child0[:m]
+        inner[:m] = (c0 >= 0) & (c0 < m)
+        inner[np.asarray(owned, np.int64)] = True
+        return inner, m
+
+    def tree_pull(self, owned):
+        """The solver's pull over the tree a response with `owned` is solved on (solve), or over the
+        hierarchy's without response_steps (node means of a response's own terms, as its solve)."""
+        if not self.response_steps:
+            return self.operator().pull
+        return tree_pull(self.operator(), self._tree(owned)[0])[0]
+
     def solve(self, E, B0=None, response=False, tol=None, owned=None):
         """Solve with non-negative emission; the exact solution is non-negative, so the solver's
         tiny negative excursions (GMRES is not monotone) are clipped. response: a shape's response
@@ -51,14 +67,7 @@ class Solves:
         if response and self.response_float32:
             op = op.float32()
         steps = self.response_steps if response and tol is None else None
-        inner = None
-        if steps and owned is not None:
-            h, m = self.h, self.n_hr
-            inner = np.zeros(h.n, bool)
-            c0 = h.child0[:m]
-            inner[:m] = (c0 >= 0) & (c0 < m)
-            inner[np.asarray(owned, np.int64)] = True
-            inner = (inner, m)
+        inner = self._tree(owned) if steps and owned is not None else None
         B, rep = solve(
             self.h,
             self.links,
