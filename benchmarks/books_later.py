@@ -122,6 +122,7 @@ def categories(q, p):
     nz, nx = pt.normal[q, 2], np.abs(pt.normal[q, 0])
     cov = s.h.dark(locate_below(s.h, q, p, dyn.n_hr, split_lines(s.h, dyn.n_hr)), p)
     cat = np.where(book, np.where(nz > 0.9, 0, np.where(nx > 0.9, 1, 2)), np.where(case, np.where(nz < -0.9, 3, 4), 5))
+    categories.last = (cat, cov)  # (what covered hits lie on)
     return np.where(cov, 6, cat)
 
 
@@ -279,6 +280,12 @@ for name, kw in VARIANTS.items():
                 att[cn] = (a, b, wsh)
                 print(f"    {cn:24s} {a:6.3f} {b:6.3f}  {wsh:5.3f}")
             info["attribution"][lab] = att
+            c0, cv = categories.last
+            mc = m & cv
+            dist = np.linalg.norm(p1[mc] - g.origins[sr[mc]], axis=1)
+            on = {CATS[k]: round(float((c0[mc] == k).mean()), 3) for k in range(6)}
+            print(f"    covered hits lie on: {on}; distance quartiles (m) {np.round(np.percentile(dist, [25, 50, 75]), 4)}")
+            att["covered_on"] = on
         pw[np.isnan(pw)] = 0.0
         res["pw2"] = out(pw)  # the second bounce alone (reflected at the texel)
         print(f"pointwise second bounce ({R1} x {R2} rays at {len(sel)} samples): "
