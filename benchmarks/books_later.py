@@ -323,6 +323,20 @@ for name, kw in VARIANTS.items():
         print(f"per book (case3's lit, {lit.sum()}): within 5% here {(np.abs(err[lit]) <= 0.05).sum()}, "
               f"below -5% in the room run {dark.sum()}; "
               f"in those, points of the book's light by class and bounce (direct / first / second / rest):")
+        # the slot sides by depth below the overlap's top (gap widths of 2 mm) and by texel row from
+        # the book's front (0: the front row): ours / Cycles, all light and direct
+        srow = BC.front_rows(X, OBJ)
+        info["slot_profile"] = {}
+        for c, lab in ((5, "receiver shorter"), (6, "receiver taller")):
+            for a, b in ((0, 5), (5, 10), (10, 20), (20, 50), (50, 1e9)):
+                for rl, rm in (("front row", srow == 0), ("rows behind", srow > 0)):
+                    m = (CLS == c) & (-ZREL >= a) & (-ZREL < b) & rm
+                    if m.sum() < 5:
+                        continue
+                    v = (float(full[m].sum() / REF[m, 3].sum()), float(res[0][m].sum() / max(REF[m, 0].sum(), 1e-30)))
+                    info["slot_profile"][f"{lab} {a}-{b} {rl}"] = (int(m.sum()), *v)
+                    print(f"  slot, {lab}, {a}-{b:g} gap widths deep, {rl}: {m.sum()} texels, "
+                          f"all {v[0]:.3f}, direct {v[1]:.3f}")
         for lab in cl:
             print(f"  {lab:12s} " + " / ".join(f"{parts[f'{lab} {bn}']:+5.2f}" for bn in ("direct", "first", "second", "rest")))
     for k in iters:
