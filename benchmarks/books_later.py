@@ -337,6 +337,25 @@ for name, kw in VARIANTS.items():
                     info["slot_profile"][f"{lab} {a}-{b} {rl}"] = (int(m.sum()), *v)
                     print(f"  slot, {lab}, {a}-{b:g} gap widths deep, {rl}: {m.sum()} texels, "
                           f"all {v[0]:.3f}, direct {v[1]:.3f}")
+        # the slot samples by the mouth they gather at (where the sample was moved: within 3 mm of
+        # the book's top, its front or its back, as its texel's first sample has it)
+        box = BC.book_boxes(rs)
+        lo = np.array([box[books[o]][0] for o in OBJ])
+        hi = np.array([box[books[o]][1] for o in OBJ])
+        first = np.searchsorted(g.group, np.arange(g.n_out)) if g.group is not None else np.arange(g.n_out)
+        q = g.points[first]
+        moved = np.linalg.norm(q - X, axis=1) > 1e-4
+        d_front, d_back = q[:, 1] - lo[:, 1], hi[:, 1] - q[:, 1]
+        kind = np.where(d_front < 0.003, "front", np.where(d_back < 0.003, "back", "top"))
+        info["slot_mouth"] = {}
+        for c, lab in ((5, "receiver shorter"), (6, "receiver taller")):
+            for kd in ("top", "front", "back"):
+                m = (CLS == c) & moved & (kind == kd)
+                if m.sum() < 5:
+                    continue
+                v = (float(full[m].sum() / REF[m, 3].sum()), float(res[0][m].sum() / max(REF[m, 0].sum(), 1e-30)))
+                info["slot_mouth"][f"{lab} {kd}"] = (int(m.sum()), *v)
+                print(f"  slot, {lab}, gathers at the {kd}: {m.sum()} texels, all {v[0]:.3f}, direct {v[1]:.3f}")
         for lab in cl:
             print(f"  {lab:12s} " + " / ".join(f"{parts[f'{lab} {bn}']:+5.2f}" for bn in ("direct", "first", "second", "rest")))
     for k in iters:
