@@ -12,7 +12,12 @@ per sample (of the leaves the texels' rays read), each reading rho x the exact d
 hit (16 shadow rays), in place of the sample's gather of the leaves' first bounce. Per class: ours /
 Cycles for the first bounce (b1 - b0), the second (b2 - b1), the rest (b64 - b2), all (b64), and
 each class's part of the books' deficit in the second and later bounces (points of the books'
-light). Writes benchmarks/out/books_later.json."""
+light). --pointwise R1,R2: the second bounce path-traced from the texels' samples outside the slots
+(exact hit points, exact direct light at the second hit) and, by what the first ray hits, against
+the gather's read there. The base variant also prints the case3 lit books' deficit by class and
+bounce (the books the room run, benchmarks/out/furnished_vs_cycles_fgboth.json, finds below -5%)
+and the slot texels by depth and by the mouth they gather at. Writes
+benchmarks/out/books_later[NAME].json."""
 
 import argparse
 import json
