@@ -102,6 +102,12 @@ def main(argv=None):
         arrays, header = pc.read(stored)
         s, g = pc.restore(arrays, header["graph"])
         pc.use_threads(s, g, args.threads)
+        lv = g
+        while lv is not None and lv.second is not None:
+            if not hasattr(lv, "_second_start"):  # a store from before near hits (230d7a5): k points per leaf
+                used = lv._second_map[0]
+                lv._second_start = np.arange(len(used) + 1) * (lv.second.n // max(len(used), 1))
+            lv = lv.second
         out.update(header["info"])
         out["loaded"] = str(stored)
         # the solver's far-link terms: computed by the build's base solution, not stored (as a
