@@ -403,8 +403,8 @@ class DynamicRadiosity:
     def _gc(self, extra=()):
         return self.nodes.gc(self._records(extra))
 
-    def _coverage(self, rec, mean=False):
-        return self.coverage.coverage(rec, mean)
+    def _coverage(self, rec, mean=False, pull=None):
+        return self.coverage.coverage(rec, mean, pull)
 
     def _pieces(self, rec):
         return self.bounce.pieces(rec)
@@ -499,7 +499,7 @@ class DynamicRadiosity:
         if preview is not None:
             rec.preview, rec.G = preview, self.nodes.guess0
         if rec.method == "AUTO":  # (pulled over the tree U was solved on: Solves.solve's owned)
-            cov = self.coverage.coverage(rec, True, None if tol else self.solves.tree_pull(rec.owned))
+            cov = self._coverage(rec, True, None if tol else self.solves.tree_pull(rec.owned))
             U = U + np.repeat(cov[None], 3, 0)
         rec.U = U
         return rep.iterations
