@@ -301,6 +301,30 @@ class Emitter:
         ratio = np.where(bigm, 1.0, ok_ * r2 / np.maximum(cos_y * area_k, 1e-300))
         return y, ny, ratio
 
+    def sample_cm(self, u):
+        """Area-uniform points component-major (3, N) and their normals ((3, 1) for one shared
+        normal, else (3, N)) from uniforms u (N, 2), as sample(): u[:, 0] picks the triangle along
+        the cumulative area. No per-point setup: the direct light's cheap shadow rays
+        (DirectLight.area_sampling)."""
+        T = len(self.tri)
+        s = u[:, 0]
+        k = None
+        if T > 1:
+            x = s * self.total
+            k = np.minimum(np.searchsorted(self.cdf, x, "right"), T - 1)
+            lo = np.where(k > 0, self.cdf[np.maximum(k - 1, 0)], 0.0)
+            s = np.clip((x - lo) / np.maximum(self.cdf[k] - lo, 1e-300), 0, 1)
+        r1 = np.sqrt(s)
+        b2 = r1 * u[:, 1]
+        b1 = r1 - b2
+        t = self.tri.transpose(1, 2, 0)  # (corner, component, T)
+        p0, e1, e2 = t[0], t[1] - t[0], t[2] - t[0]
+        if k is not None:
+            p0, e1, e2 = (np.take(v, k, axis=1) for v in (p0, e1, e2))
+        y = p0 + b1 * e1 + b2 * e2
+        n = self.normal_all
+        return y, (n[:, None] if n is not None else np.take(self.tri_normal.T, k, axis=1))
+
     def sample(self, u):
         """Points (..., 3) and their normals on the emitter, area-uniform, from uniforms u (..., 2):
         u[..., 0] picks the triangle along the cumulative area (stratification carries over)."""
