@@ -20,7 +20,7 @@ class _Gather(DirectLight):
         self.points, self.normals = x, np.tile([0.0, 0, 1], (len(x), 1))
         self.dark, self.eps, self.seed, self.shadow_rays = np.zeros(len(x), bool), 1e-6, 3, rays
         self.keys = position_keys(x, 1e-4)
-        self.area_sampling = area
+        self.area_sampling, self.AREA_NEAR = area, 0.0  # area: every sample by area
         self.system = type("S", (), {"backend": backend})()
 
 

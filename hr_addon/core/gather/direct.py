@@ -32,6 +32,9 @@ class DirectLight:
     # the exact form factor either way; the density only sets the penumbrae's noise (docs/gather.md,
     # "A light shape's direct light, cheaper")
     area_sampling = False
+    # samples nearer to the emitter's box centre than AREA_NEAR x its half diagonal keep Arvo's
+    # rays: there the area density's 1 / r^2 spread makes the ratio noisy (docs/gather.md)
+    AREA_NEAR = 2.0
 
     # -- direct light --------------------------------------------------------------------------------
     def direct_batch(self, em: Emitter, a, b, shafts=None):
@@ -64,49 +67,63 @@ class DirectLight:
             gi = i[lit] + a
             u = hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
             u -= u >= 1.0  # = u % 1.0 (a sum of two numbers in [0, 1): exact, Sterbenz), 2x faster
-            # ratio estimator of the visible fraction of the projected solid angle: weight cos_x
-            # over the samples' solid-angle density (and only where the emitter faces the point)
             xo, no = xi[lit], ni[lit]
-            area = self.area_sampling
-            if area:
-                y, ny = em.sample_cm(u.reshape(-1, 2))
-                ratio = None
+            if self.area_sampling:  # area-uniform rays but near the emitter (there Arvo's)
+                c, rad = 0.5 * (em.lo + em.hi), 0.5 * np.linalg.norm(em.hi - em.lo)
+                dc = xo - c
+                near = np.einsum("lk,lk->l", dc, dc) < (self.AREA_NEAR * rad) ** 2
+                V = np.empty(len(lit))
+                for sel, area in ((near, False), (~near, True)):
+                    if sel.any():
+                        V[sel] = self._visible(em, xo[sel], no[sel], u[sel], area)
             else:
-                y, ny, ratio = em.sample_at(xo, u, cm=True)
-            if ratio is None:  # exact sampling everywhere: component-major (3, L, S), the same values
-                L = len(lit)
-                y, ny = y.reshape(3, L, S), ny.reshape(3, -1, S if ny.shape[1] > 1 else 1)
-                X, N = xo.T[:, :, None], no.T[:, :, None]
-                d = y - X
-                dot = lambda a, b: (a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]  # einsum's order for rows of 3
-                with np.errstate(over="ignore", invalid="ignore"):  # silent as einsum (grazing rays)
-                    if area:  # cos_x cos_y / r^2 over the area density: no square root
-                        r2 = np.maximum(dot(d, d), 1e-150)
-                        kern = np.maximum(dot(d, N), 0) * np.maximum(-dot(d, ny), 0) / (r2 * r2)
-                    else:
-                        r = np.sqrt(np.maximum(dot(d, d), 1e-300))
-                        kern = np.maximum(dot(d, N) / r, 0) * (dot(d, ny) < 0)
-                o = X + eps * N
-                vis = ~self.system.backend.occluded_cm(
-                    np.broadcast_to(o, y.shape).reshape(3, -1), ((y + eps * ny) - o).reshape(3, -1)
-                )
-            else:
-                o = (xo + eps * no)[:, None]
-                e = y + eps * ny
-                d = y - xo[:, None]
-                r = np.sqrt(np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300))
-                kern = (
-                    np.maximum(np.einsum("lsk,lk->ls", d, no) / r, 0)
-                    * (np.einsum("lsk,lsk->ls", d, ny) < 0)
-                    / np.maximum(ratio, 1e-300)
-                )
-                o = np.broadcast_to(o, d.shape).reshape(-1, 3)
-                vis = ~self.system.backend.occluded(o, e.reshape(-1, 3))
-            vis = vis.reshape(kern.shape)
-            ks = kern.sum(1)
-            F[lit] *= np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
+                V = self._visible(em, xo, no, u, False)
+            F[lit] *= V  # (the ratio's float64 product, as before)
         out[i] = F
         return out.astype(np.float32)
+
+    def _visible(self, em: Emitter, xo, no, u, area):
+        """(L,) the visible fraction of em's projected solid angle from points xo (normals no) by
+        shadow rays from uniforms u (L, S, 2), a ratio estimator: Arvo's solid-angle sampling, weight
+        cos_x (and only where the emitter faces the point), or area-uniform points (area) weighted
+        cos_x cos_y / r^2."""
+        eps, (L, S) = self.eps, u.shape[:2]
+        if area:
+            y, ny = em.sample_cm(u.reshape(-1, 2))
+            ratio = None
+        else:
+            y, ny, ratio = em.sample_at(xo, u, cm=True)
+        if ratio is None:  # exact sampling everywhere: component-major (3, L, S), the same values
+            y, ny = y.reshape(3, L, S), ny.reshape(3, -1, S if ny.shape[1] > 1 else 1)
+            X, N = xo.T[:, :, None], no.T[:, :, None]
+            d = y - X
+            dot = lambda a, b: (a[0] * b[0] + a[2] * b[2]) + a[1] * b[1]  # einsum's order for rows of 3
+            with np.errstate(over="ignore", invalid="ignore"):  # silent as einsum (grazing rays)
+                if area:  # cos_x cos_y / r^2 over the area density: no square root
+                    r2 = np.maximum(dot(d, d), 1e-150)
+                    kern = np.maximum(dot(d, N), 0) * np.maximum(-dot(d, ny), 0) / (r2 * r2)
+                else:
+                    r = np.sqrt(np.maximum(dot(d, d), 1e-300))
+                    kern = np.maximum(dot(d, N) / r, 0) * (dot(d, ny) < 0)
+            o = X + eps * N
+            vis = ~self.system.backend.occluded_cm(
+                np.broadcast_to(o, y.shape).reshape(3, -1), ((y + eps * ny) - o).reshape(3, -1)
+            )
+        else:
+            o = (xo + eps * no)[:, None]
+            e = y + eps * ny
+            d = y - xo[:, None]
+            r = np.sqrt(np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300))
+            kern = (
+                np.maximum(np.einsum("lsk,lk->ls", d, no) / r, 0)
+                * (np.einsum("lsk,lsk->ls", d, ny) < 0)
+                / np.maximum(ratio, 1e-300)
+            )
+            o = np.broadcast_to(o, d.shape).reshape(-1, 3)
+            vis = ~self.system.backend.occluded(o, e.reshape(-1, 3))
+        vis = vis.reshape(kern.shape)
+        ks = kern.sum(1)
+        return np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
 
     @staticmethod
     def direct_cost(em: Emitter, rays):
