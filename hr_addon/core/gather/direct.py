@@ -31,7 +31,7 @@ class DirectLight:
     # Arvo's solid-angle sampling: the ratio estimator gives fully lit and fully shadowed samples
     # the exact form factor either way; the density only sets the penumbrae's noise (docs/gather.md,
     # "A light shape's direct light, cheaper")
-    area_sampling = False
+    area_sampling = True
     # samples nearer to the emitter's box centre than AREA_NEAR x its half diagonal keep Arvo's
     # rays: there the area density's 1 / r^2 spread makes the ratio noisy (docs/gather.md)
     AREA_NEAR = 2.0
