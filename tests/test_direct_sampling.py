@@ -73,13 +73,23 @@ def test_shadowed_ratio_and_fully_lit_samples(area):
 
 
 def test_area_sampling_does_not_depend_on_threads_or_batches():
+    """With the default near rule: samples near the emitter take Arvo's rays (their values equal
+    the solid-angle path's bit for bit), the others area-uniform ones (equal to the all-area
+    path's); any batching and 1 or 2 threads give the same values."""
     from hr_addon.core.parallel import batch_map
 
     em, backend = _scene()
     rng = np.random.default_rng(1)
-    x = np.column_stack([rng.uniform(-1, 1, (400, 2)), np.zeros(400)])
+    x = np.column_stack([rng.uniform(-1.6, 1.6, (400, 2)), np.zeros(400)])
     g = _Gather(x, 16, True, backend)
+    g.AREA_NEAR = DirectLight.AREA_NEAR
+    near = np.linalg.norm(x - [0, 0, H], axis=1) < DirectLight.AREA_NEAR * np.sqrt(0.5)
+    assert 50 < near.sum() < 350
     whole = g.direct_batch(em, 0, len(x))
+    arvo = _Gather(x, 16, False, backend).direct_batch(em, 0, len(x))
+    area = _Gather(x, 16, True, backend).direct_batch(em, 0, len(x))
+    assert np.array_equal(whole[near], arvo[near]) and np.array_equal(whole[~near], area[~near])
+    assert not np.array_equal(arvo, area)
     for threads in (1, 2):
         parts = batch_map(lambda a, b: g.direct_batch(em, a, b), [(0, 150), (150, 151), (151, 400)], threads)
         assert np.array_equal(np.concatenate(parts), whole)
