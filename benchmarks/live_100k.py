@@ -29,6 +29,24 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import numpy as np  # noqa: E402
 
 
+def _preview_error(mesh, p, e):
+    """A preview p against the exact loop values e (L, 3) of the same state: per object, the
+    relative difference of the mean over its corners (the channels summed), over the objects whose
+    mean is above 1e-3 of the brightest's; per corner, live_replay._errors."""
+    import live_replay
+
+    obj = np.repeat(mesh.object_id, mesh.loop_total)
+    cnt = np.maximum(np.bincount(obj), 1)
+    mp, me = (np.bincount(obj, x.astype(np.float64).sum(1)) / cnt for x in (p, e))
+    lit = me > 1e-3 * me.max()
+    rel = np.abs(mp - me)[lit] / me[lit]
+    c = live_replay._errors(p, e)
+    return dict(objects=int(lit.sum()), object_median=float(np.median(rel)),
+                object_p95=float(np.percentile(rel, 95)), object_max=float(rel.max()),
+                corner_max=float(c[0]), corner_median=float(c[1]), corner_rms=float(c[2]),
+                corner_bias=float(c[3]))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cache", required=True, help="folder of bench_gather_events.py's stored build")
@@ -53,6 +71,12 @@ def main(argv=None):
     _, info = furnished_room(args.size)
     arrays, header = pc.read(Path(args.cache) / pc.FILENAME)
     s, g = pc.restore(arrays, header["graph"])
+    lv = g
+    while lv is not None and lv.second is not None:
+        if not hasattr(lv, "_second_start"):  # a store from before near hits (230d7a5): k points per leaf
+            used = lv._second_map[0]
+            lv._second_start = np.arange(len(used) + 1) * (lv.second.n // max(len(used), 1))
+        lv = lv.second
     s.links.extended(s.h)  # the solver's far-link terms (a loaded build's first event pays them)
     opts = solve_options("DRAFT", True) if args.options == "live" else dict(
         response_tol=RESPONSE_TOL, response_float32=True
@@ -69,13 +93,13 @@ def main(argv=None):
         return {"w": LightShape(rect, np.asarray(em, float), "window")}
 
     acc = live_replay._timed_parts()
-    rows = []
+    rows, last = [], [None]
 
     def edit(kind, shapes, preview=None):
         c0 = cpu()
         rep = dyn.apply(shapes, preview=preview)
         c1 = cpu()
-        g.loop_radiance(dyn)
+        last[0] = g.loop_radiance(dyn)
         c2 = cpu()
         rows.append(dict(kind=kind, cpu_ms=1000 * (c2 - c0), apply_ms=1000 * (c1 - c0),
                          output_ms=1000 * (c2 - c1), iterations=int(rep.iterations)))
@@ -94,10 +118,16 @@ def main(argv=None):
         c0 = cpu()
         dyn.refine()
         c1 = cpu()
-        g.loop_radiance(dyn)
+        exact = g.loop_radiance(dyn)
         rows.append(dict(kind="refine", cpu_ms=1000 * (cpu() - c0), apply_ms=1000 * (c1 - c0),
                          output_ms=1000 * (cpu() - c1)))
         print(f"refine    {rows[-1]['cpu_ms']:8.1f} ms CPU (apply {rows[-1]['apply_ms']:7.1f})", flush=True)
+        out["last_preview_error"] = err = _preview_error(s.mesh, last[0], exact)
+        print("the last preview against the refine (the same state): per object (mean over its corners) "
+              "median {object_median:.2e} p95 {object_p95:.2e} max {object_max:.2e} over {objects} lit "
+              "objects; "
+              "per corner max {corner_max:.2e} median {corner_median:.2e} RMS {corner_rms:.2e} bias "
+              "{corner_bias:+.2e}".format(**err), flush=True)
     for i in range(4):
         edit("colour", window(x, (20.0, 20.0 + i, 20.0 + 2 * i)))
     for i in range(4):

@@ -264,6 +264,9 @@ class DynamicRadiosity:
                     r1 = self._remove(k)
                     v = (rings, em, name)
                     r2 = self._add(k, LightShape(*v), validated=v, preview=preview)
+                    new = self.shapes[k]
+                    if new.preview is not None:  # (the gather reuses that state's visibility)
+                        new.ref = rec if rec.preview is None else rec.ref
                 finally:
                     self.nodes.guess = self.nodes.guess0 = None
                 r2.kind = "reshape"

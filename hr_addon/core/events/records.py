@@ -23,13 +23,21 @@ class Preview:
     PREVIEW: FE, so AR and AUTO preview without splits or first bounce) and marks them
     (_Rec.preview); the final gather gives them `shadow_rays` per output sample and reads the
     HR leaves (levels 1) or a second level without iterations with `second_shadow_rays`
-    (levels 2). refine() then solves them as apply() without a preview would have."""
+    (levels 2). refine() then solves them as apply() without a preview would have.
+    reuse_visibility: a moved shape's direct light is its exact unoccluded form factor times the
+    visible fraction a reference had at each sample, while the outline shares at least
+    `reuse_share` of its area with the reference's: the shape's last exact state (_Rec.ref), else
+    the last preview that took shadow rays (FinalGather._preview_direct). The error at a sample is
+    at most the form factor of the two outlines' symmetric difference (docs/live.md, "Preview
+    visibility from the last exact state")."""
 
     tol: float = 1e-2
     method: str = None
     shadow_rays: int = 4
     levels: int = 1
     second_shadow_rays: int = 2
+    reuse_visibility: bool = True
+    reuse_share: float = 0.75
 
 
 @dataclass
@@ -104,6 +112,7 @@ class _Rec:
     emitter: tuple = None  # (unit, Emitter, normal): the final gather's, shared by its levels
     preview: Preview = None  # set: U is a preview's (apply(preview=)), refine() replaces it
     G: np.ndarray = None  # (3, n) a preview's: the guess its exact solve starts from (refine)
+    ref: object = None  # a preview's: the record of its shape's last exact state (its visibility)
 
     @property
     def geom_key(self):

@@ -5,6 +5,7 @@ import copy
 
 import numpy as np
 
+from .. import clip
 from .. import formfactor as ff
 from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
@@ -56,6 +57,13 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
 
     batch_map(block, blocks, threads)
     return out
+
+
+def _ratio(D, F):
+    """(n,) float32 the visible fraction D / F of a direct light D with unoccluded form factor F,
+    NaN where F is 0 (culled: no visibility known)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(F > 0, D / F, np.nan).astype(np.float32)
 
 
 def _leaf_frame(h, leaf):
@@ -862,13 +870,70 @@ class FinalGather(DirectLight):
         got = cache.get((rec.geom_key, S))
         if got is None:
             em, inside, _ = self._shape_emitter(dyn, rec)
-            g = copy.copy(self)  # this level with fewer shadow rays (the arrays shared)
-            g.shadow_rays = S
-            D = g.direct_light(em) if em is not None else np.zeros(self.n, np.float32)
+            D = self._preview_direct(dyn, rec, em, S) if em is not None else np.zeros(self.n, np.float32)
             got = cache[(rec.geom_key, S)] = (D, inside)
             for k in list(cache)[: max(len(cache) - 4, 0)]:
                 del cache[k]
         return got
+
+    def _unoccluded(self, em, idx=None, rays=0):
+        """(n,) float32 em's unit direct light at the samples (idx: at those only) with `rays`
+        shadow rays per sample; rays 0: its exact unoccluded form factor, with direct_batch's culls
+        (this level copied, the arrays shared or sliced)."""
+        g = copy.copy(self)
+        g.shadow_rays, g.texel_area = rays, None
+        if idx is not None:
+            g.points, g.normals, g.keys, g.dark = (a[idx] for a in (self.points, self.normals, self.keys,
+                                                                    self.dark))
+            g.n = len(idx)
+        return g.direct_light(em, edges=False)
+
+    def _preview_direct(self, dyn, rec, em, rays):
+        """(n,) float32 a previewed shape's unit direct light (Preview.reuse_visibility): its exact
+        unoccluded form factor times the visible fraction its reference had at each sample, while
+        the outline shares at least Preview.reuse_share of its area with the reference's (rays
+        where the reference was culled: behind it or below its horizon). The reference: the shape's
+        last exact state (its direct light with all the level's shadow rays), else the last preview
+        that took `rays` shadow rays; a preview sharing less takes them and becomes the reference.
+        Exact where nothing or everything between a sample and both outlines is occluded; elsewhere
+        off by at most the form factor of the two outlines' symmetric difference (the part both
+        share keeps its visibility; docs/live.md). Texture output and reuse_visibility off: rays."""
+        if not rec.preview.reuse_visibility or self.texel_area is not None:
+            g = copy.copy(self)  # this level with fewer shadow rays (the arrays shared)
+            g.shadow_rays = rays
+            return g.direct_light(em)
+        refs = self.__dict__.setdefault("_preview_refs", {})  # shape key -> (exact origin, Emitter, V)
+        got, ref = refs.get(rec.key), rec.ref
+        origin = None if ref is None else ref.geom_key
+        if origin is not None and (got is None or got[0] != origin) and origin in self._shape_cache:
+            rem = ref.emitter[1] if ref.emitter is not None and ref.emitter[0] == self.unit else None
+            if rem is not None:
+                V = _ratio(self._shape_cache[origin][0], self._unoccluded(rem))
+                got = refs[rec.key] = (origin, rem, V)
+        F = self._unoccluded(em)
+        if got is not None and self._shared_area(dyn, rec, em, got[1]) >= rec.preview.reuse_share:
+            V = got[2]
+            D = F * np.nan_to_num(V, nan=0.0)
+            new = np.flatnonzero((F > 0) & np.isnan(V))
+            if len(new):
+                D[new] = self._unoccluded(em, new, rays)
+            return D
+        D = self._unoccluded(em, rays=rays)
+        refs[rec.key] = (origin, em, _ratio(D, F))
+        for k in list(refs)[: max(len(refs) - 8, 0)]:
+            del refs[k]
+        return D
+
+    @staticmethod
+    def _shared_area(dyn, rec, em, other):
+        """The share of em's area (a previewed shape's, on rec's plane) inside Emitter `other`: their
+        intersection over the larger of the two areas (0 on another plane)."""
+        if other.normal is None or em.normal is None or other.normal @ em.normal < 0.999:
+            return 0.0
+        if abs((other.point - rec.c) @ rec.n) > max(rec.tol, 1e-9):
+            return 0.0
+        inter = clip.overlap_areas(rec.rings2d, dyn._to2d(rec, other.corners), other.nv).sum()
+        return inter / max(em.area.sum(), other.area.sum(), 1e-300)
 
     def _preview_part(self, dyn, rec):
         """(n, 3) float32 a previewed shape's D + I at unit emission: its preview direct light, and
