@@ -56,6 +56,8 @@ def main(argv=None):
     ap.add_argument("--step", type=float, default=0.05, help="metres per drag step")
     ap.add_argument("--preview", action="store_true")
     ap.add_argument("--options", default="live", choices=("live", "old"))
+    ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
+                    help="the preview's Preview fields instead of Live's (e.g. levels=2 reuse_share=0.5)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
@@ -67,6 +69,12 @@ def main(argv=None):
     from hr_addon.io import precompute as pc
     import live_replay
 
+    import dataclasses
+
+    fields = {f.name: f.type for f in dataclasses.fields(PREVIEW)}
+    kw = dict(a.split("=", 1) for a in args.set)
+    conv = {bool: lambda v: v.lower() in ("1", "true")}
+    preview = dataclasses.replace(PREVIEW, **{k: conv.get(fields[k], fields[k])(v) for k, v in kw.items()})
     cpu = time.process_time
     _, info = furnished_room(args.size)
     arrays, header = pc.read(Path(args.cache) / pc.FILENAME)
@@ -85,7 +93,8 @@ def main(argv=None):
     dyn = DynamicRadiosity(s, method=args.method, **opts)
     g.loop_radiance(dyn)
     out = dict(size=args.size, method=args.method, options=args.options, dyn_options=opts,
-               preview=args.preview, load_average=os.getloadavg()[0], start_cpu_s=cpu() - c0)
+               preview=repr(preview) if args.preview else None, load_average=os.getloadavg()[0],
+               start_cpu_s=cpu() - c0)
     _, frame = info["light_wall"]
 
     def window(cx, em=(20.0, 20.0, 20.0)):
@@ -112,7 +121,7 @@ def main(argv=None):
         v[:] = [0.0, 0]
     for _ in range(args.steps):
         x += args.step
-        edit("drag", window(x), PREVIEW if args.preview else None)
+        edit("drag", window(x), preview if args.preview else None)
     drag_parts = {k: v[0] for k, v in acc.items()}
     if args.preview:
         c0 = cpu()

@@ -29,7 +29,10 @@ class Preview:
     `reuse_share` of its area with the reference's: the shape's last exact state (_Rec.ref), else
     the last preview that took shadow rays (FinalGather._preview_direct). The error at a sample is
     at most the form factor of the two outlines' symmetric difference (docs/live.md, "Preview
-    visibility from the last exact state")."""
+    visibility from the last exact state").
+    correct: the previews of a drag add what the preview's read of the HR leaves misses of the
+    last exact state's final gather (its second level and iterations; FinalGather.
+    _preview_correction)."""
 
     tol: float = 1e-2
     method: str = None
@@ -38,6 +41,7 @@ class Preview:
     second_shadow_rays: int = 2
     reuse_visibility: bool = True
     reuse_share: float = 0.75
+    correct: bool = True
 
 
 @dataclass
