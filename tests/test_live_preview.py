@@ -190,7 +190,7 @@ def test_a_preview_reuses_the_exact_states_visibility_within_its_bound():
 
 
 def test_the_correction_makes_a_preview_of_the_exact_outline_exact(mesh):
-    """Preview.correct (FinalGather._preview_correction): a drag's previews add what a preview's
+    """Preview.correct (FinalGather._preview_reference): a drag's previews add what a preview's
     one-level read misses of the last exact state's final gather. Oracle: a preview dragged back
     onto that state's outline (the reuse cache off, so it is a preview) gives the exact output to
     rounding (measured 1e-7 of a corner's value at most: its solve kept the exact state's

@@ -32,7 +32,7 @@ class Preview:
     visibility from the last exact state").
     correct: the previews of a drag add what the preview's read of the HR leaves misses of the
     last exact state's final gather (its second level and iterations; FinalGather.
-    _preview_correction)."""
+    _preview_reference)."""
 
     tol: float = 1e-2
     method: str = None

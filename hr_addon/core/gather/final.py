@@ -941,44 +941,50 @@ class FinalGather(DirectLight):
         """(n, 3) float32 a previewed shape's D + I at unit emission: its preview direct light, and
         the rays reading the HR leaves (levels 1) or a second level without iterations (levels 2)
         of its preview response, plus what that read misses of its last exact state
-        (_preview_correction). Kept on the record (a colour edit during a drag is a scale)."""
+        (_preview_reference). Kept on the record (a colour edit during a drag is a scale)."""
         got = getattr(rec, "_part", None)
         if got is not None and got[0] is self:
             return got[1]
-        part = self._preview_read(dyn, rec, rec.preview.levels, lambda g: g._preview_shape(dyn, rec)[0])
-        corr = self._preview_correction(dyn, rec)
-        if corr is not None:
-            part += corr
+        levels = rec.preview.levels
+        V = self._preview_values(dyn, rec)
+        ref = self._preview_reference(dyn, rec)
+        D = np.repeat(self._preview_shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
+        if ref is not None and levels < 2 and np.abs(V - ref[0]).max() <= 1e-6 * np.abs(ref[0]).max():
+            # the response kept the exact state's scattered light (the preview's solve took its
+            # guess: the 100k room's drags): that state's own indirect light, without the read
+            part = D + ref[1]
+        else:
+            part = D + self._preview_read(dyn, V, levels, lambda g: g._preview_shape(dyn, rec)[0])
+            if ref is not None:
+                part += ref[2]
         part = part.astype(np.float32)
         rec._part = (self, part)
         return part
 
-    def _preview_read(self, dyn, rec, levels, direct):
-        """(n, 3) float64 D + I at unit emission of rec's response read as a preview reads it: the
-        HR leaves (levels 1) or a second level without iterations (levels 2); direct(g) the (g.n,)
-        unit direct light at level g."""
+    def _preview_values(self, dyn, rec):
+        """(n_hr, 3) the HR leaves' values of rec's response (its reflected light)."""
         h = dyn.system.h
         n = h.n
         X = rec.U[:, :n] - dyn._coverage(rec)[None, :n] * h.exposure[:n].astype(np.float64)
-        V = self._values_from(h, X)
+        return self._values_from(h, X)
 
-        def unit(g):
-            return np.repeat(direct(g)[:, None].astype(np.float64), 3, 1)
-
+    def _preview_read(self, dyn, V, levels, direct):
+        """(n, 3) float64 the indirect light at unit emission of a response with HR leaf values V
+        read as a preview reads it: the HR leaves (levels 1) or a second level without iterations
+        (levels 2, whose samples take direct(g), the (g.n,) unit direct light at that level)."""
         if levels >= 2 and self.second is not None:
             g = copy.copy(self)
             g.iterations = 0
-            Y = g._levels(V, unit)
-        else:
-            Y = (self._near_rows(V), None, None, None)
-        return unit(self) + self._read(Y)
+            return self._read(g._levels(V, lambda g: np.repeat(direct(g)[:, None].astype(np.float64), 3, 1)))
+        return self._read((self._near_rows(V), None, None, None))
 
-    def _preview_correction(self, dyn, rec):
-        """(n, 3) float64 what a preview's read (_preview_read, with the exact direct light) misses
-        of the exact D + I of the shape's last exact state (the second level and its iterations: on
-        the furnished 100k room the one-level read is 8% darker on average), added to every preview
-        of the drag: a preview of that very state would then be exact. None: no exact state, its
-        part no longer kept, or its response solved on splits since gone (AR, AUTO)."""
+    def _preview_reference(self, dyn, rec):
+        """(V (n_hr, 3), I (n, 3), C (n, 3)) of the previewed shape's last exact state (Preview.correct):
+        its HR leaf values, its exact indirect light (the final gather's, all levels and iterations)
+        and what a preview's read of V misses of it (the second level and its iterations: on the
+        furnished 100k room the one-level read is 8% darker on average), added to every preview of
+        the drag: a preview of that very state is then exact. None: no exact state, its part no
+        longer kept, or its response solved on splits since gone (AR, AUTO)."""
         ref = rec.ref
         if ref is None or not rec.preview.correct:
             return None
@@ -986,12 +992,14 @@ class FinalGather(DirectLight):
         exact = self._responses.get(key) if self._responses_of is dyn else None
         if exact is None or ref.U is None or ref.U.shape[1] != dyn.system.h.n or len(ref.owned):
             return None
-        got = self.__dict__.get("_preview_corr")
+        got = self.__dict__.get("_preview_ref")
         if got is not None and got[0] == (key, rec.preview.levels):
             return got[1]
-        C = exact - self._preview_read(dyn, ref, rec.preview.levels, lambda g: g._shape(dyn, ref)[0])
-        self._preview_corr = ((key, rec.preview.levels), C)
-        return C
+        V = self._preview_values(dyn, ref)
+        Ie = exact - np.repeat(self._shape(dyn, ref)[0][:, None].astype(np.float64), 3, 1)
+        C = Ie - self._preview_read(dyn, V, rec.preview.levels, lambda g: g._shape(dyn, ref)[0])
+        self._preview_ref = ((key, rec.preview.levels), (V, Ie, C))
+        return V, Ie, C
 
     def _naive_values(self, dyn):
         """NAIVE: each used HR leaf reads the rebuilt solution (reflected, shown) at its 2 x 2 Gauss
