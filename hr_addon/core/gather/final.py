@@ -993,12 +993,12 @@ class FinalGather(DirectLight):
         if exact is None or ref.U is None or ref.U.shape[1] != dyn.system.h.n or len(ref.owned):
             return None
         got = self.__dict__.get("_preview_ref")
-        if got is not None and got[0] == (key, rec.preview.levels):
+        if got is not None and got[0] == (key, rec.preview.levels) and got[2] is dyn:
             return got[1]
         V = self._preview_values(dyn, ref)
         Ie = exact - np.repeat(self._shape(dyn, ref)[0][:, None].astype(np.float64), 3, 1)
         C = Ie - self._preview_read(dyn, V, rec.preview.levels, lambda g: g._shape(dyn, ref)[0])
-        self._preview_ref = ((key, rec.preview.levels), (V, Ie, C))
+        self._preview_ref = ((key, rec.preview.levels), (V, Ie, C), dyn)
         return V, Ie, C
 
     def _naive_values(self, dyn):
