@@ -32,7 +32,10 @@ class Preview:
     visibility from the last exact state").
     correct: the previews of a drag add what the preview's read of the HR leaves misses of the
     last exact state's final gather (its second level and iterations; FinalGather.
-    _preview_reference)."""
+    _preview_reference).
+    guess_share: while the outline shares at least this much of its area with its last exact
+    state's (outline_share), the response is the warm guess without the solve's check (the
+    scattered light kept, scaled by the emitted power's ratio; None: always checked)."""
 
     tol: float = 1e-2
     method: str = None
@@ -42,6 +45,22 @@ class Preview:
     reuse_visibility: bool = True
     reuse_share: float = 0.75
     correct: bool = True
+    guess_share: float = 0.75
+
+
+def outline_share(rec, other):
+    """The share of a validated shape record's outline inside `other`, an Emitter (a previewed
+    shape's reference: its convex pieces): their intersection over the larger of the two areas;
+    0 on another plane."""
+    from ..clip import overlap_areas
+    from .validation import to2d
+
+    if other is None or other.normal is None or abs(other.normal @ rec.n) < 0.999:
+        return 0.0
+    if abs((other.point - rec.c) @ rec.n) > max(rec.tol, 1e-9):
+        return 0.0
+    inter = overlap_areas(rec.rings2d, to2d(rec, other.corners), other.nv).sum()
+    return float(inter / max(rec.area, other.area.sum(), 1e-300))
 
 
 @dataclass

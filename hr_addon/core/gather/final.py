@@ -5,8 +5,8 @@ import copy
 
 import numpy as np
 
-from .. import clip
 from .. import formfactor as ff
+from ..events.records import outline_share
 from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
 from ..parallel import batch_map, ranges
@@ -910,7 +910,7 @@ class FinalGather(DirectLight):
             if rem is not None:
                 V = _ratio(self._shape_cache[origin][0], self._unoccluded(rem))
                 got = refs[rec.key] = (origin, rem, V)
-        if got is not None and self._shared_area(dyn, rec, em, got[1]) >= rec.preview.reuse_share:
+        if got is not None and outline_share(rec, got[1]) >= rec.preview.reuse_share:
             V = got[2]
             D = np.zeros(self.n, np.float32)
             see = np.flatnonzero(V != 0)  # the samples the reference lit or culled (0 x F elsewhere)
@@ -925,17 +925,6 @@ class FinalGather(DirectLight):
         for k in list(refs)[: max(len(refs) - 8, 0)]:
             del refs[k]
         return D
-
-    @staticmethod
-    def _shared_area(dyn, rec, em, other):
-        """The share of em's area (a previewed shape's, on rec's plane) inside Emitter `other`: their
-        intersection over the larger of the two areas (0 on another plane)."""
-        if other.normal is None or em.normal is None or other.normal @ em.normal < 0.999:
-            return 0.0
-        if abs((other.point - rec.c) @ rec.n) > max(rec.tol, 1e-9):
-            return 0.0
-        inter = clip.overlap_areas(rec.rings2d, dyn._to2d(rec, other.corners), other.nv).sum()
-        return inter / max(em.area.sum(), other.area.sum(), 1e-300)
 
     def _preview_part(self, dyn, rec):
         """(n, 3) float32 a previewed shape's D + I at unit emission: its preview direct light, and
