@@ -28,8 +28,8 @@ class Preview:
     visible fraction a reference had at each sample, while the outline shares at least
     `reuse_share` of its area with the reference's: the shape's last exact state (_Rec.ref), else
     the last preview that took shadow rays (FinalGather._preview_direct). The error at a sample is
-    at most the form factor of the two outlines' symmetric difference (docs/live.md, "Preview
-    visibility from the last exact state").
+    at most the form factor of the two outlines' symmetric difference (docs/live.md, "Previews
+    on the furnished 100k room").
     correct: the previews of a drag add what the preview's read of the HR leaves misses of the
     last exact state's final gather (its second level and iterations; FinalGather.
     _preview_reference).
