@@ -500,6 +500,7 @@ class DynamicRadiosity:
             ref is not None
             and guess is not None
             and preview.guess_share is not None
+            and ref.used == rec.method  # (AUTO's and AR's responses, previewed as FE: not its guess)
             and ref.emitter is not None
             and outline_share(rec, ref.emitter[1]) >= preview.guess_share
         ):  # the guess unchecked, its scattered light scaled by the emitted power's ratio (a

@@ -35,7 +35,8 @@ class Preview:
     _preview_reference).
     guess_share: while the outline shares at least this much of its area with its last exact
     state's (outline_share), the response is the warm guess without the solve's check (the
-    scattered light kept, scaled by the emitted power's ratio; None: always checked)."""
+    scattered light kept, scaled by the emitted power's ratio; None: always checked). Only where
+    that state was solved with the preview's method (AUTO's and AR's previews are checked)."""
 
     tol: float = 1e-2
     method: str = None
