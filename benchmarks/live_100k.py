@@ -29,6 +29,24 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import numpy as np  # noqa: E402
 
 
+def _preview_error(mesh, p, e):
+    """A preview p against the exact loop values e (L, 3) of the same state: per object, the
+    relative difference of the mean over its corners (the channels summed), over the objects whose
+    mean is above 1e-3 of the brightest's; per corner, live_replay._errors."""
+    import live_replay
+
+    obj = np.repeat(mesh.object_id, mesh.loop_total)
+    cnt = np.maximum(np.bincount(obj), 1)
+    mp, me = (np.bincount(obj, x.astype(np.float64).sum(1)) / cnt for x in (p, e))
+    lit = me > 1e-3 * me.max()
+    rel = np.abs(mp - me)[lit] / me[lit]
+    c = live_replay._errors(p, e)
+    return dict(objects=int(lit.sum()), object_median=float(np.median(rel)),
+                object_p95=float(np.percentile(rel, 95)), object_max=float(rel.max()),
+                corner_max=float(c[0]), corner_median=float(c[1]), corner_rms=float(c[2]),
+                corner_bias=float(c[3]))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cache", required=True, help="folder of bench_gather_events.py's stored build")
@@ -38,6 +56,8 @@ def main(argv=None):
     ap.add_argument("--step", type=float, default=0.05, help="metres per drag step")
     ap.add_argument("--preview", action="store_true")
     ap.add_argument("--options", default="live", choices=("live", "old"))
+    ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
+                    help="the preview's Preview fields instead of Live's (e.g. levels=2 reuse_share=0.5)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
@@ -49,10 +69,22 @@ def main(argv=None):
     from hr_addon.io import precompute as pc
     import live_replay
 
+    import dataclasses
+
+    fields = {f.name: f.type for f in dataclasses.fields(PREVIEW)}
+    kw = dict(a.split("=", 1) for a in args.set)
+    conv = {bool: lambda v: v.lower() in ("1", "true")}
+    preview = dataclasses.replace(PREVIEW, **{k: conv.get(fields[k], fields[k])(v) for k, v in kw.items()})
     cpu = time.process_time
     _, info = furnished_room(args.size)
     arrays, header = pc.read(Path(args.cache) / pc.FILENAME)
     s, g = pc.restore(arrays, header["graph"])
+    lv = g
+    while lv is not None and lv.second is not None:
+        if not hasattr(lv, "_second_start"):  # a store from before near hits (230d7a5): k points per leaf
+            used = lv._second_map[0]
+            lv._second_start = np.arange(len(used) + 1) * (lv.second.n // max(len(used), 1))
+        lv = lv.second
     s.links.extended(s.h)  # the solver's far-link terms (a loaded build's first event pays them)
     opts = solve_options("DRAFT", True) if args.options == "live" else dict(
         response_tol=RESPONSE_TOL, response_float32=True
@@ -61,7 +93,8 @@ def main(argv=None):
     dyn = DynamicRadiosity(s, method=args.method, **opts)
     g.loop_radiance(dyn)
     out = dict(size=args.size, method=args.method, options=args.options, dyn_options=opts,
-               preview=args.preview, load_average=os.getloadavg()[0], start_cpu_s=cpu() - c0)
+               preview=repr(preview) if args.preview else None, load_average=os.getloadavg()[0],
+               start_cpu_s=cpu() - c0)
     _, frame = info["light_wall"]
 
     def window(cx, em=(20.0, 20.0, 20.0)):
@@ -69,13 +102,13 @@ def main(argv=None):
         return {"w": LightShape(rect, np.asarray(em, float), "window")}
 
     acc = live_replay._timed_parts()
-    rows = []
+    rows, last = [], [None]
 
     def edit(kind, shapes, preview=None):
         c0 = cpu()
         rep = dyn.apply(shapes, preview=preview)
         c1 = cpu()
-        g.loop_radiance(dyn)
+        last[0] = g.loop_radiance(dyn)
         c2 = cpu()
         rows.append(dict(kind=kind, cpu_ms=1000 * (c2 - c0), apply_ms=1000 * (c1 - c0),
                          output_ms=1000 * (c2 - c1), iterations=int(rep.iterations)))
@@ -88,16 +121,22 @@ def main(argv=None):
         v[:] = [0.0, 0]
     for _ in range(args.steps):
         x += args.step
-        edit("drag", window(x), PREVIEW if args.preview else None)
+        edit("drag", window(x), preview if args.preview else None)
     drag_parts = {k: v[0] for k, v in acc.items()}
     if args.preview:
         c0 = cpu()
         dyn.refine()
         c1 = cpu()
-        g.loop_radiance(dyn)
+        exact = g.loop_radiance(dyn)
         rows.append(dict(kind="refine", cpu_ms=1000 * (cpu() - c0), apply_ms=1000 * (c1 - c0),
                          output_ms=1000 * (cpu() - c1)))
         print(f"refine    {rows[-1]['cpu_ms']:8.1f} ms CPU (apply {rows[-1]['apply_ms']:7.1f})", flush=True)
+        out["last_preview_error"] = err = _preview_error(s.mesh, last[0], exact)
+        print("the last preview against the refine (the same state): per object (mean over its corners) "
+              "median {object_median:.2e} p95 {object_p95:.2e} max {object_max:.2e} over {objects} lit "
+              "objects; "
+              "per corner max {corner_max:.2e} median {corner_median:.2e} RMS {corner_rms:.2e} bias "
+              "{corner_bias:+.2e}".format(**err), flush=True)
     for i in range(4):
         edit("colour", window(x, (20.0, 20.0 + i, 20.0 + 2 * i)))
     for i in range(4):

@@ -303,6 +303,9 @@ def main():
     v.add_argument("--levels", type=int, default=None)
     v.add_argument("--second-shadow-rays", type=int, default=None)
     v.add_argument("--preview-method", default=None)
+    v.add_argument("--reuse-visibility", type=int, default=None, help="1/0: Preview.reuse_visibility")
+    v.add_argument("--reuse-share", type=float, default=None)
+    v.add_argument("--guess-share", type=float, default=None)
     v.add_argument("--check", action="store_true", help="refined outputs against an exact-only replay")
     v.add_argument("--parts", action="store_true", help="process time of a few functions (see PARTS)")
     c = sub.add_parser("compare")
@@ -325,6 +328,9 @@ def main():
                 ("levels", "levels"),
                 ("second_shadow_rays", "second_shadow_rays"),
                 ("method", "preview_method"),
+                ("reuse_visibility", "reuse_visibility"),
+                ("reuse_share", "reuse_share"),
+                ("guess_share", "guess_share"),
             )
             if getattr(args, a) is not None
         }

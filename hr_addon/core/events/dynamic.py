@@ -15,7 +15,7 @@ from .coverage import Coverage, NodeState
 from .direct import FirstBounce
 from .lightsrc import LIGHT_RAYS, Lights
 from .naive import _NaiveState
-from .records import METHODS, EventReport, FrameReport, LightShape, Preview, _Rec
+from .records import METHODS, EventReport, FrameReport, LightShape, Preview, _Rec, outline_share
 from .solves import Solves
 from .validation import ShapeValidator, check_emission, find_surface, off_surface_message, shape_plane, to2d
 
@@ -263,9 +263,11 @@ class DynamicRadiosity:
                 try:
                     r1 = self._remove(k)
                     v = (rings, em, name)
+                    self._ref = rec if rec.preview is None else rec.ref  # the last exact state
+                    self._power = rec.area * rec.covered  # (its emitted power at unit emission)
                     r2 = self._add(k, LightShape(*v), validated=v, preview=preview)
                 finally:
-                    self.nodes.guess = self.nodes.guess0 = None
+                    self.nodes.guess = self.nodes.guess0 = self._ref = None
                 r2.kind = "reshape"
                 r2.nodes_removed += r1.nodes_removed
                 r2.seconds += r1.seconds
@@ -493,11 +495,27 @@ class DynamicRadiosity:
             return 0
         guess = self.nodes.guess
         tol = None if preview is None else preview.tol
-        U, rep = self.solves.solve(
-            E, B0=None if guess is None else E + guess, response=True, tol=tol, owned=rec.owned
-        )
+        ref = getattr(self, "_ref", None) if preview is not None else None
+        if (
+            ref is not None
+            and guess is not None
+            and preview.guess_share is not None
+            and ref.used == rec.method  # (AUTO's and AR's responses, previewed as FE: not its guess)
+            and ref.emitter is not None
+            and outline_share(rec, ref.emitter[1]) >= preview.guess_share
+        ):  # the guess unchecked, its scattered light scaled by the emitted power's ratio (a
+            # scaled shape's): as the solve returns a guess whose first residual is within tol
+            op = self.solves.operator()
+            B = np.zeros((3, h.n))
+            ratio = rec.area * rec.covered / max(self._power, 1e-300)
+            B[:, op.leaves] = np.maximum((E + ratio * guess)[:, op.leaves], 0.0)
+            U, rep = np.maximum(op.pull(B), 0.0), EventReport("add")
+        else:
+            U, rep = self.solves.solve(
+                E, B0=None if guess is None else E + guess, response=True, tol=tol, owned=rec.owned
+            )
         if preview is not None:
-            rec.preview, rec.G = preview, self.nodes.guess0
+            rec.preview, rec.G, rec.ref = preview, self.nodes.guess0, ref
         if rec.method == "AUTO":  # (pulled over the tree U was solved on: Solves.solve's owned)
             cov = self._coverage(rec, True, None if tol else self.solves.tree_pull(rec.owned))
             U = U + np.repeat(cov[None], 3, 0)

@@ -23,13 +23,45 @@ class Preview:
     PREVIEW: FE, so AR and AUTO preview without splits or first bounce) and marks them
     (_Rec.preview); the final gather gives them `shadow_rays` per output sample and reads the
     HR leaves (levels 1) or a second level without iterations with `second_shadow_rays`
-    (levels 2). refine() then solves them as apply() without a preview would have."""
+    (levels 2). refine() then solves them as apply() without a preview would have.
+    reuse_visibility: a moved shape's direct light is its exact unoccluded form factor times the
+    visible fraction a reference had at each sample, while the outline shares at least
+    `reuse_share` of its area with the reference's: the shape's last exact state (_Rec.ref), else
+    the last preview that took shadow rays (FinalGather._preview_direct). The error at a sample is
+    at most the form factor of the two outlines' symmetric difference (docs/live.md, "Previews
+    on the furnished 100k room").
+    correct: the previews of a drag add what the preview's read of the HR leaves misses of the
+    last exact state's final gather (its second level and iterations; FinalGather.
+    _preview_reference).
+    guess_share: while the outline shares at least this much of its area with its last exact
+    state's (outline_share), the response is the warm guess without the solve's check (the
+    scattered light kept, scaled by the emitted power's ratio; None: always checked). Only where
+    that state was solved with the preview's method (AUTO's and AR's previews are checked)."""
 
     tol: float = 1e-2
     method: str = None
     shadow_rays: int = 4
     levels: int = 1
     second_shadow_rays: int = 2
+    reuse_visibility: bool = True
+    reuse_share: float = 0.75
+    correct: bool = True
+    guess_share: float = 0.75
+
+
+def outline_share(rec, other):
+    """The share of a validated shape record's outline inside `other`, an Emitter (a previewed
+    shape's reference: its convex pieces): their intersection over the larger of the two areas;
+    0 on another plane."""
+    from ..clip import overlap_areas
+    from .validation import to2d
+
+    if other is None or other.normal is None or abs(other.normal @ rec.n) < 0.999:
+        return 0.0
+    if abs((other.point - rec.c) @ rec.n) > max(rec.tol, 1e-9):
+        return 0.0
+    inter = overlap_areas(rec.rings2d, to2d(rec, other.corners), other.nv).sum()
+    return float(inter / max(rec.area, other.area.sum(), 1e-300))
 
 
 @dataclass
@@ -104,6 +136,7 @@ class _Rec:
     emitter: tuple = None  # (unit, Emitter, normal): the final gather's, shared by its levels
     preview: Preview = None  # set: U is a preview's (apply(preview=)), refine() replaces it
     G: np.ndarray = None  # (3, n) a preview's: the guess its exact solve starts from (refine)
+    ref: object = None  # a preview's: the record of its shape's last exact state (its visibility)
 
     @property
     def geom_key(self):
