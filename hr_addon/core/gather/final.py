@@ -13,6 +13,7 @@ from ..progress import Progress
 from .direct import DirectLight
 from .points import locate_below, onto_patch, split_lines
 from .sampling import cosine_directions, position_keys
+from ..slots import slot_irradiance, slot_mouth
 
 KINDS = ("radiance", "reflected", "incident")
 # a sample under a covering face at a gap h (books standing side by side) is in a slot, lit through
@@ -182,6 +183,7 @@ class FinalGather(DirectLight):
         slot_area=None,
         slopes=False,
         second_shadow_rays=None,
+        slot_facing=True,
         # near hits (docs/gather.md "Near hits"; 0: off): with the edge texels the furnished
         # share within 5% 75 -> 80%
         near_points=4,
@@ -259,6 +261,8 @@ class FinalGather(DirectLight):
             self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr, self._lines())
         self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
         self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
+        self._slot = None  # slot samples' direct light at their own point and the facing wall's
+        self.slot_facing = bool(slot_facing)
         if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
             self.dark[:] = False
         elif open_edge > 0 and h.contacts is not None and self.dark.any():
@@ -490,11 +494,84 @@ class FinalGather(DirectLight):
         c = pt.corners[self.patch[d]]
         stay = insideness(c[:, None], pt.normal[self.patch[d]][:, None], q)[:, 0] < margin  # off its patch
         q[stay], xg[stay] = self.points[d[stay]], x[stay]
-        self.points[d] = q
+        x0 = self.points[d].copy()
+        if not self.slot_facing:
+            self.points[d] = q
         self.origins[d] = q + self.eps * self.normals[d]
         self.dark[d] = False
         self.gain = np.ones((self.n, 3))
         self.gain[d] = E / con.through_mouth(mouth, xg / hg, self.rho[d], pt.reflectance)
+        if self.slot_facing:
+            self._slot_facing(con, d, x0, q, x / hg, hg, mouth, E)
+
+    def _slot_facing(self, con, d, x0, q, xi, hg, mouth, E):
+        """slot_facing: a slot sample's direct light is read at its own point (x0, xi gap widths
+        deep behind its nearest mouth), not at its gather point q by the transfer (which spreads it
+        as an outside uniform over the mouth: a lamp's light entering at a slant is not), and the
+        facing wall's own direct light, at the mirrored point x0 + h n, bounces onto it: the
+        walls' exchange with the light taken as even along the slot about the point,
+        T_a = D_a + rho_b F T_b and T_b = D_b + rho_a F T_a with F = 1 - the nearest mouth's view
+        factor (2D), so T_a = (D_a + rho_b F D_b) / (1 - rho_a rho_b F^2). What that local
+        exchange misses, light the walls nearer the mouth carry deeper, is the 2D slot's
+        transfer less the same local sum for an even outside (slot_irradiance - the local model
+        at F_mouth(xi); >= 0), driven by the mean direct light at q and its mirrored point. The
+        gathered (indirect) light keeps the transfer's gain. Per emitter as the other direct
+        light: _slot holds a copy of this gather on the points x0 + h n, q, q + h n (their direct
+        light only) and the mix's per-channel weights, over the gain that scaled() applies to the
+        sum (docs/gather.md, "The facing wall's direct light")."""
+        pt = self.system.patches
+        rho = self.rho[d]
+        rb = con._other_wall(mouth, pt.reflectance)
+        F = (1.0 - slot_mouth(xi))[:, None]
+        a = 1.0 / (1.0 - rho * rb * F * F)
+        fm = slot_mouth(xi)[:, None]
+        far = np.maximum(slot_irradiance(xi, rho, rb) - a * (1.0 + rb * F) * fm, 0.0)
+        f = copy.copy(self)
+        nf = len(d)
+        nrm = self.normals[d]
+        fp = np.concatenate([x0 + hg[:, None] * nrm, q, q + hg[:, None] * nrm])
+        f.points, f.normals, f.patch = fp, np.concatenate([-nrm, nrm, -nrm]), np.tile(self.patch[d], 3)
+        f.keys = position_keys(fp, self.unit)
+        f.dark, f.n, f.E_static = np.zeros(3 * nf, bool), 3 * nf, np.zeros((3 * nf, 3))
+        f.texel_area, f.gain, f._slot, f.second, f.group = None, None, None, None, None
+        f._D_static, f._shape_cache = None, {}
+        for k in ("_light_cache", "_leaf_nodes", "_preview_cache", "_bounce_cache"):
+            f.__dict__.pop(k, None)
+        for k in ("indptr", "cols", "w", "wu", "wv", "origins", "rho", "leaf0", "sample_rays"):
+            setattr(f, k, None)
+        g = self.gain[d]
+        self._slot = dict(rows=d, f=f, own=a / g, facing=rb * F * a / g, far=far / np.maximum(E, 1e-300) / 2)
+
+    def _facing_part(self, unit):
+        """unit(g) at the slot's mirrored points (_slot_facing), or None."""
+        S = getattr(self, "_slot", None)
+        return None if S is None else unit(S["f"])
+
+    def _dmix(self, D, Df):
+        """(n, 3) direct light D with the slot samples' mixed with the facing wall's Df (_slot's
+        rows, (len(rows), 3)) (_slot_facing); D itself without slot_facing."""
+        if getattr(self, "_slot", None) is None:
+            return D
+        S = self._slot
+        r = S["rows"]
+        out = np.array(D, np.float64)
+        Df = np.asarray(Df, np.float64).reshape(3, len(r), -1)
+        out[r] = out[r] * S["own"] + Df[0] * S["facing"] + (Df[1] + Df[2]) * S["far"]
+        return out
+
+    def direct_static(self):
+        S = getattr(self, "_slot", None)
+        if S is not None:  # (computed with the rest: the precompute captures it)
+            S["f"].threads = self.threads
+            S["f"].direct_static()
+        return super().direct_static()
+
+    def direct_and_emission(self, dyn, direct=True):
+        D, E = super().direct_and_emission(dyn, direct)
+        if direct and getattr(self, "_slot", None) is not None:
+            self._slot["f"].threads = self.threads
+            D = self._dmix(D, self._slot["f"].direct_and_emission(dyn)[0])
+        return D, E
 
     def scaled(self, v):
         """Incident light at the samples (n, 3) with the slot samples' transfer applied."""
@@ -811,7 +888,8 @@ class FinalGather(DirectLight):
             X = dyn._Bbase[:, :n] - dyn.system.base_emission()[:, :n] * ex
             V = self._values_from(h, X)
             Y = self._levels(V, lambda g: g.direct_static())
-            self._responses[key0] = self.direct_static() + self._read(Y)
+            D0 = self._dmix(self.direct_static(), self._facing_part(lambda g: g.direct_static()))
+            self._responses[key0] = D0 + self._read(Y)
         out = [(key0, None, self._responses[key0], None)]
         for rec in recs:
             if rec.preview is not None:
@@ -825,7 +903,7 @@ class FinalGather(DirectLight):
                     return np.repeat(g._shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
 
                 Y = self._levels(self._values_from(h, X), unit)
-                part = unit(self) + self._read(Y)
+                part = self._dmix(unit(self), self._facing_part(unit)) + self._read(Y)
                 self._responses[k] = part.astype(np.float32)
             out.append((k, rec.emission, self._responses[k], rec))
         for rec in dyn.lights.values():
@@ -837,7 +915,7 @@ class FinalGather(DirectLight):
                     return np.repeat(g._light(rec)[:, None].astype(np.float64), 3, 1)
 
                 Y = self._levels(self._values_from(h, X), unit)
-                part = unit(self) + self._light_bounce(rec, Y[0])
+                part = self._dmix(unit(self), self._facing_part(unit)) + self._light_bounce(rec, Y[0])
                 part += self._read(Y)
                 self._responses[k] = part.astype(np.float32)
             out.append((k, rec.scale, self._responses[k], None))
