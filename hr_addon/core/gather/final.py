@@ -13,7 +13,8 @@ from ..progress import Progress
 from .direct import DirectLight
 from .points import locate_below, onto_patch, split_lines
 from .sampling import cosine_directions, position_keys
-from ..slots import slot_irradiance, slot_mouth
+from ..slots import slot_mouth
+
 
 KINDS = ("radiance", "reflected", "incident")
 # a sample under a covering face at a gap h (books standing side by side) is in a slot, lit through
@@ -479,16 +480,20 @@ class FinalGather(DirectLight):
         if not len(d):
             return
         pt = s.patches
-        E = con.slot_transfer(self.points[d], self.patch[d], chain, self.rho[d], pt.reflectance)
-        if area is not None:
-            rows, ap = area
-            j = np.flatnonzero(np.isin(d, rows))
-            r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
-            k = ap.shape[1]
-            pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
-            ca = con.slots(pa, qa)[3]
-            Ea = con.slot_transfer(pa, qa, ca, np.repeat(self.rho[d[j]], k, 0), pt.reflectance)
-            E[j] = Ea.reshape(len(j), k, 3).mean(1)
+        def transfer(rho, refl):  # slot_transfer, a texel's mean over its area's points (area)
+            E = con.slot_transfer(self.points[d], self.patch[d], chain, rho, refl)
+            if area is not None:
+                rows, ap = area
+                j = np.flatnonzero(np.isin(d, rows))
+                r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
+                k = ap.shape[1]
+                pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
+                ca = con.slots(pa, qa)[3]
+                Ea = con.slot_transfer(pa, qa, ca, np.repeat(rho[j], k, 0), refl)
+                E[j] = Ea.reshape(len(j), k, 3).mean(1)
+            return E
+
+        E = transfer(self.rho[d], pt.reflectance)
         xg = np.minimum(x, SLOT_DEPTH * hg)
         q = foot + (xg / x)[:, None] * (self.points[d] - foot)
         c = pt.corners[self.patch[d]]
@@ -502,30 +507,41 @@ class FinalGather(DirectLight):
         self.gain = np.ones((self.n, 3))
         self.gain[d] = E / con.through_mouth(mouth, xg / hg, self.rho[d], pt.reflectance)
         if self.slot_facing:
-            self._slot_facing(con, d, x0, q, x / hg, hg, mouth, E)
+            # the mouths' view factor (the first bounce of an even outside, every mouth)
+            fm = transfer(np.zeros((len(d), 3)), np.zeros_like(pt.reflectance))
+            self._slot_facing(con, d, x0, q, x / hg, xg / hg, hg, mouth, E, fm)
 
-    def _slot_facing(self, con, d, x0, q, xi, hg, mouth, E):
-        """slot_facing: a slot sample's direct light is read at its own point (x0, xi gap widths
-        deep behind its nearest mouth), not at its gather point q by the transfer (which spreads it
-        as an outside uniform over the mouth: a lamp's light entering at a slant is not), and the
-        facing wall's own direct light, at the mirrored point x0 + h n, bounces onto it: the
-        walls' exchange with the light taken as even along the slot about the point,
-        T_a = D_a + rho_b F T_b and T_b = D_b + rho_a F T_a with F = 1 - the nearest mouth's view
-        factor (2D), so T_a = (D_a + rho_b F D_b) / (1 - rho_a rho_b F^2). What that local
-        exchange misses, light the walls nearer the mouth carry deeper, is the 2D slot's
-        transfer less the same local sum for an even outside (slot_irradiance - the local model
-        at F_mouth(xi); >= 0), driven by the mean direct light at q and its mirrored point. The
-        gathered (indirect) light keeps the transfer's gain. Per emitter as the other direct
-        light: _slot holds a copy of this gather on the points x0 + h n, q, q + h n (their direct
-        light only) and the mix's per-channel weights, over the gain that scaled() applies to the
-        sum (docs/gather.md, "The facing wall's direct light")."""
+    def _slot_facing(self, con, d, x0, q, xi, xq, hg, mouth, E, fm):
+        """slot_facing (docs/gather.md, "The facing wall's direct light"): a slot sample's direct
+        light is read at its own point x0 (xi gap widths behind its nearest mouth), not at its
+        gather point q (xq) through the transfer, which spreads it as an outside even over the
+        mouth (a lamp's light entering at a slant is not), and the facing wall's own direct light,
+        at the mirrored point x0 + h n, bounces onto it: the walls' exchange with the light taken
+        as even along the slot about the point, T_a = D_a + rho_b F T_b, T_b = D_b + rho_a F T_a
+        (F: the facing wall's view factor inside the slot, 1 - the mouths'), so
+        T_a = (D_a + rho_b F D_b) / (1 - rho_a rho_b F^2). What that local sum misses (the walls
+        nearer the mouth carry light deeper) is the transfer's share of the outside's direct
+        light less the same local sum for an even outside (>= 0), driven by the outside's
+        radiance as the direct light at q and at its mirrored point read it. The gathered
+        (indirect) light keeps the transfer's gain. fm: the mouths' view factor (an even
+        outside's first bounce) at x0. Per emitter as the other direct light: _slot holds a copy
+        of this gather on the points x0 + h n, q, q + h n (their direct light only) and the mix's
+        per-channel weights, over the gain that scaled() applies to the sum."""
         pt = self.system.patches
         rho = self.rho[d]
         rb = con._other_wall(mouth, pt.reflectance)
-        F = (1.0 - slot_mouth(xi))[:, None]
+        # a mouth at the receiver's own edge (a shorter book's top) with the facing wall going on
+        # beyond it: the outside is seen past that extension (fm), the facing wall inside the slot
+        # ends at the mouth, and its mirrored points see the outside beyond the receiver's edge
+        own = (con.slot_mouths()["own"][mouth] & (con.slot_mouths()["ext"][mouth] > 0))[:, None]
+        F = 1.0 - np.maximum(fm, slot_mouth(xi)[:, None])
         a = 1.0 / (1.0 - rho * rb * F * F)
-        fm = slot_mouth(xi)[:, None]
-        far = np.maximum(slot_irradiance(xi, rho, rb) - a * (1.0 + rb * F) * fm, 0.0)
+        fmb = np.where(own, slot_mouth(xi)[:, None], fm)
+        zero = np.zeros_like(pt.reflectance)
+        t1 = con.through_mouth(mouth, xq, rho, zero)  # the outside's part of what q finds
+        t2 = np.where(own, slot_mouth(xq)[:, None], t1)  # what its mirrored point finds
+        tm = con.through_mouth(mouth, xq, rho, pt.reflectance)
+        far = np.maximum(E * t1 / tm - a * (fm + rb * F * fmb), 0.0)
         f = copy.copy(self)
         nf = len(d)
         nrm = self.normals[d]
@@ -540,7 +556,15 @@ class FinalGather(DirectLight):
         for k in ("indptr", "cols", "w", "wu", "wv", "origins", "rho", "leaf0", "sample_rays"):
             setattr(f, k, None)
         g = self.gain[d]
-        self._slot = dict(rows=d, f=f, own=a / g, facing=rb * F * a / g, far=far / np.maximum(E, 1e-300) / 2)
+        tiny = 1e-300
+        self._slot = dict(
+            rows=d,
+            f=f,
+            own=a / g,
+            facing=rb * F * a / g,
+            q=far / np.maximum(2 * t1 * g, tiny),
+            qf=far / np.maximum(2 * t2 * g, tiny),
+        )
 
     def _facing_part(self, unit):
         """unit(g) at the slot's mirrored points (_slot_facing), or None."""
@@ -556,7 +580,7 @@ class FinalGather(DirectLight):
         r = S["rows"]
         out = np.array(D, np.float64)
         Df = np.asarray(Df, np.float64).reshape(3, len(r), -1)
-        out[r] = out[r] * S["own"] + Df[0] * S["facing"] + (Df[1] + Df[2]) * S["far"]
+        out[r] = out[r] * S["own"] + Df[0] * S["facing"] + Df[1] * S["q"] + Df[2] * S["qf"]
         return out
 
     def direct_static(self):
