@@ -24,8 +24,9 @@ KINDS = ("radiance", "reflected", "incident")
 # OPEN_EDGE x h of a mouth gather over their area (layouts.texel_samples)
 OPEN_EDGE = 5.0
 SLOT_DEPTH = 1.0
-# slot_facing: the walls' local exchange counts fully to 2 gap widths behind a mouth, not from 5 on
-SLOT_LOCAL = (2.0, 5.0)
+# slot_facing: the depths (gap widths) over which the walls' local exchange fades out (inf: it
+# counts everywhere)
+SLOT_LOCAL = (np.inf, np.inf)
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
@@ -187,6 +188,7 @@ class FinalGather(DirectLight):
         slopes=False,
         second_shadow_rays=None,
         slot_facing=True,
+        slot_local=None,
         # near hits (docs/gather.md "Near hits"; 0: off): with the edge texels the furnished
         # share within 5% 75 -> 80%
         near_points=4,
@@ -266,6 +268,7 @@ class FinalGather(DirectLight):
         self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
         self._slot = None  # slot samples' direct light at their own point and the facing wall's
         self.slot_facing = bool(slot_facing)
+        self.slot_local = slot_local  # (from, to) gap widths: the local sum fades out (None: everywhere)
         if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
             self.dark[:] = False
         elif open_edge > 0 and h.contacts is not None and self.dark.any():
@@ -536,7 +539,10 @@ class FinalGather(DirectLight):
         # the mouths are a sliver of the hemisphere (view factor 1%) that a point's own shadow rays
         # rarely find (the furnace slot's deep part scattered 0.75-1.13 over three seeds); there
         # the transfer carries the light the gather point reads, as without slot_facing
-        w = np.clip((SLOT_LOCAL[1] - xi) / (SLOT_LOCAL[1] - SLOT_LOCAL[0]), 0.0, 1.0)[:, None]
+        lo, hi = SLOT_LOCAL if self.slot_local is None else self.slot_local
+        w = np.ones((len(d), 1))
+        if np.isfinite(hi):
+            w[:, 0] = np.clip((hi - xi) / max(hi - lo, 1e-9), 0.0, 1.0)
         # a mouth at the receiver's own edge (a shorter book's top) with the facing wall going on
         # beyond it: the outside is seen past that extension (fm), the facing wall inside the slot
         # ends at the mouth, and its mirrored points see the outside beyond the receiver's edge
