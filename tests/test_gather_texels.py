@@ -754,3 +754,26 @@ def test_slot_facing_gives_a_sample_the_same_light_gathered_alone_or_with_others
     both = FinalGather(s, np.vstack([B, A]), np.vstack([nB, nA]), [sb] * 4 + pf + [sa] * 4, **kw)
     assert alone._slot is not None and len(both._slot["rows"]) == 8
     np.testing.assert_array_equal(alone.evaluate(s, "incident"), both.evaluate(s, "incident")[5:])
+
+
+def test_slot_facing_alike_by_response_and_by_evaluate():
+    """The slot samples' mixed direct light (slot_facing) reaches the output alike through the
+    cached responses (FinalGather._response_parts, LoopGather._radiance_by_response) and through
+    a plain evaluate of the static system, and only the slot's samples change with it."""
+    from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.gather import LoopGather
+
+    s = RadiositySystem(_slot_under_a_lamp(0.0), RefineParams.preset("draft"))
+    dyn = DynamicRadiosity(s, method="FE")
+    out = {}
+    for on in (False, True):  # (inset 0.1: the slot side's corner samples 1 cm from its edges)
+        g = LoopGather(dyn, inset=0.1, rays=64, shadow_rays=16, levels=2, iterations=2, slot_facing=on)
+        assert g._radiance_by_response(dyn) is not None
+        out[on] = g.loop_radiance(dyn)
+        ref = g.loop_values(g.evaluate(s, "radiance"), "CORNER")
+        np.testing.assert_allclose(out[on], ref, rtol=1e-5, atol=1e-7)
+    slot = np.zeros(g.n, bool)
+    slot[g._slot["rows"]] = True
+    moved = g.loop_values(np.where(slot[:, None], 1.0, 0.0), "CORNER").any(1)
+    changed = (out[True] != out[False]).any(1)
+    assert changed.any() and not (changed & ~moved).any()
