@@ -71,7 +71,7 @@ inc = g.evaluate(s, "incident")[:, 0]
 D = g.direct_and_emission(s)[0][:, 0]
 gain = np.ones(len(P)) if g.gain is None else g.gain[:, 0]
 print(f"lamp x {opt['lamp']}, {k} paths a point, gather {kw} ({cpu:.1f} s CPU)")
-print("depth/h  paths: full direct via-mouth | facing: direct full | ours: total gain D gain*D | ours/paths")
+print("depth/h  paths: full direct via-mouth | facing: direct full | ours: total gain D/gain D | ours/paths")
 for i, d in enumerate(dep):
     print(
         f"{d:5.1f}  {full[i]:8.4f} {direct[i]:7.4f} {seen[i]:8.4f} | {fdirect[i]:7.4f} {ffull[i]:7.4f} |"
