@@ -24,6 +24,9 @@ KINDS = ("radiance", "reflected", "incident")
 # OPEN_EDGE x h of a mouth gather over their area (layouts.texel_samples)
 OPEN_EDGE = 5.0
 SLOT_DEPTH = 1.0
+# a slot sample's direct light at its own point and the facing wall's bounced onto it (FinalGather's
+# slot_facing=None takes this; docs/gather.md "The facing wall's direct light")
+SLOT_FACING = True
 # slot_facing: the depths (gap widths) over which the walls' local exchange fades out (inf: it
 # counts everywhere)
 SLOT_LOCAL = (np.inf, np.inf)
@@ -187,7 +190,7 @@ class FinalGather(DirectLight):
         slot_area=None,
         slopes=False,
         second_shadow_rays=None,
-        slot_facing=True,
+        slot_facing=None,
         slot_local=None,
         # near hits (docs/gather.md "Near hits"; 0: off): with the edge texels the furnished
         # share within 5% 75 -> 80%
@@ -267,7 +270,7 @@ class FinalGather(DirectLight):
         self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
         self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
         self._slot = None  # slot samples' direct light at their own point and the facing wall's
-        self.slot_facing = bool(slot_facing)
+        self.slot_facing = SLOT_FACING if slot_facing is None else bool(slot_facing)
         self.slot_local = slot_local  # (from, to) gap widths: the local sum fades out (None: everywhere)
         if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
             self.dark[:] = False
