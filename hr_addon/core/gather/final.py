@@ -593,6 +593,7 @@ class FinalGather(DirectLight):
             rows=d,
             f=f,
             at=at,
+            at_q=q,
             near=near,
             own=a / g,
             facing=rb * F * a / g,
@@ -853,8 +854,12 @@ class FinalGather(DirectLight):
             ok = np.flatnonzero(~self.dark)
             if len(idx) and len(ok):
                 # the leaf's value is its uncovered part's mean: spread over its whole polygon
+                pts = self.points
+                if getattr(self, "_slot", None) is not None:  # slot samples: at their gather point,
+                    pts = pts.copy()  # as the rest of the light their gain scales
+                    pts[self._slot["rows"]] = self._slot["at_q"]
                 B[ok] = lt.leaf_bounce(
-                    self.points[ok],
+                    pts[ok],
                     self.normals[ok],
                     self.keys[ok],
                     h.corners[idx],
