@@ -11,6 +11,7 @@ from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
 from ..parallel import batch_map, ranges
 from ..progress import Progress
+from ..slots import slot_mouth
 from .direct import DirectLight
 from .points import locate_below, onto_patch, split_lines
 from .sampling import cosine_directions, position_keys
@@ -23,6 +24,12 @@ KINDS = ("radiance", "reflected", "incident")
 # OPEN_EDGE x h of a mouth gather over their area (layouts.texel_samples)
 OPEN_EDGE = 5.0
 SLOT_DEPTH = 1.0
+# a slot sample's direct light at its own point and the facing wall's bounced onto it (FinalGather's
+# slot_facing=None takes this; docs/gather.md "The facing wall's direct light")
+SLOT_FACING = True
+# slot_facing: the depths (gap widths) over which the walls' local exchange fades out (inf: it
+# counts everywhere)
+SLOT_LOCAL = (np.inf, np.inf)
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
@@ -190,6 +197,8 @@ class FinalGather(DirectLight):
         slot_area=None,
         slopes=False,
         second_shadow_rays=None,
+        slot_facing=None,
+        slot_local=None,
         # near hits (docs/gather.md "Near hits"; 0: off): with the edge texels the furnished
         # share within 5% 75 -> 80%
         near_points=4,
@@ -267,6 +276,9 @@ class FinalGather(DirectLight):
             self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr, self._lines())
         self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
         self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
+        self._slot = None  # slot samples' direct light at their own point and the facing wall's
+        self.slot_facing = SLOT_FACING if slot_facing is None else bool(slot_facing)
+        self.slot_local = slot_local  # (from, to) gap widths: the local sum fades out (None: SLOT_LOCAL)
         if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
             self.dark[:] = False
         elif open_edge > 0 and h.contacts is not None and self.dark.any():
@@ -483,26 +495,154 @@ class FinalGather(DirectLight):
         if not len(d):
             return
         pt = s.patches
-        E = con.slot_transfer(self.points[d], self.patch[d], chain, self.rho[d], pt.reflectance)
-        if area is not None:
-            rows, ap = area
-            j = np.flatnonzero(np.isin(d, rows))
-            r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
-            k = ap.shape[1]
-            pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
-            ca = con.slots(pa, qa)[3]
-            Ea = con.slot_transfer(pa, qa, ca, np.repeat(self.rho[d[j]], k, 0), pt.reflectance)
-            E[j] = Ea.reshape(len(j), k, 3).mean(1)
+        def transfer(rho, refl):  # slot_transfer, a texel's mean over its area's points (area)
+            E = con.slot_transfer(self.points[d], self.patch[d], chain, rho, refl)
+            if area is not None:
+                rows, ap = area
+                j = np.flatnonzero(np.isin(d, rows))
+                r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
+                k = ap.shape[1]
+                pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
+                ca = con.slots(pa, qa)[3]
+                Ea = con.slot_transfer(pa, qa, ca, np.repeat(rho[j], k, 0), refl)
+                E[j] = Ea.reshape(len(j), k, 3).mean(1)
+            return E
+
+        E = transfer(self.rho[d], pt.reflectance)
         xg = np.minimum(x, SLOT_DEPTH * hg)
         q = foot + (xg / x)[:, None] * (self.points[d] - foot)
         c = pt.corners[self.patch[d]]
         stay = insideness(c[:, None], pt.normal[self.patch[d]][:, None], q)[:, 0] < margin  # off its patch
         q[stay], xg[stay] = self.points[d[stay]], x[stay]
-        self.points[d] = q
+        x0 = self.points[d].copy()
+        if not self.slot_facing:
+            self.points[d] = q
         self.origins[d] = q + self.eps * self.normals[d]
         self.dark[d] = False
         self.gain = np.ones((self.n, 3))
         self.gain[d] = E / con.through_mouth(mouth, xg / hg, self.rho[d], pt.reflectance)
+        if self.slot_facing:
+            # the mouths' view factor (the first bounce of an even outside, every mouth)
+            fm = transfer(np.zeros((len(d), 3)), np.zeros_like(pt.reflectance))
+            self._slot_facing(con, d, x0, q, x / hg, xg / hg, hg, mouth, E, fm)
+
+    def _slot_facing(self, con, d, x0, q, xi, xq, hg, mouth, E, fm):
+        """slot_facing (docs/gather.md, "The facing wall's direct light"): a slot sample's direct
+        light is read at its own point x0 (xi gap widths behind its nearest mouth), not at its
+        gather point q (xq) through the transfer, which spreads it as an outside even over the
+        mouth (a lamp's light entering at a slant is not), and the facing wall's own direct light,
+        at the mirrored point x0 + h n, bounces onto it: the walls' exchange with the light taken
+        as even along the slot about the point, T_a = D_a + rho_b F T_b, T_b = D_b + rho_a F T_a
+        (F: the facing wall's view factor inside the slot, 1 - the mouths'), so
+        T_a = (D_a + rho_b F D_b) / (1 - rho_a rho_b F^2). What that local sum misses (the walls
+        nearer the mouth carry light deeper) is the transfer's share of the outside's direct
+        light less the same local sum for an even outside (>= 0), driven by the outside's
+        radiance as the direct light at q and at its mirrored point read it. The gathered
+        (indirect) light keeps the transfer's gain. fm: the mouths' view factor (an even
+        outside's first bounce) at x0. Per emitter as the other direct light: _slot holds a copy
+        of this gather on the points x0 + h n, q, q + h n (their direct light only) and the mix's
+        per-channel weights, over the gain that scaled() applies to the sum."""
+        pt = self.system.patches
+        rho = self.rho[d]
+        rb = con._other_wall(mouth, pt.reflectance)
+        # the local sum's weight: 1 to slot_local[0] gap widths deep, 0 from slot_local[1] on (there
+        # the transfer of what the gather point and its mirror read carries the direct light too).
+        # Default everywhere: deep, a point's own shadow rays rarely find the mouths (the furnace
+        # slot's deep part scattered 0.75-1.13 over three seeds), but the books' slots see the
+        # lamp straight up through their top (faded from 2 to 5: the room's 83% -> 81%)
+        lo, hi = SLOT_LOCAL if self.slot_local is None else self.slot_local
+        w = np.ones((len(d), 1))
+        if np.isfinite(hi):
+            w[:, 0] = np.clip((hi - xi) / max(hi - lo, 1e-9), 0.0, 1.0)
+        # a mouth at the receiver's own edge (a shorter book's top) with the facing wall going on
+        # beyond it: the outside is seen past that extension (fm), the facing wall inside the slot
+        # ends at the mouth, and its mirrored points see the outside beyond the receiver's edge
+        own = (con.slot_mouths()["own"][mouth] & (con.slot_mouths()["ext"][mouth] > 0))[:, None]
+        F = 1.0 - np.maximum(fm, slot_mouth(xi)[:, None])
+        a = w / (1.0 - rho * rb * F * F)
+        fmb = np.where(own, slot_mouth(xi)[:, None], fm)
+        zero = np.zeros_like(pt.reflectance)
+        t1 = con.through_mouth(mouth, xq, rho, zero)  # the outside's part of what q finds
+        t2 = np.where(own, slot_mouth(xq)[:, None], t1)  # what its mirrored point finds
+        tm = con.through_mouth(mouth, xq, rho, pt.reflectance)
+        local = a * (fm + rb * F * fmb)  # the local sum for an even outside
+        far = np.maximum(E * t1 / tm - local, 0.0)
+        # beyond a mouth at the receiver's own edge the gather reads the facing wall's extension
+        # (its light: tm - t1), whose share of the transfer took in the facing wall's light inside
+        # the slot in proportion: the part of it the local sum now carries is taken out
+        # (an even outside's total stays the transfer)
+        ext = np.maximum(E * (1.0 - t1 / tm), 1e-300)
+        self.gain[d] *= np.where(own, np.clip((E - np.maximum(local, E * t1 / tm)) / ext, 1e-3, 1.0), 1.0)
+        # the extra direct-light points: x0 + h n where the local sum counts, q there (elsewhere
+        # the sample's own point moves to q, as without slot_facing), q + h n everywhere
+        near = w[:, 0] > 0
+        loc = np.flatnonzero(near)
+        self.points[d[~near]] = q[~near]
+        nl, nf = len(loc), len(d)
+        nrm = self.normals[d]
+        fp = np.concatenate([x0[loc] + hg[loc, None] * nrm[loc], q[loc], q + hg[:, None] * nrm])
+        f = copy.copy(self)
+        f.points, f.normals = fp, np.concatenate([-nrm[loc], nrm[loc], -nrm])
+        f.patch = np.concatenate([self.patch[d[loc]], self.patch[d[loc]], self.patch[d]])
+        f.keys = position_keys(fp, self.unit)
+        m = len(fp)
+        f.dark, f.n, f.E_static = np.zeros(m, bool), m, np.zeros((m, 3))
+        f.texel_area, f.gain, f._slot, f.second, f.group = None, None, None, None, None
+        f._D_static, f._shape_cache = None, {}
+        for k in ("_light_cache", "_leaf_nodes", "_preview_cache", "_bounce_cache"):
+            f.__dict__.pop(k, None)
+        for k in ("indptr", "cols", "w", "wu", "wv", "origins", "rho", "leaf0", "sample_rays"):
+            setattr(f, k, None)
+        g = self.gain[d]
+        tiny = 1e-300
+        at = np.full(nf, m, np.int64)  # each row's x0 + h n and q in f (m: none, a zero row)
+        at[loc] = np.arange(nl)
+        self._slot = dict(
+            rows=d,
+            f=f,
+            at=at,
+            at_q=q,
+            near=near,
+            own=a / g,
+            facing=rb * F * a / g,
+            q=far / np.maximum(2 * t1 * g, tiny),
+            qf=far / np.maximum(2 * t2 * g, tiny),
+        )
+
+    def _facing_part(self, unit):
+        """unit(g) at the slot's mirrored points (_slot_facing), or None."""
+        S = getattr(self, "_slot", None)
+        return None if S is None else unit(S["f"])
+
+    def _dmix(self, D, Df):
+        """(n, 3) direct light D with the slot samples' rows mixed (_slot_facing) from their own and
+        Df, the same light at _slot's copy's points (x0 + h n of the rows near a mouth, q of
+        those, q + h n of all); D itself without slot_facing."""
+        if getattr(self, "_slot", None) is None:
+            return D
+        S = self._slot
+        r = S["rows"]
+        out = np.array(D, np.float64)
+        Df = np.vstack([np.asarray(Df, np.float64), np.zeros((1, np.shape(Df)[1]))])
+        nl, nf = int(S["near"].sum()), len(r)
+        at = S["at"]
+        Dq = np.where(S["near"][:, None], Df[np.where(at < nl, at + nl, len(Df) - 1)], out[r])
+        out[r] = out[r] * S["own"] + Df[at] * S["facing"] + Dq * S["q"] + Df[2 * nl + np.arange(nf)] * S["qf"]
+        return out
+
+    def direct_static(self):
+        S = getattr(self, "_slot", None)
+        if S is not None:  # (computed with the rest: the precompute captures it)
+            S["f"].threads = self.threads
+            S["f"].direct_static()
+        return super().direct_static()
+
+    def direct_and_emission(self, dyn, direct=True):
+        D, E = super().direct_and_emission(dyn, direct)
+        if direct and getattr(self, "_slot", None) is not None:
+            self._slot["f"].threads = self.threads
+            D = self._dmix(D, self._slot["f"].direct_and_emission(dyn)[0])
+        return D, E
 
     def scaled(self, v):
         """Incident light at the samples (n, 3) with the slot samples' transfer applied."""
@@ -723,8 +863,12 @@ class FinalGather(DirectLight):
             ok = np.flatnonzero(~self.dark)
             if len(idx) and len(ok):
                 # the leaf's value is its uncovered part's mean: spread over its whole polygon
+                pts = self.points
+                if getattr(self, "_slot", None) is not None:  # slot samples: at their gather point,
+                    pts = pts.copy()  # as the rest of the light their gain scales
+                    pts[self._slot["rows"]] = self._slot["at_q"]
                 B[ok] = lt.leaf_bounce(
-                    self.points[ok],
+                    pts[ok],
                     self.normals[ok],
                     self.keys[ok],
                     h.corners[idx],
@@ -819,7 +963,8 @@ class FinalGather(DirectLight):
             X = dyn._Bbase[:, :n] - dyn.system.base_emission()[:, :n] * ex
             V = self._values_from(h, X)
             Y = self._levels(V, lambda g: g.direct_static())
-            self._responses[key0] = self.direct_static() + self._read(Y)
+            D0 = self._dmix(self.direct_static(), self._facing_part(lambda g: g.direct_static()))
+            self._responses[key0] = D0 + self._read(Y)
         out = [(key0, None, self._responses[key0], None)]
         for rec in recs:
             if rec.preview is not None:
@@ -833,7 +978,7 @@ class FinalGather(DirectLight):
                     return np.repeat(g._shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
 
                 Y = self._levels(self._values_from(h, X), unit)
-                part = unit(self) + self._read(Y)
+                part = self._dmix(unit(self), self._facing_part(unit)) + self._read(Y)
                 self._responses[k] = part.astype(np.float32)
             out.append((k, rec.emission, self._responses[k], rec))
         for rec in dyn.lights.values():
@@ -845,7 +990,7 @@ class FinalGather(DirectLight):
                     return np.repeat(g._light(rec)[:, None].astype(np.float64), 3, 1)
 
                 Y = self._levels(self._values_from(h, X), unit)
-                part = unit(self) + self._light_bounce(rec, Y[0])
+                part = self._dmix(unit(self), self._facing_part(unit)) + self._light_bounce(rec, Y[0])
                 part += self._read(Y)
                 self._responses[k] = part.astype(np.float32)
             out.append((k, rec.scale, self._responses[k], None))
