@@ -5,7 +5,9 @@ setting moves which surface. Needs the reference of `cycles_compare.py --scenes 
         'nograd=dict(grad_cone=0.0)' 'med=dict(q="medium")'
 
 Each argument is name=dict(RefineParams fields, q=preset, grad_cone=cluster.GRAD_CONE,
-method="FE", gather=dict(rays=128, shadow_rays=32, vertex=True)). With `gather` the final gather
+method="FE", gather=dict(rays=128, shadow_rays=32, vertex=True), transport="gather"). transport="gather":
+the bake's transport with the final gather on (RefineParams.for_gather + the fields given,
+DynamicRadiosity.gather_options) instead of the preset's. With `gather` the final gather
 (hr_addon.core.gather) is compared too: at texel centres (refl_gather) and at the mesh's corners
 (total_gvertex, against today's vertex output total_vertex), with its cost:
 
@@ -39,16 +41,18 @@ for name, kw in variants.items():
     q = kw.pop("q", "draft")
     gkw = kw.pop("gather", None)
     method = kw.pop("method", "FE")
+    gt = kw.pop("transport", None) == "gather"
     import hr_addon.core.cluster as CL
     import hr_addon.core.farlinks as FL
 
     g = kw.pop("grad_cone", 0.03)
     CL.GRAD_CONE = FL.GRAD_CONE = g
     t0 = time.process_time()
-    base = RadiositySystem(rs.scene_in.mesh, dataclasses.replace(RefineParams.preset(q), **kw))
+    pre = RefineParams.for_gather(q) if gt else RefineParams.preset(q)
+    base = RadiositySystem(rs.scene_in.mesh, dataclasses.replace(pre, **kw))
     tb = time.process_time() - t0
     t0 = time.process_time()
-    dyn = DynamicRadiosity(base, method=method)
+    dyn = DynamicRadiosity(base, method=method, **(DynamicRadiosity.gather_options(q) if gt else {}))
     dyn.apply(shapes)
     t_apply = time.process_time() - t0
     ours = C.Ours(rs, dyn.system, dyn)
