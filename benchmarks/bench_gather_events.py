@@ -36,6 +36,22 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 
+
+def load_store(path):
+    """(system, gather, header) of a stored build; a store from before near hits (230d7a5) gets
+    its second level's start (k points per leaf) derived."""
+    from hr_addon.io import precompute as pc
+
+    arrays, header = pc.read(path)
+    s, g = pc.restore(arrays, header["graph"])
+    lv = g
+    while lv is not None and lv.second is not None:
+        if not hasattr(lv, "_second_start"):
+            used = lv._second_map[0]
+            lv._second_start = np.arange(len(used) + 1) * (lv.second.n // max(len(used), 1))
+        lv = lv.second
+    return s, g, header
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--size", default="20k")
@@ -99,15 +115,8 @@ def main(argv=None):
     stored = Path(args.cache) / pc.FILENAME if args.cache else None
     g = None
     if stored is not None and stored.exists():
-        arrays, header = pc.read(stored)
-        s, g = pc.restore(arrays, header["graph"])
+        s, g, header = load_store(stored)
         pc.use_threads(s, g, args.threads)
-        lv = g
-        while lv is not None and lv.second is not None:
-            if not hasattr(lv, "_second_start"):  # a store from before near hits (230d7a5): k points per leaf
-                used = lv._second_map[0]
-                lv._second_start = np.arange(len(used) + 1) * (lv.second.n // max(len(used), 1))
-            lv = lv.second
         out.update(header["info"])
         out["loaded"] = str(stored)
         # the solver's far-link terms: computed by the build's base solution, not stored (as a

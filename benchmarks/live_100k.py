@@ -77,14 +77,9 @@ def main(argv=None):
     preview = dataclasses.replace(PREVIEW, **{k: conv.get(fields[k], fields[k])(v) for k, v in kw.items()})
     cpu = time.process_time
     _, info = furnished_room(args.size)
-    arrays, header = pc.read(Path(args.cache) / pc.FILENAME)
-    s, g = pc.restore(arrays, header["graph"])
-    lv = g
-    while lv is not None and lv.second is not None:
-        if not hasattr(lv, "_second_start"):  # a store from before near hits (230d7a5): k points per leaf
-            used = lv._second_map[0]
-            lv._second_start = np.arange(len(used) + 1) * (lv.second.n // max(len(used), 1))
-        lv = lv.second
+    from bench_gather_events import load_store
+
+    s, g, _ = load_store(Path(args.cache) / pc.FILENAME)
     s.links.extended(s.h)  # the solver's far-link terms (a loaded build's first event pays them)
     opts = solve_options("DRAFT", True) if args.options == "live" else dict(
         response_tol=RESPONSE_TOL, response_float32=True
