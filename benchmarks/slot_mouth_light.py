@@ -15,11 +15,10 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tests"))
 
-from test_gather_texels import _path_traced  # noqa: E402
+from test_gather_texels import _path_traced, _slot_under_a_lamp  # noqa: E402
 from hr_addon.core.gather import FinalGather  # noqa: E402
 from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
 from hr_addon.core.refine import RefineParams  # noqa: E402
-from hr_testing.furnished import Builder, box, grid_quad  # noqa: E402
 
 opt = dict(paths=20000, kw="dict()", lamp=0.3)
 opt.update(a.split("=", 1) for a in sys.argv[1:])
@@ -27,14 +26,7 @@ W = 0.002
 
 
 def scene(lx):
-    b = Builder()
-    v, f = box([-1.0, -1, -0.5], [1, 1, 1.5], 2)
-    b.add("room", v, [q[:, ::-1] for q in f], 0.5)
-    b.add("a", *box([-0.03 - W / 2, -0.05, 0], [-W / 2, 0.05, 0.2]), 0.5)
-    b.add("b", *box([W / 2, -0.05, 0], [0.03 + W / 2, 0.05, 0.2]), 0.5)
-    v, q = grid_quad(np.array([lx - 0.2, -0.2, 0.9]), [0, 0.4, 0], [0.4, 0, 0], 1, 1)
-    b.add("lamp", v, [q], 0.0, (20.0, 20.0, 20.0))
-    return b.build()
+    return _slot_under_a_lamp(lx, W)
 
 
 m = scene(float(opt["lamp"]))
