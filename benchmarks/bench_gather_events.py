@@ -78,6 +78,7 @@ def main(argv=None):
     ap.add_argument("--json", default=None)
     ap.add_argument("--threads", type=int, default=1, help="core.parallel's threads (0: every core)")
     ap.add_argument("--cache", default=None, help="folder of a stored build (see the module doc)")
+    ap.add_argument("--dyn", default="dict()", help="DynamicRadiosity option overrides (a Python dict)")
     ap.add_argument("--texels", type=int, default=0, help="texture output at RES x RES (module doc)")
     args = ap.parse_args(argv)
 
@@ -106,6 +107,7 @@ def main(argv=None):
         dkw.pop("response_steps", None)
     if args.f32:
         dkw["response_float32"] = True
+    dkw.update(eval(args.dyn))
     out = dict(size=args.size, quality=q, transport=args.transport, params=dataclasses.asdict(params))
     out["threads"], out["load_average"] = args.threads, os.getloadavg()[0]
     out["dyn_options"] = dict(dkw)

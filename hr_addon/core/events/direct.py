@@ -57,9 +57,10 @@ class FirstBounce:
     nodes the HR build split); occluders: planes.Occluders of the system's patches; min_area: the
     smallest receiver; bf_rel, node_budget as in DynamicRadiosity."""
 
-    def __init__(self, system, nodes, occluders, min_area, bf_rel, node_budget):
+    def __init__(self, system, nodes, occluders, min_area, bf_rel, node_budget, points=16):
         self.system, self.nodes, self.occluders = system, nodes, occluders
         self.min_area, self.bf_rel, self.node_budget = min_area, bf_rel, node_budget
+        self.points = int(points)  # points on the shape for the visibility ratio (at most)
 
     def direct(self, rec, n_start):
         """AUTO: the shape's first bounce, per unit emission, at receiver nodes (3, n, not pushed) and
@@ -80,13 +81,14 @@ class FirstBounce:
         if len(corners) == 0:
             return np.zeros((3, h.n)), np.zeros(0, np.int64)
         # points on the shape for the visibility ratio: 2 x 2 Gauss points of the pieces, thinned to
-        # at most 16 by systematic sampling along their cumulative area (deterministic)
+        # at most self.points by systematic sampling along their cumulative area (deterministic)
         sp, sw = ff.quadrature(corners, nv, 2)
         sp, sw = sp.reshape(-1, 3), (sw * area[:, None]).ravel()
-        if len(sp) > 16:
+        P = self.points
+        if len(sp) > P:
             cum = np.cumsum(sw)
-            pick = np.minimum(np.searchsorted(cum, (np.arange(16) + 0.5) / 16 * cum[-1]), len(sp) - 1)
-            sp, sw = sp[pick], np.full(16, cum[-1] / 16)
+            pick = np.minimum(np.searchsorted(cum, (np.arange(P) + 0.5) / P * cum[-1]), len(sp) - 1)
+            sp, sw = sp[pick], np.full(P, cum[-1] / P)
         eps = self.system.refiner.eps
         rings = None
         fc, fnv = corners, nv  # the region whose form factor the receivers take
