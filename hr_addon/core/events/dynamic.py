@@ -28,7 +28,8 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # applications of 1e-4 change the 20k room's gathered output by at most 0.026% per object, 1.5e-5
 # of the brightest value per corner; 5 steps 0.08% (docs/gather.md, "A fixed response solve").
 # Draft takes 4: on the furnished 100k room the gathered output moves from 6 steps' by 0.05% per
-# object (median), 0.75% at worst, bias -0.04% (3 steps: 0.26%, 2.3%, -0.21%); docs/gather.md,
+# object (median), 0.75% at worst, bias -0.04% (3 steps: 0.26%, 2.3%, -0.21%); with the solver's
+# free residual step after them (solver._gmres_steps) 0.03%, 0.37%, -0.02%; docs/gather.md,
 # "Light events at 100k: fewer steps, fewer first-bounce rays". bounce_points: AUTO's first
 # bounce (the response's emission) with 4 visibility rays per receiver point instead of 16: the
 # gathered output moves by 0.02% per object (median), 0.2% at worst (same section).
