@@ -8,6 +8,7 @@ import pytest
 from hr_testing import scenes
 from hr_testing import shapes as S
 from hr_addon.core.events import DynamicRadiosity, LightShape
+from hr_addon.core.events.direct import FirstBounce
 from hr_addon.core.gather import LoopGather
 from hr_addon.core.gather.direct import DirectLight
 from hr_addon.core.planes import ClearShafts
@@ -35,6 +36,7 @@ def _check(system, frames, method, monkeypatch):
     """Outputs with the cull and with every shaft called blocked (all rays traced): bitwise equal.
     Returns the samples the cull tested and found clear."""
     monkeypatch.setattr(DirectLight, "CULL_MIN_RAYS", 1)  # the cull at these few shadow rays too
+    monkeypatch.setattr(FirstBounce, "CULL_MIN_POINTS", 1)  # and in AUTO's first bounce
     g = LoopGather(
         DynamicRadiosity(system.copy(), method=method), rays=32, shadow_rays=8, levels=2, iterations=2
     )

@@ -537,7 +537,8 @@ def test_outline_clipped_by_the_horizon_equals_its_pieces():
 def test_loose_transport_keeps_the_gathered_output(method):
     """With the final gather on, the transport is built and solved loosely (RefineParams.for_gather:
     coarser links, no push corrections; DynamicRadiosity.gather_options: responses 4 GMRES steps
-    from zero and a residual step, in float32; AUTO's first bounce with 4 visibility points): the gathered output of a furnished room with a window, per object, within 2% of the
+    from zero and a residual step, in float32; AUTO's first bounce with 4 visibility points): the
+    gathered output of a furnished room with a window, per object, within 2% of the
     strict transport's (draft preset, 1e-7) and within 0.5% in the mean over objects (measured
     on the 20k room: median 0.1%, 99% of objects within 1%, docs/gather.md)."""
     from hr_testing.furnished import furnished_room
