@@ -548,11 +548,13 @@ class FinalGather(DirectLight):
         T_a = (D_a + rho_b F D_b) / (1 - rho_a rho_b F^2). What that local sum misses (the walls
         nearer the mouth carry light deeper) is the transfer's share of the outside's direct
         light less the same local sum for an even outside (>= 0), driven by the outside's
-        radiance as the direct light at q and at its mirrored point read it. The gathered
-        (indirect) light keeps the transfer's gain. fm: the mouths' view factor (an even
-        outside's first bounce) at x0. Per emitter as the other direct light: _slot holds a copy
-        of this gather on the points x0 + h n, q, q + h n (their direct light only) and the mix's
-        per-channel weights, over the gain that scaled() applies to the sum."""
+        radiance as the direct light read at the mouth's point (slot_drive="mouth": mid-gap on
+        the mouth, facing out, shared along the mouth by steps, _mouth_points) or at q and at its
+        mirrored point ("gather"). The gathered (indirect) light keeps the transfer's gain. fm:
+        the mouths' view factor (an even outside's first bounce) at x0. Per emitter as the other
+        direct light: _slot holds a copy of this gather on the points x0 + h n and the mouth's
+        points (or q, q + h n) (their direct light only) and the mix's per-channel weights, over
+        the gain that scaled() applies to the sum."""
         pt = self.system.patches
         rho = self.rho[d]
         rb = con._other_wall(mouth, pt.reflectance)
