@@ -339,9 +339,11 @@ for name, kw in VARIANTS.items():
                     if m.sum() < 5:
                         continue
                     v = (float(full[m].sum() / REF[m, 3].sum()), float(res[0][m].sum() / max(REF[m, 0].sum(), 1e-30)))
-                    info["slot_profile"][f"{lab} {a}-{b} {rl}"] = (int(m.sum()), *v)
+                    # the band's share of the books' light and its deficit (points of it)
+                    sh, dp = 100 * REF[m, 3].sum() / TOT, 100 * (full[m].sum() - REF[m, 3].sum()) / TOT
+                    info["slot_profile"][f"{lab} {a}-{b} {rl}"] = (int(m.sum()), *v, float(sh), float(dp))
                     print(f"  slot, {lab}, {a}-{b:g} gap widths deep, {rl}: {m.sum()} texels, "
-                          f"all {v[0]:.3f}, direct {v[1]:.3f}")
+                          f"all {v[0]:.3f}, direct {v[1]:.3f}, share {sh:.2f}%, deficit {dp:+.3f} pts")
         # the slot samples by the mouth they gather at (where the sample was moved: within 3 mm of
         # the book's top, its front or its back, as its texel's first sample has it)
         box = BC.book_boxes(rs)

@@ -742,9 +742,10 @@ def test_slot_lit_at_a_slant_by_a_lamp_against_path_tracing(lamp_x):
 
 def test_slot_facing_gives_a_sample_the_same_light_gathered_alone_or_with_others():
     """The slot samples' extra direct light (slot_facing: at the mirrored points on the facing
-    wall and at the gather point's) is keyed by each sample's own points, so a sample's light
-    does not depend on what else is gathered with it: box a's slot side gathered alone and with
-    samples on the floor and on b's slot side, bit for bit."""
+    wall and at the mouth's points, shared by the samples of a step along the mouth) is keyed by
+    each sample's own points and its mouth's geometry, so a sample's light does not depend on
+    what else is gathered with it: box a's slot side gathered alone and with samples on the
+    floor and on b's slot side, bit for bit."""
     m = _slot_under_a_lamp(-0.3)
     s = RadiositySystem(m, RefineParams.preset("draft"))
     pt = s.patches
@@ -762,6 +763,34 @@ def test_slot_facing_gives_a_sample_the_same_light_gathered_alone_or_with_others
     both = FinalGather(s, np.vstack([B, A]), np.vstack([nB, nA]), [sb] * 4 + pf + [sa] * 4, **kw)
     assert alone._slot is not None and len(both._slot["rows"]) == 8
     np.testing.assert_array_equal(alone.evaluate(s, "incident"), both.evaluate(s, "incident")[5:])
+
+
+def test_slot_mouth_points_lie_mid_gap_on_the_mouth_shared_by_step():
+    """slot_drive="mouth": the remainder term reads the direct light at a point on the nearest
+    mouth, mid-gap, facing out of the slot (box a's top edge: x = 0, z = 0.2, +z), one per step
+    of SLOT_MOUTH_STEP gap widths along the mouth: samples at one place along the top edge share
+    it whatever their depth, a sample 2 cm along gets another; "gather" reads q and q + h n."""
+    from hr_addon.core.gather import final as F
+
+    m = _slot_under_a_lamp(0.3)
+    s = RadiositySystem(m, RefineParams.preset("draft"))
+    pt = s.patches
+    names = np.array(pt.object_names)[pt.object_id]
+    sa = np.flatnonzero((names == "a") & (pt.normal[:, 0] > 0.5))[0]
+    y, depth = [0.011, 0.011, 0.011, 0.031], np.array([3, 6, 12, 3])  # nearest mouth: the top edge
+    P = np.column_stack([np.full(4, -0.001), y, 0.2 - 0.002 * depth])
+    nrm, patch = np.tile([1.0, 0, 0], (4, 1)), np.full(4, sa)
+    g = FinalGather(s, P, nrm, patch, rays=16, shadow_rays=4)
+    S, f = g._slot, g._slot["f"]
+    nl = int(S["near"].sum())
+    assert nl == 4 and f.n == nl + 2 and list(S["m_at"]) == [nl, nl, nl, nl + 1]
+    mp = f.points[nl:]
+    np.testing.assert_allclose(mp[:, [0, 2]], [[0.0, 0.2]] * 2, atol=1e-9)
+    np.testing.assert_allclose(f.normals[nl:], [[0, 0, 1.0]] * 2, atol=1e-12)
+    step = F.SLOT_MOUTH_STEP * 0.002
+    assert (np.abs(mp[:, 1] - [0.011, 0.031]) <= step / 2 + 1e-9).all()
+    old = FinalGather(s, P, nrm, patch, rays=16, shadow_rays=4, slot_drive="gather")
+    assert "m" not in old._slot and old._slot["f"].n == 3 * 4
 
 
 def test_slot_facing_alike_by_response_and_by_evaluate():

@@ -30,6 +30,15 @@ SLOT_FACING = True
 # slot_facing: the depths (gap widths) over which the walls' local exchange fades out (inf: it
 # counts everywhere)
 SLOT_LOCAL = (np.inf, np.inf)
+# slot_facing: what drives the remainder term (the light the walls nearer the mouth carry deeper):
+# "mouth", the direct light crossing the mouth (a point at the mouth, mid-gap, facing out: the flux
+# entering); "gather", the direct light at the gather point and its mirror over their view of the
+# mouth (docs/gather.md, "The slots' remainder driven by the mouth")
+SLOT_DRIVE = "mouth"
+# slot_drive="mouth": the mouth's points lie at the middles of steps of about SLOT_MOUTH_STEP gap
+# widths along each mouth, shared by the samples whose perpendicular meets the mouth in that step
+# (0: each sample's own foot)
+SLOT_MOUTH_STEP = 8.0
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
@@ -199,6 +208,7 @@ class FinalGather(DirectLight):
         second_shadow_rays=None,
         slot_facing=None,
         slot_local=None,
+        slot_drive=None,
         # near hits (docs/gather.md "Near hits"; 0: off): with the edge texels the furnished
         # share within 5% 75 -> 80%
         near_points=4,
@@ -279,6 +289,7 @@ class FinalGather(DirectLight):
         self._slot = None  # slot samples' direct light at their own point and the facing wall's
         self.slot_facing = SLOT_FACING if slot_facing is None else bool(slot_facing)
         self.slot_local = slot_local  # (from, to) gap widths: the local sum fades out (None: SLOT_LOCAL)
+        self.slot_drive = SLOT_DRIVE if slot_drive is None else slot_drive
         if covered_samples == "gather":  # diagnostic: gather at covered samples too (contacts ignored there)
             self.dark[:] = False
         elif open_edge > 0 and h.contacts is not None and self.dark.any():
@@ -524,9 +535,9 @@ class FinalGather(DirectLight):
         if self.slot_facing:
             # the mouths' view factor (the first bounce of an even outside, every mouth)
             fm = transfer(np.zeros((len(d), 3)), np.zeros_like(pt.reflectance))
-            self._slot_facing(con, d, x0, q, x / hg, xg / hg, hg, mouth, E, fm)
+            self._slot_facing(con, d, x0, q, x / hg, xg / hg, hg, mouth, E, fm, foot)
 
-    def _slot_facing(self, con, d, x0, q, xi, xq, hg, mouth, E, fm):
+    def _slot_facing(self, con, d, x0, q, xi, xq, hg, mouth, E, fm, foot):
         """slot_facing (docs/gather.md, "The facing wall's direct light"): a slot sample's direct
         light is read at its own point x0 (xi gap widths behind its nearest mouth), not at its
         gather point q (xq) through the transfer, which spreads it as an outside even over the
@@ -537,11 +548,13 @@ class FinalGather(DirectLight):
         T_a = (D_a + rho_b F D_b) / (1 - rho_a rho_b F^2). What that local sum misses (the walls
         nearer the mouth carry light deeper) is the transfer's share of the outside's direct
         light less the same local sum for an even outside (>= 0), driven by the outside's
-        radiance as the direct light at q and at its mirrored point read it. The gathered
-        (indirect) light keeps the transfer's gain. fm: the mouths' view factor (an even
-        outside's first bounce) at x0. Per emitter as the other direct light: _slot holds a copy
-        of this gather on the points x0 + h n, q, q + h n (their direct light only) and the mix's
-        per-channel weights, over the gain that scaled() applies to the sum."""
+        radiance as the direct light read at the mouth's point (slot_drive="mouth": mid-gap on
+        the mouth, facing out, shared along the mouth by steps, _mouth_points) or at q and at its
+        mirrored point ("gather"). The gathered (indirect) light keeps the transfer's gain. fm:
+        the mouths' view factor (an even outside's first bounce) at x0. Per emitter as the other
+        direct light: _slot holds a copy of this gather on the points x0 + h n and the mouth's
+        points (or q, q + h n) (their direct light only) and the mix's per-channel weights, over
+        the gain that scaled() applies to the sum."""
         pt = self.system.patches
         rho = self.rho[d]
         rb = con._other_wall(mouth, pt.reflectance)
@@ -573,17 +586,33 @@ class FinalGather(DirectLight):
         # (an even outside's total stays the transfer)
         ext = np.maximum(E * (1.0 - t1 / tm), 1e-300)
         self.gain[d] *= np.where(own, np.clip((E - np.maximum(local, E * t1 / tm)) / ext, 1e-3, 1.0), 1.0)
-        # the extra direct-light points: x0 + h n where the local sum counts, q there (elsewhere
-        # the sample's own point moves to q, as without slot_facing), q + h n everywhere
         near = w[:, 0] > 0
         loc = np.flatnonzero(near)
-        self.points[d[~near]] = q[~near]
         nl, nf = len(loc), len(d)
         nrm = self.normals[d]
-        fp = np.concatenate([x0[loc] + hg[loc, None] * nrm[loc], q[loc], q + hg[:, None] * nrm])
+        mouth_drive = self.slot_drive == "mouth"
+        if mouth_drive:
+            # the extra direct-light points: x0 + h n where the local sum counts, and the mouth's
+            # point (mid-gap on the perpendicular from x0, facing out): its direct light is the
+            # flux entering the slot there, an even outside's times the part of its hemisphere
+            # that sees the outside (tm2: past the facing wall's extension at an own-edge mouth,
+            # 2D). Steadier than the gather point's (its shadow rays find the mouth in 15% of its
+            # hemisphere) and unlike it, blind to which wall a slanting lamp lights
+            e = np.where(own[:, 0], con.slot_mouths()["ext"][mouth] / hg, 0.0)
+            tm2 = 0.5 * (1.0 + 0.5 / np.sqrt(0.25 + e * e))
+            mp, mn, inv = self._mouth_points(con, d, x0, foot, hg, mouth)
+            fp = np.concatenate([x0[loc] + hg[loc, None] * nrm[loc], mp])
+            fn = np.concatenate([-nrm[loc], mn])
+            fpatch = np.concatenate([self.patch[d[loc]], self.patch[d[np.unique(inv, return_index=True)[1]]]])
+        else:
+            # the extra direct-light points: x0 + h n where the local sum counts, q there (elsewhere
+            # the sample's own point moves to q, as without slot_facing), q + h n everywhere
+            self.points[d[~near]] = q[~near]
+            fp = np.concatenate([x0[loc] + hg[loc, None] * nrm[loc], q[loc], q + hg[:, None] * nrm])
+            fn = np.concatenate([-nrm[loc], nrm[loc], -nrm])
+            fpatch = np.concatenate([self.patch[d[loc]], self.patch[d[loc]], self.patch[d]])
         f = copy.copy(self)
-        f.points, f.normals = fp, np.concatenate([-nrm[loc], nrm[loc], -nrm])
-        f.patch = np.concatenate([self.patch[d[loc]], self.patch[d[loc]], self.patch[d]])
+        f.points, f.normals, f.patch = fp, fn, fpatch
         f.keys = position_keys(fp, self.unit)
         m = len(fp)
         f.dark, f.n, f.E_static = np.zeros(m, bool), m, np.zeros((m, 3))
@@ -605,9 +634,42 @@ class FinalGather(DirectLight):
             near=near,
             own=a / g,
             facing=rb * F * a / g,
-            q=far / np.maximum(2 * t1 * g, tiny),
-            qf=far / np.maximum(2 * t2 * g, tiny),
         )
+        if mouth_drive:
+            self._slot.update(m=far / np.maximum(tm2[:, None] * g, tiny), m_at=nl + inv)
+        else:
+            self._slot.update(q=far / np.maximum(2 * t1 * g, tiny), qf=far / np.maximum(2 * t2 * g, tiny))
+
+    def _mouth_points(self, con, d, x0, foot, hg, mouth):
+        """The mouth's points of slot samples d (slot_drive="mouth"): mid-gap on the mouth, facing
+        out of the slot, at the middle of the step of about SLOT_MOUTH_STEP gap widths along the
+        mouth that the sample's foot lies in (its foot itself with step 0). Returns (points (k, 3),
+        normals (k, 3), inv (len(d),): each sample's point); a point is made from the mouth's own
+        geometry and its step only, so it is the same whichever other samples share it."""
+        M = con.slot_mouths()
+        gi = con.plane[self.patch[d]]
+        ng = con.n_g[gi]
+        side = np.where(np.einsum("ij,ij->i", self.normals[d], ng) >= 0, 1.0, -1.0)  # the gap's side
+        A, B = M["a"][mouth], M["b"][mouth]
+        L = np.linalg.norm(B - A, axis=1)
+        e = (B - A) / np.maximum(L, 1e-300)[:, None]
+        f2, x2 = con._to2d(gi, np.stack([foot, x0], 1)).transpose(1, 0, 2)
+        perp = np.column_stack([-e[:, 1], e[:, 0]])
+        out = np.where((np.einsum("ij,ij->i", f2 - x2, perp) >= 0)[:, None], perp, -perp)
+        if SLOT_MOUTH_STEP > 0:
+            nc = np.maximum(np.ceil(L / (SLOT_MOUTH_STEP * hg)), 1.0)
+            k = np.clip(np.floor(np.einsum("ij,ij->i", f2 - A, e) * nc / np.maximum(L, 1e-300)), 0, nc - 1)
+            m2 = A + ((k + 0.5) * L / nc)[:, None] * e
+            key = np.column_stack([mouth, k, out[:, 0] > 0, out[:, 1] > 0, side > 0]).astype(np.int64)
+        else:
+            m2 = f2
+            key = np.arange(len(d))[:, None]
+        _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        inv = inv.ravel()
+        m2, out, gi, hs, sd = m2[first], out[first], gi[first], hg[first], side[first]
+        to3 = lambda p2: p2[:, :1] * con.u_g[gi] + p2[:, 1:] * con.v_g[gi]  # noqa: E731
+        pts = con.o_g[gi] + to3(m2) + (0.5 * hs * sd)[:, None] * con.n_g[gi]
+        return pts, to3(out), inv
 
     def _facing_part(self, unit):
         """unit(g) at the slot's mirrored points (_slot_facing), or None."""
@@ -626,6 +688,9 @@ class FinalGather(DirectLight):
         Df = np.vstack([np.asarray(Df, np.float64), np.zeros((1, np.shape(Df)[1]))])
         nl, nf = int(S["near"].sum()), len(r)
         at = S["at"]
+        if "m" in S:  # driven by the mouth's point (slot_drive="mouth")
+            out[r] = out[r] * S["own"] + Df[at] * S["facing"] + Df[S["m_at"]] * S["m"]
+            return out
         Dq = np.where(S["near"][:, None], Df[np.where(at < nl, at + nl, len(Df) - 1)], out[r])
         out[r] = out[r] * S["own"] + Df[at] * S["facing"] + Dq * S["q"] + Df[2 * nl + np.arange(nf)] * S["qf"]
         return out
