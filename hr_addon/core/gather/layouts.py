@@ -96,14 +96,19 @@ PROBE_RAYS = 8  # _buried: rays per sample; buried when at least 3/4 of them hit
 
 
 def _buried(system, pts, patch):
-    """Samples inside another solid or under a face touching theirs: the contacts' covered test
-    (open_edge: a face a gap in front, a slot lit through its open edges, final.py, is not
-    covering) or most of PROBE_RAYS rays hitting back faces (inside a closed solid the contacts
-    do not see crossing the face: a lid's side sunk into a box)."""
+    """Samples inside another solid or under a face touching theirs: covered as final.py decides
+    it (the contacts' test, open edges of gaps OPEN_EDGE, a slot lit through its mouths not), or
+    most of PROBE_RAYS rays hitting back faces (inside a closed solid whose crossing the contacts
+    do not see: a lid's side sunk into a box)."""
     pt = system.patches
     out = np.zeros(len(pts), bool)
-    if system.h.contacts is not None:
-        out |= system.h.contacts.covered(pts, patch, open_edge=1e12)
+    con = system.h.contacts
+    if con is not None:
+        out = con.covered(pts, patch, open_edge=OPEN_EDGE)
+        c = np.flatnonzero(out)
+        if len(c):
+            con.close_mouths(system.backend.occluded)  # as final.py does (once per Contacts)
+            out[c[con.slots(pts[c], patch[c])[1] > 0]] = False
     nrm = pt.normal[patch]
     dirs = cosine_directions(nrm, np.arange(len(pts)), PROBE_RAYS, seed=7).reshape(-1, 3)
     org = np.repeat(pts + float(system.refiner.eps) * nrm, PROBE_RAYS, 0)

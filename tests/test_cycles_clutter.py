@@ -1,0 +1,95 @@
+"""Clutter sunk into clutter and a pillar of thin strips against Cycles (issue 19, "Tests"): two of
+the failure modes seen on an unseen furnished room (its clutter 40-45% dark at draft, a 64-segment
+pillar 16-19% dark at every quality, before the final gather).
+
+Scene (hr_testing/clutter.py): a closed 4 x 4 x 2.6 m room (1,462 triangles) lit by an emissive
+ceiling panel; a table whose top carries a box and a cylinder sunk 2-3 cm into it and into each
+other, and a lid sunk into both; a 64-segment pillar (strips 1.5 cm wide) 10 and 15 cm from the
+walls of a corner. Cycles bakes the reflected radiance (DIFFUSE, direct + indirect x colour) of the
+five objects' texels (2 cm, 15,400 texels), 64 spp, seeds 1 and 2, their mean the reference;
+ours: the bake's path (hr_testing.cycles_lights.bake_ours: BakeConfig, FE, the final gather on),
+at draft and medium,
+- texture output: the texel gather at the texels, every texel (buried ones read 0 on both sides);
+- vertex output (the default): the corner gather (LoopGather) interpolated over the loop triangles
+  as a render shows it, over the visible texels (centre outside every other solid,
+  clutter.buried): a buried part is never seen, and a corner value cannot be 0 under the table
+  and lit above it.
+
+Target: the issue's, every object's mean within 5%. Measured (one run, this machine): texture worst
+-1.9% draft / -1.1% medium (the sunk cylinder); vertex worst +3.4% / +3.1% (the pillar: two samples
+per 2.45 m strip). The reference's noise of an object mean (two seeds) at most 1.1% (the sunk
+cylinder, 140 visible texels), the others 0.2% or less. Before LoopGather moved buried corner
+samples to the visible part of their region (gather/layouts._uncover), vertex output read the
+table top -14%, the sunk box -26% and the lid -7% (its sides -30%) on their visible parts
+(benchmarks/clutter_vs_cycles.py, docs/accuracy.md)."""
+
+import os
+
+import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.bpy, pytest.mark.cycles, pytest.mark.shared_scene, pytest.mark.slow]
+
+pytest.importorskip("bpy")
+
+SPP = 64
+TEXEL = 0.02
+TOL = 0.05
+NOISE_MAX = 0.015  # the reference's noise of an object mean must stay well below the tolerance
+
+
+@pytest.fixture(scope="module")
+def clutter():
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from hr_testing import clutter as CL, cycles_lights, cycles_ref as C
+
+    mesh, info = CL.clutter_room()
+    scene = CL.blender_scene(mesh)
+    rs = C.prepare(scene, texel=TEXEL, only=CL.COMPARED)
+    refs = []
+    for seed in (1, 2):
+        vals, _, mask = C.bake(rs, SPP, seed=seed)
+        for n in rs.objects:
+            vals[n][~mask[n]] = np.nan  # the pillar's foot on the floor: not baked
+        refs.append(vals)
+    ours = {q: cycles_lights.bake_ours(rs, q, method="FE", vertex=True)[0] for q in ("DRAFT", "MEDIUM")}
+    visible = {}
+    for n in rs.objects:
+        at = rs.atlases[n]
+        cen = np.flatnonzero(at.s_centre)
+        visible[n] = np.zeros(at.n, bool)
+        visible[n][at.s_texel[cen]] = ~CL.buried(at.s_point[cen], n, info["solids"])
+    return rs, info, refs, ours, visible
+
+
+def test_the_clutter_is_sunk_and_the_pillar_stands_near_two_walls(clutter):
+    rs, info, refs, _, visible = clutter
+    assert sorted(rs.objects) == sorted(info["compared"])
+    assert info["pillar_gaps"] == pytest.approx((0.10, 0.15))
+    assert info["strip_width"] < 0.015
+    for n in ("sunk_box", "sunk_cylinder", "lid", "table_top"):
+        hidden = ~visible[n]
+        assert 0 < hidden.mean() < 0.7, n  # partly buried in another object
+        ref = (refs[0][n] + refs[1][n]) / 2
+        assert np.nanmean(ref[hidden]) < 0.02 * np.nanmean(ref[visible[n]]), n  # dark in Cycles too
+
+
+@pytest.mark.parametrize("quality", ["DRAFT", "MEDIUM"])
+@pytest.mark.parametrize("output", ["texture", "vertex"])
+def test_every_object_mean_within_5_percent_of_cycles(clutter, quality, output):
+    from hr_testing import cycles_lights, cycles_ref as C
+
+    rs, _, refs, ours, visible = clutter
+    key = "gather_refl" if output == "texture" else "gvertex_total"
+    errors, noise = {}, {}
+    for n in rs.objects:
+        mask = None if output == "texture" else visible[n]
+        ref = (refs[0][n] + refs[1][n]) / 2
+        m = C.metrics(ours[quality][n][key], ref, mask)
+        errors[n] = round(m["bias"], 4)
+        sel = slice(None) if mask is None else mask
+        noise[n] = cycles_lights._noise_of_mean([refs[0][n][sel], refs[1][n][sel]])
+    print(output, quality, errors, {n: round(v, 4) for n, v in noise.items()})
+    assert max(noise.values()) < NOISE_MAX, noise
+    bad = {n: e for n, e in errors.items() if not abs(e) <= TOL}
+    assert not bad, (output, quality, bad, errors)
