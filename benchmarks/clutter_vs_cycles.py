@@ -60,7 +60,8 @@ def main():
         flush=True,
     )
     noise = {n: cycles_lights._noise_of_mean([refs[0][n], refs[1][n]]) for n in rs.objects}
-    print("  reference noise of an object mean: " + ", ".join(f"{n} {100 * v:.2f}%" for n, v in noise.items()))
+    txt = ", ".join(f"{n} {100 * v:.2f}%" for n, v in noise.items())
+    print("  reference noise of an object mean: " + txt)
     dump = {"spp": args.spp, "texel": args.texel, "texels": texels, "cycles_cpu_s": cyc_cpu, "noise": noise}
     moves = layouts.UNCOVER
     for q in ("DRAFT", "MEDIUM"):
@@ -86,7 +87,8 @@ def main():
             f"{cost['texel_precompute_s']:.1f}, loop gather {cost['loop_precompute_s']:.1f}; unmoved run "
             f"{c1 - c0:.1f} s)"
         )
-        print(f"  {'object':14s} {'visible':>8s} {'texture':>8s} {'vertex':>8s} {'unmoved':>8s} {'leaves':>8s}")
+        head = ("object", "visible", "texture", "vertex", "unmoved", "leaves")
+        print(f"  {head[0]:14s} " + " ".join(f"{h:>8s}" for h in head[1:]))
         for n, r in rows.items():
             print(
                 f"  {n:14s} {100 * r['visible']:7.0f}% "
