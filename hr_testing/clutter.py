@@ -59,7 +59,7 @@ def clutter_room(grid=10, n=1):
     for i, (lx, ly) in enumerate([(0.06, 0.06), (1.14, 0.06), (0.06, 0.74), (1.14, 0.74)]):
         add_cylinder(f"table_leg{i}", [tx + lx, ty + ly, 0], 0.025, TOP - 0.04, 12, WOOD)
     # clutter sunk into the top and into each other
-    add_box("sunk_box", [1.30, 1.45, TOP - 0.02], [1.60, 1.75, TOP + 0.21], RED)
+    add_box("sunk_box", [1.26, 1.45, TOP - 0.02], [1.60, 1.75, TOP + 0.21], RED)
     add_cylinder("sunk_cylinder", [1.62, 1.60, TOP - 0.03], 0.08, 0.24, 24, BLUE)
     add_box("lid", [1.40, 1.50, TOP + 0.19], [1.72, 1.70, TOP + 0.26], CERAMIC)
     # the pillar near the north-east corner
