@@ -4,13 +4,13 @@ TEXEL, Cycles at SPP, two seeds (their mean the reference, their spread its nois
 path (cycles_lights.bake_ours, FE, final gather on) at draft and medium:
 
 - texture: the texel gather, every texel;
-- vertex: the corner gather (LoopGather) interpolated over the loop triangles, visible texels
-  (outside every other solid: clutter.buried);
+- vertex: the corner gather (LoopGather) interpolated over the loop triangles, fully visible
+  texels (no sub-sample inside another solid: clutter.visible_texels);
 - vertex_unmoved: the same with the corners' buried samples left where they are
   (gather/layouts.UNCOVER empty: the output before the samples were moved);
 - leaves: the hierarchy's leaves (reflected), every texel.
 
-    .venv/bin/python benchmarks/clutter_vs_cycles.py [--spp 256] [--texel 0.01]
+    .venv/bin/python benchmarks/clutter_vs_cycles.py [--spp 256] [--texel 0.02]
 
 Prints ours / Cycles - 1 per object and variant, the reference's noise, CPU seconds; writes
 benchmarks/out/clutter_vs_cycles.json.
@@ -31,7 +31,7 @@ from hr_testing import clutter as CL, cycles_lights, cycles_ref as C  # noqa: E4
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--spp", type=int, default=256)
-    ap.add_argument("--texel", type=float, default=0.01)
+    ap.add_argument("--texel", type=float, default=0.02)
     args = ap.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from hr_addon.core.gather import layouts
@@ -47,12 +47,7 @@ def main():
         refs.append(vals)
         cyc_cpu.append(dt["cpu"])
     ref = {n: (refs[0][n] + refs[1][n]) / 2 for n in rs.objects}
-    visible = {}
-    for n in rs.objects:
-        at = rs.atlases[n]
-        cen = np.flatnonzero(at.s_centre)
-        visible[n] = np.zeros(at.n, bool)
-        visible[n][at.s_texel[cen]] = ~CL.buried(at.s_point[cen], n, info["solids"])
+    visible = {n: CL.visible_texels(rs.atlases[n], n, info["solids"]) for n in rs.objects}
     texels = {n: rs.atlases[n].n for n in rs.objects}
     print(
         f"clutter room: {info['triangles']} triangles; texel {args.texel} m: {texels}; Cycles {args.spp} spp "

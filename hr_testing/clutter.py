@@ -94,6 +94,12 @@ def buried(points, name, solids, eps=1e-6):
     return out
 
 
+def visible_texels(atlas, name, solids):
+    """(N,) texels of a cycles_ref.Atlas of object `name` none of whose sub-samples is buried: the
+    same texels on both sides, whether a texel straddling an outline counts is no question."""
+    return np.bincount(atlas.s_texel, buried(atlas.s_point, name, solids), atlas.n) == 0
+
+
 def blender_scene(mesh):
     """A new empty Blender scene holding `mesh` (a MeshInput), one mesh object per object: a
     Diffuse BSDF of its reflectance, an Emission shader where it emits (as scripts/make_samples.py
