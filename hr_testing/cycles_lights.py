@@ -166,13 +166,15 @@ def daylight_part(part, info):
     bpy.context.view_layer.update()
 
 
-def bake_ours(rs, quality="DRAFT", threads=1):
+def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False):
     """Our bake of the prepared scene `rs` (cycles_ref.prepare) as the Blender bake makes it
     (BakeConfig at `quality` with the scene's other settings: hierarchy, solver_setup, solver
     options, the lights and the World read by collect_lights, the final gather's settings), the
     final gather evaluated at the atlas's texel centres. -> ({name: {leaf_refl, gather_refl, ...,
     direct_SUN, direct_SKY, ...: (N, 3) per texel}}, cost {seconds, ...}, {config, lights,
-    warnings}); direct_KIND: the reflected direct light of the lights of that kind."""
+    warnings}); direct_KIND: the reflected direct light of the lights of that kind. method: the
+    light method (None: the scene's). vertex: also the vertex output (gvertex_total: a LoopGather at
+    the corners, interpolated over the loop triangles, what a vertex bake shows)."""
     import bpy
 
     from hr_addon.blender.lights_in import collect_lights
@@ -184,7 +186,7 @@ def bake_ours(rs, quality="DRAFT", threads=1):
     vl = bpy.context.view_layer
     warnings = []
     lights = collect_lights(vl, vl.depsgraph, Light, warnings)
-    cfg = BakeConfig.resolve(rs.scene.hr, quality=quality, threads=threads)
+    cfg = BakeConfig.resolve(rs.scene.hr, quality=quality, threads=threads, method=method)
     params, min_area_rel, _ = solver_setup(rs.scene_in.mesh, cfg.params)
     t0 = time.process_time()
     system = RadiositySystem(rs.scene_in.mesh, params, threads=threads)
@@ -197,7 +199,7 @@ def bake_ours(rs, quality="DRAFT", threads=1):
     mine = C.Ours(rs, system, dyn)
     res = mine.evaluate({}, smooth=False)
     cache = {}
-    gres, cost = C.gather_results(rs, mine, dyn, vertex=False, cache=cache, threads=threads, **cfg.gather)
+    gres, cost = C.gather_results(rs, mine, dyn, vertex=vertex, cache=cache, threads=threads, **cfg.gather)
     # each light's direct light reflected at the texels (the gather's cached unit light x scale)
     tg = cache["texel"]
     direct = {}

@@ -352,9 +352,11 @@ class RefScene:
     )  # objects smaller than a texel (they still light the rest)
 
 
-def prepare(scene, texel_rel=1 / 100, k=3, texel=None):
+def prepare(scene, texel_rel=1 / 100, k=3, texel=None, only=None):
     """Atlases, images and reference materials for every geometry object of `scene` (must be the
-    context scene). Geometry read at the scene's start frame, as the bake does."""
+    context scene), or for the objects named in `only` (the others light them but are neither
+    baked nor compared: a test's Cycles time goes to the objects it checks). Geometry read at the
+    scene's start frame, as the bake does."""
     import bpy
     from hr_addon.blender.scene_in import collect_geometry, geometry_objects
     from hr_addon.blender.materials import read_material
@@ -375,30 +377,36 @@ def prepare(scene, texel_rel=1 / 100, k=3, texel=None):
     for obj in objs:
         if obj.name not in names:
             continue
-        if obj.modifiers:
-            raise RuntimeError(f"{obj.name}: modifiers are not supported by the comparison (apply them)")
-        try:
-            at = Atlas.build(obj, texel, k)
-        except NoTexels:
-            # lights the others but is not compared (no sub-texel sample falls on it)
+        img = None
+        if only is not None and obj.name not in only:
             names.remove(obj.name)
-            rs.not_compared.append(obj.name)
-            continue
-        rs.atlases[obj.name] = at
-        img = bpy.data.images.new(f"REF_{obj.name}", at.width, at.height, alpha=True, float_buffer=True)
-        img.colorspace_settings.name = "Non-Color"
-        rs.images[obj.name] = img
-        # one reference material per slot, single user, with the bake target node active
+        elif obj.modifiers:
+            raise RuntimeError(f"{obj.name}: modifiers are not supported by the comparison (apply them)")
+        else:
+            try:
+                at = Atlas.build(obj, texel, k)
+            except NoTexels:
+                # lights the others but is not compared (no sub-texel sample falls on it)
+                names.remove(obj.name)
+                rs.not_compared.append(obj.name)
+                continue
+            rs.atlases[obj.name] = at
+            img = bpy.data.images.new(f"REF_{obj.name}", at.width, at.height, alpha=True, float_buffer=True)
+            img.colorspace_settings.name = "Non-Color"
+            rs.images[obj.name] = img
+        # one reference material per slot, single user, with the bake target node active (objects
+        # not compared: the one-sided material alone)
         slots = obj.material_slots
         mats = [s.material for s in slots] or [None]
         new = []
         for i, m in enumerate(mats):
             s = read_material(m)
             rm = one_sided_material(f"REF_{obj.name}_{i}", s.reflectance, s.emission)
-            tex = rm.node_tree.nodes.new("ShaderNodeTexImage")
-            tex.image = img
-            rm.node_tree.nodes.active = tex
-            tex.select = True
+            if img is not None:
+                tex = rm.node_tree.nodes.new("ShaderNodeTexImage")
+                tex.image = img
+                rm.node_tree.nodes.active = tex
+                tex.select = True
             new.append(rm)
         if not slots:
             obj.data.materials.append(new[0])

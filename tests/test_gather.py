@@ -643,3 +643,56 @@ def test_csr_matvec_equals_rows_of_three():
     ref[ne] = np.add.reduceat(prod, indptr[:-1][ne], axis=0)
     assert np.array_equal(_csr_matvec(indptr, cols, w, V, chunk=1000), ref)
     assert np.array_equal(_csr_matvec(indptr, cols, w, V), ref)
+
+
+def test_corner_samples_buried_in_clutter_move_to_the_visible_part():
+    """The clutter room (hr_testing/clutter.py; against Cycles: tests/test_cycles_clutter.py): a
+    corner's gather sample covered by a box standing on the table top (contacts) or sunk inside a
+    box (the lid's sides, which the contacts do not see: a back-face probe) moves along the line
+    from its corner to its patch's centre to a point outside every solid (clutter.buried, from
+    the solids' own boxes and circles), so no corner of the table top's upper face or the lid's
+    sides reads (nearly) 0; with the samples left where they are (layouts.UNCOVER empty) some lie
+    inside a solid and their corners read 0 (the top: covered) or 0.6% of the face's brightest
+    (the lid: rays from inside the box)."""
+    from hr_addon.blender.settings import gather_params, refine_params, solve_options, solver_setup
+    from hr_addon.core.gather import layouts
+    from hr_testing import clutter as CL
+
+    mesh, info = CL.clutter_room()
+    params, min_area, _ = solver_setup(mesh, refine_params("DRAFT", final_gather=True))
+    dyn = DynamicRadiosity(
+        RadiositySystem(mesh, params), method="FE", min_area_rel=min_area, **solve_options("DRAFT", True)
+    )
+    dyn.apply({})
+    loop_obj = np.asarray(mesh.object_id)[np.repeat(np.arange(len(mesh.loop_start)), mesh.loop_total)]
+    v = mesh.verts[mesh.loop_verts]
+    s0 = np.asarray(mesh.loop_start)
+    poly_n = np.cross(v[s0 + 1] - v[s0], v[s0 + 2] - v[s0])
+    poly_n /= np.linalg.norm(poly_n, axis=1, keepdims=True)
+    ln = np.repeat(poly_n, mesh.loop_total, 0)
+    top = (loop_obj == mesh.object_names.index("table_top")) & (ln[:, 2] > 0.99)
+    lid_x = (loop_obj == mesh.object_names.index("lid")) & (ln[:, 0] < -0.99)
+    assert top.sum() == 4 and lid_x.sum() == 4 and np.allclose(v[lid_x, 0], 1.40)
+    keep = layouts.UNCOVER
+    out = {}
+    for moves in (keep, ()):
+        layouts.UNCOVER = moves
+        try:
+            lg = LoopGather(dyn, **gather_params("DRAFT"))
+        finally:
+            layouts.UNCOVER = keep
+        lo = lg.loop_radiance(dyn)
+        s = lg.loop_index
+        inside = {
+            n: CL.buried(lg.points[s[m]], n, info["solids"]) for n, m in (("table_top", top), ("lid", lid_x))
+        }
+        out[bool(moves)] = (lo, inside)
+    lo, inside = out[True]
+    assert not inside["table_top"].any() and not inside["lid"].any()
+    for m in (top, lid_x):  # the corners' grey values
+        g = lo[m].mean(1)
+        assert g.min() > 0.3 * g.max(), g
+    lo0, inside0 = out[False]
+    assert inside0["table_top"].any() and inside0["lid"].any()
+    g_top, g_lid = lo0[top].mean(1), lo0[lid_x].mean(1)
+    assert g_top.min() == 0 and g_lid.min() < 0.05 * g_lid.max(), (g_top, g_lid)

@@ -6,7 +6,7 @@ from ..geometry import isolated_objects
 from ..output import equal_key_pairs, in_domain, loop_welds
 from .bakepoints import has_area, texel_points
 from .final import OPEN_EDGE, FinalGather
-from .sampling import hash_uniform, position_keys
+from .sampling import cosine_directions, hash_uniform, position_keys
 from .texel_edges import texel_area
 
 SUB = 4  # sub-samples per side of a texel whose area straddles a coverage boundary
@@ -59,6 +59,7 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
         c = pt.corners[patch]
         centre = np.where((pt.nv[patch] == 4)[:, None], c.mean(1), c[:, :3].mean(1))
         pts = p[vl] + inset * (centre - p[vl])
+        _uncover(system, pts, p[vl], patch, inset)
         keep = ok & valid[lj]
         lpj = lpatch[lj[keep]]
         w = pt.area[lpj] / pt.nv[lpj]  # the corner's share of its patch
@@ -86,6 +87,56 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     flip = np.einsum("ij,ij->i", nrm, pt.normal[patch]) <= 0  # turned to the patch's side
     nrm[flip] = pt.normal[patch[flip]]
     return pts, nrm, patch, loop_index, None
+
+
+# _uncover: where a corner's sample may move, as fractions of the way from the corner to its
+# patch's centre, nearest the default inset (0.5) first
+UNCOVER = (0.25, 0.75, 0.125, 0.875, 0.0625, 0.95)
+PROBE_RAYS = 8  # _buried: rays per sample; buried when at least 3/4 of them hit a back face
+
+
+def _buried(system, pts, patch):
+    """Samples inside another solid or under a face touching theirs: covered as final.py decides
+    it (the contacts' test, open edges of gaps OPEN_EDGE, a slot lit through its mouths not), or
+    most of PROBE_RAYS rays hitting back faces (inside a closed solid whose crossing the contacts
+    do not see: a lid's side sunk into a box)."""
+    pt = system.patches
+    out = np.zeros(len(pts), bool)
+    con = system.h.contacts
+    if con is not None:
+        out = con.covered(pts, patch, open_edge=OPEN_EDGE)
+        c = np.flatnonzero(out)
+        if len(c):
+            con.close_mouths(system.backend.occluded)  # as final.py does (once per Contacts)
+            out[c[con.slots(pts[c], patch[c])[1] > 0]] = False
+    nrm = pt.normal[patch]
+    dirs = cosine_directions(nrm, np.arange(len(pts)), PROBE_RAYS, seed=7).reshape(-1, 3)
+    org = np.repeat(pts + float(system.refiner.eps) * nrm, PROBE_RAYS, 0)
+    size = float(np.sqrt(isolated_objects(system.mesh).main_area))
+    prim, _ = system.backend.first_hit(org, dirs, 4.0 * size)
+    hit = prim >= 0
+    back = np.zeros(len(prim), bool)
+    back[hit] = np.einsum("ij,ij->i", dirs[hit], pt.normal[pt.triangle_patch[prim[hit]]]) > 0
+    return out | (back.reshape(-1, PROBE_RAYS).sum(1) * 4 >= 3 * PROBE_RAYS)
+
+
+def _uncover(system, pts, corner, patch, inset):
+    """Move buried samples (_buried; in place) along the line from their corner to their patch's
+    centre (UNCOVER) to the first place not buried, so the corner takes the light of its region's
+    visible part. Before, they read 0 and so did their corner (a loop with no uncovered sample):
+    interpolated, the visible part went dark. The clutter room (tests/test_cycles_clutter.py): a
+    table top's corner sample inside the footprint of a box standing on it (the top's visible part
+    -14% against Cycles), a lid's side whose lower corners are sunk into a box (-30%)."""
+    if not len(pts):
+        return
+    todo = np.flatnonzero(_buried(system, pts, patch))
+    for f in UNCOVER:
+        if not len(todo):
+            return
+        q = corner[todo] + (f / inset) * (pts[todo] - corner[todo])
+        cov = _buried(system, q, patch[todo])
+        pts[todo[~cov]] = q[~cov]
+        todo = todo[cov]
 
 
 class LoopGather(FinalGather):
