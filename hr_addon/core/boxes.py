@@ -75,17 +75,32 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000
     block = max_refs if threads is None else PAIR_BLOCK
     cuts = np.searchsorted(ends, np.arange(block, int(ends[-1]) if len(ends) else 0, block))
 
+    cm = [np.ascontiguousarray(x.T) for x in (lo_a, hi_a, lo_b, hi_b)]  # per axis: 1-D gathers
+
     def pairs(s, e):
         c = cnt[s:e]
         i = np.repeat(ba[s:e], c)
         j = bb[np.repeat(first[s:e], c) + np.arange(len(i)) - np.repeat(np.cumsum(c) - c, c)]
-        ok = np.all((lo_b[j] <= hi_a[i]) & (hi_b[j] >= lo_a[i]), axis=1)
+        ok = _overlap(cm, i, j)
         return np.unique(i[ok] * len(lo_b) + j[ok])
 
     blocks = list(zip(np.r_[0, cuts], np.r_[cuts, len(ka)]))
     keys = [pairs(s, e) for s, e in blocks] if threads is None else batch_map(pairs, blocks, threads)
     key = np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
     return key // len(lo_b), key % len(lo_b)
+
+
+def _overlap(cm, i, j):
+    """Boxes i of a and j of b overlap (cm: lo_a, hi_a, lo_b, hi_b component major), axis by axis
+    on the pairs still in (a third of the gathers of (P, 3) rows)."""
+    lo_a, hi_a, lo_b, hi_b = cm
+    keep = np.arange(len(i))
+    for ax in range(lo_a.shape[0]):
+        ii, jj = i[keep], j[keep]
+        keep = keep[(lo_b[ax][jj] <= hi_a[ax][ii]) & (hi_b[ax][jj] >= lo_a[ax][ii])]
+    ok = np.zeros(len(i), bool)
+    ok[keep] = True
+    return ok
 
 
 def box_grid(lo, hi, group=None, max_refs=4_000_000):
@@ -122,7 +137,8 @@ def points_in_boxes(grid, p, group=None):
     cnt = np.searchsorted(keys, key, "right") - first
     i = np.repeat(idx, cnt)
     j = box[np.repeat(first, cnt) + np.arange(len(i)) - np.repeat(np.cumsum(cnt) - cnt, cnt)]
-    ok = np.all((lo[j] <= p[i]) & (hi[j] >= p[i]), axis=1)
+    pc = np.ascontiguousarray(p.T)
+    ok = _overlap((pc, pc, np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T)), i, j)
     return i[ok], j[ok]
 
 
