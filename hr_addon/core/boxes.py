@@ -121,24 +121,32 @@ def box_grid(lo, hi, group=None, max_refs=4_000_000):
     dims = (np.floor(ext / size) + 1).astype(np.int64)
     box, key = grid_cells(lo, hi, origin, size, dims, group)
     order = np.argsort(key, kind="stable")
-    return key[order], box[order], origin, size, dims, lo, hi
+    # the occupied cells once each (one search per query point, in a shorter array), their first
+    # entry; the boxes component major (the queries' overlap test runs axis by axis)
+    cells, first = np.unique(key[order], return_index=True)
+    cm = (np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T))
+    return cells, np.r_[first, len(key)], box[order], origin, size, dims, cm
 
 
 def points_in_boxes(grid, p, group=None):
     """Index pairs (i, j), sorted by i then j, of the points p (N, 3) lying in box j of grid
     (box_grid) whose group equals the point's: box_pairs(p, p, lo, hi, group, groups)'s pairs."""
-    keys, box, origin, size, dims, lo, hi = grid
+    cells, start, box, origin, size, dims, (lo, hi) = grid
     c = np.floor((p - origin) / size).astype(np.int64)
     idx = np.flatnonzero(np.all((c >= 0) & (c < dims), axis=1))
     key = np.zeros(len(idx), np.int64) if group is None else np.asarray(group, np.int64)[idx]
     for ax in range(3):
         key = key * dims[ax] + c[idx, ax]
-    first = np.searchsorted(keys, key, "left")
-    cnt = np.searchsorted(keys, key, "right") - first
+    at = np.searchsorted(cells, key)
+    found = at < len(cells)
+    found[found] = cells[at[found]] == key[found]
+    idx, at = idx[found], at[found]
+    first = start[at]
+    cnt = start[at + 1] - first
     i = np.repeat(idx, cnt)
     j = box[np.repeat(first, cnt) + np.arange(len(i)) - np.repeat(np.cumsum(cnt) - cnt, cnt)]
     pc = np.ascontiguousarray(p.T)
-    ok = _overlap((pc, pc, np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T)), i, j)
+    ok = _overlap((pc, pc, lo, hi), i, j)
     return i[ok], j[ok]
 
 
