@@ -459,9 +459,11 @@ def faces(x: Ends, y: Ends):
     return front, behind
 
 
-def estimate(x: Ends, y: Ends):
+def estimate(x: Ends, y: Ends, both=False):
     """Conservative-ish F[x -> y] estimate from x's cone, y's projected area and the distance:
-    S_y cos_x / (pi d^2 + S_y), with cosines widened by the cones and the ends' angular radii."""
+    S_y cos_x / (pi d^2 + S_y), with cosines widened by the cones and the ends' angular radii.
+    Returns (F, distance), or with both (F[x -> y], F[y -> x], distance): estimate(y, x)'s
+    cosines are this call's swapped (its d and u negated: the same values bit for bit)."""
     d = y.centre - x.centre
     dist = np.linalg.norm(d, axis=1)
     u = d / np.maximum(dist, 1e-300)[:, None]
@@ -472,7 +474,11 @@ def estimate(x: Ends, y: Ends):
     cos_x = np.cos(np.clip(ax - x.theta - spread_y, 0, np.pi / 2))
     cos_y = np.cos(np.clip(ay - y.theta - spread_x, 0, np.pi / 2))
     s_y = y.area * cos_y
-    return np.clip(s_y * cos_x / (np.pi * dist**2 + s_y), 0, 1), dist
+    f = np.clip(s_y * cos_x / (np.pi * dist**2 + s_y), 0, 1)
+    if not both:
+        return f, dist
+    s_x = x.area * cos_x
+    return f, np.clip(s_x * cos_y / (np.pi * dist**2 + s_x), 0, 1), dist
 
 
 def sample_points(tree: ClusterTree, h, ids, eps, table=None):

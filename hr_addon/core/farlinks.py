@@ -348,8 +348,7 @@ def _classify(refiner, tree, a, b, table=None):
     ea, eb = Ends(tree, h, a, table), Ends(tree, h, b, table)
     fa, ba = faces(ea, eb)
     fb, bb = faces(eb, ea)
-    f_ab, dist = estimate(ea, eb)
-    f_ba, _ = estimate(eb, ea)
+    f_ab, f_ba, dist = estimate(ea, eb, both=True)
     fmax = np.maximum(f_ab, f_ba)
     drop = ba | bb | (fmax <= 0)
     # A cluster end whose members do not all face the other end is "partial": its kernel is
