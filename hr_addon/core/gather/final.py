@@ -323,6 +323,7 @@ class FinalGather(DirectLight):
             batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
         )
         del self._trace
+        self._near_x = None  # the batches' table (28 MB at 100k): not held while lower levels run
         if reuse is not None:
             self._reuse_rows(*reuse)
         if near_layout is not None:
