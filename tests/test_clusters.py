@@ -352,3 +352,27 @@ def test_build_reports_progress_and_cancels():
     with pytest.raises(Cancelled):
         RadiositySystem(clutter_room(n=6), DRAFT, progress=cancel)
     assert len(calls) == 2
+
+
+def test_end_table_and_both_directions_give_the_ends_and_estimates_bit_for_bit(clutter):
+    """link_clusters reads its ends from an EndTable (every cluster and node once) and takes the
+    oracle's two directions from one estimate(both=True): the same values as Ends built per call
+    and two estimate() calls, for clusters and patch nodes, nodes added after the table included."""
+    t, h = clutter.links.far.tree, clutter.copy().h  # its own hierarchy: nodes are added below
+    table = C.EndTable(t, h, 1e-6)
+    h.subdivide(np.flatnonzero(h.child0 < 0)[:5])  # nodes the table has not seen yet
+    table.update()
+    ids = np.r_[C.encode(np.arange(t.C)), np.arange(h.n)]
+    rng = np.random.default_rng(3)
+    a, b = ids[rng.integers(0, len(ids), 4000)], ids[rng.integers(0, len(ids), 4000)]
+    ea, eb = C.Ends(t, h, a), C.Ends(t, h, b)
+    fast = C.Ends(t, h, a, table)
+    for k in C.EndTable.FIELDS[:9]:
+        assert np.array_equal(getattr(ea, k), getattr(fast, k)), k
+    for got, want in zip(C.sample_points(t, h, a, 1e-6, table), C.sample_points(t, h, a, 1e-6)):
+        assert np.array_equal(got, want)
+    assert np.array_equal(C.sample_normals(t, h, b, table), C.sample_normals(t, h, b))
+    f_ab, f_ba, dist = C.estimate(ea, eb, both=True)
+    assert np.array_equal(f_ab, C.estimate(ea, eb)[0]) and np.array_equal(dist, C.estimate(ea, eb)[1])
+    assert np.array_equal(f_ba, C.estimate(eb, ea)[0])
+    assert (f_ab > 0).any() and (f_ab != f_ba).any()  # not a trivial case

@@ -75,17 +75,32 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000
     block = max_refs if threads is None else PAIR_BLOCK
     cuts = np.searchsorted(ends, np.arange(block, int(ends[-1]) if len(ends) else 0, block))
 
+    cm = [np.ascontiguousarray(x.T) for x in (lo_a, hi_a, lo_b, hi_b)]  # per axis: 1-D gathers
+
     def pairs(s, e):
         c = cnt[s:e]
         i = np.repeat(ba[s:e], c)
         j = bb[np.repeat(first[s:e], c) + np.arange(len(i)) - np.repeat(np.cumsum(c) - c, c)]
-        ok = np.all((lo_b[j] <= hi_a[i]) & (hi_b[j] >= lo_a[i]), axis=1)
+        ok = _overlap(cm, i, j)
         return np.unique(i[ok] * len(lo_b) + j[ok])
 
     blocks = list(zip(np.r_[0, cuts], np.r_[cuts, len(ka)]))
     keys = [pairs(s, e) for s, e in blocks] if threads is None else batch_map(pairs, blocks, threads)
     key = np.unique(np.concatenate(keys)) if keys else np.zeros(0, np.int64)
     return key // len(lo_b), key % len(lo_b)
+
+
+def _overlap(cm, i, j):
+    """Boxes i of a and j of b overlap (cm: lo_a, hi_a, lo_b, hi_b component major), axis by axis
+    on the pairs still in (a third of the gathers of (P, 3) rows)."""
+    lo_a, hi_a, lo_b, hi_b = cm
+    keep = np.arange(len(i))
+    for ax in range(lo_a.shape[0]):
+        ii, jj = i[keep], j[keep]
+        keep = keep[(lo_b[ax][jj] <= hi_a[ax][ii]) & (hi_b[ax][jj] >= lo_a[ax][ii])]
+    ok = np.zeros(len(i), bool)
+    ok[keep] = True
+    return ok
 
 
 def box_grid(lo, hi, group=None, max_refs=4_000_000):
@@ -106,23 +121,32 @@ def box_grid(lo, hi, group=None, max_refs=4_000_000):
     dims = (np.floor(ext / size) + 1).astype(np.int64)
     box, key = grid_cells(lo, hi, origin, size, dims, group)
     order = np.argsort(key, kind="stable")
-    return key[order], box[order], origin, size, dims, lo, hi
+    # the occupied cells once each (one search per query point, in a shorter array), their first
+    # entry; the boxes component major (the queries' overlap test runs axis by axis)
+    cells, first = np.unique(key[order], return_index=True)
+    cm = (np.ascontiguousarray(lo.T), np.ascontiguousarray(hi.T))
+    return cells, np.r_[first, len(key)], box[order], origin, size, dims, cm
 
 
 def points_in_boxes(grid, p, group=None):
     """Index pairs (i, j), sorted by i then j, of the points p (N, 3) lying in box j of grid
     (box_grid) whose group equals the point's: box_pairs(p, p, lo, hi, group, groups)'s pairs."""
-    keys, box, origin, size, dims, lo, hi = grid
+    cells, start, box, origin, size, dims, (lo, hi) = grid
     c = np.floor((p - origin) / size).astype(np.int64)
     idx = np.flatnonzero(np.all((c >= 0) & (c < dims), axis=1))
     key = np.zeros(len(idx), np.int64) if group is None else np.asarray(group, np.int64)[idx]
     for ax in range(3):
         key = key * dims[ax] + c[idx, ax]
-    first = np.searchsorted(keys, key, "left")
-    cnt = np.searchsorted(keys, key, "right") - first
+    at = np.searchsorted(cells, key)
+    found = at < len(cells)
+    found[found] = cells[at[found]] == key[found]
+    idx, at = idx[found], at[found]
+    first = start[at]
+    cnt = start[at + 1] - first
     i = np.repeat(idx, cnt)
     j = box[np.repeat(first, cnt) + np.arange(len(i)) - np.repeat(np.cumsum(cnt) - cnt, cnt)]
-    ok = np.all((lo[j] <= p[i]) & (hi[j] >= p[i]), axis=1)
+    pc = np.ascontiguousarray(p.T)
+    ok = _overlap((pc, pc, lo, hi), i, j)
     return i[ok], j[ok]
 
 

@@ -367,15 +367,61 @@ def sh9(d):
 
 
 # -- ends of links: patch nodes (>= 0) and clusters (< 0) in one vectorised view -----------------------
-class Ends:
-    """Geometry of link ends given by shared ids, for the oracle and the transfer weights."""
+class EndTable:
+    """What Ends, sample_points and sample_normals give for every cluster and every patch node,
+    computed once per node: link_clusters asks for the same ends over and over (a third of its
+    oracle's time went to building them). Rows: clusters 0..C-1, then patch node i at C + i;
+    update() adds the nodes subdivided since (call it between batches, not on threads). The
+    same expressions row by row, so the same values bit for bit. Valid while node ids hold (one
+    linking pass: Hierarchy.compact renumbers them)."""
 
-    def __init__(self, tree: ClusterTree, h, ids):
+    FIELDS = ("centre", "axis", "lo", "hi", "area", "radius", "cos_t", "sin_t", "theta", "pts", "w", "nrm")
+
+    def __init__(self, tree: ClusterTree, h, eps):
+        self.tree, self.h, self.eps, self.n = tree, h, eps, 0
+        t, C = tree, tree.C
+        cols = dict(centre=t.centre, axis=t.axis, lo=t.lo, hi=t.hi, area=t.area, radius=t.radius)
+        cols.update(cos_t=t.cos_t, sin_t=t.sin_t, theta=t.theta)
+        cols.update(pts=t.samples + eps * t.sample_n, w=np.full((C, 4), 0.25), nrm=t.sample_n)
+        self.cols = {k: np.asarray(v, float)[:C] for k, v in cols.items()}
+        self.update()
+
+    def update(self):
+        h, m, n = self.h, self.n, self.h.n
+        if n <= m:
+            return
+        ni = np.arange(m, n)
+        c = h.corners[ni]
+        pts, w = ff.quadrature(c, h.nv[ni], 2)
+        new = dict(centre=h.centre[ni], axis=h.normal[ni], lo=c.min(1), hi=c.max(1), area=h.area[ni])
+        new["radius"] = np.linalg.norm(c - h.centre[ni][:, None], axis=2).max(1)
+        new.update(cos_t=np.ones(len(ni)), sin_t=np.zeros(len(ni)), theta=np.zeros(len(ni)))
+        new.update(
+            pts=pts + self.eps * h.normal[ni][:, None], w=w, nrm=np.repeat(h.normal[ni][:, None], 4, 1)
+        )
+        self.cols = {k: np.concatenate([v, new[k]]) for k, v in self.cols.items()}
+        self.n = n
+
+    def rows(self, ids):
+        ids = np.asarray(ids, np.int64)
+        return np.where(ids < 0, -1 - ids, self.tree.C + ids)
+
+
+class Ends:
+    """Geometry of link ends given by shared ids, for the oracle and the transfer weights
+    (table: an EndTable holding them)."""
+
+    def __init__(self, tree: ClusterTree, h, ids, table=None):
         self.tree = tree
         ids = np.asarray(ids, np.int64)
         self.ids = ids
         cl = ids < 0
         self.cl = cl
+        if table is not None:
+            r = table.rows(ids)
+            for k in EndTable.FIELDS[:9]:
+                setattr(self, k, table.cols[k][r])
+            return
         n = len(ids)
         ci, ni = decode(ids[cl]), ids[~cl]
         self.centre = np.empty((n, 3))
@@ -413,9 +459,11 @@ def faces(x: Ends, y: Ends):
     return front, behind
 
 
-def estimate(x: Ends, y: Ends):
+def estimate(x: Ends, y: Ends, both=False):
     """Conservative-ish F[x -> y] estimate from x's cone, y's projected area and the distance:
-    S_y cos_x / (pi d^2 + S_y), with cosines widened by the cones and the ends' angular radii."""
+    S_y cos_x / (pi d^2 + S_y), with cosines widened by the cones and the ends' angular radii.
+    Returns (F, distance), or with both (F[x -> y], F[y -> x], distance): estimate(y, x)'s
+    cosines are this call's swapped (its d and u negated: the same values bit for bit)."""
     d = y.centre - x.centre
     dist = np.linalg.norm(d, axis=1)
     u = d / np.maximum(dist, 1e-300)[:, None]
@@ -426,14 +474,22 @@ def estimate(x: Ends, y: Ends):
     cos_x = np.cos(np.clip(ax - x.theta - spread_y, 0, np.pi / 2))
     cos_y = np.cos(np.clip(ay - y.theta - spread_x, 0, np.pi / 2))
     s_y = y.area * cos_y
-    return np.clip(s_y * cos_x / (np.pi * dist**2 + s_y), 0, 1), dist
+    f = np.clip(s_y * cos_x / (np.pi * dist**2 + s_y), 0, 1)
+    if not both:
+        return f, dist
+    s_x = x.area * cos_x
+    return f, np.clip(s_x * cos_y / (np.pi * dist**2 + s_x), 0, 1), dist
 
 
-def sample_points(tree: ClusterTree, h, ids, eps):
+def sample_points(tree: ClusterTree, h, ids, eps, table=None):
     """(N, 4, 3) points on link ends, pushed eps off their surfaces, and their weights (N, 4):
     a cluster's area-stratified members (equal weights), a patch node's 2 x 2 Gauss points (the
-    kernel is smooth over a node; Gauss points integrate it far better than cell centres)."""
+    kernel is smooth over a node; Gauss points integrate it far better than cell centres).
+    table: an EndTable made with this eps."""
     ids = np.asarray(ids, np.int64)
+    if table is not None:
+        r = table.rows(ids)
+        return table.cols["pts"][r], table.cols["w"][r]
     out, w = np.empty((len(ids), 4, 3)), np.full((len(ids), 4), 0.25)
     cl = ids < 0
     ci = decode(ids[cl])
@@ -444,9 +500,11 @@ def sample_points(tree: ClusterTree, h, ids, eps):
     return out, w
 
 
-def sample_normals(tree: ClusterTree, h, ids):
+def sample_normals(tree: ClusterTree, h, ids, table=None):
     """(N, 4, 3) normals at the sample points of link ends."""
     ids = np.asarray(ids, np.int64)
+    if table is not None:
+        return table.cols["nrm"][table.rows(ids)]
     out = np.empty((len(ids), 4, 3))
     cl = ids < 0
     out[cl] = tree.sample_n[decode(ids[cl])]

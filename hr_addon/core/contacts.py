@@ -314,17 +314,31 @@ class Contacts(SlotMouths):
         w = np.zeros(len(i))
         near = np.zeros(len(i), bool)  # in the open band of a gap (open_edge)
         step = max(1, budget // max(int(n_seg.max()), 1))
+        seg = getattr(self, "_seg_cm", None)
+        if seg is None:  # one assignment: threads may race to build it, never half
+            seg = self._seg_cm = tuple(
+                np.ascontiguousarray(x[:, k]) for x in (self.seg_a, self.seg_b) for k in (0, 1)
+            )
+        px, py = np.ascontiguousarray(p2[:, 0]), np.ascontiguousarray(p2[:, 1])
         for s in range(0, len(i), step):
             sl = slice(s, s + step)
             ns = n_seg[sl]
             pr, sg = csr_rows(self.chain_start, ch[sl])
-            a = self.seg_a[sg] - p2[i[sl]][pr]
-            b = self.seg_b[sg] - p2[i[sl]][pr]
-            ang = np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], np.einsum("ij,ij->i", a, b))
+            # per component over contiguous rows (the (P, 2) rows' gathers and einsum cost 2x); the
+            # same values bit for bit: einsum's dot adds the products to 0 (+ 0.0 turns -0 into +0,
+            # which arctan2 tells apart)
+            ip = i[sl][pr]
+            qx, qy = px[ip], py[ip]
+            ax, ay, bx, by = seg[0][sg] - qx, seg[1][sg] - qy, seg[2][sg] - qx, seg[3][sg] - qy
+            ang = np.arctan2(ax * by - ay * bx, (ax * bx + ay * by) + 0.0)
             w[sl] = np.bincount(pr, ang, len(ns)) / (2 * np.pi)
+            if open_edge <= 0:  # no band (below: open_edge x height x open, 0 or nan)
+                continue
             band = open_edge * self.seg_height[sg] * self.seg_open[sg]
             if not (band > 0).any():
                 continue
+            a = np.column_stack([ax, ay])
+            b = np.column_stack([bx, by])
             e = b - a
             t = np.clip(-np.einsum("ij,ij->i", a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
             d = np.linalg.norm(a + t[:, None] * e, axis=1)  # to the segment's nearest point

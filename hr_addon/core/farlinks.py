@@ -12,6 +12,7 @@ from .cluster import (
     SLOTS,
     ClusterTree,
     Ends,
+    EndTable,
     decode,
     encode,
     estimate,
@@ -248,6 +249,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     # "wholly visible" down made objects 3.9% brighter on average (121% at worst), dropping
     # "wholly occluded" pairs 9% darker (83%), and the extra tests cost more rays than they saved.
     pending = [(root, root)]
+    table = EndTable(tree, h, refiner.eps)
 
     def weight(a, b):
         aa, ab = _area(tree, h, a), _area(tree, h, b)
@@ -274,8 +276,11 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             a, b = a[~both], b[~both]
         if not len(a):
             continue
+        table.update()  # the nodes subdivided by the last round (here, not on the threads)
         parts = batch_map(
-            lambda i, j: _classify(refiner, tree, a[i:j], b[i:j]), ranges(len(a), PAIR_BATCH), refiner.threads
+            lambda i, j: _classify(refiner, tree, a[i:j], b[i:j], table),
+            ranges(len(a), PAIR_BATCH),
+            refiner.threads,
         )
         drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax = (np.concatenate(x) for x in zip(*parts))
         for sel in (ok, take):
@@ -303,10 +308,13 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         fa_, fb_, fv, fm, pa_, pb_, ff_ = (np.concatenate(x) for x in zip(*far))
         fs = np.ones(len(fv))
         todo = np.flatnonzero(np.isnan(fv))
+        table.update()
 
         def shadows(i, j):  # every batch writes its own links
             t = todo[i:j]
-            fv[t], fm[t], fs[t] = far_visibility(refiner, tree, fa_[t], fb_[t], ff_[t] < prm.shadow_feps)
+            fv[t], fm[t], fs[t] = far_visibility(
+                refiner, tree, fa_[t], fb_[t], ff_[t] < prm.shadow_feps, table
+            )
 
         batch_map(shadows, ranges(len(todo), PAIR_BATCH), refiner.threads)
         keep = fv > 0
@@ -331,17 +339,16 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     return links, p, q
 
 
-def _classify(refiner, tree, a, b):
+def _classify(refiner, tree, a, b, table=None):
     """link_clusters' oracle for the pairs (a, b): every pair on its own (no hierarchy edits), so
     batches of pairs run on threads. Boolean arrays drop, ok (a far link), take (a far link: the
     end to split cannot be split), split_a, split_b (split that end); vis, mask, pa, pb, fmax of
     the far links."""
     h, prm = refiner.h, refiner.params
-    ea, eb = Ends(tree, h, a), Ends(tree, h, b)
+    ea, eb = Ends(tree, h, a, table), Ends(tree, h, b, table)
     fa, ba = faces(ea, eb)
     fb, bb = faces(eb, ea)
-    f_ab, dist = estimate(ea, eb)
-    f_ba, _ = estimate(eb, ea)
+    f_ab, f_ba, dist = estimate(ea, eb, both=True)
     fmax = np.maximum(f_ab, f_ba)
     drop = ba | bb | (fmax <= 0)
     # A cluster end whose members do not all face the other end is "partial": its kernel is
@@ -361,14 +368,14 @@ def _classify(refiner, tree, a, b):
     cand = ~drop & facing & small
     var_a, var_b = np.zeros(len(a)), np.zeros(len(a))
     if cand.any():
-        var_a[cand], var_b[cand] = _variation(tree, h, a[cand], b[cand], refiner.eps)
+        var_a[cand], var_b[cand] = _variation(tree, h, a[cand], b[cand], refiner.eps, table)
     even = fmax * np.maximum(var_a, var_b) < prm.cluster_veps
     ok = ~drop & facing & small & even & (fmax < np.where(pa | pb, prm.partial_feps * prm.feps, prm.feps))
     vis, mask = np.full(len(a), np.nan), np.zeros(len(a), np.uint16)
     if prm.shadow_feps > 0:
         shadow = ok & (fmax > prm.shadow_feps)
         if shadow.any():
-            vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow])
+            vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow], table=table)
             ok &= ~(shadow & (vis > 0) & (vis < 1))
     # Which end to split, by the first test that failed. Facing (a node whose plane cuts the
     # other end, or two partial ends): the end whose cone, or angular radius seen from the
@@ -396,13 +403,13 @@ def _classify(refiner, tree, a, b):
     return drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax
 
 
-def _variation(tree, h, a, b, eps):
+def _variation(tree, h, a, b, eps, table=None):
     """(var_a, var_b): relative range, over each end's sample points, of the kernel cos cos / r^2
     summed over the other end's samples (cosines about the samples' own normals; no visibility)."""
-    (pa, wa), (pb, wb) = sample_points(tree, h, a, eps), sample_points(tree, h, b, eps)
+    (pa, wa), (pb, wb) = sample_points(tree, h, a, eps, table), sample_points(tree, h, b, eps, table)
     d = pb[:, None, :, :] - pa[:, :, None, :]
     r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
-    na, nb = sample_normals(tree, h, a), sample_normals(tree, h, b)
+    na, nb = sample_normals(tree, h, a, table), sample_normals(tree, h, b, table)
     k = (
         np.maximum(np.einsum("nijk,nik->nij", d, na), 0)
         * np.maximum(-np.einsum("nijk,njk->nij", d, nb), 0)
@@ -434,7 +441,7 @@ def _self_pairs(tree, c):
     return np.concatenate(out_a), np.concatenate(out_b)
 
 
-def far_visibility(refiner, tree, a, b, weak=None):
+def far_visibility(refiner, tree, a, b, weak=None, table=None):
     """(vis, mask, scale) of far links: the unoccluded fraction of the 4 x 4 segments between the
     ends' sample points and which of them are unoccluded (bit 4 i + j: sample i of a, j of b).
     Weak links (mask `weak`) trace only the 4 segments i -> 3 - i: their mask is full and
@@ -443,7 +450,7 @@ def far_visibility(refiner, tree, a, b, weak=None):
 
     t0 = time.perf_counter()
     h, eps = refiner.h, refiner.eps
-    pa, pb = sample_points(tree, h, a, eps)[0], sample_points(tree, h, b, eps)[0]
+    pa, pb = sample_points(tree, h, a, eps, table)[0], sample_points(tree, h, b, eps, table)[0]
     weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)
     vis, mask, scale = np.empty(len(a)), np.empty(len(a), np.uint16), np.ones(len(a))
     st = ~weak

@@ -17,7 +17,7 @@ _TRANSIENT = {
     "RadiositySystem": {"B": None, "report": None, "_op": None},
     "Hierarchy": {"_levels": None},
     "Links": {"_csr": None, "_ext": None},
-    "Contacts": {"_grid": None},
+    "Contacts": {"_grid": None, "_seg_cm": None},
     "FinalGather": {
         "_shape_cache": dict,
         "_responses": dict,
@@ -25,6 +25,7 @@ _TRANSIENT = {
         "_naive_key": None,
         "_naive_V": None,
         "_split": None,
+        "_near_x": None,
         "_loop_weights": None,
         "_loop_parts": dict,
     },

@@ -116,11 +116,21 @@ def _diameters(h, leaf):
     return np.sqrt(((c[:, :, None] - c[:, None]) ** 2).sum(-1).max((1, 2)))
 
 
-def _nearest_point(h, leaf, hit, k):
-    """(m,) the index of the Gauss point (ff.quadrature's k x k) of node leaf[i] nearest hit[i]."""
-    u, inv = np.unique(leaf, return_inverse=True)
-    x = ff.quadrature(h.corners[u], h.nv[u], k)[0]
-    return np.argmin(((x[inv] - hit[:, None]) ** 2).sum(-1), 1)
+def _near_points(h, n_hr, k):
+    """(3, n_hr, k^2) the Gauss points (ff.quadrature's k x k) of the first n_hr nodes, component
+    major: _nearest_point's table, built once per gather (per batch it cost a sort and a
+    quadrature of the leaves hit)."""
+    return np.ascontiguousarray(np.moveaxis(ff.quadrature(h.corners[:n_hr], h.nv[:n_hr], k)[0], 2, 0))
+
+
+def _nearest_point(x, leaf, hit):
+    """(m,) the index of the point of x (_near_points) of node leaf[i] nearest hit[i]: the squared
+    distance summed per component in the order of (d ** 2).sum(-1) (the same argmin bit for bit)."""
+    d2 = None
+    for c in range(3):
+        d = x[c][leaf] - hit[:, c, None]
+        d2 = d * d if d2 is None else d2 + d * d
+    return np.argmin(d2, 1)
 
 
 def _grid_read(h, leaf, hit, k):
@@ -324,6 +334,7 @@ class FinalGather(DirectLight):
             batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
         )
         del self._trace
+        self._near_x = None  # the batches' table (28 MB at 100k): not held while lower levels run
         if reuse is not None:
             self._reuse_rows(*reuse)
         if near_layout is not None:
@@ -789,7 +800,9 @@ class FinalGather(DirectLight):
                 er = np.concatenate([er[far], np.repeat(er[nr], 4)])
                 ew = np.concatenate([ew[far], pw.ravel()])
             else:
-                col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(h, leaf[nr], hit[lit][nr], k))
+                if getattr(self, "_near_x", None) is None:  # one assignment: threads may race, never half
+                    self._near_x = _near_points(h, self.n_hr, k)
+                col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(self._near_x, leaf[nr], hit[lit][nr]))
         span = self.n_hr * (1 + self.near_points**2)
         key = er.astype(np.int64) * span + col
         u, inv = np.unique(key, return_inverse=True)
