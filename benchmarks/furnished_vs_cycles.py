@@ -9,7 +9,9 @@ method="FE", gather=dict(rays=128, shadow_rays=32, vertex=True), transport="gath
 the bake's transport with the final gather on (RefineParams.for_gather + the fields given,
 DynamicRadiosity.gather_options) instead of the preset's. With `gather` the final gather
 (hr_addon.core.gather) is compared too: at texel centres (refl_gather) and at the mesh's corners
-(total_gvertex, against today's vertex output total_vertex), with its cost:
+(total_gvertex, against today's vertex output total_vertex), with its cost. The vertex rows come
+twice: over every texel and over the unburied ones (`_unburied`: no sub-sample inside another
+object's closed mesh, unburied_texels' winding test, not our contacts code), as a camera sees them:
 
     .venv/bin/python benchmarks/furnished_vs_cycles.py 'fg=dict(gather=dict(rays=128))'
 """
@@ -29,6 +31,68 @@ from hr_addon.core.events import DynamicRadiosity
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 
+
+def _object_triangles(mesh):
+    """{object name: (T, 3, 3) world triangles} of the scene's closed, outward-wound meshes (boxes,
+    cylinders, spheres); open ones (the room's walls and floor, the light panel) are left out: they
+    enclose nothing."""
+    out = {}
+    for oid, name in enumerate(mesh.object_names):
+        polys = np.flatnonzero(mesh.object_id == oid)
+        tris = []
+        for p in polys:
+            s, n = int(mesh.loop_start[p]), int(mesh.loop_total[p])
+            v = mesh.loop_verts[s : s + n]
+            tris += [(v[0], v[i], v[i + 1]) for i in range(1, n - 1)]
+        if not tris:
+            continue
+        t = mesh.verts[np.array(tris)]
+        # closed: every edge (vertex positions, welded to 1e-6) shared by exactly one reversed edge
+        q = np.round(t / 1e-6).astype(np.int64)
+        e = np.concatenate([np.stack([q[:, i], q[:, (i + 1) % 3]], 1) for i in range(3)])
+        fwd = {tuple(x.ravel()) for x in e}
+        if len(fwd) != len(e) or any(tuple(np.r_[x[1], x[0]]) not in fwd for x in e):
+            continue
+        vol = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6
+        if vol > 0:
+            out[name] = t
+    return out
+
+
+def _winding(p, t):
+    """Generalised winding numbers (M,) of points p (M, 3) about the triangles t (T, 3, 3)."""
+    a, b, c = (t[None, :, i] - p[:, None] for i in range(3))
+    la, lb, lc = (np.linalg.norm(x, axis=2) for x in (a, b, c))
+    num = np.einsum("mtj,mtj->mt", a, np.cross(b, c))
+    den = la * lb * lc + np.einsum("mtj,mtj->mt", a, b) * lc + np.einsum("mtj,mtj->mt", b, c) * la
+    den += np.einsum("mtj,mtj->mt", c, a) * lb
+    return np.arctan2(num, den).sum(1) / (2 * np.pi)
+
+
+def unburied_texels(rs, eps):
+    """{object: (N,) texels none of whose sub-samples lies inside another object}: independent of
+    our contacts code, a winding-number test of each sub-sample moved by `eps` along its triangle's
+    normal against every other closed mesh (a floor texel under a box's bottom, a book's bottom on
+    a board count as buried; texels straddling an outline as well)."""
+    solids = _object_triangles(rs.scene_in.mesh)
+    boxes = {n: (t.reshape(-1, 3).min(0) - eps, t.reshape(-1, 3).max(0) + eps) for n, t in solids.items()}
+    out = {}
+    for n in rs.objects:
+        at = rs.atlases[n]
+        nrm = np.cross(at.s_tri[:, 1] - at.s_tri[:, 0], at.s_tri[:, 2] - at.s_tri[:, 0])
+        p = at.s_point + eps * nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
+        bur = np.zeros(len(p), bool)
+        for o, t in solids.items():
+            if o == n:
+                continue
+            cand = np.flatnonzero(np.all((p > boxes[o][0]) & (p < boxes[o][1]), 1) & ~bur)
+            for s in range(0, len(cand), max(1, 200000 // len(t))):
+                c = cand[s : s + max(1, 200000 // len(t))]
+                bur[c] = _winding(p[c], t) > 0.5
+        out[n] = np.bincount(at.s_texel, bur, at.n) == 0
+    return out
+
+
 cfg = CC.SCENES["furnished"]
 scene = CC.open_scene("furnished")
 rs = C.prepare(scene, texel_rel=cfg["texel_rel"])
@@ -36,6 +100,15 @@ a, ta, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[0])
 b, tb_, _ = CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], CC.REF_SEEDS[1])
 ref = {n: (a[n] + b[n]) / 2 for n in rs.objects}
 shapes = C.shape_proxies(rs, 1)
+t0 = time.process_time()
+unburied = unburied_texels(rs, 5e-5 * rs.diag)
+n_tex = sum(len(m) for m in unburied.values())
+n_bur = n_tex - sum(int(m.sum()) for m in unburied.values())
+print(
+    f"buried texels (a sub-sample inside another object): {n_bur} of {n_tex}, "
+    f"{sum(not m.all() for m in unburied.values())} objects, {time.process_time() - t0:.0f} s CPU",
+    flush=True,
+)
 variants = {k: eval(v) for k, v in (x.split("=", 1) for x in sys.argv[1:])}
 for name, kw in variants.items():
     q = kw.pop("q", "draft")
@@ -64,6 +137,18 @@ for name, kw in variants.items():
         txt = ", ".join(f"{k} {v:.3g}" for k, v in cost.items())
         print(f"   final gather cost ({gkw}): {txt}", flush=True)
     allcmp = CC.compare(res, ref, 0.0, rs.objects)
+    # the vertex outputs over the unburied texels alone (unburied_texels): what a camera sees
+    ub = {
+        n: {
+            k: np.where(unburied[n][:, None], res[n][k], np.nan)
+            for k in ("vertex_total", "gvertex_total")
+            if k in res[n]
+        }
+        | {"emission": res[n]["emission"]}
+        for n in rs.objects
+    }
+    for var, m in CC.compare(ub, ref, 0.0, rs.objects).items():
+        allcmp[var + "_unburied"] = m
     cmp_ = allcmp["refl_leaf"]
     al, per = cmp_["all"], cmp_["surfaces"]
     big = sorted((n for n in per if per[n]["texels"] >= 0.01 * al["texels"]), key=lambda n: -per[n]["texels"])
@@ -82,7 +167,15 @@ for name, kw in variants.items():
     # Cycles reference bake (cached bakes keep the time of the run that baked them)
     dump["cpu_seconds"] = {"build": tb, "frame1_apply": t_apply, "cycles_ref_bakes": [ta, tb_]}
     dump["cycles_ref_spp"] = cfg["ref_spp"]
-    for var in ("refl_leaf", "total_vertex", "refl_gather", "total_gvertex"):
+    dump["buried_texels"] = {"excluded": n_bur, "texels": n_tex, "eps": 5e-5 * rs.diag}
+    for var in (
+        "refl_leaf",
+        "total_vertex",
+        "total_vertex_unburied",
+        "refl_gather",
+        "total_gvertex",
+        "total_gvertex_unburied",
+    ):
         if var not in allcmp:
             continue
         for n, m in allcmp[var]["surfaces"].items():
