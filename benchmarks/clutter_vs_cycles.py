@@ -26,6 +26,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 import numpy as np  # noqa: E402
 
 from hr_testing import clutter as CL, cycles_lights, cycles_ref as C  # noqa: E402
+from hr_testing.blend import mesh_scene  # noqa: E402
 
 
 def main():
@@ -37,7 +38,7 @@ def main():
     from hr_addon.core.gather import layouts
 
     mesh, info = CL.clutter_room()
-    scene = CL.blender_scene(mesh)
+    scene = mesh_scene(mesh)
     rs = C.prepare(scene, texel=args.texel, only=CL.COMPARED)
     refs, cyc_cpu = [], []
     for seed in (1, 2):

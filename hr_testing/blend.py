@@ -4,6 +4,8 @@ once per process, and the sample scenes opened from a copy (a test never writes 
 import shutil
 from pathlib import Path
 
+import numpy as np
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = REPO_ROOT / "sample_blends"
 
@@ -50,3 +52,45 @@ def isolated_env(directory):
         PYTHONDONTWRITEBYTECODE="1",
     )
     return env, resources
+
+
+def mesh_scene(mesh):
+    """A new empty Blender scene holding `mesh` (a MeshInput), one mesh object per object: a
+    Diffuse BSDF of its reflectance, an Emission shader where it emits (as scripts/make_samples.py
+    builds the furnished sample). Returns the scene. Used by the Cycles comparisons of built rooms."""
+    bpy = load_bpy()
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    load_bpy()
+    scene = bpy.context.scene
+    mats = {}
+    starts = np.r_[mesh.loop_start, len(mesh.loop_verts)]
+    for k, name in enumerate(mesh.object_names):
+        polys = np.flatnonzero(mesh.object_id == k)
+        loops = [mesh.loop_verts[starts[i] : starts[i + 1]] for i in polys]
+        used, inv = np.unique(np.concatenate(loops), return_inverse=True)
+        ends = np.cumsum([len(lp) for lp in loops])
+        me = bpy.data.meshes.new(name)
+        me.from_pydata(mesh.verts[used].tolist(), [], [p.tolist() for p in np.split(inv, ends[:-1])])
+        rho = tuple(np.round(mesh.reflectance[polys[0]], 6))
+        em = tuple(np.round(mesh.emission[polys[0]], 6))
+        if (rho, em) not in mats:
+            m = bpy.data.materials.new(f"Material {len(mats)}")
+            if bpy.app.version < (5, 0, 0):
+                m.use_nodes = True
+            t = m.node_tree
+            for n in [n for n in t.nodes if n.type != "OUTPUT_MATERIAL"]:
+                t.nodes.remove(n)
+            out = next(n for n in t.nodes if n.type == "OUTPUT_MATERIAL")
+            if max(em) > 0:
+                d = t.nodes.new("ShaderNodeEmission")
+                d.inputs["Color"].default_value = (*(np.array(em) / max(em)), 1)
+                d.inputs["Strength"].default_value = max(em)
+            else:
+                d = t.nodes.new("ShaderNodeBsdfDiffuse")
+                d.inputs["Color"].default_value = (*rho, 1)
+            t.links.new(d.outputs[0], out.inputs["Surface"])
+            mats[rho, em] = m
+        me.materials.append(mats[rho, em])
+        scene.collection.objects.link(bpy.data.objects.new(name, me))
+    bpy.context.view_layer.update()
+    return scene

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from . import cycles_ref as C
-from .blend import load_bpy, open_sample
+from .blend import load_bpy, mesh_scene, open_sample
 
 
 def environment_image(width=64, height=32):
@@ -80,34 +80,8 @@ def daylight_scene(size="20k", portal=False):
 
     from . import furnished as F
 
-    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
-    load_bpy()
     mesh, info = F.daylight_room(size)
-    scene = bpy.context.scene
-    mats = {}
-    starts = np.r_[mesh.loop_start, len(mesh.loop_verts)]
-    for k, name in enumerate(mesh.object_names):
-        polys = np.flatnonzero(mesh.object_id == k)
-        loops = [mesh.loop_verts[starts[i] : starts[i + 1]] for i in polys]
-        used, inv = np.unique(np.concatenate(loops), return_inverse=True)
-        ends = np.cumsum([len(lp) for lp in loops])
-        me = bpy.data.meshes.new(name)
-        me.from_pydata(mesh.verts[used].tolist(), [], [p.tolist() for p in np.split(inv, ends[:-1])])
-        rho = tuple(np.round(mesh.reflectance[polys[0]], 6))
-        if rho not in mats:
-            m = bpy.data.materials.new(f"Diffuse {len(mats)}")
-            if bpy.app.version < (5, 0, 0):
-                m.use_nodes = True
-            t = m.node_tree
-            for n in [n for n in t.nodes if n.type != "OUTPUT_MATERIAL"]:
-                t.nodes.remove(n)
-            d = t.nodes.new("ShaderNodeBsdfDiffuse")
-            d.inputs["Color"].default_value = (*rho, 1)
-            out = next(n for n in t.nodes if n.type == "OUTPUT_MATERIAL")
-            t.links.new(d.outputs[0], out.inputs["Surface"])
-            mats[rho] = m
-        me.materials.append(mats[rho])
-        scene.collection.objects.link(bpy.data.objects.new(name, me))
+    scene = mesh_scene(mesh)
     ld = bpy.data.lights.new("Sun", "SUN")
     ld.energy, ld.angle, ld.color = F.SUN["strength"], F.SUN["angle"], F.SUN["color"]
     ob = bpy.data.objects.new("Sun", ld)

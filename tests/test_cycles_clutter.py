@@ -43,9 +43,10 @@ NOISE_MAX = 0.015  # the reference's noise of an object mean must stay well belo
 def clutter():
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from hr_testing import clutter as CL, cycles_lights, cycles_ref as C
+    from hr_testing.blend import mesh_scene
 
     mesh, info = CL.clutter_room()
-    scene = CL.blender_scene(mesh)
+    scene = mesh_scene(mesh)
     rs = C.prepare(scene, texel=TEXEL, only=CL.COMPARED)
     refs = []
     for seed in (1, 2):
