@@ -202,6 +202,33 @@ def test_a_cancel_during_the_gather_precompute_leaves_no_worker(cornell_events):
     assert len(seen) == 1 and seen[0][0] == 1 < seen[0][1] and seen[0][2]
 
 
+def test_ctrl_c_during_the_buried_samples_probe_leaves_no_worker(cornell_events, monkeypatch):
+    """Ctrl-C while the corner samples' probe rays run on 2 threads (layouts._buried's map, which
+    has no progress callback): the interrupt reaches the waiting calling thread, no worker is left."""
+    import _thread
+
+    from hr_addon.core.gather import layouts
+
+    real = layouts.cosine_directions
+    started = []
+
+    def slow(*a, **k):  # the first batch on a worker raises Ctrl-C in the main thread
+        if parallel.in_worker() and not started:
+            started.append(1)
+            _thread.interrupt_main()
+            time.sleep(0.5)
+        return real(*a, **k)
+
+    monkeypatch.setattr(layouts, "cosine_directions", slow)
+    monkeypatch.setattr(layouts, "PROBE_BATCH", 50)
+    s = cornell_events[0].system
+    monkeypatch.setattr(s.backend, "threads", 2)
+    with _python_sigint(), pytest.raises(KeyboardInterrupt):
+        layouts.loop_samples(s)
+        time.sleep(5)  # not reached when the interrupt stops the map
+    assert started and not _workers()
+
+
 @pytest.fixture
 def small_batches(monkeypatch):
     """Batches small enough that the small test scenes split into many (the product's sizes are
