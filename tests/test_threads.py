@@ -202,13 +202,40 @@ def test_a_cancel_during_the_gather_precompute_leaves_no_worker(cornell_events):
     assert len(seen) == 1 and seen[0][0] == 1 < seen[0][1] and seen[0][2]
 
 
+def test_ctrl_c_during_the_buried_samples_probe_leaves_no_worker(cornell_events, monkeypatch):
+    """Ctrl-C while the corner samples' probe rays run on 2 threads (layouts._buried's map, which
+    has no progress callback): the interrupt reaches the waiting calling thread, no worker is left."""
+    import _thread
+
+    from hr_addon.core.gather import layouts
+
+    real = layouts.cosine_directions
+    started = []
+
+    def slow(*a, **k):  # the first batch on a worker raises Ctrl-C in the main thread
+        if parallel.in_worker() and not started:
+            started.append(1)
+            _thread.interrupt_main()
+            time.sleep(0.5)
+        return real(*a, **k)
+
+    monkeypatch.setattr(layouts, "cosine_directions", slow)
+    monkeypatch.setattr(layouts, "PROBE_BATCH", 50)
+    s = cornell_events[0].system
+    monkeypatch.setattr(s.backend, "threads", 2)
+    with _python_sigint(), pytest.raises(KeyboardInterrupt):
+        layouts.loop_samples(s)
+        time.sleep(5)  # not reached when the interrupt stops the map
+    assert started and not _workers()
+
+
 @pytest.fixture
 def small_batches(monkeypatch):
     """Batches small enough that the small test scenes split into many (the product's sizes are
     fixed too, larger: the values never depend on the thread count, only on the batch bounds)."""
     from hr_addon.core import boxes, contacts, farlinks, refine, solver
     from hr_addon.core.events import direct
-    from hr_addon.core.gather import FinalGather
+    from hr_addon.core.gather import FinalGather, layouts
     from hr_addon.core.visibility import RayBackend
 
     monkeypatch.setattr(solver, "GATHER_BLOCK", 300)
@@ -222,6 +249,7 @@ def small_batches(monkeypatch):
     monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
     monkeypatch.setattr(RayBackend, "PARALLEL_CHUNK", 1000)
     monkeypatch.setattr(FinalGather, "BATCH_RAYS", 4096)
+    monkeypatch.setattr(layouts, "PROBE_BATCH", 500)
 
 
 def _links(s):
@@ -258,6 +286,31 @@ def test_build_with_one_and_two_threads_gives_identical_links(small_batches):
     B1, B2 = s1.solve(), s2.solve()
     assert s1.report.iterations > 3 and np.abs(B1).max() > 0
     assert np.array_equal(B1, B2) and s1.report.energy_error == s2.report.energy_error
+    assert not _workers()
+
+
+def test_furnished_gather_samples_with_one_and_two_threads_are_equal(small_batches, monkeypatch):
+    """The furnished room (contacts): the corner samples (buried ones moved: the covered test and
+    the back-face rays by batches of samples), the gather samples' covered test (by batches of
+    points), the weights and the output with 1 and 2 threads: bitwise equal."""
+    from hr_addon.core import contacts
+    from hr_addon.core.gather import layouts
+    from hr_testing.furnished import furnished_room
+
+    monkeypatch.setattr(contacts, "POINT_BATCH", 200)
+    s = RadiositySystem(furnished_room("2k")[0], RefineParams.for_gather("draft"))
+    dyn = DynamicRadiosity(s, method="FE")
+    out = []
+    for threads in (1, 2):
+        s.backend.threads = threads  # _buried's batches run on the system's threads
+        out.append(LoopGather(dyn, rays=16, shadow_rays=4, levels=2, iterations=1, threads=threads))
+    a, b = out
+    assert len(a.points) > 10 * layouts.PROBE_BATCH and a.dark.sum() > 0
+    assert (s.h.exposure[a.leaf0] < 1).sum() > 2 * contacts.POINT_BATCH  # the covered test's batches
+    for x, y in ((a.points, b.points), (a.dark, b.dark), (a.second.dark, b.second.dark), (a.w, b.w)):
+        assert np.array_equal(x, y)
+    x, y = a.loop_radiance(dyn), b.loop_radiance(dyn)
+    assert np.abs(x).max() > 0 and np.array_equal(x, y)
     assert not _workers()
 
 

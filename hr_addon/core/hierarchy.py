@@ -171,14 +171,15 @@ class Hierarchy:
         out[self.dark(leaf, np.asarray(points, float))] = 0.0
         return out
 
-    def dark(self, leaf, points):
+    def dark(self, leaf, points, threads=None):
         """True where points (N, 3) in leaves `leaf` (N,) are covered: the whole leaf when its
-        exposure is 0, by the contact test when it is partly covered."""
+        exposure is 0, by the contact test when it is partly covered. threads: the contact test
+        by batches of points on threads (Contacts.covered; None: serial)."""
         ex = self.exposure[leaf]
         out = ex == 0
         part = np.flatnonzero((ex > 0) & (ex < 1))
         if len(part) and self.contacts is not None:
-            out[part] = self.contacts.covered(points[part], self.patch[leaf[part]])
+            out[part] = self.contacts.covered(points[part], self.patch[leaf[part]], threads=threads)
         return out
 
     def leaf_at_corner(self, roots, k):

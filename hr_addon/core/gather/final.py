@@ -185,6 +185,7 @@ class FinalGather(DirectLight):
     called from the calling thread as batches of hemisphere rays finish; raising cancels."""
 
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
+    ENTRY_BATCH = 1 << 21  # weights per batch of _remap_near on threads (fixed: the same values)
     threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
     # restored from stored arrays runs inline until told otherwise)
     near_points = 0  # (a class default too: a gather stored before near hits restores without it)
@@ -294,7 +295,9 @@ class FinalGather(DirectLight):
         self.leaf0 = np.zeros(0, np.int64)
         if n:
             self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr, self._lines())
-        self.dark = h.dark(self.leaf0, self.points) if n else np.zeros(0, bool)
+        # the covered tests by batches of points on threads (None there is serial, here every core)
+        cov_threads = 0 if threads is None else threads
+        self.dark = h.dark(self.leaf0, self.points, cov_threads) if n else np.zeros(0, bool)
         self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
         self._slot = None  # slot samples' direct light at their own point and the facing wall's
         self.slot_facing = SLOT_FACING if slot_facing is None else bool(slot_facing)
@@ -307,7 +310,9 @@ class FinalGather(DirectLight):
             # the rest within open_edge x h of an open edge of a gap (a tilted block's, whose own
             # wall closes the mouth the slots test) gather where they lie (contacts.covered)
             d = np.flatnonzero(self.dark)
-            self.dark[d] = h.contacts.covered(self.points[d], self.patch[d], open_edge=open_edge)
+            self.dark[d] = h.contacts.covered(
+                self.points[d], self.patch[d], open_edge=open_edge, threads=cov_threads
+            )
         # groups (n,) non-decreasing: the output of row j is the mean over the samples of group j
         # (a texel's sub-samples over its area, layouts.texel_samples; covered ones count 0)
         self.group = None if groups is None else np.asarray(groups, np.int64)
@@ -331,7 +336,8 @@ class FinalGather(DirectLight):
         # while the lower levels are precomputed
         self._trace = ~self.dark if reuse is None else ~self.dark & (reuse[0] < 0)
         self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(
-            batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None)
+            batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None),
+            threads,
         )
         del self._trace
         self._near_x = None  # the batches' table (28 MB at 100k): not held while lower levels run
@@ -461,17 +467,25 @@ class FinalGather(DirectLight):
         if not self.near_points or off is None:  # (None: a probe's, read by _fine_leaves)
             return
         m = self.n_hr
-        c = self.cols.astype(np.int64)
-        j = np.flatnonzero(c >= m)
+        dark = self.dark if dark is None else dark
+        cols = self.cols.astype(np.int32)  # a copy
+
+        def part(a, b):  # entries a..b, each its own: on threads (batch_map)
+            c = cols[a:b].astype(np.int64)
+            j = np.flatnonzero(c >= m)
+            leaf, pnt = c[j] % m, c[j] // m - 1
+            s = off[leaf] + pnt
+            ok = (off[leaf] >= 0) & ~dark[np.maximum(s, 0)]
+            cols[a + j] = np.where(ok, m + s, leaf)
+            return a + j, ok
+
+        parts = batch_map(part, ranges(len(cols), self.ENTRY_BATCH), self.threads)
+        j = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
         if not len(j):
             return
-        leaf, pnt = c[j] % m, c[j] // m - 1
-        s = off[leaf] + pnt
-        dark = self.dark if dark is None else dark
-        ok = (off[leaf] >= 0) & ~dark[np.maximum(s, 0)]
-        c[j] = np.where(ok, m + s, leaf)
-        self.cols = c.astype(np.int32)
-        self.stats["near_entries"] = float(ok.sum()) / max(len(c), 1)
+        ok = np.concatenate([p[1] for p in parts])
+        self.cols = cols
+        self.stats["near_entries"] = float(ok.sum()) / max(len(cols), 1)
         self.stats["near_weight"] = float(self.w[j[ok]].sum() / max(self.w.sum(), 1e-300))
 
     def _fine_leaves(self, share):
@@ -731,16 +745,16 @@ class FinalGather(DirectLight):
         return ranges(self.n, self.batch_rays // max(per_sample, 1))
 
     @staticmethod
-    def merge(parts):
-        """Concatenate the partial CSR rows of consecutive batches."""
-        counts = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, np.int64)
-        indptr = np.zeros(len(counts) + 1, np.int64)
-        np.cumsum(counts, out=indptr[1:])
-        cols = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, np.int32)
-        w = np.concatenate([p[2] for p in parts]) if parts else np.zeros(0, np.float32)
-        if not parts or parts[0][3] is None:
-            return indptr, cols, w, None, None
-        return indptr, cols, w, np.concatenate([p[3] for p in parts]), np.concatenate([p[4] for p in parts])
+    def merge(parts, threads=1):
+        """Concatenate the partial CSR rows of consecutive batches (one array per thread)."""
+        if not parts:
+            z = np.zeros(0, np.int64)
+            return np.zeros(1, np.int64), z.astype(np.int32), z.astype(np.float32), None, None
+        k = 3 if parts[0][3] is None else 5
+        out = batch_map(lambda i: np.concatenate([p[i] for p in parts]), [(i,) for i in range(k)], threads)
+        indptr = np.zeros(len(out[0]) + 1, np.int64)
+        np.cumsum(out[0], out=indptr[1:])
+        return (indptr, *out[1:], None, None) if k == 3 else (indptr, *out[1:])
 
     @property
     def weights_bytes(self):

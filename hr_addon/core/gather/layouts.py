@@ -3,6 +3,7 @@
 import numpy as np
 
 from ..geometry import isolated_objects
+from ..parallel import batch_map, ranges
 from ..output import equal_key_pairs, in_domain, loop_welds
 from .bakepoints import has_area, texel_points
 from .final import OPEN_EDGE, FinalGather
@@ -93,31 +94,40 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
 # patch's centre, nearest the default inset (0.5) first
 UNCOVER = (0.25, 0.75, 0.125, 0.875, 0.0625, 0.95)
 PROBE_RAYS = 8  # _buried: rays per sample; buried when at least 3/4 of them hit a back face
+PROBE_BATCH = 1 << 13  # _buried: samples per batch on threads (fixed: values never depend on threads)
 
 
-def _buried(system, pts, patch):
+def _buried(system, pts, patch, reach):
     """Samples inside another solid or under a face touching theirs: covered as final.py decides
     it (the contacts' test, open edges of gaps OPEN_EDGE, a slot lit through its mouths not), or
     most of PROBE_RAYS rays hitting back faces (inside a closed solid whose crossing the contacts
-    do not see: a lid's side sunk into a box)."""
+    do not see: a lid's side sunk into a box). reach: the rays' length (_uncover's)."""
     pt = system.patches
     out = np.zeros(len(pts), bool)
     con = system.h.contacts
+    # the covered test and the rays by batches of samples on the system's threads (every sample's
+    # answer and rays are its own: the same values for any thread count)
+    threads = system.backend.threads
     if con is not None:
-        out = con.covered(pts, patch, open_edge=OPEN_EDGE)
+        out = con.covered(pts, patch, open_edge=OPEN_EDGE, threads=0 if threads is None else threads)
         c = np.flatnonzero(out)
         if len(c):
             con.close_mouths(system.backend.occluded)  # as final.py does (once per Contacts)
             out[c[con.slots(pts[c], patch[c])[1] > 0]] = False
-    nrm = pt.normal[patch]
-    dirs = cosine_directions(nrm, np.arange(len(pts)), PROBE_RAYS, seed=7).reshape(-1, 3)
-    org = np.repeat(pts + float(system.refiner.eps) * nrm, PROBE_RAYS, 0)
-    size = float(np.sqrt(isolated_objects(system.mesh).main_area))
-    prim, _ = system.backend.first_hit(org, dirs, 4.0 * size)
-    hit = prim >= 0
-    back = np.zeros(len(prim), bool)
-    back[hit] = np.einsum("ij,ij->i", dirs[hit], pt.normal[pt.triangle_patch[prim[hit]]]) > 0
-    return out | (back.reshape(-1, PROBE_RAYS).sum(1) * 4 >= 3 * PROBE_RAYS)
+    eps = float(system.refiner.eps)
+
+    def back_faces(i, j):  # samples i..j: most of their rays hit a back face
+        nrm = pt.normal[patch[i:j]]
+        dirs = cosine_directions(nrm, np.arange(i, j), PROBE_RAYS, seed=7).reshape(-1, 3)
+        org = np.repeat(pts[i:j] + eps * nrm, PROBE_RAYS, 0)
+        prim, _ = system.backend.first_hit(org, dirs, reach)
+        hit = prim >= 0
+        back = np.zeros(len(prim), bool)
+        back[hit] = np.einsum("ij,ij->i", dirs[hit], pt.normal[pt.triangle_patch[prim[hit]]]) > 0
+        return back.reshape(-1, PROBE_RAYS).sum(1) * 4 >= 3 * PROBE_RAYS
+
+    parts = batch_map(back_faces, ranges(len(pts), PROBE_BATCH), threads)
+    return out | (np.concatenate(parts) if parts else np.zeros(0, bool))
 
 
 def _uncover(system, pts, corner, patch, inset):
@@ -129,12 +139,14 @@ def _uncover(system, pts, corner, patch, inset):
     -14% against Cycles), a lid's side whose lower corners are sunk into a box (-30%)."""
     if not len(pts):
         return
-    todo = np.flatnonzero(_buried(system, pts, patch))
+    # the probe rays' length, from the main group of objects (the same for every pass: computed once)
+    reach = 4.0 * float(np.sqrt(isolated_objects(system.mesh).main_area))
+    todo = np.flatnonzero(_buried(system, pts, patch, reach))
     for f in UNCOVER:
         if not len(todo):
             return
         q = corner[todo] + (f / inset) * (pts[todo] - corner[todo])
-        cov = _buried(system, q, patch[todo])
+        cov = _buried(system, q, patch[todo], reach)
         pts[todo[~cov]] = q[~cov]
         todo = todo[cov]
 
