@@ -11,6 +11,7 @@ lights directly and those lit by bounce light only (by our direct light's share)
 
     .venv/bin/python benchmarks/furnished_lights.py [--size 20k] [--spp 128] [--seeds 1,2]
         [--ref-only] [--wait] [--name NAME] [--quality DRAFT] [--texel-rel 0.00667]
+        [--gather 'dict(near=1e9)']
 
 --ref-only: bake (and cache) the Cycles references only; --wait: wait for references another
 process is baking. References are cached in benchmarks/out/cycles_cache/ under a key naming the
@@ -93,6 +94,9 @@ def main():
     )
     ap.add_argument("--noise", default="", help="SPP:SEED,SEED: the reference's noise from two bakes at SPP")
     ap.add_argument("--ours-from", default="", help="NAME: our values of an earlier run (its npz and JSON)")
+    ap.add_argument(
+        "--gather", default="", help="dict(...): texel gather keywords over the bake's (a variant)"
+    )
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     scene, info = CL.daylight_scene(args.size, args.portal)
@@ -121,7 +125,9 @@ def main():
         cost, our_info = json.loads(str(z["__meta"])) if "__meta" in z.files else ({}, {})
         our_info["values_from"] = args.ours_from
     else:
-        res, cost, our_info = CL.bake_ours(rs, args.quality)
+        res, cost, our_info = CL.bake_ours(
+            rs, args.quality, gather=eval(args.gather) if args.gather else None
+        )
         # our per-texel values for a closer look (not committed: benchmarks/out keeps JSON only)
         np.savez_compressed(
             os.path.join(HERE, "out", f"furnished_lights_{args.name}_ours.npz"),

@@ -134,6 +134,15 @@ for name, kw in variants.items():
         gres, cost = C.gather_results(rs, ours, dyn, **gkw)
         for n in rs.objects:
             res[n].update(gres[n])
+        # the per-texel values for a closer look (benchmarks/books_daylight.py --room panel; git-ignored)
+        np.savez_compressed(
+            os.path.join(HERE, "out", f"furnished_vs_cycles_{name}_ours.npz"),
+            **{
+                f"{n}|gather_refl": res[n]["gather_refl"].astype(np.float32)
+                for n in rs.objects
+                if "gather_refl" in res[n]
+            },
+        )
         txt = ", ".join(f"{k} {v:.3g}" for k, v in cost.items())
         print(f"   final gather cost ({gkw}): {txt}", flush=True)
     allcmp = CC.compare(res, ref, 0.0, rs.objects)

@@ -140,7 +140,7 @@ def daylight_part(part, info):
     bpy.context.view_layer.update()
 
 
-def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False):
+def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False, gather=None):
     """Our bake of the prepared scene `rs` (cycles_ref.prepare) as the Blender bake makes it
     (BakeConfig at `quality` with the scene's other settings: hierarchy, solver_setup, solver
     options, the lights and the World read by collect_lights, the final gather's settings), the
@@ -148,7 +148,8 @@ def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False):
     direct_SUN, direct_SKY, ...: (N, 3) per texel}}, cost {seconds, ...}, {config, lights,
     warnings}); direct_KIND: the reflected direct light of the lights of that kind. method: the
     light method (None: the scene's). vertex: also the vertex output (gvertex_total: a LoopGather at
-    the corners, interpolated over the loop triangles, what a vertex bake shows)."""
+    the corners, interpolated over the loop triangles, what a vertex bake shows). gather: texel
+    gather keywords over the bake's (a variant)."""
     import bpy
 
     from hr_addon.blender.lights_in import collect_lights
@@ -173,7 +174,8 @@ def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False):
     mine = C.Ours(rs, system, dyn)
     res = mine.evaluate({}, smooth=False)
     cache = {}
-    gres, cost = C.gather_results(rs, mine, dyn, vertex=vertex, cache=cache, threads=threads, **cfg.gather)
+    gkw = {**cfg.gather, **(gather or {})}
+    gres, cost = C.gather_results(rs, mine, dyn, vertex=vertex, cache=cache, threads=threads, **gkw)
     # each light's direct light reflected at the texels (the gather's cached unit light x scale)
     tg = cache["texel"]
     direct = {}
@@ -193,7 +195,7 @@ def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False):
         s += len(cen)
     cost.update(build_s=t1 - t0, apply_s=t2 - t1, links=len(system.links))
     info = {
-        "config": dict(quality=cfg.quality, method=cfg.method, gather=cfg.gather, params=repr(params)),
+        "config": dict(quality=cfg.quality, method=cfg.method, gather=gkw, params=repr(params)),
         "lights": {k: (L.kind, L.scale.tolist()) for k, L in lights.items()},
         "warnings": warnings,
     }
