@@ -46,7 +46,8 @@ LINK_BATCH = 1 << 13
 NODE_BATCH = 1 << 8
 # points on a partly covered node's exposed part for its near links' form factors: about
 # FF_TARGET^2 (its visibility points and the oracle's centre keep 6 x 6). 6 -> 4 (2026-12-04):
-# the exposed-part form factors 2.2x cheaper, the gathered output per object within 0.02% (20k)
+# the exposed-part form factors 20.3 -> 8.5 s at 100k, the gathered output per object within
+# 0.02% (20k) (docs/scale.md "inexact cuts")
 FF_TARGET = 4
 
 
