@@ -289,6 +289,33 @@ def test_first_hit_of_every_backend_matches_the_float64_reference(name):
     assert np.allclose(t[hit], ref_t[hit], rtol=1e-9)
 
 
+def test_first_hit_with_sure_keeps_float32_t_away_from_the_ends(name):
+    """first_hit(sure=...) (the final gather's rays): the same rays hit, mostly the same
+    triangles, and the t of hits away from both ends is the tracer's float32 (no float64 re-test:
+    near float32 precision, not bitwise); hits within `sure` of an end are float64's exactly."""
+    from hr_testing import scenes
+    from hr_addon.core.geometry import prepare_patches
+
+    tri = prepare_patches(scenes.cornell_box(subdiv=2)).triangles
+    rng = np.random.default_rng(5)
+    o = rng.uniform(0.05, 0.5, (3000, 3))
+    d = rng.normal(size=(3000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    be = vis.make_backend(tri, name)
+    p, t = be.first_hit(o, d, 3.0)
+    ps, ts = be.first_hit(o, d, 3.0, sure=0.1)
+    assert np.array_equal(p >= 0, ps >= 0)
+    assert np.mean(p == ps) > 1 - MAX_DISAGREE
+    hit = (p >= 0) & (p == ps)
+    near = hit & ((t < 0.3 * 0.99) | (t > 3.0 * 0.91))  # within sure = 0.1 of an end, with margin
+    far = hit & (t > 0.3 * 1.01) & (t < 3.0 * 0.89)
+    assert near.sum() > 100 and far.sum() > 100
+    assert np.array_equal(ts[near], t[near])
+    assert np.allclose(ts[far], t[far], rtol=1e-5)
+    # the float32 backends take the tracer's t there (numpy's is float64 anyway)
+    assert np.array_equal(ts[far], t[far]) == (name == "numpy")
+
+
 def test_component_major_occlusion_equals_occluded(name):
     """occluded_cm (the direct light's shadow rays, component-major) gives occluded()'s values
     exactly, zero-length and non-finite segments included."""
