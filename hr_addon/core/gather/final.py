@@ -899,8 +899,8 @@ class FinalGather(DirectLight):
 
     def _tail(self, last):
         """(the limit of the passes whose last three leaf values are `last`: the last plus the
-        geometric series of its change, the ratio of the last two changes' sums per channel,
-        the largest share of the light that series is over the channels)."""
+        geometric series of its change, the ratio of the last two changes' sums per channel (per
+        object tried: worse), the largest share of the light that series is over the channels)."""
         d1, d0 = last[2] - last[1], last[1] - last[0]
         s1, s0 = d1.sum(0), d0.sum(0)
         r = np.clip(np.divide(s1, s0, out=np.zeros(3), where=s0 != 0), 0.0, self.TAIL_MAX)
