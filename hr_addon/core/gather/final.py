@@ -899,15 +899,35 @@ class FinalGather(DirectLight):
 
     def _tail(self, last):
         """(the limit of the passes whose last three leaf values are `last`: the last plus the
-        geometric series of its change, the ratio of the last two changes' sums per channel (per
-        object tried: worse), the largest share of the light that series is over the channels)."""
+        geometric series of its change, the ratio of the last two changes' sums per channel, the
+        room's or the row's object's where lower; the largest share of the light that series is
+        over the channels)."""
         d1, d0 = last[2] - last[1], last[1] - last[0]
         s1, s0 = d1.sum(0), d0.sum(0)
         r = np.clip(np.divide(s1, s0, out=np.zeros(3), where=s0 != 0), 0.0, self.TAIL_MAX)
         self.stats["tail_ratio"] = r
+        # each object's own ratio where it is lower (its light converging faster than the room's;
+        # opposite changes: none): one ratio left single objects of the 100k room 3.8% off the
+        # passes' limit, the lower of the two 1.8%; each object's alone (not capped) 9%
+        grp = self._tail_groups(len(d1))
+        k = grp.max() + 1
+        g1, g0 = (np.stack([np.bincount(grp, d[:, c], k) for c in range(3)], 1) for d in (d1, d0))
+        r = np.clip(np.divide(g1, g0, out=np.zeros_like(g1), where=g0 != 0), 0.0, r)[grp]
         t = d1 * (r / (1 - r))
         tot = np.abs(last[2].sum(0)) + 1e-300
         return last[2] + t, float((np.abs(t.sum(0)) / tot).max())
+
+    def _tail_groups(self, rows):
+        """(rows,) the object of each row of _levels' leaf values (the HR leaves, then with near
+        hits the second level's samples: their leaf's)."""
+        got = getattr(self, "_tgroups", None)
+        if got is None or len(got) != rows:
+            h, m = self.system.h, self.n_hr
+            leaf = np.arange(m)
+            if rows > m:
+                leaf = np.concatenate([leaf, np.repeat(self._second_map[0], np.diff(self._second_start))])
+            got = self._tgroups = np.asarray(self.system.patches.object_id)[h.patch[leaf]].astype(np.int64)
+        return got
 
     def _fill_dark_leaves(self, Y):
         """Y (n_hr(+), 3) of a pass from V = 0 (tail): the exposed HR leaves whose gather samples
