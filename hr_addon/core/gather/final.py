@@ -869,7 +869,7 @@ class FinalGather(DirectLight):
         # direct light): every pass moves the solution one bounce further away
         last, zero = [], tail and not V.any()
         for k in range(self.TAIL_PASSES if zero else 1 + self.iterations):
-            if zero and k > self.iterations and self._tail(last)[1] <= self.TAIL_SHARE:
+            if zero and k > self.iterations and self._tail(last, False)[1] <= self.TAIL_SHARE:
                 k -= 1
                 break
             y = g2.rho * (D2 + g2._read(L))
@@ -892,20 +892,24 @@ class FinalGather(DirectLight):
             Gu[used], Gv[used] = G[:, 0], G[:, 1]
             L = (Y, S, Gu, Gv)
         if len(last) == 3:  # the passes are a Jacobi solve: its limit, whatever V it started from
-            Yt, _ = self._tail(last)
+            Yt, _ = self._tail(last, not zero)
             self.stats["tail_passes"] = k + 1
             L = (Yt,) + tuple(L[1:])
         return L
 
-    def _tail(self, last):
+    def _tail(self, last, local=True):
         """(the limit of the passes whose last three leaf values are `last`: the last plus the
         geometric series of its change, the ratio of the last two changes' sums per channel, the
         room's or the row's object's where lower; the largest share of the light that series is
-        over the channels)."""
+        over the channels; local False: the room's alone, as from V = 0, where the objects' ratios
+        made single objects worse: 5.0 -> 5.2%)."""
         d1, d0 = last[2] - last[1], last[1] - last[0]
         s1, s0 = d1.sum(0), d0.sum(0)
         r = np.clip(np.divide(s1, s0, out=np.zeros(3), where=s0 != 0), 0.0, self.TAIL_MAX)
         self.stats["tail_ratio"] = r
+        if not local:
+            t = d1 * (r / (1 - r))
+            return last[2] + t, float((np.abs(t.sum(0)) / (np.abs(last[2].sum(0)) + 1e-300)).max())
         # each object's own ratio where it is lower (its light converging faster than the room's;
         # opposite changes: none): one ratio left single objects of the 100k room 3.8% off the
         # passes' limit, the lower of the two 1.8%; each object's alone (not capped) 9%
@@ -914,8 +918,7 @@ class FinalGather(DirectLight):
         g1, g0 = (np.stack([np.bincount(grp, d[:, c], k) for c in range(3)], 1) for d in (d1, d0))
         r = np.clip(np.divide(g1, g0, out=np.zeros_like(g1), where=g0 != 0), 0.0, r)[grp]
         t = d1 * (r / (1 - r))
-        tot = np.abs(last[2].sum(0)) + 1e-300
-        return last[2] + t, float((np.abs(t.sum(0)) / tot).max())
+        return last[2] + t, float((np.abs(t.sum(0)) / (np.abs(last[2].sum(0)) + 1e-300)).max())
 
     def _tail_groups(self, rows):
         """(rows,) the object of each row of _levels' leaf values (the HR leaves, then with near
