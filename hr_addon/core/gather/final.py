@@ -907,16 +907,14 @@ class FinalGather(DirectLight):
         s1, s0 = d1.sum(0), d0.sum(0)
         r = np.clip(np.divide(s1, s0, out=np.zeros(3), where=s0 != 0), 0.0, self.TAIL_MAX)
         self.stats["tail_ratio"] = r
-        if not local:
-            t = d1 * (r / (1 - r))
-            return last[2] + t, float((np.abs(t.sum(0)) / (np.abs(last[2].sum(0)) + 1e-300)).max())
-        # each object's own ratio where it is lower (its light converging faster than the room's;
-        # opposite changes: none): one ratio left single objects of the 100k room 3.8% off the
-        # passes' limit, the lower of the two 1.8%; each object's alone (not capped) 9%
-        grp = self._tail_groups(len(d1))
-        k = grp.max() + 1
-        g1, g0 = (np.stack([np.bincount(grp, d[:, c], k) for c in range(3)], 1) for d in (d1, d0))
-        r = np.clip(np.divide(g1, g0, out=np.zeros_like(g1), where=g0 != 0), 0.0, r)[grp]
+        if local:
+            # each object's own ratio where it is lower (its light converging faster than the
+            # room's; opposite changes: none): one ratio left single objects of the 100k room 3.8%
+            # off the passes' limit, the lower of the two 1.8%; each object's alone (uncapped) 9%
+            grp = self._tail_groups(len(d1))
+            k = grp.max() + 1
+            g1, g0 = (np.stack([np.bincount(grp, d[:, c], k) for c in range(3)], 1) for d in (d1, d0))
+            r = np.clip(np.divide(g1, g0, out=np.zeros_like(g1), where=g0 != 0), 0.0, r)[grp]
         t = d1 * (r / (1 - r))
         return last[2] + t, float((np.abs(t.sum(0)) / (np.abs(last[2].sum(0)) + 1e-300)).max())
 
