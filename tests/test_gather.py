@@ -435,7 +435,7 @@ def test_a_shape_with_the_passes_tail_gives_the_converged_gather(method):
     filled from their neighbours. In a closed bright room (the furnace with clutter at rho 0.85,
     a window on a wall) both are closer to the converged gather (a 1e-7 response and 24 passes)
     than the 5 passes from a 1e-7 response, per sample (median, worst) and in the mean (FE
-    measured: 0.88 / 1.8 / +0.86% against 0.35 / 0.52 / +0.34% with the tail and 0.03 / 0.69 /
+    measured: 0.88 / 1.8 / +0.86% against 0.39 / 0.68 / +0.39% with the tail and 0.03 / 0.70 /
     +0.03% from nothing); "zero" gives FE and AUTO the same part."""
     base = RadiositySystem(contact_furnace(0.85), RefineParams.preset("draft"))
     frame = (np.zeros(3), (0, 0, 1.0), (1.0, 0, 0))  # wall0, facing +y

@@ -37,10 +37,10 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # gather's passes over an FE or AUTO shape's response are a Jacobi solve whose limit does not
 # depend on the response they start from: the gathered part takes their geometric tail
 # (FinalGather._levels), closer to that limit than the 5 passes (furnished 100k room, per object
-# against a converged gather: median 0.54 -> 0.22%, bias -0.49 -> -0.18%, worst 3.6 -> 3.3% FE).
-# "zero" (not the default) solves no response at all, nor AUTO's first bounce: events of a few
-# ms, but up to 4.2% off on single objects there (docs/gather.md, "Light events without a
-# response solve").
+# against a converged gather, FE: median 0.54 -> 0.23%, worst 3.6 -> 2.1%, bias -0.49 -> -0.20%;
+# AUTO 0.35 -> 0.18%, 2.2 -> 1.6%, -0.31 -> -0.16%). "zero" (not the default) solves no response
+# at all, nor AUTO's first bounce: events of about 0.02 s, but up to 4.7% off on single objects
+# there (docs/gather.md, "Light events without a response solve").
 GATHER_SOLVE = {
     "draft": dict(tol=1e-5, response_tol=1e-4, response_float32=True, response_steps=4, bounce_points=4,
                   gather_responses="tail"),
