@@ -119,6 +119,7 @@ def main(argv=None):
     if stored is not None and stored.exists():
         s, g, header = load_store(stored)
         pc.use_threads(s, g, args.threads)
+        g.iterations = args.iterations  # (the store's: 4; more for a converged reference)
         out.update(header["info"])
         out["loaded"] = str(stored)
         # the solver's far-link terms: computed by the build's base solution, not stored (as a

@@ -248,3 +248,35 @@ def test_an_unchecked_guess_is_what_the_solve_returns_when_it_accepts_it(mesh):
     Ue = twin.shapes["w"].U
     err, err_checked = (np.abs(u - Ue).max() / np.abs(Ue).max() for u in (U, Uc))
     assert out[0.75][2] == 0 and err < 2e-3 and err < err_checked
+
+
+def test_previews_of_states_without_a_response(mesh):
+    """gather_responses="zero" (no response solve for exact FE events, docs/gather.md): a preview
+    near the last exact state is that state's exact indirect light times the power ratio with the
+    preview's direct light, so a preview dragged back onto the exact outline gives the exact
+    output to rounding; one far from it solves its response and reads it (no correction: that
+    state has no response to correct from); refine gives bitwise the exact result of its state."""
+    def live():
+        dyn = DynamicRadiosity(RadiositySystem(mesh, COARSE), method="FE", min_area_rel=1e-5,
+                               response_tol=RESPONSE_TOL, response_float32=True, cache_size=0,
+                               gather_responses="zero")
+        return dyn, LoopGather(dyn, **GATHER)
+
+    dyn, g = live()
+    dyn.apply(_shapes(DRAG[0]))
+    assert dyn.shapes["w"].gathered == "zero"
+    exact = g.loop_radiance(dyn)
+    for x in (DRAG[1], DRAG[0]):
+        near = dyn.apply(_shapes(x), preview=PREVIEW)
+        assert dyn.previewing and dyn.shapes["w"].gathered == "zero" and near.iterations == 0
+    assert _errors(g.loop_radiance(dyn), exact)[1] < 1e-5
+    far = dyn.apply(_shapes(DRAG[5]), preview=PREVIEW)
+    assert dyn.shapes["w"].gathered == "" and far.iterations > 0
+    p = g.loop_radiance(dyn)
+    twin, tg = live()
+    twin.apply(_shapes(DRAG[5]))
+    e5 = tg.loop_radiance(twin)
+    print("far preview: median, largest, bias", _errors(p, e5))
+    assert _errors(p, e5)[1] < 0.35
+    dyn.refine()
+    np.testing.assert_array_equal(g.loop_radiance(dyn), e5)

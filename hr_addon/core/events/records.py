@@ -137,6 +137,11 @@ class _Rec:
     preview: Preview = None  # set: U is a preview's (apply(preview=)), refine() replaces it
     G: np.ndarray = None  # (3, n) a preview's: the guess its exact solve starts from (refine)
     ref: object = None  # a preview's: the record of its shape's last exact state (its visibility)
+    # no response solved: U holds the emission only and the final gather's passes, started from
+    # nothing, give the scattered light (DynamicRadiosity's gather_responses); a preview's: that
+    # state's indirect light scaled by `ratio`, the emitted power's (FinalGather._preview_part)
+    gathered: str = ""  # "tail" / "zero" (DynamicRadiosity.gather_responses)
+    ratio: float = 1.0
 
     @property
     def geom_key(self):
