@@ -241,7 +241,9 @@ class FinalGather(DirectLight):
         self.normals = nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
         self.patch = np.asarray(patch_ids, np.int64).ravel()
         lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
-        self.tmax = 2.0 * float(np.linalg.norm(hi - lo)) + 1.0
+        # twice the scene's diagonal (no absolute term: the hemisphere rays keep Embree's float32 t,
+        # relative to the segment, so the segment must scale with the scene for a unit-free result)
+        self.tmax = 2.0 * float(np.linalg.norm(hi - lo)) or 1.0
         # rays are traced to `reach` first, then the misses on to tmax: the ray contract's minimum
         # distance is relative to the segment, so one long segment (a stray object 50 km away
         # makes the box 100 km wide) would skip every hit within 20 cm. reach follows the surface
