@@ -60,6 +60,22 @@ def neighbour(box, n, side):
     return box.get(f"{case}_{row}_{k + (1 if side else -1)}")
 
 
+def texel_centres(at):
+    """(at.n, 3) each texel's centre sample point of a cycles_ref.Atlas (nan where it has none)."""
+    cen = np.flatnonzero(at.s_centre)
+    x = np.full((at.n, 3), np.nan)
+    x[at.s_texel[cen]] = at.s_point[cen]
+    return x
+
+
+def side_above(x, lo, hi, side, nb):
+    """(N,) texels (centres x, texel_centres) on the book (box lo, hi)'s side -x (side 0) or +x
+    (side 1) above the facing box nb's top, within the two boxes' overlap in y."""
+    fx = hi[0] if side else lo[0]
+    iny = (x[:, 1] > max(lo[1], nb[0][1])) & (x[:, 1] < min(hi[1], nb[1][1]))
+    return (np.abs(x[:, 0] - fx) < 1e-4) & iny & (x[:, 2] > min(hi[2], nb[1][2]))
+
+
 def centre_texels(rs, ours, ref, n, grey=True):
     """Object n's texels sampled at their centre: (points, patches, axes, triangles, the Cycles
     reference ref[n] at them, grey or (k, 3))."""

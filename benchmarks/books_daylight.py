@@ -38,10 +38,7 @@ def classes(rs, books, box):
     texel's centre sample: the face of the book's box it lies on, as books_common.book_texels."""
     out = {}
     for n in books:
-        at = rs.atlases[n]
-        cen = np.flatnonzero(at.s_centre)
-        x = np.full((at.n, 3), np.nan)
-        x[at.s_texel[cen]] = at.s_point[cen]
+        x = BC.texel_centres(rs.atlases[n])
         lo, hi = box[n]
         d = np.stack(
             [
@@ -56,7 +53,7 @@ def classes(rs, books, box):
         )
         face = np.nanargmin(np.abs(np.where(np.isfinite(d), d, np.inf)), 1)  # -x +x -y(front) +y -z +z
         cls = np.select([face == 5, face == 2, face == 3, face == 4], [0, 1, 2, 3], 4)
-        z = np.full(at.n, np.nan)
+        z = np.full(len(x), np.nan)
         for side in (0, 1):
             sel = np.flatnonzero(face == side)
             nb = BC.neighbour(box, n, side)

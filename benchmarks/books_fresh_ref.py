@@ -46,29 +46,15 @@ def main():
     box = BC.book_boxes(rs)
     acc = np.zeros((2, 4))  # per side: ours, fresh, cached sums, texels
     for n in box:
-        at = rs.atlases[n]
-        cen = np.flatnonzero(at.s_centre)
-        x = np.full((at.n, 3), np.nan)
-        x[at.s_texel[cen]] = at.s_point[cen]
+        x = BC.texel_centres(rs.atlases[n])
         f = np.where(mask[n], ref[n].mean(1), np.nan)
         sv = saved[n].mean(1)
         r = (cz[0][n].astype(float) + cz[1][n].astype(float)).mean(1) / 2
-        lo, hi = box[n]
-        case, row, k = n.split("_")
-        for side, fx in ((0, lo[0]), (1, hi[0])):
-            nb = box.get(f"{case}_{row}_{int(k) + (1 if side else -1)}")
+        for side in (0, 1):
+            nb = BC.neighbour(box, n, side)
             if nb is None:
                 continue
-            top = min(hi[2], nb[1][2])
-            iny = (x[:, 1] > max(lo[1], nb[0][1])) & (x[:, 1] < min(hi[1], nb[1][1]))
-            m = (
-                (np.abs(x[:, 0] - fx) < 1e-4)
-                & iny
-                & (x[:, 2] > top)
-                & np.isfinite(f)
-                & np.isfinite(r)
-                & np.isfinite(sv)
-            )
+            m = BC.side_above(x, *box[n], side, nb) & np.isfinite(f) & np.isfinite(r) & np.isfinite(sv)
             acc[side] += (sv[m].sum(), f[m].sum(), r[m].sum(), m.sum())
     for sd in (0, 1):
         a = acc[sd]

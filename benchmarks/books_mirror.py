@@ -54,22 +54,15 @@ def main():
     box = BC.book_boxes(rs)
     acc = np.zeros((2, 2, 3))  # [face -x / +x, looks at the previous book], (ours, Cycles, texels)
     for n in box:
-        at = rs.atlases[n]
-        cen = np.flatnonzero(at.s_centre)
-        x = np.full((at.n, 3), np.nan)
-        x[at.s_texel[cen]] = at.s_point[cen]
-        lo, hi = box[n]
+        x = BC.texel_centres(rs.atlases[n])
         o = res[n]["gather_refl"].mean(1)
         r = np.where(mask[n], ref[n].mean(1), np.nan)
-        case, row, k = n.split("_")
-        for side, fx in ((0, lo[0]), (1, hi[0])):
+        for side in (0, 1):
             prev = int(side == mirror)  # the previous book lies at -x as built, at +x mirrored
-            nb = box.get(f"{case}_{row}_{int(k) + (-1 if prev else 1)}")
+            nb = BC.neighbour(box, n, 1 - prev)  # neighbour's side 1 is the next book
             if nb is None:
                 continue
-            top = min(hi[2], nb[1][2])
-            iny = (x[:, 1] > max(lo[1], nb[0][1])) & (x[:, 1] < min(hi[1], nb[1][1]))
-            m = (np.abs(x[:, 0] - fx) < 1e-4) & iny & (x[:, 2] > top) & np.isfinite(o) & np.isfinite(r)
+            m = BC.side_above(x, *box[n], side, nb) & np.isfinite(o) & np.isfinite(r)
             acc[side, prev] += (o[m].sum(), r[m].sum(), m.sum())
     for side in (0, 1):
         for prev in (0, 1):
