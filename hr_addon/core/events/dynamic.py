@@ -643,7 +643,7 @@ class DynamicRadiosity:
             return None
         self._sync()
         cov = self._coverage(rec, mean=True)[None]  # its emission, as node means
-        if rec.method == "AUTO" and rec.gathered != "zero":  # U = solve(push(D)) + pull(coverage)
+        if rec.method == "AUTO":  # U = solve(push(D)) + pull(coverage)
             ex = self.system.h.exposure[: rec.U.shape[1]]
             pushed = self.solves.push(rec.D) * ex if rec.D is not None else 0.0
             return self._operator().pull(rec.U - cov - pushed)
