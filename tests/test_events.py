@@ -51,6 +51,13 @@ def rel(a, b):
     return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-300))
 
 
+def test_unknown_method_or_gather_responses_is_named(base):
+    with pytest.raises(ValueError, match="Unknown method 'FOO'"):
+        DynamicRadiosity(base, method="foo")
+    with pytest.raises(ValueError, match="not 'tails'"):
+        DynamicRadiosity(base, method="FE", gather_responses="tails")
+
+
 # -- incremental == from scratch ------------------------------------------------------------------------
 @pytest.mark.parametrize("method", ["FE", "AR"])
 @pytest.mark.parametrize("incremental", ["response", "warm"])

@@ -129,7 +129,7 @@ class DynamicRadiosity:
         self.response_float32 = response_float32
         self.warm_moves = warm_moves
         if gather_responses not in (False, None, "tail", "zero"):
-            raise ValueError("gather_responses must be False, 'tail' or 'zero'")
+            raise ValueError(f"gather_responses must be False, 'tail' or 'zero', not {gather_responses!r}")
         self.gather_responses = gather_responses or ""
         self.links = system.links
         h = system.h
