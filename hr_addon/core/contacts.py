@@ -23,7 +23,7 @@ through per-chain bounding boxes, so the cost follows the number of contacts, no
 
 import numpy as np
 
-from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, sorted_index
+from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, row_groups, sorted_index
 from .geometry import components
 from .parallel import batch_map, ranges
 from .planes import frames, plane_ids
@@ -70,7 +70,7 @@ class Contacts(SlotMouths):
         q = np.round(pt.corners[jj, kk] / (1e-5 * size)).astype(np.int64)
         ii, jn = [], []
         for key in (pt.vert_index[jj, kk][:, None], np.column_stack([pt.object_id[jj], q])):
-            inv = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+            inv = row_groups(key)[0]
             order = np.argsort(inv, kind="stable")
             same = inv[order][1:] == inv[order][:-1]
             ii.append(jj[order][:-1][same])
@@ -174,7 +174,7 @@ class Contacts(SlotMouths):
             g_, ch_, pc_, op_ = (np.zeros(0, np.int64) for _ in range(4))
             sg_, a_, b_, hg_ = np.zeros(0, bool), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
         # chain = (plane, piece or covering patch): sort segments by chain
-        key = np.unique(np.column_stack([g_, ch_]), axis=0, return_inverse=True)[1].ravel()
+        key = row_groups(np.column_stack([g_, ch_]))[0]
         order = np.argsort(key, kind="stable")
         self.seg_a, self.seg_b, self.seg_chain = a_[order], b_[order], key[order]
         nC = int(key.max()) + 1 if len(key) else 0
@@ -218,10 +218,8 @@ class Contacts(SlotMouths):
             q = q.astype(np.int64)
             fwd = np.column_stack([plane[i], q])
             rev = np.column_stack([plane[i], q[:, 2:], q[:, :2]])
-            _, inv, cnt = np.unique(
-                np.concatenate([fwd, rev]), axis=0, return_inverse=True, return_counts=True
-            )
-            out[i[cnt[inv.ravel()[: len(i)]] > 1]] = False
+            inv, cnt = row_groups(np.concatenate([fwd, rev]))
+            out[i[cnt[inv[: len(i)]] > 1]] = False
         return out
 
     def _to2d(self, gi, p):
