@@ -3,7 +3,7 @@ pairs of overlapping axis-aligned boxes through a uniform grid, 2D ray exits."""
 
 import numpy as np
 
-from .parallel import batch_map
+from .parallel import batch_map, ranges
 
 # candidate pairs per batch of box_pairs on threads (core.parallel): fixed, never by the thread
 # count (the pairs come out sorted and unique whatever the blocks)
@@ -103,6 +103,14 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000
     keys = [pairs(s, e) for s, e in blocks] if threads is None else batch_map(pairs, blocks, threads)
     key = merge_unique(keys)
     return key // len(lo_b), key % len(lo_b)
+
+
+def unique_ints(x, threads=None, block=PAIR_BLOCK):
+    """np.unique(x) of an integer array: its blocks' np.unique as a batch map on threads (fixed
+    blocks), then merged (merge_unique); the same array. threads None: np.unique."""
+    if threads is None:
+        return np.unique(x)
+    return merge_unique(batch_map(lambda i, j: np.unique(x[i:j]), ranges(len(x), block), threads))
 
 
 def merge_unique(parts):

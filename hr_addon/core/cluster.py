@@ -31,6 +31,7 @@ members by orientation and position, both through prefix sums over contiguous le
 import numpy as np
 
 from . import formfactor as ff
+from .boxes import csr_rows
 
 N_CLASSES = 6
 
@@ -286,10 +287,8 @@ class ClusterTree:
 
     def children(self, c):
         """Children (shared ids) of clusters c: (flat ids, owner index into c)."""
-        c = np.asarray(c, np.int64)
-        cnt = self.child_start[c + 1] - self.child_start[c]
-        owner = np.repeat(np.arange(len(c)), cnt)
-        return self.child_ids[np.repeat(self.child_start[c], cnt) + _rank_within(owner)], owner
+        owner, idx = csr_rows(self.child_start, np.asarray(c, np.int64))
+        return self.child_ids[idx], owner
 
     @property
     def nbytes(self):
