@@ -2,10 +2,16 @@
 its first frame), CPU seconds (process time) per stage, peak RSS, optional cProfile (process time)
 and an npz of every captured array (io.precompute.capture) for a bitwise comparison.
 
-    python benchmarks/profile_build.py SIZE [--profile OUT.prof] [--capture OUT.npz] [--compare REF.npz]
+    python benchmarks/profile_build.py SIZE [--profile OUT.prof [--serial]] [--capture OUT.npz]
+        [--compare REF.npz] [--build-only] [--json OUT.json]
+
+At one thread without --profile each stage's batch maps are timed (core.parallel.profiled): its
+serial CPU and the Amdahl model on 2 and 16 cores (bench_threads.amdahl_table). --serial turns
+the profiler off inside the outermost batch maps, so the profile lists what runs serially.
 """
 
 import argparse
+import contextlib
 import json
 import os
 import resource
@@ -22,7 +28,30 @@ from hr_addon.core.events import DynamicRadiosity  # noqa: E402
 from hr_addon.core.gather import LoopGather  # noqa: E402
 from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
 from hr_addon.core.refine import RefineParams  # noqa: E402
+from hr_addon.core import parallel  # noqa: E402
 from hr_addon.io import precompute as pc  # noqa: E402
+from bench_threads import amdahl_table  # noqa: E402
+
+
+def profile_outside_maps(prof):
+    """Every hr_addon module's batch_map wrapped so that `prof` is off inside the outermost map."""
+    orig = parallel.batch_map
+    depth = [0]
+
+    def batch_map(*args, **kwargs):
+        if depth[0] == 0:
+            prof.disable()
+        depth[0] += 1
+        try:
+            return orig(*args, **kwargs)
+        finally:
+            depth[0] -= 1
+            if depth[0] == 0:
+                prof.enable()
+
+    for name, mod in list(sys.modules.items()):
+        if name.startswith("hr_addon") and getattr(mod, "batch_map", None) is orig:
+            mod.batch_map = batch_map
 
 
 def main(argv=None):
@@ -33,6 +62,9 @@ def main(argv=None):
     ap.add_argument("--profile", default=None)
     ap.add_argument("--capture", default=None, help="write every captured array here (npz)")
     ap.add_argument("--compare", default=None, help="compare every captured array with this npz")
+    ap.add_argument("--serial", action="store_true", help="profile only outside the batch maps")
+    ap.add_argument("--build-only", action="store_true", help="stop after the hierarchy's build")
+    ap.add_argument("--json", default=None)
     a = ap.parse_args(argv)
     mesh, _ = furnished_room(a.size)
     q = a.quality
@@ -44,15 +76,28 @@ def main(argv=None):
         import cProfile
 
         prof = cProfile.Profile(time.process_time)
+        if a.serial:
+            profile_outside_maps(prof)
         prof.enable()
+    batches = {}
+    timed = a.threads == 1 and prof is None
     c0 = time.process_time()
-    system = RadiositySystem(mesh, params, threads=a.threads)
+    with parallel.profiled() if timed else contextlib.nullcontext([]) as maps:
+        system = RadiositySystem(mesh, params, threads=a.threads)
+        batches["build"] = list(maps)
     c1 = time.process_time()
-    dyn = DynamicRadiosity(system, method="FE", **opts)
-    c2 = time.process_time()
-    gather = LoopGather(dyn, threads=a.threads, **settings)
-    pc.prepare(gather)
+    if not a.build_only:
+        with parallel.profiled() if timed else contextlib.nullcontext([]) as maps:
+            dyn = DynamicRadiosity(system, method="FE", **opts)
+            batches["base_solve"] = list(maps)
+        c2 = time.process_time()
+        with parallel.profiled() if timed else contextlib.nullcontext([]) as maps:
+            gather = LoopGather(dyn, threads=a.threads, **settings)
+            pc.prepare(gather)
+            batches["gather"] = list(maps)
     c3 = time.process_time()
+    if a.build_only:
+        c2 = c3
     if prof is not None:
         prof.disable()
         prof.dump_stats(a.profile)
@@ -70,7 +115,13 @@ def main(argv=None):
         load_average=os.getloadavg(),
         created=time.strftime("%Y-%m-%d %H:%M"),
     )
+    if timed:
+        cpu = dict(build=c1 - c0, base_solve=c2 - c1, gather=c3 - c2)
+        names = [k for k in cpu if k in batches]
+        res["amdahl"] = amdahl_table(dict(cpu=cpu, batches=batches), names, cores=(2, 16))
     print(json.dumps(res), flush=True)
+    if a.json:
+        Path(a.json).write_text(json.dumps(res, indent=1))
     if a.capture or a.compare:
         arrays, graph = pc.capture(system, gather)
         if a.capture:

@@ -41,3 +41,35 @@ def test_box_pairs_on_threads_equal_the_serial_and_brute_force_pairs(monkeypatch
         for w, x, b in zip(want, got, brute, strict=True):
             np.testing.assert_array_equal(w, x)
             np.testing.assert_array_equal(w, b)
+
+
+def test_row_groups_and_unique_helpers_equal_numpys_unique():
+    """row_groups: np.unique(axis=0)'s inverse and counts (integer rows, and float rows where -0.0
+    and 0.0 are one value); merge_unique and unique_ints (1 and 2 threads, many blocks): np.unique."""
+    rng = np.random.default_rng(4)
+    for rows in (
+        rng.integers(-3, 4, (5000, 5)),
+        rng.integers(-(10**12), 10**12, (300, 2))[rng.integers(0, 300, 3000)],
+        rng.integers(0, 50, (4000, 1)),
+        np.round(rng.standard_normal((4000, 4)) * 2) * rng.choice([-1.0, 1.0], (4000, 4)),
+    ):
+        _, inv, cnt = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+        got_inv, got_cnt = boxes.row_groups(rows)
+        np.testing.assert_array_equal(got_inv, inv.ravel())
+        np.testing.assert_array_equal(got_cnt, cnt)
+        assert cnt.max() > 1
+    x = rng.integers(0, 20000, 50_000)
+    parts = [np.unique(x[i : i + 7000]) for i in range(0, len(x), 7000)]
+    np.testing.assert_array_equal(boxes.merge_unique(parts), np.unique(x))
+    assert len(boxes.merge_unique([])) == 0
+    for threads in (None, 1, 2):
+        np.testing.assert_array_equal(boxes.unique_ints(x, threads, block=4096), np.unique(x))
+
+
+def test_norm3_is_linalg_norm_bit_for_bit():
+    from hr_addon.core.formfactor import norm3
+
+    rng = np.random.default_rng(5)
+    v = rng.standard_normal((20000, 5, 3)) * rng.uniform(1e-6, 1e6, (20000, 5, 1))
+    assert np.array_equal(norm3(v), np.linalg.norm(v, axis=-1))
+    assert np.array_equal(norm3(v[:, 0]), np.linalg.norm(v[:, 0], axis=1))

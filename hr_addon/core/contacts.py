@@ -23,7 +23,7 @@ through per-chain bounding boxes, so the cost follows the number of contacts, no
 
 import numpy as np
 
-from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, sorted_index
+from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, row_groups, sorted_index, unique_ints
 from .geometry import components
 from .parallel import batch_map, ranges
 from .planes import frames, plane_ids
@@ -70,7 +70,7 @@ class Contacts(SlotMouths):
         q = np.round(pt.corners[jj, kk] / (1e-5 * size)).astype(np.int64)
         ii, jn = [], []
         for key in (pt.vert_index[jj, kk][:, None], np.column_stack([pt.object_id[jj], q])):
-            inv = np.unique(key, axis=0, return_inverse=True)[1].ravel()
+            inv = row_groups(key)[0]
             order = np.argsort(inv, kind="stable")
             same = inv[order][1:] == inv[order][:-1]
             ii.append(jj[order][:-1][same])
@@ -158,7 +158,8 @@ class Contacts(SlotMouths):
         i, j = box_pairs(lo - g, hi + g, lo, hi, threads=threads)
         keep = (i != j) & (self.plane[i] != self.plane[j])
         gi, t = self.plane[i[keep]], j[keep]
-        pair = np.unique(gi.astype(np.int64) * len(pt.nv) + t)  # (plane, occluder patch), once each
+        # (plane, occluder patch), once each
+        pair = unique_ints(gi.astype(np.int64) * len(pt.nv) + t, threads)
         gi, t = pair // len(pt.nv), pair % len(pt.nv)
         # bounded temporaries at any scene size; each chunk's segments are its own (on threads: the
         # same chunks, so the same segments in the same order)
@@ -174,7 +175,7 @@ class Contacts(SlotMouths):
             g_, ch_, pc_, op_ = (np.zeros(0, np.int64) for _ in range(4))
             sg_, a_, b_, hg_ = np.zeros(0, bool), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
         # chain = (plane, piece or covering patch): sort segments by chain
-        key = np.unique(np.column_stack([g_, ch_]), axis=0, return_inverse=True)[1].ravel()
+        key = row_groups(np.column_stack([g_, ch_]))[0]
         order = np.argsort(key, kind="stable")
         self.seg_a, self.seg_b, self.seg_chain = a_[order], b_[order], key[order]
         nC = int(key.max()) + 1 if len(key) else 0
@@ -218,10 +219,8 @@ class Contacts(SlotMouths):
             q = q.astype(np.int64)
             fwd = np.column_stack([plane[i], q])
             rev = np.column_stack([plane[i], q[:, 2:], q[:, :2]])
-            _, inv, cnt = np.unique(
-                np.concatenate([fwd, rev]), axis=0, return_inverse=True, return_counts=True
-            )
-            out[i[cnt[inv.ravel()[: len(i)]] > 1]] = False
+            inv, cnt = row_groups(np.concatenate([fwd, rev]))
+            out[i[cnt[inv[: len(i)]] > 1]] = False
         return out
 
     def _to2d(self, gi, p):
@@ -360,15 +359,11 @@ def refine_contacts(h, contacts: Contacts, min_area, k=(6, 4), max_nodes=2_000_0
     every node's exposure (uncovered area fraction, from k x k stratified points: k[0] on the
     receivers, which may be large, k[1] below; internal nodes the area-weighted mean of their
     children). Returns the number of nodes added. threads: the covered test's (Contacts.covered)."""
-    from . import formfactor as ff
-
     n0 = h.n
     frontier = np.asarray(contacts.receivers, np.int64)
     kk = k[0]
     while len(frontier):
-        pts = ff.sample_points(h.corners[frontier], h.nv[frontier], kk)
-        cov = contacts.covered(pts.reshape(-1, 3), np.repeat(h.patch[frontier], kk * kk), threads=threads)
-        cov = cov.reshape(-1, kk * kk)
+        cov = _covered_samples(h, contacts, frontier, kk, threads)
         kk = k[1]
         frac = cov.mean(1)
         h.exposure[frontier] = 1.0 - frac
@@ -384,6 +379,22 @@ def refine_contacts(h, contacts: Contacts, min_area, k=(6, 4), max_nodes=2_000_0
             kids = h.children(inner)
             h.exposure[inner] = (h.exposure[kids] * h.area[kids]).sum(1) / h.area[inner]
     return h.n - n0
+
+
+def _covered_samples(h, contacts, nodes, k, threads=None):
+    """(len(nodes), k * k): which of the k x k stratified points of each node are covered. On
+    threads by batches of nodes (about POINT_BATCH points: every node's points and answers are
+    its own, so the same as serially), the points made inside the batches."""
+    from . import formfactor as ff
+
+    def batch(i, j):
+        pts = ff.sample_points(h.corners[nodes[i:j]], h.nv[nodes[i:j]], k)
+        return contacts.covered(pts.reshape(-1, 3), np.repeat(h.patch[nodes[i:j]], k * k)).reshape(-1, k * k)
+
+    if threads is None:
+        return batch(0, len(nodes))
+    parts = batch_map(batch, ranges(len(nodes), max(POINT_BATCH // (k * k), 1)), threads)
+    return np.concatenate(parts) if parts else np.zeros((0, k * k), bool)
 
 
 def exposed_points(h, contacts: Contacts, nodes, k, fp, seen):

@@ -304,8 +304,10 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             pending.append((np.concatenate(new_a), np.concatenate(new_b)))
         if progress is not None:
             progress.update("clusters", done_w, total_w)
+    # the rounds' far links and node pairs: each array concatenated on its own (threads)
+    cat = batch_map(lambda *x: np.concatenate(x), [*zip(*far), *zip(*nodes)], refiner.threads)
     if far:
-        fa_, fb_, fv, fm, pa_, pb_, ff_ = (np.concatenate(x) for x in zip(*far))
+        fa_, fb_, fv, fm, pa_, pb_, ff_ = cat[:7]
         fs = np.ones(len(fv))
         todo = np.flatnonzero(np.isnan(fv))
         table.update()
@@ -333,9 +335,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     else:
         z = np.zeros(0)
         links = FarLinks(tree, z.astype(np.int64), z.astype(np.int64), z, z.astype(np.uint16))
-    p, q = (
-        (np.concatenate(x) for x in zip(*nodes)) if nodes else (np.zeros(0, np.int64), np.zeros(0, np.int64))
-    )
+    p, q = cat[-2:] if nodes else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     return links, p, q
 
 

@@ -36,6 +36,13 @@ def _dot(a, b):
     return np.einsum("...k,...k->...", a, b)
 
 
+def norm3(v):
+    """np.linalg.norm(v, axis=-1) of 3-vectors, bit for bit (its add.reduce over an axis of 3
+    adds the squares in order), without the reduction's per-row overhead: 4x faster."""
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.sqrt((x * x + y * y) + z * z)
+
+
 def _padded(corners, nv):
     """float64 corners, with triangles (nv == 3) re-padded so corner 3 == corner 2."""
     c = np.asarray(corners, dtype=np.float64)
@@ -55,7 +62,7 @@ def polygon_normal_area(corners, nv=None):
     """
     c = _padded(corners, nv)
     av = 0.5 * _cross(c[..., 2, :] - c[..., 0, :], c[..., 3, :] - c[..., 1, :])
-    area = np.linalg.norm(av, axis=-1)
+    area = norm3(av)
     normal = av / np.where(area > 0.0, area, 1.0)[..., None]
     return normal, area
 
@@ -90,13 +97,15 @@ def _clip_to_halfspace(verts, point, normal):
     return np.take_along_axis(slots, idx[..., None], axis=1), any_valid
 
 
-def point_to_polygon(points, normals, corners, nv=None):
+def point_to_polygon(points, normals, corners, nv=None, plane=None):
     """Exact unoccluded form factor from differential areas (points, unit normals) to polygons. -> (N,)
 
     F = -1/(2 pi) sum_i gamma_i n.(R_i x R_i+1)/|R_i x R_i+1| over the polygon's contour, after clipping
     the polygon to the receiver's upper half-space (the contour integral assumes the whole polygon is
     above the horizon). The minus sign: vertices are counter-clockwise about the polygon's normal, which
     points towards a point that can see its front. Points on or behind the polygon's plane get 0.
+    plane: the polygons' (normals, areas) from polygon_normal_area(corners, nv), broadcast as the
+    corners (a caller evaluating each polygon at many points computes them once per polygon).
     """
     p = np.asarray(points, dtype=np.float64)
     n = np.asarray(normals, dtype=np.float64)
@@ -106,7 +115,11 @@ def point_to_polygon(points, normals, corners, nv=None):
     n = np.broadcast_to(n, shape + (3,)).reshape(-1, 3)
     c = np.broadcast_to(c, shape + (4, 3)).reshape(-1, 4, 3)
 
-    qn, qa = polygon_normal_area(c)
+    if plane is None:
+        qn, qa = polygon_normal_area(c)
+    else:
+        qn = np.broadcast_to(plane[0], shape + (3,)).reshape(-1, 3)
+        qa = np.broadcast_to(plane[1], shape).reshape(-1)
     height = _dot(p - c[:, 0], qn)
     front = height > _PLANE_EPS * np.sqrt(qa)  # one-sided emitter
     above = _dot(c - p[:, None, :], n[:, None, :]) >= 0.0  # corners above the horizon
@@ -194,7 +207,7 @@ def patch_to_patch(corners_p, nv_p, corners_q, nv_q, n_samples=4):
 
 
 def _unit(v):
-    length = np.linalg.norm(v, axis=-1, keepdims=True)
+    length = norm3(v)[..., None]
     return v / np.where(length > 0.0, length, 1.0)
 
 

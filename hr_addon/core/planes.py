@@ -4,13 +4,15 @@ gather's direct light and AUTO's first bounce on large scenes with ClearShafts).
 
 import numpy as np
 
+from .boxes import row_groups
+
 
 def plane_ids(normal, point, size):
     """Integer id per polygon (K,), one per plane: unit normals (K, 3) to 1e-6, the offset of a
     point on each (K, 3) to 1e-6 x size (the scene's length scale, sqrt of its area)."""
     offset = np.einsum("ij,ij->i", normal, point)
     key = np.column_stack([np.round(normal * 1e6), np.round(offset / (1e-6 * (size or 1.0)))])
-    return np.unique(key, axis=0, return_inverse=True)[1].ravel()
+    return row_groups(key)[0]
 
 
 def frames(normal):

@@ -95,11 +95,13 @@ def link_form_factors(h: Hierarchy, a, b, max_order=3):
             continue
         pts, w = ff.quadrature(h.corners[s[m]], h.nv[s[m]], kk)  # (M, kk^2, 3)
         ns = kk * kk
+        qn, qa = ff.polygon_normal_area(h.corners[big[m]], h.nv[big[m]])  # once per link
         vals = ff.point_to_polygon(
             pts.reshape(-1, 3),
             np.repeat(h.normal[s[m]], ns, 0),
             np.repeat(h.corners[big[m]], ns, 0),
             np.repeat(h.nv[big[m]], ns),
+            (np.repeat(qn, ns, 0), np.repeat(qa, ns)),
         )
         f_sl[m] = np.sum(vals.reshape(-1, ns) * w, axis=1)
     f_sl = np.clip(f_sl, 0.0, 1.0)
@@ -327,8 +329,9 @@ class Refiner:
         row = np.repeat(np.arange(len(k)), n)
         first = np.cumsum(n) - n  # each row's first entry in the flat (pair, point) arrays
         pts = self._ff_pts[start[row] + np.arange(len(row)) - first[row]]
+        qn, qa = ff.polygon_normal_area(h.corners[y], h.nv[y])  # once per link, not per point
         y = y[row]
-        vals = ff.point_to_polygon(pts, h.normal[x][row], h.corners[y], h.nv[y])
+        vals = ff.point_to_polygon(pts, h.normal[x][row], h.corners[y], h.nv[y], (qn[row], qa[row]))
         return np.bincount(row, vals * (1.0 / np.maximum(n, 1))[row], minlength=len(k))
 
     def leaf_form_factors(self, leaf, src, chunk=20_000):
@@ -565,7 +568,12 @@ def _variation(h, x, y):
     pulled 1% towards the centre: a corner on an edge shared with y is a singular configuration."""
     pts = np.concatenate([h.corners[x], h.centre[x][:, None]], 1)
     pts += 0.01 * (h.centre[x][:, None] - pts)
+    qn, qa = ff.polygon_normal_area(h.corners[y], h.nv[y])
     f = ff.point_to_polygon(
-        pts.reshape(-1, 3), np.repeat(h.normal[x], 5, 0), np.repeat(h.corners[y], 5, 0), np.repeat(h.nv[y], 5)
+        pts.reshape(-1, 3),
+        np.repeat(h.normal[x], 5, 0),
+        np.repeat(h.corners[y], 5, 0),
+        np.repeat(h.nv[y], 5),
+        (np.repeat(qn, 5, 0), np.repeat(qa, 5)),
     ).reshape(-1, 5)
     return f.max(1) - f.min(1)
