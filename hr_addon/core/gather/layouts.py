@@ -309,8 +309,9 @@ class LoopGather(FinalGather):
                 row = np.repeat(j, b - a)
                 for c in range(3):
                     out[:, c] += np.bincount(li[e], wn[e] * d[row, c], len(out))
-            np.maximum(out, 0.0, out=out)  # a sum of terms >= 0: only the parts' rounding dips below
-        return out
+        # a sum of terms >= 0, where only the parts' rounding dips below; with the faces' shifts
+        # (fit) a corner may (loop_values' clip)
+        return np.maximum(out, 0.0, out=out)
 
 
 def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None):
