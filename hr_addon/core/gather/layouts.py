@@ -12,7 +12,7 @@ from .sampling import cosine_directions, hash_uniform, position_keys
 from .texel_edges import texel_area
 
 SUB = 4  # sub-samples per side of a texel whose area straddles a coverage boundary
-FIT = True  # LoopGather's default: corner values shifted to keep each face's light (corner_fit)
+FIT = True  # LoopGather's default: the cut faces' corners shifted to keep their light (corner_fit)
 
 
 def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
@@ -177,9 +177,9 @@ class LoopGather(FinalGather):
     """FinalGather for the input mesh's corners: loop_radiance() in the layout of
     DynamicRadiosity.loop_radiance (CORNER: (L, 3) per loop; POINT: (V, 3) per vertex), float32.
     inset: see loop_samples (0.5: samples in the corners' regions, averaged; 0: at the corners).
-    fit (inset > 0; None: FIT): the corners' values shifted so each face keeps the mean of its
-    gathered light, with extra samples over the patches cut by another solid (corner_fit); False:
-    the corners' samples averaged alone."""
+    fit (inset > 0; None: FIT): extra samples over the faces cut by another solid, and their
+    corners' values shifted so each keeps the mean of the light gathered over its visible part
+    (corner_fit); False: the corners' samples averaged alone."""
 
     def __init__(self, system, smooth_angle=30.0, inset=0.5, fit=None, **kw):
         s = system.system
