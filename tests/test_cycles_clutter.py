@@ -23,7 +23,7 @@ texels), the others 0.23% or less. The sunk cylinder's vertex output missed (-6.
 xfail until branch vfit): a strip's two corner values, interpolated, could not hold the dark bands
 along the table and under the lid and the light between. Since the corners' values are shifted so
 each face keeps the mean of its gathered light, with samples over the faces cut by another solid
-(gather/corner_fit.py): -1.9% / -1.7% (benchmarks/clutter_vs_cycles.py at 256 spp, one run,
+(gather/corner_fit.py): -1.0% / -0.8% (benchmarks/clutter_vs_cycles.py at 256 spp, one run,
 2026-12-04). Before LoopGather moved buried corner samples to the visible part of their region
 (gather/layouts._uncover), vertex output read the table top -17.2%, the sunk box -21.6% and the
 lid -6.8% on their visible texels (benchmarks/clutter_vs_cycles.py, docs/accuracy.md)."""
