@@ -26,9 +26,9 @@ The shift is the least change of the corners (each weighted by its share of the 
 gives a lone face the light's mean. A least-squares fit of the interpolant to the points (the mean
 as a constraint) was tried first: it extrapolates the corners of a face whose visible part is
 small, past 0 where the light falls off, and clipped there they lit the visible part (a 2 m strip
-40% buried beside a step of light: +24% against the exact mean; the shift -1.2%, the corners'
-samples alone +4.2%; tests/test_corner_fit.py). Shifts and corner values are linear in the samples'
-values, so LoopGather's response sums stay sums."""
+40% buried beside a step of light, the scene of tests/test_corner_fit.py: +24% against the exact
+mean; the shift -1.2%, the corners' samples alone +4.2%). Shifts and corner values are linear in
+the samples' values, so LoopGather's response sums stay sums."""
 
 import numpy as np
 
