@@ -1152,6 +1152,12 @@ def main():
         help="links and solver tolerances as the bake takes them with the final gather on "
         "(RefineParams.for_gather, DynamicRadiosity.gather_options)",
     )
+    ap.add_argument(
+        "--no-fit",
+        action="store_true",
+        help="the gathered vertex output's corners unshifted (gather/layouts.FIT, corner_fit)",
+    )
+    ap.add_argument("--fit-cut", action="store_true", help="only the faces cut by another solid shifted")
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
@@ -1163,6 +1169,10 @@ def main():
     GATHER_SHADOW_RAYS = args.gather_shadow_rays
     SOLVE = args.solve
     BAKE_TRANSPORT = args.bake_transport
+    from hr_addon.core.gather import layouts
+
+    layouts.FIT = not args.no_fit
+    layouts.corner_fit.EVERY = not args.fit_cut
     GATHER, GATHER_LEVELS, GATHER_ITERATIONS = args.gather, args.gather_levels, args.gather_iterations
     from hr_addon.core.refine import RefineParams
 

@@ -5,7 +5,9 @@ setting moves which surface. Needs the reference of `cycles_compare.py --scenes 
         'nograd=dict(grad_cone=0.0)' 'med=dict(q="medium")'
 
 Each argument is name=dict(RefineParams fields, q=preset, grad_cone=cluster.GRAD_CONE,
-method="FE", gather=dict(rays=128, shadow_rays=32, vertex=True), transport="gather"). transport="gather":
+method="FE", gather=dict(rays=128, shadow_rays=32, vertex=True), transport="gather", fit=True).
+fit=False: the vertex output's corners unshifted (gather/layouts.FIT, corner_fit); every=False: only
+the faces cut by another solid shifted (corner_fit.EVERY). transport="gather":
 the bake's transport with the final gather on (RefineParams.for_gather + the fields given,
 DynamicRadiosity.gather_options) instead of the preset's. With `gather` the final gather
 (hr_addon.core.gather) is compared too: at texel centres (refl_gather) and at the mesh's corners
@@ -115,6 +117,10 @@ for name, kw in variants.items():
     gkw = kw.pop("gather", None)
     method = kw.pop("method", "FE")
     gt = kw.pop("transport", None) == "gather"
+    from hr_addon.core.gather import layouts
+
+    layouts.FIT = kw.pop("fit", True)  # the vertex output's faces keep their light (corner_fit)
+    layouts.corner_fit.EVERY = kw.pop("every", True)  # False: the cut faces alone
     import hr_addon.core.cluster as CL
     import hr_addon.core.farlinks as FL
 

@@ -27,6 +27,7 @@ _TRANSIENT = {
         "_split": None,
         "_near_x": None,
         "_loop_weights": None,
+        "_shift": None,
         "_loop_parts": dict,
     },
 }

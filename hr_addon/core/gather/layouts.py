@@ -5,12 +5,14 @@ import numpy as np
 from ..geometry import isolated_objects
 from ..parallel import batch_map, ranges
 from ..output import equal_key_pairs, in_domain, loop_welds
+from . import corner_fit
 from .bakepoints import has_area, texel_points
 from .final import OPEN_EDGE, FinalGather
 from .sampling import cosine_directions, hash_uniform, position_keys
 from .texel_edges import texel_area
 
 SUB = 4  # sub-samples per side of a texel whose area straddles a coverage boundary
+FIT = True  # LoopGather's default: the cut faces' corners shifted to keep their light (corner_fit)
 
 
 def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
@@ -27,8 +29,9 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     mean of the polygons' normals within smooth_angle) and material, moved `nudge` of the way
     towards the patch's centre.
     Returns (points (S, 3), normals (S, 3), patch ids (S,), loop -> sample index (L,), -1 for loops
-    of polygons dropped as degenerate, and (li, lj, w): loop li averages sample loop_index[lj] with
-    weight w (None for inset = 0))."""
+    of polygons dropped as degenerate, and (li, lj, w, lpatch, pc_loop): loop li averages sample
+    loop_index[lj] with weight w, lpatch (L,) the patch of each loop, pc_loop (K, 4) the loop at
+    each patch corner, -1 at padding (None for inset = 0))."""
     mesh, pt = system.mesh, system.patches
     P = len(mesh.loop_start)
     loop_poly, weld = loop_welds(mesh)
@@ -64,7 +67,11 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
         keep = ok & valid[lj]
         lpj = lpatch[lj[keep]]
         w = pt.area[lpj] / pt.nv[lpj]  # the corner's share of its patch
-        return pts, pt.normal[patch], patch, loop_index, (li[keep], lj[keep], w)
+        lorder = np.argsort(key_l, kind="stable")  # the loop at each patch corner
+        at = lorder[np.minimum(np.searchsorted(key_l[lorder], key_p), L - 1)]
+        pc_loop = np.full(pt.vert_index.shape, -1, np.int64)
+        pc_loop[jj, kk] = np.where(key_l[at] == key_p, at, -1)
+        return pts, pt.normal[patch], patch, loop_index, (li[keep], lj[keep], w, lpatch, pc_loop)
     sn = np.zeros((L, 3))
     for c in range(3):
         sn[:, c] = np.bincount(li, weights=ok * pn[b, c] * parea[b], minlength=L)
@@ -151,15 +158,43 @@ def _uncover(system, pts, corner, patch, inset):
         todo = todo[cov]
 
 
+def cut_patches(system, nudge=0.05):
+    """(K,) bool: patches with a corner inside another solid or covered (_buried, probed `nudge`
+    of the way from the corner to the patch's centre): cut by another object, the light of their
+    visible part ends in a dark band along the cut (corner_fit's extra samples)."""
+    pt = system.patches
+    jj, kk = np.nonzero(pt.vert_index >= 0)
+    c = pt.corners[jj, kk]
+    centre = pt.corners[jj, :3].mean(1)
+    centre[pt.nv[jj] == 4] = pt.corners[jj[pt.nv[jj] == 4]].mean(1)
+    reach = 4.0 * float(np.sqrt(isolated_objects(system.mesh).main_area))
+    out = np.zeros(len(pt.nv), bool)
+    out[jj[_buried(system, c + nudge * (centre - c), jj, reach)]] = True
+    return out
+
+
 class LoopGather(FinalGather):
     """FinalGather for the input mesh's corners: loop_radiance() in the layout of
     DynamicRadiosity.loop_radiance (CORNER: (L, 3) per loop; POINT: (V, 3) per vertex), float32.
-    inset: see loop_samples (0.5: samples in the corners' regions, averaged; 0: at the corners)."""
+    inset: see loop_samples (0.5: samples in the corners' regions, averaged; 0: at the corners).
+    fit (inset > 0; None: FIT): extra samples over the faces cut by another solid, and their
+    corners' values shifted so each keeps the mean of the light gathered over its visible part
+    (corner_fit); False: the corners' samples averaged alone."""
 
-    def __init__(self, system, smooth_angle=30.0, inset=0.5, **kw):
+    def __init__(self, system, smooth_angle=30.0, inset=0.5, fit=None, **kw):
         s = system.system
         pts, nrm, patch, self.loop_index, self.average = loop_samples(s, smooth_angle, inset)
         self.smooth_angle = smooth_angle
+        self.fit = bool(FIT if fit is None else fit) and self.average is not None
+        self.n_loop = len(pts)  # the corners' samples; corner_fit's extra samples follow
+        if self.fit:
+            pt = s.patches
+            cut = np.flatnonzero(cut_patches(s))
+            xp, row = corner_fit.extra_points(pt.corners[cut], pt.nv[cut])
+            reach = 4.0 * float(np.sqrt(isolated_objects(s.mesh).main_area))
+            seen = ~_buried(s, xp, cut[row], reach)  # the cut patches' visible part only
+            xp, xpatch = xp[seen], cut[row[seen]]
+            pts, nrm, patch = np.r_[pts, xp], np.r_[nrm, pt.normal[xpatch]], np.r_[patch, xpatch]
         super().__init__(system, pts, nrm, patch, **kw)
 
     def loop_radiance(self, dyn, domain="CORNER", kind="radiance"):
@@ -176,7 +211,7 @@ class LoopGather(FinalGather):
         if got is None:
             L = len(self.loop_index)
             if self.average is not None:
-                li, lj, w = self.average
+                li, lj, w = self.average[:3]
                 sj = self.loop_index[lj]
                 w = w * ~self.dark[sj]
                 den = np.bincount(li, w, L)
@@ -190,16 +225,36 @@ class LoopGather(FinalGather):
             got = self._loop_weights = (li, sj, wn, np.searchsorted(sj, np.arange(self.n + 1)))
         return got
 
+    def _shift_plan(self):
+        """corner_fit.shift_plan of this layout (built on first use, like _loop_map)."""
+        got = self.__dict__.get("_shift")
+        if got is None:
+            pt, (li, lj, w, lpatch, pc_loop) = self.system.patches, self.average
+            got = self._shift = corner_fit.shift_plan(
+                pt.corners,
+                pt.nv,
+                pt.normal,
+                self.patch,
+                self.points,
+                self.dark,
+                self.n_loop,
+                lpatch,
+                pc_loop,
+                (li, lj, w),
+            )
+        return got
+
     def loop_values(self, v, domain="CORNER"):
         """Sample values (n, 3) (evaluate's, or core.lights.indirect_incident's) in the loop_radiance
-        layout."""
-        return in_domain(self._loops(v), self.system.mesh, domain)
+        layout (>= 0: a face's shift may take a corner below)."""
+        return in_domain(np.maximum(self._loops(v), 0.0), self.system.mesh, domain)
 
     def _loops(self, v):
         """(L, 3) float64 per loop of sample values v (n, 3) (_loop_map)."""
         li, sj, wn, _ = self._loop_map()
         L = len(self.loop_index)
-        return np.stack([np.bincount(li, wn * v[sj, c], L) for c in range(v.shape[1])], 1)
+        out = np.stack([np.bincount(li, wn * v[sj, c], L) for c in range(v.shape[1])], 1)
+        return corner_fit.shifted(out, v, self._shift_plan()) if getattr(self, "fit", False) else out
 
     def _radiance_by_response(self, dyn):
         """(L, 3) loop_radiance (CORNER, float64) as a weighted sum of the response parts' own
@@ -243,15 +298,20 @@ class LoopGather(FinalGather):
                 tot += wt[None] * part[idx]
             d = np.where(tot < 0, -gain[idx] * tot, 0.0)
             j = np.flatnonzero(d.any(1))
-            if len(j):
+            if len(j) and getattr(self, "fit", False):  # the shifts take in every sample of a face
+                D = np.zeros((self.n, 3))
+                D[idx[j]] = d[j]
+                out += self._loops(D)
+            elif len(j):
                 li, _, wn, start = self._loop_map()
                 a, b = start[idx[j]], start[idx[j] + 1]
                 e = np.repeat(a - np.cumsum(np.r_[0, (b - a)[:-1]]), b - a) + np.arange((b - a).sum())
                 row = np.repeat(j, b - a)
                 for c in range(3):
                     out[:, c] += np.bincount(li[e], wn[e] * d[row, c], len(out))
-            np.maximum(out, 0.0, out=out)  # a sum of terms >= 0: only the parts' rounding dips below
-        return out
+        # a sum of terms >= 0, where only the parts' rounding dips below; with the faces' shifts
+        # (fit) a corner may (loop_values' clip)
+        return np.maximum(out, 0.0, out=out)
 
 
 def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None):
