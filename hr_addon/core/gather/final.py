@@ -109,6 +109,60 @@ def _slope_fit(h, used, x, gw, dark):
     return np.einsum("uab,ukb->uak", inv, gw[:, :, None] * r), ubar
 
 
+# _exposed_quadrature: the grids (points per side) searched in turn for a leaf's uncovered part
+UNCOVER_GRIDS = (8, 16, 32)
+
+
+def _exposed_quadrature(g, leaves, k):
+    """(points (N, k^2, 3), weights (N, k^2)): ff.quadrature's k x k Gauss points of HR leaves
+    `leaves` (N,) for the second level, except on an exposed leaf whose points are all covered (a
+    leaf partly under clutter with its Gauss points under it): those move to distinct uncovered
+    points of the finest grid needed (UNCOVER_GRIDS), each the nearest free one to its own (as
+    contacts.exposed_points moves the links' visibility points), weighted by the grid's
+    uncovered area nearest to it. Such a leaf had no sample: its value in the passes was the
+    response's V (from V = 0: nothing, 4.2-4.7% off on single objects of the 100k room)."""
+    s = g.system
+    h, pt = s.h, s.patches
+    x, w = ff.quadrature(h.corners[leaves], h.nv[leaves], k)
+    x = onto_patch(pt, np.repeat(h.patch[leaves], k * k), x, g.margin).reshape(x.shape)
+    ex = h.exposure[leaves]
+    part = np.flatnonzero((ex > 0) & (ex < 1))
+    if not len(part) or h.contacts is None:
+        return x, w
+
+    def covered(q, rows):  # as the second level's FinalGather tests its samples (h.dark)
+        p = h.patch[leaves[rows]]
+        q = onto_patch(pt, np.repeat(p, q.shape[1]), q, g.margin).reshape(q.shape)
+        flat = q.reshape(-1, 3)
+        lf = locate_below(h, np.repeat(p, q.shape[1]), flat, g.n_hr, g._lines())
+        thr = 0 if g.threads is None else g.threads
+        return q, h.dark(lf, flat, thr).reshape(q.shape[:2])
+
+    todo = part[covered(x[part], part)[1].all(1)]
+    for kk in UNCOVER_GRIDS:
+        if not len(todo):
+            break
+        c, cw = ff.quadrature(h.corners[leaves[todo]], h.nv[leaves[todo]], kk)
+        c, cov = covered(c, todo)
+        has = ~cov.all(1)
+        r, c, cw, free = todo[has], c[has], cw[has], ~cov[has]
+        d2 = np.where(free[:, None], ((x[r][:, :, None] - c[:, None]) ** 2).sum(-1), np.inf)
+        pick = np.zeros((len(r), k * k), np.int64)
+        for j in range(k * k):  # distinct points while there are enough free ones
+            pick[:, j] = np.argmin(d2[:, j], 1)
+            taken = np.zeros_like(free)
+            np.put_along_axis(taken, pick[:, j : j + 1], True, 1)
+            d2 = np.where(taken[:, None] & (free.sum(1) > j + 1)[:, None, None], np.inf, d2)
+        x[r] = np.take_along_axis(c, pick[..., None], 1)
+        # each free grid point's weight to the nearest picked point: the leaf's uncovered area
+        near = np.argmin(((c[:, :, None] - x[r][:, None]) ** 2).sum(-1), 2)
+        wr = np.zeros((len(r), k * k))
+        np.add.at(wr, (np.arange(len(r))[:, None], near), cw * free)
+        w[r] = wr / wr.sum(1, keepdims=True)  # (summing to 1 as quadrature's: _slope_fit's centroid)
+        todo = todo[~has]
+    return x, w
+
+
 def _diameters(h, leaf):
     """(k,) the longest distance between two corners of nodes `leaf`."""
     c, nv = h.corners[leaf], h.nv[leaf]
@@ -379,6 +433,12 @@ class FinalGather(DirectLight):
                 near_read=self.near_read,
             )
             fine, reuse = np.zeros(self.n_hr, bool), None
+
+            def grid(nodes, k):  # the second level's k x k samples of HR leaves `nodes`
+                if covered_samples == "gather":  # (no sample is covered there)
+                    return ff.quadrature(h.corners[nodes], h.nv[nodes], k)
+                return _exposed_quadrature(self, nodes, k)
+
             if self.near_points:
                 # fine leaves (near_points^2 samples, their near hits read the nearest): where the
                 # near hits of one of any HR leaf's leaf_points^2 gather samples carry near_share
@@ -387,7 +447,7 @@ class FinalGather(DirectLight):
                 # of all objects or of one, a farm's split, Live's re-gathers). Those samples'
                 # rays are the second level's (traced anyway with iterations): it reuses them on
                 # the leaves that are not fine
-                xp = ff.quadrature(h.corners[leaves], h.nv[leaves], lp)[0].reshape(-1, 3)
+                xp = grid(leaves, lp)[0].reshape(-1, 3)
                 nn = lp * lp
                 probe = FinalGather(
                     system,
@@ -404,7 +464,7 @@ class FinalGather(DirectLight):
             start = np.concatenate([[0], np.cumsum(k2)])
             for kk in np.unique(k2):
                 sel = np.flatnonzero(k2 == kk)
-                xs, ws = ff.quadrature(h.corners[used[sel]], h.nv[used[sel]], int(round(kk**0.5)))
+                xs, ws = grid(used[sel], int(round(kk**0.5)))
                 at = (start[sel, None] + np.arange(kk)).ravel()
                 x[at], gw[at] = xs.reshape(-1, 3), ws.ravel()
             off = np.full(self.n_hr, -1, np.int64)
@@ -438,6 +498,9 @@ class FinalGather(DirectLight):
             )
             self._second_map = (used, gw)
             self._second_start = start
+            # exposed leaves left without an uncovered sample (_exposed_quadrature found none)
+            ws = np.add.reduceat(gw * ~self.second.dark, start[:-1]) if len(used) else gw
+            self.stats["unsampled_leaves"] = int(((ws == 0) & (h.exposure[used] > 0)).sum())
             self._remap_near(off, self.second.dark)
             self._slope_map = (
                 _slope_fit(
