@@ -124,7 +124,6 @@ def _exposed_quadrature(g, leaves, k):
     s = g.system
     h, pt = s.h, s.patches
     x, w = ff.quadrature(h.corners[leaves], h.nv[leaves], k)
-    x = onto_patch(pt, np.repeat(h.patch[leaves], k * k), x, g.margin).reshape(x.shape)
     ex = h.exposure[leaves]
     part = np.flatnonzero((ex > 0) & (ex < 1))
     if not len(part) or h.contacts is None:
