@@ -935,11 +935,12 @@ class FinalGather(DirectLight):
     TAIL_MAX = 0.95
     # from V = 0 the passes go on (at most TAIL_PASSES) while the tail is more than TAIL_SHARE of
     # the light: the first changes' ratio overshoots rho (a closed room at rho 0.85: 0.857 after 5
-    # passes, +2.3% of light; 0.850 after 13, +0.02%). The furnished 100k room (rho about 0.6, the
-    # FE window's part per object against the converged gather): a tenth stopped at 5 passes, 4.5%
-    # worst object; 0.03 at 7, 2.0% (the tail's from a 4-step response 2.3%); 12 passes and more
-    # 1.1% (docs/gather.md, "Every exposed leaf sampled")
-    TAIL_PASSES, TAIL_SHARE = 16, 0.03
+    # passes, +2.3% of light; 0.850 after 13, +0.02%). The furnished 100k room (ratio about 0.59,
+    # the gathered output per object against the converged gather after the FE window's event):
+    # 0.1 stopped at 5 passes, 4.5% worst object; 0.03 at 7, 2.0%; 0.02 at 8, 1.6% (the tail from
+    # a 4-step response: FE 2.3%, AUTO 1.8%); 12 passes and more 1.1% (docs/gather.md, "Every
+    # exposed leaf sampled")
+    TAIL_PASSES, TAIL_SHARE = 16, 0.02
 
     def _levels(self, V, direct, tail=False):
         """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
