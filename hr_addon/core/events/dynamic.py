@@ -41,8 +41,9 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # AUTO 0.35 -> 0.18%, 2.2 -> 1.6%, -0.31 -> -0.16%). "zero" (not the default) solves no response
 # at all, nor AUTO's first bounce: events of about 0.01 s, the passes from nothing (8 there); since
 # every exposed leaf has second-level samples, closer to that limit than "tail" there (worst object
-# 1.2-1.6% against FE's 1.9-2.3% and AUTO's 1.4-1.8%), a hair farther from Cycles on Cornell's FE
-# (worst surface 0.165 against 0.137%); AUTO's events about 0.55 s cheaper, FE's not (its 3 more
+# 1.2-1.6% against FE's 1.9-2.3% and AUTO's 1.4-1.8%; on Cornell too), a hair farther from Cycles
+# on Cornell's FE (worst surface 0.165 against 0.137%: the converged gather is, 0.19%); AUTO's
+# events about 0.55 s cheaper, FE's not (its 3 more
 # passes cost what the response saved) (docs/gather.md, "Light events without a response solve",
 # "Every exposed leaf sampled").
 GATHER_SOLVE = {
