@@ -100,6 +100,7 @@ SOLVE = "default"  # --solve: "gather" the bake's solver options with the gather
 # "gather-tol" those with responses solved to response_tol (before response_steps)
 GATHER_AREA = True  # --gather-centres: texels gather at their centres only (before texel_samples)
 BAKE_TRANSPORT = False  # --bake-transport: links and tolerances as the bake takes them with the gather
+DYN = {}  # --dyn: DynamicRadiosity options over those (e.g. gather_responses="zero")
 REF_SEEDS = (1, 2)
 SWEEP_SEEDS = (11, 12)
 MIN_SURFACE_SHARE = 0.01
@@ -393,6 +394,7 @@ def run_scene(name, cfg, results, maps=None):
             opts = DynamicRadiosity.gather_options(q) if gather_solve else {}
             if SOLVE == "gather-tol":
                 opts.pop("response_steps")
+            opts.update(DYN)
             dyn = DynamicRadiosity(base.copy(), method=meth, **opts)
             t_init = time.process_time() - t0
             ours = C.Ours(rs, dyn.system, dyn)
@@ -1157,7 +1159,8 @@ def main():
         action="store_true",
         help="the gathered vertex output's corners unshifted (gather/layouts.FIT, corner_fit)",
     )
-    ap.add_argument("--fit-cut", action="store_true", help="only the faces cut by another solid shifted")
+    ap.add_argument("--fit-every", action="store_true", help="every face shifted, not only those cut by another solid")
+    ap.add_argument("--dyn", default="dict()", help="DynamicRadiosity option overrides (a Python dict)")
     ap.add_argument("--plot-only", action="store_true")
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
@@ -1172,7 +1175,8 @@ def main():
     from hr_addon.core.gather import layouts
 
     layouts.FIT = not args.no_fit
-    layouts.corner_fit.EVERY = not args.fit_cut
+    layouts.corner_fit.EVERY = args.fit_every
+    DYN.update(eval(args.dyn))
     GATHER, GATHER_LEVELS, GATHER_ITERATIONS = args.gather, args.gather_levels, args.gather_iterations
     from hr_addon.core.refine import RefineParams
 

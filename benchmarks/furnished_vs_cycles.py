@@ -5,11 +5,12 @@ setting moves which surface. Needs the reference of `cycles_compare.py --scenes 
         'nograd=dict(grad_cone=0.0)' 'med=dict(q="medium")'
 
 Each argument is name=dict(RefineParams fields, q=preset, grad_cone=cluster.GRAD_CONE,
-method="FE", gather=dict(rays=128, shadow_rays=32, vertex=True), transport="gather", fit=True).
-fit=False: the vertex output's corners unshifted (gather/layouts.FIT, corner_fit); every=False: only
-the faces cut by another solid shifted (corner_fit.EVERY). transport="gather":
+method="FE", gather=dict(rays=128, shadow_rays=32, vertex=True), transport="gather", fit=True,
+every=False, dyn=dict(...)). fit=False: the vertex output's corners unshifted (gather/layouts.FIT,
+corner_fit); every=True: every face shifted, not only those cut by another solid (corner_fit.EVERY).
+dyn: DynamicRadiosity options over gather_options'. transport="gather":
 the bake's transport with the final gather on (RefineParams.for_gather + the fields given,
-DynamicRadiosity.gather_options) instead of the preset's. With `gather` the final gather
+DynamicRadiosity.gather_options, updated by dyn) instead of the preset's. With `gather` the final gather
 (hr_addon.core.gather) is compared too: at texel centres (refl_gather) and at the mesh's corners
 (total_gvertex, against today's vertex output total_vertex), with its cost. The vertex rows come
 twice: over every texel and over the unburied ones (`_unburied`: no sub-sample inside another
@@ -120,7 +121,8 @@ for name, kw in variants.items():
     from hr_addon.core.gather import layouts
 
     layouts.FIT = kw.pop("fit", True)  # the vertex output's faces keep their light (corner_fit)
-    layouts.corner_fit.EVERY = kw.pop("every", True)  # False: the cut faces alone
+    layouts.corner_fit.EVERY = kw.pop("every", False)  # True: every face, not only the cut ones
+    dkw = kw.pop("dyn", {})  # DynamicRadiosity options over gather_options' (transport="gather")
     import hr_addon.core.cluster as CL
     import hr_addon.core.farlinks as FL
 
@@ -131,7 +133,7 @@ for name, kw in variants.items():
     base = RadiositySystem(rs.scene_in.mesh, dataclasses.replace(pre, **kw))
     tb = time.process_time() - t0
     t0 = time.process_time()
-    dyn = DynamicRadiosity(base, method=method, **(DynamicRadiosity.gather_options(q) if gt else {}))
+    dyn = DynamicRadiosity(base, method=method, **(DynamicRadiosity.gather_options(q) if gt else {}) | dkw)
     dyn.apply(shapes)
     t_apply = time.process_time() - t0
     ours = C.Ours(rs, dyn.system, dyn)

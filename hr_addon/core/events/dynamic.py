@@ -39,8 +39,13 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # (FinalGather._levels), closer to that limit than the 5 passes (furnished 100k room, per object
 # against a converged gather, FE: median 0.54 -> 0.23%, worst 3.6 -> 2.1%, bias -0.49 -> -0.20%;
 # AUTO 0.35 -> 0.18%, 2.2 -> 1.6%, -0.31 -> -0.16%). "zero" (not the default) solves no response
-# at all, nor AUTO's first bounce: events of about 0.02 s, but up to 4.7% off on single objects
-# there (docs/gather.md, "Light events without a response solve").
+# at all, nor AUTO's first bounce: events of about 0.01 s, the passes from nothing (8 there); since
+# every exposed leaf has second-level samples, closer to that limit than "tail" there (worst object
+# 1.2-1.6% against FE's 1.9-2.3% and AUTO's 1.4-1.8%; on Cornell too), a hair farther from Cycles
+# on Cornell's FE (worst surface 0.165 against 0.137%: the converged gather is, 0.19%); AUTO's
+# events about 0.55 s cheaper, FE's not (its 3 more
+# passes cost what the response saved) (docs/gather.md, "Light events without a response solve",
+# "Every exposed leaf sampled").
 GATHER_SOLVE = {
     "draft": dict(tol=1e-5, response_tol=1e-4, response_float32=True, response_steps=4, bounce_points=4,
                   gather_responses="tail"),

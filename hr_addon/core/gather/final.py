@@ -109,6 +109,60 @@ def _slope_fit(h, used, x, gw, dark):
     return np.einsum("uab,ukb->uak", inv, gw[:, :, None] * r), ubar
 
 
+# _exposed_quadrature: the grids (points per side) searched in turn for a leaf's uncovered part
+UNCOVER_GRIDS = (8, 16, 32)
+
+
+def _exposed_quadrature(g, leaves, k):
+    """(points (N, k^2, 3), weights (N, k^2)): ff.quadrature's k x k Gauss points of HR leaves
+    `leaves` (N,) for the second level, except on an exposed leaf whose points are all covered (a
+    leaf partly under clutter with its Gauss points under it): those move to distinct uncovered
+    points of the finest grid needed (UNCOVER_GRIDS), each the nearest free one to its own (as
+    contacts.exposed_points moves the links' visibility points), weighted by the grid's
+    uncovered area nearest to it. Such a leaf had no sample: its value in the passes was the
+    response's V, so their limit depended on it (from V = 0 the 20k room's worst object was 1.1-1.7%
+    off the converged gather, with the move 0.4%; docs/gather.md "Every exposed leaf sampled")."""
+    s = g.system
+    h, pt = s.h, s.patches
+    x, w = ff.quadrature(h.corners[leaves], h.nv[leaves], k)
+    ex = h.exposure[leaves]
+    part = np.flatnonzero((ex > 0) & (ex < 1))
+    if not len(part) or h.contacts is None:
+        return x, w
+
+    def covered(q, rows):  # as the second level's FinalGather tests its samples (h.dark)
+        p = h.patch[leaves[rows]]
+        q = onto_patch(pt, np.repeat(p, q.shape[1]), q, g.margin).reshape(q.shape)
+        flat = q.reshape(-1, 3)
+        lf = locate_below(h, np.repeat(p, q.shape[1]), flat, g.n_hr, g._lines())
+        thr = 0 if g.threads is None else g.threads
+        return q, h.dark(lf, flat, thr).reshape(q.shape[:2])
+
+    todo = part[covered(x[part], part)[1].all(1)]
+    for kk in UNCOVER_GRIDS:
+        if not len(todo):
+            break
+        c, cw = ff.quadrature(h.corners[leaves[todo]], h.nv[leaves[todo]], kk)
+        c, cov = covered(c, todo)
+        has = ~cov.all(1)
+        r, c, cw, free = todo[has], c[has], cw[has], ~cov[has]
+        d2 = np.where(free[:, None], ((x[r][:, :, None] - c[:, None]) ** 2).sum(-1), np.inf)
+        pick = np.zeros((len(r), k * k), np.int64)
+        for j in range(k * k):  # distinct points while there are enough free ones
+            pick[:, j] = np.argmin(d2[:, j], 1)
+            taken = np.zeros_like(free)
+            np.put_along_axis(taken, pick[:, j : j + 1], True, 1)
+            d2 = np.where(taken[:, None] & (free.sum(1) > j + 1)[:, None, None], np.inf, d2)
+        x[r] = np.take_along_axis(c, pick[..., None], 1)
+        # each free grid point's weight to the nearest picked point: the leaf's uncovered area
+        near = np.argmin(((c[:, :, None] - x[r][:, None]) ** 2).sum(-1), 2)
+        wr = np.zeros((len(r), k * k))
+        np.add.at(wr, (np.arange(len(r))[:, None], near), cw * free)
+        w[r] = wr / wr.sum(1, keepdims=True)  # (summing to 1 as quadrature's: _slope_fit's centroid)
+        todo = todo[~has]
+    return x, w
+
+
 def _diameters(h, leaf):
     """(k,) the longest distance between two corners of nodes `leaf`."""
     c, nv = h.corners[leaf], h.nv[leaf]
@@ -379,6 +433,12 @@ class FinalGather(DirectLight):
                 near_read=self.near_read,
             )
             fine, reuse = np.zeros(self.n_hr, bool), None
+
+            def grid(nodes, k):  # the second level's k x k samples of HR leaves `nodes`
+                if covered_samples == "gather":  # (no sample is covered there)
+                    return ff.quadrature(h.corners[nodes], h.nv[nodes], k)
+                return _exposed_quadrature(self, nodes, k)
+
             if self.near_points:
                 # fine leaves (near_points^2 samples, their near hits read the nearest): where the
                 # near hits of one of any HR leaf's leaf_points^2 gather samples carry near_share
@@ -387,7 +447,7 @@ class FinalGather(DirectLight):
                 # of all objects or of one, a farm's split, Live's re-gathers). Those samples'
                 # rays are the second level's (traced anyway with iterations): it reuses them on
                 # the leaves that are not fine
-                xp = ff.quadrature(h.corners[leaves], h.nv[leaves], lp)[0].reshape(-1, 3)
+                xp = grid(leaves, lp)[0].reshape(-1, 3)
                 nn = lp * lp
                 probe = FinalGather(
                     system,
@@ -404,7 +464,7 @@ class FinalGather(DirectLight):
             start = np.concatenate([[0], np.cumsum(k2)])
             for kk in np.unique(k2):
                 sel = np.flatnonzero(k2 == kk)
-                xs, ws = ff.quadrature(h.corners[used[sel]], h.nv[used[sel]], int(round(kk**0.5)))
+                xs, ws = grid(used[sel], int(round(kk**0.5)))
                 at = (start[sel, None] + np.arange(kk)).ravel()
                 x[at], gw[at] = xs.reshape(-1, 3), ws.ravel()
             off = np.full(self.n_hr, -1, np.int64)
@@ -438,6 +498,9 @@ class FinalGather(DirectLight):
             )
             self._second_map = (used, gw)
             self._second_start = start
+            # exposed leaves left without an uncovered sample (_exposed_quadrature found none)
+            ws = np.add.reduceat(gw * ~self.second.dark, start[:-1]) if len(used) else gw
+            self.stats["unsampled_leaves"] = int(((ws == 0) & (h.exposure[used] > 0)).sum())
             self._remap_near(off, self.second.dark)
             self._slope_map = (
                 _slope_fit(
@@ -873,8 +936,12 @@ class FinalGather(DirectLight):
     TAIL_MAX = 0.95
     # from V = 0 the passes go on (at most TAIL_PASSES) while the tail is more than TAIL_SHARE of
     # the light: the first changes' ratio overshoots rho (a closed room at rho 0.85: 0.857 after 5
-    # passes, +2.3% of light; 0.850 after 13, +0.02%); a room of rho 0.6 stops at the 5 passes
-    TAIL_PASSES, TAIL_SHARE = 16, 0.1
+    # passes, +2.3% of light; 0.850 after 13, +0.02%). The furnished 100k room (ratio about 0.59,
+    # the gathered output per object against the converged gather after the FE window's event):
+    # 0.1 stopped at 5 passes, 4.5% worst object; 0.03 at 7, 2.0%; 0.02 at 8, 1.6% (the tail from
+    # a 4-step response: FE 2.3%, AUTO 1.8%); 12 passes and more 1.1% (docs/gather.md, "Every
+    # exposed leaf sampled")
+    TAIL_PASSES, TAIL_SHARE = 16, 0.02
 
     def _levels(self, V, direct, tail=False):
         """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
@@ -892,9 +959,9 @@ class FinalGather(DirectLight):
             L = (self._near_rows(L[0]), None, None, None)
         # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
         # direct light): every pass moves the solution one bounce further away
-        last, zero = [], tail and not V.any()
+        last, sums, zero = [], [], tail and not V.any()
         for k in range(self.TAIL_PASSES if zero else 1 + self.iterations):
-            if zero and k > self.iterations and self._tail(last, False)[1] <= self.TAIL_SHARE:
+            if zero and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
                 k -= 1
                 break
             y = g2.rho * (D2 + g2._read(L))
@@ -903,6 +970,7 @@ class FinalGather(DirectLight):
                 if zero:  # (from nothing: the leaves without samples too)
                     self._fill_dark_leaves(Y)
                 last = (last + [Y])[-3:]
+                sums = (sums + [Y.sum(0)])[-3:]
             if fit is None:
                 L = (Y, None, None, None)
                 continue
@@ -943,6 +1011,14 @@ class FinalGather(DirectLight):
         t = d1 * (r / (1 - r))
         return last[2] + t, float((np.abs(t.sum(0)) / (np.abs(last[2].sum(0)) + 1e-300)).max())
 
+    def _tail_share(self, sums):
+        """_tail(last, False)'s share from the channel sums of the last three passes' leaf values
+        alone (its series sums to the change's sum times r / (1 - r)): the stopping rule after each
+        pass, where _tail's full arrays cost 0.04 s a pass on the 100k room."""
+        s1, s0 = sums[2] - sums[1], sums[1] - sums[0]
+        r = np.clip(np.divide(s1, s0, out=np.zeros(3), where=s0 != 0), 0.0, self.TAIL_MAX)
+        return float((np.abs(s1 * (r / (1 - r))) / (np.abs(sums[2]) + 1e-300)).max())
+
     def _tail_groups(self, rows):
         """(rows,) the object of each row of _levels' leaf values (the HR leaves, then with near
         hits the second level's samples: their leaf's)."""
@@ -961,7 +1037,9 @@ class FinalGather(DirectLight):
         passes, the solution's value, which a shape without a response lacks: they take the
         area mean (uncovered) of the leaves with samples under their lowest ancestor that has
         some (in place). On the 20k room those 417 of 17,774 leaves alone took 5.7% off an
-        object's light at 0 (docs/gather.md, "Light events without a response solve")."""
+        object's light at 0 (docs/gather.md, "Light events without a response solve"); their
+        samples now move onto their uncovered part (_exposed_quadrature): this is for a leaf
+        whose uncovered part none of UNCOVER_GRIDS' points finds (none on the 20k and 100k rooms)."""
         got = getattr(self, "_dark_fill", None)
         if got is None:  # from the static geometry once (one assignment: threads may race)
             h, m = self.system.h, self.n_hr
