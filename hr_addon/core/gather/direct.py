@@ -35,20 +35,12 @@ class DirectLight:
     # samples nearer to the emitter's box centre than AREA_NEAR x its half diagonal keep Arvo's
     # rays: there the area density's 1 / r^2 spread makes the ratio noisy (docs/gather.md)
     AREA_NEAR = 2.0
-    # a light shape's direct light at a second level: an HR leaf's samples share one set of shadow
-    # rays where all of them agree (all clear or all blocked), their own rays elsewhere; that level
-    # feeds the indirect light only (docs/gather.md, "A light shape's direct light at the second level")
-    share_leaf_visibility = True
-    SHARE_MIXED = False
-    SHARE_BLOCKED = False
-    SMALL_ANGLE = 0.0
 
     # -- direct light --------------------------------------------------------------------------------
-    def direct_batch(self, em: Emitter, a, b, shafts=None, shared=False):
+    def direct_batch(self, em: Emitter, a, b, shafts=None):
         """(b - a,) float32: unit-radiance direct light F x V of emitter em at samples a..b-1.
         shafts: the emitter's ClearShafts (samples whose segments to it are certainly clear get
-        no shadow rays: their ratio would be exactly 1). shared: a second level's HR leaves share
-        their samples' visibility where it agrees (_leaf_shared; a..b whole leaves)."""
+        no shadow rays: their ratio would be exactly 1)."""
         x, nx = self.points[a:b], self.normals[a:b]
         out = np.zeros(b - a)
         eps = self.eps
@@ -73,83 +65,24 @@ class DirectLight:
         if len(lit) and self.shadow_rays > 0:
             S = self.shadow_rays
             gi = i[lit] + a
+            u = hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
+            u -= u >= 1.0  # = u % 1.0 (a sum of two numbers in [0, 1): exact, Sterbenz), 2x faster
             xo, no = xi[lit], ni[lit]
-            V = self._leaf_shared(em, gi, xo, no) if shared else np.full(len(lit), np.nan)
-            own = np.flatnonzero(np.isnan(V))  # per sample, as without sharing
-            few = np.zeros(len(own), bool)
-            if self.SMALL_ANGLE and getattr(self, "_leaf_nodes", None) is not None:
+            if self.area_sampling:  # area-uniform rays but near the emitter (there Arvo's)
                 c, rad = 0.5 * (em.lo + em.hi), 0.5 * np.linalg.norm(em.hi - em.lo)
-                dist = np.linalg.norm(xo[own] - c, axis=1)
-                few = rad < self.SMALL_ANGLE * dist
-                self._few_stats = getattr(self, "_few_stats", 0) + np.array([few.sum(), len(few)])
-            for sel, n in ((~few, S), (few, max(S // 4, 2))):
-                o = own[sel]
-                if len(o):
-                    u = hash_uniform(self.seed, self.keys[gi[o]], 1000 + em.stream)[:, None]
-                    u = u + hammersley(n)[None]
-                    u -= u >= 1.0  # = u % 1.0 (a sum of two numbers in [0, 1): exact, Sterbenz), 2x faster
-                    V[o] = self._rays(em, xo[o], no[o], u)
+                dc = xo - c
+                near = np.einsum("lk,lk->l", dc, dc) < (self.AREA_NEAR * rad) ** 2
+                V = np.empty(len(lit))
+                for sel, area in ((near, False), (~near, True)):
+                    if sel.any():
+                        V[sel] = self._visible(em, xo[sel], no[sel], u[sel], area)
+            else:
+                V = self._visible(em, xo, no, u, False)
             F[lit] *= V  # (the ratio's float64 product, as before)
         out[i] = F
         return out.astype(np.float32)
 
-    def _rays(self, em: Emitter, xo, no, u, parts=False):
-        """_visible's ratio (parts: its sums) by area-uniform rays, but near the emitter Arvo's."""
-        if not self.area_sampling:
-            return self._visible(em, xo, no, u, False, parts)
-        c, rad = 0.5 * (em.lo + em.hi), 0.5 * np.linalg.norm(em.hi - em.lo)
-        dc = xo - c
-        near = np.einsum("lk,lk->l", dc, dc) < (self.AREA_NEAR * rad) ** 2
-        out = np.empty((3, len(xo)) if parts else len(xo))
-        for sel, area in ((near, False), (~near, True)):
-            if sel.any():
-                out[..., sel] = self._visible(em, xo[sel], no[sel], u[sel], area, parts)
-        return out
-
-    def _leaf_shared(self, em: Emitter, gi, xo, no):
-        """(L,) the visible fraction of em at lit samples gi (points xo, normals no) of a second
-        level, shared by an HR leaf's samples where its pooled rays agree, else nan (trace per
-        sample). A leaf's shadow_rays rays are one rotated Hammersley set spread over its samples
-        (each max(S / k^2, 1) of them, its own Hammersley strata); all of them clear: 1, all blocked: 0.
-        Its samples keep their own form factor (docs/gather.md, "A light shape's direct light at
-        the second level")."""
-        leaf, pos, k2 = self._leaf_rows()
-        S, lf = self.shadow_rays, leaf[gi]
-        sums = np.zeros((3, len(gi)))  # per sample: kernel x visible, kernel, kernel x blocked
-        for kk in np.unique(k2[gi]):
-            sel = np.flatnonzero(k2[gi] == kk)
-            m = max(S // int(kk), 1)
-            H = hammersley(m * int(kk)).reshape(int(kk), m, 2)
-            first = gi[sel] - pos[gi[sel]]  # the leaf's first sample: the leaf's rotation
-            u = H[pos[gi[sel]]] + hash_uniform(self.seed, self.keys[first], 3000 + em.stream)[:, None]
-            u -= u >= 1.0
-            sums[:, sel] = self._rays(em, xo[sel], no[sel], u, parts=True)
-        _, inv = np.unique(lf, return_inverse=True)
-        kv, k, kb = (np.bincount(inv, v) for v in sums)
-        if self.SHARE_MIXED:
-            V = np.where(k > 0, kv / np.where(k > 0, k, 1), 1.0)
-            if self.SHARE_MIXED == "coarse":
-                V = V[inv]
-                V[k2[gi] > k2.min()] = np.nan
-                return V
-        elif self.SHARE_BLOCKED:
-            V = np.where(kb == 0, 1.0, np.where(kv == 0, 0.0, np.nan))  # (no kernel at all: 1, as _visible)
-        else:
-            V = np.where(kb == 0, 1.0, np.nan)
-        return V[inv]
-
-    def _leaf_rows(self):
-        """(leaf, place in it, its k^2) per sample of a second level (_leaf_nodes: the HR leaves'
-        consecutive k^2 samples each)."""
-        got = getattr(self, "_leaf_rows_", None)
-        if got is None:
-            k2 = self._leaf_nodes[1]
-            start = np.concatenate([[0], np.cumsum(k2)])
-            leaf = np.repeat(np.arange(len(k2)), k2)
-            got = self._leaf_rows_ = (leaf, np.arange(len(leaf)) - start[leaf], np.repeat(k2, k2))
-        return got
-
-    def _visible(self, em: Emitter, xo, no, u, area, parts=False):
+    def _visible(self, em: Emitter, xo, no, u, area):
         """(L,) the visible fraction of em's projected solid angle from points xo (normals no) by
         shadow rays from uniforms u (L, S, 2), a ratio estimator: Arvo's solid-angle sampling, weight
         cos_x (and only where the emitter faces the point), or area-uniform points (area) weighted
@@ -190,9 +123,6 @@ class DirectLight:
             vis = ~self.system.backend.occluded(o, e.reshape(-1, 3))
         vis = vis.reshape(kern.shape)
         ks = kern.sum(1)
-        if parts:  # (3, L): kernel x visible, kernel, kernel x blocked, summed over the rays
-            kv = (kern * vis).sum(1)
-            return np.stack([kv, ks, (kern * ~vis).sum(1)])
         return np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
 
     @staticmethod
@@ -203,19 +133,12 @@ class DirectLight:
         tri = min(len(em.tri), em.MAX_TRIANGLES)
         return max(rays, 1) * 4 + 3 * min(edges, 4 * em.MAX_TRIANGLES) + 12 * tri
 
-    def direct_light(self, em: Emitter, edges=True, shared=False):
+    def direct_light(self, em: Emitter, edges=True):
         """(n,) float32 unit-radiance direct light of em at every sample (batches merged); edges:
-        in texture output, an edge texel's value is its area's mean (texel_edges); shared: on a
-        second level, its HR leaves' samples share their visibility where it agrees (_leaf_shared)."""
+        in texture output, an edge texel's value is its area's mean (texel_edges)."""
         per = self.direct_cost(em, self.shadow_rays)
         shafts = self.shafts(em)
-        bounds = self.batches(per)
-        shared = shared and getattr(self, "_leaf_nodes", None) is not None and self.shadow_rays > 0
-        if shared:  # whole leaves per batch: each batch's bounds moved up to a leaf's start
-            pos = self._leaf_rows()[1]
-            cut = np.unique([a - pos[a] for a, _ in bounds] + [self.n])
-            bounds = list(zip(cut[:-1].tolist(), cut[1:].tolist()))
-        parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts, shared), bounds, self.threads)
+        parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts), self.batches(per), self.threads)
         out = np.concatenate(parts or [np.zeros(0, np.float32)])
         if edges and self.texel_area is not None:  # texture output: an edge across a texel, its area's mean
             out = edge_direct(self, em, out, self.shadow_rays, em.stream, shafts=shafts).astype(np.float32)
@@ -335,11 +258,7 @@ class DirectLight:
         got = self._shape_cache.get(key)
         if got is None:
             em, inside, _ = self._shape_emitter(dyn, rec)
-            D = (
-                self.direct_light(em, self.edge_shapes, shared=self.share_leaf_visibility)
-                if em is not None
-                else np.zeros(self.n, np.float32)
-            )
+            D = self.direct_light(em, self.edge_shapes) if em is not None else np.zeros(self.n, np.float32)
             got = (D, inside)
             self._shape_cache[key] = got
         return got
