@@ -1,6 +1,7 @@
-"""The books' -x / +x strips against Cycles' sampling pattern (docs/gather.md, "The books' -x faces
-... (branch booksx)"). `bake`: a books-only Cycles bake of the furnished sample .blend (`sample`,
-saved with Cycles' default pattern AUTOMATIC = blue noise) or of the builder's room (`built`,
+"""The books' -x / +x strips against Cycles' sampling pattern (docs/gather.md, "The books' -x / +x
+gap is the reference's shared random numbers"). `bake`: a books-only Cycles bake of the furnished
+sample .blend (`sample`, saved with Cycles' default pattern AUTOMATIC = blue noise) or of the
+builder's room (`built`,
 hr_testing.blend.mesh_scene of furnished_room("20k"), whose new scene defaults to TABULATED_SOBOL),
 with the pattern given (or the scene's own: `scene`), all books with one seed or (`per_object`)
 book i alone with its own seed (cycles_ref.bake seed_per_object); saves the texels (unbaked: nan).

@@ -3,7 +3,7 @@ builder's room (hr_testing.blend.mesh_scene of furnished_room("20k"), benchmarks
 scene), both prepared for a books-only reference bake (cycles_ref.prepare + configure_cycles, no
 bake): per object its RNA settings, world geometry per polygon, normals, smoothing, attributes, UV
 layers, modifiers and materials (node trees); the scene's Cycles, render, bake, view-layer and
-World settings. docs/gather.md, "The books' -x faces ... (branch booksx)".
+World settings. docs/gather.md, "The books' -x / +x gap is the reference's shared random numbers".
 
     .venv/bin/python benchmarks/books_scene_diff.py dump sample|built OUT.pkl
     .venv/bin/python benchmarks/books_scene_diff.py compare A.pkl B.pkl
