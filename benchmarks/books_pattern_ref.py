@@ -1,10 +1,10 @@
 """The books' -x / +x strips against Cycles' sampling pattern (docs/gather.md, "The books' -x / +x
 gap is the reference's shared random numbers"). `bake`: a books-only Cycles bake of the furnished
 sample .blend (`sample`, saved with Cycles' default pattern AUTOMATIC = blue noise) or of the
-builder's room (`built`,
-hr_testing.blend.mesh_scene of furnished_room("20k"), whose new scene defaults to TABULATED_SOBOL),
-with the pattern given (or the scene's own: `scene`), all books with one seed or (`per_object`)
-book i alone with its own seed (cycles_ref.bake seed_per_object); saves the texels (unbaked: nan).
+builder's room (`built`, hr_testing.blend.mesh_scene of furnished_room("20k"), whose new scene
+defaults to TABULATED_SOBOL), with the pattern given (or the scene's own: `scene`), all books
+with one seed or (`per_object`) book i alone with its own seed (cycles_ref.bake seed_per_object);
+saves the texels (unbaked: nan).
 `report`: ours (a saved furnished_vs_cycles run) over each bake on the sides above a shorter
 neighbour by face side, and how much of each bake's error is shared by the texels at one atlas
 position (x, y) of different books: Cycles seeds a texel's samples by its pixel (x, y) in the
