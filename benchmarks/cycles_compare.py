@@ -149,6 +149,17 @@ def _atlas_key(rs):
 
 
 USE_CACHE = True
+# each object baked with its own seed (cycles_ref.bake's seed_per_object): baked together, the
+# texels at one image position (x, y) of every object share their random numbers, and the errors of
+# alike objects (the furnished room's 678 books) do not pool down (docs/gather.md, branch booksx).
+# False: the references of before 2026-12-04 (their cache names have no "_po").
+PER_OBJECT_SEEDS = True
+
+
+def ref_path(rs, scene, frame, spp, seed):
+    """The cached reference's file."""
+    po = "_po" if PER_OBJECT_SEEDS else ""
+    return os.path.join(CACHE, f"{scene}_f{frame}_s{spp}_seed{seed}{po}_{_atlas_key(rs)}.npz")
 
 
 def cycles_bake(rs, scene, frame, spp, seed, need_time=False):
@@ -157,14 +168,13 @@ def cycles_bake(rs, scene, frame, spp, seed, need_time=False):
     have no CPU time."""
     from hr_testing import cycles_ref as C
 
-    key = f"{scene}_f{frame}_s{spp}_seed{seed}_{_atlas_key(rs)}"
-    path = os.path.join(CACHE, key + ".npz")
+    path = ref_path(rs, scene, frame, spp, seed)
     if USE_CACHE and os.path.exists(path):
         z = np.load(path)
         if not need_time or "__cpu" in z:
             t = {"wall": float(z["__seconds"]), "cpu": float(z["__cpu"]) if "__cpu" in z else float("nan")}
             return {n: z[n].astype(np.float64) for n in rs.objects}, t, True
-    vals, dt, mask = C.bake(rs, spp, seed)
+    vals, dt, mask = C.bake(rs, spp, seed, seed_per_object=PER_OBJECT_SEEDS)
     bad = {n: int((~m).sum()) for n, m in mask.items() if (~m).any()}
     if bad:
         log(f"  warning: texels not written by the bake: {bad}")

@@ -64,7 +64,7 @@ def reference(rs, key, spp, seed, wait, split=None):
             {k: parts[0][1][k] + parts[1][1][k] for k in parts[0][1]},
             parts[0][2] and parts[1][2],
         )
-    path = os.path.join(CC.CACHE, f"{key}_f1_s{spp}_seed{seed}_{CC._atlas_key(rs)}.npz")  # its name
+    path = CC.ref_path(rs, key, 1, spp, seed)
     while wait and not os.path.exists(path):
         time.sleep(20)
     for _ in range(30):

@@ -505,35 +505,47 @@ def _surface_front(rs: RefScene, ring, plane_tol=1e-3):
     return n if best is None else -n
 
 
-def bake(rs: RefScene, samples, seed=0, threads=1, passes=("DIRECT", "INDIRECT"), bounces=64):
+def bake(
+    rs: RefScene, samples, seed=0, threads=1, passes=("DIRECT", "INDIRECT"), bounces=64, seed_per_object=False
+):
     """Bake reflected radiance (rho H / pi) of every compared object (passes: Cycles' Diffuse
     bake's light passes, both by default; bounces: Cycles' max and diffuse bounces, 0 direct light
     only, 1 one reflection more: benchmarks/cycles_bounce_check.py). Returns ({name: (N, 3)},
-    {"wall": s, "cpu": s} of the bake call, {name: baked mask (N,)})."""
+    {"wall": s, "cpu": s} of the bake call, {name: baked mask (N,)}).
+
+    Cycles draws a texel's samples from its pixel (x, y) in the image it bakes and the seed, and
+    every object bakes into its own image, so the texels at one (x, y) of all objects share their
+    random numbers: errors of alike objects (a bookcase's books) are correlated and do not pool
+    down. seed_per_object: object i baked alone with seed x (objects) + i (one bake call each):
+    independent errors."""
     import bpy
 
     configure_cycles(rs.scene, samples, seed, threads, bounces)
-    # the light-shape originals must not take part (their ray visibility is off already)
-    for ob in bpy.context.view_layer.objects:
-        ob.select_set(False)
-    for name in rs.objects:
-        ob = bpy.data.objects[name]
-        ob.select_set(True)
-        clear_image(rs.images[name])
-    bpy.context.view_layer.objects.active = bpy.data.objects[rs.objects[0]]
     rb = rs.scene.render.bake
     rb.margin = 0
     rb.use_clear = False
     rb.target = "IMAGE_TEXTURES"
     rb.use_selected_to_active = False
+    groups = [[n] for n in rs.objects] if seed_per_object else [rs.objects]
     t0, c0 = time.perf_counter(), time.process_time()
-    bpy.ops.object.bake(
-        type="DIFFUSE",
-        pass_filter={*passes, "COLOR"},
-        margin=0,
-        use_clear=False,
-        target="IMAGE_TEXTURES",
-    )
+    for i, names in enumerate(groups):
+        # per object: seeds of different `seed`s never meet (object i of seed 1 and i - 1 of seed 2)
+        rs.scene.cycles.seed = int(seed) * len(groups) + i if seed_per_object else int(seed)
+        # the light-shape originals must not take part (their ray visibility is off already)
+        for ob in bpy.context.view_layer.objects:
+            ob.select_set(False)
+        for name in names:
+            bpy.data.objects[name].select_set(True)
+            clear_image(rs.images[name])
+        bpy.context.view_layer.objects.active = bpy.data.objects[names[0]]
+        bpy.ops.object.bake(
+            type="DIFFUSE",
+            pass_filter={*passes, "COLOR"},
+            margin=0,
+            use_clear=False,
+            target="IMAGE_TEXTURES",
+        )
+    rs.scene.cycles.seed = int(seed)
     dt = {"wall": time.perf_counter() - t0, "cpu": time.process_time() - c0}
     out, mask = {}, {}
     for name in rs.objects:

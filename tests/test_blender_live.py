@@ -176,14 +176,22 @@ def test_strength_edit_is_an_exact_scaling(tmp_path, method):
             assert [e.kind for e in sess.last.report.events] == ["emission"]
             assert sess.last.report.iterations == 0  # a scale, no solve
         shown[k] = _shown(bpy, sess)
+    clipped = 0
     for name in shown[1.0]:
         lit = (shown[2.5][name] - shown[1.0][name]) / 1.5  # the patch's light per unit strength
         if name == "back":
             assert lit.max() > 0.05  # the patch is on the back wall
+        # a face cut by another solid keeps its light by a shift of its corners (corner_fit),
+        # which can take a dim corner below 0 where the output clips it: exact scaling holds
+        # wherever no strength's total was clipped (the Cornell sample: 4 of 5,772 values, on the floor)
+        ok = (shown[0.4][name] > 0) & (shown[1.0][name] > 0) & (shown[2.5][name] > 0)
+        ok |= (shown[0.4][name] == 0) & (shown[1.0][name] == 0) & (shown[2.5][name] == 0)
+        clipped += int((~ok).sum())
         atol = 1e-6 * float(shown[2.5][name].max())  # float32 rounding
         np.testing.assert_allclose(
-            shown[0.4][name], shown[1.0][name] - 0.6 * lit, rtol=0, atol=atol, err_msg=name
+            shown[0.4][name][ok], (shown[1.0][name] - 0.6 * lit)[ok], rtol=0, atol=atol, err_msg=name
         )
+    assert clipped <= 0.01 * sum(v.size for v in shown[1.0].values()), clipped
 
 
 def test_toggling_live_off_restores_the_baked_playback(tmp_path):
