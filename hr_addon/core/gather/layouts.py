@@ -298,17 +298,19 @@ class LoopGather(FinalGather):
                 tot += wt[None] * part[idx]
             d = np.where(tot < 0, -gain[idx] * tot, 0.0)
             j = np.flatnonzero(d.any(1))
-            if len(j) and getattr(self, "fit", False):  # the shifts take in every sample of a face
-                D = np.zeros((self.n, 3))
-                D[idx[j]] = d[j]
-                out += self._loops(D)
-            elif len(j):
+            if len(j):
                 li, _, wn, start = self._loop_map()
                 a, b = start[idx[j]], start[idx[j] + 1]
                 e = np.repeat(a - np.cumsum(np.r_[0, (b - a)[:-1]]), b - a) + np.arange((b - a).sum())
                 row = np.repeat(j, b - a)
+                fit = getattr(self, "fit", False)
+                add = np.zeros_like(out) if fit else out
                 for c in range(3):
-                    out[:, c] += np.bincount(li[e], wn[e] * d[row, c], len(out))
+                    add[:, c] += np.bincount(li[e], wn[e] * d[row, c], len(out))
+                if fit:  # (_loops of the correction: the shifts take in every sample of a face)
+                    D = np.zeros((self.n, 3))
+                    D[idx[j]] = d[j]
+                    out += corner_fit.shifted(add, D, self._shift_plan())
         # a sum of terms >= 0, where only the parts' rounding dips below; with the faces' shifts
         # (fit) a corner may (loop_values' clip)
         return np.maximum(out, 0.0, out=out)
