@@ -24,6 +24,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--json", default=os.path.join(HERE, "out", "threads_100k_quiet2.json"))
     ap.add_argument("--png", default=os.path.join(HERE, "..", "docs", "images", "threads.png"))
+    ap.add_argument("--build-json", default=None, help="a --build-only run: the build's measured point")
     args = ap.parse_args(argv)
     data = json.load(open(args.json))
     runs = data["runs"]
@@ -46,10 +47,20 @@ def main(argv=None):
     for i, (n, r) in enumerate(model.items()):
         c = "k" if n == "total" else f"C{i}"
         ax.plot(CORES, [r["speedup"][k] for k in CORES], color=c, lw=2.5 if n == "total" else 1.5, label=n)
-        if two is not None:
-            wall = sum(runs[prof][k] for k in names) if n == "total" else runs[prof][n]
-            wall2 = sum(runs[two][k] for k in names) if n == "total" else runs[two][n]
-            ax.plot([2], [wall / wall2], "o", color=c, ms=5)
+        if two is None:
+            continue
+        # a 2-thread run that loaded the 1-thread run's system (--system) has no build to compare:
+        # its build point comes from --build-json, and the total is over the other phases
+        built = [k for k in names if not (k == "build" and runs[two].get("loaded"))]
+        if n == "build" and n not in built:
+            if args.build_json:
+                b = json.load(open(args.build_json))["runs"]
+                b1, b2 = (next(r for k, r in b.items() if k.startswith(f"{m}@")) for m in (1, 2))
+                ax.plot([2], [b1["build"] / b2["build"]], "o", color=c, ms=5)
+            continue
+        wall = sum(runs[prof][k] for k in built) if n == "total" else runs[prof][n]
+        wall2 = sum(runs[two][k] for k in built) if n == "total" else runs[two][n]
+        ax.plot([2], [wall / wall2], "o", color=c, ms=5)
     ax.set_xlabel("cores")
     ax.set_ylabel("speed-up over one thread")
     ax.set_xlim(1, 16)
