@@ -997,9 +997,7 @@ class FinalGather(DirectLight):
         over the channels; local False: the room's alone, as from V = 0, where the objects' ratios
         made single objects worse: 5.0 -> 5.2%)."""
         d1, d0 = last[2] - last[1], last[1] - last[0]
-        s1, s0 = d1.sum(0), d0.sum(0)
-        r = np.clip(np.divide(s1, s0, out=np.zeros(3), where=s0 != 0), 0.0, self.TAIL_MAX)
-        self.stats["tail_ratio"] = r
+        r = self.stats["tail_ratio"] = self._tail_ratio(d1.sum(0), d0.sum(0))
         if local:
             # each object's own ratio where it is lower (its light converging faster than the
             # room's; opposite changes: none): one ratio left single objects of the 100k room 3.8%
@@ -1015,9 +1013,14 @@ class FinalGather(DirectLight):
         """_tail(last, False)'s share from the channel sums of the last three passes' leaf values
         alone (its series sums to the change's sum times r / (1 - r)): the stopping rule after each
         pass, where _tail's full arrays cost 0.04 s a pass on the 100k room."""
-        s1, s0 = sums[2] - sums[1], sums[1] - sums[0]
-        r = np.clip(np.divide(s1, s0, out=np.zeros(3), where=s0 != 0), 0.0, self.TAIL_MAX)
+        s1 = sums[2] - sums[1]
+        r = self._tail_ratio(s1, sums[1] - sums[0])
         return float((np.abs(s1 * (r / (1 - r))) / (np.abs(sums[2]) + 1e-300)).max())
+
+    def _tail_ratio(self, s1, s0):
+        """(3,) the passes' ratio per channel: the last change's sum s1 over the one before's s0,
+        clipped to [0, TAIL_MAX] (0 where s0 is)."""
+        return np.clip(np.divide(s1, s0, out=np.zeros(3), where=s0 != 0), 0.0, self.TAIL_MAX)
 
     def _tail_groups(self, rows):
         """(rows,) the object of each row of _levels' leaf values (the HR leaves, then with near

@@ -104,6 +104,11 @@ PROBE_RAYS = 8  # _buried: rays per sample; buried when at least 3/4 of them hit
 PROBE_BATCH = 1 << 13  # _buried: samples per batch on threads (fixed: values never depend on threads)
 
 
+def probe_reach(system):
+    """_buried's probe rays' length: 4 x the size of the main group of objects."""
+    return 4.0 * float(np.sqrt(isolated_objects(system.mesh).main_area))
+
+
 def _buried(system, pts, patch, reach):
     """Samples inside another solid or under a face touching theirs: covered as final.py decides
     it (the contacts' test, open edges of gaps OPEN_EDGE, a slot lit through its mouths not), or
@@ -146,8 +151,7 @@ def _uncover(system, pts, corner, patch, inset):
     -14% against Cycles), a lid's side whose lower corners are sunk into a box (-30%)."""
     if not len(pts):
         return
-    # the probe rays' length, from the main group of objects (the same for every pass: computed once)
-    reach = 4.0 * float(np.sqrt(isolated_objects(system.mesh).main_area))
+    reach = probe_reach(system)  # (the same for every pass: computed once)
     todo = np.flatnonzero(_buried(system, pts, patch, reach))
     for f in UNCOVER:
         if not len(todo):
@@ -158,7 +162,7 @@ def _uncover(system, pts, corner, patch, inset):
         todo = todo[cov]
 
 
-def cut_patches(system, nudge=0.05):
+def cut_patches(system, nudge=0.05, reach=None):
     """(K,) bool: patches with a corner inside another solid or covered (_buried, probed `nudge`
     of the way from the corner to the patch's centre): cut by another object, the light of their
     visible part ends in a dark band along the cut (corner_fit's extra samples)."""
@@ -167,8 +171,8 @@ def cut_patches(system, nudge=0.05):
     c = pt.corners[jj, kk]
     centre = pt.corners[jj, :3].mean(1)
     centre[pt.nv[jj] == 4] = pt.corners[jj[pt.nv[jj] == 4]].mean(1)
-    reach = 4.0 * float(np.sqrt(isolated_objects(system.mesh).main_area))
     out = np.zeros(len(pt.nv), bool)
+    reach = probe_reach(system) if reach is None else reach
     out[jj[_buried(system, c + nudge * (centre - c), jj, reach)]] = True
     return out
 
@@ -189,9 +193,9 @@ class LoopGather(FinalGather):
         self.n_loop = len(pts)  # the corners' samples; corner_fit's extra samples follow
         if self.fit:
             pt = s.patches
-            cut = np.flatnonzero(cut_patches(s))
+            reach = probe_reach(s)
+            cut = np.flatnonzero(cut_patches(s, reach=reach))
             xp, row = corner_fit.extra_points(pt.corners[cut], pt.nv[cut])
-            reach = 4.0 * float(np.sqrt(isolated_objects(s.mesh).main_area))
             seen = ~_buried(s, xp, cut[row], reach)  # the cut patches' visible part only
             xp, xpatch = xp[seen], cut[row[seen]]
             pts, nrm, patch = np.r_[pts, xp], np.r_[nrm, pt.normal[xpatch]], np.r_[patch, xpatch]
