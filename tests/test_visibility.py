@@ -373,3 +373,24 @@ def test_any_hit_query_answers_as_the_nearest_hit():
     ):
         assert (both.occluded(a, b) == blocked).all()
         assert np.array_equal(both.occluded(a, b), vis.make_backend(both.triangles, "numpy").occluded(a, b))
+
+
+def test_retrace_by_boxes_equals_the_numpy_grid(float32_name):
+    """_retrace (a float32 backend's refuted or short segments): by bounding boxes while few, then
+    on the numpy grid, whose answers the boxes give exactly (same float64 kernel, every triangle
+    that can meet the segment among the candidates)."""
+    tri = scene(7)
+    be = vis.make_backend(tri, float32_name)
+    ref = vis.NumpyBackend(tri, grid=True)
+    rng = np.random.default_rng(7)
+    sets = ray_sets(tri, rng, 1500)
+    be.BOXED_MAX = sum(len(a) for a, _ in sets.values()) * len(be.triangles)
+    for kind, (a, b) in sets.items():
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        got = be._retrace(a, b - a)
+        assert be._exact is None, kind  # the boxes answered
+        assert got.any() and not got.all(), kind
+        assert np.array_equal(got, ref.occluded(a, b)), kind
+    a, b = sets["volume"]
+    assert np.array_equal(be._retrace(a, b - a), ref.occluded(a, b))
+    assert be._exact is not None and be._exact.grid  # past BOXED_MAX: the grid
