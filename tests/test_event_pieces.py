@@ -76,3 +76,34 @@ def test_a_dragged_shape_reuses_its_grid(system, monkeypatch):
     n = np.cross(*wall)
     on_wall = [b for b in built if abs(abs(b @ n) - 1) < 1e-9]
     assert len(on_wall) == 1
+
+
+@pytest.mark.parametrize(
+    "outline",
+    [
+        S.window(0.2, 0.16, 0.02, centre=(0.4, 0.4), angle=0.3, shear=0.3),  # holes
+        S.star(0.1, 0.04, 5, centre=(0.45, 0.4), angle=0.2),  # not convex
+        S.ellipse(0.12, 0.05, centre=(0.4, 0.45), angle=0.5),  # 48 vertices
+    ],
+)
+def test_form_factors_over_the_rings_are_the_pieces_sum(system, outline):
+    """shape_form_factors over a shape's rings (the contour integral where the shape lies wholly
+    above a point's horizon, the rings clipped to it elsewhere) equals the sum over its convex
+    pieces (point_to_polygon's), to 1e-12 of the largest."""
+    from hr_addon.core.geometry import newell
+
+    dyn = DynamicRadiosity(system.copy(), method="FE")
+    dyn.add("a", LightShape(S.on_plane(outline, S.CORNELL_BACK_WALL), np.full(3, 2.0), "a"))
+    rec = dyn.shapes["a"]
+    nf = system.patches.normal[rec.roots[0]]
+    rings = [r if (newell(r) @ nf > 0) == (i == 0) else r[::-1] for i, r in enumerate(rec.rings)]
+    corners, nv = slab_pieces(rec, nf)[:2]
+    rng = np.random.default_rng(2)
+    x = np.array([0.05, 0.05, 0.05]) + rng.random((600, 3)) * [0.9, 0.8, 0.9]
+    n = rng.normal(size=(600, 3)) + [0, 1.0, 0]
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    F = shape_form_factors(x, n, rings, None, None, 1e-6)
+    ref = shape_form_factors(x, n, None, corners, nv, 1e-6)
+    whole = ((np.concatenate(rings)[None] - x[:, None]) * n[:, None]).sum(-1).min(1) > 1e-6
+    assert 0.2 < whole.mean() < 0.95 and (F[~whole] > 0).sum() > 20  # both paths taken
+    np.testing.assert_allclose(F, ref, rtol=0, atol=1e-12 * ref.max())

@@ -330,3 +330,67 @@ def test_component_major_occlusion_equals_occluded(name):
         got = be.occluded_cm(np.ascontiguousarray(a.T), np.ascontiguousarray((b - a).T))
         assert ref.any() and not ref.all(), kind
         assert np.array_equal(got, ref), kind
+
+
+def test_any_hit_query_answers_as_the_nearest_hit():
+    """EmbreeBackend's occlusion query (embreex "OCCLUDED": 0 for a hit, -1 for none) finds a hit
+    on exactly the float32 rays where the nearest-hit query finds one, and occluded() through it
+    (the middle of a segment by the any-hit query) answers as through the nearest hit alone:
+    hits within SURE of an end, genuine or a rounding self-hit of an endpoint on a surface, are
+    still decided in float64."""
+    _require("embree")
+    tri = scene()
+    be = vis.make_backend(tri, "embree")
+    nearest = vis.make_backend(tri, "embree")
+    nearest.any_hit = False  # main's path: one nearest-hit query per segment
+    assert be.any_hit
+    rng = np.random.default_rng(12)
+    o = rng.uniform(-0.6, 0.6, (20000, 3)).astype(np.float32)
+    d = rng.normal(size=(20000, 3)).astype(np.float32)
+    tfar = rng.uniform(0, 1, 20000).astype(np.float32)
+    hit = be._any_hit(o, d, tfar)
+    assert hit.any() and not hit.all()
+    assert np.array_equal(hit, be._nearest(o, d, tfar.copy())[0] >= 0)
+    total = bad_total = 0
+    for kind, (a, b) in ray_sets(tri, rng, 5000).items():
+        ref, got = nearest.occluded(a, b), be.occluded(a, b)
+        bad = np.flatnonzero(ref != got)
+        if len(bad):  # a different float32 ray (its origin at SURE): only edge grazes may differ
+            assert edge_distance(be.triangles, a[bad], b[bad]).max() < EDGE_TOL, kind
+        if "edge" not in kind:  # (rays through an edge are ties, as in test_backends_agree)
+            total, bad_total = total + len(a), bad_total + len(bad)
+    assert bad_total <= MAX_DISAGREE * total, (bad_total, total)
+    # a plate within SURE of either end blocks; segments starting or ending on it do not
+    plate = np.array([[[-5.0, -5.0, 0.0], [10.0, -5.0, 0.0], [-5.0, 10.0, 0.0]]])
+    both = vis.make_backend(np.concatenate([plate, box_triangles([2, 2, 2], [3, 3, 3])]), "embree")
+    x = np.column_stack([rng.uniform(0.1, 0.9, (500, 2)), np.zeros(500)])
+    up = np.array([0.0, 0.0, 0.3])
+    for a, b, blocked in (
+        (x - 0.002 * up, x + up, True),  # the plate at t = 0.002 / 1.002
+        (x + up, x - 0.002 * up, True),  # ... at 1 - that
+        (x, x + up, False),  # from a point on the plate
+        (x + up, x, False),  # to it
+    ):
+        assert (both.occluded(a, b) == blocked).all()
+        assert np.array_equal(both.occluded(a, b), vis.make_backend(both.triangles, "numpy").occluded(a, b))
+
+
+def test_retrace_by_boxes_equals_the_numpy_grid(float32_name):
+    """_retrace (a float32 backend's refuted or short segments): by bounding boxes while few, then
+    on the numpy grid, whose answers the boxes give exactly (same float64 kernel, every triangle
+    that can meet the segment among the candidates)."""
+    tri = scene(7)
+    be = vis.make_backend(tri, float32_name)
+    ref = vis.NumpyBackend(tri, grid=True)
+    rng = np.random.default_rng(7)
+    sets = ray_sets(tri, rng, 1500)
+    be.BOXED_MAX = sum(len(a) for a, _ in sets.values()) * len(be.triangles)
+    for kind, (a, b) in sets.items():
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        got = be._retrace(a, b - a)
+        assert be._exact is None, kind  # the boxes answered
+        assert got.any() and not got.all(), kind
+        assert np.array_equal(got, ref.occluded(a, b)), kind
+    a, b = sets["volume"]
+    assert np.array_equal(be._retrace(a, b - a), ref.occluded(a, b))
+    assert be._exact is not None and be._exact.grid  # past BOXED_MAX: the grid

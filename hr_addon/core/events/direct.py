@@ -289,10 +289,12 @@ def shape_form_factors(x, n, rings, corners, nv, eps):
     sum over its convex pieces (corners (T, 4, 3), nv)."""
     F = np.zeros(len(x))
     if rings is not None:
-        allv = np.concatenate(rings)
-        whole = ((allv[None] - x[:, None]) * n[:, None]).sum(-1).min(1) > eps
+        X, N = np.ascontiguousarray(x.T), np.ascontiguousarray(n.T)  # component-major: rows of N
+        v = np.concatenate(rings)[:, :, None]
+        # (the sum's order as .sum(-1) of rows of 3 had it)
+        whole = (((v[:, 0] - X[0]) * N[0] + (v[:, 1] - X[1]) * N[1]) + (v[:, 2] - X[2]) * N[2]).min(0) > eps
         if whole.any():
-            F[whole] = _contour(x[whole], n[whole], rings)
+            F[whole] = _contour(X[:, whole], N[:, whole], rings)
         cut = ~whole
         if cut.any():
             # the horizon cuts the outline: its rings clipped to the point's upper half-space
@@ -314,17 +316,22 @@ def shape_form_factors(x, n, rings, corners, nv, eps):
     return F
 
 
-def _contour(x, n, rings):
-    """Unoccluded form factor from points x (N, 3) with normals n to a polygon with holes lying wholly
-    above their horizons: Lambert's contour integral over all rings (outer CCW about the polygon's
-    normal, holes CW)."""
-    f = np.zeros(len(x))
+def _contour(X, N, rings):
+    """Unoccluded form factor from points X (3, P) (component-major) with normals N to a polygon
+    with holes lying wholly above their horizons: Lambert's contour integral over all rings (outer
+    CCW about the polygon's normal, holes CW). Rows of P per component and vertex (numpy is slow
+    on a last axis of 3: 1.4-1.8x faster on the 100k room's events); the sums in the order np.cross,
+    norm and einsum gave them (the same bits)."""
+    f = np.zeros(X.shape[1])
     for r in rings:
-        R = r[None] - x[:, None]  # (N, M, 3)
+        R = r.T[:, :, None] - X[:, None]  # (3, M, P)
         Rn = np.roll(R, -1, axis=1)
-        cr = np.cross(R, Rn)
-        cl = np.linalg.norm(cr, axis=-1)
-        g = np.arctan2(cl, np.einsum("nmk,nmk->nm", R, Rn))
-        t = np.where(cl > 0, g * np.einsum("nmk,nk->nm", cr, n) / np.where(cl > 0, cl, 1), 0.0)
-        f -= t.sum(1) / (2 * np.pi)
+        c0 = R[1] * Rn[2] - R[2] * Rn[1]
+        c1 = R[2] * Rn[0] - R[0] * Rn[2]
+        c2 = R[0] * Rn[1] - R[1] * Rn[0]
+        cl = np.sqrt((c0 * c0 + c1 * c1) + c2 * c2)
+        g = np.arctan2(cl, (R[0] * Rn[0] + R[2] * Rn[2]) + R[1] * Rn[1])
+        on = cl > 0
+        t = np.where(on, g * ((c0 * N[0] + c2 * N[2]) + c1 * N[1]) / np.where(on, cl, 1), 0.0)
+        f -= t.sum(0) / (2 * np.pi)
     return np.clip(f, 0.0, 1.0)
