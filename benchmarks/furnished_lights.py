@@ -174,6 +174,28 @@ def main():
         )
         summary["all"]["ref_noise_median"] = float(np.median(nz))
         summary["all"]["ref_noise_from"] = noise_note
+    if lit and "ref_noise_texels" in objects[lit[0]]:
+        nt = np.array([objects[n]["ref_noise_texels"] for n in lit])
+        books = np.array(["_book" in n for n in lit])
+        print(
+            f"   reference noise of an object's mean from its texels' seed differences: median "
+            f"{100 * np.nanmedian(nt):.2f}% (books {100 * np.nanmedian(nt[books]):.2f}%, others "
+            f"{100 * np.nanmedian(nt[~books]):.2f}%)",
+            flush=True,
+        )
+        summary["all"]["ref_noise_texels_median"] = float(np.nanmedian(nt))
+        for lim in (0.025, 0.05):  # the objects whose reference mean is known well enough to judge
+            k = nt < lim
+            if k.any():
+                summary[f"ref_noise_texels_below_{lim}"] = st = C.object_summary(
+                    objects, [n for n, y in zip(lit, k) if y]
+                )
+                print(
+                    f"   reference known within {100 * lim:g}% (texel noise): {st['objects']} objects, "
+                    f"median {100 * st['median']:.1f}%, within 5%: {100 * st['within_5']:.0f}%, "
+                    f"books {int(np.sum(k & books))}",
+                    flush=True,
+                )
     sc = np.array([objects[n]["scatter_noise"] for n in lit])
     err = np.array([objects[n]["mre"] for n in lit])
     print(

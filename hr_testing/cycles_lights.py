@@ -216,7 +216,8 @@ def per_object(rs, res, refs, noise_pair=None):
     of the final gather's reflected radiance), leaf_bias (the hierarchy's leaves), share_sun,
     share_sky (our direct light's share), kind ("sun", "sky" or "bounce": lit directly by the sun,
     else by the sky, else by bounce light only), ref_noise (two seeds or more: the reference's own
-    noise of the mean), scatter_noise (a bound of that from one reference)}}, lit: the objects
+    noise of the mean), ref_noise_texels (the same from the texels' seed differences),
+    scatter_noise (a bound of that from one reference)}}, lit: the objects
     whose reference mean is above 5% of the pooled mean (where a relative error means something),
     {group: cycles_ref.object_summary} of the lit objects
     for all (pooled bias: over every texel), books, others, sun-lit, sky-lit, bounce-lit).
@@ -242,6 +243,12 @@ def per_object(rs, res, refs, noise_pair=None):
         )
         if noise_pair is not None:
             o["ref_noise"] = C.noise(noise_pair[0][n], noise_pair[1][n])[1] * noise_pair[2]
+        if len(refs) > 1:  # the same from the first two seeds' texel differences: a bake's texels
+            # are independent samples, so this has texels - 1 degrees of freedom, ref_noise one
+            d = (refs[0][n] - refs[1][n]).mean(1)
+            d = d[np.isfinite(d)]
+            sd = np.std(d, ddof=1) / math.sqrt(2 * len(d) * len(refs)) if len(d) > 1 else np.nan
+            o["ref_noise_texels"] = float(sd / max(np.mean(m["mean_ref"]), 1e-12))
         # one reference alone: the standard error of its mean from its texels' scatter about ours (an
         # upper bound of its noise: it holds our texel-to-texel error too)
         d = (ref[n] - res[n]["gather_refl"]).mean(1)
