@@ -228,7 +228,11 @@ def main():
         "   worst: "
         + ", ".join(
             f"{n} {100 * objects[n]['bias']:+.1f}% ({objects[n]['kind']}, {objects[n]['texels']} texels"
-            + (f", noise {100 * objects[n]['ref_noise']:.1f}%" if "ref_noise" in objects[n] else "")
+            + (
+                f", noise {100 * objects[n]['ref_noise_texels']:.1f}%"
+                if "ref_noise_texels" in objects[n]
+                else ""
+            )
             + ")"
             for n in worst
         ),
