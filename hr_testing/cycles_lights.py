@@ -73,7 +73,8 @@ def daylight_scene(size="20k", portal=False):
     """A new empty scene holding furnished.daylight_room(size): one mesh object per room object
     (a Diffuse BSDF of its reflectance), furnished.SUN as a sun light and furnished.SKY as the
     World. portal: a Cycles portal filling the window (an area light that emits nothing: Cycles
-    samples the World's light through it, the same result with less noise; the bake skips it).
+    samples the World's light through it, the same result with less noise; the bake skips it;
+    docs/lights.md, *A daylight reference through a portal*).
     Returns (scene, info of daylight_room)."""
     bpy = load_bpy()
     from mathutils import Vector
@@ -97,6 +98,10 @@ def daylight_scene(size="20k", portal=False):
         ob.location = (lo + hi) / 2
         ob.rotation_euler = Vector((0.0, 1.0, 0.0)).to_track_quat("-Z", "Z").to_euler()  # into the room
         scene.collection.objects.link(ob)
+        # with a portal, the World's AUTOMATIC importance map makes Cycles slow (the 2k room, one
+        # bake call at 16 spp: 64 s CPU against 4.6 s); a small map gives the same values here
+        # (a uniform World, sampled through the portal) at a plain World's cost
+        scene.world.cycles.sampling_method, scene.world.cycles.sample_map_resolution = "MANUAL", 64
     bpy.context.view_layer.update()  # the sun's evaluated transform
     return scene, info
 
@@ -211,7 +216,8 @@ def per_object(rs, res, refs, noise_pair=None):
     of the final gather's reflected radiance), leaf_bias (the hierarchy's leaves), share_sun,
     share_sky (our direct light's share), kind ("sun", "sky" or "bounce": lit directly by the sun,
     else by the sky, else by bounce light only), ref_noise (two seeds or more: the reference's own
-    noise of the mean), scatter_noise (a bound of that from one reference)}}, lit: the objects
+    noise of the mean), ref_noise_texels (the same from the texels' seed differences),
+    scatter_noise (a bound of that from one reference)}}, lit: the objects
     whose reference mean is above 5% of the pooled mean (where a relative error means something),
     {group: cycles_ref.object_summary} of the lit objects
     for all (pooled bias: over every texel), books, others, sun-lit, sky-lit, bounce-lit).
@@ -237,6 +243,12 @@ def per_object(rs, res, refs, noise_pair=None):
         )
         if noise_pair is not None:
             o["ref_noise"] = C.noise(noise_pair[0][n], noise_pair[1][n])[1] * noise_pair[2]
+        if len(refs) > 1:  # the same from the first two seeds' texel differences: a bake's texels
+            # are independent samples, so this has texels - 1 degrees of freedom, ref_noise one
+            d = (refs[0][n] - refs[1][n]).mean(1)
+            d = d[np.isfinite(d)]
+            sd = np.std(d, ddof=1) / math.sqrt(2 * len(d) * len(refs)) if len(d) > 1 else np.nan
+            o["ref_noise_texels"] = float(sd / max(np.mean(m["mean_ref"]), 1e-12))
         # one reference alone: the standard error of its mean from its texels' scatter about ours (an
         # upper bound of its noise: it holds our texel-to-texel error too)
         d = (ref[n] - res[n]["gather_refl"]).mean(1)
