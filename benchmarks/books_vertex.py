@@ -7,8 +7,10 @@ diagnostic vertex outputs that each leave one step out:
 - raw: each corner its own sample's value (no averaging over welded faces, no shift);
 - flat4: each face flat at the mean of its corners' samples (what the interpolation's weights
   (a quad: two triangles, corners 0 and 2 a third each, 1 and 3 a sixth) do to that mean);
-- flattex: each face flat at the texture output's mean over its texels (what the best corner
-  values of a face could give: the face's light, not its shape).
+- flattex: each face flat at the texture output's mean over the face (by area: what the best
+  corner values of a face could give, the face's light, not its shape);
+- flattexel: the same mean over the face's texels each counted once, as the per-object measure
+  counts them (texels on a face's edge, part outside it, count fully).
 
 Runs the bake's draft FE solution with the final gather's transport, as furnished_vs_cycles.py
 'NAME=dict(gather=dict(rays=128, shadow_rays=16, levels=2, iterations=4, vertex=True),
@@ -55,9 +57,10 @@ def per_texel(rs, loops):
     return out
 
 
-def flat_per_face(rs, loops=None, texel=None):
+def flat_per_face(rs, loops=None, texel=None, by_texel=False):
     """{object: (N, 3)} each face flat: at the mean of its corners' values (loops (L, 3)) or of
-    the texel values texel {object: (N, 3)} over its sub-samples."""
+    the texel values texel {object: (N, 3)} over its sub-samples (by area), by_texel: over the
+    texels whose centre lies on it, each once (as the per-object measure weights them)."""
     tg = {t.name: t for t in rs.scene_in.targets}
     out = {}
     for n in rs.objects:
@@ -70,7 +73,7 @@ def flat_per_face(rs, loops=None, texel=None):
             face = np.stack([np.bincount(pl[:, 0], corner[pl[:, 1], c], P) for c in range(3)], 1)
         else:
             v = texel[n][at.s_texel]
-            ok = np.isfinite(v).all(1)
+            ok = np.isfinite(v).all(1) & (at.s_centre if by_texel else True)
             cnt = np.bincount(at.s_poly[ok], minlength=P)
             face = np.stack([np.bincount(at.s_poly[ok], v[ok, c], P) for c in range(3)], 1)
         face = face.astype(np.float64) / np.maximum(cnt, 1)[:, None]
@@ -140,6 +143,7 @@ def main():
         "raw": {n: x - emis[n] for n, x in per_texel(rs, raw).items()},
         "flat4": {n: x - emis[n] for n, x in flat_per_face(rs, loops=raw).items()},
         "flattex": {n: x - emis[n] for n, x in flat_per_face(rs, texel=tex).items()},
+        "flattexel": {n: x - emis[n] for n, x in flat_per_face(rs, texel=tex, by_texel=True).items()},
     }
     mask = {n: unb[n] & np.isfinite(ref[n]).all(1) for n in rs.objects}
     pooled = np.mean(np.concatenate([ref[n][np.isfinite(ref[n]).all(1)] for n in rs.objects]))
