@@ -4,7 +4,7 @@ import numpy as np
 
 from ..geometry import isolated_objects
 from ..parallel import batch_map, ranges
-from ..output import equal_key_pairs, in_domain, loop_welds
+from ..output import corner_weights, equal_key_pairs, in_domain, loop_welds
 from . import corner_fit
 from .bakepoints import has_area, texel_points
 from .final import OPEN_EDGE, FinalGather
@@ -13,6 +13,7 @@ from .texel_edges import texel_area
 
 SUB = 4  # sub-samples per side of a texel whose area straddles a coverage boundary
 FIT = True  # LoopGather's default: the cut faces' corners shifted to keep their light (corner_fit)
+SPLIT = True  # with FIT: faces part open, part in a slot too (slot_split); False: before 2026-12-05
 
 
 def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
@@ -177,6 +178,115 @@ def cut_patches(system, nudge=0.05, reach=None):
     return out
 
 
+SLOT_GRID = 256  # slot_split: test points per patch with a contact (a square: 16 x 16)
+SLOT_AREA = 64  # slot_split: points a slot part's transfer is averaged over
+SLOT_WHOLE = False  # slot_split: patches wholly in a slot too (depths > 2x apart; measured, left off)
+
+
+def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
+    """Samples for the patches with a contact that lie part open, part in a slot (of their `grid`
+    test points, corner_fit.extra_points, some covered by nothing and some in a slot: a book's side
+    above a shorter neighbour, lit as the room's walls on a strip and through a 2 mm gap below it):
+    n // 2 (corner_fit.EXTRA) spread over the open part, and one in the slot whose transfer is the
+    mean over SLOT_AREA of the part's test points (FinalGather's slot_area: the light falls off
+    steeply from the mouths, which a few samples would catch or miss); each part weighted by its
+    share of the patch's visible area (test points covered without a gap left out). A stratified
+    mean of the light over the patch, whose corners' samples (a quarter of the way in) all lie in
+    the slot's shade when the open strip is narrower than a quarter of the patch. skip (K,) bool:
+    patches left out (cut_patches'). Returns (points (m, 3), patch (m,), weight (m,), slot_area
+    (rows of the slot samples (r,), their points (r, SLOT_AREA, 3)), (the split patches (p,), their
+    interpolant's mean per unit corner value over the visible test points (p, 4))."""
+    pt, con = system.patches, system.h.contacts
+    n = corner_fit.EXTRA if n is None else n
+    none = (
+        np.zeros((0, 3)),
+        np.zeros(0, np.int64),
+        np.zeros(0),
+        (np.zeros(0, np.int64), np.zeros((0, SLOT_AREA, 3))),
+        (np.zeros(0, np.int64), np.zeros((0, 4))),
+    )
+    cand = np.zeros(0, np.int64) if con is None else np.asarray(con.receivers, np.int64)
+    if skip is not None:
+        cand = cand[~skip[cand]]
+    if not len(cand):
+        return none
+    gp, row = corner_fit.extra_points(pt.corners[cand], pt.nv[cand], grid)
+    order = np.argsort(row, kind="stable")  # by patch, each in its grid's order
+    gp, row = gp[order], row[order]
+    threads = system.backend.threads
+    cls = np.zeros(len(gp), np.int64)  # 0 open, 1 in a slot, 2 covered without a gap
+    depth, mouth = np.zeros(len(gp)), np.full(len(gp), -1, np.int64)
+    c = np.flatnonzero(con.covered(gp, cand[row], threads=0 if threads is None else threads))
+    if len(c):
+        con.close_mouths(system.backend.occluded)
+        x, h, _, _, mo = con.slots(gp[c], cand[row[c]])
+        cls[c], depth[c], mouth[c] = np.where(h > 0, 1, 2), x, mo
+    K = len(cand)
+    cnt = np.stack([np.bincount(row, cls == k, K) for k in (0, 1)], 1)  # (K, 2) open, slot
+    mixed = (cnt > 0).all(1)
+    if SLOT_WHOLE:  # patches wholly in a slot, their light falling off over depths more than 2x apart
+        d = np.where(cls == 1, depth, np.nan)
+        start = np.searchsorted(row, np.arange(K))
+        mixed |= (cnt[:, 1] > 0) & (np.fmax.reduceat(d, start) > 2 * np.fmin.reduceat(d, start))
+    mixed = np.flatnonzero(mixed)
+    if not len(mixed):
+        return none
+    share = cnt[mixed] / cnt[mixed].sum(1, keepdims=True)
+    # the open part: n // 2 of its test points, nearest the centres of a k_a x k_b grid over the
+    # part's extent along the patch's sides (a strip 4 cm x 20 cm: 1 x 4, along its middle)
+    sel = []
+    for j in mixed:
+        q = np.flatnonzero((row == j) & (cls == 0))
+        if not len(q):
+            continue
+        cq = pt.corners[cand[j]]
+        e = np.stack([cq[1] - cq[0], cq[-1 if pt.nv[cand[j]] == 4 else 2] - cq[0]])
+        uv = (gp[q] - cq[0]) @ e.T / np.einsum("ij,ij->i", e, e)  # in units of the sides
+        lo, hi = uv.min(0), uv.max(0)
+        size = (hi - lo + 1e-9) * np.sqrt(np.einsum("ij,ij->i", e, e))
+        ka = int(np.clip(np.round(np.sqrt(n / 2 * size[0] / size[1])), 1, n // 2))
+        kb = max(n // 2 // ka, 1)
+        t = np.stack(np.meshgrid((np.arange(ka) + 0.5) / ka, (np.arange(kb) + 0.5) / kb, indexing="ij"), -1)
+        t = lo + t.reshape(-1, 2) * (hi - lo)
+        near = np.unique(
+            np.argmin(np.linalg.norm((t[:, None] - uv[None]) * size / (hi - lo + 1e-9), axis=2), 1)
+        )
+        sel.append(q[near])
+    sel = np.concatenate(sel) if sel else np.zeros(0, np.int64)
+    r = row[sel]
+    w = share[np.searchsorted(mixed, r), 0] / np.bincount(r, minlength=K)[r]
+    # the slot part: one sample per mouth its test points are nearest (the light outside differs
+    # by mouth: a book's top and front), at the deepest of them (its gather reads that mouth), the
+    # transfer averaged over SLOT_AREA of them
+    sl = np.flatnonzero(np.isin(row, mixed) & (cls == 1))
+    _, grp = np.unique(np.column_stack([row[sl], mouth[sl]]), axis=0, return_inverse=True)
+    grp = grp.ravel()
+    o = np.lexsort((-depth[sl], grp))  # by group, deepest first
+    sl, grp = sl[o], grp[o]
+    first = np.searchsorted(grp, np.arange(grp.max() + 1))
+    ms = np.bincount(grp)
+    deep = sl[first]
+    area = gp[sl[first[:, None] + (np.arange(SLOT_AREA)[None] * ms[:, None]) // SLOT_AREA]]
+    ws = share[np.searchsorted(mixed, row[deep]), 1] * ms / np.bincount(row[sl], minlength=K)[row[deep]]
+    # the interpolant's mean over the visible part (the strata are not spread evenly): over the
+    # open and slot test points
+    vis = np.flatnonzero(np.isin(row, mixed) & (cls < 2))
+    kv = cand[row[vis]]
+    a = corner_weights(pt.corners[kv], pt.nv[kv], pt.normal[kv], gp[vis])
+    ri = np.searchsorted(mixed, row[vis])
+    mean_w = (
+        np.stack([np.bincount(ri, a[:, j], len(mixed)) for j in range(4)], 1) / cnt[mixed].sum(1)[:, None]
+    )
+    pts = np.r_[gp[sel], gp[deep]]
+    return (
+        pts,
+        cand[np.r_[r, row[deep]]],
+        np.r_[w, ws],
+        (len(sel) + np.arange(len(deep)), area),
+        (cand[mixed], mean_w),
+    )
+
+
 class LoopGather(FinalGather):
     """FinalGather for the input mesh's corners: loop_radiance() in the layout of
     DynamicRadiosity.loop_radiance (CORNER: (L, 3) per loop; POINT: (V, 3) per vertex), float32.
@@ -198,6 +308,15 @@ class LoopGather(FinalGather):
             xp, row = corner_fit.extra_points(pt.corners[cut], pt.nv[cut])
             seen = ~_buried(s, xp, cut[row], reach)  # the cut patches' visible part only
             xp, xpatch = xp[seen], cut[row[seen]]
+            skip = np.zeros(len(pt.nv), bool)
+            skip[cut] = True
+            sp, spatch, sw, (rows, area), self.split_mean = slot_split(
+                s, skip if SPLIT else np.ones_like(skip)
+            )
+            self.extra_weight = np.r_[np.ones(len(pts) + len(xp)), sw]
+            if len(rows):
+                kw["slot_area"] = (len(pts) + len(xp) + rows, area)
+            xp, xpatch = np.r_[xp, sp], np.r_[xpatch, spatch]
             pts, nrm, patch = np.r_[pts, xp], np.r_[nrm, pt.normal[xpatch]], np.r_[patch, xpatch]
         super().__init__(system, pts, nrm, patch, **kw)
 
@@ -245,6 +364,8 @@ class LoopGather(FinalGather):
                 lpatch,
                 pc_loop,
                 (li, lj, w),
+                self.extra_weight,
+                self.split_mean,
             )
         return got
 
