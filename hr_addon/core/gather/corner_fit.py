@@ -125,6 +125,11 @@ def shift_plan(corners, nv, normal, patch, points, dark, n_loop, lpatch, pc_loop
     return s, kid[patch[s]], tw[s], mean_w[act], np.maximum(pc_loop, 0)[act], (lu, inv, kid[lp], w / den[li])
 
 
+def shifted_loops(plan):
+    """The loops whose values shifted() may change (where `loops` is 0 elsewhere)."""
+    return plan[5][0]
+
+
 def shifted(loops, values, plan):
     """(L, C) the loop values `loops` (the corners' samples' means) plus each loop's share of its
     faces' shifts: the light's mean (of the sample values (n, C)) less the interpolant's mean."""
@@ -134,4 +139,3 @@ def shifted(loops, values, plan):
         d = np.bincount(sk, tw * values[s, c], K) - np.einsum("kj,kj->k", mean_w, loops[pc, c])
         out[lu, c] += np.bincount(inv, wn * d[lp], len(lu))
     return out
-
