@@ -188,6 +188,18 @@ def edit_sequence(obj, kind, along, normal, step, drag=24):
     return edits
 
 
+def _written(names):
+    """Every named object's HR_Radiance, one float32 array."""
+    import bpy
+
+    parts = []
+    for n in names:
+        data = bpy.data.objects[n].data.attributes["HR_Radiance"].data
+        parts.append(np.empty(len(data) * 4, np.float32))
+        data.foreach_get("color", parts[-1])
+    return np.concatenate(parts)
+
+
 def _stats(xs):
     xs = np.asarray(xs, float)
     return {
@@ -198,7 +210,7 @@ def _stats(xs):
     }
 
 
-def run(scene_name, quality, method, furnished_size="100k", final_gather=True, preview=False):
+def run(scene_name, quality, method, furnished_size="100k", final_gather=True, preview=False, kinds=None):
     import bpy
     import hr_addon
 
@@ -252,16 +264,16 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
             )
             assert bpy.ops.hr.live_update() == {"FINISHED"}
             rows = []
-            seq = list(edit_sequence(obj, kind, along, normal, step))
+            seq = [e for e in edit_sequence(obj, kind, along, normal, step) if not kinds or e[0] in kinds]
             for j, (k, edit) in enumerate(seq):
                 edit()
                 if mode == "ui":
                     bpy.context.view_layer.update()  # the depsgraph handler fires, as in the UI
                     t0, c0 = time.perf_counter(), time.process_time()
                     live._reconcile(sess, scene, vl, check_geometry=False, fast=True)  # as the timer
-                    t1 = time.perf_counter()
+                    t1, c1 = time.perf_counter(), time.process_time()
                     w.flush(refine=not preview)
-                    t2 = time.perf_counter()
+                    t2, c2 = time.perf_counter(), time.process_time()
                     live._deliver(sess, scene)
                     t3, c3 = time.perf_counter(), time.process_time()
                     assert not sess.error and not sess.problems, (sess.error, sess.problems)
@@ -279,6 +291,8 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                             "kind": k,
                             "total": t3 - t0,
                             "cpu": c3 - c0,  # CPU seconds of the process (main thread + worker)
+                            # (the worker computes in this thread in background mode: flush)
+                            "cpu_parts": {"read": c1 - c0, "flush": c2 - c1, "write": c3 - c2},
                             "read": t1 - t0,
                             "apply": r.t_apply,
                             "output": r.t_output,
@@ -294,15 +308,22 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                     t0 = time.perf_counter()
                     assert bpy.ops.hr.live_update(check_geometry=(mode == "op")) == {"FINISHED"}
                     rows.append({"kind": k, "total": time.perf_counter() - t0})
-            kinds = sorted({r["kind"] for r in rows}, key=[r["kind"] for r in rows].index)
+            done = sorted({r["kind"] for r in rows}, key=[r["kind"] for r in rows].index)
             edits = [r for r in rows if r["kind"] != "refine"]  # (refines: --preview's own rows)
             res = {"all": _stats([r["total"] for r in edits])}
-            res.update({k: _stats([r["total"] for r in rows if r["kind"] == k]) for k in kinds})
+            res.update({k: _stats([r["total"] for r in rows if r["kind"] == k]) for k in done})
             if mode == "ui":
                 for part in ("read", "apply", "output", "write"):
                     res[f"part_{part}"] = _stats([r[part] for r in edits])
                 res["all_cpu"] = _stats([r["cpu"] for r in edits])
-                res["moves_iterations"] = _stats([r["iterations"] for r in rows if r["kind"] == "move"])
+                for k in done:
+                    res[f"{k}_cpu"] = _stats([r["cpu"] for r in rows if r["kind"] == k])
+                    for part in ("read", "flush", "write"):
+                        res[f"{k}_cpu_{part}"] = _stats(
+                            [r["cpu_parts"][part] for r in rows if r["kind"] == k]
+                        )
+                moves = [r["iterations"] for r in rows if r["kind"] == "move"]
+                res["moves_iterations"] = _stats(moves) if moves else None
                 if preview:
                     res["previews_cpu"] = _stats([r["cpu"] for r in rows if r.get("preview")])
                     res["refine_cpu"] = _stats([r["cpu"] for r in rows if r["kind"] == "refine"])
@@ -312,12 +333,34 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                         f" refines CPU median {1000 * rf['median']:.1f} / p95 {1000 * rf['p95']:.1f} ms"
                     )
                 out["rows"] = rows
+                if kinds:  # HR_Radiance after the ui pass: another checkout's run compares with it
+                    out["written"] = _written(sess.targets)
             out["edits"][mode] = res
             print(
                 f"{scene_name} {quality} {method} [{mode}] per edit: median {1000 * res['all']['median']:.1f} ms, "
-                f"p95 {1000 * res['all']['p95']:.1f} ms; move median {1000 * res['move']['median']:.1f} ms",
+                f"p95 {1000 * res['all']['p95']:.1f} ms; "
+                + (
+                    "; ".join(
+                        f"{k} median {1000 * res[k]['median']:.1f} ms"
+                        for k in done
+                        if k in ("move", "colour", "strength")
+                    )
+                ),
                 flush=True,
             )
+            if mode == "ui" and kinds:
+                print(
+                    "; ".join(
+                        f"{k} CPU median {1000 * res[f'{k}_cpu']['median']:.1f} ms ("
+                        + ", ".join(
+                            f"{p} {1000 * res[f'{k}_cpu_{p}']['median']:.1f}"
+                            for p in ("read", "flush", "write")
+                        )
+                        + ")"
+                        for k in done
+                    ),
+                    flush=True,
+                )
         scene.hr.live = False
         bpy.ops.hr.live_update()
         return out
@@ -420,22 +463,37 @@ def main():
     ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--plot", action="store_true", help="only redraw the chart and table from the JSON")
     ap.add_argument("--preview", action="store_true", help="ui path: progressive Live (live_preview.json)")
+    ap.add_argument(
+        "--kinds",
+        default="",
+        help="only these edit kinds (e.g. strength,colour): the JSON into --out's live_kinds.json, no chart",
+    )
+    ap.add_argument(
+        "--root", default="", help="the checkout whose hr_addon is timed (e.g. main's for a before)"
+    )
     args = ap.parse_args()
+    if args.root:
+        sys.path.insert(0, args.root)
+    kinds = [k for k in args.kinds.split(",") if k]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    jpath = out / ("live_preview.json" if args.preview else "live.json")
+    jpath = out / ("live_kinds.json" if kinds else "live_preview.json" if args.preview else "live.json")
     old = json.loads(jpath.read_text()) if jpath.exists() else {"runs": []}
     if not args.plot:
         runs, fg_off = [], args.no_final_gather
         if not args.skip_cornell:
             for q in args.quality.split(","):
                 for m in args.methods.split(","):
-                    runs.append(run("cornell", q, m, final_gather=not fg_off, preview=args.preview))
+                    runs.append(
+                        run("cornell", q, m, final_gather=not fg_off, preview=args.preview, kinds=kinds)
+                    )
         if args.furnished:
             for q in args.furnished_quality.split(","):
                 for m in args.furnished_methods.split(","):
                     runs.append(
-                        run("furnished_100k", q, m, final_gather=not fg_off, preview=args.preview)
+                        run(
+                            "furnished_100k", q, m, final_gather=not fg_off, preview=args.preview, kinds=kinds
+                        )
                     )
         keep = [
             r
@@ -445,11 +503,21 @@ def main():
         ]
         old = {
             "machine": f"{platform.machine()} {os.cpu_count()} cores, {platform.python_version()}",
-            "date": time.strftime("%Y-%m-%d"),
+            "date": time.strftime("%Y-%m-%d %H:%M"),
             "runs": keep + runs,
         }
+        if kinds:
+            import hr_addon
+
+            old.update(
+                kinds=kinds, hr_addon=str(Path(hr_addon.__file__).parent), load_average=os.getloadavg()
+            )
+            for r in runs:
+                np.save(out / f"written_{r['scene']}_{r['quality']}_{r['method']}.npy", r.pop("written"))
         jpath.write_text(json.dumps(old, indent=1))
         print(f"wrote {jpath}")
+        if kinds:
+            return
     order = {"cornell": 0, "furnished_100k": 1}
     res = sorted(old["runs"], key=lambda r: (order.get(r["scene"], 9), r["quality"] != "draft", r["method"]))
     print(table(res))

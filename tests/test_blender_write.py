@@ -105,3 +105,26 @@ def test_foreach_set_alone_updates_the_evaluated_mesh():
         buf = np.empty(n * 4, np.float32)
         ev.attributes["HR_Radiance"].data.foreach_get("color", buf)
         assert (buf == value).all(), (bpy.app.version, playback.TAG_AFTER_SET)
+
+
+def test_objects_kept_between_writes_are_looked_up_again_when_removed():
+    """apply_arrays(objects=) (Live keeps its targets' objects between writes): the dict is filled
+    by the first write; after an object is removed the next write says it is missing, writes the
+    others and keeps no reference to the removed one."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import playback
+
+    _scene(bpy, ms)
+    names = ["quad0", "quad2", "box"]
+    arrays = {n: np.full((len(bpy.data.objects[n].data.loops), 4), 0.5, np.float32) for n in names}
+    kept = {}
+    assert playback.apply_arrays(scene, arrays, "CORNER", objects=kept) == []
+    assert sorted(kept) == sorted(names) and all(kept[n] == bpy.data.objects[n] for n in names)
+    bpy.data.objects.remove(bpy.data.objects["quad2"])
+    arrays = {n: v * 2 for n, v in arrays.items()}
+    assert playback.apply_arrays(scene, arrays, "CORNER", objects=kept) == [
+        "object 'quad2' of the bake is missing"
+    ]
+    assert sorted(kept) == ["box", "quad0"]
+    got = _read(bpy, ["quad0", "box"])
+    assert all((got[n][2] == 1.0).all() for n in got)

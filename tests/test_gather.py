@@ -576,6 +576,7 @@ def test_loop_radiance_by_response_parts_equals_the_full_gather():
             x, y = cached.loop_radiance(dyn, domain), full.loop_radiance(dyn, domain)
             assert x.dtype == np.float32 and x.shape == y.shape
             assert np.abs(x - y).max() <= 2.5e-7 * np.abs(y).max()
+        _assert_rows_equal(cached, dyn)
     assert len(cached._loop_parts) >= 3 and not full._responses
     # parts below 0 at some samples (both gathers read the same parts): the sum is clipped there
     parts = cached._response_parts(dyn)
@@ -591,6 +592,17 @@ def test_loop_radiance_by_response_parts_equals_the_full_gather():
     assert (inc[j[:20]] < 0).any(1).all() and (inc[j[:20]] > 0).any()  # clipped per channel
     y = full.loop_values(full.evaluate(dyn))  # the full path's clip, on the same parts
     assert np.abs(x - y).max() <= 2.5e-7 * np.abs(y).max() and (x >= 0).all()
+    _assert_rows_equal(cached, dyn)
+
+
+def _assert_rows_equal(g, dyn):
+    """loop_radiance(rows=, out=) (Live's RGBA rows) is loop_radiance()[rows], bit for bit."""
+    full = g.loop_radiance(dyn)
+    rows = np.random.default_rng(len(full)).permutation(len(full))[: 2 * len(full) // 3]
+    out = np.full((len(rows), 4), 7.0, np.float32)
+    assert g.loop_radiance(dyn, rows=rows, out=out[:, :3]) is not None
+    assert np.array_equal(out[:, :3], full[rows]) and (out[:, 3] == 7).all()
+    assert np.array_equal(g.loop_radiance(dyn, rows=rows), full[rows])  # (the parts kept by rows)
 
 
 def test_outline_clipped_by_the_horizon_equals_its_pieces():

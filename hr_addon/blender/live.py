@@ -210,6 +210,7 @@ def on_undo_redo(*args):
             scene.hr.live = True  # Live is a session, not an undo step
         sess.force_write = sess.dirty = True
         sess.geometry_dirty = time.monotonic()
+        sess.objects.clear()  # undo replaced the objects: references to the old ones must go
     if STATE.live_sessions:
         _ensure_timer()
 

@@ -31,7 +31,13 @@ from .settings import precompute_key
 from .settings import BakeConfig, live_mode, solver_setup
 from ..io.cache import changed_objects
 from .live_worker import BuildSpec, LiveWorker
-from .lights_in import collect_light_shapes, collect_lights, lights_signature, shapes_signature
+from .lights_in import (
+    collect_light_shapes,
+    collect_lights,
+    light_objects,
+    lights_signature,
+    shapes_signature,
+)
 from .scene_in import FlatExtract, SceneError, collect_geometry, geometry_objects, light_shape_objects
 
 
@@ -69,9 +75,11 @@ class Session:
         self.shape_meshes = set()  # mesh data of the light shapes (their edits are light events)
         self.shape_objects = []  # names of the light-shape objects (all, hidden ones too)
         self.shape_materials = set()  # their materials
+        self.light_objects = []  # names of the Blender lights (all, hidden ones too)
         self.full_read = True  # an update other than of known light shapes: read everything
         self.domain = "CORNER"
         self.targets = []  # object names that get HR_Radiance
+        self.objects = {}  # {name: object} of the targets, looked up once (playback.apply_arrays)
         self.reason = ""  # why the hierarchy is (being) built
         self.serial = 0
         self.requested_sig = None  # light state handed to the worker last
@@ -266,13 +274,17 @@ def _restore(sess, scene):
 
 # -- reading the scene -----------------------------------------------------------------------------
 def _read_shapes(sess, view_layer, depsgraph, fast=False):
-    """The active light shapes, their digest and warnings. fast: only known light shapes were
-    edited since the last read: read those (no walk over every object of the scene)."""
+    """The active light shapes (and Blender lights), their digest and warnings. fast: only known
+    light shapes, their materials or lights' data were edited since the last read (the depsgraph
+    handler says so): read those (no walk over every object of the scene)."""
     warnings = []
-    known = [bpy.data.objects.get(n) for n in sess.shape_objects] if fast else None
+    known = [bpy.data.objects.get(n) for n in sess.shape_objects + sess.light_objects] if fast else None
     if known is not None and all(o is not None for o in known):
+        known, lamps = known[: len(sess.shape_objects)], known[len(sess.shape_objects) :]
         shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, objects=known)
     else:
+        lamps = light_objects(view_layer, include_hidden=True)  # (as the shapes: shown on a later frame)
+        sess.light_objects = [o.name for o in lamps]
         objs = light_shape_objects(view_layer, include_hidden=True)
         sess.shape_objects = [o.name for o in objs]
         sess.shape_meshes = {o.data.name for o in objs}
@@ -287,7 +299,7 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
     # values); the worker hands them to DynamicRadiosity.apply as its lights
     from ..core.lights import Light
 
-    lights = collect_lights(view_layer, depsgraph, Light, warnings)
+    lights = collect_lights(view_layer, depsgraph, Light, warnings, objects=lamps)
     if lights:
         sig += lights_signature(lights)
         shapes = {**shapes, **lights}
@@ -330,6 +342,7 @@ def _build(sess, scene, view_layer, depsgraph, reason):
     }
     sess.domain = domain
     sess.targets = [t.name for t in targets]
+    sess.objects = {}
     sess.notes = list(scene_in.warnings) + ([far] if far else [])
     sess.reason = reason
     sess.error = sess.fatal = ""
@@ -425,7 +438,9 @@ def _deliver(sess, scene):
             print(f"HR Radiosity: Live: {r.error}", flush=True)
         sess.error = r.error
         return True
-    problems = playback.apply_arrays(scene, r.values, sess.domain, reader=sess.scene_name)
+    problems = playback.apply_arrays(
+        scene, r.values, sess.domain, reader=sess.scene_name, objects=sess.objects
+    )
     sess.problems = "; ".join(problems)
     sess.error = ""
     if r is not sess.last and r.kind != "refine":

@@ -336,15 +336,7 @@ class LiveWorker:
 
     def _publish(self, dyn, spec, generation, report, t0, t1, serial, sig, t_request, kind="frame"):
         """The per-object values of dyn's current state into the result slot."""
-        gather = self.gather
-        if spec.mode == "INDIRECT":  # (BakeConfig: with the final gather only)
-            loops = gather.loop_values(indirect_incident(gather, dyn), spec.domain)
-        elif gather is not None:
-            loops = gather.loop_radiance(dyn, spec.domain)
-        else:
-            loops = dyn.loop_radiance(spec.domain)
-        rgba = getattr(spec.extract, "rgba", None)  # scene_in.FlatExtract: RGBA slices of one array
-        values = rgba(loops) if rgba is not None else {k: _rgba(v) for k, v in spec.extract(loops).items()}
+        values = self._values(dyn, spec)
         t2 = time.perf_counter()
         with self._cond:
             self.previewing = dyn.previewing
@@ -362,3 +354,19 @@ class LiveWorker:
                 kind=kind,
             )
             self.phase = "idle"
+
+    def _values(self, dyn, spec):
+        """{object name: (N, 4) float32 RGBA} of dyn's current state."""
+        gather, fx = self.gather, spec.extract
+        by_rows = gather is not None and spec.domain == "CORNER" and getattr(fx, "flat", False)
+        if by_rows and spec.mode != "INDIRECT":
+            # the gather writes the targets' loops straight into the RGBA rows (a colour edit: one sum)
+            return fx.rgba(None, lambda rows, out: gather.loop_radiance(dyn, rows=rows, out=out))
+        if spec.mode == "INDIRECT":  # (BakeConfig: with the final gather only)
+            loops = gather.loop_values(indirect_incident(gather, dyn), spec.domain)
+        elif gather is not None:
+            loops = gather.loop_radiance(dyn, spec.domain)
+        else:
+            loops = dyn.loop_radiance(spec.domain)
+        rgba = getattr(fx, "rgba", None)  # scene_in.FlatExtract: RGBA slices of one array
+        return rgba(loops) if rgba is not None else {k: _rgba(v) for k, v in fx(loops).items()}

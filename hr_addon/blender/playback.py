@@ -191,9 +191,13 @@ TAG_AFTER_SET = bpy.app.version < (5, 0, 0)
 def write_attribute(mesh, values, domain):
     """Write (N, 4) float32 RGBA into mesh's HR_Radiance (created / re-created as needed). Called
     once per object on every Live update and frame change (3,882 objects in the furnished room):
-    as few RNA accesses as it takes (attributes.get is cheaper than color_attributes.get)."""
-    attr = mesh.attributes.get(ATTRIBUTE)
-    if attr is None or attr.domain != domain or attr.data_type != "FLOAT_COLOR":
+    as few RNA accesses as it takes (attributes[] is cheaper than color_attributes.get, a
+    data_type than a domain). The caller marks the mesh as written (STATE.writes)."""
+    try:
+        attr = mesh.attributes[ATTRIBUTE]  # (cheaper than get() where it exists: every write but the first)
+    except KeyError:
+        attr = None
+    if attr is None or attr.data_type != "FLOAT_COLOR" or attr.domain != domain:
         if attr is not None:
             mesh.attributes.remove(attr)
         attr = mesh.color_attributes.new(ATTRIBUTE, "FLOAT_COLOR", domain)
@@ -209,7 +213,6 @@ def write_attribute(mesh, values, domain):
     data.foreach_set("color", np.ascontiguousarray(values, np.float32).reshape(-1))
     if TAG_AFTER_SET:
         mesh.update_tag()
-    STATE.writes.mark(mesh.name)
 
 
 def linked_meshes(objects):
@@ -236,16 +239,34 @@ def objects_by_name(scene, names):
     return {n: found.get(n) or bpy.data.objects.get(n) for n in names}
 
 
-def apply_arrays(scene, arrays, domain, reader=None):
-    """Write {object name: values} to the objects' meshes; returns the list of problems. reader:
-    the meshes written are also marked as its own writes (STATE.writes; a Live session's scene
-    name), so the caller need not look the objects up again."""
+def apply_arrays(scene, arrays, domain, reader=None, objects=None):
+    """Write {object name: values} to the objects' meshes; returns the list of problems. The
+    meshes written are marked as playback's writes (STATE.writes) and, with reader, as its own
+    too (a Live session's scene name), so the caller need not look the objects up again.
+    objects: {name: object} the caller keeps between writes (a Live session: 3,882 objects are
+    not looked up at every edit), filled here; emptied and filled again when one of them was
+    removed since (ReferenceError; the caller empties it after an undo, which replaces them)."""
+    if objects is not None:
+        try:
+            return _apply_arrays(scene, arrays, domain, reader, objects)
+        except ReferenceError:
+            objects.clear()
+    return _apply_arrays(scene, arrays, domain, reader, objects)
+
+
+def _apply_arrays(scene, arrays, domain, reader, objects):
     problems = []
     STATE.loaded.pop(scene.name_full, None)
-    objs = objects_by_name(scene, arrays)
+    if objects is None:
+        objs = objects_by_name(scene, arrays)
+    else:
+        new = [n for n in arrays if n not in objects]
+        if new:  # (a missing object is looked up again next time)
+            objects.update((n, o) for n, o in objects_by_name(scene, new).items() if o is not None)
+        objs = objects
     written = []
     for name, values in arrays.items():
-        obj = objs[name]
+        obj = objs.get(name)
         if obj is None or obj.type != "MESH":
             problems.append(f"object '{name}' of the bake is missing")
             continue
@@ -258,8 +279,8 @@ def apply_arrays(scene, arrays, domain, reader=None):
         except CacheError as exc:
             problems.append(str(exc))
             continue
-        if reader is not None:
-            written.append(me.name)
+        written.append(me.name)
+    STATE.writes.mark_all(written)
     if reader is not None:
         STATE.writes.mark_all(written, reader)
     return problems

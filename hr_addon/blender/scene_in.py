@@ -183,9 +183,19 @@ class FlatExtract:
             n += len(src)
         self.index = np.concatenate(idx) if idx else np.zeros(0, np.int64)
 
-    def rgba(self, values):
+    @property
+    def flat(self):
+        """Every target's values are rows of the one array (no Target.extract)."""
+        return all(r is not None for r in self.rows)
+
+    def rgba(self, values, fill=None):
+        """fill(index, out): writes values[index] into out ((R, 3) float32, a view) itself (the
+        gather's loop_radiance(rows=, out=): no array of every loop); for flat extracts."""
         out = np.empty((len(self.index), 4), np.float32)
-        out[:, :3] = values[self.index]
+        if fill is not None:
+            fill(self.index, out[:, :3])
+        else:
+            out[:, :3] = values[self.index]
         out[:, 3] = 1.0
         res = {}
         for t, r in zip(self.targets, self.rows):

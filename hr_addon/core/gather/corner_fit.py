@@ -137,6 +137,11 @@ def shift_plan(
     return s, kid[patch[s]], tw[s], mean_w[act], np.maximum(pc_loop, 0)[act], (lu, inv, kid[lp], w / den[li])
 
 
+def shifted_loops(plan):
+    """The loops whose values shifted() may change (where `loops` is 0 elsewhere)."""
+    return plan[5][0]
+
+
 def shifted(loops, values, plan):
     """(L, C) the loop values `loops` (the corners' samples' means) plus each loop's share of its
     faces' shifts: the light's mean (of the sample values (n, C)) less the interpolant's mean."""

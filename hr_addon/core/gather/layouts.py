@@ -320,11 +320,23 @@ class LoopGather(FinalGather):
             pts, nrm, patch = np.r_[pts, xp], np.r_[nrm, pt.normal[xpatch]], np.r_[patch, xpatch]
         super().__init__(system, pts, nrm, patch, **kw)
 
-    def loop_radiance(self, dyn, domain="CORNER", kind="radiance"):
-        out = self._radiance_by_response(dyn) if kind == "radiance" else None
+    def loop_radiance(self, dyn, domain="CORNER", kind="radiance", rows=None, out=None):
+        """rows (CORNER): only these loops' values, in this order (a caller's layout, e.g.
+        scene_in.FlatExtract's): with the cached responses only they are summed, no (L, 3) array
+        of every loop (the same values as loop_radiance(dyn)[rows]). out: the float32
+        (len(rows), 3) array (a view may be) they are written into."""
+        if rows is not None and domain != "CORNER":
+            raise ValueError("loop_radiance: rows index loops (CORNER)")
+        res = self._radiance_by_response(dyn, rows) if kind == "radiance" else None
+        if res is None:
+            res = self.loop_values(self.evaluate(dyn, kind), domain)
+            res = res if rows is None else res[rows]
+        elif rows is None:
+            res = in_domain(res, self.system.mesh, domain)
         if out is None:
-            return self.loop_values(self.evaluate(dyn, kind), domain)
-        return in_domain(out, self.system.mesh, domain)
+            return res.astype(np.float32, copy=False)
+        out[...] = res  # (float64 -> float32: in_domain's rounding)
+        return out
 
     def _loop_map(self):
         """(li, sj, wn, start): loop li takes wn x sample value sj, sorted by sj, start (n + 1,)
@@ -381,26 +393,37 @@ class LoopGather(FinalGather):
         out = np.stack([np.bincount(li, wn * v[sj, c], L) for c in range(v.shape[1])], 1)
         return corner_fit.shifted(out, v, self._shift_plan()) if getattr(self, "fit", False) else out
 
-    def _radiance_by_response(self, dyn):
+    def _radiance_by_response(self, dyn, rows=None):
         """(L, 3) loop_radiance (CORNER, float64) as a weighted sum of the response parts' own
         loop values (FinalGather._response_parts): the output is linear in them but where the
         incident light sum dips below 0 (clipped to 0: the slopes' read), so each part's loop
         values are kept with the samples where it is negative, and the sum is corrected at the
         samples where the total is. A colour or strength edit is then one sum of (L, 3) arrays.
+        rows (distinct loops): the parts are kept, and summed, at those only ((len(rows), 3)).
         None where the responses do not apply (evaluate's path)."""
         parts = self._response_parts(dyn) if self.group is None else None
         if parts is None:
             return None
         self.forget_shapes(dyn)
         cache = self.__dict__.setdefault("_loop_parts", {})
+        if self.__dict__.setdefault("_loop_rows", (rows, None))[0] is not rows:  # (in another layout)
+            cache.clear()
+            self._loop_rows = (rows, None)
+        if rows is not None and self._loop_rows[1] is None:  # each loop's row (-1: none)
+            at = np.full(len(self.loop_index), -1, np.int64)
+            at[rows] = np.arange(len(rows))
+            self._loop_rows = (rows, at)
         ok = ~self.dark
-        gain = self.rho if self.gain is None else self.rho * self.gain
+
+        def gain(i):  # rho x the slot samples' transfer at samples i (at the clipped ones: not all)
+            return self.rho[i] if self.gain is None else self.rho[i] * self.gain[i]
+
         out, neg = None, []
         for key, wt, part, rec in parts:
             got = cache.get(key)
             if got is None or got[0] is not part:
                 # the output of this part alone: what it adds to E + rho gain (D + I) where uncovered
-                x = gain * part
+                x = gain(slice(None)) * part
                 if rec is None and wt is None:
                     x += self.E_static
                 elif rec is not None:
@@ -408,9 +431,13 @@ class LoopGather(FinalGather):
                     x[own(dyn, rec)[1]] += 1.0  # the shape's own emission, per unit
                 x[self.dark] = 0.0
                 idx = np.flatnonzero((part < 0).any(1) & ok)
-                got = cache[key] = (part, self._loops(x).astype(np.float32), idx)
+                Q = self._loops(x).astype(np.float32)
+                got = cache[key] = (part, Q if rows is None else Q[rows], idx)
             Q, idx = got[1], got[2]
-            out = Q.astype(np.float64) if wt is None else out + wt[None] * Q
+            if wt is None:
+                out = Q.astype(np.float64)
+            else:
+                out += wt * Q
             neg.append(idx)
         live = {p[0] for p in parts}
         for k in [k for k in cache if k not in live][:-8]:
@@ -421,21 +448,27 @@ class LoopGather(FinalGather):
             tot = parts[0][2][idx].copy()
             for _, wt, part, _ in parts[1:]:
                 tot += wt[None] * part[idx]
-            d = np.where(tot < 0, -gain[idx] * tot, 0.0)
+            d = np.where(tot < 0, -gain(idx) * tot, 0.0)
             j = np.flatnonzero(d.any(1))
             if len(j):
                 li, _, wn, start = self._loop_map()
                 a, b = start[idx[j]], start[idx[j] + 1]
                 e = np.repeat(a - np.cumsum(np.r_[0, (b - a)[:-1]]), b - a) + np.arange((b - a).sum())
                 row = np.repeat(j, b - a)
-                fit = getattr(self, "fit", False)
-                add = np.zeros_like(out) if fit else out
-                for c in range(3):
-                    add[:, c] += np.bincount(li[e], wn[e] * d[row, c], len(out))
-                if fit:  # (_loops of the correction: the shifts take in every sample of a face)
+                L = len(self.loop_index)
+                add = np.stack([np.bincount(li[e], wn[e] * d[row, c], L) for c in range(3)], 1)
+                touched = np.unique(li[e])
+                if getattr(self, "fit", False):  # (_loops of the correction: the shifts take in
+                    # every sample of a face)
                     D = np.zeros((self.n, 3))
                     D[idx[j]] = d[j]
-                    out += corner_fit.shifted(add, D, self._shift_plan())
+                    add = corner_fit.shifted(add, D, self._shift_plan())
+                    touched = np.union1d(touched, corner_fit.shifted_loops(self._shift_plan()))
+                # added at the loops it may reach only (a few): elsewhere it is 0, and x + 0 is x as
+                # the sum holds no -0.0 (its first term, the base's loop values, is bincount sums,
+                # which start at +0.0)
+                at = touched if rows is None else self._loop_rows[1][touched]
+                out[at[at >= 0]] += add[touched][at >= 0]
         # a sum of terms >= 0, where only the parts' rounding dips below; with the faces' shifts
         # (fit) a corner may (loop_values' clip)
         return np.maximum(out, 0.0, out=out)
