@@ -33,10 +33,13 @@ class Preview:
     correct: the previews of a drag add what the preview's read of the HR leaves misses of the
     last exact state's final gather (its second level and iterations; FinalGather.
     _preview_reference).
-    guess_share: while the outline shares at least this much of its area with its last exact
-    state's (outline_share), the response is the warm guess without the solve's check (the
-    scattered light kept, scaled by the emitted power's ratio; None: always checked). Only where
-    that state was solved with the preview's method (AUTO's and AR's previews are checked)."""
+    guess_share: while the outline shares at least this much of its area with the last state whose
+    scattered light was computed (outline_share; its last exact state, or a later preview whose
+    solve iterated: one whose check accepted its guess at the first residual kept the older state's
+    light), the response is the warm guess without the solve's check (that scattered light,
+    scaled by the emitted power's ratio; None: always checked). Only where that state was solved
+    with the preview's method (AUTO's and AR's exact states are not the guess's reference; their
+    iterated previews are)."""
 
     tol: float = 1e-2
     method: str = None
@@ -137,6 +140,9 @@ class _Rec:
     preview: Preview = None  # set: U is a preview's (apply(preview=)), refine() replaces it
     G: np.ndarray = None  # (3, n) a preview's: the guess its exact solve starts from (refine)
     ref: object = None  # a preview's: the record of its shape's last exact state (its visibility)
+    # a preview's whose response is an unchecked guess: the record whose solved response (its last
+    # exact state's, or a checked preview's) the guess continues (Preview.guess_share); None: solved
+    solved: object = None
     # no response solved: U holds the emission only and the final gather's passes, started from
     # nothing, give the scattered light (DynamicRadiosity's gather_responses); a preview's: that
     # state's indirect light scaled by `ratio`, the emitted power's (FinalGather._preview_part)
