@@ -280,3 +280,34 @@ def test_previews_of_states_without_a_response(mesh):
     assert _errors(p, e5)[1] < 0.35
     dyn.refine()
     np.testing.assert_array_equal(g.loop_radiance(dyn), e5)
+
+
+def test_an_iterated_preview_is_the_next_previews_unchecked_guess(mesh):
+    """Preview.guess_share counts from the last state whose scattered light was computed. A drag
+    of 2 cm steps (a 12 cm window: 5/6 of its outline shared by neighbours): the first step is
+    the exact state's unchecked guess, the second's check accepts its guess (still the exact
+    state's light), the third's solve iterates; the step after it takes that preview's guess
+    unchecked, bitwise the checked preview (which accepts it at its first residual); the next
+    two (2/3 and 1/2 of the outline shared with it) are checked again, as with every guess
+    checked. A preview that kept the last read preview's response reuses that read's indirect
+    light: what the read gives (to the 1e-6 of the response values that tells them apart)."""
+    import dataclasses
+
+    dyn, g = _live(mesh)
+    ref, rg = _live(mesh)
+    for d, gg in ((dyn, g), (ref, rg)):
+        d.apply(_shapes(0.15))
+        gg.loop_radiance(d)
+    its, ref_its, checked = [], [], dataclasses.replace(PREVIEW, guess_share=None)
+    for i in range(1, 7):
+        x = 0.15 + 0.02 * i
+        its.append(dyn.apply(_shapes(x), preview=PREVIEW).iterations)
+        ref_its.append(ref.apply(_shapes(x), preview=checked).iterations)
+        p, e = g.loop_radiance(dyn), rg.loop_radiance(ref)
+        if i == 4:
+            np.testing.assert_array_equal(p, e)
+            assert dyn.shapes["w"].solved is not None and g._preview_last is not None
+            del dyn.shapes["w"]._part, g._preview_last  # the same preview read afresh
+            np.testing.assert_allclose(g.loop_radiance(dyn), p, rtol=1e-5, atol=1e-6 * np.abs(p).max())
+    assert its[:3] == [0, 1, ref_its[2]] and ref_its[:2] == [1, 1] and ref_its[2] > 1
+    assert its[3] == 0 and ref_its[3] == 1 and its[4:] == ref_its[4:] == [1, 1]
