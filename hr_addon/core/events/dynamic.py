@@ -563,6 +563,8 @@ class DynamicRadiosity:
             B[:, op.leaves] = np.maximum((E + ratio * guess)[:, op.leaves], 0.0)
             U, rep = np.maximum(op.pull(B), 0.0), EventReport("add")
         else:
+            if preview is not None and preview.guess_share is not None and preview.refresh_tol is not None:
+                tol = preview.refresh_tol  # (the next previews' reference)
             U, rep = self.solves.solve(
                 E, B0=None if guess is None else E + guess, response=True, tol=tol, owned=rec.owned
             )

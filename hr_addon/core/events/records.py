@@ -39,7 +39,12 @@ class Preview:
     light), the response is the warm guess without the solve's check (that scattered light,
     scaled by the emitted power's ratio; None: always checked). Only where that state was solved
     with the preview's method (AUTO's and AR's exact states are not the guess's reference; their
-    iterated previews are)."""
+    iterated previews are).
+    refresh_tol: with guess_share, a preview outside it solves to this tolerance instead of tol
+    (None: tol), so that it iterates (unless its guess is already within it) and its scattered
+    light is the next previews' unchecked guess: the lag a guess takes along a drag reaches tol
+    within a few steps (at 100k about 4 of 5 cm from a state solved to 6e-4), so a preview that
+    accepted its guess at tol would be checked again at the next step."""
 
     tol: float = 1e-2
     method: str = None
@@ -50,6 +55,7 @@ class Preview:
     reuse_share: float = 0.75
     correct: bool = True
     guess_share: float = 0.75
+    refresh_tol: float = 1e-3
 
 
 def outline_share(rec, other):
