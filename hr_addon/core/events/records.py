@@ -146,8 +146,9 @@ class _Rec:
     preview: Preview = None  # set: U is a preview's (apply(preview=)), refine() replaces it
     G: np.ndarray = None  # (3, n) a preview's: the guess its exact solve starts from (refine)
     ref: object = None  # a preview's: the record of its shape's last exact state (its visibility)
-    # a preview's whose response is an unchecked guess: the record whose solved response (its last
-    # exact state's, or a checked preview's) the guess continues (Preview.guess_share); None: solved
+    # a preview's whose response kept an older state's scattered light (an unchecked guess, or a
+    # check that accepted its guess): that state's record (its last exact state, or a preview
+    # whose solve iterated; Preview.guess_share's reference); None: its own light was computed
     solved: object = None
     # no response solved: U holds the emission only and the final gather's passes, started from
     # nothing, give the scattered light (DynamicRadiosity's gather_responses); a preview's: that
