@@ -93,8 +93,8 @@ def test_preview_errors_stay_within_their_bound(mesh):
     """Each drag step's preview against the exact result of the same state (a twin moving
     exactly), and the exact result's own noise (a third system, the gather's seed changed): the
     median corner error below that noise's, the largest below 35%, the bias within 3%. Measured
-    here (32 hemisphere rays on coarse leaves): medians 0.8-1.6% (the noise 2.2-3.0%), largest
-    4-14% (noise 16-27%), bias -0.8 to -1.9% (the HR leaves read at one level; docs/live.md,
+    here (32 hemisphere rays on coarse leaves): medians 0.9-1.6% (the noise 2.2-3.0%), largest
+    4-14% (noise 16-27%), bias -0.9 to -2.1% (the HR leaves read at one level; docs/live.md,
     "Progressive Live", has the Cornell sample's; before Preview.refresh_tol 1.1-2.4%, 7-18%,
     -1.4 to -2.3%)."""
     dyn, g = _live(mesh)
@@ -287,9 +287,9 @@ def test_an_iterated_preview_is_the_next_previews_unchecked_guess(mesh):
     """Preview.guess_share counts from the last state whose scattered light was computed, and a
     preview outside it solves to Preview.refresh_tol so that it becomes that state. A drag of 2 cm
     steps (a 12 cm window: 5/6 of its outline shared by neighbours, 2/3 two steps apart)
-    alternates an unchecked step and one that iterates to 1e-3; oracle: a twin checking every
-    step (guess_share None) to the same tolerance, 1e-3 where the drag iterated, which accepts
-    the unchecked steps' guesses at its first residual: bitwise the same outputs. A preview that
+    alternates an unchecked step and one that iterates to refresh_tol; oracle: a twin checking
+    every step (guess_share None) to the same tolerance, refresh_tol where the drag iterated,
+    which accepts the unchecked steps' guesses at its first residual: bitwise the same outputs. A preview that
     kept the last read preview's response reuses that read's indirect light: what the read
     gives (to the 1e-6 of the response values that tells them apart)."""
     import dataclasses
