@@ -5,7 +5,7 @@ and strength edits, as live_worker runs them. CPU seconds (time.process_time) pe
 apply and output, and the parts of live_replay.PARTS summed over the drag steps.
 
     .venv/bin/python benchmarks/live_100k.py --cache /work/cache/c100k [--method FE] [--steps 6]
-        [--preview] [--options live|gather|old] [--json out.json]
+        [--preview] [--options live|gather|old] [--json out.json] [--dump previews.npz]
 
 --preview: every drag step is Live's preview (live_worker.PREVIEW), the exact light follows once at
 the end (refine, timed apart); else every step is exact (an unthreaded worker, hr.live_update()).
@@ -59,6 +59,7 @@ def main(argv=None):
     ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
                     help="the preview's Preview fields instead of Live's (e.g. levels=2 reuse_share=0.5)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--dump", default=None, help="npz of the drag steps' outputs (loop values)")
     args = ap.parse_args(argv)
 
     from hr_testing import shapes as S
@@ -114,9 +115,13 @@ def main(argv=None):
     edit("add", window(x))
     for v in acc.values():
         v[:] = [0.0, 0]
+    steps = []
     for _ in range(args.steps):
         x += args.step
         edit("drag", window(x), preview if args.preview else None)
+        steps.append(last[0].astype(np.float32))
+    if args.dump:
+        np.savez_compressed(args.dump, *steps)
     drag_parts = {k: v[0] for k, v in acc.items()}
     if args.preview:
         c0 = cpu()

@@ -298,10 +298,11 @@ class DynamicRadiosity:
                     r1 = self._remove(k)
                     v = (rings, em, name)
                     self._ref = rec if rec.preview is None else rec.ref  # the last exact state
+                    self._solved = rec if rec.preview is None or rec.solved is None else rec.solved
                     self._power = rec.area * rec.covered  # (its emitted power at unit emission)
                     r2 = self._add(k, LightShape(*v), validated=v, preview=preview)
                 finally:
-                    self.nodes.guess = self.nodes.guess0 = self._ref = None
+                    self.nodes.guess = self.nodes.guess0 = self._ref = self._solved = None
                 r2.kind = "reshape"
                 r2.nodes_removed += r1.nodes_removed
                 r2.seconds += r1.seconds
@@ -534,30 +535,42 @@ class DynamicRadiosity:
         guess = self.nodes.guess
         tol = None if preview is None else preview.tol
         ref = getattr(self, "_ref", None) if preview is not None else None
-        near = (
-            ref is not None
-            and preview.guess_share is not None
-            and ref.used == rec.method  # (AUTO's and AR's responses, previewed as FE: not its guess)
-            and ref.emitter is not None
-            and outline_share(rec, ref.emitter[1]) >= preview.guess_share
-        )
-        if near and ref.gathered == gathered == "zero":  # (a preview near a gathered state: that state's
-            # indirect light scaled by the power ratio, FinalGather._preview_part; rule 4's)
+        solved = getattr(self, "_solved", None) if preview is not None else None
+
+        def near(r):
+            return (
+                r is not None
+                and preview.guess_share is not None
+                and r.used == rec.method  # (AUTO's and AR's responses, previewed as FE: not its guess)
+                and r.emitter is not None
+                and outline_share(rec, r.emitter[1]) >= preview.guess_share
+            )
+
+        if ref is not None and ref.gathered == gathered == "zero" and near(ref):  # (a preview near a
+            # gathered state: that state's indirect light scaled by the power ratio,
+            # FinalGather._preview_part; rule 4's)
             rec.gathered, rec.ratio = "zero", rec.area * rec.covered / max(self._power, 1e-300)
         if rec.gathered == "zero":
             U, rep = E, EventReport("add")
-        elif near and guess is not None:  # the guess unchecked, its scattered light scaled by the
-            # emitted power's ratio (a scaled shape's): as the solve returns a guess whose first
-            # residual is within tol
+            rec.solved = ref
+        elif guess is not None and near(solved):  # the guess unchecked, its scattered light (the
+            # last solved state's, as its unchecked followers kept it) scaled by the emitted power's
+            # ratio (a scaled shape's): as the solve returns a guess whose first residual is within tol
+            rec.solved = solved
             op = self.solves.operator()
             B = np.zeros((3, h.n))
             ratio = rec.area * rec.covered / max(self._power, 1e-300)
             B[:, op.leaves] = np.maximum((E + ratio * guess)[:, op.leaves], 0.0)
             U, rep = np.maximum(op.pull(B), 0.0), EventReport("add")
         else:
+            if preview is not None and preview.guess_share is not None and preview.refresh_tol is not None:
+                tol = preview.refresh_tol  # (the next previews' reference)
             U, rep = self.solves.solve(
                 E, B0=None if guess is None else E + guess, response=True, tol=tol, owned=rec.owned
             )
+            if preview is not None and rep.iterations <= 1:  # its check accepted the guess: the
+                # scattered light is still that state's (its lag grows along the drag)
+                rec.solved = solved
         if preview is not None:
             rec.preview, rec.G, rec.ref = preview, self.nodes.guess0, ref
         if rec.method == "AUTO" and rec.gathered != "zero":  # (pulled over the tree U was solved on)

@@ -33,10 +33,18 @@ class Preview:
     correct: the previews of a drag add what the preview's read of the HR leaves misses of the
     last exact state's final gather (its second level and iterations; FinalGather.
     _preview_reference).
-    guess_share: while the outline shares at least this much of its area with its last exact
-    state's (outline_share), the response is the warm guess without the solve's check (the
-    scattered light kept, scaled by the emitted power's ratio; None: always checked). Only where
-    that state was solved with the preview's method (AUTO's and AR's previews are checked)."""
+    guess_share: while the outline shares at least this much of its area with the last state whose
+    scattered light was computed (outline_share; its last exact state, or a later preview whose
+    solve iterated: one whose check accepted its guess at the first residual kept the older state's
+    light), the response is the warm guess without the solve's check (that scattered light,
+    scaled by the emitted power's ratio; None: always checked). Only where that state was solved
+    with the preview's method (AUTO's and AR's exact states are not the guess's reference; their
+    iterated previews are).
+    refresh_tol: with guess_share, a preview outside it solves to this tolerance instead of tol
+    (None: tol), so that it iterates (unless its guess is already within it) and its scattered
+    light is the next previews' unchecked guess: a preview that accepted its guess at tol would
+    be checked again at the next step (the lag grows by about 2e-3 per 5 cm step at 100k, so
+    from 3e-3 the unchecked steps within 3/4 of the outline stay near tol)."""
 
     tol: float = 1e-2
     method: str = None
@@ -47,6 +55,7 @@ class Preview:
     reuse_share: float = 0.75
     correct: bool = True
     guess_share: float = 0.75
+    refresh_tol: float = 3e-3
 
 
 def outline_share(rec, other):
@@ -137,6 +146,10 @@ class _Rec:
     preview: Preview = None  # set: U is a preview's (apply(preview=)), refine() replaces it
     G: np.ndarray = None  # (3, n) a preview's: the guess its exact solve starts from (refine)
     ref: object = None  # a preview's: the record of its shape's last exact state (its visibility)
+    # a preview's whose response kept an older state's scattered light (an unchecked guess, or a
+    # check that accepted its guess): that state's record (its last exact state, or a preview
+    # whose solve iterated; Preview.guess_share's reference); None: its own light was computed
+    solved: object = None
     # no response solved: U holds the emission only and the final gather's passes, started from
     # nothing, give the scattered light (DynamicRadiosity's gather_responses); a preview's: that
     # state's indirect light scaled by `ratio`, the emitted power's (FinalGather._preview_part)

@@ -82,6 +82,12 @@ def _ratio(D, F):
         return np.where(F > 0, D / F, np.nan).astype(np.float32)
 
 
+def _same(V, W):
+    """True when response values V are W's to 1e-6 of W's largest (a response that kept W's
+    scattered light: a preview's unchecked guess)."""
+    return V.shape == W.shape and np.abs(V - W).max() <= 1e-6 * np.abs(W).max()
+
+
 def _leaf_frame(h, leaf):
     """(origin, e1, e2) (k, 3) of HR leaves: the first corner, the first edge's direction, and
     the normal x e1."""
@@ -1369,15 +1375,20 @@ class FinalGather(DirectLight):
         V = self._preview_values(dyn, rec)
         ref = self._preview_reference(dyn, rec)
         D = np.repeat(self._preview_shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
-        if ref is not None and levels < 2 and np.abs(V - ref[0]).max() <= 1e-6 * np.abs(ref[0]).max():
+        last = self.__dict__.get("_preview_last")  # (dyn, exact reference, V, I) of the last read
+        if ref is not None and levels < 2 and _same(V, ref[0]):
             # the response kept the exact state's scattered light (the preview's solve took its
             # guess: the 100k room's drags): that state's own indirect light, without the read (of
             # a gathered preview near a gathered state: both V 0, scaled by the power ratio)
             part = D + rec.ratio * ref[1]
+        elif levels < 2 and last is not None and last[0] is dyn and last[1] is ref and _same(V, last[2]):
+            part = D + last[3]  # it kept the last read preview's (an unchecked guess after a solve)
         else:
-            part = D + self._preview_read(dyn, V, levels, lambda g: g._preview_shape(dyn, rec)[0])
+            Ie = self._preview_read(dyn, V, levels, lambda g: g._preview_shape(dyn, rec)[0])
             if ref is not None:
-                part += ref[2]
+                Ie += ref[2]
+            self._preview_last = (dyn, ref, V, Ie) if levels < 2 else None  # (levels 2: its outline's)
+            part = D + Ie
         part = part.astype(np.float32)
         rec._part = (self, part)
         return part
