@@ -233,26 +233,33 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
         return none
     share = cnt[mixed] / cnt[mixed].sum(1, keepdims=True)
     # the open part: n // 2 of its test points, nearest the centres of a k_a x k_b grid over the
-    # part's extent along the patch's sides (a strip 4 cm x 20 cm: 1 x 4, along its middle)
-    sel = []
-    for j in mixed:
-        q = np.flatnonzero((row == j) & (cls == 0))
-        if not len(q):
-            continue
-        cq = pt.corners[cand[j]]
-        e = np.stack([cq[1] - cq[0], cq[-1 if pt.nv[cand[j]] == 4 else 2] - cq[0]])
-        uv = (gp[q] - cq[0]) @ e.T / np.einsum("ij,ij->i", e, e)  # in units of the sides
-        lo, hi = uv.min(0), uv.max(0)
-        size = (hi - lo + 1e-9) * np.sqrt(np.einsum("ij,ij->i", e, e))
-        ka = int(np.clip(np.round(np.sqrt(n / 2 * size[0] / size[1])), 1, n // 2))
-        kb = max(n // 2 // ka, 1)
-        t = np.stack(np.meshgrid((np.arange(ka) + 0.5) / ka, (np.arange(kb) + 0.5) / kb, indexing="ij"), -1)
-        t = lo + t.reshape(-1, 2) * (hi - lo)
-        near = np.unique(
-            np.argmin(np.linalg.norm((t[:, None] - uv[None]) * size / (hi - lo + 1e-9), axis=2), 1)
-        )
-        sel.append(q[near])
-    sel = np.concatenate(sel) if sel else np.zeros(0, np.int64)
+    # part's extent along the patch's sides (a strip 4 cm x 20 cm: 1 x 4, along its middle); all
+    # mixed patches at once over (centre, open point of its patch) pairs
+    q = np.flatnonzero(np.isin(row, mixed) & (cls == 0))  # by patch (gp is sorted by row)
+    op, j = np.unique(row[q], return_inverse=True)  # the patches with open points
+    cq = pt.corners[cand[op]]
+    last = np.where((pt.nv[cand[op]] == 4)[:, None], cq[:, 3], cq[:, 2])
+    e = np.stack([cq[:, 1] - cq[:, 0], last - cq[:, 0]], 1)
+    ee = np.einsum("pij,pij->pi", e, e)
+    uv = np.einsum("qj,qij->qi", gp[q] - cq[j, 0], e[j]) / ee[j]  # in units of the sides
+    first = np.searchsorted(j, np.arange(len(op)))
+    lo, hi = np.minimum.reduceat(uv, first), np.maximum.reduceat(uv, first)
+    ext = hi - lo + 1e-9
+    size = ext * np.sqrt(ee)
+    ka = np.clip(np.round(np.sqrt(n / 2 * size[:, 0] / size[:, 1])), 1, n // 2).astype(np.int64)
+    kb = np.maximum(n // 2 // ka, 1)
+    tc = ka * kb
+    tp = np.repeat(np.arange(len(op)), tc)  # each centre's patch
+    ti = np.arange(len(tp)) - np.repeat(np.cumsum(tc) - tc, tc)  # its index in its patch's grid
+    t = np.stack([(ti // kb[tp] + 0.5) / ka[tp], (ti % kb[tp] + 0.5) / kb[tp]], 1)
+    t = lo[tp] + t * (hi - lo)[tp]
+    no = np.diff(np.r_[first, len(q)])  # open points per patch
+    pc = np.repeat(np.arange(len(tp)), no[tp])  # (centre, open point) pairs
+    pq = np.repeat(first[tp] - np.cumsum(no[tp]) + no[tp], no[tp]) + np.arange(len(pc))
+    dist = np.linalg.norm((t[pc] - uv[pq]) * size[tp[pc]] / ext[tp[pc]], axis=1)
+    o = np.lexsort((pq, dist, pc))  # per centre its nearest open point (the first of ties)
+    o = o[np.r_[True, pc[o][1:] != pc[o][:-1]]]
+    sel = q[np.unique(pq[o])]
     r = row[sel]
     w = share[np.searchsorted(mixed, r), 0] / np.bincount(r, minlength=K)[r]
     # the slot part: one sample per mouth its test points are nearest (the light outside differs
