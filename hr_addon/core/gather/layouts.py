@@ -208,6 +208,9 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     cand = np.zeros(0, np.int64) if con is None else np.asarray(con.receivers, np.int64)
     if skip is not None:
         cand = cand[~skip[cand]]
+    if len(cand):
+        con.close_mouths(system.backend.occluded)
+        cand = cand[con.may_slot(cand)]  # the others have no point in a slot: never split
     if not len(cand):
         return none
     gp, row = corner_fit.extra_points(pt.corners[cand], pt.nv[cand], grid)
@@ -218,7 +221,6 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     depth, mouth = np.zeros(len(gp)), np.full(len(gp), -1, np.int64)
     c = np.flatnonzero(con.covered(gp, cand[row], threads=0 if threads is None else threads))
     if len(c):
-        con.close_mouths(system.backend.occluded)
         x, h, _, _, mo = con.slots(gp[c], cand[row[c]])
         cls[c], depth[c], mouth[c] = np.where(h > 0, 1, 2), x, mo
     K = len(cand)
