@@ -219,11 +219,15 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     threads = system.backend.threads
     cls = np.zeros(len(gp), np.int64)  # 0 open, 1 in a slot, 2 covered without a gap
     depth, mouth = np.zeros(len(gp)), np.full(len(gp), -1, np.int64)
-    c = np.flatnonzero(con.covered(gp, cand[row], threads=0 if threads is None else threads))
+    K = len(cand)
+    cov = con.covered(gp, cand[row], threads=0 if threads is None else threads)
+    cls[cov] = 2
+    # which covered points lie in a slot: on the patches with an open point only (the others are
+    # never split)
+    c = np.flatnonzero(cov & (SLOT_WHOLE | (np.bincount(row, ~cov, K) > 0)[row]))
     if len(c):
         x, h, _, _, mo = con.slots(gp[c], cand[row[c]])
         cls[c], depth[c], mouth[c] = np.where(h > 0, 1, 2), x, mo
-    K = len(cand)
     cnt = np.stack([np.bincount(row, cls == k, K) for k in (0, 1)], 1)  # (K, 2) open, slot
     mixed = (cnt > 0).all(1)
     if SLOT_WHOLE:  # patches wholly in a slot, their light falling off over depths more than 2x apart
