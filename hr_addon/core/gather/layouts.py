@@ -468,20 +468,16 @@ class LoopGather(FinalGather):
                 a, b = start[idx[j]], start[idx[j] + 1]
                 e = np.repeat(a - np.cumsum(np.r_[0, (b - a)[:-1]]), b - a) + np.arange((b - a).sum())
                 row = np.repeat(j, b - a)
-                L = len(self.loop_index)
-                add = np.stack([np.bincount(li[e], wn[e] * d[row, c], L) for c in range(3)], 1)
-                touched = np.unique(li[e])
+                touched, tl = np.unique(li[e], return_inverse=True)
+                add = np.stack([np.bincount(tl, wn[e] * d[row, c], len(touched)) for c in range(3)], 1)
                 if getattr(self, "fit", False):  # (_loops of the correction: the shifts take in
-                    # every sample of a face)
-                    D = np.zeros((self.n, 3))
-                    D[idx[j]] = d[j]
-                    add = corner_fit.shifted(add, D, self._shift_plan())
-                    touched = np.union1d(touched, corner_fit.shifted_loops(self._shift_plan()))
+                    # every sample of a face; only the faces it touches)
+                    touched, add = corner_fit.shifted_at(touched, add, idx[j], d[j], self._shift_plan())
                 # added at the loops it may reach only (a few): elsewhere it is 0, and x + 0 is x as
                 # the sum holds no -0.0 (its first term, the base's loop values, is bincount sums,
                 # which start at +0.0)
                 at = touched if rows is None else self._loop_rows[1][touched]
-                out[at[at >= 0]] += add[touched][at >= 0]
+                out[at[at >= 0]] += add[at >= 0]
         # a sum of terms >= 0, where only the parts' rounding dips below; with the faces' shifts
         # (fit) a corner may (loop_values' clip)
         return np.maximum(out, 0.0, out=out)
