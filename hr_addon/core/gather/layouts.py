@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from ..boxes import csr_rows
 from ..geometry import isolated_objects
 from ..parallel import batch_map, ranges
 from ..output import corner_weights, equal_key_pairs, in_domain, loop_welds
@@ -259,9 +260,7 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     ti = np.arange(len(tp)) - np.repeat(np.cumsum(tc) - tc, tc)  # its index in its patch's grid
     t = np.stack([(ti // kb[tp] + 0.5) / ka[tp], (ti % kb[tp] + 0.5) / kb[tp]], 1)
     t = lo[tp] + t * (hi - lo)[tp]
-    no = np.diff(np.r_[first, len(q)])  # open points per patch
-    pc = np.repeat(np.arange(len(tp)), no[tp])  # (centre, open point) pairs
-    pq = np.repeat(first[tp] - np.cumsum(no[tp]) + no[tp], no[tp]) + np.arange(len(pc))
+    pc, pq = csr_rows(np.r_[first, len(q)], tp)  # (centre, open point of its patch) pairs
     dist = np.linalg.norm((t[pc] - uv[pq]) * size[tp[pc]] / ext[tp[pc]], axis=1)
     o = np.lexsort((pq, dist, pc))  # per centre its nearest open point (the first of ties)
     o = o[np.r_[True, pc[o][1:] != pc[o][:-1]]]
