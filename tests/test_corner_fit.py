@@ -148,3 +148,30 @@ def test_a_side_above_a_shorter_neighbour_keeps_its_strips_light(monkeypatch):
     monkeypatch.setattr(layouts, "SPLIT", False)
     before = rendered(LoopGather(s, rays=64, shadow_rays=16), p).mean()
     assert before / grid - 1 < -0.3, (before, grid)
+
+
+def test_a_sparse_correction_shifts_as_the_whole_one():
+    """A colour edit's clip correction (a few samples, the loops they reach) shifted over the faces
+    it touches only (corner_fit.shifted_at) gives shifted()'s values over every loop, bit for bit,
+    and is 0 at the loops it leaves out."""
+    from hr_addon.core.gather import corner_fit
+
+    s = books_scene()
+    g = LoopGather(s, rays=16, shadow_rays=4)
+    plan = g._shift_plan()
+    L = len(g.loop_index)
+    rng = np.random.default_rng(1)
+    assert len(plan[0])  # the split face's samples take a shift
+    for k in (1, 3, 10):  # some on the faces with a shift (samples, corners), some anywhere
+        samples = np.union1d(rng.choice(plan[0], 2), rng.choice(g.n, k, replace=False))
+        loops = np.union1d(rng.choice(plan[4].ravel(), 2), rng.choice(L, k, replace=False))
+        sv, lv = rng.random((len(samples), 3)), rng.random((len(loops), 3))
+        dense_loops, values = np.zeros((L, 3)), np.zeros((g.n, 3))
+        dense_loops[loops], values[samples] = lv, sv
+        want = corner_fit.shifted(dense_loops, values, plan)
+        at, got = corner_fit.shifted_at(loops, lv, samples, sv, plan)
+        assert np.array_equal(got, want[at])
+        rest = np.ones(L, bool)
+        rest[at] = False
+        assert not want[rest].any()
+        assert not np.array_equal(want, dense_loops)  # the shifts moved some loop

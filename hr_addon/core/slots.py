@@ -259,6 +259,23 @@ class SlotMouths:
         )
         return self._mouth
 
+    def may_slot(self, patch):
+        """Boolean (K,): patches (K,) that slots() may find points in a slot on: their 2D box meets
+        the box of a covering face of another piece (not a crossing solid's outline) standing off
+        their plane by more than min_gap, with an open mouth (after close_mouths, if called)."""
+        patch = np.asarray(patch, np.int64)
+        M = self.slot_mouths()
+        ch = np.flatnonzero(~self.chain_signed & (self.chain_gap > self.min_gap))
+        ch = ch[np.isin(ch, M["chain"][M["open"]])]
+        gi = self.plane[patch]
+        p2 = self._to2d(gi, self.patches.corners[patch])
+        z = np.zeros((len(patch), 1))
+        lo, hi = np.concatenate([p2.min(1), z], 1), np.concatenate([p2.max(1), z], 1)
+        i, j = box_pairs(lo, hi, self.chain_lo[ch], self.chain_hi[ch], gi, self.chain_plane[ch])
+        out = np.zeros(len(patch), bool)
+        out[i[self.chain_piece[ch[j]] != self.piece[patch[i]]]] = True
+        return out
+
     def close_mouths(self, occluded):
         """Shut the mouths a surface closes (a book's bottom edge on the board it stands on): a
         segment from h inside the slot, half way across the gap, to h outside it meets a surface.

@@ -606,15 +606,17 @@ class FinalGather(DirectLight):
         if not len(d):
             return
         pt = s.patches
+        if area is not None:  # the area's points and their chains (slots()), once for both transfers
+            rows, ap = area
+            j = np.flatnonzero(np.isin(d, rows))
+            r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
+            k = ap.shape[1]
+            pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
+            ca = con.slots(pa, qa)[3]
+
         def transfer(rho, refl):  # slot_transfer, a texel's mean over its area's points (area)
             E = con.slot_transfer(self.points[d], self.patch[d], chain, rho, refl)
             if area is not None:
-                rows, ap = area
-                j = np.flatnonzero(np.isin(d, rows))
-                r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
-                k = ap.shape[1]
-                pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
-                ca = con.slots(pa, qa)[3]
                 Ea = con.slot_transfer(pa, qa, ca, np.repeat(rho[j], k, 0), refl)
                 E[j] = Ea.reshape(len(j), k, 3).mean(1)
             return E

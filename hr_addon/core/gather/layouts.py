@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from ..boxes import csr_rows
 from ..geometry import isolated_objects
 from ..parallel import batch_map, ranges
 from ..output import corner_weights, equal_key_pairs, in_domain, loop_welds
@@ -208,6 +209,9 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     cand = np.zeros(0, np.int64) if con is None else np.asarray(con.receivers, np.int64)
     if skip is not None:
         cand = cand[~skip[cand]]
+    if len(cand):
+        con.close_mouths(system.backend.occluded)
+        cand = cand[con.may_slot(cand)]  # the others have no point in a slot: never split
     if not len(cand):
         return none
     gp, row = corner_fit.extra_points(pt.corners[cand], pt.nv[cand], grid)
@@ -216,12 +220,15 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     threads = system.backend.threads
     cls = np.zeros(len(gp), np.int64)  # 0 open, 1 in a slot, 2 covered without a gap
     depth, mouth = np.zeros(len(gp)), np.full(len(gp), -1, np.int64)
-    c = np.flatnonzero(con.covered(gp, cand[row], threads=0 if threads is None else threads))
+    K = len(cand)
+    cov = con.covered(gp, cand[row], threads=0 if threads is None else threads)
+    cls[cov] = 2
+    # which covered points lie in a slot: on the patches with an open point only (the others are
+    # never split)
+    c = np.flatnonzero(cov & (SLOT_WHOLE | (np.bincount(row, ~cov, K) > 0)[row]))
     if len(c):
-        con.close_mouths(system.backend.occluded)
         x, h, _, _, mo = con.slots(gp[c], cand[row[c]])
         cls[c], depth[c], mouth[c] = np.where(h > 0, 1, 2), x, mo
-    K = len(cand)
     cnt = np.stack([np.bincount(row, cls == k, K) for k in (0, 1)], 1)  # (K, 2) open, slot
     mixed = (cnt > 0).all(1)
     if SLOT_WHOLE:  # patches wholly in a slot, their light falling off over depths more than 2x apart
@@ -233,26 +240,31 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
         return none
     share = cnt[mixed] / cnt[mixed].sum(1, keepdims=True)
     # the open part: n // 2 of its test points, nearest the centres of a k_a x k_b grid over the
-    # part's extent along the patch's sides (a strip 4 cm x 20 cm: 1 x 4, along its middle)
-    sel = []
-    for j in mixed:
-        q = np.flatnonzero((row == j) & (cls == 0))
-        if not len(q):
-            continue
-        cq = pt.corners[cand[j]]
-        e = np.stack([cq[1] - cq[0], cq[-1 if pt.nv[cand[j]] == 4 else 2] - cq[0]])
-        uv = (gp[q] - cq[0]) @ e.T / np.einsum("ij,ij->i", e, e)  # in units of the sides
-        lo, hi = uv.min(0), uv.max(0)
-        size = (hi - lo + 1e-9) * np.sqrt(np.einsum("ij,ij->i", e, e))
-        ka = int(np.clip(np.round(np.sqrt(n / 2 * size[0] / size[1])), 1, n // 2))
-        kb = max(n // 2 // ka, 1)
-        t = np.stack(np.meshgrid((np.arange(ka) + 0.5) / ka, (np.arange(kb) + 0.5) / kb, indexing="ij"), -1)
-        t = lo + t.reshape(-1, 2) * (hi - lo)
-        near = np.unique(
-            np.argmin(np.linalg.norm((t[:, None] - uv[None]) * size / (hi - lo + 1e-9), axis=2), 1)
-        )
-        sel.append(q[near])
-    sel = np.concatenate(sel) if sel else np.zeros(0, np.int64)
+    # part's extent along the patch's sides (a strip 4 cm x 20 cm: 1 x 4, along its middle); all
+    # mixed patches at once over (centre, open point of its patch) pairs
+    q = np.flatnonzero(np.isin(row, mixed) & (cls == 0))  # by patch (gp is sorted by row)
+    op, j = np.unique(row[q], return_inverse=True)  # the patches with open points
+    cq = pt.corners[cand[op]]
+    last = np.where((pt.nv[cand[op]] == 4)[:, None], cq[:, 3], cq[:, 2])
+    e = np.stack([cq[:, 1] - cq[:, 0], last - cq[:, 0]], 1)
+    ee = np.einsum("pij,pij->pi", e, e)
+    uv = np.einsum("qj,qij->qi", gp[q] - cq[j, 0], e[j]) / ee[j]  # in units of the sides
+    first = np.searchsorted(j, np.arange(len(op)))
+    lo, hi = np.minimum.reduceat(uv, first), np.maximum.reduceat(uv, first)
+    ext = hi - lo + 1e-9
+    size = ext * np.sqrt(ee)
+    ka = np.clip(np.round(np.sqrt(n / 2 * size[:, 0] / size[:, 1])), 1, n // 2).astype(np.int64)
+    kb = np.maximum(n // 2 // ka, 1)
+    tc = ka * kb
+    tp = np.repeat(np.arange(len(op)), tc)  # each centre's patch
+    ti = np.arange(len(tp)) - np.repeat(np.cumsum(tc) - tc, tc)  # its index in its patch's grid
+    t = np.stack([(ti // kb[tp] + 0.5) / ka[tp], (ti % kb[tp] + 0.5) / kb[tp]], 1)
+    t = lo[tp] + t * (hi - lo)[tp]
+    pc, pq = csr_rows(np.r_[first, len(q)], tp)  # (centre, open point of its patch) pairs
+    dist = np.linalg.norm((t[pc] - uv[pq]) * size[tp[pc]] / ext[tp[pc]], axis=1)
+    o = np.lexsort((pq, dist, pc))  # per centre its nearest open point (the first of ties)
+    o = o[np.r_[True, pc[o][1:] != pc[o][:-1]]]
+    sel = q[np.unique(pq[o])]
     r = row[sel]
     w = share[np.searchsorted(mixed, r), 0] / np.bincount(r, minlength=K)[r]
     # the slot part: one sample per mouth its test points are nearest (the light outside differs
@@ -455,20 +467,16 @@ class LoopGather(FinalGather):
                 a, b = start[idx[j]], start[idx[j] + 1]
                 e = np.repeat(a - np.cumsum(np.r_[0, (b - a)[:-1]]), b - a) + np.arange((b - a).sum())
                 row = np.repeat(j, b - a)
-                L = len(self.loop_index)
-                add = np.stack([np.bincount(li[e], wn[e] * d[row, c], L) for c in range(3)], 1)
-                touched = np.unique(li[e])
+                touched, tl = np.unique(li[e], return_inverse=True)
+                add = np.stack([np.bincount(tl, wn[e] * d[row, c], len(touched)) for c in range(3)], 1)
                 if getattr(self, "fit", False):  # (_loops of the correction: the shifts take in
-                    # every sample of a face)
-                    D = np.zeros((self.n, 3))
-                    D[idx[j]] = d[j]
-                    add = corner_fit.shifted(add, D, self._shift_plan())
-                    touched = np.union1d(touched, corner_fit.shifted_loops(self._shift_plan()))
+                    # every sample of a face; only the faces it touches)
+                    touched, add = corner_fit.shifted_at(touched, add, idx[j], d[j], self._shift_plan())
                 # added at the loops it may reach only (a few): elsewhere it is 0, and x + 0 is x as
                 # the sum holds no -0.0 (its first term, the base's loop values, is bincount sums,
                 # which start at +0.0)
                 at = touched if rows is None else self._loop_rows[1][touched]
-                out[at[at >= 0]] += add[touched][at >= 0]
+                out[at[at >= 0]] += add[at >= 0]
         # a sum of terms >= 0, where only the parts' rounding dips below; with the faces' shifts
         # (fit) a corner may (loop_values' clip)
         return np.maximum(out, 0.0, out=out)
