@@ -464,9 +464,8 @@ class LoopGather(FinalGather):
             j = np.flatnonzero(d.any(1))
             if len(j):
                 li, _, wn, start = self._loop_map()
-                a, b = start[idx[j]], start[idx[j] + 1]
-                e = np.repeat(a - np.cumsum(np.r_[0, (b - a)[:-1]]), b - a) + np.arange((b - a).sum())
-                row = np.repeat(j, b - a)
+                pr, e = csr_rows(start, idx[j])  # the map's entries of the corrected samples
+                row = j[pr]
                 touched, tl = np.unique(li[e], return_inverse=True)
                 add = np.stack([np.bincount(tl, wn[e] * d[row, c], len(touched)) for c in range(3)], 1)
                 if getattr(self, "fit", False):  # (_loops of the correction: the shifts take in
