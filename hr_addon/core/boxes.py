@@ -34,12 +34,19 @@ def row_groups(rows):
     return inv, np.diff(np.r_[np.flatnonzero(new), n])
 
 
+def spans(start, end):
+    """(owner, index) of the concatenated ranges [start_i, end_i): every index, range by range in
+    order, and which range it lies in."""
+    start = np.asarray(start)
+    n = np.asarray(end) - start
+    owner = np.repeat(np.arange(len(n)), n)
+    return owner, np.repeat(start - (np.cumsum(n) - n), n) + np.arange(len(owner))
+
+
 def csr_rows(start, rows):
     """Every element of the CSR rows `rows` (offsets `start`): (position in `rows` of each, its
     index), row by row in order."""
-    ns = start[rows + 1] - start[rows]
-    pr = np.repeat(np.arange(len(ns)), ns)
-    return pr, np.repeat(start[rows] - (np.cumsum(ns) - ns), ns) + np.arange(len(pr))
+    return spans(start[rows], start[rows + 1])
 
 
 def grid_cells(lo, hi, origin, size, dims, group):

@@ -31,7 +31,7 @@ members by orientation and position, both through prefix sums over contiguous le
 import numpy as np
 
 from . import formfactor as ff
-from .boxes import csr_rows
+from .boxes import csr_rows, spans
 
 N_CLASSES = 6
 
@@ -87,7 +87,7 @@ class ClusterTree:
             # split each segment at the middle of the longest axis of its centroids' box (compact
             # clusters: their radius bounds the point-to-point kernel's error); the median when
             # all centroids fall on one side
-            pos, idx = _ranges(s, e)
+            pos, idx = spans(s, e)
             pc = cen[perm[idx]]
             cut = np.r_[0, np.cumsum(e - s)[:-1]]
             lo_s, hi_s = np.minimum.reduceat(pc, cut, axis=0), np.maximum.reduceat(pc, cut, axis=0)
@@ -125,7 +125,7 @@ class ClusterTree:
         corder = 1 + np.argsort(self.parent[1:], kind="stable")
         kids[self.child_start[self.parent[corder]] + _rank_within(self.parent[corder])] = encode(corder)
         leaf = np.flatnonzero(self.is_leaf)
-        owner, idx = _ranges(self.start[leaf], self.end[leaf])
+        owner, idx = spans(self.start[leaf], self.end[leaf])
         kids[self.child_start[leaf][owner] + _rank_within(owner)] = perm[idx]
         self.child_ids = kids
         self.leaf_of = np.empty(K, np.int64)
@@ -143,7 +143,7 @@ class ClusterTree:
         self.lo, self.hi = np.empty((C, 3)), np.empty((C, 3))
         self.radius, theta = np.empty(C), np.empty(C)
         for ids in self.levels:
-            owner, idx = _ranges(self.start[ids], self.end[ids])
+            owner, idx = spans(self.start[ids], self.end[ids])
             p, oc = perm[idx], ids[owner]
             cut = np.r_[0, np.cumsum(self.end[ids] - self.start[ids])[:-1]]
             self.lo[ids] = np.minimum.reduceat(lo_p[p], cut, axis=0)
@@ -303,13 +303,6 @@ def _rank_within(groups):
     first = np.r_[True, groups[1:] != groups[:-1]]
     idx = np.arange(len(groups))
     return idx - np.maximum.accumulate(np.where(first, idx, 0))
-
-
-def _ranges(start, end):
-    """(owner, index): the concatenated ranges [start_i, end_i) and which range each index is in."""
-    cnt = np.asarray(end) - np.asarray(start)
-    owner = np.repeat(np.arange(len(cnt)), cnt)
-    return owner, np.repeat(start, cnt) + _rank_within(owner)
 
 
 def _moments(out, ids, centre):

@@ -26,6 +26,7 @@ import threading
 
 import numpy as np
 
+from .boxes import spans
 from .parallel import batch_map, in_worker, ranges
 
 TMIN = 1e-6
@@ -365,8 +366,9 @@ class NumpyBackend(RayBackend):
                 n = cnt[i:j]
                 if not n.any():
                     continue
-                pair = np.repeat(np.arange(i, j), n)
-                tri = cell_tri[np.repeat(first[i:j] - (np.cumsum(n) - n), n) + np.arange(len(pair))]
+                pair, k = spans(first[i:j], first[i:j] + n)
+                pair += i
+                tri = cell_tri[k]
                 if nearest:
                     tt = self._hit_pairs(ad, ray[pair], tri, _hit_t_kernel)
                     h = np.flatnonzero(np.isfinite(tt))

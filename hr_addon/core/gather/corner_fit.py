@@ -36,6 +36,7 @@ the samples' values, so LoopGather's response sums stay sums."""
 
 import numpy as np
 
+from ..boxes import spans
 from ..output import corner_weights
 
 EXTRA = 8  # samples added over a patch cut by another solid (extra_points)
@@ -153,11 +154,9 @@ def shifted(loops, values, plan):
     return out
 
 
-def _ranges(sorted_keys, keys):
+def _equal_to(sorted_keys, keys):
     """Positions in sorted_keys of every entry equal to one of keys (distinct), ascending."""
-    a, b = np.searchsorted(sorted_keys, keys), np.searchsorted(sorted_keys, keys, "right")
-    n = b - a
-    return np.repeat(a - np.cumsum(n) + n, n) + np.arange(n.sum())
+    return spans(np.searchsorted(sorted_keys, keys), np.searchsorted(sorted_keys, keys, "right"))[1]
 
 
 def shifted_at(loops, lv, samples, sv, plan):
@@ -171,8 +170,8 @@ def shifted_at(loops, lv, samples, sv, plan):
     i = np.searchsorted(s, samples).clip(0, max(len(s) - 1, 0))
     hit = (s[i] == samples) if len(s) else np.zeros(len(samples), bool)
     i = i[hit]
-    aff = np.unique(np.r_[sk[i], pc_at[_ranges(pc_key, loops)] // pc.shape[1]])
-    t = np.sort(lp_at[_ranges(lp_key, aff)])  # their (loop, patch) pairs, in shifted()'s order
+    aff = np.unique(np.r_[sk[i], pc_at[_equal_to(pc_key, loops)] // pc.shape[1]])
+    t = np.sort(lp_at[_equal_to(lp_key, aff)])  # their (loop, patch) pairs, in shifted()'s order
     out_loops = np.union1d(loops, lu[inv[t]])
     at_in = np.searchsorted(out_loops, loops)
     at_pc = np.searchsorted(loops, pc[aff]).clip(0, max(len(loops) - 1, 0))
