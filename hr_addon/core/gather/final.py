@@ -39,6 +39,9 @@ SLOT_DRIVE = "mouth"
 # widths along each mouth, shared by the samples whose perpendicular meets the mouth in that step
 # (0: each sample's own foot)
 SLOT_MOUTH_STEP = 8.0
+# covered samples per batch of FinalGather._slots on threads (core.parallel): fixed, never by the
+# thread count; every sample's slot and transfer are its own, so the batches do not change them
+SLOT_BATCH = 1 << 13
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
@@ -52,12 +55,6 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
     # channel-major: a 1-d take and reduceat per channel are 2x faster than rows of C with
     # reduceat along axis 0 (100k room, measured), and sum the same products in the same order
     VT = np.ascontiguousarray(V.T, dtype=np.float32)
-    blocks, r0 = [], 0
-    while r0 < n:
-        r1 = int(np.searchsorted(indptr, indptr[r0] + chunk, "right")) - 1
-        r1 = min(max(r1, r0 + 1), n)
-        blocks.append((r0, r1))
-        r0 = r1
 
     def block(r0, r1):
         a, b = indptr[r0], indptr[r1]
@@ -71,8 +68,21 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
                 prod *= w[a:b]
                 out[rows, k] = np.add.reduceat(prod, starts)
 
-    batch_map(block, blocks, threads)
+    batch_map(block, _row_blocks(indptr, chunk), threads)
     return out
+
+
+def _row_blocks(indptr, chunk):
+    """[(r0, r1), ...]: consecutive rows of a CSR matrix of about `chunk` entries each (at least
+    one row; fixed by the matrix, never by the thread count)."""
+    n = len(indptr) - 1
+    blocks, r0 = [], 0
+    while r0 < n:
+        r1 = int(np.searchsorted(indptr, indptr[r0] + chunk, "right")) - 1
+        r1 = min(max(r1, r0 + 1), n)
+        blocks.append((r0, r1))
+        r0 = r1
+    return blocks
 
 
 def _ratio(D, F):
@@ -361,7 +371,9 @@ class FinalGather(DirectLight):
         self.leaf0 = np.zeros(0, np.int64)
         if n:
             self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr, self._lines())
-        # the covered tests by batches of points on threads (None there is serial, here every core)
+        # threads: core.parallel's batch map (1: inline, None: every core); the same values for any
+        # count. The covered tests by batches of points on threads (None there is serial)
+        self.threads = threads
         cov_threads = 0 if threads is None else threads
         self.dark = h.dark(self.leaf0, self.points, cov_threads) if n else np.zeros(0, bool)
         self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
@@ -388,9 +400,7 @@ class FinalGather(DirectLight):
         import time
 
         t0 = time.process_time()
-        # threads: core.parallel's batch map (1: inline, None: every core); the same values for any
-        # count. progress(ProgressInfo) from the calling thread, raising to cancel (core.progress)
-        self.threads = threads
+        # progress(ProgressInfo) from the calling thread, raising to cancel (core.progress)
         prog = Progress(progress, {"gather rays": 1.0})
 
         def report(done, total):
@@ -566,11 +576,18 @@ class FinalGather(DirectLight):
     def _fine_leaves(self, share):
         """HR leaves on which one sample's near hits (traced columns, before _remap_near) carry
         `share` of its rays."""
-        j = np.flatnonzero(self.cols >= self.n_hr)
-        row = np.repeat(np.arange(self.n), np.diff(self.indptr))[j]
-        u, inv = np.unique(row * self.n_hr + self.cols[j] % self.n_hr, return_inverse=True)
-        got = np.bincount(inv, self.w[j], len(u))
-        return np.unique(u[got >= max(share, 1e-30)] % self.n_hr)
+        m, ip = self.n_hr, self.indptr
+
+        def rows(r0, r1):  # each row's sums its own: by blocks of rows on threads
+            c, w = self.cols[ip[r0] : ip[r1]], self.w[ip[r0] : ip[r1]]
+            j = np.flatnonzero(c >= m)
+            row = np.repeat(np.arange(r0, r1), np.diff(ip[r0 : r1 + 1]))[j]
+            u, inv = np.unique(row * m + c[j] % m, return_inverse=True)
+            got = np.bincount(inv, w[j], len(u))
+            return np.unique(u[got >= max(share, 1e-30)] % m)
+
+        parts = batch_map(rows, _row_blocks(ip, self.ENTRY_BATCH), self.threads)
+        return np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
 
     def _reuse_rows(self, take, indptr, cols, w):
         """Rows `take` (>= 0) of CSR (indptr, cols, w) in place of this gather's (untraced) rows
@@ -598,30 +615,39 @@ class FinalGather(DirectLight):
         about (h / 2x)^2). area: (rows, points (r, k, 3)): the transfer of sample rows[j] is the
         mean over points[j] (a texel's area, layouts.texel_samples)."""
         s = self.system
-        con.close_mouths(s.backend.occluded)
-        d = np.flatnonzero(self.dark)
-        x, hg, foot, chain, mouth = con.slots(self.points[d], self.patch[d])
-        ok = (hg > 0) & (x > 0)
-        d, x, hg, foot, chain, mouth = d[ok], x[ok], hg[ok], foot[ok], chain[ok], mouth[ok]
+        pt = s.patches
+        con.close_mouths(s.backend.occluded)  # (and the mouths built: once, before the batches)
+        dark = np.flatnonzero(self.dark)
+
+        def batch(a, b):  # the slot samples among covered samples dark[a:b], each its own answer
+            d = dark[a:b]
+            x, hg, foot, chain, mouth = con.slots(self.points[d], self.patch[d])
+            ok = (hg > 0) & (x > 0)
+            d, x, hg, foot, chain, mouth = d[ok], x[ok], hg[ok], foot[ok], chain[ok], mouth[ok]
+            if area is not None:  # the area's points and their chains (slots()), once for both transfers
+                rows, ap = area
+                j = np.flatnonzero(np.isin(d, rows))
+                r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
+                k = ap.shape[1]
+                pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
+                ca = con.slots(pa, qa)[3]
+
+            def transfer(rho, refl):  # slot_transfer, a texel's mean over its area's points (area)
+                E = con.slot_transfer(self.points[d], self.patch[d], chain, rho, refl)
+                if area is not None:
+                    Ea = con.slot_transfer(pa, qa, ca, np.repeat(rho[j], k, 0), refl)
+                    E[j] = Ea.reshape(len(j), k, 3).mean(1)
+                return E
+
+            E = transfer(self.rho[d], pt.reflectance)
+            # the mouths' view factor (the first bounce of an even outside, every mouth)
+            fm = transfer(np.zeros((len(d), 3)), np.zeros_like(pt.reflectance)) if self.slot_facing else E
+            return d, x, hg, foot, mouth, E, fm
+
+        parts = batch_map(batch, ranges(len(dark), SLOT_BATCH), self.threads)
+        d, x, hg, foot, mouth, E, fm = (np.concatenate(p) for p in zip(*parts))
         if not len(d):
             return
-        pt = s.patches
-        if area is not None:  # the area's points and their chains (slots()), once for both transfers
-            rows, ap = area
-            j = np.flatnonzero(np.isin(d, rows))
-            r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
-            k = ap.shape[1]
-            pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
-            ca = con.slots(pa, qa)[3]
-
-        def transfer(rho, refl):  # slot_transfer, a texel's mean over its area's points (area)
-            E = con.slot_transfer(self.points[d], self.patch[d], chain, rho, refl)
-            if area is not None:
-                Ea = con.slot_transfer(pa, qa, ca, np.repeat(rho[j], k, 0), refl)
-                E[j] = Ea.reshape(len(j), k, 3).mean(1)
-            return E
-
-        E = transfer(self.rho[d], pt.reflectance)
         xg = np.minimum(x, SLOT_DEPTH * hg)
         q = foot + (xg / x)[:, None] * (self.points[d] - foot)
         c = pt.corners[self.patch[d]]
@@ -635,8 +661,6 @@ class FinalGather(DirectLight):
         self.gain = np.ones((self.n, 3))
         self.gain[d] = E / con.through_mouth(mouth, xg / hg, self.rho[d], pt.reflectance)
         if self.slot_facing:
-            # the mouths' view factor (the first bounce of an even outside, every mouth)
-            fm = transfer(np.zeros((len(d), 3)), np.zeros_like(pt.reflectance))
             self._slot_facing(con, d, x0, q, x / hg, xg / hg, hg, mouth, E, fm, foot)
 
     def _slot_facing(self, con, d, x0, q, xi, xq, hg, mouth, E, fm, foot):
