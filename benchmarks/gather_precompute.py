@@ -3,12 +3,12 @@ stores it) on a stored build's system and base solution (bench_gather_events.py 
 code of the checkout given: CPU seconds, one run. For comparing checkouts on the same system.
 
     .venv/bin/python benchmarks/gather_precompute.py /work/cache/STORE [--root CHECKOUT] \
-        [--set layouts.SPLIT=False] [--threads N] [--serial] [--profile FILE] [--digest FILE]
+        [--set layouts.SPLIT=False] [--threads N] [--serial] [--profile FILE [--whole]] [--digest FILE]
 
 --serial: the CPU seconds of the threaded maps' batches (core.parallel.profiled, threads 1) and so
 the serial part, with Amdahl's model on 2 and 16 cores as docs/threads.md's (bench_threads.py).
 --profile: a cProfile of the serial code (its clock stands still inside every threaded map), its
-60 largest cumulative entries written to FILE: where the serial part is.
+60 largest cumulative entries written to FILE: where the serial part is (--whole: of everything).
 --digest: a SHA-256 per stored array of the captured precompute (io.precompute_graph.capture),
 written to FILE as JSON: two checkouts or thread counts store the same bits if the files match.
 """
@@ -31,6 +31,7 @@ ap.add_argument("--set", action="append", default=[], help="module.NAME=value in
 ap.add_argument("--threads", type=int, default=1)
 ap.add_argument("--serial", action="store_true", help="the serial part and Amdahl's model (threads 1)")
 ap.add_argument("--profile", default=None, help="write a cProfile summary of the serial code here")
+ap.add_argument("--whole", action="store_true", help="--profile: of the whole run, the maps' batches too")
 ap.add_argument("--digest", default=None, help="write the stored arrays' SHA-256 here (JSON)")
 args = ap.parse_args()
 sys.path.insert(0, args.root)
@@ -50,7 +51,9 @@ pc.use_threads(s, g, args.threads)
 del g
 dyn = DynamicRadiosity(s, method="FE", **DynamicRadiosity.gather_options("draft"))
 prof = None
-if args.profile:
+if args.profile and args.whole:
+    prof = cProfile.Profile(time.process_time)
+elif args.profile:
     # a clock of the serial CPU only: it stands still inside every outermost batch map (each
     # module's imported name wrapped), so every function's time is its serial part
     mapping, inside, skipped, frozen = parallel.batch_map, [0], [0.0], [0.0]
@@ -96,6 +99,7 @@ if args.serial:
 if prof:
     with open(args.profile, "w") as fh:
         pstats.Stats(prof, stream=fh).sort_stats("cumulative").print_stats(60)
+        pstats.Stats(prof, stream=fh).sort_stats("tottime").print_stats(40)
 if args.digest:
     from hr_addon.io.precompute_graph import capture
 

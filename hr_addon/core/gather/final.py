@@ -187,20 +187,33 @@ def _diameters(h, leaf):
 
 
 def _near_points(h, n_hr, k):
-    """(3, n_hr, k^2) the Gauss points (ff.quadrature's k x k) of the first n_hr nodes, component
-    major: _nearest_point's table, built once per gather (per batch it cost a sort and a
-    quadrature of the leaves hit)."""
-    return np.ascontiguousarray(np.moveaxis(ff.quadrature(h.corners[:n_hr], h.nv[:n_hr], k)[0], 2, 0))
+    """(n_hr, 3 k^2) the Gauss points (ff.quadrature's k x k) of the first n_hr nodes, a node's row
+    its points' x, then y, then z: _nearest_point's table, built once per gather (per batch it
+    cost a sort and a quadrature of the leaves hit)."""
+    x = ff.quadrature(h.corners[:n_hr], h.nv[:n_hr], k)[0]
+    return np.ascontiguousarray(np.moveaxis(x, 2, 1)).reshape(n_hr, -1)
+
+
+NEAREST_CHUNK = 2048  # _nearest_point's hits per step: its (chunk, k^2) temporaries stay in cache
 
 
 def _nearest_point(x, leaf, hit):
     """(m,) the index of the point of x (_near_points) of node leaf[i] nearest hit[i]: the squared
-    distance summed per component in the order of (d ** 2).sum(-1) (the same argmin bit for bit)."""
-    d2 = None
-    for c in range(3):
-        d = x[c][leaf] - hit[:, c, None]
-        d2 = d * d if d2 is None else d2 + d * d
-    return np.argmin(d2, 1)
+    distance summed per component in the order of (d ** 2).sum(-1) (the same argmin bit for bit).
+    One gather of a node's row per hit, in chunks (whole (m, k^2) temporaries per component cost
+    1.6x the time at 100k)."""
+    kk = x.shape[1] // 3
+    out = np.empty(len(leaf), np.intp)
+    for s in range(0, len(leaf), NEAREST_CHUNK):
+        X, q = x[leaf[s : s + NEAREST_CHUNK]], hit[s : s + NEAREST_CHUNK]
+        d2 = X[:, :kk] - q[:, :1]
+        d2 *= d2
+        for c in (1, 2):
+            d = X[:, c * kk : (c + 1) * kk] - q[:, c : c + 1]
+            d *= d
+            d2 += d
+        out[s : s + NEAREST_CHUNK] = np.argmin(d2, 1)
+    return out
 
 
 def _grid_read(h, leaf, hit, k):
@@ -256,6 +269,7 @@ class FinalGather(DirectLight):
 
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
     ENTRY_BATCH = 1 << 21  # weights per batch of _remap_near on threads (fixed: the same values)
+    POINT_BATCH = 1 << 15  # samples per batch of their setup (onto_patch) on threads (fixed)
     threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
     # restored from stored arrays runs inline until told otherwise)
     near_points = 0  # (a class default too: a gather stored before near hits restores without it)
@@ -325,7 +339,13 @@ class FinalGather(DirectLight):
         self.reach = min(4.0 * size, self.tmax)
         self.eps = float(s.refiner.eps)
         self.margin = margin = max(50 * self.eps, 5e-5 * size)
-        self.points = np.ascontiguousarray(onto_patch(pt, self.patch, points, margin))
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        onto = batch_map(  # each point its own: by batches on threads
+            lambda a, b: onto_patch(pt, self.patch[a:b], points[a:b], margin),
+            ranges(len(points), self.POINT_BATCH),
+            threads,
+        )
+        self.points = np.concatenate(onto) if onto else np.zeros((0, 3))
         self.keys = position_keys(self.points, self.unit)
         n = len(self.points)
         self.n = n
@@ -920,8 +940,15 @@ class FinalGather(DirectLight):
                 col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(self._near_x, leaf[nr], hit[lit][nr]))
         span = self.n_hr * (1 + self.near_points**2)
         key = er.astype(np.int64) * span + col
-        u, inv = np.unique(key, return_inverse=True)
-        cnt = np.bincount(inv, ew, len(u))
+        if self.slopes or (self.near_points and self.near_read == "bilinear"):  # (weights per hit)
+            u, inv = np.unique(key, return_inverse=True)
+            cnt = np.bincount(inv, ew, len(u))
+        else:  # every hit weighs 1: the counts of equal keys, exact (a sort in place, no argsort)
+            key.sort()
+            new = np.ones(len(key), bool)
+            new[1:] = key[1:] != key[:-1]
+            first = np.flatnonzero(new)
+            u, cnt = key[first], np.diff(np.r_[first, len(key)]).astype(np.float64)
         r = u // span
         counts = np.bincount(r, minlength=m).astype(np.int64)
         wu = wv = None
