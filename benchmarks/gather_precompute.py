@@ -3,7 +3,8 @@ stores it) on a stored build's system and base solution (bench_gather_events.py 
 code of the checkout given: CPU seconds, one run. For comparing checkouts on the same system.
 
     .venv/bin/python benchmarks/gather_precompute.py /work/cache/STORE [--root CHECKOUT] \
-        [--set layouts.SPLIT=False] [--threads N] [--serial] [--profile FILE [--whole]] [--digest FILE]
+        [--set layouts.SPLIT=False] [--threads N] [--serial] [--profile FILE [--whole]] [--digest FILE] \
+        [--json FILE]
 
 --serial: the CPU seconds of the threaded maps' batches (core.parallel.profiled, threads 1) and so
 the serial part, with Amdahl's model on 2 and 16 cores as docs/threads.md's (bench_threads.py).
@@ -33,6 +34,7 @@ ap.add_argument("--serial", action="store_true", help="the serial part and Amdah
 ap.add_argument("--profile", default=None, help="write a cProfile summary of the serial code here")
 ap.add_argument("--whole", action="store_true", help="--profile: of the whole run, the maps' batches too")
 ap.add_argument("--digest", default=None, help="write the stored arrays' SHA-256 here (JSON)")
+ap.add_argument("--json", default=None, help="append this run's figures to this JSON list")
 args = ap.parse_args()
 sys.path.insert(0, args.root)
 sys.path.insert(0, os.path.join(args.root, "benchmarks"))
@@ -89,6 +91,7 @@ print(
     f"{args.root}: gather precompute {cpu:.2f} s CPU, {args.threads} thread(s), {g.n:,} samples, "
     f"load {os.getloadavg()[0]:.2f}"
 )
+run = dict(root=args.root, threads=args.threads, cpu=cpu, samples=int(g.n), load=os.getloadavg()[0])
 if args.serial:
     par = sum(map(sum, maps))
     model = {c: cpu / (cpu - par + sum(parallel.makespan(m, c) for m in maps)) for c in (2, 16)}
@@ -96,6 +99,10 @@ if args.serial:
         f"threaded maps {par:.2f} s in {len(maps)} maps, serial {cpu - par:.2f} s "
         f"({(cpu - par) / cpu:.1%}); model {model[2]:.2f}x on 2 cores, {model[16]:.2f}x on 16"
     )
+    run.update(threaded=par, maps=len(maps), serial=cpu - par, model={str(c): v for c, v in model.items()})
+if args.json:
+    p = Path(args.json)
+    p.write_text(json.dumps([*(json.loads(p.read_text()) if p.exists() else []), run], indent=1))
 if prof:
     with open(args.profile, "w") as fh:
         pstats.Stats(prof, stream=fh).sort_stats("cumulative").print_stats(60)

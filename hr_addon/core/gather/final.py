@@ -11,7 +11,7 @@ from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
 from ..parallel import batch_map, ranges
 from ..progress import Progress
-from ..slots import slot_mouth
+from ..slots import _slot_tables, slot_mouth
 from .direct import DirectLight
 from .points import locate_below, onto_patch, split_lines
 from .sampling import cosine_directions, position_keys
@@ -637,6 +637,7 @@ class FinalGather(DirectLight):
         s = self.system
         pt = s.patches
         con.close_mouths(s.backend.occluded)  # (and the mouths built: once, before the batches)
+        _slot_tables()  # (built once, before the batches)
         dark = np.flatnonzero(self.dark)
 
         def batch(a, b):  # the slot samples among covered samples dark[a:b], each its own answer
