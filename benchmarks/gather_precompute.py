@@ -3,11 +3,24 @@ stores it) on a stored build's system and base solution (bench_gather_events.py 
 code of the checkout given: CPU seconds, one run. For comparing checkouts on the same system.
 
     .venv/bin/python benchmarks/gather_precompute.py /work/cache/STORE [--root CHECKOUT] \
-        [--set layouts.SPLIT=False]
+        [--set layouts.SPLIT=False] [--threads N] [--serial] [--profile FILE [--whole]] [--digest FILE] \
+        [--json FILE]
+
+--serial: the CPU seconds of the threaded maps' batches (core.parallel.profiled, threads 1) and so
+the serial part, with Amdahl's model on 2 and 16 cores as docs/threads.md's (bench_threads.py).
+--profile: a cProfile of the serial code (its clock stands still inside every threaded map), its
+60 largest cumulative entries written to FILE: where the serial part is (--whole: of everything).
+--digest: a SHA-256 per stored array of the captured precompute (io.precompute_graph.capture),
+written to FILE as JSON: two checkouts or thread counts store the same bits if the files match.
 """
 
 import argparse
+import contextlib
+import cProfile
+import hashlib
+import json
 import os
+import pstats
 import sys
 import time
 from pathlib import Path
@@ -16,12 +29,18 @@ ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
 ap.add_argument("store", help="folder of a stored build (bench_gather_events.py --cache)")
 ap.add_argument("--root", default=str(Path(__file__).resolve().parent.parent), help="checkout timed")
 ap.add_argument("--set", action="append", default=[], help="module.NAME=value in hr_addon.core.gather")
+ap.add_argument("--threads", type=int, default=1)
+ap.add_argument("--serial", action="store_true", help="the serial part and Amdahl's model (threads 1)")
+ap.add_argument("--profile", default=None, help="write a cProfile summary of the serial code here")
+ap.add_argument("--whole", action="store_true", help="--profile: of the whole run, the maps' batches too")
+ap.add_argument("--digest", default=None, help="write the stored arrays' SHA-256 here (JSON)")
+ap.add_argument("--json", default=None, help="append this run's figures to this JSON list")
 args = ap.parse_args()
 sys.path.insert(0, args.root)
 sys.path.insert(0, os.path.join(args.root, "benchmarks"))
 
 from bench_gather_events import load_store  # noqa: E402
-from hr_addon.core import gather  # noqa: E402
+from hr_addon.core import gather, parallel  # noqa: E402
 from hr_addon.core.events import DynamicRadiosity  # noqa: E402
 from hr_addon.io import precompute as pc  # noqa: E402
 
@@ -30,13 +49,69 @@ for kv in args.set:
     mod, attr = name.rsplit(".", 1)
     setattr(getattr(gather, mod), attr, eval(value))
 s, g, _ = load_store(Path(args.store) / pc.FILENAME)
-pc.use_threads(s, g, 1)
+pc.use_threads(s, g, args.threads)
 del g
 dyn = DynamicRadiosity(s, method="FE", **DynamicRadiosity.gather_options("draft"))
-c0 = time.process_time()
-g = gather.LoopGather(dyn, rays=128, levels=2, iterations=4, threads=1, shadow_rays=16)
-pc.prepare(g)
+prof = None
+if args.profile and args.whole:
+    prof = cProfile.Profile(time.process_time)
+elif args.profile:
+    # a clock of the serial CPU only: it stands still inside every outermost batch map (each
+    # module's imported name wrapped), so every function's time is its serial part
+    mapping, inside, skipped, frozen = parallel.batch_map, [0], [0.0], [0.0]
+
+    def clock():
+        return frozen[0] if inside[0] else time.process_time() - skipped[0]
+
+    def unprofiled(*a, **k):
+        if not inside[0]:
+            frozen[0], t0 = clock(), time.process_time()
+        inside[0] += 1
+        try:
+            return mapping(*a, **k)
+        finally:
+            inside[0] -= 1
+            if not inside[0]:
+                skipped[0] += time.process_time() - t0
+
+    for mod in list(sys.modules.values()):
+        if getattr(mod, "__name__", "").startswith("hr_addon") and getattr(mod, "batch_map", None) is mapping:
+            mod.batch_map = unprofiled
+    prof = cProfile.Profile(clock)
+with parallel.profiled() if args.serial else contextlib.nullcontext([]) as maps:
+    c0 = time.process_time()
+    if prof:
+        prof.enable()
+    g = gather.LoopGather(dyn, rays=128, levels=2, iterations=4, threads=args.threads, shadow_rays=16)
+    pc.prepare(g)
+    if prof:
+        prof.disable()
+    cpu = time.process_time() - c0
 print(
-    f"{args.root}: gather precompute {time.process_time() - c0:.2f} s CPU, {g.n:,} samples, "
+    f"{args.root}: gather precompute {cpu:.2f} s CPU, {args.threads} thread(s), {g.n:,} samples, "
     f"load {os.getloadavg()[0]:.2f}"
 )
+run = dict(root=args.root, threads=args.threads, cpu=cpu, samples=int(g.n), load=os.getloadavg()[0])
+if args.serial:
+    par = sum(map(sum, maps))
+    model = {c: cpu / (cpu - par + sum(parallel.makespan(m, c) for m in maps)) for c in (2, 16)}
+    print(
+        f"threaded maps {par:.2f} s in {len(maps)} maps, serial {cpu - par:.2f} s "
+        f"({(cpu - par) / cpu:.1%}); model {model[2]:.2f}x on 2 cores, {model[16]:.2f}x on 16"
+    )
+    run.update(threaded=par, maps=len(maps), serial=cpu - par, model={str(c): v for c, v in model.items()})
+if args.json:
+    p = Path(args.json)
+    p.write_text(json.dumps([*(json.loads(p.read_text()) if p.exists() else []), run], indent=1))
+if prof:
+    with open(args.profile, "w") as fh:
+        pstats.Stats(prof, stream=fh).sort_stats("cumulative").print_stats(60)
+        pstats.Stats(prof, stream=fh).sort_stats("tottime").print_stats(40)
+if args.digest:
+    from hr_addon.io.precompute_graph import capture
+
+    def sha(a):
+        return hashlib.sha256(str((a.dtype, a.shape)).encode() + a.tobytes()).hexdigest()
+
+    arrays, _ = capture(s, g)
+    Path(args.digest).write_text(json.dumps({k: sha(a) for k, a in arrays.items()}, indent=0))

@@ -291,13 +291,19 @@ def test_build_with_one_and_two_threads_gives_identical_links(small_batches):
 
 def test_furnished_gather_samples_with_one_and_two_threads_are_equal(small_batches, monkeypatch):
     """The furnished room (contacts): the corner samples (buried ones moved: the covered test and
-    the back-face rays by batches of samples), the gather samples' covered test (by batches of
-    points), the weights and the output with 1 and 2 threads: bitwise equal."""
+    the back-face rays by batches of samples), the samples put onto their patches, the patches
+    split part open, part in a slot (by batches of patches), the slot samples' slots and
+    transfers, the gather samples' covered test (by batches of points), the fine leaves, the
+    weights and the output with 1 and 2 threads: bitwise equal."""
     from hr_addon.core import contacts
-    from hr_addon.core.gather import layouts
+    from hr_addon.core.gather import FinalGather, final, layouts
     from hr_testing.furnished import furnished_room
 
     monkeypatch.setattr(contacts, "POINT_BATCH", 200)
+    monkeypatch.setattr(layouts, "SPLIT_BATCH", 16)
+    monkeypatch.setattr(final, "SLOT_BATCH", 64)
+    monkeypatch.setattr(FinalGather, "POINT_BATCH", 500)
+    monkeypatch.setattr(FinalGather, "ENTRY_BATCH", 5000)
     s = RadiositySystem(furnished_room("2k")[0], RefineParams.for_gather("draft"))
     dyn = DynamicRadiosity(s, method="FE")
     out = []
@@ -307,8 +313,16 @@ def test_furnished_gather_samples_with_one_and_two_threads_are_equal(small_batch
     a, b = out
     assert len(a.points) > 10 * layouts.PROBE_BATCH and a.dark.sum() > 0
     assert (s.h.exposure[a.leaf0] < 1).sum() > 2 * contacts.POINT_BATCH  # the covered test's batches
-    for x, y in ((a.points, b.points), (a.dark, b.dark), (a.second.dark, b.second.dark), (a.w, b.w)):
-        assert np.array_equal(x, y)
+    # several batches of each: patches that may split, slot samples, samples, the probe's weights
+    assert len(s.h.contacts.receivers) > 10 * layouts.SPLIT_BATCH and len(a.split_mean[0]) > 10
+    assert len(a._slot["rows"]) > 5 * final.SLOT_BATCH and a.n > 5 * FinalGather.POINT_BATCH
+    assert a.stats["near_leaves"] > 0 and len(a.second.w) > 5 * FinalGather.ENTRY_BATCH
+    assert a.stats["near_leaves"] == b.stats["near_leaves"]
+    arrays = ("points", "dark", "gain", "extra_weight", "split_mean", "w", "cols")
+    pairs = [(getattr(a, k), getattr(b, k)) for k in arrays] + [(a.second.dark, b.second.dark)]
+    pairs += [(a._slot[k], b._slot[k]) for k in ("rows", "own", "m")]
+    for x, y in pairs:
+        assert all(map(np.array_equal, x, y)) if isinstance(x, tuple) else np.array_equal(x, y)
     x, y = a.loop_radiance(dyn), b.loop_radiance(dyn)
     assert np.abs(x).max() > 0 and np.array_equal(x, y)
     assert not _workers()

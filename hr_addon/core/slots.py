@@ -357,8 +357,9 @@ def _slot_tables(n=240, ps=41, n_ext=40):
             T["VS"].append(VS)
             T["G0"].append(F_S[None] + p[:, None] * np.einsum("ij,pj->pi", Kx, US))
             T["G1"].append((K_SL[:, :ne] @ F_L[:ne])[None] + p[:, None] * np.einsum("ij,pj->pi", Kx, VS))
-        _SLOT.update({k: np.stack(v) for k, v in T.items()})
-        _SLOT.update(logx=np.log(x), p=p, ext=np.log1p(np.array(SLOT_EXT)))
+        # one update (threads may race to build them: a reader sees none or all of them)
+        T = {k: np.stack(v) for k, v in T.items()}
+        _SLOT.update(T, logx=np.log(x), p=p, ext=np.log1p(np.array(SLOT_EXT)))
     return _SLOT
 
 

@@ -11,7 +11,7 @@ from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
 from ..parallel import batch_map, ranges
 from ..progress import Progress
-from ..slots import slot_mouth
+from ..slots import _slot_tables, slot_mouth
 from .direct import DirectLight
 from .points import locate_below, onto_patch, split_lines
 from .sampling import cosine_directions, position_keys
@@ -39,6 +39,9 @@ SLOT_DRIVE = "mouth"
 # widths along each mouth, shared by the samples whose perpendicular meets the mouth in that step
 # (0: each sample's own foot)
 SLOT_MOUTH_STEP = 8.0
+# covered samples per batch of FinalGather._slots on threads (core.parallel): fixed, never by the
+# thread count; every sample's slot and transfer are its own, so the batches do not change them
+SLOT_BATCH = 1 << 13
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
@@ -52,12 +55,6 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
     # channel-major: a 1-d take and reduceat per channel are 2x faster than rows of C with
     # reduceat along axis 0 (100k room, measured), and sum the same products in the same order
     VT = np.ascontiguousarray(V.T, dtype=np.float32)
-    blocks, r0 = [], 0
-    while r0 < n:
-        r1 = int(np.searchsorted(indptr, indptr[r0] + chunk, "right")) - 1
-        r1 = min(max(r1, r0 + 1), n)
-        blocks.append((r0, r1))
-        r0 = r1
 
     def block(r0, r1):
         a, b = indptr[r0], indptr[r1]
@@ -71,8 +68,21 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
                 prod *= w[a:b]
                 out[rows, k] = np.add.reduceat(prod, starts)
 
-    batch_map(block, blocks, threads)
+    batch_map(block, _row_blocks(indptr, chunk), threads)
     return out
+
+
+def _row_blocks(indptr, chunk):
+    """[(r0, r1), ...]: consecutive rows of a CSR matrix of about `chunk` entries each (at least
+    one row; fixed by the matrix, never by the thread count)."""
+    n = len(indptr) - 1
+    blocks, r0 = [], 0
+    while r0 < n:
+        r1 = int(np.searchsorted(indptr, indptr[r0] + chunk, "right")) - 1
+        r1 = min(max(r1, r0 + 1), n)
+        blocks.append((r0, r1))
+        r0 = r1
+    return blocks
 
 
 def _ratio(D, F):
@@ -177,20 +187,33 @@ def _diameters(h, leaf):
 
 
 def _near_points(h, n_hr, k):
-    """(3, n_hr, k^2) the Gauss points (ff.quadrature's k x k) of the first n_hr nodes, component
-    major: _nearest_point's table, built once per gather (per batch it cost a sort and a
-    quadrature of the leaves hit)."""
-    return np.ascontiguousarray(np.moveaxis(ff.quadrature(h.corners[:n_hr], h.nv[:n_hr], k)[0], 2, 0))
+    """(n_hr, 3 k^2) the Gauss points (ff.quadrature's k x k) of the first n_hr nodes, a node's row
+    its points' x, then y, then z: _nearest_point's table, built once per gather (per batch it
+    cost a sort and a quadrature of the leaves hit)."""
+    x = ff.quadrature(h.corners[:n_hr], h.nv[:n_hr], k)[0]
+    return np.ascontiguousarray(np.moveaxis(x, 2, 1)).reshape(n_hr, -1)
+
+
+NEAREST_CHUNK = 2048  # _nearest_point's hits per step: its (chunk, k^2) temporaries stay in cache
 
 
 def _nearest_point(x, leaf, hit):
     """(m,) the index of the point of x (_near_points) of node leaf[i] nearest hit[i]: the squared
-    distance summed per component in the order of (d ** 2).sum(-1) (the same argmin bit for bit)."""
-    d2 = None
-    for c in range(3):
-        d = x[c][leaf] - hit[:, c, None]
-        d2 = d * d if d2 is None else d2 + d * d
-    return np.argmin(d2, 1)
+    distance summed per component in the order of (d ** 2).sum(-1) (the same argmin bit for bit).
+    One gather of a node's row per hit, in chunks (three gathers and whole (m, k^2) temporaries
+    took 2.4x the CPU at 100k: 15.6 -> 6.5 s in a 1-thread profile of the precompute)."""
+    kk = x.shape[1] // 3
+    out = np.empty(len(leaf), np.intp)
+    for s in range(0, len(leaf), NEAREST_CHUNK):
+        X, q = x[leaf[s : s + NEAREST_CHUNK]], hit[s : s + NEAREST_CHUNK]
+        d2 = X[:, :kk] - q[:, :1]
+        d2 *= d2
+        for c in (1, 2):
+            d = X[:, c * kk : (c + 1) * kk] - q[:, c : c + 1]
+            d *= d
+            d2 += d
+        out[s : s + NEAREST_CHUNK] = np.argmin(d2, 1)
+    return out
 
 
 def _grid_read(h, leaf, hit, k):
@@ -246,6 +269,7 @@ class FinalGather(DirectLight):
 
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
     ENTRY_BATCH = 1 << 21  # weights per batch of _remap_near on threads (fixed: the same values)
+    POINT_BATCH = 1 << 15  # samples per batch of their setup (onto_patch) on threads (fixed)
     threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
     # restored from stored arrays runs inline until told otherwise)
     near_points = 0  # (a class default too: a gather stored before near hits restores without it)
@@ -315,7 +339,13 @@ class FinalGather(DirectLight):
         self.reach = min(4.0 * size, self.tmax)
         self.eps = float(s.refiner.eps)
         self.margin = margin = max(50 * self.eps, 5e-5 * size)
-        self.points = np.ascontiguousarray(onto_patch(pt, self.patch, points, margin))
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        onto = batch_map(  # each point its own: by batches on threads
+            lambda a, b: onto_patch(pt, self.patch[a:b], points[a:b], margin),
+            ranges(len(points), self.POINT_BATCH),
+            threads,
+        )
+        self.points = np.concatenate(onto) if onto else np.zeros((0, 3))
         self.keys = position_keys(self.points, self.unit)
         n = len(self.points)
         self.n = n
@@ -361,7 +391,9 @@ class FinalGather(DirectLight):
         self.leaf0 = np.zeros(0, np.int64)
         if n:
             self.leaf0 = locate_below(h, self.patch, self.points, self.n_hr, self._lines())
-        # the covered tests by batches of points on threads (None there is serial, here every core)
+        # threads: core.parallel's batch map (1: inline, None: every core); the same values for any
+        # count. The covered tests by batches of points on threads (None there is serial)
+        self.threads = threads
         cov_threads = 0 if threads is None else threads
         self.dark = h.dark(self.leaf0, self.points, cov_threads) if n else np.zeros(0, bool)
         self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
@@ -388,9 +420,7 @@ class FinalGather(DirectLight):
         import time
 
         t0 = time.process_time()
-        # threads: core.parallel's batch map (1: inline, None: every core); the same values for any
-        # count. progress(ProgressInfo) from the calling thread, raising to cancel (core.progress)
-        self.threads = threads
+        # progress(ProgressInfo) from the calling thread, raising to cancel (core.progress)
         prog = Progress(progress, {"gather rays": 1.0})
 
         def report(done, total):
@@ -566,11 +596,18 @@ class FinalGather(DirectLight):
     def _fine_leaves(self, share):
         """HR leaves on which one sample's near hits (traced columns, before _remap_near) carry
         `share` of its rays."""
-        j = np.flatnonzero(self.cols >= self.n_hr)
-        row = np.repeat(np.arange(self.n), np.diff(self.indptr))[j]
-        u, inv = np.unique(row * self.n_hr + self.cols[j] % self.n_hr, return_inverse=True)
-        got = np.bincount(inv, self.w[j], len(u))
-        return np.unique(u[got >= max(share, 1e-30)] % self.n_hr)
+        m, ip = self.n_hr, self.indptr
+
+        def rows(r0, r1):  # each row's sums its own: by blocks of rows on threads
+            c, w = self.cols[ip[r0] : ip[r1]], self.w[ip[r0] : ip[r1]]
+            j = np.flatnonzero(c >= m)
+            row = np.repeat(np.arange(r0, r1), np.diff(ip[r0 : r1 + 1]))[j]
+            u, inv = np.unique(row * m + c[j] % m, return_inverse=True)
+            got = np.bincount(inv, w[j], len(u))
+            return np.unique(u[got >= max(share, 1e-30)] % m)
+
+        parts = batch_map(rows, _row_blocks(ip, self.ENTRY_BATCH), self.threads)
+        return np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
 
     def _reuse_rows(self, take, indptr, cols, w):
         """Rows `take` (>= 0) of CSR (indptr, cols, w) in place of this gather's (untraced) rows
@@ -598,30 +635,40 @@ class FinalGather(DirectLight):
         about (h / 2x)^2). area: (rows, points (r, k, 3)): the transfer of sample rows[j] is the
         mean over points[j] (a texel's area, layouts.texel_samples)."""
         s = self.system
-        con.close_mouths(s.backend.occluded)
-        d = np.flatnonzero(self.dark)
-        x, hg, foot, chain, mouth = con.slots(self.points[d], self.patch[d])
-        ok = (hg > 0) & (x > 0)
-        d, x, hg, foot, chain, mouth = d[ok], x[ok], hg[ok], foot[ok], chain[ok], mouth[ok]
+        pt = s.patches
+        con.close_mouths(s.backend.occluded)  # (and the mouths built: once, before the batches)
+        _slot_tables()  # (built once, before the batches)
+        dark = np.flatnonzero(self.dark)
+
+        def batch(a, b):  # the slot samples among covered samples dark[a:b], each its own answer
+            d = dark[a:b]
+            x, hg, foot, chain, mouth = con.slots(self.points[d], self.patch[d])
+            ok = (hg > 0) & (x > 0)
+            d, x, hg, foot, chain, mouth = d[ok], x[ok], hg[ok], foot[ok], chain[ok], mouth[ok]
+            if area is not None:  # the area's points and their chains (slots()), once for both transfers
+                rows, ap = area
+                j = np.flatnonzero(np.isin(d, rows))
+                r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
+                k = ap.shape[1]
+                pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
+                ca = con.slots(pa, qa)[3]
+
+            def transfer(rho, refl):  # slot_transfer, a texel's mean over its area's points (area)
+                E = con.slot_transfer(self.points[d], self.patch[d], chain, rho, refl)
+                if area is not None:
+                    Ea = con.slot_transfer(pa, qa, ca, np.repeat(rho[j], k, 0), refl)
+                    E[j] = Ea.reshape(len(j), k, 3).mean(1)
+                return E
+
+            E = transfer(self.rho[d], pt.reflectance)
+            # the mouths' view factor (the first bounce of an even outside, every mouth)
+            fm = transfer(np.zeros((len(d), 3)), np.zeros_like(pt.reflectance)) if self.slot_facing else E
+            return d, x, hg, foot, mouth, E, fm
+
+        parts = batch_map(batch, ranges(len(dark), SLOT_BATCH), self.threads)
+        d, x, hg, foot, mouth, E, fm = (np.concatenate(p) for p in zip(*parts))
         if not len(d):
             return
-        pt = s.patches
-        if area is not None:  # the area's points and their chains (slots()), once for both transfers
-            rows, ap = area
-            j = np.flatnonzero(np.isin(d, rows))
-            r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
-            k = ap.shape[1]
-            pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
-            ca = con.slots(pa, qa)[3]
-
-        def transfer(rho, refl):  # slot_transfer, a texel's mean over its area's points (area)
-            E = con.slot_transfer(self.points[d], self.patch[d], chain, rho, refl)
-            if area is not None:
-                Ea = con.slot_transfer(pa, qa, ca, np.repeat(rho[j], k, 0), refl)
-                E[j] = Ea.reshape(len(j), k, 3).mean(1)
-            return E
-
-        E = transfer(self.rho[d], pt.reflectance)
         xg = np.minimum(x, SLOT_DEPTH * hg)
         q = foot + (xg / x)[:, None] * (self.points[d] - foot)
         c = pt.corners[self.patch[d]]
@@ -635,8 +682,6 @@ class FinalGather(DirectLight):
         self.gain = np.ones((self.n, 3))
         self.gain[d] = E / con.through_mouth(mouth, xg / hg, self.rho[d], pt.reflectance)
         if self.slot_facing:
-            # the mouths' view factor (the first bounce of an even outside, every mouth)
-            fm = transfer(np.zeros((len(d), 3)), np.zeros_like(pt.reflectance))
             self._slot_facing(con, d, x0, q, x / hg, xg / hg, hg, mouth, E, fm, foot)
 
     def _slot_facing(self, con, d, x0, q, xi, xq, hg, mouth, E, fm, foot):
@@ -896,8 +941,15 @@ class FinalGather(DirectLight):
                 col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(self._near_x, leaf[nr], hit[lit][nr]))
         span = self.n_hr * (1 + self.near_points**2)
         key = er.astype(np.int64) * span + col
-        u, inv = np.unique(key, return_inverse=True)
-        cnt = np.bincount(inv, ew, len(u))
+        if self.slopes or (self.near_points and self.near_read == "bilinear"):  # (weights per hit)
+            u, inv = np.unique(key, return_inverse=True)
+            cnt = np.bincount(inv, ew, len(u))
+        else:  # every hit weighs 1: the counts of equal keys, exact (a sort in place, no argsort)
+            key.sort()
+            new = np.ones(len(key), bool)
+            new[1:] = key[1:] != key[:-1]
+            first = np.flatnonzero(new)
+            u, cnt = key[first], np.diff(np.r_[first, len(key)]).astype(np.float64)
         r = u // span
         counts = np.bincount(r, minlength=m).astype(np.int64)
         wu = wv = None

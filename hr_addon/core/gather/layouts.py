@@ -182,6 +182,7 @@ def cut_patches(system, nudge=0.05, reach=None):
 SLOT_GRID = 256  # slot_split: test points per patch with a contact (a square: 16 x 16)
 SLOT_AREA = 64  # slot_split: points a slot part's transfer is averaged over
 SLOT_WHOLE = False  # slot_split: patches wholly in a slot too (depths > 2x apart; measured, left off)
+SPLIT_BATCH = 256  # slot_split: patches per batch on threads (fixed, never by the thread count)
 
 
 def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
@@ -196,8 +197,9 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     the slot's shade when the open strip is narrower than a quarter of the patch. skip (K,) bool:
     patches left out (cut_patches'). Returns (points (m, 3), patch (m,), weight (m,), slot_area
     (rows of the slot samples (r,), their points (r, SLOT_AREA, 3)), (the split patches (p,), their
-    interpolant's mean per unit corner value over the visible test points (p, 4))."""
-    pt, con = system.patches, system.h.contacts
+    interpolant's mean per unit corner value over the visible test points (p, 4)). Computed by
+    batches of SPLIT_BATCH patches on the system's threads."""
+    con = system.h.contacts
     n = corner_fit.EXTRA if n is None else n
     none = (
         np.zeros((0, 3)),
@@ -210,18 +212,41 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     if skip is not None:
         cand = cand[~skip[cand]]
     if len(cand):
-        con.close_mouths(system.backend.occluded)
+        con.close_mouths(system.backend.occluded)  # (and the mouths built: once, before the batches)
         cand = cand[con.may_slot(cand)]  # the others have no point in a slot: never split
-    if not len(cand):
+    threads = system.backend.threads
+    parts = batch_map(
+        lambda i, j: _split_part(system, cand[i:j], grid, n),
+        ranges(len(cand), SPLIT_BATCH),
+        0 if threads is None else threads,
+    )
+    parts = [p for p in parts if p is not None]
+    if not parts:
         return none
+    sel, psel, w, deep, pdeep, ws, area, mixed, mean_w = (np.concatenate(x) for x in zip(*parts))
+    return (
+        np.r_[sel, deep],
+        np.r_[psel, pdeep],
+        np.r_[w, ws],
+        (len(sel) + np.arange(len(deep)), area),
+        (mixed, mean_w),
+    )
+
+
+def _split_part(system, cand, grid, n):
+    """slot_split for patches `cand` (each patch's samples its own: a batch of them): (open samples'
+    points, their patches, weights, slot samples' points, their patches, weights, their area's
+    points, the split patches, their interpolants' mean) or None if none is split."""
+    pt, con = system.patches, system.h.contacts
+    if not len(cand):
+        return None
     gp, row = corner_fit.extra_points(pt.corners[cand], pt.nv[cand], grid)
     order = np.argsort(row, kind="stable")  # by patch, each in its grid's order
     gp, row = gp[order], row[order]
-    threads = system.backend.threads
     cls = np.zeros(len(gp), np.int64)  # 0 open, 1 in a slot, 2 covered without a gap
     depth, mouth = np.zeros(len(gp)), np.full(len(gp), -1, np.int64)
     K = len(cand)
-    cov = con.covered(gp, cand[row], threads=0 if threads is None else threads)
+    cov = con.covered(gp, cand[row], threads=1)  # (inline: this is a batch)
     cls[cov] = 2
     # which covered points lie in a slot: on the patches with an open point only (the others are
     # never split)
@@ -237,7 +262,7 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
         mixed |= (cnt[:, 1] > 0) & (np.fmax.reduceat(d, start) > 2 * np.fmin.reduceat(d, start))
     mixed = np.flatnonzero(mixed)
     if not len(mixed):
-        return none
+        return None
     share = cnt[mixed] / cnt[mixed].sum(1, keepdims=True)
     # the open part: n // 2 of its test points, nearest the centres of a k_a x k_b grid over the
     # part's extent along the patch's sides (a strip 4 cm x 20 cm: 1 x 4, along its middle); all
@@ -289,14 +314,7 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     mean_w = (
         np.stack([np.bincount(ri, a[:, j], len(mixed)) for j in range(4)], 1) / cnt[mixed].sum(1)[:, None]
     )
-    pts = np.r_[gp[sel], gp[deep]]
-    return (
-        pts,
-        cand[np.r_[r, row[deep]]],
-        np.r_[w, ws],
-        (len(sel) + np.arange(len(deep)), area),
-        (cand[mixed], mean_w),
-    )
+    return gp[sel], cand[r], w, gp[deep], cand[row[deep]], ws, area, cand[mixed], mean_w
 
 
 class LoopGather(FinalGather):
