@@ -27,6 +27,7 @@ RAY_FACTOR = 16  # sky rays per point = RAY_FACTOR x a light's shadow rays: the 
 # box's floor is 2.7% rms off the exact lid-emitter value per sample, at 512 rays 0.9% (tests/test_sky.py)
 PORTAL_CELLS = 32  # escape map: cells per side of each face of the scene's box
 PORTAL_SHARE = 0.5  # rays toward the escape map per cosine-weighted sky ray
+PORTAL_OPEN = 0.25  # no escape map where more of the cosine rays escape (an open sky: they find it)
 TABLE_ROWS, TABLE_COLS = 32, 64  # reduced table: 5.6 degrees per cell
 GREY_TOL = 1e-3  # channels equal up to a scale within this: one light, not three
 
@@ -213,15 +214,15 @@ class EscapeMap:
 
 def escape_map(x, n, backend, eps, rays, seed, keys, stream, far, chunk=1 << 21):
     """The EscapeMap of the cosine-weighted sky rays of points x (N, 3), normals n (those
-    sky_incident casts; `chunk` rays at a time), or None where none escapes (a closed scene)."""
+    sky_incident casts; `chunk` rays at a time), or None where none escapes (a closed scene) or more
+    than PORTAL_OPEN of them do (under an open sky the cosine rays alone are exact)."""
     m = EscapeMap(backend)
     step = max(chunk // max(int(rays), 1), 1)
     for a in range(0, len(x), step):
-        o, d, free = _cosine_rays(
-            x[a : a + step], n[a : a + step], backend, eps, rays, seed, keys[a : a + step], stream, far
-        )
+        b = slice(a, a + step)
+        o, d, free = _cosine_rays(x[b], n[b], backend, eps, rays, seed, keys[b], stream, far)
         m.add(np.broadcast_to(o[:, None], d.shape)[free], d[free])
-    return m if m.counts.sum() > 0 else None
+    return m if 0 < m.counts.sum() <= PORTAL_OPEN * len(x) * max(int(rays), 1) else None
 
 
 def _cosine_rays(x, n, backend, eps, rays, seed, keys, stream, far):
@@ -239,8 +240,9 @@ def sky_incident(light, x, n, backend, eps, rays, seed, keys, stream, far, porta
     the integral of the table's radiance over the directions whose ray escapes the scene (a segment
     of length `far` that hits nothing), cos-weighted. `rays` cosine-weighted directions plus
     PORTAL_SHARE x as many aimed at an EscapeMap (portal: one built for a larger set of points,
-    "auto": from these rays, None: cosine rays only), combined by the balance heuristic: each ray
-    weighs L cos / pi / (R p_cos + R_p p_map). -> (N,) float64."""
+    "auto": from these rays where at most PORTAL_OPEN of them escape, None: cosine rays only),
+    combined by the balance heuristic: each ray weighs L cos / pi / (R p_cos + R_p p_map).
+    -> (N,) float64."""
     N = len(x)
     if N == 0:
         return np.zeros(0)
@@ -248,7 +250,7 @@ def sky_incident(light, x, n, backend, eps, rays, seed, keys, stream, far, porta
     o, d, free = _cosine_rays(x, n, backend, eps, R, seed, keys, stream, far)
     L = 1.0 if light.sky is None else lookup(light.sky, d)
     if isinstance(portal, str):
-        ok = free.any()
+        ok = 0 < free.mean() <= PORTAL_OPEN
         portal = EscapeMap(backend).add(np.broadcast_to(o[:, None], d.shape)[free], d[free]) if ok else None
     if portal is None:
         return (free * L).mean(1)
