@@ -28,6 +28,8 @@ RAY_FACTOR = 16  # sky rays per point = RAY_FACTOR x a light's shadow rays: the 
 PORTAL_CELLS = 32  # escape map: cells per side of each face of the scene's box
 PORTAL_SHARE = 0.5  # rays toward the escape map per cosine-weighted sky ray
 PORTAL_OPEN = 0.25  # no escape map where more of the cosine rays escape (an open sky: they find it)
+PILOT_POINTS = 16384  # an escape map is built from the rays of at most this many of the points
+PILOT_STREAM = 9000  # ... with rays of their own: a map made of the rays it weighs biases them
 TABLE_ROWS, TABLE_COLS = 32, 64  # reduced table: 5.6 degrees per cell
 GREY_TOL = 1e-3  # channels equal up to a scale within this: one light, not three
 
@@ -213,14 +215,18 @@ class EscapeMap:
 
 
 def escape_map(x, n, backend, eps, rays, seed, keys, stream, far, chunk=1 << 21):
-    """The EscapeMap of the cosine-weighted sky rays of points x (N, 3), normals n (those
-    sky_incident casts; `chunk` rays at a time), or None where none escapes (a closed scene) or more
-    than PORTAL_OPEN of them do (under an open sky the cosine rays alone are exact)."""
+    """The EscapeMap of cosine-weighted sky rays from points x (N, 3), normals n (at most
+    PILOT_POINTS of them, evenly strided; rays of a stream of their own, independent of those
+    sky_incident weighs with the map; `chunk` rays at a time), or None where none escapes (a
+    closed scene) or more than PORTAL_OPEN of them do (under an open sky the cosine rays alone are
+    exact)."""
+    k = slice(None, None, -(-len(x) // PILOT_POINTS))
+    x, n, keys = x[k], n[k], keys[k]
     m = EscapeMap(backend)
     step = max(chunk // max(int(rays), 1), 1)
     for a in range(0, len(x), step):
         b = slice(a, a + step)
-        o, d, free = _cosine_rays(x[b], n[b], backend, eps, rays, seed, keys[b], stream, far)
+        o, d, free = _cosine_rays(x[b], n[b], backend, eps, rays, seed, keys[b], PILOT_STREAM + stream, far)
         m.add(np.broadcast_to(o[:, None], d.shape)[free], d[free])
     return m if 0 < m.counts.sum() <= PORTAL_OPEN * len(x) * max(int(rays), 1) else None
 
@@ -240,18 +246,17 @@ def sky_incident(light, x, n, backend, eps, rays, seed, keys, stream, far, porta
     the integral of the table's radiance over the directions whose ray escapes the scene (a segment
     of length `far` that hits nothing), cos-weighted. `rays` cosine-weighted directions plus
     PORTAL_SHARE x as many aimed at an EscapeMap (portal: one built for a larger set of points,
-    "auto": from these rays where at most PORTAL_OPEN of them escape, None: cosine rays only),
+    "auto": escape_map of these points, None: cosine rays only),
     combined by the balance heuristic: each ray weighs L cos / pi / (R p_cos + R_p p_map).
     -> (N,) float64."""
     N = len(x)
     if N == 0:
         return np.zeros(0)
     R = max(int(rays), 1)
+    if isinstance(portal, str):
+        portal = escape_map(x, n, backend, eps, R, seed, keys, stream, far)
     o, d, free = _cosine_rays(x, n, backend, eps, R, seed, keys, stream, far)
     L = 1.0 if light.sky is None else lookup(light.sky, d)
-    if isinstance(portal, str):
-        ok = 0 < free.mean() <= PORTAL_OPEN
-        portal = EscapeMap(backend).add(np.broadcast_to(o[:, None], d.shape)[free], d[free]) if ok else None
     if portal is None:
         return (free * L).mean(1)
     from .lights import _uniforms
