@@ -159,58 +159,52 @@ class EscapeMap:
         tri = backend.triangles
         lo, hi = tri.min(axis=(0, 1)), tri.max(axis=(0, 1))
         pad = 1e-3 * max(float(np.max(hi - lo)), 1e-9)  # every surface point strictly inside
-        self.lo, self.hi, self.G = lo - pad, hi + pad, int(cells)
-        self.counts = np.zeros(6 * self.G**2)
+        self.lo, self.hi, G = lo - pad, hi + pad, int(cells)
+        self.G, self.counts = G, np.zeros(6 * G * G)
         size = self.hi - self.lo
-        self.cell_area = np.array([size[(a + 1) % 3] * size[(a + 2) % 3] for a in range(3)]) / self.G**2
+        # each cell's corner and edges (cell = face G^2 + i G + j, i along axis + 1, j along axis + 2)
+        f, i, j = np.unravel_index(np.arange(6 * G * G), (6, G, G))
+        ax = f // 2
+        self.corner = np.where(f[:, None] % 2 == 1, self.hi, self.lo) * (np.arange(3) == ax[:, None])
+        self.e1, self.e2 = np.zeros((2, 6 * G * G, 3))
+        for k, (c, e) in enumerate(((i, self.e1), (j, self.e2))):
+            a = (ax + k + 1) % 3
+            e[np.arange(len(a)), a] = size[a] / G
+            self.corner[np.arange(len(a)), a] = self.lo[a] + c * size[a] / G
+        self.area = np.linalg.norm(np.cross(self.e1, self.e2), axis=1)
 
     def add(self, o, d):
         """Count escaping rays o + t d (unit d) where they leave the box. -> self"""
-        face, cell, _ = self._exit(o, d)
-        self.counts += np.bincount(face * self.G**2 + cell, minlength=len(self.counts))
+        cell, _, _ = self._exit(o, d)
+        self.counts += np.bincount(cell, minlength=len(self.counts))
         self.P = self.counts / max(self.counts.sum(), 1.0)
         self.cdf = np.cumsum(self.P)
+        self.density = self.P / self.area  # per unit area of the box's face
         return self
 
     def _exit(self, o, d):
-        """(face (axis x 2 + positive side), cell on it, distance) where rays o + t d (unit d) leave
-        the box."""
+        """(cell, distance, |d| along the face's normal) where rays o + t d (unit d) leave the box."""
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(d > 0, (self.hi - o) / d, np.where(d < 0, (self.lo - o) / d, np.inf))
         ax = np.argmin(t, -1)
-        tt = np.take_along_axis(t, ax[..., None], -1)[..., 0]
-        p = o + tt[..., None] * d
+        tt = t.min(-1)
         G = self.G
-        size = self.hi - self.lo
-        ij = []
-        for k in (1, 2):
-            a = (ax + k) % 3
-            f = (np.take_along_axis(p, a[..., None], -1)[..., 0] - self.lo[a]) / size[a]
-            ij.append(np.clip((f * G).astype(np.int64), 0, G - 1))
-        dax = np.take_along_axis(d, ax[..., None], -1)[..., 0]
-        return 2 * ax + (dax > 0), ij[0] * G + ij[1], tt
+        ij = np.clip(((o + tt[..., None] * d - self.lo) / (self.hi - self.lo) * G).astype(np.int64), 0, G - 1)
+        i = np.where(ax == 0, ij[..., 1], np.where(ax == 1, ij[..., 2], ij[..., 0]))
+        j = np.where(ax == 0, ij[..., 2], np.where(ax == 1, ij[..., 0], ij[..., 1]))
+        dax = np.where(ax == 0, d[..., 0], np.where(ax == 1, d[..., 1], d[..., 2]))
+        return (2 * ax + (dax > 0)) * G * G + i * G + j, tt, np.abs(dax)
 
     def pdf(self, o, d):
         """Solid-angle density of directions d (unit) from points o under sample()."""
-        face, cell, t = self._exit(o, d)
-        ax = face // 2
-        dax = np.abs(np.take_along_axis(d, ax[..., None], -1)[..., 0])
-        return self.P[face * self.G**2 + cell] / self.cell_area[ax] * t * t / np.maximum(dax, 1e-12)
+        cell, t, dax = self._exit(o, d)
+        return self.density[cell] * t * t / np.maximum(dax, 1e-12)
 
     def sample(self, o, u, v):
         """Unit directions (N, R, 3) from points o (N, 3) to points uniform in cells picked by their
         share; u (N, R, 2) and v (N, R, 2) uniforms."""
-        G = self.G
-        k = np.minimum(np.searchsorted(self.cdf, u[..., 0] * self.cdf[-1], side="right"), 6 * G * G - 1)
-        face, cell = k // (G * G), k % (G * G)
-        ax = face // 2
-        q = np.empty(k.shape + (3,))
-        size = self.hi - self.lo
-        for j, (c, w) in enumerate(((cell // G, v[..., 0]), (cell % G, v[..., 1]))):
-            a = (ax + j + 1) % 3
-            np.put_along_axis(q, a[..., None], (self.lo[a] + (c + w) / G * size[a])[..., None], -1)
-        np.put_along_axis(q, ax[..., None], np.where(face % 2 == 1, self.hi[ax], self.lo[ax])[..., None], -1)
-        d = q - o[:, None]
+        k = np.minimum(np.searchsorted(self.cdf, u[..., 0] * self.cdf[-1], side="right"), len(self.cdf) - 1)
+        d = self.corner[k] + v[..., :1] * self.e1[k] + v[..., 1:] * self.e2[k] - o[:, None]
         return d / np.maximum(np.linalg.norm(d, axis=-1), 1e-300)[..., None]
 
 
