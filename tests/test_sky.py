@@ -75,11 +75,11 @@ def test_a_small_opening_is_found_by_the_escape_map_unbiased_with_less_noise():
     through a small solid angle (view factor 0.02-0.07), which cosine-weighted rays find a few
     times each. With the escape map (sky.EscapeMap: rays aimed at where the escaping rays leave the
     scene's box, mixed with the cosine rays by the balance heuristic) the values stay the exact
-    view factor to the hole on average and closer to it per point. Measured (64 cosine rays per
-    point, + 32 guided; seeds 0-3): rms per point 0.0030-0.0040 guided, 0.0094-0.0101 cosine rays
-    alone; the mean within -0.4 to +1.3% guided, -1.3 to +0.9% alone. The map's pilot rays are a
-    stream of their own: built from the rays it weighs, the mean read 1-2% low (cells no pilot
-    ray found are left to the cosine rays, so the mean stays unbiased)."""
+    view factor to the hole on average and closer to it per point. Measured (64 rays per point:
+    64 cosine rays alone, or 32 + 32 aimed; seeds 0-3): rms per point 0.0037-0.0051 guided,
+    0.0094-0.0101 cosine rays alone; the mean within -1.0 to +0.2% guided, -1.3 to +0.9% alone.
+    The map's pilot rays are a stream of their own: built from the rays it weighs, the mean read
+    1-2% low (cells no pilot ray found are left to the cosine rays: the mean stays unbiased)."""
     corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, H)], float)
     c = np.array([0.5, 0.5, H / 2])
     sb = SceneBuilder()
@@ -99,7 +99,7 @@ def test_a_small_opening_is_found_by_the_escape_map_unbiased_with_less_noise():
         got = sky.sky_incident(L, x, n, s.backend, 1e-6, 64, 0, keys, 0, 10.0, portal)
         assert got.mean() == pytest.approx(want.mean(), rel=0.02), portal
         err[portal] = np.sqrt(np.mean((got - want) ** 2))
-    assert err["auto"] < 0.5 * err[None], err
+    assert err["auto"] < 0.6 * err[None], err
 
 
 def test_open_box_under_a_sky_is_the_box_closed_by_a_lid_of_radiance_L():

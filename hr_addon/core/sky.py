@@ -26,7 +26,7 @@ RAY_FACTOR = 16  # sky rays per point = RAY_FACTOR x a light's shadow rays: the 
 # the gather's 32 shadow rays, 128 sky rays per sample; at 128 x 4 rays the direct light of an open
 # box's floor is 2.7% rms off the exact lid-emitter value per sample, at 512 rays 0.9% (tests/test_sky.py)
 PORTAL_CELLS = 32  # escape map: cells per side of each face of the scene's box
-PORTAL_SHARE = 0.5  # rays toward the escape map per cosine-weighted sky ray
+PORTAL_SHARE = 0.5  # share of a point's sky rays aimed at the escape map (where there is one)
 PORTAL_OPEN = 0.25  # no escape map where more of the cosine rays escape (an open sky: they find it)
 PILOT_POINTS = 16384  # an escape map is built from the rays of at most this many of the points
 PILOT_STREAM = 9000  # ... with rays of their own: a map made of the rays it weighs biases them
@@ -238,24 +238,26 @@ def _cosine_rays(x, n, backend, eps, rays, seed, keys, stream, far):
 def sky_incident(light, x, n, backend, eps, rays, seed, keys, stream, far, portal="auto"):
     """Unit direct light (irradiance / pi) of the sky `light` at points x (N, 3) with unit normals n:
     the integral of the table's radiance over the directions whose ray escapes the scene (a segment
-    of length `far` that hits nothing), cos-weighted. `rays` cosine-weighted directions plus
-    PORTAL_SHARE x as many aimed at an EscapeMap (portal: one built for a larger set of points,
-    "auto": escape_map of these points, None: cosine rays only),
-    combined by the balance heuristic: each ray weighs L cos / pi / (R p_cos + R_p p_map).
-    -> (N,) float64."""
+    of length `far` that hits nothing), cos-weighted, from `rays` rays: cosine-weighted directions,
+    and with an EscapeMap (portal: one built for a larger set of points, "auto": escape_map of
+    these points, None: none) PORTAL_SHARE of them aimed at it instead, combined by the balance
+    heuristic: each ray weighs L cos / pi / (R p_cos + R_p p_map). -> (N,) float64."""
     N = len(x)
     if N == 0:
         return np.zeros(0)
     R = max(int(rays), 1)
     if isinstance(portal, str):
         portal = escape_map(x, n, backend, eps, R, seed, keys, stream, far)
+    Rp = 0 if portal is None or R < 2 else max(int(round(PORTAL_SHARE * R)), 1)
+    if Rp == 0:
+        portal = None
+    R -= Rp
     o, d, free = _cosine_rays(x, n, backend, eps, R, seed, keys, stream, far)
     L = 1.0 if light.sky is None else lookup(light.sky, d)
     if portal is None:
         return (free * L).mean(1)
     from .lights import _uniforms
 
-    Rp = max(int(round(PORTAL_SHARE * R)), 1)
     # the cosine rays: cos / pi / (R cos / pi + Rp p_map) = 1 / (R + Rp pi p_map / cos)
     cos = np.einsum("nrk,nk->nr", d, n)
     i, j = np.nonzero(free)
