@@ -81,20 +81,25 @@ def main():
     ap.add_argument("--ours", default=os.path.join(HERE, "out", "furnished_lights_s14main_ours.npz"))
     ap.add_argument("--ours2", default="")
     ap.add_argument("--var", default="gather_refl")
+    ap.add_argument(
+        "--portal",
+        action="store_true",
+        help="the portal reference's three seeds (the default before: two plain World seeds)",
+    )
     args = ap.parse_args()
     if args.room == "daylight":
         import furnished_lights as FL
         from hr_testing import cycles_lights as CL
 
-        scene, info = CL.daylight_scene("20k")
+        scene, info = CL.daylight_scene("20k", args.portal)
         rs = C.prepare(scene, texel_rel=FL.TEXEL_REL)
-        key = FL.ref_key("20k")
-        refs = [FL.reference(rs, key, 128, s, False)[0] for s in (1, 2)]
+        key = FL.ref_key("20k", args.portal)
+        refs = [FL.reference(rs, key, 128, s, False)[0] for s in ((1, 2, 3) if args.portal else (1, 2))]
     else:
         cfg = CC.SCENES["furnished"]
         rs = C.prepare(CC.open_scene("furnished"), texel_rel=cfg["texel_rel"])
         refs = [CC.cycles_bake(rs, "furnished", 1, cfg["ref_spp"], s)[0] for s in CC.REF_SEEDS[:2]]
-    ref3 = {n: (refs[0][n] + refs[1][n]) / 2 for n in rs.objects}
+    ref3 = {n: sum(r[n] for r in refs) / len(refs) for n in rs.objects}
     ref = {n: v.mean(1) for n, v in ref3.items()}
     runs = [load_ours(args.ours, args.var)] + ([load_ours(args.ours2, args.var)] if args.ours2 else [])
     # our direct light (the daylight run's lights), for its share of each class

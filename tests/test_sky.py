@@ -70,6 +70,38 @@ def test_open_box_floor_sees_the_sky_through_its_view_factor_to_the_opening():
     )
 
 
+def test_a_small_opening_is_found_by_the_escape_map_unbiased_with_less_noise():
+    """The box closed by a lid with a 0.2 x 0.2 m hole in its middle: a floor point sees the sky
+    through a small solid angle (view factor 0.02-0.07), which cosine-weighted rays find a few
+    times each. With the escape map (sky.EscapeMap: rays aimed at where the escaping rays leave the
+    scene's box, mixed with the cosine rays by the balance heuristic) the values stay the exact
+    view factor to the hole on average and closer to it per point. Measured (64 rays per point:
+    64 cosine rays alone, or 32 + 32 aimed; seeds 0-3): rms per point 0.0037-0.0051 guided,
+    0.0094-0.0101 cosine rays alone; the mean within -1.0 to +0.2% guided, -1.3 to +0.9% alone.
+    The map's pilot rays are a stream of their own: built from the rays it weighs, the mean read
+    1-2% low (cells no pilot ray found are left to the cosine rays: the mean stays unbiased)."""
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, H)], float)
+    c = np.array([0.5, 0.5, H / 2])
+    sb = SceneBuilder()
+    for i, f in enumerate([(0, 2, 6, 4), (0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6)]):
+        sb.add_quad(f"face{i}", _orient(corners[list(f)], c), (0.5,) * 3)
+    a, b = 0.4, 0.6  # the hole
+    for i, (x0, x1, y0, y1) in enumerate([(0, 1, 0, a), (0, 1, b, 1), (0, a, a, b), (b, 1, a, b)]):
+        q = np.array([(x0, y0, H), (x1, y0, H), (x1, y1, H), (x0, y1, H)], float)
+        sb.add_quad(f"lid{i}", _orient(q, c), (0.5,) * 3)
+    s = RadiositySystem(sb.build(), RefineParams())
+    x, n = floor_points(400)
+    L = Light("SKY", (1, 1, 1), 1.0)
+    want = np.array([cf.point_to_parallel_rect(px, py, a, b, a, b, H) for px, py, _ in x])
+    keys = np.arange(len(x), dtype=np.uint64)
+    err = {}
+    for portal in ("auto", None):
+        got = sky.sky_incident(L, x, n, s.backend, 1e-6, 64, 0, keys, 0, 10.0, portal)
+        assert got.mean() == pytest.approx(want.mean(), rel=0.02), portal
+        err[portal] = np.sqrt(np.mean((got - want) ** 2))
+    assert err["auto"] < 0.6 * err[None], err
+
+
 def test_open_box_under_a_sky_is_the_box_closed_by_a_lid_of_radiance_L():
     """Inside the box, a uniform sky of radiance L through the opening and a black lid emitting L
     give the same light: direct (the sky's escaping rays against the lid's exact form factor) and

@@ -176,14 +176,15 @@ def _disk_points(c, axis, r, u):
     return c + (rr * np.cos(ph))[..., None] * t[:, None] + (rr * np.sin(ph))[..., None] * b[:, None]
 
 
-def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0, far=None):
+def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0, far=None, portal="auto"):
     """Unit direct light of `light` (per watt, or per W/m^2 for the sun) at surface points x (N, 3)
     with unit normals n, as irradiance / pi (the gather's "incident" unit), shadow rays through
     `backend` (visibility.RayBackend). rays: shadow rays per point for lights with a size (radius,
     sun angle, area); a point light of radius 0 casts one. keys: per-point random keys
     (gather.position_keys), default the point index. far: a sun's shadow ray length, beyond the
     scene but not far beyond it (ray backends' minimum hit distance is relative to the segment;
-    default 1e4 x eps). -> (N,) float64."""
+    default 1e4 x eps). portal: the sky's sky.EscapeMap ("auto": from these points' rays). -> (N,)
+    float64."""
     x = np.asarray(x, np.float64).reshape(-1, 3)
     n = np.asarray(n, np.float64).reshape(-1, 3)
     N = len(x)
@@ -195,7 +196,7 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
         from .sky import RAY_FACTOR, sky_incident
 
         far = float(far or 1e4 * eps)
-        return sky_incident(light, x, n, backend, eps, rays * RAY_FACTOR, seed, keys, stream, far)
+        return sky_incident(light, x, n, backend, eps, rays * RAY_FACTOR, seed, keys, stream, far, portal)
     o = x + eps * n
     if light.kind in ("POINT", "SPOT"):
         d = light.position - x

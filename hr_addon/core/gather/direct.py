@@ -302,6 +302,22 @@ class DirectLight:
                 got = np.zeros(self.n)
                 ok = np.flatnonzero(~self.dark)
                 rays = max(self.shadow_rays // 4, 4)
+                portal = None
+                if L.kind == "SKY":  # where the sky gets in, from all the samples' rays: the same
+                    # guiding rays for a sample in any batching
+                    from ..sky import RAY_FACTOR, escape_map
+
+                    portal = escape_map(
+                        self.points[ok],
+                        self.normals[ok],
+                        self.system.backend,
+                        self.eps,
+                        rays * RAY_FACTOR,
+                        self.seed,
+                        self.keys[ok],
+                        stream,
+                        self.tmax,
+                    )
 
                 def part(a, b):  # the samples' own keys: any batching gives the same rays
                     i = ok[a:b]
@@ -316,6 +332,7 @@ class DirectLight:
                         keys=self.keys[i],
                         stream=stream,
                         far=self.tmax,
+                        portal=portal,
                     )
 
                 batch_map(part, ranges(len(ok), self.batch_rays // rays), self.threads)
