@@ -232,6 +232,29 @@ def test_a_gather_of_few_sources_sums_only_the_runs_they_reach(clutter, monkeypa
             assert np.array_equal(sparse, full)
 
 
+def test_a_grey_gather_is_one_channel_repeated(clutter):
+    """A B whose channels are equal (a shape's emission, AUTO's first bounce: the first step of a
+    response) gathers one channel and repeats it: bit for bit what the channel-by-channel path
+    gives those channels (float64 and float32, sparse and dense, 1 and 2 threads)."""
+    s = clutter
+    h = s.h
+    lf = h.leaves()
+    rng = np.random.default_rng(7)
+    dense = np.zeros(h.n)
+    dense[lf] = rng.random(len(lf))
+    few = np.zeros(h.n)
+    few[lf[:3]] = rng.random(3)
+    for threads in (1, 2):
+        op = Operator(h, s.links, threads)
+        for o in (op, op.float32()):
+            for grey in (dense, few):
+                G = o.gather(o.pull(np.repeat(grey[None], 3, 0)))
+                other = o.pull(np.stack([grey, grey, rng.random(h.n)]))  # not grey: every channel
+                ref = o.gather(other)
+                assert np.count_nonzero(G) > 0
+                assert np.array_equal(G[:2], ref[:2]) and np.array_equal(G[2], ref[0])
+
+
 def test_operators_over_one_link_set_share_its_arrays(clutter, monkeypatch):
     """A light event's new nodes make a new Operator over the same Links (AUTO: every event): it
     takes the link set's intp sources, runs and float32 copies from the one before instead of

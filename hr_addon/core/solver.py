@@ -168,6 +168,10 @@ class Operator:
             f = self._f_base
         tree, off, dt, th = self.tree, self.off, self.dtype, self.threads
         C = B.shape[0]
+        if C > 1 and all(np.array_equal(B[0], B[c]) for c in range(1, C)):
+            # a grey B (a light shape's emission or AUTO's first bounce: the first step of its
+            # response) gathers the same in every channel: one channel's sums, repeated
+            return np.repeat(self.gather(B[:1], base), C, 0)
         # a B with few nonzero nodes (a light shape's emission: the first step of its response)
         # reaches few receivers: those runs only (the same sums, _sum_runs)
         sparse = np.count_nonzero(B) < SPARSE * B.size

@@ -29,6 +29,7 @@ _TRANSIENT = {
         "_loop_weights": None,
         "_shift": None,
         "_loop_parts": dict,
+        "_mean_weights": None,
     },
 }
 _TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]
