@@ -184,11 +184,16 @@ class ClusterTree:
         """power()'s sums of the clusters below the root in group g (a set of orientation classes:
         its own rows of `out`, so the groups may run on threads), with their first moments except
         the classes' (the root sums those first)."""
-        p0, p1, leaf, first, up, _, _, mom = self._groups[g]
+        p0, p1, leaf, first, up, _, _, _ = self._groups[g]
         out[leaf] = np.add.reduceat(self._aYT[:, p0:p1] * L[self.perm[p0:p1]], first, axis=1).T
         for ids, kids in up:
-            out[ids] = out[kids].sum(1)
-        _moments(out, mom, self.centre)
+            s = out[kids[:, 0]]  # the children in order, as sum(1) adds them (the same bits)
+            for j in range(1, kids.shape[1]):
+                s += out[kids[:, j]]
+            out[ids] = s
+        c = self.centre
+        for a, b in self._spans()[g][1]:  # (the moments' clusters: a few runs of ids, per level)
+            out[a:b, 9:] -= (out[a:b, 1:4, None] * c[a:b, None, :]).reshape(-1, 9)
 
     def power_root(self, out):
         """power() after every group's power_group(): the root's sum and the first moments of the
@@ -212,10 +217,12 @@ class ClusterTree:
         """distribute() for the patches of group g: acc (C, SLOTS), scratch whose root row is E's,
         gets its clusters' sums from the root down; its patches' values are added to out (K,)
         (each group its own rows: the groups may run on threads)."""
-        p0, p1, _, _, _, down, own, _ = self._groups[g]
-        acc[own] = E[own]
-        for ids, par in down:
-            acc[ids] += acc[par]
+        p0, p1 = self._groups[g][:2]
+        own, down = self._spans()[g][0], self._spans()[g][2]
+        for a, b in own:
+            acc[a:b] = E[a:b]
+        for (a, b), par in down:
+            acc[a:b] += acc[par]
         a = acc[self._leaf_of_sorted[p0:p1]]
         Y, X = self._Y[p0:p1], self._X[p0:p1]
         out[self.perm[p0:p1]] += np.einsum("kj,kj->k", a[:, :9], Y) + np.einsum(
@@ -285,6 +292,22 @@ class ClusterTree:
         ]
         self._groups = groups  # assigned whole: a thread never sees it half built
 
+    def _spans(self):
+        """Per group of _groups: (its clusters, their moments' clusters, the distribution's level
+        steps (cluster span, parents)) as contiguous spans (a, b) of cluster ids: the clusters of
+        a group's level are one run of ids, so slices instead of fancy indexing (the same values;
+        built on first use, not stored: precompute_graph's _TRANSIENT)."""
+        got = getattr(self, "_group_spans", None)
+        if got is None:
+            got = []
+            for _, _, _, _, _, down, own, mom in self._groups:
+                steps = []
+                for ids, par in down:
+                    steps += [((a, b), par[i : i + b - a]) for a, b, i in _id_runs(ids)]
+                got.append(tuple([x[:2] for x in _id_runs(ids)] for ids in (own, mom)) + (steps,))
+            self._group_spans = got
+        return got
+
     def children(self, c):
         """Children (shared ids) of clusters c: (flat ids, owner index into c)."""
         owner, idx = csr_rows(self.child_start, np.asarray(c, np.int64))
@@ -303,6 +326,15 @@ def _rank_within(groups):
     first = np.r_[True, groups[1:] != groups[:-1]]
     idx = np.arange(len(groups))
     return idx - np.maximum.accumulate(np.where(first, idx, 0))
+
+
+def _id_runs(ids):
+    """[(a, b, i)]: the runs of consecutive values in ids (a, a + 1, ..., b - 1 from position i)."""
+    if not len(ids):
+        return []
+    i = np.r_[0, np.flatnonzero(np.diff(ids) != 1) + 1]
+    n = np.diff(np.r_[i, len(ids)])
+    return [(int(ids[p]), int(ids[p]) + int(k), int(p)) for p, k in zip(i, n)]
 
 
 def _moments(out, ids, centre):

@@ -18,6 +18,7 @@ _TRANSIENT = {
     "Hierarchy": {"_levels": None},
     "Links": {"_csr": None, "_ext": None},
     "Contacts": {"_grid": None, "_seg_cm": None},
+    "ClusterTree": {"_group_spans": None},
     "FinalGather": {
         "_shape_cache": dict,
         "_responses": dict,
