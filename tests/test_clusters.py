@@ -188,7 +188,8 @@ def test_power_and_distribution_by_groups_are_the_sums_over_each_cluster(clutter
 
 def test_the_groups_spans_are_their_cluster_ids(clutter):
     """power_group and distribute_group slice runs of consecutive cluster ids (_spans) where the
-    groups hold index arrays: the spans give back exactly those ids, and the parents in order."""
+    groups hold index arrays: the spans give back exactly those ids, and the parents in order;
+    the gradient terms, written out, are einsum's bit for bit."""
     t = clutter.links.far.tree
     t.groups()
     ids = lambda sp: np.concatenate([np.arange(a, b) for a, b in sp] + [np.zeros(0, np.int64)])
@@ -197,6 +198,10 @@ def test_the_groups_spans_are_their_cluster_ids(clutter):
         assert np.array_equal(ids([ab for ab, _ in steps]), np.concatenate([i for i, _ in down]))
         assert np.array_equal(np.concatenate([p for _, p in steps]), np.concatenate([p for _, p in down]))
         assert len(steps) < 2 * len(down)  # (a level's clusters of a group: about one run)
+    # the distribution's gradient terms written out: einsum's bits
+    g = np.random.default_rng(9).standard_normal((t.K, 9))
+    want = np.einsum("kmj,km,kj->k", g.reshape(-1, 3, 3), t._Y[:, 1:4], t._X)
+    assert np.array_equal(t._gradient_terms(g, 0, t.K), want)
 
 
 def test_reciprocity_and_energy_balance_with_clusters(clutter):
