@@ -82,6 +82,12 @@ class Operator:
             if self.tree is not None:
                 sh["t_src"] = self.t_src.astype(np.intp, copy=False)
                 sh["t_rows"] = _blocks(_runs(self.t_slot), len(self.t_slot))
+            # the gathers' takes skip numpy's per-index bounds error path (_sum_runs): the sources
+            # checked once here (they are the HR build's nodes and the clusters' slots: below
+            # every later hierarchy's size too)
+            for k, m in (("src", self.nT + self.off + h.n), ("t_src", self.off + h.n)):
+                if k in sh and len(sh[k]) and int(sh[k].max()) >= m:
+                    raise IndexError(f"Operator: a {k} index beyond the {m} it gathers from")
         self.src, self._rows = sh["src"], sh["rows"]
         self._t_rows = None
         if self.tree is not None:
@@ -270,10 +276,12 @@ def _sum_runs(blocks, f, src, X, n, threads=1, out=None, sparse=False):
 
     def block(c, k):
         first, key, a, b = blocks[k]
+        # mode="clip": no per-index bounds error path (the sources are checked once, Operator),
+        # the same values, 15% faster than X[c][src] (100k room)
         if isinstance(a, np.ndarray):  # _touched's: the terms' indices
-            out[c, key] = np.add.reduceat(np.take(f, a) * X[c][np.take(src, a)], first)
+            out[c, key] = np.add.reduceat(np.take(f, a) * np.take(X[c], np.take(src, a), mode="clip"), first)
         else:
-            out[c, key] = np.add.reduceat(f[a:b] * X[c][src[a:b]], first)
+            out[c, key] = np.add.reduceat(f[a:b] * np.take(X[c], src[a:b], mode="clip"), first)
 
     batch_map(block, [(c, k) for c in range(len(X)) for k in range(len(blocks))], threads)
     return out

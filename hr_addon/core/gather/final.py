@@ -52,6 +52,10 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
     # channel-major: a 1-d take and reduceat per channel are 2x faster than rows of C with
     # reduceat along axis 0 (100k room, measured), and sum the same products in the same order
     VT = np.ascontiguousarray(V.T, dtype=np.float32)
+    # the takes below skip numpy's per-index bounds error path (mode="clip": 0.125 -> 0.10 s a
+    # read of the 100k room's 17.4 M weights, the same values): checked here once per read
+    if int(cols.max()) >= len(V):
+        raise IndexError(f"_csr_matvec: a column beyond V's {len(V)} rows")
     blocks, r0 = [], 0
     while r0 < n:
         r1 = int(np.searchsorted(indptr, indptr[r0] + chunk, "right")) - 1
@@ -68,7 +72,7 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
             nonempty = np.flatnonzero(indptr[r0 + 1 : r1 + 1] > indptr[r0:r1])
             rows, starts = r0 + nonempty, starts[nonempty]
             for k in range(len(VT)):
-                prod = np.take(VT[k], c)
+                prod = np.take(VT[k], c, mode="clip")
                 prod *= w[a:b]
                 out[rows, k] = np.add.reduceat(prod, starts)
 
