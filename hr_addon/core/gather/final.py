@@ -1021,8 +1021,10 @@ class FinalGather(DirectLight):
             grp = self._tail_groups(len(d1))
             k = grp.max() + 1
             g1, g0 = (np.stack([np.bincount(grp, d[:, c], k) for c in range(3)], 1) for d in (d1, d0))
-            r = np.clip(np.divide(g1, g0, out=np.zeros_like(g1), where=g0 != 0), 0.0, r)[grp]
-        t = d1 * (r / (1 - r))
+            r = np.clip(np.divide(g1, g0, out=np.zeros_like(g1), where=g0 != 0), 0.0, r)
+            t = d1 * np.take(r / (1 - r), grp, 0)  # (per object, then its rows: the same values)
+        else:
+            t = d1 * (r / (1 - r))
         return last[2] + t, float((np.abs(t.sum(0)) / (np.abs(last[2].sum(0)) + 1e-300)).max())
 
     def _tail_share(self, sums):
@@ -1100,7 +1102,7 @@ class FinalGather(DirectLight):
         if not self.near_points or self.second is None:
             return V
         own = np.repeat(self._second_map[0], np.diff(self._second_start))
-        return np.vstack([V[: self.n_hr], V[own]])
+        return np.vstack([V[: self.n_hr], np.take(V, own, 0)])  # (rows by take: 3x faster)
 
     def _read(self, L, cols=None):
         """(n, 3) what the rays read of leaf values L = (means Y, S, slopes along e1 and e2;
