@@ -66,8 +66,7 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
     def block(r0, r1):
         a, b = indptr[r0], indptr[r1]
         if b > a:
-            # once for every channel's take (int32 is converted per call); none for intp columns
-            c = np.asarray(cols[a:b], np.intp)
+            c = cols[a:b].astype(np.intp)  # once for every channel's take (int32 is converted per call)
             starts = indptr[r0:r1] - a
             nonempty = np.flatnonzero(indptr[r0 + 1 : r1 + 1] > indptr[r0:r1])
             rows, starts = r0 + nonempty, starts[nonempty]
@@ -973,14 +972,11 @@ class FinalGather(DirectLight):
         # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
         # direct light): every pass moves the solution one bounce further away
         last, sums, zero = [], [], tail and not V.any()
-        # every pass reads the same columns: converted to intp once (0.014 s a pass on the 100k
-        # room's 14.3 M weights), not once per pass
-        cols = g2.cols.astype(np.intp) if g2.cols is not None else None
         for k in range(self.TAIL_PASSES if zero else 1 + self.iterations):
             if zero and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
                 k -= 1
                 break
-            y = g2.rho * (D2 + g2._read(L, cols))
+            y = g2.rho * (D2 + g2._read(L))
             Y = self._leaf_means(y, V)
             if tail:
                 if zero:  # (from nothing: the leaves without samples too)
@@ -1104,17 +1100,15 @@ class FinalGather(DirectLight):
         own = np.repeat(self._second_map[0], np.diff(self._second_start))
         return np.vstack([V[: self.n_hr], np.take(V, own, 0)])  # (rows by take: 3x faster)
 
-    def _read(self, L, cols=None):
+    def _read(self, L):
         """(n, 3) what the rays read of leaf values L = (means Y, S, slopes along e1 and e2;
         _levels): the means, or with slopes the linear function at the hits (Y - S at the frame's
-        origin; Y may be changed in place after _levels, _light_bounce). cols: self.cols as intp
-        (a caller reading many times)."""
+        origin; Y may be changed in place after _levels, _light_bounce)."""
         Y, S, Gu, Gv = L
-        cols = self.cols if cols is None else cols
         if getattr(self, "wu", None) is None or Gu is None:
-            return _csr_matvec(self.indptr, cols, self.w, Y, threads=self.threads)
+            return _csr_matvec(self.indptr, self.cols, self.w, Y, threads=self.threads)
         return sum(
-            _csr_matvec(self.indptr, cols, w, v, threads=self.threads)
+            _csr_matvec(self.indptr, self.cols, w, v, threads=self.threads)
             for w, v in ((self.w, Y - S), (self.wu, Gu), (self.wv, Gv))
         )
 
