@@ -273,6 +273,31 @@ def test_a_grey_gather_is_one_channel_repeated(clutter):
                 assert np.array_equal(G[:2], ref[:2]) and np.array_equal(G[2], ref[0])
 
 
+def test_gathers_reuse_their_work_arrays(clutter, monkeypatch):
+    """An operator keeps gather()'s work arrays between calls (Operator._work): dense, sparse and
+    dense again, each gathers what a new operator gathers, bit for bit, and a result handed out
+    is the caller's (a later gather leaves it alone)."""
+    s = clutter
+    h = s.h
+    lf = h.leaves()
+    rng = np.random.default_rng(8)
+    dense = np.zeros((3, h.n))
+    dense[:, lf] = rng.random((3, len(lf)))
+    few = np.zeros((3, h.n))
+    few[:, lf[:3]] = rng.random((3, 3))
+    monkeypatch.setattr(SV, "SPARSE", 0.5)  # (a small room: the few leaves take the sparse path)
+    op = Operator(h, s.links)
+    for f32 in (False, True):
+        o = op.float32() if f32 else op
+        fresh = lambda: Operator(h, s.links).float32() if f32 else Operator(h, s.links)  # noqa: E731
+        first = o.gather(o.pull(dense.copy()))
+        kept = first.copy()
+        for B in (few, dense, few, 2 * dense):
+            Bp = o.pull(B.copy())
+            assert np.array_equal(o.gather(Bp), fresh().gather(Bp))
+        assert np.array_equal(first, kept)
+
+
 def test_operators_over_one_link_set_share_its_arrays(clutter, monkeypatch):
     """A light event's new nodes make a new Operator over the same Links (AUTO: every event): it
     takes the link set's intp sources, runs and float32 copies from the one before instead of
