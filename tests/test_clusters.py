@@ -186,14 +186,14 @@ def test_power_and_distribution_by_groups_are_the_sums_over_each_cluster(clutter
         assert D[k] == pytest.approx(want, rel=1e-10)
 
 
-def test_the_groups_spans_are_their_cluster_ids(clutter):
-    """power_group and distribute_group slice runs of consecutive cluster ids (_spans) where the
-    groups hold index arrays: the spans give back exactly those ids, and the parents in order;
+def test_the_groups_runs_are_their_cluster_ids(clutter):
+    """power_group and distribute_group slice runs of consecutive cluster ids (_group_runs) where the
+    groups hold index arrays: the runs give back exactly those ids, and the parents in order;
     the gradient terms, written out, are einsum's bit for bit."""
     t = clutter.links.far.tree
     t.groups()
     ids = lambda sp: np.concatenate([np.arange(a, b) for a, b in sp] + [np.zeros(0, np.int64)])
-    for (_, _, _, _, _, down, own, mom), (o, m, steps) in zip(t._groups, t._spans()):
+    for (_, _, _, _, _, down, own, mom), (o, m, steps) in zip(t._groups, t._group_runs()):
         assert np.array_equal(ids(o), own) and np.array_equal(ids(m), mom)
         assert np.array_equal(ids([ab for ab, _ in steps]), np.concatenate([i for i, _ in down]))
         assert np.array_equal(np.concatenate([p for _, p in steps]), np.concatenate([p for _, p in down]))

@@ -195,7 +195,7 @@ class ClusterTree:
         c = getattr(self, "_centre9", None)  # the centres repeated to the 9 moment slots (not stored)
         if c is None:
             c = self._centre9 = np.tile(self.centre, 3)
-        for a, b in self._spans()[g][1]:  # (the moments' clusters: a few runs of ids, per level)
+        for a, b in self._group_runs()[g][1]:  # (the moments' clusters: a few runs of ids)
             # _moments over rows of 9 (its products and differences, 1.6x faster)
             out[a:b, 9:] -= np.take(out[a:b], _MOMENT_SLOTS, 1) * c[a:b]
 
@@ -222,7 +222,7 @@ class ClusterTree:
         gets its clusters' sums from the root down; its patches' values are added to out (K,)
         (each group its own rows: the groups may run on threads)."""
         p0, p1 = self._groups[g][:2]
-        own, down = self._spans()[g][0], self._spans()[g][2]
+        own, down = self._group_runs()[g][0], self._group_runs()[g][2]
         for a, b in own:
             acc[a:b] = E[a:b]
         for (a, b), par in down:
@@ -310,12 +310,12 @@ class ClusterTree:
         ]
         self._groups = groups  # assigned whole: a thread never sees it half built
 
-    def _spans(self):
+    def _group_runs(self):
         """Per group of _groups: (its clusters, their moments' clusters, the distribution's level
         steps (cluster span, parents)) as contiguous spans (a, b) of cluster ids: the clusters of
         a group's level are one run of ids, so slices instead of fancy indexing (the same values;
         built on first use, not stored: precompute_graph's _TRANSIENT)."""
-        got = getattr(self, "_group_spans", None)
+        got = getattr(self, "_group_runs_", None)
         if got is None:
             got = []
             for _, _, _, _, _, down, own, mom in self._groups:
@@ -323,7 +323,7 @@ class ClusterTree:
                 for ids, par in down:
                     steps += [((a, b), par[i : i + b - a]) for a, b, i in _id_runs(ids)]
                 got.append(tuple([x[:2] for x in _id_runs(ids)] for ids in (own, mom)) + (steps,))
-            self._group_spans = got
+            self._group_runs_ = got
         return got
 
     def children(self, c):

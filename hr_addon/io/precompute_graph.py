@@ -18,7 +18,7 @@ _TRANSIENT = {
     "Hierarchy": {"_levels": None},
     "Links": {"_csr": None, "_ext": None},
     "Contacts": {"_grid": None, "_seg_cm": None},
-    "ClusterTree": {"_group_spans": None, "_grad_rows": None, "_centre9": None},
+    "ClusterTree": {"_group_runs_": None, "_grad_rows": None, "_centre9": None},
     "FinalGather": {
         "_shape_cache": dict,
         "_responses": dict,
