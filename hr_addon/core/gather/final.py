@@ -976,7 +976,9 @@ class FinalGather(DirectLight):
             if zero and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
                 k -= 1
                 break
-            y = g2.rho * (D2 + g2._read(L))
+            y = g2._read(L)  # rho (D2 + read), in place: no (n, 3) temporaries a pass (the same bits)
+            y += D2
+            y *= g2.rho
             Y = self._leaf_means(y, V)
             if tail:
                 if zero:  # (from nothing: the leaves without samples too)
