@@ -186,6 +186,24 @@ def test_power_and_distribution_by_groups_are_the_sums_over_each_cluster(clutter
         assert D[k] == pytest.approx(want, rel=1e-10)
 
 
+def test_the_groups_runs_are_their_cluster_ids(clutter):
+    """power_group and distribute_group slice runs of consecutive cluster ids (_group_runs) where the
+    groups hold index arrays: the runs give back exactly those ids, and the parents in order;
+    the gradient terms, written out, are einsum's bit for bit."""
+    t = clutter.links.far.tree
+    t.groups()
+    ids = lambda sp: np.concatenate([np.arange(a, b) for a, b in sp] + [np.zeros(0, np.int64)])
+    for (_, _, _, _, _, down, own, mom), (o, m, steps) in zip(t._groups, t._group_runs()):
+        assert np.array_equal(ids(o), own) and np.array_equal(ids(m), mom)
+        assert np.array_equal(ids([ab for ab, _ in steps]), np.concatenate([i for i, _ in down]))
+        assert np.array_equal(np.concatenate([p for _, p in steps]), np.concatenate([p for _, p in down]))
+        assert len(steps) < 2 * len(down)  # (a level's clusters of a group: about one run)
+    # the distribution's gradient terms written out: einsum's bits
+    g = np.random.default_rng(9).standard_normal((t.K, 9))
+    want = np.einsum("kmj,km,kj->k", g.reshape(-1, 3, 3), t._Y[:, 1:4], t._X)
+    assert np.array_equal(t._gradient_terms(g, 0, t.K), want)
+
+
 def test_reciprocity_and_energy_balance_with_clusters(clutter):
     """A_i K_ij = A_j K_ji for the operator's kernel between leaves (far links included: the
     gradient terms act on both ends alike), and the solve's energy balance."""
@@ -230,6 +248,54 @@ def test_a_gather_of_few_sources_sums_only_the_runs_they_reach(clutter, monkeypa
             full = o.gather(Bp)
             assert np.count_nonzero(full) > 0.5 * full.size  # the few sources reach most receivers
             assert np.array_equal(sparse, full)
+
+
+def test_a_grey_gather_is_one_channel_repeated(clutter):
+    """A B whose channels are equal (a shape's emission, AUTO's first bounce: the first step of a
+    response) gathers one channel and repeats it: bit for bit what the channel-by-channel path
+    gives those channels (float64 and float32, sparse and dense, 1 and 2 threads)."""
+    s = clutter
+    h = s.h
+    lf = h.leaves()
+    rng = np.random.default_rng(7)
+    dense = np.zeros(h.n)
+    dense[lf] = rng.random(len(lf))
+    few = np.zeros(h.n)
+    few[lf[:3]] = rng.random(3)
+    for threads in (1, 2):
+        op = Operator(h, s.links, threads)
+        for o in (op, op.float32()):
+            for grey in (dense, few):
+                G = o.gather(o.pull(np.repeat(grey[None], 3, 0)))
+                other = o.pull(np.stack([grey, grey, rng.random(h.n)]))  # not grey: every channel
+                ref = o.gather(other)
+                assert np.count_nonzero(G) > 0
+                assert np.array_equal(G[:2], ref[:2]) and np.array_equal(G[2], ref[0])
+
+
+def test_gathers_reuse_their_work_arrays(clutter, monkeypatch):
+    """An operator keeps gather()'s work arrays between calls (Operator._work): dense, sparse and
+    dense again, each gathers what a new operator gathers, bit for bit, and a result handed out
+    is the caller's (a later gather leaves it alone)."""
+    s = clutter
+    h = s.h
+    lf = h.leaves()
+    rng = np.random.default_rng(8)
+    dense = np.zeros((3, h.n))
+    dense[:, lf] = rng.random((3, len(lf)))
+    few = np.zeros((3, h.n))
+    few[:, lf[:3]] = rng.random((3, 3))
+    monkeypatch.setattr(SV, "SPARSE", 0.5)  # (a small room: the few leaves take the sparse path)
+    op = Operator(h, s.links)
+    for f32 in (False, True):
+        o = op.float32() if f32 else op
+        fresh = lambda: Operator(h, s.links).float32() if f32 else Operator(h, s.links)  # noqa: E731
+        first = o.gather(o.pull(dense.copy()))
+        kept = first.copy()
+        for B in (few, dense, few, 2 * dense):
+            Bp = o.pull(B.copy())
+            assert np.array_equal(o.gather(Bp), fresh().gather(Bp))
+        assert np.array_equal(first, kept)
 
 
 def test_operators_over_one_link_set_share_its_arrays(clutter, monkeypatch):

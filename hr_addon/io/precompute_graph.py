@@ -18,6 +18,7 @@ _TRANSIENT = {
     "Hierarchy": {"_levels": None},
     "Links": {"_csr": None, "_ext": None},
     "Contacts": {"_grid": None, "_seg_cm": None},
+    "ClusterTree": {"_group_runs_": None, "_grad_rows": None, "_centre9": None},
     "FinalGather": {
         "_shape_cache": dict,
         "_responses": dict,
@@ -29,6 +30,7 @@ _TRANSIENT = {
         "_loop_weights": None,
         "_shift": None,
         "_loop_parts": dict,
+        "_mean_weights": None,
     },
 }
 _TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]
