@@ -78,12 +78,15 @@ SCENES = {
         frames=[1],
         sweep_frame=1,
         ref_spp=128,
-        sweep=[1, 4, 16, 64],
-        # the timed sweep bakes every object in one call, as a user bakes (a seed per object costs
-        # ~0.5 s CPU per bake call, ~7 min per bake of the room's 850); so the texels at one image
-        # position of all objects share their random numbers, and alike objects' errors (the 678
-        # books) do not pool down: the per-object error's scale comes from per-object seeded bakes,
-        # the reference's two seeds and sweep_po's (equal_object_error)
+        # Blender bakes object by object, a Cycles session each (scene sync, BVH): ~0.45 s CPU per
+        # object at any sample count, 6-7 min per bake of the room. So the sweep is one bake of all
+        # objects in one call (as a user bakes) at 1 spp and one with a seed per object at 64 spp;
+        # the time line is fitted through them and the reference's two bakes (equal_object_error).
+        # In one call the texels at one image position of all objects share their random numbers,
+        # alike objects' errors (the 678 books) do not pool down: the per-object error's scale
+        # comes from the reference's two seeds, checked against sweep_po's
+        sweep=[1],
+        sweep_seeds=(11,),
         sweep_per_object=False,
         sweep_po=[64],
         per_object=True,  # errors as per-object medians over the lit objects (furnished_vs_cycles.py)
@@ -104,7 +107,7 @@ PARAMS = {}  # --params
 GATHER = 0  # --gather: hemisphere rays of the final gather compared alongside (0: off)
 GATHER_LEVELS = 1  # --gather-levels
 GATHER_ITERATIONS = 0  # --gather-iterations
-GATHER_SHADOW_RAYS = 32  # --gather-shadow-rays (the bake's medium setting)
+GATHER_SHADOW_RAYS = 32  # --gather-shadow-rays (the bake's medium setting; 0: the bake's per quality)
 SOLVE = "default"  # --solve: "gather" the bake's solver options with the gather (gather_options),
 # "gather-tol" those with responses solved to response_tol (before response_steps)
 GATHER_AREA = True  # --gather-centres: texels gather at their centres only (before texel_samples)
@@ -246,6 +249,13 @@ def compare(res, ref, sigma_ref, objects):
     return out
 
 
+def shadow_rays_of(quality):
+    """The final gather's shadow rays at `quality`: --gather-shadow-rays, or with 0 the bake's."""
+    from hr_addon.blender.settings import GATHER as BAKE_GATHER
+
+    return GATHER_SHADOW_RAYS or BAKE_GATHER[quality.upper()]["shadow_rays"]
+
+
 def footprint_masks(rs, surface, occluders, band):
     """(inside, near) texel masks of `surface`: texel centres under the vertical (z) projection of
     the occluders (the blocks on the floor, the light under the ceiling) and within `band` of it."""
@@ -380,9 +390,14 @@ def run_scene(name, cfg, results, maps=None):
         if f == cfg.get("sweep_frame"):
             po = cfg.get("sweep_per_object", True)
             for spp in cfg["sweep"]:
-                x, tx, _ = cycles_bake(rs, name, f, spp, SWEEP_SEEDS[0], need_time=True, per_object=po)
-                y, ty, _ = cycles_bake(rs, name, f, spp, SWEEP_SEEDS[1], need_time=True, per_object=po)
-                sig_n, sig_n_mean = C.noise(pooled(x), pooled(y))
+                bakes = [
+                    cycles_bake(rs, name, f, spp, seed, need_time=True, per_object=po)
+                    for seed in cfg.get("sweep_seeds", SWEEP_SEEDS)
+                ]
+                x, y = bakes[0][0], bakes[1][0] if len(bakes) > 1 else None
+                ts = [b[1] for b in bakes]
+                # Cycles' own noise from two seeds (none with one)
+                sig_n, sig_n_mean = C.noise(pooled(x), pooled(y)) if y is not None else (np.nan, np.nan)
                 cmp_ = compare(
                     {n: {"leaf_refl": x[n], "emission": 0 * x[n]} for n in rs.objects},
                     ref,
@@ -393,8 +408,8 @@ def run_scene(name, cfg, results, maps=None):
                     "frame": f,
                     "spp": spp,
                     "per_object_seeds": po,
-                    "seconds": [tx["cpu"], ty["cpu"]],
-                    "wall_seconds": [tx["wall"], ty["wall"]],
+                    "seconds": [t["cpu"] for t in ts],
+                    "wall_seconds": [t["wall"] for t in ts],
                     "noise_rmse": sig_n,
                     "noise_surface_mean": sig_n_mean,
                     "vs_ref": cmp_["all"],
@@ -404,8 +419,8 @@ def run_scene(name, cfg, results, maps=None):
                     sw["objects"] = sweep_objects(cmp_, lit, x, y)
                 out["cycles_sweep"].append(sw)
                 log(
-                    f"[{name}] cycles {spp:4d} spp: {np.mean([tx['cpu'], ty['cpu']]):6.2f} s CPU/bake "
-                    f"({np.mean([tx['wall'], ty['wall']]):.2f} s wall), texel noise {sig_n:.4f}, "
+                    f"[{name}] cycles {spp:4d} spp: {np.mean(sw['seconds']):6.2f} s CPU/bake "
+                    f"({np.mean(sw['wall_seconds']):.2f} s wall), texel noise {sig_n:.4f}, "
                     f"worst surface-mean error vs ref {100 * cmp_['all']['worst_mre']:.2f}%"
                     + (
                         f", per-object median vs ref {100 * sw['objects']['vs_ref']['median']:.2f}%"
@@ -461,6 +476,7 @@ def run_scene(name, cfg, results, maps=None):
             ours = C.Ours(rs, dyn.system, dyn)
             gcache = {}  # the final gather's precompute, once per run (geometry only)
             run = {
+                "gather_shadow_rays": shadow_rays_of(q) if GATHER else None,
                 "quality": q,
                 "method": meth,
                 "build_seconds": t_build,
@@ -485,7 +501,7 @@ def run_scene(name, cfg, results, maps=None):
                         levels=GATHER_LEVELS,
                         iterations=GATHER_ITERATIONS,
                         texel_area=GATHER_AREA,
-                        shadow_rays=GATHER_SHADOW_RAYS,
+                        shadow_rays=shadow_rays_of(q),
                     )
                     for n in rs.objects:
                         res[n].update(gres[n])
@@ -592,6 +608,9 @@ OBJECT_OUTPUTS = {
     "total_gvertex_unburied": ("vertex", "vertex output"),
     "refl_leaf": ("leaf", "leaf values"),
 }
+
+
+OUTPUT_NAME = {o: name for o, name in OBJECT_OUTPUTS.values()}
 
 
 def sweep_objects(cmp_, lit, x=None, y=None):
@@ -828,6 +847,17 @@ def plot_objects(ax, name, r, eqo, date=""):
         marker="D",
         label="Cycles bake (one frame, all objects) against the reference",
     )
+    po = r.get("cycles_sweep_po", [])
+    if po:
+        ax.plot(
+            [s["seconds"] for s in po],
+            [s["objects"]["vs_ref"]["median"] for s in po],
+            "kx",
+            ms=9,
+            label="Cycles bake, a seed per object, against the reference",
+        )
+        sw = sw + po
+        t = np.concatenate([t, [s["seconds"] for s in po]])
     for ti, s in zip(t, sw):
         ax.annotate(
             f"{s['spp']} spp",
@@ -864,8 +894,10 @@ def plot_objects(ax, name, r, eqo, date=""):
             )
     if eqo:
         lines = [
-            f"{x['method']} {x['quality']} {x['output']}: x{x['as_measured']['speedup']:.0f}"
-            f" .. x{x['ref_noise_removed']['speedup']:.0f} ({x['as_measured']['cycles_spp']:.0f}"
+            f"{x['method']} {x['quality']} {OUTPUT_NAME[x['output']]}: x{x['as_measured']['speedup']:.0f}"
+            f"-{x['ref_noise_removed']['speedup']:.0f} (sampling alone "
+            f"x{x['as_measured']['speedup_sampling']:.0f}"
+            f"-{x['ref_noise_removed']['speedup_sampling']:.0f}; {x['as_measured']['cycles_spp']:.0f}"
             f"-{x['ref_noise_removed']['cycles_spp']:.0f} spp)"
             for x in eqo["runs"]
         ]
@@ -1159,15 +1191,23 @@ def equal_object_error(r):
     n_ref = fr0["ref_spp"]
     scale = C.noise_scale(fr0["ref_noise_objects_median"], n_ref)
     sw = r["cycles_sweep"]
-    spp = np.array([s["spp"] for s in sw], float)
-    c, t0 = np.polyfit(spp, [np.mean(s["seconds"]) for s in sw], 1)
+    # every bake of the room in the run: the sweep's, sweep_po's and the reference's (each seed)
+    timed = [(s["spp"], t) for s in sw for t in s["seconds"]]
+    timed += [(s["spp"], s["seconds"]) for s in r.get("cycles_sweep_po", [])]
+    timed += [(r["config"]["ref_spp"], t["cpu"]) for t in fr0["ref_bake_seconds"]]
+    spp = np.array([x[0] for x in timed], float)
+    c, t0 = np.polyfit(spp, [x[1] for x in timed], 1)
     checks = [
         {
             "spp": s["spp"],
-            "bakes": "one call, two seeds",
+            "bakes": f"one call, {len(s['seconds'])} seed(s)",
             "scale_vs_ref": C.noise_scale(s["objects"]["vs_ref"]["median"], s["spp"], n_ref),
-            "scale_pair": C.noise_scale(s["objects"]["pair_noise_median"], s["spp"]),
         }
+        | (
+            {"scale_pair": C.noise_scale(s["objects"]["pair_noise_median"], s["spp"])}
+            if "pair_noise_median" in s["objects"]
+            else {}
+        )
         for s in sw
     ] + [
         {
@@ -1181,7 +1221,7 @@ def equal_object_error(r):
         "scale": scale,
         "ref_spp": n_ref,
         "scale_checks": checks,
-        "fit": {"t0": t0, "seconds_per_spp": c},
+        "fit": {"t0": t0, "seconds_per_spp": c, "bakes": timed},
         "runs": [],
     }
     for run in r["ours"]:
@@ -1199,7 +1239,9 @@ def equal_object_error(r):
                     "cycles_spp": n_eq,
                     "cycles_seconds": t_eq,
                     "speedup": t_eq / max(sec, 1e-9),
-                    "extrapolated": bool(n_eq > spp[-1]),
+                    # Cycles' sampling alone, without the bake's per-object sessions (t0)
+                    "speedup_sampling": c * n_eq / max(sec, 1e-9),
+                    "extrapolated": bool(n_eq > spp.max()),
                 }
             out["runs"].append(row)
     return out
@@ -1248,7 +1290,7 @@ def markdown_objects(name, r, eqo):
         "|---|---|---|---|---|---|",
     ]
     scale = {(c["spp"], c["bakes"]): c for c in eqo["scale_checks"]}
-    for sw, bakes in [(s, "one call, two seeds") for s in r["cycles_sweep"]] + [
+    for sw, bakes in [(s, f"one call, {len(s['seconds'])} seed(s)") for s in r["cycles_sweep"]] + [
         (s, "a seed per object") for s in r.get("cycles_sweep_po", [])
     ]:
         o, c = sw["objects"]["vs_ref"], scale[(sw["spp"], bakes)]
@@ -1261,11 +1303,12 @@ def markdown_objects(name, r, eqo):
     L += [
         "",
         f"Ours per frame (light event + the gathered output's evaluate, CPU s) and Cycles' CPU time at the "
-        f"same median (time {fit['t0']:.1f} s + {fit['seconds_per_spp']:.2f} s/spp fitted to the one-call "
-        "bakes; our error as measured / with the reference's noise removed):\n",
+        f"same median (time {fit['t0']:.1f} s + {fit['seconds_per_spp']:.2f} s/spp fitted to the room's "
+        f"{len(fit['bakes'])} bakes; our error as measured / with the reference's noise removed; x Cycles "
+        "with the whole bake, and with its sampling alone, c spp):\n",
         "| quality | method | output | median | within 5% | per frame "
-        "| Cycles spp | Cycles CPU s | x Cycles |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| Cycles spp | Cycles CPU s | x Cycles | x Cycles' sampling |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for x in eqo["runs"]:
         run = next(u for u in r["ours"] if (u["quality"], u["method"]) == (x["quality"], x["method"]))
@@ -1276,7 +1319,8 @@ def markdown_objects(name, r, eqo):
             f"| {x['quality']} | {x['method']} | {OBJECT_OUTPUTS[var][1]} | {100 * st['median']:.2f}% | "
             f"{100 * st['within_5']:.0f}% | {x['frame_seconds']:.3f} | "
             f"{a['cycles_spp']:.0f} / {b['cycles_spp']:.0f} | {a['cycles_seconds']:.0f} / "
-            f"{b['cycles_seconds']:.0f} | x{a['speedup']:.0f} / x{b['speedup']:.0f} |"
+            f"{b['cycles_seconds']:.0f} | x{a['speedup']:.0f} / x{b['speedup']:.0f} | "
+            f"x{a['speedup_sampling']:.0f} / x{b['speedup_sampling']:.0f} |"
         )
     L.append("")
     return L
@@ -1461,7 +1505,12 @@ def main():
     ap.add_argument(
         "--gather-iterations", type=int, default=0, help="two levels: passes among gather samples"
     )
-    ap.add_argument("--gather-shadow-rays", type=int, default=32, help="shadow rays per sample and emitter")
+    ap.add_argument(
+        "--gather-shadow-rays",
+        type=int,
+        default=32,
+        help="shadow rays per sample and emitter; 0: the bake's per quality (settings.py GATHER)",
+    )
     ap.add_argument(
         "--gather-centres", action="store_true", help="texels gather at their centres only (no texel area)"
     )
