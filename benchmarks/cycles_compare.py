@@ -78,11 +78,10 @@ SCENES = {
         frames=[1],
         sweep_frame=1,
         ref_spp=128,
-        # Blender bakes object by object, a Cycles session each (scene sync, BVH): ~0.45 s CPU per
-        # object at any sample count, 6-7 min per bake of the room. So the sweep is one bake of all
-        # objects in one call (as a user bakes) at 1 and 64 spp and one with a seed per object at
-        # 64 spp; the time line is fitted through them and the reference's two bakes
-        # (equal_object_error).
+        # Blender bakes object by object, a Cycles session each (scene sync, BVH): ~0.43 s CPU per
+        # object at any sample count, 6-8 min per bake of the room. So the sweep is one bake of all
+        # objects in one call (as a user bakes) at 1 and 64 spp, its time line fitted through them
+        # (equal_object_error), and one with a seed per object at 64 spp.
         # In one call the texels at one image position of all objects share their random numbers,
         # alike objects' errors (the 678 books) do not pool down: the per-object error's scale
         # comes from the reference's two seeds, checked against sweep_po's
@@ -391,6 +390,16 @@ def run_scene(name, cfg, results, maps=None):
         )
         if f == cfg.get("sweep_frame"):
             po = cfg.get("sweep_per_object", True)
+
+            def vs_ref(x):
+                """A sweep bake's metrics against the reference."""
+                return compare(
+                    {n: {"leaf_refl": x[n], "emission": 0 * x[n]} for n in rs.objects},
+                    ref,
+                    fr["ref_sigma"],
+                    rs.objects,
+                )["refl_leaf"]
+
             for spp in cfg["sweep"]:
                 bakes = [
                     cycles_bake(rs, name, f, spp, seed, need_time=True, per_object=po)
@@ -400,12 +409,7 @@ def run_scene(name, cfg, results, maps=None):
                 ts = [b[1] for b in bakes]
                 # Cycles' own noise from two seeds (none with one)
                 sig_n, sig_n_mean = C.noise(pooled(x), pooled(y)) if y is not None else (np.nan, np.nan)
-                cmp_ = compare(
-                    {n: {"leaf_refl": x[n], "emission": 0 * x[n]} for n in rs.objects},
-                    ref,
-                    fr["ref_sigma"],
-                    rs.objects,
-                )["refl_leaf"]
+                cmp_ = vs_ref(x)
                 sw = {
                     "frame": f,
                     "spp": spp,
@@ -434,12 +438,7 @@ def run_scene(name, cfg, results, maps=None):
             out["cycles_sweep_po"] = []
             for spp in cfg.get("sweep_po", []):
                 x, tx, _ = cycles_bake(rs, name, f, spp, SWEEP_SEEDS[0], need_time=True, per_object=True)
-                cmp_ = compare(
-                    {n: {"leaf_refl": x[n], "emission": 0 * x[n]} for n in rs.objects},
-                    ref,
-                    fr["ref_sigma"],
-                    rs.objects,
-                )["refl_leaf"]
+                cmp_ = vs_ref(x)
                 sw = {"frame": f, "spp": spp, "seconds": tx["cpu"], "wall_seconds": tx["wall"]}
                 sw["objects"] = sweep_objects(cmp_, lit)
                 out["cycles_sweep_po"].append(sw)
