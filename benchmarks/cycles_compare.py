@@ -76,9 +76,22 @@ SCENES = {
     # the ~20k-triangle furnished room (850 objects): per-object means, clusters at work
     "furnished": dict(
         frames=[1],
-        sweep_frame=None,
+        sweep_frame=1,
         ref_spp=128,
-        sweep=[],
+        # Blender bakes object by object, a Cycles session each (scene sync, BVH): ~0.43 s CPU per
+        # object at any sample count, 6-8 min per bake of the room. So the sweep is one bake of all
+        # objects in one call (as a user bakes) at 1 and 64 spp, its time line fitted through them
+        # (equal_object_error), and one with a seed per object at 64 spp.
+        # In one call the texels at one image position of all objects share their random numbers,
+        # alike objects' errors (the 678 books) do not pool down: the per-object error's scale
+        # comes from the reference's two seeds, checked against sweep_po's
+        sweep=[1, 64],
+        sweep_seeds=(11,),
+        sweep_per_object=False,
+        sweep_po=[64],
+        per_object=True,  # errors as per-object medians over the lit objects (furnished_vs_cycles.py)
+        unburied=True,  # the vertex output also over the texels a camera sees (unburied.py)
+        light_event=True,  # frame 1 has no light shape: a window's events time a frame (light_event)
         qualities=["draft", "medium"],
         methods=["FE", "AUTO"],
         texel_rel=1 / 150,
@@ -95,7 +108,7 @@ PARAMS = {}  # --params
 GATHER = 0  # --gather: hemisphere rays of the final gather compared alongside (0: off)
 GATHER_LEVELS = 1  # --gather-levels
 GATHER_ITERATIONS = 0  # --gather-iterations
-GATHER_SHADOW_RAYS = 32  # --gather-shadow-rays (the bake's medium setting)
+GATHER_SHADOW_RAYS = 32  # --gather-shadow-rays (the bake's medium setting; 0: the bake's per quality)
 SOLVE = "default"  # --solve: "gather" the bake's solver options with the gather (gather_options),
 # "gather-tol" those with responses solved to response_tol (before response_steps)
 GATHER_AREA = True  # --gather-centres: texels gather at their centres only (before texel_samples)
@@ -156,25 +169,26 @@ USE_CACHE = True
 PER_OBJECT_SEEDS = True
 
 
-def ref_path(rs, scene, frame, spp, seed):
+def ref_path(rs, scene, frame, spp, seed, per_object=None):
     """The cached reference's file."""
-    po = "_po" if PER_OBJECT_SEEDS else ""
+    po = "_po" if (PER_OBJECT_SEEDS if per_object is None else per_object) else ""
     return os.path.join(CACHE, f"{scene}_f{frame}_s{spp}_seed{seed}{po}_{_atlas_key(rs)}.npz")
 
 
-def cycles_bake(rs, scene, frame, spp, seed, need_time=False):
+def cycles_bake(rs, scene, frame, spp, seed, need_time=False, per_object=None):
     """Reflected radiance per texel {name: (N, 3)}, bake times {wall, cpu}, cached flag. Cached
     bakes are reused (values only matter for references); need_time re-bakes cached bakes that
-    have no CPU time."""
+    have no CPU time. per_object: a seed per object (one bake call each), None: PER_OBJECT_SEEDS."""
     from hr_testing import cycles_ref as C
 
-    path = ref_path(rs, scene, frame, spp, seed)
+    per_object = PER_OBJECT_SEEDS if per_object is None else per_object
+    path = ref_path(rs, scene, frame, spp, seed, per_object)
     if USE_CACHE and os.path.exists(path):
         z = np.load(path)
         if not need_time or "__cpu" in z:
             t = {"wall": float(z["__seconds"]), "cpu": float(z["__cpu"]) if "__cpu" in z else float("nan")}
             return {n: z[n].astype(np.float64) for n in rs.objects}, t, True
-    vals, dt, mask = C.bake(rs, spp, seed, seed_per_object=PER_OBJECT_SEEDS)
+    vals, dt, mask = C.bake(rs, spp, seed, seed_per_object=per_object)
     bad = {n: int((~m).sum()) for n, m in mask.items() if (~m).any()}
     if bad:
         log(f"  warning: texels not written by the bake: {bad}")
@@ -234,6 +248,13 @@ def compare(res, ref, sigma_ref, objects):
         pa["mean_mre"] = float(np.mean([per[n]["mre"] for n in per]))
         out[var] = {"all": pa, "surfaces": per}
     return out
+
+
+def shadow_rays_of(quality):
+    """The final gather's shadow rays at `quality`: --gather-shadow-rays, or with 0 the bake's."""
+    from hr_addon.blender.settings import GATHER as BAKE_GATHER
+
+    return GATHER_SHADOW_RAYS or BAKE_GATHER[quality.upper()]["shadow_rays"]
 
 
 def footprint_masks(rs, surface, occluders, band):
@@ -325,6 +346,7 @@ def run_scene(name, cfg, results, maps=None):
         "ours": [],
     }
     shapes_at, refs, seeds_of, regions = {}, {}, {}, {}
+    per_obj = cfg.get("per_object", False)
     # Cycles: reference per frame, sweep on one frame
     for f in cfg["frames"]:
         shapes_at[f] = C.shape_proxies(rs, f)
@@ -346,6 +368,14 @@ def run_scene(name, cfg, results, maps=None):
         }
         for n in rs.objects:
             fr["ref_sigma_surface_mean"][n] = C.noise(a[n], b[n])[1] / np.sqrt(2)
+        if per_obj:
+            out["lit"] = lit = C.lit_objects(ref)
+            # the error of the reference's per-object mean: the two seeds' difference (independent)
+            fr["ref_noise_objects_median"] = float(np.median([fr["ref_sigma_surface_mean"][n] for n in lit]))
+            log(
+                f"[{name}] frame {f}: {len(lit)} lit objects, median noise of the reference's object "
+                f"means {100 * fr['ref_noise_objects_median']:.2f}%"
+            )
         out["frames"][str(f)] = fr
         rev = [k for k, ok in fr["shape_faces_its_surface"].items() if not ok]
         if rev:
@@ -359,34 +389,71 @@ def run_scene(name, cfg, results, maps=None):
             f"texel noise of the reference {fr['ref_sigma']:.4f}, shapes {len(shapes_at[f])}"
         )
         if f == cfg.get("sweep_frame"):
-            for spp in cfg["sweep"]:
-                x, tx, _ = cycles_bake(rs, name, f, spp, SWEEP_SEEDS[0], need_time=True)
-                y, ty, _ = cycles_bake(rs, name, f, spp, SWEEP_SEEDS[1], need_time=True)
-                sig_n, sig_n_mean = C.noise(pooled(x), pooled(y))
-                cmp_ = compare(
+            po = cfg.get("sweep_per_object", True)
+
+            def vs_ref(x):
+                """A sweep bake's metrics against the reference."""
+                return compare(
                     {n: {"leaf_refl": x[n], "emission": 0 * x[n]} for n in rs.objects},
                     ref,
                     fr["ref_sigma"],
                     rs.objects,
                 )["refl_leaf"]
-                out["cycles_sweep"].append(
-                    {
-                        "frame": f,
-                        "spp": spp,
-                        "seconds": [tx["cpu"], ty["cpu"]],
-                        "wall_seconds": [tx["wall"], ty["wall"]],
-                        "noise_rmse": sig_n,
-                        "noise_surface_mean": sig_n_mean,
-                        "vs_ref": cmp_["all"],
-                        "vs_ref_surfaces": {n: cmp_["surfaces"][n]["mre"] for n in rs.objects},
-                    }
-                )
+
+            for spp in cfg["sweep"]:
+                bakes = [
+                    cycles_bake(rs, name, f, spp, seed, need_time=True, per_object=po)
+                    for seed in cfg.get("sweep_seeds", SWEEP_SEEDS)
+                ]
+                x, y = bakes[0][0], bakes[1][0] if len(bakes) > 1 else None
+                ts = [b[1] for b in bakes]
+                # Cycles' own noise from two seeds (none with one)
+                sig_n, sig_n_mean = C.noise(pooled(x), pooled(y)) if y is not None else (np.nan, np.nan)
+                cmp_ = vs_ref(x)
+                sw = {
+                    "frame": f,
+                    "spp": spp,
+                    "per_object_seeds": po,
+                    "seconds": [t["cpu"] for t in ts],
+                    "wall_seconds": [t["wall"] for t in ts],
+                    "noise_rmse": sig_n,
+                    "noise_surface_mean": sig_n_mean,
+                    "vs_ref": cmp_["all"],
+                    "vs_ref_surfaces": {n: m["mre"] for n, m in cmp_["surfaces"].items()},
+                }
+                if per_obj:
+                    sw["objects"] = sweep_objects(cmp_, lit, x, y)
+                out["cycles_sweep"].append(sw)
                 log(
-                    f"[{name}] cycles {spp:4d} spp: {np.mean([tx['cpu'], ty['cpu']]):6.2f} s CPU/bake "
-                    f"({np.mean([tx['wall'], ty['wall']]):.2f} s wall), texel noise {sig_n:.4f}, "
+                    f"[{name}] cycles {spp:4d} spp: {np.mean(sw['seconds']):6.2f} s CPU/bake "
+                    f"({np.mean(sw['wall_seconds']):.2f} s wall), texel noise {sig_n:.4f}, "
                     f"worst surface-mean error vs ref {100 * cmp_['all']['worst_mre']:.2f}%"
+                    + (
+                        f", per-object median vs ref {100 * sw['objects']['vs_ref']['median']:.2f}%"
+                        if per_obj
+                        else ""
+                    )
+                )
+            # per-object seeded bakes at these counts, one seed: per-object errors independent
+            out["cycles_sweep_po"] = []
+            for spp in cfg.get("sweep_po", []):
+                x, tx, _ = cycles_bake(rs, name, f, spp, SWEEP_SEEDS[0], need_time=True, per_object=True)
+                cmp_ = vs_ref(x)
+                sw = {"frame": f, "spp": spp, "seconds": tx["cpu"], "wall_seconds": tx["wall"]}
+                sw["objects"] = sweep_objects(cmp_, lit)
+                out["cycles_sweep_po"].append(sw)
+                log(
+                    f"[{name}] cycles {spp:4d} spp, a seed per object: {tx['cpu']:.1f} s CPU, "
+                    f"per-object median vs ref {100 * sw['objects']['vs_ref']['median']:.2f}%"
                 )
     # ours
+    unburied = None
+    if cfg.get("unburied") and GATHER:
+        from unburied import unburied_texels
+
+        c0 = time.process_time()
+        unburied = unburied_texels(rs, 5e-5 * rs.diag)
+        log(f"[{name}] unburied texels: {time.process_time() - c0:.1f} s CPU")
     for q in cfg["qualities"]:
         t0 = time.process_time()
         # the bake with the final gather on builds RefineParams.for_gather's links and solves to
@@ -410,6 +477,7 @@ def run_scene(name, cfg, results, maps=None):
             ours = C.Ours(rs, dyn.system, dyn)
             gcache = {}  # the final gather's precompute, once per run (geometry only)
             run = {
+                "gather_shadow_rays": shadow_rays_of(q) if GATHER else None,
                 "quality": q,
                 "method": meth,
                 "build_seconds": t_build,
@@ -434,11 +502,23 @@ def run_scene(name, cfg, results, maps=None):
                         levels=GATHER_LEVELS,
                         iterations=GATHER_ITERATIONS,
                         texel_area=GATHER_AREA,
-                        shadow_rays=GATHER_SHADOW_RAYS,
+                        shadow_rays=shadow_rays_of(q),
                     )
                     for n in rs.objects:
                         res[n].update(gres[n])
                 cmp_ = compare(res, refs[f], out["frames"][str(f)]["ref_sigma"], rs.objects)
+                if unburied is not None:  # the vertex outputs over the texels a camera sees
+                    ub = {
+                        n: {
+                            k: np.where(unburied[n][:, None], res[n][k], np.nan)
+                            for k in ("vertex_total", "gvertex_total")
+                            if k in res[n]
+                        }
+                        | {"emission": res[n]["emission"]}
+                        for n in rs.objects
+                    }
+                    for var, m in compare(ub, refs[f], 0.0, rs.objects).items():
+                        cmp_[var + "_unburied"] = m
                 ev = {
                     "seconds": cpu,
                     "wall_seconds": fr.seconds,
@@ -451,6 +531,10 @@ def run_scene(name, cfg, results, maps=None):
                 }
                 if gcost is not None:
                     ev["gather_cost"] = gcost
+                if per_obj:
+                    ev["objects"] = {
+                        var: C.object_summary(m["surfaces"], out["lit"]) for var, m in cmp_.items()
+                    }
                 if (meth == "AUTO" or GATHER) and name in CONTACTS:
                     ev["contacts"] = contact_metrics(rs, res, refs[f], name)
                 if GATHER and name in SHADOWS:
@@ -482,6 +566,15 @@ def run_scene(name, cfg, results, maps=None):
                     f"(ref-noise corrected {a['rmse_corrected']:.4f}), "
                     f"p95 {a['p95']:.4f}"
                 )
+                if per_obj:
+                    for var in OBJECT_OUTPUTS:
+                        if var in ev["objects"]:
+                            x = ev["objects"][var]
+                            log(
+                                f"      {var}: {x['objects']} lit objects, median "
+                                f"{100 * x['median']:.2f}%, within 5% {100 * x['within_5']:.0f}%, "
+                                f"pooled bias {100 * x['pooled_bias']:+.2f}%"
+                            )
                 for var in ("refl_gather", "total_gvertex", "total_vertex"):
                     if GATHER and var in cmp_:
                         g = cmp_[var]["all"]
@@ -503,10 +596,45 @@ def run_scene(name, cfg, results, maps=None):
                                     f"leaf bias {100 * x['bias']:+.1f}%, "
                                     f"gather bias {100 * gb:+.1f}%, gather RMSE {gr:.4f}"
                                 )
+            if GATHER and cfg.get("light_event"):
+                try:
+                    ev["light_event"] = x = light_event(dyn, gcache)
+                    log(
+                        f"[{name}/{q}/{meth}] a window after frame {f}: add {x['add_s']:.3f} s + texels "
+                        f"{x['add_texel_first_s']:.3f} s; move {x['move_s']:.3f} s + corners "
+                        f"{x['move_loop_first_s']:.3f} s CPU"
+                    )
+                except Exception:  # the accuracy figures above are still written
+                    import traceback
+
+                    traceback.print_exc()
             out["ours"].append(run)
         del base
     results[name] = out
     return rs
+
+
+# the per-object measure's outputs: texture output (the gather at texels), vertex output (the
+# gather at the corners, over the texels a camera sees), and the leaves
+OBJECT_OUTPUTS = {
+    "refl_gather": ("gather", "texture output"),
+    "total_gvertex_unburied": ("vertex", "vertex output"),
+    "refl_leaf": ("leaf", "leaf values"),
+}
+
+
+OUTPUT_NAME = {o: name for o, name in OBJECT_OUTPUTS.values()}
+
+
+def sweep_objects(cmp_, lit, x=None, y=None):
+    """A sweep bake's per-object errors over the lit objects: against the reference (its noise
+    included), and with a second seed y the two seeds' own per-object noise (no reference)."""
+    from hr_testing import cycles_ref as C
+
+    out = {"vs_ref": C.object_summary(cmp_["surfaces"], lit)}
+    if y is not None:
+        out["pair_noise_median"] = float(np.median([C.noise(x[n], y[n])[1] for n in lit]))
+    return out
 
 
 CONTACTS = {"cornell": [("floor", ("short_block", "tall_block")), ("ceiling", ("light",))]}
@@ -698,13 +826,56 @@ COL = {"draft": "#9ecae1", "medium": "#3182bd", "high": "#08306b"}
 MCOL = {"NAIVE": "tab:red", "AR": "tab:green", "FE": "tab:blue", "AUTO": "tab:purple"}
 
 
+def light_event(dyn, gcache):
+    """CPU seconds of two light events on the furnished room after its frames (no shape there: the
+    room's own light): a window appears on the west wall (bench_gather_events.py's), the texel
+    gather's first evaluate, then the corners' (second: the new shape's responses are computed
+    already); the window moves, the corners' evaluate first, then the texels'. Each output's
+    per-frame cost: an event and its first evaluate."""
+    from hr_addon.core.events import LightShape
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+
+    _, frame = furnished_room("20k")[1]["light_wall"]
+
+    def window(cx):
+        rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)
+        return LightShape(rect, np.full(3, 20.0), "window")
+
+    tex, loops = gcache["texel"], gcache["loops"]
+    out, cpu = {}, time.process_time
+    for step, cx, first in (("add", 0.7, "texel"), ("move", 1.2, "loop")):
+        c0 = cpu()
+        dyn.apply({"w": window(cx)})
+        c1 = cpu()
+        evals = {"texel": lambda: tex.evaluate(dyn, "reflected"), "loop": lambda: loops.loop_radiance(dyn)}
+        evals.pop(first)()
+        c2 = cpu()
+        (second,) = evals
+        evals[second]()
+        out[f"{step}_s"] = c1 - c0
+        out[f"{step}_{first}_first_s"] = c2 - c1
+        out[f"{step}_{second}_second_s"] = cpu() - c2
+    return out
+
+
 def frame_cost(fr, output):
     """CPU seconds of one frame: the light event (DynamicRadiosity.apply), plus for the final gather
-    its first evaluate of the frame (new shapes' direct light and responses, the weighted sum)."""
+    its first evaluate of the frame (new shapes' direct light and responses, the weighted sum);
+    "vertex": the gather at the mesh's corners instead (its evaluate came after the texels' in the
+    same frame: what that one computed for the new shapes and kept on the system is not in it).
+    With a light_event (a frame with no shape of its own): its window's events instead."""
+    le = fr.get("light_event")
+    if le and output == "gather":
+        return le["add_s"] + le["add_texel_first_s"]
+    if le and output == "vertex":
+        return le["move_s"] + le["move_loop_first_s"]
     t = fr["seconds"]
+    g = fr.get("gather_cost", {})
     if output == "gather":
-        g = fr.get("gather_cost", {})
         t += g.get("texel_evaluate_first_s", g.get("texel_evaluate_s", 0.0))
+    elif output == "vertex":
+        t += g["loop_evaluate_s"]
     return t
 
 
@@ -714,7 +885,105 @@ def build_cost(run, fr_all):
     return run["build_seconds"] + run.get("init_seconds", 0.0), pre
 
 
-def plot(results, path=CHART, eq=None, date=""):
+def plot_objects(ax, name, r, eqo, date=""):
+    """A scene measured per object (the furnished room): its per-object median error against CPU
+    seconds per frame, Cycles' sweep beside ours, and the ratios at equal error."""
+    f = str(r["config"]["sweep_frame"])
+    n_ref = r["frames"][f]["ref_spp"]
+    sw = r["cycles_sweep"]
+    t = np.array([np.mean(s["seconds"]) for s in sw])
+    ax.plot(
+        t,
+        [s["objects"]["vs_ref"]["median"] for s in sw],
+        "k-",
+        marker="D",
+        label="Cycles bake (one frame, all objects) against the reference",
+    )
+    po = r.get("cycles_sweep_po", [])
+    if po:
+        ax.plot(
+            [s["seconds"] for s in po],
+            [s["objects"]["vs_ref"]["median"] for s in po],
+            "kx",
+            ms=9,
+            label="Cycles bake, a seed per object, against the reference",
+        )
+        sw = sw + po
+        t = np.concatenate([t, [s["seconds"] for s in po]])
+    for ti, s in zip(t, sw):
+        ax.annotate(
+            f"{s['spp']} spp",
+            (ti, s["objects"]["vs_ref"]["median"]),
+            textcoords="offset points",
+            xytext=(5, 4),
+            fontsize=8,
+        )
+    if eqo:
+        # Cycles against the truth: the reference's two seeds' scale at 1/sqrt(spp), its time fitted
+        n = np.geomspace(1, 1024, 40)
+        fit = eqo["fit"]
+        ax.plot(
+            max(fit["t0"], 0.0) + fit["seconds_per_spp"] * n,
+            eqo["scale"] / np.sqrt(n),
+            "k:",
+            label=f"Cycles against the truth: {100 * eqo['scale']:.1f}% / sqrt(spp) "
+            f"(the {n_ref}-spp reference's two seeds)",
+        )
+    for run in r["ours"]:
+        fr = run["frames"][f]
+        for var, (output, lab) in OBJECT_OUTPUTS.items():
+            if output == "leaf" or var not in fr.get("objects", {}):
+                continue
+            ax.plot(
+                [frame_cost(fr, output)],
+                [fr["objects"][var]["median"]],
+                MARK[run["method"]],
+                color=MCOL[run["method"]],
+                mfc=MCOL[run["method"]] if output == "gather" else "none",
+                ms=9,
+                mew=1.5,
+                label=f"{run['method']} {run['quality']}: {lab}" if run["quality"] == "draft" else None,
+            )
+    if eqo:
+        lines = [
+            f"{x['method']} {x['quality']} {OUTPUT_NAME[x['output']]}: x{x['as_measured']['speedup']:.0f}"
+            f"-{x['ref_noise_removed']['speedup']:.0f} (sampling alone "
+            f"x{x['as_measured']['speedup_sampling']:.2g}"
+            f"-{x['ref_noise_removed']['speedup_sampling']:.2g}; {x['as_measured']['cycles_spp']:.0f}"
+            f"-{x['ref_noise_removed']['cycles_spp']:.0f} spp)"
+            for x in eqo["runs"]
+        ]
+        # top centre: ours sit at the left, Cycles' bakes (their per-object sessions) at the right
+        ax.text(
+            0.5,
+            0.98,
+            "per frame, faster than Cycles at equal\nper-object median error (target x100):\n"
+            + "\n".join(lines),
+            transform=ax.transAxes,
+            ha="center",
+            va="top",
+            fontsize=7.5,
+            bbox=dict(boxstyle="round", fc="w", ec="0.7"),
+        )
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.margins(x=0.1, y=0.1)
+    from plot_events import label_log_axis
+    from matplotlib.ticker import FuncFormatter
+
+    label_log_axis(ax.xaxis)
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{100 * v:g}%"))
+    ax.set_xlabel("CPU seconds per frame: ours = light event + final gather; Cycles = one bake")
+    ax.set_ylabel(f"median over {len(r['lit'])} lit objects of the object mean's error vs Cycles")
+    ax.set_title(
+        f"{name} room, {r['texels']} texels, frame {f}, against {n_ref} spp" + (f" ({date})" if date else ""),
+        fontsize=9,
+    )
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="lower left")
+
+
+def plot(results, path=CHART, eq=None, date="", eqo=None, dates=None):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -726,7 +995,10 @@ def plot(results, path=CHART, eq=None, date=""):
     r = results["cornell"]
     f = str(r["config"]["sweep_frame"])
     eqr = {(x["quality"], x["method"], x.get("output", "leaf")): x for x in (eq or {}).get("runs", [])}
-    fig, axes = plt.subplots(1, 2, figsize=(13, 6.2))
+    objs = [n for n in (eqo or {}) if n in results and n != "cornell"]
+    fig, axes = plt.subplots(1, 2 + len(objs), figsize=(13 + 6.5 * len(objs), 6.2 + 0.6 * len(objs)))
+    for ax, n in zip(axes[2:], objs):
+        plot_objects(ax, n, results[n], eqo[n], (dates or {}).get(n, date))
     for ax, metric, label in (
         (axes[0], "worst_mre", "per-surface error: worst surface's mean radiance vs Cycles"),
         (axes[1], "rmse", "texel RMSE of reflected radiance (reference noise removed)"),
@@ -816,7 +1088,8 @@ def plot(results, path=CHART, eq=None, date=""):
         else ""
     )
     fig.suptitle(
-        f"Cornell sample, medium quality, frame {f} (the back-wall shape appears; the window is on): "
+        ("Left two panels: " if objs else "")
+        + f"Cornell sample, medium quality, frame {f} (the back-wall shape appears; the window is on): "
         f"error against a {r['frames'][f]['ref_spp']}-spp Cycles bake, {r['texels']} texels of "
         f"{1000 * r['texel_m']:.0f} mm"
         + (f"; measured {date}" if date else "")
@@ -824,7 +1097,15 @@ def plot(results, path=CHART, eq=None, date=""):
         + gtxt
         + build_txt
         + ".\nxN = Cycles CPU time at equal error / ours per frame (Cycles' error interpolated between its "
-        "sample counts, 1/sqrt(spp) beyond 256 spp); CPU seconds of one process each, same run",
+        "sample counts, 1/sqrt(spp) beyond 256 spp); CPU seconds of one process each, same run"
+        + (
+            ".\nRight: "
+            + ", ".join(objs)
+            + " room, draft, its own run: a frame = a window's event + the output's first evaluate; "
+            "Blender bakes a Cycles session per object, so Cycles' time hardly moves with its samples"
+            if objs
+            else ""
+        ),
         fontsize=9,
     )
     fig.tight_layout(rect=(0, 0.1, 1, 0.89))
@@ -946,6 +1227,106 @@ def equal_error(results):
     return out
 
 
+def slim(results):
+    """Scenes measured per object (849 objects) keep each object's error and bias of the outputs
+    OBJECT_OUTPUTS names only, not every variant's full metrics: the JSON stays small."""
+    for r in results.values():
+        if not r["config"].get("per_object"):
+            continue
+        for run in r["ours"]:
+            for fr in run["frames"].values():
+                for var, m in fr["metrics"].items():
+                    sur = m.pop("surfaces", None)
+                    if var in OBJECT_OUTPUTS and sur:
+                        m["objects"] = {
+                            n: {k: x[k] for k in ("mre", "bias", "texels")} for n, x in sur.items()
+                        }
+    return results
+
+
+def equal_object_errors(results):
+    """equal_object_error of every scene measured per object with a sweep."""
+    return {
+        n: equal_object_error(r)
+        for n, r in results.items()
+        if r["config"].get("per_object")
+        and r["cycles_sweep"]
+        and r["frames"][str(r["config"]["sweep_frame"])].get("ref_noise_objects_median")
+    }
+
+
+def equal_object_error(r):
+    """Cycles' CPU time at our per-object error on the sweep frame (scenes with per_object: the
+    median over the lit objects of |mean ours - mean Cycles| / mean Cycles). Cycles' median at one
+    sample against the truth (cycles_ref.noise_scale) from the reference's two seeds' difference
+    (a seed per object: independent), checked against the sweep's bakes; the sample count at our
+    error two ways (cycles_ref.spp_at_error): "as_measured" counts the reference's noise in our
+    error as ours (fewer samples for Cycles: the ratio's lower side), "ref_noise_removed" reads
+    Cycles against the same reference. Time t0 + c spp fitted to the timed sweep (one bake call)."""
+    from hr_testing import cycles_ref as C
+
+    f = str(r["config"]["sweep_frame"])
+    fr0 = r["frames"][f]
+    n_ref = fr0["ref_spp"]
+    scale = C.noise_scale(fr0["ref_noise_objects_median"], n_ref)
+    sw = r["cycles_sweep"]
+    # the time line through the sweep's bakes, one call each as a user bakes; a seed per object
+    # (sweep_po, the reference) adds ~0.1 s per object's call: kept beside it, not fitted
+    timed = [(s["spp"], t) for s in sw for t in s["seconds"]]
+    others = [(s["spp"], s["seconds"]) for s in r.get("cycles_sweep_po", [])]
+    others += [(r["config"]["ref_spp"], t["cpu"]) for t in fr0["ref_bake_seconds"]]
+    spp = np.array([x[0] for x in timed], float)
+    c, t0 = np.polyfit(spp, [x[1] for x in timed], 1)
+    checks = [
+        {
+            "spp": s["spp"],
+            "bakes": f"one call, {len(s['seconds'])} seed(s)",
+            "scale_vs_ref": C.noise_scale(s["objects"]["vs_ref"]["median"], s["spp"], n_ref),
+        }
+        | (
+            {"scale_pair": C.noise_scale(s["objects"]["pair_noise_median"], s["spp"])}
+            if "pair_noise_median" in s["objects"]
+            else {}
+        )
+        for s in sw
+    ] + [
+        {
+            "spp": s["spp"],
+            "bakes": "a seed per object",
+            "scale_vs_ref": C.noise_scale(s["objects"]["vs_ref"]["median"], s["spp"], n_ref),
+        }
+        for s in r.get("cycles_sweep_po", [])
+    ]
+    out = {
+        "scale": scale,
+        "ref_spp": n_ref,
+        "scale_checks": checks,
+        "fit": {"t0": t0, "seconds_per_spp": c, "bakes": timed, "per_object_seed_bakes": others},
+        "runs": [],
+    }
+    for run in r["ours"]:
+        fr = run["frames"][f]
+        for var, (output, _) in OBJECT_OUTPUTS.items():
+            if var not in fr.get("objects", {}) or output == "leaf":
+                continue
+            err, sec = fr["objects"][var]["median"], frame_cost(fr, output)
+            row = {"quality": run["quality"], "method": run["method"], "output": output, "frame_seconds": sec}
+            for mode, ref_spp in (("as_measured", None), ("ref_noise_removed", n_ref)):
+                n_eq = max(C.spp_at_error(err, scale, ref_spp), 1.0)
+                t_eq = max(t0, 0.0) + c * n_eq
+                row[mode] = {
+                    "error": err,
+                    "cycles_spp": n_eq,
+                    "cycles_seconds": t_eq,
+                    "speedup": t_eq / max(sec, 1e-9),
+                    # Cycles' sampling alone, without the bake's per-object sessions (t0)
+                    "speedup_sampling": c * n_eq / max(sec, 1e-9),
+                    "extrapolated": bool(n_eq > max(spp.max(), *(x[0] for x in others))),
+                }
+            out["runs"].append(row)
+    return out
+
+
 def summary_table(results, eq):
     lines = []
     for name, r in results.items():
@@ -974,6 +1355,56 @@ def summary_table(results, eq):
                 f"{row['worst_mre']['cycles_seconds']:.2f} s (x{row['worst_mre']['speedup']:.2f})"
             )
     return "\n".join(lines)
+
+
+def markdown_objects(name, r, eqo):
+    """The per-object tables of a scene with a sweep (equal_object_error)."""
+    f = str(r["config"]["sweep_frame"])
+    n_ref = eqo["ref_spp"]
+    L = [
+        f"{name}, frame {f}: median over the {len(r['lit'])} lit objects of the object mean's error against "
+        f"the {n_ref}-spp reference (its own noise: {100 * r['frames'][f]['ref_noise_objects_median']:.2f}%, "
+        f"the two seeds' difference; Cycles at one sample against the truth {100 * eqo['scale']:.1f}%).\n",
+        "| Cycles spp | bakes | CPU s / bake | median vs reference | within 5% "
+        "| at one spp: vs reference / seeds' difference |",
+        "|---|---|---|---|---|---|",
+    ]
+    scale = {(c["spp"], c["bakes"]): c for c in eqo["scale_checks"]}
+    for sw, bakes in [(s, f"one call, {len(s['seconds'])} seed(s)") for s in r["cycles_sweep"]] + [
+        (s, "a seed per object") for s in r.get("cycles_sweep_po", [])
+    ]:
+        o, c = sw["objects"]["vs_ref"], scale[(sw["spp"], bakes)]
+        pair = f" / {100 * c['scale_pair']:.1f}%" if "scale_pair" in c else ""
+        L.append(
+            f"| {sw['spp']} | {bakes} | {np.mean(sw['seconds']):.1f} | {100 * o['median']:.2f}% | "
+            f"{100 * o['within_5']:.0f}% | {100 * c['scale_vs_ref']:.1f}%{pair} |"
+        )
+    fit = eqo["fit"]
+    L += [
+        "",
+        f"Ours per frame (light event + the gathered output's evaluate, CPU s) and Cycles' CPU time at the "
+        f"same median (time {fit['t0']:.1f} s + {fit['seconds_per_spp']:.2f} s/spp fitted to the room's "
+        f"{len(fit['bakes'])} one-call bakes; our error as measured / with the reference's noise removed; "
+        "x Cycles "
+        "with the whole bake, and with its sampling alone, c spp):\n",
+        "| quality | method | output | median | within 5% | per frame "
+        "| Cycles spp | Cycles CPU s | x Cycles | x Cycles' sampling |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for x in eqo["runs"]:
+        run = next(u for u in r["ours"] if (u["quality"], u["method"]) == (x["quality"], x["method"]))
+        var = next(v for v, (o, _) in OBJECT_OUTPUTS.items() if o == x["output"])
+        st = run["frames"][f]["objects"][var]
+        a, b = x["as_measured"], x["ref_noise_removed"]
+        L.append(
+            f"| {x['quality']} | {x['method']} | {OBJECT_OUTPUTS[var][1]} | {100 * st['median']:.2f}% | "
+            f"{100 * st['within_5']:.0f}% | {x['frame_seconds']:.3f} | "
+            f"{a['cycles_spp']:.0f} / {b['cycles_spp']:.0f} | {a['cycles_seconds']:.0f} / "
+            f"{b['cycles_seconds']:.0f} | x{a['speedup']:.0f} / x{b['speedup']:.0f} | "
+            f"x{a['speedup_sampling']:.2g} / x{b['speedup_sampling']:.2g} |"
+        )
+    L.append("")
+    return L
 
 
 def markdown(data):
@@ -1111,6 +1542,8 @@ def markdown(data):
                     f"{a['rmse_corrected']:.4f} | {frame_cost(fr[sf], out_):.3f} s | {sp} |"
                 )
         L.append("")
+    for name, x in data.get("equal_object_error", {}).items():
+        L += markdown_objects(name, res[name], x)
     for name, r in res.items():
         if name == "cornell":
             continue
@@ -1153,7 +1586,12 @@ def main():
     ap.add_argument(
         "--gather-iterations", type=int, default=0, help="two levels: passes among gather samples"
     )
-    ap.add_argument("--gather-shadow-rays", type=int, default=32, help="shadow rays per sample and emitter")
+    ap.add_argument(
+        "--gather-shadow-rays",
+        type=int,
+        default=32,
+        help="shadow rays per sample and emitter; 0: the bake's per quality (settings.py GATHER)",
+    )
     ap.add_argument(
         "--gather-centres", action="store_true", help="texels gather at their centres only (no texel area)"
     )
@@ -1174,6 +1612,12 @@ def main():
     )
     ap.add_argument("--dyn", default="dict()", help="DynamicRadiosity option overrides (a Python dict)")
     ap.add_argument("--plot-only", action="store_true")
+    ap.add_argument(
+        "--also",
+        action="append",
+        default=[],
+        help="with --plot-only: another run's JSON whose scenes join the chart",
+    )
     ap.add_argument("--no-cache", action="store_true", help="re-bake Cycles even when cached")
     ap.add_argument("--out", default=JSON_PATH)
     args = ap.parse_args()
@@ -1199,6 +1643,7 @@ def main():
         with open(args.out) as fh:
             data = json.load(fh)
         data["equal_error"] = equal_error(data["scenes"])
+        data["equal_object_error"] = equal_object_errors(data["scenes"])
         c = data["scenes"].get("cornell")
         if (
             c is not None and not c.get("gather_settings") and args.gather
@@ -1207,10 +1652,19 @@ def main():
                 rays=args.gather, levels=args.gather_levels, iterations=args.gather_iterations
             )
         with open(args.out, "w") as fh:
-            json.dump(data, fh, indent=1, default=float)
+            json.dump(data | {"scenes": slim(data["scenes"])}, fh, indent=1, default=float)
         if "date" not in data:  # JSON written before the date was kept: the file's own
             data["date"] = time.strftime("%Y-%m-%d", time.gmtime(os.path.getmtime(args.out)))
-        plot(data["scenes"], eq=data["equal_error"], date=data["date"])
+        dates = {}
+        # scenes of other runs (the furnished room's) beside this one's, not written back
+        for path in args.also:
+            with open(path) as fh:
+                other = json.load(fh)
+            data["scenes"].update(other["scenes"])
+            dates.update({n: other.get("date", "") for n in other["scenes"]})
+        eqo = equal_object_errors(data["scenes"])
+        if "cornell" in data["scenes"]:
+            plot(data["scenes"], eq=data["equal_error"], date=data["date"], eqo=eqo, dates=dates)
         print(summary_table(data["scenes"], data["equal_error"]))
         md = markdown(data)
         with open(os.path.join(OUT, "cycles_tables.md"), "w") as fh:
@@ -1237,6 +1691,7 @@ def main():
     data = {
         "scenes": results,
         "equal_error": eq,
+        "equal_object_error": equal_object_errors(results),
         "date": time.strftime("%Y-%m-%d", time.gmtime()),
         "total_seconds": time.perf_counter() - t_start,
         "total_cpu_seconds": time.process_time(),
@@ -1264,10 +1719,10 @@ def main():
     os.makedirs(OUT, exist_ok=True)
     out = args.out if not args.quick else args.out.replace(".json", "_quick.json")
     with open(out, "w") as fh:
-        json.dump(data, fh, indent=1, default=float)
+        json.dump(data | {"scenes": slim(results)}, fh, indent=1, default=float)
     log(f"wrote {out}")
     if "cornell" in results and results["cornell"]["cycles_sweep"] and not args.quick:
-        plot(results, eq=eq, date=data["date"])
+        plot(results, eq=eq, date=data["date"], eqo=data["equal_object_error"])
         plot_maps(maps, os.path.join(OUT, "cycles_maps_cornell.png"))
     print(summary_table(results, eq))
     md = markdown(data)

@@ -821,6 +821,34 @@ def object_summary(per, names):
     }
 
 
+def lit_objects(ref, share=0.05):
+    """Objects of ref {name: (N, 3)} whose mean radiance is above `share` of the mean over all
+    texels: those lit well enough for a relative error to mean something (near-black objects,
+    Cycles' noise)."""
+    mean = {n: float(np.nanmean(v[np.isfinite(v).all(1)])) for n, v in ref.items() if np.isfinite(v).any()}
+    allv = np.concatenate([v[np.isfinite(v).all(1)] for v in ref.values()])
+    return sorted(n for n, m in mean.items() if m > share * float(allv.mean()))
+
+
+def noise_scale(err, spp, ref_spp=None):
+    """Cycles' error at one sample, from an error `err` measured at `spp` samples: Cycles is an
+    unbiased estimate of independent samples, so its error against the truth is scale / sqrt(spp)
+    (a per-object mean's error is normal, and a median of such errors scales alike). ref_spp:
+    err was measured against a Cycles reference of ref_spp samples, whose independent noise adds
+    in quadrature: err = scale sqrt(1 / spp + 1 / ref_spp)."""
+    return err / np.sqrt(1 / spp + (1 / ref_spp if ref_spp else 0.0))
+
+
+def spp_at_error(err, scale, ref_spp=None):
+    """The sample count at which Cycles' error (noise_scale's `scale`) equals `err`. ref_spp: both
+    measured against the same Cycles reference of ref_spp samples (its noise in both; equally: err
+    with the reference's noise removed in quadrature against Cycles' error against the truth);
+    inf when err is within the reference's own noise. None: err taken as it reads (the noise it
+    holds counted as ours)."""
+    d = (err / scale) ** 2 - (1 / ref_spp if ref_spp else 0.0)
+    return 1 / d if d > 0 else float("inf")
+
+
 def write_json(path, obj):
     """obj as compact JSON, numbers to 4 significant digits: a benchmark's dump stays small."""
     import json

@@ -215,3 +215,58 @@ def test_objects_baked_together_share_their_texels_random_numbers_unless_seeded_
         # shared: 0.86 measured (not 1: the light tree picks an emitter for each pair); independent:
         # 400 texels give |corr| about 0.05
         assert corr > 0.7 if not per_object else abs(corr) < 0.2
+
+
+def _bakes(rng, truth, sigma, spp, seeds):
+    """Per-object means of `seeds` Cycles-like bakes at `spp` samples: unbiased, each object's
+    relative noise sigma / sqrt(spp), independent per object and channel (a seed per object)."""
+    return [
+        {
+            n: t * (1 + s / np.sqrt(spp) * rng.standard_normal(t.shape))
+            for (n, t), s in zip(truth.items(), sigma)
+        }
+        for _ in range(seeds)
+    ]
+
+
+def _median_error(x, ref, names):
+    return C.object_summary({n: C.metrics(x[n], ref[n]) for n in names}, names)["median"]
+
+
+def test_the_sample_count_at_an_error_is_found_through_a_noisy_reference():
+    """The furnished room's equal-error count (benchmarks/cycles_compare.py equal_object_error):
+    Cycles' per-object median error at one sample from the reference's two seeds, a 16-spp bake
+    read against that 2 x 128-spp reference gives back 16 samples. 8000 objects of one texel (its
+    value the object's mean) with relative noise spread 5-30%: the medians' own spread is ~2%, the
+    sample count's (a squared ratio of two medians) ~5%."""
+    rng = np.random.default_rng(7)
+    names = [f"o{i}" for i in range(8000)]
+    truth = dict(zip(names, rng.uniform(0.1, 1.0, (len(names), 1, 3))))
+    sigma = rng.uniform(0.05, 0.3, len(names))
+    a, b = _bakes(rng, truth, sigma, 128, 2)
+    ref = {n: (a[n] + b[n]) / 2 for n in names}
+    ref_noise = np.median([C.noise(a[n], b[n])[1] / np.sqrt(2) for n in names])
+    scale = C.noise_scale(ref_noise, 256)
+    (one,) = _bakes(rng, truth, sigma, 1, 1)
+    assert scale == pytest.approx(_median_error(one, truth, names), rel=0.05)
+    (x16,) = _bakes(rng, truth, sigma, 16, 1)
+    err = _median_error(x16, ref, names)
+    # read against the reference, the bake holds its noise too: 16 samples; that noise counted as
+    # the bake's own error, 16 / (1 + 16 / 256) = 15.1
+    assert C.spp_at_error(err, scale, 256) == pytest.approx(16, rel=0.12)
+    assert C.spp_at_error(err, scale) == pytest.approx(16 / (1 + 16 / 256), rel=0.12)
+    assert C.noise_scale(err, 16, 256) == pytest.approx(scale, rel=0.06)
+    # an error within the reference's own noise matches no sample count
+    assert C.spp_at_error(0.9 * ref_noise, scale, 256) == float("inf")
+
+
+def test_lit_objects_leave_out_those_darker_than_a_twentieth_of_the_mean_and_unbaked_texels():
+    ref = {
+        "wall": np.full((10, 3), 1.0),
+        "book": np.full((4, 3), 0.2),
+        "dark": np.full((4, 3), 0.02),
+        "unbaked": np.full((2, 3), np.nan),
+    }
+    ref["book"][0] = np.nan  # a texel the bake did not write
+    # mean over the baked texels (10 x 1.0 + 3 x 0.2 + 4 x 0.02) / 17 = 0.628: the bar 0.031
+    assert C.lit_objects(ref) == ["book", "wall"]
