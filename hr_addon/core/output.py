@@ -12,6 +12,10 @@ import numpy as np
 from .geometry import MeshInput, insideness
 from .hierarchy import Hierarchy
 
+# Points per pass of radiance_at and locate_near: bounds their memory (~0.2 GB at most at any
+# number of points; the values do not depend on it).
+CHUNK = 32768
+
 
 def loop_welds(mesh: MeshInput):
     """(loop -> polygon, loop -> weld id): the same weld id for loops whose vertices share object
@@ -135,7 +139,7 @@ def patch_neighbours(h: Hierarchy, smooth_angle=30.0):
     return table
 
 
-def locate_near(h: Hierarchy, patch, points, chunk=32768):
+def locate_near(h: Hierarchy, patch, points):
     """Like locate, but a point just outside its patch goes to the smooth neighbour holding it.
 
     Only a patch's actual neighbours are tested: the table's width D is the largest degree (a
@@ -145,18 +149,18 @@ def locate_near(h: Hierarchy, patch, points, chunk=32768):
     pts = np.asarray(points, float)
     table = patch_neighbours(h)
     out = np.empty(len(patch), np.int64)
-    for a in range(0, len(patch), chunk):
-        p, x = patch[a : a + chunk], pts[a : a + chunk]
+    for a in range(0, len(patch), CHUNK):
+        p, x = patch[a : a + CHUNK], pts[a : a + CHUNK]
         cand = np.column_stack([p, table[p]])  # (m, 1 + D)
         i, j = np.nonzero(cand >= 0)
         k = cand[i, j]
         d = np.full(cand.shape, -np.inf)
         d[i, j] = insideness(h.corners[k][:, None], h.normal[k][:, None], x[i])[:, 0]
-        out[a : a + chunk] = locate(h, cand[np.arange(len(cand)), np.argmax(d, axis=1)], x)
+        out[a : a + CHUNK] = locate(h, cand[np.arange(len(cand)), np.argmax(d, axis=1)], x)
     return out
 
 
-def radiance_at(h: Hierarchy, B, patch, points, smooth=True, mask=True, chunk=32768):
+def radiance_at(h: Hierarchy, B, patch, points, smooth=True, mask=True):
     """Radiance (M, 3) at surface points of the given patches (texel centres for texture baking).
 
     smooth=False returns the leaf values: the piecewise-constant HR solution. smooth=True
@@ -167,14 +171,14 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True, mask=True, chunk=32
     result is continuous across edges between leaves of equal size; at a T-vertex the jump is a
     fraction of the neighbouring leaves' difference. mask: points on covered parts of surfaces
     (contacts.py) read 0 (False: the interpolated field, for texels.radiance_per_leaf's probes).
-    chunk: points per pass, bounding the memory (each point's value is independent of the others)."""
+    Runs over CHUNK points at a time (each point's value is independent of the others)."""
     patch = np.asarray(patch, np.int64)
     pts = np.asarray(points, float)
-    if len(pts) > chunk:
+    if len(pts) > CHUNK:
         return np.concatenate(
             [
-                radiance_at(h, B, patch[a : a + chunk], pts[a : a + chunk], smooth, mask, chunk)
-                for a in range(0, len(pts), chunk)
+                radiance_at(h, B, patch[a : a + CHUNK], pts[a : a + CHUNK], smooth, mask)
+                for a in range(0, len(pts), CHUNK)
             ]
         )
     leaf = locate(h, patch, pts)
