@@ -12,8 +12,8 @@ import numpy as np
 from .geometry import MeshInput, insideness
 from .hierarchy import Hierarchy
 
-# Points per pass of radiance_at and locate_near: bounds their memory (~0.2 GB at most at any
-# number of points; the values do not depend on it).
+# Points per pass of radiance_at and locate_near: bounds their memory at any number of points
+# (0.16 GB peak on the furnished 20k room at medium, docs/scale.md); the values do not depend on it.
 CHUNK = 32768
 
 
