@@ -215,3 +215,40 @@ def test_sample_image_like_an_image_texture():
     np.testing.assert_allclose(mix_colour(tex, ("MULTIPLY", 1.0, (0.5, 0.5, 0.5), True)), [[0.1, 0.2, 0.4]])
     np.testing.assert_allclose(mix_colour(tex, ("MIX", 0.5, (0, 0, 0), False)), [[0.1, 0.2, 0.4]])
     np.testing.assert_allclose(albedo_factor(tex, [0.4, 0.4, 0.0]), [[0.5, 1.0, 1.0]])
+
+
+def test_radiance_at_memory_is_bounded_and_chunks_change_nothing(monkeypatch):
+    """The texture output's smooth interpolation (output.radiance_at, also radiance_per_leaf's
+    probes) ran over all points at once and tested every probe against the neighbour table's full
+    width, the largest degree (a cylinder cap's fan): 69 kB per point on the furnished 20k room
+    at medium, tens of GB for a bake's texels (docs/scale.md). Its peak must not grow with the
+    number of points, and the chunks must not change a value."""
+    import tracemalloc
+
+    from hr_addon.core import output
+    from hr_testing.furnished import Builder, box, cylinder, grid_quad
+
+    b = Builder()
+    b.add("floor", *(lambda v, q: (v, [q]))(*grid_quad([-1.0, -1, 0], [2.0, 0, 0], [0, 2.0, 0], 4, 4)), 0.6)
+    b.add("vase", *cylinder([0.0, 0, 0], 0.2, 0.5, 48), 0.5)  # 48-triangle fans: degree 47
+    b.add("lamp", *box([-0.2, -0.2, 1.5], [0.2, 0.2, 1.6]), 0.0, (5.0, 5.0, 5.0))
+    s = RadiositySystem(b.build(), RefineParams.preset("draft"))
+    s.solve()
+    h, B = s.h, s.B
+    assert output.patch_neighbours(h).shape[1] >= 47
+    k, p = _surface_points(s.patches, 4000, seed=3)
+    whole = radiance_at(h, B, k, p)
+
+    def peak(n):
+        tracemalloc.start()
+        out = radiance_at(h, B, k[:n], p[:n])
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return out, peak
+
+    monkeypatch.setattr(output, "CHUNK", 250)
+    small, p_small = peak(500)
+    large, p_large = peak(4000)
+    np.testing.assert_array_equal(large, whole)
+    np.testing.assert_array_equal(small, whole[:500])
+    assert p_large < 1.5 * p_small, (p_small, p_large)  # all at once: ~8x

@@ -12,6 +12,10 @@ import numpy as np
 from .geometry import MeshInput, insideness
 from .hierarchy import Hierarchy
 
+# Points per pass of radiance_at and locate_near: bounds their memory at any number of points
+# (0.16 GB peak on the furnished 20k room at medium, docs/scale.md); the values do not depend on it.
+CHUNK = 32768
+
 
 def loop_welds(mesh: MeshInput):
     """(loop -> polygon, loop -> weld id): the same weld id for loops whose vertices share object
@@ -136,14 +140,24 @@ def patch_neighbours(h: Hierarchy, smooth_angle=30.0):
 
 
 def locate_near(h: Hierarchy, patch, points):
-    """Like locate, but a point just outside its patch goes to the smooth neighbour holding it."""
+    """Like locate, but a point just outside its patch goes to the smooth neighbour holding it.
+
+    Only a patch's actual neighbours are tested: the table's width D is the largest degree (a
+    cylinder cap's fan), and a dense (M, 1 + D, 4, 3) test took ~17 kB per point on the furnished
+    room (D = 23). Chunks bound the rest; each point's result is independent of the others."""
     patch = np.asarray(patch, np.int64)
     pts = np.asarray(points, float)
-    cand = np.column_stack([patch, patch_neighbours(h)[patch]])  # (M, 1 + D)
-    valid = cand >= 0
-    cc = np.where(valid, cand, patch[:, None])
-    d = np.where(valid, insideness(h.corners[cc], h.normal[cc], pts), -np.inf)
-    return locate(h, cc[np.arange(len(cc)), np.argmax(d, axis=1)], pts)
+    table = patch_neighbours(h)
+    out = np.empty(len(patch), np.int64)
+    for a in range(0, len(patch), CHUNK):
+        p, x = patch[a : a + CHUNK], pts[a : a + CHUNK]
+        cand = np.column_stack([p, table[p]])  # (m, 1 + D)
+        i, j = np.nonzero(cand >= 0)
+        k = cand[i, j]
+        d = np.full(cand.shape, -np.inf)
+        d[i, j] = insideness(h.corners[k][:, None], h.normal[k][:, None], x[i])[:, 0]
+        out[a : a + CHUNK] = locate(h, cand[np.arange(len(cand)), np.argmax(d, axis=1)], x)
+    return out
 
 
 def radiance_at(h: Hierarchy, B, patch, points, smooth=True, mask=True):
@@ -156,9 +170,17 @@ def radiance_at(h: Hierarchy, B, patch, points, smooth=True, mask=True):
     in the neighbouring patches of a smooth surface (so input polygon edges leave no seam). The
     result is continuous across edges between leaves of equal size; at a T-vertex the jump is a
     fraction of the neighbouring leaves' difference. mask: points on covered parts of surfaces
-    (contacts.py) read 0 (False: the interpolated field, for texels.radiance_per_leaf's probes)."""
+    (contacts.py) read 0 (False: the interpolated field, for texels.radiance_per_leaf's probes).
+    Runs over CHUNK points at a time (each point's value is independent of the others)."""
     patch = np.asarray(patch, np.int64)
     pts = np.asarray(points, float)
+    if len(pts) > CHUNK:
+        return np.concatenate(
+            [
+                radiance_at(h, B, patch[a : a + CHUNK], pts[a : a + CHUNK], smooth, mask)
+                for a in range(0, len(pts), CHUNK)
+            ]
+        )
     leaf = locate(h, patch, pts)
     if not smooth:
         return h.values_at(B, leaf, pts) if mask else h.shown(B)[:, leaf].T.copy()
