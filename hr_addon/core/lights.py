@@ -160,12 +160,6 @@ def area_outline(shape, size, size_y, matrix, segments=DISK_SEGMENTS):
     return p[:, :3]
 
 
-def _uniforms(n, k, seed, keys, stream):
-    from .gather.sampling import hammersley, hash_uniform
-
-    return (hammersley(k)[None] + hash_uniform(seed, keys, stream)[:, None]) % 1.0  # (n, k, 2)
-
-
 def _disk_points(c, axis, r, u):
     """Points (n, k, 3) on disks of radius r about centres c (3,), perpendicular to axis (n, 3)."""
     from .gather.sampling import _frame
@@ -185,6 +179,8 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
     scene but not far beyond it (ray backends' minimum hit distance is relative to the segment;
     default 1e4 x eps). portal: the sky's sky.EscapeMap ("auto": from these points' rays). -> (N,)
     float64."""
+    from .gather.sampling import rotated_hammersley
+
     x = np.asarray(x, np.float64).reshape(-1, 3)
     n = np.asarray(n, np.float64).reshape(-1, 3)
     N = len(x)
@@ -216,7 +212,7 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
         lit = np.flatnonzero(val > 0)
         if len(lit):
             if light.radius > 0 and rays > 1:
-                u = _uniforms(len(lit), rays, seed, keys[lit], 2000 + stream)
+                u = rotated_hammersley(rays, seed, keys[lit], 2000 + stream)
                 y = _disk_points(light.position, w[lit], light.radius, u)
                 vis = ~backend.occluded(np.broadcast_to(o[lit, None], y.shape), y)
                 val[lit] *= vis.mean(1)
@@ -232,7 +228,7 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
             far = float(far or 1e4 * eps)
             if light.angle > 0 and rays > 1:
                 # directions uniform in the sun's cone (half angle angle / 2)
-                u = _uniforms(len(lit), rays, seed, keys[lit], 3000 + stream)
+                u = rotated_hammersley(rays, seed, keys[lit], 3000 + stream)
                 cz = 1 - u[..., 0] * (1 - np.cos(light.angle / 2))
                 sz = np.sqrt(np.maximum(1 - cz * cz, 0))
                 from .gather.sampling import _frame
@@ -267,7 +263,7 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
         from .gather.sampling import Emitter
 
         em = Emitter(pieces, nv, area, np.repeat(nf[None], T, 0))
-        u = _uniforms(len(lit), rays, seed, keys[i[lit]], 4000 + stream)
+        u = rotated_hammersley(rays, seed, keys[i[lit]], 4000 + stream)
         y, ny = em.sample(u)  # area-uniform
         d = y - x[i[lit], None]
         r2 = np.maximum(np.einsum("lsk,lsk->ls", d, d), 1e-300)
@@ -389,7 +385,7 @@ def leaf_bounce(x, n, keys, corners, nv, radiance, backend, eps, rays=32, seed=0
     kernel-weighted and pooled over the point's rays. keys (N,): the points'
     random keys (gather.position_keys): the same values in any batching."""
 
-    from .gather.sampling import hash_uniform
+    from .gather.sampling import hash_uniform, rotated_hammersley
 
     x = np.asarray(x, np.float64).reshape(-1, 3)
     n = np.asarray(n, np.float64).reshape(-1, 3)
@@ -438,11 +434,11 @@ def leaf_bounce(x, n, keys, corners, nv, radiance, backend, eps, rays=32, seed=0
         if len(i) == 0:
             continue
         cdf = np.cumsum(w[i], 1) / W[i, None]
-        u = _uniforms(len(i), rays, seed, keys[s0 + i], 5000 + stream)  # (l, rays, 2): leaf, triangle
+        u = rotated_hammersley(rays, seed, keys[s0 + i], 5000 + stream)  # (l, rays, 2): leaf, tri
         # the point in the triangle: a 2-D set of its own, matched to the rays in a random order (both
         # sets' first coordinates run with the ray's index: unmatched, a picked polygon's points
         # would crowd towards one corner)
-        v = _uniforms(len(i), rays, seed, keys[s0 + i], 6000 + stream)
+        v = rotated_hammersley(rays, seed, keys[s0 + i], 6000 + stream)
         with np.errstate(over="ignore"):
             ray_keys = keys[s0 + i, None] * np.uint64(rays) + np.arange(rays, dtype=np.uint64)
         order = np.argsort(hash_uniform(seed, ray_keys.ravel(), 7000 + stream, 1).reshape(len(i), rays), 1)

@@ -256,7 +256,7 @@ def sky_incident(light, x, n, backend, eps, rays, seed, keys, stream, far, porta
     L = 1.0 if light.sky is None else lookup(light.sky, d)
     if portal is None:
         return (free * L).mean(1)
-    from .lights import _uniforms
+    from .gather.sampling import rotated_hammersley
 
     # the cosine rays: cos / pi / (R cos / pi + Rp p_map) = 1 / (R + Rp pi p_map / cos)
     cos = np.einsum("nrk,nk->nr", d, n)
@@ -264,7 +264,7 @@ def sky_incident(light, x, n, backend, eps, rays, seed, keys, stream, far, porta
     wc = np.zeros(free.shape)
     wc[i, j] = 1.0 / (R + Rp * np.pi * portal.pdf(o[i], d[i, j]) / np.maximum(cos[i, j], 1e-12))
     out = (wc * L).sum(1)
-    u, v = (_uniforms(N, Rp, seed, keys, s + stream) for s in (7000, 8000))
+    u, v = (rotated_hammersley(Rp, seed, keys, s + stream) for s in (7000, 8000))
     dp = portal.sample(o, u, v)
     cp = np.einsum("nrk,nk->nr", dp, n)
     ob = np.broadcast_to(o[:, None], dp.shape)

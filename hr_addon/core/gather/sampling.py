@@ -32,6 +32,12 @@ def hash_uniform(seed, index, stream, k=2):
     return (x >> np.uint64(11)).astype(np.float64) * 2.0**-53
 
 
+def rotated_hammersley(k, seed, keys, stream):
+    """(len(keys), k, 2): k Hammersley points rotated on the torus by each key's hash_uniform (a point's
+    own stratified set, the same whatever batch it is in)."""
+    return (hammersley(k)[None] + hash_uniform(seed, keys, stream)[:, None]) % 1.0
+
+
 def position_keys(points, unit):
     """uint64 keys of points (n, 3) quantised to `unit`: a sample's random stream follows where it
     is, not its index, so adding or reordering objects elsewhere leaves its rays alone."""
