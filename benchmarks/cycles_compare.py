@@ -211,6 +211,34 @@ def pooled(d):
     return np.concatenate([d[n] for n in sorted(d)])
 
 
+def _ratio_box(ax, x, ha, title, lines, fontsize):
+    """A chart's boxed list of speed-ups at equal error, at the top of its axes."""
+    ax.text(
+        x,
+        0.98,
+        f"{title} (target x100):\n" + "\n".join(lines),
+        transform=ax.transAxes,
+        ha=ha,
+        va="top",
+        fontsize=fontsize,
+        bbox=dict(boxstyle="round", fc="w", ec="0.7"),
+    )
+
+
+def unburied_vertex(res, unburied, objects):
+    """The vertex outputs of res over the texels a camera sees (unburied[name], a texel mask), NaN
+    elsewhere, with each object's emission: compare()'s input for what a camera sees."""
+    return {
+        n: {
+            k: np.where(unburied[n][:, None], res[n][k], np.nan)
+            for k in ("vertex_total", "gvertex_total")
+            if k in res[n]
+        }
+        | {"emission": res[n]["emission"]}
+        for n in objects
+    }
+
+
 def compare(res, ref, sigma_ref, objects):
     """Metrics of every variant against the reference, per surface and pooled."""
     from hr_testing import cycles_ref as C
@@ -508,15 +536,7 @@ def run_scene(name, cfg, results, maps=None):
                         res[n].update(gres[n])
                 cmp_ = compare(res, refs[f], out["frames"][str(f)]["ref_sigma"], rs.objects)
                 if unburied is not None:  # the vertex outputs over the texels a camera sees
-                    ub = {
-                        n: {
-                            k: np.where(unburied[n][:, None], res[n][k], np.nan)
-                            for k in ("vertex_total", "gvertex_total")
-                            if k in res[n]
-                        }
-                        | {"emission": res[n]["emission"]}
-                        for n in rs.objects
-                    }
+                    ub = unburied_vertex(res, unburied, rs.objects)
                     for var, m in compare(ub, refs[f], 0.0, rs.objects).items():
                         cmp_[var + "_unburied"] = m
                 ev = {
@@ -954,17 +974,8 @@ def plot_objects(ax, name, r, eqo, date=""):
             for x in eqo["runs"]
         ]
         # top centre: ours sit at the left, Cycles' bakes (their per-object sessions) at the right
-        ax.text(
-            0.5,
-            0.98,
-            "per frame, faster than Cycles at equal\nper-object median error (target x100):\n"
-            + "\n".join(lines),
-            transform=ax.transAxes,
-            ha="center",
-            va="top",
-            fontsize=7.5,
-            bbox=dict(boxstyle="round", fc="w", ec="0.7"),
-        )
+        title = "per frame, faster than Cycles at equal\nper-object median error"
+        _ratio_box(ax, 0.5, "center", title, lines, 7.5)
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.margins(x=0.1, y=0.1)
@@ -1019,17 +1030,8 @@ def plot(results, path=CHART, eq=None, date="", eqo=None, dates=None):
                 )
         if lines:
             # top right: ours sit at the bottom left, Cycles' sweep runs from top left to bottom right
-            ax.text(
-                0.98,
-                0.98,
-                "final gather, per frame, faster than\nCycles at equal error (target x100):\n"
-                + "\n".join(lines),
-                transform=ax.transAxes,
-                ha="right",
-                va="top",
-                fontsize=8,
-                bbox=dict(boxstyle="round", fc="w", ec="0.7"),
-            )
+            title = "final gather, per frame, faster than\nCycles at equal error"
+            _ratio_box(ax, 0.98, "right", title, lines, 8)
         for ti, ei, s in zip(t, e, sw):
             ax.annotate(f"{s['spp']} spp", (ti, ei), textcoords="offset points", xytext=(5, 4), fontsize=8)
         for run in r["ours"]:

@@ -95,15 +95,7 @@ for name, kw in variants.items():
         print(f"   final gather cost ({gkw}): {txt}", flush=True)
     allcmp = CC.compare(res, ref, 0.0, rs.objects)
     # the vertex outputs over the unburied texels alone (unburied_texels): what a camera sees
-    ub = {
-        n: {
-            k: np.where(unburied[n][:, None], res[n][k], np.nan)
-            for k in ("vertex_total", "gvertex_total")
-            if k in res[n]
-        }
-        | {"emission": res[n]["emission"]}
-        for n in rs.objects
-    }
+    ub = CC.unburied_vertex(res, unburied, rs.objects)
     for var, m in CC.compare(ub, ref, 0.0, rs.objects).items():
         allcmp[var + "_unburied"] = m
     cmp_ = allcmp["refl_leaf"]
