@@ -56,6 +56,38 @@ def test_write_read_roundtrip(tmp_path):
     assert [p.name for p in d.iterdir() if p.name.startswith(".")] == [MARKER]
 
 
+@pytest.mark.parametrize("zip64", [False, True])
+def test_frame_file_is_what_np_savez_writes(tmp_path, monkeypatch, zip64):
+    """write_npz's members hold the bytes np.savez writes for the same arrays (names with any
+    characters, empty arrays, shared and odd shapes), the zip's CRCs check out, the comment is
+    kept; zip64: the zipfile path beyond ZIP32 (here lowered to two members)."""
+    import io
+    import zipfile
+
+    from hr_addon.io import cache
+
+    if zip64:
+        monkeypatch.setattr(cache, "ZIP32", (2, cache.ZIP32[1]))
+    rng = np.random.default_rng(1)
+    arrays = {
+        name: np.ascontiguousarray(rng.random((n, 4)), np.float32)
+        for name, n in [("Wall", 7), ("book.001", 7), ("Übung 2 / ünïcødé", 3), ("empty", 0), ("big", 4096)]
+    }
+    path = tmp_path / "f.npz"
+    cache.write_frame(path, arrays, "id1")
+    ref = io.BytesIO()
+    np.savez(ref, **arrays)
+    with zipfile.ZipFile(path) as z, zipfile.ZipFile(ref) as r:
+        assert z.testzip() is None and z.comment == b"hr_radiosity bake id1"
+        assert z.namelist() == r.namelist()
+        for name in r.namelist():
+            assert z.read(name) == r.read(name), name
+    with np.load(path) as z:
+        assert sorted(z.files) == sorted(arrays)
+        assert all(np.array_equal(z[k], a) for k, a in arrays.items())
+    assert cache.npz_problem(path, {k: {"count": len(a)} for k, a in arrays.items()}, "id1") == ""
+
+
 def test_abort_keeps_previous(tmp_path):
     d = tmp_path / "scene"
     _bake(d, [1, 2], lambda f: 10)

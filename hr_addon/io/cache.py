@@ -38,8 +38,11 @@ import json
 import os
 import re
 import shutil
+import struct
+import time
 import uuid
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -90,16 +93,60 @@ def write_frame(path: Path, arrays: dict, bake_id=None):
         if a.shape[1] == 3:
             a = np.concatenate([a, np.ones((len(a), 1), np.float32)], 1)
         out[name] = np.ascontiguousarray(a)
+    comment = (_ID_PREFIX + str(bake_id)).encode("ascii") if bake_id else b""
+    atomic_write(path, lambda fh: write_npz(fh, out, comment))
 
-    def save(fh):
-        buf = io.BytesIO()
-        np.savez(buf, **out)
-        if bake_id:
-            with zipfile.ZipFile(buf, "a") as z:
-                z.comment = (_ID_PREFIX + str(bake_id)).encode("ascii")
-        fh.write(buf.getbuffer())
 
-    atomic_write(path, save)
+# np.savez's file (an uncompressed zip of .npy members) written member by member here: zipfile's
+# Python work per member cost a frame of the furnished 100k room (3,882 objects) 60 ms of its 77
+_LOCAL = struct.Struct("<4s5H3L2H")  # local file header, central directory entry, end record
+_CENTRAL = struct.Struct("<4s6H3L5H2L")
+_END = struct.Struct("<4s4H2LH")
+ZIP32 = (0xFFFF, 0xFFFFFFFF)  # members and bytes a zip without the zip64 records can hold
+
+
+def write_npz(fh, arrays, comment=b""):
+    """Write {name: C-contiguous array} into the binary file fh as np.savez does (member
+    "name.npy", stored), with the zip comment `comment`; np.load and zipfile read it alike. Beyond
+    ZIP32 zipfile writes it (zip64)."""
+    headers = {}  # .npy header bytes per shape and dtype (many objects share theirs)
+
+    def npy(a):
+        key = (a.shape, a.dtype.str)
+        if key not in headers:
+            buf = io.BytesIO()
+            np.lib.format.write_array_header_1_0(buf, np.lib.format.header_data_from_array_1_0(a))
+            headers[key] = buf.getvalue()
+        return headers[key], a.reshape(-1).view(np.uint8)  # (its bytes, also of an empty array)
+
+    members = [(f"{name}.npy", *npy(a)) for name, a in arrays.items()]
+    size = sum(2 * len(n.encode()) + _LOCAL.size + _CENTRAL.size + len(h) + d.nbytes for n, h, d in members)
+    if len(members) > ZIP32[0] or size > ZIP32[1]:
+        with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+            for name, head, data in members:
+                with z.open(name, "w", force_zip64=True) as m:
+                    m.write(head)
+                    m.write(data)
+            z.comment = comment
+        return
+    t = time.localtime()  # DOS time and date, as zipfile stamps its members
+    clock = t.tm_hour << 11 | t.tm_min << 5 | t.tm_sec // 2
+    day = (t.tm_year - 1980) << 9 | t.tm_mon << 5 | t.tm_mday
+    central, offset = [], 0
+    for name, head, data in members:
+        raw = name.encode()
+        n, crc = len(head) + data.nbytes, zlib.crc32(data, zlib.crc32(head))
+        # flags (UTF-8 names marked, as zipfile does), stored, time, date, CRC-32, sizes, name length
+        common = (0 if name.isascii() else 0x800, 0, clock, day, crc, n, n, len(raw))
+        fh.write(_LOCAL.pack(b"PK\x03\x04", 20, *common, 0) + raw)
+        fh.write(head)
+        fh.write(data)
+        central.append(_CENTRAL.pack(b"PK\x01\x02", 20 | 3 << 8, 20, *common, 0, 0, 0, 0, 0, offset) + raw)
+        offset += _LOCAL.size + len(raw) + n
+    cd = b"".join(central)
+    fh.write(cd)
+    k = len(central)
+    fh.write(_END.pack(b"PK\x05\x06", 0, 0, k, k, len(cd), offset, len(comment)) + comment)
 
 
 def _zip_bake_id(z):
