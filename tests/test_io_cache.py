@@ -88,6 +88,46 @@ def test_frame_file_is_what_np_savez_writes(tmp_path, monkeypatch, zip64):
     assert cache.npz_problem(path, {k: {"count": len(a)} for k, a in arrays.items()}, "id1") == ""
 
 
+@pytest.mark.parametrize("writer", ["write_frame", "savez", "savez_compressed"])
+def test_frame_read_is_what_np_load_reads(tmp_path, writer):
+    """read_npz gives np.load's arrays (names, dtypes, shapes, Fortran order, values) and the zip
+    comment, for our frame files and np.savez's (stored, zip64 headers) or compressed ones; a flipped
+    byte in an array's data is refused (CRC-32), as np.load refuses it."""
+    import zipfile
+
+    from hr_addon.io import cache
+
+    rng = np.random.default_rng(2)
+    arrays = {"Wall": rng.random((5, 4)).astype(np.float32), "Übung": np.zeros((0, 4), np.float32),
+              "b": rng.random((300, 4)).astype(np.float32)}
+    path = tmp_path / "f.npz"
+    if writer == "write_frame":
+        cache.write_frame(path, arrays, "id2")
+    else:
+        arrays["f64 fortran"] = np.asfortranarray(rng.random((3, 7)))
+        getattr(np, writer)(path, **arrays)
+    got, comment = cache.read_npz(path)
+    assert comment == (b"hr_radiosity bake id2" if writer == "write_frame" else b"")
+    with np.load(path) as ref:
+        assert sorted(got) == sorted(ref.files)
+        for k in ref.files:
+            assert got[k].dtype == ref[k].dtype and got[k].shape == ref[k].shape
+            assert np.array_equal(got[k], ref[k])
+            assert got[k].flags.writeable and got[k].flags.f_contiguous == ref[k].flags.f_contiguous
+    if writer == "savez_compressed":
+        return
+    raw = bytearray(path.read_bytes())
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo("b.npy")
+    at = info.header_offset
+    raw[at + 30 + len("b.npy") + int.from_bytes(raw[at + 28 : at + 30], "little") + 200] ^= 1  # b's values
+    path.write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match="CRC"):
+        cache.read_npz(path)
+    with pytest.raises(zipfile.BadZipFile):
+        np.load(path)["b"]
+
+
 def test_abort_keeps_previous(tmp_path):
     d = tmp_path / "scene"
     _bake(d, [1, 2], lambda f: 10)

@@ -35,6 +35,7 @@ importable from here too.
 
 import io
 import json
+import math
 import os
 import re
 import shutil
@@ -149,9 +150,51 @@ def write_npz(fh, arrays, comment=b""):
     fh.write(_END.pack(b"PK\x05\x06", 0, 0, k, k, len(cd), offset, len(comment)) + comment)
 
 
-def _zip_bake_id(z):
-    """The bake id in the comment of an open frame zip, or None (no id: an earlier version's file)."""
-    c = z.comment.decode("ascii", "replace")
+def read_npz(path):
+    """({name: array}, zip comment bytes) of an .npz file (write_npz's or np.savez's), the arrays
+    np.load gives, without its per-member work (3,882 objects: a frame read 510 ms of CPU): the
+    file read once, each stored member checked against its CRC-32 and viewed as its array (writeable,
+    of one buffer; members of the same header parsed once). Raises ValueError (or zipfile's and
+    OSError) for a damaged file, as np.load would."""
+    with open(path, "rb") as fh:
+        data = bytearray(os.fstat(fh.fileno()).st_size)
+        if fh.readinto(data) != len(data):
+            raise ValueError("file shorter than its size")
+    buf = memoryview(data)
+    with zipfile.ZipFile(io.BytesIO(data)) as z:  # the central directory, names as zipfile decodes them
+        headers, out = {}, {}
+        for info in z.infolist():
+            if info.compress_type == zipfile.ZIP_STORED:
+                at = info.header_offset
+                if bytes(buf[at : at + 4]) != b"PK\x03\x04":
+                    raise ValueError(f"bad member header of '{info.filename}'")
+                *_, n_name, n_extra = _LOCAL.unpack_from(buf, at)
+                at += _LOCAL.size + n_name + n_extra
+                member = buf[at : at + info.file_size]
+                if len(member) != info.file_size or zlib.crc32(member) != info.CRC:
+                    raise ValueError(f"bad CRC-32 of '{info.filename}'")
+            else:
+                member = memoryview(bytearray(z.read(info)))  # (not written by us: zipfile reads it)
+            # the .npy header: magic, version, its length (2 bytes in version 1, else 4), the dict
+            wide = member[6:7] != b"\x01"
+            size = 8 + (4 if wide else 2) + int.from_bytes(member[8 : 12 if wide else 10], "little")
+            key = bytes(member[:size])
+            if key not in headers:
+                f, fmt = io.BytesIO(key), np.lib.format
+                one = fmt.read_magic(f) == (1, 0)
+                headers[key] = (fmt.read_array_header_1_0 if one else fmt.read_array_header_2_0)(f)
+            shape, fortran, dtype = headers[key]
+            if dtype.hasobject:
+                raise ValueError(f"'{info.filename}' holds Python objects")
+            a = np.frombuffer(member, dtype, math.prod(shape), size)
+            name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+            out[name] = a.reshape(shape[::-1]).T if fortran else a.reshape(shape)
+        return out, z.comment
+
+
+def _comment_bake_id(comment):
+    """The bake id in a frame file's zip comment (bytes), or None (no id: an earlier version's file)."""
+    c = comment.decode("ascii", "replace")
     return c[len(_ID_PREFIX) :] if c.startswith(_ID_PREFIX) else None
 
 
@@ -242,36 +285,22 @@ def settings_difference(old: dict, new: dict):
 
 
 def npz_problem(path, objects=None, bake_id=None):
-    """'' if the frame file at `path` looks complete (a zip of (count, 4) float32 arrays, sizes as the
-    manifest says) and, if `bake_id` is given, holds that bake id; else what is wrong. Reads the zip
-    directory, its comment and the array headers, not the data."""
+    """'' if the frame file at `path` is complete (a zip of (count, 4) float32 arrays, sizes as the
+    manifest says, every member's CRC-32 right) and, if `bake_id` is given, holds that bake id; else
+    what is wrong. Reads the file once (read_npz: 3,882 objects, 40 ms; the zip's directory and
+    each member's headers read one by one took 160)."""
     path = Path(path)
     if not path.is_file():
         return "missing"
     try:
-        with zipfile.ZipFile(path) as z:
-            found = _zip_bake_id(z)
-            for info in z.infolist():
-                name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
-                with z.open(info) as fh:
-                    fmt = np.lib.format
-                    version = fmt.read_magic(fh)
-                    read = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
-                    shape, _, dtype = read(fh)
-                    hdr = fh.tell()
-                want = (objects or {}).get(name, {}).get("count")
-                if (
-                    len(shape) != 2
-                    or shape[1] != 4
-                    or dtype != np.float32
-                    or (want is not None and shape[0] != want)
-                ):
-                    return f"bad array for '{name}'"
-                if info.file_size != hdr + shape[0] * 16 or info.compress_size < 0:
-                    return f"truncated array for '{name}'"
+        arrays, comment = read_npz(path)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as exc:
         return f"unreadable ({exc})"
-    why = _id_problem(found, bake_id)
+    for name, a in arrays.items():
+        want = (objects or {}).get(name, {}).get("count")
+        if a.ndim != 2 or a.shape[1] != 4 or a.dtype != np.float32 or (want is not None and len(a) != want):
+            return f"bad array for '{name}'"
+    why = _id_problem(_comment_bake_id(comment), bake_id)
     return f"'{path.name}' {why}" if why else ""
 
 
@@ -484,9 +513,9 @@ class CacheReader:
         hit = self._files.get(key)
         if hit is None:
             try:
-                with np.load(path, allow_pickle=False) as z:
-                    found = _zip_bake_id(z.zip)
-                    data = {k: np.ascontiguousarray(z[k], np.float32) for k in z.files}
+                data, comment = read_npz(path)
+                found = _comment_bake_id(comment)
+                data = {k: np.ascontiguousarray(a, np.float32) for k, a in data.items()}
             except Exception as exc:
                 raise CacheError(f"Corrupt radiosity cache file '{path}': {exc}") from None
             for k, a in data.items():
