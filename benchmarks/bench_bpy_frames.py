@@ -6,7 +6,8 @@ outside the core. bpy module, one process per run.
     ... --blend B --path bake  --output vertex  --json benchmarks/out/bpy100k_vertex.json
     ... --blend B --path op    --output vertex                  # bpy.ops.hr.bake() (as a user's script)
     ... --blend B --path cli   --output vertex                  # python -m hr_addon bake (a subprocess)
-    ... --blend B --path cancel --output vertex                 # close the bake mid-frame, check the cache
+    ... --blend B --path cancel --output vertex                 # close the bake after 3 frames (Esc)
+    ... --blend B --path cli --term-after 3                     # SIGTERM the command line's bake
     (--output texture --resolution 16 for the lightmaps: objects of over 200 faces get 128, the
     spheres of 5,120 faces (a chart per face) 256)
 
@@ -197,8 +198,10 @@ def run_bake(args):
             prof.disable()
         c2, w2 = time.process_time(), time.perf_counter()
         got = parts.take()
-        if p is None:
+        if p is None:  # the commit: the cache folder swapped in, the scene pointed at it, its frame shown
             commit = dict(cpu_s=c2 - c1, wall_s=w2 - w1, parts=got)
+            if prof:
+                prof.dump_stats(str(prof_dir / f"{args.output}_commit.prof"))
             break
         if p.stage != "frame":
             if setup is None:
@@ -257,22 +260,49 @@ def run_op(args):
 
 
 def run_cli(args):
+    """python -m hr_addon bake in a subprocess; --term-after N: SIGTERM after its Nth frame line (a
+    user's Ctrl-C / a farm's kill): exit 130 and the cache folder as before."""
+    import signal
+
     cmd = [sys.executable, "-m", "hr_addon", "bake", str(args.blend), "--output", args.output,
            "--quality", "draft"]
     if args.output == "texture":
         cmd += ["--resolution", str(args.resolution)]
+    d = Path(args.blend).parent / "hr_cache" / Path(args.blend).stem
+    before = _stat(d)
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     w0 = time.perf_counter()
-    lines = []
+    lines, frames = [], 0
     with subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as pr:
         for line in pr.stdout:
             lines.append((time.perf_counter() - w0, line.rstrip()))
             print(f"{lines[-1][0]:8.2f} {line.rstrip()}", flush=True)
+            frames += "HR Radiosity: Frame " in line
+            if args.term_after and frames == args.term_after:
+                pr.send_signal(signal.SIGTERM)
+                frames += 1  # once
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return dict(path="cli", output=args.output, cmd=cmd[1:], exit=pr.returncode,
-                total_cpu_s=(r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime),
-                total_wall_s=time.perf_counter() - w0, peak_rss_gb=r1.ru_maxrss / 1e6,
-                load_average=os.getloadavg()[0], lines=lines)
+    out = dict(path="cli", output=args.output, cmd=cmd[1:], exit=pr.returncode,
+               total_cpu_s=(r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime),
+               total_wall_s=time.perf_counter() - w0, peak_rss_gb=r1.ru_maxrss / 1e6,
+               load_average=os.getloadavg()[0], lines=lines)
+    if args.term_after:
+        out.update(term_after=args.term_after, cache_unchanged=_stat(d) == before, files_before=len(before),
+                   leftovers=_leftovers(d))
+        print({k: out[k] for k in ("exit", "cache_unchanged", "files_before", "leftovers")}, flush=True)
+    return out
+
+
+def _stat(d):
+    """{relative path: (bytes, mtime ns)} of a cache folder: what a cancelled bake must leave alone."""
+    d = Path(d)
+    files = [p for p in d.rglob("*") if p.is_file()]
+    return {str(p.relative_to(d)): (p.stat().st_size, p.stat().st_mtime_ns) for p in files}
+
+
+def _leftovers(d):
+    """Folders beside the cache a bake left (its temporary folder)."""
+    return sorted(p.name for p in Path(d).parent.iterdir() if p.name != Path(d).name)
 
 
 def run_cancel(args):
@@ -282,7 +312,7 @@ def run_cancel(args):
 
     bpy, scene = open_blend(args.blend, args.output, args.resolution)
     d = cache_dir_for(scene)
-    before = cache_files(d)
+    before = _stat(d)
     job = BakeJob(bake_frames(scene))
     n = 0
     while job.step():
@@ -291,10 +321,8 @@ def run_cancel(args):
             if n == args.cancel_after:
                 job.cancel()
                 break
-    after = cache_files(d)
-    tmp = [p.name for p in Path(d).parent.iterdir() if p.name != Path(d).name and Path(d).name in p.name]
     out = dict(path="cancel", output=args.output, frames_done=n, files_before=len(before),
-               unchanged=before == after, leftovers=tmp, peak_rss_gb=_rss_gb())
+               cache_unchanged=_stat(d) == before, leftovers=_leftovers(d), peak_rss_gb=_rss_gb())
     print(out, flush=True)
     return out
 
@@ -306,7 +334,8 @@ def main(argv=None):
     ap.add_argument("--path", choices=("bake", "op", "cli", "cancel"), default=None)
     ap.add_argument("--output", choices=("vertex", "texture"), default="vertex")
     ap.add_argument("--resolution", type=int, default=16, help="texture output's lightmap size")
-    ap.add_argument("--cancel-after", type=int, default=3)
+    ap.add_argument("--cancel-after", type=int, default=3, help="--path cancel: close after N frames")
+    ap.add_argument("--term-after", type=int, default=0, help="--path cli: SIGTERM after N frame lines")
     ap.add_argument("--profile", default=None, help="folder for a cProfile file per frame")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
