@@ -8,6 +8,7 @@ outside the core. bpy module, one process per run.
     ... --blend B --path cli   --output vertex                  # python -m hr_addon bake (a subprocess)
     ... --blend B --path cancel --output vertex                 # close the bake after 3 frames (Esc)
     ... --blend B --path cli --term-after 3                     # SIGTERM the command line's bake
+    ... --blend B --path background [--cancel-after 3]          # the Bake button's worker (and Cancel)
     (--output texture --resolution 16 for the lightmaps: objects of over 200 faces get 128, the
     spheres of 5,120 faces (a chart per face) 256)
 
@@ -305,6 +306,46 @@ def _leftovers(d):
     return sorted(p.name for p in Path(d).parent.iterdir() if p.name != Path(d).name)
 
 
+def run_background(args):
+    """The Bake button's path: background.BackgroundBake (a saved copy baked by a worker process,
+    python -m hr_addon bake with a status file), polled every 0.25 s as the operator's timer does;
+    --cancel-after N: Cancel (the operator's, SIGTERM) once the worker reports frame N."""
+    from hr_addon.blender import background
+
+    bpy, scene = open_blend(args.blend, args.output, args.resolution)
+    d = Path(args.blend).parent / "hr_cache" / Path(args.blend).stem
+    before = _stat(d)
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    c0, w0 = time.process_time(), time.perf_counter()
+    job = background.BackgroundBake(scene, bpy.context.view_layer)
+    job.start()
+    frames, last, finish_cpu = [], None, 0.0
+    while True:
+        c1 = time.process_time()
+        running = job.poll()
+        if not running:
+            finish_cpu = time.process_time() - c1  # the result loaded into the scene (use_bake, the frame)
+            break
+        f = job.frame if job.status.get("stage") == "frame" else None
+        if f is not None and f != last:
+            frames.append((f, time.perf_counter() - w0))
+            last = f
+            if args.cancel_after and len(frames) == args.cancel_after:
+                job.cancel()
+                break
+        time.sleep(0.25)
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    out = dict(path="background", output=args.output, state=job.state, summary=job.summary,
+               worker_cpu_s=(r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime),
+               this_process_cpu_s=time.process_time() - c0, result_load_cpu_s=finish_cpu,
+               total_wall_s=time.perf_counter() - w0, frames_seen=frames,
+               worker_peak_rss_gb=r1.ru_maxrss / 1e6, load_average=os.getloadavg()[0])
+    if args.cancel_after:
+        out.update(cache_unchanged=_stat(d) == before, files_before=len(before), leftovers=_leftovers(d))
+    print({k: v for k, v in out.items() if k != "frames_seen"}, flush=True)
+    return out
+
+
 def run_cancel(args):
     """Close the bake generator after --cancel-after frames (what Esc / Cancel does to a bake in this
     process; the interactive one kills its worker): the cache folder must be as before."""
@@ -318,7 +359,7 @@ def run_cancel(args):
     while job.step():
         if job.progress.stage == "frame":
             n += 1
-            if n == args.cancel_after:
+            if n == (args.cancel_after or 3):
                 job.cancel()
                 break
     out = dict(path="cancel", output=args.output, frames_done=n, files_before=len(before),
@@ -331,10 +372,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--blend", required=True)
     ap.add_argument("--make", action="store_true", help="make the .blend first")
-    ap.add_argument("--path", choices=("bake", "op", "cli", "cancel"), default=None)
+    ap.add_argument("--path", choices=("bake", "op", "cli", "background", "cancel"), default=None)
     ap.add_argument("--output", choices=("vertex", "texture"), default="vertex")
     ap.add_argument("--resolution", type=int, default=16, help="texture output's lightmap size")
-    ap.add_argument("--cancel-after", type=int, default=3, help="--path cancel: close after N frames")
+    ap.add_argument("--cancel-after", type=int, default=0, help="cancel / background: after N frames (3)")
     ap.add_argument("--term-after", type=int, default=0, help="--path cli: SIGTERM after N frame lines")
     ap.add_argument("--profile", default=None, help="folder for a cProfile file per frame")
     ap.add_argument("--json", default=None)
@@ -346,7 +387,8 @@ def main(argv=None):
               f"{time.process_time() - c0:.1f} s CPU", flush=True)
     if args.path is None:
         return
-    out = dict(bake=run_bake, op=run_op, cli=run_cli, cancel=run_cancel)[args.path](args)
+    paths = dict(bake=run_bake, op=run_op, cli=run_cli, background=run_background, cancel=run_cancel)
+    out = paths[args.path](args)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=1, default=str))
