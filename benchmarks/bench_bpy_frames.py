@@ -9,8 +9,8 @@ outside the core. bpy module, one process per run.
     ... --blend B --path cancel --output vertex                 # close the bake after 3 frames (Esc)
     ... --blend B --path cli --term-after 3                     # SIGTERM the command line's bake
     ... --blend B --path background [--cancel-after 3]          # the Bake button's worker (and Cancel)
-    (--output texture --resolution 16 for the lightmaps: objects of over 200 faces get 128, the
-    spheres of 5,120 faces (a chart per face) 256)
+    (--output texture --resolution R for the lightmaps: objects of over 200 faces get 8 R, the
+    spheres of 5,120 faces (a chart per face) 16 R)
 
 --make: bench_live.make_furnished's room (furnished_room("100k"): 3,882 objects) and its Window
 light shape on the west wall, keyed over frames 1-8 (constant interpolation): frames 2, 3 move it
@@ -169,7 +169,7 @@ def open_blend(blend, output, resolution):
     s.hr.texture_resolution = resolution
     for o in s.objects:  # the room's big surfaces and the spheres (a chart per face) need more texels
         if o.type == "MESH" and len(o.data.polygons) > 200:
-            o.hr.lightmap_resolution = 256 if len(o.data.polygons) > 4000 else 128
+            o.hr.lightmap_resolution = resolution * (16 if len(o.data.polygons) > 4000 else 8)
     return bpy, s
 
 
