@@ -137,6 +137,38 @@ def test_auto_method_and_point_domain(tmp_path):
     assert v[:, :3].mean() > 0.01
 
 
+@pytest.mark.parametrize("domain, final_gather", [("CORNER", True), ("POINT", True), ("CORNER", False)])
+def test_frame_files_hold_each_objects_values_bit_for_bit(tmp_path, monkeypatch, domain, final_gather):
+    """Every frame file holds, per object, Target.extract of the frame's whole output (the gather's
+    or the leaves') as float32 RGBA, alpha 1, bit for bit: the bake writes them from one array (the
+    gather's rows for corners) and its own zip writer; np.load and the frame check read the files."""
+    load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import bake as bake_mod
+    from hr_addon.io.cache import CacheReader, npz_problem
+
+    expect, frame_values = {}, bake_mod._Bake.frame_values
+
+    def spy(self, snap, dyn, final, baker, shapes, lights, frame_warnings):
+        got = frame_values(self, snap, dyn, final, baker, shapes, lights, frame_warnings)
+        whole = final.loop_radiance(dyn, domain) if final is not None else dyn.loop_radiance(domain)
+        expect[self.scene.frame_current] = {t.name: t.extract(whole, domain) for t in snap.scene_in.targets}
+        return got
+
+    monkeypatch.setattr(bake_mod._Bake, "frame_values", spy)
+    res = _bake(frames=(5, 13), method="FE", domain=domain, final_gather=final_gather)
+    assert sorted(expect) == [5, 6, 13] and res.solved == 3  # the window appears on 6, the patch on 13
+    reader = CacheReader(tmp_path / "hr_cache" / "cornell")
+    for f, objects in expect.items():
+        name = reader.frames[f]
+        assert npz_problem(reader.dir / name, reader.objects, reader.frame_ids[name]) == ""
+        got = reader.load(f)
+        assert sorted(got) == sorted(objects)
+        for obj, v in objects.items():
+            assert got[obj].dtype == np.float32 and np.all(got[obj][:, 3] == 1)
+            assert np.array_equal(got[obj][:, :3], np.asarray(v, np.float32)), (f, obj)
+
+
 def test_scene_scale_does_not_change_results(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path / "a")

@@ -56,6 +56,78 @@ def test_write_read_roundtrip(tmp_path):
     assert [p.name for p in d.iterdir() if p.name.startswith(".")] == [MARKER]
 
 
+@pytest.mark.parametrize("zip64", [False, True])
+def test_frame_file_is_what_np_savez_writes(tmp_path, monkeypatch, zip64):
+    """write_npz's members hold the bytes np.savez writes for the same arrays (names with any
+    characters, empty arrays, shared and odd shapes), the zip's CRCs check out, the comment is
+    kept; zip64: the zipfile path beyond ZIP32 (here lowered to two members)."""
+    import io
+    import zipfile
+
+    from hr_addon.io import cache
+
+    if zip64:
+        monkeypatch.setattr(cache, "ZIP32", (2, cache.ZIP32[1]))
+    rng = np.random.default_rng(1)
+    arrays = {
+        name: np.ascontiguousarray(rng.random((n, 4)), np.float32)
+        for name, n in [("Wall", 7), ("book.001", 7), ("Übung 2 / ünïcødé", 3), ("empty", 0), ("big", 4096)]
+    }
+    path = tmp_path / "f.npz"
+    cache.write_frame(path, arrays, "id1")
+    ref = io.BytesIO()
+    np.savez(ref, **arrays)
+    with zipfile.ZipFile(path) as z, zipfile.ZipFile(ref) as r:
+        assert z.testzip() is None and z.comment == b"hr_radiosity bake id1"
+        assert z.namelist() == r.namelist()
+        for name in r.namelist():
+            assert z.read(name) == r.read(name), name
+    with np.load(path) as z:
+        assert sorted(z.files) == sorted(arrays)
+        assert all(np.array_equal(z[k], a) for k, a in arrays.items())
+    assert cache.npz_problem(path, {k: {"count": len(a)} for k, a in arrays.items()}, "id1") == ""
+
+
+@pytest.mark.parametrize("writer", ["write_frame", "savez", "savez_compressed"])
+def test_frame_read_is_what_np_load_reads(tmp_path, writer):
+    """read_npz gives np.load's arrays (names, dtypes, shapes, Fortran order, values) and the zip
+    comment, for our frame files and np.savez's (stored, zip64 headers) or compressed ones; a flipped
+    byte in an array's data is refused (CRC-32), as np.load refuses it."""
+    import zipfile
+
+    from hr_addon.io import cache
+
+    rng = np.random.default_rng(2)
+    arrays = {"Wall": rng.random((5, 4)).astype(np.float32), "Übung": np.zeros((0, 4), np.float32),
+              "b": rng.random((300, 4)).astype(np.float32)}
+    path = tmp_path / "f.npz"
+    if writer == "write_frame":
+        cache.write_frame(path, arrays, "id2")
+    else:
+        arrays["f64 fortran"] = np.asfortranarray(rng.random((3, 7)))
+        getattr(np, writer)(path, **arrays)
+    got, comment = cache.read_npz(path)
+    assert comment == (b"hr_radiosity bake id2" if writer == "write_frame" else b"")
+    with np.load(path) as ref:
+        assert sorted(got) == sorted(ref.files)
+        for k in ref.files:
+            assert got[k].dtype == ref[k].dtype and got[k].shape == ref[k].shape
+            assert np.array_equal(got[k], ref[k])
+            assert got[k].flags.writeable and got[k].flags.f_contiguous == ref[k].flags.f_contiguous
+    if writer == "savez_compressed":
+        return
+    raw = bytearray(path.read_bytes())
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo("b.npy")
+    at = info.header_offset
+    raw[at + 30 + len("b.npy") + int.from_bytes(raw[at + 28 : at + 30], "little") + 200] ^= 1  # b's values
+    path.write_bytes(bytes(raw))
+    with pytest.raises(ValueError, match="CRC"):
+        cache.read_npz(path)
+    with pytest.raises(zipfile.BadZipFile):
+        np.load(path)["b"]
+
+
 def test_abort_keeps_previous(tmp_path):
     d = tmp_path / "scene"
     _bake(d, [1, 2], lambda f: 10)

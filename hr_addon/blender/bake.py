@@ -30,7 +30,7 @@ from .preview import bake_mode, refresh_preview
 from .props import custom_range
 from .report import BUILD_SHARE, BakeProgress, BakeResult, Warnings, ray_backend_name, ray_backend_note
 from .lights_in import collect_light_shapes, collect_lights, lights_signature, shapes_signature
-from .scene_in import SceneError, geometry_objects
+from .scene_in import FlatExtract, SceneError, geometry_objects
 from .snapshot import read_snapshot
 from .settings import BakeConfig, make_gather, precompute_key, solver_setup
 from .state import STATE
@@ -201,6 +201,7 @@ class _Bake:
         self.result = result
         result.log = self.log
         self._plan = None  # the texture plan, made once per bake (build() or open_writer())
+        self._extract = None  # vertex output: every object's RGBA rows of one array (open_writer())
 
     def warn(self, items, frame=None):
         """Count warnings; returns the new ones (shown in progress reports)."""
@@ -333,6 +334,7 @@ class _Bake:
                 for t in targets
             }
             sig = _signature(snap.mesh, params, cfg.domain, targets, cfg.radiance_mode, cfg.gather)
+            self._extract = FlatExtract(targets, cfg.domain)
             return CacheWriter(final_dir, objects, cfg.domain, sig, info), None
         baker = self.texture_plan(snap, system)
         self.warn(baker.warnings)
@@ -400,7 +402,11 @@ class _Bake:
         frame_warnings += dyn.apply(shapes, lights).messages
         if baker is not None:
             return baker.radiance(dyn, cfg.radiance_mode, gather=final)
-        mode = cfg.radiance_mode
+        mode, fx = cfg.radiance_mode, self._extract
+        if final is not None and mode == "RADIANCE" and cfg.domain == "CORNER" and fx.flat:
+            # the gather writes the objects' loops straight into the RGBA rows (as Live does; a
+            # strength or colour edit: one sum over the cached responses, no array of every loop)
+            return fx.rgba(None, lambda rows, out: final.loop_radiance(dyn, rows=rows, out=out))
         if mode == "INDIRECT":  # (BakeConfig: with the final gather only)
             values = final.loop_values(indirect_incident(final, dyn), cfg.domain)
         elif final is not None:
@@ -409,7 +415,7 @@ class _Bake:
             values = loop_incident(dyn, cfg.domain)
         else:
             values = dyn.loop_radiance(cfg.domain)
-        return {t.name: t.extract(values, cfg.domain) for t in snap.scene_in.targets}
+        return fx.rgba(values)  # {object name: (N, 4) float32 RGBA}, the values Target.extract gives
 
     def frame_loop(self, snap, todo, dyn, final, writer, baker):
         """Generator over the frames: a frame whose light equals the previous one's reuses its file."""

@@ -35,11 +35,15 @@ importable from here too.
 
 import io
 import json
+import math
 import os
 import re
 import shutil
+import struct
+import time
 import uuid
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -90,21 +94,107 @@ def write_frame(path: Path, arrays: dict, bake_id=None):
         if a.shape[1] == 3:
             a = np.concatenate([a, np.ones((len(a), 1), np.float32)], 1)
         out[name] = np.ascontiguousarray(a)
-
-    def save(fh):
-        buf = io.BytesIO()
-        np.savez(buf, **out)
-        if bake_id:
-            with zipfile.ZipFile(buf, "a") as z:
-                z.comment = (_ID_PREFIX + str(bake_id)).encode("ascii")
-        fh.write(buf.getbuffer())
-
-    atomic_write(path, save)
+    comment = (_ID_PREFIX + str(bake_id)).encode("ascii") if bake_id else b""
+    atomic_write(path, lambda fh: write_npz(fh, out, comment))
 
 
-def _zip_bake_id(z):
-    """The bake id in the comment of an open frame zip, or None (no id: an earlier version's file)."""
-    c = z.comment.decode("ascii", "replace")
+# np.savez's file (an uncompressed zip of .npy members) written member by member here: zipfile's
+# Python work per member cost a frame of the furnished 100k room (3,882 objects) 60 ms of its 77
+_LOCAL = struct.Struct("<4s5H3L2H")  # local file header, central directory entry, end record
+_CENTRAL = struct.Struct("<4s6H3L5H2L")
+_END = struct.Struct("<4s4H2LH")
+ZIP32 = (0xFFFF, 0xFFFFFFFF)  # members and bytes a zip without the zip64 records can hold
+
+
+def write_npz(fh, arrays, comment=b""):
+    """Write {name: C-contiguous array} into the binary file fh as np.savez does (member
+    "name.npy", stored), with the zip comment `comment`; np.load and zipfile read it alike. Beyond
+    ZIP32 zipfile writes it (zip64)."""
+    headers = {}  # .npy header bytes per shape and dtype (many objects share theirs)
+
+    def npy(a):
+        key = (a.shape, a.dtype.str)
+        if key not in headers:
+            buf = io.BytesIO()
+            np.lib.format.write_array_header_1_0(buf, np.lib.format.header_data_from_array_1_0(a))
+            headers[key] = buf.getvalue()
+        return headers[key], a.reshape(-1).view(np.uint8)  # (its bytes, also of an empty array)
+
+    members = [(f"{name}.npy", *npy(a)) for name, a in arrays.items()]
+    size = sum(2 * len(n.encode()) + _LOCAL.size + _CENTRAL.size + len(h) + d.nbytes for n, h, d in members)
+    if len(members) > ZIP32[0] or size > ZIP32[1]:
+        with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+            for name, head, data in members:
+                with z.open(name, "w", force_zip64=True) as m:
+                    m.write(head)
+                    m.write(data)
+            z.comment = comment
+        return
+    t = time.localtime()  # DOS time and date, as zipfile stamps its members
+    clock = t.tm_hour << 11 | t.tm_min << 5 | t.tm_sec // 2
+    day = (t.tm_year - 1980) << 9 | t.tm_mon << 5 | t.tm_mday
+    central, offset = [], 0
+    for name, head, data in members:
+        raw = name.encode()
+        n, crc = len(head) + data.nbytes, zlib.crc32(data, zlib.crc32(head))
+        # flags (UTF-8 names marked, as zipfile does), stored, time, date, CRC-32, sizes, name length
+        common = (0 if name.isascii() else 0x800, 0, clock, day, crc, n, n, len(raw))
+        fh.write(_LOCAL.pack(b"PK\x03\x04", 20, *common, 0) + raw)
+        fh.write(head)
+        fh.write(data)
+        central.append(_CENTRAL.pack(b"PK\x01\x02", 20 | 3 << 8, 20, *common, 0, 0, 0, 0, 0, offset) + raw)
+        offset += _LOCAL.size + len(raw) + n
+    cd = b"".join(central)
+    fh.write(cd)
+    k = len(central)
+    fh.write(_END.pack(b"PK\x05\x06", 0, 0, k, k, len(cd), offset, len(comment)) + comment)
+
+
+def read_npz(path):
+    """({name: array}, zip comment bytes) of an .npz file (write_npz's or np.savez's), the arrays
+    np.load gives, without its per-member work (3,882 objects: a frame read 510 ms of CPU): the
+    file read once, each stored member checked against its CRC-32 and viewed as its array (writeable,
+    of one buffer; members of the same header parsed once). Raises ValueError (or zipfile's and
+    OSError) for a damaged file, as np.load would."""
+    with open(path, "rb") as fh:
+        data = bytearray(os.fstat(fh.fileno()).st_size)
+        if fh.readinto(data) != len(data):
+            raise ValueError("file shorter than its size")
+    buf = memoryview(data)
+    with zipfile.ZipFile(io.BytesIO(data)) as z:  # the central directory, names as zipfile decodes them
+        headers, out = {}, {}
+        for info in z.infolist():
+            if info.compress_type == zipfile.ZIP_STORED:
+                at = info.header_offset
+                if bytes(buf[at : at + 4]) != b"PK\x03\x04":
+                    raise ValueError(f"bad member header of '{info.filename}'")
+                *_, n_name, n_extra = _LOCAL.unpack_from(buf, at)
+                at += _LOCAL.size + n_name + n_extra
+                member = buf[at : at + info.file_size]
+                if len(member) != info.file_size or zlib.crc32(member) != info.CRC:
+                    raise ValueError(f"bad CRC-32 of '{info.filename}'")
+            else:
+                member = memoryview(bytearray(z.read(info)))  # (not written by us: zipfile reads it)
+            # the .npy header: magic, version, its length (2 bytes in version 1, else 4), the dict
+            wide = member[6:7] != b"\x01"
+            size = 8 + (4 if wide else 2) + int.from_bytes(member[8 : 12 if wide else 10], "little")
+            key = bytes(member[:size])
+            if key not in headers:
+                f, fmt = io.BytesIO(key), np.lib.format
+                one = fmt.read_magic(f) == (1, 0)
+                headers[key] = (fmt.read_array_header_1_0 if one else fmt.read_array_header_2_0)(f)
+            shape, fortran, dtype = headers[key]
+            if dtype.hasobject:
+                raise ValueError(f"'{info.filename}' holds Python objects")
+            a = np.frombuffer(member, dtype, math.prod(shape), size)
+            name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+            out[name] = a.reshape(shape[::-1]).T if fortran else a.reshape(shape)
+        return out, z.comment
+
+
+def _comment_bake_id(comment):
+    """The bake id in a frame file's zip comment (bytes), or None (no id: an earlier version's file)."""
+    c = comment.decode("ascii", "replace")
     return c[len(_ID_PREFIX) :] if c.startswith(_ID_PREFIX) else None
 
 
@@ -195,36 +285,22 @@ def settings_difference(old: dict, new: dict):
 
 
 def npz_problem(path, objects=None, bake_id=None):
-    """'' if the frame file at `path` looks complete (a zip of (count, 4) float32 arrays, sizes as the
-    manifest says) and, if `bake_id` is given, holds that bake id; else what is wrong. Reads the zip
-    directory, its comment and the array headers, not the data."""
+    """'' if the frame file at `path` is complete (a zip of (count, 4) float32 arrays, sizes as the
+    manifest says, every member's CRC-32 right) and, if `bake_id` is given, holds that bake id; else
+    what is wrong. Reads the file once (read_npz: 3,882 objects, 40 ms; the zip's directory and
+    each member's headers read one by one took 160)."""
     path = Path(path)
     if not path.is_file():
         return "missing"
     try:
-        with zipfile.ZipFile(path) as z:
-            found = _zip_bake_id(z)
-            for info in z.infolist():
-                name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
-                with z.open(info) as fh:
-                    fmt = np.lib.format
-                    version = fmt.read_magic(fh)
-                    read = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
-                    shape, _, dtype = read(fh)
-                    hdr = fh.tell()
-                want = (objects or {}).get(name, {}).get("count")
-                if (
-                    len(shape) != 2
-                    or shape[1] != 4
-                    or dtype != np.float32
-                    or (want is not None and shape[0] != want)
-                ):
-                    return f"bad array for '{name}'"
-                if info.file_size != hdr + shape[0] * 16 or info.compress_size < 0:
-                    return f"truncated array for '{name}'"
+        arrays, comment = read_npz(path)
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as exc:
         return f"unreadable ({exc})"
-    why = _id_problem(found, bake_id)
+    for name, a in arrays.items():
+        want = (objects or {}).get(name, {}).get("count")
+        if a.ndim != 2 or a.shape[1] != 4 or a.dtype != np.float32 or (want is not None and len(a) != want):
+            return f"bad array for '{name}'"
+    why = _id_problem(_comment_bake_id(comment), bake_id)
     return f"'{path.name}' {why}" if why else ""
 
 
@@ -437,9 +513,9 @@ class CacheReader:
         hit = self._files.get(key)
         if hit is None:
             try:
-                with np.load(path, allow_pickle=False) as z:
-                    found = _zip_bake_id(z.zip)
-                    data = {k: np.ascontiguousarray(z[k], np.float32) for k in z.files}
+                data, comment = read_npz(path)
+                found = _comment_bake_id(comment)
+                data = {k: np.ascontiguousarray(a, np.float32) for k, a in data.items()}
             except Exception as exc:
                 raise CacheError(f"Corrupt radiosity cache file '{path}': {exc}") from None
             for k, a in data.items():
