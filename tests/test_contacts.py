@@ -204,3 +204,29 @@ def test_slot_mouths_follow_the_surface_not_its_seams():
     patch = np.array([floor[1], floor[0]])  # right of the seam, left of it
     x, h = c.slots(p, patch)[:2]
     assert np.allclose(x, 0.25) and np.allclose(h, 0.002)
+
+
+def test_covered_disc_shortcut_gives_the_full_sums_answer():
+    """_pairs takes a closed chain's winding number from its centre inside the disc that meets
+    none of its segments and 0 beyond the circle holding them all (Contacts._discs): on the 2k
+    furnished room's receivers (12 x 12 points each, and points along the chains' own segments)
+    the same covered points as the sum over every segment of every chain whose box holds them."""
+    from hr_testing.furnished import furnished_room
+
+    pt = prepare_patches(furnished_room("2k")[0])
+    c = Contacts(pt, 1e-3 * np.sqrt(pt.area.sum()))
+    rec = np.asarray(c.receivers, np.int64)
+    k = 12
+    pts = ff.sample_points(pt.corners[rec], pt.nv[rec], k).reshape(-1, 3)
+    patch = np.repeat(rec, k * k)
+    fast = c.covered(pts, patch)
+    cx, cy, r_in2, r_out2, wc = c._discs()
+    pairs = c._pairs(pts, patch, 4_000_000)
+    i, ch = pairs[:2]
+    p2 = c._to2d(c.plane[patch[i]], pts[i][:, None])[:, 0]
+    d2 = (p2[:, 0] - cx[ch]) ** 2 + (p2[:, 1] - cy[ch]) ** 2
+    assert (d2 < r_in2[ch]).mean() > 0.3 and (d2 > r_out2[ch]).any()  # the shortcut decides most pairs
+    assert (r_in2 > 0).mean() > 0.3  # closed chains (a wall's along the floor is open: summed)
+    c._disc = (cx, cy, np.zeros_like(r_in2), np.full_like(r_out2, np.inf), wc)  # every pair summed
+    np.testing.assert_array_equal(fast, c.covered(pts, patch))
+    assert 0.01 < fast.mean() < 0.9
