@@ -313,18 +313,20 @@ class Contacts(SlotMouths):
         near = np.zeros(len(i), bool)  # in the open band of a gap (open_edge)
         px, py = np.ascontiguousarray(p2[:, 0]), np.ascontiguousarray(p2[:, 1])
         pi, pch = i, ch  # all pairs (returned)
-        if open_edge <= 0:
-            # a closed chain's winding number is its centre's within the disc about the centre that
-            # meets none of its segments, and 0 outside the circle about the centre that holds them
-            # all (no band to measure there): only the pairs between the two are summed
-            cx, cy, r_in2, r_out2, wc = self._discs()
-            d2 = (px[i] - cx[ch]) ** 2 + (py[i] - cy[ch]) ** 2
-            inside, beyond = d2 < r_in2[ch], d2 > r_out2[ch]
-            w[inside] = wc[ch[inside]]
-            rest = np.flatnonzero(~inside & ~beyond)
-            i, ch = i[rest], ch[rest]
+        # a closed chain's winding number is its centre's within the disc about the centre that
+        # meets none of its segments, and 0 outside the circle about the centre that holds them
+        # all; farther than its widest open band (open_edge) from both circles no point is near
+        # an open edge: only the pairs between the two are summed
+        cx, cy, r_in, r_out, wc, band = self._discs()
+        r = np.sqrt((px[i] - cx[ch]) ** 2 + (py[i] - cy[ch]) ** 2)
+        wide = open_edge * band[ch] if open_edge > 0 else 0.0
+        inside, beyond = r < r_in[ch] - wide, r > r_out[ch] + wide
+        w[inside] = wc[ch[inside]]
+        rest = np.flatnonzero(~inside & ~beyond)
+        i, ch = i[rest], ch[rest]
         n_seg = self.chain_start[ch + 1] - self.chain_start[ch]
         wr = np.zeros(len(i))
+        nr = np.zeros(len(i), bool)
         step = max(1, budget // max(int(n_seg.max(initial=1)), 1))
         seg = getattr(self, "_seg_cm", None)
         if seg is None:  # one assignment: threads may race to build it, never half
@@ -353,19 +355,17 @@ class Contacts(SlotMouths):
             e = b - a
             t = np.clip(-np.einsum("ij,ij->i", a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
             d = np.linalg.norm(a + t[:, None] * e, axis=1)  # to the segment's nearest point
-            near[sl] = np.bincount(pr, d < band, len(ns)) > 0  # within the band of an open edge of a gap
-        if open_edge <= 0:
-            w[rest] = wr
-        else:
-            w = wr
+            nr[sl] = np.bincount(pr, d < band, len(ns)) > 0  # within the band of an open edge of a gap
+        w[rest], near[rest] = wr, nr
         hit = np.where(self.chain_signed[pch], w < -0.5, np.abs(w) > 0.5)
         return pi, pch, hit, near
 
     def _discs(self):
-        """Per chain (centre x, y, r_in^2, r_out^2, winding at the centre): the mean of its
-        segments' starts, the squared distance from it to the nearest segment (shrunk by 1e-9 of
-        it; 0 for a chain that is not closed: its starts not the same points as its ends) and to
-        the farthest segment end (grown by 1e-9 of it), _pairs' exact shortcut. Built once."""
+        """Per chain (centre x, y, r_in, r_out, winding at the centre, widest open band per unit
+        open_edge): the mean of its segments' starts, the distance from it to the nearest segment
+        (shrunk by 1e-9 of it; 0 for a chain that is not closed: its starts not the same points as
+        its ends) and to the farthest segment end (grown by 1e-9 of it), the largest height of its
+        open segments: _pairs' exact shortcut. Built once."""
         got = getattr(self, "_disc", None)
         if got is not None:
             return got
@@ -384,11 +384,13 @@ class Contacts(SlotMouths):
         ka, kb = (np.lexsort((x[:, 1], x[:, 0], ch)) for x in (a, b))
         same = (a[ka] == b[kb]).all(1)
         closed = np.bincount(ch, ~same, nC) == 0
-        r_in2 = np.where(closed & (cnt > 0), d_in * (1 - 1e-9), 0.0)
-        r_out2 = np.where(closed & (cnt > 0), d_out * (1 + 1e-9), np.inf)
+        r_in = np.where(closed & (cnt > 0), np.sqrt(d_in) * (1 - 1e-9), 0.0)
+        r_out = np.where(closed & (cnt > 0), np.sqrt(d_out) * (1 + 1e-9), np.inf)
         wc = self._winding(np.arange(nC), c) if nC else np.zeros(0)
-        got = self._disc = (c[:, 0].copy(), c[:, 1].copy(), r_in2, r_out2, wc)  # (one assignment)
-        return got
+        band = np.zeros(nC)  # (a NaN height opens no band: d < NaN is False)
+        np.maximum.at(band, ch, np.nan_to_num(self.seg_height * self.seg_open, nan=0.0))
+        got = self._disc = (c[:, 0].copy(), c[:, 1].copy(), r_in, r_out, wc, band * (1 + 1e-9))
+        return got  # (one assignment: threads may race to build it, never half)
 
     # -- the slots' mouths ----------------------------------------------------------------------------
     def _winding(self, ch, q):
