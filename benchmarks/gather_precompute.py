@@ -4,7 +4,7 @@ code of the checkout given: CPU seconds, one run. For comparing checkouts on the
 
     .venv/bin/python benchmarks/gather_precompute.py /work/cache/STORE [--root CHECKOUT] \
         [--set layouts.SPLIT=False] [--threads N] [--serial] [--profile FILE [--whole]] [--digest FILE] \
-        [--json FILE]
+        [--json FILE] [--write DIR]
 
 --serial: the CPU seconds of the threaded maps' batches (core.parallel.profiled, threads 1) and so
 the serial part, with Amdahl's model on 2 and 16 cores as docs/threads.md's (bench_threads.py).
@@ -12,6 +12,8 @@ the serial part, with Amdahl's model on 2 and 16 cores as docs/threads.md's (ben
 60 largest cumulative entries written to FILE: where the serial part is (--whole: of everything).
 --digest: a SHA-256 per stored array of the captured precompute (io.precompute_graph.capture),
 written to FILE as JSON: two checkouts or thread counts store the same bits if the files match.
+--write: write the stored system with this gather as a new store into DIR (not the one read), for
+bench_gather_events.py --cache DIR (its events and --dump on this checkout's gather).
 """
 
 import argparse
@@ -35,6 +37,7 @@ ap.add_argument("--profile", default=None, help="write a cProfile summary of the
 ap.add_argument("--whole", action="store_true", help="--profile: of the whole run, the maps' batches too")
 ap.add_argument("--digest", default=None, help="write the stored arrays' SHA-256 here (JSON)")
 ap.add_argument("--json", default=None, help="append this run's figures to this JSON list")
+ap.add_argument("--write", default=None, help="write the system and this gather as a store here")
 args = ap.parse_args()
 sys.path.insert(0, args.root)
 sys.path.insert(0, os.path.join(args.root, "benchmarks"))
@@ -48,7 +51,7 @@ for kv in args.set:
     name, value = kv.split("=", 1)
     mod, attr = name.rsplit(".", 1)
     setattr(getattr(gather, mod), attr, eval(value))
-s, g, _ = load_store(Path(args.store) / pc.FILENAME)
+s, g, header = load_store(Path(args.store) / pc.FILENAME)
 pc.use_threads(s, g, args.threads)
 del g
 dyn = DynamicRadiosity(s, method="FE", **DynamicRadiosity.gather_options("draft"))
@@ -103,6 +106,12 @@ if args.serial:
 if args.json:
     p = Path(args.json)
     p.write_text(json.dumps([*(json.loads(p.read_text()) if p.exists() else []), run], indent=1))
+if args.write:
+    if Path(args.write).resolve() == Path(args.store).resolve():
+        sys.exit("--write: not into the store read")
+    want = {k: header[k] for k in ("format_version", "extension", "code", "settings", "objects")}
+    info = {**header.get("info", {}), "gather_precompute_cpu_s": cpu}
+    pc.write(args.write, *pc.capture(s, g), want, info=info)
 if prof:
     with open(args.profile, "w") as fh:
         pstats.Stats(prof, stream=fh).sort_stats("cumulative").print_stats(60)

@@ -356,6 +356,37 @@ def test_loop_layout_matches_loop_radiance_and_gather_off_is_unchanged():
         print(mesh.object_names[o], f"{a:.4f} {b:.4f}")
 
 
+def test_corner_samples_share_their_corners_rays():
+    """layouts.shared_rays: a corner sample averaged with k - 1 others at every corner that reads it
+    traces rays // min(k, SHARE), so each corner's mean still has about the rays of one sample
+    (the Cornell box's walls: 4 samples at an inner vertex of a wall's grid, 2 along its edges, 1 at
+    its corners; the blocks' corners 1); the extra samples (corner_fit) keep all rays. In the
+    furnace (uniform light) every corner with an uncovered sample still reads E / (1 - rho)
+    within 2%."""
+    from hr_addon.core.gather import layouts
+
+    s = RadiositySystem(scenes.cornell_box(subdiv=4), RefineParams.preset("draft"))
+    pts, _, _, loop_index, avg = layouts.loop_samples(s)
+    li, lj = avg[:2]
+    r = layouts.shared_rays(avg, loop_index, len(pts), 64)
+    k = np.bincount(li, minlength=len(loop_index))
+    assert set(np.unique(k[li])) >= {1, 2, 4} and set(np.unique(r)) == {16, 32, 64}
+    got = np.bincount(li, r[loop_index[lj]], len(loop_index))  # rays behind each corner's mean
+    m = np.minimum(k, layouts.SHARE)
+    assert (got[li] >= m[li] * (64 // m[li])).all() and (got[li] <= k[li] * 64).all()
+    lg = LoopGather(DynamicRadiosity(s, method="FE"), rays=64)
+    assert np.array_equal(lg.sample_rays[: lg.n_loop], r)
+    assert lg.n > lg.n_loop and (lg.sample_rays[lg.n_loop :] == 64).all()
+    rho = np.array([0.5, 0.5, 0.5])
+    f = RadiositySystem(contact_furnace(tuple(rho)), RefineParams.preset("draft"))
+    f.solve()
+    g = LoopGather(f, rays=32)
+    assert g.sample_rays.min() < 32
+    v = g.loop_radiance(DynamicRadiosity(f, method="FE"))[:, 0]
+    lit = v > 0  # (corners with no uncovered sample read 0)
+    assert lit.mean() > 0.9 and np.abs(v[lit] * (1 - rho[0]) - 1).max() < 0.02
+
+
 def test_emission_change_is_a_scale_and_shapes_are_cached():
     base = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
     dyn = DynamicRadiosity(base.copy(), method="FE")

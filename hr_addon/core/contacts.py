@@ -309,16 +309,30 @@ class Contacts(SlotMouths):
         i, ch = i[~own], ch[~own]
         if not len(i):
             return None
-        n_seg = self.chain_start[ch + 1] - self.chain_start[ch]
         w = np.zeros(len(i))
         near = np.zeros(len(i), bool)  # in the open band of a gap (open_edge)
-        step = max(1, budget // max(int(n_seg.max()), 1))
+        px, py = np.ascontiguousarray(p2[:, 0]), np.ascontiguousarray(p2[:, 1])
+        pi, pch = i, ch  # all pairs (returned)
+        # a closed chain's winding number is its centre's within the disc about the centre that
+        # meets none of its segments, and 0 outside the circle about the centre that holds them
+        # all; farther than its widest open band (open_edge) from both circles no point is near
+        # an open edge: only the pairs between the two are summed
+        cx, cy, r_in, r_out, wc, band = self._discs()
+        r = np.sqrt((px[i] - cx[ch]) ** 2 + (py[i] - cy[ch]) ** 2)
+        wide = open_edge * band[ch] if open_edge > 0 else 0.0
+        inside, beyond = r < r_in[ch] - wide, r > r_out[ch] + wide
+        w[inside] = wc[ch[inside]]
+        rest = np.flatnonzero(~inside & ~beyond)
+        i, ch = i[rest], ch[rest]
+        n_seg = self.chain_start[ch + 1] - self.chain_start[ch]
+        wr = np.zeros(len(i))
+        nr = np.zeros(len(i), bool)
+        step = max(1, budget // max(int(n_seg.max(initial=1)), 1))
         seg = getattr(self, "_seg_cm", None)
         if seg is None:  # one assignment: threads may race to build it, never half
             seg = self._seg_cm = tuple(
                 np.ascontiguousarray(x[:, k]) for x in (self.seg_a, self.seg_b) for k in (0, 1)
             )
-        px, py = np.ascontiguousarray(p2[:, 0]), np.ascontiguousarray(p2[:, 1])
         for s in range(0, len(i), step):
             sl = slice(s, s + step)
             ns = n_seg[sl]
@@ -330,7 +344,7 @@ class Contacts(SlotMouths):
             qx, qy = px[ip], py[ip]
             ax, ay, bx, by = seg[0][sg] - qx, seg[1][sg] - qy, seg[2][sg] - qx, seg[3][sg] - qy
             ang = np.arctan2(ax * by - ay * bx, (ax * bx + ay * by) + 0.0)
-            w[sl] = np.bincount(pr, ang, len(ns)) / (2 * np.pi)
+            wr[sl] = np.bincount(pr, ang, len(ns)) / (2 * np.pi)
             if open_edge <= 0:  # no band (below: open_edge x height x open, 0 or nan)
                 continue
             band = open_edge * self.seg_height[sg] * self.seg_open[sg]
@@ -341,9 +355,42 @@ class Contacts(SlotMouths):
             e = b - a
             t = np.clip(-np.einsum("ij,ij->i", a, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
             d = np.linalg.norm(a + t[:, None] * e, axis=1)  # to the segment's nearest point
-            near[sl] = np.bincount(pr, d < band, len(ns)) > 0  # within the band of an open edge of a gap
-        hit = np.where(self.chain_signed[ch], w < -0.5, np.abs(w) > 0.5)
-        return i, ch, hit, near
+            nr[sl] = np.bincount(pr, d < band, len(ns)) > 0  # within the band of an open edge of a gap
+        w[rest], near[rest] = wr, nr
+        hit = np.where(self.chain_signed[pch], w < -0.5, np.abs(w) > 0.5)
+        return pi, pch, hit, near
+
+    def _discs(self):
+        """Per chain (centre x, y, r_in, r_out, winding at the centre, widest open band per unit
+        open_edge): the mean of its segments' starts, the distance from it to the nearest segment
+        (shrunk by 1e-9 of it; 0 for a chain that is not closed: its starts not the same points as
+        its ends) and to the farthest segment end (grown by 1e-9 of it), the largest height of its
+        open segments: _pairs' exact shortcut. Built once."""
+        got = getattr(self, "_disc", None)
+        if got is not None:
+            return got
+        a, b, st = self.seg_a, self.seg_b, self.chain_start
+        nC, cnt = len(st) - 1, np.diff(st)
+        ch = np.repeat(np.arange(nC), cnt)
+        c = np.stack([np.bincount(ch, a[:, k], nC) for k in (0, 1)], 1) / np.maximum(cnt, 1)[:, None]
+        u, v = a - c[ch], b - c[ch]
+        e = v - u
+        t = np.clip(-np.einsum("ij,ij->i", u, e) / np.maximum(np.einsum("ij,ij->i", e, e), 1e-300), 0, 1)
+        q = u + t[:, None] * e
+        d_in, d_out = np.full(nC, np.inf), np.zeros(nC)
+        np.minimum.at(d_in, ch, np.einsum("ij,ij->i", q, q))
+        np.maximum.at(d_out, ch, np.maximum(np.einsum("ij,ij->i", u, u), np.einsum("ij,ij->i", v, v)))
+        # closed: per chain the same multiset of points as starts and as ends (exact coordinates)
+        ka, kb = (np.lexsort((x[:, 1], x[:, 0], ch)) for x in (a, b))
+        same = (a[ka] == b[kb]).all(1)
+        closed = np.bincount(ch, ~same, nC) == 0
+        r_in = np.where(closed & (cnt > 0), np.sqrt(d_in) * (1 - 1e-9), 0.0)
+        r_out = np.where(closed & (cnt > 0), np.sqrt(d_out) * (1 + 1e-9), np.inf)
+        wc = self._winding(np.arange(nC), c) if nC else np.zeros(0)
+        band = np.zeros(nC)  # (a NaN height opens no band: d < NaN is False)
+        np.maximum.at(band, ch, np.nan_to_num(self.seg_height * self.seg_open, nan=0.0))
+        got = self._disc = (c[:, 0].copy(), c[:, 1].copy(), r_in, r_out, wc, band * (1 + 1e-9))
+        return got  # (one assignment: threads may race to build it, never half)
 
     # -- the slots' mouths ----------------------------------------------------------------------------
     def _winding(self, ch, q):

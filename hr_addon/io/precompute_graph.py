@@ -17,7 +17,7 @@ _TRANSIENT = {
     "RadiositySystem": {"B": None, "report": None, "_op": None},
     "Hierarchy": {"_levels": None},
     "Links": {"_csr": None, "_ext": None},
-    "Contacts": {"_grid": None, "_seg_cm": None},
+    "Contacts": {"_grid": None, "_seg_cm": None, "_disc": None},
     "ClusterTree": {"_group_runs_": None, "_grad_rows": None, "_centre9": None},
     "FinalGather": {
         "_shape_cache": dict,
