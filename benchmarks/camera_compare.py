@@ -162,36 +162,50 @@ def bake(scene, frame, output):
 
 
 def read_exr(path):
-    """{channel: (H, W) float32} of an uncompressed scanline OpenEXR (Blender's multilayer EXR with
-    codec NONE), rows as stored: the top row first."""
+    """{channel: (H, W) float32} of an uncompressed scanline OpenEXR, single- or multi-part
+    (Blender's multilayer EXR with codec NONE: one part per pass in some files), rows as stored:
+    the top row first."""
     data = open(path, "rb").read()
     assert struct.unpack_from("<i", data, 0)[0] == 20000630
-    assert not struct.unpack_from("<i", data, 4)[0] & 0x1A00, "tiled, deep or multi-part EXR"
-    pos, attrs = 8, {}
-    while data[pos] != 0:
-        e = data.index(b"\0", pos)
-        e2 = data.index(b"\0", e + 1)
-        size = struct.unpack_from("<i", data, e2 + 1)[0]
-        attrs[data[pos:e].decode()] = data[e2 + 5 : e2 + 5 + size]
-        pos = e2 + 5 + size
-    assert attrs["compression"][0] == 0, "compressed EXR"
-    chans, cl = [], attrs["channels"]
-    q = 0
-    while cl[q] != 0:
-        e = cl.index(b"\0", q)
-        chans.append((cl[q:e].decode(), struct.unpack_from("<i", cl, e + 1)[0]))
-        q = e + 17
-    x0, y0, x1, y1 = struct.unpack("<iiii", attrs["dataWindow"])
-    W, H = x1 - x0 + 1, y1 - y0 + 1
+    flags = struct.unpack_from("<i", data, 4)[0]
+    assert not flags & 0xA00, "tiled or deep EXR"
+    multi = bool(flags & 0x1000)
+    pos, parts = 8, []
+    while True:  # headers: name \0 type \0 size value ... \0; multi-part: a list ending in \0
+        attrs = {}
+        while data[pos] != 0:
+            e = data.index(b"\0", pos)
+            e2 = data.index(b"\0", e + 1)
+            size = struct.unpack_from("<i", data, e2 + 1)[0]
+            attrs[data[pos:e].decode()] = data[e2 + 5 : e2 + 5 + size]
+            pos = e2 + 5 + size
+        pos += 1
+        parts.append(attrs)
+        if not multi or data[pos] == 0:
+            break
+    pos += multi
     types = {0: "<u4", 1: "<f2", 2: "<f4"}
-    out = {c: np.empty((H, W), np.float32) for c, _ in chans}
-    for off in struct.unpack_from(f"<{H}Q", data, pos + 1):
-        y = struct.unpack_from("<i", data, off)[0] - y0
-        p = off + 8
-        for c, t in chans:
-            dt = np.dtype(types[t])
-            out[c][y] = np.frombuffer(data, dt, W, p)
-            p += W * dt.itemsize
+    out = {}
+    for attrs in parts:
+        assert attrs["compression"][0] == 0, "compressed EXR"
+        chans, cl, q = [], attrs["channels"], 0
+        while cl[q] != 0:
+            e = cl.index(b"\0", q)
+            chans.append((cl[q:e].decode(), struct.unpack_from("<i", cl, e + 1)[0]))
+            q = e + 17
+        x0, y0, x1, y1 = struct.unpack("<iiii", attrs["dataWindow"])
+        W, H = x1 - x0 + 1, y1 - y0 + 1
+        part = {c: np.empty((H, W), np.float32) for c, _ in chans}
+        for off in struct.unpack_from(f"<{H}Q", data, pos):
+            off += 4 * multi  # a multi-part chunk starts with its part number
+            y = struct.unpack_from("<i", data, off)[0] - y0
+            p = off + 8
+            for c, t in chans:
+                dt = np.dtype(types[t])
+                part[c][y] = np.frombuffer(data, dt, W, p)
+                p += W * dt.itemsize
+        pos += 8 * H
+        out.update(part)
     return out
 
 
@@ -406,22 +420,34 @@ def texel_side(res):
     out = {}
     for k, var in TEXEL_VARS.items():
         tex = {n: o[var] for n, o in tj["objects"].items() if var in o}
-        cam = {n: o[k] for n, o in res["objects"].items() if k in o}
         both = [n for n in res["lit"] if n in tex and n in tj["lit"]]
         for g, sel in (("all", both), ("books", [n for n in both if "_book" in n])):
-            if sel:
-                t = C.object_summary({n: dict(tex[n], mean_ours=[0], mean_ref=[1]) for n in sel}, sel)
-                c = C.object_summary({n: dict(cam[n], mean_ours=[0], mean_ref=[1]) for n in sel}, sel)
-                out[f"{k}|{g}"] = {
-                    "objects": len(sel),
-                    "texel": {q: t[q] for q in ("median", "within_5", "median_signed")},
-                    "camera": {q: c[q] for q in ("median", "within_5", "median_signed")},
-                }
-                log(
-                    f"  same {len(sel)} objects ({k}, {g}): texel median {100 * t['median']:.2f}% "
-                    f"({100 * t['within_5']:.0f}% within 5%), camera {100 * c['median']:.2f}% "
-                    f"({100 * c['within_5']:.0f}%)"
+            if not sel:
+                continue
+            out[f"{k}|{g}"] = row = {"objects": len(sel)}
+            for side, per in (
+                ("texel", tex),
+                ("camera", {n: res["objects"][n][k] for n in sel}),
+                (
+                    "camera_interior",
+                    {
+                        n: res["objects"][n][k + "_interior"]
+                        for n in sel
+                        if k + "_interior" in res["objects"][n]
+                    },
+                ),
+            ):
+                ss = [n for n in sel if n in per]
+                st = C.object_summary({n: dict(per[n], mean_ours=[0], mean_ref=[1]) for n in ss}, ss)
+                row[side] = {q: st[q] for q in ("objects", "median", "within_5", "median_signed")}
+            log(
+                f"  same {len(sel)} objects ({k}, {g}): "
+                + ", ".join(
+                    f"{side} median {100 * v['median']:.2f}% ({100 * v['within_5']:.0f}% within 5%)"
+                    for side, v in row.items()
+                    if side != "objects"
                 )
+            )
         for n in both:
             res["objects"][n][f"texel_{k}"] = {"mre": tex[n]["mre"], "bias": tex[n]["bias"]}
     return out
