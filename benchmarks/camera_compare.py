@@ -134,7 +134,9 @@ def lightmap_sizes(path, texel):
 def bake(scene, frame, output):
     """`python -m hr_addon bake` of a copy of the scene (draft, default settings, --output output).
     Returns (the saved copy, CPU seconds of the bake process, kept beside the copy)."""
-    d = os.path.join(WORK, scene, output)
+    d = os.path.join(
+        WORK, scene, output + (f"_{TEXEL[scene]}" if output == "texture" and scene in TEXEL else "")
+    )
     saved = os.path.join(d, "baked.blend")
     if os.path.exists(saved):
         return saved, json.load(open(saved + ".json")).get("cpu")  # None: not timed
@@ -527,6 +529,9 @@ def main():
     p.add_argument("--tag", default="camera")
     p.add_argument("--fresh", action="store_true", help="bake and render again (the work files)")
     p.add_argument(
+        "--texel", type=float, help="the furnished texture bake's lightmap texel (m), default 0.04"
+    )
+    p.add_argument(
         "--figure", metavar="VIEW", help="only the docs' picture of VIEW (docs/images/camera_VIEW.png)"
     )
     a = p.parse_args()
@@ -541,10 +546,14 @@ def main():
     for vn in a.views.split(","):
         view = VIEWS[vn]
         names = geometry_names(view)
+        wd = os.path.join(WORK, vn)  # the references' renders
+        if a.texel and view["scene"] in TEXEL:
+            TEXEL[view["scene"]] = a.texel
+            vn = f"{vn}_texel{a.texel}"  # its own renders of ours and JSON entry
         bakes = {k: bake(view["scene"], view["frame"], k) for k in ("vertex", "texture")}
         r, cpu_s = {"names": names}, {}
-        wd = os.path.join(WORK, vn)
-        os.makedirs(wd, exist_ok=True)
+        wo = os.path.join(WORK, vn)
+        os.makedirs(wo, exist_ok=True)
         for i, seed in enumerate(SEEDS):
             exr = os.path.join(wd, f"ref_s{a.spp}_seed{seed}.exr")
             if not os.path.exists(exr):
@@ -555,7 +564,7 @@ def main():
             info = json.load(open(exr + ".json"))
             cpu_s[f"ref_seed{seed}"] = info["cpu"]
         for k, (saved, bake_cpu) in bakes.items():
-            exr = os.path.join(wd, f"ours_{k}.exr")
+            exr = os.path.join(wo, f"ours_{k}.exr")
             if not os.path.exists(exr):
                 dt = ours(view, names, saved, OURS_SPP, exr)[2]
                 json.dump({"cpu": dt}, open(exr + ".json", "w"))
