@@ -2,7 +2,10 @@
 per object in the image (docs/accuracy.md, "Per object from a camera").
 
     nice -n 5 env OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/camera_compare.py \
-        [--views furnished_wide,furnished_close,clutter,cornell] [--spp 256] [--tag camera]
+        [--views furnished_close,furnished_wide,clutter,cornell] [--spp 256] [--tag camera] [--texel 0.02]
+
+(docs/accuracy.md's runs: --spp 128 for the furnished views, with and without --texel 0.02, and
+--spp 32 for clutter and cornell; about 5 CPU minutes per 128-spp reference render.)
 
 Per view (VIEWS: a scene, its frame, a camera, a resolution):
 1. Reference: a Cycles render of the scene itself, the references' materials (cycles_ref.prepare:
@@ -12,7 +15,9 @@ Per view (VIEWS: a scene, its frame, a camera, a resolution):
    Object Index pass read with the combined pass from a 32-bit float multilayer EXR.
 2. Ours through the product's path: `python -m hr_addon bake` of a copy of the scene at draft
    quality, default settings otherwise (final gather on), once with vertex output (the default)
-   and once with texture output (--output texture); the saved copy opened, the frame loaded and
+   and once with texture output (--output texture; the furnished room's objects get a Lightmap
+   Size for texels of about TEXEL metres, --texel: its default 128 each does not fit in memory,
+   lightmap_sizes); the saved copy opened, the frame loaded and
    shown as the product shows it (the Preview Bake operator: HR_Radiance as Emission, or the baked
    image sequences on the helper materials), rendered by Cycles from the same camera, same
    resolution and filter, no bounces (emission only), OURS_SPP samples for the anti-aliasing.
