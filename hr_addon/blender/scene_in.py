@@ -353,6 +353,13 @@ class InstanceInfo:
     source: str  # the instanced object
     count: int = 0
     polygons: int = 0  # per instance
+    kind: str = "MESH"  # the source's type: a text or curve object evaluates to a mesh of its own
+
+    @property
+    def converted(self):
+        """A text, curve or surface object (not an instance of another object): it renders as a mesh
+        but has no mesh data to hold HR_Radiance or a lightmap UV layer."""
+        return self.instancer == self.source and self.kind != "MESH"
 
 
 def participating_instances(view_layer, depsgraph):
@@ -399,7 +406,7 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
             digests.setdefault(label, []).append(_instance_digest(inst, _mesh_digest(arrays), digest_cache))
         em = _placed(arrays, inst.matrix_world, [s.material for s in ob.material_slots] or [None])
         instancer, source = label.split("/", 1)
-        i = info.setdefault((instancer, source), InstanceInfo(instancer, source))
+        i = info.setdefault((instancer, source), InstanceInfo(instancer, source, kind=ob.original.type))
         i.count += 1
         i.polygons = len(arrays[1])
         part, _ = _mesh_input(em, f"{label}#{i.count}", warnings, mat_cache)
@@ -407,17 +414,34 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
     return parts, info
 
 
+_KIND = {"FONT": "text", "CURVE": "curve", "SURFACE": "surface", "META": "metaball", "CURVES": "hair curves"}
+
+
 def instances_warning(info):
-    if not info:
-        return None
-    n = sum(i.count for i in info.values())
-    what = ", ".join(f"{i.count} x '{i.source}' (by '{i.instancer}')" for i in list(info.values())[:4])
-    more = ", ..." if len(info) > 4 else ""
-    return (
-        f"{n} instance(s) take part in the light (they receive and cast it) but get no baked output: "
-        f"{what}{more}. Instances share their mesh data, which holds one value per element; "
-        "make them real (Object > Apply > Make Instances Real) to bake their own light."
-    )
+    """One warning for the instances, one for the text and curve objects: both take part in the
+    light without output of their own, but only instances are made real (Make Instances Real does
+    nothing to a text object; Convert to Mesh does)."""
+    inst = [i for i in info.values() if not i.converted]
+    conv = [i for i in info.values() if i.converted]
+    out = []
+    if inst:
+        n = sum(i.count for i in inst)
+        what = ", ".join(f"{i.count} x '{i.source}' (by '{i.instancer}')" for i in inst[:4])
+        more = ", ..." if len(inst) > 4 else ""
+        out.append(
+            f"{n} instance(s) take part in the light (they receive and cast it) but get no baked output: "
+            f"{what}{more}. Instances share their mesh data, which holds one value per element; "
+            "make them real (Object > Apply > Make Instances Real) to bake their own light."
+        )
+    if conv:
+        what = ", ".join(f"'{i.source}' (a {_KIND.get(i.kind, i.kind.lower())} object)" for i in conv[:4])
+        more = ", ..." if len(conv) > 4 else ""
+        out.append(
+            f"{what}{more}: take part in the light (they receive and cast it) but get no baked output, "
+            "only mesh objects hold HR_Radiance or a lightmap; convert them to meshes "
+            "(Object > Convert > Mesh) to bake their own light."
+        )
+    return out
 
 
 def _hidden_instancer(obj):
@@ -491,9 +515,7 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
         nloop += len(em.loop_verts)
         nvert += len(em.verts)
     parts += inst_parts  # after the targets' parts: their offsets stay valid
-    w = instances_warning(inst_info)
-    if w:
-        warnings.append(w)
+    warnings += instances_warning(inst_info)
     if not parts:
         raise SceneError("No mesh objects with faces to compute radiosity on.")
     mesh = parts[0]
