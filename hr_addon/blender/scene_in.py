@@ -157,7 +157,7 @@ class Target:
             return seg
         if self.loop_map is not None:  # topology changed by modifiers: the matching evaluated corner
             return seg[self.loop_map]
-        # Topology changed by modifiers: average per evaluated vertex, nearest vertex per corner.
+        # POINT: average per evaluated vertex, nearest vertex per original vertex.
         cnt = np.maximum(np.bincount(self.eval_loop_verts, minlength=self.n_eval_verts), 1)
         pv = np.stack([np.bincount(self.eval_loop_verts, seg[:, c], self.n_eval_verts) for c in range(3)], 1)
         pv = (pv / cnt[:, None]).astype(np.float32)
@@ -533,7 +533,8 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
             t.vert_map, t.orig_loop_verts, t.loop_map = _topology_map(obj, em, depsgraph)
             warnings.append(
                 f"Object '{obj.name}': modifiers change the topology; HR_Radiance is "
-                "transferred to the original mesh by nearest vertex."
+                "transferred to the original mesh's corners, which the modifiers interpolate again "
+                "(Array and Mirror copies show the original part's light); apply them for exact values."
             )
         if me.name in seen_mesh:
             warnings.append(
