@@ -145,7 +145,7 @@ def daylight_part(part, info):
     bpy.context.view_layer.update()
 
 
-def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False, gather=None):
+def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False, gather=None, shapes=None):
     """Our bake of the prepared scene `rs` (cycles_ref.prepare) as the Blender bake makes it
     (BakeConfig at `quality` with the scene's other settings: hierarchy, solver_setup, solver
     options, the lights and the World read by collect_lights, the final gather's settings), the
@@ -154,7 +154,8 @@ def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False, gather=
     warnings}); direct_KIND: the reflected direct light of the lights of that kind. method: the
     light method (None: the scene's). vertex: also the vertex output (gvertex_total: a LoopGather at
     the corners, interpolated over the loop triangles, what a vertex bake shows). gather: texel
-    gather keywords over the bake's (a variant)."""
+    gather keywords over the bake's (a variant). shapes: the frame's light shapes
+    (cycles_ref.shape_proxies)."""
     import bpy
 
     from hr_addon.blender.lights_in import collect_lights
@@ -174,10 +175,10 @@ def bake_ours(rs, quality="DRAFT", threads=1, method=None, vertex=False, gather=
     dyn = DynamicRadiosity(
         system, method=cfg.method, min_area_rel=min_area_rel, warm_moves=False, **cfg.solve_options
     )
-    dyn.apply({}, lights)
+    dyn.apply(shapes or {}, lights)
     t2 = time.process_time()
     mine = C.Ours(rs, system, dyn)
-    res = mine.evaluate({}, smooth=False)
+    res = mine.evaluate(shapes or {}, smooth=False)
     cache = {}
     gkw = {**cfg.gather, **(gather or {})}
     gres, cost = C.gather_results(rs, mine, dyn, vertex=vertex, cache=cache, threads=threads, **gkw)

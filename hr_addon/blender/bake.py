@@ -191,6 +191,33 @@ def _outside_scene_range(scene, start, end):
     ]
 
 
+SMALL_SHAPE = 0.25  # a light shape under this share of its largest face: vertex output may miss it
+
+
+def small_shape_warnings(dyn):
+    """Light shapes much smaller than the faces they lie on (a ceiling panel on a cube room's
+    one-quad ceiling): vertex output holds values at the corners, gathered once per corner's quarter
+    of a face, so such a shape's light shows smeared over the face or not at all (an artist's cube
+    room read -33% against Cycles, benchmarks/unseen_vs_cycles.py). Named, with the remedy."""
+    pt = dyn.system.patches
+    poly_area = np.bincount(pt.poly, pt.area)
+    out = []
+    for rec in dyn.shapes.values():
+        if rec.roots is None or not len(rec.roots) or not rec.area > 0:
+            continue
+        polys = np.unique(pt.poly[rec.roots])
+        big = polys[np.argmax(poly_area[polys])]
+        if rec.area < SMALL_SHAPE * poly_area[big]:
+            obj = pt.object_names[int(pt.object_id[np.flatnonzero(pt.poly == big)[0]])]
+            out.append(
+                f"Light shape '{rec.name}' covers {100 * rec.area / poly_area[big]:.0f}% of the face of "
+                f"'{obj}' it lies on ({poly_area[big]:.2g} m2): vertex output keeps the light at the "
+                "faces' corners, so the shape's light shows smeared over the face or not at all; "
+                f"subdivide '{obj}' (faces about the shape's size) or bake textures (Output: Baked Textures)."
+            )
+    return out
+
+
 class _Bake:
     """The steps of one bake_frames run, sharing its settings, interrupts and warnings."""
 
@@ -402,6 +429,7 @@ class _Bake:
         frame_warnings += dyn.apply(shapes, lights).messages
         if baker is not None:
             return baker.radiance(dyn, cfg.radiance_mode, gather=final)
+        frame_warnings += small_shape_warnings(dyn)
         mode, fx = cfg.radiance_mode, self._extract
         if final is not None and mode == "RADIANCE" and cfg.domain == "CORNER" and fx.flat:
             # the gather writes the objects' loops straight into the RGBA rows (as Live does; a

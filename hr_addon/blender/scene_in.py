@@ -144,6 +144,7 @@ class Target:
     n_point: int
     vert_map: np.ndarray = None  # original vertex -> evaluated vertex (topology changed)
     orig_loop_verts: np.ndarray = None
+    loop_map: np.ndarray = None  # original corner -> evaluated corner (topology changed)
 
     def extract(self, values, domain):
         """(N, 3) values on the original mesh's domain from the full solution array."""
@@ -154,7 +155,9 @@ class Target:
         seg[self.loop_perm] = values[self.loops[0] : self.loops[1]]
         if self.vert_map is None:
             return seg
-        # Topology changed by modifiers: average per evaluated vertex, nearest vertex per corner.
+        if self.loop_map is not None:  # topology changed by modifiers: the matching evaluated corner
+            return seg[self.loop_map]
+        # POINT: average per evaluated vertex, nearest vertex per original vertex.
         cnt = np.maximum(np.bincount(self.eval_loop_verts, minlength=self.n_eval_verts), 1)
         pv = np.stack([np.bincount(self.eval_loop_verts, seg[:, c], self.n_eval_verts) for c in range(3)], 1)
         pv = (pv / cnt[:, None]).astype(np.float32)
@@ -238,9 +241,16 @@ def _surfaces(materials, warnings, cache):
     return np.array([x.reflectance for x in s]), np.array([x.emission for x in s])
 
 
-def _topology_map(obj, em: EvalMesh, depsgraph):
-    """Nearest evaluated vertex for each original vertex (modifiers that change topology)."""
+def _topology_map(obj, em: EvalMesh, depsgraph, near=8):
+    """Original -> evaluated elements of an object whose modifiers change the topology: the nearest
+    evaluated vertex of each original vertex, and per original corner the evaluated corner among
+    those of the `near` nearest evaluated vertices whose face faces most like the corner's face
+    (then the nearest). A bevelled box's corner vertex is shared by a lit top and dim sides: the
+    vertex average gave every corner their mean (a chair seat -18%, a sofa +19% against Cycles);
+    the corner of the face turned the same way keeps each face's own light."""
     from mathutils import kdtree
+
+    from ..core.geometry import loop_tables, polygon_newell
 
     me = obj.data
     V = len(me.vertices)
@@ -252,10 +262,31 @@ def _topology_map(obj, em: EvalMesh, depsgraph):
     for i, p in enumerate(em.verts):
         tree.insert(p, i)
     tree.balance()
-    vmap = np.array([tree.find(p)[1] for p in world], np.int64)
-    olv = np.empty(len(me.loops), np.int32)
-    me.loops.foreach_get("vertex_index", olv)
-    return vmap, olv.astype(np.int64)
+    cand = [[i for _, i, _ in tree.find_n(p, near)] for p in world]
+    vmap = np.array([c[0] for c in cand], np.int64)
+    _, ls, lt, olv = mesh_topology(me)
+
+    def unit_normals(verts, s, t, lv):
+        n = polygon_newell(verts, s, t, lv)
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+    n_orig = unit_normals(world, ls, lt, olv)[loop_tables(ls, lt)[0]]
+    n_eval = unit_normals(em.verts, em.loop_start, em.loop_total, em.loop_verts)[
+        loop_tables(em.loop_start, em.loop_total)[0]
+    ]
+    by_vert = np.argsort(em.loop_verts, kind="stable")  # evaluated corners grouped by vertex
+    first = np.searchsorted(em.loop_verts[by_vert], np.arange(len(em.verts) + 1))
+    lmap = np.empty(len(olv), np.int64)
+    for j, v in enumerate(olv):
+        loops = np.concatenate([by_vert[first[c] : first[c + 1]] for c in cand[v]])
+        if len(loops) == 0:
+            lmap[j] = -1
+            continue
+        facing = n_eval[loops] @ n_orig[j]
+        d = np.linalg.norm(em.verts[em.loop_verts[loops]] - world[v], axis=1)
+        ok = facing >= facing.max() - 0.05
+        lmap[j] = loops[ok][np.argmin(d[ok])]
+    return vmap, olv, None if (lmap < 0).any() else lmap
 
 
 def _mesh_input(em: EvalMesh, name, warnings, mat_cache):
@@ -353,6 +384,13 @@ class InstanceInfo:
     source: str  # the instanced object
     count: int = 0
     polygons: int = 0  # per instance
+    kind: str = "MESH"  # the source's type: a text or curve object evaluates to a mesh of its own
+
+    @property
+    def converted(self):
+        """A text, curve or surface object (not an instance of another object): it renders as a mesh
+        but has no mesh data to hold HR_Radiance or a lightmap UV layer."""
+        return self.instancer == self.source and self.kind != "MESH"
 
 
 def participating_instances(view_layer, depsgraph):
@@ -399,7 +437,7 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
             digests.setdefault(label, []).append(_instance_digest(inst, _mesh_digest(arrays), digest_cache))
         em = _placed(arrays, inst.matrix_world, [s.material for s in ob.material_slots] or [None])
         instancer, source = label.split("/", 1)
-        i = info.setdefault((instancer, source), InstanceInfo(instancer, source))
+        i = info.setdefault((instancer, source), InstanceInfo(instancer, source, kind=ob.original.type))
         i.count += 1
         i.polygons = len(arrays[1])
         part, _ = _mesh_input(em, f"{label}#{i.count}", warnings, mat_cache)
@@ -407,17 +445,34 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
     return parts, info
 
 
+_KIND = {"FONT": "text", "CURVE": "curve", "SURFACE": "surface", "META": "metaball", "CURVES": "hair curves"}
+
+
 def instances_warning(info):
-    if not info:
-        return None
-    n = sum(i.count for i in info.values())
-    what = ", ".join(f"{i.count} x '{i.source}' (by '{i.instancer}')" for i in list(info.values())[:4])
-    more = ", ..." if len(info) > 4 else ""
-    return (
-        f"{n} instance(s) take part in the light (they receive and cast it) but get no baked output: "
-        f"{what}{more}. Instances share their mesh data, which holds one value per element; "
-        "make them real (Object > Apply > Make Instances Real) to bake their own light."
-    )
+    """One warning for the instances, one for the text and curve objects: both take part in the
+    light without output of their own, but only instances are made real (Make Instances Real does
+    nothing to a text object; Convert to Mesh does)."""
+    inst = [i for i in info.values() if not i.converted]
+    conv = [i for i in info.values() if i.converted]
+    out = []
+    if inst:
+        n = sum(i.count for i in inst)
+        what = ", ".join(f"{i.count} x '{i.source}' (by '{i.instancer}')" for i in inst[:4])
+        more = ", ..." if len(inst) > 4 else ""
+        out.append(
+            f"{n} instance(s) take part in the light (they receive and cast it) but get no baked output: "
+            f"{what}{more}. Instances share their mesh data, which holds one value per element; "
+            "make them real (Object > Apply > Make Instances Real) to bake their own light."
+        )
+    if conv:
+        what = ", ".join(f"'{i.source}' (a {_KIND.get(i.kind, i.kind.lower())} object)" for i in conv[:4])
+        more = ", ..." if len(conv) > 4 else ""
+        out.append(
+            f"{what}{more}: take part in the light (they receive and cast it) but get no baked output, "
+            "only mesh objects hold HR_Radiance or a lightmap; convert them to meshes "
+            "(Object > Convert > Mesh) to bake their own light."
+        )
+    return out
 
 
 def _hidden_instancer(obj):
@@ -475,10 +530,11 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
             len(me.vertices),
         )
         if not same_topology:
-            t.vert_map, t.orig_loop_verts = _topology_map(obj, em, depsgraph)
+            t.vert_map, t.orig_loop_verts, t.loop_map = _topology_map(obj, em, depsgraph)
             warnings.append(
                 f"Object '{obj.name}': modifiers change the topology; HR_Radiance is "
-                "transferred to the original mesh by nearest vertex."
+                "transferred to the original mesh's corners, which the modifiers interpolate again "
+                "(Array and Mirror copies show the original part's light); apply them for exact values."
             )
         if me.name in seen_mesh:
             warnings.append(
@@ -491,9 +547,7 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
         nloop += len(em.loop_verts)
         nvert += len(em.verts)
     parts += inst_parts  # after the targets' parts: their offsets stay valid
-    w = instances_warning(inst_info)
-    if w:
-        warnings.append(w)
+    warnings += instances_warning(inst_info)
     if not parts:
         raise SceneError("No mesh objects with faces to compute radiosity on.")
     mesh = parts[0]

@@ -1,0 +1,146 @@
+"""A room made as an artist makes one (hr_testing/artist_room.py, small: 2.6k triangles) baked
+through the product's real paths: `python -m hr_addon bake` (hr_addon/blender/cli.py) with vertex
+and texture output over an animation (a light shape moving, an area light's strength keyframed),
+and the hr.bake operator with the preview. Every object gets finite values on every frame, lit
+objects are not black, and what does not get output is named with the right advice.
+The full room against Cycles: benchmarks/unseen_vs_cycles.py, docs/accuracy.md."""
+
+import numpy as np
+import pytest
+
+from test_blender_helpers import load_bpy
+
+pytestmark = pytest.mark.bpy
+
+# the painting hangs facing the wall 1 cm behind it, its back towards the room: Cycles renders both
+# sides, the bake one (core/orientation.py turns such a face around only when it emits); strict
+# xfail below
+BACKWARDS = {"Painting"}
+
+
+@pytest.fixture(scope="module")
+def room_file(tmp_path_factory):
+    bpy = load_bpy()
+    from hr_testing.artist_room import artist_room
+
+    _, info = artist_room(small=True)
+    path = tmp_path_factory.mktemp("artist") / "room.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path, info
+
+
+def _cli(path, *args):
+    from hr_addon.blender.cli import run
+
+    return run([str(path), "--quality", "draft", "--threads", "1", *args])
+
+
+def _lit(values):
+    return float(np.mean(values[:, :3]))
+
+
+def _dark(means):
+    """Objects whose mean is below a quarter of the median object's (the lamp shade's emission and
+    the room's light shapes would pull a mean up)."""
+    med = float(np.median(list(means.values())))
+    return {n for n, m in means.items() if m < 0.25 * med}
+
+
+@pytest.fixture(scope="module")
+def vertex_bake(room_file):
+    """The CLI's vertex bake of frames 1-4: ({(object, frame): mean}, its stdout, its reader)."""
+    import contextlib
+    import io
+
+    from hr_addon.io.cache import CacheReader
+
+    path, info = room_file
+    cache = path.parent / "cache_vertex"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = _cli(path, "--cache-dir", str(cache))
+    assert code == 0, buf.getvalue()
+    r = CacheReader(cache)
+    return {(n, f): _lit(v) for f in (1, 4) for n, v in r.load(f).items()}, buf.getvalue(), r
+
+
+def test_vertex_bake_every_object_every_frame(room_file, vertex_bake):
+    _, info = room_file
+    means, out, r = vertex_bake
+    assert sorted(r.frames) == [1, 2, 3, 4]
+    for f in (1, 4):
+        vals = r.load(f)
+        assert sorted(vals) == info["meshes"]
+        for name, v in vals.items():
+            assert np.isfinite(v).all() and (v >= 0).all(), name
+    assert not _dark({n: means[n, 1] for n in info["meshes"]}) - BACKWARDS
+    # the area light's strength rises 2.5x and the wall patch moves: the room gets brighter
+    assert means["Room", 4] > 1.2 * means["Room", 1]
+    # a text and a curve object light the room but have no mesh to hold output: the advice is to
+    # convert them, not "Make Instances Real" (which does nothing to them)
+    conv = [w for w in out.splitlines() if "'Floor text' (a text object)" in w]
+    assert len(conv) == 1 and "'Cable' (a curve object)" in conv[0] and "Convert > Mesh" in conv[0], out
+    inst = [w for w in out.splitlines() if "Make Instances Real" in w]
+    assert len(inst) == 1 and "'Vase' (by 'Vases 1')" in inst[0] and "Floor text" not in inst[0], out
+    # the light shapes lie on the cube room's one-quad ceiling and wall: vertex output cannot show
+    # them (bake.small_shape_warnings), and says so
+    small = {w.split("'")[1] for w in out.splitlines() if "of the face of 'Room'" in w}
+    assert small == {"Ceiling panel", "Wall patch"}, out
+
+
+@pytest.mark.xfail(strict=True, reason="core/orientation.py turns a face around only when it emits")
+def test_a_plane_facing_the_wall_it_hangs_on_is_lit(room_file, vertex_bake):
+    """The painting faces the wall 1 cm behind it, its back towards the room: Cycles renders both
+    sides and shows it lit; the bake takes its front, which sees only the wall."""
+    _, info = room_file
+    means = vertex_bake[0]
+    assert not _dark({n: means[n, 1] for n in info["meshes"]})
+
+
+def test_texture_bake_every_object(room_file, capsys):
+    bpy = load_bpy()
+    path, info = room_file
+    from hr_addon.blender.paths import frame_texture
+    from hr_addon.io.cache import CacheReader
+
+    cache = path.parent / "cache_texture"
+    args = ("--output", "texture", "--resolution", "32", "--frames", "1-2", "--cache-dir", str(cache))
+    assert _cli(path, *args) == 0
+    assert "of the face of" not in capsys.readouterr().out  # textures show small light shapes
+    r = CacheReader(cache)
+    assert sorted(r.frames) == [1, 2] and sorted(r.objects) == info["meshes"]
+    means = {}
+    for name in info["meshes"]:
+        img = bpy.data.images.load(frame_texture(str(cache), r.objects[name], 1))
+        px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
+        img.pixels.foreach_get(px)
+        bpy.data.images.remove(img)
+        assert np.isfinite(px).all(), name
+        means[name] = float(px.reshape(-1, 4)[:, :3].mean())
+    assert _dark(means) - BACKWARDS == set()
+
+
+def test_operator_bake_and_preview_on_every_material(room_file):
+    bpy = load_bpy()
+    path, info = room_file
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+    scene = bpy.context.scene
+    scene.hr.quality = "DRAFT"
+    scene.hr.threads = 1
+    scene.hr.use_frame_range = True
+    scene.hr.frame_start, scene.hr.frame_end = 1, 2
+    assert bpy.ops.hr.bake() == {"FINISHED"}
+    scene.frame_set(2)
+    for name in info["meshes"]:
+        me = bpy.data.objects[name].data
+        a = me.color_attributes.get("HR_Radiance")
+        assert a is not None and len(a.data) == len(me.loops), name
+        c = np.empty(len(a.data) * 4, np.float32)
+        a.data.foreach_get("color", c)
+        assert np.isfinite(c).all(), name
+    assert bpy.ops.hr.add_preview() == {"FINISHED"}
+    for name in info["meshes"]:
+        for slot in bpy.data.objects[name].material_slots:
+            nodes = slot.material.node_tree.nodes
+            out = [n.name for n in nodes if n.type == "OUTPUT_MATERIAL" and n.is_active_output]
+            assert out == ["HR Preview Output"], (name, slot.material.name, out)
