@@ -313,6 +313,33 @@ def test_damaged_file_is_named_rebuilt_and_never_used(stored, tmp_path, damage):
     assert pc.load(c, want)[2] is None
 
 
+def test_the_file_is_written_and_read_without_a_second_copy_in_memory(tmp_path):
+    """Each array is streamed into and out of its zip member: the write holds no serialised copy
+    of the arrays (a 100k texture bake at resolution 16 ran out of memory on one) and the read
+    never holds a member's bytes beside its array."""
+    import tracemalloc
+
+    rng = np.random.default_rng(1)
+    arrays = {"big": rng.random(4_000_000), "ids": np.arange(1_000_000, dtype=np.int64), "none": np.zeros(0)}
+    arrays["slice"] = arrays["big"][::2]  # not contiguous
+    total = sum(a.nbytes for a in arrays.values())
+    tracemalloc.start()
+    try:
+        pc.write(tmp_path, arrays, {}, {})
+        write_peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.reset_peak()
+        back, header = pc.read(tmp_path / pc.FILENAME)
+        read_peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    # at most numpy's writer's chunk (16 MiB) beside the arrays, whatever their total (56 MB here)
+    assert write_peak < 20e6 < total, (write_peak, total)
+    assert read_peak < total + arrays["big"].nbytes / 4, (read_peak, total)  # the arrays themselves
+    assert header["arrays"]["big"]["crc32"] == zipfile.ZipFile(tmp_path / pc.FILENAME).getinfo("big.npy").CRC
+    for k, a in arrays.items():
+        assert back[k].dtype == a.dtype and np.array_equal(back[k], a), k
+
+
 def test_foreign_folder_and_file_are_never_written(tmp_path):
     mesh, _ = cornell()
     want = pc.expected(mesh, DRAFT)
