@@ -122,8 +122,8 @@ def main(argv=None):
         g.iterations = args.iterations  # (the store's: 4; more for a converged reference)
         out.update(header["info"])
         out["loaded"] = str(stored)
-        # the solver's far-link terms: computed by the build's base solution, not stored (as a
-        # re-bake's first event pays them); here once before the events, as after a build
+        # the solver's far-link terms: stored since branch pcio (about 0 here); a store of older
+        # code lacks them and a re-bake's first event would pay them: here once before the events
         c0 = cpu()
         s.links.extended(s.h)
         out["terms_after_load_cpu_s"] = cpu() - c0

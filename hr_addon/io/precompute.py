@@ -20,7 +20,6 @@ import ast
 import contextlib
 import dataclasses
 import hashlib
-import io
 import json
 import os
 import socket
@@ -28,7 +27,6 @@ import threading
 import time
 import uuid
 import zipfile
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -249,6 +247,9 @@ def folder_problem(cache_dir):
     return ""
 
 
+_ZIP64_FROM = 1 << 30  # members larger: zip64 sizes declared up front (a streamed member's size is unknown)
+
+
 def write(cache_dir, arrays, graph, want, info=None):
     """Write the precompute atomically into `cache_dir` (created and marked as a cache folder if
     absent). want: expected()'s dict, stored as the header's versions, settings and signatures."""
@@ -256,29 +257,20 @@ def write(cache_dir, arrays, graph, want, info=None):
     why = folder_problem(d)  # this module's own (the precompute file), not cache_folder's
     if why:
         raise PrecomputeError(why)
-    blobs = {}
-    for name, a in arrays.items():
-        buf = io.BytesIO()
-        np.lib.format.write_array(buf, a, allow_pickle=False)
-        blobs[name] = buf.getvalue()
     header = dict(want)
-    header.update(
-        magic=MAGIC,
-        created=time.time(),
-        host=_HOST,
-        info=info or {},
-        arrays={
-            n: {"dtype": a.dtype.str, "shape": list(a.shape), "crc32": zlib.crc32(blobs[n])}
-            for n, a in arrays.items()
-        },
-        graph=graph,
-    )
+    header.update(magic=MAGIC, created=time.time(), host=_HOST, info=info or {}, graph=graph)
 
     def fill(fh):
+        # each array streamed into its member (no copy of the precompute in memory; zipfile
+        # computes the member's CRC while writing); the header, which lists the CRCs, last
+        metas = {}
         with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
-            z.writestr("header.json", json.dumps(header))
-            for name, b in blobs.items():
-                z.writestr(name + ".npy", b)
+            for name, a in arrays.items():
+                with z.open(name + ".npy", "w", force_zip64=a.nbytes > _ZIP64_FROM) as m:
+                    np.lib.format.write_array(m, a, allow_pickle=False)
+                crc = z.getinfo(name + ".npy").CRC
+                metas[name] = {"dtype": a.dtype.str, "shape": list(a.shape), "crc32": crc}
+            z.writestr("header.json", json.dumps({**header, "arrays": metas}))
 
     with folder_lock(d):  # never into a folder another process's commit is swapping out
         mark(d)
@@ -314,10 +306,14 @@ def read(path):
     arrays = {}
     with _damaged(path), zipfile.ZipFile(path) as z:
         for name, meta in h["arrays"].items():
-            b = z.read(name + ".npy")
-            if zlib.crc32(b) != meta["crc32"]:
+            if z.getinfo(name + ".npy").CRC != meta["crc32"]:
                 raise PrecomputeError(f"'{Path(path).name}': array {name} fails its checksum")
-            a = np.lib.format.read_array(io.BytesIO(b), allow_pickle=False)
+            # streamed into the array (no copy of the member's bytes); zipfile checks the data
+            # against that CRC on reaching the member's end
+            with z.open(name + ".npy") as m:
+                a = np.lib.format.read_array(m, allow_pickle=False)
+                if m.read(1):
+                    raise PrecomputeError(f"'{Path(path).name}': array {name} has trailing bytes")
             if a.dtype.str != meta["dtype"] or list(a.shape) != meta["shape"]:
                 raise PrecomputeError(f"'{Path(path).name}': array {name} has the wrong dtype or shape")
             arrays[name] = a

@@ -16,7 +16,9 @@ _PKG = __name__.rsplit(".io.", 1)[0]  # "hr_addon", or the extension's package p
 _TRANSIENT = {
     "RadiositySystem": {"B": None, "report": None, "_op": None},
     "Hierarchy": {"_levels": None},
-    "Links": {"_csr": None, "_ext": None},
+    # (not _ext, the solver's far-link terms: geometry only, set by the build's base solution, and
+    # seconds to make again at 100k on a re-bake's first light event)
+    "Links": {"_csr": None},
     "Contacts": {"_grid": None, "_seg_cm": None, "_disc": None},
     "ClusterTree": {"_group_runs_": None, "_grad_rows": None, "_centre9": None},
     "FinalGather": {
