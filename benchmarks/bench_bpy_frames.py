@@ -8,6 +8,7 @@ outside the core. bpy module, one process per run.
     ... --blend B --path cli   --output vertex                  # python -m hr_addon bake (a subprocess)
     ... --blend B --path cancel --output vertex                 # close the bake after 3 frames (Esc)
     ... --blend B --path cli --term-after 3                     # SIGTERM the command line's bake
+    ... --blend B --path play --json benchmarks/out/play100k_main.json  # play a vertex bake back
     ... --blend B --path background [--cancel-after 3]          # the Bake button's worker (and Cancel)
     (--output texture --resolution R for the lightmaps: objects of over 200 faces get 8 R, the
     spheres of 5,120 faces (a chart per face) 16 R)
@@ -23,8 +24,14 @@ signature), apply (DynamicRadiosity.apply: the events), gathered output (the fin
 loop_radiance or the texture plan's radiance), extract (Target.extract per object), write
 (CacheWriter.write: the .npz; TexturePlan.write: the images), reuse (unchanged frames); "rest" is
 what the frame costs beyond them (progress, warnings, the yield). --profile DIR: cProfile per frame.
-Also: peak RSS (ru_maxrss), the cache on disk per frame file. Benchmarks print; no test asserts on
-time. One run each; the machine is shared (quote ratios).
+Also: peak RSS (ru_maxrss), the cache on disk per frame file.
+--path play (issue 19; the .blend's bake played back, vertex output): scene.frame_set over frames
+2-8, 1 twice (16 changes; the first pass reads the files, the second finds them in the reader's
+cache), CPU per change and its parts: read (CacheReader.load), apply (playback.apply_arrays: our
+3,882 HR_Radiance writes, of which write_attribute), and "blender" = the change less read and
+apply (the frame's own evaluation and that of the written meshes); then, untimed, every object's
+evaluated mesh read back against the frame's values (what the viewport draws).
+Benchmarks print; no test asserts on time. One run each; the machine is shared (quote ratios).
 """
 
 import argparse
@@ -238,6 +245,78 @@ def run_bake(args):
     return out
 
 
+PLAY = [2, 3, 4, 5, 6, 7, 8, 1] * 2
+
+
+def run_play(args):
+    import numpy as np
+
+    from hr_addon.blender import playback
+    from hr_addon.blender.paths import bake_dir_abs
+    from hr_addon.io.cache import CacheReader
+
+    bpy, scene = open_blend(args.blend, "vertex", args.resolution)
+    assert scene.hr.playback and bake_dir_abs(scene), "the .blend has no bake to play back"
+    parts = Parts()
+    parts.wrap(CacheReader, "load", "read")
+    parts.wrap(playback, "apply_arrays", "apply")
+    parts.wrap(playback, "write_attribute", "apply.write_attribute")
+    prof_dir = Path(args.profile) if args.profile else None
+    if prof_dir:
+        prof_dir.mkdir(parents=True, exist_ok=True)
+    scene.frame_set(1)
+    parts.take()
+    rows = []
+    for i, f in enumerate(PLAY):
+        prof = cProfile.Profile() if prof_dir else None
+        c1, w1 = time.process_time(), time.perf_counter()
+        if prof:
+            prof.enable()
+        scene.frame_set(f)
+        if prof:
+            prof.disable()
+            prof.dump_stats(str(prof_dir / f"play{i}_frame{f}.prof"))
+        c2, w2 = time.process_time(), time.perf_counter()
+        got = parts.take()
+        ms = {k: 1000 * v["cpu_s"] for k, v in got.items()}
+        rows.append(dict(frame=f, cpu_ms=1000 * (c2 - c1), wall_ms=1000 * (w2 - w1), parts_ms=ms,
+                         blender_ms=1000 * (c2 - c1) - ms.get("read", 0) - ms.get("apply", 0),
+                         shown=_shown(bpy, scene, playback, np)))
+        print(f"frame {f}: {rows[-1]['cpu_ms']:.1f} ms CPU; "
+              + ", ".join(f"{k} {v:.1f}" for k, v in ms.items())
+              + f", blender {rows[-1]['blender_ms']:.1f}; shown: {rows[-1]['shown']}", flush=True)
+    moved = [r for r in rows if r["frame"] != 4]  # frame 4 holds frame 3's file: nothing written
+
+    def med(key, rs=moved):
+        return float(np.median([r[key] if key in r else r["parts_ms"].get(key, 0.0) for r in rs]))
+
+    out = dict(path="play", blend=str(args.blend), load_average=os.getloadavg()[0], frames=rows,
+               median_cpu_ms=med("cpu_ms"), median_read_ms_first_pass=med("read", moved[:7]),
+               median_apply_ms=med("apply"), median_write_attribute_ms=med("apply.write_attribute"),
+               median_blender_ms=med("blender_ms"),
+               unchanged_frame_cpu_ms=[r["cpu_ms"] for r in rows if r["frame"] == 4],
+               all_shown=all(r["shown"] == "all" for r in rows), peak_rss_gb=_rss_gb())
+    print({k: v for k, v in out.items() if k != "frames"}, flush=True)
+    return out
+
+
+def _shown(bpy, scene, playback, np):
+    """'all' when every object's evaluated mesh holds the frame's values in HR_Radiance, else the
+    first object that does not."""
+    reader = playback.get_reader(playback.bake_dir_abs(scene))
+    arrays = reader.load(scene.frame_current)
+    dg = bpy.context.evaluated_depsgraph_get()
+    objs = playback.objects_by_name(scene, arrays)
+    for name, values in arrays.items():
+        attr = objs[name].evaluated_get(dg).data.attributes.get(playback.ATTRIBUTE)
+        buf = np.empty(values.size, np.float32)
+        if attr is not None:
+            attr.data.foreach_get("color", buf)
+        if attr is None or not np.array_equal(buf, values.reshape(-1)):
+            return name
+    return "all"
+
+
 def _per_frame(d):
     """{frame: bytes on disk} of each frame's own files (.npz, or its images)."""
     import re
@@ -372,7 +451,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--blend", required=True)
     ap.add_argument("--make", action="store_true", help="make the .blend first")
-    ap.add_argument("--path", choices=("bake", "op", "cli", "background", "cancel"), default=None)
+    ap.add_argument("--path", choices=("bake", "op", "cli", "background", "cancel", "play"), default=None)
     ap.add_argument("--output", choices=("vertex", "texture"), default="vertex")
     ap.add_argument("--resolution", type=int, default=16, help="texture output's lightmap size")
     ap.add_argument("--cancel-after", type=int, default=0, help="cancel / background: after N frames (3)")
@@ -387,7 +466,8 @@ def main(argv=None):
               f"{time.process_time() - c0:.1f} s CPU", flush=True)
     if args.path is None:
         return
-    paths = dict(bake=run_bake, op=run_op, cli=run_cli, background=run_background, cancel=run_cancel)
+    paths = dict(bake=run_bake, op=run_op, cli=run_cli, background=run_background, cancel=run_cancel,
+                 play=run_play)
     out = paths[args.path](args)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

@@ -107,6 +107,26 @@ def test_foreach_set_alone_updates_the_evaluated_mesh():
         assert (buf == value).all(), (bpy.app.version, playback.TAG_AFTER_SET)
 
 
+def test_unaligned_values_are_written_as_aligned_ones():
+    """write_attribute given a float32 view at an unaligned address (as read_npz's members are)
+    writes the same values as from an aligned copy (it copies it: Blender's foreach_set would take
+    it element by element)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import playback
+
+    _scene(bpy, ms)
+    me = bpy.data.objects["box"].data
+    n = len(me.loops)
+    values = np.random.default_rng(2).random((n, 4)).astype(np.float32)
+    raw = np.zeros(values.nbytes + 1, np.uint8)
+    view = raw[1:].view(np.float32).reshape(n, 4)
+    view[:] = values
+    assert not view.flags.aligned and memoryview(view).format != "f"
+    playback.write_attribute(me, np.zeros_like(values), "CORNER")
+    playback.write_attribute(me, view, "CORNER")
+    assert np.array_equal(_read(bpy, ["box"])["box"][2], values.reshape(-1))
+
+
 def test_objects_kept_between_writes_are_looked_up_again_when_removed():
     """apply_arrays(objects=) (Live keeps its targets' objects between writes): the dict is filled
     by the first write; after an object is removed the next write says it is missing, writes the

@@ -56,6 +56,22 @@ def test_write_read_roundtrip(tmp_path):
     assert [p.name for p in d.iterdir() if p.name.startswith(".")] == [MARKER]
 
 
+def test_loaded_arrays_are_buffers_blenders_foreach_set_takes_whole(tmp_path):
+    """Members at unaligned offsets in the file (names of 1-3 letters) load as aligned, C-contiguous
+    float32 arrays exporting buffer format 'f': the only one Blender's foreach_set copies whole
+    (an unaligned view exports '=f', which it reads element by element), with the values written."""
+    objects = {n: {"mesh": n, "count": 2 + len(n)} for n in ("a", "bb", "ccc")}
+    rng = np.random.default_rng(3)
+    arrays = {n: rng.random((info["count"], 3)).astype(np.float32) for n, info in objects.items()}
+    w = CacheWriter(tmp_path / "c", objects, "CORNER", "s")
+    w.write(1, arrays)
+    w.commit()
+    loaded = CacheReader(tmp_path / "c").load(1)
+    for n, a in loaded.items():
+        assert a.flags.aligned and a.flags.c_contiguous and memoryview(a).format == "f", n
+        assert np.array_equal(a[:, :3], arrays[n]) and np.all(a[:, 3] == 1)
+
+
 @pytest.mark.parametrize("zip64", [False, True])
 def test_frame_file_is_what_np_savez_writes(tmp_path, monkeypatch, zip64):
     """write_npz's members hold the bytes np.savez writes for the same arrays (names with any

@@ -515,7 +515,10 @@ class CacheReader:
             try:
                 data, comment = read_npz(path)
                 found = _comment_bake_id(comment)
-                data = {k: np.ascontiguousarray(a, np.float32) for k, a in data.items()}
+                # aligned copies (once per file read, 2.5 ms at 100k): read_npz's views sit at the
+                # members' unaligned offsets, which numpy exports as buffer format '=f', and Blender's
+                # foreach_set takes only 'f' whole (else element by element: 40 ms against 15 ms)
+                data = {k: np.array(a, np.float32) for k, a in data.items()}
             except Exception as exc:
                 raise CacheError(f"Corrupt radiosity cache file '{path}': {exc}") from None
             for k, a in data.items():
