@@ -1,7 +1,7 @@
 """How many polygons core/orientation.find_reversed turns around on each scene, by object and
-reason: the artist-made room (small and full, read through collect_geometry as the bake reads it),
-the Cornell sample, the core Cornell box, the clutter room, the furnished 20k (seeds 1, 2) and 100k
-rooms and the daylight room (docs/accuracy.md, "An artist-made room").
+reason: the artist-made room (small and full) and the samples (sample_blends/), read through
+collect_geometry as the bake reads them; the core Cornell box, the clutter room, the furnished 20k
+(seeds 1, 2) and 100k rooms and the daylight room (docs/accuracy.md, "An artist-made room").
 
     python benchmarks/orient_counts.py OUT.json [--repo DIR]   # DIR: the checkout whose hr_addon runs
 """
@@ -18,21 +18,21 @@ from pathlib import Path
 def blender_meshes():
     """{name: MeshInput} of the scenes built or opened in Blender."""
     from hr_testing.artist_room import artist_room
-    from hr_testing.blend import load_bpy, open_sample
+    from hr_testing.blend import SAMPLES, load_bpy, open_sample
 
     bpy = load_bpy()
     from hr_addon.blender.scene_in import collect_geometry
 
+    def mesh():
+        return collect_geometry(bpy.context.view_layer, bpy.context.evaluated_depsgraph_get()).mesh
+
     out = {}
     for small in (True, False):
         artist_room(small=small)
-        out["artist small" if small else "artist full"] = collect_geometry(
-            bpy.context.view_layer, bpy.context.evaluated_depsgraph_get()
-        ).mesh
-    open_sample("cornell", tempfile.mkdtemp())
-    out["Cornell sample"] = collect_geometry(
-        bpy.context.view_layer, bpy.context.evaluated_depsgraph_get()
-    ).mesh
+        out["artist small" if small else "artist full"] = mesh()
+    for name in sorted(p.stem for p in SAMPLES.glob("*.blend")):
+        open_sample(name, tempfile.mkdtemp())
+        out[f"{name} sample"] = mesh()
     return out
 
 
