@@ -250,8 +250,9 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
     planar_tol x its diagonal is split in two triangles. area_tol: patches (triangles and kept
     quads) whose area is below area_tol x (their own longest edge)^2 are degenerate: dropped and
     counted. The test is per patch, never relative to the scene's extent, so one object far away
-    cannot make the others "degenerate". warn_planar: split polygons (quads, n-gons) whose corners
-    are off their mean plane by more than warn_planar x their size get a warning naming the object.
+    cannot make the others "degenerate". warn_planar: polygons (quads, n-gons) split here, not by
+    the given triangulation, whose corners are off their mean plane by more than warn_planar x their
+    size get a warning naming the object.
     """
     P = len(mesh.loop_start)
     names = list(mesh.object_names)
@@ -396,6 +397,9 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
             f"{_per_object(mesh, lost)}."
         )
     split = np.union1d(q[~keep], np.flatnonzero(sizes > 4))
+    # those split by the given triangulation are the triangles the render shows (a Subdivision
+    # Surface's output, warned about as "flatten them" a user cannot follow): only ours may differ
+    split = split[~given[split]]
     if len(split):
         off = _off_plane(verts, starts, sizes, lv, split)
         bad = off > warn_planar

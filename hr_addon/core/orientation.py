@@ -3,17 +3,22 @@
 Surfaces are one-sided here (they emit and reflect on their front only), but Cycles renders a mesh
 from both sides: a wall whose winding is reversed looks right in a render and bakes to black, taking
 light from the rest of the room; a ceiling panel facing the ceiling sends its light into the strip of
-ceiling right above it. Two cases are turned around (their corners reversed), as Cycles in effect
-shows them:
+ceiling right above it; a painting hung facing its wall bakes black. Two cases are turned around
+(their corners reversed), as Cycles in effect shows them:
 
 - a polygon whose front exchanges light with nothing (every ray leaving its front escapes the scene
   or meets the back of a surface) while at least MIN_BACK of the rays leaving its back meet the
   fronts of other surfaces (a reversed wall of a room: its front looks out of the room), unless it
   lies on a surface facing it (a sofa's bottom on the floor: covered, its front rays start under
   the floor);
-- an emitting polygon whose front faces a surface right in front of it (its front rays all hit,
-  on average within NEAR x its size) while its back sees the fronts of the scene, FAR times
-  farther away (a ceiling panel turned towards the ceiling).
+- a polygon whose front faces a surface right in front of it (every front ray meets the front of a
+  surface, on average within NEAR x its size) while its back sees the fronts of the scene, FAR
+  times farther away: a ceiling panel turned towards the ceiling, a painting hung facing its wall
+  (issue 20, the artist-made room), a rug facing the floor. Unless its back is the inside of a
+  closed object: a box's side 5 cm from a wall, the leaning back of a sofa sunk into the box, sees
+  the wall in front and the sunk back's fronts behind, but also its own object's backs; so no
+  back ray may meet a back of the polygon's own object, and at most INSIDE of them a back at all
+  (an open surface seen from behind, a rug facing the floor, is allowed).
 
 Rays: SIDE_RAYS per side of each patch, stratified over the patch and cosine-weighted over the
 hemisphere, traced to their first hit by the build's ray backend (first_hit_within: near hits
@@ -28,8 +33,9 @@ from .visibility import first_hit_within
 
 SIDE_RAYS = 16  # rays per side of each patch (a 4 x 4 stratification)
 MIN_BACK = 0.25  # share of a polygon's back rays that must meet the fronts of other surfaces
-NEAR = 0.25  # an emitter's front hits this close (x its size) face "a surface right in front of it"
+NEAR = 0.25  # front rays hitting this close (x its size) face "a surface right in front of it"
 FAR = 4.0  # ... while its back rays travel this many times farther
+INSIDE = 0.25  # back rays meeting backs beyond this share: the back is the inside of a closed object
 GAP = 1e-3  # faces this close (x sqrt(total area), as contacts' gap) facing each other touch
 
 
@@ -62,13 +68,11 @@ def _stratified(n, rng):
     return s[rng.permutation(k * k)]
 
 
-def find_reversed(patches, backend, seed=0):
-    """(flip, reasons): boolean (K,) per patch, True for the patches of polygons to turn around, and
-    {input polygon: "back" | "emitter"} of those polygons."""
-    pt = patches
+def _trace(pt, backend, seed):
+    """SIDE_RAYS rays per side of each patch: (pts, n, {side: (hit, facing, dist)}), the (K, S)
+    sample points, the unit normals and per side the patch each ray hit (-1: none), whether it met
+    its front, and how far it went (0 when it escaped)."""
     K = len(pt.nv)
-    if K == 0:
-        return np.zeros(0, bool), {}
     rng = np.random.default_rng(seed)
     S = SIDE_RAYS
     lo, hi = pt.corners.reshape(-1, 3).min(0), pt.corners.reshape(-1, 3).max(0)
@@ -108,15 +112,27 @@ def find_reversed(patches, backend, seed=0):
         h = hit >= 0
         facing = np.zeros((K, S), bool)
         facing[h] = np.einsum("ij,ij->i", dirs[h], n[hit[h]]) < 0  # met the front of what it hit
-        out[side] = (h, facing, dist)
+        out[side] = (hit, facing, dist)
+    return pts, n, out
+
+
+def find_reversed(patches, backend, seed=0):
+    """(flip, reasons): boolean (K,) per patch, True for the patches of polygons to turn around, and
+    {input polygon: "back" | "facing" | "emitter"} of those polygons ("emitter": facing, and it emits)."""
+    pt = patches
+    K = len(pt.nv)
+    if K == 0:
+        return np.zeros(0, bool), {}
+    S = SIDE_RAYS
+    pts, n, out = _trace(pt, backend, seed)
     npoly = int(pt.poly.max()) + 1
     rays = np.bincount(pt.poly, minlength=npoly) * S
 
     def per_poly(x):
         return np.bincount(pt.poly, x.sum(1), minlength=npoly)
 
-    fh, ff, fd = out[1.0]
-    bh, bf, bd = out[-1.0]
+    (fh, ff, fd), (bhit, bf, bd) = out[1.0], out[-1.0]
+    fh, bh = fh >= 0, bhit >= 0
     front_front, back_front = per_poly(ff), per_poly(bf)
     front_hits, back_hits = per_poly(fh), per_poly(bh)
     has = rays > 0
@@ -134,17 +150,20 @@ def find_reversed(patches, backend, seed=0):
     size = np.sqrt(np.bincount(pt.poly, pt.area, minlength=npoly))
     front_mean = per_poly(np.where(fh, fd, 0.0)) / np.maximum(front_hits, 1)
     back_mean = per_poly(np.where(bh, bd, 0.0)) / np.maximum(back_hits, 1)
-    blocked = (
+    facing = (
         has
-        & emits
         & ~back
-        & (front_hits == rays)
-        & (front_mean < NEAR * size)
-        & (back_front >= MIN_BACK * rays)
-        & (back_mean > FAR * front_mean)
+        & (front_front == rays)  # every front ray meets the front of a surface facing it ...
+        & (front_mean < NEAR * size)  # ... right in front of it
+        & (back_front >= MIN_BACK * rays)  # the back sees the fronts of the scene ...
+        & (back_mean > FAR * front_mean)  # ... far away
+        # ... and is not the inside of a closed object (a sofa's side 5 cm from the wall, its leaning
+        # back sunk into it: its back rays meet the back's fronts, and its own backs)
+        & (back_hits - back_front <= INSIDE * rays)
+        & (per_poly(bh & ~bf & (pt.object_id[np.maximum(bhit, 0)] == pt.object_id[:, None])) == 0)
     )
-    for p in np.flatnonzero(blocked):
-        reasons[int(p)] = "emitter"
+    for p in np.flatnonzero(facing):
+        reasons[int(p)] = "emitter" if emits[p] else "facing"
     flip = np.isin(pt.poly, np.array(sorted(reasons), np.int64))
     return flip, reasons
 
@@ -191,6 +210,7 @@ def orient(patches, backend, seed=0):
         turn_around(patches, flip)
         back = [p for p, r in reasons.items() if r == "back"]
         emit = [p for p, r in reasons.items() if r == "emitter"]
+        facing = [p for p, r in reasons.items() if r == "facing"]
         if back:
             msgs.append(
                 f"{len(back)} polygon(s) faced away from everything they could light, with their back "
@@ -204,6 +224,14 @@ def orient(patches, backend, seed=0):
                 f"back towards the scene: {_count_by_object(patches, emit)}. They were turned around "
                 "to shine into the scene (as Cycles shows them); flip their normals (Mesh > Normals > "
                 "Flip) if that is what you meant."
+            )
+        if facing:
+            msgs.append(
+                f"{len(facing)} polygon(s) faced a surface right in front of them, with their back "
+                "towards the scene (as a painting facing the wall it hangs on): "
+                f"{_count_by_object(patches, facing)}. "
+                "They were turned around (Cycles renders both sides of a face); flip their normals "
+                "(Mesh > Normals > Flip) to make the mesh say what the bake uses."
             )
     patches.warnings.extend(msgs)
     return msgs
