@@ -348,6 +348,30 @@ def test_lightmaps_sized_by_area_and_the_override_wins(tmp_path):
     assert resolution_for(wall, 128, 50.0) == 128  # capped by the Texture Size
     assert resolution_for(tile, 128, 50.0) == MIN_SIZE
     assert resolution_for(book, 128, 0.0) == 128
+    # the object panel shows the size the bake gives it
+    from types import SimpleNamespace
+
+    from hr_addon.blender.panels import HR_PT_object
+
+    class Layout:
+        labels = []
+
+        def label(self, text="", **kw):
+            self.labels.append(text)
+
+        def prop(self, *a, **kw):
+            pass
+
+        def row(self, **kw):
+            return self
+
+        def operator(self, *a, **kw):
+            return SimpleNamespace()
+
+    scene = bpy.context.scene
+    scene.hr.output = "TEXTURE"
+    HR_PT_object.draw(SimpleNamespace(layout=Layout()), SimpleNamespace(object=book, scene=scene))
+    assert Layout.labels == ["Lightmap 32 x 32 (50 texels/m)"]
     book.hr.lightmap_resolution = 24
     assert resolution_for(book, 128, 50.0) == 24
 
