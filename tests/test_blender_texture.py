@@ -252,6 +252,7 @@ def test_cancel_partial_bakes_and_png(tmp_path):
             quality="draft",
             output="TEXTURE",
             resolution=32,
+            texel_density=0,
             texture_format="PNG",
         )
     )
@@ -389,10 +390,10 @@ def test_texture_bake_too_large_is_refused_and_keeps_the_previous(tmp_path, monk
     before = _snapshot(cache)
     monkeypatch.setattr(parallel, "memory_headroom", lambda: 10**8)  # 100 MB free
     with pytest.raises(SceneError) as err:
-        _bake(frames=(5, 6), resolution=128)  # 0.111 M texels at 4 kB each
+        _bake(frames=(5, 6), resolution=128)  # 0.111 M texels at 6 kB each
     msg = str(err.value)
     assert msg.startswith(
-        "Texture output needs 0.111 M texels, about 0.446 GB for the final gather, and 0.1 GB"
+        "Texture output needs 0.111 M texels, about 0.668 GB for the final gather, and 0.1 GB"
     )
     assert "lower the Texel Density" in msg and "'floor' (128 px" in msg
     assert _snapshot(cache) == before
