@@ -395,7 +395,8 @@ def test_texture_bake_too_large_is_refused_and_keeps_the_previous(tmp_path, monk
     assert msg.startswith(
         "Texture output needs 0.111 M texels, about 0.668 GB for the final gather, and 0.1 GB"
     )
-    assert "lower the Texel Density" in msg and "'floor' (128 px" in msg
+    assert "set a Texel Density (50 texels per metre: 2 cm) or the Texture Size" in msg  # density 0 here
+    assert "'floor' (128 px" in msg
     assert _snapshot(cache) == before
     assert sorted(p.name for p in cache.parent.iterdir()) == ["cornell"]
     _bake(frames=(5, 6), resolution=32)  # 100 MB are enough for this one

@@ -251,7 +251,7 @@ class _Bake:
                 plan = self.texture_plan(snap, system)
                 if plan is not None:  # before the gather takes the memory (the previous bake stays)
                     try:
-                        texture.check_memory(plan, cfg.gather)
+                        texture.check_memory(plan, cfg.gather, cfg.texel_density)
                     except TextureError as exc:
                         raise SceneError(str(exc)) from None
                 final = make_gather(dyn, plan, dict(cfg.gather, threads=cfg.threads))

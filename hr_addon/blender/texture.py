@@ -86,19 +86,21 @@ def resolution_for(obj, largest, density=0.0):
     return _sizes[key]
 
 
-def check_memory(plan, gather):
+def check_memory(plan, gather, density):
     """Raise TextureError, naming the objects with the most texels, when the final gather at the
     plan's texels (gather: its settings, None: off) would need more memory than the system has
-    free: before the gather starts, so the bake stops at once and the previous one stays."""
+    free: before the gather starts, so the bake stops at once and the previous one stays.
+    density: the scene's Texel Density (0: off, then the advice is to set one)."""
     if gather is None:
         return
     need, room = gather_bytes(plan.texels, gather["rays"]), parallel.memory_headroom()
     if room is None or need <= room:
         return
     names = ", ".join(f"'{o.name}' ({o.res} px, {o.hi - o.lo:,} texels)" for o in plan.largest())
+    lower = "lower the Texel Density" if density > 0 else "set a Texel Density (50 texels per metre: 2 cm)"
     raise TextureError(
         f"Texture output needs {plan.texels / 1e6:.3g} M texels, about {need / 1e9:.3g} GB for the "
-        f"final gather, and {room / 1e9:.3g} GB are free: lower the Texel Density or the Texture Size "
+        f"final gather, and {room / 1e9:.3g} GB are free: {lower} or the Texture Size "
         f"(Render > HR Radiosity), or set a smaller Lightmap Size (Object > HR Radiosity) on the largest "
         f"objects: {names}."
     )
