@@ -332,7 +332,7 @@ def test_lightmaps_sized_by_area_and_the_override_wins(tmp_path):
     object's Lightmap Size wins; density 0 gives every object the Texture Size."""
     bpy = load_bpy()
     bpy.ops.wm.read_homefile(use_empty=True)
-    from hr_addon.blender.texture import MIN_SIZE, resolution_for
+    from hr_addon.blender.texture import MIN_SIZE, lightmap_sizer, resolution_for
 
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     book = bpy.context.object
@@ -375,6 +375,15 @@ def test_lightmaps_sized_by_area_and_the_override_wins(tmp_path):
     assert Layout.labels == ["Lightmap 32 x 32 (50 texels/m)"]
     book.hr.lightmap_resolution = 24
     assert resolution_for(book, 128, 50.0) == 24
+    # a linked duplicate twice the size: sized as the mesh's first object (one packing of the map)
+    book.hr.lightmap_resolution = 0
+    twin = book.copy()
+    twin.scale = (0.04, 0.30, 0.44)
+    bpy.context.scene.collection.objects.link(twin)
+    bpy.context.view_layer.update()
+    assert resolution_for(twin, 128, 50.0) > 32
+    size = lightmap_sizer(128, 50.0)
+    assert (size(book), size(twin)) == (32, 32)
 
 
 def test_texture_bake_too_large_is_refused_and_keeps_the_previous(tmp_path, monkeypatch):

@@ -86,6 +86,23 @@ def resolution_for(obj, largest, density=0.0):
     return _sizes[key]
 
 
+def lightmap_sizer(largest, density=0.0):
+    """resolution_for(obj, largest, density) per object, objects sharing a mesh sized as the first
+    of them asked (ensure_lightmaps packs a shared mesh once, for its first object: a linked
+    duplicate at another scale keeps the map's texel margins)."""
+    first = {}
+
+    def size(obj):
+        if int(getattr(obj.hr, "lightmap_resolution", 0) or 0) > 0:
+            return resolution_for(obj, largest, density)
+        key = obj.data.name_full
+        if key not in first:
+            first[key] = resolution_for(obj, largest, density)
+        return first[key]
+
+    return size
+
+
 def check_memory(plan, gather, density):
     """Raise TextureError, naming the objects with the most texels, when the final gather at the
     plan's texels (gather: its settings, None: off) would need more memory than the system has
@@ -148,12 +165,12 @@ def ensure_lightmap(obj, res):
 
 
 def ensure_lightmaps(objects, largest, density=0.0):
-    warnings, done = [], set()
+    warnings, done, size = [], set(), lightmap_sizer(largest, density)
     for obj in objects:
         if obj.data.name_full in done:
             continue
         done.add(obj.data.name_full)
-        w = ensure_lightmap(obj, resolution_for(obj, largest, density))
+        w = ensure_lightmap(obj, size(obj))
         if w:
             warnings.append(w)
     return warnings
@@ -236,7 +253,7 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, largest, fmt="EXR", a
     albedo: textured materials (materials.albedo_texture) modulate their objects' texels by the
     texture's albedo / its average (radiance mode)."""
     plan = TexturePlan(fmt)
-    warned, specs_of = {}, {}
+    warned, specs_of, size = {}, {}, lightmap_sizer(largest, density)
     mesh = scene_in.mesh
     stems = _stems([t.name for t in scene_in.targets])
     for oid, t in enumerate(scene_in.targets):
@@ -274,7 +291,7 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, largest, fmt="EXR", a
         placed = plan.add_object(
             t.name,
             stems[t.name],
-            resolution_for(obj, largest, density),
+            size(obj),
             tri_uv,
             corners,
             tri_patch,
@@ -527,9 +544,9 @@ def after_bake(scene, directory):
 
 def lightmap_key(snap, view_layer, largest, density=0.0):
     """The texel gather's dependence on the lightmaps: each target's resolution and UV digest."""
-    out = {}
+    out, size = {}, lightmap_sizer(largest, density)
     for t in snap.scene_in.targets:
         obj = view_layer.objects.get(t.name) or bpy.data.objects[t.name]
         uv = uv_digest(obj, view_layer.depsgraph)
-        out[t.name] = f"{resolution_for(obj, largest, density)} px, uv {uv}"
+        out[t.name] = f"{size(obj)} px, uv {uv}"
     return out
