@@ -28,9 +28,9 @@ REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search
 
 # The texture bake's peak memory per texel at 128 hemisphere rays, the larger of two measures
 # (draft; docs/user_guide.md, "Lightmaps sized by area"): Cornell, 27,409 and 111,125 texels, peak
-# RSS 0.52 and 0.85 GB: 3.9 kB per added texel; the furnished room, 696,729 texels, 4.41 GB: 6.3 kB
-# per texel, its hierarchy included (the stored precompute 2.4 kB per texel against Cornell's 1.2:
-# texels at contacts gather 4 sub-samples)
+# RSS 0.52 and 0.85 GB: 3.9 kB per added texel; the furnished room, 326,216 and 696,729 texels,
+# 2.47 and 4.41 GB: 5.2 kB per added texel, 6.3 kB per texel with its hierarchy (its stored
+# precompute 2.4 kB per texel against Cornell's 1.2: texels at contacts gather 4 sub-samples)
 GATHER_BYTES_PER_TEXEL = 6000
 
 
