@@ -42,7 +42,15 @@ def _bake(scene, **kw):
     from hr_addon.blender.bake import run_bake
 
     kw.setdefault("quality", "medium")
-    return run_bake(scene, log=lambda *a, **k: None, output="texture", resolution=RES, frames=(1, 1), **kw)
+    return run_bake(
+        scene,
+        log=lambda *a, **k: None,
+        output="texture",
+        resolution=RES,
+        texel_density=0,
+        frames=(1, 1),
+        **kw,
+    )
 
 
 def _textures(cache):
@@ -200,7 +208,15 @@ def test_preview_multiplies_irradiance_by_the_base_colour(tmp_path):
     from hr_addon.blender.bake import run_bake
 
     def bake(**kw):
-        run_bake(scene, log=lambda *a, **k: None, frames=(1, 1), quality="draft", resolution=32, **kw)
+        run_bake(
+            scene,
+            log=lambda *a, **k: None,
+            frames=(1, 1),
+            quality="draft",
+            resolution=32,
+            texel_density=0,
+            **kw,
+        )
 
     bake(output="TEXTURE", radiance_mode="IRRADIANCE")
     assert bpy.ops.hr.add_preview() == {"FINISHED"}
@@ -253,7 +269,13 @@ def test_unfollowed_texture_setup_keeps_the_average_and_says_so(tmp_path):
     mp = t.nodes.new("ShaderNodeMapping")
     t.links.new(mp.outputs[0], t.nodes["Image Texture"].inputs["Vector"])
     res = run_bake(
-        scene, log=lambda *a, **k: None, frames=(1, 1), quality="draft", output="TEXTURE", resolution=16
+        scene,
+        log=lambda *a, **k: None,
+        frames=(1, 1),
+        quality="draft",
+        output="TEXTURE",
+        resolution=16,
+        texel_density=0,
     )
     w = [x for x in res.warnings if "Checker Floor" in x]
     assert len(w) == 1 and "average colour" in w[0], res.warnings

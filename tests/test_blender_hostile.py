@@ -305,7 +305,7 @@ def test_damaged_texture_frames_are_reported_and_rebaked(tmp_path):
 
     open_sample("cornell", tmp_path)
     scene = bpy.context.scene
-    res = _bake(output="texture", resolution=16, frames=(1, 12))
+    res = _bake(output="texture", resolution=16, texel_density=0, frames=(1, 12))
     d = Path(playback.bake_dir_abs(scene)) / "textures"
     f8 = d / "floor_000008.exr"
     assert image_file_problem(f8, 16) == ""
@@ -320,7 +320,7 @@ def test_damaged_texture_frames_are_reported_and_rebaked(tmp_path):
     scene.frame_set(8)
     msg = playback.status(scene)
     assert "floor_000008.exr" in msg and "truncated" in msg and "magenta" in msg, msg
-    res = _bake(output="texture", resolution=16, frames=(1, 2))
+    res = _bake(output="texture", resolution=16, texel_density=0, frames=(1, 2))
     assert res.rebaked == [8, 10], res.rebaked
     assert image_file_problem(f8, 16) == "" and image_file_problem(d / "back_000010.exr", 16) == ""
     scene.frame_set(9)

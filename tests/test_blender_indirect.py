@@ -133,13 +133,13 @@ def test_indirect_equals_irradiance_without_lamps_and_world(tmp_path):
     np.testing.assert_array_equal(ind, irr)
     tex = {}
     for mode in ("IRRADIANCE", "INDIRECT"):
-        _bake(tmp_path, mode, f"tex_{mode}", output="TEXTURE", resolution=16)
+        _bake(tmp_path, mode, f"tex_{mode}", output="TEXTURE", resolution=16, texel_density=0)
         tex[mode] = read_image(tmp_path / f"tex_{mode}" / "textures" / "Cube_000001.exr")
     assert tex["IRRADIANCE"].max() > 0
     np.testing.assert_array_equal(tex["INDIRECT"], tex["IRRADIANCE"])
     _scene(tmp_path)
     for mode in ("IRRADIANCE", "INDIRECT"):
-        _bake(tmp_path, mode, f"lamp_{mode}", output="TEXTURE", resolution=16)
+        _bake(tmp_path, mode, f"lamp_{mode}", output="TEXTURE", resolution=16, texel_density=0)
         tex[mode] = read_image(tmp_path / f"lamp_{mode}" / "textures" / "Cube_000001.exr")
     a, b = tex["IRRADIANCE"], tex["INDIRECT"]
     assert (b >= 0).all() and (b <= a + 1e-6 * a.max()).all()
@@ -202,7 +202,7 @@ def test_preview_adds_base_colour_times_the_bake_to_the_material_and_removes_it(
     preview.refresh_preview([bpy.data.objects["Cube"]], "INDIRECT")
     assert bpy.ops.hr.remove_preview() == {"FINISHED"}
     assert _snapshot(mat) == before
-    _bake(tmp_path, "INDIRECT", "tex", output="TEXTURE", resolution=16)
+    _bake(tmp_path, "INDIRECT", "tex", output="TEXTURE", resolution=16, texel_density=0)
     assert bpy.ops.hr.add_preview() == {"FINISHED"}
     helper = bpy.data.objects["Cube"].material_slots[0].material
     assert helper != mat and helper.get(names.TAG) == "Cube"

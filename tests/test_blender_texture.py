@@ -25,6 +25,7 @@ def _bake(**kw):
     kw.setdefault("method", "FE")
     kw.setdefault("output", "texture")
     kw.setdefault("resolution", RES)
+    kw.setdefault("texel_density", 0)  # every lightmap RES x RES: the texel positions these tests check
     return run_bake(bpy.context.scene, log=lambda *a, **k: None, **kw)
 
 
@@ -251,6 +252,7 @@ def test_cancel_partial_bakes_and_png(tmp_path):
             quality="draft",
             output="TEXTURE",
             resolution=32,
+            texel_density=0,
             texture_format="PNG",
         )
     )
@@ -323,3 +325,109 @@ def test_image_writers_read_back_by_blender(tmp_path):
     # conversion adds up to ~2.5e-5 (it reads 1.0 as 1.000024)
     np.testing.assert_allclose(back[:5], img, atol=5e-5)
     np.testing.assert_allclose(back[5:], 1.0, atol=5e-5)
+
+
+def test_lightmaps_sized_by_area_and_the_override_wins(tmp_path):
+    """Texel Density: a 2 cm book gets a small lightmap, a wall more (up to the Texture Size); an
+    object's Lightmap Size wins; density 0 gives every object the Texture Size."""
+    bpy = load_bpy()
+    bpy.ops.wm.read_homefile(use_empty=True)
+    from hr_addon.blender.texture import MIN_SIZE, lightmap_sizer, resolution_for
+
+    bpy.ops.mesh.primitive_cube_add(size=1.0)
+    book = bpy.context.object
+    book.scale = (0.02, 0.15, 0.22)
+    bpy.ops.mesh.primitive_plane_add(size=1.0)
+    wall = bpy.context.object
+    wall.scale = (4.0, 2.5, 1.0)
+    bpy.ops.mesh.primitive_plane_add(size=0.01)
+    tile = bpy.context.object
+    bpy.context.view_layer.update()
+    assert bpy.context.scene.hr.texel_density == 50  # the default: 2 cm texels
+    assert resolution_for(book, 128, 50.0) == 32  # 11 x 8 texels a face, six faces and margins
+    assert resolution_for(wall, 1024, 50.0) == 4 * 50 + 4  # 4 m at 50 texels per metre, margins
+    assert resolution_for(wall, 128, 50.0) == 128  # capped by the Texture Size
+    assert resolution_for(tile, 128, 50.0) == MIN_SIZE
+    assert resolution_for(book, 128, 0.0) == 128
+    # the object panel shows the size the bake gives it
+    from types import SimpleNamespace
+
+    from hr_addon.blender.panels import HR_PT_object
+
+    class Layout:
+        labels = []
+
+        def label(self, text="", **kw):
+            self.labels.append(text)
+
+        def prop(self, *a, **kw):
+            pass
+
+        def row(self, **kw):
+            return self
+
+        def operator(self, *a, **kw):
+            return SimpleNamespace()
+
+    scene = bpy.context.scene
+    scene.hr.output = "TEXTURE"
+    HR_PT_object.draw(SimpleNamespace(layout=Layout()), SimpleNamespace(object=book, scene=scene))
+    assert Layout.labels == ["Lightmap 32 x 32 (50 texels/m)"]
+    book.hr.lightmap_resolution = 24
+    assert resolution_for(book, 128, 50.0) == 24
+    # a linked duplicate twice the size: sized as the mesh's first object (one packing of the map)
+    book.hr.lightmap_resolution = 0
+    twin = book.copy()
+    twin.scale = (0.04, 0.30, 0.44)
+    bpy.context.scene.collection.objects.link(twin)
+    bpy.context.view_layer.update()
+    assert resolution_for(twin, 128, 50.0) > 32
+    size = lightmap_sizer(128, 50.0)
+    assert (size(book), size(twin)) == (32, 32)
+
+
+def test_texture_bake_too_large_is_refused_and_keeps_the_previous(tmp_path, monkeypatch):
+    """Before the final gather: the texels and their memory against what is free; the message
+    names the largest objects, the previous bake stays as it was."""
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender.scene_in import SceneError
+    from hr_addon.core import parallel
+
+    _bake(frames=(5, 6), resolution=16)
+    cache = tmp_path / "hr_cache" / "cornell"
+    before = _snapshot(cache)
+    monkeypatch.setattr(parallel, "memory_headroom", lambda: 10**8)  # 100 MB free
+    with pytest.raises(SceneError) as err:
+        _bake(frames=(5, 6), resolution=128)  # 0.111 M texels at 6 kB each
+    msg = str(err.value)
+    assert msg.startswith(
+        "Texture output needs 0.111 M texels, about 0.668 GB for the final gather, and 0.1 GB"
+    )
+    assert "set a Texel Density (50 texels per metre: 2 cm) or the Texture Size" in msg  # density 0 here
+    assert "'floor' (128 px" in msg
+    assert _snapshot(cache) == before
+    assert sorted(p.name for p in cache.parent.iterdir()) == ["cornell"]
+    _bake(frames=(5, 6), resolution=32)  # 100 MB are enough for this one
+    assert bpy.context.scene.hr.bake_dir
+
+
+def test_command_line_texel_density(tmp_path, capsys):
+    load_bpy()
+    from hr_addon.blender import cli
+    from hr_addon.io.cache import CacheReader
+
+    path = open_sample("cornell", tmp_path)
+    assert cli.run([str(path), "--texel-density", "-1"]) == 2
+    assert "bad texel density -1" in capsys.readouterr().err
+    copy = tmp_path / "copy.blend"
+    args = ["--frames", "6-6", "--output", "texture", "--quality", "draft", "--method", "fe"]
+    assert (
+        cli.run([str(path), *args, "--texel-density", "25", "--resolution", "24", "--save", str(copy)]) == 0
+    )
+    sizes = {n: o["resolution"] for n, o in CacheReader(tmp_path / "hr_cache" / "cornell").objects.items()}
+    # Cornell (55 cm) at 4 cm texels: walls 20, the blocks 24 (capped by --resolution), the lamp 8
+    assert sizes == {n: 24 if "block" in n else 8 if n == "light" else 20 for n in GEOMETRY}
+    bpy = load_bpy()
+    bpy.ops.wm.open_mainfile(filepath=str(copy))
+    assert (bpy.context.scene.hr.texel_density, bpy.context.scene.hr.texture_resolution) == (25, 24)

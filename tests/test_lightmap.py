@@ -14,7 +14,7 @@ from hr_addon.core.texels import TexelLocator, radiance_per_leaf
 from hr_addon.io.cache import CacheWriter
 from hr_addon.io.images import encode_exr, encode_png16, image_file_problem
 from hr_addon.lightmap import TextureError
-from hr_addon.lightmap.charts import find_charts, pack_lightmap
+from hr_addon.lightmap.charts import MARGIN, find_charts, lightmap_size, pack_lightmap
 from hr_addon.lightmap.plan import TexturePlan
 from hr_addon.lightmap.raster import dilation_steps, rasterise
 
@@ -110,6 +110,44 @@ def test_flat_grid_is_one_chart_at_one_texel_density():
     s = np.linalg.norm(uv[a] - uv[b], axis=1)[w > 0] / w[w > 0]
     assert np.ptp(s) < 1e-9 * s.mean()
     assert 2 * s.mean() == pytest.approx((64 - 4) / 64)
+
+
+def _box(sx, sy, sz):
+    co = np.array([[x, y, z] for x in (0, sx) for y in (0, sy) for z in (0, sz)], float)
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    return co, np.arange(0, 24, 4), np.full(6, 4), np.array(faces).ravel()
+
+
+@pytest.mark.parametrize("dims", [(0.02, 0.15, 0.22), (0.5, 0.4, 0.3), (3.0, 0.1, 2.5)])
+def test_lightmap_size_gives_the_density_at_the_smallest_size(dims):
+    """Sized by area: the smallest multiple of 4 (8 at least) whose packing gives the charts the
+    texel density with their margins; one step smaller does not fit at that density."""
+    box, density = _box(*dims), 50.0
+    co, _, _, lv = box
+    edge = np.linalg.norm(co[lv[1::4]] - co[lv[::4]], axis=1)  # each face's first edge
+
+    def texels_per_metre(res):  # pack_lightmap's largest scale, found to 1e-4
+        uv = pack_lightmap(*box, res)
+        return (np.linalg.norm(uv[1::4] - uv[::4], axis=1) * res / edge).min()
+
+    res = lightmap_size(*box, density, lo=8, hi=1024)
+    assert res % 4 == 0 and 8 <= res < 1024
+    assert texels_per_metre(res) >= density * (1 - 1e-4)
+    if res > 8:
+        assert texels_per_metre(res - 4) < density
+
+
+def test_lightmap_size_follows_area_and_stays_in_bounds():
+    book, wall = (
+        lightmap_size(*_box(0.02, 0.15, 0.22), 50.0),
+        lightmap_size(*_box(4.0, 0.1, 2.5), 50.0, hi=4096),
+    )
+    assert book == 32 and wall > 8 * book  # 2 cm x 15 cm x 22 cm at 2 cm texels: 11 x 8 texels a face
+    assert lightmap_size(*_box(0.01, 0.01, 0.01), 50.0) == 16  # six 1 x 1 charts with their margins
+    assert lightmap_size(*_box(4.0, 0.1, 2.5), 50.0, hi=128) == 128  # the Texture Size caps it
+    tile = np.array([[0, 0, 0], [0.01, 0, 0], [0.01, 0.01, 0], [0, 0.01, 0]], float)
+    assert lightmap_size(tile, [0], [4], [0, 1, 2, 3], 50.0) == 8  # one chart: the smallest size
+    assert 1 + 2 * MARGIN <= 8
 
 
 def test_rasterise_matches_brute_force_texel_centres():

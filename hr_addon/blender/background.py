@@ -186,7 +186,9 @@ class BackgroundBake:
         if self.output == "TEXTURE":
             # The lightmap UV maps belong to the user's meshes: make them here, the copy gets them.
             try:
-                self._start_warnings = texture.ensure_lightmaps(geometry_objects(view_layer), cfg.resolution)
+                self._start_warnings = texture.ensure_lightmaps(
+                    geometry_objects(view_layer), cfg.resolution, cfg.texel_density
+                )
                 self.warnings += self._start_warnings
             except TextureError as exc:
                 raise SceneError(str(exc)) from None

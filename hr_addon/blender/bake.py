@@ -97,7 +97,7 @@ def bake_frames(
     build and of every frame, and raising at once inside the core's computations (pure numpy).
     warnings: a Warnings collector to fill (the caller keeps it when the bake fails).
     overrides: Scene.hr settings to use instead (method, quality, domain, feps, aeps, output,
-    resolution, texture_format, radiance_mode, contacts, final_gather): settings.BakeConfig.
+    resolution, texel_density, texture_format, radiance_mode, contacts, final_gather): settings.BakeConfig.
     cache_dir: absolute cache directory (default: from the scene's settings and the .blend path;
     the background bake passes the real one because it bakes a copy of the file elsewhere).
     rebuild: build the scene precompute even if the cache folder holds a valid one.
@@ -275,9 +275,13 @@ class _Bake:
             if cfg.gather is not None:
                 say(f"Final gather: tracing {cfg.gather['rays']} rays per output sample", BUILD_SHARE)
                 t1 = time.perf_counter()
-                final = make_gather(
-                    dyn, self.texture_plan(snap, system), dict(cfg.gather, threads=cfg.threads)
-                )
+                plan = self.texture_plan(snap, system)
+                if plan is not None:  # before the gather takes the memory (the previous bake stays)
+                    try:
+                        texture.check_memory(plan, cfg.gather, cfg.texel_density)
+                    except TextureError as exc:
+                        raise SceneError(str(exc)) from None
+                final = make_gather(dyn, plan, dict(cfg.gather, threads=cfg.threads))
                 pc.prepare(final)  # the static emitters' direct light, stored with the rest
                 r.gather_seconds = time.perf_counter() - t1
             return system, final
@@ -287,7 +291,11 @@ class _Bake:
             say(line[:1].upper() + line[1:])
 
         texture_gather = cfg.output == "TEXTURE" and cfg.gather is not None
-        texels = texture.lightmap_key(snap, self.view_layer, cfg.resolution) if texture_gather else None
+        texels = (
+            texture.lightmap_key(snap, self.view_layer, cfg.resolution, cfg.texel_density)
+            if texture_gather
+            else None
+        )
         want = precompute_key(snap.mesh, params, cfg.gather, texels)
         with self.intr.raising():
             system, final, how = pc.load_or_build(
@@ -319,6 +327,7 @@ class _Bake:
                 self.cfg.resolution,
                 self.cfg.texture_format,
                 albedo=self.cfg.radiance_mode == "RADIANCE",
+                density=self.cfg.texel_density,
             )
         except TextureError as exc:
             raise SceneError(str(exc)) from None

@@ -12,7 +12,7 @@ import os
 import re
 import sys
 
-from .settings import choices, resolution_problem, thresholds_problem
+from .settings import choices, density_problem, resolution_problem, thresholds_problem
 
 PROG = "hr_bake"
 
@@ -75,7 +75,18 @@ def make_parser(prog=PROG, blend_required=False):
         "for EEVEE (needs the final gather; default: the scene's)",
     )
     p.add_argument(
-        "--resolution", type=int, metavar="N", help="texture size in texels, 8 to 16384 (texture output)"
+        "--resolution",
+        type=int,
+        metavar="N",
+        help="texture size in texels, 8 to 16384: the largest lightmap (texture output; every object's "
+        "with --texel-density 0)",
+    )
+    p.add_argument(
+        "--texel-density",
+        type=float,
+        metavar="D",
+        help="lightmap texels per metre of surface: each object's lightmap sized by its area, up to "
+        "--resolution (0: every object --resolution; default: the scene's Texel Density, 50)",
     )
     setting(
         "--texture-format",
@@ -162,6 +173,8 @@ def check_args(args):
         raise UsageError(f"bad --threads {args.threads} (0: every core, or a count)")
     if args.resolution is not None and resolution_problem(args.resolution):
         raise UsageError(resolution_problem(args.resolution))
+    if args.texel_density is not None and density_problem(args.texel_density):
+        raise UsageError(density_problem(args.texel_density))
     if args.save:
         path = os.path.abspath(args.save)
         folder = os.path.dirname(path)
@@ -279,6 +292,7 @@ def _run(argv, prog, blend_required, intr):
             aeps=aeps,
             output=args.output,
             resolution=args.resolution,
+            texel_density=args.texel_density,
             texture_format=args.texture_format,
             radiance_mode=args.radiance_mode,
             contacts=False if args.no_contacts else None,
@@ -358,6 +372,8 @@ def keep_settings(hr, args, quality, feps, aeps):
         hr.feps, hr.aeps = feps, aeps
     if args.resolution:
         hr.texture_resolution = args.resolution
+    if args.texel_density is not None:
+        hr.texel_density = args.texel_density
     if args.no_contacts:
         hr.contacts = False
     if args.no_final_gather:

@@ -158,6 +158,7 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
         layout.prop(hr, "output")
         layout.prop(hr, "radiance_mode")
         if hr.output == "TEXTURE":
+            layout.prop(hr, "texel_density")
             layout.prop(hr, "texture_resolution")
             layout.prop(hr, "texture_format")
         else:
@@ -232,8 +233,15 @@ class HR_PT_object(bpy.types.Panel):
         if obj.type == "LIGHT":  # a Blender light takes part unless excluded (docs/lights.md)
             return
         layout.prop(obj.hr, "is_light_shape")
-        if context.scene.hr.output == "TEXTURE":
+        hr = context.scene.hr
+        if hr.output == "TEXTURE":
             layout.prop(obj.hr, "lightmap_resolution")
+            if obj.hr.lightmap_resolution == 0:  # what the bake gives it: sized by area
+                from .texture import resolution_for
+
+                n = resolution_for(obj, hr.texture_resolution, hr.texel_density)
+                how = f"{hr.texel_density:g} texels/m" if hr.texel_density > 0 else "the Texture Size"
+                layout.label(text=f"Lightmap {n} x {n} ({how})")
         row = layout.row(align=True)
         row.operator("hr.mark_light_shape")
         row.operator("hr.mark_light_shape", text="Unmark").clear = True

@@ -3,7 +3,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-from .settings import DEFAULTS, RESOLUTION, items
+from .settings import DEFAULTS, DENSITY, RESOLUTION, TEXEL_DENSITY, items
 
 # Blender 4.5+ warns about "//" in path properties unless they declare blend-relative support.
 _REL = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
@@ -85,7 +85,19 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         soft_min=16,
         max=RESOLUTION[1],
         soft_max=4096,
-        description="Width and height of each object's lightmap in texels (objects may override it)",
+        description="Width and height of the largest lightmap in texels: with a Texel Density, "
+        "objects whose area wants more get this (objects may override it)",
+    )
+    texel_density: FloatProperty(
+        name="Texel Density",
+        default=TEXEL_DENSITY,
+        min=0.0,
+        soft_min=1.0,
+        max=DENSITY[1],
+        soft_max=500.0,
+        description="Lightmap texels per metre of surface: each object's lightmap is sized by its "
+        "area, from 8 texels to the Texture Size (0: every object gets the Texture Size). An "
+        "object's Lightmap Size overrides it",
     )
     texture_format: EnumProperty(
         name="Texture Format",
@@ -166,7 +178,8 @@ class HR_ObjectSettings(bpy.types.PropertyGroup):
         min=0,
         max=16384,
         soft_max=4096,
-        description="Lightmap width and height in texels for baked textures (0: the scene's Texture Size)",
+        description="Lightmap width and height in texels for baked textures (0: sized by the "
+        "object's area at the scene's Texel Density, at most its Texture Size)",
     )
 
 

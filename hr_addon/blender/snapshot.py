@@ -39,7 +39,7 @@ def read_snapshot(scene, view_layer, cfg, warn):
         warn(playback.linked_meshes(objects))
     if cfg.output == "TEXTURE":
         try:
-            warn(texture.ensure_lightmaps(objects, cfg.resolution))
+            warn(texture.ensure_lightmaps(objects, cfg.resolution, cfg.texel_density))
         except TextureError as exc:
             raise SceneError(str(exc)) from None
     with texture.source_materials(objects):  # texture preview copies stand for these

@@ -27,8 +27,9 @@ import numpy as np
 
 from ..io.cache import CacheError, CacheReader
 from ..lightmap import TextureError
-from ..lightmap.charts import MARGIN, pack_lightmap
-from ..lightmap.plan import TexturePlan, triangle_uvs
+from ..lightmap.charts import MARGIN, lightmap_size, pack_lightmap
+from ..core import parallel
+from ..lightmap.plan import TexturePlan, gather_bytes, triangle_uvs
 from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
 from .materials import albedo_texture
@@ -64,9 +65,62 @@ def _uv_hash(uv):
     return hashlib.sha1(np.ascontiguousarray(uv).tobytes()).hexdigest()
 
 
-def resolution_for(obj, default):
+MIN_SIZE = 8  # the smallest lightmap the texel density gives
+_sizes = {}  # (mesh, scale, density, largest size) digest -> lightmap size: packed once per process
+
+
+def resolution_for(obj, largest, density=0.0):
+    """obj's lightmap size: its own Lightmap Size if set, else the size that gives its charts
+    `density` texels per unit of world-space surface (charts.lightmap_size, MIN_SIZE to `largest`,
+    the scene's Texture Size), or `largest` itself with density 0."""
     r = int(getattr(obj.hr, "lightmap_resolution", 0) or 0)
-    return r if r > 0 else int(default)
+    if r > 0:
+        return r
+    if density <= 0 or obj.type != "MESH" or len(obj.data.polygons) == 0:
+        return int(largest)
+    co, ls, lt, lv = mesh_topology(obj.data)
+    scale = np.array(obj.matrix_world.to_scale(), float)
+    key = _uv_signature(co, ls, lt, lv, scale, f"{float(density)!r} {int(largest)}")
+    if key not in _sizes:
+        _sizes[key] = lightmap_size(co * scale, ls, lt, lv, float(density), MIN_SIZE, int(largest))
+    return _sizes[key]
+
+
+def lightmap_sizer(largest, density=0.0):
+    """resolution_for(obj, largest, density) per object, objects sharing a mesh sized as the first
+    of them asked (ensure_lightmaps packs a shared mesh once, for its first object: a linked
+    duplicate at another scale keeps the map's texel margins)."""
+    first = {}
+
+    def size(obj):
+        if int(getattr(obj.hr, "lightmap_resolution", 0) or 0) > 0:
+            return resolution_for(obj, largest, density)
+        key = obj.data.name_full
+        if key not in first:
+            first[key] = resolution_for(obj, largest, density)
+        return first[key]
+
+    return size
+
+
+def check_memory(plan, gather, density):
+    """Raise TextureError, naming the objects with the most texels, when the final gather at the
+    plan's texels (gather: its settings, None: off) would need more memory than the system has
+    free: before the gather starts, so the bake stops at once and the previous one stays.
+    density: the scene's Texel Density (0: off, then the advice is to set one)."""
+    if gather is None:
+        return
+    need, room = gather_bytes(plan.texels, gather["rays"]), parallel.memory_headroom()
+    if room is None or need <= room:
+        return
+    names = ", ".join(f"'{o.name}' ({o.res} px, {o.hi - o.lo:,} texels)" for o in plan.largest())
+    lower = "lower the Texel Density" if density > 0 else "set a Texel Density (50 texels per metre: 2 cm)"
+    raise TextureError(
+        f"Texture output needs {plan.texels / 1e6:.3g} M texels, about {need / 1e9:.3g} GB for the "
+        f"final gather, and {room / 1e9:.3g} GB are free: {lower} or the Texture Size "
+        f"(Render > HR Radiosity), or set a smaller Lightmap Size (Object > HR Radiosity) on the largest "
+        f"objects: {names}."
+    )
 
 
 def ensure_lightmap(obj, res):
@@ -110,13 +164,13 @@ def ensure_lightmap(obj, res):
     return None
 
 
-def ensure_lightmaps(objects, default_res):
-    warnings, done = [], set()
+def ensure_lightmaps(objects, largest, density=0.0):
+    warnings, done, size = [], set(), lightmap_sizer(largest, density)
     for obj in objects:
         if obj.data.name_full in done:
             continue
         done.add(obj.data.name_full)
-        w = ensure_lightmap(obj, resolution_for(obj, default_res))
+        w = ensure_lightmap(obj, size(obj))
         if w:
             warnings.append(w)
     return warnings
@@ -193,12 +247,13 @@ def _albedo_factor(specs, uvs, mat_index, poly, loops, bary):
     return factor if hit else None
 
 
-def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR", albedo=False):
-    """The bake's TexturePlan: every target object's evaluated HR_Lightmap UVs on its patches.
+def texture_plan(scene_in, patches, view_layer, depsgraph, largest, fmt="EXR", albedo=False, density=0.0):
+    """The bake's TexturePlan: every target object's evaluated HR_Lightmap UVs on its patches,
+    each object's lightmap size resolution_for(largest, density).
     albedo: textured materials (materials.albedo_texture) modulate their objects' texels by the
     texture's albedo / its average (radiance mode)."""
     plan = TexturePlan(fmt)
-    warned, specs_of = {}, {}
+    warned, specs_of, size = {}, {}, lightmap_sizer(largest, density)
     mesh = scene_in.mesh
     stems = _stems([t.name for t in scene_in.targets])
     for oid, t in enumerate(scene_in.targets):
@@ -236,7 +291,7 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, default_res, fmt="EXR
         placed = plan.add_object(
             t.name,
             stems[t.name],
-            resolution_for(obj, default_res),
+            size(obj),
             tri_uv,
             corners,
             tri_patch,
@@ -487,11 +542,11 @@ def after_bake(scene, directory):
             pass
 
 
-def lightmap_key(snap, view_layer, default_res):
+def lightmap_key(snap, view_layer, largest, density=0.0):
     """The texel gather's dependence on the lightmaps: each target's resolution and UV digest."""
-    out = {}
+    out, size = {}, lightmap_sizer(largest, density)
     for t in snap.scene_in.targets:
         obj = view_layer.objects.get(t.name) or bpy.data.objects[t.name]
         uv = uv_digest(obj, view_layer.depsgraph)
-        out[t.name] = f"{resolution_for(obj, default_res)} px, uv {uv}"
+        out[t.name] = f"{size(obj)} px, uv {uv}"
     return out

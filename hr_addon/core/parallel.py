@@ -36,6 +36,44 @@ def available_cores():
         return max(os.cpu_count() or 1, 1)
 
 
+def memory_headroom():
+    """Bytes this process may still take, as far as the system tells (None: unknown): the memory
+    available (Linux: MemAvailable; Windows: the available physical memory; elsewhere the total),
+    or the room left under an address-space limit (ulimit -v) when that is less."""
+    room = []
+    try:
+        with open("/proc/meminfo") as fh:
+            room += [int(line.split()[1]) * 1024 for line in fh if line.startswith("MemAvailable:")]
+    except OSError:
+        if os.name == "nt":
+            import ctypes
+
+            class Status(ctypes.Structure):
+                _fields_ = [("length", ctypes.c_uint32), ("load", ctypes.c_uint32)] + [
+                    (k, ctypes.c_uint64) for k in ("total", "avail", "tpage", "apage", "tvirt", "avirt", "x")
+                ]
+
+            st = Status(length=ctypes.sizeof(Status))
+            if ctypes.windll.kernel32.GlobalMemoryStatusEx(ctypes.byref(st)):
+                room.append(int(st.avail))
+        else:
+            try:
+                room.append(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+            except (ValueError, OSError, AttributeError):
+                pass
+    try:
+        import resource
+
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if limit != resource.RLIM_INFINITY:
+            with open("/proc/self/status") as fh:
+                used = [int(line.split()[1]) * 1024 for line in fh if line.startswith("VmSize:")]
+            room.append(limit - (used[0] if used else 0))
+    except (ImportError, OSError, ValueError):
+        pass
+    return min(room) if room else None
+
+
 def resolve_threads(threads):
     """threads: None or 0 -> every available core; n < 0 -> all but |n| (Live keeps one for the
     UI); otherwise n. At least 1."""

@@ -104,10 +104,9 @@ def _shelf_pack(fw, fh, res):
     return x, y
 
 
-def pack_lightmap(co, loop_start, loop_total, loop_verts, res, margin=MARGIN):
-    """(L, 2) lightmap UVs in [0, 1]: planar charts (edge-connected coplanar polygons, other polygons
-    alone) projected isometrically onto their plane, turned to their smallest bounding rectangle and
-    shelf-packed at one common texel density with `margin` texels around every chart."""
+def _chart_rects(co, loop_start, loop_total, loop_verts):
+    """Planar charts laid flat: chart per loop (L,), the loops' chart coordinates x, y (L,) from the
+    chart's lower corner lo (C, 2), and the charts' widths W and heights H (C,), W >= H."""
     co = np.asarray(co, np.float64)
     loop_start, loop_total = np.asarray(loop_start, np.int64), np.asarray(loop_total, np.int64)
     loop_verts = np.asarray(loop_verts, np.int64)
@@ -161,14 +160,43 @@ def pack_lightmap(co, loop_start, loop_total, loop_verts, res, margin=MARGIN):
     t = tall[lc]
     x, y = np.where(t, y, x), np.where(t, -x, y)
     lo, size = extent(x, y)
-    W, H = size[:, 0], size[:, 1]
+    return lc, x, y, lo, size[:, 0], size[:, 1]
+
+
+def _fits(W, H, s, m, res):
+    """Shelf positions of the charts (W, H sorted tallest first) at scale s (texels per unit) with m
+    texels around each in a res x res square, or None."""
+    fw = np.maximum(np.ceil(W * s - 1e-9), 1).astype(np.int64) + 2 * m
+    fh = np.maximum(np.ceil(H * s - 1e-9), 1).astype(np.int64) + 2 * m
+    return _shelf_pack(fw, fh, res)
+
+
+def lightmap_size(co, loop_start, loop_total, loop_verts, density, lo=8, hi=128, step=4, margin=MARGIN):
+    """The smallest lightmap size (a multiple of `step`, lo to hi) whose packing gives the mesh's
+    charts at least `density` texels per unit with `margin` texels around each (hi when even hi
+    does not: those charts get fewer). co in world units (the object's scale applied)."""
+    _, _, _, _, W, H = _chart_rects(co, loop_start, loop_total, loop_verts)
+    order = np.lexsort((-W, -H))
+    W, H = W[order] * density, H[order] * density
+    side = np.maximum(np.ceil(W - 1e-9), 1) + 2 * margin
+    need = max(float(np.sqrt(np.sum(side * (np.maximum(np.ceil(H - 1e-9), 1) + 2 * margin)))), side.max())
+    res = max(int(lo), int(np.ceil(need / step)) * step)  # the charts' own area: no smaller size fits
+    while res < hi and _fits(W, H, 1.0, margin, res) is None:
+        res += step
+    return min(res, int(hi))
+
+
+def pack_lightmap(co, loop_start, loop_total, loop_verts, res, margin=MARGIN):
+    """(L, 2) lightmap UVs in [0, 1]: planar charts (edge-connected coplanar polygons, other polygons
+    alone) projected isometrically onto their plane, turned to their smallest bounding rectangle and
+    shelf-packed at one common texel density with `margin` texels around every chart."""
+    lc, x, y, lo, W, H = _chart_rects(co, loop_start, loop_total, loop_verts)
+    C = len(W)
     order = np.lexsort((-W, -H))
     Wo, Ho = W[order], H[order]
 
     def attempt(s, m):
-        fw = np.maximum(np.ceil(Wo * s - 1e-9), 1).astype(np.int64) + 2 * m
-        fh = np.maximum(np.ceil(Ho * s - 1e-9), 1).astype(np.int64) + 2 * m
-        return _shelf_pack(fw, fh, res)
+        return _fits(Wo, Ho, s, m, res)
 
     for m in (margin, 1, 0):
         if attempt(0.0, m) is not None:

@@ -26,6 +26,20 @@ FORMATS = {"EXR": ".exr", "PNG": ".png"}
 REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
 
 
+# The texture bake's peak memory per texel at 128 hemisphere rays, the larger of two measures
+# (draft; docs/user_guide.md, "Lightmaps sized by area"): Cornell, 27,409 and 111,125 texels, peak
+# RSS 0.52 and 0.85 GB: 3.9 kB per added texel; the furnished room, 326,216 and 696,729 texels,
+# 2.47 and 4.41 GB: 5.2 kB per added texel, 6.3 kB per texel with its hierarchy (its stored
+# precompute 2.4 kB per texel against Cornell's 1.2: texels at contacts gather 4 sub-samples)
+GATHER_BYTES_PER_TEXEL = 6000
+
+
+def gather_bytes(texels, rays=128):
+    """About how many bytes the final gather at `texels` texels takes while it is built and held
+    (core.gather.texel_gather: its weights grow with the rays)."""
+    return int(texels * GATHER_BYTES_PER_TEXEL * max(rays, 1) / 128)
+
+
 class ObjectTexels:
     """Where one object's texels are: flat texel indices, their slice of the plan's points."""
 
@@ -134,6 +148,15 @@ class TexturePlan:
         )
         self._locator = None
         return tri, bary
+
+    @property
+    def texels(self):
+        """Texels of all objects (the points the output evaluates)."""
+        return self.objects[-1].hi if self.objects else 0
+
+    def largest(self, k=5):
+        """The k objects with the most texels, most first."""
+        return sorted(self.objects, key=lambda o: o.lo - o.hi)[:k]
 
     def set_albedo(self, index, factor):
         """Object `index`'s texels show their reflected radiance times factor (N, 3): the texture's
