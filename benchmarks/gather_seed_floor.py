@@ -41,7 +41,7 @@ s, g, _ = load_store(Path(args.store) / pc.FILENAME)
 pc.use_threads(s, g, 1)
 g.iterations = 4
 if getattr(g, "stats", {}).get("second_reads"):  # (its sample_rays are the rest of the corners' rays)
-    sys.exit("a store whose corners read the second level (branch pc60's layouts.SECOND_READS): use one without (branch pc60)")
+    sys.exit("a store whose corners read the second level (branch pc60): use one without")
 _, frame = furnished_room(args.size)[1]["light_wall"]
 obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
 STEPS = ("FE_add", "FE_move")
