@@ -63,48 +63,24 @@ class DirectLight:
             e = eps * em.normal
             lit = lit[~shafts.clear(xi[lit] + eps * ni[lit], em.lo + e, em.hi + e)]
         if len(lit) and self.shadow_rays > 0:
+            S = self.shadow_rays
             gi = i[lit] + a
-            counts = self._shadow_counts(gi)
-            if counts is None:
-                V = self._shadow_ratio(em, xi[lit], ni[lit], gi, self.shadow_rays)
-            else:  # each sample's ratio from its own rays: by groups of equal counts
+            u = hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
+            u -= u >= 1.0  # = u % 1.0 (a sum of two numbers in [0, 1): exact, Sterbenz), 2x faster
+            xo, no = xi[lit], ni[lit]
+            if self.area_sampling:  # area-uniform rays but near the emitter (there Arvo's)
+                c, rad = 0.5 * (em.lo + em.hi), 0.5 * np.linalg.norm(em.hi - em.lo)
+                dc = xo - c
+                near = np.einsum("lk,lk->l", dc, dc) < (self.AREA_NEAR * rad) ** 2
                 V = np.empty(len(lit))
-                for S in np.unique(counts):
-                    sel = counts == S
-                    V[sel] = self._shadow_ratio(em, xi[lit][sel], ni[lit][sel], gi[sel], int(S))
+                for sel, area in ((near, False), (~near, True)):
+                    if sel.any():
+                        V[sel] = self._visible(em, xo[sel], no[sel], u[sel], area)
+            else:
+                V = self._visible(em, xo, no, u, False)
             F[lit] *= V  # (the ratio's float64 product, as before)
         out[i] = F
         return out.astype(np.float32)
-
-    # samples whose values are averaged k at a time into one output (LoopGather's corners: their
-    # hemisphere rays are shared, sample_rays = rays // k) trace shadow_rays // min(k, shadow_share)
-    # shadow rays each (1: every sample all of them)
-    shadow_share = 1
-
-    def _shadow_counts(self, gi):
-        """(len(gi),) shadow rays of samples gi, or None where every sample traces shadow_rays."""
-        sr = getattr(self, "sample_rays", None)
-        if self.shadow_share <= 1 or sr is None:
-            return None
-        k = np.clip(self.rays // np.maximum(sr[gi], 1), 1, self.shadow_share)
-        return np.maximum(self.shadow_rays // k, 1)
-
-    def _shadow_ratio(self, em: Emitter, xo, no, gi, S):
-        """(L,) visible fraction of em from samples gi (points xo, normals no) by S shadow rays each,
-        from the samples' own rotated Hammersley set."""
-        u = hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
-        u -= u >= 1.0  # = u % 1.0 (a sum of two numbers in [0, 1): exact, Sterbenz), 2x faster
-        if not self.area_sampling:
-            return self._visible(em, xo, no, u, False)
-        # area-uniform rays but near the emitter (there Arvo's)
-        c, rad = 0.5 * (em.lo + em.hi), 0.5 * np.linalg.norm(em.hi - em.lo)
-        dc = xo - c
-        near = np.einsum("lk,lk->l", dc, dc) < (self.AREA_NEAR * rad) ** 2
-        V = np.empty(len(xo))
-        for sel, area in ((near, False), (~near, True)):
-            if sel.any():
-                V[sel] = self._visible(em, xo[sel], no[sel], u[sel], area)
-        return V
 
     def _visible(self, em: Emitter, xo, no, u, area):
         """(L,) the visible fraction of em's projected solid angle from points xo (normals no) by
