@@ -867,3 +867,14 @@ def test_the_passes_read_kept_intp_columns_that_are_not_stored():
     assert g2._read_cols() is not cols and np.array_equal(g2._read_cols(), cols)
     arrays, graph = capture(dyn.system, g)
     assert not any("_cols_intp" in k for k in arrays) and "_cols_intp" not in repr(graph)
+
+
+def test_column_sums_are_the_rows_summed_in_order():
+    """final._column_sums (the passes' and the tail's channel sums) gives X.sum(0)'s bits: rows
+    of 3 of mixed signs and magnitudes, as the leaf values and their changes are."""
+    from hr_addon.core.gather.final import _column_sums
+
+    rng = np.random.default_rng(9)
+    for n in (1, 7, 1000, 300_001):
+        X = rng.standard_normal((n, 3)) * 10.0 ** rng.uniform(-8, 3, (n, 1))
+        assert np.array_equal(_column_sums(X), X.sum(0))

@@ -89,6 +89,13 @@ def _row_blocks(indptr, chunk):
     return blocks
 
 
+def _column_sums(X):
+    """(C,) the sums over the rows of X (n, C): einsum adds the rows in order as X.sum(0) does, the
+    same bits (tests/test_gather.py pins it), 4x faster on rows of 3 (7.7 -> 1.8 ms at 514k rows:
+    numpy's reduction along the first axis runs an inner loop of 3 per row)."""
+    return np.einsum("ij->j", X)
+
+
 def _ratio(D, F):
     """(n,) float32 the visible fraction D / F of a direct light D with unoccluded form factor F,
     NaN where F is 0 (culled: no visibility known)."""
@@ -1036,7 +1043,7 @@ class FinalGather(DirectLight):
                 if zero:  # (from nothing: the leaves without samples too)
                     self._fill_dark_leaves(Y)
                 last = (last + [Y])[-3:]
-                sums = (sums + [Y.sum(0)])[-3:]
+                sums = (sums + [_column_sums(Y)])[-3:]
             if fit is None:
                 L = (Y, None, None, None)
                 continue
@@ -1063,7 +1070,7 @@ class FinalGather(DirectLight):
         over the channels; local False: the room's alone, as from V = 0, where the objects' ratios
         made single objects worse: 5.0 -> 5.2%)."""
         d1, d0 = last[2] - last[1], last[1] - last[0]
-        r = self.stats["tail_ratio"] = self._tail_ratio(d1.sum(0), d0.sum(0))
+        r = self.stats["tail_ratio"] = self._tail_ratio(_column_sums(d1), _column_sums(d0))
         if local:
             # each object's own ratio where it is lower (its light converging faster than the
             # room's; opposite changes: none): one ratio left single objects of the 100k room 3.8%
@@ -1075,7 +1082,7 @@ class FinalGather(DirectLight):
             t = d1 * np.take(r / (1 - r), grp, 0)  # (per object, then its rows: the same values)
         else:
             t = d1 * (r / (1 - r))
-        return last[2] + t, float((np.abs(t.sum(0)) / (np.abs(last[2].sum(0)) + 1e-300)).max())
+        return last[2] + t, float((np.abs(_column_sums(t)) / (np.abs(_column_sums(last[2])) + 1e-300)).max())
 
     def _tail_share(self, sums):
         """_tail(last, False)'s share from the channel sums of the last three passes' leaf values
