@@ -220,7 +220,8 @@ def main():
     if args.texture_cache:  # the bake's HR_Lightmap UVs (deterministic), carried through the modifiers
         from hr_addon.blender.texture import ensure_lightmaps
 
-        ensure_lightmaps([bpy.data.objects[n] for n in meshes], scene.hr.texture_resolution)
+        hr = scene.hr  # the bake's sizes: its Texture Size and Texel Density
+        ensure_lightmaps([bpy.data.objects[n] for n in meshes], hr.texture_resolution, hr.texel_density)
         images = lightmap_images(args.texture_cache)
     applied_copy(meshes)
     bpy.context.view_layer.update()
