@@ -75,11 +75,19 @@ def test_modified_objects_and_linked_duplicates_show_their_own_light(tmp_path):
     assert not [w for w in warnings if "share mesh data" in w or "HR_Radiance is transferred" in w], warnings
     for name in MODIFIED:
         assert bpy.data.objects[name].modifiers[-1].name == N_VALUES
-    # the same objects applied and single-user: values on their own meshes, no helpers
+        assert f"{N_VALUES} {name}" in bpy.data.objects
+    # Delete Bake takes the modifiers and helpers away again
+    from hr_addon.blender.ops import _forget_bake
+
     dg = bpy.context.evaluated_depsgraph_get()
+    evaluated = {n: bpy.data.meshes.new_from_object(bpy.data.objects[n].evaluated_get(dg)) for n in MODIFIED}
+    _forget_bake(scene)
+    assert not [m for o in bpy.data.objects for m in o.modifiers if m.name == N_VALUES]
+    assert not [o for o in bpy.data.objects if o.name.startswith(N_VALUES)]
+    # the same objects applied and single-user: values on their own meshes, no helpers
     for name in MODIFIED:
         ob = bpy.data.objects[name]
-        me = bpy.data.meshes.new_from_object(ob.evaluated_get(dg))
+        me = evaluated[name]
         me.attributes.remove(me.attributes["HR_Radiance"])
         ob.modifiers.clear()
         ob.data = me

@@ -16,9 +16,8 @@ and a file opened without the extension show them.
 
 import bpy
 
-from .names import ATTRIBUTE, TAG
+from .names import ATTRIBUTE, N_VALUES, TAG
 
-N_VALUES = "HR Radiance"  # the modifier, the node groups' prefix, the helpers' prefix
 GROUP_VERSION = 1
 
 
