@@ -492,7 +492,9 @@ def _hidden_instancer(obj):
     )
 
 
-def collect_geometry(view_layer, depsgraph) -> SceneInput:
+def collect_geometry(view_layer, depsgraph, vertex_output=True) -> SceneInput:
+    """The scene's geometry and output targets. vertex_output False (a texture bake): no warnings
+    about HR_Radiance on meshes (modifiers that change the topology, shared meshes)."""
     objs = [o for o in geometry_objects(view_layer) if not _hidden_instancer(o)]
     depsgraph.update()
     warnings, mat_cache, digest_cache, inst_digests = [], {}, {}, {}
@@ -541,16 +543,18 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
             t.values_name, t.n_corner, t.n_point = helper.name, len(em.loop_verts), len(em.verts)
         elif not same_topology:
             t.vert_map, t.orig_loop_verts, t.loop_map = _topology_map(obj, em, depsgraph)
-            warnings.append(
-                f"Object '{obj.name}': modifiers change the topology; HR_Radiance is "
-                "transferred to the original mesh's corners, which the modifiers interpolate again "
-                "(Array and Mirror copies show the original part's light); apply them for exact values."
-            )
+            if vertex_output:
+                warnings.append(
+                    f"Object '{obj.name}': modifiers change the topology; HR_Radiance is "
+                    "transferred to the original mesh's corners, which the modifiers interpolate again "
+                    "(Array and Mirror copies show the original part's light); apply them for exact values."
+                )
         if helper is None and me.name in seen_mesh:
-            warnings.append(
-                f"Objects '{seen_mesh[me.name]}' and '{obj.name}' share mesh data "
-                f"'{me.name}'; HR_Radiance can hold only one of them (make them single user)."
-            )
+            if vertex_output:
+                warnings.append(
+                    f"Objects '{seen_mesh[me.name]}' and '{obj.name}' share mesh data "
+                    f"'{me.name}'; HR_Radiance can hold only one of them (make them single user)."
+                )
         elif helper is None:
             seen_mesh[me.name] = obj.name
         targets.append(t)

@@ -45,7 +45,7 @@ def read_snapshot(scene, view_layer, cfg, warn):
         except TextureError as exc:
             raise SceneError(str(exc)) from None
     with texture.source_materials(objects):  # texture preview copies stand for these
-        scene_in = collect_geometry(view_layer, depsgraph)
+        scene_in = collect_geometry(view_layer, depsgraph, vertex_output=cfg.output != "TEXTURE")
     warn(scene_in.warnings)
     error, light_warnings = light_check(view_layer, scene, depsgraph, bool(scene_in.mesh.emission.any()))
     if error:
