@@ -486,12 +486,17 @@ def test_modifier_copies_get_texels_of_their_own():
     bpy, ms, scene = empty_scene()
     from hr_addon.blender.names import N_PACK
     from hr_addon.blender.scene_in import geometry_objects
-    from hr_addon.blender.texture import ensure_lightmaps, resolution_for
+    from hr_addon.blender.texture import copies_overlap, ensure_lightmaps, resolution_for
     from hr_addon.lightmap.charts import MARGIN
 
     _copies_scene(ms)
+    own = ms.mesh_object("Own map", *BOX, None, location=(1.2, 0.0, 0.01))  # the user's HR_Lightmap
+    own.modifiers.new("Array", "ARRAY").count = 2
+    own.data.uv_layers.new(name="HR_Lightmap")
     objs = geometry_objects(bpy.context.view_layer)
     notes = ensure_lightmaps(objs, 64, 50.0)
+    # left as it is, its copies found sharing its texels (texture_plan warns)
+    assert N_PACK not in own.modifiers and copies_overlap(own, bpy.context.evaluated_depsgraph_get())
     copies = {"Array", "Mirror", "Solidify"}
     assert {o.name for o in objs if N_PACK in o.modifiers} == copies
     assert sorted(n.split("'")[1] for n in notes) == sorted(copies)

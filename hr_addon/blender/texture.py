@@ -250,8 +250,8 @@ def separate_copies(obj, largest, density, depsgraph):
     (the user may remove it). Returns a note when it is added, else None."""
     md, note = _pack_modifier(obj), None
     if md is None:
-        if "hr_lightmap" not in obj.data or not copies_overlap(obj, depsgraph):
-            return None  # the user's own lightmap UVs, or no copies
+        if not len(obj.modifiers) or "hr_lightmap" not in obj.data or not copies_overlap(obj, depsgraph):
+            return None  # no modifiers, the user's own lightmap UVs, or no copies
         md = obj.modifiers.new(N_PACK, "NODES")
         md.node_group = _pack_group()
         note = (
@@ -394,7 +394,8 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, largest, fmt="EXR", a
         if len(ls) != p1 - p0 or len(lv) != t.loops[1] - t.loops[0]:
             plan.warnings.append(f"Object '{t.name}': mesh changed while reading; no texture.")
             continue
-        if t.vert_map is not None and _pack_modifier(obj) is None and copies_overlap(obj, depsgraph):
+        copied = len(obj.data.loops) != len(lv) and _pack_modifier(obj) is None
+        if copied and copies_overlap(obj, depsgraph):
             plan.warnings.append(
                 f"Object '{t.name}': its modifiers copy parts of its mesh onto the same {UV_NAME} "
                 "islands (its own lightmap UVs): the copies show one light (apply the modifiers)."
