@@ -72,7 +72,7 @@ def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=N
     h.update(domain.encode())
     if radiance_mode != "RADIANCE":  # (radiance bakes keep the signature they had before the mode)
         h.update(radiance_mode.encode())
-    h.update(repr([(t.name, t.n_corner, t.n_point) for t in targets]).encode())
+    h.update(repr([(t.key, t.n_corner, t.n_point) for t in targets]).encode())
     if gather is not None:  # (bakes without the final gather keep the signature they had)
         h.update(repr(sorted(gather.items())).encode())
     return h.hexdigest()
@@ -367,7 +367,7 @@ class _Bake:
         info = self.manifest_info(snap, params)
         if cfg.output != "TEXTURE":
             objects = {
-                t.name: {"mesh": t.mesh_name, "count": t.n_corner if cfg.domain == "CORNER" else t.n_point}
+                t.key: {"mesh": t.mesh_name, "count": t.n_corner if cfg.domain == "CORNER" else t.n_point}
                 for t in targets
             }
             sig = _signature(snap.mesh, params, cfg.domain, targets, cfg.radiance_mode, cfg.gather)
