@@ -92,10 +92,11 @@ class Contacts(SlotMouths):
         mn, mx = d.min(1), d.max(1)
         near = (mn <= g) & (mx >= -g)
         gi, t, d, nv, n, o = gi[near], t[near], d[near], nv[near], n[near], o[near]
+        mn, mx = mn[near], mx[near]
         cosang = np.einsum("ij,ij->i", pt.normal[t], n)
-        flat = (np.abs(cosang) > 1 - 1e-6) & (d.max(1) - d.min(1) <= g)
-        cover = flat & (((cosang < 0) & (d.mean(1) >= -self.pen)) | ((cosang > 0) & (d.min(1) > self.pen)))
-        cover &= d.max(1) <= g
+        flat = (np.abs(cosang) > 1 - 1e-6) & (mx - mn <= g)
+        cover = flat & (((cosang < 0) & (d.mean(1) >= -self.pen)) | ((cosang > 0) & (mn > self.pen)))
+        cover &= mx <= g
         segs = []  # (plane, a2d, b2d, chain, signed, piece, height, wall)
         # covering faces: their outline as a chain of its own, |winding| = 1 inside
         cv = np.flatnonzero(cover)
@@ -115,7 +116,7 @@ class Contacts(SlotMouths):
                 segs.append((gi[cv][use], a, b, t[cv][use], np.zeros(use.sum(), bool), pc[use], hgt, wall))
         # crossing chains: the zero set of the snapped heights on each polygon reaching in front of
         # the plane (a thick table top's own sides, below its top, are not)
-        cr = np.flatnonzero(~flat & (d.max(1) > g))
+        cr = np.flatnonzero(~flat & (mx > g))
         if len(cr):
             ds = np.where(np.abs(d[cr]) <= g, 0.0, d[cr])
             P3 = c[t[cr]]
