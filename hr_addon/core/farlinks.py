@@ -346,8 +346,8 @@ def _classify(refiner, tree, a, b, table=None):
     the far links."""
     h, prm = refiner.h, refiner.params
     ea, eb = Ends(tree, h, a, table), Ends(tree, h, b, table)
-    fa, ba = faces(ea, eb)
-    fb, bb = faces(eb, ea)
+    fa, ba, dmax = faces(ea, eb)
+    fb, bb, _ = faces(eb, ea, dmax)
     f_ab, f_ba, dist = estimate(ea, eb, both=True)
     fmax = np.maximum(f_ab, f_ba)
     drop = ba | bb | (fmax <= 0)
