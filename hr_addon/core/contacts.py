@@ -24,6 +24,7 @@ through per-chain bounding boxes, so the cost follows the number of contacts, no
 import numpy as np
 
 from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, row_groups, sorted_index, unique_ints
+from .formfactor import row_range
 from .geometry import components
 from .parallel import batch_map, ranges
 from .planes import frames, plane_ids
@@ -89,7 +90,7 @@ class Contacts(SlotMouths):
         d = np.einsum("pkj,pj->pk", c[t] - o[:, None], n)  # (P, 4) corner heights over the plane
         nv = pt.nv[t]
         d[nv == 3, 3] = d[nv == 3, 2]
-        mn, mx = d.min(1), d.max(1)
+        mn, mx = row_range(d)
         near = (mn <= g) & (mx >= -g)
         gi, t, d, nv, n, o = gi[near], t[near], d[near], nv[near], n[near], o[near]
         mn, mx = mn[near], mx[near]

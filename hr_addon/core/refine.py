@@ -56,8 +56,8 @@ def _facing(h, p, q, tol):
     The second test only on the pairs that pass the first (each row is its own: the same answer)."""
 
     def front(x, y):
-        d = np.einsum("nkj,nj->nk", h.corners[y] - h.centre[x][:, None], h.normal[x])
-        return (d > tol).any(1)
+        g = np.einsum("nkj,nj->nk", h.corners[y] - h.centre[x][:, None], h.normal[x]) > tol
+        return (g[:, 0] | g[:, 1]) | (g[:, 2] | g[:, 3])  # .any(1) over 4 columns costs 10x
 
     out = front(p, q)
     i = np.flatnonzero(out)
@@ -585,4 +585,5 @@ def _variation(h, x, y):
         np.repeat(h.nv[y], 5),
         (np.repeat(qn, 5, 0), np.repeat(qa, 5)),
     ).reshape(-1, 5)
-    return f.max(1) - f.min(1)
+    lo, hi = ff.row_range(f)
+    return hi - lo
