@@ -97,7 +97,7 @@ def main(argv=None):
             batches["gather"] = list(maps)
     c3 = time.process_time()
     if a.build_only:
-        c2 = c3
+        c2, gather = c3, None
     if prof is not None:
         prof.disable()
         prof.dump_stats(a.profile)

@@ -514,10 +514,12 @@ def _support(lo, hi, a, sign):
     return np.einsum("ij,ij->i", np.where(pick, hi, lo), a)
 
 
-def faces(x: Ends, y: Ends):
+def faces(x: Ends, y: Ends, dmax=None):
     """(front, behind): front where y lies wholly in front of every member of x (each member's
-    normal within x's cone), behind where y lies wholly behind all of them (no exchange)."""
-    dmax = ff.norm3(np.maximum(np.abs(y.hi - x.lo), np.abs(x.hi - y.lo)))
+    normal within x's cone), behind where y lies wholly behind all of them (no exchange).
+    dmax: the boxes' farthest distance (symmetric: faces(y, x) returns it for reuse)."""
+    if dmax is None:
+        dmax = ff.norm3(np.maximum(np.abs(y.hi - x.lo), np.abs(x.hi - y.lo)))
     gap_front = _support(y.lo, y.hi, x.axis, -1) - _support(x.lo, x.hi, x.axis, +1)
     gap_back = _support(y.lo, y.hi, x.axis, +1) - _support(x.lo, x.hi, x.axis, -1)
     slack = x.sin_t * dmax
@@ -526,7 +528,7 @@ def faces(x: Ends, y: Ends):
     tol = 1e-9 * dmax
     front = (x.cos_t > 0) & (gap_front * x.cos_t >= slack - tol)
     behind = (x.cos_t > 0) & (gap_back * x.cos_t + slack <= tol)
-    return front, behind
+    return front, behind, dmax
 
 
 def estimate(x: Ends, y: Ends, both=False):

@@ -24,6 +24,7 @@ through per-chain bounding boxes, so the cost follows the number of contacts, no
 import numpy as np
 
 from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, row_groups, sorted_index, unique_ints
+from .formfactor import row_range
 from .geometry import components
 from .parallel import batch_map, ranges
 from .planes import frames, plane_ids
@@ -89,13 +90,14 @@ class Contacts(SlotMouths):
         d = np.einsum("pkj,pj->pk", c[t] - o[:, None], n)  # (P, 4) corner heights over the plane
         nv = pt.nv[t]
         d[nv == 3, 3] = d[nv == 3, 2]
-        mn, mx = d.min(1), d.max(1)
+        mn, mx = row_range(d)
         near = (mn <= g) & (mx >= -g)
         gi, t, d, nv, n, o = gi[near], t[near], d[near], nv[near], n[near], o[near]
+        mn, mx = mn[near], mx[near]
         cosang = np.einsum("ij,ij->i", pt.normal[t], n)
-        flat = (np.abs(cosang) > 1 - 1e-6) & (d.max(1) - d.min(1) <= g)
-        cover = flat & (((cosang < 0) & (d.mean(1) >= -self.pen)) | ((cosang > 0) & (d.min(1) > self.pen)))
-        cover &= d.max(1) <= g
+        flat = (np.abs(cosang) > 1 - 1e-6) & (mx - mn <= g)
+        cover = flat & (((cosang < 0) & (d.mean(1) >= -self.pen)) | ((cosang > 0) & (mn > self.pen)))
+        cover &= mx <= g
         segs = []  # (plane, a2d, b2d, chain, signed, piece, height, wall)
         # covering faces: their outline as a chain of its own, |winding| = 1 inside
         cv = np.flatnonzero(cover)
@@ -115,7 +117,7 @@ class Contacts(SlotMouths):
                 segs.append((gi[cv][use], a, b, t[cv][use], np.zeros(use.sum(), bool), pc[use], hgt, wall))
         # crossing chains: the zero set of the snapped heights on each polygon reaching in front of
         # the plane (a thick table top's own sides, below its top, are not)
-        cr = np.flatnonzero(~flat & (d.max(1) > g))
+        cr = np.flatnonzero(~flat & (mx > g))
         if len(cr):
             ds = np.where(np.abs(d[cr]) <= g, 0.0, d[cr])
             P3 = c[t[cr]]

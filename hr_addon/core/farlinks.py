@@ -21,6 +21,7 @@ from .cluster import (
     sample_points,
     sh9,
 )
+from .formfactor import row_range
 from .parallel import add_counts, batch_map, ranges
 
 
@@ -346,8 +347,8 @@ def _classify(refiner, tree, a, b, table=None):
     the far links."""
     h, prm = refiner.h, refiner.params
     ea, eb = Ends(tree, h, a, table), Ends(tree, h, b, table)
-    fa, ba = faces(ea, eb)
-    fb, bb = faces(eb, ea)
+    fa, ba, dmax = faces(ea, eb)
+    fb, bb, _ = faces(eb, ea, dmax)
     f_ab, f_ba, dist = estimate(ea, eb, both=True)
     fmax = np.maximum(f_ab, f_ba)
     drop = ba | bb | (fmax <= 0)
@@ -418,7 +419,8 @@ def _variation(tree, h, a, b, eps, table=None):
     out = []
     for ks in ((k * wb[:, None, :]).sum(2), (k * wa[:, :, None]).sum(1)):
         m = ks.mean(1)
-        out.append((ks.max(1) - ks.min(1)) / np.maximum(m, 1e-300) * (m > 0))
+        lo, hi = row_range(ks)
+        out.append((hi - lo) / np.maximum(m, 1e-300) * (m > 0))
     return out
 
 

@@ -9,6 +9,7 @@ repeating corner 2, counter-clockwise seen from the (only) emitting/receiving fr
 - `estimate`: cheap conservative disc approximation used as the refinement oracle.
 """
 
+import functools
 import math
 
 import numpy as np
@@ -41,6 +42,14 @@ def norm3(v):
     adds the squares in order), without the reduction's per-row overhead: 4x faster."""
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
     return np.sqrt((x * x + y * y) + z * z)
+
+
+def row_range(x):
+    """(min, max) over a short last axis (a polygon's corners, an end's samples) by its columns:
+    .min(-1) / .max(-1) loop per row, about 10x slower. The same values (up to a zero's sign:
+    for comparisons and ranges)."""
+    cols = np.moveaxis(x, -1, 0)
+    return functools.reduce(np.minimum, cols), functools.reduce(np.maximum, cols)
 
 
 def _padded(corners, nv):
@@ -94,7 +103,9 @@ def _clip_to_halfspace(verts, point, normal):
     idx = np.where(idx < 0, last, idx)
     any_valid = last[:, 0] >= 0
     idx = np.maximum(idx, 0)  # rows with nothing left: masked out
-    return np.take_along_axis(slots, idx[..., None], axis=1), any_valid
+    # one gather of whole rows (take_along_axis indexes each of the 3 coordinates: 2.4x slower)
+    rows = (idx + 2 * v * np.arange(n)[:, None]).ravel()
+    return slots.reshape(-1, 3)[rows].reshape(n, 2 * v, 3), any_valid
 
 
 def point_to_polygon(points, normals, corners, nv=None, plane=None):
@@ -122,12 +133,16 @@ def point_to_polygon(points, normals, corners, nv=None, plane=None):
         qa = np.broadcast_to(plane[1], shape).reshape(-1)
     height = _dot(p - c[:, 0], qn)
     front = height > _PLANE_EPS * np.sqrt(qa)  # one-sided emitter
-    above = _dot(c - p[:, None, :], n[:, None, :]) >= 0.0  # corners above the horizon
+    r = c - p[:, None, :]
+    above = _dot(r, n[:, None, :]) >= 0.0  # corners above the horizon
+    # all / any of the 4 corners by columns: .all(1) / .any(1) over an axis of 4 cost 10x as much
+    a0, a1, a2, a3 = above.T
+    every, some = (a0 & a1) & (a2 & a3), (a0 | a1) | (a2 | a3)
     f = np.zeros(len(p))
     # Most polygons lie wholly above the receiver's horizon: no clipping needed for those.
-    whole = np.flatnonzero(front & above.all(1))
-    f[whole] = _contour(c[whole] - p[whole, None, :], n[whole])
-    part = np.flatnonzero(front & above.any(1) & ~above.all(1))
+    whole = np.flatnonzero(front & every)
+    f[whole] = _contour(r[whole], n[whole])
+    part = np.flatnonzero(front & some & ~every)
     if len(part):
         verts, any_valid = _clip_to_halfspace(c[part], p[part], n[part])
         f[part] = np.where(any_valid, _contour(verts - p[part, None, :], n[part]), 0.0)

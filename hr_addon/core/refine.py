@@ -52,13 +52,17 @@ FF_TARGET = 4
 
 
 def _facing(h, p, q, tol):
-    """True where some corner of q is in front of p's plane and vice versa (else no exchange)."""
+    """True where some corner of q is in front of p's plane and vice versa (else no exchange).
+    The second test only on the pairs that pass the first (each row is its own: the same answer)."""
 
     def front(x, y):
-        d = np.einsum("nkj,nj->nk", h.corners[y] - h.centre[x][:, None], h.normal[x])
-        return (d > tol).any(1)
+        g = np.einsum("nkj,nj->nk", h.corners[y] - h.centre[x][:, None], h.normal[x]) > tol
+        return (g[:, 0] | g[:, 1]) | (g[:, 2] | g[:, 3])  # .any(1) over 4 columns costs 10x
 
-    return front(p, q) & front(q, p)
+    out = front(p, q)
+    i = np.flatnonzero(out)
+    out[i] = front(q[i], p[i])
+    return out
 
 
 def initial_pairs(h: Hierarchy, chunk=2_000_000):
@@ -432,11 +436,16 @@ class Refiner:
         hierarchy edit, so batches of pairs run on threads. Returns the pairs that can exchange
         light, their visibility (nan: not tested) and the masks link, split p, split q."""
         h, prm = self.h, self.params
+        # the estimates only of the pairs that face and are exposed (27% of them in the 20k room):
+        # every pair's estimate is its own, so the same values
+        may = np.flatnonzero((h.exposure[p] > 0) & (h.exposure[q] > 0))
+        may = may[_facing(h, p[may], q[may], tol)]
+        p, q, kv = p[may], q[may], kv[may]
         cp, cq = self.centres(p), self.centres(q)
         f_pq = ff.estimate(cp, h.normal[p], h.area[p], h.corners[q], cq, h.normal[q], h.area[q])
         f_qp = ff.estimate(cq, h.normal[q], h.area[q], h.corners[p], cp, h.normal[p], h.area[p])
         fmax = np.maximum(f_pq, f_qp)
-        alive = (fmax > 0) & _facing(h, p, q, tol) & (h.exposure[p] > 0) & (h.exposure[q] > 0)
+        alive = fmax > 0
         p, q, f_pq, f_qp, fmax, kv = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive], kv[alive]
         cp, cq = cp[alive], cq[alive]
         ok = fmax < prm.feps if good_enough is None else good_enough(p, q, f_pq, f_qp)
@@ -576,4 +585,5 @@ def _variation(h, x, y):
         np.repeat(h.nv[y], 5),
         (np.repeat(qn, 5, 0), np.repeat(qa, 5)),
     ).reshape(-1, 5)
-    return f.max(1) - f.min(1)
+    lo, hi = ff.row_range(f)
+    return hi - lo
