@@ -979,6 +979,11 @@ class FinalGather(DirectLight):
             )
         return counts, (u % span).astype(np.int32), (cnt / rr[r]).astype(np.float32), wu, wv
 
+    @property
+    def origins(self):
+        """(n, 3) every sample's ray origin (_origins, made on each call)."""
+        return self._origins(np.arange(self.n))
+
     def _origins(self, idx):
         """Ray origins of samples idx: eps along the normal off the point, a slot
         sample's off its gather point (_slots: _slot's at_q, or its point without slot_facing).
