@@ -15,9 +15,9 @@ Per view (VIEWS: a scene, its frame, a camera, a resolution):
    Object Index pass read with the combined pass from a 32-bit float multilayer EXR.
 2. Ours through the product's path: `python -m hr_addon bake` of a copy of the scene at draft
    quality, default settings otherwise (final gather on), once with vertex output (the default)
-   and once with texture output (--output texture; the furnished room's objects get a Lightmap
-   Size for texels of about TEXEL metres, --texel: its default 128 each does not fit in memory,
-   lightmap_sizes); the saved copy opened, the frame loaded and
+   and once with texture output (--output texture: lightmaps sized by the bake's Texel Density;
+   --texel T: every object a Lightmap Size for texels of about T metres instead, lightmap_sizes,
+   as session 19 measured before the Texel Density); the saved copy opened, the frame loaded and
    shown as the product shows it (the Preview Bake operator: HR_Radiance as Emission, or the baked
    image sequences on the helper materials), rendered by Cycles from the same camera, same
    resolution and filter, no bounces (emission only), OURS_SPP samples for the anti-aliasing.
@@ -56,8 +56,9 @@ MIN_PIXELS = 50
 OURS_SPP = 64  # emission only: converges the anti-aliasing, cheap
 SEEDS = (1, 2)
 FILTER = ("BLACKMAN_HARRIS", 1.5)  # Blender's default pixel filter
-# texture output: per-object lightmap sizes for texels of about this many metres (lightmap_sizes)
-TEXEL = {"furnished": 0.04}
+# texture output: per-object lightmap sizes for texels of about this many metres (lightmap_sizes,
+# --texel); none: the product's own sizing (Texel Density, since session 19's branch texsize)
+TEXEL = {}
 # scene: sample_blends/<name>.blend or "clutter" (hr_testing.clutter, built here); camera: None (the
 # sample's own) or (location, target, lens mm)
 VIEWS = {
@@ -534,7 +535,10 @@ def main():
     p.add_argument("--tag", default="camera")
     p.add_argument("--fresh", action="store_true", help="bake and render again (the work files)")
     p.add_argument(
-        "--texel", type=float, help="the furnished texture bake's lightmap texel (m), default 0.04"
+        "--texel",
+        type=float,
+        help="texture output: every object a Lightmap Size for texels of about this many metres "
+        "(session 19's runs: 0.04, 0.02) instead of the bake's own Texel Density",
     )
     p.add_argument(
         "--figure", metavar="VIEW", help="only the docs' picture of VIEW (docs/images/camera_VIEW.png)"
@@ -552,7 +556,7 @@ def main():
         view = VIEWS[vn]
         names = geometry_names(view)
         wd = os.path.join(WORK, vn)  # the references' renders
-        if a.texel and view["scene"] in TEXEL:
+        if a.texel:
             TEXEL[view["scene"]] = a.texel
             vn = f"{vn}_texel{a.texel}"  # its own renders of ours and JSON entry
         bakes = {k: bake(view["scene"], view["frame"], k) for k in ("vertex", "texture")}

@@ -196,6 +196,7 @@ def main():
         "--texture-cache", help="a texture bake of the same room (default settings): real_texture"
     )
     ap.add_argument("--name", default="unseen")
+    ap.add_argument("--dump", help="an .npz of per-texel values: texture, real texture, reference, points")
     ap.add_argument("--refs-only", action="store_true", help="bake (and keep) the Cycles references, stop")
     args = ap.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -214,13 +215,21 @@ def main():
         cache = os.path.join(tmp, "cache")
         cpu_real = real_bake(path, cache)
         log(f"real bake (frame 1, vertex): {cpu_real:.0f} s CPU")
-    load_vertex_frame(cache)
     meshes = [n for n in info["meshes"] if n in bpy.data.objects]
+    try:  # the bake's helpers (own_values, made in its own process): where its frame file puts values
+        from hr_addon.blender.own_values import ensure_own_values
+
+        objs = [bpy.data.objects[n] for n in meshes]
+        ensure_own_values(objs, scene.hr.domain, bpy.context.evaluated_depsgraph_get())
+    except ImportError:  # (before own_values)
+        pass
+    load_vertex_frame(cache)
     images = {}
     if args.texture_cache:  # the bake's HR_Lightmap UVs (deterministic), carried through the modifiers
         from hr_addon.blender.texture import ensure_lightmaps
 
-        ensure_lightmaps([bpy.data.objects[n] for n in meshes], scene.hr.texture_resolution)
+        hr = scene.hr  # the bake's sizes: its Texture Size and Texel Density
+        ensure_lightmaps([bpy.data.objects[n] for n in meshes], hr.texture_resolution, hr.texel_density)
         images = lightmap_images(args.texture_cache)
     applied_copy(meshes)
     bpy.context.view_layer.update()
@@ -272,6 +281,17 @@ def main():
             "unburied": float(mask.mean()),
         }
         rows[n] = {k: v for k, v in row.items() if v is not None}
+    if args.dump:
+        arrays = {}
+        for n in rs.objects:
+            at = rs.atlases[n]
+            arrays[f"{n}/point"] = at.texel_mean(at.s_point)
+            arrays[f"{n}/ref"] = ref[n]  # real_texture holds the emission too
+            arrays[f"{n}/emission"] = res[n]["emission"]
+            arrays[f"{n}/texture"] = res[n]["gather_refl"]
+            if n in rtex:
+                arrays[f"{n}/real_texture"] = rtex[n]
+        np.savez_compressed(args.dump, **arrays)
     summary = {}
     for var in ("texture", "vertex", "real_vertex", "real_texture"):
         per = {n: r[var] for n, r in rows.items() if var in r}

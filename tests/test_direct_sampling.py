@@ -93,3 +93,33 @@ def test_area_sampling_does_not_depend_on_threads_or_batches():
     for threads in (1, 2):
         parts = batch_map(lambda a, b: g.direct_batch(em, a, b), [(0, 150), (150, 151), (151, 400)], threads)
         assert np.array_equal(np.concatenate(parts), whole)
+
+
+def test_form_factors_only_where_a_shadow_ray_gets_through(monkeypatch):
+    """direct_batch traces the shadow rays first and takes the form factor only at samples some
+    ray reaches: the umbra of a plate over part of the floor reads 0 without one, and samples no
+    occluder shadows read their form factor exactly (as shape_form_factors gives it for all)."""
+    from hr_addon.core.gather import direct
+
+    em, _ = _scene()
+    s, p = _quad(-STRIP, STRIP, -3, 3, H / 2), _quad(-3, -0.3, -3, 3, H / 4)
+    backend = make_backend(np.array([s[[0, 1, 2]], s[[0, 2, 3]], p[[0, 1, 2]], p[[0, 2, 3]]]), prefer="numpy")
+    xs = np.linspace(-1.2, 1.2, 49)
+    x = np.column_stack([xs, np.zeros_like(xs), np.zeros_like(xs)])
+    up = np.tile([0.0, 0, 1], (len(x), 1))
+    F = shape_form_factors(x, up, em.rings, em.corners, em.nv, 1e-6)
+    taken = []
+
+    def spy(xx, *args):
+        taken.append(xx.copy())
+        return shape_form_factors(xx, *args)
+
+    monkeypatch.setattr(direct, "shape_form_factors", spy)
+    v = _Gather(x, 16, True, backend).direct_batch(em, 0, len(x))
+    # every segment from x < -0.567 to the emitter (x_e <= 0.5) crosses the plate (z = H / 4, x < -0.3)
+    umbra = xs < -0.6
+    assert umbra.sum() >= 10 and np.all(v[umbra] == 0) and np.all(F[umbra] > 0)
+    got = np.concatenate(taken)
+    assert len(got) == np.count_nonzero(v) and not np.isin(got[:, 0], xs[umbra]).any()
+    lit = xs > 0.7  # beside the strip's shadow, far from the plate's
+    assert lit.sum() >= 8 and np.array_equal(v[lit], F[lit].astype(np.float32))

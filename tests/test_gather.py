@@ -845,3 +845,36 @@ def test_corner_samples_buried_in_clutter_move_to_the_visible_part():
     assert inside0["table_top"].any() and inside0["lid"].any()
     g_top, g_lid = lo0[top].mean(1), lo0[lid_x].mean(1)
     assert g_top.min() == 0 and g_lid.min() < 0.05 * g_lid.max(), (g_top, g_lid)
+
+
+def test_the_passes_read_kept_intp_columns_that_are_not_stored():
+    """The second level's passes read its columns as intp, made once and kept (_read_cols): the
+    same values as a read of the int32 columns, made again when the columns change, and never
+    captured into a precompute (precompute_graph._TRANSIENT)."""
+    from hr_addon.io.precompute_graph import capture
+
+    dyn = DynamicRadiosity(RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft")), method="FE")
+    pts, patch, _ = surface_samples(dyn.system.patches, 30)
+    g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=32, levels=2, iterations=2)
+    g.evaluate(dyn)  # the passes make them
+    g2 = g.second
+    cols = g2.__dict__["_cols_intp"][1]
+    assert cols.dtype == np.intp and g2.cols.dtype != np.intp and np.array_equal(cols, g2.cols)
+    assert g2._read_cols() is cols
+    Y = np.random.default_rng(5).random((int(g2.cols.max()) + 1, 3))
+    assert np.array_equal(g2._read((Y, None, None, None), cols), g2._read((Y, None, None, None)))
+    g2.cols = g2.cols.copy()
+    assert g2._read_cols() is not cols and np.array_equal(g2._read_cols(), cols)
+    arrays, graph = capture(dyn.system, g)
+    assert not any("_cols_intp" in k for k in arrays) and "_cols_intp" not in repr(graph)
+
+
+def test_column_sums_are_the_rows_summed_in_order():
+    """final._column_sums (the passes' and the tail's channel sums) gives X.sum(0)'s bits: rows
+    of 3 of mixed signs and magnitudes, as the leaf values and their changes are."""
+    from hr_addon.core.gather.final import _column_sums
+
+    rng = np.random.default_rng(9)
+    for n in (1, 7, 1000, 300_001):
+        X = rng.standard_normal((n, 3)) * 10.0 ** rng.uniform(-8, 3, (n, 1))
+        assert np.array_equal(_column_sums(X), X.sum(0))

@@ -34,6 +34,7 @@ from .settings import BakeConfig
 from .state import STATE
 from .bake import cache_dir_for, frame_range_for, use_bake
 from .lights_in import light_check, materials_emit
+from .own_values import ensure_own_values
 from .scene_in import SceneError, geometry_objects
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]  # .../hr_addon
@@ -183,6 +184,9 @@ class BackgroundBake:
         if error:  # at once, not from the worker after it has loaded the file
             raise SceneError(error)
         self.output = cfg.output
+        if self.output == "VERTEX":  # the helpers belong to the user's file: made here, the copy gets them
+            self._start_warnings = ensure_own_values(geometry_objects(view_layer), cfg.domain, depsgraph)
+            self.warnings += self._start_warnings
         if self.output == "TEXTURE":
             # The lightmap UV maps belong to the user's meshes: make them here, the copy gets them.
             try:

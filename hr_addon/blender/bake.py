@@ -72,7 +72,7 @@ def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=N
     h.update(domain.encode())
     if radiance_mode != "RADIANCE":  # (radiance bakes keep the signature they had before the mode)
         h.update(radiance_mode.encode())
-    h.update(repr([(t.name, t.n_corner, t.n_point) for t in targets]).encode())
+    h.update(repr([(t.key, t.n_corner, t.n_point) for t in targets]).encode())
     if gather is not None:  # (bakes without the final gather keep the signature they had)
         h.update(repr(sorted(gather.items())).encode())
     return h.hexdigest()
@@ -199,12 +199,13 @@ def small_shape_warnings(dyn):
     one-quad ceiling): vertex output holds values at the corners, gathered once per corner's quarter
     of a face, so such a shape's light shows smeared over the face or not at all (an artist's cube
     room read -33% against Cycles, benchmarks/unseen_vs_cycles.py). Named, with the remedy."""
+    recs = [r for r in dyn.shapes.values() if r.roots is not None and len(r.roots) and r.area > 0]
+    if not recs:  # (most frames of most scenes: no per-patch pass)
+        return []
     pt = dyn.system.patches
     poly_area = np.bincount(pt.poly, pt.area)
     out = []
-    for rec in dyn.shapes.values():
-        if rec.roots is None or not len(rec.roots) or not rec.area > 0:
-            continue
+    for rec in recs:
         polys = np.unique(pt.poly[rec.roots])
         big = polys[np.argmax(poly_area[polys])]
         if rec.area < SMALL_SHAPE * poly_area[big]:
@@ -366,7 +367,7 @@ class _Bake:
         info = self.manifest_info(snap, params)
         if cfg.output != "TEXTURE":
             objects = {
-                t.name: {"mesh": t.mesh_name, "count": t.n_corner if cfg.domain == "CORNER" else t.n_point}
+                t.key: {"mesh": t.mesh_name, "count": t.n_corner if cfg.domain == "CORNER" else t.n_point}
                 for t in targets
             }
             sig = _signature(snap.mesh, params, cfg.domain, targets, cfg.radiance_mode, cfg.gather)

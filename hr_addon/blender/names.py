@@ -7,6 +7,12 @@ each other; pure constants, no bpy.
 ATTRIBUTE = "HR_Radiance"  # colour attribute with the per-frame radiance
 UV_NAME = "HR_Lightmap"  # UV layer of the baked textures
 TAG = "hr_lightmap_of"  # on helper materials and images: the object's name
+# geometry-nodes modifier (and its node group) that lays HR_Lightmap out on the evaluated mesh of
+# an object whose modifiers copy parts of it (texture.separate_copies)
+N_PACK = "HR Lightmap"
+# geometry-nodes modifier that shows an object's own vertex output, kept by a helper object
+# "HR Radiance <object>" (own_values)
+N_VALUES = "HR Radiance"
 
 PREVIEW = "HR Preview"  # name prefix of the preview nodes / material (ignored when reading)
 N_ATTR, N_EMIT, N_OUT = PREVIEW + " Attribute", PREVIEW + " Emission", PREVIEW + " Output"

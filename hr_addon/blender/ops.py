@@ -16,6 +16,7 @@ from .bake import run_bake
 from .props import custom_range
 from .preview import add_preview, bake_mode, has_preview, remove_preview
 from .lights_in import light_shape_problem
+from .own_values import remove_own_values
 from .scene_in import geometry_objects
 
 
@@ -337,6 +338,7 @@ def _forget_bake(scene):
     STATE.notes.pop(scene.name_full, None)
     STATE.errors.pop(scene.name_full, None)
     texture.remove_material([o for o in scene.objects if o.type == "MESH"])
+    remove_own_values([o for o in scene.objects if o.type == "MESH"])
     for o in scene.objects:
         if o.type == "MESH" and names.ATTRIBUTE in o.data.color_attributes:
             o.data.color_attributes.remove(o.data.color_attributes[names.ATTRIBUTE])

@@ -15,7 +15,7 @@ import numpy as np
 from bpy.app.handlers import persistent
 
 from ..io.cache import CacheError, CacheReader, _names, changed_objects
-from .names import ATTRIBUTE
+from .names import ATTRIBUTE, N_VALUES, TAG
 from .paths import bake_dir_abs, frame_texture
 from .state import STATE
 
@@ -182,6 +182,8 @@ def forget_loaded():
     STATE.loaded.clear()
 
 
+HELPER = N_VALUES + " "  # the name prefix of own_values' helper objects
+
 # Blender 5.0's foreach_set on attribute data tags the mesh for the depsgraph itself (tested:
 # test_blender_ux's foreach_set test); an update_tag() more cost 9 ms per write of 3,882 objects.
 # Older versions were not checked: they keep it.
@@ -282,6 +284,10 @@ def _apply_arrays(scene, arrays, domain, reader, objects):
             problems.append(str(exc))
             continue
         written.append(me.name)
+        if name.startswith(HELPER):  # own_values' helper: the object it feeds is updated too, not edited
+            fed = bpy.data.objects.get(obj.get(TAG, ""))
+            if fed is not None and fed.type == "MESH":
+                written.append(fed.data.name)
     STATE.writes.mark_all(written)
     if reader is not None:
         STATE.writes.mark_all(written, reader)

@@ -19,6 +19,7 @@ import numpy as np
 from ..core.geometry import InputError, MeshInput
 from .materials import read_material
 from .names import TAG
+from .own_values import values_object
 
 
 class SceneError(InputError):
@@ -145,6 +146,12 @@ class Target:
     vert_map: np.ndarray = None  # original vertex -> evaluated vertex (topology changed)
     orig_loop_verts: np.ndarray = None
     loop_map: np.ndarray = None  # original corner -> evaluated corner (topology changed)
+    values_name: str = None  # own_values' helper object that holds the values (evaluated elements)
+
+    @property
+    def key(self):
+        """The object whose mesh the vertex output writes: the helper, or the object itself."""
+        return self.values_name or self.name
 
     def extract(self, values, domain):
         """(N, 3) values on the original mesh's domain from the full solution array."""
@@ -204,9 +211,9 @@ class FlatExtract:
         for t, r in zip(self.targets, self.rows):
             if r is None:
                 v = t.extract(values, self.domain)
-                res[t.name] = np.concatenate([v, np.ones((len(v), 1), np.float32)], 1, dtype=np.float32)
+                res[t.key] = np.concatenate([v, np.ones((len(v), 1), np.float32)], 1, dtype=np.float32)
             else:
-                res[t.name] = out[r[0] : r[1]]
+                res[t.key] = out[r[0] : r[1]]
         return res
 
     def __call__(self, values):
@@ -485,7 +492,9 @@ def _hidden_instancer(obj):
     )
 
 
-def collect_geometry(view_layer, depsgraph) -> SceneInput:
+def collect_geometry(view_layer, depsgraph, vertex_output=True) -> SceneInput:
+    """The scene's geometry and output targets. vertex_output False (a texture bake): no warnings
+    about HR_Radiance on meshes (modifiers that change the topology, shared meshes)."""
     objs = [o for o in geometry_objects(view_layer) if not _hidden_instancer(o)]
     depsgraph.update()
     warnings, mat_cache, digest_cache, inst_digests = [], {}, {}, {}
@@ -529,19 +538,24 @@ def collect_geometry(view_layer, depsgraph) -> SceneInput:
             len(me.loops),
             len(me.vertices),
         )
-        if not same_topology:
+        helper = values_object(obj, len(em.loop_verts), len(em.verts))
+        if helper is not None:  # its own values per evaluated element (own_values)
+            t.values_name, t.n_corner, t.n_point = helper.name, len(em.loop_verts), len(em.verts)
+        elif not same_topology:
             t.vert_map, t.orig_loop_verts, t.loop_map = _topology_map(obj, em, depsgraph)
-            warnings.append(
-                f"Object '{obj.name}': modifiers change the topology; HR_Radiance is "
-                "transferred to the original mesh's corners, which the modifiers interpolate again "
-                "(Array and Mirror copies show the original part's light); apply them for exact values."
-            )
-        if me.name in seen_mesh:
-            warnings.append(
-                f"Objects '{seen_mesh[me.name]}' and '{obj.name}' share mesh data "
-                f"'{me.name}'; HR_Radiance can hold only one of them (make them single user)."
-            )
-        else:
+            if vertex_output:
+                warnings.append(
+                    f"Object '{obj.name}': modifiers change the topology; HR_Radiance is "
+                    "transferred to the original mesh's corners, which the modifiers interpolate again "
+                    "(Array and Mirror copies show the original part's light); apply them for exact values."
+                )
+        if helper is None and me.name in seen_mesh:
+            if vertex_output:
+                warnings.append(
+                    f"Objects '{seen_mesh[me.name]}' and '{obj.name}' share mesh data "
+                    f"'{me.name}'; HR_Radiance can hold only one of them (make them single user)."
+                )
+        elif helper is None:
             seen_mesh[me.name] = obj.name
         targets.append(t)
         nloop += len(em.loop_verts)

@@ -7,6 +7,7 @@ import dataclasses
 from ..lightmap import TextureError
 from . import playback, signatures, texture
 from .lights_in import frozen_emitters, light_check, light_objects, world_takes_part
+from .own_values import ensure_own_values
 from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
 
 
@@ -37,13 +38,14 @@ def read_snapshot(scene, view_layer, cfg, warn):
     objects = geometry_objects(view_layer)
     if cfg.output == "VERTEX":
         warn(playback.linked_meshes(objects))
+        warn(ensure_own_values(objects, cfg.domain, depsgraph))
     if cfg.output == "TEXTURE":
         try:
             warn(texture.ensure_lightmaps(objects, cfg.resolution, cfg.texel_density))
         except TextureError as exc:
             raise SceneError(str(exc)) from None
     with texture.source_materials(objects):  # texture preview copies stand for these
-        scene_in = collect_geometry(view_layer, depsgraph)
+        scene_in = collect_geometry(view_layer, depsgraph, vertex_output=cfg.output != "TEXTURE")
     warn(scene_in.warnings)
     error, light_warnings = light_check(view_layer, scene, depsgraph, bool(scene_in.mesh.emission.any()))
     if error:

@@ -27,13 +27,14 @@ import numpy as np
 
 from ..io.cache import CacheError, CacheReader
 from ..lightmap import TextureError
-from ..lightmap.charts import MARGIN, lightmap_size, pack_lightmap
+from ..lightmap.charts import MARGIN, NEAR_ANGLE, lightmap_size, pack_lightmap
 from ..core import parallel
+from ..core.geometry import loop_tables
 from ..lightmap.plan import TexturePlan, gather_bytes, triangle_uvs
 from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
 from .materials import albedo_texture
-from .names import N_ATTR, N_TEX, N_UV, PREVIEW, TAG, UV_NAME
+from .names import N_ATTR, N_PACK, N_TEX, N_UV, PREVIEW, TAG, UV_NAME
 from .paths import bake_dir_abs, blend_relative, frame_texture
 from .preview import emission_output, node_named
 from .scene_in import evaluated, mesh_topology
@@ -72,13 +73,17 @@ _sizes = {}  # (mesh, scale, density, largest size) digest -> lightmap size: pac
 def resolution_for(obj, largest, density=0.0):
     """obj's lightmap size: its own Lightmap Size if set, else the size that gives its charts
     `density` texels per unit of world-space surface (charts.lightmap_size, MIN_SIZE to `largest`,
-    the scene's Texture Size), or `largest` itself with density 0."""
+    the scene's Texture Size), or `largest` itself with density 0. The charts are those of its
+    evaluated mesh where separate_copies lays the lightmap out there (the copies need room too)."""
     r = int(getattr(obj.hr, "lightmap_resolution", 0) or 0)
     if r > 0:
         return r
     if density <= 0 or obj.type != "MESH" or len(obj.data.polygons) == 0:
         return int(largest)
-    co, ls, lt, lv = mesh_topology(obj.data)
+    if _pack_modifier(obj) is not None:
+        _, (co, ls, lt, lv) = evaluated(obj, bpy.context.evaluated_depsgraph_get(), mesh_topology)
+    else:
+        co, ls, lt, lv = mesh_topology(obj.data)
     scale = np.array(obj.matrix_world.to_scale(), float)
     key = _uv_signature(co, ls, lt, lv, scale, f"{float(density)!r} {int(largest)}")
     if key not in _sizes:
@@ -93,7 +98,7 @@ def lightmap_sizer(largest, density=0.0):
     first = {}
 
     def size(obj):
-        if int(getattr(obj.hr, "lightmap_resolution", 0) or 0) > 0:
+        if int(getattr(obj.hr, "lightmap_resolution", 0) or 0) > 0 or _pack_modifier(obj) is not None:
             return resolution_for(obj, largest, density)
         key = obj.data.name_full
         if key not in first:
@@ -164,15 +169,126 @@ def ensure_lightmap(obj, res):
     return None
 
 
+# --- lightmaps of modifier copies ---------------------------------------------------------------
+
+COPIES = 1.05  # evaluated HR_Lightmap area over the mesh's own above which modifier copies overlap
+PACK_GROUP_VERSION = 1
+
+
+def _uv_area(uv, loop_start, loop_total):
+    """Total unsigned UV area of a mesh's polygons (shoelace)."""
+    lp, nxt = loop_tables(loop_start, loop_total)
+    u = np.asarray(uv, np.float64)
+    cross = u[:, 0] * u[nxt, 1] - u[nxt, 0] * u[:, 1]
+    return float(np.abs(np.bincount(lp, cross, len(loop_start))).sum() / 2)
+
+
+def copies_overlap(obj, depsgraph):
+    """Whether obj's modifiers put parts of its mesh onto the same HR_Lightmap islands (Array and
+    Mirror copies, Solidify's second shell carry the UVs of what they copy): its evaluated UVs
+    cover more area than its mesh's own (Subdivision Surface and Bevel keep it)."""
+    own = read_uv(obj.data)
+    if own is None:
+        return False
+    _, (uv, (_, ls, lt, _)) = evaluated(obj, depsgraph, lambda me: (read_uv(me), mesh_topology(me)))
+    _, ols, olt, _ = mesh_topology(obj.data)
+    return uv is not None and _uv_area(uv, ls, lt) > COPIES * _uv_area(own, ols, olt)
+
+
+def _pack_modifier(obj):
+    md = obj.modifiers.get(N_PACK) if obj.type == "MESH" else None
+    return md if md is not None and md.type == "NODES" else None
+
+
+def _pack_group():
+    """The node group of the N_PACK modifier: HR_Lightmap made anew on the evaluated mesh, charts cut
+    where faces meet at more than charts.NEAR_ANGLE (as our own charts), unwrapped (Angle Based)
+    and packed (Pack UV Islands, bounding boxes) with the modifier's Margin. Plain nodes: a
+    render without the extension shows the same lightmap."""
+    g = bpy.data.node_groups.get(N_PACK)
+    if g is not None and g.get(TAG) == PACK_GROUP_VERSION:
+        return g
+    g = bpy.data.node_groups.new(N_PACK, "GeometryNodeTree")
+    g[TAG] = PACK_GROUP_VERSION
+    g.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    g.interface.new_socket("Margin", in_out="INPUT", socket_type="NodeSocketFloat")
+    g.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    nodes, link = g.nodes, g.links.new
+    gi, go = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
+    angle = nodes.new("GeometryNodeInputMeshEdgeAngle")
+    seam = nodes.new("ShaderNodeMath")
+    seam.operation = "GREATER_THAN"
+    seam.inputs[1].default_value = np.radians(NEAR_ANGLE)
+    link(angle.outputs["Unsigned Angle"], seam.inputs[0])
+    unwrap = nodes.new("GeometryNodeUVUnwrap")
+    link(seam.outputs[0], unwrap.inputs["Seam"])
+    pack = nodes.new("GeometryNodeUVPackIslands")
+    link(unwrap.outputs["UV"], pack.inputs["UV"])
+    link(gi.outputs["Margin"], pack.inputs["Margin"])
+    store = nodes.new("GeometryNodeStoreNamedAttribute")
+    store.data_type, store.domain = "FLOAT2", "CORNER"
+    store.inputs["Name"].default_value = UV_NAME
+    link(gi.outputs["Geometry"], store.inputs["Geometry"])
+    link(pack.outputs["UV"], store.inputs["Value"])
+    link(store.outputs["Geometry"], go.inputs["Geometry"])
+    for k, nd in enumerate((gi, angle, seam, unwrap, pack, store, go)):
+        nd.location = (200 * k, 0)
+    return g
+
+
+def _border(obj, depsgraph, res):
+    """Texels between the evaluated HR_Lightmap islands and the image's edge."""
+    _, uv = evaluated(obj, depsgraph, read_uv)
+    return res * float(min(uv.min(), 1 - uv.max())) if uv is not None and len(uv) else 0.0
+
+
+def separate_copies(obj, largest, density, depsgraph):
+    """Give the copies that obj's modifiers make (Array, Mirror, Solidify) texels of their own: a
+    geometry-nodes modifier N_PACK, last in the stack, lays HR_Lightmap out on the evaluated mesh
+    (_pack_group), its margin set for its lightmap size (resolution_for: islands about 2 x MARGIN
+    texels apart, as charts.pack_lightmap packs them). Added where copies_overlap, kept once there
+    (the user may remove it). Returns a note when it is added, else None."""
+    md, note = _pack_modifier(obj), None
+    if md is None:
+        if not len(obj.modifiers) or "hr_lightmap" not in obj.data or not copies_overlap(obj, depsgraph):
+            return None  # no modifiers, the user's own lightmap UVs, or no copies
+        md = obj.modifiers.new(N_PACK, "NODES")
+        md.node_group = _pack_group()
+        note = (
+            f"Object '{obj.name}': its modifiers copy parts of its mesh onto the same {UV_NAME} islands; "
+            f"the geometry-nodes modifier '{N_PACK}' added last to its stack lays the lightmap out on "
+            "the result, so that every copy gets its own texels."
+        )
+    k = list(obj.modifiers).index(md)
+    if k != len(obj.modifiers) - 1:
+        obj.modifiers.move(k, len(obj.modifiers) - 1)
+    res = resolution_for(obj, largest, density)  # of the evaluated mesh now
+    key = md.node_group.interface.items_tree["Margin"].identifier
+    # Pack UV Islands scales its margin with the islands (about margin x res / 2 texels between
+    # them, half that to the image's edge): start there, correct from the measured edge
+    margin = 4.0 * MARGIN / res
+    for _ in range(3):
+        md[key] = margin
+        obj.update_tag()
+        border = _border(obj, bpy.context.evaluated_depsgraph_get(), res)
+        if border <= 0 or 0.9 * MARGIN <= border <= 1.5 * MARGIN:
+            break
+        margin *= MARGIN / border
+    return note
+
+
 def ensure_lightmaps(objects, largest, density=0.0):
     warnings, done, size = [], set(), lightmap_sizer(largest, density)
     for obj in objects:
-        if obj.data.name_full in done:
-            continue
-        done.add(obj.data.name_full)
-        w = ensure_lightmap(obj, size(obj))
-        if w:
-            warnings.append(w)
+        if obj.data.name_full not in done:
+            done.add(obj.data.name_full)
+            w = ensure_lightmap(obj, size(obj))
+            if w:
+                warnings.append(w)
+        if len(obj.data.polygons):
+            w = separate_copies(obj, largest, density, bpy.context.evaluated_depsgraph_get())
+            if w:
+                warnings.append(w)
     return warnings
 
 
@@ -278,10 +394,11 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, largest, fmt="EXR", a
         if len(ls) != p1 - p0 or len(lv) != t.loops[1] - t.loops[0]:
             plan.warnings.append(f"Object '{t.name}': mesh changed while reading; no texture.")
             continue
-        if t.vert_map is not None:
+        copied = len(obj.data.loops) != len(lv) and _pack_modifier(obj) is None
+        if copied and copies_overlap(obj, depsgraph):
             plan.warnings.append(
-                f"Object '{t.name}': modifiers change the topology; its "
-                f"{UV_NAME} islands may overlap (apply the modifiers)."
+                f"Object '{t.name}': its modifiers copy parts of its mesh onto the same {UV_NAME} "
+                "islands (its own lightmap UVs): the copies show one light (apply the modifiers)."
             )
         tri_uv, corners, tri_patch, skipped, tri_loops = triangle_uvs(
             patches, oid, uv, ls, lt, lv, p0, t.verts[0], t.verts[1] - t.verts[0], loops=True
