@@ -26,12 +26,12 @@ FORMATS = {"EXR": ".exr", "PNG": ".png"}
 REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
 
 
-# The texture bake's peak memory per texel at 128 hemisphere rays, the larger of two measures
-# (draft; docs/user_guide.md, "Lightmaps sized by area"): Cornell, 27,409 and 111,125 texels, peak
-# RSS 0.52 and 0.85 GB: 3.9 kB per added texel; the furnished room, 326,216 and 696,729 texels,
-# 2.47 and 4.41 GB: 5.2 kB per added texel, 6.3 kB per texel with its hierarchy (its stored
-# precompute 2.4 kB per texel against Cornell's 1.2: texels at contacts gather 4 sub-samples)
-GATHER_BYTES_PER_TEXEL = 6000
+# The texture bake's peak memory per texel at 128 hemisphere rays, rounded up from the larger of two
+# measures (draft; docs/user_guide.md, "Lightmaps sized by area", session 20): the furnished room at
+# 50 texels/m, 0.824 M texels, peak RSS 2.24 GB with its hierarchy and Blender: 2.7 kB per texel;
+# Cornell at 64 and 128 px, 0.49 and 0.67 GB: 2.2 kB per added texel. (Session 19, before the
+# gather's transients were cut and slot texels took 2 x 2 points: 6 kB)
+GATHER_BYTES_PER_TEXEL = 3000
 
 
 def gather_bytes(texels, rays=128):

@@ -13,6 +13,13 @@ from .sampling import cosine_directions, hash_uniform, position_keys
 from .texel_edges import texel_area
 
 SUB = 4  # sub-samples per side of a texel whose area straddles a coverage boundary
+# sub-samples per side of a texel wholly in a slot (every point and corner covered, in a slot) near
+# a mouth: there the light varies with the depth only, and smoothly; 16 of them per texel were 65%
+# of the furnished 20k room's samples at 2 cm texels (its books' sides) and most of the gather's
+# memory (docs/gather.md, "Texel samples' memory"). SUB: as before session 20
+SLOT_SUB = 2
+CORNERS = np.array([[0.0, 0], [1, 0], [1, 1], [0, 1]])  # a texel's, in its offsets
+TEST_BATCH = 1 << 14  # candidate texels per batch of texel_samples' test (each its own: any size)
 FIT = True  # LoopGather's default: the cut faces' corners shifted to keep their light (corner_fit)
 SPLIT = True  # with FIT: faces part open, part in a slot too (slot_split); False: before 2026-12-05
 
@@ -524,7 +531,9 @@ class LoopGather(FinalGather):
         return np.maximum(out, 0.0, out=out)
 
 
-def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None):
+def texel_samples(
+    system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_EDGE, tris=None, slot_sub=SLOT_SUB
+):
     """Gather samples of texels: the centre, or sub x sub stratified points over the texel's area
     where the light changes inside it at a contact: some of those points covered and some not (a
     block's footprint on a floor), or in a slot (between two books) some within open_edge gap
@@ -537,7 +546,8 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     (bake_points); None: over the texel's parallelogram. The jitter is keyed by the texel centre's
     position.
     Texels wholly in a slot whose points lie at depths more than 2x apart gather at their centre,
-    with the slot's transfer averaged over their points (FinalGather's slot_area).
+    with the slot's transfer averaged over their points (FinalGather's slot_area); the other texels
+    wholly in a slot that are sampled over their area take slot_sub x slot_sub points.
     Returns (points (S, 3), patch (S,), group (S,) texel of each sample, non-decreasing,
     slot_area: None or (sample rows (r,), their texels' points (r, sub^2, 3)))."""
     s = system.system
@@ -556,46 +566,66 @@ def texel_samples(system, patch, points, axes, sub=SUB, seed=0, open_edge=OPEN_E
     keys = position_keys(points[cand], 2.0 ** (np.floor(np.log2(size)) - 12))
     gx, gy = np.meshgrid(np.arange(sub), np.arange(sub), indexing="ij")
     grid = np.stack([gx.ravel(), gy.ravel()], 1)
-    f = (grid[None] + hash_uniform(seed, keys, 2000, 2 * k2).reshape(-1, k2, 2)) / sub
-    # tested at the sub-points and the texel's corners (a boundary between jittered points)
-    f = np.concatenate(
-        [f, np.broadcast_to(np.array([[0.0, 0], [1, 0], [1, 1], [0, 1]]), (len(cand), 4, 2))], 1
-    )
-    test = texel_points(points[cand], np.asarray(axes, np.float64).reshape(-1, 2, 3)[cand], tris, f, cand)
-    sp = test[:, :k2]
-    m = test.shape[1]
-    flat, fp = test.reshape(-1, 3), np.repeat(patch[cand], m)
-    cov = con.covered(flat, fp).reshape(-1, m)
-    mixed = cov.any(1) & ~cov.all(1)
-    spread = np.zeros(len(cand), bool)
-    if open_edge > 0 and cov.any():
-        # in a slot the light falls off as its mouth's view factor, about (h / 2x)^2 at depth x: a
-        # texel near a mouth, or across depths whose light differs by more than 4x, is sampled
-        # over its area
-        con.close_mouths(s.backend.occluded)
-        c = np.flatnonzero(cov.ravel())
-        x, hg = np.full(cov.size, np.inf), np.zeros(cov.size)
-        x[c], hg[c] = con.slots(flat[c], fp[c])[:2]
-        x, slot = x.reshape(-1, m), (hg > 0).reshape(-1, m)
-        mixed |= (slot & (x < open_edge * hg.reshape(-1, m))).any(1)
-        band = con.covered(flat[c], fp[c], open_edge=open_edge)  # gathered where they lie (FinalGather)
-        mixed |= np.bincount(c[~band] // m, minlength=len(cand)) > 0
-        spread = ~mixed & slot.all(1) & (x.max(1) > 2 * x.min(1))
+    axes = np.asarray(axes, np.float64).reshape(-1, 2, 3)
+
+    def test(a, b):  # candidates a..b, each its own: by rows (20 points each and their temporaries)
+        f = (grid[None] + hash_uniform(seed, keys[a:b], 2000, 2 * k2).reshape(-1, k2, 2)) / sub
+        # tested at the sub-points and the texel's corners (a boundary between jittered points)
+        f = np.concatenate([f, np.broadcast_to(CORNERS, (b - a, 4, 2))], 1)
+        c_ = cand[a:b]
+        pts = texel_points(points[c_], axes[c_], tris, f, c_)
+        m = pts.shape[1]
+        flat, fp = pts.reshape(-1, 3), np.repeat(patch[c_], m)
+        cov = con.covered(flat, fp).reshape(-1, m)
+        mixed = cov.any(1) & ~cov.all(1)
+        spread, whole = np.zeros(b - a, bool), np.zeros(b - a, bool)
+        if open_edge > 0 and cov.any():
+            # in a slot the light falls off as its mouth's view factor, about (h / 2x)^2 at depth x:
+            # a texel near a mouth, or across depths whose light differs by more than 4x, is sampled
+            # over its area
+            con.close_mouths(s.backend.occluded)
+            c = np.flatnonzero(cov.ravel())
+            x, hg = np.full(cov.size, np.inf), np.zeros(cov.size)
+            x[c], hg[c] = con.slots(flat[c], fp[c])[:2]
+            x, slot = x.reshape(-1, m), (hg > 0).reshape(-1, m)
+            mixed |= (slot & (x < open_edge * hg.reshape(-1, m))).any(1)
+            band = con.covered(flat[c], fp[c], open_edge=open_edge)  # gathered where they lie (FinalGather)
+            mixed |= np.bincount(c[~band] // m, minlength=b - a) > 0
+            spread = ~mixed & slot.all(1) & (x.max(1) > 2 * x.min(1))
+            if slot_sub != sub:
+                whole = mixed & slot.all(1)
+        keep = mixed | spread  # (the others' points are not used)
+        return np.flatnonzero(keep) + a, pts[keep, :k2], mixed, spread, whole
+
+    parts = [test(a, b) for a, b in ranges(len(cand), TEST_BATCH)]
+    kept, sp, mixed, spread, whole = (np.concatenate(p) for p in zip(*parts))
+    del parts
+    at = np.full(len(cand), -1)  # each candidate's row of sp (the kept ones')
+    at[kept] = np.arange(len(kept))
+    ks = slot_sub * slot_sub
     cnt = np.ones(n, np.int64)
-    cnt[cand[mixed]] = k2
+    cnt[cand[mixed]] = np.where(whole[mixed], ks, k2)
     group = np.repeat(np.arange(n), cnt)
     pts = points[group]
     first = np.cumsum(cnt) - cnt
-    rows = (first[cand[mixed]][:, None] + np.arange(k2)).ravel()
-    pts[rows] = sp[mixed].reshape(-1, 3)
+    full = mixed & ~whole
+    rows = (first[cand[full]][:, None] + np.arange(k2)).ravel()
+    pts[rows] = sp[at[full]].reshape(-1, 3)
+    if whole.any():  # their own stratified jitter, slot_sub x slot_sub
+        gx, gy = np.meshgrid(np.arange(slot_sub), np.arange(slot_sub), indexing="ij")
+        g2 = np.stack([gx.ravel(), gy.ravel()], 1)
+        f2 = (g2[None] + hash_uniform(seed, keys[whole], 2001, 2 * ks).reshape(-1, ks, 2)) / slot_sub
+        c = cand[whole]
+        p2 = texel_points(points[c], axes[c], tris, f2, c)
+        pts[(first[c][:, None] + np.arange(ks)).ravel()] = p2.reshape(-1, 3)
     if open_edge > 0 and spread.any():
         # deep in a slot, across depths whose light differs by more than 4x: the centre gathers the
         # mouth's light for the whole texel, its transfer is the mean over the texel's points
-        return pts, patch[group], group, (first[cand[spread]], sp[spread])
+        return pts, patch[group], group, (first[cand[spread]], sp[at[spread]])
     return pts, patch[group], group, None
 
 
-def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
+def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, slot_sub=SLOT_SUB, **kw):
     """FinalGather at texels (lightmap.plan's points on input patches), normals from the patches:
     evaluate(solution, kind) replaces core.texels.solution_radiance(solution, patch, points,
     kind=kind) (same kinds; float64, cast as needed). axes (n, 2, 3): the texels' sides on the
@@ -604,7 +634,7 @@ def texel_gather(system, patch, points, axes=None, sub=SUB, tris=None, **kw):
     triangle in loop-triangle order, the area inside it as Cycles' bake takes it."""
     s = system.system
     pts, pp, group, area = texel_samples(
-        system, patch, points, axes, sub, kw.get("seed", 0), kw.get("open_edge", OPEN_EDGE), tris
+        system, patch, points, axes, sub, kw.get("seed", 0), kw.get("open_edge", OPEN_EDGE), tris, slot_sub
     )
     if kw.get("rho") is not None and np.ndim(kw["rho"]) == 2:  # per texel: per sample
         kw["rho"] = np.asarray(kw["rho"])[group]
