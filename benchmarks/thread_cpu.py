@@ -1,14 +1,19 @@
-"""Threads (issue 23): where a light event's extra CPU on 2 threads goes. CPU seconds, not wall
-time, so that a shared machine can measure it: each thread count in its own process (the 100k
-room's system loaded from bench_threads.py's --system folder), the FE and the AUTO event (a new
-window, then its removal) repeated; per event the process's user and system CPU, page faults and
-context switches (getrusage), and per outermost batch map its batches' count, their CPU seconds
-(time.thread_time in the thread that ran each) and the map's whole process CPU: the CPU a map
-spends beyond its batches is the pool's (dispatch, waking threads, joining them), and batches that
-take more CPU on 2 threads than on 1 show contention (memory, the GIL).
+"""Threads (issue 23): where two threads' extra CPU goes. CPU seconds, not wall time, so that a
+shared machine can measure it: each thread count in its own process, the FE and the AUTO event
+on the 100k room (its system loaded from bench_threads.py's --system folder; a new window, then
+its removal, repeated) or the room's build (--build). Per event: the process's user and system
+CPU, page faults and context switches (getrusage), and per outermost batch map its batches'
+count, their CPU seconds (time.thread_time in the thread that ran each) and the map's whole
+process CPU. The CPU a map spends beyond its batches is the threads' handing out (starting,
+waking, joining); batches that take more CPU on 2 threads than on 1 show contention (memory,
+caches, the GIL), measured apart for the batches that ran at the same time as another thread's
+(`contention`: on a loaded machine only some do).
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/thread_cpu.py --system /work/cache/t19sys
-        [--threads 1,2] [--repeat 4] [--json out.json] [--cpus 0-1] [--root CHECKOUT]
+        [--threads 1,2] [--repeat 4] [--json out.json] [--cpus 0-1] [--root CHECKOUT] [--build]
+    taskset -c 0-1 .venv/bin/python benchmarks/thread_cpu.py --dispatch [--root CHECKOUT]
+
+--root runs another checkout's hr_addon (main's, for a before / after pair).
 """
 
 import argparse
@@ -94,6 +99,22 @@ def usage():
     vm = dict(line.split() for line in Path("/proc/vmstat").read_text().splitlines())
     vm = [int(vm.get(k, 0)) for k in VMSTAT]
     return np.array([r.ru_utime, r.ru_stime, r.ru_minflt, r.ru_nvcsw, r.ru_nivcsw, *vm])
+
+
+def dispatch(reps=300):
+    """CPU ms per map of `batch_map` over 1, 10 and 40 batches of about 10 us of numpy each, on 1
+    and 2 threads: the cost of handing batches out, apart from any real work."""
+    from hr_addon.core import parallel
+
+    a = np.ones(1 << 14)
+    out = {}
+    for nb in (1, 10, 40):
+        for th in (1, 2):
+            c0 = time.process_time()
+            for _ in range(reps):
+                parallel.batch_map(lambda i: float((a * 2.0).sum()), [(i,) for i in range(nb)], th)
+            out[f"{nb} batches, {th} thread(s)"] = (time.process_time() - c0) / reps * 1e3
+    return out
 
 
 def build(threads, size="100k", quality="draft"):
@@ -247,8 +268,13 @@ def main(argv=None):
     ap.add_argument("--json", default=None)
     ap.add_argument("--root", default=str(ROOT), help="the checkout whose hr_addon runs")
     ap.add_argument("--build", action="store_true", help="the build instead of the events")
+    ap.add_argument("--dispatch", action="store_true", help="batch_map's own CPU per map (dispatch())")
     ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.dispatch:
+        sys.path.insert(0, args.root)
+        print(f"{args.root}, load {os.getloadavg()[0]:.2f}: CPU ms per map", json.dumps(dispatch()))
+        return
     if args.child is not None:
         sys.path.insert(0, args.root)
         print(json.dumps(build(args.child) if args.build else child(args.system, args.child, args.repeat)))
@@ -262,9 +288,14 @@ def main(argv=None):
         r = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True)
         runs[t] = json.loads(r.stdout.strip().splitlines()[-1])
     rows = summary(runs)
-    if args.json:
-        Path(args.json).write_text(json.dumps(dict(runs=runs, summary=rows)))
     ks = list(runs)
+    cont = contention(runs) if len(ks) > 1 else None
+    if args.json:  # without the per-batch records (their use: contention)
+        for r in runs.values():
+            for recs in r.values():
+                for rec in recs if isinstance(recs, list) else ():
+                    rec["maps"] = [m[:6] for m in rec["maps"]]
+        Path(args.json).write_text(json.dumps(dict(runs=runs, summary=rows, contention=cont)))
     cols = (
         "first_cpu",
         "cpu",
@@ -290,8 +321,8 @@ def main(argv=None):
     for t, r in runs.items():  # the threads alive at the end, besides the main one
         print(f"threads at the end, {t} thread(s): {len(r['tasks'])}; CPU s of the others:", end=" ")
         print(sorted((round(c, 2), n) for n, c in r["tasks"].values() if not n.endswith("(main)")))
-    if len(ks) > 1:
-        print("batches' CPU, 2 threads / 1:", contention(runs))
+    if cont:
+        print("batches' CPU, 2 threads / 1:", cont)
 
 
 if __name__ == "__main__":
