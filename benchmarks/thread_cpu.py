@@ -11,6 +11,7 @@ caches, the GIL), measured apart for the batches that ran at the same time as an
 
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/thread_cpu.py --system /work/cache/t19sys
         [--threads 1,2] [--repeat 4] [--json out.json] [--cpus 0-1] [--root CHECKOUT] [--build]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/thread_cpu.py --store /work/cache/s20main
     taskset -c 0-1 .venv/bin/python benchmarks/thread_cpu.py --dispatch [--root CHECKOUT]
 
 --root runs another checkout's hr_addon (main's, for a before / after pair).
@@ -127,18 +128,71 @@ def build(threads, size="100k", quality="draft"):
     mesh = furnished_room(size)[0]
     maps = []
     instrument(maps)
-    u0, c0, w0 = usage(), time.process_time(), time.perf_counter()
-    s = RadiositySystem(mesh, RefineParams.for_gather(quality), threads=threads)
+    got = []
+    rec = measured(
+        maps, lambda: got.append(RadiositySystem(mesh, RefineParams.for_gather(quality), threads=threads))
+    )
+    here = str(Path(sys.modules["hr_addon"].__file__).parent)
+    return {"hr_addon": here, "build": [rec], "links": len(got[0].links), "tasks": task_cpu()}
+
+
+def measured(maps, fn):
+    """fn() with its CPU (user, system), wall, faults, switches, the machine's VMSTAT counters and
+    the outermost maps it ran (instrument's records)."""
+    m0, u0, c0, w0 = len(maps), usage(), time.process_time(), time.perf_counter()
+    fn()
     u = usage() - u0
     rec = dict(cpu=time.process_time() - c0, wall=time.perf_counter() - w0, user=u[0], sys=u[1])
-    rec.update(minflt=int(u[2]), nvcsw=int(u[3]), nivcsw=int(u[4]), maps=maps)
+    rec.update(minflt=int(u[2]), nvcsw=int(u[3]), nivcsw=int(u[4]), maps=maps[m0:])
     rec.update({k: int(v) for k, v in zip(VMSTAT, u[5:])})
-    return {
-        "hr_addon": str(Path(sys.modules["hr_addon"].__file__).parent),
-        "build": [rec],
-        "links": len(s.links),
-        "tasks": task_cpu(),
-    }
+    return rec
+
+
+def stored(store, threads, quality="draft"):
+    """bench_gather_events.py's steps on a stored 100k precompute (--store DIR): per method the
+    output of the base parts, then a new window and the window moved, each event and its gathered
+    output measured apart. The first event builds the solver's operator (the base solution is
+    stored), so its maps run in the event here, not in a base solve as in child()."""
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.io import precompute as pc
+
+    sys.path.insert(1, str(ROOT / "benchmarks"))  # (after hr_addon: the --root checkout's)
+    from bench_gather_events import load_store
+
+    _, frame = furnished_room("100k")[1]["light_wall"]
+    s, g, _ = load_store(Path(store) / pc.FILENAME)
+    pc.use_threads(s, g, threads)
+    s.links.extended(s.h)
+    maps = []
+    instrument(maps)
+    out = {"hr_addon": str(Path(sys.modules["hr_addon"].__file__).parent)}
+
+    def window(cx):
+        return LightShape(
+            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        )
+
+    for method in ("FE", "AUTO"):
+        dyn = DynamicRadiosity(s.copy(), method=method, **DynamicRadiosity.gather_options(quality))
+        lv = g
+        while lv is not None:  # the shape's direct light is each method's event cost
+            lv._shape_cache.clear()
+            lv = lv.second
+        g.loop_radiance(dyn)
+        for what, fn in (
+            ("add", lambda: dyn.add("w", window(0.7))),
+            ("move", lambda: dyn.apply({"w": window(1.2)})),
+        ):
+            out[f"{method} {what}"] = [measured(maps, fn)]
+            out[f"{method} {what} output"] = [measured(maps, lambda: g.loop_radiance(dyn))]
+            print(
+                f"{method} {what}: {out[f'{method} {what}'][0]['cpu']:.3f} s CPU", file=sys.stderr, flush=True
+            )
+        out[f"{method} B"] = float(np.abs(dyn.B).sum())
+    out["tasks"] = task_cpu()
+    return out
 
 
 def child(system, threads, repeat, size="100k", quality="draft"):
@@ -167,20 +221,7 @@ def child(system, threads, repeat, size="100k", quality="draft"):
         dyn = DynamicRadiosity(s.copy(), method=method, **dkw)
         for k in range(repeat):
             for what, fn in (("add", lambda: dyn.add("w", window(k))), ("remove", lambda: dyn.remove("w"))):
-                m0, u0, c0, w0 = len(maps), usage(), time.process_time(), time.perf_counter()
-                fn()
-                u = usage() - u0
-                rec = dict(
-                    cpu=time.process_time() - c0,
-                    wall=time.perf_counter() - w0,
-                    user=u[0],
-                    sys=u[1],
-                    minflt=int(u[2]),
-                    nvcsw=int(u[3]),
-                    nivcsw=int(u[4]),
-                    maps=maps[m0:],
-                    **{k: int(v) for k, v in zip(VMSTAT, u[5:])},
-                )
+                rec = measured(maps, fn)
                 out.setdefault(f"{method} {what}", []).append(rec)
                 print(f"{method} {what} {k}: {rec['cpu']:.3f} s CPU", file=sys.stderr, flush=True)
         out[f"{method} B"] = float(np.abs(dyn.B).sum())  # (a check that both counts agree)
@@ -268,6 +309,7 @@ def main(argv=None):
     ap.add_argument("--json", default=None)
     ap.add_argument("--root", default=str(ROOT), help="the checkout whose hr_addon runs")
     ap.add_argument("--build", action="store_true", help="the build instead of the events")
+    ap.add_argument("--store", default=None, help="a stored 100k precompute's folder (stored())")
     ap.add_argument("--dispatch", action="store_true", help="batch_map's own CPU per map (dispatch())")
     ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -277,13 +319,19 @@ def main(argv=None):
         return
     if args.child is not None:
         sys.path.insert(0, args.root)
-        print(json.dumps(build(args.child) if args.build else child(args.system, args.child, args.repeat)))
+        if args.store:
+            print(json.dumps(stored(args.store, args.child)))
+        else:
+            print(
+                json.dumps(build(args.child) if args.build else child(args.system, args.child, args.repeat))
+            )
         return
     runs = {}
     for t in args.threads.split(","):
         cmd = ["taskset", "-c", args.cpus, sys.executable, __file__]
         cmd += ["--repeat", str(args.repeat), "--root", args.root, "--child", t] + ["--build"] * args.build
         cmd += ["--system", args.system] if args.system else []
+        cmd += ["--store", args.store] if args.store else []
         print(f"{t} thread(s), load {os.getloadavg()[0]:.2f}", flush=True)
         r = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True)
         runs[t] = json.loads(r.stdout.strip().splitlines()[-1])
