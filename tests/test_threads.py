@@ -45,6 +45,27 @@ def test_batch_map_keeps_batch_order_and_runs_inline_on_one_thread():
     assert parallel.resolve_threads(-1) == max(parallel.available_cores() - 1, 1)
 
 
+def test_the_calling_thread_works_and_a_map_inside_a_batch_runs_inline():
+    """threads=2: one worker and the calling thread share the batches (the caller no longer waits
+    idle); a map started inside a batch, in either thread, runs in that batch's thread."""
+    ran = []
+
+    def inner(i):
+        return threading.current_thread().name
+
+    def outer(a, b):
+        time.sleep(0.01)  # the worker starts before the calling thread has taken every batch
+        names = parallel.batch_map(inner, [(i,) for i in range(4)], threads=2)
+        ran.append((threading.current_thread().name, set(names), parallel.in_worker()))
+        return a
+
+    assert parallel.batch_map(outer, parallel.ranges(12, 1), threads=2) == list(range(12))
+    me = threading.current_thread().name
+    assert any(r[0] == me for r in ran) and any(r[0].startswith("hr-batch") for r in ran)
+    assert all(names == {name} and inside for name, names, inside in ran)
+    assert not parallel.in_worker() and not _workers()
+
+
 def test_progress_counts_arrive_in_order_from_the_calling_thread():
     seen = []
 

@@ -5,12 +5,15 @@ own result and the results come back in batch order, so 1 and N threads give bit
 values. Threads pay where the kernels release the GIL (embreex's ray queries, numpy's large array
 operations; measured in docs/threads.md).
 
-- threads=1 runs the batches inline: no pool, no thread (the single-core path).
-- A batch map started inside another one's worker runs inline too: no nested pools.
-- Cancellation: `progress(done, total)` is called from the calling thread after each finished
-  batch, in order (done = 1, 2, ...). Whatever it raises (core.progress.Cancelled, or the signal
-  handler's Cancelled / KeyboardInterrupt arriving in the calling thread while it waits) stops the
-  submitting, drops the batches not started, waits for the running ones and propagates: no worker
+- threads=1 runs the batches inline: no thread (the single-core path).
+- threads=N: the calling thread and N - 1 worker threads started for the map each take the next
+  batch until none is left (no waiting caller woken at every batch: session 20, docs/threads.md).
+- A batch map started inside a batch of another runs inline: no nested threads.
+- Cancellation: `progress(done, total)` is called from the calling thread, between its own
+  batches or while it waits for the last ones, once per finished batch, in order (done = 1, 2,
+  ...). Whatever it raises (core.progress.Cancelled, or the signal handler's Cancelled /
+  KeyboardInterrupt arriving in the calling thread, in its batch or while it waits) stops the
+  map: no batch starts after it, the running ones are waited for and it propagates: no worker
   thread is left behind. A batch that raises does the same with its exception.
 """
 
@@ -20,7 +23,6 @@ import threading
 import time
 from contextlib import contextmanager
 from itertools import count
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
 _local = threading.local()
 _pools = count()  # a name per pool, so that its threads can be found (batch_map's finally)
@@ -100,24 +102,16 @@ def ranges(n, step):
 
 
 def in_worker():
-    """True inside a batch map's worker thread."""
+    """True inside a batch of a threaded batch map (in a worker or in the calling thread)."""
     return getattr(_local, "worker", False)
-
-
-def _run_in_worker(fn, args):
-    _local.worker = True
-    try:
-        return fn(*args)
-    finally:
-        _local.worker = False
 
 
 def batch_map(fn, batches, threads=1, progress=None, poll=0.1):
     """[fn(*batch) for batch in batches], computed on up to `threads` threads, in batch order.
 
     batches: argument tuples (e.g. ranges()). progress(done, total): see the module doc; it may
-    raise to cancel. At most 2 x threads batches are queued at a time, so a cancel waits for the
-    running batches only (and the queued results bound the memory held)."""
+    raise to cancel. A thread takes a batch only when it starts it, so a cancel waits for the
+    running batches only."""
     batches = list(batches)
     total = len(batches)
     threads = min(resolve_threads(threads), total)
@@ -138,34 +132,81 @@ def batch_map(fn, batches, threads=1, progress=None, poll=0.1):
         if _profile is not None and outer and not in_worker():
             _profile.append(seconds)
         return out
-    out = [None] * total
-    name = f"hr-batch-{next(_pools)}"
-    pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix=name)
-    pending = {}
-    nxt = done = 0
-    try:
-        while done < total:
-            while nxt < total and len(pending) < 2 * threads:
-                pending[pool.submit(_run_in_worker, fn, batches[nxt])] = nxt
-                nxt += 1
-            # a timeout keeps the calling thread responsive to signals while it waits
-            finished, _ = wait(pending, timeout=poll, return_when=FIRST_COMPLETED)
-            for f in sorted(finished, key=pending.get):
-                out[pending.pop(f)] = f.result()  # a batch's exception propagates from here
-                done += 1
-                if progress is not None:
-                    progress(done, total)
-    finally:
-        # normal end, cancel or error alike: nothing new starts, running batches are joined
-        for f in pending:
-            f.cancel()
-        pool.shutdown(wait=True, cancel_futures=True)
-        # a Ctrl-C raised inside submit() while it starts a worker leaves that thread outside the
-        # pool's own list, so shutdown does not join it (it ends on the pool's stop signal)
-        for t in threading.enumerate():
-            if t.name.startswith(name + "_"):
-                t.join()
-    return out
+    return _Map(fn, batches, progress).run(threads, poll)
+
+
+class _Map:
+    """One threaded batch map: the calling thread and threads - 1 workers started for it each take
+    the next batch (a shared index) until none is left, the error or the cancel stops them. The
+    calling thread works too (a pool of `threads` workers left it waiting, woken at every batch:
+    docs/threads.md, session 20), and between its batches it reports the finished ones in order."""
+
+    def __init__(self, fn, batches, progress):
+        self.fn, self.batches, self.progress = fn, batches, progress
+        self.out = [None] * len(batches)
+        self.finished = [False] * len(batches)
+        self.next = 0
+        self.stop = False
+        self.error = None
+        self.cond = threading.Condition()
+
+    def take(self):
+        """The next batch's index, None when none is left or the map stops."""
+        with self.cond:
+            if self.stop or self.next >= len(self.batches):
+                return None
+            self.next += 1
+            return self.next - 1
+
+    def run_batch(self, k):
+        _local.worker = True  # a map inside a batch runs inline (no nested pools)
+        try:
+            self.out[k] = self.fn(*self.batches[k])
+        finally:
+            _local.worker = False
+        with self.cond:
+            self.finished[k] = True
+            self.cond.notify_all()
+
+    def work(self):
+        try:
+            while (k := self.take()) is not None:
+                self.run_batch(k)
+        except BaseException as exc:  # handed to the calling thread, which raises it
+            with self.cond:
+                self.error = self.error or exc
+                self.stop = True
+                self.cond.notify_all()
+
+    def run(self, threads, poll):
+        total = len(self.batches)
+        name = f"hr-batch-{next(_pools)}"
+        workers = [threading.Thread(target=self.work, name=f"{name}_{i}") for i in range(threads - 1)]
+        done = 0
+        try:
+            for t in workers:
+                t.start()
+            while done < total:
+                k = self.take()
+                if k is not None:
+                    self.run_batch(k)
+                else:  # a timeout keeps the calling thread responsive to signals while it waits
+                    with self.cond:
+                        self.cond.wait_for(lambda: self.error or self.finished[done], timeout=poll)
+                if self.error is not None:
+                    raise self.error
+                while done < total and self.finished[done]:
+                    done += 1
+                    if self.progress is not None:
+                        self.progress(done, total)
+        finally:
+            # normal end, cancel or error alike: nothing new starts, running batches are joined
+            with self.cond:
+                self.stop = True
+            for t in workers:
+                if t.ident is not None:
+                    t.join()
+        return self.out
 
 
 @contextmanager

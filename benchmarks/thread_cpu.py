@@ -1,0 +1,377 @@
+"""Threads (issue 23): where two threads' extra CPU goes. CPU seconds, not wall time, so that a
+shared machine can measure it: each thread count in its own process, the FE and the AUTO event
+on the 100k room (its system loaded from bench_threads.py's --system folder; a new window, then
+its removal, repeated) or the room's build (--build). Per event: the process's user and system
+CPU, page faults and context switches (getrusage), and per outermost batch map its batches'
+count, their CPU seconds (time.thread_time in the thread that ran each) and the map's whole
+process CPU. The CPU a map spends beyond its batches is the threads' handing out (starting,
+waking, joining); batches that take more CPU on 2 threads than on 1 show contention (memory,
+caches, the GIL), measured apart for the batches that ran at the same time as another thread's
+(`contention`: on a loaded machine only some do).
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/thread_cpu.py --system /work/cache/t19sys
+        [--threads 1,2] [--repeat 4] [--json out.json] [--cpus 0-1] [--root CHECKOUT] [--build]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/thread_cpu.py --store /work/cache/s20main
+    taskset -c 0-1 .venv/bin/python benchmarks/thread_cpu.py --dispatch [--root CHECKOUT]
+
+--root runs another checkout's hr_addon (main's, for a before / after pair).
+"""
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+_tl = threading.local()
+
+
+def instrument(maps):
+    """Every module's batch_map wrapped: each outermost call appends (batches, batch CPU s, map
+    process CPU s, map wall s, its caller's name, batches run off the calling thread, and per batch
+    (index, thread id, wall start, wall end, CPU s)) to `maps`."""
+    from hr_addon.core import parallel
+
+    orig = parallel.batch_map
+
+    def wrapped(fn, batches, threads=1, progress=None, poll=0.1):
+        if getattr(_tl, "inside", False) or parallel.in_worker():
+            return orig(fn, batches, threads, progress, poll)
+        secs, off, each = [], [], []
+        lock = threading.Lock()
+        caller = threading.current_thread()
+
+        def timed(k, *a):
+            _tl.inside = True
+            t0, w0 = time.thread_time(), time.perf_counter()
+            try:
+                return fn(*a)
+            finally:
+                dt = time.thread_time() - t0
+                _tl.inside = False
+                with lock:
+                    secs.append(dt)
+                    off.append(threading.current_thread() is not caller)
+                    each.append((k, threading.get_ident(), w0, time.perf_counter(), dt))
+
+        f = sys._getframe(1)
+        where = f"{Path(f.f_code.co_filename).stem}.{f.f_code.co_name}"
+        c0, w0 = time.process_time(), time.perf_counter()
+        out = orig(timed, [(k, *b) for k, b in enumerate(batches)], threads, progress, poll)
+        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+        maps.append((len(secs), sum(secs), cpu, wall, where, sum(off), sorted(each)))
+        return out
+
+    for name, mod in list(sys.modules.items()):
+        if name.startswith("hr_addon") and getattr(mod, "batch_map", None) is orig:
+            mod.batch_map = wrapped
+
+
+def task_cpu():
+    """{thread id: (name, CPU s)} of every thread of this process, from /proc (threads that no
+    Python code started, e.g. a BLAS or Embree pool's, show up here only)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for t in Path("/proc/self/task").iterdir():
+        try:
+            stat = (t / "stat").read_text()
+        except OSError:
+            continue
+        name = stat[stat.index("(") + 1 : stat.rindex(")")]
+        f = stat[stat.rindex(")") + 2 :].split()
+        out[t.name] = (name + " (main)" * (t.name == str(os.getpid())), (int(f[11]) + int(f[12])) / tick)
+    return out
+
+
+VMSTAT = ("compact_stall", "thp_fault_alloc", "thp_fault_fallback")  # machine-wide counters
+
+
+def usage():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    vm = dict(line.split() for line in Path("/proc/vmstat").read_text().splitlines())
+    vm = [int(vm.get(k, 0)) for k in VMSTAT]
+    return np.array([r.ru_utime, r.ru_stime, r.ru_minflt, r.ru_nvcsw, r.ru_nivcsw, *vm])
+
+
+def dispatch(reps=300):
+    """CPU ms per map of `batch_map` over 1, 10 and 40 batches of about 10 us of numpy each, on 1
+    and 2 threads: the cost of handing batches out, apart from any real work."""
+    from hr_addon.core import parallel
+
+    a = np.ones(1 << 14)
+    out = {}
+    for nb in (1, 10, 40):
+        for th in (1, 2):
+            c0 = time.process_time()
+            for _ in range(reps):
+                parallel.batch_map(lambda i: float((a * 2.0).sum()), [(i,) for i in range(nb)], th)
+            out[f"{nb} batches, {th} thread(s)"] = (time.process_time() - c0) / reps * 1e3
+    return out
+
+
+def build(threads, size="100k", quality="draft"):
+    """The room's build (RadiositySystem) once: its CPU, faults, switches and maps (instrument)."""
+    from hr_testing.furnished import furnished_room
+    from hr_addon.core.radiosity import RadiositySystem
+    from hr_addon.core.refine import RefineParams
+    import hr_addon.core.boxes, hr_addon.core.contacts, hr_addon.core.farlinks  # noqa: F401, E401
+
+    mesh = furnished_room(size)[0]
+    maps = []
+    instrument(maps)
+    got = []
+    rec = measured(
+        maps, lambda: got.append(RadiositySystem(mesh, RefineParams.for_gather(quality), threads=threads))
+    )
+    here = str(Path(sys.modules["hr_addon"].__file__).parent)
+    return {"hr_addon": here, "build": [rec], "links": len(got[0].links), "tasks": task_cpu()}
+
+
+def measured(maps, fn):
+    """fn() with its CPU (user, system), wall, faults, switches, the machine's VMSTAT counters and
+    the outermost maps it ran (instrument's records)."""
+    m0, u0, c0, w0 = len(maps), usage(), time.process_time(), time.perf_counter()
+    fn()
+    u = usage() - u0
+    rec = dict(cpu=time.process_time() - c0, wall=time.perf_counter() - w0, user=u[0], sys=u[1])
+    rec.update(minflt=int(u[2]), nvcsw=int(u[3]), nivcsw=int(u[4]), maps=maps[m0:])
+    rec.update({k: int(v) for k, v in zip(VMSTAT, u[5:])})
+    return rec
+
+
+def stored(store, threads, quality="draft"):
+    """bench_gather_events.py's steps on a stored 100k precompute (--store DIR): per method the
+    output of the base parts, then a new window and the window moved, each event and its gathered
+    output measured apart. The first event builds the solver's operator (the base solution is
+    stored), so its maps run in the event here, not in a base solve as in child()."""
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.io import precompute as pc
+
+    sys.path.insert(1, str(ROOT / "benchmarks"))  # (after hr_addon: the --root checkout's)
+    from bench_gather_events import load_store
+
+    _, frame = furnished_room("100k")[1]["light_wall"]
+    s, g, _ = load_store(Path(store) / pc.FILENAME)
+    pc.use_threads(s, g, threads)
+    s.links.extended(s.h)
+    maps = []
+    instrument(maps)
+    out = {"hr_addon": str(Path(sys.modules["hr_addon"].__file__).parent)}
+
+    def window(cx):
+        return LightShape(
+            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        )
+
+    for method in ("FE", "AUTO"):
+        dyn = DynamicRadiosity(s.copy(), method=method, **DynamicRadiosity.gather_options(quality))
+        lv = g
+        while lv is not None:  # the shape's direct light is each method's event cost
+            lv._shape_cache.clear()
+            lv = lv.second
+        g.loop_radiance(dyn)
+        for what, fn in (
+            ("add", lambda: dyn.add("w", window(0.7))),
+            ("move", lambda: dyn.apply({"w": window(1.2)})),
+        ):
+            out[f"{method} {what}"] = [measured(maps, fn)]
+            out[f"{method} {what} output"] = [measured(maps, lambda: g.loop_radiance(dyn))]
+            print(
+                f"{method} {what}: {out[f'{method} {what}'][0]['cpu']:.3f} s CPU", file=sys.stderr, flush=True
+            )
+        out[f"{method} B"] = float(np.abs(dyn.B).sum())
+    out["tasks"] = task_cpu()
+    return out
+
+
+def child(system, threads, repeat, size="100k", quality="draft"):
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    import hr_addon.core.events.direct  # noqa: F401 (instrumented below)
+    import hr_addon.core.gather  # noqa: F401
+
+    sys.path.insert(1, str(ROOT / "benchmarks"))  # (after hr_addon: the --root checkout's)
+    from bench_threads import _system
+
+    mesh, info = furnished_room(size)
+    _, frame = info["light_wall"]
+
+    def window(k):  # a new shape each repeat (a shape seen before has its response cached)
+        rect = S.rect(0.9, 0.7, centre=(0.7 + 0.05 * k, 0.6), angle=0.2)
+        return LightShape(S.on_plane(rect, frame), np.full(3, 20.0), "window")
+
+    s, _ = _system(mesh, size, quality, threads, system)
+    dkw = DynamicRadiosity.gather_options(quality)
+    maps = []
+    instrument(maps)
+    out = {"hr_addon": str(Path(sys.modules["hr_addon"].__file__).parent)}
+    for method in ("FE", "AUTO"):
+        dyn = DynamicRadiosity(s.copy(), method=method, **dkw)
+        for k in range(repeat):
+            for what, fn in (("add", lambda: dyn.add("w", window(k))), ("remove", lambda: dyn.remove("w"))):
+                rec = measured(maps, fn)
+                out.setdefault(f"{method} {what}", []).append(rec)
+                print(f"{method} {what} {k}: {rec['cpu']:.3f} s CPU", file=sys.stderr, flush=True)
+        out[f"{method} B"] = float(np.abs(dyn.B).sum())  # (a check that both counts agree)
+    out["tasks"] = task_cpu()
+    return out
+
+
+def summary(runs):
+    """Per event: the first one's CPU, and the median over the repeats after it of CPU, user,
+    sys, faults, switches, the maps' batch CPU, their overhead (map CPU - batch CPU) and the
+    serial CPU (event CPU - map CPU)."""
+    rows = {}
+    for t, r in runs.items():
+        for ev, recs in r.items():
+            if not isinstance(recs, list):
+                continue
+            first, recs = recs[0], recs[1:] or recs
+            med = lambda f: float(np.median([f(x) for x in recs]))  # noqa: E731
+            rows.setdefault(ev, {})[t] = dict(
+                cpu=med(lambda x: x["cpu"]),
+                wall=med(lambda x: x["wall"]),
+                sys=med(lambda x: x["sys"]),
+                minflt=med(lambda x: x["minflt"]),
+                csw=med(lambda x: x["nvcsw"] + x["nivcsw"]),
+                compact=med(lambda x: x.get("compact_stall", 0)),
+                maps=med(lambda x: len(x["maps"])),
+                batches=med(lambda x: sum(m[0] for m in x["maps"])),
+                off_caller=med(lambda x: sum(m[5] for m in x["maps"])),
+                batch_cpu=med(lambda x: sum(m[1] for m in x["maps"])),
+                overhead=med(lambda x: sum(m[2] - m[1] for m in x["maps"])),
+                serial=med(lambda x: x["cpu"] - sum(m[2] for m in x["maps"])),
+                first_cpu=first["cpu"],
+            )
+    return rows
+
+
+def contention(runs, busy=0.8):
+    """The batches' CPU on 2 threads against the same batches on 1 (same event, repeat, map and
+    batch), split by whether a batch ran together with another thread's: "together" when batches
+    of another thread cover at least `busy` of its wall interval and it and they were on a core
+    for at least `busy` of their wall time (CPU / wall), "alone" when none covers more than 1 -
+    busy of it and it was on a core. On a loaded machine only some batches run together; the
+    ratio of those is the contention (memory, caches, the GIL) of truly parallel batches."""
+    one, two = runs["1"], runs[max(runs, key=int)]
+    sums = {"together": [0.0, 0.0, 0], "alone": [0.0, 0.0, 0]}
+    for ev, recs in two.items():
+        if not isinstance(recs, list):
+            continue
+        for r2, r1 in zip(recs, one[ev]):
+            for m2, m1 in zip(r2["maps"], r1["maps"]):
+                if len(m2) < 7 or len(m1) < 7 or m2[0] != m1[0]:
+                    continue
+                cpu1 = {b[0]: b[4] for b in m1[6]}
+                for k, tid, w0, w1, c in m2[6]:
+                    wall = max(w1 - w0, 1e-9)
+                    if c / wall < busy:
+                        continue
+                    cover = 0.0
+                    for _, t2, v0, v1, c2 in m2[6]:
+                        if t2 != tid and c2 / max(v1 - v0, 1e-9) >= busy:
+                            cover += max(0.0, min(w1, v1) - max(w0, v0))
+                    cls = (
+                        "together"
+                        if cover >= busy * wall
+                        else "alone"
+                        if cover <= (1 - busy) * wall
+                        else None
+                    )
+                    if cls:
+                        sums[cls][0] += c
+                        sums[cls][1] += cpu1[k]
+                        sums[cls][2] += 1
+    return {
+        k: dict(cpu2=v[0], cpu1=v[1], batches=v[2], ratio=v[0] / v[1] if v[1] else None)
+        for k, v in sums.items()
+    }
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--system", default=None, help="bench_threads.py's --system folder (events)")
+    ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--cpus", default="0-1", help="taskset -c of every run")
+    ap.add_argument("--repeat", type=int, default=4)
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--root", default=str(ROOT), help="the checkout whose hr_addon runs")
+    ap.add_argument("--build", action="store_true", help="the build instead of the events")
+    ap.add_argument("--store", default=None, help="a stored 100k precompute's folder (stored())")
+    ap.add_argument("--dispatch", action="store_true", help="batch_map's own CPU per map (dispatch())")
+    ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.dispatch:
+        sys.path.insert(0, args.root)
+        print(f"{args.root}, load {os.getloadavg()[0]:.2f}: CPU ms per map", json.dumps(dispatch()))
+        return
+    if args.child is not None:
+        sys.path.insert(0, args.root)
+        if args.store:
+            print(json.dumps(stored(args.store, args.child)))
+        else:
+            print(
+                json.dumps(build(args.child) if args.build else child(args.system, args.child, args.repeat))
+            )
+        return
+    runs = {}
+    for t in args.threads.split(","):
+        cmd = ["taskset", "-c", args.cpus, sys.executable, __file__]
+        cmd += ["--repeat", str(args.repeat), "--root", args.root, "--child", t] + ["--build"] * args.build
+        cmd += ["--system", args.system] if args.system else []
+        cmd += ["--store", args.store] if args.store else []
+        print(f"{t} thread(s), load {os.getloadavg()[0]:.2f}", flush=True)
+        r = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, check=True)
+        runs[t] = json.loads(r.stdout.strip().splitlines()[-1])
+    rows = summary(runs)
+    ks = list(runs)
+    cont = contention(runs) if len(ks) > 1 else None
+    if args.json:  # without the per-batch records (their use: contention)
+        for r in runs.values():
+            for recs in r.values():
+                for rec in recs if isinstance(recs, list) else ():
+                    rec["maps"] = [m[:6] for m in rec["maps"]]
+        Path(args.json).write_text(json.dumps(dict(runs=runs, summary=rows, contention=cont)))
+    cols = (
+        "first_cpu",
+        "cpu",
+        "sys",
+        "minflt",
+        "csw",
+        "compact",
+        "maps",
+        "batches",
+        "off_caller",
+        "batch_cpu",
+        "overhead",
+        "serial",
+    )
+    print(f"{'event':12s}{'thr':>4s}" + "".join(f"{c:>10s}" for c in cols))
+    for ev, by in rows.items():
+        for t in ks:
+            print(f"{ev:12s}{t:>4s}" + "".join(f"{by[t][c]:10.3f}" for c in cols))
+        print(
+            f"{'':12s}{'2/1':>4s}" + "".join(f"{by[ks[-1]][c] / max(by[ks[0]][c], 1e-9):10.2f}" for c in cols)
+        )
+    print("B sums:", {t: {k: v for k, v in r.items() if k not in ("tasks", *rows)} for t, r in runs.items()})
+    for t, r in runs.items():  # the threads alive at the end, besides the main one
+        print(f"threads at the end, {t} thread(s): {len(r['tasks'])}; CPU s of the others:", end=" ")
+        print(sorted((round(c, 2), n) for n, c in r["tasks"].values() if not n.endswith("(main)")))
+    if cont:
+        print("batches' CPU, 2 threads / 1:", cont)
+
+
+if __name__ == "__main__":
+    main()
