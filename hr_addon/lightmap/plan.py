@@ -51,8 +51,6 @@ class ObjectTexels:
         self.uv_digest = uv_digest
         self.ring = ring  # raster.ring_sources: the ring texels' values from the inside ones
 
-    ring_limit = False
-
     def image(self, values):
         """(res, res, 3) float32 image of the values at the texels, the ring texels' from the inside
         texels next to them, dilated."""
@@ -61,11 +59,7 @@ class ObjectTexels:
         if self.ring is not None and len(self.ring[0]):
             ring, i1, i2, w = self.ring
             v1, v2 = img[self.texel[i1]], img[self.texel[i2]]
-            line = v1 + w[:, None].astype(np.float32) * (v1 - v2)
-            if self.ring_limit:  # EXPERIMENT: no further from v1 than the ring point's own value
-                e = img[self.texel[ring]]
-                line = np.clip(line, np.minimum(e, v1), np.maximum(e, v1))
-            img[self.texel[ring]] = np.maximum(line, 0)
+            img[self.texel[ring]] = np.maximum(v1 + w[:, None].astype(np.float32) * (v1 - v2), 0)
         for dst, inv, src, w in self.steps:
             for ch in range(3):
                 img[dst, ch] = np.bincount(inv, w * img[src, ch], len(dst))
