@@ -85,7 +85,7 @@ def ring_sources(texel, inside, edge, res):
     `edge` (N, 2) (texel coordinates, centres at integers) and the next inside texel i2 beyond it.
     Returns ring, i1, i2 (indices into texel) and w: ring value = (1 + w) v1 - w v2, the inside
     values' line carried out to the ring texel (w = 0 where there is no i2; rings with no inside
-    texel within a texel of their point are not listed and keep their own value).
+    texel within 1.5 texels of their point are not listed and keep their own value).
 
     Why not the value at the island's point: along a contact that point is the contact line, the
     darkest value, and bilinear filtering mixes it into the band next to it (docs/accuracy.md,
