@@ -184,6 +184,31 @@ def test_dilation_fills_neighbours_with_their_mean():
     assert img[0].sum() == 0 and img[:, 0].sum() == 0  # one step: one ring
 
 
+@pytest.mark.parametrize("lo, hi", [((4, 5), (11, 9)), ((4.3, 5.6), (10.8, 9.2))])
+def test_ring_carries_the_inside_values_line_out(lo, hi):
+    """Ring texels hold the inside texels' values carried out along their line, not their own point's
+    value: bilinear reads anywhere in an island of a linear quantity give it exactly, though every
+    ring point's own value is dark (a contact line; docs/accuracy.md, *Texels along contacts*)."""
+    from hr_addon.lightmap.albedo import sample_image
+
+    res = 16
+    (x0, y0), (x1, y1) = np.divide(lo, res), np.divide(hi, res)
+    quad = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    tri_uv = quad[[[0, 1, 2], [0, 2, 3]]]
+    corners = np.concatenate([tri_uv, np.zeros((2, 3, 1))], 2)
+    plan = TexturePlan()
+    plan.add_object("a", "a", res, tri_uv, corners, np.zeros(2, np.int64), "")
+    o = plan.objects[0]
+    xy = np.stack([o.texel % res, o.texel // res], 1) + 0.5
+    f = lambda p: (1.0 + 0.3 * p[:, :1] - 0.2 * p[:, 1:]) * np.array([1.0, 0.5, 2.0])  # noqa: E731
+    values = np.where(o.inside[:, None], f(xy), 0.0)
+    assert (~o.inside).sum() > 2 * (hi[0] - lo[0] + hi[1] - lo[1])
+    img = o.image(values)
+    rng = np.random.default_rng(0)
+    uv = np.concatenate([rng.random((400, 2)) * [x1 - x0, y1 - y0] + [x0, y0], quad])
+    np.testing.assert_allclose(sample_image(img, uv, extension="EXTEND"), f(uv * res), rtol=1e-5)
+
+
 def test_image_structure_check(tmp_path):
     img = np.ones((16, 16, 3), np.float32)
     files = {"a.exr": encode_exr(img), "b.exr": encode_exr(img, "NONE"), "c.png": encode_png16(img)}

@@ -20,7 +20,7 @@ from ..io.cache import TEX_DIR, CacheError, CacheReader
 from ..io.files import atomic_write, link_or_copy
 from ..io.images import encode_exr, encode_png16, image_file_problem
 from . import TextureError
-from .raster import dilation_steps, rasterise
+from .raster import dilation_steps, rasterise, ring_sources
 
 FORMATS = {"EXR": ".exr", "PNG": ".png"}
 REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
@@ -43,17 +43,23 @@ def gather_bytes(texels, rays=128):
 class ObjectTexels:
     """Where one object's texels are: flat texel indices, their slice of the plan's points."""
 
-    def __init__(self, name, res, stem, texel, inside, lo, hi, steps, uv_digest):
+    def __init__(self, name, res, stem, texel, inside, lo, hi, steps, uv_digest, ring=None):
         self.name, self.res, self.stem = name, res, stem
         self.texel, self.inside = texel, inside
         self.lo, self.hi = lo, hi  # slice of the concatenated points
         self.steps = steps
         self.uv_digest = uv_digest
+        self.ring = ring  # raster.ring_sources: the ring texels' values from the inside ones
 
     def image(self, values):
-        """(res, res, 3) float32 image of the values at the texels, dilated."""
+        """(res, res, 3) float32 image of the values at the texels, the ring texels' from the inside
+        texels next to them, dilated."""
         img = np.zeros((self.res * self.res, 3), np.float32)
         img[self.texel] = values
+        if self.ring is not None and len(self.ring[0]):
+            ring, i1, i2, w = self.ring
+            v1, v2 = img[self.texel[i1]], img[self.texel[i2]]
+            img[self.texel[ring]] = np.maximum(v1 + w[:, None].astype(np.float32) * (v1 - v2), 0)
         for dst, inv, src, w in self.steps:
             for ch in range(3):
                 img[dst, ch] = np.bincount(inv, w * img[src, ch], len(dst))
@@ -141,11 +147,10 @@ class TexturePlan:
         self._parts.append((np.einsum("nk,nkj->nj", bary, corners[tri]), own.astype(np.int64), r + n))
         self._axes.append(texel_axes(tri_uv, corners, res)[tri])
         self._tris.append(corners[tri])
-        self.objects.append(
-            ObjectTexels(
-                name, res, stem, texel, inside, n, n + len(texel), dilation_steps(texel, res), uv_digest
-            )
-        )
+        edge = np.einsum("nk,nkj->nj", bary, np.asarray(tri_uv, np.float64)[tri] * res - 0.5)
+        steps, ring = dilation_steps(texel, res), ring_sources(texel, inside, edge, res)
+        o = ObjectTexels(name, res, stem, texel, inside, n, n + len(texel), steps, uv_digest, ring)
+        self.objects.append(o)
         self._locator = None
         return tri, bary
 

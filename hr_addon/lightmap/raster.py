@@ -4,7 +4,8 @@ the islands, and the dilation steps that fill a few more texels around them.
 Texel (x, y) of a res x res image has its centre at uv = ((x + 0.5) / res, (y + 0.5) / res);
 row 0 is at v = 0, as Blender stores pixels. Texels inside a triangle get the surface point of
 their centre; ring texels (within RING texels) the nearest point of the triangle, so that texels
-that bilinear filtering reads at island edges hold the surface's value, not black.
+that bilinear filtering reads at island edges hold the surface's value, not black. The image then
+writes each ring texel from the inside texels next to it (ring_sources), not from its own point.
 """
 
 import numpy as np
@@ -77,6 +78,43 @@ def rasterise(tri_uv, res, ring=RING, budget=400_000):
     o = np.lexsort((tri, dist, texel))
     firsts = o[np.r_[True, texel[o][1:] != texel[o][:-1]]]
     return texel[firsts], tri[firsts], bary[firsts], inside[firsts]
+
+
+def ring_sources(texel, inside, edge, res):
+    """Where each ring texel's value comes from: the inside texel i1 nearest to its island point
+    `edge` (N, 2) (texel coordinates, centres at integers) and the next inside texel i2 beyond it.
+    Returns ring, i1, i2 (indices into texel) and w: ring value = (1 + w) v1 - w v2, the inside
+    values' line carried out to the ring texel (w = 0 where there is no i2; rings with no inside
+    texel within 1.5 texels of their point are not listed and keep their own value).
+
+    Why not the value at the island's point: along a contact that point is the contact line, the
+    darkest value, and bilinear filtering mixes it into the band next to it (docs/accuracy.md,
+    *Texels along contacts*); the line through the inside texels keeps seams and gradients."""
+    texel, inside = np.asarray(texel, np.int64), np.asarray(inside, bool)
+    dense = np.full(res * res, -1, np.int64)
+    dense[texel[inside]] = np.flatnonzero(inside)
+    ring = np.flatnonzero(~inside)
+    p = np.asarray(edge, np.float64)[ring]
+    best, best_d = np.full(len(ring), -1, np.int64), np.full(len(ring), np.inf)
+    base = np.floor(p).astype(np.int64)
+    for dy in (-1, 0, 1, 2):
+        for dx in (-1, 0, 1, 2):
+            x, y = base[:, 0] + dx, base[:, 1] + dy
+            ok = (x >= 0) & (x < res) & (y >= 0) & (y < res)
+            j = np.where(ok, dense[np.clip(y, 0, res - 1) * res + np.clip(x, 0, res - 1)], -1)
+            d = np.hypot(x - p[:, 0], y - p[:, 1])
+            better = (j >= 0) & (d < best_d) & (d <= 1.5)
+            best, best_d = np.where(better, j, best), np.where(better, d, best_d)
+    keep = best >= 0
+    ring, i1 = ring[keep], best[keep]
+    rx, ry = texel[ring] % res, texel[ring] // res
+    x1, y1 = texel[i1] % res, texel[i1] // res
+    sx, sy = np.sign(x1 - rx), np.sign(y1 - ry)  # one texel step on from i1, away from the ring
+    x2, y2 = x1 + sx, y1 + sy
+    ok = (x2 >= 0) & (x2 < res) & (y2 >= 0) & (y2 < res) & ((sx != 0) | (sy != 0))
+    i2 = np.where(ok, dense[np.clip(y2, 0, res - 1) * res + np.clip(x2, 0, res - 1)], -1)
+    w = np.where(i2 >= 0, np.hypot(x1 - rx, y1 - ry) / np.maximum(np.hypot(sx, sy), 1), 0.0)
+    return ring, i1, np.where(i2 >= 0, i2, i1), w
 
 
 def dilation_steps(covered, res, steps=DILATE):
