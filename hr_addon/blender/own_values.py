@@ -21,38 +21,53 @@ from .names import ATTRIBUTE, N_VALUES, TAG
 GROUP_VERSION = 1
 
 
-def _group(domain):
-    """Node group: HR_Radiance = the helper's HR_Radiance at the same index, on `domain`."""
-    name = f"{N_VALUES} {domain.lower()}"
+def geometry_group(name, version, socket, socket_type, store, value):
+    """The geometry-node group `name`, made anew unless one tagged with `version` exists: inputs
+    Geometry and `socket` (of `socket_type`), output the Geometry with the named attribute `store`
+    = (name, data type, domain) set to value(nodes, link, group input) -> (the nodes it made, the
+    socket of the value). Plain nodes: a file opened without the extension evaluates the same."""
     g = bpy.data.node_groups.get(name)
-    if g is not None and g.get(TAG) == GROUP_VERSION:
+    if g is not None and g.get(TAG) == version:
         return g
     g = bpy.data.node_groups.new(name, "GeometryNodeTree")
-    g[TAG] = GROUP_VERSION
+    g[TAG] = version
     g.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    g.interface.new_socket("Values", in_out="INPUT", socket_type="NodeSocketObject")
+    g.interface.new_socket(socket, in_out="INPUT", socket_type=socket_type)
     g.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
     nodes, link = g.nodes, g.links.new
     gi, go = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
-    info = nodes.new("GeometryNodeObjectInfo")
-    link(gi.outputs["Values"], info.inputs["Object"])
-    attr = nodes.new("GeometryNodeInputNamedAttribute")
-    attr.data_type = "FLOAT_COLOR"
-    attr.inputs["Name"].default_value = ATTRIBUTE
-    sample = nodes.new("GeometryNodeSampleIndex")
-    sample.data_type, sample.domain = "FLOAT_COLOR", domain
-    link(info.outputs["Geometry"], sample.inputs["Geometry"])
-    link(attr.outputs["Attribute"], sample.inputs[1])
-    link(nodes.new("GeometryNodeInputIndex").outputs[0], sample.inputs["Index"])
-    store = nodes.new("GeometryNodeStoreNamedAttribute")
-    store.data_type, store.domain = "FLOAT_COLOR", domain
-    store.inputs["Name"].default_value = ATTRIBUTE
-    link(gi.outputs["Geometry"], store.inputs["Geometry"])
-    link(sample.outputs[0], store.inputs["Value"])
-    link(store.outputs["Geometry"], go.inputs["Geometry"])
-    for k, nd in enumerate((gi, info, attr, sample, store, go)):
+    made, out = value(nodes, link, gi)
+    st = nodes.new("GeometryNodeStoreNamedAttribute")
+    attribute, st.data_type, st.domain = store
+    st.inputs["Name"].default_value = attribute
+    link(gi.outputs["Geometry"], st.inputs["Geometry"])
+    link(out, st.inputs["Value"])
+    link(st.outputs["Geometry"], go.inputs["Geometry"])
+    for k, nd in enumerate((gi, *made, st, go)):
         nd.location = (200 * k, 0)
     return g
+
+
+def _group(domain):
+    """Node group: HR_Radiance = the helper's HR_Radiance at the same index, on `domain`."""
+
+    def value(nodes, link, gi):
+        info = nodes.new("GeometryNodeObjectInfo")
+        link(gi.outputs["Values"], info.inputs["Object"])
+        attr = nodes.new("GeometryNodeInputNamedAttribute")
+        attr.data_type = "FLOAT_COLOR"
+        attr.inputs["Name"].default_value = ATTRIBUTE
+        sample = nodes.new("GeometryNodeSampleIndex")
+        sample.data_type, sample.domain = "FLOAT_COLOR", domain
+        link(info.outputs["Geometry"], sample.inputs["Geometry"])
+        link(attr.outputs["Attribute"], sample.inputs[1])
+        link(nodes.new("GeometryNodeInputIndex").outputs[0], sample.inputs["Index"])
+        return (info, attr, sample), sample.outputs[0]
+
+    store = (ATTRIBUTE, "FLOAT_COLOR", domain)
+    return geometry_group(
+        f"{N_VALUES} {domain.lower()}", GROUP_VERSION, "Values", "NodeSocketObject", store, value
+    )
 
 
 def _modifier(obj):

@@ -35,6 +35,7 @@ from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
 from .materials import albedo_texture
 from .names import N_ATTR, N_PACK, N_TEX, N_UV, PREVIEW, TAG, UV_NAME
+from .own_values import geometry_group
 from .paths import bake_dir_abs, blend_relative, frame_texture
 from .preview import emission_output, node_named
 from .scene_in import evaluated, mesh_topology
@@ -203,37 +204,23 @@ def _pack_modifier(obj):
 def _pack_group():
     """The node group of the N_PACK modifier: HR_Lightmap made anew on the evaluated mesh, charts cut
     where faces meet at more than charts.NEAR_ANGLE (as our own charts), unwrapped (Angle Based)
-    and packed (Pack UV Islands, bounding boxes) with the modifier's Margin. Plain nodes: a
-    render without the extension shows the same lightmap."""
-    g = bpy.data.node_groups.get(N_PACK)
-    if g is not None and g.get(TAG) == PACK_GROUP_VERSION:
-        return g
-    g = bpy.data.node_groups.new(N_PACK, "GeometryNodeTree")
-    g[TAG] = PACK_GROUP_VERSION
-    g.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
-    g.interface.new_socket("Margin", in_out="INPUT", socket_type="NodeSocketFloat")
-    g.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
-    nodes, link = g.nodes, g.links.new
-    gi, go = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
-    angle = nodes.new("GeometryNodeInputMeshEdgeAngle")
-    seam = nodes.new("ShaderNodeMath")
-    seam.operation = "GREATER_THAN"
-    seam.inputs[1].default_value = np.radians(NEAR_ANGLE)
-    link(angle.outputs["Unsigned Angle"], seam.inputs[0])
-    unwrap = nodes.new("GeometryNodeUVUnwrap")
-    link(seam.outputs[0], unwrap.inputs["Seam"])
-    pack = nodes.new("GeometryNodeUVPackIslands")
-    link(unwrap.outputs["UV"], pack.inputs["UV"])
-    link(gi.outputs["Margin"], pack.inputs["Margin"])
-    store = nodes.new("GeometryNodeStoreNamedAttribute")
-    store.data_type, store.domain = "FLOAT2", "CORNER"
-    store.inputs["Name"].default_value = UV_NAME
-    link(gi.outputs["Geometry"], store.inputs["Geometry"])
-    link(pack.outputs["UV"], store.inputs["Value"])
-    link(store.outputs["Geometry"], go.inputs["Geometry"])
-    for k, nd in enumerate((gi, angle, seam, unwrap, pack, store, go)):
-        nd.location = (200 * k, 0)
-    return g
+    and packed (Pack UV Islands, bounding boxes) with the modifier's Margin."""
+
+    def value(nodes, link, gi):
+        angle = nodes.new("GeometryNodeInputMeshEdgeAngle")
+        seam = nodes.new("ShaderNodeMath")
+        seam.operation = "GREATER_THAN"
+        seam.inputs[1].default_value = np.radians(NEAR_ANGLE)
+        link(angle.outputs["Unsigned Angle"], seam.inputs[0])
+        unwrap = nodes.new("GeometryNodeUVUnwrap")
+        link(seam.outputs[0], unwrap.inputs["Seam"])
+        pack = nodes.new("GeometryNodeUVPackIslands")
+        link(unwrap.outputs["UV"], pack.inputs["UV"])
+        link(gi.outputs["Margin"], pack.inputs["Margin"])
+        return (angle, seam, unwrap, pack), pack.outputs["UV"]
+
+    store = (UV_NAME, "FLOAT2", "CORNER")
+    return geometry_group(N_PACK, PACK_GROUP_VERSION, "Margin", "NodeSocketFloat", store, value)
 
 
 def _border(obj, depsgraph, res):
