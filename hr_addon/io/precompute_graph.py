@@ -33,7 +33,7 @@ _TRANSIENT = {
         "_shift": None,
         "_loop_parts": dict,
         "_mean_weights": None,
-        "_cols_intp": None,
+        "_cols_read": None,
     },
 }
 _TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]
