@@ -19,7 +19,7 @@ _TRANSIENT = {
     # (not _ext, the solver's far-link terms: geometry only, set by the build's base solution, and
     # seconds to make again at 100k on a re-bake's first light event)
     "Links": {"_csr": None},
-    "Contacts": {"_grid": None, "_seg_cm": None, "_disc": None},
+    "Contacts": {"_tables": dict},
     "ClusterTree": {"_group_runs_": None, "_grad_rows": None, "_centre9": None},
     "FinalGather": {
         "_shape_cache": dict,
