@@ -7,6 +7,7 @@ pair of checkouts run in turn (--root). The values read are written to --dump (t
 """
 
 import argparse
+import json
 import os
 import resource
 import sys
@@ -51,7 +52,8 @@ def main_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
 def paired(levels, Ys, threads, repeat):
     """Per level, main's read (main_matvec over the intp columns, as main's second level reads)
     and this checkout's (_read) in turn, `repeat` times each: CPU medians and their ratio, values
-    equal (asserted)."""
+    equal (asserted). -> {level: (main's CPU s per repeat, this one's)}."""
+    got = {}
     for k, (lv, Y) in enumerate(zip(levels, Ys)):
         lv.threads = threads
         ci = lv.cols.astype(np.intp)
@@ -67,11 +69,13 @@ def paired(levels, Ys, threads, repeat):
                 cpu[name].append(time.process_time() - c0)
                 assert np.array_equal(v, lv._read((Y, None, None, None)))
         m, t = np.median(cpu["main"]), np.median(cpu["this"])
+        got[f"level{k}"] = (cpu["main"], cpu["this"])
         print(
             f"level {k}, {threads} thread(s), load {os.getloadavg()[0]:.2f}: CPU a read,"
             f" main {m * 1e3:.1f} ms, this {t * 1e3:.1f} ms ({t / m:.3f}x)",
             flush=True,
         )
+    return got
 
 
 def main(argv=None):
@@ -81,13 +85,15 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=10)
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--dump", default=None)
+    ap.add_argument("--json", default=None, help="--paired: the CPU seconds of every read")
     ap.add_argument("--paired", action="store_true", help="main's read and this one's in turn (paired())")
     ap.add_argument("--step", type=int, default=None, help="final.READ_STEP for this checkout's reads")
     args = ap.parse_args(argv)
     sys.path.insert(0, args.root)
+    from hr_addon.io import precompute as pc  # (first: bench_gather_events puts this checkout first)
+
     sys.path.insert(1, str(ROOT / "benchmarks"))
     from bench_gather_events import load_store
-    from hr_addon.io import precompute as pc
 
     if args.step:
         from hr_addon.core.gather import final
@@ -101,8 +107,9 @@ def main(argv=None):
     for lv, Y in zip(levels, Ys):
         lv._read((Y, None, None, None))  # (its kept columns made)
     if args.paired:
-        for t in map(int, args.threads.split(",")):
-            paired(levels, Ys, t, args.repeat)
+        got = {t: paired(levels, Ys, int(t), args.repeat) for t in args.threads.split(",")}
+        if args.json:
+            Path(args.json).write_text(json.dumps(dict(step=args.step, threads=got)))
         return
     for t in map(int, args.threads.split(",")):
         for k, (lv, Y) in enumerate(zip(levels, Ys)):
@@ -115,7 +122,8 @@ def main(argv=None):
                 csw.append(resource.getrusage(resource.RUSAGE_SELF).ru_nvcsw - s0)
             out[f"level{k}"] = v
             print(
-                f"{args.root}: level {k}, {t} thread(s), load {os.getloadavg()[0]:.2f}: CPU a read median"
+                f"{Path(pc.__file__).parents[1]}: level {k}, {t} thread(s), load {os.getloadavg()[0]:.2f}:"
+                " CPU a read median"
                 f" {np.median(cpu) * 1e3:.1f} ms (min {min(cpu) * 1e3:.1f}),"
                 f" voluntary switches {np.median(csw):.0f}",
                 flush=True,
