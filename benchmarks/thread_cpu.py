@@ -106,7 +106,9 @@ def usage():
         if f and f[0].rstrip(":") in IRQS:
             irq[f[0].rstrip(":")] = sum(int(v) for v in f[1:] if v.isdigit())
     irq = [irq.get(k, 0) for k in IRQS]
-    return np.array([r.ru_utime, r.ru_stime, r.ru_minflt, r.ru_nvcsw, r.ru_nivcsw, *vm, *irq])
+    f = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    busy = (sum(f) - f[3] - f[4]) / os.sysconf("SC_CLK_TCK")  # every core's busy CPU s (all processes)
+    return np.array([r.ru_utime, r.ru_stime, r.ru_minflt, r.ru_nvcsw, r.ru_nivcsw, *vm, *irq, busy])
 
 
 def dispatch(reps=300):
@@ -151,7 +153,9 @@ def measured(maps, fn):
     u = usage() - u0
     rec = dict(cpu=time.process_time() - c0, wall=time.perf_counter() - w0, user=u[0], sys=u[1])
     rec.update(minflt=int(u[2]), nvcsw=int(u[3]), nivcsw=int(u[4]), maps=maps[m0:])
-    rec.update({k: int(v) for k, v in zip(VMSTAT + IRQS, u[5:])})
+    rec.update({k: int(v) for k, v in zip(VMSTAT + IRQS, u[5:-1])})
+    # the CPU other processes took meanwhile (/proc/stat, 10 ms ticks): 0 on an idle machine
+    rec["foreign"] = float(u[-1] - rec["user"] - rec["sys"])
     return rec
 
 
@@ -256,6 +260,7 @@ def summary(runs):
                 csw=med(lambda x: x["nvcsw"] + x["nivcsw"]),
                 compact=med(lambda x: x.get("compact_stall", 0)),
                 tlb=med(lambda x: x.get("TLB", 0)),
+                foreign=med(lambda x: x.get("foreign", 0.0)),
                 maps=med(lambda x: len(x["maps"])),
                 batches=med(lambda x: sum(m[0] for m in x["maps"])),
                 off_caller=med(lambda x: sum(m[5] for m in x["maps"])),
@@ -361,6 +366,7 @@ def main(argv=None):
         "csw",
         "compact",
         "tlb",
+        "foreign",
         "maps",
         "batches",
         "off_caller",
