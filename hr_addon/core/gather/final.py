@@ -46,9 +46,9 @@ SLOT_BATCH = 1 << 13
 
 
 # entries a thread reads at a time within a row block of _csr_matvec: its products (0.5 MB of
-# float32) and columns stay in the core's cache across the three channels, taken into a buffer the
-# thread keeps (100k room, a second-level pass: 9% less CPU than whole 2^20-entry blocks; the same
-# rows summed, so the same bits)
+# float32, into a buffer the thread keeps) and columns stay in the caches across the three
+# channels (100k room, with _read_cols' columns: a read's CPU 0.75-0.79x main's in steps of 2^17,
+# 0.88-0.91x in whole 2^20-entry blocks; whole rows summed, so the same bits)
 READ_STEP = 1 << 17
 _scratch = threading.local()  # each thread's products buffer for _csr_matvec
 
@@ -1233,7 +1233,8 @@ class FinalGather(DirectLight):
         the rows of the value array a read takes, _csr_matvec), int32, made once and kept (not
         stored: precompute_graph._TRANSIENT; made again when the columns change). The 100k room's
         second level reads 187k of its 514k rows: their 0.75 MB a channel stays in a core's cache
-        where the whole 2 MB did not (a pass's CPU 9% less; the same products in the same order)."""
+        where the whole 2 MB did not (the same products in the same order; docs/threads.md,
+        session 21). Made by batches of ENTRY_BATCH weights on threads: 0.15 s of CPU at 100k."""
         got = self.__dict__.get("_cols_read")
         if got is None or got[0] is not self.cols:  # (one assignment: threads may race to make it)
             cols = self.cols
