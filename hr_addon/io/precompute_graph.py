@@ -33,6 +33,8 @@ _TRANSIENT = {
         "_shift": None,
         "_loop_parts": dict,
         "_mean_weights": None,
+        "_mean_runs": None,
+        "_near_own": None,
         "_cols_read": None,
     },
 }

@@ -301,6 +301,7 @@ class FinalGather(DirectLight):
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
     ENTRY_BATCH = 1 << 21  # weights per batch of _remap_near, _read_cols on threads (fixed: the same values)
     POINT_BATCH = 1 << 15  # samples per batch of their setup (onto_patch) on threads (fixed)
+    ROW_BATCH = 1 << 15  # leaves or rows per batch of the passes' leaf means, near rows (fixed)
     threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
     # restored from stored arrays runs inline until told otherwise)
     near_points = 0  # (a class default too: a gather stored before near hits restores without it)
@@ -1211,8 +1212,16 @@ class FinalGather(DirectLight):
         leaf's value."""
         if not self.near_points or self.second is None:
             return V
-        own = np.repeat(self._second_map[0], np.diff(self._second_start))
-        return np.vstack([V[: self.n_hr], np.take(V, own, 0)])  # (rows by take: 3x faster)
+        own = self.__dict__.get("_near_own")
+        if own is None:  # the static geometry's (one assignment: threads may race to make it)
+            own = self._near_own = np.repeat(self._second_map[0], np.diff(self._second_start))
+        m = self.n_hr
+        out = np.empty((m + len(own),) + V.shape[1:], V.dtype)
+        out[:m] = V[:m]
+        # rows by take (3x faster than fancy indexing), by ranges on threads: each row its own
+        part = lambda a, b: np.take(V, own[a:b], 0, out=out[m + a : m + b], mode="clip")  # noqa: E731
+        batch_map(part, ranges(len(own), self.ROW_BATCH), self.threads)
+        return out
 
     def _read(self, L, cols=None):
         """(n, 3) what the rays read of leaf values L = (means Y, S, slopes along e1 and e2;
@@ -1273,10 +1282,22 @@ class FinalGather(DirectLight):
             yk = y.reshape(len(used), -1, 3)
             out[rows] = np.einsum("uk,ukc->uc", wn, yk if ok is None else yk[ok])
         elif len(used):
-            w = gw * ~self.second.dark
-            ws = np.add.reduceat(w, start[:-1])
-            ok = ws > 0
-            out[used[ok]] = np.add.reduceat(w[:, None] * y, start[:-1], 0)[ok] / ws[ok, None]
+            got = self.__dict__.get("_mean_runs")
+            if got is None:  # the static geometry's (every pass of every event reads them)
+                w = gw * ~self.second.dark
+                ws = np.add.reduceat(w, start[:-1])
+                got = self._mean_runs = (w, ws, ws > 0, bool((np.diff(start) > 0).all()))
+            w, ws, ok, full = got
+
+            def part(a, b):  # leaves a..b: each its own samples' sum (the same segments as one sum)
+                s0, s1 = start[a], start[b]
+                k = ok[a:b]
+                sums = np.add.reduceat(w[s0:s1, None] * y[s0:s1], start[a:b] - s0, 0)
+                out[used[a:b][k]] = sums[k] / ws[a:b][k, None]
+
+            # by ranges of leaves on threads, where every leaf has samples (an empty one's
+            # reduceat would read past its range's end)
+            batch_map(part, ranges(len(used), self.ROW_BATCH) if full else [(0, len(used))], self.threads)
         return np.vstack([out, y]) if self.near_points else out
 
     def _light_bounce(self, rec, Y, scale=1.0):
