@@ -653,7 +653,8 @@ def test_near_hits_read_the_nearest_of_finer_samples_against_path_tracing():
 def test_texture_plan_gathers_no_ring_texel_written_from_inside_ones():
     """The ring texels whose image value comes from the inside texels (raster.ring_sources) are not
     gathered (TexturePlan.gathered): the Cornell floor's and back wall's lightmaps (the texels
-    over the blocks' footprints gathered over their area) at the bake's two levels, bit for bit the images of a gather at every texel."""
+    over the blocks' footprints gathered over their area) at the bake's two levels: bit for bit
+    the images of a gather at every texel."""
     from hr_addon.lightmap.plan import TexturePlan
     from hr_testing import scenes
 
