@@ -26,12 +26,13 @@ FORMATS = {"EXR": ".exr", "PNG": ".png"}
 REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
 
 
-# The texture bake's peak memory per texel at 128 hemisphere rays, rounded up from the larger of two
-# measures (draft; docs/user_guide.md, "Lightmaps sized by area", session 20): the furnished room at
-# 50 texels/m, 0.824 M texels, peak RSS 2.24 GB with its hierarchy and Blender: 2.7 kB per texel;
-# Cornell at 64 and 128 px, 0.49 and 0.67 GB: 2.2 kB per added texel. (Session 19, before the
-# gather's transients were cut and slot texels took 2 x 2 points: 6 kB)
-GATHER_BYTES_PER_TEXEL = 3000
+# The texture bake's peak memory per texel of the plan at 128 hemisphere rays, rounded up from the
+# larger of two measures (draft; docs/user_guide.md, "Lightmaps sized by area", session 21): the
+# furnished room at 50 texels/m, 0.824 M texels (0.475 M gathered: the others are ring texels
+# written from inside ones), peak RSS 1.47 GB with its hierarchy and Blender: 1.8 kB per texel;
+# Cornell at 64 and 128 px, 0.47 and 0.59 GB: 1.4 kB per added texel. (Session 20, the ring texels
+# gathered and float32 weights: 3 kB; session 19, before the gather's transients were cut: 6 kB)
+GATHER_BYTES_PER_TEXEL = 2000
 
 
 def gather_bytes(texels, rays=128):
