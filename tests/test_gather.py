@@ -795,7 +795,7 @@ def test_csr_matvec_of_hit_counts_equals_their_float32_weights():
     """FinalGather.w holds hit counts (uint8) where every hit weighs 1 and every row's rays are a
     power of two; _csr_matvec divides each row's sum by its rays: bit for bit the float32 weights
     count / rays (one ray count for all rows, or per row), and a count without rays is refused. A
-    gather's entry_weights are those float32 weights."""
+    gather's entry_weights are those float32 weights; with 100 rays it keeps float32 weights."""
     from hr_addon.core.gather import _csr_matvec
 
     rng = np.random.default_rng(5)
@@ -823,6 +823,9 @@ def test_csr_matvec_of_hit_counts_equals_their_float32_weights():
     assert g.w.dtype == np.uint8 and w.dtype == np.float32
     assert np.array_equal(w, (g.w / np.repeat(sr, np.diff(g.indptr))).astype(np.float32))
     assert np.array_equal(g.entry_weights(5, 900), w[5:900])
+    # 100 rays: a row's sum over 100 is not the float32 weights' sum: those stay
+    g = FinalGather(s, pts[:40], s.patches.normal[patch[:40]], patch[:40], rays=100, levels=1)
+    assert g.w.dtype == np.float32 and np.array_equal(g.entry_weights(), g.w)
 
 
 def test_corner_samples_buried_in_clutter_move_to_the_visible_part():
