@@ -229,8 +229,9 @@ class TexturePlan:
         reflected x albedo / average + emission; IRRADIANCE: irradiance / pi (no emission);
         INDIRECT: irradiance / pi without the Blender lights' and the World's direct light
         (core.lights.indirect_incident; needs the gather).
-        gather: final_gather() of this plan: the texels gather their own light (issue 19); None:
-        the solution's leaves, interpolated (today's output, unchanged)."""
+        gather: final_gather() of this plan: the texels gather their own light (issue 19), 0 at
+        the ring texels not gathered (`gathered`: ObjectTexels.image writes them); None: the
+        solution's leaves, interpolated (today's output, unchanged)."""
         if mode == "INDIRECT":
             if gather is None:
                 raise ValueError("the Indirect-only values need the final gather")
