@@ -163,6 +163,7 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
             layout.prop(hr, "texture_format")
         else:
             layout.prop(hr, "domain")
+            layout.prop(hr, "vertex_spacing")
         layout.prop(hr, "cache_folder")
         layout.prop(hr, "threads")
         # an operator for the checkbox: turned on, it starts from the scene's range (props.py)

@@ -1,0 +1,142 @@
+"""Vertex Spacing (Scene.hr.vertex_spacing, own_values): objects with edges longer than the spacing
+show their light at the corners of their mesh subdivided in the HR Radiance modifier, so a one-quad
+wall shows the light that changes across it; off, the bake is today's, and Delete Bake leaves the
+user's meshes and modifiers as they were."""
+
+import numpy as np
+import pytest
+
+from test_blender_helpers import empty_scene
+
+pytestmark = pytest.mark.bpy
+
+RHO, STRENGTH = 0.5, 5.0
+# a 4 x 2.5 m wall facing +y, one quad; a 0.4 m square lamp 0.3 m in front of its west end, facing it
+WALL = ([(0, 0, 0), (0, 0, 2.5), (4, 0, 2.5), (4, 0, 0)], [[0, 1, 2, 3]])
+LAMP = ([(0.2, 0.3, 1.05), (0.6, 0.3, 1.05), (0.6, 0.3, 1.45), (0.2, 0.3, 1.45)], [[0, 1, 2, 3]])
+
+
+def _scene(ms):
+    wall = ms.mesh_object("Wall", *WALL, ms.diffuse("Grey", (RHO,) * 3))
+    ms.mesh_object("Lamp", *LAMP, ms.emission("Glow", (1, 1, 1), STRENGTH))
+    # a user's modifier on another object, which Delete Bake must leave alone (behind the wall: dark)
+    box = ms.mesh_object(
+        "Box",
+        [(x, y, z) for z in (0, 0.2) for y in (-1.2, -1) for x in (3, 3.2)],
+        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
+        ms.diffuse("Grey box", (RHO,) * 3),
+    )
+    box.modifiers.new("Bevel", "BEVEL").width = 0.02
+    return wall
+
+
+def _bake(scene, spacing):
+    """Bake frame 1 (vertex output, draft, final gather on) with Vertex Spacing `spacing`; the
+    wall's evaluated mesh: (world positions (V, 3), loop_start, loop_total, loop_verts, HR_Radiance
+    per corner (L, 3)) and the bake's warnings."""
+    import bpy
+    from hr_addon.blender.bake import run_bake
+    from hr_addon.blender.playback import load_frame
+    from hr_addon.blender.scene_in import mesh_topology
+
+    scene.hr.vertex_spacing = spacing
+    res = run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=(1, 1))
+    assert load_frame(scene, 1)
+    dg = bpy.context.evaluated_depsgraph_get()
+    me = bpy.data.objects["Wall"].evaluated_get(dg).data
+    co, ls, lt, lv = mesh_topology(me)
+    a = me.attributes["HR_Radiance"]
+    assert a.domain == "CORNER"
+    v = np.empty(len(a.data) * 4, np.float32)
+    a.data.foreach_get("color", v)
+    return (co.astype(np.float64), ls, lt, lv, v.reshape(-1, 4)[:, :3].astype(np.float64)), res.warnings
+
+
+def _form_factor(p, n, poly):
+    """Point (K, 3) with normal n to polygon poly (M, 3), unoccluded (Lambert's contour integral)."""
+    R = poly[None] - p[:, None]
+    R /= np.linalg.norm(R, axis=2, keepdims=True)
+    S = np.roll(R, -1, axis=1)
+    g = np.cross(R, S)
+    theta = np.arccos(np.clip((R * S).sum(2), -1, 1))
+    g *= (theta / np.linalg.norm(g, axis=2))[..., None]
+    return np.abs(g.sum(1) @ n) / (2 * np.pi)
+
+
+def _reference(co, ls, lt, lv):
+    """Per corner, the wall's radiance rho L F (nothing else lights it, it sees nothing else) as the
+    vertex output's layout reads a corner (layouts.loop_samples): the mean over the corners at its
+    vertex of the value half way from each to its face's centre."""
+    poly = np.repeat(np.arange(len(ls)), lt)
+    centre = np.stack([np.bincount(poly, co[lv, c]) / lt[poly][np.r_[ls]] for c in range(3)], 1)
+    inset = co[lv] + 0.5 * (centre[poly] - co[lv])
+    b = RHO * STRENGTH * _form_factor(inset, np.array([0.0, 1.0, 0.0]), np.array(LAMP[0], float))
+    per_vert = np.bincount(lv, b, len(co)) / np.maximum(np.bincount(lv, minlength=len(co)), 1)
+    return per_vert[lv]
+
+
+def test_one_quad_wall_shows_the_light_across_it(tmp_path):
+    """Vertex Spacing 0.25 m: the one-quad wall's modifier subdivides it 16 x 16 (level 4: 4 m /
+    16 = 0.25 m), and its corners read the analytic light at each corner within 3% (median within
+    1%), from 3.7 down to 0.004 x the wall's mean; its own four corners (spacing 0) are far off the
+    same light interpolated (the lamp's bright patch shows at none of them)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.own_values import LEVEL, N_VALUES
+
+    _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    (co, ls, lt, lv, val), warnings = _bake(scene, 0.25)
+    md = bpy.data.objects["Wall"].modifiers[-1]
+    assert md.name == N_VALUES and md[md.node_group.interface.items_tree[LEVEL].identifier] == 4
+    assert len(ls) == 256 and len(co) == 17 * 17
+    assert [w for w in warnings if w.startswith("Vertex Spacing 0.25: 2 object(s)") and "'Wall'" in w], (
+        warnings
+    )
+    ref = _reference(co, ls, lt, lv)
+    err = val.mean(1) / ref - 1
+    assert ref.max() / ref.mean() > 3 and ref.min() / ref.mean() < 0.01  # a gradient across the wall
+    assert np.abs(err).max() < 0.03 and np.median(np.abs(err)) < 0.01, (
+        np.abs(err).max(),
+        np.median(np.abs(err)),
+    )
+    # the plain wall: its four corners, interpolated over it as the render does (bilinear in x, z)
+    (co0, _, _, lv0, val0), _ = _bake(scene, 0.0)
+    assert not [m for m in bpy.data.objects["Wall"].modifiers if m.name == N_VALUES]
+    assert len(co0) == 4
+    by = {(round(x, 3), round(z, 3)): v for (x, _, z), v in zip(co0[lv0], val0.mean(1))}
+    u, w = co[lv, 0] / 4, co[lv, 2] / 2.5
+    coarse = (
+        by[0, 0] * (1 - u) * (1 - w) + by[4, 0] * u * (1 - w) + by[0, 2.5] * (1 - u) * w + by[4, 2.5] * u * w
+    )
+    assert np.median(np.abs(coarse / ref - 1)) > 0.3
+
+
+def test_off_is_todays_bake_and_delete_bake_restores_the_meshes(tmp_path):
+    """Spacing 0 after a bake with a spacing: the subdividing modifier and its helper go again (the
+    bevelled box keeps today's, for its topology) and the values are those of the first bake with
+    spacing 0, bit for bit; Delete Bake leaves the user's mesh and modifiers as they were."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.own_values import N_VALUES
+    from hr_addon.blender.ops import _forget_bake
+    from hr_addon.blender.scene_in import mesh_topology
+
+    wall = _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    before = [np.array(a) for a in mesh_topology(wall.data)]
+    stacks = {o.name: [(m.name, m.type) for m in o.modifiers] for o in bpy.data.objects}
+    first, _ = _bake(scene, 0.0)
+    baked = {o.name: [(m.name, m.type) for m in o.modifiers] for o in bpy.data.objects}
+    assert baked["Wall"] == [] and baked["Box"] == [("Bevel", "BEVEL"), (N_VALUES, "NODES")]  # today's
+    fine, _ = _bake(scene, 0.3)
+    assert len(fine[1]) > len(first[1]) and wall.modifiers[-1].name == N_VALUES
+    assert bpy.data.objects["Box"].modifiers[-1].name == N_VALUES  # (its bevel's 0.2 m edges too)
+    again, _ = _bake(scene, 0.0)
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    assert {o.name: [(m.name, m.type) for m in o.modifiers] for o in bpy.data.objects} == baked
+    _bake(scene, 0.3)
+    _forget_bake(scene)
+    assert {o.name: [(m.name, m.type) for m in o.modifiers] for o in bpy.data.objects} == stacks
+    assert not [o for o in bpy.data.objects if o.name.startswith(N_VALUES)]
+    for a, b in zip(before, mesh_topology(wall.data)):
+        np.testing.assert_array_equal(a, b)
