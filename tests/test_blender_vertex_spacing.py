@@ -77,9 +77,9 @@ def _reference(co, ls, lt, lv):
 
 def test_one_quad_wall_shows_the_light_across_it(tmp_path):
     """Vertex Spacing 0.25 m: the one-quad wall's modifier subdivides it 16 x 16 (level 4: 4 m /
-    16 = 0.25 m), and its corners read the analytic light at each corner within 3% (median within
-    1%), from 3.7 down to 0.004 x the wall's mean; its own four corners (spacing 0) are far off the
-    same light interpolated (the lamp's bright patch shows at none of them)."""
+    16 = 0.25 m), and its corners read the analytic light (from 22 down to 0.002 x the wall's
+    mean) as the vertex layout reads it, within 1e-5; its own four corners (spacing 0) interpolated
+    over it are far off the same light (the lamp's bright patch shows at none of them)."""
     bpy, ms, scene = empty_scene()
     from hr_addon.blender.own_values import LEVEL, N_VALUES
 
@@ -93,12 +93,9 @@ def test_one_quad_wall_shows_the_light_across_it(tmp_path):
         warnings
     )
     ref = _reference(co, ls, lt, lv)
-    err = val.mean(1) / ref - 1
-    assert ref.max() / ref.mean() > 3 and ref.min() / ref.mean() < 0.01  # a gradient across the wall
-    assert np.abs(err).max() < 0.03 and np.median(np.abs(err)) < 0.01, (
-        np.abs(err).max(),
-        np.median(np.abs(err)),
-    )
+    assert ref.max() / ref.mean() > 20 and ref.min() / ref.mean() < 0.002  # a gradient across the wall
+    # the final gather's direct light is exact (measured: within 5e-7, the float32 values' rounding)
+    np.testing.assert_allclose(val, np.repeat(ref[:, None], 3, 1), rtol=1e-5)
     # the plain wall: its four corners, interpolated over it as the render does (bilinear in x, z)
     (co0, _, _, lv0, val0), _ = _bake(scene, 0.0)
     assert not [m for m in bpy.data.objects["Wall"].modifiers if m.name == N_VALUES]
@@ -108,7 +105,7 @@ def test_one_quad_wall_shows_the_light_across_it(tmp_path):
     coarse = (
         by[0, 0] * (1 - u) * (1 - w) + by[4, 0] * u * (1 - w) + by[0, 2.5] * (1 - u) * w + by[4, 2.5] * u * w
     )
-    assert np.median(np.abs(coarse / ref - 1)) > 0.3
+    assert np.median(np.abs(coarse / ref - 1)) > 1  # (measured: 5.3)
 
 
 def test_off_is_todays_bake_and_delete_bake_restores_the_meshes(tmp_path):
@@ -129,7 +126,7 @@ def test_off_is_todays_bake_and_delete_bake_restores_the_meshes(tmp_path):
     assert baked["Wall"] == [] and baked["Box"] == [("Bevel", "BEVEL"), (N_VALUES, "NODES")]  # today's
     fine, _ = _bake(scene, 0.3)
     assert len(fine[1]) > len(first[1]) and wall.modifiers[-1].name == N_VALUES
-    assert bpy.data.objects["Box"].modifiers[-1].name == N_VALUES  # (its bevel's 0.2 m edges too)
+    assert bpy.data.objects["Box"].modifiers[-1].name == N_VALUES  # (for its bevel: 0.2 m edges)
     again, _ = _bake(scene, 0.0)
     for a, b in zip(first, again):
         np.testing.assert_array_equal(a, b)
@@ -140,3 +137,40 @@ def test_off_is_todays_bake_and_delete_bake_restores_the_meshes(tmp_path):
     assert not [o for o in bpy.data.objects if o.name.startswith(N_VALUES)]
     for a, b in zip(before, mesh_topology(wall.data)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_panel_shows_the_setting_and_the_live_note():
+    """Render > HR Radiosity: Vertex Spacing under the vertex output's settings, and with a spacing
+    the note that Live Relight shows the finer corners once a bake has added them."""
+    from types import SimpleNamespace
+
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import panels
+
+    class Layout:
+        def __init__(self):
+            self.props, self.labels = [], []
+
+        def __getattr__(self, name):  # column, row, box, operator, progress, ...: this layout again
+            return lambda *a, **kw: self
+
+        def prop(self, owner, name, **kw):
+            self.props.append(name)
+
+        def label(self, text="", **kw):
+            self.labels.append(text)
+
+    def drawn(cls):
+        lay = Layout()
+        cls.draw(SimpleNamespace(layout=lay), SimpleNamespace(scene=scene, object=None))
+        return lay
+
+    lay = drawn(panels.HR_PT_radiosity_settings)
+    assert "vertex_spacing" in lay.props and not [t for t in lay.labels if t.startswith("Live Relight:")]
+    scene.hr.vertex_spacing = 0.25
+    assert (
+        "Live Relight: the finer corners once a bake has added them"
+        in drawn(panels.HR_PT_radiosity_settings).labels
+    )
+    scene.hr.output = "TEXTURE"
+    assert "vertex_spacing" not in drawn(panels.HR_PT_radiosity_settings).props
