@@ -17,6 +17,8 @@ LAMP = ([(0.2, 0.3, 1.05), (0.6, 0.3, 1.05), (0.6, 0.3, 1.45), (0.2, 0.3, 1.45)]
 
 
 def _scene(ms):
+    import bpy
+
     wall = ms.mesh_object("Wall", *WALL, ms.diffuse("Grey", (RHO,) * 3))
     ms.mesh_object("Lamp", *LAMP, ms.emission("Glow", (1, 1, 1), STRENGTH))
     # a user's modifier on another object, which Delete Bake must leave alone (behind the wall: dark)
@@ -27,6 +29,10 @@ def _scene(ms):
         ms.diffuse("Grey box", (RHO,) * 3),
     )
     box.modifiers.new("Bevel", "BEVEL").width = 0.02
+    # 0.6 m edges, 0.15 m after its Subdivision Surface (levels 2): finer than 0.25 m already
+    plane = [(1, -1, 0.5), (1.6, -1, 0.5), (1.6, -1, 1.1), (1, -1, 1.1)]
+    ms.mesh_object("Smooth", plane, [[0, 1, 2, 3]], ms.diffuse("Grey smooth", (RHO,) * 3))
+    bpy.data.objects["Smooth"].modifiers.new("Subdivision", "SUBSURF").levels = 2
     return wall
 
 
@@ -77,9 +83,10 @@ def _reference(co, ls, lt, lv):
 
 def test_one_quad_wall_shows_the_light_across_it(tmp_path):
     """Vertex Spacing 0.25 m: the one-quad wall's modifier subdivides it 16 x 16 (level 4: 4 m /
-    16 = 0.25 m), and its corners read the analytic light (from 22 down to 0.002 x the wall's
-    mean) as the vertex layout reads it, within 1e-5; its own four corners (spacing 0) interpolated
-    over it are far off the same light (the lamp's bright patch shows at none of them)."""
+    16 = 0.25 m; the lamp too, not the plane its Subdivision Surface makes finer already), and its
+    corners read the analytic light (from 22 down to 0.002 x the wall's mean) as the vertex layout
+    reads it, within 1e-5; its own four corners (spacing 0) interpolated over it are far off the
+    same light (the lamp's bright patch shows at none of them)."""
     bpy, ms, scene = empty_scene()
     from hr_addon.blender.own_values import LEVEL, N_VALUES
 

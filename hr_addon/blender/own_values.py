@@ -113,12 +113,15 @@ def _level(md):
     return int(md.get(_socket(md, LEVEL), 0)) if LEVEL in md.node_group.interface.items_tree else 0
 
 
-def subdivision_level(obj, spacing):
-    """Subdivide Mesh's level that takes every edge of obj's faces (in world space, its own mesh:
-    what its modifiers make is not read) under `spacing` (each level halves them), at most
-    MAX_LEVEL; 0 for spacing 0."""
-    me = obj.data
-    if spacing <= 0 or not len(me.loops):
+def subdivision_level(obj, spacing, depsgraph):
+    """Subdivide Mesh's level that takes every edge of the faces of obj's evaluated mesh (world
+    space; its modifiers' result, a Subdivision Surface's finer faces: without its own subdivision)
+    under `spacing` (each level halves them), at most MAX_LEVEL; 0 for spacing 0."""
+    if spacing <= 0:
+        return 0
+    ob = obj.evaluated_get(depsgraph)
+    me = ob.data
+    if not len(me.loops):
         return 0
     ev = np.empty(len(me.edges) * 2, np.int32)
     me.edges.foreach_get("vertices", ev)
@@ -127,7 +130,7 @@ def subdivision_level(obj, spacing):
     ev = ev.reshape(-1, 2)[np.unique(used)]
     co = np.empty(len(me.vertices) * 3, np.float32)
     me.vertices.foreach_get("co", co)
-    M = np.array(obj.matrix_world, np.float64)[:3, :3]
+    M = np.array(ob.matrix_world, np.float64)[:3, :3]
     d = (co.reshape(-1, 3)[ev[:, 0]] - co.reshape(-1, 3)[ev[:, 1]]) @ M.T
     longest = float(np.sqrt((d * d).sum(1)).max())
     return min(max(math.ceil(math.log2(longest / spacing)), 0), MAX_LEVEL) if longest > spacing else 0
@@ -163,14 +166,15 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
     for o in objects:
         users[o.data.name_full] = users.get(o.data.name_full, 0) + 1
     own = [o for o in objects if o.data.library is None and o.library is None]
-    levels = {o.name: subdivision_level(o, spacing) for o in own}
-    # the modifiers' own subdivision out first: whether the user's modifiers change the topology
+    # the modifiers' own subdivision out first: the user's modifiers' result alone (the level, and
+    # whether they change the topology)
     reset = [o for o in own if _modifier(o) is not None and _level(_modifier(o))]
     for o in reset:
         _modifier(o)[_socket(_modifier(o), LEVEL)] = 0
         o.update_tag()
     if reset:
         depsgraph.update()
+    levels = {o.name: subdivision_level(o, spacing, depsgraph) for o in own}
     made, finer, kept = [], [], []
     for obj in own:
         level = levels[obj.name]
