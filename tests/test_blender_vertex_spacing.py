@@ -21,6 +21,14 @@ def _scene(ms):
 
     wall = ms.mesh_object("Wall", *WALL, ms.diffuse("Grey", (RHO,) * 3))
     ms.mesh_object("Lamp", *LAMP, ms.emission("Glow", (1, 1, 1), STRENGTH))
+    # a point light before the wall's east end, on at frame 2 only
+    point = bpy.data.objects.new("Point", bpy.data.lights.new("Point", "POINT"))
+    point.data.energy, point.location = 100.0, (3.5, 0.5, 1.25)
+    bpy.context.scene.collection.objects.link(point)
+    for frame, off in ((1, True), (2, False)):
+        point.hide_render = off
+        point.keyframe_insert("hide_render", frame=frame)
+    ms.interpolation(point, "CONSTANT")
     # a user's modifier on another object, which Delete Bake must leave alone (behind the wall: dark)
     box = ms.mesh_object(
         "Box",
@@ -37,17 +45,23 @@ def _scene(ms):
 
 
 def _bake(scene, spacing):
-    """Bake frame 1 (vertex output, draft, final gather on) with Vertex Spacing `spacing`; the
-    wall's evaluated mesh: (world positions (V, 3), loop_start, loop_total, loop_verts, HR_Radiance
-    per corner (L, 3)) and the bake's warnings."""
-    import bpy
+    """Bake frames 1-2 (vertex output, draft, final gather on) with Vertex Spacing `spacing`, show
+    frame 1; the wall's evaluated mesh (_wall) and the bake's warnings."""
     from hr_addon.blender.bake import run_bake
     from hr_addon.blender.playback import load_frame
-    from hr_addon.blender.scene_in import mesh_topology
 
     scene.hr.vertex_spacing = spacing
-    res = run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=(1, 1))
+    res = run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=(1, 2))
     assert load_frame(scene, 1)
+    return _wall(), res.warnings
+
+
+def _wall():
+    """The wall's evaluated mesh: (world positions (V, 3), loop_start, loop_total, loop_verts,
+    HR_Radiance per corner (L, 3))."""
+    import bpy
+    from hr_addon.blender.scene_in import mesh_topology
+
     dg = bpy.context.evaluated_depsgraph_get()
     me = bpy.data.objects["Wall"].evaluated_get(dg).data
     co, ls, lt, lv = mesh_topology(me)
@@ -55,7 +69,7 @@ def _bake(scene, spacing):
     assert a.domain == "CORNER"
     v = np.empty(len(a.data) * 4, np.float32)
     a.data.foreach_get("color", v)
-    return (co.astype(np.float64), ls, lt, lv, v.reshape(-1, 4)[:, :3].astype(np.float64)), res.warnings
+    return co.astype(np.float64), ls, lt, lv, v.reshape(-1, 4)[:, :3].astype(np.float64)
 
 
 def _form_factor(p, n, poly):
@@ -103,6 +117,14 @@ def test_one_quad_wall_shows_the_light_across_it(tmp_path):
     assert ref.max() / ref.mean() > 20 and ref.min() / ref.mean() < 0.002  # a gradient across the wall
     # the final gather's direct light is exact (measured: within 5e-7, the float32 values' rounding)
     np.testing.assert_allclose(val, np.repeat(ref[:, None], 3, 1), rtol=1e-5)
+    # playback: frame 2 (the point light on: its light across the wall too) and back
+    from hr_addon.blender.playback import load_frame
+
+    assert load_frame(scene, 2)
+    added = (_wall()[4] - val).mean(1)
+    assert added.min() > 0 and added.max() / added.min() > 10, (added.min(), added.max())
+    assert load_frame(scene, 1)
+    np.testing.assert_array_equal(_wall()[4], val)
     # the plain wall: its four corners, interpolated over it as the render does (bilinear in x, z)
     (co0, _, _, lv0, val0), _ = _bake(scene, 0.0)
     assert not [m for m in bpy.data.objects["Wall"].modifiers if m.name == N_VALUES]
