@@ -203,3 +203,24 @@ def test_panel_shows_the_setting_and_the_live_note():
     )
     scene.hr.output = "TEXTURE"
     assert "vertex_spacing" not in drawn(panels.HR_PT_radiosity_settings).props
+
+
+def test_file_without_the_extension_shows_the_same(tmp_path):
+    """The subdivision and the values are plain geometry nodes and a helper mesh saved with the
+    file: opened with the extension off, the wall shows the bake's subdivided mesh and values."""
+    bpy, ms, scene = empty_scene()
+    import hr_addon
+
+    _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    baked, _ = _bake(scene, 0.25)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "baked.blend"))
+    hr_addon.unregister()
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "baked.blend"))
+        assert not hasattr(bpy.context.scene, "hr")
+        got = _wall()
+    finally:
+        hr_addon.register()
+    for a, b in zip(baked, got):
+        np.testing.assert_array_equal(a, b)
