@@ -224,3 +224,30 @@ def test_file_without_the_extension_shows_the_same(tmp_path):
         hr_addon.register()
     for a, b in zip(baked, got):
         np.testing.assert_array_equal(a, b)
+
+
+def test_live_relight_works_on_the_subdivided_mesh_after_a_bake(tmp_path):
+    """Live Relight makes no helpers: before any bake it shows the wall's own four corners; after a
+    bake with the spacing it writes the subdivided wall's corners (a strength x2 doubles them)."""
+    bpy, ms, scene = empty_scene()
+    _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    glow = bpy.data.materials["Glow"].node_tree.nodes["Emission"].inputs["Strength"]
+    scene.hr.vertex_spacing = 0.25
+
+    def live():
+        scene.hr.live = True
+        assert bpy.ops.hr.live_update() == {"FINISHED"}
+        return _wall()
+
+    assert len(live()[3]) == 4  # no bake yet: the mesh's own corners
+    scene.hr.live = False
+    assert bpy.ops.hr.live_update() == {"FINISHED"}
+    baked, _ = _bake(scene, 0.25)
+    first = live()
+    assert len(first[3]) == 1024
+    np.testing.assert_allclose(first[4], baked[4], rtol=1e-5)
+    glow.default_value *= 2
+    np.testing.assert_allclose(live()[4], 2 * first[4], rtol=1e-5)
+    scene.hr.live = False
+    assert bpy.ops.hr.live_update() == {"FINISHED"}
