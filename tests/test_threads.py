@@ -445,7 +445,7 @@ def test_the_threads_setting_and_live_keeping_one_core(monkeypatch):
     hr = SimpleNamespace(
         method="AUTO", quality="DRAFT", domain="CORNER", output="VERTEX", texture_format="EXR",
         radiance_mode="RADIANCE", texture_resolution=256, texel_density=50.0, feps=0.01,
-        aeps=0.001, contacts=True, final_gather=True, threads=0,
+        aeps=0.001, contacts=True, final_gather=True, threads=0, vertex_spacing=0.0,
     )  # fmt: skip
     cfg = BakeConfig.resolve(hr)
     assert (cfg.threads, parallel.resolve_threads(cfg.threads), cfg.live_threads) == (0, 8, 7)
