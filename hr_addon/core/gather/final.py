@@ -328,6 +328,7 @@ class FinalGather(DirectLight):
         near_second=True,
         near_share=0.1,
         reuse=None,
+        tables=None,
     ):
         self.system = s = system.system  # a DynamicRadiosity's built system, or the system itself
         h, pt = s.h, s.patches
@@ -388,6 +389,9 @@ class FinalGather(DirectLight):
         self.near = float(near)
         self.near_read = near_read  # "nearest" point, or "bilinear" between the four around the hit
         self._diam = None
+        # tables of the HR nodes the same for every level of one gather (_shared): the lower levels
+        # (the probe's, the second's) take the top's; dropped once this level is built
+        self._tables = {} if tables is None else tables
         if covered_hits not in ("zero", "shown"):
             raise ValueError("covered_hits must be 'zero' or 'shown'")
         # "zero": rays reaching a point contacts.py calls covered read 0 (values_at); "shown": they
@@ -446,7 +450,7 @@ class FinalGather(DirectLight):
             threads,
         )
         del self._trace
-        self._near_x = None  # the batches' table (28 MB at 100k): not held while lower levels run
+        self._near_x = None  # (the batches' table, 28 MB at 100k: the lower levels read it from _tables)
         if reuse is not None:
             self._reuse_rows(*reuse)
         if near_layout is not None:
@@ -477,6 +481,7 @@ class FinalGather(DirectLight):
                 open_edge=0.0,  # the leaves' values stand for their uncovered part, as exposure has it
                 near=self.near,
                 near_read=self.near_read,
+                tables=self._tables,
             )
             fine, reuse = np.zeros(self.n_hr, bool), None
 
@@ -564,6 +569,7 @@ class FinalGather(DirectLight):
             # points (issue 20: the spot's bounce read 2% dark through them)
             self.second._leaf_nodes = (used, k2)
         self.stats["precompute_cpu"] = time.process_time() - t0
+        del self._tables
         self._D_static = None
         self._shape_cache = {}  # geom_key -> (unit D (n,) float32, indices inside the outline)
         # DynamicRadiosity in "response" mode: D + I of the base solution and of each shape's
@@ -780,7 +786,7 @@ class FinalGather(DirectLight):
         f.dark, f.n, f.E_static = np.zeros(m, bool), m, np.zeros((m, 3))
         f.texel_area, f.gain, f._slot, f.second, f.group = None, None, None, None, None
         f._D_static, f._shape_cache = None, {}
-        for k in ("_light_cache", "_leaf_nodes", "_preview_cache", "_bounce_cache"):
+        for k in ("_light_cache", "_leaf_nodes", "_preview_cache", "_bounce_cache", "_tables"):
             f.__dict__.pop(k, None)
         for k in ("indptr", "cols", "w", "wu", "wv", "offsets", "rho", "leaf0", "sample_rays"):
             setattr(f, k, None)
@@ -910,10 +916,22 @@ class FinalGather(DirectLight):
         return own + (self.second.weights_bytes if self.second is not None else 0)
 
     # -- precompute: hemisphere rays -> CSR rows over HR leaves -------------------------------------
+    def _shared(self, name, make):
+        """make(), a table of the HR nodes, made once for every level of a gather under
+        construction (the split lines, the leaves' diameters, the near points: the same for the
+        probe and the second level, each 0.1-0.5 s CPU at 100k), else once here."""
+        tables = getattr(self, "_tables", None)
+        got = None if tables is None else tables.get(name)
+        if got is None:
+            got = make()
+            if tables is not None:
+                tables[name] = got  # (one assignment: threads may race, never half)
+        return got
+
     def _lines(self):
         """The HR nodes' split lines for locate_below, once per gather (not stored: rebuilt)."""
         if getattr(self, "_split", None) is None:  # one assignment: threads may race, never half
-            self._split = split_lines(self.system.h, self.n_hr)
+            self._split = self._shared("split", lambda: split_lines(self.system.h, self.n_hr))
         return self._split
 
     def gather_batch(self, a, b):
@@ -924,17 +942,20 @@ class FinalGather(DirectLight):
         h, pt = s.h, s.patches
         m = b - a
         rr = np.full(m, self.rays) if self.sample_rays is None else self.sample_rays[a:b]
-        rows, dirs = [np.zeros(0, np.int64)], [np.zeros((0, 3))]
+        sels, dirs = [], []
         for R in np.unique(rr):  # covered samples trace nothing
             sel = np.flatnonzero((rr == R) & self._trace[a:b])
-            d = cosine_directions(self.normals[a + sel], self.keys[a + sel], int(R), self.seed, stream=0)
-            rows.append(np.repeat(sel, R))
-            dirs.append(d.reshape(-1, 3))
-        row, dirs = np.concatenate(rows), np.concatenate(dirs)
-        if not len(row):
+            if len(sel):
+                d = cosine_directions(self.normals[a + sel], self.keys[a + sel], int(R), self.seed, stream=0)
+                sels.append(sel)
+                dirs.append(d.reshape(-1, 3))
+        if not sels:
             e = np.zeros(0, np.float32) if self.slopes else None
             return np.zeros(m, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32), e, e
-        org = self._origins(a + row)
+        sel = np.concatenate(sels)
+        row = np.repeat(sel, rr[sel])
+        dirs = dirs[0] if len(dirs) == 1 else np.concatenate(dirs)
+        org = np.repeat(self._origins(a + sel), rr[sel], 0)  # (a sample's origin made once, not per ray)
         prim, t = self.first_hit(org, dirs)
         ok = prim >= 0
         patch = np.where(ok, self.tri_patch[np.maximum(prim, 0)], 0)
@@ -950,7 +971,8 @@ class FinalGather(DirectLight):
         col, er, ew = leaf.copy(), row[i], np.ones(len(i))
         if self.near_points:
             if self._diam is None:  # one assignment: threads may race, never half
-                self._diam = _diameters(h, np.arange(self.n_hr))
+                # (a copy: each level stores its own, as before)
+                self._diam = self._shared("diam", lambda: _diameters(h, np.arange(self.n_hr))).copy()
             nr = np.flatnonzero(t[i] < self.near * self._diam[leaf])
             k = self.near_points
             if self.near_read == "bilinear":
@@ -961,7 +983,7 @@ class FinalGather(DirectLight):
                 ew = np.concatenate([ew[far], pw.ravel()])
             else:
                 if getattr(self, "_near_x", None) is None:  # one assignment: threads may race, never half
-                    self._near_x = _near_points(h, self.n_hr, k)
+                    self._near_x = self._shared(("near", k), lambda: _near_points(h, self.n_hr, k))
                 col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(self._near_x, leaf[nr], hit[lit][nr]))
         span = self.n_hr * (1 + self.near_points**2)
         key = er.astype(np.int64) * span + col
