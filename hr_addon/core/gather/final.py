@@ -262,6 +262,28 @@ def _grid_read(h, leaf, hit, k):
     return idx, wts
 
 
+_SENTINEL = np.iinfo(np.int32).max
+
+
+def _row_sorted(row, col, m, span):
+    """np.sort(row * span + col) (int64) for entries whose rows row (in [0, m)) each lie together
+    (a sample's rays), col in [0, span), span < 2^31 - 1: each row's columns sorted in its own
+    row of an (m, longest run) int32 table (sorts of 128 in place of one of ~500k int64 keys: 3x
+    faster per batch of hemisphere rays)."""
+    n = len(row)
+    if not n:
+        return np.zeros(0, np.int64)
+    start = np.flatnonzero(np.r_[True, row[1:] != row[:-1]])
+    run = np.diff(np.r_[start, n])
+    width = int(run.max())
+    T = np.full((m, width), _SENTINEL, np.int32)
+    T.ravel()[row * width + (np.arange(n) - np.repeat(start, run))] = col
+    T.sort(1)
+    T = T.ravel()
+    at = np.flatnonzero(T != _SENTINEL)
+    return (at // width) * span + T[at]
+
+
 # ---------------------------------------------------------------------------------------------- gather
 
 
@@ -967,7 +989,7 @@ class FinalGather(DirectLight):
             lit = ~h.dark(leaf, hit)  # covered points read 0
         else:
             lit = h.exposure[leaf] > 0
-        i, leaf = i[lit], leaf[lit]
+        i, leaf, hit = i[lit], leaf[lit], hit[lit]
         col, er, ew = leaf.copy(), row[i], np.ones(len(i))
         if self.near_points:
             if self._diam is None:  # one assignment: threads may race, never half
@@ -976,7 +998,7 @@ class FinalGather(DirectLight):
             nr = np.flatnonzero(t[i] < self.near * self._diam[leaf])
             k = self.near_points
             if self.near_read == "bilinear":
-                pnt, pw = _grid_read(h, leaf[nr], hit[lit][nr], k)
+                pnt, pw = _grid_read(h, leaf[nr], hit[nr], k)
                 far = np.setdiff1d(np.arange(len(i)), nr)
                 col = np.concatenate([col[far], (leaf[nr, None] + self.n_hr * (1 + pnt)).ravel()])
                 er = np.concatenate([er[far], np.repeat(er[nr], 4)])
@@ -984,14 +1006,19 @@ class FinalGather(DirectLight):
             else:
                 if getattr(self, "_near_x", None) is None:  # one assignment: threads may race, never half
                     self._near_x = self._shared(("near", k), lambda: _near_points(h, self.n_hr, k))
-                col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(self._near_x, leaf[nr], hit[lit][nr]))
+                if len(nr) == len(i):  # (every hit near: no copies)
+                    col += self.n_hr * (1 + _nearest_point(self._near_x, leaf, hit))
+                else:
+                    col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(self._near_x, leaf[nr], hit[nr]))
         span = self.n_hr * (1 + self.near_points**2)
-        key = er.astype(np.int64) * span + col
         if self.slopes or (self.near_points and self.near_read == "bilinear"):  # (weights per hit)
-            u, inv = np.unique(key, return_inverse=True)
+            u, inv = np.unique(er.astype(np.int64) * span + col, return_inverse=True)
             cnt = np.bincount(inv, ew, len(u))
-        else:  # every hit weighs 1: the counts of equal keys, exact (a sort in place, no argsort)
-            key.sort()
+        else:  # every hit weighs 1: the counts of equal keys, exact (no argsort)
+            if span < _SENTINEL:
+                key = _row_sorted(er, col, m, span)
+            else:
+                key = np.sort(er.astype(np.int64) * span + col)
             new = np.ones(len(key), bool)
             new[1:] = key[1:] != key[:-1]
             first = np.flatnonzero(new)
@@ -1001,7 +1028,7 @@ class FinalGather(DirectLight):
         wu = wv = None
         if self.slopes:
             o, e1, e2 = _leaf_frame(h, leaf)
-            d = hit[lit] - o
+            d = hit - o
             wu, wv = (
                 (np.bincount(inv, np.einsum("ij,ij->i", d, e), len(u)) / rr[r]).astype(np.float32)
                 for e in (e1, e2)
