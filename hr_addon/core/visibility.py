@@ -558,8 +558,9 @@ class _Float32Backend(RayBackend):
         t = np.full(len(a), np.inf)
         ray = np.flatnonzero(prim >= 0)
         if sure is not None:  # t32 is measured from the shifted origin a + TMIN d
-            ok = (t32[ray] > sure) & (t32[ray] < 1.0 - sure)
-            t[ray[ok]] = TMIN + t32[ray[ok]]
+            tr = t32[ray]
+            ok = (tr > sure) & (tr < 1.0 - sure)
+            t[ray[ok]] = TMIN + tr[ok]
             ray = ray[~ok]
         with np.errstate(all="ignore"):
             t[ray] = _hit_t_kernel([m[prim[ray]] for m in self._rows], *a[ray].T, *d[ray].T)
