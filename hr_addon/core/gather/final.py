@@ -39,6 +39,9 @@ SLOT_DRIVE = "mouth"
 # widths along each mouth, shared by the samples whose perpendicular meets the mouth in that step
 # (0: each sample's own foot)
 SLOT_MOUTH_STEP = 8.0
+# the second level's fine leaves (near_points^2 samples each): their samples trace this share of
+# the second level's hemisphere rays (1: all)
+FINE_RAYS = 1.0
 # covered samples per batch of FinalGather._slots on threads (core.parallel): fixed, never by the
 # thread count; every sample's slot and transfer are its own, so the batches do not change them
 SLOT_BATCH = 1 << 13
@@ -567,6 +570,10 @@ class FinalGather(DirectLight):
                 near_layout=(off, None) if second_near else None,
                 near_share=near_share,
                 reuse=reuse,
+                # a fine leaf's near_points^2 samples trace FINE_RAYS of the rays each
+                sample_rays=np.where(np.repeat(fine[used], k2), max(int(r2 * FINE_RAYS), 1), r2)
+                if FINE_RAYS < 1
+                else None,
                 **rays_kw,
             )
             self._second_map = (used, gw)
