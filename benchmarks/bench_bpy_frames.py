@@ -56,14 +56,14 @@ KEYS = {1: (0, 20.0), 2: (1, 20.0), 3: (2, 20.0), 4: (2, 20.0), 5: (2, 30.0), 6:
         8: (5, 30.0)}
 
 
-def make_blend(path):
+def make_blend(path, size="100k"):
     import numpy as np
 
     from bench_live import make_furnished
 
     import make_samples as ms
 
-    scene, win, _, u, _, _, info = make_furnished(str(Path(path).parent))
+    scene, win, _, u, _, _, info = make_furnished(str(Path(path).parent), size)
     base = np.asarray(win.location, float)
     strength = win.active_material.node_tree.nodes["Emission"].inputs["Strength"]
     for f, (k, s) in KEYS.items():
@@ -184,6 +184,8 @@ def run_bake(args):
     from hr_addon.blender.bake import bake_frames
 
     bpy, scene = open_blend(args.blend, args.output, args.resolution)
+    if args.vertex_spacing is not None:
+        scene.hr.vertex_spacing = args.vertex_spacing
     parts = instrument()
     c0, w0 = time.process_time(), time.perf_counter()
     gen = bake_frames(scene, progress=lambda p: None)
@@ -458,10 +460,12 @@ def main(argv=None):
     ap.add_argument("--term-after", type=int, default=0, help="--path cli: SIGTERM after N frame lines")
     ap.add_argument("--profile", default=None, help="folder for a cProfile file per frame")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--size", default="100k", help="--make: furnished_room's size (20k, 100k)")
+    ap.add_argument("--vertex-spacing", type=float, default=None, help="the bake's Vertex Spacing")
     args = ap.parse_args(argv)
     if args.make:
         c0 = time.process_time()
-        info = make_blend(args.blend)
+        info = make_blend(args.blend, args.size)
         print(f"made {args.blend}: {info['objects']} objects, {info['triangles']} triangles, "
               f"{time.process_time() - c0:.1f} s CPU", flush=True)
     if args.path is None:

@@ -113,7 +113,8 @@ used = g._second_map[0]
 # samples reads 0; the rays reading one: their share of the weights)
 Y1 = g._leaf_means(g2.rho * g2.direct_and_emission(dyn)[0], np.zeros((g.n_hr, 3)))
 no_samples = (g.cols < g.n_hr) & ~np.isin(g.cols, used)  # (near hits read samples: n_hr + sample)
-print(f"weight on leaves without second-level samples: {g.w[no_samples].sum() / g.w.sum():.2e}")
+ew = g.entry_weights()
+print(f"weight on leaves without second-level samples: {ew[no_samples].sum() / ew.sum():.2e}")
 OURS = {0: out(D), 1: out(D + g._read((Y1, None, None, None))), 64: g.evaluate(dyn, "reflected").mean(1)}
 # ours bounce by bounce: the second level's passes from a black solution (k passes: k bounces at
 # the texels), against the full gather (4 iterations + the solution read after the last pass)

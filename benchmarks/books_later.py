@@ -228,7 +228,7 @@ for name, kw in VARIANTS.items():
     alld[used[nd == k2]], part[used[(nd > 0) & (nd < k2)]] = True, True
     exp_ = s.h.exposure[: g.n_hr] > 0
     for lev, gg in (("first", g), ("second", g2)):
-        c, w = gg.cols.astype(np.int64), gg.w.astype(float)
+        c, w = gg.cols.astype(np.int64), gg.entry_weights().astype(float)
         leaf = np.where(c < g.n_hr, c, used[np.searchsorted(start, c - g.n_hr, "right") - 1] if len(used) else 0)
         tot = w.sum()
         info[f"{lev}_weight_all_dark"] = float(w[(c < g.n_hr) & alld[leaf]].sum() / tot)

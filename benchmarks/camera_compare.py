@@ -3,6 +3,7 @@ per object in the image (docs/accuracy.md, "Per object from a camera").
 
     nice -n 5 env OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/camera_compare.py \
         [--views furnished_close,furnished_wide,clutter,cornell] [--spp 256] [--tag camera] [--texel 0.02]
+        [--outputs vertex,texture] [--subdivide 0.25]
 
 (docs/accuracy.md's runs: --spp 128 for the furnished views, with and without --texel 0.02, and
 --spp 32 for clutter and cornell; about 5 CPU minutes per 128-spp reference render.)
@@ -32,6 +33,10 @@ worst objects as (name, error, pixels), CPU seconds), and per view benchmarks/ou
 their CPU seconds) go to benchmarks/out/camera_work/ and are reused when present (--fresh: made
 again), so a second run only compares. Times are CPU seconds (this process and its children).
 `--figure furnished_close` writes docs/images/camera_furnished_close.png from the PNGs.
+`--vertex-spacing S` bakes the vertex output with the product's Vertex Spacing S (own_values).
+`--subdivide S` bakes a copy whose faces are cut until no edge is longer than S metres (linear,
+the shape unchanged: `subdivide`), against the same references: the vertex output's upper bound
+when its values sit at vertices that fine (branch vsub, session 21).
 """
 
 import argparse
@@ -59,6 +64,8 @@ FILTER = ("BLACKMAN_HARRIS", 1.5)  # Blender's default pixel filter
 # texture output: per-object lightmap sizes for texels of about this many metres (lightmap_sizes,
 # --texel); none: the product's own sizing (Texel Density, since session 19's branch texsize)
 TEXEL = {}
+SUBDIVIDE = {}  # --subdivide: scene -> spacing in metres of the baked copy's vertices
+BAKE_ARGS = []  # --vertex-spacing: the bake's options (and its work folder's suffix)
 # scene: sample_blends/<name>.blend or "clutter" (hr_testing.clutter, built here); camera: None (the
 # sample's own) or (location, target, lens mm)
 VIEWS = {
@@ -137,11 +144,44 @@ def lightmap_sizes(path, texel):
     bpy.ops.wm.save_mainfile()
 
 
+def subdivide(path, spacing):
+    """Cut every edge of the .blend at path longer than `spacing` metres (world space) in halves,
+    again until none is, and save it: planar faces stay where they were (linear, no smoothing),
+    a quad with its four edges cut becomes four quads. Meshes shared by objects: cut once, by the
+    first user's transform."""
+    import bmesh
+    from hr_testing.blend import load_bpy
+
+    bpy = load_bpy()
+    bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
+    done = set()
+    for ob in bpy.context.scene.objects:
+        if ob.type != "MESH" or ob.data.name in done:
+            continue
+        done.add(ob.data.name)
+        bm = bmesh.new()
+        bm.from_mesh(ob.data)
+        M = np.array(ob.matrix_world)[:3, :3]
+        while True:
+            long = [e for e in bm.edges if np.linalg.norm(M @ (e.verts[0].co - e.verts[1].co)) > spacing]
+            if not long:
+                break
+            bmesh.ops.subdivide_edges(bm, edges=long, cuts=1, use_grid_fill=True)
+        bm.to_mesh(ob.data)
+        bm.free()
+    bpy.ops.wm.save_mainfile()
+
+
 def bake(scene, frame, output):
     """`python -m hr_addon bake` of a copy of the scene (draft, default settings, --output output).
     Returns (the saved copy, CPU seconds of the bake process, kept beside the copy)."""
     d = os.path.join(
-        WORK, scene, output + (f"_{TEXEL[scene]}" if output == "texture" and scene in TEXEL else "")
+        WORK,
+        scene,
+        output
+        + (f"_{TEXEL[scene]}" if output == "texture" and scene in TEXEL else "")
+        + (f"_sub{SUBDIVIDE[scene]}" if scene in SUBDIVIDE else "")
+        + (f"_vs{BAKE_ARGS[1]}" if BAKE_ARGS and output == "vertex" else ""),
     )
     saved = os.path.join(d, "baked.blend")
     if os.path.exists(saved):
@@ -151,8 +191,11 @@ def bake(scene, frame, output):
     shutil.copy(source_blend(scene), src)
     if output == "texture" and scene in TEXEL:
         lightmap_sizes(src, TEXEL[scene])
+    if scene in SUBDIVIDE:
+        subdivide(src, SUBDIVIDE[scene])
     cmd = [sys.executable, "-m", "hr_addon", "bake", src, "--frames", f"{frame}-{frame}"]
     cmd += ["--quality", "draft", "--output", output, "--threads", "1", "--save", saved]
+    cmd += BAKE_ARGS if output == "vertex" else []
     c0 = cpu(True)
     log(" ".join(cmd[1:]))
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
@@ -351,7 +394,8 @@ def compare(view_name, r):
     (a, oa), (b, ob_) = r["ref1"], r["ref2"]
     ob = oa
     assert (oa == ob_).mean() > 0.999, "the two seeds' index passes differ"
-    for k in ("vertex", "texture"):
+    outs = [k for k in ("vertex", "texture") if k in r]
+    for k in outs:
         # the index pass takes one sample's hit per pixel: agree where the hit is sure
         log(f"  index pass agreement ref / {k}: {(r[k][1] == ob).mean():.4f}")
     ref = (a + b) / 2
@@ -369,7 +413,7 @@ def compare(view_name, r):
     res["ref_noise_p90"] = float(np.percentile([noise[n] for n in lit], 90))
     inner = interior(ob)
     summary = {}
-    for k in ("vertex", "texture"):
+    for k in outs:
         for part, mask in (("", None), ("_interior", inner)):
             po = per_object(r[k][0], ob, names, mask)
             pr = per_object(ref, ob, names, mask)
@@ -406,9 +450,9 @@ def compare(view_name, r):
             part: float(r[k][0][m].sum() / ref[m].sum() - 1)
             for part, m in (("interior", inner & shown), ("edges", ~inner & shown))
         }
-        for k in ("vertex", "texture")
+        for k in outs
     }
-    for k in ("vertex", "texture"):  # the worst lit objects, for a look at the images
+    for k in outs:  # the worst lit objects, for a look at the images
         worst = sorted((n for n in lit if k in res["objects"][n]), key=lambda n: -res["objects"][n][k]["mre"])
         res[f"worst_{k}"] = [
             (n, res["objects"][n][k]["bias"], res["objects"][n][k]["texels"]) for n in worst[:12]
@@ -437,6 +481,8 @@ def texel_side(res):
     tj = json.load(open(TEXEL_JSON))
     out = {}
     for k, var in TEXEL_VARS.items():
+        if not any(k in o for o in res["objects"].values()):
+            continue
         tex = {n: o[var] for n, o in tj["objects"].items() if var in o}
         both = [n for n in res["lit"] if n in tex and n in tj["lit"]]
         for g, sel in (("all", both), ("books", [n for n in both if "_book" in n])):
@@ -491,6 +537,8 @@ def pictures(view_name, r, ob):
 
     plt.imsave(os.path.join(d, "cycles.png"), srgb(ref))
     for k in ("vertex", "texture"):
+        if k not in r:
+            continue
         plt.imsave(os.path.join(d, f"ours_{k}.png"), srgb(r[k][0]))
         g, gr = r[k][0].mean(-1), ref.mean(-1)
         err = np.where(gr > 0.02 * scale, g / np.maximum(gr, 1e-12) - 1, np.nan)
@@ -540,6 +588,13 @@ def main():
         help="texture output: every object a Lightmap Size for texels of about this many metres "
         "(session 19's runs: 0.04, 0.02) instead of the bake's own Texel Density",
     )
+    p.add_argument("--outputs", default="vertex,texture", help="the outputs baked and compared")
+    p.add_argument(
+        "--subdivide",
+        type=float,
+        help="bake a copy with no edge longer than this many metres (linear subdivision, subdivide)",
+    )
+    p.add_argument("--vertex-spacing", help="the vertex bake's --vertex-spacing (the product's subdivision)")
     p.add_argument(
         "--figure", metavar="VIEW", help="only the docs' picture of VIEW (docs/images/camera_VIEW.png)"
     )
@@ -559,7 +614,13 @@ def main():
         if a.texel:
             TEXEL[view["scene"]] = a.texel
             vn = f"{vn}_texel{a.texel}"  # its own renders of ours and JSON entry
-        bakes = {k: bake(view["scene"], view["frame"], k) for k in ("vertex", "texture")}
+        if a.vertex_spacing:
+            BAKE_ARGS[:] = ["--vertex-spacing", a.vertex_spacing]
+            vn = f"{vn}_vs{a.vertex_spacing}"
+        if a.subdivide:
+            SUBDIVIDE[view["scene"]] = a.subdivide
+            vn = f"{vn}_sub{a.subdivide}"
+        bakes = {k: bake(view["scene"], view["frame"], k) for k in a.outputs.split(",")}
         r, cpu_s = {"names": names}, {}
         wo = os.path.join(WORK, vn)
         os.makedirs(wo, exist_ok=True)
@@ -590,8 +651,7 @@ def main():
             os.path.join(OUT, f"camera_{vn}", "renders.npz"),
             ref1=r["ref1"][0].astype(np.float32),
             ref2=r["ref2"][0].astype(np.float32),
-            vertex=r["vertex"][0].astype(np.float32),
-            texture=r["texture"][0].astype(np.float32),
+            **{k: r[k][0].astype(np.float32) for k in bakes},
             index=r["ref1"][1].astype(np.int32),
             names=np.array(names),
         )

@@ -2,7 +2,7 @@
 20; docs/accuracy.md, *An artist-made room*).
 
     nice -n 5 env OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/unseen_vs_cycles.py \
-        [--small] [--texel 0.03] [--spp 128] [--vertex-cache DIR] [--name unseen]
+        [--small] [--texel 0.03] [--spp 128] [--vertex-cache DIR] [--name unseen] [--vertex-spacing S]
 
 1. Our real path: the room saved and baked by `python -m hr_addon bake FILE --frames 1` (vertex
    output, default settings) in a child process (or the frame-1 cache of such a bake, --vertex-cache);
@@ -17,6 +17,8 @@
    (texture output, every texel) and the corner gather interpolated over the loop triangles
    (the machinery's vertex output), and the real bake's HR_Radiance through the modifiers
    (real_vertex): both vertex rows over the unburied texels (benchmarks/unburied.py).
+--vertex-spacing S: the room's Vertex Spacing (own_values) set before the bake; the comparison
+copy's meshes are then the subdivided ones (the modifier applied), its Cycles references their own.
 Per object: the error of the mean (cycles_ref.metrics), over the lit objects
 (cycles_ref.lit_objects) the median, the share within 5% and the pooled bias. JSON:
 benchmarks/out/<name>_vs_cycles.json.
@@ -196,6 +198,7 @@ def main():
         "--texture-cache", help="a texture bake of the same room (default settings): real_texture"
     )
     ap.add_argument("--name", default="unseen")
+    ap.add_argument("--vertex-spacing", type=float, default=0.0, help="the room's Vertex Spacing")
     ap.add_argument("--dump", help="an .npz of per-texel values: texture, real texture, reference, points")
     ap.add_argument("--refs-only", action="store_true", help="bake (and keep) the Cycles references, stop")
     args = ap.parse_args()
@@ -205,6 +208,7 @@ def main():
     from hr_testing import artist_room as AR, cycles_lights, cycles_ref as C
 
     scene, info = AR.artist_room(small=args.small)
+    scene.hr.vertex_spacing = args.vertex_spacing
     log(f"room: {info['triangles']} triangles, {len(info['meshes'])} mesh objects")
     tmp = tempfile.mkdtemp(prefix="unseen_")
     cpu_real = None
@@ -220,7 +224,7 @@ def main():
         from hr_addon.blender.own_values import ensure_own_values
 
         objs = [bpy.data.objects[n] for n in meshes]
-        ensure_own_values(objs, scene.hr.domain, bpy.context.evaluated_depsgraph_get())
+        ensure_own_values(objs, scene.hr.domain, bpy.context.evaluated_depsgraph_get(), args.vertex_spacing)
     except ImportError:  # (before own_values)
         pass
     load_vertex_frame(cache)

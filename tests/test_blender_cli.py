@@ -51,6 +51,7 @@ def _error_line(proc):
         ([SAMPLES / "cornell.blend", "--frames", "10-5"], 2, "end frame is before the start frame"),
         ([SAMPLES / "cornell.blend", "--frames", "one-two"], 2, "bad frame range"),
         ([SAMPLES / "cornell.blend", "--method", "magic"], 2, "invalid choice: 'magic'"),
+        ([SAMPLES / "cornell.blend", "--vertex-spacing", "-1"], 2, "bad vertex spacing -1"),
         ([], 2, "required: blend"),
         (["NOT_A_BLEND"], 2, "cannot open"),
     ],

@@ -203,7 +203,8 @@ def test_texture_plan_gathers_over_the_texels_straddling_the_blocks():
         a = np.flatnonzero(o.inside & np.isin(o.texel + step, o.texel[o.inside]))
         b = dense[o.texel[a] + step]
         assert len(a) > 100 and np.allclose(loc.points[b] - loc.points[a], axes[a, k], atol=1e-9)
-    sub = np.bincount(g.group, minlength=g.n_out) > 1
+    sub = np.zeros(plan.texels, bool)  # (the ring texels written from inside ones: not gathered)
+    sub[plan.gathered] = np.bincount(g.group, minlength=g.n_out) > 1
     # the blocks' footprints: their top faces (normal +z), as convex polygons in xy
     names = np.array(pt.object_names)[pt.object_id]
     tops = [
@@ -647,6 +648,36 @@ def test_near_hits_read_the_nearest_of_finer_samples_against_path_tracing():
         print(f"near_points={near}: indirect / paths {np.round(inc / ref, 3)}, mean |error| {err[near]:.3f}")
     assert g.stats["near_leaves"] > 0
     assert err[4] < 0.15 and err[0] > 0.4
+
+
+def test_texture_plan_gathers_no_ring_texel_written_from_inside_ones():
+    """The ring texels whose image value comes from the inside texels (raster.ring_sources) are not
+    gathered (TexturePlan.gathered): the Cornell floor's and back wall's lightmaps (the texels
+    over the blocks' footprints gathered over their area) at the bake's two levels: bit for bit
+    the images of a gather at every texel."""
+    from hr_addon.lightmap.plan import TexturePlan
+    from hr_testing import scenes
+
+    s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    s.solve()
+    plan = TexturePlan("exr")
+    for name, res in (("floor", 32), ("back", 16)):
+        _, tri_uv, corners, tri_patch, _ = scenes.wall_lightmap(s, name)
+        plan.add_object(name, name, res, tri_uv, corners, tri_patch, "uv")
+    kw = dict(rays=16, shadow_rays=4, levels=2, iterations=2)
+    g = plan.final_gather(s, **kw)
+    loc = plan.locator
+    every = texel_gather(
+        s, loc.patch, loc.points, axes=np.concatenate(plan._axes), tris=np.concatenate(plan._tris), **kw
+    )
+    ring = np.concatenate([o.lo + o.ring[0] for o in plan.objects])
+    assert g.n_out == len(plan.gathered) == plan.texels - len(ring) and len(ring) > 50
+    assert not np.isin(ring, plan.gathered).any()
+    for mode in ("RADIANCE", "IRRADIANCE"):
+        got, want = plan.radiance(s, mode, gather=g), plan.radiance(s, mode, gather=every)
+        assert np.array_equal(got[plan.gathered], want[plan.gathered])
+        for o in plan.objects:
+            assert np.array_equal(o.image(got[o.lo : o.hi]), o.image(want[o.lo : o.hi]))
 
 
 def test_near_hits_give_a_sample_the_same_light_gathered_alone_or_with_others():

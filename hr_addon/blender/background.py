@@ -185,7 +185,9 @@ class BackgroundBake:
             raise SceneError(error)
         self.output = cfg.output
         if self.output == "VERTEX":  # the helpers belong to the user's file: made here, the copy gets them
-            self._start_warnings = ensure_own_values(geometry_objects(view_layer), cfg.domain, depsgraph)
+            self._start_warnings = ensure_own_values(
+                geometry_objects(view_layer), cfg.domain, depsgraph, cfg.vertex_spacing
+            )
             self.warnings += self._start_warnings
         if self.output == "TEXTURE":
             # The lightmap UV maps belong to the user's meshes: make them here, the copy gets them.

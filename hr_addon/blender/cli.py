@@ -12,7 +12,7 @@ import os
 import re
 import sys
 
-from .settings import choices, density_problem, resolution_problem, thresholds_problem
+from .settings import choices, density_problem, resolution_problem, spacing_problem, thresholds_problem
 
 PROG = "hr_bake"
 
@@ -87,6 +87,14 @@ def make_parser(prog=PROG, blend_required=False):
         metavar="D",
         help="lightmap texels per metre of surface: each object's lightmap sized by its area, up to "
         "--resolution (0: every object --resolution; default: the scene's Texel Density, 50)",
+    )
+    p.add_argument(
+        "--vertex-spacing",
+        type=float,
+        metavar="S",
+        help="vertex output: objects with edges longer than S metres show their light at the corners "
+        "of their mesh subdivided until none is (0: the mesh's own corners; default: the scene's "
+        "Vertex Spacing)",
     )
     setting(
         "--texture-format",
@@ -175,6 +183,8 @@ def check_args(args):
         raise UsageError(resolution_problem(args.resolution))
     if args.texel_density is not None and density_problem(args.texel_density):
         raise UsageError(density_problem(args.texel_density))
+    if args.vertex_spacing is not None and spacing_problem(args.vertex_spacing):
+        raise UsageError(spacing_problem(args.vertex_spacing))
     if args.save:
         path = os.path.abspath(args.save)
         folder = os.path.dirname(path)
@@ -293,6 +303,7 @@ def _run(argv, prog, blend_required, intr):
             output=args.output,
             resolution=args.resolution,
             texel_density=args.texel_density,
+            vertex_spacing=args.vertex_spacing,
             texture_format=args.texture_format,
             radiance_mode=args.radiance_mode,
             contacts=False if args.no_contacts else None,
@@ -374,6 +385,8 @@ def keep_settings(hr, args, quality, feps, aeps):
         hr.texture_resolution = args.resolution
     if args.texel_density is not None:
         hr.texel_density = args.texel_density
+    if args.vertex_spacing is not None:
+        hr.vertex_spacing = args.vertex_spacing
     if args.no_contacts:
         hr.contacts = False
     if args.no_final_gather:

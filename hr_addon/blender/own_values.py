@@ -12,20 +12,35 @@ object's stack, that stores the helper's HR_Radiance as the evaluated mesh's: ev
 corner (or vertex) shows its own value. The bake and Live write the values into the helper like into
 any mesh (Target.key names it; playback.objects_by_name finds it in bpy.data), so playback, renders
 and a file opened without the extension show them.
+
+Vertex Spacing (Scene.hr.vertex_spacing > 0): a value per corner cannot show light that changes
+across a coarse face (a one-quad wall, a table top: the furnished room's vertex output 62-67% of
+its objects within 5% of Cycles from a camera, docs/accuracy.md). Objects with an edge longer than
+the spacing get the modifier too, in the group that first subdivides the mesh (Subdivide Mesh:
+linear, planar faces stay where they were) by a level of their own, enough for every edge of the
+mesh to come under the spacing: the light is gathered at the finer corners and shown there. The
+hierarchy sees the finer mesh as well (the evaluated mesh is what the bake reads).
 """
 
+import math
+
 import bpy
+import numpy as np
 
 from .names import ATTRIBUTE, N_VALUES, TAG
 
 GROUP_VERSION = 1
+LEVEL = "Level"  # the subdividing group's input: Subdivide Mesh's level
+MAX_LEVEL = 6  # 4^6 faces per face: a 6.4 m quad at 0.1 m; coarser faces keep longer edges
 
 
-def geometry_group(name, version, socket, socket_type, store, value):
+def geometry_group(name, version, socket, socket_type, store, value, level=False):
     """The geometry-node group `name`, made anew unless one tagged with `version` exists: inputs
     Geometry and `socket` (of `socket_type`), output the Geometry with the named attribute `store`
     = (name, data type, domain) set to value(nodes, link, group input) -> (the nodes it made, the
-    socket of the value). Plain nodes: a file opened without the extension evaluates the same."""
+    socket of the value). level: a third input LEVEL, and the geometry subdivided by it (Subdivide
+    Mesh) before the value is stored. Plain nodes: a file opened without the extension evaluates
+    the same."""
     g = bpy.data.node_groups.get(name)
     if g is not None and g.get(TAG) == version:
         return g
@@ -33,23 +48,37 @@ def geometry_group(name, version, socket, socket_type, store, value):
     g[TAG] = version
     g.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
     g.interface.new_socket(socket, in_out="INPUT", socket_type=socket_type)
+    if level:
+        lv = g.interface.new_socket(LEVEL, in_out="INPUT", socket_type="NodeSocketInt")
+        lv.min_value, lv.max_value = 0, MAX_LEVEL
     g.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
     nodes, link = g.nodes, g.links.new
     gi, go = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
+    geometry, first = gi.outputs["Geometry"], []
+    if level:
+        sub = nodes.new("GeometryNodeSubdivideMesh")
+        link(geometry, sub.inputs["Mesh"])
+        link(gi.outputs[LEVEL], sub.inputs["Level"])
+        geometry, first = sub.outputs["Mesh"], [sub]
     made, out = value(nodes, link, gi)
     st = nodes.new("GeometryNodeStoreNamedAttribute")
     attribute, st.data_type, st.domain = store
     st.inputs["Name"].default_value = attribute
-    link(gi.outputs["Geometry"], st.inputs["Geometry"])
+    link(geometry, st.inputs["Geometry"])
     link(out, st.inputs["Value"])
     link(st.outputs["Geometry"], go.inputs["Geometry"])
-    for k, nd in enumerate((gi, *made, st, go)):
+    for k, nd in enumerate((gi, *first, *made, st, go)):
         nd.location = (200 * k, 0)
     return g
 
 
-def _group(domain):
-    """Node group: HR_Radiance = the helper's HR_Radiance at the same index, on `domain`."""
+def _group_name(domain, level):
+    return f"{N_VALUES} {domain.lower()}" + (" subdivided" if level else "")
+
+
+def _group(domain, level=False):
+    """Node group: HR_Radiance = the helper's HR_Radiance at the same index, on `domain`; level:
+    of the mesh subdivided by the modifier's LEVEL first."""
 
     def value(nodes, link, gi):
         info = nodes.new("GeometryNodeObjectInfo")
@@ -66,7 +95,7 @@ def _group(domain):
 
     store = (ATTRIBUTE, "FLOAT_COLOR", domain)
     return geometry_group(
-        f"{N_VALUES} {domain.lower()}", GROUP_VERSION, "Values", "NodeSocketObject", store, value
+        _group_name(domain, level), GROUP_VERSION, "Values", "NodeSocketObject", store, value, level
     )
 
 
@@ -75,8 +104,36 @@ def _modifier(obj):
     return md if md is not None and md.type == "NODES" and md.node_group is not None else None
 
 
-def _socket(md):
-    return md.node_group.interface.items_tree["Values"].identifier
+def _socket(md, name="Values"):
+    return md.node_group.interface.items_tree[name].identifier
+
+
+def _level(md):
+    """The subdivision level md shows its object's values at (0: the mesh's own corners)."""
+    return int(md.get(_socket(md, LEVEL), 0)) if LEVEL in md.node_group.interface.items_tree else 0
+
+
+def subdivision_level(obj, spacing, depsgraph):
+    """Subdivide Mesh's level that takes every edge of the faces of obj's evaluated mesh (world
+    space; its modifiers' result, a Subdivision Surface's finer faces: without its own subdivision)
+    under `spacing` (each level halves them), at most MAX_LEVEL; 0 for spacing 0."""
+    if spacing <= 0:
+        return 0
+    ob = obj.evaluated_get(depsgraph)
+    me = ob.data
+    if not len(me.loops):
+        return 0
+    ev = np.empty(len(me.edges) * 2, np.int32)
+    me.edges.foreach_get("vertices", ev)
+    used = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("edge_index", used)
+    ev = ev.reshape(-1, 2)[np.unique(used)]
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    M = np.array(ob.matrix_world, np.float64)[:3, :3]
+    d = (co.reshape(-1, 3)[ev[:, 0]] - co.reshape(-1, 3)[ev[:, 1]]) @ M.T
+    longest = float(np.sqrt((d * d).sum(1)).max())
+    return min(max(math.ceil(math.log2(longest / spacing)), 0), MAX_LEVEL) if longest > spacing else 0
 
 
 def values_object(obj, n_loops, n_verts):
@@ -100,24 +157,51 @@ def _changes_topology(obj, depsgraph):
     )
 
 
-def ensure_own_values(objects, domain, depsgraph):
+def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
     """Give every object of `objects` whose modifiers change the topology or whose mesh another of
     them shares a helper and the modifier (made or brought up to date: its domain, its helper's
-    topology, last in the stack). Returns notes naming the objects that got them now."""
+    topology, last in the stack); with a Vertex Spacing > 0 every object with an edge longer than
+    it too, subdividing (subdivision_level). Returns notes naming the objects that got them now."""
     users = {}
     for o in objects:
         users[o.data.name_full] = users.get(o.data.name_full, 0) + 1
-    made = []
-    for obj in objects:
-        if obj.data.library is not None or obj.library is not None:
-            continue
+    own = [o for o in objects if o.data.library is None and o.library is None]
+    # the modifiers' own subdivision out first: the user's modifiers' result alone (the level, and
+    # whether they change the topology)
+    reset = [o for o in own if _modifier(o) is not None and _level(_modifier(o))]
+    for o in reset:
+        _modifier(o)[_socket(_modifier(o), LEVEL)] = 0
+        o.update_tag()
+    if reset:
+        depsgraph.update()
+    levels = {o.name: subdivision_level(o, spacing, depsgraph) for o in own}
+    made, finer, kept = [], [], []
+    for obj in own:
+        level = levels[obj.name]
         shared = users[obj.data.name_full] > 1
-        if not shared and not _changes_topology(obj, depsgraph):
+        if not level and not shared and not _changes_topology(obj, depsgraph):
+            if obj in reset:  # subdivided by an earlier bake: its helper and modifier go
+                remove_own_values([obj])
             continue
-        made += _ensure(obj, domain, depsgraph)
+        made += _ensure(obj, domain, level)
+        finer += [obj.name] if level else []
+        kept.append(obj)
+    if finer:
+        depsgraph.update()  # the subdivided meshes, for their helpers
+    for obj in kept:
+        _helper(obj, depsgraph)
+    notes = []
+    if finer:
+        notes.append(
+            f"Vertex Spacing {spacing:g}: {len(finer)} object(s) with edges longer "
+            f"({', '.join(repr(n) for n in finer[:8])}{', ...' if len(finer) > 8 else ''}) show their "
+            f"light at the corners of their mesh subdivided in the modifier '{N_VALUES}' (linear: the "
+            "shape stays)."
+        )
+    made = [n for n in made if levels[n] == 0]
     if not made:
-        return []
-    return [
+        return notes
+    return notes + [
         f"{len(made)} object(s) whose modifiers change the topology or that share their mesh with "
         f"another object ({', '.join(repr(n) for n in made[:8])}{', ...' if len(made) > 8 else ''}) got "
         f"the geometry-nodes modifier '{N_VALUES}' last in their stack and a helper object "
@@ -126,17 +210,31 @@ def ensure_own_values(objects, domain, depsgraph):
     ]
 
 
-def _ensure(obj, domain, depsgraph):
-    """Make or update obj's helper and modifier; [obj.name] if they were made now, else []."""
+def _ensure(obj, domain, level=0):
+    """Make or update obj's modifier (its group subdividing by `level` when > 0); [obj.name] if it
+    was made now, else []. _helper then gives it its helper."""
     md = _modifier(obj)
     new = md is None
     if new:
         md = obj.modifiers.new(N_VALUES, "NODES")
-    if md.node_group is None or md.node_group.name != f"{N_VALUES} {domain.lower()}":
-        md.node_group = _group(domain)
+    if md.node_group is None or md.node_group.name != _group_name(domain, level):
+        h = None if new or md.node_group is None else md.get(_socket(md))
+        md.node_group = _group(domain, bool(level))
+        if h is not None:  # (another group: its socket's value kept)
+            md[_socket(md)] = h
+    if level and _level(md) != level:
+        md[_socket(md, LEVEL)] = level
+        obj.update_tag()
     k = list(obj.modifiers).index(md)
     if k != len(obj.modifiers) - 1:
         obj.modifiers.move(k, len(obj.modifiers) - 1)
+    return [obj.name] if new else []
+
+
+def _helper(obj, depsgraph):
+    """Make obj's helper object, or give it a new mesh when the evaluated mesh's topology is not
+    its own."""
+    md = _modifier(obj)
     ev = obj.evaluated_get(depsgraph)
     n = (len(ev.data.loops), len(ev.data.vertices))
     h = md.get(_socket(md))
@@ -155,7 +253,6 @@ def _ensure(obj, domain, depsgraph):
             h[TAG] = obj.name
         md[_socket(md)] = h
         obj.update_tag()
-    return [obj.name] if new else []
 
 
 def remove_own_values(objects):

@@ -163,6 +163,11 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
             layout.prop(hr, "texture_format")
         else:
             layout.prop(hr, "domain")
+            layout.prop(hr, "vertex_spacing")
+            if hr.vertex_spacing > 0:  # Live makes no helpers (own_values): the bake's are what it finds
+                note = layout.row()
+                note.enabled = False
+                note.label(text="Live Relight: the finer corners once a bake has added them", icon="INFO")
         layout.prop(hr, "cache_folder")
         layout.prop(hr, "threads")
         # an operator for the checkbox: turned on, it starts from the scene's range (props.py)

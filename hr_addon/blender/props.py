@@ -3,7 +3,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-from .settings import DEFAULTS, DENSITY, RESOLUTION, TEXEL_DENSITY, items
+from .settings import DEFAULTS, DENSITY, RESOLUTION, TEXEL_DENSITY, VERTEX_SPACING, items
 
 # Blender 4.5+ warns about "//" in path properties unless they declare blend-relative support.
 _REL = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
@@ -98,6 +98,18 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         description="Lightmap texels per metre of surface: each object's lightmap is sized by its "
         "area, from 8 texels to the Texture Size (0: every object gets the Texture Size). An "
         "object's Lightmap Size overrides it",
+    )
+    vertex_spacing: FloatProperty(
+        name="Vertex Spacing",
+        default=VERTEX_SPACING,
+        min=0.0,
+        soft_max=1.0,
+        subtype="DISTANCE",
+        unit="LENGTH",
+        description="Vertex output: objects with edges longer than this show their light at the "
+        "corners of their mesh subdivided until none is (in the 'HR Radiance' geometry-nodes "
+        "modifier; linear, the shape stays), so light that changes across a large face shows. "
+        "0: the mesh's own corners",
     )
     texture_format: EnumProperty(
         name="Texture Format",

@@ -92,6 +92,9 @@ RESOLUTION = (8, 16384)  # texture size in texels
 # docs/accuracy.md, "Per object from a camera")
 DENSITY = (0.01, 10000.0)
 TEXEL_DENSITY = 50.0
+# vertex output: edges longer than this (metres) subdivided, so light changing across a coarse
+# face shows (own_values; docs/accuracy.md, "Vertex Spacing"); 0: the mesh's own corners
+VERTEX_SPACING = 0.0
 # the lamps' direct light taken out is the final gather's own, per sample (core.lights.indirect_incident)
 INDIRECT_NEEDS_GATHER = (
     "values 'Indirect only (for EEVEE)' need the Final Gather (Render > HR Radiosity): it computes "
@@ -136,6 +139,10 @@ def density_problem(d):
     )
 
 
+def spacing_problem(s):
+    return f"bad vertex spacing {s:g} (0: off, or a length in metres)" if not s >= 0 else ""
+
+
 def thresholds_problem(feps, aeps):
     # :g - the scene's values are float32 (aeps=0.0010000000474974513)
     if 0 < feps <= 1 and 0 < aeps < 1:
@@ -169,6 +176,7 @@ class BakeConfig:
     final_gather: bool
     threads: int = 0  # core.parallel.resolve_threads: 0 every core; never changes the result
     texel_density: float = 0.0  # lightmap texels per unit (texture.resolution_for); 0: all Texture Size
+    vertex_spacing: float = 0.0  # vertex output: edges longer are subdivided (own_values); 0: off
 
     @classmethod
     def resolve(cls, hr, **overrides):
@@ -197,10 +205,12 @@ class BakeConfig:
             final_gather=bool(get("final_gather")),
             threads=int(get("threads")),
             texel_density=float(get("texel_density")),
+            vertex_spacing=float(get("vertex_spacing")),
         )
         problem = (
             resolution_problem(cfg.resolution)
             or density_problem(cfg.texel_density)
+            or spacing_problem(cfg.vertex_spacing)
             or (thresholds_problem(cfg.feps, cfg.aeps) if cfg.quality == "CUSTOM" else "")
             or (INDIRECT_NEEDS_GATHER if cfg.radiance_mode == "INDIRECT" and not cfg.final_gather else "")
         )

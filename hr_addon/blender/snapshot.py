@@ -38,7 +38,7 @@ def read_snapshot(scene, view_layer, cfg, warn):
     objects = geometry_objects(view_layer)
     if cfg.output == "VERTEX":
         warn(playback.linked_meshes(objects))
-        warn(ensure_own_values(objects, cfg.domain, depsgraph))
+        warn(ensure_own_values(objects, cfg.domain, depsgraph, cfg.vertex_spacing))
     if cfg.output == "TEXTURE":
         try:
             warn(texture.ensure_lightmaps(objects, cfg.resolution, cfg.texel_density))

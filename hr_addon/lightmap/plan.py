@@ -26,12 +26,13 @@ FORMATS = {"EXR": ".exr", "PNG": ".png"}
 REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
 
 
-# The texture bake's peak memory per texel at 128 hemisphere rays, rounded up from the larger of two
-# measures (draft; docs/user_guide.md, "Lightmaps sized by area", session 20): the furnished room at
-# 50 texels/m, 0.824 M texels, peak RSS 2.24 GB with its hierarchy and Blender: 2.7 kB per texel;
-# Cornell at 64 and 128 px, 0.49 and 0.67 GB: 2.2 kB per added texel. (Session 19, before the
-# gather's transients were cut and slot texels took 2 x 2 points: 6 kB)
-GATHER_BYTES_PER_TEXEL = 3000
+# The texture bake's peak memory per texel of the plan at 128 hemisphere rays, rounded up from the
+# larger of two measures (draft; docs/user_guide.md, "Lightmaps sized by area", session 21): the
+# furnished room at 50 texels/m, 0.824 M texels (0.475 M gathered: the others are ring texels
+# written from inside ones), peak RSS 1.47 GB with its hierarchy and Blender: 1.8 kB per texel;
+# Cornell at 64 and 128 px, 0.47 and 0.59 GB: 1.4 kB per added texel. (Session 20, the ring texels
+# gathered and float32 weights: 3 kB; session 19, before the gather's transients were cut: 6 kB)
+GATHER_BYTES_PER_TEXEL = 2000
 
 
 def gather_bytes(texels, rays=128):
@@ -130,6 +131,7 @@ class TexturePlan:
         # loop triangles (a quad's (0, 1, 2), (0, 2, 3)), inside which Cycles' bake samples the texel
         self._tris = []
         self._locator = None
+        self._gathered = None
         self.albedo = {}  # object index -> (N, 3) float32 texture albedo / average at its texels
 
     def add_object(self, name, stem, res, tri_uv, corners, tri_patch, uv_digest):
@@ -152,12 +154,35 @@ class TexturePlan:
         o = ObjectTexels(name, res, stem, texel, inside, n, n + len(texel), steps, uv_digest, ring)
         self.objects.append(o)
         self._locator = None
+        self._gathered = None
         return tri, bary
 
     @property
     def texels(self):
         """Texels of all objects (the points the output evaluates)."""
         return self.objects[-1].hi if self.objects else 0
+
+    @property
+    def gathered(self):
+        """(G,) indices of the texels whose own value the images show: every texel but the ring
+        texels that ObjectTexels.image writes from the inside texels (ring_sources). The final
+        gather gathers only these."""
+        if self._gathered is None:
+            own = np.ones(self.texels, bool)
+            for o in self.objects:
+                if o.ring is not None:
+                    own[o.lo + o.ring[0]] = False
+            self._gathered = np.flatnonzero(own)
+        return self._gathered
+
+    def _at_texels(self, v):
+        """(N, 3) values at every texel from v (G, 3) at the gathered ones (0 at the others: the
+        images write those from the inside texels)."""
+        if len(v) == self.texels:
+            return v
+        out = np.zeros((self.texels,) + v.shape[1:], v.dtype)
+        out[self.gathered] = v
+        return out
 
     def largest(self, k=5):
         """The k objects with the most texels, most first."""
@@ -185,15 +210,18 @@ class TexturePlan:
         return self._locator
 
     def final_gather(self, system, **kw):
-        """A core.gather.FinalGather at the texel points of all objects (system: the
-        DynamicRadiosity or RadiositySystem the bake uses; kw: rays, shadow_rays, seed): built once
-        per geometry, handed to radiance(gather=)."""
+        """A core.gather.FinalGather at the gathered texels (`gathered`) of all objects (system:
+        the DynamicRadiosity or RadiositySystem the bake uses; kw: rays, shadow_rays, seed): built
+        once per geometry, handed to radiance(gather=). Each texel's samples and rays are its own,
+        so the others' values are those of a gather at every texel."""
         from ..core.gather import texel_gather
 
-        loc = self.locator
-        axes = np.concatenate(self._axes) if self._axes else np.zeros((0, 2, 3))
-        tris = np.concatenate(self._tris) if self._tris else np.zeros((0, 3, 3))
-        return texel_gather(system, loc.patch, loc.points, axes=axes, tris=tris, **kw)
+        loc, g = self.locator, self.gathered
+        axes = np.concatenate(self._axes)[g] if self._axes else np.zeros((0, 2, 3))
+        tris = np.concatenate(self._tris)[g] if self._tris else np.zeros((0, 3, 3))
+        if kw.get("rho") is not None and np.ndim(kw["rho"]) == 2:  # per texel
+            kw["rho"] = np.asarray(kw["rho"])[g]
+        return texel_gather(system, loc.patch[g], loc.points[g], axes=axes, tris=tris, **kw)
 
     def radiance(self, solution, mode="RADIANCE", gather=None):
         """(N, 3) values of the current solution at the texel points of all objects. mode RADIANCE:
@@ -201,19 +229,20 @@ class TexturePlan:
         reflected x albedo / average + emission; IRRADIANCE: irradiance / pi (no emission);
         INDIRECT: irradiance / pi without the Blender lights' and the World's direct light
         (core.lights.indirect_incident; needs the gather).
-        gather: final_gather() of this plan: the texels gather their own light (issue 19); None:
-        the solution's leaves, interpolated (today's output, unchanged)."""
+        gather: final_gather() of this plan: the texels gather their own light (issue 19), 0 at
+        the ring texels not gathered (`gathered`: ObjectTexels.image writes them); None: the
+        solution's leaves, interpolated (today's output, unchanged)."""
         if mode == "INDIRECT":
             if gather is None:
                 raise ValueError("the Indirect-only values need the final gather")
-            return indirect_incident(gather, solution).astype(np.float32)
+            return self._at_texels(indirect_incident(gather, solution).astype(np.float32))
         if gather is not None:
             if mode == "IRRADIANCE":
-                return gather.evaluate(solution, "incident").astype(np.float32)
+                return self._at_texels(gather.evaluate(solution, "incident").astype(np.float32))
             v = gather.evaluate_kinds(solution, ("radiance", "reflected") if self.albedo else ("radiance",))
-            out = v["radiance"]
+            out = self._at_texels(v["radiance"])
             if self.albedo:
-                refl = v["reflected"]
+                refl = self._at_texels(v["reflected"])
                 for i, f in self.albedo.items():
                     o = self.objects[i]
                     out[o.lo : o.hi] += (f - 1.0) * refl[o.lo : o.hi]

@@ -14,10 +14,11 @@ instead of reading the hierarchy leaf it lies in:
   front of its plane that face it.
 - I, indirect light: R cosine-weighted hemisphere rays per sample, traced once per static
   geometry (first_hit), each hit recorded on the hierarchy leaf holding it; per sample a sparse CSR
-  row of weights over those leaves (hits / R, duplicates merged; rays that escape, hit a back face
-  or a covered point contribute nothing). At run time I = W @ (reflected radiance of the solution
-  at the leaves): B - E (the node's own, possibly fractional, emission is taken out: the exact
-  direct term carries all emission), shown on the node's uncovered part (Hierarchy.shown).
+  row of weights over those leaves (hits / R, duplicates merged, kept as the hit counts where R is
+  a power of two; rays that escape, hit a back face or a covered point contribute nothing). At
+  run time I = W @ (reflected radiance of the solution at the leaves): B - E (the node's own,
+  possibly fractional, emission is taken out: the exact direct term carries all emission), shown
+  on the node's uncovered part (Hierarchy.shown).
 - E_point: the emitter's own radiance exactly at the point: the input patch's emission, plus a
   light shape's radiance inside its outline (point in polygon with holes, on the surface it lies
   on); outside the outline 0, whatever fraction of it the coarse nodes carry for transport.

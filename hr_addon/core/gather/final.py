@@ -47,11 +47,17 @@ FINE_RAYS = 1.0
 SLOT_BATCH = 1 << 13
 
 
-def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
-    """(n, C) float64 = W @ V for a CSR matrix (indptr, cols, w float32) and dense V (m, C): float32
+def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1, rays=None):
+    """(n, C) float64 = W @ V for a CSR matrix (indptr, cols, w) and dense V (m, C): float32
     products summed per row by np.add.reduceat, in row blocks of about `chunk` entries (the blocks
-    do not depend on `threads`, and each writes its own rows: equal for any thread count)."""
+    do not depend on `threads`, and each writes its own rows: equal for any thread count).
+    w: float32 weights, or unsigned hit counts (FinalGather.w) whose weight is count / rays of the
+    row (rays: one for all rows or (n,)): each row's float32 sum of V x count divided by its rays,
+    for rays a power of two bit for bit the sum with float32 weights count / rays."""
     n = len(indptr) - 1
+    counts = w.dtype.kind == "u"
+    if counts and rays is None:
+        raise ValueError("_csr_matvec: hit counts need their rows' rays")
     out = np.zeros((n, V.shape[1]))
     if len(cols) == 0:
         return out
@@ -70,10 +76,12 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1):
             starts = indptr[r0:r1] - a
             nonempty = np.flatnonzero(indptr[r0 + 1 : r1 + 1] > indptr[r0:r1])
             rows, starts = r0 + nonempty, starts[nonempty]
+            per = (rays if np.ndim(rays) == 0 else rays[rows]) if counts else None
             for k in range(len(VT)):
                 prod = np.take(VT[k], c, mode="clip")
                 prod *= w[a:b]
-                out[rows, k] = np.add.reduceat(prod, starts)
+                got = np.add.reduceat(prod, starts)
+                out[rows, k] = got if per is None else got / per
 
     batch_map(block, _row_blocks(indptr, chunk), threads)
     return out
@@ -413,6 +421,15 @@ class FinalGather(DirectLight):
         self.near_points = int(near_points) if two and not self.slopes else 0
         self.near = float(near)
         self.near_read = near_read  # "nearest" point, or "bilinear" between the four around the hit
+        # w: where every hit weighs 1 the hits per entry (1 byte up to 255 rays, not float32 count /
+        # rays: 0.17 GB at the furnished 20k room's texels), read as count / the row's rays
+        # (row_rays). Only where every row's rays are a power of two (the texels', the second
+        # level's; not the corners' shared rays): dividing the row's sum then gives the bits of
+        # the float32 weights' sum. (A str: stored in the precompute)
+        rr = np.atleast_1d(self.row_rays)
+        hits = not self.slopes and not (self.near_points and near_read == "bilinear")
+        hits &= bool(((rr & (rr - 1)) == 0).all())
+        self._wtype = np.min_scalar_type(int(rr.max(initial=0))).name if hits else "float32"
         self._diam = None
         # tables of the HR nodes the same for every level of one gather (_shared): the lower levels
         # (the probe's, the second's) take the top's; dropped once this level is built
@@ -629,14 +646,15 @@ class FinalGather(DirectLight):
             s = off[leaf] + pnt
             ok = (off[leaf] >= 0) & ~dark[np.maximum(s, 0)]
             cols[a + j] = np.where(ok, m + s, leaf)
-            return len(j), int(ok.sum()), float(self.w[a + j[ok]].sum(dtype=np.float64))
+            w = self.entry_weights(a, b).astype(np.float64)
+            return len(j), int(ok.sum()), float(w[j[ok]].sum()), float(w.sum())
 
         parts = batch_map(part, ranges(len(cols), self.ENTRY_BATCH), self.threads)
         if not sum(p[0] for p in parts):
             return
         self.cols = cols
         self.stats["near_entries"] = sum(p[1] for p in parts) / max(len(cols), 1)
-        total = float(self.w.sum(dtype=np.float64))
+        total = sum(p[3] for p in parts)
         self.stats["near_weight"] = sum(p[2] for p in parts) / max(total, 1e-300)
 
     def _fine_leaves(self, share):
@@ -645,7 +663,7 @@ class FinalGather(DirectLight):
         m, ip = self.n_hr, self.indptr
 
         def rows(r0, r1):  # each row's sums its own: by blocks of rows on threads
-            c, w = self.cols[ip[r0] : ip[r1]], self.w[ip[r0] : ip[r1]]
+            c, w = self.cols[ip[r0] : ip[r1]], self.entry_weights(ip[r0], ip[r1])
             j = np.flatnonzero(c >= m)
             row = np.repeat(np.arange(r0, r1), np.diff(ip[r0 : r1 + 1]))[j]
             key = row * m + c[j] % m
@@ -943,6 +961,23 @@ class FinalGather(DirectLight):
         return (indptr, *out[1:], None, None) if k == 3 else (indptr, *out[1:])
 
     @property
+    def row_rays(self):
+        """The hemisphere rays of each row (n,), or of every row (an int): w's hit counts over
+        them are the weights."""
+        return self.rays if self.sample_rays is None else self.sample_rays
+
+    def entry_weights(self, a=0, b=None):
+        """(b - a,) float32 the weights of entries a..b-1 (w itself, or its hit counts over their
+        rows' rays: equal to the float32 weights a gather stored before counts holds)."""
+        b = len(self.w) if b is None else b
+        if self.w.dtype.kind != "u":
+            return self.w[a:b]
+        rr = self.row_rays
+        if np.ndim(rr):
+            rr = rr[np.searchsorted(self.indptr, np.arange(a, b), "right") - 1]
+        return (self.w[a:b] / rr).astype(np.float32)
+
+    @property
     def weights_bytes(self):
         """Bytes of the CSR weights, the lower levels' included."""
         own = self.indptr.nbytes + self.cols.nbytes + self.w.nbytes
@@ -985,7 +1020,7 @@ class FinalGather(DirectLight):
                 dirs.append(d.reshape(-1, 3))
         if not sels:
             e = np.zeros(0, np.float32) if self.slopes else None
-            return np.zeros(m, np.int64), np.zeros(0, np.int32), np.zeros(0, np.float32), e, e
+            return np.zeros(m, np.int64), np.zeros(0, np.int32), np.zeros(0, self._wtype), e, e
         sel = np.concatenate(sels)
         row = np.repeat(sel, rr[sel])
         dirs = dirs[0] if len(dirs) == 1 else np.concatenate(dirs)
@@ -1037,7 +1072,7 @@ class FinalGather(DirectLight):
             new = np.ones(len(key), bool)
             new[1:] = key[1:] != key[:-1]
             first = np.flatnonzero(new)
-            u, cnt = key[first], np.diff(np.r_[first, len(key)]).astype(np.float64)
+            u, cnt = key[first], np.diff(np.r_[first, len(key)])
         r = u // span
         counts = np.bincount(r, minlength=m).astype(np.int64)
         wu = wv = None
@@ -1048,7 +1083,8 @@ class FinalGather(DirectLight):
                 (np.bincount(inv, np.einsum("ij,ij->i", d, e), len(u)) / rr[r]).astype(np.float32)
                 for e in (e1, e2)
             )
-        return counts, (u % span).astype(np.int32), (cnt / rr[r]).astype(np.float32), wu, wv
+        w = (cnt / rr[r]).astype(np.float32) if self._wtype == "float32" else cnt.astype(self._wtype)
+        return counts, (u % span).astype(np.int32), w, wu, wv
 
     @property
     def origins(self):
@@ -1266,9 +1302,9 @@ class FinalGather(DirectLight):
         Y, S, Gu, Gv = L
         cols = self.cols if cols is None else cols
         if getattr(self, "wu", None) is None or Gu is None:
-            return _csr_matvec(self.indptr, cols, self.w, Y, threads=self.threads)
+            return _csr_matvec(self.indptr, cols, self.w, Y, threads=self.threads, rays=self.row_rays)
         return sum(
-            _csr_matvec(self.indptr, cols, w, v, threads=self.threads)
+            _csr_matvec(self.indptr, cols, w, v, threads=self.threads, rays=self.row_rays)
             for w, v in ((self.w, Y - S), (self.wu, Gu), (self.wv, Gv))
         )
 

@@ -1,0 +1,253 @@
+"""Vertex Spacing (Scene.hr.vertex_spacing, own_values): objects with edges longer than the spacing
+show their light at the corners of their mesh subdivided in the HR Radiance modifier, so a one-quad
+wall shows the light that changes across it; off, the bake is today's, and Delete Bake leaves the
+user's meshes and modifiers as they were."""
+
+import numpy as np
+import pytest
+
+from test_blender_helpers import empty_scene
+
+pytestmark = pytest.mark.bpy
+
+RHO, STRENGTH = 0.5, 5.0
+# a 4 x 2.5 m wall facing +y, one quad; a 0.4 m square lamp 0.3 m in front of its west end, facing it
+WALL = ([(0, 0, 0), (0, 0, 2.5), (4, 0, 2.5), (4, 0, 0)], [[0, 1, 2, 3]])
+LAMP = ([(0.2, 0.3, 1.05), (0.6, 0.3, 1.05), (0.6, 0.3, 1.45), (0.2, 0.3, 1.45)], [[0, 1, 2, 3]])
+
+
+def _scene(ms):
+    import bpy
+
+    wall = ms.mesh_object("Wall", *WALL, ms.diffuse("Grey", (RHO,) * 3))
+    ms.mesh_object("Lamp", *LAMP, ms.emission("Glow", (1, 1, 1), STRENGTH))
+    # a point light before the wall's east end, on at frame 2 only
+    point = bpy.data.objects.new("Point", bpy.data.lights.new("Point", "POINT"))
+    point.data.energy, point.location = 100.0, (3.5, 0.5, 1.25)
+    bpy.context.scene.collection.objects.link(point)
+    for frame, off in ((1, True), (2, False)):
+        point.hide_render = off
+        point.keyframe_insert("hide_render", frame=frame)
+    ms.interpolation(point, "CONSTANT")
+    # a user's modifier on another object, which Delete Bake must leave alone (behind the wall: dark)
+    box = ms.mesh_object(
+        "Box",
+        [(x, y, z) for z in (0, 0.2) for y in (-1.2, -1) for x in (3, 3.2)],
+        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
+        ms.diffuse("Grey box", (RHO,) * 3),
+    )
+    box.modifiers.new("Bevel", "BEVEL").width = 0.02
+    # 0.6 m edges, 0.15 m after its Subdivision Surface (levels 2): finer than 0.25 m already
+    plane = [(1, -1, 0.5), (1.6, -1, 0.5), (1.6, -1, 1.1), (1, -1, 1.1)]
+    ms.mesh_object("Smooth", plane, [[0, 1, 2, 3]], ms.diffuse("Grey smooth", (RHO,) * 3))
+    bpy.data.objects["Smooth"].modifiers.new("Subdivision", "SUBSURF").levels = 2
+    return wall
+
+
+def _bake(scene, spacing):
+    """Bake frames 1-2 (vertex output, draft, final gather on) with Vertex Spacing `spacing`, show
+    frame 1; the wall's evaluated mesh (_wall) and the bake's warnings."""
+    from hr_addon.blender.bake import run_bake
+    from hr_addon.blender.playback import load_frame
+
+    scene.hr.vertex_spacing = spacing
+    res = run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=(1, 2))
+    assert load_frame(scene, 1)
+    return _wall(), res.warnings
+
+
+def _wall():
+    """The wall's evaluated mesh: (world positions (V, 3), loop_start, loop_total, loop_verts,
+    HR_Radiance per corner (L, 3))."""
+    import bpy
+    from hr_addon.blender.scene_in import mesh_topology
+
+    dg = bpy.context.evaluated_depsgraph_get()
+    me = bpy.data.objects["Wall"].evaluated_get(dg).data
+    co, ls, lt, lv = mesh_topology(me)
+    a = me.attributes["HR_Radiance"]
+    assert a.domain == "CORNER"
+    v = np.empty(len(a.data) * 4, np.float32)
+    a.data.foreach_get("color", v)
+    return co.astype(np.float64), ls, lt, lv, v.reshape(-1, 4)[:, :3].astype(np.float64)
+
+
+def _form_factor(p, n, poly):
+    """Point (K, 3) with normal n to polygon poly (M, 3), unoccluded (Lambert's contour integral)."""
+    R = poly[None] - p[:, None]
+    R /= np.linalg.norm(R, axis=2, keepdims=True)
+    S = np.roll(R, -1, axis=1)
+    g = np.cross(R, S)
+    theta = np.arccos(np.clip((R * S).sum(2), -1, 1))
+    g *= (theta / np.linalg.norm(g, axis=2))[..., None]
+    return np.abs(g.sum(1) @ n) / (2 * np.pi)
+
+
+def _reference(co, ls, lt, lv):
+    """Per corner, the wall's radiance rho L F (nothing else lights it, it sees nothing else) as the
+    vertex output's layout reads a corner (layouts.loop_samples): the mean over the corners at its
+    vertex of the value half way from each to its face's centre."""
+    poly = np.repeat(np.arange(len(ls)), lt)
+    centre = np.stack([np.bincount(poly, co[lv, c]) / lt[poly][np.r_[ls]] for c in range(3)], 1)
+    inset = co[lv] + 0.5 * (centre[poly] - co[lv])
+    b = RHO * STRENGTH * _form_factor(inset, np.array([0.0, 1.0, 0.0]), np.array(LAMP[0], float))
+    per_vert = np.bincount(lv, b, len(co)) / np.maximum(np.bincount(lv, minlength=len(co)), 1)
+    return per_vert[lv]
+
+
+def test_one_quad_wall_shows_the_light_across_it(tmp_path):
+    """Vertex Spacing 0.25 m: the one-quad wall's modifier subdivides it 16 x 16 (level 4: 4 m /
+    16 = 0.25 m; the lamp too, not the plane its Subdivision Surface makes finer already), and its
+    corners read the analytic light (from 22 down to 0.002 x the wall's mean) as the vertex layout
+    reads it, within 1e-5; its own four corners (spacing 0) interpolated over it are far off the
+    same light (the lamp's bright patch shows at none of them)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.own_values import LEVEL, N_VALUES
+
+    _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    (co, ls, lt, lv, val), warnings = _bake(scene, 0.25)
+    md = bpy.data.objects["Wall"].modifiers[-1]
+    assert md.name == N_VALUES and md[md.node_group.interface.items_tree[LEVEL].identifier] == 4
+    assert len(ls) == 256 and len(co) == 17 * 17
+    assert [w for w in warnings if w.startswith("Vertex Spacing 0.25: 2 object(s)") and "'Wall'" in w], (
+        warnings
+    )
+    ref = _reference(co, ls, lt, lv)
+    assert ref.max() / ref.mean() > 20 and ref.min() / ref.mean() < 0.002  # a gradient across the wall
+    # the final gather's direct light is exact (measured: within 5e-7, the float32 values' rounding)
+    np.testing.assert_allclose(val, np.repeat(ref[:, None], 3, 1), rtol=1e-5)
+    # playback: frame 2 (the point light on: its light across the wall too) and back
+    from hr_addon.blender.playback import load_frame
+
+    assert load_frame(scene, 2)
+    added = (_wall()[4] - val).mean(1)
+    assert added.min() > 0 and added.max() / added.min() > 10, (added.min(), added.max())
+    assert load_frame(scene, 1)
+    np.testing.assert_array_equal(_wall()[4], val)
+    # the plain wall: its four corners, interpolated over it as the render does (bilinear in x, z)
+    (co0, _, _, lv0, val0), _ = _bake(scene, 0.0)
+    assert not [m for m in bpy.data.objects["Wall"].modifiers if m.name == N_VALUES]
+    assert len(co0) == 4
+    by = {(round(x, 3), round(z, 3)): v for (x, _, z), v in zip(co0[lv0], val0.mean(1))}
+    u, w = co[lv, 0] / 4, co[lv, 2] / 2.5
+    coarse = (
+        by[0, 0] * (1 - u) * (1 - w) + by[4, 0] * u * (1 - w) + by[0, 2.5] * (1 - u) * w + by[4, 2.5] * u * w
+    )
+    assert np.median(np.abs(coarse / ref - 1)) > 1  # (measured: 5.3)
+
+
+def test_off_is_todays_bake_and_delete_bake_restores_the_meshes(tmp_path):
+    """Spacing 0 after a bake with a spacing: the subdividing modifier and its helper go again (the
+    bevelled box keeps today's, for its topology) and the values are those of the first bake with
+    spacing 0, bit for bit; Delete Bake leaves the user's mesh and modifiers as they were."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.own_values import N_VALUES
+    from hr_addon.blender.ops import _forget_bake
+    from hr_addon.blender.scene_in import mesh_topology
+
+    wall = _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    before = [np.array(a) for a in mesh_topology(wall.data)]
+    stacks = {o.name: [(m.name, m.type) for m in o.modifiers] for o in bpy.data.objects}
+    first, _ = _bake(scene, 0.0)
+    baked = {o.name: [(m.name, m.type) for m in o.modifiers] for o in bpy.data.objects}
+    assert baked["Wall"] == [] and baked["Box"] == [("Bevel", "BEVEL"), (N_VALUES, "NODES")]  # today's
+    fine, _ = _bake(scene, 0.3)
+    assert len(fine[1]) > len(first[1]) and wall.modifiers[-1].name == N_VALUES
+    assert bpy.data.objects["Box"].modifiers[-1].name == N_VALUES  # (for its bevel: 0.2 m edges)
+    again, _ = _bake(scene, 0.0)
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    assert {o.name: [(m.name, m.type) for m in o.modifiers] for o in bpy.data.objects} == baked
+    _bake(scene, 0.3)
+    _forget_bake(scene)
+    assert {o.name: [(m.name, m.type) for m in o.modifiers] for o in bpy.data.objects} == stacks
+    assert not [o for o in bpy.data.objects if o.name.startswith(N_VALUES)]
+    for a, b in zip(before, mesh_topology(wall.data)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_panel_shows_the_setting_and_the_live_note():
+    """Render > HR Radiosity: Vertex Spacing under the vertex output's settings, and with a spacing
+    the note that Live Relight shows the finer corners once a bake has added them."""
+    from types import SimpleNamespace
+
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import panels
+
+    class Layout:
+        def __init__(self):
+            self.props, self.labels = [], []
+
+        def __getattr__(self, name):  # column, row, box, operator, progress, ...: this layout again
+            return lambda *a, **kw: self
+
+        def prop(self, owner, name, **kw):
+            self.props.append(name)
+
+        def label(self, text="", **kw):
+            self.labels.append(text)
+
+    def drawn(cls):
+        lay = Layout()
+        cls.draw(SimpleNamespace(layout=lay), SimpleNamespace(scene=scene, object=None))
+        return lay
+
+    lay = drawn(panels.HR_PT_radiosity_settings)
+    assert "vertex_spacing" in lay.props and not [t for t in lay.labels if t.startswith("Live Relight:")]
+    scene.hr.vertex_spacing = 0.25
+    assert (
+        "Live Relight: the finer corners once a bake has added them"
+        in drawn(panels.HR_PT_radiosity_settings).labels
+    )
+    scene.hr.output = "TEXTURE"
+    assert "vertex_spacing" not in drawn(panels.HR_PT_radiosity_settings).props
+
+
+def test_file_without_the_extension_shows_the_same(tmp_path):
+    """The subdivision and the values are plain geometry nodes and a helper mesh saved with the
+    file: opened with the extension off, the wall shows the bake's subdivided mesh and values."""
+    bpy, ms, scene = empty_scene()
+    import hr_addon
+
+    _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    baked, _ = _bake(scene, 0.25)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "baked.blend"))
+    hr_addon.unregister()
+    try:
+        bpy.ops.wm.open_mainfile(filepath=str(tmp_path / "baked.blend"))
+        assert not hasattr(bpy.context.scene, "hr")
+        got = _wall()
+    finally:
+        hr_addon.register()
+    for a, b in zip(baked, got):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_live_relight_works_on_the_subdivided_mesh_after_a_bake(tmp_path):
+    """Live Relight makes no helpers: before any bake it shows the wall's own four corners; after a
+    bake with the spacing it writes the subdivided wall's corners (a strength x2 doubles them)."""
+    bpy, ms, scene = empty_scene()
+    _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    glow = bpy.data.materials["Glow"].node_tree.nodes["Emission"].inputs["Strength"]
+    scene.hr.vertex_spacing = 0.25
+
+    def live():
+        scene.hr.live = True
+        assert bpy.ops.hr.live_update() == {"FINISHED"}
+        return _wall()
+
+    assert len(live()[3]) == 4  # no bake yet: the mesh's own corners
+    scene.hr.live = False
+    assert bpy.ops.hr.live_update() == {"FINISHED"}
+    baked, _ = _bake(scene, 0.25)
+    first = live()
+    assert len(first[3]) == 1024
+    np.testing.assert_allclose(first[4], baked[4], rtol=1e-5)
+    glow.default_value *= 2
+    np.testing.assert_allclose(live()[4], 2 * first[4], rtol=1e-5)
+    scene.hr.live = False
+    assert bpy.ops.hr.live_update() == {"FINISHED"}
