@@ -387,6 +387,37 @@ def test_corner_samples_share_their_corners_rays():
     assert lit.mean() > 0.9 and np.abs(v[lit] * (1 - rho[0]) - 1).max() < 0.02
 
 
+def test_fine_leaves_samples_trace_their_share_of_the_rays(monkeypatch):
+    """final.FINE_RAYS < 1 (docs/scale.md, session 21): the second level's fine leaves' samples
+    trace that share of its rays, each row's weights the hits over those rays; the other samples'
+    rows (the probe's) and the top level's rows stay bitwise as with all rays (1, the default)."""
+    from hr_addon.core.gather import final
+
+    s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    kw = dict(rays=32, levels=2, iterations=2)
+    g1 = LoopGather(DynamicRadiosity(s, method="FE"), **kw)
+    monkeypatch.setattr(final, "FINE_RAYS", 0.5)
+    g2 = LoopGather(DynamicRadiosity(s, method="FE"), **kw)
+    assert g1.second.sample_rays is None and g2.stats["near_leaves"] > 0
+    start = g2._second_start
+    fine = np.repeat(np.diff(start) > np.diff(start).min(), np.diff(start))  # the fine leaves' samples
+    assert fine.any() and (g2.second.sample_rays == np.where(fine, 8, 16)).all()
+    for k in ("indptr", "cols", "w"):
+        assert np.array_equal(getattr(g1, k), getattr(g2, k))
+
+    def rows(g, rows):
+        ip = g.second.indptr
+        return [(g.second.cols[ip[r] : ip[r + 1]], g.second.w[ip[r] : ip[r + 1]]) for r in rows]
+
+    other = np.flatnonzero(~fine & ~g2.second.dark)
+    for (c1, w1), (c2, w2) in zip(rows(g1, other), rows(g2, other)):
+        assert np.array_equal(c1, c2) and np.array_equal(w1, w2)
+    G = g2.second
+    row = np.repeat(np.arange(G.n), np.diff(G.indptr))
+    hits = np.bincount(row, G.entry_weights(0, len(G.w)) * 8.0, G.n)[fine & ~G.dark]  # of its 8 rays
+    assert np.allclose(hits, np.round(hits)) and (hits <= 8).all() and hits.mean() > 4
+
+
 def test_emission_change_is_a_scale_and_shapes_are_cached():
     base = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
     dyn = DynamicRadiosity(base.copy(), method="FE")

@@ -379,16 +379,18 @@ def _slot_lookup(names, xi, rho, rho_other, ext):
     # only the 8 table entries around each point (interpolating whole (E, P) planes first cost
     # the furnished room's precompute 23 s of 63); the same operations in the same order
     j, m, f, fe = j[:, None], m[:, None], f[:, None], fe[:, None]
+    _, P, n = T[names[0]].shape  # (E, P, n), every table
+    at = (m * P + k) * n + j  # (N, C) the flat index of entry (m, k, j): one index for all 8 takes
     out = []
     for name in names:
-        M = T[name]  # (E, P, n)
+        M = T[name].ravel()
 
-        def at_p(p):  # (N, C): interpolated in depth, then in ext, at p-index p (N, C)
-            return (M[m, p, j] * (1 - f) + M[m, p, j + 1] * f) * (1 - fe) + (
-                M[m + 1, p, j] * (1 - f) + M[m + 1, p, j + 1] * f
+        def at_p(b):  # (N, C): interpolated in depth, then in ext, at flat entries b (N, C)
+            return (M.take(b) * (1 - f) + M.take(b + 1) * f) * (1 - fe) + (
+                M.take(b + P * n) * (1 - f) + M.take(b + P * n + 1) * f
             ) * fe
 
-        out.append(at_p(k) * (1 - fq) + at_p(k + 1) * fq)
+        out.append(at_p(at) * (1 - fq) + at_p(at + n) * fq)
     return out
 
 

@@ -199,10 +199,17 @@ class RayBackend:
         )
         prim = np.full(len(o), -1, np.int64)
         t = np.full(len(o), np.inf)
-        ok = np.flatnonzero(np.isfinite(o).all(1) & np.isfinite(d).all(1) & (np.einsum("ij,ij->i", d, d) > 0))
+        # finite rows by columns (.all(1) over an axis of 3 loops per row: 2.4 s CPU of the 100k
+        # room's gather precompute)
+        fin = np.isfinite(o)
+        good = fin[:, 0] & fin[:, 1] & fin[:, 2] & (np.einsum("ij,ij->i", d, d) > 0)
+        fin = np.isfinite(d)
+        good &= fin[:, 0] & fin[:, 1] & fin[:, 2]
+        ok = np.flatnonzero(good)
         if len(ok) and len(self.triangles):
             kernel = self._first if sure is None else lambda a, d: self._first(a, d, sure)
-            p, ts = self._map(kernel, o[ok], d[ok])
+            every = len(ok) == len(o)  # (no copies of the rays when all are good)
+            p, ts = self._map(kernel, o if every else o[ok], d if every else d[ok])
             hit = p >= 0
             prim[ok[hit]] = self.source[p[hit]]
             t[ok[hit]] = ts[hit]
@@ -551,8 +558,9 @@ class _Float32Backend(RayBackend):
         t = np.full(len(a), np.inf)
         ray = np.flatnonzero(prim >= 0)
         if sure is not None:  # t32 is measured from the shifted origin a + TMIN d
-            ok = (t32[ray] > sure) & (t32[ray] < 1.0 - sure)
-            t[ray[ok]] = TMIN + t32[ray[ok]]
+            tr = t32[ray]
+            ok = (tr > sure) & (tr < 1.0 - sure)
+            t[ray[ok]] = TMIN + tr[ok]
             ray = ray[~ok]
         with np.errstate(all="ignore"):
             t[ray] = _hit_t_kernel([m[prim[ray]] for m in self._rows], *a[ray].T, *d[ray].T)

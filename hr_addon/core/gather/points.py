@@ -18,9 +18,11 @@ def _triple(e, w, n):
 def split_lines(h, n_hr):
     """The lines that split each of the first n_hr nodes into its children, computed once for
     every locate_below of a gather (each level of each batch would redo them): per node up to
-    three lines, origin m (n_hr, 3, 3), direction e, and the side s (n_hr, 3) of the corner the
-    line cuts off (quads: lines 0 and 1 with corner a; triangles: corners a, b, c). The same
-    expressions as the per-level code had, so a point goes to the same child, bit for bit."""
+    three lines, origin m, direction e, and the side s of the corner the line cuts off (quads:
+    lines 0 and 1 with corner a; triangles: corners a, b, c). The same expressions as the
+    per-level code had, so a point goes to the same child, bit for bit. Component major, as
+    locate_below reads them: (m (3 lines, 3 axes, n_hr), e (3, 3, n_hr), s (3, n_hr), the nodes'
+    normals (3 axes, n_hr)), each row contiguous."""
     c, n = h.corners[:n_hr], h.normal[:n_hr]
     a, b, cc, d = c[:, 0], c[:, 1], c[:, 2], c[:, 3]
     ab, bc, cd, da, ca = (a + b) / 2, (b + cc) / 2, (cc + d) / 2, (d + a) / 2, (cc + a) / 2
@@ -31,7 +33,7 @@ def split_lines(h, n_hr):
     e = np.stack([np.where(quad, cd, ca), bc, bc], 1) - m
     corner = np.stack([a, np.where(quad, a, b), cc], 1)
     s = np.sign(np.stack([_triple(e[:, k], corner[:, k] - m[:, k], n) for k in range(3)], 1))
-    return m, e, s
+    return (*(np.ascontiguousarray(np.moveaxis(x, 0, -1)) for x in (m, e, s)), np.ascontiguousarray(n.T))
 
 
 def locate_below(h, patch, points, n_hr, lines=None):
@@ -43,34 +45,47 @@ def locate_below(h, patch, points, n_hr, lines=None):
     triangles and the middle one. So one level costs two (quads) or three (triangles) side tests
     against those lines (split_lines; pass them when locating many batches) instead of
     output.locate's test against every child's edges; ties on a line go to either side, as
-    locate's."""
-    m, e, s = split_lines(h, n_hr) if lines is None else lines
-    node = np.asarray(patch, np.int64).copy()
+    locate's. The points still descending are kept apart, by coordinate: each level gathers only
+    theirs (_triple's products in its order, so the same leaf bit for bit)."""
+    m, e, s, nrm = split_lines(h, n_hr) if lines is None else lines
+    out = np.asarray(patch, np.int64).copy()
     pts = np.asarray(points, float)
+    idx, node = None, out  # the points still descending (None: all) and their nodes
+    p = [pts[:, k].copy() for k in range(3)]
     while True:
         c0 = h.child0[node]
-        inner = np.flatnonzero((c0 >= 0) & (c0 < n_hr))
-        if len(inner) == 0:
-            return node
-        nd = node[inner]
-        n = h.normal[nd]
-        p = pts[inner]
+        inner = (c0 >= 0) & (c0 < n_hr)
+        if not inner.all() or not len(inner):
+            done = np.flatnonzero(~inner)
+            out[done if idx is None else idx[done]] = node[done]
+            go = np.flatnonzero(inner)
+            if not len(go):
+                return out
+            idx = go if idx is None else idx[go]
+            node, c0, p = node[go], c0[go], [x[go] for x in p]
 
         def side(k, rows):  # > 0: the point on the corner's side of line k (0 on the line)
-            j = nd[rows]
-            return _triple(e[j, k], p[rows] - m[j, k], n[rows]) * s[j, k]
+            j = node if rows is None else node[rows]
+            ex, ey, ez = (x.take(j) for x in e[k])
+            wx, wy, wz = ((x if rows is None else x[rows]) - mk.take(j) for x, mk in zip(p, m[k]))
+            nx, ny, nz = (x.take(j) for x in nrm)
+            det = (ey * wz - ez * wy) * nx + (ez * wx - ex * wz) * ny + (ex * wy - ey * wx) * nz
+            return det * s[k].take(j)
 
-        k = np.zeros(len(nd), np.int64)
-        quad = h.nv[nd] == 4
-        q = np.flatnonzero(quad)
-        if len(q):
-            right, top = side(0, q) < 0, side(1, q) < 0
-            k[q] = np.where(top, np.where(right, 2, 3), np.where(right, 1, 0))
-        t = np.flatnonzero(~quad)
-        if len(t):
+        quad = h.nv[node] == 4
+        if quad.all():
+            right, top = side(0, None) < 0, side(1, None) < 0
+            k = np.where(top, np.where(right, 2, 3), np.where(right, 1, 0))
+        else:
+            k = np.zeros(len(node), np.int64)
+            q = np.flatnonzero(quad)
+            if len(q):
+                right, top = side(0, q) < 0, side(1, q) < 0
+                k[q] = np.where(top, np.where(right, 2, 3), np.where(right, 1, 0))
+            t = np.flatnonzero(~quad)
             in_a, in_b, in_c = side(0, t) > 0, side(1, t) > 0, side(2, t) > 0
             k[t] = np.where(in_a, 0, np.where(in_b, 1, np.where(in_c, 2, 3)))
-        node[inner] = c0[inner] + k
+        node = c0 + k
 
 
 def onto_patch(pt, patch, p, margin):

@@ -35,7 +35,11 @@ def hash_uniform(seed, index, stream, k=2):
 def rotated_hammersley(k, seed, keys, stream):
     """(len(keys), k, 2): k Hammersley points rotated on the torus by each key's hash_uniform (a point's
     own stratified set, the same whatever batch it is in)."""
-    return (hammersley(k)[None] + hash_uniform(seed, keys, stream)[:, None]) % 1.0
+    u = hammersley(k)[None] + hash_uniform(seed, keys, stream)[:, None]
+    # both terms lie in [0, 1): one subtraction wraps the sum, exact (Sterbenz) as % 1.0's fmod is,
+    # so the same bits, 4x faster (the gather's 42 M hemisphere rays at 100k: ~1.2 s CPU)
+    u -= u >= 1.0
+    return u
 
 
 def position_keys(points, unit):
@@ -71,7 +75,7 @@ def _frame(n):
 def cosine_directions(normals, index, rays, seed, stream=0):
     """(N, rays, 3) cosine-weighted unit directions about normals (N, 3): a Hammersley pattern
     rotated per sample by hash_uniform(seed, index)."""
-    u = (hammersley(rays)[None] + hash_uniform(seed, index, stream)[:, None]) % 1.0  # (N, R, 2)
+    u = rotated_hammersley(rays, seed, index, stream)  # (N, R, 2)
     r = np.sqrt(u[..., 0])
     phi = 2 * np.pi * u[..., 1]
     z = np.sqrt(np.maximum(1 - u[..., 0], 0))
