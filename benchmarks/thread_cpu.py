@@ -93,13 +93,22 @@ def task_cpu():
 
 
 VMSTAT = ("compact_stall", "thp_fault_alloc", "thp_fault_fallback")  # machine-wide counters
+IRQS = ("TLB", "CAL")  # machine-wide too (/proc/interrupts, all cores): TLB shootdowns, function calls
 
 
 def usage():
     r = resource.getrusage(resource.RUSAGE_SELF)
     vm = dict(line.split() for line in Path("/proc/vmstat").read_text().splitlines())
     vm = [int(vm.get(k, 0)) for k in VMSTAT]
-    return np.array([r.ru_utime, r.ru_stime, r.ru_minflt, r.ru_nvcsw, r.ru_nivcsw, *vm])
+    irq = {}
+    for line in Path("/proc/interrupts").read_text().splitlines()[1:]:
+        f = line.split()
+        if f and f[0].rstrip(":") in IRQS:
+            irq[f[0].rstrip(":")] = sum(int(v) for v in f[1:] if v.isdigit())
+    irq = [irq.get(k, 0) for k in IRQS]
+    f = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    busy = (sum(f) - f[3] - f[4]) / os.sysconf("SC_CLK_TCK")  # every core's busy CPU s (all processes)
+    return np.array([r.ru_utime, r.ru_stime, r.ru_minflt, r.ru_nvcsw, r.ru_nivcsw, *vm, *irq, busy])
 
 
 def dispatch(reps=300):
@@ -144,7 +153,9 @@ def measured(maps, fn):
     u = usage() - u0
     rec = dict(cpu=time.process_time() - c0, wall=time.perf_counter() - w0, user=u[0], sys=u[1])
     rec.update(minflt=int(u[2]), nvcsw=int(u[3]), nivcsw=int(u[4]), maps=maps[m0:])
-    rec.update({k: int(v) for k, v in zip(VMSTAT, u[5:])})
+    rec.update({k: int(v) for k, v in zip(VMSTAT + IRQS, u[5:-1])})
+    # the CPU other processes took meanwhile (/proc/stat, 10 ms ticks): 0 on an idle machine
+    rec["foreign"] = float(u[-1] - rec["user"] - rec["sys"])
     return rec
 
 
@@ -180,7 +191,8 @@ def stored(store, threads, quality="draft"):
         while lv is not None:  # the shape's direct light is each method's event cost
             lv._shape_cache.clear()
             lv = lv.second
-        g.loop_radiance(dyn)
+        # the base parts' output (the first of a loaded store: it makes the gather's kept arrays)
+        out[f"{method} first output"] = [measured(maps, lambda: g.loop_radiance(dyn))]
         for what, fn in (
             ("add", lambda: dyn.add("w", window(0.7))),
             ("move", lambda: dyn.apply({"w": window(1.2)})),
@@ -247,6 +259,8 @@ def summary(runs):
                 minflt=med(lambda x: x["minflt"]),
                 csw=med(lambda x: x["nvcsw"] + x["nivcsw"]),
                 compact=med(lambda x: x.get("compact_stall", 0)),
+                tlb=med(lambda x: x.get("TLB", 0)),
+                foreign=med(lambda x: x.get("foreign", 0.0)),
                 maps=med(lambda x: len(x["maps"])),
                 batches=med(lambda x: sum(m[0] for m in x["maps"])),
                 off_caller=med(lambda x: sum(m[5] for m in x["maps"])),
@@ -351,6 +365,8 @@ def main(argv=None):
         "minflt",
         "csw",
         "compact",
+        "tlb",
+        "foreign",
         "maps",
         "batches",
         "off_caller",

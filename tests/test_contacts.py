@@ -227,7 +227,37 @@ def test_covered_disc_shortcut_gives_the_full_sums_answer():
     r = np.hypot(p2[:, 0] - cx[ch], p2[:, 1] - cy[ch])
     assert (r < r_in[ch]).mean() > 0.3 and (r > r_out[ch]).any()  # the shortcut decides most pairs
     assert (r_in > 0).mean() > 0.3 and (band > 0).any()  # closed chains (a wall's along the floor is open)
-    c._disc = (cx, cy, np.zeros_like(r_in), np.full_like(r_out, np.inf), wc, band)  # every pair summed
+    c._tables["disc"] = (
+        cx,
+        cy,
+        np.zeros_like(r_in),
+        np.full_like(r_out, np.inf),
+        wc,
+        band,
+    )  # every pair summed
     for oe, f in zip((0.0, 5.0), fast):
         np.testing.assert_array_equal(f, c.covered(pts, patch, open_edge=oe))
     assert 0.01 < fast[1].mean() < fast[0].mean() < 0.9
+
+
+def test_copies_share_the_tables_built_on_first_use():
+    """A deep copy of the contacts (each light event's copy of a system: RadiositySystem.copy)
+    shares the tables made on first use from the static chains (_table: the chains' box grid,
+    the component-major segments, the discs), whichever copy made them, and answers the same."""
+    import copy
+
+    from hr_testing.furnished import furnished_room
+
+    pt = prepare_patches(furnished_room("2k")[0])
+    c = Contacts(pt, 1e-3 * np.sqrt(pt.area.sum()))
+    rec = np.asarray(c.receivers, np.int64)
+    pts = ff.sample_points(pt.corners[rec], pt.nv[rec], 6).reshape(-1, 3)
+    patch = np.repeat(rec, 36)
+    a, b = copy.deepcopy(c), copy.deepcopy(c)
+    got = a.covered(pts, patch, open_edge=5.0)  # a's first covered test makes them
+    assert set(a._tables) == {"grid", "seg_cm", "disc"} and b._tables is a._tables is c._tables
+    assert a.seg_a is not c.seg_a  # (the rest is copied)
+    np.testing.assert_array_equal(got, b.covered(pts, patch, open_edge=5.0))
+    fresh = Contacts(pt, 1e-3 * np.sqrt(pt.area.sum()))
+    np.testing.assert_array_equal(got, fresh.covered(pts, patch, open_edge=5.0))
+    assert fresh._tables is not c._tables

@@ -118,6 +118,26 @@ def test_clear_shafts_is_conservative():
         assert not b.occluded(o[ok], e).any()
 
 
+def test_clear_shafts_grid_is_the_same_on_threads(monkeypatch):
+    """ClearShafts' triangles' boxes and grid cells by batches on 2 threads (planes.TRI_BATCH
+    small enough to split the furnished 2k room's triangles): the same grid and big planes' boxes
+    as on one thread."""
+    from hr_addon.core import planes
+    from hr_testing.furnished import furnished_room
+
+    mesh, info = furnished_room("2k")
+    o, u, v = (np.asarray(x, float) for x in info["light_wall"][1])
+    s = RadiositySystem(mesh, RefineParams.for_gather("draft"))
+    tri = s.patches.triangles
+    monkeypatch.setattr(planes, "TRI_BATCH", 100)
+    assert len(tri) > 10 * planes.TRI_BATCH
+    point, normal = o + 0.7 * u + 0.6 * v, np.cross(u, v) / np.linalg.norm(np.cross(u, v))
+    a, b = (ClearShafts(tri, s.refiner.occluders.plane, point, normal, 1e-9, threads) for threads in (1, 2))
+    assert a.sat is not None and a.sat.max() > 0 and len(a.big_lo) > 0
+    for k in ("sat", "big_lo", "big_hi", "o", "cell"):
+        assert np.array_equal(getattr(a, k), getattr(b, k))
+
+
 def test_first_bounce_and_gather_share_one_grid(monkeypatch):
     """An AUTO window on the furnished 2k room: its first bounce on nodes and the gather's direct
     light at both levels test their shafts against one ClearShafts grid, built once per emitter

@@ -809,7 +809,7 @@ def test_component_major_sampling_equals_the_row_major_one():
 def test_csr_matvec_equals_rows_of_three():
     """The channel-major CSR matvec sums the same float32 products in the same order as the rows-of-C
     reduceat it replaced (bitwise), empty rows 0."""
-    from hr_addon.core.gather import _csr_matvec
+    from hr_addon.core.gather import _csr_matvec, final
 
     rng = np.random.default_rng(4)
     counts = rng.integers(0, 40, 3000)
@@ -824,6 +824,19 @@ def test_csr_matvec_equals_rows_of_three():
     ref[ne] = np.add.reduceat(prod, indptr[:-1][ne], axis=0)
     assert np.array_equal(_csr_matvec(indptr, cols, w, V, chunk=1000), ref)
     assert np.array_equal(_csr_matvec(indptr, cols, w, V), ref)
+    # read in steps of a few rows, and over the values the columns use (FinalGather._read_cols)
+    used, comp = np.unique(cols, return_inverse=True)
+    step, final.READ_STEP = final.READ_STEP, 100
+    try:
+        assert np.array_equal(_csr_matvec(indptr, cols, w, V, chunk=1000), ref)
+        assert np.array_equal(_csr_matvec(indptr, comp.astype(np.int32), w, V, chunk=1000, used=used), ref)
+        # hit counts over 4 rays a row (FinalGather.w): as their float32 weights count / 4
+        cnt = rng.integers(1, 5, indptr[-1]).astype(np.uint8)
+        ref4 = _csr_matvec(indptr, cols, (cnt / 4).astype(np.float32), V)
+        got = _csr_matvec(indptr, comp.astype(np.int32), cnt, V, chunk=1000, rays=4, used=used)
+        assert np.abs(ref4).max() > 0 and np.array_equal(got, ref4)
+    finally:
+        final.READ_STEP = step
 
 
 def test_csr_matvec_of_hit_counts_equals_their_float32_weights():
@@ -919,10 +932,10 @@ def test_corner_samples_buried_in_clutter_move_to_the_visible_part():
     assert g_top.min() == 0 and g_lid.min() < 0.05 * g_lid.max(), (g_top, g_lid)
 
 
-def test_the_passes_read_kept_intp_columns_that_are_not_stored():
-    """The second level's passes read its columns as intp, made once and kept (_read_cols): the
-    same values as a read of the int32 columns, made again when the columns change, and never
-    captured into a precompute (precompute_graph._TRANSIENT)."""
+def test_the_reads_take_kept_compacted_columns_that_are_not_stored():
+    """Every read takes the level's columns renumbered over the leaf values they read, made once and
+    kept (_read_cols): the same values as a read of the stored columns, made again when the columns
+    change, and never captured into a precompute (precompute_graph._TRANSIENT)."""
     from hr_addon.io.precompute_graph import capture
 
     dyn = DynamicRadiosity(RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft")), method="FE")
@@ -930,15 +943,15 @@ def test_the_passes_read_kept_intp_columns_that_are_not_stored():
     g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=32, levels=2, iterations=2)
     g.evaluate(dyn)  # the passes make them
     g2 = g.second
-    cols = g2.__dict__["_cols_intp"][1]
-    assert cols.dtype == np.intp and g2.cols.dtype != np.intp and np.array_equal(cols, g2.cols)
-    assert g2._read_cols() is cols
+    cols, used = g2.__dict__["_cols_read"][1:]
+    assert np.array_equal(used, np.unique(g2.cols)) and np.array_equal(used[cols], g2.cols)
+    assert g2._read_cols()[0] is cols
     Y = np.random.default_rng(5).random((int(g2.cols.max()) + 1, 3))
-    assert np.array_equal(g2._read((Y, None, None, None), cols), g2._read((Y, None, None, None)))
+    assert np.array_equal(g2._read((Y, None, None, None), g2.cols), g2._read((Y, None, None, None)))
     g2.cols = g2.cols.copy()
-    assert g2._read_cols() is not cols and np.array_equal(g2._read_cols(), cols)
+    assert g2._read_cols()[0] is not cols and np.array_equal(g2._read_cols()[0], cols)
     arrays, graph = capture(dyn.system, g)
-    assert not any("_cols_intp" in k for k in arrays) and "_cols_intp" not in repr(graph)
+    assert not any("_cols_read" in k for k in arrays) and "_cols_read" not in repr(graph)
 
 
 def test_column_sums_are_the_rows_summed_in_order():

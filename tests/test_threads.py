@@ -315,7 +315,8 @@ def test_furnished_gather_samples_with_one_and_two_threads_are_equal(small_batch
     the back-face rays by batches of samples), the samples put onto their patches, the patches
     split part open, part in a slot (by batches of patches), the slot samples' slots and
     transfers, the gather samples' covered test (by batches of points), the fine leaves, the
-    weights and the output with 1 and 2 threads: bitwise equal."""
+    weights, the reads' compacted columns (by batches of weights) and the output with 1 and 2
+    threads: bitwise equal."""
     from hr_addon.core import contacts
     from hr_addon.core.gather import FinalGather, final, layouts
     from hr_testing.furnished import furnished_room
@@ -325,6 +326,7 @@ def test_furnished_gather_samples_with_one_and_two_threads_are_equal(small_batch
     monkeypatch.setattr(final, "SLOT_BATCH", 64)
     monkeypatch.setattr(FinalGather, "POINT_BATCH", 500)
     monkeypatch.setattr(FinalGather, "ENTRY_BATCH", 5000)
+    monkeypatch.setattr(final, "READ_STEP", 3000)  # the reads' steps within a row block
     s = RadiositySystem(furnished_room("2k")[0], RefineParams.for_gather("draft"))
     dyn = DynamicRadiosity(s, method="FE")
     out = []
@@ -346,6 +348,8 @@ def test_furnished_gather_samples_with_one_and_two_threads_are_equal(small_batch
         assert all(map(np.array_equal, x, y)) if isinstance(x, tuple) else np.array_equal(x, y)
     x, y = a.loop_radiance(dyn), b.loop_radiance(dyn)
     assert np.abs(x).max() > 0 and np.array_equal(x, y)
+    assert len(a.second.w) > 5 * final.READ_STEP
+    assert all(map(np.array_equal, a.second._read_cols(), b.second._read_cols()))
     assert not _workers()
 
 
@@ -441,7 +445,7 @@ def test_the_threads_setting_and_live_keeping_one_core(monkeypatch):
     hr = SimpleNamespace(
         method="AUTO", quality="DRAFT", domain="CORNER", output="VERTEX", texture_format="EXR",
         radiance_mode="RADIANCE", texture_resolution=256, texel_density=50.0, feps=0.01,
-        aeps=0.001, contacts=True, final_gather=True, threads=0,
+        aeps=0.001, contacts=True, final_gather=True, threads=0, vertex_spacing=0.0,
     )  # fmt: skip
     cfg = BakeConfig.resolve(hr)
     assert (cfg.threads, parallel.resolve_threads(cfg.threads), cfg.live_threads) == (0, 8, 7)

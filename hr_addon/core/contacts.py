@@ -21,6 +21,8 @@ Pieces are connected by shared vertices; each chain's winding is summed on its o
 through per-chain bounding boxes, so the cost follows the number of contacts, not all pairs.
 """
 
+import copy
+
 import numpy as np
 
 from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, row_groups, sorted_index, unique_ints
@@ -293,6 +295,29 @@ class Contacts(SlotMouths):
             out[i[hit & ~near]] = True
         return out
 
+    def _table(self, key, make):
+        """The table `key`, made by make() on first use from the static chains and segments (their
+        box grid, component-major segments, discs: no light event changes them), in a dict that
+        deep copies share (__deepcopy__): every light event's copy of a system
+        (RadiositySystem.copy deep-copies the hierarchy) reuses what any of them built, where each
+        built its own before (0.2 s of an AUTO event's serial CPU at 100k). One assignment:
+        threads may race to make it, never half."""
+        tables = self.__dict__.setdefault("_tables", {})
+        got = tables.get(key)
+        if got is None:
+            got = tables[key] = make()
+        return got
+
+    def __deepcopy__(self, memo):
+        """A deep copy sharing _table's tables (not copied: read-only)."""
+        new = object.__new__(type(self))
+        memo[id(self)] = new
+        tables = self.__dict__.setdefault("_tables", {})
+        memo[id(tables)] = tables
+        for k, v in self.__dict__.items():
+            new.__dict__[k] = copy.deepcopy(v, memo)
+        return new
+
     def _pairs(self, points, patch, budget, open_edge=0.0):
         """The (point, chain) pairs of points (N, 3) on patches (N,) with the point in the chain's
         box: (i, ch, covering (the chain's winding covers the point), near (within open_edge x h of
@@ -302,9 +327,7 @@ class Contacts(SlotMouths):
         gi = self.plane[patch]
         p2 = self._to2d(gi, points[:, None])[:, 0]
         lo = np.concatenate([p2, np.zeros((len(p2), 1))], 1)
-        grid = getattr(self, "_grid", None)
-        if grid is None:  # built once (one assignment: threads may race to build it, never half)
-            grid = self._grid = box_grid(self.chain_lo, self.chain_hi, self.chain_plane)
+        grid = self._table("grid", lambda: box_grid(self.chain_lo, self.chain_hi, self.chain_plane))
         i, ch = points_in_boxes(grid, lo, gi)
         # a piece never covers itself (a room's walls its floor, a table's sides its top)
         own = self.chain_piece[ch] == self.piece[patch[i]]
@@ -330,11 +353,10 @@ class Contacts(SlotMouths):
         wr = np.zeros(len(i))
         nr = np.zeros(len(i), bool)
         step = max(1, budget // max(int(n_seg.max(initial=1)), 1))
-        seg = getattr(self, "_seg_cm", None)
-        if seg is None:  # one assignment: threads may race to build it, never half
-            seg = self._seg_cm = tuple(
-                np.ascontiguousarray(x[:, k]) for x in (self.seg_a, self.seg_b) for k in (0, 1)
-            )
+        seg = self._table(
+            "seg_cm",
+            lambda: tuple(np.ascontiguousarray(x[:, k]) for x in (self.seg_a, self.seg_b) for k in (0, 1)),
+        )
         for s in range(0, len(i), step):
             sl = slice(s, s + step)
             ns = n_seg[sl]
@@ -368,9 +390,9 @@ class Contacts(SlotMouths):
         (shrunk by 1e-9 of it; 0 for a chain that is not closed: its starts not the same points as
         its ends) and to the farthest segment end (grown by 1e-9 of it), the largest height of its
         open segments: _pairs' exact shortcut. Built once."""
-        got = getattr(self, "_disc", None)
-        if got is not None:
-            return got
+        return self._table("disc", self._make_discs)
+
+    def _make_discs(self):
         a, b, st = self.seg_a, self.seg_b, self.chain_start
         nC, cnt = len(st) - 1, np.diff(st)
         ch = np.repeat(np.arange(nC), cnt)
@@ -391,8 +413,7 @@ class Contacts(SlotMouths):
         wc = self._winding(np.arange(nC), c) if nC else np.zeros(0)
         band = np.zeros(nC)  # (a NaN height opens no band: d < NaN is False)
         np.maximum.at(band, ch, np.nan_to_num(self.seg_height * self.seg_open, nan=0.0))
-        got = self._disc = (c[:, 0].copy(), c[:, 1].copy(), r_in, r_out, wc, band * (1 + 1e-9))
-        return got  # (one assignment: threads may race to build it, never half)
+        return c[:, 0].copy(), c[:, 1].copy(), r_in, r_out, wc, band * (1 + 1e-9)
 
     # -- the slots' mouths ----------------------------------------------------------------------------
     def _winding(self, ch, q):

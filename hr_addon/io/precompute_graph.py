@@ -19,7 +19,7 @@ _TRANSIENT = {
     # (not _ext, the solver's far-link terms: geometry only, set by the build's base solution, and
     # seconds to make again at 100k on a re-bake's first light event)
     "Links": {"_csr": None},
-    "Contacts": {"_grid": None, "_seg_cm": None, "_disc": None},
+    "Contacts": {"_tables": dict},
     "ClusterTree": {"_group_runs_": None, "_grad_rows": None, "_centre9": None},
     "FinalGather": {
         "_shape_cache": dict,
@@ -33,7 +33,9 @@ _TRANSIENT = {
         "_shift": None,
         "_loop_parts": dict,
         "_mean_weights": None,
-        "_cols_intp": None,
+        "_mean_runs": None,
+        "_near_own": None,
+        "_cols_read": None,
     },
 }
 _TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]

@@ -35,7 +35,9 @@ def clear_shafts(system, point, normal):
     for ref, k, sh in _SHAFTS:
         if ref() is pt.corners and k == key:
             return sh
-    sh = ClearShafts(pt.triangles, system.refiner.occluders.plane, point, normal, margin)
+    sh = ClearShafts(
+        pt.triangles, system.refiner.occluders.plane, point, normal, margin, system.backend.threads
+    )
     _SHAFTS.append((weakref.ref(pt.corners), key, sh))
     del _SHAFTS[:-4]
     return sh

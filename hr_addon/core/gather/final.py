@@ -2,6 +2,7 @@
 values of the leaves (levels, iterations, cached responses, NAIVE) and the output (docs/gather.md)."""
 
 import copy
+import threading
 
 import numpy as np
 
@@ -47,13 +48,24 @@ FINE_RAYS = 1.0
 SLOT_BATCH = 1 << 13
 
 
-def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1, rays=None):
+# entries a thread reads at a time within a row block of _csr_matvec: its products (0.5 MB of
+# float32, into a buffer the thread keeps) and columns stay in the caches across the three
+# channels (100k room, with _read_cols' columns: a read's CPU 0.75-0.79x main's in steps of 2^17,
+# 0.88-0.91x in whole 2^20-entry blocks; whole rows summed, so the same bits)
+READ_STEP = 1 << 17
+_scratch = threading.local()  # each thread's products buffer for _csr_matvec
+
+
+def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1, rays=None, used=None):
     """(n, C) float64 = W @ V for a CSR matrix (indptr, cols, w) and dense V (m, C): float32
     products summed per row by np.add.reduceat, in row blocks of about `chunk` entries (the blocks
-    do not depend on `threads`, and each writes its own rows: equal for any thread count).
+    do not depend on `threads`, and each writes its own rows: equal for any thread count), each
+    read in steps of about READ_STEP entries (whole rows: the same sums).
     w: float32 weights, or unsigned hit counts (FinalGather.w) whose weight is count / rays of the
     row (rays: one for all rows or (n,)): each row's float32 sum of V x count divided by its rays,
-    for rays a power of two bit for bit the sum with float32 weights count / rays."""
+    for rays a power of two bit for bit the sum with float32 weights count / rays.
+    used: the rows of V the columns number (_read_cols' compacted columns: cols < len(used) by
+    construction), else cols index V itself."""
     n = len(indptr) - 1
     counts = w.dtype.kind == "u"
     if counts and rays is None:
@@ -63,25 +75,33 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1, rays=None):
         return out
     # channel-major: a 1-d take and reduceat per channel are 2x faster than rows of C with
     # reduceat along axis 0 (100k room, measured), and sum the same products in the same order
-    VT = np.ascontiguousarray(V.T, dtype=np.float32)
+    VT = np.ascontiguousarray((V if used is None else V[used]).T, dtype=np.float32)
     # the takes below skip numpy's per-index bounds error path (mode="clip": 0.125 -> 0.10 s a
     # read of the 100k room's 17.4 M weights, the same values): checked here once per read
-    if int(cols.max()) >= len(V):
+    if (int(cols.max()) if used is None else len(used) and int(used.max())) >= len(V):
         raise IndexError(f"_csr_matvec: a column beyond V's {len(V)} rows")
 
     def block(r0, r1):
-        a, b = indptr[r0], indptr[r1]
-        if b > a:
-            c = np.asarray(cols[a:b], np.intp)  # once for every channel's take (int32 is converted per call)
-            starts = indptr[r0:r1] - a
-            nonempty = np.flatnonzero(indptr[r0 + 1 : r1 + 1] > indptr[r0:r1])
-            rows, starts = r0 + nonempty, starts[nonempty]
-            per = (rays if np.ndim(rays) == 0 else rays[rows]) if counts else None
-            for k in range(len(VT)):
-                prod = np.take(VT[k], c, mode="clip")
-                prod *= w[a:b]
-                got = np.add.reduceat(prod, starts)
-                out[rows, k] = got if per is None else got / per
+        q0 = r0
+        while q0 < r1:
+            q1 = min(max(int(np.searchsorted(indptr, indptr[q0] + READ_STEP, "right")) - 1, q0 + 1), r1)
+            a, b = indptr[q0], indptr[q1]
+            if b > a:
+                c = np.asarray(cols[a:b], np.intp)  # once for every channel's take
+                starts = indptr[q0:q1] - a
+                nonempty = np.flatnonzero(indptr[q0 + 1 : q1 + 1] > indptr[q0:q1])
+                rows, starts = q0 + nonempty, starts[nonempty]
+                per = (rays if np.ndim(rays) == 0 else rays[rows]) if counts else None
+                buf = getattr(_scratch, "prod", None)
+                if buf is None or len(buf) < b - a:
+                    buf = _scratch.prod = np.empty(max(b - a, READ_STEP), np.float32)
+                prod = buf[: b - a]
+                for k in range(len(VT)):
+                    np.take(VT[k], c, mode="clip", out=prod)
+                    prod *= w[a:b]
+                    got = np.add.reduceat(prod, starts)
+                    out[rows, k] = got if per is None else got / per
+            q0 = q1
 
     batch_map(block, _row_blocks(indptr, chunk), threads)
     return out
@@ -312,8 +332,9 @@ class FinalGather(DirectLight):
     called from the calling thread as batches of hemisphere rays finish; raising cancels."""
 
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
-    ENTRY_BATCH = 1 << 21  # weights per batch of _remap_near on threads (fixed: the same values)
+    ENTRY_BATCH = 1 << 21  # weights per batch of _remap_near, _read_cols on threads (fixed: the same values)
     POINT_BATCH = 1 << 15  # samples per batch of their setup (onto_patch) on threads (fixed)
+    ROW_BATCH = 1 << 15  # leaves or rows per batch of the passes' leaf means, near rows (fixed)
     threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
     # restored from stored arrays runs inline until told otherwise)
     near_points = 0  # (a class default too: a gather stored before near hits restores without it)
@@ -1168,7 +1189,7 @@ class FinalGather(DirectLight):
             if zero and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
                 k -= 1
                 break
-            y = g2._read(L, g2._read_cols())  # rho (D2 + read), in place: no (n, 3) temporaries a pass
+            y = g2._read(L)  # rho (D2 + read), in place: no (n, 3) temporaries a pass
             y += D2
             y *= g2.rho
             Y = self._leaf_means(y, V)
@@ -1291,31 +1312,56 @@ class FinalGather(DirectLight):
         leaf's value."""
         if not self.near_points or self.second is None:
             return V
-        own = np.repeat(self._second_map[0], np.diff(self._second_start))
-        return np.vstack([V[: self.n_hr], np.take(V, own, 0)])  # (rows by take: 3x faster)
+        own = self.__dict__.get("_near_own")
+        if own is None:  # the static geometry's (one assignment: threads may race to make it)
+            own = self._near_own = np.repeat(self._second_map[0], np.diff(self._second_start))
+        m = self.n_hr
+        out = np.empty((m + len(own),) + V.shape[1:], V.dtype)
+        out[:m] = V[:m]
+        # rows by take (3x faster than fancy indexing), by ranges on threads: each row its own
+        part = lambda a, b: np.take(V, own[a:b], 0, out=out[m + a : m + b], mode="clip")  # noqa: E731
+        batch_map(part, ranges(len(own), self.ROW_BATCH), self.threads)
+        return out
 
     def _read(self, L, cols=None):
         """(n, 3) what the rays read of leaf values L = (means Y, S, slopes along e1 and e2;
         _levels): the means, or with slopes the linear function at the hits (Y - S at the frame's
-        origin; Y may be changed in place after _levels, _light_bounce). cols: self.cols as intp
-        (_read_cols), else each read converts them."""
+        origin; Y may be changed in place after _levels, _light_bounce). cols: columns indexing
+        Y's rows, else _read_cols' compacted ones (the same values)."""
         Y, S, Gu, Gv = L
-        cols = self.cols if cols is None else cols
+        cols, used = self._read_cols() if cols is None else (cols, None)
+        kw = dict(threads=self.threads, rays=self.row_rays, used=used)
         if getattr(self, "wu", None) is None or Gu is None:
-            return _csr_matvec(self.indptr, cols, self.w, Y, threads=self.threads, rays=self.row_rays)
-        return sum(
-            _csr_matvec(self.indptr, cols, w, v, threads=self.threads, rays=self.row_rays)
-            for w, v in ((self.w, Y - S), (self.wu, Gu), (self.wv, Gv))
-        )
+            return _csr_matvec(self.indptr, cols, self.w, Y, **kw)
+        parts = ((self.w, Y - S), (self.wu, Gu), (self.wv, Gv))
+        return sum(_csr_matvec(self.indptr, cols, w, v, **kw) for w, v in parts)
 
     def _read_cols(self):
-        """self.cols as intp, kept (not stored: precompute_graph._TRANSIENT) for a level the passes
-        read 1 + iterations times an event: converting the 100k room's 14.3 M int32 columns costs
-        about 0.017 s of each 0.12 s read (measured in isolation), for 114 MB kept."""
-        got = self.__dict__.get("_cols_intp")
+        """(columns, used): self.cols renumbered over the leaf values they read (used, ascending:
+        the rows of the value array a read takes, _csr_matvec), int32, made once and kept (not
+        stored: precompute_graph._TRANSIENT; made again when the columns change). The 100k room's
+        second level reads 187k of its 514k rows: their 0.75 MB a channel stays in a core's cache
+        where the whole 2 MB did not (the same products in the same order; docs/threads.md,
+        session 21). Made by batches of ENTRY_BATCH weights on threads: 0.15 s of CPU at 100k."""
+        got = self.__dict__.get("_cols_read")
         if got is None or got[0] is not self.cols:  # (one assignment: threads may race to make it)
-            got = self._cols_intp = (self.cols, self.cols.astype(np.intp))
-        return got[1]
+            cols = self.cols
+            seen = np.zeros(int(cols.max()) + 1 if len(cols) else 0, bool)
+            parts = ranges(len(cols), self.ENTRY_BATCH)
+
+            def mark(a, b):  # (batches on threads may set the same flags: all to True)
+                seen[cols[a:b]] = True
+
+            batch_map(mark, parts, self.threads)
+            rank = np.cumsum(seen, dtype=np.int32) - 1
+            out = np.empty(len(cols), np.int32)
+
+            def renumber(a, b):  # each range its own
+                np.take(rank, cols[a:b], out=out[a:b])
+
+            batch_map(renumber, parts, self.threads)
+            got = self._cols_read = (cols, out, np.flatnonzero(seen))
+        return got[1:]
 
     def _leaf_means(self, y, V):
         """V (n_hr, 3) with the leaves that have second-level samples set to the mean of those
@@ -1335,10 +1381,22 @@ class FinalGather(DirectLight):
             yk = y.reshape(len(used), -1, 3)
             out[rows] = np.einsum("uk,ukc->uc", wn, yk if ok is None else yk[ok])
         elif len(used):
-            w = gw * ~self.second.dark
-            ws = np.add.reduceat(w, start[:-1])
-            ok = ws > 0
-            out[used[ok]] = np.add.reduceat(w[:, None] * y, start[:-1], 0)[ok] / ws[ok, None]
+            got = self.__dict__.get("_mean_runs")
+            if got is None:  # the static geometry's (every pass of every event reads them)
+                w = gw * ~self.second.dark
+                ws = np.add.reduceat(w, start[:-1])
+                got = self._mean_runs = (w, ws, ws > 0, bool((np.diff(start) > 0).all()))
+            w, ws, ok, full = got
+
+            def part(a, b):  # leaves a..b: each its own samples' sum (the same segments as one sum)
+                s0, s1 = start[a], start[b]
+                k = ok[a:b]
+                sums = np.add.reduceat(w[s0:s1, None] * y[s0:s1], start[a:b] - s0, 0)
+                out[used[a:b][k]] = sums[k] / ws[a:b][k, None]
+
+            # by ranges of leaves on threads, where every leaf has samples (an empty one's
+            # reduceat would read past its range's end)
+            batch_map(part, ranges(len(used), self.ROW_BATCH) if full else [(0, len(used))], self.threads)
         return np.vstack([out, y]) if self.near_points else out
 
     def _light_bounce(self, rec, Y, scale=1.0):
