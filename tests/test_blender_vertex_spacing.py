@@ -102,13 +102,13 @@ def test_one_quad_wall_shows_the_light_across_it(tmp_path):
     reads it, within 1e-5; its own four corners (spacing 0) interpolated over it are far off the
     same light (the lamp's bright patch shows at none of them)."""
     bpy, ms, scene = empty_scene()
-    from hr_addon.blender.own_values import LEVEL, N_VALUES
+    from hr_addon.blender.own_values import N_VALUES, SPACING
 
     _scene(ms)
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
     (co, ls, lt, lv, val), warnings = _bake(scene, 0.25)
     md = bpy.data.objects["Wall"].modifiers[-1]
-    assert md.name == N_VALUES and md[md.node_group.interface.items_tree[LEVEL].identifier] == 4
+    assert md.name == N_VALUES and md[md.node_group.interface.items_tree[SPACING].identifier] == 0.25
     assert len(ls) == 256 and len(co) == 17 * 17
     assert [w for w in warnings if w.startswith("Vertex Spacing 0.25: 2 object(s)") and "'Wall'" in w], (
         warnings
