@@ -137,6 +137,37 @@ def test_one_quad_wall_shows_the_light_across_it(tmp_path):
     assert np.median(np.abs(coarse / ref - 1)) > 1  # (measured: 5.3)
 
 
+def test_only_the_coarse_faces_get_finer():
+    """A bar 0.5 x 0.1 x 0.05 m scaled x2 along its length (its four long faces 1 m long in the
+    world: level 2 at 0.25 m, 4 x 4 each; its two 0.1 x 0.05 m ends: none): 4 x 16 + 2 faces, the
+    vertices the level classes' seams had in common one again (80, each position once), the end
+    faces' edges keeping T-junctions with the finer faces' vertices exactly on them (no crack), and
+    the helper the evaluated mesh's topology."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.own_values import ensure_own_values, values_object
+    from hr_addon.blender.scene_in import mesh_topology
+
+    bar = ms.mesh_object(
+        "Bar",
+        [(x, y, z) for z in (0, 0.05) for y in (0, 0.1) for x in (0, 0.5)],
+        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
+        ms.diffuse("Grey", (RHO,) * 3),
+    )
+    bar.scale = (2, 1, 1)
+    dg = bpy.context.evaluated_depsgraph_get()
+    assert ensure_own_values([bar], "CORNER", dg, 0.25)
+    dg.update()
+    me = bar.evaluated_get(dg).data
+    co, ls, lt, lv = mesh_topology(me)
+    assert (len(ls), len(co)) == (66, 80) and len(np.unique(co, axis=0)) == 80
+    assert (lt == 4).all()
+    # the seams: each end face's rim, 4 edges of 4 segments each, every vertex on the rim's edges
+    rim = co[np.isin(co[:, 0], np.float32([0, 0.5]))]
+    assert len(rim) == 2 * 16
+    assert (np.isin(rim[:, 1], np.float32([0, 0.1])) | np.isin(rim[:, 2], np.float32([0, 0.05]))).all()
+    assert values_object(bar, len(me.loops), len(me.vertices)) is not None
+
+
 def test_off_is_todays_bake_and_delete_bake_restores_the_meshes(tmp_path):
     """Spacing 0 after a bake with a spacing: the subdividing modifier and its helper go again (the
     bevelled box keeps today's, for its topology) and the values are those of the first bake with

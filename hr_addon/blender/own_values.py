@@ -200,7 +200,9 @@ def _spacing(md):
 def subdivision_level(obj, spacing, depsgraph):
     """Subdivide Mesh's level that takes every edge of the faces of obj's evaluated mesh (world
     space; its modifiers' result, a Subdivision Surface's finer faces: without its own subdivision)
-    under `spacing` (each level halves them), at most MAX_LEVEL; 0 for spacing 0."""
+    under `spacing` (each level halves them), at most MAX_LEVEL; 0 for spacing 0. The level its
+    coarsest face needs: > 0, obj gets the subdividing group, which gives each face its own
+    (_finer_faces)."""
     if spacing <= 0:
         return 0
     ob = obj.evaluated_get(depsgraph)
