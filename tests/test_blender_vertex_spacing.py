@@ -6,7 +6,7 @@ user's meshes and modifiers as they were."""
 import numpy as np
 import pytest
 
-from test_blender_helpers import empty_scene
+from test_blender_helpers import empty_scene, load_bpy, open_sample
 
 pytestmark = pytest.mark.bpy
 
@@ -166,6 +166,46 @@ def test_only_the_coarse_faces_get_finer():
     assert len(rim) == 2 * 16
     assert (np.isin(rim[:, 1], np.float32([0, 0.1])) | np.isin(rim[:, 2], np.float32([0, 0.05]))).all()
     assert values_object(bar, len(me.loops), len(me.vertices)) is not None
+
+
+def test_the_spacing_scaled_with_the_scene_gives_the_same_bake(tmp_path):
+    """The Cornell sample (walls of 8 x 8 quads of 7 cm) at 0.05 m and inside a parent scaled x8 at
+    0.4 m: the same faces subdivided (the walls', the light's and the tall block's, not the short
+    block's: the group measures edges with the object's world scale) and the same values, bit for
+    bit (x8 is exact in binary)."""
+    bpy = load_bpy()
+    from hr_addon.blender.bake import run_bake
+
+    def bake(scale, spacing):
+        open_sample("cornell", tmp_path / str(scale))
+        scene = bpy.context.scene
+        root = bpy.data.objects.new("Scale", None)
+        scene.collection.objects.link(root)
+        for o in list(scene.objects):
+            if o is not root and o.type == "MESH":
+                o.parent = root
+        root.scale = (scale,) * 3
+        scene.hr.vertex_spacing = spacing
+        run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=(13, 13), method="FE")
+        scene.frame_set(13)
+        dg = bpy.context.evaluated_depsgraph_get()
+        out = {}
+        for o in scene.objects:
+            if o.type == "MESH" and not o.hr.is_light_shape:
+                a = o.evaluated_get(dg).data.attributes["HR_Radiance"]
+                out[o.name] = np.empty(len(a.data) * 4, np.float32)
+                a.data.foreach_get("color", out[o.name])
+        return out
+
+    one, eight = bake(1, 0.05), bake(8, 0.4)
+    assert {n: len(v) // 4 for n, v in one.items()} == {
+        **dict.fromkeys(("floor", "ceiling", "back", "left_red", "right_green"), 1024),
+        "short_block": 320,
+        "tall_block": 1088,
+        "light": 64,
+    }
+    for name, v in one.items():
+        np.testing.assert_array_equal(eight[name], v, err_msg=name)
 
 
 def test_off_is_todays_bake_and_delete_bake_restores_the_meshes(tmp_path):
