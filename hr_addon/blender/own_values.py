@@ -32,10 +32,12 @@ import numpy as np
 
 from .names import ATTRIBUTE, N_VALUES, TAG
 
-GROUP_VERSION = 2  # 2: the subdividing group by faces (SPACING, SCALE), was one LEVEL per object
+GROUP_VERSION = 1
+FINER_VERSION = 2  # the subdividing group by faces (SPACING, SCALE); 1: one LEVEL_V1 per object
 SPACING = "Spacing"  # the subdividing group's inputs: the spacing (m; 0: no subdivision) and
 SCALE = "Scale"  # the object's scale at the bake (edges in world metres; fixed: a fixed topology)
 MAX_LEVEL = 6  # 4^6 faces per face: a 6.4 m quad at 0.1 m; coarser faces keep longer edges
+LEVEL_V1 = "Level"  # version 1's input: one Subdivide Mesh level for the whole object
 MERGE = 1e-6  # seam vertices this close (object units) are one again: the same corner, split
 
 
@@ -156,6 +158,10 @@ def _finer_faces(nodes, link, gi):
     return made, merge.outputs["Geometry"]
 
 
+def _version(finer):
+    return FINER_VERSION if finer else GROUP_VERSION
+
+
 def _group_name(domain, finer):
     return f"{N_VALUES} {domain.lower()}" + (" subdivided" if finer else "")
 
@@ -179,7 +185,7 @@ def _group(domain, finer=False):
 
     store = (ATTRIBUTE, "FLOAT_COLOR", domain)
     return geometry_group(
-        _group_name(domain, finer), GROUP_VERSION, "Values", "NodeSocketObject", store, value, finer
+        _group_name(domain, finer), _version(finer), "Values", "NodeSocketObject", store, value, finer
     )
 
 
@@ -195,6 +201,16 @@ def _socket(md, name="Values"):
 def _spacing(md):
     """The spacing md subdivides its object's faces to (0: the mesh's own corners)."""
     return float(md.get(_socket(md, SPACING), 0)) if SPACING in md.node_group.interface.items_tree else 0.0
+
+
+def _unsubdivide(md):
+    """Set md's subdividing inputs to 0 (SPACING, or version 1's LEVEL_V1 in a file baked then);
+    whether one was above."""
+    items = md.node_group.interface.items_tree
+    keys = [_socket(md, n) for n in (SPACING, LEVEL_V1) if n in items and md.get(_socket(md, n))]
+    for k in keys:
+        md[k] = type(md[k])(0)
+    return bool(keys)
 
 
 def subdivision_level(obj, spacing, depsgraph):
@@ -254,9 +270,8 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
     own = [o for o in objects if o.data.library is None and o.library is None]
     # the modifiers' own subdivision out first: the user's modifiers' result alone (the level, and
     # whether they change the topology)
-    reset = [o for o in own if _modifier(o) is not None and _spacing(_modifier(o))]
+    reset = [o for o in own if _modifier(o) is not None and _unsubdivide(_modifier(o))]
     for o in reset:
-        _modifier(o)[_socket(_modifier(o), SPACING)] = 0.0
         o.update_tag()
     if reset:
         depsgraph.update()
@@ -304,7 +319,8 @@ def _ensure(obj, domain, spacing=0.0):
     if new:
         md = obj.modifiers.new(N_VALUES, "NODES")
     finer = spacing > 0
-    if md.node_group is None or md.node_group.name != _group_name(domain, finer):
+    g = md.node_group
+    if g is None or g.name != _group_name(domain, finer) or g.get(TAG) != _version(finer):
         h = None if new or md.node_group is None else md.get(_socket(md))
         md.node_group = _group(domain, finer)
         if h is not None:  # (another group: its socket's value kept)
