@@ -6,7 +6,7 @@ user's meshes and modifiers as they were."""
 import numpy as np
 import pytest
 
-from test_blender_helpers import empty_scene
+from test_blender_helpers import empty_scene, load_bpy, open_sample
 
 pytestmark = pytest.mark.bpy
 
@@ -102,13 +102,13 @@ def test_one_quad_wall_shows_the_light_across_it(tmp_path):
     reads it, within 1e-5; its own four corners (spacing 0) interpolated over it are far off the
     same light (the lamp's bright patch shows at none of them)."""
     bpy, ms, scene = empty_scene()
-    from hr_addon.blender.own_values import LEVEL, N_VALUES
+    from hr_addon.blender.own_values import N_VALUES, SPACING
 
     _scene(ms)
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
     (co, ls, lt, lv, val), warnings = _bake(scene, 0.25)
     md = bpy.data.objects["Wall"].modifiers[-1]
-    assert md.name == N_VALUES and md[md.node_group.interface.items_tree[LEVEL].identifier] == 4
+    assert md.name == N_VALUES and md[md.node_group.interface.items_tree[SPACING].identifier] == 0.25
     assert len(ls) == 256 and len(co) == 17 * 17
     assert [w for w in warnings if w.startswith("Vertex Spacing 0.25: 2 object(s)") and "'Wall'" in w], (
         warnings
@@ -135,6 +135,77 @@ def test_one_quad_wall_shows_the_light_across_it(tmp_path):
         by[0, 0] * (1 - u) * (1 - w) + by[4, 0] * u * (1 - w) + by[0, 2.5] * (1 - u) * w + by[4, 2.5] * u * w
     )
     assert np.median(np.abs(coarse / ref - 1)) > 1  # (measured: 5.3)
+
+
+def test_only_the_coarse_faces_get_finer():
+    """A bar 0.5 x 0.1 x 0.05 m scaled x2 along its length (its four long faces 1 m long in the
+    world: level 2 at 0.25 m, 4 x 4 each; its two 0.1 x 0.05 m ends: none): 4 x 16 + 2 faces, the
+    vertices the level classes' seams had in common one again (80, each position once), the end
+    faces' edges keeping T-junctions with the finer faces' vertices exactly on them (no crack), and
+    the helper the evaluated mesh's topology."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.own_values import ensure_own_values, values_object
+    from hr_addon.blender.scene_in import mesh_topology
+
+    bar = ms.mesh_object(
+        "Bar",
+        [(x, y, z) for z in (0, 0.05) for y in (0, 0.1) for x in (0, 0.5)],
+        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
+        ms.diffuse("Grey", (RHO,) * 3),
+    )
+    bar.scale = (2, 1, 1)
+    dg = bpy.context.evaluated_depsgraph_get()
+    assert ensure_own_values([bar], "CORNER", dg, 0.25)
+    dg.update()
+    me = bar.evaluated_get(dg).data
+    co, ls, lt, lv = mesh_topology(me)
+    assert (len(ls), len(co)) == (66, 80) and len(np.unique(co, axis=0)) == 80
+    assert (lt == 4).all()
+    # the seams: each end face's rim, 4 edges of 4 segments each, every vertex on the rim's edges
+    rim = co[np.isin(co[:, 0], np.float32([0, 0.5]))]
+    assert len(rim) == 2 * 16
+    assert (np.isin(rim[:, 1], np.float32([0, 0.1])) | np.isin(rim[:, 2], np.float32([0, 0.05]))).all()
+    assert values_object(bar, len(me.loops), len(me.vertices)) is not None
+
+
+def test_the_spacing_scaled_with_the_scene_gives_the_same_bake(tmp_path):
+    """The Cornell sample (walls of 8 x 8 quads of 7 cm) at 0.05 m and inside a parent scaled x8 at
+    0.4 m: the same faces subdivided (the walls', the light's and the tall block's, not the short
+    block's: the group measures edges with the object's world scale) and the same values, bit for
+    bit (x8 is exact in binary)."""
+    bpy = load_bpy()
+    from hr_addon.blender.bake import run_bake
+
+    def bake(scale, spacing):
+        open_sample("cornell", tmp_path / str(scale))
+        scene = bpy.context.scene
+        root = bpy.data.objects.new("Scale", None)
+        scene.collection.objects.link(root)
+        for o in list(scene.objects):
+            if o is not root and o.type == "MESH":
+                o.parent = root
+        root.scale = (scale,) * 3
+        scene.hr.vertex_spacing = spacing
+        run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=(13, 13), method="FE")
+        scene.frame_set(13)
+        dg = bpy.context.evaluated_depsgraph_get()
+        out = {}
+        for o in scene.objects:
+            if o.type == "MESH" and not o.hr.is_light_shape:
+                a = o.evaluated_get(dg).data.attributes["HR_Radiance"]
+                out[o.name] = np.empty(len(a.data) * 4, np.float32)
+                a.data.foreach_get("color", out[o.name])
+        return out
+
+    one, eight = bake(1, 0.05), bake(8, 0.4)
+    assert {n: len(v) // 4 for n, v in one.items()} == {
+        **dict.fromkeys(("floor", "ceiling", "back", "left_red", "right_green"), 1024),
+        "short_block": 320,
+        "tall_block": 1088,
+        "light": 64,
+    }
+    for name, v in one.items():
+        np.testing.assert_array_equal(eight[name], v, err_msg=name)
 
 
 def test_off_is_todays_bake_and_delete_bake_restores_the_meshes(tmp_path):

@@ -16,10 +16,13 @@ and a file opened without the extension show them.
 Vertex Spacing (Scene.hr.vertex_spacing > 0): a value per corner cannot show light that changes
 across a coarse face (a one-quad wall, a table top: the furnished room's vertex output 62-67% of
 its objects within 5% of Cycles from a camera, docs/accuracy.md). Objects with an edge longer than
-the spacing get the modifier too, in the group that first subdivides the mesh (Subdivide Mesh:
-linear, planar faces stay where they were) by a level of their own, enough for every edge of the
-mesh to come under the spacing: the light is gathered at the finer corners and shown there. The
-hierarchy sees the finer mesh as well (the evaluated mesh is what the bake reads).
+the spacing get the modifier too, in the group that first subdivides their coarse faces: each face
+by the level its own longest edge needs to come under the spacing (Subdivide Mesh per level class:
+linear, planar faces stay where they were; a book's short faces stay as they are beside its long
+ones). The classes are joined again and the vertices their seams had in common merged; a coarser
+face's edge keeps a T-junction with a finer neighbour's (no crack: the finer vertices lie on it).
+The light is gathered at the finer corners and shown there; the hierarchy sees the finer mesh as
+well (the evaluated mesh is what the bake reads).
 """
 
 import math
@@ -30,36 +33,43 @@ import numpy as np
 from .names import ATTRIBUTE, N_VALUES, TAG
 
 GROUP_VERSION = 1
-LEVEL = "Level"  # the subdividing group's input: Subdivide Mesh's level
+FINER_VERSION = 2  # the subdividing group by faces (SPACING, SCALE); 1: one LEVEL_V1 per object
+SPACING = "Spacing"  # the subdividing group's inputs: the spacing (m; 0: no subdivision) and
+SCALE = "Scale"  # the object's scale at the bake (edges in world metres; fixed: a fixed topology)
 MAX_LEVEL = 6  # 4^6 faces per face: a 6.4 m quad at 0.1 m; coarser faces keep longer edges
+LEVEL_V1 = "Level"  # version 1's input: one Subdivide Mesh level for the whole object
+MERGE = 1e-6  # seam vertices this close (object units) are one again: the same corner, split
 
 
-def geometry_group(name, version, socket, socket_type, store, value, level=False):
+def geometry_group(name, version, socket, socket_type, store, value, finer=False):
     """The geometry-node group `name`, made anew unless one tagged with `version` exists: inputs
     Geometry and `socket` (of `socket_type`), output the Geometry with the named attribute `store`
     = (name, data type, domain) set to value(nodes, link, group input) -> (the nodes it made, the
-    socket of the value). level: a third input LEVEL, and the geometry subdivided by it (Subdivide
-    Mesh) before the value is stored. Plain nodes: a file opened without the extension evaluates
+    socket of the value). finer: inputs SPACING and SCALE too, and the geometry's coarse faces
+    subdivided first (_finer_faces). Plain nodes: a file opened without the extension evaluates
     the same."""
     g = bpy.data.node_groups.get(name)
     if g is not None and g.get(TAG) == version:
         return g
+    if g is not None:  # an older version's: renamed, so the new one gets the name (users keep theirs)
+        g.name = f"{name} (v{g.get(TAG)})"
     g = bpy.data.node_groups.new(name, "GeometryNodeTree")
     g[TAG] = version
     g.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
     g.interface.new_socket(socket, in_out="INPUT", socket_type=socket_type)
-    if level:
-        lv = g.interface.new_socket(LEVEL, in_out="INPUT", socket_type="NodeSocketInt")
-        lv.min_value, lv.max_value = 0, MAX_LEVEL
+    if finer:
+        g.interface.new_socket(SPACING, in_out="INPUT", socket_type="NodeSocketFloat").min_value = 0
+        g.interface.new_socket(SCALE, in_out="INPUT", socket_type="NodeSocketVector").default_value = (
+            1,
+            1,
+            1,
+        )
     g.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
     nodes, link = g.nodes, g.links.new
     gi, go = nodes.new("NodeGroupInput"), nodes.new("NodeGroupOutput")
     geometry, first = gi.outputs["Geometry"], []
-    if level:
-        sub = nodes.new("GeometryNodeSubdivideMesh")
-        link(geometry, sub.inputs["Mesh"])
-        link(gi.outputs[LEVEL], sub.inputs["Level"])
-        geometry, first = sub.outputs["Mesh"], [sub]
+    if finer:
+        first, geometry = _finer_faces(nodes, link, gi)
     made, out = value(nodes, link, gi)
     st = nodes.new("GeometryNodeStoreNamedAttribute")
     attribute, st.data_type, st.domain = store
@@ -72,13 +82,93 @@ def geometry_group(name, version, socket, socket_type, store, value, level=False
     return g
 
 
-def _group_name(domain, level):
-    return f"{N_VALUES} {domain.lower()}" + (" subdivided" if level else "")
+def _finer_faces(nodes, link, gi):
+    """Nodes subdividing the group input's faces each by the level L its longest edge needs (edge
+    * SCALE, metres) to come under SPACING: L = the number of k in 0 .. MAX_LEVEL - 1 for which an
+    edge of the face is longer than SPACING * 2^k (0 for SPACING 0). The faces of each level class
+    are separated and subdivided together (Subdivide Mesh), joined in a fixed order, and the
+    vertices on the classes' seams (captured before: their faces' levels differ) merged again.
+    Returns (the nodes, the output geometry socket)."""
+    made = []
+
+    def node(kind, **props):
+        nd = nodes.new(kind)
+        for k, v in props.items():
+            setattr(nd, k, v)
+        made.append(nd)
+        return nd
+
+    def math(op, a, b, c=None):
+        nd = node("ShaderNodeMath", operation=op)
+        for i, x in enumerate((a, b, c)[: 3 if c is not None else 2]):
+            if isinstance(x, (int, float)):
+                nd.inputs[i].default_value = x
+            else:
+                link(x, nd.inputs[i])
+        return nd.outputs[0]
+
+    def on(domain, field):  # the field evaluated on `domain` (read elsewhere: its mean there)
+        nd = node("GeometryNodeFieldOnDomain", domain=domain, data_type="FLOAT")
+        link(field, nd.inputs[0])
+        return nd.outputs[0]
+
+    spacing = gi.outputs[SPACING]
+    ends = node("GeometryNodeInputMeshEdgeVertices")
+    d = node("ShaderNodeVectorMath", operation="SUBTRACT")
+    link(ends.outputs["Position 1"], d.inputs[0])
+    link(ends.outputs["Position 2"], d.inputs[1])
+    ds = node("ShaderNodeVectorMath", operation="MULTIPLY")
+    link(d.outputs[0], ds.inputs[0])
+    link(gi.outputs[SCALE], ds.inputs[1])
+    length = node("ShaderNodeVectorMath", operation="LENGTH")
+    link(ds.outputs[0], length.inputs[0])
+    edge = math("MULTIPLY", length.outputs["Value"], math("GREATER_THAN", spacing, 0.0))  # 0: none
+    level = None
+    for k in range(MAX_LEVEL):  # any edge of the face longer than SPACING * 2^k: its edges' mean > 0
+        longer = on("EDGE", math("GREATER_THAN", edge, math("MULTIPLY", spacing, float(2**k))))
+        step = math("GREATER_THAN", on("FACE", longer), 0.0)
+        level = step if level is None else math("ADD", level, step)
+    level = on("FACE", level)
+    # a seam vertex: its faces' levels differ (their mean square above their mean's square)
+    mean = on("POINT", level)
+    square = on("FACE", math("MULTIPLY", level, level))  # (squared on the faces, then averaged)
+    spread = math("SUBTRACT", on("POINT", square), math("MULTIPLY", mean, mean))
+    seam = on("POINT", math("GREATER_THAN", spread, 1e-3))
+    cap = node("GeometryNodeCaptureAttribute", domain="POINT")
+    cap.capture_items.new("BOOLEAN", "Seam")
+    link(gi.outputs["Geometry"], cap.inputs["Geometry"])
+    link(seam, cap.inputs[1])
+    join = node("GeometryNodeJoinGeometry")
+    rest, parts = cap.outputs["Geometry"], []
+    for k in range(1, MAX_LEVEL + 1):
+        sep = node("GeometryNodeSeparateGeometry", domain="FACE")
+        link(rest, sep.inputs["Geometry"])
+        link(math("COMPARE", level, float(k), 0.5), sep.inputs["Selection"])
+        sub = node("GeometryNodeSubdivideMesh")
+        link(sep.outputs["Selection"], sub.inputs["Mesh"])
+        sub.inputs["Level"].default_value = k
+        parts.append(sub.outputs["Mesh"])
+        rest = sep.outputs["Inverted"]
+    for part in reversed([rest, *parts]):  # (a multi-input socket lists its links last first)
+        link(part, join.inputs[0])
+    merge = node("GeometryNodeMergeByDistance")  # (mode All, the default)
+    link(join.outputs[0], merge.inputs["Geometry"])
+    link(cap.outputs[1], merge.inputs["Selection"])
+    merge.inputs["Distance"].default_value = MERGE
+    return made, merge.outputs["Geometry"]
 
 
-def _group(domain, level=False):
-    """Node group: HR_Radiance = the helper's HR_Radiance at the same index, on `domain`; level:
-    of the mesh subdivided by the modifier's LEVEL first."""
+def _version(finer):
+    return FINER_VERSION if finer else GROUP_VERSION
+
+
+def _group_name(domain, finer):
+    return f"{N_VALUES} {domain.lower()}" + (" subdivided" if finer else "")
+
+
+def _group(domain, finer=False):
+    """Node group: HR_Radiance = the helper's HR_Radiance at the same index, on `domain`; finer:
+    of the mesh whose coarse faces are subdivided first (_finer_faces)."""
 
     def value(nodes, link, gi):
         info = nodes.new("GeometryNodeObjectInfo")
@@ -95,7 +185,7 @@ def _group(domain, level=False):
 
     store = (ATTRIBUTE, "FLOAT_COLOR", domain)
     return geometry_group(
-        _group_name(domain, level), GROUP_VERSION, "Values", "NodeSocketObject", store, value, level
+        _group_name(domain, finer), _version(finer), "Values", "NodeSocketObject", store, value, finer
     )
 
 
@@ -108,15 +198,27 @@ def _socket(md, name="Values"):
     return md.node_group.interface.items_tree[name].identifier
 
 
-def _level(md):
-    """The subdivision level md shows its object's values at (0: the mesh's own corners)."""
-    return int(md.get(_socket(md, LEVEL), 0)) if LEVEL in md.node_group.interface.items_tree else 0
+def _spacing(md):
+    """The spacing md subdivides its object's faces to (0: the mesh's own corners)."""
+    return float(md.get(_socket(md, SPACING), 0)) if SPACING in md.node_group.interface.items_tree else 0.0
+
+
+def _unsubdivide(md):
+    """Set md's subdividing inputs to 0 (SPACING, or version 1's LEVEL_V1 in a file baked then);
+    whether one was above."""
+    items = md.node_group.interface.items_tree
+    keys = [_socket(md, n) for n in (SPACING, LEVEL_V1) if n in items and md.get(_socket(md, n))]
+    for k in keys:
+        md[k] = type(md[k])(0)
+    return bool(keys)
 
 
 def subdivision_level(obj, spacing, depsgraph):
     """Subdivide Mesh's level that takes every edge of the faces of obj's evaluated mesh (world
     space; its modifiers' result, a Subdivision Surface's finer faces: without its own subdivision)
-    under `spacing` (each level halves them), at most MAX_LEVEL; 0 for spacing 0."""
+    under `spacing` (each level halves them), at most MAX_LEVEL; 0 for spacing 0. The level its
+    coarsest face needs: > 0, obj gets the subdividing group, which gives each face its own
+    (_finer_faces)."""
     if spacing <= 0:
         return 0
     ob = obj.evaluated_get(depsgraph)
@@ -168,9 +270,8 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
     own = [o for o in objects if o.data.library is None and o.library is None]
     # the modifiers' own subdivision out first: the user's modifiers' result alone (the level, and
     # whether they change the topology)
-    reset = [o for o in own if _modifier(o) is not None and _level(_modifier(o))]
+    reset = [o for o in own if _modifier(o) is not None and _unsubdivide(_modifier(o))]
     for o in reset:
-        _modifier(o)[_socket(_modifier(o), LEVEL)] = 0
         o.update_tag()
     if reset:
         depsgraph.update()
@@ -183,7 +284,7 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
             if obj in reset:  # subdivided by an earlier bake: its helper and modifier go
                 remove_own_values([obj])
             continue
-        made += _ensure(obj, domain, level)
+        made += _ensure(obj, domain, spacing if level else 0.0)
         finer += [obj.name] if level else []
         kept.append(obj)
     if finer:
@@ -210,21 +311,25 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
     ]
 
 
-def _ensure(obj, domain, level=0):
-    """Make or update obj's modifier (its group subdividing by `level` when > 0); [obj.name] if it
-    was made now, else []. _helper then gives it its helper."""
+def _ensure(obj, domain, spacing=0.0):
+    """Make or update obj's modifier (its group subdividing to `spacing` when > 0, at obj's scale
+    now); [obj.name] if it was made now, else []. _helper then gives it its helper."""
     md = _modifier(obj)
     new = md is None
     if new:
         md = obj.modifiers.new(N_VALUES, "NODES")
-    if md.node_group is None or md.node_group.name != _group_name(domain, level):
+    finer = spacing > 0
+    g = md.node_group
+    if g is None or g.name != _group_name(domain, finer) or g.get(TAG) != _version(finer):
         h = None if new or md.node_group is None else md.get(_socket(md))
-        md.node_group = _group(domain, bool(level))
+        md.node_group = _group(domain, finer)
         if h is not None:  # (another group: its socket's value kept)
             md[_socket(md)] = h
-    if level and _level(md) != level:
-        md[_socket(md, LEVEL)] = level
-        obj.update_tag()
+    if finer:
+        scale = tuple(float(x) for x in np.linalg.norm(np.array(obj.matrix_world)[:3, :3], axis=0))
+        if _spacing(md) != spacing or tuple(md[_socket(md, SCALE)]) != scale:
+            md[_socket(md, SPACING)], md[_socket(md, SCALE)] = spacing, scale
+            obj.update_tag()
     k = list(obj.modifiers).index(md)
     if k != len(obj.modifiers) - 1:
         obj.modifiers.move(k, len(obj.modifiers) - 1)
