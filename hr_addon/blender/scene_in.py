@@ -447,9 +447,9 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
         ob = inst.object
         me = ob.data
         key = (me.as_pointer(), me.name)
-        arrays = meshes.get(key)
-        if arrays is None:
-            arrays = meshes[key] = _mesh_arrays(me)
+        if key not in meshes:
+            meshes[key] = _mesh_arrays(me), _user_faces(me)
+        arrays, faces = meshes[key]
         if len(arrays[1]) == 0:
             continue
         if digests is not None:
@@ -460,6 +460,7 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
         i.count += 1
         i.polygons = len(arrays[1])
         part, _ = _mesh_input(em, f"{label}#{i.count}", warnings, mat_cache)
+        part.face_group = faces
         parts.append(part)
     return parts, info
 
