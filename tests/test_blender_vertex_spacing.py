@@ -322,3 +322,101 @@ def test_live_relight_works_on_the_subdivided_mesh_after_a_bake(tmp_path):
     np.testing.assert_allclose(live()[4], 2 * first[4], rtol=1e-5)
     scene.hr.live = False
     assert bpy.ops.hr.live_update() == {"FINISHED"}
+
+
+def _rug_room(ms):
+    """The artist room's floor in small: a 4 x 3 x 2.5 m room (inward faces), a floor quad 1 mm above
+    its bottom, a one-sided 12-gon rug (0.9 m) 3 mm above that facing up, a ceiling lamp, and a
+    0.8 x 0.6 m painting 1 cm before a wall facing it (turned around with or without a spacing)."""
+    box = np.array([[x, y, z] for x in (0, 4) for y in (0, 3) for z in (0, 2.5)], float)
+    quads = [(0, 2, 6, 4), (1, 5, 7, 3), (0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6)]
+    inward = []
+    for q in quads:
+        c = box[list(q)]
+        inward.append(
+            list(q) if np.cross(c[1] - c[0], c[2] - c[0]) @ (box.mean(0) - c.mean(0)) > 0 else q[::-1]
+        )
+    grey = ms.diffuse("Grey", (RHO,) * 3)
+    ms.mesh_object("Room", box, inward, grey)
+    ms.mesh_object(
+        "Floor",
+        [(0.001, 0.001, 0.001), (3.999, 0.001, 0.001), (3.999, 2.999, 0.001), (0.001, 2.999, 0.001)],
+        [[0, 1, 2, 3]],
+        grey,
+    )
+    a = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    rug = np.column_stack([2 + 0.9 * np.cos(a), 1.5 + 0.9 * np.sin(a), np.full(12, 0.004)])
+    ms.mesh_object("Rug", rug, [list(range(12))], grey)
+    lamp = [(1.7, 1.2, 2.49), (1.7, 1.8, 2.49), (2.3, 1.8, 2.49), (2.3, 1.2, 2.49)]  # facing down
+    ms.mesh_object("Lamp", lamp, [[0, 1, 2, 3]], ms.emission("Glow", (1, 1, 1), STRENGTH))
+    painting = [(0.01, 1.1, 1.2), (0.01, 1.1, 1.8), (0.01, 1.9, 1.8), (0.01, 1.9, 1.2)]  # facing -x
+    ms.mesh_object("Painting", painting, [[0, 1, 2, 3]], grey)
+
+
+def test_the_spacing_turns_around_what_the_bake_without_it_does(tmp_path):
+    """A floor under a one-sided rug: subdivided at 0.25 m, its faces under the rug alone see only the
+    rug's back before them and the room's bottom behind ("faced away from everything": 40 of its
+    256 turned around when judged alone, below); judged as the user's face (the FACE attribute the
+    group stores) it stays, as without the spacing, and the painting facing its wall is turned
+    around in both, named once."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.bake import run_bake
+    from hr_addon.blender.scene_in import collect_geometry
+    from hr_addon.core.geometry import prepare_patches
+    from hr_addon.core.orientation import find_reversed
+    from hr_addon.core.visibility import make_backend
+
+    _rug_room(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "rug.blend"))
+
+    def turned(spacing):
+        scene.hr.vertex_spacing = spacing
+        res = run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=(1, 1))
+        return [w for w in res.warnings if "turned around" in w]
+
+    without = turned(0.0)
+    assert len(without) == 1 and "1 polygon(s) faced a surface right in front" in without[0], without
+    assert "1 in 'Painting'" in without[0] and "Floor" not in without[0]
+    assert turned(0.25) == without
+    mesh = collect_geometry(bpy.context.view_layer, bpy.context.evaluated_depsgraph_get()).mesh
+    floor = np.asarray(mesh.object_id) == mesh.object_names.index("Floor")
+    assert floor.sum() == 256 and (mesh.face_groups()[floor] == np.flatnonzero(floor)[0]).all()
+    mesh.face_group = None  # the subdivided faces judged alone: what vsub2 did
+    pt = prepare_patches(mesh)
+    flip, _ = find_reversed(pt, make_backend(pt.triangles, "auto", 1))
+    alone = np.unique(pt.poly[flip & (pt.object_id == mesh.object_names.index("Floor"))])
+    assert len(alone) == 40  # (measured; the rug covers about 54 of the 256)
+
+
+def test_a_file_baked_with_the_second_group_gets_the_new_one():
+    """A group of version 2 (no FACE attribute) is replaced at the next bake's ensure_own_values: the
+    modifier gets the current group, the old one is renamed aside, the finer faces carry FACE."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.names import FACE, TAG
+    from hr_addon.blender.own_values import FINER_VERSION, ensure_own_values
+
+    wall = _scene(ms)
+    dg = bpy.context.evaluated_depsgraph_get()
+    ensure_own_values([wall], "CORNER", dg, 0.25)
+    g = wall.modifiers[-1].node_group
+    st = next(
+        n
+        for n in g.nodes
+        if n.bl_idname == "GeometryNodeStoreNamedAttribute" and n.inputs["Name"].default_value == FACE
+    )
+    src = st.inputs["Geometry"].links[0].from_socket
+    for lk in list(st.outputs["Geometry"].links):
+        g.links.new(src, lk.to_socket)
+    g.nodes.remove(st)
+    g[TAG] = 2
+    wall.update_tag()
+    dg.update()
+    assert FACE not in wall.evaluated_get(dg).data.attributes
+    ensure_own_values([wall], "CORNER", dg, 0.25)
+    dg.update()
+    new = wall.modifiers[-1].node_group
+    assert new[TAG] == FINER_VERSION and g.name.endswith("(v2)") and new is not g
+    me = wall.evaluated_get(dg).data
+    face = np.empty(len(me.polygons), np.int32)
+    me.attributes[FACE].data.foreach_get("value", face)
+    assert len(face) == 256 and (face == 0).all()

@@ -300,3 +300,43 @@ def test_a_painting_facing_its_wall_bakes_like_one_facing_the_room():
     # the issue: unturned, it gets only what comes through the 1 cm gap (measured 39% here, where the
     # wall's 1 m quads behind it are lit on average; 0.1% in the artist-made room)
     assert off["painting"].mean() < 0.5 * good["painting"].mean()
+
+
+def _floor_under_a_rug(n):
+    """The room with a 1 m floor quad 1 cm above its floor (n x n sub-quads: Vertex Spacing's finer
+    faces) and a one-sided 0.3 m disc 3 mm above that, facing up: the artist room's Floor and Rug."""
+    sb = scenes.SceneBuilder()
+    sb.add(
+        "Floor", *scenes.grid([(0, 0, 0.01), (1, 0, 0.01), (1, 1, 0.01), (0, 1, 0.01)], n), (0.5, 0.5, 0.5)
+    )
+    a = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    sb.add(
+        "Rug",
+        np.column_stack([0.5 + 0.3 * np.cos(a), 0.5 + 0.3 * np.sin(a), np.full(16, 0.013)]),
+        [list(range(16))],
+        0.5,
+    )
+    return _room().concat(sb.build())
+
+
+def test_a_face_split_under_a_rug_is_judged_as_the_whole_face():
+    """Alone, the sub-quads under the rug meet only its back in front and the room's floor behind:
+    "faced away from everything"; grouped back into their face (MeshInput.face_group) their votes
+    give the unsplit face's decision: left alone, as is everything else."""
+    whole = RadiositySystem(_floor_under_a_rug(1), RefineParams.preset("draft"))
+    assert find_reversed(whole.patches, whole.backend)[1] == {}
+    mesh = _floor_under_a_rug(8)
+    split = RadiositySystem(mesh, RefineParams.preset("draft"))
+    alone = _turned(split, find_reversed(split.patches, split.backend)[1])
+    assert alone == {("Floor", "back")}
+    floor = np.flatnonzero(np.asarray(mesh.object_id) == mesh.object_names.index("Floor"))
+    mesh.face_group = np.arange(len(mesh.loop_start))
+    mesh.face_group[floor] = floor[0]
+    grouped = RadiositySystem(mesh, RefineParams.preset("draft"))
+    assert find_reversed(grouped.patches, grouped.backend)[1] == {}
+    # per-polygon grouping is the check's own: the same flips bit for bit
+    mesh.face_group = np.arange(len(mesh.loop_start))
+    same = RadiositySystem(mesh, RefineParams.preset("draft"))
+    f1, r1 = find_reversed(split.patches, split.backend)
+    f2, r2 = find_reversed(same.patches, same.backend)
+    assert r1 == r2 and np.array_equal(f1, f2)

@@ -13,6 +13,9 @@ N_PACK = "HR Lightmap"
 # geometry-nodes modifier that shows an object's own vertex output, kept by a helper object
 # "HR Radiance <object>" (own_values)
 N_VALUES = "HR Radiance"
+# face attribute its subdividing group (Vertex Spacing) stores: the index of the face each finer face
+# came from, so the orientation check judges the user's face as a whole (scene_in reads it)
+FACE = "HR_Face"
 
 PREVIEW = "HR Preview"  # name prefix of the preview nodes / material (ignored when reading)
 N_ATTR, N_EMIT, N_OUT = PREVIEW + " Attribute", PREVIEW + " Emission", PREVIEW + " Output"

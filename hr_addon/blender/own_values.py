@@ -30,10 +30,12 @@ import math
 import bpy
 import numpy as np
 
-from .names import ATTRIBUTE, N_VALUES, TAG
+from .names import ATTRIBUTE, FACE, N_VALUES, TAG
 
 GROUP_VERSION = 1
-FINER_VERSION = 2  # the subdividing group by faces (SPACING, SCALE); 1: one LEVEL_V1 per object
+# the subdividing group by faces (SPACING, SCALE) storing FACE; 2: without FACE, 1: one LEVEL_V1
+# per object
+FINER_VERSION = 3
 SPACING = "Spacing"  # the subdividing group's inputs: the spacing (m; 0: no subdivision) and
 SCALE = "Scale"  # the object's scale at the bake (edges in world metres; fixed: a fixed topology)
 MAX_LEVEL = 6  # 4^6 faces per face: a 6.4 m quad at 0.1 m; coarser faces keep longer edges
@@ -88,6 +90,7 @@ def _finer_faces(nodes, link, gi):
     edge of the face is longer than SPACING * 2^k (0 for SPACING 0). The faces of each level class
     are separated and subdivided together (Subdivide Mesh), joined in a fixed order, and the
     vertices on the classes' seams (captured before: their faces' levels differ) merged again.
+    Each face's index is stored first as FACE (Subdivide Mesh gives it to the finer faces).
     Returns (the nodes, the output geometry socket)."""
     made = []
 
@@ -134,9 +137,13 @@ def _finer_faces(nodes, link, gi):
     square = on("FACE", math("MULTIPLY", level, level))  # (squared on the faces, then averaged)
     spread = math("SUBTRACT", on("POINT", square), math("MULTIPLY", mean, mean))
     seam = on("POINT", math("GREATER_THAN", spread, 1e-3))
+    face = node("GeometryNodeStoreNamedAttribute", data_type="INT", domain="FACE")
+    face.inputs["Name"].default_value = FACE
+    link(gi.outputs["Geometry"], face.inputs["Geometry"])
+    link(node("GeometryNodeInputIndex").outputs[0], face.inputs["Value"])
     cap = node("GeometryNodeCaptureAttribute", domain="POINT")
     cap.capture_items.new("BOOLEAN", "Seam")
-    link(gi.outputs["Geometry"], cap.inputs["Geometry"])
+    link(face.outputs["Geometry"], cap.inputs["Geometry"])
     link(seam, cap.inputs[1])
     join = node("GeometryNodeJoinGeometry")
     rest, parts = cap.outputs["Geometry"], []

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.geometry import InputError, MeshInput
 from .materials import read_material
-from .names import TAG
+from .names import FACE, TAG
 from .own_values import values_object
 
 
@@ -96,6 +96,18 @@ def _mesh_arrays(me):
     tri = np.empty(len(me.loop_triangles) * 3, np.int32)
     me.loop_triangles.foreach_get("loops", tri)
     return co.astype(np.float64), ls, lt, lv, mi, tri.reshape(-1, 3).astype(np.int64)
+
+
+def _user_faces(me):
+    """(P,) the first polygon of the user's face each polygon of an evaluated mesh came from (the
+    FACE attribute Vertex Spacing's group stores, own_values), or None (each polygon its own)."""
+    a = me.attributes.get(FACE)
+    if a is None or a.domain != "FACE" or a.data_type != "INT" or not len(me.polygons):
+        return None
+    face = np.empty(len(me.polygons), np.int32)
+    a.data.foreach_get("value", face)
+    _, first, inverse = np.unique(face, return_index=True, return_inverse=True)
+    return first[inverse].astype(np.int64)
 
 
 def evaluated(obj, depsgraph, read=_mesh_arrays):
@@ -435,9 +447,9 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
         ob = inst.object
         me = ob.data
         key = (me.as_pointer(), me.name)
-        arrays = meshes.get(key)
-        if arrays is None:
-            arrays = meshes[key] = _mesh_arrays(me)
+        if key not in meshes:
+            meshes[key] = _mesh_arrays(me), _user_faces(me)
+        arrays, faces = meshes[key]
         if len(arrays[1]) == 0:
             continue
         if digests is not None:
@@ -448,6 +460,7 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
         i.count += 1
         i.polygons = len(arrays[1])
         part, _ = _mesh_input(em, f"{label}#{i.count}", warnings, mat_cache)
+        part.face_group = faces
         parts.append(part)
     return parts, info
 
@@ -508,7 +521,7 @@ def collect_geometry(view_layer, depsgraph, vertex_output=True) -> SceneInput:
     instancers = {i.instancer for i in inst_info.values()}
     nloop = nvert = 0
     for oid, obj in enumerate(objs):
-        ob, arrays = evaluated(obj, depsgraph)
+        ob, (arrays, faces) = evaluated(obj, depsgraph, lambda me: (_mesh_arrays(me), _user_faces(me)))
         em = _placed(arrays, ob.matrix_world, [s.material for s in ob.material_slots] or [None])
         if len(em.loop_start) == 0:
             if obj.name not in instancers:
@@ -516,6 +529,7 @@ def collect_geometry(view_layer, depsgraph, vertex_output=True) -> SceneInput:
             continue
         signatures[obj.name] = _object_digest(ob, arrays, digest_cache).hexdigest()
         part, perm = _mesh_input(em, obj.name, warnings, mat_cache)
+        part.face_group = faces
         parts.append(part)
         me = obj.data
         same_topology = (

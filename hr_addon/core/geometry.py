@@ -31,6 +31,9 @@ class MeshInput:
     # polygon, e.g. Blender's mesh.loop_triangles. The polygons that must be split use it (those it
     # covers); the others are split here.
     tri_loops: np.ndarray = None
+    # Optional (P,) per polygon the first polygon of the user's face it was subdivided from (Vertex
+    # Spacing: the finer faces of one face share its orientation check's votes); None: its own.
+    face_group: np.ndarray = None
 
     @staticmethod
     def from_polygons(verts, polys, reflectance, emission=None, object_id=None, object_names=None):
@@ -75,7 +78,14 @@ class MeshInput:
             np.concatenate([self.object_id, other.object_id + len(self.object_names)]),
             list(self.object_names) + list(other.object_names),
             np.concatenate([np.asarray(t, np.int64).reshape(-1, 3) for t in tris]) if tris else None,
+            None
+            if self.face_group is None and other.face_group is None
+            else np.concatenate([self.face_groups(), other.face_groups() + len(self.loop_start)]),
         )
+
+    def face_groups(self):
+        """face_group, or each polygon its own."""
+        return np.arange(len(self.loop_start)) if self.face_group is None else np.asarray(self.face_group)
 
 
 @dataclass
@@ -92,6 +102,7 @@ class Patches:
     object_names: list
     dropped: int = 0  # degenerate polygons (or triangles) removed
     warnings: list = field(default_factory=list)
+    face: np.ndarray = None  # (K,) MeshInput.face_group of each patch's polygon (None: not given)
 
     @property
     def triangles(self):
@@ -389,6 +400,7 @@ def prepare_patches(mesh: MeshInput, planar_tol=1e-3, area_tol=1e-8, warn_planar
         area=area[sel],
         object_names=names,
         dropped=dropped,
+        face=None if mesh.face_group is None else np.asarray(mesh.face_group, np.int64)[poly[sel]],
     )
     if dropped:
         lost = np.setdiff1d(np.arange(P), poly[ok])

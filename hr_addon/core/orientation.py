@@ -23,7 +23,9 @@ ceiling right above it; a painting hung facing its wall bakes black. Two cases a
 Rays: SIDE_RAYS per side of each patch, stratified over the patch and cosine-weighted over the
 hemisphere, traced to their first hit by the build's ray backend (first_hit_within: near hits
 first, so a stray object far away does not blur them). Decisions are per input polygon (the counts
-of all its patches), so a polygon is never split.
+of all its patches), so a polygon is never split; per user's face when Vertex Spacing subdivided it
+(MeshInput.face_group): a finer face under a rug alone sees only the rug's back, the whole floor
+face sees the room.
 """
 
 import numpy as np
@@ -116,20 +118,28 @@ def _trace(pt, backend, seed):
     return pts, n, out
 
 
+def _voters(pt):
+    """(K,) the polygon whose decision each patch votes for: its user's face, else its own."""
+    return pt.poly if pt.face is None else pt.face
+
+
 def find_reversed(patches, backend, seed=0):
     """(flip, reasons): boolean (K,) per patch, True for the patches of polygons to turn around, and
-    {input polygon: "back" | "facing" | "emitter"} of those polygons ("emitter": facing, and it emits)."""
+    {input polygon: "back" | "facing" | "emitter"} of those polygons ("emitter": facing, and it emits).
+    Votes are pooled per input polygon, or per user's face (patches.face: Vertex Spacing's finer
+    faces, keyed by the face's first polygon) when given."""
     pt = patches
     K = len(pt.nv)
     if K == 0:
         return np.zeros(0, bool), {}
     S = SIDE_RAYS
     pts, n, out = _trace(pt, backend, seed)
-    npoly = int(pt.poly.max()) + 1
-    rays = np.bincount(pt.poly, minlength=npoly) * S
+    poly = _voters(pt)
+    npoly = int(poly.max()) + 1
+    rays = np.bincount(poly, minlength=npoly) * S
 
     def per_poly(x):
-        return np.bincount(pt.poly, x.sum(1), minlength=npoly)
+        return np.bincount(poly, x.sum(1), minlength=npoly)
 
     (fh, ff, fd), (bhit, bf, bd) = out[1.0], out[-1.0]
     fh, bh = fh >= 0, bhit >= 0
@@ -140,14 +150,14 @@ def find_reversed(patches, backend, seed=0):
     back = has & (front_front == 0) & (back_front >= MIN_BACK * rays)
     if back.any():  # a face lying on another one (a sofa's bottom on the floor) is covered, not reversed
         gap = GAP * np.sqrt(pt.area.sum())
-        cand = np.flatnonzero(back[pt.poly])
+        cand = np.flatnonzero(back[poly])
         touching = _touching(pt, cand, pts[cand], n, gap)
-        lying = np.bincount(pt.poly[cand], touching.sum(1), minlength=npoly)
+        lying = np.bincount(poly[cand], touching.sum(1), minlength=npoly)
         back &= lying < MIN_BACK * rays
     for p in np.flatnonzero(back):
         reasons[int(p)] = "back"
-    emits = np.bincount(pt.poly, pt.emission.max(0) * pt.area, minlength=npoly) > 0
-    size = np.sqrt(np.bincount(pt.poly, pt.area, minlength=npoly))
+    emits = np.bincount(poly, pt.emission.max(0) * pt.area, minlength=npoly) > 0
+    size = np.sqrt(np.bincount(poly, pt.area, minlength=npoly))
     front_mean = per_poly(np.where(fh, fd, 0.0)) / np.maximum(front_hits, 1)
     back_mean = per_poly(np.where(bh, bd, 0.0)) / np.maximum(back_hits, 1)
     facing = (
@@ -164,7 +174,7 @@ def find_reversed(patches, backend, seed=0):
     )
     for p in np.flatnonzero(facing):
         reasons[int(p)] = "emitter" if emits[p] else "facing"
-    flip = np.isin(pt.poly, np.array(sorted(reasons), np.int64))
+    flip = np.isin(poly, np.array(sorted(reasons), np.int64))
     return flip, reasons
 
 
@@ -187,7 +197,7 @@ def turn_around(patches, flip):
 def _count_by_object(patches, polys):
     names = list(patches.object_names)
     first = {}
-    for k, p in zip(patches.object_id, patches.poly):
+    for k, p in zip(patches.object_id, _voters(patches)):
         first.setdefault(int(p), int(k))
     per = {}
     for p in polys:

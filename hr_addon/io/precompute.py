@@ -125,8 +125,8 @@ def code_digest(root=None):
 
 def mesh_signatures(mesh):
     """{object name: {geometry, reflectance, emission}} digests of what a build reads of each object
-    of a core.geometry.MeshInput: its polygons' world positions (float64, loop order), sizes and
-    triangulation; the reflectance and the emission per polygon."""
+    of a core.geometry.MeshInput: its polygons' world positions (float64, loop order), sizes,
+    triangulation and faces (face_group); the reflectance and the emission per polygon."""
     P = len(mesh.loop_start)
     oid = np.asarray(mesh.object_id, np.int64)
     loop_poly = np.repeat(np.arange(P), mesh.loop_total)
@@ -143,11 +143,14 @@ def mesh_signatures(mesh):
     to, tb = by_obj(oid[tri_poly])
     sizes = np.asarray(mesh.loop_total).astype(np.int64)
     rho, em = np.asarray(mesh.reflectance, np.float64), np.asarray(mesh.emission, np.float64)
+    face = mesh.face_groups().astype(np.int64) - np.arange(P)  # 0: the polygon is its own face
     out = {}
     for i, name in enumerate(mesh.object_names):
         pol, loops, tri = po[pb[i] : pb[i + 1]], lo[lb[i] : lb[i + 1]], to[tb[i] : tb[i + 1]]
         g = hashlib.sha256(np.ascontiguousarray(pos[loops]).tobytes())
         g.update(sizes[pol].tobytes() + np.ascontiguousarray(tri_rel[tri]).tobytes())
+        if face[pol].any():  # the user's faces (the orientation check's votes), when grouped
+            g.update(face[pol].tobytes())
         out[str(name)] = {
             "geometry": g.hexdigest()[:16],
             "reflectance": _digest(rho[pol]),
