@@ -60,9 +60,9 @@ def test_a_dragged_shape_reuses_its_grid(system, monkeypatch):
     built = []
     real = ClearShafts.__init__
 
-    def counting(self, tris, plane, point, normal, margin):
+    def counting(self, tris, plane, point, normal, margin, *threads):
         built.append(normal.copy())
-        real(self, tris, plane, point, normal, margin)
+        real(self, tris, plane, point, normal, margin, *threads)
 
     monkeypatch.setattr(ClearShafts, "__init__", counting)
     monkeypatch.setattr(DirectLight, "CULL_MIN_RAYS", 1)  # the gather's cull at 4 / 8 shadow rays too
