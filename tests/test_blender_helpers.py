@@ -40,6 +40,17 @@ def empty_scene():
     return bpy, ms, scene
 
 
+def scale_scene(scene, factor):
+    """Parent every mesh of `scene` to a new empty "Scale" scaled by `factor` (a unit-dependence test)."""
+    bpy = load_bpy()
+    root = bpy.data.objects.new("Scale", None)
+    scene.collection.objects.link(root)
+    for o in list(scene.objects):
+        if o is not root and o.type == "MESH":
+            o.parent = root
+    root.scale = (factor,) * 3
+
+
 def attribute(obj, name="HR_Radiance"):
     """(N, 4) float32 values of a colour attribute."""
     attr = obj.data.color_attributes[name]

@@ -6,7 +6,7 @@ user's meshes and modifiers as they were."""
 import numpy as np
 import pytest
 
-from test_blender_helpers import empty_scene, load_bpy, open_sample
+from test_blender_helpers import empty_scene, load_bpy, open_sample, scale_scene
 
 pytestmark = pytest.mark.bpy
 
@@ -179,12 +179,7 @@ def test_the_spacing_scaled_with_the_scene_gives_the_same_bake(tmp_path):
     def bake(scale, spacing):
         open_sample("cornell", tmp_path / str(scale))
         scene = bpy.context.scene
-        root = bpy.data.objects.new("Scale", None)
-        scene.collection.objects.link(root)
-        for o in list(scene.objects):
-            if o is not root and o.type == "MESH":
-                o.parent = root
-        root.scale = (scale,) * 3
+        scale_scene(scene, scale)
         scene.hr.vertex_spacing = spacing
         run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=(13, 13), method="FE")
         scene.frame_set(13)
