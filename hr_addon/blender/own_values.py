@@ -25,8 +25,6 @@ The light is gathered at the finer corners and shown there; the hierarchy sees t
 well (the evaluated mesh is what the bake reads).
 """
 
-import math
-
 import bpy
 import numpy as np
 
@@ -220,18 +218,17 @@ def _unsubdivide(md):
     return bool(keys)
 
 
-def subdivision_level(obj, spacing, depsgraph):
-    """Subdivide Mesh's level that takes every edge of the faces of obj's evaluated mesh (world
-    space; its modifiers' result, a Subdivision Surface's finer faces: without its own subdivision)
-    under `spacing` (each level halves them), at most MAX_LEVEL; 0 for spacing 0. The level its
-    coarsest face needs: > 0, obj gets the subdividing group, which gives each face its own
+def has_coarse_edges(obj, spacing, depsgraph):
+    """Whether an edge of a face of obj's evaluated mesh (world space; its modifiers' result, a
+    Subdivision Surface's finer faces: without its own subdivision) is longer than `spacing` (False
+    for spacing 0): obj then gets the subdividing group, which gives each face its own level
     (_finer_faces)."""
     if spacing <= 0:
-        return 0
+        return False
     ob = obj.evaluated_get(depsgraph)
     me = ob.data
     if not len(me.loops):
-        return 0
+        return False
     ev = np.empty(len(me.edges) * 2, np.int32)
     me.edges.foreach_get("vertices", ev)
     used = np.empty(len(me.loops), np.int32)
@@ -241,8 +238,7 @@ def subdivision_level(obj, spacing, depsgraph):
     me.vertices.foreach_get("co", co)
     M = np.array(ob.matrix_world, np.float64)[:3, :3]
     d = (co.reshape(-1, 3)[ev[:, 0]] - co.reshape(-1, 3)[ev[:, 1]]) @ M.T
-    longest = float(np.sqrt((d * d).sum(1)).max())
-    return min(max(math.ceil(math.log2(longest / spacing)), 0), MAX_LEVEL) if longest > spacing else 0
+    return bool(np.sqrt((d * d).sum(1)).max() > spacing)
 
 
 def values_object(obj, n_loops, n_verts):
@@ -270,7 +266,7 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
     """Give every object of `objects` whose modifiers change the topology or whose mesh another of
     them shares a helper and the modifier (made or brought up to date: its domain, its helper's
     topology, last in the stack); with a Vertex Spacing > 0 every object with an edge longer than
-    it too, subdividing (subdivision_level). Returns notes naming the objects that got them now."""
+    it too, subdividing (has_coarse_edges). Returns notes naming the objects that got them now."""
     users = {}
     for o in objects:
         users[o.data.name_full] = users.get(o.data.name_full, 0) + 1
@@ -282,17 +278,17 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
         o.update_tag()
     if reset:
         depsgraph.update()
-    levels = {o.name: subdivision_level(o, spacing, depsgraph) for o in own}
+    coarse = {o.name: has_coarse_edges(o, spacing, depsgraph) for o in own}
     made, finer, kept = [], [], []
     for obj in own:
-        level = levels[obj.name]
+        finer_faces = coarse[obj.name]
         shared = users[obj.data.name_full] > 1
-        if not level and not shared and not _changes_topology(obj, depsgraph):
+        if not finer_faces and not shared and not _changes_topology(obj, depsgraph):
             if obj in reset:  # subdivided by an earlier bake: its helper and modifier go
                 remove_own_values([obj])
             continue
-        made += _ensure(obj, domain, spacing if level else 0.0)
-        finer += [obj.name] if level else []
+        made += _ensure(obj, domain, spacing if finer_faces else 0.0)
+        finer += [obj.name] if finer_faces else []
         kept.append(obj)
     if finer:
         depsgraph.update()  # the subdivided meshes, for their helpers
@@ -306,7 +302,7 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
             f"light at the corners of their mesh subdivided in the modifier '{N_VALUES}' (linear: the "
             "shape stays)."
         )
-    made = [n for n in made if levels[n] == 0]
+    made = [n for n in made if not coarse[n]]
     if not made:
         return notes
     return notes + [
