@@ -17,6 +17,8 @@ from .validation import to2d
 # size: every node's light is its own). 1024: a refinement round of a few thousand nodes still
 # feeds both cores (20k room, AUTO event: 1.39x modelled on 2 cores against 1.31x with 4096)
 NODE_BATCH = 1024
+# patches per batch of the first bounce's cull of the receivers (fixed; each patch its own test)
+ROOT_BATCH = 1 << 14
 _SHAFTS = []  # (weak reference to the patches' corners, emitter plane, ClearShafts): the last few
 
 
@@ -172,11 +174,18 @@ class FirstBounce:
         in_group = np.zeros(len(pt.nv), bool)
         in_group[rec.group] = True
         roots = np.flatnonzero(~in_group)
-        # cull receivers wholly behind the shape or facing away from all of it
-        rc = pt.corners[roots]
-        front = ((rc - rec.c) @ nf > eps).any(1)
-        sees = ((allv[None] - pt.corners[roots][:, :1]) * pt.normal[roots][:, None]).sum(-1).max(1) > eps
-        frontier = roots[front & sees]
+
+        # cull receivers wholly behind the shape or facing away from all of it (by ranges of
+        # roots on threads: each root its own test; the stacked products of (4, 3) corners by nf
+        # are each their own too, the same bits however the roots are cut)
+        def cull(a, b):
+            r = roots[a:b]
+            rc = pt.corners[r]
+            front = ((rc - rec.c) @ nf > eps).any(1)
+            sees = ((allv[None] - rc[:, :1]) * pt.normal[r][:, None]).sum(-1).max(1) > eps
+            return r[front & sees]
+
+        frontier = np.concatenate(batch_map(cull, ranges(len(roots), ROOT_BATCH), threads) or [roots[:0]])
         acc_nodes, acc_vals = [], []
         budget_msg = False
         while len(frontier):

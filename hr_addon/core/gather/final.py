@@ -127,6 +127,13 @@ def _row_blocks(indptr, chunk):
     return blocks
 
 
+def _lit(y, D, rho, a, b):
+    """y[a:b] = rho (D + y) in place over rows a..b (_levels' passes by ranges of rows on threads:
+    each its own rows, the same values)."""
+    y[a:b] += D[a:b] if np.ndim(D) == 2 else D
+    y[a:b] *= rho[a:b]
+
+
 def _column_sums(X):
     """(C,) the sums over the rows of X (n, C): einsum adds the rows in order as X.sum(0) does, the
     same bits (tests/test_gather.py pins it), 4x faster on rows of 3 (7.7 -> 1.8 ms at 514k rows:
@@ -1197,8 +1204,7 @@ class FinalGather(DirectLight):
                 k -= 1
                 break
             y = g2._read(L)  # rho (D2 + read), in place: no (n, 3) temporaries a pass
-            y += D2
-            y *= g2.rho
+            batch_map(lambda a, b: _lit(y, D2, g2.rho, a, b), ranges(len(y), self.ROW_BATCH), self.threads)
             Y = self._leaf_means(y, V)
             if tail:
                 if zero:  # (from nothing: the leaves without samples too)
