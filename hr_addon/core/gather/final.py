@@ -236,7 +236,7 @@ def _near_points(h, n_hr, k):
     return np.ascontiguousarray(np.moveaxis(x, 2, 1)).reshape(n_hr, -1)
 
 
-NEAREST_CHUNK = 2048  # _nearest_point's hits per step: its (chunk, k^2) temporaries stay in cache
+NEAREST_CHUNK = 1024  # _nearest_point's hits per step: its (chunk, k^2) temporaries stay in cache
 
 
 def _nearest_point(x, leaf, hit):
@@ -247,13 +247,14 @@ def _nearest_point(x, leaf, hit):
     kk = x.shape[1] // 3
     out = np.empty(len(leaf), np.intp)
     for s in range(0, len(leaf), NEAREST_CHUNK):
-        X, q = np.take(x, leaf[s : s + NEAREST_CHUNK], 0), hit[s : s + NEAREST_CHUNK]  # (take: 20% faster)
-        d2 = X[:, :kk] - q[:, :1]
-        d2 *= d2
-        for c in (1, 2):
-            d = X[:, c * kk : (c + 1) * kk] - q[:, c : c + 1]
-            d *= d
-            d2 += d
+        # the gathered rows (a copy: take, 20% faster than indexing) as (chunk, 3, k^2), the
+        # differences and squares in place over all three components at once (a third fewer
+        # passes than per component)
+        X = np.take(x, leaf[s : s + NEAREST_CHUNK], 0).reshape(-1, 3, kk)
+        X -= hit[s : s + NEAREST_CHUNK, :, None]
+        X *= X
+        d2 = np.add(X[:, 0], X[:, 1])
+        d2 += X[:, 2]
         out[s : s + NEAREST_CHUNK] = np.argmin(d2, 1)
     return out
 
