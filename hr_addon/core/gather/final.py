@@ -1050,12 +1050,13 @@ class FinalGather(DirectLight):
         prim, t = self.first_hit(org, dirs)
         ok = prim >= 0
         patch = np.where(ok, self.tri_patch[np.maximum(prim, 0)], 0)
-        ok &= np.einsum("ij,ij->i", dirs, pt.normal[patch]) < 0  # back faces reflect nothing
+        # (rows of 3 by take: fancy indexing of (n, 3) rows costs 3x at 100k)
+        ok &= np.einsum("ij,ij->i", dirs, np.take(pt.normal, patch, 0)) < 0  # back faces reflect nothing
         i = np.flatnonzero(ok)
         with np.errstate(invalid="ignore"):  # (misses: t inf; not taken)
             hit = t[:, None] * dirs
         hit += org  # (org + t d: one gather of the hits' rows, not three)
-        hit = hit[i]
+        hit = np.take(hit, i, 0)
         leaf = locate_below(h, patch[i], hit, self.n_hr, self._lines())
         if self.covered_hits == "zero":
             lit = ~h.dark(leaf, hit)  # covered points read 0
