@@ -3,7 +3,9 @@ the stored gather's top-level rows (the corners' and the extra samples') retrace
 seeds, the second level kept, and the output after bench_gather_events.py's FE window add and
 move per object: each seed against the stored rows' output (what any change of the corners'
 random streams moves by) and the stored rows and dumps of other stores of the same system
-(bench_gather_events.py --dump) against the seeds' mean (a reference with less noise). One run.
+(bench_gather_events.py --dump) against the seeds' mean (a reference with less noise); and each
+realisation of the stored code (its rows, each seed) against the mean of as many of the others: the
+spread of an unchanged code's error against such a mean (the floor). One run.
 
 --second: the second level's rows retraced too (its seed the top's + 7919, as FinalGather makes
 it; the probe's rows that the second level reuses and the fine leaves' alike), on the stored
@@ -138,6 +140,14 @@ for k in STEPS:
             res[f"{r}_vs_stored_{k}"] = difference(runs["stored"][k], runs[r][k])
         else:
             res[f"{r}_vs_seed_mean_{k}"] = difference(mean, runs[r][k])
+    # the floor itself: each of the stored rows and the seeds (realisations of the same code)
+    # against the mean of as many others (len(seeds) of the rest): how far a realisation of
+    # unchanged code lies from such a mean, the spread a changed code's dump is judged against
+    real = ["stored", *seeds]
+    if len(real) > 2:
+        for r in real:
+            others = [runs[o][k] for o in real if o != r][: len(seeds)]
+            res[f"{r}_vs_others_mean_{k}"] = difference(np.mean(others, 0), runs[r][k])
 for k, r in res.items():
     print(line(k, r))
 if args.json:
