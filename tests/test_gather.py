@@ -62,6 +62,41 @@ def test_cosine_directions_are_deterministic_per_sample_and_cosine_weighted():
     assert (z > 0).all() and abs(z.mean() - 2 / 3) < 0.01  # E[cos] under a cosine pdf is 2/3
 
 
+def test_cosine_directions_and_nearest_point_match_their_plain_formulas_bit_for_bit():
+    """The precompute's two hot kernels (rewritten for speed, docs/scale.md session 22) against the
+    plain formulas they stand for: the same bits, so a stored precompute does not change."""
+    from hr_addon.core.gather.final import _nearest_point
+    from hr_addon.core.gather.sampling import _frame, rotated_hammersley
+
+    rng = np.random.default_rng(5)
+    n = rng.normal(size=(300, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n[:3] = [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]
+    keys = rng.integers(0, 2**62, len(n)).astype(np.uint64)
+    for rays in (1, 7, 64, 128):
+        u = rotated_hammersley(rays, 3, keys, 0)
+        r, phi, z = np.sqrt(u[..., 0]), 2 * np.pi * u[..., 1], np.sqrt(np.maximum(1 - u[..., 0], 0))
+        t, b = _frame(n)
+        x, y = r * np.cos(phi), r * np.sin(phi)
+        ref = np.stack([x * t[:, k, None] + y * b[:, k, None] + z * n[:, k, None] for k in range(3)], -1)
+        got = cosine_directions(n, keys, rays, 3)
+        assert got.shape == ref.shape and (got.view(np.uint64) == ref.view(np.uint64)).all()
+    # nearest of k^2 points per node (table rows x..., y..., z...): argmin of the summed squares,
+    # ties to the first; over more hits than one chunk, with exact ties (a hit at a point's mirror)
+    k2, nodes, m = 16, 50, 5000
+    P = rng.normal(size=(nodes, k2, 3))
+    P[:, 0, 2] = 1e-3
+    P[:, 1] = P[:, 0] * [1.0, 1.0, -1.0]  # points 0 and 1 mirrored in z = 0, 2 mm apart
+    table = np.ascontiguousarray(np.moveaxis(P, 2, 1)).reshape(nodes, -1)
+    leaf = rng.integers(0, nodes, m)
+    hit = rng.normal(size=(m, 3))
+    hit[::7, 2] = 0.0  # equidistant from points 0 and 1
+    hit[::7, :2] = P[leaf[::7], 0, :2]
+    ref = np.argmin(((P[leaf] - hit[:, None]) ** 2).sum(-1), 1)
+    assert np.array_equal(_nearest_point(table, leaf, hit), ref)
+    assert (ref[::7] == 0).all()
+
+
 # -- direct light: closed forms and shadow rays -------------------------------------------------------
 def test_irradiance_under_a_rectangle_matches_the_closed_form():
     """A black emitter 1 m above a grey receiver: incident = F(point -> rectangle) exactly (the

@@ -176,13 +176,17 @@ def points_in_boxes(grid, p, group=None):
     """Index pairs (i, j), sorted by i then j, of the points p (N, 3) lying in box j of grid
     (box_grid) whose group equals the point's: box_pairs(p, p, lo, hi, group, groups)'s pairs."""
     cells, start, box, origin, size, dims, (lo, hi), flat = grid
-    c = np.floor((p - origin) / size).astype(np.int64)
-    inside = (c >= 0) & (c < dims)
-    idx = np.flatnonzero(inside[:, 0] & inside[:, 1] & inside[:, 2])  # (.all(1) loops per row)
-    key = np.zeros(len(idx), np.int64) if group is None else np.asarray(group, np.int64)[idx]
-    c = c[idx]
+    # the cells by columns (an (N, 3) array's ops broadcast over rows of 3 loop per row: 3x the
+    # time of three contiguous passes; the same values)
+    inside, cs = np.ones(len(p), bool), []
     for ax in range(3):
-        key = key * dims[ax] + c[:, ax]
+        c = np.floor((p[:, ax] - origin[ax]) / size).astype(np.int64)
+        inside &= (c >= 0) & (c < dims[ax])
+        cs.append(c)
+    idx = np.flatnonzero(inside)
+    key = np.zeros(len(idx), np.int64) if group is None else np.asarray(group, np.int64)[idx]
+    for ax in range(3):
+        key = key * dims[ax] + cs[ax][idx]
     at = np.searchsorted(cells, key)
     found = at < len(cells)
     found[found] = cells[at[found]] == key[found]
@@ -191,12 +195,18 @@ def points_in_boxes(grid, p, group=None):
     cnt = start[at + 1] - first
     i = np.repeat(idx, cnt)
     j = box[np.repeat(first, cnt) + np.arange(len(i)) - np.repeat(np.cumsum(cnt) - cnt, cnt)]
-    # the overlap test on the axes where it can fail: not one where every box and point has the
+    # the overlap test axis by axis on the pairs still in (the point's coordinate against the
+    # box's bounds), on the axes where it can fail: not one where every box and point has the
     # same value (the contacts' 2D points, z = 0: a third of the test's gathers)
-    axes = [ax for ax in range(3) if flat[ax] is None or not (p[:, ax] == flat[ax]).all()]
-    pc = np.ascontiguousarray(p.T[axes])
-    ok = _overlap((pc, pc, lo[axes], hi[axes]), i, j)
-    return i[ok], j[ok]
+    keep = np.arange(len(i))
+    for ax in range(3):
+        q = p[:, ax]
+        if flat[ax] is not None and (q == flat[ax]).all():
+            continue
+        ii, jj = i[keep], j[keep]
+        q = q[ii]
+        keep = keep[(lo[ax][jj] <= q) & (hi[ax][jj] >= q)]
+    return i[keep], j[keep]
 
 
 def ray_exit(f, u, a, b):

