@@ -44,14 +44,17 @@ def _scene(ms):
     return wall
 
 
-def _bake(scene, spacing):
+def _bake(scene, spacing, results=None):
     """Bake frames 1-2 (vertex output, draft, final gather on) with Vertex Spacing `spacing`, show
-    frame 1; the wall's evaluated mesh (_wall) and the bake's warnings."""
+    frame 1; the wall's evaluated mesh (_wall) and the bake's warnings (results: a list the
+    BakeResult is appended to)."""
     from hr_addon.blender.bake import run_bake
     from hr_addon.blender.playback import load_frame
 
     scene.hr.vertex_spacing = spacing
     res = run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=(1, 2))
+    if results is not None:
+        results.append(res)
     assert load_frame(scene, 1)
     return _wall(), res.warnings
 
@@ -106,7 +109,11 @@ def test_one_quad_wall_shows_the_light_across_it(tmp_path):
 
     _scene(ms)
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
-    (co, ls, lt, lv, val), warnings = _bake(scene, 0.25)
+    made = []
+    (co, ls, lt, lv, val), warnings = _bake(scene, 0.25, made)
+    # the hierarchy on the user's meshes (session 22): the wall and the lamp one patch each, not
+    # 256 + 4; only the output on the finer corners
+    (spaced,), zero = made, []
     md = bpy.data.objects["Wall"].modifiers[-1]
     assert md.name == N_VALUES and md[md.node_group.interface.items_tree[SPACING].identifier] == 0.25
     assert len(ls) == 256 and len(co) == 17 * 17
@@ -126,7 +133,8 @@ def test_one_quad_wall_shows_the_light_across_it(tmp_path):
     assert load_frame(scene, 1)
     np.testing.assert_array_equal(_wall()[4], val)
     # the plain wall: its four corners, interpolated over it as the render does (bilinear in x, z)
-    (co0, _, _, lv0, val0), _ = _bake(scene, 0.0)
+    (co0, _, _, lv0, val0), _ = _bake(scene, 0.0, zero)
+    assert spaced.build_report.patches == zero[0].build_report.patches
     assert not [m for m in bpy.data.objects["Wall"].modifiers if m.name == N_VALUES]
     assert len(co0) == 4
     by = {(round(x, 3), round(z, 3)): v for (x, _, z), v in zip(co0[lv0], val0.mean(1))}

@@ -63,11 +63,12 @@ def frame_range_for(scene, frames=None):
     return a, b
 
 
-def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=None):
+def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=None, transport=None):
     h = hashlib.sha1()
-    m = mesh
-    for arr in (m.verts, m.loop_start, m.loop_total, m.loop_verts, m.reflectance, m.emission):
-        h.update(np.ascontiguousarray(arr, np.float64).tobytes())
+    for m in (mesh,) if transport is None else (mesh, transport):  # (transport: the hierarchy's
+        # mesh where it is not the output's, Vertex Spacing; bakes without one keep their signature)
+        for arr in (m.verts, m.loop_start, m.loop_total, m.loop_verts, m.reflectance, m.emission):
+            h.update(np.ascontiguousarray(arr, np.float64).tobytes())
     h.update(repr(dataclasses.astuple(params)).encode())
     h.update(domain.encode())
     if radiance_mode != "RADIANCE":  # (radiance bakes keep the signature they had before the mode)
@@ -136,14 +137,14 @@ def bake_frames(
         scene.frame_set(scene.frame_start)
         snap = read_snapshot(scene, view_layer, cfg, run.warn)
         run.intr.check()
-        params, min_area_rel, far_warning = solver_setup(snap.mesh, cfg.params)
+        params, min_area_rel, far_warning = solver_setup(snap.transport, cfg.params)
         run.warn([far_warning] if far_warning else [])
         total = end - start + 1
         yield BakeProgress(
             "build",
             total=total,
             warnings=list(run.result.warnings),
-            message=f"Building the hierarchy ({len(snap.mesh.loop_start)} polygons, "
+            message=f"Building the hierarchy ({len(snap.transport.loop_start)} polygons, "
             f"{cfg.quality.lower()} quality)",
         )
         run.intr.check()
@@ -269,7 +270,7 @@ class _Bake:
         made = {}
 
         def build():
-            system = RadiositySystem(snap.mesh, params, progress=on_build, threads=cfg.threads)
+            system = RadiositySystem(snap.transport, params, progress=on_build, threads=cfg.threads)
             made["dyn"] = dyn = engine(system)
             r.build_seconds = time.perf_counter() - t0
             final = None
@@ -282,7 +283,7 @@ class _Bake:
                         texture.check_memory(plan, cfg.gather, cfg.texel_density)
                     except TextureError as exc:
                         raise SceneError(str(exc)) from None
-                final = make_gather(dyn, plan, dict(cfg.gather, threads=cfg.threads))
+                final = make_gather(dyn, plan, dict(cfg.gather, threads=cfg.threads), output=snap.output)
                 pc.prepare(final)  # the static emitters' direct light, stored with the rest
                 r.gather_seconds = time.perf_counter() - t1
             return system, final
@@ -297,7 +298,7 @@ class _Bake:
             if texture_gather
             else None
         )
-        want = precompute_key(snap.mesh, params, cfg.gather, texels)
+        want = precompute_key(snap.transport, params, cfg.gather, texels, output=snap.output)
         with self.intr.raising():
             system, final, how = pc.load_or_build(
                 cache_dir, want, build, log=log, force=rebuild, warn=lambda m: self.warn([m])
@@ -370,7 +371,9 @@ class _Bake:
                 t.key: {"mesh": t.mesh_name, "count": t.n_corner if cfg.domain == "CORNER" else t.n_point}
                 for t in targets
             }
-            sig = _signature(snap.mesh, params, cfg.domain, targets, cfg.radiance_mode, cfg.gather)
+            sig = _signature(
+                snap.mesh, params, cfg.domain, targets, cfg.radiance_mode, cfg.gather, snap.scene_in.transport
+            )
             self._extract = FlatExtract(targets, cfg.domain)
             return CacheWriter(final_dir, objects, cfg.domain, sig, info), None
         baker = self.texture_plan(snap, system)

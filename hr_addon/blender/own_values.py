@@ -21,8 +21,11 @@ by the level its own longest edge needs to come under the spacing (Subdivide Mes
 linear, planar faces stay where they were; a book's short faces stay as they are beside its long
 ones). The classes are joined again and the vertices their seams had in common merged; a coarser
 face's edge keeps a T-junction with a finer neighbour's (no crack: the finer vertices lie on it).
-The light is gathered at the finer corners and shown there; the hierarchy sees the finer mesh as
-well (the evaluated mesh is what the bake reads).
+The light is gathered at the finer corners and shown there. With the final gather the hierarchy
+(patches, links, contacts, the second level's samples) is built on the mesh the modifier receives
+(before_subdivision; session 22, branch dec25): only the corner samples lie on the finer mesh
+(core.gather.OutputLayout). Without it the hierarchy's leaves are the output: it sees the finer
+mesh (the evaluated mesh is what that bake reads).
 """
 
 import bpy
@@ -216,6 +219,45 @@ def _unsubdivide(md):
     for k in keys:
         md[k] = type(md[k])(0)
     return bool(keys)
+
+
+def subdividing(obj):
+    """The spacing obj's HR Radiance modifier subdivides its faces to (0: none, or no modifier)."""
+    md = _modifier(obj)
+    return _spacing(md) if md is not None else 0.0
+
+
+def before_subdivision(objects, depsgraph, read):
+    """{object name: read(its evaluated mesh)} of the objects whose modifier subdivides (a Vertex
+    Spacing), as the modifier receives it: their spacing set to 0 for one evaluation (the group
+    then stores FACE = each face's own index and subdivides nothing), then set back and evaluated
+    again. The bake's transport (the hierarchy) is built on these, the output on the finer mesh."""
+    sub = [o for o in objects if subdividing(o) > 0]
+    if not sub:
+        return {}
+    keep = []
+    for o in sub:
+        md = _modifier(o)
+        k = _socket(md, SPACING)
+        keep.append((o, md, k, md[k]))
+        md[k] = 0.0
+        o.update_tag()
+    try:
+        depsgraph.update()
+        out = {}
+        for o in sub:
+            ob = o.evaluated_get(depsgraph)
+            me = ob.to_mesh()
+            try:
+                out[o.name] = read(me)
+            finally:
+                ob.to_mesh_clear()
+    finally:
+        for o, md, k, v in keep:
+            md[k] = v
+            o.update_tag()
+        depsgraph.update()
+    return out
 
 
 def has_coarse_edges(obj, spacing, depsgraph):
