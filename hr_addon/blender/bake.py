@@ -195,16 +195,26 @@ def _outside_scene_range(scene, start, end):
 SMALL_SHAPE = 0.25  # a light shape under this share of its largest face: vertex output may miss it
 
 
-def small_shape_warnings(dyn):
+def small_shape_warnings(dyn, final=None):
     """Light shapes much smaller than the faces they lie on (a ceiling panel on a cube room's
     one-quad ceiling): vertex output holds values at the corners, gathered once per corner's quarter
     of a face, so such a shape's light shows smeared over the face or not at all (an artist's cube
-    room read -33% against Cycles, benchmarks/unseen_vs_cycles.py). Named, with the remedy."""
+    room read -33% against Cycles, benchmarks/unseen_vs_cycles.py). Named, with the remedy. final:
+    the gather; with an output layout (Vertex Spacing) a face's size is its largest finer face's."""
     recs = [r for r in dyn.shapes.values() if r.roots is not None and len(r.roots) and r.area > 0]
     if not recs:  # (most frames of most scenes: no per-patch pass)
         return []
     pt = dyn.system.patches
     poly_area = np.bincount(pt.poly, pt.area)
+    out_layout = getattr(final, "output", None)
+    if out_layout is not None:  # the output's faces on each transport polygon: the largest
+        op = out_layout.patches
+        poly_area = np.bincount(pt.poly, pt.area, len(out_layout.under_start) - 1)
+        finer = np.zeros(len(poly_area))
+        np.maximum.at(
+            finer, out_layout.poly[op.poly], np.bincount(op.poly, op.area, len(out_layout.poly))[op.poly]
+        )
+        poly_area = np.minimum(poly_area, np.where(finer > 0, finer, poly_area))
     out = []
     for rec in recs:
         polys = np.unique(pt.poly[rec.roots])
@@ -442,7 +452,7 @@ class _Bake:
         frame_warnings += dyn.apply(shapes, lights).messages
         if baker is not None:
             return baker.radiance(dyn, cfg.radiance_mode, gather=final)
-        frame_warnings += small_shape_warnings(dyn)
+        frame_warnings += small_shape_warnings(dyn, final)
         mode, fx = cfg.radiance_mode, self._extract
         if final is not None and mode == "RADIANCE" and cfg.domain == "CORNER" and fx.flat:
             # the gather writes the objects' loops straight into the RGBA rows (as Live does; a

@@ -227,16 +227,33 @@ def subdividing(obj):
     return _spacing(md) if md is not None else 0.0
 
 
+def _faces_of(me):
+    """(P,) me's FACE attribute (int64), or None."""
+    a = me.attributes.get(FACE)
+    if a is None or a.domain != "FACE" or a.data_type != "INT":
+        return None
+    face = np.empty(len(me.polygons), np.int32)
+    a.data.foreach_get("value", face)
+    return face.astype(np.int64)
+
+
 def before_subdivision(objects, depsgraph, read):
-    """{object name: read(its evaluated mesh)} of the objects whose modifier subdivides (a Vertex
-    Spacing), as the modifier receives it: their spacing set to 0 for one evaluation (the group
-    then stores FACE = each face's own index and subdivides nothing), then set back and evaluated
-    again. The bake's transport (the hierarchy) is built on these, the output on the finer mesh."""
+    """{object name: (read(mesh), FACE of its polygons)} for the objects whose modifier subdivides
+    (a Vertex Spacing): the mesh the modifier receives, and the index the group stores as FACE for
+    each of its polygons. The bake's transport (the hierarchy) is built on these, the output on the
+    finer mesh. An object whose only modifier is this one and without shape keys: its own mesh
+    (FACE: each polygon's index); the others evaluated once with their spacing set to 0 (the group
+    then stores FACE and subdivides nothing), then set back and evaluated again."""
     sub = [o for o in objects if subdividing(o) > 0]
-    if not sub:
-        return {}
+    out = {}
+    plain = [o for o in sub if len(o.modifiers) == 1 and getattr(o.data, "shape_keys", None) is None]
+    for o in plain:
+        out[o.name] = (read(o.data), np.arange(len(o.data.polygons), dtype=np.int64))
+    rest = [o for o in sub if o.name not in out]
+    if not rest:
+        return out
     keep = []
-    for o in sub:
+    for o in rest:
         md = _modifier(o)
         k = _socket(md, SPACING)
         keep.append((o, md, k, md[k]))
@@ -244,12 +261,11 @@ def before_subdivision(objects, depsgraph, read):
         o.update_tag()
     try:
         depsgraph.update()
-        out = {}
-        for o in sub:
+        for o in rest:
             ob = o.evaluated_get(depsgraph)
             me = ob.to_mesh()
             try:
-                out[o.name] = read(me)
+                out[o.name] = (read(me), _faces_of(me))
             finally:
                 ob.to_mesh_clear()
     finally:

@@ -543,7 +543,7 @@ def collect_geometry(view_layer, depsgraph, vertex_output=True, transport=False)
     if transport:
         from .own_values import before_subdivision
 
-        coarse = before_subdivision(objs, depsgraph, lambda me: (_mesh_arrays(me), _face_attribute(me)))
+        coarse = before_subdivision(objs, depsgraph, _mesh_arrays)
     tparts, tpoly, tpoly_n, split = [], [], 0, False
     warnings, mat_cache, digest_cache, inst_digests = [], {}, {}, {}
     inst_parts, inst_info = collect_instances(

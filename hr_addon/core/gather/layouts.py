@@ -301,14 +301,21 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None, layout=None):
         if len(cand):
             con.close_mouths(system.backend.occluded)  # (and the mouths built: once, before the batches)
             cand = cand[con.may_slot(cand)]  # the others have no point in a slot: never split
-    elif len(cand):  # the output patches on a transport polygon with such a patch
+    elif len(cand):  # the output patches on a transport polygon with such a patch, by their own box
         con.close_mouths(system.backend.occluded)
         cand = cand[con.may_slot(cand)]
         hit = np.zeros(len(layout.under_start) - 1, bool)
         hit[system.patches.poly[cand]] = True
-        cand = np.flatnonzero(hit[layout.poly[layout.patches.poly]])
+        lp = layout.patches
+        cand = np.flatnonzero(hit[layout.poly[lp.poly]])
         if skip is not None:
             cand = cand[~skip[cand]]
+        if len(cand):  # each tested on the transport patch under its centre
+            home = layout.transport(
+                cand,
+                np.where((lp.nv[cand] == 4)[:, None], lp.corners[cand].mean(1), lp.corners[cand, :3].mean(1)),
+            )
+            cand = cand[con.may_slot(home, lp.corners[cand])]
     threads = system.backend.threads
     parts = batch_map(
         lambda i, j: _split_part(system, cand[i:j], grid, n, layout),
