@@ -237,16 +237,24 @@ def _faces_of(me):
     return face.astype(np.int64)
 
 
-def before_subdivision(objects, depsgraph, read):
+# the transport's mesh (before_subdivision): the user's (0), or the user's faces subdivided at this
+# multiple of the spacing (2: every face one level coarser than the output's; an experiment of
+# session 22, docs/accuracy.md)
+TRANSPORT_FACTOR = 0.0
+
+
+def before_subdivision(objects, depsgraph, read, factor=None):
     """{object name: (read(mesh), FACE of its polygons)} for the objects whose modifier subdivides
     (a Vertex Spacing): the mesh the modifier receives, and the index the group stores as FACE for
     each of its polygons. The bake's transport (the hierarchy) is built on these, the output on the
     finer mesh. An object whose only modifier is this one and without shape keys: its own mesh
     (FACE: each polygon's index); the others evaluated once with their spacing set to 0 (the group
     then stores FACE and subdivides nothing), then set back and evaluated again."""
+    factor = TRANSPORT_FACTOR if factor is None else factor
     sub = [o for o in objects if subdividing(o) > 0]
     out = {}
     plain = [o for o in sub if len(o.modifiers) == 1 and getattr(o.data, "shape_keys", None) is None]
+    plain = plain if factor <= 0 else []
     for o in plain:
         out[o.name] = (read(o.data), np.arange(len(o.data.polygons), dtype=np.int64))
     rest = [o for o in sub if o.name not in out]
@@ -257,7 +265,7 @@ def before_subdivision(objects, depsgraph, read):
         md = _modifier(o)
         k = _socket(md, SPACING)
         keep.append((o, md, k, md[k]))
-        md[k] = 0.0
+        md[k] = float(md[k]) * factor if factor > 0 else 0.0
         o.update_tag()
     try:
         depsgraph.update()

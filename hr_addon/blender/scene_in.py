@@ -121,11 +121,29 @@ def _user_faces(me, face=False):
     return (first, raw) if face else first
 
 
-def _onto_user_faces(face, user_face):
+def _centres(arrays):
+    co, ls, lt, lv = arrays[:4]
+    poly = np.repeat(np.arange(len(ls)), lt)
+    return np.stack([np.bincount(poly, co[lv, c], len(ls)) for c in range(3)], 1) / lt[:, None]
+
+
+def _onto_user_faces(face, user_face, fine=None, coarse=None):
     """(P,) the polygon of the mesh before the subdivision (whose FACE is user_face) each finer
-    polygon (FACE face) lies on, or None if they do not match."""
+    polygon (FACE face) lies on, or None if they do not match. Where several polygons there have
+    its FACE (a transport subdivided itself, own_values.TRANSPORT_FACTOR): the one whose centre is
+    nearest its centre (fine, coarse: the two meshes' arrays; the linear levels nest)."""
     if face is None or user_face is None or not len(user_face) or user_face.min() < 0:
         return None
+    if len(np.unique(user_face)) < len(user_face):
+        from ..core.output import equal_key_pairs
+
+        i, j = equal_key_pairs(face, user_face)
+        d = ((_centres(fine)[i] - _centres(coarse)[j]) ** 2).sum(1)
+        o = np.lexsort((d, i))
+        o = o[np.r_[True, i[o][1:] != i[o][:-1]]]
+        out = np.full(len(face), -1, np.int64)
+        out[i[o]] = j[o]
+        return None if (out < 0).any() else out
     at = np.full(int(max(user_face.max(), face.max(initial=0))) + 1, -1, np.int64)
     at[user_face] = np.arange(len(user_face))
     out = at[np.clip(face, 0, len(at) - 1)]
@@ -572,7 +590,7 @@ def collect_geometry(view_layer, depsgraph, vertex_output=True, transport=False)
         user = None
         if obj.name in coarse:  # the transport's part: the mesh before the subdivision
             carr, cface = coarse[obj.name]
-            user = _onto_user_faces(raw, cface) if len(carr[1]) else None
+            user = _onto_user_faces(raw, cface, arrays, carr) if len(carr[1]) else None
         if user is not None:
             tpart, _ = _mesh_input(_placed(carr, ob.matrix_world, mats), obj.name, warnings, mat_cache)
             tparts.append(tpart)
