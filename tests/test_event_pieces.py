@@ -107,3 +107,60 @@ def test_form_factors_over_the_rings_are_the_pieces_sum(system, outline):
     whole = ((np.concatenate(rings)[None] - x[:, None]) * n[:, None]).sum(-1).min(1) > 1e-6
     assert 0.2 < whole.mean() < 0.95 and (F[~whole] > 0).sum() > 20  # both paths taken
     np.testing.assert_allclose(F, ref, rtol=0, atol=1e-12 * ref.max())
+
+
+def _pieces_one_by_one(rec, nf, cells=None, merge=False):
+    """slab_pieces as it was before session 22: each kept piece turned and padded on its own."""
+    from hr_addon.core import formfactor as ff
+    from hr_addon.core.events.direct import _union_edges
+    from hr_addon.core.events.planar import _in_convex, _in_rings, slab_decomposition
+    from hr_addon.core.geometry import newell
+
+    edges = [np.stack([x, np.roll(x, -1, 0)], 1) for x in rec.rings2d]
+    if cells is not None and merge:
+        e, lo, hi = _union_edges(cells), np.min(edges[0], (0, 1)), np.max(edges[0], (0, 1))
+        edges.append(e[((e.max(1) >= lo) & (e.min(1) <= hi)).all(1)])
+    elif cells is not None:
+        edges.append(np.stack([cells, np.roll(cells, -1, 1)], 2).reshape(-1, 2, 2))
+    edges = np.concatenate(edges)
+    scale = float(np.abs(edges).max()) or 1.0
+    traps = slab_decomposition(edges, 1e-9 * scale)
+    mids = np.array([m for _, m in traps]).reshape(-1, 2)
+    keep = _in_rings(mids, rec.rings2d)
+    if cells is not None:
+        keep &= _in_convex(mids, cells, 1e-9 * scale if merge else None).any(1)
+    out, nvs = [], []
+    for t in np.flatnonzero(keep):
+        q = traps[t][0]
+        p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
+        if newell(p3) @ nf < 0:
+            p3 = p3[::-1]
+        nvs.append(len(p3))
+        out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
+    c, nv = np.array(out).reshape(-1, 4, 3), np.array(nvs, int)
+    return c, nv, ff.polygon_normal_area(c, nv)[1]
+
+
+@pytest.mark.parametrize(
+    "outline",
+    [
+        S.window(0.2, 0.16, 0.02, centre=(0.4, 0.4), angle=0.3, shear=0.3),  # holes
+        S.star(0.1, 0.04, 5, centre=(0.45, 0.4), angle=0.2),  # not convex: triangles
+        S.ellipse(0.12, 0.05, centre=(0.4, 0.45), angle=0.5),
+        S.rect(0.2, 0.15, centre=(0.52, 0.2), angle=0.3),  # past the wall's edge
+    ],
+)
+def test_pieces_as_arrays_are_the_pieces_one_by_one(system, outline):
+    """slab_pieces turns and pads its pieces as arrays (session 22): the same corners, counts and
+    areas bit for bit as each piece on its own, with and without the covered patches' cells."""
+    dyn = DynamicRadiosity(system.copy(), method="FE")
+    dyn.add("a", LightShape(S.on_plane(outline, S.CORNELL_BACK_WALL), np.full(3, 2.0), "a"))
+    rec = dyn.shapes["a"]
+    pt = system.patches
+    nf = pt.normal[rec.roots[0]]
+    cells = to2d(rec, pt.corners[rec.roots])
+    for args in ((), (cells,), (cells, True)):
+        got, ref = slab_pieces(rec, nf, *args), _pieces_one_by_one(rec, nf, *args)
+        assert len(ref[0]) > 2 and (ref[1] == 3).any()  # (triangles padded too)
+        for a, b in zip(got, ref):
+            assert a.dtype == b.dtype and np.array_equal(a, b)

@@ -119,16 +119,22 @@ class Hierarchy:
         """(len(ids), 4) children of internal nodes ids."""
         return self.child0[np.asarray(ids)][:, None] + np.arange(4)
 
-    def compact(self, keep):
+    def compact(self, keep, threads=1):
         """Delete nodes where keep is False (whole subtrees: a kept node's parent must be kept and
-        a parent keeps all four children or none). Returns remap old -> new index (-1 deleted)."""
+        a parent keeps all four children or none). Returns remap old -> new index (-1 deleted).
+        threads: the fields by a batch map (core.parallel: each field its own array)."""
+        from .parallel import batch_map
+
         keep = np.asarray(keep, bool)[: self.n]
         remap = np.full(self.n, -1, np.int64)
         remap[keep] = np.arange(int(keep.sum()))
-        for name, _, _ in self._fields:
+
+        def field(name):
             arr = getattr(self, name)
             kept = arr[: self.n][keep]
             arr[: len(kept)] = kept
+
+        batch_map(field, [(name,) for name, _, _ in self._fields], threads)
         self.n = int(keep.sum())
         p = self.parent[: self.n]
         p[p >= 0] = remap[p[p >= 0]]

@@ -4,6 +4,7 @@ the hierarchy)."""
 
 import numpy as np
 
+from ..parallel import batch_map
 from .validation import classify
 
 
@@ -15,13 +16,14 @@ class NodeState:
     previews would start from). sync() extends them and the records' U, D and G to new nodes,
     gc() drops the splits no shape needs and renumbers them."""
 
-    def __init__(self, h, base):
+    def __init__(self, h, base, threads=1):
         self.h = h
         self.n_hr = h.n
         self.hr_mask = h.child0[: h.n] >= 0
         self.ref = np.zeros(h.n, np.int64)
         self.base, self.warm, self.current = base, base.copy(), base.copy()
         self.guess = self.guess0 = None
+        self.threads = threads  # gc()'s compaction (core.parallel)
 
     def hr_internal(self, nodes):
         """True for nodes the HR build split (never collapsed by events)."""
@@ -59,21 +61,20 @@ class NodeState:
             par = h.parent[lv]
             dead[lv] = collapse[par] | dead[par]
         keep = ~dead
-        remap = h.compact(keep)
+        remap = h.compact(keep, self.threads)
         assert (remap[: self.n_hr] == np.arange(self.n_hr)).all()
         self.ref = self.ref[:n][keep]
-        self.base = self.base[:, keep]
-        self.warm = self.warm[:, keep]
-        self.current = self.current[:, keep] if self.current.shape[1] == n else self.current
-        if self.guess is not None:
-            self.guess = self.guess[:, keep]
-        if self.guess0 is not None:
-            self.guess0 = self.guess0[:, keep]
+        # the node arrays of this state and of the records, each its own: by a batch map
+        arrays = [(self, "base"), (self, "warm")]
+        arrays += [(self, "current")] if self.current.shape[1] == n else []
+        arrays += [(self, k) for k in ("guess", "guess0") if getattr(self, k) is not None]
+        arrays += [(r, k) for r in recs for k in ("U", "D", "G") if getattr(r, k, None) is not None]
+
+        def kept(obj, name):
+            setattr(obj, name, getattr(obj, name)[:, keep])
+
+        batch_map(kept, arrays, self.threads)
         for rec in recs:
-            for name in ("U", "D", "G"):
-                a = getattr(rec, name, None)
-                if a is not None:
-                    setattr(rec, name, a[:, keep])
             for name in ("cov_nodes", "owned"):
                 a = getattr(rec, name, None)
                 if a is not None and len(a):

@@ -17,6 +17,8 @@ from .validation import to2d
 # size: every node's light is its own). 1024: a refinement round of a few thousand nodes still
 # feeds both cores (20k room, AUTO event: 1.39x modelled on 2 cores against 1.31x with 4096)
 NODE_BATCH = 1024
+# patches per batch of the first bounce's cull of the receivers (fixed; each patch its own test)
+ROOT_BATCH = 1 << 14
 _SHAFTS = []  # (weak reference to the patches' corners, emitter plane, ClearShafts): the last few
 
 
@@ -130,9 +132,10 @@ class FirstBounce:
             return F.reshape(-1, 4), x, xn, gw
 
         def visible(nodes, F, x, xn):
-            """F x kernel-weighted visibility ratio; rays only where an occluder may be in the way
-            (by node ranges on threads)."""
-            return _by_nodes(visible_part, len(nodes), threads, nodes, F, x, xn)[0]
+            """(F x kernel-weighted visibility ratio; rays only where an occluder may be in the way,
+            (m, 4) True at the Gauss points not covered (contacts.py) of the partly covered nodes,
+            True elsewhere), by node ranges on threads."""
+            return _by_nodes(visible_part, len(nodes), threads, nodes, F, x, xn)
 
         def visible_part(nodes, F, x, xn):
             FV = F.ravel().copy()
@@ -157,16 +160,32 @@ class FirstBounce:
                 kern, vis = kern.reshape(-1, K), vis.reshape(-1, K)
                 ks = kern.sum(1)
                 FV[lit] *= np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
-            return (FV.reshape(-1, 4),)
+            # the partly covered nodes' Gauss points: the covered test (each point its own: here,
+            # on threads, rather than after the map; session 22)
+            shown = np.ones(len(FV), bool)
+            if h.contacts is not None:
+                ex = h.exposure[nodes]
+                part = np.flatnonzero((ex > 0) & (ex < 1))
+                if len(part):
+                    sel = (part[:, None] * 4 + np.arange(4)).ravel()
+                    shown[sel] = ~h.dark(np.repeat(nodes[part], 4), x[sel])
+            return FV.reshape(-1, 4), shown.reshape(-1, 4)
 
         in_group = np.zeros(len(pt.nv), bool)
         in_group[rec.group] = True
         roots = np.flatnonzero(~in_group)
-        # cull receivers wholly behind the shape or facing away from all of it
-        rc = pt.corners[roots]
-        front = ((rc - rec.c) @ nf > eps).any(1)
-        sees = ((allv[None] - pt.corners[roots][:, :1]) * pt.normal[roots][:, None]).sum(-1).max(1) > eps
-        frontier = roots[front & sees]
+
+        # cull receivers wholly behind the shape or facing away from all of it (by ranges of
+        # roots on threads: each root its own test; the stacked products of (4, 3) corners by nf
+        # are each their own too, the same bits however the roots are cut)
+        def cull(a, b):
+            r = roots[a:b]
+            rc = pt.corners[r]
+            front = ((rc - rec.c) @ nf > eps).any(1)
+            sees = ((allv[None] - rc[:, :1]) * pt.normal[r][:, None]).sum(-1).max(1) > eps
+            return r[front & sees]
+
+        frontier = np.concatenate(batch_map(cull, ranges(len(roots), ROOT_BATCH), threads) or [roots[:0]])
         acc_nodes, acc_vals = [], []
         budget_msg = False
         while len(frontier):
@@ -180,7 +199,7 @@ class FirstBounce:
             FV = np.zeros_like(F)
             if len(ev):
                 sel = (ev[:, None] * 4 + np.arange(4)).ravel()
-                FV[ev] = visible(frontier[ev], F[ev], x[sel], xn[sel])
+                FV[ev], shown = visible(frontier[ev], F[ev], x[sel], xn[sel])
             val = (FV * gw).sum(1)
             if h.contacts is not None and len(ev):
                 # partly covered nodes (contacts.py): the light on their exposed part; the solve
@@ -189,8 +208,7 @@ class FirstBounce:
                 part = np.flatnonzero((ex > 0) & (ex < 1))
                 if len(part):
                     rows = ev[part]
-                    pts = x.reshape(-1, 4, 3)[rows]
-                    lit = ~h.dark(np.repeat(frontier[rows], 4), pts.reshape(-1, 3)).reshape(-1, 4)
+                    lit = shown[part]
                     w = gw[rows] * lit
                     ws = w.sum(1)
                     val[rows] = np.where(
@@ -259,15 +277,23 @@ def slab_pieces(rec, nf, cells=None, merge=False):
         # merged: a piece lies wholly inside the union or wholly outside it, but its midpoint may
         # lie on an edge two cells share, so it counts within a rounding tolerance of a cell
         keep &= _in_convex(mids, cells, 1e-9 * scale if merge else None).any(1)
-    out, nvs = [], []
-    for t in np.flatnonzero(keep):
-        q = traps[t][0]
-        p3 = rec.c + q[:, :1] * rec.u + q[:, 1:2] * rec.v
-        if newell(p3) @ nf < 0:
-            p3 = p3[::-1]
-        nvs.append(len(p3))
-        out.append(np.concatenate([p3, p3[-1:]]) if len(p3) == 3 else p3)
-    c, nv = np.array(out).reshape(-1, 4, 3), np.array(nvs, int)
+    # the kept pieces' corners in 3-d, turned CCW about nf, triangles padded with their last
+    # corner: the triangles and the quads each as one array (the same arithmetic per piece as
+    # one at a time: the same corners; session 22)
+    idx = np.flatnonzero(keep)
+    nv = np.array([len(traps[t][0]) for t in idx], int)
+    c = np.zeros((len(idx), 4, 3))
+    for k in (3, 4):
+        at = np.flatnonzero(nv == k)
+        if not len(at):
+            continue
+        q = np.stack([traps[t][0] for t in idx[at]])  # (m, k, 2)
+        p3 = rec.c + q[..., :1] * rec.u + q[..., 1:2] * rec.v
+        flip = np.array([v @ nf < 0 for v in newell(p3)], bool)  # (each piece's dot, as before)
+        p3[flip] = p3[flip][:, ::-1]
+        c[at, :k] = p3
+        if k == 3:
+            c[at, 3] = p3[:, 2]
     return c, nv, ff.polygon_normal_area(c, nv)[1]
 
 

@@ -153,7 +153,7 @@ class DynamicRadiosity:
             h, self.links, self.tol, self.response_tol, response_float32, threads, response_steps
         )
         base, self.base_iterations = self._base_solution()
-        self.nodes = NodeState(h, base)
+        self.nodes = NodeState(h, base, threads)
         self.coverage = Coverage(
             self.nodes,
             min_area_rel * self.total_area,

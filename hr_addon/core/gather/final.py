@@ -75,11 +75,18 @@ def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1, rays=None, used=No
         return out
     # channel-major: a 1-d take and reduceat per channel are 2x faster than rows of C with
     # reduceat along axis 0 (100k room, measured), and sum the same products in the same order
-    VT = np.ascontiguousarray((V if used is None else V[used]).T, dtype=np.float32)
     # the takes below skip numpy's per-index bounds error path (mode="clip": 0.125 -> 0.10 s a
     # read of the 100k room's 17.4 M weights, the same values): checked here once per read
     if (int(cols.max()) if used is None else len(used) and int(used.max())) >= len(V):
         raise IndexError(f"_csr_matvec: a column beyond V's {len(V)} rows")
+    # (float32 columns of V's rows by ranges on threads: each range its own, the same values)
+    m = len(V) if used is None else len(used)
+    VT = np.empty((V.shape[1], m), np.float32)
+
+    def columns(a, b):
+        VT[:, a:b] = (V[a:b] if used is None else V[used[a:b]]).T
+
+    batch_map(columns, ranges(m, 1 << 16), threads)
 
     def block(r0, r1):
         q0 = r0
@@ -118,6 +125,13 @@ def _row_blocks(indptr, chunk):
         blocks.append((r0, r1))
         r0 = r1
     return blocks
+
+
+def _lit(y, D, rho, a, b):
+    """y[a:b] = rho (D + y) in place over rows a..b (_levels' passes by ranges of rows on threads:
+    each its own rows, the same values)."""
+    y[a:b] += D[a:b] if np.ndim(D) == 2 else D
+    y[a:b] *= rho[a:b]
 
 
 def _column_sums(X):
@@ -1190,8 +1204,7 @@ class FinalGather(DirectLight):
                 k -= 1
                 break
             y = g2._read(L)  # rho (D2 + read), in place: no (n, 3) temporaries a pass
-            y += D2
-            y *= g2.rho
+            batch_map(lambda a, b: _lit(y, D2, g2.rho, a, b), ranges(len(y), self.ROW_BATCH), self.threads)
             Y = self._leaf_means(y, V)
             if tail:
                 if zero:  # (from nothing: the leaves without samples too)
@@ -1223,7 +1236,16 @@ class FinalGather(DirectLight):
         room's or the row's object's where lower; the largest share of the light that series is
         over the channels; local False: the room's alone, as from V = 0, where the objects' ratios
         made single objects worse: 5.0 -> 5.2%)."""
-        d1, d0 = last[2] - last[1], last[1] - last[0]
+        # (the elementwise steps by ranges of rows and the objects' sums by channel on threads:
+        # each range or channel its own, the same values; session 22, docs/threads.md)
+        rows = ranges(len(last[2]), self.ROW_BATCH)
+        d1, d0 = np.empty_like(last[2]), np.empty_like(last[2])
+
+        def changes(a, b):
+            np.subtract(last[2][a:b], last[1][a:b], out=d1[a:b])
+            np.subtract(last[1][a:b], last[0][a:b], out=d0[a:b])
+
+        batch_map(changes, rows, self.threads)
         r = self.stats["tail_ratio"] = self._tail_ratio(_column_sums(d1), _column_sums(d0))
         if local:
             # each object's own ratio where it is lower (its light converging faster than the
@@ -1231,12 +1253,33 @@ class FinalGather(DirectLight):
             # off the passes' limit, the lower of the two 1.8%; each object's alone (uncapped) 9%
             grp = self._tail_groups(len(d1))
             k = grp.max() + 1
-            g1, g0 = (np.stack([np.bincount(grp, d[:, c], k) for c in range(3)], 1) for d in (d1, d0))
+            g = np.empty((2, k, 3))
+
+            def sums(i, c):
+                g[i, :, c] = np.bincount(grp, (d1, d0)[i][:, c], k)
+
+            batch_map(sums, [(i, c) for i in range(2) for c in range(3)], self.threads)
+            g1, g0 = g
             r = np.clip(np.divide(g1, g0, out=np.zeros_like(g1), where=g0 != 0), 0.0, r)
-            t = d1 * np.take(r / (1 - r), grp, 0)  # (per object, then its rows: the same values)
+            f = r / (1 - r)
+
+            def series(a, b):  # (per object, then its rows: the same values)
+                np.multiply(d1[a:b], np.take(f, grp[a:b], 0), out=d1[a:b])
+
         else:
-            t = d1 * (r / (1 - r))
-        return last[2] + t, float((np.abs(_column_sums(t)) / (np.abs(_column_sums(last[2])) + 1e-300)).max())
+            f = r / (1 - r)
+
+            def series(a, b):
+                np.multiply(d1[a:b], f, out=d1[a:b])
+
+        batch_map(series, rows, self.threads)
+        t, out = d1, np.empty_like(d1)
+
+        def add(a, b):
+            np.add(last[2][a:b], t[a:b], out=out[a:b])
+
+        batch_map(add, rows, self.threads)
+        return out, float((np.abs(_column_sums(t)) / (np.abs(_column_sums(last[2])) + 1e-300)).max())
 
     def _tail_share(self, sums):
         """_tail(last, False)'s share from the channel sums of the last three passes' leaf values
@@ -1369,7 +1412,21 @@ class FinalGather(DirectLight):
         y appended below (the rows n_hr + sample the near hits read)."""
         used, gw = self._second_map
         start = self._second_start
-        out = V[: self.n_hr].copy()
+        m = self.n_hr
+        full = None
+        if self.near_points:  # (V's rows, then y: filled by ranges on threads, each its own rows)
+            full = np.empty((m + len(y),) + y.shape[1:], np.result_type(V, y))
+            out = full[:m]
+
+            def fill(a, b):
+                if a < m:
+                    out[a : min(b, m)] = V[a : min(b, m)]
+                if b > m:
+                    full[max(a, m) : b] = y[max(a, m) - m : b - m]
+
+            batch_map(fill, ranges(len(full), self.ROW_BATCH), self.threads)
+        else:
+            out = V[:m].copy()
         if len(used) and (start[1] - start[0]) * len(used) == start[-1]:  # k^2 samples on every leaf
             got = self.__dict__.get("_mean_weights")
             if got is None:  # the static geometry's (every pass of every event reads them)
@@ -1386,7 +1443,7 @@ class FinalGather(DirectLight):
                 w = gw * ~self.second.dark
                 ws = np.add.reduceat(w, start[:-1])
                 got = self._mean_runs = (w, ws, ws > 0, bool((np.diff(start) > 0).all()))
-            w, ws, ok, full = got
+            w, ws, ok, every = got
 
             def part(a, b):  # leaves a..b: each its own samples' sum (the same segments as one sum)
                 s0, s1 = start[a], start[b]
@@ -1396,8 +1453,8 @@ class FinalGather(DirectLight):
 
             # by ranges of leaves on threads, where every leaf has samples (an empty one's
             # reduceat would read past its range's end)
-            batch_map(part, ranges(len(used), self.ROW_BATCH) if full else [(0, len(used))], self.threads)
-        return np.vstack([out, y]) if self.near_points else out
+            batch_map(part, ranges(len(used), self.ROW_BATCH) if every else [(0, len(used))], self.threads)
+        return out if full is None else full
 
     def _light_bounce(self, rec, Y, scale=1.0):
         """A Blender light's first bounce off the few HR leaves that hold it (a sun through a small
@@ -1596,8 +1653,9 @@ class FinalGather(DirectLight):
         g = copy.copy(self)
         g.shadow_rays, g.texel_area = rays, None
         if idx is not None:
-            g.points, g.normals, g.keys, g.dark = (a[idx] for a in (self.points, self.normals, self.keys,
-                                                                    self.dark))
+            g.points, g.normals, g.keys, g.dark = (
+                a[idx] for a in (self.points, self.normals, self.keys, self.dark)
+            )
             g.n = len(idx)
         return g.direct_light(em, edges=False)
 

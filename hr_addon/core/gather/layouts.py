@@ -567,7 +567,12 @@ class LoopGather(FinalGather):
         """(L, 3) float64 per loop of sample values v (n, 3) (_loop_map)."""
         li, sj, wn, _ = self._loop_map()
         L = len(self.loop_index)
-        out = np.stack([np.bincount(li, wn * v[sj, c], L) for c in range(v.shape[1])], 1)
+        out = np.empty((L, v.shape[1]))
+
+        def channel(c):  # (by channel on threads: each its own column, the same sums)
+            out[:, c] = np.bincount(li, wn * v[sj, c], L)
+
+        batch_map(channel, [(c,) for c in range(v.shape[1])], self.threads)
         return corner_fit.shifted(out, v, self._shift_plan()) if getattr(self, "fit", False) else out
 
     def _radiance_by_response(self, dyn, rows=None):
