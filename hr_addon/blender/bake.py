@@ -63,11 +63,12 @@ def frame_range_for(scene, frames=None):
     return a, b
 
 
-def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=None):
+def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=None, transport=None):
     h = hashlib.sha1()
-    m = mesh
-    for arr in (m.verts, m.loop_start, m.loop_total, m.loop_verts, m.reflectance, m.emission):
-        h.update(np.ascontiguousarray(arr, np.float64).tobytes())
+    for m in (mesh,) if transport is None else (mesh, transport):  # (transport: the hierarchy's
+        # mesh where it is not the output's, Vertex Spacing; bakes without one keep their signature)
+        for arr in (m.verts, m.loop_start, m.loop_total, m.loop_verts, m.reflectance, m.emission):
+            h.update(np.ascontiguousarray(arr, np.float64).tobytes())
     h.update(repr(dataclasses.astuple(params)).encode())
     h.update(domain.encode())
     if radiance_mode != "RADIANCE":  # (radiance bakes keep the signature they had before the mode)
@@ -136,14 +137,14 @@ def bake_frames(
         scene.frame_set(scene.frame_start)
         snap = read_snapshot(scene, view_layer, cfg, run.warn)
         run.intr.check()
-        params, min_area_rel, far_warning = solver_setup(snap.mesh, cfg.params)
+        params, min_area_rel, far_warning = solver_setup(snap.transport, cfg.params)
         run.warn([far_warning] if far_warning else [])
         total = end - start + 1
         yield BakeProgress(
             "build",
             total=total,
             warnings=list(run.result.warnings),
-            message=f"Building the hierarchy ({len(snap.mesh.loop_start)} polygons, "
+            message=f"Building the hierarchy ({len(snap.transport.loop_start)} polygons, "
             f"{cfg.quality.lower()} quality)",
         )
         run.intr.check()
@@ -194,16 +195,26 @@ def _outside_scene_range(scene, start, end):
 SMALL_SHAPE = 0.25  # a light shape under this share of its largest face: vertex output may miss it
 
 
-def small_shape_warnings(dyn):
+def small_shape_warnings(dyn, final=None):
     """Light shapes much smaller than the faces they lie on (a ceiling panel on a cube room's
     one-quad ceiling): vertex output holds values at the corners, gathered once per corner's quarter
     of a face, so such a shape's light shows smeared over the face or not at all (an artist's cube
-    room read -33% against Cycles, benchmarks/unseen_vs_cycles.py). Named, with the remedy."""
+    room read -33% against Cycles, benchmarks/unseen_vs_cycles.py). Named, with the remedy. final:
+    the gather; with an output layout (Vertex Spacing) a face's size is its largest finer face's."""
     recs = [r for r in dyn.shapes.values() if r.roots is not None and len(r.roots) and r.area > 0]
     if not recs:  # (most frames of most scenes: no per-patch pass)
         return []
     pt = dyn.system.patches
     poly_area = np.bincount(pt.poly, pt.area)
+    out_layout = getattr(final, "output", None)
+    if out_layout is not None:  # the output's faces on each transport polygon: the largest
+        op = out_layout.patches
+        poly_area = np.bincount(pt.poly, pt.area, len(out_layout.under_start) - 1)
+        finer = np.zeros(len(poly_area))
+        np.maximum.at(
+            finer, out_layout.poly[op.poly], np.bincount(op.poly, op.area, len(out_layout.poly))[op.poly]
+        )
+        poly_area = np.minimum(poly_area, np.where(finer > 0, finer, poly_area))
     out = []
     for rec in recs:
         polys = np.unique(pt.poly[rec.roots])
@@ -269,7 +280,7 @@ class _Bake:
         made = {}
 
         def build():
-            system = RadiositySystem(snap.mesh, params, progress=on_build, threads=cfg.threads)
+            system = RadiositySystem(snap.transport, params, progress=on_build, threads=cfg.threads)
             made["dyn"] = dyn = engine(system)
             r.build_seconds = time.perf_counter() - t0
             final = None
@@ -282,7 +293,7 @@ class _Bake:
                         texture.check_memory(plan, cfg.gather, cfg.texel_density)
                     except TextureError as exc:
                         raise SceneError(str(exc)) from None
-                final = make_gather(dyn, plan, dict(cfg.gather, threads=cfg.threads))
+                final = make_gather(dyn, plan, dict(cfg.gather, threads=cfg.threads), output=snap.output)
                 pc.prepare(final)  # the static emitters' direct light, stored with the rest
                 r.gather_seconds = time.perf_counter() - t1
             return system, final
@@ -297,7 +308,7 @@ class _Bake:
             if texture_gather
             else None
         )
-        want = precompute_key(snap.mesh, params, cfg.gather, texels)
+        want = precompute_key(snap.transport, params, cfg.gather, texels, output=snap.output)
         with self.intr.raising():
             system, final, how = pc.load_or_build(
                 cache_dir, want, build, log=log, force=rebuild, warn=lambda m: self.warn([m])
@@ -370,7 +381,9 @@ class _Bake:
                 t.key: {"mesh": t.mesh_name, "count": t.n_corner if cfg.domain == "CORNER" else t.n_point}
                 for t in targets
             }
-            sig = _signature(snap.mesh, params, cfg.domain, targets, cfg.radiance_mode, cfg.gather)
+            sig = _signature(
+                snap.mesh, params, cfg.domain, targets, cfg.radiance_mode, cfg.gather, snap.scene_in.transport
+            )
             self._extract = FlatExtract(targets, cfg.domain)
             return CacheWriter(final_dir, objects, cfg.domain, sig, info), None
         baker = self.texture_plan(snap, system)
@@ -439,7 +452,7 @@ class _Bake:
         frame_warnings += dyn.apply(shapes, lights).messages
         if baker is not None:
             return baker.radiance(dyn, cfg.radiance_mode, gather=final)
-        frame_warnings += small_shape_warnings(dyn)
+        frame_warnings += small_shape_warnings(dyn, final)
         mode, fx = cfg.radiance_mode, self._extract
         if final is not None and mode == "RADIANCE" and cfg.domain == "CORNER" and fx.flat:
             # the gather writes the objects' loops straight into the RGBA rows (as Live does; a

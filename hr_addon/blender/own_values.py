@@ -21,8 +21,11 @@ by the level its own longest edge needs to come under the spacing (Subdivide Mes
 linear, planar faces stay where they were; a book's short faces stay as they are beside its long
 ones). The classes are joined again and the vertices their seams had in common merged; a coarser
 face's edge keeps a T-junction with a finer neighbour's (no crack: the finer vertices lie on it).
-The light is gathered at the finer corners and shown there; the hierarchy sees the finer mesh as
-well (the evaluated mesh is what the bake reads).
+The light is gathered at the finer corners and shown there. With the final gather the hierarchy
+(patches, links, contacts, the second level's samples) is built on the mesh the modifier receives
+(before_subdivision; session 22, branch dec25): only the corner samples lie on the finer mesh
+(core.gather.OutputLayout). Without it the hierarchy's leaves are the output: it sees the finer
+mesh (the evaluated mesh is what that bake reads).
 """
 
 import bpy
@@ -216,6 +219,69 @@ def _unsubdivide(md):
     for k in keys:
         md[k] = type(md[k])(0)
     return bool(keys)
+
+
+def subdividing(obj):
+    """The spacing obj's HR Radiance modifier subdivides its faces to (0: none, or no modifier)."""
+    md = _modifier(obj)
+    return _spacing(md) if md is not None else 0.0
+
+
+def _faces_of(me):
+    """(P,) me's FACE attribute (int64), or None."""
+    a = me.attributes.get(FACE)
+    if a is None or a.domain != "FACE" or a.data_type != "INT":
+        return None
+    face = np.empty(len(me.polygons), np.int32)
+    a.data.foreach_get("value", face)
+    return face.astype(np.int64)
+
+
+# the transport's mesh (before_subdivision): the user's (0), or the user's faces subdivided at this
+# multiple of the spacing (2: every face one level coarser than the output's; an experiment of
+# session 22, docs/accuracy.md)
+TRANSPORT_FACTOR = 0.0
+
+
+def before_subdivision(objects, depsgraph, read, factor=None):
+    """{object name: (read(mesh), FACE of its polygons)} for the objects whose modifier subdivides
+    (a Vertex Spacing): the mesh the modifier receives, and the index the group stores as FACE for
+    each of its polygons. The bake's transport (the hierarchy) is built on these, the output on the
+    finer mesh. An object whose only modifier is this one and without shape keys: its own mesh
+    (FACE: each polygon's index); the others evaluated once with their spacing set to 0 (the group
+    then stores FACE and subdivides nothing), then set back and evaluated again."""
+    factor = TRANSPORT_FACTOR if factor is None else factor
+    sub = [o for o in objects if subdividing(o) > 0]
+    out = {}
+    plain = [o for o in sub if len(o.modifiers) == 1 and getattr(o.data, "shape_keys", None) is None]
+    plain = plain if factor <= 0 else []
+    for o in plain:
+        out[o.name] = (read(o.data), np.arange(len(o.data.polygons), dtype=np.int64))
+    rest = [o for o in sub if o.name not in out]
+    if not rest:
+        return out
+    keep = []
+    for o in rest:
+        md = _modifier(o)
+        k = _socket(md, SPACING)
+        keep.append((o, md, k, md[k]))
+        md[k] = float(md[k]) * factor if factor > 0 else 0.0
+        o.update_tag()
+    try:
+        depsgraph.update()
+        for o in rest:
+            ob = o.evaluated_get(depsgraph)
+            me = ob.to_mesh()
+            try:
+                out[o.name] = (read(me), _faces_of(me))
+            finally:
+                ob.to_mesh_clear()
+    finally:
+        for o, md, k, v in keep:
+            md[k] = v
+            o.update_tag()
+        depsgraph.update()
+    return out
 
 
 def has_coarse_edges(obj, spacing, depsgraph):

@@ -98,16 +98,56 @@ def _mesh_arrays(me):
     return co.astype(np.float64), ls, lt, lv, mi, tri.reshape(-1, 3).astype(np.int64)
 
 
-def _user_faces(me):
-    """(P,) the first polygon of the user's face each polygon of an evaluated mesh came from (the
-    FACE attribute Vertex Spacing's group stores, own_values), or None (each polygon its own)."""
+def _face_attribute(me):
+    """(P,) the FACE attribute Vertex Spacing's group stores (own_values: the index of the user's
+    face each polygon of the evaluated mesh came from), or None."""
     a = me.attributes.get(FACE)
     if a is None or a.domain != "FACE" or a.data_type != "INT" or not len(me.polygons):
         return None
     face = np.empty(len(me.polygons), np.int32)
     a.data.foreach_get("value", face)
-    _, first, inverse = np.unique(face, return_index=True, return_inverse=True)
-    return first[inverse].astype(np.int64)
+    return face.astype(np.int64)
+
+
+def _user_faces(me, face=False):
+    """(P,) the first polygon of the user's face each polygon of an evaluated mesh came from (the
+    FACE attribute Vertex Spacing's group stores, own_values), or None (each polygon its own).
+    face: (that, the FACE attribute itself)."""
+    raw = _face_attribute(me)
+    first = None
+    if raw is not None:
+        _, first, inverse = np.unique(raw, return_index=True, return_inverse=True)
+        first = first[inverse].astype(np.int64)
+    return (first, raw) if face else first
+
+
+def _centres(arrays):
+    co, ls, lt, lv = arrays[:4]
+    poly = np.repeat(np.arange(len(ls)), lt)
+    return np.stack([np.bincount(poly, co[lv, c], len(ls)) for c in range(3)], 1) / lt[:, None]
+
+
+def _onto_user_faces(face, user_face, fine=None, coarse=None):
+    """(P,) the polygon of the mesh before the subdivision (whose FACE is user_face) each finer
+    polygon (FACE face) lies on, or None if they do not match. Where several polygons there have
+    its FACE (a transport subdivided itself, own_values.TRANSPORT_FACTOR): the one whose centre is
+    nearest its centre (fine, coarse: the two meshes' arrays; the linear levels nest)."""
+    if face is None or user_face is None or not len(user_face) or user_face.min() < 0:
+        return None
+    if len(np.unique(user_face)) < len(user_face):
+        from ..core.output import equal_key_pairs
+
+        i, j = equal_key_pairs(face, user_face)
+        d = ((_centres(fine)[i] - _centres(coarse)[j]) ** 2).sum(1)
+        o = np.lexsort((d, i))
+        o = o[np.r_[True, i[o][1:] != i[o][:-1]]]
+        out = np.full(len(face), -1, np.int64)
+        out[i[o]] = j[o]
+        return None if (out < 0).any() else out
+    at = np.full(int(max(user_face.max(), face.max(initial=0))) + 1, -1, np.int64)
+    at[user_face] = np.arange(len(user_face))
+    out = at[np.clip(face, 0, len(at) - 1)]
+    return None if (face < 0).any() or (out < 0).any() else out
 
 
 def evaluated(obj, depsgraph, read=_mesh_arrays):
@@ -242,6 +282,11 @@ class SceneInput:
     # {object name (or 'instancer/source'): digest} read in the same walk: the bake's manifest,
     # against which signatures.geometry_signatures tells that the scene changed since the bake
     signatures: dict = field(default_factory=dict)
+    # Vertex Spacing with the final gather (collect_geometry(transport=True)): the mesh the
+    # hierarchy is built on (the subdivided objects' meshes before their subdivision, the others as
+    # in `mesh`) and, per polygon of `mesh` (the output's), its polygon there; None: `mesh` is both
+    transport: MeshInput = None
+    transport_poly: np.ndarray = None
 
 
 def _material(m, cache, warnings=None):
@@ -505,11 +550,19 @@ def _hidden_instancer(obj):
     )
 
 
-def collect_geometry(view_layer, depsgraph, vertex_output=True) -> SceneInput:
+def collect_geometry(view_layer, depsgraph, vertex_output=True, transport=False) -> SceneInput:
     """The scene's geometry and output targets. vertex_output False (a texture bake): no warnings
-    about HR_Radiance on meshes (modifiers that change the topology, shared meshes)."""
+    about HR_Radiance on meshes (modifiers that change the topology, shared meshes). transport
+    (vertex output with the final gather): the objects whose HR Radiance modifier subdivides
+    (Vertex Spacing) are read before the subdivision too, for the hierarchy (SceneInput.transport)."""
     objs = [o for o in geometry_objects(view_layer) if not _hidden_instancer(o)]
     depsgraph.update()
+    coarse = {}
+    if transport:
+        from .own_values import before_subdivision
+
+        coarse = before_subdivision(objs, depsgraph, _mesh_arrays)
+    tparts, tpoly, tpoly_n, split = [], [], 0, False
     warnings, mat_cache, digest_cache, inst_digests = [], {}, {}, {}
     inst_parts, inst_info = collect_instances(
         view_layer, depsgraph, mat_cache, warnings, inst_digests, digest_cache
@@ -521,8 +574,11 @@ def collect_geometry(view_layer, depsgraph, vertex_output=True) -> SceneInput:
     instancers = {i.instancer for i in inst_info.values()}
     nloop = nvert = 0
     for oid, obj in enumerate(objs):
-        ob, (arrays, faces) = evaluated(obj, depsgraph, lambda me: (_mesh_arrays(me), _user_faces(me)))
-        em = _placed(arrays, ob.matrix_world, [s.material for s in ob.material_slots] or [None])
+        ob, (arrays, (faces, raw)) = evaluated(
+            obj, depsgraph, lambda me: (_mesh_arrays(me), _user_faces(me, face=True))
+        )
+        mats = [s.material for s in ob.material_slots] or [None]
+        em = _placed(arrays, ob.matrix_world, mats)
         if len(em.loop_start) == 0:
             if obj.name not in instancers:
                 warnings.append(f"Object '{obj.name}' has no faces; skipped.")
@@ -531,6 +587,20 @@ def collect_geometry(view_layer, depsgraph, vertex_output=True) -> SceneInput:
         part, perm = _mesh_input(em, obj.name, warnings, mat_cache)
         part.face_group = faces
         parts.append(part)
+        user = None
+        if obj.name in coarse:  # the transport's part: the mesh before the subdivision
+            carr, cface = coarse[obj.name]
+            user = _onto_user_faces(raw, cface, arrays, carr) if len(carr[1]) else None
+        if user is not None:
+            tpart, _ = _mesh_input(_placed(carr, ob.matrix_world, mats), obj.name, warnings, mat_cache)
+            tparts.append(tpart)
+            tpoly.append(user + tpoly_n)
+            tpoly_n += len(tpart.loop_start)
+            split = True
+        else:
+            tparts.append(part)
+            tpoly.append(np.arange(len(part.loop_start)) + tpoly_n)
+            tpoly_n += len(part.loop_start)
         me = obj.data
         same_topology = (
             len(me.loops) == len(em.loop_verts)
@@ -582,4 +652,14 @@ def collect_geometry(view_layer, depsgraph, vertex_output=True) -> SceneInput:
     for p in parts[1:]:
         mesh = mesh.concat(p)
     signatures.update(_joined(inst_digests))
-    return SceneInput(mesh, targets, warnings, inst_info, signatures)
+    out = SceneInput(mesh, targets, warnings, inst_info, signatures)
+    if split:
+        for p in inst_parts:
+            tparts.append(p)
+            tpoly.append(np.arange(len(p.loop_start)) + tpoly_n)
+            tpoly_n += len(p.loop_start)
+        tm = tparts[0]
+        for p in tparts[1:]:
+            tm = tm.concat(p)
+        out.transport, out.transport_poly = tm, np.concatenate(tpoly)
+    return out

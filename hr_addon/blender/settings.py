@@ -325,19 +325,22 @@ def _length(m):
     return f"{m / 1000:.3g} km" if m >= 1000 else (f"{m:.3g} m" if m >= 0.1 else f"{m * 100:.3g} cm")
 
 
-def make_gather(solution, output_plan=None, settings=None, smooth_angle=30.0):
+def make_gather(solution, output_plan=None, settings=None, smooth_angle=30.0, output=None):
     """The output stage for a solution (DynamicRadiosity or RadiositySystem): a LoopGather for
-    vertex output, the texture plan's texel gather for texture output, None when it is off."""
+    vertex output, the texture plan's texel gather for texture output, None when it is off.
+    output: (mesh, transport polygon per polygon): the vertex output on that finer mesh's corners
+    (core.gather.OutputLayout; Vertex Spacing), None: on the system's mesh."""
     if settings is None:
         return None
     if output_plan is not None:
         return output_plan.final_gather(solution, **settings)
-    from ..core.gather import LoopGather
+    from ..core.gather import LoopGather, OutputLayout
 
-    return LoopGather(solution, smooth_angle=smooth_angle, **settings)
+    layout = None if output is None else OutputLayout(solution.system, *output)
+    return LoopGather(solution, smooth_angle=smooth_angle, output=layout, **settings)
 
 
-def precompute_key(mesh, params, gather, texels=None):
+def precompute_key(mesh, params, gather, texels=None, output=None):
     """What the scene precompute (io/precompute.py) must have been built from: the build's input
     and settings, and the output the final gather was traced for (vertex loops, or the texels of
     the lightmaps `texels` describes: {object name: "resolution px, uv digest"}). Not the method
@@ -347,4 +350,14 @@ def precompute_key(mesh, params, gather, texels=None):
 
     stage = "off" if gather is None else ("texture" if texels is not None else "vertex")
     extra = {f"lightmap.{k}": v for k, v in (texels or {}).items()}
+    if output is not None:  # the vertex output on a finer mesh (make_gather's output): its digest
+        import hashlib
+        import json
+
+        import numpy as np
+
+        out_mesh, poly = output
+        d = hashlib.sha256(json.dumps(pc.mesh_signatures(out_mesh), sort_keys=True).encode())
+        d.update(np.ascontiguousarray(poly, np.int64).tobytes())
+        extra["vertex_output_mesh"] = d.hexdigest()[:16]
     return pc.expected(mesh, params, gather=gather, final_gather=stage, **extra)

@@ -27,7 +27,21 @@ class Snapshot:
 
     @property
     def mesh(self):
+        """The output's mesh (the targets' loops)."""
         return self.scene_in.mesh
+
+    @property
+    def transport(self):
+        """The mesh the hierarchy is built on: the output's, or with Vertex Spacing and the final
+        gather the subdivided objects' meshes before their subdivision (scene_in.collect_geometry)."""
+        return self.scene_in.mesh if self.scene_in.transport is None else self.scene_in.transport
+
+    @property
+    def output(self):
+        """(output mesh, its polygons' transport polygons) for the gather's OutputLayout, or None
+        (the output is on the transport's mesh)."""
+        si = self.scene_in
+        return None if si.transport is None else (si.mesh, si.transport_poly)
 
 
 def read_snapshot(scene, view_layer, cfg, warn):
@@ -45,7 +59,12 @@ def read_snapshot(scene, view_layer, cfg, warn):
         except TextureError as exc:
             raise SceneError(str(exc)) from None
     with texture.source_materials(objects):  # texture preview copies stand for these
-        scene_in = collect_geometry(view_layer, depsgraph, vertex_output=cfg.output != "TEXTURE")
+        # Vertex Spacing with the final gather: the hierarchy on the user's meshes, the corner
+        # samples on the finer ones (without the gather the leaves are the output: finer)
+        split = cfg.output == "VERTEX" and cfg.gather is not None and cfg.vertex_spacing > 0
+        scene_in = collect_geometry(
+            view_layer, depsgraph, vertex_output=cfg.output != "TEXTURE", transport=split
+        )
     warn(scene_in.warnings)
     error, light_warnings = light_check(view_layer, scene, depsgraph, bool(scene_in.mesh.emission.any()))
     if error:

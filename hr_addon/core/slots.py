@@ -259,16 +259,17 @@ class SlotMouths:
         )
         return self._mouth
 
-    def may_slot(self, patch):
+    def may_slot(self, patch, corners=None):
         """Boolean (K,): patches (K,) that slots() may find points in a slot on: their 2D box meets
         the box of a covering face of another piece (not a crossing solid's outline) standing off
-        their plane by more than min_gap, with an open mouth (after close_mouths, if called)."""
+        their plane by more than min_gap, with an open mouth (after close_mouths, if called).
+        corners (K, 4, 3): the boxes of these instead (a finer face on each patch, in its plane)."""
         patch = np.asarray(patch, np.int64)
         M = self.slot_mouths()
         ch = np.flatnonzero(~self.chain_signed & (self.chain_gap > self.min_gap))
         ch = ch[np.isin(ch, M["chain"][M["open"]])]
         gi = self.plane[patch]
-        p2 = self._to2d(gi, self.patches.corners[patch])
+        p2 = self._to2d(gi, self.patches.corners[patch] if corners is None else corners)
         z = np.zeros((len(patch), 1))
         lo, hi = np.concatenate([p2.min(1), z], 1), np.concatenate([p2.max(1), z], 1)
         i, j = box_pairs(lo, hi, self.chain_lo[ch], self.chain_hi[ch], gi, self.chain_plane[ch])

@@ -51,7 +51,7 @@ on core.parallel's threads (`threads=`), with results equal for any thread count
 
 from .direct import DirectLight, _clipped_rings
 from .final import KINDS, FinalGather, _csr_matvec
-from .layouts import LoopGather, loop_samples, texel_gather
+from .layouts import LoopGather, OutputLayout, loop_samples, texel_gather
 from .points import _into_patch, _triple, locate_below
 from .sampling import (
     Emitter,
@@ -73,6 +73,7 @@ __all__ = [
     "Emitter",
     "FinalGather",
     "LoopGather",
+    "OutputLayout",
     "cosine_directions",
     "hammersley",
     "hash_uniform",

@@ -3,7 +3,7 @@
 import numpy as np
 
 from ..boxes import csr_rows
-from ..geometry import isolated_objects
+from ..geometry import insideness, isolated_objects, prepare_patches
 from ..parallel import batch_map, ranges
 from ..output import corner_weights, equal_key_pairs, in_domain, loop_welds
 from . import corner_fit
@@ -24,7 +24,70 @@ FIT = True  # LoopGather's default: the cut faces' corners shifted to keep their
 SPLIT = True  # with FIT: faces part open, part in a slot too (slot_split); False: before 2026-12-05
 
 
-def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
+class OwnLayout:
+    """The output on the transport's own mesh (LoopGather's default): its patches are the output's."""
+
+    def __init__(self, system):
+        self.mesh, self.patches = system.mesh, system.patches
+
+    def transport(self, patch, points):
+        return patch
+
+    def has_transport(self):
+        return np.ones(len(self.patches.nv), bool)
+
+
+class OutputLayout:
+    """LoopGather's output on a finer mesh than the transport's (Vertex Spacing: the user's mesh
+    linearly subdivided): `mesh` (MeshInput) whose every polygon lies on polygon poly[i] of the
+    transport system's mesh. Its polygons are laid out as patches of their own (prepare_patches:
+    the corners' regions, the cut faces, the slots' strata are the finer faces'), and every sample
+    point on one is located on the transport patch under it (transport(): a user quad is one patch
+    or two triangles, an n-gon several; by the point). The hierarchy, its links and contacts, the
+    second-level samples stay the transport's."""
+
+    def __init__(self, system, mesh, poly):
+        self.mesh = mesh
+        self.poly = np.asarray(poly, np.int64)
+        if len(self.poly) != len(mesh.loop_start):
+            raise ValueError("OutputLayout: one transport polygon per output polygon")
+        self.patches = prepare_patches(mesh)
+        tp = system.patches
+        self._tp = tp
+        # the transport patches of each transport polygon (CSR by polygon)
+        self.under = np.argsort(tp.poly, kind="stable")
+        self.under_start = np.searchsorted(tp.poly[self.under], np.arange(len(system.mesh.loop_start) + 1))
+
+    def has_transport(self):
+        """(K,) bool: output patches whose transport polygon has patches (not dropped as degenerate)."""
+        u = self.poly[self.patches.poly]
+        return self.under_start[u + 1] > self.under_start[u]
+
+    def transport(self, patch, points):
+        """(n,) the transport patch under each point (n, 3) of output patch `patch` (n,): its
+        polygon's patch that holds it (the nearest, by insideness, if none does: a point on an
+        edge); -1 where the polygon has none."""
+        tp = self._tp
+        patch = np.asarray(patch, np.int64)
+        points = np.asarray(points, np.float64).reshape(-1, 3)
+        u = self.poly[self.patches.poly[patch]]
+        a = self.under_start[u]
+        cnt = self.under_start[u + 1] - a
+        out = np.where(cnt > 0, self.under[np.minimum(a, max(len(self.under) - 1, 0))], -1)
+        m = np.flatnonzero(cnt > 1)
+        if len(m):
+            best = np.full(len(m), -np.inf)
+            for r in range(int(cnt[m].max())):
+                i = np.flatnonzero(cnt[m] > r)
+                k = self.under[a[m[i]] + r]
+                d = insideness(tp.corners[k][:, None], tp.normal[k][:, None], points[m[i]])[:, 0]
+                better = d > best[i]
+                best[i[better]] = d[better]
+                out[m[i[better]]] = k[better]
+        return out
+
+
+def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3, layout=None):
     """Gather samples for the input mesh's corners, the layout of core.output.loop_radiance.
 
     inset > 0 (default): one sample per loop, inside the corner's own region of its patch: `inset`
@@ -40,8 +103,11 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     Returns (points (S, 3), normals (S, 3), patch ids (S,), loop -> sample index (L,), -1 for loops
     of polygons dropped as degenerate, and (li, lj, w, lpatch, pc_loop): loop li averages sample
     loop_index[lj] with weight w, lpatch (L,) the patch of each loop, pc_loop (K, 4) the loop at
-    each patch corner, -1 at padding (None for inset = 0))."""
-    mesh, pt = system.mesh, system.patches
+    each patch corner, -1 at padding (None for inset = 0)).
+    layout: OutputLayout (the corners of a finer mesh; the patches returned are its own, the
+    transport's under the points are layout.transport's) or None (the system's own mesh)."""
+    layout = OwnLayout(system) if layout is None else layout
+    mesh, pt = layout.mesh, layout.patches
     P = len(mesh.loop_start)
     loop_poly, weld = loop_welds(mesh)
     # the patch of each loop: the patch of its polygon holding its vertex
@@ -52,6 +118,8 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     pos = np.minimum(np.searchsorted(key_p[order], key_l), len(order) - 1)
     found = key_p[order][pos] == key_l
     lpatch = np.where(found, jj[order][pos], -1)
+    if not isinstance(layout, OwnLayout):  # (a finer polygon on a transport polygon dropped: none)
+        lpatch[lpatch >= 0] = np.where(layout.has_transport()[lpatch[lpatch >= 0]], lpatch[lpatch >= 0], -1)
     # polygon normal and area (from their patches)
     pn = np.zeros((P, 3))
     np.add.at(pn, pt.poly, pt.normal * pt.area[:, None])
@@ -72,7 +140,7 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
         c = pt.corners[patch]
         centre = np.where((pt.nv[patch] == 4)[:, None], c.mean(1), c[:, :3].mean(1))
         pts = p[vl] + inset * (centre - p[vl])
-        _uncover(system, pts, p[vl], patch, inset)
+        _uncover(system, pts, p[vl], patch, inset, layout)
         keep = ok & valid[lj]
         lpj = lpatch[lj[keep]]
         w = pt.area[lpj] / pt.nv[lpj]  # the corner's share of its patch
@@ -101,8 +169,9 @@ def loop_samples(system, smooth_angle=30.0, inset=0.5, nudge=1e-3):
     f = np.minimum(nudge, 50 * system.refiner.eps / np.maximum(dist, 1e-300))
     pts = q + f[:, None] * towards
     nrm = sn[rep]
-    flip = np.einsum("ij,ij->i", nrm, pt.normal[patch]) <= 0  # turned to the patch's side
-    nrm[flip] = pt.normal[patch[flip]]
+    side = system.patches.normal[layout.transport(patch, pts)]  # (the transport's: the gather's side)
+    flip = np.einsum("ij,ij->i", nrm, side) <= 0  # turned to the patch's side
+    nrm[flip] = side[flip]
     return pts, nrm, patch, loop_index, None
 
 
@@ -151,38 +220,45 @@ def _buried(system, pts, patch, reach):
     return out | (np.concatenate(parts) if parts else np.zeros(0, bool))
 
 
-def _uncover(system, pts, corner, patch, inset):
+def _uncover(system, pts, corner, patch, inset, layout=None):
     """Move buried samples (_buried; in place) along the line from their corner to their patch's
     centre (UNCOVER) to the first place not buried, so the corner takes the light of its region's
     visible part. Before, they read 0 and so did their corner (a loop with no uncovered sample):
     interpolated, the visible part went dark. The clutter room (tests/test_cycles_clutter.py): a
     table top's corner sample inside the footprint of a box standing on it (the top's visible part
-    -14% against Cycles), a lid's side whose lower corners are sunk into a box (-30%)."""
+    -14% against Cycles), a lid's side whose lower corners are sunk into a box (-30%). patch: the
+    layout's (loop_samples'), tested on the transport patch under each point."""
     if not len(pts):
         return
+    at = (lambda k, q: k) if layout is None else layout.transport
     reach = probe_reach(system)  # (the same for every pass: computed once)
-    todo = np.flatnonzero(_buried(system, pts, patch, reach))
+    todo = np.flatnonzero(_buried(system, pts, at(patch, pts), reach))
     for f in UNCOVER:
         if not len(todo):
             return
         q = corner[todo] + (f / inset) * (pts[todo] - corner[todo])
-        cov = _buried(system, q, patch[todo], reach)
+        cov = _buried(system, q, at(patch[todo], q), reach)
         pts[todo[~cov]] = q[~cov]
         todo = todo[cov]
 
 
-def cut_patches(system, nudge=0.05, reach=None):
+def cut_patches(system, nudge=0.05, reach=None, layout=None):
     """(K,) bool: patches with a corner inside another solid or covered (_buried, probed `nudge`
     of the way from the corner to the patch's centre): cut by another object, the light of their
-    visible part ends in a dark band along the cut (corner_fit's extra samples)."""
-    pt = system.patches
+    visible part ends in a dark band along the cut (corner_fit's extra samples). layout: an
+    OutputLayout's patches (K of them), tested on the transport's under the points."""
+    layout = OwnLayout(system) if layout is None else layout
+    pt = layout.patches
     jj, kk = np.nonzero(pt.vert_index >= 0)
     c = pt.corners[jj, kk]
     centre = pt.corners[jj, :3].mean(1)
     centre[pt.nv[jj] == 4] = pt.corners[jj[pt.nv[jj] == 4]].mean(1)
     out = np.zeros(len(pt.nv), bool)
     reach = probe_reach(system) if reach is None else reach
-    out[jj[_buried(system, c + nudge * (centre - c), jj, reach)]] = True
+    q = c + nudge * (centre - c)
+    tr = layout.transport(jj, q)
+    ok = tr >= 0  # (an output patch on a transport polygon dropped as degenerate: never cut)
+    out[jj[ok][_buried(system, q[ok], tr[ok], reach)]] = True
     return out
 
 
@@ -192,7 +268,7 @@ SLOT_WHOLE = False  # slot_split: patches wholly in a slot too (depths > 2x apar
 SPLIT_BATCH = 256  # slot_split: patches per batch on threads (fixed, never by the thread count)
 
 
-def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
+def slot_split(system, skip=None, grid=SLOT_GRID, n=None, layout=None):
     """Samples for the patches with a contact that lie part open, part in a slot (of their `grid`
     test points, corner_fit.extra_points, some covered by nothing and some in a slot: a book's side
     above a shorter neighbour, lit as the room's walls on a strip and through a 2 mm gap below it):
@@ -205,8 +281,11 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     patches left out (cut_patches'). Returns (points (m, 3), patch (m,), weight (m,), slot_area
     (rows of the slot samples (r,), their points (r, SLOT_AREA, 3)), (the split patches (p,), their
     interpolant's mean per unit corner value over the visible test points (p, 4)). Computed by
-    batches of SPLIT_BATCH patches on the system's threads."""
+    batches of SPLIT_BATCH patches on the system's threads. layout: an OutputLayout (its patches
+    are split, each point tested on the transport patch under it) or None (the system's)."""
     con = system.h.contacts
+    own = layout is None
+    layout = OwnLayout(system) if own else layout
     n = corner_fit.EXTRA if n is None else n
     none = (
         np.zeros((0, 3)),
@@ -216,14 +295,30 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
         (np.zeros(0, np.int64), np.zeros((0, 4))),
     )
     cand = np.zeros(0, np.int64) if con is None else np.asarray(con.receivers, np.int64)
-    if skip is not None:
-        cand = cand[~skip[cand]]
-    if len(cand):
-        con.close_mouths(system.backend.occluded)  # (and the mouths built: once, before the batches)
-        cand = cand[con.may_slot(cand)]  # the others have no point in a slot: never split
+    if own:
+        if skip is not None:
+            cand = cand[~skip[cand]]
+        if len(cand):
+            con.close_mouths(system.backend.occluded)  # (and the mouths built: once, before the batches)
+            cand = cand[con.may_slot(cand)]  # the others have no point in a slot: never split
+    elif len(cand):  # the output patches on a transport polygon with such a patch, by their own box
+        con.close_mouths(system.backend.occluded)
+        cand = cand[con.may_slot(cand)]
+        hit = np.zeros(len(layout.under_start) - 1, bool)
+        hit[system.patches.poly[cand]] = True
+        lp = layout.patches
+        cand = np.flatnonzero(hit[layout.poly[lp.poly]])
+        if skip is not None:
+            cand = cand[~skip[cand]]
+        if len(cand):  # each tested on the transport patch under its centre
+            home = layout.transport(
+                cand,
+                np.where((lp.nv[cand] == 4)[:, None], lp.corners[cand].mean(1), lp.corners[cand, :3].mean(1)),
+            )
+            cand = cand[con.may_slot(home, lp.corners[cand])]
     threads = system.backend.threads
     parts = batch_map(
-        lambda i, j: _split_part(system, cand[i:j], grid, n),
+        lambda i, j: _split_part(system, cand[i:j], grid, n, layout),
         ranges(len(cand), SPLIT_BATCH),
         0 if threads is None else threads,
     )
@@ -240,26 +335,27 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None):
     )
 
 
-def _split_part(system, cand, grid, n):
+def _split_part(system, cand, grid, n, layout):
     """slot_split for patches `cand` (each patch's samples its own: a batch of them): (open samples'
     points, their patches, weights, slot samples' points, their patches, weights, their area's
     points, the split patches, their interpolants' mean) or None if none is split."""
-    pt, con = system.patches, system.h.contacts
+    pt, con = layout.patches, system.h.contacts
     if not len(cand):
         return None
     gp, row = corner_fit.extra_points(pt.corners[cand], pt.nv[cand], grid)
     order = np.argsort(row, kind="stable")  # by patch, each in its grid's order
     gp, row = gp[order], row[order]
+    tr = layout.transport(cand[row], gp)  # the transport patch under each test point
     cls = np.zeros(len(gp), np.int64)  # 0 open, 1 in a slot, 2 covered without a gap
     depth, mouth = np.zeros(len(gp)), np.full(len(gp), -1, np.int64)
     K = len(cand)
-    cov = con.covered(gp, cand[row], threads=1)  # (inline: this is a batch)
+    cov = con.covered(gp, tr, threads=1)  # (inline: this is a batch)
     cls[cov] = 2
     # which covered points lie in a slot: on the patches with an open point only (the others are
     # never split)
     c = np.flatnonzero(cov & (SLOT_WHOLE | (np.bincount(row, ~cov, K) > 0)[row]))
     if len(c):
-        x, h, _, _, mo = con.slots(gp[c], cand[row[c]])
+        x, h, _, _, mo = con.slots(gp[c], tr[c])
         cls[c], depth[c], mouth[c] = np.where(h > 0, 1, 2), x, mo
     cnt = np.stack([np.bincount(row, cls == k, K) for k in (0, 1)], 1)  # (K, 2) open, slot
     mixed = (cnt > 0).all(1)
@@ -350,11 +446,17 @@ class LoopGather(FinalGather):
     inset: see loop_samples (0.5: samples in the corners' regions, averaged; 0: at the corners).
     fit (inset > 0; None: FIT): extra samples over the faces cut by another solid, and their
     corners' values shifted so each keeps the mean of the light gathered over its visible part
-    (corner_fit); False: the corners' samples averaged alone."""
+    (corner_fit); False: the corners' samples averaged alone.
+    output: an OutputLayout (a finer mesh over the system's: Vertex Spacing), whose corners the
+    samples are laid out on and loop_radiance's layout is; None: the system's own mesh."""
 
-    def __init__(self, system, smooth_angle=30.0, inset=0.5, fit=None, **kw):
+    output = None  # (class defaults: a gather stored before output layouts restores without them)
+    out_patch = None  # (n,) with an output layout: each sample's patch of it (self.patch: the transport's)
+
+    def __init__(self, system, smooth_angle=30.0, inset=0.5, fit=None, output=None, **kw):
         s = system.system
-        pts, nrm, patch, self.loop_index, self.average = loop_samples(s, smooth_angle, inset)
+        lay = OwnLayout(s) if output is None else output
+        pts, nrm, patch, self.loop_index, self.average = loop_samples(s, smooth_angle, inset, layout=output)
         self.smooth_angle = smooth_angle
         self.fit = bool(FIT if fit is None else fit) and self.average is not None
         self.n_loop = len(pts)  # the corners' samples; corner_fit's extra samples follow
@@ -362,16 +464,16 @@ class LoopGather(FinalGather):
             rays = int(kw.get("rays", 128))  # (FinalGather's default)
             kw["sample_rays"] = shared_rays(self.average, self.loop_index, len(pts), rays)
         if self.fit:
-            pt = s.patches
+            pt = lay.patches
             reach = probe_reach(s)
-            cut = np.flatnonzero(cut_patches(s, reach=reach))
+            cut = np.flatnonzero(cut_patches(s, reach=reach, layout=output))
             xp, row = corner_fit.extra_points(pt.corners[cut], pt.nv[cut])
-            seen = ~_buried(s, xp, cut[row], reach)  # the cut patches' visible part only
+            seen = ~_buried(s, xp, lay.transport(cut[row], xp), reach)  # the cut patches' visible part only
             xp, xpatch = xp[seen], cut[row[seen]]
             skip = np.zeros(len(pt.nv), bool)
             skip[cut] = True
             sp, spatch, sw, (rows, area), self.split_mean = slot_split(
-                s, skip if SPLIT else np.ones_like(skip)
+                s, skip if SPLIT else np.ones_like(skip), layout=output
             )
             self.extra_weight = np.r_[np.ones(len(pts) + len(xp)), sw]
             if len(rows):
@@ -380,6 +482,11 @@ class LoopGather(FinalGather):
             pts, nrm, patch = np.r_[pts, xp], np.r_[nrm, pt.normal[xpatch]], np.r_[patch, xpatch]
             if "sample_rays" in kw:  # the extra samples are read alone: all rays
                 kw["sample_rays"] = np.r_[kw["sample_rays"], np.full(len(xp), rays, np.int64)]
+        if output is not None:  # gathered on the transport patch under each point, to its side
+            self.output, self.out_patch = output, patch
+            patch = output.transport(patch, pts)
+            if inset > 0:
+                nrm = s.patches.normal[patch]
         super().__init__(system, pts, nrm, patch, **kw)
 
     def loop_radiance(self, dyn, domain="CORNER", kind="radiance", rows=None, out=None):
@@ -394,7 +501,7 @@ class LoopGather(FinalGather):
             res = self.loop_values(self.evaluate(dyn, kind), domain)
             res = res if rows is None else res[rows]
         elif rows is None:
-            res = in_domain(res, self.system.mesh, domain)
+            res = in_domain(res, self.out_mesh, domain)
         if out is None:
             return res.astype(np.float32, copy=False)
         out[...] = res  # (float64 -> float32: in_domain's rounding)
@@ -426,12 +533,12 @@ class LoopGather(FinalGather):
         """corner_fit.shift_plan of this layout (built on first use, like _loop_map)."""
         got = self.__dict__.get("_shift")
         if got is None:
-            pt, (li, lj, w, lpatch, pc_loop) = self.system.patches, self.average
+            pt, (li, lj, w, lpatch, pc_loop) = self._layout_patches(), self.average
             got = self._shift = corner_fit.shift_plan(
                 pt.corners,
                 pt.nv,
                 pt.normal,
-                self.patch,
+                self.patch if self.out_patch is None else self.out_patch,
                 self.points,
                 self.dark,
                 self.n_loop,
@@ -443,10 +550,18 @@ class LoopGather(FinalGather):
             )
         return got
 
+    def _layout_patches(self):
+        return self.system.patches if self.output is None else self.output.patches
+
+    @property
+    def out_mesh(self):
+        """The mesh whose loops loop_radiance's values are for (the output layout's, or the system's)."""
+        return self.system.mesh if self.output is None else self.output.mesh
+
     def loop_values(self, v, domain="CORNER"):
         """Sample values (n, 3) (evaluate's, or core.lights.indirect_incident's) in the loop_radiance
         layout (>= 0: a face's shift may take a corner below)."""
-        return in_domain(np.maximum(self._loops(v), 0.0), self.system.mesh, domain)
+        return in_domain(np.maximum(self._loops(v), 0.0), self.out_mesh, domain)
 
     def _loops(self, v):
         """(L, 3) float64 per loop of sample values v (n, 3) (_loop_map)."""
