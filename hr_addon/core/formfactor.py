@@ -257,12 +257,26 @@ def sample_points(corners, nv, k):
     """
     c = np.asarray(corners, dtype=np.float64)
     quad, tri = _unit_cell_params(int(k))
-    u, v = quad[:, 0][None, :, None], quad[:, 1][None, :, None]
-    c0, c1, c2, c3 = (c[:, i, None, :] for i in range(4))
-    pq = (1 - u) * (1 - v) * c0 + u * (1 - v) * c1 + u * v * c2 + (1 - u) * v * c3
-    a, b = tri[:, 0][None, :, None], tri[:, 1][None, :, None]
-    pt = c0 + a * (c1 - c0) + b * (c2 - c0)
-    return np.where((np.asarray(nv) == 3)[:, None, None], pt, pq)
+    is_tri = np.broadcast_to(np.asarray(nv) == 3, c.shape[:1])
+    out = np.empty((len(c), len(quad), 3))
+    # each kind's points only on its own polygons (np.where of both over all: the same values)
+    for sel, pick in ((~is_tri, True), (is_tri, False)):
+        rows = np.flatnonzero(sel)
+        if not len(rows):
+            continue
+        cs = c[rows] if len(rows) < len(c) else c
+        c0, c1, c2, c3 = (cs[:, i, None, :] for i in range(4))
+        if pick:
+            u, v = quad[:, 0][None, :, None], quad[:, 1][None, :, None]
+            pts = (1 - u) * (1 - v) * c0 + u * (1 - v) * c1 + u * v * c2 + (1 - u) * v * c3
+        else:
+            a, b = tri[:, 0][None, :, None], tri[:, 1][None, :, None]
+            pts = c0 + a * (c1 - c0) + b * (c2 - c0)
+        if len(rows) < len(c):
+            out[rows] = pts
+        else:
+            out = pts
+    return out
 
 
 def patch_to_patch(corners_p, nv_p, corners_q, nv_q, n_samples=4):
@@ -291,25 +305,33 @@ def estimate(centers_p, normals_p, areas_p, corners_q, centers_q, normals_q, are
       q, cos_q falls back to the largest cosine at q's centre towards p's corners when `corners_p` is given,
       else to COS_FLOOR when p's centre is less than sqrt(A_p) behind q's plane (a size-based guess).
     The +A_q in the denominator keeps the value finite (and <= 1) as r -> 0.
+    Component major (rows per coordinate; numpy is slow on a last axis of 3); the norms and dot
+    products in norm3's and einsum's orders, the largest cosine by columns: the same values (a
+    zero's sign aside: the refinement only compares them).
     """
-    cp = np.asarray(centers_p, dtype=np.float64)
-    np_ = np.asarray(normals_p, dtype=np.float64)
-    cq = np.asarray(centers_q, dtype=np.float64)
-    nq = np.asarray(normals_q, dtype=np.float64)
+    cm = lambda x: np.ascontiguousarray(np.moveaxis(np.asarray(x, dtype=np.float64), -1, 0))  # (3, ...)
+    cp, np_, cq, nq = cm(centers_p), cm(normals_p), cm(centers_q), cm(normals_q)
     aq = np.asarray(areas_q, dtype=np.float64)
-    targets = np.concatenate([np.asarray(corners_q, dtype=np.float64), cq[..., None, :]], axis=-2)
-    cos_p = np.clip(_dot(_unit(targets - cp[..., None, :]), np_[..., None, :]).max(axis=-1), 0.0, None)
+    targets = np.concatenate([np.moveaxis(cm(corners_q), -1, 1), cq[:, None]], axis=1)  # (3, 5, ...)
+    cos_t = dot3(_unit_cm(targets - cp[:, None]), np_[:, None])  # (5, ...)
+    cos_p = np.clip(functools.reduce(np.maximum, cos_t), 0.0, None)
 
     d = cp - cq
-    r2 = _dot(d, d)
-    cos_q = np.clip(_dot(_unit(d), nq), 0.0, None)
+    r2 = dot3(d, d)
+    cos_q = np.clip(dot3(_unit_cm(d), nq), 0.0, None)
     if corners_p is not None:
-        to_corners = _unit(np.asarray(corners_p, dtype=np.float64) - cq[..., None, :])
-        fallback = np.clip(_dot(to_corners, nq[..., None, :]).max(axis=-1), 0.0, None)
+        to_corners = _unit_cm(np.moveaxis(cm(corners_p), -1, 1) - cq[:, None])
+        fallback = np.clip(functools.reduce(np.maximum, dot3(to_corners, nq[:, None])), 0.0, None)
     else:
-        fallback = np.where(_dot(d, nq) > -np.sqrt(np.asarray(areas_p, dtype=np.float64)), COS_FLOOR, 0.0)
+        fallback = np.where(dot3(d, nq) > -np.sqrt(np.asarray(areas_p, dtype=np.float64)), COS_FLOOR, 0.0)
     cos_q = np.where(cos_q > 0.0, cos_q, fallback)
     return np.clip(aq * cos_p * cos_q / (math.pi * r2 + aq), 0.0, 1.0)
+
+
+def _unit_cm(v):
+    """_unit of vectors as rows per coordinate v (3, ...): the same values."""
+    length = np.sqrt((v[0] * v[0] + v[1] * v[1]) + v[2] * v[2])
+    return v / np.where(length > 0.0, length, 1.0)
 
 
 def _gauss_tables(k):
