@@ -285,11 +285,12 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             ranges(len(a), PAIR_BATCH),
             refiner.threads,
         )
-        drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax = (np.concatenate(x) for x in zip(*parts))
+        cols = (np.concatenate(x) for x in zip(*parts))
+        drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = cols
         for sel in (ok, take):
             if sel.any():
                 far.append((a[sel], b[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel]))
-        done_w += weight(a[drop | ok | take], b[drop | ok | take])
+        done_w += w.sum()  # (the batches' sums: the progress only)
         new_a, new_b = [], []
         for sel, x, y in ((split_a, a, b), (split_b, b, a)):
             xs, ys = x[sel], y[sel]
@@ -346,7 +347,8 @@ def _classify(refiner, tree, a, b, table=None):
     """link_clusters' oracle for the pairs (a, b): every pair on its own (no hierarchy edits), so
     batches of pairs run on threads. Boolean arrays drop, ok (a far link), take (a far link: the
     end to split cannot be split), split_a, split_b (split that end); vis, mask, pa, pb, fmax of
-    the far links."""
+    the far links; (1,) the settled pairs' progress weight (link_clusters' weight(), here on the
+    threads)."""
     h, prm = refiner.h, refiner.params
     ea, eb = Ends(tree, h, a, table), Ends(tree, h, b, table)
     fa, ba, dmax = faces(ea, eb)
@@ -403,7 +405,10 @@ def _classify(refiner, tree, a, b, table=None):
     take = todo & ~by_face & ~by_size & np.where(prefer_a, ~can_a, ~can_b)
     split_a = todo & ~take & can_a & (prefer_a | ~can_b)
     split_b = todo & ~take & ~split_a & can_b
-    return drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax
+    # the progress weight of the pairs settled here (weight(): a != b), summed in the batch
+    done = drop | ok | take
+    w = np.array([(ea.area[done] * eb.area[done]).sum()])
+    return drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w
 
 
 def _variation(tree, h, a, b, eps, table=None):
