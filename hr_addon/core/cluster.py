@@ -419,12 +419,13 @@ class EndTable:
     update() adds the nodes subdivided since (call it between batches, not on threads). The
     same expressions row by row, so the same values bit for bit. Valid while node ids hold (one
     linking pass: Hierarchy.compact renumbers them). Ends' vector and scalar fields are packed
-    component major, a row per coordinate (`packed` (17, cap): one take of columns per batch
-    gives every field as contiguous rows, which faces() and estimate() work on), the arrays
-    grown by doubling (not copied whole on every update)."""
+    in one row per end (`packed` (cap, 17): one gather of rows per batch, transposed, gives
+    every field as contiguous rows, which faces() and estimate() work on; a take of columns
+    from a (17, cap) table missed the cache on every field at 100k), the arrays grown by
+    doubling (not copied whole on every update)."""
 
     FIELDS = ("centre", "axis", "lo", "hi", "area", "radius", "cos_t", "sin_t", "theta", "pts", "w", "nrm")
-    # rows of `packed`: 3 per vector field, then the scalars
+    # columns of `packed`: 3 per vector field, then the scalars
     PACKED = ("centre", "axis", "lo", "hi", "area", "radius", "cos_t", "sin_t", "theta")
 
     def __init__(self, tree: ClusterTree, h, eps):
@@ -440,7 +441,7 @@ class EndTable:
     def _append(self, cols):
         m = len(cols["area"])
         new = dict(pts=cols["pts"], w=cols["w"], nrm=cols["nrm"])
-        rows = np.vstack([np.reshape(cols[k], (m, -1)).T for k in self.PACKED])  # (17, m)
+        rows = np.hstack([np.reshape(cols[k], (m, -1)) for k in self.PACKED])  # (m, 17)
         end = self.size + m
         if end > self.cap:
             cap = max(end, 2 * self.cap)
@@ -449,14 +450,14 @@ class EndTable:
                 if self.size:
                     grown[: self.size] = getattr(self, k)[: self.size]
                 setattr(self, k, grown)
-            grown = np.empty((len(rows), cap))
+            grown = np.empty((cap, rows.shape[1]))
             if self.size:
-                grown[:, : self.size] = self.packed[:, : self.size]
+                grown[: self.size] = self.packed[: self.size]
             self.packed = grown
             self.cap = cap
         for k, v in new.items():
             getattr(self, k)[self.size : end] = v
-        self.packed[:, self.size : end] = rows
+        self.packed[self.size : end] = rows
         self.size = end
 
     def update(self):
@@ -493,8 +494,9 @@ class Ends:
         cl = ids < 0
         self.cl = cl
         if table is not None:
-            # one take of the packed columns: every field a contiguous row (3 per vector)
-            g = np.take(table.packed, table.rows(ids), axis=1)
+            # one gather of packed rows (each end's 17 values in one place), transposed: every
+            # field a contiguous row (3 per vector)
+            g = np.ascontiguousarray(np.take(table.packed, table.rows(ids), axis=0).T)
             self.centre_t, self.axis_t, self.lo_t, self.hi_t = g[0:3], g[3:6], g[6:9], g[9:12]
             self.centre, self.axis = self.centre_t.T, self.axis_t.T
             self.lo, self.hi = self.lo_t.T, self.hi_t.T
