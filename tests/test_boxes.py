@@ -75,3 +75,24 @@ def test_norm3_is_linalg_norm_bit_for_bit():
     v = rng.standard_normal((20000, 5, 3)) * rng.uniform(1e-6, 1e6, (20000, 5, 1))
     assert np.array_equal(norm3(v), np.linalg.norm(v, axis=-1))
     assert np.array_equal(norm3(v[:, 0]), np.linalg.norm(v[:, 0], axis=1))
+
+
+def test_box_pairs_keyed_inside_the_blocks_equal_the_pairs_keys(monkeypatch):
+    """box_pairs(key=...) (Contacts' (plane, occluder) keys made inside each block, session 22):
+    the sorted unique keys of all the pairs it would return, serially and on 1 and 2 threads."""
+    monkeypatch.setattr(boxes, "PAIR_BLOCK", 997)
+    rng = np.random.default_rng(6)
+    lo = rng.random((1500, 3))
+    hi = lo + rng.random((1500, 3)) * rng.choice([0.01, 0.05, 0.3], (1500, 1))
+    plane = rng.integers(0, 40, 1500)
+
+    def key(i, j):
+        keep = (i != j) & (plane[i] != plane[j])
+        return plane[i[keep]] * 1500 + j[keep]
+
+    i, j = box_pairs(lo - 0.01, hi + 0.01, lo, hi)
+    want = np.unique(key(i, j))
+    assert len(want) > 1000
+    for threads in (None, 1, 2):
+        np.testing.assert_array_equal(box_pairs(lo - 0.01, hi + 0.01, lo, hi, threads=threads, key=key), want)
+    assert len(box_pairs(lo[:0], hi[:0], lo, hi, key=key)) == 0

@@ -442,3 +442,40 @@ def test_end_table_and_both_directions_give_the_ends_and_estimates_bit_for_bit(c
     assert np.array_equal(f_ab, C.estimate(ea, eb)[0]) and np.array_equal(dist, C.estimate(ea, eb)[1])
     assert np.array_equal(f_ba, C.estimate(eb, ea)[0])
     assert (f_ab > 0).any() and (f_ab != f_ba).any()  # not a trivial case
+
+
+def test_kernel_variation_by_blocks_is_the_row_form():
+    """farlinks._variation's blocks (component major, session 22; here of 97 pairs): the values
+    of the (N, 4, 4, 3) row form it replaced (einsums, sums and min / max over the samples)."""
+    from hr_addon.core.formfactor import row_range
+
+    rng = np.random.default_rng(8)
+    m = 1000
+    pa, pb = rng.standard_normal((2, m, 4, 3))
+    pb += rng.choice([0.5, 3.0], (m, 1, 1))
+    na, nb = rng.standard_normal((2, m, 4, 3)) / np.sqrt(3)
+    wa, wb = rng.dirichlet(np.ones(4), m), np.full((m, 4), 0.25)
+    d = pb[:, None, :, :] - pa[:, :, None, :]
+    r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
+    k = (
+        np.maximum(np.einsum("nijk,nik->nij", d, na), 0)
+        * np.maximum(-np.einsum("nijk,njk->nij", d, nb), 0)
+        / (r2 * r2)
+    )
+    want = []
+    for ks in ((k * wb[:, None, :]).sum(2), (k * wa[:, :, None]).sum(1)):
+        mean = ks.mean(1)
+        lo, hi = row_range(ks)
+        want.append((hi - lo) / np.maximum(mean, 1e-300) * (mean > 0))
+    got = np.concatenate(
+        [
+            FL._variation_block(
+                pa[i : i + 97], wa[i : i + 97], pb[i : i + 97], wb[i : i + 97], na[i : i + 97], nb[i : i + 97]
+            )
+            for i in range(0, m, 97)
+        ],
+        axis=1,
+    )
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert (want[0] > 0).mean() > 0.3 and (want[0] == 0).any()

@@ -279,3 +279,109 @@ def test_estimate_conservative_cases():
     p3 = p2 - [0, 0, 2.0]
     cp3, np3, ap3 = _props(p3, [4])
     assert estimate(cp3, np3, ap3, q2, cq2, nq2, aq2, corners_p=p3)[0] == 0.0
+
+
+# -- the component-major forms (session 22, bld25) against the row forms they replaced -------------
+def _row_contour(r, n):
+    """The row form of formfactor._contour before session 22: np.cross, einsums and a sum over
+    the vertices of (N, V, 3) offsets."""
+    r_next = np.roll(r, -1, axis=1)
+    cr = np.cross(r, r_next)
+    cr_len = np.sqrt(np.einsum("nvk,nvk->nv", cr, cr))
+    gamma = np.arctan2(cr_len, np.einsum("nvk,nvk->nv", r, r_next))
+    ok = cr_len > 0.0
+    term = np.where(ok, gamma * np.einsum("nvk,nk->nv", cr, n) / np.where(ok, cr_len, 1.0), 0.0)
+    return -term.sum(axis=1) / (2 * math.pi)
+
+
+def _row_point_to_polygon(p, n, c):
+    """point_to_polygon's row form before session 22 (padded corners, all rows at once)."""
+    from hr_addon.core.formfactor import _PLANE_EPS, _clip_to_halfspace
+
+    qn, qa = polygon_normal_area(c)
+    front = np.einsum("...k,...k->...", p - c[:, 0], qn) > _PLANE_EPS * np.sqrt(qa)
+    r = c - p[:, None, :]
+    above = np.einsum("...k,...k->...", r, n[:, None, :]) >= 0.0
+    every, some = above.all(1), above.any(1)
+    f = np.zeros(len(p))
+    whole = np.flatnonzero(front & every)
+    f[whole] = _row_contour(r[whole], n[whole])
+    part = np.flatnonzero(front & some & ~every)
+    verts, any_valid = _clip_to_halfspace(c[part], p[part], n[part])
+    f[part] = np.where(any_valid, _row_contour(verts - p[part, None, :], n[part]), 0.0)
+    return np.clip(f, 0.0, 1.0)
+
+
+def test_point_to_polygon_by_blocks_is_the_row_form_bit_for_bit():
+    """point_to_polygon component major and by blocks (POINT_BLOCK rows): the row form's values
+    bit for bit, negative zeros included, over points in front of, beside, behind and on the
+    polygons (clipped and whole), padded triangles and repeated corners, more rows than a block."""
+    from hr_addon.core import formfactor as ff
+
+    rng = np.random.default_rng(22)
+    m = 3 * ff.POINT_BLOCK + 17
+    c = rng.standard_normal((m, 4, 3))
+    c[:, 3] = c[:, 0] + c[:, 2] - c[:, 1]  # planar parallelograms
+    nv = rng.choice([3, 4], m)
+    c[nv == 3, 3] = c[nv == 3, 2]
+    c[::11, 1] = c[::11, 0]  # a repeated corner: a zero-length edge
+    p = rng.standard_normal((m, 3)) * rng.choice([0.01, 1.0, 10.0], (m, 1))
+    n = rng.standard_normal((m, 3))
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    p[::7] = c[::7, 0]  # points on the polygons' planes
+    want = _row_point_to_polygon(p, n, c)
+    got = point_to_polygon(p, n, c, nv)
+    assert got.tobytes() == want.tobytes()
+    assert (want > 0).mean() > 0.2 and (want == 0).mean() > 0.1  # not a trivial case
+    # the precomputed planes and broadcast leading dimensions take the same path
+    qn, qa = polygon_normal_area(c, nv)
+    assert point_to_polygon(p, n, c, nv, (qn, qa)).tobytes() == want.tobytes()
+    two = point_to_polygon(p[:10, None], n[:10, None], c[None, :5], nv[None, :5])
+    for i in range(10):
+        assert (
+            two[i].tobytes()
+            == _row_point_to_polygon(
+                np.repeat(p[i : i + 1], 5, 0), np.repeat(n[i : i + 1], 5, 0), c[:5]
+            ).tobytes()
+        )
+
+
+def test_sample_points_and_estimate_are_the_row_forms():
+    """sample_points (each kind's points on its own polygons) and estimate (component major):
+    the values of the forms they replaced (np.where over both kinds; einsum and .max over rows)."""
+    from hr_addon.core.formfactor import _unit_cell_params
+
+    rng = np.random.default_rng(23)
+    m = 2000
+    c = rng.standard_normal((m, 4, 3))
+    nv = rng.choice([3, 4], m)
+    for k in (1, 2, 6):
+        quad_, tri = _unit_cell_params(k)
+        u, v = quad_[:, 0][None, :, None], quad_[:, 1][None, :, None]
+        c0, c1, c2, c3 = (c[:, i, None, :] for i in range(4))
+        pq = (1 - u) * (1 - v) * c0 + u * (1 - v) * c1 + u * v * c2 + (1 - u) * v * c3
+        a, b = tri[:, 0][None, :, None], tri[:, 1][None, :, None]
+        pt = c0 + a * (c1 - c0) + b * (c2 - c0)
+        assert sample_points(c, nv, k).tobytes() == np.where((nv == 3)[:, None, None], pt, pq).tobytes()
+    cp, cq = rng.standard_normal((m, 3)), c.mean(1)
+    n_p, n_q = rng.standard_normal((2, m, 3)) / math.sqrt(3)
+    ap, aq = rng.random(m), rng.random(m)
+
+    def unit(v):
+        length = np.sqrt((v[..., 0] ** 2 + v[..., 1] ** 2) + v[..., 2] ** 2)[..., None]
+        return v / np.where(length > 0, length, 1.0)
+
+    dot = lambda a, b: np.einsum("...k,...k->...", a, b)
+    targets = np.concatenate([c, cq[:, None]], 1)
+    cos_p = np.clip(dot(unit(targets - cp[:, None]), n_p[:, None]).max(-1), 0, None)
+    d = cp - cq
+    cos_q = np.clip(dot(unit(d), n_q), 0, None)
+    for corners_p in (None, rng.standard_normal((m, 4, 3))):
+        if corners_p is None:
+            fb = np.where(dot(d, n_q) > -np.sqrt(ap), 0.05, 0.0)
+        else:
+            fb = np.clip(dot(unit(corners_p - cq[:, None]), n_q[:, None]).max(-1), 0, None)
+        want = np.clip(aq * cos_p * np.where(cos_q > 0, cos_q, fb) / (math.pi * dot(d, d) + aq), 0, 1)
+        got = estimate(cp, n_p, ap, c, cq, n_q, aq, corners_p=corners_p)
+        np.testing.assert_array_equal(got, want)
+        assert (want > 0).any() and (want == 0).any()

@@ -65,13 +65,17 @@ def grid_cells(lo, hi, origin, size, dims, group):
     return box, key
 
 
-def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000_000, threads=None):
+def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000_000, threads=None, key=None):
     """Index pairs (i, j) whose axis-aligned boxes overlap (and whose groups are equal, if
     given), through a uniform grid: cells about the median box size, coarsened until the cell
     lists fit, so the cost follows the overlaps rather than all pairs. threads: the candidate
     pairs' blocks (PAIR_BLOCK) as a batch map on that many threads; None: a plain loop over
-    blocks of max_refs."""
+    blocks of max_refs. key: a function (i, j) -> int64 keys of (some of) the overlapping pairs
+    (a filter and a key in one); then the sorted unique keys are returned instead of the pairs
+    (each block's own, merged: the same as the keys of all pairs, without the pairs' unique)."""
     if not len(lo_a) or not len(lo_b):
+        if key is not None:
+            return np.zeros(0, np.int64)
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     origin = np.minimum(lo_a.min(0), lo_b.min(0))
     ext = np.maximum(hi_a.max(0), hi_b.max(0)) - origin
@@ -104,12 +108,16 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000
         i = np.repeat(ba[s:e], c)
         j = bb[np.repeat(first[s:e], c) + np.arange(len(i)) - np.repeat(np.cumsum(c) - c, c)]
         ok = _overlap(cm, i, j)
+        if key is not None:
+            return np.unique(key(i[ok], j[ok]))
         return np.unique(i[ok] * len(lo_b) + j[ok])
 
     blocks = list(zip(np.r_[0, cuts], np.r_[cuts, len(ka)]))
     keys = [pairs(s, e) for s, e in blocks] if threads is None else batch_map(pairs, blocks, threads)
-    key = merge_unique(keys)
-    return key // len(lo_b), key % len(lo_b)
+    if key is not None:
+        return merge_unique(keys)
+    keys = merge_unique(keys)
+    return keys // len(lo_b), keys % len(lo_b)
 
 
 def unique_ints(x, threads=None, block=PAIR_BLOCK):

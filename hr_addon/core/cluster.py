@@ -418,12 +418,15 @@ class EndTable:
     oracle's time went to building them). Rows: clusters 0..C-1, then patch node i at C + i;
     update() adds the nodes subdivided since (call it between batches, not on threads). The
     same expressions row by row, so the same values bit for bit. Valid while node ids hold (one
-    linking pass: Hierarchy.compact renumbers them). Ends' box and scalar fields are packed in
-    one row per end (one gather per batch instead of eight), the arrays grown by
+    linking pass: Hierarchy.compact renumbers them). Ends' vector and scalar fields are packed
+    in one row per end (`packed` (cap, 17): one gather of rows per batch, transposed, gives
+    every field as contiguous rows, which faces() and estimate() work on; a take of columns
+    from a (17, cap) table missed the cache on every field at 100k), the arrays grown by
     doubling (not copied whole on every update)."""
 
     FIELDS = ("centre", "axis", "lo", "hi", "area", "radius", "cos_t", "sin_t", "theta", "pts", "w", "nrm")
-    PACKED = ("centre", "lo", "hi", "area", "radius", "cos_t", "sin_t", "theta")  # columns of `packed`
+    # columns of `packed`: 3 per vector field, then the scalars
+    PACKED = ("centre", "axis", "lo", "hi", "area", "radius", "cos_t", "sin_t", "theta")
 
     def __init__(self, tree: ClusterTree, h, eps):
         self.tree, self.h, self.eps, self.n = tree, h, eps, 0
@@ -437,8 +440,8 @@ class EndTable:
 
     def _append(self, cols):
         m = len(cols["area"])
-        new = dict(axis=cols["axis"], pts=cols["pts"], w=cols["w"], nrm=cols["nrm"])
-        new["packed"] = np.column_stack([cols[k] for k in self.PACKED])
+        new = dict(pts=cols["pts"], w=cols["w"], nrm=cols["nrm"])
+        rows = np.hstack([np.reshape(cols[k], (m, -1)) for k in self.PACKED])  # (m, 17)
         end = self.size + m
         if end > self.cap:
             cap = max(end, 2 * self.cap)
@@ -447,9 +450,14 @@ class EndTable:
                 if self.size:
                     grown[: self.size] = getattr(self, k)[: self.size]
                 setattr(self, k, grown)
+            grown = np.empty((cap, rows.shape[1]))
+            if self.size:
+                grown[: self.size] = self.packed[: self.size]
+            self.packed = grown
             self.cap = cap
         for k, v in new.items():
             getattr(self, k)[self.size : end] = v
+        self.packed[self.size : end] = rows
         self.size = end
 
     def update(self):
@@ -475,7 +483,9 @@ class EndTable:
 
 class Ends:
     """Geometry of link ends given by shared ids, for the oracle and the transfer weights
-    (table: an EndTable holding them)."""
+    (table: an EndTable holding them). The vector fields centre, axis, lo, hi (N, 3) also as
+    rows per coordinate (3, N): centre_t, axis_t, lo_t, hi_t (what faces() and estimate() read;
+    from a table contiguous rows, the (N, 3) fields their transposed views)."""
 
     def __init__(self, tree: ClusterTree, h, ids, table=None):
         self.tree = tree
@@ -484,13 +494,13 @@ class Ends:
         cl = ids < 0
         self.cl = cl
         if table is not None:
-            r = table.rows(ids)
-            # one gathered row per end, then contiguous copies of its fields (strided views made
-            # faces() and estimate() 1.3x slower than the copies cost)
-            g = table.packed[r]
-            self.centre, self.lo, self.hi = (np.ascontiguousarray(g[:, k : k + 3]) for k in (0, 3, 6))
-            self.area, self.radius, self.cos_t, self.sin_t, self.theta = np.ascontiguousarray(g[:, 9:14].T)
-            self.axis = table.axis[r]
+            # one gather of packed rows (each end's 17 values in one place), transposed: every
+            # field a contiguous row (3 per vector)
+            g = np.ascontiguousarray(np.take(table.packed, table.rows(ids), axis=0).T)
+            self.centre_t, self.axis_t, self.lo_t, self.hi_t = g[0:3], g[3:6], g[6:9], g[9:12]
+            self.centre, self.axis = self.centre_t.T, self.axis_t.T
+            self.lo, self.hi = self.lo_t.T, self.hi_t.T
+            self.area, self.radius, self.cos_t, self.sin_t, self.theta = g[12:17]
             return
         n = len(ids)
         ci, ni = decode(ids[cl]), ids[~cl]
@@ -506,12 +516,14 @@ class Ends:
         self.lo[~cl], self.hi[~cl] = c.min(1), c.max(1)
         self.radius[~cl] = ff.norm3(c - h.centre[ni][:, None]).max(1)
         self.cos_t[~cl], self.sin_t[~cl], self.theta[~cl] = 1.0, 0.0, 0.0
+        self.centre_t, self.axis_t, self.lo_t, self.hi_t = self.centre.T, self.axis.T, self.lo.T, self.hi.T
 
 
 def _support(lo, hi, a, sign):
-    """max (sign=+1) or min (sign=-1) of x . a over boxes [lo, hi]."""
-    pick = (a * sign) >= 0
-    return np.einsum("ij,ij->i", np.where(pick, hi, lo), a)
+    """max (sign=+1) or min (sign=-1) of x . a over boxes [lo, hi] (rows per coordinate (3, N)):
+    einsum's dot product of the rows, in its order (formfactor.dot3; a zero's sign may differ:
+    faces() only compares)."""
+    return ff.dot3(np.where(a * sign >= 0, hi, lo), a)
 
 
 def faces(x: Ends, y: Ends, dmax=None):
@@ -519,9 +531,10 @@ def faces(x: Ends, y: Ends, dmax=None):
     normal within x's cone), behind where y lies wholly behind all of them (no exchange).
     dmax: the boxes' farthest distance (symmetric: faces(y, x) returns it for reuse)."""
     if dmax is None:
-        dmax = ff.norm3(np.maximum(np.abs(y.hi - x.lo), np.abs(x.hi - y.lo)))
-    gap_front = _support(y.lo, y.hi, x.axis, -1) - _support(x.lo, x.hi, x.axis, +1)
-    gap_back = _support(y.lo, y.hi, x.axis, +1) - _support(x.lo, x.hi, x.axis, -1)
+        m = np.maximum(np.abs(y.hi_t - x.lo_t), np.abs(x.hi_t - y.lo_t))
+        dmax = np.sqrt((m[0] * m[0] + m[1] * m[1]) + m[2] * m[2])  # (norm3's order)
+    gap_front = _support(y.lo_t, y.hi_t, x.axis_t, -1) - _support(x.lo_t, x.hi_t, x.axis_t, +1)
+    gap_back = _support(y.lo_t, y.hi_t, x.axis_t, +1) - _support(x.lo_t, x.hi_t, x.axis_t, -1)
     slack = x.sin_t * dmax
     # touching (a box standing on the floor) is decided the same at any scale: gaps within
     # rounding of zero count as in front, and as behind for what lies in the plane itself
@@ -535,14 +548,16 @@ def estimate(x: Ends, y: Ends, both=False):
     """Conservative-ish F[x -> y] estimate from x's cone, y's projected area and the distance:
     S_y cos_x / (pi d^2 + S_y), with cosines widened by the cones and the ends' angular radii.
     Returns (F, distance), or with both (F[x -> y], F[y -> x], distance): estimate(y, x)'s
-    cosines are this call's swapped (its d and u negated: the same values bit for bit)."""
-    d = y.centre - x.centre
-    dist = ff.norm3(d)
-    u = d / np.maximum(dist, 1e-300)[:, None]
+    cosines are this call's swapped (its d and u negated: the same values bit for bit). On rows
+    per coordinate; the norm and the dot products in norm3's and einsum's orders (the same bits;
+    the arccos of a zero is the same for either sign)."""
+    d = y.centre_t - x.centre_t
+    dist = np.sqrt((d[0] * d[0] + d[1] * d[1]) + d[2] * d[2])
+    u = d / np.maximum(dist, 1e-300)
     spread_y = np.arcsin(np.clip(y.radius / np.maximum(dist, 1e-300), 0, 1))
     spread_x = np.arcsin(np.clip(x.radius / np.maximum(dist, 1e-300), 0, 1))
-    ax = np.arccos(np.clip(np.einsum("ij,ij->i", x.axis, u), -1, 1))
-    ay = np.arccos(np.clip(-np.einsum("ij,ij->i", y.axis, u), -1, 1))
+    ax = np.arccos(np.clip(ff.dot3(x.axis_t, u), -1, 1))
+    ay = np.arccos(np.clip(-ff.dot3(y.axis_t, u), -1, 1))
     cos_x = np.cos(np.clip(ax - x.theta - spread_y, 0, np.pi / 2))
     cos_y = np.cos(np.clip(ay - y.theta - spread_x, 0, np.pi / 2))
     s_y = y.area * cos_y

@@ -25,7 +25,7 @@ import copy
 
 import numpy as np
 
-from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, row_groups, sorted_index, unique_ints
+from .boxes import box_grid, box_pairs, csr_rows, points_in_boxes, row_groups, sorted_index
 from .formfactor import row_range
 from .geometry import components
 from .parallel import batch_map, ranges
@@ -159,12 +159,16 @@ class Contacts(SlotMouths):
         c = pt.corners
         lo, hi = c.min(1), c.max(1)
         g = self.gap
-        i, j = box_pairs(lo - g, hi + g, lo, hi, threads=threads)
-        keep = (i != j) & (self.plane[i] != self.plane[j])
-        gi, t = self.plane[i[keep]], j[keep]
-        # (plane, occluder patch), once each
-        pair = unique_ints(gi.astype(np.int64) * len(pt.nv) + t, threads)
-        gi, t = pair // len(pt.nv), pair % len(pt.nv)
+        K, plane = len(pt.nv), self.plane.astype(np.int64)
+
+        def key(i, j):  # (plane, occluder patch) of a patch and another one off its plane
+            keep = (i != j) & (plane[i] != plane[j])
+            return plane[i[keep]] * K + j[keep]
+
+        # (plane, occluder patch), once each: keyed inside box_pairs' blocks (the same sorted keys
+        # as of all its pairs, without their unique)
+        pair = box_pairs(lo - g, hi + g, lo, hi, threads=threads, key=key)
+        gi, t = pair // K, pair % K
         # bounded temporaries at any scene size; each chunk's segments are its own (on threads: the
         # same chunks, so the same segments in the same order)
         chunks = ranges(len(t), SEGMENT_CHUNK)

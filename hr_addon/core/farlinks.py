@@ -21,7 +21,7 @@ from .cluster import (
     sample_points,
     sh9,
 )
-from .formfactor import row_range
+from .formfactor import dot3, row_range
 from .parallel import add_counts, batch_map, ranges
 
 
@@ -228,6 +228,8 @@ TERMS_CHUNK = 8192
 # pairs per batch of the oracle and the shadow tests on threads (core.parallel): fixed, so the links
 # do not depend on the thread count
 PAIR_BATCH = 1 << 13
+# pairs per block of the kernel variation (_variation): its (4, 4, pairs) temporaries stay in the cache
+VAR_BLOCK = 1024
 
 
 def link_clusters(refiner, tree: ClusterTree, progress=None):
@@ -283,11 +285,12 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             ranges(len(a), PAIR_BATCH),
             refiner.threads,
         )
-        drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax = (np.concatenate(x) for x in zip(*parts))
+        cols = (np.concatenate(x) for x in zip(*parts))
+        drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = cols
         for sel in (ok, take):
             if sel.any():
                 far.append((a[sel], b[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel]))
-        done_w += weight(a[drop | ok | take], b[drop | ok | take])
+        done_w += w.sum()  # (the batches' sums: the progress only)
         new_a, new_b = [], []
         for sel, x, y in ((split_a, a, b), (split_b, b, a)):
             xs, ys = x[sel], y[sel]
@@ -344,7 +347,8 @@ def _classify(refiner, tree, a, b, table=None):
     """link_clusters' oracle for the pairs (a, b): every pair on its own (no hierarchy edits), so
     batches of pairs run on threads. Boolean arrays drop, ok (a far link), take (a far link: the
     end to split cannot be split), split_a, split_b (split that end); vis, mask, pa, pb, fmax of
-    the far links."""
+    the far links; (1,) the settled pairs' progress weight (link_clusters' weight(), here on the
+    threads)."""
     h, prm = refiner.h, refiner.params
     ea, eb = Ends(tree, h, a, table), Ends(tree, h, b, table)
     fa, ba, dmax = faces(ea, eb)
@@ -401,26 +405,46 @@ def _classify(refiner, tree, a, b, table=None):
     take = todo & ~by_face & ~by_size & np.where(prefer_a, ~can_a, ~can_b)
     split_a = todo & ~take & can_a & (prefer_a | ~can_b)
     split_b = todo & ~take & ~split_a & can_b
-    return drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax
+    # the progress weight of the pairs settled here (weight(): a != b), summed in the batch
+    done = drop | ok | take
+    w = np.array([(ea.area[done] * eb.area[done]).sum()])
+    return drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w
 
 
 def _variation(tree, h, a, b, eps, table=None):
     """(var_a, var_b): relative range, over each end's sample points, of the kernel cos cos / r^2
-    summed over the other end's samples (cosines about the samples' own normals; no visibility)."""
+    summed over the other end's samples (cosines about the samples' own normals; no visibility).
+    By blocks of VAR_BLOCK pairs (every pair is its own: the same values)."""
     (pa, wa), (pb, wb) = sample_points(tree, h, a, eps, table), sample_points(tree, h, b, eps, table)
-    d = pb[:, None, :, :] - pa[:, :, None, :]
-    r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
     na, nb = sample_normals(tree, h, a, table), sample_normals(tree, h, b, table)
-    k = (
-        np.maximum(np.einsum("nijk,nik->nij", d, na), 0)
-        * np.maximum(-np.einsum("nijk,njk->nij", d, nb), 0)
-        / (r2 * r2)
-    )
-    out = []
-    for ks in ((k * wb[:, None, :]).sum(2), (k * wa[:, :, None]).sum(1)):
-        m = ks.mean(1)
-        lo, hi = row_range(ks)
-        out.append((hi - lo) / np.maximum(m, 1e-300) * (m > 0))
+    out = np.empty((2, len(a)))
+    for i in range(0, len(a), VAR_BLOCK):
+        s = slice(i, i + VAR_BLOCK)
+        out[:, s] = _variation_block(pa[s], wa[s], pb[s], wb[s], na[s], nb[s])
+    return out[0], out[1]
+
+
+def _variation_block(pa, wa, pb, wb, na, nb):
+    """_variation of one block: points pa, pb (N, 4, 3), weights wa, wb (N, 4), normals na, nb.
+    Component major, (3, 4, 4, N): a row of N pairs per coordinate and segment (numpy is slow on a
+    last axis of 3; the (N, 4, 4, 3) form's einsums and reductions over short axes looped per
+    row). The same operations in the same order: einsum's dot products as dot3 ((x + z) + y),
+    the sums over 4 samples in order, min and max by samples as row_range. (A zero's sign may
+    differ from the einsums' (they add to +0): the values are only compared, never stored.)"""
+    A, B = (np.ascontiguousarray(x.transpose(2, 1, 0)) for x in (pa, pb))  # (3, 4, N)
+    NA, NB = (np.ascontiguousarray(x.transpose(2, 1, 0)) for x in (na, nb))
+    D = B[:, None] - A[:, :, None]  # (3, 4 on a, 4 on b, N)
+    r2 = np.maximum(dot3(D, D), 1e-300)
+    k = np.maximum(dot3(D, NA[:, :, None]), 0) * np.maximum(-dot3(D, NB[:, None]), 0) / (r2 * r2)
+    t = k * wb.T[None]  # summed over b's samples: each of a's
+    ks_a = ((t[:, 0] + t[:, 1]) + t[:, 2]) + t[:, 3]
+    t = k * wa.T[:, None]  # summed over a's samples: each of b's
+    ks_b = ((t[0] + t[1]) + t[2]) + t[3]
+    out = np.empty((2, pa.shape[0]))
+    for o, ks in zip(out, (ks_a, ks_b)):  # (4 samples, N)
+        m = (((ks[0] + ks[1]) + ks[2]) + ks[3]) / 4
+        lo, hi = row_range(ks.T)
+        o[:] = (hi - lo) / np.maximum(m, 1e-300) * (m > 0)
     return out
 
 

@@ -97,15 +97,21 @@ def link_form_factors(h: Hierarchy, a, b, max_order=3):
         m = np.flatnonzero(k == kk)
         if len(m) == 0:
             continue
-        pts, w = ff.quadrature(h.corners[s[m]], h.nv[s[m]], kk)  # (M, kk^2, 3)
+        # the small nodes' Gauss points and the large ones' planes once per node (a node is an
+        # end of several links; every node's values are its own: the same values)
+        u, iu = np.unique(s[m], return_inverse=True)
+        pts, w = ff.quadrature(h.corners[u], h.nv[u], kk)  # (U, kk^2, 3)
+        pts, w = pts[iu], w[iu]
         ns = kk * kk
-        qn, qa = ff.polygon_normal_area(h.corners[big[m]], h.nv[big[m]])  # once per link
+        u, iu = np.unique(big[m], return_inverse=True)
+        qn, qa = ff.polygon_normal_area(h.corners[u], h.nv[u])
+        iu = np.repeat(iu, ns)
         vals = ff.point_to_polygon(
             pts.reshape(-1, 3),
             np.repeat(h.normal[s[m]], ns, 0),
-            np.repeat(h.corners[big[m]], ns, 0),
-            np.repeat(h.nv[big[m]], ns),
-            (np.repeat(qn, ns, 0), np.repeat(qa, ns)),
+            h.corners[u[iu]],
+            h.nv[u[iu]],
+            (qn[iu], qa[iu]),
         )
         f_sl[m] = np.sum(vals.reshape(-1, ns) * w, axis=1)
     f_sl = np.clip(f_sl, 0.0, 1.0)
