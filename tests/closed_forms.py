@@ -11,6 +11,8 @@ tests/test_formfactor.py checks them against the catalog's tabulated values and 
 
 from math import atan, log, pi, sqrt
 
+import numpy as np
+
 
 def point_to_rect_corner(a, b, c):
     """Element at distance c below the corner of an a x b rectangle, both parallel."""
@@ -114,3 +116,14 @@ def spot_factor(cos_angle, spot_size, blend):
         return 1.0 if cos_angle > ch else 0.0
     t = min(max((cos_angle - ch) / ((1 - ch) * blend), 0.0), 1.0)
     return t * t * (3 - 2 * t)
+
+
+def point_to_polygon_contour(p, n, poly):
+    """Points p (K, 3) with normal n to the polygon poly (M, 3), unoccluded: Lambert's contour integral."""
+    R = poly[None] - p[:, None]
+    R /= np.linalg.norm(R, axis=2, keepdims=True)
+    S = np.roll(R, -1, axis=1)
+    g = np.cross(R, S)
+    theta = np.arccos(np.clip((R * S).sum(2), -1, 1))
+    g *= (theta / np.linalg.norm(g, axis=2))[..., None]
+    return np.abs(g.sum(1) @ n) / (2 * np.pi)

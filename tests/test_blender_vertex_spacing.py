@@ -5,6 +5,7 @@ user's meshes and modifiers as they were."""
 
 import numpy as np
 import pytest
+from tests import closed_forms as cf
 
 from test_blender_helpers import empty_scene, load_bpy, open_sample, scale_scene
 
@@ -75,17 +76,6 @@ def _wall():
     return co.astype(np.float64), ls, lt, lv, v.reshape(-1, 4)[:, :3].astype(np.float64)
 
 
-def _form_factor(p, n, poly):
-    """Point (K, 3) with normal n to polygon poly (M, 3), unoccluded (Lambert's contour integral)."""
-    R = poly[None] - p[:, None]
-    R /= np.linalg.norm(R, axis=2, keepdims=True)
-    S = np.roll(R, -1, axis=1)
-    g = np.cross(R, S)
-    theta = np.arccos(np.clip((R * S).sum(2), -1, 1))
-    g *= (theta / np.linalg.norm(g, axis=2))[..., None]
-    return np.abs(g.sum(1) @ n) / (2 * np.pi)
-
-
 def _reference(co, ls, lt, lv):
     """Per corner, the wall's radiance rho L F (nothing else lights it, it sees nothing else) as the
     vertex output's layout reads a corner (layouts.loop_samples): the mean over the corners at its
@@ -93,7 +83,11 @@ def _reference(co, ls, lt, lv):
     poly = np.repeat(np.arange(len(ls)), lt)
     centre = np.stack([np.bincount(poly, co[lv, c]) / lt[poly][np.r_[ls]] for c in range(3)], 1)
     inset = co[lv] + 0.5 * (centre[poly] - co[lv])
-    b = RHO * STRENGTH * _form_factor(inset, np.array([0.0, 1.0, 0.0]), np.array(LAMP[0], float))
+    b = (
+        RHO
+        * STRENGTH
+        * cf.point_to_polygon_contour(inset, np.array([0.0, 1.0, 0.0]), np.array(LAMP[0], float))
+    )
     per_vert = np.bincount(lv, b, len(co)) / np.maximum(np.bincount(lv, minlength=len(co)), 1)
     return per_vert[lv]
 

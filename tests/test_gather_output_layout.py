@@ -4,6 +4,7 @@ subdivision. No bpy; nothing here asserts on time."""
 
 import numpy as np
 import pytest
+from tests import closed_forms as cf
 
 from hr_addon.core.events import DynamicRadiosity
 from hr_addon.core.gather import LoopGather, OutputLayout
@@ -56,17 +57,6 @@ def _meshes(n, floor=True):
     return coarse, fine, np.array(fpoly)
 
 
-def _form_factor(p, n, poly):
-    """Point (K, 3) with normal n to polygon poly (M, 3), unoccluded (Lambert's contour integral)."""
-    R = poly[None] - p[:, None]
-    R /= np.linalg.norm(R, axis=2, keepdims=True)
-    S = np.roll(R, -1, axis=1)
-    g = np.cross(R, S)
-    theta = np.arccos(np.clip((R * S).sum(2), -1, 1))
-    g *= (theta / np.linalg.norm(g, axis=2))[..., None]
-    return np.abs(g.sum(1) @ n) / (2 * np.pi)
-
-
 def _gather(mesh, output=None, poly=None, **kw):
     s = RadiositySystem(mesh, RefineParams.for_gather("draft"))
     dyn = DynamicRadiosity(s, method="FE")
@@ -92,7 +82,9 @@ def test_the_wall_s_finer_corners_read_the_analytic_light(n):
     b = (
         RHO
         * STRENGTH
-        * _form_factor(co[lv] + 0.5 * (centre[lp] - co[lv]), np.array([0, 1.0, 0]), np.array(LAMP))
+        * cf.point_to_polygon_contour(
+            co[lv] + 0.5 * (centre[lp] - co[lv]), np.array([0, 1.0, 0]), np.array(LAMP)
+        )
     )
     ref = (np.bincount(lv, b, len(co)) / np.maximum(np.bincount(lv, minlength=len(co)), 1))[lv]
     assert ref.max() / ref.mean() > 3  # a gradient across the wall
