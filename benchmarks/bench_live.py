@@ -55,6 +55,9 @@ TARGETS = {
 }
 
 
+HELPERS = None  # --helpers: the Vertex Spacing whose modifiers and helpers the scene gets before Live
+
+
 # -- scenes --------------------------------------------------------------------------------------
 def open_cornell(tmp):
     import bpy
@@ -232,6 +235,12 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
         scene.hr.quality = quality.upper()
         scene.hr.final_gather = final_gather
         vl = bpy.context.view_layer
+        if HELPERS is not None:  # what a vertex bake at that Vertex Spacing leaves (own_values)
+            from hr_addon.blender.own_values import ensure_own_values
+            from hr_addon.blender.scene_in import geometry_objects
+
+            ensure_own_values(geometry_objects(vl), scene.hr.domain, vl.depsgraph, HELPERS)
+            info["helpers_spacing"] = HELPERS
         scene.hr.live = True
         t0 = time.perf_counter()
         assert bpy.ops.hr.live_update() == {"FINISHED"}
@@ -471,9 +480,19 @@ def main():
     ap.add_argument(
         "--root", default="", help="the checkout whose hr_addon is timed (e.g. main's for a before)"
     )
+    ap.add_argument(
+        "--helpers",
+        type=float,
+        default=None,
+        metavar="S",
+        help="first give the scene the HR Radiance modifiers and helpers a vertex bake at Vertex Spacing S "
+        "makes (own_values.ensure_own_values): Live after such a bake",
+    )
     args = ap.parse_args()
     if args.root:
         sys.path.insert(0, args.root)
+    global HELPERS
+    HELPERS = args.helpers
     kinds = [k for k in args.kinds.split(",") if k]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
