@@ -327,10 +327,9 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                 res["all_cpu"] = _stats([r["cpu"] for r in edits])
                 for k in done:
                     res[f"{k}_cpu"] = _stats([r["cpu"] for r in rows if r["kind"] == k])
-                    for part in ("read", "flush", "write"):
-                        res[f"{k}_cpu_{part}"] = _stats(
-                            [r["cpu_parts"][part] for r in rows if r["kind"] == k]
-                        )
+                    parts = [r["cpu_parts"] for r in rows if r["kind"] == k and "cpu_parts" in r]
+                    for part in ("read", "flush", "write") if parts else ():  # (--preview's refines: none)
+                        res[f"{k}_cpu_{part}"] = _stats([p[part] for p in parts])
                 moves = [r["iterations"] for r in rows if r["kind"] == "move"]
                 res["moves_iterations"] = _stats(moves) if moves else None
                 if preview:
