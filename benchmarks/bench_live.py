@@ -345,7 +345,8 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                     out["written"] = _written(sess.targets)
             out["edits"][mode] = res
             print(
-                f"{scene_name} {quality} {method} [{mode}] per edit: median {1000 * res['all']['median']:.1f} ms, "
+                f"{scene_name} {quality} {method} [{mode}] per edit: "
+                f"median {1000 * res['all']['median']:.1f} ms, "
                 f"p95 {1000 * res['all']['p95']:.1f} ms; "
                 + (
                     "; ".join(
@@ -400,7 +401,8 @@ def table(results):
         met = "" if tgt is None else f"{ms(tgt)} ({'met' if e['all']['p95'] <= tgt else 'not met'})"
         lines.append(
             f"| {r['scene']} | {r['quality']} | {r['method']} | "
-            f"{ {True: 'on', False: 'off'}.get(r.get('final_gather'), 'before it') } | {r['build_s']:.1f} s | {mp(e['all'])} | "
+            f"{ {True: 'on', False: 'off'}.get(r.get('final_gather'), 'before it') } | "
+            f"{r['build_s']:.1f} s | {mp(e['all'])} | "
             f"{mp(e['all_cpu']) if 'all_cpu' in e else '-'} | "
             + " | ".join(mp(e[k]) for k in kinds)
             + f" | {mp(o['all'])} | {mp(f['all'])} | {met} |"
