@@ -55,6 +55,9 @@ TARGETS = {
 }
 
 
+HELPERS = None  # --helpers: the Vertex Spacing whose modifiers and helpers the scene gets before Live
+
+
 # -- scenes --------------------------------------------------------------------------------------
 def open_cornell(tmp):
     import bpy
@@ -232,6 +235,12 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
         scene.hr.quality = quality.upper()
         scene.hr.final_gather = final_gather
         vl = bpy.context.view_layer
+        if HELPERS is not None:  # what a vertex bake at that Vertex Spacing leaves (own_values)
+            from hr_addon.blender.own_values import ensure_own_values
+            from hr_addon.blender.scene_in import geometry_objects
+
+            ensure_own_values(geometry_objects(vl), scene.hr.domain, vl.depsgraph, HELPERS)
+            info["helpers_spacing"] = HELPERS
         scene.hr.live = True
         t0 = time.perf_counter()
         assert bpy.ops.hr.live_update() == {"FINISHED"}
@@ -318,10 +327,9 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                 res["all_cpu"] = _stats([r["cpu"] for r in edits])
                 for k in done:
                     res[f"{k}_cpu"] = _stats([r["cpu"] for r in rows if r["kind"] == k])
-                    for part in ("read", "flush", "write"):
-                        res[f"{k}_cpu_{part}"] = _stats(
-                            [r["cpu_parts"][part] for r in rows if r["kind"] == k]
-                        )
+                    parts = [r["cpu_parts"] for r in rows if r["kind"] == k and "cpu_parts" in r]
+                    for part in ("read", "flush", "write") if parts else ():  # (--preview's refines: none)
+                        res[f"{k}_cpu_{part}"] = _stats([p[part] for p in parts])
                 moves = [r["iterations"] for r in rows if r["kind"] == "move"]
                 res["moves_iterations"] = _stats(moves) if moves else None
                 if preview:
@@ -337,7 +345,8 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                     out["written"] = _written(sess.targets)
             out["edits"][mode] = res
             print(
-                f"{scene_name} {quality} {method} [{mode}] per edit: median {1000 * res['all']['median']:.1f} ms, "
+                f"{scene_name} {quality} {method} [{mode}] per edit: "
+                f"median {1000 * res['all']['median']:.1f} ms, "
                 f"p95 {1000 * res['all']['p95']:.1f} ms; "
                 + (
                     "; ".join(
@@ -392,7 +401,8 @@ def table(results):
         met = "" if tgt is None else f"{ms(tgt)} ({'met' if e['all']['p95'] <= tgt else 'not met'})"
         lines.append(
             f"| {r['scene']} | {r['quality']} | {r['method']} | "
-            f"{ {True: 'on', False: 'off'}.get(r.get('final_gather'), 'before it') } | {r['build_s']:.1f} s | {mp(e['all'])} | "
+            f"{ {True: 'on', False: 'off'}.get(r.get('final_gather'), 'before it') } | "
+            f"{r['build_s']:.1f} s | {mp(e['all'])} | "
             f"{mp(e['all_cpu']) if 'all_cpu' in e else '-'} | "
             + " | ".join(mp(e[k]) for k in kinds)
             + f" | {mp(o['all'])} | {mp(f['all'])} | {met} |"
@@ -471,9 +481,19 @@ def main():
     ap.add_argument(
         "--root", default="", help="the checkout whose hr_addon is timed (e.g. main's for a before)"
     )
+    ap.add_argument(
+        "--helpers",
+        type=float,
+        default=None,
+        metavar="S",
+        help="first give the scene the HR Radiance modifiers and helpers a vertex bake at Vertex Spacing S "
+        "makes (own_values.ensure_own_values): Live after such a bake",
+    )
     args = ap.parse_args()
     if args.root:
         sys.path.insert(0, args.root)
+    global HELPERS
+    HELPERS = args.helpers
     kinds = [k for k in args.kinds.split(",") if k]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

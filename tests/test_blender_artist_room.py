@@ -85,10 +85,11 @@ def test_vertex_bake_every_object_every_frame(room_file, vertex_bake):
     assert len(conv) == 1 and "'Cable' (a curve object)" in conv[0] and "Convert > Mesh" in conv[0], out
     inst = [w for w in out.splitlines() if "Make Instances Real" in w]
     assert len(inst) == 1 and "'Vase' (by 'Vases 1')" in inst[0] and "Floor text" not in inst[0], out
-    # the light shapes lie on the cube room's one-quad ceiling and wall: vertex output cannot show
-    # them (bake.small_shape_warnings), and says so
-    small = {w.split("'")[1] for w in out.splitlines() if "of the face of 'Room'" in w}
-    assert small == {"Ceiling panel", "Wall patch"}, out
+    # the light shapes lie on the cube room's one-quad ceiling and wall: at the default Vertex
+    # Spacing (0.25 m, session 23) those faces are subdivided finer than the shapes, which show at
+    # the finer corners, so no warning (at spacing 0 bake.small_shape_warnings names them:
+    # test_blender_vertex_spacing's small light shape on a one-quad wall)
+    assert not [w for w in out.splitlines() if "of the face of 'Room'" in w], out
 
 
 def test_a_plane_facing_the_wall_it_hangs_on_is_lit(room_file, vertex_bake):

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_blender_helpers import attribute, load_bpy, open_sample
+from test_blender_helpers import attribute, load_bpy, open_sample, shown
 
 pytestmark = pytest.mark.bpy
 
@@ -80,7 +80,7 @@ def test_background_cancel_keeps_previous_bake(tmp_path):
     cache = tmp_path / "hr_cache" / "searchbeam"
     before = _cache_snapshot(cache)
     scene.frame_set(2)
-    shown = attribute(bpy.data.objects["wall_x0"])
+    before_values = shown(bpy.data.objects["wall_x0"])  # (through its HR Radiance modifier: 0.25 m)
     # NAIVE at medium quality rebuilds per frame: slow enough to be cancelled mid-way
     job = background.BackgroundBake(scene, method="NAIVE", quality="medium", frames=(1, 12)).start()
     assert _wait(job, until=lambda j: j.status.get("stage") == "frame"), job.status
@@ -91,7 +91,7 @@ def test_background_cancel_keeps_previous_bake(tmp_path):
     assert sorted(p.name for p in cache.parent.iterdir()) == ["searchbeam"]  # partial bake removed
     assert not job.tmp.exists()
     assert scene.hr.bake_dir == "//hr_cache/searchbeam/"
-    np.testing.assert_array_equal(attribute(bpy.data.objects["wall_x0"]), shown)
+    np.testing.assert_array_equal(shown(bpy.data.objects["wall_x0"]), before_values)
     assert not job.poll()
 
 

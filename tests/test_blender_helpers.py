@@ -59,6 +59,17 @@ def attribute(obj, name="HR_Radiance"):
     return v.reshape(-1, 4)
 
 
+def shown(obj, name="HR_Radiance"):
+    """(N, 4) float32 values of a colour attribute on obj's evaluated mesh: what a render shows,
+    through the modifiers (Vertex Spacing's HR Radiance modifier reads its helper's values)."""
+    bpy = load_bpy()
+    me = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
+    attr = me.attributes[name]
+    v = np.empty(len(attr.data) * 4, np.float32)
+    attr.data.foreach_get("color", v)
+    return v.reshape(-1, 4)
+
+
 def read_image(path):
     """(H, W, 3) float32 pixels of an image file as Blender decodes it (row 0 at the bottom; PNGs
     linearised from sRGB): the independent reader of our EXR and PNG writers."""

@@ -144,14 +144,14 @@ def test_collection_instances_take_part(tmp_path):
     scene.render.filepath = str(tmp_path)
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "inst.blend"))
     from hr_addon.blender.bake import run_bake
-    from test_blender_helpers import attribute
+    from test_blender_helpers import shown  # (the floor through the default spacing's modifier)
 
     run_bake(scene, log=lambda *a, **k: None, frames=(1, 1), quality="draft")
-    with_inst = attribute(floor).copy()
+    with_inst = shown(floor).copy()
     for e in empties:
         e.hide_render = True
     res = run_bake(scene, log=lambda *a, **k: None, frames=(1, 1), quality="draft")
-    without = attribute(floor)
+    without = shown(floor)
     assert not any("instance" in w for w in res.warnings)
     assert np.abs(with_inst - without)[:, :3].max() > 0.01
     assert with_inst[:, :3].mean() < without[:, :3].mean()  # boxes shade the floor

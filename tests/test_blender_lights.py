@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from test_blender_helpers import attribute, load_bpy
+from test_blender_helpers import attribute, load_bpy, shown
 from tests import closed_forms as cf
 
 pytestmark = pytest.mark.bpy
@@ -23,12 +23,15 @@ def _bake(tmp_path, sub="cache", **kw):
     return run_bake(bpy.context.scene, log=lambda *a, **k: None, cache_dir=str(tmp_path / sub), **kw)
 
 
-def _factory(tmp_path, world=False):
+def _factory(tmp_path, world=False, spacing=0.0):
     """The factory scene saved to tmp_path; world False: its grey World left out of the bake
-    (Lights > World off), so the light under test is the only one."""
+    (Lights > World off), so the light under test is the only one. spacing: the Vertex Spacing (0:
+    the lights' values at the cube's own corners, what these tests compare; None: the default)."""
     bpy = load_bpy()
     bpy.ops.wm.read_homefile(use_factory_startup=True)
     bpy.context.scene.hr.use_world = world
+    if spacing is not None:
+        bpy.context.scene.hr.vertex_spacing = spacing
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "factory.blend"), check_existing=False)
     return bpy
 
@@ -38,8 +41,10 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
     """The factory scene (a 2 m cube, a 1000 W point light of radius 0.1, a grey World) baked to
     all 0.0; now the faces the light sees read rho (E / pi + L) with E from the point light's closed
     form in Cycles' units (tests/closed_forms.py) and L the World's radiance (the cube is convex and
-    alone: every direction above a face is open sky, E = pi L), the faces turned away rho L."""
-    bpy = _factory(tmp_path, world=True)
+    alone: every direction above a face is open sky, E = pi L), the faces turned away rho L. At the
+    default Vertex Spacing (0.25 m, session 23) with the final gather: at the corners of the cube's
+    faces subdivided 8 x 8 (its evaluated mesh); without the gather the spacing is not used."""
+    bpy = _factory(tmp_path, world=True, spacing=None)
     res = _bake(tmp_path, final_gather=final_gather, method="FE")
     assert not [w for w in res.warnings if "Nothing" in w or "World" in w]
     cube = bpy.data.objects["Cube"]
@@ -47,8 +52,9 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
     bg = bpy.context.scene.world.node_tree.nodes["Background"]
     sky = np.array(bg.inputs["Color"].default_value[:3]) * bg.inputs["Strength"].default_value
     assert sky.min() > 0.05  # the factory World: (0.0509, 0.0509, 0.0509) x 1
-    v = attribute(cube)[:, :3].astype(np.float64)
-    me = cube.data
+    v = shown(cube)[:, :3].astype(np.float64)
+    me = cube.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
+    assert len(me.polygons) == (6 * 64 if final_gather else 6)
     M = np.array(cube.matrix_world)
     rho = np.array(
         cube.active_material.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value[:3]
@@ -56,7 +62,7 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
     v = v - rho * sky  # the World's part: exact with the final gather (every sky ray escapes)
     c = np.array(light.location)
     r, P = light.data.shadow_soft_size, light.data.energy
-    lit_faces = 0
+    lit_faces, want, straddle = 0, {}, []
     for poly in me.polygons:
         nrm = M[:3, :3] @ np.array(poly.normal)
         nrm /= np.linalg.norm(nrm)
@@ -70,7 +76,7 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
         if (c - centre) @ nrm < 2 * r:
             # the light's sphere straddles the face's plane (the factory +Y face: 5.5 mm below the
             # light's centre): shadow rays to its disc see the part above the horizon only
-            assert 1e-7 < v[loops].max() and v[loops].max() < 1e-3 * v.max()
+            straddle += loops
             continue
         if final_gather:
             # each loop's sample lies half way from its corner to the face's centre (gather.loop_samples)
@@ -82,14 +88,24 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
                 E = cf.point_light_irradiance(P, dist, d @ nrm / dist, r)
                 # the radius as the soft-falloff disc: exact on the axis, off the axis the code
                 # keeps d^2 + r^2 with the centre's cosine (r / d < 0.03 here: <1e-3)
-                assert v[li] == pytest.approx(rho * E / np.pi, rel=1e-3), (poly.index, li)
+                key = (me.loops[li].vertex_index, tuple(np.round(nrm, 6)))
+                want[li] = (key, rho * E / np.pi)
         else:
             # leaf values: the face's mean (2 x 2 Gauss points per leaf), close to the centre's
             d = c - centre
             dist = np.linalg.norm(d)
             E = cf.point_light_irradiance(P, dist, d @ nrm / dist, r)
             assert v[loops].mean(0) == pytest.approx(rho * E / np.pi, rel=0.15), poly.index
-    assert lit_faces == 3  # +X, +Y, +Z
+    assert lit_faces == len(me.polygons) // 2  # +X, +Y, +Z
+    assert 1e-7 < v[straddle].max() and v[straddle].max() < 1e-3 * v.max()
+    # a vertex's loops in one plane (the subdivided faces') read the mean of their samples
+    # (gather.loop_samples: the loops within the smooth angle averaged); across the cube's edges none
+    groups = {}
+    for key, x in want.values():
+        groups.setdefault(key, []).append(x)
+    for li, (key, _) in want.items():
+        assert v[li] == pytest.approx(np.mean(groups[key], 0), rel=1e-3), li
+    assert len(want) == (3 - 1) * len(me.polygons) // 6 * 4 if final_gather else not want
 
 
 def test_unsupported_light_features_are_named(tmp_path):

@@ -21,7 +21,7 @@ place fails.
 import numpy as np
 import pytest
 
-from test_blender_helpers import attribute, load_bpy, make_samples_module, open_sample
+from test_blender_helpers import load_bpy, make_samples_module, open_sample, shown
 from tests import closed_forms as cf
 
 pytestmark = [pytest.mark.bpy, pytest.mark.slow]
@@ -31,9 +31,12 @@ MARGIN = 0.01  # furniture boxes grown by 1 cm: a segment grazing a box is not c
 
 
 def _corners(obj):
-    """Per loop of a room surface: the world points its corner value stands for (halfway to its
-    polygon's centre), their normal, and the vertex index (loops at a vertex share its value)."""
-    me = obj.data
+    """Per loop of a room surface's evaluated mesh (at the default Vertex Spacing its faces
+    subdivided): the world points its corner value stands for (halfway to its polygon's centre),
+    their normal, and the vertex index (loops at a vertex share its value)."""
+    import bpy
+
+    me = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
     M = np.array(obj.matrix_world)
     co = np.array([v.co for v in me.vertices]) @ M[:3, :3].T + M[:3, 3]
     lv = np.array([lp.vertex_index for lp in me.loops])
@@ -117,7 +120,7 @@ def _sun_through(window):
 def _brightest(bpy):
     """(3,) the brightest radiance a surface point can see: the brightest baked corner of any
     object, or the World's sky (through the opening)."""
-    top = np.max([attribute(o)[:, :3].max(0) for o in bpy.context.scene.objects if o.type == "MESH"], 0)
+    top = np.max([shown(o)[:, :3].max(0) for o in bpy.context.scene.objects if o.type == "MESH"], 0)
     bg = bpy.context.scene.world.node_tree.nodes["Background"]
     sky = np.array(bg.inputs["Color"].default_value[:3]) * bg.inputs["Strength"].default_value
     return np.maximum(top, sky)
@@ -132,7 +135,7 @@ def _check_frame(bpy, direct_light):
         e, full, none = direct_light(bpy, points, normal)
         node = obj.data.materials[0].node_tree.nodes["Diffuse BSDF"]
         rho = np.array(node.inputs["Color"].default_value[:3])
-        value = attribute(obj)[:, :3].astype(np.float64)
+        value = shown(obj)[:, :3].astype(np.float64)  # (through the HR Radiance modifier)
         assert len(value) == len(vertex)  # one value per corner (domain CORNER)
         nv = vertex.max() + 1
         # every point of the vertex lit in full / not at all

@@ -135,11 +135,13 @@ def bake_frames(
     STATE.baking = True
     try:
         scene.frame_set(scene.frame_start)
-        snap = read_snapshot(scene, view_layer, cfg, run.warn)
+        snap = read_snapshot(scene, view_layer, cfg, run.warn, log=run.result.notes.append)
+        total = end - start + 1
+        for line in run.result.notes:  # log lines (the progress messages), not warnings
+            yield BakeProgress("build", total=total, warnings=list(run.result.warnings), message=line)
         run.intr.check()
         params, min_area_rel, far_warning = solver_setup(snap.transport, cfg.params)
         run.warn([far_warning] if far_warning else [])
-        total = end - start + 1
         yield BakeProgress(
             "build",
             total=total,

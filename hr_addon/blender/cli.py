@@ -12,7 +12,14 @@ import os
 import re
 import sys
 
-from .settings import choices, density_problem, resolution_problem, spacing_problem, thresholds_problem
+from .settings import (
+    VERTEX_SPACING,
+    choices,
+    density_problem,
+    resolution_problem,
+    spacing_problem,
+    thresholds_problem,
+)
 
 PROG = "hr_bake"
 
@@ -92,9 +99,9 @@ def make_parser(prog=PROG, blend_required=False):
         "--vertex-spacing",
         type=float,
         metavar="S",
-        help="vertex output: objects with edges longer than S metres show their light at the corners "
-        "of their mesh subdivided until none is (0: the mesh's own corners; default: the scene's "
-        "Vertex Spacing)",
+        help="vertex output with the final gather: objects with edges longer than S metres show their "
+        "light at the corners of their mesh subdivided until none is (0: the mesh's own corners; "
+        f"default: the scene's Vertex Spacing, {VERTEX_SPACING:g} unless set)",
     )
     setting(
         "--texture-format",

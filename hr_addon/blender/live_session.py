@@ -313,26 +313,32 @@ def _build(sess, scene, view_layer, depsgraph, reason):
     # the preview nodes show HR_Radiance as Live writes it (outgoing radiance or Indirect only)
     sess.preview_change = sess.preview_change or preview.show_radiance(objs, cfg.live_mode)
     with texture.source_materials(objs):
-        scene_in = collect_geometry(view_layer, depsgraph)
-    params, min_area_rel, far = solver_setup(scene_in.mesh, cfg.params)
+        # the bake's split (snapshot.read_snapshot): with the final gather, the objects a bake's
+        # HR Radiance modifier subdivides (Vertex Spacing) give the hierarchy the mesh the modifier
+        # receives and the output their finer corners (core.gather.OutputLayout)
+        scene_in = collect_geometry(view_layer, depsgraph, transport=cfg.gather is not None)
+    transport = scene_in.mesh if scene_in.transport is None else scene_in.transport
+    output = None if scene_in.transport is None else (scene_in.mesh, scene_in.transport_poly)
+    params, min_area_rel, far = solver_setup(transport, cfg.params)
     targets = list(scene_in.targets)
 
     extract = FlatExtract(targets, domain)  # every object's values as slices of one array
     spec = BuildSpec(
-        scene_in.mesh,
+        transport,
         params,
         method,
         min_area_rel,
         domain,
         extract,
         reason,
-        len(scene_in.mesh.loop_start),
+        len(transport.loop_start),
         cfg.gather,
         cfg.live_threads,
         paths.default_cache_dir(scene),
-        precompute_key(scene_in.mesh, params, cfg.gather),
+        precompute_key(transport, params, cfg.gather, output=output),
         cfg.live_mode,
         cfg.solve_options if cfg.gather is not None else None,
+        output,
     )
     sess.settings = _settings(scene)
     sess.geometry = scene_in.signatures

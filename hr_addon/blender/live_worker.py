@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.events import DynamicRadiosity, Preview
-from ..core.gather import LoopGather
+from ..core.gather import LoopGather, OutputLayout
 from ..core.geometry import InputError
 from ..core.lights import indirect_incident
 from ..core.progress import Cancelled
@@ -54,6 +54,8 @@ class BuildSpec:
     precompute: dict = None  # what it must match (settings.precompute_key): loaded instead of built if valid
     mode: str = "RADIANCE"  # what HR_Radiance gets (BakeConfig.live_mode): RADIANCE or INDIRECT
     solve: dict = None  # the bake's solver options (settings.solve_options) with the gather; None: Live's own
+    output: tuple = None  # (finer mesh, transport polygon per polygon): the gather's OutputLayout (Vertex
+    # Spacing after a bake added the modifiers; `mesh` is then the mesh they receive), None: on `mesh`
 
 
 @dataclass
@@ -278,7 +280,8 @@ class LiveWorker:
                 return
             # the output stage: its rays are traced once here, each edit is a sparse product
             if gather is None and spec.gather is not None:
-                gather = LoopGather(dyn, threads=spec.threads, **spec.gather)
+                layout = None if spec.output is None else OutputLayout(system, *spec.output)
+                gather = LoopGather(dyn, threads=spec.threads, output=layout, **spec.gather)
         except Cancelled:
             return
         except (InputError, ValueError, RuntimeError, MemoryError) as exc:

@@ -24,8 +24,11 @@ face's edge keeps a T-junction with a finer neighbour's (no crack: the finer ver
 The light is gathered at the finer corners and shown there. With the final gather the hierarchy
 (patches, links, contacts, the second level's samples) is built on the mesh the modifier receives
 (before_subdivision; session 22, branch dec25): only the corner samples lie on the finer mesh
-(core.gather.OutputLayout). Without it the hierarchy's leaves are the output: it sees the finer
-mesh (the evaluated mesh is what that bake reads).
+(core.gather.OutputLayout). Without it the hierarchy's leaves are the output, so the bake uses no
+spacing there (settings.BakeConfig.spacing: the classic output stays the mesh's own corners).
+0.25 m is the default since session 23 (branch def26); the objects subdivided are named in a log
+line, not a warning. Live Relight makes no helpers; once a bake has added them it uses the same
+split (live_session._build: collect_geometry(transport=True), live_worker.BuildSpec.output).
 """
 
 import bpy
@@ -328,11 +331,13 @@ def _changes_topology(obj, depsgraph):
     )
 
 
-def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
+def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     """Give every object of `objects` whose modifiers change the topology or whose mesh another of
     them shares a helper and the modifier (made or brought up to date: its domain, its helper's
     topology, last in the stack); with a Vertex Spacing > 0 every object with an edge longer than
-    it too, subdividing (has_coarse_edges). Returns notes naming the objects that got them now."""
+    it too, subdividing (has_coarse_edges). Returns notes naming the objects that got them now.
+    log: callable(str) taking the spacing's note (the objects subdivided) instead of the notes: a
+    log line, not a warning (the spacing is the default; the note asks nothing of the user)."""
     users = {}
     for o in objects:
         users[o.data.name_full] = users.get(o.data.name_full, 0) + 1
@@ -362,7 +367,7 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
         _helper(obj, depsgraph)
     notes = []
     if finer:
-        notes.append(
+        (notes.append if log is None else log)(
             f"Vertex Spacing {spacing:g}: {len(finer)} object(s) with edges longer "
             f"({', '.join(repr(n) for n in finer[:8])}{', ...' if len(finer) > 8 else ''}) show their "
             f"light at the corners of their mesh subdivided in the modifier '{N_VALUES}' (linear: the "
@@ -378,6 +383,14 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0):
         f"'{N_VALUES} <object>' (in no scene) that holds their HR_Radiance: every corner of the "
         "modifiers' result, every linked duplicate, shows its own light."
     ]
+
+
+def spacing_off_note(spacing):
+    """The log line of a vertex bake without the final gather whose Vertex Spacing is set."""
+    return (
+        f"Vertex Spacing {spacing:g} is not used without the Final Gather: the bake shows each mesh's "
+        "own corners (the classic output)."
+    )
 
 
 def _ensure(obj, domain, spacing=0.0):

@@ -163,8 +163,10 @@ class HR_PT_radiosity_settings(bpy.types.Panel):
             layout.prop(hr, "texture_format")
         else:
             layout.prop(hr, "domain")
-            layout.prop(hr, "vertex_spacing")
-            if hr.vertex_spacing > 0:  # Live makes no helpers (own_values): the bake's are what it finds
+            row = layout.row()
+            row.active = bool(hr.final_gather)  # without it the bake uses no spacing (BakeConfig.spacing)
+            row.prop(hr, "vertex_spacing")
+            if hr.vertex_spacing > 0 and hr.final_gather:  # Live makes no helpers: it finds the bake's
                 note = layout.row()
                 note.enabled = False
                 note.label(text="Live Relight: the finer corners once a bake has added them", icon="INFO")

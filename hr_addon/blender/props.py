@@ -106,10 +106,10 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         soft_max=1.0,
         subtype="DISTANCE",
         unit="LENGTH",
-        description="Vertex output: objects with edges longer than this show their light at the "
-        "corners of their mesh subdivided until none is (in the 'HR Radiance' geometry-nodes "
-        "modifier; linear, the shape stays), so light that changes across a large face shows. "
-        "0: the mesh's own corners",
+        description="Vertex output with Final Gather: objects with edges longer than this show their "
+        "light at the corners of their mesh subdivided until none is (in the 'HR Radiance' "
+        "geometry-nodes modifier; linear, the shape stays), so light that changes across a large "
+        "face shows. 0: the mesh's own corners (as without Final Gather)",
     )
     texture_format: EnumProperty(
         name="Texture Format",

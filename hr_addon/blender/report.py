@@ -93,6 +93,7 @@ class BakeResult:
     kept: int = 0  # frames of the previous bake kept outside the range
     rebaked: list = field(default_factory=list)  # previous bake's frames baked again: damaged or relit
     warnings: list = field(default_factory=list)  # each warning once (first text); see warning_lines
+    notes: list = field(default_factory=list)  # log lines that ask nothing of the user (progress messages)
     log: object = None  # the Warnings collector (counts and frames of repeats)
     build_seconds: float = 0.0
     gather_seconds: float = 0.0  # the final gather's precompute (0: off or loaded)

@@ -7,7 +7,7 @@ import dataclasses
 from ..lightmap import TextureError
 from . import playback, signatures, texture
 from .lights_in import frozen_emitters, light_check, light_objects, world_takes_part
-from .own_values import ensure_own_values
+from .own_values import ensure_own_values, spacing_off_note
 from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
 
 
@@ -44,15 +44,19 @@ class Snapshot:
         return None if si.transport is None else (si.mesh, si.transport_poly)
 
 
-def read_snapshot(scene, view_layer, cfg, warn):
+def read_snapshot(scene, view_layer, cfg, warn, log=None):
     """The Snapshot for a bake of settings cfg (settings.BakeConfig); warn(list of str) takes the
-    warnings. Raises SceneError for a scene that cannot be baked (nothing emits: refused before
-    the build, never a black bake without a word). Texture output makes the HR_Lightmap UVs first."""
+    warnings, log(str) the notes that ask nothing of the user (None: they are warnings too).
+    Raises SceneError for a scene that cannot be baked (nothing emits: refused before the build,
+    never a black bake without a word). Texture output makes the HR_Lightmap UVs first."""
     depsgraph = view_layer.depsgraph
     objects = geometry_objects(view_layer)
     if cfg.output == "VERTEX":
         warn(playback.linked_meshes(objects))
-        warn(ensure_own_values(objects, cfg.domain, depsgraph, cfg.vertex_spacing))
+        log = log if log is not None else (lambda line: warn([line]))
+        if cfg.vertex_spacing > 0 and not cfg.spacing:
+            log(spacing_off_note(cfg.vertex_spacing))
+        warn(ensure_own_values(objects, cfg.domain, depsgraph, cfg.spacing, log=log))
     if cfg.output == "TEXTURE":
         try:
             warn(texture.ensure_lightmaps(objects, cfg.resolution, cfg.texel_density))
@@ -61,7 +65,7 @@ def read_snapshot(scene, view_layer, cfg, warn):
     with texture.source_materials(objects):  # texture preview copies stand for these
         # Vertex Spacing with the final gather: the hierarchy on the user's meshes, the corner
         # samples on the finer ones (without the gather the leaves are the output: finer)
-        split = cfg.output == "VERTEX" and cfg.gather is not None and cfg.vertex_spacing > 0
+        split = cfg.output == "VERTEX" and cfg.gather is not None and cfg.spacing > 0
         scene_in = collect_geometry(
             view_layer, depsgraph, vertex_output=cfg.output != "TEXTURE", transport=split
         )
