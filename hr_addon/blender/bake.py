@@ -135,11 +135,14 @@ def bake_frames(
     STATE.baking = True
     try:
         scene.frame_set(scene.frame_start)
-        snap = read_snapshot(scene, view_layer, cfg, run.warn)
+        lines = []  # (own_values' corner budget: a log line, not a warning)
+        snap = read_snapshot(scene, view_layer, cfg, run.warn, log=lines.append)
         run.intr.check()
         params, min_area_rel, far_warning = solver_setup(snap.transport, cfg.params)
         run.warn([far_warning] if far_warning else [])
         total = end - start + 1
+        for line in lines:
+            yield BakeProgress("build", total=total, warnings=list(run.result.warnings), message=line)
         yield BakeProgress(
             "build",
             total=total,

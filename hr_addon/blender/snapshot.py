@@ -44,15 +44,16 @@ class Snapshot:
         return None if si.transport is None else (si.mesh, si.transport_poly)
 
 
-def read_snapshot(scene, view_layer, cfg, warn):
+def read_snapshot(scene, view_layer, cfg, warn, log=None):
     """The Snapshot for a bake of settings cfg (settings.BakeConfig); warn(list of str) takes the
-    warnings. Raises SceneError for a scene that cannot be baked (nothing emits: refused before
-    the build, never a black bake without a word). Texture output makes the HR_Lightmap UVs first."""
+    warnings, log(str) the lines that are no warning (own_values' corner budget; None: warnings).
+    Raises SceneError for a scene that cannot be baked (nothing emits: refused before the build,
+    never a black bake without a word). Texture output makes the HR_Lightmap UVs first."""
     depsgraph = view_layer.depsgraph
     objects = geometry_objects(view_layer)
     if cfg.output == "VERTEX":
         warn(playback.linked_meshes(objects))
-        warn(ensure_own_values(objects, cfg.domain, depsgraph, cfg.vertex_spacing))
+        warn(ensure_own_values(objects, cfg.domain, depsgraph, cfg.vertex_spacing, log=log))
     if cfg.output == "TEXTURE":
         try:
             warn(texture.ensure_lightmaps(objects, cfg.resolution, cfg.texel_density))
