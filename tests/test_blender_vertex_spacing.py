@@ -585,9 +585,9 @@ def test_the_corner_budget_raises_the_largest_objects_first():
 
 def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypatch):
     """The furnished sample at 0.25 m (92,104 corners for its 42,676) is within the budget: no log
-    line, every one of the 509 subdivided objects at 0.25 m. The wall scene baked at 0.25 m with
-    the budget and without it (corner_budget replaced by one that raises nothing: the code before
-    the budget) gives the same meshes and values, bit for bit."""
+    line, every one of the 509 subdivided objects at 0.25 m; at 0.15 m too (nothing raised). The
+    wall scene baked at 0.25 m with the budget and without it (corner_budget replaced by one that
+    raises nothing: the code before the budget) gives the same meshes and values, bit for bit."""
     bpy = load_bpy()
     from hr_addon.blender import own_values as ov
     from hr_addon.blender.scene_in import geometry_objects
@@ -600,6 +600,9 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     assert lines == []
     spacings = [ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)]
     assert len(spacings) == 509 and set(spacings) == {0.25}
+    objects = geometry_objects(scene.view_layers[0])  # (and at 0.15 m: 257,032 corners, x6.0)
+    finer = [o for o in objects if ov.has_coarse_edges(o, 0.15, dg)]
+    assert ov.corner_budget(objects, finer, 0.15, dg) == ({}, (42_676, 257_032, 257_032))
 
     bpy, ms, scene = empty_scene()
     _scene(ms)
