@@ -52,9 +52,10 @@ LEVEL_V1 = "Level"  # version 1's input: one Subdivide Mesh level for the whole 
 MERGE = 1e-6  # seam vertices this close (object units) are one again: the same corner, split
 # the corner budget (corner_budget): the finer corners of a scene at most BUDGET_FACTOR x its own
 # corners, never less than BUDGET_FLOOR and never more than BUDGET_CAP (docs/accuracy.md, session 23:
-# a finer corner costs about 2.2 KB of the bake's peak, furnished 20k at 0.15 m; the furnished 20k,
-# 100k and artist rooms at 0.15 m make 6.0, 4.4 and 5.4 x their own corners: within x8; 1 M corners
-# about 2.2 GB over spacing 0's; a small scene may always have 200,000, the 20k room's at 0.2 m)
+# a corner added costs 1.7-5.0 KB of the bake's peak, furnished 20k at 0.35-0.15 m, 2.2 KB at 0.15 m:
+# 1 M corners some 2-5 GB over spacing 0's; the furnished 20k, 100k and artist rooms at 0.15 m make
+# 6.0, 4.4 and 5.4 x their own corners: within x8; a small scene may always have 200,000, the 20k
+# room's at 0.2 m, 1.16 GB)
 BUDGET_FACTOR = 8.0
 BUDGET_FLOOR = 200_000
 BUDGET_CAP = 1_000_000
