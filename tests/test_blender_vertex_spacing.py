@@ -568,3 +568,164 @@ def test_a_small_light_shape_on_a_one_quad_wall_is_warned_about_at_spacing_0_onl
     (w,) = small(0.0)
     assert w.startswith("Light shape 'Patch' covers 2% of the face of 'Wall'"), w
     assert small(0.25) == []
+
+
+# a 1 km terrain of 100 x 100 quads (10 m), a 2 m lamp 5 m above its middle facing down
+TERRAIN_N, TERRAIN_SIZE = 100, 1000.0
+
+
+def _terrain(ms):
+    n, step = TERRAIN_N, TERRAIN_SIZE / TERRAIN_N
+    verts = [(i * step, j * step, 0.0) for j in range(n + 1) for i in range(n + 1)]
+    quads = [
+        [j * (n + 1) + i, j * (n + 1) + i + 1, (j + 1) * (n + 1) + i + 1, (j + 1) * (n + 1) + i]
+        for j in range(n)
+        for i in range(n)
+    ]
+    terrain = ms.mesh_object("Terrain", verts, quads, ms.diffuse("Ground", (RHO,) * 3))
+    c = TERRAIN_SIZE / 2
+    lamp = [(c - 1, c - 1, 5), (c - 1, c + 1, 5), (c + 1, c + 1, 5), (c + 1, c - 1, 5)]  # (facing -z)
+    ms.mesh_object("Sun lamp", lamp, [[0, 1, 2, 3]], ms.emission("Sun glow", (1, 1, 1), STRENGTH))
+    return terrain
+
+
+def test_a_large_terrain_stays_within_the_corner_budget_and_bakes(tmp_path):
+    """A 1 km terrain of 100 x 100 quads at 0.25 m would get level 6 on every 10 m quad: 4,096 faces
+    a face, 163,840,000 corners. The corner budget (own_values.budget, 200,000 for its 40,000 or so)
+    raises the terrain's spacing alone (the largest object first) to just above 5 m, where each
+    quad is cut once (level 1: 160,000 corners; level 2 would make 640,000), and says so in one log
+    line; the wall and the lamp beside it keep 0.25 m (16 x 16 and 8 x 8). The counted corners are
+    the evaluated meshes'; the bake runs, and the brightest corner of the terrain lies under the lamp."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.bake import run_bake
+    from hr_addon.blender.playback import load_frame
+
+    terrain = _terrain(ms)
+    _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "terrain.blend"))
+    dg = bpy.context.evaluated_depsgraph_get()
+    longest, n = ov.face_edges(terrain, dg)
+    assert ov.corners_at(longest, n, 0.25) == 4 * 4**6 * TERRAIN_N**2
+    own = sum(len(o.evaluated_get(dg).data.loops) for o in scene.objects if o.type == "MESH")
+    assert 160_000 + 2_000 < ov.budget(own) < 4 * 160_000  # (level 1 fits with the rest, level 2 not)
+    scene.hr.vertex_spacing = 0.25
+    lines = []
+    res = run_bake(scene, log=lambda line, **k: lines.append(line), quality="draft", frames=(1, 1))
+    assert load_frame(scene, 1)
+    budget_lines = [x for x in lines if "corner budget" in x]
+    assert len(budget_lines) == 1 and "raised the spacing of 1 object(s): 'Terrain' 5 m" in budget_lines[0], (
+        lines
+    )
+    assert not [w for w in res.warnings if "corner budget" in w]
+    assert 5 < ov.subdividing(terrain) < 5 * (1 + 1e-5)
+    assert {o.name: ov.subdividing(o) for o in bpy.data.objects if o.name in ("Wall", "Lamp", "Box")} == {
+        "Wall": 0.25,
+        "Lamp": 0.25,
+        "Box": 0.0,  # (0.2 m edges: only its Bevel's helper)
+    }
+    dg = bpy.context.evaluated_depsgraph_get()
+    corners = {o.name: len(o.evaluated_get(dg).data.loops) for o in scene.objects if o.type == "MESH"}
+    assert corners["Terrain"] == 4 * 4 * TERRAIN_N**2 and corners["Wall"] == 1024
+    assert sum(corners.values()) <= ov.budget(own)
+    me = terrain.evaluated_get(dg).data
+    a = me.attributes["HR_Radiance"]
+    v = np.empty(len(a.data) * 4, np.float32)
+    a.data.foreach_get("color", v)
+    v = v.reshape(-1, 4)[:, :3].mean(1)
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    lv = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("vertex_index", lv)
+    assert np.isfinite(v).all() and v.max() > 0
+    assert np.abs(co.reshape(-1, 3)[lv[v.argmax()], :2] - TERRAIN_SIZE / 2).max() <= 10
+
+
+def test_the_corner_budget_raises_the_largest_objects_first():
+    """own_values.corner_budget on a 1 m bar (264 corners at 0.25 m: its long faces at level 2) and
+    the one-quad wall (1,024: level 4), each budget one corner under the last result: the largest
+    object's spacing is raised first, just past the next face threshold (4 m / 2^k for the wall:
+    0.5 m gives 256 corners, 1 m 64, 2 m 16), the bar's when it is the largest (0.5 m: 72 corners;
+    1 m: 24, its own faces: not subdivided, None), down to the objects' own corners when the budget
+    is under them; a budget the scene fits changes nothing (empty)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    bar = ms.mesh_object(
+        "Bar",
+        [(x, y, z) for z in (0, 0.05) for y in (0, 0.1) for x in (0, 1.0)],
+        [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
+    )
+    wall = ms.mesh_object("Wall", *WALL)
+    dg = bpy.context.evaluated_depsgraph_get()
+    objects = [bar, wall]
+    assert ov.corners_at(*ov.face_edges(bar, dg), 0.25) == 4 * 16 * 4 + 2 * 4
+    assert ov.corners_at(*ov.face_edges(wall, dg), 0.25) == 1024
+
+    def raised(limit):
+        out, counts = ov.corner_budget(objects, objects, 0.25, dg, limit=limit)
+        assert counts[:2] == (28, 1024 + 264)
+        return {k: round(v, 4) if v is not None else v for k, v in out.items()}, counts[2]
+
+    assert raised(1288) == ({}, 1288)
+    assert raised(1287) == ({"Wall": 0.5}, 256 + 264)
+    assert raised(519) == ({"Wall": 0.5, "Bar": 0.5}, 256 + 72)  # (the bar's 264 above 256)
+    assert raised(327) == ({"Wall": 1.0, "Bar": 0.5}, 64 + 72)
+    assert raised(135) == ({"Wall": 1.0, "Bar": None}, 64 + 24)  # (the bar at 1 m: its own faces)
+    assert raised(87) == ({"Wall": 2.0, "Bar": None}, 16 + 24)
+    assert raised(39) == ({"Wall": None, "Bar": None}, 4 + 24)
+    assert raised(27) == ({"Wall": None, "Bar": None}, 28)  # (under the own corners: the least)
+    # the raised spacings make what was counted: the wall at 1 m (just above) is cut 4 x 4
+    out, _ = ov.corner_budget(objects, objects, 0.25, dg, limit=327)
+    ov.ensure_own_values([wall], "CORNER", dg, out["Wall"])
+    dg.update()
+    assert len(wall.evaluated_get(dg).data.loops) == 64
+
+
+def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypatch):
+    """The furnished sample at 0.25 m (92,104 corners for its 42,676) is within the budget: no log
+    line, every one of the 509 subdivided objects at 0.25 m; at 0.15 m too (nothing raised). The
+    wall scene baked at 0.25 m with the budget and without it (corner_budget replaced by one that
+    raises nothing: the code before the budget) gives the same meshes and values, bit for bit."""
+    bpy = load_bpy()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.scene_in import geometry_objects
+
+    open_sample("furnished", tmp_path / "furnished")
+    scene = bpy.context.scene
+    dg = scene.view_layers[0].depsgraph
+    objects = geometry_objects(scene.view_layers[0])  # at 0.15 m: 257,032 corners (x6.0), within
+    finer = [o for o in objects if ov.has_coarse_edges(o, 0.15, dg)]
+    assert ov.corner_budget(objects, finer, 0.15, dg) == ({}, (42_676, 257_032, 257_032))
+    lines = []
+    ov.ensure_own_values(objects, "CORNER", dg, 0.25, log=lines.append)
+    assert lines == []
+    spacings = [ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)]
+    assert len(spacings) == 509 and set(spacings) == {0.25}
+
+    bpy, ms, scene = empty_scene()
+    _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+
+    def bake():
+        _bake(scene, 0.25)
+        dg = bpy.context.evaluated_depsgraph_get()
+        out = {}
+        for o in scene.objects:
+            if o.type == "MESH":
+                me = o.evaluated_get(dg).data
+                a = me.attributes["HR_Radiance"]
+                v = np.empty(len(a.data) * 4, np.float32)
+                a.data.foreach_get("color", v)
+                co = np.empty(len(me.vertices) * 3, np.float32)
+                me.vertices.foreach_get("co", co)
+                out[o.name] = (co, v)
+        return out
+
+    with_budget = bake()
+    monkeypatch.setattr(ov, "corner_budget", lambda *a, **k: ({}, None))
+    without = bake()
+    assert with_budget.keys() == without.keys()
+    for name, (co, v) in with_budget.items():
+        np.testing.assert_array_equal(co, without[name][0], err_msg=name)
+        np.testing.assert_array_equal(v, without[name][1], err_msg=name)

@@ -185,7 +185,9 @@ class BackgroundBake:
             raise SceneError(error)
         self.output = cfg.output
         if self.output == "VERTEX":  # the helpers belong to the user's file: made here, the copy gets them
-            self._start_warnings = ensure_own_values(  # (the spacing's note: the worker's log line)
+            # (the spacing's note and the corner budget's line are the worker's to log: its bake of the copy
+            # counts the same)
+            self._start_warnings = ensure_own_values(
                 geometry_objects(view_layer), cfg.domain, depsgraph, cfg.spacing, log=lambda line: None
             )
             self.warnings += self._start_warnings

@@ -29,6 +29,14 @@ spacing there (settings.BakeConfig.spacing: the classic output stays the mesh's 
 0.25 m is the default since session 23 (branch def26); the objects subdivided are named in a log
 line, not a warning. Live Relight makes no helpers; once a bake has added them it uses the same
 split (live_session._build: collect_geometry(transport=True), live_worker.BuildSpec.output).
+
+A corner budget (corner_budget; session 23, branch vx26): the level is capped per face (MAX_LEVEL),
+not per scene, so a large object of many faces (a 1 km terrain of 10 m quads) would get 4^6 faces
+per face at 0.25 m. The corners the spacing would make are counted first (the group's level rule,
+numpy over each object's faces); when the scene's total would exceed BUDGET_FACTOR x the scene's
+own corners (at least BUDGET_FLOOR, at most BUDGET_CAP), the largest objects' spacings are raised
+(a water level on each object's corners: every object under it keeps the scene's spacing) until
+it fits, and one log line names them with their spacings. A normal room is within it at 0.15 m.
 """
 
 import bpy
@@ -45,6 +53,16 @@ SCALE = "Scale"  # the object's scale at the bake (edges in world metres; fixed:
 MAX_LEVEL = 6  # 4^6 faces per face: a 6.4 m quad at 0.1 m; coarser faces keep longer edges
 LEVEL_V1 = "Level"  # version 1's input: one Subdivide Mesh level for the whole object
 MERGE = 1e-6  # seam vertices this close (object units) are one again: the same corner, split
+# the corner budget (corner_budget): the finer corners of a scene at most BUDGET_FACTOR x its own
+# corners, never less than BUDGET_FLOOR and never more than BUDGET_CAP (docs/accuracy.md, session 23:
+# a corner added costs 1.7-5.0 KB of the bake's peak, furnished 20k at 0.35-0.15 m, 2.2 KB at 0.15 m:
+# 1 M corners some 2-5 GB over spacing 0's; the furnished 20k, 100k and artist rooms at 0.15 m make
+# 6.0, 4.4 and 5.4 x their own corners: within x8; a small scene may always have 200,000, the 20k
+# room's at 0.2 m, 1.16 GB)
+BUDGET_FACTOR = 8.0
+BUDGET_FLOOR = 200_000
+BUDGET_CAP = 1_000_000
+RAISE = 1 + 2**-20  # a raised spacing this much above a face's threshold: its level is off (float32)
 
 
 def geometry_group(name, version, socket, socket_type, store, value, finer=False):
@@ -310,6 +328,124 @@ def has_coarse_edges(obj, spacing, depsgraph):
     return bool(np.sqrt((d * d).sum(1)).max() > spacing)
 
 
+def face_edges(obj, depsgraph):
+    """((F,) float32 each face's longest edge in world metres as the group measures it (object-space
+    edge x the object's scale, _finer_faces), (F,) int64 its corners) of obj's evaluated mesh."""
+    me = obj.evaluated_get(depsgraph).data
+    n_faces = len(me.polygons)
+    if not n_faces:
+        return np.zeros(0, np.float32), np.zeros(0, np.int64)
+    ev = np.empty(len(me.edges) * 2, np.int32)
+    me.edges.foreach_get("vertices", ev)
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    co, ev = co.reshape(-1, 3), ev.reshape(-1, 2)
+    scale = np.linalg.norm(np.array(obj.matrix_world)[:3, :3], axis=0).astype(np.float32)
+    d = (co[ev[:, 0]] - co[ev[:, 1]]) * scale
+    length = np.sqrt((d * d).sum(1, dtype=np.float32))
+    used = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("edge_index", used)
+    start = np.empty(n_faces, np.int32)
+    me.polygons.foreach_get("loop_start", start)
+    total = np.empty(n_faces, np.int32)
+    me.polygons.foreach_get("loop_total", total)
+    order = np.argsort(start, kind="stable")  # (reduceat wants the loops' runs in order)
+    longest = np.empty(n_faces, np.float32)
+    longest[order] = np.maximum.reduceat(length[used], start[order])
+    return longest, total.astype(np.int64)
+
+
+def levels(longest, spacing):
+    """(F,) each face's level at `spacing` (_finer_faces' rule, in float32 like the nodes): the
+    number of k < MAX_LEVEL with longest > spacing x 2^k; 0 for spacing 0."""
+    s = np.float32(spacing)
+    if s <= 0:
+        return np.zeros(len(longest), np.int64)
+    return sum((longest > s * np.float32(2**k)).astype(np.int64) for k in range(MAX_LEVEL))
+
+
+def corners_at(longest, n, spacing):
+    """The corners `spacing` makes of faces with these longest edges and corners: a face of n
+    corners at level L becomes n 4^(L-1) quads (Subdivide Mesh), n 4^L corners."""
+    return int((n << (2 * levels(longest, spacing))).sum())
+
+
+def _steps(longest, n, spacing):
+    """(spacings (J,), corners (J,)): the corners at `spacing`, then at each larger spacing where a
+    face's level drops (just above longest / 2^k, RAISE), down to every face at level 0; corners
+    non-increasing."""
+    lv = levels(longest, spacing)
+    c0 = int((n << (2 * lv)).sum())
+    k = np.arange(MAX_LEVEL)
+    t = longest[:, None] / np.float32(2.0) ** k  # step k on while the spacing is below t (exact)
+    on = k < lv[:, None]
+    t, drop = t[on], (3 * n[:, None] << (2 * k))[on]  # level k + 1 -> k: 3 n 4^k corners fewer
+    order = np.argsort(t, kind="stable")
+    t, drop = t[order].astype(np.float64), np.cumsum(drop[order])
+    last = np.r_[t[1:] != t[:-1], True]  # faces sharing a threshold drop together
+    return np.r_[spacing, t[last] * RAISE], np.r_[c0, c0 - drop[last]]
+
+
+def budget(own_corners):
+    """The finer corners a scene of `own_corners` corners may have (BUDGET_FACTOR, _FLOOR, _CAP)."""
+    return int(min(max(BUDGET_FACTOR * own_corners, BUDGET_FLOOR), BUDGET_CAP))
+
+
+def corner_budget(objects, finer, spacing, depsgraph, limit=None):
+    """{name: spacing} for the objects of `finer` (those to subdivide at `spacing`) whose spacing
+    must be raised so that the scene's corners (every object of `objects`, each evaluated mesh
+    as the modifier receives it, the finer ones subdivided) stay within `limit` (default:
+    budget(the scene's own corners)); a raised spacing at which no face is cut any more: None.
+    Empty when the scene fits (nothing changes). Largest first: a water level W on each object's
+    corners, the largest W the budget allows; an object above it gets the smallest spacing
+    (_steps) whose corners are at most W, every object below keeps `spacing`; then the objects the
+    next level would make finer, each one step finer while the total fits (the smallest steps
+    first: objects alike, the books of a shelf, move together with W). Returns ({name:
+    spacing}, (the scene's own corners, its corners at `spacing`, its corners with the budget))."""
+    if not finer:
+        return {}, None
+    names = {o.name for o in finer}
+    own = sum(len(o.evaluated_get(depsgraph).data.loops) for o in objects)
+    fixed = sum(len(o.evaluated_get(depsgraph).data.loops) for o in objects if o.name not in names)
+    steps = {}
+    for o in finer:
+        s, c = _steps(*face_edges(o, depsgraph), spacing)
+        steps[o.name] = (s, c)
+    want = fixed + sum(int(c[0]) for _, c in steps.values())
+    limit = budget(own) if limit is None else int(limit)
+    if want <= limit:
+        return {}, (own, want, want)
+
+    def at(level):  # each object's corners under the water level (its last step if none is)
+        return {
+            n: min(int(np.searchsorted(-c, -level, side="left")), len(c) - 1) for n, (s, c) in steps.items()
+        }
+
+    def total(level):
+        return fixed + sum(int(steps[n][1][j]) for n, j in at(level).items())
+
+    levels_ = np.unique(np.concatenate([c for _, c in steps.values()]))
+    lo, hi = 0, len(levels_) - 1  # the largest level whose total fits (the smallest if none does)
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if total(levels_[mid]) <= limit else (lo, mid - 1)
+    pick = at(levels_[lo])
+    got = total(levels_[lo])
+    if lo + 1 < len(levels_):  # the objects the next level would make finer (many alike, e.g. books,
+        # move together): each one step finer while the total fits, the smallest steps first
+        up = at(levels_[lo + 1])
+        more = sorted((int(steps[n][1][up[n]] - steps[n][1][j]), n) for n, j in pick.items() if up[n] != j)
+        for extra, n in more:
+            if got + extra > limit:
+                break
+            pick[n], got = up[n], got + extra
+    out = {}
+    for n, j in pick.items():
+        if j:  # (the last step: every face at level 0, nothing to subdivide)
+            out[n] = None if j == len(steps[n][0]) - 1 else float(steps[n][0][j])
+    return out, (own, want, got)
+
+
 def values_object(obj, n_loops, n_verts):
     """obj's helper object if it has one whose mesh has the evaluated mesh's n_loops corners and
     n_verts vertices (else None: the values go onto obj's own mesh)."""
@@ -335,9 +471,11 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     """Give every object of `objects` whose modifiers change the topology or whose mesh another of
     them shares a helper and the modifier (made or brought up to date: its domain, its helper's
     topology, last in the stack); with a Vertex Spacing > 0 every object with an edge longer than
-    it too, subdividing (has_coarse_edges). Returns notes naming the objects that got them now.
-    log: callable(str) taking the spacing's note (the objects subdivided) instead of the notes: a
-    log line, not a warning (the spacing is the default; the note asks nothing of the user)."""
+    it too, subdividing (has_coarse_edges), each at `spacing` unless the corner budget raises its
+    own (corner_budget). Returns notes naming the objects that got them now.
+    log: callable(str) taking the spacing's note (the objects subdivided) and the budget's line
+    instead of the notes: log lines, not warnings (the spacing is the default; they ask nothing
+    of the user)."""
     users = {}
     for o in objects:
         users[o.data.name_full] = users.get(o.data.name_full, 0) + 1
@@ -350,6 +488,9 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     if reset:
         depsgraph.update()
     coarse = {o.name: has_coarse_edges(o, spacing, depsgraph) for o in own}
+    raised, counts = corner_budget(objects, [o for o in own if coarse[o.name]], spacing, depsgraph)
+    for name, s in raised.items():
+        coarse[name] = s is not None
     made, finer, kept = [], [], []
     for obj in own:
         finer_faces = coarse[obj.name]
@@ -358,7 +499,7 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
             if obj in reset:  # subdivided by an earlier bake: its helper and modifier go
                 remove_own_values([obj])
             continue
-        made += _ensure(obj, domain, spacing if finer_faces else 0.0)
+        made += _ensure(obj, domain, raised.get(obj.name, spacing) if finer_faces else 0.0)
         finer += [obj.name] if finer_faces else []
         kept.append(obj)
     if finer:
@@ -366,6 +507,12 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     for obj in kept:
         _helper(obj, depsgraph)
     notes = []
+    if raised:
+        line = budget_line(raised, spacing, counts)
+        if log is None:
+            notes.append(line)
+        else:
+            log(line)
     if finer:
         (notes.append if log is None else log)(
             f"Vertex Spacing {spacing:g}: {len(finer)} object(s) with edges longer "
@@ -390,6 +537,18 @@ def spacing_off_note(spacing):
     return (
         f"Vertex Spacing {spacing:g} is not used without the Final Gather: the bake shows each mesh's "
         "own corners (the classic output)."
+    )
+
+
+def budget_line(raised, spacing, counts):
+    """The log line of a corner budget's raised spacings (corner_budget's results)."""
+    own, want, got = counts
+    by = sorted(raised.items(), key=lambda kv: (kv[1] is not None, kv[1] or 0.0, kv[0]), reverse=True)
+    shown = ", ".join(f"'{n}' {'not subdivided' if s is None else f'{s:.3g} m'}" for n, s in by[:8])
+    return (
+        f"Vertex Spacing {spacing:g}: the corner budget ({budget(own):,} corners for a scene of "
+        f"{own:,}; the spacing would make {want:,}) raised the spacing of {len(raised)} object(s): "
+        f"{shown}{', ...' if len(by) > 8 else ''}; {got:,} corners."
     )
 
 

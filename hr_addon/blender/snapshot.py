@@ -46,7 +46,8 @@ class Snapshot:
 
 def read_snapshot(scene, view_layer, cfg, warn, log=None):
     """The Snapshot for a bake of settings cfg (settings.BakeConfig); warn(list of str) takes the
-    warnings, log(str) the notes that ask nothing of the user (None: they are warnings too).
+    warnings, log(str) the notes that ask nothing of the user (the spacing's, the corner budget's;
+    None: they are warnings too).
     Raises SceneError for a scene that cannot be baked (nothing emits: refused before the build,
     never a black bake without a word). Texture output makes the HR_Lightmap UVs first."""
     depsgraph = view_layer.depsgraph
