@@ -683,10 +683,11 @@ def test_the_corner_budget_raises_the_largest_objects_first():
 
 
 def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypatch):
-    """The furnished sample at 0.25 m (92,104 corners for its 42,676) is within the budget: no log
-    line, every one of the 509 subdivided objects at 0.25 m; at 0.15 m too (nothing raised). The
-    wall scene baked at 0.25 m with the budget and without it (corner_budget replaced by one that
-    raises nothing: the code before the budget) gives the same meshes and values, bit for bit."""
+    """The furnished sample at 0.25 m (92,104 corners for its 42,676) is within the budget: no
+    budget line (the spacing's note only), every one of the 509 subdivided objects at 0.25 m; at
+    0.15 m too (nothing raised). The wall scene baked at 0.25 m with the budget and without it
+    (corner_budget replaced by one that raises nothing: the code before the budget) gives the same
+    meshes and values, bit for bit."""
     bpy = load_bpy()
     from hr_addon.blender import own_values as ov
     from hr_addon.blender.scene_in import geometry_objects
@@ -699,7 +700,9 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     assert ov.corner_budget(objects, finer, 0.15, dg) == ({}, (42_676, 257_032, 257_032))
     lines = []
     ov.ensure_own_values(objects, "CORNER", dg, 0.25, log=lines.append)
-    assert lines == []
+    # (the spacing's own note goes to log too since def26: only no budget line)
+    (line,) = lines
+    assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 509"), line
     spacings = [ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)]
     assert len(spacings) == 509 and set(spacings) == {0.25}
 
