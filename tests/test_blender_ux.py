@@ -216,14 +216,16 @@ def test_modal_bake_passes_every_event_through(tmp_path):
     manager (there is no event loop in background mode)."""
     load_bpy()
     from types import SimpleNamespace
-    from hr_addon.blender.ops import HR_OT_bake
+    from hr_addon.blender.ops import FINISH_TICK, HR_OT_bake
 
     class Job:
         def __init__(self):
             self.polls, self.state, self.warnings, self.summary = 0, "running", ["w1"], "baked frames 1-2 ..."
+            self.finishing = False
 
         def poll(self):
             self.polls += 1
+            self.finishing = self.polls == 2  # the result loading, a step per tick
             if self.polls == 3:
                 self.state = "done"
             return self.state == "running"
@@ -231,16 +233,17 @@ def test_modal_bake_passes_every_event_through(tmp_path):
         def text(self):
             return "50% · frame 1 (1/2)"
 
-    timer, other_timer = object(), object()
+    timer, other_timer, fast_timer = object(), object(), object()
     reports, status = [], []
     workspace = SimpleNamespace(status_text_set=status.append)
     wm = SimpleNamespace(
         windows=[SimpleNamespace(workspace=workspace, screen=SimpleNamespace(areas=[]))],
         event_timer_remove=lambda t: reports.append(("timer removed", t is timer)),
+        event_timer_add=lambda step, window=None: reports.append(("timer added", step)) or fast_timer,
     )
-    context = SimpleNamespace(window_manager=wm)
+    context = SimpleNamespace(window_manager=wm, window=None)
     op = SimpleNamespace(
-        _job=Job(), _timer=timer, report=lambda kind, msg: reports.append((sorted(kind)[0], msg))
+        _job=Job(), _timer=timer, _fast=False, report=lambda kind, msg: reports.append((sorted(kind)[0], msg))
     )
     for ev in ("MOUSEMOVE", "LEFTMOUSE", "ESC", "SPACE", "WHEELUPMOUSE", "A"):
         assert HR_OT_bake.modal(op, context, _Event(ev)) == {"PASS_THROUGH"}
@@ -249,8 +252,12 @@ def test_modal_bake_passes_every_event_through(tmp_path):
     assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"PASS_THROUGH"}
     assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"PASS_THROUGH"}
     assert status == ["HR Radiosity: 50% · frame 1 (1/2)"] * 2
-    assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"FINISHED"}
-    assert status[-1] is None and ("timer removed", True) in reports
+    # while the result loads (a step per tick) the timer runs faster
+    assert reports == [("timer removed", True), ("timer added", FINISH_TICK)] and op._timer is fast_timer
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", timer)) == {"PASS_THROUGH"}  # the old one: ignored
+    assert op._job.polls == 2
+    assert HR_OT_bake.modal(op, context, _Event("TIMER", fast_timer)) == {"FINISHED"}
+    assert status[-1] is None and reports[2] == ("timer removed", False)
     assert ("WARNING", "w1") in reports and ("INFO", "HR Radiosity: baked frames 1-2 ...") in reports
 
 

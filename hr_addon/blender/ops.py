@@ -59,6 +59,9 @@ def _status_text(context, text):
             win.workspace.status_text_set(text)
 
 
+FINISH_TICK = 0.02  # seconds between the bake timer's ticks while the result loads (background.poll)
+
+
 class HR_OT_bake(bpy.types.Operator):
     """Bake dynamic hierarchical radiosity over the frame range, in a background process
     (Blender stays usable; Cancel keeps the previous bake)"""
@@ -69,6 +72,7 @@ class HR_OT_bake(bpy.types.Operator):
 
     _timer = None
     _job = None
+    _fast = False
 
     @classmethod
     def poll(cls, context):
@@ -124,6 +128,10 @@ class HR_OT_bake(bpy.types.Operator):
             return {"PASS_THROUGH"}
         job = self._job
         if job.poll():
+            if job.finishing and not self._fast:  # the result loads a short step per tick: faster ticks
+                wm = context.window_manager
+                wm.event_timer_remove(self._timer)
+                self._timer, self._fast = wm.event_timer_add(FINISH_TICK, window=context.window), True
             _status_text(context, f"HR Radiosity: {job.text()}")
             _redraw(context)
             return {"PASS_THROUGH"}
@@ -156,12 +164,15 @@ class HR_OT_cancel_bake(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return background.running()
+        job = background.active()
+        return background.running() and not job.cancelling and not job.finishing
 
     def execute(self, context):
         job = background.active()
         if job is not None:
-            job.cancel()
+            # the signal only: the bake's timer (HR_OT_bake.modal) ends it once the worker has gone,
+            # the UI does not wait for it (a worker still loading the file takes seconds to stop)
+            job.cancel(wait=bpy.app.background)
         return {"FINISHED"}
 
 
