@@ -49,9 +49,21 @@ FRAMES = (1, 3)
 class Clock:
     """Per-item lists of (wall s, thread CPU s, process CPU s)."""
 
-    def __init__(self):
+    def __init__(self, profile=None, keys=()):
         self.items = {}
         self.order = []
+        self.profile, self.keys, self.dumped = profile, keys, 0
+
+    def _profiled(self, key, fn, *a, **k):
+        import cProfile
+
+        prof = cProfile.Profile()
+        try:
+            return prof.runcall(fn, *a, **k)
+        finally:
+            self.dumped += 1
+            safe = "".join(c if c.isalnum() else "_" for c in key)[:60]
+            prof.dump_stats(str(Path(self.profile) / f"{self.dumped:03d}_{safe}.prof"))
 
     def add(self, key, wall, thread, proc):
         if key not in self.items:
@@ -60,6 +72,10 @@ class Clock:
         self.items[key].append((wall, thread, proc))
 
     def time(self, key, fn, *a, **k):
+        """fn(*a, **k) timed under key (under cProfile too, untimed then, with --profile and a key
+        starting with one of --profile-keys)."""
+        if self.profile and any(key.startswith(p) for p in self.keys):
+            return self._profiled(key, fn, *a, **k)
         w0, t0, p0 = time.perf_counter(), time.thread_time(), time.process_time()
         try:
             return fn(*a, **k)
@@ -342,6 +358,7 @@ def measure_delete(bpy, scene, clock, repeat, job, work):
 
     undo = [
         clock.wrap(ops, "delete_cache_files", "delete: of it delete_cache_files"),
+        clock.wrap(ops, "_forget_bake", "delete/clear: of it _forget_bake (the rest: Blender's update)"),
         clock.wrap(texture, "remove_material", "delete/clear: of it texture.remove_material"),
         clock.wrap(ops, "remove_own_values", "delete/clear: of it remove_own_values"),
     ]
@@ -368,6 +385,12 @@ def measure_live(bpy, scene, clock, steps, limit):
 
     undo = [
         clock.wrap(live_session, "collect_geometry", "live start: of it collect_geometry"),
+        clock.wrap(live_session.preview, "show_radiance", "live start: of it preview.show_radiance"),
+        clock.wrap(live_session, "precompute_key", "live start: of it precompute_key"),
+        clock.wrap(live_session, "solver_setup", "live start: of it solver_setup"),
+        clock.wrap(live_session, "FlatExtract", "live start: of it FlatExtract"),
+        clock.wrap(live_session.preview, "undo_show_radiance", "live stop: of it preview.undo_show_radiance"),
+        clock.wrap(live_session.playback, "load_frame", "live stop: of it playback.load_frame"),
         clock.wrap(live_session, "_read_shapes", "live: of it _read_shapes"),
         clock.wrap(playback, "apply_arrays", "live: of it apply_arrays (HR_Radiance written)"),
         clock.wrap(live, "on_depsgraph_update", "live drag: of it live's depsgraph handler"),
@@ -434,11 +457,15 @@ def main(argv=None):
         "--skip", nargs="*", default=[], help="parts to skip: bake cancel save result frames delete live"
     )
     ap.add_argument("--json", default=None)
+    ap.add_argument("--profile", default=None, help="folder: cProfile the calls of --profile-keys there")
+    ap.add_argument("--profile-keys", nargs="*", default=[], help="item names' beginnings (not timed then)")
     args = ap.parse_args(argv)
     args.work = args.work or f"/tmp/ui26/{args.scene}"
     load0 = os.getloadavg()
     bpy, scene, blend = open_scene(args)
-    clock = Clock()
+    if args.profile:
+        Path(args.profile).mkdir(parents=True, exist_ok=True)
+    clock = Clock(args.profile, tuple(args.profile_keys))
     n_obj = sum(1 for o in scene.objects if o.type == "MESH")
     n_tri = sum(len(o.data.loop_triangles) for o in scene.objects if o.type == "MESH")
     print(f"{blend}: {n_obj} mesh objects, {n_tri} triangles; load {load0}", flush=True)
