@@ -486,8 +486,13 @@ def main(argv=None):
         from hr_addon.blender import background
         from hr_addon.blender.bake import cache_dir_for
 
+        from hr_addon.blender import playback
+        from hr_addon.blender.bake import use_bake
+
         job = background.BackgroundBake(scene, frames=FRAMES)
         job.final_dir, job.output = cache_dir_for(scene), "VERTEX"
+        use_bake(scene, job.final_dir, "VERTEX")  # the work folder's bake (of an earlier run)
+        assert playback.load_frame(scene), "no bake in the work folder: run without --skip bake first"
     if "result" not in args.skip:
         measure_result(bpy, scene, clock, args.repeat, job)
     if "frames" not in args.skip:
