@@ -105,17 +105,17 @@ def _stale_steps(scene, reader, depsgraph=None):
         return ""
     from . import signatures
 
+    vl = signatures.view_layer_of(scene, m.get("view_layer"))
     try:
-        vl = signatures.view_layer_of(scene, m.get("view_layer"))
-        try:
-            same = (
-                depsgraph is not None
-                and depsgraph.view_layer.name == vl.name
-                and depsgraph.scene.name == scene.name
-            )
-        except (AttributeError, ReferenceError):
-            same = False
-        dg = depsgraph if same else vl.depsgraph
+        same = (
+            depsgraph is not None
+            and depsgraph.view_layer.name == vl.name
+            and depsgraph.scene.name == scene.name
+        )
+    except (AttributeError, ReferenceError):
+        same = False
+    dg = depsgraph if same else vl.depsgraph
+    try:
         sigs = yield from signatures.geometry_signature_steps(vl, dg)
         parts = changed_objects(m["geometry"], sigs)
         ls = changed_objects(m.get("light_shapes", {}), signatures.light_shape_identity(vl))
