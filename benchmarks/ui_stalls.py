@@ -375,6 +375,43 @@ def measure_delete(bpy, scene, clock, repeat, job, work):
     shutil.rmtree(keep, ignore_errors=True)
 
 
+def measure_preview(bpy, scene, clock):
+    """The Preview Bake button and Remove Preview. main: one call (the button's execute); this
+    branch: the button's modal, a slice of materials per timer tick, driven as the event loop
+    would (stand-ins for the window manager)."""
+    from types import SimpleNamespace
+
+    from hr_addon.blender import ops, playback
+
+    op_cls = ops.HR_OT_add_preview
+    if not hasattr(op_cls, "modal"):
+        clock.time("Preview button (one call)", bpy.ops.hr.add_preview)
+    else:
+        playback.SPREAD = True
+        timers = []
+        wm = SimpleNamespace(
+            windows=[],
+            event_timer_add=lambda step, window=None: timers.append(object()) or timers[-1],
+            event_timer_remove=lambda t: None,
+            modal_handler_add=lambda op: None,
+        )
+        ctx = SimpleNamespace(scene=scene, view_layer=bpy.context.view_layer, window_manager=wm, window=None)
+        op = SimpleNamespace(report=lambda kind, msg: print(f"{sorted(kind)[0]}: {msg}", flush=True))
+        op.execute = lambda c: op_cls.execute(op, c)
+        op._end = lambda c: op_cls._end(op, c)
+        clock.time("Preview button: invoke", op_cls.invoke, op, ctx, None)
+        ev = SimpleNamespace(type="TIMER", timer=timers[0])
+        while clock.time("Preview button: a timer tick", op_cls.modal, op, ctx, ev) == {"PASS_THROUGH"}:
+            pass
+        from hr_addon.blender.state import STATE
+
+        _timer_ticks(
+            clock, "Preview button: the stale check's timer ticks after it", playback._deferred_check
+        )
+        STATE.dirty.discard(scene.name_full)
+    clock.time("Remove Preview (one call)", bpy.ops.hr.remove_preview)
+
+
 def measure_live(bpy, scene, clock, steps, limit):
     """Live: start (threaded, as in the UI), the ticks while the worker builds, a drag (each step:
     the depsgraph update with the handlers, the tick that hands the state over, the tick that
@@ -454,7 +491,10 @@ def main(argv=None):
     )
     ap.add_argument("--limit", type=float, default=3600.0, help="seconds a bake or a Live build may take")
     ap.add_argument(
-        "--skip", nargs="*", default=[], help="parts to skip: bake cancel save result frames delete live"
+        "--skip",
+        nargs="*",
+        default=[],
+        help="parts to skip: bake cancel save result frames delete preview live",
     )
     ap.add_argument("--json", default=None)
     ap.add_argument("--profile", default=None, help="folder: cProfile the calls of --profile-keys there")
@@ -499,6 +539,8 @@ def main(argv=None):
         measure_frames(bpy, scene, clock, args.repeat)
     if "delete" not in args.skip:
         measure_delete(bpy, scene, clock, max(1, args.repeat // 2), job, args.work)
+    if "preview" not in args.skip:
+        measure_preview(bpy, scene, clock)
     if "live" not in args.skip:
         measure_live(bpy, scene, clock, args.steps, args.limit)
     rows = clock.rows()

@@ -268,3 +268,49 @@ def test_ray_backend_name_from_the_build_report():
 
     assert ray_backend_name(SimpleNamespace(backend=SimpleNamespace(name="embree"))) == "embree"
     assert ray_backend_name(SimpleNamespace(build=SimpleNamespace(backend="NumpyBackend"))) == "numpy"
+
+
+def test_preview_button_wires_a_slice_of_materials_per_tick(tmp_path, monkeypatch):
+    """The Preview button (invoke) wires the materials over timer ticks (3,641 materials of the
+    furnished 100k room took 30 s CPU in one call: every node named is a pass over all IDs); the
+    preview is the one execute() makes; scripts and background mode keep execute()."""
+    from types import SimpleNamespace
+
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import ops, playback, preview
+    from hr_addon.blender.bake import run_bake
+
+    scene = bpy.context.scene
+    run_bake(scene, log=lambda *a, **k: None, frames=(1, 1), quality="draft")
+    monkeypatch.setattr(playback, "SPREAD", True)  # as in the UI (no event loop here: ticks by hand)
+    monkeypatch.setattr(ops, "PREVIEW_SLICE", 0.0)  # a material per tick
+    timers, removed, reports = [], [], []
+    wm = SimpleNamespace(
+        windows=[],
+        event_timer_add=lambda step, window=None: timers.append(object()) or timers[-1],
+        event_timer_remove=removed.append,
+        modal_handler_add=lambda op: None,
+    )
+    context = SimpleNamespace(scene=scene, view_layer=bpy.context.view_layer, window_manager=wm, window=None)
+    op = SimpleNamespace(report=lambda kind, msg: reports.append((sorted(kind)[0], msg)))
+    op.execute = lambda ctx: pytest.fail("the button wires over timer ticks")
+    op._end = lambda ctx: ops.HR_OT_add_preview._end(op, ctx)
+    assert ops.HR_OT_add_preview.invoke(op, context, _Event("LEFTMOUSE")) == {"RUNNING_MODAL"}
+    assert not preview.has_preview() and len(timers) == 1
+    assert ops.HR_OT_add_preview.modal(op, context, _Event("MOUSEMOVE")) == {"PASS_THROUGH"}
+    ticks = 0
+    while (got := ops.HR_OT_add_preview.modal(op, context, _Event("TIMER", timers[0]))) == {"PASS_THROUGH"}:
+        ticks += 1
+    assert got == {"FINISHED"} and removed == timers
+    from hr_addon.blender.scene_in import geometry_objects
+
+    mats = {s.material for o in geometry_objects(bpy.context.view_layer) for s in o.material_slots}
+    assert ticks >= len(mats) - 1
+    assert reports[0][0] == "INFO" and f"{len(mats)} material(s)" in reports[0][1], reports
+    wired = {m.name: sorted((n.name, n.bl_idname) for n in m.node_tree.nodes) for m in mats}
+    assert all(preview.N_OUT in m.node_tree.nodes for m in mats)
+    assert scene.name_full in ops.STATE.dirty  # the stale check follows on playback's timer
+    preview.remove_preview()
+    assert bpy.ops.hr.add_preview() == {"FINISHED"}  # execute(): the same nodes
+    assert wired == {m.name: sorted((n.name, n.bl_idname) for n in m.node_tree.nodes) for m in mats}

@@ -2,6 +2,7 @@
 shapes, preview, cache (reload, clear, delete), Live Relight (toggle, synchronous update)."""
 
 import os
+import time
 
 import bpy
 from bpy.props import BoolProperty
@@ -14,7 +15,7 @@ from .state import STATE
 from . import background, live, names, paths, playback, texture
 from .bake import run_bake
 from .props import custom_range
-from .preview import add_preview, bake_mode, has_preview, remove_preview
+from .preview import add_preview, add_preview_steps, bake_mode, has_preview, remove_preview
 from .lights_in import light_shape_problem
 from .own_values import remove_own_values
 from .scene_in import geometry_objects
@@ -60,6 +61,7 @@ def _status_text(context, text):
 
 
 FINISH_TICK = 0.02  # seconds between the bake timer's ticks while the result loads (background.poll)
+PREVIEW_TICK, PREVIEW_SLICE = 0.01, 0.04  # the Preview button's timer; seconds of wiring per tick
 
 
 class HR_OT_bake(bpy.types.Operator):
@@ -278,6 +280,62 @@ class HR_OT_add_preview(bpy.types.Operator):
         self.report({"INFO"}, f"Preview on {len(objs)} object(s), {n} material(s)")
         _report_bake_state(self, context)
         return {"FINISHED"}
+
+    _timer = None
+    _steps = None
+
+    def invoke(self, context, event):
+        """The button: the vertex preview wired a slice of materials per timer tick (PREVIEW_SLICE
+        s), the UI usable meanwhile; the stale check then runs on playback's timer. Scripts and
+        background mode (execute) wire every material in one call."""
+        if not playback.SPREAD or not _has_bake(context.scene) or texture.is_texture_bake(context.scene):
+            return self.execute(context)  # (SPREAD: False in background mode, no timers there)
+        objs = geometry_objects(context.view_layer)
+        texture.remove_material(objs)
+        self._n_objects = len(objs)
+        self._n_materials = len({s.material for o in objs for s in o.material_slots if s.material})
+        self._wired = 0
+        self._steps = add_preview_steps(objs, bake_mode(context.scene))
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(PREVIEW_TICK, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type != "TIMER" or event.timer is not self._timer:
+            return {"PASS_THROUGH"}
+        end = time.perf_counter() + PREVIEW_SLICE
+        n = None
+        try:
+            while True:  # a material at least, then until the slice is used
+                next(self._steps)
+                self._wired += 1
+                if time.perf_counter() >= end:
+                    break
+        except StopIteration as done:
+            n = done.value
+        except ReferenceError:  # objects or materials removed meanwhile
+            self._end(context)
+            self.report({"ERROR"}, "Preview stopped: objects were removed meanwhile (press Preview again)")
+            return {"CANCELLED"}
+        if n is None:
+            _status_text(context, f"HR Radiosity: preview, {self._wired} of ~{self._n_materials} material(s)")
+            return {"PASS_THROUGH"}
+        self._end(context)
+        context.scene.render.use_lock_interface = True
+        self.report({"INFO"}, f"Preview on {self._n_objects} object(s), {n} material(s)")
+        problem = STATE.messages.get(context.scene.name_full, "")
+        if problem:
+            self.report({"WARNING"}, problem)
+        STATE.dirty.add(context.scene.name_full)  # compared on playback's timer, a slice per tick
+        playback._schedule_check(0.0)
+        _redraw(context)
+        return {"FINISHED"}
+
+    def _end(self, context):
+        context.window_manager.event_timer_remove(self._timer)
+        self._timer, self._steps = None, None
+        _status_text(context, None)
 
 
 class HR_OT_remove_preview(bpy.types.Operator):

@@ -150,6 +150,19 @@ def _preview_material():
 def add_preview(objects, mode="RADIANCE"):
     """Returns the number of materials switched to the preview. mode: the bake's radiance mode
     (see colour_chain, emission_output)."""
+    steps = add_preview_steps(objects, mode)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def add_preview_steps(objects, mode="RADIANCE"):
+    """add_preview a material at a time: a generator yielding after each material it wires (the
+    count is its return value), for the UI to spread over timer ticks. Each node it names costs
+    Blender a pass over every ID of the file (the node's animation paths): 3,641 materials of the
+    furnished 100k room took 30 s CPU in one call."""
     done = set()
     for obj in objects:
         if obj.type != "MESH":
@@ -159,6 +172,7 @@ def add_preview(objects, mode="RADIANCE"):
             mat = _preview_material()
             _add_nodes(mat, mode)
             obj.data.materials.append(mat)
+            yield
             continue
         for m in mats:
             if m.name_full not in done:
@@ -166,6 +180,7 @@ def add_preview(objects, mode="RADIANCE"):
                     m.use_nodes = True
                 _add_nodes(m, mode)
                 done.add(m.name_full)
+                yield
     return len(done)
 
 
