@@ -271,9 +271,10 @@ def test_ray_backend_name_from_the_build_report():
 
 
 def test_preview_button_wires_a_slice_of_materials_per_tick(tmp_path, monkeypatch):
-    """The Preview button (invoke) wires the materials over timer ticks (3,641 materials of the
-    furnished 100k room took 30 s CPU in one call: every node named is a pass over all IDs); the
-    preview is the one execute() makes; scripts and background mode keep execute()."""
+    """The Preview button (invoke) wires the materials over timer ticks, Remove Preview's unwires
+    them (3,641 materials of the furnished 100k room took 30 s CPU in one call: every node named is
+    a pass over all IDs); the preview is the one execute() makes; scripts and background mode keep
+    execute()."""
     from types import SimpleNamespace
 
     bpy = load_bpy()
@@ -311,6 +312,17 @@ def test_preview_button_wires_a_slice_of_materials_per_tick(tmp_path, monkeypatc
     wired = {m.name: sorted((n.name, n.bl_idname) for n in m.node_tree.nodes) for m in mats}
     assert all(preview.N_OUT in m.node_tree.nodes for m in mats)
     assert scene.name_full in ops.STATE.dirty  # the stale check follows on playback's timer
-    preview.remove_preview()
+    # Remove Preview's button: a slice per tick too
+    assert ops.HR_OT_remove_preview.invoke(op, context, _Event("LEFTMOUSE")) == {"RUNNING_MODAL"}
+    ticks = 0
+    while (got := ops.HR_OT_remove_preview.modal(op, context, _Event("TIMER", timers[1]))) == {
+        "PASS_THROUGH"
+    }:
+        ticks += 1
+    assert got == {"FINISHED"} and removed == timers and ticks >= len(mats) - 1
+    assert not preview.has_preview() and reports[-1] == (
+        "INFO",
+        f"Preview removed from {len(mats)} material(s)",
+    )
     assert bpy.ops.hr.add_preview() == {"FINISHED"}  # execute(): the same nodes
     assert wired == {m.name: sorted((n.name, n.bl_idname) for n in m.node_tree.nodes) for m in mats}

@@ -15,7 +15,14 @@ from .state import STATE
 from . import background, live, names, paths, playback, texture
 from .bake import run_bake
 from .props import custom_range
-from .preview import add_preview, add_preview_steps, bake_mode, has_preview, remove_preview
+from .preview import (
+    add_preview,
+    add_preview_steps,
+    bake_mode,
+    has_preview,
+    remove_preview,
+    remove_preview_steps,
+)
 from .lights_in import light_shape_problem
 from .own_values import remove_own_values
 from .scene_in import geometry_objects
@@ -333,9 +340,7 @@ class HR_OT_add_preview(bpy.types.Operator):
         return {"FINISHED"}
 
     def _end(self, context):
-        context.window_manager.event_timer_remove(self._timer)
-        self._timer, self._steps = None, None
-        _status_text(context, None)
+        _end_modal(self, context)
 
 
 class HR_OT_remove_preview(bpy.types.Operator):
@@ -354,6 +359,53 @@ class HR_OT_remove_preview(bpy.types.Operator):
         n = remove_preview()
         self.report({"INFO"}, f"Preview removed from {n} material(s)")
         return {"FINISHED"}
+
+    _timer = None
+    _steps = None
+
+    def invoke(self, context, event):
+        """The button: a slice of materials per timer tick, as Preview Bake's (execute: in one call)."""
+        if not playback.SPREAD:
+            return self.execute(context)
+        texture.remove_material()
+        self._done, self._steps = 0, remove_preview_steps()
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(PREVIEW_TICK, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type != "TIMER" or event.timer is not self._timer:
+            return {"PASS_THROUGH"}
+        end = time.perf_counter() + PREVIEW_SLICE
+        n = None
+        try:
+            while True:  # a material at least, then until the slice is used
+                next(self._steps)
+                self._done += 1
+                if time.perf_counter() >= end:
+                    break
+        except StopIteration as done:
+            n = done.value
+        except ReferenceError:  # materials removed meanwhile
+            _end_modal(self, context)
+            self.report(
+                {"ERROR"}, "Remove Preview stopped: materials were removed meanwhile (press it again)"
+            )
+            return {"CANCELLED"}
+        if n is None:
+            _status_text(context, f"HR Radiosity: removing the preview, {self._done} material(s)")
+            return {"PASS_THROUGH"}
+        _end_modal(self, context)
+        self.report({"INFO"}, f"Preview removed from {n} material(s)")
+        _redraw(context)
+        return {"FINISHED"}
+
+
+def _end_modal(op, context):
+    context.window_manager.event_timer_remove(op._timer)
+    op._timer, op._steps = None, None
+    _status_text(context, None)
 
 
 class HR_OT_load_frame(bpy.types.Operator):

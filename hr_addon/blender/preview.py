@@ -186,6 +186,17 @@ def add_preview_steps(objects, mode="RADIANCE"):
 
 def remove_preview(objects=None):
     """Remove the preview nodes from every material (or those of `objects`)."""
+    steps = remove_preview_steps(objects)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def remove_preview_steps(objects=None):
+    """remove_preview a material at a time (a generator yielding after each material; the count is
+    its return value): removing nodes costs Blender a pass over every ID of the file too."""
     mats = (
         bpy.data.materials
         if objects is None
@@ -205,6 +216,7 @@ def remove_preview(objects=None):
         if outs and not any(x.is_active_output for x in outs):
             outs[0].is_active_output = True
         n += 1
+        yield
     for o in bpy.data.objects if objects is None else objects:
         if o.type == "MESH":
             for i in reversed(range(len(o.data.materials))):
