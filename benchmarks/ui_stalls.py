@@ -409,7 +409,14 @@ def measure_preview(bpy, scene, clock):
             clock, "Preview button: the stale check's timer ticks after it", playback._deferred_check
         )
         STATE.dirty.discard(scene.name_full)
-    clock.time("Remove Preview (one call)", bpy.ops.hr.remove_preview)
+    rm = ops.HR_OT_remove_preview
+    if not hasattr(rm, "modal"):
+        clock.time("Remove Preview (one call)", bpy.ops.hr.remove_preview)
+        return
+    clock.time("Remove Preview button: invoke", rm.invoke, op, ctx, None)
+    ev = SimpleNamespace(type="TIMER", timer=timers[-1])
+    while clock.time("Remove Preview button: a timer tick", rm.modal, op, ctx, ev) == {"PASS_THROUGH"}:
+        pass
 
 
 def measure_live(bpy, scene, clock, steps, limit):
