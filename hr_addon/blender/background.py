@@ -353,8 +353,8 @@ class BackgroundBake:
         wait False (the Cancel button): send the signal and return at once; the job stays running
         ("Cancelling", the Bake button greyed out: the worker still owns its cache folder) until a
         later poll() sees the worker gone and ends it as cancelled (killed if it has not stopped
-        after kill_after s). A worker stops within a second or two of the signal, but one still
-        loading Blender and the file only after that: waiting here froze the UI as long.
+        after kill_after s). A worker baking frames stops 1-3 s after the signal (the furnished
+        100k room): waiting here froze the UI as long.
         wait True (scripts, a file being opened, the add-on being disabled): return when the
         worker has gone and its partial bake is removed (timeout: seconds before it is killed,
         default kill_after)."""
