@@ -44,8 +44,11 @@ def test_background_bake_reports_progress_and_loads_result(tmp_path):
     job = background.BackgroundBake(scene, method="FE", quality="draft").start()
     assert background.running() and background.active() is job
     assert job.proc.pid > 0 and (job.tmp / path.name).is_file()  # the worker bakes a saved copy
-    _wait(job)
+    stages = []
+    _wait(job, until=lambda j: stages.append(j.finish_stage if j.finishing else "") and False)
     assert job.state == "done", (job.error, job.status)
+    # the result loaded a step per poll(): the frame, then the comparison (a slice per poll)
+    assert "loading the current frame" in stages and "comparing the scene with the bake" in stages
     assert not background.running()
     # progress went through the status file: the build, then frames 1..12 with a time estimate
     stages = {s for _, s, _, _ in job.seen}
@@ -69,7 +72,10 @@ def test_background_bake_reports_progress_and_loads_result(tmp_path):
 
 
 @pytest.mark.slow
-def test_background_cancel_keeps_previous_bake(tmp_path):
+@pytest.mark.parametrize("wait", [True, False])
+def test_background_cancel_keeps_previous_bake(tmp_path, wait):
+    """Cancel keeps the previous bake. wait=False is the Cancel button's: cancel() returns at once
+    (the UI does not wait for the worker to stop) and the job ends at a later poll()."""
     bpy = load_bpy()
     open_sample("searchbeam", tmp_path)
     from hr_addon.blender import background
@@ -84,7 +90,11 @@ def test_background_cancel_keeps_previous_bake(tmp_path):
     # NAIVE at medium quality rebuilds per frame: slow enough to be cancelled mid-way
     job = background.BackgroundBake(scene, method="NAIVE", quality="medium", frames=(1, 12)).start()
     assert _wait(job, until=lambda j: j.status.get("stage") == "frame"), job.status
-    job.cancel()
+    job.cancel(wait=wait)
+    if not wait:
+        assert job.cancelling and background.running()  # a new bake cannot start yet
+        assert job.text().startswith("Cancelling")
+        assert not _wait(job)
     assert job.state == "cancelled" and not background.running()
     assert job.proc.poll() is not None
     assert _cache_snapshot(cache) == before

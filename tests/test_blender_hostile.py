@@ -329,6 +329,59 @@ def test_damaged_texture_frames_are_reported_and_rebaked(tmp_path):
     assert playback.status(scene) == ""
 
 
+def test_stale_check_spread_over_timer_ticks(tmp_path, monkeypatch):
+    """The UI's stale check (the timer playback._deferred_check, half a second after an edit)
+    compares a slice of the objects per tick: on the furnished 100k room one comparison froze the
+    UI for about a second. It names what check_scene names; an edit that comes while it compares
+    drops that comparison and starts again once the edits pause (never a mix of two states)."""
+    bpy = load_bpy()
+    from hr_addon.blender import playback, scene_in, signatures
+    from hr_addon.blender.state import STATE
+
+    open_sample("cornell", tmp_path)
+    scene = bpy.context.scene
+    vl = bpy.context.view_layer
+    _bake(frames=(1, 1))
+    # the digests read no loop triangles now: the same digests as the bake's walk
+    dg = bpy.context.evaluated_depsgraph_get()
+    for obj in scene_in.geometry_objects(vl):
+        (ob, a), (_, b) = scene_in.evaluated(obj, dg), scene_in.evaluated(obj, dg, signatures._digest_arrays)
+        assert (
+            scene_in._object_digest(ob, a, {}).hexdigest() == scene_in._object_digest(ob, b, {}).hexdigest()
+        )
+    monkeypatch.setattr(playback, "SPREAD", True)  # as in the UI (no event loop here: ticks by hand)
+    monkeypatch.setattr(playback, "CHECK_SLICE", 0.0)  # an object per tick
+    name = scene.name_full
+
+    def ticks():
+        n = 0
+        while (again := playback._deferred_check()) is not None:
+            assert again == playback.SLICE_GAP
+            n += 1
+        return n
+
+    bpy.data.objects["back"].location.y += 0.25
+    vl.update()  # the depsgraph handler marks the scene
+    assert name in STATE.dirty
+    assert ticks() >= len(ROOM)
+    assert "'back' changed" in STATE.stale[name], STATE.stale
+    assert STATE.stale[name] == playback.check_scene(scene, force=True)
+    bpy.data.objects["back"].location.y -= 0.25
+    vl.update()
+    assert playback._deferred_check() == playback.SLICE_GAP  # comparing ...
+    bpy.data.objects["short_block"].location.x += 0.1  # ... when another edit comes
+    vl.update()
+    assert playback._deferred_check() == playback.EDIT_PAUSE  # dropped: again after the pause
+    ticks()
+    assert "'short_block' changed" in STATE.stale[name] and "'back'" not in STATE.stale[name]
+    bpy.data.objects["short_block"].location.x -= 0.1
+    vl.update()
+    scene.frame_set(2)  # a frame change after an edit leaves the comparison to the timer too
+    assert name in STATE.dirty and "'short_block'" in STATE.stale[name]
+    ticks()
+    assert STATE.stale[name] == "" and playback.status(scene) == ""
+
+
 def test_edits_made_during_a_background_bake_are_named_when_it_finishes(tmp_path):
     """The background worker bakes a copy taken at the start: a wall moved meanwhile is not in the
     bake, and loading the result said nothing."""

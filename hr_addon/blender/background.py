@@ -71,6 +71,9 @@ class BackgroundBake:
         self.output = ""
         self.loaded = False
         self.started = 0.0
+        self.cancelling = 0.0  # time.monotonic() of Cancel while the worker has not gone yet (0: none)
+        self._finish = None  # the finished bake being loaded, a step per poll() (_use_result_steps)
+        self.finish_stage = ""
         self.seen = []  # (fraction, stage, frame, eta) of every status read (tests)
 
     # -- what the UI shows ----------------------------------------------------------------------
@@ -92,6 +95,10 @@ class BackgroundBake:
             return "Bake finished"
         if self.state in ("failed", "cancelled"):
             return "Bake cancelled; the previous bake is kept" if self.state == "cancelled" else self.error
+        if self.cancelling:
+            return "Cancelling: waiting for the bake process to stop"
+        if self._finish is not None:
+            return f"Bake finished: {self.finish_stage}"
         s = self.status
         parts = [f"{100 * self.fraction:.0f}%"]
         if s.get("stage") == "frame" and s.get("total"):
@@ -248,9 +255,28 @@ class BackgroundBake:
         errs = [ln.split("error:", 1)[1].strip() for ln in lines if "hr_bake: error:" in ln]
         return errs[-1] if errs else (lines[-1].strip() if lines else "")
 
+    @property
+    def finishing(self):
+        """The worker has finished: its result is being loaded (poll() returns True until done)."""
+        return self._finish is not None
+
     def poll(self):
-        """Read the worker's progress; when it has ended, load the result. True while running."""
+        """Read the worker's progress; when it has ended, load the result. True while running.
+
+        The result is loaded over several calls, each short (the UI thread must not freeze): the
+        scene pointed at the bake, then the current frame's values, then the comparison of the
+        scene with the bake (edits made while the worker baked a copy), spread over as many calls
+        as it needs (playback.check_scene_slice). The operator's timer runs faster meanwhile."""
         if self.state != "running":
+            return False
+        if self._finish is not None:
+            return self._finish_step()
+        if self.cancelling:  # Cancel without waiting: end it once the worker has gone
+            if self.proc.poll() is None:
+                if time.monotonic() - self.cancelling > self.kill_after:
+                    self.proc.kill()
+                return True
+            self._cancelled()
             return False
         self._read()
         rc = self.proc.poll()
@@ -263,8 +289,8 @@ class BackgroundBake:
             self.warnings = list(self._start_warnings) + [
                 w for w in s.get("warnings", []) if w not in self._start_warnings
             ]
-            self.state = "done"
-            self._use_result()
+            self._finish = self._use_result_steps()
+            return self._finish_step()
         elif s.get("state") == "cancelled":
             self.state = "cancelled"
         else:
@@ -273,31 +299,93 @@ class BackgroundBake:
         self._cleanup()
         return False
 
+    def _finish_step(self):
+        try:
+            self.finish_stage = next(self._finish)
+            return True
+        except StopIteration:
+            pass
+        except ReferenceError:  # the scene went away meanwhile (its file closed)
+            pass
+        self._finish = None
+        self.state = "done"
+        self._cleanup()
+        return False
+
     def _use_result(self):
+        """Load the result in one go (_use_result_steps to the end)."""
+        for _ in self._use_result_steps():
+            pass
+
+    RESTARTS = 3  # comparisons started again by edits before the panel's timer is left to finish it
+
+    def _use_result_steps(self):
+        """Point the scene at the bake, show its frame, compare the scene with it: a generator
+        yielding what it does next, a step per poll()."""
         scene = self._scene()
         if scene is None or bpy.data.filepath != self.blend:
             self.warnings.append(f"The bake finished in {self.final_dir}, but another file is open now.")
             return
         use_bake(scene, self.final_dir, self.output)
         playback.forget_loaded()
+        yield "loading the current frame"
         self.loaded = playback.load_frame(scene)
         # edits made while the worker baked a copy are not in the bake: the panel names them
-        stale = playback.check_scene(scene)
+        name, restarts = scene.name_full, 0
+        STATE.dirty.discard(name)
+        STATE.checks.pop(name, None)
+        while True:
+            yield "comparing the scene with the bake"
+            if name in STATE.dirty and name in STATE.checks:  # edited while comparing: again
+                restarts += 1
+                if restarts > self.RESTARTS:  # edits go on: the panel's stale check takes it over
+                    playback._schedule_check(playback.EDIT_PAUSE)
+                    return
+            stale = playback.check_scene_slice(scene)
+            if stale is not None:
+                break
         if stale:
             self.warnings.append(stale)
 
-    def cancel(self, timeout=15.0):
-        """Stop the worker; its partial bake is removed and the previous bake is kept."""
+    kill_after = 15.0  # seconds a cancelled worker has to stop before it is killed
+
+    def cancel(self, timeout=None, wait=True):
+        """Stop the worker; its partial bake is removed and the previous bake is kept.
+
+        wait False (the Cancel button): send the signal and return at once; the job stays running
+        ("Cancelling", the Bake button greyed out: the worker still owns its cache folder) until a
+        later poll() sees the worker gone and ends it as cancelled (killed if it has not stopped
+        after kill_after s). A worker baking frames stops 1-3 s after the signal (the furnished
+        100k room): waiting here froze the UI as long.
+        wait True (scripts, a file being opened, the add-on being disabled): return when the
+        worker has gone and its partial bake is removed (timeout: seconds before it is killed,
+        default kill_after)."""
         if self.state != "running":
             return
+        if self._finish is not None:  # the bake is complete and shown: the comparison is left off
+            self._finish.close()
+            self._finish = None
+            self.state = "done"
+            self._cleanup()
+            return
         proc = self.proc
+        if not self.cancelling:
+            self.cancelling = time.monotonic()
+            if proc.poll() is None:
+                proc.terminate()  # SIGTERM: the worker removes its partial bake
+        if not wait:
+            return
         if proc.poll() is None:
-            proc.terminate()  # SIGTERM: the worker removes its partial bake
+            left = self.kill_after if timeout is None else timeout
             try:
-                proc.wait(timeout)
+                proc.wait(max(0.0, left - (time.monotonic() - self.cancelling)))
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
+        self._cancelled()
+
+    def _cancelled(self):
+        self.proc.wait()
         self.state = "cancelled"
         self._cleanup()
 

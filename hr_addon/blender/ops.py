@@ -2,6 +2,7 @@
 shapes, preview, cache (reload, clear, delete), Live Relight (toggle, synchronous update)."""
 
 import os
+import time
 
 import bpy
 from bpy.props import BoolProperty
@@ -14,7 +15,14 @@ from .state import STATE
 from . import background, live, names, paths, playback, texture
 from .bake import run_bake
 from .props import custom_range
-from .preview import add_preview, bake_mode, has_preview, remove_preview
+from .preview import (
+    add_preview,
+    add_preview_steps,
+    bake_mode,
+    has_preview,
+    remove_preview,
+    remove_preview_steps,
+)
 from .lights_in import light_shape_problem
 from .own_values import remove_own_values
 from .scene_in import geometry_objects
@@ -59,6 +67,10 @@ def _status_text(context, text):
             win.workspace.status_text_set(text)
 
 
+FINISH_TICK = 0.02  # seconds between the bake timer's ticks while the result loads (background.poll)
+PREVIEW_TICK, PREVIEW_SLICE = 0.01, 0.04  # the Preview button's timer; seconds of wiring per tick
+
+
 class HR_OT_bake(bpy.types.Operator):
     """Bake dynamic hierarchical radiosity over the frame range, in a background process
     (Blender stays usable; Cancel keeps the previous bake)"""
@@ -69,6 +81,7 @@ class HR_OT_bake(bpy.types.Operator):
 
     _timer = None
     _job = None
+    _fast = False
 
     @classmethod
     def poll(cls, context):
@@ -124,6 +137,10 @@ class HR_OT_bake(bpy.types.Operator):
             return {"PASS_THROUGH"}
         job = self._job
         if job.poll():
+            if job.finishing and not self._fast:  # the result loads a short step per tick: faster ticks
+                wm = context.window_manager
+                wm.event_timer_remove(self._timer)
+                self._timer, self._fast = wm.event_timer_add(FINISH_TICK, window=context.window), True
             _status_text(context, f"HR Radiosity: {job.text()}")
             _redraw(context)
             return {"PASS_THROUGH"}
@@ -156,12 +173,15 @@ class HR_OT_cancel_bake(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context):
-        return background.running()
+        job = background.active()
+        return background.running() and not job.cancelling and not job.finishing
 
     def execute(self, context):
         job = background.active()
         if job is not None:
-            job.cancel()
+            # the signal only: the bake's timer (HR_OT_bake.modal) ends it once the worker has gone,
+            # the UI does not wait for it (a worker still loading the file takes seconds to stop)
+            job.cancel(wait=bpy.app.background)
         return {"FINISHED"}
 
 
@@ -268,6 +288,60 @@ class HR_OT_add_preview(bpy.types.Operator):
         _report_bake_state(self, context)
         return {"FINISHED"}
 
+    _timer = None
+    _steps = None
+
+    def invoke(self, context, event):
+        """The button: the vertex preview wired a slice of materials per timer tick (PREVIEW_SLICE
+        s), the UI usable meanwhile; the stale check then runs on playback's timer. Scripts and
+        background mode (execute) wire every material in one call."""
+        if not playback.SPREAD or not _has_bake(context.scene) or texture.is_texture_bake(context.scene):
+            return self.execute(context)  # (SPREAD: False in background mode, no timers there)
+        objs = geometry_objects(context.view_layer)
+        texture.remove_material(objs)
+        self._n_objects = len(objs)
+        self._n_materials = len({s.material for o in objs for s in o.material_slots if s.material})
+        self._wired = 0
+        self._steps = add_preview_steps(objs, bake_mode(context.scene))
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(PREVIEW_TICK, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type != "TIMER" or event.timer is not self._timer:
+            return {"PASS_THROUGH"}
+        end = time.perf_counter() + PREVIEW_SLICE
+        n = None
+        try:
+            while True:  # a material at least, then until the slice is used
+                next(self._steps)
+                self._wired += 1
+                if time.perf_counter() >= end:
+                    break
+        except StopIteration as done:
+            n = done.value
+        except ReferenceError:  # objects or materials removed meanwhile
+            self._end(context)
+            self.report({"ERROR"}, "Preview stopped: objects were removed meanwhile (press Preview again)")
+            return {"CANCELLED"}
+        if n is None:
+            _status_text(context, f"HR Radiosity: preview, {self._wired} of ~{self._n_materials} material(s)")
+            return {"PASS_THROUGH"}
+        self._end(context)
+        context.scene.render.use_lock_interface = True
+        self.report({"INFO"}, f"Preview on {self._n_objects} object(s), {n} material(s)")
+        problem = STATE.messages.get(context.scene.name_full, "")
+        if problem:
+            self.report({"WARNING"}, problem)
+        STATE.dirty.add(context.scene.name_full)  # compared on playback's timer, a slice per tick
+        playback._schedule_check(0.0)
+        _redraw(context)
+        return {"FINISHED"}
+
+    def _end(self, context):
+        _end_modal(self, context)
+
 
 class HR_OT_remove_preview(bpy.types.Operator):
     """Remove the preview nodes and give the materials their own shaders back"""
@@ -285,6 +359,53 @@ class HR_OT_remove_preview(bpy.types.Operator):
         n = remove_preview()
         self.report({"INFO"}, f"Preview removed from {n} material(s)")
         return {"FINISHED"}
+
+    _timer = None
+    _steps = None
+
+    def invoke(self, context, event):
+        """The button: a slice of materials per timer tick, as Preview Bake's (execute: in one call)."""
+        if not playback.SPREAD:
+            return self.execute(context)
+        texture.remove_material()
+        self._done, self._steps = 0, remove_preview_steps()
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(PREVIEW_TICK, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type != "TIMER" or event.timer is not self._timer:
+            return {"PASS_THROUGH"}
+        end = time.perf_counter() + PREVIEW_SLICE
+        n = None
+        try:
+            while True:  # a material at least, then until the slice is used
+                next(self._steps)
+                self._done += 1
+                if time.perf_counter() >= end:
+                    break
+        except StopIteration as done:
+            n = done.value
+        except ReferenceError:  # materials removed meanwhile
+            _end_modal(self, context)
+            self.report(
+                {"ERROR"}, "Remove Preview stopped: materials were removed meanwhile (press it again)"
+            )
+            return {"CANCELLED"}
+        if n is None:
+            _status_text(context, f"HR Radiosity: removing the preview, {self._done} material(s)")
+            return {"PASS_THROUGH"}
+        _end_modal(self, context)
+        self.report({"INFO"}, f"Preview removed from {n} material(s)")
+        _redraw(context)
+        return {"FINISHED"}
+
+
+def _end_modal(op, context):
+    context.window_manager.event_timer_remove(op._timer)
+    op._timer, op._steps = None, None
+    _status_text(context, None)
 
 
 class HR_OT_load_frame(bpy.types.Operator):

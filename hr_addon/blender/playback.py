@@ -68,6 +68,7 @@ def get_reader(directory):
 def forget_readers():
     STATE.readers.clear()
     STATE.changes.clear()
+    STATE.checks.clear()
     STATE.image_checks.clear()
     forget_loaded()
 
@@ -76,40 +77,59 @@ def forget_readers():
 def stale_message(scene, reader, directory, depsgraph=None, force=False):
     """'' or 'The scene changed since the bake (re-bake): ...' naming the objects (memoized until
     the scene is edited or another bake is loaded)."""
-    key = (directory, STATE.readers.get(directory, (None,))[0])
+    key = _memo_key(directory)
     memo = STATE.changes.get(scene.name_full)
     if memo is not None and memo[0] == key and not force and scene.name_full not in STATE.dirty:
         return memo[1]
-    m = reader.manifest
-    msg = ""
-    if "geometry" in m:
-        from . import signatures
-
-        vl = signatures.view_layer_of(scene, m.get("view_layer"))
-        try:
-            same = (
-                depsgraph is not None
-                and depsgraph.view_layer.name == vl.name
-                and depsgraph.scene.name == scene.name
-            )
-        except (AttributeError, ReferenceError):
-            same = False
-        dg = depsgraph if same else vl.depsgraph
-        try:
-            parts = changed_objects(m["geometry"], signatures.geometry_signatures(vl, dg))
-            ls = changed_objects(m.get("light_shapes", {}), signatures.light_shape_identity(vl))
-        except (RuntimeError, ReferenceError, AttributeError) as exc:  # data going away (undo, file load)
-            parts, ls = [f"cannot compare ({exc})"], []
-        parts += [f"light shape(s) {p}" for p in ls]
-        if parts:
-            msg = "The scene changed since the bake (re-bake): " + "; ".join(parts) + "."
     STATE.dirty.discard(scene.name_full)
+    steps = _stale_steps(scene, reader, depsgraph)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            msg = done.value
+            break
     STATE.changes[scene.name_full] = (key, msg)
     return msg
 
 
+def _memo_key(directory):
+    return (directory, STATE.readers.get(directory, (None,))[0])
+
+
+def _stale_steps(scene, reader, depsgraph=None):
+    """The comparison of stale_message, a step (an object) at a time: a generator returning the
+    message (signatures.geometry_signature_steps)."""
+    m = reader.manifest
+    if "geometry" not in m:
+        return ""
+    from . import signatures
+
+    vl = signatures.view_layer_of(scene, m.get("view_layer"))
+    try:
+        same = (
+            depsgraph is not None
+            and depsgraph.view_layer.name == vl.name
+            and depsgraph.scene.name == scene.name
+        )
+    except (AttributeError, ReferenceError):
+        same = False
+    dg = depsgraph if same else vl.depsgraph
+    try:
+        sigs = yield from signatures.geometry_signature_steps(vl, dg)
+        parts = changed_objects(m["geometry"], sigs)
+        ls = changed_objects(m.get("light_shapes", {}), signatures.light_shape_identity(vl))
+    except (RuntimeError, ReferenceError, AttributeError) as exc:  # data going away (undo, file load)
+        parts, ls = [f"cannot compare ({exc})"], []
+    parts += [f"light shape(s) {p}" for p in ls]
+    if parts:
+        return "The scene changed since the bake (re-bake): " + "; ".join(parts) + "."
+    return ""
+
+
 def check_scene(scene, depsgraph=None, force=False):
     """Compare the scene with its bake now and update the panel's message. Returns the message."""
+    STATE.checks.pop(scene.name_full, None)  # (a check spread over timer ticks: this one replaces it)
     directory = bake_dir_abs(scene)
     if not directory:
         _log_stale(scene, "")
@@ -119,6 +139,64 @@ def check_scene(scene, depsgraph=None, force=False):
     except CacheError:
         return ""
     msg = stale_message(scene, reader, directory, depsgraph, force)
+    _log_stale(scene, msg)
+    return msg
+
+
+CHECK_SLICE = 0.04  # seconds of a stale check per UI timer tick (check_scene_slice)
+
+
+class _Check:
+    """A stale check in progress on the UI thread (check_scene_slice)."""
+
+    def __init__(self, scene, directory, reader):
+        self.directory = directory
+        self.key = _memo_key(directory)
+        self.steps = _stale_steps(scene, reader)
+        self.restarts = 0
+
+
+def check_scene_slice(scene, budget=None):
+    """check_scene spread over UI timer ticks: compare for about `budget` seconds, then return
+    (None: call again) or the message when the comparison has ended (the panel's message updated,
+    as check_scene). A big scene's comparison (3,882 objects: a second) froze the UI when done in
+    one call. An edit that comes while it runs (the scene marked dirty again, or an object
+    removed) starts it again: the message is never of a mix of two states."""
+    import time
+
+    name = scene.name_full
+    chk = STATE.checks.get(name)
+    directory = bake_dir_abs(scene)
+    if chk is not None and (chk.directory != directory or chk.key != _memo_key(directory)):
+        chk = None
+    if chk is None or name in STATE.dirty:
+        if not directory:
+            STATE.checks.pop(name, None)
+            STATE.dirty.discard(name)
+            _log_stale(scene, "")
+            return ""
+        try:
+            reader = get_reader(directory)
+        except CacheError:
+            STATE.checks.pop(name, None)
+            STATE.dirty.discard(name)
+            return ""
+        chk = STATE.checks[name] = _Check(scene, directory, reader)
+        STATE.dirty.discard(name)
+    end = time.perf_counter() + (CHECK_SLICE if budget is None else budget)
+    try:
+        while True:
+            next(chk.steps)
+            if time.perf_counter() >= end:
+                return None
+    except StopIteration as done:
+        msg = done.value
+    except ReferenceError:  # an object went away between two slices: start again
+        STATE.checks.pop(name, None)
+        STATE.dirty.add(name)
+        return None
+    STATE.checks.pop(name, None)
+    STATE.changes[name] = (chk.key, msg)
     _log_stale(scene, msg)
     return msg
 
@@ -381,7 +459,11 @@ def on_frame_change_post(scene, depsgraph=None):
         return
     memo = STATE.changes.get(scene.name_full)
     if memo is None or scene.name_full in STATE.dirty:
-        check_scene(scene, depsgraph)
+        if not SPREAD:
+            check_scene(scene, depsgraph)
+        else:  # spread over timer ticks: a big scene's comparison takes a second (check_scene_slice)
+            STATE.dirty.add(scene.name_full)
+            _schedule_check(0.0)
 
 
 _RELEVANT = ("Object", "Mesh", "Material", "ShaderNodeTree", "Collection", "Scene", "NodeTree", "Image")
@@ -413,24 +495,50 @@ def on_depsgraph_update(scene, depsgraph=None):
     for sc in bpy.data.scenes:
         if sc.hr.playback and sc.hr.bake_dir:
             STATE.dirty.add(sc.name_full)
+    _schedule_check(0.5)
+
+
+SLICE_GAP, EDIT_PAUSE = 0.01, 0.5  # seconds between two slices of a check; after an edit
+# The UI spreads stale checks over timer ticks; background mode has no event loop (no timers):
+# there a frame change compares at once (tests and benchmarks set it to drive _deferred_check)
+SPREAD = not bpy.app.background
+
+
+def _schedule_check(first):
     if not bpy.app.background and not bpy.app.timers.is_registered(_deferred_check):
-        bpy.app.timers.register(_deferred_check, first_interval=0.5)
+        bpy.app.timers.register(_deferred_check, first_interval=first)
 
 
 def _deferred_check():
+    """The UI's stale check, half a second after an edit, a slice per tick (check_scene_slice).
+    A check that an edit interrupts waits for the edits to pause again."""
     if STATE.baking:
-        return 0.5
+        return EDIT_PAUSE
+    again, ended = None, False
     for sc in bpy.data.scenes:
-        if sc.name_full in STATE.dirty and sc.hr.playback:
-            try:
-                check_scene(sc)
-            except ReferenceError:
-                pass
-    for win in getattr(bpy.context.window_manager, "windows", []):
-        for area in win.screen.areas:
-            if area.type in {"PROPERTIES", "VIEW_3D"}:
-                area.tag_redraw()
-    return None
+        name = sc.name_full
+        if not sc.hr.playback:
+            STATE.checks.pop(name, None)
+            continue
+        if name in STATE.checks and name in STATE.dirty:  # edited meanwhile: wait for a pause
+            STATE.checks.pop(name)
+            again = min(again or EDIT_PAUSE, EDIT_PAUSE)
+            continue
+        if name not in STATE.dirty and name not in STATE.checks:
+            continue
+        try:
+            if check_scene_slice(sc) is None:
+                again = SLICE_GAP
+            else:
+                ended = True
+        except ReferenceError:
+            STATE.checks.pop(name, None)
+    if ended:
+        for win in getattr(bpy.context.window_manager, "windows", []):
+            for area in win.screen.areas:
+                if area.type in {"PROPERTIES", "VIEW_3D"}:
+                    area.tag_redraw()
+    return again
 
 
 @persistent

@@ -648,9 +648,7 @@ def collect_geometry(view_layer, depsgraph, vertex_output=True, transport=False)
     warnings += instances_warning(inst_info)
     if not parts:
         raise SceneError("No mesh objects with faces to compute radiosity on.")
-    mesh = parts[0]
-    for p in parts[1:]:
-        mesh = mesh.concat(p)
+    mesh = _joined_parts(parts)
     signatures.update(_joined(inst_digests))
     out = SceneInput(mesh, targets, warnings, inst_info, signatures)
     if split:
@@ -658,8 +656,44 @@ def collect_geometry(view_layer, depsgraph, vertex_output=True, transport=False)
             tparts.append(p)
             tpoly.append(np.arange(len(p.loop_start)) + tpoly_n)
             tpoly_n += len(p.loop_start)
-        tm = tparts[0]
-        for p in tparts[1:]:
-            tm = tm.concat(p)
-        out.transport, out.transport_poly = tm, np.concatenate(tpoly)
+        out.transport, out.transport_poly = _joined_parts(tparts), np.concatenate(tpoly)
     return out
+
+
+def _joined_parts(parts):
+    """parts[0].concat(parts[1]).concat(parts[2])... in one pass: the same MeshInput (values and
+    dtypes), without copying the growing mesh again for every object (quadratic: 3,881 objects
+    cost Live's start, on the UI thread, seconds at 100k)."""
+    if len(parts) == 1:
+        return parts[0]
+
+    def offsets(n):
+        return [int(x) for x in np.cumsum([0] + [n(p) for p in parts[:-1]])]
+
+    ov, ol, op, oo = (
+        offsets(lambda p: len(p.verts)),
+        offsets(lambda p: len(p.loop_verts)),
+        offsets(lambda p: len(p.loop_start)),
+        offsets(lambda p: len(p.object_names)),
+    )
+    cat = np.concatenate
+    tris = [
+        np.asarray(np.asarray(p.tri_loops, np.int64) + ol[i] if i else p.tri_loops, np.int64).reshape(-1, 3)
+        for i, p in enumerate(parts)
+        if p.tri_loops is not None
+    ]
+    faces = any(p.face_group is not None for p in parts)
+    return MeshInput(
+        cat([p.verts for p in parts]),
+        cat([p.loop_start + ol[i] if i else p.loop_start for i, p in enumerate(parts)]),
+        cat([p.loop_total for p in parts]),
+        cat([p.loop_verts + ov[i] if i else p.loop_verts for i, p in enumerate(parts)]),
+        cat([p.reflectance for p in parts]),
+        cat([p.emission for p in parts]),
+        cat([p.object_id + oo[i] if i else p.object_id for i, p in enumerate(parts)]),
+        [n for p in parts for n in p.object_names],
+        cat(tris) if tris else None,
+        cat([p.face_groups() + op[i] if i else p.face_groups() for i, p in enumerate(parts)])
+        if faces
+        else None,
+    )

@@ -40,6 +40,7 @@ class AddonState:
         self.loaded = {}
         self.stale = {}
         self.changes = {}
+        self.checks = {}  # stale checks spread over UI timer ticks (playback.check_scene_slice)
         self.dirty = set()
         self.image_checks = {}
         self.notes = {}
