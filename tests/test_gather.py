@@ -906,6 +906,12 @@ def test_csr_matvec_of_hit_counts_equals_their_float32_weights():
     assert g.w.dtype == np.uint8 and w.dtype == np.float32
     assert np.array_equal(w, (g.w / np.repeat(sr, np.diff(g.indptr))).astype(np.float32))
     assert np.array_equal(g.entry_weights(5, 900), w[5:900])
+    # any range of entries (a row's first or last, empty rows between): each entry over its own
+    # row's rays, as a search per entry finds them
+    rng = np.random.default_rng(8)
+    for a, b in [(0, 0), (0, 1), (len(w) - 1, len(w)), *np.sort(rng.integers(0, len(w) + 1, (50, 2)), 1)]:
+        row = np.searchsorted(g.indptr, np.arange(a, b), "right") - 1
+        assert g.entry_weights(a, b).tobytes() == (g.w[a:b] / sr[row]).astype(np.float32).tobytes()
     # 100 rays: a row's sum over 100 is not the float32 weights' sum: those stay
     g = FinalGather(s, pts[:40], s.patches.normal[patch[:40]], patch[:40], rays=100, levels=1)
     assert g.w.dtype == np.float32 and np.array_equal(g.entry_weights(), g.w)
