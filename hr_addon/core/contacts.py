@@ -89,7 +89,15 @@ class Contacts(SlotMouths):
         pt, g = self.patches, self.gap
         c = pt.corners
         n, o = self.n_g[gi], self.o_g[gi]
-        d = np.einsum("pkj,pj->pk", c[t] - o[:, None], n)  # (P, 4) corner heights over the plane
+        # (P, 4) corner heights over the plane: einsum("pkj,pj->pk", c[t] - o[:, None], n) by rows
+        # per corner and coordinate (its order, (x + z) + y, from +0: the same bits), 1.6x faster
+        ct = np.take(c.transpose(1, 2, 0).reshape(12, -1), t, 1)  # row 3 k + j: corner k, axis j
+        oT, nT = np.ascontiguousarray(o.T), np.ascontiguousarray(n.T)
+        d = np.empty((4, len(t)))
+        for k in range(4):
+            x, y, z = (ct[3 * k + j] - oT[j] for j in range(3))
+            d[k] = (x * nT[0] + z * nT[2]) + y * nT[1]
+        d = np.ascontiguousarray(d.T) + 0.0
         nv = pt.nv[t]
         d[nv == 3, 3] = d[nv == 3, 2]
         mn, mx = row_range(d)

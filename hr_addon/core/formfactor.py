@@ -155,18 +155,48 @@ def _point_to_polygon(p, n, c, qn, qa):
     height = dot3(P - c[:, 0].T, qn.T)
     front = height > _PLANE_EPS * np.sqrt(qa)  # one-sided emitter
     R = np.subtract(c.transpose(2, 1, 0), P[:, None], order="C")  # (3, 4, N): corners - point
-    above = dot3(R, Nn[:, None]) >= 0.0  # (4, N): corners above the horizon
-    a0, a1, a2, a3 = above
+    h = dot3(R, Nn[:, None])  # (4, N): the corners' heights above the horizon
+    a0, a1, a2, a3 = h >= 0.0
     every, some = (a0 & a1) & (a2 & a3), (a0 | a1) | (a2 | a3)
     f = np.zeros(len(p))
-    # Most polygons lie wholly above the receiver's horizon: no clipping needed for those.
+    # Most polygons lie wholly above the receiver's horizon: no clipping needed for those. (Rows
+    # by take: contiguous, where fancy indexing of the last axis gave strided operands, 1.4x the
+    # contour's time; the same values.)
     whole = np.flatnonzero(front & every)
-    f[whole] = _contour_cm(R[:, :, whole], Nn[:, whole])
+    f[whole] = _contour_cm(np.take(R, whole, 2), np.take(Nn, whole, 1))
     part = np.flatnonzero(front & some & ~every)
     if len(part):
-        verts, any_valid = _clip_to_halfspace(c[part], p[part], n[part])
-        f[part] = np.where(any_valid, _contour(verts - p[part, None, :], n[part]), 0.0)
+        C = np.take(c.transpose(2, 1, 0), part, 2)  # (3, 4, M) the corners
+        # the heights as _clip_to_halfspace's einsum has them (from +0: never a negative zero)
+        verts, any_valid = _clip_cm(C, np.take(h, part, 1) + 0.0)
+        Rp = np.subtract(verts, np.take(P, part, 1)[:, None], order="C")
+        f[part] = np.where(any_valid, _contour_cm(Rp, np.take(Nn, part, 1)), 0.0)
     return np.clip(f, 0.0, 1.0)
+
+
+def _clip_cm(C, d):
+    """_clip_to_halfspace of component-major polygons C (3, V, M) with their corners' signed
+    heights d (V, M) (the same values as its own): (3, 2V, M) and the rows with a vertex left.
+    The same operations element by element, on contiguous rows per coordinate and vertex (the
+    row form's (M, V, 3) stacks, rolls and gathers loop per row of 3): the same bits."""
+    v, m = d.shape
+    inside = d >= 0.0
+    nxt = np.roll(C, -1, axis=1)
+    d_next = np.roll(d, -1, axis=0)
+    crosses = inside != np.roll(inside, -1, axis=0)
+    t = np.where(crosses, d / np.where(crosses, d - d_next, 1.0), 0.0)
+    hit = C + t * (nxt - C)
+    slots = np.empty((3, 2 * v, m))
+    slots[:, 0::2], slots[:, 1::2] = C, hit
+    valid = np.empty((2 * v, m), bool)
+    valid[0::2], valid[1::2] = inside, crosses
+    # forward fill: the last valid slot at or before j; leading gaps wrap to the row's last valid
+    idx = np.where(valid, np.arange(2 * v)[:, None], -1)
+    idx = np.maximum.accumulate(idx, axis=0)
+    last = idx[-1]
+    idx = np.where(idx < 0, last, idx)
+    idx = np.maximum(idx, 0)  # rows with nothing left: masked out
+    return np.take(slots.reshape(3, -1), idx * m + np.arange(m), 1), last >= 0
 
 
 def clipped_rings(x, n, rings):

@@ -169,13 +169,16 @@ class RayBackend:
     def _occluded_cm(self, a, d, dd):
         return self._occluded(np.ascontiguousarray(a.T), np.ascontiguousarray(d.T))
 
-    def _map(self, kernel, a, d):
-        """kernel(a, d) over chunks of PARALLEL_CHUNK rays on self.threads threads, concatenated
-        (a tuple of arrays per chunk for first_hit's kernel)."""
+    def _map(self, kernel, a, d, *more):
+        """kernel(a, d, *more) over chunks of PARALLEL_CHUNK rays (rows of a, d and every array of
+        more) on self.threads threads, concatenated (a tuple of arrays per chunk for first_hit's
+        kernel)."""
         if len(a) <= self.PARALLEL_CHUNK or in_worker():  # 1 thread: the same chunks, inline
-            return kernel(a, d)
+            return kernel(a, d, *more)
         parts = batch_map(
-            lambda i, j: kernel(a[i:j], d[i:j]), ranges(len(a), self.PARALLEL_CHUNK), self.threads
+            lambda i, j: kernel(a[i:j], d[i:j], *(x[i:j] for x in more)),
+            ranges(len(a), self.PARALLEL_CHUNK),
+            self.threads,
         )
         if isinstance(parts[0], tuple):
             return tuple(np.concatenate(x) for x in zip(*parts))
@@ -202,21 +205,23 @@ class RayBackend:
         # finite rows by columns (.all(1) over an axis of 3 loops per row: 2.4 s CPU of the 100k
         # room's gather precompute)
         fin = np.isfinite(o)
-        good = fin[:, 0] & fin[:, 1] & fin[:, 2] & (np.einsum("ij,ij->i", d, d) > 0)
+        dd = np.einsum("ij,ij->i", d, d)  # (the squared lengths: _first's too, made once)
+        good = fin[:, 0] & fin[:, 1] & fin[:, 2] & (dd > 0)
         fin = np.isfinite(d)
         good &= fin[:, 0] & fin[:, 1] & fin[:, 2]
         ok = np.flatnonzero(good)
         if len(ok) and len(self.triangles):
-            kernel = self._first if sure is None else lambda a, d: self._first(a, d, sure)
+            kernel = lambda a, d, dd: self._first(a, d, sure, dd)  # noqa: E731
             every = len(ok) == len(o)  # (no copies of the rays when all are good)
-            p, ts = self._map(kernel, o if every else o[ok], d if every else d[ok])
+            p, ts = self._map(kernel, *((o, d, dd) if every else (o[ok], d[ok], dd[ok])))
             hit = p >= 0
             prim[ok[hit]] = self.source[p[hit]]
             t[ok[hit]] = ts[hit]
         scale = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(o),))
         return prim, t * scale
 
-    def _first(self, a, d, sure=None):  # segments a -> a + d: (kept triangle or -1, segment parameter t)
+    def _first(self, a, d, sure=None, dd=None):  # segments a -> a + d: (kept triangle or -1, segment
+        # parameter t); dd: the rows' d . d if known (einsum's)
         raise NotImplementedError
 
     def __repr__(self):
@@ -297,7 +302,7 @@ class NumpyBackend(RayBackend):
                 )
             return out
 
-    def _first(self, a, d, sure=None):  # float64 decides every hit: sure is moot
+    def _first(self, a, d, sure=None, dd=None):  # float64 decides every hit: sure is moot
         with np.errstate(all="ignore"):
             if not self.grid:
                 return self._brute(a, d, nearest=True)
@@ -538,7 +543,7 @@ class _Float32Backend(RayBackend):
         """float32 o, d (R,3), tfar (R,): whether o + t d hits a triangle for some t in [0, tfar]."""
         raise NotImplementedError
 
-    def _first(self, a, d, sure=None):
+    def _first(self, a, d, sure=None, dd=None):
         """The tracer proposes the nearest hit, float64 re-tests it on the
         original segment (and gives its t); refuted proposals and short segments go to numpy.
         sure: proposals farther than this (relative to the segment) from both ends keep the
@@ -547,7 +552,7 @@ class _Float32Backend(RayBackend):
         ray within ~1e-4 rad of its surface; what float32 alone misses, a ray through an edge
         within an ulp, takes the triangle beside: 7 of 2.56 M rays on the 100k room, the t of 2 off)."""
         o = a - self.center
-        length = np.sqrt(np.einsum("ij,ij->i", d, d))
+        length = np.sqrt(np.einsum("ij,ij->i", d, d) if dd is None else dd)
         mag = np.sqrt(np.einsum("ij,ij->i", o, o)) + length
         o += TMIN * d
         short = length < F32_SHORT * mag

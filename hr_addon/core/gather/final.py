@@ -678,8 +678,8 @@ class FinalGather(DirectLight):
         def part(a, b):  # entries a..b, each its own: on threads (batch_map)
             c = cols[a:b].astype(np.int64)
             j = np.flatnonzero(c >= m)
-            leaf, pnt = c[j] % m, c[j] // m - 1
-            s = off[leaf] + pnt
+            pnt, leaf = np.divmod(c[j], m)  # (one pass for both: the same quotient and remainder)
+            s = off[leaf] + pnt - 1
             ok = (off[leaf] >= 0) & ~dark[np.maximum(s, 0)]
             cols[a + j] = np.where(ok, m + s, leaf)
             w = self.entry_weights(a, b).astype(np.float64)
@@ -1009,8 +1009,13 @@ class FinalGather(DirectLight):
         if self.w.dtype.kind != "u":
             return self.w[a:b]
         rr = self.row_rays
-        if np.ndim(rr):
-            rr = rr[np.searchsorted(self.indptr, np.arange(a, b), "right") - 1]
+        if np.ndim(rr) and b > a:  # each entry's row's rays: the rows a..b spans, repeated over
+            # their entries there (a search per row, not per entry: the same rays)
+            r0, r1 = np.searchsorted(self.indptr, [a, b - 1], "right") - 1
+            ip = np.clip(self.indptr[r0 : r1 + 2], a, b)
+            rr = np.repeat(rr[r0 : r1 + 1], np.diff(ip))
+        elif np.ndim(rr):
+            rr = rr[:0]
         return (self.w[a:b] / rr).astype(np.float32)
 
     @property
