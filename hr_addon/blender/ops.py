@@ -2,7 +2,6 @@
 shapes, preview, cache (reload, clear, delete), Live Relight (toggle, synchronous update)."""
 
 import os
-import time
 
 import bpy
 from bpy.props import BoolProperty
@@ -26,6 +25,7 @@ from .preview import (
 from .lights_in import light_shape_problem
 from .own_values import remove_own_values
 from .scene_in import geometry_objects
+from .steps import advance
 
 
 def _report_bake_state(op, context):
@@ -311,21 +311,14 @@ class HR_OT_add_preview(bpy.types.Operator):
     def modal(self, context, event):
         if event.type != "TIMER" or event.timer is not self._timer:
             return {"PASS_THROUGH"}
-        end = time.perf_counter() + PREVIEW_SLICE
-        n = None
-        try:
-            while True:  # a material at least, then until the slice is used
-                next(self._steps)
-                self._wired += 1
-                if time.perf_counter() >= end:
-                    break
-        except StopIteration as done:
-            n = done.value
+        try:  # a material at least, then until the slice is used
+            taken, finished, n = advance(self._steps, PREVIEW_SLICE)
         except ReferenceError:  # objects or materials removed meanwhile
             self._end(context)
             self.report({"ERROR"}, "Preview stopped: objects were removed meanwhile (press Preview again)")
             return {"CANCELLED"}
-        if n is None:
+        self._wired += taken
+        if not finished:
             _status_text(context, f"HR Radiosity: preview, {self._wired} of ~{self._n_materials} material(s)")
             return {"PASS_THROUGH"}
         self._end(context)
@@ -377,23 +370,16 @@ class HR_OT_remove_preview(bpy.types.Operator):
     def modal(self, context, event):
         if event.type != "TIMER" or event.timer is not self._timer:
             return {"PASS_THROUGH"}
-        end = time.perf_counter() + PREVIEW_SLICE
-        n = None
-        try:
-            while True:  # a material at least, then until the slice is used
-                next(self._steps)
-                self._done += 1
-                if time.perf_counter() >= end:
-                    break
-        except StopIteration as done:
-            n = done.value
+        try:  # a material at least, then until the slice is used
+            taken, finished, n = advance(self._steps, PREVIEW_SLICE)
         except ReferenceError:  # materials removed meanwhile
             _end_modal(self, context)
             self.report(
                 {"ERROR"}, "Remove Preview stopped: materials were removed meanwhile (press it again)"
             )
             return {"CANCELLED"}
-        if n is None:
+        self._done += taken
+        if not finished:
             _status_text(context, f"HR Radiosity: removing the preview, {self._done} material(s)")
             return {"PASS_THROUGH"}
         _end_modal(self, context)

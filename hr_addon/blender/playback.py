@@ -18,6 +18,7 @@ from ..io.cache import CacheError, CacheReader, _names, changed_objects
 from .names import ATTRIBUTE, N_VALUES, TAG
 from .paths import bake_dir_abs, frame_texture
 from .state import STATE
+from .steps import advance, finish
 
 MAGENTA = (1.0, 0.0, 1.0, 1.0)
 
@@ -82,13 +83,7 @@ def stale_message(scene, reader, directory, depsgraph=None, force=False):
     if memo is not None and memo[0] == key and not force and scene.name_full not in STATE.dirty:
         return memo[1]
     STATE.dirty.discard(scene.name_full)
-    steps = _stale_steps(scene, reader, depsgraph)
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            msg = done.value
-            break
+    msg = finish(_stale_steps(scene, reader, depsgraph))
     STATE.changes[scene.name_full] = (key, msg)
     return msg
 
@@ -162,8 +157,6 @@ def check_scene_slice(scene, budget=None):
     as check_scene). A big scene's comparison (3,882 objects: a second) froze the UI when done in
     one call. An edit that comes while it runs (the scene marked dirty again, or an object
     removed) starts it again: the message is never of a mix of two states."""
-    import time
-
     name = scene.name_full
     chk = STATE.checks.get(name)
     directory = bake_dir_abs(scene)
@@ -183,14 +176,10 @@ def check_scene_slice(scene, budget=None):
             return ""
         chk = STATE.checks[name] = _Check(scene, directory, reader)
         STATE.dirty.discard(name)
-    end = time.perf_counter() + (CHECK_SLICE if budget is None else budget)
     try:
-        while True:
-            next(chk.steps)
-            if time.perf_counter() >= end:
-                return None
-    except StopIteration as done:
-        msg = done.value
+        _, finished, msg = advance(chk.steps, CHECK_SLICE if budget is None else budget)
+        if not finished:
+            return None
     except ReferenceError:  # an object went away between two slices: start again
         STATE.checks.pop(name, None)
         STATE.dirty.add(name)

@@ -18,6 +18,7 @@ from ..io.cache import CacheError, CacheReader
 from .materials import base_color_socket, read_material
 from .names import ATTRIBUTE, N_ADD, N_ATTR, N_EMIT, N_MUL, N_OUT, N_PATH, N_SEEN, N_SHADER, PREVIEW, TAG
 from .paths import bake_dir_abs
+from .steps import finish
 
 
 def bake_mode(scene):
@@ -150,12 +151,7 @@ def _preview_material():
 def add_preview(objects, mode="RADIANCE"):
     """Returns the number of materials switched to the preview. mode: the bake's radiance mode
     (see colour_chain, emission_output)."""
-    steps = add_preview_steps(objects, mode)
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            return done.value
+    return finish(add_preview_steps(objects, mode))
 
 
 def add_preview_steps(objects, mode="RADIANCE"):
@@ -186,12 +182,7 @@ def add_preview_steps(objects, mode="RADIANCE"):
 
 def remove_preview(objects=None):
     """Remove the preview nodes from every material (or those of `objects`)."""
-    steps = remove_preview_steps(objects)
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            return done.value
+    return finish(remove_preview_steps(objects))
 
 
 def remove_preview_steps(objects=None):

@@ -15,6 +15,7 @@ import hashlib
 import bpy
 import numpy as np
 
+from .steps import finish
 from .scene_in import (
     _hidden_instancer,
     _instance_digest,
@@ -42,12 +43,7 @@ def _digest_arrays(me):
 def geometry_signatures(view_layer, depsgraph):
     """{object name (or 'instancer/source' for instances): hex digest} of everything that takes
     part in the light, as the bake reads it."""
-    steps = geometry_signature_steps(view_layer, depsgraph)
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            return done.value
+    return finish(geometry_signature_steps(view_layer, depsgraph))
 
 
 def geometry_signature_steps(view_layer, depsgraph):
