@@ -418,13 +418,14 @@ def leaf_bounce(x, n, keys, corners, nv, radiance, backend, eps, rays=32, seed=0
         dc = cen[None] - xs[:, None]
         d2 = np.einsum("lmk,lmk->lm", dc, dc)
         far = ok & (d2 > FAR_SIZES**2 * area[None])
-        F = np.where(
-            far,
+        # divided only where far: near pairs can sit at d2 = 0 (0 / 0)
+        F = np.divide(
             np.maximum(np.einsum("lmk,lk->lm", dc, ns), 0)
             * np.maximum(-np.einsum("lmk,mk->lm", dc, nrm), 0)
-            * area[None]
-            / (np.pi * np.maximum(d2, 1e-300) ** 2),
-            0.0,
+            * area[None],
+            np.pi * d2**2,
+            out=np.zeros_like(d2),
+            where=far,
         )
         a, b = np.nonzero(ok & ~far)
         F[a, b] = ff.point_to_polygon(xs[a], ns[a], c[b])
