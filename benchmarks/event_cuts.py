@@ -62,22 +62,21 @@ def main(argv=None):
     # per-part CPU: the levels' direct light and reads, wrapped on the instances
     acc = {}
 
-    def wrap(obj_, name, key):
-        f = getattr(obj_, name)
+    def wrap(name):  # on the class: a level's copies (FinalGather._unoccluded) count too
+        f = getattr(fg.FinalGather, name)
 
-        def w(*a, **k):
+        def w(self, *a, **k):
+            key = name.strip("_").split("_")[0] + ("_second" if hasattr(self, "_leaf_nodes") else "_top")
             c0 = cpu()
             try:
-                return f(*a, **k)
+                return f(self, *a, **k)
             finally:
                 acc[key] = acc.get(key, 0.0) + cpu() - c0
 
-        setattr(obj_, name, w)
+        setattr(fg.FinalGather, name, w)
 
-    wrap(g, "direct_light", "direct_top")
-    wrap(g2, "direct_light", "direct_second")
-    wrap(g, "_read", "read_top")
-    wrap(g2, "_read", "read_second")
+    wrap("direct_light")
+    wrap("_read")
 
     def window(cx):
         rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)

@@ -36,7 +36,6 @@ _TRANSIENT = {
         "_mean_runs": None,
         "_near_own": None,
         "_cols_read": None,
-        "_thin": None,
     },
 }
 _TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]

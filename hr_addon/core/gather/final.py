@@ -1210,7 +1210,7 @@ class FinalGather(DirectLight):
             if zero and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
                 k -= 1
                 break
-            y = g2._read(L, thin=k > 0)  # rho (D2 + read), in place: no (n, 3) temporaries a pass
+            y = g2._read(L)  # rho (D2 + read), in place: no (n, 3) temporaries a pass
             batch_map(lambda a, b: _lit(y, D2, g2.rho, a, b), ranges(len(y), self.ROW_BATCH), self.threads)
             Y = self._leaf_means(y, V)
             if tail:
@@ -1373,21 +1373,12 @@ class FinalGather(DirectLight):
         batch_map(part, ranges(len(own), self.ROW_BATCH), self.threads)
         return out
 
-    # the passes after the first (_levels) read every PASS_THIN-th weight of each row, rescaled to
-    # the row's sum (_thin_rows): they carry the light one bounce and more beyond the first pass,
-    # which the guide lets be coarse; 1: every weight
-    PASS_THIN = 1
-
-    def _read(self, L, cols=None, thin=False):
+    def _read(self, L, cols=None):
         """(n, 3) what the rays read of leaf values L = (means Y, S, slopes along e1 and e2;
         _levels): the means, or with slopes the linear function at the hits (Y - S at the frame's
         origin; Y may be changed in place after _levels, _light_bounce). cols: columns indexing
-        Y's rows, else _read_cols' compacted ones (the same values). thin: a pass after the
-        first, which reads _thin_rows where PASS_THIN > 1 (means only)."""
+        Y's rows, else _read_cols' compacted ones (the same values)."""
         Y, S, Gu, Gv = L
-        if thin and self.PASS_THIN > 1 and cols is None and (getattr(self, "wu", None) is None or Gu is None):
-            indptr, cols, w, used = self._thin_rows(self.PASS_THIN)
-            return _csr_matvec(indptr, cols, w, Y, threads=self.threads, used=used)
         cols, used = self._read_cols() if cols is None else (cols, None)
         kw = dict(threads=self.threads, rays=self.row_rays, used=used)
         if getattr(self, "wu", None) is None or Gu is None:
@@ -1398,7 +1389,7 @@ class FinalGather(DirectLight):
     # shape_by_read: samples nearer to the shape's box centre than READ_NEAR x its half diagonal
     # keep their shadow rays (there the shape fills much of the hemisphere, and a hit's leaf share
     # of the outline is a coarse stand-in for where it hit)
-    READ_NEAR = 3.0
+    READ_NEAR = 6.0
 
     def _shape_by_read(self, dyn, rec, inside, em=None):
         """(n,) float32 a light shape's unit direct light at this (second) level's samples read
@@ -1421,27 +1412,6 @@ class FinalGather(DirectLight):
             if len(near):
                 D[near] = self._unoccluded(em, near, self.shadow_rays)
         return D.astype(np.float32)
-
-    def _thin_rows(self, k):
-        """(indptr, cols, w float32, used): every k-th entry of each row (its first, then every
-        k-th), the kept weights scaled by the row's sum over their sum (each row's total
-        unchanged), over _read_cols' compacted columns; made once and kept (not stored)."""
-        got = self.__dict__.get("_thin")
-        if got is None or got[0] is not self.cols or got[1] != k:
-            cols, used = self._read_cols()
-            ip = self.indptr
-            cnt = np.diff(ip)
-            row = np.repeat(np.arange(len(cnt)), cnt)
-            keep = (np.arange(len(cols)) - ip[:-1][row]) % k == 0
-            w = self.entry_weights().astype(np.float64)
-            s_all = np.bincount(row, w, len(cnt))
-            s_keep = np.bincount(row, w * keep, len(cnt))
-            f = np.divide(s_all, s_keep, out=np.zeros_like(s_all), where=s_keep > 0)
-            wk = (w[keep] * f[row[keep]]).astype(np.float32)
-            ipk = np.zeros(len(ip), np.int64)
-            np.cumsum(np.bincount(row[keep], None, len(cnt)), out=ipk[1:])
-            got = self._thin = (self.cols, k, ipk, cols[keep], wk, used)
-        return got[2:]
 
     def _read_cols(self):
         """(columns, used): self.cols renumbered over the leaf values they read (used, ascending:
