@@ -9,10 +9,10 @@ DynamicRadiosity (the base parts computed once and shared: only the shape's part
         [--rounds 2] [--json out.json]
 
 A variant is a dict of: second_shadow_rays (the second level's shadow rays), iterations (the
-passes), pass_thin (FinalGather.PASS_THIN), seed / second_seed (the levels' shadow-ray seeds: a
+passes), seed / second_seed (the levels' shadow-ray seeds: a
 noise floor), shape_by_read (the second level's shape direct light through its rays'
-reads: FinalGather._shape_by_read; read_near: its READ_NEAR), dyn (DynamicRadiosity options
-over gather_options("draft")).
+reads: FinalGather._shape_by_read; read_near: its READ_NEAR; far_rays: FAR_RAYS), dyn
+(DynamicRadiosity options over gather_options("draft")).
 """
 
 import argparse
@@ -87,9 +87,9 @@ def main(argv=None):
         g.iterations = v.get("iterations", defaults["iterations"])
         g.seed = v.get("seed", defaults["seed"])
         g2.seed = v.get("second_seed", defaults["seed2"])
-        fg.FinalGather.PASS_THIN = v.get("pass_thin", 1)
         g2.shape_by_read = v.get("shape_by_read", False)
-        fg.FinalGather.READ_NEAR = v.get("read_near", 3.0)
+        fg.FinalGather.READ_NEAR = v.get("read_near", 6.0)
+        fg.FinalGather.FAR_RAYS = v.get("far_rays", 0)
         for lv in (g, g2):
             lv._shape_cache.clear()
 

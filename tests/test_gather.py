@@ -1074,16 +1074,16 @@ def test_a_shapes_second_level_light_through_its_rays_reads_agrees_with_shadow_r
     rec = dyn.shapes["w"]
     pts, patch, _ = surface_samples(dyn.system.patches, 10)
     got = {}
-    for by_read, near in ((False, 0.0), (True, 0.0), (True, 2.0)):
+    for by_read, near, far in ((False, 0.0, 0), (True, 0.0, 0), (True, 2.0, 0), (True, 2.0, 4)):
         g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=64, levels=2, iterations=4)
-        g.second.shape_by_read, g.second.READ_NEAR = by_read, near
+        g.second.shape_by_read, g.second.READ_NEAR, g.second.FAR_RAYS = by_read, near, far
         D2, inside2 = g.second._shape(dyn, rec)
         D, inside = g._shape(dyn, rec)
         part = g._response_parts(dyn)[1][2].astype(np.float64)[~g.dark].sum(1)
         used, _ = g._second_map
         means = g._leaf_means(np.repeat(D2[:, None].astype(np.float64), 3, 1), np.zeros((g.n_hr, 3)))[used, 0]
-        got[by_read, near] = (D2.astype(np.float64), inside2, D, inside, part, means)
-    ray, read, hybrid = got[False, 0.0], got[True, 0.0], got[True, 2.0]
+        got[by_read, near, far] = (D2.astype(np.float64), inside2, D, inside, part, means)
+    ray, read, hybrid, graded = got[False, 0.0, 0], got[True, 0.0, 0], got[True, 2.0, 0], got[True, 2.0, 4]
     assert all(np.array_equal(ray[i], read[i]) for i in (1, 2, 3))
     assert abs(read[0].sum() / ray[0].sum() - 1) < 0.03
     lit = ray[5] > 0.05 * ray[5].max()
@@ -1102,3 +1102,6 @@ def test_a_shapes_second_level_light_through_its_rays_reads_agrees_with_shadow_r
     assert 0 < near.sum() < len(near)
     assert np.array_equal(hybrid[0][near], ray[0][near])
     assert np.array_equal(hybrid[0][~near], read[0][~near])
+    # FAR_RAYS 4: no reads; beyond READ_NEAR 4 shadow rays (the level's 8 within)
+    far4 = g.second._unoccluded(em, np.flatnonzero(~near), 4)
+    assert np.array_equal(graded[0][near], ray[0][near]) and np.array_equal(graded[0][~near], far4)
