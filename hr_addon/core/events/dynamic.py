@@ -27,12 +27,16 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # apart by its share: 1e-3 gave Live against a bake 5e-4). 6 steps instead of the 9-12 operator
 # applications of 1e-4 change the 20k room's gathered output by at most 0.026% per object, 1.5e-5
 # of the brightest value per corner; 5 steps 0.08% (docs/gather.md, "A fixed response solve").
-# Draft takes 4: on the furnished 100k room the gathered output moves from 6 steps' by 0.05% per
+# Draft took 4: on the furnished 100k room the gathered output moves from 6 steps' by 0.05% per
 # object (median), 0.75% at worst, bias -0.04% (3 steps: 0.26%, 2.3%, -0.21%); with the solver's
-# free residual step after them (solver._gmres_steps) 0.03%, 0.37%, -0.02%; docs/gather.md,
-# "Light events at 100k: fewer steps, fewer first-bounce rays". bounce_points: AUTO's first
+# free residual step after them (solver._gmres_steps) 0.03%, 0.37%, -0.02% (docs/gather.md,
+# "Light events at 100k: fewer steps, fewer first-bounce rays"). Since session 24 draft takes 3: the
+# 100k room's gathered output per object against 4 steps' (the window added / moved), FE median
+# 0.004 / 0.005%, p95 0.28 / 0.27%, worst 0.81 / 0.92%, bias -0.005 / -0.007%; AUTO 0.001 /
+# 0.002%, 0.08 / 0.05%, 0.24 / 0.19%; one operator application fewer, x0.76-0.97 of the event
+# with its output (docs/events.md, "Light events at 100k, session 24"). bounce_points: AUTO's first
 # bounce (the response's emission) with 4 visibility rays per receiver point instead of 16: the
-# gathered output moves by 0.02% per object (median), 0.2% at worst (same section).
+# gathered output moves by 0.02% per object (median), 0.2% at worst (docs/gather.md, the section above).
 # response_tol stays for previews' and callers' explicit tolerances. gather_responses "tail": the
 # gather's passes over an FE or AUTO shape's response are a Jacobi solve whose limit does not
 # depend on the response they start from: the gathered part takes their geometric tail
@@ -47,7 +51,7 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # passes cost what the response saved) (docs/gather.md, "Light events without a response solve",
 # "Every exposed leaf sampled").
 GATHER_SOLVE = {
-    "draft": dict(tol=1e-5, response_tol=1e-4, response_float32=True, response_steps=4, bounce_points=4,
+    "draft": dict(tol=1e-5, response_tol=1e-4, response_float32=True, response_steps=3, bounce_points=4,
                   gather_responses="tail"),
     "medium": dict(tol=1e-5, response_tol=1e-4, response_float32=True, response_steps=6, bounce_points=4,
                    gather_responses="tail"),

@@ -35,6 +35,10 @@ class DirectLight:
     # samples nearer to the emitter's box centre than AREA_NEAR x its half diagonal keep Arvo's
     # rays: there the area density's 1 / r^2 spread makes the ratio noisy (docs/gather.md)
     AREA_NEAR = 2.0
+    # a light shape's direct light at the second level's samples through their hemisphere rays
+    # (FinalGather._shape_by_read: the rays' hits read the shape's emission) instead of shadow
+    # rays: that level's light reaches the output only as indirect light
+    shape_by_read = False
 
     # -- direct light --------------------------------------------------------------------------------
     def direct_batch(self, em: Emitter, a, b, shafts=None):
@@ -270,7 +274,12 @@ class DirectLight:
         got = self._shape_cache.get(key)
         if got is None:
             em, inside, _ = self._shape_emitter(dyn, rec)
-            D = self.direct_light(em, self.edge_shapes) if em is not None else np.zeros(self.n, np.float32)
+            if em is None:
+                D = np.zeros(self.n, np.float32)
+            elif self.shape_by_read and getattr(self, "_leaf_nodes", None) is not None:
+                D = self._shape_by_read(dyn, rec, inside, em)  # (final.FinalGather: the second level)
+            else:
+                D = self.direct_light(em, self.edge_shapes)
             got = (D, inside)
             self._shape_cache[key] = got
         return got

@@ -1386,6 +1386,42 @@ class FinalGather(DirectLight):
         parts = ((self.w, Y - S), (self.wu, Gu), (self.wv, Gv))
         return sum(_csr_matvec(self.indptr, cols, w, v, **kw) for w, v in parts)
 
+    # shape_by_read: samples nearer to the shape's box centre than READ_NEAR x its half diagonal
+    # keep their shadow rays (there the shape fills much of the hemisphere, and a hit's leaf share
+    # of the outline is a coarse stand-in for where it hit)
+    READ_NEAR = 6.0
+    FAR_RAYS = 0  # > 0: beyond READ_NEAR that many shadow rays instead of the reads
+
+    def _shape_by_read(self, dyn, rec, inside, em=None):
+        """(n,) float32 a light shape's unit direct light at this (second) level's samples read
+        through their hemisphere rays: the rows they read hold the shape's unit emission (an HR
+        leaf: the share of it the shape covers; a near row, a sample of this level: 1 inside the
+        outline), the same estimator as the rays' indirect light, in place of shadow rays; with
+        em, the samples within READ_NEAR of it by shadow rays (direct_light's). FAR_RAYS > 0: no
+        reads, the samples beyond READ_NEAR with that many shadow rays instead of the level's."""
+        if self.FAR_RAYS > 0 and em is not None:  # fewer shadow rays beyond READ_NEAR (below)
+            D = np.zeros(self.n)
+        else:
+            m = self.n_hr
+            rows = m + (self.n if self.near_points else 0)
+            Em = np.zeros((rows, 1))
+            Em[:m, 0] = np.clip(dyn._coverage(rec)[:m], 0.0, 1.0)
+            if self.near_points:
+                Em[m + np.asarray(inside, np.int64), 0] = 1.0
+            D = self._read((Em, None, None, None))[:, 0]
+            D[self.dark] = 0.0
+        if em is not None and (self.READ_NEAR > 0 or self.FAR_RAYS > 0):
+            c, rad = 0.5 * (em.lo + em.hi), 0.5 * np.linalg.norm(em.hi - em.lo)
+            dc = self.points - c
+            close = np.einsum("lk,lk->l", dc, dc) < (self.READ_NEAR * rad) ** 2
+            near = np.flatnonzero(close)
+            if len(near):
+                D[near] = self._unoccluded(em, near, self.shadow_rays)
+            far = np.flatnonzero(~close)
+            if self.FAR_RAYS > 0 and len(far):
+                D[far] = self._unoccluded(em, far, self.FAR_RAYS)
+        return D.astype(np.float32)
+
     def _read_cols(self):
         """(columns, used): self.cols renumbered over the leaf values they read (used, ascending:
         the rows of the value array a read takes, _csr_matvec), int32, made once and kept (not
