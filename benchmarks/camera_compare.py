@@ -66,6 +66,7 @@ FILTER = ("BLACKMAN_HARRIS", 1.5)  # Blender's default pixel filter
 TEXEL = {}
 SUBDIVIDE = {}  # --subdivide: scene -> spacing in metres of the baked copy's vertices
 BAKE_ARGS = []  # --vertex-spacing: the bake's options (and its work folder's suffix)
+VARIANT = []  # --variant: a name for the vertex bake's work folder and JSON entry
 # scene: sample_blends/<name>.blend or "clutter" (hr_testing.clutter, built here); camera: None (the
 # sample's own) or (location, target, lens mm)
 VIEWS = {
@@ -181,7 +182,8 @@ def bake(scene, frame, output):
         output
         + (f"_{TEXEL[scene]}" if output == "texture" and scene in TEXEL else "")
         + (f"_sub{SUBDIVIDE[scene]}" if scene in SUBDIVIDE else "")
-        + (f"_vs{BAKE_ARGS[1]}" if BAKE_ARGS and output == "vertex" else ""),
+        + (f"_vs{BAKE_ARGS[1]}" if BAKE_ARGS and output == "vertex" else "")
+        + (f"_{VARIANT[0]}" if VARIANT and output == "vertex" else ""),
     )
     saved = os.path.join(d, "baked.blend")
     if os.path.exists(saved):
@@ -594,6 +596,11 @@ def main():
         type=float,
         help="bake a copy with no edge longer than this many metres (linear subdivision, subdivide)",
     )
+    p.add_argument(
+        "--variant",
+        help="a name for the vertex bake's own work files and JSON entry (a variant of the code or its "
+        "environment: the same spacing baked again)",
+    )
     p.add_argument("--vertex-spacing", help="the vertex bake's --vertex-spacing (the product's subdivision)")
     p.add_argument(
         "--figure", metavar="VIEW", help="only the docs' picture of VIEW (docs/images/camera_VIEW.png)"
@@ -620,6 +627,9 @@ def main():
         if a.subdivide:
             SUBDIVIDE[view["scene"]] = a.subdivide
             vn = f"{vn}_sub{a.subdivide}"
+        if a.variant:
+            VARIANT[:] = [a.variant]
+            vn = f"{vn}_{a.variant}"
         bakes = {k: bake(view["scene"], view["frame"], k) for k in a.outputs.split(",")}
         r, cpu_s = {"names": names}, {}
         wo = os.path.join(WORK, vn)

@@ -9,6 +9,8 @@ import pytest
 from test_blender_helpers import attribute, load_bpy, shown
 from tests import closed_forms as cf
 
+from hr_addon.core.gather.layouts import OUTPUT_INSET
+
 pytestmark = pytest.mark.bpy
 
 pytest.importorskip("bpy")
@@ -79,10 +81,11 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
             straddle += loops
             continue
         if final_gather:
-            # each loop's sample lies half way from its corner to the face's centre (gather.loop_samples)
+            # each loop's sample lies OUTPUT_INSET of the way from its corner to the face's centre
+            # (gather.loop_samples on the finer corners of the default Vertex Spacing)
             for li in loops:
                 p = M[:3, :3] @ np.array(me.vertices[me.loops[li].vertex_index].co) + M[:3, 3]
-                x = p + 0.5 * (centre - p)
+                x = p + OUTPUT_INSET * (centre - p)
                 d = c - x
                 dist = np.linalg.norm(d)
                 E = cf.point_light_irradiance(P, dist, d @ nrm / dist, r)

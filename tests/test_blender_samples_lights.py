@@ -3,7 +3,7 @@
 
 Each room corner (the walls, floor and ceiling) is checked against the light's closed form in
 Cycles' units (tests/closed_forms.py) at the points the corner's value stands for: with the
-default inset the bake gives a corner the mean of samples halfway from it to the centres of its
+default inset the bake gives a corner the mean of samples part of the way from it to the centres of its
 polygons, so the closed form is evaluated there. Light reflected from what a point sees (other surfaces, the
 sky through the opening) is at most rho L_max, L_max the brightest radiance in the scene (the
 brightest baked corner or the sky). Where every such point gets the light in full (inside the
@@ -24,6 +24,8 @@ import pytest
 from test_blender_helpers import load_bpy, make_samples_module, open_sample, shown
 from tests import closed_forms as cf
 
+from hr_addon.core.gather.layouts import OUTPUT_INSET
+
 pytestmark = [pytest.mark.bpy, pytest.mark.slow]
 
 ROOM = ("floor", "ceiling", "wall_x0", "wall_x1", "wall_y0", "wall_y1")
@@ -32,7 +34,8 @@ MARGIN = 0.01  # furniture boxes grown by 1 cm: a segment grazing a box is not c
 
 def _corners(obj):
     """Per loop of a room surface's evaluated mesh (at the default Vertex Spacing its faces
-    subdivided): the world points its corner value stands for (halfway to its polygon's centre),
+    subdivided): the world points its corner value stands for (OUTPUT_INSET of the way to its
+    polygon's centre: the finer corners' inset, layouts.default_inset),
     their normal, and the vertex index (loops at a vertex share its value)."""
     import bpy
 
@@ -44,7 +47,7 @@ def _corners(obj):
     centre = np.array([p.center for p in me.polygons]) @ M[:3, :3].T + M[:3, 3]
     normal = np.array([p.normal for p in me.polygons]) @ np.linalg.inv(M[:3, :3])
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
-    return co[lv] + 0.5 * (centre[lp] - co[lv]), normal[lp], lv
+    return co[lv] + OUTPUT_INSET * (centre[lp] - co[lv]), normal[lp], lv
 
 
 def _boxes(bpy):

@@ -7,6 +7,9 @@ import numpy as np
 import pytest
 from tests import closed_forms as cf
 
+from hr_addon.core.gather import layouts
+from hr_addon.core.gather.layouts import OUTPUT_INSET
+
 from test_blender_helpers import empty_scene, load_bpy, open_sample, scale_scene
 
 pytestmark = pytest.mark.bpy
@@ -76,18 +79,15 @@ def _wall():
     return co.astype(np.float64), ls, lt, lv, v.reshape(-1, 4)[:, :3].astype(np.float64)
 
 
-def _reference(co, ls, lt, lv):
+def _reference(co, ls, lt, lv, inset=OUTPUT_INSET):
     """Per corner, the wall's radiance rho L F (nothing else lights it, it sees nothing else) as the
     vertex output's layout reads a corner (layouts.loop_samples): the mean over the corners at its
-    vertex of the value half way from each to its face's centre."""
+    vertex of the value `inset` of the way from each to its face's centre (the finer corners'
+    OUTPUT_INSET; 0.5 on the user's own corners)."""
     poly = np.repeat(np.arange(len(ls)), lt)
     centre = np.stack([np.bincount(poly, co[lv, c]) / lt[poly][np.r_[ls]] for c in range(3)], 1)
-    inset = co[lv] + 0.5 * (centre[poly] - co[lv])
-    b = (
-        RHO
-        * STRENGTH
-        * cf.point_to_polygon_contour(inset, np.array([0.0, 1.0, 0.0]), np.array(LAMP[0], float))
-    )
+    at = co[lv] + inset * (centre[poly] - co[lv])
+    b = RHO * STRENGTH * cf.point_to_polygon_contour(at, np.array([0.0, 1.0, 0.0]), np.array(LAMP[0], float))
     per_vert = np.bincount(lv, b, len(co)) / np.maximum(np.bincount(lv, minlength=len(co)), 1)
     return per_vert[lv]
 
@@ -169,6 +169,8 @@ def test_the_hierarchy_is_built_on_the_mesh_the_modifier_receives(tmp_path, monk
     assert made[0].build_report.patches == zero[0].build_report.patches
     with monkeypatch.context() as m:  # the hierarchy on the finer mesh, as before
         m.setattr(own_values, "before_subdivision", lambda *a: {})
+        # (its corners are the system's own: their inset the finer corners' for the comparison)
+        m.setattr(layouts, "INSET", layouts.OUTPUT_INSET)
         (_, _, _, _, val1), _ = _bake(scene, 0.25, fine)
     assert fine[0].build_report.patches > made[0].build_report.patches + 100
     np.testing.assert_allclose(val, val1, rtol=1e-5)

@@ -8,6 +8,7 @@ from tests import closed_forms as cf
 
 from hr_addon.core.events import DynamicRadiosity
 from hr_addon.core.gather import LoopGather, OutputLayout
+from hr_addon.core.gather.layouts import INSET, OUTPUT_INSET
 from hr_addon.core.geometry import MeshInput
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
@@ -69,7 +70,8 @@ def _gather(mesh, output=None, poly=None, **kw):
 def test_the_wall_s_finer_corners_read_the_analytic_light(n):
     """The one-quad wall (one patch in the transport), its output split n x n: every finer corner
     reads the lamp's direct light rho L F as the vertex layout reads a corner (the mean over the
-    corners at its vertex of the value half way from each to its face's centre), within 1e-5 (the
+    corners at its vertex of the value OUTPUT_INSET of the way from each to its face's centre:
+    the finer corners' inset), within 1e-5 (the
     direct light is exact; the float32 output's rounding). The layout is the finer mesh's."""
     coarse, fine, poly = _meshes(n, floor=False)
     g, v, _ = _gather(coarse, fine, poly)
@@ -83,7 +85,7 @@ def test_the_wall_s_finer_corners_read_the_analytic_light(n):
         RHO
         * STRENGTH
         * cf.point_to_polygon_contour(
-            co[lv] + 0.5 * (centre[lp] - co[lv]), np.array([0, 1.0, 0]), np.array(LAMP)
+            co[lv] + OUTPUT_INSET * (centre[lp] - co[lv]), np.array([0, 1.0, 0]), np.array(LAMP)
         )
     )
     ref = (np.bincount(lv, b, len(co)) / np.maximum(np.bincount(lv, minlength=len(co)), 1))[lv]
@@ -101,7 +103,7 @@ def test_the_output_on_the_finer_corners_is_today_s_within_the_gather_s_noise():
     within 3%."""
     coarse, fine, poly = _meshes(4)
     g, v, dyn = _gather(coarse, fine, poly)
-    g0, v0, _ = _gather(fine)
+    g0, v0, _ = _gather(fine, inset=OUTPUT_INSET)  # (the finer corners' inset: the same samples)
     assert len(g.system.patches.nv) == 5 and len(g0.system.patches.nv) == 33
     assert v.shape == v0.shape
     tri = g.patch[g.system.patches.poly[g.patch] == 2]  # the floor's samples' transport triangles
@@ -121,8 +123,38 @@ def test_the_output_on_the_finer_corners_is_today_s_within_the_gather_s_noise():
 
 def test_without_an_output_layout_the_gather_is_unchanged():
     """OutputLayout(s, s.mesh, identity) on the system's own mesh: the same values as no layout (the
-    layout's patches are the system's, each point's transport patch its own)."""
+    layout's patches are the system's, each point's transport patch its own), at the same inset
+    (by default an output layout's is OUTPUT_INSET: test below)."""
     coarse, _, _ = _meshes(4)
     g, v, dyn = _gather(coarse)
-    g1, v1, _ = _gather(coarse, coarse, np.arange(len(coarse.loop_start)))
+    g1, v1, _ = _gather(coarse, coarse, np.arange(len(coarse.loop_start)), inset=INSET)
     np.testing.assert_allclose(v1, v, rtol=1e-6, atol=1e-9)
+
+
+def test_the_inset_is_0_5_on_the_user_s_corners_and_output_inset_on_the_finer_ones():
+    """layouts.default_inset (session 24, vx27): without an output layout (Vertex Spacing 0, or a
+    spacing that subdivides nothing) the corner samples lie half way to their face's centre, the
+    samples and values of an explicit inset 0.5 bit for bit (the bake at spacing 0 as before); on an
+    output layout's finer corners OUTPUT_INSET of the way (nearer the corners: a light falling off
+    across a small face reads nearer its mean), those of an explicit OUTPUT_INSET bit for bit."""
+    assert INSET == 0.5 and 0 < OUTPUT_INSET < INSET
+    coarse, fine, poly = _meshes(4, floor=False)
+    g, v, _ = _gather(coarse)
+    g5, v5, _ = _gather(coarse, inset=0.5)
+    np.testing.assert_array_equal(g.points, g5.points)
+    np.testing.assert_array_equal(v, v5)
+    h, w, _ = _gather(coarse, fine, poly)
+    h1, w1, _ = _gather(coarse, fine, poly, inset=OUTPUT_INSET)
+    np.testing.assert_array_equal(h.points, h1.points)
+    np.testing.assert_array_equal(w, w1)
+    h5 = _gather(coarse, fine, poly, inset=0.5)[0]
+    # the wall's corner samples: OUTPUT_INSET of the way from their corner to their face's centre
+    wl = np.flatnonzero(np.repeat(fine.object_id, fine.loop_total) == 0)
+    P = len(fine.loop_start)
+    lp = np.repeat(np.arange(P), fine.loop_total)
+    co = fine.verts[fine.loop_verts]
+    centre = np.stack([np.bincount(lp, co[:, c], P) / fine.loop_total for c in range(3)], 1)[lp]
+    for gg, f in ((h, OUTPUT_INSET), (h5, 0.5)):
+        at = gg.points[gg.loop_index[wl]]
+        want = co[wl] + f * (centre[wl] - co[wl])
+        assert np.median(np.linalg.norm(at - want, axis=1)) < 1e-9
