@@ -6,10 +6,11 @@ camera_compare's / bias_split's saved renders (benchmarks/out/camera_<view>/rend
     .venv/bin/python benchmarks/bias_classes.py [--views furnished_wide,furnished_close]
         [--outputs texture:furnished_wide_texel0.02,vertex:furnished_wide] [--direct VIEW_direct]
 
---runs: output:folder pairs per view ({view} is replaced); the lit objects, the interior mask and
-the error are camera_compare's (cycles_ref.lit_objects, interior, metrics' bias: ours / Cycles - 1
-per channel, mean over RGB). Direct share: Cycles' direct-light-only render (bias_split --variant
-direct, its references) over the full reference, per object (mean over pixels, grey).
+--runs: output:folder pairs per view ({view} is replaced; JSON keys folder:output|pixels|class);
+the lit objects, the interior mask and the error are camera_compare's (cycles_ref.lit_objects,
+interior, metrics' bias: ours / Cycles - 1 per channel, mean over RGB). Direct share: Cycles'
+direct-light-only render (bias_split --variant direct, its references) over the full reference,
+per object (mean over pixels, grey).
 Writes benchmarks/out/bias27_classes.json.
 """
 
@@ -84,7 +85,7 @@ def main():
                 groups["all"] = list(per)
                 for g, sel in sorted(groups.items()):
                     st = C.object_summary(per, sel)
-                    vd[f"{out}|{part}|{g}"] = st
+                    vd[f"{folder.format(view=view)}:{out}|{part}|{g}"] = st
                     print(
                         f"{view:15s} {out:7s} {part:8s} {g:14s} {st['objects']:3d} objects: median signed "
                         f"{100 * st['median_signed']:+6.2f}%  pooled {100 * st['pooled_bias']:+6.2f}%  "

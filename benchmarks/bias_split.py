@@ -15,8 +15,12 @@ applies the variant's change in the bake process before the command runs:
 - iter12: two levels, 12 iterations (draft's 4).
 - medium: --quality medium (the transport's medium preset with the gather's, 32 shadow rays).
 - shadow64: 64 shadow rays per sample and emitter (draft's 16).
+- second32: the second level's samples 32 shadow rays each (draft's 16 // 4 -> 8).
+- coveredmean: hemisphere hits where the contact test covers them read their leaf's mean
+  (covered_hits="shown") instead of 0.
 - tail: the second level's passes read at their limit (FinalGather._tail, the geometric series of
-  the last change) in every evaluation, not only with a light shape's gathered light.
+  the last change) in every evaluation, not only with a light shape's gathered light (main
+  before branch bias27; since its commit the default, so a no-op).
 Each variant's bake and renders go to camera_work/furnished/<output>[_texel]_<variant>/ and
 camera_work/<view>[_texel..]_<variant>/; JSON benchmarks/out/camera_bias27_<variant>.json (the
 compare() figures as camera_compare writes them).
@@ -42,6 +46,8 @@ VARIANTS = {
     "medium": dict(args=["--quality", "medium"]),
     "shadow64": dict(gather=dict(shadow_rays=64)),
     "tail": dict(patch="tail"),
+    "second32": dict(gather=dict(second_shadow_rays=32)),
+    "coveredmean": dict(gather=dict(covered_hits="shown")),
 }
 
 
