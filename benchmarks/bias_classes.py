@@ -4,7 +4,7 @@ the median signed error per object and the pooled bias, over all pixels and inte
 camera_compare's / bias_split's saved renders (benchmarks/out/camera_<view>/renders.npz).
 
     .venv/bin/python benchmarks/bias_classes.py [--views furnished_wide,furnished_close]
-        [--outputs texture:furnished_wide_texel0.02,vertex:furnished_wide] [--direct VIEW_direct]
+        [--runs texture:{view}_texel0.02,vertex:{view}] [--direct {view}_direct] [--name NAME]
 
 --runs: output:folder pairs per view ({view} is replaced; JSON keys folder:output|pixels|class);
 the lit objects, the interior mask and the error are camera_compare's (cycles_ref.lit_objects,
