@@ -1171,9 +1171,10 @@ class FinalGather(DirectLight):
         return self._leaf_levels(dyn)[0]
 
     def _leaf_levels(self, dyn):
-        """_levels of the solution in effect and the current direct light (read at the passes'
-        limit, as every _levels)."""
-        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0])
+        """_levels of the solution in effect and the current direct light (with the tail where a
+        shape's scattered light is left to the passes: _Rec.gathered)."""
+        tail = not dyn.naive_active and any(r.gathered for r in dyn.shapes.values())
+        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0], tail)
 
     # the tail's largest ratio: a pass's change over the one before tends to rho where light
     # bounces around a closed room (a furnace: B = E / (1 - rho)); above it the tail, r / (1 - r)
@@ -1188,16 +1189,12 @@ class FinalGather(DirectLight):
     # exposed leaf sampled")
     TAIL_PASSES, TAIL_SHARE = 16, 0.02
 
-    def _levels(self, V, direct, tail=True):
+    def _levels(self, V, direct, tail=False):
         """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
         direct(g) -> (g.n, 3) direct light at a level's samples: V itself with one level; with
         more, the lower levels' gathers (linear in V and the direct light). tail: the passes'
         limit instead of the last pass (the bounces after it: a geometric series of the last
-        change, per channel; from V = 0, as a shape's without a response, the passes go on while
-        the tail is large, DynamicRadiosity.gather_responses). Always on since session 24: the
-        passes start from the transport's V, and the draft transport's V reads a few % darker than
-        the passes' limit on the furnished room; after 5 passes part of that was still in the
-        output (docs/gather.md, "The bias common to every output"). False: the last pass."""
+        change, per channel; a shape's passes from V = 0, DynamicRadiosity.gather_responses)."""
         if self.second is None:
             return (V, None, None, None)
         g2 = self.second
@@ -1612,7 +1609,7 @@ class FinalGather(DirectLight):
                 V = self._values_from(h, X)
                 if rec.gathered == "zero":  # no response: the passes from nothing and their tail
                     V = np.zeros_like(V)
-                Y = self._levels(V, unit)
+                Y = self._levels(V, unit, bool(rec.gathered))
                 part = self._dmix(unit(self), self._facing_part(unit)) + self._read(Y)
                 self._responses[k] = part.astype(np.float32)
             out.append((k, rec.emission, self._responses[k], rec))
