@@ -10,7 +10,8 @@ camera_compare's / bias_split's saved renders (benchmarks/out/camera_<view>/rend
 the lit objects, the interior mask and the error are camera_compare's (cycles_ref.lit_objects,
 interior, metrics' bias: ours / Cycles - 1 per channel, mean over RGB). Direct share: Cycles'
 direct-light-only render (bias_split --variant direct, its references) over the full reference,
-per object (mean over pixels, grey).
+per object (mean over pixels, grey). The lit books' pixels apart: edge pixels, those bordering
+another book, interior pixels (book_edges).
 Writes benchmarks/out/bias27_classes.json.
 """
 
@@ -39,6 +40,30 @@ def klass(n):
 def load(folder):
     z = np.load(os.path.join(OUT, f"camera_{folder}", "renders.npz"))
     return {k: z[k] for k in z.files}
+
+
+def book_edges(img, ref, ob, names, lit):
+    """The lit books' light by where their pixels lie: edge pixels (an 8-neighbour shows another
+    object), those bordering another book, interior pixels. {part: (ours / Cycles - 1 over the
+    part's grey sums, the part's share of the books' deficit in points of their light, pixels)}."""
+    H, W = ob.shape
+    p = np.pad(ob, 1, mode="edge")
+    nb = np.zeros_like(ob)
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            q = p[dy : dy + H, dx : dx + W]
+            nb = np.where((nb == 0) & (q != ob), q, nb)
+    keep = np.array([False] + [("_book" in n and n in lit) for n in names])
+    book = np.array([False] + ["_book" in n for n in names])
+    sel = keep[ob]
+    go, gr = img.mean(-1), ref.mean(-1)
+    tot = gr[sel].sum()
+    edge = sel & (nb > 0)
+    parts = {"all": sel, "edge": edge, "book-book": edge & book[nb], "interior": sel & (nb == 0)}
+    return {
+        k: (float(go[m].sum() / gr[m].sum() - 1), float((go - gr)[m].sum() / tot), int(m.sum()))
+        for k, m in parts.items()
+    }
 
 
 def main():
@@ -72,6 +97,13 @@ def main():
         for out, folder in runs:
             z = load(folder.format(view=view))
             img = z[out].astype(np.float64)
+            be = vd[f"{folder.format(view=view)}:{out}|book_edges"] = book_edges(img, ref, ob, names, lit)
+            print(
+                f"{view:15s} {out:7s} {folder.format(view=view)}: lit books' pixels "
+                + ", ".join(
+                    f"{k} {100 * v[0]:+.2f}% ({100 * v[1]:+.2f} pts, {v[2]} px)" for k, v in be.items()
+                )
+            )
             for part, mask in (("all", None), ("interior", inner)):
                 po, pr = cc.per_object(img, ob, names, mask), cc.per_object(ref, ob, names, mask)
                 per = {n: C.metrics(po[n], pr[n]) for n in lit if n in pr}
