@@ -10,7 +10,7 @@ applies the variant's change in the bake process before the command runs:
 - direct: the final gather's indirect term zeroed (FinalGather.indirect -> 0, no response
   parts): every output is emission + rho x its exact direct light; compared against a Cycles
   render with no bounces (max bounces 0: direct light only), --direct-spp per seed, seeds 1, 2.
-- rays512: 512 hemisphere rays per output sample (draft's 128).
+- rays512, rays256: 512 / 256 hemisphere rays per output sample (draft's 128).
 - levels1: one level (the hits read the transport's leaves; draft's two levels and 4 iterations).
 - iter12: two levels, 12 iterations (draft's 4).
 - medium: --quality medium (the transport's medium preset with the gather's, 32 shadow rays).
@@ -41,6 +41,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 VARIANTS = {
     "direct": dict(patch="direct"),
     "rays512": dict(gather=dict(rays=512)),
+    "rays256": dict(gather=dict(rays=256)),
     "levels1": dict(gather=dict(levels=1, iterations=0)),
     "iter12": dict(gather=dict(iterations=12)),
     "medium": dict(args=["--quality", "medium"]),
