@@ -11,7 +11,8 @@ applies the variant's change in the bake process before the command runs:
   parts): every output is emission + rho x its exact direct light; compared against a Cycles
   render with no bounces (max bounces 0: direct light only), --direct-spp per seed, seeds 1, 2.
 - rays512, rays256: 512 / 256 hemisphere rays per output sample (draft's 128).
-- levels1: one level (the hits read the transport's leaves; draft's two levels and 4 iterations).
+- levels1: one level (the hits read the transport's leaves; draft's two levels and 4 iterations);
+  levels1medium: the same on the medium transport.
 - iter12: two levels, 12 iterations (draft's 4).
 - medium: --quality medium (the transport's medium preset with the gather's, 32 shadow rays).
 - shadow64: 64 shadow rays per sample and emitter (draft's 16).
@@ -43,6 +44,7 @@ VARIANTS = {
     "rays512": dict(gather=dict(rays=512)),
     "rays256": dict(gather=dict(rays=256)),
     "levels1": dict(gather=dict(levels=1, iterations=0)),
+    "levels1medium": dict(gather=dict(levels=1, iterations=0), args=["--quality", "medium"]),
     "iter12": dict(gather=dict(iterations=12)),
     "medium": dict(args=["--quality", "medium"]),
     "shadow64": dict(gather=dict(shadow_rays=64)),
