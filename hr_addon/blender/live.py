@@ -125,9 +125,12 @@ def _tick_body():
             redraw = True
             continue
         building = sess.building
-        redraw |= _deliver(sess, scene) or building
+        wrote = _deliver(sess, scene)
+        redraw |= wrote or building
         settle = sess.geometry_dirty and now - sess.geometry_dirty >= GEOMETRY_SETTLE
-        poll = now - sess.last_poll >= IDLE_POLL
+        # the idle poll not in the tick that wrote HR_Radiance: its depsgraph would evaluate every
+        # written mesh here (200-300 ms at 100k) where Blender's redraw evaluates them anyway
+        poll = now - sess.last_poll >= IDLE_POLL and not wrote
         if sess.dirty or settle or poll:
             try:
                 _reconcile(sess, scene, vl, check_geometry=bool(settle), fast=not (settle or poll))

@@ -79,6 +79,8 @@ class Session:
         self.before = None  # the steps of a previous session's restore, run before the first build
         self.take_off = False  # a baked-texture preview to take off before the first build
         self.preparing_reason = ""  # the reason of the build being prepared
+        self.wired = []  # names of the objects whose materials the preview was wired for
+        self.reads = 0  # scene reads begun over timer ticks (an edit meanwhile starts one again)
         self.settings = None  # settings of the last build request
         self.geometry = None  # geometry signatures of the last build request
         self.geo_names = None  # names of the geometry objects then
@@ -123,7 +125,9 @@ class Session:
             return f"Live Relight stopped: {self.fatal}"
         if self.preparing is not None:
             done, of, what = self.prepared
-            return f"Live Relight: preparing {done} / {of} objects ({what})"
+            return (
+                f"Live Relight: preparing {done} / {of} {what}" if of else f"Live Relight: preparing ({what})"
+            )
         if self.building:
             pct = f"{100 * w.fraction:.0f}%"
             eta = "" if w.eta != w.eta else f", about {w.eta:.0f} s left"
@@ -256,8 +260,9 @@ def _chain(*steps):
         yield from s
 
 
-def restore_tick(seconds=SLICE):
+def restore_tick(seconds=None):
     """Advance the stops' restores by a time slice each (the timer). True while some are left."""
+    seconds = SLICE if seconds is None else seconds
     for name, (sess, steps) in list(_RESTORING.items()):
         scene = bpy.data.scenes.get(name)
         if scene is None:
@@ -328,9 +333,11 @@ def _take_off_textures(sess, scene, view_layer):
 def _restore_plan(sess, scene):
     """(what is restored, its steps): the preview's nodes undone a material at a time, then the
     baked playback loaded, or HR_Radiance removed (and the baked textures put back)."""
+    targets = set(sess.targets)
+    wired = [n for n in sess.wired if n not in targets]  # (a stop while it prepared, faceless ones)
     objs = [
         o
-        for o in playback.objects_by_name(scene, sess.targets).values()
+        for o in playback.objects_by_name(scene, sess.targets + wired).values()
         if o is not None and o.type == "MESH"
     ]
     has_bake = bool(paths.bake_dir_abs(scene))
@@ -415,9 +422,10 @@ def _build(sess, scene, view_layer, depsgraph, reason):
     finish(steps)
 
 
-def _prepare(sess, scene, view_layer, seconds=SLICE):
+def _prepare(sess, scene, view_layer, seconds=None):
     """Advance the build's preparation by a time slice (the timer). A failure of the first build's
     ends Live (as start() did when it prepared in one call), a later one is the session's error."""
+    seconds = SLICE if seconds is None else seconds
     try:
         advance(sess.preparing, seconds)
     except ReferenceError:  # an object read was removed meanwhile: prepare again
@@ -472,9 +480,10 @@ def _build_steps(sess, scene, view_layer, reason):
         # the preview nodes show HR_Radiance as Live writes it (outgoing radiance or Indirect only)
         change = preview.radiance_change(objs, cfg.live_mode)
         sess.preview_change = sess.preview_change or change  # (set first: a stop undoes a part)
+        sess.wired = [o.name for o in objs]
         n_mat = len({s.material.name_full for o in objs for s in o.material_slots if s.material})
         for k, _ in enumerate(preview.show_radiance_steps(objs, cfg.live_mode, change)):
-            sess.prepared = (k + 1, n_mat, "materials: the preview")
+            sess.prepared = (k + 1, n_mat, "materials (the preview's nodes)")
             yield
         # the bake's split (snapshot.read_snapshot): with the final gather, the objects a bake's
         # HR Radiance modifier subdivides (Vertex Spacing) give the hierarchy the mesh the modifier
@@ -489,6 +498,7 @@ def _build_steps(sess, scene, view_layer, reason):
         read = collect_geometry_steps(view_layer, dg, transport=transport_too)
         next(read)  # the depsgraph's update
         sess.geometry_dirty, sess.full_read = 0.0, False
+        sess.reads += 1
         sess.prepared = (0, len(objs), "objects")
         scene_in = None
         while scene_in is None:
