@@ -80,33 +80,31 @@ def colour_chain(mat, tree, src, location, mode):
     return add.outputs["Vector"]
 
 
-def _add_nodes(mat, mode="RADIANCE", finish_now=True):
-    """The preview's nodes in mat. finish_now False: all but the Attribute node's name and the
-    output made active (_finish_nodes): naming an Attribute node costs Blender's next depsgraph
-    evaluation about 0.6 s at 100k (measured; almost nothing per node), so a slice per timer tick
-    names them all in one step at the end, and the material shows its own output until then."""
+def _add_nodes(mat, mode="RADIANCE", name_now=True):
+    """The preview's nodes in mat. name_now False: the Attribute node is left unnamed (it reads
+    nothing until _name_attribute): naming one makes Blender rebuild the depsgraph's relations at
+    its next evaluation, about 0.6 s at 100k however many were named (measured; nodes, links and
+    the active output cost it 20-30 ms), so a start spread over timer ticks names them all in one
+    last step instead of costing that once per tick."""
     tree = mat.node_tree
     if tree is None:
         return False
     x = max((n.location.x for n in tree.nodes if not n.name.startswith(PREVIEW)), default=0) + 300
     attr = node_named(tree, N_ATTR, "ShaderNodeAttribute", (x, -400))
-    emission_output(mat, tree, attr.outputs["Color"], x + 600, mode, activate=finish_now)
-    if finish_now:
-        _finish_nodes(tree)
+    if name_now:
+        _name_attribute(tree)
+    emission_output(mat, tree, attr.outputs["Color"], x + 600, mode)
     return True
 
 
-def _finish_nodes(tree):
-    """The Attribute node reads HR_Radiance, the preview's output is the active one (each only
-    when not already so: an unchanged name costs Blender no evaluation)."""
+def _name_attribute(tree):
+    """The preview's Attribute node reads HR_Radiance (set only when not so already: an unchanged
+    node costs Blender no relations update)."""
     attr = tree.nodes[N_ATTR]
     if attr.attribute_type != "GEOMETRY":
         attr.attribute_type = "GEOMETRY"
     if attr.attribute_name != ATTRIBUTE:
         attr.attribute_name = ATTRIBUTE
-    out = tree.nodes[N_OUT]
-    if not out.is_active_output:
-        out.is_active_output = True
 
 
 def own_output(tree):
@@ -116,7 +114,7 @@ def own_output(tree):
     return next((n for n in outs if n.is_active_output), outs[0] if outs else None)
 
 
-def emission_output(mat, tree, colour, x, mode, activate=True):
+def emission_output(mat, tree, colour, x, mode):
     """colour -> colour_chain -> Emission (strength 1) at x -> Material Output (all engines), made
     the active output: how the vertex preview and the baked textures show radiance. INDIRECT: the
     Emission is added (Add Shader) to the shader of the material's own output, whose other inputs
@@ -152,8 +150,7 @@ def emission_output(mat, tree, colour, x, mode, activate=True):
         tree.links.new(path.outputs["Is Diffuse Ray"], seen.inputs[0])
         tree.links.new(seen.outputs[0], emit.inputs["Strength"])
     tree.links.new(shader, out.inputs["Surface"])
-    if activate:
-        out.is_active_output = True
+    out.is_active_output = True
 
 
 def _preview_material():
@@ -176,9 +173,9 @@ def add_preview_steps(objects, mode="RADIANCE", last=False):
     """add_preview a material at a time: a generator yielding after each material it wires (the
     count is its return value), for the UI to spread over timer ticks. Each node it names costs
     Blender a pass over every ID of the file (the node's animation paths): 3,641 materials of the
-    furnished 100k room took 30 s CPU in one call. last: the Attribute nodes named and the outputs
-    made active in one last step (_add_nodes' finish_now: one costly evaluation of Blender's, not
-    one per tick); the same nodes in the end."""
+    furnished 100k room took 30 s CPU in one call. last: the Attribute nodes are named in one last
+    step (_add_nodes' name_now: one relations update of Blender's, not one per tick; 0.3 ms a
+    node at 100k); the same nodes in the end."""
     done, trees = set(), []
     for obj in objects:
         if obj.type != "MESH":
@@ -186,7 +183,7 @@ def add_preview_steps(objects, mode="RADIANCE", last=False):
         mats = [s.material for s in obj.material_slots if s.material is not None]
         if not mats:
             mat = _preview_material()
-            if _add_nodes(mat, mode, finish_now=not last):
+            if _add_nodes(mat, mode, name_now=not last) and last:
                 trees.append(mat.node_tree)
             obj.data.materials.append(mat)
             yield
@@ -195,14 +192,12 @@ def add_preview_steps(objects, mode="RADIANCE", last=False):
             if m.name_full not in done:
                 if bpy.app.version < (5, 0, 0) and not m.use_nodes:
                     m.use_nodes = True
-                if _add_nodes(m, mode, finish_now=not last):
+                if _add_nodes(m, mode, name_now=not last) and last:
                     trees.append(m.node_tree)
                 done.add(m.name_full)
                 yield
-    if last:
-        for tree in trees:
-            _finish_nodes(tree)
-        yield
+    for tree in trees:
+        _name_attribute(tree)
     return len(done)
 
 
@@ -211,24 +206,16 @@ def remove_preview(objects=None):
     return finish(remove_preview_steps(objects))
 
 
-def remove_preview_steps(objects=None, first=False):
+def remove_preview_steps(objects=None):
     """remove_preview a material at a time (a generator yielding after each material; the count is
-    its return value): removing nodes costs Blender a pass over every ID of the file too. first:
-    every Attribute node's name blanked in one first step (see _add_nodes: one costly evaluation of
-    Blender's, not one per tick); the nodes are removed in the end either way."""
+    its return value): removing nodes costs Blender a pass over every ID of the file too (removing
+    a named Attribute node costs no relations update: measured)."""
     mats = (
         bpy.data.materials
         if objects is None
         else {s.material for o in objects for s in o.material_slots if s.material is not None}
     )
     n = 0
-    if first:
-        for m in list(mats):
-            tree = m.node_tree
-            attr = tree.nodes.get(N_ATTR) if tree is not None and not m.get("hr_preview") else None
-            if attr is not None and attr.attribute_name:
-                attr.attribute_name = ""
-        yield
     for m in list(mats):
         if m.get("hr_preview"):
             continue
@@ -326,6 +313,6 @@ def undo_show_radiance(scene, objects, change):
 def undo_show_radiance_steps(scene, objects, change):
     """undo_show_radiance a material at a time (Live Relight's stop, over timer ticks)."""
     if change == "added":
-        yield from remove_preview_steps(objects, first=True)
+        yield from remove_preview_steps(objects)
     elif change == "rewired":
         yield from refresh_preview_steps(objects, bake_mode(scene))
