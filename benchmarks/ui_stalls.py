@@ -499,6 +499,7 @@ def measure_live(bpy, scene, clock, steps, limit):
             clock.time("live drag: the tick that reads the shapes", live._tick)
             assert sess.worker.flush(timeout=limit)
             clock.time("live drag: the tick that writes the result", live._tick)
+            redraw("live drag: the tick that writes the result")
             clock.time("live drag: the tick after the write", live._tick)
         clock.time("live stop (the baked playback back)", live.stop, scene)
         redraw("live stop")

@@ -198,6 +198,8 @@ def add_preview_steps(objects, mode="RADIANCE", last=False):
                 yield
     for tree in trees:
         _name_attribute(tree)
+    if trees:
+        yield  # (Blender's relations update falls into the redraw after this step, not the next one)
     return len(done)
 
 
