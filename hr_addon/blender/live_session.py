@@ -454,8 +454,9 @@ def _finish_preparing(sess):
 def _changed_meanwhile(sess):
     """An edit since the scene read began that the read may have missed (the depsgraph handler's
     marks: geometry, a material, an object added or removed, the settings); light-shape edits
-    are not (they are read at the end)."""
-    return bool(sess.geometry_dirty or sess.full_read)
+    are not (they are read at the end). Only over timer ticks: in one call nobody edits between
+    the steps (and the read's own depsgraph updates must not start it again)."""
+    return sess.spread and bool(sess.geometry_dirty or sess.full_read)
 
 
 def _build_steps(sess, scene, view_layer, reason):
@@ -497,6 +498,8 @@ def _build_steps(sess, scene, view_layer, reason):
         dg = _depsgraph(scene, view_layer)  # (evaluates the wiring: the handler's marks come now)
         read = collect_geometry_steps(view_layer, dg, transport=transport_too)
         next(read)  # the depsgraph's update
+        if transport_too:  # the objects before their subdivision: the read's own depsgraph updates
+            next(read)  # (own_values.before_subdivision sets the spacing to 0 and back, evaluated)
         sess.geometry_dirty, sess.full_read = 0.0, False
         sess.reads += 1
         sess.prepared = (0, len(objs), "objects")
