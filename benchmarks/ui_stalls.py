@@ -427,12 +427,15 @@ def measure_live(bpy, scene, clock, steps, limit):
 
     from hr_addon.blender import live, live_session, playback
 
+    spread = "spread" in inspect.signature(live.start).parameters  # (ui27: prepared over ticks)
+    worker = " (the worker thread's CPU)" if spread else ""
     undo = [
         clock.wrap(live_session, "collect_geometry", "live start: of it collect_geometry"),
         clock.wrap(live_session.preview, "show_radiance", "live start: of it preview.show_radiance"),
-        clock.wrap(live_session, "precompute_key", "live start: of it precompute_key"),
-        clock.wrap(live_session, "solver_setup", "live start: of it solver_setup"),
+        clock.wrap(live_session, "precompute_key", f"live start: of it precompute_key{worker}"),
+        clock.wrap(live_session, "solver_setup", f"live start: of it solver_setup{worker}"),
         clock.wrap(live_session, "FlatExtract", "live start: of it FlatExtract"),
+        clock.wrap(live_session, "_depsgraph", "live: of it _depsgraph (Blender evaluates the scene)"),
         clock.wrap(live_session.preview, "undo_show_radiance", "live stop: of it preview.undo_show_radiance"),
         clock.wrap(live_session.playback, "load_frame", "live stop: of it playback.load_frame"),
         clock.wrap(live_session, "_read_shapes", "live: of it _read_shapes"),
@@ -454,10 +457,29 @@ def measure_live(bpy, scene, clock, steps, limit):
     h.extend(new)
     scene.frame_set(FRAMES[1])  # the Window is on (20k: from frame 3)
     try:
+
+        def redraw(key):
+            """What the UI's next event-loop pass costs after our call: Blender evaluates the
+            depsgraph (the materials and meshes our call changed; a redraw would)."""
+            clock.time(
+                f"{key}: Blender's evaluation after it (the redraw's)", bpy.context.evaluated_depsgraph_get
+            )
+
         sess = clock.time(
-            "live start (main thread; the build goes to the worker)", live.start, scene, None, True
+            "live start (main thread; the build goes to the worker)",
+            live.start,
+            scene,
+            None,
+            True,
+            **({"spread": True} if spread else {}),
         )
+        redraw("live start")
         t0 = time.monotonic()
+        while getattr(sess, "preparing", None) is not None:  # ui27: a time slice per tick
+            clock.time("live tick while it prepares (materials, the scene read)", live._tick)
+            redraw("live tick while it prepares")
+            if not live.is_live(scene):
+                raise SystemExit(f"Live stopped while it prepared: {live.message(scene)}")
         while sess.last is None:
             building = sess.building
             clock.time(
@@ -477,7 +499,13 @@ def measure_live(bpy, scene, clock, steps, limit):
             clock.time("live drag: the tick that reads the shapes", live._tick)
             assert sess.worker.flush(timeout=limit)
             clock.time("live drag: the tick that writes the result", live._tick)
+            redraw("live drag: the tick that writes the result")
+            clock.time("live drag: the tick after the write", live._tick)
         clock.time("live stop (the baked playback back)", live.stop, scene)
+        redraw("live stop")
+        while getattr(live, "restoring", lambda s: False)(scene):  # ui27: a time slice per tick
+            clock.time("live stop: a restore tick (the preview undone, the playback loaded)", live._tick)
+            redraw("live stop: a restore tick")
     finally:
         for u_ in undo:
             u_()

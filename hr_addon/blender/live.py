@@ -19,10 +19,15 @@ from .live_session import (
     WATCH,
     LiveError,
     _deliver,
+    _prepare,
     _reconcile,
     _scene_of,
+    drop_restores,
+    finish_restores,
     is_live,
     message,
+    restore_tick,
+    restoring,
     session,
     stop,
     stop_all,
@@ -37,6 +42,7 @@ __all__ = [
     "LiveError",
     "is_live",
     "message",
+    "restoring",
     "session",
     "start",
     "stop",
@@ -45,9 +51,9 @@ __all__ = [
 ]
 
 
-def start(scene, view_layer=None, threaded=None):
+def start(scene, view_layer=None, threaded=None, spread=None):
     """Start Live on scene (live_session.start) and the timer that drives it."""
-    sess = _start_session(scene, view_layer, threaded)
+    sess = _start_session(scene, view_layer, threaded, spread)
     _ensure_timer()
     return sess
 
@@ -86,7 +92,7 @@ def _tick_body():
     if STATE.baking:
         return IDLE_POLL
     now = time.monotonic()
-    redraw = False
+    redraw = restore_tick()  # the stops' restores, a slice each
     for scene in list(bpy.data.scenes):
         if scene.hr.live and not is_live(scene):
             try:
@@ -107,6 +113,10 @@ def _tick_body():
             print(f"HR Radiosity: Live Relight off: {what}", flush=True)
             redraw = True
             continue
+        if sess.preparing is not None and not STATE.bake_running():
+            _prepare(sess, scene, vl)  # the build's preparation, a slice per tick
+            redraw = True
+            continue
         if sess.fatal:
             continue
         if STATE.bake_running():
@@ -115,9 +125,12 @@ def _tick_body():
             redraw = True
             continue
         building = sess.building
-        redraw |= _deliver(sess, scene) or building
+        wrote = _deliver(sess, scene)
+        redraw |= wrote or building
         settle = sess.geometry_dirty and now - sess.geometry_dirty >= GEOMETRY_SETTLE
-        poll = now - sess.last_poll >= IDLE_POLL
+        # the idle poll not in the tick that wrote HR_Radiance: its depsgraph would evaluate every
+        # written mesh here (200-300 ms at 100k) where Blender's redraw evaluates them anyway
+        poll = now - sess.last_poll >= IDLE_POLL and not wrote
         if sess.dirty or settle or poll:
             try:
                 _reconcile(sess, scene, vl, check_geometry=bool(settle), fast=not (settle or poll))
@@ -126,10 +139,13 @@ def _tick_body():
             redraw = True
     if redraw:
         _redraw()
+    if restoring():
+        return TICK
     if not STATE.live_sessions:
         return WATCH  # keeps watching Scene.hr.live (a script may set it: no depsgraph update)
     busy = any(
-        s.worker.pending or s.dirty or s.geometry_dirty or s.force_write for s in STATE.live_sessions.values()
+        s.worker.pending or s.dirty or s.geometry_dirty or s.force_write or s.preparing is not None
+        for s in STATE.live_sessions.values()
     )
     return TICK if busy else IDLE_POLL / 2
 
@@ -242,6 +258,7 @@ def on_render_done(*args):
 @persistent
 def on_load_pre(*args):
     stop_all(restore=False)
+    drop_restores()  # (the file's data goes away)
 
 
 @persistent
@@ -278,6 +295,7 @@ def register():
 def unregister():
     workers = [s.worker for s in STATE.live_sessions.values()]
     stop_all(restore=False)
+    finish_restores()  # (a stop's restore still running: the preview's nodes undone)
     for w in workers:  # do not leave a thread computing in an add-on that is going away
         w.join(10.0)
     for lst, fn in _handlers():

@@ -38,7 +38,8 @@ from .lights_in import (
     lights_signature,
     shapes_signature,
 )
-from .scene_in import FlatExtract, SceneError, collect_geometry, geometry_objects, light_shape_objects
+from .scene_in import FlatExtract, SceneError, collect_geometry_steps, geometry_objects, light_shape_objects
+from .steps import advance, finish
 
 
 class LiveError(SceneError):
@@ -49,6 +50,8 @@ BAKE_RUNNING = (
     "A radiosity bake is running: Live Relight cannot start until it has finished (or is cancelled)."
 )
 TICK, IDLE_POLL, GEOMETRY_SETTLE, WATCH = 0.02, 0.5, 0.25, 1.0  # seconds
+SLICE = 0.04  # seconds of a build's preparation (or of a stop's restore) per timer tick
+_RESTORING = {}  # {scene name: the steps of a stop's restore still to run} (over timer ticks)
 
 
 def message(scene):
@@ -64,10 +67,20 @@ def is_live(scene):
 
 
 class Session:
-    def __init__(self, scene, view_layer, threaded):
+    def __init__(self, scene, view_layer, threaded, spread=False):
         self.scene_name = scene.name_full
         self.view_layer_name = view_layer.name
         self.worker = LiveWorker(threaded)
+        # the UI's sessions prepare a build (the preview's materials, the scene read) and restore at
+        # stop over timer ticks (live._tick advances `preparing`); scripts, tests: in one call
+        self.spread = spread
+        self.preparing = None  # the steps of the build being prepared (_build_steps), None: none
+        self.prepared = (0, 0, "")  # (done, of, what) for the panel while preparing
+        self.before = None  # the steps of a previous session's restore, run before the first build
+        self.take_off = False  # a baked-texture preview to take off before the first build
+        self.preparing_reason = ""  # the reason of the build being prepared
+        self.wired = []  # names of the objects whose materials the preview was wired for
+        self.reads = 0  # scene reads begun over timer ticks (an edit meanwhile starts one again)
         self.settings = None  # settings of the last build request
         self.geometry = None  # geometry signatures of the last build request
         self.geo_names = None  # names of the geometry objects then
@@ -110,6 +123,11 @@ class Session:
         w = self.worker
         if self.fatal:
             return f"Live Relight stopped: {self.fatal}"
+        if self.preparing is not None:
+            done, of, what = self.prepared
+            return (
+                f"Live Relight: preparing {done} / {of} {what}" if of else f"Live Relight: preparing ({what})"
+            )
         if self.building:
             pct = f"{100 * w.fraction:.0f}%"
             eta = "" if w.eta != w.eta else f", about {w.eta:.0f} s left"
@@ -168,8 +186,10 @@ def _describe_settings(old, new):
 
 
 # -- start, stop -----------------------------------------------------------------------------------
-def start(scene, view_layer=None, threaded=None):
-    """Start Live on scene (no-op if it runs). Raises LiveError with the reason when it cannot."""
+def start(scene, view_layer=None, threaded=None, spread=None):
+    """Start Live on scene (no-op if it runs). Raises LiveError with the reason when it cannot.
+    spread (the UI's default): the build's preparation (the preview's materials, the scene read)
+    runs a time slice per timer tick (live._tick, Session.preparing); else in this call."""
     sess = session(scene)
     if sess is not None:
         return sess
@@ -182,16 +202,20 @@ def start(scene, view_layer=None, threaded=None):
         _refuse(scene, "No mesh objects to compute radiosity on (all hidden, excluded or light shapes).")
     STATE.live_messages.pop(scene.name_full, None)
     threaded = (not bpy.app.background) if threaded is None else threaded
-    sess = Session(scene, view_layer, threaded)
+    spread = (not bpy.app.background) if spread is None else spread
+    sess = Session(scene, view_layer, threaded, spread)
+    # a stop's restore still running (Live turned off and on again): finished first (_build_steps)
+    sess.before = _RESTORING.pop(scene.name_full, (None, None))[1]
+    sess.take_off = True
     STATE.live_sessions[scene.name_full] = sess
     scene.hr.live = True
     try:
-        _take_off_textures(sess, scene, view_layer)
         _reconcile(sess, scene, view_layer, check_geometry=True)
     except Exception:
-        stop(scene)
+        stop(scene, spread=False)
         raise
-    print(f"HR Radiosity: Live Relight on ({sess.reason})", flush=True)
+    if sess.preparing is None:
+        print(f"HR Radiosity: Live Relight on ({sess.reason})", flush=True)
     return sess
 
 
@@ -201,23 +225,82 @@ def _refuse(scene, why):
     raise LiveError(why)
 
 
-def stop(scene, restore=True):
+def stop(scene, restore=True, spread=None):
     """End Live on scene. restore: the baked playback again (or no HR_Radiance without a bake).
-    Returns what was restored ('' when Live was not on)."""
+    spread (None: the session's Session.spread): the restore runs a time slice per timer tick
+    (_RESTORING, live._tick), else in this call. A build being prepared stops where it is: the
+    restore undoes what it had wired. Returns what was (or is being) restored ('' when Live was
+    not on)."""
     sess = STATE.live_sessions.pop(scene.name_full, None)
     if scene.hr.live:
         scene.hr.live = False
     if sess is None:
         return ""
     sess.worker.close()
-    return _restore(sess, scene) if restore else ""
+    if sess.preparing is not None:
+        sess.preparing.close()
+        sess.preparing = None
+    before, sess.before = sess.before, None  # a previous session's restore not run yet
+    if not restore:
+        if before is not None:
+            _RESTORING[scene.name_full] = (sess, before)
+        return ""
+    what, steps = _restore_plan(sess, scene)
+    if before is not None:
+        steps = _chain(before, steps)
+    if sess.spread if spread is None else spread:
+        _RESTORING[scene.name_full] = (sess, steps)
+        return what
+    finish(steps)
+    return what
+
+
+def _chain(*steps):
+    for s in steps:
+        yield from s
+
+
+def restore_tick(seconds=None):
+    """Advance the stops' restores by a time slice each (the timer). True while some are left."""
+    seconds = SLICE if seconds is None else seconds
+    for name, (sess, steps) in list(_RESTORING.items()):
+        scene = bpy.data.scenes.get(name)
+        if scene is None:
+            _RESTORING.pop(name)
+            continue
+        try:
+            _, done, _ = advance(steps, seconds)
+        except ReferenceError:  # an object went meanwhile: plan again from what is there now
+            _RESTORING[name] = (sess, _restore_plan(sess, scene)[1])
+            continue
+        except Exception as exc:  # noqa: BLE001  (a timer must not raise: say so, go on)
+            print(f"HR Radiosity: Live Relight: restoring after Live failed: {exc}", flush=True)
+            done = True
+        if done:
+            _RESTORING.pop(name, None)
+    return bool(_RESTORING)
+
+
+def restoring(scene=None):
+    """A stop's restore is still running on scene (None: on any scene; over timer ticks)."""
+    return bool(_RESTORING) if scene is None else scene.name_full in _RESTORING
+
+
+def drop_restores():
+    _RESTORING.clear()
+
+
+def finish_restores():
+    """Run every pending restore to its end (the add-on is disabled)."""
+    while restore_tick(seconds=float("inf")):
+        pass
 
 
 def stop_all(restore=False):
     for name in list(STATE.live_sessions):
         scene = bpy.data.scenes.get(name)
         if scene is not None:
-            stop(scene, restore)
+            stop(scene, restore, spread=False)
         else:
             STATE.live_sessions.pop(name).worker.close()
 
@@ -247,29 +330,44 @@ def _take_off_textures(sess, scene, view_layer):
             texture.remove_material(objs)
 
 
-def _restore(sess, scene):
+def _restore_plan(sess, scene):
+    """(what is restored, its steps): the preview's nodes undone a material at a time, then the
+    baked playback loaded, or HR_Radiance removed (and the baked textures put back)."""
+    targets = set(sess.targets)
+    wired = [n for n in sess.wired if n not in targets]  # (a stop while it prepared, faceless ones)
     objs = [
         o
-        for o in playback.objects_by_name(scene, sess.targets).values()
+        for o in playback.objects_by_name(scene, sess.targets + wired).values()
         if o is not None and o.type == "MESH"
     ]
-    preview.undo_show_radiance(scene, objs, sess.preview_change)
     has_bake = bool(paths.bake_dir_abs(scene))
-    if has_bake and scene.hr.playback and not texture.is_texture_bake(scene):
+    load = has_bake and scene.hr.playback and not texture.is_texture_bake(scene)
+    if load:
+        what = "the baked playback"
+    elif sess.texture_objects:
+        what = "the baked textures"
+    else:
+        what = "the baked playback" if has_bake else "no HR_Radiance (there is no bake)"
+    return what, _restore_steps(sess, scene, objs, load)
+
+
+def _restore_steps(sess, scene, objs, load):
+    yield from preview.undo_show_radiance_steps(scene, objs, sess.preview_change)
+    if load:
         playback.forget_loaded()
         playback.load_frame(scene)
-        return "the baked playback"
-    for o in objs:
+        return
+    for i, o in enumerate(objs):
         attr = o.data.color_attributes.get(names.ATTRIBUTE)
         if attr is not None:
             o.data.color_attributes.remove(attr)
+        if i % 64 == 63:
+            yield
     if sess.texture_objects:
         try:
             texture.add_material(scene, [o for o in objs if o.name in sess.texture_objects])
         except Exception as exc:  # noqa: BLE001  (the cache may be gone: say so, go on)
             print(f"HR Radiosity: the baked-texture preview could not be restored: {exc}", flush=True)
-        return "the baked textures"
-    return "the baked playback" if has_bake else "no HR_Radiance (there is no bake)"
 
 
 # -- reading the scene -----------------------------------------------------------------------------
@@ -283,14 +381,7 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
         known, lamps = known[: len(sess.shape_objects)], known[len(sess.shape_objects) :]
         shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, objects=known)
     else:
-        lamps = light_objects(view_layer, include_hidden=True)  # (as the shapes: shown on a later frame)
-        sess.light_objects = [o.name for o in lamps]
-        objs = light_shape_objects(view_layer, include_hidden=True)
-        sess.shape_objects = [o.name for o in objs]
-        sess.shape_meshes = {o.data.name for o in objs}
-        sess.shape_materials = {
-            s.material.name_full for o in objs for s in o.material_slots if s.material is not None
-        }
+        lamps, objs = _shape_names(sess, view_layer)
         shapes = collect_light_shapes(
             view_layer, depsgraph, LightShape, warnings, objects=[o for o in objs if not o.hide_render]
         )
@@ -306,39 +397,176 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
     return shapes, sig, warnings
 
 
+def _shape_names(sess, view_layer):
+    """(Blender lights, light-shape objects), hidden ones too; the session's names of them and of
+    their meshes and materials (the depsgraph handler tells their edits from the geometry's)."""
+    lamps = light_objects(view_layer, include_hidden=True)  # (as the shapes: shown on a later frame)
+    sess.light_objects = [o.name for o in lamps]
+    objs = light_shape_objects(view_layer, include_hidden=True)
+    sess.shape_objects = [o.name for o in objs]
+    sess.shape_meshes = {o.data.name for o in objs}
+    sess.shape_materials = {
+        s.material.name_full for o in objs for s in o.material_slots if s.material is not None
+    }
+    return lamps, objs
+
+
 def _build(sess, scene, view_layer, depsgraph, reason):
-    cfg = BakeConfig.resolve(scene.hr)
-    method, domain = cfg.method, cfg.domain
-    objs = geometry_objects(view_layer)
-    # the preview nodes show HR_Radiance as Live writes it (outgoing radiance or Indirect only)
-    sess.preview_change = sess.preview_change or preview.show_radiance(objs, cfg.live_mode)
-    with texture.source_materials(objs):
+    """Read the geometry and hand the worker a build (_build_steps): in this call, or over timer
+    ticks for the UI's sessions (Session.spread: live._tick advances Session.preparing)."""
+    steps = _build_steps(sess, scene, view_layer, reason)
+    if sess.spread:
+        sess.preparing, sess.prepared = steps, (0, 0, "starting")
+        sess.preparing_reason = reason
+        return
+    finish(steps)
+
+
+def _prepare(sess, scene, view_layer, seconds=None):
+    """Advance the build's preparation by a time slice (the timer). A failure of the first build's
+    ends Live (as start() did when it prepared in one call), a later one is the session's error."""
+    seconds = SLICE if seconds is None else seconds
+    try:
+        advance(sess.preparing, seconds)
+    except ReferenceError:  # an object read was removed meanwhile: prepare again
+        sess.preparing = _build_steps(sess, scene, view_layer, sess.preparing_reason)
+    except Exception as exc:  # noqa: BLE001  (a timer must not raise)
+        sess.preparing = None
+        if sess.settings is None:
+            print(f"HR Radiosity: Live Relight: {exc}", flush=True)
+            stop(scene)
+            STATE.live_messages[scene.name_full] = str(exc)
+        else:
+            sess.error = str(exc)
+
+
+def _finish_preparing(sess):
+    """The build's preparation to its end in this call (update(): synchronous)."""
+    while sess.preparing is not None:
+        scene, vl = _scene_of(sess)
+        _prepare(sess, scene, vl, seconds=float("inf"))
+        if sess.error:
+            raise LiveError(sess.error)
+        if session(scene) is not sess:
+            raise LiveError(message(scene) or "Live Relight stopped")
+
+
+def _changed_meanwhile(sess):
+    """An edit since the scene read began that the read may have missed (the depsgraph handler's
+    marks: geometry, a material, an object added or removed, the settings); light-shape edits
+    are not (they are read at the end). Only over timer ticks: in one call nobody edits between
+    the steps (and the read's own depsgraph updates must not start it again)."""
+    return sess.spread and bool(sess.geometry_dirty or sess.full_read)
+
+
+def _build_steps(sess, scene, view_layer, reason):
+    """_build's work as steps (steps.py): the preview's nodes wired a material at a time, the scene
+    read an object at a time (scene_in.collect_geometry_steps), then the light shapes read and the
+    build handed to the worker, which sets the solver up and computes the precompute key
+    (BuildSpec.prepare: numpy, off the UI thread). Edits made meanwhile: light shapes are read at
+    the last step, so their edits are in it; an edit the read may have missed (_changed_meanwhile)
+    starts the read again from the wiring's check."""
+    if sess.before is not None:  # the previous session's restore (Live off and on again) first
+        sess.prepared = (0, 0, "the last session's preview undone")
+        yield from sess.before
+        sess.before = None
+    if sess.take_off:
+        sess.take_off = False
+        _take_off_textures(sess, scene, view_layer)
+        yield
+    while True:
+        cfg = BakeConfig.resolve(scene.hr)
+        objs = geometry_objects(view_layer)
+        _shape_names(sess, view_layer)
+        # the preview nodes show HR_Radiance as Live writes it (outgoing radiance or Indirect only)
+        change = preview.radiance_change(objs, cfg.live_mode)
+        sess.preview_change = sess.preview_change or change  # (set first: a stop undoes a part)
+        sess.wired = [o.name for o in objs]
+        n_mat = len({s.material.name_full for o in objs for s in o.material_slots if s.material})
+        for k, _ in enumerate(preview.show_radiance_steps(objs, cfg.live_mode, change)):
+            sess.prepared = (k + 1, n_mat, "materials (the preview's nodes)")
+            yield
         # the bake's split (snapshot.read_snapshot): with the final gather, the objects a bake's
         # HR Radiance modifier subdivides (Vertex Spacing) give the hierarchy the mesh the modifier
         # receives and the output their finer corners (core.gather.OutputLayout)
-        scene_in = collect_geometry(view_layer, depsgraph, transport=cfg.gather is not None)
+        transport_too = cfg.gather is not None
+        if any(texture._helper_slots(o) for o in objs):  # (Live took the baked textures off)
+            with texture.source_materials(objs):
+                dg = _depsgraph(scene, view_layer)
+                scene_in = collect_geometry(view_layer, dg, transport=transport_too)
+            break
+        dg = _depsgraph(scene, view_layer)  # (evaluates the wiring: the handler's marks come now)
+        read = collect_geometry_steps(view_layer, dg, transport=transport_too)
+        next(read)  # the depsgraph's update
+        if transport_too:  # the objects before their subdivision: the read's own depsgraph updates
+            next(read)  # (own_values.before_subdivision sets the spacing to 0 and back, evaluated)
+        sess.geometry_dirty, sess.full_read = 0.0, False
+        sess.reads += 1
+        sess.prepared = (0, len(objs), "objects")
+        scene_in = None
+        while scene_in is None:
+            yield
+            if _changed_meanwhile(sess):  # (the handler ran between the ticks)
+                break
+            try:
+                k = next(read)
+            except StopIteration as done:
+                scene_in = done.value
+            else:
+                if k:
+                    sess.prepared = (k, len(objs), "objects")
+        if scene_in is not None:
+            _depsgraph(scene, view_layer)  # an edit not evaluated yet: the handler marks it now
+            if not _changed_meanwhile(sess):
+                break
+        read.close()
+        print("HR Radiosity: Live: the scene changed while it was read: reading it again", flush=True)
+    _request_build(sess, scene, view_layer, cfg, objs, scene_in, reason)
+    sess.dirty = False  # (the shapes were read just now, the geometry since the last edit)
+    sess.geometry_dirty, sess.full_read, sess.last_poll = 0.0, False, time.monotonic()
+    if sess.preparing is not None:
+        sess.preparing = None
+        print(f"HR Radiosity: Live Relight: prepared, building ({reason})", flush=True)
+
+
+def collect_geometry(view_layer, depsgraph, transport=False):
+    return finish(collect_geometry_steps(view_layer, depsgraph, transport=transport))
+
+
+def _solver_and_key(transport, params, gather, output):
+    """BuildSpec.prepare: the solver's setup and the precompute key, on the worker thread (numpy:
+    the mesh's isolated objects, its digest; the code digest)."""
+
+    def prepare(spec):
+        spec.params, spec.min_area_rel, far = solver_setup(transport, params)
+        spec.precompute = precompute_key(transport, spec.params, gather, output=output)
+        return [far] if far else []
+
+    return prepare
+
+
+def _request_build(sess, scene, view_layer, cfg, objs, scene_in, reason):
     transport = scene_in.mesh if scene_in.transport is None else scene_in.transport
     output = None if scene_in.transport is None else (scene_in.mesh, scene_in.transport_poly)
-    params, min_area_rel, far = solver_setup(transport, cfg.params)
     targets = list(scene_in.targets)
-
-    extract = FlatExtract(targets, domain)  # every object's values as slices of one array
+    extract = FlatExtract(targets, cfg.domain)  # every object's values as slices of one array
     spec = BuildSpec(
         transport,
-        params,
-        method,
-        min_area_rel,
-        domain,
+        None,  # params, min_area_rel, precompute: the worker's prepare()
+        cfg.method,
+        None,
+        cfg.domain,
         extract,
         reason,
         len(transport.loop_start),
         cfg.gather,
         cfg.live_threads,
         paths.default_cache_dir(scene),
-        precompute_key(transport, params, cfg.gather, output=output),
+        None,
         cfg.live_mode,
         cfg.solve_options if cfg.gather is not None else None,
         output,
+        prepare=_solver_and_key(transport, cfg.params, cfg.gather, output),
     )
     sess.settings = _settings(scene)
     sess.geometry = scene_in.signatures
@@ -346,13 +574,13 @@ def _build(sess, scene, view_layer, depsgraph, reason):
     sess.geo_materials = {
         s.material.name_full for o in objs for s in o.material_slots if s.material is not None
     }
-    sess.domain = domain
+    sess.domain = cfg.domain
     sess.targets = [t.name for t in targets]
     sess.objects = {}
-    sess.notes = list(scene_in.warnings) + ([far] if far else [])
+    sess.notes = list(scene_in.warnings)  # (+ the far objects' note: the worker's build messages)
     sess.reason = reason
     sess.error = sess.fatal = ""
-    shapes, sig, warnings = _read_shapes(sess, view_layer, depsgraph)
+    shapes, sig, warnings = _read_shapes(sess, view_layer, _depsgraph(scene, view_layer))
     sess.light_notes = warnings
     sess.serial += 1
     sess.requested_sig = sig
@@ -476,9 +704,10 @@ def update(scene, view_layer=None, check_geometry=True):
         _refuse(scene, BAKE_RUNNING)
     if sess is None:
         sess = start(scene, view_layer)
-    else:
+    elif sess.preparing is None:  # (else the UI's start, a slice per tick: the rest now)
         s, vl = _scene_of(sess)
         _reconcile(sess, s, vl, check_geometry or bool(sess.geometry_dirty))
+    _finish_preparing(sess)
     if not sess.worker.flush(timeout=None):
         raise LiveError("the Live Relight worker stopped")
     _deliver(sess, scene)

@@ -56,6 +56,8 @@ class BuildSpec:
     solve: dict = None  # the bake's solver options (settings.solve_options) with the gather; None: Live's own
     output: tuple = None  # (finer mesh, transport polygon per polygon): the gather's OutputLayout (Vertex
     # Spacing after a bake added the modifiers; `mesh` is then the mesh they receive), None: on `mesh`
+    prepare: object = None  # callable(spec) -> [message]: run first by the worker (it sets params,
+    # min_area_rel and precompute: the solver's setup and the precompute key, numpy off the UI thread)
 
 
 @dataclass
@@ -262,6 +264,10 @@ class LiveWorker:
 
         self.dyn = self.gather = None  # the old ones are of no use any more (and may be large)
         try:
+            notes = spec.prepare(spec) if spec.prepare is not None else []
+            spec.prepare = None  # (done: a spec handed over again is not prepared twice)
+            if self._superseded():
+                return
             system, gather, why = (
                 pc.load(spec.cache_dir, spec.precompute)
                 if spec.cache_dir
@@ -299,7 +305,8 @@ class LiveWorker:
             self.builds += 1
             self.fraction = 1.0
             self.phase = "computing"
-            self._build_result = Result(generation, kind="build", messages=list(system.build.warnings))
+            notes += [m for m in system.build.warnings if m not in notes]
+            self._build_result = Result(generation, kind="build", messages=notes)
             if self._shapes is None and self._last_shapes is not None:
                 self._shapes = self._last_shapes  # the newest light state, on the new hierarchy
 

@@ -80,16 +80,31 @@ def colour_chain(mat, tree, src, location, mode):
     return add.outputs["Vector"]
 
 
-def _add_nodes(mat, mode="RADIANCE"):
+def _add_nodes(mat, mode="RADIANCE", name_now=True):
+    """The preview's nodes in mat. name_now False: the Attribute node is left unnamed (it reads
+    nothing until _name_attribute): naming one makes Blender rebuild the depsgraph's relations at
+    its next evaluation, about 0.6 s at 100k however many were named (measured; nodes, links and
+    the active output cost it 20-30 ms), so a start spread over timer ticks names them all in one
+    last step instead of costing that once per tick."""
     tree = mat.node_tree
     if tree is None:
         return False
     x = max((n.location.x for n in tree.nodes if not n.name.startswith(PREVIEW)), default=0) + 300
     attr = node_named(tree, N_ATTR, "ShaderNodeAttribute", (x, -400))
-    attr.attribute_type = "GEOMETRY"
-    attr.attribute_name = ATTRIBUTE
+    if name_now:
+        _name_attribute(tree)
     emission_output(mat, tree, attr.outputs["Color"], x + 600, mode)
     return True
+
+
+def _name_attribute(tree):
+    """The preview's Attribute node reads HR_Radiance (set only when not so already: an unchanged
+    node costs Blender no relations update)."""
+    attr = tree.nodes[N_ATTR]
+    if attr.attribute_type != "GEOMETRY":
+        attr.attribute_type = "GEOMETRY"
+    if attr.attribute_name != ATTRIBUTE:
+        attr.attribute_name = ATTRIBUTE
 
 
 def own_output(tree):
@@ -154,19 +169,22 @@ def add_preview(objects, mode="RADIANCE"):
     return finish(add_preview_steps(objects, mode))
 
 
-def add_preview_steps(objects, mode="RADIANCE"):
+def add_preview_steps(objects, mode="RADIANCE", last=False):
     """add_preview a material at a time: a generator yielding after each material it wires (the
     count is its return value), for the UI to spread over timer ticks. Each node it names costs
     Blender a pass over every ID of the file (the node's animation paths): 3,641 materials of the
-    furnished 100k room took 30 s CPU in one call."""
-    done = set()
+    furnished 100k room took 30 s CPU in one call. last: the Attribute nodes are named in one last
+    step (_add_nodes' name_now: one relations update of Blender's, not one per tick; 0.3 ms a
+    node at 100k); the same nodes in the end."""
+    done, trees = set(), []
     for obj in objects:
         if obj.type != "MESH":
             continue
         mats = [s.material for s in obj.material_slots if s.material is not None]
         if not mats:
             mat = _preview_material()
-            _add_nodes(mat, mode)
+            if _add_nodes(mat, mode, name_now=not last) and last:
+                trees.append(mat.node_tree)
             obj.data.materials.append(mat)
             yield
             continue
@@ -174,9 +192,14 @@ def add_preview_steps(objects, mode="RADIANCE"):
             if m.name_full not in done:
                 if bpy.app.version < (5, 0, 0) and not m.use_nodes:
                     m.use_nodes = True
-                _add_nodes(m, mode)
+                if _add_nodes(m, mode, name_now=not last) and last:
+                    trees.append(m.node_tree)
                 done.add(m.name_full)
                 yield
+    for tree in trees:
+        _name_attribute(tree)
+    if trees:
+        yield  # (Blender's relations update falls into the redraw after this step, not the next one)
     return len(done)
 
 
@@ -187,7 +210,8 @@ def remove_preview(objects=None):
 
 def remove_preview_steps(objects=None):
     """remove_preview a material at a time (a generator yielding after each material; the count is
-    its return value): removing nodes costs Blender a pass over every ID of the file too."""
+    its return value): removing nodes costs Blender a pass over every ID of the file too (removing
+    a named Attribute node costs no relations update: measured)."""
     mats = (
         bpy.data.materials
         if objects is None
@@ -208,12 +232,14 @@ def remove_preview_steps(objects=None):
             outs[0].is_active_output = True
         n += 1
         yield
-    for o in bpy.data.objects if objects is None else objects:
+    for k, o in enumerate(bpy.data.objects if objects is None else objects):
         if o.type == "MESH":
             for i in reversed(range(len(o.data.materials))):
                 m = o.data.materials[i]
                 if m is not None and m.get("hr_preview"):
                     o.data.materials.pop(index=i)
+        if k % 256 == 255:
+            yield  # (3,882 objects' slots at 100k: about 0.1 s)
     return n
 
 
@@ -231,10 +257,16 @@ def has_preview():
 
 def refresh_preview(objects, mode):
     """Re-wire the materials of `objects` that show the preview (a new bake may change the mode)."""
+    return finish(refresh_preview_steps(objects, mode))
+
+
+def refresh_preview_steps(objects, mode):
+    """refresh_preview a material at a time (a generator yielding after each material it re-wires)."""
     mats = {s.material for o in objects if o.type == "MESH" for s in o.material_slots if s.material}
     for m in mats:
         if m.node_tree is not None and N_OUT in m.node_tree.nodes:
             _add_nodes(m, mode)
+            yield
 
 
 def wired_mode(tree):
@@ -247,21 +279,42 @@ def show_radiance(objects, mode="RADIANCE"):
     Indirect-only values): the preview nodes where they are missing ("added"), or a preview of
     another mode re-wired ("rewired"); "" when they show it already. undo_show_radiance() puts
     back what this changed."""
+    change = radiance_change(objects, mode)
+    finish(show_radiance_steps(objects, mode, change))
+    return change
+
+
+def radiance_change(objects, mode):
+    """What show_radiance(objects, mode) has to do: "added", "rewired" or "" (nothing)."""
     mats = [s.material for o in objects for s in o.material_slots if s.material is not None]
     shown = all(m.node_tree is not None and N_OUT in m.node_tree.nodes for m in mats) and all(
         o.material_slots for o in objects
     )
     if not shown:
-        add_preview(objects, mode)
         return "added"
     if any(wired_mode(m.node_tree) != mode for m in mats):
-        refresh_preview(objects, mode)
         return "rewired"
     return ""
 
 
-def undo_show_radiance(scene, objects, change):
+def show_radiance_steps(objects, mode, change):
+    """show_radiance a material at a time, `change` being radiance_change's answer (Live Relight's
+    start spreads it over timer ticks: 3,641 materials took 26 s CPU in one call at 100k). Stopped
+    half way, undo_show_radiance(..., change) still puts everything back: "added" removes the
+    preview from every material of `objects`, "rewired" wires every one to the bake's mode."""
     if change == "added":
-        remove_preview(objects)
+        yield from add_preview_steps(objects, mode, last=True)
     elif change == "rewired":
-        refresh_preview(objects, bake_mode(scene))
+        yield from refresh_preview_steps(objects, mode)
+
+
+def undo_show_radiance(scene, objects, change):
+    finish(undo_show_radiance_steps(scene, objects, change))
+
+
+def undo_show_radiance_steps(scene, objects, change):
+    """undo_show_radiance a material at a time (Live Relight's stop, over timer ticks)."""
+    if change == "added":
+        yield from remove_preview_steps(objects)
+    elif change == "rewired":
+        yield from refresh_preview_steps(objects, bake_mode(scene))
