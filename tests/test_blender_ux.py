@@ -311,6 +311,8 @@ def test_preview_button_wires_a_slice_of_materials_per_tick(tmp_path, monkeypatc
     assert reports[0][0] == "INFO" and f"{len(mats)} material(s)" in reports[0][1], reports
     wired = {m.name: sorted((n.name, n.bl_idname) for n in m.node_tree.nodes) for m in mats}
     assert all(preview.N_OUT in m.node_tree.nodes for m in mats)
+    # named in the button's last step (each name costs Blender a relations update: not one per tick)
+    assert all(m.node_tree.nodes[preview.N_ATTR].attribute_name == preview.ATTRIBUTE for m in mats)
     assert scene.name_full in ops.STATE.dirty  # the stale check follows on playback's timer
     # Remove Preview's button: a slice per tick too
     assert ops.HR_OT_remove_preview.invoke(op, context, _Event("LEFTMOUSE")) == {"RUNNING_MODAL"}
