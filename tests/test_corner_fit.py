@@ -175,3 +175,25 @@ def test_a_sparse_correction_shifts_as_the_whole_one():
         rest[at] = False
         assert not want[rest].any()
         assert not np.array_equal(want, dense_loops)  # the shifts moved some loop
+
+
+def test_a_box_sunk_into_a_floor_plane_shows_its_sides_light_down_to_the_floor():
+    """A 0.5 m box sunk 20 cm into a floor plane (one quad) under an emitter: each side is one quad
+    whose lower corners' samples (a quarter of the way in: 7.5 cm under the floor) lie below the
+    plane, where about half their probe rays hit its back face and the rest escape. They must count
+    as buried (layouts._buried: back faces and no front face) and move above the floor; left there
+    they gathered nothing and the sides' lower corners read 0, the visible part shading to black at
+    the floor (the artist room's Crate, benchmarks/sunk_box.py)."""
+    verts = [(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)]
+    verts += [(-0.5, -0.5, 1.5), (-0.5, 1.0, 1.5), (1.0, 1.0, 1.5), (1.0, -0.5, 1.5)]  # facing down
+    bv, bf = _box((0, 0, -0.2), (0.5, 0.5, 0.3), len(verts))
+    polys = [(0, 1, 2, 3), (4, 5, 6, 7)] + bf
+    grey, black = (0.5,) * 3, (0.0,) * 3
+    mesh = MeshInput.from_polygons(
+        verts + bv, polys, [grey, black] + [grey] * 6, [black, (1.0,) * 3] + [black] * 6, [0, 1] + [2] * 6
+    )
+    g = LoopGather(RadiositySystem(mesh, RefineParams.preset("draft")), rays=16, shadow_rays=16)
+    loops = g.loop_radiance(g.system).mean(1)
+    sides = 16 + np.arange(16).reshape(4, 4)  # the box's sides' loops: (bottom, bottom, top, top)
+    low, high = loops[sides[:, :2]], loops[sides[:, 2:]]
+    assert (low > 0.5 * high.mean(1, keepdims=True)).all(), (low, high)

@@ -198,6 +198,11 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
 # patch's centre, nearest the default inset (0.5) first
 UNCOVER = (0.25, 0.75, 0.125, 0.875, 0.0625, 0.95)
 PROBE_RAYS = 8  # _buried: rays per sample; buried when at least 3/4 of them hit a back face
+# _buried: or under a plane (a box's side below a floor plane it is sunk into): at least
+# PROBE_UNDER rays hit back faces and at most PROBE_FRONT a front face, the rest escaping (below the
+# plane, outside the room); a sample by an open window or the open side of a box has no back faces
+PROBE_UNDER = 2
+PROBE_FRONT = 0
 PROBE_BATCH = 1 << 13  # _buried: samples per batch on threads (fixed: values never depend on threads)
 
 
@@ -210,7 +215,8 @@ def _buried(system, pts, patch, reach):
     """Samples inside another solid or under a face touching theirs: covered as final.py decides
     it (the contacts' test, open edges of gaps OPEN_EDGE, a slot lit through its mouths not), or
     most of PROBE_RAYS rays hitting back faces (inside a closed solid whose crossing the contacts
-    do not see: a lid's side sunk into a box). reach: the rays' length (_uncover's)."""
+    do not see: a lid's side sunk into a box), or some hitting back faces and none a front face (under
+    a plane: a box's side below the floor it is sunk into). reach: the rays' length (_uncover's)."""
     pt = system.patches
     out = np.zeros(len(pts), bool)
     con = system.h.contacts
@@ -235,6 +241,7 @@ def _buried(system, pts, patch, reach):
         dirs = cosine_directions(nrm, np.arange(i, j), PROBE_RAYS, seed=7)
         org = pts[i:j] + eps * nrm
         backs = np.zeros(j - i, np.int64)
+        fronts = np.zeros(j - i, np.int64)
         todo = np.flatnonzero(~out[i:j])
         for r0, r1 in ((0, first), (first, PROBE_RAYS)):
             if not len(todo):
@@ -246,8 +253,13 @@ def _buried(system, pts, patch, reach):
             back = np.zeros(len(prim), bool)
             back[hit] = np.einsum("ij,ij->i", d[hit], pt.normal[pt.triangle_patch[prim[hit]]]) > 0
             backs[todo] += back.reshape(-1, k).sum(1)
-            todo = todo[backs[todo] * 4 + (PROBE_RAYS - r1) * 4 >= 3 * PROBE_RAYS]  # can still reach it
-        return backs * 4 >= 3 * PROBE_RAYS
+            fronts[todo] += (hit & ~back).reshape(-1, k).sum(1)
+            rest = PROBE_RAYS - r1
+            todo = todo[
+                (backs[todo] * 4 + rest * 4 >= 3 * PROBE_RAYS)  # can still reach either rule
+                | ((fronts[todo] <= PROBE_FRONT) & (backs[todo] + rest >= PROBE_UNDER))
+            ]
+        return (backs * 4 >= 3 * PROBE_RAYS) | ((fronts <= PROBE_FRONT) & (backs >= PROBE_UNDER))
 
     parts = batch_map(back_faces, ranges(len(pts), PROBE_BATCH), threads)
     return out | (np.concatenate(parts) if parts else np.zeros(0, bool))
