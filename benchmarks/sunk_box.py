@@ -4,10 +4,11 @@ The artist room's Crate (a 0.5 m cube sunk 5 cm into the floor) read +7.6% again
 finer corners' samples at inset 0.5 and -10.7% at 0.36 (docs/accuracy.md, vx27). This reproduces
 it on a plane, a cube and a point light: at the default Vertex Spacing each side's lower finer face
 spans the floor line; its lower corners' samples lie at 12.5 x inset - 5 cm against the floor
-(inset 0.5: 1.25 cm above it; 0.36: 0.5 cm below). Below it, `layouts._buried` does not call them
-buried (only about half their probe rays hit the floor's back face: the rest escape below it, and
-buried needs 3/4 back faces), so they stay, gather almost nothing, and their corners read ~0: the
-visible part of the face shades to black at the floor (a false contact shadow 20 cm tall).
+(inset 0.5: 1.25 cm above it; 0.36: 0.5 cm below). Below it, `layouts._buried` did not call them
+buried before session 24's bur27 (only about half their probe rays hit the floor's back face: the
+rest escape below it, and buried needed 3/4 back faces), so they stayed, gathered almost nothing,
+and their corners read 0: the visible part of the face shaded to black at the floor (a false
+contact shadow 20 cm tall). Now they are moved above the floor (lower corners 0.000 -> 0.251).
 
     nice -n 5 env OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/sunk_box.py [--insets 0.5,0.36]
 
