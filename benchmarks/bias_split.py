@@ -33,7 +33,6 @@ import os
 import subprocess
 import sys
 
-import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
@@ -176,20 +175,7 @@ def main():
             cpu_s[f"bake_{k}"] = bake_cpu
         res = cc.compare(vn, r)
         res.update(view=view, variant=a.variant, cpu_seconds=cpu_s)
-        cc.pictures(vn, r, r["ref1"][1])
-        np.savez_compressed(
-            os.path.join(cc.OUT, f"camera_{vn}", "renders.npz"),
-            ref1=r["ref1"][0].astype(np.float32),
-            ref2=r["ref2"][0].astype(np.float32),
-            **{k: r[k][0].astype(np.float32) for k in bakes},
-            index=r["ref1"][1].astype(np.int32),
-            names=np.array(names),
-        )
-        dump["views"][vn] = res
-        from hr_testing.cycles_ref import write_json
-
-        write_json(path, dump)
-        cc.log(f"[{vn}] written {path}")
+        cc.save_view(vn, r, bakes, names, res, dump, path)
 
 
 if __name__ == "__main__":

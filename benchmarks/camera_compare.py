@@ -578,6 +578,24 @@ def figure(view_name, path):
     rgb.quantize(128, dither=Image.Dither.NONE).save(path, optimize=True)
 
 
+def save_view(vn, r, outputs, names, res, dump, path):
+    """A view's pictures, its renders (renders.npz) and its entry in the JSON at path."""
+    from hr_testing.cycles_ref import write_json
+
+    pictures(vn, r, r["ref1"][1])
+    np.savez_compressed(
+        os.path.join(OUT, f"camera_{vn}", "renders.npz"),
+        ref1=r["ref1"][0].astype(np.float32),
+        ref2=r["ref2"][0].astype(np.float32),
+        **{k: r[k][0].astype(np.float32) for k in outputs},
+        index=r["ref1"][1].astype(np.int32),
+        names=np.array(names),
+    )
+    dump["views"][vn] = res
+    write_json(path, dump)
+    log(f"[{vn}] written {path}")
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--views", default=",".join(VIEWS))
@@ -656,20 +674,7 @@ def main():
         res.update(view=view, ref_spp=a.spp, cpu_seconds=cpu_s)
         if view["scene"] == "furnished":
             res["texel_measure"] = texel_side(res)
-        pictures(vn, r, r["ref1"][1])
-        np.savez_compressed(
-            os.path.join(OUT, f"camera_{vn}", "renders.npz"),
-            ref1=r["ref1"][0].astype(np.float32),
-            ref2=r["ref2"][0].astype(np.float32),
-            **{k: r[k][0].astype(np.float32) for k in bakes},
-            index=r["ref1"][1].astype(np.int32),
-            names=np.array(names),
-        )
-        dump["views"][vn] = res
-        from hr_testing.cycles_ref import write_json
-
-        write_json(path, dump)
-        log(f"[{vn}] written {path}")
+        save_view(vn, r, bakes, names, res, dump, path)
 
 
 if __name__ == "__main__":
