@@ -270,6 +270,20 @@ def test_ray_backend_name_from_the_build_report():
     assert ray_backend_name(SimpleNamespace(build=SimpleNamespace(backend="NumpyBackend"))) == "numpy"
 
 
+def _unregistered(cls, **attrs):
+    """An object standing in for an operator instance of cls (bpy makes those only when it runs
+    one): cls's methods bound to it, its class attributes readable, attrs set."""
+    import inspect
+    from types import MethodType, SimpleNamespace
+
+    op = SimpleNamespace(**attrs)
+    for name, value in inspect.getmembers(cls):
+        if name.startswith("__") or name in attrs:
+            continue
+        setattr(op, name, MethodType(value, op) if inspect.isfunction(value) else value)
+    return op
+
+
 def test_preview_button_wires_a_slice_of_materials_per_tick(tmp_path, monkeypatch):
     """The Preview button (invoke) wires the materials over timer ticks, Remove Preview's unwires
     them (3,641 materials of the furnished 100k room took 30 s CPU in one call: every node named is
@@ -294,9 +308,8 @@ def test_preview_button_wires_a_slice_of_materials_per_tick(tmp_path, monkeypatc
         modal_handler_add=lambda op: None,
     )
     context = SimpleNamespace(scene=scene, view_layer=bpy.context.view_layer, window_manager=wm, window=None)
-    op = SimpleNamespace(report=lambda kind, msg: reports.append((sorted(kind)[0], msg)))
+    op = _unregistered(ops.HR_OT_add_preview, report=lambda kind, msg: reports.append((sorted(kind)[0], msg)))
     op.execute = lambda ctx: pytest.fail("the button wires over timer ticks")
-    op._end = lambda ctx: ops.HR_OT_add_preview._end(op, ctx)
     assert ops.HR_OT_add_preview.invoke(op, context, _Event("LEFTMOUSE")) == {"RUNNING_MODAL"}
     assert not preview.has_preview() and len(timers) == 1
     assert ops.HR_OT_add_preview.modal(op, context, _Event("MOUSEMOVE")) == {"PASS_THROUGH"}
@@ -315,6 +328,7 @@ def test_preview_button_wires_a_slice_of_materials_per_tick(tmp_path, monkeypatc
     assert all(m.node_tree.nodes[preview.N_ATTR].attribute_name == preview.ATTRIBUTE for m in mats)
     assert scene.name_full in ops.STATE.dirty  # the stale check follows on playback's timer
     # Remove Preview's button: a slice per tick too
+    op = _unregistered(ops.HR_OT_remove_preview, report=op.report)
     assert ops.HR_OT_remove_preview.invoke(op, context, _Event("LEFTMOUSE")) == {"RUNNING_MODAL"}
     ticks = 0
     while (got := ops.HR_OT_remove_preview.modal(op, context, _Event("TIMER", timers[1]))) == {

@@ -249,7 +249,46 @@ class HR_OT_custom_frame_range(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class HR_OT_add_preview(bpy.types.Operator):
+class _SlicedModal:
+    """A button's work as a generator of steps (preview.add_preview_steps ...), a slice of them per
+    timer tick (PREVIEW_SLICE s) so the UI stays usable. Subclasses give STOPPED (the error when
+    the data went away meanwhile), progress(done) -> status text and finished(context, n)."""
+
+    _timer = None
+    _steps = None
+
+    def _start(self, context, steps, total=None):
+        self._steps, self._done, self._total = steps, 0, total
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(PREVIEW_TICK, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type != "TIMER" or event.timer is not self._timer:
+            return {"PASS_THROUGH"}
+        try:  # a step at least, then until the slice is used
+            taken, finished, n = advance(self._steps, PREVIEW_SLICE)
+        except ReferenceError:  # objects or materials removed meanwhile
+            self._end(context)
+            self.report({"ERROR"}, self.STOPPED)
+            return {"CANCELLED"}
+        self._done += taken
+        if not finished:
+            _status_text(context, self.progress(self._done))
+            return {"PASS_THROUGH"}
+        self._end(context)
+        self.finished(context, n)
+        _redraw(context)
+        return {"FINISHED"}
+
+    def _end(self, context):
+        context.window_manager.event_timer_remove(self._timer)
+        self._timer, self._steps = None, None
+        _status_text(context, None)
+
+
+class HR_OT_add_preview(_SlicedModal, bpy.types.Operator):
     """Show the bake in the viewport and renders through an Emission shader: HR_Radiance, or for
     baked textures the image sequences on object-level material copies (restored by Remove Preview)"""
 
@@ -288,9 +327,6 @@ class HR_OT_add_preview(bpy.types.Operator):
         _report_bake_state(self, context)
         return {"FINISHED"}
 
-    _timer = None
-    _steps = None
-
     def invoke(self, context, event):
         """The button: the vertex preview wired a slice of materials per timer tick (PREVIEW_SLICE
         s), the UI usable meanwhile; the stale check then runs on playback's timer. Scripts and
@@ -300,30 +336,17 @@ class HR_OT_add_preview(bpy.types.Operator):
         objs = geometry_objects(context.view_layer)
         texture.remove_material(objs)
         self._n_objects = len(objs)
-        self._n_materials = len({s.material for o in objs for s in o.material_slots if s.material})
-        self._wired = 0
+        n_materials = len({s.material for o in objs for s in o.material_slots if s.material})
         # the Attribute nodes named in one last step: naming one costs Blender a relations update
         # (~0.6 s at 100k) at its next evaluation, so per slice the UI would pay it every tick
-        self._steps = add_preview_steps(objs, bake_mode(context.scene), last=True)
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(PREVIEW_TICK, window=context.window)
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
+        return self._start(context, add_preview_steps(objs, bake_mode(context.scene), last=True), n_materials)
 
-    def modal(self, context, event):
-        if event.type != "TIMER" or event.timer is not self._timer:
-            return {"PASS_THROUGH"}
-        try:  # a material at least, then until the slice is used
-            taken, finished, n = advance(self._steps, PREVIEW_SLICE)
-        except ReferenceError:  # objects or materials removed meanwhile
-            self._end(context)
-            self.report({"ERROR"}, "Preview stopped: objects were removed meanwhile (press Preview again)")
-            return {"CANCELLED"}
-        self._wired += taken
-        if not finished:
-            _status_text(context, f"HR Radiosity: preview, {self._wired} of ~{self._n_materials} material(s)")
-            return {"PASS_THROUGH"}
-        self._end(context)
+    STOPPED = "Preview stopped: objects were removed meanwhile (press Preview again)"
+
+    def progress(self, done):
+        return f"HR Radiosity: preview, {done} of ~{self._total} material(s)"
+
+    def finished(self, context, n):
         context.scene.render.use_lock_interface = True
         self.report({"INFO"}, f"Preview on {self._n_objects} object(s), {n} material(s)")
         problem = STATE.messages.get(context.scene.name_full, "")
@@ -331,14 +354,9 @@ class HR_OT_add_preview(bpy.types.Operator):
             self.report({"WARNING"}, problem)
         STATE.dirty.add(context.scene.name_full)  # compared on playback's timer, a slice per tick
         playback._schedule_check(0.0)
-        _redraw(context)
-        return {"FINISHED"}
-
-    def _end(self, context):
-        _end_modal(self, context)
 
 
-class HR_OT_remove_preview(bpy.types.Operator):
+class HR_OT_remove_preview(_SlicedModal, bpy.types.Operator):
     """Remove the preview nodes and give the materials their own shaders back"""
 
     bl_idname = "hr.remove_preview"
@@ -355,45 +373,20 @@ class HR_OT_remove_preview(bpy.types.Operator):
         self.report({"INFO"}, f"Preview removed from {n} material(s)")
         return {"FINISHED"}
 
-    _timer = None
-    _steps = None
-
     def invoke(self, context, event):
         """The button: a slice of materials per timer tick, as Preview Bake's (execute: in one call)."""
         if not playback.SPREAD:
             return self.execute(context)
         texture.remove_material()
-        self._done, self._steps = 0, remove_preview_steps()
-        wm = context.window_manager
-        self._timer = wm.event_timer_add(PREVIEW_TICK, window=context.window)
-        wm.modal_handler_add(self)
-        return {"RUNNING_MODAL"}
+        return self._start(context, remove_preview_steps())
 
-    def modal(self, context, event):
-        if event.type != "TIMER" or event.timer is not self._timer:
-            return {"PASS_THROUGH"}
-        try:  # a material at least, then until the slice is used
-            taken, finished, n = advance(self._steps, PREVIEW_SLICE)
-        except ReferenceError:  # materials removed meanwhile
-            _end_modal(self, context)
-            self.report(
-                {"ERROR"}, "Remove Preview stopped: materials were removed meanwhile (press it again)"
-            )
-            return {"CANCELLED"}
-        self._done += taken
-        if not finished:
-            _status_text(context, f"HR Radiosity: removing the preview, {self._done} material(s)")
-            return {"PASS_THROUGH"}
-        _end_modal(self, context)
+    STOPPED = "Remove Preview stopped: materials were removed meanwhile (press it again)"
+
+    def progress(self, done):
+        return f"HR Radiosity: removing the preview, {done} material(s)"
+
+    def finished(self, context, n):
         self.report({"INFO"}, f"Preview removed from {n} material(s)")
-        _redraw(context)
-        return {"FINISHED"}
-
-
-def _end_modal(op, context):
-    context.window_manager.event_timer_remove(op._timer)
-    op._timer, op._steps = None, None
-    _status_text(context, None)
 
 
 class HR_OT_load_frame(bpy.types.Operator):
