@@ -1089,8 +1089,10 @@ class FinalGather(DirectLight):
             lit = ~h.dark(leaf, hit)  # covered points read 0
         else:
             lit = h.exposure[leaf] > 0
-        i, leaf, hit = i[lit], leaf[lit], hit[lit]
-        col, er, ew = leaf.copy(), row[i], np.ones(len(i))
+        keep = np.flatnonzero(lit)
+        if len(keep) < len(lit):  # (the hits' rows of 3 by take)
+            i, leaf, hit = i[keep], leaf[keep], np.take(hit, keep, 0)
+        col, er, ew = leaf.copy(), row[i], None  # ew: weights per hit where they are not all 1
         if self.near_points:
             if self._diam is None:  # one assignment: threads may race, never half
                 # (a copy: each level stores its own, as before)
@@ -1102,7 +1104,7 @@ class FinalGather(DirectLight):
                 far = np.setdiff1d(np.arange(len(i)), nr)
                 col = np.concatenate([col[far], (leaf[nr, None] + self.n_hr * (1 + pnt)).ravel()])
                 er = np.concatenate([er[far], np.repeat(er[nr], 4)])
-                ew = np.concatenate([ew[far], pw.ravel()])
+                ew = np.concatenate([np.ones(len(far)), pw.ravel()])
             else:
                 if getattr(self, "_near_x", None) is None:  # one assignment: threads may race, never half
                     self._near_x = self._shared(("near", k), lambda: _near_points(h, self.n_hr, k))
@@ -1113,7 +1115,7 @@ class FinalGather(DirectLight):
         span = self.n_hr * (1 + self.near_points**2)
         if self.slopes or (self.near_points and self.near_read == "bilinear"):  # (weights per hit)
             u, inv = np.unique(er.astype(np.int64) * span + col, return_inverse=True)
-            cnt = np.bincount(inv, ew, len(u))
+            cnt = np.bincount(inv, np.ones(len(inv)) if ew is None else ew, len(u))
         else:  # every hit weighs 1: the counts of equal keys, exact (no argsort)
             if span < _SENTINEL:
                 key = _row_sorted(er, col, m, span)
