@@ -3,7 +3,8 @@ stores it) on a stored build's system and base solution (bench_gather_events.py 
 code of the checkout given: CPU seconds, one run. For comparing checkouts on the same system.
 
     .venv/bin/python benchmarks/gather_precompute.py /work/cache/STORE [--root CHECKOUT] \
-        [--set layouts.SPLIT=False] [--threads N] [--serial] [--profile FILE [--whole]] [--digest FILE] \
+        [--set layouts.SPLIT=False] [--set final.FinalGather.BATCH_RAYS=1<<17] [--threads N] \
+        [--serial] [--profile FILE [--whole]] [--digest FILE] \
         [--json FILE] [--write DIR]
 
 --serial: the CPU seconds of the threaded maps' batches (core.parallel.profiled, threads 1) and so
@@ -47,10 +48,13 @@ from hr_addon.core import gather, parallel  # noqa: E402
 from hr_addon.core.events import DynamicRadiosity  # noqa: E402
 from hr_addon.io import precompute as pc  # noqa: E402
 
-for kv in args.set:
+for kv in args.set:  # module.NAME or module.Class.NAME under hr_addon.core.gather
     name, value = kv.split("=", 1)
-    mod, attr = name.rsplit(".", 1)
-    setattr(getattr(gather, mod), attr, eval(value))
+    *path, attr = name.split(".")
+    target = gather
+    for part in path:
+        target = getattr(target, part)
+    setattr(target, attr, eval(value))
 s, g, header = load_store(Path(args.store) / pc.FILENAME)
 pc.use_threads(s, g, args.threads)
 del g

@@ -197,3 +197,44 @@ def test_a_box_sunk_into_a_floor_plane_shows_its_sides_light_down_to_the_floor()
     sides = 16 + np.arange(16).reshape(4, 4)  # the box's sides' loops: (bottom, bottom, top, top)
     low, high = loops[sides[:, :2]], loops[sides[:, 2:]]
     assert (low > 0.5 * high.mean(1, keepdims=True)).all(), (low, high)
+
+
+def test_slot_samples_reuse_the_chains_slot_split_found_and_keep_every_value(monkeypatch):
+    """FinalGather._slots takes the slot chains layouts.slot_split found at its slot samples' area
+    points (their 64 points each: most of _slots' covered-point lookups) where they were found on
+    a patch of the sample's plane and piece, and looks up the others: the same gather, bit for bit,
+    as looking every one up (chains dropped) or half of them (their patches made another plane's)."""
+    from hr_addon.core.gather import layouts
+
+    s = books_scene()
+    split = layouts.slot_split
+
+    def gathered():
+        g = LoopGather(s, rays=16, shadow_rays=4)
+        slot = [v for v in g._slot.values() if isinstance(v, np.ndarray)]
+        return [g.points, g.dark, g.gain, g.indptr, g.cols, g.w, g._slot["f"].points, *slot]
+
+    looked_up = []
+
+    def drop(*a, **k):  # every chain looked up again
+        out = split(*a, **k)
+        looked_up.append(out[3][1].shape[0])
+        return (*out[:3], out[3][:2], out[4])
+
+    def other_plane(*a, **k):  # half the points' patches on another plane: looked up
+        out = split(*a, **k)
+        rows, area, chain, patch = out[3]
+        patch = patch.copy()
+        plane = s.h.contacts.plane
+        patch[:, ::2] = np.flatnonzero(plane != plane[patch[0, 0]])[0] if len(patch) else 0
+        return (*out[:3], (rows, area, chain, patch), out[4])
+
+    want = gathered()
+    for fake in (drop, other_plane):
+        monkeypatch.setattr(layouts, "slot_split", fake)
+        got = gathered()
+        assert len(got) == len(want)
+        for a, b in zip(got, want):
+            assert np.array_equal(a, b)
+        monkeypatch.setattr(layouts, "slot_split", split)
+    assert looked_up and looked_up[0] > 0  # the scene has slot samples with area points

@@ -65,6 +65,7 @@ def test_cosine_directions_are_deterministic_per_sample_and_cosine_weighted():
 def test_cosine_directions_and_nearest_point_match_their_plain_formulas_bit_for_bit():
     """The precompute's two hot kernels (rewritten for speed, docs/scale.md session 22) against the
     plain formulas they stand for: the same bits, so a stored precompute does not change."""
+    from hr_addon.core.gather import sampling
     from hr_addon.core.gather.final import _nearest_point
     from hr_addon.core.gather.sampling import _frame, rotated_hammersley
 
@@ -81,6 +82,12 @@ def test_cosine_directions_and_nearest_point_match_their_plain_formulas_bit_for_
         ref = np.stack([x * t[:, k, None] + y * b[:, k, None] + z * n[:, k, None] for k in range(3)], -1)
         got = cosine_directions(n, keys, rays, 3)
         assert got.shape == ref.shape and (got.view(np.uint64) == ref.view(np.uint64)).all()
+        # by blocks of samples (DIRECTION_BLOCK rays each): one sample, a few, any count per block
+        for block in (1, 64, 1000):
+            with pytest.MonkeyPatch.context() as mp:
+                mp.setattr(sampling, "DIRECTION_BLOCK", block)
+                got = cosine_directions(n, keys, rays, 3)
+            assert (got.view(np.uint64) == ref.view(np.uint64)).all()
     # nearest of k^2 points per node (table rows x..., y..., z...): argmin of the summed squares,
     # ties to the first; over more hits than one chunk, with exact ties (a hit at a point's mirror)
     k2, nodes, m = 16, 50, 5000

@@ -66,11 +66,17 @@ class SlotMouths:
         times the share of an endless mouth's view factor that the segment's extent along its
         edge subtends, (atan(s / x) + s x / (s^2 + x^2)) / pi between its ends (thin strips:
         h^2 x / (2 pi (s^2 + x^2)^2) ds)."""
-        rho = np.asarray(rho, float)
-        out = np.zeros(rho.shape)
+        return self.slot_transfers(points, patch, chain, [(rho, reflectance)])[0]
+
+    def slot_transfers(self, points, patch, chain, walls):
+        """[slot_transfer(points, patch, chain, rho, reflectance) for (rho, reflectance) in walls],
+        the same values: the mouths' geometry found once for every pair of reflectances (the
+        gather's slot samples take two: their own, and black walls for the mouths' view factor)."""
+        walls = [(np.asarray(rho, float), reflectance) for rho, reflectance in walls]
+        outs = [np.zeros(rho.shape) for rho, _ in walls]
         j = np.flatnonzero(np.asarray(chain) >= 0)
         if not len(j):
-            return out
+            return outs
         c = np.asarray(chain)[j]
         M = self.slot_mouths()
         pr, sg = csr_rows(M["start"], c)
@@ -86,7 +92,6 @@ class SlotMouths:
             return (np.arctan(s / x) + s * x / (s * s + x * x)) / np.pi
 
         frac = share(np.einsum("ij,ij->i", b, e)) - share(np.einsum("ij,ij->i", a, e))
-        other = self._other_wall(sg, reflectance)
         # the wall that goes on beyond the mouth: the face beyond the surface's own edge (ext of the
         # mouth), or the surface beyond the face's edge (to its patch's edge, on the perpendicular)
         own = M["own"][sg]
@@ -99,13 +104,18 @@ class SlotMouths:
             f, u = p2[pr[q]] + perp, perp / x[q, None]
             t = np.stack([ray_exit(f, u, c[:, i], c[:, (i + 1) % 4]) for i in range(4)], 1)
             ext[q] = np.where((t > 0).sum(1) % 2 == 1, t.max(1), 0.0)  # 0: the foot is off the patch
-        E = np.zeros((len(sg), rho.shape[1]))
+        side = []  # (facing, mouths, their depth and extension in gap widths, frac, rows)
         for fc in (False, True):
             w = np.flatnonzero(own == fc)
-            E[w] = frac[w, None] * slot_irradiance(x[w] / hs[w], rho[j][pr[w]], other[w], ext[w] / hs[w], fc)
-        for k in range(rho.shape[1]):
-            out[j, k] = np.bincount(pr, E[:, k], len(j))
-        return out
+            side.append((fc, w, x[w] / hs[w], ext[w] / hs[w], frac[w, None], j[pr[w]]))
+        for (rho, reflectance), out in zip(walls, outs):
+            other = self._other_wall(sg, reflectance)
+            E = np.zeros((len(sg), rho.shape[1]))
+            for fc, w, xw, ew, fw, rw in side:
+                E[w] = fw * slot_irradiance(xw, rho[rw], other[w], ew, fc)
+            for k in range(rho.shape[1]):
+                out[j, k] = np.bincount(pr, E[:, k], len(j))
+        return outs
 
     def _other_wall(self, mouth, reflectance):
         """(M, C) the reflectance of the gap's other wall at mouths (M,): 0 where the occluder's

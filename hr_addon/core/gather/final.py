@@ -737,8 +737,10 @@ class FinalGather(DirectLight):
         bounce between the walls, over what the gather finds through its nearest mouth
         (slots.slot_transfer / Contacts.through_mouth: the light outside uniform over the
         mouths). Rays from deep in a slot would find its mouth too rarely (view factor
-        about (h / 2x)^2). area: (rows, points (r, k, 3)): the transfer of sample rows[j] is the
-        mean over points[j] (a texel's area, layouts.texel_samples)."""
+        about (h / 2x)^2). area: (rows, points (r, k, 3)[, chains (r, k), patches (r, k)]): the
+        transfer of sample rows[j] is the mean over points[j] (a texel's area, layouts.texel_samples);
+        chains: the slot chain Contacts.slots found at each point on patches (layouts.slot_split's),
+        reused where that patch's plane and piece are the sample's (slots() reads only those)."""
         s = self.system
         pt = s.patches
         con.close_mouths(s.backend.occluded)  # (and the mouths built: once, before the batches)
@@ -751,24 +753,30 @@ class FinalGather(DirectLight):
             ok = (hg > 0) & (x > 0)
             d, x, hg, foot, chain, mouth = d[ok], x[ok], hg[ok], foot[ok], chain[ok], mouth[ok]
             if area is not None:  # the area's points and their chains (slots()), once for both transfers
-                rows, ap = area
+                rows, ap = area[:2]
                 j = np.flatnonzero(np.isin(d, rows))
                 r = np.searchsorted(rows, d[j])  # rows ascending (texel_samples' order)
                 k = ap.shape[1]
                 pa, qa = ap[r].reshape(-1, 3), np.repeat(self.patch[d[j]], k)
-                ca = con.slots(pa, qa)[3]
+                if len(area) > 2:  # known where found on a patch of the sample's plane and piece
+                    ca, kp = area[2][r].ravel(), area[3][r].ravel()
+                    redo = np.flatnonzero((con.plane[kp] != con.plane[qa]) | (con.piece[kp] != con.piece[qa]))
+                    ca[redo] = con.slots(pa[redo], qa[redo])[3]
+                else:
+                    ca = con.slots(pa, qa)[3]
 
-            def transfer(rho, refl):  # slot_transfer, a texel's mean over its area's points (area)
-                E = con.slot_transfer(self.points[d], self.patch[d], chain, rho, refl)
-                if area is not None:
-                    Ea = con.slot_transfer(pa, qa, ca, np.repeat(rho[j], k, 0), refl)
-                    E[j] = Ea.reshape(len(j), k, 3).mean(1)
-                return E
-
-            E = transfer(self.rho[d], pt.reflectance)
-            # the mouths' view factor (the first bounce of an even outside, every mouth)
-            fm = transfer(np.zeros((len(d), 3)), np.zeros_like(pt.reflectance)) if self.slot_facing else E
-            return d, x, hg, foot, mouth, E, fm
+            # slot_transfer with the samples' own walls and, with slot_facing, black ones (the mouths'
+            # view factor: the first bounce of an even outside, every mouth); a texel's the mean
+            # over its area's points (area). The mouths' geometry found once for both
+            walls = [(self.rho[d], pt.reflectance)]
+            if self.slot_facing:
+                walls.append((np.zeros((len(d), 3)), np.zeros_like(pt.reflectance)))
+            Es = con.slot_transfers(self.points[d], self.patch[d], chain, walls)
+            if area is not None:
+                Ea = con.slot_transfers(pa, qa, ca, [(np.repeat(rho[j], k, 0), refl) for rho, refl in walls])
+                for E, A in zip(Es, Ea):
+                    E[j] = A.reshape(len(j), k, 3).mean(1)
+            return d, x, hg, foot, mouth, Es[0], Es[-1]
 
         parts = batch_map(batch, ranges(len(dark), SLOT_BATCH), self.threads)
         d, x, hg, foot, mouth, E, fm = (np.concatenate(p) for p in zip(*parts))
@@ -1081,8 +1089,10 @@ class FinalGather(DirectLight):
             lit = ~h.dark(leaf, hit)  # covered points read 0
         else:
             lit = h.exposure[leaf] > 0
-        i, leaf, hit = i[lit], leaf[lit], hit[lit]
-        col, er, ew = leaf.copy(), row[i], np.ones(len(i))
+        keep = np.flatnonzero(lit)
+        if len(keep) < len(lit):  # (the hits' rows of 3 by take)
+            i, leaf, hit = i[keep], leaf[keep], np.take(hit, keep, 0)
+        col, er, ew = leaf.copy(), row[i], None  # ew: weights per hit where they are not all 1
         if self.near_points:
             if self._diam is None:  # one assignment: threads may race, never half
                 # (a copy: each level stores its own, as before)
@@ -1094,7 +1104,7 @@ class FinalGather(DirectLight):
                 far = np.setdiff1d(np.arange(len(i)), nr)
                 col = np.concatenate([col[far], (leaf[nr, None] + self.n_hr * (1 + pnt)).ravel()])
                 er = np.concatenate([er[far], np.repeat(er[nr], 4)])
-                ew = np.concatenate([ew[far], pw.ravel()])
+                ew = np.concatenate([np.ones(len(far)), pw.ravel()])
             else:
                 if getattr(self, "_near_x", None) is None:  # one assignment: threads may race, never half
                     self._near_x = self._shared(("near", k), lambda: _near_points(h, self.n_hr, k))
@@ -1105,7 +1115,7 @@ class FinalGather(DirectLight):
         span = self.n_hr * (1 + self.near_points**2)
         if self.slopes or (self.near_points and self.near_read == "bilinear"):  # (weights per hit)
             u, inv = np.unique(er.astype(np.int64) * span + col, return_inverse=True)
-            cnt = np.bincount(inv, ew, len(u))
+            cnt = np.bincount(inv, np.ones(len(inv)) if ew is None else ew, len(u))
         else:  # every hit weighs 1: the counts of equal keys, exact (no argsort)
             if span < _SENTINEL:
                 key = _row_sorted(er, col, m, span)

@@ -324,7 +324,9 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None, layout=None):
     mean of the light over the patch, whose corners' samples (a quarter of the way in) all lie in
     the slot's shade when the open strip is narrower than a quarter of the patch. skip (K,) bool:
     patches left out (cut_patches'). Returns (points (m, 3), patch (m,), weight (m,), slot_area
-    (rows of the slot samples (r,), their points (r, SLOT_AREA, 3)), (the split patches (p,), their
+    (rows of the slot samples (r,), their points (r, SLOT_AREA, 3), the slot chain slots() found at
+    each of those points (r, SLOT_AREA) on its transport patch (r, SLOT_AREA): FinalGather._slots
+    reuses them), (the split patches (p,), their
     interpolant's mean per unit corner value over the visible test points (p, 4)). Computed by
     batches of SPLIT_BATCH patches on the system's threads. layout: an OutputLayout (its patches
     are split, each point tested on the transport patch under it) or None (the system's)."""
@@ -336,7 +338,12 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None, layout=None):
         np.zeros((0, 3)),
         np.zeros(0, np.int64),
         np.zeros(0),
-        (np.zeros(0, np.int64), np.zeros((0, SLOT_AREA, 3))),
+        (
+            np.zeros(0, np.int64),
+            np.zeros((0, SLOT_AREA, 3)),
+            np.zeros((0, SLOT_AREA), np.int64),
+            np.zeros((0, SLOT_AREA), np.int64),
+        ),
         (np.zeros(0, np.int64), np.zeros((0, 4))),
     )
     cand = np.zeros(0, np.int64) if con is None else np.asarray(con.receivers, np.int64)
@@ -370,12 +377,14 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None, layout=None):
     parts = [p for p in parts if p is not None]
     if not parts:
         return none
-    sel, psel, w, deep, pdeep, ws, area, mixed, mean_w = (np.concatenate(x) for x in zip(*parts))
+    sel, psel, w, deep, pdeep, ws, area, achain, apatch, mixed, mean_w = (
+        np.concatenate(x) for x in zip(*parts)
+    )
     return (
         np.r_[sel, deep],
         np.r_[psel, pdeep],
         np.r_[w, ws],
-        (len(sel) + np.arange(len(deep)), area),
+        (len(sel) + np.arange(len(deep)), area, achain, apatch),
         (mixed, mean_w),
     )
 
@@ -383,7 +392,8 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None, layout=None):
 def _split_part(system, cand, grid, n, layout):
     """slot_split for patches `cand` (each patch's samples its own: a batch of them): (open samples'
     points, their patches, weights, slot samples' points, their patches, weights, their area's
-    points, the split patches, their interpolants' mean) or None if none is split."""
+    points, their chains and transport patches, the split patches, their interpolants' mean) or None
+    if none is split."""
     pt, con = layout.patches, system.h.contacts
     if not len(cand):
         return None
@@ -392,7 +402,7 @@ def _split_part(system, cand, grid, n, layout):
     gp, row = gp[order], row[order]
     tr = layout.transport(cand[row], gp)  # the transport patch under each test point
     cls = np.zeros(len(gp), np.int64)  # 0 open, 1 in a slot, 2 covered without a gap
-    depth, mouth = np.zeros(len(gp)), np.full(len(gp), -1, np.int64)
+    depth, mouth, chain = np.zeros(len(gp)), np.full(len(gp), -1, np.int64), np.full(len(gp), -1, np.int64)
     K = len(cand)
     cov = con.covered(gp, tr, threads=1)  # (inline: this is a batch)
     cls[cov] = 2
@@ -400,8 +410,8 @@ def _split_part(system, cand, grid, n, layout):
     # never split)
     c = np.flatnonzero(cov & (SLOT_WHOLE | (np.bincount(row, ~cov, K) > 0)[row]))
     if len(c):
-        x, h, _, _, mo = con.slots(gp[c], tr[c])
-        cls[c], depth[c], mouth[c] = np.where(h > 0, 1, 2), x, mo
+        x, h, _, ch, mo = con.slots(gp[c], tr[c])
+        cls[c], depth[c], mouth[c], chain[c] = np.where(h > 0, 1, 2), x, mo, ch
     cnt = np.stack([np.bincount(row, cls == k, K) for k in (0, 1)], 1)  # (K, 2) open, slot
     mixed = (cnt > 0).all(1)
     if SLOT_WHOLE:  # patches wholly in a slot, their light falling off over depths more than 2x apart
@@ -451,7 +461,8 @@ def _split_part(system, cand, grid, n, layout):
     first = np.searchsorted(grp, np.arange(grp.max() + 1))
     ms = np.bincount(grp)
     deep = sl[first]
-    area = gp[sl[first[:, None] + (np.arange(SLOT_AREA)[None] * ms[:, None]) // SLOT_AREA]]
+    at = sl[first[:, None] + (np.arange(SLOT_AREA)[None] * ms[:, None]) // SLOT_AREA]
+    area = gp[at]
     ws = share[np.searchsorted(mixed, row[deep]), 1] * ms / np.bincount(row[sl], minlength=K)[row[deep]]
     # the interpolant's mean over the visible part (the strata are not spread evenly): over the
     # open and slot test points
@@ -462,7 +473,7 @@ def _split_part(system, cand, grid, n, layout):
     mean_w = (
         np.stack([np.bincount(ri, a[:, j], len(mixed)) for j in range(4)], 1) / cnt[mixed].sum(1)[:, None]
     )
-    return gp[sel], cand[r], w, gp[deep], cand[row[deep]], ws, area, cand[mixed], mean_w
+    return gp[sel], cand[r], w, gp[deep], cand[row[deep]], ws, area, chain[at], tr[at], cand[mixed], mean_w
 
 
 # LoopGather: the samples averaged into one corner share its hemisphere rays, each tracing rays / k
@@ -519,12 +530,12 @@ class LoopGather(FinalGather):
             xp, xpatch = xp[seen], cut[row[seen]]
             skip = np.zeros(len(pt.nv), bool)
             skip[cut] = True
-            sp, spatch, sw, (rows, area), self.split_mean = slot_split(
+            sp, spatch, sw, (rows, *area), self.split_mean = slot_split(
                 s, skip if SPLIT else np.ones_like(skip), layout=output
             )
             self.extra_weight = np.r_[np.ones(len(pts) + len(xp)), sw]
             if len(rows):
-                kw["slot_area"] = (len(pts) + len(xp) + rows, area)
+                kw["slot_area"] = (len(pts) + len(xp) + rows, *area)
             xp, xpatch = np.r_[xp, sp], np.r_[xpatch, spatch]
             pts, nrm, patch = np.r_[pts, xp], np.r_[nrm, pt.normal[xpatch]], np.r_[patch, xpatch]
             if "sample_rays" in kw:  # the extra samples are read alone: all rays
