@@ -29,12 +29,12 @@ from hr_testing.furnished import furnished_room  # noqa: E402
 
 
 class Tracer:
-    def __init__(self, s, seed=1, nee=4):
+    def __init__(self, s, seed=1, nee=4, light="ceiling_light"):
         pt = s.patches
         self.be, self.pt = s.backend, pt
         self.tri_patch = pt.triangle_patch
         self.rho = pt.reflectance.T  # (K, 3)
-        lid = list(pt.object_names).index("ceiling_light")
+        lid = list(pt.object_names).index(light)
         lp = np.flatnonzero(np.asarray(pt.object_id) == lid)
         assert len(lp) == 1 and pt.nv[lp[0]] == 4
         self.lc = pt.corners[lp[0]]
@@ -127,6 +127,9 @@ def main():
         help="ceiling: the top level on the ceiling only; all: also "
         "one sample per patch everywhere else (32 rays), so the second level samples every leaf seen",
     )
+    ap.add_argument("--nee", type=int, default=4, help="panel samples a path vertex (8 x that at the points)")
+    ap.add_argument("--leaf-points", type=int, default=2, help="the second level's k x k samples per leaf")
+    ap.add_argument("--near-points", type=int, default=4, help="near reads (0: off)")
     ap.add_argument("--json", default=os.path.join(HERE, "out", "pt_check.json"))
     a = ap.parse_args()
     mesh, _ = furnished_room("20k")
@@ -157,6 +160,8 @@ def main():
         levels=2,
         iterations=12,
         sample_rays=None if a.top == "ceiling" else rays,
+        leaf_points=a.leaf_points,
+        near_points=a.near_points,
     )
     lv = g._levels
     g._levels = lambda V, direct, tail=False, f=lv: f(V, direct, True)
@@ -165,7 +170,7 @@ def main():
     L = g._levels(g.solution_values(s), lambda x: x.direct_and_emission(s)[0])
     D2 = g2.direct_static()
     y = g2.rho * (D2 + g2._read(L))
-    tr = Tracer(s)
+    tr = Tracer(s, nee=a.nee)
     res = {}
     # the second level's reads of leaves without second-level samples (they read the transport's V)
     used = g._second_map[0]
