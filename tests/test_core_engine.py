@@ -163,16 +163,18 @@ def _absorbed_over_emitted(s):
     return (a * (1 - rho) * (B[:, lf] - E) / rho).sum(1) / (a * E).sum(1)
 
 
-def test_a_closed_furnished_room_loses_light_through_partly_visible_links():
+def test_a_closed_furnished_room_loses_light_through_partly_visible_far_links():
     """The furnished 2k room (closed, a ceiling light panel) on the draft gather transport
-    (RefineParams.for_gather: one visibility ray per link, vis_k 1): partly visible links
-    weaker than shadow_feps keep their one-ray visibility, and the solution loses light (what it
-    absorbs over what it emits, measured per channel: shadow_feps 0.03, the preset's, 0.988 /
-    0.986 / 0.983; 0.01 1.002 / 0.997 / 0.993; 0.003 1.006 / 1.001 / 0.997; 0 (none split) 0.967
-    / 0.965 / 0.963; the 20k room 0.930 / 0.942 / 0.950 at 0.03, 0.959 / 0.967 / 0.972 at 0.003:
-    docs/gather.md, ind28). This is what makes the transport's V dark where the gather reads it
-    (the furnished 20k ceiling read by one level: -7.7% at 0.03, -2.5% at 0.01, -0.4% at 0.003
-    against the converged two-level gather)."""
+    (RefineParams.for_gather): far (cluster) links weaker than shadow_feps are kept where their
+    visibility is partial, one visibility for all their members, and the solution loses light
+    (with vis_k 1 a patch link's one ray is never partial: shadow_feps splits far links only).
+    What it absorbs over what it emits, measured per channel: shadow_feps 0.03 (the preset's) 0.988
+    / 0.986 / 0.983; 0.01 1.002 / 0.997 / 0.993; 0.003 1.006 / 1.001 / 0.997; 0 (none split) 0.967 /
+    0.965 / 0.963; the 20k room 0.930 / 0.942 / 0.950 at 0.03, 0.959 / 0.967 / 0.972 at 0.003. The
+    balance is not exact at draft (parts of the 20k room alone overshoot 1 by up to 8.6% at 0.003:
+    other links make light), so this asserts only the loss and its direction (docs/gather.md, ind28).
+    The same far links make the transport's V dark where the gather reads it (the 20k ceiling read by
+    one level: -7.7% at 0.03, -2.5% at 0.01, -0.4% at 0.003 against the converged two-level gather)."""
     import dataclasses
 
     from hr_testing.furnished import furnished_room
