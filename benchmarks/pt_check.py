@@ -130,6 +130,7 @@ def main():
     ap.add_argument("--nee", type=int, default=4, help="panel samples a path vertex (8 x that at the points)")
     ap.add_argument("--leaf-points", type=int, default=2, help="the second level's k x k samples per leaf")
     ap.add_argument("--near-points", type=int, default=4, help="near reads (0: off)")
+    ap.add_argument("--kw", default="{}", help="FinalGather keywords as JSON (a variant of the gather)")
     ap.add_argument("--json", default=os.path.join(HERE, "out", "pt_check.json"))
     a = ap.parse_args()
     mesh, _ = furnished_room("20k")
@@ -162,6 +163,7 @@ def main():
         sample_rays=None if a.top == "ceiling" else rays,
         leaf_points=a.leaf_points,
         near_points=a.near_points,
+        **json.loads(a.kw),
     )
     lv = g._levels
     g._levels = lambda V, direct, tail=False, f=lv: f(V, direct, True)
@@ -191,6 +193,9 @@ def main():
         pt_direct_share=float(refD.sum() / ref.sum()),
     )
     print("ceiling top samples", res["ceiling_top"], flush=True)
+    if not a.second:
+        json.dump(dict(paths=a.paths, nee=a.nee, kw=a.kw, results=res), open(a.json, "w"), indent=1)
+        return
     ok = np.flatnonzero(~g2.dark)
     rng = np.random.default_rng(3)
     sel2 = np.sort(rng.choice(ok, min(a.second, len(ok)), replace=False))
