@@ -19,6 +19,8 @@ applies the variant's change in the bake process before the command runs:
 - second32: the second level's samples 32 shadow rays each (draft's 16 // 4 -> 8).
 - coveredmean: hemisphere hits where the contact test covers them read their leaf's mean
   (covered_hits="shown") instead of 0.
+- shadow003, shadow01: the draft transport's shadow_feps 0.003 / 0.01 (GATHER_TRANSPORT's 0.03;
+  branch ind28: V's darkness, benchmarks/transport_split.py).
 - tail: the second level's passes read at their limit (FinalGather._tail, the geometric series of
   the last change) in every evaluation, not only with a light shape's gathered light (main
   before branch bias27; since its commit the default, so a no-op).
@@ -50,6 +52,8 @@ VARIANTS = {
     "tail": dict(patch="tail"),
     "second32": dict(gather=dict(second_shadow_rays=32)),
     "coveredmean": dict(gather=dict(covered_hits="shown")),
+    "shadow003": dict(transport=dict(shadow_feps=0.003)),
+    "shadow01": dict(transport=dict(shadow_feps=0.01)),
 }
 
 
@@ -60,6 +64,10 @@ def patched_bake(argv):
 
     for q in settings.GATHER:
         settings.GATHER[q].update(v.get("gather", {}))
+    if "transport" in v:  # the draft transport's preset (RefineParams.for_gather), one field changed
+        from hr_addon.core import params
+
+        params.GATHER_TRANSPORT["draft"].update(v["transport"])
     if v.get("patch") == "direct":
         from hr_addon.core.gather.final import FinalGather
 

@@ -153,6 +153,44 @@ def test_furnace_box_uniform(rho):
     assert np.abs(rel).max() < 0.005  # everywhere, not just on average
 
 
+def _absorbed_over_emitted(s):
+    """(3,) the power a solved closed scene absorbs, sum A (1 - rho) H over the leaves (H = (B -
+    E) / rho, the node means' irradiance), over the power it emits: 1 where no light is lost."""
+    B = s.solve()
+    lf = s.h.leaves()
+    E = s.base_emission()[:, lf] * s.h.exposure[lf]
+    a, rho = s.h.area[lf], s.patches.reflectance[:, s.h.patch[lf]]
+    return (a * (1 - rho) * (B[:, lf] - E) / rho).sum(1) / (a * E).sum(1)
+
+
+def test_a_closed_furnished_room_keeps_its_light_when_partly_visible_far_links_are_split():
+    """The furnished 2k room (closed, a ceiling light panel) on the draft gather transport
+    (RefineParams.for_gather): far (cluster) links weaker than shadow_feps are kept where their
+    visibility is partial, one visibility for all their members, and the solution loses light
+    (with vis_k 1 a patch link's one ray is never partial: shadow_feps splits far links only).
+    What it absorbs over what it emits, measured per channel: shadow_feps 0.03 (the preset's) 0.988
+    / 0.986 / 0.983; 0.01 1.002 / 0.997 / 0.993; 0.003 1.006 / 1.001 / 0.997; 0 (none split) 0.967 /
+    0.965 / 0.963; the 20k room 0.930 / 0.942 / 0.950 at 0.03, 0.959 / 0.967 / 0.972 at 0.003. The
+    balance is not exact at draft (parts of the 20k room alone overshoot 1 by up to 8.6% at 0.003:
+    other links make light), so this asserts the balance where split finer and the direction of
+    the preset's loss, not the preset's figure (a fix for it must not fail here; docs/gather.md, ind28).
+    The same far links make the transport's V dark where the gather reads it (the 20k ceiling read by
+    one level: -7.7% at 0.03, -2.5% at 0.01, -0.4% at 0.003 against the converged two-level gather)."""
+    import dataclasses
+
+    from hr_testing.furnished import furnished_room
+
+    mesh, _ = furnished_room("2k")
+    base = dataclasses.replace(RefineParams.for_gather("draft"), orient=True)
+    got = {
+        sf: _absorbed_over_emitted(RadiositySystem(mesh, dataclasses.replace(base, shadow_feps=sf)))
+        for sf in (0.03, 0.01)
+    }
+    print({k: np.round(v, 4) for k, v in got.items()})
+    assert np.abs(got[0.01] - 1).max() < 0.01  # split finer: within 1% in every channel
+    assert (got[0.01] > got[0.03] + 0.008).all()
+
+
 def test_push_corrections_are_what_makes_the_furnace_exact():
     s = RadiositySystem(scenes.closed_box(rho=0.5), RefineParams(vcorr=0))
     lf = s.h.leaves()
