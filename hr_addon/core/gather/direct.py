@@ -52,15 +52,19 @@ class DirectLight:
         ok = ~self.dark[a:b]
         if em.normal is not None:
             ok &= (x - em.point) @ em.normal > eps
-        top = np.full(len(x), -np.inf)
-        xn = np.einsum("mk,mk->m", x, nx)[:, None]
-        for s0 in range(0, len(em.verts), 64):
-            top = np.maximum(top, (nx @ em.verts[s0 : s0 + 64].T - xn).max(1))
-        ok &= top > eps
+        # the horizon test on the samples in front only (each sample's own products: the same
+        # values; at 100k a window is behind or beside 40-55% of a level's samples)
         i = np.flatnonzero(ok)
+        xi, ni = x[i], nx[i]
+        top = np.full(len(i), -np.inf)
+        xn = np.einsum("mk,mk->m", xi, ni)[:, None]
+        for s0 in range(0, len(em.verts), 64):
+            top = np.maximum(top, (ni @ em.verts[s0 : s0 + 64].T - xn).max(1))
+        up = top > eps
+        if not up.all():
+            i, xi, ni = i[up], xi[up], ni[up]
         if len(i) == 0:
             return out.astype(np.float32)
-        xi, ni = x[i], nx[i]
         if self.shadow_rays <= 0:
             return self._times_form_factor(em, out, i, xi, ni)
         # the shadow rays first, then the form factor only where some ray got through (46-47% of
