@@ -34,6 +34,7 @@ def main(argv=None):
     ap.add_argument("--parts", default="direct,read")
     ap.add_argument("--window", type=float, default=0.7)
     ap.add_argument("--method", default="FE")
+    ap.add_argument("--set", default="dict()", help="attributes per level: dict(top=dict(pilot_rays=4))")
     args = ap.parse_args(argv)
 
     from bench_gather_events import load_store
@@ -52,6 +53,9 @@ def main(argv=None):
     dyn.add("w", LightShape(rect, np.full(3, 20.0), "window"))
     rec = dyn.shapes["w"]
     levels = [("top", g), ("second", g.second)]
+    for name, lv in levels:
+        for k, v in eval(args.set).get(name, {}).items():
+            setattr(lv, k, v)
     rng = np.random.default_rng(1)
     # a fixed 3-channel input per level's read (the leaf values' rows it reads)
     reads = []
@@ -96,7 +100,8 @@ def main(argv=None):
     for name, lv in levels:
         D = got.get(f"direct_{name}")
         if D is not None:
-            print(f"{name}: n {lv.n:,}, lit {int((D > 0).sum()):,}, shadow rays {lv.shadow_rays}")
+            st = {k: v for k, v in lv.stats.items() if k.startswith("pilot")}
+            print(f"{name}: n {lv.n:,}, lit {int((D > 0).sum()):,}, shadow rays {lv.shadow_rays} {st}")
     if prof is not None:
         import io
         import pstats
@@ -113,6 +118,14 @@ def main(argv=None):
         for k, v in got.items():
             same = k in ref.files and ref[k].dtype == v.dtype and np.array_equal(ref[k], v)
             print(f"check {k}: {'EQUAL' if same else 'DIFFERENT'}", flush=True)
+            if not same and k in ref.files and k.startswith("direct"):
+                a, b = ref[k].astype(np.float64), v.astype(np.float64)
+                d = np.abs(b - a)
+                print(
+                    f"   samples changed {int((d > 0).sum()):,} of {int((a > 0).sum()):,} lit; sum "
+                    f"{b.sum() / a.sum() - 1:+.4%}; |diff| / mean lit {d.mean() / a[a > 0].mean():.4%}",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

@@ -15,6 +15,13 @@ from .texel_edges import edge_direct
 _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
 
+def _ratio_of(kern, vis):
+    """(L,) the ratio estimator sum(kern vis) / sum(kern) over each point's rays (1 where no ray
+    has weight)."""
+    ks = kern.sum(1)
+    return np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
+
+
 class DirectLight:
     """FinalGather's direct light (a mixin: it reads the gather's samples, points, normals, keys,
     dark, eps, seed, shadow_rays, system and its batching)."""
@@ -106,7 +113,54 @@ class DirectLight:
         """(L,) the visible fraction of em's projected solid angle from points xo (normals no) by
         shadow rays from uniforms u (L, S, 2), a ratio estimator: Arvo's solid-angle sampling, weight
         cos_x (and only where the emitter faces the point), or area-uniform points (area) weighted
-        cos_x cos_y / r^2."""
+        cos_x cos_y / r^2. With pilot_rays (area rays only): those of the S rays first (a stratified
+        subset, _pilot), the rest only at the points whose pilot rays do not all agree (adaptive
+        shadow testing: a point whose pilot rays are all blocked reads 0, all through 1); the
+        points traced in full get the same values as without the pilot, bit for bit."""
+        P = self._pilot(u.shape[1]) if area else None
+        if P is None:
+            return _ratio_of(*self._rays(em, xo, no, u, area))
+        kp, vp = self._rays(em, xo, no, u[:, P], area)
+        through = vp.all(1)
+        decided = (through | ~vp.any(1)) & (kp.sum(1) > 0)  # (no weight seen: no verdict)
+        out = through.astype(np.float64)
+        rest = np.flatnonzero(~decided)
+        if len(rest):
+            R = np.setdiff1d(np.arange(u.shape[1]), P)
+            kr, vr = self._rays(em, xo[rest], no[rest], u[rest][:, R], area)
+            kern = np.empty((len(rest), u.shape[1]))
+            vis = np.empty(kern.shape, bool)
+            kern[:, P], kern[:, R] = kp[rest], kr
+            vis[:, P], vis[:, R] = vp[rest], vr
+            out[rest] = _ratio_of(kern, vis)
+        self.stats["pilot_points"] = self.stats.get("pilot_points", 0) + len(out)
+        self.stats["pilot_traced"] = self.stats.get("pilot_traced", 0) + len(rest)
+        return out
+
+    # adaptive shadow testing (off: 0): trace this many of a point's area-sampled shadow rays
+    # first, the rest only where they disagree (DirectLight._visible)
+    pilot_rays = 0
+
+    def _pilot(self, S):
+        """The pilot rays' indices among a point's S Hammersley rays (None: no pilot): one per
+        stratum of the first coordinate, each in another stratum of the second (greedy)."""
+        p = self.pilot_rays
+        if p <= 0 or S < 2 * p or S % p:
+            return None
+        m, taken, out = S // p, set(), []
+        vdc = hammersley(S)[:, 1]
+        for j in range(p):
+            for i in range(j * m, (j + 1) * m):
+                q = int(vdc[i] * p)
+                if q not in taken or i == (j + 1) * m - 1:
+                    taken.add(q)
+                    out.append(i)
+                    break
+        return np.array(out)
+
+    def _rays(self, em: Emitter, xo, no, u, area):
+        """(kern (L, S), vis (L, S) bool) of _visible's rays: each ray's weight and whether it got
+        through."""
         eps, (L, S) = self.eps, u.shape[:2]
         if area:
             y, ny = em.sample_cm(u.reshape(-1, 2))
@@ -126,9 +180,8 @@ class DirectLight:
                     r = np.sqrt(np.maximum(dot(d, d), 1e-300))
                     kern = np.maximum(dot(d, N) / r, 0) * (dot(d, ny) < 0)
             o = X + eps * N
-            vis = ~self.system.backend.occluded_cm(
-                np.broadcast_to(o, y.shape).reshape(3, -1), ((y + eps * ny) - o).reshape(3, -1)
-            )
+            # each point's origin once for its S rays (occluded_cm's per: the same segments)
+            vis = ~self.system.backend.occluded_cm(o[:, :, 0], ((y + eps * ny) - o).reshape(3, -1), S)
         else:
             o = (xo + eps * no)[:, None]
             e = y + eps * ny
@@ -141,9 +194,7 @@ class DirectLight:
             )
             o = np.broadcast_to(o, d.shape).reshape(-1, 3)
             vis = ~self.system.backend.occluded(o, e.reshape(-1, 3))
-        vis = vis.reshape(kern.shape)
-        ks = kern.sum(1)
-        return np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
+        return kern, vis.reshape(kern.shape)
 
     @staticmethod
     def direct_cost(em: Emitter, rays):
