@@ -35,6 +35,12 @@ def main(argv=None):
     ap.add_argument("--window", type=float, default=0.7)
     ap.add_argument("--method", default="FE")
     ap.add_argument("--set", default="dict()", help="attributes per level: dict(top=dict(pilot_rays=4))")
+    ap.add_argument(
+        "--ab",
+        default=None,
+        help="alternate within each round: dict(name=dict(top=dict(pilot_rays=8)), ...) (levels' "
+        "attributes; the first is the reference of the errors)",
+    )
     args = ap.parse_args(argv)
 
     from bench_gather_events import load_store
@@ -66,6 +72,8 @@ def main(argv=None):
             rows = lv.n_hr + lv.second.n
         Y = rng.random((max(rows, int(used.max()) + 1), 3))
         reads.append((name, lv, Y))
+    if args.ab:
+        return ab_rounds(args, levels, dyn, rec, eval(args.ab))
     parts = args.parts.split(",")
     got, times = {}, {}
     prof = None
@@ -126,6 +134,51 @@ def main(argv=None):
                     f"{b.sum() / a.sum() - 1:+.4%}; |diff| / mean lit {d.mean() / a[a > 0].mean():.4%}",
                     flush=True,
                 )
+
+
+def ab_rounds(args, levels, dyn, rec, variants):
+    """Each round every variant's direct light at every level, alternating; medians per variant
+    and level, and each variant's values against the first's (samples changed, the level's sum)."""
+    cpu = time.process_time
+    keep = {
+        name: {k: getattr(lv, k) for v in variants.values() for k in v.get(name, {})} for name, lv in levels
+    }
+    times, got = {}, {}
+    for rnd in range(args.rounds):
+        for vname, v in variants.items():
+            for name, lv in levels:
+                for k, val in {**keep[name], **v.get(name, {})}.items():
+                    setattr(lv, k, val)
+                lv._shape_cache.clear()
+                c0 = cpu()
+                got[(vname, name)] = lv._shape(dyn, rec)[0]
+                times.setdefault((vname, name), []).append(cpu() - c0)
+        print(f"round {rnd}: " + ", ".join(f"{a} {b} {t[-1]:.3f}" for (a, b), t in times.items()), flush=True)
+    ref = next(iter(variants))
+    # the penumbrae: samples the reference sees the shape partly from (0 < D < F, F its exact
+    # unoccluded form factor): the pilot's verdicts change only those
+    pen = {}
+    for name, lv in levels:
+        F = lv._unoccluded(lv._shape_emitter(dyn, rec)[0]).astype(np.float64)
+        D = got[(ref, name)].astype(np.float64)
+        pen[name] = (D > 0) & (D < F * (1 - 1e-6))
+    for (vname, name), t in times.items():
+        a, b = got[(ref, name)].astype(np.float64), got[(vname, name)].astype(np.float64)
+        r = np.median(t) / np.median(times[(ref, name)])
+        print(
+            f"{vname} {name}: median {np.median(t):.3f} s (x{r:.3f}); vs {ref}: changed "
+            f"{int((a != b).sum()):,} of {int((a > 0).sum()):,} lit, sum {b.sum() / a.sum() - 1:+.4%}",
+            flush=True,
+        )
+        p = pen[name]
+        if vname != ref and p.any():
+            ch = p & (a != b)
+            print(
+                f"   penumbra samples {int(p.sum()):,} ({a[p].sum() / a.sum():.1%} of the light): changed "
+                f"{int(ch.sum()):,}, their light {b[p].sum() / a[p].sum() - 1:+.3%}; changed outside "
+                f"{int(((a != b) & ~p).sum()):,}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

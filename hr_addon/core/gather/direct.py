@@ -15,6 +15,24 @@ from .texel_edges import edge_direct
 _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
 
+def _pilot(p, S):
+    """The pilot rays' indices among a point's S Hammersley rays (None: no pilot; p must divide
+    S, at most S / 2): one per stratum of the first coordinate, each in another stratum of the
+    second where one is left (greedy: S 16, p 4 -> 0, 5, 10, 15)."""
+    if p <= 0 or S < 2 * p or S % p:
+        return None
+    m, taken, out = S // p, set(), []
+    vdc = hammersley(S)[:, 1]
+    for j in range(p):
+        for i in range(j * m, (j + 1) * m):
+            q = int(vdc[i] * p)
+            if q not in taken or i == (j + 1) * m - 1:
+                taken.add(q)
+                out.append(i)
+                break
+    return np.array(out)
+
+
 def _ratio_of(kern, vis):
     """(L,) the ratio estimator sum(kern vis) / sum(kern) over each point's rays (1 where no ray
     has weight)."""
@@ -48,10 +66,10 @@ class DirectLight:
     shape_by_read = False
 
     # -- direct light --------------------------------------------------------------------------------
-    def direct_batch(self, em: Emitter, a, b, shafts=None):
+    def direct_batch(self, em: Emitter, a, b, shafts=None, pilot=0):
         """(b - a,) float32: unit-radiance direct light F x V of emitter em at samples a..b-1.
         shafts: the emitter's ClearShafts (samples whose segments to it are certainly clear get
-        no shadow rays: their ratio would be exactly 1)."""
+        no shadow rays: their ratio would be exactly 1); pilot: _visible's."""
         x, nx = self.points[a:b], self.normals[a:b]
         out = np.zeros(b - a)
         eps = self.eps
@@ -93,8 +111,10 @@ class DirectLight:
                 dc = xo - c
                 near = np.einsum("lk,lk->l", dc, dc) < (self.AREA_NEAR * rad) ** 2
                 for sel, area in ((near, False), (~near, True)):
-                    if sel.any():
-                        V[lit[sel]] = self._visible(em, xo[sel], no[sel], u[sel], area)
+                    if sel.all():  # (one kind: no copies)
+                        V[lit] = self._visible(em, xo, no, u, area, pilot)
+                    elif sel.any():
+                        V[lit[sel]] = self._visible(em, xo[sel], no[sel], u[sel], area, pilot)
             else:
                 V[lit] = self._visible(em, xo, no, u, False)
         seen = np.flatnonzero(V != 0)
@@ -109,15 +129,15 @@ class DirectLight:
         out[i] = F
         return out.astype(np.float32)
 
-    def _visible(self, em: Emitter, xo, no, u, area):
+    def _visible(self, em: Emitter, xo, no, u, area, pilot=0):
         """(L,) the visible fraction of em's projected solid angle from points xo (normals no) by
         shadow rays from uniforms u (L, S, 2), a ratio estimator: Arvo's solid-angle sampling, weight
         cos_x (and only where the emitter faces the point), or area-uniform points (area) weighted
-        cos_x cos_y / r^2. With pilot_rays (area rays only): those of the S rays first (a stratified
-        subset, _pilot), the rest only at the points whose pilot rays do not all agree (adaptive
-        shadow testing: a point whose pilot rays are all blocked reads 0, all through 1); the
-        points traced in full get the same values as without the pilot, bit for bit."""
-        P = self._pilot(u.shape[1]) if area else None
+        cos_x cos_y / r^2. With pilot > 0 (area rays only): that many of the S rays first (a
+        stratified subset, _pilot), the rest only at the points whose pilot rays do not all agree
+        (adaptive shadow testing: a point whose pilot rays are all blocked reads 0, all through
+        1); the points traced in full get the same values as without it, bit for bit."""
+        P = _pilot(pilot, u.shape[1]) if area else None
         if P is None:
             return _ratio_of(*self._rays(em, xo, no, u, area))
         kp, vp = self._rays(em, xo, no, u[:, P], area)
@@ -133,30 +153,16 @@ class DirectLight:
             kern[:, P], kern[:, R] = kp[rest], kr
             vis[:, P], vis[:, R] = vp[rest], vr
             out[rest] = _ratio_of(kern, vis)
-        self.stats["pilot_points"] = self.stats.get("pilot_points", 0) + len(out)
-        self.stats["pilot_traced"] = self.stats.get("pilot_traced", 0) + len(rest)
+        st = getattr(self, "stats", None)  # (diagnostics: points piloted, traced in full)
+        if st is not None:
+            st["pilot_points"] = st.get("pilot_points", 0) + len(out)
+            st["pilot_traced"] = st.get("pilot_traced", 0) + len(rest)
         return out
 
-    # adaptive shadow testing (off: 0): trace this many of a point's area-sampled shadow rays
-    # first, the rest only where they disagree (DirectLight._visible)
-    pilot_rays = 0
-
-    def _pilot(self, S):
-        """The pilot rays' indices among a point's S Hammersley rays (None: no pilot): one per
-        stratum of the first coordinate, each in another stratum of the second (greedy)."""
-        p = self.pilot_rays
-        if p <= 0 or S < 2 * p or S % p:
-            return None
-        m, taken, out = S // p, set(), []
-        vdc = hammersley(S)[:, 1]
-        for j in range(p):
-            for i in range(j * m, (j + 1) * m):
-                q = int(vdc[i] * p)
-                if q not in taken or i == (j + 1) * m - 1:
-                    taken.add(q)
-                    out.append(i)
-                    break
-        return np.array(out)
+    # adaptive shadow testing of a light shape's direct light (off: 0): trace this many of a
+    # sample's area-sampled shadow rays first, the rest only where they disagree (_visible;
+    # docs/events.md, session 25)
+    shape_pilot_rays = 0
 
     def _rays(self, em: Emitter, xo, no, u, area):
         """(kern (L, S), vis (L, S) bool) of _visible's rays: each ray's weight and whether it got
@@ -204,12 +210,17 @@ class DirectLight:
         tri = min(len(em.tri), em.MAX_TRIANGLES)
         return max(rays, 1) * 4 + 3 * min(edges, 4 * em.MAX_TRIANGLES) + 12 * tri
 
-    def direct_light(self, em: Emitter, edges=True):
+    def direct_light(self, em: Emitter, edges=True, pilot=0):
         """(n,) float32 unit-radiance direct light of em at every sample (batches merged); edges:
-        in texture output, an edge texel's value is its area's mean (texel_edges)."""
-        per = self.direct_cost(em, self.shadow_rays)
-        shafts = self.shafts(em)
-        parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts), self.batches(per), self.threads)
+        in texture output, an edge texel's value is its area's mean (texel_edges); pilot:
+        _visible's (0: every shadow ray)."""
+        pilot = pilot if _pilot(pilot, self.shadow_rays) is not None else 0
+        per = self.direct_cost(em, pilot or self.shadow_rays)
+        # (with a pilot of fewer rays than the clear-shaft cull pays from, no cull: the same values)
+        shafts = self.shafts(em) if not 0 < pilot < self.CULL_MIN_RAYS else None
+        parts = batch_map(
+            lambda a, b: self.direct_batch(em, a, b, shafts, pilot), self.batches(per), self.threads
+        )
         out = np.concatenate(parts or [np.zeros(0, np.float32)])
         if edges and self.texel_area is not None:  # texture output: an edge across a texel, its area's mean
             out = edge_direct(self, em, out, self.shadow_rays, em.stream, shafts=shafts).astype(np.float32)
@@ -334,7 +345,7 @@ class DirectLight:
             elif self.shape_by_read and getattr(self, "_leaf_nodes", None) is not None:
                 D = self._shape_by_read(dyn, rec, inside, em)  # (final.FinalGather: the second level)
             else:
-                D = self.direct_light(em, self.edge_shapes)
+                D = self.direct_light(em, self.edge_shapes, self.shape_pilot_rays)
             got = (D, inside)
             self._shape_cache[key] = got
         return got
