@@ -159,10 +159,22 @@ class DirectLight:
             st["pilot_traced"] = st.get("pilot_traced", 0) + len(rest)
         return out
 
-    # adaptive shadow testing of a light shape's direct light (off: 0): trace this many of a
-    # sample's area-sampled shadow rays first, the rest only where they disagree (_visible;
-    # docs/events.md, session 25)
-    shape_pilot_rays = 0
+    # adaptive shadow testing of a light shape's direct light at the output's samples (_visible:
+    # a share of a sample's area-sampled shadow rays first, the rest only where they disagree):
+    # from SHAPE_PILOT_MIN shadow rays on, not at a second level's samples (their light reaches
+    # the output only through reads). Draft's 16 rays: 8 first, per object under the level's own
+    # shadow-ray seed noise at 100k, x0.6-0.85 of that level's shape light (docs/events.md,
+    # session 25). shape_pilot_rays: that many instead (0: off); None: the rule.
+    SHAPE_PILOT_SHARE, SHAPE_PILOT_MIN = 0.5, 16
+    shape_pilot_rays = None
+
+    def _shape_pilot(self):
+        """The pilot rays of a light shape's direct light at this level's samples (0: none)."""
+        if self.shape_pilot_rays is not None:
+            return int(self.shape_pilot_rays)
+        if getattr(self, "_leaf_nodes", None) is not None or self.shadow_rays < self.SHAPE_PILOT_MIN:
+            return 0
+        return int(self.shadow_rays * self.SHAPE_PILOT_SHARE)
 
     def _rays(self, em: Emitter, xo, no, u, area):
         """(kern (L, S), vis (L, S) bool) of _visible's rays: each ray's weight and whether it got
@@ -345,7 +357,7 @@ class DirectLight:
             elif self.shape_by_read and getattr(self, "_leaf_nodes", None) is not None:
                 D = self._shape_by_read(dyn, rec, inside, em)  # (final.FinalGather: the second level)
             else:
-                D = self.direct_light(em, self.edge_shapes, self.shape_pilot_rays)
+                D = self.direct_light(em, self.edge_shapes, self._shape_pilot())
             got = (D, inside)
             self._shape_cache[key] = got
         return got
