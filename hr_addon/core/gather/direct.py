@@ -142,7 +142,8 @@ class DirectLight:
             return _ratio_of(*self._rays(em, xo, no, u, area))
         kp, vp = self._rays(em, xo, no, u[:, P], area)
         through = vp.all(1)
-        decided = (through | ~vp.any(1)) & (kp.sum(1) > 0)  # (no weight seen: no verdict)
+        decided = through | ~vp.any(1) if self.PILOT_DARK else through
+        decided &= kp.sum(1) > 0  # (no weight seen: no verdict)
         out = through.astype(np.float64)
         rest = np.flatnonzero(~decided)
         if len(rest):
@@ -160,13 +161,18 @@ class DirectLight:
         return out
 
     # adaptive shadow testing of a light shape's direct light at the output's samples (_visible:
-    # a share of a sample's area-sampled shadow rays first, the rest only where they disagree):
-    # from SHAPE_PILOT_MIN shadow rays on, not at a second level's samples (their light reaches
-    # the output only through reads). Draft's 16 rays: 8 first, per object under the level's own
-    # shadow-ray seed noise at 100k, x0.6-0.85 of that level's shape light (docs/events.md,
-    # session 25). shape_pilot_rays: that many instead (0: off); None: the rule.
-    SHAPE_PILOT_SHARE, SHAPE_PILOT_MIN = 0.5, 16
+    # a share of a sample's area-sampled shadow rays first, the rest only where they disagree),
+    # off (share 0): measured at 100k (docs/events.md, session 25), draft's 16 rays with 8 first
+    # saves x0.6-0.85 of the top level's shape light, per object within the level's seed noise
+    # in size but one-sided: dim objects in penumbrae read 30-50% dark (an all-blocked pilot
+    # reads 0). From SHAPE_PILOT_MIN shadow rays on, never at a second level's samples (their
+    # light reaches the output only through reads); shape_pilot_rays: that many (0: off), None:
+    # the share's.
+    SHAPE_PILOT_SHARE, SHAPE_PILOT_MIN = 0.0, 16
     shape_pilot_rays = None
+    # whether a pilot whose rays are all blocked is a verdict (0) too; False: only all through is
+    # (1), the others trace the rest
+    PILOT_DARK = True
 
     def _shape_pilot(self):
         """The pilot rays of a light shape's direct light at this level's samples (0: none)."""
