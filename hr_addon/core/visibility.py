@@ -422,6 +422,32 @@ class NumpyBackend(RayBackend):
 # ---------------------------------------------------------------------------------------------- float32
 
 
+def _rows32(e):
+    """(N, 3) float32 rows of component-major float64 e (3, N): e.T's cast, one component at a
+    time (no transposed float64 pass)."""
+    out = np.empty((e.shape[1], 3), np.float32)
+    for k in range(3):
+        out[:, k] = e[k]
+    return out
+
+
+def _sum_rows32(o, e, s, per=1, idx=None):
+    """(N, 3) float32 rows of o + s e, the float64 sum's cast, from component-major o (3, N /
+    per: each column the origin of `per` consecutive segments) and e (3, N), at segments idx
+    (None: all): a component at a time, without (3, N) float64 temporaries (the same values)."""
+    n = e.shape[1] if idx is None else len(idx)
+    out = np.empty((n, 3), np.float32)
+    oi = None if idx is None else (idx // per if per > 1 else idx)
+    for k in range(3):
+        t = (e[k] if idx is None else np.take(e[k], idx)) * s
+        if idx is None and per > 1:
+            t.reshape(-1, per)[...] += o[k][:, None]
+        else:
+            t += o[k] if idx is None else np.take(o[k], oi)
+        out[:, k] = t
+    return out
+
+
 class _Float32Backend(RayBackend):
     """Shared by the float32 tracers: they propose each ray's nearest hit, float64 decides.
 
@@ -519,22 +545,18 @@ class _Float32Backend(RayBackend):
         o, e = (o, d) if trace is None else (o[:, trace], d[:, trace])
         ray = np.arange(e.shape[1]) if trace is None else trace  # indices into d of o, e
         out = np.zeros(d.shape[1], dtype=bool)
-        e32 = np.ascontiguousarray(e.T, dtype=np.float32)
+        e32 = _rows32(e)
         if self.any_hit:
-            if per > 1:  # (the same sums, each origin broadcast over its segments)
-                om = (o[:, :, None] + self.SURE * e.reshape(3, -1, per)).reshape(3, -1)
-            else:
-                om = o + self.SURE * e
             tfar = np.full(len(e32), 1.0 - 2.0 * self.SURE, dtype=np.float32)
-            mid = self._any_hit(np.ascontiguousarray(om.T, dtype=np.float32), e32, tfar)
+            mid = self._any_hit(_sum_rows32(o, e, self.SURE, per), e32, tfar)
             out[ray[mid]] = True
             clear = np.flatnonzero(~mid)
-            o, e, e32, ray = o[:, clear // per if per > 1 else clear], e[:, clear], e32[clear], ray[clear]
-        elif per > 1:
-            o = np.repeat(o, per, axis=1)
-        o += TMIN * e
+            o32 = _sum_rows32(o, e, TMIN, per, clear)
+            e32, ray = e32[clear], ray[clear]
+        else:
+            o32 = _sum_rows32(o, e, TMIN, per)
         tfar = np.full(len(e32), 1.0 - 2.0 * TMIN, dtype=np.float32)
-        prim, t_hit = self._nearest(np.ascontiguousarray(o.T, dtype=np.float32), e32, tfar)
+        prim, t_hit = self._nearest(o32, e32, tfar)
         hit = prim >= 0
         sure = hit & (t_hit > self.SURE) & (t_hit < 1.0 - self.SURE)
         out[ray[sure]] = True
