@@ -142,8 +142,8 @@ class DirectLight:
             return _ratio_of(*self._rays(em, xo, no, u, area))
         kp, vp = self._rays(em, xo, no, u[:, P], area)
         through = vp.all(1)
-        decided = through | ~vp.any(1) if self.PILOT_DARK else through
-        decided &= kp.sum(1) > 0  # (no weight seen: no verdict)
+        # (no weight seen: no verdict)
+        decided = (through | ~vp.any(1) if self.PILOT_DARK else through) & (kp.sum(1) > 0)
         out = through.astype(np.float64)
         rest = np.flatnonzero(~decided)
         if len(rest):
