@@ -56,6 +56,7 @@ def main(argv=None):
     obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
     g2 = g.second
     defaults = dict(shadow=g2.shadow_rays, iterations=g.iterations, seed=g.seed, seed2=g2.seed)
+    defaults.update(pilot=g.shape_pilot_rays, pilot2=g2.shape_pilot_rays)
     variants = eval(args.variants)
     base_opts = DynamicRadiosity.gather_options("draft")
 
@@ -90,6 +91,9 @@ def main(argv=None):
         g2.shape_by_read = v.get("shape_by_read", False)
         fg.FinalGather.READ_NEAR = v.get("read_near", 6.0)
         fg.FinalGather.FAR_RAYS = v.get("far_rays", 0)
+        # adaptive shadow testing (DirectLight._visible)
+        g.shape_pilot_rays = v.get("pilot", defaults["pilot"])
+        g2.shape_pilot_rays = v.get("second_pilot", defaults["pilot2"])
         for lv in (g, g2):
             lv._shape_cache.clear()
 

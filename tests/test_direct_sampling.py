@@ -123,3 +123,40 @@ def test_form_factors_only_where_a_shadow_ray_gets_through(monkeypatch):
     assert len(got) == np.count_nonzero(v) and not np.isin(got[:, 0], xs[umbra]).any()
     lit = xs > 0.7  # beside the strip's shadow, far from the plate's
     assert lit.sum() >= 8 and np.array_equal(v[lit], F[lit].astype(np.float32))
+
+
+def test_adaptive_shadow_testing_changes_only_the_penumbra():
+    """A light shape's pilot (DirectLight.shape_pilot_rays, _visible): 4 of a sample's 16 area
+    rays first, one in each quarter of both coordinates, the other 12 only where those disagree.
+    Samples whose 16 rays all get through or are all blocked read as without the pilot, and the
+    samples traced in full bit for bit; only penumbra samples (0 < V < 1 with 16 rays) may
+    differ, and then read 0 or their form factor; fewer rays are traced."""
+    from hr_addon.core.gather import direct
+    from hr_addon.core.gather.sampling import hammersley
+
+    P = direct._pilot(4, 16)
+    assert list(P) == [0, 5, 10, 15]
+    for k in range(2):
+        assert sorted((hammersley(16)[P, k] * 4).astype(int)) == [0, 1, 2, 3]
+    assert direct._pilot(4, 8) is not None and direct._pilot(3, 16) is None and direct._pilot(0, 16) is None
+    em, _ = _scene()
+    s, p = _quad(-STRIP, STRIP, -3, 3, H / 2), _quad(-3, -0.3, -3, 3, H / 4)
+    backend = make_backend(np.array([s[[0, 1, 2]], s[[0, 2, 3]], p[[0, 1, 2]], p[[0, 2, 3]]]), prefer="numpy")
+    rays = []
+    occluded_cm = backend.occluded_cm
+    backend.occluded_cm = lambda a, d, per=1: rays.append(d.shape[1]) or occluded_cm(a, d, per)
+    xs = np.linspace(-1.2, 1.2, 241)
+    x = np.column_stack([xs, np.zeros_like(xs), np.zeros_like(xs)])
+    g = _Gather(x, 16, True, backend)
+    full = g.direct_batch(em, 0, len(x))
+    n_full, rays[:] = sum(rays), []
+    got = g.direct_batch(em, 0, len(x), pilot=4)
+    F = shape_form_factors(x, np.tile([0.0, 0, 1], (len(x), 1)), em.rings, em.corners, em.nv, 1e-6)
+    F = F.astype(np.float32)
+    pen = (full > 0) & (full < F)
+    assert 40 < pen.sum() < 200 and (full == 0).sum() > 40 and (full == F).sum() > 20
+    assert np.array_equal(got[~pen], full[~pen])
+    changed = got != full
+    assert 0 < changed.sum() < pen.sum()
+    assert np.all((got[changed] == 0) | (got[changed] == F[changed]))
+    assert sum(rays) < 0.6 * n_full

@@ -332,6 +332,32 @@ def test_component_major_occlusion_equals_occluded(name):
         assert np.array_equal(got, ref), kind
 
 
+def test_component_major_occlusion_with_shared_origins(name):
+    """occluded_cm(a, d, per) with each origin shared by `per` consecutive segments (the direct
+    light's shadow rays: a point's origin once) gives occluded()'s values on the repeated
+    origins exactly: every segment live, then with a non-finite origin and zero-length and
+    too-short (F32_SHORT) segments among them."""
+    tri = scene()
+    be = vis.make_backend(tri, name)
+    rng = np.random.default_rng(12)
+    per = 8
+    a = surface_points(tri, 400 if name == "mathutils" else 1000, rng)
+    b = rng.uniform(0.01, 0.99, (len(a) * per, 3))
+    full = np.repeat(a, per, axis=0)
+    ref = be.occluded(full, b)
+    got = be.occluded_cm(np.ascontiguousarray(a.T), np.ascontiguousarray((b - full).T), per)
+    assert ref.any() and not ref.all()
+    assert np.array_equal(got, ref)
+    a[5, 1] = np.nan
+    b[3 * per] = a[3]  # zero length
+    b[7 * per + 2] = a[7] + 1e-7  # shorter than F32_SHORT of its magnitude
+    full = np.repeat(a, per, axis=0)
+    ref = be.occluded(full, b)
+    got = be.occluded_cm(np.ascontiguousarray(a.T), np.ascontiguousarray((b - full).T), per)
+    assert not ref[5 * per : 6 * per].any() and not ref[3 * per]
+    assert np.array_equal(got, ref)
+
+
 def test_any_hit_query_answers_as_the_nearest_hit():
     """EmbreeBackend's occlusion query (embreex "OCCLUDED": 0 for a hit, -1 for none) finds a hit
     on exactly the float32 rays where the nearest-hit query finds one, and occluded() through it

@@ -150,23 +150,28 @@ class RayBackend:
                 out[live] = self._map(self._occluded, a[live], d[live])
         return out.reshape(shape)
 
-    def occluded_cm(self, a, d):
+    def occluded_cm(self, a, d, per=1):
         """occluded() of the segments a -> a + d given component-major, a, d (3, N) float64 (d: the
         b - a that occluded() computes): the same values without its row-major (N, 3) passes.
+        per: each origin a[:, j] starts the `per` consecutive segments j per .. (j + 1) per - 1
+        (a (3, N / per): a point's shadow rays without copies of its origin; the same values).
         Runs inline (a caller on threads calls it per batch)."""
         with np.errstate(over="ignore", invalid="ignore"):  # silent, as occluded()'s einsum
             dd = (d[0] * d[0] + d[2] * d[2]) + d[1] * d[1]  # einsum's order for rows of 3
-            live = np.isfinite((a[0] + a[1]) + a[2]) & np.isfinite(dd) & (dd > 0)
-        out = np.zeros(a.shape[1], dtype=bool)
+            live = np.isfinite((a[0] + a[1]) + a[2])
+            live = (np.repeat(live, per) if per > 1 else live) & np.isfinite(dd) & (dd > 0)
+        out = np.zeros(d.shape[1], dtype=bool)
         if not len(self.triangles) or not live.any():
             return out
         if live.all():
-            return self._occluded_cm(a, d, dd)
+            return self._occluded_cm(a, d, dd, per)
         i = np.flatnonzero(live)
-        out[i] = self._occluded_cm(a[:, i], d[:, i], dd[i])
+        out[i] = self._occluded_cm(a[:, i // per], d[:, i], dd[i])
         return out
 
-    def _occluded_cm(self, a, d, dd):
+    def _occluded_cm(self, a, d, dd, per=1):
+        if per > 1:
+            a = np.repeat(a, per, axis=1)
         return self._occluded(np.ascontiguousarray(a.T), np.ascontiguousarray(d.T))
 
     def _map(self, kernel, a, d, *more):
@@ -417,6 +422,32 @@ class NumpyBackend(RayBackend):
 # ---------------------------------------------------------------------------------------------- float32
 
 
+def _rows32(e):
+    """(N, 3) float32 rows of component-major float64 e (3, N): e.T's cast, one component at a
+    time (no transposed float64 pass)."""
+    out = np.empty((e.shape[1], 3), np.float32)
+    for k in range(3):
+        out[:, k] = e[k]
+    return out
+
+
+def _sum_rows32(o, e, s, per=1, idx=None):
+    """(N, 3) float32 rows of o + s e, the float64 sum's cast, from component-major o (3, N /
+    per: each column the origin of `per` consecutive segments) and e (3, N), at segments idx
+    (None: all): a component at a time, without (3, N) float64 temporaries (the same values)."""
+    n = e.shape[1] if idx is None else len(idx)
+    out = np.empty((n, 3), np.float32)
+    oi = None if idx is None else (idx // per if per > 1 else idx)
+    for k in range(3):
+        t = (e[k] if idx is None else np.take(e[k], idx)) * s
+        if idx is None and per > 1:
+            t.reshape(-1, per)[...] += o[k][:, None]
+        else:
+            t += o[k] if idx is None else np.take(o[k], oi)
+        out[:, k] = t
+    return out
+
+
 class _Float32Backend(RayBackend):
     """Shared by the float32 tracers: they propose each ray's nearest hit, float64 decides.
 
@@ -497,42 +528,46 @@ class _Float32Backend(RayBackend):
         dd = np.einsum("ij,ij->i", d, d)
         return self._occluded_cm(np.ascontiguousarray(a.T), np.ascontiguousarray(d.T), dd)
 
-    def _occluded_cm(self, a, d, dd):
-        """_occluded() of component-major a, d (3, N), dd = |d|^2 (N,). A tracer with an any-hit
-        query (_any_hit: it stops at the first hit found, ~40% cheaper than the nearest on a
-        blocked ray) answers the middle of each segment, t in [SURE, 1 - SURE], where a float32 hit
-        is trusted; only the segments clear there ask for their nearest hit, which float64
-        re-tests when it lies within SURE of an end (as without the any-hit query)."""
+    def _occluded_cm(self, a, d, dd, per=1):
+        """_occluded() of component-major a, d (3, N), dd = |d|^2 (N,) (per: occluded_cm's). A
+        tracer with an any-hit query (_any_hit: it stops at the first hit found, ~40% cheaper than
+        the nearest on a blocked ray) answers the middle of each segment, t in [SURE, 1 - SURE],
+        where a float32 hit is trusted; only the segments clear there ask for their nearest hit,
+        which float64 re-tests when it lies within SURE of an end (as without the any-hit query)."""
         o = a - self.center[:, None]
         length = np.sqrt(dd)
-        mag = np.sqrt((o[0] * o[0] + o[2] * o[2]) + o[1] * o[1]) + length  # >= the ray's largest |coord|
+        r = np.sqrt((o[0] * o[0] + o[2] * o[2]) + o[1] * o[1])
+        mag = (np.repeat(r, per) if per > 1 else r) + length  # >= the ray's largest |coord|
         short = length < F32_SHORT * mag
+        if per > 1 and short.any():  # (rare: every segment its own origin)
+            a, o, per = np.repeat(a, per, axis=1), np.repeat(o, per, axis=1), 1
         trace = np.flatnonzero(~short) if short.any() else None  # None: all (saves two gathers)
         o, e = (o, d) if trace is None else (o[:, trace], d[:, trace])
-        ray = np.arange(o.shape[1]) if trace is None else trace  # indices into a, d of o, e
-        out = np.zeros(a.shape[1], dtype=bool)
-        e32 = np.ascontiguousarray(e.T, dtype=np.float32)
+        ray = np.arange(e.shape[1]) if trace is None else trace  # indices into d of o, e
+        out = np.zeros(d.shape[1], dtype=bool)
+        e32 = _rows32(e)
         if self.any_hit:
-            om = o + self.SURE * e
             tfar = np.full(len(e32), 1.0 - 2.0 * self.SURE, dtype=np.float32)
-            mid = self._any_hit(np.ascontiguousarray(om.T, dtype=np.float32), e32, tfar)
+            mid = self._any_hit(_sum_rows32(o, e, self.SURE, per), e32, tfar)
             out[ray[mid]] = True
             clear = np.flatnonzero(~mid)
-            o, e, e32, ray = o[:, clear], e[:, clear], e32[clear], ray[clear]
-        o += TMIN * e
+            o32 = _sum_rows32(o, e, TMIN, per, clear)
+            e32, ray = e32[clear], ray[clear]
+        else:
+            o32 = _sum_rows32(o, e, TMIN, per)
         tfar = np.full(len(e32), 1.0 - 2.0 * TMIN, dtype=np.float32)
-        prim, t_hit = self._nearest(np.ascontiguousarray(o.T, dtype=np.float32), e32, tfar)
+        prim, t_hit = self._nearest(o32, e32, tfar)
         hit = prim >= 0
         sure = hit & (t_hit > self.SURE) & (t_hit < 1.0 - self.SURE)
         out[ray[sure]] = True
         check = hit & ~sure
         ray, prim = ray[check], prim[check]
         with np.errstate(all="ignore"):
-            ok = _hit_kernel([m[prim] for m in self._rows], *a[:, ray], *d[:, ray])
+            ok = _hit_kernel([m[prim] for m in self._rows], *a[:, ray // per], *d[:, ray])
         out[ray[ok]] = True
         retry = np.concatenate([ray[~ok], np.flatnonzero(short)])
         if len(retry):
-            ar, dr = (np.ascontiguousarray(v[:, retry].T) for v in (a, d))
+            ar, dr = (np.ascontiguousarray(v[:, retry // k].T) for v, k in ((a, per), (d, 1)))
             out[retry] = self._retrace(ar, dr)
         self.last_retraced = len(retry)
         return out

@@ -345,7 +345,12 @@ class Emitter:
         T = len(self.tri)
         s = u[:, 0]
         k = None
-        if T > 1:
+        if T == 2:  # (a quad: a light shape's usual slab) the same picks and values by a compare
+            x = s * self.total
+            k = (x >= self.cdf[0]).view(np.int8)
+            lo = np.array([0.0, self.cdf[0]])
+            s = np.clip((x - np.take(lo, k)) / np.take(np.maximum(self.cdf - lo, 1e-300), k), 0, 1)
+        elif T > 1:
             x = s * self.total
             k = np.minimum(np.searchsorted(self.cdf, x, "right"), T - 1)
             lo = np.where(k > 0, self.cdf[np.maximum(k - 1, 0)], 0.0)
