@@ -176,7 +176,8 @@ def _ridges_and_wall(plate):
     top = 0.1 * np.tan(np.radians(40))
     for k in range(3):
         y0, y1 = 0.25 * k, 0.25 * k + 0.2
-        a0, a1, b0, b1, r0, r1 = (0, y0, 0), (0, y1, 0), (0.2, y0, 0), (0.2, y1, 0), (0.1, y0, top), (0.1, y1, top)
+        a0, a1, r0 = (0, y0, 0), (0, y1, 0), (0.1, y0, top)
+        b0, b1, r1 = (0.2, y0, 0), (0.2, y1, 0), (0.1, y1, top)
         poly(a0, r0, r1, a1)  # the roof face turned away from the wall
         poly(b0, b1, r1, r0)  # the one turned towards it
         poly(a0, a1, b1, b0)
