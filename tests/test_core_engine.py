@@ -175,7 +175,10 @@ def test_a_closed_furnished_room_keeps_its_light_when_partly_visible_far_links_a
     other links make light), so this asserts the balance where split finer and the direction of
     the preset's loss, not the preset's figure (a fix for it must not fail here; docs/gather.md, ind28).
     The same far links make the transport's V dark where the gather reads it (the 20k ceiling read by
-    one level: -7.7% at 0.03, -2.5% at 0.01, -0.4% at 0.003 against the converged two-level gather)."""
+    one level: -7.7% at 0.03, -2.5% at 0.01, -0.4% at 0.003 against the converged two-level gather).
+    cl28: a partial end's samples on members facing away were blocked by their own solids and
+    darkened its links' visibility; counted out, 0.996 / 0.993 / 0.990 at 0.03 and 1.007 / 1.002 /
+    0.998 at 0.01 (the 20k room 0.945 / 0.956 / 0.964 at 0.03; its ceiling read -6.9%)."""
     import dataclasses
 
     from hr_testing.furnished import furnished_room
@@ -188,7 +191,9 @@ def test_a_closed_furnished_room_keeps_its_light_when_partly_visible_far_links_a
     }
     print({k: np.round(v, 4) for k, v in got.items()})
     assert np.abs(got[0.01] - 1).max() < 0.01  # split finer: within 1% in every channel
-    assert (got[0.01] > got[0.03] + 0.008).all()
+    # the preset's far links: partial ends' back-facing samples no longer count in their
+    # visibility (farlinks.far_visibility, cl28): 0.988 / 0.986 / 0.983 -> 0.996 / 0.993 / 0.990
+    assert (got[0.03] > 0.988).all()
 
 
 def test_push_corrections_are_what_makes_the_furnace_exact():

@@ -312,7 +312,9 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     cat = batch_map(lambda *x: np.concatenate(x), [*zip(*far), *zip(*nodes)], refiner.threads)
     if far:
         fa_, fb_, fv, fm, pa_, pb_, ff_ = cat[:7]
-        fs = np.ones(len(fv))
+        # the oracle's traced links: a full mask with a fraction is far_visibility's one value
+        # for a link with back-facing segments (1 where all 16 are unoccluded: the same)
+        fs = np.where(fm == 0xFFFF, np.nan_to_num(fv, nan=1.0), 1.0)
         todo = np.flatnonzero(np.isnan(fv))
         table.update()
 
@@ -471,12 +473,22 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None):
     """(vis, mask, scale) of far links: the unoccluded fraction of the 4 x 4 segments between the
     ends' sample points and which of them are unoccluded (bit 4 i + j: sample i of a, j of b).
     Weak links (mask `weak`) trace only the 4 segments i -> 3 - i: their mask is full and
-    `scale` holds their visibility fraction instead (1 for the others)."""
+    `scale` holds their visibility fraction instead (1 for the others).
+
+    Only segments that leave both sample points on their front sides count (_facing_segments):
+    a sample on a member that faces away from the other end (a partial end) sits eps in front of
+    a face whose solid lies between it and the other end, so its segments are blocked by that
+    member itself, while the link's kernel already gives such a member nothing (its clamped
+    cosine). Counted, they made every partial end's visibility dark (the draft furnished room
+    lost 1.5% of its light). A link with such segments gets the fraction of its front-facing
+    segments that are unoccluded as `scale` and a full mask (one visibility for the link, as
+    weak links have); a link with no front-facing segment keeps what was traced."""
     import time
 
     t0 = time.perf_counter()
     h, eps = refiner.h, refiner.eps
     pa, pb = sample_points(tree, h, a, eps, table)[0], sample_points(tree, h, b, eps, table)[0]
+    front = _facing_segments(pa, pb, sample_normals(tree, h, a, table), sample_normals(tree, h, b, table))
     weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)
     vis, mask, scale = np.empty(len(a)), np.empty(len(a), np.uint16), np.ones(len(a))
     st = ~weak
@@ -486,9 +498,32 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None):
         ).reshape(-1, 16)
         vis[st] = 1.0 - occ.mean(1)
         mask[st] = ((~occ) * (1 << np.arange(16))).sum(1)
+        f = front[st]
+        nf = f.sum(1)
+        fix = (nf > 0) & (nf < 16)
+        if fix.any():
+            i = np.flatnonzero(st)[fix]
+            vis[i] = scale[i] = (f[fix] & ~occ[fix]).sum(1) / nf[fix]
+            mask[i] = 0xFFFF
     if weak.any():
         occ = refiner.backend.occluded(pa[weak], pb[weak][:, ::-1]).reshape(-1, 4)
-        vis[weak] = scale[weak] = 1.0 - occ.mean(1)
+        f = front[weak][:, _DIAGONAL]
+        nf = f.sum(1)
+        v = 1.0 - occ.mean(1)
+        vis[weak] = scale[weak] = np.where(nf > 0, (f & ~occ).sum(1) / np.maximum(nf, 1), v)
         mask[weak] = 0xFFFF
     add_counts(refiner.stats, rays=16 * int(st.sum()) + 4 * int(weak.sum()), t_vis=time.perf_counter() - t0)
     return vis, mask, scale
+
+
+# the segments i -> 3 - i of the 4 x 4 (bit 4 i + j): a weak link's
+_DIAGONAL = np.array([3, 6, 9, 12])
+
+
+def _facing_segments(pa, pb, na, nb):
+    """(N, 16) whether segment 4 i + j (sample i of a to sample j of b) leaves both its points on
+    their front sides (the normals na, nb (N, 4, 3) of the samples' members)."""
+    d = pb[:, None] - pa[:, :, None]  # (N, 4 on a, 4 on b, 3)
+    ca = np.einsum("nijk,nik->nij", d, na)
+    cb = np.einsum("nijk,njk->nij", d, nb)
+    return ((ca > 0) & (cb < 0)).reshape(-1, 16)
