@@ -198,9 +198,12 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
 # patch's centre, nearest the default inset (0.5) first
 UNCOVER = (0.25, 0.75, 0.125, 0.875, 0.0625, 0.95)
 PROBE_RAYS = 8  # _buried: rays per sample; buried when at least 3/4 of them hit a back face
+# (and none escapes, or one of those faces is one the sample's patch crosses)
 # _buried: or under a plane (a box's side below a floor plane it is sunk into): at least
-# PROBE_UNDER rays hit back faces and at most PROBE_FRONT a front face, the rest escaping (below the
-# plane, outside the room); a sample by an open window or the open side of a box has no back faces
+# PROBE_UNDER rays hit back faces whose plane the sample's patch crosses and at most PROBE_FRONT a
+# front face, the rest escaping (below the plane, outside the room); a sample by an open window or
+# the open side of a box has no back faces, one on a floor under a one-sided canopy or table top
+# (in the open: rays escape around it) back faces of a plane its patch lies wholly behind
 PROBE_UNDER = 2
 PROBE_FRONT = 0
 PROBE_BATCH = 1 << 13  # _buried: samples per batch on threads (fixed: values never depend on threads)
@@ -214,9 +217,13 @@ def probe_reach(system):
 def _buried(system, pts, patch, reach):
     """Samples inside another solid or under a face touching theirs: covered as final.py decides
     it (the contacts' test, open edges of gaps OPEN_EDGE, a slot lit through its mouths not), or
-    most of PROBE_RAYS rays hitting back faces (inside a closed solid whose crossing the contacts
-    do not see: a lid's side sunk into a box), or some hitting back faces and none a front face (under
-    a plane: a box's side below the floor it is sunk into). reach: the rays' length (_uncover's)."""
+    most of PROBE_RAYS rays hitting back faces, none escaping or one of those faces crossed by the
+    sample's patch (inside a closed solid whose crossing the contacts do not see: a lid's side sunk
+    into a box), or some hitting back faces its patch crosses and none a front face (under a plane:
+    a box's side below the floor it is sunk into). A back face whose plane the patch lies wholly
+    behind hides nothing of it when rays escape around: a floor under a one-sided canopy or table
+    top in the open (tests/test_corner_fit.py; before, its samples were moved and its faces taken as
+    cut, the canopy's shadow read 5% bright). reach: the rays' length (_uncover's)."""
     pt = system.patches
     out = np.zeros(len(pts), bool)
     con = system.h.contacts
@@ -241,6 +248,8 @@ def _buried(system, pts, patch, reach):
         dirs = cosine_directions(nrm, np.arange(i, j), PROBE_RAYS, seed=7)
         org = pts[i:j] + eps * nrm
         backs = np.zeros(j - i, np.int64)
+        unders = np.zeros(j - i, np.int64)  # back faces the patch crosses
+        misses = np.zeros(j - i, np.int64)  # rays that escape
         fronts = np.zeros(j - i, np.int64)
         todo = np.flatnonzero(~out[i:j])
         for r0, r1 in ((0, first), (first, PROBE_RAYS)):
@@ -251,15 +260,26 @@ def _buried(system, pts, patch, reach):
             prim, _ = system.backend.first_hit(np.repeat(org[todo], k, 0), d, reach)
             hit = prim >= 0
             back = np.zeros(len(prim), bool)
-            back[hit] = np.einsum("ij,ij->i", d[hit], pt.normal[pt.triangle_patch[prim[hit]]]) > 0
+            hp = pt.triangle_patch[prim[hit]]
+            back[hit] = np.einsum("ij,ij->i", d[hit], pt.normal[hp]) > 0
+            # a back face whose plane the sample's own patch crosses (some corner of it in front:
+            # the patch is sunk through that face); a plane wholly in front of the patch (a
+            # one-sided canopy or table top above a floor) hides nothing of it
+            cross = np.zeros(len(prim), bool)
+            own = np.repeat(patch[i:j][todo], k)[hit]
+            ahead = np.einsum("mcj,mj->mc", pt.corners[own] - pt.corners[hp][:, :1], pt.normal[hp])
+            cross[hit] = ahead.max(1) > eps
             backs[todo] += back.reshape(-1, k).sum(1)
+            unders[todo] += (back & cross).reshape(-1, k).sum(1)
             fronts[todo] += (hit & ~back).reshape(-1, k).sum(1)
+            misses[todo] += (~hit).reshape(-1, k).sum(1)
             rest = PROBE_RAYS - r1
             todo = todo[
                 (backs[todo] * 4 + rest * 4 >= 3 * PROBE_RAYS)  # can still reach either rule
-                | ((fronts[todo] <= PROBE_FRONT) & (backs[todo] + rest >= PROBE_UNDER))
+                | ((fronts[todo] <= PROBE_FRONT) & (unders[todo] + rest >= PROBE_UNDER))
             ]
-        return (backs * 4 >= 3 * PROBE_RAYS) | ((fronts <= PROBE_FRONT) & (backs >= PROBE_UNDER))
+        inside = (backs * 4 >= 3 * PROBE_RAYS) & ((misses == 0) | (unders > 0))
+        return inside | ((fronts <= PROBE_FRONT) & (unders >= PROBE_UNDER))
 
     parts = batch_map(back_faces, ranges(len(pts), PROBE_BATCH), threads)
     return out | (np.concatenate(parts) if parts else np.zeros(0, bool))
