@@ -260,3 +260,38 @@ def test_the_ground_under_a_one_sided_canopy_in_the_open_is_not_buried(sun):
     g = LoopGather(dyn, rays=64, shadow_rays=16)
     got, exact = canopy_ground(g, dyn, light)
     assert abs(got / exact - 1) < 0.005, (got, exact)
+
+
+@pytest.mark.parametrize("seen", [0.0, 1.0])
+def test_an_output_layouts_side_above_a_shorter_neighbour_shows_its_open_strip(monkeypatch, seen):
+    """books_scene's taller side in an output layout (Vertex Spacing; here the same mesh laid out
+    again): a camera sees its open strip (the 4 cm above the neighbour) and of the slot part only
+    what shows through the 2 mm gap, so its split keeps the open part's mean alone
+    (layouts.OUTPUT_SLOT_SEEN 0, no slot sample): the rendered mean over the strip within 10% of a
+    24 x 8 grid of gather samples over it (measured +1.5%); the slot part weighted by its area
+    (1, the system's own corners' rule) reads the strip far below it (measured -68.9%)."""
+    from hr_addon.core.gather import FinalGather, OutputLayout, layouts
+
+    monkeypatch.setattr(layouts, "OUTPUT_SLOT_SEEN", seen)
+    s = books_scene()
+    pt = s.patches
+    k = int(np.flatnonzero((pt.normal[:, 0] > 0.99) & (np.abs(pt.corners[:, 0, 0] - 0.03) < 1e-9))[0])
+    y, z = np.meshgrid(
+        (np.arange(24) + 0.5) / 24 * 0.2, 0.21 + (np.arange(8) + 0.5) / 8 * 0.04, indexing="ij"
+    )
+    p = np.column_stack([np.full(y.size, 0.03), y.ravel(), z.ravel()])
+    dense = FinalGather(s, p, np.tile([1.0, 0, 0], (len(p), 1)), np.full(len(p), k), rays=64, shadow_rays=16)
+    strip = dense.evaluate(s, "radiance").mean()
+    out = OutputLayout(s, s.mesh, np.arange(len(s.mesh.loop_start)))
+    g = LoopGather(s, output=out, rays=64, shadow_rays=16)
+    x = g.n_loop + np.flatnonzero(g.out_patch[g.n_loop :] == k)
+    assert len(x) == (4 if seen == 0 else 7)  # 4 on the strip (+ 3 in the slot, one per mouth)
+    lp = out.patches
+    w = corner_weights(
+        np.repeat(lp.corners[k][None], len(p), 0), np.full(len(p), 4), lp.normal[[k] * len(p)], p
+    )
+    ours = (w @ g.loop_radiance(s)[g.average[4][k]].mean(1)).mean()
+    if seen == 0:
+        assert abs(ours / strip - 1) < 0.1, (ours, strip)
+    else:
+        assert ours / strip - 1 < -0.3, (ours, strip)
