@@ -56,16 +56,23 @@ def main():
         rows = []
         for n, e in ev.items():
             if e > a.tol and n in et:
-                rows.append(dict(name=n, klass=klass(n), vertex=bv[n], texture=bt[n], pixels=px[n],
-                                 both=et[n] > a.tol))
-        print(f"{key}: {len(ev)} lit objects, {len(rows)} vertex misses "
-              f"({100 * (1 - len(rows) / len(ev)):.1f}% within {a.tol:.0%})")
+                rows.append(
+                    dict(
+                        name=n, klass=klass(n), vertex=bv[n], texture=bt[n], pixels=px[n], both=et[n] > a.tol
+                    )
+                )
+        print(
+            f"{key}: {len(ev)} lit objects, {len(rows)} vertex misses "
+            f"({100 * (1 - len(rows) / len(ev)):.1f}% within {a.tol:.0%})"
+        )
         for k in ("books", "boards", "sides", "walls", "other", "all"):
             r = [x for x in rows if k == "all" or x["klass"] == k]
             n_all = sum(1 for n in ev if k == "all" or klass(n) == k)
             both = sum(x["both"] for x in r)
-            print(f"  {k:7s} {n_all:4d} objects  misses {len(r):3d}: texture too {both:3d}, vertex only "
-                  f"{len(r) - both:3d}")
+            print(
+                f"  {k:7s} {n_all:4d} objects  misses {len(r):3d}: texture too {both:3d}, vertex only "
+                f"{len(r) - both:3d}"
+            )
         vo = [x for x in rows if not x["both"]]
         lo = sum(x["vertex"] < 0 for x in vo)
         print(f"  vertex-only misses dark / bright: {lo} / {len(vo) - lo}")
