@@ -198,9 +198,12 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
 # patch's centre, nearest the default inset (0.5) first
 UNCOVER = (0.25, 0.75, 0.125, 0.875, 0.0625, 0.95)
 PROBE_RAYS = 8  # _buried: rays per sample; buried when at least 3/4 of them hit a back face
+# (and none escapes, or one of those faces is one the sample's patch crosses)
 # _buried: or under a plane (a box's side below a floor plane it is sunk into): at least
-# PROBE_UNDER rays hit back faces and at most PROBE_FRONT a front face, the rest escaping (below the
-# plane, outside the room); a sample by an open window or the open side of a box has no back faces
+# PROBE_UNDER rays hit back faces whose plane the sample's patch crosses and at most PROBE_FRONT a
+# front face, the rest escaping (below the plane, outside the room); a sample by an open window or
+# the open side of a box has no back faces, one on a floor under a one-sided canopy or table top
+# (in the open: rays escape around it) back faces of a plane its patch lies wholly behind
 PROBE_UNDER = 2
 PROBE_FRONT = 0
 PROBE_BATCH = 1 << 13  # _buried: samples per batch on threads (fixed: values never depend on threads)
@@ -214,9 +217,13 @@ def probe_reach(system):
 def _buried(system, pts, patch, reach):
     """Samples inside another solid or under a face touching theirs: covered as final.py decides
     it (the contacts' test, open edges of gaps OPEN_EDGE, a slot lit through its mouths not), or
-    most of PROBE_RAYS rays hitting back faces (inside a closed solid whose crossing the contacts
-    do not see: a lid's side sunk into a box), or some hitting back faces and none a front face (under
-    a plane: a box's side below the floor it is sunk into). reach: the rays' length (_uncover's)."""
+    most of PROBE_RAYS rays hitting back faces, none escaping or one of those faces crossed by the
+    sample's patch (inside a closed solid whose crossing the contacts do not see: a lid's side sunk
+    into a box), or some hitting back faces its patch crosses and none a front face (under a plane:
+    a box's side below the floor it is sunk into). A back face whose plane the patch lies wholly
+    behind hides nothing of it when rays escape around: a floor under a one-sided canopy or table
+    top in the open (tests/test_corner_fit.py; before, its samples were moved and its faces taken as
+    cut, the canopy's shadow read 5% bright). reach: the rays' length (_uncover's)."""
     pt = system.patches
     out = np.zeros(len(pts), bool)
     con = system.h.contacts
@@ -241,6 +248,8 @@ def _buried(system, pts, patch, reach):
         dirs = cosine_directions(nrm, np.arange(i, j), PROBE_RAYS, seed=7)
         org = pts[i:j] + eps * nrm
         backs = np.zeros(j - i, np.int64)
+        unders = np.zeros(j - i, np.int64)  # back faces the patch crosses
+        misses = np.zeros(j - i, np.int64)  # rays that escape
         fronts = np.zeros(j - i, np.int64)
         todo = np.flatnonzero(~out[i:j])
         for r0, r1 in ((0, first), (first, PROBE_RAYS)):
@@ -251,15 +260,26 @@ def _buried(system, pts, patch, reach):
             prim, _ = system.backend.first_hit(np.repeat(org[todo], k, 0), d, reach)
             hit = prim >= 0
             back = np.zeros(len(prim), bool)
-            back[hit] = np.einsum("ij,ij->i", d[hit], pt.normal[pt.triangle_patch[prim[hit]]]) > 0
+            hp = pt.triangle_patch[prim[hit]]
+            back[hit] = np.einsum("ij,ij->i", d[hit], pt.normal[hp]) > 0
+            # a back face whose plane the sample's own patch crosses (some corner of it in front:
+            # the patch is sunk through that face); a plane wholly in front of the patch (a
+            # one-sided canopy or table top above a floor) hides nothing of it
+            cross = np.zeros(len(prim), bool)
+            own = np.repeat(patch[i:j][todo], k)[hit]
+            ahead = np.einsum("mcj,mj->mc", pt.corners[own] - pt.corners[hp][:, :1], pt.normal[hp])
+            cross[hit] = ahead.max(1) > eps
             backs[todo] += back.reshape(-1, k).sum(1)
+            unders[todo] += (back & cross).reshape(-1, k).sum(1)
             fronts[todo] += (hit & ~back).reshape(-1, k).sum(1)
+            misses[todo] += (~hit).reshape(-1, k).sum(1)
             rest = PROBE_RAYS - r1
             todo = todo[
                 (backs[todo] * 4 + rest * 4 >= 3 * PROBE_RAYS)  # can still reach either rule
-                | ((fronts[todo] <= PROBE_FRONT) & (backs[todo] + rest >= PROBE_UNDER))
+                | ((fronts[todo] <= PROBE_FRONT) & (unders[todo] + rest >= PROBE_UNDER))
             ]
-        return (backs * 4 >= 3 * PROBE_RAYS) | ((fronts <= PROBE_FRONT) & (backs >= PROBE_UNDER))
+        inside = (backs * 4 >= 3 * PROBE_RAYS) & ((misses == 0) | (unders > 0))
+        return inside | ((fronts <= PROBE_FRONT) & (unders >= PROBE_UNDER))
 
     parts = batch_map(back_faces, ranges(len(pts), PROBE_BATCH), threads)
     return out | (np.concatenate(parts) if parts else np.zeros(0, bool))
@@ -310,6 +330,12 @@ def cut_patches(system, nudge=0.05, reach=None, layout=None):
 SLOT_GRID = 256  # slot_split: test points per patch with a contact (a square: 16 x 16)
 SLOT_AREA = 64  # slot_split: points a slot part's transfer is averaged over
 SLOT_WHOLE = False  # slot_split: patches wholly in a slot too (depths > 2x apart; measured, left off)
+# slot_split on an output layout's patches (Vertex Spacing): the slot part's weight in a split
+# patch's mean. 0: the open part's mean alone, what a camera sees (the slot part, 2 mm behind a
+# neighbour, shows only through the gap), and no slot samples gathered; the system's own corners
+# keep 1 (each part by its area, as before). Furnished camera at 0.25 m: within 5% wide / close
+# 85.0 / 76.4% -> 95.6 / 85.9% (docs/accuracy.md, vx28)
+OUTPUT_SLOT_SEEN = 0.0
 SPLIT_BATCH = 256  # slot_split: patches per batch on threads (fixed, never by the thread count)
 
 
@@ -323,11 +349,12 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None, layout=None):
     share of the patch's visible area (test points covered without a gap left out). A stratified
     mean of the light over the patch, whose corners' samples (a quarter of the way in) all lie in
     the slot's shade when the open strip is narrower than a quarter of the patch. skip (K,) bool:
-    patches left out (cut_patches'). Returns (points (m, 3), patch (m,), weight (m,), slot_area
-    (rows of the slot samples (r,), their points (r, SLOT_AREA, 3), the slot chain slots() found at
-    each of those points (r, SLOT_AREA) on its transport patch (r, SLOT_AREA): FinalGather._slots
-    reuses them), (the split patches (p,), their
-    interpolant's mean per unit corner value over the visible test points (p, 4)). Computed by
+    patches left out (cut_patches'). On an output layout's patches the slot part weighs
+    OUTPUT_SLOT_SEEN (0: the open part alone, no slot sample). Returns (points (m, 3), patch (m,),
+    weight (m,), slot_area (rows of the slot samples (r,), their points (r, SLOT_AREA, 3), the slot
+    chain slots() found at each of those points (r, SLOT_AREA) on its transport patch (r,
+    SLOT_AREA): FinalGather._slots reuses them), (the split patches (p,), their interpolant's mean
+    per unit corner value over the visible test points (p, 4)). Computed by
     batches of SPLIT_BATCH patches on the system's threads. layout: an OutputLayout (its patches
     are split, each point tested on the transport patch under it) or None (the system's)."""
     con = system.h.contacts
@@ -421,7 +448,9 @@ def _split_part(system, cand, grid, n, layout):
     mixed = np.flatnonzero(mixed)
     if not len(mixed):
         return None
-    share = cnt[mixed] / cnt[mixed].sum(1, keepdims=True)
+    sw = 1.0 if isinstance(layout, OwnLayout) else OUTPUT_SLOT_SEEN
+    seen = cnt[mixed] * np.array([1.0, sw])  # the parts' weights (the slot part's: sw)
+    share = seen / seen.sum(1, keepdims=True)
     # the open part: n // 2 of its test points, nearest the centres of a k_a x k_b grid over the
     # part's extent along the patch's sides (a strip 4 cm x 20 cm: 1 x 4, along its middle); all
     # mixed patches at once over (centre, open point of its patch) pairs
@@ -452,28 +481,32 @@ def _split_part(system, cand, grid, n, layout):
     w = share[np.searchsorted(mixed, r), 0] / np.bincount(r, minlength=K)[r]
     # the slot part: one sample per mouth its test points are nearest (the light outside differs
     # by mouth: a book's top and front), at the deepest of them (its gather reads that mouth), the
-    # transfer averaged over SLOT_AREA of them
-    sl = np.flatnonzero(np.isin(row, mixed) & (cls == 1))
-    _, grp = np.unique(np.column_stack([row[sl], mouth[sl]]), axis=0, return_inverse=True)
-    grp = grp.ravel()
-    o = np.lexsort((-depth[sl], grp))  # by group, deepest first
-    sl, grp = sl[o], grp[o]
-    first = np.searchsorted(grp, np.arange(grp.max() + 1))
-    ms = np.bincount(grp)
-    deep = sl[first]
-    at = sl[first[:, None] + (np.arange(SLOT_AREA)[None] * ms[:, None]) // SLOT_AREA]
-    area = gp[at]
-    ws = share[np.searchsorted(mixed, row[deep]), 1] * ms / np.bincount(row[sl], minlength=K)[row[deep]]
+    # transfer averaged over SLOT_AREA of them (none when the slot part has no weight: sw 0)
+    if sw > 0:
+        sl = np.flatnonzero(np.isin(row, mixed) & (cls == 1))
+        _, grp = np.unique(np.column_stack([row[sl], mouth[sl]]), axis=0, return_inverse=True)
+        grp = grp.ravel()
+        o = np.lexsort((-depth[sl], grp))  # by group, deepest first
+        sl, grp = sl[o], grp[o]
+        first = np.searchsorted(grp, np.arange(grp.max() + 1))
+        ms = np.bincount(grp)
+        deep = sl[first]
+        at = sl[first[:, None] + (np.arange(SLOT_AREA)[None] * ms[:, None]) // SLOT_AREA]
+        area = gp[at]
+        achain, apatch = chain[at], tr[at]
+        ws = share[np.searchsorted(mixed, row[deep]), 1] * ms / np.bincount(row[sl], minlength=K)[row[deep]]
+    else:
+        deep, area, ws = np.zeros(0, np.int64), np.zeros((0, SLOT_AREA, 3)), np.zeros(0)
+        achain = apatch = np.zeros((0, SLOT_AREA), np.int64)
     # the interpolant's mean over the visible part (the strata are not spread evenly): over the
     # open and slot test points
     vis = np.flatnonzero(np.isin(row, mixed) & (cls < 2))
     kv = cand[row[vis]]
     a = corner_weights(pt.corners[kv], pt.nv[kv], pt.normal[kv], gp[vis])
     ri = np.searchsorted(mixed, row[vis])
-    mean_w = (
-        np.stack([np.bincount(ri, a[:, j], len(mixed)) for j in range(4)], 1) / cnt[mixed].sum(1)[:, None]
-    )
-    return gp[sel], cand[r], w, gp[deep], cand[row[deep]], ws, area, chain[at], tr[at], cand[mixed], mean_w
+    a *= np.where(cls[vis] == 1, sw, 1.0)[:, None]
+    mean_w = np.stack([np.bincount(ri, a[:, j], len(mixed)) for j in range(4)], 1) / seen.sum(1)[:, None]
+    return gp[sel], cand[r], w, gp[deep], cand[row[deep]], ws, area, achain, apatch, cand[mixed], mean_w
 
 
 # LoopGather: the samples averaged into one corner share its hemisphere rays, each tracing rays / k
