@@ -30,8 +30,9 @@ Per view (VIEWS: a scene, its frame, a camera, a resolution):
 Writes benchmarks/out/camera_<tag>.json (per view: the summaries, every object's figures, the
 worst objects as (name, error, pixels), CPU seconds), and per view benchmarks/out/camera_<view>/
 (PNGs of Cycles, ours and the error maps; the renders as .npz). Work files (copies, bakes, EXRs and
-their CPU seconds) go to benchmarks/out/camera_work/ and are reused when present (--fresh: made
-again), so a second run only compares. Times are CPU seconds (this process and its children).
+their CPU seconds) go to benchmarks/out/camera_work/ and are reused when present (--fresh: ours
+made again; the Cycles references, ~7 min CPU a seed and view, are kept: delete them by hand),
+so a second run only compares. Times are CPU seconds (this process and its children).
 `--figure furnished_close` writes docs/images/camera_furnished_close.png from the PNGs.
 `--vertex-spacing S` bakes the vertex output with the product's Vertex Spacing S (own_values).
 `--subdivide S` bakes a copy whose faces are cut until no edge is longer than S metres (linear,
@@ -321,6 +322,17 @@ def read_render(path):
     return rgb.astype(np.float64), ob.astype(np.int64)
 
 
+def _remove_ours(work):
+    """Everything under work but the Cycles references (ref_*)."""
+    for d, dirs, files in os.walk(work, topdown=False):
+        for f in files:
+            if not f.startswith("ref_"):
+                os.remove(os.path.join(d, f))
+        for sub in dirs:
+            if not os.listdir(os.path.join(d, sub)):
+                os.rmdir(os.path.join(d, sub))
+
+
 def reference(view, names, spp, seed, path):
     """Cycles' render of the scene with the references' one-sided Diffuse materials."""
     from hr_testing import cycles_ref as C
@@ -601,7 +613,9 @@ def main():
     p.add_argument("--views", default=",".join(VIEWS))
     p.add_argument("--spp", type=int, default=256, help="Cycles samples per seed of the reference")
     p.add_argument("--tag", default="camera")
-    p.add_argument("--fresh", action="store_true", help="bake and render again (the work files)")
+    p.add_argument(
+        "--fresh", action="store_true", help="bake and render ours again (the Cycles references are kept)"
+    )
     p.add_argument(
         "--texel",
         type=float,
@@ -627,7 +641,7 @@ def main():
     if a.figure:
         return figure(a.figure, os.path.join(ROOT, "docs", "images", f"camera_{a.figure}.png"))
     if a.fresh and os.path.isdir(WORK):
-        shutil.rmtree(WORK)
+        _remove_ours(WORK)
     os.makedirs(WORK, exist_ok=True)
     path = os.path.join(OUT, f"camera_{a.tag}.json")
     dump = json.load(open(path)) if os.path.exists(path) else {"views": {}}
