@@ -178,7 +178,13 @@ def test_a_closed_furnished_room_keeps_its_light_when_partly_visible_far_links_a
     one level: -7.7% at 0.03, -2.5% at 0.01, -0.4% at 0.003 against the converged two-level gather).
     cl28: a partial end's samples on members facing away were blocked by their own solids and
     darkened its links' visibility; counted out, 0.996 / 0.993 / 0.990 at 0.03 and 1.007 / 1.002 /
-    0.998 at 0.01 (the 20k room 0.945 / 0.956 / 0.964 at 0.03; its ceiling read -6.9%)."""
+    0.998 at 0.01 (the 20k room 0.945 / 0.956 / 0.964 at 0.03; its ceiling read -6.9%). cl29: samples
+    on covered parts (a patch node's Gauss points under a box, a member's exposed centre under its
+    cover) blocked every segment from them and dropped whole links as occluded (20k: 8% of the far
+    links' exact exchange); counted out, 1.008 / 1.004 / 1.000 at 0.03 and 1.015 / 1.009 / 1.004 at
+    0.01 (20k 0.964 / 0.974 / 0.980 at 0.03). Split finer the room now overshoots: the links kept
+    (traced wholly visible) are the ones whose 4 or 16 segments read too high (20k: 1.00 against 0.92
+    by dense sampling), the split ones the ones that read too low (docs/gather.md, cl29)."""
     import dataclasses
 
     from hr_testing.furnished import furnished_room
@@ -190,10 +196,15 @@ def test_a_closed_furnished_room_keeps_its_light_when_partly_visible_far_links_a
         for sf in (0.03, 0.01)
     }
     print({k: np.round(v, 4) for k, v in got.items()})
-    assert np.abs(got[0.01] - 1).max() < 0.01  # split finer: within 1% in every channel
-    # the preset's far links: partial ends' back-facing samples no longer count in their
-    # visibility (farlinks.far_visibility, cl28): 0.988 / 0.986 / 0.983 -> 0.996 / 0.993 / 0.990
-    assert (got[0.03] > 0.988).all()
+    # split finer: within 2% in every channel (1.015 in red: the links kept unsplit are those
+    # traced wholly visible, whose visibility reads high; within 1% before cl29, when links traced
+    # from covered samples were dropped)
+    assert np.abs(got[0.01] - 1).max() < 0.02
+    # the preset's far links: partial ends' back-facing samples (cl28: 0.988 / 0.986 / 0.983 ->
+    # 0.996 / 0.993 / 0.990) and samples on covered parts (cl29: -> 1.008 / 1.004 / 1.000) no
+    # longer count in their visibility (farlinks.far_visibility)
+    assert np.abs(got[0.03] - 1).max() < 0.01
+    assert (got[0.03] > 0.995).all()
 
 
 def test_push_corrections_are_what_makes_the_furnace_exact():

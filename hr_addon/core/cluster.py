@@ -166,6 +166,7 @@ class ClusterTree:
         pos = np.clip(np.searchsorted(cum, tgt), self.start[:, None], self.end[:, None] - 1)
         self.samples = (cen if sample_at is None else sample_at)[perm[pos]]
         self.sample_n = nrm[perm[pos]]
+        self.sample_patch = perm[pos]  # (sample_covered)
         self._transfer_tables(nrm, area, cen)
 
     # -- per-iteration transfer helpers ------------------------------------------------------------
@@ -435,18 +436,20 @@ class EndTable:
         cols = dict(centre=t.centre, axis=t.axis, lo=t.lo, hi=t.hi, area=t.area, radius=t.radius)
         cols.update(cos_t=t.cos_t, sin_t=t.sin_t, theta=t.theta)
         cols.update(pts=t.samples + eps * t.sample_n, w=np.full((C, 4), 0.25), nrm=t.sample_n)
-        self._append({k: np.asarray(v, float)[:C] for k, v in cols.items()})
+        cols = {k: np.asarray(v, float)[:C] for k, v in cols.items()}
+        cols["cov"] = _covered(h, t.samples, t.sample_patch, h.exposure[t.sample_patch])
+        self._append(cols)
         self.update()
 
     def _append(self, cols):
         m = len(cols["area"])
-        new = dict(pts=cols["pts"], w=cols["w"], nrm=cols["nrm"])
+        new = dict(pts=cols["pts"], w=cols["w"], nrm=cols["nrm"], cov=cols["cov"])
         rows = np.hstack([np.reshape(cols[k], (m, -1)) for k in self.PACKED])  # (m, 17)
         end = self.size + m
         if end > self.cap:
             cap = max(end, 2 * self.cap)
             for k, v in new.items():
-                grown = np.empty((cap,) + v.shape[1:])
+                grown = np.empty((cap,) + v.shape[1:], v.dtype)
                 if self.size:
                     grown[: self.size] = getattr(self, k)[: self.size]
                 setattr(self, k, grown)
@@ -472,6 +475,9 @@ class EndTable:
         new.update(cos_t=np.ones(len(ni)), sin_t=np.zeros(len(ni)), theta=np.zeros(len(ni)))
         new.update(
             pts=pts + self.eps * h.normal[ni][:, None], w=w, nrm=np.repeat(h.normal[ni][:, None], 4, 1)
+        )
+        new["cov"] = _covered(
+            h, pts, np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
         )
         self._append(new)
         self.n = n
@@ -596,4 +602,36 @@ def sample_normals(tree: ClusterTree, h, ids, table=None):
     cl = ids < 0
     out[cl] = tree.sample_n[decode(ids[cl])]
     out[~cl] = h.normal[ids[~cl]][:, None]
+    return out
+
+
+def sample_covered(tree: ClusterTree, h, ids, table=None):
+    """(N, 4) whether the sample points of link ends (sample_points) lie on covered parts
+    (contacts.py): a patch node's Gauss points take no account of its covered part, and a
+    partly covered member's exposed centre (a cluster's sample) may lie under what covers it
+    (the centroid of a ring of floor around a box is under the box)."""
+    ids = np.asarray(ids, np.int64)
+    if table is not None:
+        return table.cov[table.rows(ids)]
+    out = np.empty((len(ids), 4), bool)
+    cl = ids < 0
+    ci, ni = decode(ids[cl]), ids[~cl]
+    sp = tree.sample_patch[ci]
+    out[cl] = _covered(h, tree.samples[ci], sp, h.exposure[sp])
+    pts = ff.quadrature(h.corners[ni], h.nv[ni], 2)[0]
+    out[~cl] = _covered(
+        h, pts, np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
+    )
+    return out
+
+
+def _covered(h, pts, patch, expo):
+    """(N, 4) points pts (N, 4, 3) on patches patch (N, 4) of exposure expo (N, 4) (their node's,
+    or their patch's for a cluster's samples) are covered: all of a wholly covered node's, by
+    the contact test on partly covered ones."""
+    expo = np.asarray(expo, float)
+    out = expo <= 0
+    part = (expo > 0) & (expo < 1)
+    if part.any() and h.contacts is not None:
+        out[part] = h.contacts.covered(pts[part], patch[part])
     return out

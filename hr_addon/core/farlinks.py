@@ -17,6 +17,7 @@ from .cluster import (
     encode,
     estimate,
     faces,
+    sample_covered,
     sample_normals,
     sample_points,
     sh9,
@@ -489,6 +490,10 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None):
     h, eps = refiner.h, refiner.eps
     pa, pb = sample_points(tree, h, a, eps, table)[0], sample_points(tree, h, b, eps, table)[0]
     front = _facing_segments(pa, pb, sample_normals(tree, h, a, table), sample_normals(tree, h, b, table))
+    # a sample on a covered part (under a box, between touching faces) sees nothing; the end's
+    # light leaves from its exposed part: its segments do not count either
+    ca, cb = sample_covered(tree, h, a, table), sample_covered(tree, h, b, table)
+    front &= ~(ca[:, :, None] | cb[:, None, :]).reshape(-1, 16)
     weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)
     vis, mask, scale = np.empty(len(a)), np.empty(len(a), np.uint16), np.ones(len(a))
     st = ~weak
