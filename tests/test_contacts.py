@@ -104,11 +104,15 @@ def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
     assert _floor_values(off, band, False).mean() < 0.5 * ref.mean()
 
 
-@pytest.mark.parametrize("quality, worst, p99", [("draft", 0.26, 0.15), ("medium", 0.2, 0.08)])
+@pytest.mark.parametrize("quality, worst, p99", [("draft", 0.26, 0.16), ("medium", 0.2, 0.08)])
 def test_furnace_with_touching_objects(quality, worst, p99):
     """Exposed leaves at B = 2 and covered ones dark. Measured, worst leaf / 99th percentile /
-    area-weighted mean: draft 23% / 13% / +0.3%, medium 18% / 7% / +0.1% (the worst are leaves
-    straddling a box's corner). Without contacts: 50% / 48% / -2.1% (draft) and 50% / 44% /
+    area-weighted mean: draft 22.2% / 15.1% / +0.35%, medium 10.1% / 1.9% / -0.15% (the worst are
+    leaves straddling a box's corner). Draft's 99th percentile was 14.1% (+0.28% mean, worst 23.1%)
+    before far links stopped counting segments from sample points on covered parts (cl29, session
+    25): those darkened links that the kept links' centroid samples, traced fully visible where a
+    dense visibility reads 0.92-0.94, otherwise overshoot; the two no longer cancel at draft's few
+    far links, so its bound is 0.16 (0.15 before). Without contacts: 50% / 48% / -2.1% (draft) and 50% / 44% /
     -2.4% (medium): covered leaves emit and are counted, and the light of the band beside the
     boxes is spread under them."""
     s = RadiositySystem(contact_furnace(), RefineParams.preset(quality))
