@@ -17,10 +17,10 @@ from .cluster import (
     encode,
     estimate,
     faces,
-    sample_covered,
     sample_normals,
     sample_points,
     sh9,
+    visibility_points,
 )
 from .formfactor import dot3, row_range
 from .parallel import add_counts, batch_map, ranges
@@ -229,6 +229,9 @@ TERMS_CHUNK = 8192
 # pairs per batch of the oracle and the shadow tests on threads (core.parallel): fixed, so the links
 # do not depend on the thread count
 PAIR_BATCH = 1 << 13
+# benchmarks/far_vis_check.py --all-links: keep the far links traced wholly occluded (they carry no
+# transfer: mask or scale 0), so that every far link's traced visibility can be set against a dense one
+KEEP_OCCLUDED = False
 # pairs per block of the kernel variation (_variation): its (4, 4, pairs) temporaries stay in the cache
 VAR_BLOCK = 1024
 
@@ -326,7 +329,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             )
 
         batch_map(shadows, ranges(len(todo), PAIR_BATCH), refiner.threads)
-        keep = fv > 0
+        keep = fv > 0 if not KEEP_OCCLUDED else fv >= 0
         links = FarLinks(
             tree,
             fa_[keep],
@@ -472,7 +475,10 @@ def _self_pairs(tree, c):
 
 def far_visibility(refiner, tree, a, b, weak=None, table=None):
     """(vis, mask, scale) of far links: the unoccluded fraction of the 4 x 4 segments between the
-    ends' sample points and which of them are unoccluded (bit 4 i + j: sample i of a, j of b).
+    ends' visibility points and which of them are unoccluded (bit 4 i + j: sample i of a, j of b).
+    A cluster's visibility points lie on the kernel's sample members, spread over them
+    (cluster.visibility_points), not at their centroids: segment i -> j stands for the same two
+    members in the kernel (terms()), which evaluates it between their centroids.
     Weak links (mask `weak`) trace only the 4 segments i -> 3 - i: their mask is full and
     `scale` holds their visibility fraction instead (1 for the others).
 
@@ -488,11 +494,11 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None):
 
     t0 = time.perf_counter()
     h, eps = refiner.h, refiner.eps
-    pa, pb = sample_points(tree, h, a, eps, table)[0], sample_points(tree, h, b, eps, table)[0]
+    # a cluster's points spread over its members (not their centroids: visibility_points)
+    (pa, ca), (pb, cb) = visibility_points(tree, h, a, eps, table), visibility_points(tree, h, b, eps, table)
     front = _facing_segments(pa, pb, sample_normals(tree, h, a, table), sample_normals(tree, h, b, table))
     # a sample on a covered part (under a box, between touching faces) sees nothing; the end's
     # light leaves from its exposed part: its segments do not count either
-    ca, cb = sample_covered(tree, h, a, table), sample_covered(tree, h, b, table)
     front &= ~(ca[:, :, None] | cb[:, None, :]).reshape(-1, 16)
     weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)
     vis, mask, scale = np.empty(len(a)), np.empty(len(a), np.uint16), np.ones(len(a))
