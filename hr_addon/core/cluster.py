@@ -439,12 +439,14 @@ class EndTable:
         cols = {k: np.asarray(v, float)[:C] for k, v in cols.items()}
         vp, cols["cov"] = spread_points(t, h, np.arange(C))
         cols["vpts"] = vp + eps * t.sample_n
+        vp, cols["cov2"] = spread_points(t, h, np.arange(C), SECOND)
+        cols["vpts2"] = vp + eps * t.sample_n
         self._append(cols)
         self.update()
 
     def _append(self, cols):
         m = len(cols["area"])
-        new = {k: cols[k] for k in ("pts", "w", "nrm", "vpts", "cov")}
+        new = {k: cols[k] for k in ("pts", "w", "nrm", "vpts", "cov", "vpts2", "cov2")}
         rows = np.hstack([np.reshape(cols[k], (m, -1)) for k in self.PACKED])  # (m, 17)
         end = self.size + m
         if end > self.cap:
@@ -481,6 +483,8 @@ class EndTable:
             h, pts, np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
         )
         new["vpts"] = new["pts"]  # a node's visibility points are its Gauss points
+        q, new["cov2"] = _node_points2(h, ni)
+        new["vpts2"] = q + self.eps * h.normal[ni][:, None]
         self._append(new)
         self.n = n
 
@@ -607,7 +611,7 @@ def sample_normals(tree: ClusterTree, h, ids, table=None):
     return out
 
 
-def visibility_points(tree: ClusterTree, h, ids, eps, table=None):
+def visibility_points(tree: ClusterTree, h, ids, eps, table=None, second=False):
     """(N, 4, 3) the points a far link's visibility segments leave from, pushed eps off their
     surfaces, and (N, 4) whether each lies on a covered part (contacts.py). A patch node's: its
     2 x 2 Gauss points (sample_points; they take no account of its covered part). A cluster's:
@@ -615,20 +619,37 @@ def visibility_points(tree: ClusterTree, h, ids, eps, table=None):
     (spread_points), not their centroids: the kernel is smooth over a member and its centroid
     serves it, but visibility is not (what blocks a member's edges and corners, a neighbour, a
     shelf above, misses its centre: links traced from centroids read wholly visible where a
-    dense estimate read 0.92-0.94). table: an EndTable made with this eps."""
+    dense estimate read 0.92-0.94). second: another set of 4 points an end, elsewhere on the same
+    members (a cluster's shifted by SECOND, a node's at SPREAD's positions), for an estimate
+    independent of a decision made on the first (link_clusters). table: an EndTable made with
+    this eps."""
     ids = np.asarray(ids, np.int64)
     if table is not None:
         r = table.rows(ids)
-        return table.vpts[r], table.cov[r]
+        return (table.vpts2[r], table.cov2[r]) if second else (table.vpts[r], table.cov[r])
     pts, out = np.empty((len(ids), 4, 3)), np.empty((len(ids), 4), bool)
     cl = ids < 0
     ci, ni = decode(ids[cl]), ids[~cl]
-    p, out[cl] = spread_points(tree, h, ci)
+    p, out[cl] = spread_points(tree, h, ci, SECOND if second else 0.0)
     pts[cl] = p + eps * tree.sample_n[ci]
-    q = ff.quadrature(h.corners[ni], h.nv[ni], 2)[0]
+    if second:
+        q, out[~cl] = _node_points2(h, ni)
+    else:
+        q = ff.quadrature(h.corners[ni], h.nv[ni], 2)[0]
+        patch, expo = np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
+        out[~cl] = _covered(h, q, patch, expo)
     pts[~cl] = q + eps * h.normal[ni][:, None]
-    out[~cl] = _covered(h, q, np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1))
     return pts, out
+
+
+def _node_points2(h, ni):
+    """(n, 4, 3) patch nodes' second visibility points (SPREAD's positions shifted per node along
+    R2, on the node's surface) and (n, 4) whether each is covered."""
+    ni = np.asarray(ni, np.int64)
+    uv = np.mod(SPREAD[None] + (ni[:, None, None] + 1.0) * R2, 1.0)
+    q = _in_polygon(h.corners[ni][:, None], h.nv[ni][:, None], uv[..., 0], uv[..., 1])
+    patch, expo = np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
+    return q, _covered(h, q, patch, expo)
 
 
 def sample_covered(tree: ClusterTree, h, ids, table=None):
@@ -649,14 +670,17 @@ def sample_covered(tree: ClusterTree, h, ids, table=None):
 SPREAD = np.array([(0.375, 0.125), (0.875, 0.375), (0.125, 0.625), (0.625, 0.875)])
 R2 = np.array([0.7548776662466927, 0.5698402909980532])
 SPREAD_TRIES = 8
+# the second set's shift (visibility_points(second=True)): the rotated grid's other four cells' points
+SECOND = 0.5
 
 
-def spread_points(tree: ClusterTree, h, ci):
+def spread_points(tree: ClusterTree, h, ci, offset=0.0):
     """(n, 4, 3) visibility points of clusters ci on their surfaces (not pushed off) and (n, 4)
-    whether each is covered (see SPREAD; a wholly covered member's: covered)."""
+    whether each is covered (see SPREAD; a wholly covered member's: covered). offset: added to
+    the unit-square positions (SECOND: the second set)."""
     ci = np.asarray(ci, np.int64)
     m = tree.sample_patch[ci]  # (n, 4) the members (the kernel's samples')
-    uv = np.mod(SPREAD[None] + (ci[:, None, None] + 1.0) * R2, 1.0)  # (n, 4, 2)
+    uv = np.mod(SPREAD[None] + (ci[:, None, None] + 1.0) * R2 + offset, 1.0)  # (n, 4, 2)
     pts = _in_polygon(h.corners[m], h.nv[m], uv[..., 0], uv[..., 1])
     expo = np.asarray(h.exposure[m], float)
     cov = expo <= 0
