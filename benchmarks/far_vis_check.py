@@ -29,7 +29,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from hr_addon.core.cluster import decode  # noqa: E402
+from hr_addon.core.cluster import Ends, decode, estimate  # noqa: E402
 from hr_addon.core.farlinks import FarLinks  # noqa: E402
 from hr_addon.core.params import RefineParams  # noqa: E402
 from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
@@ -166,9 +166,11 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--room", default="2k")
     ap.add_argument("--points", type=int, default=16)
+    ap.add_argument("--shadow-feps", type=float, default=BASE.shadow_feps, help="the room's (the preset's)")
     ap.add_argument("--fine", type=float, default=0.003, help="the shadow_feps split finer")
     ap.add_argument("--json", default=None)
     ap.add_argument("--all-links", action="store_true", help="keep the links traced wholly occluded too")
+    ap.add_argument("--one-trace", action="store_true", help="farlinks.SECOND_TRACE off")
     ap.add_argument("--no-fine", action="store_true", help="skip the room split finer")
     ap.add_argument("--centroid", action="store_true", help="dense points at the members' centroids")
     args = ap.parse_args()
@@ -176,10 +178,19 @@ def main():
         os.environ["FAR_VIS_CENTROID"] = "1"
     if args.all_links:
         _keep_occluded()
+    if args.one_trace:
+        import hr_addon.core.farlinks as FL
+
+        FL.SECOND_TRACE = False
     mesh, _ = furnished_room(args.room)
-    out = {"room": args.room, "points": args.points, "all_links": args.all_links}
+    out = {
+        "room": args.room,
+        "points": args.points,
+        "all_links": args.all_links,
+        "shadow_feps": args.shadow_feps,
+    }
     t0 = time.process_time()
-    s = RadiositySystem(mesh, BASE)
+    s = RadiositySystem(mesh, dataclasses.replace(BASE, shadow_feps=args.shadow_feps))
     out["build_cpu_s"] = time.process_time() - t0
     far = s.links.far
     out["links"], out["far_links"] = len(s.links), len(far)
@@ -207,9 +218,17 @@ def main():
     # the kept links by their traced visibility: wholly visible (1) or partly, and by their ends'
     # kinds (two clusters, or a patch node and a cluster): traced against dense means
     both_cl = (far.a < 0) & (far.b < 0)
+    f_ab, f_ba, _ = estimate(Ends(far.tree, s.h, far.a), Ends(far.tree, s.h, far.b), both=True)
+    strong = np.maximum(f_ab, f_ba) >= args.shadow_feps  # traced with 16 segments (weak: 4)
     classes = [("whole", lv >= 1), ("part", (lv > 0) & (lv < 1)), ("zero", lv <= 0), ("all", lv >= 0)]
     for name, sel in classes:
-        for kind, k in (("", True), ("_clcl", both_cl), ("_nodecl", ~both_cl)):
+        for kind, k in (
+            ("", True),
+            ("_clcl", both_cl),
+            ("_nodecl", ~both_cl),
+            ("_strong", strong),
+            ("_weak", ~strong),
+        ):
             m = sel & k
             out[f"{name}{kind}_n"] = int(m.sum())
             if not m.any():
