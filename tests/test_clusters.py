@@ -530,8 +530,12 @@ def test_end_table_and_both_directions_give_the_ends_and_estimates_bit_for_bit(c
     for got, want in zip(C.sample_points(t, h, a, 1e-6, table), C.sample_points(t, h, a, 1e-6)):
         assert np.array_equal(got, want)
     assert np.array_equal(C.sample_normals(t, h, b, table), C.sample_normals(t, h, b))
-    for got, want in zip(C.visibility_points(t, h, a, 1e-6, table), C.visibility_points(t, h, a, 1e-6)):
-        assert np.array_equal(got, want)
+    for second in (False, True):
+        got, want = (
+            C.visibility_points(t, h, a, 1e-6, table, second),
+            C.visibility_points(t, h, a, 1e-6, None, second),
+        )
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
     f_ab, f_ba, dist = C.estimate(ea, eb, both=True)
     assert np.array_equal(f_ab, C.estimate(ea, eb)[0]) and np.array_equal(dist, C.estimate(ea, eb)[1])
     assert np.array_equal(f_ba, C.estimate(eb, ea)[0])

@@ -437,16 +437,19 @@ class EndTable:
         cols.update(cos_t=t.cos_t, sin_t=t.sin_t, theta=t.theta)
         cols.update(pts=t.samples + eps * t.sample_n, w=np.full((C, 4), 0.25), nrm=t.sample_n)
         cols = {k: np.asarray(v, float)[:C] for k, v in cols.items()}
+        # the clusters' visibility points (visibility_points; a node's first set are its pts), and
+        # `cov` whether a row's visibility points are covered (a cluster's spread points, a node's
+        # Gauss points)
         vp, cols["cov"] = spread_points(t, h, np.arange(C))
-        cols["vpts"] = vp + eps * t.sample_n
-        vp, cols["cov2"] = spread_points(t, h, np.arange(C), SECOND)
-        cols["vpts2"] = vp + eps * t.sample_n
+        self.vpts = vp + eps * t.sample_n
+        vp, self.cov2 = spread_points(t, h, np.arange(C), SECOND)
+        self.vpts2 = vp + eps * t.sample_n
         self._append(cols)
         self.update()
 
     def _append(self, cols):
         m = len(cols["area"])
-        new = {k: cols[k] for k in ("pts", "w", "nrm", "vpts", "cov", "vpts2", "cov2")}
+        new = {k: cols[k] for k in ("pts", "w", "nrm", "cov")}
         rows = np.hstack([np.reshape(cols[k], (m, -1)) for k in self.PACKED])  # (m, 17)
         end = self.size + m
         if end > self.cap:
@@ -482,9 +485,6 @@ class EndTable:
         new["cov"] = _covered(
             h, pts, np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
         )
-        new["vpts"] = new["pts"]  # a node's visibility points are its Gauss points
-        q, new["cov2"] = _node_points2(h, ni)
-        new["vpts2"] = q + self.eps * h.normal[ni][:, None]
         self._append(new)
         self.n = n
 
@@ -626,7 +626,18 @@ def visibility_points(tree: ClusterTree, h, ids, eps, table=None, second=False):
     ids = np.asarray(ids, np.int64)
     if table is not None:
         r = table.rows(ids)
-        return (table.vpts2[r], table.cov2[r]) if second else (table.vpts[r], table.cov[r])
+        cl = ids < 0
+        ci = decode(ids[cl])
+        if not second:  # a node's: its Gauss points
+            pts, out = table.pts[r], table.cov[r]
+            pts[cl] = table.vpts[ci]
+            return pts, out
+        pts, out = np.empty((len(ids), 4, 3)), np.empty((len(ids), 4), bool)
+        pts[cl], out[cl] = table.vpts2[ci], table.cov2[ci]
+        ni = ids[~cl]
+        q, out[~cl] = _node_points2(h, ni)
+        pts[~cl] = q + eps * h.normal[ni][:, None]
+        return pts, out
     pts, out = np.empty((len(ids), 4, 3)), np.empty((len(ids), 4), bool)
     cl = ids < 0
     ci, ni = decode(ids[cl]), ids[~cl]
