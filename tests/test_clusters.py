@@ -535,7 +535,7 @@ def test_end_table_and_both_directions_give_the_ends_and_estimates_bit_for_bit(c
             C.visibility_points(t, h, a, 1e-6, table, second),
             C.visibility_points(t, h, a, 1e-6, None, second),
         )
-        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+        assert all(np.array_equal(x, y) for x, y in zip(got, want))
     f_ab, f_ba, dist = C.estimate(ea, eb, both=True)
     assert np.array_equal(f_ab, C.estimate(ea, eb)[0]) and np.array_equal(dist, C.estimate(ea, eb)[1])
     assert np.array_equal(f_ba, C.estimate(eb, ea)[0])

@@ -442,8 +442,10 @@ class EndTable:
         # Gauss points)
         vp, cols["cov"] = spread_points(t, h, np.arange(C))
         self.vpts = vp + eps * t.sample_n
-        vp, self.cov2 = spread_points(t, h, np.arange(C), SECOND)
-        self.vpts2 = vp + eps * t.sample_n
+        m2 = second_members(t, h, np.arange(C))
+        vp, self.cov2 = spread_points(t, h, np.arange(C), SECOND, m2)
+        self.nrm2 = h.normal[m2]
+        self.vpts2 = vp + eps * self.nrm2
         self._append(cols)
         self.update()
 
@@ -613,44 +615,41 @@ def sample_normals(tree: ClusterTree, h, ids, table=None):
 
 def visibility_points(tree: ClusterTree, h, ids, eps, table=None, second=False):
     """(N, 4, 3) the points a far link's visibility segments leave from, pushed eps off their
-    surfaces, and (N, 4) whether each lies on a covered part (contacts.py). A patch node's: its
-    2 x 2 Gauss points (sample_points; they take no account of its covered part). A cluster's:
-    its 4 area-stratified members (sample_points' members, the kernel's) at spread positions
-    (spread_points), not their centroids: the kernel is smooth over a member and its centroid
-    serves it, but visibility is not (what blocks a member's edges and corners, a neighbour, a
-    shelf above, misses its centre: links traced from centroids read wholly visible where a
-    dense estimate read 0.92-0.94). second: another set of 4 points an end, elsewhere on the same
-    members (a cluster's shifted by SECOND, a node's at SPREAD's positions), for an estimate
-    independent of a decision made on the first (link_clusters). table: an EndTable made with
-    this eps."""
+    surfaces, (N, 4) whether each lies on a covered part (contacts.py) and (N, 4, 3) their
+    normals. A patch node's: its 2 x 2 Gauss points (sample_points; they take no account of its
+    covered part). A cluster's: its 4 area-stratified members (sample_points' members, the
+    kernel's) at spread positions (spread_points), not their centroids: the kernel is smooth over
+    a member and its centroid serves it, but visibility is not (what blocks a member's edges and
+    corners, a neighbour, a shelf above, misses its centre: links traced from centroids read
+    wholly visible where a dense estimate read 0.92-0.94). second: another set of 4 points an
+    end for an estimate independent of a decision made on the first (link_clusters): a
+    cluster's on other members (second_members) at positions shifted by SECOND, a node's at
+    SPREAD's positions. table: an EndTable made with this eps."""
     ids = np.asarray(ids, np.int64)
-    if table is not None:
-        r = table.rows(ids)
-        cl = ids < 0
-        ci = decode(ids[cl])
-        if not second:  # a node's: its Gauss points
-            pts, out = table.pts[r], table.cov[r]
-            pts[cl] = table.vpts[ci]
-            return pts, out
-        pts, out = np.empty((len(ids), 4, 3)), np.empty((len(ids), 4), bool)
-        pts[cl], out[cl] = table.vpts2[ci], table.cov2[ci]
-        ni = ids[~cl]
-        q, out[~cl] = _node_points2(h, ni)
-        pts[~cl] = q + eps * h.normal[ni][:, None]
-        return pts, out
-    pts, out = np.empty((len(ids), 4, 3)), np.empty((len(ids), 4), bool)
     cl = ids < 0
     ci, ni = decode(ids[cl]), ids[~cl]
-    p, out[cl] = spread_points(tree, h, ci, SECOND if second else 0.0)
-    pts[cl] = p + eps * tree.sample_n[ci]
+    if table is not None and not second:  # a node's: its Gauss points
+        r = table.rows(ids)
+        pts, out, nrm = table.pts[r], table.cov[r], table.nrm[r]
+        pts[cl] = table.vpts[ci]
+        return pts, out, nrm
+    pts, out, nrm = np.empty((len(ids), 4, 3)), np.empty((len(ids), 4), bool), np.empty((len(ids), 4, 3))
+    if table is not None:
+        pts[cl], out[cl], nrm[cl] = table.vpts2[ci], table.cov2[ci], table.nrm2[ci]
+    else:
+        m = second_members(tree, h, ci) if second else tree.sample_patch[ci]
+        p, out[cl] = spread_points(tree, h, ci, SECOND if second else 0.0, m)
+        nrm[cl] = h.normal[m]
+        pts[cl] = p + eps * nrm[cl]
     if second:
         q, out[~cl] = _node_points2(h, ni)
     else:
         q = ff.quadrature(h.corners[ni], h.nv[ni], 2)[0]
         patch, expo = np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
         out[~cl] = _covered(h, q, patch, expo)
-    pts[~cl] = q + eps * h.normal[ni][:, None]
-    return pts, out
+    nrm[~cl] = h.normal[ni][:, None]
+    pts[~cl] = q + eps * nrm[~cl]
+    return pts, out, nrm
 
 
 def _node_points2(h, ni):
@@ -661,6 +660,23 @@ def _node_points2(h, ni):
     q = _in_polygon(h.corners[ni][:, None], h.nv[ni][:, None], uv[..., 0], uv[..., 1])
     patch, expo = np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
     return q, _covered(h, q, patch, expo)
+
+
+def second_members(tree: ClusterTree, h, ci):
+    """(n, 4) the members of clusters ci that their second visibility points lie on: stratified
+    by exposed area as the first (ClusterTree's samples: the middle of each quarter of the
+    members' exposed area), at a position in each quarter shifted per cluster along the golden
+    ratio's sequence, so that over the clusters every member is as likely as its exposed area
+    (the first set's are fixed per cluster: a decision made on them must not choose the second's)."""
+    ci = np.asarray(ci, np.int64)
+    ws = h.area[tree.perm] * np.asarray(h.exposure[tree.perm], float)
+    cum = np.cumsum(ws)
+    lo = cum[tree.start[ci]] - ws[tree.start[ci]]
+    tot = cum[tree.end[ci] - 1] - lo
+    jit = np.mod(0.5 + (ci + 1.0) * 0.6180339887498949, 1.0)
+    tgt = lo[:, None] + (np.arange(4)[None] + jit[:, None]) / 4 * tot[:, None]
+    pos = np.clip(np.searchsorted(cum, tgt), tree.start[ci][:, None], tree.end[ci][:, None] - 1)
+    return tree.perm[pos]
 
 
 def sample_covered(tree: ClusterTree, h, ids, table=None):
@@ -685,12 +701,13 @@ SPREAD_TRIES = 8
 SECOND = 0.5
 
 
-def spread_points(tree: ClusterTree, h, ci, offset=0.0):
+def spread_points(tree: ClusterTree, h, ci, offset=0.0, members=None):
     """(n, 4, 3) visibility points of clusters ci on their surfaces (not pushed off) and (n, 4)
     whether each is covered (see SPREAD; a wholly covered member's: covered). offset: added to
-    the unit-square positions (SECOND: the second set)."""
+    the unit-square positions, members (n, 4): the members (the kernel's samples' if None; the
+    second set: SECOND, second_members)."""
     ci = np.asarray(ci, np.int64)
-    m = tree.sample_patch[ci]  # (n, 4) the members (the kernel's samples')
+    m = tree.sample_patch[ci] if members is None else members  # (n, 4)
     uv = np.mod(SPREAD[None] + (ci[:, None, None] + 1.0) * R2 + offset, 1.0)  # (n, 4, 2)
     pts = _in_polygon(h.corners[m], h.nv[m], uv[..., 0], uv[..., 1])
     expo = np.asarray(h.exposure[m], float)
@@ -714,9 +731,12 @@ def spread_points(tree: ClusterTree, h, ci, offset=0.0):
         got = ok.any(1)
         flat, fc = pts.reshape(-1, 3), cov.reshape(-1)
         flat[i[got]] = cand[np.flatnonzero(got), first[got]]
-        # none uncovered: the member's exposed centre (the kernel's sample), covered or not
+        # none uncovered: the member's exposed centre (the kernel's sample), covered or not (the
+        # second set's members: its point stays, covered)
         k = i[~got]
-        if len(k):
+        if members is not None:
+            fc[k] = True
+        elif len(k):
             fc[k] = h.contacts.covered(tree.samples[ci].reshape(-1, 3)[k], mm[~got])
             flat[k] = tree.samples[ci].reshape(-1, 3)[k]
     return pts, cov

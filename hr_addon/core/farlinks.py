@@ -510,8 +510,8 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
     t0 = time.perf_counter()
     h, eps = refiner.h, refiner.eps
     # a cluster's points spread over its members (not their centroids: visibility_points)
-    (pa, ca), (pb, cb) = (visibility_points(tree, h, x, eps, table, second) for x in (a, b))
-    front, kw = _facing_segments(pa, pb, sample_normals(tree, h, a, table), sample_normals(tree, h, b, table))
+    (pa, ca, na), (pb, cb, nb) = (visibility_points(tree, h, x, eps, table, second) for x in (a, b))
+    front, kw = _facing_segments(pa, pb, na, nb)
     # a sample on a covered part (under a box, between touching faces) sees nothing; the end's
     # light leaves from its exposed part: its segments do not count either
     front &= ~(ca[:, :, None] | cb[:, None, :]).reshape(-1, 16)
@@ -526,11 +526,15 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
         mask[st] = ((~occ) * (1 << np.arange(16))).sum(1)
         f = front[st]
         nf = f.sum(1)
-        fix = (nf > 0) & (nf < 16)
+        # the second set's segments join other members than the kernel's: one visibility
+        fix = (nf > 0) & ((nf < 16) | second)
         if fix.any():
             i = np.flatnonzero(st)[fix]
             vis[i] = scale[i] = _weighted(f[fix], occ[fix], kw[st][fix])
             mask[i] = 0xFFFF
+        if second:
+            i = np.flatnonzero(st)[nf == 0]
+            scale[i], mask[i] = vis[i], 0xFFFF
     if weak.any():
         occ = refiner.backend.occluded(pa[weak], pb[weak][:, ::-1]).reshape(-1, 4)
         f = front[weak][:, _DIAGONAL]
