@@ -12,6 +12,13 @@ visibility is replaced by a dense estimate and the room solved again with the sa
   what the link's 4 (weak) or 16 segments estimate (--centroid: at the members' centroids);
 - dense_kernel: the same segments weighted by their kernel cos cos / (pi r^2): the visibility that
   gives the link's exact exchange between uniformly bright ends (sum V k / sum k).
+By class of link (the traced value: wholly visible, partly, traced 0 (with --all-links); strong
+(above shadow_feps, 16 segments) or weak; two clusters or a node and a cluster) the traced and
+dense means, also weighted by each link's unoccluded exchange (A_a A_b x the kernel's mean): only
+classes not chosen by the traced value (all links, strong, weak) measure the estimator's bias
+(branch far30). --all-links keeps the links traced wholly occluded (farlinks.KEEP_OCCLUDED),
+--one-trace turns farlinks.SECOND_TRACE off, --shadow-feps builds the room at another split,
+--no-fine skips the room split finer.
 The gap between dense_kernel and the preset split finer (shadow_feps 0.003) is what one visibility
 for all members cannot give (which members see each other and which carry the light) plus the
 partial ends' SH kernel; the gap between the preset and dense_area is its 4-sample estimate.

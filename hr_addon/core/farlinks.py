@@ -502,9 +502,14 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
     a face whose solid lies between it and the other end, so its segments are blocked by that
     member itself, while the link's kernel already gives such a member nothing (its clamped
     cosine). Counted, they made every partial end's visibility dark (the draft furnished room
-    lost 1.5% of its light). A link with such segments gets the fraction of its front-facing
-    segments that are unoccluded as `scale` and a full mask (one visibility for the link, as
-    weak links have); a link with no front-facing segment keeps what was traced."""
+    lost 1.5% of its light). A link with such segments gets the unoccluded share of its
+    front-facing segments' kernel cos cos / r^2 (_weighted) as `scale` and a full mask (one
+    visibility for the link, as weak links have; weak links' share is weighted alike); a link
+    with no front-facing segment keeps what was traced.
+
+    second: the points of visibility_points(second=True), on other members than the kernel's: a
+    strong link gets one visibility too (full mask, scale). link_clusters traces the links its
+    oracle kept on their first trace again so (SECOND_TRACE)."""
     import time
 
     t0 = time.perf_counter()
