@@ -12,6 +12,13 @@ visibility is replaced by a dense estimate and the room solved again with the sa
   what the link's 4 (weak) or 16 segments estimate (--centroid: at the members' centroids);
 - dense_kernel: the same segments weighted by their kernel cos cos / (pi r^2): the visibility that
   gives the link's exact exchange between uniformly bright ends (sum V k / sum k).
+By class of link (the traced value: wholly visible, partly, traced 0 (with --all-links); strong
+(above shadow_feps, 16 segments) or weak; two clusters or a node and a cluster) the traced and
+dense means, also weighted by each link's unoccluded exchange (A_a A_b x the kernel's mean): only
+classes not chosen by the traced value (all links, strong, weak) measure the estimator's bias
+(branch far30). --all-links keeps the links traced wholly occluded (farlinks.KEEP_OCCLUDED),
+--one-trace turns farlinks.SECOND_TRACE off, --shadow-feps builds the room at another split,
+--no-fine skips the room split finer.
 The gap between dense_kernel and the preset split finer (shadow_feps 0.003) is what one visibility
 for all members cannot give (which members see each other and which carry the light) plus the
 partial ends' SH kernel; the gap between the preset and dense_area is its 4-sample estimate.
@@ -29,7 +36,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from hr_addon.core.cluster import decode  # noqa: E402
+from hr_addon.core.cluster import Ends, decode, estimate  # noqa: E402
 from hr_addon.core.farlinks import FarLinks  # noqa: E402
 from hr_addon.core.params import RefineParams  # noqa: E402
 from hr_addon.core.radiosity import RadiositySystem  # noqa: E402
@@ -100,9 +107,14 @@ def end_points(s, tree, ids, M, rng):
 
 
 def dense_visibility(s, far, M, seed=1, chunk=1000):
-    """(area, kernel) dense visibilities of every far link (see the module's doc)."""
+    """(area, kernel) dense visibilities of every far link (see the module's doc) and (exch) each
+    link's unoccluded exchange A_a A_b x the mean of its front-facing, uncovered segments' kernel
+    (the weight of its visibility in the room's energy)."""
     rng = np.random.default_rng(seed)
-    va, vk = np.ones(len(far)), np.ones(len(far))
+    va, vk, ex = np.ones(len(far)), np.ones(len(far)), np.zeros(len(far))
+    area = lambda ids: np.where(
+        ids < 0, far.tree.area[decode(np.minimum(ids, -1))], s.h.area[np.maximum(ids, 0)]
+    )
     for i in range(0, len(far), chunk):
         sl = slice(i, i + chunk)
         pa, na, ca_ = end_points(s, far.tree, far.a[sl], M, rng)
@@ -121,7 +133,8 @@ def dense_visibility(s, far, M, seed=1, chunk=1000):
         K = k.sum((1, 2))
         va[sl] = np.where(nf > 0, vis.sum((1, 2)) / np.maximum(nf, 1), 1.0)
         vk[sl] = np.where(K > 0, (k * vis).sum((1, 2)) / np.where(K > 0, K, 1), 1.0)
-    return va, vk
+        ex[sl] = area(far.a[sl]) * area(far.b[sl]) * K / M**2
+    return va, vk, ex
 
 
 def with_visibility(far, v):
@@ -146,27 +159,52 @@ def link_vis(far):
     return bits * far.scale
 
 
+def _keep_occluded():
+    """--all-links: link_clusters keeps the far links it traced wholly occluded (farlinks.KEEP_OCCLUDED:
+    no transfer, their mask or scale 0), so the traced visibilities of every far link can be set
+    against dense ones (the selection by the traced value left out) and the dense solves include
+    them; the preset's own solve is the same as without them."""
+    import hr_addon.core.farlinks as FL
+
+    FL.KEEP_OCCLUDED = True
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--room", default="2k")
     ap.add_argument("--points", type=int, default=16)
+    ap.add_argument("--shadow-feps", type=float, default=BASE.shadow_feps, help="the room's (the preset's)")
     ap.add_argument("--fine", type=float, default=0.003, help="the shadow_feps split finer")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--all-links", action="store_true", help="keep the links traced wholly occluded too")
+    ap.add_argument("--one-trace", action="store_true", help="farlinks.SECOND_TRACE off")
+    ap.add_argument("--no-fine", action="store_true", help="skip the room split finer")
     ap.add_argument("--centroid", action="store_true", help="dense points at the members' centroids")
     args = ap.parse_args()
     if args.centroid:
         os.environ["FAR_VIS_CENTROID"] = "1"
+    if args.all_links:
+        _keep_occluded()
+    if args.one_trace:
+        import hr_addon.core.farlinks as FL
+
+        FL.SECOND_TRACE = False
     mesh, _ = furnished_room(args.room)
-    out = {"room": args.room, "points": args.points}
+    out = {
+        "room": args.room,
+        "points": args.points,
+        "all_links": args.all_links,
+        "shadow_feps": args.shadow_feps,
+    }
     t0 = time.process_time()
-    s = RadiositySystem(mesh, BASE)
+    s = RadiositySystem(mesh, dataclasses.replace(BASE, shadow_feps=args.shadow_feps))
     out["build_cpu_s"] = time.process_time() - t0
     far = s.links.far
     out["links"], out["far_links"] = len(s.links), len(far)
     out["preset"] = balance(s).tolist()
     print("preset", np.round(out["preset"], 4), "far links", len(far), flush=True)
     t0 = time.process_time()
-    va, vk = dense_visibility(s, far, args.points)
+    va, vk, ex = dense_visibility(s, far, args.points)
     out["dense_cpu_s"] = time.process_time() - t0
     lv = link_vis(far)
     part = (lv < 1) | (va < 1)
@@ -184,6 +222,38 @@ def main():
         s.links = links
         s._op, s.B = None, None
         print(name, np.round(out[name], 4), flush=True)
+    # the kept links by their traced visibility: wholly visible (1) or partly, and by their ends'
+    # kinds (two clusters, or a patch node and a cluster): traced against dense means
+    both_cl = (far.a < 0) & (far.b < 0)
+    f_ab, f_ba, _ = estimate(Ends(far.tree, s.h, far.a), Ends(far.tree, s.h, far.b), both=True)
+    strong = np.maximum(f_ab, f_ba) >= args.shadow_feps  # traced with 16 segments (weak: 4)
+    classes = [("whole", lv >= 1), ("part", (lv > 0) & (lv < 1)), ("zero", lv <= 0), ("all", lv >= 0)]
+    for name, sel in classes:
+        for kind, k in (
+            ("", True),
+            ("_clcl", both_cl),
+            ("_nodecl", ~both_cl),
+            ("_strong", strong),
+            ("_weak", ~strong),
+        ):
+            m = sel & k
+            out[f"{name}{kind}_n"] = int(m.sum())
+            if not m.any():
+                continue
+            for vn, v in (("link", lv), ("dense_area", va), ("dense_kernel", vk)):
+                out[f"{name}{kind}_mean_{vn}"] = float(v[m].mean())
+                # weighted by the unoccluded exchange: the visibility as the room's energy reads it
+                out[f"{name}{kind}_wmean_{vn}"] = float((v * ex)[m].sum() / max(ex[m].sum(), 1e-300))
+            out[f"{name}{kind}_exchange_share"] = float(ex[m].sum() / ex.sum())
+        if not sel.any():
+            continue
+        g = lambda k: out[f"{name}_{k}"]  # noqa: E731
+        print(
+            f"{name}: n {g('n')}, traced {g('mean_link'):.4f}, dense area {g('mean_dense_area'):.4f}, "
+            f"kernel {g('mean_dense_kernel'):.4f}; by exchange ({g('exchange_share'):.3f} of it) "
+            f"traced {g('wmean_link'):.4f}, dense kernel {g('wmean_dense_kernel'):.4f}",
+            flush=True,
+        )
     # where they differ: links whose area and kernel visibilities differ, and by partial ends
     pe = far.part_a | far.part_b
     for name, sel in (("partial_ends", pe), ("facing_ends", ~pe)):
@@ -191,6 +261,12 @@ def main():
         out[f"{name}_mean_link_minus_area"] = float((lv - va)[sel].mean())
         out[f"{name}_mean_area_minus_kernel"] = float((va - vk)[sel].mean())
     del s
+    if args.no_fine:
+        print(json.dumps(out, indent=1))
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(out, f, indent=1)
+        return
     t0 = time.process_time()
     s2 = RadiositySystem(mesh, dataclasses.replace(BASE, shadow_feps=args.fine))
     out["fine_build_cpu_s"] = time.process_time() - t0

@@ -104,17 +104,19 @@ def test_box_on_floor_no_light_underneath_and_the_band_beside_it_matches_rays():
     assert _floor_values(off, band, False).mean() < 0.5 * ref.mean()
 
 
-@pytest.mark.parametrize("quality, worst, p99", [("draft", 0.26, 0.16), ("medium", 0.2, 0.08)])
+@pytest.mark.parametrize("quality, worst, p99", [("draft", 0.26, 0.15), ("medium", 0.2, 0.08)])
 def test_furnace_with_touching_objects(quality, worst, p99):
     """Exposed leaves at B = 2 and covered ones dark. Measured, worst leaf / 99th percentile /
-    area-weighted mean: draft 22.2% / 15.1% / +0.35%, medium 10.1% / 1.9% / -0.15% (the worst are
-    leaves straddling a box's corner). Draft's 99th percentile was 14.1% (+0.28% mean, worst 23.1%)
-    before far links stopped counting segments from sample points on covered parts (cl29, session
-    25): those darkened links that the kept links' centroid samples, traced fully visible where a
-    dense visibility reads 0.92-0.94, otherwise overshoot; the two no longer cancel at draft's few
-    far links, so its bound is 0.16 (0.15 before). Without contacts: 50% / 48% / -2.1% (draft) and 50% / 44% /
-    -2.4% (medium): covered leaves emit and are counted, and the light of the band beside the
-    boxes is spread under them."""
+    area-weighted mean: draft 23.3% / 9.2% / +0.08%, medium 10.1% / 1.9% / -0.15% (the worst are
+    leaves straddling a box's corner). Draft's 99th percentile was 14.1% (+0.28% mean) before far
+    links stopped counting segments from sample points on covered parts (cl29, session 25), then
+    15.1% (+0.35%, bound 0.16 for that session): the kept links' visibility, traced from their
+    members' centroids, read fully visible where a dense visibility reads 0.92-0.94, and the
+    covered samples' darkening had cancelled it. Since far links trace from points spread over
+    their members (far30, session 26: 14.0%, +0.23%) and strong links kept on their oracle's
+    trace are traced again on other points (9.2%, +0.08%), the bound is 0.15 again. Without
+    contacts: 50% / 48% / -2.1% (draft) and 50% / 44% / -2.4% (medium): covered leaves emit and
+    are counted, and the light of the band beside the boxes is spread under them."""
     s = RadiositySystem(contact_furnace(), RefineParams.preset(quality))
     B = s.solve()
     lf = s.h.leaves()

@@ -184,7 +184,14 @@ def test_a_closed_furnished_room_keeps_its_light_when_partly_visible_far_links_a
     links' exact exchange); counted out, 1.008 / 1.004 / 1.000 at 0.03 and 1.015 / 1.009 / 1.004 at
     0.01 (20k 0.964 / 0.974 / 0.980 at 0.03). Split finer the room now overshoots: the links kept
     (traced wholly visible) are the ones whose 4 or 16 segments read too high (20k: 1.00 against 0.92
-    by dense sampling), the split ones the ones that read too low (docs/gather.md, cl29)."""
+    by dense sampling), the split ones the ones that read too low (docs/gather.md, cl29). far30:
+    that optimism was the oracle's decision (a link kept on "wholly visible" keeps its 1, one
+    split gets fresh estimates) plus centroid samples; with points spread over the members, a
+    second trace for the decided links and kernel-weighted shares, every far link reads within
+    0.1% of dense sampling (strong links; weak -0.04%), and the room 0.978 / 0.975 / 0.972 at
+    0.03, 0.979 / 0.977 / 0.974 at 0.01 (its far links at their dense visibility: 0.990 / 0.987 /
+    0.984): split finer, the balance no longer moves (main 1.008 -> 1.015). So this asserts that,
+    and the draft's loss within 3% (docs/gather.md, far30)."""
     import dataclasses
 
     from hr_testing.furnished import furnished_room
@@ -196,15 +203,12 @@ def test_a_closed_furnished_room_keeps_its_light_when_partly_visible_far_links_a
         for sf in (0.03, 0.01)
     }
     print({k: np.round(v, 4) for k, v in got.items()})
-    # split finer: within 2% in every channel (1.015 in red: the links kept unsplit are those
-    # traced wholly visible, whose visibility reads high; within 1% before cl29, when links traced
-    # from covered samples were dropped)
-    assert np.abs(got[0.01] - 1).max() < 0.02
-    # the preset's far links: partial ends' back-facing samples (cl28: 0.988 / 0.986 / 0.983 ->
-    # 0.996 / 0.993 / 0.990) and samples on covered parts (cl29: -> 1.008 / 1.004 / 1.000) no
-    # longer count in their visibility (farlinks.far_visibility)
-    assert np.abs(got[0.03] - 1).max() < 0.01
-    assert (got[0.03] > 0.995).all()
+    # split finer, the balance stays (far30: 0.0012 / 0.0021 / 0.0027; main 0.007 / 0.005 / 0.004,
+    # cl29's optimism of decided links growing with their number; with centroid samples only
+    # replaced, 0.027)
+    assert np.abs(got[0.01] - got[0.03]).max() < 0.005
+    # the draft's loss (far30: 2.2 / 2.5 / 2.8%; the far links at dense visibility 1.0-1.6%)
+    assert np.abs(got[0.03] - 1).max() < 0.03 and np.abs(got[0.01] - 1).max() < 0.03
 
 
 def test_push_corrections_are_what_makes_the_furnace_exact():

@@ -437,13 +437,21 @@ class EndTable:
         cols.update(cos_t=t.cos_t, sin_t=t.sin_t, theta=t.theta)
         cols.update(pts=t.samples + eps * t.sample_n, w=np.full((C, 4), 0.25), nrm=t.sample_n)
         cols = {k: np.asarray(v, float)[:C] for k, v in cols.items()}
-        cols["cov"] = _covered(h, t.samples, t.sample_patch, h.exposure[t.sample_patch])
+        # the clusters' visibility points (visibility_points; a node's first set are its pts), and
+        # `cov` whether a row's visibility points are covered (a cluster's spread points, a node's
+        # Gauss points)
+        vp, cols["cov"] = spread_points(t, h, np.arange(C))
+        self.vpts = vp + eps * t.sample_n
+        m2 = second_members(t, h, np.arange(C))
+        vp, self.cov2 = spread_points(t, h, np.arange(C), SECOND, m2)
+        self.nrm2 = h.normal[m2]
+        self.vpts2 = vp + eps * self.nrm2
         self._append(cols)
         self.update()
 
     def _append(self, cols):
         m = len(cols["area"])
-        new = dict(pts=cols["pts"], w=cols["w"], nrm=cols["nrm"], cov=cols["cov"])
+        new = {k: cols[k] for k in ("pts", "w", "nrm", "cov")}
         rows = np.hstack([np.reshape(cols[k], (m, -1)) for k in self.PACKED])  # (m, 17)
         end = self.size + m
         if end > self.cap:
@@ -605,24 +613,150 @@ def sample_normals(tree: ClusterTree, h, ids, table=None):
     return out
 
 
-def sample_covered(tree: ClusterTree, h, ids, table=None):
-    """(N, 4) whether the sample points of link ends (sample_points) lie on covered parts
-    (contacts.py): a patch node's Gauss points take no account of its covered part, and a
-    partly covered member's exposed centre (a cluster's sample) may lie under what covers it
-    (the centroid of a ring of floor around a box is under the box)."""
+def visibility_points(tree: ClusterTree, h, ids, eps, table=None, second=False):
+    """(N, 4, 3) the points a far link's visibility segments leave from, pushed eps off their
+    surfaces, (N, 4) whether each lies on a covered part (contacts.py) and (N, 4, 3) their
+    normals. A patch node's: its 2 x 2 Gauss points (sample_points; they take no account of its
+    covered part). A cluster's: its 4 area-stratified members (sample_points' members, the
+    kernel's) at spread positions (spread_points), not their centroids: the kernel is smooth over
+    a member and its centroid serves it, but visibility is not (what blocks a member's edges and
+    corners, a neighbour, a shelf above, misses its centre: links traced from centroids read
+    wholly visible where a dense estimate read 0.92-0.94). second: another set of 4 points an
+    end for an estimate independent of a decision made on the first (link_clusters): a
+    cluster's on other members (second_members) at positions shifted by SECOND, a node's at
+    SPREAD's positions. table: an EndTable made with this eps."""
     ids = np.asarray(ids, np.int64)
-    if table is not None:
-        return table.cov[table.rows(ids)]
-    out = np.empty((len(ids), 4), bool)
     cl = ids < 0
     ci, ni = decode(ids[cl]), ids[~cl]
-    sp = tree.sample_patch[ci]
-    out[cl] = _covered(h, tree.samples[ci], sp, h.exposure[sp])
-    pts = ff.quadrature(h.corners[ni], h.nv[ni], 2)[0]
-    out[~cl] = _covered(
-        h, pts, np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
+    if table is not None and not second:  # a node's: its Gauss points
+        r = table.rows(ids)
+        pts, out, nrm = table.pts[r], table.cov[r], table.nrm[r]
+        pts[cl] = table.vpts[ci]
+        return pts, out, nrm
+    pts, out, nrm = np.empty((len(ids), 4, 3)), np.empty((len(ids), 4), bool), np.empty((len(ids), 4, 3))
+    if table is not None:
+        pts[cl], out[cl], nrm[cl] = table.vpts2[ci], table.cov2[ci], table.nrm2[ci]
+    else:
+        m = second_members(tree, h, ci) if second else tree.sample_patch[ci]
+        p, out[cl] = spread_points(tree, h, ci, SECOND if second else 0.0, m)
+        nrm[cl] = h.normal[m]
+        pts[cl] = p + eps * nrm[cl]
+    if second:
+        q, out[~cl] = _node_points2(h, ni)
+    else:
+        q = ff.quadrature(h.corners[ni], h.nv[ni], 2)[0]
+        patch, expo = np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
+        out[~cl] = _covered(h, q, patch, expo)
+    nrm[~cl] = h.normal[ni][:, None]
+    pts[~cl] = q + eps * nrm[~cl]
+    return pts, out, nrm
+
+
+def _node_points2(h, ni):
+    """(n, 4, 3) patch nodes' second visibility points (SPREAD's positions shifted per node along
+    R2, on the node's surface) and (n, 4) whether each is covered."""
+    ni = np.asarray(ni, np.int64)
+    uv = np.mod(SPREAD[None] + (ni[:, None, None] + 1.0) * R2, 1.0)
+    q = _in_polygon(h.corners[ni][:, None], h.nv[ni][:, None], uv[..., 0], uv[..., 1])
+    patch, expo = np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
+    return q, _covered(h, q, patch, expo)
+
+
+def second_members(tree: ClusterTree, h, ci):
+    """(n, 4) the members of clusters ci that their second visibility points lie on: stratified
+    by exposed area as the first (ClusterTree's samples: the middle of each quarter of the
+    members' exposed area), at a position in each quarter shifted per cluster along the golden
+    ratio's sequence, so that over the clusters every member is as likely as its exposed area
+    (the first set's are fixed per cluster: a decision made on them must not choose the second's)."""
+    ci = np.asarray(ci, np.int64)
+    ws = h.area[tree.perm] * np.asarray(h.exposure[tree.perm], float)
+    cum = np.cumsum(ws)
+    lo = cum[tree.start[ci]] - ws[tree.start[ci]]
+    tot = cum[tree.end[ci] - 1] - lo
+    jit = np.mod(0.5 + (ci + 1.0) * 0.6180339887498949, 1.0)
+    tgt = lo[:, None] + (np.arange(4)[None] + jit[:, None]) / 4 * tot[:, None]
+    pos = np.clip(np.searchsorted(cum, tgt), tree.start[ci][:, None], tree.end[ci][:, None] - 1)
+    return tree.perm[pos]
+
+
+def sample_covered(tree: ClusterTree, h, ids, table=None):
+    """(N, 4) whether the visibility points of link ends (visibility_points) lie on covered parts
+    (contacts.py): a patch node's Gauss points take no account of its covered part; a cluster's
+    point on a partly covered member is moved off the covered part where one of SPREAD_TRIES
+    positions is uncovered, else it is the member's exposed centre, which may lie under what
+    covers it (the centroid of a ring of floor around a box is under the box)."""
+    return visibility_points(tree, h, ids, 0.0, table)[1]
+
+
+# A cluster end's visibility points (spread_points): sample k of cluster c in its member at the
+# unit-square position SPREAD[k] + (c + 1) R2 (mod 1): a rotated 2 x 2 grid (each axis stratified
+# in quarters, so the 4 samples of a one-member cluster spread over it), shifted per cluster along
+# the R2 sequence (Roberts' plastic-number sequence), so that over the clusters every position in
+# a member is as likely (the mean visibility of a member by area, not its centre's). On a partly
+# covered member the first uncovered of SPREAD_TRIES positions (the next ones along R2).
+SPREAD = np.array([(0.375, 0.125), (0.875, 0.375), (0.125, 0.625), (0.625, 0.875)])
+R2 = np.array([0.7548776662466927, 0.5698402909980532])
+SPREAD_TRIES = 8
+# the second set's shift (visibility_points(second=True)): the rotated grid's other four cells' points
+SECOND = 0.5
+
+
+def spread_points(tree: ClusterTree, h, ci, offset=0.0, members=None):
+    """(n, 4, 3) visibility points of clusters ci on their surfaces (not pushed off) and (n, 4)
+    whether each is covered (see SPREAD; a wholly covered member's: covered). offset: added to
+    the unit-square positions, members (n, 4): the members (the kernel's samples' if None; the
+    second set: SECOND, second_members)."""
+    ci = np.asarray(ci, np.int64)
+    m = tree.sample_patch[ci] if members is None else members  # (n, 4)
+    uv = np.mod(SPREAD[None] + (ci[:, None, None] + 1.0) * R2 + offset, 1.0)  # (n, 4, 2)
+    pts = _in_polygon(h.corners[m], h.nv[m], uv[..., 0], uv[..., 1])
+    expo = np.asarray(h.exposure[m], float)
+    cov = expo <= 0
+    part = (expo > 0) & (expo < 1)
+    if part.any() and h.contacts is not None:
+        i = np.flatnonzero(part.ravel())
+        mm = m.ravel()[i]
+        tries = np.mod(
+            uv.reshape(-1, 2)[i][:, None] + np.arange(SPREAD_TRIES)[:, None] * R2, 1.0
+        )  # (p, T, 2)
+        cand = _in_polygon(
+            np.repeat(h.corners[mm], SPREAD_TRIES, 0),
+            np.repeat(h.nv[mm], SPREAD_TRIES),
+            tries[..., 0].ravel(),
+            tries[..., 1].ravel(),
+        ).reshape(-1, SPREAD_TRIES, 3)
+        hid = h.contacts.covered(cand.reshape(-1, 3), np.repeat(mm, SPREAD_TRIES)).reshape(-1, SPREAD_TRIES)
+        ok = ~hid
+        first = ok.argmax(1)
+        got = ok.any(1)
+        flat, fc = pts.reshape(-1, 3), cov.reshape(-1)
+        flat[i[got]] = cand[np.flatnonzero(got), first[got]]
+        # none uncovered: the member's exposed centre (the kernel's sample), covered or not (the
+        # second set's members: its point stays, covered)
+        k = i[~got]
+        if members is not None:
+            fc[k] = True
+        elif len(k):
+            fc[k] = h.contacts.covered(tree.samples[ci].reshape(-1, 3)[k], mm[~got])
+            flat[k] = tree.samples[ci].reshape(-1, 3)[k]
+    return pts, cov
+
+
+def _in_polygon(c, nv, u, v):
+    """Points of polygons (corners c (..., 4, 3), nv (...)) at unit-square positions u, v (...):
+    bilinear on quads (area-uniform on parallelograms), folded barycentric on triangles
+    (area-uniform)."""
+    u, v = u[..., None], v[..., None]
+    q = (
+        (1 - u) * (1 - v) * c[..., 0, :]
+        + u * (1 - v) * c[..., 1, :]
+        + u * v * c[..., 2, :]
+        + (1 - u) * v * c[..., 3, :]
     )
-    return out
+    f = u + v > 1
+    tu, tv = np.where(f, 1 - u, u), np.where(f, 1 - v, v)
+    t = c[..., 0, :] + tu * (c[..., 1, :] - c[..., 0, :]) + tv * (c[..., 2, :] - c[..., 0, :])
+    return np.where((np.asarray(nv) == 4)[..., None], q, t)
 
 
 def _covered(h, pts, patch, expo):
