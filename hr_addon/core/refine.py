@@ -189,7 +189,7 @@ class Refiner:
             rays = int(st.sum()) * s * s + int(weak.sum()) * s
             redo = np.flatnonzero(np.isnan(out))
             if len(redo):  # no segment leaves both points in front: the 2 x 2 points' segments
-                out[redo], n2 = self._front_visibility_2x2(a[redo], b[redo])
+                out[redo], n2 = self._front_visibility_2x2(a[redo], b[redo], weak[redo])
                 rays += n2
         else:
             if st.any():
@@ -247,10 +247,10 @@ class Refiner:
             out[np.flatnonzero(sel)] = np.where(nf > 0, v, np.nan)
         return out
 
-    def _front_visibility_2x2(self, a, b):
+    def _front_visibility_2x2(self, a, b, weak):
         """_front_visibility of links none of whose segments count, from their nodes' 2 x 2 Gauss
-        points (points on covered parts left out); 0 where none counts there either. Returns
-        (visibility, rays traced)."""
+        points (points on covered parts left out; weak links: the 4 segments i -> 3 - i); 0 where
+        none counts there either. Returns (visibility, rays traced)."""
         h = self.h
         pa = ff.sample_points(h.corners[a], h.nv[a], 2) + self.eps * h.normal[a][:, None]
         pb = ff.sample_points(h.corners[b], h.nv[b], 2) + self.eps * h.normal[b][:, None]
@@ -258,8 +258,8 @@ class Refiner:
         if self._contacts is not None:
             cov_a = self._contacts.covered(pa.reshape(-1, 3), np.repeat(h.patch[a], 4)).reshape(-1, 4)
             cov_b = self._contacts.covered(pb.reshape(-1, 3), np.repeat(h.patch[b], 4)).reshape(-1, 4)
-        v = self._front_visibility(a, b, pa, pb, np.zeros(len(a), bool), cov_a, cov_b)
-        return np.nan_to_num(v, nan=0.0), 16 * len(a)
+        v = self._front_visibility(a, b, pa, pb, weak, cov_a, cov_b)
+        return np.nan_to_num(v, nan=0.0), 16 * int((~weak).sum()) + 4 * int(weak.sum())
 
     def leaf_visibility(self, leaf, src, batch=1 << 14):
         """Visibility of source nodes from leaves (push corrections, corrections.py): the unoccluded
