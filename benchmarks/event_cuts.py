@@ -9,9 +9,10 @@ DynamicRadiosity (the base parts computed once and shared: only the shape's part
         [--rounds 2] [--json out.json]
 
 A variant is a dict of: second_shadow_rays (the second level's shadow rays), iterations (the
-passes), seed / second_seed (the levels' shadow-ray seeds: a
-noise floor), shape_by_read (the second level's shape direct light through its rays'
-reads: FinalGather._shape_by_read; read_near: its READ_NEAR; far_rays: FAR_RAYS), dyn
+passes), seed / second_seed (the levels' shadow-ray seeds: a noise floor), pilot / second_pilot
+(a level's shape_pilot_rays: adaptive shadow testing), pilot_q (its shape_pilot_q, both levels),
+shape_by_read (the second level's shape direct light through its rays' reads:
+FinalGather._shape_by_read; read_near: its READ_NEAR; far_rays: FAR_RAYS), dyn
 (DynamicRadiosity options over gather_options("draft")).
 """
 
@@ -56,7 +57,7 @@ def main(argv=None):
     obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
     g2 = g.second
     defaults = dict(shadow=g2.shadow_rays, iterations=g.iterations, seed=g.seed, seed2=g2.seed)
-    defaults.update(pilot=g.shape_pilot_rays, pilot2=g2.shape_pilot_rays)
+    defaults.update(pilot=g.shape_pilot_rays, pilot2=g2.shape_pilot_rays, q=g.shape_pilot_q)
     variants = eval(args.variants)
     base_opts = DynamicRadiosity.gather_options("draft")
 
@@ -94,6 +95,7 @@ def main(argv=None):
         # adaptive shadow testing (DirectLight._visible)
         g.shape_pilot_rays = v.get("pilot", defaults["pilot"])
         g2.shape_pilot_rays = v.get("second_pilot", defaults["pilot2"])
+        g.shape_pilot_q = g2.shape_pilot_q = v.get("pilot_q", defaults["q"])
         for lv in (g, g2):
             lv._shape_cache.clear()
 
@@ -147,11 +149,18 @@ def main(argv=None):
                     a = per_object(outs[(method, args.ref, step)], obj)
                     b = per_object(outs[(method, name, step)], obj)
                     d = difference(a, b)
+                    # the objects moved by more than 2%: how many, the share darker (a reseed:
+                    # about half; a one-sided estimator: most)
+                    lit = a > 0.05 * a[a > 0].mean()
+                    rel = (b[lit] - a[lit]) / a[lit]
+                    d["moved2"] = int((np.abs(rel) > 0.02).sum())
+                    d["darker2"] = float((rel < -0.02).sum() / max(d["moved2"], 1))
                     res[method][name][-1][step]["vs_ref"] = d
                     print(
                         f"   {method} {name} {step} vs {args.ref}: median {100 * d['median']:.3f}%, p95 "
                         f"{100 * d['p95']:.3f}%, worst {100 * d['worst']:.3f}%, bias {100 * d['bias']:+.3f}% "
-                        f"({d['objects']} lit objects)",
+                        f"({d['objects']} lit objects; moved > 2% {d['moved2']}, "
+                        f"darker {100 * d['darker2']:.0f}%)",
                         flush=True,
                     )
     # medians over the rounds, ratios against the reference

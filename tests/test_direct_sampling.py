@@ -125,14 +125,17 @@ def test_form_factors_only_where_a_shadow_ray_gets_through(monkeypatch):
     assert lit.sum() >= 8 and np.array_equal(v[lit], F[lit].astype(np.float32))
 
 
-def test_adaptive_shadow_testing_changes_only_the_penumbra():
+def test_adaptive_shadow_testing_is_unbiased_and_changes_only_the_penumbra():
     """A light shape's pilot (DirectLight.shape_pilot_rays, _visible): 4 of a sample's 16 area
-    rays first, one in each quarter of both coordinates, the other 12 only where those disagree.
-    Samples whose 16 rays all get through or are all blocked read as without the pilot, and the
-    samples traced in full bit for bit; only penumbra samples (0 < V < 1 with 16 rays) may
-    differ, and then read 0 or their form factor; fewer rays are traced."""
+    rays first, one in each quarter of both coordinates; where they disagree the other 12 are
+    traced (the value without the pilot, bit for bit), where they agree only if the sample's coin
+    is below q (Russian roulette: then P + (M - P) / q, else the pilot's P). Over the coin the
+    expectation is M's at every sample, for these very rays: q x (traced) + (1 - q) x (not)
+    equals M. Samples whose 16 rays all get through or are all blocked read as without the pilot;
+    q 1 traces all (bit for bit); fewer rays are traced at q 0.5, and where a traced sample's rays
+    agree with its pilot it reads P."""
     from hr_addon.core.gather import direct
-    from hr_addon.core.gather.sampling import hammersley
+    from hr_addon.core.gather.sampling import hammersley, hash_uniform
 
     P = direct._pilot(4, 16)
     assert list(P) == [0, 5, 10, 15]
@@ -147,16 +150,33 @@ def test_adaptive_shadow_testing_changes_only_the_penumbra():
     backend.occluded_cm = lambda a, d, per=1: rays.append(d.shape[1]) or occluded_cm(a, d, per)
     xs = np.linspace(-1.2, 1.2, 241)
     x = np.column_stack([xs, np.zeros_like(xs), np.zeros_like(xs)])
+    up = np.tile([0.0, 0, 1], (len(x), 1))
     g = _Gather(x, 16, True, backend)
     full = g.direct_batch(em, 0, len(x))
     n_full, rays[:] = sum(rays), []
+    g.shape_pilot_q = 0.5
     got = g.direct_batch(em, 0, len(x), pilot=4)
-    F = shape_form_factors(x, np.tile([0.0, 0, 1], (len(x), 1)), em.rings, em.corners, em.nv, 1e-6)
-    F = F.astype(np.float32)
+    F = shape_form_factors(x, up, em.rings, em.corners, em.nv, 1e-6).astype(np.float32)
     pen = (full > 0) & (full < F)
     assert 40 < pen.sum() < 200 and (full == 0).sum() > 40 and (full == F).sum() > 20
     assert np.array_equal(got[~pen], full[~pen])
-    changed = got != full
-    assert 0 < changed.sum() < pen.sum()
-    assert np.all((got[changed] == 0) | (got[changed] == F[changed]))
-    assert sum(rays) < 0.6 * n_full
+    assert 0 < (got != full).sum() < pen.sum()
+    assert sum(rays) < 0.8 * n_full
+    g.shape_pilot_q = 1.0
+    assert np.array_equal(g.direct_batch(em, 0, len(x), pilot=4), full)
+    # the estimator's expectation over the coin, exactly, for the same rays
+    u = hammersley(16)[None] + hash_uniform(g.seed, g.keys, 1000 + em.stream)[:, None]
+    u -= u >= 1.0
+    M = g._visible(em, x, up, u, True)
+    for q in (0.25, 0.5):
+        g.shape_pilot_q = q
+        yes = g._visible(em, x, up, u, True, 4, np.zeros(len(x)))  # every coin below q: traced
+        no = g._visible(em, x, up, u, True, 4, np.ones(len(x)))  # none
+        assert np.allclose(q * yes + (1 - q) * no, M, rtol=0, atol=1e-12)
+        split = no != np.round(no)  # the pilot disagrees: M whatever the coin
+        agree = ~split
+        assert split.any() and np.array_equal(yes[split], M[split]) and np.array_equal(no[split], M[split])
+        assert np.all((no[agree] == 0) | (no[agree] == 1))
+        rolled = agree & (M != no)  # agreeing pilots the other rays contradict: P + (M - P) / q
+        assert rolled.any() and np.allclose(yes[rolled], no[rolled] + (M[rolled] - no[rolled]) / q)
+        assert np.array_equal(yes[agree & (M == no)], M[agree & (M == no)])

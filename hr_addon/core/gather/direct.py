@@ -69,7 +69,8 @@ class DirectLight:
     def direct_batch(self, em: Emitter, a, b, shafts=None, pilot=0):
         """(b - a,) float32: unit-radiance direct light F x V of emitter em at samples a..b-1.
         shafts: the emitter's ClearShafts (samples whose segments to it are certainly clear get
-        no shadow rays: their ratio would be exactly 1); pilot: _visible's."""
+        no shadow rays: their ratio would be exactly 1); pilot: _visible's (its coin per sample
+        from the sample's key, a stream of its own)."""
         x, nx = self.points[a:b], self.normals[a:b]
         out = np.zeros(b - a)
         eps = self.eps
@@ -106,15 +107,19 @@ class DirectLight:
             u = hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
             u -= u >= 1.0  # = u % 1.0 (a sum of two numbers in [0, 1): exact, Sterbenz), 2x faster
             xo, no = xi[lit], ni[lit]
+            coin = None
+            if pilot:  # the roulette's number: the sample's own, independent of its rays' rotation
+                coin = hash_uniform(self.seed, self.keys[gi], 5000 + em.stream, 1)[:, 0]
             if self.area_sampling:  # area-uniform rays but near the emitter (there Arvo's)
                 c, rad = 0.5 * (em.lo + em.hi), 0.5 * np.linalg.norm(em.hi - em.lo)
                 dc = xo - c
                 near = np.einsum("lk,lk->l", dc, dc) < (self.AREA_NEAR * rad) ** 2
                 for sel, area in ((near, False), (~near, True)):
                     if sel.all():  # (one kind: no copies)
-                        V[lit] = self._visible(em, xo, no, u, area, pilot)
+                        V[lit] = self._visible(em, xo, no, u, area, pilot, coin)
                     elif sel.any():
-                        V[lit[sel]] = self._visible(em, xo[sel], no[sel], u[sel], area, pilot)
+                        cs = None if coin is None else coin[sel]
+                        V[lit[sel]] = self._visible(em, xo[sel], no[sel], u[sel], area, pilot, cs)
             else:
                 V[lit] = self._visible(em, xo, no, u, False)
         seen = np.flatnonzero(V != 0)
@@ -129,23 +134,27 @@ class DirectLight:
         out[i] = F
         return out.astype(np.float32)
 
-    def _visible(self, em: Emitter, xo, no, u, area, pilot=0):
+    def _visible(self, em: Emitter, xo, no, u, area, pilot=0, coin=None):
         """(L,) the visible fraction of em's projected solid angle from points xo (normals no) by
-        shadow rays from uniforms u (L, S, 2), a ratio estimator: Arvo's solid-angle sampling, weight
-        cos_x (and only where the emitter faces the point), or area-uniform points (area) weighted
-        cos_x cos_y / r^2. With pilot > 0 (area rays only): that many of the S rays first (a
-        stratified subset, _pilot), the rest only at the points whose pilot rays do not all agree
-        (adaptive shadow testing: a point whose pilot rays are all blocked reads 0, all through
-        1); the points traced in full get the same values as without it, bit for bit."""
+        shadow rays from uniforms u (L, S, 2), a ratio estimator M: Arvo's solid-angle sampling,
+        weight cos_x (and only where the emitter faces the point), or area-uniform points (area)
+        weighted cos_x cos_y / r^2. With pilot > 0 (area rays only), adaptive shadow testing
+        unbiased by Russian roulette with the pilot as control variate: that many of the S rays
+        first (a stratified subset, _pilot; their ratio P); a point whose pilot rays disagree
+        traces the rest and reads M, bit for bit; one whose pilot rays agree (P 0 or 1) traces the
+        rest only where its coin (L,) < shape_pilot_q = q and then reads P + (M - P) / q, else P.
+        E[reading | P] = E[M | P] whatever the verdict (the coin is independent of the rays), so
+        the expectation is M's; a traced point reads P where M = P, and may read outside [0, 1]
+        (P 1, M 0.9, q 0.25: 0.6; P 0, M 0.1: 0.4)."""
         P = _pilot(pilot, u.shape[1]) if area else None
         if P is None:
             return _ratio_of(*self._rays(em, xo, no, u, area))
+        q = float(self.shape_pilot_q)
         kp, vp = self._rays(em, xo, no, u[:, P], area)
         through = vp.all(1)
-        # (no weight seen: no verdict)
-        decided = (through | ~vp.any(1) if self.PILOT_DARK else through) & (kp.sum(1) > 0)
-        out = through.astype(np.float64)
-        rest = np.flatnonzero(~decided)
+        agree = (through | ~vp.any(1)) & (kp.sum(1) > 0)  # (no weight seen: no verdict)
+        out = through.astype(np.float64)  # P where they agree
+        rest = np.flatnonzero(~agree | (coin < q))
         if len(rest):
             R = np.setdiff1d(np.arange(u.shape[1]), P)
             kr, vr = self._rays(em, xo[rest], no[rest], u[rest][:, R], area)
@@ -153,7 +162,8 @@ class DirectLight:
             vis = np.empty(kern.shape, bool)
             kern[:, P], kern[:, R] = kp[rest], kr
             vis[:, P], vis[:, R] = vp[rest], vr
-            out[rest] = _ratio_of(kern, vis)
+            M, p = _ratio_of(kern, vis), out[rest]
+            out[rest] = np.where(agree[rest], p + (M - p) / q, M)
         st = getattr(self, "stats", None)  # (diagnostics: points piloted, traced in full)
         if st is not None:
             st["pilot_points"] = st.get("pilot_points", 0) + len(out)
@@ -161,18 +171,13 @@ class DirectLight:
         return out
 
     # adaptive shadow testing of a light shape's direct light at the output's samples (_visible:
-    # a share of a sample's area-sampled shadow rays first, the rest only where they disagree),
-    # off (share 0): measured at 100k (docs/events.md, session 25), draft's 16 rays with 8 first
-    # saves x0.6-0.85 of the top level's shape light, per object within the level's seed noise
-    # in size but one-sided: dim objects in penumbrae read 30-50% dark (an all-blocked pilot
-    # reads 0). From SHAPE_PILOT_MIN shadow rays on, never at a second level's samples (their
-    # light reaches the output only through reads); shape_pilot_rays: that many (0: off), None:
-    # the share's.
+    # a share of a sample's area-sampled shadow rays first, the rest where they disagree and, by
+    # Russian roulette, with probability shape_pilot_q where they agree). From SHAPE_PILOT_MIN
+    # shadow rays on, never at a second level's samples unless shape_pilot_rays says so;
+    # shape_pilot_rays: that many (0: off), None: the share's.
     SHAPE_PILOT_SHARE, SHAPE_PILOT_MIN = 0.0, 16
     shape_pilot_rays = None
-    # whether a pilot whose rays are all blocked is a verdict (0) too; False: only all through is
-    # (1), the others trace the rest
-    PILOT_DARK = True
+    shape_pilot_q = 0.5
 
     def _shape_pilot(self):
         """The pilot rays of a light shape's direct light at this level's samples (0: none)."""
