@@ -157,9 +157,9 @@ def ab_rounds(args, levels, dyn, rec, variants):
     ref = next(iter(variants))
     # the penumbrae: samples the reference sees the shape partly from (0 < D < F, F its exact
     # unoccluded form factor): the pilot's verdicts change only those
-    pen = {}
+    pen, unocc = {}, {}
     for name, lv in levels:
-        F = lv._unoccluded(lv._shape_emitter(dyn, rec)[0]).astype(np.float64)
+        F = unocc[name] = lv._unoccluded(lv._shape_emitter(dyn, rec)[0]).astype(np.float64)
         D = got[(ref, name)].astype(np.float64)
         pen[name] = (D > 0) & (D < F * (1 - 1e-6))
     for (vname, name), t in times.items():
@@ -177,6 +177,13 @@ def ab_rounds(args, levels, dyn, rec, variants):
                 f"   penumbra samples {int(p.sum()):,} ({a[p].sum() / a.sum():.1%} of the light): changed "
                 f"{int(ch.sum()):,}, their light {b[p].sum() / a[p].sum() - 1:+.3%}; changed outside "
                 f"{int(((a != b) & ~p).sum()):,}",
+                flush=True,
+            )
+            # (the unbiased pilot's roulette: a traced sample may read below 0 or above F)
+            F = unocc[name]
+            print(
+                f"   below 0: {int((b < 0).sum()):,} (sum {b[b < 0].sum() / a.sum():+.4%} of the light), "
+                f"above F: {int((b > F * (1 + 1e-6)).sum()):,}",
                 flush=True,
             )
 

@@ -132,11 +132,14 @@ def main(argv=None):
                     c2 = cpu()
                     row[step] = dict(event=c1 - c0, output=c2 - c1, total=c2 - c0, **acc)
                     outs[(method, name, step)] = np.array(out, np.float32)
+                    # (loops whose output has a negative channel: an estimator's values below 0)
+                    row[step]["negative_loops"] = int((outs[(method, name, step)] < 0).any(1).sum())
                 res[method][name].append(row)
                 print(
                     f"round {rnd} {method} {name}: "
                     + ", ".join(
-                        f"{st} {r['total']:.3f} s (event {r['event']:.3f}, output {r['output']:.3f})"
+                        f"{st} {r['total']:.3f} s (event {r['event']:.3f}, output {r['output']:.3f}, "
+                        f"negative loops {r['negative_loops']})"
                         for st, r in row.items()
                     ),
                     flush=True,
