@@ -38,6 +38,7 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--json", default=None)
     ap.add_argument("--dump", default=None, help="npz of each variant's outputs (last round)")
+    ap.add_argument("--objects", default="", help="object ids whose difference is printed: 198,516")
     args = ap.parse_args(argv)
 
     from bench_gather_events import load_store
@@ -158,6 +159,8 @@ def main(argv=None):
                     rel = (b[lit] - a[lit]) / a[lit]
                     d["moved2"] = int((np.abs(rel) > 0.02).sum())
                     d["darker2"] = float((rel < -0.02).sum() / max(d["moved2"], 1))
+                    for o in (int(t) for t in args.objects.split(",") if t):
+                        d[f"object_{o}"] = float((b[o] - a[o]) / a[o]) if a[o] > 0 else None
                     res[method][name][-1][step]["vs_ref"] = d
                     print(
                         f"   {method} {name} {step} vs {args.ref}: median {100 * d['median']:.3f}%, p95 "
@@ -166,6 +169,9 @@ def main(argv=None):
                         f"darker {100 * d['darker2']:.0f}%)",
                         flush=True,
                     )
+                    if args.objects:
+                        got = [(k[7:], v) for k, v in d.items() if k.startswith("object_") and v is not None]
+                        print("      objects: " + ", ".join(f"{k} {100 * v:+.1f}%" for k, v in got), flush=True)
     # medians over the rounds, ratios against the reference
     summary = {}
     for method, vs in res.items():
