@@ -171,7 +171,7 @@ def main(argv=None):
                     )
                     if args.objects:
                         got = [(k[7:], v) for k, v in d.items() if k.startswith("object_") and v is not None]
-                        print("      objects: " + ", ".join(f"{k} {100 * v:+.1f}%" for k, v in got), flush=True)
+                        print("      objects: " + ", ".join(f"{k} {100 * v:+.1f}%" for k, v in got))
     # medians over the rounds, ratios against the reference
     summary = {}
     for method, vs in res.items():
