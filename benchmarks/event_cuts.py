@@ -8,11 +8,10 @@ DynamicRadiosity (the base parts computed once and shared: only the shape's part
         --variants 'dict(main={}, r4=dict(second_shadow_rays=4))' [--methods FE,AUTO] \\
         [--rounds 2] [--json out.json]
 
-A variant is a dict of: second_shadow_rays (the second level's shadow rays), iterations (the
-passes), seed / second_seed (the levels' shadow-ray seeds: a noise floor), pilot / second_pilot
-(a level's shape_pilot_rays: adaptive shadow testing), pilot_q (its shape_pilot_q, both levels),
-shape_by_read (the second level's shape direct light through its rays' reads:
-FinalGather._shape_by_read; read_near: its READ_NEAR; far_rays: FAR_RAYS), dyn
+A variant is a dict of: shadow_rays / second_shadow_rays (a level's shadow rays), iterations (the
+passes), seed / second_seed (the levels' shadow-ray seeds: a noise floor), pilot (the top
+level's shape_pilot_rays: adaptive shadow testing; 0 off), pilot_q (its shape_pilot_q),
+far_rays / far_near (the second level's FAR_RAYS / FAR_NEAR: FinalGather._second_shape), dyn
 (DynamicRadiosity options over gather_options("draft")).
 """
 
@@ -58,7 +57,8 @@ def main(argv=None):
     obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
     g2 = g.second
     defaults = dict(shadow=g2.shadow_rays, iterations=g.iterations, seed=g.seed, seed2=g2.seed)
-    defaults.update(pilot=g.shape_pilot_rays, pilot2=g2.shape_pilot_rays, q=g.shape_pilot_q)
+    defaults.update(shadow_top=g.shadow_rays)
+    defaults.update(pilot=g.shape_pilot_rays, q=g.shape_pilot_q, far=g2.FAR_RAYS, far_near=g2.FAR_NEAR)
     variants = eval(args.variants)
     base_opts = DynamicRadiosity.gather_options("draft")
 
@@ -87,16 +87,15 @@ def main(argv=None):
 
     def setup(v):
         g2.shadow_rays = v.get("second_shadow_rays", defaults["shadow"])
+        g.shadow_rays = v.get("shadow_rays", defaults["shadow_top"])
         g.iterations = v.get("iterations", defaults["iterations"])
         g.seed = v.get("seed", defaults["seed"])
         g2.seed = v.get("second_seed", defaults["seed2"])
-        g2.shape_by_read = v.get("shape_by_read", False)
-        fg.FinalGather.READ_NEAR = v.get("read_near", 6.0)
-        fg.FinalGather.FAR_RAYS = v.get("far_rays", 0)
+        g2.FAR_RAYS = v.get("far_rays", defaults["far"])
+        g2.FAR_NEAR = v.get("far_near", defaults["far_near"])
         # adaptive shadow testing (DirectLight._visible)
         g.shape_pilot_rays = v.get("pilot", defaults["pilot"])
-        g2.shape_pilot_rays = v.get("second_pilot", defaults["pilot2"])
-        g.shape_pilot_q = g2.shape_pilot_q = v.get("pilot_q", defaults["q"])
+        g.shape_pilot_q = v.get("pilot_q", defaults["q"])
         for lv in (g, g2):
             lv._shape_cache.clear()
 

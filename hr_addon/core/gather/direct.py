@@ -60,10 +60,6 @@ class DirectLight:
     # samples nearer to the emitter's box centre than AREA_NEAR x its half diagonal keep Arvo's
     # rays: there the area density's 1 / r^2 spread makes the ratio noisy (docs/gather.md)
     AREA_NEAR = 2.0
-    # a light shape's direct light at the second level's samples through their hemisphere rays
-    # (FinalGather._shape_by_read: the rays' hits read the shape's emission) instead of shadow
-    # rays: that level's light reaches the output only as indirect light
-    shape_by_read = False
 
     # -- direct light --------------------------------------------------------------------------------
     def direct_batch(self, em: Emitter, a, b, shafts=None, pilot=0):
@@ -172,8 +168,8 @@ class DirectLight:
 
     # adaptive shadow testing of a light shape's direct light at the output's samples (_visible:
     # a share of a sample's area-sampled shadow rays first, the rest where they disagree and, by
-    # Russian roulette, with probability shape_pilot_q where they agree). From SHAPE_PILOT_MIN
-    # shadow rays on, never at a second level's samples unless shape_pilot_rays says so;
+    # Russian roulette, with probability shape_pilot_q where they agree), from SHAPE_PILOT_MIN
+    # shadow rays on (a second level's samples take FinalGather._second_shape's rays instead);
     # shape_pilot_rays: that many (0: off), None: the share's.
     SHAPE_PILOT_SHARE, SHAPE_PILOT_MIN = 0.0, 16
     shape_pilot_rays = None
@@ -183,7 +179,7 @@ class DirectLight:
         """The pilot rays of a light shape's direct light at this level's samples (0: none)."""
         if self.shape_pilot_rays is not None:
             return int(self.shape_pilot_rays)
-        if getattr(self, "_leaf_nodes", None) is not None or self.shadow_rays < self.SHAPE_PILOT_MIN:
+        if self.shadow_rays < self.SHAPE_PILOT_MIN:
             return 0
         return int(self.shadow_rays * self.SHAPE_PILOT_SHARE)
 
@@ -365,8 +361,8 @@ class DirectLight:
             em, inside, _ = self._shape_emitter(dyn, rec)
             if em is None:
                 D = np.zeros(self.n, np.float32)
-            elif self.shape_by_read and getattr(self, "_leaf_nodes", None) is not None:
-                D = self._shape_by_read(dyn, rec, inside, em)  # (final.FinalGather: the second level)
+            elif getattr(self, "_leaf_nodes", None) is not None:  # (final.FinalGather's second level)
+                D = self._second_shape(em)
             else:
                 D = self.direct_light(em, self.edge_shapes, self._shape_pilot())
             got = (D, inside)
