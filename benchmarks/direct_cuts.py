@@ -34,11 +34,11 @@ def main(argv=None):
     ap.add_argument("--parts", default="direct,read")
     ap.add_argument("--window", type=float, default=0.7)
     ap.add_argument("--method", default="FE")
-    ap.add_argument("--set", default="dict()", help="attributes per level: dict(top=dict(pilot_rays=4))")
+    ap.add_argument("--set", default="dict()", help="attributes per level: dict(top=dict(shadow_rays=12))")
     ap.add_argument(
         "--ab",
         default=None,
-        help="alternate within each round: dict(name=dict(top=dict(pilot_rays=8)), ...) (levels' "
+        help="alternate within each round: dict(name=dict(top=dict(shadow_rays=12)), ...) (levels' "
         "attributes; the first is the reference of the errors)",
     )
     args = ap.parse_args(argv)
@@ -108,8 +108,7 @@ def main(argv=None):
     for name, lv in levels:
         D = got.get(f"direct_{name}")
         if D is not None:
-            st = {k: v for k, v in lv.stats.items() if k.startswith("pilot")}
-            print(f"{name}: n {lv.n:,}, lit {int((D > 0).sum()):,}, shadow rays {lv.shadow_rays} {st}")
+            print(f"{name}: n {lv.n:,}, lit {int((D > 0).sum()):,}, shadow rays {lv.shadow_rays}")
     if prof is not None:
         import io
         import pstats
@@ -156,10 +155,10 @@ def ab_rounds(args, levels, dyn, rec, variants):
         print(f"round {rnd}: " + ", ".join(f"{a} {b} {t[-1]:.3f}" for (a, b), t in times.items()), flush=True)
     ref = next(iter(variants))
     # the penumbrae: samples the reference sees the shape partly from (0 < D < F, F its exact
-    # unoccluded form factor): the pilot's verdicts change only those
-    pen, unocc = {}, {}
+    # unoccluded form factor), where fewer or other rays change the values
+    pen = {}
     for name, lv in levels:
-        F = unocc[name] = lv._unoccluded(lv._shape_emitter(dyn, rec)[0]).astype(np.float64)
+        F = lv._unoccluded(lv._shape_emitter(dyn, rec)[0]).astype(np.float64)
         D = got[(ref, name)].astype(np.float64)
         pen[name] = (D > 0) & (D < F * (1 - 1e-6))
     for (vname, name), t in times.items():
@@ -177,13 +176,6 @@ def ab_rounds(args, levels, dyn, rec, variants):
                 f"   penumbra samples {int(p.sum()):,} ({a[p].sum() / a.sum():.1%} of the light): changed "
                 f"{int(ch.sum()):,}, their light {b[p].sum() / a[p].sum() - 1:+.3%}; changed outside "
                 f"{int(((a != b) & ~p).sum()):,}",
-                flush=True,
-            )
-            # (the unbiased pilot's roulette: a traced sample may read below 0 or above F)
-            F = unocc[name]
-            print(
-                f"   below 0: {int((b < 0).sum()):,} (sum {b[b < 0].sum() / a.sum():+.4%} of the light), "
-                f"above F: {int((b > F * (1 + 1e-6)).sum()):,}",
                 flush=True,
             )
 

@@ -9,9 +9,8 @@ DynamicRadiosity (the base parts computed once and shared: only the shape's part
         [--rounds 2] [--json out.json]
 
 A variant is a dict of: shadow_rays / second_shadow_rays (a level's shadow rays), iterations (the
-passes), seed / second_seed (the levels' shadow-ray seeds: a noise floor), pilot (the top
-level's shape_pilot_rays: adaptive shadow testing; 0 off), pilot_q (its shape_pilot_q),
-far_rays / far_near (the second level's FAR_RAYS / FAR_NEAR: FinalGather._second_shape), dyn
+passes), seed / second_seed (the levels' shadow-ray seeds: a noise floor), far_rays / far_near
+(the second level's FAR_RAYS / FAR_NEAR: FinalGather._second_shape), dyn
 (DynamicRadiosity options over gather_options("draft")).
 """
 
@@ -58,7 +57,7 @@ def main(argv=None):
     g2 = g.second
     defaults = dict(shadow=g2.shadow_rays, iterations=g.iterations, seed=g.seed, seed2=g2.seed)
     defaults.update(shadow_top=g.shadow_rays)
-    defaults.update(pilot=g.shape_pilot_rays, q=g.shape_pilot_q, far=g2.FAR_RAYS, far_near=g2.FAR_NEAR)
+    defaults.update(far=g2.FAR_RAYS, far_near=g2.FAR_NEAR)
     variants = eval(args.variants)
     base_opts = DynamicRadiosity.gather_options("draft")
 
@@ -93,9 +92,6 @@ def main(argv=None):
         g2.seed = v.get("second_seed", defaults["seed2"])
         g2.FAR_RAYS = v.get("far_rays", defaults["far"])
         g2.FAR_NEAR = v.get("far_near", defaults["far_near"])
-        # adaptive shadow testing (DirectLight._visible)
-        g.shape_pilot_rays = v.get("pilot", defaults["pilot"])
-        g.shape_pilot_q = v.get("pilot_q", defaults["q"])
         for lv in (g, g2):
             lv._shape_cache.clear()
 

@@ -15,24 +15,6 @@ from .texel_edges import edge_direct
 _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
 
-def _pilot(p, S):
-    """The pilot rays' indices among a point's S Hammersley rays (None: no pilot; p must divide
-    S, at most S / 2): one per stratum of the first coordinate, each in another stratum of the
-    second where one is left (greedy: S 16, p 4 -> 0, 5, 10, 15)."""
-    if p <= 0 or S < 2 * p or S % p:
-        return None
-    m, taken, out = S // p, set(), []
-    vdc = hammersley(S)[:, 1]
-    for j in range(p):
-        for i in range(j * m, (j + 1) * m):
-            q = int(vdc[i] * p)
-            if q not in taken or i == (j + 1) * m - 1:
-                taken.add(q)
-                out.append(i)
-                break
-    return np.array(out)
-
-
 def _ratio_of(kern, vis):
     """(L,) the ratio estimator sum(kern vis) / sum(kern) over each point's rays (1 where no ray
     has weight)."""
@@ -62,11 +44,10 @@ class DirectLight:
     AREA_NEAR = 2.0
 
     # -- direct light --------------------------------------------------------------------------------
-    def direct_batch(self, em: Emitter, a, b, shafts=None, pilot=0):
+    def direct_batch(self, em: Emitter, a, b, shafts=None):
         """(b - a,) float32: unit-radiance direct light F x V of emitter em at samples a..b-1.
         shafts: the emitter's ClearShafts (samples whose segments to it are certainly clear get
-        no shadow rays: their ratio would be exactly 1); pilot: _visible's (its coin per sample
-        from the sample's key, a stream of its own)."""
+        no shadow rays: their ratio would be exactly 1)."""
         x, nx = self.points[a:b], self.normals[a:b]
         out = np.zeros(b - a)
         eps = self.eps
@@ -103,19 +84,15 @@ class DirectLight:
             u = hammersley(S)[None] + hash_uniform(self.seed, self.keys[gi], 1000 + em.stream)[:, None]
             u -= u >= 1.0  # = u % 1.0 (a sum of two numbers in [0, 1): exact, Sterbenz), 2x faster
             xo, no = xi[lit], ni[lit]
-            coin = None
-            if pilot:  # the roulette's number: the sample's own, independent of its rays' rotation
-                coin = hash_uniform(self.seed, self.keys[gi], 5000 + em.stream, 1)[:, 0]
             if self.area_sampling:  # area-uniform rays but near the emitter (there Arvo's)
                 c, rad = 0.5 * (em.lo + em.hi), 0.5 * np.linalg.norm(em.hi - em.lo)
                 dc = xo - c
                 near = np.einsum("lk,lk->l", dc, dc) < (self.AREA_NEAR * rad) ** 2
                 for sel, area in ((near, False), (~near, True)):
                     if sel.all():  # (one kind: no copies)
-                        V[lit] = self._visible(em, xo, no, u, area, pilot, coin)
+                        V[lit] = self._visible(em, xo, no, u, area)
                     elif sel.any():
-                        cs = None if coin is None else coin[sel]
-                        V[lit[sel]] = self._visible(em, xo[sel], no[sel], u[sel], area, pilot, cs)
+                        V[lit[sel]] = self._visible(em, xo[sel], no[sel], u[sel], area)
             else:
                 V[lit] = self._visible(em, xo, no, u, False)
         seen = np.flatnonzero(V != 0)
@@ -130,58 +107,12 @@ class DirectLight:
         out[i] = F
         return out.astype(np.float32)
 
-    def _visible(self, em: Emitter, xo, no, u, area, pilot=0, coin=None):
+    def _visible(self, em: Emitter, xo, no, u, area):
         """(L,) the visible fraction of em's projected solid angle from points xo (normals no) by
-        shadow rays from uniforms u (L, S, 2), a ratio estimator M: Arvo's solid-angle sampling,
-        weight cos_x (and only where the emitter faces the point), or area-uniform points (area)
-        weighted cos_x cos_y / r^2. With pilot > 0 (area rays only), adaptive shadow testing
-        unbiased by Russian roulette with the pilot as control variate: that many of the S rays
-        first (a stratified subset, _pilot; their ratio P); a point whose pilot rays disagree
-        traces the rest and reads M, bit for bit; one whose pilot rays agree (P 0 or 1) traces the
-        rest only where its coin (L,) < shape_pilot_q = q and then reads P + (M - P) / q, else P.
-        E[reading | P] = E[M | P] whatever the verdict (the coin is independent of the rays), so
-        the expectation is M's; a traced point reads P where M = P, and may read outside [0, 1]
-        (P 1, M 0.9, q 0.25: 0.6; P 0, M 0.1: 0.4)."""
-        P = _pilot(pilot, u.shape[1]) if area else None
-        if P is None:
-            return _ratio_of(*self._rays(em, xo, no, u, area))
-        q = float(self.shape_pilot_q)
-        kp, vp = self._rays(em, xo, no, u[:, P], area)
-        through = vp.all(1)
-        agree = (through | ~vp.any(1)) & (kp.sum(1) > 0)  # (no weight seen: no verdict)
-        out = through.astype(np.float64)  # P where they agree
-        rest = np.flatnonzero(~agree | (coin < q))
-        if len(rest):
-            R = np.setdiff1d(np.arange(u.shape[1]), P)
-            kr, vr = self._rays(em, xo[rest], no[rest], u[rest][:, R], area)
-            kern = np.empty((len(rest), u.shape[1]))
-            vis = np.empty(kern.shape, bool)
-            kern[:, P], kern[:, R] = kp[rest], kr
-            vis[:, P], vis[:, R] = vp[rest], vr
-            M, p = _ratio_of(kern, vis), out[rest]
-            out[rest] = np.where(agree[rest], p + (M - p) / q, M)
-        st = getattr(self, "stats", None)  # (diagnostics: points piloted, traced in full)
-        if st is not None:
-            st["pilot_points"] = st.get("pilot_points", 0) + len(out)
-            st["pilot_traced"] = st.get("pilot_traced", 0) + len(rest)
-        return out
-
-    # adaptive shadow testing of a light shape's direct light at the output's samples (_visible:
-    # a share of a sample's area-sampled shadow rays first, the rest where they disagree and, by
-    # Russian roulette, with probability shape_pilot_q where they agree), from SHAPE_PILOT_MIN
-    # shadow rays on (a second level's samples take FinalGather._second_shape's rays instead);
-    # shape_pilot_rays: that many (0: off), None: the share's.
-    SHAPE_PILOT_SHARE, SHAPE_PILOT_MIN = 0.0, 16
-    shape_pilot_rays = None
-    shape_pilot_q = 0.5
-
-    def _shape_pilot(self):
-        """The pilot rays of a light shape's direct light at this level's samples (0: none)."""
-        if self.shape_pilot_rays is not None:
-            return int(self.shape_pilot_rays)
-        if self.shadow_rays < self.SHAPE_PILOT_MIN:
-            return 0
-        return int(self.shadow_rays * self.SHAPE_PILOT_SHARE)
+        shadow rays from uniforms u (L, S, 2), a ratio estimator: Arvo's solid-angle sampling, weight
+        cos_x (and only where the emitter faces the point), or area-uniform points (area) weighted
+        cos_x cos_y / r^2."""
+        return _ratio_of(*self._rays(em, xo, no, u, area))
 
     def _rays(self, em: Emitter, xo, no, u, area):
         """(kern (L, S), vis (L, S) bool) of _visible's rays: each ray's weight and whether it got
@@ -229,17 +160,12 @@ class DirectLight:
         tri = min(len(em.tri), em.MAX_TRIANGLES)
         return max(rays, 1) * 4 + 3 * min(edges, 4 * em.MAX_TRIANGLES) + 12 * tri
 
-    def direct_light(self, em: Emitter, edges=True, pilot=0):
+    def direct_light(self, em: Emitter, edges=True):
         """(n,) float32 unit-radiance direct light of em at every sample (batches merged); edges:
-        in texture output, an edge texel's value is its area's mean (texel_edges); pilot:
-        _visible's (0: every shadow ray)."""
-        pilot = pilot if _pilot(pilot, self.shadow_rays) is not None else 0
-        per = self.direct_cost(em, pilot or self.shadow_rays)
-        # (with a pilot of fewer rays than the clear-shaft cull pays from, no cull: the same values)
-        shafts = self.shafts(em) if not 0 < pilot < self.CULL_MIN_RAYS else None
-        parts = batch_map(
-            lambda a, b: self.direct_batch(em, a, b, shafts, pilot), self.batches(per), self.threads
-        )
+        in texture output, an edge texel's value is its area's mean (texel_edges)."""
+        per = self.direct_cost(em, self.shadow_rays)
+        shafts = self.shafts(em)
+        parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts), self.batches(per), self.threads)
         out = np.concatenate(parts or [np.zeros(0, np.float32)])
         if edges and self.texel_area is not None:  # texture output: an edge across a texel, its area's mean
             out = edge_direct(self, em, out, self.shadow_rays, em.stream, shafts=shafts).astype(np.float32)
@@ -364,7 +290,7 @@ class DirectLight:
             elif getattr(self, "_leaf_nodes", None) is not None:  # (final.FinalGather's second level)
                 D = self._second_shape(em)
             else:
-                D = self.direct_light(em, self.edge_shapes, self._shape_pilot())
+                D = self.direct_light(em, self.edge_shapes)
             got = (D, inside)
             self._shape_cache[key] = got
         return got
