@@ -353,7 +353,7 @@ def _toward_mouths(system, pts, corner, patch, layout):
     pts[c] = foot + f[:, None] * (pts[c] - foot)
 
 
-OUTPUT_OPEN = 0.0  # _toward_openings: a sample no farther from its corner than this x its clearance
+OUTPUT_OPEN = 1.0  # _toward_openings: a sample no farther from its corner than this x its clearance
 OPEN_FAR = 4.0  # _toward_openings: a probe ray escapes when it goes this x the clearance or farther
 
 
