@@ -13,6 +13,7 @@ gathered light is the same machinery's).
 
 --set: module constants of hr_addon.core.gather (layouts / corner_fit) set before the bake.
 --npz: keep every output loop's value and the faces' figures in benchmarks/out/NAME.npz.
+Prints how many corner samples layouts._toward_mouths and _toward_openings moved (vx30's rules).
 """
 
 import argparse
@@ -63,6 +64,15 @@ def main():
         return g
 
     B.make_gather = capture
+    moved = {}
+    for rule in ("_toward_mouths", "_toward_openings"):  # how many corner samples each rule moves
+
+        def counted(system, pts, *rest, _f=getattr(layouts, rule), _r=rule):
+            before = pts.copy()
+            _f(system, pts, *rest)
+            moved[_r] = (int((pts != before).any(1).sum()), len(pts))
+
+        setattr(layouts, rule, counted)
     folder = tempfile.mkdtemp(prefix="vx30_faces_")
     try:
         path = os.path.join(folder, "scene.blend")
@@ -84,6 +94,8 @@ def main():
         print(f"bake {time.process_time() - c0:.1f} s CPU", flush=True)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
+    for rule, (m, n) in moved.items():
+        print(f"{rule}: moved {m} of {n} corner samples", flush=True)
     g, dyn, settings = got["g"], got["dyn"], got["settings"]
     s = g.system
     lay = g.output

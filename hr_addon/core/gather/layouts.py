@@ -355,13 +355,14 @@ def _toward_mouths(system, pts, corner, patch, layout):
 
 OUTPUT_OPEN = 1.0  # _toward_openings: a sample no farther from its corner than this x its clearance
 OPEN_FAR = 4.0  # _toward_openings: a probe ray escapes when it goes this x the clearance or farther
+OPEN_RAYS = 32  # _toward_openings: probe rays from a sample and from near its corner
 
 
 def _toward_openings(system, pts, corner, patch, layout):
     """On an output layout: corner samples under a face parallel in front of them wider than a
     slot (a book's side 3 cm from the bookcase's side: not a contact) whose clearance c (along
     their normal) is less than their distance to their corner, where the corner sees out more
-    (of PROBE_RAYS rays from near it, more going OPEN_FAR x c or farther than from the sample),
+    (of OPEN_RAYS rays from near it, more going OPEN_FAR x c or farther than from the sample),
     move (in place) towards their corner to OUTPUT_OPEN x c from it."""
     if not len(pts):
         return
@@ -384,15 +385,15 @@ def _toward_openings(system, pts, corner, patch, layout):
         return
     q0 = corner[c] + MOUTH_NUDGE * (pts[c] - corner[c])
 
-    def escaping(q, rows):
+    def escaping(q, keys):  # (each sample's rays keyed by its own index: its own answer)
         n = pt.normal[tp[c]]
-        d = cosine_directions(n, np.arange(len(c)) + rows, PROBE_RAYS, seed=11)
-        o = np.repeat(q + eps * n, PROBE_RAYS, 0)
+        d = cosine_directions(n, keys, OPEN_RAYS, seed=11)
+        o = np.repeat(q + eps * n, OPEN_RAYS, 0)
         hp, hd = system.backend.first_hit(o, d.reshape(-1, 3), reach)
-        far = (hp < 0) | (hd >= OPEN_FAR * np.repeat(clear, PROBE_RAYS))
-        return far.reshape(-1, PROBE_RAYS).sum(1)
+        far = (hp < 0) | (hd >= OPEN_FAR * np.repeat(clear, OPEN_RAYS))
+        return far.reshape(-1, OPEN_RAYS).sum(1)
 
-    at_corner, at_sample = escaping(q0, 0), escaping(pts[c], len(c))
+    at_corner, at_sample = escaping(q0, c), escaping(pts[c], c + len(pts))
     move = at_corner > at_sample
     c, clear = c[move], clear[move]
     f = np.minimum(OUTPUT_OPEN * clear / np.linalg.norm(pts[c] - corner[c], axis=1), 1.0)
