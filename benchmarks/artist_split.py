@@ -45,7 +45,7 @@ CLASSES = {
     "Lamp pole": ["near an emitter"],
     "Lamp shade": ["near an emitter"],
     "Crate": ["other"],
-    "Crate small": ["small on a surface", "near an emitter"],
+    "Crate small": ["small on a surface"],
 }
 
 

@@ -332,6 +332,7 @@ def main():
 
         FinalGather.indirect = lambda self, dyn: 0.0
         FinalGather._incident_by_response = lambda self, dyn: None
+        FinalGather._response_parts = lambda self, dyn: None  # the vertex output's path (LoopGather)
     t0 = time.process_time()
     res, cost, binfo = cycles_lights.bake_ours(rs, quality, vertex=True, shapes=shapes)
     cpu_ours = time.process_time() - t0
@@ -367,6 +368,13 @@ def main():
             arrays[f"{n}/texture"] = res[n]["gather_refl"]
             if n in rtex:
                 arrays[f"{n}/real_texture"] = rtex[n]
+            if n in real:  # the vertex rows (their texels: unburied)
+                arrays[f"{n}/real_vertex"] = real[n]
+            arrays[f"{n}/vertex"] = res[n]["gvertex_total"]
+            arrays[f"{n}/unburied"] = unb[n]
+            for k in res[n]:  # each Blender light kind's reflected direct light (texel centres)
+                if k.startswith("direct_"):
+                    arrays[f"{n}/{k}"] = res[n][k]
         np.savez_compressed(args.dump, **arrays)
     summary = {}
     for var in ("texture", "vertex", "real_vertex", "real_texture"):
