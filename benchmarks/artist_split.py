@@ -97,7 +97,7 @@ def main():
     full, direct = json.load(open(a.full)), json.load(open(a.direct))
     lit = full["lit"]
     res = {"full": a.full, "direct": a.direct, "objects": {}, "classes": {}}
-    for var in ("texture", "real_vertex"):
+    for var in ("texture", "texture_unburied", "real_texture_unburied", "real_vertex"):
         per = split(full, direct, var)
         res["objects"][var] = per
         print(f"\n{var}: signed error of the mean, total / direct / indirect (Cycles' direct share)")

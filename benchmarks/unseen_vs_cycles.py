@@ -349,6 +349,9 @@ def main():
             "vertex": C.metrics(res[n]["gvertex_total"], ref[n] + e, mask),
             "real_vertex": C.metrics(real[n], ref[n] + e, mask) if n in real else None,
             "real_texture": C.metrics(rtex[n], ref[n] + e) if n in rtex else None,
+            # the texture rows over the vertex rows' texels (vertex-only errors apart)
+            "texture_unburied": C.metrics(res[n]["gather_refl"], ref[n], mask),
+            "real_texture_unburied": C.metrics(rtex[n], ref[n] + e, mask) if n in rtex else None,
             "noise": C.noise(refs[0][n], refs[1][n])[1] / np.sqrt(2),
             "texels": rs.atlases[n].n,
             "unburied": float(mask.mean()),
@@ -377,7 +380,8 @@ def main():
                     arrays[f"{n}/{k}"] = res[n][k]
         np.savez_compressed(args.dump, **arrays)
     summary = {}
-    for var in ("texture", "vertex", "real_vertex", "real_texture"):
+    shown = ("texture", "vertex", "real_vertex", "real_texture", "texture_unburied", "real_texture_unburied")
+    for var in shown:
         per = {n: r[var] for n, r in rows.items() if var in r}
         if not per:
             continue
