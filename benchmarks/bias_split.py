@@ -73,6 +73,7 @@ def patched_bake(argv):
 
         FinalGather.indirect = lambda self, dyn: 0.0
         FinalGather._incident_by_response = lambda self, dyn: None
+        FinalGather._response_parts = lambda self, dyn: None  # the vertex output's path (LoopGather)
     if v.get("patch") == "tail":
         from hr_addon.core.gather.final import FinalGather
 

@@ -34,11 +34,11 @@ def main(argv=None):
     ap.add_argument("--parts", default="direct,read")
     ap.add_argument("--window", type=float, default=0.7)
     ap.add_argument("--method", default="FE")
-    ap.add_argument("--set", default="dict()", help="attributes per level: dict(top=dict(pilot_rays=4))")
+    ap.add_argument("--set", default="dict()", help="attributes per level: dict(top=dict(shadow_rays=12))")
     ap.add_argument(
         "--ab",
         default=None,
-        help="alternate within each round: dict(name=dict(top=dict(pilot_rays=8)), ...) (levels' "
+        help="alternate within each round: dict(name=dict(top=dict(shadow_rays=12)), ...) (levels' "
         "attributes; the first is the reference of the errors)",
     )
     args = ap.parse_args(argv)
@@ -108,8 +108,7 @@ def main(argv=None):
     for name, lv in levels:
         D = got.get(f"direct_{name}")
         if D is not None:
-            st = {k: v for k, v in lv.stats.items() if k.startswith("pilot")}
-            print(f"{name}: n {lv.n:,}, lit {int((D > 0).sum()):,}, shadow rays {lv.shadow_rays} {st}")
+            print(f"{name}: n {lv.n:,}, lit {int((D > 0).sum()):,}, shadow rays {lv.shadow_rays}")
     if prof is not None:
         import io
         import pstats
@@ -156,7 +155,7 @@ def ab_rounds(args, levels, dyn, rec, variants):
         print(f"round {rnd}: " + ", ".join(f"{a} {b} {t[-1]:.3f}" for (a, b), t in times.items()), flush=True)
     ref = next(iter(variants))
     # the penumbrae: samples the reference sees the shape partly from (0 < D < F, F its exact
-    # unoccluded form factor): the pilot's verdicts change only those
+    # unoccluded form factor), where fewer or other rays change the values
     pen = {}
     for name, lv in levels:
         F = lv._unoccluded(lv._shape_emitter(dyn, rec)[0]).astype(np.float64)

@@ -8,10 +8,9 @@ DynamicRadiosity (the base parts computed once and shared: only the shape's part
         --variants 'dict(main={}, r4=dict(second_shadow_rays=4))' [--methods FE,AUTO] \\
         [--rounds 2] [--json out.json]
 
-A variant is a dict of: second_shadow_rays (the second level's shadow rays), iterations (the
-passes), seed / second_seed (the levels' shadow-ray seeds: a
-noise floor), shape_by_read (the second level's shape direct light through its rays'
-reads: FinalGather._shape_by_read; read_near: its READ_NEAR; far_rays: FAR_RAYS), dyn
+A variant is a dict of: shadow_rays / second_shadow_rays (a level's shadow rays), iterations (the
+passes), seed / second_seed (the levels' shadow-ray seeds: a noise floor), far_rays / far_near
+(the second level's FAR_RAYS / FAR_NEAR: FinalGather._second_shape), dyn
 (DynamicRadiosity options over gather_options("draft")).
 """
 
@@ -37,6 +36,7 @@ def main(argv=None):
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--json", default=None)
     ap.add_argument("--dump", default=None, help="npz of each variant's outputs (last round)")
+    ap.add_argument("--objects", default="", help="object ids whose difference is printed: 198,516")
     args = ap.parse_args(argv)
 
     from bench_gather_events import load_store
@@ -56,7 +56,8 @@ def main(argv=None):
     obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
     g2 = g.second
     defaults = dict(shadow=g2.shadow_rays, iterations=g.iterations, seed=g.seed, seed2=g2.seed)
-    defaults.update(pilot=g.shape_pilot_rays, pilot2=g2.shape_pilot_rays)
+    defaults.update(shadow_top=g.shadow_rays)
+    defaults.update(far=g2.FAR_RAYS, far_near=g2.FAR_NEAR)
     variants = eval(args.variants)
     base_opts = DynamicRadiosity.gather_options("draft")
 
@@ -85,15 +86,12 @@ def main(argv=None):
 
     def setup(v):
         g2.shadow_rays = v.get("second_shadow_rays", defaults["shadow"])
+        g.shadow_rays = v.get("shadow_rays", defaults["shadow_top"])
         g.iterations = v.get("iterations", defaults["iterations"])
         g.seed = v.get("seed", defaults["seed"])
         g2.seed = v.get("second_seed", defaults["seed2"])
-        g2.shape_by_read = v.get("shape_by_read", False)
-        fg.FinalGather.READ_NEAR = v.get("read_near", 6.0)
-        fg.FinalGather.FAR_RAYS = v.get("far_rays", 0)
-        # adaptive shadow testing (DirectLight._visible)
-        g.shape_pilot_rays = v.get("pilot", defaults["pilot"])
-        g2.shape_pilot_rays = v.get("second_pilot", defaults["pilot2"])
+        g2.FAR_RAYS = v.get("far_rays", defaults["far"])
+        g2.FAR_NEAR = v.get("far_near", defaults["far_near"])
         for lv in (g, g2):
             lv._shape_cache.clear()
 
@@ -130,11 +128,14 @@ def main(argv=None):
                     c2 = cpu()
                     row[step] = dict(event=c1 - c0, output=c2 - c1, total=c2 - c0, **acc)
                     outs[(method, name, step)] = np.array(out, np.float32)
+                    # (loops whose output has a negative channel: an estimator's values below 0)
+                    row[step]["negative_loops"] = int((outs[(method, name, step)] < 0).any(1).sum())
                 res[method][name].append(row)
                 print(
                     f"round {rnd} {method} {name}: "
                     + ", ".join(
-                        f"{st} {r['total']:.3f} s (event {r['event']:.3f}, output {r['output']:.3f})"
+                        f"{st} {r['total']:.3f} s (event {r['event']:.3f}, output {r['output']:.3f}, "
+                        f"negative loops {r['negative_loops']})"
                         for st, r in row.items()
                     ),
                     flush=True,
@@ -147,13 +148,25 @@ def main(argv=None):
                     a = per_object(outs[(method, args.ref, step)], obj)
                     b = per_object(outs[(method, name, step)], obj)
                     d = difference(a, b)
+                    # the objects moved by more than 2%: how many, the share darker (a reseed:
+                    # about half; a one-sided estimator: most)
+                    lit = a > 0.05 * a[a > 0].mean()
+                    rel = (b[lit] - a[lit]) / a[lit]
+                    d["moved2"] = int((np.abs(rel) > 0.02).sum())
+                    d["darker2"] = float((rel < -0.02).sum() / max(d["moved2"], 1))
+                    for o in (int(t) for t in args.objects.split(",") if t):
+                        d[f"object_{o}"] = float((b[o] - a[o]) / a[o]) if a[o] > 0 else None
                     res[method][name][-1][step]["vs_ref"] = d
                     print(
                         f"   {method} {name} {step} vs {args.ref}: median {100 * d['median']:.3f}%, p95 "
                         f"{100 * d['p95']:.3f}%, worst {100 * d['worst']:.3f}%, bias {100 * d['bias']:+.3f}% "
-                        f"({d['objects']} lit objects)",
+                        f"({d['objects']} lit objects; moved > 2% {d['moved2']}, "
+                        f"darker {100 * d['darker2']:.0f}%)",
                         flush=True,
                     )
+                    if args.objects:
+                        got = [(k[7:], v) for k, v in d.items() if k.startswith("object_") and v is not None]
+                        print("      objects: " + ", ".join(f"{k} {100 * v:+.1f}%" for k, v in got))
     # medians over the rounds, ratios against the reference
     summary = {}
     for method, vs in res.items():

@@ -45,13 +45,15 @@ def log(*a):
     print(*a, flush=True)
 
 
-def real_bake(path, cache):
-    """`python -m hr_addon bake path --frames 1` (the scene's settings) into cache; its CPU seconds."""
+def real_bake(path, cache, variant=None):
+    """`python -m hr_addon bake path --frames 1` (the scene's settings) into cache; its CPU seconds.
+    variant: bias_split.py's VARIANTS entry applied in the bake process (its --bake entry)."""
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    run = ["-m", "hr_addon"] if variant is None else [os.path.join(HERE, "bias_split.py"), "--bake"]
+    env = dict(os.environ, HR_BIAS27_VARIANT=variant or "")
     cmd = [
         sys.executable,
-        "-m",
-        "hr_addon",
+        *run,
         "bake",
         path,
         "--frames",
@@ -61,7 +63,7 @@ def real_bake(path, cache):
         "--cache-dir",
         cache,
     ]
-    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=env)
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if p.returncode != 0:
         raise SystemExit(f"the bake failed ({p.returncode}): {p.stderr[-2000:]}")
@@ -168,6 +170,52 @@ def applied_copy(names):
                 nd.inputs["Specular IOR Level"].default_value = 0.0
 
 
+def turn_like_the_bake(names):
+    """Flip, in the comparison copy, the polygons of `names` that the bake's orientation check
+    (core.orientation.find_reversed) turns around, before the references are made: the reference's
+    materials are one-sided (black behind), the user's are not, so a painting hung facing its wall,
+    which the bake turns to face the room (Cycles shows its room side lit, as the bake does), would
+    otherwise face the room with a black back in the reference and reflect nothing into it.
+    Returns {object: polygons flipped}."""
+    import bmesh
+    import bpy
+
+    from hr_addon.blender.scene_in import collect_geometry
+    from hr_addon.core.geometry import prepare_patches
+    from hr_addon.core.orientation import find_reversed
+    from hr_addon.core.visibility import make_backend
+
+    vl = bpy.context.view_layer
+    sin = collect_geometry(vl, vl.depsgraph)
+    m = sin.mesh
+    patches = prepare_patches(m)
+    flip, reasons = find_reversed(patches, make_backend(patches.triangles, "auto", 1))
+    polys = np.unique(patches.poly[flip]) if flip.any() else []  # each flipped patch's own polygon
+    out = {}
+    for p in polys:
+        name = m.object_names[int(m.object_id[p])]
+        if name not in names:
+            continue
+        s, k = int(m.loop_start[p]), int(m.loop_total[p])
+        c = m.verts[m.loop_verts[s : s + k]].mean(0)
+        out.setdefault(name, []).append(c)
+    for name, cs in out.items():
+        ob = bpy.data.objects[name]
+        mw = np.array(ob.matrix_world)
+        bm = bmesh.new()
+        bm.from_mesh(ob.data)
+        bm.faces.ensure_lookup_table()
+        cen = np.array([tuple(f.calc_center_median()) for f in bm.faces])
+        cen = cen @ mw[:3, :3].T + mw[:3, 3]
+        pick = {int(np.argmin(np.linalg.norm(cen - c, axis=1))) for c in cs}
+        bmesh.ops.reverse_faces(bm, faces=[bm.faces[i] for i in sorted(pick)])
+        bm.to_mesh(ob.data)
+        bm.free()
+        out[name] = len(pick)
+    log(f"turned like the bake (reasons {sorted(set(reasons.values()))}): {out}")
+    return out
+
+
 def real_vertex(rs):
     """{name: (N, 3) per texel} HR_Radiance of the converted meshes interpolated over the loop
     triangles at the atlas's sub-samples (what a render shows of the real bake)."""
@@ -201,6 +249,17 @@ def main():
     ap.add_argument("--vertex-spacing", type=float, default=0.0, help="the room's Vertex Spacing")
     ap.add_argument("--dump", help="an .npz of per-texel values: texture, real texture, reference, points")
     ap.add_argument("--refs-only", action="store_true", help="bake (and keep) the Cycles references, stop")
+    ap.add_argument(
+        "--variant",
+        choices=("direct",),
+        help="direct: our indirect term zeroed (bias_split.py's variant, in the real bake too) against "
+        "Cycles bakes with max bounces 0 (references <name>_refb0_...)",
+    )
+    ap.add_argument(
+        "--turned",
+        action="store_true",
+        help="flip the copy's polygons the bake's orientation check turns (turn_like_the_bake)",
+    )
     args = ap.parse_args()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import bpy
@@ -217,7 +276,7 @@ def main():
         path = os.path.join(tmp, "room.blend")
         bpy.ops.wm.save_as_mainfile(filepath=path)
         cache = os.path.join(tmp, "cache")
-        cpu_real = real_bake(path, cache)
+        cpu_real = real_bake(path, cache, args.variant)
         log(f"real bake (frame 1, vertex): {cpu_real:.0f} s CPU")
     meshes = [n for n in info["meshes"] if n in bpy.data.objects]
     try:  # the bake's helpers (own_values, made in its own process): where its frame file puts values
@@ -237,6 +296,8 @@ def main():
         images = lightmap_images(args.texture_cache)
     applied_copy(meshes)
     bpy.context.view_layer.update()
+    turned = turn_like_the_bake(meshes) if args.turned else {}
+    bpy.context.view_layer.update()
     rs = C.prepare(scene, texel=args.texel)
     shapes = C.shape_proxies(rs, 1)
     log(
@@ -244,16 +305,18 @@ def main():
         f"not compared: {rs.not_compared}"
     )
     refs, ref_cpu = [], []
+    bounces = 0 if args.variant == "direct" else 64
+    kind = "refb0" if args.variant == "direct" else "ref"
     for seed in (1, 2):
         # kept (git-ignored): the references cost minutes, our side can then run in a fresh process
-        path = os.path.join(HERE, "out", f"{args.name}_ref_t{args.texel}_s{args.spp}_seed{seed}_po.npz")
+        path = os.path.join(HERE, "out", f"{args.name}_{kind}_t{args.texel}_s{args.spp}_seed{seed}_po.npz")
         if os.path.exists(path):
             z = np.load(path)
             refs.append({n: z[n].astype(np.float64) for n in rs.objects})
             ref_cpu.append(float(z["__cpu"]))
             log(f"Cycles seed {seed}: cached, {ref_cpu[-1]:.0f} s CPU when baked")
             continue
-        vals, dt, mask = C.bake(rs, args.spp, seed=seed, seed_per_object=True)
+        vals, dt, mask = C.bake(rs, args.spp, seed=seed, bounces=bounces, seed_per_object=True)
         for n in rs.objects:
             vals[n][~mask[n]] = np.nan
         refs.append(vals)
@@ -264,6 +327,12 @@ def main():
         return
     ref = {n: (refs[0][n] + refs[1][n]) / 2 for n in rs.objects}
     quality = rs.scene.hr.quality
+    if args.variant == "direct":  # as bias_split.patched_bake: emission + rho x direct light
+        from hr_addon.core.gather.final import FinalGather
+
+        FinalGather.indirect = lambda self, dyn: 0.0
+        FinalGather._incident_by_response = lambda self, dyn: None
+        FinalGather._response_parts = lambda self, dyn: None  # the vertex output's path (LoopGather)
     t0 = time.process_time()
     res, cost, binfo = cycles_lights.bake_ours(rs, quality, vertex=True, shapes=shapes)
     cpu_ours = time.process_time() - t0
@@ -280,10 +349,17 @@ def main():
             "vertex": C.metrics(res[n]["gvertex_total"], ref[n] + e, mask),
             "real_vertex": C.metrics(real[n], ref[n] + e, mask) if n in real else None,
             "real_texture": C.metrics(rtex[n], ref[n] + e) if n in rtex else None,
+            # the texture rows over the vertex rows' texels (vertex-only errors apart)
+            "texture_unburied": C.metrics(res[n]["gather_refl"], ref[n], mask),
+            "real_texture_unburied": C.metrics(rtex[n], ref[n] + e, mask) if n in rtex else None,
             "noise": C.noise(refs[0][n], refs[1][n])[1] / np.sqrt(2),
             "texels": rs.atlases[n].n,
             "unburied": float(mask.mean()),
         }
+        g = float(np.nanmean(res[n]["gather_refl"])) if np.isfinite(res[n]["gather_refl"]).any() else 0.0
+        for k in res[n]:  # each Blender light kind's share of our texel gather's reflected light
+            if k.startswith("direct_") and g > 0:
+                row[f"share_{k[7:]}"] = float(np.nanmean(res[n][k])) / g
         rows[n] = {k: v for k, v in row.items() if v is not None}
     if args.dump:
         arrays = {}
@@ -295,9 +371,17 @@ def main():
             arrays[f"{n}/texture"] = res[n]["gather_refl"]
             if n in rtex:
                 arrays[f"{n}/real_texture"] = rtex[n]
+            if n in real:  # the vertex rows (their texels: unburied)
+                arrays[f"{n}/real_vertex"] = real[n]
+            arrays[f"{n}/vertex"] = res[n]["gvertex_total"]
+            arrays[f"{n}/unburied"] = unb[n]
+            for k in res[n]:  # each Blender light kind's reflected direct light (texel centres)
+                if k.startswith("direct_"):
+                    arrays[f"{n}/{k}"] = res[n][k]
         np.savez_compressed(args.dump, **arrays)
     summary = {}
-    for var in ("texture", "vertex", "real_vertex", "real_texture"):
+    shown = ("texture", "vertex", "real_vertex", "real_texture", "texture_unburied", "real_texture_unburied")
+    for var in shown:
         per = {n: r[var] for n, r in rows.items() if var in r}
         if not per:
             continue
@@ -331,6 +415,8 @@ def main():
         "summary": summary,
         "objects": rows,
         "not_compared": rs.not_compared,
+        "variant": args.variant,
+        "turned": turned,
         "cpu_seconds": {
             "real_bake_frame1": cpu_real,
             "ours_on_copy": cpu_ours,

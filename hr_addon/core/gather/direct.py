@@ -15,24 +15,6 @@ from .texel_edges import edge_direct
 _clipped_rings = ff.clipped_rings  # (the horizon-cut outline: formfactor.clipped_rings)
 
 
-def _pilot(p, S):
-    """The pilot rays' indices among a point's S Hammersley rays (None: no pilot; p must divide
-    S, at most S / 2): one per stratum of the first coordinate, each in another stratum of the
-    second where one is left (greedy: S 16, p 4 -> 0, 5, 10, 15)."""
-    if p <= 0 or S < 2 * p or S % p:
-        return None
-    m, taken, out = S // p, set(), []
-    vdc = hammersley(S)[:, 1]
-    for j in range(p):
-        for i in range(j * m, (j + 1) * m):
-            q = int(vdc[i] * p)
-            if q not in taken or i == (j + 1) * m - 1:
-                taken.add(q)
-                out.append(i)
-                break
-    return np.array(out)
-
-
 def _ratio_of(kern, vis):
     """(L,) the ratio estimator sum(kern vis) / sum(kern) over each point's rays (1 where no ray
     has weight)."""
@@ -60,16 +42,12 @@ class DirectLight:
     # samples nearer to the emitter's box centre than AREA_NEAR x its half diagonal keep Arvo's
     # rays: there the area density's 1 / r^2 spread makes the ratio noisy (docs/gather.md)
     AREA_NEAR = 2.0
-    # a light shape's direct light at the second level's samples through their hemisphere rays
-    # (FinalGather._shape_by_read: the rays' hits read the shape's emission) instead of shadow
-    # rays: that level's light reaches the output only as indirect light
-    shape_by_read = False
 
     # -- direct light --------------------------------------------------------------------------------
-    def direct_batch(self, em: Emitter, a, b, shafts=None, pilot=0):
+    def direct_batch(self, em: Emitter, a, b, shafts=None):
         """(b - a,) float32: unit-radiance direct light F x V of emitter em at samples a..b-1.
         shafts: the emitter's ClearShafts (samples whose segments to it are certainly clear get
-        no shadow rays: their ratio would be exactly 1); pilot: _visible's."""
+        no shadow rays: their ratio would be exactly 1)."""
         x, nx = self.points[a:b], self.normals[a:b]
         out = np.zeros(b - a)
         eps = self.eps
@@ -112,9 +90,9 @@ class DirectLight:
                 near = np.einsum("lk,lk->l", dc, dc) < (self.AREA_NEAR * rad) ** 2
                 for sel, area in ((near, False), (~near, True)):
                     if sel.all():  # (one kind: no copies)
-                        V[lit] = self._visible(em, xo, no, u, area, pilot)
+                        V[lit] = self._visible(em, xo, no, u, area)
                     elif sel.any():
-                        V[lit[sel]] = self._visible(em, xo[sel], no[sel], u[sel], area, pilot)
+                        V[lit[sel]] = self._visible(em, xo[sel], no[sel], u[sel], area)
             else:
                 V[lit] = self._visible(em, xo, no, u, False)
         seen = np.flatnonzero(V != 0)
@@ -129,58 +107,12 @@ class DirectLight:
         out[i] = F
         return out.astype(np.float32)
 
-    def _visible(self, em: Emitter, xo, no, u, area, pilot=0):
+    def _visible(self, em: Emitter, xo, no, u, area):
         """(L,) the visible fraction of em's projected solid angle from points xo (normals no) by
         shadow rays from uniforms u (L, S, 2), a ratio estimator: Arvo's solid-angle sampling, weight
         cos_x (and only where the emitter faces the point), or area-uniform points (area) weighted
-        cos_x cos_y / r^2. With pilot > 0 (area rays only): that many of the S rays first (a
-        stratified subset, _pilot), the rest only at the points whose pilot rays do not all agree
-        (adaptive shadow testing: a point whose pilot rays are all blocked reads 0, all through
-        1); the points traced in full get the same values as without it, bit for bit."""
-        P = _pilot(pilot, u.shape[1]) if area else None
-        if P is None:
-            return _ratio_of(*self._rays(em, xo, no, u, area))
-        kp, vp = self._rays(em, xo, no, u[:, P], area)
-        through = vp.all(1)
-        # (no weight seen: no verdict)
-        decided = (through | ~vp.any(1) if self.PILOT_DARK else through) & (kp.sum(1) > 0)
-        out = through.astype(np.float64)
-        rest = np.flatnonzero(~decided)
-        if len(rest):
-            R = np.setdiff1d(np.arange(u.shape[1]), P)
-            kr, vr = self._rays(em, xo[rest], no[rest], u[rest][:, R], area)
-            kern = np.empty((len(rest), u.shape[1]))
-            vis = np.empty(kern.shape, bool)
-            kern[:, P], kern[:, R] = kp[rest], kr
-            vis[:, P], vis[:, R] = vp[rest], vr
-            out[rest] = _ratio_of(kern, vis)
-        st = getattr(self, "stats", None)  # (diagnostics: points piloted, traced in full)
-        if st is not None:
-            st["pilot_points"] = st.get("pilot_points", 0) + len(out)
-            st["pilot_traced"] = st.get("pilot_traced", 0) + len(rest)
-        return out
-
-    # adaptive shadow testing of a light shape's direct light at the output's samples (_visible:
-    # a share of a sample's area-sampled shadow rays first, the rest only where they disagree),
-    # off (share 0): measured at 100k (docs/events.md, session 25), draft's 16 rays with 8 first
-    # saves x0.6-0.85 of the top level's shape light, per object within the level's seed noise
-    # in size but one-sided: dim objects in penumbrae read 30-50% dark (an all-blocked pilot
-    # reads 0). From SHAPE_PILOT_MIN shadow rays on, never at a second level's samples (their
-    # light reaches the output only through reads); shape_pilot_rays: that many (0: off), None:
-    # the share's.
-    SHAPE_PILOT_SHARE, SHAPE_PILOT_MIN = 0.0, 16
-    shape_pilot_rays = None
-    # whether a pilot whose rays are all blocked is a verdict (0) too; False: only all through is
-    # (1), the others trace the rest
-    PILOT_DARK = True
-
-    def _shape_pilot(self):
-        """The pilot rays of a light shape's direct light at this level's samples (0: none)."""
-        if self.shape_pilot_rays is not None:
-            return int(self.shape_pilot_rays)
-        if getattr(self, "_leaf_nodes", None) is not None or self.shadow_rays < self.SHAPE_PILOT_MIN:
-            return 0
-        return int(self.shadow_rays * self.SHAPE_PILOT_SHARE)
+        cos_x cos_y / r^2."""
+        return _ratio_of(*self._rays(em, xo, no, u, area))
 
     def _rays(self, em: Emitter, xo, no, u, area):
         """(kern (L, S), vis (L, S) bool) of _visible's rays: each ray's weight and whether it got
@@ -228,17 +160,12 @@ class DirectLight:
         tri = min(len(em.tri), em.MAX_TRIANGLES)
         return max(rays, 1) * 4 + 3 * min(edges, 4 * em.MAX_TRIANGLES) + 12 * tri
 
-    def direct_light(self, em: Emitter, edges=True, pilot=0):
+    def direct_light(self, em: Emitter, edges=True):
         """(n,) float32 unit-radiance direct light of em at every sample (batches merged); edges:
-        in texture output, an edge texel's value is its area's mean (texel_edges); pilot:
-        _visible's (0: every shadow ray)."""
-        pilot = pilot if _pilot(pilot, self.shadow_rays) is not None else 0
-        per = self.direct_cost(em, pilot or self.shadow_rays)
-        # (with a pilot of fewer rays than the clear-shaft cull pays from, no cull: the same values)
-        shafts = self.shafts(em) if not 0 < pilot < self.CULL_MIN_RAYS else None
-        parts = batch_map(
-            lambda a, b: self.direct_batch(em, a, b, shafts, pilot), self.batches(per), self.threads
-        )
+        in texture output, an edge texel's value is its area's mean (texel_edges)."""
+        per = self.direct_cost(em, self.shadow_rays)
+        shafts = self.shafts(em)
+        parts = batch_map(lambda a, b: self.direct_batch(em, a, b, shafts), self.batches(per), self.threads)
         out = np.concatenate(parts or [np.zeros(0, np.float32)])
         if edges and self.texel_area is not None:  # texture output: an edge across a texel, its area's mean
             out = edge_direct(self, em, out, self.shadow_rays, em.stream, shafts=shafts).astype(np.float32)
@@ -360,10 +287,10 @@ class DirectLight:
             em, inside, _ = self._shape_emitter(dyn, rec)
             if em is None:
                 D = np.zeros(self.n, np.float32)
-            elif self.shape_by_read and getattr(self, "_leaf_nodes", None) is not None:
-                D = self._shape_by_read(dyn, rec, inside, em)  # (final.FinalGather: the second level)
+            elif getattr(self, "_leaf_nodes", None) is not None:  # (final.FinalGather's second level)
+                D = self._second_shape(em)
             else:
-                D = self.direct_light(em, self.edge_shapes, self._shape_pilot())
+                D = self.direct_light(em, self.edge_shapes)
             got = (D, inside)
             self._shape_cache[key] = got
         return got

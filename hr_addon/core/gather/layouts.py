@@ -160,6 +160,10 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
         centre = np.where((pt.nv[patch] == 4)[:, None], c.mean(1), c[:, :3].mean(1))
         pts = p[vl] + inset * (centre - p[vl])
         _uncover(system, pts, p[vl], patch, inset, layout)
+        if not isinstance(layout, OwnLayout) and OUTPUT_MOUTH > 0:
+            _toward_mouths(system, pts, p[vl], patch, layout)
+        if not isinstance(layout, OwnLayout) and OUTPUT_OPEN > 0:
+            _toward_openings(system, pts, p[vl], patch, layout)
         keep = ok & valid[lj]
         lpj = lpatch[lj[keep]]
         w = pt.area[lpj] / pt.nv[lpj]  # the corner's share of its patch
@@ -305,6 +309,95 @@ def _uncover(system, pts, corner, patch, inset, layout=None):
         cov = _buried(system, q, at(patch[todo], q), reach)
         pts[todo[~cov]] = q[~cov]
         todo = todo[cov]
+
+
+OUTPUT_MOUTH = 1.0  # _toward_mouths: a slot corner's sample no deeper than this many gap widths
+MOUTH_NUDGE = 0.02  # _toward_mouths: the corner's own depth, probed this far towards its sample
+
+
+def _toward_mouths(system, pts, corner, patch, layout):
+    """On an output layout: corner samples in a slot (contacts: under a parallel face a gap h in
+    front, lit through its open edges) whose corner lies nearer the slot's mouths than they do
+    move (in place) straight towards their nearest mouth, to OUTPUT_MOUTH x h from it (or to their
+    corner's depth if that is deeper), keeping their place along it. A camera sees of such a face
+    only a strip of a few gap widths along its mouths (a book's side 2 mm from its neighbour's,
+    from the front); at the default inset the sample lies 3-5 cm deep, where the slot is dark, and
+    the strip read that dark."""
+    con = system.h.contacts
+    if con is None or not len(pts):
+        return
+    threads = system.backend.threads
+    th = 0 if threads is None else threads
+    tp = layout.transport(patch, pts)
+    cov = np.flatnonzero(tp >= 0)
+    cov = cov[con.covered(pts[cov], tp[cov], threads=th)]
+    if not len(cov):
+        return
+    con.close_mouths(system.backend.occluded)
+    x, h, foot = con.slots(pts[cov], tp[cov])[:3]
+    far = (h > 0) & (x > OUTPUT_MOUTH * h)
+    c, x, h, foot = cov[far], x[far], h[far], foot[far]
+    if not len(c):
+        return
+    q0 = corner[c] + MOUTH_NUDGE * (pts[c] - corner[c])
+    t0 = layout.transport(patch[c], q0)
+    x0 = np.full(len(c), np.inf)  # covered at its corner but in no slot: left where it is
+    ok = np.flatnonzero(t0 >= 0)
+    open_ = ~con.covered(q0[ok], t0[ok], threads=th)
+    x0[ok[open_]] = 0.0  # open at its corner (a mouth's own edge)
+    ok = ok[~open_]
+    x0[ok] = con.slots(q0[ok], t0[ok])[0]
+    move = x0 < x
+    c, x, h, foot, x0 = c[move], x[move], h[move], foot[move], x0[move]
+    f = np.maximum(OUTPUT_MOUTH * h, x0) / x
+    pts[c] = foot + f[:, None] * (pts[c] - foot)
+
+
+OUTPUT_OPEN = 1.0  # _toward_openings: a sample no farther from its corner than this x its clearance
+OPEN_FAR = 4.0  # _toward_openings: a probe ray escapes when it goes this x the clearance or farther
+OPEN_RAYS = 32  # _toward_openings: probe rays from a sample and from near its corner
+
+
+def _toward_openings(system, pts, corner, patch, layout):
+    """On an output layout: corner samples under a face parallel in front of them wider than a
+    slot (a book's side 3 cm from the bookcase's side: not a contact) whose clearance c (along
+    their normal) is less than their distance to their corner, where the corner sees out more
+    (of OPEN_RAYS rays from near it, more going OPEN_FAR x c or farther than from the sample),
+    move (in place) towards their corner to OUTPUT_OPEN x c from it."""
+    if not len(pts):
+        return
+    pt = system.patches
+    eps = float(system.refiner.eps)
+    tp = layout.transport(patch, pts)
+    ok = np.flatnonzero(tp >= 0)
+    con = system.h.contacts
+    if con is not None and len(ok):  # (samples in a slot: _toward_mouths')
+        th = system.backend.threads
+        ok = ok[~con.covered(pts[ok], tp[ok], threads=0 if th is None else th)]
+    reach = probe_reach(system)
+    nrm = pt.normal[tp[ok]]
+    prim, dist = system.backend.first_hit(pts[ok] + eps * nrm, nrm, reach)
+    dist = np.where(prim >= 0, dist, np.inf)
+    gap = np.linalg.norm(pts[ok] - corner[ok], axis=1)
+    c = ok[dist < gap]
+    clear = dist[dist < gap]
+    if not len(c):
+        return
+    q0 = corner[c] + MOUTH_NUDGE * (pts[c] - corner[c])
+
+    def escaping(q, keys):  # (each sample's rays keyed by its own index: its own answer)
+        n = pt.normal[tp[c]]
+        d = cosine_directions(n, keys, OPEN_RAYS, seed=11)
+        o = np.repeat(q + eps * n, OPEN_RAYS, 0)
+        hp, hd = system.backend.first_hit(o, d.reshape(-1, 3), reach)
+        far = (hp < 0) | (hd >= OPEN_FAR * np.repeat(clear, OPEN_RAYS))
+        return far.reshape(-1, OPEN_RAYS).sum(1)
+
+    at_corner, at_sample = escaping(q0, c), escaping(pts[c], c + len(pts))
+    move = at_corner > at_sample
+    c, clear = c[move], clear[move]
+    f = np.minimum(OUTPUT_OPEN * clear / np.linalg.norm(pts[c] - corner[c], axis=1), 1.0)
+    pts[c] = corner[c] + f[:, None] * (pts[c] - corner[c])
 
 
 def cut_patches(system, nudge=0.05, reach=None, layout=None):
