@@ -40,6 +40,11 @@ CHUNK = 100_000  # node pairs processed at once
 # links per batch of the final form factors and shadow tests on threads (core.parallel): fixed, so
 # the values do not depend on the thread count; small enough that a 10k-triangle room has many
 LINK_BATCH = 1 << 13
+# patch links' visibility from the segments that leave both points in front (visibility())
+FRONT_ONLY = True
+# benchmarks/kernel_split.py --all-links: keep the patch links traced wholly occluded (their
+# visibility 0: no transfer), so that their exact exchange can be measured
+KEEP_OCCLUDED = False
 # partly covered nodes per batch of their exposed grids and visibility points (Refiner.contacts):
 # a batch's distance array is (N, vis_k^2, its largest exposed count, 3), up to 100 MB at 1024
 # nodes, and every thread holds one
@@ -178,20 +183,83 @@ class Refiner:
         s = k * k
         out = np.empty(len(a))
         st = ~weak
-        if st.any():
-            ra = np.repeat(pa[st], s, axis=1).reshape(-1, 3)
-            rb = np.tile(pb[st], (1, s, 1)).reshape(-1, 3)
-            out[st] = 1.0 - self.backend.occluded(ra, rb).reshape(-1, s * s).mean(1)
-        if weak.any():
-            out[weak] = 1.0 - self.backend.occluded(pa[weak], pb[weak][:, ::-1]).mean(1)
+        rays = 0
+        if FRONT_ONLY:
+            out[:] = self._front_visibility(a, b, pa, pb, weak)
+            rays = int(st.sum()) * s * s + int(weak.sum()) * s
+            redo = np.flatnonzero(np.isnan(out))
+            if len(redo):  # no segment leaves both points in front: the 2 x 2 points' segments
+                out[redo], n2 = self._front_visibility_2x2(a[redo], b[redo], weak[redo])
+                rays += n2
+        else:
+            if st.any():
+                ra = np.repeat(pa[st], s, axis=1).reshape(-1, 3)
+                rb = np.tile(pb[st], (1, s, 1)).reshape(-1, 3)
+                out[st] = 1.0 - self.backend.occluded(ra, rb).reshape(-1, s * s).mean(1)
+            if weak.any():
+                out[weak] = 1.0 - self.backend.occluded(pa[weak], pb[weak][:, ::-1]).mean(1)
+            rays = int(st.sum()) * s * s + int(weak.sum()) * s
         vis[test] = out
         add_counts(
             self.stats,
             pairs_culled=len(test) - len(a),
-            rays=int(st.sum()) * s * s + int(weak.sum()) * s,
+            rays=rays,
             t_vis=time.perf_counter() - t0,
         )
         return vis
+
+    def _front_visibility(self, a, b, pa, pb, weak, cov_a=None, cov_b=None):
+        """visibility()'s value from the segments between points pa (N, s, 3) and pb that leave
+        both points in front of the other node's plane (and neither on a covered part, cov_*
+        (N, s) if given): the unoccluded share of their kernel cos cos / r^2 (strong: every pair
+        of points; weak: point i to s - 1 - i); nan where no segment counts. A segment leaving a
+        point behind the other node (nodes that face each other only partly: a book's side and
+        the board under it, a bookcase side and a shelf) starts or ends on the far side of a
+        face whose own solid blocks it, while the form factor gives that part nothing: counted,
+        it read such links dark or dropped them (issue 19, kern31)."""
+        h, s = self.h, pa.shape[1]
+        na, nb = h.normal[a], h.normal[b]
+        out = np.full(len(a), np.nan)
+        for sel, strong in ((~weak, True), (weak, False)):
+            if not sel.any():
+                continue
+            A, B = pa[sel], pb[sel]
+            if strong:
+                A = np.repeat(A, s, axis=1)
+                B = np.tile(B, (1, s, 1))
+            else:
+                B = B[:, ::-1]
+            d = B - A
+            ca = np.einsum("nsk,nk->ns", d, na[sel])
+            cb = -np.einsum("nsk,nk->ns", d, nb[sel])
+            r2 = np.maximum(np.einsum("nsk,nsk->ns", d, d), 1e-300)
+            front = (ca > 0) & (cb > 0)
+            if cov_a is not None:
+                ia = np.repeat(cov_a[sel], s, axis=1) if strong else cov_a[sel]
+                ib = np.tile(cov_b[sel], (1, s)) if strong else cov_b[sel][:, ::-1]
+                front &= ~(ia | ib)
+            occ = self.backend.occluded(A.reshape(-1, 3), B.reshape(-1, 3)).reshape(front.shape)
+            kw = np.where(front, ca * cb / (r2 * r2), 0.0)
+            K = kw.sum(1)
+            nf = front.sum(1)
+            plain = (front & ~occ).sum(1) / np.maximum(nf, 1)
+            v = np.where(K > 0, np.where(occ, 0.0, kw).sum(1) / np.where(K > 0, K, 1.0), plain)
+            out[np.flatnonzero(sel)] = np.where(nf > 0, v, np.nan)
+        return out
+
+    def _front_visibility_2x2(self, a, b, weak):
+        """_front_visibility of links none of whose segments count, from their nodes' 2 x 2 Gauss
+        points (points on covered parts left out; weak links: the 4 segments i -> 3 - i); 0 where
+        none counts there either. Returns (visibility, rays traced)."""
+        h = self.h
+        pa = ff.sample_points(h.corners[a], h.nv[a], 2) + self.eps * h.normal[a][:, None]
+        pb = ff.sample_points(h.corners[b], h.nv[b], 2) + self.eps * h.normal[b][:, None]
+        cov_a = cov_b = np.zeros((len(a), 4), bool)
+        if self._contacts is not None:
+            cov_a = self._contacts.covered(pa.reshape(-1, 3), np.repeat(h.patch[a], 4)).reshape(-1, 4)
+            cov_b = self._contacts.covered(pb.reshape(-1, 3), np.repeat(h.patch[b], 4)).reshape(-1, 4)
+        v = self._front_visibility(a, b, pa, pb, weak, cov_a, cov_b)
+        return np.nan_to_num(v, nan=0.0), 16 * int((~weak).sum()) + 4 * int(weak.sum())
 
     def leaf_visibility(self, leaf, src, batch=1 << 14):
         """Visibility of source nodes from leaves (push corrections, corrections.py): the unoccluded
@@ -514,7 +582,7 @@ class Refiner:
             vis[t] = self.visibility(a[t], b[t], weak[t])
 
         batch_map(shadows, ranges(len(todo), LINK_BATCH), self.threads)
-        keep = (vis > 0) & ((f_ab > 0) | (f_ba > 0))
+        keep = (vis > 0 if not KEEP_OCCLUDED else vis >= 0) & ((f_ab > 0) | (f_ba > 0))
         return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])
 
     def build(self):
