@@ -22,7 +22,7 @@ from .cluster import (
     sh9,
     visibility_points,
 )
-from .formfactor import dot3, row_range
+from .formfactor import dot3, row_range, unoccluded_share
 from .parallel import add_counts, batch_map, ranges
 
 
@@ -503,7 +503,7 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
     member itself, while the link's kernel already gives such a member nothing (its clamped
     cosine). Counted, they made every partial end's visibility dark (the draft furnished room
     lost 1.5% of its light). A link with such segments gets the unoccluded share of its
-    front-facing segments' kernel cos cos / r^2 (_weighted) as `scale` and a full mask (one
+    front-facing segments' kernel cos cos / r^2 (formfactor.unoccluded_share) as `scale` and a full mask (one
     visibility for the link, as weak links have; weak links' share is weighted alike); a link
     with no front-facing segment keeps what was traced.
 
@@ -535,7 +535,7 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
         fix = (nf > 0) & ((nf < 16) | second)
         if fix.any():
             i = np.flatnonzero(st)[fix]
-            vis[i] = scale[i] = _weighted(f[fix], occ[fix], kw[st][fix])
+            vis[i] = scale[i] = unoccluded_share(f[fix], occ[fix], kw[st][fix])
             mask[i] = 0xFFFF
         if second:
             i = np.flatnonzero(st)[nf == 0]
@@ -545,7 +545,7 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
         f = front[weak][:, _DIAGONAL]
         nf = f.sum(1)
         v = 1.0 - occ.mean(1)
-        vis[weak] = scale[weak] = np.where(nf > 0, _weighted(f, occ, kw[weak][:, _DIAGONAL]), v)
+        vis[weak] = scale[weak] = np.where(nf > 0, unoccluded_share(f, occ, kw[weak][:, _DIAGONAL]), v)
         mask[weak] = 0xFFFF
     add_counts(refiner.stats, rays=16 * int(st.sum()) + 4 * int(weak.sum()), t_vis=time.perf_counter() - t0)
     return vis, mask, scale
@@ -565,14 +565,3 @@ def _facing_segments(pa, pb, na, nb):
     r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
     front = (ca > 0) & (cb < 0)
     return front.reshape(-1, 16), np.where(front, -ca * cb / (r2 * r2), 0.0).reshape(-1, 16)
-
-
-def _weighted(front, occ, kw):
-    """The unoccluded share of the facing segments' kernel kw (a link's visibility as its transfer
-    reads it: a segment nearer or more head-on carries more; an unweighted count read the
-    furnished 2k room's weak links 2.4% darker than a dense kernel-weighted visibility, 0.7%
-    darker than a dense count). The plain fraction where the kernel underflows."""
-    k = np.where(front, kw, 0.0)
-    K = k.sum(1)
-    plain = (front & ~occ).sum(1) / np.maximum(front.sum(1), 1)
-    return np.where(K > 0, np.where(occ, 0.0, k).sum(1) / np.where(K > 0, K, 1.0), plain)

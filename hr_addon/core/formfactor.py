@@ -56,6 +56,19 @@ def row_range(x):
     return functools.reduce(np.minimum, cols), functools.reduce(np.maximum, cols)
 
 
+def unoccluded_share(front, occ, kw):
+    """(N,) a link's visibility as its transfer reads it: the unoccluded share of its facing
+    segments' kernel kw (N, S) (cos cos / r^2: a segment nearer or more head-on carries more; an
+    unweighted count read the furnished 2k room's weak far links 2.4% darker than a dense
+    kernel-weighted visibility). front, occ (N, S): which segments face both ways, which are
+    blocked. The plain fraction where the kernel underflows (far links, farlinks; patch links,
+    refine)."""
+    k = np.where(front, kw, 0.0)
+    K = k.sum(1)
+    plain = (front & ~occ).sum(1) / np.maximum(front.sum(1), 1)
+    return np.where(K > 0, np.where(occ, 0.0, k).sum(1) / np.where(K > 0, K, 1.0), plain)
+
+
 def _padded(corners, nv):
     """float64 corners, with triangles (nv == 3) re-padded so corner 3 == corner 2."""
     c = np.asarray(corners, dtype=np.float64)

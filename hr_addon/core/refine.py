@@ -239,12 +239,8 @@ class Refiner:
                 ib = np.tile(cov_b[sel], (1, s)) if strong else cov_b[sel][:, ::-1]
                 front &= ~(ia | ib)
             occ = self.backend.occluded(A.reshape(-1, 3), B.reshape(-1, 3)).reshape(front.shape)
-            kw = np.where(front, ca * cb / (r2 * r2), 0.0)
-            K = kw.sum(1)
-            nf = front.sum(1)
-            plain = (front & ~occ).sum(1) / np.maximum(nf, 1)
-            v = np.where(K > 0, np.where(occ, 0.0, kw).sum(1) / np.where(K > 0, K, 1.0), plain)
-            out[np.flatnonzero(sel)] = np.where(nf > 0, v, np.nan)
+            v = ff.unoccluded_share(front, occ, ca * cb / (r2 * r2))
+            out[np.flatnonzero(sel)] = np.where(front.any(1), v, np.nan)
         return out
 
     def _front_visibility_2x2(self, a, b, weak):
