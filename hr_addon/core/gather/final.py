@@ -1131,8 +1131,9 @@ class FinalGather(DirectLight):
                     self._near_x = self._shared(("near", k), lambda: _near_points(h, self.n_hr, k))
                 if len(nr) == len(i):  # (every hit near: no copies)
                     col += self.n_hr * (1 + _nearest_point(self._near_x, leaf, hit))
-                else:
-                    col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(self._near_x, leaf[nr], hit[nr]))
+                else:  # (the near hits' rows of 3 by take)
+                    ln = leaf[nr]
+                    col[nr] = ln + self.n_hr * (1 + _nearest_point(self._near_x, ln, np.take(hit, nr, 0)))
         span = self.n_hr * (1 + self.near_points**2)
         if self.slopes or (self.near_points and self.near_read == "bilinear"):  # (weights per hit)
             u, inv = np.unique(er.astype(np.int64) * span + col, return_inverse=True)
