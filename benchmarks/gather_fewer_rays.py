@@ -1,7 +1,9 @@
 """gather_precompute.py with the top level's qualifying samples (gather_converged.py --mask) tracing
 1/k of their rays, each its own pattern: the noise half of sharing one stratified ray set among k
 neighbours on a plane (the same independent rays per object), without its bias (each sample keeps
-its own position). A lower bound of such a cut's change of the output against the seed floor.
+its own position) and without the joint stratification of one shared pattern (each half is its
+own pattern): an estimate of such a cut's noise, judged against the seed floor (docs/scale.md,
+session 27).
 
     .venv/bin/python benchmarks/gather_fewer_rays.py MASK.npz KEY K -- STORE [gather_precompute.py's options]
 """
