@@ -436,3 +436,30 @@ def test_an_output_layouts_side_under_a_wider_gap_shows_its_front_strip(monkeypa
         assert abs(ours / strip - 1) < 0.3, (ours, strip)
     else:
         assert ours / strip - 1 < -0.7, (ours, strip)
+
+
+@pytest.mark.parametrize("scene", ["books", "side"])
+def test_the_output_rules_share_their_lookups_exactly(monkeypatch, scene):
+    """layouts.loop_samples makes each corner sample's transport patch and contacts' covered test
+    once (layouts._transport_covered) for _toward_mouths and _toward_openings, and again only for
+    the samples _toward_mouths moved (ctc32; session 26's review): the same points, bit for bit, as
+    each rule looking every sample up afresh (before). Each scene has samples the rule it tests
+    moves."""
+    from hr_addon.core.gather import OutputLayout, layouts
+
+    s = books_scene() if scene == "books" else side_scene()
+    out = OutputLayout(s, s.mesh, np.arange(len(s.mesh.loop_start)))
+    pts, _, patch, loop_index, _ = loop_samples(s, layout=out)
+    monkeypatch.setattr(layouts, "OUTPUT_MOUTH", 0.0)
+    monkeypatch.setattr(layouts, "OUTPUT_OPEN", 0.0)
+    base = loop_samples(s, layout=out)[0]  # (the rules off: the samples they start from)
+    monkeypatch.undo()
+    corner = np.asarray(s.mesh.verts, float)[np.asarray(s.mesh.loop_verts)][loop_index >= 0]
+    want = base.copy()
+    layouts._toward_mouths(s, want, corner, patch, out, *layouts._transport_covered(s, want, patch, out))
+    mouths = (want != base).any(1).sum()
+    before = want.copy()
+    layouts._toward_openings(s, want, corner, patch, out, *layouts._transport_covered(s, want, patch, out))
+    openings = (want != before).any(1).sum()
+    assert np.array_equal(pts, want)
+    assert (mouths if scene == "books" else openings) > 0, (mouths, openings)
