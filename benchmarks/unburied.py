@@ -137,8 +137,9 @@ def visible_texels(rs, eps):
     every solid closed by its area vectors (_solids_by_area: T-junctions allowed), and no
     sub-sample behind an open planar mesh the object is sunk through (its vertices on both sides of
     the plane inside the plane's outline: the artist room's Crate, 5 cm through the floor plane).
-    Objects wholly on one side of a plane (a rug on the floor, the wall behind a painting) are not
-    touched by it. ctc32 (docs/accuracy.md): the *_visible rows of unseen_vs_cycles.py."""
+    An object wholly on one side of a plane (a rug on the floor) is not touched by it; a room's box
+    crosses a painting's plane (walls on both sides within its outline), so the wall 1 cm behind
+    the painting is left out too."""
     mesh = rs.scene_in.mesh
     solids = _solids_by_area(mesh)
     planes = _open_planes(mesh, solids)
