@@ -338,6 +338,8 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         # decision's own trace is biased by the decision (kept 1: high, dropped 0: low). Their
         # visibility is traced again from a second set of points on the same members.
         again = np.flatnonzero(decided) if SECOND_TRACE else np.zeros(0, np.int64)
+        ends = np.concatenate([fa_[again], fb_[again]])
+        table.prepare_second(ends[ends >= 0])  # the nodes' second points, once per node
 
         def retrace(i, j):
             t = again[i:j]
@@ -401,7 +403,11 @@ def _classify(refiner, tree, a, b, table=None):
     if prm.shadow_feps > 0:
         shadow = ok & (fmax > prm.shadow_feps)
         if shadow.any():
-            vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow], table=table)
+            # with SECOND_TRACE every link kept here is traced again (link_clusters): only the
+            # decision is asked (partial, or 0 / 1), on the fewest segments that settle it
+            vis[shadow], mask[shadow], _ = far_visibility(
+                refiner, tree, a[shadow], b[shadow], table=table, decide=SECOND_TRACE
+            )
             ok &= ~(shadow & (vis > 0) & (vis < 1))
     # Which end to split, by the first test that failed. Facing (a node whose plane cuts the
     # other end, or two partial ends): the end whose cone, or angular radius seen from the
@@ -488,7 +494,7 @@ def _self_pairs(tree, c):
     return np.concatenate(out_a), np.concatenate(out_b)
 
 
-def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
+def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False, decide=False):
     """(vis, mask, scale) of far links: the unoccluded fraction of the 4 x 4 segments between the
     ends' visibility points and which of them are unoccluded (bit 4 i + j: sample i of a, j of b).
     A cluster's visibility points lie on the kernel's sample members, spread over them
@@ -509,24 +515,43 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
 
     second: the points of visibility_points(second=True), on other members than the kernel's: a
     strong link gets one visibility too (full mask, scale). link_clusters traces the links its
-    oracle kept on their first trace again so (SECOND_TRACE)."""
+    oracle kept on their first trace again so (SECOND_TRACE).
+
+    decide: the oracle's question only, whether a (strong) link's visibility is partial, 0 or 1
+    (_classify with SECOND_TRACE, which traces every link it keeps again): only the segments
+    that count are traced (a link with front-facing and other segments: the front-facing ones),
+    first up to DECIDE_FIRST of them (_decide); a link whose first ones already read both
+    occluded and unoccluded, so that its visibility is surely in (0, 1), gets 0.5 and no more
+    rays; every other link the value the full trace gives (its counting segments are all
+    traced: the same bits). The mask is then 0 (the second trace gives every kept link its own).
+    Each segment's answer is its own (the same origin and direction whatever else is traced).
+
+    The segments are traced component major (occluded_cm, each point's origin once for its 4
+    segments): the same segments, so the same answers as occluded() of the rows."""
     import time
 
     t0 = time.perf_counter()
     h, eps = refiner.h, refiner.eps
     # a cluster's points spread over its members (not their centroids: visibility_points)
     (pa, ca, na), (pb, cb, nb) = (visibility_points(tree, h, x, eps, table, second) for x in (a, b))
-    front, kw = _facing_segments(pa, pb, na, nb)
+    A, D = _segments_cm(pa, pb)
+    front, kw = _facing_segments_cm(D, na, nb)
     # a sample on a covered part (under a box, between touching faces) sees nothing; the end's
     # light leaves from its exposed part: its segments do not count either
     front &= ~(ca[:, :, None] | cb[:, None, :]).reshape(-1, 16)
+    if decide:
+        if weak is not None and np.any(weak):
+            raise ValueError("far_visibility(decide=True) is for strong links")
+        vis, rays = _decide(refiner.backend, A, D, front, kw)
+        add_counts(refiner.stats, rays=rays, t_vis=time.perf_counter() - t0)
+        return vis, np.zeros(len(a), np.uint16), np.ones(len(a))
     weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)
     vis, mask, scale = np.empty(len(a)), np.empty(len(a), np.uint16), np.ones(len(a))
     st = ~weak
     if st.any():
-        occ = refiner.backend.occluded(
-            np.repeat(pa[st], 4, axis=1).reshape(-1, 3), np.tile(pb[st], (1, 4, 1)).reshape(-1, 3)
-        ).reshape(-1, 16)
+        i = None if st.all() else np.flatnonzero(st)
+        As, Ds = (x if i is None else np.take(x, i, 1) for x in (A, D))
+        occ = refiner.backend.occluded_cm(As.reshape(3, -1), Ds.reshape(3, -1), 4).reshape(-1, 16)
         vis[st] = 1.0 - occ.mean(1)
         mask[st] = ((~occ) * (1 << np.arange(16))).sum(1)
         f = front[st]
@@ -541,7 +566,9 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
             i = np.flatnonzero(st)[nf == 0]
             scale[i], mask[i] = vis[i], 0xFFFF
     if weak.any():
-        occ = refiner.backend.occluded(pa[weak], pb[weak][:, ::-1]).reshape(-1, 4)
+        i = np.flatnonzero(weak)
+        Dw = np.take(D, i, 1)[:, :, _DIAG_I, _DIAG_J]  # (3, n, 4): point i of a to 3 - i of b
+        occ = refiner.backend.occluded_cm(np.take(A, i, 1).reshape(3, -1), Dw.reshape(3, -1)).reshape(-1, 4)
         f = front[weak][:, _DIAGONAL]
         nf = f.sum(1)
         v = 1.0 - occ.mean(1)
@@ -553,6 +580,77 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
 
 # the segments i -> 3 - i of the 4 x 4 (bit 4 i + j): a weak link's
 _DIAGONAL = np.array([3, 6, 9, 12])
+_DIAG_I, _DIAG_J = np.arange(4), np.arange(4)[::-1].copy()
+# far_visibility(decide=True): the segments traced first (up to DECIDE_FIRST of a link's counting
+# ones, in this order: the 4 x 4's two diagonals first, each of a's and b's points once in each)
+DECIDE_FIRST = 4
+DECIDE_ORDER = np.array([0, 5, 10, 15, 3, 6, 9, 12, 1, 2, 4, 7, 8, 11, 13, 14])
+# a link's first segments read both ways: partial only if the occluded ones carry at least this
+# share of its counting kernel (the share computed from all of them then is surely below 1)
+DECIDE_SHARE = 1e-9
+
+
+def _segments_cm(pa, pb):
+    """Component-major origins A (3, N, 4) (the points pa (N, 4, 3)) and segments D (3, N, 4, 4),
+    D[:, n, i, j] = pb[n, j] - pa[n, i] (the b - a of occluded()'s rows: the same values)."""
+    A = np.ascontiguousarray(pa.transpose(2, 0, 1))
+    B = np.ascontiguousarray(pb.transpose(2, 0, 1))
+    return A, B[:, :, None, :] - A[:, :, :, None]
+
+
+def _facing_segments_cm(D, na, nb):
+    """_facing_segments of the segments D (3, N, 4, 4) (_segments_cm): its einsums as dot3 over
+    rows per coordinate (einsum's order, (x + z) + y; a zero's sign may differ, and the values
+    are only compared or kept where nonzero: the same results)."""
+    NA = np.ascontiguousarray(na.transpose(2, 0, 1))[:, :, :, None]  # (3, N, 4 on a, 1)
+    NB = np.ascontiguousarray(nb.transpose(2, 0, 1))[:, :, None, :]  # (3, N, 1, 4 on b)
+    ca, cb = dot3(D, NA), dot3(D, NB)
+    r2 = np.maximum(dot3(D, D), 1e-300)
+    front = (ca > 0) & (cb < 0)
+    return front.reshape(-1, 16), np.where(front, -ca * cb / (r2 * r2), 0.0).reshape(-1, 16)
+
+
+def _trace(backend, A, D, sel):
+    """occluded() of the segments sel (N, 16) of strong links (A, D: _segments_cm), in order."""
+    k = np.flatnonzero(sel.ravel())
+    a = np.take(A.reshape(3, -1), k // 4, 1)
+    return backend.occluded_cm(a, np.take(D.reshape(3, -1), k, 1))
+
+
+def _decide(backend, A, D, front, kw):
+    """far_visibility(decide=True)'s values: 0.5 for links surely partial after their first
+    counting segments, far_visibility's value for the others (from all their counting segments),
+    and the rays traced."""
+    n = front.shape[0]
+    nf = front.sum(1)
+    some = (nf > 0) & (nf < 16)  # only the front-facing segments count (unoccluded_share)
+    count = np.where(some[:, None], front, True)
+    c = count[:, DECIDE_ORDER]
+    first = np.zeros_like(count)
+    first[:, DECIDE_ORDER] = c & (np.cumsum(c, 1) <= DECIDE_FIRST)
+    occ = np.zeros((n, 16), bool)
+    occ[first] = _trace(backend, A, D, first)
+    blocked, clear = first & occ, first & ~occ
+    mixed = blocked.any(1) & clear.any(1)
+    # a weighted share (unoccluded_share, kernel K > 0) is surely in (0, 1) when its occluded
+    # segments carry a share of K well above rounding and an unoccluded one a weight > 0; a
+    # count (1 - occ.mean(1), or the plain share where K underflows) whenever both occur
+    K = np.where(front, kw, 0.0).sum(1)
+    weighted = some & (K > 0)
+    sure = mixed & (
+        ~weighted
+        | ((np.where(blocked, kw, 0.0).sum(1) > DECIDE_SHARE * K) & (np.where(clear, kw, 0.0).sum(1) > 0))
+    )
+    rest = count & ~first & ~sure[:, None]
+    occ[rest] = _trace(backend, A, D, rest)
+    vis = np.full(n, 0.5)
+    todo = ~sure
+    plain = todo & ~some
+    vis[plain] = 1.0 - occ[plain].mean(1)
+    ws = todo & some
+    if ws.any():
+        vis[ws] = unoccluded_share(front[ws], occ[ws], kw[ws])
+    return vis, int(first.sum() + rest.sum())
 
 
 def _facing_segments(pa, pb, na, nb):
