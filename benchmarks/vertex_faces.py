@@ -69,8 +69,9 @@ def main():
 
         def counted(system, pts, *rest, _f=getattr(layouts, rule), _r=rule):
             before = pts.copy()
-            _f(system, pts, *rest)
+            out = _f(system, pts, *rest)
             moved[_r] = (int((pts != before).any(1).sum()), len(pts))
+            return out  # (_toward_mouths': the samples it moved)
 
         setattr(layouts, rule, counted)
     folder = tempfile.mkdtemp(prefix="vx30_faces_")

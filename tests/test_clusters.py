@@ -827,3 +827,29 @@ def test_a_patch_links_visibility_counts_only_segments_that_leave_both_ends_in_f
     front = np.array([[0, -0.1, 0], [0.2, -0.1, 0], [0.2, 0.1, 0], [0, 0.1, 0]], float)
     exact = 0.06 * point_to_polygon(pts, np.array([1.0, 0, 0]), front).mean()
     assert model == pytest.approx(exact, rel=0.15)
+
+
+def test_the_oracles_visibility_decision_traces_only_the_segments_that_settle_it():
+    """Issue 19 (bld32): with SECOND_TRACE every far link the oracle keeps on its trace is traced
+    again, so the oracle only asks whether a link's visibility is partial (split) or 0 / 1
+    (kept). far_visibility(decide=True) traces only the segments that count (the front-facing
+    ones of a link that has others), first up to DECIDE_FIRST, and stops at a link whose first
+    ones read both ways: on the furnished 2k room's far links (as strong links, each pair of
+    ends traced at its first set of points) every decision is the full trace's, every value not
+    settled early is the full trace's bit for bit, and fewer rays are traced."""
+    from hr_testing.furnished import furnished_room
+
+    s = RadiositySystem(furnished_room("2k")[0], RefineParams.for_gather("draft"))
+    far, r = s.links.far, s.refiner
+    r0 = r.stats["rays"]
+    full = FL.far_visibility(r, far.tree, far.a, far.b)[0]
+    r1 = r.stats["rays"]
+    got = FL.far_visibility(r, far.tree, far.a, far.b, decide=True)[0]
+    r2 = r.stats["rays"]
+    part = (full > 0) & (full < 1)
+    assert 0.1 < part.mean() < 0.9
+    early = got == 0.5
+    assert np.array_equal((got > 0) & (got < 1), part)  # the same decisions
+    assert np.array_equal(got[~early], full[~early])  # the rest the full trace's values
+    assert early.sum() > 0.3 * part.sum()
+    assert r2 - r1 < 0.9 * (r1 - r0) and r1 - r0 == 16 * len(far)

@@ -441,7 +441,7 @@ class EndTable:
         # `cov` whether a row's visibility points are covered (a cluster's spread points, a node's
         # Gauss points)
         vp, cols["cov"] = spread_points(t, h, np.arange(C))
-        self.vpts = vp + eps * t.sample_n
+        self.vpts = cols["vis"] = vp + eps * t.sample_n
         m2 = second_members(t, h, np.arange(C))
         vp, self.cov2 = spread_points(t, h, np.arange(C), SECOND, m2)
         self.nrm2 = h.normal[m2]
@@ -451,7 +451,7 @@ class EndTable:
 
     def _append(self, cols):
         m = len(cols["area"])
-        new = {k: cols[k] for k in ("pts", "w", "nrm", "cov")}
+        new = {k: cols[k] for k in ("pts", "w", "nrm", "cov", "vis")}
         rows = np.hstack([np.reshape(cols[k], (m, -1)) for k in self.PACKED])  # (m, 17)
         end = self.size + m
         if end > self.cap:
@@ -487,8 +487,28 @@ class EndTable:
         new["cov"] = _covered(
             h, pts, np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
         )
+        new["vis"] = new["pts"]  # a node's first visibility points: its Gauss points
         self._append(new)
         self.n = n
+
+    def prepare_second(self, ni):
+        """Patch nodes ni's second visibility points (visibility_points(second=True): pushed eps
+        off, and whether each is covered), made once per node and kept (link_clusters, before its
+        second trace: a node ends many links). Call it serially; nodes added since are made
+        there again."""
+        h = self.h
+        if getattr(self, "pts2", None) is None or len(self.has2) < h.n:
+            old = getattr(self, "has2", np.zeros(0, bool))
+            grown = np.zeros(h.n, bool), np.empty((h.n, 4, 3)), np.empty((h.n, 4), bool)
+            if len(old):
+                grown[0][: len(old)], grown[1][: len(old)], grown[2][: len(old)] = old, self.pts2, self.cov2n
+            self.has2, self.pts2, self.cov2n = grown
+        ni = np.unique(np.asarray(ni, np.int64))
+        ni = ni[~self.has2[ni]]
+        if len(ni):
+            q, self.cov2n[ni] = _node_points2(h, ni)
+            self.pts2[ni] = q + self.eps * h.normal[ni][:, None]
+            self.has2[ni] = True
 
     def rows(self, ids):
         ids = np.asarray(ids, np.int64)
@@ -628,14 +648,17 @@ def visibility_points(tree: ClusterTree, h, ids, eps, table=None, second=False):
     ids = np.asarray(ids, np.int64)
     cl = ids < 0
     ci, ni = decode(ids[cl]), ids[~cl]
-    if table is not None and not second:  # a node's: its Gauss points
+    if table is not None and not second:  # a node's: its Gauss points (the table's `vis` rows)
         r = table.rows(ids)
-        pts, out, nrm = table.pts[r], table.cov[r], table.nrm[r]
-        pts[cl] = table.vpts[ci]
-        return pts, out, nrm
+        return np.take(table.vis, r, 0), np.take(table.cov, r, 0), np.take(table.nrm, r, 0)
     pts, out, nrm = np.empty((len(ids), 4, 3)), np.empty((len(ids), 4), bool), np.empty((len(ids), 4, 3))
     if table is not None:
         pts[cl], out[cl], nrm[cl] = table.vpts2[ci], table.cov2[ci], table.nrm2[ci]
+        has2 = getattr(table, "has2", None)
+        if has2 is not None and len(ni) and ni.max() < len(has2) and has2[ni].all():  # prepare_second's
+            pts[~cl], out[~cl] = np.take(table.pts2, ni, 0), np.take(table.cov2n, ni, 0)
+            nrm[~cl] = h.normal[ni][:, None]
+            return pts, out, nrm
     else:
         m = second_members(tree, h, ci) if second else tree.sample_patch[ci]
         p, out[cl] = spread_points(tree, h, ci, SECOND if second else 0.0, m)
@@ -719,13 +742,23 @@ def spread_points(tree: ClusterTree, h, ci, offset=0.0, members=None):
         tries = np.mod(
             uv.reshape(-1, 2)[i][:, None] + np.arange(SPREAD_TRIES)[:, None] * R2, 1.0
         )  # (p, T, 2)
-        cand = _in_polygon(
-            np.repeat(h.corners[mm], SPREAD_TRIES, 0),
-            np.repeat(h.nv[mm], SPREAD_TRIES),
-            tries[..., 0].ravel(),
-            tries[..., 1].ravel(),
-        ).reshape(-1, SPREAD_TRIES, 3)
-        hid = h.contacts.covered(cand.reshape(-1, 3), np.repeat(mm, SPREAD_TRIES)).reshape(-1, SPREAD_TRIES)
+        # the first try of every point, the others only where it is covered (each point's
+        # position and covered test are its own: the same first uncovered try)
+        cand = np.empty((len(i), SPREAD_TRIES, 3))
+        hid = np.zeros((len(i), SPREAD_TRIES), bool)
+        for rows, T in ((np.arange(len(i)), slice(0, 1)), (None, slice(1, SPREAD_TRIES))):
+            if rows is None:
+                rows = np.flatnonzero(hid[:, 0])
+            n = T.stop - T.start
+            cand[rows, T] = _in_polygon(
+                np.repeat(h.corners[mm[rows]], n, 0),
+                np.repeat(h.nv[mm[rows]], n),
+                tries[rows, T, 0].ravel(),
+                tries[rows, T, 1].ravel(),
+            ).reshape(-1, n, 3)
+            hid[rows, T] = h.contacts.covered(cand[rows, T].reshape(-1, 3), np.repeat(mm[rows], n)).reshape(
+                -1, n
+            )
         ok = ~hid
         first = ok.argmax(1)
         got = ok.any(1)
@@ -747,16 +780,28 @@ def _in_polygon(c, nv, u, v):
     bilinear on quads (area-uniform on parallelograms), folded barycentric on triangles
     (area-uniform)."""
     u, v = u[..., None], v[..., None]
+    quad = np.asarray(nv) == 4
+    if not quad.all():
+        f = u + v > 1
+        tu, tv = np.where(f, 1 - u, u), np.where(f, 1 - v, v)
+        t = c[..., 0, :] + tu * (c[..., 1, :] - c[..., 0, :]) + tv * (c[..., 2, :] - c[..., 0, :])
+        if not quad.any():
+            return _full(t, quad)
     q = (
         (1 - u) * (1 - v) * c[..., 0, :]
         + u * (1 - v) * c[..., 1, :]
         + u * v * c[..., 2, :]
         + (1 - u) * v * c[..., 3, :]
     )
-    f = u + v > 1
-    tu, tv = np.where(f, 1 - u, u), np.where(f, 1 - v, v)
-    t = c[..., 0, :] + tu * (c[..., 1, :] - c[..., 0, :]) + tv * (c[..., 2, :] - c[..., 0, :])
-    return np.where((np.asarray(nv) == 4)[..., None], q, t)
+    if quad.all():  # (the triangles' form only where there are triangles: the same values)
+        return _full(q, quad)
+    return np.where(quad[..., None], q, t)
+
+
+def _full(x, quad):
+    """x broadcast to np.where(quad[..., None], x, x)'s shape, as a new array."""
+    shape = np.broadcast_shapes(x.shape, quad.shape + (3,))
+    return x if shape == x.shape else np.broadcast_to(x, shape).copy()
 
 
 def _covered(h, pts, patch, expo):

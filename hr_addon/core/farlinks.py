@@ -234,6 +234,10 @@ PAIR_BATCH = 1 << 13
 KEEP_OCCLUDED = False
 # strong far links kept on their oracle trace get their visibility from a second trace (link_clusters)
 SECOND_TRACE = True
+# segments of the second trace (far_visibility(second=True)): 16, all of the 4 x 4; 8: the
+# segments i -> (i + s) mod 4, s in {0, 2} (each point in two; unbiased, noisier; measured by
+# bld32, not taken: docs/scale.md)
+SECOND_SEGMENTS = 16
 # pairs per block of the kernel variation (_variation): its (4, 4, pairs) temporaries stay in the cache
 VAR_BLOCK = 1024
 
@@ -338,6 +342,8 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         # decision's own trace is biased by the decision (kept 1: high, dropped 0: low). Their
         # visibility is traced again from a second set of points on the same members.
         again = np.flatnonzero(decided) if SECOND_TRACE else np.zeros(0, np.int64)
+        ends = np.concatenate([fa_[again], fb_[again]])
+        table.prepare_second(ends[ends >= 0])  # the nodes' second points, once per node
 
         def retrace(i, j):
             t = again[i:j]
@@ -401,7 +407,11 @@ def _classify(refiner, tree, a, b, table=None):
     if prm.shadow_feps > 0:
         shadow = ok & (fmax > prm.shadow_feps)
         if shadow.any():
-            vis[shadow], mask[shadow], _ = far_visibility(refiner, tree, a[shadow], b[shadow], table=table)
+            # with SECOND_TRACE every link kept here is traced again (link_clusters): only the
+            # decision is asked (partial, or 0 / 1), on the fewest segments that settle it
+            vis[shadow], mask[shadow], _ = far_visibility(
+                refiner, tree, a[shadow], b[shadow], table=table, decide=SECOND_TRACE
+            )
             ok &= ~(shadow & (vis > 0) & (vis < 1))
     # Which end to split, by the first test that failed. Facing (a node whose plane cuts the
     # other end, or two partial ends): the end whose cone, or angular radius seen from the
@@ -488,7 +498,7 @@ def _self_pairs(tree, c):
     return np.concatenate(out_a), np.concatenate(out_b)
 
 
-def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
+def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False, decide=False):
     """(vis, mask, scale) of far links: the unoccluded fraction of the 4 x 4 segments between the
     ends' visibility points and which of them are unoccluded (bit 4 i + j: sample i of a, j of b).
     A cluster's visibility points lie on the kernel's sample members, spread over them
@@ -497,7 +507,7 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
     Weak links (mask `weak`) trace only the 4 segments i -> 3 - i: their mask is full and
     `scale` holds their visibility fraction instead (1 for the others).
 
-    Only segments that leave both sample points on their front sides count (_facing_segments):
+    Only segments that leave both sample points on their front sides count (_facing_cm):
     a sample on a member that faces away from the other end (a partial end) sits eps in front of
     a face whose solid lies between it and the other end, so its segments are blocked by that
     member itself, while the link's kernel already gives such a member nothing (its clamped
@@ -509,59 +519,161 @@ def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False):
 
     second: the points of visibility_points(second=True), on other members than the kernel's: a
     strong link gets one visibility too (full mask, scale). link_clusters traces the links its
-    oracle kept on their first trace again so (SECOND_TRACE)."""
+    oracle kept on their first trace again so (SECOND_TRACE).
+
+    decide: the oracle's question only, whether a (strong) link's visibility is partial, 0 or 1
+    (_classify with SECOND_TRACE, which traces every link it keeps again): only the segments
+    that count are traced (a link with front-facing and other segments: the front-facing ones),
+    first up to DECIDE_FIRST of them (_decide); a link whose first ones already read both
+    occluded and unoccluded, so that its visibility is surely in (0, 1), gets 0.5 and no more
+    rays; every other link the value the full trace gives (its counting segments are all
+    traced: the same bits). The mask is then 0 (the second trace gives every kept link its own).
+    Each segment's answer is its own (the same origin and direction whatever else is traced).
+
+    The segments are traced component major (occluded_cm, each point's origin once for its 4
+    segments): the same segments, so the same answers as occluded() of the rows."""
     import time
 
     t0 = time.perf_counter()
     h, eps = refiner.h, refiner.eps
     # a cluster's points spread over its members (not their centroids: visibility_points)
     (pa, ca, na), (pb, cb, nb) = (visibility_points(tree, h, x, eps, table, second) for x in (a, b))
-    front, kw = _facing_segments(pa, pb, na, nb)
-    # a sample on a covered part (under a box, between touching faces) sees nothing; the end's
-    # light leaves from its exposed part: its segments do not count either
-    front &= ~(ca[:, :, None] | cb[:, None, :]).reshape(-1, 16)
     weak = np.zeros(len(a), bool) if weak is None else np.asarray(weak, bool)
+    if decide and weak.any():
+        raise ValueError("far_visibility(decide=True) is for strong links")
     vis, mask, scale = np.empty(len(a)), np.empty(len(a), np.uint16), np.ones(len(a))
     st = ~weak
-    if st.any():
-        occ = refiner.backend.occluded(
-            np.repeat(pa[st], 4, axis=1).reshape(-1, 3), np.tile(pb[st], (1, 4, 1)).reshape(-1, 3)
-        ).reshape(-1, 16)
-        vis[st] = 1.0 - occ.mean(1)
+    if st.any():  # every segment of the 4 x 4
+        i = None if st.all() else np.flatnonzero(st)
+        pa_, pb_, na_, nb_, ca_, cb_ = (
+            x if i is None else np.take(x, i, 0) for x in (pa, pb, na, nb, ca, cb)
+        )
+        A, D = _segments_cm(pa_, pb_)
+        f, kw = _facing_segments_cm(D, na_, nb_)
+        # a sample on a covered part (under a box, between touching faces) sees nothing; the
+        # end's light leaves from its exposed part: its segments do not count either
+        f &= ~(ca_[:, :, None] | cb_[:, None, :]).reshape(-1, 16)
+        if decide:
+            vis, rays = _decide(refiner.backend, A, D, f, kw)
+            add_counts(refiner.stats, rays=rays, t_vis=time.perf_counter() - t0)
+            return vis, np.zeros(len(a), np.uint16), np.ones(len(a))
+        if second and SECOND_SEGMENTS < 16:  # a subset of the segments (the others do not count)
+            sub = np.zeros(16, bool)
+            sub[_SECOND_SUBSET] = True
+            sel = np.broadcast_to(sub, f.shape)
+            occ = np.zeros(f.shape, bool)
+            occ[sel] = _trace(refiner.backend, A, D, sel)
+            f = f & sub
+            vis[st] = 1.0 - occ[:, sub].mean(1)
+        else:
+            occ = refiner.backend.occluded_cm(A.reshape(3, -1), D.reshape(3, -1), 4).reshape(-1, 16)
+            vis[st] = 1.0 - occ.mean(1)
         mask[st] = ((~occ) * (1 << np.arange(16))).sum(1)
-        f = front[st]
         nf = f.sum(1)
         # the second set's segments join other members than the kernel's: one visibility
         fix = (nf > 0) & ((nf < 16) | second)
         if fix.any():
             i = np.flatnonzero(st)[fix]
-            vis[i] = scale[i] = unoccluded_share(f[fix], occ[fix], kw[st][fix])
+            vis[i] = scale[i] = unoccluded_share(f[fix], occ[fix], kw[fix])
             mask[i] = 0xFFFF
         if second:
             i = np.flatnonzero(st)[nf == 0]
             scale[i], mask[i] = vis[i], 0xFFFF
-    if weak.any():
-        occ = refiner.backend.occluded(pa[weak], pb[weak][:, ::-1]).reshape(-1, 4)
-        f = front[weak][:, _DIAGONAL]
+    if weak.any():  # the 4 segments i -> 3 - i only
+        i = np.flatnonzero(weak)
+        A = np.ascontiguousarray(np.take(pa, i, 0).transpose(2, 0, 1))  # (3, n, 4)
+        D = np.ascontiguousarray(np.take(pb, i, 0)[:, ::-1].transpose(2, 0, 1)) - A  # to point 3 - i
+        NA = np.ascontiguousarray(np.take(na, i, 0).transpose(2, 0, 1))
+        NB = np.ascontiguousarray(np.take(nb, i, 0)[:, ::-1].transpose(2, 0, 1))
+        f, kw = _facing_cm(D, NA, NB)
+        f &= ~(np.take(ca, i, 0) | np.take(cb, i, 0)[:, ::-1])
+        occ = refiner.backend.occluded_cm(A.reshape(3, -1), D.reshape(3, -1)).reshape(-1, 4)
         nf = f.sum(1)
         v = 1.0 - occ.mean(1)
-        vis[weak] = scale[weak] = np.where(nf > 0, unoccluded_share(f, occ, kw[weak][:, _DIAGONAL]), v)
+        vis[weak] = scale[weak] = np.where(nf > 0, unoccluded_share(f, occ, kw), v)
         mask[weak] = 0xFFFF
-    add_counts(refiner.stats, rays=16 * int(st.sum()) + 4 * int(weak.sum()), t_vis=time.perf_counter() - t0)
+    per = SECOND_SEGMENTS if second else 16
+    add_counts(refiner.stats, rays=per * int(st.sum()) + 4 * int(weak.sum()), t_vis=time.perf_counter() - t0)
     return vis, mask, scale
 
 
-# the segments i -> 3 - i of the 4 x 4 (bit 4 i + j): a weak link's
-_DIAGONAL = np.array([3, 6, 9, 12])
+# SECOND_SEGMENTS 8: the segments 4 i + (i + s) mod 4, s in {0, 2}
+_SECOND_SUBSET = np.sort([4 * i + (i + s) % 4 for i in range(4) for s in (0, 2)])
+# far_visibility(decide=True): the segments traced first (up to DECIDE_FIRST of a link's counting
+# ones, in this order: the 4 x 4's two diagonals first, each of a's and b's points once in each)
+DECIDE_FIRST = 4
+DECIDE_ORDER = np.array([0, 5, 10, 15, 3, 6, 9, 12, 1, 2, 4, 7, 8, 11, 13, 14])
+# a link's first segments read both ways: partial only if the occluded ones carry at least this
+# share of its counting kernel (the share computed from all of them then is surely below 1)
+DECIDE_SHARE = 1e-9
 
 
-def _facing_segments(pa, pb, na, nb):
-    """(N, 16) whether segment 4 i + j (sample i of a to sample j of b) leaves both its points on
-    their front sides (the normals na, nb (N, 4, 3) of the samples' members), and (N, 16) its
-    kernel cos cos / r^2 (about those normals; 0 where not facing)."""
-    d = pb[:, None] - pa[:, :, None]  # (N, 4 on a, 4 on b, 3)
-    ca = np.einsum("nijk,nik->nij", d, na)
-    cb = np.einsum("nijk,njk->nij", d, nb)
-    r2 = np.maximum(np.einsum("nijk,nijk->nij", d, d), 1e-300)
+def _segments_cm(pa, pb):
+    """Component-major origins A (3, N, 4) (the points pa (N, 4, 3)) and segments D (3, N, 4, 4),
+    D[:, n, i, j] = pb[n, j] - pa[n, i] (the b - a of occluded()'s rows: the same values)."""
+    A = np.ascontiguousarray(pa.transpose(2, 0, 1))
+    B = np.ascontiguousarray(pb.transpose(2, 0, 1))
+    return A, B[:, :, None, :] - A[:, :, :, None]
+
+
+def _facing_segments_cm(D, na, nb):
+    """Which of the segments D (3, N, 4, 4) (_segments_cm) and the samples' normals na,
+    nb (N, 4, 3): (N, 16) whether each faces both ways and its kernel (_facing_cm)."""
+    NA = np.ascontiguousarray(na.transpose(2, 0, 1))[:, :, :, None]  # (3, N, 4 on a, 1)
+    NB = np.ascontiguousarray(nb.transpose(2, 0, 1))[:, :, None, :]  # (3, N, 1, 4 on b)
+    front, kw = _facing_cm(D, NA, NB)
+    return front.reshape(-1, 16), kw.reshape(-1, 16)
+
+
+def _facing_cm(D, NA, NB):
+    """Whether segments D (3, ...) leave both points on their front sides (normals NA at their
+    starts, NB at their ends, broadcast) and their kernel cos cos / r^2 (0 where not facing): the
+    row form's einsums as dot3 over rows per coordinate (einsum's order, (x + z) + y; a zero's
+    sign may differ, and the values are only compared or kept where nonzero: the same results)."""
+    ca, cb = dot3(D, NA), dot3(D, NB)
+    r2 = np.maximum(dot3(D, D), 1e-300)
     front = (ca > 0) & (cb < 0)
-    return front.reshape(-1, 16), np.where(front, -ca * cb / (r2 * r2), 0.0).reshape(-1, 16)
+    return front, np.where(front, -ca * cb / (r2 * r2), 0.0)
+
+
+def _trace(backend, A, D, sel):
+    """occluded() of the segments sel (N, 16) of strong links (A, D: _segments_cm), in order."""
+    k = np.flatnonzero(sel.ravel())
+    a = np.take(A.reshape(3, -1), k // 4, 1)
+    return backend.occluded_cm(a, np.take(D.reshape(3, -1), k, 1))
+
+
+def _decide(backend, A, D, front, kw):
+    """far_visibility(decide=True)'s values: 0.5 for links surely partial after their first
+    counting segments, far_visibility's value for the others (from all their counting segments),
+    and the rays traced."""
+    n = front.shape[0]
+    nf = front.sum(1)
+    some = (nf > 0) & (nf < 16)  # only the front-facing segments count (unoccluded_share)
+    count = np.where(some[:, None], front, True)
+    c = count[:, DECIDE_ORDER]
+    first = np.zeros_like(count)
+    first[:, DECIDE_ORDER] = c & (np.cumsum(c, 1) <= DECIDE_FIRST)
+    occ = np.zeros((n, 16), bool)
+    occ[first] = _trace(backend, A, D, first)
+    blocked, clear = first & occ, first & ~occ
+    mixed = blocked.any(1) & clear.any(1)
+    # a weighted share (unoccluded_share, kernel K > 0) is surely in (0, 1) when its occluded
+    # segments carry a share of K well above rounding and an unoccluded one a weight > 0; a
+    # count (1 - occ.mean(1), or the plain share where K underflows) whenever both occur
+    K = np.where(front, kw, 0.0).sum(1)
+    weighted = some & (K > 0)
+    sure = mixed & (
+        ~weighted
+        | ((np.where(blocked, kw, 0.0).sum(1) > DECIDE_SHARE * K) & (np.where(clear, kw, 0.0).sum(1) > 0))
+    )
+    rest = count & ~first & ~sure[:, None]
+    occ[rest] = _trace(backend, A, D, rest)
+    vis = np.full(n, 0.5)
+    todo = ~sure
+    plain = todo & ~some
+    vis[plain] = 1.0 - occ[plain].mean(1)
+    ws = todo & some
+    if ws.any():
+        vis[ws] = unoccluded_share(front[ws], occ[ws], kw[ws])
+    return vis, int(first.sum() + rest.sum())

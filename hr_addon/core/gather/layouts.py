@@ -160,10 +160,15 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
         centre = np.where((pt.nv[patch] == 4)[:, None], c.mean(1), c[:, :3].mean(1))
         pts = p[vl] + inset * (centre - p[vl])
         _uncover(system, pts, p[vl], patch, inset, layout)
-        if not isinstance(layout, OwnLayout) and OUTPUT_MOUTH > 0:
-            _toward_mouths(system, pts, p[vl], patch, layout)
-        if not isinstance(layout, OwnLayout) and OUTPUT_OPEN > 0:
-            _toward_openings(system, pts, p[vl], patch, layout)
+        if not isinstance(layout, OwnLayout) and (OUTPUT_MOUTH > 0 or OUTPUT_OPEN > 0):
+            # both rules start from each sample's transport patch and contacts' covered test: made
+            # once, and again only for the samples _toward_mouths moved
+            tp, cov = _transport_covered(system, pts, patch, layout)
+            if OUTPUT_MOUTH > 0:
+                moved = _toward_mouths(system, pts, p[vl], patch, layout, tp, cov)
+                tp[moved], cov[moved] = _transport_covered(system, pts[moved], patch[moved], layout)
+            if OUTPUT_OPEN > 0:
+                _toward_openings(system, pts, p[vl], patch, layout, tp, cov)
         keep = ok & valid[lj]
         lpj = lpatch[lj[keep]]
         w = pt.area[lpj] / pt.nv[lpj]  # the corner's share of its patch
@@ -315,30 +320,43 @@ OUTPUT_MOUTH = 1.0  # _toward_mouths: a slot corner's sample no deeper than this
 MOUTH_NUDGE = 0.02  # _toward_mouths: the corner's own depth, probed this far towards its sample
 
 
-def _toward_mouths(system, pts, corner, patch, layout):
+def _transport_covered(system, pts, patch, layout):
+    """((n,) the transport patch under each sample (layout.transport; -1: none), (n,) bool: covered
+    there (contacts' test; False where there is no patch or no contacts)): what _toward_mouths and
+    _toward_openings start from."""
+    tp = layout.transport(patch, pts)
+    cov = np.zeros(len(pts), bool)
+    con = system.h.contacts
+    if con is not None and len(pts):
+        th = system.backend.threads
+        ok = np.flatnonzero(tp >= 0)
+        cov[ok] = con.covered(pts[ok], tp[ok], threads=0 if th is None else th)
+    return tp, cov
+
+
+def _toward_mouths(system, pts, corner, patch, layout, tp, covered):
     """On an output layout: corner samples in a slot (contacts: under a parallel face a gap h in
     front, lit through its open edges) whose corner lies nearer the slot's mouths than they do
     move (in place) straight towards their nearest mouth, to OUTPUT_MOUTH x h from it (or to their
     corner's depth if that is deeper), keeping their place along it. A camera sees of such a face
     only a strip of a few gap widths along its mouths (a book's side 2 mm from its neighbour's,
     from the front); at the default inset the sample lies 3-5 cm deep, where the slot is dark, and
-    the strip read that dark."""
+    the strip read that dark. tp, covered: _transport_covered(pts). Returns the samples moved."""
     con = system.h.contacts
+    none = np.zeros(0, np.int64)
     if con is None or not len(pts):
-        return
+        return none
     threads = system.backend.threads
     th = 0 if threads is None else threads
-    tp = layout.transport(patch, pts)
-    cov = np.flatnonzero(tp >= 0)
-    cov = cov[con.covered(pts[cov], tp[cov], threads=th)]
+    cov = np.flatnonzero(covered)
     if not len(cov):
-        return
+        return none
     con.close_mouths(system.backend.occluded)
     x, h, foot = con.slots(pts[cov], tp[cov])[:3]
     far = (h > 0) & (x > OUTPUT_MOUTH * h)
     c, x, h, foot = cov[far], x[far], h[far], foot[far]
     if not len(c):
-        return
+        return none
     q0 = corner[c] + MOUTH_NUDGE * (pts[c] - corner[c])
     t0 = layout.transport(patch[c], q0)
     x0 = np.full(len(c), np.inf)  # covered at its corner but in no slot: left where it is
@@ -351,6 +369,7 @@ def _toward_mouths(system, pts, corner, patch, layout):
     c, x, h, foot, x0 = c[move], x[move], h[move], foot[move], x0[move]
     f = np.maximum(OUTPUT_MOUTH * h, x0) / x
     pts[c] = foot + f[:, None] * (pts[c] - foot)
+    return c
 
 
 OUTPUT_OPEN = 1.0  # _toward_openings: a sample no farther from its corner than this x its clearance
@@ -358,22 +377,18 @@ OPEN_FAR = 4.0  # _toward_openings: a probe ray escapes when it goes this x the 
 OPEN_RAYS = 32  # _toward_openings: probe rays from a sample and from near its corner
 
 
-def _toward_openings(system, pts, corner, patch, layout):
+def _toward_openings(system, pts, corner, patch, layout, tp, covered):
     """On an output layout: corner samples under a face parallel in front of them wider than a
     slot (a book's side 3 cm from the bookcase's side: not a contact) whose clearance c (along
     their normal) is less than their distance to their corner, where the corner sees out more
     (of OPEN_RAYS rays from near it, more going OPEN_FAR x c or farther than from the sample),
-    move (in place) towards their corner to OUTPUT_OPEN x c from it."""
+    move (in place) towards their corner to OUTPUT_OPEN x c from it. tp, covered:
+    _transport_covered(pts) (covered samples, in a slot: _toward_mouths')."""
     if not len(pts):
         return
     pt = system.patches
     eps = float(system.refiner.eps)
-    tp = layout.transport(patch, pts)
-    ok = np.flatnonzero(tp >= 0)
-    con = system.h.contacts
-    if con is not None and len(ok):  # (samples in a slot: _toward_mouths')
-        th = system.backend.threads
-        ok = ok[~con.covered(pts[ok], tp[ok], threads=0 if th is None else th)]
+    ok = np.flatnonzero((tp >= 0) & ~covered)
     reach = probe_reach(system)
     nrm = pt.normal[tp[ok]]
     prim, dist = system.backend.first_hit(pts[ok] + eps * nrm, nrm, reach)
