@@ -460,6 +460,38 @@ def test_fine_leaves_samples_trace_their_share_of_the_rays(monkeypatch):
     assert np.allclose(hits, np.round(hits)) and (hits <= 8).all() and hits.mean() > 4
 
 
+def test_near_points_only_on_fine_leaves_keep_every_row_and_column_sum(monkeypatch):
+    """final.NEAR_FINE_ONLY (docs/scale.md, session 27): the probe is traced first, and hits on
+    leaves that are not fine compute no nearest point (they read their leaf, as _remap_near maps
+    them). Every level's rows hold the same hits per (row, column) as when every hit computes it,
+    merged into fewer entries; the output differs by the sums' rounding only."""
+    from hr_addon.core.gather import final
+
+    s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    kw = dict(rays=32, levels=2, iterations=2)
+    monkeypatch.setattr(final, "NEAR_FINE_ONLY", False)
+    g0 = LoopGather(DynamicRadiosity(s, method="FE"), **kw)
+    monkeypatch.setattr(final, "NEAR_FINE_ONLY", True)
+    g1 = LoopGather(DynamicRadiosity(s, method="FE"), **kw)
+    assert g1.stats["near_leaves"] > 0 and g1.stats["near_leaves"] == g0.stats["near_leaves"]
+
+    def sums(G):  # {(row, col): hits} and the entries
+        row = np.repeat(np.arange(G.n), np.diff(G.indptr))
+        key = row.astype(np.int64) * (1 << 32) + G.cols
+        u, inv = np.unique(key, return_inverse=True)
+        return u, np.bincount(inv, G.w.astype(np.float64)), len(key)
+
+    for a, b in ((g0, g1), (g0.second, g1.second)):
+        assert a.w.dtype.kind == "u" and b.w.dtype == a.w.dtype  # (hit counts: exact sums)
+        (u0, w0, n0), (u1, w1, n1) = sums(a), sums(b)
+        assert np.array_equal(u0, u1) and np.array_equal(w0, w1)
+        assert n1 <= n0
+    assert len(g1.cols) < len(g0.cols)  # (the top level: hits on other leaves merged)
+    dyn = DynamicRadiosity(s.copy(), method="FE")
+    v0, v1 = g0.loop_radiance(dyn), g1.loop_radiance(dyn)
+    assert np.abs(v1 - v0).max() <= 1e-5 * np.abs(v0).max() and not np.array_equal(v0, v1)
+
+
 def test_emission_change_is_a_scale_and_shapes_are_cached():
     base = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
     dyn = DynamicRadiosity(base.copy(), method="FE")

@@ -43,6 +43,11 @@ SLOT_MOUTH_STEP = 8.0
 # the second level's fine leaves (near_points^2 samples each): their samples trace this share of
 # the second level's hemisphere rays (1: all)
 FINE_RAYS = 1.0
+# near hits compute their nearest point only on leaves that have samples of their own (the fine
+# leaves, known from the probe before the rays are traced); a hit on another leaf reads the leaf,
+# as _remap_near maps it. False: every near hit computes it (session 26's rows; the same sums per
+# row and column, split into more entries). docs/scale.md, session 27
+NEAR_FINE_ONLY = True
 # covered samples per batch of FinalGather._slots on threads (core.parallel): fixed, never by the
 # thread count; every sample's slot and transfer are its own, so the batches do not change them
 SLOT_BATCH = 1 << 13
@@ -522,30 +527,16 @@ class FinalGather(DirectLight):
         # rows (the same sample's, traced by a probe: the fine leaves' rule below), the rest traced.
         # the batches' rows are a temporary: held on, they doubled this level's weights in memory
         # while the lower levels are precomputed
-        self._trace = ~self.dark if reuse is None else ~self.dark & (reuse[0] < 0)
-        self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(
-            batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None),
-            threads,
-        )
-        del self._trace
-        self._near_x = None  # (the batches' table, 28 MB at 100k: the lower levels read it from _tables)
-        if reuse is not None:
-            self._reuse_rows(*reuse)
-        if near_layout is not None:
-            self._remap_near(*near_layout)
         self.second = None
-        self.iterations = int(iterations) if levels == 2 else 0
         if levels >= 2:
             # two-level gather (issue 19, as Hasan et al. 2006): every HR leaf the rays hit gets
             # leaf_points^2 gather samples of its own (Gauss points) with exact direct light and a
             # gather of its own (levels - 1 levels, half the rays); the outputs' rays read those
-            # instead of the leaf
+            # instead of the leaf. The probe (below) first: its fine leaves depend on the static
+            # geometry only, and this level's hits on other leaves need no nearest point
             h = s.h
             c0 = h.child0[: self.n_hr]
             leaves = np.flatnonzero((c0 < 0) | (c0 >= self.n_hr)).astype(np.int64)
-            # the gather samples' own rays must find gather samples wherever they land with
-            # iterations: every HR leaf gets them; else the leaves the rays hit
-            used = leaves if iterations > 0 else np.unique(self.cols % self.n_hr).astype(np.int64)
             lp, r2 = int(leaf_points), int(second_rays or max(self.rays // 2, 16))
             # what a second-level sample's rays depend on (the probe's rows are the second level's)
             rays_kw = dict(
@@ -561,7 +552,7 @@ class FinalGather(DirectLight):
                 near_read=self.near_read,
                 tables=self._tables,
             )
-            fine, reuse = np.zeros(self.n_hr, bool), None
+            fine = np.zeros(self.n_hr, bool)
 
             def grid(nodes, k):  # the second level's k x k samples of HR leaves `nodes`
                 if covered_samples == "gather":  # (no sample is covered there)
@@ -588,6 +579,32 @@ class FinalGather(DirectLight):
                     **rays_kw,
                 )
                 fine[probe._fine_leaves(near_share)] = True
+        # the leaves whose near hits read a sample of their own (their nearest point): a hit on
+        # another leaf reads the leaf (_remap_near), so its nearest point is not computed
+        # (NEAR_FINE_ONLY; its hits then merge into one entry per row and leaf)
+        self._near_fine = None
+        if NEAR_FINE_ONLY and self.near_points:
+            if levels >= 2:
+                self._near_fine = fine
+            elif near_layout is not None and near_layout[0] is not None:
+                self._near_fine = near_layout[0] >= 0
+        self._trace = ~self.dark if reuse is None else ~self.dark & (reuse[0] < 0)
+        self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(
+            batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None),
+            threads,
+        )
+        del self._trace, self._near_fine
+        self._near_x = None  # (the batches' table, 28 MB at 100k: the lower levels read it from _tables)
+        if reuse is not None:
+            self._reuse_rows(*reuse)
+        if near_layout is not None:
+            self._remap_near(*near_layout)
+        self.iterations = int(iterations) if levels == 2 else 0
+        if levels >= 2:
+            # the gather samples' own rays must find gather samples wherever they land with
+            # iterations: every HR leaf gets them; else the leaves the rays hit
+            used = leaves if iterations > 0 else np.unique(self.cols % self.n_hr).astype(np.int64)
+            reuse = None
             k2 = np.where(fine[used], max(self.near_points, 1), lp) ** 2
             x, gw = np.zeros((k2.sum(), 3)), np.zeros(k2.sum())
             start = np.concatenate([[0], np.cumsum(k2)])
@@ -1097,7 +1114,11 @@ class FinalGather(DirectLight):
             if self._diam is None:  # one assignment: threads may race, never half
                 # (a copy: each level stores its own, as before)
                 self._diam = self._shared("diam", lambda: _diameters(h, np.arange(self.n_hr))).copy()
-            nr = np.flatnonzero(t[i] < self.near * self._diam[leaf])
+            near = t[i] < self.near * self._diam[leaf]
+            nf = getattr(self, "_near_fine", None)  # (a restored gather has none: every leaf)
+            if nf is not None:
+                near &= nf[leaf]
+            nr = np.flatnonzero(near)
             k = self.near_points
             if self.near_read == "bilinear":
                 pnt, pw = _grid_read(h, leaf[nr], hit[nr], k)
@@ -1110,8 +1131,9 @@ class FinalGather(DirectLight):
                     self._near_x = self._shared(("near", k), lambda: _near_points(h, self.n_hr, k))
                 if len(nr) == len(i):  # (every hit near: no copies)
                     col += self.n_hr * (1 + _nearest_point(self._near_x, leaf, hit))
-                else:
-                    col[nr] = leaf[nr] + self.n_hr * (1 + _nearest_point(self._near_x, leaf[nr], hit[nr]))
+                else:  # (the near hits' rows of 3 by take)
+                    ln = leaf[nr]
+                    col[nr] = ln + self.n_hr * (1 + _nearest_point(self._near_x, ln, np.take(hit, nr, 0)))
         span = self.n_hr * (1 + self.near_points**2)
         if self.slopes or (self.near_points and self.near_read == "bilinear"):  # (weights per hit)
             u, inv = np.unique(er.astype(np.int64) * span + col, return_inverse=True)
