@@ -711,8 +711,11 @@ def test_near_hits_give_a_sample_the_same_light_gathered_alone_or_with_others():
     kw = dict(rays=64, shadow_rays=16, levels=2, iterations=4, near_points=4, near=0.5)
     alone = FinalGather(s, A, np.tile(down, (len(A), 1)), facing_down("room", A), **kw)
     both = FinalGather(
-        s, np.vstack([A, B]), np.tile(down, (len(A) + len(B), 1)), facing_down("room", A).tolist()
-        + facing_down("plate", B).tolist(), **kw
+        s,
+        np.vstack([A, B]),
+        np.tile(down, (len(A) + len(B), 1)),
+        facing_down("room", A).tolist() + facing_down("plate", B).tolist(),
+        **kw,
     )
     used, k2 = both.second._leaf_nodes
     fine = used[k2 == 16]
@@ -767,8 +770,10 @@ def test_slot_lit_at_a_slant_by_a_lamp_against_path_tracing(lamp_x):
     pp, nn = np.full(len(P), side[0]), np.tile(nx, (len(P), 1))
     got = {on: FinalGather(s, P, nn, pp, slot_facing=on, **kw).evaluate(s, "incident")[:, 0] for on in (0, 1)}
     r = got[True] / ref
-    print(f"paths {np.round(ref, 4)}; gather / paths: transfer alone {np.round(got[False] / ref, 3)}, "
-          f"with the facing wall {np.round(r, 3)}")
+    print(
+        f"paths {np.round(ref, 4)}; gather / paths: transfer alone {np.round(got[False] / ref, 3)}, "
+        f"with the facing wall {np.round(r, 3)}"
+    )
     assert ((r > 0.8) & (r < 1.45)).all()
     assert 0.85 < got[True].sum() / ref.sum() < 1.15
 

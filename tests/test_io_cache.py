@@ -114,8 +114,11 @@ def test_frame_read_is_what_np_load_reads(tmp_path, writer):
     from hr_addon.io import cache
 
     rng = np.random.default_rng(2)
-    arrays = {"Wall": rng.random((5, 4)).astype(np.float32), "Übung": np.zeros((0, 4), np.float32),
-              "b": rng.random((300, 4)).astype(np.float32)}
+    arrays = {
+        "Wall": rng.random((5, 4)).astype(np.float32),
+        "Übung": np.zeros((0, 4), np.float32),
+        "b": rng.random((300, 4)).astype(np.float32),
+    }
     path = tmp_path / "f.npz"
     if writer == "write_frame":
         cache.write_frame(path, arrays, "id2")

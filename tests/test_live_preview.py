@@ -185,8 +185,10 @@ def test_a_preview_reuses_the_exact_states_visibility_within_its_bound():
     rest = np.flatnonzero(lit & ~seen & ~hidden)
     excess = (np.abs(Dp - De.astype(np.float64)) - sym)[rest] / F["N"][rest]
     bound = np.median(sym[rest] / F["N"][rest])
-    print(f"{lit.sum()} lit, {len(rest)} in between: excess over the bound, of F: max {excess.max():.3f}, "
-          f"95% {np.percentile(excess, 95):.3f}; the bound / F median {bound:.3f}")
+    print(
+        f"{lit.sum()} lit, {len(rest)} in between: excess over the bound, of F: max {excess.max():.3f}, "
+        f"95% {np.percentile(excess, 95):.3f}; the bound / F median {bound:.3f}"
+    )
     assert len(rest) and excess.max() < 0.1
 
 
@@ -202,8 +204,14 @@ def test_the_correction_makes_a_preview_of_the_exact_outline_exact(mesh):
 
     out = {}
     for correct in (True, False):
-        dyn = DynamicRadiosity(RadiositySystem(mesh, COARSE), method="FE", min_area_rel=1e-5,
-                               response_tol=RESPONSE_TOL, response_float32=True, cache_size=0)
+        dyn = DynamicRadiosity(
+            RadiositySystem(mesh, COARSE),
+            method="FE",
+            min_area_rel=1e-5,
+            response_tol=RESPONSE_TOL,
+            response_float32=True,
+            cache_size=0,
+        )
         g = LoopGather(dyn, **GATHER)
         dyn.apply(_shapes(DRAG[0]))
         exact = g.loop_radiance(dyn)
@@ -257,10 +265,17 @@ def test_previews_of_states_without_a_response(mesh):
     preview's direct light, so a preview dragged back onto the exact outline gives the exact
     output to rounding; one far from it solves its response and reads it (no correction: that
     state has no response to correct from); refine gives bitwise the exact result of its state."""
+
     def live():
-        dyn = DynamicRadiosity(RadiositySystem(mesh, COARSE), method="FE", min_area_rel=1e-5,
-                               response_tol=RESPONSE_TOL, response_float32=True, cache_size=0,
-                               gather_responses="zero")
+        dyn = DynamicRadiosity(
+            RadiositySystem(mesh, COARSE),
+            method="FE",
+            min_area_rel=1e-5,
+            response_tol=RESPONSE_TOL,
+            response_float32=True,
+            cache_size=0,
+            gather_responses="zero",
+        )
         return dyn, LoopGather(dyn, **GATHER)
 
     dyn, g = live()

@@ -51,12 +51,25 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # passes cost what the response saved) (docs/gather.md, "Light events without a response solve",
 # "Every exposed leaf sampled").
 GATHER_SOLVE = {
-    "draft": dict(tol=1e-5, response_tol=1e-4, response_float32=True, response_steps=3, bounce_points=4,
-                  gather_responses="tail"),
-    "medium": dict(tol=1e-5, response_tol=1e-4, response_float32=True, response_steps=6, bounce_points=4,
-                   gather_responses="tail"),
-    "high": dict(tol=1e-6, response_tol=1e-5, response_float32=True, response_steps=8,
-                 gather_responses="tail"),
+    "draft": dict(
+        tol=1e-5,
+        response_tol=1e-4,
+        response_float32=True,
+        response_steps=3,
+        bounce_points=4,
+        gather_responses="tail",
+    ),
+    "medium": dict(
+        tol=1e-5,
+        response_tol=1e-4,
+        response_float32=True,
+        response_steps=6,
+        bounce_points=4,
+        gather_responses="tail",
+    ),
+    "high": dict(
+        tol=1e-6, response_tol=1e-5, response_float32=True, response_steps=8, gather_responses="tail"
+    ),
 }
 
 
