@@ -42,6 +42,12 @@ CHUNK = 100_000  # node pairs processed at once
 LINK_BATCH = 1 << 13
 # patch links' visibility from the segments that leave both points in front (visibility())
 FRONT_ONLY = True
+# patch links that neither end can split (area <= aeps) and whose form factor is above shadow_feps
+# (the oracle would have shadow-tested them): their visibility from 2 x 2 points an end (16
+# segments, _unsplit_visibility) instead of vis_k^2; False: vis_k^2 as for every other link
+# (issue 19, pl32: the draft's one ray read them 0 or 1)
+UNSPLIT_2X2 = True
+UNSPLIT_SEGMENTS = 16  # 16: every pair of the 2 x 2 points; 4: point i to 3 - i (as weak links)
 # benchmarks/kernel_split.py --all-links: keep the patch links traced wholly occluded (their
 # visibility 0: no transfer), so that their exact exchange can be measured
 KEEP_OCCLUDED = False
@@ -136,11 +142,13 @@ class Refiner:
         # partly covered nodes (sorted) and their exposed sample points, centres, and form factor
         # points: node i's are _ff_pts[_ff_ptr[i] : _ff_ptr[i + 1]] (CSR: their count varies)
         self._vis_nodes = self._vis_pts = self._ex_centre = None
+        self._vis_pts2 = None  # partly covered nodes' 2 x 2 visibility points (vis_k < 2)
         self._ff_pts, self._ff_ptr = np.zeros((0, 3)), np.zeros(1, np.int64)
         self.stats = {
             "rays": 0,
             "pairs_tested": 0,
             "pairs_culled": 0,
+            "unsplit_links": 0,
             "cluster_pairs": 0,
             "t_vis": 0.0,
             "t_ff": 0.0,
@@ -257,6 +265,34 @@ class Refiner:
         v = self._front_visibility(a, b, pa, pb, weak, cov_a, cov_b)
         return np.nan_to_num(v, nan=0.0), 16 * int((~weak).sum()) + 4 * int(weak.sum())
 
+    def _unsplit_visibility(self, a, b):
+        """Visibility of strong patch links neither end of which can be split (area <= aeps; the
+        oracle could not shadow-test them): _front_visibility of the 16 segments between the
+        nodes' 2 x 2 points (on a partly covered node, moved onto its exposed part as
+        sample_points does), 0 where none counts. With vis_k 1 such a link's one ray read it 0
+        or 1 at one point: a book's side and the board it stands on, the bookcase side beside
+        it, dropped whole (8.7% of the 20k room's exchange at a dense visibility of 0.24, issue
+        19, pl32). Culled pairs (_maybe_occluded) read 1. Returns (visibility, rays)."""
+        h = self.h
+        vis = np.ones(len(a))
+        test = self._maybe_occluded(a, b)
+        a, b = a[test], b[test]
+        if not len(a):
+            return vis, 0
+        pa = ff.sample_points(h.corners[a], h.nv[a], 2)
+        pb = ff.sample_points(h.corners[b], h.nv[b], 2)
+        if self._vis_pts2 is not None:
+            for n, p in ((a, pa), (b, pb)):
+                i = self._partial(n)
+                hit = i >= 0
+                p[hit] = self._vis_pts2[i[hit]]
+        pa += self.eps * h.normal[a][:, None]
+        pb += self.eps * h.normal[b][:, None]
+        weak = np.full(len(a), UNSPLIT_SEGMENTS == 4)
+        v = self._front_visibility(a, b, pa, pb, weak)
+        vis[test] = np.nan_to_num(v, nan=0.0)
+        return vis, UNSPLIT_SEGMENTS * len(a)
+
     def leaf_visibility(self, leaf, src, batch=1 << 14):
         """Visibility of source nodes from leaves (push corrections, corrections.py): the unoccluded
         share of the vis_k^2 segments of a weak link (point i to point s - 1 - i), each weighted by
@@ -322,6 +358,16 @@ class Refiner:
             vis_pts = batch_map(block, ranges(len(part), NODE_BATCH), self.threads)
             self._vis_nodes = part
             self._vis_pts = np.concatenate(vis_pts) if vis_pts else np.zeros((0, prm.vis_k**2, 3))
+            if prm.vis_k == 2:
+                self._vis_pts2 = self._vis_pts
+            elif UNSPLIT_2X2:  # _unsplit_visibility's points on the exposed part
+
+                def block2(i, j):
+                    m = max(int(seen[i:j].sum(1).max()), 1)
+                    return exposed_points(h, c, part[i:j], 2, fp[i:j, :m], seen[i:j, :m])
+
+                pts2 = batch_map(block2, ranges(len(part), NODE_BATCH), self.threads)
+                self._vis_pts2 = np.concatenate(pts2) if pts2 else np.zeros((0, 4, 3))
             # the near links' form factors from a coarser grid of their own (FF_TARGET)
             fq, sq = self._exposed_grid(part, ex[part], FF_TARGET)
             self._ff_pts, self._ff_ptr = fq[sq], np.r_[0, np.cumsum(sq.sum(1))]
@@ -571,13 +617,25 @@ class Refiner:
         self.stats["t_ff"] += time.perf_counter() - t0
         # links too weak to need a shadow test need no more than a few rays either
         weak = np.maximum(f_ab, f_ba) < self.params.shadow_feps
-        todo = np.flatnonzero(np.isnan(vis))
+        todo = np.isnan(vis)
+        unsplit = np.zeros(len(a), bool)
+        if UNSPLIT_2X2 and self.params.vis_k < 2:
+            aeps = self.params.aeps * self.total_area
+            unsplit = todo & ~weak & (self.h.area[a] <= aeps) & (self.h.area[b] <= aeps)
+        todo, unsplit = np.flatnonzero(todo & ~unsplit), np.flatnonzero(unsplit)
 
         def shadows(i, j):
             t = todo[i:j]
             vis[t] = self.visibility(a[t], b[t], weak[t])
 
+        def unsplit_shadows(i, j):
+            t = unsplit[i:j]
+            t0 = time.perf_counter()
+            vis[t], rays = self._unsplit_visibility(a[t], b[t])
+            add_counts(self.stats, rays=rays, unsplit_links=len(t), t_vis=time.perf_counter() - t0)
+
         batch_map(shadows, ranges(len(todo), LINK_BATCH), self.threads)
+        batch_map(unsplit_shadows, ranges(len(unsplit), LINK_BATCH), self.threads)
         keep = (vis > 0 if not KEEP_OCCLUDED else vis >= 0) & ((f_ab > 0) | (f_ba > 0))
         return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])
 
