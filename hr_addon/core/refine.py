@@ -256,13 +256,15 @@ class Refiner:
         points (points on covered parts left out; weak links: the 4 segments i -> 3 - i); 0 where
         none counts there either. Returns (visibility, rays traced)."""
         h = self.h
-        pa = ff.sample_points(h.corners[a], h.nv[a], 2) + self.eps * h.normal[a][:, None]
-        pb = ff.sample_points(h.corners[b], h.nv[b], 2) + self.eps * h.normal[b][:, None]
-        cov_a = cov_b = np.zeros((len(a), 4), bool)
+        # points and covered flags once per distinct node (a node ends many links; bld32's
+        # profile at 100k: the per-link covered test 1.5 s, the points 0.5 s): the same values
+        u, inv = np.unique(np.r_[a, b], return_inverse=True)
+        pu = ff.sample_points(h.corners[u], h.nv[u], 2) + self.eps * h.normal[u][:, None]
+        cu = np.zeros((len(u), 4), bool)
         if self._contacts is not None:
-            cov_a = self._contacts.covered(pa.reshape(-1, 3), np.repeat(h.patch[a], 4)).reshape(-1, 4)
-            cov_b = self._contacts.covered(pb.reshape(-1, 3), np.repeat(h.patch[b], 4)).reshape(-1, 4)
-        v = self._front_visibility(a, b, pa, pb, weak, cov_a, cov_b)
+            cu = self._contacts.covered(pu.reshape(-1, 3), np.repeat(h.patch[u], 4)).reshape(-1, 4)
+        ia, ib = inv[: len(a)], inv[len(a) :]
+        v = self._front_visibility(a, b, pu[ia], pu[ib], weak, cu[ia], cu[ib])
         return np.nan_to_num(v, nan=0.0), 16 * int((~weak).sum()) + 4 * int(weak.sum())
 
     def _unsplit_visibility(self, a, b):
@@ -279,17 +281,16 @@ class Refiner:
         a, b = a[test], b[test]
         if not len(a):
             return vis, 0
-        pa = ff.sample_points(h.corners[a], h.nv[a], 2)
-        pb = ff.sample_points(h.corners[b], h.nv[b], 2)
+        u, inv = np.unique(np.r_[a, b], return_inverse=True)  # points once per distinct node
+        pu = ff.sample_points(h.corners[u], h.nv[u], 2)
         if self._vis_pts2 is not None:
-            for n, p in ((a, pa), (b, pb)):
-                i = self._partial(n)
-                hit = i >= 0
-                p[hit] = self._vis_pts2[i[hit]]
-        pa += self.eps * h.normal[a][:, None]
-        pb += self.eps * h.normal[b][:, None]
+            i = self._partial(u)
+            hit = i >= 0
+            pu[hit] = self._vis_pts2[i[hit]]
+        pu += self.eps * h.normal[u][:, None]
+        ia, ib = inv[: len(a)], inv[len(a) :]
         weak = np.full(len(a), UNSPLIT_SEGMENTS == 4)
-        v = self._front_visibility(a, b, pa, pb, weak)
+        v = self._front_visibility(a, b, pu[ia], pu[ib], weak)
         vis[test] = np.nan_to_num(v, nan=0.0)
         return vis, UNSPLIT_SEGMENTS * len(a)
 
