@@ -4,8 +4,10 @@ one process, bpy-free, on the furnished room (draft gather transport, orient on)
 
     nice -n 5 env OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/unsplit_cost.py 20k --pairs 2
 
-Each pair builds main's form (UNSPLIT_2X2 off) then pl32's; the build timed by time.process_time()
-around the RadiositySystem constructor. --segments 4: the unsplit links' 4 segments i -> 3 - i.
+Each pair builds main's form (UNSPLIT_2X2 off: main's values; since ead5230 with the 2 x 2 points
+made once per node, so no longer main's cost: compare against main's own code for that) then
+pl32's; the build timed by time.process_time() around the RadiositySystem constructor. --segments
+4: the unsplit links' 4 segments i -> 3 - i.
 """
 
 import argparse
