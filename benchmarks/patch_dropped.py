@@ -46,8 +46,10 @@ def main():
     ap.add_argument("--points", type=int, default=8)
     ap.add_argument("--vis-k", type=int, default=None, help="the build's vis_k (draft: 1)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--no-unsplit", action="store_true", help="refine.UNSPLIT_2X2 off (main before pl32)")
     args = ap.parse_args()
     RF.KEEP_OCCLUDED = True
+    RF.UNSPLIT_2X2 = not args.no_unsplit
     mesh, _ = furnished_room(args.room)
     prm = BASE if args.vis_k is None else dataclasses.replace(BASE, vis_k=args.vis_k)
     s = RadiositySystem(mesh, prm)
@@ -61,6 +63,18 @@ def main():
     out = {"room": args.room, "points": args.points, "vis_k": prm.vis_k, "sent": sent}
     drop = L.vis <= 0
     for name, m in (("kept", ~drop), ("dropped", drop)):
+        out[name] = dict(
+            n=int(m.sum()),
+            exact_share=float(exact[m].sum() / sent),
+            dense_vis=float((vk * ex)[m].sum() / ex[m].sum()),
+            traced_vis=float((L.vis * ex)[m].sum() / ex[m].sum()),
+        )
+        print(name, out[name], flush=True)
+    # the links neither end of which can split, strong (pl32's class), kept and dropped together:
+    # the estimator against dense, not selected by its own value
+    aeps_all = prm.aeps * r.total_area
+    cls = (h.area[a] <= aeps_all) & (h.area[b] <= aeps_all) & (np.maximum(L.f_ab, L.f_ba) >= prm.shadow_feps)
+    for name, m in (("unsplit_strong_all", cls), ("other_all", ~cls)):
         out[name] = dict(
             n=int(m.sum()),
             exact_share=float(exact[m].sum() / sent),
@@ -85,7 +99,14 @@ def main():
     w = exact[i]
     W = w.sum()
     part = (h.exposure[a[i]] < 1) | (h.exposure[b[i]] < 1)
+    aeps = prm.aeps * r.total_area
+    unsplit = (h.area[a[i]] <= aeps) & (h.area[b[i]] <= aeps)
+    weak = np.maximum(L.f_ab[i], L.f_ba[i]) < prm.shadow_feps
     classes = {
+        "neither_end_splits_strong": unsplit & ~weak,
+        "neither_end_splits_weak": unsplit & weak,
+        "an_end_splits_weak": ~unsplit & weak,
+        "an_end_splits_strong": ~unsplit & ~weak,
         "point_covered": cov_a | cov_b,
         "end_partly_covered": part,
         "hit_within_1cm": dist < 0.01,

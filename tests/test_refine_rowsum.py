@@ -114,3 +114,52 @@ def test_corrections_take_each_leafs_visibility_and_keep_reciprocity(wall_behind
         np.abs(t - seen).mean()
         < 0.5 * np.abs(_received(h, push_corrections(h, link, 1e-6), leaves) - seen).mean()
     )
+
+
+def _half_hidden_pair():
+    """Two 1 x 1 squares facing each other 1 m apart (z = 0 up, z = 1 down) and a plate at z = 0.5
+    over x < 0.1 between them: the segment between their centres is blocked, the pair's kernel
+    half hidden. Returns the mesh and the dense kernel-weighted visibility (cos cos / r^2 over
+    48 x 48 points a square; a segment is blocked where it crosses z = 0.5 at x < 0.1)."""
+    b = Builder()
+    b.add("low", *_quad([-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0], [-0.5, 0.5, 0]), 0.5)
+    b.add("high", *_quad([-0.5, -0.5, 1], [-0.5, 0.5, 1], [0.5, 0.5, 1], [0.5, -0.5, 1]), 0.5)
+    b.add("plate", *_quad([-0.6, -0.6, 0.5], [0.1, -0.6, 0.5], [0.1, 0.6, 0.5], [-0.6, 0.6, 0.5]), 0.5)
+    u = (np.arange(48) + 0.5) / 48 - 0.5
+    x, y = (g.ravel() for g in np.meshgrid(u, u, indexing="ij"))
+    r2 = 1 + (x[:, None] - x[None]) ** 2 + (y[:, None] - y[None]) ** 2
+    k = 1 / r2**2  # cos cos / r^2 with both cosines 1 / r
+    seen = (x[:, None] + x[None]) / 2 >= 0.1
+    return b.build(), float((k * seen).sum() / k.sum())
+
+
+@pytest.mark.parametrize("unsplit", [False, True])
+def test_a_strong_link_neither_end_of_which_can_split_reads_more_than_one_ray(unsplit, monkeypatch):
+    """Issue 19 (pl32): a patch link whose nodes are both at Aeps (neither can be split) with a
+    form factor above shadow_feps gets no shadow test in the oracle (nothing to split), and the
+    draft transport (vis_k 1) traced it by one ray in _finish: its visibility 0 or 1 at one
+    point. Such links held 8.7% of the furnished 20k room's exchange dropped at a dense
+    visibility of 0.24 (kern31). Now they are traced from 2 x 2 points an end (16 segments, the
+    kernel-weighted share of those in front): the half hidden pair reads near its dense share;
+    refine.UNSPLIT_2X2 off (main before pl32) reads 0 and drops the link."""
+    import dataclasses
+
+    import hr_addon.core.refine as RF
+    from hr_addon.core.radiosity import RadiositySystem
+
+    monkeypatch.setattr(RF, "UNSPLIT_2X2", unsplit, raising=False)  # (main: no switch, off)
+    mesh, dense = _half_hidden_pair()
+    # Aeps half the scene's area: no node splits (the squares 1 m^2, the scene 2.84 m^2)
+    prm = dataclasses.replace(RefineParams.for_gather("draft"), aeps=0.5)
+    assert prm.vis_k == 1
+    s = RadiositySystem(mesh, prm)
+    L = s.links
+    pair = ((L.a == 0) & (L.b == 1)) | ((L.a == 1) & (L.b == 0))
+    assert 0.3 < dense < 0.4
+    if not unsplit:
+        assert not pair.any()  # its one ray crossed the plate: dropped
+        return
+    assert pair.sum() == 1
+    assert max(L.f_ab[pair][0], L.f_ba[pair][0]) > prm.shadow_feps
+    assert s.refiner.stats["unsplit_links"] >= 1
+    assert L.vis[pair][0] == pytest.approx(dense, abs=0.05)  # 0.30 against 0.34

@@ -42,6 +42,12 @@ CHUNK = 100_000  # node pairs processed at once
 LINK_BATCH = 1 << 13
 # patch links' visibility from the segments that leave both points in front (visibility())
 FRONT_ONLY = True
+# patch links that neither end can split (area <= aeps) and whose form factor is above shadow_feps
+# (the oracle would have shadow-tested them): their visibility from 2 x 2 points an end (16
+# segments, _unsplit_visibility) instead of vis_k^2; False: vis_k^2 as for every other link
+# (issue 19, pl32: the draft's one ray read them 0 or 1)
+UNSPLIT_2X2 = True
+UNSPLIT_SEGMENTS = 16  # 16: every pair of the 2 x 2 points; 4: point i to 3 - i (as weak links)
 # benchmarks/kernel_split.py --all-links: keep the patch links traced wholly occluded (their
 # visibility 0: no transfer), so that their exact exchange can be measured
 KEEP_OCCLUDED = False
@@ -137,11 +143,13 @@ class Refiner:
         # partly covered nodes (sorted) and their exposed sample points, centres, and form factor
         # points: node i's are _ff_pts[_ff_ptr[i] : _ff_ptr[i + 1]] (CSR: their count varies)
         self._vis_nodes = self._vis_pts = self._ex_centre = None
+        self._vis_pts2 = None  # partly covered nodes' 2 x 2 points for _unsplit_visibility
         self._ff_pts, self._ff_ptr = np.zeros((0, 3)), np.zeros(1, np.int64)
         self.stats = {
             "rays": 0,
             "pairs_tested": 0,
             "pairs_culled": 0,
+            "unsplit_links": 0,
             "cluster_pairs": 0,
             "t_vis": 0.0,
             "t_ff": 0.0,
@@ -249,14 +257,43 @@ class Refiner:
         points (points on covered parts left out; weak links: the 4 segments i -> 3 - i); 0 where
         none counts there either. Returns (visibility, rays traced)."""
         h = self.h
-        pa = ff.sample_points(h.corners[a], h.nv[a], 2) + self.eps * h.normal[a][:, None]
-        pb = ff.sample_points(h.corners[b], h.nv[b], 2) + self.eps * h.normal[b][:, None]
-        cov_a = cov_b = np.zeros((len(a), 4), bool)
+        # points and covered flags once per distinct node (a node ends many links; bld32's
+        # profile at 100k: the per-link covered test 1.5 s, the points 0.5 s): the same values
+        u, inv = np.unique(np.r_[a, b], return_inverse=True)
+        pu = ff.sample_points(h.corners[u], h.nv[u], 2) + self.eps * h.normal[u][:, None]
+        cu = np.zeros((len(u), 4), bool)
         if self._contacts is not None:
-            cov_a = self._contacts.covered(pa.reshape(-1, 3), np.repeat(h.patch[a], 4)).reshape(-1, 4)
-            cov_b = self._contacts.covered(pb.reshape(-1, 3), np.repeat(h.patch[b], 4)).reshape(-1, 4)
-        v = self._front_visibility(a, b, pa, pb, weak, cov_a, cov_b)
+            cu = self._contacts.covered(pu.reshape(-1, 3), np.repeat(h.patch[u], 4)).reshape(-1, 4)
+        ia, ib = inv[: len(a)], inv[len(a) :]
+        v = self._front_visibility(a, b, pu[ia], pu[ib], weak, cu[ia], cu[ib])
         return np.nan_to_num(v, nan=0.0), 16 * int((~weak).sum()) + 4 * int(weak.sum())
+
+    def _unsplit_visibility(self, a, b):
+        """Visibility of strong patch links neither end of which can be split (area <= aeps; the
+        oracle could not shadow-test them): _front_visibility of the 16 segments between the
+        nodes' 2 x 2 points (on a partly covered node, 4 points spread over its exposed part:
+        Refiner.contacts), 0 where none counts. With vis_k 1 such a link's one ray read it 0
+        or 1 at one point: a book's side and the board it stands on, the bookcase side beside
+        it, dropped whole (8.7% of the 20k room's exchange at a dense visibility of 0.24, issue
+        19, pl32). Culled pairs (_maybe_occluded) read 1. Returns (visibility, rays)."""
+        h = self.h
+        vis = np.ones(len(a))
+        test = self._maybe_occluded(a, b)
+        a, b = a[test], b[test]
+        if not len(a):
+            return vis, 0
+        u, inv = np.unique(np.r_[a, b], return_inverse=True)  # points once per distinct node
+        pu = ff.sample_points(h.corners[u], h.nv[u], 2)
+        if self._vis_pts2 is not None:
+            i = self._partial(u)
+            hit = i >= 0
+            pu[hit] = self._vis_pts2[i[hit]]
+        pu += self.eps * h.normal[u][:, None]
+        ia, ib = inv[: len(a)], inv[len(a) :]
+        weak = np.full(len(a), UNSPLIT_SEGMENTS == 4)
+        v = self._front_visibility(a, b, pu[ia], pu[ib], weak)
+        vis[test] = np.nan_to_num(v, nan=0.0)
+        return vis, UNSPLIT_SEGMENTS * len(a)
 
     def leaf_visibility(self, leaf, src, batch=1 << 14):
         """Visibility of source nodes from leaves (push corrections, corrections.py): the unoccluded
@@ -323,6 +360,18 @@ class Refiner:
             vis_pts = batch_map(block, ranges(len(part), NODE_BATCH), self.threads)
             self._vis_nodes = part
             self._vis_pts = np.concatenate(vis_pts) if vis_pts else np.zeros((0, prm.vis_k**2, 3))
+            if prm.vis_k < 2 and UNSPLIT_2X2:
+                # _unsplit_visibility's 2 x 2 points on a partly covered node: 4 of its exposed
+                # grid's points (in grid order) at the quarters of their count, spread over the
+                # exposed part. Tried first: vis_k 2's rule (exposed_points: each covered point
+                # moved to the nearest exposed one, next to what covers it): the links with a
+                # partly covered end read 0.38 against a dense 0.46 (the 20k room), here 0.56
+                # over the whole class against 0.58 (issue 19, pl32)
+                n = seen.sum(1)
+                pick = np.minimum(((np.arange(4) + 0.5) / 4 * n[:, None]).astype(np.int64), fp.shape[1] - 1)
+                self._vis_pts2 = ff.sample_points(h.corners[part], h.nv[part], 2)
+                has2 = n > 0
+                self._vis_pts2[has2] = np.take_along_axis(fp, pick[..., None], 1)[has2]
             # the near links' form factors from a coarser grid of their own (FF_TARGET)
             fq, sq = self._exposed_grid(part, ex[part], FF_TARGET)
             self._ff_pts, self._ff_ptr = fq[sq], np.r_[0, np.cumsum(sq.sum(1))]
@@ -572,13 +621,25 @@ class Refiner:
         self.stats["t_ff"] += time.perf_counter() - t0
         # links too weak to need a shadow test need no more than a few rays either
         weak = np.maximum(f_ab, f_ba) < self.params.shadow_feps
-        todo = np.flatnonzero(np.isnan(vis))
+        todo = np.isnan(vis)
+        unsplit = np.zeros(len(a), bool)
+        if UNSPLIT_2X2 and self.params.vis_k < 2:
+            aeps = self.params.aeps * self.total_area
+            unsplit = todo & ~weak & (self.h.area[a] <= aeps) & (self.h.area[b] <= aeps)
+        todo, unsplit = np.flatnonzero(todo & ~unsplit), np.flatnonzero(unsplit)
 
         def shadows(i, j):
             t = todo[i:j]
             vis[t] = self.visibility(a[t], b[t], weak[t])
 
+        def unsplit_shadows(i, j):
+            t = unsplit[i:j]
+            t0 = time.perf_counter()
+            vis[t], rays = self._unsplit_visibility(a[t], b[t])
+            add_counts(self.stats, rays=rays, unsplit_links=len(t), t_vis=time.perf_counter() - t0)
+
         batch_map(shadows, ranges(len(todo), LINK_BATCH), self.threads)
+        batch_map(unsplit_shadows, ranges(len(unsplit), LINK_BATCH), self.threads)
         keep = (vis > 0 if not KEEP_OCCLUDED else vis >= 0) & ((f_ab > 0) | (f_ba > 0))
         return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])
 
