@@ -61,26 +61,25 @@ def main():
     _, vk, ex = dense_visibility(s, _Pairs(L.far.tree, a, b), args.points)
     exact = 2 * vk * ex
     out = {"room": args.room, "points": args.points, "vis_k": prm.vis_k, "sent": sent}
-    drop = L.vis <= 0
-    for name, m in (("kept", ~drop), ("dropped", drop)):
-        out[name] = dict(
+
+    def split(m):
+        return dict(
             n=int(m.sum()),
             exact_share=float(exact[m].sum() / sent),
             dense_vis=float((vk * ex)[m].sum() / ex[m].sum()),
             traced_vis=float((L.vis * ex)[m].sum() / ex[m].sum()),
         )
+
+    drop = L.vis <= 0
+    for name, m in (("kept", ~drop), ("dropped", drop)):
+        out[name] = split(m)
         print(name, out[name], flush=True)
     # the links neither end of which can split, strong (pl32's class), kept and dropped together:
     # the estimator against dense, not selected by its own value
     aeps_all = prm.aeps * r.total_area
     cls = (h.area[a] <= aeps_all) & (h.area[b] <= aeps_all) & (np.maximum(L.f_ab, L.f_ba) >= prm.shadow_feps)
     for name, m in (("unsplit_strong_all", cls), ("other_all", ~cls)):
-        out[name] = dict(
-            n=int(m.sum()),
-            exact_share=float(exact[m].sum() / sent),
-            dense_vis=float((vk * ex)[m].sum() / ex[m].sum()),
-            traced_vis=float((L.vis * ex)[m].sum() / ex[m].sum()),
-        )
+        out[name] = split(m)
         print(name, out[name], flush=True)
     # the dropped links' rays (vis_k 1: one point a node): why blocked
     i = np.flatnonzero(drop)

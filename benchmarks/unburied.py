@@ -42,6 +42,21 @@ def _winding(p, t):
     return np.arctan2(num, den).sum(1) / (2 * np.pi)
 
 
+def _inside_solids(p, solids, boxes, skip):
+    """(N,) points inside any of `solids` but `skip` (winding number > 1/2), tested only within
+    each solid's grown box, in chunks of about 200k point-triangle pairs."""
+    inside = np.zeros(len(p), bool)
+    for o, t in solids.items():
+        if o == skip:
+            continue
+        cand = np.flatnonzero(np.all((p > boxes[o][0]) & (p < boxes[o][1]), 1) & ~inside)
+        step = max(1, 200000 // len(t))
+        for s in range(0, len(cand), step):
+            c = cand[s : s + step]
+            inside[c] = _winding(p[c], t) > 0.5
+    return inside
+
+
 def unburied_texels(rs, eps):
     """{object: (N,) texels none of whose sub-samples lies inside another object}: independent of
     our contacts code, a winding-number test of each sub-sample moved by `eps` along its triangle's
@@ -54,15 +69,7 @@ def unburied_texels(rs, eps):
         at = rs.atlases[n]
         nrm = np.cross(at.s_tri[:, 1] - at.s_tri[:, 0], at.s_tri[:, 2] - at.s_tri[:, 0])
         p = at.s_point + eps * nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
-        bur = np.zeros(len(p), bool)
-        for o, t in solids.items():
-            if o == n:
-                continue
-            cand = np.flatnonzero(np.all((p > boxes[o][0]) & (p < boxes[o][1]), 1) & ~bur)
-            for s in range(0, len(cand), max(1, 200000 // len(t))):
-                c = cand[s : s + max(1, 200000 // len(t))]
-                bur[c] = _winding(p[c], t) > 0.5
-        out[n] = np.bincount(at.s_texel, bur, at.n) == 0
+        out[n] = np.bincount(at.s_texel, _inside_solids(p, solids, boxes, n), at.n) == 0
     return out
 
 
@@ -150,14 +157,7 @@ def visible_texels(rs, eps):
         at = rs.atlases[n]
         nrm = np.cross(at.s_tri[:, 1] - at.s_tri[:, 0], at.s_tri[:, 2] - at.s_tri[:, 0])
         p = at.s_point + eps * nrm / np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
-        hid = np.zeros(len(p), bool)
-        for o, t in solids.items():
-            if o == n:
-                continue
-            cand = np.flatnonzero(np.all((p > boxes[o][0]) & (p < boxes[o][1]), 1) & ~hid)
-            for s in range(0, len(cand), max(1, 200000 // len(t))):
-                c = cand[s : s + max(1, 200000 // len(t))]
-                hid[c] = _winding(p[c], t) > 0.5
+        hid = _inside_solids(p, solids, boxes, n)
         own = _triangles(mesh, name_id[n]) if n in name_id else None
         own = None if own is None else own.reshape(-1, 3)
         for o, (t, pn, d) in planes.items():
