@@ -4,7 +4,9 @@ direct_cuts.py) with `DirectLight._rays` and `ClearShafts.clear` wrapped: per sa
 how many got through; the shares of samples / rays all unoccluded, all occluded, mixed; the same by
 group (the top level's transport leaf `leaf0` and patch, the second level's leaf); and for a
 sample of the all-unoccluded groups how many scene triangles' boxes meet the box of the group's
-points and the shape's polygon (what an exact hull test would have to reject).
+points and the shape's polygon, how many of them meet boxes swept from the group to the shape, and
+whether an exact hull test (`separated`) clears the group; and the existing ClearShafts grid applied
+per group (the cheap conservative form).
 
     .venv/bin/python benchmarks/cull_groups.py STORE [--window 0.7] [--boxes 400] [--json out.json]
 """
