@@ -446,6 +446,8 @@ class EndTable:
         vp, self.cov2 = spread_points(t, h, np.arange(C), SECOND, m2)
         self.nrm2 = h.normal[m2]
         self.vpts2 = vp + eps * self.nrm2
+        # patch nodes' second visibility points (prepare_second), grown to the hierarchy's size
+        self.has2, self.pts2, self.cov2n = np.zeros(0, bool), np.empty((0, 4, 3)), np.empty((0, 4), bool)
         self._append(cols)
         self.update()
 
@@ -496,12 +498,10 @@ class EndTable:
         off, and whether each is covered), made once per node and kept (link_clusters, before its
         second trace: a node ends many links). Call it serially; nodes added since are made
         there again."""
-        h = self.h
-        if getattr(self, "pts2", None) is None or len(self.has2) < h.n:
-            old = getattr(self, "has2", np.zeros(0, bool))
+        h, m = self.h, len(self.has2)
+        if m < h.n:
             grown = np.zeros(h.n, bool), np.empty((h.n, 4, 3)), np.empty((h.n, 4), bool)
-            if len(old):
-                grown[0][: len(old)], grown[1][: len(old)], grown[2][: len(old)] = old, self.pts2, self.cov2n
+            grown[0][:m], grown[1][:m], grown[2][:m] = self.has2, self.pts2, self.cov2n
             self.has2, self.pts2, self.cov2n = grown
         ni = np.unique(np.asarray(ni, np.int64))
         ni = ni[~self.has2[ni]]
@@ -654,8 +654,8 @@ def visibility_points(tree: ClusterTree, h, ids, eps, table=None, second=False):
     pts, out, nrm = np.empty((len(ids), 4, 3)), np.empty((len(ids), 4), bool), np.empty((len(ids), 4, 3))
     if table is not None:
         pts[cl], out[cl], nrm[cl] = table.vpts2[ci], table.cov2[ci], table.nrm2[ci]
-        has2 = getattr(table, "has2", None)
-        if has2 is not None and len(ni) and ni.max() < len(has2) and has2[ni].all():  # prepare_second's
+        has2 = table.has2
+        if len(ni) and ni.max() < len(has2) and has2[ni].all():  # prepare_second's
             pts[~cl], out[~cl] = np.take(table.pts2, ni, 0), np.take(table.cov2n, ni, 0)
             nrm[~cl] = h.normal[ni][:, None]
             return pts, out, nrm

@@ -346,8 +346,6 @@ def _toward_mouths(system, pts, corner, patch, layout, tp, covered):
     none = np.zeros(0, np.int64)
     if con is None or not len(pts):
         return none
-    threads = system.backend.threads
-    th = 0 if threads is None else threads
     cov = np.flatnonzero(covered)
     if not len(cov):
         return none
@@ -358,10 +356,10 @@ def _toward_mouths(system, pts, corner, patch, layout, tp, covered):
     if not len(c):
         return none
     q0 = corner[c] + MOUTH_NUDGE * (pts[c] - corner[c])
-    t0 = layout.transport(patch[c], q0)
+    t0, cov0 = _transport_covered(system, q0, patch[c], layout)
     x0 = np.full(len(c), np.inf)  # covered at its corner but in no slot: left where it is
     ok = np.flatnonzero(t0 >= 0)
-    open_ = ~con.covered(q0[ok], t0[ok], threads=th)
+    open_ = ~cov0[ok]
     x0[ok[open_]] = 0.0  # open at its corner (a mouth's own edge)
     ok = ok[~open_]
     x0[ok] = con.slots(q0[ok], t0[ok])[0]
