@@ -363,7 +363,7 @@ def gathered_references(name, mesh, events, eval_at, pts, ids, naive_cache, log)
     return ref, a, b, ref_base, cost
 
 
-def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval_at, log):
+def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval_at, log, noise_seed=True):
     from hr_addon.core.gather import FinalGather
     from hr_addon.core.geometry import prepare_patches
 
@@ -419,6 +419,19 @@ def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval
                 tr[i] = g.evaluate(dyn, "reflected")
             clear_shape_caches(g)
             floor = {i: err(tr[i] - tr[None], ref[i] - ref[None], w) for i in sorted(eval_at)}
+            # the floor's ray noise: the same gather settings with another seed (seed 1) on the same
+            # REFERENCE transport; the RMSE of the two light contributions apart / sqrt 2 is one
+            # gather's noise (what the floor holds beyond it: the gather's leaf discretisation)
+            noise = {}
+            if noise_seed:
+                g1 = FinalGather(fake, pts, base.patches.normal[ids], ids, seed=1, **gset)
+                t1 = {None: g1.evaluate(fake, "reflected")}
+                for i in sorted(eval_at):
+                    dyn = DynamicRadiosity(base.copy(), method="NAIVE", naive_params=REFERENCE)
+                    dyn.apply(events[i][1])
+                    t1[i] = g1.evaluate(dyn, "reflected")
+                noise = {str(i): err(t1[i] - t1[None], tr[i] - tr[None], w) for i in sorted(eval_at)}
+                del g1
             qrec = {
                 "quality": q,
                 "params": repr(params),
@@ -428,6 +441,7 @@ def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval
                 "gather_precompute_cpu_s": pre,
                 "gather_samples": int(g.n),
                 "floor": {str(i): v for i, v in floor.items()},
+                "gather_seed_diff": noise,
             }
             result.setdefault("qualities", []).append(qrec)
             for label, method, kw in variants:
@@ -500,6 +514,12 @@ def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval
                     ]
             fl = [floor[i][0] for i in eval_at]
             log(f"  floor (the gather on REFERENCE transport vs ref) {np.sqrt(np.mean(np.square(fl))):.4f}")
+            if noise:
+                nz = [v[0] for v in noise.values()]
+                log(
+                    f"  seed 0 vs 1 of that gather: {np.sqrt(np.mean(np.square(nz))):.4f} "
+                    "(/ sqrt 2: one's noise)"
+                )
             del g
         result["naive_reference_rebuild_cpu_s"] = nc.seconds
     return result
@@ -510,6 +530,7 @@ def main():
     ap.add_argument("--quick", action="store_true", help="coarse quality only, 6 beam frames, 1 repeat")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--gather", action="store_true", help="the gathered output (module doc)")
+    ap.add_argument("--no-noise", action="store_true", help="--gather: skip the floor's seed-1 gather")
     ap.add_argument("--only", default="", help="scenarios to run (comma separated; default all)")
     ap.add_argument("--out", default=None, help="default benchmarks/out/events.json (events_gathered.json)")
     ap.add_argument("--cache", default=os.path.join(ROOT, "benchmarks", "out", "events_refcache"))
@@ -560,7 +581,11 @@ def main():
         eval_at = set(range(len(events))) if eval_at is None else eval_at
         if args.gather:
             quals = ["draft"] if args.quick else GATHER_QUALITY[name]
-            results.append(run_gathered(name, mesh, events, quals, VARIANTS, repeat, per_area, eval_at, log))
+            results.append(
+                run_gathered(
+                    name, mesh, events, quals, VARIANTS, repeat, per_area, eval_at, log, not args.no_noise
+                )
+            )
         else:
             results.append(
                 run_scenario(name, mesh, events, quals, VARIANTS, repeat, per_area, eval_at, args.cache, log)
