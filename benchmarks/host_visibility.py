@@ -277,8 +277,10 @@ def main(argv=None):
     ap.add_argument("--ref", default=None, help="the reference (top: r256, second: r64)")
     ap.add_argument("--repeat", type=int, default=3, help="per-event CPU: median of this many")
     ap.add_argument("--no-skip", action="store_true", help="weights at every sample (no uniform shortcut)")
+    ap.add_argument("--shape", default="0.9,0.7", help="the window's width, height (m)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
+    sw, sh = (float(v) for v in args.shape.split(","))
 
     from bench_gather_events import load_store
     from compare_gather_dumps import difference, per_object
@@ -302,7 +304,7 @@ def main(argv=None):
     obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
 
     def window(cx):
-        rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)
+        rect = S.on_plane(S.rect(sw, sh, centre=(cx, 0.6), angle=0.2), frame)
         return LightShape(rect, np.full(3, 20.0), "window")
 
     # the host region: the bake's shapes over all its frames (here the two positions)
@@ -313,6 +315,7 @@ def main(argv=None):
     res = dict(
         store=args.store,
         level=args.level,
+        shape=[sw, sh],
         region_lo=lo.tolist(),
         region_hi=hi.tolist(),
         samples=int(lv.n),
@@ -429,13 +432,14 @@ def main(argv=None):
                 row["obj_moved2"] = int((np.abs(rel) > 0.02).sum())
                 row["obj_darker2"] = float((rel < -0.02).sum() / max(row["obj_moved2"], 1))
                 row["obj_worst_id"] = int(np.flatnonzero(m)[np.argmax(np.abs(rel))])
+                row["obj_worst_signed"] = float(rel[np.argmax(np.abs(rel))])
             rows[name] = row
             print(
                 f"   {step} {name}: cpu {row['cpu_s']:.3f} s, sum {100 * row['sum_vs_ref']:+.3f}%, "
                 f"per-sample rms {100 * row['rms_per_sample_rel']:.2f}%"
                 + (
                     f"; objects median {100 * row['obj_median']:.3f}%, p95 {100 * row['obj_p95']:.2f}%, "
-                    f"worst {100 * row['obj_worst']:.1f}% (object {row['obj_worst_id']}), bias "
+                    f"worst {100 * row['obj_worst_signed']:+.1f}% (object {row['obj_worst_id']}), bias "
                     f"{100 * row['obj_bias']:+.3f}%, moved>2% {row['obj_moved2']} "
                     f"(darker {100 * row['obj_darker2']:.0f}%)"
                     if name != ref
