@@ -453,5 +453,124 @@ def main(argv=None):
         Path(args.json).write_text(json.dumps(res, indent=1))
 
 
+def end_to_end(argv=None):
+    """Both levels at once, the whole FE event with its gathered output: main (each level's shadow
+    rays) against the host visibility at both levels (top h_top, second h_second cells, precomputed
+    before the events, untimed), alternating per round on one DynamicRadiosity; per object each
+    against a reference with 256 rays at the top and 64 at the second level.
+
+        .venv/bin/python benchmarks/host_visibility.py --end-to-end STORE [--top 0.1] [--second 0.2]
+    """
+    ap = argparse.ArgumentParser()
+    ap.add_argument("store")
+    ap.add_argument("--top", type=float, default=0.1)
+    ap.add_argument("--second", type=float, default=0.2)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+
+    from bench_gather_events import load_store
+    from compare_gather_dumps import difference, per_object
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.core.events.direct import clear_shafts
+    from hr_addon.io import precompute as pc
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+
+    cpu = time.process_time
+    s, g, _ = load_store(Path(args.store) / pc.FILENAME)
+    s.links.extended(s.h)
+    g.iterations = 4
+    g2 = g.second
+    _, info = furnished_room("100k")
+    frame = tuple(np.asarray(f, float) for f in info["light_wall"][1])
+    obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
+
+    def window(cx):
+        return LightShape(
+            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        )
+
+    pos = {"add": 0.7, "move": 1.2}
+    r2d = [to2d(np.concatenate(window(cx).rings), frame) for cx in pos.values()]
+    lo, hi = np.min([r.min(0) for r in r2d], 0), np.max([r.max(0) for r in r2d], 0)
+    dyn = DynamicRadiosity(s.copy(), method="FE", **DynamicRadiosity.gather_options("draft"))
+    g.loop_radiance(dyn)  # the base parts
+    em0 = None
+    hv = None
+    res = dict(store=args.store, top_cells=args.top, second_cells=args.second, events={})
+
+    def clear():  # the levels' and the slot samples' facing copy's shape light, the shape's parts
+        for lv in (g, g2) + ((g._slot["f"],) if getattr(g, "_slot", None) is not None else ()):
+            lv._shape_cache.clear()
+        for k in [k for k in g._responses if k[0] == "shape"]:
+            del g._responses[k]
+
+    out, times, refs = {}, {}, {}
+    for rnd in range(args.rounds):
+        for name in ("main", "host"):
+            if "w" in dyn.shapes:
+                clear()
+                dyn.remove("w")
+            for step, cx in pos.items():
+                clear()
+                c0 = cpu()
+                if step == "add":
+                    dyn.add("w", window(cx))
+                else:
+                    dyn.apply({"w": window(cx)})
+                c1 = cpu()
+                rec = dyn.shapes["w"]
+                if name == "host":
+                    if hv is None:  # (untimed: the precompute)
+                        t0 = cpu()
+                        em0 = g._shape_emitter(dyn, rec)[0]
+                        sh = clear_shafts(s, em0.point, em0.normal)
+                        hv = (
+                            HostVisibility(g, frame, em0.normal, lo, hi, args.top, sh),
+                            HostVisibility(g2, frame, em0.normal, lo, hi, args.second, sh),
+                        )
+                        res["precompute_cpu_s"] = round(cpu() - t0, 3)
+                        res["precompute_rays"] = int(hv[0].rays + hv[1].rays)
+                        res["precompute_bits_bytes"] = int(hv[0].bits.nbytes + hv[1].bits.nbytes)
+                        c0, c1 = c0 + cpu() - t0, c1 + cpu() - t0  # (out of both parts)
+                    rings2d = [to2d(r, frame) for r in rec.rings]
+                    for lv, H in zip((g, g2), hv):
+                        em, inside, _ = lv._shape_emitter(dyn, rec)
+                        lv._shape_cache[rec.geom_key] = (H.direct(em, rings2d, "pin")[0], inside)
+                v = np.array(g.loop_radiance(dyn), np.float32)
+                c2 = cpu()
+                times.setdefault((step, name), []).append((c1 - c0, c2 - c1))
+                out[(step, name)] = v
+                print(f"{step} round {rnd} {name}: event {c1 - c0:.3f} s, output {c2 - c1:.3f} s", flush=True)
+                if rnd == 0 and name == "host":  # the reference: 256 rays at the top, 64 at the second
+                    clear()
+                    g.shadow_rays, g2.shadow_rays, far = 256, 64, g2.FAR_RAYS
+                    g2.FAR_RAYS = 0
+                    refs[step] = per_object(np.array(g.loop_radiance(dyn), np.float32), obj)
+                    g.shadow_rays, g2.shadow_rays, g2.FAR_RAYS = 16, 8, far
+                    clear()
+    for step in pos:
+        row = {}
+        for name in ("main", "host"):
+            d = difference(refs[step], per_object(out[(step, name)], obj))
+            ev = [t[0] for t in times[(step, name)]]
+            op = [t[1] for t in times[(step, name)]]
+            row[name] = dict(event_cpu_s=float(np.median(ev)), output_cpu_s=float(np.median(op)), **d)
+            print(
+                f"{step} {name}: event {np.median(ev):.3f} + output {np.median(op):.3f} s; vs reference "
+                f"median {100 * d['median']:.3f}%, p95 {100 * d['p95']:.2f}%, worst {100 * d['worst']:.1f}%, "
+                f"bias {100 * d['bias']:+.3f}%",
+                flush=True,
+            )
+        res["events"][step] = row
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+
+
 if __name__ == "__main__":
-    main()
+    if "--end-to-end" in sys.argv:
+        sys.argv.remove("--end-to-end")
+        end_to_end()
+    else:
+        main()
