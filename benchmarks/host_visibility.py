@@ -278,6 +278,7 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=3, help="per-event CPU: median of this many")
     ap.add_argument("--no-skip", action="store_true", help="weights at every sample (no uniform shortcut)")
     ap.add_argument("--shape", default="0.9,0.7", help="the window's width, height (m)")
+    ap.add_argument("--size", default="100k", help="the furnished room the store was built from")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     sw, sh = (float(v) for v in args.shape.split(","))
@@ -298,7 +299,7 @@ def main(argv=None):
     top = args.level == "top"
     refs = (args.refs or ("r64,r256,r256s7" if top else "r64,r64s7")).split(",")
     ref = args.ref or ("r256" if top else "r64")
-    _, info = furnished_room("100k")
+    _, info = furnished_room(args.size)
     _, frame = info["light_wall"]
     frame = tuple(np.asarray(f, float) for f in frame)
     obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
@@ -314,6 +315,7 @@ def main(argv=None):
     dyn = DynamicRadiosity(s.copy(), method="FE", **DynamicRadiosity.gather_options("draft"))
     res = dict(
         store=args.store,
+        size=args.size,
         level=args.level,
         shape=[sw, sh],
         region_lo=lo.tolist(),
