@@ -570,9 +570,105 @@ def end_to_end(argv=None):
         Path(args.json).write_text(json.dumps(res, indent=1))
 
 
+def sweep(argv=None):
+    """A window swept along its wall in small steps (a Live drag, a sweeping beam): per frame the
+    top level's shape light by main's 16 rays, by the host visibility (pin, --cells) and by 256 rays
+    (the reference); per object its error each frame, then over the frames its frame-to-frame change
+    (flicker) and its mean (the part that stays).
+
+        .venv/bin/python benchmarks/host_visibility.py --sweep STORE [--frames 6] [--cells 0.1]
+    """
+    ap = argparse.ArgumentParser()
+    ap.add_argument("store")
+    ap.add_argument("--frames", type=int, default=6)
+    ap.add_argument("--cells", type=float, default=0.1)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+
+    from bench_gather_events import load_store
+    from compare_gather_dumps import per_object
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.core.events.direct import clear_shafts
+    from hr_addon.io import precompute as pc
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+
+    s, g, _ = load_store(Path(args.store) / pc.FILENAME)
+    s.links.extended(s.h)
+    g.iterations = 4
+    _, info = furnished_room("100k")
+    frame = tuple(np.asarray(f, float) for f in info["light_wall"][1])
+    obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
+
+    def window(cx):
+        return LightShape(
+            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        )
+
+    xs = np.linspace(0.7, 1.2, args.frames)
+    r2d = [to2d(np.concatenate(window(cx).rings), frame) for cx in xs]
+    lo, hi = np.min([r.min(0) for r in r2d], 0), np.max([r.max(0) for r in r2d], 0)
+    dyn = DynamicRadiosity(s.copy(), method="FE", **DynamicRadiosity.gather_options("draft"))
+    H = None
+    err = {"main": [], "host": []}
+    for f, cx in enumerate(xs):
+        if f == 0:
+            dyn.add("w", window(cx))
+        else:
+            dyn.apply({"w": window(cx)})
+        rec = dyn.shapes["w"]
+        em, inside, _ = g._shape_emitter(dyn, rec)
+        if H is None:
+            H = HostVisibility(g, frame, em.normal, lo, hi, args.cells, clear_shafts(s, em.point, em.normal))
+        Ds = {}
+        for name, rays in (("main", 16), ("ref", 256)):
+            g.shadow_rays = rays
+            g._shape_cache.pop(rec.geom_key, None)
+            Ds[name] = g._shape(dyn, rec)[0]
+            g._shape_cache.pop(rec.geom_key, None)
+        g.shadow_rays = 16
+        Ds["host"] = H.direct(em, [to2d(r, frame) for r in rec.rings], "pin")[0]
+        po = {}
+        for name, D in Ds.items():
+            g._shape_cache[rec.geom_key] = (D, inside)
+            for k in [k for k in g._responses if k[0] == "shape"]:
+                del g._responses[k]
+            po[name] = per_object(np.array(g.loop_radiance(dyn), np.float32), obj)
+        g._shape_cache.pop(rec.geom_key, None)
+        a = po["ref"]
+        lit = a > 0.05 * a[a > 0].mean()
+        for name in ("main", "host"):
+            e = np.full(len(a), np.nan)
+            e[lit] = (po[name][lit] - a[lit]) / a[lit]
+            err[name].append(e)
+        print(f"frame {f} at {cx:.2f}: lit objects {int(lit.sum())}", flush=True)
+    res = dict(store=args.store, frames=args.frames, cells=args.cells, positions=xs.tolist())
+    for name, es in err.items():
+        E = np.array(es)  # (frames, objects)
+        keep = np.isfinite(E).all(0)
+        E = E[:, keep]
+        per = np.abs(E)
+        flick = np.sqrt(np.mean(np.diff(E, axis=0) ** 2, 0))
+        stay = np.abs(E.mean(0))
+        q = lambda v: [float(np.median(v)), float(np.percentile(v, 95)), float(v.max())]  # noqa: E731
+        res[name] = dict(objects=int(keep.sum()), per_frame=q(per.ravel()), flicker=q(flick), stays=q(stay))
+        print(
+            f"{name}: {int(keep.sum())} objects lit in every frame; per frame |error| median / p95 / worst "
+            f"{', '.join(f'{100 * v:.2f}%' for v in q(per.ravel()))}; frame-to-frame change rms "
+            f"{', '.join(f'{100 * v:.2f}%' for v in q(flick))}; |mean over frames| "
+            f"{', '.join(f'{100 * v:.2f}%' for v in q(stay))}",
+            flush=True,
+        )
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+
+
 if __name__ == "__main__":
     if "--end-to-end" in sys.argv:
         sys.argv.remove("--end-to-end")
         end_to_end()
+    elif "--sweep" in sys.argv:
+        sys.argv.remove("--sweep")
+        sweep()
     else:
         main()
