@@ -24,8 +24,13 @@ rays at the top level (the second level and the slot copy are main's in every va
 top level's shape light differs). Per object: the gathered output (loop_radiance) with the top
 level's shape light replaced, compare_gather_dumps.difference against the reference.
 
-    .venv/bin/python benchmarks/host_visibility.py STORE [--cells 0.2,0.1,0.05] [--ref r256] \\
-        [--json out.json] [--repeat 3]
+    .venv/bin/python benchmarks/host_visibility.py STORE [--level top|second] [--cells 0.2,0.1,0.05] \\
+        [--modes pin,ovl,mc] [--refs r64,r256,r256s7] [--shape 0.9,0.7] [--size 100k] [--json out.json]
+    .venv/bin/python benchmarks/host_visibility.py --end-to-end STORE [--top 0.1] [--second 0.2]
+    .venv/bin/python benchmarks/host_visibility.py --sweep STORE [--frames 6] [--cells 0.1]
+
+STORE: a `bench_gather_events.py --transport gather --cache DIR` build of the furnished room (docs/events.md,
+session 28, has the figures).
 """
 
 import argparse
