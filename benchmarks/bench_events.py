@@ -16,7 +16,29 @@ Timings: CPU seconds of this process per event (time.process_time; the machine m
 seconds are kept too); incremental methods are run `--repeat` times and the fastest run is kept.
 
     .venv/bin/python benchmarks/bench_events.py [--quick] [--out benchmarks/out/events.json]
+    .venv/bin/python benchmarks/bench_events.py --gather [--quick] [--out benchmarks/out/events_gathered.json]
     .venv/bin/python benchmarks/plot_events.py
+
+--gather: the output the product shows by default (Final Gather on), not the hierarchy's leaves. Each
+quality's base is built as a bake with the gather builds it (RefineParams.for_gather, the solver's
+DynamicRadiosity.gather_options), and a FinalGather at the same sample points with the bake's gather
+settings (blender/settings.py GATHER: rays, shadow rays, levels, iterations; seed 0) is traced once per
+base (its precompute is reported, not charged to the events). Every event is followed by the gathered
+output's update (FinalGather.evaluate "reflected"), as a bake's frame: time per event = the event
+(DynamicRadiosity.apply, "transport_cpu_seconds") + the update ("gather_cpu_seconds"), CPU s; each
+variant starts with the gather's per-shape caches empty, so it pays its shapes' direct light. Errors are
+of the light's contribution (reflected, with minus without the shapes) at the same sample points,
+against two references:
+- "ref": independent of the method's discretisation: NAIVE rebuilt at REFERENCE quality, gathered over
+  the REFERENCE base's fine leaves with REF_GATHER (one level, 8x the rays, 4-8x the shadow rays), the
+  mean of two seeds (REF_SEEDS; their difference is stored: the reference's own noise). Contains the method's
+  transport error and its gather's ray noise and leaf discretisation (and the reference's noise).
+- "transport": the method's own gather (the same rays, hits and leaves) reading NAIVE rebuilt at
+  REFERENCE quality: the direct light and the ray pattern cancel, what is left is the transport's error
+  as the gather sees it. The same gather reading it against "ref" is the floor a perfect transport
+  would reach ("floor": the gather's noise and discretisation).
+NAIVE at REFERENCE is rebuilt once per light configuration and shared by both references and every
+quality (a cache around events.naive._NaiveState, used only for REFERENCE parameters).
 """
 
 import argparse
@@ -43,6 +65,14 @@ QUALITY = {
     "medium": RefineParams.preset("medium"),
 }
 REFERENCE = RefineParams(feps=0.01, aeps=5e-5, shadow_feps=0.001)
+# --gather: qualities a bake offers with the gather (the transport's RefineParams.for_gather presets)
+GATHER_QUALITY = {"cornell": ["draft", "medium"], "office": ["draft"], "beam": ["draft"]}
+# the gathered reference: the REFERENCE solution (NAIVE rebuilt at REFERENCE) read by a one-level
+# gather with many rays over the REFERENCE base's own leaves (its fine leaves, aeps 5e-5 of the scene,
+# are read one bounce away: their values need no second level), exact direct light with many shadow
+# rays, other seeds than the methods' gathers (0)
+REF_GATHER = dict(rays=1024, shadow_rays=128, levels=1)
+REF_SEEDS = (1, 2)
 # (label, method, DynamicRadiosity keyword arguments)
 VARIANTS = [
     ("NAIVE", "NAIVE", {}),
@@ -196,7 +226,8 @@ def run_scenario(name, mesh, events, qualities, variants, repeat, per_area, eval
         t0 = time.perf_counter()
         base = RadiositySystem(mesh, QUALITY[q])
         log(
-            f"[{name}/{q}] base system: {base.h.n} nodes, {len(base.links)} links, {time.perf_counter() - t0:.1f} s"
+            f"[{name}/{q}] base system: {base.h.n} nodes, {len(base.links)} links, "
+            f"{time.perf_counter() - t0:.1f} s"
         )
         for label, method, kw in variants:
             reps = 1 if method == "NAIVE" else repeat
@@ -217,8 +248,9 @@ def run_scenario(name, mesh, events, qualities, variants, repeat, per_area, eval
             tt = [e["cpu_seconds"] for e in best]
             ee = [best[i]["err_delta_rmse"] for i in eval_at]
             log(
-                f"  {label:13s} mean {np.mean(tt):7.3f} s/event  delta RMSE {np.sqrt(np.mean(np.square(ee))):.4f}"
-                f"  nodes+ {max(e['nodes_added'] for e in best)}"
+                f"  {label:13s} mean {np.mean(tt):7.3f} s/event  "
+                f"delta RMSE {np.sqrt(np.mean(np.square(ee))):.4f}  "
+                f"nodes+ {max(e['nodes_added'] for e in best)}"
             )
         # ratios in the same run
         naive = next(r for r in result["runs"] if r["quality"] == q and r["method"] == "NAIVE")
@@ -231,13 +263,282 @@ def run_scenario(name, mesh, events, qualities, variants, repeat, per_area, eval
     return result
 
 
+# -- --gather: the gathered output ------------------------------------------------------------------
+def bake_gather(q):
+    """The bake's final-gather settings at quality q (blender/settings.py GATHER, no bpy)."""
+    from hr_addon.blender.settings import GATHER
+
+    return dict(GATHER[q.upper()])
+
+
+class NaiveCache:
+    """events.dynamic._NaiveState kept per light configuration (shapes' geometry and emission, the
+    input patches) for REFERENCE parameters only: both references and every quality read one REFERENCE
+    rebuild per configuration. Other parameters (the NAIVE variant's own rebuilds, timed) pass through."""
+
+    def __init__(self):
+        from hr_addon.core.events import dynamic
+
+        self.mod, self.orig, self.store, self.seconds = dynamic, dynamic._NaiveState, {}, 0.0
+
+    def __enter__(self):
+        def make(system, shapes, lights, params, *a):
+            if params != REFERENCE or lights:
+                return self.orig(system, shapes, lights, params, *a)
+            m = hashlib.sha1(np.ascontiguousarray(system.patches.corners).tobytes())
+            for r in shapes:
+                m.update(repr(r.geom_key).encode())
+                m.update(np.asarray(r.emission, float).tobytes())
+            key = m.hexdigest()
+            if key not in self.store:
+                c0 = time.process_time()
+                self.store[key] = self.orig(system, shapes, lights, params, *a)
+                self.seconds += time.process_time() - c0
+            return self.store[key]
+
+        self.mod._NaiveState = make
+        return self
+
+    def __exit__(self, *exc):
+        self.mod._NaiveState = self.orig
+        self.store.clear()
+
+
+class Plain:
+    """A solved RadiositySystem on the input patches read as a NAIVE rebuild without shapes (what
+    FinalGather._naive_values reads: .system, .remap): the REFERENCE base solution seen through a
+    quality's gather."""
+
+    def __init__(self, system):
+        self.system = system
+
+    def remap(self, points, patch_ids):
+        return np.asarray(patch_ids, np.int64).copy(), np.asarray(points, float).copy()
+
+
+def clear_shape_caches(g):
+    """Empty the gather's per-shape caches on every level (each variant pays its shapes' direct light)."""
+    lv = g
+    while lv is not None:
+        lv._shape_cache.clear()
+        lv.__dict__.pop("_preview_cache", None)
+        lv._naive_key = None
+        lv = getattr(lv, "second", None)
+    g._responses.clear()
+    g._responses_of = None
+
+
+def gathered_references(name, mesh, events, eval_at, pts, ids, naive_cache, log):
+    """Per evaluated event i and None (no shapes): the independent gathered reference (mean of the
+    REF_SEEDS gathers over the REFERENCE base), and the two seeds' values; plus the REFERENCE base."""
+    from hr_addon.core.gather import FinalGather
+
+    c0 = time.process_time()
+    ref_base = RadiositySystem(mesh, REFERENCE)
+    ref_base.solve()
+    log(
+        f"[{name}] REFERENCE base: {ref_base.h.n} nodes, {len(ref_base.links)} links, "
+        f"{time.process_time() - c0:.1f} s CPU"
+    )
+    nrm = ref_base.patches.normal[ids]
+    per_seed = {}
+    cost = {"reference_base_cpu_s": time.process_time() - c0}
+    for seed in REF_SEEDS:
+        c0 = time.process_time()
+        g = FinalGather(ref_base, pts, nrm, ids, seed=seed, **REF_GATHER)
+        cost[f"reference_gather_precompute_cpu_s_seed{seed}"] = time.process_time() - c0
+        c0 = time.process_time()
+        vals = {None: g.evaluate(ref_base, "reflected")}
+        for i in sorted(eval_at):
+            dyn = DynamicRadiosity(ref_base.copy(), method="NAIVE", naive_params=REFERENCE)
+            dyn.apply(events[i][1])
+            vals[i] = g.evaluate(dyn, "reflected")
+        cost[f"reference_gather_evaluate_cpu_s_seed{seed}"] = ev = time.process_time() - c0
+        pre = cost[f"reference_gather_precompute_cpu_s_seed{seed}"]
+        log(f"[{name}] gathered reference seed {seed}: {g.n} samples, {pre:.1f} + {ev:.1f} s CPU")
+        per_seed[seed] = vals
+        del g
+    a, b = (per_seed[s] for s in REF_SEEDS)
+    ref = {k: 0.5 * (a[k] + b[k]) for k in a}
+    return ref, a, b, ref_base, cost
+
+
+def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval_at, log, noise_seed=True):
+    from hr_addon.core.gather import FinalGather
+    from hr_addon.core.geometry import prepare_patches
+
+    pts, ids, w = surface_samples(prepare_patches(mesh), per_area)
+    result = {
+        "scene": name,
+        "sample_points": int(len(pts)),
+        "events": [e[0] for e in events],
+        "eval_at": sorted(eval_at),
+        "runs": [],
+    }
+    with NaiveCache() as nc:
+        ref, ra, rb, ref_base, cost = gathered_references(name, mesh, events, eval_at, pts, ids, nc, log)
+        # the reference's own noise: the two seeds' light contribution apart (RMSE / max of a - b; the
+        # mean's noise is about half the RMSE of a - b)
+        result["reference"] = dict(REF_GATHER, seeds=list(REF_SEEDS), params=repr(REFERENCE), **cost)
+        result["reference"]["seed_diff"] = {
+            str(i): err(ra[i] - ra[None], rb[i] - rb[None], w) for i in sorted(eval_at)
+        }
+        result["reference"]["contribution_rms"] = {
+            str(i): float(np.sqrt(np.average(((ref[i] - ref[None]) ** 2).sum(1), weights=w)))
+            for i in sorted(eval_at)
+        }
+        for q in qualities:
+            params = RefineParams.for_gather(q)
+            dkw0 = DynamicRadiosity.gather_options(q)
+            gset = bake_gather(q)
+            c0 = time.process_time()
+            base = RadiositySystem(mesh, params)
+            build = time.process_time() - c0
+            assert np.array_equal(base.patches.corners, ref_base.patches.corners)
+            c0 = time.process_time()
+            g = FinalGather(
+                DynamicRadiosity(base.copy(), method="FE", **dkw0),
+                pts,
+                base.patches.normal[ids],
+                ids,
+                seed=0,
+                **gset,
+            )
+            pre = time.process_time() - c0
+            log(
+                f"[{name}/{q} gathered] base {base.h.n} nodes, {len(base.links)} links, {build:.1f} s CPU; "
+                f"gather {g.n} samples, precompute {pre:.1f} s CPU"
+            )
+            # the transport reference through this gather: NAIVE at REFERENCE (cached rebuilds)
+            fake = DynamicRadiosity(base.copy(), method="NAIVE")
+            fake._naive = Plain(ref_base)
+            tr = {None: g.evaluate(fake, "reflected")}
+            for i in sorted(eval_at):
+                dyn = DynamicRadiosity(base.copy(), method="NAIVE", naive_params=REFERENCE)
+                dyn.apply(events[i][1])
+                tr[i] = g.evaluate(dyn, "reflected")
+            clear_shape_caches(g)
+            floor = {i: err(tr[i] - tr[None], ref[i] - ref[None], w) for i in sorted(eval_at)}
+            # the floor's ray noise: the same gather settings with another seed (seed 1) on the same
+            # REFERENCE transport; the RMSE of the two light contributions apart / sqrt 2 is one
+            # gather's noise (what the floor holds beyond it: the gather's leaf discretisation)
+            noise = {}
+            if noise_seed:
+                g1 = FinalGather(fake, pts, base.patches.normal[ids], ids, seed=1, **gset)
+                t1 = {None: g1.evaluate(fake, "reflected")}
+                for i in sorted(eval_at):
+                    dyn = DynamicRadiosity(base.copy(), method="NAIVE", naive_params=REFERENCE)
+                    dyn.apply(events[i][1])
+                    t1[i] = g1.evaluate(dyn, "reflected")
+                noise = {str(i): err(t1[i] - t1[None], tr[i] - tr[None], w) for i in sorted(eval_at)}
+                del g1
+            qrec = {
+                "quality": q,
+                "params": repr(params),
+                "solve_options": dkw0,
+                "gather": gset,
+                "build_cpu_s": build,
+                "gather_precompute_cpu_s": pre,
+                "gather_samples": int(g.n),
+                "floor": {str(i): v for i, v in floor.items()},
+                "gather_seed_diff": noise,
+            }
+            result.setdefault("qualities", []).append(qrec)
+            for label, method, kw in variants:
+                reps = 1 if method == "NAIVE" else repeat
+                best = None
+                for _ in range(reps):
+                    clear_shape_caches(g)
+                    dyn = DynamicRadiosity(base.copy(), method=method, **dict(dkw0, **kw))
+                    v0 = g.evaluate(dyn, "reflected")
+                    evs, vals = [], {}
+                    for i, (elabel, config) in enumerate(events):
+                        c0 = time.process_time()
+                        fr = dyn.apply(config)
+                        c1 = time.process_time()
+                        v = g.evaluate(dyn, "reflected")
+                        c2 = time.process_time()
+                        evs.append(
+                            {
+                                "event": elabel,
+                                "seconds": fr.seconds,
+                                "cpu_seconds": c2 - c0,
+                                "transport_cpu_seconds": c1 - c0,
+                                "gather_cpu_seconds": c2 - c1,
+                                "iterations": fr.iterations,
+                                "nodes_added": fr.nodes_added,
+                                "nodes_removed": fr.nodes_removed,
+                                "nodes": fr.nodes,
+                                "links": fr.links,
+                                "memory_bytes": fr.memory_bytes,
+                                "method_used": fr.method,
+                                "emission_l1": max([e.emission_l1 for e in fr.events] + [0.0]),
+                                "messages": fr.messages,
+                            }
+                        )
+                        if i in eval_at:
+                            vals[i] = v
+                    dyn = None
+                    if best is None:
+                        best = evs
+                    else:
+                        for b, e in zip(best, evs):
+                            for k in (
+                                "seconds",
+                                "cpu_seconds",
+                                "transport_cpu_seconds",
+                                "gather_cpu_seconds",
+                            ):
+                                b[k] = min(b[k], e[k])
+                for i in eval_at:
+                    d = vals[i] - v0
+                    best[i]["err_delta_rmse"], best[i]["err_delta_max"] = err(d, ref[i] - ref[None], w)
+                    best[i]["err_transport_rmse"], best[i]["err_transport_max"] = err(d, tr[i] - tr[None], w)
+                    best[i]["err_total_rmse"], best[i]["err_total_max"] = err(vals[i], ref[i], w)
+                run = {"quality": q, "variant": label, "method": method, "kwargs": kw, "events": best}
+                result["runs"].append(run)
+                tt = [e["cpu_seconds"] for e in best]
+                tg = [e["gather_cpu_seconds"] for e in best]
+                ee = [best[i]["err_delta_rmse"] for i in eval_at]
+                et = [best[i]["err_transport_rmse"] for i in eval_at]
+                log(
+                    f"  {label:13s} mean {np.mean(tt):7.3f} s/event (gather {np.mean(tg):.3f})  delta RMSE "
+                    f"{np.sqrt(np.mean(np.square(ee))):.4f}  transport {np.sqrt(np.mean(np.square(et))):.4f}"
+                )
+            naive = next(r for r in result["runs"] if r["quality"] == q and r["method"] == "NAIVE")
+            for r in result["runs"]:
+                if r["quality"] == q:
+                    r["naive_ratio"] = [
+                        n["cpu_seconds"] / max(e["cpu_seconds"], 1e-9)
+                        for n, e in zip(naive["events"], r["events"])
+                    ]
+            fl = [floor[i][0] for i in eval_at]
+            log(f"  floor (the gather on REFERENCE transport vs ref) {np.sqrt(np.mean(np.square(fl))):.4f}")
+            if noise:
+                nz = [v[0] for v in noise.values()]
+                log(
+                    f"  seed 0 vs 1 of that gather: {np.sqrt(np.mean(np.square(nz))):.4f} "
+                    "(/ sqrt 2: one's noise)"
+                )
+            del g
+        result["naive_reference_rebuild_cpu_s"] = nc.seconds
+    return result
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="coarse quality only, 6 beam frames, 1 repeat")
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--out", default=os.path.join(ROOT, "benchmarks", "out", "events.json"))
+    ap.add_argument("--gather", action="store_true", help="the gathered output (module doc)")
+    ap.add_argument("--no-noise", action="store_true", help="--gather: skip the floor's seed-1 gather")
+    ap.add_argument("--only", default="", help="scenarios to run (comma separated; default all)")
+    ap.add_argument("--out", default=None, help="default benchmarks/out/events.json (events_gathered.json)")
     ap.add_argument("--cache", default=os.path.join(ROOT, "benchmarks", "out", "events_refcache"))
     args = ap.parse_args()
+    if args.out is None:
+        args.out = os.path.join(
+            ROOT, "benchmarks", "out", "events_gathered.json" if args.gather else "events.json"
+        )
     t_start = time.perf_counter()
 
     def log(msg):
@@ -273,15 +574,29 @@ def main():
         ),
     ]
     results = []
+    only = set(args.only.split(",")) if args.only else None
     for name, mesh, events, quals, per_area, eval_at in plan:
+        if only is not None and name not in only:
+            continue
         eval_at = set(range(len(events))) if eval_at is None else eval_at
-        results.append(
-            run_scenario(name, mesh, events, quals, VARIANTS, repeat, per_area, eval_at, args.cache, log)
-        )
+        if args.gather:
+            quals = ["draft"] if args.quick else GATHER_QUALITY[name]
+            results.append(
+                run_gathered(
+                    name, mesh, events, quals, VARIANTS, repeat, per_area, eval_at, log, not args.no_noise
+                )
+            )
+        else:
+            results.append(
+                run_scenario(name, mesh, events, quals, VARIANTS, repeat, per_area, eval_at, args.cache, log)
+            )
     out = {
+        "mode": "gathered" if args.gather else "classic",
         "reference_params": repr(REFERENCE),
-        "quality": {k: repr(v) for k, v in QUALITY.items()},
-        "variants": [(l, m, kw) for l, m, kw in VARIANTS],
+        "quality": {k: repr(v) for k, v in QUALITY.items()}
+        if not args.gather
+        else {q: repr(RefineParams.for_gather(q)) for q in ("draft", "medium")},
+        "variants": [(lb, m, kw) for lb, m, kw in VARIANTS],
         "machine": {
             "cpu_count": os.cpu_count(),
             "python": platform.python_version(),
