@@ -607,7 +607,11 @@ def main():
         exact["runs"], key=lambda r: (order.get(r["scene"], 9), r["quality"] != "draft", r["method"] != "FE")
     )
     print(readme_table(res, previews))
-    plot(res, ROOT / "benchmarks" / "live_edits.png", exact.get("date", ""), previews)
+    # the README's chart from the default folder's JSONs; another --out keeps its chart beside them
+    chart = (
+        ROOT / "benchmarks" / "live_edits.png" if out.resolve() == OUT.resolve() else out / "live_edits.png"
+    )
+    plot(res, chart, exact.get("date", ""), previews)
 
 
 if __name__ == "__main__":
