@@ -24,11 +24,12 @@ With --preview the `ui` path runs as progressive Live (docs/live.md, "Progressiv
 geometry edit is delivered as the worker's preview (live_worker.PREVIEW, flush(refine=False)), and
 after the last edit of each kind (the drag pauses) the refine is timed apart (`refine` rows); the
 results go to live_preview.json (the `op` paths are synchronous: exact at once, as without it).
-Medians and 95th percentiles per edit kind and over all edits go to benchmarks/out/live.json and
-benchmarks/live_edits.png. Timings are wall seconds on this machine; other jobs sharing the two
-cores make them noisy, so the table also has the `ui` path's CPU seconds of the process per edit
-(main thread and worker: the figure to compare on a shared machine). Benchmarks print and plot;
-no test asserts on time.
+Medians and 95th percentiles per edit kind and over all edits go to benchmarks/out/live.json.
+Timings are wall seconds on this machine; other jobs sharing the two cores make them noisy, so each
+run also keeps the `ui` path's CPU seconds of the process per edit (main thread and worker: the
+figure to compare on a shared machine). benchmarks/live_edits.png and the README's table (printed
+last) show those CPU ms, each run exact (live.json) beside its progressive one (live_preview.json)
+where that exists. Benchmarks print and plot; no test asserts on time.
 """
 
 import argparse
@@ -410,49 +411,106 @@ def table(results):
     return "\n".join(lines)
 
 
-def plot(results, path, date=""):
+KINDS = ("move", "scale", "rotate", "reshape", "strength", "colour", "hide", "show")
+
+
+def readme_table(exact, previews=()):
+    """README's Live Relight table: per Cornell quality / method, the `ui` path's CPU ms of the process
+    per edit (median / 95th percentile) over all edits and per kind, exact (live.json) and progressive
+    (live_preview.json: the geometry edits as previews, as the UI's threaded worker shows a drag)."""
+    prev = {(r["scene"], r["quality"], r["method"]): r for r in previews}
+    lines = [
+        "| Cornell, final gather on | Live path | build (wall) | all edits | "
+        + " | ".join(KINDS)
+        + " | issue 19 target (median, all edits) |",
+        "|---" * (4 + len(KINDS) + 1) + "|",
+    ]
+
+    def ms(s):
+        return f"{1000 * s:.0f}" if s >= 0.0095 else f"{1000 * s:.1f}"
+
+    def mp(st):
+        return f"{ms(st['median'])} / {ms(st['p95'])}"
+
+    for r in exact:
+        if r["scene"] != "cornell" or "all_cpu" not in r["edits"]["ui"]:
+            continue
+        tgt = 0.030 if r["quality"] == "draft" else None
+        for path, run in (("exact", r), ("progressive", prev.get((r["scene"], r["quality"], r["method"])))):
+            if run is None:
+                continue
+            e = run["edits"]["ui"]
+            med = e["all_cpu"]["median"]
+            met = "-" if tgt is None else f"30 ms: {'met' if med <= tgt else '**missed**'}"
+            lines.append(
+                f"| {r['quality']} {r['method']} | {path} | {run['build_s']:.1f} s | {mp(e['all_cpu'])} ms | "
+                + " | ".join(mp(e[f"{k}_cpu"]) for k in KINDS)
+                + f" | {met} |"
+            )
+    return "\n".join(lines)
+
+
+def plot(results, path, date="", previews=()):
+    """The chart: the `ui` path's CPU ms of the process per edit (the figure a shared machine keeps),
+    each run exact (live.json) and, where live_preview.json has it, progressive (previews)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, NullFormatter
 
-    labels, med, p95, tg = [], [], [], []
-    kinds = ("move", "scale", "rotate", "reshape", "strength", "colour", "hide", "show")
-    fig, axes = plt.subplots(
-        1, 2, figsize=(12, 0.55 * len(results) + 2.8), gridspec_kw={"width_ratios": [1, 1.4]}
-    )
+    prev = {(r["scene"], r["quality"], r["method"]): r for r in previews}
+    rows = []  # (label, ui stats, target)
     for r in results:
-        e = r["edits"]["ui"]
-        fg = {True: ", gather", False: ", leaves"}.get(
-            r.get("final_gather"), ", before the gather (earlier run)"
-        )
-        labels.append(f"{r['scene']} {r['quality']} {r['method']}{fg}")
-        med.append(1000 * e["all"]["median"])
-        p95.append(1000 * e["all"]["p95"])
-        tg.append(1000 * TARGETS.get((r["scene"], r["quality"]), float("nan")))
-    y = np.arange(len(results))
+        if "all_cpu" not in r["edits"]["ui"]:  # runs before the CPU was kept: not comparable
+            continue
+        key = (r["scene"], r["quality"], r["method"])
+        tgt = 1000 * TARGETS.get((r["scene"], r["quality"]), float("nan"))
+        rows.append((f"{r['scene']} {r['quality']} {r['method']}, exact", r["edits"]["ui"], tgt))
+        if key in prev:
+            rows.append(
+                (f"{r['scene']} {r['quality']} {r['method']}, progressive", prev[key]["edits"]["ui"], tgt)
+            )
+    fig, axes = plt.subplots(
+        1, 2, figsize=(12, 0.45 * len(rows) + 2.6), gridspec_kw={"width_ratios": [1, 1.4]}
+    )
+    y = np.arange(len(rows))
     ax = axes[0]
-    ax.barh(y, med, color="#4c72b0", label="median")
-    ax.scatter(p95, y, color="k", marker="|", s=200, label="95th percentile", zorder=3)
-    ax.scatter(tg, y, color="#c44e52", marker="x", s=60, label="target", zorder=3)
-    ax.set_yticks(y, labels)
+    ax.barh(y, [1000 * e["all_cpu"]["median"] for _, e, _ in rows], color="#4c72b0", label="median")
+    ax.scatter(
+        [1000 * e["all_cpu"]["p95"] for _, e, _ in rows],
+        y,
+        color="k",
+        marker="|",
+        s=200,
+        label="95th percentile",
+        zorder=3,
+    )
+    ax.scatter([t for _, _, t in rows], y, color="#c44e52", marker="x", s=60, label="target", zorder=3)
+    ax.set_yticks(y, [lb for lb, _, _ in rows])
     ax.invert_yaxis()
     ax.set_xscale("log")
-    ax.set_xlabel("ms per edit (read shapes + light events + write HR_Radiance)")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=3, fontsize=8)
+    ax.set_xlim(left=1)
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel("CPU ms per edit (read shapes + light events + write HR_Radiance)")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=3, fontsize=8)
     ax.set_title("All edits")
     ax = axes[1]
-    width = 0.8 / len(kinds)
-    for j, k in enumerate(kinds):
-        vals = [1000 * r["edits"]["ui"][k]["median"] for r in results]
-        ax.barh(y + (j - len(kinds) / 2 + 0.5) * width, vals, height=width, label=k)
+    width = 0.8 / len(KINDS)
+    for j, k in enumerate(KINDS):
+        vals = [1000 * e[f"{k}_cpu"]["median"] for _, e, _ in rows]
+        ax.barh(y + (j - len(KINDS) / 2 + 0.5) * width, vals, height=width, label=k)
     ax.set_yticks(y, [""] * len(y))
     ax.invert_yaxis()
     ax.set_xscale("log")
-    ax.set_xlabel("median ms per edit, by kind")
-    ax.legend(fontsize=7, ncol=8, loc="upper center", bbox_to_anchor=(0.5, -0.16))
+    ax.set_xlim(left=1)
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel("median CPU ms per edit, by kind")
+    ax.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.2))
     ax.set_title("By edit kind")
-    when = f", measured {date} (wall ms, 2 shared cores)" if date else ""
+    when = f", measured {date} (CPU ms of the process, 2 shared cores)" if date else ""
     fig.suptitle(f"Live Relight: time per light-shape edit (benchmarks/bench_live.py){when}")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -541,8 +599,19 @@ def main():
     order = {"cornell": 0, "furnished_100k": 1}
     res = sorted(old["runs"], key=lambda r: (order.get(r["scene"], 9), r["quality"] != "draft", r["method"]))
     print(table(res))
-    if not args.preview:  # (the chart is the exact path's)
-        plot(res, ROOT / "benchmarks" / "live_edits.png", old.get("date", ""))
+    # the chart and README's table: the exact runs (live.json) with their progressive ones beside them
+    exact_path, prev_path = out / "live.json", out / "live_preview.json"
+    exact = json.loads(exact_path.read_text()) if exact_path.exists() else {"runs": []}
+    previews = json.loads(prev_path.read_text())["runs"] if prev_path.exists() else []
+    res = sorted(
+        exact["runs"], key=lambda r: (order.get(r["scene"], 9), r["quality"] != "draft", r["method"] != "FE")
+    )
+    print(readme_table(res, previews))
+    # the README's chart from the default folder's JSONs; another --out keeps its chart beside them
+    chart = (
+        ROOT / "benchmarks" / "live_edits.png" if out.resolve() == OUT.resolve() else out / "live_edits.png"
+    )
+    plot(res, chart, exact.get("date", ""), previews)
 
 
 if __name__ == "__main__":

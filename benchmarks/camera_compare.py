@@ -33,7 +33,8 @@ worst objects as (name, error, pixels), CPU seconds), and per view benchmarks/ou
 their CPU seconds) go to benchmarks/out/camera_work/ and are reused when present (--fresh: ours
 made again; the Cycles references, ~7 min CPU a seed and view, are kept: delete them by hand),
 so a second run only compares. Times are CPU seconds (this process and its children).
-`--figure furnished_close` writes docs/images/camera_furnished_close.png from the PNGs.
+`--figure furnished_close` writes docs/images/camera_furnished_close.png from the PNGs; `--pair VIEW`
+docs/images/camera_VIEW_pair.png (Cycles beside ours, vertex output: the README's picture).
 `--vertex-spacing S` bakes the vertex output with the product's Vertex Spacing S (own_values).
 `--subdivide S` bakes a copy whose faces are cut until no edge is longer than S metres (linear,
 the shape unchanged: `subdivide`), against the same references: the vertex output's upper bound
@@ -590,6 +591,29 @@ def figure(view_name, path):
     rgb.quantize(128, dither=Image.Dither.NONE).save(path, optimize=True)
 
 
+def pair_figure(view_name, path):
+    """Cycles beside ours (vertex output), full size, at the same exposure (pictures()): the README's
+    picture of a view (`--pair VIEW`)."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    d = os.path.join(OUT, f"camera_{view_name}")
+    tiles = [(Image.open(os.path.join(d, f"{n}.png")).convert("RGB"), t) for n, t in PAIR]
+    w, h = tiles[0][0].size
+    out = Image.new("RGB", (2 * w + 6, h), (255, 255, 255))
+    font = ImageFont.load_default(size=18)
+    for i, (img, title) in enumerate(tiles):
+        draw = ImageDraw.Draw(img)
+        box = draw.textbbox((10, 8), title, font=font)
+        draw.rectangle((box[0] - 5, box[1] - 4, box[2] + 5, box[3] + 4), fill=(0, 0, 0))
+        draw.text((10, 8), title, fill=(255, 255, 255), font=font)
+        out.paste(img, (i * (w + 6), 0))
+    out.quantize(256, dither=Image.Dither.NONE).save(path, optimize=True)
+    log(f"wrote {path}")
+
+
+PAIR = [("cycles", "Cycles, 2 x 128 spp"), ("ours_vertex", "ours: vertex output (the default)")]
+
+
 def save_view(vn, r, outputs, names, res, dump, path):
     """A view's pictures, its renders (renders.npz) and its entry in the JSON at path."""
     from hr_testing.cycles_ref import write_json
@@ -637,7 +661,14 @@ def main():
     p.add_argument(
         "--figure", metavar="VIEW", help="only the docs' picture of VIEW (docs/images/camera_VIEW.png)"
     )
+    p.add_argument(
+        "--pair",
+        metavar="VIEW",
+        help="only Cycles beside ours (vertex output) of VIEW's PNGs (docs/images/camera_VIEW_pair.png)",
+    )
     a = p.parse_args()
+    if a.pair:
+        return pair_figure(a.pair, os.path.join(ROOT, "docs", "images", f"camera_{a.pair}_pair.png"))
     if a.figure:
         return figure(a.figure, os.path.join(ROOT, "docs", "images", f"camera_{a.figure}.png"))
     if a.fresh and os.path.isdir(WORK):
