@@ -38,7 +38,7 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # bounce (the response's emission) with 4 visibility rays per receiver point instead of 16: the
 # gathered output moves by 0.02% per object (median), 0.2% at worst (docs/gather.md, the section above).
 # response_tol stays for previews' and callers' explicit tolerances. gather_responses "tail": the
-# gather's passes over an FE or AUTO shape's response are a Jacobi solve whose limit does not
+# gather's passes over an AR, FE or AUTO shape's response are a Jacobi solve whose limit does not
 # depend on the response they start from: the gathered part takes their geometric tail
 # (FinalGather._levels), closer to that limit than the 5 passes (furnished 100k room, per object
 # against a converged gather, FE: median 0.54 -> 0.23%, worst 3.6 -> 2.1%, bias -0.49 -> -0.20%;
@@ -127,7 +127,7 @@ class DynamicRadiosity:
         of events, warm starts unused. bounce_points: AUTO's first bounce, points on the shape
         (at most) for the visibility ratio at each receiver point (one ray each; gather_options
         takes fewer: the gather reads the response only after its own bounces). gather_responses
-        (for the final gather, gather_options): FE and AUTO shapes (_Rec.gathered) have the
+        (for the final gather, gather_options): AR, FE and AUTO shapes (_Rec.gathered) have the
         gather's passes over their response extrapolated to the passes' limit ("tail"), or
         ("zero") when added or moved without a preview no response solve and no first bounce at
         all: U is their emission alone, the passes start from nothing (the classic output, which
@@ -525,7 +525,7 @@ class DynamicRadiosity:
         h = self.system.h
         rec.used = rec.method
         # the final gather's passes extrapolated ("tail"), or giving all the scattered light
-        ok = self.incremental == "response" and rec.method in ("FE", "AUTO")
+        ok = self.incremental == "response"
         gathered = self.gather_responses if ok else ""
         rec.gathered = gathered if preview is None else ""
         n0 = h.n  # the node budget covers the outline and the first bounce together
