@@ -174,6 +174,24 @@ def err(x, ref, w):
     return float(np.sqrt(np.average(d2, weights=w))), float(np.sqrt(d2.max()))
 
 
+def event_record(label, fr, **cpu):
+    """The JSON record of one applied frame (fr: DynamicRadiosity.apply's report) with its CPU figures."""
+    return {
+        "event": label,
+        "seconds": fr.seconds,
+        **cpu,
+        "iterations": fr.iterations,
+        "nodes_added": fr.nodes_added,
+        "nodes_removed": fr.nodes_removed,
+        "nodes": fr.nodes,
+        "links": fr.links,
+        "memory_bytes": fr.memory_bytes,
+        "method_used": fr.method,
+        "emission_l1": max([e.emission_l1 for e in fr.events] + [0.0]),
+        "messages": fr.messages,
+    }
+
+
 def run_variant(base, method, kw, events, pts, ids, eval_at):
     dyn = DynamicRadiosity(base.copy(), method=method, **kw)
     B0, E0 = dyn.evaluate(pts, ids)
@@ -183,20 +201,7 @@ def run_variant(base, method, kw, events, pts, ids, eval_at):
         c0 = time.process_time()
         fr = dyn.apply(config)
         cpu = time.process_time() - c0
-        rec = {
-            "event": label,
-            "seconds": fr.seconds,
-            "cpu_seconds": cpu,
-            "iterations": fr.iterations,
-            "nodes_added": fr.nodes_added,
-            "nodes_removed": fr.nodes_removed,
-            "nodes": fr.nodes,
-            "links": fr.links,
-            "memory_bytes": fr.memory_bytes,
-            "method_used": fr.method,
-            "emission_l1": max([e.emission_l1 for e in fr.events] + [0.0]),
-            "messages": fr.messages,
-        }
+        rec = event_record(label, fr, cpu_seconds=cpu)
         if i in eval_at:
             B, E = dyn.evaluate(pts, ids)
             refl[i] = B - E
@@ -459,22 +464,13 @@ def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval
                         v = g.evaluate(dyn, "reflected")
                         c2 = time.process_time()
                         evs.append(
-                            {
-                                "event": elabel,
-                                "seconds": fr.seconds,
-                                "cpu_seconds": c2 - c0,
-                                "transport_cpu_seconds": c1 - c0,
-                                "gather_cpu_seconds": c2 - c1,
-                                "iterations": fr.iterations,
-                                "nodes_added": fr.nodes_added,
-                                "nodes_removed": fr.nodes_removed,
-                                "nodes": fr.nodes,
-                                "links": fr.links,
-                                "memory_bytes": fr.memory_bytes,
-                                "method_used": fr.method,
-                                "emission_l1": max([e.emission_l1 for e in fr.events] + [0.0]),
-                                "messages": fr.messages,
-                            }
+                            event_record(
+                                elabel,
+                                fr,
+                                cpu_seconds=c2 - c0,
+                                transport_cpu_seconds=c1 - c0,
+                                gather_cpu_seconds=c2 - c1,
+                            )
                         )
                         if i in eval_at:
                             vals[i] = v
