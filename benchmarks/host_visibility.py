@@ -268,6 +268,29 @@ class HostVisibility:
         return out.astype(np.float32), nofall
 
 
+def open_store(store, size="100k", sw=0.9, sh=0.7):
+    """(system, gather, the light wall's frame, each loop's object, window(cx)) of a stored room:
+    the FE window of bench_gather_events (sw x sh m, 20 W sr^-1 m^-2) centred cx along its wall."""
+    from bench_gather_events import load_store
+
+    from hr_addon.core.events import LightShape
+    from hr_addon.io import precompute as pc
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+
+    s, g, _ = load_store(Path(store) / pc.FILENAME)
+    s.links.extended(s.h)
+    g.iterations = 4
+    frame = tuple(np.asarray(f, float) for f in furnished_room(size)[1]["light_wall"][1])
+    obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
+
+    def window(cx):
+        rect = S.on_plane(S.rect(sw, sh, centre=(cx, 0.6), angle=0.2), frame)
+        return LightShape(rect, np.full(3, 20.0), "window")
+
+    return s, g, frame, obj, window
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("store")
@@ -288,30 +311,16 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sw, sh = (float(v) for v in args.shape.split(","))
 
-    from bench_gather_events import load_store
     from compare_gather_dumps import difference, per_object
-    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.events.direct import clear_shafts
-    from hr_addon.io import precompute as pc
-    from hr_testing import shapes as S
-    from hr_testing.furnished import furnished_room
 
     cpu = time.process_time
-    s, g, _ = load_store(Path(args.store) / pc.FILENAME)
-    s.links.extended(s.h)
-    g.iterations = 4
+    s, g, frame, obj, window = open_store(args.store, args.size, sw, sh)
     lv = g if args.level == "top" else g.second
     top = args.level == "top"
     refs = (args.refs or ("r64,r256,r256s7" if top else "r64,r64s7")).split(",")
     ref = args.ref or ("r256" if top else "r64")
-    _, info = furnished_room(args.size)
-    _, frame = info["light_wall"]
-    frame = tuple(np.asarray(f, float) for f in frame)
-    obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
-
-    def window(cx):
-        rect = S.on_plane(S.rect(sw, sh, centre=(cx, 0.6), angle=0.2), frame)
-        return LightShape(rect, np.full(3, 20.0), "window")
 
     # the host region: the bake's shapes over all its frames (here the two positions)
     pos = {"add": 0.7, "move": 1.2}
@@ -476,27 +485,13 @@ def end_to_end(argv=None):
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
-    from bench_gather_events import load_store
     from compare_gather_dumps import difference, per_object
-    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.events.direct import clear_shafts
-    from hr_addon.io import precompute as pc
-    from hr_testing import shapes as S
-    from hr_testing.furnished import furnished_room
 
     cpu = time.process_time
-    s, g, _ = load_store(Path(args.store) / pc.FILENAME)
-    s.links.extended(s.h)
-    g.iterations = 4
+    s, g, frame, obj, window = open_store(args.store)
     g2 = g.second
-    _, info = furnished_room("100k")
-    frame = tuple(np.asarray(f, float) for f in info["light_wall"][1])
-    obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
-
-    def window(cx):
-        return LightShape(
-            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
-        )
 
     pos = {"add": 0.7, "move": 1.2}
     r2d = [to2d(np.concatenate(window(cx).rings), frame) for cx in pos.values()]
@@ -590,25 +585,11 @@ def sweep(argv=None):
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
-    from bench_gather_events import load_store
     from compare_gather_dumps import per_object
-    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.core.events import DynamicRadiosity
     from hr_addon.core.events.direct import clear_shafts
-    from hr_addon.io import precompute as pc
-    from hr_testing import shapes as S
-    from hr_testing.furnished import furnished_room
 
-    s, g, _ = load_store(Path(args.store) / pc.FILENAME)
-    s.links.extended(s.h)
-    g.iterations = 4
-    _, info = furnished_room("100k")
-    frame = tuple(np.asarray(f, float) for f in info["light_wall"][1])
-    obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
-
-    def window(cx):
-        return LightShape(
-            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
-        )
+    s, g, frame, obj, window = open_store(args.store)
 
     xs = np.linspace(0.7, 1.2, args.frames)
     r2d = [to2d(np.concatenate(window(cx).rings), frame) for cx in xs]
