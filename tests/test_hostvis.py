@@ -20,7 +20,11 @@ from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 
 FRAME = (np.zeros(3), (0, 0, 1.0), (1.0, 0, 0))  # wall0 (y = 0), facing +y
-SHAPES = {"w": ((1.0, 0.8), (1.5, 1.4), 0.0), "low": ((0.6, 0.5), (1.05, 2.0), 0.3)}
+SHAPES = {
+    "w": ((1.0, 0.8), (1.5, 1.4), 0.0),
+    "low": ((0.6, 0.5), (1.05, 2.0), 0.3),
+    "moved": ((1.0, 0.8), (1.55, 1.65), 0.0),  # the window moved 5 cm up, 25 cm along: tiles shared
+}
 
 
 def build(scale=1.0, samples=10):
@@ -34,7 +38,7 @@ def build(scale=1.0, samples=10):
         rect = S.rect(w * scale, h * scale, centre=(cu * scale, cv * scale), angle=ang)
         shapes[k] = LightShape(S.on_plane(rect, frame), np.full(3, 5.0), k)
     dyn.apply(shapes)
-    pts, patch, _ = surface_samples(dyn.system.patches, samples)
+    pts, patch, _ = surface_samples(dyn.system.patches, samples / scale**2)  # (per m^2: the same points)
     g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=16, shadow_rays=16)
     ems = {k: g._shape_emitter(dyn, dyn.shapes[k])[0] for k in SHAPES}
     return dyn, g, ems
@@ -136,3 +140,47 @@ def test_against_many_shadow_rays_the_level_sum_and_the_per_sample_error(room):
         )
         assert D.sum() == pytest.approx(R.sum(), rel=2e-3)
         assert rms(D) < rms(M)
+
+
+def test_the_same_values_whatever_order_the_tiles_were_traced_in(room):
+    """History independence: a tile's bits depend on the plane, the level's samples, the cell
+    level and the tile only. One store traces the shapes' tiles as the shapes come (the window,
+    then it moved, then the low shape); another first traces the moved window's tiles in reverse
+    order on 2 threads, then the shapes in the opposite order: the same tiles hold the same rows
+    and bits, and every shape reads the same values, bit for bit."""
+    dyn, g, ems = room
+    em = ems["w"]
+    a = store(dyn, g, em)
+    b = store(dyn, g, em, threads=2)
+    got_a = {k: a.light(ems[k]) for k in ("w", "moved", "low")}
+    _, _, keys, _, _, _ = b.layout(ems["moved"].rings)
+    b.trace(keys[::-1])
+    got_b = {k: b.light(ems[k]) for k in ("low", "moved", "w")}
+    assert set(a.tiles) == set(b.tiles)
+    assert len({key[0] for key in a.tiles}) == 2  # two cell levels (the window's and the low shape's)
+    shared = set(b.layout(ems["w"].rings)[2]) & set(keys)
+    assert shared  # the moved window reuses tiles of the first
+    for key, (rows, bits) in a.tiles.items():
+        assert np.array_equal(rows, b.tiles[key][0]) and np.array_equal(bits, b.tiles[key][1])
+    for k in got_a:
+        assert np.array_equal(got_a[k], got_b[k])
+        assert (got_a[k] > 0).sum() > 100
+
+
+def test_a_scene_scaled_by_a_power_of_two_gives_the_same_values(room):
+    """The cells follow the level's unit (a power of two from the scene's size) and the samples'
+    keys are their positions in that unit: the same scene x 2 and x 0.25 gives the same cell
+    levels, the same tiles and the same direct light."""
+    dyn, g, ems = room
+    ref = {}
+    for k, em in ems.items():
+        H = store(dyn, g, em)
+        ref[k] = (H.light(em), H.layout(em.rings)[1], sorted(H.tiles))
+    for scale in (2.0, 0.25):
+        dyn2, g2, ems2 = build(scale)
+        assert g2.n == g.n and g2.unit == g.unit * scale
+        for k, em in ems2.items():
+            H = store(dyn2, g2, em)
+            D = H.light(em)
+            assert H.layout(em.rings)[1] == ref[k][1] and sorted(H.tiles) == ref[k][2]
+            assert np.array_equal(D, ref[k][0])
