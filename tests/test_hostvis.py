@@ -15,7 +15,7 @@ from hr_testing.contact_scenes import contact_furnace
 from hr_addon.core.events import DynamicRadiosity, LightShape, surface_samples
 from hr_addon.core.events.direct import clear_shafts, shape_form_factors
 from hr_addon.core.gather import FinalGather
-from hr_addon.core.gather.hostvis import TILE, HostVisibility
+from hr_addon.core.gather.hostvis import HostVisibility
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
 
@@ -73,6 +73,7 @@ def test_stored_bits_are_the_backends_occlusion_of_the_same_segments(room):
         cleared = 0
         for key, (rows, bits) in H.tiles.items():
             L, ti, tj = key
+            TILE = H.tile
             org, d = H.segments(key, rows)
             a = np.repeat(org.T, TILE * TILE, 0)
             occ = g.system.backend.occluded(a, a + d.T).reshape(len(rows), TILE * TILE)

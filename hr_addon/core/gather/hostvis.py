@@ -16,8 +16,8 @@ rays (benchmarks/host_visibility.py measured the estimator: the `pin` form).
   area A takes the coarsest L with h <= sqrt(A / points) (`level_for`): between `points` and
   2 x `points` stored points fall inside it per sample (hv34 measured: 64 at the top level for
   half main's 16 rays' error, 16 at the second level for half of its 8 rays' p95).
-- Tiles: TILE x TILE cells (64 bits, 8 bytes per sample), tile (L, ti, tj) holds cells
-  [ti TILE, (ti + 1) TILE) x [tj TILE, (tj + 1) TILE) in the plane's frame; its rows are the
+- Tiles: T x T cells (T = `tile`, TILE by default: 16 bits, 2 bytes per sample), tile (L, ti, tj)
+  holds cells [ti T, (ti + 1) T) x [tj T, (tj + 1) T) in the plane's frame; its rows are the
   level's samples facing it (not dark, in front of the plane, a corner of the tile not below
   their horizon by more than eps); per row and cell one bit: the segment from the sample (eps
   along its normal) to the cell's point (eps in front of the plane) got through. The point: each
@@ -26,13 +26,14 @@ rays (benchmarks/host_visibility.py measured the estimator: the `pin` form).
   whose shaft to the tile's box is certainly clear (planes.ClearShafts) get all ones, no rays.
 - `visible` / `direct`: the `pin` estimator. Over the cells the shape overlaps (overlap area > 0,
   clipped exactly), a sample whose stored bits there are all 1 reads V = 1 exactly (F x 1 = F bit
-  for bit), all 0 reads 0; the others the ratio sum k v / sum k over their points inside the shape
-  (k = cos_x / r^3 x cos_y / r: the area density's weight; cos_y r = the sample's height, a constant
-  per sample, left out of the ratio). A cell wholly inside counts its point without a test; a
-  partly covered one only if the point is inside the rings (even-odd: any outline, holes too). A
-  sample none of whose points fell inside with weight (a shape small for its cells) reads the
-  ratio over every overlapped cell's point weighted by its overlap area (hv34's `ovl`, biased
-  only there); with no weight at all 1.
+  for bit), all 0 reads 0 (both by a popcount of its packed bytes); the others the ratio
+  sum k v / sum k over their points inside the shape (k = cos_x cos_y / r^2, the area density's
+  weight, as main's area rays; cos_y = z / r with z the sample's height over the plane, a
+  constant per sample: the ratio uses k / z = cos_x / r^3). A cell wholly inside counts its
+  point without a test; a partly covered one only if the point is inside the rings (even-odd:
+  any outline, holes too). A sample none of whose points fell inside with weight (a shape small
+  for its cells) reads the ratio over every overlapped cell's point weighted by its overlap area
+  (hv34's `ovl`, biased only there); with no weight at all 1.
 """
 
 import numpy as np
@@ -42,10 +43,11 @@ from ..planes import frames
 from .sampling import hash_uniform
 
 STREAM = 0x5A17  # the host visibility's own random stream (+ the cell level)
-TILE = 8  # cells per tile side
+TILE = 4  # cells per tile side (16 bits: the 100k window traces x0.7 the rays of 8 x 8 tiles)
 BASE = 4096.0  # base cell = BASE x the level's unit (a power of two near the scene's size)
 MAX_LEVEL = 24  # finest cell: base / 4096 (about 2 mm in a 10 m room)
 CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's weights
+_POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
 
 
 def clip_area(poly, x0, y0, x1, y1):
@@ -96,18 +98,21 @@ class HostVisibility:
     """The stored visibility of one gather level's samples toward one host plane, by tiles (module
     doc). lv: a FinalGather level (points, normals, dark, keys, seed, eps, unit, n, system.backend,
     threads); normal, point: the plane; points: the stored points per shape the cell rule aims at;
-    shafts: the plane's planes.ClearShafts (events.direct.clear_shafts) or None (every row traced)."""
+    shafts: the plane's planes.ClearShafts (events.direct.clear_shafts) or None (every row traced);
+    tile: cells per tile side (tile^2 a multiple of 8)."""
 
-    def __init__(self, lv, normal, point, points=64, shafts=None, threads=None):
+    def __init__(self, lv, normal, point, points=64, shafts=None, threads=None, tile=TILE):
         n = np.asarray(normal, np.float64)
         self.n = n / np.linalg.norm(n)
         self.o = float(np.asarray(point, np.float64) @ self.n) * self.n
         U, V = frames(self.n[None])
         self.U, self.V = U[0], V[0]
         self.lv, self.points, self.shafts = lv, points, shafts
+        assert tile * tile % 8 == 0
+        self.tile = tile
         self.threads = getattr(lv, "threads", 1) if threads is None else threads
         self.base = BASE * lv.unit
-        self.tiles = {}  # (L, ti, tj) -> (rows (sorted sample indices), bits (rows, TILE^2 / 8) uint8)
+        self.tiles = {}  # (L, ti, tj) -> (rows (sorted sample indices), bits (rows, tile^2 / 8) uint8)
         self.rays = 0
 
     # -- the lattice --------------------------------------------------------------------------------
@@ -128,14 +133,14 @@ class HostVisibility:
     def tiles_of(self, rings2d, L):
         """The tiles (L, ti, tj) that an outline's box overlaps, in row-major order."""
         allr = np.concatenate(rings2d)
-        s = TILE * self.cell(L)
+        s = self.tile * self.cell(L)
         t0 = np.floor(allr.min(0) / s).astype(int)
         t1 = np.floor(allr.max(0) / s).astype(int)
         return [(L, ti, tj) for tj in range(t0[1], t1[1] + 1) for ti in range(t0[0], t1[0] + 1)]
 
     def _corners(self, key):
         L, ti, tj = key
-        s = TILE * self.cell(L)
+        s = self.tile * self.cell(L)
         return np.array([self.o + (ti + a) * s * self.U + (tj + b) * s * self.V for a, b in np.ndindex(2, 2)])
 
     def facing(self, key):
@@ -155,14 +160,15 @@ class HostVisibility:
         return hash_uniform(self.lv.seed, self.lv.keys[rows], STREAM + L)
 
     def segments(self, key, rows):
-        """(origins (3, l), d (3, l x TILE^2)) of the tile's segments from samples rows: per sample
-        TILE^2 segments, cell (i, j) of the tile at j TILE + i, to (c + r) h in the plane's frame."""
+        """(origins (3, l), d (3, l x T^2)) of the tile's segments from samples rows (T = self.tile):
+        per sample T^2 segments, cell (i, j) of the tile at j T + i, to (c + r) h in the plane's
+        frame."""
         L, ti, tj = key
         lv, h = self.lv, self.cell(L)
         eps = lv.eps
         r = self.shifts(L, rows)
-        a = (ti * TILE + np.arange(TILE)[None] + r[:, :1]) * h  # (l, i)
-        b = (tj * TILE + np.arange(TILE)[None] + r[:, 1:]) * h  # (l, j)
+        a = (ti * self.tile + np.arange(self.tile)[None] + r[:, :1]) * h  # (l, i)
+        b = (tj * self.tile + np.arange(self.tile)[None] + r[:, 1:]) * h  # (l, j)
         org = (lv.points[rows] + eps * lv.normals[rows]).T  # (3, l)
         p0 = self.o + eps * self.n
         end = [p0[k] + a[:, None, :] * self.U[k] + b[:, :, None] * self.V[k] for k in range(3)]  # (l, j, i)
@@ -179,8 +185,8 @@ class HostVisibility:
 
     def _trace_tile(self, key):
         lv = self.lv
-        rows = self.facing(key)
-        C = TILE * TILE
+        rows = self.facing(key).astype(np.int32)
+        C = self.tile * self.tile
         bits = np.full((len(rows), C // 8), 255, np.uint8)
         todo = np.arange(len(rows))
         if self.shafts is not None and len(rows):
@@ -229,25 +235,44 @@ class HostVisibility:
         rings2d, L, keys, c0, c1, ov = self.layout(rings, L)
         self.trace(keys)
         h = self.cell(L)
-        idx = np.asarray(idx, np.int64)
+        idx = np.asarray(idx).astype(np.int32)  # (the tiles' rows' type: no casts in the look-ups)
         nbx, nby = c1 - c0
         ci, cj = np.arange(c0[0], c1[0]), np.arange(c0[1], c1[1])
         over = ov > 0
         full = ov >= h * h * (1 - 1e-9)
         part = over & ~full
         V = np.zeros(len(idx))
+        # per tile, its cells the shape overlaps as packed bytes: a sample's counts of stored and of
+        # visible overlapped cells by a popcount of its bytes (no unpacking but for the mixed ones)
+        T = self.tile
+        masks = []
+        for key in keys:
+            _, ti, tj = key
+            m = np.zeros((T, T), bool)
+            i0, j0 = ti * T - c0[0], tj * T - c0[1]
+            bi0, bi1, bj0, bj1 = max(i0, 0), min(i0 + T, nbx), max(j0, 0), min(j0 + T, nby)
+            if bi0 < bi1 and bj0 < bj1:
+                m[bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0] = over[bj0:bj1, bi0:bi1]
+            if m.any() and len(self.tiles[key][0]):
+                masks.append((key, np.packbits(m.ravel()), int(m.sum())))
         step = max(1, CHUNK // max(nbx * nby, 1))
         for s0 in range(0, len(idx), step):
             sl = slice(s0, s0 + step)
             rows = idx[sl]
-            vis, stored = self.block(keys, rows, c0, c1)
-            n1 = (vis & over).sum((1, 2))
-            ns = (stored & over).sum((1, 2))
+            n1 = np.zeros(len(rows), np.int64)
+            ns = np.zeros(len(rows), np.int64)
+            for key, m, cnt in masks:
+                trows, tbits = self.tiles[key]
+                pos = np.minimum(np.searchsorted(trows, rows), len(trows) - 1)
+                f = np.flatnonzero(trows[pos] == rows)
+                n1[f] += _POP[tbits[pos[f]] & m].sum(1, dtype=np.int64)
+                ns[f] += cnt
             Vc = np.zeros(len(rows))
             Vc[(n1 == ns) & (ns > 0)] = 1.0  # every stored overlapped bit 1: exactly 1 (0: exactly 0)
             mix = np.flatnonzero((n1 > 0) & (n1 < ns))
             if len(mix):
-                Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis[mix], rings2d)
+                vis = self.block(keys, rows[mix], c0, c1)[0]
+                Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis, rings2d)
             V[sl] = Vc
         return V
 
@@ -261,14 +286,18 @@ class HostVisibility:
         for key in keys:
             trows, tbits = self.tiles[key]
             _, ti, tj = key
-            i0, j0 = ti * TILE - c0[0], tj * TILE - c0[1]  # the tile's first cell in the block
-            bi0, bi1 = max(i0, 0), min(i0 + TILE, nbx)
-            bj0, bj1 = max(j0, 0), min(j0 + TILE, nby)
+            i0, j0 = ti * self.tile - c0[0], tj * self.tile - c0[1]  # the tile's first cell in the block
+            bi0, bi1 = max(i0, 0), min(i0 + self.tile, nbx)
+            bj0, bj1 = max(j0, 0), min(j0 + self.tile, nby)
             if bi0 >= bi1 or bj0 >= bj1 or not len(trows):
                 continue
             pos = np.minimum(np.searchsorted(trows, rows), len(trows) - 1)
             f = np.flatnonzero(trows[pos] == rows)
-            t = np.unpackbits(tbits[pos[f]], axis=1, count=TILE * TILE).reshape(-1, TILE, TILE).astype(bool)
+            t = (
+                np.unpackbits(tbits[pos[f]], axis=1, count=self.tile * self.tile)
+                .reshape(-1, self.tile, self.tile)
+                .astype(bool)
+            )
             vis[f, bj0:bj1, bi0:bi1] = t[:, bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0]
             stored[f, bj0:bj1, bi0:bi1] = True
         return vis, stored
@@ -283,15 +312,23 @@ class HostVisibility:
         z = (lv.points[rows] - self.o) @ self.n
         N = lv.normals[rows]
         nu, nv, nw = N @ self.U, N @ self.V, N @ self.n
-        da, db = a - x2[:, :1], b - x2[:, 1:]
+        # float32 from here, lengths in cells (the points' offsets from the sample in float64 above:
+        # no cancellation; a common factor h^3 per sample, out of the ratio; no float32 overflow
+        # at any scene scale)
+        f32 = np.float32
+        da, db = ((a - x2[:, :1]) / h).astype(f32), ((b - x2[:, 1:]) / h).astype(f32)
+        z = (z / h).astype(f32)
+        nu, nv, nw = (v.astype(f32) for v in (nu, nv, nw))
         # cos_x r = d . N with d = da U + db V - z n; r^2 = da^2 + db^2 + z^2 (separable terms)
         cx = (da * nu[:, None])[:, None, :] + (db * nv[:, None] - (z * nw)[:, None])[:, :, None]
         r2 = (da * da)[:, None, :] + (db * db + (z * z)[:, None])[:, :, None]
         k = np.maximum(cx, 0) / (r2 * r2)
         m = np.broadcast_to(full[None], k.shape)
         if part.any():
-            q = np.stack(np.broadcast_arrays(a[:, None, :], b[:, :, None]), -1)
-            m = m | (part[None] & inside_rings(q, rings2d))
+            pj, pi = np.nonzero(part)  # the partly covered cells: their points tested (even-odd)
+            q = np.stack(np.broadcast_arrays(a[:, pi], b[:, pj]), -1)  # (l, P, 2)
+            m = m.copy()
+            m[:, pj, pi] = inside_rings(q, rings2d)
         w = k * m
         ws = w.sum((1, 2))
         wv = (w * vis).sum((1, 2))
