@@ -260,6 +260,8 @@ class HostVisibility:
                 m[bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0] = over[bj0:bj1, bi0:bi1]
             if m.any() and len(self.tiles[key][0]):
                 masks.append((key, np.packbits(m.ravel()), int(m.sum())))
+        # each sample's row in each tile (-1: not stored), looked up once per event
+        look = {key: self._rows_of(key, idx) for key, _, _ in masks}
         step = max(1, CHUNK // max(nbx * nby, 1))
         for s0 in range(0, len(idx), step):
             sl = slice(s0, s0 + step)
@@ -267,23 +269,32 @@ class HostVisibility:
             n1 = np.zeros(len(rows), np.int64)
             ns = np.zeros(len(rows), np.int64)
             for key, m, cnt in masks:
-                trows, tbits = self.tiles[key]
-                pos = np.minimum(np.searchsorted(trows, rows), len(trows) - 1)
-                f = np.flatnonzero(trows[pos] == rows)
-                n1[f] += _POP[tbits[pos[f]] & m].sum(1, dtype=np.int64)
+                p = look[key][sl]
+                f = np.flatnonzero(p >= 0)
+                n1[f] += _POP[self.tiles[key][1][p[f]] & m].sum(1, dtype=np.int64)
                 ns[f] += cnt
             Vc = np.zeros(len(rows))
             Vc[(n1 == ns) & (ns > 0)] = 1.0  # every stored overlapped bit 1: exactly 1 (0: exactly 0)
             mix = np.flatnonzero((n1 > 0) & (n1 < ns))
             if len(mix):
-                vis = self.block(keys, rows[mix], c0, c1)[0]
+                at = {key: look[key][sl][mix] for key, _, _ in masks}
+                vis = self.block(list(at), rows[mix], c0, c1, at)[0]
                 Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis, rings2d)
             V[sl] = Vc
         return V
 
-    def block(self, keys, rows, c0, c1):
+    def _rows_of(self, key, idx):
+        """(len(idx),) each sample's row in the tile key, -1 where the tile does not store it."""
+        trows = self.tiles[key][0]
+        if not len(trows):
+            return np.full(len(idx), -1, np.int64)
+        pos = np.minimum(np.searchsorted(trows, idx), len(trows) - 1)
+        return np.where(trows[pos] == idx, pos, -1)
+
+    def block(self, keys, rows, c0, c1, at=None):
         """(vis, stored) (len(rows), c1 - c0 reversed) bool: the stored bits of samples rows over
-        the cells [c0, c1) (x, y) from the tiles keys, and where a tile stores the sample."""
+        the cells [c0, c1) (x, y) from the tiles keys, and where a tile stores the sample (at: the
+        samples' rows in each tile, _rows_of, if known)."""
         nbx, nby = c1 - c0
         nl = len(rows)
         vis = np.zeros((nl, nby, nbx), bool)
@@ -296,10 +307,10 @@ class HostVisibility:
             bj0, bj1 = max(j0, 0), min(j0 + self.tile, nby)
             if bi0 >= bi1 or bj0 >= bj1 or not len(trows):
                 continue
-            pos = np.minimum(np.searchsorted(trows, rows), len(trows) - 1)
-            f = np.flatnonzero(trows[pos] == rows)
+            p = at[key] if at is not None else self._rows_of(key, rows)
+            f = np.flatnonzero(p >= 0)
             t = (
-                np.unpackbits(tbits[pos[f]], axis=1, count=self.tile * self.tile)
+                np.unpackbits(tbits[p[f]], axis=1, count=self.tile * self.tile)
                 .reshape(-1, self.tile, self.tile)
                 .astype(bool)
             )
