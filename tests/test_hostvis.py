@@ -27,20 +27,23 @@ SHAPES = {
 }
 
 
-def build(scale=1.0, samples=10):
+def build(scale=1.0, samples=10, rings=None):
+    """(dyn, level, {name: Emitter}) with SHAPES on wall0 (rings: {name: 2D rings} instead)."""
     m = contact_furnace(0.5)
     m.verts = m.verts * scale
     base = RadiositySystem(m, RefineParams.preset("draft"))
     dyn = DynamicRadiosity(base.copy(), method="FE")
     frame = (FRAME[0], *FRAME[1:])
-    shapes = {}
-    for k, ((w, h), (cu, cv), ang) in SHAPES.items():
-        rect = S.rect(w * scale, h * scale, centre=(cu * scale, cv * scale), angle=ang)
-        shapes[k] = LightShape(S.on_plane(rect, frame), np.full(3, 5.0), k)
+    if rings is None:
+        rings = {
+            k: S.rect(w * scale, h * scale, centre=(cu * scale, cv * scale), angle=ang)
+            for k, ((w, h), (cu, cv), ang) in SHAPES.items()
+        }
+    shapes = {k: LightShape(S.on_plane(r, frame), np.full(3, 5.0), k) for k, r in rings.items()}
     dyn.apply(shapes)
     pts, patch, _ = surface_samples(dyn.system.patches, samples / scale**2)  # (per m^2: the same points)
     g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=16, shadow_rays=16)
-    ems = {k: g._shape_emitter(dyn, dyn.shapes[k])[0] for k in SHAPES}
+    ems = {k: g._shape_emitter(dyn, dyn.shapes[k])[0] for k in rings}
     return dyn, g, ems
 
 
@@ -234,3 +237,36 @@ def test_off_by_default_and_on_the_gather_reads_the_store_at_both_levels(monkeyp
     print(f"gathered output on / off: {rel:+.3e}, max per sample {np.abs(on[lit] / off[lit] - 1).max():.3e}")
     assert not np.array_equal(on, off)
     assert np.abs(on[lit] / off[lit] - 1).max() < 0.01 and abs(rel) < 1e-4
+
+
+def test_an_outline_with_a_hole_a_concave_one_and_a_small_one():
+    """The even-odd inside test and the overlap areas minus holes: a sheared four-pane window (an
+    outer frame and a cross-shaped hole) and a five-pointed star against 4096 shadow rays, and a
+    4 x 4 cm square next to the box against the wall at its own cell level (L 20, 3.9 mm cells,
+    its tiles 1.6 cm wide): the level's sum within 0.2% (as test_against_many_shadow_rays;
+    measured +0.036 / -0.015 / -0.05%). Read at a level far too coarse for it (L 6, 50 cm cells:
+    mostly no point inside: the overlap-weighted fallback, reading visibility outside the shape)
+    its values stay in [0, F] and its sum within 5% (measured -2.5%, per-sample rms 52% against
+    main's 16 rays' 1.3%: why the cell level must follow the shape, level_for)."""
+    rings = {
+        "mullions": S.window(0.7, 0.6, 0.08, centre=(0.9, 2.0), angle=0.1, shear=0.15),
+        "star": S.star(0.35, 0.15, centre=(1.2, 1.4), angle=0.2),
+        "small": S.rect(0.04, 0.04, centre=(0.75, 1.9)),
+    }
+    dyn, g, ems = build(rings=rings)
+    for k, em in ems.items():
+        H = store(dyn, g, em)
+        D = H.light(em).astype(np.float64)
+        g.shadow_rays = 4096
+        R = g.direct_light(em).astype(np.float64)
+        g.shadow_rays = 16
+        print(f"{k}: level {H.layout(em.rings)[1]}, sum {D.sum() / R.sum() - 1:+.5f}")
+        assert D.sum() == pytest.approx(R.sum(), rel=2e-3)
+    em = ems["small"]
+    H = store(dyn, g, em)
+    assert H.layout(em.rings)[1] == 20 and H.cell(6) == pytest.approx(0.5, rel=1e-12)
+    D = H.light(em, 6)
+    i = culled(g, em)
+    F = shape_form_factors(g.points[i], g.normals[i], em.rings, em.corners, em.nv, g.eps).astype(np.float32)
+    assert (D >= 0).all() and (D[i] <= F).all() and D[np.setdiff1d(np.arange(g.n), i)].max() == 0
+    assert D.sum() == pytest.approx(R.sum(), rel=0.05)
