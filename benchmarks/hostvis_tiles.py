@@ -5,6 +5,12 @@ per gather level, per tile size; main's shadow rays alongside (docs/events.md, s
 
     .venv/bin/python benchmarks/hostvis_tiles.py STORE [--level top|second] [--tiles 4,8]
         [--points 64] [--ref-rays 256] [--json out.json]
+    .venv/bin/python benchmarks/hostvis_tiles.py --end-to-end STORE [--rounds 2] [--json out.json]
+
+--end-to-end: the FE window event's gathered output (loop_radiance) with hostvis.ENABLED off
+(main) and on (every level's shape light from the stores, the tiles traced before, untimed),
+alternating, and per object against 256 rays at the top and 64 (no far rays) at the second level
+(as host_visibility.py --end-to-end).
 
 STORE: a `bench_gather_events.py --transport gather --cache DIR` build of the furnished room (the
 hv34 store: /work/cache/hvstore100k).
@@ -139,5 +145,121 @@ def main(argv=None):
         Path(args.json).write_text(json.dumps(res, indent=1))
 
 
+def end_to_end(argv=None):
+    ap = argparse.ArgumentParser()
+    ap.add_argument("store")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--json", default=None)
+    args = ap.parse_args(argv)
+
+    from bench_gather_events import load_store
+    from compare_gather_dumps import difference, per_object
+    from hr_addon.core.events import DynamicRadiosity, LightShape
+    from hr_addon.core.gather import hostvis
+    from hr_addon.io import precompute as pc
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+
+    cpu = time.process_time
+    s, g, _ = load_store(Path(args.store) / pc.FILENAME)
+    s.links.extended(s.h)
+    g.iterations = 4
+    g2 = g.second
+    _, info = furnished_room("100k")
+    frame = tuple(np.asarray(f, float) for f in info["light_wall"][1])
+    obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
+
+    def window(cx):
+        return LightShape(
+            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        )
+
+    pos = {"add": 0.7, "move": 1.2}
+    dyn = DynamicRadiosity(s.copy(), method="FE", **DynamicRadiosity.gather_options("draft"))
+    g.loop_radiance(dyn)  # the base parts
+
+    def levels():
+        return (g, g2) + ((g._slot["f"],) if getattr(g, "_slot", None) is not None else ())
+
+    def clear():  # every level's shape light and the shape's gathered parts
+        for lv in levels():
+            lv._shape_cache.clear()
+        for k in [k for k in g._responses if k[0] == "shape"]:
+            del g._responses[k]
+
+    # the precompute (untimed): the tiles of both positions at every level
+    t0 = cpu()
+    hostvis.ENABLED = True
+    for step, cx in pos.items():
+        dyn.apply({"w": window(cx)})
+        for lv in levels():
+            lv._shape(dyn, dyn.shapes["w"])
+        clear()
+    hostvis.ENABLED = False
+    dyn.remove("w")
+    stores = [H for lv in levels() for H in getattr(lv, "_host_stores", {}).values()]
+    res = dict(
+        store=args.store,
+        precompute_cpu_s=round(cpu() - t0, 3),
+        precompute_rays=int(sum(H.rays for H in stores)),
+        store_bytes=int(sum(H.nbytes for H in stores)),
+        events={},
+    )
+    print(
+        f"precompute {res['precompute_cpu_s']} s, {res['precompute_rays']:,} rays, "
+        f"{res['store_bytes'] / 1e6:.1f} MB"
+    )
+    out, times, refs = {}, {}, {}
+    for rnd in range(args.rounds):
+        for name in ("main", "host"):
+            hostvis.ENABLED = name == "host"
+            if "w" in dyn.shapes:
+                clear()
+                dyn.remove("w")
+            for step, cx in pos.items():
+                clear()
+                c0 = cpu()
+                if step == "add":
+                    dyn.add("w", window(cx))
+                else:
+                    dyn.apply({"w": window(cx)})
+                c1 = cpu()
+                v = np.array(g.loop_radiance(dyn), np.float32)
+                c2 = cpu()
+                times.setdefault((step, name), []).append((c1 - c0, c2 - c1))
+                out[(step, name)] = v
+                print(f"{step} round {rnd} {name}: event {c1 - c0:.3f} s, output {c2 - c1:.3f} s", flush=True)
+                if rnd == 0 and name == "host":  # the reference: 256 rays at the top, 64 at the second
+                    hostvis.ENABLED = False
+                    clear()
+                    g.shadow_rays, g2.shadow_rays, far = 256, 64, g2.FAR_RAYS
+                    g2.FAR_RAYS = 0
+                    refs[step] = per_object(np.array(g.loop_radiance(dyn), np.float32), obj)
+                    g.shadow_rays, g2.shadow_rays, g2.FAR_RAYS = 16, 8, far
+                    clear()
+                    hostvis.ENABLED = True
+    hostvis.ENABLED = False
+    for step in pos:
+        row = {}
+        for name in ("main", "host"):
+            d = difference(refs[step], per_object(out[(step, name)], obj))
+            ev = [t[0] for t in times[(step, name)]]
+            op = [t[1] for t in times[(step, name)]]
+            row[name] = dict(event_cpu_s=float(np.median(ev)), output_cpu_s=float(np.median(op)), **d)
+            print(
+                f"{step} {name}: event {np.median(ev):.3f} + output {np.median(op):.3f} s; vs reference "
+                f"median {100 * d['median']:.3f}%, p95 {100 * d['p95']:.2f}%, worst {100 * d['worst']:.1f}%, "
+                f"bias {100 * d['bias']:+.3f}%",
+                flush=True,
+            )
+        res["events"][step] = row
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+
+
 if __name__ == "__main__":
-    main()
+    if "--end-to-end" in sys.argv:
+        sys.argv.remove("--end-to-end")
+        end_to_end()
+    else:
+        main()
