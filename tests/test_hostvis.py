@@ -270,3 +270,21 @@ def test_an_outline_with_a_hole_a_concave_one_and_a_small_one():
     F = shape_form_factors(g.points[i], g.normals[i], em.rings, em.corners, em.nv, g.eps).astype(np.float32)
     assert (D >= 0).all() and (D[i] <= F).all() and D[np.setdiff1d(np.arange(g.n), i)].max() == 0
     assert D.sum() == pytest.approx(R.sum(), rel=0.05)
+
+
+def test_a_saved_store_reads_the_same_values_without_rays(room):
+    """state() / from_state(): the tiles as saved, the same values bit for bit with no ray traced;
+    a shape needing new tiles (the low one: another cell level) traces only those, the same bits
+    as the original store's."""
+    dyn, g, ems = room
+    H = store(dyn, g, ems["w"])
+    D = H.light(ems["w"])
+    a = {k: v.copy() for k, v in H.state().items()}
+    H2 = HostVisibility.from_state(g, a, shafts=H.shafts)
+    assert sorted(H2.tiles) == sorted(H.tiles) and H2.nbytes == H.nbytes
+    assert np.array_equal(H2.light(ems["w"]), D) and H2.rays == 0
+    r0 = H.rays
+    assert np.array_equal(H2.light(ems["low"]), H.light(ems["low"]))
+    assert H2.rays == H.rays - r0 > 0  # only the new tiles' rays
+    for key, (rows, bits) in H.tiles.items():
+        assert np.array_equal(rows, H2.tiles[key][0]) and np.array_equal(bits, H2.tiles[key][1])

@@ -381,6 +381,35 @@ class HostVisibility:
             out[i[seen]] = F * V[seen]
         return out.astype(np.float32)
 
+    # -- on disk (not yet in the precompute file) ----------------------------------------------------
+    def state(self):
+        """The store as arrays (for a precompute file): its frame, its rule and every tile."""
+        keys = sorted(self.tiles)
+        C8 = self.tile * self.tile // 8
+        return dict(
+            frame=np.stack([self.n, self.o, self.U, self.V]),
+            rule=np.array([self.points, self.tile, self.base]),
+            keys=np.array(keys, np.int64).reshape(-1, 3),
+            counts=np.array([len(self.tiles[k][0]) for k in keys], np.int64),
+            rows=np.concatenate([self.tiles[k][0] for k in keys] or [np.zeros(0, np.int32)]),
+            bits=np.concatenate([self.tiles[k][1] for k in keys] or [np.zeros((0, C8), np.uint8)]),
+        )
+
+    @classmethod
+    def from_state(cls, lv, a, shafts=None, threads=None):
+        """The store of state() on the level lv (the same samples: its unit must give the same base),
+        its tiles as saved (no rays), new tiles traced as before."""
+        n, o, U, V = (np.array(v) for v in a["frame"])
+        points, tile, base = a["rule"]
+        H = cls(lv, n, o, int(points), shafts, threads, int(tile))
+        if H.base != base:
+            raise ValueError("a host visibility store of another scale")
+        H.n, H.o, H.U, H.V = n, o, U, V  # (bit for bit as saved)
+        at = np.concatenate([[0], np.cumsum(a["counts"])])
+        for k, key in enumerate(map(tuple, np.asarray(a["keys"]).tolist())):
+            H.tiles[key] = (np.array(a["rows"][at[k] : at[k + 1]]), np.array(a["bits"][at[k] : at[k + 1]]))
+        return H
+
     @property
     def nbytes(self):
         return sum(r.nbytes + b.nbytes for r, b in self.tiles.values())
