@@ -282,6 +282,8 @@ def test_a_saved_store_reads_the_same_values_without_rays(room):
     a = {k: v.copy() for k, v in H.state().items()}
     H2 = HostVisibility.from_state(g, a, shafts=H.shafts)
     assert sorted(H2.tiles) == sorted(H.tiles) and H2.nbytes == H.nbytes
+    for key, (rows, bits) in H.tiles.items():
+        assert np.array_equal(rows, H2.tiles[key][0]) and np.array_equal(bits, H2.tiles[key][1])
     assert np.array_equal(H2.light(ems["w"]), D) and H2.rays == 0
     r0 = H.rays
     assert np.array_equal(H2.light(ems["low"]), H.light(ems["low"]))

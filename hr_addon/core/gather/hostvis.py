@@ -383,31 +383,39 @@ class HostVisibility:
 
     # -- on disk (not yet in the precompute file) ----------------------------------------------------
     def state(self):
-        """The store as arrays (for a precompute file): its frame, its rule and every tile."""
+        """The store as arrays (for a precompute file): its frame, its rule and every tile, a tile's
+        rows as a bitmap over the level's samples (n / 8 bytes: a fifth of int32 rows or less)."""
         keys = sorted(self.tiles)
         C8 = self.tile * self.tile // 8
+        n = self.lv.n
+        masks = np.zeros((len(keys), (n + 7) // 8), np.uint8)
+        for k, key in enumerate(keys):
+            m = np.zeros(n, bool)
+            m[self.tiles[key][0]] = True
+            masks[k] = np.packbits(m)
         return dict(
             frame=np.stack([self.n, self.o, self.U, self.V]),
-            rule=np.array([self.points, self.tile, self.base]),
+            rule=np.array([self.points, self.tile, self.base, n]),
             keys=np.array(keys, np.int64).reshape(-1, 3),
-            counts=np.array([len(self.tiles[k][0]) for k in keys], np.int64),
-            rows=np.concatenate([self.tiles[k][0] for k in keys] or [np.zeros(0, np.int32)]),
+            rows=masks,
             bits=np.concatenate([self.tiles[k][1] for k in keys] or [np.zeros((0, C8), np.uint8)]),
         )
 
     @classmethod
     def from_state(cls, lv, a, shafts=None, threads=None):
-        """The store of state() on the level lv (the same samples: its unit must give the same base),
-        its tiles as saved (no rays), new tiles traced as before."""
+        """The store of state() on the level lv (the same samples: its unit must give the same base,
+        its sample count the same), its tiles as saved (no rays), new tiles traced as before."""
         n, o, U, V = (np.array(v) for v in a["frame"])
-        points, tile, base = a["rule"]
+        points, tile, base, count = a["rule"]
         H = cls(lv, n, o, int(points), shafts, threads, int(tile))
-        if H.base != base:
-            raise ValueError("a host visibility store of another scale")
+        if H.base != base or lv.n != count:
+            raise ValueError("a host visibility store of another scale or other samples")
         H.n, H.o, H.U, H.V = n, o, U, V  # (bit for bit as saved)
-        at = np.concatenate([[0], np.cumsum(a["counts"])])
+        at = 0
         for k, key in enumerate(map(tuple, np.asarray(a["keys"]).tolist())):
-            H.tiles[key] = (np.array(a["rows"][at[k] : at[k + 1]]), np.array(a["bits"][at[k] : at[k + 1]]))
+            rows = np.flatnonzero(np.unpackbits(a["rows"][k], count=lv.n)).astype(np.int32)
+            H.tiles[key] = (rows, np.array(a["bits"][at : at + len(rows)]))
+            at += len(rows)
         return H
 
     @property
