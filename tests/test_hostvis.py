@@ -158,7 +158,9 @@ def test_the_same_values_whatever_order_the_tiles_were_traced_in(room):
     b = store(dyn, g, em, threads=2)
     got_a = {k: a.light(ems[k]) for k in ("w", "moved", "low")}
     _, _, keys, _, _, _ = b.layout(ems["moved"].rings)
+    assert b.missing(ems["moved"].rings) == keys
     b.trace(keys[::-1])
+    assert b.missing(ems["moved"].rings) == [] and b.missing(ems["w"].rings) != []
     got_b = {k: b.light(ems[k]) for k in ("low", "moved", "w")}
     assert set(a.tiles) == set(b.tiles)
     assert len({key[0] for key in a.tiles}) == 2  # two cell levels (the window's and the low shape's)

@@ -188,6 +188,12 @@ class HostVisibility:
             if key not in self.tiles:
                 self.tiles[key] = self._trace_tile(key)
 
+    def missing(self, rings, L=None):
+        """The tiles a shape (rings on the plane) needs that are not stored yet ([]: `visible` traces
+        no ray). For Live's first drag over new tiles (trace them, keep rays meanwhile) and for a
+        bake's shapes over its frames (trace them all before the first frame)."""
+        return [key for key in self.layout(rings, L)[2] if key not in self.tiles]
+
     def _trace_tile(self, key):
         lv = self.lv
         rows = self.facing(key).astype(np.int32)
