@@ -309,9 +309,9 @@ class DirectLight:
         if self.texel_area is not None and self.edge_shapes:
             return None
         second = getattr(self, "_leaf_nodes", None) is not None
-        return hostvis.store_for(
-            self, em.normal, em.point, hostvis.POINTS_SECOND if second else hostvis.POINTS
-        )
+        # the host's plane by its patch (the shape's centre may lie off it within rec.tol)
+        point = self.system.patches.corners[rec.roots[0]][0] if len(rec.roots) else em.point
+        return hostvis.store_for(self, em.normal, point, hostvis.POINTS_SECOND if second else hostvis.POINTS)
 
     # -- Blender lights (issue 20, core/lights.py) -----------------------------------------------------
     def _light(self, rec):
