@@ -287,6 +287,8 @@ class DirectLight:
             em, inside, _ = self._shape_emitter(dyn, rec)
             if em is None:
                 D = np.zeros(self.n, np.float32)
+            elif (host := self._host_store(rec, em)) is not None:  # (hostvis.ENABLED: off by default)
+                D = host.light(em)
             elif getattr(self, "_leaf_nodes", None) is not None:  # (final.FinalGather's second level)
                 D = self._second_shape(em)
             else:
@@ -294,6 +296,22 @@ class DirectLight:
             got = (D, inside)
             self._shape_cache[key] = got
         return got
+
+    def _host_store(self, rec, em):
+        """The stored visibility toward a light shape's host plane at this level (gather/hostvis.py)
+        where hostvis.ENABLED and the shape lies wholly on surfaces (its rings known), else None
+        (its shadow rays, as always: a free shape, one partly off its surfaces, or the texture
+        output's edge pass for shapes)."""
+        from . import hostvis
+
+        if not hostvis.ENABLED or em.rings is None or not rec.on_surface:
+            return None
+        if self.texel_area is not None and self.edge_shapes:
+            return None
+        second = getattr(self, "_leaf_nodes", None) is not None
+        # the host's plane by its patch (the shape's centre may lie off it within rec.tol)
+        point = self.system.patches.corners[rec.roots[0]][0] if len(rec.roots) else em.point
+        return hostvis.store_for(self, em.normal, point, hostvis.POINTS_SECOND if second else hostvis.POINTS)
 
     # -- Blender lights (issue 20, core/lights.py) -----------------------------------------------------
     def _light(self, rec):

@@ -899,7 +899,14 @@ class FinalGather(DirectLight):
         f.dark, f.n, f.E_static = np.zeros(m, bool), m, np.zeros((m, 3))
         f.texel_area, f.gain, f._slot, f.second, f.group = None, None, None, None, None
         f._D_static, f._shape_cache = None, {}
-        for k in ("_light_cache", "_leaf_nodes", "_preview_cache", "_bounce_cache", "_tables"):
+        for k in (
+            "_light_cache",
+            "_leaf_nodes",
+            "_preview_cache",
+            "_bounce_cache",
+            "_tables",
+            "_host_stores",
+        ):
             f.__dict__.pop(k, None)
         for k in ("indptr", "cols", "w", "wu", "wv", "offsets", "rho", "leaf0", "sample_rays"):
             setattr(f, k, None)

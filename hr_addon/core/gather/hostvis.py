@@ -1,0 +1,449 @@
+"""A light shape's direct light from visibility precomputed toward its HOST plane (issue 19; off by
+default: nothing in the gather calls this yet; docs/events.md, sessions 28 hv34 and hvp).
+
+A light shape lying on a wall is emission on static geometry: the visibility from a gather sample
+toward points of that wall does not depend on the shape. So it is traced once, per (gather level,
+host plane), in TILES of the plane, and an event reads the stored bits instead of tracing shadow
+rays (benchmarks/host_visibility.py measured the estimator: the `pin` form).
+
+- The plane's own 2D frame: the origin is the plane's point nearest the world origin (d n), the
+  axes planes.frames(n). Nothing of a shape enters it: a tile's bits depend only on the level's
+  samples, the plane, the cell level and the tile's index, never on which shape or event made it
+  be traced first (history independence).
+- Cells: h = base 2^(-L/2), L = 0, 1, 2, ... (half octaves), base = 4096 x the level's `unit`
+  (FinalGather.unit, a power of two from the scene's size: so h scales exactly with the scene
+  under 2^k scaling, and the same L is reused by every later shape of a similar size). A shape of
+  area A takes the coarsest L with h <= sqrt(A / points) (`level_for`): between `points` and
+  2 x `points` stored points fall inside it per sample (hv34 measured: 64 at the top level for
+  half main's 16 rays' error, 16 at the second level for half of its 8 rays' p95).
+- Tiles: T x T cells (T = `tile`, TILE by default: 16 bits, 2 bytes per sample), tile (L, ti, tj)
+  holds cells [ti T, (ti + 1) T) x [tj T, (tj + 1) T) in the plane's frame; its rows are the
+  level's samples facing it (not dark, in front of the plane, a corner of the tile not below
+  their horizon by more than eps); per row and cell one bit: the segment from the sample (eps
+  along its normal) to the cell's point (eps in front of the plane) got through. The point: each
+  sample its OWN shift r of the lattice, hash_uniform(seed, sample key, STREAM + L), y = (c + r) h
+  (uniform in the cell; every sample its own points, as final.py's rotated Hammersley sets). Rows
+  whose shaft to the tile's box is certainly clear (planes.ClearShafts) get all ones, no rays.
+- `visible` / `direct`: the `pin` estimator. Over the cells the shape overlaps (overlap area > 0,
+  clipped exactly), a sample whose stored bits there are all 1 reads V = 1 exactly (F x 1 = F bit
+  for bit), all 0 reads 0 (both by a popcount of its packed bytes); the others the ratio
+  sum k v / sum k over their points inside the shape (k = cos_x cos_y / r^2, the area density's
+  weight, as main's area rays; cos_y = z / r with z the sample's height over the plane, a
+  constant per sample: the ratio uses k / z = cos_x / r^3). A cell wholly inside counts its
+  point without a test; a partly covered one only if the point is inside the rings (even-odd:
+  any outline, holes too). A sample none of whose points fell inside with weight (a shape small
+  for its cells) reads the ratio over every overlapped cell's point weighted by its overlap area
+  (hv34's `ovl`, biased only there); with no weight at all 1.
+"""
+
+import numpy as np
+
+from ..parallel import batch_map, ranges
+from ..planes import frames
+from .sampling import hash_uniform
+
+# off by default: DirectLight._shape keeps its shadow rays (bake values unchanged); on, a light shape
+# wholly on surfaces reads its plane's stored visibility at every gather level (store_for)
+ENABLED = False
+POINTS = 64  # stored points per shape at the top level (hv34: half main's 16 rays' error)
+POINTS_SECOND = 16  # at the second level (hv34: half main's 8 / 4 rays' p95 with 20 cm cells)
+STREAM = 0x5A17  # the host visibility's own random stream (+ the cell level)
+TILE = 4  # cells per tile side (16 bits: the 100k window traces x0.7 the rays of 8 x 8 tiles)
+BASE = 4096.0  # base cell = BASE x the level's unit (a power of two near the scene's size)
+MAX_LEVEL = 24  # finest cell: base / 4096 (about 2 mm in a 10 m room)
+CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's weights
+_POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
+
+
+def clip_area(poly, x0, y0, x1, y1):
+    """Area of polygon poly (M, 2) clipped to the box [x0, x1] x [y0, y1] (Sutherland-Hodgman)."""
+    P = list(map(tuple, poly))
+    for axis, val, keep_ge in ((0, x0, True), (0, x1, False), (1, y0, True), (1, y1, False)):
+        if not P:
+            return 0.0
+        out = []
+        for i in range(len(P)):
+            a, b = P[i - 1], P[i]
+            ia = (a[axis] >= val) if keep_ge else (a[axis] <= val)
+            ib = (b[axis] >= val) if keep_ge else (b[axis] <= val)
+            if ia != ib:
+                t = (val - a[axis]) / (b[axis] - a[axis])
+                out.append((a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])))
+            if ib:
+                out.append(b)
+        P = out
+    if len(P) < 3:
+        return 0.0
+    x, y = np.array(P).T
+    return 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def inside_rings(q, rings):
+    """(...,) even-odd test of 2D points q (..., 2) against rings (list of (M, 2))."""
+    x, y = q[..., 0], q[..., 1]
+    ins = np.zeros(x.shape, bool)
+    for r in rings:
+        for i in range(len(r)):
+            (ax, ay), (bx, by) = r[i - 1], r[i]
+            if ay == by:
+                continue
+            cross = (ay > y) != (by > y)
+            xs = ax + (y - ay) * (bx - ax) / (by - ay)
+            ins ^= cross & (x < xs)
+    return ins
+
+
+def ring_area(rings2d):
+    """Area of an outline (outer ring, then holes) in 2D."""
+    a = [0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) for x, y in (r.T for r in rings2d)]
+    return a[0] - sum(a[1:])
+
+
+class HostVisibility:
+    """The stored visibility of one gather level's samples toward one host plane, by tiles (module
+    doc). lv: a FinalGather level (points, normals, dark, keys, seed, eps, unit, n, system.backend,
+    threads); normal, point: the plane; points: the stored points per shape the cell rule aims at;
+    shafts: the plane's planes.ClearShafts (events.direct.clear_shafts) or None (every row traced);
+    tile: cells per tile side (tile^2 a multiple of 8)."""
+
+    def __init__(self, lv, normal, point, points=64, shafts=None, threads=None, tile=TILE):
+        n = np.asarray(normal, np.float64)
+        self.n = n / np.linalg.norm(n)
+        self.o = float(np.asarray(point, np.float64) @ self.n) * self.n
+        U, V = frames(self.n[None])
+        self.U, self.V = U[0], V[0]
+        self.lv, self.points, self.shafts = lv, points, shafts
+        assert tile * tile % 8 == 0
+        self.tile = tile
+        self.threads = getattr(lv, "threads", 1) if threads is None else threads
+        self.base = BASE * lv.unit
+        self.tiles = {}  # (L, ti, tj) -> (rows (sorted sample indices), bits (rows, tile^2 / 8) uint8)
+        self.rays = 0
+
+    # -- the lattice --------------------------------------------------------------------------------
+    def cell(self, L):
+        """The cell size of level L."""
+        return self.base * 2.0 ** (-L / 2)
+
+    def level_for(self, area):
+        """The coarsest level whose cells put at least `points` stored points in a shape of this
+        area (h <= sqrt(area / points)), clamped to [0, MAX_LEVEL]."""
+        t = np.sqrt(max(area, 1e-300) / self.points)
+        return int(np.clip(np.ceil(2 * np.log2(self.base / t) - 1e-9), 0, MAX_LEVEL))
+
+    def to2d(self, P):
+        d = np.asarray(P, np.float64) - self.o
+        return np.column_stack([d @ self.U, d @ self.V])
+
+    def tiles_of(self, rings2d, L):
+        """The tiles (L, ti, tj) that an outline's box overlaps, in row-major order."""
+        allr = np.concatenate(rings2d)
+        s = self.tile * self.cell(L)
+        t0 = np.floor(allr.min(0) / s).astype(int)
+        t1 = np.floor(allr.max(0) / s).astype(int)
+        return [(L, ti, tj) for tj in range(t0[1], t1[1] + 1) for ti in range(t0[0], t1[0] + 1)]
+
+    def _corners(self, key):
+        L, ti, tj = key
+        s = self.tile * self.cell(L)
+        return np.array([self.o + (ti + a) * s * self.U + (tj + b) * s * self.V for a, b in np.ndindex(2, 2)])
+
+    def facing(self, key):
+        """The level's samples a tile stores: not dark, in front of the plane (by eps / 2), a corner
+        of the tile at most eps below their horizon (a superset of those any point of it can light
+        with weight)."""
+        lv = self.lv
+        x, nx = lv.points, lv.normals
+        ok = ~lv.dark & ((x - self.o) @ self.n > 0.5 * lv.eps)
+        i = np.flatnonzero(ok)
+        c = self._corners(key)
+        top = (nx[i] @ c.T - np.einsum("ik,ik->i", x[i], nx[i])[:, None]).max(1)
+        return i[top > -lv.eps]
+
+    def shifts(self, L, rows):
+        """(len(rows), 2) each sample's own shift of level L's lattice, in [0, 1)."""
+        return hash_uniform(self.lv.seed, self.lv.keys[rows], STREAM + L)
+
+    def segments(self, key, rows):
+        """(origins (3, l), d (3, l x T^2)) of the tile's segments from samples rows (T = self.tile):
+        per sample T^2 segments, cell (i, j) of the tile at j T + i, to (c + r) h in the plane's
+        frame."""
+        L, ti, tj = key
+        lv, h = self.lv, self.cell(L)
+        eps = lv.eps
+        r = self.shifts(L, rows)
+        a = (ti * self.tile + np.arange(self.tile)[None] + r[:, :1]) * h  # (l, i)
+        b = (tj * self.tile + np.arange(self.tile)[None] + r[:, 1:]) * h  # (l, j)
+        org = (lv.points[rows] + eps * lv.normals[rows]).T  # (3, l)
+        p0 = self.o + eps * self.n
+        end = [p0[k] + a[:, None, :] * self.U[k] + b[:, :, None] * self.V[k] for k in range(3)]  # (l, j, i)
+        d = np.stack([end[k] - org[k][:, None, None] for k in range(3)]).reshape(3, -1)
+        return org, d
+
+    # -- tracing ------------------------------------------------------------------------------------
+    def trace(self, keys):
+        """Trace the tiles of keys not yet stored (each tile on its own: its bits are the same in
+        any order, batching or thread count)."""
+        for key in keys:
+            if key not in self.tiles:
+                self.tiles[key] = self._trace_tile(key)
+
+    def missing(self, rings, L=None):
+        """The tiles a shape (rings on the plane) needs that are not stored yet ([]: `visible` traces
+        no ray). For Live's first drag over new tiles (trace them, keep rays meanwhile) and for a
+        bake's shapes over its frames (trace them all before the first frame)."""
+        return [key for key in self.layout(rings, L)[2] if key not in self.tiles]
+
+    def _trace_tile(self, key):
+        lv = self.lv
+        rows = self.facing(key).astype(np.int32)
+        C = self.tile * self.tile
+        bits = np.full((len(rows), C // 8), 255, np.uint8)
+        todo = np.arange(len(rows))
+        if self.shafts is not None and len(rows):
+            c = self._corners(key)
+            e = lv.eps * self.n
+            o = lv.points[rows] + lv.eps * lv.normals[rows]
+            todo = todo[~self.shafts.clear(o, c.min(0) + e, c.max(0) + e)]
+
+        def part(a, b):
+            sel = todo[a:b]
+            org, d = self.segments(key, rows[sel])
+            vis = ~lv.system.backend.occluded_cm(org, d, C)
+            bits[sel] = np.packbits(vis.reshape(len(sel), C), axis=1)
+
+        batch_map(part, ranges(len(todo), CHUNK // C), self.threads)
+        self.rays += len(todo) * C
+        return rows, bits
+
+    # -- an event -----------------------------------------------------------------------------------
+    def layout(self, rings, L=None):
+        """(rings2d, L, tile keys, c0, c1, ov) of a shape on the plane: its rings in the plane's
+        frame, the cell level (by default level_for its area), the tiles its box overlaps, its
+        block of cells [c0, c1) (x, y) and their overlap areas ov (nby, nbx)."""
+        rings2d = [self.to2d(r) for r in rings]
+        if L is None:
+            L = self.level_for(ring_area(rings2d))
+        h = self.cell(L)
+        allr = np.concatenate(rings2d)
+        c0 = np.floor(allr.min(0) / h).astype(int)
+        c1 = np.floor(allr.max(0) / h).astype(int) + 1
+        ov = np.zeros((c1[1] - c0[1], c1[0] - c0[0]))
+        for jj, gj in enumerate(range(c0[1], c1[1])):
+            for ii, gi in enumerate(range(c0[0], c1[0])):
+                x0, y0 = gi * h, gj * h
+                a = clip_area(rings2d[0], x0, y0, x0 + h, y0 + h)
+                for hole in rings2d[1:]:
+                    a -= clip_area(hole, x0, y0, x0 + h, y0 + h)
+                ov[jj, ii] = max(a, 0.0)
+        return rings2d, L, self.tiles_of(rings2d, L), c0, c1, ov
+
+    def visible(self, rings, idx, L=None):
+        """(len(idx),) the visible fraction of a shape (rings (M, 3) on the plane, outer first) from
+        samples idx (the caller's culls: in front of the shape, a vertex above the horizon), by the
+        stored bits (tracing the tiles it overlaps that are not yet stored). L: the cell level (by
+        default level_for the shape's area)."""
+        rings2d, L, keys, c0, c1, ov = self.layout(rings, L)
+        self.trace(keys)
+        h = self.cell(L)
+        idx = np.asarray(idx).astype(np.int32)  # (the tiles' rows' type: no casts in the look-ups)
+        nbx, nby = c1 - c0
+        ci, cj = np.arange(c0[0], c1[0]), np.arange(c0[1], c1[1])
+        over = ov > 0
+        full = ov >= h * h * (1 - 1e-9)
+        part = over & ~full
+        V = np.zeros(len(idx))
+        # per tile, its cells the shape overlaps as packed bytes: a sample's counts of stored and of
+        # visible overlapped cells by a popcount of its bytes (no unpacking but for the mixed ones)
+        T = self.tile
+        masks = []
+        for key in keys:
+            _, ti, tj = key
+            m = np.zeros((T, T), bool)
+            i0, j0 = ti * T - c0[0], tj * T - c0[1]
+            bi0, bi1, bj0, bj1 = max(i0, 0), min(i0 + T, nbx), max(j0, 0), min(j0 + T, nby)
+            if bi0 < bi1 and bj0 < bj1:
+                m[bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0] = over[bj0:bj1, bi0:bi1]
+            if m.any() and len(self.tiles[key][0]):
+                masks.append((key, np.packbits(m.ravel()), int(m.sum())))
+        # each sample's row in each tile (-1: not stored), looked up once per event
+        look = {key: self._rows_of(key, idx) for key, _, _ in masks}
+        step = max(1, CHUNK // max(nbx * nby, 1))
+        for s0 in range(0, len(idx), step):
+            sl = slice(s0, s0 + step)
+            rows = idx[sl]
+            n1 = np.zeros(len(rows), np.int64)
+            ns = np.zeros(len(rows), np.int64)
+            for key, m, cnt in masks:
+                p = look[key][sl]
+                f = np.flatnonzero(p >= 0)
+                n1[f] += _POP[self.tiles[key][1][p[f]] & m].sum(1, dtype=np.int64)
+                ns[f] += cnt
+            Vc = np.zeros(len(rows))
+            Vc[(n1 == ns) & (ns > 0)] = 1.0  # every stored overlapped bit 1: exactly 1 (0: exactly 0)
+            mix = np.flatnonzero((n1 > 0) & (n1 < ns))
+            if len(mix):
+                at = {key: look[key][sl][mix] for key, _, _ in masks}
+                vis = self.block(list(at), rows[mix], c0, c1, at)[0]
+                Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis, rings2d)
+            V[sl] = Vc
+        return V
+
+    def _rows_of(self, key, idx):
+        """(len(idx),) each sample's row in the tile key, -1 where the tile does not store it."""
+        trows = self.tiles[key][0]
+        if not len(trows):
+            return np.full(len(idx), -1, np.int64)
+        pos = np.minimum(np.searchsorted(trows, idx), len(trows) - 1)
+        return np.where(trows[pos] == idx, pos, -1)
+
+    def block(self, keys, rows, c0, c1, at=None):
+        """(vis, stored) (len(rows), c1 - c0 reversed) bool: the stored bits of samples rows over
+        the cells [c0, c1) (x, y) from the tiles keys, and where a tile stores the sample (at: the
+        samples' rows in each tile, _rows_of, if known)."""
+        nbx, nby = c1 - c0
+        nl = len(rows)
+        vis = np.zeros((nl, nby, nbx), bool)
+        stored = np.zeros((nl, nby, nbx), bool)
+        for key in keys:
+            trows, tbits = self.tiles[key]
+            _, ti, tj = key
+            i0, j0 = ti * self.tile - c0[0], tj * self.tile - c0[1]  # the tile's first cell in the block
+            bi0, bi1 = max(i0, 0), min(i0 + self.tile, nbx)
+            bj0, bj1 = max(j0, 0), min(j0 + self.tile, nby)
+            if bi0 >= bi1 or bj0 >= bj1 or not len(trows):
+                continue
+            p = at[key] if at is not None else self._rows_of(key, rows)
+            f = np.flatnonzero(p >= 0)
+            t = (
+                np.unpackbits(tbits[p[f]], axis=1, count=self.tile * self.tile)
+                .reshape(-1, self.tile, self.tile)
+                .astype(bool)
+            )
+            vis[f, bj0:bj1, bi0:bi1] = t[:, bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0]
+            stored[f, bj0:bj1, bi0:bi1] = True
+        return vis, stored
+
+    def _ratio(self, rows, L, ci, cj, full, part, ov, vis, rings2d):
+        """The pin ratio at samples rows (each its block of bits vis (l, nby, nbx))."""
+        lv, h = self.lv, self.cell(L)
+        r = self.shifts(L, rows)
+        a = (ci[None] + r[:, :1]) * h  # (l, i): the points' 2D coordinates, as traced
+        b = (cj[None] + r[:, 1:]) * h  # (l, j)
+        x2 = self.to2d(lv.points[rows])
+        z = (lv.points[rows] - self.o) @ self.n
+        N = lv.normals[rows]
+        nu, nv, nw = N @ self.U, N @ self.V, N @ self.n
+        # float32 from here, lengths in cells (the points' offsets from the sample in float64 above:
+        # no cancellation; a common factor h^3 per sample, out of the ratio; no float32 overflow
+        # at any scene scale)
+        f32 = np.float32
+        da, db = ((a - x2[:, :1]) / h).astype(f32), ((b - x2[:, 1:]) / h).astype(f32)
+        z = (z / h).astype(f32)
+        nu, nv, nw = (v.astype(f32) for v in (nu, nv, nw))
+        # cos_x r = d . N with d = da U + db V - z n; r^2 = da^2 + db^2 + z^2 (separable terms)
+        cx = (da * nu[:, None])[:, None, :] + (db * nv[:, None] - (z * nw)[:, None])[:, :, None]
+        r2 = (da * da)[:, None, :] + (db * db + (z * z)[:, None])[:, :, None]
+        k = np.maximum(cx, 0) / (r2 * r2)
+        m = np.broadcast_to(full[None], k.shape)
+        if part.any():
+            pj, pi = np.nonzero(part)  # the partly covered cells: their points tested (even-odd)
+            q = np.stack(np.broadcast_arrays(a[:, pi], b[:, pj]), -1)  # (l, P, 2)
+            m = m.copy()
+            m[:, pj, pi] = inside_rings(q, rings2d)
+        w = k * m
+        ws = w.sum((1, 2))
+        wv = (w * vis).sum((1, 2))
+        out = np.where(ws > 0, wv / np.where(ws > 0, ws, 1), 1.0)
+        none = np.flatnonzero(ws <= 0)  # no point inside with weight: the overlap-weighted ratio
+        if len(none):
+            wo = k[none] * ov[None]
+            s = wo.sum((1, 2))
+            out[none] = np.where(s > 0, (wo * vis[none]).sum((1, 2)) / np.where(s > 0, s, 1), 1.0)
+        return out
+
+    def direct(self, rings, idx, F, L=None):
+        """(len(idx),) float64 F x V: the shape's direct light at samples idx from their exact
+        unoccluded form factors F (main's shape_form_factors) and the stored visibility."""
+        return np.asarray(F, np.float64) * self.visible(rings, idx, L)
+
+    def light(self, em, L=None):
+        """(n,) float32 the unit direct light of a light shape's Emitter em (its rings on this
+        plane) at every sample of the level: main's culls (DirectLight.direct_batch), the stored
+        visibility, the form factor only where it is not 0 (as main)."""
+        from ..events.direct import shape_form_factors
+
+        lv = self.lv
+        x, nx = lv.points, lv.normals
+        out = np.zeros(lv.n)
+        ok = ~lv.dark & ((x - em.point) @ em.normal > lv.eps)
+        i = np.flatnonzero(ok)
+        xn = np.einsum("mk,mk->m", x[i], nx[i])[:, None]
+        i = i[(nx[i] @ em.verts.T - xn).max(1) > lv.eps]
+        if len(i):
+            V = self.visible(em.rings, i, L)
+            seen = np.flatnonzero(V != 0)
+            F = shape_form_factors(x[i[seen]], nx[i[seen]], em.rings, em.corners, em.nv, lv.eps)
+            out[i[seen]] = F * V[seen]
+        return out.astype(np.float32)
+
+    # -- on disk (not yet in the precompute file) ----------------------------------------------------
+    def state(self):
+        """The store as arrays (for a precompute file): its frame, its rule and every tile, a tile's
+        rows as a bitmap over the level's samples (n / 8 bytes: a fifth of int32 rows or less)."""
+        keys = sorted(self.tiles)
+        C8 = self.tile * self.tile // 8
+        n = self.lv.n
+        masks = np.zeros((len(keys), (n + 7) // 8), np.uint8)
+        for k, key in enumerate(keys):
+            m = np.zeros(n, bool)
+            m[self.tiles[key][0]] = True
+            masks[k] = np.packbits(m)
+        return dict(
+            frame=np.stack([self.n, self.o, self.U, self.V]),
+            rule=np.array([self.points, self.tile, self.base, n]),
+            keys=np.array(keys, np.int64).reshape(-1, 3),
+            rows=masks,
+            bits=np.concatenate([self.tiles[k][1] for k in keys] or [np.zeros((0, C8), np.uint8)]),
+        )
+
+    @classmethod
+    def from_state(cls, lv, a, shafts=None, threads=None):
+        """The store of state() on the level lv (the same samples: its unit must give the same base,
+        its sample count the same), its tiles as saved (no rays), new tiles traced as before."""
+        n, o, U, V = (np.array(v) for v in a["frame"])
+        points, tile, base, count = a["rule"]
+        H = cls(lv, n, o, int(points), shafts, threads, int(tile))
+        if H.base != base or lv.n != count:
+            raise ValueError("a host visibility store of another scale or other samples")
+        H.n, H.o, H.U, H.V = n, o, U, V  # (bit for bit as saved)
+        at = 0
+        for k, key in enumerate(map(tuple, np.asarray(a["keys"]).tolist())):
+            rows = np.flatnonzero(np.unpackbits(a["rows"][k], count=lv.n)).astype(np.int32)
+            H.tiles[key] = (rows, np.array(a["bits"][at : at + len(rows)]))
+            at += len(rows)
+        return H
+
+    @property
+    def nbytes(self):
+        return sum(r.nbytes + b.nbytes for r, b in self.tiles.values())
+
+
+def store_for(lv, normal, point, points):
+    """The level's HostVisibility of the plane (normal, point), made on first use and kept on the
+    level (lv._host_stores), keyed as events.direct.clear_shafts keys its grids (the normal to
+    1e-12, the offset to 1e-3 eps): shapes on one plane share it whatever patch or point they name
+    it by, and its frame is made from the key alone (the rounded normal, the rounded offset), so
+    it is the same whichever shape asked first."""
+    from ..events.direct import clear_shafts
+
+    stores = lv.__dict__.setdefault("_host_stores", {})
+    margin = 1e-3 * lv.eps
+    nq = np.round(np.asarray(normal, np.float64), 12) + 0.0  # + 0.0: no -0.0
+    key = (nq.tobytes(), round(float(np.asarray(point, np.float64) @ nq) / margin), points)
+    H = stores.get(key)
+    if H is None:
+        n = nq / np.linalg.norm(nq)
+        p = (key[1] * margin) * n
+        H = stores[key] = HostVisibility(lv, n, p, points, shafts=clear_shafts(lv.system, p, n))
+    return H
