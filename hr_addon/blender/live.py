@@ -203,6 +203,7 @@ def on_depsgraph_update(scene, depsgraph=None):
             dirty = full = True
     if geometry:
         sess.geometry_dirty = time.monotonic()
+        sess.written = None  # a mesh that is not Live's write changed: write every object again
     sess.full_read |= full or geometry
     if dirty or geometry:
         sess.dirty = sess.dirty or dirty
@@ -227,6 +228,7 @@ def on_undo_redo(*args):
         sess.force_write = sess.dirty = True
         sess.geometry_dirty = time.monotonic()
         sess.objects.clear()  # undo replaced the objects: references to the old ones must go
+        sess.written = None
     if STATE.live_sessions:
         _ensure_timer()
 
