@@ -368,6 +368,7 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                         )
                         + ")"
                         for k in done
+                        if f"{k}_cpu_read" in res  # (--preview's refine rows: no parts)
                     ),
                     flush=True,
                 )

@@ -148,3 +148,39 @@ def test_objects_kept_between_writes_are_looked_up_again_when_removed():
     assert sorted(kept) == ["box", "quad0"]
     got = _read(bpy, ["quad0", "box"])
     assert all((got[n][2] == 1.0).all() for n in got)
+
+
+def test_rows_unchanged_since_the_last_write_are_skipped_and_the_values_stay_exact():
+    """scene_in.Rows.unchanged names the targets whose rows hold the same bits in both results of
+    one FlatExtract (0.0 and -0.0 differ; a target with its own array, here the modifier's, is
+    never named; another FlatExtract's result: None); apply_arrays(skip=) leaves those out, marks
+    only the meshes it wrote, and HR_Radiance then holds the second result bit for bit."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import playback, scene_in
+    from hr_addon.blender.state import STATE
+
+    _scene(bpy, ms)
+    si = scene_in.collect_geometry(bpy.context.view_layer, bpy.context.evaluated_depsgraph_get())
+    names = [t.name for t in si.targets]
+    flat = scene_in.FlatExtract(si.targets, "CORNER")
+    v1 = np.random.default_rng(3).random((len(si.mesh.loop_verts), 3)).astype(np.float32)
+    by = {t.name: t for t in si.targets}
+    v1[by["quad2"].loops[0]] = 0.0
+    v2 = v1.copy()
+    v2[by["quad0"].loops[0] + 1, 2] *= 1.5
+    v2[by["box"].loops[1] - 1, 0] += 1.0
+    v2[by["quad2"].loops[0], 1] = -0.0
+    v2[by["sub"].loops[0]] += 1.0  # (its own array: written whatever changed)
+    r1, r2 = flat.rgba(v1), flat.rgba(v2)
+    same = r2.unchanged(r1)
+    assert same == {"quad1", "quad3"}, same
+    assert r2.unchanged(r2) == set(names) - {"sub"}
+    assert r2.unchanged(scene_in.FlatExtract(si.targets, "CORNER").rgba(v1)) is None
+    assert r2.unchanged({k: v for k, v in r1.items()}) is None
+    assert playback.apply_arrays(scene, r1, "CORNER") == []
+    STATE.writes.take()
+    assert playback.apply_arrays(scene, r2, "CORNER", skip=same) == []
+    assert STATE.writes.take() == {bpy.data.objects[k].data.name for k in names if k not in same}
+    got = _read(bpy, names)
+    for k in names:
+        assert np.array_equal(got[k][2].view(np.uint32), r2[k].reshape(-1).view(np.uint32)), k

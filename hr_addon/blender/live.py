@@ -172,6 +172,7 @@ def on_depsgraph_update(scene, depsgraph=None):
             if idd.name in own:  # (a mesh's update says is_updated_transform too)
                 continue
             dirty = True
+            sess.written = None  # (a light shape's mesh too: its own HR_Radiance may have changed)
             if idd.name not in sess.shape_meshes:
                 geometry = full = True
         elif kind == "Object":
@@ -203,6 +204,7 @@ def on_depsgraph_update(scene, depsgraph=None):
             dirty = full = True
     if geometry:
         sess.geometry_dirty = time.monotonic()
+        sess.written = None  # an object that is not Live's write changed: write every object again
     sess.full_read |= full or geometry
     if dirty or geometry:
         sess.dirty = sess.dirty or dirty
@@ -227,6 +229,7 @@ def on_undo_redo(*args):
         sess.force_write = sess.dirty = True
         sess.geometry_dirty = time.monotonic()
         sess.objects.clear()  # undo replaced the objects: references to the old ones must go
+        sess.written = None
     if STATE.live_sessions:
         _ensure_timer()
 

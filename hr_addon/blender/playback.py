@@ -310,22 +310,25 @@ def objects_by_name(scene, names):
     return {n: found.get(n) or bpy.data.objects.get(n) for n in names}
 
 
-def apply_arrays(scene, arrays, domain, reader=None, objects=None):
+def apply_arrays(scene, arrays, domain, reader=None, objects=None, skip=None):
     """Write {object name: values} to the objects' meshes; returns the list of problems. The
     meshes written are marked as playback's writes (STATE.writes) and, with reader, as its own
     too (a Live session's scene name), so the caller need not look the objects up again.
     objects: {name: object} the caller keeps between writes (a Live session: 3,882 objects are
     not looked up at every edit), filled here; emptied and filled again when one of them was
-    removed since (ReferenceError; the caller empties it after an undo, which replaces them)."""
+    removed since (ReferenceError; the caller empties it after an undo, which replaces them).
+    skip: names whose HR_Radiance already holds these very values (Live: rows that did not change
+    since its last write, scene_in.Rows.unchanged): checked as the others, not written again (nor
+    tagged: Blender re-evaluates each written mesh, ~70 us of CPU each at the next redraw)."""
     if objects is not None:
         try:
-            return _apply_arrays(scene, arrays, domain, reader, objects)
+            return _apply_arrays(scene, arrays, domain, reader, objects, skip)
         except ReferenceError:
             objects.clear()
-    return _apply_arrays(scene, arrays, domain, reader, objects)
+    return _apply_arrays(scene, arrays, domain, reader, objects, skip)
 
 
-def _apply_arrays(scene, arrays, domain, reader, objects):
+def _apply_arrays(scene, arrays, domain, reader, objects, skip=None):
     problems = []
     STATE.loaded.pop(scene.name_full, None)
     if objects is None:
@@ -343,6 +346,8 @@ def _apply_arrays(scene, arrays, domain, reader, objects):
             continue
         if obj.mode == "EDIT":
             problems.append(f"object '{name}' is in Edit Mode; not updated")
+            continue
+        if skip and name in skip:
             continue
         me = obj.data
         try:

@@ -223,6 +223,28 @@ class Target:
         return pv[self.vert_map][self.orig_loop_verts]
 
 
+class Rows(dict):
+    """{object name: (N, 4) float32 RGBA} of FlatExtract.rgba: row slices of `buffer` (the
+    targets that take Target.extract: arrays of their own), laid out by `extract`."""
+
+    buffer = None
+    extract = None
+
+    def unchanged(self, other):
+        """The names whose rows hold the same bits in other (a Rows of the same FlatExtract), else
+        None. Writing them again would not change HR_Radiance (Live's write skips them)."""
+        fx = self.extract
+        if fx is None or getattr(other, "extract", None) is not fx or other.buffer.shape != self.buffer.shape:
+            return None
+        if not len(fx.span_keys):
+            return set()
+        # a row's 4 floats as 2 uint64 (one pass, no .any(1): 1.0 against 5.4 ms at 100k)
+        diff = self.buffer.reshape(-1).view(np.uint64) != other.buffer.reshape(-1).view(np.uint64)
+        changed = np.logical_or.reduceat(diff, 2 * fx.span_starts)
+        keys = fx.span_keys
+        return {keys[i] for i in np.flatnonzero(~changed)}
+
+
 class FlatExtract:
     """Every target's values at once: rgba(values) gives {object name: (N, 4) float32 RGBA} as
     row slices of one array (one gather instead of Target.extract and an RGBA copy per object:
@@ -244,6 +266,10 @@ class FlatExtract:
             self.rows.append((n, n + len(src)))
             n += len(src)
         self.index = np.concatenate(idx) if idx else np.zeros(0, np.int64)
+        # the targets with rows of their own (at least one: reduceat's spans), for Rows.unchanged
+        spans = [(t.key, r) for t, r in zip(self.targets, self.rows) if r is not None and r[1] > r[0]]
+        self.span_keys = [k for k, _ in spans]
+        self.span_starts = np.array([r[0] for _, r in spans], np.int64)
 
     @property
     def flat(self):
@@ -259,7 +285,8 @@ class FlatExtract:
         else:
             out[:, :3] = values[self.index]
         out[:, 3] = 1.0
-        res = {}
+        res = Rows()
+        res.buffer, res.extract = out, self
         for t, r in zip(self.targets, self.rows):
             if r is None:
                 v = t.extract(values, self.domain)
