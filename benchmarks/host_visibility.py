@@ -45,6 +45,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import numpy as np  # noqa: E402
 
+from hr_addon.core.gather.hostvis import clip_area, inside_rings  # noqa: E402
+
 STREAM = 0x5A17  # the host visibility's own random stream
 CHUNK = 1 << 21  # (samples x cells) entries per block
 
@@ -53,44 +55,6 @@ def to2d(P, frame):
     o, U, V = frame
     d = np.asarray(P, float) - o
     return np.column_stack([d @ U, d @ V])
-
-
-def clip_area(poly, x0, y0, x1, y1):
-    """Area of polygon poly (M, 2) clipped to the box (Sutherland-Hodgman)."""
-    P = list(map(tuple, poly))
-    for axis, val, keep_ge in ((0, x0, True), (0, x1, False), (1, y0, True), (1, y1, False)):
-        if not P:
-            return 0.0
-        out = []
-        for i in range(len(P)):
-            a, b = P[i - 1], P[i]
-            ia = (a[axis] >= val) if keep_ge else (a[axis] <= val)
-            ib = (b[axis] >= val) if keep_ge else (b[axis] <= val)
-            if ia != ib:
-                t = (val - a[axis]) / (b[axis] - a[axis])
-                out.append((a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])))
-            if ib:
-                out.append(b)
-        P = out
-    if len(P) < 3:
-        return 0.0
-    x, y = np.array(P).T
-    return 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
-
-
-def inside_rings(q, rings):
-    """(...,) even-odd test of 2D points q (..., 2) against rings (list of (M, 2))."""
-    x, y = q[..., 0], q[..., 1]
-    ins = np.zeros(x.shape, bool)
-    for r in rings:
-        for i in range(len(r)):
-            (ax, ay), (bx, by) = r[i - 1], r[i]
-            if ay == by:
-                continue
-            cross = (ay > y) != (by > y)
-            xs = ax + (y - ay) * (bx - ax) / (by - ay)
-            ins ^= cross & (x < xs)
-    return ins
 
 
 class HostVisibility:
