@@ -45,7 +45,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import numpy as np  # noqa: E402
 
-from hr_addon.core.gather.hostvis import clip_area, inside_rings  # noqa: E402
+from hr_addon.core.gather.hostvis import cell_overlaps, inside_rings  # noqa: E402
 
 STREAM = 0x5A17  # the host visibility's own random stream
 CHUNK = 1 << 21  # (samples x cells) entries per block
@@ -144,14 +144,7 @@ class HostVisibility:
         allr = np.concatenate(rings2d)
         c0 = np.floor((allr.min(0) - self.lo) / h + 1e-9).astype(int).clip(0)
         c1 = np.ceil((allr.max(0) - self.lo) / h - 1e-9).astype(int).clip(max=[self.nx, self.ny])
-        ov = np.zeros((c1[1] - c0[1], c1[0] - c0[0]))
-        for jj, cj in enumerate(range(c0[1], c1[1])):
-            for ii, ci in enumerate(range(c0[0], c1[0])):
-                x0, y0 = self.lo[0] + ci * h, self.lo[1] + cj * h
-                a = clip_area(rings2d[0], x0, y0, x0 + h, y0 + h)
-                for hole in rings2d[1:]:
-                    a -= clip_area(hole, x0, y0, x0 + h, y0 + h)
-                ov[jj, ii] = a
+        ov = cell_overlaps(rings2d, *(self.lo + c0 * h), h, *(c1 - c0))
         full = ov >= h * h * (1 - 1e-9)
         ovf = np.flatnonzero(ov.ravel() > 0)
         nov = len(ovf)

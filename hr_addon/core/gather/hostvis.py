@@ -38,6 +38,8 @@ rays (benchmarks/host_visibility.py measured the estimator: the `pin` form).
 
 import numpy as np
 
+from ..clip import overlap_areas, polygon_area_2d
+from ..events.planar import _in_rings
 from ..parallel import batch_map, ranges
 from ..planes import frames
 from .sampling import hash_uniform
@@ -55,48 +57,23 @@ CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's 
 _POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
 
 
-def clip_area(poly, x0, y0, x1, y1):
-    """Area of polygon poly (M, 2) clipped to the box [x0, x1] x [y0, y1] (Sutherland-Hodgman)."""
-    P = list(map(tuple, poly))
-    for axis, val, keep_ge in ((0, x0, True), (0, x1, False), (1, y0, True), (1, y1, False)):
-        if not P:
-            return 0.0
-        out = []
-        for i in range(len(P)):
-            a, b = P[i - 1], P[i]
-            ia = (a[axis] >= val) if keep_ge else (a[axis] <= val)
-            ib = (b[axis] >= val) if keep_ge else (b[axis] <= val)
-            if ia != ib:
-                t = (val - a[axis]) / (b[axis] - a[axis])
-                out.append((a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])))
-            if ib:
-                out.append(b)
-        P = out
-    if len(P) < 3:
-        return 0.0
-    x, y = np.array(P).T
-    return 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+def cell_overlaps(rings2d, x0, y0, h, nx, ny):
+    """(ny, nx) the area of an outline (outer ring, then holes) inside each h x h cell of the block
+    whose first cell's corner is (x0, y0) (clip.overlap_areas: the cells are convex nodes)."""
+    gx, gy = np.meshgrid(x0 + h * np.arange(nx), y0 + h * np.arange(ny))
+    sq = np.array([(0, 0), (1, 0), (1, 1), (0, 1)], np.float64) * h
+    cells = np.stack([gx.ravel(), gy.ravel()], -1)[:, None] + sq[None]
+    return overlap_areas(rings2d, cells).reshape(ny, nx)
 
 
 def inside_rings(q, rings):
-    """(...,) even-odd test of 2D points q (..., 2) against rings (list of (M, 2))."""
-    x, y = q[..., 0], q[..., 1]
-    ins = np.zeros(x.shape, bool)
-    for r in rings:
-        for i in range(len(r)):
-            (ax, ay), (bx, by) = r[i - 1], r[i]
-            if ay == by:
-                continue
-            cross = (ay > y) != (by > y)
-            xs = ax + (y - ay) * (bx - ax) / (by - ay)
-            ins ^= cross & (x < xs)
-    return ins
+    """(...,) even-odd test of 2D points q (..., 2) against rings (outer, then holes)."""
+    return _in_rings(q.reshape(-1, 2), rings).reshape(q.shape[:-1])
 
 
 def ring_area(rings2d):
     """Area of an outline (outer ring, then holes) in 2D."""
-    a = [0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) for x, y in (r.T for r in rings2d)]
-    return a[0] - sum(a[1:])
+    return abs(polygon_area_2d(rings2d[0])) - sum(abs(polygon_area_2d(r)) for r in rings2d[1:])
 
 
 class HostVisibility:
@@ -228,14 +205,7 @@ class HostVisibility:
         allr = np.concatenate(rings2d)
         c0 = np.floor(allr.min(0) / h).astype(int)
         c1 = np.floor(allr.max(0) / h).astype(int) + 1
-        ov = np.zeros((c1[1] - c0[1], c1[0] - c0[0]))
-        for jj, gj in enumerate(range(c0[1], c1[1])):
-            for ii, gi in enumerate(range(c0[0], c1[0])):
-                x0, y0 = gi * h, gj * h
-                a = clip_area(rings2d[0], x0, y0, x0 + h, y0 + h)
-                for hole in rings2d[1:]:
-                    a -= clip_area(hole, x0, y0, x0 + h, y0 + h)
-                ov[jj, ii] = max(a, 0.0)
+        ov = cell_overlaps(rings2d, c0[0] * h, c0[1] * h, h, *(c1 - c0))
         return rings2d, L, self.tiles_of(rings2d, L), c0, c1, ov
 
     def visible(self, rings, idx, L=None):
