@@ -192,6 +192,16 @@ def event_record(label, fr, **cpu):
     }
 
 
+def naive_ratios(runs, q):
+    """Each run of quality q gets naive_ratio: NAIVE's CPU per event over its own, in the same run."""
+    naive = next(r for r in runs if r["quality"] == q and r["method"] == "NAIVE")
+    for r in runs:
+        if r["quality"] == q:
+            r["naive_ratio"] = [
+                n["cpu_seconds"] / max(e["cpu_seconds"], 1e-9) for n, e in zip(naive["events"], r["events"])
+            ]
+
+
 def run_variant(base, method, kw, events, pts, ids, eval_at):
     dyn = DynamicRadiosity(base.copy(), method=method, **kw)
     B0, E0 = dyn.evaluate(pts, ids)
@@ -257,14 +267,7 @@ def run_scenario(name, mesh, events, qualities, variants, repeat, per_area, eval
                 f"delta RMSE {np.sqrt(np.mean(np.square(ee))):.4f}  "
                 f"nodes+ {max(e['nodes_added'] for e in best)}"
             )
-        # ratios in the same run
-        naive = next(r for r in result["runs"] if r["quality"] == q and r["method"] == "NAIVE")
-        for r in result["runs"]:
-            if r["quality"] == q:
-                r["naive_ratio"] = [
-                    n["cpu_seconds"] / max(e["cpu_seconds"], 1e-9)
-                    for n, e in zip(naive["events"], r["events"])
-                ]
+        naive_ratios(result["runs"], q)
     return result
 
 
@@ -501,13 +504,7 @@ def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval
                     f"  {label:13s} mean {np.mean(tt):7.3f} s/event (gather {np.mean(tg):.3f})  delta RMSE "
                     f"{np.sqrt(np.mean(np.square(ee))):.4f}  transport {np.sqrt(np.mean(np.square(et))):.4f}"
                 )
-            naive = next(r for r in result["runs"] if r["quality"] == q and r["method"] == "NAIVE")
-            for r in result["runs"]:
-                if r["quality"] == q:
-                    r["naive_ratio"] = [
-                        n["cpu_seconds"] / max(e["cpu_seconds"], 1e-9)
-                        for n, e in zip(naive["events"], r["events"])
-                    ]
+            naive_ratios(result["runs"], q)
             fl = [floor[i][0] for i in eval_at]
             log(f"  floor (the gather on REFERENCE transport vs ref) {np.sqrt(np.mean(np.square(fl))):.4f}")
             if noise:
