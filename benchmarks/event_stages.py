@@ -43,20 +43,14 @@ def main(argv=None):
     ap.add_argument("--profile", default=None, help="a cProfile summary of the events here")
     args = ap.parse_args(argv)
 
-    from bench_gather_events import _write_profile, load_store
+    from bench_gather_events import _write_profile, stored_room
     from hr_addon.core import solver
-    from hr_addon.core.events import DynamicRadiosity, LightShape, solves
+    from hr_addon.core.events import DynamicRadiosity, solves
     from hr_addon.core.gather.direct import DirectLight
     from hr_addon.core.gather.final import FinalGather
-    from hr_addon.io import precompute as pc
-    from hr_testing import shapes as S
-    from hr_testing.furnished import furnished_room
 
     cpu = time.process_time
-    s, g, _ = load_store(Path(args.store) / pc.FILENAME)
-    s.links.extended(s.h)
-    _, info = furnished_room("100k")
-    _, frame = info["light_wall"]
+    s, g, window = stored_room(args.store)
     times, calls, gathers = defaultdict(float), Counter(), []
 
     def level(lv):
@@ -82,10 +76,6 @@ def main(argv=None):
     wrap(DirectLight, "_shape", lambda lv, n: f"{n} {level(lv)}")
     wrap(solves.Solves, "solve", lambda _, n: "response solve")
     wrap(solver.Operator, "gather", lambda _, n: "operator gather (nested: a grey one's channel)")
-
-    def window(cx):
-        rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)
-        return LightShape(rect, np.full(3, 20.0), "window")
 
     opts = dict(DynamicRadiosity.gather_options("draft"), **eval(args.dyn))
     prof = None
