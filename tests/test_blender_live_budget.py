@@ -131,3 +131,31 @@ def test_strength_and_colour_edits_are_written_whole_during_a_drag(tmp_path, mon
         assert sess.last.preview and {e.kind for e in sess.last.report.events} == {"emission"}
         assert not sess.behind and sess.written is sess.last.values
         assert _same(_held(bpy, sess.targets), _bits(sess.last.values, sess.targets))
+
+
+def test_once_the_drag_pauses_the_rest_of_the_preview_is_written_a_budget_at_a_time(tmp_path, monkeypatch):
+    """With no new result (the timer's ticks while the refine is computed) a session behind its
+    preview writes the next budget's worth of it once CATCH_UP_AFTER has passed since its last
+    write, not while an edit is pending (dirty), until HR_Radiance holds the preview."""
+    from hr_addon.blender import live_session
+
+    monkeypatch.setattr(live_session, "PREVIEW_WRITE_THRESHOLD", 0.0)
+    _record_skips(monkeypatch)
+    bpy, scene, live, sess, window = _start(tmp_path, 1)
+    _drag(bpy, scene, live, sess, window, 2)
+    assert sess.behind
+    n = len(_skips)
+    assert not live._deliver(sess, scene) and len(_skips) == n  # too soon after the write
+    sess.wrote_at -= live_session.CATCH_UP_AFTER
+    sess.dirty = True
+    assert not live._deliver(sess, scene) and len(_skips) == n  # an edit is pending: it comes first
+    sess.dirty = False
+    for _ in range(len(sess.targets)):
+        if not sess.behind:
+            break
+        sess.wrote_at -= live_session.CATCH_UP_AFTER
+        assert live._deliver(sess, scene)
+        assert len(set(sess.targets) - _skips[-1]) <= 1
+        assert _same(_held(bpy, sess.targets), _bits(sess.written, sess.targets))
+    assert not sess.behind and sess.last.preview
+    assert _same(_held(bpy, sess.targets), _bits(sess.last.values, sess.targets))
