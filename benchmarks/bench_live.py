@@ -132,6 +132,22 @@ def make_furnished(tmp, size="100k"):
     return scene, win, "EMISSION", u, np.cross(u, v), 0.05, info
 
 
+def furnished_live(tmp, size="100k"):
+    """make_furnished's room with Live on (FE draft, the final gather; built by hr.live_update()):
+    (scene, the window, its node kind, along, normal, step, view layer, session)."""
+    import bpy
+
+    from hr_addon.blender import live
+
+    c0 = time.process_time()
+    scene, obj, kind, along, normal, step, _ = make_furnished(tmp, size)
+    scene.hr.method, scene.hr.quality, scene.hr.final_gather = "FE", "DRAFT", True
+    scene.hr.live = True
+    assert bpy.ops.hr.live_update() == {"FINISHED"}
+    print(f"built: {time.process_time() - c0:.1f} s CPU", flush=True)
+    return scene, obj, kind, along, normal, step, bpy.context.view_layer, live.session(scene)
+
+
 def _origin_to_centre(obj):
     """Put the object's origin at its mesh's centre (so it rotates and scales about itself)."""
     me = obj.data

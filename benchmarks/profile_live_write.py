@@ -72,15 +72,9 @@ def main():
     from hr_addon.blender import live, playback
     from hr_addon.blender.live_worker import PREVIEW
 
-    tmp = tempfile.mkdtemp(prefix="hr_prof_live_")
-    c0 = time.process_time()
-    scene, obj, kind, along, normal, step, info = bl.make_furnished(tmp, "100k")
-    scene.hr.method, scene.hr.quality, scene.hr.final_gather = "FE", "DRAFT", True
-    vl = bpy.context.view_layer
-    scene.hr.live = True
-    assert bpy.ops.hr.live_update() == {"FINISHED"}
-    print(f"built: {time.process_time() - c0:.1f} s CPU", flush=True)
-    sess = live.session(scene)
+    scene, obj, kind, along, normal, step, vl, sess = bl.furnished_live(
+        tempfile.mkdtemp(prefix="hr_prof_live_")
+    )
     w = sess.worker
     seq = bl.edit_sequence(obj, kind, along, normal, step)
     for k, preview in (("strength", False), ("colour", False), ("move", True)):
