@@ -682,7 +682,14 @@ def _within_budget(values, written, budget):
     show and are measured again against it at the next write (behind: some of them changed by more
     than the threshold). Blender re-evaluates every written mesh before the next redraw (~65 us of
     CPU each; the furnished 100k room's 3,882 meshes: 0.27-0.31 s)."""
-    keys = values.extract.span_keys
+    fx = values.extract
+    if (
+        fx is None
+        or getattr(written, "extract", None) is not fx
+        or written.buffer.shape != values.buffer.shape
+    ):
+        return values.unchanged(written), values, False  # (not the same layout: None, write all)
+    keys = fx.span_keys
     if not len(keys):
         return set(), values, False
     rel = values.change(written)
