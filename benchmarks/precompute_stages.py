@@ -84,7 +84,7 @@ def labelled_init(self, system, *a, **k):
         cpu[(name, "FinalGather.__init__")] += time.process_time() - t0
         level.pop()
     count[(name, "samples")] += self.n
-    count[(name, "traced samples")] += int((~self.dark).sum())
+    count[(name, "uncovered samples")] += int((~self.dark).sum())
     count[(name, "entries")] += len(self.cols)
 
 
