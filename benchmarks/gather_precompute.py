@@ -4,7 +4,7 @@ code of the checkout given: CPU seconds, one run. For comparing checkouts on the
 
     .venv/bin/python benchmarks/gather_precompute.py /work/cache/STORE [--root CHECKOUT] \
         [--set layouts.SPLIT=False] [--set final.FinalGather.BATCH_RAYS=1<<17] [--threads N] \
-        [--serial] [--profile FILE [--whole]] [--digest FILE] \
+        [--serial] [--profile FILE [--whole]] [--digest FILE] [--check FILE] \
         [--json FILE] [--write DIR]
 
 --serial: the CPU seconds of the threaded maps' batches (core.parallel.profiled, threads 1) and so
@@ -13,6 +13,8 @@ the serial part, with Amdahl's model on 2 and 16 cores as docs/threads.md's (ben
 60 largest cumulative entries written to FILE: where the serial part is (--whole: of everything).
 --digest: a SHA-256 per stored array of the captured precompute (io.precompute_graph.capture),
 written to FILE as JSON: two checkouts or thread counts store the same bits if the files match.
+--check: compare this run's digests with FILE (another run's --digest): prints whether every
+captured array is bitwise the same and names those that differ.
 --write: write the stored system with this gather as a new store into DIR (not the one read), for
 bench_gather_events.py --cache DIR (its events and --dump on this checkout's gather).
 """
@@ -37,6 +39,7 @@ ap.add_argument("--serial", action="store_true", help="the serial part and Amdah
 ap.add_argument("--profile", default=None, help="write a cProfile summary of the serial code here")
 ap.add_argument("--whole", action="store_true", help="--profile: of the whole run, the maps' batches too")
 ap.add_argument("--digest", default=None, help="write the stored arrays' SHA-256 here (JSON)")
+ap.add_argument("--check", default=None, help="compare the arrays' SHA-256 with this --digest file")
 ap.add_argument("--json", default=None, help="append this run's figures to this JSON list")
 ap.add_argument("--write", default=None, help="write the system and this gather as a store here")
 args = ap.parse_args()
@@ -120,11 +123,17 @@ if prof:
     with open(args.profile, "w") as fh:
         pstats.Stats(prof, stream=fh).sort_stats("cumulative").print_stats(60)
         pstats.Stats(prof, stream=fh).sort_stats("tottime").print_stats(40)
-if args.digest:
+if args.digest or args.check:
     from hr_addon.io.precompute_graph import capture
 
     def sha(a):
         return hashlib.sha256(str((a.dtype, a.shape)).encode() + a.tobytes()).hexdigest()
 
     arrays, _ = capture(s, g)
-    Path(args.digest).write_text(json.dumps({k: sha(a) for k, a in arrays.items()}, indent=0))
+    got = {k: sha(a) for k, a in arrays.items()}
+    if args.digest:
+        Path(args.digest).write_text(json.dumps(got, indent=0))
+    if args.check:
+        ref = json.loads(Path(args.check).read_text())
+        differ = sorted(k for k in set(ref) | set(got) if ref.get(k) != got.get(k))
+        print(f"{len(got)} arrays against {args.check}: bitwise equal: {not differ}; differ: {differ[:20]}")

@@ -420,7 +420,11 @@ class FinalGather(DirectLight):
         # area, which a small far object hardly changes (as the refiner's eps does).
         # lengths from the main group of objects (geometry.isolated_objects): a stray object far
         # away changes neither the reach nor the samples' random streams
-        size = float(np.sqrt(isolated_objects(s.mesh).main_area))
+        # tables of the HR nodes the same for every level of one gather (_shared): the lower levels
+        # (the probe's, the second's) take the top's; dropped once this level is built
+        self._tables = {} if tables is None else tables
+        # (the main group's area, shared too: isolated_objects once per gather, not per level)
+        size = float(np.sqrt(self._shared("main_area", lambda: isolated_objects(s.mesh).main_area)))
         self.unit = 2.0 ** (np.floor(np.log2(size)) - 12)  # a power of two: exact under 2^k scaling
         self.reach = min(4.0 * size, self.tmax)
         self.eps = float(s.refiner.eps)
@@ -472,9 +476,6 @@ class FinalGather(DirectLight):
         hits &= bool(((rr & (rr - 1)) == 0).all())
         self._wtype = np.min_scalar_type(int(rr.max(initial=0))).name if hits else "float32"
         self._diam = None
-        # tables of the HR nodes the same for every level of one gather (_shared): the lower levels
-        # (the probe's, the second's) take the top's; dropped once this level is built
-        self._tables = {} if tables is None else tables
         if covered_hits not in ("zero", "shown"):
             raise ValueError("covered_hits must be 'zero' or 'shown'")
         # "zero": rays reaching a point contacts.py calls covered read 0 (values_at); "shown": they
@@ -567,7 +568,10 @@ class FinalGather(DirectLight):
                 # of all objects or of one, a farm's split, Live's re-gathers). Those samples'
                 # rays are the second level's (traced anyway with iterations): it reuses them on
                 # the leaves that are not fine
-                xp = grid(leaves, lp)[0].reshape(-1, 3)
+                # (kept: the second level's samples of the leaves that are not fine are these
+                # rows, each leaf's its own, so they are not made again below)
+                probe_grid = grid(leaves, lp)
+                xp = probe_grid[0].reshape(-1, 3)
                 nn = lp * lp
                 probe = FinalGather(
                     system,
@@ -610,7 +614,11 @@ class FinalGather(DirectLight):
             start = np.concatenate([[0], np.cumsum(k2)])
             for kk in np.unique(k2):
                 sel = np.flatnonzero(k2 == kk)
-                xs, ws = grid(used[sel], int(round(kk**0.5)))
+                if self.near_points and kk == lp * lp:  # the probe's rows of these leaves
+                    rows = np.searchsorted(leaves, used[sel])
+                    xs, ws = probe_grid[0][rows], probe_grid[1][rows]
+                else:
+                    xs, ws = grid(used[sel], int(round(kk**0.5)))
                 at = (start[sel, None] + np.arange(kk)).ravel()
                 x[at], gw[at] = xs.reshape(-1, 3), ws.ravel()
             off = np.full(self.n_hr, -1, np.int64)
@@ -618,7 +626,7 @@ class FinalGather(DirectLight):
             if self.near_points:  # the probe's row of each sample of a leaf that is not fine
                 at = np.repeat(np.searchsorted(leaves, used) * nn - start[:-1], k2) + np.arange(len(x))
                 reuse = (np.where(np.repeat(fine[used], k2), -1, at), probe.indptr, probe.cols, probe.w)
-                del probe
+                del probe, probe_grid
             self.stats["near_leaves"] = int(fine.sum())
             second_near = near_second and self.near_points and iterations and levels == 2
             self.second = FinalGather(
@@ -739,9 +747,17 @@ class FinalGather(DirectLight):
         cnt[old] = np.diff(indptr)[take[old]]
         ip = np.zeros(len(cnt) + 1, np.int64)
         np.cumsum(cnt, out=ip[1:])
-        src = np.where(old, len(self.cols) + indptr[:-1][np.maximum(take, 0)], self.indptr[:-1])
-        src = np.repeat(src - ip[:-1], cnt) + np.arange(ip[-1])
-        self.cols, self.w = np.concatenate([self.cols, cols])[src], np.concatenate([self.w, w])[src]
+        first = np.where(old, len(self.cols) + indptr[:-1][np.maximum(take, 0)], self.indptr[:-1]) - ip[:-1]
+        both = np.concatenate([self.cols, cols]), np.concatenate([self.w, w])
+        self.cols, self.w = np.empty(ip[-1], both[0].dtype), np.empty(ip[-1], both[1].dtype)
+
+        def rows(r0, r1):  # each block of rows copies its own entries: on threads (batch_map)
+            a, b = ip[r0], ip[r1]
+            src = np.repeat(first[r0:r1], cnt[r0:r1]) + np.arange(a, b)
+            np.take(both[0], src, out=self.cols[a:b])
+            np.take(both[1], src, out=self.w[a:b])
+
+        batch_map(rows, _row_blocks(ip, self.ENTRY_BATCH), self.threads)
         self.indptr = ip
         if not self.near_points:
             self.cols %= self.n_hr
