@@ -37,6 +37,9 @@ def main(argv=None):
     ap.add_argument("--points", type=int, default=None, help="stored points per shape (top 64, second 16)")
     ap.add_argument("--ref-rays", type=int, default=None, help="the reference's rays (top 256, second 64)")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument(
+        "--policy", default="always", help="hostvis POLICY: always (tiles stored), never (the one-shot path)"
+    )
     ap.add_argument("--size", default="100k")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
@@ -44,11 +47,13 @@ def main(argv=None):
     from bench_gather_events import load_store
     from hr_addon.core.events import DynamicRadiosity, LightShape
     from hr_addon.core.events.direct import clear_shafts
+    from hr_addon.core.gather import hostvis
     from hr_addon.core.gather.hostvis import HostVisibility
     from hr_addon.io import precompute as pc
     from hr_testing import shapes as S
     from hr_testing.furnished import furnished_room
 
+    hostvis.ENABLED = False  # main's shadow rays in level_light; the stores made here
     cpu = time.process_time
     top = args.level == "top"
     points = args.points or (64 if top else 16)
@@ -66,6 +71,20 @@ def main(argv=None):
 
     dyn = DynamicRadiosity(s.copy(), method="FE", **DynamicRadiosity.gather_options("draft"))
     base = dict(rays=lv.shadow_rays, far=getattr(lv, "FAR_RAYS", 0))
+
+    counted = [0]  # the rays the backend traces (main's shadow rays, counted)
+    be = lv.system.backend
+    occ, occ_cm = be.occluded, be.occluded_cm
+
+    def _occ(a, b, *k, **kw):
+        counted[0] += len(a)
+        return occ(a, b, *k, **kw)
+
+    def _occ_cm(a, d, *k, **kw):
+        counted[0] += d.shape[1]
+        return occ_cm(a, d, *k, **kw)
+
+    be.occluded, be.occluded_cm = _occ, _occ_cm
 
     def level_light(rec, rays=None, far=None):
         lv.shadow_rays = rays or base["rays"]
@@ -93,24 +112,30 @@ def main(argv=None):
         rec = dyn.shapes["w"]
         em = lv._shape_emitter(dyn, rec)[0]
         R, tr = level_light(rec, ref_rays, 0)
+        n0 = counted[0]
         M, tm = level_light(rec)
+        main_rays = counted[0] - n0
         lit = R > 0
         rms = lambda X: float(np.sqrt(np.mean((X - R)[lit] ** 2)) / R[lit].mean())  # noqa: E731
         row = dict(
             ref_cpu_s=round(tr, 3),
-            main=dict(cpu_s=round(tm, 3), sum_vs_ref=float(M.sum() / R.sum() - 1), rms=rms(M)),
+            main=dict(
+                cpu_s=round(tm, 3), rays=main_rays, sum_vs_ref=float(M.sum() / R.sum() - 1), rms=rms(M)
+            ),
         )
         print(
-            f"{step}: reference {tr:.2f} s; main {tm:.3f} s, sum {row['main']['sum_vs_ref']:+.5f}, rms "
-            f"{row['main']['rms']:.4f}",
+            f"{step}: reference {tr:.2f} s; main {tm:.3f} s, {main_rays:,} rays, "
+            f"sum {row['main']['sum_vs_ref']:+.5f}, rms {row['main']['rms']:.4f}",
             flush=True,
         )
         for T in (int(t) for t in args.tiles.split(",")):
             if T not in stores:
                 sh = clear_shafts(s, em.point, em.normal)
-                stores[T] = HostVisibility(lv, em.normal, em.point, points=points, shafts=sh, tile=T)
+                stores[T] = HostVisibility(
+                    lv, em.normal, em.point, points=points, shafts=sh, tile=T, policy=args.policy
+                )
             H = stores[T]
-            r0, n0, c0 = H.rays, len(H.tiles), cpu()
+            r0, n0, q0, c0 = H.rays, len(H.tiles), H.rent_rays, cpu()
             D = H.light(em).astype(np.float64)  # traces the tiles it needs first
             tfirst = cpu() - c0
             ts = []
@@ -125,6 +150,7 @@ def main(argv=None):
                 cell_m=H.cell(L),
                 new_tiles=len(H.tiles) - n0,
                 new_rays=int(H.rays - r0),
+                event_rays=int(H.rent_rays - q0),
                 first_cpu_s=round(tfirst, 3),
                 event_cpu_s=round(float(np.median(ts)), 4),
                 tiles=len(H.tiles),
@@ -135,7 +161,7 @@ def main(argv=None):
             )
             print(
                 f"   tile {T}: L {L} (h {100 * H.cell(L):.2f} cm), +{r['new_tiles']} tiles, "
-                f"+{r['new_rays']:,} rays, "
+                f"+{r['new_rays']:,} rays, one-shot {r['event_rays']:,} rays, "
                 f"first call {tfirst:.2f} s, event {r['event_cpu_s']:.3f} s, store {r['tiles']} tiles "
                 f"{r['bytes'] / 1e6:.2f} MB; sum {r['sum_vs_ref']:+.5f}, rms {r['rms']:.4f}",
                 flush=True,

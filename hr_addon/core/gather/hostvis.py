@@ -54,6 +54,10 @@ TILE = 4  # cells per tile side (16 bits: the 100k window traces x0.7 the rays o
 BASE = 4096.0  # base cell = BASE x the level's unit (a power of two near the scene's size)
 MAX_LEVEL = 24  # finest cell: base / 4096 (about 2 mm in a 10 m room)
 CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's weights
+# when a tile is traced whole and stored (speed only: the values are the same either way, module doc):
+# "rent" (ski rental: once the rays its cells cost events without it reach its price, rows x cells),
+# "second" (on its second use), "always" (on its first use), "never" (every event traces its own)
+POLICY = "rent"
 _POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
 
 
@@ -83,7 +87,7 @@ class HostVisibility:
     shafts: the plane's planes.ClearShafts (events.direct.clear_shafts) or None (every row traced);
     tile: cells per tile side (tile^2 a multiple of 8)."""
 
-    def __init__(self, lv, normal, point, points=64, shafts=None, threads=None, tile=TILE):
+    def __init__(self, lv, normal, point, points=64, shafts=None, threads=None, tile=TILE, policy=None):
         n = np.asarray(normal, np.float64)
         self.n = n / np.linalg.norm(n)
         self.o = float(np.asarray(point, np.float64) @ self.n) * self.n
@@ -95,7 +99,11 @@ class HostVisibility:
         self.threads = getattr(lv, "threads", 1) if threads is None else threads
         self.base = BASE * lv.unit
         self.tiles = {}  # (L, ti, tj) -> (rows (sorted sample indices), bits (rows, tile^2 / 8) uint8)
-        self.rays = 0
+        self.rays = 0  # rays traced into stored tiles
+        self.policy = POLICY if policy is None else policy
+        self.spent, self.price = {}, {}  # tile -> rays events spent on it unstored / to store it
+        self.rows_all = {}  # tile -> its rows' count (the price's)
+        self.rent_rays = 0  # rays traced by events for tiles not stored
 
     # -- the lattice --------------------------------------------------------------------------------
     def cell(self, L):
@@ -125,73 +133,133 @@ class HostVisibility:
         s = self.tile * self.cell(L)
         return np.array([self.o + (ti + a) * s * self.U + (tj + b) * s * self.V for a, b in np.ndindex(2, 2)])
 
-    def facing(self, key):
-        """The level's samples a tile stores: not dark, in front of the plane (by eps / 2), a corner
-        of the tile at most eps below their horizon (a superset of those any point of it can light
-        with weight)."""
+    def facing(self, key, among=None):
+        """The level's samples (of `among`, sorted, if given) a tile stores: not dark, in front of the
+        plane (by eps / 2), a corner of the tile at most eps below their horizon (a superset of those
+        any point of it can light with weight). Each sample's own products, written out: the same
+        answer for a sample whatever else is asked (a tile traced whole or an event's part of it)."""
         lv = self.lv
-        x, nx = lv.points, lv.normals
-        ok = ~lv.dark & ((x - self.o) @ self.n > 0.5 * lv.eps)
-        i = np.flatnonzero(ok)
-        c = self._corners(key)
-        top = (nx[i] @ c.T - np.einsum("ik,ik->i", x[i], nx[i])[:, None]).max(1)
+        i = np.arange(lv.n) if among is None else np.asarray(among)
+        x, nx = lv.points[i], lv.normals[i]
+        dot = lambda a, b: (a[:, 0] * b[0] + a[:, 1] * b[1]) + a[:, 2] * b[2]  # noqa: E731
+        ok = ~lv.dark[i] & (dot(x - self.o, self.n) > 0.5 * lv.eps)
+        i, x, nx = i[ok], x[ok], nx[ok]
+        xn = (x[:, 0] * nx[:, 0] + x[:, 1] * nx[:, 1]) + x[:, 2] * nx[:, 2]
+        top = np.full(len(i), -np.inf)
+        for c in self._corners(key):
+            top = np.maximum(top, dot(nx, c) - xn)
         return i[top > -lv.eps]
 
     def shifts(self, L, rows):
         """(len(rows), 2) each sample's own shift of level L's lattice, in [0, 1)."""
         return hash_uniform(self.lv.seed, self.lv.keys[rows], STREAM + L)
 
-    def segments(self, key, rows):
-        """(origins (3, l), d (3, l x T^2)) of the tile's segments from samples rows (T = self.tile):
-        per sample T^2 segments, cell (i, j) of the tile at j T + i, to (c + r) h in the plane's
-        frame."""
+    def segments(self, key, rows, cells=None):
+        """(origins (3, l), d (3, l x c)) of the tile's segments from samples rows to its cells
+        (cell (i, j) of the tile at j T + i, T = self.tile; by default all T^2 of them, in that
+        order), to (c + r) h in the plane's frame: each segment's values whichever others are asked."""
         L, ti, tj = key
-        lv, h = self.lv, self.cell(L)
+        lv, h, T = self.lv, self.cell(L), self.tile
+        cells = np.arange(T * T) if cells is None else np.asarray(cells)
         eps = lv.eps
         r = self.shifts(L, rows)
-        a = (ti * self.tile + np.arange(self.tile)[None] + r[:, :1]) * h  # (l, i)
-        b = (tj * self.tile + np.arange(self.tile)[None] + r[:, 1:]) * h  # (l, j)
+        a = (ti * T + cells[None] % T + r[:, :1]) * h  # (l, c)
+        b = (tj * T + cells[None] // T + r[:, 1:]) * h  # (l, c)
         org = (lv.points[rows] + eps * lv.normals[rows]).T  # (3, l)
         p0 = self.o + eps * self.n
-        end = [p0[k] + a[:, None, :] * self.U[k] + b[:, :, None] * self.V[k] for k in range(3)]  # (l, j, i)
-        d = np.stack([end[k] - org[k][:, None, None] for k in range(3)]).reshape(3, -1)
-        return org, d
+        d = np.stack([(p0[k] + a * self.U[k] + b * self.V[k]) - org[k][:, None] for k in range(3)])
+        return org, d.reshape(3, -1)
 
     # -- tracing ------------------------------------------------------------------------------------
     def trace(self, keys):
-        """Trace the tiles of keys not yet stored (each tile on its own: its bits are the same in
-        any order, batching or thread count)."""
+        """Trace and store the tiles of keys not yet stored (each tile on its own: its bits are the
+        same in any order, batching or thread count)."""
         for key in keys:
             if key not in self.tiles:
-                self.tiles[key] = self._trace_tile(key)
+                rows, todo = self._rows(key)
+                self.tiles[key] = (rows, self._bits(key, rows, todo))
+                self.rays += len(todo) * self.tile * self.tile
 
     def missing(self, rings, L=None):
-        """The tiles a shape (rings on the plane) needs that are not stored yet ([]: `visible` traces
-        no ray). For Live's first drag over new tiles (trace them, keep rays meanwhile) and for a
-        bake's shapes over its frames (trace them all before the first frame)."""
-        return [key for key in self.layout(rings, L)[2] if key not in self.tiles]
+        """The tiles a shape (rings on the plane) reads that are not stored yet ([]: `visible` traces
+        no ray): an event traces their segments it reads (or stores them, by the policy)."""
+        _, _, keys, c0, _, ov = self.layout(rings, L)
+        return [key for key in keys if key not in self.tiles and self._cells_of(key, c0, ov > 0).any()]
 
-    def _trace_tile(self, key):
+    def _cells_of(self, key, c0, over):
+        """(T, T) bool the cells of tile key that a shape overlaps (over: its block's, from c0)."""
+        _, ti, tj = key
+        T = self.tile
+        nby, nbx = over.shape
+        m = np.zeros((T, T), bool)
+        i0, j0 = ti * T - c0[0], tj * T - c0[1]
+        bi0, bi1, bj0, bj1 = max(i0, 0), min(i0 + T, nbx), max(j0, 0), min(j0 + T, nby)
+        if bi0 < bi1 and bj0 < bj1:
+            m[bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0] = over[bj0:bj1, bi0:bi1]
+        return m
+
+    def _rows(self, key, among=None):
+        """(rows, todo) of tile key: the samples it stores (of `among` if given: an event's part of
+        it), and the indices into rows of those whose shaft to the tile's box is not certainly clear
+        (the others' bits are all 1, no rays)."""
         lv = self.lv
-        rows = self.facing(key).astype(np.int32)
-        C = self.tile * self.tile
-        bits = np.full((len(rows), C // 8), 255, np.uint8)
+        rows = self.facing(key, among).astype(np.int32)
         todo = np.arange(len(rows))
         if self.shafts is not None and len(rows):
             c = self._corners(key)
             e = lv.eps * self.n
             o = lv.points[rows] + lv.eps * lv.normals[rows]
             todo = todo[~self.shafts.clear(o, c.min(0) + e, c.max(0) + e)]
+        return rows, todo
+
+    def _bits(self, key, rows, todo, cells=None):
+        """(len(rows), T^2 / 8) the packed bits of rows over the tile's cells: traced for rows[todo]
+        (only `cells` if given, the others left 1: nobody reads them), 1 elsewhere."""
+        lv, C = self.lv, self.tile * self.tile
+        c = np.arange(C) if cells is None else np.asarray(cells)
+        bits = np.full((len(rows), C // 8), 255, np.uint8)
 
         def part(a, b):
             sel = todo[a:b]
-            org, d = self.segments(key, rows[sel])
-            vis = ~lv.system.backend.occluded_cm(org, d, C)
-            bits[sel] = np.packbits(vis.reshape(len(sel), C), axis=1)
+            org, d = self.segments(key, rows[sel], c)
+            vis = ~lv.system.backend.occluded_cm(org, d, len(c)).reshape(len(sel), len(c))
+            if len(c) < C:
+                v = np.ones((len(sel), C), bool)
+                v[:, c] = vis
+                vis = v
+            bits[sel] = np.packbits(vis, axis=1)
 
-        batch_map(part, ranges(len(todo), CHUNK // C), self.threads)
-        self.rays += len(todo) * C
-        return rows, bits
+        batch_map(part, ranges(len(todo), max(CHUNK // len(c), 1)), self.threads)
+        return bits
+
+    def _tile(self, key, idx, cells):
+        """(rows, bits) of tile key for an event at samples idx reading its cells: the stored tile,
+        or (POLICY) the tile traced whole and stored, or only the event's rows and cells traced
+        (the same bits there: the values do not depend on which). Ski rental ("rent"): the rays an
+        event spends on a tile it does not store add up, and once they would reach the tile's price
+        (its rows x cells: what storing it costs) it is traced and stored."""
+        got = self.tiles.get(key)
+        if got is not None:
+            return got
+        rows, todo = self._rows(key, idx)
+        cost = len(todo) * len(cells)
+        spent = self.spent.get(key)
+        if self.policy == "rent":
+            if key not in self.rows_all:
+                self.rows_all[key] = len(self.facing(key))
+            # its price: its rows x cells, less the rows whose shafts are clear (no rays) in the
+            # proportion the event's rows have them (testing every row's shaft would cost more)
+            self.price[key] = self.rows_all[key] * self.tile**2 * len(todo) / max(len(rows), 1)
+        if (
+            self.policy == "always"
+            or (self.policy == "second" and spent is not None)
+            or (self.policy == "rent" and (spent or 0) + cost >= self.price[key])
+        ):
+            self.trace([key])
+            return self.tiles[key]
+        self.spent[key] = (spent or 0) + cost
+        self.rent_rays += cost
+        return rows, self._bits(key, rows, todo, cells)
 
     # -- an event -----------------------------------------------------------------------------------
     def layout(self, rings, L=None):
@@ -210,11 +278,10 @@ class HostVisibility:
 
     def visible(self, rings, idx, L=None):
         """(len(idx),) the visible fraction of a shape (rings (M, 3) on the plane, outer first) from
-        samples idx (the caller's culls: in front of the shape, a vertex above the horizon), by the
-        stored bits (tracing the tiles it overlaps that are not yet stored). L: the cell level (by
-        default level_for the shape's area)."""
+        samples idx (sorted; the caller's culls: in front of the shape, a vertex above the horizon),
+        by the bits of the cells it overlaps: stored tiles read, the others' segments traced (_tile).
+        L: the cell level (by default level_for the shape's area)."""
         rings2d, L, keys, c0, c1, ov = self.layout(rings, L)
-        self.trace(keys)
         h = self.cell(L)
         idx = np.asarray(idx).astype(np.int32)  # (the tiles' rows' type: no casts in the look-ups)
         nbx, nby = c1 - c0
@@ -225,19 +292,15 @@ class HostVisibility:
         V = np.zeros(len(idx))
         # per tile, its cells the shape overlaps as packed bytes: a sample's counts of stored and of
         # visible overlapped cells by a popcount of its bytes (no unpacking but for the mixed ones)
-        T = self.tile
-        masks = []
+        masks, tiles = [], {}
         for key in keys:
-            _, ti, tj = key
-            m = np.zeros((T, T), bool)
-            i0, j0 = ti * T - c0[0], tj * T - c0[1]
-            bi0, bi1, bj0, bj1 = max(i0, 0), min(i0 + T, nbx), max(j0, 0), min(j0 + T, nby)
-            if bi0 < bi1 and bj0 < bj1:
-                m[bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0] = over[bj0:bj1, bi0:bi1]
-            if m.any() and len(self.tiles[key][0]):
-                masks.append((key, np.packbits(m.ravel()), int(m.sum())))
+            m = self._cells_of(key, c0, over)
+            if m.any():
+                tiles[key] = self._tile(key, idx, np.flatnonzero(m.ravel()))
+                if len(tiles[key][0]):
+                    masks.append((key, np.packbits(m.ravel()), int(m.sum())))
         # each sample's row in each tile (-1: not stored), looked up once per event
-        look = {key: self._rows_of(key, idx) for key, _, _ in masks}
+        look = {key: self._rows_of(tiles[key][0], idx) for key, _, _ in masks}
         step = max(1, CHUNK // max(nbx * nby, 1))
         for s0 in range(0, len(idx), step):
             sl = slice(s0, s0 + step)
@@ -247,43 +310,46 @@ class HostVisibility:
             for key, m, cnt in masks:
                 p = look[key][sl]
                 f = np.flatnonzero(p >= 0)
-                n1[f] += _POP[self.tiles[key][1][p[f]] & m].sum(1, dtype=np.int64)
+                n1[f] += _POP[tiles[key][1][p[f]] & m].sum(1, dtype=np.int64)
                 ns[f] += cnt
             Vc = np.zeros(len(rows))
             Vc[(n1 == ns) & (ns > 0)] = 1.0  # every stored overlapped bit 1: exactly 1 (0: exactly 0)
             mix = np.flatnonzero((n1 > 0) & (n1 < ns))
             if len(mix):
                 at = {key: look[key][sl][mix] for key, _, _ in masks}
-                vis = self.block(list(at), rows[mix], c0, c1, at)[0]
+                vis = self.block(list(at), rows[mix], c0, c1, at, tiles)[0]
                 Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis, rings2d)
             V[sl] = Vc
         return V
 
-    def _rows_of(self, key, idx):
-        """(len(idx),) each sample's row in the tile key, -1 where the tile does not store it."""
-        trows = self.tiles[key][0]
+    @staticmethod
+    def _rows_of(trows, idx):
+        """(len(idx),) each sample's row in a tile's rows trows, -1 where the tile has no row."""
         if not len(trows):
             return np.full(len(idx), -1, np.int64)
         pos = np.minimum(np.searchsorted(trows, idx), len(trows) - 1)
         return np.where(trows[pos] == idx, pos, -1)
 
-    def block(self, keys, rows, c0, c1, at=None):
+    def block(self, keys, rows, c0, c1, at=None, tiles=None):
         """(vis, stored) (len(rows), c1 - c0 reversed) bool: the stored bits of samples rows over
-        the cells [c0, c1) (x, y) from the tiles keys, and where a tile stores the sample (at: the
-        samples' rows in each tile, _rows_of, if known)."""
+        the cells [c0, c1) (x, y) from the tiles keys (of `tiles`, by default the stored ones), and
+        where a tile stores the sample (at: the samples' rows in each tile, _rows_of, if known)."""
+        tiles = self.tiles if tiles is None else tiles
         nbx, nby = c1 - c0
         nl = len(rows)
         vis = np.zeros((nl, nby, nbx), bool)
         stored = np.zeros((nl, nby, nbx), bool)
         for key in keys:
-            trows, tbits = self.tiles[key]
+            if key not in tiles:  # (a tile of the box none of whose cells the shape overlaps)
+                continue
+            trows, tbits = tiles[key]
             _, ti, tj = key
             i0, j0 = ti * self.tile - c0[0], tj * self.tile - c0[1]  # the tile's first cell in the block
             bi0, bi1 = max(i0, 0), min(i0 + self.tile, nbx)
             bj0, bj1 = max(j0, 0), min(j0 + self.tile, nby)
             if bi0 >= bi1 or bj0 >= bj1 or not len(trows):
                 continue
-            p = at[key] if at is not None else self._rows_of(key, rows)
+            p = at[key] if at is not None else self._rows_of(trows, rows)
             f = np.flatnonzero(p >= 0)
             t = (
                 np.unpackbits(tbits[p[f]], axis=1, count=self.tile * self.tile)
@@ -378,12 +444,12 @@ class HostVisibility:
         )
 
     @classmethod
-    def from_state(cls, lv, a, shafts=None, threads=None):
+    def from_state(cls, lv, a, shafts=None, threads=None, policy=None):
         """The store of state() on the level lv (the same samples: its unit must give the same base,
         its sample count the same), its tiles as saved (no rays), new tiles traced as before."""
         n, o, U, V = (np.array(v) for v in a["frame"])
         points, tile, base, count = a["rule"]
-        H = cls(lv, n, o, int(points), shafts, threads, int(tile))
+        H = cls(lv, n, o, int(points), shafts, threads, int(tile), policy)
         if H.base != base or lv.n != count:
             raise ValueError("a host visibility store of another scale or other samples")
         H.n, H.o, H.U, H.V = n, o, U, V  # (bit for bit as saved)
