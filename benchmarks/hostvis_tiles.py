@@ -135,7 +135,7 @@ def main(argv=None):
                     lv, em.normal, em.point, points=points, shafts=sh, tile=T, policy=args.policy
                 )
             H = stores[T]
-            r0, n0, q0, c0 = H.rays, len(H.tiles), H.rent_rays, cpu()
+            r0, n0, q0, c0 = H.rays, len(H.tiles), H.event_rays, cpu()
             D = H.light(em).astype(np.float64)  # traces the tiles it needs first
             tfirst = cpu() - c0
             ts = []
@@ -150,7 +150,7 @@ def main(argv=None):
                 cell_m=H.cell(L),
                 new_tiles=len(H.tiles) - n0,
                 new_rays=int(H.rays - r0),
-                event_rays=int(H.rent_rays - q0),
+                event_rays=int(H.event_rays - q0),
                 first_cpu_s=round(tfirst, 3),
                 event_cpu_s=round(float(np.median(ts)), 4),
                 tiles=len(H.tiles),
@@ -171,10 +171,31 @@ def main(argv=None):
         Path(args.json).write_text(json.dumps(res, indent=1))
 
 
+def count_rays(backend):
+    """A counter of the rays backend traces from now on (its occluded / occluded_cm wrapped)."""
+    counted = [0]
+    occ, occ_cm = backend.occluded, backend.occluded_cm
+
+    def _occ(a, b, *k, **kw):
+        counted[0] += len(a)
+        return occ(a, b, *k, **kw)
+
+    def _occ_cm(a, d, *k, **kw):
+        counted[0] += d.shape[1]
+        return occ_cm(a, d, *k, **kw)
+
+    backend.occluded, backend.occluded_cm = _occ, _occ_cm
+    return counted
+
+
 def end_to_end(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("store")
     ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--fresh", action="store_true", help="no precompute: every host round from empty stores")
+    ap.add_argument("--sweep", type=int, default=0, help="the window swept in N steps instead (sweep())")
+    ap.add_argument("--policies", default="lazy,second", help="--sweep: the host's POLICY values")
+    ap.add_argument("--points", type=int, default=None, help="hostvis.POINTS (the top level's)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
@@ -187,6 +208,7 @@ def end_to_end(argv=None):
     from hr_testing.furnished import furnished_room
 
     cpu = time.process_time
+    hostvis.POINTS = args.points or hostvis.POINTS
     s, g, _ = load_store(Path(args.store) / pc.FILENAME)
     s.links.extended(s.h)
     g.iterations = 4
@@ -213,16 +235,21 @@ def end_to_end(argv=None):
         for k in [k for k in g._responses if k[0] == "shape"]:
             del g._responses[k]
 
-    # the precompute (untimed): the tiles of both positions at every level
+    counted = count_rays(s.backend)
+    if args.sweep:
+        return sweep(args, dyn, g, levels, clear, window, counted)
+    # the precompute (untimed): the tiles of both positions at every level (--fresh: none)
     t0 = cpu()
-    hostvis.ENABLED = True
-    for step, cx in pos.items():
+    hostvis.ENABLED, policy = True, hostvis.POLICY
+    hostvis.POLICY = "always"
+    for step, cx in () if args.fresh else pos.items():
         dyn.apply({"w": window(cx)})
         for lv in levels():
             lv._shape(dyn, dyn.shapes["w"])
         clear()
-    hostvis.ENABLED = False
-    dyn.remove("w")
+    hostvis.ENABLED, hostvis.POLICY = False, policy
+    if "w" in dyn.shapes:
+        dyn.remove("w")
     stores = [H for lv in levels() for H in getattr(lv, "_host_stores", {}).values()]
     res = dict(
         store=args.store,
@@ -242,6 +269,9 @@ def end_to_end(argv=None):
             if "w" in dyn.shapes:
                 clear()
                 dyn.remove("w")
+            if args.fresh:  # the product's first events: no tile stored
+                for lv in levels():
+                    lv.__dict__.pop("_host_stores", None)
             for step, cx in pos.items():
                 clear()
                 c0 = cpu()
@@ -249,12 +279,16 @@ def end_to_end(argv=None):
                     dyn.add("w", window(cx))
                 else:
                     dyn.apply({"w": window(cx)})
-                c1 = cpu()
+                c1, n1 = cpu(), counted[0]
                 v = np.array(g.loop_radiance(dyn), np.float32)
                 c2 = cpu()
-                times.setdefault((step, name), []).append((c1 - c0, c2 - c1))
+                times.setdefault((step, name), []).append((c1 - c0, c2 - c1, counted[0] - n1))
                 out[(step, name)] = v
-                print(f"{step} round {rnd} {name}: event {c1 - c0:.3f} s, output {c2 - c1:.3f} s", flush=True)
+                print(
+                    f"{step} round {rnd} {name}: event {c1 - c0:.3f} s, output {c2 - c1:.3f} s, "
+                    f"{counted[0] - n1:,} rays",
+                    flush=True,
+                )
                 if rnd == 0 and name == "host":  # the reference: 256 rays at the top, 64 at the second
                     hostvis.ENABLED = False
                     clear()
@@ -271,7 +305,10 @@ def end_to_end(argv=None):
             d = difference(refs[step], per_object(out[(step, name)], obj))
             ev = [t[0] for t in times[(step, name)]]
             op = [t[1] for t in times[(step, name)]]
-            row[name] = dict(event_cpu_s=float(np.median(ev)), output_cpu_s=float(np.median(op)), **d)
+            rays = [t[2] for t in times[(step, name)]]
+            row[name] = dict(
+                event_cpu_s=float(np.median(ev)), output_cpu_s=float(np.median(op)), output_rays=rays, **d
+            )
             print(
                 f"{step} {name}: event {np.median(ev):.3f} + output {np.median(op):.3f} s; vs reference "
                 f"median {100 * d['median']:.3f}%, p95 {100 * d['p95']:.2f}%, worst {100 * d['worst']:.1f}%, "
@@ -279,6 +316,57 @@ def end_to_end(argv=None):
                 flush=True,
             )
         res["events"][step] = row
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+
+
+def sweep(args, dyn, g, levels, clear, window, counted):
+    """The window swept across the wall in args.sweep steps (0.7 to 1.2 m, FE; a bake's frames or a
+    Live drag): per step the event and its gathered output's CPU and rays, main (hostvis off) and
+    the host visibility under each policy from empty stores; at the end the tiles stored and their
+    bytes. No error (end_to_end measures it at the two ends)."""
+    from hr_addon.core.gather import hostvis
+
+    cpu = time.process_time
+    xs = np.linspace(0.7, 1.2, args.sweep)
+    res = dict(store=args.store, steps=[float(x) for x in xs], modes={})
+    for mode in ["main"] + args.policies.split(","):
+        hostvis.ENABLED = mode != "main"
+        hostvis.POLICY = mode if mode != "main" else hostvis.POLICY
+        if "w" in dyn.shapes:
+            dyn.remove("w")
+        clear()
+        for lv in levels():
+            lv.__dict__.pop("_host_stores", None)
+        rows = []
+        for k, cx in enumerate(xs):
+            c0, n0 = cpu(), counted[0]
+            if k == 0:
+                dyn.add("w", window(cx))
+            else:
+                dyn.apply({"w": window(cx)})
+            c1 = cpu()
+            g.loop_radiance(dyn)
+            rows.append((c1 - c0, cpu() - c1, counted[0] - n0))
+        stores = [H for lv in levels() for H in getattr(lv, "_host_stores", {}).values()]
+        r = res["modes"][mode] = dict(
+            event_cpu_s=[round(t[0], 3) for t in rows],
+            output_cpu_s=[round(t[1], 3) for t in rows],
+            rays=[int(t[2]) for t in rows],
+            tiles=sum(len(H.tiles) for H in stores),
+            stored_rays=int(sum(H.rays for H in stores)),
+            event_rays=int(sum(H.event_rays for H in stores)),
+            store_bytes=int(sum(H.nbytes for H in stores)),
+        )
+        print(
+            f"{mode}: {len(xs)} steps, event {sum(r['event_cpu_s']):.1f} s + output "
+            f"{sum(r['output_cpu_s']):.1f} s CPU, {sum(r['rays']):,} rays (first step "
+            f"{r['output_cpu_s'][0]:.2f} s, {r['rays'][0]:,}; median "
+            f"step {np.median(r['output_cpu_s']):.2f} s); tiles {r['tiles']} ({r['stored_rays']:,} rays), "
+            f"events' own {r['event_rays']:,} rays, {r['store_bytes'] / 1e6:.1f} MB",
+            flush=True,
+        )
+    hostvis.ENABLED = False
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=1))
 

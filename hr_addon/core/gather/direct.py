@@ -287,7 +287,7 @@ class DirectLight:
             em, inside, _ = self._shape_emitter(dyn, rec)
             if em is None:
                 D = np.zeros(self.n, np.float32)
-            elif (host := self._host_store(rec, em)) is not None:  # (hostvis.ENABLED: off by default)
+            elif (host := self._host_store(rec, em)) is not None:  # (hostvis.ENABLED)
                 D = host.light(em)
             elif getattr(self, "_leaf_nodes", None) is not None:  # (final.FinalGather's second level)
                 D = self._second_shape(em)

@@ -1,10 +1,14 @@
-"""A light shape's direct light from visibility precomputed toward its HOST plane (issue 19; off by
-default: nothing in the gather calls this yet; docs/events.md, sessions 28 hv34 and hvp).
+"""A light shape's direct light from visibility toward its HOST plane (issue 19; on: DirectLight._shape
+of a shape wholly on surfaces; docs/events.md, sessions 28 hv34 / hvp and 29 hvon).
 
 A light shape lying on a wall is emission on static geometry: the visibility from a gather sample
-toward points of that wall does not depend on the shape. So it is traced once, per (gather level,
-host plane), in TILES of the plane, and an event reads the stored bits instead of tracing shadow
-rays (benchmarks/host_visibility.py measured the estimator: the `pin` form).
+toward points of that wall does not depend on the shape. So its bits, per (gather level, host plane,
+cell level, cell, sample), are fixed: one estimator, evaluated two ways that give the same values bit
+for bit. A TILE of the plane traced whole and stored is read by every later event with no rays; an
+event traces only the segments it reads that no event traced before (its own samples' to the cells
+the shape overlaps: the same points, eps and clear shafts) and keeps them (POLICY "lazy"). What is
+traced when is speed only: no value depends on it, so none on the history of events
+(benchmarks/host_visibility.py measured the estimator: `pin`).
 
 - The plane's own 2D frame: the origin is the plane's point nearest the world origin (d n), the
   axes planes.frames(n). Nothing of a shape enters it: a tile's bits depend only on the level's
@@ -44,9 +48,9 @@ from ..parallel import batch_map, ranges
 from ..planes import frames
 from .sampling import hash_uniform
 
-# off by default: DirectLight._shape keeps its shadow rays (bake values unchanged); on, a light shape
-# wholly on surfaces reads its plane's stored visibility at every gather level (store_for)
-ENABLED = False
+# on: a light shape wholly on surfaces gets its direct light from this estimator at every gather level
+# (store_for; DirectLight._shape); off (benchmarks, A/B): main's shadow rays
+ENABLED = True
 POINTS = 64  # stored points per shape at the top level (hv34: half main's 16 rays' error)
 POINTS_SECOND = 16  # at the second level (hv34: half main's 8 / 4 rays' p95 with 20 cm cells)
 STREAM = 0x5A17  # the host visibility's own random stream (+ the cell level)
@@ -54,10 +58,10 @@ TILE = 4  # cells per tile side (16 bits: the 100k window traces x0.7 the rays o
 BASE = 4096.0  # base cell = BASE x the level's unit (a power of two near the scene's size)
 MAX_LEVEL = 24  # finest cell: base / 4096 (about 2 mm in a 10 m room)
 CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's weights
-# when a tile is traced whole and stored (speed only: the values are the same either way, module doc):
-# "rent" (ski rental: once the rays its cells cost events without it reach its price, rows x cells),
-# "second" (on its second use), "always" (on its first use), "never" (every event traces its own)
-POLICY = "rent"
+# what a store keeps (speed only: the values are the same either way, module doc; HostVisibility._tile):
+# "lazy" every segment an event traced (each traced at most once, only when read), "second" / "always"
+# a tile traced whole on its second / first read, "never" nothing
+POLICY = "lazy"
 _POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
 
 
@@ -101,9 +105,8 @@ class HostVisibility:
         self.tiles = {}  # (L, ti, tj) -> (rows (sorted sample indices), bits (rows, tile^2 / 8) uint8)
         self.rays = 0  # rays traced into stored tiles
         self.policy = POLICY if policy is None else policy
-        self.spent, self.price = {}, {}  # tile -> rays events spent on it unstored / to store it
-        self.rows_all = {}  # tile -> its rows' count (the price's)
-        self.rent_rays = 0  # rays traced by events for tiles not stored
+        self.part = {}  # tile -> [rows, bits, known, tested]: a tile events traced parts of
+        self.event_rays = 0  # rays traced by events for their own reads (tiles not traced whole)
 
     # -- the lattice --------------------------------------------------------------------------------
     def cell(self, L):
@@ -172,17 +175,19 @@ class HostVisibility:
 
     # -- tracing ------------------------------------------------------------------------------------
     def trace(self, keys):
-        """Trace and store the tiles of keys not yet stored (each tile on its own: its bits are the
-        same in any order, batching or thread count)."""
+        """Trace and store the tiles of keys whole (each tile on its own: its bits are the same in
+        any order, batching or thread count, and the same as those events traced of it)."""
         for key in keys:
             if key not in self.tiles:
-                rows, todo = self._rows(key)
-                self.tiles[key] = (rows, self._bits(key, rows, todo))
-                self.rays += len(todo) * self.tile * self.tile
+                P = self.part.pop(key, None) or self._new_part(key)
+                self.rays += self._fill(
+                    key, P, np.arange(len(P[0])), np.full(self.tile**2 // 8, 255, np.uint8)
+                )
+                self.tiles[key] = (P[0], P[1])
 
     def missing(self, rings, L=None):
-        """The tiles a shape (rings on the plane) reads that are not stored yet ([]: `visible` traces
-        no ray): an event traces their segments it reads (or stores them, by the policy)."""
+        """The tiles a shape (rings on the plane) reads that are not stored whole yet ([]: `visible`
+        traces no ray): an event traces the segments of them it reads and has not traced before."""
         _, _, keys, c0, _, ov = self.layout(rings, L)
         return [key for key in keys if key not in self.tiles and self._cells_of(key, c0, ov > 0).any()]
 
@@ -198,68 +203,78 @@ class HostVisibility:
             m[bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0] = over[bj0:bj1, bi0:bi1]
         return m
 
-    def _rows(self, key, among=None):
-        """(rows, todo) of tile key: the samples it stores (of `among` if given: an event's part of
-        it), and the indices into rows of those whose shaft to the tile's box is not certainly clear
-        (the others' bits are all 1, no rays)."""
-        lv = self.lv
+    def _new_part(self, key, among=None):
+        """[rows, bits, known, tested] of a tile nothing of which is traced yet: its rows (of
+        `among`, if given), their packed bits and which of them are known (none), and whether
+        each row's shaft was tested (none)."""
         rows = self.facing(key, among).astype(np.int32)
-        todo = np.arange(len(rows))
-        if self.shafts is not None and len(rows):
+        C8 = self.tile**2 // 8
+        z = lambda: np.zeros((len(rows), C8), np.uint8)  # noqa: E731
+        return [rows, z(), z(), np.zeros(len(rows), bool)]
+
+    def _fill(self, key, P, sel, mask):
+        """Make the bits of rows P[0][sel] over the cells of `mask` (packed) known: rows whose shaft
+        to the tile's box is certainly clear (planes.ClearShafts, tested once a row) all 1 with no
+        rays, the unknown (row, cell) segments traced, grouped by their cells (each segment the same
+        values in any group or batch). Returns the rays traced."""
+        lv, T = self.lv, self.tile
+        rows, bits, known, tested = P
+        new = sel[~tested[sel]]
+        if self.shafts is not None and len(new):
             c = self._corners(key)
             e = lv.eps * self.n
-            o = lv.points[rows] + lv.eps * lv.normals[rows]
-            todo = todo[~self.shafts.clear(o, c.min(0) + e, c.max(0) + e)]
-        return rows, todo
+            o = lv.points[rows[new]] + lv.eps * lv.normals[rows[new]]
+            clear = new[self.shafts.clear(o, c.min(0) + e, c.max(0) + e)]
+            bits[clear] = known[clear] = 255
+        tested[new] = True
+        need = ~known[sel] & mask
+        todo = np.flatnonzero(need.any(1))
+        if not len(todo):
+            return 0
+        groups, inv = np.unique(need[todo], axis=0, return_inverse=True)
+        rays = 0
+        for k, gm in enumerate(groups):
+            at = sel[todo[inv.ravel() == k]]
+            cells = np.flatnonzero(np.unpackbits(gm, count=T * T))
 
-    def _bits(self, key, rows, todo, cells=None):
-        """(len(rows), T^2 / 8) the packed bits of rows over the tile's cells: traced for rows[todo]
-        (only `cells` if given, the others left 1: nobody reads them), 1 elsewhere."""
-        lv, C = self.lv, self.tile * self.tile
-        c = np.arange(C) if cells is None else np.asarray(cells)
-        bits = np.full((len(rows), C // 8), 255, np.uint8)
+            def part(a, b, at=at, cells=cells):
+                r = at[a:b]
+                org, d = self.segments(key, rows[r], cells)
+                vis = ~lv.system.backend.occluded_cm(org, d, len(cells)).reshape(len(r), len(cells))
+                v = np.unpackbits(bits[r], axis=1, count=T * T).astype(bool)
+                v[:, cells] = vis
+                bits[r] = np.packbits(v, axis=1)
 
-        def part(a, b):
-            sel = todo[a:b]
-            org, d = self.segments(key, rows[sel], c)
-            vis = ~lv.system.backend.occluded_cm(org, d, len(c)).reshape(len(sel), len(c))
-            if len(c) < C:
-                v = np.ones((len(sel), C), bool)
-                v[:, c] = vis
-                vis = v
-            bits[sel] = np.packbits(vis, axis=1)
-
-        batch_map(part, ranges(len(todo), max(CHUNK // len(c), 1)), self.threads)
-        return bits
+            batch_map(part, ranges(len(at), max(CHUNK // len(cells), 1)), self.threads)
+            known[at] |= gm
+            rays += len(at) * len(cells)
+        return rays
 
     def _tile(self, key, idx, cells):
-        """(rows, bits) of tile key for an event at samples idx reading its cells: the stored tile,
-        or (POLICY) the tile traced whole and stored, or only the event's rows and cells traced
-        (the same bits there: the values do not depend on which). Ski rental ("rent"): the rays an
-        event spends on a tile it does not store add up, and once they would reach the tile's price
-        (its rows x cells: what storing it costs) it is traced and stored."""
+        """(rows, bits) of tile key for an event at samples idx reading its cells (tile-local
+        indices): the segments of them not traced before traced now (the same bits as a tile
+        traced whole: the values do not depend on which were traced when). POLICY: "lazy" keeps
+        what events traced (each segment traced at most once, only when read: a ski rental's
+        buying a tile would trace segments no event read, and its renting would trace read ones
+        again); "second" traces a tile whole on its second read, "always" on its first; "never"
+        keeps nothing (every event traces what it reads)."""
         got = self.tiles.get(key)
         if got is not None:
             return got
-        rows, todo = self._rows(key, idx)
-        cost = len(todo) * len(cells)
-        spent = self.spent.get(key)
-        if self.policy == "rent":
-            if key not in self.rows_all:
-                self.rows_all[key] = len(self.facing(key))
-            # its price: its rows x cells, less the rows whose shafts are clear (no rays) in the
-            # proportion the event's rows have them (testing every row's shaft would cost more)
-            self.price[key] = self.rows_all[key] * self.tile**2 * len(todo) / max(len(rows), 1)
-        if (
-            self.policy == "always"
-            or (self.policy == "second" and spent is not None)
-            or (self.policy == "rent" and (spent or 0) + cost >= self.price[key])
-        ):
+        pol = self.policy
+        if pol == "always" or (pol == "second" and key in self.part):
             self.trace([key])
             return self.tiles[key]
-        self.spent[key] = (spent or 0) + cost
-        self.rent_rays += cost
-        return rows, self._bits(key, rows, todo, cells)
+        P = self.part.get(key)
+        if P is None:
+            P = self._new_part(key, idx if pol == "never" else None)
+            if pol != "never":
+                self.part[key] = P
+        p = self._rows_of(P[0], idx)
+        sel = p[p >= 0]
+        mask = np.packbits(np.isin(np.arange(self.tile**2), cells))
+        self.event_rays += self._fill(key, P, sel, mask)
+        return P[0], P[1]
 
     # -- an event -----------------------------------------------------------------------------------
     def layout(self, rings, L=None):
