@@ -196,6 +196,7 @@ def end_to_end(argv=None):
     ap.add_argument("--sweep", type=int, default=0, help="the window swept in N steps instead (sweep())")
     ap.add_argument("--policies", default="lazy,second", help="--sweep: the host's POLICY values")
     ap.add_argument("--points", type=int, default=None, help="hostvis.POINTS (the top level's)")
+    ap.add_argument("--size", default="100k", help="the store's furnished room")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
@@ -213,7 +214,7 @@ def end_to_end(argv=None):
     s.links.extended(s.h)
     g.iterations = 4
     g2 = g.second
-    _, info = furnished_room("100k")
+    _, info = furnished_room(args.size)
     frame = tuple(np.asarray(f, float) for f in info["light_wall"][1])
     obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
 

@@ -51,7 +51,11 @@ from .sampling import hash_uniform
 # on: a light shape wholly on surfaces gets its direct light from this estimator at every gather level
 # (store_for; DirectLight._shape); off (benchmarks, A/B): main's shadow rays
 ENABLED = True
-POINTS = 64  # stored points per shape at the top level (hv34: half main's 16 rays' error)
+# stored points per shape at the top level: an event reading cells no event traced costs about
+# 1.6 x POINTS rays a sample (the border cells too): 32 (x3.6 main's 16 rays at the 100k top level,
+# rms x0.71 of main's) rather than 64 (x6.1, rms x0.48); reads of traced cells cost no ray either way
+# (docs/events.md, session 29 hvon)
+POINTS = 32
 POINTS_SECOND = 16  # at the second level (hv34: half main's 8 / 4 rays' p95 with 20 cm cells)
 STREAM = 0x5A17  # the host visibility's own random stream (+ the cell level)
 TILE = 4  # cells per tile side (16 bits: the 100k window traces x0.7 the rays of 8 x 8 tiles)
@@ -98,7 +102,7 @@ class HostVisibility:
         U, V = frames(self.n[None])
         self.U, self.V = U[0], V[0]
         self.lv, self.points, self.shafts = lv, points, shafts
-        assert tile * tile % 8 == 0
+        assert tile * tile % 8 == 0 and tile * tile <= 64  # (a row's cells in one integer: _fill)
         self.tile = tile
         self.threads = getattr(lv, "threads", 1) if threads is None else threads
         self.base = BASE * lv.unit
@@ -231,9 +235,15 @@ class HostVisibility:
         todo = np.flatnonzero(need.any(1))
         if not len(todo):
             return 0
-        groups, inv = np.unique(need[todo], axis=0, return_inverse=True)
+        # the rows by their cells to trace (a row's packed bytes as one integer: np.unique's axis=0
+        # sorts rows of bytes 10-100x slower)
+        code = np.zeros(len(todo), np.uint64)
+        for b in range(need.shape[1]):
+            code = (code << np.uint64(8)) | need[todo, b].astype(np.uint64)
+        groups, first, inv = np.unique(code, return_index=True, return_inverse=True)
         rays = 0
-        for k, gm in enumerate(groups):
+        for k in range(len(groups)):
+            gm = need[todo[first[k]]]
             at = sel[todo[inv.ravel() == k]]
             cells = np.flatnonzero(np.unpackbits(gm, count=T * T))
 
