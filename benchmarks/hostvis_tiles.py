@@ -196,6 +196,7 @@ def end_to_end(argv=None):
     ap.add_argument("--sweep", type=int, default=0, help="the window swept in N steps instead (sweep())")
     ap.add_argument("--policies", default="lazy,second", help="--sweep: the host's POLICY values")
     ap.add_argument("--points", type=int, default=None, help="hostvis.POINTS (the top level's)")
+    ap.add_argument("--points-second", type=int, default=None, help="hostvis.POINTS_SECOND")
     ap.add_argument("--size", default="100k", help="the store's furnished room")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
@@ -210,6 +211,7 @@ def end_to_end(argv=None):
 
     cpu = time.process_time
     hostvis.POINTS = args.points or hostvis.POINTS
+    hostvis.POINTS_SECOND = args.points_second or hostvis.POINTS_SECOND
     s, g, _ = load_store(Path(args.store) / pc.FILENAME)
     s.links.extended(s.h)
     g.iterations = 4

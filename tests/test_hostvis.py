@@ -210,8 +210,8 @@ def test_a_scene_scaled_by_a_power_of_two_gives_the_same_values(room):
 
 def test_on_by_default_and_the_gather_reads_the_store_at_both_levels(monkeypatch):
     """hostvis.ENABLED is on: both levels' shape light is their plane's store's (store_for: one
-    store per level and plane, whichever shape names it; 64 points per shape at the top level, 16
-    at the second); off, the gather's shape light is main's shadow rays'. The gathered output
+    store per level and plane, whichever shape names it; POINTS per shape at the top level,
+    POINTS_SECOND at the second); off, the gather's shape light is main's shadow rays'. The gathered output
     changes, but little: per sample at most 1% (measured 0.40%; the furnace's own emission
     everywhere dominates the output here), the mean over the samples within 1e-4 (measured
     +8e-7). The shape light's own accuracy is test_against_many_shadow_rays'."""

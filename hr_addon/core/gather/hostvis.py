@@ -18,8 +18,9 @@ traced when is speed only: no value depends on it, so none on the history of eve
   (FinalGather.unit, a power of two from the scene's size: so h scales exactly with the scene
   under 2^k scaling, and the same L is reused by every later shape of a similar size). A shape of
   area A takes the coarsest L with h <= sqrt(A / points) (`level_for`): between `points` and
-  2 x `points` stored points fall inside it per sample (hv34 measured: 64 at the top level for
-  half main's 16 rays' error, 16 at the second level for half of its 8 rays' p95).
+  2 x `points` stored points fall inside it per sample (POINTS, POINTS_SECOND; hv34: 64 at the
+  top level for half main's 16 rays' error, 16 at the second level for half of its 8 rays' p95;
+  the product takes 32 / 8, hvon: the first event's rays).
 - Tiles: T x T cells (T = `tile`, TILE by default: 16 bits, 2 bytes per sample), tile (L, ti, tj)
   holds cells [ti T, (ti + 1) T) x [tj T, (tj + 1) T) in the plane's frame; its rows are the
   level's samples facing it (not dark, in front of the plane, a corner of the tile not below
@@ -51,12 +52,12 @@ from .sampling import hash_uniform
 # on: a light shape wholly on surfaces gets its direct light from this estimator at every gather level
 # (store_for; DirectLight._shape); off (benchmarks, A/B): main's shadow rays
 ENABLED = True
-# stored points per shape at the top level: an event reading cells no event traced costs about
-# 1.6 x POINTS rays a sample (the border cells too): 32 (x3.6 main's 16 rays at the 100k top level,
-# rms x0.71 of main's) rather than 64 (x6.1, rms x0.48); reads of traced cells cost no ray either way
-# (docs/events.md, session 29 hvon)
+# stored points per shape (top level, second level): an event reading cells no event traced costs
+# about 1.6 x points rays a sample (the border cells too); reads of traced cells cost no ray. 32 / 8
+# (the 100k FE window's first event: x2.3 main's gathered output's CPU, p95 x0.66 of main's) rather
+# than 64 / 16 (x4.0, x0.48) (docs/events.md, session 29 hvon)
 POINTS = 32
-POINTS_SECOND = 16  # at the second level (hv34: half main's 8 / 4 rays' p95 with 20 cm cells)
+POINTS_SECOND = 8
 STREAM = 0x5A17  # the host visibility's own random stream (+ the cell level)
 TILE = 4  # cells per tile side (16 bits: the 100k window traces x0.7 the rays of 8 x 8 tiles)
 BASE = 4096.0  # base cell = BASE x the level's unit (a power of two near the scene's size)
