@@ -72,19 +72,7 @@ def main(argv=None):
     dyn = DynamicRadiosity(s.copy(), method="FE", **DynamicRadiosity.gather_options("draft"))
     base = dict(rays=lv.shadow_rays, far=getattr(lv, "FAR_RAYS", 0))
 
-    counted = [0]  # the rays the backend traces (main's shadow rays, counted)
-    be = lv.system.backend
-    occ, occ_cm = be.occluded, be.occluded_cm
-
-    def _occ(a, b, *k, **kw):
-        counted[0] += len(a)
-        return occ(a, b, *k, **kw)
-
-    def _occ_cm(a, d, *k, **kw):
-        counted[0] += d.shape[1]
-        return occ_cm(a, d, *k, **kw)
-
-    be.occluded, be.occluded_cm = _occ, _occ_cm
+    counted = count_rays(lv.system.backend)  # (main's shadow rays, counted)
 
     def level_light(rec, rays=None, far=None):
         lv.shadow_rays = rays or base["rays"]
