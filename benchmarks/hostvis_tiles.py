@@ -125,7 +125,7 @@ def main(argv=None):
             H = stores[T]
             r0, n0, q0, c0 = H.rays, len(H.tiles), H.event_rays, cpu()
             D = H.light(em).astype(np.float64)  # traces the tiles it needs first
-            tfirst = cpu() - c0
+            tfirst, q1 = cpu() - c0, H.event_rays
             ts = []
             for _ in range(args.repeat):
                 c0 = cpu()
@@ -138,7 +138,7 @@ def main(argv=None):
                 cell_m=H.cell(L),
                 new_tiles=len(H.tiles) - n0,
                 new_rays=int(H.rays - r0),
-                event_rays=int(H.event_rays - q0),
+                event_rays=int(q1 - q0),  # (the first call's: the repeats trace as many with --policy never)
                 first_cpu_s=round(tfirst, 3),
                 event_cpu_s=round(float(np.median(ts)), 4),
                 tiles=len(H.tiles),
