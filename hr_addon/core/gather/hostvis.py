@@ -488,7 +488,9 @@ class HostVisibility:
 
     @property
     def nbytes(self):
-        return sum(r.nbytes + b.nbytes for r, b in self.tiles.values())
+        """The bytes of the tiles traced whole and of the parts events traced of the others."""
+        whole = sum(r.nbytes + b.nbytes for r, b in self.tiles.values())
+        return whole + sum(a.nbytes for P in self.part.values() for a in P)
 
 
 def store_for(lv, normal, point, points):
