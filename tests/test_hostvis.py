@@ -211,7 +211,8 @@ def test_a_scene_scaled_by_a_power_of_two_gives_the_same_values(room):
 def test_on_by_default_and_the_gather_reads_the_store_at_both_levels(monkeypatch):
     """hostvis.ENABLED is on: both levels' shape light is their plane's store's (store_for: one
     store per level and plane, whichever shape names it; POINTS per shape at the top level,
-    POINTS_SECOND at the second); off, the gather's shape light is main's shadow rays'. The gathered output
+    POINTS_SECOND at the second, at the draft preset's 16 / 8 shadow rays, in proportion to a
+    level's own: 2 x POINTS at these 32); off, the gather's shape light is main's shadow rays'. The gathered output
     changes, but little: per sample at most 1% (measured 0.40%; the furnace's own emission
     everywhere dominates the output here), the mean over the samples within 1e-4 (measured
     +8e-7). The shape light's own accuracy is test_against_many_shadow_rays'."""
@@ -228,7 +229,9 @@ def test_on_by_default_and_the_gather_reads_the_store_at_both_levels(monkeypatch
     monkeypatch.setattr(hostvis, "ENABLED", True)
     g = FinalGather(dyn, pts, nrm, patch, rays=16, levels=2, iterations=2)
     on = g.evaluate(dyn)
-    for lv, points in ((g, hostvis.POINTS), (g.second, hostvis.POINTS_SECOND)):
+    assert (g.shadow_rays, g.second.shadow_rays) == (32, 8)  # (FinalGather's defaults)
+    for lv, points in ((g, 2 * hostvis.POINTS), (g.second, hostvis.POINTS_SECOND)):
+        assert hostvis.points_for(lv) == points
         assert len(lv._host_stores) == 1  # wall0: every shape's plane
         H = next(iter(lv._host_stores.values()))
         assert H.points == points

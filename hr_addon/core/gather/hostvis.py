@@ -56,6 +56,7 @@ ENABLED = True
 # about 1.6 x points rays a sample (the border cells too); reads of traced cells cost no ray. 32 / 8
 # (the 100k FE window's first event: x2.3 main's gathered output's CPU, p95 x0.66 of main's) rather
 # than 64 / 16 (x4.0, x0.48) (docs/events.md, session 29 hvon)
+# (at the draft preset's 16 / 8 shadow rays; a level takes them in proportion to its own: points_for)
 POINTS = 32
 POINTS_SECOND = 8
 STREAM = 0x5A17  # the host visibility's own random stream (+ the cell level)
@@ -491,6 +492,14 @@ class HostVisibility:
         """The bytes of the tiles traced whole and of the parts events traced of the others."""
         whole = sum(r.nbytes + b.nbytes for r, b in self.tiles.values())
         return whole + sum(a.nbytes for P in self.part.values() for a in P)
+
+
+def points_for(lv):
+    """The stored points per shape at a gather level: POINTS at the top level, POINTS_SECOND at a
+    second level (_leaf_nodes), at the draft preset's 16 / 8 shadow rays, in proportion to the
+    level's own (medium's and high's 32 / 64 rays get 2x / 4x the points, as their rays)."""
+    second = getattr(lv, "_leaf_nodes", None) is not None
+    return max(1, round((POINTS_SECOND / 8 if second else POINTS / 16) * lv.shadow_rays))
 
 
 def store_for(lv, normal, point, points):
