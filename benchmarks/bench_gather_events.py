@@ -52,6 +52,26 @@ def load_store(path):
         lv = lv.second
     return s, g, header
 
+
+def stored_room(store):
+    """(system, gather, window) of the furnished 100k room stored by --cache in folder `store`, the
+    solver's far-link terms made; window(cx, em=20.0): the benchmark's window LightShape at cx."""
+    from hr_addon.core.events import LightShape
+    from hr_addon.io import precompute as pc
+    from hr_testing import shapes as S
+    from hr_testing.furnished import furnished_room
+
+    s, g, _ = load_store(Path(store) / pc.FILENAME)
+    s.links.extended(s.h)
+    _, info = furnished_room("100k")
+    _, frame = info["light_wall"]
+
+    def window(cx, em=20.0):
+        rect = S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame)
+        return LightShape(rect, np.broadcast_to(np.asarray(em, float), (3,)).copy(), "window")
+
+    return s, g, window
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--size", default="20k")

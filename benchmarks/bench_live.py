@@ -14,8 +14,10 @@ reshape (a corner moved), strength and colour changes, hide / show. Per edit it 
 time.perf_counter():
   - `ui`: what the interactive path does after the depsgraph handler fired: read the light shapes
     and hand them over (main thread), the worker's DynamicRadiosity.apply + per-object values
-    (`apply`, `output`), writing HR_Radiance (main thread). The timer's polling interval (20 ms)
-    and the viewport redraw are not included;
+    (`apply`, `output`), writing HR_Radiance (main thread), and Blender's re-evaluation of the
+    written meshes that follows (`eval`: view_layer.update(), main thread, ~65 us per written mesh
+    at 100k; counted since session 29, lvbudget). The timer's polling interval (20 ms) and the
+    viewport's drawing are not included;
   - `op`: the same edits again through bpy.ops.hr.live_update() (the synchronous entry point),
     which also compares every participating object with the hierarchy's geometry (signatures);
   - `op_fast`: again with hr.live_update(check_geometry=False) (only which objects take part and
@@ -128,6 +130,22 @@ def make_furnished(tmp, size="100k"):
     path = Path(tmp) / f"furnished_{size}.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path), check_existing=False)
     return scene, win, "EMISSION", u, np.cross(u, v), 0.05, info
+
+
+def furnished_live(tmp, size="100k"):
+    """make_furnished's room with Live on (FE draft, the final gather; built by hr.live_update()):
+    (scene, the window, its node kind, along, normal, step, view layer, session)."""
+    import bpy
+
+    from hr_addon.blender import live
+
+    c0 = time.process_time()
+    scene, obj, kind, along, normal, step, _ = make_furnished(tmp, size)
+    scene.hr.method, scene.hr.quality, scene.hr.final_gather = "FE", "DRAFT", True
+    scene.hr.live = True
+    assert bpy.ops.hr.live_update() == {"FINISHED"}
+    print(f"built: {time.process_time() - c0:.1f} s CPU", flush=True)
+    return scene, obj, kind, along, normal, step, bpy.context.view_layer, live.session(scene)
 
 
 def _origin_to_centre(obj):
@@ -286,27 +304,36 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                     t2, c2 = time.perf_counter(), time.process_time()
                     live._deliver(sess, scene)
                     t3, c3 = time.perf_counter(), time.process_time()
+                    vl.update()  # Blender's re-evaluation of the written meshes (before the redraw)
+                    t4, c4 = time.perf_counter(), time.process_time()
                     assert not sess.error and not sess.problems, (sess.error, sess.problems)
                     r = sess.last
                     if preview and (j + 1 == len(seq) or seq[j + 1][0] != k):  # the drag pauses
-                        c4 = time.process_time()
+                        t5, c5 = time.perf_counter(), time.process_time()
                         w.flush()
                         live._deliver(sess, scene)
-                        t5, c5 = time.perf_counter(), time.process_time()
+                        vl.update()
+                        t6, c6 = time.perf_counter(), time.process_time()
                         assert not sess.last.preview and sess.text().startswith("Live: up to date, exact")
                         if sess.last is not r:
-                            rows.append({"kind": "refine", "total": t5 - t3, "cpu": c5 - c4, "of": k})
+                            rows.append({"kind": "refine", "total": t6 - t5, "cpu": c6 - c5, "of": k})
                     rows.append(
                         {
                             "kind": k,
-                            "total": t3 - t0,
-                            "cpu": c3 - c0,  # CPU seconds of the process (main thread + worker)
+                            "total": t4 - t0,
+                            "cpu": c4 - c0,  # CPU seconds of the process (main thread + worker)
                             # (the worker computes in this thread in background mode: flush)
-                            "cpu_parts": {"read": c1 - c0, "flush": c2 - c1, "write": c3 - c2},
+                            "cpu_parts": {
+                                "read": c1 - c0,
+                                "flush": c2 - c1,
+                                "write": c3 - c2,
+                                "eval": c4 - c3,
+                            },
                             "read": t1 - t0,
                             "apply": r.t_apply,
                             "output": r.t_output,
                             "write": t3 - t2,
+                            "eval": t4 - t3,
                             "events": [e.kind for e in r.report.events],
                             "iterations": int(r.report.iterations),
                             "preview": bool(r.preview),
@@ -323,13 +350,15 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
             res = {"all": _stats([r["total"] for r in edits])}
             res.update({k: _stats([r["total"] for r in rows if r["kind"] == k]) for k in done})
             if mode == "ui":
-                for part in ("read", "apply", "output", "write"):
+                for part in ("read", "apply", "output", "write", "eval"):
                     res[f"part_{part}"] = _stats([r[part] for r in edits])
                 res["all_cpu"] = _stats([r["cpu"] for r in edits])
                 for k in done:
                     res[f"{k}_cpu"] = _stats([r["cpu"] for r in rows if r["kind"] == k])
                     parts = [r["cpu_parts"] for r in rows if r["kind"] == k and "cpu_parts" in r]
-                    for part in ("read", "flush", "write") if parts else ():  # (--preview's refines: none)
+                    for part in (
+                        ("read", "flush", "write", "eval") if parts else ()
+                    ):  # (--preview's refines: none)
                         res[f"{k}_cpu_{part}"] = _stats([p[part] for p in parts])
                 moves = [r["iterations"] for r in rows if r["kind"] == "move"]
                 res["moves_iterations"] = _stats(moves) if moves else None
@@ -364,7 +393,7 @@ def run(scene_name, quality, method, furnished_size="100k", final_gather=True, p
                         f"{k} CPU median {1000 * res[f'{k}_cpu']['median']:.1f} ms ("
                         + ", ".join(
                             f"{p} {1000 * res[f'{k}_cpu_{p}']['median']:.1f}"
-                            for p in ("read", "flush", "write")
+                            for p in ("read", "flush", "write", "eval")
                         )
                         + ")"
                         for k in done

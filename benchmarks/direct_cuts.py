@@ -43,20 +43,13 @@ def main(argv=None):
     )
     args = ap.parse_args(argv)
 
-    from bench_gather_events import load_store
-    from hr_addon.core.events import DynamicRadiosity, LightShape
-    from hr_addon.io import precompute as pc
-    from hr_testing import shapes as S
-    from hr_testing.furnished import furnished_room
+    from bench_gather_events import stored_room
+    from hr_addon.core.events import DynamicRadiosity
 
     cpu = time.process_time
-    s, g, _ = load_store(Path(args.store) / pc.FILENAME)
-    s.links.extended(s.h)
-    _, info = furnished_room("100k")
-    _, frame = info["light_wall"]
-    rect = S.on_plane(S.rect(0.9, 0.7, centre=(args.window, 0.6), angle=0.2), frame)
+    s, g, window = stored_room(args.store)
     dyn = DynamicRadiosity(s.copy(), method=args.method, **DynamicRadiosity.gather_options("draft"))
-    dyn.add("w", LightShape(rect, np.full(3, 20.0), "window"))
+    dyn.add("w", window(args.window))
     rec = dyn.shapes["w"]
     levels = [("top", g), ("second", g.second)]
     for name, lv in levels:

@@ -4,7 +4,8 @@
 
 Builds the room once (bench_live.make_furnished, Live on, FE draft), then per edit kind
 (strength, colour: exact; move: progressive previews) times the ui path's stages in process time
-(read = live._reconcile, flush = the worker, write = live._deliver) and prints a cProfile of the
+(read = live._reconcile, flush = the worker, write = live._deliver, re-evaluation = the
+view_layer.update() after the write: Blender evaluates the written meshes) and prints a cProfile of the
 read and write stages over all edits of the kind. With --cmd DIR it then runs every *.py put in
 DIR (exec, with this module's globals: sess, scene, vl, w, live, playback, ...) until DIR/stop
 exists: A/B timings of write variants on the same built room, without building it again.
@@ -44,8 +45,10 @@ def stages(sess, scene, vl, w, live, edits, preview, prof_read, prof_write):
         live._deliver(sess, scene)
         prof_write.disable()
         c3 = time.process_time()
+        vl.update()  # Blender's re-evaluation of the written meshes (the main thread, before the redraw)
+        c4 = time.process_time()
         assert not sess.error and not sess.problems, (sess.error, sess.problems)
-        rows.append((c1 - c0, c2 - c1, c3 - c2))
+        rows.append((c1 - c0, c2 - c1, c3 - c2, c4 - c3))
     return np.array(rows) * 1000
 
 
@@ -69,15 +72,9 @@ def main():
     from hr_addon.blender import live, playback
     from hr_addon.blender.live_worker import PREVIEW
 
-    tmp = tempfile.mkdtemp(prefix="hr_prof_live_")
-    c0 = time.process_time()
-    scene, obj, kind, along, normal, step, info = bl.make_furnished(tmp, "100k")
-    scene.hr.method, scene.hr.quality, scene.hr.final_gather = "FE", "DRAFT", True
-    vl = bpy.context.view_layer
-    scene.hr.live = True
-    assert bpy.ops.hr.live_update() == {"FINISHED"}
-    print(f"built: {time.process_time() - c0:.1f} s CPU", flush=True)
-    sess = live.session(scene)
+    scene, obj, kind, along, normal, step, vl, sess = bl.furnished_live(
+        tempfile.mkdtemp(prefix="hr_prof_live_")
+    )
     w = sess.worker
     seq = bl.edit_sequence(obj, kind, along, normal, step)
     for k, preview in (("strength", False), ("colour", False), ("move", True)):
@@ -89,7 +86,8 @@ def main():
         med = np.median(b, axis=0)
         print(
             f"== {k}: {len(ed)} edits; CPU ms median (unprofiled) read {med[0]:.1f}, flush {med[1]:.1f}, "
-            f"write {med[2]:.1f}; profiled medians {np.median(a, axis=0).round(1).tolist()}",
+            f"write {med[2]:.1f}, re-evaluation {med[3]:.1f}; "
+            f"profiled medians {np.median(a, axis=0).round(1).tolist()}",
             flush=True,
         )
         if preview:

@@ -458,6 +458,7 @@ def test_a_write_skips_only_rows_known_to_be_shown(tmp_path, monkeypatch):
         playback, "apply_arrays", lambda *a, skip=None, **k: skips.append(skip) or apply(*a, skip=skip, **k)
     )
     sess.worker.preview = PREVIEW
+    sess.write_budget = None  # the exact skip alone (the previews' budget: test_blender_live_budget.py)
     vl = bpy.context.view_layer
 
     def step():

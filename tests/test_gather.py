@@ -623,6 +623,41 @@ def test_a_shape_with_the_passes_tail_gives_the_converged_gather(method):
         assert np.abs(parts["tail"] - fe).max() <= 1e-5 * fe.max()
 
 
+def test_the_passes_from_nothing_skip_their_first_read(monkeypatch):
+    """gather_responses "zero": the second level's first pass from V = 0 reads nothing (_read(None):
+    zeros, no read); the shape's gathered part is the same bit for bit as with that pass's read of
+    the zero leaf values, and the level reads once per pass but the first."""
+    base = RadiositySystem(contact_furnace(0.85), RefineParams.preset("draft"))
+    frame = (np.zeros(3), (0, 0, 1.0), (1.0, 0, 0))  # wall0, facing +y
+    win = LightShape(S.on_plane(S.rect(1.0, 0.8, centre=(1.5, 1.4)), frame), np.full(3, 5.0), "w")
+    dyn = DynamicRadiosity(base.copy(), method="FE", gather_responses="zero")
+    dyn.apply({"w": win})
+    pts, patch, _ = surface_samples(dyn.system.patches, 10)
+    g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=64, levels=2, iterations=4)
+    read = FinalGather._read
+    calls = []
+
+    def counted(self, L, cols=None):
+        calls.append(L is None)
+        return read(self, L, cols)
+
+    def full(self, L, cols=None):  # every read done, the first pass's of zero leaf values too
+        if L is None:
+            L = (np.zeros((int(self._read_cols()[1].max()) + 1, 3)), None, None, None)
+        return read(self, L, cols)
+
+    g._response_parts(dyn)  # (the base part, kept)
+    got = {}
+    for name, wrap in (("skip", counted), ("read", full)):
+        monkeypatch.setattr(FinalGather, "_read", wrap)
+        for k in [k for k in g._responses if k[0] == "shape"]:
+            del g._responses[k]
+        got[name] = g._response_parts(dyn)[1][2]
+    passes = g.stats["tail_passes"]
+    assert calls == [True] + [False] * (passes - 1) + [False]  # (the last: the top level's read)
+    assert got["skip"].any() and np.array_equal(got["skip"], got["read"])
+
+
 def test_every_exposed_leaf_has_a_second_level_sample_so_the_passes_forget_the_solution():
     """The second level's passes are a Jacobi solve on the HR leaves: their limit must not depend
     on the V they start from (a shape without a response starts from 0). An exposed leaf whose

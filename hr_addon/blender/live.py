@@ -144,7 +144,12 @@ def _tick_body():
     if not STATE.live_sessions:
         return WATCH  # keeps watching Scene.hr.live (a script may set it: no depsgraph update)
     busy = any(
-        s.worker.pending or s.dirty or s.geometry_dirty or s.force_write or s.preparing is not None
+        s.worker.pending
+        or s.dirty
+        or s.geometry_dirty
+        or s.force_write
+        or s.behind
+        or s.preparing is not None
         for s in STATE.live_sessions.values()
     )
     return TICK if busy else IDLE_POLL / 2

@@ -244,6 +244,35 @@ class Rows(dict):
         keys = fx.span_keys
         return {keys[i] for i in np.flatnonzero(~changed)}
 
+    def change(self, other):
+        """Per object of extract.span_keys: the largest change of an RGB value of its rows against
+        other (a Rows of the same FlatExtract), relative to its level (its largest value in either,
+        at least 1% of the median object's: a near-black object's noise is not a change)."""
+        fx = self.extract
+
+        def rgb_max(x):  # per row (whole-buffer ops and three columns: 4x faster than [:, :3].max(1))
+            return np.maximum(np.maximum(x[:, 0], x[:, 1]), x[:, 2])
+
+        a, b = self.buffer, other.buffer
+        d = np.maximum.reduceat(rgb_max(np.abs(a - b)), fx.span_starts)
+        level = np.maximum.reduceat(rgb_max(np.maximum(np.abs(a), np.abs(b))), fx.span_starts)
+        floor = max(1e-2 * float(np.median(level)), np.finfo(np.float32).tiny)
+        return d / np.maximum(level, floor)
+
+    def merged(self, other, take):
+        """A Rows holding self's rows for the span objects where take (a bool per span_keys) is True,
+        other's elsewhere; the objects without rows of their own (Target.extract) take self's."""
+        fx = self.extract
+        counts = np.diff(np.append(fx.span_starts, len(self.buffer)))
+        res = Rows()
+        res.extract = fx
+        res.buffer = np.where(np.repeat(take, counts)[:, None], self.buffer, other.buffer)
+        spans = dict(zip(fx.span_keys, zip(fx.span_starts, fx.span_starts + counts)))
+        for k, v in self.items():
+            r = spans.get(k)
+            res[k] = v if r is None else res.buffer[r[0] : r[1]]
+        return res
+
 
 class FlatExtract:
     """Every target's values at once: rgba(values) gives {object name: (N, 4) float32 RGBA} as

@@ -42,14 +42,19 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # depend on the response they start from: the gathered part takes their geometric tail
 # (FinalGather._levels), closer to that limit than the 5 passes (furnished 100k room, per object
 # against a converged gather, FE: median 0.54 -> 0.23%, worst 3.6 -> 2.1%, bias -0.49 -> -0.20%;
-# AUTO 0.35 -> 0.18%, 2.2 -> 1.6%, -0.31 -> -0.16%). "zero" (not the default) solves no response
+# AUTO 0.35 -> 0.18%, 2.2 -> 1.6%, -0.31 -> -0.16%). "zero" (draft's since session 29) solves no response
 # at all, nor AUTO's first bounce: events of about 0.01 s, the passes from nothing (8 there); since
 # every exposed leaf has second-level samples, closer to that limit than "tail" there (worst object
 # 1.2-1.6% against FE's 1.9-2.3% and AUTO's 1.4-1.8%; on Cornell too), a hair farther from Cycles
 # on Cornell's FE (worst surface 0.165 against 0.137%: the converged gather is, 0.19%); AUTO's
 # events about 0.55 s cheaper, FE's not (its 3 more
 # passes cost what the response saved) (docs/gather.md, "Light events without a response solve",
-# "Every exposed leaf sampled").
+# "Every exposed leaf sampled"). Since session 29 draft takes "zero": on the 100k room the
+# response cost 0.46-0.70 s (FE) and the 3 more passes 0.26-0.51 s (their first reads nothing),
+# FE event + output x0.95, AUTO x0.68-0.80; per object against a converged gather median 0.03-0.04%,
+# p95 0.21-0.38%, worst 0.77-1.58% where "tail" read 0.04-0.09%, 0.58-0.95%, 1.37-3.20%
+# (docs/events.md, "the gathered output's reads and the response, session 29"); response_steps
+# and bounce_points stay for previews and callers who ask for "tail".
 GATHER_SOLVE = {
     "draft": dict(
         tol=1e-5,
@@ -57,7 +62,7 @@ GATHER_SOLVE = {
         response_float32=True,
         response_steps=3,
         bounce_points=4,
-        gather_responses="tail",
+        gather_responses="zero",
     ),
     "medium": dict(
         tol=1e-5,

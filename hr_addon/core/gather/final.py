@@ -1239,17 +1239,22 @@ class FinalGather(DirectLight):
         g2 = self.second
         fit = getattr(self, "_slope_map", None)  # None: the rays read the means (slopes off)
         D2 = direct(g2)
+        zero = tail and not V.any()
+        # the first pass from V = 0 on the last level reads 0: zeros instead of the read (what it
+        # gives, 0 x count summed over the rays; one read of a "zero" event's 8)
+        nothing = zero and g2.second is None
         L = g2._levels(V, direct)  # levels > 2: its own levels
-        if g2.near_points and len(L[0]) == self.n_hr:  # its near hits first read their leaf's value
-            L = (self._near_rows(L[0]), None, None, None)
+        if g2.near_points and len(L[0]) == self.n_hr and not nothing:  # its near hits first read
+            L = (self._near_rows(L[0]), None, None, None)  # their leaf's value
         # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
         # direct light): every pass moves the solution one bounce further away
-        last, sums, zero = [], [], tail and not V.any()
+        last, sums = [], []
         for k in range(self.TAIL_PASSES if zero else 1 + self.iterations):
             if zero and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
                 k -= 1
                 break
-            y = g2._read(L)  # rho (D2 + read), in place: no (n, 3) temporaries a pass
+            y = g2._read(None if nothing and k == 0 else L)  # rho (D2 + read), in place: no (n, 3)
+            # temporaries a pass
             batch_map(lambda a, b: _lit(y, D2, g2.rho, a, b), ranges(len(y), self.ROW_BATCH), self.threads)
             Y = self._leaf_means(y, V)
             if tail:
@@ -1415,8 +1420,10 @@ class FinalGather(DirectLight):
     def _read(self, L, cols=None):
         """(n, 3) what the rays read of leaf values L = (means Y, S, slopes along e1 and e2;
         _levels): the means, or with slopes the linear function at the hits (Y - S at the frame's
-        origin; Y may be changed in place after _levels, _light_bounce). cols: columns indexing
-        Y's rows, else _read_cols' compacted ones (the same values)."""
+        origin; Y may be changed in place after _levels, _light_bounce); None: all 0 (no read).
+        cols: columns indexing Y's rows, else _read_cols' compacted ones (the same values)."""
+        if L is None:  # leaf values all 0: what the read gives (0 x count summed, over the rays)
+            return np.zeros((len(self.indptr) - 1, 3))
         Y, S, Gu, Gv = L
         cols, used = self._read_cols() if cols is None else (cols, None)
         kw = dict(threads=self.threads, rays=self.row_rays, used=used)

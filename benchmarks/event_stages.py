@@ -1,0 +1,131 @@
+"""Where a light event's time goes on a stored room, by stage: the FE / AUTO window added and moved
+(as bench_gather_events.py's), each with its gathered output (loop_radiance); CPU seconds (process
+time, inclusive) per stage and gather level from wrappers on the classes, the response's operator
+applications one by one (with their sources' nonzero share), optional cProfile and dumps.
+
+    .venv/bin/python benchmarks/event_stages.py STORE [--methods FE,AUTO] \\
+        [--dyn "dict(gather_responses='zero')"] [--dump out.npz] [--profile out.txt]
+
+STORE: a folder of bench_gather_events.py --cache (the furnished 100k room, draft, --transport gather).
+"""
+
+import argparse
+import functools
+import sys
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import numpy as np  # noqa: E402
+
+STAGES = (
+    "_read",
+    "_levels",
+    "_leaf_means",
+    "_near_rows",
+    "_tail",
+    "_dmix",
+    "_facing_part",
+    "_response_parts",
+)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("store")
+    ap.add_argument("--methods", default="FE,AUTO")
+    ap.add_argument("--dyn", default="dict()", help="DynamicRadiosity options over gather_options('draft')")
+    ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
+    ap.add_argument("--profile", default=None, help="a cProfile summary of the events here")
+    args = ap.parse_args(argv)
+
+    from bench_gather_events import _write_profile, stored_room
+    from hr_addon.core import solver
+    from hr_addon.core.events import DynamicRadiosity, solves
+    from hr_addon.core.gather.direct import DirectLight
+    from hr_addon.core.gather.final import FinalGather
+
+    cpu = time.process_time
+    s, g, window = stored_room(args.store)
+    times, calls, gathers = defaultdict(float), Counter(), []
+
+    def level(lv):
+        return "top" if lv is g else "second" if lv is g.second else "slot copy"
+
+    def wrap(cls, name, key):
+        f = getattr(cls, name)
+
+        @functools.wraps(f)
+        def timed(self, *a, **k):
+            c0 = cpu()
+            out = f(self, *a, **k)
+            times[key(self, name)] += cpu() - c0
+            calls[key(self, name)] += 1
+            if name == "gather":
+                gathers.append((cpu() - c0, a[0].shape[0], float(np.count_nonzero(a[0]) / max(a[0].size, 1))))
+            return out
+
+        setattr(cls, name, timed)
+
+    for name in STAGES:
+        wrap(FinalGather, name, lambda lv, n: f"{n} {level(lv)}")
+    wrap(DirectLight, "_shape", lambda lv, n: f"{n} {level(lv)}")
+    wrap(solves.Solves, "solve", lambda _, n: "response solve")
+    wrap(solver.Operator, "gather", lambda _, n: "operator gather (nested: a grey one's channel)")
+
+    opts = dict(DynamicRadiosity.gather_options("draft"), **eval(args.dyn))
+    prof = None
+    if args.profile:
+        import cProfile
+
+        prof = cProfile.Profile(cpu)
+    dumps = {}
+    for method in args.methods.split(","):
+        dyn = DynamicRadiosity(s.copy(), method=method, **opts)
+        lv = g
+        while lv is not None:  # (each method pays for its shape's direct light)
+            lv._shape_cache.clear()
+            lv = lv.second
+        g.loop_radiance(dyn)  # the base parts, untimed
+        for step, ev in (
+            ("add", lambda: dyn.add("w", window(0.7))),
+            ("move", lambda: dyn.apply({"w": window(1.2)})),
+        ):
+            times.clear()
+            calls.clear()
+            gathers.clear()
+            if prof is not None:
+                prof.enable()
+            c0 = cpu()
+            ev()
+            c1 = cpu()
+            v = g.loop_radiance(dyn)
+            c2 = cpu()
+            if prof is not None:
+                prof.disable()
+            dumps[f"{method}_{step}"] = v
+            print(
+                f"{method} {step}: event {c1 - c0:.3f} s + output {c2 - c1:.3f} s CPU "
+                f"(second-level passes {g.stats.get('tail_passes')})",
+                flush=True,
+            )
+            for k in sorted(times):
+                print(f"   {k:52s} {times[k]:.3f} s  x{calls[k]}", flush=True)
+            if gathers:
+                print(
+                    "   operator applications (s, channels, nonzero share): "
+                    + ", ".join(f"({t:.3f}, {c}, {z:.3f})" for t, c, z in gathers),
+                    flush=True,
+                )
+    if args.dump:
+        np.savez(args.dump, **dumps)
+    if prof is not None:
+        _write_profile(prof, args.profile)
+
+
+if __name__ == "__main__":
+    main()
