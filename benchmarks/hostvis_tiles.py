@@ -37,6 +37,9 @@ def main(argv=None):
     ap.add_argument("--points", type=int, default=None, help="stored points per shape (top 64, second 16)")
     ap.add_argument("--ref-rays", type=int, default=None, help="the reference's rays (top 256, second 64)")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument(
+        "--policy", default="always", help="hostvis POLICY: always (tiles stored), never (the one-shot path)"
+    )
     ap.add_argument("--size", default="100k")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
@@ -44,11 +47,13 @@ def main(argv=None):
     from bench_gather_events import load_store
     from hr_addon.core.events import DynamicRadiosity, LightShape
     from hr_addon.core.events.direct import clear_shafts
+    from hr_addon.core.gather import hostvis
     from hr_addon.core.gather.hostvis import HostVisibility
     from hr_addon.io import precompute as pc
     from hr_testing import shapes as S
     from hr_testing.furnished import furnished_room
 
+    hostvis.ENABLED = False  # main's shadow rays in level_light; the stores made here
     cpu = time.process_time
     top = args.level == "top"
     points = args.points or (64 if top else 16)
@@ -66,6 +71,8 @@ def main(argv=None):
 
     dyn = DynamicRadiosity(s.copy(), method="FE", **DynamicRadiosity.gather_options("draft"))
     base = dict(rays=lv.shadow_rays, far=getattr(lv, "FAR_RAYS", 0))
+
+    counted = count_rays(lv.system.backend)  # (main's shadow rays, counted)
 
     def level_light(rec, rays=None, far=None):
         lv.shadow_rays = rays or base["rays"]
@@ -93,26 +100,32 @@ def main(argv=None):
         rec = dyn.shapes["w"]
         em = lv._shape_emitter(dyn, rec)[0]
         R, tr = level_light(rec, ref_rays, 0)
+        n0 = counted[0]
         M, tm = level_light(rec)
+        main_rays = counted[0] - n0
         lit = R > 0
         rms = lambda X: float(np.sqrt(np.mean((X - R)[lit] ** 2)) / R[lit].mean())  # noqa: E731
         row = dict(
             ref_cpu_s=round(tr, 3),
-            main=dict(cpu_s=round(tm, 3), sum_vs_ref=float(M.sum() / R.sum() - 1), rms=rms(M)),
+            main=dict(
+                cpu_s=round(tm, 3), rays=main_rays, sum_vs_ref=float(M.sum() / R.sum() - 1), rms=rms(M)
+            ),
         )
         print(
-            f"{step}: reference {tr:.2f} s; main {tm:.3f} s, sum {row['main']['sum_vs_ref']:+.5f}, rms "
-            f"{row['main']['rms']:.4f}",
+            f"{step}: reference {tr:.2f} s; main {tm:.3f} s, {main_rays:,} rays, "
+            f"sum {row['main']['sum_vs_ref']:+.5f}, rms {row['main']['rms']:.4f}",
             flush=True,
         )
         for T in (int(t) for t in args.tiles.split(",")):
             if T not in stores:
                 sh = clear_shafts(s, em.point, em.normal)
-                stores[T] = HostVisibility(lv, em.normal, em.point, points=points, shafts=sh, tile=T)
+                stores[T] = HostVisibility(
+                    lv, em.normal, em.point, points=points, shafts=sh, tile=T, policy=args.policy
+                )
             H = stores[T]
-            r0, n0, c0 = H.rays, len(H.tiles), cpu()
+            r0, n0, q0, c0 = H.rays, len(H.tiles), H.event_rays, cpu()
             D = H.light(em).astype(np.float64)  # traces the tiles it needs first
-            tfirst = cpu() - c0
+            tfirst, q1 = cpu() - c0, H.event_rays
             ts = []
             for _ in range(args.repeat):
                 c0 = cpu()
@@ -125,6 +138,7 @@ def main(argv=None):
                 cell_m=H.cell(L),
                 new_tiles=len(H.tiles) - n0,
                 new_rays=int(H.rays - r0),
+                event_rays=int(q1 - q0),  # (the first call's: the repeats trace as many with --policy never)
                 first_cpu_s=round(tfirst, 3),
                 event_cpu_s=round(float(np.median(ts)), 4),
                 tiles=len(H.tiles),
@@ -135,7 +149,7 @@ def main(argv=None):
             )
             print(
                 f"   tile {T}: L {L} (h {100 * H.cell(L):.2f} cm), +{r['new_tiles']} tiles, "
-                f"+{r['new_rays']:,} rays, "
+                f"+{r['new_rays']:,} rays, one-shot {r['event_rays']:,} rays, "
                 f"first call {tfirst:.2f} s, event {r['event_cpu_s']:.3f} s, store {r['tiles']} tiles "
                 f"{r['bytes'] / 1e6:.2f} MB; sum {r['sum_vs_ref']:+.5f}, rms {r['rms']:.4f}",
                 flush=True,
@@ -145,10 +159,33 @@ def main(argv=None):
         Path(args.json).write_text(json.dumps(res, indent=1))
 
 
+def count_rays(backend):
+    """A counter of the rays backend traces from now on (its occluded / occluded_cm wrapped)."""
+    counted = [0]
+    occ, occ_cm = backend.occluded, backend.occluded_cm
+
+    def _occ(a, b, *k, **kw):
+        counted[0] += len(a)
+        return occ(a, b, *k, **kw)
+
+    def _occ_cm(a, d, *k, **kw):
+        counted[0] += d.shape[1]
+        return occ_cm(a, d, *k, **kw)
+
+    backend.occluded, backend.occluded_cm = _occ, _occ_cm
+    return counted
+
+
 def end_to_end(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("store")
     ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--fresh", action="store_true", help="no precompute: every host round from empty stores")
+    ap.add_argument("--sweep", type=int, default=0, help="the window swept in N steps instead (sweep())")
+    ap.add_argument("--policies", default="lazy,second", help="--sweep: the host's POLICY values")
+    ap.add_argument("--points", type=int, default=None, help="hostvis.POINTS (the top level's)")
+    ap.add_argument("--points-second", type=int, default=None, help="hostvis.POINTS_SECOND")
+    ap.add_argument("--size", default="100k", help="the store's furnished room")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
@@ -161,11 +198,13 @@ def end_to_end(argv=None):
     from hr_testing.furnished import furnished_room
 
     cpu = time.process_time
+    hostvis.POINTS = args.points or hostvis.POINTS
+    hostvis.POINTS_SECOND = args.points_second or hostvis.POINTS_SECOND
     s, g, _ = load_store(Path(args.store) / pc.FILENAME)
     s.links.extended(s.h)
     g.iterations = 4
     g2 = g.second
-    _, info = furnished_room("100k")
+    _, info = furnished_room(args.size)
     frame = tuple(np.asarray(f, float) for f in info["light_wall"][1])
     obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
 
@@ -187,16 +226,21 @@ def end_to_end(argv=None):
         for k in [k for k in g._responses if k[0] == "shape"]:
             del g._responses[k]
 
-    # the precompute (untimed): the tiles of both positions at every level
+    counted = count_rays(s.backend)
+    if args.sweep:
+        return sweep(args, dyn, g, levels, clear, window, counted)
+    # the precompute (untimed): the tiles of both positions at every level (--fresh: none)
     t0 = cpu()
-    hostvis.ENABLED = True
-    for step, cx in pos.items():
+    hostvis.ENABLED, policy = True, hostvis.POLICY
+    hostvis.POLICY = "always"
+    for step, cx in () if args.fresh else pos.items():
         dyn.apply({"w": window(cx)})
         for lv in levels():
             lv._shape(dyn, dyn.shapes["w"])
         clear()
-    hostvis.ENABLED = False
-    dyn.remove("w")
+    hostvis.ENABLED, hostvis.POLICY = False, policy
+    if "w" in dyn.shapes:
+        dyn.remove("w")
     stores = [H for lv in levels() for H in getattr(lv, "_host_stores", {}).values()]
     res = dict(
         store=args.store,
@@ -216,6 +260,9 @@ def end_to_end(argv=None):
             if "w" in dyn.shapes:
                 clear()
                 dyn.remove("w")
+            if args.fresh:  # the product's first events: no tile stored
+                for lv in levels():
+                    lv.__dict__.pop("_host_stores", None)
             for step, cx in pos.items():
                 clear()
                 c0 = cpu()
@@ -223,12 +270,16 @@ def end_to_end(argv=None):
                     dyn.add("w", window(cx))
                 else:
                     dyn.apply({"w": window(cx)})
-                c1 = cpu()
+                c1, n1 = cpu(), counted[0]
                 v = np.array(g.loop_radiance(dyn), np.float32)
                 c2 = cpu()
-                times.setdefault((step, name), []).append((c1 - c0, c2 - c1))
+                times.setdefault((step, name), []).append((c1 - c0, c2 - c1, counted[0] - n1))
                 out[(step, name)] = v
-                print(f"{step} round {rnd} {name}: event {c1 - c0:.3f} s, output {c2 - c1:.3f} s", flush=True)
+                print(
+                    f"{step} round {rnd} {name}: event {c1 - c0:.3f} s, output {c2 - c1:.3f} s, "
+                    f"{counted[0] - n1:,} rays",
+                    flush=True,
+                )
                 if rnd == 0 and name == "host":  # the reference: 256 rays at the top, 64 at the second
                     hostvis.ENABLED = False
                     clear()
@@ -245,7 +296,10 @@ def end_to_end(argv=None):
             d = difference(refs[step], per_object(out[(step, name)], obj))
             ev = [t[0] for t in times[(step, name)]]
             op = [t[1] for t in times[(step, name)]]
-            row[name] = dict(event_cpu_s=float(np.median(ev)), output_cpu_s=float(np.median(op)), **d)
+            rays = [t[2] for t in times[(step, name)]]
+            row[name] = dict(
+                event_cpu_s=float(np.median(ev)), output_cpu_s=float(np.median(op)), output_rays=rays, **d
+            )
             print(
                 f"{step} {name}: event {np.median(ev):.3f} + output {np.median(op):.3f} s; vs reference "
                 f"median {100 * d['median']:.3f}%, p95 {100 * d['p95']:.2f}%, worst {100 * d['worst']:.1f}%, "
@@ -253,6 +307,57 @@ def end_to_end(argv=None):
                 flush=True,
             )
         res["events"][step] = row
+    if args.json:
+        Path(args.json).write_text(json.dumps(res, indent=1))
+
+
+def sweep(args, dyn, g, levels, clear, window, counted):
+    """The window swept across the wall in args.sweep steps (0.7 to 1.2 m, FE; a bake's frames or a
+    Live drag): per step the event and its gathered output's CPU and rays, main (hostvis off) and
+    the host visibility under each policy from empty stores; at the end the tiles stored and their
+    bytes. No error (end_to_end measures it at the two ends)."""
+    from hr_addon.core.gather import hostvis
+
+    cpu = time.process_time
+    xs = np.linspace(0.7, 1.2, args.sweep)
+    res = dict(store=args.store, steps=[float(x) for x in xs], modes={})
+    for mode in ["main"] + args.policies.split(","):
+        hostvis.ENABLED = mode != "main"
+        hostvis.POLICY = mode if mode != "main" else hostvis.POLICY
+        if "w" in dyn.shapes:
+            dyn.remove("w")
+        clear()
+        for lv in levels():
+            lv.__dict__.pop("_host_stores", None)
+        rows = []
+        for k, cx in enumerate(xs):
+            c0, n0 = cpu(), counted[0]
+            if k == 0:
+                dyn.add("w", window(cx))
+            else:
+                dyn.apply({"w": window(cx)})
+            c1 = cpu()
+            g.loop_radiance(dyn)
+            rows.append((c1 - c0, cpu() - c1, counted[0] - n0))
+        stores = [H for lv in levels() for H in getattr(lv, "_host_stores", {}).values()]
+        r = res["modes"][mode] = dict(
+            event_cpu_s=[round(t[0], 3) for t in rows],
+            output_cpu_s=[round(t[1], 3) for t in rows],
+            rays=[int(t[2]) for t in rows],
+            tiles=sum(len(H.tiles) for H in stores),
+            stored_rays=int(sum(H.rays for H in stores)),
+            event_rays=int(sum(H.event_rays for H in stores)),
+            store_bytes=int(sum(H.nbytes for H in stores)),
+        )
+        print(
+            f"{mode}: {len(xs)} steps, event {sum(r['event_cpu_s']):.1f} s + output "
+            f"{sum(r['output_cpu_s']):.1f} s CPU, {sum(r['rays']):,} rays (first step "
+            f"{r['output_cpu_s'][0]:.2f} s, {r['rays'][0]:,}; median "
+            f"step {np.median(r['output_cpu_s']):.2f} s); tiles {r['tiles']} ({r['stored_rays']:,} rays), "
+            f"events' own {r['event_rays']:,} rays, {r['store_bytes'] / 1e6:.1f} MB",
+            flush=True,
+        )
+    hostvis.ENABLED = False
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=1))
 

@@ -287,7 +287,7 @@ class DirectLight:
             em, inside, _ = self._shape_emitter(dyn, rec)
             if em is None:
                 D = np.zeros(self.n, np.float32)
-            elif (host := self._host_store(rec, em)) is not None:  # (hostvis.ENABLED: off by default)
+            elif (host := self._host_store(rec, em)) is not None:  # (hostvis.ENABLED)
                 D = host.light(em)
             elif getattr(self, "_leaf_nodes", None) is not None:  # (final.FinalGather's second level)
                 D = self._second_shape(em)
@@ -304,14 +304,13 @@ class DirectLight:
         output's edge pass for shapes)."""
         from . import hostvis
 
-        if not hostvis.ENABLED or em.rings is None or not rec.on_surface:
-            return None
+        if not hostvis.ENABLED or em.rings is None or not rec.on_surface or self.shadow_rays <= 0:
+            return None  # (no shadow rays: the form factor alone, as always)
         if self.texel_area is not None and self.edge_shapes:
             return None
-        second = getattr(self, "_leaf_nodes", None) is not None
         # the host's plane by its patch (the shape's centre may lie off it within rec.tol)
         point = self.system.patches.corners[rec.roots[0]][0] if len(rec.roots) else em.point
-        return hostvis.store_for(self, em.normal, point, hostvis.POINTS_SECOND if second else hostvis.POINTS)
+        return hostvis.store_for(self, em.normal, point, hostvis.points_for(self))
 
     # -- Blender lights (issue 20, core/lights.py) -----------------------------------------------------
     def _light(self, rec):

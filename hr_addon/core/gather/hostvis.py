@@ -1,10 +1,14 @@
-"""A light shape's direct light from visibility precomputed toward its HOST plane (issue 19; off by
-default: nothing in the gather calls this yet; docs/events.md, sessions 28 hv34 and hvp).
+"""A light shape's direct light from visibility toward its HOST plane (issue 19; on: DirectLight._shape
+of a shape wholly on surfaces; docs/events.md, sessions 28 hv34 / hvp and 29 hvon).
 
 A light shape lying on a wall is emission on static geometry: the visibility from a gather sample
-toward points of that wall does not depend on the shape. So it is traced once, per (gather level,
-host plane), in TILES of the plane, and an event reads the stored bits instead of tracing shadow
-rays (benchmarks/host_visibility.py measured the estimator: the `pin` form).
+toward points of that wall does not depend on the shape. So its bits, per (gather level, host plane,
+cell level, cell, sample), are fixed: one estimator, evaluated two ways that give the same values bit
+for bit. A TILE of the plane traced whole and stored is read by every later event with no rays; an
+event traces only the segments it reads that no event traced before (its own samples' to the cells
+the shape overlaps: the same points, eps and clear shafts) and keeps them (POLICY "lazy"). What is
+traced when is speed only: no value depends on it, so none on the history of events
+(benchmarks/host_visibility.py measured the estimator: `pin`).
 
 - The plane's own 2D frame: the origin is the plane's point nearest the world origin (d n), the
   axes planes.frames(n). Nothing of a shape enters it: a tile's bits depend only on the level's
@@ -14,8 +18,9 @@ rays (benchmarks/host_visibility.py measured the estimator: the `pin` form).
   (FinalGather.unit, a power of two from the scene's size: so h scales exactly with the scene
   under 2^k scaling, and the same L is reused by every later shape of a similar size). A shape of
   area A takes the coarsest L with h <= sqrt(A / points) (`level_for`): between `points` and
-  2 x `points` stored points fall inside it per sample (hv34 measured: 64 at the top level for
-  half main's 16 rays' error, 16 at the second level for half of its 8 rays' p95).
+  2 x `points` stored points fall inside it per sample (POINTS, POINTS_SECOND; hv34: 64 at the
+  top level for half main's 16 rays' error, 16 at the second level for half of its 8 rays' p95;
+  the product takes 32 / 8, hvon: the first event's rays).
 - Tiles: T x T cells (T = `tile`, TILE by default: 16 bits, 2 bytes per sample), tile (L, ti, tj)
   holds cells [ti T, (ti + 1) T) x [tj T, (tj + 1) T) in the plane's frame; its rows are the
   level's samples facing it (not dark, in front of the plane, a corner of the tile not below
@@ -44,16 +49,25 @@ from ..parallel import batch_map, ranges
 from ..planes import frames
 from .sampling import hash_uniform
 
-# off by default: DirectLight._shape keeps its shadow rays (bake values unchanged); on, a light shape
-# wholly on surfaces reads its plane's stored visibility at every gather level (store_for)
-ENABLED = False
-POINTS = 64  # stored points per shape at the top level (hv34: half main's 16 rays' error)
-POINTS_SECOND = 16  # at the second level (hv34: half main's 8 / 4 rays' p95 with 20 cm cells)
+# on: a light shape wholly on surfaces gets its direct light from this estimator at every gather level
+# (store_for; DirectLight._shape); off (benchmarks, A/B): main's shadow rays
+ENABLED = True
+# stored points per shape (top level, second level): an event reading cells no event traced costs
+# about 1.6 x points rays a sample (the border cells too); reads of traced cells cost no ray. 32 / 8
+# (the 100k FE window's first event: x2.3 main's gathered output's CPU, p95 x0.66 of main's) rather
+# than 64 / 16 (x4.0, x0.48) (docs/events.md, session 29 hvon)
+# (at the draft preset's 16 / 8 shadow rays; a level takes them in proportion to its own: points_for)
+POINTS = 32
+POINTS_SECOND = 8
 STREAM = 0x5A17  # the host visibility's own random stream (+ the cell level)
 TILE = 4  # cells per tile side (16 bits: the 100k window traces x0.7 the rays of 8 x 8 tiles)
 BASE = 4096.0  # base cell = BASE x the level's unit (a power of two near the scene's size)
 MAX_LEVEL = 24  # finest cell: base / 4096 (about 2 mm in a 10 m room)
 CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's weights
+# what a store keeps (speed only: the values are the same either way, module doc; HostVisibility._tile):
+# "lazy" every segment an event traced (each traced at most once, only when read), "second" / "always"
+# a tile traced whole on its second / first read, "never" nothing
+POLICY = "lazy"
 _POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
 
 
@@ -83,19 +97,22 @@ class HostVisibility:
     shafts: the plane's planes.ClearShafts (events.direct.clear_shafts) or None (every row traced);
     tile: cells per tile side (tile^2 a multiple of 8)."""
 
-    def __init__(self, lv, normal, point, points=64, shafts=None, threads=None, tile=TILE):
+    def __init__(self, lv, normal, point, points=64, shafts=None, threads=None, tile=TILE, policy=None):
         n = np.asarray(normal, np.float64)
         self.n = n / np.linalg.norm(n)
         self.o = float(np.asarray(point, np.float64) @ self.n) * self.n
         U, V = frames(self.n[None])
         self.U, self.V = U[0], V[0]
         self.lv, self.points, self.shafts = lv, points, shafts
-        assert tile * tile % 8 == 0
+        assert tile * tile % 8 == 0 and tile * tile <= 64  # (a row's cells in one integer: _fill)
         self.tile = tile
         self.threads = getattr(lv, "threads", 1) if threads is None else threads
         self.base = BASE * lv.unit
         self.tiles = {}  # (L, ti, tj) -> (rows (sorted sample indices), bits (rows, tile^2 / 8) uint8)
-        self.rays = 0
+        self.rays = 0  # rays traced into stored tiles
+        self.policy = POLICY if policy is None else policy
+        self.part = {}  # tile -> [rows, bits, known, tested]: a tile events traced parts of
+        self.event_rays = 0  # rays traced by events for their own reads (tiles not traced whole)
 
     # -- the lattice --------------------------------------------------------------------------------
     def cell(self, L):
@@ -125,73 +142,151 @@ class HostVisibility:
         s = self.tile * self.cell(L)
         return np.array([self.o + (ti + a) * s * self.U + (tj + b) * s * self.V for a, b in np.ndindex(2, 2)])
 
-    def facing(self, key):
-        """The level's samples a tile stores: not dark, in front of the plane (by eps / 2), a corner
-        of the tile at most eps below their horizon (a superset of those any point of it can light
-        with weight)."""
+    def facing(self, key, among=None):
+        """The level's samples (of `among`, sorted, if given) a tile stores: not dark, in front of the
+        plane (by eps / 2), a corner of the tile at most eps below their horizon (a superset of those
+        any point of it can light with weight). Each sample's own products, written out: the same
+        answer for a sample whatever else is asked (a tile traced whole or an event's part of it)."""
         lv = self.lv
-        x, nx = lv.points, lv.normals
-        ok = ~lv.dark & ((x - self.o) @ self.n > 0.5 * lv.eps)
-        i = np.flatnonzero(ok)
-        c = self._corners(key)
-        top = (nx[i] @ c.T - np.einsum("ik,ik->i", x[i], nx[i])[:, None]).max(1)
+        i = np.arange(lv.n) if among is None else np.asarray(among)
+        x, nx = lv.points[i], lv.normals[i]
+        dot = lambda a, b: (a[:, 0] * b[0] + a[:, 1] * b[1]) + a[:, 2] * b[2]  # noqa: E731
+        ok = ~lv.dark[i] & (dot(x - self.o, self.n) > 0.5 * lv.eps)
+        i, x, nx = i[ok], x[ok], nx[ok]
+        xn = (x[:, 0] * nx[:, 0] + x[:, 1] * nx[:, 1]) + x[:, 2] * nx[:, 2]
+        top = np.full(len(i), -np.inf)
+        for c in self._corners(key):
+            top = np.maximum(top, dot(nx, c) - xn)
         return i[top > -lv.eps]
 
     def shifts(self, L, rows):
         """(len(rows), 2) each sample's own shift of level L's lattice, in [0, 1)."""
         return hash_uniform(self.lv.seed, self.lv.keys[rows], STREAM + L)
 
-    def segments(self, key, rows):
-        """(origins (3, l), d (3, l x T^2)) of the tile's segments from samples rows (T = self.tile):
-        per sample T^2 segments, cell (i, j) of the tile at j T + i, to (c + r) h in the plane's
-        frame."""
+    def segments(self, key, rows, cells=None):
+        """(origins (3, l), d (3, l x c)) of the tile's segments from samples rows to its cells
+        (cell (i, j) of the tile at j T + i, T = self.tile; by default all T^2 of them, in that
+        order), to (c + r) h in the plane's frame: each segment's values whichever others are asked."""
         L, ti, tj = key
-        lv, h = self.lv, self.cell(L)
+        lv, h, T = self.lv, self.cell(L), self.tile
+        cells = np.arange(T * T) if cells is None else np.asarray(cells)
         eps = lv.eps
         r = self.shifts(L, rows)
-        a = (ti * self.tile + np.arange(self.tile)[None] + r[:, :1]) * h  # (l, i)
-        b = (tj * self.tile + np.arange(self.tile)[None] + r[:, 1:]) * h  # (l, j)
+        a = (ti * T + cells[None] % T + r[:, :1]) * h  # (l, c)
+        b = (tj * T + cells[None] // T + r[:, 1:]) * h  # (l, c)
         org = (lv.points[rows] + eps * lv.normals[rows]).T  # (3, l)
         p0 = self.o + eps * self.n
-        end = [p0[k] + a[:, None, :] * self.U[k] + b[:, :, None] * self.V[k] for k in range(3)]  # (l, j, i)
-        d = np.stack([end[k] - org[k][:, None, None] for k in range(3)]).reshape(3, -1)
-        return org, d
+        d = np.stack([(p0[k] + a * self.U[k] + b * self.V[k]) - org[k][:, None] for k in range(3)])
+        return org, d.reshape(3, -1)
 
     # -- tracing ------------------------------------------------------------------------------------
     def trace(self, keys):
-        """Trace the tiles of keys not yet stored (each tile on its own: its bits are the same in
-        any order, batching or thread count)."""
+        """Trace and store the tiles of keys whole (each tile on its own: its bits are the same in
+        any order, batching or thread count, and the same as those events traced of it)."""
         for key in keys:
             if key not in self.tiles:
-                self.tiles[key] = self._trace_tile(key)
+                P = self.part.pop(key, None) or self._new_part(key)
+                self.rays += self._fill(
+                    key, P, np.arange(len(P[0])), np.full(self.tile**2 // 8, 255, np.uint8)
+                )
+                self.tiles[key] = (P[0], P[1])
 
     def missing(self, rings, L=None):
-        """The tiles a shape (rings on the plane) needs that are not stored yet ([]: `visible` traces
-        no ray). For Live's first drag over new tiles (trace them, keep rays meanwhile) and for a
-        bake's shapes over its frames (trace them all before the first frame)."""
-        return [key for key in self.layout(rings, L)[2] if key not in self.tiles]
+        """The tiles a shape (rings on the plane) reads that are not stored whole yet ([]: `visible`
+        traces no ray): an event traces the segments of them it reads and has not traced before."""
+        _, _, keys, c0, _, ov = self.layout(rings, L)
+        return [key for key in keys if key not in self.tiles and self._cells_of(key, c0, ov > 0).any()]
 
-    def _trace_tile(self, key):
-        lv = self.lv
-        rows = self.facing(key).astype(np.int32)
-        C = self.tile * self.tile
-        bits = np.full((len(rows), C // 8), 255, np.uint8)
-        todo = np.arange(len(rows))
-        if self.shafts is not None and len(rows):
+    def _cells_of(self, key, c0, over):
+        """(T, T) bool the cells of tile key that a shape overlaps (over: its block's, from c0)."""
+        _, ti, tj = key
+        T = self.tile
+        nby, nbx = over.shape
+        m = np.zeros((T, T), bool)
+        i0, j0 = ti * T - c0[0], tj * T - c0[1]
+        bi0, bi1, bj0, bj1 = max(i0, 0), min(i0 + T, nbx), max(j0, 0), min(j0 + T, nby)
+        if bi0 < bi1 and bj0 < bj1:
+            m[bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0] = over[bj0:bj1, bi0:bi1]
+        return m
+
+    def _new_part(self, key, among=None):
+        """[rows, bits, known, tested] of a tile nothing of which is traced yet: its rows (of
+        `among`, if given), their packed bits and which of them are known (none), and whether
+        each row's shaft was tested (none)."""
+        rows = self.facing(key, among).astype(np.int32)
+        C8 = self.tile**2 // 8
+        z = lambda: np.zeros((len(rows), C8), np.uint8)  # noqa: E731
+        return [rows, z(), z(), np.zeros(len(rows), bool)]
+
+    def _fill(self, key, P, sel, mask):
+        """Make the bits of rows P[0][sel] over the cells of `mask` (packed) known: rows whose shaft
+        to the tile's box is certainly clear (planes.ClearShafts, tested once a row) all 1 with no
+        rays, the unknown (row, cell) segments traced, grouped by their cells (each segment the same
+        values in any group or batch). Returns the rays traced."""
+        lv, T = self.lv, self.tile
+        rows, bits, known, tested = P
+        new = sel[~tested[sel]]
+        if self.shafts is not None and len(new):
             c = self._corners(key)
             e = lv.eps * self.n
-            o = lv.points[rows] + lv.eps * lv.normals[rows]
-            todo = todo[~self.shafts.clear(o, c.min(0) + e, c.max(0) + e)]
+            o = lv.points[rows[new]] + lv.eps * lv.normals[rows[new]]
+            clear = new[self.shafts.clear(o, c.min(0) + e, c.max(0) + e)]
+            bits[clear] = known[clear] = 255
+        tested[new] = True
+        need = ~known[sel] & mask
+        todo = np.flatnonzero(need.any(1))
+        if not len(todo):
+            return 0
+        # the rows by their cells to trace (a row's packed bytes as one integer: np.unique's axis=0
+        # sorts rows of bytes 10-100x slower)
+        code = np.zeros(len(todo), np.uint64)
+        for b in range(need.shape[1]):
+            code = (code << np.uint64(8)) | need[todo, b].astype(np.uint64)
+        groups, first, inv = np.unique(code, return_index=True, return_inverse=True)
+        rays = 0
+        for k in range(len(groups)):
+            gm = need[todo[first[k]]]
+            at = sel[todo[inv.ravel() == k]]
+            cells = np.flatnonzero(np.unpackbits(gm, count=T * T))
 
-        def part(a, b):
-            sel = todo[a:b]
-            org, d = self.segments(key, rows[sel])
-            vis = ~lv.system.backend.occluded_cm(org, d, C)
-            bits[sel] = np.packbits(vis.reshape(len(sel), C), axis=1)
+            def part(a, b, at=at, cells=cells):
+                r = at[a:b]
+                org, d = self.segments(key, rows[r], cells)
+                vis = ~lv.system.backend.occluded_cm(org, d, len(cells)).reshape(len(r), len(cells))
+                v = np.unpackbits(bits[r], axis=1, count=T * T).astype(bool)
+                v[:, cells] = vis
+                bits[r] = np.packbits(v, axis=1)
 
-        batch_map(part, ranges(len(todo), CHUNK // C), self.threads)
-        self.rays += len(todo) * C
-        return rows, bits
+            batch_map(part, ranges(len(at), max(CHUNK // len(cells), 1)), self.threads)
+            known[at] |= gm
+            rays += len(at) * len(cells)
+        return rays
+
+    def _tile(self, key, idx, cells):
+        """(rows, bits) of tile key for an event at samples idx reading its cells (tile-local
+        indices): the segments of them not traced before traced now (the same bits as a tile
+        traced whole: the values do not depend on which were traced when). POLICY: "lazy" keeps
+        what events traced (each segment traced at most once, only when read: a ski rental's
+        buying a tile would trace segments no event read, and its renting would trace read ones
+        again); "second" traces a tile whole on its second read, "always" on its first; "never"
+        keeps nothing (every event traces what it reads)."""
+        got = self.tiles.get(key)
+        if got is not None:
+            return got
+        pol = self.policy
+        if pol == "always" or (pol == "second" and key in self.part):
+            self.trace([key])
+            return self.tiles[key]
+        P = self.part.get(key)
+        if P is None:
+            P = self._new_part(key, idx if pol == "never" else None)
+            if pol != "never":
+                self.part[key] = P
+        p = self._rows_of(P[0], idx)
+        sel = p[p >= 0]
+        mask = np.packbits(np.isin(np.arange(self.tile**2), cells))
+        self.event_rays += self._fill(key, P, sel, mask)
+        return P[0], P[1]
 
     # -- an event -----------------------------------------------------------------------------------
     def layout(self, rings, L=None):
@@ -210,11 +305,10 @@ class HostVisibility:
 
     def visible(self, rings, idx, L=None):
         """(len(idx),) the visible fraction of a shape (rings (M, 3) on the plane, outer first) from
-        samples idx (the caller's culls: in front of the shape, a vertex above the horizon), by the
-        stored bits (tracing the tiles it overlaps that are not yet stored). L: the cell level (by
-        default level_for the shape's area)."""
+        samples idx (sorted; the caller's culls: in front of the shape, a vertex above the horizon),
+        by the bits of the cells it overlaps: stored tiles read, the others' segments traced (_tile).
+        L: the cell level (by default level_for the shape's area)."""
         rings2d, L, keys, c0, c1, ov = self.layout(rings, L)
-        self.trace(keys)
         h = self.cell(L)
         idx = np.asarray(idx).astype(np.int32)  # (the tiles' rows' type: no casts in the look-ups)
         nbx, nby = c1 - c0
@@ -225,19 +319,15 @@ class HostVisibility:
         V = np.zeros(len(idx))
         # per tile, its cells the shape overlaps as packed bytes: a sample's counts of stored and of
         # visible overlapped cells by a popcount of its bytes (no unpacking but for the mixed ones)
-        T = self.tile
-        masks = []
+        masks, tiles = [], {}
         for key in keys:
-            _, ti, tj = key
-            m = np.zeros((T, T), bool)
-            i0, j0 = ti * T - c0[0], tj * T - c0[1]
-            bi0, bi1, bj0, bj1 = max(i0, 0), min(i0 + T, nbx), max(j0, 0), min(j0 + T, nby)
-            if bi0 < bi1 and bj0 < bj1:
-                m[bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0] = over[bj0:bj1, bi0:bi1]
-            if m.any() and len(self.tiles[key][0]):
-                masks.append((key, np.packbits(m.ravel()), int(m.sum())))
+            m = self._cells_of(key, c0, over)
+            if m.any():
+                tiles[key] = self._tile(key, idx, np.flatnonzero(m.ravel()))
+                if len(tiles[key][0]):
+                    masks.append((key, np.packbits(m.ravel()), int(m.sum())))
         # each sample's row in each tile (-1: not stored), looked up once per event
-        look = {key: self._rows_of(key, idx) for key, _, _ in masks}
+        look = {key: self._rows_of(tiles[key][0], idx) for key, _, _ in masks}
         step = max(1, CHUNK // max(nbx * nby, 1))
         for s0 in range(0, len(idx), step):
             sl = slice(s0, s0 + step)
@@ -247,43 +337,46 @@ class HostVisibility:
             for key, m, cnt in masks:
                 p = look[key][sl]
                 f = np.flatnonzero(p >= 0)
-                n1[f] += _POP[self.tiles[key][1][p[f]] & m].sum(1, dtype=np.int64)
+                n1[f] += _POP[tiles[key][1][p[f]] & m].sum(1, dtype=np.int64)
                 ns[f] += cnt
             Vc = np.zeros(len(rows))
             Vc[(n1 == ns) & (ns > 0)] = 1.0  # every stored overlapped bit 1: exactly 1 (0: exactly 0)
             mix = np.flatnonzero((n1 > 0) & (n1 < ns))
             if len(mix):
                 at = {key: look[key][sl][mix] for key, _, _ in masks}
-                vis = self.block(list(at), rows[mix], c0, c1, at)[0]
+                vis = self.block(list(at), rows[mix], c0, c1, at, tiles)[0]
                 Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis, rings2d)
             V[sl] = Vc
         return V
 
-    def _rows_of(self, key, idx):
-        """(len(idx),) each sample's row in the tile key, -1 where the tile does not store it."""
-        trows = self.tiles[key][0]
+    @staticmethod
+    def _rows_of(trows, idx):
+        """(len(idx),) each sample's row in a tile's rows trows, -1 where the tile has no row."""
         if not len(trows):
             return np.full(len(idx), -1, np.int64)
         pos = np.minimum(np.searchsorted(trows, idx), len(trows) - 1)
         return np.where(trows[pos] == idx, pos, -1)
 
-    def block(self, keys, rows, c0, c1, at=None):
+    def block(self, keys, rows, c0, c1, at=None, tiles=None):
         """(vis, stored) (len(rows), c1 - c0 reversed) bool: the stored bits of samples rows over
-        the cells [c0, c1) (x, y) from the tiles keys, and where a tile stores the sample (at: the
-        samples' rows in each tile, _rows_of, if known)."""
+        the cells [c0, c1) (x, y) from the tiles keys (of `tiles`, by default the stored ones), and
+        where a tile stores the sample (at: the samples' rows in each tile, _rows_of, if known)."""
+        tiles = self.tiles if tiles is None else tiles
         nbx, nby = c1 - c0
         nl = len(rows)
         vis = np.zeros((nl, nby, nbx), bool)
         stored = np.zeros((nl, nby, nbx), bool)
         for key in keys:
-            trows, tbits = self.tiles[key]
+            if key not in tiles:  # (a tile of the box none of whose cells the shape overlaps)
+                continue
+            trows, tbits = tiles[key]
             _, ti, tj = key
             i0, j0 = ti * self.tile - c0[0], tj * self.tile - c0[1]  # the tile's first cell in the block
             bi0, bi1 = max(i0, 0), min(i0 + self.tile, nbx)
             bj0, bj1 = max(j0, 0), min(j0 + self.tile, nby)
             if bi0 >= bi1 or bj0 >= bj1 or not len(trows):
                 continue
-            p = at[key] if at is not None else self._rows_of(key, rows)
+            p = at[key] if at is not None else self._rows_of(trows, rows)
             f = np.flatnonzero(p >= 0)
             t = (
                 np.unpackbits(tbits[p[f]], axis=1, count=self.tile * self.tile)
@@ -378,12 +471,12 @@ class HostVisibility:
         )
 
     @classmethod
-    def from_state(cls, lv, a, shafts=None, threads=None):
+    def from_state(cls, lv, a, shafts=None, threads=None, policy=None):
         """The store of state() on the level lv (the same samples: its unit must give the same base,
         its sample count the same), its tiles as saved (no rays), new tiles traced as before."""
         n, o, U, V = (np.array(v) for v in a["frame"])
         points, tile, base, count = a["rule"]
-        H = cls(lv, n, o, int(points), shafts, threads, int(tile))
+        H = cls(lv, n, o, int(points), shafts, threads, int(tile), policy)
         if H.base != base or lv.n != count:
             raise ValueError("a host visibility store of another scale or other samples")
         H.n, H.o, H.U, H.V = n, o, U, V  # (bit for bit as saved)
@@ -396,7 +489,17 @@ class HostVisibility:
 
     @property
     def nbytes(self):
-        return sum(r.nbytes + b.nbytes for r, b in self.tiles.values())
+        """The bytes of the tiles traced whole and of the parts events traced of the others."""
+        whole = sum(r.nbytes + b.nbytes for r, b in self.tiles.values())
+        return whole + sum(a.nbytes for P in self.part.values() for a in P)
+
+
+def points_for(lv):
+    """The stored points per shape at a gather level: POINTS at the top level, POINTS_SECOND at a
+    second level (_leaf_nodes), at the draft preset's 16 / 8 shadow rays, in proportion to the
+    level's own (medium's and high's 32 / 64 rays get 2x / 4x the points, as their rays)."""
+    second = getattr(lv, "_leaf_nodes", None) is not None
+    return max(1, round((POINTS_SECOND / 8 if second else POINTS / 16) * lv.shadow_rays))
 
 
 def store_for(lv, normal, point, points):
