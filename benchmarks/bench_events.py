@@ -37,11 +37,18 @@ against two references:
   REFERENCE quality: the direct light and the ray pattern cancel, what is left is the transport's error
   as the gather sees it. The same gather reading it against "ref" is the floor a perfect transport
   would reach ("floor": the gather's noise and discretisation).
+Host visibility (gather/hostvis.py, on in the product since session 29): the timed methods, the
+transport reference and the floor read it as the product does (the transport reference must read the
+shapes' direct light exactly as the method's gather does, for it to cancel); the independent "ref" is
+computed with hostvis.ENABLED = False (hostvis_off), so its direct light is by shadow rays and does not
+share the methods' estimator. The floor is also recorded with this gather's shapes read by shadow rays
+("floor_hostvis_off"). Each variant starts with the gather's host visibility stores empty too.
 NAIVE at REFERENCE is rebuilt once per light configuration and shared by both references and every
 quality (a cache around events.naive._NaiveState, used only for REFERENCE parameters).
 """
 
 import argparse
+import contextlib
 import hashlib
 import json
 import os
@@ -325,15 +332,33 @@ class Plain:
 
 
 def clear_shape_caches(g):
-    """Empty the gather's per-shape caches on every level (each variant pays its shapes' direct light)."""
+    """Empty the gather's per-shape caches and host visibility stores on every level and slot facing
+    copy (each variant pays its shapes' direct light and the host visibility's rays)."""
     lv = g
     while lv is not None:
-        lv._shape_cache.clear()
-        lv.__dict__.pop("_preview_cache", None)
+        slot = getattr(lv, "_slot", None)
+        for x in (lv, slot["f"] if slot else None):
+            if x is not None:
+                x._shape_cache.clear()
+                for k in ("_preview_cache", "_host_stores"):
+                    x.__dict__.pop(k, None)
         lv._naive_key = None
         lv = getattr(lv, "second", None)
     g._responses.clear()
     g._responses_of = None
+
+
+@contextlib.contextmanager
+def hostvis_off():
+    """hostvis.ENABLED off inside (restored after): the independent reference's gathers read their
+    shapes' direct light by shadow rays, not by the host visibility the timed methods read."""
+    from hr_addon.core.gather import hostvis
+
+    was, hostvis.ENABLED = hostvis.ENABLED, False
+    try:
+        yield
+    finally:
+        hostvis.ENABLED = was
 
 
 def gathered_references(name, mesh, events, eval_at, pts, ids, naive_cache, log):
@@ -384,7 +409,8 @@ def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval
         "runs": [],
     }
     with NaiveCache() as nc:
-        ref, ra, rb, ref_base, cost = gathered_references(name, mesh, events, eval_at, pts, ids, nc, log)
+        with hostvis_off():
+            ref, ra, rb, ref_base, cost = gathered_references(name, mesh, events, eval_at, pts, ids, nc, log)
         # the reference's own noise: the two seeds' light contribution apart (RMSE / max of a - b; the
         # mean's noise is about half the RMSE of a - b)
         result["reference"] = dict(REF_GATHER, seeds=list(REF_SEEDS), params=repr(REFERENCE), **cost)
@@ -420,24 +446,32 @@ def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval
             # the transport reference through this gather: NAIVE at REFERENCE (cached rebuilds)
             fake = DynamicRadiosity(base.copy(), method="NAIVE")
             fake._naive = Plain(ref_base)
-            tr = {None: g.evaluate(fake, "reflected")}
-            for i in sorted(eval_at):
-                dyn = DynamicRadiosity(base.copy(), method="NAIVE", naive_params=REFERENCE)
-                dyn.apply(events[i][1])
-                tr[i] = g.evaluate(dyn, "reflected")
+
+            def reading_reference(gg):
+                """gg's reflected radiance reading NAIVE at REFERENCE: no shapes, then each event."""
+                out = {None: gg.evaluate(fake, "reflected")}
+                for i in sorted(eval_at):
+                    dyn = DynamicRadiosity(base.copy(), method="NAIVE", naive_params=REFERENCE)
+                    dyn.apply(events[i][1])
+                    out[i] = gg.evaluate(dyn, "reflected")
+                return out
+
+            tr = reading_reference(g)
             clear_shape_caches(g)
             floor = {i: err(tr[i] - tr[None], ref[i] - ref[None], w) for i in sorted(eval_at)}
+            # the same floor with this gather's shapes read by shadow rays (hostvis off): the floor of
+            # the gather before the host visibility
+            with hostvis_off():
+                t0 = reading_reference(g)
+                clear_shape_caches(g)
+            floor_off = {str(i): err(t0[i] - t0[None], ref[i] - ref[None], w) for i in sorted(eval_at)}
             # the floor's ray noise: the same gather settings with another seed (seed 1) on the same
             # REFERENCE transport; the RMSE of the two light contributions apart / sqrt 2 is one
             # gather's noise (what the floor holds beyond it: the gather's leaf discretisation)
             noise = {}
             if noise_seed:
                 g1 = FinalGather(fake, pts, base.patches.normal[ids], ids, seed=1, **gset)
-                t1 = {None: g1.evaluate(fake, "reflected")}
-                for i in sorted(eval_at):
-                    dyn = DynamicRadiosity(base.copy(), method="NAIVE", naive_params=REFERENCE)
-                    dyn.apply(events[i][1])
-                    t1[i] = g1.evaluate(dyn, "reflected")
+                t1 = reading_reference(g1)
                 noise = {str(i): err(t1[i] - t1[None], tr[i] - tr[None], w) for i in sorted(eval_at)}
                 del g1
             qrec = {
@@ -449,6 +483,7 @@ def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval
                 "gather_precompute_cpu_s": pre,
                 "gather_samples": int(g.n),
                 "floor": {str(i): v for i, v in floor.items()},
+                "floor_hostvis_off": floor_off,
                 "gather_seed_diff": noise,
             }
             result.setdefault("qualities", []).append(qrec)
@@ -506,7 +541,11 @@ def run_gathered(name, mesh, events, qualities, variants, repeat, per_area, eval
                 )
             naive_ratios(result["runs"], q)
             fl = [floor[i][0] for i in eval_at]
-            log(f"  floor (the gather on REFERENCE transport vs ref) {np.sqrt(np.mean(np.square(fl))):.4f}")
+            fo = [v[0] for v in floor_off.values()]
+            log(
+                f"  floor (the gather on REFERENCE transport vs ref) {np.sqrt(np.mean(np.square(fl))):.4f}"
+                f" (hostvis off {np.sqrt(np.mean(np.square(fo))):.4f})"
+            )
             if noise:
                 nz = [v[0] for v in noise.values()]
                 log(

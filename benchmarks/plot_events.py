@@ -6,12 +6,14 @@ y = RMS over the evaluated events of the error of the light's contribution (refl
 minus without the shapes, RMSE over sample points). Classic (Final Gather off, the hierarchy's leaves):
 against NAIVE at reference quality. Gathered (Final Gather on, the bake's default): time = the event +
 the gathered output's update; filled markers against the independent gathered reference (NAIVE at
-REFERENCE, its own leaves, 512 rays, two seeds), hollow markers the transport's part alone (against the
-method's own gather reading NAIVE at REFERENCE); dotted lines: the floor a perfect transport reaches
-through each quality's gather. Also prints the tables used in docs/events.md.
+REFERENCE, its own leaves, 1,024 rays, two seeds, host visibility off), hollow markers the
+transport's part alone (against the method's own gather reading NAIVE at REFERENCE); dotted lines:
+the floor a perfect transport reaches through each quality's gather. Also prints the tables used in
+docs/events.md. --note: a caption under the chart (e.g. which scenarios come from an older run).
 
     .venv/bin/python benchmarks/plot_events.py [--json benchmarks/out/events.json]
         [--gathered benchmarks/out/events_gathered.json] [--png benchmarks/events_speed_accuracy.png]
+        [--date DATE] [--note TEXT]
 """
 
 import argparse
@@ -138,8 +140,9 @@ def gathered_table(data):
             )
     lines += [
         "",
-        "| scenario | quality | floor RMSE | reference noise RMSE | contribution RMS |",
-        "|---|---|---|---|---|",
+        "| scenario | quality | floor RMSE | floor, shapes by shadow rays | reference noise RMSE "
+        "| contribution RMS |",
+        "|---|---|---|---|---|---|",
     ]
     for sc in data["scenarios"]:
         rf = sc["reference"]
@@ -147,7 +150,9 @@ def gathered_table(data):
         size = np.sqrt(np.mean([v**2 for v in rf["contribution_rms"].values()]))
         for qr in sc["qualities"]:
             fl = np.sqrt(np.mean([v[0] ** 2 for v in qr["floor"].values()]))
-            lines.append(f"| {sc['scene']} | {qr['quality']} | {fl:.4f} | {noise:.4f} | {size:.4f} |")
+            off = qr.get("floor_hostvis_off")  # (since session 29: the floor with host visibility off)
+            fo = f"{np.sqrt(np.mean([v[0] ** 2 for v in off.values()])):.4f}" if off else "-"
+            lines.append(f"| {sc['scene']} | {qr['quality']} | {fl:.4f} | {fo} | {noise:.4f} | {size:.4f} |")
     return "\n".join(lines)
 
 
@@ -200,6 +205,7 @@ def main():
     )
     ap.add_argument("--png", default=os.path.join(ROOT, "benchmarks", "events_speed_accuracy.png"))
     ap.add_argument("--date", default="", help="when the JSON was measured, shown in the title")
+    ap.add_argument("--note", default="", help="a caption under the chart")
     args = ap.parse_args()
     with open(args.json) as f:
         data = json.load(f)
@@ -292,7 +298,9 @@ def main():
         )
     lx.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.suptitle("Dynamic light events: cornell + office + 30-frame beam; lower left is better", fontsize=11)
-    fig.tight_layout()
+    if args.note:
+        fig.text(0.01, 0.005, args.note, fontsize=8, ha="left", va="bottom", color="0.25")
+    fig.tight_layout(rect=(0, 0.03 if args.note else 0, 1, 1))
     fig.savefig(args.png, dpi=130)
     print(f"wrote {args.png}")
     print(table(data))
