@@ -197,16 +197,23 @@ class HostVisibility:
         _, _, keys, c0, _, ov = self.layout(rings, L)
         return [key for key in keys if key not in self.tiles and self._cells_of(key, c0, ov > 0).any()]
 
-    def _cells_of(self, key, c0, over):
-        """(T, T) bool the cells of tile key that a shape overlaps (over: its block's, from c0)."""
+    def _window(self, key, c0, nbx, nby):
+        """(block's slices, tile's slices) (y, x) of tile key's cells inside a block of nbx x nby
+        cells whose first is c0, or None where they do not meet."""
         _, ti, tj = key
         T = self.tile
-        nby, nbx = over.shape
-        m = np.zeros((T, T), bool)
-        i0, j0 = ti * T - c0[0], tj * T - c0[1]
+        i0, j0 = ti * T - c0[0], tj * T - c0[1]  # the tile's first cell in the block
         bi0, bi1, bj0, bj1 = max(i0, 0), min(i0 + T, nbx), max(j0, 0), min(j0 + T, nby)
-        if bi0 < bi1 and bj0 < bj1:
-            m[bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0] = over[bj0:bj1, bi0:bi1]
+        if bi0 >= bi1 or bj0 >= bj1:
+            return None
+        return (slice(bj0, bj1), slice(bi0, bi1)), (slice(bj0 - j0, bj1 - j0), slice(bi0 - i0, bi1 - i0))
+
+    def _cells_of(self, key, c0, over):
+        """(T, T) bool the cells of tile key that a shape overlaps (over: its block's, from c0)."""
+        m = np.zeros((self.tile, self.tile), bool)
+        w = self._window(key, c0, over.shape[1], over.shape[0])
+        if w is not None:
+            m[w[1]] = over[w[0]]
         return m
 
     def _new_part(self, key, among=None):
@@ -370,11 +377,8 @@ class HostVisibility:
             if key not in tiles:  # (a tile of the box none of whose cells the shape overlaps)
                 continue
             trows, tbits = tiles[key]
-            _, ti, tj = key
-            i0, j0 = ti * self.tile - c0[0], tj * self.tile - c0[1]  # the tile's first cell in the block
-            bi0, bi1 = max(i0, 0), min(i0 + self.tile, nbx)
-            bj0, bj1 = max(j0, 0), min(j0 + self.tile, nby)
-            if bi0 >= bi1 or bj0 >= bj1 or not len(trows):
+            w = self._window(key, c0, nbx, nby)
+            if w is None or not len(trows):
                 continue
             p = at[key] if at is not None else self._rows_of(trows, rows)
             f = np.flatnonzero(p >= 0)
@@ -383,8 +387,8 @@ class HostVisibility:
                 .reshape(-1, self.tile, self.tile)
                 .astype(bool)
             )
-            vis[f, bj0:bj1, bi0:bi1] = t[:, bj0 - j0 : bj1 - j0, bi0 - i0 : bi1 - i0]
-            stored[f, bj0:bj1, bi0:bi1] = True
+            vis[(f, *w[0])] = t[(slice(None), *w[1])]
+            stored[(f, *w[0])] = True
         return vis, stored
 
     def _ratio(self, rows, L, ci, cj, full, part, ov, vis, rings2d):
