@@ -156,7 +156,7 @@ def test_delete_bake_keeps_or_deletes_the_precompute_and_rebuild_discards_it(tmp
     assert " MB, built " in precompute_text(bpy.context.scene)
 
     assert bpy.ops.hr.delete_bake("EXEC_DEFAULT") == {"FINISHED"}  # default: keep it
-    assert sorted(os.listdir(d)) == [".hr_radiosity", "precompute.hrpc"]
+    assert sorted(os.listdir(d)) == [".hr_radiosity", "precompute.hrhv", "precompute.hrpc"]  # (+ segments)
     assert _bake().precompute_loaded  # the next bake skips the build
 
     assert bpy.ops.hr.delete_bake("EXEC_DEFAULT", keep_precompute=False) == {"FINISHED"}

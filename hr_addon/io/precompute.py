@@ -272,7 +272,6 @@ def write(cache_dir, arrays, graph, want, info=None):
     with folder_lock(d):  # never into a folder another process's commit is swapping out
         mark(d)
         atomic_write(d / FILENAME, _filler(arrays, header))
-        _remove_kept(d)  # the old precompute's segments: of other samples now
     return d / FILENAME
 
 
@@ -445,7 +444,9 @@ def _host_levels(gather):
 
 def _remove_kept(d):
     """Delete the kept segments' file of cache folder d if it is ours (a file of that name in a
-    cache folder): after the precompute it belongs to is replaced or removed."""
+    cache folder), with the precompute (remove). A precompute rebuilt over it leaves it: ignored
+    (another precompute's), replaced by the next bake that traces segments (a build that a cancel
+    ends keeps the previous bake's files whole)."""
     path = Path(d) / KEPTNAME
     if is_cache_folder(d) and not path.is_symlink() and path.is_file():
         path.unlink()
