@@ -337,7 +337,7 @@ def sweep(args, dyn, g, levels, clear, window, counted):
     modes = args.policies.split(",")
     if args.from_kept:  # (a re-bake from the kept segments, then the same from empty stores)
         modes = [modes[0] + "+kept", modes[0]]
-    elif not args.keep or "main" not in modes:
+    elif not args.keep and "main" not in modes:  # (--keep: main only if asked)
         modes = ["main"] + modes
     outs = {}
     for mode in modes:

@@ -193,7 +193,7 @@ def test_a_damaged_file_is_ignored_with_a_message(folder, tmp_path, damage):
     elif damage == "flip":  # one byte inside the largest array, the zip intact
         with zipfile.ZipFile(f) as z:
             big = max(z.infolist(), key=lambda i: i.file_size)
-        data[big.header_offset + 30 + len(big.filename) + big.file_size // 2] ^= 0xFF
+        data[big.header_offset + 30 + len(big.filename) + big.compress_size // 2] ^= 0xFF
     elif damage == "header":
         with zipfile.ZipFile(f) as z:
             h = z.getinfo("header.json")

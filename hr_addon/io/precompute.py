@@ -27,6 +27,7 @@ import threading
 import time
 import uuid
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -275,14 +276,14 @@ def write(cache_dir, arrays, graph, want, info=None):
     return d / FILENAME
 
 
-def _filler(arrays, header):
-    """fill(fh) writing the zip of `arrays` and `header` (write's format)."""
+def _filler(arrays, header, compression=zipfile.ZIP_STORED):
+    """fill(fh) writing the zip of `arrays` and `header` (write's format; keep's deflated)."""
 
     def fill(fh):
         # each array streamed into its member (no copy of the precompute in memory; zipfile
         # computes the member's CRC while writing); the header, which lists the CRCs, last
         metas = {}
-        with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+        with zipfile.ZipFile(fh, "w", compression, allowZip64=True, compresslevel=1) as z:
             for name, a in arrays.items():
                 with z.open(name + ".npy", "w", force_zip64=a.nbytes > _ZIP64_FROM) as m:
                     np.lib.format.write_array(m, a, allow_pickle=False)
@@ -301,7 +302,7 @@ def _damaged(path):
         yield
     except (FileNotFoundError, PrecomputeError):
         raise
-    except (OSError, zipfile.BadZipFile, KeyError, ValueError, EOFError) as exc:
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError, EOFError, zlib.error) as exc:
         raise PrecomputeError(f"'{Path(path).name}' is damaged or truncated ({exc})") from None
 
 
@@ -512,7 +513,8 @@ def keep(cache_dir, gather, log=print, warn=None, cap=None):
                 raise PrecomputeError("the precompute was replaced meanwhile")
             header = dict(magic=KEPT_MAGIC, version=KEPT_VERSION, precompute=pid, params=hostvis.params())
             header.update(created=time.time(), host=_HOST, info={k: v for k, v in info.items()})
-            atomic_write(path, _filler(arrays, header))
+            # deflated (level 1): the bits are mostly runs (at 100k 20x smaller for 0.04 s)
+            atomic_write(path, _filler(arrays, header, zipfile.ZIP_DEFLATED))
     except (OSError, PrecomputeError) as exc:
         warn(f"Host visibility segments not stored: {exc}")
         return None

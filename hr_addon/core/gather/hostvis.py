@@ -72,8 +72,11 @@ CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's 
 POLICY = "lazy"
 # what is kept (speed only, never values; session 30 hvkeep): a level's stores at most MEMORY bytes
 # (+ the tile being made), the tiles read longest ago dropped first (trim); the precompute's side
-# file the most recently read tiles of all levels up to DISK bytes (kept)
-MEMORY = 256 << 20
+# file the most recently read tiles of all levels up to DISK bytes as held in memory (kept; the
+# file, deflated, ~1/20 of that). At 100k a top-level tile holds ~1.3 MB (9 bytes for each of the
+# ~58% of the level's samples facing it): MEMORY ~100 such tiles a level, 5x the FE window's
+# 24-step sweep (19 tiles over 3 levels, 17.9 MB); DISK 3.6x that sweep's stores.
+MEMORY = 128 << 20
 DISK = 64 << 20
 _TICK = itertools.count()  # the order of tile reads, over every store (LRU)
 _POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
@@ -604,11 +607,11 @@ def trim(lv, extra=None, cap=None):
 
 def kept(gather, cap=None):
     """(arrays, info) of every level's stores for the precompute's side file (io/precompute.keep):
-    the tiles read most recently first, up to cap bytes (DISK), saved oldest first (restore_kept
-    gives them their read order back). A tile: its rows as a bitmap over the level's samples, per
-    row its bits, which are known and whether its shaft was tested (a whole tile: all). info: tiles
-    and bytes saved, tiles left out, and the rays traced into the stores since they were made or
-    restored (0: nothing new to save)."""
+    the tiles read most recently first, up to cap bytes as held in memory (DISK), saved oldest
+    first (restore_kept gives them their read order back). A tile: its rows as a bitmap over the
+    level's samples, per row its bits, which are known and whether its shaft was tested (a whole
+    tile: all). info: tiles and bytes saved, tiles left out, and the rays traced into the stores
+    since they were made or restored (0: nothing new to save)."""
     cap = DISK if cap is None else cap
     lvls = host_levels(gather)
     C8 = TILE * TILE // 8
@@ -621,8 +624,7 @@ def kept(gather, cap=None):
     items.sort(key=lambda it: it[:2], reverse=True)
     chosen, total = [], 0
     for it in items:
-        H, k = it[3], it[4]
-        b = (H.lv.n + 7) // 8 + len((H.tiles.get(k) or H.part[k])[0]) * (2 * C8 + 1)
+        b = _tile_bytes(it[3], it[4])  # (as held once loaded: what the file's arrays restore to)
         if total + b > cap:
             break
         chosen.append(it)
