@@ -443,6 +443,10 @@ def _host_levels(gather):
     return hostvis.host_levels(gather) if gather is not None else []
 
 
+def _size(n):
+    return f"{n / 1e6:.1f} MB" if n >= 1e5 else f"{n / 1e3:.0f} kB"
+
+
 def _remove_kept(d):
     """Delete the kept segments' file of cache folder d if it is ours (a file of that name in a
     cache folder), with the precompute (remove). A precompute rebuilt over it leaves it: ignored
@@ -476,8 +480,8 @@ def load_kept(cache_dir, gather):
         else:
             arrays, _ = read(path, KEPT_MAGIC)
             n = hostvis.restore_kept(gather, arrays)
-            took, mb = time.perf_counter() - t0, path.stat().st_size / 1e6
-            return f"host visibility segments loaded ({n} tiles, {mb:.1f} MB, {took:.2f} s)"
+            took, size = time.perf_counter() - t0, _size(path.stat().st_size)
+            return f"host visibility segments loaded ({n} tiles, {size}, {took:.2f} s)"
     except PrecomputeError as exc:
         why = str(exc)
     except (KeyError, IndexError, TypeError, ValueError) as exc:  # arrays that do not fit this gather
@@ -520,7 +524,7 @@ def keep(cache_dir, gather, log=print, warn=None, cap=None):
         return None
     left = f", {info['left_out']} older tiles left out" if info["left_out"] else ""
     log(
-        f"host visibility segments stored ({info['tiles']} tiles, {path.stat().st_size / 1e6:.1f} MB"
+        f"host visibility segments stored ({info['tiles']} tiles, {_size(path.stat().st_size)}"
         f"{left}, {time.perf_counter() - t0:.2f} s)"
     )
     return path
