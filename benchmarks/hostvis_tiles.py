@@ -14,9 +14,11 @@ per gather level, per tile size; main's shadow rays alongside (docs/events.md, s
 alternating, and per object against 256 rays at the top and 64 (no far rays) at the second level
 (as host_visibility.py --end-to-end).
 
---sweep N: the window swept in N steps (sweep()). --keep DIR: after the sweep, its stores written
-with io/precompute.keep into DIR (a cache folder whose precompute.hrpc is a link to STORE's: the
-segments are bound to that file), timed, with the file's size; --from-kept: no main, the stores
+--sweep N: the window swept in N steps (sweep()); a policy `lazy:4` trims the stores to 4 MB a
+level (hostvis.MEMORY); every host mode's outputs are compared with the first's; --no-main: main's
+shadow rays not swept. --keep DIR: after the sweep, its stores written with io/precompute.keep
+into DIR (a cache folder whose precompute.hrpc is a link to STORE's: the segments are bound to
+that file), timed, with the file's size; --from-kept: no main, the stores
 loaded from DIR (precompute.load_kept, timed) before the first policy's sweep, then that policy
 again from empty stores, the two sweeps' outputs compared bit for bit (a re-bake from the kept
 segments against a bake without them; docs/events.md, session 30 hvkeep). Peak RSS printed.
@@ -197,6 +199,7 @@ def end_to_end(argv=None):
     ap.add_argument("--size", default="100k", help="the store's furnished room")
     ap.add_argument("--keep", default=None, help="--sweep: write the stores into this cache folder")
     ap.add_argument("--from-kept", action="store_true", help="--sweep: start from --keep's stores")
+    ap.add_argument("--no-main", action="store_true", help="--sweep: without main's shadow rays")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
@@ -337,12 +340,14 @@ def sweep(args, dyn, g, levels, clear, window, counted):
     modes = args.policies.split(",")
     if args.from_kept:  # (a re-bake from the kept segments, then the same from empty stores)
         modes = [modes[0] + "+kept", modes[0]]
-    elif not args.keep and "main" not in modes:  # (--keep: main only if asked)
+    elif not (args.keep or args.no_main) and "main" not in modes:  # (--keep: main only if asked)
         modes = ["main"] + modes
-    outs = {}
+    outs, memory = {}, hostvis.MEMORY
     for mode in modes:
         hostvis.ENABLED = mode != "main"
-        hostvis.POLICY = mode.split("+")[0] if mode != "main" else hostvis.POLICY
+        pol, _, cap = mode.split("+")[0].partition(":")  # lazy:4: the stores trimmed to 4 MB a level
+        hostvis.POLICY = pol if mode != "main" else hostvis.POLICY
+        hostvis.MEMORY = int(float(cap) * (1 << 20)) if cap else memory
         if "w" in dyn.shapes:
             dyn.remove("w")
         clear()
@@ -385,10 +390,12 @@ def sweep(args, dyn, g, levels, clear, window, counted):
         )
         if args.keep and not args.from_kept and mode == modes[-1]:
             keep(args, g, res)
-    if args.from_kept:
-        same = all(np.array_equal(a, b) for a, b in zip(*outs.values()))
-        res["kept_equals_empty_bitwise"] = bool(same)
-        print(f"from the kept stores equal to from empty stores, every step bit for bit: {same}")
+    hostvis.MEMORY = memory
+    host = [m for m in outs if m != "main"]
+    for m in host[1:]:  # (values never depend on what is stored)
+        same = all(np.array_equal(a, b) for a, b in zip(outs[host[0]], outs[m]))
+        res.setdefault("bitwise_equal_to_" + host[0], {})[m] = bool(same)
+        print(f"{m} equal to {host[0]}, every step bit for bit: {same}")
     import resource
 
     res["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

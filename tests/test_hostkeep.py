@@ -267,6 +267,7 @@ def test_a_trim_keeps_the_values_bit_for_bit(folder, monkeypatch):
     )
     cap = full // 4
     monkeypatch.setattr(hostvis, "MEMORY", cap)
+    monkeypatch.setattr(hostvis, "TRIM_FLOOR", 0)  # (the floor would keep every tile of this scene)
     system, gather = pc.load(d0, WANT)[:2]
     dyn = DynamicRadiosity(system.copy(), method="FE")
     out = []
@@ -279,3 +280,9 @@ def test_a_trim_keeps_the_values_bit_for_bit(folder, monkeypatch):
             assert sum(H.nbytes for H in Hs) <= cap + largest
     assert_same(out, fresh)
     assert rays(gather) > rays(g)  # (dropped tiles traced again)
+    # the floor: a level keeps at least TRIM_FLOOR tiles of all its samples, whatever MEMORY says
+    # (a cap below one event's reads would make every step trace again what the last one read)
+    monkeypatch.setattr(hostvis, "TRIM_FLOOR", 16)
+    for lv in hostvis.host_levels(g):
+        held = sum(H.nbytes for H in getattr(lv, "_host_stores", {}).values())
+        assert held < 16 * 9 * lv.n and hostvis.trim(lv, cap=1) == 0

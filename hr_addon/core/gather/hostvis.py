@@ -76,7 +76,12 @@ POLICY = "lazy"
 # file, deflated, ~1/20 of that). At 100k a top-level tile holds ~1.3 MB (9 bytes for each of the
 # ~58% of the level's samples facing it): MEMORY ~100 such tiles a level, 5x the FE window's
 # 24-step sweep (19 tiles over 3 levels, 17.9 MB); DISK 3.6x that sweep's stores.
+# A level's cap is at least TRIM_FLOOR tiles of all its samples: an event reads up to ~9 tiles a
+# level (a shape takes 32-64 cells, 16 a tile), and a cap below what one event reads makes LRU drop
+# the tiles the next step reads again (at 100k, 4 MB a level traced x9.5 the sweep's rays, more than
+# main's shadow rays)
 MEMORY = 128 << 20
+TRIM_FLOOR = 16
 DISK = 64 << 20
 _TICK = itertools.count()  # the order of tile reads, over every store (LRU)
 _POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
@@ -576,12 +581,14 @@ def _tile_bytes(H, key):
 
 def trim(lv, extra=None, cap=None):
     """Keep the stores of a level (and `extra`, a store not made by store_for) within cap bytes
-    (MEMORY): above it, the tiles (whole or events' parts) read longest ago are dropped until 3/4 of
-    cap remain (not every new tile trims). By tile, least recently read: a tile is the unit that is
-    read and kept, and a moving shape reads next the tiles it read last, where a rule by plane or
-    by event would drop the current shape's tiles with the rest. Speed only: a dropped tile's
-    segments are traced again when read, with the same bits. Returns the bytes dropped."""
-    cap = MEMORY if cap is None else cap
+    (MEMORY, at least TRIM_FLOOR tiles of the level's samples): above it, the tiles (whole or
+    events' parts) read longest ago are dropped until 3/4 of cap remain (not every new tile trims).
+    By tile, least recently read: a tile is the unit that is read and kept, and a moving shape
+    reads next the tiles it read last, where a rule by plane or by event would drop the current
+    shape's tiles with the rest. Speed only: a dropped tile's segments are traced again when read,
+    with the same bits. Returns the bytes dropped."""
+    row = 5 + 2 * (TILE * TILE // 8)  # a row's bytes in a part (rows, bits, known, tested)
+    cap = max(MEMORY if cap is None else cap, TRIM_FLOOR * row * lv.n)
     stores = list(lv.__dict__.get("_host_stores", {}).values())
     if extra is not None and all(H is not extra for H in stores):
         stores.append(extra)
