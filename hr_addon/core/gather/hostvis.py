@@ -41,6 +41,8 @@ traced when is speed only: no value depends on it, so none on the history of eve
   (hv34's `ovl`, biased only there); with no weight at all 1.
 """
 
+import itertools
+
 import numpy as np
 
 from ..clip import overlap_areas, polygon_area_2d
@@ -68,6 +70,20 @@ CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's 
 # "lazy" every segment an event traced (each traced at most once, only when read), "second" / "always"
 # a tile traced whole on its second / first read, "never" nothing
 POLICY = "lazy"
+# what is kept (speed only, never values; session 30 hvkeep): a level's stores at most MEMORY bytes
+# (+ the tile being made), the tiles read longest ago dropped first (trim); the precompute's side
+# file the most recently read tiles of all levels up to DISK bytes as held in memory (kept; the
+# file, deflated, ~1/20 of that). At 100k a top-level tile holds ~1.3 MB (9 bytes for each of the
+# ~58% of the level's samples facing it): MEMORY ~100 such tiles a level, 5x the FE window's
+# 24-step sweep (19 tiles over 3 levels, 17.9 MB); DISK 3.6x that sweep's stores.
+# A level's cap is at least TRIM_FLOOR tiles of all its samples: an event reads up to ~9 tiles a
+# level (a shape takes 32-64 cells, 16 a tile), and a cap below what one event reads makes LRU drop
+# the tiles the next step reads again (at 100k, 4 MB a level traced x9.5 the sweep's rays, more than
+# main's shadow rays)
+MEMORY = 128 << 20
+TRIM_FLOOR = 16
+DISK = 64 << 20
+_TICK = itertools.count()  # the order of tile reads, over every store (LRU)
 _POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
 
 
@@ -113,6 +129,7 @@ class HostVisibility:
         self.policy = POLICY if policy is None else policy
         self.part = {}  # tile -> [rows, bits, known, tested]: a tile events traced parts of
         self.event_rays = 0  # rays traced by events for their own reads (tiles not traced whole)
+        self.used = {}  # tile -> _TICK of its last read (trim, kept)
 
     # -- the lattice --------------------------------------------------------------------------------
     def cell(self, L):
@@ -220,6 +237,7 @@ class HostVisibility:
         """[rows, bits, known, tested] of a tile nothing of which is traced yet: its rows (of
         `among`, if given), their packed bits and which of them are known (none), and whether
         each row's shaft was tested (none)."""
+        trim(self.lv, self)  # (the tile about to be made is not in the store yet: kept)
         rows = self.facing(key, among).astype(np.int32)
         C8 = self.tile**2 // 8
         z = lambda: np.zeros((len(rows), C8), np.uint8)  # noqa: E731
@@ -277,6 +295,7 @@ class HostVisibility:
         buying a tile would trace segments no event read, and its renting would trace read ones
         again); "second" traces a tile whole on its second read, "always" on its first; "never"
         keeps nothing (every event traces what it reads)."""
+        self.used[key] = next(_TICK)
         got = self.tiles.get(key)
         if got is not None:
             return got
@@ -512,15 +531,168 @@ def store_for(lv, normal, point, points):
     1e-12, the offset to 1e-3 eps): shapes on one plane share it whatever patch or point they name
     it by, and its frame is made from the key alone (the rounded normal, the rounded offset), so
     it is the same whichever shape asked first."""
-    from ..events.direct import clear_shafts
-
     stores = lv.__dict__.setdefault("_host_stores", {})
     margin = 1e-3 * lv.eps
     nq = np.round(np.asarray(normal, np.float64), 12) + 0.0  # + 0.0: no -0.0
     key = (nq.tobytes(), round(float(np.asarray(point, np.float64) @ nq) / margin), points)
     H = stores.get(key)
     if H is None:
-        n = nq / np.linalg.norm(nq)
-        p = (key[1] * margin) * n
-        H = stores[key] = HostVisibility(lv, n, p, points, shafts=clear_shafts(lv.system, p, n))
+        H = stores[key] = _store_of(lv, key)
     return H
+
+
+def _store_of(lv, key):
+    """A new, empty HostVisibility of the level for a store_for key (its frame from the key alone)."""
+    from ..events.direct import clear_shafts
+
+    nq = np.frombuffer(key[0], np.float64)
+    n = nq / np.linalg.norm(nq)
+    p = (key[1] * (1e-3 * lv.eps)) * n
+    return HostVisibility(lv, n, p, key[2], shafts=clear_shafts(lv.system, p, n))
+
+
+# -- kept across bakes, trimmed (session 30 hvkeep) -----------------------------------------------------
+
+
+def params():
+    """The module's settings a kept store was made under (the samples are the precompute's)."""
+    return dict(
+        points=POINTS, points_second=POINTS_SECOND, stream=STREAM, tile=TILE, base=BASE, max_level=MAX_LEVEL
+    )
+
+
+def host_levels(gather):
+    """The levels of a final gather that keep host stores, in a fixed order: each level (top first,
+    then FinalGather.second) followed by its slot samples' facing copy (its _slot's f), if any."""
+    out = []
+    while gather is not None:
+        out.append(gather)
+        slot = getattr(gather, "_slot", None)
+        if slot is not None:
+            out.append(slot["f"])
+        gather = getattr(gather, "second", None)
+    return out
+
+
+def _tile_bytes(H, key):
+    t = H.tiles.get(key)
+    return sum(a.nbytes for a in (t if t is not None else H.part[key]))
+
+
+def trim(lv, extra=None, cap=None):
+    """Keep the stores of a level (and `extra`, a store not made by store_for) within cap bytes
+    (MEMORY, at least TRIM_FLOOR tiles of the level's samples): above it, the tiles (whole or
+    events' parts) read longest ago are dropped until 3/4 of cap remain (not every new tile trims).
+    By tile, least recently read: a tile is the unit that is read and kept, and a moving shape
+    reads next the tiles it read last, where a rule by plane or by event would drop the current
+    shape's tiles with the rest. Speed only: a dropped tile's segments are traced again when read,
+    with the same bits. Returns the bytes dropped."""
+    row = 5 + 2 * (TILE * TILE // 8)  # a row's bytes in a part (rows, bits, known, tested)
+    cap = max(MEMORY if cap is None else cap, TRIM_FLOOR * row * lv.n)
+    stores = list(lv.__dict__.get("_host_stores", {}).values())
+    if extra is not None and all(H is not extra for H in stores):
+        stores.append(extra)
+    items = [
+        (H.used.get(k, -1), i, k, _tile_bytes(H, k))
+        for i, H in enumerate(stores)
+        for k in (*H.tiles, *H.part)
+    ]
+    total = sum(it[3] for it in items)
+    if total <= cap:
+        return 0
+    dropped = 0
+    for _, i, k, b in sorted(items, key=lambda it: it[:2]):
+        if total <= 3 * cap // 4:
+            break
+        H = stores[i]
+        H.tiles.pop(k, None)
+        H.part.pop(k, None)
+        H.used.pop(k, None)
+        total, dropped = total - b, dropped + b
+    return dropped
+
+
+def kept(gather, cap=None):
+    """(arrays, info) of every level's stores for the precompute's side file (io/precompute.keep):
+    the tiles read most recently first, up to cap bytes as held in memory (DISK), saved oldest
+    first (restore_kept gives them their read order back). A tile: its rows as a bitmap over the
+    level's samples, per row its bits, which are known and whether its shaft was tested (a whole
+    tile: all). info: tiles and bytes saved, tiles left out, and the rays traced into the stores
+    since they were made or restored (0: nothing new to save)."""
+    cap = DISK if cap is None else cap
+    lvls = host_levels(gather)
+    C8 = TILE * TILE // 8
+    items, rays = [], 0
+    for li, lv in enumerate(lvls):
+        for skey, H in lv.__dict__.get("_host_stores", {}).items():
+            rays += H.rays + H.event_rays
+            if H.tile == TILE:
+                items += [(H.used.get(k, -1), li, skey, H, k) for k in (*H.tiles, *H.part)]
+    items.sort(key=lambda it: it[:2], reverse=True)
+    chosen, total = [], 0
+    for it in items:
+        b = _tile_bytes(it[3], it[4])  # (as held once loaded: what the file's arrays restore to)
+        if total + b > cap:
+            break
+        chosen.append(it)
+        total += b
+    chosen.reverse()
+    skeys, sinfo, snormal, tinfo, rows, bits, known, tested = {}, [], [], [], [], [], [], []
+    for _, li, skey, H, k in chosen:
+        s = skeys.get((li, skey))
+        if s is None:
+            s = skeys[(li, skey)] = len(sinfo)
+            sinfo.append((li, skey[1], skey[2]))
+            snormal.append(np.frombuffer(skey[0], np.float64))
+        whole = k in H.tiles
+        r, b, kn, te = H.tiles[k] + (None, None) if whole else H.part[k]
+        m = np.zeros(H.lv.n, bool)
+        m[r] = True
+        tinfo.append((s, *k, whole))
+        rows.append(np.packbits(m))
+        bits.append(b)
+        known.append(np.full(b.shape, 255, np.uint8) if whole else kn)
+        tested.append(np.ones(len(r), bool) if whole else te)
+    cat = lambda a, shape, t: np.concatenate(a) if a else np.zeros(shape, t)  # noqa: E731
+    arrays = dict(
+        level_n=np.array([lv.n for lv in lvls], np.int64),
+        store_info=np.array(sinfo, np.int64).reshape(-1, 3),
+        store_normal=np.array(snormal, np.float64).reshape(-1, 3),
+        tile_info=np.array(tinfo, np.int64).reshape(-1, 5),
+        rows=cat(rows, 0, np.uint8),
+        bits=cat(bits, (0, C8), np.uint8),
+        known=cat(known, (0, C8), np.uint8),
+        tested=cat(tested, 0, bool),
+    )
+    return arrays, dict(tiles=len(chosen), bytes=total, left_out=len(items) - len(chosen), rays=rays)
+
+
+def restore_kept(gather, a):
+    """Put kept()'s stores back on the gather's levels (its samples must be those they were traced
+    from: the caller checks the precompute they belong to), each tile read in its saved order (the
+    newest last). Returns the tiles restored; raises ValueError where they do not fit the gather."""
+    lvls = host_levels(gather)
+    if list(a["level_n"]) != [lv.n for lv in lvls]:
+        raise ValueError("the final gather's levels have other samples")
+    stores = []
+    for (li, off, pts), nq in zip(a["store_info"].tolist(), a["store_normal"]):
+        lv = lvls[li]
+        key = (np.ascontiguousarray(nq, np.float64).tobytes(), off, pts)
+        st = lv.__dict__.setdefault("_host_stores", {})
+        stores.append(st.get(key) or st.setdefault(key, _store_of(lv, key)))
+    ar = am = 0
+    for s, L, ti, tj, whole in a["tile_info"].tolist():
+        H = stores[s]
+        nb = (H.lv.n + 7) // 8
+        r = np.flatnonzero(np.unpackbits(a["rows"][am : am + nb], count=H.lv.n)).astype(np.int32)
+        sl = slice(ar, ar + len(r))
+        am, ar = am + nb, ar + len(r)
+        key = (L, ti, tj)
+        if whole:
+            H.tiles[key] = (r, a["bits"][sl].copy())
+        else:
+            H.part[key] = [r, a["bits"][sl].copy(), a["known"][sl].copy(), a["tested"][sl].copy()]
+        H.used[key] = next(_TICK)
+    if am != len(a["rows"]) or not ar == len(a["bits"]) == len(a["known"]) == len(a["tested"]):
+        raise ValueError("the kept tiles' arrays do not add up")
+    return len(a["tile_info"])
