@@ -37,7 +37,7 @@ STAGES = (
     "_facing_part",
     "_response_parts",
 )
-HOST = ("light", "visible", "_fill", "_ratio", "block", "layout")
+HOST = ("light", "visible", "_fill", "_new_part", "_ratio", "block", "layout")
 
 
 def main(argv=None):
@@ -48,6 +48,7 @@ def main(argv=None):
     ap.add_argument("--sweep", type=int, default=1, help="steps of 0.5 / 23 m after the move")
     ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
     ap.add_argument("--profile", default=None, help="a cProfile summary of the events here")
+    ap.add_argument("--profile-step", default=None, help="with --profile: only this step (e.g. FE_sweep1)")
     args = ap.parse_args(argv)
 
     from bench_gather_events import _write_profile, stored_room
@@ -125,7 +126,8 @@ def main(argv=None):
             times.clear()
             calls.clear()
             gathers.clear()
-            if prof is not None:
+            on = prof is not None and args.profile_step in (None, f"{method}_{step}")
+            if on:
                 prof.enable()
             n0 = counted[0]
             c0 = cpu()
@@ -133,7 +135,7 @@ def main(argv=None):
             c1 = cpu()
             v = g.loop_radiance(dyn)
             c2 = cpu()
-            if prof is not None:
+            if on:
                 prof.disable()
             dumps[f"{method}_{step}"] = v
             print(
