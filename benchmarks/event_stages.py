@@ -11,11 +11,18 @@ at every level (the slot samples' facing copy too), as a fresh process would.
     .venv/bin/python benchmarks/event_stages.py STORE [--methods FE,AUTO] [--sweep 1] \\
         [--dyn "dict(gather_responses='tail')"] [--dump out.npz] [--profile out.txt]
 
+--tail-shares 0.02,0.03,...: instead, the second level's passes from nothing against their limit:
+the FE window added, moved and swept one step, its gathered output with FinalGather.TAIL_SHARE at
+each value, per object against the passes run to TAIL_PASSES with a share of --limit (the same
+estimator's limit); the passes taken and the output's CPU (the host visibility and shape light
+warm after the first variant: only the passes differ).
+
 STORE: a folder of bench_gather_events.py --cache (the furnished 100k room, draft, --transport gather).
 """
 
 import argparse
 import functools
+import json
 import sys
 import time
 from collections import Counter, defaultdict
@@ -46,10 +53,15 @@ def main(argv=None):
     ap.add_argument("--methods", default="FE,AUTO")
     ap.add_argument("--dyn", default="dict()", help="DynamicRadiosity options over gather_options('draft')")
     ap.add_argument("--sweep", type=int, default=1, help="steps of 0.5 / 23 m after the move")
+    ap.add_argument("--tail-shares", default=None, help="the passes' stopping rule instead (module doc)")
+    ap.add_argument("--limit", type=float, default=1e-4, help="--tail-shares: the reference's share")
+    ap.add_argument("--json", default=None, help="--tail-shares: the results")
     ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
     ap.add_argument("--profile", default=None, help="a cProfile summary of the events here")
     ap.add_argument("--profile-step", default=None, help="with --profile: only this step (e.g. FE_sweep1)")
     args = ap.parse_args(argv)
+    if args.tail_shares:
+        return tail_shares(args)
 
     from bench_gather_events import _write_profile, stored_room
     from hostvis_tiles import count_rays
@@ -155,6 +167,53 @@ def main(argv=None):
         np.savez(args.dump, **dumps)
     if prof is not None:
         _write_profile(prof, args.profile)
+
+
+def tail_shares(args):
+    """--tail-shares (module doc)."""
+    from bench_gather_events import stored_room
+    from compare_gather_dumps import difference, per_object
+    from hr_addon.core.events import DynamicRadiosity
+    from hr_addon.core.gather.final import FinalGather
+
+    cpu = time.process_time
+    s, g, window = stored_room(args.store)
+    m = s.mesh
+    obj = np.asarray(m.object_id)[np.repeat(np.arange(len(m.loop_start)), m.loop_total)]
+    opts = DynamicRadiosity.gather_options("draft")
+    steps = {"add": 0.7, "move": 1.2, "sweep1": 1.2 + 0.5 / 23}
+    out, ref = {}, {}
+    for share in [args.limit] + [float(x) for x in args.tail_shares.split(",")]:
+        FinalGather.TAIL_SHARE = share
+        dyn = DynamicRadiosity(s.copy(), method="FE", **opts)
+        g.loop_radiance(dyn)  # the base parts
+        row = {}
+        for k, (step, cx) in enumerate(steps.items()):
+            if k == 0:
+                dyn.add("w", window(cx))
+            else:
+                dyn.apply({"w": window(cx)})
+            c0 = cpu()
+            v = per_object(np.asarray(g.loop_radiance(dyn), np.float64), obj)
+            row[step] = dict(output_cpu_s=round(cpu() - c0, 3), passes=int(g.stats.get("tail_passes", 0)))
+            if share == args.limit:
+                ref[step] = v
+            else:
+                row[step].update(difference(ref[step], v))
+            r = row[step]
+            print(
+                f"share {share:g} {step}: {r['passes']} passes, output {r['output_cpu_s']:.3f} s"
+                + (
+                    f"; against the limit median {100 * r['median']:.3f}%, p95 {100 * r['p95']:.3f}%, "
+                    f"worst {100 * r['worst']:.2f}%, bias {100 * r['bias']:+.3f}%"
+                    if "median" in r
+                    else ""
+                ),
+                flush=True,
+            )
+        out[str(share)] = row
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
 
 
 if __name__ == "__main__":
