@@ -212,7 +212,12 @@ class HostVisibility:
         b = (tj * T + cells[None] // T + r[:, 1:]) * h  # (l, c)
         org = (lv.points[rows] + eps * lv.normals[rows]).T  # (3, l)
         p0 = self.o + eps * self.n
-        d = np.stack([(p0[k] + a * self.U[k] + b * self.V[k]) - org[k][:, None] for k in range(3)])
+        d = np.empty((3,) + a.shape)
+        for k in range(3):  # (p0 + a U + b V) - org, per component in place: the same floats
+            np.multiply(a, self.U[k], out=d[k])
+            d[k] += p0[k]
+            d[k] += b * self.V[k]
+            d[k] -= org[k][:, None]
         return org, d.reshape(3, -1)
 
     # -- tracing ------------------------------------------------------------------------------------
