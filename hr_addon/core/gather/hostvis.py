@@ -45,7 +45,7 @@ import itertools
 
 import numpy as np
 
-from ..clip import overlap_areas, polygon_area_2d
+from ..clip import _clip_halfplane, overlap_areas, polygon_area_2d
 from ..events.planar import _in_rings
 from ..parallel import batch_map, ranges
 from ..planes import frames
@@ -94,6 +94,30 @@ def cell_overlaps(rings2d, x0, y0, h, nx, ny):
     sq = np.array([(0, 0), (1, 0), (1, 1), (0, 1)], np.float64) * h
     cells = np.stack([gx.ravel(), gy.ravel()], -1)[:, None] + sq[None]
     return overlap_areas(rings2d, cells).reshape(ny, nx)
+
+
+def inside_boxes(rings2d, corners, h):
+    """(lo, hi) (P, 2): per h x h cell whose first corner is corners (P, 2), a box holding every
+    point of the cell the even-odd test can call inside the outline: the box of each ring's part in
+    the cell (clipped as clip.overlap_areas, about the outer ring's box centre; an even-odd inside
+    point is inside some ring), padded by 1e-6 h (the tests' rounding: ~1e-16 of the coordinates);
+    empty where no ring meets the cell."""
+    o = 0.5 * (np.min(rings2d[0], 0) + np.max(rings2d[0], 0))
+    c = np.asarray(corners, np.float64) - o
+    nodes = c[:, None] + np.array([(0, 0), (1, 0), (1, 1), (0, 1)], np.float64)[None] * h
+    lo, hi = np.full((len(c), 2), np.inf), np.full((len(c), 2), -np.inf)
+    for ring in rings2d:
+        r = np.asarray(ring, np.float64) - o
+        r = r if polygon_area_2d(r) >= 0 else r[::-1]
+        x = np.broadcast_to(r[:, 0], (len(c), len(r)))
+        y = np.broadcast_to(r[:, 1], (len(c), len(r)))
+        for i in range(4):
+            x, y = _clip_halfplane(x, y, nodes[:, i], nodes[:, (i + 1) % 4])
+        got = x.any(1) | y.any(1)  # (clip: a part left empty is all zeros)
+        lo[got] = np.minimum(lo[got], np.column_stack([x.min(1), y.min(1)])[got])
+        hi[got] = np.maximum(hi[got], np.column_stack([x.max(1), y.max(1)])[got])
+    pad = 1e-6 * h
+    return lo + o - pad, hi + o + pad
 
 
 def inside_rings(q, rings):
@@ -163,18 +187,30 @@ class HostVisibility:
         """The level's samples (of `among`, sorted, if given) a tile stores: not dark, in front of the
         plane (by eps / 2), a corner of the tile at most eps below their horizon (a superset of those
         any point of it can light with weight). Each sample's own products, written out: the same
-        answer for a sample whatever else is asked (a tile traced whole or an event's part of it)."""
+        answer for a sample whatever else is asked (a tile traced whole or an event's part of it);
+        the plane's front samples of the whole level tested once a store (_front)."""
         lv = self.lv
-        i = np.arange(lv.n) if among is None else np.asarray(among)
-        x, nx = lv.points[i], lv.normals[i]
         dot = lambda a, b: (a[:, 0] * b[0] + a[:, 1] * b[1]) + a[:, 2] * b[2]  # noqa: E731
-        ok = ~lv.dark[i] & (dot(x - self.o, self.n) > 0.5 * lv.eps)
-        i, x, nx = i[ok], x[ok], nx[ok]
-        xn = (x[:, 0] * nx[:, 0] + x[:, 1] * nx[:, 1]) + x[:, 2] * nx[:, 2]
+        if among is None:
+            got = self.__dict__.get("_front")
+            if got is None:
+                got = self._front = self._in_front(np.arange(lv.n), dot)
+            i, xn = got
+        else:
+            i, xn = self._in_front(np.asarray(among), dot)
+        nx = lv.normals[i]
         top = np.full(len(i), -np.inf)
         for c in self._corners(key):
             top = np.maximum(top, dot(nx, c) - xn)
         return i[top > -lv.eps]
+
+    def _in_front(self, i, dot):
+        """(samples of i not dark and in front of the plane by eps / 2, their x . n_x)."""
+        lv = self.lv
+        x, nx = lv.points[i], lv.normals[i]
+        ok = ~lv.dark[i] & (dot(x - self.o, self.n) > 0.5 * lv.eps)
+        i, x, nx = i[ok], x[ok], nx[ok]
+        return i, (x[:, 0] * nx[:, 0] + x[:, 1] * nx[:, 1]) + x[:, 2] * nx[:, 2]
 
     def shifts(self, L, rows):
         """(len(rows), 2) each sample's own shift of level L's lattice, in [0, 1)."""
@@ -193,7 +229,12 @@ class HostVisibility:
         b = (tj * T + cells[None] // T + r[:, 1:]) * h  # (l, c)
         org = (lv.points[rows] + eps * lv.normals[rows]).T  # (3, l)
         p0 = self.o + eps * self.n
-        d = np.stack([(p0[k] + a * self.U[k] + b * self.V[k]) - org[k][:, None] for k in range(3)])
+        d = np.empty((3,) + a.shape)
+        for k in range(3):  # (p0 + a U + b V) - org, per component in place: the same floats
+            np.multiply(a, self.U[k], out=d[k])
+            d[k] += p0[k]
+            d[k] += b * self.V[k]
+            d[k] -= org[k][:, None]
         return org, d.reshape(3, -1)
 
     # -- tracing ------------------------------------------------------------------------------------
@@ -355,6 +396,7 @@ class HostVisibility:
         # each sample's row in each tile (-1: not stored), looked up once per event
         look = {key: self._rows_of(tiles[key][0], idx) for key, _, _ in masks}
         step = max(1, CHUNK // max(nbx * nby, 1))
+        boxes = None
         for s0 in range(0, len(idx), step):
             sl = slice(s0, s0 + step)
             rows = idx[sl]
@@ -371,7 +413,10 @@ class HostVisibility:
             if len(mix):
                 at = {key: look[key][sl][mix] for key, _, _ in masks}
                 vis = self.block(list(at), rows[mix], c0, c1, at, tiles)[0]
-                Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis, rings2d)
+                if boxes is None and part.any():  # (once an event, where a ratio tests points)
+                    pj, pi = np.nonzero(part)
+                    boxes = inside_boxes(rings2d, np.column_stack([ci[pi], cj[pj]]) * h, h)
+                Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis, rings2d, boxes)
             V[sl] = Vc
         return V
 
@@ -410,8 +455,10 @@ class HostVisibility:
             stored[(f, *w[0])] = True
         return vis, stored
 
-    def _ratio(self, rows, L, ci, cj, full, part, ov, vis, rings2d):
-        """The pin ratio at samples rows (each its block of bits vis (l, nby, nbx))."""
+    def _ratio(self, rows, L, ci, cj, full, part, ov, vis, rings2d, boxes=None):
+        """The pin ratio at samples rows (each its block of bits vis (l, nby, nbx)); boxes: the
+        partly covered cells' inside_boxes (the points outside them are outside the outline: only
+        the others take the even-odd test)."""
         lv, h = self.lv, self.cell(L)
         r = self.shifts(L, rows)
         a = (ci[None] + r[:, :1]) * h  # (l, i): the points' 2D coordinates, as traced
@@ -436,7 +483,13 @@ class HostVisibility:
             pj, pi = np.nonzero(part)  # the partly covered cells: their points tested (even-odd)
             q = np.stack(np.broadcast_arrays(a[:, pi], b[:, pj]), -1)  # (l, P, 2)
             m = m.copy()
-            m[:, pj, pi] = inside_rings(q, rings2d)
+            if boxes is None:
+                m[:, pj, pi] = inside_rings(q, rings2d)
+            else:
+                near = ((q >= boxes[0]) & (q <= boxes[1])).all(-1)
+                ins = np.zeros(near.shape, bool)
+                ins[near] = inside_rings(q[near], rings2d)
+                m[:, pj, pi] = ins
         w = k * m
         ws = w.sum((1, 2))
         wv = (w * vis).sum((1, 2))
