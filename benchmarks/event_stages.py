@@ -9,7 +9,10 @@ by one (with their sources' nonzero share), optional cProfile and dumps. The dra
 at every level (the slot samples' facing copy too), as a fresh process would.
 
     .venv/bin/python benchmarks/event_stages.py STORE [--methods FE,AUTO] [--sweep 1] \\
-        [--dyn "dict(gather_responses='tail')"] [--dump out.npz] [--profile out.txt]
+        [--dyn "dict(gather_responses='tail')"] [--dump out.npz] [--profile out.txt] [--json out.json]
+
+Medium (a store built with --quality medium): --dyn "DynamicRadiosity.gather_options('medium')"
+(its options replace the draft's; the store carries the gather's own rays and shadow rays).
 
 --tail-shares 0.02,0.03,...: instead, the second level's passes from nothing against their limit:
 the FE window added, moved and swept one step, its gathered output with FinalGather.TAIL_SHARE at
@@ -23,6 +26,7 @@ STORE: a folder of bench_gather_events.py --cache (the furnished 100k room, draf
 import argparse
 import functools
 import json
+import os
 import sys
 import time
 from collections import Counter, defaultdict
@@ -55,7 +59,7 @@ def main(argv=None):
     ap.add_argument("--sweep", type=int, default=1, help="steps of 0.5 / 23 m after the move")
     ap.add_argument("--tail-shares", default=None, help="the passes' stopping rule instead (module doc)")
     ap.add_argument("--limit", type=float, default=1e-4, help="--tail-shares: the reference's share")
-    ap.add_argument("--json", default=None, help="--tail-shares: the results")
+    ap.add_argument("--json", default=None, help="the steps' figures and stages (or --tail-shares' results)")
     ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
     ap.add_argument("--profile", default=None, help="a cProfile summary of the events here")
     ap.add_argument("--profile-step", default=None, help="with --profile: only this step (e.g. FE_sweep1)")
@@ -125,6 +129,7 @@ def main(argv=None):
 
         prof = cProfile.Profile(cpu)
     dumps = {}
+    out = dict(store=str(args.store), options=opts, load_average=os.getloadavg()[0], steps={})
     for method in args.methods.split(","):
         dyn = DynamicRadiosity(s.copy(), method=method, **opts)
         for lv in levels:  # (each method pays for its shape's direct light and its rays)
@@ -155,6 +160,14 @@ def main(argv=None):
                 f"(second-level passes {g.stats.get('tail_passes')}, {counted[0] - n0:,} rays)",
                 flush=True,
             )
+            out["steps"][f"{method}_{step}"] = dict(
+                event_cpu_s=round(c1 - c0, 4),
+                output_cpu_s=round(c2 - c1, 4),
+                passes=g.stats.get("tail_passes"),
+                rays=counted[0] - n0,
+                stages={k: [round(times[k], 4), calls[k]] for k in sorted(times)},
+                operator_applications=[[round(t, 4), c, round(z, 4)] for t, c, z in gathers],
+            )
             for k in sorted(times):
                 print(f"   {k:52s} {times[k]:.3f} s  x{calls[k]}", flush=True)
             if gathers:
@@ -165,6 +178,8 @@ def main(argv=None):
                 )
     if args.dump:
         np.savez(args.dump, **dumps)
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1))
     if prof is not None:
         _write_profile(prof, args.profile)
 
