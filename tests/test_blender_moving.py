@@ -90,7 +90,9 @@ def test_what_moves_is_read_from_the_scene(tmp_path):
     assert not again["keyed:0"].moves and shapes_signature(again) != shapes_signature(got)
 
 
-def _bake(bpy, cache, frames, hostvis_on=True, monkeypatch=None):
+def _baked(bpy, monkeypatch, cache, frames, frame, hostvis_on=True):
+    """The mesh objects' values on `frame` of a draft bake of `frames` into `cache` (the playback
+    handler loads the frame), host visibility on or off."""
     from hr_addon.blender.bake import run_bake
     from hr_addon.core.gather import hostvis
 
@@ -98,14 +100,10 @@ def _bake(bpy, cache, frames, hostvis_on=True, monkeypatch=None):
     scene = bpy.context.scene
     res = run_bake(scene, log=lambda *a, **k: None, frames=frames, quality="draft", cache_dir=str(cache))
     assert res.solved >= 1
-    return res
-
-
-def _values(bpy, frame):
-    bpy.context.scene.frame_set(frame)  # (the playback handler loads the frame)
+    scene.frame_set(frame)
     return {
         o.name: attribute(o)[:, :3].copy()
-        for o in bpy.context.scene.objects
+        for o in scene.objects
         if o.type == "MESH" and not o.hr.is_light_shape
     }
 
@@ -127,20 +125,15 @@ def test_a_frame_is_the_same_in_any_frame_range_and_a_still_shape_takes_its_shad
         window.location.y = dy
         window.keyframe_insert("location", index=1, frame=f)
     assert _moving(bpy) == {"Window"}
-    _bake(bpy, tmp_path / "alone", (13, 13), monkeypatch=monkeypatch)
-    alone = _values(bpy, 13)
-    _bake(bpy, tmp_path / "range", (13, 20), monkeypatch=monkeypatch)
-    ranged = _values(bpy, 13)
-    _bake(bpy, tmp_path / "off", (13, 13), hostvis_on=False, monkeypatch=monkeypatch)
-    off = _values(bpy, 13)
+    alone = _baked(bpy, monkeypatch, tmp_path / "alone", (13, 13), 13)
+    ranged = _baked(bpy, monkeypatch, tmp_path / "range", (13, 20), 13)
+    off = _baked(bpy, monkeypatch, tmp_path / "off", (13, 13), 13, hostvis_on=False)
     for k in alone:
         np.testing.assert_array_equal(alone[k], ranged[k], err_msg=k)
     assert any(not np.array_equal(alone[k], off[k]) for k in alone)
     # frame 21: the Window hidden (its hide_render keys), the Back Patch alone
-    _bake(bpy, tmp_path / "p_on", (21, 21), monkeypatch=monkeypatch)
-    on = _values(bpy, 21)
-    _bake(bpy, tmp_path / "p_off", (21, 21), hostvis_on=False, monkeypatch=monkeypatch)
-    off = _values(bpy, 21)
+    on = _baked(bpy, monkeypatch, tmp_path / "p_on", (21, 21), 21)
+    off = _baked(bpy, monkeypatch, tmp_path / "p_off", (21, 21), 21, hostvis_on=False)
     for k in on:
         np.testing.assert_array_equal(on[k], off[k], err_msg=k)
 
