@@ -37,7 +37,9 @@ against two references:
   REFERENCE quality: the direct light and the ray pattern cancel, what is left is the transport's error
   as the gather sees it. The same gather reading it against "ref" is the floor a perfect transport
   would reach ("floor": the gather's noise and discretisation).
-Host visibility (gather/hostvis.py, on in the product since session 29): the timed methods, the
+Host visibility (gather/hostvis.py, on in the product since session 29, for shapes that move since
+session 30: LightShape.moves): the beam moves (a bake reads it from its keys), the Cornell and office
+shapes are still (one-off events: their direct light by shadow rays). The timed methods, the
 transport reference and the floor read it as the product does (the transport reference must read the
 shapes' direct light exactly as the method's gather does, for it to cancel); the independent "ref" is
 computed with hostvis.ENABLED = False (hostvis_off), so its direct light is by shadow rays and does not
@@ -91,8 +93,8 @@ VARIANTS = [
 ]
 
 
-def ls(outline, frame, em, name):
-    return LightShape(S.on_plane(outline, frame), np.asarray(em, float), name)
+def ls(outline, frame, em, name, moves=False):
+    return LightShape(S.on_plane(outline, frame), np.asarray(em, float), name, moves)
 
 
 def cornell_scenario():
@@ -136,6 +138,7 @@ def beam_scenario(n=30):
             S.CORNELL_BACK_WALL,
             (10.0, 10.0, 8.0),
             "beam",
+            moves=True,
         )
         out.append((f"frame {k}", {"beam": sh}))
     return out

@@ -76,8 +76,8 @@ def main(argv=None):
     frame = tuple(np.asarray(f, float) for f in info["light_wall"][1])
 
     def window(cx):
-        return LightShape(
-            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        return LightShape(  # (moves: the product takes the host visibility for it)
+            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window", True
         )
 
     dyn = DynamicRadiosity(s.copy(), method="FE", **DynamicRadiosity.gather_options("draft"))
@@ -223,8 +223,8 @@ def end_to_end(argv=None):
     obj = np.asarray(s.mesh.object_id)[np.repeat(np.arange(len(s.mesh.loop_start)), s.mesh.loop_total)]
 
     def window(cx):
-        return LightShape(
-            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window"
+        return LightShape(  # (moves: the product takes the host visibility for it)
+            S.on_plane(S.rect(0.9, 0.7, centre=(cx, 0.6), angle=0.2), frame), np.full(3, 20.0), "window", True
         )
 
     pos = {"add": 0.7, "move": 1.2}

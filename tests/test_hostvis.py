@@ -39,7 +39,8 @@ def build(scale=1.0, samples=10, rings=None):
             k: S.rect(w * scale, h * scale, centre=(cu * scale, cv * scale), angle=ang)
             for k, ((w, h), (cu, cv), ang) in SHAPES.items()
         }
-    shapes = {k: LightShape(S.on_plane(r, frame), np.full(3, 5.0), k) for k, r in rings.items()}
+    # (moving: the gather reads the host visibility for these, LightShape.moves)
+    shapes = {k: LightShape(S.on_plane(r, frame), np.full(3, 5.0), k, moves=True) for k, r in rings.items()}
     dyn.apply(shapes)
     pts, patch, _ = surface_samples(dyn.system.patches, samples / scale**2)  # (per m^2: the same points)
     g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=16, shadow_rays=16)
@@ -246,6 +247,42 @@ def test_on_by_default_and_the_gather_reads_the_store_at_both_levels(monkeypatch
     print(f"gathered output on / off: {rel:+.3e}, max per sample {np.abs(on[lit] / off[lit] - 1).max():.3e}")
     assert not np.array_equal(on, off)
     assert np.abs(on[lit] / off[lit] - 1).max() < 0.01 and abs(rel) < 1e-4
+
+
+def test_a_still_shape_keeps_its_shadow_rays_and_the_flag_alone_is_a_reshape(monkeypatch):
+    """LightShape.moves (default False): a still shape's gathered output is the shadow rays' path's,
+    bit for bit (the same as with hostvis.ENABLED off), and no level makes a store; the same shapes
+    said to move read the store (test_on_by_default's values); the flag flipped alone, outlines and
+    emission the same, is a reshape event (apply), and flipped back the output is the still one's
+    again, bit for bit (the flag's history does not matter)."""
+    from hr_addon.core.gather import hostvis
+
+    dyn, _, _ = build()
+    pts, patch, _ = surface_samples(dyn.system.patches, 10)
+    nrm = dyn.system.patches.normal[patch]
+
+    def gathered():
+        g = FinalGather(dyn, pts, nrm, patch, rays=16, levels=2, iterations=2)
+        return g.evaluate(dyn), g
+
+    def flagged(moves):
+        return {k: LightShape(r.rings, r.emission, r.name, moves) for k, r in dyn.shapes.items()}
+
+    moving, g = gathered()
+    assert len(g._host_stores) == len(g.second._host_stores) == 1
+    fr = dyn.apply(flagged(False))
+    assert sorted(e.kind for e in fr.events) == ["reshape"] * len(SHAPES)
+    still, g = gathered()
+    assert not hasattr(g, "_host_stores") and not hasattr(g.second, "_host_stores")
+    monkeypatch.setattr(hostvis, "ENABLED", False)
+    off, _ = gathered()
+    monkeypatch.setattr(hostvis, "ENABLED", True)
+    assert np.array_equal(still, off) and not np.array_equal(still, moving)
+    assert not dyn.apply(flagged(False)).events  # (the same state: no event)
+    dyn.apply(flagged(True))
+    assert np.array_equal(gathered()[0], moving)
+    dyn.apply(flagged(False))
+    assert np.array_equal(gathered()[0], still)
 
 
 def test_an_outline_with_a_hole_a_concave_one_and_a_small_one():

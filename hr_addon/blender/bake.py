@@ -8,6 +8,7 @@ through the `progress` callback (core.progress), frames through the yielded Bake
 """
 
 import dataclasses
+import functools
 import hashlib
 import os
 import time
@@ -30,6 +31,7 @@ from .preview import bake_mode, refresh_preview
 from .props import custom_range
 from .report import BUILD_SHARE, BakeProgress, BakeResult, Warnings, ray_backend_name, ray_backend_note
 from .lights_in import collect_light_shapes, collect_lights, lights_signature, shapes_signature
+from .lights_in import scene_moving_shapes
 from .scene_in import FlatExtract, SceneError, geometry_objects
 from .snapshot import read_snapshot
 from .settings import BakeConfig, make_gather, precompute_key, solver_setup
@@ -433,6 +435,12 @@ class _Bake:
             )
         return sorted(in_range | set(damaged))
 
+    @functools.cached_property
+    def moving(self):
+        """The light shapes that move (lights_in.moving_shapes), read once per bake from the scene,
+        not from its frames: a frame's values do not depend on the bake's frame range."""
+        return scene_moving_shapes(self.view_layer)
+
     def lights_at(self, snap, frame, frame_warnings):
         """(light shapes, Blender lights, signature) at frame; ({}, None, "static") without either."""
         if not (snap.has_shapes or snap.has_lights):
@@ -440,7 +448,7 @@ class _Bake:
         self.scene.frame_set(frame)
         depsgraph = self.view_layer.depsgraph
         shapes = (
-            collect_light_shapes(self.view_layer, depsgraph, LightShape, frame_warnings)
+            collect_light_shapes(self.view_layer, depsgraph, LightShape, frame_warnings, moving=self.moving)
             if snap.has_shapes
             else {}
         )

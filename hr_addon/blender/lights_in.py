@@ -119,16 +119,20 @@ def mesh_outlines(em: EvalMesh):
     return out
 
 
-def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objects=None):
+def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objects=None, moving=None):
     """{stable id: LightShape} of the light shapes active in the current (evaluated) frame.
 
     objects: the light-shape objects of view_layer if the caller knows them (Live Relight between
     two edits of known shapes: walking every collection of a big scene costs more than reading the
-    shapes); default: light_shape_objects(view_layer)."""
+    shapes); default: light_shape_objects(view_layer).
+    moving: the names of the shapes that move (moving_shapes, read once per bake or Live session
+    by the caller); None: read from these objects now."""
     shapes = {}
     mat_cache = {}
     warnings = [] if warnings is None else warnings
-    for obj in light_shape_objects(view_layer) if objects is None else objects:
+    objects = light_shape_objects(view_layer) if objects is None else objects
+    moving = moving_shapes(objects) if moving is None else moving
+    for obj in objects:
         if obj.type != "MESH" or not obj.hr.is_light_shape or obj.hr.exclude or obj.hide_render:
             continue
         ob = obj.evaluated_get(depsgraph)
@@ -154,6 +158,7 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
                 rings=[np.ascontiguousarray(r, np.float64) for r in rings],
                 emission=np.asarray(e, np.float64),
                 name=obj.name,
+                moves=obj.name in moving,
             )
         if flat:
             warnings.append(
@@ -178,8 +183,151 @@ def _f64(a):
 
 
 def shapes_signature(shapes):
-    """Hashable digest of a frame's light state (identical frames -> identical digest)."""
-    return _digest(shapes, lambda s: [_f64(s.emission)] + [b for r in s.rings for b in (_f64(r), b"|")])
+    """Hashable digest of a frame's light state (identical frames -> identical digest); a moving
+    shape's says so (its light is another estimator's: a kept frame of a bake before it moved is
+    baked again; still shapes keep the digest they had)."""
+    return _digest(
+        shapes,
+        lambda s: (
+            [_f64(s.emission)]
+            + [b for r in s.rings for b in (_f64(r), b"|")]
+            + ([b"moves"] if getattr(s, "moves", False) else [])
+        ),
+    )
+
+
+# --- which light shapes move --------------------------------------------------------------------
+# Read from the scene (its animation data, constraints, modifiers), once per bake or Live session,
+# never from the frames a bake holds: a frame's values do not depend on its bake's frame range. A
+# moving shape's direct light comes from the visibility toward its wall (core LightShape.moves).
+# Cheap and conservative: what may move counts as moving.
+
+# an object's keyed or driven properties that leave its outline in place (on / off, viewport looks,
+# the extension's own settings); any other counts as moving it
+_STILL_PATHS = ("hide_render", "hide_viewport", "hide_select", "color", "pass_index", "hr.")
+# modifiers whose result depends on their settings and the objects they name only (any other,
+# geometry nodes among them, may change with time; a texture named makes any of them moving)
+_STILL_MODIFIERS = frozenset(
+    "ARMATURE ARRAY BEVEL BOOLEAN CAST CORRECTIVE_SMOOTH CURVE DATA_TRANSFER DECIMATE EDGE_SPLIT HOOK "
+    "LAPLACIANDEFORM LAPLACIANSMOOTH LATTICE MASK MESH_DEFORM MIRROR MULTIRES NORMAL_EDIT REMESH SCREW "
+    "SHRINKWRAP SIMPLE_DEFORM SKIN SMOOTH SOLIDIFY SUBSURF SURFACE_DEFORM TRIANGULATE UV_PROJECT UV_WARP "
+    "VERTEX_WEIGHT_EDIT VERTEX_WEIGHT_MIX VERTEX_WEIGHT_PROXIMITY WEIGHTED_NORMAL WELD WIREFRAME".split()
+)
+# constraints that read time, an action, a clip or a cache: moving whatever they name
+_TIME_CONSTRAINTS = frozenset(
+    "ACTION ARMATURE CAMERA_SOLVER FOLLOW_PATH FOLLOW_TRACK OBJECT_SOLVER SPLINE_IK TRANSFORM_CACHE".split()
+)
+
+
+def moving_shapes(objects):
+    """frozenset of the names of the light-shape objects whose world outline may change over the
+    animation: keyframes or drivers on their transform or delta transform (any property but
+    _STILL_PATHS), on a parent's up the chain, a constraint reading time or naming an object that
+    moves, a rigid body, their mesh's or shape keys' animation, a modifier not in _STILL_MODIFIERS
+    (geometry nodes) or naming an object that moves or changes shape. Strength, colour and
+    visibility keyframes (materials, hide_render) do not move a shape."""
+    memo = {}
+    return frozenset(o.name for o in objects if _object_moves(o, memo))
+
+
+def scene_moving_shapes(view_layer):
+    """moving_shapes of every light shape of view_layer, hidden ones too (shown on another frame)."""
+    return moving_shapes(light_shape_objects(view_layer, include_hidden=True))
+
+
+def _fcurves(ad):
+    """The F-curves of an ID's animation data: its drivers, its action's (its slot's where known)
+    and its NLA strips' actions' (meta strips' too)."""
+    if ad is None:
+        return []
+    out, acts = list(ad.drivers), [(ad.action, getattr(ad, "action_slot", None))]
+    todo = [s for t in ad.nla_tracks for s in t.strips]
+    while todo:
+        s = todo.pop()
+        todo += list(s.strips)
+        acts.append((s.action, getattr(s, "action_slot", None)))
+    for action, slot in acts:
+        if action is None:
+            continue
+        if not hasattr(action, "layers"):  # (Blender before 4.4)
+            out += list(action.fcurves)
+            continue
+        for layer in action.layers:
+            for strip in layer.strips:
+                bags = [strip.channelbag(slot)] if slot is not None else list(strip.channelbags)
+                out += [fc for bag in bags if bag is not None for fc in bag.fcurves]
+    return out
+
+
+def _keyed(ad, still=()):
+    """True if animation data keys or drives a property whose path does not start with `still`."""
+    return any(not fc.data_path.startswith(still) for fc in _fcurves(ad))
+
+
+def _named(block):
+    """(objects, a texture is named) of a modifier or constraint: its Object pointers and the objects
+    of its Collection ones."""
+    objs, texture = [], False
+    for p in block.bl_rna.properties:
+        t = p.fixed_type.identifier if p.type == "POINTER" and p.fixed_type is not None else ""
+        v = getattr(block, p.identifier, None) if t in ("Object", "Collection", "Texture") else None
+        if v is not None:
+            objs += [v] if t == "Object" else list(v.all_objects) if t == "Collection" else []
+            texture |= t == "Texture"
+    return objs, texture
+
+
+def _memo(fn):
+    """Memoised per (function, object) in the call's `memo`; an object met again on its own chain
+    (a cycle) counts as moving."""
+
+    def wrapped(ob, memo):
+        key = (fn.__name__, ob.name_full)
+        if key not in memo:
+            memo[key] = True
+            memo[key] = bool(fn(ob, memo))
+        return memo[key]
+
+    return wrapped
+
+
+@_memo
+def _placement_moves(ob, memo):
+    """The object's world transform may change."""
+    par = ob.parent
+    return (
+        _keyed(ob.animation_data, _STILL_PATHS)
+        or ob.rigid_body is not None
+        or (
+            par is not None
+            and (_placement_moves(par, memo) or ob.parent_type != "OBJECT" and _form_moves(par, memo))
+        )
+        or any(not c.mute and (c.type in _TIME_CONSTRAINTS or _names_moving(c, memo)) for c in ob.constraints)
+    )
+
+
+@_memo
+def _form_moves(ob, memo):
+    """The object's geometry in its own space may change (its data's or shape keys' animation, its
+    modifiers)."""
+    data = ob.data
+    keys = getattr(data, "shape_keys", None)
+    return (
+        (data is not None and _keyed(getattr(data, "animation_data", None)))
+        or (keys is not None and _keyed(keys.animation_data))
+        or any(
+            m.type not in _STILL_MODIFIERS or _names_moving(m, memo) for m in ob.modifiers if m.show_render
+        )
+    )
+
+
+def _names_moving(block, memo):
+    objs, texture = _named(block)
+    return texture or any(_object_moves(o, memo) for o in objs)
+
+
+def _object_moves(ob, memo):
+    return _placement_moves(ob, memo) or _form_moves(ob, memo)
 
 
 # --- what lights the scene ----------------------------------------------------------------------

@@ -205,7 +205,7 @@ def on_depsgraph_update(scene, depsgraph=None):
             dirty = True  # a material's own tree: its Material is in the updates too
         elif kind.endswith(_GEOMETRY_KINDS):
             dirty = geometry = full = True
-        elif kind in ("Scene", "Collection"):
+        elif kind in ("Scene", "Collection", "Action"):  # (keys added: which shapes move, a full read)
             dirty = full = True
     if geometry:
         sess.geometry_dirty = time.monotonic()

@@ -38,6 +38,7 @@ from .lights_in import (
     collect_lights,
     light_objects,
     lights_signature,
+    moving_shapes,
     shapes_signature,
 )
 from .scene_in import FlatExtract, SceneError, collect_geometry_steps, geometry_objects, light_shape_objects
@@ -94,6 +95,7 @@ class Session:
         self.geo_materials = set()  # their materials (a depsgraph update of one may change the light)
         self.shape_meshes = set()  # mesh data of the light shapes (their edits are light events)
         self.shape_objects = []  # names of the light-shape objects (all, hidden ones too)
+        self.moving = frozenset()  # the names of those that move (lights_in.moving_shapes)
         self.shape_materials = set()  # their materials
         self.light_objects = []  # names of the Blender lights (all, hidden ones too)
         self.full_read = True  # an update other than of known light shapes: read everything
@@ -390,12 +392,11 @@ def _read_shapes(sess, view_layer, depsgraph, fast=False):
     known = [bpy.data.objects.get(n) for n in sess.shape_objects + sess.light_objects] if fast else None
     if known is not None and all(o is not None for o in known):
         known, lamps = known[: len(sess.shape_objects)], known[len(sess.shape_objects) :]
-        shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, objects=known)
+        shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, known, sess.moving)
     else:
         lamps, objs = _shape_names(sess, view_layer)
-        shapes = collect_light_shapes(
-            view_layer, depsgraph, LightShape, warnings, objects=[o for o in objs if not o.hide_render]
-        )
+        shown = [o for o in objs if not o.hide_render]
+        shapes = collect_light_shapes(view_layer, depsgraph, LightShape, warnings, shown, sess.moving)
     sig = shapes_signature(shapes)
     # Blender lights (issue 20) ride along in the same dict under "light:" keys (core.lights.Light
     # values); the worker hands them to DynamicRadiosity.apply as its lights
@@ -415,6 +416,9 @@ def _shape_names(sess, view_layer):
     sess.light_objects = [o.name for o in lamps]
     objs = light_shape_objects(view_layer, include_hidden=True)
     sess.shape_objects = [o.name for o in objs]
+    # which move, from the scene as a bake reads them (not from the user's drags: Live's exact light
+    # is a bake's of the same state; docs/live.md, session 30 hvmove)
+    sess.moving = moving_shapes(objs)
     sess.shape_meshes = {o.data.name for o in objs}
     sess.shape_materials = {
         s.material.name_full for o in objs for s in o.material_slots if s.material is not None

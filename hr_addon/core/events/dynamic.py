@@ -293,6 +293,7 @@ class DynamicRadiosity:
         valid = {
             k: self.validator.validate(k, s) for k, s in shapes.items()
         }  # raise before changing anything
+        moves = {k: bool(getattr(s, "moves", False)) for k, s in shapes.items()}
         evs = []
         for k in [k for k in self.shapes if k not in valid]:
             evs.append(self._remove(k))
@@ -300,8 +301,10 @@ class DynamicRadiosity:
             rec = self.shapes.get(k)
             if rec is None:
                 continue
-            same_geom = len(rec.rings) == len(rings) and all(
-                np.array_equal(a, b) for a, b in zip(rec.rings, rings)
+            same_geom = (
+                len(rec.rings) == len(rings)
+                and all(np.array_equal(a, b) for a, b in zip(rec.rings, rings))
+                and rec.moves == moves[k]  # (its direct light is another estimator's: a reshape)
             )
             if not same_geom:
                 # the new response is solved from the new emission plus the old one's scattered
@@ -322,7 +325,7 @@ class DynamicRadiosity:
                     self._ref = rec if rec.preview is None else rec.ref  # the last exact state
                     self._solved = rec if rec.preview is None or rec.solved is None else rec.solved
                     self._power = rec.area * rec.covered  # (its emitted power at unit emission)
-                    r2 = self._add(k, LightShape(*v), validated=v, preview=preview)
+                    r2 = self._add(k, LightShape(*v, moves=moves[k]), validated=v, preview=preview)
                 finally:
                     self.nodes.guess = self.nodes.guess0 = self._ref = self._solved = None
                 r2.kind = "reshape"
@@ -333,9 +336,8 @@ class DynamicRadiosity:
                 evs.append(self._set_emission(k, em))
         for k, (rings, em, name) in valid.items():
             if k not in self.shapes:
-                evs.append(
-                    self._add(k, LightShape(rings, em, name), validated=(rings, em, name), preview=preview)
-                )
+                shape = LightShape(rings, em, name, moves[k])
+                evs.append(self._add(k, shape, validated=(rings, em, name), preview=preview))
         if lights is not None:
             evs += self.light_part.diff(lights)
         # sums in the caller's order, not in the order of past events (so with fixed steps: Live)
@@ -372,7 +374,7 @@ class DynamicRadiosity:
             try:
                 r1 = self._remove(k)
                 v = (rec.rings, rec.emission, rec.name)
-                r2 = self._add(k, LightShape(*v), validated=v)
+                r2 = self._add(k, LightShape(*v, moves=rec.moves), validated=v)
             finally:
                 self.nodes.guess = None
             r2.kind = "reshape"
@@ -498,7 +500,7 @@ class DynamicRadiosity:
         rep = EventReport("add", key, name)
         n0 = self.system.h.n
         method = self.method if preview is None or preview.method is None else preview.method
-        rec = _Rec(key, name, rings, em, method)
+        rec = _Rec(key, name, rings, em, method, moves=bool(getattr(shape, "moves", False)))
         # (an exact response cached for this outline serves a preview too)
         cached = self._cache.pop((rec.geom_key, self.method), None) if self.method != "NAIVE" else None
         if cached is not None:

@@ -13,6 +13,12 @@ class LightShape:
     rings: list  # world-space rings (M_i, 3): outer first, then holes; planar
     emission: np.ndarray  # (3,) radiance (Cycles strength x colour)
     name: str = ""
+    # the shape's outline changes over the animation (a bake's or Live's caller says so, from the
+    # scene, never from the frames it happens to hold): the final gather reads its direct light from
+    # the visibility toward its host wall (gather/hostvis.py), which pays on the second place it
+    # lights; a still one (False, the default) keeps its shadow rays, cheaper at its only place
+    # (docs/events.md, session 30 hvmove)
+    moves: bool = False
 
 
 @dataclass(frozen=True)
@@ -155,7 +161,10 @@ class _Rec:
     # state's indirect light scaled by `ratio`, the emitted power's (FinalGather._preview_part)
     gathered: str = ""  # "tail" / "zero" (DynamicRadiosity.gather_responses)
     ratio: float = 1.0
+    moves: bool = False  # LightShape.moves
 
     @property
     def geom_key(self):
-        return tuple(r.tobytes() for r in self.rings)
+        """The outline's bytes, and whether it moves (its direct light depends on it: the caches
+        keyed by it hold it)."""
+        return tuple(r.tobytes() for r in self.rings) + (("moves",) if self.moves else ())

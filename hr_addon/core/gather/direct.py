@@ -299,12 +299,15 @@ class DirectLight:
 
     def _host_store(self, rec, em):
         """The stored visibility toward a light shape's host plane at this level (gather/hostvis.py)
-        where hostvis.ENABLED and the shape lies wholly on surfaces (its rings known), else None
-        (its shadow rays, as always: a free shape, one partly off its surfaces, or the texture
-        output's edge pass for shapes)."""
+        where hostvis.ENABLED and the shape moves (LightShape.moves) and lies wholly on surfaces
+        (its rings known), else None (its shadow rays, as always: a still shape, whose light is
+        kept per outline and would pay the store's first read at its only place; a free shape, one
+        partly off its surfaces, or the texture output's edge pass for shapes)."""
         from . import hostvis
 
-        if not hostvis.ENABLED or em.rings is None or not rec.on_surface or self.shadow_rays <= 0:
+        if not (hostvis.ENABLED and rec.moves) or em.rings is None or not rec.on_surface:
+            return None
+        if self.shadow_rays <= 0:
             return None  # (no shadow rays: the form factor alone, as always)
         if self.texel_area is not None and self.edge_shapes:
             return None

@@ -1,5 +1,6 @@
 """A light shape's direct light from visibility toward its HOST plane (issue 19; on: DirectLight._shape
-of a shape wholly on surfaces; docs/events.md, sessions 28 hv34 / hvp and 29 hvon).
+of a shape that moves (LightShape.moves) wholly on surfaces; docs/events.md, sessions 28 hv34 / hvp,
+29 hvon and 30 hvmove).
 
 A light shape lying on a wall is emission on static geometry: the visibility from a gather sample
 toward points of that wall does not depend on the shape. So its bits, per (gather level, host plane,
@@ -51,8 +52,9 @@ from ..parallel import batch_map, ranges
 from ..planes import frames
 from .sampling import hash_uniform
 
-# on: a light shape wholly on surfaces gets its direct light from this estimator at every gather level
-# (store_for; DirectLight._shape); off (benchmarks, A/B): main's shadow rays
+# on: a light shape that moves (LightShape.moves: its first read pays at its second place) wholly on
+# surfaces gets its direct light from this estimator at every gather level (store_for;
+# DirectLight._shape); off (benchmarks, A/B) and for still shapes: main's shadow rays
 ENABLED = True
 # stored points per shape (top level, second level): an event reading cells no event traced costs
 # about 1.6 x points rays a sample (the border cells too); reads of traced cells cost no ray. 32 / 8
