@@ -35,9 +35,16 @@ def _cache(tmp_path):
     return tmp_path / "hr_cache" / "cornell"
 
 
+def _moving_window(bpy):
+    """Cornell's window made a moving shape (a key on its location: lights_in.moving_shapes), so its
+    events read and trace host visibility and a bake keeps the segments (its shapes are still else)."""
+    bpy.data.objects["Window"].keyframe_insert("location", frame=1)
+
+
 def test_rebake_after_light_keyframe_loads_and_equals_cold(tmp_path):
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
+    _moving_window(bpy)
     first = _bake(method="FE")
     assert not first.precompute_loaded and first.precompute == ["precompute built: no precompute yet"]
     assert (_cache(tmp_path) / "precompute.hrpc").is_file()
@@ -155,6 +162,7 @@ def test_delete_bake_keeps_or_deletes_the_precompute_and_rebuild_discards_it(tmp
 
     d = _cache(tmp_path)
     assert precompute_text(bpy.context.scene) == "No scene precompute: the next bake builds it"
+    _moving_window(bpy)  # (so the bake keeps host-visibility segments, deleted with the precompute)
     _bake()
     assert precompute_text(bpy.context.scene).startswith("Scene precompute: ")
     assert " MB, built " in precompute_text(bpy.context.scene)

@@ -27,7 +27,8 @@ WANT = pc.expected(MESH, DRAFT, gather=GATHER)
 
 def shape(cx):
     rect = S.on_plane(S.rect(0.2, 0.15, centre=(cx, 0.3)), S.CORNELL_BACK_WALL)
-    return LightShape(rect, np.full(3, 5.0), "r")
+    # moving (LightShape.moves): only a moving shape's light reads (and traces) the host visibility
+    return LightShape(rect, np.full(3, 5.0), "r", moves=True)
 
 
 def build():
