@@ -6,11 +6,22 @@ per gather level, per tile size; main's shadow rays alongside (docs/events.md, s
     .venv/bin/python benchmarks/hostvis_tiles.py STORE [--level top|second] [--tiles 4,8]
         [--points 64] [--ref-rays 256] [--json out.json]
     .venv/bin/python benchmarks/hostvis_tiles.py --end-to-end STORE [--rounds 2] [--json out.json]
+    .venv/bin/python benchmarks/hostvis_tiles.py --end-to-end STORE --sweep 24 --policies lazy
+        [--keep DIR [--from-kept]]
 
 --end-to-end: the FE window event's gathered output (loop_radiance) with hostvis.ENABLED off
 (main) and on (every level's shape light from the stores, the tiles traced before, untimed),
 alternating, and per object against 256 rays at the top and 64 (no far rays) at the second level
 (as host_visibility.py --end-to-end).
+
+--sweep N: the window swept in N steps (sweep()); a policy `lazy:4` trims the stores to 4 MB a
+level (hostvis.MEMORY); every host mode's outputs are compared with the first's; --no-main: main's
+shadow rays not swept. --keep DIR: after the sweep, its stores written with io/precompute.keep
+into DIR (a cache folder whose precompute.hrpc is a link to STORE's: the segments are bound to
+that file), timed, with the file's size; --from-kept: no main, the stores
+loaded from DIR (precompute.load_kept, timed) before the first policy's sweep, then that policy
+again from empty stores, the two sweeps' outputs compared bit for bit (a re-bake from the kept
+segments against a bake without them; docs/events.md, session 30 hvkeep). Peak RSS printed.
 
 STORE: a `bench_gather_events.py --transport gather --cache DIR` build of the furnished room (the
 hv34 store: /work/cache/hvstore100k).
@@ -186,6 +197,9 @@ def end_to_end(argv=None):
     ap.add_argument("--points", type=int, default=None, help="hostvis.POINTS (the top level's)")
     ap.add_argument("--points-second", type=int, default=None, help="hostvis.POINTS_SECOND")
     ap.add_argument("--size", default="100k", help="the store's furnished room")
+    ap.add_argument("--keep", default=None, help="--sweep: write the stores into this cache folder")
+    ap.add_argument("--from-kept", action="store_true", help="--sweep: start from --keep's stores")
+    ap.add_argument("--no-main", action="store_true", help="--sweep: without main's shadow rays")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
 
@@ -319,16 +333,32 @@ def sweep(args, dyn, g, levels, clear, window, counted):
     from hr_addon.core.gather import hostvis
 
     cpu = time.process_time
+    from hr_addon.io import precompute as pc
+
     xs = np.linspace(0.7, 1.2, args.sweep)
     res = dict(store=args.store, steps=[float(x) for x in xs], modes={})
-    for mode in ["main"] + args.policies.split(","):
+    modes = args.policies.split(",")
+    if args.from_kept:  # (a re-bake from the kept segments, then the same from empty stores)
+        modes = [modes[0] + "+kept", modes[0]]
+    elif not (args.keep or args.no_main) and "main" not in modes:  # (--keep: main only if asked)
+        modes = ["main"] + modes
+    outs, memory = {}, hostvis.MEMORY
+    for mode in modes:
         hostvis.ENABLED = mode != "main"
-        hostvis.POLICY = mode if mode != "main" else hostvis.POLICY
+        pol, _, cap = mode.split("+")[0].partition(":")  # lazy:4: the stores trimmed to 4 MB a level
+        hostvis.POLICY = pol if mode != "main" else hostvis.POLICY
+        hostvis.MEMORY = int(float(cap) * (1 << 20)) if cap else memory
         if "w" in dyn.shapes:
             dyn.remove("w")
         clear()
         for lv in levels():
             lv.__dict__.pop("_host_stores", None)
+        if mode.endswith("+kept"):
+            g._precompute_id = pc.header_id(Path(args.keep) / pc.FILENAME)
+            c0, w0 = cpu(), time.perf_counter()
+            line = pc.load_kept(args.keep, g)
+            res["load_cpu_s"], res["load_wall_s"] = cpu() - c0, time.perf_counter() - w0
+            print(f"{line}: {res['load_cpu_s']:.3f} s CPU, {res['load_wall_s']:.3f} s wall", flush=True)
         rows = []
         for k, cx in enumerate(xs):
             c0, n0 = cpu(), counted[0]
@@ -337,8 +367,9 @@ def sweep(args, dyn, g, levels, clear, window, counted):
             else:
                 dyn.apply({"w": window(cx)})
             c1 = cpu()
-            g.loop_radiance(dyn)
+            v = g.loop_radiance(dyn)
             rows.append((c1 - c0, cpu() - c1, counted[0] - n0))
+            outs.setdefault(mode, []).append(np.array(v, np.float32))
         stores = [H for lv in levels() for H in getattr(lv, "_host_stores", {}).values()]
         r = res["modes"][mode] = dict(
             event_cpu_s=[round(t[0], 3) for t in rows],
@@ -357,9 +388,43 @@ def sweep(args, dyn, g, levels, clear, window, counted):
             f"events' own {r['event_rays']:,} rays, {r['store_bytes'] / 1e6:.1f} MB",
             flush=True,
         )
+        if args.keep and not args.from_kept and mode == modes[-1]:
+            keep(args, g, res)
+    hostvis.MEMORY = memory
+    host = [m for m in outs if m != "main"]
+    for m in host[1:]:  # (values never depend on what is stored)
+        same = all(np.array_equal(a, b) for a, b in zip(outs[host[0]], outs[m]))
+        res.setdefault("bitwise_equal_to_" + host[0], {})[m] = bool(same)
+        print(f"{m} equal to {host[0]}, every step bit for bit: {same}")
+    import resource
+
+    res["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"peak RSS {res['peak_rss_mb']:.0f} MB")
     hostvis.ENABLED = False
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=1))
+
+
+def keep(args, g, res):
+    """The gather's stores written with io/precompute.keep into args.keep (its precompute a link to
+    the store's file), timed."""
+    from hr_addon.io import precompute as pc
+
+    d = Path(args.keep)
+    d.mkdir(parents=True, exist_ok=True)
+    link = d / pc.FILENAME
+    if not link.exists():
+        link.symlink_to((Path(args.store) / pc.FILENAME).resolve())
+    g._precompute_id = pc.header_id(link)
+    c0, w0 = time.process_time(), time.perf_counter()
+    path = pc.keep(d, g)
+    res["keep_cpu_s"], res["keep_wall_s"] = time.process_time() - c0, time.perf_counter() - w0
+    res["keep_bytes"] = path.stat().st_size
+    print(
+        f"kept: {res['keep_bytes'] / 1e6:.1f} MB written in {res['keep_cpu_s']:.3f} s CPU, "
+        f"{res['keep_wall_s']:.3f} s wall",
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

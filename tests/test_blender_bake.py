@@ -88,6 +88,8 @@ def test_hr_radiance_matches_core_per_frame(tmp_path, final_gather):
         "frame_000013.npz",
         "frame_000021.npz",
         "manifest.json",
+        # the host visibility the gather's events traced, kept for the next bake (session 30 hvkeep)
+        *(["precompute.hrhv"] if final_gather else []),
         "precompute.hrpc",  # the scene precompute (issue 22), reused by the next bake
     ]
 

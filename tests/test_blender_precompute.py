@@ -42,6 +42,8 @@ def test_rebake_after_light_keyframe_loads_and_equals_cold(tmp_path):
     assert not first.precompute_loaded and first.precompute == ["precompute built: no precompute yet"]
     assert (_cache(tmp_path) / "precompute.hrpc").is_file()
     assert "precompute built: no precompute yet" in first.summary()
+    # its events' host visibility kept for the next bake (session 30 hvkeep; speed only)
+    assert any(n.startswith("host visibility segments stored (") for n in first.notes), first.notes
     before = _values(bpy)
 
     win = bpy.data.objects["Window"]  # a light-shape edit: the window slides along its wall
@@ -51,9 +53,11 @@ def test_rebake_after_light_keyframe_loads_and_equals_cold(tmp_path):
     assert warm.precompute_loaded, warm.precompute
     assert warm.precompute[0].startswith("precompute loaded (built ") and " ago" in warm.precompute[0]
     assert warm.summary().find("precompute loaded") > 0 and warm.gather_seconds == 0
+    assert warm.precompute[1].startswith("host visibility segments loaded ("), warm.precompute
     got = _values(bpy)
 
     cold = _bake(method="FE", rebuild=True)  # the same light on a precompute built from nothing
+    # (and no kept segments: Rebuild builds without reading them)
     assert not cold.precompute_loaded and cold.precompute == ["precompute rebuilt: rebuild asked"]
     ref = _values(bpy)
     assert set(got) == set(ref) and len(ref) > 5
@@ -156,7 +160,7 @@ def test_delete_bake_keeps_or_deletes_the_precompute_and_rebuild_discards_it(tmp
     assert " MB, built " in precompute_text(bpy.context.scene)
 
     assert bpy.ops.hr.delete_bake("EXEC_DEFAULT") == {"FINISHED"}  # default: keep it
-    assert sorted(os.listdir(d)) == [".hr_radiosity", "precompute.hrpc"]
+    assert sorted(os.listdir(d)) == [".hr_radiosity", "precompute.hrhv", "precompute.hrpc"]  # (+ segments)
     assert _bake().precompute_loaded  # the next bake skips the build
 
     assert bpy.ops.hr.delete_bake("EXEC_DEFAULT", keep_precompute=False) == {"FINISHED"}

@@ -429,20 +429,28 @@ def test_corner_samples_share_their_corners_rays():
     assert lit.mean() > 0.9 and np.abs(v[lit] * (1 - rho[0]) - 1).max() < 0.02
 
 
-def test_fine_leaves_samples_trace_their_share_of_the_rays(monkeypatch):
-    """final.FINE_RAYS < 1 (docs/scale.md, session 21): the second level's fine leaves' samples
-    trace that share of its rays, each row's weights the hits over those rays; the other samples'
-    rows (the probe's) and the top level's rows stay bitwise as with all rays (1, the default)."""
+def _second_rays_pair(monkeypatch, name, value):
+    """Cornell draft two-level gathers (rays 32: the second level's 16) with main's settings and
+    with final.NAME = value: (system, LoopGather options, main's, the variant's, the variant's
+    second-level samples on fine leaves (bool))."""
     from hr_addon.core.gather import final
 
     s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
     kw = dict(rays=32, levels=2, iterations=2)
     g1 = LoopGather(DynamicRadiosity(s, method="FE"), **kw)
-    monkeypatch.setattr(final, "FINE_RAYS", 0.5)
+    monkeypatch.setattr(final, name, value)
     g2 = LoopGather(DynamicRadiosity(s, method="FE"), **kw)
     assert g1.second.sample_rays is None and g2.stats["near_leaves"] > 0
     start = g2._second_start
     fine = np.repeat(np.diff(start) > np.diff(start).min(), np.diff(start))  # the fine leaves' samples
+    return s, kw, g1, g2, fine
+
+
+def test_fine_leaves_samples_trace_their_share_of_the_rays(monkeypatch):
+    """final.FINE_RAYS < 1 (docs/scale.md, session 21): the second level's fine leaves' samples
+    trace that share of its rays, each row's weights the hits over those rays; the other samples'
+    rows (the probe's) and the top level's rows stay bitwise as with all rays (1, the default)."""
+    s, kw, g1, g2, fine = _second_rays_pair(monkeypatch, "FINE_RAYS", 0.5)
     assert fine.any() and (g2.second.sample_rays == np.where(fine, 8, 16)).all()
     for k in ("indptr", "cols", "w"):
         assert np.array_equal(getattr(g1, k), getattr(g2, k))
@@ -1184,3 +1192,27 @@ def test_a_shapes_second_level_light_takes_fewer_shadow_rays_far_from_it(method,
     assert (graded[0][~near] != ray[0][~near]).any()
     print("level's total, 4 rays far / 8:", graded[0].sum() / ray[0].sum())
     assert abs(graded[0].sum() / ray[0].sum() - 1) < 0.01
+
+
+def test_probe_rays_set_the_reused_rows_rays(monkeypatch):
+    """final.PROBE_RAYS (docs/scale.md, session 30 "prays"; None, the default: the second level's
+    rays): the probe traces that many rays per sample, and the second level's samples on leaves
+    that are not fine (the probe's rows) hold them as their rows' rays; the fine leaves' own samples
+    keep the second level's. The output is another realisation of the same estimate."""
+    s, kw, g1, g2, fine = _second_rays_pair(monkeypatch, "PROBE_RAYS", 8)
+    G = g2.second
+    assert fine.any() and (G.sample_rays == np.where(fine, 16, 8)).all()
+    assert G.w.dtype.kind == "u"  # (8 and 16 rays: hit counts over each row's own rays)
+    row = np.repeat(np.arange(G.n), np.diff(G.indptr))
+    hits = np.bincount(row, G.entry_weights(0, len(G.w)) * G.sample_rays[row], G.n)
+    live = ~G.dark
+    assert np.allclose(hits, np.round(hits)) and (hits[live] <= G.sample_rays[live]).all()
+    assert hits[live & ~fine].mean() > 4 and hits[live & fine].mean() > 8
+    g3 = LoopGather(DynamicRadiosity(s, method="FE"), threads=2, **kw)  # (any thread count: the same rows)
+    for a, b in ((g2, g3), (g2.second, g3.second)):
+        for k in ("indptr", "cols", "w", "sample_rays"):
+            assert np.array_equal(getattr(a, k), getattr(b, k))
+    # the same light from fewer rays: within the few 1e-4 the two realisations differ by
+    dyn = DynamicRadiosity(s.copy(), method="FE")
+    v1, v2 = g1.loop_radiance(dyn), g2.loop_radiance(dyn)
+    assert not np.array_equal(v1, v2) and np.abs(v2 - v1).max() <= 1e-3 * np.abs(v1).max()

@@ -162,6 +162,8 @@ def bake_frames(
         committed = True
         run.result.kept = writer.kept
         run.warn(writer.messages)
+        # the host visibility its events traced, for the next bake (only speed: not written on a cancel)
+        pc.keep(final_dir, final, log=run.result.notes.append, warn=lambda m: run.warn([m]))
         use_bake(scene, final_dir, cfg.output, snap.objects)
     finally:
         if writer is not None and not committed:

@@ -18,8 +18,8 @@ anyone else found in a cache folder are moved into the new cache at the swap, ne
 Farms (docs/farm.md): several processes may bake frame ranges into one cache folder at once. Every
 change of the folder's top level (the commit's merge and swap, recover(), the precompute's file and
 build lock) happens under the folder's lock (folder_lock), a file beside the folder that the swap
-does not move. The precompute (CARRIED) stays in the folder across bakes: the swap moves it into
-the new folder.
+does not move. The precompute and its kept host-visibility segments (CARRIED) stay in the folder
+across bakes: the swap moves them into the new folder.
 """
 
 import contextlib
@@ -39,9 +39,9 @@ MANIFEST = "manifest.json"
 MARKER = ".hr_radiosity"  # "this folder is a radiosity cache": written first, into every cache folder
 _MARKER_TEXT = b"Written by HR Radiosity bakes. A bake replaces only the files its manifest.json lists.\n"
 # names our bakes write (frames, texture sequences, atomic_write temporaries): ours in a marked folder
-_OWN_NAME = re.compile(r"^(frame_m?\d{6}(_\d+)?\.npz|\..+\.\d+\.tmp|precompute\.(hrpc|lock))$")
+_OWN_NAME = re.compile(r"^(frame_m?\d{6}(_\d+)?\.npz|\..+\.\d+\.tmp|precompute\.(hrpc|hrhv|lock))$")
 # written by io.precompute, not by one bake: they outlive the bake's swap (swap_in moves them along)
-CARRIED = ("precompute.hrpc", "precompute.lock")
+CARRIED = ("precompute.hrpc", "precompute.hrhv", "precompute.lock")
 _OWN_TEXTURE = re.compile(r"^.+_-?\d{5,}\.(exr|png)$")
 TEX_DIR = "textures"
 

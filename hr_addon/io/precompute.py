@@ -27,6 +27,7 @@ import threading
 import time
 import uuid
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +39,12 @@ from .precompute_graph import PrecomputeError, capture, restore  # noqa: F401  (
 FILENAME = "precompute.hrpc"
 LOCKNAME = "precompute.lock"
 MAGIC = "hr_radiosity precompute"
+# the host-visibility segments light events traced (gather/hostvis.py), kept for the next bake: a
+# side file (the precompute is written once, by its build; this after every bake that traced new
+# segments), valid only beside the precompute file it was traced on (keep, below)
+KEPTNAME = "precompute.hrhv"
+KEPT_MAGIC = "hr_radiosity host visibility"
+KEPT_VERSION = 1
 FORMAT_VERSION = 2  # 2: DynamicRadiosity's base solutions and the gather's static direct light
 NONE_YET = "no precompute yet"
 _HOST = socket.gethostname() or "host"
@@ -263,11 +270,20 @@ def write(cache_dir, arrays, graph, want, info=None):
     header = dict(want)
     header.update(magic=MAGIC, created=time.time(), host=_HOST, info=info or {}, graph=graph)
 
+    with folder_lock(d):  # never into a folder another process's commit is swapping out
+        mark(d)
+        atomic_write(d / FILENAME, _filler(arrays, header))
+    return d / FILENAME
+
+
+def _filler(arrays, header, compression=zipfile.ZIP_STORED):
+    """fill(fh) writing the zip of `arrays` and `header` (write's format; keep's deflated)."""
+
     def fill(fh):
         # each array streamed into its member (no copy of the precompute in memory; zipfile
         # computes the member's CRC while writing); the header, which lists the CRCs, last
         metas = {}
-        with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as z:
+        with zipfile.ZipFile(fh, "w", compression, allowZip64=True, compresslevel=1) as z:
             for name, a in arrays.items():
                 with z.open(name + ".npy", "w", force_zip64=a.nbytes > _ZIP64_FROM) as m:
                     np.lib.format.write_array(m, a, allow_pickle=False)
@@ -275,10 +291,7 @@ def write(cache_dir, arrays, graph, want, info=None):
                 metas[name] = {"dtype": a.dtype.str, "shape": list(a.shape), "crc32": crc}
             z.writestr("header.json", json.dumps({**header, "arrays": metas}))
 
-    with folder_lock(d):  # never into a folder another process's commit is swapping out
-        mark(d)
-        atomic_write(d / FILENAME, fill)
-    return d / FILENAME
+    return fill
 
 
 @contextlib.contextmanager
@@ -289,23 +302,33 @@ def _damaged(path):
         yield
     except (FileNotFoundError, PrecomputeError):
         raise
-    except (OSError, zipfile.BadZipFile, KeyError, ValueError, EOFError) as exc:
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError, EOFError, zlib.error) as exc:
         raise PrecomputeError(f"'{Path(path).name}' is damaged or truncated ({exc})") from None
 
 
-def read_header(path):
-    """The header of a precompute file, or raise PrecomputeError saying what is wrong with it."""
+def read_header(path, magic=MAGIC):
+    """The header of a precompute file (magic: or of the kept segments' file), or raise
+    PrecomputeError saying what is wrong with it."""
     with _damaged(path), zipfile.ZipFile(path) as z:
         h = json.loads(z.read("header.json"))
-    if not isinstance(h, dict) or h.get("magic") != MAGIC:
-        raise PrecomputeError(f"'{Path(path).name}' is not a precompute of this extension")
+    if not isinstance(h, dict) or h.get("magic") != magic:
+        raise PrecomputeError(
+            f"'{Path(path).name}' is not a {'precompute' if magic == MAGIC else 'file'} of this extension"
+        )
     return h
 
 
-def read(path):
-    """(arrays, header) of a precompute file; every array checked against its dtype, shape and
-    CRC-32. Raises PrecomputeError naming the damaged part."""
-    h = read_header(path)
+def header_id(path):
+    """The digest of a precompute file's header (its versions, key, arrays' CRCs, creation time and
+    host): what names that very file."""
+    with _damaged(path), zipfile.ZipFile(path) as z:
+        return hashlib.sha256(z.read("header.json")).hexdigest()[:16]
+
+
+def read(path, magic=MAGIC):
+    """(arrays, header) of a precompute file (magic: or of the kept segments' file); every array
+    checked against its dtype, shape and CRC-32. Raises PrecomputeError naming the damaged part."""
+    h = read_header(path, magic)
     arrays = {}
     with _damaged(path), zipfile.ZipFile(path) as z:
         for name, meta in h["arrays"].items():
@@ -342,16 +365,20 @@ def prepare(gather):
 
 def use_threads(system, gather, threads):
     """Run a loaded precompute on `threads` (core.parallel's count; values do not depend on it): the
-    file holds the count of the process that built it."""
+    file holds the count of the process that built it (and its kept host stores)."""
     if system is not None:
         system.backend.threads = threads
     for g in levels(gather):
         g.threads = threads
+    for g in _host_levels(gather):
+        for H in getattr(g, "_host_stores", {}).values():
+            H.threads = threads
 
 
-def load(cache_dir, want):
+def load(cache_dir, want, log=None):
     """(system, gather, None) from the cache folder's precompute if it is valid for `want`, else
-    (None, None, reason): absent, damaged, or which version, setting or object changed."""
+    (None, None, reason): absent, damaged, or which version, setting or object changed. The gather
+    gets the host-visibility segments kept beside it (load_kept; log(str): what became of them)."""
     path = Path(cache_dir) / FILENAME
 
     def restored():
@@ -359,7 +386,13 @@ def load(cache_dir, want):
         if why:
             return None, None, why
         arrays, header = read(path)
-        return *restore(arrays, header["graph"]), None
+        system, gather = restore(arrays, header["graph"])
+        if gather is not None:
+            gather._precompute_id = header_id(path)
+            line = load_kept(cache_dir, gather)
+            if line and log is not None:
+                log(line)
+        return system, gather, None
 
     try:
         return restored()
@@ -391,13 +424,110 @@ def describe(cache_dir, want=None):
 
 def remove(cache_dir):
     """Delete the cache folder's precompute (Delete Bake, Rebuild) if it is ours: a file of that
-    name in a cache folder. Returns whether a file was deleted."""
+    name in a cache folder (and its kept segments). Returns whether a file was deleted."""
     d = Path(cache_dir)
     path = d / FILENAME
     if not is_cache_folder(d) or path.is_symlink() or not path.is_file():
         return False
     path.unlink()
+    _remove_kept(d)
     return True
+
+
+# -- the kept host-visibility segments (session 30 hvkeep) -------------------------------------------
+
+
+def _host_levels(gather):
+    from ..core.gather import hostvis  # (io runs without the gather: imported where it is used)
+
+    return hostvis.host_levels(gather) if gather is not None else []
+
+
+def _size(n):
+    return f"{n / 1e6:.1f} MB" if n >= 1e5 else f"{n / 1e3:.0f} kB"
+
+
+def _remove_kept(d):
+    """Delete the kept segments' file of cache folder d if it is ours (a file of that name in a
+    cache folder), with the precompute (remove). A precompute rebuilt over it leaves it: ignored
+    (another precompute's), replaced by the next bake that traces segments (a build that a cancel
+    ends keeps the previous bake's files whole)."""
+    path = Path(d) / KEPTNAME
+    if is_cache_folder(d) and not path.is_symlink() and path.is_file():
+        path.unlink()
+
+
+def load_kept(cache_dir, gather):
+    """Put the host-visibility segments kept in the cache folder (KEPTNAME) on a gather just
+    restored from the folder's precompute: only if they were traced on that very file (its header's
+    digest), under the same host visibility settings and from the same samples; a stale, damaged
+    or foreign file is ignored (never used) and said. Returns the line to log, or None (no file)."""
+    from ..core.gather import hostvis
+
+    path = Path(cache_dir) / KEPTNAME
+    if not path.is_file():
+        return None
+    t0 = time.perf_counter()
+    try:
+        h = read_header(path, KEPT_MAGIC)
+        if h.get("version") != KEPT_VERSION:
+            why = f"format version {h.get('version')} -> {KEPT_VERSION}"
+        elif h.get("precompute") != getattr(gather, "_precompute_id", None):
+            why = "traced on another precompute (rebuilt since)"
+        elif h.get("params") != json.loads(json.dumps(hostvis.params())):
+            old, new = h.get("params") or {}, hostvis.params()
+            why = ", ".join(f"{k} {old.get(k, 'unset')} -> {v}" for k, v in new.items() if old.get(k) != v)
+        else:
+            arrays, _ = read(path, KEPT_MAGIC)
+            n = hostvis.restore_kept(gather, arrays)
+            took, size = time.perf_counter() - t0, _size(path.stat().st_size)
+            return f"host visibility segments loaded ({n} tiles, {size}, {took:.2f} s)"
+    except PrecomputeError as exc:
+        why = str(exc)
+    except (KeyError, IndexError, TypeError, ValueError) as exc:  # arrays that do not fit this gather
+        for g in _host_levels(gather):  # (none half restored)
+            g.__dict__.pop("_host_stores", None)
+        why = f"'{KEPTNAME}' does not fit this precompute ({type(exc).__name__}: {exc})"
+    return f"host visibility segments not used: {why}"
+
+
+def keep(cache_dir, gather, log=print, warn=None, cap=None):
+    """After a bake: write the host-visibility segments its light events traced (with those loaded)
+    beside the precompute, atomically (KEPTNAME; the most recently read tiles up to cap bytes,
+    hostvis.DISK), if they traced any and the folder's precompute is still the one the gather came
+    from. log(str): what was written; warn(str): why it could not be (the bake goes on: only the
+    next bake's speed depends on it). Returns the path written or None."""
+    from ..core.gather import hostvis
+
+    warn = warn or log
+    pid = getattr(gather, "_precompute_id", None)
+    if gather is None or pid is None:
+        return None  # (no precompute stored: nothing to keep the segments beside)
+    t0 = time.perf_counter()
+    arrays, info = hostvis.kept(gather, cap)
+    if not info["rays"]:
+        return None
+    d = Path(cache_dir)
+    path = d / KEPTNAME
+    try:
+        with folder_lock(d):
+            if path.is_symlink() or (path.exists() and not path.is_file()):
+                raise PrecomputeError(f"'{path}' is not a file a bake wrote: left alone")
+            if header_id(d / FILENAME) != pid:
+                raise PrecomputeError("the precompute was replaced meanwhile")
+            header = dict(magic=KEPT_MAGIC, version=KEPT_VERSION, precompute=pid, params=hostvis.params())
+            header.update(created=time.time(), host=_HOST, info={k: v for k, v in info.items()})
+            # deflated (level 1): the bits are mostly runs (at 100k 20x smaller for 0.04 s)
+            atomic_write(path, _filler(arrays, header, zipfile.ZIP_DEFLATED))
+    except (OSError, PrecomputeError) as exc:
+        warn(f"Host visibility segments not stored: {exc}")
+        return None
+    left = f", {info['left_out']} older tiles left out" if info["left_out"] else ""
+    log(
+        f"host visibility segments stored ({info['tiles']} tiles, {_size(path.stat().st_size)}"
+        f"{left}, {time.perf_counter() - t0:.2f} s)"
+    )
+    return path
 
 
 # -- the build lock ----------------------------------------------------------------------------------
@@ -507,6 +637,12 @@ def _loaded(d):
     return f"precompute loaded (built {age_text(time.time() - h.get('created', time.time()))} ago{took})"
 
 
+def _say_loaded(log, d, said, how=""):
+    log(_loaded(d) + how)
+    for line in said:  # (the kept segments': after the precompute's)
+        log(line)
+
+
 def _building(why):
     return f"precompute {'built' if why == NONE_YET else 'rebuilt'}: {why}"
 
@@ -523,9 +659,10 @@ def load_or_build(
     replaces it. warn(str): where a precompute that could not be stored is said (default: log)."""
     warn = warn or log
     d = Path(cache_dir)
-    system, gather, why = (None, None, "rebuild asked") if force else load(d, want)
+    said = []  # (the kept segments' line, said after the precompute's)
+    system, gather, why = (None, None, "rebuild asked") if force else load(d, want, said.append)
     if system is not None:
-        log(_loaded(d))
+        _say_loaded(log, d, said)
         return system, gather, "loaded"
     problem = folder_problem(d)
     if problem:
@@ -545,14 +682,14 @@ def load_or_build(
             log(f"Waiting for the precompute being built by {h.get('host', '?')} pid {h.get('pid', '?')}")
             said_wait = True
         time.sleep(poll)
-        system, gather, _ = (None, None, None) if force else load(d, want)
+        system, gather, _ = (None, None, None) if force else load(d, want, said.append)
         if system is not None:
-            log(_loaded(d) + " (built by another process)")
+            _say_loaded(log, d, said, " (built by another process)")
             return system, gather, "loaded"
     try:
-        system, gather, _ = (None, None, None) if force else load(d, want)  # finished meanwhile
+        system, gather, _ = (None, None, None) if force else load(d, want, said.append)  # finished meanwhile
         if system is not None:
-            log(_loaded(d))
+            _say_loaded(log, d, said)
             return system, gather, "loaded"
         log(_building(why))
         for p in d.glob(f".{FILENAME}.*.tmp"):  # a killed writer's (only the lock holder writes)
@@ -562,7 +699,9 @@ def load_or_build(
         info = {**(info or {}), "build_seconds": time.perf_counter() - t0}
         try:
             arrays, graph = capture(system, gather)
-            write(d, arrays, graph, want, info)
+            path = write(d, arrays, graph, want, info)
+            if gather is not None:  # (its segments kept beside this file: keep)
+                gather._precompute_id = header_id(path)
         except (OSError, TypeError, ValueError, PrecomputeError) as exc:  # the bake goes on without it
             warn(f"Precompute not stored: {exc}")
         return system, gather, "built"

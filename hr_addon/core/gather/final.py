@@ -43,6 +43,10 @@ SLOT_MOUTH_STEP = 8.0
 # the second level's fine leaves (near_points^2 samples each): their samples trace this share of
 # the second level's hemisphere rays (1: all)
 FINE_RAYS = 1.0
+# the probe's hemisphere rays per sample (None: the second level's, rays // 2): its rows are the
+# second level's on the leaves that are not fine, so this is those samples' rays too (docs/scale.md,
+# session 30 "prays")
+PROBE_RAYS = None
 # near hits compute their nearest point only on leaves that have samples of their own (the fine
 # leaves, known from the probe before the rays are traced); a hit on another leaf reads the leaf,
 # as _remap_near maps it. False: every near hit computes it (session 26's rows; the same sums per
@@ -539,6 +543,7 @@ class FinalGather(DirectLight):
             c0 = h.child0[: self.n_hr]
             leaves = np.flatnonzero((c0 < 0) | (c0 >= self.n_hr)).astype(np.int64)
             lp, r2 = int(leaf_points), int(second_rays or max(self.rays // 2, 16))
+            rp = int(PROBE_RAYS or r2)
             # what a second-level sample's rays depend on (the probe's rows are the second level's)
             rays_kw = dict(
                 rays=r2,
@@ -580,7 +585,7 @@ class FinalGather(DirectLight):
                     np.repeat(h.patch[leaves], nn),
                     near_points=self.near_points,
                     near_layout=(None, None),
-                    **rays_kw,
+                    **dict(rays_kw, rays=rp),
                 )
                 fine[probe._fine_leaves(near_share)] = True
         # the leaves whose near hits read a sample of their own (their nearest point): a hit on
@@ -648,9 +653,12 @@ class FinalGather(DirectLight):
                 near_layout=(off, None) if second_near else None,
                 near_share=near_share,
                 reuse=reuse,
-                # a fine leaf's near_points^2 samples trace FINE_RAYS of the rays each
-                sample_rays=np.where(np.repeat(fine[used], k2), max(int(r2 * FINE_RAYS), 1), r2)
-                if FINE_RAYS < 1
+                # a fine leaf's near_points^2 samples trace FINE_RAYS of the rays each; the
+                # others' rows are the probe's (its rays)
+                sample_rays=np.where(
+                    np.repeat(fine[used], k2), max(int(r2 * FINE_RAYS), 1), rp if self.near_points else r2
+                )
+                if FINE_RAYS < 1 or (rp != r2 and self.near_points)
                 else None,
                 **rays_kw,
             )

@@ -41,9 +41,11 @@ traced when is speed only: no value depends on it, so none on the history of eve
   (hv34's `ovl`, biased only there); with no weight at all 1.
 """
 
+import itertools
+
 import numpy as np
 
-from ..clip import overlap_areas, polygon_area_2d
+from ..clip import _clip_halfplane, overlap_areas, polygon_area_2d
 from ..events.planar import _in_rings
 from ..parallel import batch_map, ranges
 from ..planes import frames
@@ -68,6 +70,20 @@ CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's 
 # "lazy" every segment an event traced (each traced at most once, only when read), "second" / "always"
 # a tile traced whole on its second / first read, "never" nothing
 POLICY = "lazy"
+# what is kept (speed only, never values; session 30 hvkeep): a level's stores at most MEMORY bytes
+# (+ the tile being made), the tiles read longest ago dropped first (trim); the precompute's side
+# file the most recently read tiles of all levels up to DISK bytes as held in memory (kept; the
+# file, deflated, ~1/20 of that). At 100k a top-level tile holds ~1.3 MB (9 bytes for each of the
+# ~58% of the level's samples facing it): MEMORY ~100 such tiles a level, 5x the FE window's
+# 24-step sweep (19 tiles over 3 levels, 17.9 MB); DISK 3.6x that sweep's stores.
+# A level's cap is at least TRIM_FLOOR tiles of all its samples: an event reads up to ~9 tiles a
+# level (a shape takes 32-64 cells, 16 a tile), and a cap below what one event reads makes LRU drop
+# the tiles the next step reads again (at 100k, 4 MB a level traced x9.5 the sweep's rays, more than
+# main's shadow rays)
+MEMORY = 128 << 20
+TRIM_FLOOR = 16
+DISK = 64 << 20
+_TICK = itertools.count()  # the order of tile reads, over every store (LRU)
 _POP = np.array([bin(i).count("1") for i in range(256)], np.uint8)  # bits set per byte
 
 
@@ -78,6 +94,30 @@ def cell_overlaps(rings2d, x0, y0, h, nx, ny):
     sq = np.array([(0, 0), (1, 0), (1, 1), (0, 1)], np.float64) * h
     cells = np.stack([gx.ravel(), gy.ravel()], -1)[:, None] + sq[None]
     return overlap_areas(rings2d, cells).reshape(ny, nx)
+
+
+def inside_boxes(rings2d, corners, h):
+    """(lo, hi) (P, 2): per h x h cell whose first corner is corners (P, 2), a box holding every
+    point of the cell the even-odd test can call inside the outline: the box of each ring's part in
+    the cell (clipped as clip.overlap_areas, about the outer ring's box centre; an even-odd inside
+    point is inside some ring), padded by 1e-6 h (the tests' rounding: ~1e-16 of the coordinates);
+    empty where no ring meets the cell."""
+    o = 0.5 * (np.min(rings2d[0], 0) + np.max(rings2d[0], 0))
+    c = np.asarray(corners, np.float64) - o
+    nodes = c[:, None] + np.array([(0, 0), (1, 0), (1, 1), (0, 1)], np.float64)[None] * h
+    lo, hi = np.full((len(c), 2), np.inf), np.full((len(c), 2), -np.inf)
+    for ring in rings2d:
+        r = np.asarray(ring, np.float64) - o
+        r = r if polygon_area_2d(r) >= 0 else r[::-1]
+        x = np.broadcast_to(r[:, 0], (len(c), len(r)))
+        y = np.broadcast_to(r[:, 1], (len(c), len(r)))
+        for i in range(4):
+            x, y = _clip_halfplane(x, y, nodes[:, i], nodes[:, (i + 1) % 4])
+        got = x.any(1) | y.any(1)  # (clip: a part left empty is all zeros)
+        lo[got] = np.minimum(lo[got], np.column_stack([x.min(1), y.min(1)])[got])
+        hi[got] = np.maximum(hi[got], np.column_stack([x.max(1), y.max(1)])[got])
+    pad = 1e-6 * h
+    return lo + o - pad, hi + o + pad
 
 
 def inside_rings(q, rings):
@@ -113,6 +153,7 @@ class HostVisibility:
         self.policy = POLICY if policy is None else policy
         self.part = {}  # tile -> [rows, bits, known, tested]: a tile events traced parts of
         self.event_rays = 0  # rays traced by events for their own reads (tiles not traced whole)
+        self.used = {}  # tile -> _TICK of its last read (trim, kept)
 
     # -- the lattice --------------------------------------------------------------------------------
     def cell(self, L):
@@ -146,18 +187,30 @@ class HostVisibility:
         """The level's samples (of `among`, sorted, if given) a tile stores: not dark, in front of the
         plane (by eps / 2), a corner of the tile at most eps below their horizon (a superset of those
         any point of it can light with weight). Each sample's own products, written out: the same
-        answer for a sample whatever else is asked (a tile traced whole or an event's part of it)."""
+        answer for a sample whatever else is asked (a tile traced whole or an event's part of it);
+        the plane's front samples of the whole level tested once a store (_front)."""
         lv = self.lv
-        i = np.arange(lv.n) if among is None else np.asarray(among)
-        x, nx = lv.points[i], lv.normals[i]
         dot = lambda a, b: (a[:, 0] * b[0] + a[:, 1] * b[1]) + a[:, 2] * b[2]  # noqa: E731
-        ok = ~lv.dark[i] & (dot(x - self.o, self.n) > 0.5 * lv.eps)
-        i, x, nx = i[ok], x[ok], nx[ok]
-        xn = (x[:, 0] * nx[:, 0] + x[:, 1] * nx[:, 1]) + x[:, 2] * nx[:, 2]
+        if among is None:
+            got = self.__dict__.get("_front")
+            if got is None:
+                got = self._front = self._in_front(np.arange(lv.n), dot)
+            i, xn = got
+        else:
+            i, xn = self._in_front(np.asarray(among), dot)
+        nx = lv.normals[i]
         top = np.full(len(i), -np.inf)
         for c in self._corners(key):
             top = np.maximum(top, dot(nx, c) - xn)
         return i[top > -lv.eps]
+
+    def _in_front(self, i, dot):
+        """(samples of i not dark and in front of the plane by eps / 2, their x . n_x)."""
+        lv = self.lv
+        x, nx = lv.points[i], lv.normals[i]
+        ok = ~lv.dark[i] & (dot(x - self.o, self.n) > 0.5 * lv.eps)
+        i, x, nx = i[ok], x[ok], nx[ok]
+        return i, (x[:, 0] * nx[:, 0] + x[:, 1] * nx[:, 1]) + x[:, 2] * nx[:, 2]
 
     def shifts(self, L, rows):
         """(len(rows), 2) each sample's own shift of level L's lattice, in [0, 1)."""
@@ -176,7 +229,12 @@ class HostVisibility:
         b = (tj * T + cells[None] // T + r[:, 1:]) * h  # (l, c)
         org = (lv.points[rows] + eps * lv.normals[rows]).T  # (3, l)
         p0 = self.o + eps * self.n
-        d = np.stack([(p0[k] + a * self.U[k] + b * self.V[k]) - org[k][:, None] for k in range(3)])
+        d = np.empty((3,) + a.shape)
+        for k in range(3):  # (p0 + a U + b V) - org, per component in place: the same floats
+            np.multiply(a, self.U[k], out=d[k])
+            d[k] += p0[k]
+            d[k] += b * self.V[k]
+            d[k] -= org[k][:, None]
         return org, d.reshape(3, -1)
 
     # -- tracing ------------------------------------------------------------------------------------
@@ -220,6 +278,7 @@ class HostVisibility:
         """[rows, bits, known, tested] of a tile nothing of which is traced yet: its rows (of
         `among`, if given), their packed bits and which of them are known (none), and whether
         each row's shaft was tested (none)."""
+        trim(self.lv, self)  # (the tile about to be made is not in the store yet: kept)
         rows = self.facing(key, among).astype(np.int32)
         C8 = self.tile**2 // 8
         z = lambda: np.zeros((len(rows), C8), np.uint8)  # noqa: E731
@@ -277,6 +336,7 @@ class HostVisibility:
         buying a tile would trace segments no event read, and its renting would trace read ones
         again); "second" traces a tile whole on its second read, "always" on its first; "never"
         keeps nothing (every event traces what it reads)."""
+        self.used[key] = next(_TICK)
         got = self.tiles.get(key)
         if got is not None:
             return got
@@ -336,6 +396,7 @@ class HostVisibility:
         # each sample's row in each tile (-1: not stored), looked up once per event
         look = {key: self._rows_of(tiles[key][0], idx) for key, _, _ in masks}
         step = max(1, CHUNK // max(nbx * nby, 1))
+        boxes = None
         for s0 in range(0, len(idx), step):
             sl = slice(s0, s0 + step)
             rows = idx[sl]
@@ -352,7 +413,10 @@ class HostVisibility:
             if len(mix):
                 at = {key: look[key][sl][mix] for key, _, _ in masks}
                 vis = self.block(list(at), rows[mix], c0, c1, at, tiles)[0]
-                Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis, rings2d)
+                if boxes is None and part.any():  # (once an event, where a ratio tests points)
+                    pj, pi = np.nonzero(part)
+                    boxes = inside_boxes(rings2d, np.column_stack([ci[pi], cj[pj]]) * h, h)
+                Vc[mix] = self._ratio(rows[mix], L, ci, cj, full, part, ov, vis, rings2d, boxes)
             V[sl] = Vc
         return V
 
@@ -391,8 +455,10 @@ class HostVisibility:
             stored[(f, *w[0])] = True
         return vis, stored
 
-    def _ratio(self, rows, L, ci, cj, full, part, ov, vis, rings2d):
-        """The pin ratio at samples rows (each its block of bits vis (l, nby, nbx))."""
+    def _ratio(self, rows, L, ci, cj, full, part, ov, vis, rings2d, boxes=None):
+        """The pin ratio at samples rows (each its block of bits vis (l, nby, nbx)); boxes: the
+        partly covered cells' inside_boxes (the points outside them are outside the outline: only
+        the others take the even-odd test)."""
         lv, h = self.lv, self.cell(L)
         r = self.shifts(L, rows)
         a = (ci[None] + r[:, :1]) * h  # (l, i): the points' 2D coordinates, as traced
@@ -417,7 +483,13 @@ class HostVisibility:
             pj, pi = np.nonzero(part)  # the partly covered cells: their points tested (even-odd)
             q = np.stack(np.broadcast_arrays(a[:, pi], b[:, pj]), -1)  # (l, P, 2)
             m = m.copy()
-            m[:, pj, pi] = inside_rings(q, rings2d)
+            if boxes is None:
+                m[:, pj, pi] = inside_rings(q, rings2d)
+            else:
+                near = ((q >= boxes[0]) & (q <= boxes[1])).all(-1)
+                ins = np.zeros(near.shape, bool)
+                ins[near] = inside_rings(q[near], rings2d)
+                m[:, pj, pi] = ins
         w = k * m
         ws = w.sum((1, 2))
         wv = (w * vis).sum((1, 2))
@@ -512,15 +584,168 @@ def store_for(lv, normal, point, points):
     1e-12, the offset to 1e-3 eps): shapes on one plane share it whatever patch or point they name
     it by, and its frame is made from the key alone (the rounded normal, the rounded offset), so
     it is the same whichever shape asked first."""
-    from ..events.direct import clear_shafts
-
     stores = lv.__dict__.setdefault("_host_stores", {})
     margin = 1e-3 * lv.eps
     nq = np.round(np.asarray(normal, np.float64), 12) + 0.0  # + 0.0: no -0.0
     key = (nq.tobytes(), round(float(np.asarray(point, np.float64) @ nq) / margin), points)
     H = stores.get(key)
     if H is None:
-        n = nq / np.linalg.norm(nq)
-        p = (key[1] * margin) * n
-        H = stores[key] = HostVisibility(lv, n, p, points, shafts=clear_shafts(lv.system, p, n))
+        H = stores[key] = _store_of(lv, key)
     return H
+
+
+def _store_of(lv, key):
+    """A new, empty HostVisibility of the level for a store_for key (its frame from the key alone)."""
+    from ..events.direct import clear_shafts
+
+    nq = np.frombuffer(key[0], np.float64)
+    n = nq / np.linalg.norm(nq)
+    p = (key[1] * (1e-3 * lv.eps)) * n
+    return HostVisibility(lv, n, p, key[2], shafts=clear_shafts(lv.system, p, n))
+
+
+# -- kept across bakes, trimmed (session 30 hvkeep) -----------------------------------------------------
+
+
+def params():
+    """The module's settings a kept store was made under (the samples are the precompute's)."""
+    return dict(
+        points=POINTS, points_second=POINTS_SECOND, stream=STREAM, tile=TILE, base=BASE, max_level=MAX_LEVEL
+    )
+
+
+def host_levels(gather):
+    """The levels of a final gather that keep host stores, in a fixed order: each level (top first,
+    then FinalGather.second) followed by its slot samples' facing copy (its _slot's f), if any."""
+    out = []
+    while gather is not None:
+        out.append(gather)
+        slot = getattr(gather, "_slot", None)
+        if slot is not None:
+            out.append(slot["f"])
+        gather = getattr(gather, "second", None)
+    return out
+
+
+def _tile_bytes(H, key):
+    t = H.tiles.get(key)
+    return sum(a.nbytes for a in (t if t is not None else H.part[key]))
+
+
+def trim(lv, extra=None, cap=None):
+    """Keep the stores of a level (and `extra`, a store not made by store_for) within cap bytes
+    (MEMORY, at least TRIM_FLOOR tiles of the level's samples): above it, the tiles (whole or
+    events' parts) read longest ago are dropped until 3/4 of cap remain (not every new tile trims).
+    By tile, least recently read: a tile is the unit that is read and kept, and a moving shape
+    reads next the tiles it read last, where a rule by plane or by event would drop the current
+    shape's tiles with the rest. Speed only: a dropped tile's segments are traced again when read,
+    with the same bits. Returns the bytes dropped."""
+    row = 5 + 2 * (TILE * TILE // 8)  # a row's bytes in a part (rows, bits, known, tested)
+    cap = max(MEMORY if cap is None else cap, TRIM_FLOOR * row * lv.n)
+    stores = list(lv.__dict__.get("_host_stores", {}).values())
+    if extra is not None and all(H is not extra for H in stores):
+        stores.append(extra)
+    items = [
+        (H.used.get(k, -1), i, k, _tile_bytes(H, k))
+        for i, H in enumerate(stores)
+        for k in (*H.tiles, *H.part)
+    ]
+    total = sum(it[3] for it in items)
+    if total <= cap:
+        return 0
+    dropped = 0
+    for _, i, k, b in sorted(items, key=lambda it: it[:2]):
+        if total <= 3 * cap // 4:
+            break
+        H = stores[i]
+        H.tiles.pop(k, None)
+        H.part.pop(k, None)
+        H.used.pop(k, None)
+        total, dropped = total - b, dropped + b
+    return dropped
+
+
+def kept(gather, cap=None):
+    """(arrays, info) of every level's stores for the precompute's side file (io/precompute.keep):
+    the tiles read most recently first, up to cap bytes as held in memory (DISK), saved oldest
+    first (restore_kept gives them their read order back). A tile: its rows as a bitmap over the
+    level's samples, per row its bits, which are known and whether its shaft was tested (a whole
+    tile: all). info: tiles and bytes saved, tiles left out, and the rays traced into the stores
+    since they were made or restored (0: nothing new to save)."""
+    cap = DISK if cap is None else cap
+    lvls = host_levels(gather)
+    C8 = TILE * TILE // 8
+    items, rays = [], 0
+    for li, lv in enumerate(lvls):
+        for skey, H in lv.__dict__.get("_host_stores", {}).items():
+            rays += H.rays + H.event_rays
+            if H.tile == TILE:
+                items += [(H.used.get(k, -1), li, skey, H, k) for k in (*H.tiles, *H.part)]
+    items.sort(key=lambda it: it[:2], reverse=True)
+    chosen, total = [], 0
+    for it in items:
+        b = _tile_bytes(it[3], it[4])  # (as held once loaded: what the file's arrays restore to)
+        if total + b > cap:
+            break
+        chosen.append(it)
+        total += b
+    chosen.reverse()
+    skeys, sinfo, snormal, tinfo, rows, bits, known, tested = {}, [], [], [], [], [], [], []
+    for _, li, skey, H, k in chosen:
+        s = skeys.get((li, skey))
+        if s is None:
+            s = skeys[(li, skey)] = len(sinfo)
+            sinfo.append((li, skey[1], skey[2]))
+            snormal.append(np.frombuffer(skey[0], np.float64))
+        whole = k in H.tiles
+        r, b, kn, te = H.tiles[k] + (None, None) if whole else H.part[k]
+        m = np.zeros(H.lv.n, bool)
+        m[r] = True
+        tinfo.append((s, *k, whole))
+        rows.append(np.packbits(m))
+        bits.append(b)
+        known.append(np.full(b.shape, 255, np.uint8) if whole else kn)
+        tested.append(np.ones(len(r), bool) if whole else te)
+    cat = lambda a, shape, t: np.concatenate(a) if a else np.zeros(shape, t)  # noqa: E731
+    arrays = dict(
+        level_n=np.array([lv.n for lv in lvls], np.int64),
+        store_info=np.array(sinfo, np.int64).reshape(-1, 3),
+        store_normal=np.array(snormal, np.float64).reshape(-1, 3),
+        tile_info=np.array(tinfo, np.int64).reshape(-1, 5),
+        rows=cat(rows, 0, np.uint8),
+        bits=cat(bits, (0, C8), np.uint8),
+        known=cat(known, (0, C8), np.uint8),
+        tested=cat(tested, 0, bool),
+    )
+    return arrays, dict(tiles=len(chosen), bytes=total, left_out=len(items) - len(chosen), rays=rays)
+
+
+def restore_kept(gather, a):
+    """Put kept()'s stores back on the gather's levels (its samples must be those they were traced
+    from: the caller checks the precompute they belong to), each tile read in its saved order (the
+    newest last). Returns the tiles restored; raises ValueError where they do not fit the gather."""
+    lvls = host_levels(gather)
+    if list(a["level_n"]) != [lv.n for lv in lvls]:
+        raise ValueError("the final gather's levels have other samples")
+    stores = []
+    for (li, off, pts), nq in zip(a["store_info"].tolist(), a["store_normal"]):
+        lv = lvls[li]
+        key = (np.ascontiguousarray(nq, np.float64).tobytes(), off, pts)
+        st = lv.__dict__.setdefault("_host_stores", {})
+        stores.append(st.get(key) or st.setdefault(key, _store_of(lv, key)))
+    ar = am = 0
+    for s, L, ti, tj, whole in a["tile_info"].tolist():
+        H = stores[s]
+        nb = (H.lv.n + 7) // 8
+        r = np.flatnonzero(np.unpackbits(a["rows"][am : am + nb], count=H.lv.n)).astype(np.int32)
+        sl = slice(ar, ar + len(r))
+        am, ar = am + nb, ar + len(r)
+        key = (L, ti, tj)
+        if whole:
+            H.tiles[key] = (r, a["bits"][sl].copy())
+        else:
+            H.part[key] = [r, a["bits"][sl].copy(), a["known"][sl].copy(), a["tested"][sl].copy()]
+        H.used[key] = next(_TICK)
+    if am != len(a["rows"]) or not ar == len(a["bits"]) == len(a["known"]) == len(a["tested"]):
+        raise ValueError("the kept tiles' arrays do not add up")
+    return len(a["tile_info"])
