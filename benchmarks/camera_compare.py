@@ -36,6 +36,8 @@ so a second run only compares. Times are CPU seconds (this process and its child
 `--figure furnished_close` writes docs/images/camera_furnished_close.png from the PNGs; `--pair VIEW`
 docs/images/camera_VIEW_pair.png (Cycles beside ours, vertex output: the README's picture).
 `--vertex-spacing S` bakes the vertex output with the product's Vertex Spacing S (own_values).
+`--frame N` measures frame N instead of the views' own (the furnished window shape shows from frame 3):
+references, bakes and JSON entries named VIEW_fN.
 `--subdivide S` bakes a copy whose faces are cut until no edge is longer than S metres (linear,
 the shape unchanged: `subdivide`), against the same references: the vertex output's upper bound
 when its values sit at vertices that fine (branch vsub, session 21).
@@ -185,7 +187,8 @@ def bake(scene, frame, output):
         + (f"_{TEXEL[scene]}" if output == "texture" and scene in TEXEL else "")
         + (f"_sub{SUBDIVIDE[scene]}" if scene in SUBDIVIDE else "")
         + (f"_vs{BAKE_ARGS[1]}" if BAKE_ARGS and output == "vertex" else "")
-        + (f"_{VARIANT[0]}" if VARIANT and output == "vertex" else ""),
+        + (f"_{VARIANT[0]}" if VARIANT and output == "vertex" else "")
+        + (f"_f{frame}" if frame != 1 else ""),  # --frame: its own bake
     )
     saved = os.path.join(d, "baked.blend")
     if os.path.exists(saved):
@@ -659,6 +662,11 @@ def main():
     )
     p.add_argument("--vertex-spacing", help="the vertex bake's --vertex-spacing (the product's subdivision)")
     p.add_argument(
+        "--frame",
+        type=int,
+        help="this frame instead of the views' own (references, bakes and JSON entries of their own)",
+    )
+    p.add_argument(
         "--figure", metavar="VIEW", help="only the docs' picture of VIEW (docs/images/camera_VIEW.png)"
     )
     p.add_argument(
@@ -679,6 +687,9 @@ def main():
     dump.update(ours_spp=OURS_SPP, filter=FILTER, min_pixels=MIN_PIXELS, seeds=SEEDS)
     for vn in a.views.split(","):
         view = VIEWS[vn]
+        if a.frame and a.frame != view["frame"]:
+            view = dict(view, frame=a.frame)
+            vn = f"{vn}_f{a.frame}"
         names = geometry_names(view)
         wd = os.path.join(WORK, vn)  # the references' renders
         if a.texel:
