@@ -9,6 +9,8 @@ per output, over the object's pixels.
 - The window's light: Cycles frame 3 - frame 1 per pixel (what the Window shape adds, its direct
   light and its bounces); pixels binned by that share of frame 3's light (window-lit patches against
   the shade), each run's error per bin.
+- The most window-lit patches: 4 x 4-pixel blocks wholly on the object with >= 80% window light,
+  the percentiles of their errors (blocks).
 - The added light itself: (ours f3 - ours f1) / (Cycles f3 - Cycles f1) - 1, for each --f3 run whose
   output --f1 also holds (same output, same spacing: --pairs f3run:f1run).
 """
@@ -18,8 +20,7 @@ import json
 import os
 
 import numpy as np
-
-OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "out")
+from camera_compare import OUT, interior
 
 
 def load(view):
@@ -28,13 +29,17 @@ def load(view):
     return dict(ref=(z["ref1"] + z["ref2"]) / 2, ours=z[out], index=z["index"], names=list(z["names"]))
 
 
-def interior(ob):
-    p = np.pad(ob, 1, mode="edge")
-    same = np.ones(ob.shape, bool)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            same &= p[1 + dy : 1 + dy + ob.shape[0], 1 + dx : 1 + dx + ob.shape[1]] == ob
-    return same
+def blocks(ours, ref, m, share, b=4, lo=0.8):
+    """ours / Cycles - 1 of the b x b pixel blocks wholly on the object whose mean window share is at
+    least lo (the most window-lit patches, the pixels' noise averaged): count and 10/50/90th percentiles."""
+    h, w = (m.shape[0] // b) * b, (m.shape[1] // b) * b
+
+    def tile(x):
+        return x[:h, :w].reshape(h // b, b, w // b, b)
+
+    sel = tile(m).all((1, 3)) & (tile(share).mean((1, 3)) >= lo)
+    r = tile(ours.sum(-1)).sum((1, 3))[sel] / tile(ref.sum(-1)).sum((1, 3))[sel] - 1
+    return dict(blocks=int(sel.sum()), p10_50_90=np.percentile(r, [10, 50, 90]).tolist())
 
 
 def err(ours, ref, m):
@@ -86,6 +91,7 @@ def main():
                     f"{lo:.1f}-{hi:.1f}": err(r["ours"], r["ref"], m & (share >= lo) & (share < hi))
                     for lo, hi in bins
                 }
+                e["blocks_window_08"] = blocks(r["ours"], r["ref"], m, share)
             res["runs"][v] = e
             print(
                 f"  {v:36s} all {100 * e['all']:+6.1f}%  interior {100 * e['interior']:+6.1f}%  "
