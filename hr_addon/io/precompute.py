@@ -516,7 +516,7 @@ def keep(cache_dir, gather, log=print, warn=None, cap=None):
             if header_id(d / FILENAME) != pid:
                 raise PrecomputeError("the precompute was replaced meanwhile")
             header = dict(magic=KEPT_MAGIC, version=KEPT_VERSION, precompute=pid, params=hostvis.params())
-            header.update(created=time.time(), host=_HOST, info={k: v for k, v in info.items()})
+            header.update(created=time.time(), host=_HOST, info=info)
             # deflated (level 1): the bits are mostly runs (at 100k 20x smaller for 0.04 s)
             atomic_write(path, _filler(arrays, header, zipfile.ZIP_DEFLATED))
     except (OSError, PrecomputeError) as exc:

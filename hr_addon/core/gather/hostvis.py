@@ -586,24 +586,24 @@ def store_for(lv, normal, point, points):
     1e-12, the offset to 1e-3 eps): shapes on one plane share it whatever patch or point they name
     it by, and its frame is made from the key alone (the rounded normal, the rounded offset), so
     it is the same whichever shape asked first."""
-    stores = lv.__dict__.setdefault("_host_stores", {})
     margin = 1e-3 * lv.eps
     nq = np.round(np.asarray(normal, np.float64), 12) + 0.0  # + 0.0: no -0.0
-    key = (nq.tobytes(), round(float(np.asarray(point, np.float64) @ nq) / margin), points)
-    H = stores.get(key)
-    if H is None:
-        H = stores[key] = _store_of(lv, key)
-    return H
+    return _store_at(lv, (nq.tobytes(), round(float(np.asarray(point, np.float64) @ nq) / margin), points))
 
 
-def _store_of(lv, key):
-    """A new, empty HostVisibility of the level for a store_for key (its frame from the key alone)."""
+def _store_at(lv, key):
+    """The level's HostVisibility for a store_for key, made empty if it has none (its frame from
+    the key alone)."""
     from ..events.direct import clear_shafts
 
-    nq = np.frombuffer(key[0], np.float64)
-    n = nq / np.linalg.norm(nq)
-    p = (key[1] * (1e-3 * lv.eps)) * n
-    return HostVisibility(lv, n, p, key[2], shafts=clear_shafts(lv.system, p, n))
+    stores = lv.__dict__.setdefault("_host_stores", {})
+    H = stores.get(key)
+    if H is None:
+        nq = np.frombuffer(key[0], np.float64)
+        n = nq / np.linalg.norm(nq)
+        p = (key[1] * (1e-3 * lv.eps)) * n
+        H = stores[key] = HostVisibility(lv, n, p, key[2], shafts=clear_shafts(lv.system, p, n))
+    return H
 
 
 # -- kept across bakes, trimmed (session 30 hvkeep) -----------------------------------------------------
@@ -731,10 +731,7 @@ def restore_kept(gather, a):
         raise ValueError("the final gather's levels have other samples")
     stores = []
     for (li, off, pts), nq in zip(a["store_info"].tolist(), a["store_normal"]):
-        lv = lvls[li]
-        key = (np.ascontiguousarray(nq, np.float64).tobytes(), off, pts)
-        st = lv.__dict__.setdefault("_host_stores", {})
-        stores.append(st.get(key) or st.setdefault(key, _store_of(lv, key)))
+        stores.append(_store_at(lvls[li], (np.ascontiguousarray(nq, np.float64).tobytes(), off, pts)))
     ar = am = 0
     for s, L, ti, tj, whole in a["tile_info"].tolist():
         H = stores[s]
