@@ -1151,7 +1151,7 @@ def test_column_sums_are_the_rows_summed_in_order():
 
 
 @pytest.mark.parametrize("method", ["FE", "AUTO"])
-def test_a_shapes_second_level_light_takes_fewer_shadow_rays_far_from_it(method, monkeypatch):
+def test_a_shapes_second_level_light_takes_fewer_shadow_rays_far_from_it(method):
     """A light shape's direct light at the second level's samples (FinalGather._second_shape):
     the samples farther than FAR_NEAR x the shape's half diagonal from its box centre take
     FAR_RAYS (4) shadow rays instead of the level's 8. In the furnace with clutter under a
@@ -1159,11 +1159,7 @@ def test_a_shapes_second_level_light_takes_fewer_shadow_rays_far_from_it(method,
     ones those of 4 rays (each sample's own rays); the level's total within 1% of 8 rays' (the
     same estimator with fewer rays: unbiased); the top level and the emission inside the outline
     unchanged bit for bit; FAR_RAYS 0 gives the level's rays everywhere. (The shadow rays' path:
-    a shape not wholly on surfaces; this one lies on a wall, so the host visibility, which would
-    take it, is off here.)"""
-    from hr_addon.core.gather import hostvis
-
-    monkeypatch.setattr(hostvis, "ENABLED", False)
+    the window is still, LightShape.moves False, so it takes no host visibility.)"""
     base = RadiositySystem(contact_furnace(0.85), RefineParams.preset("draft"))
     frame = (np.zeros(3), (0, 0, 1.0), (1.0, 0, 0))  # wall0, facing +y
     win = LightShape(S.on_plane(S.rect(1.0, 0.8, centre=(1.5, 1.4)), frame), np.full(3, 5.0), "w")
