@@ -526,11 +526,7 @@ class HostVisibility:
         lv = self.lv
         x, nx = lv.points, lv.normals
         out = np.zeros(lv.n)
-        ok = ~lv.dark & ((x - em.point) @ em.normal > lv.eps)
-        i = np.flatnonzero(ok)
-        xn = np.einsum("mk,mk->m", x[i], nx[i])
-        # (max(v - c) = max(v) - c in floats: rounding is monotonic; no (m, verts) difference)
-        i = i[(nx[i] @ em.verts.T).max(1) - xn > lv.eps]
+        i = culled(lv, em)
         if len(i):
             V = self.visible(em.rings, i, L)
             seen = np.flatnonzero(V != 0)
@@ -580,6 +576,17 @@ class HostVisibility:
         """The bytes of the tiles traced whole and of the parts events traced of the others."""
         whole = sum(r.nbytes + b.nbytes for r, b in self.tiles.values())
         return whole + sum(a.nbytes for P in self.part.values() for a in P)
+
+
+def culled(lv, em):
+    """The samples of level lv main's culls keep for Emitter em (DirectLight.direct_batch): not
+    dark, in front of the shape by eps, a vertex above their horizon by eps. (The horizon's max is
+    taken before subtracting x . n_x: rounding is monotonic, so max(v - c) = max(v) - c exactly,
+    without the (samples, vertices) differences.)"""
+    x, nx = lv.points, lv.normals
+    i = np.flatnonzero(~lv.dark & ((x - em.point) @ em.normal > lv.eps))
+    xn = np.einsum("mk,mk->m", x[i], nx[i])
+    return i[(nx[i] @ em.verts.T).max(1) - xn > lv.eps]
 
 
 def points_for(lv):
