@@ -341,7 +341,8 @@ def test_a_saved_store_reads_the_same_values_without_rays(room):
 def test_the_culls_and_the_popcount_by_uint16_are_mains_bit_for_bit(room):
     """hostvis.culled (the horizon's max before the subtraction) keeps main's samples (the
     helper above, main's formula) for every shape; a TILE 4 row's 16 bits counted by one uint16
-    look-up (_POP16, visible's) equal the sum of its two bytes' counts, for every row and mask."""
+    look-up (_POP16, visible's) equal the sum of its two bytes' counts, for every row and mask;
+    _rows_of by the level's map equals its binary search."""
     from hr_addon.core.gather import hostvis
 
     dyn, g, ems = room
@@ -367,6 +368,11 @@ def test_the_culls_and_the_popcount_by_uint16_are_mains_bit_for_bit(room):
         m = np.array(mask, np.uint8)
         want = hostvis._POP[bits & m].sum(1)
         assert np.array_equal(hostvis._POP16[bits.view(np.uint16)[:, 0] & m.view(np.uint16)[0]], want)
+    # a tile's rows of the samples by the level's map equal the binary search's
+    trows = np.sort(rng.choice(5000, 1200, replace=False)).astype(np.int32)
+    idx = np.sort(rng.choice(5000, 3000, replace=False)).astype(np.int32)
+    got = HostVisibility._rows_of(trows, idx, 5000)
+    assert np.array_equal(got, HostVisibility._rows_of(trows, idx)) and (got >= 0).sum() > 500
 
 
 def test_the_same_values_with_no_tiles_all_or_some_stored(room):
