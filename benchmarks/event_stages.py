@@ -6,7 +6,10 @@ the classes, the host visibility's (hostvis.py: `light`, its `visible` read, the
 `_fill`, the ratio, the form factors) and the rays traced, the response's operator applications one
 by one (with their sources' nonzero share), optional cProfile and dumps. The draft preset's defaults
 (today "zero": no response); each method starts from empty host visibility stores and shape caches
-at every level (the slot samples' facing copy too), as a fresh process would.
+at every level (the slot samples' facing copy too), as a fresh process would. The window is a moving
+shape (LightShape.moves: a keyed sweep's, whose direct light the product reads from the host
+visibility; session 31 evsweep: since hvmove the benchmark's window was still, its light by shadow
+rays); --still for that.
 
     .venv/bin/python benchmarks/event_stages.py STORE [--methods FE,AUTO] [--sweep 1] \\
         [--dyn "dict(gather_responses='tail')"] [--dump out.npz] [--profile out.txt] [--json out.json]
@@ -17,13 +20,14 @@ Medium (a store built with --quality medium): --dyn "DynamicRadiosity.gather_opt
 --tail-shares 0.02,0.03,...: instead, the second level's passes from nothing against their limit:
 the FE window added, moved and swept one step, its gathered output with FinalGather.TAIL_SHARE at
 each value, per object against the passes run to TAIL_PASSES with a share of --limit (the same
-estimator's limit); the passes taken and the output's CPU (the host visibility and shape light
-warm after the first variant: only the passes differ).
+estimator's limit; --limit-passes at most); the passes taken and the output's CPU (the host
+visibility and shape light warm after the first variant: only the passes differ).
 
 STORE: a folder of bench_gather_events.py --cache (the furnished 100k room, draft, --transport gather).
 """
 
 import argparse
+import dataclasses
 import functools
 import json
 import os
@@ -57,8 +61,10 @@ def main(argv=None):
     ap.add_argument("--methods", default="FE,AUTO")
     ap.add_argument("--dyn", default="dict()", help="DynamicRadiosity options over gather_options('draft')")
     ap.add_argument("--sweep", type=int, default=1, help="steps of 0.5 / 23 m after the move")
+    ap.add_argument("--still", action="store_true", help="the window as a still shape (shadow rays)")
     ap.add_argument("--tail-shares", default=None, help="the passes' stopping rule instead (module doc)")
     ap.add_argument("--limit", type=float, default=1e-4, help="--tail-shares: the reference's share")
+    ap.add_argument("--limit-passes", type=int, default=16, help="--tail-shares: its passes at most")
     ap.add_argument("--json", default=None, help="the steps' figures and stages (or --tail-shares' results)")
     ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
     ap.add_argument("--profile", default=None, help="a cProfile summary of the events here")
@@ -79,6 +85,8 @@ def main(argv=None):
 
     cpu = time.process_time
     s, g, window = stored_room(args.store)
+    if not args.still:  # a keyed sweep's window moves: the product reads the host visibility for it
+        window = functools.partial(_moving, window)
     times, calls, gathers = defaultdict(float), Counter(), []
 
     def level(lv):
@@ -184,6 +192,11 @@ def main(argv=None):
         _write_profile(prof, args.profile)
 
 
+def _moving(window, cx):
+    """window(cx) flagged as moving (LightShape.moves)."""
+    return dataclasses.replace(window(cx), moves=True)
+
+
 def tail_shares(args):
     """--tail-shares (module doc)."""
     from bench_gather_events import stored_room
@@ -193,11 +206,14 @@ def tail_shares(args):
 
     cpu = time.process_time
     s, g, window = stored_room(args.store)
+    if not args.still:
+        window = functools.partial(_moving, window)
     m = s.mesh
     obj = np.asarray(m.object_id)[np.repeat(np.arange(len(m.loop_start)), m.loop_total)]
     opts = DynamicRadiosity.gather_options("draft")
     steps = {"add": 0.7, "move": 1.2, "sweep1": 1.2 + 0.5 / 23}
     out, ref = {}, {}
+    FinalGather.TAIL_PASSES = args.limit_passes
     for share in [args.limit] + [float(x) for x in args.tail_shares.split(",")]:
         FinalGather.TAIL_SHARE = share
         dyn = DynamicRadiosity(s.copy(), method="FE", **opts)

@@ -338,6 +338,43 @@ def test_a_saved_store_reads_the_same_values_without_rays(room):
         assert np.array_equal(rows, H2.tiles[key][0]) and np.array_equal(bits, H2.tiles[key][1])
 
 
+def test_the_culls_and_the_popcount_by_uint16_are_mains_bit_for_bit(room):
+    """hostvis.culled (the horizon's max before the subtraction) keeps main's samples (the
+    helper above, main's formula) for every shape; a TILE 4 row's 16 bits counted by one uint16
+    look-up (_POP16, visible's) equal the sum of its two bytes' counts, for every row and mask;
+    _rows_of by the level's map equals its binary search."""
+    from hr_addon.core.gather import hostvis
+
+    dyn, g, ems = room
+    for em in ems.values():
+        assert np.array_equal(hostvis.culled(g, em), culled(g, em))
+    # the same expressions on samples at the horizon's threshold: x . n_x put 1 ulp either side of
+    # a vertex's n_x . v - eps, and exactly on it
+    em = ems["w"]
+    g2 = FinalGather.__new__(FinalGather)
+    n = 64
+    rng = np.random.default_rng(3)
+    g2.normals = np.repeat(g.normals[culled(g, em)[:1]], n, 0)
+    g2.points = em.verts[0] + em.normal * (0.5 + rng.random((n, 1)))
+    g2.dark, g2.eps = np.zeros(n, bool), g.eps
+    top = (g2.normals @ em.verts.T).max(1)
+    xn = np.einsum("mk,mk->m", g2.points, g2.normals)
+    g2.points = (
+        g2.points + g2.normals * ((top - g.eps - xn) + np.repeat([-1e-15, 0.0, 1e-15, 0.0], n // 4))[:, None]
+    )
+    assert np.array_equal(hostvis.culled(g2, em), culled(g2, em))
+    bits = rng.integers(0, 256, (4096, 2), np.uint8)
+    for mask in rng.integers(0, 256, (64, 2), np.uint8).tolist() + [[255, 255], [0, 0], [1, 128]]:
+        m = np.array(mask, np.uint8)
+        want = hostvis._POP[bits & m].sum(1)
+        assert np.array_equal(hostvis._POP16[bits.view(np.uint16)[:, 0] & m.view(np.uint16)[0]], want)
+    # a tile's rows of the samples by the level's map equal the binary search's
+    trows = np.sort(rng.choice(5000, 1200, replace=False)).astype(np.int32)
+    idx = np.sort(rng.choice(5000, 3000, replace=False)).astype(np.int32)
+    got = HostVisibility._rows_of(trows, idx, 5000)
+    assert np.array_equal(got, HostVisibility._rows_of(trows, idx)) and (got >= 0).sum() > 500
+
+
 def test_the_same_values_with_no_tiles_all_or_some_stored(room):
     """One estimator, two ways to evaluate it: an event reads stored tiles and traces, for tiles
     not stored, only the segments of its own samples to the cells the shape overlaps (the same
