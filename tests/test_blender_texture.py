@@ -450,6 +450,8 @@ def test_the_scene_bound_lowers_the_density_and_says_so(tmp_path, monkeypatch):
     assert all(got[n] < want[n] for n in got if n != "light")
     d = texture.scene_bound(1024, 50.0)  # what the object panel shows
     assert 25 < d < 50 and f"objects sized by area get {d:.3g} texels/m" in note
+    zero = texture.lightmap_sizer(64, 0.0, objects)  # Texel Density 0: every object the Texture Size
+    assert (zero.density, zero.note, zero(bpy.data.objects["floor"])) == (0.0, None, 64)
 
 
 def test_texture_bake_too_large_is_refused_and_keeps_the_previous(tmp_path, monkeypatch):
