@@ -327,19 +327,26 @@ def test_image_writers_read_back_by_blender(tmp_path):
     np.testing.assert_allclose(back[5:], 1.0, atol=5e-5)
 
 
-def test_lightmaps_sized_by_area_and_the_override_wins(tmp_path):
-    """Texel Density: a 2 cm book gets a small lightmap, a wall more (up to the Texture Size); an
-    object's Lightmap Size wins; density 0 gives every object the Texture Size."""
+def _book_and_wall(wall_scale):
+    """An empty file with a 2 x 15 x 22 cm book (a cube, 'Cube') and a wall (a plane, 'Plane')."""
     bpy = load_bpy()
     bpy.ops.wm.read_homefile(use_empty=True)
-    from hr_addon.blender.texture import MIN_SIZE, lightmap_sizer, resolution_for
-
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     book = bpy.context.object
     book.scale = (0.02, 0.15, 0.22)
     bpy.ops.mesh.primitive_plane_add(size=1.0)
     wall = bpy.context.object
-    wall.scale = (4.0, 2.5, 1.0)
+    wall.scale = wall_scale
+    return book, wall
+
+
+def test_lightmaps_sized_by_area_and_the_override_wins(tmp_path):
+    """Texel Density: a 2 cm book gets a small lightmap, a wall more (up to the Texture Size); an
+    object's Lightmap Size wins; density 0 gives every object the Texture Size."""
+    bpy = load_bpy()
+    from hr_addon.blender.texture import MIN_SIZE, lightmap_sizer, resolution_for
+
+    book, wall = _book_and_wall((4.0, 2.5, 1.0))
     bpy.ops.mesh.primitive_plane_add(size=0.01)
     tile = bpy.context.object
     bpy.context.view_layer.update()
@@ -391,16 +398,10 @@ def test_texture_size_is_the_ceiling_the_density_reaches(tmp_path):
     at 50 texels/m gets its 304 texels (session 30: capped at 128 it lost the window's light); a
     file where the user set the Texture Size keeps it as the cap, as before."""
     bpy = load_bpy()
-    bpy.ops.wm.read_homefile(use_empty=True)
     from hr_addon.blender.scene_in import geometry_objects
     from hr_addon.blender.texture import lightmap_sizer
 
-    bpy.ops.mesh.primitive_plane_add(size=1.0)
-    wall = bpy.context.object
-    wall.scale = (6.0, 2.8, 1.0)
-    bpy.ops.mesh.primitive_cube_add(size=1.0)
-    book = bpy.context.object
-    book.scale = (0.02, 0.15, 0.22)
+    book, wall = _book_and_wall((6.0, 2.8, 1.0))
     bpy.context.view_layer.update()
     hr = bpy.context.scene.hr
     assert (hr.texture_resolution, hr.is_property_set("texture_resolution")) == (1024, False)
