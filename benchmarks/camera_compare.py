@@ -203,14 +203,16 @@ def bake(scene, frame, output):
     cmd = [sys.executable, "-m", "hr_addon", "bake", src, "--frames", f"{frame}-{frame}"]
     cmd += ["--quality", "draft", "--output", output, "--threads", "1", "--save", saved]
     cmd += BAKE_ARGS if output == "vertex" else []
-    c0 = cpu(True)
     log(" ".join(cmd[1:]))
-    r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-    print(r.stdout[-2000:], r.stderr[-2000:], flush=True)
-    if r.returncode:
-        raise RuntimeError(f"bake failed ({r.returncode})")
-    dt = cpu(True) - c0
-    json.dump({"cpu": dt}, open(saved + ".json", "w"))
+    with open(os.path.join(d, "bake.log"), "w+") as out:  # the bake's own rusage: os.wait4
+        p = subprocess.Popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, text=True)
+        _, status, ru = os.wait4(p.pid, 0)
+        out.seek(0)
+        print(out.read()[-4000:], flush=True)
+    if status:
+        raise RuntimeError(f"bake failed ({status})")
+    dt = ru.ru_utime + ru.ru_stime
+    json.dump({"cpu": dt, "peak_rss_gb": ru.ru_maxrss / 1e6}, open(saved + ".json", "w"))
     return saved, dt
 
 

@@ -327,19 +327,26 @@ def test_image_writers_read_back_by_blender(tmp_path):
     np.testing.assert_allclose(back[5:], 1.0, atol=5e-5)
 
 
-def test_lightmaps_sized_by_area_and_the_override_wins(tmp_path):
-    """Texel Density: a 2 cm book gets a small lightmap, a wall more (up to the Texture Size); an
-    object's Lightmap Size wins; density 0 gives every object the Texture Size."""
+def _book_and_wall(wall_scale):
+    """An empty file with a 2 x 15 x 22 cm book (a cube, 'Cube') and a wall (a plane, 'Plane')."""
     bpy = load_bpy()
     bpy.ops.wm.read_homefile(use_empty=True)
-    from hr_addon.blender.texture import MIN_SIZE, lightmap_sizer, resolution_for
-
     bpy.ops.mesh.primitive_cube_add(size=1.0)
     book = bpy.context.object
     book.scale = (0.02, 0.15, 0.22)
     bpy.ops.mesh.primitive_plane_add(size=1.0)
     wall = bpy.context.object
-    wall.scale = (4.0, 2.5, 1.0)
+    wall.scale = wall_scale
+    return book, wall
+
+
+def test_lightmaps_sized_by_area_and_the_override_wins(tmp_path):
+    """Texel Density: a 2 cm book gets a small lightmap, a wall more (up to the Texture Size); an
+    object's Lightmap Size wins; density 0 gives every object the Texture Size."""
+    bpy = load_bpy()
+    from hr_addon.blender.texture import MIN_SIZE, lightmap_sizer, resolution_for
+
+    book, wall = _book_and_wall((4.0, 2.5, 1.0))
     bpy.ops.mesh.primitive_plane_add(size=0.01)
     tile = bpy.context.object
     bpy.context.view_layer.update()
@@ -384,6 +391,68 @@ def test_lightmaps_sized_by_area_and_the_override_wins(tmp_path):
     assert resolution_for(twin, 128, 50.0) > 32
     size = lightmap_sizer(128, 50.0)
     assert (size(book), size(twin)) == (32, 32)
+
+
+def test_texture_size_is_the_ceiling_the_density_reaches(tmp_path):
+    """The Texture Size (1024 unless set) is the most an object's lightmap reaches: a 6 x 2.8 m wall
+    at 50 texels/m gets its 304 texels (session 30: capped at 128 it lost the window's light); a
+    file where the user set the Texture Size keeps it as the cap, as before."""
+    bpy = load_bpy()
+    from hr_addon.blender.scene_in import geometry_objects
+    from hr_addon.blender.texture import lightmap_sizer
+
+    book, wall = _book_and_wall((6.0, 2.8, 1.0))
+    bpy.context.view_layer.update()
+    hr = bpy.context.scene.hr
+    assert (hr.texture_resolution, hr.is_property_set("texture_resolution")) == (1024, False)
+
+    def sizes():
+        size = lightmap_sizer(
+            hr.texture_resolution, hr.texel_density, geometry_objects(bpy.context.view_layer)
+        )
+        return size(wall), size(book), size.note
+
+    assert sizes() == (6 * 50 + 4, 32, None)  # 6 m at 50 texels per metre and the margins
+    hr.texture_resolution = 128  # the user's cap, kept by the file
+    path = str(tmp_path / "capped.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    hr, wall, book = bpy.context.scene.hr, bpy.data.objects["Plane"], bpy.data.objects["Cube"]
+    assert (hr.texture_resolution, hr.is_property_set("texture_resolution")) == (128, True)
+    assert sizes() == (128, 32, None)
+
+
+def test_the_scene_bound_lowers_the_density_and_says_so(tmp_path, monkeypatch):
+    """Lightmaps together beyond the scene's bound (settings.SCENE_TEXELS, here lowered to 4,000
+    texels for Cornell's 8,800 at 50 texels/m): the objects sized by area get one lower density,
+    the bake's warning names the objects that shrank, and its lightmaps keep to the bound; an
+    object's Lightmap Size stays."""
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import texture
+    from hr_addon.blender.scene_in import geometry_objects
+    from hr_addon.io.cache import CacheReader
+
+    objects = geometry_objects(bpy.context.view_layer)
+    free = texture.lightmap_sizer(1024, 50.0, objects)
+    want = {o.name: free(o) for o in objects}
+    assert free.note is None and sum(r * r for r in want.values()) > 8000
+    monkeypatch.setattr(texture, "SCENE_TEXELS", 4000)
+    bpy.data.objects["light"].hr.lightmap_resolution = 16
+    res = _bake(frames=(6, 6), resolution=1024, texel_density=50.0)
+    (note,) = [w for w in res.warnings if w.startswith("Lightmaps:")]
+    assert note.startswith("Lightmaps: Texel Density 50 would make 0.00")
+    assert "more than the scene's bound of 0.004 M" in note
+    assert "; 7 shrank, the largest 'tall_block' " in note and f"'floor' {want['floor']} -> " in note
+    got = {n: o["resolution"] for n, o in CacheReader(tmp_path / "hr_cache" / "cornell").objects.items()}
+    assert got["light"] == 16  # its own Lightmap Size
+    assert sum(r * r for r in got.values()) <= 4000
+    assert all(got[n] < want[n] for n in got if n != "light")
+    d = texture.scene_bound(1024, 50.0)  # what the object panel shows
+    assert 25 < d < 50 and f"objects sized by area get {d:.3g} texels/m" in note
+    zero = texture.lightmap_sizer(64, 0.0, objects)  # Texel Density 0: every object the Texture Size
+    assert (zero.density, zero.note, zero(bpy.data.objects["floor"])) == (0.0, None, 64)
 
 
 def test_texture_bake_too_large_is_refused_and_keeps_the_previous(tmp_path, monkeypatch):

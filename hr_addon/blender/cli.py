@@ -86,7 +86,7 @@ def make_parser(prog=PROG, blend_required=False):
         type=int,
         metavar="N",
         help="texture size in texels, 8 to 16384: the largest lightmap (texture output; every object's "
-        "with --texel-density 0)",
+        "with --texel-density 0; default: the scene's Texture Size, 1024 unless set)",
     )
     p.add_argument(
         "--texel-density",

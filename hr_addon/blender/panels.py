@@ -244,10 +244,12 @@ class HR_PT_object(bpy.types.Panel):
         if hr.output == "TEXTURE":
             layout.prop(obj.hr, "lightmap_resolution")
             if obj.hr.lightmap_resolution == 0:  # what the bake gives it: sized by area
-                from .texture import resolution_for
+                from .texture import resolution_for, scene_bound
 
-                n = resolution_for(obj, hr.texture_resolution, hr.texel_density)
-                how = f"{hr.texel_density:g} texels/m" if hr.texel_density > 0 else "the Texture Size"
+                d = scene_bound(hr.texture_resolution, hr.texel_density)  # the last bake's, if lowered
+                n = resolution_for(obj, hr.texture_resolution, d)
+                how = f"{d:.3g} texels/m" if d > 0 else "the Texture Size"
+                how += ": the scene's bound" if d != hr.texel_density else ""
                 layout.label(text=f"Lightmap {n} x {n} ({how})")
         row = layout.row(align=True)
         row.operator("hr.mark_light_shape")

@@ -3,7 +3,7 @@
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 
-from .settings import DEFAULTS, DENSITY, RESOLUTION, TEXEL_DENSITY, VERTEX_SPACING, items
+from .settings import DEFAULTS, DENSITY, RESOLUTION, TEXEL_DENSITY, TEXTURE_SIZE, VERTEX_SPACING, items
 
 # Blender 4.5+ warns about "//" in path properties unless they declare blend-relative support.
 _REL = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
@@ -80,13 +80,14 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
     )
     texture_resolution: IntProperty(
         name="Texture Size",
-        default=128,
+        default=TEXTURE_SIZE,
         min=RESOLUTION[0],
         soft_min=16,
         max=RESOLUTION[1],
         soft_max=4096,
-        description="Width and height of the largest lightmap in texels: with a Texel Density, "
-        "objects whose area wants more get this (objects may override it)",
+        description="Width and height of the largest lightmap in texels: with a Texel Density, the "
+        "most an object's lightmap may reach (objects whose area wants more get this; an object's "
+        "Lightmap Size overrides it)",
     )
     texel_density: FloatProperty(
         name="Texel Density",
@@ -96,8 +97,9 @@ class HR_SceneSettings(bpy.types.PropertyGroup):
         max=DENSITY[1],
         soft_max=500.0,
         description="Lightmap texels per metre of surface: each object's lightmap is sized by its "
-        "area, from 8 texels to the Texture Size (0: every object gets the Texture Size). An "
-        "object's Lightmap Size overrides it",
+        "area, from 8 texels to the Texture Size (0: every object gets the Texture Size); a scene whose "
+        "lightmaps would exceed 8.4 M texels together gets a lower density. An object's Lightmap "
+        "Size overrides it",
     )
     vertex_spacing: FloatProperty(
         name="Vertex Spacing",

@@ -92,6 +92,17 @@ RESOLUTION = (8, 16384)  # texture size in texels
 # docs/accuracy.md, "Per object from a camera")
 DENSITY = (0.01, 10000.0)
 TEXEL_DENSITY = 50.0
+# the Texture Size: the largest lightmap an object sized by area may reach. 1024 since session 31
+# (branch texcap; 128 before): at 50 texels/m it honours the density up to 20 m objects (the
+# furnished room's 6 m walls want 304, and capped at 128 lost the window's light on them:
+# docs/accuracy.md, "Texture Size as a ceiling"). A file where the user set the Texture Size keeps it.
+TEXTURE_SIZE = 1024
+# the scene's lightmaps together, texels of image (sum of size^2 over the objects): above it the
+# objects sized by area take a lower density (texture.scene_density). 2 x 2048^2: about 8 GB for the
+# texture bake at draft (the 100k room's 6.08 M texels of image peaked at 5.86 GB, docs/scale.md),
+# half a 16 GB machine; the samples at 50 texels/m (100k room 6.75 M) and the furnished room at 100
+# (6.1 M) stay under it.
+SCENE_TEXELS = 2 * 2048 * 2048
 # vertex output with the final gather: edges longer than this (metres) subdivided, so light changing
 # across a coarse face shows (own_values; docs/accuracy.md, "Vertex Spacing"); 0: the mesh's own
 # corners. 0.25 since session 23 (furnished sample from the camera 80 / 74% of its objects within 5%

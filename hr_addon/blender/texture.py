@@ -19,6 +19,7 @@ plain nodes, so the result plays back where the extension is not installed.
 """
 
 import hashlib
+import math
 import os
 from contextlib import contextmanager
 
@@ -38,7 +39,8 @@ from .names import N_ATTR, N_PACK, N_TEX, N_UV, PREVIEW, TAG, UV_NAME
 from .own_values import geometry_group
 from .paths import bake_dir_abs, blend_relative, frame_texture
 from .preview import emission_output, node_named
-from .scene_in import evaluated, mesh_topology
+from .scene_in import evaluated, geometry_objects, mesh_topology
+from .settings import DENSITY, SCENE_TEXELS
 
 PACK_VERSION = 1
 
@@ -92,7 +94,7 @@ def resolution_for(obj, largest, density=0.0):
     return _sizes[key]
 
 
-def lightmap_sizer(largest, density=0.0):
+def _sizer(largest, density):
     """resolution_for(obj, largest, density) per object, objects sharing a mesh sized as the first
     of them asked (ensure_lightmaps packs a shared mesh once, for its first object: a linked
     duplicate at another scale keeps the map's texel margins)."""
@@ -106,6 +108,75 @@ def lightmap_sizer(largest, density=0.0):
             first[key] = resolution_for(obj, largest, density)
         return first[key]
 
+    return size
+
+
+_bound = {}  # (largest, density, bound) -> the density scene_density last gave
+
+
+def scene_bound(largest, density):
+    """The density the scene's lightmaps were last sized at for these settings (scene_density in
+    this session; else the density): what the object panel shows without sizing every object."""
+    return _bound.get((int(largest), float(density), SCENE_TEXELS), density)
+
+
+def scene_density(objects, largest, density, bound=None):
+    """(density, sizes, note): the Texel Density the objects' lightmaps are sized at, their sizes
+    {object.as_pointer(): size} (asked in the order of `objects`), and a note when the bound
+    lowered the density, naming the objects that shrank. The lightmaps together (sum of size^2)
+    stay within `bound` texels of image (settings.SCENE_TEXELS): beyond it every object sized by
+    area takes one lower density (texels grow about as density^2: a few steps, each from the last
+    total). Lightmap Sizes and the Texture Size stay; density 0 is not bound."""
+    bound = SCENE_TEXELS if bound is None else bound
+    objs = [o for o in objects if o.type == "MESH" and len(o.data.polygons)]
+
+    def sizes(d):
+        size = _sizer(largest, d)
+        return {o.as_pointer(): size(o) for o in objs}
+
+    want = got = sizes(density)
+    total = asked = sum(r * r for r in want.values())
+    d = density
+    if density > 0:
+        for _ in range(8):
+            if total <= bound or d <= DENSITY[0]:
+                break
+            d = max(d * math.sqrt(bound / total) * 0.995, DENSITY[0])
+            got = sizes(d)
+            total = sum(r * r for r in got.values())
+    _bound[(int(largest), float(density), bound)] = d
+    if d == density:
+        return d, got, None
+    ptr = {o.name: o.as_pointer() for o in objs}
+    shrunk = sorted((n for n, p in ptr.items() if got[p] < want[p]), key=lambda n: (-want[ptr[n]], n))
+    names = ", ".join(f"'{n}' {want[ptr[n]]} -> {got[ptr[n]]} px" for n in shrunk[:5])
+    over = f" (still {total / 1e6:.3g} M: Lightmap Sizes, the smallest sizes)" if total > bound else ""
+    note = (
+        f"Lightmaps: Texel Density {density:g} would make {asked / 1e6:.3g} M lightmap texels, more than "
+        f"the scene's bound of {bound / 1e6:.3g} M (about {bound / 1e6:.2g} GB to bake): objects sized "
+        f"by area get {d:.3g} texels/m{over}; {len(shrunk)} shrank, the largest {names}. A Lightmap "
+        "Size (Object > HR Radiosity) keeps an object's own size."
+    )
+    return d, got, note
+
+
+def lightmap_sizer(largest, density=0.0, objects=None):
+    """The lightmap size per object (a function of the object): resolution_for at the scene's
+    density (scene_density over `objects`, the bake's geometry_objects, in their order; None: the
+    density as given, no bound). Its .density: the density it sizes at; .note: scene_density's
+    note or None."""
+    if objects is None:
+        size = _sizer(largest, density)
+        size.density, size.note = density, None
+        return size
+    d, sizes, note = scene_density(objects, largest, density)
+    other = _sizer(largest, d)
+
+    def size(obj):
+        n = sizes.get(obj.as_pointer())
+        return other(obj) if n is None else n
+
+    size.density, size.note = d, note
     return size
 
 
@@ -234,7 +305,8 @@ def separate_copies(obj, largest, density, depsgraph):
     geometry-nodes modifier N_PACK, last in the stack, lays HR_Lightmap out on the evaluated mesh
     (_pack_group), its margin set for its lightmap size (resolution_for: islands about 2 x MARGIN
     texels apart, as charts.pack_lightmap packs them). Added where copies_overlap, kept once there
-    (the user may remove it). Returns a note when it is added, else None."""
+    (the user may remove it). density: the scene's (lightmap_sizer's .density). Returns a note
+    when it is added, else None."""
     md, note = _pack_modifier(obj), None
     if md is None:
         if not len(obj.modifiers) or "hr_lightmap" not in obj.data or not copies_overlap(obj, depsgraph):
@@ -265,18 +337,25 @@ def separate_copies(obj, largest, density, depsgraph):
 
 
 def ensure_lightmaps(objects, largest, density=0.0):
-    warnings, done, size = [], set(), lightmap_sizer(largest, density)
-    for obj in objects:
-        if obj.data.name_full not in done:
-            done.add(obj.data.name_full)
-            w = ensure_lightmap(obj, size(obj))
-            if w:
-                warnings.append(w)
-        if len(obj.data.polygons):
-            w = separate_copies(obj, largest, density, bpy.context.evaluated_depsgraph_get())
-            if w:
-                warnings.append(w)
-    return warnings
+    """The HR_Lightmap UV maps of the bake's objects (geometry_objects), each packed for its size
+    (lightmap_sizer over them: the scene's bound may lower the density, its note is a warning)."""
+    warnings = []
+    for _ in range(2):  # again once a modifier N_PACK was added: the sizes of its evaluated mesh
+        size, done, added = lightmap_sizer(largest, density, objects), set(), False
+        for obj in objects:
+            if obj.data.name_full not in done:
+                done.add(obj.data.name_full)
+                w = ensure_lightmap(obj, size(obj))
+                if w:
+                    warnings.append(w)
+            if len(obj.data.polygons):
+                w = separate_copies(obj, largest, size.density, bpy.context.evaluated_depsgraph_get())
+                if w:
+                    warnings.append(w)
+                    added = True
+        if not added:
+            break
+    return warnings + ([size.note] if size.note else [])
 
 
 def _stems(names):
@@ -356,7 +435,7 @@ def texture_plan(scene_in, patches, view_layer, depsgraph, largest, fmt="EXR", a
     albedo: textured materials (materials.albedo_texture) modulate their objects' texels by the
     texture's albedo / its average (radiance mode)."""
     plan = TexturePlan(fmt)
-    warned, specs_of, size = {}, {}, lightmap_sizer(largest, density)
+    warned, specs_of, size = {}, {}, lightmap_sizer(largest, density, geometry_objects(view_layer))
     mesh = scene_in.mesh
     stems = _stems([t.name for t in scene_in.targets])
     for oid, t in enumerate(scene_in.targets):
@@ -648,7 +727,7 @@ def after_bake(scene, directory):
 
 def lightmap_key(snap, view_layer, largest, density=0.0):
     """The texel gather's dependence on the lightmaps: each target's resolution and UV digest."""
-    out, size = {}, lightmap_sizer(largest, density)
+    out, size = {}, lightmap_sizer(largest, density, geometry_objects(view_layer))
     for t in snap.scene_in.targets:
         obj = view_layer.objects.get(t.name) or bpy.data.objects[t.name]
         uv = uv_digest(obj, view_layer.depsgraph)
