@@ -69,6 +69,8 @@ RAISE = 1 + 2**-20  # a raised spacing this much above a face's threshold: its l
 # wall_north, its 0.23 m grid behind books 5-18 cm off it: -36% against Cycles at frame 3 at 0.25 m)
 CLUTTER_LEVELS = 2
 CLUTTER_AREA = 4.0
+CLUTTER_SHARE = 1.0  # ... from what the budget leaves, at most this x the corners at the spacing
+CLUTTER_REACH = 1.0  # near_clutter's rays this many spacings long: surfaces closer are "close in front"
 CLUTTER_INSET = 0.8  # near_clutter's rays start this far from a face's centre to its corners and edges
 
 
@@ -417,11 +419,12 @@ def _world_faces(obj, depsgraph):
     return co, lv.astype(np.int64), start.astype(np.int64), total.astype(np.int64), nrm, tri.reshape(-1, 3)
 
 
-def near_clutter(objects, candidates, depsgraph):
+def near_clutter(objects, candidates, depsgraph, reach):
     """{name: m^2} for each object of `candidates`: the area of its faces that other surfaces
     (any object of `objects`, itself too) cover in part close in front: of the rays along the
-    face's normal, as long as its longest edge (face_edges), from its centre and from the points
-    CLUTTER_INSET of the way from it to each corner and each edge's middle, some are occluded and
+    face's normal, `reach` long (m; at most the face's longest edge, face_edges), from its centre
+    and from the points CLUTTER_INSET of the way from it to each corner and each edge's middle,
+    some are occluded and
     some not (a shadow's edge likely crosses the face: books a few cm before a wall, a board on a
     row of books; a face wholly behind something or wholly open is not counted). Each object's
     evaluated mesh as it is now (the corners stay static: no frame but the one the bake starts
@@ -454,7 +457,8 @@ def near_clutter(objects, candidates, depsgraph):
             [centre, c + CLUTTER_INSET * (v - c), c + CLUTTER_INSET * ((v + v[nxt]) / 2 - c)]
         )
         fid = np.concatenate([np.arange(len(start)), face, face])
-        hit = backend.occluded(pts, pts + nrm[fid] * longest[fid, None].astype(np.float64))
+        far = np.minimum(longest.astype(np.float64), reach)
+        hit = backend.occluded(pts, pts + nrm[fid] * far[fid, None])
         n_hit = np.bincount(fid, weights=hit, minlength=len(start))
         part = (n_hit > 0) & (n_hit < 1 + 2 * total)
         out[o.name] = float(area[part].sum())
@@ -477,10 +481,10 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     steps first); the objects of `clutter` keep `spacing` unless the others' coarsest do not make
     room for them (then they take the common spacing too). When it fits: the objects of clutter
     ({name: a finer spacing}, in its order: near_clutter's; they are in `finer` too) get their
-    finer spacing from
-    what is left, each the finest of spacing / 2^k down to its own that still fits (an object the
-    spacing does not cut and that gets none: not in the result). Nothing changes (empty) when
-    the scene fits and there is no clutter. Returns ({name: spacing}, (the scene's own corners,
+    finer spacing from what is left (at most CLUTTER_SHARE x the corners at `spacing` more), each the
+    finest of spacing / 2^k down to its own that still fits (an object the spacing does not cut and that
+    gets none: not in the result). Nothing changes (empty) when the scene fits and there is no clutter.
+    Returns ({name: spacing}, (the scene's own corners,
     its corners at `spacing`, its corners with the budget))."""
     if not finer:
         return {}, None
@@ -496,6 +500,7 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     limit = budget(own) if limit is None else int(limit)
     if want <= limit:
         out, got = {}, want
+        limit = min(limit, int(want * (1 + CLUTTER_SHARE)))
         for n, fine in (clutter or {}).items():
             for k in range(round(np.log2(spacing / fine)), 0, -1):
                 extra = corners_at(*edges[n], spacing / 2**k) - int(steps[n][1][0])
@@ -635,12 +640,13 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
 
 def _cluttered(objects, own, spacing, depsgraph):
     """The names of the objects of `own` near_clutter gives a finer spacing at `spacing` (at least
-    CLUTTER_AREA x spacing^2 of faces covered in part close in front, and an edge longer than the
-    finer spacing: a face it would cut), largest area first."""
+    CLUTTER_AREA x spacing^2 of faces covered in part within CLUTTER_REACH x spacing in front, and
+    an edge longer than the finer spacing: a face it would cut), largest area first."""
     if spacing <= 0 or CLUTTER_LEVELS <= 0:
         return []
     fine = spacing / 2**CLUTTER_LEVELS
-    area = near_clutter(objects, [o for o in own if has_coarse_edges(o, fine, depsgraph)], depsgraph)
+    candidates = [o for o in own if has_coarse_edges(o, fine, depsgraph)]
+    area = near_clutter(objects, candidates, depsgraph, CLUTTER_REACH * spacing)
     return sorted((n for n, a in area.items() if a >= CLUTTER_AREA * spacing**2), key=lambda n: (-area[n], n))
 
 
