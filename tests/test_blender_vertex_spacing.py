@@ -734,3 +734,145 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     for name, (co, v) in with_budget.items():
         np.testing.assert_array_equal(co, without[name][0], err_msg=name)
         np.testing.assert_array_equal(v, without[name][1], err_msg=name)
+
+
+def _grid_wall(ms, name="Grid wall", nx=10, nz=5, step=0.2):
+    """A 2 x 1 m wall at y = 0 facing +y, nx x nz quads of `step` m (under 0.25 m: the default spacing
+    cuts none of them)."""
+    verts = [(i * step, 0.0, k * step) for k in range(nz + 1) for i in range(nx + 1)]
+    at = lambda i, k: k * (nx + 1) + i  # noqa: E731
+    faces = [[at(i, k), at(i, k + 1), at(i + 1, k + 1), at(i + 1, k)] for k in range(nz) for i in range(nx)]
+    return ms.mesh_object(name, verts, faces, ms.diffuse("Grey wall", (RHO,) * 3))
+
+
+def _plate(ms, y, top, name="Plate"):
+    """A plate wider than the grid wall, parallel to it `y` m in front, from z = 0 to `top`."""
+    return ms.mesh_object(
+        name,
+        [(-0.1, y, 0), (2.1, y, 0), (2.1, y, top), (-0.1, y, top)],
+        [[0, 1, 2, 3]],
+        ms.diffuse("Grey plate", (RHO,) * 3),
+    )
+
+
+@pytest.mark.parametrize(
+    "y, top, cut",
+    [
+        (0.05, 0.45, True),  # 5 cm in front, over the lower 0.45 m: the row of faces at 0.4-0.6 m in part
+        (0.05, 1.2, False),  # the whole wall behind it: no face in part
+        (0.5, 0.45, False),  # 0.5 m in front: further than the spacing (CLUTTER_REACH 1)
+    ],
+)
+def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top, cut):
+    """near_clutter on a 2 x 1 m wall of 0.2 m quads and a plate before it: with the plate 5 cm in front
+    of its lower 0.45 m, the ten faces at 0.4-0.6 m are covered in part (their rays from z 0.42 hit it,
+    from 0.5 and 0.58 not: 0.4 m^2, at least CLUTTER_AREA x 0.25^2 = 0.25), the wall's spacing is
+    0.25 / 4 and each 0.2 m face is cut 4 x 4 (level 2: 50 x 64 = 3,200 corners, counted on its
+    evaluated mesh), one log line names it; the plate over all of it, or half a metre away: no face in
+    part, the wall keeps its own 200 corners and gets no modifier. The plate itself (0.45 m tall, wall
+    behind it, nothing before it) is not covered."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    wall = _grid_wall(ms)
+    plate = _plate(ms, y, top)
+    dg = bpy.context.evaluated_depsgraph_get()
+    area = ov.near_clutter([wall, plate], [wall, plate], dg, 0.25)
+    assert area == pytest.approx({"Grid wall": 0.4 if cut else 0.0, "Plate": 0.0}, abs=1e-6)
+    lines = []
+    ov.ensure_own_values([wall, plate], "CORNER", dg, 0.25, log=lines.append)
+    dg.update()
+    assert len(wall.evaluated_get(dg).data.loops) == (3200 if cut else 200)
+    assert ov.subdividing(wall) == (0.0625 if cut else 0.0)
+    assert [x for x in lines if "close in front" in x] == (
+        [
+            "Vertex Spacing 0.25: 1 object(s) with surfaces close in front of part of their faces "
+            "('Grid wall' 0.0625 m): their light changes across those faces."
+        ]
+        if cut
+        else []
+    )
+
+
+def test_the_clutter_does_not_depend_on_the_frames_baked(tmp_path):
+    """The plate moves from 5 cm before the wall (frame 1, the scene's first) to 0.5 m (frame 3 on):
+    a bake of frame 4 alone subdivides the wall as a bake of frame 1 does (the corners are static,
+    taken at the scene's first frame), and the bake's values are finite."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.bake import run_bake
+
+    wall = _grid_wall(ms)
+    plate = _plate(ms, 0.05, 0.45)
+    ms.mesh_object("Lamp", *LAMP, ms.emission("Glow", (1, 1, 1), STRENGTH))
+    for frame, y in ((1, 0.0), (3, 0.45)):
+        plate.location.y = y
+        plate.keyframe_insert("location", frame=frame)
+    scene.frame_start, scene.frame_end = 1, 5
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "plate.blend"))
+    got = []
+    for frames in ((4, 4), (1, 1)):
+        scene.frame_set(frames[0])
+        scene.hr.vertex_spacing = 0.25
+        run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=frames)
+        dg = bpy.context.evaluated_depsgraph_get()
+        got.append((ov.subdividing(wall), len(wall.evaluated_get(dg).data.loops)))
+    assert got == [(0.0625, 3200)] * 2
+
+
+def test_at_a_fine_spacing_the_large_faces_are_cut_within_the_budget(tmp_path):
+    """The furnished sample at 0.1 m would make 757,408 corners, over its budget (8 x 42,676 =
+    341,408): one common spacing for every object (the books' too), so the walls, floor and ceiling
+    (0.23-0.24 m quads) are cut at least once each way, where the largest-first rule (before session
+    31) left them uncut. Counted on the evaluated meshes after ensure_own_values (not by the budget's
+    own count): the scene's corners within the budget, and each room surface at least 4 x its own."""
+    bpy = load_bpy()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.scene_in import geometry_objects
+
+    open_sample("furnished", tmp_path / "furnished")
+    vl = bpy.context.scene.view_layers[0]
+    dg = vl.depsgraph
+    objects = geometry_objects(vl)
+    own = {o.name: len(o.evaluated_get(dg).data.loops) for o in objects}
+    lines = []
+    ov.ensure_own_values(objects, "CORNER", dg, 0.1, log=lines.append)
+    dg.update()
+    now = {o.name: len(o.evaluated_get(dg).data.loops) for o in objects}
+    assert sum(own.values()) == 42_676 and sum(now.values()) <= ov.budget(42_676) == 341_408
+    room = ("wall_north", "wall_south", "wall_east", "wall_west", "floor", "ceiling")
+    assert all(now[n] >= 4 * own[n] for n in room), {n: (own[n], now[n]) for n in room}
+    assert len([x for x in lines if "corner budget" in x]) == 1
+
+
+@pytest.mark.parametrize("limit", [100_000, 60_000, 20_000, 5_000])
+def test_the_budgets_corners_are_what_the_meshes_get_and_within_the_limit(limit):
+    """A 4 m one-quad wall and 40 bars of 1 m (at 0.1 m: 16,384 + 40 x 4,104 corners) under budgets
+    that cut it: the spacings corner_budget gives, set by ensure_own_values' modifier, make
+    evaluated meshes of exactly its total, within the limit, and every object's spacing is the
+    common one or up to two of its steps finer (at most 4 x apart); the largest object is cut too."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    wall = ms.mesh_object("Wall", *WALL)
+    bars = [
+        ms.mesh_object(
+            f"Bar{k}",
+            [(x, y + 0.3 * k, z) for z in (0, 0.05) for y in (1, 1.1) for x in (0, 1.0)],
+            [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
+        )
+        for k in range(40)
+    ]
+    objects = [wall, *bars]
+    dg = bpy.context.evaluated_depsgraph_get()
+    out, (own, want, got) = ov.corner_budget(objects, objects, 0.1, dg, limit=limit)
+    assert (own, want) == (4 + 40 * 24, 16_384 + 40 * 4_104)
+    assert got <= limit
+    for o in objects:
+        ov._ensure(o, "CORNER", out.get(o.name, 0.1) or 0.0)
+    dg.update()
+    assert sum(len(o.evaluated_get(dg).data.loops) for o in objects) == got
+    s = [v for v in out.values() if v is not None]
+    assert s and max(s) <= 4 * min(s) * (1 + 1e-6)
+    if limit >= 20_000:
+        assert len(wall.evaluated_get(dg).data.loops) > 4

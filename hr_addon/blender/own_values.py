@@ -39,6 +39,8 @@ own corners (at least BUDGET_FLOOR, at most BUDGET_CAP), the largest objects' sp
 it fits, and one log line names them with their spacings. A normal room is within it at 0.15 m.
 """
 
+import heapq
+
 import bpy
 import numpy as np
 
@@ -476,9 +478,9 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     the modifier receives it, the finer ones subdivided) stay within `limit` (default: budget(the
     scene's own corners)); a raised spacing at which no face is cut any more: None. When the scene
     at `spacing` exceeds it: one common spacing, the smallest above `spacing` whose total fits
-    (each object at the step of _steps it reaches: the same spacing for all), then the objects the
-    next smaller one would make finer, each one step finer while the total fits (the smallest
-    steps first); the objects of `clutter` keep `spacing` unless the others' coarsest do not make
+    (each object at the step of _steps it reaches: the same spacing for all), then what is left
+    goes to the smallest steps finer that still fit, one after another (an object as often as
+    its steps fit); the objects of `clutter` keep `spacing` unless the others' coarsest do not make
     room for them (then they take the common spacing too). When it fits: the objects of clutter
     ({name: a finer spacing}, in its order: near_clutter's; they are in `finer` too) get their
     finer spacing from what is left (at most CLUTTER_SHARE x the corners at `spacing` more), each the
@@ -530,15 +532,17 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
         lo, hi = (lo, mid) if total(gs[mid]) <= limit else (mid + 1, hi)
     pick = at(gs[lo])
     got = total(gs[lo])
-    if lo > 0:  # the objects the next smaller factor would make finer: one step finer while it fits
-        down = at(gs[lo - 1])
-        more = sorted(
-            (int(steps[n][1][down[n]] - steps[n][1][j]), n) for n, j in pick.items() if down[n] != j
-        )
-        for extra, n in more:
-            if got + extra > limit:
-                break
-            pick[n], got = down[n], got + extra
+    # what is left: the smallest step finer that fits, again and again (a 1 km terrain's 5 m spacing
+    # leaves the room beside it its own)
+    more = [(int(steps[n][1][j - 1] - steps[n][1][j]), n) for n, j in pick.items() if j > 0]
+    heapq.heapify(more)
+    while more:
+        extra, n = heapq.heappop(more)
+        if got + extra > limit:
+            continue
+        pick[n], got = pick[n] - 1, got + extra
+        if pick[n] > 0:
+            heapq.heappush(more, (int(steps[n][1][pick[n] - 1] - steps[n][1][pick[n]]), n))
     out = {}
     for n, j in pick.items():
         if j:  # (the last step: every face at level 0, nothing to subdivide)
