@@ -686,10 +686,12 @@ def test_the_corner_budget_raises_the_largest_objects_first():
 
 def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypatch):
     """The furnished sample at 0.25 m (92,104 corners for its 42,676) is within the budget: no
-    budget line (the spacing's note only), every one of the 509 subdivided objects at 0.25 m; at
-    0.15 m too (nothing raised). The wall scene baked at 0.25 m with the budget and without it
-    (corner_budget replaced by one that raises nothing: the code before the budget) gives the same
-    meshes and values, bit for bit."""
+    budget line; the 509 objects with edges over 0.25 m at 0.25 m but for those near_clutter names
+    (one log line: the wall behind the bookcases, the floor, the sofa's base and the west wall at
+    0.0625 m, the ceiling and a board at 0.125 m, 183,400 corners, within CLUTTER_SHARE x 92,104
+    more); at 0.15 m nothing raised. The wall scene (nothing within 0.25 m before its faces) baked
+    at 0.25 m with the budget and without it (corner_budget replaced by one that changes nothing:
+    the code before the budget) gives the same meshes and values, bit for bit."""
     bpy = load_bpy()
     from hr_addon.blender import own_values as ov
     from hr_addon.blender.scene_in import geometry_objects
@@ -703,10 +705,19 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     lines = []
     ov.ensure_own_values(objects, "CORNER", dg, 0.25, log=lines.append)
     # (the spacing's own note goes to log too since def26: only no budget line)
-    (line,) = lines
-    assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 509"), line
-    spacings = [ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)]
-    assert len(spacings) == 509 and set(spacings) == {0.25}
+    clutter, line = lines
+    assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 513"), line
+    assert clutter.startswith("Vertex Spacing 0.25: 6 object(s) with surfaces close in front"), clutter
+    spacings = {o.name: ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)}
+    finer = {"floor", "sofa_base", "wall_north", "wall_west"}
+    assert {n: s for n, s in spacings.items() if s != 0.25} == {
+        **dict.fromkeys(finer, 0.0625),
+        "ceiling": 0.125,
+        "case2_board1": 0.125,
+    }
+    assert len(spacings) == 513
+    dg.update()
+    assert sum(len(o.evaluated_get(dg).data.loops) for o in objects) == 183_400
 
     bpy, ms, scene = empty_scene()
     _scene(ms)
@@ -756,21 +767,23 @@ def _plate(ms, y, top, name="Plate"):
 
 
 @pytest.mark.parametrize(
-    "y, top, cut",
+    "y, top, cut, plate_area",
     [
-        (0.05, 0.45, True),  # 5 cm in front, over the lower 0.45 m: the row of faces at 0.4-0.6 m in part
-        (0.05, 1.2, False),  # the whole wall behind it: no face in part
-        (0.5, 0.45, False),  # 0.5 m in front: further than the spacing (CLUTTER_REACH 1)
+        (0.05, 0.45, True, 0.0),  # 5 cm in front, over the lower 0.45 m: the faces at 0.4-0.6 m in part
+        (0.05, 1.2, False, 2.64),  # the whole wall behind it: no face of the wall in part (the plate: yes)
+        (0.5, 0.45, False, 0.0),  # 0.5 m in front: further than the spacing (CLUTTER_REACH 1)
     ],
 )
-def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top, cut):
+def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top, cut, plate_area):
     """near_clutter on a 2 x 1 m wall of 0.2 m quads and a plate before it: with the plate 5 cm in front
     of its lower 0.45 m, the ten faces at 0.4-0.6 m are covered in part (their rays from z 0.42 hit it,
-    from 0.5 and 0.58 not: 0.4 m^2, at least CLUTTER_AREA x 0.25^2 = 0.25), the wall's spacing is
-    0.25 / 4 and each 0.2 m face is cut 4 x 4 (level 2: 50 x 64 = 3,200 corners, counted on its
-    evaluated mesh), one log line names it; the plate over all of it, or half a metre away: no face in
-    part, the wall keeps its own 200 corners and gets no modifier. The plate itself (0.45 m tall, wall
-    behind it, nothing before it) is not covered."""
+    from 0.5 and 0.58 not: 0.4 m^2, at least CLUTTER_AREA x 0.25^2 = 0.25); 0.25 / 4 would cut each
+    0.2 m face 4 x 4 (3,000 corners more), over CLUTTER_SHARE x the 1,224 corners the scene has at
+    0.25 m (the wall's 200, the plate's 1,024), so the wall gets 0.125 m: each face 2 x 2 (800
+    corners, counted on its evaluated mesh), and one log line names it; the plate over all of it,
+    or half a metre away: no face in part, the wall keeps its own 200 corners and gets no modifier.
+    The plate faces the wall: 0.45 m tall, every ray of it meets the wall (not in part); 1.2 m tall,
+    its rays above the wall's 1 m miss: its one face, 2.64 m^2, in part."""
     bpy, ms, scene = empty_scene()
     from hr_addon.blender import own_values as ov
 
@@ -778,16 +791,16 @@ def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top
     plate = _plate(ms, y, top)
     dg = bpy.context.evaluated_depsgraph_get()
     area = ov.near_clutter([wall, plate], [wall, plate], dg, 0.25)
-    assert area == pytest.approx({"Grid wall": 0.4 if cut else 0.0, "Plate": 0.0}, abs=1e-6)
+    assert area == pytest.approx({"Grid wall": 0.4 if cut else 0.0, "Plate": plate_area}, abs=1e-6)
     lines = []
     ov.ensure_own_values([wall, plate], "CORNER", dg, 0.25, log=lines.append)
     dg.update()
-    assert len(wall.evaluated_get(dg).data.loops) == (3200 if cut else 200)
-    assert ov.subdividing(wall) == (0.0625 if cut else 0.0)
+    assert len(wall.evaluated_get(dg).data.loops) == (800 if cut else 200)
+    assert ov.subdividing(wall) == (0.125 if cut else 0.0)
     assert [x for x in lines if "close in front" in x] == (
         [
             "Vertex Spacing 0.25: 1 object(s) with surfaces close in front of part of their faces "
-            "('Grid wall' 0.0625 m): their light changes across those faces."
+            "('Grid wall' 0.125 m): their light changes across those faces."
         ]
         if cut
         else []
@@ -797,7 +810,7 @@ def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top
 def test_the_clutter_does_not_depend_on_the_frames_baked(tmp_path):
     """The plate moves from 5 cm before the wall (frame 1, the scene's first) to 0.5 m (frame 3 on):
     a bake of frame 4 alone subdivides the wall as a bake of frame 1 does (the corners are static,
-    taken at the scene's first frame), and the bake's values are finite."""
+    taken at the scene's first frame: 0.125 m, 800 corners, as in the test above)."""
     bpy, ms, scene = empty_scene()
     from hr_addon.blender import own_values as ov
     from hr_addon.blender.bake import run_bake
@@ -817,7 +830,7 @@ def test_the_clutter_does_not_depend_on_the_frames_baked(tmp_path):
         run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=frames)
         dg = bpy.context.evaluated_depsgraph_get()
         got.append((ov.subdividing(wall), len(wall.evaluated_get(dg).data.loops)))
-    assert got == [(0.0625, 3200)] * 2
+    assert got == [(0.125, 800)] * 2
 
 
 def test_at_a_fine_spacing_the_large_faces_are_cut_within_the_budget(tmp_path):
@@ -847,7 +860,7 @@ def test_at_a_fine_spacing_the_large_faces_are_cut_within_the_budget(tmp_path):
 
 @pytest.mark.parametrize("limit", [100_000, 60_000, 20_000, 5_000])
 def test_the_budgets_corners_are_what_the_meshes_get_and_within_the_limit(limit):
-    """A 4 m one-quad wall and 40 bars of 1 m (at 0.1 m: 16,384 + 40 x 4,104 corners) under budgets
+    """A 4 m one-quad wall and 40 bars 1 x 0.08 x 0.05 m (at 0.1 m: 16,384 + 40 x 4,104 corners) under budgets
     that cut it: the spacings corner_budget gives, set by ensure_own_values' modifier, make
     evaluated meshes of exactly its total, within the limit, and every object's spacing is the
     common one or up to two of its steps finer (at most 4 x apart); the largest object is cut too."""
@@ -858,7 +871,7 @@ def test_the_budgets_corners_are_what_the_meshes_get_and_within_the_limit(limit)
     bars = [
         ms.mesh_object(
             f"Bar{k}",
-            [(x, y + 0.3 * k, z) for z in (0, 0.05) for y in (1, 1.1) for x in (0, 1.0)],
+            [(x, y + 0.3 * k, z) for z in (0, 0.05) for y in (1, 1.08) for x in (0, 1.0)],
             [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
         )
         for k in range(40)

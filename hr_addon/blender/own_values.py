@@ -34,9 +34,18 @@ A corner budget (corner_budget; session 23, branch vx26): the level is capped pe
 not per scene, so a large object of many faces (a 1 km terrain of 10 m quads) would get 4^6 faces
 per face at 0.25 m. The corners the spacing would make are counted first (the group's level rule,
 numpy over each object's faces); when the scene's total would exceed BUDGET_FACTOR x the scene's
-own corners (at least BUDGET_FLOOR, at most BUDGET_CAP), the largest objects' spacings are raised
-(a water level on each object's corners: every object under it keeps the scene's spacing) until
-it fits, and one log line names them with their spacings. A normal room is within it at 0.15 m.
+own corners (at least BUDGET_FLOOR, at most BUDGET_CAP), one common spacing is raised until it
+fits, and what that leaves goes to the smallest steps finer (session 31, branch vbudget: before,
+the largest objects' spacings were raised first, so at 0.1 m the furnished room's walls, floor and
+ceiling got no subdivision while its books kept theirs); one log line names them with their
+spacings. A normal room is within it at 0.15 m.
+
+Where the light changes (near_clutter; session 31, branch vbudget): an object whose faces other
+surfaces cover in part within a spacing in front (a wall behind a bookcase's books, a floor under
+furniture, a ceiling above a lamp panel) gets spacing / 4, from what the budget leaves and at most
+as many corners again as the spacing makes, largest such area first; a wall grid of 0.23 m quads
+is not cut at 0.25 m at all without it. Taken once, where the bake starts (the scene's first
+frame): the corners stay static.
 """
 
 import heapq
