@@ -431,20 +431,19 @@ def _world_faces(obj, depsgraph):
 
 
 def near_clutter(objects, candidates, depsgraph, reach):
-    """{name: m^2} for each object of `candidates`: the area of its faces that other surfaces
-    (any object of `objects`, itself too) cover in part close in front: of the rays along the
-    face's normal, `reach` long (m; at most the face's longest edge, face_edges), from its centre
-    and from the points CLUTTER_INSET of the way from it to each corner and each edge's middle,
-    some are occluded and
-    some not (a shadow's edge likely crosses the face: books a few cm before a wall, a board on a
-    row of books; a face wholly behind something or wholly open is not counted). Each object's
-    evaluated mesh as it is now (the corners stay static: no frame but the one the bake starts
-    from; the bake calls it at the scene's first frame)."""
+    """{name: m^2} for each object of `candidates`: the area of its faces that other surfaces (any
+    object of `objects`, itself too) cover in part close in front: of the rays along the face's
+    normal, `reach` long (m; at most the face's longest edge, face_edges), from its centre and from
+    the points CLUTTER_INSET of the way from it to each corner and each edge's middle, some are
+    occluded and some not (a shadow's edge likely crosses the face: books a few cm before a wall, a
+    board on a row of books; a face wholly behind something or wholly open is not counted). Each
+    object's evaluated mesh as it is now (the corners stay static: no frame but the one the bake
+    starts from; the bake calls it at the scene's first frame)."""
     if not candidates:
         return {}
     from ..core.visibility import make_backend
 
-    tris = [(co[t]) for co, *_, t in (_world_faces(o, depsgraph) for o in objects)]
+    tris = [co[t] for co, *_, t in (_world_faces(o, depsgraph) for o in objects)]
     backend = make_backend(np.concatenate(tris) if tris else np.zeros((0, 3, 3)))
     out = {}
     for o in candidates:
@@ -486,17 +485,17 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     budget changes, so that the scene's corners (every object of `objects`, each evaluated mesh as
     the modifier receives it, the finer ones subdivided) stay within `limit` (default: budget(the
     scene's own corners)); a raised spacing at which no face is cut any more: None. When the scene
-    at `spacing` exceeds it: one common spacing, the smallest above `spacing` whose total fits
-    (each object at the step of _steps it reaches: the same spacing for all), then what is left
-    goes to the smallest steps finer that still fit, one after another (an object as often as
-    its steps fit); the objects of `clutter` keep `spacing` unless the others' coarsest do not make
-    room for them (then they take the common spacing too). When it fits: the objects of clutter
-    ({name: a finer spacing}, in its order: near_clutter's; they are in `finer` too) get their
-    finer spacing from what is left (at most CLUTTER_SHARE x the corners at `spacing` more), each the
-    finest of spacing / 2^k down to its own that still fits (an object the spacing does not cut and that
-    gets none: not in the result). Nothing changes (empty) when the scene fits and there is no clutter.
-    Returns ({name: spacing}, (the scene's own corners,
-    its corners at `spacing`, its corners with the budget))."""
+    at `spacing` exceeds it: one common spacing, the smallest above `spacing` whose total fits (each
+    object at the step of _steps it reaches: the same spacing for all), then what is left goes to
+    the smallest steps finer that still fit, one after another (an object as often as its steps
+    fit); the objects of `clutter` keep `spacing` unless the others' coarsest do not make room for
+    them (then they take the common spacing too). When it fits: the objects of clutter ({name: a
+    finer spacing}, in its order: near_clutter's; they are in `finer` too) get their finer spacing
+    from what is left (at most CLUTTER_SHARE x the corners at `spacing` more), each the finest of
+    spacing / 2^k down to its own that still fits (an object the spacing does not cut and that gets
+    none: not in the result). Nothing changes (empty) when the scene fits and there is no clutter.
+    Returns ({name: spacing}, (the scene's own corners, its corners at `spacing`, its corners with
+    the budget))."""
     if not finer:
         return {}, None
     names = {o.name for o in finer}
