@@ -895,3 +895,30 @@ def test_the_budgets_corners_are_what_the_meshes_get_and_within_the_limit(limit)
     assert s and max(s) <= 4 * min(s) * (1 + 1e-6)
     if limit >= 20_000:
         assert len(wall.evaluated_get(dg).data.loops) > 4
+
+
+def test_over_the_budget_the_named_objects_keep_the_spacing_while_the_others_make_room():
+    """corner_budget with a clutter entry over its limit: the grid wall (0.2 m quads: 800 corners at
+    0.12 m) named by near_clutter keeps 0.12 m while ten 1 m bars (4,104 corners each at 0.12 m) share
+    one coarser spacing, the total within the limit; when even the bars' own corners (24 each) leave
+    no room for the wall's 800, it is raised with them (not in part: all or none)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    wall = _grid_wall(ms)
+    bars = [
+        ms.mesh_object(
+            f"Bar{k}",
+            [(x, y + 0.3 * k, z) for z in (0, 0.05) for y in (1, 1.08) for x in (0, 1.0)],
+            [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
+        )
+        for k in range(10)
+    ]
+    objects = [wall, *bars]
+    dg = bpy.context.evaluated_depsgraph_get()
+    clutter = {"Grid wall": 0.03}
+    out, (own, want, got) = ov.corner_budget(objects, objects, 0.12, dg, limit=10_000, clutter=clutter)
+    assert (own, want) == (200 + 10 * 24, 800 + 10 * 4_104) and got <= 10_000
+    assert "Grid wall" not in out and all(out[b.name] is None or out[b.name] > 0.12 for b in bars)
+    out, (_, _, got) = ov.corner_budget(objects, objects, 0.12, dg, limit=800 + 10 * 24 - 1, clutter=clutter)
+    assert out["Grid wall"] is None and got <= 800 + 10 * 24 - 1
