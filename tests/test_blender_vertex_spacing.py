@@ -864,6 +864,18 @@ def test_at_a_fine_spacing_the_large_faces_are_cut_within_the_budget(tmp_path):
     assert len([x for x in lines if "corner budget" in x]) == 1
 
 
+def _bars(ms, n):
+    """n bars 1 x 0.08 x 0.05 m side by side (4,104 corners each at 0.1 or 0.12 m, 24 their own)."""
+    return [
+        ms.mesh_object(
+            f"Bar{k}",
+            [(x, y + 0.3 * k, z) for z in (0, 0.05) for y in (1, 1.08) for x in (0, 1.0)],
+            [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
+        )
+        for k in range(n)
+    ]
+
+
 @pytest.mark.parametrize("limit", [100_000, 60_000, 20_000, 5_000])
 def test_the_budgets_corners_are_what_the_meshes_get_and_within_the_limit(limit):
     """A 4 m one-quad wall and 40 bars 1 x 0.08 x 0.05 m (at 0.1 m: 16,384 + 40 x 4,104 corners) under budgets
@@ -874,14 +886,7 @@ def test_the_budgets_corners_are_what_the_meshes_get_and_within_the_limit(limit)
     from hr_addon.blender import own_values as ov
 
     wall = ms.mesh_object("Wall", *WALL)
-    bars = [
-        ms.mesh_object(
-            f"Bar{k}",
-            [(x, y + 0.3 * k, z) for z in (0, 0.05) for y in (1, 1.08) for x in (0, 1.0)],
-            [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
-        )
-        for k in range(40)
-    ]
+    bars = _bars(ms, 40)
     objects = [wall, *bars]
     dg = bpy.context.evaluated_depsgraph_get()
     out, (own, want, got) = ov.corner_budget(objects, objects, 0.1, dg, limit=limit)
@@ -906,14 +911,7 @@ def test_over_the_budget_the_named_objects_keep_the_spacing_while_the_others_mak
     from hr_addon.blender import own_values as ov
 
     wall = _grid_wall(ms)
-    bars = [
-        ms.mesh_object(
-            f"Bar{k}",
-            [(x, y + 0.3 * k, z) for z in (0, 0.05) for y in (1, 1.08) for x in (0, 1.0)],
-            [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
-        )
-        for k in range(10)
-    ]
+    bars = _bars(ms, 10)
     objects = [wall, *bars]
     dg = bpy.context.evaluated_depsgraph_get()
     clutter = {"Grid wall": 0.03}
