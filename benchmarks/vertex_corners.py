@@ -9,7 +9,8 @@ group's level rule), and what the corner budget (own_values.corner_budget) does 
 
 Per spacing: the objects that get the subdividing group (has_coarse_edges), the scene's corners
 (the evaluated meshes' loops, the finer objects' at the group's levels), the budget and, when the
-scene exceeds it, the raised spacings (the largest objects first). --json writes the figures.
+scene exceeds it, the raised spacings (one common spacing since session 31; near_clutter's finer
+objects counted too, as ensure_own_values counts them). --json writes the figures.
 The file is not changed (nothing is baked, no modifier is made).
 """
 
@@ -84,8 +85,10 @@ def main():
     out = {"scene": name, "objects": len(objects), "spacings": {}}
     for s in (float(x) for x in a.spacings.split(",")):
         t0 = time.process_time()
-        finer = [o for o in own if ov.has_coarse_edges(o, s, dg)]
-        raised, counts = ov.corner_budget(objects, finer, s, dg)
+        clutter = dict.fromkeys(ov._cluttered(objects, own, s, dg), s / 2**ov.CLUTTER_LEVELS)
+        finer = [o for o in own if ov.has_coarse_edges(o, s, dg) or o.name in clutter]
+        changed, counts = ov.corner_budget(objects, finer, s, dg, clutter=clutter)  # (as ensure_own_values)
+        raised = {n: v for n, v in changed.items() if v is None or v > s}
         dt = time.process_time() - t0
         own_c, want, got = (
             counts if counts else (sum(len(o.evaluated_get(dg).data.loops) for o in objects),) * 3
@@ -97,6 +100,7 @@ def main():
             budget=ov.budget(own_c),
             with_budget=got,
             raised={n: v for n, v in sorted(raised.items())},
+            clutter_finer={n: v for n, v in sorted(changed.items()) if n not in raised},
             count_cpu_s=round(dt, 3),
         )
         out["spacings"][f"{s:g}"] = r

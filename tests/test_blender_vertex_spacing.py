@@ -229,8 +229,9 @@ def test_only_the_coarse_faces_get_finer():
 def test_the_spacing_scaled_with_the_scene_gives_the_same_bake(tmp_path):
     """The Cornell sample (walls of 8 x 8 quads of 7 cm) at 0.05 m and inside a parent scaled x8 at
     0.4 m: the same faces subdivided (the walls', the light's and the tall block's, not the short
-    block's: the group measures edges with the object's world scale) and the same values, bit for
-    bit (x8 is exact in binary)."""
+    block's: the group measures edges with the object's world scale; the ceiling at a quarter of the
+    spacing since session 31: the light hangs within a spacing below it, near_clutter) and the same
+    values, bit for bit (x8 is exact in binary)."""
     bpy = load_bpy()
     from hr_addon.blender.bake import run_bake
 
@@ -252,7 +253,8 @@ def test_the_spacing_scaled_with_the_scene_gives_the_same_bake(tmp_path):
 
     one, eight = bake(1, 0.05), bake(8, 0.4)
     assert {n: len(v) // 4 for n, v in one.items()} == {
-        **dict.fromkeys(("floor", "ceiling", "back", "left_red", "right_green"), 1024),
+        **dict.fromkeys(("floor", "back", "left_red", "right_green"), 1024),
+        "ceiling": 4096,
         "short_block": 320,
         "tall_block": 1088,
         "light": 64,
@@ -441,12 +443,16 @@ def _rug_room(ms):
     ms.mesh_object("Painting", painting, [[0, 1, 2, 3]], grey)
 
 
-def test_the_spacing_turns_around_what_the_bake_without_it_does(tmp_path):
+def test_the_spacing_turns_around_what_the_bake_without_it_does(tmp_path, monkeypatch):
     """A floor under a one-sided rug: subdivided at 0.25 m, its faces under the rug alone see only the
     rug's back before them and the room's bottom behind ("faced away from everything": 40 of its
     256 turned around when judged alone, below); judged as the user's face (the FACE attribute the
     group stores) it stays, as without the spacing, and the painting facing its wall is turned
-    around in both, named once."""
+    around in both, named once. (near_clutter off: the rug 3 mm over the floor would make the
+    floor finer, and the counts here are 0.25 m's.)"""
+    from hr_addon.blender import own_values
+
+    monkeypatch.setattr(own_values, "CLUTTER_LEVELS", 0)
     bpy, ms, scene = empty_scene()
     from hr_addon.blender.bake import run_bake
     from hr_addon.blender.scene_in import collect_geometry
@@ -686,10 +692,12 @@ def test_the_corner_budget_raises_the_largest_objects_first():
 
 def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypatch):
     """The furnished sample at 0.25 m (92,104 corners for its 42,676) is within the budget: no
-    budget line (the spacing's note only), every one of the 509 subdivided objects at 0.25 m; at
-    0.15 m too (nothing raised). The wall scene baked at 0.25 m with the budget and without it
-    (corner_budget replaced by one that raises nothing: the code before the budget) gives the same
-    meshes and values, bit for bit."""
+    budget line; the 509 objects with edges over 0.25 m at 0.25 m but for those near_clutter names
+    (one log line: the wall behind the bookcases, the floor, the sofa's base and the west wall at
+    0.0625 m, the ceiling and a board at 0.125 m, 183,400 corners, within CLUTTER_SHARE x 92,104
+    more); at 0.15 m nothing raised. The wall scene (nothing within 0.25 m before its faces) baked
+    at 0.25 m with the budget and without it (corner_budget replaced by one that changes nothing:
+    the code before the budget) gives the same meshes and values, bit for bit."""
     bpy = load_bpy()
     from hr_addon.blender import own_values as ov
     from hr_addon.blender.scene_in import geometry_objects
@@ -703,10 +711,19 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     lines = []
     ov.ensure_own_values(objects, "CORNER", dg, 0.25, log=lines.append)
     # (the spacing's own note goes to log too since def26: only no budget line)
-    (line,) = lines
-    assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 509"), line
-    spacings = [ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)]
-    assert len(spacings) == 509 and set(spacings) == {0.25}
+    clutter, line = lines
+    assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 513"), line
+    assert clutter.startswith("Vertex Spacing 0.25: 6 object(s) with surfaces close in front"), clutter
+    spacings = {o.name: ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)}
+    finer = {"floor", "sofa_base", "wall_north", "wall_west"}
+    assert {n: s for n, s in spacings.items() if s != 0.25} == {
+        **dict.fromkeys(finer, 0.0625),
+        "ceiling": 0.125,
+        "case2_board1": 0.125,
+    }
+    assert len(spacings) == 513
+    dg.update()
+    assert sum(len(o.evaluated_get(dg).data.loops) for o in objects) == 183_400
 
     bpy, ms, scene = empty_scene()
     _scene(ms)
@@ -734,3 +751,172 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     for name, (co, v) in with_budget.items():
         np.testing.assert_array_equal(co, without[name][0], err_msg=name)
         np.testing.assert_array_equal(v, without[name][1], err_msg=name)
+
+
+def _grid_wall(ms, name="Grid wall", nx=10, nz=5, step=0.2):
+    """A 2 x 1 m wall at y = 0 facing +y, nx x nz quads of `step` m (under 0.25 m: the default spacing
+    cuts none of them)."""
+    verts = [(i * step, 0.0, k * step) for k in range(nz + 1) for i in range(nx + 1)]
+    at = lambda i, k: k * (nx + 1) + i  # noqa: E731
+    faces = [[at(i, k), at(i, k + 1), at(i + 1, k + 1), at(i + 1, k)] for k in range(nz) for i in range(nx)]
+    return ms.mesh_object(name, verts, faces, ms.diffuse("Grey wall", (RHO,) * 3))
+
+
+def _plate(ms, y, top, name="Plate"):
+    """A plate wider than the grid wall, parallel to it `y` m in front, from z = 0 to `top`."""
+    return ms.mesh_object(
+        name,
+        [(-0.1, y, 0), (2.1, y, 0), (2.1, y, top), (-0.1, y, top)],
+        [[0, 1, 2, 3]],
+        ms.diffuse("Grey plate", (RHO,) * 3),
+    )
+
+
+@pytest.mark.parametrize(
+    "y, top, cut, plate_area",
+    [
+        (0.05, 0.45, True, 0.0),  # 5 cm in front, over the lower 0.45 m: the faces at 0.4-0.6 m in part
+        (0.05, 1.2, False, 2.64),  # the whole wall behind it: no face of the wall in part (the plate: yes)
+        (0.5, 0.45, False, 0.0),  # 0.5 m in front: further than the spacing (CLUTTER_REACH 1)
+    ],
+)
+def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top, cut, plate_area):
+    """near_clutter on a 2 x 1 m wall of 0.2 m quads and a plate before it: with the plate 5 cm in front
+    of its lower 0.45 m, the ten faces at 0.4-0.6 m are covered in part (their rays from z 0.42 hit it,
+    from 0.5 and 0.58 not: 0.4 m^2, at least CLUTTER_AREA x 0.25^2 = 0.25); 0.25 / 4 would cut each
+    0.2 m face 4 x 4 (3,000 corners more), over CLUTTER_SHARE x the 1,224 corners the scene has at
+    0.25 m (the wall's 200, the plate's 1,024), so the wall gets 0.125 m: each face 2 x 2 (800
+    corners, counted on its evaluated mesh), and one log line names it; the plate over all of it,
+    or half a metre away: no face in part, the wall keeps its own 200 corners and gets no modifier.
+    The plate faces the wall: 0.45 m tall, every ray of it meets the wall (not in part); 1.2 m tall,
+    its rays above the wall's 1 m miss: its one face, 2.64 m^2, in part."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    wall = _grid_wall(ms)
+    plate = _plate(ms, y, top)
+    dg = bpy.context.evaluated_depsgraph_get()
+    area = ov.near_clutter([wall, plate], [wall, plate], dg, 0.25)
+    assert area == pytest.approx({"Grid wall": 0.4 if cut else 0.0, "Plate": plate_area}, abs=1e-6)
+    lines = []
+    ov.ensure_own_values([wall, plate], "CORNER", dg, 0.25, log=lines.append)
+    dg.update()
+    assert len(wall.evaluated_get(dg).data.loops) == (800 if cut else 200)
+    assert ov.subdividing(wall) == (0.125 if cut else 0.0)
+    assert [x for x in lines if "close in front" in x] == (
+        [
+            "Vertex Spacing 0.25: 1 object(s) with surfaces close in front of part of their faces "
+            "('Grid wall' 0.125 m): their light changes across those faces."
+        ]
+        if cut
+        else []
+    )
+
+
+def test_the_clutter_does_not_depend_on_the_frames_baked(tmp_path):
+    """The plate moves from 5 cm before the wall (frame 1, the scene's first) to 0.5 m (frame 3 on):
+    a bake of frame 4 alone subdivides the wall as a bake of frame 1 does (the corners are static,
+    taken at the scene's first frame: 0.125 m, 800 corners, as in the test above)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.bake import run_bake
+
+    wall = _grid_wall(ms)
+    plate = _plate(ms, 0.05, 0.45)
+    ms.mesh_object("Lamp", *LAMP, ms.emission("Glow", (1, 1, 1), STRENGTH))
+    for frame, y in ((1, 0.0), (3, 0.45)):
+        plate.location.y = y
+        plate.keyframe_insert("location", frame=frame)
+    scene.frame_start, scene.frame_end = 1, 5
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "plate.blend"))
+    got = []
+    for frames in ((4, 4), (1, 1)):
+        scene.frame_set(frames[0])
+        scene.hr.vertex_spacing = 0.25
+        run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=frames)
+        dg = bpy.context.evaluated_depsgraph_get()
+        got.append((ov.subdividing(wall), len(wall.evaluated_get(dg).data.loops)))
+    assert got == [(0.125, 800)] * 2
+
+
+def test_at_a_fine_spacing_the_large_faces_are_cut_within_the_budget(tmp_path):
+    """The furnished sample at 0.1 m would make 757,408 corners, over its budget (8 x 42,676 =
+    341,408): one common spacing for every object (the books' too), so the walls, floor and ceiling
+    (0.23-0.24 m quads) are cut at least once each way, where the largest-first rule (before session
+    31) left them uncut. Counted on the evaluated meshes after ensure_own_values (not by the budget's
+    own count): the scene's corners within the budget, and each room surface at least 4 x its own."""
+    bpy = load_bpy()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.scene_in import geometry_objects
+
+    open_sample("furnished", tmp_path / "furnished")
+    vl = bpy.context.scene.view_layers[0]
+    dg = vl.depsgraph
+    objects = geometry_objects(vl)
+    own = {o.name: len(o.evaluated_get(dg).data.loops) for o in objects}
+    lines = []
+    ov.ensure_own_values(objects, "CORNER", dg, 0.1, log=lines.append)
+    dg.update()
+    now = {o.name: len(o.evaluated_get(dg).data.loops) for o in objects}
+    assert sum(own.values()) == 42_676 and sum(now.values()) <= ov.budget(42_676) == 341_408
+    room = ("wall_north", "wall_south", "wall_east", "wall_west", "floor", "ceiling")
+    assert all(now[n] >= 4 * own[n] for n in room), {n: (own[n], now[n]) for n in room}
+    assert len([x for x in lines if "corner budget" in x]) == 1
+
+
+def _bars(ms, n):
+    """n bars 1 x 0.08 x 0.05 m side by side (4,104 corners each at 0.1 or 0.12 m, 24 their own)."""
+    return [
+        ms.mesh_object(
+            f"Bar{k}",
+            [(x, y + 0.3 * k, z) for z in (0, 0.05) for y in (1, 1.08) for x in (0, 1.0)],
+            [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]],
+        )
+        for k in range(n)
+    ]
+
+
+@pytest.mark.parametrize("limit", [100_000, 60_000, 20_000, 5_000])
+def test_the_budgets_corners_are_what_the_meshes_get_and_within_the_limit(limit):
+    """A 4 m one-quad wall and 40 bars 1 x 0.08 x 0.05 m (at 0.1 m: 16,384 + 40 x 4,104 corners) under budgets
+    that cut it: the spacings corner_budget gives, set by ensure_own_values' modifier, make
+    evaluated meshes of exactly its total, within the limit, and every object's spacing is the
+    common one or up to two of its steps finer (at most 4 x apart); the largest object is cut too."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    wall = ms.mesh_object("Wall", *WALL)
+    bars = _bars(ms, 40)
+    objects = [wall, *bars]
+    dg = bpy.context.evaluated_depsgraph_get()
+    out, (own, want, got) = ov.corner_budget(objects, objects, 0.1, dg, limit=limit)
+    assert (own, want) == (4 + 40 * 24, 16_384 + 40 * 4_104)
+    assert got <= limit
+    for o in objects:
+        ov._ensure(o, "CORNER", out.get(o.name, 0.1) or 0.0)
+    dg.update()
+    assert sum(len(o.evaluated_get(dg).data.loops) for o in objects) == got
+    s = [v for v in out.values() if v is not None]
+    assert s and max(s) <= 4 * min(s) * (1 + 1e-6)
+    if limit >= 20_000:
+        assert len(wall.evaluated_get(dg).data.loops) > 4
+
+
+def test_over_the_budget_the_named_objects_keep_the_spacing_while_the_others_make_room():
+    """corner_budget with a clutter entry over its limit: the grid wall (0.2 m quads: 800 corners at
+    0.12 m) named by near_clutter keeps 0.12 m while ten 1 m bars (4,104 corners each at 0.12 m) share
+    one coarser spacing, the total within the limit; when even the bars' own corners (24 each) leave
+    no room for the wall's 800, it is raised with them (not in part: all or none)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    wall = _grid_wall(ms)
+    bars = _bars(ms, 10)
+    objects = [wall, *bars]
+    dg = bpy.context.evaluated_depsgraph_get()
+    clutter = {"Grid wall": 0.03}
+    out, (own, want, got) = ov.corner_budget(objects, objects, 0.12, dg, limit=10_000, clutter=clutter)
+    assert (own, want) == (200 + 10 * 24, 800 + 10 * 4_104) and got <= 10_000
+    assert "Grid wall" not in out and all(out[b.name] is None or out[b.name] > 0.12 for b in bars)
+    out, (_, _, got) = ov.corner_budget(objects, objects, 0.12, dg, limit=800 + 10 * 24 - 1, clutter=clutter)
+    assert out["Grid wall"] is None and got <= 800 + 10 * 24 - 1

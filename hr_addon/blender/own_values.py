@@ -34,10 +34,21 @@ A corner budget (corner_budget; session 23, branch vx26): the level is capped pe
 not per scene, so a large object of many faces (a 1 km terrain of 10 m quads) would get 4^6 faces
 per face at 0.25 m. The corners the spacing would make are counted first (the group's level rule,
 numpy over each object's faces); when the scene's total would exceed BUDGET_FACTOR x the scene's
-own corners (at least BUDGET_FLOOR, at most BUDGET_CAP), the largest objects' spacings are raised
-(a water level on each object's corners: every object under it keeps the scene's spacing) until
-it fits, and one log line names them with their spacings. A normal room is within it at 0.15 m.
+own corners (at least BUDGET_FLOOR, at most BUDGET_CAP), one common spacing is raised until it
+fits, and what that leaves goes to the smallest steps finer (session 31, branch vbudget: before,
+the largest objects' spacings were raised first, so at 0.1 m the furnished room's walls, floor and
+ceiling got no subdivision while its books kept theirs); one log line names them with their
+spacings. A normal room is within it at 0.15 m.
+
+Where the light changes (near_clutter; session 31, branch vbudget): an object whose faces other
+surfaces cover in part within a spacing in front (a wall behind a bookcase's books, a floor under
+furniture, a ceiling above a lamp panel) gets spacing / 4, from what the budget leaves and at most
+as many corners again as the spacing makes, largest such area first; a wall grid of 0.23 m quads
+is not cut at 0.25 m at all without it. Taken once, where the bake starts (the scene's first
+frame): the corners stay static.
 """
+
+import heapq
 
 import bpy
 import numpy as np
@@ -63,6 +74,15 @@ BUDGET_FACTOR = 8.0
 BUDGET_FLOOR = 200_000
 BUDGET_CAP = 1_000_000
 RAISE = 1 + 2**-20  # a raised spacing this much above a face's threshold: its level is off (float32)
+# light where it varies (near_clutter; session 31, branch vbudget, docs/accuracy.md): an object whose
+# faces covered in part close in front (a wall behind a bookcase's books) have at least
+# CLUTTER_AREA x spacing^2 between them gets the spacing / 2^CLUTTER_LEVELS (the furnished close view's
+# wall_north, its 0.23 m grid behind books 5-18 cm off it: -36% against Cycles at frame 3 at 0.25 m)
+CLUTTER_LEVELS = 2
+CLUTTER_AREA = 4.0
+CLUTTER_SHARE = 1.0  # ... from what the budget leaves, at most this x the corners at the spacing
+CLUTTER_REACH = 1.0  # near_clutter's rays this many spacings long: surfaces closer are "close in front"
+CLUTTER_INSET = 0.8  # near_clutter's rays start this far from a face's centre to its corners and edges
 
 
 def geometry_group(name, version, socket, socket_type, store, value, finer=False):
@@ -382,8 +402,77 @@ def _steps(longest, n, spacing):
     t, drop = t[on], (3 * n[:, None] << (2 * k))[on]  # level k + 1 -> k: 3 n 4^k corners fewer
     order = np.argsort(t, kind="stable")
     t, drop = t[order].astype(np.float64), np.cumsum(drop[order])
-    last = np.r_[t[1:] != t[:-1], True]  # faces sharing a threshold drop together
+    last = np.r_[t[1:] != t[:-1], True][: len(t)]  # faces sharing a threshold drop together (none: no
+    # face the spacing cuts, one step)
     return np.r_[spacing, t[last] * RAISE], np.r_[c0, c0 - drop[last]]
+
+
+def _world_faces(obj, depsgraph):
+    """obj's evaluated mesh in world space: ((V, 3) float64 vertices, (L,) loop vertices, (F,)
+    loop starts, (F,) loop totals, (F, 3) unit normals, (T, 3) loop-triangle vertices)."""
+    me = obj.evaluated_get(depsgraph).data
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    M = np.array(obj.matrix_world, np.float64)
+    co = co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
+    lv = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("vertex_index", lv)
+    start, total = (np.empty(len(me.polygons), np.int32) for _ in range(2))
+    me.polygons.foreach_get("loop_start", start)
+    me.polygons.foreach_get("loop_total", total)
+    nrm = np.empty(len(me.polygons) * 3, np.float32)
+    me.polygons.foreach_get("normal", nrm)
+    nrm = nrm.reshape(-1, 3) @ np.linalg.inv(M[:3, :3])  # (normals by the inverse transpose)
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-30)[:, None]
+    me.calc_loop_triangles()
+    tri = np.empty(len(me.loop_triangles) * 3, np.int32)
+    me.loop_triangles.foreach_get("vertices", tri)
+    return co, lv.astype(np.int64), start.astype(np.int64), total.astype(np.int64), nrm, tri.reshape(-1, 3)
+
+
+def near_clutter(objects, candidates, depsgraph, reach):
+    """{name: m^2} for each object of `candidates`: the area of its faces that other surfaces (any
+    object of `objects`, itself too) cover in part close in front: of the rays along the face's
+    normal, `reach` long (m; at most the face's longest edge, face_edges), from its centre and from
+    the points CLUTTER_INSET of the way from it to each corner and each edge's middle, some are
+    occluded and some not (a shadow's edge likely crosses the face: books a few cm before a wall, a
+    board on a row of books; a face wholly behind something or wholly open is not counted). Each
+    object's evaluated mesh as it is now (the corners stay static: no frame but the one the bake
+    starts from; the bake calls it at the scene's first frame)."""
+    if not candidates:
+        return {}
+    from ..core.visibility import make_backend
+
+    tris = [co[t] for co, *_, t in (_world_faces(o, depsgraph) for o in objects)]
+    backend = make_backend(np.concatenate(tris) if tris else np.zeros((0, 3, 3)))
+    out = {}
+    for o in candidates:
+        co, lv, start, total, nrm, _ = _world_faces(o, depsgraph)
+        if not len(start):
+            out[o.name] = 0.0
+            continue
+        longest, _ = face_edges(o, depsgraph)
+        first = np.cumsum(total) - total  # each face's loops, face after face
+        face = np.repeat(np.arange(len(start)), total)
+        v = co[lv[np.repeat(start - first, total) + np.arange(total.sum())]]
+        nxt = np.arange(len(v)) + 1  # the face's next corner
+        nxt[first + total - 1] = first
+        centre = np.zeros((len(start), 3))
+        np.add.at(centre, face, v)
+        centre /= total[:, None]
+        area = np.zeros(len(start))
+        np.add.at(area, face, 0.5 * np.linalg.norm(np.cross(v - centre[face], v[nxt] - centre[face]), axis=1))
+        c = centre[face]
+        pts = np.concatenate(
+            [centre, c + CLUTTER_INSET * (v - c), c + CLUTTER_INSET * ((v + v[nxt]) / 2 - c)]
+        )
+        fid = np.concatenate([np.arange(len(start)), face, face])
+        far = np.minimum(longest.astype(np.float64), reach)
+        hit = backend.occluded(pts, pts + nrm[fid] * far[fid, None])
+        n_hit = np.bincount(fid, weights=hit, minlength=len(start))
+        part = (n_hit > 0) & (n_hit < 1 + 2 * total)
+        out[o.name] = float(area[part].sum())
+    return out
 
 
 def budget(own_corners):
@@ -391,54 +480,77 @@ def budget(own_corners):
     return int(min(max(BUDGET_FACTOR * own_corners, BUDGET_FLOOR), BUDGET_CAP))
 
 
-def corner_budget(objects, finer, spacing, depsgraph, limit=None):
-    """{name: spacing} for the objects of `finer` (those to subdivide at `spacing`) whose spacing
-    must be raised so that the scene's corners (every object of `objects`, each evaluated mesh
-    as the modifier receives it, the finer ones subdivided) stay within `limit` (default:
-    budget(the scene's own corners)); a raised spacing at which no face is cut any more: None.
-    Empty when the scene fits (nothing changes). Largest first: a water level W on each object's
-    corners, the largest W the budget allows; an object above it gets the smallest spacing
-    (_steps) whose corners are at most W, every object below keeps `spacing`; then the objects the
-    next level would make finer, each one step finer while the total fits (the smallest steps
-    first: objects alike, the books of a shelf, move together with W). Returns ({name:
-    spacing}, (the scene's own corners, its corners at `spacing`, its corners with the budget))."""
+def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
+    """{name: spacing} for the objects of `finer` (those to subdivide at `spacing`) whose spacing the
+    budget changes, so that the scene's corners (every object of `objects`, each evaluated mesh as
+    the modifier receives it, the finer ones subdivided) stay within `limit` (default: budget(the
+    scene's own corners)); a raised spacing at which no face is cut any more: None. When the scene
+    at `spacing` exceeds it: one common spacing, the smallest above `spacing` whose total fits (each
+    object at the step of _steps it reaches: the same spacing for all), then what is left goes to
+    the smallest steps finer that still fit, one after another (an object as often as its steps
+    fit); the objects of `clutter` keep `spacing` unless the others' coarsest do not make room for
+    them (then they take the common spacing too). When it fits: the objects of clutter ({name: a
+    finer spacing}, in its order: near_clutter's; they are in `finer` too) get their finer spacing
+    from what is left (at most CLUTTER_SHARE x the corners at `spacing` more), each the finest of
+    spacing / 2^k down to its own that still fits (an object the spacing does not cut and that gets
+    none: not in the result). Nothing changes (empty) when the scene fits and there is no clutter.
+    Returns ({name: spacing}, (the scene's own corners, its corners at `spacing`, its corners with
+    the budget))."""
     if not finer:
         return {}, None
     names = {o.name for o in finer}
     own = sum(len(o.evaluated_get(depsgraph).data.loops) for o in objects)
     fixed = sum(len(o.evaluated_get(depsgraph).data.loops) for o in objects if o.name not in names)
-    steps = {}
+    edges, steps = {}, {}
     for o in finer:
-        s, c = _steps(*face_edges(o, depsgraph), spacing)
-        steps[o.name] = (s, c)
-    want = fixed + sum(int(c[0]) for _, c in steps.values())
+        edges[o.name] = face_edges(o, depsgraph)
+        s, c = _steps(*edges[o.name], spacing)
+        steps[o.name] = (s, c, s / spacing)  # (r: the steps' spacings as factors of `spacing`)
+    want = fixed + sum(int(c[0]) for _, c, _ in steps.values())
     limit = budget(own) if limit is None else int(limit)
     if want <= limit:
-        return {}, (own, want, want)
+        out, got = {}, want
+        limit = min(limit, int(want * (1 + CLUTTER_SHARE)))
+        for n, fine in (clutter or {}).items():
+            for k in range(round(np.log2(spacing / fine)), 0, -1):
+                extra = corners_at(*edges[n], spacing / 2**k) - int(steps[n][1][0])
+                if got + extra <= limit:
+                    out[n], got = spacing / 2**k, got + extra
+                    break
+        return out, (own, want, got)
 
-    def at(level):  # each object's corners under the water level (its last step if none is)
+    # near_clutter's objects keep `spacing` while the others' common spacing can make room
+    held = {n for n in clutter or () if n in steps}
+    if held and fixed + sum(int(steps[n][1][0 if n in held else -1]) for n in steps) > limit:
+        held = set()
+
+    def at(g):  # each object's step at factor g (the last whose spacing is at most spacing x g)
         return {
-            n: min(int(np.searchsorted(-c, -level, side="left")), len(c) - 1) for n, (s, c) in steps.items()
+            n: 0 if n in held else int(np.searchsorted(r, g, side="right")) - 1
+            for n, (s, c, r) in steps.items()
         }
 
-    def total(level):
-        return fixed + sum(int(steps[n][1][j]) for n, j in at(level).items())
+    def total(g):
+        return fixed + sum(int(steps[n][1][j]) for n, j in at(g).items())
 
-    levels_ = np.unique(np.concatenate([c for _, c in steps.values()]))
-    lo, hi = 0, len(levels_) - 1  # the largest level whose total fits (the smallest if none does)
+    gs = np.unique(np.concatenate([r for n, (_, _, r) in steps.items() if n not in held] or [[1.0]]))
+    lo, hi = 0, len(gs) - 1  # the smallest factor whose total fits (the largest if none does)
     while lo < hi:
-        mid = (lo + hi + 1) // 2
-        lo, hi = (mid, hi) if total(levels_[mid]) <= limit else (lo, mid - 1)
-    pick = at(levels_[lo])
-    got = total(levels_[lo])
-    if lo + 1 < len(levels_):  # the objects the next level would make finer (many alike, e.g. books,
-        # move together): each one step finer while the total fits, the smallest steps first
-        up = at(levels_[lo + 1])
-        more = sorted((int(steps[n][1][up[n]] - steps[n][1][j]), n) for n, j in pick.items() if up[n] != j)
-        for extra, n in more:
-            if got + extra > limit:
-                break
-            pick[n], got = up[n], got + extra
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if total(gs[mid]) <= limit else (mid + 1, hi)
+    pick = at(gs[lo])
+    got = total(gs[lo])
+    # what is left: the smallest step finer that fits, again and again (a 1 km terrain's 5 m spacing
+    # leaves the room beside it its own)
+    more = [(int(steps[n][1][j - 1] - steps[n][1][j]), n) for n, j in pick.items() if j > 0]
+    heapq.heapify(more)
+    while more:
+        extra, n = heapq.heappop(more)
+        if got + extra > limit:
+            continue
+        pick[n], got = pick[n] - 1, got + extra
+        if pick[n] > 0:
+            heapq.heappush(more, (int(steps[n][1][pick[n] - 1] - steps[n][1][pick[n]]), n))
     out = {}
     for n, j in pick.items():
         if j:  # (the last step: every face at level 0, nothing to subdivide)
@@ -488,9 +600,13 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     if reset:
         depsgraph.update()
     coarse = {o.name: has_coarse_edges(o, spacing, depsgraph) for o in own}
-    raised, counts = corner_budget(objects, [o for o in own if coarse[o.name]], spacing, depsgraph)
-    for name, s in raised.items():
+    clutter = dict.fromkeys(_cluttered(objects, own, spacing, depsgraph), spacing / 2**CLUTTER_LEVELS)
+    finer_ = [o for o in own if coarse[o.name] or o.name in clutter]
+    changed, counts = corner_budget(objects, finer_, spacing, depsgraph, clutter=clutter)
+    for name, s in changed.items():
         coarse[name] = s is not None
+    raised = {n: s for n, s in changed.items() if s is None or s > spacing}
+    cluttered = [n for n in clutter if changed.get(n, spacing) < spacing]
     made, finer, kept = [], [], []
     for obj in own:
         finer_faces = coarse[obj.name]
@@ -499,7 +615,7 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
             if obj in reset:  # subdivided by an earlier bake: its helper and modifier go
                 remove_own_values([obj])
             continue
-        made += _ensure(obj, domain, raised.get(obj.name, spacing) if finer_faces else 0.0)
+        made += _ensure(obj, domain, changed.get(obj.name, spacing) if finer_faces else 0.0)
         finer += [obj.name] if finer_faces else []
         kept.append(obj)
     if finer:
@@ -507,6 +623,8 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     for obj in kept:
         _helper(obj, depsgraph)
     notes = []
+    if cluttered:
+        (notes.append if log is None else log)(clutter_line({n: changed[n] for n in cluttered}, spacing))
     if raised:
         line = budget_line(raised, spacing, counts)
         if log is None:
@@ -530,6 +648,27 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
         f"'{N_VALUES} <object>' (in no scene) that holds their HR_Radiance: every corner of the "
         "modifiers' result, every linked duplicate, shows its own light."
     ]
+
+
+def _cluttered(objects, own, spacing, depsgraph):
+    """The names of the objects of `own` near_clutter gives a finer spacing at `spacing` (at least
+    CLUTTER_AREA x spacing^2 of faces covered in part within CLUTTER_REACH x spacing in front, and
+    an edge longer than the finer spacing: a face it would cut), largest area first."""
+    if spacing <= 0 or CLUTTER_LEVELS <= 0:
+        return []
+    fine = spacing / 2**CLUTTER_LEVELS
+    candidates = [o for o in own if has_coarse_edges(o, fine, depsgraph)]
+    area = near_clutter(objects, candidates, depsgraph, CLUTTER_REACH * spacing)
+    return sorted((n for n, a in area.items() if a >= CLUTTER_AREA * spacing**2), key=lambda n: (-area[n], n))
+
+
+def clutter_line(cluttered, spacing):
+    """The log line naming the objects near_clutter made finer ({name: its spacing}, corner_budget's)."""
+    return (
+        f"Vertex Spacing {spacing:g}: {len(cluttered)} object(s) with surfaces close in front of part "
+        f"of their faces ({', '.join(f'{n!r} {v:g} m' for n, v in list(cluttered.items())[:8])}"
+        f"{', ...' if len(cluttered) > 8 else ''}): their light changes across those faces."
+    )
 
 
 def spacing_off_note(spacing):
