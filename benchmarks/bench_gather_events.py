@@ -37,6 +37,22 @@ import numpy as np  # noqa: E402
 
 
 
+def set_constants(items):
+    """module.NAME=value (or module.Class.NAME=value) under hr_addon.core, set before the build
+    (issue 19, build60: farlinks.SECOND_TRACE=False)."""
+    import importlib
+
+    for kv in items:
+        name, value = kv.split("=", 1)
+        mod, *path, attr = name.split(".")
+        target = importlib.import_module(f"hr_addon.core.{mod}")
+        for part in path:
+            target = getattr(target, part)
+        if not hasattr(target, attr):
+            raise SystemExit(f"--set {kv}: hr_addon.core.{name} does not exist")
+        setattr(target, attr, eval(value))
+
+
 def load_store(path):
     """(system, gather, header) of a stored build; a store from before near hits (230d7a5) gets
     its second level's start (k points per leaf) derived."""
@@ -100,7 +116,9 @@ def main(argv=None):
     ap.add_argument("--cache", default=None, help="folder of a stored build (see the module doc)")
     ap.add_argument("--dyn", default="dict()", help="DynamicRadiosity option overrides (a Python dict)")
     ap.add_argument("--texels", type=int, default=0, help="texture output at RES x RES (module doc)")
+    ap.add_argument("--set", action="append", default=[], help="module.NAME=value under hr_addon.core")
     args = ap.parse_args(argv)
+    set_constants(args.set)
 
     from hr_testing import shapes as S
     from hr_testing.furnished import furnished_room
@@ -129,6 +147,7 @@ def main(argv=None):
         dkw["response_float32"] = True
     dkw.update(eval(args.dyn))
     out = dict(size=args.size, quality=q, transport=args.transport, params=dataclasses.asdict(params))
+    out["set"] = list(args.set)
     out["threads"], out["load_average"] = args.threads, os.getloadavg()[0]
     out["dyn_options"] = dict(dkw)
     gkw = dict(rays=args.rays, levels=args.levels, iterations=args.iterations, threads=args.threads)
@@ -193,6 +212,7 @@ def main(argv=None):
         c0 = cpu()
         dyn = DynamicRadiosity(s.copy(), method=method, **dkw)
         out[f"{method}_base_solve_cpu_s"] = cpu() - c0
+        out[f"{method}_base_iterations"] = int(dyn.base_iterations)
         if g is None:
             c0 = cpu()
             g = new_gather(dyn)

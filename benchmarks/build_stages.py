@@ -2,7 +2,8 @@
 stage, for comparing two checkouts of the code: each stage's process time (inclusive, outermost
 call only) and call count, plus the rays each stage traced.
 
-    python benchmarks/build_stages.py SIZE [--root CHECKOUT] [--quality draft] [--json OUT]
+    python benchmarks/build_stages.py SIZE [--root CHECKOUT] [--quality draft] [--json OUT] \
+        [--params 'dict(cluster_ratio=1.0)'] [--set farlinks.SECOND_TRACE=False]
 
 --root: the checkout whose hr_addon and hr_testing are imported (default: this one), so the same
 script times an older commit's build (session 27, bld32: main against session 21's 5f09ab8).
@@ -11,6 +12,7 @@ process_time() call per call of a stage (stages are called at most a few thousan
 """
 
 import argparse
+import dataclasses
 import importlib
 import json
 import os
@@ -145,6 +147,8 @@ def main(argv=None):
     ap.add_argument("--root", default=str(Path(__file__).resolve().parents[1]))
     ap.add_argument("--quality", default="draft")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--params", default="dict()", help="RefineParams overrides (a dict)")
+    ap.add_argument("--set", action="append", default=[], help="module.NAME=value under hr_addon.core")
     a = ap.parse_args(argv)
     root = str(Path(a.root).resolve())
     sys.path.insert(0, root)
@@ -159,8 +163,12 @@ def main(argv=None):
         except ImportError:
             pass
     assert str(Path(sys.modules["hr_addon"].__file__).resolve()).startswith(root)
+    sys.path.insert(1, str(Path(__file__).resolve().parent))
+    from bench_gather_events import set_constants  # (hr_addon is root's, imported above)
+
+    set_constants(a.set)
     mesh, _ = furnished_room(a.size)
-    params = RefineParams.for_gather(a.quality)
+    params = dataclasses.replace(RefineParams.for_gather(a.quality), **eval(a.params))
     acc = {}
     found = install(acc)
     c0 = time.process_time()
@@ -170,6 +178,8 @@ def main(argv=None):
     res = dict(
         size=a.size,
         root=root,
+        params=a.params,
+        set=a.set,
         commit=os.popen(f"git -C {root} rev-parse --short HEAD").read().strip(),
         links=len(system.links),
         far_links=len(system.links.far) if getattr(system.links, "far", None) is not None else 0,

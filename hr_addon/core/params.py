@@ -26,6 +26,11 @@ class RefineParams:
     contact_gap: float = 1e-3  # how close counts as touching, relative to sqrt(total scene area)
     contact_levels: int = 2  # contact refinement goes this many quadtree levels below aeps
     ff_order: int = 3  # most Gauss points per side for a link's form factor (near pairs)
+    # about ff_exposed^2 points on a partly covered node's exposed part for its near links' form
+    # factors (its visibility points and the oracle's centre keep 6 x 6); 6 -> 4 (2026-12-04, was
+    # refine.FF_TARGET): the exposed-part form factors 20.3 -> 8.5 s at 100k, the gathered output
+    # per object within 0.02% (20k) (docs/scale.md "inexact cuts")
+    ff_exposed: int = 4
     orient: bool = False  # turn around faces facing the wrong way before the build (orientation.py)
 
     @staticmethod
@@ -67,8 +72,21 @@ class RefineParams:
 # Medium takes draft's far links and vis_k since 2026-12-04 (20k room, FE: links 380k -> 188k,
 # build 37.2 -> 25.2 s CPU, the gathered output per object median <= 0.05% from before, worst
 # 0.43%, bias within 0.04%; Cornell medium worst surface 0.26 -> 0.28%, docs/gather.md).
+# Draft's exposed-part form factors from about 3 x 3 points (ff_exposed 3, was 4) since session
+# 31 (issue 19, build60): the gathered output per object 0.001% from before (20k), inside the seed
+# floor at 20k and 100k (docs/scale.md, session 31). ff_order 1 (one Gauss point a side) moved the
+# output by 0.002-0.003% and saved ~4.6 s at 100k, but touching pairs' exchange (a book's side and
+# its board, tests/test_clusters.py) read 0.62 of the exact (3: 0.90, 2: 1.24): not taken.
 GATHER_TRANSPORT = {
-    "draft": dict(feps=0.1, shadow_feps=0.03, vcorr=0.0, cluster_ratio=0.7, cluster_veps=0.1, vis_k=1),
+    "draft": dict(
+        feps=0.1,
+        shadow_feps=0.03,
+        vcorr=0.0,
+        cluster_ratio=0.7,
+        cluster_veps=0.1,
+        vis_k=1,
+        ff_exposed=3,
+    ),
     "medium": dict(feps=0.05, shadow_feps=0.01, vcorr=0.0, cluster_ratio=0.7, cluster_veps=0.1, vis_k=1),
     "high": dict(feps=0.02, shadow_feps=0.002, vcorr=0.0, cluster_ratio=0.3, cluster_veps=1e-3),
 }

@@ -55,11 +55,6 @@ KEEP_OCCLUDED = False
 # a batch's distance array is (N, vis_k^2, its largest exposed count, 3), up to 100 MB at 1024
 # nodes, and every thread holds one
 NODE_BATCH = 1 << 8
-# points on a partly covered node's exposed part for its near links' form factors: about
-# FF_TARGET^2 (its visibility points and the oracle's centre keep 6 x 6). 6 -> 4 (2026-12-04):
-# the exposed-part form factors 20.3 -> 8.5 s at 100k, the gathered output per object within
-# 0.02% (20k) (docs/scale.md "inexact cuts")
-FF_TARGET = 4
 
 
 def _facing(h, p, q, tol):
@@ -372,8 +367,8 @@ class Refiner:
                 self._vis_pts2 = ff.sample_points(h.corners[part], h.nv[part], 2)
                 has2 = n > 0
                 self._vis_pts2[has2] = np.take_along_axis(fp, pick[..., None], 1)[has2]
-            # the near links' form factors from a coarser grid of their own (FF_TARGET)
-            fq, sq = self._exposed_grid(part, ex[part], FF_TARGET)
+            # the near links' form factors from a coarser grid of their own (params.ff_exposed)
+            fq, sq = self._exposed_grid(part, ex[part], prm.ff_exposed)
             self._ff_pts, self._ff_ptr = fq[sq], np.r_[0, np.cumsum(sq.sum(1))]
             # the oracle estimates F from centres: a partly covered node's is that of its exposed
             # part (its own centre may lie under a box, behind the box's side)
