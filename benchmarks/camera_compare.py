@@ -41,6 +41,10 @@ references, bakes and JSON entries named VIEW_fN.
 `--subdivide S` bakes a copy whose faces are cut until no edge is longer than S metres (linear,
 the shape unchanged: `subdivide`), against the same references: the vertex output's upper bound
 when its values sit at vertices that fine (branch vsub, session 21).
+`--views unseen_a,unseen_b`: hr_testing/two_rooms.py's room, a scene nobody tuned on (session 31,
+branch unseen; its light shapes from frame 3: --frame 3). `--quality Q` bakes at Q instead of draft
+(work folders and JSON entries VIEW..._Q); `--work DIR` keeps copies, bakes and references in DIR
+instead of camera_work/ (the unseen runs: /work/cache/unseen, outside git).
 """
 
 import argparse
@@ -58,6 +62,8 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, ROOT)
+from hr_testing.two_rooms import VIEWS as TWO_ROOMS_VIEWS  # noqa: E402
+
 OUT = os.path.join(HERE, "out")
 WORK = os.path.join(OUT, "camera_work")
 
@@ -83,6 +89,11 @@ VIEWS = {
     ),
     "cornell": dict(scene="cornell", frame=1, camera=None, res=(400, 400)),
 }
+# hr_testing/two_rooms.py's room (session 31, branch unseen): --views unseen_a,unseen_b
+VIEWS.update(
+    {v: dict(scene="two_rooms", frame=1, camera=cam, res=(640, 480)) for v, cam in TWO_ROOMS_VIEWS.items()}
+)
+QUALITY = ["draft"]  # --quality: the bakes' quality (its work folders and JSON entries named _<quality>)
 
 
 def log(msg, t0=[time.perf_counter()]):
@@ -112,6 +123,12 @@ def source_blend(scene):
 
         bpy = load_bpy()
         mesh_scene(clutter_room()[0])
+        bpy.ops.wm.save_as_mainfile(filepath=path)
+    elif scene == "two_rooms":
+        from hr_testing.two_rooms import two_rooms_scene
+
+        bpy = load_bpy()
+        two_rooms_scene()
         bpy.ops.wm.save_as_mainfile(filepath=path)
     else:
         shutil.copy(os.path.join(ROOT, "sample_blends", f"{scene}.blend"), path)
@@ -188,6 +205,7 @@ def bake(scene, frame, output):
         + (f"_sub{SUBDIVIDE[scene]}" if scene in SUBDIVIDE else "")
         + (f"_vs{BAKE_ARGS[1]}" if BAKE_ARGS and output == "vertex" else "")
         + (f"_{VARIANT[0]}" if VARIANT and output == "vertex" else "")
+        + (f"_{QUALITY[0]}" if QUALITY[0] != "draft" else "")
         + (f"_f{frame}" if frame != 1 else ""),  # --frame: its own bake
     )
     saved = os.path.join(d, "baked.blend")
@@ -201,7 +219,7 @@ def bake(scene, frame, output):
     if scene in SUBDIVIDE:
         subdivide(src, SUBDIVIDE[scene])
     cmd = [sys.executable, "-m", "hr_addon", "bake", src, "--frames", f"{frame}-{frame}"]
-    cmd += ["--quality", "draft", "--output", output, "--threads", "1", "--save", saved]
+    cmd += ["--quality", QUALITY[0], "--output", output, "--threads", "1", "--save", saved]
     cmd += BAKE_ARGS if output == "vertex" else []
     c0 = cpu(True)
     log(" ".join(cmd[1:]))
@@ -666,6 +684,11 @@ def main():
         type=int,
         help="this frame instead of the views' own (references, bakes and JSON entries of their own)",
     )
+    p.add_argument("--quality", default="draft", help="the bakes' quality (draft, medium, high)")
+    p.add_argument(
+        "--work",
+        help="the work folder (copies, bakes, the Cycles references) instead of benchmarks/out/camera_work",
+    )
     p.add_argument(
         "--figure", metavar="VIEW", help="only the docs' picture of VIEW (docs/images/camera_VIEW.png)"
     )
@@ -679,6 +702,10 @@ def main():
         return pair_figure(a.pair, os.path.join(ROOT, "docs", "images", f"camera_{a.pair}_pair.png"))
     if a.figure:
         return figure(a.figure, os.path.join(ROOT, "docs", "images", f"camera_{a.figure}.png"))
+    global WORK
+    if a.work:
+        WORK = a.work
+    QUALITY[0] = a.quality
     if a.fresh and os.path.isdir(WORK):
         _remove_ours(WORK)
     os.makedirs(WORK, exist_ok=True)
@@ -704,6 +731,8 @@ def main():
         if a.variant:
             VARIANT[:] = [a.variant]
             vn = f"{vn}_{a.variant}"
+        if a.quality != "draft":
+            vn = f"{vn}_{a.quality}"
         bakes = {k: bake(view["scene"], view["frame"], k) for k in a.outputs.split(",")}
         r, cpu_s = {"names": names}, {}
         wo = os.path.join(WORK, vn)
