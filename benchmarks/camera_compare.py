@@ -288,16 +288,9 @@ def read_exr(path):
 def set_camera(bpy, scene, view):
     cam = view["camera"]
     if cam is not None:
-        from mathutils import Vector
+        from hr_testing.blend import look_from
 
-        loc, target, lens = cam
-        data = bpy.data.cameras.new("camera_compare")
-        data.lens = lens
-        ob = bpy.data.objects.new("camera_compare", data)
-        scene.collection.objects.link(ob)
-        ob.location = loc
-        ob.rotation_euler = (Vector(target) - Vector(loc)).to_track_quat("-Z", "Y").to_euler()
-        scene.camera = ob
+        look_from(scene, "camera_compare", *cam)
     r = scene.render
     r.resolution_x, r.resolution_y = view["res"]
     r.resolution_percentage = 100
@@ -697,7 +690,10 @@ def main():
         metavar="VIEW",
         help="only Cycles beside ours (vertex output) of VIEW's PNGs (docs/images/camera_VIEW_pair.png)",
     )
+    p.add_argument("--pair-spp", type=int, help="--pair: the references' samples per seed named in its title")
     a = p.parse_args()
+    if a.pair_spp:
+        PAIR[0] = ("cycles", f"Cycles, 2 x {a.pair_spp} spp")
     if a.pair:
         return pair_figure(a.pair, os.path.join(ROOT, "docs", "images", f"camera_{a.pair}_pair.png"))
     if a.figure:

@@ -4,6 +4,12 @@ renders (benchmarks/out/camera_<run>/renders.npz), bpy-free.
 
     .venv/bin/python benchmarks/unseen_split.py --full unseen_a --direct unseen_a_direct \
         [--fine unseen_a_texel0.02] [--json benchmarks/out/unseen_split_a.json]
+    .venv/bin/python benchmarks/unseen_split.py --table unseen_a,unseen_b_medium,... [--exclude doorway]
+
+--table: camera_compare's per-view figures (compare(): lit objects, error of each object's mean,
+median, share within 5%, pooled bias, the same over interior pixels) recomputed from the runs'
+renders without the --exclude objects (the two rooms' doorway, whose reversed faces the references
+show black: hr_testing/two_rooms.py), one line per run and output; --json: them as JSON.
 
 --full: a camera_compare run (Cycles with 64 bounces, our bake); --direct: bias_split.py's
 `--variant direct` of the same view (Cycles with no bounces, our indirect term zeroed), both with
@@ -37,21 +43,68 @@ def sums(img, ob, n_obj):
     return np.bincount(ob.ravel(), img.ravel(), n_obj + 1)[1:]
 
 
+def table(runs, exclude, path=None):
+    """compare()'s summaries of each run without the objects in `exclude` (see the docstring)."""
+    from camera_compare import interior, per_object
+    from hr_testing import cycles_ref as C
+
+    out = {}
+    for run in runs:
+        z = np.load(os.path.join(OUT, f"camera_{run}", "renders.npz"))
+        names = [n if n not in exclude else None for n in z["names"]]
+        ob = z["index"]
+        ref = (z["ref1"].astype(np.float64) + z["ref2"]) / 2
+        pref = {n: v for n, v in per_object(ref, ob, names).items() if n is not None}
+        lit = C.lit_objects(pref)
+        inner = interior(ob)
+        for k in [k for k in ("vertex", "texture") if k in z.files]:
+            row = out.setdefault(run, {})[k] = {}
+            for part, mask in (("all", None), ("interior", inner)):
+                po = per_object(z[k].astype(np.float64), ob, names, mask)
+                pr = per_object(ref, ob, names, mask)
+                per = {n: C.metrics(po[n], pr[n]) for n in pr if n is not None}
+                row[part] = C.object_summary(per, [n for n in lit if n in per])
+                if part == "all":
+                    row["worst"] = sorted(
+                        ((n, per[n]["bias"], per[n]["texels"]) for n in lit), key=lambda t: -abs(t[1])
+                    )[:10]
+            a, i = row["all"], row["interior"]
+            print(
+                f"{run:24s} {k:8s} {a['objects']:4d} lit: median {100 * a['median']:.2f}%, within 5% "
+                f"{100 * a['within_5']:.0f}%, pooled bias {100 * a['pooled_bias']:+.2f}%; interior "
+                f"{i['objects']} objects, median {100 * i['median']:.2f}%, "
+                f"within 5% {100 * i['within_5']:.0f}%"
+            )
+    if path:
+        with open(path, "w") as fh:
+            json.dump({"exclude": sorted(exclude), "runs": out}, fh, indent=1)
+    return out
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--full", required=True)
-    p.add_argument("--direct", required=True)
+    p.add_argument("--table", help="runs (camera_<run>/renders.npz) whose summaries to print")
+    p.add_argument("--exclude", default="doorway", help="objects left out of --table's figures")
+    p.add_argument("--full")
+    p.add_argument("--direct")
     p.add_argument("--fine", help="a finer texture run of the same view (resolution against the light)")
     p.add_argument("--tol", type=float, default=0.05)
     p.add_argument("--json")
     a = p.parse_args()
+    if a.table:
+        return table(a.table.split(","), set(a.exclude.split(",")), a.json)
     full, ob, names = load(a.full)
     dire, ob_d, _ = load(a.direct)
     n = len(names)
     count = np.bincount(ob.ravel(), minlength=n + 1)[1:]
     cyc, cyc_d = sums(full["ref"], ob, n), sums(dire["ref"], ob, n)
     cmp_json = json.load(open(os.path.join(OUT, "camera_" + _tag_of(a.full) + ".json")))["views"][a.full]
-    lit = [i for i, nm in enumerate(names) if nm in set(cmp_json["lit"]) and count[i] >= MIN_PIXELS]
+    skip = set(a.exclude.split(","))
+    lit = [
+        i
+        for i, nm in enumerate(names)
+        if nm in set(cmp_json["lit"]) and nm not in skip and count[i] >= MIN_PIXELS
+    ]
     fine = None
     if a.fine:
         f, ob_f, _ = load(a.fine)
