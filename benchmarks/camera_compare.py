@@ -93,6 +93,7 @@ VIEWS = {
 VIEWS.update(
     {v: dict(scene="two_rooms", frame=1, camera=cam, res=(640, 480)) for v, cam in TWO_ROOMS_VIEWS.items()}
 )
+FLIP_REF = []  # --flip-ref: objects whose faces the references reverse
 QUALITY = ["draft"]  # --quality: the bakes' quality (its work folders and JSON entries named _<quality>)
 
 
@@ -356,6 +357,8 @@ def reference(view, names, spp, seed, path):
     bpy = load_bpy()
     bpy.ops.wm.open_mainfile(filepath=source_blend(view["scene"]), load_ui=False)
     scene = bpy.context.scene
+    for name in FLIP_REF:  # --flip-ref: these objects' faces reversed, as the bake turns them
+        bpy.data.objects[name].data.flip_normals()
     rs = C.prepare(scene, only=())  # every object: one-sided reference materials, no atlas
     shapes = C.shape_proxies(rs, view["frame"])
     set_camera(bpy, scene, view)
@@ -677,6 +680,12 @@ def main():
         type=int,
         help="this frame instead of the views' own (references, bakes and JSON entries of their own)",
     )
+    p.add_argument(
+        "--flip-ref",
+        help="objects whose faces the references reverse (faces built facing away, which the bake turns "
+        "around and one-sided references show black: the two rooms' doorway); references and JSON "
+        "entries VIEW_flip",
+    )
     p.add_argument("--quality", default="draft", help="the bakes' quality (draft, medium, high)")
     p.add_argument(
         "--work",
@@ -714,6 +723,9 @@ def main():
             view = dict(view, frame=a.frame)
             vn = f"{vn}_f{a.frame}"
         names = geometry_names(view)
+        if a.flip_ref:
+            FLIP_REF[:] = a.flip_ref.split(",")
+            vn = f"{vn}_flip"
         wd = os.path.join(WORK, vn)  # the references' renders
         if a.texel:
             TEXEL[view["scene"]] = a.texel
