@@ -9,8 +9,8 @@ Living room A (5 x 4 m) and bedroom B (3 x 3.2 m) side by side, 2.6 m high, join
 1 x 2 m doorway through a 20 cm partition (an L of floor: B is shallower than A). Room shells
 are 20 cm grids; the doorway's reveals are their own object, built facing into the wall (a modelling
 slip kept: session 31's Cycles references are of this scene): the bake turns them around (its
-warning), the references' one-sided materials show their backs black, so camera comparisons leave
-"doorway" out (docs/accuracy.md, session 31). In A: a sofa of parts sunk into
+warning), the references' one-sided materials show their backs black: camera_compare's `--flip-ref doorway`
+renders them turned, as the bake reads them (docs/accuracy.md, session 31). In A: a sofa of parts sunk into
 each other (base, back, arms, cushions), a 2.8 m table covered with ~60 small items (cups,
 plates with bowls sunk in them, spheres, boxes, a few touching), a floor-to-ceiling pillar of 64
 thin strips 25 cm from two walls, shelves 45 cm deep with 30 cm gaps (boxes deep inside), a
