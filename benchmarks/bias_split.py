@@ -4,6 +4,7 @@ references (or a direct-light-only Cycles reference for --variant direct).
 
     nice -n 5 env OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bias_split.py --variant NAME \
         [--views furnished_wide,furnished_close] [--outputs texture] [--texel 0.02] [--spp 128]
+        [--work DIR] [--frame N] [--tag TAG]
 
 Variants (VARIANTS): the bake is `python -m hr_addon bake` run through this file (`--bake`), which
 applies the variant's change in the bake process before the command runs:
@@ -95,16 +96,26 @@ def main():
     p.add_argument("--variant", required=True, choices=sorted(VARIANTS))
     p.add_argument("--views", default="furnished_wide,furnished_close")
     p.add_argument("--outputs", default="texture")
-    p.add_argument("--texel", type=float, default=0.02)
+    p.add_argument("--texel", type=float, default=0.02, help="0: the bake's own Texel Density")
     p.add_argument("--spp", type=int, default=128)
     p.add_argument("--direct-spp", type=int, default=32)
+    p.add_argument("--work", help="camera_compare's work folder (its --work)")
+    p.add_argument("--frame", type=int, help="this frame instead of the views' own (camera_compare --frame)")
+    p.add_argument("--tag", help="the JSON's name: camera_<tag>.json (bias27_<variant>)")
     a = p.parse_args()
     var = VARIANTS[a.variant]
-    tag = f"bias27_{a.variant}"
+    tag = a.tag or f"bias27_{a.variant}"
+    if a.work:
+        cc.WORK = a.work
 
     def bake(scene, frame, output):
         d = os.path.join(
-            cc.WORK, scene, output + (f"_{a.texel}" if output == "texture" else "") + f"_{a.variant}"
+            cc.WORK,
+            scene,
+            output
+            + (f"_{a.texel}" if output == "texture" and a.texel else "")
+            + f"_{a.variant}"
+            + (f"_f{frame}" if frame != 1 else ""),
         )
         saved = os.path.join(d, "baked.blend")
         if os.path.exists(saved):
@@ -114,7 +125,7 @@ def main():
         import shutil
 
         shutil.copy(cc.source_blend(scene), src)
-        if output == "texture":
+        if output == "texture" and a.texel:  # --texel 0: the bake's own Texel Density
             cc.lightmap_sizes(src, a.texel)
         cmd = [
             sys.executable,
@@ -155,6 +166,9 @@ def main():
     dump = json.load(open(path)) if os.path.exists(path) else {"views": {}}
     for vn0 in a.views.split(","):
         view = cc.VIEWS[vn0]
+        if a.frame and a.frame != view["frame"]:
+            view = dict(view, frame=a.frame)
+            vn0 = f"{vn0}_f{a.frame}"
         names = cc.geometry_names(view)
         wd = os.path.join(cc.WORK, vn0)
         vn = f"{vn0}_{a.variant}"

@@ -41,6 +41,10 @@ references, bakes and JSON entries named VIEW_fN.
 `--subdivide S` bakes a copy whose faces are cut until no edge is longer than S metres (linear,
 the shape unchanged: `subdivide`), against the same references: the vertex output's upper bound
 when its values sit at vertices that fine (branch vsub, session 21).
+`--views unseen_a,unseen_b`: hr_testing/two_rooms.py's room, a scene nobody tuned on (session 31,
+branch unseen; its light shapes from frame 3: --frame 3). `--quality Q` bakes at Q instead of draft
+(work folders and JSON entries VIEW..._Q); `--work DIR` keeps copies, bakes and references in DIR
+instead of camera_work/ (the unseen runs: /work/cache/unseen, outside git).
 """
 
 import argparse
@@ -58,6 +62,8 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, ROOT)
+from hr_testing.two_rooms import VIEWS as TWO_ROOMS_VIEWS  # noqa: E402
+
 OUT = os.path.join(HERE, "out")
 WORK = os.path.join(OUT, "camera_work")
 
@@ -83,6 +89,12 @@ VIEWS = {
     ),
     "cornell": dict(scene="cornell", frame=1, camera=None, res=(400, 400)),
 }
+# hr_testing/two_rooms.py's room (session 31, branch unseen): --views unseen_a,unseen_b
+VIEWS.update(
+    {v: dict(scene="two_rooms", frame=1, camera=cam, res=(640, 480)) for v, cam in TWO_ROOMS_VIEWS.items()}
+)
+FLIP_REF = []  # --flip-ref: objects whose faces the references reverse
+QUALITY = ["draft"]  # --quality: the bakes' quality (its work folders and JSON entries named _<quality>)
 
 
 def log(msg, t0=[time.perf_counter()]):
@@ -112,6 +124,12 @@ def source_blend(scene):
 
         bpy = load_bpy()
         mesh_scene(clutter_room()[0])
+        bpy.ops.wm.save_as_mainfile(filepath=path)
+    elif scene == "two_rooms":
+        from hr_testing.two_rooms import two_rooms_scene
+
+        bpy = load_bpy()
+        two_rooms_scene()
         bpy.ops.wm.save_as_mainfile(filepath=path)
     else:
         shutil.copy(os.path.join(ROOT, "sample_blends", f"{scene}.blend"), path)
@@ -188,6 +206,7 @@ def bake(scene, frame, output):
         + (f"_sub{SUBDIVIDE[scene]}" if scene in SUBDIVIDE else "")
         + (f"_vs{BAKE_ARGS[1]}" if BAKE_ARGS and output == "vertex" else "")
         + (f"_{VARIANT[0]}" if VARIANT and output == "vertex" else "")
+        + (f"_{QUALITY[0]}" if QUALITY[0] != "draft" else "")
         + (f"_f{frame}" if frame != 1 else ""),  # --frame: its own bake
     )
     saved = os.path.join(d, "baked.blend")
@@ -201,7 +220,7 @@ def bake(scene, frame, output):
     if scene in SUBDIVIDE:
         subdivide(src, SUBDIVIDE[scene])
     cmd = [sys.executable, "-m", "hr_addon", "bake", src, "--frames", f"{frame}-{frame}"]
-    cmd += ["--quality", "draft", "--output", output, "--threads", "1", "--save", saved]
+    cmd += ["--quality", QUALITY[0], "--output", output, "--threads", "1", "--save", saved]
     cmd += BAKE_ARGS if output == "vertex" else []
     log(" ".join(cmd[1:]))
     with open(os.path.join(d, "bake.log"), "w+") as out:  # the bake's own rusage: os.wait4
@@ -272,16 +291,9 @@ def read_exr(path):
 def set_camera(bpy, scene, view):
     cam = view["camera"]
     if cam is not None:
-        from mathutils import Vector
+        from hr_testing.blend import look_from
 
-        loc, target, lens = cam
-        data = bpy.data.cameras.new("camera_compare")
-        data.lens = lens
-        ob = bpy.data.objects.new("camera_compare", data)
-        scene.collection.objects.link(ob)
-        ob.location = loc
-        ob.rotation_euler = (Vector(target) - Vector(loc)).to_track_quat("-Z", "Y").to_euler()
-        scene.camera = ob
+        look_from(scene, "camera_compare", *cam)
     r = scene.render
     r.resolution_x, r.resolution_y = view["res"]
     r.resolution_percentage = 100
@@ -347,6 +359,8 @@ def reference(view, names, spp, seed, path):
     bpy = load_bpy()
     bpy.ops.wm.open_mainfile(filepath=source_blend(view["scene"]), load_ui=False)
     scene = bpy.context.scene
+    for name in FLIP_REF:  # --flip-ref: these objects' faces reversed, as the bake turns them
+        bpy.data.objects[name].data.flip_normals()
     rs = C.prepare(scene, only=())  # every object: one-sided reference materials, no atlas
     shapes = C.shape_proxies(rs, view["frame"])
     set_camera(bpy, scene, view)
@@ -669,6 +683,17 @@ def main():
         help="this frame instead of the views' own (references, bakes and JSON entries of their own)",
     )
     p.add_argument(
+        "--flip-ref",
+        help="objects whose faces the references reverse (faces built facing away, which the bake turns "
+        "around and one-sided references show black: the two rooms' doorway); references and JSON "
+        "entries VIEW_flip",
+    )
+    p.add_argument("--quality", default="draft", help="the bakes' quality (draft, medium, high)")
+    p.add_argument(
+        "--work",
+        help="the work folder (copies, bakes, the Cycles references) instead of benchmarks/out/camera_work",
+    )
+    p.add_argument(
         "--figure", metavar="VIEW", help="only the docs' picture of VIEW (docs/images/camera_VIEW.png)"
     )
     p.add_argument(
@@ -676,11 +701,18 @@ def main():
         metavar="VIEW",
         help="only Cycles beside ours (vertex output) of VIEW's PNGs (docs/images/camera_VIEW_pair.png)",
     )
+    p.add_argument("--pair-spp", type=int, help="--pair: the references' samples per seed named in its title")
     a = p.parse_args()
+    if a.pair_spp:
+        PAIR[0] = ("cycles", f"Cycles, 2 x {a.pair_spp} spp")
     if a.pair:
         return pair_figure(a.pair, os.path.join(ROOT, "docs", "images", f"camera_{a.pair}_pair.png"))
     if a.figure:
         return figure(a.figure, os.path.join(ROOT, "docs", "images", f"camera_{a.figure}.png"))
+    global WORK
+    if a.work:
+        WORK = a.work
+    QUALITY[0] = a.quality
     if a.fresh and os.path.isdir(WORK):
         _remove_ours(WORK)
     os.makedirs(WORK, exist_ok=True)
@@ -693,6 +725,9 @@ def main():
             view = dict(view, frame=a.frame)
             vn = f"{vn}_f{a.frame}"
         names = geometry_names(view)
+        if a.flip_ref:
+            FLIP_REF[:] = a.flip_ref.split(",")
+            vn = f"{vn}_flip"
         wd = os.path.join(WORK, vn)  # the references' renders
         if a.texel:
             TEXEL[view["scene"]] = a.texel
@@ -706,6 +741,8 @@ def main():
         if a.variant:
             VARIANT[:] = [a.variant]
             vn = f"{vn}_{a.variant}"
+        if a.quality != "draft":
+            vn = f"{vn}_{a.quality}"
         bakes = {k: bake(view["scene"], view["frame"], k) for k in a.outputs.split(",")}
         r, cpu_s = {"names": names}, {}
         wo = os.path.join(WORK, vn)

@@ -54,6 +54,22 @@ def isolated_env(directory):
     return env, resources
 
 
+def look_from(scene, name, location, target, lens):
+    """A new camera object `name` at `location` looking at `target` (its Y up), `lens` mm, made the
+    scene's camera; returns it."""
+    import bpy
+    from mathutils import Vector
+
+    data = bpy.data.cameras.new(name)
+    data.lens = lens
+    ob = bpy.data.objects.new(name, data)
+    scene.collection.objects.link(ob)
+    ob.location = location
+    ob.rotation_euler = (Vector(target) - Vector(location)).to_track_quat("-Z", "Y").to_euler()
+    scene.camera = ob
+    return ob
+
+
 def mesh_scene(mesh):
     """A new empty Blender scene holding `mesh` (a MeshInput), one mesh object per object: a
     Diffuse BSDF of its reflectance, an Emission shader where it emits (as scripts/make_samples.py
