@@ -20,6 +20,13 @@ ceiling right above it; a painting hung facing its wall bakes black. Two cases a
   back ray may meet a back of the polygon's own object, and at most INSIDE of them a back at all
   (an open surface seen from behind, a rug facing the floor, is allowed).
 
+Neither case holds for a polygon buried inside another object: a bowl's bottom sunk through its
+plate into a table top meets the top's backs in front and the plate's underside behind, the
+pattern of a reversed wall, but no render shows it. Buried: every sample point, just off either
+side, has a generalised winding number above BURIED for some object its rays met (1 inside a
+closed mesh with outward fronts, 1/2 on its surface, below 1/2 behind an open one such as the next
+room's wall); it is neither turned around nor warned about.
+
 Rays: SIDE_RAYS per side of each patch, stratified over the patch and cosine-weighted over the
 hemisphere, traced to their first hit by the build's ray backend (first_hit_within: near hits
 first, so a stray object far away does not blur them). Decisions are per input polygon (the counts
