@@ -1,7 +1,8 @@
 """How many polygons core/orientation.find_reversed turns around on each scene, by object and
 reason: the artist-made room (small and full) and the samples (sample_blends/), read through
 collect_geometry as the bake reads them; the core Cornell box, the clutter room, the furnished 20k
-(seeds 1, 2) and 100k rooms and the daylight room (docs/accuracy.md, "An artist-made room").
+(seeds 1, 2) and 100k rooms, the daylight room and the two rooms (docs/accuracy.md, "An artist-made
+room"). Per scene also the turned polygons' indices, to compare two checkouts polygon by polygon.
 
     python benchmarks/orient_counts.py OUT.json [--repo DIR]   # DIR: the checkout whose hr_addon runs
 """
@@ -37,7 +38,7 @@ def blender_meshes():
 
 
 def core_meshes():
-    from hr_testing import clutter, furnished, scenes
+    from hr_testing import clutter, furnished, scenes, two_rooms
 
     yield "Cornell box (core)", scenes.cornell_box()
     yield "clutter", clutter.clutter_room()[0]
@@ -45,6 +46,7 @@ def core_meshes():
     yield "furnished 20k seed 2", furnished.furnished_room("20k", 2)[0]
     yield "daylight 20k", furnished.daylight_room("20k")[0]
     yield "furnished 100k", furnished.furnished_room("100k", 1)[0]
+    yield "two rooms", two_rooms.two_rooms()[0]
 
 
 def main():
@@ -67,6 +69,7 @@ def main():
         res[name] = dict(polygons=len(mesh.loop_start), turned=len(reasons), by=dict(by))
         res[name]["cpu_s"] = round(time.process_time() - t, 2)
         print(name, res[name], flush=True)
+        res[name]["polys"] = sorted(int(p) for p in reasons)
     res["repo"] = a.repo
     Path(a.out).write_text(json.dumps(res, indent=1))
 

@@ -20,6 +20,13 @@ ceiling right above it; a painting hung facing its wall bakes black. Two cases a
   back ray may meet a back of the polygon's own object, and at most INSIDE of them a back at all
   (an open surface seen from behind, a rug facing the floor, is allowed).
 
+Neither case holds for a polygon buried inside another object: a bowl's bottom sunk through its
+plate into a table top meets the top's backs in front and the plate's underside behind, the
+pattern of a reversed wall, but no render shows it. Buried: every sample point, just off either
+side, has a generalised winding number above BURIED for some object its rays met (1 inside a
+closed mesh with outward fronts, 1/2 on its surface, below 1/2 behind an open one such as the next
+room's wall); it is neither turned around nor warned about.
+
 Rays: SIDE_RAYS per side of each patch, stratified over the patch and cosine-weighted over the
 hemisphere, traced to their first hit by the build's ray backend (first_hit_within: near hits
 first, so a stray object far away does not blur them). Decisions are per input polygon (the counts
@@ -39,6 +46,8 @@ NEAR = 0.25  # front rays hitting this close (x its size) face "a surface right 
 FAR = 4.0  # ... while its back rays travel this many times farther
 INSIDE = 0.25  # back rays meeting backs beyond this share: the back is the inside of a closed object
 GAP = 1e-3  # faces this close (x sqrt(total area), as contacts' gap) facing each other touch
+BURIED = 0.75  # winding number of another object above which a point lies inside it (1 inside, 1/2 on it)
+CHUNK = 1 << 21  # points x triangles per winding-number batch
 
 
 def _touching(pt, cand, pts, n, gap):
@@ -60,6 +69,56 @@ def _touching(pt, cand, pts, n, gap):
             side = np.einsum("ek,sek->se", np.cross(np.broadcast_to(n[q], e.shape), e), p[:, None] - c[None])
             out[i] |= (side >= -gap * np.linalg.norm(e, axis=1)).all(1)
     return out
+
+
+def _winding(tri, p):
+    """(M,) generalised winding number of the triangles tri (T, 3, 3) about the points p (M, 3): 1
+    inside a closed mesh with outward fronts, 0 outside, 1/2 on its surface, below 1/2 beside an
+    open one (Van Oosterom and Strackee's solid angle of each triangle, summed)."""
+    w = np.zeros(len(p))
+    step = max(1, CHUNK // max(len(tri), 1))
+    for s in range(0, len(p), step):
+        r = tri[None] - p[s : s + step, None, None]  # (m, T, 3, 3)
+        a, b, c = r[:, :, 0], r[:, :, 1], r[:, :, 2]
+        la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
+        det = np.einsum("mtk,mtk->mt", np.cross(a, b), c)
+        dot = (
+            la * lb * lc
+            + np.einsum("mtk,mtk->mt", a, b) * lc
+            + np.einsum("mtk,mtk->mt", a, c) * lb
+            + np.einsum("mtk,mtk->mt", b, c) * la
+        )
+        w[s : s + step] = np.arctan2(det, dot).sum(1) / (2 * np.pi)
+    return w
+
+
+def _buried(pt, cand, pts, n, out):
+    """(len(cand),) whether every sample point of the patches `cand`, moved off it to either side,
+    lies inside another object (its winding number above BURIED), one of those its rays met: a
+    face sunk into a table top (or part in the top, part in a plate on it) is never seen, whichever
+    way it faces. A face on another's surface has a side outside it (the offset: the rays' eps)."""
+    obj = pt.object_id
+    tri, tri_obj = pt.triangles, obj[pt.triangle_patch]
+    seen = np.zeros((len(cand), max(len(pt.object_names), int(obj.max()) + 1)), bool)
+    for hit, _, _ in out.values():
+        h = hit[cand]
+        seen[np.nonzero(h >= 0)[0], obj[h[h >= 0]]] = True
+    seen[np.arange(len(cand)), obj[cand]] = False  # its own object: the face lies on it
+    side = np.array([1.0, -1.0])[:, None, None] * n[cand, None, None]  # (C, 2, 1, 3)
+    eps = 1e-6 * np.sqrt(pt.area.sum())  # as _trace's
+    p = (pts[:, None] + eps * side).reshape(len(cand), -1, 3)
+    w = np.zeros(p.shape[:2])  # per point, the largest winding number of those objects
+    tri_lo, tri_hi = tri.min(1), tri.max(1)
+    p_lo, p_hi = p.min(1), p.max(1)
+    for o in np.flatnonzero(seen.any(0)):
+        m = tri_obj == o  # a point inside it lies in its bounds: the face's bounds overlap them
+        rows = np.flatnonzero(
+            seen[:, o] & (p_hi >= tri_lo[m].min(0)).all(1) & (p_lo <= tri_hi[m].max(0)).all(1)
+        )
+        if len(rows):
+            wo = _winding(tri[m], p[rows].reshape(-1, 3)).reshape(len(rows), -1)
+            w[rows] = np.maximum(w[rows], wo)
+    return (w > BURIED).all(1)
 
 
 def _stratified(n, rng):
@@ -154,8 +213,6 @@ def find_reversed(patches, backend, seed=0):
         touching = _touching(pt, cand, pts[cand], n, gap)
         lying = np.bincount(poly[cand], touching.sum(1), minlength=npoly)
         back &= lying < MIN_BACK * rays
-    for p in np.flatnonzero(back):
-        reasons[int(p)] = "back"
     emits = np.bincount(poly, pt.emission.max(0) * pt.area, minlength=npoly) > 0
     size = np.sqrt(np.bincount(poly, pt.area, minlength=npoly))
     front_mean = per_poly(np.where(fh, fd, 0.0)) / np.maximum(front_hits, 1)
@@ -172,7 +229,16 @@ def find_reversed(patches, backend, seed=0):
         & (back_hits - back_front <= INSIDE * rays)
         & (per_poly(bh & ~bf & (pt.object_id[np.maximum(bhit, 0)] == pt.object_id[:, None])) == 0)
     )
-    for p in np.flatnonzero(facing):
+    # a face inside another solid (a bowl's bottom sunk through its plate into a table top: its front
+    # meets the top's backs, its back the plate's underside) is never seen: left alone, not warned
+    turn = back | facing
+    if turn.any():
+        cand = np.flatnonzero(turn[poly])
+        seen = np.bincount(poly[cand], ~_buried(pt, cand, pts[cand], n, out), minlength=npoly)  # points out
+        turn &= seen > 0
+    for p in np.flatnonzero(turn & back):
+        reasons[int(p)] = "back"
+    for p in np.flatnonzero(turn & facing):
         reasons[int(p)] = "emitter" if emits[p] else "facing"
     flip = np.isin(poly, np.array(sorted(reasons), np.int64))
     return flip, reasons
