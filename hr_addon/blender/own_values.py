@@ -407,19 +407,25 @@ def _steps(longest, n, spacing):
     return np.r_[spacing, t[last] * RAISE], np.r_[c0, c0 - drop[last]]
 
 
+def mesh_topology(me):
+    """Local vertex coordinates (V, 3) float32 and loop_start, loop_total, loop_verts (int64) of a Mesh."""
+    V, P, L = len(me.vertices), len(me.polygons), len(me.loops)
+    co = np.empty(V * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    ls, lt, lv = np.empty(P, np.int32), np.empty(P, np.int32), np.empty(L, np.int32)
+    me.polygons.foreach_get("loop_start", ls)
+    me.polygons.foreach_get("loop_total", lt)
+    me.loops.foreach_get("vertex_index", lv)
+    return co.reshape(-1, 3), ls.astype(np.int64), lt.astype(np.int64), lv.astype(np.int64)
+
+
 def _world_faces(obj, depsgraph):
     """obj's evaluated mesh in world space: ((V, 3) float64 vertices, (L,) loop vertices, (F,)
     loop starts, (F,) loop totals, (F, 3) unit normals, (T, 3) loop-triangle vertices)."""
     me = obj.evaluated_get(depsgraph).data
-    co = np.empty(len(me.vertices) * 3, np.float32)
-    me.vertices.foreach_get("co", co)
+    co, start, total, lv = mesh_topology(me)
     M = np.array(obj.matrix_world, np.float64)
-    co = co.reshape(-1, 3) @ M[:3, :3].T + M[:3, 3]
-    lv = np.empty(len(me.loops), np.int32)
-    me.loops.foreach_get("vertex_index", lv)
-    start, total = (np.empty(len(me.polygons), np.int32) for _ in range(2))
-    me.polygons.foreach_get("loop_start", start)
-    me.polygons.foreach_get("loop_total", total)
+    co = co @ M[:3, :3].T + M[:3, 3]
     nrm = np.empty(len(me.polygons) * 3, np.float32)
     me.polygons.foreach_get("normal", nrm)
     nrm = nrm.reshape(-1, 3) @ np.linalg.inv(M[:3, :3])  # (normals by the inverse transpose)
@@ -427,7 +433,7 @@ def _world_faces(obj, depsgraph):
     me.calc_loop_triangles()
     tri = np.empty(len(me.loop_triangles) * 3, np.int32)
     me.loop_triangles.foreach_get("vertices", tri)
-    return co, lv.astype(np.int64), start.astype(np.int64), total.astype(np.int64), nrm, tri.reshape(-1, 3)
+    return co, lv, start, total, nrm, tri.reshape(-1, 3)
 
 
 def near_clutter(objects, candidates, depsgraph, reach):

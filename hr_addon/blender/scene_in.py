@@ -19,7 +19,7 @@ import numpy as np
 from ..core.geometry import InputError, MeshInput
 from .materials import read_material
 from .names import FACE, TAG
-from .own_values import values_object
+from .own_values import mesh_topology, values_object
 
 
 class SceneError(InputError):
@@ -72,18 +72,6 @@ class EvalMesh:
     materials: list  # material per slot (evaluated), [None] if no slots
     flipped: bool  # negative-determinant transform
     tri_loops: np.ndarray = None  # (T, 3) Blender's loop_triangles (loop indices)
-
-
-def mesh_topology(me):
-    """Local vertex coordinates (V, 3) float32 and loop_start, loop_total, loop_verts (int64) of a Mesh."""
-    V, P, L = len(me.vertices), len(me.polygons), len(me.loops)
-    co = np.empty(V * 3, np.float32)
-    me.vertices.foreach_get("co", co)
-    ls, lt, lv = np.empty(P, np.int32), np.empty(P, np.int32), np.empty(L, np.int32)
-    me.polygons.foreach_get("loop_start", ls)
-    me.polygons.foreach_get("loop_total", lt)
-    me.loops.foreach_get("vertex_index", lv)
-    return co.reshape(-1, 3), ls.astype(np.int64), lt.astype(np.int64), lv.astype(np.int64)
 
 
 def _mesh_arrays(me):
