@@ -763,60 +763,100 @@ def _grid_wall(ms, name="Grid wall", nx=10, nz=5, step=0.2):
 
 
 def _plate(ms, y, top, name="Plate"):
-    """A plate wider than the grid wall, parallel to it `y` m in front, from z = 0 to `top`."""
+    """A plate wider than the grid wall and below it, parallel to it `y` m in front, from z = -0.2 to
+    `top`."""
     return ms.mesh_object(
         name,
-        [(-0.1, y, 0), (2.1, y, 0), (2.1, y, top), (-0.1, y, top)],
+        [(-0.2, y, -0.2), (2.2, y, -0.2), (2.2, y, top), (-0.2, y, top)],
         [[0, 1, 2, 3]],
         ms.diffuse("Grey plate", (RHO,) * 3),
     )
 
 
 @pytest.mark.parametrize(
-    "y, top, cut, plate_area",
+    "y, top, cut",
     [
-        (0.05, 0.45, True, 0.0),  # 5 cm in front, over the lower 0.45 m: the faces at 0.4-0.6 m in part
-        (0.05, 1.2, False, 2.64),  # the whole wall behind it: no face of the wall in part (the plate: yes)
-        (0.5, 0.45, False, 0.0),  # 0.5 m in front: further than the spacing (CLUTTER_REACH 1)
+        (0.05, 0.45, True),  # 5 cm in front, over the lower 0.45 m: the faces at 0.4-0.6 m in part
+        (0.05, 1.2, False),  # the whole wall behind it: no face of the wall in part
+        (0.5, 0.45, False),  # 0.5 m in front: further than the spacing (CLUTTER_REACH 1)
     ],
 )
-def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top, cut, plate_area):
+def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top, cut):
     """near_clutter on a 2 x 1 m wall of 0.2 m quads and a plate before it: with the plate 5 cm in front
-    of its lower 0.45 m, the ten faces at 0.4-0.6 m are covered in part (their rays from z 0.42 hit it,
-    from 0.5 and 0.58 not: 0.4 m^2, at least CLUTTER_AREA x 0.25^2 = 0.25); 0.25 / 4 would cut each
-    0.2 m face 4 x 4 (3,000 corners more), over CLUTTER_SHARE x the 1,224 corners the scene has at
-    0.25 m (the wall's 200, the plate's 1,024), so the wall gets 0.125 m: each face 2 x 2 (800
-    corners, counted on its evaluated mesh), and one log line names it; the plate over all of it,
+    of its lower 0.45 m, the ten faces at 0.4-0.6 m (the third row) are covered in part (of their rays,
+    from points 1/5 of a face apart, along the normal and tilted 45 degrees, some meet the plate, some
+    pass above it), the rows below wholly, those above not at all. Only those ten faces take the finer
+    level: the mesh's FINER 2 there (0.25 / 4: each 4 x 4, 60 corners more; within CLUTTER_SHARE x the
+    scene's 1,224 corners at 0.25 m, and worth it), the modifier's spacing stays 0.25 m, 200 + 600
+    corners counted on the wall's evaluated mesh, and one log line names it; the plate over all of it,
     or half a metre away: no face in part, the wall keeps its own 200 corners and gets no modifier.
-    The plate faces the wall: 0.45 m tall, every ray of it meets the wall (not in part); 1.2 m tall,
-    its rays above the wall's 1 m miss: its one face, 2.64 m^2, in part."""
+    Delete Bake (remove_own_values) takes FINER off the mesh with the modifier."""
     bpy, ms, scene = empty_scene()
     from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import FINER
 
     wall = _grid_wall(ms)
     plate = _plate(ms, y, top)
     dg = bpy.context.evaluated_depsgraph_get()
-    area = ov.near_clutter([wall, plate], [wall, plate], dg, 0.25)
-    assert area == pytest.approx({"Grid wall": 0.4 if cut else 0.0, "Plate": plate_area}, abs=1e-6)
+    share, area = ov.near_clutter([wall, plate], [wall], dg, 0.25, 0.0625)["Grid wall"]
+    np.testing.assert_allclose(area, 0.04, rtol=1e-6)  # (float32 vertices)
+    rows = share.reshape(5, 10)  # (faces row by row from z = 0)
+    if cut:
+        assert (rows[:2] == 1).all() and (rows[3:] == 0).all() and ((rows[2] > 0) & (rows[2] < 1)).all(), rows
+    else:
+        assert (share == (1 if top > 1 else 0)).all(), rows
     lines = []
     ov.ensure_own_values([wall, plate], "CORNER", dg, 0.25, log=lines.append)
     dg.update()
     assert len(wall.evaluated_get(dg).data.loops) == (800 if cut else 200)
-    assert ov.subdividing(wall) == (0.125 if cut else 0.0)
+    assert ov.subdividing(wall) == (0.25 if cut else 0.0)
+    a = wall.data.attributes.get(FINER)
+    assert (a is not None) == cut
+    if cut:
+        finer = np.empty(50, np.int32)
+        a.data.foreach_get("value", finer)
+        assert (finer.reshape(5, 10) == np.repeat([0, 0, 2, 0, 0], 10).reshape(5, 10)).all()
     assert [x for x in lines if "close in front" in x] == (
         [
             "Vertex Spacing 0.25: 1 object(s) with surfaces close in front of part of their faces "
-            "('Grid wall' 0.125 m): their light changes across those faces."
+            "('Grid wall' 10 faces 0.4 m^2): those faces cut to 0.0625 m (their light changes across them)."
         ]
         if cut
         else []
     )
+    ov.remove_own_values([wall])
+    assert FINER not in wall.data.attributes and not wall.modifiers
+
+
+def test_a_back_panel_between_shelf_boards_gets_finer_corners():
+    """A 1.2 x 1.6 m back panel, one quad, and three boards 0.3 m deep, 2 cm thick, across it (their
+    ends on it, at z 0.3, 0.7 and 1.1 m): the rays along the normal from the panel's centre and the
+    points 0.8 of the way to its corners and edge middles (session 31's near_clutter) all pass
+    between the boards, but the tilted ones near a board meet it: the panel is in part and its one
+    face takes the finer level (FINER 2: level 5 at 0.25 / 4 instead of 3, 4,096 corners)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    corners = [(0, 0, 0), (1.2, 0, 0), (1.2, 0, 1.6), (0, 0, 1.6)]
+    panel = ms.mesh_object("Panel", corners, [[0, 3, 2, 1]], ms.diffuse("Back", (RHO,) * 3))
+    boards = []
+    for z in (0.3, 0.7, 1.1):
+        box = [(x, yy, zz) for zz in (z, z + 0.02) for yy in (0, 0.3) for x in (0, 1.2)]
+        faces = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
+        boards.append(ms.mesh_object(f"Board {z}", box, faces, ms.diffuse("Board", (RHO,) * 3)))
+    dg = bpy.context.evaluated_depsgraph_get()
+    assert tuple(panel.data.polygons[0].normal) == pytest.approx((0, 1, 0))
+    (share,), _ = ov.near_clutter([panel, *boards], [panel], dg, 0.25, 0.0625)["Panel"]
+    assert 0 < share < 0.5
+    ov.ensure_own_values([panel, *boards], "CORNER", dg, 0.25)
+    dg.update()
+    assert len(panel.evaluated_get(dg).data.loops) == 4 * 4**5 and ov.subdividing(panel) == 0.25
 
 
 def test_the_clutter_does_not_depend_on_the_frames_baked(tmp_path):
     """The plate moves from 5 cm before the wall (frame 1, the scene's first) to 0.5 m (frame 3 on):
     a bake of frame 4 alone subdivides the wall as a bake of frame 1 does (the corners are static,
-    taken at the scene's first frame: 0.125 m, 800 corners, as in the test above)."""
+    taken at the scene's first frame: the ten faces 4 x 4, 800 corners, as in the test above)."""
     bpy, ms, scene = empty_scene()
     from hr_addon.blender import own_values as ov
     from hr_addon.blender.bake import run_bake
@@ -836,7 +876,7 @@ def test_the_clutter_does_not_depend_on_the_frames_baked(tmp_path):
         run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=frames)
         dg = bpy.context.evaluated_depsgraph_get()
         got.append((ov.subdividing(wall), len(wall.evaluated_get(dg).data.loops)))
-    assert got == [(0.125, 800)] * 2
+    assert got == [(0.25, 800)] * 2
 
 
 def test_at_a_fine_spacing_the_large_faces_are_cut_within_the_budget(tmp_path):
