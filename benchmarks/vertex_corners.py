@@ -96,6 +96,7 @@ def main():
         own_c, want, got = (
             counts if counts else (sum(len(o.evaluated_get(dg).data.loops) for o in objects),) * 3
         )
+        finer = [o for o in finer if ov.has_coarse_edges(o, s, dg) or o.name in fine]  # (ensure_own_values')
         r = dict(
             subdivided=len(finer),
             own_corners=own_c,

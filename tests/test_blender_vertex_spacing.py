@@ -671,7 +671,7 @@ def test_the_corner_budget_raises_the_largest_objects_first():
     assert ov.corners_at(*ov.face_edges(wall, dg), 0.25) == 1024
 
     def raised(limit):
-        out, counts = ov.corner_budget(objects, objects, 0.25, dg, limit=limit)
+        out, counts, _ = ov.corner_budget(objects, objects, 0.25, dg, limit=limit)
         assert counts[:2] == (28, 1024 + 264)
         return {k: round(v, 4) if v is not None else v for k, v in out.items()}, counts[2]
 
@@ -684,7 +684,7 @@ def test_the_corner_budget_raises_the_largest_objects_first():
     assert raised(39) == ({"Wall": None, "Bar": None}, 4 + 24)
     assert raised(27) == ({"Wall": None, "Bar": None}, 28)  # (under the own corners: the least)
     # the raised spacings make what was counted: the wall at 1 m (just above) is cut 4 x 4
-    out, _ = ov.corner_budget(objects, objects, 0.25, dg, limit=327)
+    out, _, _ = ov.corner_budget(objects, objects, 0.25, dg, limit=327)
     ov.ensure_own_values([wall], "CORNER", dg, out["Wall"])
     dg.update()
     assert len(wall.evaluated_get(dg).data.loops) == 64
@@ -707,7 +707,7 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     dg = scene.view_layers[0].depsgraph
     objects = geometry_objects(scene.view_layers[0])  # at 0.15 m: 257,032 corners (x6.0), within
     finer = [o for o in objects if ov.has_coarse_edges(o, 0.15, dg)]
-    assert ov.corner_budget(objects, finer, 0.15, dg) == ({}, (42_676, 257_032, 257_032))
+    assert ov.corner_budget(objects, finer, 0.15, dg) == ({}, (42_676, 257_032, 257_032), {})
     lines = []
     ov.ensure_own_values(objects, "CORNER", dg, 0.25, log=lines.append)
     # (the spacing's own note goes to log too since def26: only no budget line)
@@ -798,7 +798,7 @@ def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top
     wall = _grid_wall(ms)
     plate = _plate(ms, y, top)
     dg = bpy.context.evaluated_depsgraph_get()
-    share, area = ov.near_clutter([wall, plate], [wall], dg, 0.25, 0.0625)["Grid wall"]
+    share, area = ov.near_clutter([wall, plate], [wall], dg, 0.25, 0.25)["Grid wall"]
     np.testing.assert_allclose(area, 0.04, rtol=1e-6)  # (float32 vertices)
     rows = share.reshape(5, 10)  # (faces row by row from z = 0)
     if cut:
@@ -846,7 +846,7 @@ def test_a_back_panel_between_shelf_boards_gets_finer_corners():
         boards.append(ms.mesh_object(f"Board {z}", box, faces, ms.diffuse("Board", (RHO,) * 3)))
     dg = bpy.context.evaluated_depsgraph_get()
     assert tuple(panel.data.polygons[0].normal) == pytest.approx((0, 1, 0))
-    (share,), _ = ov.near_clutter([panel, *boards], [panel], dg, 0.25, 0.0625)["Panel"]
+    (share,), _ = ov.near_clutter([panel, *boards], [panel], dg, 0.25, 0.25)["Panel"]
     assert 0 < share < 0.5
     ov.ensure_own_values([panel, *boards], "CORNER", dg, 0.25)
     dg.update()
@@ -929,7 +929,7 @@ def test_the_budgets_corners_are_what_the_meshes_get_and_within_the_limit(limit)
     bars = _bars(ms, 40)
     objects = [wall, *bars]
     dg = bpy.context.evaluated_depsgraph_get()
-    out, (own, want, got) = ov.corner_budget(objects, objects, 0.1, dg, limit=limit)
+    out, (own, want, got), _ = ov.corner_budget(objects, objects, 0.1, dg, limit=limit)
     assert (own, want) == (4 + 40 * 24, 16_384 + 40 * 4_104)
     assert got <= limit
     for o in objects:
@@ -954,9 +954,12 @@ def test_over_the_budget_the_named_objects_keep_the_spacing_while_the_others_mak
     bars = _bars(ms, 10)
     objects = [wall, *bars]
     dg = bpy.context.evaluated_depsgraph_get()
-    clutter = {"Grid wall": 0.03}
-    out, (own, want, got) = ov.corner_budget(objects, objects, 0.12, dg, limit=10_000, clutter=clutter)
+    clutter = {"Grid wall": (np.full(50, 0.5), np.full(50, 0.04))}  # (near_clutter's: every face in part)
+    out, (own, want, got), fine = ov.corner_budget(objects, objects, 0.12, dg, limit=10_000, clutter=clutter)
     assert (own, want) == (200 + 10 * 24, 800 + 10 * 4_104) and got <= 10_000
     assert "Grid wall" not in out and all(out[b.name] is None or out[b.name] > 0.12 for b in bars)
-    out, (_, _, got) = ov.corner_budget(objects, objects, 0.12, dg, limit=800 + 10 * 24 - 1, clutter=clutter)
+    assert fine == {}  # (over the budget no face gets finer than the spacing)
+    out, (_, _, got), _ = ov.corner_budget(
+        objects, objects, 0.12, dg, limit=800 + 10 * 24 - 1, clutter=clutter
+    )
     assert out["Grid wall"] is None and got <= 800 + 10 * 24 - 1

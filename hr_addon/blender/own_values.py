@@ -464,11 +464,12 @@ def _grid(m):
     return np.c_[1 - uv.sum(1), uv]
 
 
-def near_clutter(objects, candidates, depsgraph, reach, step):
+def near_clutter(objects, candidates, depsgraph, reach, spacing):
     """{name: ((F,) share, (F,) m^2)} for each object of `candidates`: how much of each of its faces
     other surfaces (any object of `objects`, itself too) cover close in front (the share of its rays
-    occluded), and each face's area. From points spread over each face (the centroids of its
-    triangles cut into pieces about `step` long, at least 2 x 2, at most CLUTTER_GRID x CLUTTER_GRID),
+    occluded; 0 for a face spacing / 2^CLUTTER_LEVELS would cut no finer than `spacing`, not looked
+    at), and each face's area. From points spread over each face (the centroids of its triangles cut
+    into pieces about spacing / 2^CLUTTER_LEVELS long, at least 2 x 2, at most CLUTTER_GRID x CLUTTER_GRID),
     rays `reach` long (m; at most the face's longest edge, face_edges) along its normal and tilted 45
     degrees to either side of its two axes (5 rays a point): some occluded and some not (a share in
     (0, 1)) = a shadow's edge likely crosses the face (books a few cm before a wall, a board 2 cm from
@@ -492,8 +493,13 @@ def near_clutter(objects, candidates, depsgraph, reach, step):
         longest, _ = face_edges(o, depsgraph)
         p = co[tri]  # (T, 3, 3)
         e = p[:, [1, 2, 0]] - p
-        tri_area = 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1)
-        area = np.bincount(tf, tri_area, minlength=F)
+        area = np.bincount(tf, 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1), minlength=F)
+        gain = (levels(longest, spacing, CLUTTER_LEVELS) > levels(longest, spacing))[tf]
+        if not gain.any():
+            out[o.name] = (np.zeros(F), area)
+            continue
+        tf, p, e = tf[gain], p[gain], e[gain]
+        step = spacing / 2**CLUTTER_LEVELS
         m = np.clip(np.ceil(np.linalg.norm(e, axis=2).max(1) / step), 2, CLUTTER_GRID).astype(np.int64)
         pts, fid, axis = [], [], []
         for k in np.unique(m):
@@ -753,7 +759,7 @@ def _cluttered(objects, own, spacing, depsgraph):
         return {}
     fine = spacing / 2**CLUTTER_LEVELS
     candidates = [o for o in own if has_coarse_edges(o, fine, depsgraph)]
-    found = near_clutter(objects, candidates, depsgraph, CLUTTER_REACH * spacing, fine)
+    found = near_clutter(objects, candidates, depsgraph, CLUTTER_REACH * spacing, spacing)
     return {n: v for n, v in found.items() if ((v[0] > 0) & (v[0] < 1)).any()}
 
 
