@@ -40,14 +40,22 @@ the largest objects' spacings were raised first, so at 0.1 m the furnished room'
 ceiling got no subdivision while its books kept theirs); one log line names them with their
 spacings. A normal room is within it at 0.15 m.
 
-Where the light changes (near_clutter; session 31, branch vbudget): an object whose faces other
-surfaces cover in part within a spacing in front (a wall behind a bookcase's books, a floor under
-furniture, a ceiling above a lamp panel) gets spacing / 4, from what the budget leaves and at most
-as many corners again as the spacing makes, largest such area first; a wall grid of 0.23 m quads
-is not cut at 0.25 m at all without it. Taken once, where the bake starts (the scene's first
-frame): the corners stay static.
+Where the light changes (near_clutter; session 31, branch vbudget; per face since session 32, branch
+clutter): a face other surfaces cover in part within a spacing in front (a wall behind a bookcase's
+books, a floor under furniture, a back panel between shelf boards: rays from points about the finer
+spacing apart, along its normal and tilted 45 degrees; some occluded, some not) gets up to
+CLUTTER_LEVELS levels finer: the integer face attribute FINER ("HR_Finer") the bake writes on the
+user's mesh, which the group's level rule reads (each face at spacing / 2^FINER; 0 where absent), so
+the corners go only to those faces (session 31 gave whole objects spacing / 4: the furnished floor
+35k corners for 5.7 of its 27 m^2). From what the budget leaves (at most as many corners again as the
+spacing makes), each face as many levels as its area, weighed by how much of it is in part, is worth
+per corner added (CLUTTER_WORTH), the most such area per corner first. Not for a mesh several objects
+share nor one whose modifiers change its faces (their faces are not the mesh's). Taken once, where
+the bake starts (the scene's first frame): the corners stay static; Delete Bake removes FINER with
+the modifier.
 """
 
+import functools
 import heapq
 
 import bpy
@@ -454,6 +462,7 @@ def _world_faces(obj, depsgraph):
     return co, lv, start, total, nrm, tri.reshape(-1, 3), tf.astype(np.int64)
 
 
+@functools.cache
 def _grid(m):
     """(m^2, 3) barycentric weights: the centroids of a triangle's m x m subdivision (inside it)."""
     i, j = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
@@ -467,16 +476,17 @@ def _grid(m):
 def near_clutter(objects, candidates, depsgraph, reach, spacing):
     """{name: ((F,) share, (F,) m^2)} for each object of `candidates`: how much of each of its faces
     other surfaces (any object of `objects`, itself too) cover close in front (the share of its rays
-    occluded; 0 for a face spacing / 2^CLUTTER_LEVELS would cut no finer than `spacing`, not looked
-    at), and each face's area. From points spread over each face (the centroids of its triangles cut
-    into pieces about spacing / 2^CLUTTER_LEVELS long, at least 2 x 2, at most CLUTTER_GRID x CLUTTER_GRID),
-    rays `reach` long (m; at most the face's longest edge, face_edges) along its normal and tilted 45
-    degrees to either side of its two axes (5 rays a point): some occluded and some not (a share in
-    (0, 1)) = a shadow's edge likely crosses the face (books a few cm before a wall, a board 2 cm from
-    it, shelf boards across a back panel, whose shadows the normal's rays pass between); the nearer
-    half, the more of it. A face wholly behind something (1) or wholly open (0) is not in part. Each
-    object's evaluated mesh as it is now (the corners stay static: no frame but the one the bake
-    starts from; the bake calls it at the scene's first frame)."""
+    occluded; 0 for a face no finer level would cut more, or whose whole area is not worth the
+    corners (_choices): not looked at), and each face's area. From points spread over each face (the
+    centroids of its triangles cut into pieces about spacing / 2^CLUTTER_LEVELS long, at least 2 x 2,
+    at most CLUTTER_GRID x CLUTTER_GRID), rays `reach` long (m; at most the face's longest edge,
+    face_edges) along its normal and tilted 45 degrees to either side of its two axes (5 rays a
+    point): some occluded and some not (a share in (0, 1)) = a shadow's edge likely crosses the face
+    (books a few cm before a wall, a board 2 cm from it, shelf boards across a back panel, whose
+    shadows the normal's rays pass between); the nearer half, the more of it. A face wholly behind
+    something (1) or wholly open (0) is not in part. Each object's evaluated mesh as it is now (the
+    corners stay static: no frame but the one the bake starts from; the bake calls it at the scene's
+    first frame)."""
     if not candidates:
         return {}
     from ..core.visibility import make_backend
@@ -490,11 +500,11 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing):
         if not F or not len(tri):
             out[o.name] = (np.zeros(F), np.zeros(F))
             continue
-        longest, _ = face_edges(o, depsgraph)
+        longest, cnt = face_edges(o, depsgraph)
         p = co[tri]  # (T, 3, 3)
         e = p[:, [1, 2, 0]] - p
         area = np.bincount(tf, 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1), minlength=F)
-        gain = (levels(longest, spacing, CLUTTER_LEVELS) > levels(longest, spacing))[tf]
+        gain = _choices(longest, cnt, spacing, area)[1].any(1)[tf]  # (even wholly in part)
         if not gain.any():
             out[o.name] = (np.zeros(F), area)
             continue
@@ -600,6 +610,16 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     return out, (own, want, got), {}
 
 
+def _choices(longest, cnt, spacing, area):
+    """((F, CLUTTER_LEVELS) corners each face adds 1 .. CLUTTER_LEVELS levels finer, (F,
+    CLUTTER_LEVELS) whether that is a choice: it adds some, and no more than `area` (m^2) is worth
+    (CLUTTER_WORTH))."""
+    base = cnt << (2 * levels(longest, spacing))
+    add = [(cnt << (2 * levels(longest, spacing, k))) - base for k in range(1, CLUTTER_LEVELS + 1)]
+    add = np.stack(add, 1) if add else np.zeros((len(cnt), 0), np.int64)
+    return add, (add > 0) & (add * (spacing / 2**CLUTTER_LEVELS) ** 2 <= 4 / CLUTTER_WORTH * area[:, None])
+
+
 def _finer_faces_within(clutter, edges, spacing, room):
     """({name: (F,) int8 FINER}, corners added): the faces in part of `clutter` (corner_budget's),
     each the most levels finer (up to CLUTTER_LEVELS) worth their corners: its area weighed by how
@@ -607,17 +627,12 @@ def _finer_faces_within(clutter, edges, spacing, room):
     or covered) per corner added at least CLUTTER_WORTH x the finest spacing^2 / 4. The most weighed
     area per corner first, each the finest of its levels that still fits in `room` corners (a face
     no finer level cuts more, or none worth it: left)."""
-    fine_s = spacing / 2**CLUTTER_LEVELS
     owner, faces, areas, costs = [], [], [], []
     for j, (n, (share, area)) in enumerate(clutter.items()):
         longest, cnt = edges[n]
         f = np.flatnonzero((share > 0) & (share < 1))
         area = 4 * share[f] * (1 - share[f]) * area[f]
-        base = cnt[f] << (2 * levels(longest[f], spacing))
-        add = [(cnt[f] << (2 * levels(longest[f], spacing, k))) - base for k in range(1, CLUTTER_LEVELS + 1)]
-        add = np.stack(add, 1) if add else np.zeros((len(f), 0), np.int64)
-        # (a level that adds nothing, or more than the face's area is worth: not a choice)
-        ok = (add > 0) & (add * fine_s**2 <= 4 / CLUTTER_WORTH * area[:, None])
+        add, ok = _choices(longest[f], cnt[f], spacing, area)
         keep = ok.any(1)
         owner.append(np.full(keep.sum(), j))
         faces.append(f[keep])
@@ -868,15 +883,15 @@ def _helper(obj, depsgraph):
 
 
 def remove_own_values(objects):
-    """Undo ensure_own_values on `objects` (Delete Bake): the modifiers, their helpers."""
+    """Undo ensure_own_values on `objects` (Delete Bake): the modifiers, their helpers, FINER."""
     for obj in objects:
+        if obj.type == "MESH" and obj.data.library is None:
+            _set_finer(obj.data, None)
         md = _modifier(obj)
         if md is None:
             continue
         h = md.get(_socket(md))
         obj.modifiers.remove(md)
-        if obj.data.library is None:
-            _set_finer(obj.data, None)
         if h is not None and h.get(TAG) == obj.name:
             me = h.data
             bpy.data.objects.remove(h)
