@@ -694,7 +694,9 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     them shares a helper and the modifier (made or brought up to date: its domain, its helper's
     topology, last in the stack); with a Vertex Spacing > 0 every object with an edge longer than
     it too, subdividing (has_coarse_edges), each at `spacing` unless the corner budget raises its
-    own (corner_budget). Returns notes naming the objects that got them now.
+    own (corner_budget), and near_clutter's faces the budget grants finer: FINER written on their
+    mesh (an object with such faces and no longer edge subdivides by them alone; FINER removed from
+    the others' meshes). Returns notes naming the objects that got them now.
     log: callable(str) taking the spacing's note (the objects subdivided) and the budget's line
     instead of the notes: log lines, not warnings (the spacing is the default; they ask nothing
     of the user)."""
