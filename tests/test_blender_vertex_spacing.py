@@ -861,6 +861,34 @@ def test_the_group_cuts_each_face_by_its_finer():
     assert np.abs(co[:, 1]).max() < 1e-6 and co[:, 0].min() > -1e-6 and co[:, 2].max() < 1 + 1e-6
 
 
+def test_a_shared_mesh_or_one_whose_modifiers_change_its_faces_gets_no_finer_faces():
+    """The grid wall with the plate 5 cm before its lower 0.45 m (the faces in part, as above), its
+    mesh shared by a second object (a linked duplicate), or behind a Mirror modifier (its evaluated
+    faces are not the mesh's): no FINER on the mesh, no log line, and the wall (0.2 m quads under
+    0.25 m) not subdivided."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import FINER
+
+    for how in ("shared", "mirror"):
+        bpy, ms, scene = empty_scene()
+        wall = _grid_wall(ms)
+        plate = _plate(ms, 0.05, 0.45)
+        objects = [wall, plate]
+        if how == "shared":
+            twin = bpy.data.objects.new("Twin", wall.data)
+            twin.location.y = -3
+            scene.collection.objects.link(twin)
+            objects.append(twin)
+        else:
+            wall.modifiers.new("Mirror", "MIRROR").use_axis = (False, False, True)
+        dg = bpy.context.evaluated_depsgraph_get()
+        lines = []
+        ov.ensure_own_values(objects, "CORNER", dg, 0.25, log=lines.append)
+        assert FINER not in wall.data.attributes and not [x for x in lines if "close in front" in x], how
+        assert ov.subdividing(wall) == 0.0, how
+
+
 def test_a_back_panel_between_shelf_boards_gets_finer_corners():
     """A 1.2 x 1.6 m back panel, one quad, and three boards 0.3 m deep, 2 cm thick, across it (their
     ends on it, at z 0.3, 0.7 and 1.1 m): the rays along the normal from the panel's centre and the
