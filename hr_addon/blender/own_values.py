@@ -40,6 +40,15 @@ the largest objects' spacings were raised first, so at 0.1 m the furnished room'
 ceiling got no subdivision while its books kept theirs); one log line names them with their
 spacings. A normal room is within it at 0.15 m.
 
+Playback (session 32, branch playfix): the helper holds the subdivided mesh already, so while the
+mesh the group receives is the one the bake subdivided (a hash per corner, GUARD, the same as the
+helper's: _from_helper) the group outputs the helper's mesh instead of subdividing again at every
+frame change (the 100k room's 2,413 objects: ~3 s of a 4.5 s change). The helper keeps the
+object's materials (sync_materials) so the evaluated mesh's are right. An edit after the bake
+(positions, UVs and the other attributes the guard reads, material indices, a deforming modifier
+or shape key below the group) changes the hash: the group subdivides it, as before; the next bake
+makes the helper anew.
+
 Where the light changes (near_clutter; session 31, branch vbudget): an object whose faces other
 surfaces cover in part within a spacing in front (a wall behind a bookcase's books, a floor under
 furniture, a ceiling above a lamp panel) gets spacing / 4, from what the budget leaves and at most
