@@ -1081,3 +1081,31 @@ def test_a_material_changed_after_the_bake_shows_and_the_check_names_it(tmp_path
     me.materials[0] = grey  # (the helper not synced: an edit the handler did not see)
     assert "'Wall'" in check_scene(scene, force=True)
     assert _evaluated(wall)[1] == ["Blue"] and PROBE in _evaluated(wall)[0]
+
+
+def test_a_modifier_that_sets_materials_gets_no_guard():
+    """A geometry-nodes modifier below the group that sets the faces' material: the subdivided
+    mesh's materials are not the object's mesh's, which the helper holds, so its helper gets no
+    GUARD and the group subdivides (the modifier's material shows)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import GUARD
+
+    wall = _scene(ms)
+    red = ms.diffuse("Red", (0.5, 0.1, 0.1))
+    g = bpy.data.node_groups.new("Paint", "GeometryNodeTree")
+    g.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    g.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    gi, go, paint = (g.nodes.new(k) for k in ("NodeGroupInput", "NodeGroupOutput", "GeometryNodeSetMaterial"))
+    paint.inputs["Material"].default_value = red
+    g.links.new(gi.outputs[0], paint.inputs["Geometry"])
+    g.links.new(paint.outputs["Geometry"], go.inputs[0])
+    wall.modifiers.new("Paint", "NODES").node_group = g
+    ov.ensure_own_values([wall], "CORNER", bpy.context.evaluated_depsgraph_get(), 0.25)
+    md = wall.modifiers[-1]
+    me = md[md.node_group.interface.items_tree["Values"].identifier].data
+    assert md.name == ov.N_VALUES and GUARD not in me.attributes
+    me.attributes.new(PROBE, "FLOAT", "POINT")
+    wall.update_tag()
+    attrs, mats = _evaluated(wall)
+    assert PROBE not in attrs and "Red" in mats

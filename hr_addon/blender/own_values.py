@@ -846,8 +846,9 @@ def _helper(obj, depsgraph):
     """Make obj's helper object, or give it a new mesh when the evaluated mesh's topology is not
     its own (subdividing: when its GUARD is not the evaluated mesh's either, the mesh received has
     changed); the helper's mesh keeps the evaluated mesh's materials (sync_materials). An object
-    whose mesh has more attributes than the guard reads (GUARDED): its helper without GUARD, the
-    guard never holds (the group subdivides at every evaluation, as before session 32). Returns
+    whose mesh has more attributes than the guard reads (GUARDED), or whose modifiers below give
+    the subdivided mesh other materials than its mesh's: its helper without GUARD, the guard never
+    holds (the group subdivides at every evaluation, as before session 32). Returns
     the mesh it replaced if nothing else uses it (the caller removes them together), else None."""
     md = _modifier(obj)
     ev = obj.evaluated_get(depsgraph)
@@ -858,9 +859,11 @@ def _helper(obj, depsgraph):
     guard = _int_attribute(ev.data, GUARD, "CORNER") if finer else None
     held = _int_attribute(h.data, GUARD, "CORNER") if ours and guard is not None else None
     stale = guard is not None and not np.array_equal(guard, held)
-    old = None
+    old, unguarded = None, finer and len(_guard_names(obj)) > GUARDED
     if not ours or (len(h.data.loops), len(h.data.vertices)) != n or stale:
         me = bpy.data.meshes.new_from_object(ev)
+        # (a modifier below that sets materials: the helper's, the object's mesh's, would hide them)
+        unguarded = unguarded or (finer and list(me.materials) != list(obj.data.materials))
         me.name = f"{N_VALUES} {obj.name}"
         if ours:
             old = h.data
@@ -871,7 +874,7 @@ def _helper(obj, depsgraph):
             h[TAG] = obj.name
         md[_socket(md)] = h
         obj.update_tag()
-    if finer and len(_guard_names(obj)) > GUARDED and GUARD in h.data.attributes:
+    if unguarded and GUARD in h.data.attributes:
         h.data.attributes.remove(h.data.attributes[GUARD])
         obj.update_tag()
     sync_materials([obj])
