@@ -1109,3 +1109,16 @@ def test_a_modifier_that_sets_materials_gets_no_guard():
     wall.update_tag()
     attrs, mats = _evaluated(wall)
     assert PROBE not in attrs and "Red" in mats
+
+
+def test_the_guard_holds_in_the_saved_file(tmp_path):
+    """The helper's .HR_Guard, its materials and the group's inputs are saved: the file opened
+    again shows the helper's mesh (PROBE), with the object's materials."""
+    bpy, ms, scene = empty_scene()
+
+    _guarded_wall(ms)
+    path = str(tmp_path / "guarded.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    attrs, mats = _evaluated(bpy.data.objects["Wall"])
+    assert PROBE in attrs and mats == ["Grey", "Red"]
