@@ -320,8 +320,9 @@ def regroup(bpy, scene, domain):
     dg.update()
     bpy.data.batch_remove([me for o in objs if (me := ov._helper(o, dg)) is not None])
     forget_loaded()  # (the helpers are new: frame 1 written again)
-    print(f"regroup: {len(objs)} modifiers to group version {ov.FINER_VERSION}, "
-          f"{time.process_time() - c:.1f} s CPU", flush=True)
+    bare = sum(ov.GUARD not in o.modifiers[-1][ov._socket(o.modifiers[-1])].data.attributes for o in objs)
+    print(f"regroup: {len(objs)} modifiers to group version {ov.FINER_VERSION} ({bare} helpers without "
+          f"the guard), {time.process_time() - c:.1f} s CPU", flush=True)
 
 
 def _shown(bpy, scene, playback, np):
