@@ -505,6 +505,9 @@ def test_a_file_baked_with_the_second_group_gets_the_new_one():
     for lk in list(st.outputs["Geometry"].links):
         g.links.new(src, lk.to_socket)
     g.nodes.remove(st)
+    (switch,) = [n for n in g.nodes if n.bl_idname == "GeometryNodeSwitch"]  # (version 2 always subdivided)
+    (out,) = [n for n in g.nodes if n.bl_idname == "NodeGroupOutput"]
+    g.links.new(switch.inputs["False"].links[0].from_socket, out.inputs[0])
     g[TAG] = 2
     wall.update_tag()
     dg.update()
@@ -1025,3 +1028,202 @@ def test_over_the_budget_the_named_objects_keep_the_spacing_while_the_others_mak
         objects, objects, 0.12, dg, limit=800 + 10 * 24 - 1, clutter=clutter
     )
     assert out["Grid wall"] is None and got <= 800 + 10 * 24 - 1
+
+
+# -- the group's output = the helper's mesh while the guard holds (session 32, branch playfix) --
+
+PROBE = "probe"  # an attribute only the helper's mesh has: shown while the group outputs that mesh
+
+
+def _guarded_wall(ms, shape_key=False):
+    """The wall (a UV map, a second material; shape_key: a shape key at 0) with its subdividing modifier and
+    helper at 0.25 m (ensure_own_values), random HR_Radiance and PROBE on the helper's mesh; (wall,
+    the helper's mesh)."""
+    import bpy
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.playback import write_attribute
+
+    wall = _scene(ms)
+    wall.data.uv_layers.new(name="UVMap")
+    wall.data.materials.append(ms.diffuse("Red", (0.5, 0.1, 0.1)))
+    if shape_key:
+        wall.shape_key_add(name="Basis")
+        key = wall.shape_key_add(name="Key")
+        key.data[0].co.y += 0.1
+        key.value = 0.0
+    dg = bpy.context.evaluated_depsgraph_get()
+    ov.ensure_own_values([wall], "CORNER", dg, 0.25)
+    md = wall.modifiers[-1]
+    me = md[md.node_group.interface.items_tree["Values"].identifier].data
+    write_attribute(me, np.random.default_rng(1).random((len(me.loops), 4), np.float32), "CORNER")
+    me.attributes.new(PROBE, "FLOAT", "POINT")
+    wall.update_tag()
+    return wall, me
+
+
+def _evaluated(obj):
+    """obj's evaluated mesh: {attribute: (domain, its values' bytes)} and its materials' names."""
+    import bpy
+
+    me = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
+    out = {}
+    for a in me.attributes:
+        if a.name.startswith(".a_"):  # (anonymous: Capture Attribute's seam flag, not kept in a copy)
+            continue
+        width = {"FLOAT_VECTOR": 3, "FLOAT_COLOR": 4, "FLOAT2": 2, "INT32_2D": 2}.get(a.data_type, 1)
+        key = {"FLOAT_VECTOR": "vector", "FLOAT_COLOR": "color", "FLOAT2": "vector"}.get(a.data_type, "value")
+        kind = {"INT": np.int32, "BOOLEAN": bool, "INT32_2D": np.int32}.get(a.data_type, np.float32)
+        v = np.empty(len(a.data) * width, kind)
+        a.data.foreach_get(key, v)
+        out[a.name] = (a.domain, v.tobytes())
+    return out, [m.name for m in me.materials]
+
+
+def _edit(wall, what):
+    import bpy
+
+    if what == "position":
+        wall.data.vertices[2].co.x += 1e-4
+    elif what == "uv":
+        wall.data.uv_layers["UVMap"].uv[1].vector = (0.25, 0.75)
+    elif what == "material index":
+        wall.data.polygons[0].material_index = 1
+    elif what == "modifier":
+        wall.modifiers.new("Displace", "DISPLACE").strength = 0.1
+        wall.modifiers.move(len(wall.modifiers) - 1, 0)
+    elif what == "shape key":
+        wall.data.shape_keys.key_blocks["Key"].value = 1.0
+    wall.data.update()
+    bpy.context.view_layer.update()
+
+
+@pytest.mark.parametrize("what", ["position", "uv", "material index", "modifier", "shape key"])
+def test_the_group_shows_the_helpers_mesh_until_an_edit(what):
+    """While the mesh the group receives is the bake's (its GUARD, a hash per corner, is the
+    helper's), the group's output is the helper's mesh (PROBE shows), bit for bit what the
+    subdivision makes (every attribute, HR_Radiance from the helper, the materials); an edit after
+    the bake (positions, UVs, a material index, a deforming modifier or a shape key below the
+    group) makes the group subdivide again: the edit shows."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.names import GUARD
+
+    wall, me = _guarded_wall(ms, what == "shape key")
+    (attrs, mats) = _evaluated(wall)
+    assert PROBE in attrs and mats == ["Grey", "Red"] and GUARD in attrs
+    guard = me.attributes[GUARD]
+    saved = np.empty(len(guard.data), np.int32)
+    guard.data.foreach_get("value", saved)
+    me.attributes.remove(guard)  # the guard broken: the subdivision's own output
+    wall.update_tag()
+    (sub, sub_mats) = _evaluated(wall)
+    del attrs[PROBE]
+    assert PROBE not in sub and sub == attrs and sub_mats == mats
+    me.attributes.new(GUARD, "INT", "CORNER").data.foreach_set("value", saved)
+    wall.update_tag()
+    assert PROBE in _evaluated(wall)[0]
+    _edit(wall, what)
+    edited, _ = _evaluated(wall)
+    assert PROBE not in edited
+    name = {"uv": "UVMap", "material index": "material_index"}.get(what, "position")
+    assert edited[name] != attrs.get(name), what
+    assert edited[GUARD] != attrs[GUARD]
+
+
+def test_helpers_hold_their_objects_materials():
+    """The helper's mesh holds the object's materials (the evaluated mesh's while the guard
+    holds): a slot given another material after the bake is synced by the depsgraph handler and by
+    the stale check (own_values.sync_materials), so the evaluated object shows the new one; more
+    attributes than the guard reads (GUARDED): no GUARD on the helper, the group subdivides."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import GUARD
+
+    wall, me = _guarded_wall(ms)
+    assert [m.name for m in me.materials] == ["Grey", "Red"]
+    blue = ms.diffuse("Blue", (0.1, 0.1, 0.5))
+    wall.data.materials[1] = blue
+    bpy.context.view_layer.update()  # (playback.on_depsgraph_update syncs the helper)
+    assert [m.name for m in me.materials] == ["Grey", "Blue"]
+    assert _evaluated(wall)[1] == ["Grey", "Blue"] and PROBE in _evaluated(wall)[0]
+    me.materials[1] = None  # (an edit the handler did not see)
+    assert ov.sync_materials([wall]) == [wall] and ov.sync_materials([wall]) == []
+    for k in range(ov.GUARDED + 1 - len(ov._guard_names(wall))):
+        wall.data.attributes.new(f"extra {k}", "FLOAT", "POINT")
+    ov.ensure_own_values([wall], "CORNER", bpy.context.evaluated_depsgraph_get(), 0.25)
+    md = wall.modifiers[-1]
+    me = md[md.node_group.interface.items_tree["Values"].identifier].data
+    assert GUARD not in me.attributes
+    me.attributes.new(PROBE, "FLOAT", "POINT")
+    wall.update_tag()
+    assert PROBE not in _evaluated(wall)[0]
+
+
+def test_a_material_changed_after_the_bake_shows_and_the_check_names_it(tmp_path):
+    """After a bake at 0.25 m the wall shows its helper's mesh, which holds its material; another
+    material in its slot shows (the depsgraph handler syncs the helper) and the stale check names
+    the wall, also when the helper was not synced before it (the check syncs first)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.playback import check_scene
+
+    wall = _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    _bake(scene, 0.25)
+    md = wall.modifiers[-1]
+    me = md[md.node_group.interface.items_tree["Values"].identifier].data
+    me.attributes.new(PROBE, "FLOAT", "POINT")
+    wall.update_tag()
+    assert PROBE in _evaluated(wall)[0] and _evaluated(wall)[1] == ["Grey"]
+    assert check_scene(scene, force=True) == ""
+    grey, blue = wall.data.materials[0], ms.diffuse("Blue", (0.1, 0.1, 0.5))
+    wall.data.materials[0] = blue
+    bpy.context.view_layer.update()
+    assert _evaluated(wall)[1] == ["Blue"]
+    assert "'Wall'" in check_scene(scene, force=True)
+    wall.data.materials[0] = grey
+    bpy.context.view_layer.update()
+    assert check_scene(scene, force=True) == ""
+    wall.data.materials[0] = blue
+    me.materials[0] = grey  # (the helper not synced: an edit the handler did not see)
+    assert "'Wall'" in check_scene(scene, force=True)
+    assert _evaluated(wall)[1] == ["Blue"] and PROBE in _evaluated(wall)[0]
+
+
+def test_a_modifier_that_sets_materials_gets_no_guard():
+    """A geometry-nodes modifier below the group that sets the faces' material: the subdivided
+    mesh's materials are not the object's mesh's, which the helper holds, so its helper gets no
+    GUARD and the group subdivides (the modifier's material shows)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import GUARD
+
+    wall = _scene(ms)
+    red = ms.diffuse("Red", (0.5, 0.1, 0.1))
+    g = bpy.data.node_groups.new("Paint", "GeometryNodeTree")
+    g.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    g.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    gi, go, paint = (g.nodes.new(k) for k in ("NodeGroupInput", "NodeGroupOutput", "GeometryNodeSetMaterial"))
+    paint.inputs["Material"].default_value = red
+    g.links.new(gi.outputs[0], paint.inputs["Geometry"])
+    g.links.new(paint.outputs["Geometry"], go.inputs[0])
+    wall.modifiers.new("Paint", "NODES").node_group = g
+    ov.ensure_own_values([wall], "CORNER", bpy.context.evaluated_depsgraph_get(), 0.25)
+    md = wall.modifiers[-1]
+    me = md[md.node_group.interface.items_tree["Values"].identifier].data
+    assert md.name == ov.N_VALUES and GUARD not in me.attributes
+    me.attributes.new(PROBE, "FLOAT", "POINT")
+    wall.update_tag()
+    attrs, mats = _evaluated(wall)
+    assert PROBE not in attrs and "Red" in mats
+
+
+def test_the_guard_holds_in_the_saved_file(tmp_path):
+    """The helper's .HR_Guard, its materials and the group's inputs are saved: the file opened
+    again shows the helper's mesh (PROBE), with the object's materials."""
+    bpy, ms, scene = empty_scene()
+
+    _guarded_wall(ms)
+    path = str(tmp_path / "guarded.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    attrs, mats = _evaluated(bpy.data.objects["Wall"])
+    assert PROBE in attrs and mats == ["Grey", "Red"]

@@ -40,6 +40,15 @@ the largest objects' spacings were raised first, so at 0.1 m the furnished room'
 ceiling got no subdivision while its books kept theirs); one log line names them with their
 spacings. A normal room is within it at 0.15 m.
 
+Playback (session 32, branch playfix): the helper holds the subdivided mesh already, so while the
+mesh the group receives is the one the bake subdivided (a hash per corner, GUARD, the same as the
+helper's: _from_helper) the group outputs the helper's mesh instead of subdividing again at every
+frame change (the 100k room's 2,413 objects: ~3 s of a 4.5 s change). The helper keeps the
+object's materials (sync_materials) so the evaluated mesh's are right. An edit after the bake
+(positions, UVs and the other attributes the guard reads, material indices, a deforming modifier
+or shape key below the group) changes the hash: the group subdivides it, as before; the next bake
+makes the helper anew.
+
 Where the light changes (near_clutter; session 31, branch vbudget; per face since session 32, branch
 clutter): a face other surfaces cover in part within a spacing in front (a wall behind a bookcase's
 books, a floor under furniture, a back panel between shelf boards: rays from points about the finer
@@ -52,21 +61,26 @@ spacing makes), each face as many levels as its area, weighed by how much of it 
 per corner added (CLUTTER_WORTH), the most such area per corner first. Not for a mesh several objects
 share nor one whose modifiers change its faces (their faces are not the mesh's). Taken once, where
 the bake starts (the scene's first frame): the corners stay static; Delete Bake removes FINER with
-the modifier.
+the modifier. FINER is one of the mesh's attributes the playback guard hashes (_guard_names): a
+re-bake that changes it makes the helper anew.
 """
 
 import functools
 import heapq
+from functools import partial
 
 import bpy
 import numpy as np
 
-from .names import ATTRIBUTE, FACE, FINER, N_VALUES, TAG
+from .names import ATTRIBUTE, FACE, FINER, GUARD, N_VALUES, TAG
 
 GROUP_VERSION = 1
-# the subdividing group by faces (SPACING, SCALE) storing FACE, each face finer by its FINER; 3: without
-# FINER, 2: without FACE, 1: one LEVEL_V1 per object
-FINER_VERSION = 4
+# the subdividing group by faces (SPACING, SCALE) storing FACE, each face finer by the mesh's FINER,
+# its output the helper's mesh while the guard holds (_from_helper); 4: without FINER, 3: always
+# subdividing, 2: without FACE, 1: one LEVEL_V1 per object
+FINER_VERSION = 5
+GUARDED = 4  # the subdividing group's string inputs "Attribute 1" ..: the received mesh's own
+GUARDS = "Attribute"  # attributes its guard hashes too (_guard_names; more: no guard, _helper)
 SPACING = "Spacing"  # the subdividing group's inputs: the spacing (m; 0: no subdivision) and
 SCALE = "Scale"  # the object's scale at the bake (edges in world metres; fixed: a fixed topology)
 MAX_LEVEL = 6  # 4^6 faces per face: a 6.4 m quad at 0.1 m; coarser faces keep longer edges
@@ -96,13 +110,14 @@ CLUTTER_REACH = 1.0  # near_clutter's rays this many spacings long: surfaces clo
 CLUTTER_GRID = 32  # near_clutter's points: a triangle cut into at most this many pieces along an edge
 
 
-def geometry_group(name, version, socket, socket_type, store, value, finer=False):
+def geometry_group(name, version, socket, socket_type, store, value, finer=False, output=None):
     """The geometry-node group `name`, made anew unless one tagged with `version` exists: inputs
     Geometry and `socket` (of `socket_type`), output the Geometry with the named attribute `store`
     = (name, data type, domain) set to value(nodes, link, group input) -> (the nodes it made, the
     socket of the value). finer: inputs SPACING and SCALE too, and the geometry's coarse faces
-    subdivided first (_finer_faces). Plain nodes: a file opened without the extension evaluates
-    the same."""
+    subdivided first (_finer_faces). output: output(group, nodes, link, group input, that geometry)
+    -> (the nodes it made, the socket the group outputs instead). Plain nodes: a file opened
+    without the extension evaluates the same."""
     g = bpy.data.node_groups.get(name)
     if g is not None and g.get(TAG) == version:
         return g
@@ -131,10 +146,22 @@ def geometry_group(name, version, socket, socket_type, store, value, finer=False
     st.inputs["Name"].default_value = attribute
     link(geometry, st.inputs["Geometry"])
     link(out, st.inputs["Value"])
-    link(st.outputs["Geometry"], go.inputs["Geometry"])
-    for k, nd in enumerate((gi, *first, *made, st, go)):
+    last, after = st.outputs["Geometry"], []
+    if output is not None:
+        after, last = output(g, nodes, link, gi, last)
+    link(last, go.inputs["Geometry"])
+    for k, nd in enumerate((gi, *first, *made, st, *after, go)):
         nd.location = (200 * k, 0)
     return g
+
+
+def _add_node(nodes, made, kind, **props):
+    """A new node of `kind` in `nodes` with these properties, appended to `made`."""
+    nd = nodes.new(kind)
+    for k, v in props.items():
+        setattr(nd, k, v)
+    made.append(nd)
+    return nd
 
 
 def _finer_faces(nodes, link, gi):
@@ -146,13 +173,7 @@ def _finer_faces(nodes, link, gi):
     Each face's index is stored first as FACE (Subdivide Mesh gives it to the finer faces).
     Returns (the nodes, the output geometry socket)."""
     made = []
-
-    def node(kind, **props):
-        nd = nodes.new(kind)
-        for k, v in props.items():
-            setattr(nd, k, v)
-        made.append(nd)
-        return nd
+    node = partial(_add_node, nodes, made)
 
     def math(op, a, b, c=None):
         nd = node("ShaderNodeMath", operation=op)
@@ -255,8 +276,89 @@ def _group(domain, finer=False):
 
     store = (ATTRIBUTE, "FLOAT_COLOR", domain)
     return geometry_group(
-        _group_name(domain, finer), _version(finer), "Values", "NodeSocketObject", store, value, finer
+        _group_name(domain, finer),
+        _version(finer),
+        "Values",
+        "NodeSocketObject",
+        store,
+        value,
+        finer,
+        _from_helper if finer else None,
     )
+
+
+def _from_helper(g, nodes, link, gi, subdivided):
+    """The subdividing group's output end: the helper's mesh itself (Object Info, Original) while
+    the mesh the group receives is the one the helper was made from, else `subdivided` (its faces
+    subdivided, the values stored) with GUARD stored on it. GUARD: a hash per corner of the mesh
+    received (seeded by its domain sizes, SPACING and SCALE: each corner's position, vertex, face,
+    material index, smoothness and the attributes the GUARDS inputs name); the guard holds when
+    the helper's mesh has the same GUARD at every corner index. The helper's mesh is the bake's
+    subdivided one (_helper), with the object's materials and its HR_Radiance written every frame:
+    the same mesh and values without subdividing again (docs/scale.md, sessions 31-32: a frame
+    change at 100k 4.5 -> 1.5 s). An edit after the bake (positions, a deforming modifier or shape
+    key, UVs, material indices) changes GUARD: the subdivision shows it. The Switch evaluates only
+    the branch it takes."""
+    for k in range(GUARDED):
+        sock = g.interface.new_socket(f"{GUARDS} {k + 1}", in_out="INPUT", socket_type="NodeSocketString")
+        sock.default_value = "position"  # (an attribute every mesh has: no missing-attribute warning)
+    made = []
+    node = partial(_add_node, nodes, made)
+
+    def hashed(value, seed, kind):
+        h = node("FunctionNodeHashValue", data_type=kind)
+        link(value, h.inputs["Value"])
+        if seed is not None:
+            link(seed, h.inputs["Seed"])
+        return h.outputs["Hash"]
+
+    received = gi.outputs["Geometry"]
+    size = node("GeometryNodeAttributeDomainSize", component="MESH")
+    link(received, size.inputs["Geometry"])
+    seed = None
+    for n in ("Point Count", "Edge Count", "Face Count", "Face Corner Count"):
+        seed = hashed(size.outputs[n], seed, "INT")
+    seed = hashed(gi.outputs[SCALE], hashed(gi.outputs[SPACING], seed, "FLOAT"), "VECTOR")
+    for k in range(GUARDED):
+        attr = node("GeometryNodeInputNamedAttribute", data_type="FLOAT_COLOR")
+        link(gi.outputs[f"{GUARDS} {k + 1}"], attr.inputs["Name"])
+        seed = hashed(attr.outputs["Attribute"], seed, "RGBA")
+    seed = hashed(node("GeometryNodeInputShadeSmooth").outputs[0], seed, "INT")
+    seed = hashed(node("GeometryNodeInputMaterialIndex").outputs[0], seed, "INT")
+    seed = hashed(node("GeometryNodeFaceOfCorner").outputs["Face Index"], seed, "INT")
+    seed = hashed(node("GeometryNodeVertexOfCorner").outputs["Vertex Index"], seed, "INT")
+    corner = hashed(node("GeometryNodeInputPosition").outputs[0], seed, "VECTOR")
+    index = node("GeometryNodeInputIndex").outputs[0]
+
+    def at(geometry, field):  # field on geometry's corners, at each corner's index
+        sample = node("GeometryNodeSampleIndex", data_type="INT", domain="CORNER")
+        link(geometry, sample.inputs["Geometry"])
+        link(field, sample.inputs[1])
+        link(index, sample.inputs["Index"])
+        return sample.outputs[0]
+
+    helper = node("GeometryNodeObjectInfo")
+    link(gi.outputs["Values"], helper.inputs["Object"])
+    stored = node("GeometryNodeInputNamedAttribute", data_type="INT")
+    stored.inputs["Name"].default_value = GUARD
+    differ = node("FunctionNodeCompare", data_type="INT", operation="NOT_EQUAL")
+    link(corner, differ.inputs[2])
+    link(at(helper.outputs["Geometry"], stored.outputs["Attribute"]), differ.inputs[3])
+    stat = node("GeometryNodeAttributeStatistic", data_type="FLOAT", domain="CORNER")
+    link(received, stat.inputs["Geometry"])
+    link(differ.outputs[0], stat.inputs["Attribute"])
+    holds = node("FunctionNodeCompare", data_type="FLOAT", operation="LESS_THAN")
+    link(stat.outputs["Max"], holds.inputs[0])
+    holds.inputs[1].default_value = 0.5
+    keep = node("GeometryNodeStoreNamedAttribute", data_type="INT", domain="CORNER")
+    keep.inputs["Name"].default_value = GUARD
+    link(subdivided, keep.inputs["Geometry"])
+    link(at(received, corner), keep.inputs["Value"])
+    switch = node("GeometryNodeSwitch", input_type="GEOMETRY")
+    link(holds.outputs[0], switch.inputs["Switch"])
+    link(keep.outputs["Geometry"], switch.inputs["False"])
+    link(helper.outputs["Geometry"], switch.inputs["True"])
+    return made, switch.outputs[0]
 
 
 def _modifier(obj):
@@ -289,14 +391,20 @@ def subdividing(obj):
     return _spacing(md) if md is not None else 0.0
 
 
+def _int_attribute(me, name, domain):
+    """(N,) int32 me's integer attribute `name` on `domain`, or None."""
+    a = me.attributes.get(name)
+    if a is None or a.domain != domain or a.data_type != "INT":
+        return None
+    out = np.empty(len(a.data), np.int32)
+    a.data.foreach_get("value", out)
+    return out
+
+
 def _faces_of(me):
     """(P,) me's FACE attribute (int64), or None."""
-    a = me.attributes.get(FACE)
-    if a is None or a.domain != "FACE" or a.data_type != "INT":
-        return None
-    face = np.empty(len(me.polygons), np.int32)
-    a.data.foreach_get("value", face)
-    return face.astype(np.int64)
+    face = _int_attribute(me, FACE, "FACE")
+    return None if face is None else face.astype(np.int64)
 
 
 # the transport's mesh (before_subdivision): the user's (0), or the user's faces subdivided at this
@@ -738,8 +846,8 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
         kept.append(obj)
     if finer:
         depsgraph.update()  # the subdivided meshes, for their helpers
-    for obj in kept:
-        _helper(obj, depsgraph)
+    unused = [me for obj in kept if (me := _helper(obj, depsgraph)) is not None]
+    bpy.data.batch_remove(unused)  # (one pass over the file's IDs, not one per mesh: 5 ms each at 12k)
     notes = []
     if fine:
         (notes.append if log is None else log)(clutter_line(fine, clutter, spacing))
@@ -854,34 +962,87 @@ def _ensure(obj, domain, spacing=0.0):
         if _spacing(md) != spacing or tuple(md[_socket(md, SCALE)]) != scale:
             md[_socket(md, SPACING)], md[_socket(md, SCALE)] = spacing, scale
             obj.update_tag()
+        names = _guard_names(obj)[:GUARDED]
+        for k in range(GUARDED):
+            key = _socket(md, f"{GUARDS} {k + 1}")
+            if md[key] != (names[k] if k < len(names) else "position"):
+                md[key] = names[k] if k < len(names) else "position"
+                obj.update_tag()
     k = list(obj.modifiers).index(md)
     if k != len(obj.modifiers) - 1:
         obj.modifiers.move(k, len(obj.modifiers) - 1)
     return [obj.name] if new else []
 
 
+def _guard_names(obj):
+    """The attributes of obj's mesh the subdividing group interpolates that its guard does not
+    read anyway (UV maps, colours, custom normals, edge flags; not internal ones, ours, or those
+    it reads: position, sharp_face, material_index) in name order."""
+    skip = {"position", "sharp_face", "material_index", ATTRIBUTE, FACE}
+    return sorted(a.name for a in obj.data.attributes if not a.name.startswith(".") and a.name not in skip)
+
+
 def _helper(obj, depsgraph):
     """Make obj's helper object, or give it a new mesh when the evaluated mesh's topology is not
-    its own."""
+    its own (subdividing: when its GUARD is not the evaluated mesh's either, the mesh received has
+    changed); the helper's mesh keeps the evaluated mesh's materials (sync_materials). An object
+    whose mesh has more attributes than the guard reads (GUARDED), or whose modifiers below give
+    the subdivided mesh other materials than its mesh's: its helper without GUARD, the guard never
+    holds (the group subdivides at every evaluation, as before session 32). Returns
+    the mesh it replaced if nothing else uses it (the caller removes them together), else None."""
     md = _modifier(obj)
     ev = obj.evaluated_get(depsgraph)
     n = (len(ev.data.loops), len(ev.data.vertices))
     h = md.get(_socket(md))
     ours = h is not None and h.type == "MESH" and h.get(TAG) == obj.name
-    if not ours or (len(h.data.loops), len(h.data.vertices)) != n:
+    finer = _spacing(md) > 0
+    guard = _int_attribute(ev.data, GUARD, "CORNER") if finer else None
+    held = _int_attribute(h.data, GUARD, "CORNER") if ours and guard is not None else None
+    stale = guard is not None and not np.array_equal(guard, held)
+    old, unguarded = None, finer and len(_guard_names(obj)) > GUARDED
+    if not ours or (len(h.data.loops), len(h.data.vertices)) != n or stale:
         me = bpy.data.meshes.new_from_object(ev)
-        me.materials.clear()
+        # (a modifier below that sets materials: the helper's, the object's mesh's, would hide them)
+        unguarded = unguarded or (finer and list(me.materials) != list(obj.data.materials))
         me.name = f"{N_VALUES} {obj.name}"
         if ours:
             old = h.data
             h.data = me
-            if old.users == 0:
-                bpy.data.meshes.remove(old)
+            old = old if old.users == 0 else None
         else:
             h = bpy.data.objects.new(f"{N_VALUES} {obj.name}", me)
             h[TAG] = obj.name
         md[_socket(md)] = h
         obj.update_tag()
+    if unguarded and GUARD in h.data.attributes:
+        h.data.attributes.remove(h.data.attributes[GUARD])
+        obj.update_tag()
+    sync_materials([obj])
+    return old
+
+
+def sync_materials(objects):
+    """Give the helper of each of `objects` (those with one) its object's mesh's materials, the
+    evaluated mesh's when the group subdivides: while the guard holds the evaluated mesh is the
+    helper's (_from_helper), its materials too, so that renders and the stale check read the
+    object's own. Called where the bake makes helpers and where an edit may have changed an
+    object's materials (playback.on_depsgraph_update, the stale check). Returns the objects
+    whose helper changed (tagged for the depsgraph)."""
+    changed = []
+    for obj in objects:
+        md = _modifier(obj)
+        h = md.get(_socket(md)) if md is not None else None
+        if h is None or h.type != "MESH" or h.get(TAG) != obj.name:
+            continue
+        mats, have = list(obj.data.materials), h.data.materials
+        if list(have) == mats:
+            continue
+        have.clear()
+        for m in mats:
+            have.append(m)
+        obj.update_tag()
+        changed.append(obj)
+    return changed
 
 
 def remove_own_values(objects):
