@@ -1047,6 +1047,7 @@ def sync_materials(objects):
 
 def remove_own_values(objects):
     """Undo ensure_own_values on `objects` (Delete Bake): the modifiers, their helpers, FINER."""
+    helpers = []
     for obj in objects:
         if obj.type == "MESH" and obj.data.library is None:
             _set_finer(obj.data, None)
@@ -1056,7 +1057,8 @@ def remove_own_values(objects):
         h = md.get(_socket(md))
         obj.modifiers.remove(md)
         if h is not None and h.get(TAG) == obj.name:
-            me = h.data
-            bpy.data.objects.remove(h)
-            if me.users == 0:
-                bpy.data.meshes.remove(me)
+            helpers.append(h)
+    # in one pass over the file's IDs each (one remove per ID costs ~5 ms at 12k IDs: minutes at 100k)
+    meshes = {h.data for h in helpers}
+    bpy.data.batch_remove(helpers)
+    bpy.data.batch_remove([me for me in meshes if me.users == 0])
