@@ -63,6 +63,7 @@ SLOT_BATCH = 1 << 13
 # 0.88-0.91x in whole 2^20-entry blocks; whole rows summed, so the same bits)
 READ_STEP = 1 << 17
 _scratch = threading.local()  # each thread's products buffer for _csr_matvec
+_COLS_LOCK = threading.Lock()  # FinalGather._read_cols: its columns replaced once
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1, rays=None, used=None):
@@ -1480,14 +1481,22 @@ class FinalGather(DirectLight):
         return D
 
     def _read_cols(self):
-        """(columns, used): self.cols renumbered over the leaf values they read (used, ascending:
-        the rows of the value array a read takes, _csr_matvec), int32, made once and kept (not
-        stored: precompute_graph._TRANSIENT; made again when the columns change). The 100k room's
+        """(columns, used): the level's columns renumbered over the leaf values they read (used,
+        ascending: the rows of the value array a read takes, _csr_matvec), int32. The 100k room's
         second level reads 187k of its 514k rows: their 0.75 MB a channel stays in a core's cache
         where the whole 2 MB did not (the same products in the same order; docs/threads.md,
-        session 21). Made by batches of ENTRY_BATCH weights on threads: 0.15 s of CPU at 100k."""
+        session 21). Made on the first read, they replace self.cols (kept beside them they were a
+        second copy, 153 MB at the 100k room's vertex bake; docs/scale.md, session 32): the leaf
+        value an entry reads is then used[cols] (leaf_columns); columns set anew are compacted
+        again on the next read. Made by batches of ENTRY_BATCH weights on threads: 0.15 s of CPU
+        at 100k."""
         got = self.__dict__.get("_cols_read")
-        if got is None or got[0] is not self.cols:  # (one assignment: threads may race to make it)
+        if got is not None and got[0] is self.cols:
+            return got
+        with _COLS_LOCK:  # (reads on threads: compacted once, and never compacted twice)
+            got = self.__dict__.get("_cols_read")
+            if got is not None and got[0] is self.cols:
+                return got
             cols = self.cols
             seen = np.zeros(int(cols.max()) + 1 if len(cols) else 0, bool)
             parts = ranges(len(cols), self.ENTRY_BATCH)
@@ -1503,8 +1512,15 @@ class FinalGather(DirectLight):
                 np.take(rank, cols[a:b], out=out[a:b])
 
             batch_map(renumber, parts, self.threads)
-            got = self._cols_read = (cols, out, np.flatnonzero(seen))
-        return got[1:]
+            got = self._cols_read = (out, np.flatnonzero(seen))
+            self.cols = out  # (after _cols_read: whenever self.cols is compacted, it says so)
+        return got
+
+    def leaf_columns(self):
+        """(entries,) the row of the leaf values each entry reads (the traced columns, remapped):
+        self.cols, or used[cols] once a read has compacted them (_read_cols)."""
+        got = self.__dict__.get("_cols_read")
+        return got[1][self.cols] if got is not None and got[0] is self.cols else self.cols
 
     def _leaf_means(self, y, V):
         """V (n_hr, 3) with the leaves that have second-level samples set to the mean of those
@@ -1878,10 +1894,11 @@ class FinalGather(DirectLight):
             return self._naive_V
         h = self.system.h
         m = self.n_hr
-        used = np.unique(self.cols[self.cols < m]).astype(np.int64)
+        c1 = self.leaf_columns()
+        used = np.unique(c1[c1 < m]).astype(np.int64)
         if self.second is not None:  # the gather samples' rays land on other leaves too (near
             # hits read samples of leaves in _second_map)
-            c2 = self.second.cols
+            c2 = self.second.leaf_columns()
             used = np.union1d(np.union1d(used, c2[c2 < m]), self._second_map[0]).astype(np.int64)
         x, gw = ff.quadrature(h.corners[used], h.nv[used], 2)
         pts = x.reshape(-1, 3)
