@@ -707,22 +707,27 @@ class LoopGather(FinalGather):
     def _loop_map(self):
         """(li, sj, wn, start): loop li takes wn x sample value sj, sorted by sj, start (n + 1,)
         the entries of each sample: loop_values as one constant linear map (the mean over the
-        uncovered samples of the corner's loops; a loop with none reads 0). Built on first use."""
+        uncovered samples of the corner's loops; a loop with none reads 0). Built on first use;
+        the loops and samples int32 (their counts are), each temporary let go once used (the 100k
+        vertex bake's first frame peaks here: 3.15 M pairs; docs/scale.md, session 32)."""
         got = self.__dict__.get("_loop_weights")
         if got is None:
             L = len(self.loop_index)
             if self.average is not None:
                 li, lj, w = self.average[:3]
                 sj = self.loop_index[lj]
-                w = w * ~self.dark[sj]
-                den = np.bincount(li, w, L)
-                wn = w / np.where(den > 0, den, 1.0)[li]
+                wn = w * ~self.dark[sj]
+                den = np.bincount(li, wn, L)
+                wn /= np.where(den > 0, den, 1.0)[li]  # (in place: the same quotients)
+                del den
             else:
                 li = np.flatnonzero(self.loop_index >= 0)
                 sj, wn = self.loop_index[li], np.ones(len(li))
-            keep = wn > 0
-            order = np.argsort(sj[keep], kind="stable")
-            li, sj, wn = li[keep][order], sj[keep][order], wn[keep][order]
+            keep = np.flatnonzero(wn > 0)
+            keep = keep[np.argsort(sj[keep], kind="stable")]  # the kept entries by sample, in order
+            sj = np.take(sj, keep).astype(np.int32)
+            li, wn = np.take(li, keep).astype(np.int32), np.take(wn, keep)
+            del keep
             got = self._loop_weights = (li, sj, wn, np.searchsorted(sj, np.arange(self.n + 1)))
         return got
 
