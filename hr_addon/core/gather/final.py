@@ -357,7 +357,11 @@ class FinalGather(DirectLight):
     called from the calling thread as batches of hemisphere rays finish; raising cancels."""
 
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
-    ENTRY_BATCH = 1 << 21  # weights per batch of _remap_near, _read_cols on threads (fixed: the same values)
+    ENTRY_BATCH = 1 << 21  # weights per batch of _read_cols, _reuse_rows on threads (fixed: the same values)
+    # weights per batch of _remap_near (fixed): its int64 and float64 temporaries, ~60 bytes a weight,
+    # were the 100k vertex bake's build peak in batches of 2^21 (session 32; its statistics' sums
+    # are grouped by batch: their last bits moved then, the columns are the same)
+    REMAP_BATCH = 1 << 18
     POINT_BATCH = 1 << 15  # samples per batch of their setup (onto_patch) on threads (fixed)
     ROW_BATCH = 1 << 15  # leaves or rows per batch of the passes' leaf means, near rows (fixed)
     threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
@@ -589,6 +593,9 @@ class FinalGather(DirectLight):
                     **dict(rays_kw, rays=rp),
                 )
                 fine[probe._fine_leaves(near_share)] = True
+                # only its rows are read again (the second level's reuse): its samples' arrays
+                # (35 MB at the 100k room) not held through this level's rays
+                probe = (probe.indptr, probe.cols, probe.w)
         # the leaves whose near hits read a sample of their own (their nearest point): a hit on
         # another leaf reads the leaf (_remap_near), so its nearest point is not computed
         # (NEAR_FINE_ONLY; its hits then merge into one entry per row and leaf)
@@ -631,7 +638,7 @@ class FinalGather(DirectLight):
             off[used[fine[used]]] = start[:-1][fine[used]]
             if self.near_points:  # the probe's row of each sample of a leaf that is not fine
                 at = np.repeat(np.searchsorted(leaves, used) * nn - start[:-1], k2) + np.arange(len(x))
-                reuse = (np.where(np.repeat(fine[used], k2), -1, at), probe.indptr, probe.cols, probe.w)
+                reuse = (np.where(np.repeat(fine[used], k2), -1, at), *probe)
                 del probe, probe_grid
             self.stats["near_leaves"] = int(fine.sum())
             second_near = near_second and self.near_points and iterations and levels == 2
@@ -719,7 +726,7 @@ class FinalGather(DirectLight):
             w = self.entry_weights(a, b).astype(np.float64)
             return len(j), int(ok.sum()), float(w[j[ok]].sum()), float(w.sum())
 
-        parts = batch_map(part, ranges(len(cols), self.ENTRY_BATCH), self.threads)
+        parts = batch_map(part, ranges(len(cols), self.REMAP_BATCH), self.threads)
         if not sum(p[0] for p in parts):
             return
         self.cols = cols
@@ -756,17 +763,24 @@ class FinalGather(DirectLight):
         cnt[old] = np.diff(indptr)[take[old]]
         ip = np.zeros(len(cnt) + 1, np.int64)
         np.cumsum(cnt, out=ip[1:])
-        first = np.where(old, len(self.cols) + indptr[:-1][np.maximum(take, 0)], self.indptr[:-1]) - ip[:-1]
-        both = np.concatenate([self.cols, cols]), np.concatenate([self.w, w])
-        self.cols, self.w = np.empty(ip[-1], both[0].dtype), np.empty(ip[-1], both[1].dtype)
+        n0 = len(self.cols)
+        first = np.where(old, n0 + indptr[:-1][np.maximum(take, 0)], self.indptr[:-1]) - ip[:-1]
+        # entries below n0 are this level's, the rest the given rows' (taken from each, not from a
+        # concatenated copy of both: 0.1 GB less at the 100k room's second level, the same entries)
+        srcs = (self.cols, cols), (self.w, w)
+        new = [np.empty(ip[-1], np.result_type(*x)) for x in srcs]
 
         def rows(r0, r1):  # each block of rows copies its own entries: on threads (batch_map)
             a, b = ip[r0], ip[r1]
             src = np.repeat(first[r0:r1], cnt[r0:r1]) + np.arange(a, b)
-            np.take(both[0], src, out=self.cols[a:b])
-            np.take(both[1], src, out=self.w[a:b])
+            mine = src < n0
+            for out, (x, y) in zip(new, srcs):
+                out[a:b][mine] = x[src[mine]]
+                out[a:b][~mine] = y[src[~mine] - n0]
 
         batch_map(rows, _row_blocks(ip, self.ENTRY_BATCH), self.threads)
+        del srcs
+        self.cols, self.w = new
         self.indptr = ip
         if not self.near_points:
             self.cols %= self.n_hr
