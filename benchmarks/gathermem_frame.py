@@ -38,8 +38,11 @@ for k in range(2):
     v = g.loop_radiance(dyn)
     cpu = time.process_time() - c0
     cur, peak = tracemalloc.get_traced_memory()
-    print(f"loop_radiance {k + 1}: {cpu:.2f} s CPU; traced before {cur0 / 1e6:.0f} MB, after {cur / 1e6:.0f} MB"
-          f" (+{(cur - cur0) / 1e6:.0f}), peak +{(peak - cur0) / 1e6:.0f} MB", flush=True)
+    print(
+        f"loop_radiance {k + 1}: {cpu:.2f} s CPU; traced before {cur0 / 1e6:.0f} MB, after {cur / 1e6:.0f} MB"
+        f" (+{(cur - cur0) / 1e6:.0f}), peak +{(peak - cur0) / 1e6:.0f} MB",
+        flush=True,
+    )
     res[f"v{k}"] = v
     del v
 np.savez(out, **res)

@@ -25,7 +25,10 @@ marks = []
 
 
 class _Mallinfo2(ctypes.Structure):
-    _fields_ = [(n, ctypes.c_size_t) for n in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()]
+    _fields_ = [
+        (n, ctypes.c_size_t)
+        for n in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()
+    ]
 
 
 try:
@@ -41,7 +44,8 @@ def _rss():
 
 
 def mark(what):
-    m = dict(at=what, cpu_s=round(time.process_time(), 2), peak_gb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+    m = dict(at=what, cpu_s=round(time.process_time(), 2), peak_gb=peak)
     m["rss_gb"] = _rss()
     if _libc is not None:
         mi = _libc.mallinfo2()
@@ -51,7 +55,8 @@ def mark(what):
         m.update(traced_gb=cur / 1e9, traced_peak_gb=peak / 1e9)
         tracemalloc.reset_peak()
     marks.append(m)
-    print("MARK", " ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in m.items()), flush=True)
+    text = " ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in m.items())
+    print("MARK", text, flush=True)
 
 
 def around(owner, name, label=None):

@@ -302,6 +302,7 @@ class _Bake:
                     except TextureError as exc:
                         raise SceneError(str(exc)) from None
                 final = make_gather(dyn, plan, dict(cfg.gather, threads=cfg.threads), output=snap.output)
+                release_free_memory()  # (the gather's freed temporaries: not under prepare's)
                 pc.prepare(final)  # the static emitters' direct light, stored with the rest
                 r.gather_seconds = time.perf_counter() - t1
             return system, final

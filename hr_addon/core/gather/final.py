@@ -10,7 +10,7 @@ from .. import formfactor as ff
 from ..events.records import outline_share
 from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
-from ..parallel import batch_map, ranges
+from ..parallel import batch_map, ranges, release_free_memory
 from ..progress import Progress
 from ..slots import _slot_tables, slot_mouth
 from .direct import DirectLight
@@ -606,6 +606,7 @@ class FinalGather(DirectLight):
             elif near_layout is not None and near_layout[0] is not None:
                 self._near_fine = near_layout[0] >= 0
         self._trace = ~self.dark if reuse is None else ~self.dark & (reuse[0] < 0)
+        release_free_memory()  # (the set-up's and the probe's freed temporaries: not under the rays')
         self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(
             batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None),
             threads,
@@ -779,7 +780,6 @@ class FinalGather(DirectLight):
                 out[a:b][~mine] = y[src[~mine] - n0]
 
         batch_map(rows, _row_blocks(ip, self.ENTRY_BATCH), self.threads)
-        del srcs
         self.cols, self.w = new
         self.indptr = ip
         if not self.near_points:
