@@ -119,8 +119,8 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
     mean of the polygons' normals within smooth_angle) and material, moved `nudge` of the way
     towards the patch's centre.
     Returns (points (S, 3), normals (S, 3), patch ids (S,), loop -> sample index (L,), -1 for loops
-    of polygons dropped as degenerate, and (li, lj, w, lpatch, pc_loop): loop li averages sample
-    loop_index[lj] with weight w, lpatch (L,) the patch of each loop, pc_loop (K, 4) the loop at
+    of polygons dropped as degenerate, and (li, lj, w, lpatch, pc_loop): loop li (int32) averages sample
+    loop_index[lj] (int32) with weight w, lpatch (L,) the patch of each loop, pc_loop (K, 4) the loop at
     each patch corner, -1 at padding (None for inset = 0)).
     layout: OutputLayout (the corners of a finer mesh; the patches returned are its own, the
     transport's under the points are layout.transport's) or None (the system's own mesh)."""
@@ -158,7 +158,7 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
     p = np.asarray(mesh.verts, float)[np.asarray(mesh.loop_verts)]
     if inset > 0:
         keep = ok & valid[lj]  # (the pairs averaged, before the samples' rules: 7.1 -> 3.15 M at 100k)
-        li, lj = li[keep], lj[keep]
+        li, lj = li[keep].astype(np.int32), lj[keep].astype(np.int32)  # (held with the gather: loops)
         del ok, keep
         loop_index = np.full(L, -1, np.int64)
         loop_index[vl] = np.arange(len(vl))
