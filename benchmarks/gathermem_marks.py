@@ -79,12 +79,23 @@ from hr_addon.blender import bake as bk  # noqa: E402
 from hr_addon.core.gather import final, layouts  # noqa: E402
 from hr_addon.io import precompute as pc  # noqa: E402
 
-for owner, name in ((bk, "RadiositySystem"), (bk, "DynamicRadiosity"), (bk, "make_gather"), (pc, "prepare"),
-                    (pc, "write"), (bk._Bake, "frame_values"), (layouts, "loop_samples"),
-                    (layouts, "slot_split"), (layouts.LoopGather, "_loops"),
-                    (layouts.LoopGather, "_radiance_by_response"), (final.FinalGather, "_response_parts"),
-                    (final.FinalGather, "merge"), (final.FinalGather, "_reuse_rows"),
-                    (final.FinalGather, "_remap_near"), (bk.CacheWriter, "write")):
+for owner, name in (
+    (bk, "RadiositySystem"),
+    (bk, "DynamicRadiosity"),
+    (bk, "make_gather"),
+    (pc, "prepare"),
+    (pc, "write"),
+    (bk._Bake, "frame_values"),
+    (layouts, "loop_samples"),
+    (layouts, "slot_split"),
+    (layouts.LoopGather, "_loops"),
+    (layouts.LoopGather, "_radiance_by_response"),
+    (final.FinalGather, "_response_parts"),
+    (final.FinalGather, "merge"),
+    (final.FinalGather, "_reuse_rows"),
+    (final.FinalGather, "_remap_near"),
+    (bk.CacheWriter, "write"),
+):
     around(owner, name)
 _init = final.FinalGather.__init__
 
