@@ -1533,8 +1533,8 @@ class FinalGather(DirectLight):
     def leaf_columns(self):
         """(entries,) the row of the leaf values each entry reads (the traced columns, remapped):
         self.cols, or used[cols] once a read has compacted them (_read_cols)."""
-        got = self.__dict__.get("_cols_read")
-        return got[1][self.cols] if got is not None and got[0] is self.cols else self.cols
+        got, cols = self.__dict__.get("_cols_read"), self.cols
+        return got[1][cols].astype(cols.dtype) if got is not None and got[0] is cols else cols
 
     def _leaf_means(self, y, V):
         """V (n_hr, 3) with the leaves that have second-level samples set to the mean of those
