@@ -112,7 +112,8 @@ used = g._second_map[0]
 # one bounce: the rays read the second level's samples' exact direct light only (a leaf without
 # samples reads 0; the rays reading one: their share of the weights)
 Y1 = g._leaf_means(g2.rho * g2.direct_and_emission(dyn)[0], np.zeros((g.n_hr, 3)))
-no_samples = (g.cols < g.n_hr) & ~np.isin(g.cols, used)  # (near hits read samples: n_hr + sample)
+gc = g.leaf_columns()
+no_samples = (gc < g.n_hr) & ~np.isin(gc, used)  # (near hits read samples: n_hr + sample)
 ew = g.entry_weights()
 print(f"weight on leaves without second-level samples: {ew[no_samples].sum() / ew.sum():.2e}")
 OURS = {0: out(D), 1: out(D + g._read((Y1, None, None, None))), 64: g.evaluate(dyn, "reflected").mean(1)}

@@ -63,7 +63,7 @@ read = np.where(covered[:, None], 0.0, Y[leaf])  # what the bake's gather reads 
 
 t0 = time.process_time()
 gh = FinalGather(dyn, hit, pt.normal[hp], hp, rays=opt["hit_rays"], shadow_rays=16, seed=99)
-inc = gh.direct_and_emission(dyn)[0] + _csr_matvec(gh.indptr, gh.cols, gh.w, Y, rays=gh.row_rays)
+inc = gh.direct_and_emission(dyn)[0] + _csr_matvec(gh.indptr, gh.leaf_columns(), gh.w, Y, rays=gh.row_rays)
 inc[gh.dark] = 0.0
 point = gh.rho * gh.scaled(inc)  # the value of the hit point itself
 print(f"{len(hit)} hit points gathered: {time.process_time() - t0:.0f} s CPU", flush=True)

@@ -88,8 +88,9 @@ def exact_first(g, R):
     read (the others: nan)."""
     g2, pt = g.second, s.patches
     used, start = g._second_map[0], g._second_start
-    read = np.unique(g.cols[g.cols < g.n_hr])
-    near = np.unique(g.cols[g.cols >= g.n_hr] - g.n_hr)  # samples read directly
+    gc = g.leaf_columns()
+    read = np.unique(gc[gc < g.n_hr])
+    near = np.unique(gc[gc >= g.n_hr] - g.n_hr)  # samples read directly
     li = np.flatnonzero(np.isin(used, read))
     idx = np.union1d(np.concatenate([np.arange(start[i], start[i + 1]) for i in li]), near)
     idx = idx[~g2.dark[idx]]
@@ -228,7 +229,7 @@ for name, kw in VARIANTS.items():
     alld[used[nd == k2]], part[used[(nd > 0) & (nd < k2)]] = True, True
     exp_ = s.h.exposure[: g.n_hr] > 0
     for lev, gg in (("first", g), ("second", g2)):
-        c, w = gg.cols.astype(np.int64), gg.entry_weights().astype(float)
+        c, w = gg.leaf_columns().astype(np.int64), gg.entry_weights().astype(float)
         leaf = np.where(c < g.n_hr, c, used[np.searchsorted(start, c - g.n_hr, "right") - 1] if len(used) else 0)
         tot = w.sum()
         info[f"{lev}_weight_all_dark"] = float(w[(c < g.n_hr) & alld[leaf]].sum() / tot)

@@ -134,7 +134,7 @@ for name, kw in variants.items():
     print(f"variant {name} {kw}: {g.n} samples, {time.process_time() - t0:.0f} s CPU", flush=True)
     # sample level: direct, indirect, the slot samples' split
     D = g.direct_and_emission(dyn)[0]
-    Ind = _csr_matvec(g.indptr, g.cols, g.w, g.leaf_values(dyn), rays=g.row_rays)
+    Ind = _csr_matvec(g.indptr, g.leaf_columns(), g.w, g.leaf_values(dyn), rays=g.row_rays)
     rows, Im, Ii, E0, F2 = split_slot_rays(g, pts0)
     inc = (D + Ind) * (g.gain if g.gain is not None else 1.0)
     inc[g.dark] = 0

@@ -107,7 +107,9 @@ def kernels(size):
             f"FinalGather.direct_batch (2k room, {g.n} samples, 16 shadow rays)": lambda: g.direct_batch(
                 em, 0, g.n
             ),
-            "_csr_matvec (2k room weights)": lambda: _csr_matvec(g.indptr, g.cols, g.w, V2, rays=g.row_rays),
+            "_csr_matvec (2k room weights)": lambda: _csr_matvec(
+                g.indptr, g.leaf_columns(), g.w, V2, rays=g.row_rays
+            ),
         }
     )
     del FinalGather

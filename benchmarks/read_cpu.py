@@ -56,7 +56,7 @@ def paired(levels, Ys, threads, repeat):
     got = {}
     for k, (lv, Y) in enumerate(zip(levels, Ys)):
         lv.threads = threads
-        ci = lv.cols.astype(np.intp)
+        ci = lv.leaf_columns().astype(np.intp)
         cpu = {"main": [], "this": []}
         for _ in range(repeat):
             for name in cpu:
@@ -102,7 +102,7 @@ def main(argv=None):
     _, g, _ = load_store(Path(args.store) / pc.FILENAME)
     levels = [g, g.second]
     rng = np.random.default_rng(3)
-    Ys = [rng.random((int(lv.cols.max()) + 1, 3)) for lv in levels]
+    Ys = [rng.random((int(lv.leaf_columns().max()) + 1, 3)) for lv in levels]
     out = {}
     for lv, Y in zip(levels, Ys):
         lv._read((Y, None, None, None))  # (its kept columns made)

@@ -312,7 +312,7 @@ def main(argv=None):
     backend = s.system.backend if hasattr(s, "system") else s.backend
     for _ in range(args.level):
         g = g.second
-    indptr, cols32, w = g.indptr, g.cols, g.w
+    indptr, cols32, w = g.indptr, g.leaf_columns(), g.w
     m = int(cols32.max()) + 1
     del g
     V = np.random.default_rng(1).random((3, m), dtype=np.float32)

@@ -59,7 +59,7 @@ def main(n_dense=8, kind="SPOT"):
         k = wq.shape[1]
         w = wq * ~G.dark.reshape(len(used), k)
         w = w / np.maximum(w.sum(1, keepdims=True), 1e-300)
-        read = _csr_matvec(G.indptr, G.cols, G.w, Y, rays=G.row_rays)
+        read = _csr_matvec(G.indptr, G.leaf_columns(), G.w, Y, rays=G.row_rays)
         return np.einsum("uk,ukc->uc", w, read.reshape(len(used), k, 3))
 
     I2, Id = leaf_mean(g2, gw, Y2), leaf_mean(gd, gw_d, Y2)  # gathered from the same leaf values
@@ -72,7 +72,7 @@ def main(n_dense=8, kind="SPOT"):
     D, _ = g.direct_and_emission(dyn)
 
     def texels(Y):
-        inc = D + _csr_matvec(g.indptr, g.cols, g.w, Y, rays=g.row_rays)
+        inc = D + _csr_matvec(g.indptr, g.leaf_columns(), g.w, Y, rays=g.row_rays)
         inc[g.dark] = 0.0
         return g.outputs(g.rho * g.scaled(inc))
 
@@ -121,7 +121,8 @@ def main(n_dense=8, kind="SPOT"):
         "rel_p5_p50_p95_near": [round(float(v), 4) for v in np.percentile(rel[near & (gi > 0)], [5, 50, 95])],
     }
     # the spread of the 2 x 2 points' gathered light per leaf, as a leaf-local criterion
-    I2pts = _csr_matvec(g2.indptr, g2.cols, g2.w, Y2, rays=g2.row_rays).reshape(len(used), k2, 3).mean(2)
+    I2pts = _csr_matvec(g2.indptr, g2.leaf_columns(), g2.w, Y2, rays=g2.row_rays)
+    I2pts = I2pts.reshape(len(used), k2, 3).mean(2)
     spread = (I2pts.max(1) - I2pts.min(1)) / np.maximum(I2pts.max(1), 1e-30)
     for thr in (0.2, 0.3, 0.5):
         sel = spread > thr

@@ -1117,26 +1117,32 @@ def test_buried_probe_traces_only_rays_that_can_decide_and_keeps_every_answer():
     assert sum(traced) < 0.6 * layouts.PROBE_RAYS * len(pts)
 
 
-def test_the_reads_take_kept_compacted_columns_that_are_not_stored():
-    """Every read takes the level's columns renumbered over the leaf values they read, made once and
-    kept (_read_cols): the same values as a read of the stored columns, made again when the columns
-    change, and never captured into a precompute (precompute_graph._TRANSIENT)."""
-    from hr_addon.io.precompute_graph import capture
+def test_the_reads_compact_the_columns_in_place():
+    """Every read takes the level's columns renumbered over the leaf values they read (_read_cols),
+    made on the first read in place of the traced ones (no second copy held): the same values as a
+    read of the traced columns, leaf_columns() gives those back, columns set anew are compacted
+    again, and a precompute captured after a read restores both and reads the same."""
+    from hr_addon.io.precompute_graph import capture, restore
 
     dyn = DynamicRadiosity(RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft")), method="FE")
     pts, patch, _ = surface_samples(dyn.system.patches, 30)
     g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=32, levels=2, iterations=2)
-    g.evaluate(dyn)  # the passes make them
+    traced = g.second.cols.copy()
+    want = g.evaluate(dyn)  # the passes make them
     g2 = g.second
-    cols, used = g2.__dict__["_cols_read"][1:]
-    assert np.array_equal(used, np.unique(g2.cols)) and np.array_equal(used[cols], g2.cols)
-    assert g2._read_cols()[0] is cols
-    Y = np.random.default_rng(5).random((int(g2.cols.max()) + 1, 3))
-    assert np.array_equal(g2._read((Y, None, None, None), g2.cols), g2._read((Y, None, None, None)))
-    g2.cols = g2.cols.copy()
-    assert g2._read_cols()[0] is not cols and np.array_equal(g2._read_cols()[0], cols)
+    cols, used = g2.__dict__["_cols_read"]
+    assert g2.cols is cols and g2._read_cols()[0] is cols
+    assert np.array_equal(used, np.unique(traced)) and np.array_equal(g2.leaf_columns(), traced)
+    assert len(used) < int(traced.max()) + 1  # (compacted: some rows are never read)
+    Y = np.random.default_rng(5).random((int(traced.max()) + 1, 3))
+    assert np.array_equal(g2._read((Y, None, None, None), traced), g2._read((Y, None, None, None)))
+    g2.cols = traced.copy()
+    assert g2._read_cols()[0] is g2.cols and np.array_equal(g2.cols, cols)
     arrays, graph = capture(dyn.system, g)
-    assert not any("_cols_read" in k for k in arrays) and "_cols_read" not in repr(graph)
+    s2, r = restore(arrays, graph)
+    assert np.array_equal(r.second.leaf_columns(), traced) and r.second._read_cols()[0] is r.second.cols
+    dyn2 = DynamicRadiosity(s2, method="FE")
+    assert np.array_equal(r.evaluate(dyn2), want)
 
 
 def test_column_sums_are_the_rows_summed_in_order():

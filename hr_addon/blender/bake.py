@@ -20,6 +20,7 @@ import numpy as np
 from ..core.events import DynamicRadiosity, LightShape
 from ..core.geometry import InputError
 from ..core.lights import Light, indirect_incident
+from ..core.parallel import release_free_memory
 from ..core.progress import Cancelled, FrameEta
 from ..core.radiosity import RadiositySystem
 from ..core.texels import loop_incident
@@ -291,6 +292,7 @@ class _Bake:
             r.build_seconds = time.perf_counter() - t0
             final = None
             if cfg.gather is not None:
+                release_free_memory()  # the build's freed temporaries: not resident under the gather's
                 say(f"Final gather: tracing {cfg.gather['rays']} rays per output sample", BUILD_SHARE)
                 t1 = time.perf_counter()
                 plan = self.texture_plan(snap, system)
@@ -300,6 +302,7 @@ class _Bake:
                     except TextureError as exc:
                         raise SceneError(str(exc)) from None
                 final = make_gather(dyn, plan, dict(cfg.gather, threads=cfg.threads), output=snap.output)
+                release_free_memory()  # (the gather's freed temporaries: not under prepare's)
                 pc.prepare(final)  # the static emitters' direct light, stored with the rest
                 r.gather_seconds = time.perf_counter() - t1
             return system, final
@@ -319,6 +322,7 @@ class _Bake:
             system, final, how = pc.load_or_build(
                 cache_dir, want, build, log=log, force=rebuild, warn=lambda m: self.warn([m])
             )
+            release_free_memory()  # the precompute's freed temporaries: not under the first frame's
             t1 = time.perf_counter()
             pc.use_threads(system, final, cfg.threads)  # a loaded precompute has the builder's count
             dyn = made["dyn"] if "dyn" in made else engine(system)

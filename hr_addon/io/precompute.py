@@ -358,9 +358,12 @@ def levels(gather):
 def prepare(gather):
     """Compute now what a final gather computes on its first frame from the static scene alone: the
     static emitters' direct light at every level's samples (keyed like the rest by the objects'
-    emission), so that the precompute captured afterwards holds it."""
+    emission) and the reads' compacted columns (FinalGather._read_cols: made here, before the
+    first frame's temporaries, not on top of them), so that the precompute captured afterwards
+    holds them."""
     for g in levels(gather):
         g.direct_static()
+        g._read_cols()
 
 
 def use_threads(system, gather, threads):

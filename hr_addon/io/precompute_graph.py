@@ -21,6 +21,7 @@ _TRANSIENT = {
     "Links": {"_csr": None},
     "Contacts": {"_tables": dict},
     "ClusterTree": {"_group_runs_": None, "_grad_rows": None, "_centre9": None},
+    # (not _cols_read: after a read the columns are its compacted ones, read through its rows)
     "FinalGather": {
         "_shape_cache": dict,
         "_responses": dict,
@@ -35,7 +36,6 @@ _TRANSIENT = {
         "_mean_weights": None,
         "_mean_runs": None,
         "_near_own": None,
-        "_cols_read": None,
     },
 }
 _TRANSIENT["LoopGather"] = _TRANSIENT["FinalGather"]

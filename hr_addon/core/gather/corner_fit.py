@@ -122,10 +122,11 @@ def shift_plan(
     if not EVERY:
         mean_w *= (xcnt > 0)[:, None]
     li, lj, w = pairs
-    lp = lpatch[lj]
-    w = w * (cnt[lp] > 0) * (EVERY | (xcnt[lp] > 0))
-    keep = w > 0
-    li, lp, w = li[keep], lp[keep], w[keep]
+    # the pairs on faces with a shift: a mask per face, not (pairs,) temporaries of counts (3.15 M
+    # pairs at the 100k vertex bake, whose first frame peaked here; the same pairs and weights)
+    shifts = (cnt > 0) & (EVERY | (xcnt > 0))
+    keep = np.flatnonzero(shifts[lpatch][lj] & (w > 0))  # (per loop first: bools, not patch ids)
+    li, lp, w = li[keep], lpatch[lj[keep]], w[keep]
     den = np.bincount(li, w, int(li.max()) + 1 if len(li) else 0)
     # only the patches some loop takes a shift from, their samples and the loops that take one:
     # a colour edit's correction of a few samples then costs what the cut faces hold, not the

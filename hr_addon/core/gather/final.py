@@ -10,7 +10,7 @@ from .. import formfactor as ff
 from ..events.records import outline_share
 from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
-from ..parallel import batch_map, ranges
+from ..parallel import batch_map, ranges, release_free_memory
 from ..progress import Progress
 from ..slots import _slot_tables, slot_mouth
 from .direct import DirectLight
@@ -63,6 +63,7 @@ SLOT_BATCH = 1 << 13
 # 0.88-0.91x in whole 2^20-entry blocks; whole rows summed, so the same bits)
 READ_STEP = 1 << 17
 _scratch = threading.local()  # each thread's products buffer for _csr_matvec
+_COLS_LOCK = threading.Lock()  # FinalGather._read_cols: its columns replaced once
 
 
 def _csr_matvec(indptr, cols, w, V, chunk=1 << 20, threads=1, rays=None, used=None):
@@ -356,7 +357,11 @@ class FinalGather(DirectLight):
     called from the calling thread as batches of hemisphere rays finish; raising cancels."""
 
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
-    ENTRY_BATCH = 1 << 21  # weights per batch of _remap_near, _read_cols on threads (fixed: the same values)
+    ENTRY_BATCH = 1 << 21  # weights per batch of _read_cols, _reuse_rows on threads (fixed: the same values)
+    # weights per batch of _remap_near (fixed): its int64 and float64 temporaries, ~60 bytes a weight,
+    # were the 100k vertex bake's build peak in batches of 2^21 (session 32; its statistics' sums
+    # are grouped by batch: their last bits moved then, the columns are the same)
+    REMAP_BATCH = 1 << 18
     POINT_BATCH = 1 << 15  # samples per batch of their setup (onto_patch) on threads (fixed)
     ROW_BATCH = 1 << 15  # leaves or rows per batch of the passes' leaf means, near rows (fixed)
     threads = 1  # core.parallel's threads for the batches and matvecs (a class default: a gather
@@ -588,6 +593,9 @@ class FinalGather(DirectLight):
                     **dict(rays_kw, rays=rp),
                 )
                 fine[probe._fine_leaves(near_share)] = True
+                # only its rows are read again (the second level's reuse): its samples' arrays
+                # (35 MB at the 100k room) not held through this level's rays
+                probe = (probe.indptr, probe.cols, probe.w)
         # the leaves whose near hits read a sample of their own (their nearest point): a hit on
         # another leaf reads the leaf (_remap_near), so its nearest point is not computed
         # (NEAR_FINE_ONLY; its hits then merge into one entry per row and leaf)
@@ -598,6 +606,7 @@ class FinalGather(DirectLight):
             elif near_layout is not None and near_layout[0] is not None:
                 self._near_fine = near_layout[0] >= 0
         self._trace = ~self.dark if reuse is None else ~self.dark & (reuse[0] < 0)
+        release_free_memory()  # (the set-up's and the probe's freed temporaries: not under the rays')
         self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(
             batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None),
             threads,
@@ -630,7 +639,7 @@ class FinalGather(DirectLight):
             off[used[fine[used]]] = start[:-1][fine[used]]
             if self.near_points:  # the probe's row of each sample of a leaf that is not fine
                 at = np.repeat(np.searchsorted(leaves, used) * nn - start[:-1], k2) + np.arange(len(x))
-                reuse = (np.where(np.repeat(fine[used], k2), -1, at), probe.indptr, probe.cols, probe.w)
+                reuse = (np.where(np.repeat(fine[used], k2), -1, at), *probe)
                 del probe, probe_grid
             self.stats["near_leaves"] = int(fine.sum())
             second_near = near_second and self.near_points and iterations and levels == 2
@@ -718,7 +727,7 @@ class FinalGather(DirectLight):
             w = self.entry_weights(a, b).astype(np.float64)
             return len(j), int(ok.sum()), float(w[j[ok]].sum()), float(w.sum())
 
-        parts = batch_map(part, ranges(len(cols), self.ENTRY_BATCH), self.threads)
+        parts = batch_map(part, ranges(len(cols), self.REMAP_BATCH), self.threads)
         if not sum(p[0] for p in parts):
             return
         self.cols = cols
@@ -755,17 +764,23 @@ class FinalGather(DirectLight):
         cnt[old] = np.diff(indptr)[take[old]]
         ip = np.zeros(len(cnt) + 1, np.int64)
         np.cumsum(cnt, out=ip[1:])
-        first = np.where(old, len(self.cols) + indptr[:-1][np.maximum(take, 0)], self.indptr[:-1]) - ip[:-1]
-        both = np.concatenate([self.cols, cols]), np.concatenate([self.w, w])
-        self.cols, self.w = np.empty(ip[-1], both[0].dtype), np.empty(ip[-1], both[1].dtype)
+        n0 = len(self.cols)
+        first = np.where(old, n0 + indptr[:-1][np.maximum(take, 0)], self.indptr[:-1]) - ip[:-1]
+        # entries below n0 are this level's, the rest the given rows' (taken from each, not from a
+        # concatenated copy of both: 0.1 GB less at the 100k room's second level, the same entries)
+        srcs = (self.cols, cols), (self.w, w)
+        new = [np.empty(ip[-1], np.result_type(*x)) for x in srcs]
 
         def rows(r0, r1):  # each block of rows copies its own entries: on threads (batch_map)
             a, b = ip[r0], ip[r1]
             src = np.repeat(first[r0:r1], cnt[r0:r1]) + np.arange(a, b)
-            np.take(both[0], src, out=self.cols[a:b])
-            np.take(both[1], src, out=self.w[a:b])
+            mine = src < n0
+            for out, (x, y) in zip(new, srcs):
+                out[a:b][mine] = x[src[mine]]
+                out[a:b][~mine] = y[src[~mine] - n0]
 
         batch_map(rows, _row_blocks(ip, self.ENTRY_BATCH), self.threads)
+        self.cols, self.w = new
         self.indptr = ip
         if not self.near_points:
             self.cols %= self.n_hr
@@ -1480,14 +1495,22 @@ class FinalGather(DirectLight):
         return D
 
     def _read_cols(self):
-        """(columns, used): self.cols renumbered over the leaf values they read (used, ascending:
-        the rows of the value array a read takes, _csr_matvec), int32, made once and kept (not
-        stored: precompute_graph._TRANSIENT; made again when the columns change). The 100k room's
+        """(columns, used): the level's columns renumbered over the leaf values they read (used,
+        ascending: the rows of the value array a read takes, _csr_matvec), int32. The 100k room's
         second level reads 187k of its 514k rows: their 0.75 MB a channel stays in a core's cache
         where the whole 2 MB did not (the same products in the same order; docs/threads.md,
-        session 21). Made by batches of ENTRY_BATCH weights on threads: 0.15 s of CPU at 100k."""
+        session 21). Made on the first read, they replace self.cols (kept beside them they were a
+        second copy, 153 MB at the 100k room's vertex bake; docs/scale.md, session 32): the leaf
+        value an entry reads is then used[cols] (leaf_columns); columns set anew are compacted
+        again on the next read. Made by batches of ENTRY_BATCH weights on threads: 0.15 s of CPU
+        at 100k."""
         got = self.__dict__.get("_cols_read")
-        if got is None or got[0] is not self.cols:  # (one assignment: threads may race to make it)
+        if got is not None and got[0] is self.cols:
+            return got
+        with _COLS_LOCK:  # (reads on threads: compacted once, and never compacted twice)
+            got = self.__dict__.get("_cols_read")
+            if got is not None and got[0] is self.cols:
+                return got
             cols = self.cols
             seen = np.zeros(int(cols.max()) + 1 if len(cols) else 0, bool)
             parts = ranges(len(cols), self.ENTRY_BATCH)
@@ -1503,8 +1526,15 @@ class FinalGather(DirectLight):
                 np.take(rank, cols[a:b], out=out[a:b])
 
             batch_map(renumber, parts, self.threads)
-            got = self._cols_read = (cols, out, np.flatnonzero(seen))
-        return got[1:]
+            got = self._cols_read = (out, np.flatnonzero(seen))
+            self.cols = out  # (after _cols_read: whenever self.cols is compacted, it says so)
+        return got
+
+    def leaf_columns(self):
+        """(entries,) the row of the leaf values each entry reads (the traced columns, remapped):
+        self.cols, or used[cols] once a read has compacted them (_read_cols)."""
+        got, cols = self.__dict__.get("_cols_read"), self.cols
+        return got[1][cols].astype(cols.dtype) if got is not None and got[0] is cols else cols
 
     def _leaf_means(self, y, V):
         """V (n_hr, 3) with the leaves that have second-level samples set to the mean of those
@@ -1878,10 +1908,11 @@ class FinalGather(DirectLight):
             return self._naive_V
         h = self.system.h
         m = self.n_hr
-        used = np.unique(self.cols[self.cols < m]).astype(np.int64)
+        c1 = self.leaf_columns()
+        used = np.unique(c1[c1 < m]).astype(np.int64)
         if self.second is not None:  # the gather samples' rays land on other leaves too (near
             # hits read samples of leaves in _second_map)
-            c2 = self.second.cols
+            c2 = self.second.leaf_columns()
             used = np.union1d(np.union1d(used, c2[c2 < m]), self._second_map[0]).astype(np.int64)
         x, gw = ff.quadrature(h.corners[used], h.nv[used], 2)
         pts = x.reshape(-1, 3)

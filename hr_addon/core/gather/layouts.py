@@ -4,7 +4,7 @@ import numpy as np
 
 from ..boxes import csr_rows
 from ..geometry import insideness, isolated_objects, prepare_patches
-from ..parallel import batch_map, ranges
+from ..parallel import batch_map, ranges, release_free_memory
 from ..output import corner_weights, equal_key_pairs, in_domain, loop_welds
 from . import corner_fit
 from .bakepoints import has_area, texel_points
@@ -119,8 +119,8 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
     mean of the polygons' normals within smooth_angle) and material, moved `nudge` of the way
     towards the patch's centre.
     Returns (points (S, 3), normals (S, 3), patch ids (S,), loop -> sample index (L,), -1 for loops
-    of polygons dropped as degenerate, and (li, lj, w, lpatch, pc_loop): loop li averages sample
-    loop_index[lj] with weight w, lpatch (L,) the patch of each loop, pc_loop (K, 4) the loop at
+    of polygons dropped as degenerate, and (li, lj, w, lpatch, pc_loop): loop li (int32) averages sample
+    loop_index[lj] (int32) with weight w, lpatch (L,) the patch of each loop, pc_loop (K, 4) the loop at
     each patch corner, -1 at padding (None for inset = 0)).
     layout: OutputLayout (the corners of a finer mesh; the patches returned are its own, the
     transport's under the points are layout.transport's) or None (the system's own mesh)."""
@@ -147,36 +147,48 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
     # pairs of loops at the same weld whose polygons lie within smooth_angle
     L = len(weld)
     li, lj = equal_key_pairs(weld, weld)
-    a, b = loop_poly[li], loop_poly[lj]
-    ok = np.einsum("ij,ij->i", pn[a], pn[b]) >= np.cos(np.radians(smooth_angle))
+    # by steps of pairs: their polygons' normals, (pairs, 3) each, held whole were 0.34 GB at the
+    # 100k vertex bake's 7.1 M pairs (each pair's own product: the same flags)
+    ok, cos_min = np.empty(len(li), bool), np.cos(np.radians(smooth_angle))
+    for s0 in range(0, len(li), PAIR_STEP):
+        a, b = loop_poly[li[s0 : s0 + PAIR_STEP]], loop_poly[lj[s0 : s0 + PAIR_STEP]]
+        ok[s0 : s0 + PAIR_STEP] = np.einsum("ij,ij->i", pn[a], pn[b]) >= cos_min
     valid = lpatch >= 0
     vl = np.flatnonzero(valid)
     p = np.asarray(mesh.verts, float)[np.asarray(mesh.loop_verts)]
     if inset > 0:
+        keep = ok & valid[lj]  # (the pairs averaged, before the samples' rules: 7.1 -> 3.15 M at 100k)
+        li, lj = li[keep].astype(np.int32), lj[keep].astype(np.int32)  # (held with the gather: loops)
+        del ok, keep
         loop_index = np.full(L, -1, np.int64)
         loop_index[vl] = np.arange(len(vl))
         patch = lpatch[vl]
         c = pt.corners[patch]
         centre = np.where((pt.nv[patch] == 4)[:, None], c.mean(1), c[:, :3].mean(1))
-        pts = p[vl] + inset * (centre - p[vl])
-        _uncover(system, pts, p[vl], patch, inset, layout)
+        corner = p[vl]  # (once; the patches' corners not held under the rules below: 0.1 GB at 100k)
+        del c, p
+        pts = corner + inset * (centre - corner)
+        del centre
+        _uncover(system, pts, corner, patch, inset, layout)
         if not isinstance(layout, OwnLayout) and (OUTPUT_MOUTH > 0 or OUTPUT_OPEN > 0):
             # both rules start from each sample's transport patch and contacts' covered test: made
             # once, and again only for the samples _toward_mouths moved
             tp, cov = _transport_covered(system, pts, patch, layout)
             if OUTPUT_MOUTH > 0:
-                moved = _toward_mouths(system, pts, p[vl], patch, layout, tp, cov)
+                moved = _toward_mouths(system, pts, corner, patch, layout, tp, cov)
                 tp[moved], cov[moved] = _transport_covered(system, pts[moved], patch[moved], layout)
             if OUTPUT_OPEN > 0:
-                _toward_openings(system, pts, p[vl], patch, layout, tp, cov)
-        keep = ok & valid[lj]
-        lpj = lpatch[lj[keep]]
+                _toward_openings(system, pts, corner, patch, layout, tp, cov)
+            del tp, cov
+        del corner
+        lpj = lpatch[lj]
         w = pt.area[lpj] / pt.nv[lpj]  # the corner's share of its patch
         lorder = np.argsort(key_l, kind="stable")  # the loop at each patch corner
         at = lorder[np.minimum(np.searchsorted(key_l[lorder], key_p), L - 1)]
         pc_loop = np.full(pt.vert_index.shape, -1, np.int64)
         pc_loop[jj, kk] = np.where(key_l[at] == key_p, at, -1)
-        return pts, pt.normal[patch], patch, loop_index, (li[keep], lj[keep], w, lpatch, pc_loop)
+        return pts, pt.normal[patch], patch, loop_index, (li, lj, w, lpatch, pc_loop)
+    b = loop_poly[lj]
     sn = np.zeros((L, 3))
     for c in range(3):
         sn[:, c] = np.bincount(li, weights=ok * pn[b, c] * parea[b], minlength=L)
@@ -202,6 +214,8 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
     nrm[flip] = side[flip]
     return pts, nrm, patch, loop_index, None
 
+
+PAIR_STEP = 1 << 20  # loop_samples: pairs of loops whose polygons' normals are compared at a time
 
 # _uncover: where a corner's sample may move, as fractions of the way from the corner to its
 # patch's centre, nearest the default inset (0.5) first
@@ -684,6 +698,7 @@ class LoopGather(FinalGather):
             patch = output.transport(patch, pts)
             if inset > 0:
                 nrm = s.patches.normal[patch]
+        release_free_memory()  # the layout's freed temporaries: not resident under the rays'
         super().__init__(system, pts, nrm, patch, **kw)
 
     def loop_radiance(self, dyn, domain="CORNER", kind="radiance", rows=None, out=None):
@@ -707,22 +722,27 @@ class LoopGather(FinalGather):
     def _loop_map(self):
         """(li, sj, wn, start): loop li takes wn x sample value sj, sorted by sj, start (n + 1,)
         the entries of each sample: loop_values as one constant linear map (the mean over the
-        uncovered samples of the corner's loops; a loop with none reads 0). Built on first use."""
+        uncovered samples of the corner's loops; a loop with none reads 0). Built on first use;
+        the loops and samples int32 (their counts are), each temporary let go once used (the 100k
+        vertex bake's first frame peaks here: 3.15 M pairs; docs/scale.md, session 32)."""
         got = self.__dict__.get("_loop_weights")
         if got is None:
             L = len(self.loop_index)
             if self.average is not None:
                 li, lj, w = self.average[:3]
                 sj = self.loop_index[lj]
-                w = w * ~self.dark[sj]
-                den = np.bincount(li, w, L)
-                wn = w / np.where(den > 0, den, 1.0)[li]
+                wn = w * ~self.dark[sj]
+                den = np.bincount(li, wn, L)
+                wn /= np.where(den > 0, den, 1.0)[li]  # (in place: the same quotients)
+                del den
             else:
                 li = np.flatnonzero(self.loop_index >= 0)
                 sj, wn = self.loop_index[li], np.ones(len(li))
-            keep = wn > 0
-            order = np.argsort(sj[keep], kind="stable")
-            li, sj, wn = li[keep][order], sj[keep][order], wn[keep][order]
+            keep = np.flatnonzero(wn > 0)
+            keep = keep[np.argsort(sj[keep], kind="stable")]  # the kept entries by sample, in order
+            sj = np.take(sj, keep).astype(np.int32)
+            li, wn = np.take(li, keep).astype(np.int32), np.take(wn, keep)
+            del keep
             got = self._loop_weights = (li, sj, wn, np.searchsorted(sj, np.arange(self.n + 1)))
         return got
 
