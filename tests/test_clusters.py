@@ -853,3 +853,39 @@ def test_the_oracles_visibility_decision_traces_only_the_segments_that_settle_it
     assert np.array_equal(got[~early], full[~early])  # the rest the full trace's values
     assert early.sum() > 0.3 * part.sum()
     assert r2 - r1 < 0.9 * (r1 - r0) and r1 - r0 == 16 * len(far)
+
+
+def _lit_ceiling_room():
+    """clutter_room with only the ceiling's quads emitting: pairs of other surfaces are dark."""
+    m = clutter_room()
+    m.emission[np.asarray(m.object_id) != 1] = 0.0
+    return m
+
+
+def _far_size(s, far):
+    """The oracle's size (rho_a + rho_b) / distance of each far link (_classify's)."""
+    tree, h = far.tree, s.h
+    ea, eb = C.Ends(tree, h, far.a), C.Ends(tree, h, far.b)
+    rho = [np.where(e.cl, np.where(e.theta < C.GRAD_CONE, 1.0, C.CURVED), 0.5) * e.radius for e in (ea, eb)]
+    return (rho[0] + rho[1]) / C.estimate(ea, eb)[1]
+
+
+def test_far_links_between_dark_ends_take_their_own_criteria_and_keep_reciprocity():
+    """params.dark_ratio / dark_veps / dark_second: a far link with an end holding a patch of the
+    static emission keeps cluster_ratio, pairs of dark ends may be larger (up to dark_ratio); the
+    transfer stays reciprocal and the power balanced. The default params build no LitEnds."""
+    m = _lit_ceiling_room()
+    p = dataclasses.replace(DRAFT, dark_ratio=0.95, dark_veps=0.1, dark_second=False)
+    s = RadiositySystem(m, p)
+    far = s.links.far
+    lit = FL.LitEnds(far.tree, s.h)
+    lit_ab = lit.ends(far.a) | lit.ends(far.b)
+    size = _far_size(s, far)
+    assert lit_ab.any() and (~lit_ab).any()
+    assert size[lit_ab].max() < DRAFT.cluster_ratio
+    assert size[~lit_ab].max() > DRAFT.cluster_ratio  # the dark pairs' own ratio is used
+    assert size[~lit_ab].max() < p.dark_ratio
+    base = RadiositySystem(m, DRAFT)
+    assert len(far) < len(base.links.far)
+    s.solve(tol=1e-10)
+    assert s.report.energy_error < 1e-8

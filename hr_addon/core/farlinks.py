@@ -263,6 +263,8 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     # "wholly occluded" pairs 9% darker (83%), and the extra tests cost more rays than they saved.
     pending = [(root, root)]
     table = EndTable(tree, h, refiner.eps)
+    dark = prm.dark_ratio > 0 or prm.dark_veps > 0 or not prm.dark_second
+    lit = LitEnds(tree, h) if dark else None
 
     def weight(a, b):
         aa, ab = _area(tree, h, a), _area(tree, h, b)
@@ -291,7 +293,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             continue
         table.update()  # the nodes subdivided by the last round (here, not on the threads)
         parts = batch_map(
-            lambda i, j: _classify(refiner, tree, a[i:j], b[i:j], table),
+            lambda i, j: _classify(refiner, tree, a[i:j], b[i:j], table, lit),
             ranges(len(a), PAIR_BATCH),
             refiner.threads,
         )
@@ -341,6 +343,8 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         # fresh estimates would average its true visibility), one on "0" is dropped, so the
         # decision's own trace is biased by the decision (kept 1: high, dropped 0: low). Their
         # visibility is traced again from a second set of points on the same members.
+        if not prm.dark_second:  # (their first trace's visibility kept, _classify)
+            decided &= lit.ends(fa_) | lit.ends(fb_)
         again = np.flatnonzero(decided) if SECOND_TRACE else np.zeros(0, np.int64)
         ends = np.concatenate([fa_[again], fb_[again]])
         table.prepare_second(ends[ends >= 0])  # the nodes' second points, once per node
@@ -370,7 +374,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     return links, p, q
 
 
-def _classify(refiner, tree, a, b, table=None):
+def _classify(refiner, tree, a, b, table=None, lit=None):
     """link_clusters' oracle for the pairs (a, b): every pair on its own (no hierarchy edits), so
     batches of pairs run on threads. Boolean arrays drop, ok (a far link), take (a far link: the
     end to split cannot be split), split_a, split_b (split that end); vis, mask, pa, pb, fmax of
@@ -396,12 +400,17 @@ def _classify(refiner, tree, a, b, table=None):
     rho_a = np.where(ea.cl, np.where(ea.theta < GRAD_CONE, 1.0, CURVED), 0.5) * ea.radius
     rho_b = np.where(eb.cl, np.where(eb.theta < GRAD_CONE, 1.0, CURVED), 0.5) * eb.radius
     size = (rho_a + rho_b) / np.maximum(dist, 1e-300)
-    small = size < prm.cluster_ratio
+    ratio, veps = prm.cluster_ratio, prm.cluster_veps
+    lit_ab = None if lit is None else lit.ends(a) | lit.ends(b)
+    if lit_ab is not None:  # pairs of dark ends: their own criteria (params.dark_ratio)
+        ratio = np.where(lit_ab, ratio, prm.dark_ratio or ratio)
+        veps = np.where(lit_ab, veps, prm.dark_veps or veps)
+    small = size < ratio
     cand = ~drop & facing & small
     var_a, var_b = np.zeros(len(a)), np.zeros(len(a))
     if cand.any():
         var_a[cand], var_b[cand] = _variation(tree, h, a[cand], b[cand], refiner.eps, table)
-    even = fmax * np.maximum(var_a, var_b) < prm.cluster_veps
+    even = fmax * np.maximum(var_a, var_b) < veps
     ok = ~drop & facing & small & even & (fmax < np.where(pa | pb, prm.partial_feps * prm.feps, prm.feps))
     vis, mask = np.full(len(a), np.nan), np.zeros(len(a), np.uint16)
     if prm.shadow_feps > 0:
@@ -409,9 +418,14 @@ def _classify(refiner, tree, a, b, table=None):
         if shadow.any():
             # with SECOND_TRACE every link kept here is traced again (link_clusters): only the
             # decision is asked (partial, or 0 / 1), on the fewest segments that settle it
-            vis[shadow], mask[shadow], _ = far_visibility(
-                refiner, tree, a[shadow], b[shadow], table=table, decide=SECOND_TRACE
-            )
+            # (a pair of dark ends without its second trace, params.dark_second: all of it here)
+            dec = np.full(len(a), SECOND_TRACE)
+            if not prm.dark_second and lit_ab is not None:
+                dec &= lit_ab
+            for d_ in (True, False):
+                sh = shadow & (dec == d_)
+                if sh.any():
+                    vis[sh], mask[sh], _ = far_visibility(refiner, tree, a[sh], b[sh], table=table, decide=d_)
             ok &= ~(shadow & (vis > 0) & (vis < 1))
     # Which end to split, by the first test that failed. Facing (a node whose plane cuts the
     # other end, or two partial ends): the end whose cone, or angular radius seen from the
@@ -477,6 +491,22 @@ def _variation_block(pa, wa, pb, wb, na, nb):
         lo, hi = row_range(ks.T)
         o[:] = (hi - lo) / np.maximum(m, 1e-300) * (m > 0)
     return out
+
+
+class LitEnds:
+    """Which link ends hold a patch of the static emission (the base solution's sources): a
+    patch node whose patch emits, a cluster with an emitting member. A pair of ends that are
+    both dark carries that light only after a reflection (params.dark_ratio)."""
+
+    def __init__(self, tree, h):
+        self.h, self.patch = h, h.patches.emission.max(0) > 0
+        c = np.r_[0, np.cumsum(self.patch[tree.perm])]
+        self.cluster = c[tree.end] > c[tree.start]
+
+    def ends(self, ids):
+        """(N,) bool: whether each end (shared ids) is lit."""
+        node = self.patch[self.h.patch[np.maximum(ids, 0)]]
+        return np.where(ids < 0, self.cluster[decode(np.minimum(ids, -1))], node)
 
 
 def _area(tree, h, ids):

@@ -21,6 +21,13 @@ class RefineParams:
     cluster_ratio: float = 0.3  # far links need (radius_a + radius_b) < cluster_ratio x distance
     partial_feps: float = 0.5  # far links with a partly facing cluster end need F < partial_feps x feps
     cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
+    # Far links between two dark ends (no patch of the static emission in either, farlinks.LitEnds):
+    # in the base solution they carry the emitters' light only after a reflection, so a share of
+    # the receiver's light far below an emitter's link's. Their cluster_ratio / cluster_veps
+    # (0: the same as every far link's) and whether they get the second trace (SECOND_TRACE)
+    dark_ratio: float = 0.0
+    dark_veps: float = 0.0
+    dark_second: bool = True
     cluster_leaf: int = 4  # most patches in a leaf cluster
     contacts: bool = True  # find surfaces covered by touching geometry (contacts.py) and refine along them
     contact_gap: float = 1e-3  # how close counts as touching, relative to sqrt(total scene area)
@@ -77,6 +84,14 @@ class RefineParams:
 # floor at 20k and 100k (docs/scale.md, session 31). ff_order 1 (one Gauss point a side) moved the
 # output by 0.002-0.003% and saved ~4.6 s at 100k, but touching pairs' exchange (a book's side and
 # its board, tests/test_clusters.py) read 0.62 of the exact (3: 0.90, 2: 1.24): not taken.
+# Draft's far links between two dark ends: dark_ratio 0.9 since session 32 (farlink): draft's
+# events solve no response (gather_responses "zero"), so the links carry only the base solution,
+# whose light enters at the emitting patches; a pair of dark ends carries it after a reflection.
+# build60's 1.0 / 0.3 for every far link moved the 20k room's output 0.027% per object (median,
+# p95 0.15%), this 0.015% (p95 0.03%), inside the seed floor; 100k build x0.948. dark_ratio 1.0
+# made the 20k base solve take twice the GMRES steps (its power balance 5e-3 off), 0.95 and 0.9 did
+# not; dark_veps 0.3 (weak far links' visibility 0.992 of a dense one) and dark_second False (strong
+# ones' +3.8%) fail tests/test_clusters.py's bound of 0.5%: not taken (docs/scale.md, session 32).
 GATHER_TRANSPORT = {
     "draft": dict(
         feps=0.1,
@@ -84,6 +99,7 @@ GATHER_TRANSPORT = {
         vcorr=0.0,
         cluster_ratio=0.7,
         cluster_veps=0.1,
+        dark_ratio=0.9,
         vis_k=1,
         ff_exposed=3,
     ),
