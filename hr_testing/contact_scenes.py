@@ -59,10 +59,11 @@ def sky_points(seed=1):
     return band, under
 
 
-def contact_furnace(rho=0.5):
+def contact_furnace(rho=0.5, emission=(1.0, 1.0, 1.0)):
     """A closed 3 x 3 x 2.5 m room with boxes standing on the floor, against a wall and on each
     other, and a leg standing on a box; reflectance and emission the same everywhere, so every
-    exposed point has B = E / (1 - rho) = 2 whatever covers what."""
+    exposed point has B = E / (1 - rho) = 2 whatever covers what. emission 0: a room for a Blender
+    light, whose reflected power is rho / (1 - rho) of what its direct light gives (closed)."""
     W, D, H = 3.0, 3.0, 2.5
     b = Builder()
     for name, o, u, v in (
@@ -74,7 +75,7 @@ def contact_furnace(rho=0.5):
         ("wall3", (W, 0, 0), (0, 0, H), (0, D, 0)),
     ):
         gv, gq = grid_quad(np.array(o, float), u, v, 6, 6)
-        b.add(name, gv, [gq], rho, (1, 1, 1))
+        b.add(name, gv, [gq], rho, emission)
     for name, (v, f) in (
         ("box", box([0.5, 0.5, 0], [1.1, 1.0, 0.5])),
         ("stacked", box([0.6, 0.6, 0.5], [0.9, 0.85, 0.8])),
@@ -82,5 +83,5 @@ def contact_furnace(rho=0.5):
         ("post", box([1.8, 2.0, 0], [2.3, 2.4, 0.4])),
         ("leg", cylinder([2.0, 2.2, 0.4], 0.08, 0.9, 12)),
     ):
-        b.add(name, v, f, rho, (1, 1, 1))
+        b.add(name, v, f, rho, emission)
     return b.build()

@@ -1250,9 +1250,24 @@ class FinalGather(DirectLight):
 
     def _leaf_levels(self, dyn):
         """_levels of the solution in effect and the current direct light (with the tail where a
-        shape's scattered light is left to the passes: _Rec.gathered)."""
-        tail = not dyn.naive_active and any(r.gathered for r in dyn.shapes.values())
-        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0], tail)
+        shape's scattered light is left to the passes, _Rec.gathered, or a Blender light's:
+        _lights_tail)."""
+        lit = not dyn.naive_active and self._lights_tail(dyn) and bool(dyn.lights)
+        tail = lit or (not dyn.naive_active and any(r.gathered for r in dyn.shapes.values()))
+        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0], tail, lit)
+
+    @staticmethod
+    def _lights_tail(dyn):
+        """Whether a Blender light's passes over its response go on until their tail is at most
+        TAIL_SHARE of the light and take that tail (as a gathered shape's, "zero" or "tail":
+        DynamicRadiosity.gather_responses), not the 1 + iterations passes alone. Those stop short
+        of the passes' limit by what V's error keeps after them (issue 19, session 32, branch
+        indirect, docs/accuracy.md): the two rooms' indirect light at frame 1 (a point and an
+        area light) -1.05% from that limit at draft (the response 3 GMRES steps on the draft
+        transport: dark there), -0.16% with the tail; the furnace with clutter (rho 0.8 / 0.7 /
+        0.5) -2.6 / +1.4 / +0.4% of rho / (1 - rho), with the tail after 5 passes +1.5% in red,
+        until the tail is at most 2% (7 passes) within 0.1%."""
+        return bool(getattr(dyn, "gather_responses", ""))
 
     # the tail's largest ratio: a pass's change over the one before tends to rho where light
     # bounces around a closed room (a furnace: B = E / (1 - rho)); above it the tail, r / (1 - r)
@@ -1267,12 +1282,14 @@ class FinalGather(DirectLight):
     # exposed leaf sampled")
     TAIL_PASSES, TAIL_SHARE = 16, 0.02
 
-    def _levels(self, V, direct, tail=False):
+    def _levels(self, V, direct, tail=False, until=False):
         """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
         direct(g) -> (g.n, 3) direct light at a level's samples: V itself with one level; with
         more, the lower levels' gathers (linear in V and the direct light). tail: the passes'
         limit instead of the last pass (the bounces after it: a geometric series of the last
-        change, per channel; a shape's passes from V = 0, DynamicRadiosity.gather_responses)."""
+        change, per channel; a shape's passes from V = 0, DynamicRadiosity.gather_responses).
+        until (with tail): the passes go on, as from V = 0, while the tail is more than TAIL_SHARE
+        of the light (a Blender light's: _lights_tail)."""
         if self.second is None:
             return (V, None, None, None)
         g2 = self.second
@@ -1288,8 +1305,9 @@ class FinalGather(DirectLight):
         # iterations: the gather samples gather from each other (Jacobi on the HR leaves with exact
         # direct light): every pass moves the solution one bounce further away
         last, sums = [], []
-        for k in range(self.TAIL_PASSES if zero else 1 + self.iterations):
-            if zero and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
+        until = zero or (tail and until)
+        for k in range(self.TAIL_PASSES if until else 1 + self.iterations):
+            if until and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
                 k -= 1
                 break
             y = g2._read(None if nothing and k == 0 else L)  # rho (D2 + read), in place: no (n, 3)
@@ -1744,7 +1762,8 @@ class FinalGather(DirectLight):
                 def unit(g, rec=rec):
                     return np.repeat(g._light(rec)[:, None].astype(np.float64), 3, 1)
 
-                Y = self._levels(self._values_from(h, X), unit)
+                tail = self._lights_tail(dyn)
+                Y = self._levels(self._values_from(h, X), unit, tail, tail)
                 part = self._dmix(unit(self), self._facing_part(unit)) + self._light_bounce(rec, Y[0])
                 part += self._read(Y)
                 self._responses[k] = part.astype(np.float32)
