@@ -126,10 +126,11 @@ class TexturePlan:
         self.tmp = None
         self.files = {}  # frame -> True once written / linked
         self._parts = []  # per object: (points, patches, representatives)
-        self._axes = []  # per object: (N, 2, 3) the texels' sides on the surface
-        # per object: (N, 3, 3) the triangle of each texel's centre, corners in the order of Blender's
-        # loop triangles (a quad's (0, 1, 2), (0, 2, 3)), inside which Cycles' bake samples the texel
-        self._tris = []
+        # per object: (T, 2, 3) the texels' sides on each of its triangles, (T, 3, 3) the triangles'
+        # corners in the order of Blender's loop triangles (a quad's (0, 1, 2), (0, 2, 3)), inside
+        # which Cycles' bake samples a texel, and (N,) int32 each texel's triangle: per triangle,
+        # not per texel (120 bytes a texel held through the bake for the gather's one read)
+        self._tri = []
         self._locator = None
         self._gathered = None
         self.albedo = {}  # object index -> (N, 3) float32 texture albedo / average at its texels
@@ -147,8 +148,7 @@ class TexturePlan:
         r = np.where((r >= 0) & (own[np.maximum(r, 0)] == own), r, np.arange(len(texel)))
         n = self.objects[-1].hi if self.objects else 0
         self._parts.append((np.einsum("nk,nkj->nj", bary, corners[tri]), own.astype(np.int64), r + n))
-        self._axes.append(texel_axes(tri_uv, corners, res)[tri])
-        self._tris.append(corners[tri])
+        self._tri.append((texel_axes(tri_uv, corners, res), corners, tri.astype(np.int32)))
         edge = np.einsum("nk,nkj->nj", bary, np.asarray(tri_uv, np.float64)[tri] * res - 0.5)
         steps, ring = dilation_steps(texel, res), ring_sources(texel, inside, edge, res)
         o = ObjectTexels(name, res, stem, texel, inside, n, n + len(texel), steps, uv_digest, ring)
@@ -216,12 +216,27 @@ class TexturePlan:
         so the others' values are those of a gather at every texel."""
         from ..core.gather import texel_gather
 
-        loc, g = self.locator, self.gathered
-        axes = np.concatenate(self._axes)[g] if self._axes else np.zeros((0, 2, 3))
-        tris = np.concatenate(self._tris)[g] if self._tris else np.zeros((0, 3, 3))
+        g = self.gathered
         if kw.get("rho") is not None and np.ndim(kw["rho"]) == 2:  # per texel
             kw["rho"] = np.asarray(kw["rho"])[g]
-        return texel_gather(system, loc.patch[g], loc.points[g], axes=axes, tris=tris, **kw)
+        pts, patch, axes, tris = self.texel_geometry(g)
+        return texel_gather(system, patch, pts, axes=axes, tris=tris, **kw)
+
+    def texel_geometry(self, texels=None):
+        """(points (k, 3), patch (k,), sides (k, 2, 3), triangles (k, 3, 3)) of the texels (sorted
+        indices into the plan's points; None: all), object by object without the locator (the
+        gather locates its own samples). sides: texel_axes; triangles: the triangle of the
+        texel's centre, corners in Blender's loop-triangle order."""
+        if not self.objects:
+            return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 2, 3)), np.zeros((0, 3, 3))
+        t = np.arange(self.texels) if texels is None else np.asarray(texels)
+        bounds = np.searchsorted(t, [o.lo for o in self.objects] + [self.texels])
+        cut = [t[a:b] - o.lo for o, a, b in zip(self.objects, bounds[:-1], bounds[1:])]
+        pts = np.concatenate([p[0][k] for p, k in zip(self._parts, cut)])
+        patch = np.concatenate([p[1][k] for p, k in zip(self._parts, cut)])
+        axes = np.concatenate([a[i[k]] for (a, _, i), k in zip(self._tri, cut)])
+        tris = np.concatenate([c[i[k]] for (_, c, i), k in zip(self._tri, cut)])
+        return pts, patch, axes, tris
 
     def radiance(self, solution, mode="RADIANCE", gather=None):
         """(N, 3) values of the current solution at the texel points of all objects. mode RADIANCE:
