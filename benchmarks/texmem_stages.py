@@ -157,6 +157,24 @@ def main():
     def build_and_count(self, *a, **k):
         system, dyn, final = build(self, *a, **k)
         HELD.update(census(self._plan, final), rss_after_build=SAMPLER.rss())
+        plan = self._plan
+        if plan is not None:  # per object: its size, texels, inside ones, gathered ones, surface area
+            pt = system.patches
+            area = np.bincount(pt.object_id, pt.area, len(pt.object_names))
+            by_name = dict(zip(pt.object_names, area))
+            gathered = np.zeros(plan.texels, bool)
+            gathered[plan.gathered] = True
+            HELD["objects"] = [
+                [
+                    o.name,
+                    o.res,
+                    o.hi - o.lo,
+                    int(o.inside.sum()),
+                    int(gathered[o.lo : o.hi].sum()),
+                    float(by_name.get(o.name, 0.0)),
+                ]
+                for o in plan.objects
+            ]
         return system, dyn, final
 
     bake._Bake.build = marked("build", build_and_count)
@@ -194,9 +212,8 @@ def main():
     json.dump(rep, open(out, "w"), indent=1, default=float)
     print(f"exit {code}, CPU {rep['cpu_s']:.1f} s, peak {rep['peak_rss_gb']:.2f} GB -> {out}")
     for s in rep["stages"]:
-        print(
-            f"  {s['stage']:40s} in {s['rss_in_gb']:.2f} out {s['rss_out_gb']:.2f} peak {s['peak_gb']:.2f} GB  {s['cpu_s']:.1f} s"
-        )
+        rss = f"in {s['rss_in_gb']:.2f} out {s['rss_out_gb']:.2f} peak {s['peak_gb']:.2f} GB"
+        print(f"  {s['stage']:40s} {rss}  {s['cpu_s']:.1f} s")
     del cli
     return code
 
