@@ -129,7 +129,6 @@ def main():
     bake.read_snapshot = marked("snapshot", bake.read_snapshot)
     bake.RadiositySystem = marked("hierarchy", bake.RadiositySystem)
     bake.DynamicRadiosity = marked("dynamic", bake.DynamicRadiosity)
-    bake._Bake.texture_plan = marked("plan", bake._Bake.texture_plan)
     texture.lightmap_key = marked("lightmap_key", texture.lightmap_key)
     texture.check_memory = marked("check_memory", texture.check_memory)
     bake.make_gather = marked("gather", bake.make_gather)
@@ -152,16 +151,13 @@ def main():
             setattr(F, name, marked(name, getattr(F, name)))
         direct.edge_direct = marked("edge_direct", direct.edge_direct)
         lplan.TexturePlan._at_texels = marked("_at_texels", lplan.TexturePlan._at_texels)
-    build = bake._Bake.build
+    texture_plan = bake._Bake.texture_plan
 
-    def build_and_count(self, *a, **k):
-        system, dyn, final = build(self, *a, **k)
-        HELD.update(census(self._plan, final), rss_after_build=SAMPLER.rss())
-        plan = self._plan
-        if plan is not None:  # per object: its size, texels, inside ones, gathered ones, surface area
+    def plan_and_count(self, snap, system):
+        plan = texture_plan(self, snap, system)
+        if plan is not None and "objects" not in HELD:  # per object: size, texels, inside, gathered, area
             pt = system.patches
-            area = np.bincount(pt.object_id, pt.area, len(pt.object_names))
-            by_name = dict(zip(pt.object_names, area))
+            by_name = dict(zip(pt.object_names, np.bincount(pt.object_id, pt.area, len(pt.object_names))))
             gathered = np.zeros(plan.texels, bool)
             gathered[plan.gathered] = True
             HELD["objects"] = [
@@ -171,10 +167,22 @@ def main():
                     o.hi - o.lo,
                     int(o.inside.sum()),
                     int(gathered[o.lo : o.hi].sum()),
-                    float(by_name.get(o.name, 0.0)),
+                    by_name.get(o.name, 0.0),
                 ]
                 for o in plan.objects
             ]
+            if os.environ.get("TEXMEM_PLAN_ONLY"):
+                with open(sys.argv[1], "w") as fh:
+                    json.dump(HELD, fh, default=float)
+                os._exit(0)
+        return plan
+
+    bake._Bake.texture_plan = marked("plan", plan_and_count)
+    build = bake._Bake.build
+
+    def build_and_count(self, *a, **k):
+        system, dyn, final = build(self, *a, **k)
+        HELD.update(census(self._plan, final), rss_after_build=SAMPLER.rss())
         return system, dyn, final
 
     bake._Bake.build = marked("build", build_and_count)
