@@ -28,6 +28,8 @@ import numpy as np  # noqa: E402
 
 from bench_texel_memory import RssSampler  # noqa: E402
 
+sys.path.insert(0, os.getcwd())  # (bench_texel_memory put its own tree first)
+
 SAMPLER = RssSampler()
 STACK = ["start"]
 STAGES = []  # [name, rss at entry, rss at exit, peak, cpu s] in order of entry
@@ -122,6 +124,8 @@ def main():
     out, argv = sys.argv[1], sys.argv[2:]
     SAMPLER.start()
     import hr_addon.__main__ as entry
+
+    print("hr_addon from", os.path.dirname(os.path.dirname(entry.__file__)), flush=True)
     from hr_addon.blender import bake, cli, texture
     from hr_addon.io import precompute as pc
     from hr_addon.lightmap import plan as lplan
@@ -194,6 +198,7 @@ def main():
     ru = resource.getrusage(resource.RUSAGE_SELF)
     gb = 1e-9
     rep = {
+        "code": os.path.dirname(os.path.dirname(entry.__file__)),
         "argv": argv,
         "exit": code,
         "cpu_s": ru.ru_utime + ru.ru_stime,

@@ -149,9 +149,13 @@ def scene_density(objects, largest, density, budget=None):
     objs = [o for o in objects if o.type == "MESH" and len(o.data.polygons)]
     polygons = sum(len(o.data.polygons) for o in objs)
 
+    made = {}
+
     def fits(d):
-        fit = _sizer(largest, d)
-        return np.array([fit(o) for o in objs], np.float64).reshape(-1, 2).T
+        if d not in made:
+            fit = _sizer(largest, d)
+            made[d] = np.array([fit(o) for o in objs], np.float64).reshape(-1, 2).T
+        return made[d]
 
     want = fits(density)[0].astype(int)
     d, got, asked, total = bounded_density(fits, density, budget, polygons, DENSITY[0])
