@@ -479,10 +479,10 @@ def test_texture_bake_too_large_is_refused_and_keeps_the_previous(tmp_path, monk
     before = _snapshot(cache)
     monkeypatch.setattr(parallel, "memory_headroom", lambda: 10**8)  # 100 MB free
     with pytest.raises(SceneError) as err:
-        _bake(frames=(5, 6), resolution=128)  # 0.111 M texels at 2 kB each
+        _bake(frames=(5, 6), resolution=128)  # 0.104 M texels gathered at 2 kB each
     msg = str(err.value)
     assert msg.startswith(
-        "Texture output needs 0.111 M texels, about 0.223 GB for the final gather, and 0.1 GB"
+        "Texture output gathers 0.104 M texels, about 0.207 GB for the final gather, and 0.1 GB"
     )
     assert "set a Texel Density (50 texels per metre: 2 cm) or the Texture Size" in msg  # density 0 here
     assert "'floor' (128 px" in msg
