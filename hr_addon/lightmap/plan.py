@@ -30,11 +30,12 @@ REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search
 # texels an image shows their own value at) at 128 hemisphere rays, above what the process held
 # before the plan, from the plan to the first frame's images (the gather at both levels, its
 # precompute written, a frame evaluated): real bakes at draft, session 32 (branch texmem,
-# docs/scale.md): the furnished room 2.16 kB, two_rooms 2.14 kB on main; MEASURED_AFTER after
-# this branch's cuts. (Sessions 19-31 counted 2-6 kB per texel of the plan, ring texels included.)
+# docs/scale.md): the furnished room 2.07-2.16 kB, two_rooms 2.07-2.14 kB on main, 1.83 and 1.70 kB
+# after that branch's cuts; rounded up (texels in slots gather more samples). Sessions 19-31
+# counted 2-6 kB per texel of the plan, ring texels included.
 GATHERED_BYTES = 2000
 # what a texture bake's process holds before the plan (Blender, the scene, the hierarchy): 0.57 GB
-# on the furnished room (its 20k polygons), 0.67 GB on two_rooms: a fixed part and one per polygon
+# on the furnished room (11,645 polygons), 0.67 GB on two_rooms (13,818): 0.62 and 0.64 by these
 BAKE_FIXED_BYTES = 500_000_000
 POLYGON_BYTES = 10_000
 # the texels a bake gathers per texel of surface at the density its lightmap is sized at: the
