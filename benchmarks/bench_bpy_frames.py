@@ -259,6 +259,8 @@ def run_play(args):
 
     bpy, scene = open_blend(args.blend, "vertex", args.resolution)
     assert scene.hr.playback and bake_dir_abs(scene), "the .blend has no bake to play back"
+    if args.regroup:
+        regroup(bpy, scene, playback.get_reader(bake_dir_abs(scene)).domain)
     parts = Parts()
     parts.wrap(CacheReader, "load", "read")
     parts.wrap(playback, "apply_arrays", "apply")
@@ -300,6 +302,27 @@ def run_play(args):
                all_shown=all(r["shown"] == "all" for r in rows), peak_rss_gb=_rss_gb())
     print({k: v for k, v in out.items() if k != "frames"}, flush=True)
     return out
+
+
+def regroup(bpy, scene, domain):
+    """--regroup: the subdividing modifiers of a bake made before FINER_VERSION 4 (session 32,
+    branch playfix) brought to this version's group in memory, each at its own spacing, with its
+    helper made anew from the subdivided mesh: what a bake with this version makes of them (never
+    saved: the file on disk keeps its group)."""
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.playback import forget_loaded
+
+    c = time.process_time()
+    objs = [o for o in scene.objects if ov.subdividing(o) > 0]
+    for o in objs:
+        ov._ensure(o, domain, ov.subdividing(o))
+    dg = bpy.context.evaluated_depsgraph_get()
+    dg.update()
+    bpy.data.batch_remove([me for o in objs if (me := ov._helper(o, dg)) is not None])
+    forget_loaded()  # (the helpers are new: frame 1 written again)
+    bare = sum(ov.GUARD not in o.modifiers[-1][ov._socket(o.modifiers[-1])].data.attributes for o in objs)
+    print(f"regroup: {len(objs)} modifiers to group version {ov.FINER_VERSION} ({bare} helpers without "
+          f"the guard), {time.process_time() - c:.1f} s CPU", flush=True)
 
 
 def _shown(bpy, scene, playback, np):
@@ -460,6 +483,8 @@ def main(argv=None):
     ap.add_argument("--term-after", type=int, default=0, help="--path cli: SIGTERM after N frame lines")
     ap.add_argument("--profile", default=None, help="folder for a cProfile file per frame")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--regroup", action="store_true", help="--path play: the bake's subdividing "
+                    "modifiers brought to this version's group in memory first (regroup)")
     ap.add_argument("--size", default="100k", help="--make: furnished_room's size (20k, 100k)")
     ap.add_argument("--vertex-spacing", type=float, default=None, help="the bake's Vertex Spacing")
     args = ap.parse_args(argv)

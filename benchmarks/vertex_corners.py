@@ -85,14 +85,18 @@ def main():
     out = {"scene": name, "objects": len(objects), "spacings": {}}
     for s in (float(x) for x in a.spacings.split(",")):
         t0 = time.process_time()
-        clutter = dict.fromkeys(ov._cluttered(objects, own, s, dg), s / 2**ov.CLUTTER_LEVELS)
+        t1 = time.process_time()
+        clutter = ov._cluttered(objects, own, s, dg)  # (ensure_own_values leaves shared meshes out too)
+        t_clutter = time.process_time() - t1
         finer = [o for o in own if ov.has_coarse_edges(o, s, dg) or o.name in clutter]
-        changed, counts = ov.corner_budget(objects, finer, s, dg, clutter=clutter)  # (as ensure_own_values)
+        # (as ensure_own_values)
+        changed, counts, fine = ov.corner_budget(objects, finer, s, dg, clutter=clutter)
         raised = {n: v for n, v in changed.items() if v is None or v > s}
         dt = time.process_time() - t0
         own_c, want, got = (
             counts if counts else (sum(len(o.evaluated_get(dg).data.loops) for o in objects),) * 3
         )
+        finer = [o for o in finer if ov.has_coarse_edges(o, s, dg) or o.name in fine]  # (ensure_own_values')
         r = dict(
             subdivided=len(finer),
             own_corners=own_c,
@@ -100,7 +104,10 @@ def main():
             budget=ov.budget(own_c),
             with_budget=got,
             raised={n: v for n, v in sorted(raised.items())},
-            clutter_finer={n: v for n, v in sorted(changed.items()) if n not in raised},
+            clutter_faces={n: int((v > 0).sum()) for n, v in sorted(fine.items())},
+            clutter_area={n: round(float(clutter[n][1][v > 0].sum()), 4) for n, v in sorted(fine.items())},
+            clutter_candidates=len(clutter),
+            near_clutter_cpu_s=round(t_clutter, 3),
             count_cpu_s=round(dt, 3),
         )
         out["spacings"][f"{s:g}"] = r
@@ -109,6 +116,7 @@ def main():
             f"at the spacing {want:,} (x{want / own_c:.2f}), budget {ov.budget(own_c):,}, with it {got:,}; "
             f"raised {len(raised)}"
             + (": " + ov.budget_line(raised, s, counts) if raised else "")
+            + (f"; {ov.clutter_line(fine, clutter, s)}" if fine else "")
             + f" ({dt:.2f} s CPU)",
             flush=True,
         )

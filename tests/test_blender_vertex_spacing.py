@@ -228,10 +228,11 @@ def test_only_the_coarse_faces_get_finer():
 
 def test_the_spacing_scaled_with_the_scene_gives_the_same_bake(tmp_path):
     """The Cornell sample (walls of 8 x 8 quads of 7 cm) at 0.05 m and inside a parent scaled x8 at
-    0.4 m: the same faces subdivided (the walls', the light's and the tall block's, not the short
-    block's: the group measures edges with the object's world scale; the ceiling at a quarter of the
-    spacing since session 31: the light hangs within a spacing below it, near_clutter) and the same
-    values, bit for bit (x8 is exact in binary)."""
+    0.4 m: the same faces subdivided (the walls', the light's and the tall block's by their edges: the
+    group measures edges with the object's world scale; since session 32 near_clutter's faces of
+    every object but the light one or two levels finer by their FINER: the ceiling's above the
+    light, the walls' and floor's along each other and the blocks, the short block's too: the same
+    faces at both scales) and the same values, bit for bit (x8 is exact in binary)."""
     bpy = load_bpy()
     from hr_addon.blender.bake import run_bake
 
@@ -253,10 +254,12 @@ def test_the_spacing_scaled_with_the_scene_gives_the_same_bake(tmp_path):
 
     one, eight = bake(1, 0.05), bake(8, 0.4)
     assert {n: len(v) // 4 for n, v in one.items()} == {
-        **dict.fromkeys(("floor", "back", "left_red", "right_green"), 1024),
-        "ceiling": 4096,
-        "short_block": 320,
-        "tall_block": 1088,
+        "floor": 3040,
+        "ceiling": 2224,
+        **dict.fromkeys(("back", "right_green"), 2080),
+        "left_red": 2032,
+        "short_block": 512,
+        "tall_block": 1136,
         "light": 64,
     }
     for name, v in one.items():
@@ -502,6 +505,9 @@ def test_a_file_baked_with_the_second_group_gets_the_new_one():
     for lk in list(st.outputs["Geometry"].links):
         g.links.new(src, lk.to_socket)
     g.nodes.remove(st)
+    (switch,) = [n for n in g.nodes if n.bl_idname == "GeometryNodeSwitch"]  # (version 2 always subdivided)
+    (out,) = [n for n in g.nodes if n.bl_idname == "NodeGroupOutput"]
+    g.links.new(switch.inputs["False"].links[0].from_socket, out.inputs[0])
     g[TAG] = 2
     wall.update_tag()
     dg.update()
@@ -671,7 +677,7 @@ def test_the_corner_budget_raises_the_largest_objects_first():
     assert ov.corners_at(*ov.face_edges(wall, dg), 0.25) == 1024
 
     def raised(limit):
-        out, counts = ov.corner_budget(objects, objects, 0.25, dg, limit=limit)
+        out, counts, _ = ov.corner_budget(objects, objects, 0.25, dg, limit=limit)
         assert counts[:2] == (28, 1024 + 264)
         return {k: round(v, 4) if v is not None else v for k, v in out.items()}, counts[2]
 
@@ -684,7 +690,7 @@ def test_the_corner_budget_raises_the_largest_objects_first():
     assert raised(39) == ({"Wall": None, "Bar": None}, 4 + 24)
     assert raised(27) == ({"Wall": None, "Bar": None}, 28)  # (under the own corners: the least)
     # the raised spacings make what was counted: the wall at 1 m (just above) is cut 4 x 4
-    out, _ = ov.corner_budget(objects, objects, 0.25, dg, limit=327)
+    out, _, _ = ov.corner_budget(objects, objects, 0.25, dg, limit=327)
     ov.ensure_own_values([wall], "CORNER", dg, out["Wall"])
     dg.update()
     assert len(wall.evaluated_get(dg).data.loops) == 64
@@ -692,14 +698,17 @@ def test_the_corner_budget_raises_the_largest_objects_first():
 
 def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypatch):
     """The furnished sample at 0.25 m (92,104 corners for its 42,676) is within the budget: no
-    budget line; the 509 objects with edges over 0.25 m at 0.25 m but for those near_clutter names
-    (one log line: the wall behind the bookcases, the floor, the sofa's base and the west wall at
-    0.0625 m, the ceiling and a board at 0.125 m, 183,400 corners, within CLUTTER_SHARE x 92,104
-    more); at 0.15 m nothing raised. The wall scene (nothing within 0.25 m before its faces) baked
-    at 0.25 m with the budget and without it (corner_budget replaced by one that changes nothing:
-    the code before the budget) gives the same meshes and values, bit for bit."""
+    budget line; the 509 objects with edges over 0.25 m at 0.25 m, and near_clutter's faces finer
+    (one log line, 144 objects, the floor's and the walls' and ceiling's faces along furniture and
+    each other first; each face one or two levels finer: 152,884 corners, within CLUTTER_SHARE x
+    92,104 more, counted on the evaluated meshes; 572 objects subdivided, every one at 0.25 m: the
+    walls' 0.23 m quads by their FINER alone); at 0.15 m nothing raised. The wall scene (nothing
+    within 0.25 m before its faces) baked at 0.25 m with the budget and without it (corner_budget
+    replaced by one that changes nothing: the code before the budget) gives the same meshes and
+    values, bit for bit."""
     bpy = load_bpy()
     from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import FINER
     from hr_addon.blender.scene_in import geometry_objects
 
     open_sample("furnished", tmp_path / "furnished")
@@ -707,23 +716,26 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     dg = scene.view_layers[0].depsgraph
     objects = geometry_objects(scene.view_layers[0])  # at 0.15 m: 257,032 corners (x6.0), within
     finer = [o for o in objects if ov.has_coarse_edges(o, 0.15, dg)]
-    assert ov.corner_budget(objects, finer, 0.15, dg) == ({}, (42_676, 257_032, 257_032))
+    assert ov.corner_budget(objects, finer, 0.15, dg) == ({}, (42_676, 257_032, 257_032), {})
     lines = []
     ov.ensure_own_values(objects, "CORNER", dg, 0.25, log=lines.append)
     # (the spacing's own note goes to log too since def26: only no budget line)
     clutter, line = lines
-    assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 513"), line
-    assert clutter.startswith("Vertex Spacing 0.25: 6 object(s) with surfaces close in front"), clutter
+    assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 572"), line
+    assert clutter.startswith(
+        "Vertex Spacing 0.25: 144 object(s) with surfaces close in front of part of their faces ('floor' 350 "
+        "faces 19 m^2, 'wall_north' 208 faces 11 m^2"
+    ), clutter
     spacings = {o.name: ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)}
-    finer = {"floor", "sofa_base", "wall_north", "wall_west"}
-    assert {n: s for n, s in spacings.items() if s != 0.25} == {
-        **dict.fromkeys(finer, 0.0625),
-        "ceiling": 0.125,
-        "case2_board1": 0.125,
-    }
-    assert len(spacings) == 513
+    assert len(spacings) == 572 and set(spacings.values()) == {0.25}
+    fine = {}
+    for o in objects:
+        if FINER in o.data.attributes:
+            fine[o.name] = np.empty(len(o.data.polygons), np.int32)
+            o.data.attributes[FINER].data.foreach_get("value", fine[o.name])
+    assert len(fine) == 144 and np.bincount(fine["wall_north"]).tolist() == [104, 62, 146]
     dg.update()
-    assert sum(len(o.evaluated_get(dg).data.loops) for o in objects) == 183_400
+    assert sum(len(o.evaluated_get(dg).data.loops) for o in objects) == 152_884
 
     bpy, ms, scene = empty_scene()
     _scene(ms)
@@ -745,7 +757,7 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
         return out
 
     with_budget = bake()
-    monkeypatch.setattr(ov, "corner_budget", lambda *a, **k: ({}, None))
+    monkeypatch.setattr(ov, "corner_budget", lambda *a, **k: ({}, None, {}))
     without = bake()
     assert with_budget.keys() == without.keys()
     for name, (co, v) in with_budget.items():
@@ -763,60 +775,153 @@ def _grid_wall(ms, name="Grid wall", nx=10, nz=5, step=0.2):
 
 
 def _plate(ms, y, top, name="Plate"):
-    """A plate wider than the grid wall, parallel to it `y` m in front, from z = 0 to `top`."""
+    """A plate wider than the grid wall and below it, parallel to it `y` m in front, from z = -0.2 to
+    `top`."""
     return ms.mesh_object(
         name,
-        [(-0.1, y, 0), (2.1, y, 0), (2.1, y, top), (-0.1, y, top)],
+        [(-0.2, y, -0.2), (2.2, y, -0.2), (2.2, y, top), (-0.2, y, top)],
         [[0, 1, 2, 3]],
         ms.diffuse("Grey plate", (RHO,) * 3),
     )
 
 
 @pytest.mark.parametrize(
-    "y, top, cut, plate_area",
+    "y, top, cut",
     [
-        (0.05, 0.45, True, 0.0),  # 5 cm in front, over the lower 0.45 m: the faces at 0.4-0.6 m in part
-        (0.05, 1.2, False, 2.64),  # the whole wall behind it: no face of the wall in part (the plate: yes)
-        (0.5, 0.45, False, 0.0),  # 0.5 m in front: further than the spacing (CLUTTER_REACH 1)
+        (0.05, 0.45, True),  # 5 cm in front, over the lower 0.45 m: the faces at 0.4-0.6 m in part
+        (0.05, 1.2, False),  # the whole wall behind it: no face of the wall in part
+        (0.5, 0.45, False),  # 0.5 m in front: further than the spacing (CLUTTER_REACH 1)
     ],
 )
-def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top, cut, plate_area):
+def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top, cut):
     """near_clutter on a 2 x 1 m wall of 0.2 m quads and a plate before it: with the plate 5 cm in front
-    of its lower 0.45 m, the ten faces at 0.4-0.6 m are covered in part (their rays from z 0.42 hit it,
-    from 0.5 and 0.58 not: 0.4 m^2, at least CLUTTER_AREA x 0.25^2 = 0.25); 0.25 / 4 would cut each
-    0.2 m face 4 x 4 (3,000 corners more), over CLUTTER_SHARE x the 1,224 corners the scene has at
-    0.25 m (the wall's 200, the plate's 1,024), so the wall gets 0.125 m: each face 2 x 2 (800
-    corners, counted on its evaluated mesh), and one log line names it; the plate over all of it,
-    or half a metre away: no face in part, the wall keeps its own 200 corners and gets no modifier.
-    The plate faces the wall: 0.45 m tall, every ray of it meets the wall (not in part); 1.2 m tall,
-    its rays above the wall's 1 m miss: its one face, 2.64 m^2, in part."""
+    of its lower 0.45 m, the ten faces at 0.4-0.6 m (the third row) are covered in part (of their rays,
+    from points 1/5 of a face apart, along the normal and tilted 45 degrees, some meet the plate, some
+    pass above it: a share of 0.24), the rows below wholly, those above not at all. Only those ten
+    faces take a finer level: the mesh's FINER 1 there (0.25 / 2: each 2 x 2, 12 corners more; 0.25 /
+    4, 60 more, is not worth it at CLUTTER_WORTH 0.5 for a face a quarter in part), the modifier's
+    spacing stays 0.25 m, 200 + 120 corners counted on the wall's evaluated mesh, and one log line
+    names it; the plate over all of it, or half a metre away: no face in part, the wall keeps its own
+    200 corners and gets no modifier. Delete Bake (remove_own_values) takes FINER off the mesh with
+    the modifier."""
     bpy, ms, scene = empty_scene()
     from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import FINER
 
     wall = _grid_wall(ms)
     plate = _plate(ms, y, top)
     dg = bpy.context.evaluated_depsgraph_get()
-    area = ov.near_clutter([wall, plate], [wall, plate], dg, 0.25)
-    assert area == pytest.approx({"Grid wall": 0.4 if cut else 0.0, "Plate": plate_area}, abs=1e-6)
+    share, area = ov.near_clutter([wall, plate], [wall], dg, 0.25, 0.25)["Grid wall"]
+    np.testing.assert_allclose(area, 0.04, rtol=1e-6)  # (float32 vertices)
+    rows = share.reshape(5, 10)  # (faces row by row from z = 0)
+    if cut:
+        assert (rows[:2] == 1).all() and (rows[3:] == 0).all() and ((rows[2] > 0) & (rows[2] < 1)).all(), rows
+    else:
+        assert (share == (1 if top > 1 else 0)).all(), rows
     lines = []
     ov.ensure_own_values([wall, plate], "CORNER", dg, 0.25, log=lines.append)
     dg.update()
-    assert len(wall.evaluated_get(dg).data.loops) == (800 if cut else 200)
-    assert ov.subdividing(wall) == (0.125 if cut else 0.0)
+    assert len(wall.evaluated_get(dg).data.loops) == (320 if cut else 200)
+    assert ov.subdividing(wall) == (0.25 if cut else 0.0)
+    a = wall.data.attributes.get(FINER)
+    assert (a is not None) == cut
+    if cut:
+        finer = np.empty(50, np.int32)
+        a.data.foreach_get("value", finer)
+        assert (finer.reshape(5, 10) == np.repeat([0, 0, 1, 0, 0], 10).reshape(5, 10)).all()
     assert [x for x in lines if "close in front" in x] == (
         [
             "Vertex Spacing 0.25: 1 object(s) with surfaces close in front of part of their faces "
-            "('Grid wall' 0.125 m): their light changes across those faces."
+            "('Grid wall' 10 faces 0.4 m^2): those faces cut to 0.0625 m (their light changes across them)."
         ]
         if cut
         else []
     )
+    ov.remove_own_values([wall])
+    assert FINER not in wall.data.attributes and not wall.modifiers
+
+
+def test_the_group_cuts_each_face_by_its_finer():
+    """The subdividing group reads the mesh's FINER per face: the grid wall's 0.2 m quads at 0.25 m
+    (level 0) with FINER 1 on its first row (2 x 2 each) and 2 on the second (4 x 4) make 200 +
+    10 x 12 + 10 x 60 corners, as corners_at counts them; the row between them and the rest stay
+    whole, and no vertex of the finer rows lies off the wall's plane or outside its 2 x 1 m."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    wall = _grid_wall(ms)
+    dg = bpy.context.evaluated_depsgraph_get()
+    longest, n = ov.face_edges(wall, dg)
+    finer = np.repeat([1, 2, 0, 0, 0], 10).astype(np.int8)
+    ov._ensure(wall, "CORNER", 0.25)
+    ov._set_finer(wall.data, finer)
+    dg.update()
+    me = wall.evaluated_get(dg).data
+    assert len(me.loops) == ov.corners_at(longest, n, 0.25, finer) == 200 + 10 * 12 + 10 * 60
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    co = co.reshape(-1, 3)
+    assert np.abs(co[:, 1]).max() < 1e-6 and co[:, 0].min() > -1e-6 and co[:, 2].max() < 1 + 1e-6
+
+
+def test_a_shared_mesh_or_one_whose_modifiers_change_its_faces_gets_no_finer_faces():
+    """The grid wall with the plate 5 cm before its lower 0.45 m (the faces in part, as above), its
+    mesh shared by a second object (a linked duplicate), or behind a Mirror modifier (its evaluated
+    faces are not the mesh's): no FINER on the mesh, no log line, and the wall (0.2 m quads under
+    0.25 m) not subdivided."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import FINER
+
+    for how in ("shared", "mirror"):
+        bpy, ms, scene = empty_scene()
+        wall = _grid_wall(ms)
+        plate = _plate(ms, 0.05, 0.45)
+        objects = [wall, plate]
+        if how == "shared":
+            twin = bpy.data.objects.new("Twin", wall.data)
+            twin.location.y = -3
+            scene.collection.objects.link(twin)
+            objects.append(twin)
+        else:
+            wall.modifiers.new("Mirror", "MIRROR").use_axis = (False, False, True)
+        dg = bpy.context.evaluated_depsgraph_get()
+        lines = []
+        ov.ensure_own_values(objects, "CORNER", dg, 0.25, log=lines.append)
+        assert FINER not in wall.data.attributes and not [x for x in lines if "close in front" in x], how
+        assert ov.subdividing(wall) == 0.0, how
+
+
+def test_a_back_panel_between_shelf_boards_gets_finer_corners():
+    """A 1.2 x 1.6 m back panel, one quad, and three boards 0.3 m deep, 2 cm thick, across it (their
+    ends on it, at z 0.3, 0.7 and 1.1 m): the rays along the normal from the panel's centre and the
+    points 0.8 of the way to its corners and edge middles (session 31's near_clutter) all pass
+    between the boards, but the tilted ones near a board meet it: the panel is in part and its one
+    face takes a finer level (FINER 1: level 4 instead of 3, 1,024 corners; level 5 is not worth its
+    3,840 corners more for 1.9 m^2 about a fifth in part at CLUTTER_WORTH 0.5)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+
+    corners = [(0, 0, 0), (1.2, 0, 0), (1.2, 0, 1.6), (0, 0, 1.6)]
+    panel = ms.mesh_object("Panel", corners, [[0, 3, 2, 1]], ms.diffuse("Back", (RHO,) * 3))
+    boards = []
+    for z in (0.3, 0.7, 1.1):
+        box = [(x, yy, zz) for zz in (z, z + 0.02) for yy in (0, 0.3) for x in (0, 1.2)]
+        faces = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
+        boards.append(ms.mesh_object(f"Board {z}", box, faces, ms.diffuse("Board", (RHO,) * 3)))
+    dg = bpy.context.evaluated_depsgraph_get()
+    assert tuple(panel.data.polygons[0].normal) == pytest.approx((0, 1, 0))
+    (share,), _ = ov.near_clutter([panel, *boards], [panel], dg, 0.25, 0.25)["Panel"]
+    assert 0 < share < 0.5
+    ov.ensure_own_values([panel, *boards], "CORNER", dg, 0.25)
+    dg.update()
+    assert len(panel.evaluated_get(dg).data.loops) == 4 * 4**4 and ov.subdividing(panel) == 0.25
 
 
 def test_the_clutter_does_not_depend_on_the_frames_baked(tmp_path):
     """The plate moves from 5 cm before the wall (frame 1, the scene's first) to 0.5 m (frame 3 on):
     a bake of frame 4 alone subdivides the wall as a bake of frame 1 does (the corners are static,
-    taken at the scene's first frame: 0.125 m, 800 corners, as in the test above)."""
+    taken at the scene's first frame: the ten faces 2 x 2, 320 corners, as in the test above)."""
     bpy, ms, scene = empty_scene()
     from hr_addon.blender import own_values as ov
     from hr_addon.blender.bake import run_bake
@@ -836,7 +941,7 @@ def test_the_clutter_does_not_depend_on_the_frames_baked(tmp_path):
         run_bake(scene, log=lambda *a, **k: None, quality="draft", frames=frames)
         dg = bpy.context.evaluated_depsgraph_get()
         got.append((ov.subdividing(wall), len(wall.evaluated_get(dg).data.loops)))
-    assert got == [(0.125, 800)] * 2
+    assert got == [(0.25, 320)] * 2
 
 
 def test_at_a_fine_spacing_the_large_faces_are_cut_within_the_budget(tmp_path):
@@ -889,7 +994,7 @@ def test_the_budgets_corners_are_what_the_meshes_get_and_within_the_limit(limit)
     bars = _bars(ms, 40)
     objects = [wall, *bars]
     dg = bpy.context.evaluated_depsgraph_get()
-    out, (own, want, got) = ov.corner_budget(objects, objects, 0.1, dg, limit=limit)
+    out, (own, want, got), _ = ov.corner_budget(objects, objects, 0.1, dg, limit=limit)
     assert (own, want) == (4 + 40 * 24, 16_384 + 40 * 4_104)
     assert got <= limit
     for o in objects:
@@ -914,9 +1019,211 @@ def test_over_the_budget_the_named_objects_keep_the_spacing_while_the_others_mak
     bars = _bars(ms, 10)
     objects = [wall, *bars]
     dg = bpy.context.evaluated_depsgraph_get()
-    clutter = {"Grid wall": 0.03}
-    out, (own, want, got) = ov.corner_budget(objects, objects, 0.12, dg, limit=10_000, clutter=clutter)
+    clutter = {"Grid wall": (np.full(50, 0.5), np.full(50, 0.04))}  # (near_clutter's: every face in part)
+    out, (own, want, got), fine = ov.corner_budget(objects, objects, 0.12, dg, limit=10_000, clutter=clutter)
     assert (own, want) == (200 + 10 * 24, 800 + 10 * 4_104) and got <= 10_000
     assert "Grid wall" not in out and all(out[b.name] is None or out[b.name] > 0.12 for b in bars)
-    out, (_, _, got) = ov.corner_budget(objects, objects, 0.12, dg, limit=800 + 10 * 24 - 1, clutter=clutter)
+    assert fine == {}  # (over the budget no face gets finer than the spacing)
+    out, (_, _, got), _ = ov.corner_budget(
+        objects, objects, 0.12, dg, limit=800 + 10 * 24 - 1, clutter=clutter
+    )
     assert out["Grid wall"] is None and got <= 800 + 10 * 24 - 1
+
+
+# -- the group's output = the helper's mesh while the guard holds (session 32, branch playfix) --
+
+PROBE = "probe"  # an attribute only the helper's mesh has: shown while the group outputs that mesh
+
+
+def _guarded_wall(ms, shape_key=False):
+    """The wall (a UV map, a second material; shape_key: a shape key at 0) with its subdividing modifier and
+    helper at 0.25 m (ensure_own_values), random HR_Radiance and PROBE on the helper's mesh; (wall,
+    the helper's mesh)."""
+    import bpy
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.playback import write_attribute
+
+    wall = _scene(ms)
+    wall.data.uv_layers.new(name="UVMap")
+    wall.data.materials.append(ms.diffuse("Red", (0.5, 0.1, 0.1)))
+    if shape_key:
+        wall.shape_key_add(name="Basis")
+        key = wall.shape_key_add(name="Key")
+        key.data[0].co.y += 0.1
+        key.value = 0.0
+    dg = bpy.context.evaluated_depsgraph_get()
+    ov.ensure_own_values([wall], "CORNER", dg, 0.25)
+    md = wall.modifiers[-1]
+    me = md[md.node_group.interface.items_tree["Values"].identifier].data
+    write_attribute(me, np.random.default_rng(1).random((len(me.loops), 4), np.float32), "CORNER")
+    me.attributes.new(PROBE, "FLOAT", "POINT")
+    wall.update_tag()
+    return wall, me
+
+
+def _evaluated(obj):
+    """obj's evaluated mesh: {attribute: (domain, its values' bytes)} and its materials' names."""
+    import bpy
+
+    me = obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
+    out = {}
+    for a in me.attributes:
+        if a.name.startswith(".a_"):  # (anonymous: Capture Attribute's seam flag, not kept in a copy)
+            continue
+        width = {"FLOAT_VECTOR": 3, "FLOAT_COLOR": 4, "FLOAT2": 2, "INT32_2D": 2}.get(a.data_type, 1)
+        key = {"FLOAT_VECTOR": "vector", "FLOAT_COLOR": "color", "FLOAT2": "vector"}.get(a.data_type, "value")
+        kind = {"INT": np.int32, "BOOLEAN": bool, "INT32_2D": np.int32}.get(a.data_type, np.float32)
+        v = np.empty(len(a.data) * width, kind)
+        a.data.foreach_get(key, v)
+        out[a.name] = (a.domain, v.tobytes())
+    return out, [m.name for m in me.materials]
+
+
+def _edit(wall, what):
+    import bpy
+
+    if what == "position":
+        wall.data.vertices[2].co.x += 1e-4
+    elif what == "uv":
+        wall.data.uv_layers["UVMap"].uv[1].vector = (0.25, 0.75)
+    elif what == "material index":
+        wall.data.polygons[0].material_index = 1
+    elif what == "modifier":
+        wall.modifiers.new("Displace", "DISPLACE").strength = 0.1
+        wall.modifiers.move(len(wall.modifiers) - 1, 0)
+    elif what == "shape key":
+        wall.data.shape_keys.key_blocks["Key"].value = 1.0
+    wall.data.update()
+    bpy.context.view_layer.update()
+
+
+@pytest.mark.parametrize("what", ["position", "uv", "material index", "modifier", "shape key"])
+def test_the_group_shows_the_helpers_mesh_until_an_edit(what):
+    """While the mesh the group receives is the bake's (its GUARD, a hash per corner, is the
+    helper's), the group's output is the helper's mesh (PROBE shows), bit for bit what the
+    subdivision makes (every attribute, HR_Radiance from the helper, the materials); an edit after
+    the bake (positions, UVs, a material index, a deforming modifier or a shape key below the
+    group) makes the group subdivide again: the edit shows."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.names import GUARD
+
+    wall, me = _guarded_wall(ms, what == "shape key")
+    (attrs, mats) = _evaluated(wall)
+    assert PROBE in attrs and mats == ["Grey", "Red"] and GUARD in attrs
+    guard = me.attributes[GUARD]
+    saved = np.empty(len(guard.data), np.int32)
+    guard.data.foreach_get("value", saved)
+    me.attributes.remove(guard)  # the guard broken: the subdivision's own output
+    wall.update_tag()
+    (sub, sub_mats) = _evaluated(wall)
+    del attrs[PROBE]
+    assert PROBE not in sub and sub == attrs and sub_mats == mats
+    me.attributes.new(GUARD, "INT", "CORNER").data.foreach_set("value", saved)
+    wall.update_tag()
+    assert PROBE in _evaluated(wall)[0]
+    _edit(wall, what)
+    edited, _ = _evaluated(wall)
+    assert PROBE not in edited
+    name = {"uv": "UVMap", "material index": "material_index"}.get(what, "position")
+    assert edited[name] != attrs.get(name), what
+    assert edited[GUARD] != attrs[GUARD]
+
+
+def test_helpers_hold_their_objects_materials():
+    """The helper's mesh holds the object's materials (the evaluated mesh's while the guard
+    holds): a slot given another material after the bake is synced by the depsgraph handler and by
+    the stale check (own_values.sync_materials), so the evaluated object shows the new one; more
+    attributes than the guard reads (GUARDED): no GUARD on the helper, the group subdivides."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import GUARD
+
+    wall, me = _guarded_wall(ms)
+    assert [m.name for m in me.materials] == ["Grey", "Red"]
+    blue = ms.diffuse("Blue", (0.1, 0.1, 0.5))
+    wall.data.materials[1] = blue
+    bpy.context.view_layer.update()  # (playback.on_depsgraph_update syncs the helper)
+    assert [m.name for m in me.materials] == ["Grey", "Blue"]
+    assert _evaluated(wall)[1] == ["Grey", "Blue"] and PROBE in _evaluated(wall)[0]
+    me.materials[1] = None  # (an edit the handler did not see)
+    assert ov.sync_materials([wall]) == [wall] and ov.sync_materials([wall]) == []
+    for k in range(ov.GUARDED + 1 - len(ov._guard_names(wall))):
+        wall.data.attributes.new(f"extra {k}", "FLOAT", "POINT")
+    ov.ensure_own_values([wall], "CORNER", bpy.context.evaluated_depsgraph_get(), 0.25)
+    md = wall.modifiers[-1]
+    me = md[md.node_group.interface.items_tree["Values"].identifier].data
+    assert GUARD not in me.attributes
+    me.attributes.new(PROBE, "FLOAT", "POINT")
+    wall.update_tag()
+    assert PROBE not in _evaluated(wall)[0]
+
+
+def test_a_material_changed_after_the_bake_shows_and_the_check_names_it(tmp_path):
+    """After a bake at 0.25 m the wall shows its helper's mesh, which holds its material; another
+    material in its slot shows (the depsgraph handler syncs the helper) and the stale check names
+    the wall, also when the helper was not synced before it (the check syncs first)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender.playback import check_scene
+
+    wall = _scene(ms)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "wall.blend"))
+    _bake(scene, 0.25)
+    md = wall.modifiers[-1]
+    me = md[md.node_group.interface.items_tree["Values"].identifier].data
+    me.attributes.new(PROBE, "FLOAT", "POINT")
+    wall.update_tag()
+    assert PROBE in _evaluated(wall)[0] and _evaluated(wall)[1] == ["Grey"]
+    assert check_scene(scene, force=True) == ""
+    grey, blue = wall.data.materials[0], ms.diffuse("Blue", (0.1, 0.1, 0.5))
+    wall.data.materials[0] = blue
+    bpy.context.view_layer.update()
+    assert _evaluated(wall)[1] == ["Blue"]
+    assert "'Wall'" in check_scene(scene, force=True)
+    wall.data.materials[0] = grey
+    bpy.context.view_layer.update()
+    assert check_scene(scene, force=True) == ""
+    wall.data.materials[0] = blue
+    me.materials[0] = grey  # (the helper not synced: an edit the handler did not see)
+    assert "'Wall'" in check_scene(scene, force=True)
+    assert _evaluated(wall)[1] == ["Blue"] and PROBE in _evaluated(wall)[0]
+
+
+def test_a_modifier_that_sets_materials_gets_no_guard():
+    """A geometry-nodes modifier below the group that sets the faces' material: the subdivided
+    mesh's materials are not the object's mesh's, which the helper holds, so its helper gets no
+    GUARD and the group subdivides (the modifier's material shows)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import GUARD
+
+    wall = _scene(ms)
+    red = ms.diffuse("Red", (0.5, 0.1, 0.1))
+    g = bpy.data.node_groups.new("Paint", "GeometryNodeTree")
+    g.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    g.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    gi, go, paint = (g.nodes.new(k) for k in ("NodeGroupInput", "NodeGroupOutput", "GeometryNodeSetMaterial"))
+    paint.inputs["Material"].default_value = red
+    g.links.new(gi.outputs[0], paint.inputs["Geometry"])
+    g.links.new(paint.outputs["Geometry"], go.inputs[0])
+    wall.modifiers.new("Paint", "NODES").node_group = g
+    ov.ensure_own_values([wall], "CORNER", bpy.context.evaluated_depsgraph_get(), 0.25)
+    md = wall.modifiers[-1]
+    me = md[md.node_group.interface.items_tree["Values"].identifier].data
+    assert md.name == ov.N_VALUES and GUARD not in me.attributes
+    me.attributes.new(PROBE, "FLOAT", "POINT")
+    wall.update_tag()
+    attrs, mats = _evaluated(wall)
+    assert PROBE not in attrs and "Red" in mats
+
+
+def test_the_guard_holds_in_the_saved_file(tmp_path):
+    """The helper's .HR_Guard, its materials and the group's inputs are saved: the file opened
+    again shows the helper's mesh (PROBE), with the object's materials."""
+    bpy, ms, scene = empty_scene()
+
+    _guarded_wall(ms)
+    path = str(tmp_path / "guarded.blend")
+    bpy.ops.wm.save_as_mainfile(filepath=path)
+    bpy.ops.wm.open_mainfile(filepath=path)
+    attrs, mats = _evaluated(bpy.data.objects["Wall"])
+    assert PROBE in attrs and mats == ["Grey", "Red"]

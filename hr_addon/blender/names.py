@@ -16,6 +16,12 @@ N_VALUES = "HR Radiance"
 # face attribute its subdividing group (Vertex Spacing) stores: the index of the face each finer face
 # came from, so the orientation check judges the user's face as a whole (scene_in reads it)
 FACE = "HR_Face"
+# face attribute of the user's mesh the bake writes (own_values.near_clutter's faces): how many levels
+# finer than the Vertex Spacing the subdividing group cuts that face (removed with the modifier)
+FINER = "HR_Finer"
+# corner attribute of the subdividing group's output (and so of its helper's mesh): a hash of the
+# mesh the group received, corner by corner (own_values._from_helper; "." : internal, not listed)
+GUARD = ".HR_Guard"
 
 PREVIEW = "HR Preview"  # name prefix of the preview nodes / material (ignored when reading)
 N_ATTR, N_EMIT, N_OUT = PREVIEW + " Attribute", PREVIEW + " Emission", PREVIEW + " Output"

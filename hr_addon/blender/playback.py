@@ -16,6 +16,7 @@ from bpy.app.handlers import persistent
 
 from ..io.cache import CacheError, CacheReader, _names, changed_objects
 from .names import ATTRIBUTE, N_VALUES, TAG
+from .own_values import sync_materials
 from .paths import bake_dir_abs, frame_texture
 from .state import STATE
 from .steps import advance, finish
@@ -110,6 +111,8 @@ def _stale_steps(scene, reader, depsgraph=None):
     except (AttributeError, ReferenceError):
         same = False
     dg = depsgraph if same else vl.depsgraph
+    if sync_materials([o for o in vl.objects if o.type == "MESH"]):
+        dg.update()  # (an edit the depsgraph handler did not see: the helpers' materials read)
     try:
         sigs = yield from signatures.geometry_signature_steps(vl, dg)
         parts = changed_objects(m["geometry"], sigs)
@@ -307,7 +310,10 @@ def objects_by_name(scene, names):
     found = {}
     for o in scene.objects:
         found.setdefault(o.name, o)
-    return {n: found.get(n) or bpy.data.objects.get(n) for n in names}
+    if any(n not in found for n in names):  # (own_values' helpers are in no scene: one pass too)
+        for o in bpy.data.objects:
+            found.setdefault(o.name, o)
+    return {n: found.get(n) for n in names}
 
 
 def apply_arrays(scene, arrays, domain, reader=None, objects=None, skip=None):
@@ -338,7 +344,7 @@ def _apply_arrays(scene, arrays, domain, reader, objects, skip=None):
         if new:  # (a missing object is looked up again next time)
             objects.update((n, o) for n, o in objects_by_name(scene, new).items() if o is not None)
         objs = objects
-    written = []
+    written, feeds = [], []
     for name, values in arrays.items():
         obj = objs.get(name)
         if obj is None or obj.type != "MESH":
@@ -357,9 +363,15 @@ def _apply_arrays(scene, arrays, domain, reader, objects, skip=None):
             continue
         written.append(me.name)
         if name.startswith(HELPER):  # own_values' helper: the object it feeds is updated too, not edited
-            fed = bpy.data.objects.get(obj.get(TAG, ""))
-            if fed is not None and fed.type == "MESH":
-                written.append(fed.data.name)
+            feeds.append(obj.get(TAG, ""))
+    if feeds:  # (by name, one pass: bpy.data.objects.get searches linearly, 0.3 ms each at 100k)
+        fed = {n: objs.get(n) for n in feeds}
+        missing = [n for n, o in fed.items() if o is None]
+        if missing:
+            fed.update(objects_by_name(scene, missing))
+            if objects is not None:
+                objects.update((n, o) for n, o in fed.items() if o is not None)
+        written += [o.data.name for o in fed.values() if o is not None and o.type == "MESH"]
     STATE.writes.mark_all(written)
     if reader is not None:
         STATE.writes.mark_all(written, reader)
@@ -486,10 +498,29 @@ def on_depsgraph_update(scene, depsgraph=None):
         break
     if not relevant:
         return
+    _sync_helpers(scene, depsgraph, written)
     for sc in bpy.data.scenes:
         if sc.hr.playback and sc.hr.bake_dir:
             STATE.dirty.add(sc.name_full)
     _schedule_check(0.5)
+
+
+def _sync_helpers(scene, depsgraph, written=()):
+    """The helpers of the objects an edit updated (their meshes not our writes) get their
+    materials again (own_values.sync_materials: while its guard holds, an object shows its
+    helper's mesh and so its materials). Returns the objects whose helper changed."""
+    meshes, objects = set(), set()
+    for u in depsgraph.updates:
+        idd = getattr(u.id, "original", u.id)
+        kind = type(idd).__name__
+        if kind == "Mesh" and idd.name not in written:
+            meshes.add(idd.name)
+        elif kind == "Object" and idd.type == "MESH":
+            objects.add(idd.name)
+    if not meshes and not objects:
+        return []
+    edited = [o for o in scene.objects if o.type == "MESH" and (o.name in objects or o.data.name in meshes)]
+    return sync_materials(edited)
 
 
 SLICE_GAP, EDIT_PAUSE = 0.01, 0.5  # seconds between two slices of a check; after an edit
