@@ -423,34 +423,45 @@ def test_texture_size_is_the_ceiling_the_density_reaches(tmp_path):
     assert sizes() == (128, 32, None)
 
 
-def test_the_scene_bound_lowers_the_density_and_says_so(tmp_path, monkeypatch):
-    """Lightmaps together beyond the scene's bound (settings.SCENE_TEXELS, here lowered to 4,000
-    texels for Cornell's 8,800 at 50 texels/m): the objects sized by area get one lower density,
-    the bake's warning names the objects that shrank, and its lightmaps keep to the bound; an
-    object's Lightmap Size stays."""
+def test_the_memory_budget_lowers_the_density_and_says_so(tmp_path, monkeypatch):
+    """Lightmaps whose bake is estimated beyond the texture memory budget (settings.TEXTURE_MEMORY,
+    here lowered to what a third of Cornell's texels at 50 texels/m would take: lightmap.plan.
+    bake_bytes of their gathered_estimate): the objects sized by area get one lower density, the
+    bake's warning names the objects that shrank, and the estimate at the sizes it gives keeps to
+    the budget; an object's Lightmap Size stays."""
     bpy = load_bpy()
     open_sample("cornell", tmp_path)
     from hr_addon.blender import texture
     from hr_addon.blender.scene_in import geometry_objects
     from hr_addon.io.cache import CacheReader
+    from hr_addon.lightmap.plan import bake_bytes, gathered_estimate
 
     objects = geometry_objects(bpy.context.view_layer)
+    polygons = sum(len(o.data.polygons) for o in objects if o.type == "MESH")
     free = texture.lightmap_sizer(1024, 50.0, objects)
     want = {o.name: free(o) for o in objects}
-    assert free.note is None and sum(r * r for r in want.values()) > 8000
-    monkeypatch.setattr(texture, "SCENE_TEXELS", 4000)
+    d, _, note = texture.scene_density(objects, 1024, 50.0)
+    assert free.note is None and note is None and d == 50.0
+
+    def estimate(d):  # the texels the bake would gather at density d, as scene_density counts them
+        fit = texture._sizer(1024, d)
+        return sum(gathered_estimate([a], [r], d)[0] for r, a in map(fit, objects))
+
+    asked = estimate(50.0)
+    budget = bake_bytes(asked / 3, polygons)
+    monkeypatch.setattr(texture, "TEXTURE_MEMORY", budget)
     bpy.data.objects["light"].hr.lightmap_resolution = 16
     res = _bake(frames=(6, 6), resolution=1024, texel_density=50.0)
     (note,) = [w for w in res.warnings if w.startswith("Lightmaps:")]
-    assert note.startswith("Lightmaps: Texel Density 50 would make 0.00")
-    assert "more than the scene's bound of 0.004 M" in note
+    assert note.startswith("Lightmaps: Texel Density 50 would gather about 0.0")
+    assert f"more than the texture memory budget of {budget / 1e9:.3g} GB" in note
     assert "; 7 shrank, the largest 'tall_block' " in note and f"'floor' {want['floor']} -> " in note
     got = {n: o["resolution"] for n, o in CacheReader(tmp_path / "hr_cache" / "cornell").objects.items()}
     assert got["light"] == 16  # its own Lightmap Size
-    assert sum(r * r for r in got.values()) <= 4000
     assert all(got[n] < want[n] for n in got if n != "light")
     d = texture.scene_bound(1024, 50.0)  # what the object panel shows
     assert 25 < d < 50 and f"objects sized by area get {d:.3g} texels/m" in note
+    assert bake_bytes(estimate(d), polygons) <= budget
     zero = texture.lightmap_sizer(64, 0.0, objects)  # Texel Density 0: every object the Texture Size
     assert (zero.density, zero.note, zero(bpy.data.objects["floor"])) == (0.0, None, 64)
 
@@ -468,10 +479,10 @@ def test_texture_bake_too_large_is_refused_and_keeps_the_previous(tmp_path, monk
     before = _snapshot(cache)
     monkeypatch.setattr(parallel, "memory_headroom", lambda: 10**8)  # 100 MB free
     with pytest.raises(SceneError) as err:
-        _bake(frames=(5, 6), resolution=128)  # 0.111 M texels at 2 kB each
+        _bake(frames=(5, 6), resolution=128)  # 0.104 M texels gathered at 2 kB each
     msg = str(err.value)
     assert msg.startswith(
-        "Texture output needs 0.111 M texels, about 0.223 GB for the final gather, and 0.1 GB"
+        "Texture output gathers 0.104 M texels, about 0.207 GB for the final gather, and 0.1 GB"
     )
     assert "set a Texel Density (50 texels per metre: 2 cm) or the Texture Size" in msg  # density 0 here
     assert "'floor' (128 px" in msg

@@ -193,7 +193,7 @@ def test_texture_plan_gathers_over_the_texels_straddling_the_blocks():
     plan.add_object("floor", "floor", res, tri_uv, corners, tri_patch, "uv")
     g = plan.final_gather(s, rays=8, shadow_rays=4)
     loc = plan.locator
-    axes = np.concatenate(plan._axes)
+    _, _, axes, tris = plan.texel_geometry()
     pt = s.patches
     # a texel's sides are the steps to its neighbours' centres (the floor is flat, UVs affine)
     o = plan.objects[0]
@@ -213,7 +213,7 @@ def test_texture_plan_gathers_over_the_texels_straddling_the_blocks():
     ]
     g12 = (np.arange(12) + 0.5) / 12
     f = np.stack(np.meshgrid(g12, g12), -1).reshape(1, -1, 2)
-    q = bake_points(np.concatenate(plan._tris), loc.points, axes, np.broadcast_to(f, (len(axes), 144, 2)))
+    q = bake_points(tris, loc.points, axes, np.broadcast_to(f, (len(axes), 144, 2)))
 
     def inside(poly, p):
         e = np.roll(poly, -1, 0) - poly
@@ -666,10 +666,8 @@ def test_texture_plan_gathers_no_ring_texel_written_from_inside_ones():
         plan.add_object(name, name, res, tri_uv, corners, tri_patch, "uv")
     kw = dict(rays=16, shadow_rays=4, levels=2, iterations=2)
     g = plan.final_gather(s, **kw)
-    loc = plan.locator
-    every = texel_gather(
-        s, loc.patch, loc.points, axes=np.concatenate(plan._axes), tris=np.concatenate(plan._tris), **kw
-    )
+    pts, patch, axes, tris = plan.texel_geometry()
+    every = texel_gather(s, patch, pts, axes=axes, tris=tris, **kw)
     ring = np.concatenate([o.lo + o.ring[0] for o in plan.objects])
     assert g.n_out == len(plan.gathered) == plan.texels - len(ring) and len(ring) > 50
     assert not np.isin(ring, plan.gathered).any()

@@ -315,3 +315,74 @@ def test_radiance_at_memory_is_bounded_and_chunks_change_nothing(monkeypatch):
     np.testing.assert_array_equal(large, whole)
     np.testing.assert_array_equal(small, whole[:500])
     assert p_large < 1.5 * p_small, (p_small, p_large)  # all at once: ~8x
+
+
+def _box_plan(dims, density=50.0, hi=1024):
+    """A TexturePlan of one box sized by area (charts.lightmap_size at `density`, packed): the
+    plan, its surface area, its lightmap size."""
+    from hr_addon.lightmap.charts import surface_area
+
+    co, ls, lt, lv = _box(*dims)
+    res = lightmap_size(co, ls, lt, lv, density, hi=hi)
+    uv = pack_lightmap(co, ls, lt, lv, res)
+    tri = (4 * np.arange(6)[:, None, None] + np.array([[0, 1, 2], [0, 2, 3]])).reshape(-1, 3)
+    plan = TexturePlan("exr")
+    plan.add_object("box", "box", res, uv[tri], co[lv[tri]], np.repeat(np.arange(6), 2), "uv")
+    return plan, surface_area(co, ls, lt, lv), res
+
+
+def test_surface_area_of_boxes():
+    from hr_addon.lightmap.charts import surface_area
+
+    assert surface_area(*_box(1, 1, 1)) == pytest.approx(6.0)
+    assert surface_area(*_box(3.0, 0.1, 2.5)) == pytest.approx(2 * (0.3 + 7.5 + 0.25))
+
+
+@pytest.mark.parametrize("dims", [(0.02, 0.15, 0.22), (0.5, 0.4, 0.3), (3.0, 0.1, 2.5), (6.0, 0.2, 2.8)])
+def test_gathered_estimate_follows_the_texels_a_plan_gathers(dims):
+    """plan.gathered_estimate (the surface at the density, times RING_SHARE, at most the image)
+    against the texels a plan of a box sized by area gathers (TexturePlan.gathered: inside texels
+    and the ring texels not written from them), a book to a wall: within 0.8x-1.3x of them."""
+    from hr_addon.lightmap.plan import RING_SHARE, gathered_estimate
+
+    plan, area, res = _box_plan(dims)
+    est = gathered_estimate([area], [res], 50.0)[0]
+    got = len(plan.gathered)
+    print(dims, res, got, est, got / est)
+    assert est == pytest.approx(min(RING_SHARE * area * 2500, res * res))
+    assert 0.8 * got <= est <= 1.3 * got
+
+
+def test_gathered_estimate_is_capped_by_the_image():
+    from hr_addon.lightmap.plan import gathered_estimate
+
+    est = gathered_estimate([1.0, 100.0, np.nan], [64, 128, 32], 50.0)
+    assert est.tolist() == [min(1.25 * 2500, 64 * 64), 128 * 128, 32 * 32]
+    assert gathered_estimate([1.0], [64], 0.0).tolist() == [64 * 64]  # density 0: every image
+
+
+def test_bake_bytes_and_the_density_bound():
+    """bake_bytes: fixed + per polygon + per gathered texel (the rays scale the gather's part);
+    bounded_density keeps the estimated peak within the budget, lowering the density just as
+    much as needed (texels as density^2 while no object is capped), and leaves it alone under it."""
+    from hr_addon.lightmap import plan as P
+
+    assert P.bake_bytes(0, 1000) == P.BAKE_FIXED_BYTES + 1000 * P.POLYGON_BYTES
+    assert P.bake_bytes(10**6, 0, rays=256) - P.bake_bytes(0) == 2 * P.gather_bytes(10**6)
+    areas = np.array([0.05] * 800 + [17.0] * 6)  # books and walls
+
+    def fit(d):  # sizes the density asks, capped at 1024: none is here
+        return np.minimum(np.ceil(np.sqrt(areas) * d * 1.3 / 4) * 4, 1024), areas
+
+    asked = P.gathered_estimate(areas, fit(50.0)[0], 50.0).sum()
+    need = P.bake_bytes(asked, 20_000)
+    d, got, a, total = P.bounded_density(fit, 50.0, need + 1, 20_000)
+    assert (d, a, total) == (50.0, asked, asked) and np.array_equal(got[0], fit(50.0)[0])
+    budget = P.bake_bytes(asked / 4, 20_000)  # a quarter of the texels: about half the density
+    d, got, a, total = P.bounded_density(fit, 50.0, budget, 20_000)
+    assert a == asked and P.bake_bytes(total, 20_000) <= budget
+    assert 0.95 * 25.0 < d < 25.0
+    assert np.array_equal(got[0], fit(d)[0])
+    d, _, _, total = P.bounded_density(fit, 50.0, P.bake_bytes(0, 20_000), 20_000, lowest=0.5)
+    assert d == 0.5  # no room for any texel: the lowest density
+    assert P.bounded_density(fit, 0.0, 1, 20_000)[0] == 0.0  # density 0 is not bound

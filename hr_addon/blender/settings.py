@@ -97,12 +97,13 @@ TEXEL_DENSITY = 50.0
 # furnished room's 6 m walls want 304, and capped at 128 lost the window's light on them:
 # docs/accuracy.md, "Texture Size as a ceiling"). A file where the user set the Texture Size keeps it.
 TEXTURE_SIZE = 1024
-# the scene's lightmaps together, texels of image (sum of size^2 over the objects): above it the
-# objects sized by area take a lower density (texture.scene_density). 2 x 2048^2: about 8 GB for the
-# texture bake at draft (the 100k room's 6.08 M texels of image peaked at 5.86 GB, docs/scale.md),
-# half a 16 GB machine; the samples at 50 texels/m (100k room 6.75 M) and the furnished room at 100
-# (6.1 M) stay under it.
-SCENE_TEXELS = 2 * 2048 * 2048
+# the texture bake's memory budget, bytes: when its estimated peak (lightmap.plan.bake_bytes: the
+# texels it will gather, from the objects' surfaces at the density, and the scene's polygons) is
+# more, the objects sized by area take a lower density (texture.scene_density). Half a 16 GB
+# machine; fixed, not the machine's free memory, so the lightmaps are the same on every machine.
+# Session 32 (branch texmem; before, 8.39 M texels of image, whose bytes varied 2x with the sizes:
+# docs/scale.md); the samples at 50 texels/m stay under it.
+TEXTURE_MEMORY = 8_000_000_000
 # vertex output with the final gather: edges longer than this (metres) subdivided, so light changing
 # across a coarse face shows (own_values; docs/accuracy.md, "Vertex Spacing"); 0: the mesh's own
 # corners. 0.25 since session 23 (furnished sample from the camera 80 / 74% of its objects within 5%

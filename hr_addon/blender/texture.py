@@ -28,10 +28,10 @@ import numpy as np
 
 from ..io.cache import CacheError, CacheReader
 from ..lightmap import TextureError
-from ..lightmap.charts import MARGIN, NEAR_ANGLE, lightmap_size, pack_lightmap
+from ..lightmap.charts import MARGIN, NEAR_ANGLE, lightmap_size, pack_lightmap, surface_area
 from ..core import parallel
 from ..core.geometry import loop_tables
-from ..lightmap.plan import TexturePlan, gather_bytes, triangle_uvs
+from ..lightmap.plan import TexturePlan, bake_bytes, bounded_density, gather_bytes, triangle_uvs
 from ..io.images import srgb_to_linear
 from ..lightmap.albedo import albedo_factor, mix_colour, sample_image, texel_uv
 from .materials import albedo_texture
@@ -40,7 +40,7 @@ from .own_values import geometry_group
 from .paths import bake_dir_abs, blend_relative, frame_texture
 from .preview import emission_output, node_named
 from .scene_in import evaluated, geometry_objects, mesh_topology
-from .settings import DENSITY, SCENE_TEXELS
+from .settings import DENSITY, TEXTURE_MEMORY
 
 PACK_VERSION = 1
 
@@ -70,7 +70,8 @@ def _uv_hash(uv):
 
 
 MIN_SIZE = 8  # the smallest lightmap the texel density gives
-_sizes = {}  # (mesh, scale, density, largest size) digest -> lightmap size: packed once per process
+# (mesh, scale, density, largest size) digest -> (lightmap size, surface area): packed once per process
+_sizes = {}
 
 
 def resolution_for(obj, largest, density=0.0):
@@ -78,11 +79,17 @@ def resolution_for(obj, largest, density=0.0):
     `density` texels per unit of world-space surface (charts.lightmap_size, MIN_SIZE to `largest`,
     the scene's Texture Size), or `largest` itself with density 0. The charts are those of its
     evaluated mesh where separate_copies lays the lightmap out there (the copies need room too)."""
+    return _fit(obj, largest, density)[0]
+
+
+def _fit(obj, largest, density):
+    """(resolution_for's size, the surface area it was sized for: NaN where the density did not
+    size it)."""
     r = int(getattr(obj.hr, "lightmap_resolution", 0) or 0)
     if r > 0:
-        return r
+        return r, math.nan
     if density <= 0 or obj.type != "MESH" or len(obj.data.polygons) == 0:
-        return int(largest)
+        return int(largest), math.nan
     if _pack_modifier(obj) is not None:
         _, (co, ls, lt, lv) = evaluated(obj, bpy.context.evaluated_depsgraph_get(), mesh_topology)
     else:
@@ -90,74 +97,84 @@ def resolution_for(obj, largest, density=0.0):
     scale = np.array(obj.matrix_world.to_scale(), float)
     key = _uv_signature(co, ls, lt, lv, scale, f"{float(density)!r} {int(largest)}")
     if key not in _sizes:
-        _sizes[key] = lightmap_size(co * scale, ls, lt, lv, float(density), MIN_SIZE, int(largest))
+        w = co * scale
+        r = lightmap_size(w, ls, lt, lv, float(density), MIN_SIZE, int(largest))
+        _sizes[key] = r, surface_area(w, ls, lt, lv)
     return _sizes[key]
 
 
 def _sizer(largest, density):
-    """resolution_for(obj, largest, density) per object, objects sharing a mesh sized as the first
-    of them asked (ensure_lightmaps packs a shared mesh once, for its first object: a linked
-    duplicate at another scale keeps the map's texel margins)."""
+    """_fit(obj, largest, density) per object, objects sharing a mesh sized as the first of them
+    asked (ensure_lightmaps packs a shared mesh once, for its first object: a linked duplicate at
+    another scale keeps the map's texel margins; its own area counts)."""
     first = {}
 
     def size(obj):
         if int(getattr(obj.hr, "lightmap_resolution", 0) or 0) > 0 or _pack_modifier(obj) is not None:
-            return resolution_for(obj, largest, density)
+            return _fit(obj, largest, density)
         key = obj.data.name_full
         if key not in first:
-            first[key] = resolution_for(obj, largest, density)
-        return first[key]
+            first[key] = _fit(obj, largest, density)
+            return first[key]
+        r, a = first[key]
+        if not math.isnan(a):  # its own surface at its own scale
+            co, ls, lt, lv = mesh_topology(obj.data)
+            a = surface_area(co * np.array(obj.matrix_world.to_scale(), float), ls, lt, lv)
+        return r, a
 
     return size
 
 
-_bound = {}  # (largest, density, bound) -> the density scene_density last gave
+_bound = {}  # (largest, density, budget) -> the density scene_density last gave
 
 
 def scene_bound(largest, density):
     """The density the scene's lightmaps were last sized at for these settings (scene_density in
     this session; else the density): what the object panel shows without sizing every object."""
-    return _bound.get((int(largest), float(density), SCENE_TEXELS), density)
+    return _bound.get((int(largest), float(density), TEXTURE_MEMORY), density)
 
 
-def scene_density(objects, largest, density, bound=None):
+def scene_density(objects, largest, density, budget=None):
     """(density, sizes, note): the Texel Density the objects' lightmaps are sized at, their sizes
-    {object.as_pointer(): size} (asked in the order of `objects`), and a note when the bound
-    lowered the density, naming the objects that shrank. The lightmaps together (sum of size^2)
-    stay within `bound` texels of image (settings.SCENE_TEXELS): beyond it every object sized by
-    area takes one lower density (texels grow about as density^2: a few steps, each from the last
-    total). Lightmap Sizes and the Texture Size stay; density 0 is not bound."""
-    bound = SCENE_TEXELS if bound is None else bound
+    {object.as_pointer(): size} (asked in the order of `objects`), and a note when the memory
+    budget lowered the density, naming the objects that shrank. The bake's estimated peak memory
+    (lightmap.plan.bake_bytes: the texels it will gather, from each object's surface at its
+    density, plan.gathered_estimate, and the scene's polygons) stays within `budget` bytes
+    (settings.TEXTURE_MEMORY): beyond it every object sized by area takes one lower density (the
+    texels grow about as density^2: a few steps, each from the last estimate). Lightmap Sizes and
+    the Texture Size stay; density 0 is not bound. The budget is fixed, not the machine's free
+    memory, so the lightmaps are the same on every machine (check_memory refuses what does not
+    fit there)."""
+    budget = TEXTURE_MEMORY if budget is None else budget
     objs = [o for o in objects if o.type == "MESH" and len(o.data.polygons)]
+    polygons = sum(len(o.data.polygons) for o in objs)
 
-    def sizes(d):
-        size = _sizer(largest, d)
-        return {o.as_pointer(): size(o) for o in objs}
+    made = {}
 
-    want = got = sizes(density)
-    total = asked = sum(r * r for r in want.values())
-    d = density
-    if density > 0:
-        for _ in range(8):
-            if total <= bound or d <= DENSITY[0]:
-                break
-            d = max(d * math.sqrt(bound / total) * 0.995, DENSITY[0])
-            got = sizes(d)
-            total = sum(r * r for r in got.values())
-    _bound[(int(largest), float(density), bound)] = d
+    def fits(d):
+        if d not in made:
+            fit = _sizer(largest, d)
+            made[d] = np.array([fit(o) for o in objs], np.float64).reshape(-1, 2).T
+        return made[d]
+
+    want = fits(density)[0].astype(int)
+    d, got, asked, total = bounded_density(fits, density, budget, polygons, DENSITY[0])
+    _bound[(int(largest), float(density), budget)] = d
+    got = got[0].astype(int)
+    sizes = {o.as_pointer(): int(r) for o, r in zip(objs, got)}
     if d == density:
-        return d, got, None
-    ptr = {o.name: o.as_pointer() for o in objs}
-    shrunk = sorted((n for n, p in ptr.items() if got[p] < want[p]), key=lambda n: (-want[ptr[n]], n))
-    names = ", ".join(f"'{n}' {want[ptr[n]]} -> {got[ptr[n]]} px" for n in shrunk[:5])
-    over = f" (still {total / 1e6:.3g} M: Lightmap Sizes, the smallest sizes)" if total > bound else ""
+        return d, sizes, None
+    shrunk = sorted((k for k in range(len(objs)) if got[k] < want[k]), key=lambda k: (-want[k], objs[k].name))
+    names = ", ".join(f"'{objs[k].name}' {want[k]} -> {got[k]} px" for k in shrunk[:5])
+    need, now = bake_bytes(asked, polygons) / 1e9, bake_bytes(total, polygons) / 1e9
+    over = f" (still about {now:.3g} GB: Lightmap Sizes, the smallest sizes)" if now > budget / 1e9 else ""
     note = (
-        f"Lightmaps: Texel Density {density:g} would make {asked / 1e6:.3g} M lightmap texels, more than "
-        f"the scene's bound of {bound / 1e6:.3g} M (about {bound / 1e6:.2g} GB to bake): objects sized "
-        f"by area get {d:.3g} texels/m{over}; {len(shrunk)} shrank, the largest {names}. A Lightmap "
-        "Size (Object > HR Radiosity) keeps an object's own size."
+        f"Lightmaps: Texel Density {density:g} would gather about {asked / 1e6:.3g} M texels, about "
+        f"{need:.3g} GB to bake, more than the texture memory budget of {budget / 1e9:.3g} GB: objects "
+        f"sized by area get {d:.3g} texels/m{over}; {len(shrunk)} shrank, the largest {names}. A "
+        "Lightmap Size (Object > HR Radiosity) keeps an object's own size."
     )
-    return d, got, note
+    return d, sizes, note
 
 
 def lightmap_sizer(largest, density=0.0, objects=None):
@@ -166,7 +183,11 @@ def lightmap_sizer(largest, density=0.0, objects=None):
     density as given, no bound). Its .density: the density it sizes at; .note: scene_density's
     note or None."""
     if objects is None:
-        size = _sizer(largest, density)
+        fit = _sizer(largest, density)
+
+        def size(obj):
+            return fit(obj)[0]
+
         size.density, size.note = density, None
         return size
     d, sizes, note = scene_density(objects, largest, density)
@@ -174,7 +195,7 @@ def lightmap_sizer(largest, density=0.0, objects=None):
 
     def size(obj):
         n = sizes.get(obj.as_pointer())
-        return other(obj) if n is None else n
+        return other(obj)[0] if n is None else n
 
     size.density, size.note = d, note
     return size
@@ -182,18 +203,20 @@ def lightmap_sizer(largest, density=0.0, objects=None):
 
 def check_memory(plan, gather, density):
     """Raise TextureError, naming the objects with the most texels, when the final gather at the
-    plan's texels (gather: its settings, None: off) would need more memory than the system has
-    free: before the gather starts, so the bake stops at once and the previous one stays.
+    plan's gathered texels (gather: its settings, None: off; plan.gather_bytes) would need more
+    memory than the system has free: before the gather starts, so the bake stops at once and the
+    previous one stays.
     density: the scene's Texel Density (0: off, then the advice is to set one)."""
     if gather is None:
         return
-    need, room = gather_bytes(plan.texels, gather["rays"]), parallel.memory_headroom()
+    gathered = len(plan.gathered)
+    need, room = gather_bytes(gathered, gather["rays"]), parallel.memory_headroom()
     if room is None or need <= room:
         return
     names = ", ".join(f"'{o.name}' ({o.res} px, {o.hi - o.lo:,} texels)" for o in plan.largest())
     lower = "lower the Texel Density" if density > 0 else "set a Texel Density (50 texels per metre: 2 cm)"
     raise TextureError(
-        f"Texture output needs {plan.texels / 1e6:.3g} M texels, about {need / 1e9:.3g} GB for the "
+        f"Texture output gathers {gathered / 1e6:.3g} M texels, about {need / 1e9:.3g} GB for the "
         f"final gather, and {room / 1e9:.3g} GB are free: {lower} or the Texture Size "
         f"(Render > HR Radiosity), or set a smaller Lightmap Size (Object > HR Radiosity) on the largest "
         f"objects: {names}."

@@ -186,6 +186,12 @@ def lightmap_size(co, loop_start, loop_total, loop_verts, density, lo=8, hi=128,
     return min(res, int(hi))
 
 
+def surface_area(co, loop_start, loop_total, loop_verts):
+    """The mesh's surface area: the sum of its polygons' areas (co in world units)."""
+    n = polygon_newell(np.asarray(co, np.float64), loop_start, loop_total, loop_verts)
+    return float(np.linalg.norm(n, axis=1).sum() / 2)
+
+
 def pack_lightmap(co, loop_start, loop_total, loop_verts, res, margin=MARGIN):
     """(L, 2) lightmap UVs in [0, 1]: planar charts (edge-connected coplanar polygons, other polygons
     alone) projected isometrically onto their plane, turned to their smallest bounding rectangle and

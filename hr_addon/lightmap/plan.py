@@ -26,19 +26,67 @@ FORMATS = {"EXR": ".exr", "PNG": ".png"}
 REP_BLOCK = 4  # texels of a REP_BLOCK x REP_BLOCK block start their leaf search from one of them
 
 
-# The texture bake's peak memory per texel of the plan at 128 hemisphere rays, rounded up from the
-# larger of two measures (draft; docs/user_guide.md, "Lightmaps sized by area", session 21): the
-# furnished room at 50 texels/m, 0.824 M texels (0.475 M gathered: the others are ring texels
-# written from inside ones), peak RSS 1.47 GB with its hierarchy and Blender: 1.8 kB per texel;
-# Cornell at 64 and 128 px, 0.47 and 0.59 GB: 1.4 kB per added texel. (Session 20, the ring texels
-# gathered and float32 weights: 3 kB; session 19, before the gather's transients were cut: 6 kB)
-GATHER_BYTES_PER_TEXEL = 2000
+# A texture bake's peak memory (RSS) per texel its final gather gathers (TexturePlan.gathered: the
+# texels an image shows their own value at) at 128 hemisphere rays, above what the process held
+# before the plan, from the plan to the first frame's images (the gather at both levels, its
+# precompute written, a frame evaluated): real bakes at draft, session 32 (branch texmem,
+# docs/scale.md): the furnished room 2.07-2.16 kB, two_rooms 2.07-2.14 kB on main, 1.83 and 1.70 kB
+# after that branch's cuts; rounded up (texels in slots gather more samples). Sessions 19-31
+# counted 2-6 kB per texel of the plan, ring texels included.
+GATHERED_BYTES = 2000
+# what a texture bake's process holds before the plan (Blender, the scene, the hierarchy): 0.57 GB
+# on the furnished room (11,645 polygons), 0.67 GB on two_rooms (13,818): 0.62 and 0.64 by these
+BAKE_FIXED_BYTES = 500_000_000
+POLYGON_BYTES = 10_000
+# the texels a bake gathers per texel of surface at the density its lightmap is sized at: the
+# surface's own and the ring texels that an image does not write from inside ones (two_rooms:
+# 1.03 on lightmaps of 128 texels and more, 1.18-1.24 on the smaller ones; 1.06 in all)
+RING_SHARE = 1.25
 
 
-def gather_bytes(texels, rays=128):
-    """About how many bytes the final gather at `texels` texels takes while it is built and held
-    (core.gather.texel_gather: its weights grow with the rays)."""
-    return int(texels * GATHER_BYTES_PER_TEXEL * max(rays, 1) / 128)
+def gather_bytes(gathered, rays=128):
+    """About how much memory a texture bake takes for `gathered` texels (GATHERED_BYTES each,
+    the gather's weights growing with its rays) above what it held before its plan."""
+    return int(gathered * GATHERED_BYTES * max(rays, 1) / 128)
+
+
+def gathered_estimate(area, size, density):
+    """(k,) about how many texels a bake gathers on objects of surface `area` (k,) (NaN: unknown)
+    whose lightmaps are `size` (k,) texels wide, sized at `density` texels per unit: the surface at
+    that density and its ring (RING_SHARE), at most the whole image (an object capped by the
+    Texture Size, or whose area is unknown: its own Lightmap Size; density 0: every image)."""
+    full = np.asarray(size, np.float64) ** 2
+    if density <= 0:
+        return full
+    est = RING_SHARE * np.asarray(area, np.float64) * float(density) ** 2
+    return np.where(np.isnan(est), full, np.minimum(est, full))
+
+
+def bake_bytes(gathered, polygons=0, rays=128):
+    """About a texture bake's peak memory: Blender, the scene and its hierarchy (BAKE_FIXED_BYTES,
+    POLYGON_BYTES per polygon), then gather_bytes(gathered, rays)."""
+    return int(BAKE_FIXED_BYTES + polygons * POLYGON_BYTES) + gather_bytes(gathered, rays)
+
+
+def bounded_density(fit, density, budget, polygons=0, lowest=0.01, steps=8):
+    """(density, fits, texels asked, texels): the highest density, about, at which a texture bake's
+    estimated peak (bake_bytes of the gathered_estimate of fit(d)'s objects, and the scene's
+    polygons) stays within `budget` bytes: `density` itself when it does, else lowered in a few
+    steps, each from the last estimate (texels grow about as density^2), not below `lowest`.
+    fit(d) -> (sizes (k,), areas (k,)) of the objects at density d; fits: fit(density found);
+    texels: gathered_estimate's sum asked at `density` and at the density found."""
+    got = fit(density)
+    asked = total = float(gathered_estimate(got[1], got[0], density).sum())
+    fixed = bake_bytes(0, polygons)
+    d = density
+    for _ in range(steps if density > 0 else 0):
+        if bake_bytes(total, polygons) <= budget or d <= lowest:
+            break
+        room = max(budget - fixed, 0) / max(bake_bytes(total, polygons) - fixed, 1)
+        d = max(d * float(np.sqrt(room)) * 0.995, lowest)
+        got = fit(d)
+        total = float(gathered_estimate(got[1], got[0], d).sum())
+    return d, got, asked, total
 
 
 class ObjectTexels:
@@ -126,10 +174,11 @@ class TexturePlan:
         self.tmp = None
         self.files = {}  # frame -> True once written / linked
         self._parts = []  # per object: (points, patches, representatives)
-        self._axes = []  # per object: (N, 2, 3) the texels' sides on the surface
-        # per object: (N, 3, 3) the triangle of each texel's centre, corners in the order of Blender's
-        # loop triangles (a quad's (0, 1, 2), (0, 2, 3)), inside which Cycles' bake samples the texel
-        self._tris = []
+        # per object: (T, 2, 3) the texels' sides on each of its triangles, (T, 3, 3) the triangles'
+        # corners in the order of Blender's loop triangles (a quad's (0, 1, 2), (0, 2, 3)), inside
+        # which Cycles' bake samples a texel, and (N,) int32 each texel's triangle: per triangle,
+        # not per texel (120 bytes a texel held through the bake for the gather's one read)
+        self._tri = []
         self._locator = None
         self._gathered = None
         self.albedo = {}  # object index -> (N, 3) float32 texture albedo / average at its texels
@@ -147,8 +196,7 @@ class TexturePlan:
         r = np.where((r >= 0) & (own[np.maximum(r, 0)] == own), r, np.arange(len(texel)))
         n = self.objects[-1].hi if self.objects else 0
         self._parts.append((np.einsum("nk,nkj->nj", bary, corners[tri]), own.astype(np.int64), r + n))
-        self._axes.append(texel_axes(tri_uv, corners, res)[tri])
-        self._tris.append(corners[tri])
+        self._tri.append((texel_axes(tri_uv, corners, res), corners, tri.astype(np.int32)))
         edge = np.einsum("nk,nkj->nj", bary, np.asarray(tri_uv, np.float64)[tri] * res - 0.5)
         steps, ring = dilation_steps(texel, res), ring_sources(texel, inside, edge, res)
         o = ObjectTexels(name, res, stem, texel, inside, n, n + len(texel), steps, uv_digest, ring)
@@ -216,12 +264,27 @@ class TexturePlan:
         so the others' values are those of a gather at every texel."""
         from ..core.gather import texel_gather
 
-        loc, g = self.locator, self.gathered
-        axes = np.concatenate(self._axes)[g] if self._axes else np.zeros((0, 2, 3))
-        tris = np.concatenate(self._tris)[g] if self._tris else np.zeros((0, 3, 3))
+        g = self.gathered
         if kw.get("rho") is not None and np.ndim(kw["rho"]) == 2:  # per texel
             kw["rho"] = np.asarray(kw["rho"])[g]
-        return texel_gather(system, loc.patch[g], loc.points[g], axes=axes, tris=tris, **kw)
+        pts, patch, axes, tris = self.texel_geometry(g)
+        return texel_gather(system, patch, pts, axes=axes, tris=tris, **kw)
+
+    def texel_geometry(self, texels=None):
+        """(points (k, 3), patch (k,), sides (k, 2, 3), triangles (k, 3, 3)) of the texels (sorted
+        indices into the plan's points; None: all), object by object without the locator (the
+        gather locates its own samples). sides: texel_axes; triangles: the triangle of the
+        texel's centre, corners in Blender's loop-triangle order."""
+        if not self.objects:
+            return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 2, 3)), np.zeros((0, 3, 3))
+        t = np.arange(self.texels) if texels is None else np.asarray(texels)
+        bounds = np.searchsorted(t, [o.lo for o in self.objects] + [self.texels])
+        cut = [t[a:b] - o.lo for o, a, b in zip(self.objects, bounds[:-1], bounds[1:])]
+        pts = np.concatenate([p[0][k] for p, k in zip(self._parts, cut)])
+        patch = np.concatenate([p[1][k] for p, k in zip(self._parts, cut)])
+        axes = np.concatenate([a[i[k]] for (a, _, i), k in zip(self._tri, cut)])
+        tris = np.concatenate([c[i[k]] for (_, c, i), k in zip(self._tri, cut)])
+        return pts, patch, axes, tris
 
     def radiance(self, solution, mode="RADIANCE", gather=None):
         """(N, 3) values of the current solution at the texel points of all objects. mode RADIANCE:

@@ -20,6 +20,11 @@ SUB = 8  # points per side of an edge texel (few texels: 64 points keep one texe
 # its mean)
 EDGE_TOL = 0.1
 CORNERS = np.array([[0.0, 0], [1, 0], [1, 1], [0, 1]])
+# texels whose corners one batch tests at most: a Blender light's corner costs one shadow ray, so
+# batches by rays alone took 131,072 texels (524,288 points, about 1 kB of temporaries each in
+# onto_patch and the light's read: +0.5 GB at a texture bake's frame, two_rooms, docs/scale.md
+# session 32 "texmem"); each point's value is its own, so the batches do not change the values
+CORNER_BATCH = 1 << 14
 
 
 def emitter_rays(rays):
@@ -113,7 +118,7 @@ def edge_direct(g, light, centre, rays, stream, sub=SUB, tol=EDGE_TOL, shafts=No
         dev = np.abs(v[:, 4] - v[:, :4].mean(1)) if emitter else hi - v.min(1)
         edge[i] = dev > tol * hi
 
-    batch_map(corners, ranges(len(j), g.batch_rays // (4 * c_cost)), g.threads)
+    batch_map(corners, ranges(len(j), min(g.batch_rays // (4 * c_cost), CORNER_BATCH)), g.threads)
     e = np.flatnonzero(edge)
     k2 = sub * sub
     gx, gy = np.meshgrid(np.arange(sub), np.arange(sub), indexing="ij")
