@@ -9,7 +9,8 @@ all: every object written (playback.apply_arrays) and updated; helpers / plain: 
 meshes, only the other objects'; tag: every written mesh tagged (update_tag), nothing written;
 noguard: the group's output linked to the helper's Object Info (no guard evaluated: what a guard
 checked once per bake would cost at best); lean: noguard with the group's other nodes removed
-(last: the group is not restored); off: the modifiers hidden (the helpers and plain
+(last: the group is not restored); slots: the guard computed but the helper shown (an OR with
+True), its slots empty against "position" x4, alternately; off: the modifiers hidden (the helpers and plain
 meshes alone). Then every modified object's evaluated HR_Radiance per corner against the first
 ("all") pass."""
 
@@ -105,6 +106,29 @@ for v in VARIANTS:
         bpy.context.view_layer.update()
         print("noguard: write + update", t(write(arrays)), flush=True)
         g.links.new(sw.outputs[0], go.inputs[0])
+        bpy.context.view_layer.update()
+    elif v == "slots":  # the guard computed (Boolean OR True: still the helper), its 4 slots empty
+        # (skipped) against "position" each (hashed, as version 5), alternately, 3 rounds, median of 5
+        (sw,) = [n for n in g.nodes if n.type == "SWITCH" and n.input_type == "GEOMETRY"]
+        orn = g.nodes.new("FunctionNodeBooleanMath")
+        orn.operation, orn.inputs[1].default_value = "OR", True
+        g.links.new(sw.inputs["Switch"].links[0].from_socket, orn.inputs[0])
+        g.links.new(orn.outputs[0], sw.inputs["Switch"])
+        keys = [ov._socket(mods[0][1], f"{ov.GUARDS} {k + 1}") for k in range(ov.GUARDED)]
+        for r in range(3):
+            for name in ("", "position"):
+                for o, m in mods:
+                    for k in keys:
+                        m[k] = name
+                    o.update_tag()
+                bpy.context.view_layer.update()
+                print(f"slots {name!r} (round {r + 1}): write + update", t(write(arrays), 5), flush=True)
+        for o, m in mods:
+            for k in keys:
+                m[k] = ""
+            o.update_tag()
+        g.links.new(orn.inputs[0].links[0].from_socket, sw.inputs["Switch"])
+        g.nodes.remove(orn)
         bpy.context.view_layer.update()
     elif v == "lean":  # noguard in a group of 3 nodes: what the unused nodes cost (never saved)
         (go,) = [n for n in g.nodes if n.type == "GROUP_OUTPUT"]
