@@ -505,7 +505,8 @@ def test_a_file_baked_with_the_second_group_gets_the_new_one():
     for lk in list(st.outputs["Geometry"].links):
         g.links.new(src, lk.to_socket)
     g.nodes.remove(st)
-    (switch,) = [n for n in g.nodes if n.bl_idname == "GeometryNodeSwitch"]  # (version 2 always subdivided)
+    (switch,) = [n for n in g.nodes if n.bl_idname == "GeometryNodeSwitch" and n.input_type == "GEOMETRY"]
+    # (version 2 always subdivided)
     (out,) = [n for n in g.nodes if n.bl_idname == "NodeGroupOutput"]
     g.links.new(switch.inputs["False"].links[0].from_socket, out.inputs[0])
     g[TAG] = 2
@@ -1035,16 +1036,17 @@ def test_over_the_budget_the_named_objects_keep_the_spacing_while_the_others_mak
 PROBE = "probe"  # an attribute only the helper's mesh has: shown while the group outputs that mesh
 
 
-def _guarded_wall(ms, shape_key=False):
-    """The wall (a UV map, a second material; shape_key: a shape key at 0) with its subdividing modifier and
-    helper at 0.25 m (ensure_own_values), random HR_Radiance and PROBE on the helper's mesh; (wall,
-    the helper's mesh)."""
+def _guarded_wall(ms, shape_key=False, uv=True):
+    """The wall (a UV map unless not uv, a second material; shape_key: a shape key at 0) with its
+    subdividing modifier and helper at 0.25 m (ensure_own_values), random HR_Radiance and PROBE on
+    the helper's mesh; (wall, the helper's mesh)."""
     import bpy
     from hr_addon.blender import own_values as ov
     from hr_addon.blender.playback import write_attribute
 
     wall = _scene(ms)
-    wall.data.uv_layers.new(name="UVMap")
+    if uv:
+        wall.data.uv_layers.new(name="UVMap")
     wall.data.materials.append(ms.diffuse("Red", (0.5, 0.1, 0.1)))
     if shape_key:
         wall.shape_key_add(name="Basis")
@@ -1082,7 +1084,7 @@ def _evaluated(obj):
 def _edit(wall, what):
     import bpy
 
-    if what == "position":
+    if what.startswith("position"):
         wall.data.vertices[2].co.x += 1e-4
     elif what == "uv":
         wall.data.uv_layers["UVMap"].uv[1].vector = (0.25, 0.75)
@@ -1097,17 +1099,24 @@ def _edit(wall, what):
     bpy.context.view_layer.update()
 
 
-@pytest.mark.parametrize("what", ["position", "uv", "material index", "modifier", "shape key"])
+@pytest.mark.parametrize(
+    "what", ["position", "position, no attributes", "uv", "material index", "modifier", "shape key"]
+)
 def test_the_group_shows_the_helpers_mesh_until_an_edit(what):
     """While the mesh the group receives is the bake's (its GUARD, a hash per corner, is the
     helper's), the group's output is the helper's mesh (PROBE shows), bit for bit what the
     subdivision makes (every attribute, HR_Radiance from the helper, the materials); an edit after
     the bake (positions, UVs, a material index, a deforming modifier or a shape key below the
-    group) makes the group subdivide again: the edit shows."""
+    group) makes the group subdivide again: the edit shows. A mesh without attributes of its own
+    (no UV map): the group's GUARDS slots are empty (skipped) and the same holds."""
     bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
     from hr_addon.blender.names import GUARD
 
-    wall, me = _guarded_wall(ms, what == "shape key")
+    wall, me = _guarded_wall(ms, what == "shape key", uv=what != "position, no attributes")
+    md = wall.modifiers[-1]
+    slots = [md[ov._socket(md, f"{ov.GUARDS} {k + 1}")] for k in range(ov.GUARDED)]
+    assert slots == ([""] * 4 if what == "position, no attributes" else ["UVMap"] + ["position"] * 3)
     (attrs, mats) = _evaluated(wall)
     assert PROBE in attrs and mats == ["Grey", "Red"] and GUARD in attrs
     guard = me.attributes[GUARD]

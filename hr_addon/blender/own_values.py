@@ -76,9 +76,10 @@ from .names import ATTRIBUTE, FACE, FINER, GUARD, N_VALUES, TAG
 
 GROUP_VERSION = 1
 # the subdividing group by faces (SPACING, SCALE) storing FACE, each face finer by the mesh's FINER,
-# its output the helper's mesh while the guard holds (_from_helper); 4: without FINER, 3: always
-# subdividing, 2: without FACE, 1: one LEVEL_V1 per object
-FINER_VERSION = 5
+# its output the helper's mesh while the guard holds (_from_helper), the GUARDS slots skipped when the
+# first is empty; 5: always hashed, 4: without FINER, 3: always subdividing, 2: without FACE, 1: one
+# LEVEL_V1 per object
+FINER_VERSION = 6
 GUARDED = 4  # the subdividing group's string inputs "Attribute 1" ..: the received mesh's own
 GUARDS = "Attribute"  # attributes its guard hashes too (_guard_names; more: no guard, _helper)
 SPACING = "Spacing"  # the subdividing group's inputs: the spacing (m; 0: no subdivision) and
@@ -292,8 +293,8 @@ def _from_helper(g, nodes, link, gi, subdivided):
     the mesh the group receives is the one the helper was made from, else `subdivided` (its faces
     subdivided, the values stored) with GUARD stored on it. GUARD: a hash per corner of the mesh
     received (seeded by its domain sizes, SPACING and SCALE: each corner's position, vertex, face,
-    material index, smoothness and the attributes the GUARDS inputs name); the guard holds when
-    the helper's mesh has the same GUARD at every corner index. The helper's mesh is the bake's
+    material index, smoothness and the attributes the GUARDS inputs name, if any); the guard holds
+    when the helper's mesh has the same GUARD at every corner index. The helper's mesh is the bake's
     subdivided one (_helper), with the object's materials and its HR_Radiance written every frame:
     the same mesh and values without subdividing again (docs/scale.md, sessions 31-32: a frame
     change at 100k 4.5 -> 1.5 s). An edit after the bake (positions, a deforming modifier or shape
@@ -301,7 +302,7 @@ def _from_helper(g, nodes, link, gi, subdivided):
     the branch it takes."""
     for k in range(GUARDED):
         sock = g.interface.new_socket(f"{GUARDS} {k + 1}", in_out="INPUT", socket_type="NodeSocketString")
-        sock.default_value = "position"  # (an attribute every mesh has: no missing-attribute warning)
+        sock.default_value = ""  # (no attribute: the slots are skipped, below)
     made = []
     node = partial(_add_node, nodes, made)
 
@@ -319,10 +320,20 @@ def _from_helper(g, nodes, link, gi, subdivided):
     for n in ("Point Count", "Edge Count", "Face Count", "Face Corner Count"):
         seed = hashed(size.outputs[n], seed, "INT")
     seed = hashed(gi.outputs[SCALE], hashed(gi.outputs[SPACING], seed, "FLOAT"), "VECTOR")
+    # the slots, unless the first is empty (_ensure: then all are; else the others name an attribute
+    # every mesh has, "position"): a lazy Switch, so that a mesh without such attributes evaluates
+    # none of their nodes (the guard's cost is per node and object: docs/live.md, session 32)
+    skip = node("GeometryNodeSwitch", input_type="INT")
+    used = node("FunctionNodeCompare", data_type="STRING", operation="NOT_EQUAL")
+    link(gi.outputs[f"{GUARDS} 1"], next(i for i in used.inputs if i.identifier == "A_STR"))
+    link(used.outputs[0], skip.inputs["Switch"])
+    link(seed, skip.inputs["False"])
     for k in range(GUARDED):
         attr = node("GeometryNodeInputNamedAttribute", data_type="FLOAT_COLOR")
         link(gi.outputs[f"{GUARDS} {k + 1}"], attr.inputs["Name"])
         seed = hashed(attr.outputs["Attribute"], seed, "RGBA")
+    link(seed, skip.inputs["True"])
+    seed = skip.outputs[0]
     seed = hashed(node("GeometryNodeInputShadeSmooth").outputs[0], seed, "INT")
     seed = hashed(node("GeometryNodeInputMaterialIndex").outputs[0], seed, "INT")
     seed = hashed(node("GeometryNodeFaceOfCorner").outputs["Face Index"], seed, "INT")
@@ -963,10 +974,11 @@ def _ensure(obj, domain, spacing=0.0):
             md[_socket(md, SPACING)], md[_socket(md, SCALE)] = spacing, scale
             obj.update_tag()
         names = _guard_names(obj)[:GUARDED]
+        names += ["position" if names else ""] * (GUARDED - len(names))  # (none: the group skips them)
         for k in range(GUARDED):
             key = _socket(md, f"{GUARDS} {k + 1}")
-            if md[key] != (names[k] if k < len(names) else "position"):
-                md[key] = names[k] if k < len(names) else "position"
+            if md[key] != names[k]:
+                md[key] = names[k]
                 obj.update_tag()
     k = list(obj.modifiers).index(md)
     if k != len(obj.modifiers) - 1:
