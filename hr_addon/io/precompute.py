@@ -217,7 +217,9 @@ def validate(header, want):
     old, new = header.get("settings", {}), want["settings"]
     changed = [k for k in sorted(set(old) | set(new)) if old.get(k, "unset") != new.get(k, "unset")]
     if changed:
-        return ", ".join(f"{k} {old.get(k, 'unset')} -> {new.get(k, 'unset')}" for k in changed[:4])
+        # (a quality change moves several at once: draft -> custom five since farlink's dark_ratio)
+        more = f" and {len(changed) - 6} more" if len(changed) > 6 else ""
+        return ", ".join(f"{k} {old.get(k, 'unset')} -> {new.get(k, 'unset')}" for k in changed[:6]) + more
     old, new = header.get("objects", {}), want["objects"]
     if set(old) != set(new):
         parts = []
