@@ -304,6 +304,8 @@ def _from_helper(g, nodes, link, gi, subdivided):
         sock = g.interface.new_socket(f"{GUARDS} {k + 1}", in_out="INPUT", socket_type="NodeSocketString")
         sock.default_value = ""  # (no attribute: the slots are skipped, below)
     made = []
+    if not hasattr(bpy.types, "FunctionNodeHashValue"):  # Blender 4.2 (Hash Value is 4.3's): no
+        return made, subdivided  # guard, every evaluation subdivides (no GUARD: helpers never stale)
     node = partial(_add_node, nodes, made)
 
     def hashed(value, seed, kind):
