@@ -334,16 +334,21 @@ def apply_arrays(scene, arrays, domain, reader=None, objects=None, skip=None):
     return _apply_arrays(scene, arrays, domain, reader, objects, skip)
 
 
+def _looked_up(scene, names, objects):
+    """{name: object} holding `names`' objects: `objects` (a cache the caller keeps; None: a new dict)
+    with those it lacks looked up in one pass (objects_by_name) and added; one not found is looked
+    up again next time."""
+    objects = {} if objects is None else objects
+    new = [n for n in names if n not in objects]
+    if new:
+        objects.update((n, o) for n, o in objects_by_name(scene, new).items() if o is not None)
+    return objects
+
+
 def _apply_arrays(scene, arrays, domain, reader, objects, skip=None):
     problems = []
     STATE.loaded.pop(scene.name_full, None)
-    if objects is None:
-        objs = objects_by_name(scene, arrays)
-    else:
-        new = [n for n in arrays if n not in objects]
-        if new:  # (a missing object is looked up again next time)
-            objects.update((n, o) for n, o in objects_by_name(scene, new).items() if o is not None)
-        objs = objects
+    objs = _looked_up(scene, arrays, objects)
     written, feeds = [], []
     for name, values in arrays.items():
         obj = objs.get(name)
@@ -365,13 +370,8 @@ def _apply_arrays(scene, arrays, domain, reader, objects, skip=None):
         if name.startswith(HELPER):  # own_values' helper: the object it feeds is updated too, not edited
             feeds.append(obj.get(TAG, ""))
     if feeds:  # (by name, one pass: bpy.data.objects.get searches linearly, 0.3 ms each at 100k)
-        fed = {n: objs.get(n) for n in feeds}
-        missing = [n for n, o in fed.items() if o is None]
-        if missing:
-            fed.update(objects_by_name(scene, missing))
-            if objects is not None:
-                objects.update((n, o) for n, o in fed.items() if o is not None)
-        written += [o.data.name for o in fed.values() if o is not None and o.type == "MESH"]
+        fed = _looked_up(scene, feeds, objects if objects is not None else objs)
+        written += [o.data.name for n in feeds if (o := fed.get(n)) is not None and o.type == "MESH"]
     STATE.writes.mark_all(written)
     if reader is not None:
         STATE.writes.mark_all(written, reader)
