@@ -74,6 +74,7 @@ def main():
         terrain(ms, float(size), int(n))
         name = f"terrain_{size}_{n}"
     from hr_addon.blender import own_values as ov
+    from hr_addon.blender.lights_in import shape_outlines
     from hr_addon.blender.scene_in import geometry_objects
 
     scene = bpy.context.scene
@@ -82,11 +83,13 @@ def main():
     dg.update()
     objects = geometry_objects(vl)
     own = [o for o in objects if o.data.library is None and o.library is None]
+    outlines = shape_outlines(scene, vl)  # (the light shapes' outlines over the scene's frames)
     out = {"scene": name, "objects": len(objects), "spacings": {}}
     for s in (float(x) for x in a.spacings.split(",")):
         t0 = time.process_time()
         t1 = time.process_time()
-        clutter = ov._cluttered(objects, own, s, dg)  # (ensure_own_values leaves shared meshes out too)
+        # (ensure_own_values leaves shared meshes out too)
+        clutter = ov._cluttered(objects, own, s, dg, outlines)
         t_clutter = time.process_time() - t1
         finer = [o for o in own if ov.has_coarse_edges(o, s, dg) or o.name in clutter]
         # (as ensure_own_values)

@@ -168,6 +168,43 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
     return shapes
 
 
+OUTLINE_FRAMES = 48  # a moving shape's outline read at this many of the scene's frames at most
+
+
+def shape_outlines(scene, view_layer):
+    """[rings]: the light shapes' outlines (each (M, 3) world rings: the outline, then its holes)
+    over the scene's frames, for the vertex output's finer faces (own_values.outline_faces): each
+    shape's at the current frame, a moving one's (moving_shapes) at every frame of the scene's range
+    (at most OUTLINE_FRAMES, evenly spread; not the bake's frames: the corners are static). Hidden
+    shapes and their emission are not looked at (shown or lit on another frame). The frame is
+    restored."""
+    objects = light_shape_objects(view_layer, include_hidden=True)
+    if not objects:
+        return []
+    depsgraph = view_layer.depsgraph
+    moving = moving_shapes(objects)
+    out, seen = [], set()
+
+    def read(objs):
+        for obj in objs:
+            for _, rings, _ in mesh_outlines(read_mesh(obj, depsgraph)):
+                key = b"".join(np.ascontiguousarray(r, np.float64).tobytes() for r in rings)
+                if key not in seen:
+                    seen.add(key)
+                    out.append([np.asarray(r, np.float64) for r in rings])
+
+    read(objects)
+    if moving:
+        now = scene.frame_current
+        frames = np.unique(np.linspace(scene.frame_start, scene.frame_end, OUTLINE_FRAMES).round())
+        for f in frames.astype(int).tolist():
+            if f != now:
+                scene.frame_set(f)
+                read([o for o in objects if o.name in moving])
+        scene.frame_set(now)
+    return out
+
+
 def _digest(state, parts):
     """sha1 over `state`'s keys in order, each followed by the bytes `parts(value)` gives."""
     h = hashlib.sha1()
