@@ -598,9 +598,9 @@ def _grid(m):
     return np.c_[1 - uv.sum(1), uv]
 
 
-def near_clutter(objects, candidates, depsgraph, reach, spacing):
-    """{name: ((F,) share, (F,) m^2)} for each object of `candidates`: how much of each of its faces
-    other surfaces (any object of `objects`, itself too) cover close in front (the share of its rays
+def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
+    """{name: ((F,) share, (F,) m^2, (F,) bool)} for each object of `candidates`: how much of each of
+    its faces other surfaces (any object of `objects`, itself too) cover close in front (the share of its rays
     occluded; 0 for a face no finer level would cut more, or whose whole area is not worth the
     corners (_choices): not looked at), and each face's area. From points spread over each face (the
     centroids of its triangles cut into pieces about spacing / 2^CLUTTER_LEVELS long, at least 2 x 2,
@@ -609,9 +609,11 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing):
     point): some occluded and some not (a share in (0, 1)) = a shadow's edge likely crosses the face
     (books a few cm before a wall, a board 2 cm from it, shelf boards across a back panel, whose
     shadows the normal's rays pass between); the nearer half, the more of it. A face wholly behind
-    something (1) or wholly open (0) is not in part. Each object's evaluated mesh as it is now (the
-    corners stay static: no frame but the one the bake starts from; the bake calls it at the scene's
-    first frame)."""
+    something (1) or wholly open (0) is not in part. A ray that meets a surface holding one of the
+    face's edges (a concave junction: a floor along a wall; _junction) does not count. Each
+    object's evaluated mesh as it is now (the corners stay static: no frame but the one the bake
+    starts from; the bake calls it at the scene's first frame). The third array: the faces a spot
+    light's cone lights in part at the same points (cones, _cone_edges; lights_in.light_edges)."""
     if not candidates:
         return {}
     from ..core.visibility import make_backend
@@ -624,7 +626,7 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing):
         co, lv, start, total, nrm, tri, tf = _world_faces(o, depsgraph)
         F = len(start)
         if not F or not len(tri):
-            out[o.name] = (np.zeros(F), np.zeros(F))
+            out[o.name] = (np.zeros(F), np.zeros(F), np.zeros(F, bool))
             continue
         longest, cnt = face_edges(o, depsgraph)
         p = co[tri]  # (T, 3, 3)
@@ -632,7 +634,7 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing):
         area = np.bincount(tf, 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1), minlength=F)
         gain = _choices(longest, cnt, spacing, area)[1].any(1)[tf]  # (even wholly in part)
         if not gain.any():
-            out[o.name] = (np.zeros(F), area)
+            out[o.name] = (np.zeros(F), area, np.zeros(F, bool))
             continue
         tf, p, e = tf[gain], p[gain], e[gain]
         step = spacing / 2**CLUTTER_LEVELS
@@ -660,11 +662,29 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing):
         if len(r):
             prim, _ = backend.first_hit(pts[r], dirs[r, k], far[r])
             junction = _junction(co, lv, start, total, fid[r], allt[np.maximum(prim, 0)], JUNCTION * spacing)
-            skip[r, k] = junction & (prim >= 0)
+            skip[r, k] = junction | (prim < 0)  # (or float64 finds no hit: a graze, left out)
         n_hit = np.bincount(fid, weights=(hit & ~skip).sum(1), minlength=F)
         n_ray = np.bincount(fid, weights=5 - skip.sum(1), minlength=F)
-        out[o.name] = (n_hit / np.maximum(n_ray, 1), area)
+        edge = _cone_edges(backend, pts, nrm, fid, F, cones)
+        out[o.name] = (n_hit / np.maximum(n_ray, 1), area, edge)
     return out
+
+
+def _cone_edges(backend, pts, nrm, fid, F, cones):
+    """(F,) bool: the faces whose points (pts of faces fid) a spot light's cone (cones: (K, 7)
+    position, direction, cos of its half angle) lights in part: some inside it, facing it and in
+    its sight, some not (its footprint's edge, or a shadow's in it, crosses the face)."""
+    edge = np.zeros(F, bool)
+    for c in np.asarray(cones, np.float64).reshape(-1, 7):
+        to = c[:3] - pts
+        dist = np.linalg.norm(to, axis=1)
+        lit = ((nrm[fid] * to).sum(1) > 0) & (-(to @ c[3:6]) >= c[6] * dist)
+        part = (np.bincount(fid, lit, F) > 0) & (np.bincount(fid, ~lit, F) > 0)
+        i = np.flatnonzero(part[fid] & lit)
+        if len(i):  # (only the faces it may cross: rays to the light)
+            lit[i] &= ~backend.occluded(pts[i], c[:3])
+            edge |= (np.bincount(fid, lit, F) > 0) & (np.bincount(fid, ~lit, F) > 0)
+    return edge
 
 
 def _junction(co, lv, start, total, face, tri, tol):
@@ -839,7 +859,7 @@ def _changes_topology(obj, depsgraph):
     )
 
 
-def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outlines=()):
+def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outlines=(), cones=()):
     """Give every object of `objects` whose modifiers change the topology or whose mesh another of
     them shares a helper and the modifier (made or brought up to date: its domain, its helper's
     topology, last in the stack); with a Vertex Spacing > 0 every object with an edge longer than
@@ -849,8 +869,8 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outline
     the others' meshes). Returns notes naming the objects that got them now.
     log: callable(str) taking the spacing's note (the objects subdivided) and the budget's line
     instead of the notes: log lines, not warnings (the spacing is the default; they ask nothing
-    of the user). outlines: the light shapes' rings over the scene's frames (lights_in.shape_outlines):
-    the faces they cross are finer too (_cluttered)."""
+    of the user). outlines, cones: the light shapes' rings and the spot lights' cones over the
+    scene's frames (lights_in.light_edges): the faces they cross are finer too (_cluttered)."""
     users = {}
     for o in objects:
         users[o.data.name_full] = users.get(o.data.name_full, 0) + 1
@@ -866,7 +886,7 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outline
     # (a face attribute of the mesh: not for a mesh several objects share, nor one whose modifiers
     # change its faces)
     single = [o for o in own if users[o.data.name_full] == 1 and not _changes_topology(o, depsgraph)]
-    clutter = _cluttered(objects, single, spacing, depsgraph, outlines)
+    clutter = _cluttered(objects, single, spacing, depsgraph, outlines, cones)
     finer_ = [o for o in own if coarse[o.name] or o.name in clutter]
     changed, counts, fine = corner_budget(objects, finer_, spacing, depsgraph, clutter=clutter)
     for name, s in changed.items():
@@ -919,21 +939,21 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outline
     ]
 
 
-def _cluttered(objects, own, spacing, depsgraph, outlines=()):
+def _cluttered(objects, own, spacing, depsgraph, outlines=(), cones=()):
     """{name: ((F,) weight, (F,) m^2)} for the objects of `own` with an edge longer than the finer
     spacing (a face it would cut) and a face of weight > 0: how likely the light changes across each
     face: 4 s (1 - s) of near_clutter's share s (within CLUTTER_REACH x spacing in front, points about
     the finer spacing apart: 1 at a half, 0 wholly open or covered), 1 where a light shape's outline
-    crosses it (outline_faces)."""
+    crosses it (outline_faces) or a spot light's cone lights it in part (near_clutter's third)."""
     if spacing <= 0 or CLUTTER_LEVELS <= 0:
         return {}
     fine = spacing / 2**CLUTTER_LEVELS
     candidates = [o for o in own if has_coarse_edges(o, fine, depsgraph)]
-    found = near_clutter(objects, candidates, depsgraph, CLUTTER_REACH * spacing, spacing)
+    found = near_clutter(objects, candidates, depsgraph, CLUTTER_REACH * spacing, spacing, cones)
     crossed = outline_faces(candidates, depsgraph, outlines)
     out = {}
-    for n, (s, area) in found.items():
-        w = np.where(crossed[n], 1.0, 4 * s * (1 - s)) if n in crossed else 4 * s * (1 - s)
+    for n, (s, area, edge) in found.items():
+        w = np.where(edge | crossed.get(n, False), 1.0, 4 * s * (1 - s))
         if (w > 0).any():
             out[n] = (w, area)
     return out
