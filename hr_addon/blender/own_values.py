@@ -656,12 +656,16 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
         far = np.minimum(longest.astype(np.float64), reach)[fid]
         hit = backend.occluded(pts[:, None, :], pts[:, None, :] + dirs * far[:, None, None])
         # the occluded rays that meet a junction at the face's edge do not count (neither way: a
-        # book's side behind its neighbour stays wholly covered, a floor along a wall open)
-        r, k = np.nonzero(hit)
+        # book's side behind its neighbour stays wholly covered, a floor along a wall open); only
+        # a face in part can change by it
+        n_hit = np.bincount(fid, weights=hit.sum(1), minlength=F)
+        mixed = (n_hit > 0) & (n_hit < 5 * np.bincount(fid, minlength=F))
+        r, k = np.nonzero(hit & mixed[fid, None])
         skip = np.zeros_like(hit)
         if len(r):
             prim, _ = backend.first_hit(pts[r], dirs[r, k], far[r])
-            junction = _junction(co, lv, start, total, fid[r], allt[np.maximum(prim, 0)], JUNCTION * spacing)
+            tri_hit = allt[np.maximum(prim, 0)]
+            junction = _junction(co, lv, start, total, nrm, fid[r], tri_hit, JUNCTION * spacing)
             skip[r, k] = junction | (prim < 0)  # (or float64 finds no hit: a graze, left out)
         n_hit = np.bincount(fid, weights=(hit & ~skip).sum(1), minlength=F)
         n_ray = np.bincount(fid, weights=5 - skip.sum(1), minlength=F)
@@ -687,20 +691,22 @@ def _cone_edges(backend, pts, nrm, fid, F, cones):
     return edge
 
 
-def _junction(co, lv, start, total, face, tri, tol):
-    """(R,) bool: the triangle tri[r] (R, 3, 3) a ray from face[r] met lies in a plane that holds one
-    of that face's edges (both ends within tol, m): it meets the face's plane along the face's own
-    edge, a concave junction (a floor along a wall, a wall under the ceiling), where the light does
-    not change across the face as a shadow's edge would (its corners lie on the junction). A
-    surface meeting the face inside it (a shelf board across a back panel) is not one."""
+def _junction(co, lv, start, total, nrm, face, tri, tol):
+    """(R,) bool: the triangle tri[r] (R, 3, 3) a ray from face[r] met lies in a plane at an angle
+    to the face's (normals nrm) that holds one of the face's edges (both ends within tol, m): it
+    meets the face's plane along the face's own edge, a concave junction (a floor along a wall, a
+    wall under the ceiling), where the light does not change across the face as a shadow's edge
+    would (its corners lie on the junction). A surface meeting the face inside it (a shelf board
+    across a back panel) is not one, nor a parallel one just before it (a lamp under a ceiling)."""
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1), 1e-30)[:, None]
+    across = np.abs((n * nrm[face]).sum(1)) < 0.99  # (8 degrees or more)
     ray = np.repeat(np.arange(len(face)), total[face])  # each ray's face's edges
     j = np.arange(len(ray)) - np.repeat(np.cumsum(total[face]) - total[face], total[face])
     a = lv[start[face[ray]] + j]
     b = lv[start[face[ray]] + (j + 1) % total[face[ray]]]
     off = lambda v: np.abs(((co[v] - tri[ray, 0]) * n[ray]).sum(1))  # noqa: E731
-    return np.bincount(ray, (off(a) <= tol) & (off(b) <= tol), len(face)) > 0
+    return across & (np.bincount(ray, (off(a) <= tol) & (off(b) <= tol), len(face)) > 0)
 
 
 def budget(own_corners):
