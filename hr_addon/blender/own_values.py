@@ -56,13 +56,18 @@ spacing apart, along its normal and tilted 45 degrees; some occluded, some not) 
 CLUTTER_LEVELS levels finer: the integer face attribute FINER ("HR_Finer") the bake writes on the
 user's mesh, which the group's level rule reads (each face at spacing / 2^FINER; 0 where absent), so
 the corners go only to those faces (session 31 gave whole objects spacing / 4: the furnished floor
-35k corners for 5.7 of its 27 m^2). From what the budget leaves (at most as many corners again as the
-spacing makes), each face as many levels as its area, weighed by how much of it is in part, is worth
-per corner added (CLUTTER_WORTH), the most such area per corner first. Not for a mesh several objects
-share nor one whose modifiers change its faces (their faces are not the mesh's). Taken once, where
-the bake starts (the scene's first frame): the corners stay static; Delete Bake removes FINER with
-the modifier. FINER is one of the mesh's attributes the playback guard hashes (_guard_names): a
-re-bake that changes it makes the helper anew.
+35k corners for 5.7 of its 27 m^2). A ray that meets a surface holding one of the face's edges (a
+wall standing on the floor's edge: a concave junction) does not count (session 33, branch outline:
+the small rooms' floors, walls and ceilings were cut along every junction). Faces a light shape's
+outline crosses, or a spot light's cone lights in part, on any frame of the scene's range
+(lights_in.light_edges) weigh 1 too: the light changes across them. From what the budget leaves
+(since session 33 no share of the scene's corners: until then 1 x its corners at the spacing, which
+an object far away raised), each face as many levels as its area, weighed by how much of it is in
+part, is worth per corner added (CLUTTER_WORTH), the most such area per corner first. Not for a
+mesh several objects share nor one whose modifiers change its faces (their faces are not the
+mesh's). Taken once, where the bake starts (the scene's first frame): the corners stay static;
+Delete Bake removes FINER with the modifier. FINER is one of the mesh's attributes the playback
+guard hashes (_guard_names): a re-bake that changes it makes the helper anew.
 """
 
 import functools
@@ -701,12 +706,13 @@ def _junction(co, lv, start, total, nrm, face, tri, tol):
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1), 1e-30)[:, None]
     across = np.abs((n * nrm[face]).sum(1)) < 0.99  # (8 degrees or more)
-    ray = np.repeat(np.arange(len(face)), total[face])  # each ray's face's edges
-    j = np.arange(len(ray)) - np.repeat(np.cumsum(total[face]) - total[face], total[face])
-    a = lv[start[face[ray]] + j]
-    b = lv[start[face[ray]] + (j + 1) % total[face[ray]]]
-    off = lambda v: np.abs(((co[v] - tri[ray, 0]) * n[ray]).sum(1))  # noqa: E731
-    return across & (np.bincount(ray, (off(a) <= tol) & (off(b) <= tol), len(face)) > 0)
+    k = total[face]  # (each ray's face's corners, one after another)
+    ray = np.repeat(np.arange(len(face)), k)
+    c = np.arange(len(ray)) - np.repeat(np.cumsum(k) - k, k)
+    plane = np.einsum("ij,ij->i", tri[:, 0], n)
+    on = np.abs(np.einsum("ij,ij->i", co[lv[start[face][ray] + c]], n[ray]) - plane[ray]) <= tol
+    nxt = np.arange(len(ray)) + np.where(c + 1 == k[ray], 1 - k[ray], 1)  # (an edge: a corner, the next)
+    return across & (np.bincount(ray, on & on[nxt], len(face)) > 0)
 
 
 def budget(own_corners):
