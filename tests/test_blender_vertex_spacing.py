@@ -735,8 +735,8 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     clutter, line = lines
     assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 579"), line
     assert clutter.startswith(
-        "Vertex Spacing 0.25: 138 object(s) with surfaces close in front of part of their faces ('floor' 306 "
-        "faces 17 m^2, 'wall_north' 162 faces 8.7 m^2"
+        "Vertex Spacing 0.25: 138 object(s) with surfaces close in front of part of their faces or a "
+        "light's edge across them ('floor' 306 faces 17 m^2, 'wall_north' 162 faces 8.7 m^2"
     ), clutter
     spacings = {o.name: ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)}
     assert len(spacings) == 579 and set(spacings.values()) == {0.25}
@@ -851,7 +851,8 @@ def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top
     assert [x for x in lines if "close in front" in x] == (
         [
             f"Vertex Spacing 0.25: {1 + cut} object(s) with surfaces close in front of part of their "
-            f"faces ({named[y < 0.1, cut]}): those faces cut to 0.0625 m (their light changes across them)."
+            f"faces or a light's edge across them ({named[y < 0.1, cut]}): those faces cut to 0.0625 m "
+            "(their light changes across them)."
         ]
         if y < 0.1
         else []

@@ -604,9 +604,9 @@ def _grid(m):
 
 
 def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
-    """{name: ((F,) share, (F,) m^2, (F,) bool)} for each object of `candidates`: how much of each of
-    its faces other surfaces (any object of `objects`, itself too) cover close in front (the share of its rays
-    occluded; 0 for a face no finer level would cut more, or whose whole area is not worth the
+    """{name: ((F,) share, (F,) m^2, (F,) bool)} for each object of `candidates`: how much of each
+    of its faces other surfaces (any object of `objects`, itself too) cover close in front (the share
+    of its rays occluded; 0 for a face no finer level would cut more, or whose whole area is not worth the
     corners (_choices): not looked at), and each face's area. From points spread over each face (the
     centroids of its triangles cut into pieces about spacing / 2^CLUTTER_LEVELS long, at least 2 x 2,
     at most CLUTTER_GRID x CLUTTER_GRID), rays `reach` long (m; at most the face's longest edge,
@@ -733,10 +733,9 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     fits: the faces of clutter ({name: ((F,) weight, (F,) m^2)}, _cluttered's; such objects are in
     `finer` too) get up to CLUTTER_LEVELS finer (FINER, (F,) int8) from what is left within the
     budget (each face only as far as its weighed area is worth: _choices), the most weighed area per
-    corner first, each the finest that still
-    fits (an object with none: not in the FINER dict). Nothing changes (empty) when the scene fits and
-    there is no clutter. counts: (the scene's own corners, its corners at `spacing`, its corners with
-    the budget)."""
+    corner first, each the finest that still fits (an object with none: not in the FINER dict).
+    Nothing changes (empty) when the scene fits and there is no clutter. counts: (the scene's own
+    corners, its corners at `spacing`, its corners with the budget)."""
     if not finer:
         return {}, None, {}
     names = {o.name for o in finer}
@@ -806,9 +805,9 @@ def _choices(longest, cnt, spacing, area):
 def _finer_faces_within(clutter, edges, spacing, room):
     """({name: (F,) int8 FINER}, corners added): the faces of `clutter` (corner_budget's) with a
     weight, each the most levels finer (up to CLUTTER_LEVELS) worth their corners: its area x its
-    weight (_cluttered's) per corner added at least CLUTTER_WORTH x the finest spacing^2 / 4. The most weighed
-    area per corner first, each the finest of its levels that still fits in `room` corners (a face
-    no finer level cuts more, or none worth it: left)."""
+    weight (_cluttered's) per corner added at least CLUTTER_WORTH x the finest spacing^2 / 4. The
+    most weighed area per corner first, each the finest of its levels that still fits in `room`
+    corners (a face no finer level cuts more, or none worth it: left)."""
     owner, faces, areas, costs = [], [], [], []
     for j, (n, (weight, area)) in enumerate(clutter.items()):
         longest, cnt = edges[n]
@@ -1000,14 +999,15 @@ def outline_faces(objects, depsgraph, outlines):
 
 
 def clutter_line(fine, clutter, spacing):
-    """The log line naming the objects whose faces near_clutter made finer (corner_budget's FINER,
-    near_clutter's areas), the largest area first."""
+    """The log line naming the objects whose faces near_clutter or a light's edge made finer
+    (corner_budget's FINER, _cluttered's areas), the largest area first."""
     area = {n: float(clutter[n][1][f > 0].sum()) for n, f in fine.items()}  # (m^2)
     by = sorted(fine, key=lambda n: (-area[n], n))
     shown = ", ".join(f"{n!r} {int((fine[n] > 0).sum())} faces {area[n]:.2g} m^2" for n in by[:8])
     return (
         f"Vertex Spacing {spacing:g}: {len(fine)} object(s) with surfaces close in front of part of "
-        f"their faces ({shown}{', ...' if len(by) > 8 else ''}): those faces cut to "
+        f"their faces or a light's edge across them ({shown}{', ...' if len(by) > 8 else ''}): those "
+        f"faces cut to "
         f"{spacing / 2**CLUTTER_LEVELS:g} m (their light changes across them)."
     )
 
