@@ -1313,7 +1313,7 @@ def test_faces_a_light_shapes_outline_crosses_get_finer_corners_there_only():
         shape.keyframe_insert("location", frame=frame)
     scene.frame_set(3)
     outlines, _ = light_edges(scene, vl)
-    assert scene.frame_current == 3 and len(outlines) == 5  # (frame 3's, then 1, 2, 4, 5)
+    assert scene.frame_current == 3 and len(outlines) == 5  # (at frames 1 to 5)
     crossed = ov.outline_faces([wall], dg, outlines)["Grid wall"].reshape(5, 10)
     assert crossed[[0, 4]].sum() == 0 and crossed[1:4, 1:6].all() and crossed[1:4, 6:].sum() == 0, crossed
 

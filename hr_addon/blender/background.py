@@ -194,7 +194,13 @@ class BackgroundBake:
         if self.output == "VERTEX":  # the helpers belong to the user's file: made here, the copy gets them
             # (the spacing's note and the corner budget's line are the worker's to log: its bake of the copy
             # counts the same)
-            edges = light_edges(scene, view_layer) if cfg.spacing > 0 else ((), ())
+            edges, was = ((), ()), STATE.baking
+            if cfg.spacing > 0:  # (moving shapes: read over the frames, no playback load on the way)
+                STATE.baking = True
+                try:
+                    edges = light_edges(scene, view_layer)
+                finally:
+                    STATE.baking = was
             self._start_warnings = ensure_own_values(
                 geometry_objects(view_layer), cfg.domain, depsgraph, cfg.spacing, lambda line: None, *edges
             )

@@ -175,10 +175,11 @@ def light_edges(scene, view_layer):
     """([rings], (K, 7) cones): where the light shapes' and spot lights' light ends, over the scene's
     frames, for the vertex output's finer faces (own_values._cluttered): each light shape's outline
     ((M, 3) world rings: the outline, then its holes) and each spot's cone (position, direction, cos
-    of its half angle) at the current frame, and a moving one's (moving_shapes; a spot keyed or
-    driven) at every frame of the scene's range (at most OUTLINE_FRAMES, evenly spread; not the
-    bake's frames: the corners are static). Hidden ones and their emission or power are not looked
-    at (shown or lit on another frame). The frame is restored."""
+    of its half angle) at the current frame, a moving one's (moving_shapes; a spot keyed or driven)
+    at every frame of the scene's range instead (at most OUTLINE_FRAMES, evenly spread; not the
+    bake's frames nor the current one: the corners are static, the same from the UI and the worker).
+    Hidden ones and their emission or power are not looked at (shown or lit on another frame). The
+    frame is restored."""
     shapes = light_shape_objects(view_layer, include_hidden=True)
     spots = [o for o in light_objects(view_layer, include_hidden=True) if o.data.type == "SPOT"]
     if not shapes and not spots:
@@ -203,15 +204,16 @@ def light_edges(scene, view_layer):
                     seen.add(key)
                     rings.append([np.asarray(x, np.float64) for x in r])
 
-    read(shapes + spots)
-    if moving:
+    read([o for o in shapes + spots if o not in moving])
+    if moving:  # (only at these frames, whichever is the current one: the UI's and the worker's agree)
         now = scene.frame_current
         frames = np.unique(np.linspace(scene.frame_start, scene.frame_end, OUTLINE_FRAMES).round())
         for f in frames.astype(int).tolist():
-            if f != now:
+            if f != scene.frame_current:
                 scene.frame_set(f)
-                read(moving)
-        scene.frame_set(now)
+            read(moving)
+        if scene.frame_current != now:
+            scene.frame_set(now)
     cones = np.unique(np.array(cones).reshape(-1, 7), axis=0)
     return rings, cones
 
