@@ -74,6 +74,7 @@ def main():
         terrain(ms, float(size), int(n))
         name = f"terrain_{size}_{n}"
     from hr_addon.blender import own_values as ov
+    from hr_addon.blender.lights_in import light_edges
     from hr_addon.blender.scene_in import geometry_objects
 
     scene = bpy.context.scene
@@ -82,11 +83,15 @@ def main():
     dg.update()
     objects = geometry_objects(vl)
     own = [o for o in objects if o.data.library is None and o.library is None]
+    t_edges = time.process_time()
+    edges = light_edges(scene, vl)  # (the light shapes' outlines, spot lights' cones over the frames)
+    t_edges = time.process_time() - t_edges
     out = {"scene": name, "objects": len(objects), "spacings": {}}
     for s in (float(x) for x in a.spacings.split(",")):
         t0 = time.process_time()
         t1 = time.process_time()
-        clutter = ov._cluttered(objects, own, s, dg)  # (ensure_own_values leaves shared meshes out too)
+        # (ensure_own_values leaves shared meshes out too)
+        clutter = ov._cluttered(objects, own, s, dg, *edges)
         t_clutter = time.process_time() - t1
         finer = [o for o in own if ov.has_coarse_edges(o, s, dg) or o.name in clutter]
         # (as ensure_own_values)
@@ -108,6 +113,7 @@ def main():
             clutter_area={n: round(float(clutter[n][1][v > 0].sum()), 4) for n, v in sorted(fine.items())},
             clutter_candidates=len(clutter),
             near_clutter_cpu_s=round(t_clutter, 3),
+            light_edges_cpu_s=round(t_edges, 3),
             count_cpu_s=round(dt, 3),
         )
         out["spacings"][f"{s:g}"] = r

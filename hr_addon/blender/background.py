@@ -33,7 +33,7 @@ from . import jobstatus, playback, texture
 from .settings import BakeConfig
 from .state import STATE
 from .bake import cache_dir_for, frame_range_for, use_bake
-from .lights_in import light_check, materials_emit
+from .lights_in import light_check, light_edges, materials_emit
 from .own_values import ensure_own_values
 from .scene_in import SceneError, geometry_objects
 
@@ -194,8 +194,15 @@ class BackgroundBake:
         if self.output == "VERTEX":  # the helpers belong to the user's file: made here, the copy gets them
             # (the spacing's note and the corner budget's line are the worker's to log: its bake of the copy
             # counts the same)
+            edges, was = ((), ()), STATE.baking
+            if cfg.spacing > 0:  # (moving shapes: read over the frames, no playback load on the way)
+                STATE.baking = True
+                try:
+                    edges = light_edges(scene, view_layer)
+                finally:
+                    STATE.baking = was
             self._start_warnings = ensure_own_values(
-                geometry_objects(view_layer), cfg.domain, depsgraph, cfg.spacing, log=lambda line: None
+                geometry_objects(view_layer), cfg.domain, depsgraph, cfg.spacing, lambda line: None, *edges
             )
             self.warnings += self._start_warnings
         if self.output == "TEXTURE":

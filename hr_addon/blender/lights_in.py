@@ -168,6 +168,56 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
     return shapes
 
 
+OUTLINE_FRAMES = 48  # a moving shape's outline (a spot's cone) read at this many frames at most
+
+
+def light_edges(scene, view_layer):
+    """([rings], (K, 7) cones): where the light shapes' and spot lights' light ends, over the scene's
+    frames, for the vertex output's finer faces (own_values._cluttered): each light shape's outline
+    ((M, 3) world rings: the outline, then its holes) and each spot's cone (position, direction, cos
+    of its half angle) at the current frame, a moving one's (moving_shapes; a spot keyed or driven)
+    at every frame of the scene's range instead (at most OUTLINE_FRAMES, evenly spread; not the
+    bake's frames nor the current one: the corners are static, the same from the UI and the worker).
+    Hidden ones and their emission or power are not looked at (shown or lit on another frame). The
+    frame is restored."""
+    shapes = light_shape_objects(view_layer, include_hidden=True)
+    spots = [o for o in light_objects(view_layer, include_hidden=True) if o.data.type == "SPOT"]
+    if not shapes and not spots:
+        return [], np.zeros((0, 7))
+    depsgraph = view_layer.depsgraph
+    memo = {}
+    moving = [o for o in shapes if _object_moves(o, memo)]
+    moving += [o for o in spots if _object_moves(o, memo) or _animated(o.data)]
+    rings, cones, seen = [], [], set()
+
+    def read(objs):
+        for obj in objs:
+            if obj.type == "LIGHT":
+                ob = obj.evaluated_get(depsgraph)
+                M = np.array(ob.matrix_world, np.float64)
+                d = -M[:3, 2] / max(float(np.linalg.norm(M[:3, 2])), 1e-300)
+                cones.append(np.r_[M[:3, 3], d, np.cos(0.5 * float(ob.data.spot_size))])
+                continue
+            for _, r, _ in mesh_outlines(read_mesh(obj, depsgraph)):
+                key = b"".join(np.ascontiguousarray(x, np.float64).tobytes() for x in r)
+                if key not in seen:
+                    seen.add(key)
+                    rings.append([np.asarray(x, np.float64) for x in r])
+
+    read([o for o in shapes + spots if o not in moving])
+    if moving:  # (only at these frames, whichever is the current one: the UI's and the worker's agree)
+        now = scene.frame_current
+        frames = np.unique(np.linspace(scene.frame_start, scene.frame_end, OUTLINE_FRAMES).round())
+        for f in frames.astype(int).tolist():
+            if f != scene.frame_current:
+                scene.frame_set(f)
+            read(moving)
+        if scene.frame_current != now:
+            scene.frame_set(now)
+    cones = np.unique(np.array(cones).reshape(-1, 7), axis=0)
+    return rings, cones
+
+
 def _digest(state, parts):
     """sha1 over `state`'s keys in order, each followed by the bytes `parts(value)` gives."""
     h = hashlib.sha1()

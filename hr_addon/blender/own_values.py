@@ -56,13 +56,18 @@ spacing apart, along its normal and tilted 45 degrees; some occluded, some not) 
 CLUTTER_LEVELS levels finer: the integer face attribute FINER ("HR_Finer") the bake writes on the
 user's mesh, which the group's level rule reads (each face at spacing / 2^FINER; 0 where absent), so
 the corners go only to those faces (session 31 gave whole objects spacing / 4: the furnished floor
-35k corners for 5.7 of its 27 m^2). From what the budget leaves (at most as many corners again as the
-spacing makes), each face as many levels as its area, weighed by how much of it is in part, is worth
-per corner added (CLUTTER_WORTH), the most such area per corner first. Not for a mesh several objects
-share nor one whose modifiers change its faces (their faces are not the mesh's). Taken once, where
-the bake starts (the scene's first frame): the corners stay static; Delete Bake removes FINER with
-the modifier. FINER is one of the mesh's attributes the playback guard hashes (_guard_names): a
-re-bake that changes it makes the helper anew.
+35k corners for 5.7 of its 27 m^2). A ray that meets a surface holding one of the face's edges (a
+wall standing on the floor's edge: a concave junction) does not count (session 33, branch outline:
+the small rooms' floors, walls and ceilings were cut along every junction). Faces a light shape's
+outline crosses, or a spot light's cone lights in part, on any frame of the scene's range
+(lights_in.light_edges) weigh 1 too: the light changes across them. From what the budget leaves
+(since session 33 no share of the scene's corners: until then 1 x its corners at the spacing, which
+an object far away raised), each face as many levels as its area, weighed by how much of it is in
+part, is worth per corner added (CLUTTER_WORTH), the most such area per corner first. Not for a
+mesh several objects share nor one whose modifiers change its faces (their faces are not the
+mesh's). Taken once, where the bake starts (the scene's first frame): the corners stay static;
+Delete Bake removes FINER with the modifier. FINER is one of the mesh's attributes the playback
+guard hashes (_guard_names): a re-bake that changes it makes the helper anew.
 """
 
 import functools
@@ -102,13 +107,17 @@ RAISE = 1 + 2**-20  # a raised spacing this much above a face's threshold: its l
 # books) gets the spacing / 2^CLUTTER_LEVELS (the furnished close view's wall_north, its 0.23 m grid
 # behind books 5-18 cm off it: -36% against Cycles at frame 3 at 0.25 m), the largest faces first
 CLUTTER_LEVELS = 2
-CLUTTER_SHARE = 1.0  # ... from what the budget leaves, at most this x the corners at the spacing
-# ... and each face as many levels finer as add at most 1 / CLUTTER_WORTH x the corners a grid of
-# quads at the finest spacing over its area has (4 a quad): not a thin face Subdivide Mesh already
-# cut finely across (a 0.4 x 1.6 m side at level 3: one level; a book's spine: none)
+# ... from what the budget leaves (no share of the scene's corners: until session 33 at most 1 x
+# the corners at the spacing, which an object far away raised), each face as many levels finer as
+# add at most 1 / CLUTTER_WORTH x the corners a grid of quads at the finest spacing over its weighed
+# area has (4 a quad): not a thin face Subdivide Mesh already cut finely across (a 0.4 x 1.6 m side
+# at level 3: one level; a book's spine: none)
 CLUTTER_WORTH = 0.5
 CLUTTER_REACH = 1.0  # near_clutter's rays this many spacings long: surfaces closer are "close in front"
 CLUTTER_GRID = 32  # near_clutter's points: a triangle cut into at most this many pieces along an edge
+# near_clutter's rays that meet a surface holding one of their face's edges (within JUNCTION x the
+# spacing: a wall standing on the floor's edge) do not count: a concave junction, not a shadow's edge
+JUNCTION = 0.01
 
 
 def geometry_group(name, version, socket, socket_type, store, value, finer=False, output=None):
@@ -594,10 +603,10 @@ def _grid(m):
     return np.c_[1 - uv.sum(1), uv]
 
 
-def near_clutter(objects, candidates, depsgraph, reach, spacing):
-    """{name: ((F,) share, (F,) m^2)} for each object of `candidates`: how much of each of its faces
-    other surfaces (any object of `objects`, itself too) cover close in front (the share of its rays
-    occluded; 0 for a face no finer level would cut more, or whose whole area is not worth the
+def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
+    """{name: ((F,) share, (F,) m^2, (F,) bool)} for each object of `candidates`: how much of each
+    of its faces other surfaces (any object of `objects`, itself too) cover close in front (the share
+    of its rays occluded; 0 for a face no finer level would cut more, or whose whole area is not worth the
     corners (_choices): not looked at), and each face's area. From points spread over each face (the
     centroids of its triangles cut into pieces about spacing / 2^CLUTTER_LEVELS long, at least 2 x 2,
     at most CLUTTER_GRID x CLUTTER_GRID), rays `reach` long (m; at most the face's longest edge,
@@ -605,21 +614,24 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing):
     point): some occluded and some not (a share in (0, 1)) = a shadow's edge likely crosses the face
     (books a few cm before a wall, a board 2 cm from it, shelf boards across a back panel, whose
     shadows the normal's rays pass between); the nearer half, the more of it. A face wholly behind
-    something (1) or wholly open (0) is not in part. Each object's evaluated mesh as it is now (the
-    corners stay static: no frame but the one the bake starts from; the bake calls it at the scene's
-    first frame)."""
+    something (1) or wholly open (0) is not in part. A ray that meets a surface holding one of the
+    face's edges (a concave junction: a floor along a wall; _junction) does not count. Each
+    object's evaluated mesh as it is now (the corners stay static: no frame but the one the bake
+    starts from; the bake calls it at the scene's first frame). The third array: the faces a spot
+    light's cone lights in part at the same points (cones, _cone_edges; lights_in.light_edges)."""
     if not candidates:
         return {}
     from ..core.visibility import make_backend
 
     tris = [co[t] for co, *_, t, _ in (_world_faces(o, depsgraph) for o in objects)]
-    backend = make_backend(np.concatenate(tris) if tris else np.zeros((0, 3, 3)))
+    allt = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
+    backend = make_backend(allt)
     out = {}
     for o in candidates:
         co, lv, start, total, nrm, tri, tf = _world_faces(o, depsgraph)
         F = len(start)
         if not F or not len(tri):
-            out[o.name] = (np.zeros(F), np.zeros(F))
+            out[o.name] = (np.zeros(F), np.zeros(F), np.zeros(F, bool))
             continue
         longest, cnt = face_edges(o, depsgraph)
         p = co[tri]  # (T, 3, 3)
@@ -627,7 +639,7 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing):
         area = np.bincount(tf, 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1), minlength=F)
         gain = _choices(longest, cnt, spacing, area)[1].any(1)[tf]  # (even wholly in part)
         if not gain.any():
-            out[o.name] = (np.zeros(F), area)
+            out[o.name] = (np.zeros(F), area, np.zeros(F, bool))
             continue
         tf, p, e = tf[gain], p[gain], e[gain]
         step = spacing / 2**CLUTTER_LEVELS
@@ -648,10 +660,59 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing):
         dirs /= np.linalg.norm(dirs, axis=2)[..., None]
         far = np.minimum(longest.astype(np.float64), reach)[fid]
         hit = backend.occluded(pts[:, None, :], pts[:, None, :] + dirs * far[:, None, None])
+        # the occluded rays that meet a junction at the face's edge do not count (neither way: a
+        # book's side behind its neighbour stays wholly covered, a floor along a wall open); only
+        # a face in part can change by it
         n_hit = np.bincount(fid, weights=hit.sum(1), minlength=F)
-        n_ray = 5 * np.bincount(fid, minlength=F)
-        out[o.name] = (n_hit / np.maximum(n_ray, 1), area)
+        mixed = (n_hit > 0) & (n_hit < 5 * np.bincount(fid, minlength=F))
+        r, k = np.nonzero(hit & mixed[fid, None])
+        skip = np.zeros_like(hit)
+        if len(r):
+            prim, _ = backend.first_hit(pts[r], dirs[r, k], far[r])
+            tri_hit = allt[np.maximum(prim, 0)]
+            junction = _junction(co, lv, start, total, nrm, fid[r], tri_hit, JUNCTION * spacing)
+            skip[r, k] = junction | (prim < 0)  # (or float64 finds no hit: a graze, left out)
+        n_hit = np.bincount(fid, weights=(hit & ~skip).sum(1), minlength=F)
+        n_ray = np.bincount(fid, weights=5 - skip.sum(1), minlength=F)
+        edge = _cone_edges(backend, pts, nrm, fid, F, cones)
+        out[o.name] = (n_hit / np.maximum(n_ray, 1), area, edge)
     return out
+
+
+def _cone_edges(backend, pts, nrm, fid, F, cones):
+    """(F,) bool: the faces whose points (pts of faces fid) a spot light's cone (cones: (K, 7)
+    position, direction, cos of its half angle) lights in part: some inside it, facing it and in
+    its sight, some not (its footprint's edge, or a shadow's in it, crosses the face)."""
+    edge = np.zeros(F, bool)
+    for c in np.asarray(cones, np.float64).reshape(-1, 7):
+        to = c[:3] - pts
+        dist = np.linalg.norm(to, axis=1)
+        lit = ((nrm[fid] * to).sum(1) > 0) & (-(to @ c[3:6]) >= c[6] * dist)
+        part = (np.bincount(fid, lit, F) > 0) & (np.bincount(fid, ~lit, F) > 0)
+        i = np.flatnonzero(part[fid] & lit)
+        if len(i):  # (only the faces it may cross: rays to the light)
+            lit[i] &= ~backend.occluded(pts[i], c[:3])
+            edge |= (np.bincount(fid, lit, F) > 0) & (np.bincount(fid, ~lit, F) > 0)
+    return edge
+
+
+def _junction(co, lv, start, total, nrm, face, tri, tol):
+    """(R,) bool: the triangle tri[r] (R, 3, 3) a ray from face[r] met lies in a plane at an angle
+    to the face's (normals nrm) that holds one of the face's edges (both ends within tol, m): it
+    meets the face's plane along the face's own edge, a concave junction (a floor along a wall, a
+    wall under the ceiling), where the light does not change across the face as a shadow's edge
+    would (its corners lie on the junction). A surface meeting the face inside it (a shelf board
+    across a back panel) is not one, nor a parallel one just before it (a lamp under a ceiling)."""
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1), 1e-30)[:, None]
+    across = np.abs((n * nrm[face]).sum(1)) < 0.99  # (8 degrees or more)
+    k = total[face]  # (each ray's face's corners, one after another)
+    ray = np.repeat(np.arange(len(face)), k)
+    c = np.arange(len(ray)) - np.repeat(np.cumsum(k) - k, k)
+    plane = np.einsum("ij,ij->i", tri[:, 0], n)
+    on = np.abs(np.einsum("ij,ij->i", co[lv[start[face][ray] + c]], n[ray]) - plane[ray]) <= tol
+    nxt = np.arange(len(ray)) + np.where(c + 1 == k[ray], 1 - k[ray], 1)  # (an edge: a corner, the next)
+    return across & (np.bincount(ray, on & on[nxt], len(face)) > 0)
 
 
 def budget(own_corners):
@@ -669,12 +730,12 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     for all), then what is left goes to the smallest steps finer that still fit, one after another
     (an object as often as its steps fit); the objects of `clutter` keep `spacing` unless the
     others' coarsest do not make room for them (then they take the common spacing too). When it
-    fits: the faces of clutter ({name: ((F,) bool in part, (F,) m^2)}, near_clutter's; such objects
-    are in `finer` too) get CLUTTER_LEVELS finer (FINER, (F,) int8) from what is left (at most
-    CLUTTER_SHARE x the corners at `spacing` more), the largest face first, each the finest that still
-    fits (an object with none: not in the FINER dict). Nothing changes (empty) when the scene fits and
-    there is no clutter. counts: (the scene's own corners, its corners at `spacing`, its corners with
-    the budget)."""
+    fits: the faces of clutter ({name: ((F,) weight, (F,) m^2)}, _cluttered's; such objects are in
+    `finer` too) get up to CLUTTER_LEVELS finer (FINER, (F,) int8) from what is left within the
+    budget (each face only as far as its weighed area is worth: _choices), the most weighed area per
+    corner first, each the finest that still fits (an object with none: not in the FINER dict).
+    Nothing changes (empty) when the scene fits and there is no clutter. counts: (the scene's own
+    corners, its corners at `spacing`, its corners with the budget)."""
     if not finer:
         return {}, None, {}
     names = {o.name for o in finer}
@@ -688,7 +749,7 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     want = fixed + sum(int(c[0]) for _, c, _ in steps.values())
     limit = budget(own) if limit is None else int(limit)
     if want <= limit:
-        room = min(limit, int(want * (1 + CLUTTER_SHARE))) - want
+        room = limit - want
         fine, got = _finer_faces_within(clutter or {}, edges, spacing, room)
         return {}, (own, want, want + got), fine
 
@@ -742,17 +803,16 @@ def _choices(longest, cnt, spacing, area):
 
 
 def _finer_faces_within(clutter, edges, spacing, room):
-    """({name: (F,) int8 FINER}, corners added): the faces in part of `clutter` (corner_budget's),
-    each the most levels finer (up to CLUTTER_LEVELS) worth their corners: its area weighed by how
-    much of it is in part (4 s (1 - s), s the share of its rays occluded: 1 at a half, 0 wholly open
-    or covered) per corner added at least CLUTTER_WORTH x the finest spacing^2 / 4. The most weighed
-    area per corner first, each the finest of its levels that still fits in `room` corners (a face
-    no finer level cuts more, or none worth it: left)."""
+    """({name: (F,) int8 FINER}, corners added): the faces of `clutter` (corner_budget's) with a
+    weight, each the most levels finer (up to CLUTTER_LEVELS) worth their corners: its area x its
+    weight (_cluttered's) per corner added at least CLUTTER_WORTH x the finest spacing^2 / 4. The
+    most weighed area per corner first, each the finest of its levels that still fits in `room`
+    corners (a face no finer level cuts more, or none worth it: left)."""
     owner, faces, areas, costs = [], [], [], []
-    for j, (n, (share, area)) in enumerate(clutter.items()):
+    for j, (n, (weight, area)) in enumerate(clutter.items()):
         longest, cnt = edges[n]
-        f = np.flatnonzero((share > 0) & (share < 1))
-        area = 4 * share[f] * (1 - share[f]) * area[f]
+        f = np.flatnonzero(weight > 0)
+        area = weight[f] * area[f]
         add, ok = _choices(longest[f], cnt[f], spacing, area)
         keep = ok.any(1)
         owner.append(np.full(keep.sum(), j))
@@ -810,7 +870,7 @@ def _changes_topology(obj, depsgraph):
     )
 
 
-def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
+def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outlines=(), cones=()):
     """Give every object of `objects` whose modifiers change the topology or whose mesh another of
     them shares a helper and the modifier (made or brought up to date: its domain, its helper's
     topology, last in the stack); with a Vertex Spacing > 0 every object with an edge longer than
@@ -820,7 +880,8 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     the others' meshes). Returns notes naming the objects that got them now.
     log: callable(str) taking the spacing's note (the objects subdivided) and the budget's line
     instead of the notes: log lines, not warnings (the spacing is the default; they ask nothing
-    of the user)."""
+    of the user). outlines, cones: the light shapes' rings and the spot lights' cones over the
+    scene's frames (lights_in.light_edges): the faces they cross are finer too (_cluttered)."""
     users = {}
     for o in objects:
         users[o.data.name_full] = users.get(o.data.name_full, 0) + 1
@@ -836,7 +897,7 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     # (a face attribute of the mesh: not for a mesh several objects share, nor one whose modifiers
     # change its faces)
     single = [o for o in own if users[o.data.name_full] == 1 and not _changes_topology(o, depsgraph)]
-    clutter = _cluttered(objects, single, spacing, depsgraph)
+    clutter = _cluttered(objects, single, spacing, depsgraph, outlines, cones)
     finer_ = [o for o in own if coarse[o.name] or o.name in clutter]
     changed, counts, fine = corner_budget(objects, finer_, spacing, depsgraph, clutter=clutter)
     for name, s in changed.items():
@@ -889,27 +950,64 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None):
     ]
 
 
-def _cluttered(objects, own, spacing, depsgraph):
-    """{name: ((F,) share, (F,) m^2)}: near_clutter's (within CLUTTER_REACH x spacing in front, points
-    about the finer spacing apart) for the objects of `own` with an edge longer than the finer
-    spacing (a face it would cut) and at least one face in part."""
+def _cluttered(objects, own, spacing, depsgraph, outlines=(), cones=()):
+    """{name: ((F,) weight, (F,) m^2)} for the objects of `own` with an edge longer than the finer
+    spacing (a face it would cut) and a face of weight > 0: how likely the light changes across each
+    face: 4 s (1 - s) of near_clutter's share s (within CLUTTER_REACH x spacing in front, points about
+    the finer spacing apart: 1 at a half, 0 wholly open or covered), 1 where a light shape's outline
+    crosses it (outline_faces) or a spot light's cone lights it in part (near_clutter's third)."""
     if spacing <= 0 or CLUTTER_LEVELS <= 0:
         return {}
     fine = spacing / 2**CLUTTER_LEVELS
     candidates = [o for o in own if has_coarse_edges(o, fine, depsgraph)]
-    found = near_clutter(objects, candidates, depsgraph, CLUTTER_REACH * spacing, spacing)
-    return {n: v for n, v in found.items() if ((v[0] > 0) & (v[0] < 1)).any()}
+    found = near_clutter(objects, candidates, depsgraph, CLUTTER_REACH * spacing, spacing, cones)
+    crossed = outline_faces(candidates, depsgraph, outlines)
+    out = {}
+    for n, (s, area, edge) in found.items():
+        w = np.where(edge | crossed.get(n, False), 1.0, 4 * s * (1 - s))
+        if (w > 0).any():
+            out[n] = (w, area)
+    return out
+
+
+def outline_faces(objects, depsgraph, outlines):
+    """{name: (F,) bool}: the faces of `objects` a light shape's outline crosses (outlines: each
+    shape's rings, 3D; core.events.validation.outline_crosses), for those with a face crossed. Only
+    objects whose bounding box meets a shape's are read."""
+    if not len(outlines):
+        return {}
+    from ..core.events.validation import outline_crosses
+
+    pts = [np.concatenate(r) for r in outlines]
+    pad = np.array([1e-3 * np.linalg.norm(p.max(0) - p.min(0)) + 1e-6 * np.abs(p).max() for p in pts])
+    lo = np.array([p.min(0) for p in pts]) - pad[:, None]
+    hi = np.array([p.max(0) for p in pts]) + pad[:, None]
+    out = {}
+    for o in objects:
+        M = np.array(o.matrix_world, np.float64)
+        box = np.array(o.evaluated_get(depsgraph).bound_box, np.float64) @ M[:3, :3].T + M[:3, 3]
+        near = np.flatnonzero(((lo <= box.max(0)) & (hi >= box.min(0))).all(1))
+        if not len(near):
+            continue
+        co, _, start, _, _, tri, tf = _world_faces(o, depsgraph)
+        crossed = np.zeros(len(start), bool)
+        for i in near.tolist():
+            crossed |= outline_crosses(outlines[i], co[tri], tf, len(start))
+        if crossed.any():
+            out[o.name] = crossed
+    return out
 
 
 def clutter_line(fine, clutter, spacing):
-    """The log line naming the objects whose faces near_clutter made finer (corner_budget's FINER,
-    near_clutter's areas), the largest area first."""
+    """The log line naming the objects whose faces near_clutter or a light's edge made finer
+    (corner_budget's FINER, _cluttered's areas), the largest area first."""
     area = {n: float(clutter[n][1][f > 0].sum()) for n, f in fine.items()}  # (m^2)
     by = sorted(fine, key=lambda n: (-area[n], n))
     shown = ", ".join(f"{n!r} {int((fine[n] > 0).sum())} faces {area[n]:.2g} m^2" for n in by[:8])
     return (
         f"Vertex Spacing {spacing:g}: {len(fine)} object(s) with surfaces close in front of part of "
-        f"their faces ({shown}{', ...' if len(by) > 8 else ''}): those faces cut to "
+        f"their faces or a light's edge across them ({shown}{', ...' if len(by) > 8 else ''}): those "
+        f"faces cut to "
         f"{spacing / 2**CLUTTER_LEVELS:g} m (their light changes across them)."
     )
 

@@ -6,7 +6,7 @@ import dataclasses
 
 from ..lightmap import TextureError
 from . import playback, signatures, texture
-from .lights_in import frozen_emitters, light_check, light_objects, world_takes_part
+from .lights_in import frozen_emitters, light_check, light_edges, light_objects, world_takes_part
 from .own_values import ensure_own_values, spacing_off_note
 from .scene_in import SceneError, collect_geometry, geometry_objects, light_shape_objects
 
@@ -57,7 +57,8 @@ def read_snapshot(scene, view_layer, cfg, warn, log=None):
         log = log if log is not None else (lambda line: warn([line]))
         if cfg.vertex_spacing > 0 and not cfg.spacing:
             log(spacing_off_note(cfg.vertex_spacing))
-        warn(ensure_own_values(objects, cfg.domain, depsgraph, cfg.spacing, log=log))
+        edges = light_edges(scene, view_layer) if cfg.spacing > 0 else ((), ())
+        warn(ensure_own_values(objects, cfg.domain, depsgraph, cfg.spacing, log, *edges))
     if cfg.output == "TEXTURE":
         try:
             warn(texture.ensure_lightmaps(objects, cfg.resolution, cfg.texel_density))

@@ -265,6 +265,34 @@ def find_surface(rec, system):
         )
 
 
+def outline_crosses(rings, tris, face, n_faces, plane_tol=1e-3, rel_tol=1e-6):
+    """(n_faces,) bool: the faces a light shape's outline crosses (the vertex output's finer faces:
+    the light changes across them). rings: the shape's (3D, planar; the outline, then its holes);
+    tris (T, 3, 3): the faces' triangles, face (T,) their faces. A face counts where its triangles
+    in the shape's plane (within its tolerance, facing either way: find_surface's test) are covered
+    in part: clip.overlap_areas summed over them strictly between 0 and their area (rel_tol). Wholly
+    inside, wholly outside, or an outline that only runs along the face's edge: False."""
+    rings = [np.asarray(r, np.float64) for r in rings]
+    n = newell(rings[0])
+    n = n / np.linalg.norm(n)
+    c = rings[0].mean(0)
+    tris = np.asarray(tris, np.float64)
+    tn = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    area = 0.5 * np.linalg.norm(tn, axis=1)
+    near = np.abs((tris - c) @ n).max(1) <= _plane_tolerance(rings, plane_tol)
+    on = np.flatnonzero(near & (area > 0) & (np.abs(tn @ n) >= 0.999 * 2 * area))
+    if not len(on):
+        return np.zeros(n_faces, bool)
+    u, v = _basis(n)
+    flat = lambda p: np.stack([(p - c) @ u, (p - c) @ v], -1)  # noqa: E731
+    nodes = flat(tris[on])
+    nodes = np.concatenate([nodes, nodes[:, 2:]], 1)  # (triangles padded: corner 3 repeats 2)
+    part = clip.overlap_areas([flat(r) for r in rings], nodes, np.full(len(on), 3))
+    cover = np.bincount(face[on], part, n_faces)
+    whole = np.bincount(face[on], area[on], n_faces)
+    return (cover > rel_tol * whole) & (cover < (1 - rel_tol) * whole)
+
+
 def off_surface_message(rec, system):
     """Why a shape that lies on no surface (rec.on_surface False, after _find_surface) looks as it
     does: NAIVE takes it as a separate emitter, so it shows on no surface. Names the nearest
