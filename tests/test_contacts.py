@@ -246,6 +246,32 @@ def test_covered_disc_shortcut_gives_the_full_sums_answer():
     assert 0.01 < fast[1].mean() < fast[0].mean() < 0.9
 
 
+def test_covered_pairs_give_slots_the_same_answers_without_a_second_search():
+    """Contacts.covered_pairs (session 33, pre60: layouts.slot_split and texel_samples): the covered
+    test and its (point, chain) pairs from one search; slots() of the covered points handed their
+    pairs (slots.pairs_of) answers as it does searching them again, bit for bit: the 2k furnished
+    room's receivers, 12 x 12 points each, some of them in slots."""
+    from hr_testing.furnished import furnished_room
+    from hr_addon.core.slots import pairs_of
+
+    pt = prepare_patches(furnished_room("2k")[0])
+    c = Contacts(pt, 1e-3 * np.sqrt(pt.area.sum()))
+    rec = np.asarray(c.receivers, np.int64)
+    k = 12
+    pts = ff.sample_points(pt.corners[rec], pt.nv[rec], k).reshape(-1, 3)
+    patch = np.repeat(rec, k * k)
+    cov, pairs = c.covered_pairs(pts, patch)
+    np.testing.assert_array_equal(cov, c.covered(pts, patch))
+    sel = np.flatnonzero(cov)
+    got = c.slots(pts[sel], patch[sel], pairs=pairs_of(pairs, sel, len(pts)))
+    want = c.slots(pts[sel], patch[sel])
+    assert (want[1] > 0).sum() > 100 and (want[1] == 0).sum() > 100  # points in slots, and not
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+    none = c.slots(pts[:3], patch[:3], pairs=pairs_of(None, np.arange(3), 3))  # no pairs: no slot
+    assert (none[1] == 0).all() and (none[3] == -1).all()
+
+
 def test_copies_share_the_tables_built_on_first_use():
     """A deep copy of the contacts (each light event's copy of a system: RadiositySystem.copy)
     shares the tables made on first use from the static chains (_table: the chains' box grid,

@@ -311,6 +311,19 @@ class Contacts(SlotMouths):
             out[i[hit & ~near]] = True
         return out
 
+    def covered_pairs(self, points, patch, budget=4_000_000):
+        """(covered(points, patch) (N,), its (point, chain) pairs (_pairs'; None: none)), one
+        search for both: slots(points[c], patch[c], pairs=pairs_of(pairs, c, N)) then finds the
+        covered points' slots without searching again (the same pairs: each point's in its chains'
+        order, whatever other points are searched with it; the same answers)."""
+        points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
+        out = np.zeros(len(points), bool)
+        pairs = self._pairs(points, patch, budget)
+        if pairs is not None:
+            i, ch, hit, near = pairs[:4]
+            out[i[hit & ~near]] = True
+        return out, pairs
+
     def _table(self, key, make):
         """The table `key`, made by make() on first use from the static chains and segments (their
         box grid, component-major segments, discs: no light event changes them), in a dict that
