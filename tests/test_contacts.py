@@ -260,6 +260,10 @@ def test_covered_pairs_give_slots_the_same_answers_without_a_second_search():
     c, pts, patch = receiver_points()
     cov, pairs = c.covered_pairs(pts, patch)
     np.testing.assert_array_equal(cov, c.covered(pts, patch))
+    cut = c.covered_pairs(pts, patch, chunk=1000)  # (in chunks: the same flags and pairs)
+    np.testing.assert_array_equal(cut[0], cov)
+    for a, b in zip(cut[1], pairs):
+        np.testing.assert_array_equal(a, b)
     sel = np.flatnonzero(cov)
     got = c.slots(pts[sel], patch[sel], pairs=pairs_of(pairs, sel, len(pts)))
     want = c.slots(pts[sel], patch[sel])
