@@ -5,7 +5,7 @@ code of the checkout given: CPU seconds, one run. For comparing checkouts on the
     .venv/bin/python benchmarks/gather_precompute.py /work/cache/STORE [--root CHECKOUT] \
         [--set layouts.SPLIT=False] [--set final.FinalGather.BATCH_RAYS=1<<17] [--threads N] \
         [--serial] [--profile FILE [--whole]] [--digest FILE] [--check FILE] \
-        [--json FILE] [--write DIR]
+        [--json FILE] [--write DIR] [--output]
 
 --serial: the CPU seconds of the threaded maps' batches (core.parallel.profiled, threads 1) and so
 the serial part, with Amdahl's model on 2 and 16 cores as docs/threads.md's (bench_threads.py).
@@ -17,6 +17,8 @@ written to FILE as JSON: two checkouts or thread counts store the same bits if t
 captured array is bitwise the same and names those that differ.
 --write: write the stored system with this gather as a new store into DIR (not the one read), for
 bench_gather_events.py --cache DIR (its events and --dump on this checkout's gather).
+--output: gather on the stored gather's output layout (a Blender bake's precompute.hrpc: the vertex
+output on the Vertex Spacing mesh's corners, as the bake gathers), not on the system's own corners.
 """
 
 import argparse
@@ -42,6 +44,7 @@ ap.add_argument("--digest", default=None, help="write the stored arrays' SHA-256
 ap.add_argument("--check", default=None, help="compare the arrays' SHA-256 with this --digest file")
 ap.add_argument("--json", default=None, help="append this run's figures to this JSON list")
 ap.add_argument("--write", default=None, help="write the system and this gather as a store here")
+ap.add_argument("--output", action="store_true", help="on the stored gather's output layout (a bake's)")
 args = ap.parse_args()
 sys.path.insert(0, args.root)
 sys.path.insert(0, os.path.join(args.root, "benchmarks"))
@@ -60,6 +63,7 @@ for kv in args.set:  # module.NAME or module.Class.NAME under hr_addon.core.gath
     setattr(target, attr, eval(value))
 s, g, header = load_store(Path(args.store) / pc.FILENAME)
 pc.use_threads(s, g, args.threads)
+layout = dict(output=g.output, smooth_angle=g.smooth_angle) if args.output else {}
 del g
 dyn = DynamicRadiosity(s, method="FE", **DynamicRadiosity.gather_options("draft"))
 prof = None
@@ -92,7 +96,8 @@ with parallel.profiled() if args.serial else contextlib.nullcontext([]) as maps:
     c0 = time.process_time()
     if prof:
         prof.enable()
-    g = gather.LoopGather(dyn, rays=128, levels=2, iterations=4, threads=args.threads, shadow_rays=16)
+    kw = dict(rays=128, levels=2, iterations=4, threads=args.threads, shadow_rays=16)
+    g = gather.LoopGather(dyn, **kw, **layout)
     pc.prepare(g)
     if prof:
         prof.disable()

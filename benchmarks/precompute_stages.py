@@ -4,7 +4,11 @@ per gather level (the output's, the probe's, the second level's), counts (sample
 entries), one run. Times are inclusive (a stage's nested stages are in it: gather_batch holds the
 rays, the lookups and the keys); a function's recursive calls count once.
 
-    .venv/bin/python benchmarks/precompute_stages.py /work/cache/STORE [--root CHECKOUT] [--json FILE]
+    .venv/bin/python benchmarks/precompute_stages.py /work/cache/STORE [--root CHECKOUT] [--json FILE] \
+        [--output]
+
+--output: gather on the stored gather's output layout (a Blender bake's precompute.hrpc: the vertex
+output on the Vertex Spacing mesh's corners, as the bake gathers), not on the system's own corners.
 """
 
 import argparse
@@ -20,6 +24,7 @@ ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
 ap.add_argument("store", help="folder of a stored build (bench_gather_events.py --cache)")
 ap.add_argument("--root", default=str(Path(__file__).resolve().parent.parent), help="checkout timed")
 ap.add_argument("--json", default=None)
+ap.add_argument("--output", action="store_true", help="on the stored gather's output layout (a bake's)")
 args = ap.parse_args()
 sys.path.insert(0, args.root)
 sys.path.insert(0, os.path.join(args.root, "benchmarks"))
@@ -147,13 +152,16 @@ FG.first_hit = counted_first_hit
 # the hierarchy's covered test (h.dark): per level
 s, g, header = load_store(Path(args.store) / pc.FILENAME)
 pc.use_threads(s, g, 1)
+layout = dict(output=g.output, smooth_angle=g.smooth_angle) if args.output else {}
 del g
 h = s.h
 h.dark = timed("h.dark", h.dark)
+if h.contacts is not None:
+    h.contacts.covered = timed("Contacts.covered", h.contacts.covered)
 dyn = DynamicRadiosity(s, method="FE", **DynamicRadiosity.gather_options("draft"))
 t0 = time.process_time()
 level[:] = ["layout"]
-g = gather.LoopGather(dyn, rays=128, levels=2, iterations=4, threads=1, shadow_rays=16)
+g = gather.LoopGather(dyn, rays=128, levels=2, iterations=4, threads=1, shadow_rays=16, **layout)
 level[:] = ["prepare"]
 pc.prepare(g)
 total = time.process_time() - t0

@@ -212,20 +212,24 @@ def test_slot_mouths_follow_the_surface_not_its_seams():
     assert np.allclose(x, 0.25) and np.allclose(h, 0.002)
 
 
+def receiver_points(k=12):
+    """(contacts, points, their patches): the 2k furnished room's contact receivers, k x k points each."""
+    from hr_testing.furnished import furnished_room
+
+    pt = prepare_patches(furnished_room("2k")[0])
+    c = Contacts(pt, 1e-3 * np.sqrt(pt.area.sum()))
+    rec = np.asarray(c.receivers, np.int64)
+    pts = ff.sample_points(pt.corners[rec], pt.nv[rec], k).reshape(-1, 3)
+    return c, pts, np.repeat(rec, k * k)
+
+
 def test_covered_disc_shortcut_gives_the_full_sums_answer():
     """_pairs takes a closed chain's winding number from its centre inside the disc that meets
     none of its segments and 0 beyond the circle holding them all, no point there in an open
     band (Contacts._discs): on the 2k furnished room's receivers (12 x 12 points each) the same
     covered points, with and without open_edge, as the sum over every segment of every chain
     whose box holds them."""
-    from hr_testing.furnished import furnished_room
-
-    pt = prepare_patches(furnished_room("2k")[0])
-    c = Contacts(pt, 1e-3 * np.sqrt(pt.area.sum()))
-    rec = np.asarray(c.receivers, np.int64)
-    k = 12
-    pts = ff.sample_points(pt.corners[rec], pt.nv[rec], k).reshape(-1, 3)
-    patch = np.repeat(rec, k * k)
+    c, pts, patch = receiver_points()
     fast = [c.covered(pts, patch, open_edge=oe) for oe in (0.0, 5.0)]
     cx, cy, r_in, r_out, wc, band = c._discs()
     i, ch = c._pairs(pts, patch, 4_000_000)[:2]
@@ -244,6 +248,30 @@ def test_covered_disc_shortcut_gives_the_full_sums_answer():
     for oe, f in zip((0.0, 5.0), fast):
         np.testing.assert_array_equal(f, c.covered(pts, patch, open_edge=oe))
     assert 0.01 < fast[1].mean() < fast[0].mean() < 0.9
+
+
+def test_covered_pairs_give_slots_the_same_answers_without_a_second_search():
+    """Contacts.covered_pairs (session 33, pre60: layouts.slot_split and texel_samples): the covered
+    test and its (point, chain) pairs from one search; slots() of the covered points handed their
+    pairs (slots.pairs_of) answers as it does searching them again, bit for bit: the 2k furnished
+    room's receivers, 12 x 12 points each, some of them in slots."""
+    from hr_addon.core.slots import pairs_of
+
+    c, pts, patch = receiver_points()
+    cov, pairs = c.covered_pairs(pts, patch)
+    np.testing.assert_array_equal(cov, c.covered(pts, patch))
+    cut = c.covered_pairs(pts, patch, chunk=1000)  # (in chunks: the same flags and pairs)
+    np.testing.assert_array_equal(cut[0], cov)
+    for a, b in zip(cut[1], pairs):
+        np.testing.assert_array_equal(a, b)
+    sel = np.flatnonzero(cov)
+    got = c.slots(pts[sel], patch[sel], pairs=pairs_of(pairs, sel, len(pts)))
+    want = c.slots(pts[sel], patch[sel])
+    assert (want[1] > 0).sum() > 100 and (want[1] == 0).sum() > 100  # points in slots, and not
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+    none = c.slots(pts[:3], patch[:3], pairs=pairs_of(None, np.arange(3), 3))  # no pairs: no slot
+    assert (none[1] == 0).all() and (none[3] == -1).all()
 
 
 def test_copies_share_the_tables_built_on_first_use():

@@ -311,6 +311,23 @@ class Contacts(SlotMouths):
             out[i[hit & ~near]] = True
         return out
 
+    def covered_pairs(self, points, patch, budget=4_000_000, chunk=200_000):
+        """(covered(points, patch) (N,), its (point, chain) pairs (_pairs'; None: none)), one
+        search for both: slots(points[c], patch[c], pairs=pairs_of(pairs, c, N)) then finds the
+        covered points' slots without searching again (the same pairs: each point's in its chains'
+        order, whatever other points are searched with it; the same answers). In chunks of points,
+        as covered()."""
+        points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
+        out = np.zeros(len(points), bool)
+        parts = []
+        for s in range(0, len(points), chunk):
+            p = self._pairs(points[s : s + chunk], patch[s : s + chunk], budget)
+            if p is not None:
+                i, ch, hit, near = p[:4]
+                out[s + i[hit & ~near]] = True
+                parts.append((s + i, ch, hit, near))
+        return out, (tuple(np.concatenate(x) for x in zip(*parts)) if parts else None)
+
     def _table(self, key, make):
         """The table `key`, made by make() on first use from the static chains and segments (their
         box grid, component-major segments, discs: no light event changes them), in a dict that

@@ -9,19 +9,33 @@ import numpy as np
 from .boxes import box_pairs, csr_rows, ray_exit, sorted_index
 
 
+def pairs_of(pairs, rows, n):
+    """The (point, chain) pairs (Contacts._pairs' arrays) of points `rows` (sorted) of the n
+    points they were found for, the points numbered as in rows (slots(pairs=))."""
+    if pairs is None:
+        return tuple(np.zeros(0, np.int64) for _ in range(3))
+    at = np.full(n, -1, np.int64)
+    at[rows] = np.arange(len(rows))
+    i = at[pairs[0]]
+    k = np.flatnonzero(i >= 0)
+    return (i[k], *(p[k] for p in pairs[1:]))
+
+
 class SlotMouths:
     """Contacts' slot methods (see contacts.Contacts for the planes and chains they use)."""
 
-    def slots(self, points, patch, budget=4_000_000, chunk=200_000):
+    def slots(self, points, patch, budget=4_000_000, chunk=200_000, pairs=None):
         """Points (N, 3) on patches (N,) covered only at a gap, inside a slot: no chain covering
         them touches their plane all along (chain_gap: a box standing on the floor) and a covering
         face parallel to it has a mouth (slot_mouths: an open edge of the gap, a height h > min_gap
         wide, the light enters by: a neighbour book's side 2 mm away). Returns (depth (N,): distance
         to the nearest mouth of their covering faces, h (N,) of that mouth, foot (N, 3): its
         nearest point, on the points' plane, chain (N,): the chain it belongs to, mouth (N,): its
-        index in slot_mouths()); h = 0, depth inf, chain and mouth -1 for the other points."""
+        index in slot_mouths()); h = 0, depth inf, chain and mouth -1 for the other points.
+        pairs: these points' (point, chain) pairs if known (pairs_of(Contacts.covered_pairs'));
+        every point's answer is its own, so they are not cut into chunks then."""
         points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
-        if len(points) > chunk:
+        if len(points) > chunk and pairs is None:
             parts = [
                 self.slots(points[s : s + chunk], patch[s : s + chunk], budget, chunk)
                 for s in range(0, len(points), chunk)
@@ -30,8 +44,8 @@ class SlotMouths:
         n = len(points)
         depth, hgap, foot, chain = np.full(n, np.inf), np.zeros(n), points.copy(), np.full(n, -1, np.int64)
         mouth = np.full(n, -1, np.int64)
-        pairs = self._pairs(points, patch, budget)
-        if pairs is None:
+        pairs = self._pairs(points, patch, budget) if pairs is None else pairs
+        if pairs is None or not len(pairs[0]):
             return depth, hgap, foot, chain, mouth
         i, ch, hit = pairs[:3]
         i, ch = i[hit], ch[hit]

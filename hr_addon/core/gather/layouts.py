@@ -5,6 +5,7 @@ import numpy as np
 from ..boxes import csr_rows
 from ..geometry import insideness, isolated_objects, prepare_patches
 from ..parallel import batch_map, ranges, release_free_memory
+from ..slots import pairs_of
 from ..output import corner_weights, equal_key_pairs, in_domain, loop_welds
 from . import corner_fit
 from .bakepoints import has_area, texel_points
@@ -551,13 +552,13 @@ def _split_part(system, cand, grid, n, layout):
     cls = np.zeros(len(gp), np.int64)  # 0 open, 1 in a slot, 2 covered without a gap
     depth, mouth, chain = np.zeros(len(gp)), np.full(len(gp), -1, np.int64), np.full(len(gp), -1, np.int64)
     K = len(cand)
-    cov = con.covered(gp, tr, threads=1)  # (inline: this is a batch)
+    cov, pairs = con.covered_pairs(gp, tr)  # (inline: this is a batch; its pairs for slots())
     cls[cov] = 2
     # which covered points lie in a slot: on the patches with an open point only (the others are
     # never split)
     c = np.flatnonzero(cov & (SLOT_WHOLE | (np.bincount(row, ~cov, K) > 0)[row]))
     if len(c):
-        x, h, _, ch, mo = con.slots(gp[c], tr[c])
+        x, h, _, ch, mo = con.slots(gp[c], tr[c], pairs=pairs_of(pairs, c, len(gp)))
         cls[c], depth[c], mouth[c], chain[c] = np.where(h > 0, 1, 2), x, mo, ch
     cnt = np.stack([np.bincount(row, cls == k, K) for k in (0, 1)], 1)  # (K, 2) open, slot
     mixed = (cnt > 0).all(1)
@@ -913,7 +914,8 @@ def texel_samples(
         pts = texel_points(points[c_], axes[c_], tris, f, c_)
         m = pts.shape[1]
         flat, fp = pts.reshape(-1, 3), np.repeat(patch[c_], m)
-        cov = con.covered(flat, fp).reshape(-1, m)
+        cov, pairs = con.covered_pairs(flat, fp)
+        cov = cov.reshape(-1, m)
         mixed = cov.any(1) & ~cov.all(1)
         spread, whole = np.zeros(b - a, bool), np.zeros(b - a, bool)
         if open_edge > 0 and cov.any():
@@ -923,7 +925,7 @@ def texel_samples(
             con.close_mouths(s.backend.occluded)
             c = np.flatnonzero(cov.ravel())
             x, hg = np.full(cov.size, np.inf), np.zeros(cov.size)
-            x[c], hg[c] = con.slots(flat[c], fp[c])[:2]
+            x[c], hg[c] = con.slots(flat[c], fp[c], pairs=pairs_of(pairs, c, cov.size))[:2]
             x, slot = x.reshape(-1, m), (hg > 0).reshape(-1, m)
             mixed |= (slot & (x < open_edge * hg.reshape(-1, m))).any(1)
             band = con.covered(flat[c], fp[c], open_edge=open_edge)  # gathered where they lie (FinalGather)
