@@ -75,11 +75,23 @@ def around(owner, name, label=None):
 
 if TRACE:
     tracemalloc.start()
+import bpy  # noqa: E402
+
+mark("bpy imported")
 from hr_addon.blender import bake as bk  # noqa: E402
+from hr_addon.blender import own_values as ov  # noqa: E402
+from hr_addon.blender import scene_in as si  # noqa: E402
+from hr_addon.blender import snapshot as sn  # noqa: E402
 from hr_addon.core.gather import final, layouts  # noqa: E402
 from hr_addon.io import precompute as pc  # noqa: E402
 
 for owner, name in (
+    (bk, "read_snapshot"),
+    (sn, "ensure_own_values"),
+    (ov, "near_clutter"),
+    (sn, "collect_geometry"),
+    (ov, "before_subdivision"),
+    (si, "collect_instances"),
     (bk, "RadiositySystem"),
     (bk, "DynamicRadiosity"),
     (bk, "make_gather"),
@@ -110,6 +122,8 @@ def _gather_init(self, *a, **k):
 
 
 final.FinalGather.__init__ = _gather_init
+for when, sign in ((bpy.app.handlers.load_pre, "<"), (bpy.app.handlers.load_post, ">")):
+    when.append(bpy.app.handlers.persistent(lambda *a, s=sign: mark(f"open_mainfile {s}")))
 from hr_addon.__main__ import main  # noqa: E402
 
 mark("start")

@@ -391,6 +391,34 @@ def test_gathers_reuse_their_work_arrays(clutter, monkeypatch):
         assert np.array_equal(first, kept)
 
 
+def test_released_work_arrays_are_made_again_and_the_base_terms_dropped(clutter):
+    """Operator.release_work (a bake between its stages) lets go of gather()'s work arrays, its
+    float32 copy's too; the next gathers make them again and give the same values, bit for bit.
+    The base terms (gather(base=True): the energy report's form factor sums, once) go once that
+    sum is made: the report stays the same."""
+    s = clutter
+    h = s.h
+    B = np.zeros((3, h.n))
+    B[:, h.leaves()] = np.random.default_rng(9).random((3, len(h.leaves())))
+    op = Operator(h, s.links)
+    o32 = op.float32()
+    ref = [o.gather(o.pull(B.copy())) for o in (op, o32)]
+    assert op.__dict__.get("_works") and o32.__dict__.get("_works")
+    op.release_work()
+    assert "_works" not in op.__dict__ and "_works" not in o32.__dict__
+    for o, r in zip((op, o32), ref):
+        assert np.array_equal(o.gather(o.pull(B.copy())), r)
+    E = np.zeros((3, h.n))
+    E[:, h.leaves()[:4]] = 1.0
+    reports = []
+    for _ in range(2):
+        rep = SV.SolveReport()
+        SV._energy(op, op.pull(B.copy()), E, None, rep)
+        reports.append((rep.emitted, rep.absorbed, rep.escaped))
+        assert op._f_base is None and op._fsum is not None
+    assert len(set(reports)) == 1
+
+
 def test_operators_over_one_link_set_share_its_arrays(clutter, monkeypatch):
     """A light event's new nodes make a new Operator over the same Links (AUTO: every event): it
     takes the link set's intp sources, runs and float32 copies from the one before instead of

@@ -292,6 +292,7 @@ class _Bake:
             r.build_seconds = time.perf_counter() - t0
             final = None
             if cfg.gather is not None:
+                dyn.solves.release_work()  # (the base solve's work arrays: not held under the gather's)
                 release_free_memory()  # the build's freed temporaries: not resident under the gather's
                 say(f"Final gather: tracing {cfg.gather['rays']} rays per output sample", BUILD_SHARE)
                 t1 = time.perf_counter()
@@ -466,6 +467,9 @@ class _Bake:
         """Solve the frame's light and return its values for the writer (texture plan or targets)."""
         cfg = self.cfg
         frame_warnings += dyn.apply(shapes, lights).messages
+        if final is not None:  # the solves' work arrays and freed temporaries: not under the output's
+            dyn.solves.release_work()
+            release_free_memory()
         if baker is not None:
             return baker.radiance(dyn, cfg.radiance_mode, gather=final)
         frame_warnings += small_shape_warnings(dyn, final)

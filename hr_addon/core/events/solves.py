@@ -26,6 +26,11 @@ class Solves:
             self._op_version = h.version
         return self._op
 
+    def release_work(self):
+        """The operator's work arrays let go (Operator.release_work; a bake between its stages)."""
+        if self._op is not None:
+            self._op.release_work()
+
     def push(self, D):
         """D (3, n) with every node's value added to its descendants (first-bounce terms are
         stored per receiver node, not pushed)."""

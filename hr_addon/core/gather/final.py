@@ -522,7 +522,6 @@ class FinalGather(DirectLight):
         # (a texel's sub-samples over its area, layouts.texel_samples; covered ones count 0)
         self.group = None if groups is None else np.asarray(groups, np.int64)
         self.n_out = n if groups is None else (int(self.group[-1]) + 1 if n else 0)
-        self.E_static = pt.emission[:, self.patch].T.copy()
         self.stats = {}
         import time
 
@@ -1066,6 +1065,17 @@ class FinalGather(DirectLight):
         indptr = np.zeros(len(out[0]) + 1, np.int64)
         np.cumsum(out[0], out=indptr[1:])
         return (indptr, *out[1:], None, None) if k == 3 else (indptr, *out[1:])
+
+    @property
+    def E_static(self):
+        """(n, 3) the static emission at the samples: their patches' (made where asked, not held: 14
+        MB a level at the 100k room's vertex bake, docs/scale.md session 33), or the array set."""
+        E = self.__dict__.get("_E_static")
+        return self.system.patches.emission[:, self.patch].T.copy() if E is None else E
+
+    @E_static.setter
+    def E_static(self, value):
+        self.__dict__["_E_static"] = value
 
     @property
     def row_rays(self):
