@@ -678,6 +678,7 @@ def _furnace_window_gather():
 
 
 def _shape_part(dyn, g):
+    """(the shape's gathered part (n, 3) float64, its passes) made anew (_response_parts)."""
     for k in [k for k in g._responses if k[0] == "shape"]:
         del g._responses[k]
     return g._response_parts(dyn)[1][2].astype(np.float64), g.stats["tail_passes"]
@@ -724,13 +725,7 @@ def test_the_passes_from_nothing_skip_their_first_read(monkeypatch):
     the zero leaf values, and the level reads once per pass but the first (the Jacobi passes:
     SEIDEL_BLOCK 0; the Gauss-Seidel passes read by blocks, test_seidel_passes_*)."""
     monkeypatch.setattr(FinalGather, "SEIDEL_BLOCK", 0)
-    base = RadiositySystem(contact_furnace(0.85), RefineParams.preset("draft"))
-    frame = (np.zeros(3), (0, 0, 1.0), (1.0, 0, 0))  # wall0, facing +y
-    win = LightShape(S.on_plane(S.rect(1.0, 0.8, centre=(1.5, 1.4)), frame), np.full(3, 5.0), "w")
-    dyn = DynamicRadiosity(base.copy(), method="FE", gather_responses="zero")
-    dyn.apply({"w": win})
-    pts, patch, _ = surface_samples(dyn.system.patches, 10)
-    g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=64, levels=2, iterations=4)
+    dyn, g = _furnace_window_gather()
     read = FinalGather._read
     calls = []
 
@@ -743,14 +738,10 @@ def test_the_passes_from_nothing_skip_their_first_read(monkeypatch):
             L = (np.zeros((int(self._read_cols()[1].max()) + 1, 3)), None, None, None)
         return read(self, L, cols)
 
-    g._response_parts(dyn)  # (the base part, kept)
     got = {}
     for name, wrap in (("skip", counted), ("read", full)):
         monkeypatch.setattr(FinalGather, "_read", wrap)
-        for k in [k for k in g._responses if k[0] == "shape"]:
-            del g._responses[k]
-        got[name] = g._response_parts(dyn)[1][2]
-    passes = g.stats["tail_passes"]
+        got[name], passes = _shape_part(dyn, g)
     assert calls == [True] + [False] * (passes - 1) + [False]  # (the last: the top level's read)
     assert got["skip"].any() and np.array_equal(got["skip"], got["read"])
 
