@@ -1367,10 +1367,11 @@ class FinalGather(DirectLight):
     SEIDEL_STEP = 1 << 18  # weights per batch of a block's rows on threads (fixed: the same values)
 
     def _seidel_blocks(self):
-        """The second level's Gauss-Seidel blocks ([(first leaf, end leaf, row ranges)]) and the
-        arrays its passes read: the compacted columns, each value row's column (-1: not read), the
-        leaf means' sample weights and sums; None where SEIDEL_BLOCK is 0 or a leaf of _second_map
-        has no sample (the Jacobi passes)."""
+        """The second level's Gauss-Seidel blocks ([(first leaf, end leaf, row ranges, the value
+        rows it writes that a read takes, their columns)]) and the arrays its passes read: the
+        compacted columns, each value row's column (-1: not read), the leaf means' sample weights
+        and sums; None where SEIDEL_BLOCK is 0 or a leaf of _second_map has no sample (the Jacobi
+        passes)."""
         if not self.SEIDEL_BLOCK:
             return None
         g2 = self.second
@@ -1392,6 +1393,7 @@ class FinalGather(DirectLight):
                 cuts.append(a)
         if cuts[-1] != len(start) - 1:
             cuts.append(len(start) - 1)
+        ok, m, leaves = ws > 0, self.n_hr, self._second_map[0]
         blocks = []
         for a, b in zip(cuts[:-1], cuts[1:]):
             s0, s1 = int(start[a]), int(start[b])
@@ -1399,14 +1401,20 @@ class FinalGather(DirectLight):
                 (s0 + r0, s0 + r1)
                 for r0, r1 in _row_blocks(g2.indptr[s0 : s1 + 1] - g2.indptr[s0], self.SEIDEL_STEP)
             ]
-            blocks.append((a, b, sub))
+            # the rows of leaf values the block writes (its leaves with weight, then with near hits
+            # its samples') that a read takes, and their columns
+            at = leaves[a:b][ok[a:b]]
+            if len(pos) > m:
+                at = np.concatenate([at, np.arange(m + s0, m + s1)])
+            at = at[pos[at] >= 0]
+            blocks.append((a, b, sub, at, pos[at]))
         got = dict(
             cols=cols,
             used=used,
             pos=pos,
             w=w,
             ws=ws,
-            ok=ws > 0,
+            ok=ok,
             blocks=blocks,
             block=(self.SEIDEL_BLOCK, self.SEIDEL_STEP),
         )
@@ -1424,7 +1432,7 @@ class FinalGather(DirectLight):
         Y = np.empty((len(pos), 3))
         Y[:m] = V[:m]
         y = np.zeros((g2.n, 3))
-        for a, b, sub in gs["blocks"]:
+        for a, b, sub, at, cols in gs["blocks"]:
             s0, s1 = int(start[a]), int(start[b])
 
             def rows(r0, r1):  # each range its own rows
@@ -1434,13 +1442,10 @@ class FinalGather(DirectLight):
             batch_map(rows, sub, self.threads)
             k = ok[a:b]
             sums = np.add.reduceat(w[s0:s1, None] * y[s0:s1], start[a:b] - s0, 0)
-            at = leaves[a:b][k]
-            Y[at] = sums[k] / ws[a:b][k, None]
+            Y[leaves[a:b][k]] = sums[k] / ws[a:b][k, None]
             if len(pos) > m:
                 Y[m + s0 : m + s1] = y[s0:s1]
-                at = np.concatenate([at, np.arange(m + s0, m + s1)])
-            p = pos[at]
-            VT[:, p[p >= 0]] = Y[at[p >= 0]].T
+            VT[:, cols] = Y[at].T
         self._fill_dark_leaves(Y)
         return Y
 
