@@ -1348,7 +1348,7 @@ class FinalGather(DirectLight):
             S[used] = np.einsum("ua,uac->uc", ubar, G)
             Gu[used], Gv[used] = G[:, 0], G[:, 1]
             L = (Y, S, Gu, Gv)
-        if len(last) == 3:  # the passes are a Jacobi solve: its limit, whatever V it started from
+        if len(last) == 3:  # the passes are a Jacobi (or Seidel) solve: its limit, whatever V it began at
             Yt, _ = self._tail(last, not zero)
             self.stats["tail_passes"] = k + 1
             L = (Yt,) + tuple(L[1:])
