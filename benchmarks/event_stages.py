@@ -44,6 +44,7 @@ import numpy as np  # noqa: E402
 
 STAGES = (
     "_read",
+    "_seidel_pass",
     "_levels",
     "_leaf_means",
     "_near_rows",
