@@ -4,16 +4,17 @@ pays per edit (the write and Blender's re-evaluation, view_layer.update()) with 
 without (every object whose bits changed), then the settling write of what the threshold left out.
 
     nice -n 5 env OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_live_edits.py \
-        [--scene furnished|two_rooms] [--size 100k] [--out benchmarks/out/live_edits.json]
+        [--scene furnished|two_rooms|baked --blend BAKED.blend] [--size 100k] [--out OUT.json]
 
 furnished: bench_live's room (FE draft, Live on), the window's strength and colour edits
-(bench_live.edit_sequence), then 6 drag steps' previews (counted only: a preview's write is
-budgeted, session 29). two_rooms: hr_testing.two_rooms at frame 3 (its light shapes on), strength
-edits of its lights one at a time (the bedroom's area light, the living room's ceiling panel, the
-floor lamp) and a colour edit of the window. Each edit's result is computed once and written
-twice, by both ways in a rotating order, each keeping its own record of what HR_Radiance holds
-(as bench_live_budget.py: the re-evaluation depends on which meshes are written, not on their
-values). CPU ms (process time)."""
+(bench_live.edit_sequence), then 6 drag steps' previews (each written within Live's budget, timed,
+its objects above the threshold counted). two_rooms: hr_testing.two_rooms at frame 3 (its light
+shapes on), strength edits of its lights one at a time (the bedroom's area light, the living room's
+ceiling panel, the floor lamp) and a colour edit of the window. baked: a baked file's first light
+shape, as furnished (its drag steps along the shape's local x), the file opened in place and never
+saved. Each edit's result is computed once and written twice, by both ways in a rotating order,
+each keeping its own record of what HR_Radiance holds (as bench_live_budget.py: the re-evaluation
+depends on which meshes are written, not on their values). CPU ms (process time)."""
 
 import argparse
 import json
@@ -66,6 +67,47 @@ def _two_rooms():
     return scene, bpy.context.view_layer, edits, []
 
 
+def _baked(path):
+    """A baked file (opened in place, never saved; its modifiers brought to this version's group in
+    memory, bench_bpy_frames.regroup) with Live on: its first light shape's strength and colour
+    edits as bench_live's, 6 drag steps along the shape's local x."""
+    import bpy
+    from mathutils import Vector
+
+    import bench_bpy_frames as bf
+
+    bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)
+    scene = bpy.context.scene
+    bf.regroup(bpy, scene, "CORNER")
+    scene.hr.method, scene.hr.quality, scene.hr.final_gather = "FE", "DRAFT", True
+    for o in scene.objects:
+        o.animation_data_clear()
+    scene.hr.live = True
+    c0 = time.process_time()
+    assert bpy.ops.hr.live_update() == {"FINISHED"}
+    print(f"built: {time.process_time() - c0:.1f} s CPU", flush=True)
+    obj = next(o for o in scene.objects if o.hr.is_light_shape and not o.hide_render)
+    node = next(n for n in obj.data.materials[0].node_tree.nodes if n.type in ("EMISSION", "BSDF_PRINCIPLED"))
+    strength, colour = (
+        node.inputs[k]
+        for k in (
+            ("Strength", "Color") if node.type == "EMISSION" else ("Emission Strength", "Emission Color")
+        )
+    )
+    edits = [
+        ("strength", lambda f=f: setattr(strength, "default_value", strength.default_value * f))
+        for f in (1.5, 0.8, 1.2, 0.9, 1.1, 0.7)
+    ]
+    edits += [
+        ("colour", lambda c=c: setattr(colour, "default_value", (*c, 1.0)))
+        for c in ((1.0, 0.6, 0.4), (0.5, 0.7, 1.0), (1.0, 1.0, 0.8), (0.8, 1.0, 0.8))
+    ]
+    d = 0.05 * Vector(obj.matrix_world.col[0][:3]).normalized()
+    moves = [lambda: setattr(obj, "location", obj.location + d)] * 6
+    print(f"edits of {obj.name!r} ({node.type})", flush=True)
+    return scene, bpy.context.view_layer, edits, moves
+
+
 def _furnished(tmp, size):
     import bench_live as bl
 
@@ -78,7 +120,8 @@ def _furnished(tmp, size):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--scene", default="furnished", choices=("furnished", "two_rooms"))
+    ap.add_argument("--scene", default="furnished", choices=("furnished", "two_rooms", "baked"))
+    ap.add_argument("--blend", help="--scene baked: the baked file (opened in place, never saved)")
     ap.add_argument("--size", default="100k")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "live_edits.json"))
     args = ap.parse_args()
@@ -91,11 +134,14 @@ def main():
     from hr_addon.blender.live_worker import PREVIEW
 
     tmp = tempfile.mkdtemp(prefix="hr_live_edits_")
-    scene, vl, edits, moves = _two_rooms() if args.scene == "two_rooms" else _furnished(tmp, args.size)
+    if args.scene == "baked":
+        scene, vl, edits, moves = _baked(args.blend)
+    else:
+        scene, vl, edits, moves = _two_rooms() if args.scene == "two_rooms" else _furnished(tmp, args.size)
     sess = live.session(scene)
     w = sess.worker
     keys = sess.written.extract.span_keys
-    thr = live_session.EDIT_WRITE_THRESHOLD
+    thr = getattr(live_session, "EDIT_WRITE_THRESHOLD", 1 / 512)
     print(f"{len(keys)} objects with rows; threshold {thr:.5f}", flush=True)
 
     def result_of(edit):
@@ -117,7 +163,7 @@ def main():
         vl.update()
         return 1000 * (c2 - c1), 1000 * (time.process_time() - c2)
 
-    modes = ("exact", "threshold")
+    modes = ("exact", "threshold") if hasattr(live_session, "_within_threshold") else ("exact",)
     shown = dict.fromkeys(modes, sess.written)
     rows = []
     for j, (name, edit) in enumerate(edits):
@@ -134,7 +180,7 @@ def main():
             "above_1e-2": int((rel > 1e-2).sum()),
             "change_median": float(np.median(rel)),
         }
-        for m in modes[j % 2 :] + modes[: j % 2]:
+        for m in modes[j % len(modes) :] + modes[: j % len(modes)]:
             if m == "exact":
                 skip, held = r.values.unchanged(shown[m]), r.values
             else:
@@ -146,28 +192,39 @@ def main():
         print(
             f"{name}: bits changed {row['bits_changed']}, above {thr:.4f} {row['above_threshold']}, "
             f"above 1e-3 {row['above_1e-3']}, 1e-2 {row['above_1e-2']} (median change "
-            f"{row['change_median']:.4f}); exact {row['exact_written']} w {row['exact_write_ms']:.0f}"
-            f"+{row['exact_eval_ms']:.0f} ms, threshold {row['threshold_written']} w "
-            f"{row['threshold_write_ms']:.0f}+{row['threshold_eval_ms']:.0f} ms",
+            f"{row['change_median']:.4f}); "
+            + ", ".join(
+                f"{m} {row[f'{m}_written']} w {row[f'{m}_write_ms']:.0f}+{row[f'{m}_eval_ms']:.0f} ms"
+                for m in modes
+            ),
             flush=True,
         )
-    skip = r.values.unchanged(shown["threshold"])
+    skip = r.values.unchanged(shown[modes[-1]])
     settle = {"written": len(keys) - len(skip)}
     settle["write_ms"], settle["eval_ms"] = write(r.values, skip)
     print(f"settling write after the edits: {settle}", flush=True)
     drag = []
-    if moves:
+    if moves:  # (each preview's write budgeted as Live's, timed; its objects above the threshold)
         w.preview = PREVIEW
         w.flush()
         _, ex = w.take()
         shown_now = ex.values if ex is not None else r.values
         write(shown_now, None)
+        held = shown_now
         for edit in moves:
             p = result_of(edit)
             rel = p.values.change(shown_now)
-            drag.append({"above_threshold": int((rel > thr).sum()), "above_1e-3": int((rel > 1e-3).sum())})
+            step = {"above_threshold": int((rel > thr).sum()), "above_1e-3": int((rel > 1e-3).sum())}
+            # the preview's write as Live makes it (budget PREVIEW_WRITE_BUDGET, against what is shown)
+            skip, held, _ = live_session._within_budget(p.values, held, live_session.PREVIEW_WRITE_BUDGET)
+            step["written"] = len(keys) - len(skip)
+            step["write_ms"], step["eval_ms"] = write(p.values, skip)
+            drag.append(step)
             shown_now = p.values
         print(f"drag steps (previews, each against the one before): {drag}", flush=True)
+    if drag:
+        summary_drag = {k: float(np.median([x[k] for x in drag])) for k in ("written", "write_ms", "eval_ms")}
+        print(f"drag previews, median: {summary_drag}", flush=True)
     summary = {
         m: {k: float(np.median([x[f"{m}_{k}"] for x in rows])) for k in ("written", "write_ms", "eval_ms")}
         for m in modes
