@@ -15,7 +15,6 @@ scalar_sum: scalar with the value compared sampled from the helper (a float attr
 packed_scalar: both; noguard: the group's output the helper's Object Info (no guard)."""
 
 import sys
-import time
 from functools import partial
 from pathlib import Path
 
@@ -33,6 +32,7 @@ bpy = load_bpy()
 bpy.ops.wm.open_mainfile(filepath=sys.argv[-1], load_ui=False)
 scene = bpy.context.scene
 import bench_bpy_frames as b  # noqa: E402
+from bench_bpy_frames import cpu_ms as t  # noqa: E402
 
 from hr_addon.blender import own_values as ov  # noqa: E402
 from hr_addon.blender import playback  # noqa: E402
@@ -94,13 +94,7 @@ def variant(kind):
 def build(nodes, link, gi, info, subdivided, go, packed, scalar, helper_sum=False):
     made = []
     node = partial(ov._add_node, nodes, made)
-
-    def hashed(value, seed, kind):
-        h = node("FunctionNodeHashValue", data_type=kind)
-        link(value, h.inputs["Value"])
-        if seed is not None:
-            link(seed, h.inputs["Seed"])
-        return h.outputs["Hash"]
+    hashed = partial(ov._hashed, node, link)
 
     received = gi.outputs["Geometry"]
     size = node("GeometryNodeAttributeDomainSize", component="MESH")
@@ -196,15 +190,6 @@ def build(nodes, link, gi, info, subdivided, go, packed, scalar, helper_sum=Fals
     link(switch.outputs[0], go.inputs[0])
     print(f"  {len(made)} guard nodes", flush=True)
     return holds.outputs[0]
-
-
-def t(f, n=5):
-    out = []
-    for _ in range(n):
-        c = time.process_time()
-        f()
-        out.append(1000 * (time.process_time() - c))
-    return round(sorted(out)[n // 2]), [round(x) for x in out]
 
 
 def write():

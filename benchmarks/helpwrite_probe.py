@@ -17,7 +17,6 @@ meshes alone). Then every modified object's evaluated HR_Radiance per corner aga
 import hashlib
 import json
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,12 +42,7 @@ VARIANTS = args or ["all", "helpers", "plain", "tag", "noguard", "off"]
 
 
 def t(f, n=3):
-    out = []
-    for _ in range(n):
-        c = time.process_time()
-        f()
-        out.append(1000 * (time.process_time() - c))
-    return round(sorted(out)[n // 2]), [round(x) for x in out]
+    return b.cpu_ms(f, n)
 
 
 b.regroup(bpy, scene, "CORNER")

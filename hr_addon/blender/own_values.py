@@ -298,6 +298,16 @@ def _group(domain, finer=False):
     )
 
 
+def _hashed(node, link, value, seed, kind):
+    """The Hash output of a new Hash Value node (node: a partial _add_node) of value (`kind`),
+    seeded by seed unless None."""
+    h = node("FunctionNodeHashValue", data_type=kind)
+    link(value, h.inputs["Value"])
+    if seed is not None:
+        link(seed, h.inputs["Seed"])
+    return h.outputs["Hash"]
+
+
 def _from_helper(g, nodes, link, gi, subdivided):
     """The subdividing group's output end: the helper's mesh itself (Object Info, Original) while
     the mesh the group receives is the one the helper was made from, else `subdivided` (its faces
@@ -320,14 +330,7 @@ def _from_helper(g, nodes, link, gi, subdivided):
     if not hasattr(bpy.types, "FunctionNodeHashValue"):  # Blender 4.2 (Hash Value is 4.3's): no
         return made, subdivided  # guard, every evaluation subdivides (no GUARD: helpers never stale)
     node = partial(_add_node, nodes, made)
-
-    def hashed(value, seed, kind):
-        h = node("FunctionNodeHashValue", data_type=kind)
-        link(value, h.inputs["Value"])
-        if seed is not None:
-            link(seed, h.inputs["Seed"])
-        return h.outputs["Hash"]
-
+    hashed = partial(_hashed, node, link)
     received = gi.outputs["Geometry"]
     size = node("GeometryNodeAttributeDomainSize", component="MESH")
     link(received, size.inputs["Geometry"])
