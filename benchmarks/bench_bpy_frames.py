@@ -304,6 +304,16 @@ def run_play(args):
     return out
 
 
+def cpu_ms(f, n=5):
+    """(median, [each]) of n calls of f, CPU ms (process time), rounded."""
+    out = []
+    for _ in range(n):
+        c = time.process_time()
+        f()
+        out.append(1000 * (time.process_time() - c))
+    return round(sorted(out)[n // 2]), [round(x) for x in out]
+
+
 def regroup(bpy, scene, domain):
     """--regroup: the subdividing modifiers of a bake made before FINER_VERSION 4 (session 32,
     branch playfix) brought to this version's group in memory, each at its own spacing, with its

@@ -12,11 +12,11 @@ checked once per bake would cost at best); lean: noguard with the group's other 
 (last: the group is not restored); slots: the guard computed but the helper shown (an OR with
 True), its slots empty against "position" x4, alternately; off: the modifiers hidden (the helpers and plain
 meshes alone). Then every modified object's evaluated HR_Radiance per corner against the first
-("all") pass."""
+("all") pass (--dump FILE: their digests, HR_Radiance and vertex positions, into FILE)."""
 
 import hashlib
+import json
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,16 +33,16 @@ from hr_addon.blender import own_values as ov  # noqa: E402
 from hr_addon.blender import playback  # noqa: E402
 from hr_addon.blender.names import ATTRIBUTE  # noqa: E402
 
-VARIANTS = sys.argv[1:-1] or ["all", "helpers", "plain", "tag", "noguard", "off"]
+args = sys.argv[1:-1]
+DUMP = None
+if "--dump" in args:  # the digests of the values after "all" into this JSON (to compare versions)
+    k = args.index("--dump")
+    DUMP, args = args[k + 1], args[:k] + args[k + 2 :]
+VARIANTS = args or ["all", "helpers", "plain", "tag", "noguard", "off"]
 
 
 def t(f, n=3):
-    out = []
-    for _ in range(n):
-        c = time.process_time()
-        f()
-        out.append(1000 * (time.process_time() - c))
-    return round(sorted(out)[n // 2]), [round(x) for x in out]
+    return b.cpu_ms(f, n)
 
 
 b.regroup(bpy, scene, "CORNER")
@@ -79,10 +79,13 @@ def radiance():
     dg = bpy.context.evaluated_depsgraph_get()
     out = {}
     for o, _ in mods:
-        a = o.evaluated_get(dg).data.attributes[ATTRIBUTE]
+        me = o.evaluated_get(dg).data
+        a = me.attributes[ATTRIBUTE]
         buf = np.empty(4 * len(a.data), np.float32)
         a.data.foreach_get("color", buf)
-        out[o.name] = hashlib.sha1(buf.tobytes()).hexdigest()
+        co = np.empty(3 * len(me.vertices), np.float32)
+        me.vertices.foreach_get("co", co)
+        out[o.name] = hashlib.sha1(buf.tobytes() + co.tobytes()).hexdigest()
     return out
 
 
@@ -92,6 +95,8 @@ for v in VARIANTS:
     if v == "all":
         print("all: write + update", t(write(arrays)), flush=True)
         ref = radiance()
+        if DUMP:
+            Path(DUMP).write_text(json.dumps(ref, indent=0))
     elif v == "helpers":
         print("helpers only: write + update", t(write(helpers)), flush=True)
     elif v == "plain":

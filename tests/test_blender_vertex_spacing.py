@@ -1122,8 +1122,8 @@ def _edit(wall, what):
     "what", ["position", "position, no attributes", "uv", "material index", "modifier", "shape key"]
 )
 def test_the_group_shows_the_helpers_mesh_until_an_edit(what):
-    """While the mesh the group receives is the bake's (its GUARD, a hash per corner, is the
-    helper's), the group's output is the helper's mesh (PROBE shows), bit for bit what the
+    """While the mesh the group receives is the bake's (its GUARD, the sum and variance of a hash
+    per corner, is the helper's), the group's output is the helper's mesh (PROBE shows), bit for bit what the
     subdivision makes (every attribute, HR_Radiance from the helper, the materials); an edit after
     the bake (positions, UVs, a material index, a deforming modifier or a shape key below the
     group) makes the group subdivide again: the edit shows. A mesh without attributes of its own
@@ -1140,14 +1140,14 @@ def test_the_group_shows_the_helpers_mesh_until_an_edit(what):
     (attrs, mats) = _evaluated(wall)
     assert PROBE in attrs and mats == ["Grey", "Red"] and GUARD in attrs
     guard = me.attributes[GUARD]
-    saved = np.empty(len(guard.data), np.int32)
-    guard.data.foreach_get("value", saved)
+    saved = np.empty(3 * len(guard.data), np.float32)
+    guard.data.foreach_get("vector", saved)
     me.attributes.remove(guard)  # the guard broken: the subdivision's own output
     wall.update_tag()
     (sub, sub_mats) = _evaluated(wall)
     del attrs[PROBE]
     assert PROBE not in sub and sub == attrs and sub_mats == mats
-    me.attributes.new(GUARD, "INT", "CORNER").data.foreach_set("value", saved)
+    me.attributes.new(GUARD, "FLOAT_VECTOR", ov.GUARD_DOMAIN).data.foreach_set("vector", saved)
     wall.update_tag()
     assert PROBE in _evaluated(wall)[0]
     _edit(wall, what)

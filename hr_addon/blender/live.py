@@ -177,6 +177,8 @@ def on_depsgraph_update(scene, depsgraph=None):
             if idd.name in own:  # (a mesh's update says is_updated_transform too)
                 continue
             dirty = True
+            if idd.name in sess.shape_meshes and not u.is_updated_geometry:
+                continue  # its material's strength or colour (its data, HR_Radiance, did not change)
             sess.written = None  # (a light shape's mesh too: its own HR_Radiance may have changed)
             if idd.name not in sess.shape_meshes:
                 geometry = full = True

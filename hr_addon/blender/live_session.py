@@ -59,6 +59,10 @@ _RESTORING = {}  # {scene name: the steps of a stop's restore still to run} (ove
 # threshold (relative to the object's level), against what HR_Radiance shows (docs/live.md, session 29)
 PREVIEW_WRITE_BUDGET = 500
 PREVIEW_WRITE_THRESHOLD = 1e-3
+# a strength or colour edit writes only the objects whose values changed by more than this (relative
+# to the object's level: below one 8-bit display step); the others are written exactly once no new
+# result came for CATCH_UP_AFTER (docs/live.md, session 33)
+EDIT_WRITE_THRESHOLD = 1 / 512
 CATCH_UP_AFTER = 0.25  # s without a new result after a budgeted write: the drag paused, write on
 
 
@@ -117,7 +121,8 @@ class Session:
         self.force_write = False  # HR_Radiance must be written again (undo, render)
         self.written = None  # the values HR_Radiance holds (the last write's, Rows), None: unknown
         self.write_budget = PREVIEW_WRITE_BUDGET  # objects a drag's preview writes at most (None: all)
-        self.behind = False  # the last write was a budgeted preview's and left changes out
+        self.edit_threshold = EDIT_WRITE_THRESHOLD  # an emission edit's skip (None: exact writes)
+        self.behind = False  # the last write left changes out (a budgeted preview, a thresholded edit)
         self.wrote_at = 0.0  # time.monotonic() of the last write
         self.preview_change = ""  # what preview.show_radiance changed (undone when Live ends)
         self.texture_objects = []  # objects whose baked-texture preview Live took off (restored)
@@ -679,6 +684,34 @@ def _budgeted(sess, r):
     )
 
 
+def _emission_edit(sess, r):
+    """A strength or colour edit's result (its events all "emission"), written within
+    sess.edit_threshold; HR_Radiance is made exact when no new result follows (_deliver)."""
+    return (
+        sess.edit_threshold is not None
+        and r.kind == "frame"
+        and r.report is not None
+        and bool(r.report.events)
+        and all(e.kind == "emission" for e in r.report.events)
+    )
+
+
+def _within_threshold(values, written, threshold):
+    """(skip, what HR_Radiance then holds, behind) for a write of values (Rows) over written (the
+    Rows HR_Radiance holds) of only the objects whose change (Rows.change) is above threshold;
+    behind: some object left out does not hold values' bits."""
+    same = values.unchanged(written)
+    if same is None:
+        return None, values, False  # (not the same layout: write all)
+    keys = values.extract.span_keys
+    if not len(keys):
+        return same, values, False
+    take = values.change(written) > threshold
+    skip = {keys[i] for i in np.flatnonzero(~take)}
+    behind = bool(skip - same)
+    return skip, values.merged(written, take) if behind else values, behind
+
+
 def _within_budget(values, written, budget):
     """(skip, what HR_Radiance then holds, behind) for a budgeted write of values (Rows) over
     written (the Rows HR_Radiance holds): the `budget` objects whose values changed most
@@ -705,8 +738,10 @@ def _within_budget(values, written, budget):
     return {keys[i] for i in np.flatnonzero(~take)}, values.merged(written, take), behind
 
 
-def _deliver(sess, scene):
-    """Write the worker's newest result into HR_Radiance. True if something was written or changed."""
+def _deliver(sess, scene, exact=False):
+    """Write the worker's newest result into HR_Radiance. True if something was written or changed.
+    exact: no emission edit's threshold, and what the last one left out written now
+    (hr.live_update(): HR_Radiance current when it returns)."""
     b, r = sess.worker.take()
     changed = False
     if b is not None:
@@ -718,8 +753,10 @@ def _deliver(sess, scene):
     if r is None:
         if sess.force_write and sess.last is not None and sess.last.values is not None:
             r = sess.last
-        elif sess.behind and not sess.dirty and time.monotonic() - sess.wrote_at >= CATCH_UP_AFTER:
-            r = sess.last  # the drag paused: the next budget's worth of the preview shown
+        elif sess.behind and (exact or not sess.dirty and time.monotonic() - sess.wrote_at >= CATCH_UP_AFTER):
+            # the drag or edit paused: the next budget's worth of the preview shown, or what a
+            # strength or colour edit left out (exact: sess.last is not a new result)
+            r = sess.last
         else:
             return changed
     forced, sess.force_write = sess.force_write, False
@@ -735,6 +772,8 @@ def _deliver(sess, scene):
     if not forced and sess.written is not None and hasattr(r.values, "unchanged"):
         if _budgeted(sess, r):
             same, written, behind = _within_budget(r.values, sess.written, sess.write_budget)
+        elif not exact and r is not sess.last and _emission_edit(sess, r):
+            same, written, behind = _within_threshold(r.values, sess.written, sess.edit_threshold)
         else:
             same = r.values.unchanged(sess.written)
     problems = playback.apply_arrays(
@@ -777,7 +816,7 @@ def update(scene, view_layer=None, check_geometry=True):
     _finish_preparing(sess)
     if not sess.worker.flush(timeout=None):
         raise LiveError("the Live Relight worker stopped")
-    _deliver(sess, scene)
+    _deliver(sess, scene, exact=True)
     if sess.fatal:
         msg = sess.fatal
         stop(scene)

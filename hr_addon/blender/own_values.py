@@ -81,10 +81,11 @@ from .names import ATTRIBUTE, FACE, FINER, GUARD, N_VALUES, TAG
 
 GROUP_VERSION = 1
 # the subdividing group by faces (SPACING, SCALE) storing FACE, each face finer by the mesh's FINER,
-# its output the helper's mesh while the guard holds (_from_helper), the GUARDS slots skipped when the
-# first is empty; 5: always hashed, 4: without FINER, 3: always subdividing, 2: without FACE, 1: one
-# LEVEL_V1 per object
-FINER_VERSION = 6
+# its output the helper's mesh while the guard holds (_from_helper: GUARD the corners' hashes' sum
+# and variance); 6: GUARD a hash per corner; 5: the GUARDS slots always hashed, 4: without FINER, 3:
+# always subdividing, 2: without FACE, 1: one LEVEL_V1 per object
+FINER_VERSION = 7
+GUARD_DOMAIN = "POINT"  # GUARD's (one value: on each point, read at index 0)
 GUARDED = 4  # the subdividing group's string inputs "Attribute 1" ..: the received mesh's own
 GUARDS = "Attribute"  # attributes its guard hashes too (_guard_names; more: no guard, _helper)
 SPACING = "Spacing"  # the subdividing group's inputs: the spacing (m; 0: no subdivision) and
@@ -297,13 +298,26 @@ def _group(domain, finer=False):
     )
 
 
+def _hashed(node, link, value, seed, kind):
+    """The Hash output of a new Hash Value node (node: a partial _add_node) of value (`kind`),
+    seeded by seed unless None."""
+    h = node("FunctionNodeHashValue", data_type=kind)
+    link(value, h.inputs["Value"])
+    if seed is not None:
+        link(seed, h.inputs["Seed"])
+    return h.outputs["Hash"]
+
+
 def _from_helper(g, nodes, link, gi, subdivided):
     """The subdividing group's output end: the helper's mesh itself (Object Info, Original) while
     the mesh the group receives is the one the helper was made from, else `subdivided` (its faces
-    subdivided, the values stored) with GUARD stored on it. GUARD: a hash per corner of the mesh
-    received (seeded by its domain sizes, SPACING and SCALE: each corner's position, vertex, face,
-    material index, smoothness and the attributes the GUARDS inputs name, if any); the guard holds
-    when the helper's mesh has the same GUARD at every corner index. The helper's mesh is the bake's
+    subdivided, the values stored) with GUARD stored on it. GUARD: the sum and the variance (float32,
+    Attribute Statistic) of a hash per corner of the mesh received (seeded by its domain sizes,
+    SPACING and SCALE: each corner's position, vertex, face, material index, smoothness and the
+    attributes the GUARDS inputs name, if any), on every GUARD_DOMAIN element; the guard holds when
+    the helper's mesh has the same GUARD (version 6: the hashes per corner, compared at every corner
+    index: 1.23 against 1.06 s per write of the baked 100k room, docs/live.md, session 33; an edit
+    goes unseen only if both sums round to the same floats). The helper's mesh is the bake's
     subdivided one (_helper), with the object's materials and its HR_Radiance written every frame:
     the same mesh and values without subdividing again (docs/scale.md, sessions 31-32: a frame
     change at 100k 4.5 -> 1.5 s). An edit after the bake (positions, a deforming modifier or shape
@@ -316,14 +330,7 @@ def _from_helper(g, nodes, link, gi, subdivided):
     if not hasattr(bpy.types, "FunctionNodeHashValue"):  # Blender 4.2 (Hash Value is 4.3's): no
         return made, subdivided  # guard, every evaluation subdivides (no GUARD: helpers never stale)
     node = partial(_add_node, nodes, made)
-
-    def hashed(value, seed, kind):
-        h = node("FunctionNodeHashValue", data_type=kind)
-        link(value, h.inputs["Value"])
-        if seed is not None:
-            link(seed, h.inputs["Seed"])
-        return h.outputs["Hash"]
-
+    hashed = partial(_hashed, node, link)
     received = gi.outputs["Geometry"]
     size = node("GeometryNodeAttributeDomainSize", component="MESH")
     link(received, size.inputs["Geometry"])
@@ -350,32 +357,32 @@ def _from_helper(g, nodes, link, gi, subdivided):
     seed = hashed(node("GeometryNodeFaceOfCorner").outputs["Face Index"], seed, "INT")
     seed = hashed(node("GeometryNodeVertexOfCorner").outputs["Vertex Index"], seed, "INT")
     corner = hashed(node("GeometryNodeInputPosition").outputs[0], seed, "VECTOR")
-    index = node("GeometryNodeInputIndex").outputs[0]
-
-    def at(geometry, field):  # field on geometry's corners, at each corner's index
-        sample = node("GeometryNodeSampleIndex", data_type="INT", domain="CORNER")
-        link(geometry, sample.inputs["Geometry"])
-        link(field, sample.inputs[1])
-        link(index, sample.inputs["Index"])
-        return sample.outputs[0]
-
-    helper = node("GeometryNodeObjectInfo")
-    link(gi.outputs["Values"], helper.inputs["Object"])
-    stored = node("GeometryNodeInputNamedAttribute", data_type="INT")
-    stored.inputs["Name"].default_value = GUARD
-    differ = node("FunctionNodeCompare", data_type="INT", operation="NOT_EQUAL")
-    link(corner, differ.inputs[2])
-    link(at(helper.outputs["Geometry"], stored.outputs["Attribute"]), differ.inputs[3])
+    # one value for the mesh: the sum and the variance of the corners' hashes (as floats), against
+    # the helper's GUARD (the same, stored when the helper's mesh was made). No field sampled from
+    # the helper per corner: that and the per-corner compare were ~40% of the guard's cost (a
+    # write on the baked 100k room: docs/live.md, session 33)
     stat = node("GeometryNodeAttributeStatistic", data_type="FLOAT", domain="CORNER")
     link(received, stat.inputs["Geometry"])
-    link(differ.outputs[0], stat.inputs["Attribute"])
-    holds = node("FunctionNodeCompare", data_type="FLOAT", operation="LESS_THAN")
-    link(stat.outputs["Max"], holds.inputs[0])
-    holds.inputs[1].default_value = 0.5
-    keep = node("GeometryNodeStoreNamedAttribute", data_type="INT", domain="CORNER")
+    link(corner, stat.inputs["Attribute"])
+    got = node("ShaderNodeCombineXYZ")
+    link(stat.outputs["Sum"], got.inputs[0])
+    link(stat.outputs["Variance"], got.inputs[1])
+    got.inputs[2].default_value = 1.0  # (a helper without GUARD reads 0: never the same)
+    helper = node("GeometryNodeObjectInfo")
+    link(gi.outputs["Values"], helper.inputs["Object"])
+    stored = node("GeometryNodeInputNamedAttribute", data_type="FLOAT_VECTOR")
+    stored.inputs["Name"].default_value = GUARD
+    first = node("GeometryNodeSampleIndex", data_type="FLOAT_VECTOR", domain=GUARD_DOMAIN)
+    link(helper.outputs["Geometry"], first.inputs["Geometry"])
+    link(stored.outputs["Attribute"], first.inputs[1])  # (Index 0: one value, not a field per corner)
+    holds = node("FunctionNodeCompare", data_type="VECTOR", operation="EQUAL", mode="ELEMENT")
+    link(got.outputs[0], next(i for i in holds.inputs if i.identifier == "A_VEC3"))
+    link(first.outputs[0], next(i for i in holds.inputs if i.identifier == "B_VEC3"))
+    next(i for i in holds.inputs if i.name == "Epsilon").default_value = 0.0
+    keep = node("GeometryNodeStoreNamedAttribute", data_type="FLOAT_VECTOR", domain=GUARD_DOMAIN)
     keep.inputs["Name"].default_value = GUARD
     link(subdivided, keep.inputs["Geometry"])
-    link(at(received, corner), keep.inputs["Value"])
+    link(got.outputs[0], keep.inputs["Value"])
     switch = node("GeometryNodeSwitch", input_type="GEOMETRY")
     link(holds.outputs[0], switch.inputs["Switch"])
     link(keep.outputs["Geometry"], switch.inputs["False"])
@@ -421,6 +428,14 @@ def _int_attribute(me, name, domain):
     out = np.empty(len(a.data), np.int32)
     a.data.foreach_get("value", out)
     return out
+
+
+def _guard_of(me):
+    """me's GUARD (3 floats: _from_helper), or None."""
+    a = me.attributes.get(GUARD)
+    if a is None or a.domain != GUARD_DOMAIN or a.data_type != "FLOAT_VECTOR" or not len(a.data):
+        return None
+    return np.array(a.data[0].vector, np.float32)
 
 
 def _faces_of(me):
@@ -1108,8 +1123,8 @@ def _helper(obj, depsgraph):
     h = md.get(_socket(md))
     ours = h is not None and h.type == "MESH" and h.get(TAG) == obj.name
     finer = _spacing(md) > 0
-    guard = _int_attribute(ev.data, GUARD, "CORNER") if finer else None
-    held = _int_attribute(h.data, GUARD, "CORNER") if ours and guard is not None else None
+    guard = _guard_of(ev.data) if finer else None
+    held = _guard_of(h.data) if ours and guard is not None else None
     stale = guard is not None and not np.array_equal(guard, held)
     old, unguarded = None, finer and len(_guard_names(obj)) > GUARDED
     if not ours or (len(h.data.loops), len(h.data.vertices)) != n or stale:
