@@ -413,7 +413,7 @@ def by_caller(runs, steps=("build",)):
     for t, r in runs.items():
         recs = [rec for step in steps for rec in r[step]]
         maps = [m for rec in recs for m in rec["maps"]]
-        w = {k: sum(rec[k] for rec in recs) for k in ("wall", "cpu", "thread_cpu")}
+        w = {k: sum(rec.get(k, rec["cpu"]) for rec in recs) for k in ("wall", "cpu", "thread_cpu")}
         w.update(maps_wall=sum(m[3] for m in maps), serial_wall=w["wall"] - sum(m[3] for m in maps))
         if t == "1":  # the serial CPU and the model on 2 and 16 cores (serial + the maps' makespans)
             w["serial_cpu"] = w["thread_cpu"] - sum(m[1] for m in maps)
