@@ -21,8 +21,10 @@ _PLANE_EPS = 1e-12
 COS_FLOOR = 0.05
 # rows per block of point_to_polygon: its temporaries ((rows, 4) per coordinate) stay in the L2
 # cache; every row is its own, so the block size does not change a value (150k rows of the 100k
-# room's exposed-part form factors: 2.5x faster than all rows at once)
-POINT_BLOCK = 4096
+# room's exposed-part form factors: 2.5x faster than all rows at once). 8192 rather than 4096
+# (session 33): a block's numpy calls hold the GIL for their set-up, 30% of its CPU at 4096 rows,
+# 15-20% at 8192, with 7% less CPU (the 20k build's link form factors; docs/threads.md)
+POINT_BLOCK = 8192
 
 
 def _cross(a, b):
