@@ -1,10 +1,11 @@
 /* benchmarks/thread_cpu.py --gil (issue 23, session 33): a thread that reads CPython's GIL "locked"
    flag at random times (0-2 us apart while it has a core) together with the CPU clock of the thread
    that started it (on another core), and adds up that thread's CPU since the last read: all of it,
-   and that followed by a read of 1. The share of the reads that found the GIL held is then the
-   share of that thread's CPU with the GIL held, over any interval the caller reads (long enough to
-   hold many reads: on a loaded machine the sampler gets its core a fraction of the time). Time the
-   thread spends off its core adds no CPU, so the load does not bias the share. No Python API. */
+   and that followed by a read of 1, in steps of at most 50 us of its CPU. The share of the reads
+   that found the GIL held is then the share of that thread's CPU with the GIL held, over any
+   interval the caller reads (long enough to hold many reads: on a loaded machine the sampler gets
+   its core a fraction of the time). Time the thread spends off its core adds no CPU, so the load
+   does not bias the share. No Python API. */
 #define _GNU_SOURCE
 #include <pthread.h>
 #include <sched.h>
@@ -15,6 +16,7 @@ static volatile int running;
 static clockid_t target;
 static _Atomic unsigned long long t_all, t_held;
 static pthread_t th;
+#define MAX_STEP 50000ull /* ns of the measured thread's CPU between two reads */
 static unsigned long long now(void) {
     struct timespec ts;
     clock_gettime(target, &ts);
@@ -28,8 +30,13 @@ static void *loop(void *arg) {
            random times (below), the flag's share of the reads is its share of the CPU */
         unsigned long long c = now();
         int v = *flag;
-        atomic_fetch_add_explicit(&t_all, c - c0, memory_order_relaxed);
-        if (v) atomic_fetch_add_explicit(&t_held, c - c0, memory_order_relaxed);
+        /* only short steps: after a long one (the sampler was off its core) the flag reads as the
+           measured thread left it if that one is off its core too, e.g. preempted at a system
+           call's return with the GIL held: that state would get all of the step's CPU */
+        if (c - c0 < MAX_STEP) {
+            atomic_fetch_add_explicit(&t_all, c - c0, memory_order_relaxed);
+            if (v) atomic_fetch_add_explicit(&t_held, c - c0, memory_order_relaxed);
+        }
         c0 = c;
         /* a random wait of 0-2 us: a fixed period can lock onto a loop's and read one phase of it */
         rnd ^= rnd << 13, rnd ^= rnd >> 7, rnd ^= rnd << 17;
