@@ -13,8 +13,16 @@ caches, the GIL), measured apart for the batches that ran at the same time as an
         [--threads 1,2] [--repeat 4] [--json out.json] [--cpus 0-1] [--root CHECKOUT] [--build]
     OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/thread_cpu.py --store /work/cache/s20main
     taskset -c 0-1 .venv/bin/python benchmarks/thread_cpu.py --dispatch [--root CHECKOUT]
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/thread_cpu.py --build [--size 100k] [--gil]
 
 --root runs another checkout's hr_addon (main's, for a before / after pair).
+
+Per batch also (session 33) the thread's time waiting for a core (Linux's schedstat: the machine's
+other jobs) and blocked (off a core without waiting for one: the GIL held by the other thread);
+--build and --store print them by the maps' callers (the build's stages; the outputs) with each
+map's idle thread-seconds (the tail, the hand-out) and the model of each caller's maps on 2 and 16
+cores (their 1-thread batches' makespans). --gil (1-thread runs): each batch's GIL-held CPU, read
+by benchmarks/gil_sampler.c (compiled with cc; CPython 3.11) on the second core of the affinity.
 """
 
 import argparse
@@ -33,6 +41,47 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 _tl = threading.local()
+_gil = []  # gil_sampler(): (the sampler's library, its counters' buffer) once started
+
+
+def gil_sampler():
+    """Start benchmarks/gil_sampler.c's thread (compiled with cc into a temporary folder) on
+    CPython 3.11's GIL flag, found in _PyRuntime by its neighbours (the switch interval in us, the
+    holder's thread state, locked = 1 while this thread holds it), pinned to the second core of the
+    affinity and this thread to the first. gil_counts() then reads
+    (this thread's CPU ns, those with the GIL held). The sampler spins on a core: for 1-thread runs
+    only (it measures the thread that started it)."""
+    import ctypes
+    import struct
+    import tempfile
+
+    rt = ctypes.addressof(ctypes.c_char.in_dll(ctypes.pythonapi, "_PyRuntime"))
+    ctypes.pythonapi.PyThreadState_Get.restype = ctypes.c_void_p
+    me, iv = ctypes.pythonapi.PyThreadState_Get(), round(sys.getswitchinterval() * 1e6)
+    buf = ctypes.string_at(rt, 1 << 18)
+    at = [o + 16 for o in range(0, len(buf) - 24, 8) if struct.unpack_from("QQi", buf, o) == (iv, me, 1)]
+    if len(at) != 1 or sys.version_info[:2] != (3, 11):
+        raise RuntimeError(f"the GIL's flag not found ({len(at)} candidates, Python {sys.version})")
+    so = Path(tempfile.mkdtemp()) / "gil_sampler.so"
+    cmd = ["cc", "-O2", "-shared", "-fPIC", "-o", so, ROOT / "benchmarks/gil_sampler.c", "-lpthread"]
+    subprocess.run(cmd, check=True)
+    lib = ctypes.CDLL(str(so))
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) < 2:
+        raise RuntimeError("the GIL sampler needs a second core")
+    os.sched_setaffinity(0, cores[:1])  # (this thread only: its batches and serial code run there)
+    if lib.gs_start(ctypes.c_void_p(rt + at[0]), cores[1]):
+        raise RuntimeError("the GIL sampler did not start")
+    _gil.append((lib, (ctypes.c_ulonglong * 2)()))
+
+
+def gil_counts():
+    """(CPU ns, CPU ns with the GIL held) of the thread gil_sampler measures so far; (0, 0) without it."""
+    if not _gil:
+        return (0, 0)
+    lib, out = _gil[0]
+    lib.gs_read(out)
+    return (out[0], out[1])
 
 
 def instrument(maps):
@@ -52,28 +101,65 @@ def instrument(maps):
 
         def timed(k, *a):
             _tl.inside = True
+            fd = os.open("/proc/thread-self/schedstat", os.O_RDONLY) if SCHEDSTAT else None
+            s0, g0 = schedstat(fd), gil_counts()
             t0, w0 = time.thread_time(), time.perf_counter()
             try:
                 return fn(*a)
             finally:
-                dt = time.thread_time() - t0
+                dt, w1 = time.thread_time() - t0, time.perf_counter()
+                s1, g1 = schedstat(fd), gil_counts()
+                if fd is not None:
+                    os.close(fd)
                 _tl.inside = False
+                rq = s1[1] - s0[1]  # waiting for a core (other processes' load)
                 with lock:
                     secs.append(dt)
                     off.append(threading.current_thread() is not caller)
-                    each.append((k, threading.get_ident(), w0, time.perf_counter(), dt))
+                    # blocked: off a core and not waiting for one (the GIL, a lock)
+                    blocked = max(w1 - w0 - (s1[0] - s0[0]) - rq, 0.0)
+                    # held: the batch's CPU times the GIL-held share of its samples (gil_sampler)
+                    held = dt * (g1[1] - g0[1]) / max(g1[0] - g0[0], 1)
+                    each.append((k, threading.get_ident(), w0, w1, dt, rq, blocked, held))
 
         f = sys._getframe(1)
         where = f"{Path(f.f_code.co_filename).stem}.{f.f_code.co_name}"
         c0, w0 = time.process_time(), time.perf_counter()
         out = orig(timed, [(k, *b) for k, b in enumerate(batches)], threads, progress, poll)
         cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-        maps.append((len(secs), sum(secs), cpu, wall, where, sum(off), sorted(each)))
+        each.sort()
+        used = 1 if parallel.in_worker() else parallel.resolve_threads(threads)
+        busy = sum(b[3] - b[2] for b in each)
+        extra = dict(
+            rq=sum(b[5] for b in each),
+            blocked=sum(b[6] for b in each),
+            held=sum(b[7] for b in each),
+            # the map's thread-seconds outside its batches: the tail (a thread with no batch left),
+            # the hand-out, the worker's start
+            idle=max(min(used, len(each)) * wall - busy, 0.0),
+            # the map modelled on 2 and 16 cores from its batches' CPU (parallel.makespan)
+            mk2=parallel.makespan([x[4] for x in each], 2),
+            mk16=parallel.makespan([x[4] for x in each], 16),
+            threads=min(used, len(each)),
+        )
+        maps.append((len(secs), sum(secs), cpu, wall, where, sum(off), each, extra))
         return out
 
     for name, mod in list(sys.modules.items()):
         if name.startswith("hr_addon") and getattr(mod, "batch_map", None) is orig:
             mod.batch_map = wrapped
+
+
+SCHEDSTAT = Path("/proc/thread-self/schedstat").exists()
+
+
+def schedstat(fd):
+    """(seconds on a core, seconds waiting for one) of the calling thread (Linux's schedstat:
+    the wall time beyond both is time blocked, e.g. waiting for the GIL); zeros elsewhere."""
+    if fd is None:
+        return (0.0, 0.0)
+    run, wait = os.pread(fd, 64, 0).split()[:2]
+    return int(run) * 1e-9, int(wait) * 1e-9
 
 
 def task_cpu():
@@ -148,10 +234,11 @@ def build(threads, size="100k", quality="draft"):
 def measured(maps, fn):
     """fn() with its CPU (user, system), wall, faults, switches, the machine's VMSTAT counters and
     the outermost maps it ran (instrument's records)."""
-    m0, u0, c0, w0 = len(maps), usage(), time.process_time(), time.perf_counter()
+    m0, u0, c0, w0, t0 = len(maps), usage(), time.process_time(), time.perf_counter(), time.thread_time()
     fn()
     u = usage() - u0
     rec = dict(cpu=time.process_time() - c0, wall=time.perf_counter() - w0, user=u[0], sys=u[1])
+    rec["thread_cpu"] = time.thread_time() - t0  # the calling thread's (--gil: without the sampler's)
     rec.update(minflt=int(u[2]), nvcsw=int(u[3]), nivcsw=int(u[4]), maps=maps[m0:])
     rec.update({k: int(v) for k, v in zip(VMSTAT + IRQS, u[5:-1])})
     # the CPU other processes took meanwhile (/proc/stat, 10 ms ticks): 0 on an idle machine
@@ -289,12 +376,12 @@ def contention(runs, busy=0.8):
                 if len(m2) < 7 or len(m1) < 7 or m2[0] != m1[0]:
                     continue
                 cpu1 = {b[0]: b[4] for b in m1[6]}
-                for k, tid, w0, w1, c in m2[6]:
+                for k, tid, w0, w1, c, *_ in m2[6]:
                     wall = max(w1 - w0, 1e-9)
                     if c / wall < busy:
                         continue
                     cover = 0.0
-                    for _, t2, v0, v1, c2 in m2[6]:
+                    for _, t2, v0, v1, c2, *_ in m2[6]:
                         if t2 != tid and c2 / max(v1 - v0, 1e-9) >= busy:
                             cover += max(0.0, min(w1, v1) - max(w0, v0))
                     cls = (
@@ -314,6 +401,38 @@ def contention(runs, busy=0.8):
     }
 
 
+def by_caller(runs, steps=("build",)):
+    """Per caller of the outermost maps of `steps` (the build's stages; --store: the outputs), per
+    thread count: maps, batches, the batches' CPU, and on N threads where the N cores' time in the
+    maps went besides the batches' CPU: waiting for a core (rq: the machine's other jobs), blocked
+    inside a batch (the GIL: another thread's batch running Python), idle (a thread with no batch
+    left: the tail, the hand-out); --gil: the batches' GIL-held CPU; the maps modelled on 2 and 16
+    cores (makespans of their 1-thread batches). Also the steps' wall, CPU, serial wall (outside
+    the maps) and, on 1 thread, serial CPU and the model of the whole (serial + makespans)."""
+    rows, whole = {}, {}
+    for t, r in runs.items():
+        recs = [rec for step in steps for rec in r[step]]
+        maps = [m for rec in recs for m in rec["maps"]]
+        w = {k: sum(rec.get(k, rec["cpu"]) for rec in recs) for k in ("wall", "cpu", "thread_cpu")}
+        w.update(maps_wall=sum(m[3] for m in maps), serial_wall=w["wall"] - sum(m[3] for m in maps))
+        if t == "1":  # the serial CPU and the model on 2 and 16 cores (serial + the maps' makespans)
+            w["serial_cpu"] = w["thread_cpu"] - sum(m[1] for m in maps)
+            for c in (2, 16):
+                mk = sum(m[-1].get(f"mk{c}", 0.0) for m in maps if isinstance(m[-1], dict))
+                w[f"model{c}"] = w["thread_cpu"] / (w["serial_cpu"] + mk)
+        whole[t] = w
+        for m in maps:
+            x = m[-1] if isinstance(m[-1], dict) else {}
+            row = rows.setdefault(m[4], {}).setdefault(t, dict.fromkeys(CALLER_COLS, 0.0))
+            keys = ("rq", "blocked", "idle", "held", "mk2", "mk16")
+            for c, v in zip(CALLER_COLS, (1, m[0], m[1], m[3], *(x.get(k, 0.0) for k in keys))):
+                row[c] += v
+    return rows, whole
+
+
+CALLER_COLS = ("maps", "batches", "batch_cpu", "wall", "rq", "blocked", "idle", "gil_held", "mk2", "mk16")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--system", default=None, help="bench_threads.py's --system folder (events)")
@@ -323,6 +442,10 @@ def main(argv=None):
     ap.add_argument("--json", default=None)
     ap.add_argument("--root", default=str(ROOT), help="the checkout whose hr_addon runs")
     ap.add_argument("--build", action="store_true", help="the build instead of the events")
+    ap.add_argument("--size", default="100k", help="the room of --build")
+    ap.add_argument(
+        "--gil", action="store_true", help="1-thread runs: the batches' GIL-held CPU (gil_sampler)"
+    )
     ap.add_argument("--store", default=None, help="a stored 100k precompute's folder (stored())")
     ap.add_argument("--dispatch", action="store_true", help="batch_map's own CPU per map (dispatch())")
     ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
@@ -333,17 +456,24 @@ def main(argv=None):
         return
     if args.child is not None:
         sys.path.insert(0, args.root)
+        if args.gil and args.child == 1:
+            gil_sampler()
         if args.store:
             print(json.dumps(stored(args.store, args.child)))
         else:
             print(
-                json.dumps(build(args.child) if args.build else child(args.system, args.child, args.repeat))
+                json.dumps(
+                    build(args.child, args.size)
+                    if args.build
+                    else child(args.system, args.child, args.repeat)
+                )
             )
         return
     runs = {}
     for t in args.threads.split(","):
         cmd = ["taskset", "-c", args.cpus, sys.executable, __file__]
-        cmd += ["--repeat", str(args.repeat), "--root", args.root, "--child", t] + ["--build"] * args.build
+        cmd += ["--repeat", str(args.repeat), "--root", args.root, "--child", t]
+        cmd += ["--build", "--size", args.size] * args.build + ["--gil"] * args.gil
         cmd += ["--system", args.system] if args.system else []
         cmd += ["--store", args.store] if args.store else []
         print(f"{t} thread(s), load {os.getloadavg()[0]:.2f}", flush=True)
@@ -356,7 +486,7 @@ def main(argv=None):
         for r in runs.values():
             for recs in r.values():
                 for rec in recs if isinstance(recs, list) else ():
-                    rec["maps"] = [m[:6] for m in rec["maps"]]
+                    rec["maps"] = [[*m[:6], *m[7:]] for m in rec["maps"]]
         Path(args.json).write_text(json.dumps(dict(runs=runs, summary=rows, contention=cont)))
     cols = (
         "first_cpu",
@@ -387,6 +517,20 @@ def main(argv=None):
         print(sorted((round(c, 2), n) for n, c in r["tasks"].values() if not n.endswith("(main)")))
     if cont:
         print("batches' CPU, 2 threads / 1:", cont)
+    if args.build or args.store:
+        steps = ("build",) if args.build else [k for k in runs[ks[0]] if k.endswith("output")]
+        rows, whole = by_caller(runs, steps)
+        print(f"the maps of {', '.join(steps)} by caller, per thread count (s):")
+        print(f"{'caller':34s}{'thr':>4s}" + "".join(f"{c:>10s}" for c in CALLER_COLS))
+        for where, by in sorted(rows.items(), key=lambda kv: -kv[1][ks[0]]["batch_cpu"]):
+            for t in ks:
+                print(f"{where[:34]:34s}{t:>4s}" + "".join(f"{by[t][c]:10.3f}" for c in CALLER_COLS))
+        for t in ks:
+            print(f"all of them, {t} thread(s):", {k: round(v, 3) for k, v in whole[t].items()})
+        if args.json:
+            data = json.loads(Path(args.json).read_text())
+            data.update(by_caller=rows, whole=whole)
+            Path(args.json).write_text(json.dumps(data))
 
 
 if __name__ == "__main__":

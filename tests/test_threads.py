@@ -310,6 +310,35 @@ def test_build_with_one_and_two_threads_gives_identical_links(small_batches):
     assert not _workers()
 
 
+def test_spans_cover_the_items_in_batches_that_grow_with_the_count_only():
+    """parallel.spans: consecutive ranges over 0..n, of `step` items (up to 4 x step in large
+    maps, 16 batches at least), the same for any thread count (they depend on n alone)."""
+    for n in (0, 1, 96, 16 * 97, 16 * 97 + 1, 40 * 97, 10_000):
+        r = parallel.spans(n, 97)
+        assert [a for a, _ in r] == [0, *(b for _, b in r)][: len(r)] and (not r or r[-1][1] == n)
+        assert len({b - a for a, b in r[:-1]}) <= 1 and all(97 <= b - a <= 4 * 97 for a, b in r[:-1])
+    assert len(parallel.spans(16 * 97, 97)) == 16 and len(parallel.spans(100 * 97, 97)) == 25
+
+
+def test_build_links_do_not_depend_on_the_batch_sizes(monkeypatch):
+    """The furnished room's build with the product's batch sizes (most of the 2k room's maps in one
+    batch) and with small ones (many batches; point_to_polygon in blocks of 100 rows): every link's
+    and pair's values are its own, so the links, the hierarchy and the contacts are bitwise equal."""
+    from hr_addon.core import farlinks, refine
+    from hr_addon.core import formfactor as ff
+    from hr_testing.furnished import furnished_room
+
+    mesh = furnished_room("2k")[0]
+    s1 = RadiositySystem(mesh, RefineParams.for_gather("draft"))
+    monkeypatch.setattr(refine, "LINK_BATCH", 97)
+    monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
+    monkeypatch.setattr(ff, "POINT_BLOCK", 100)
+    s2 = RadiositySystem(mesh, RefineParams.for_gather("draft"))
+    assert len(s1.links) > 10 * 4 * refine.LINK_BATCH and len(s1.links.far) > 10 * 4 * farlinks.PAIR_BATCH
+    for x, y in zip(_links(s1), _links(s2), strict=True):
+        assert np.array_equal(x, y)
+
+
 def test_furnished_gather_samples_with_one_and_two_threads_are_equal(small_batches, monkeypatch):
     """The furnished room (contacts): the corner samples (buried ones moved: the covered test and
     the back-face rays by batches of samples), the samples put onto their patches, the patches

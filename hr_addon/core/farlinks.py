@@ -23,7 +23,7 @@ from .cluster import (
     visibility_points,
 )
 from .formfactor import dot3, row_range, unoccluded_share
-from .parallel import add_counts, batch_map, ranges
+from .parallel import add_counts, batch_map, ranges, spans
 
 
 class FarLinks:
@@ -227,7 +227,7 @@ CHUNK = 200_000
 # the thread count
 TERMS_CHUNK = 8192
 # pairs per batch of the oracle and the shadow tests on threads (core.parallel): fixed, so the links
-# do not depend on the thread count
+# do not depend on the thread count (up to 4x as many pairs per batch in large maps: parallel.spans)
 PAIR_BATCH = 1 << 13
 # benchmarks/far_vis_check.py --all-links: keep the far links traced wholly occluded (they carry no
 # transfer: mask or scale 0), so that every far link's traced visibility can be set against a dense one
@@ -294,7 +294,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
         table.update()  # the nodes subdivided by the last round (here, not on the threads)
         parts = batch_map(
             lambda i, j: _classify(refiner, tree, a[i:j], b[i:j], table, lit),
-            ranges(len(a), PAIR_BATCH),
+            spans(len(a), PAIR_BATCH),
             refiner.threads,
         )
         cols = (np.concatenate(x) for x in zip(*parts))
@@ -337,7 +337,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
                 refiner, tree, fa_[t], fb_[t], ff_[t] < prm.shadow_feps, table
             )
 
-        batch_map(shadows, ranges(len(todo), PAIR_BATCH), refiner.threads)
+        batch_map(shadows, spans(len(todo), PAIR_BATCH), refiner.threads)
         # The oracle keeps a strong link when its 16 segments read wholly visible or wholly
         # occluded, and splits it otherwise: a link kept on "1" keeps 1 (where its children's
         # fresh estimates would average its true visibility), one on "0" is dropped, so the
@@ -353,7 +353,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             t = again[i:j]
             fv[t], fm[t], fs[t] = far_visibility(refiner, tree, fa_[t], fb_[t], None, table, second=True)
 
-        batch_map(retrace, ranges(len(again), PAIR_BATCH), refiner.threads)
+        batch_map(retrace, spans(len(again), PAIR_BATCH), refiner.threads)
         keep = fv > 0 if not KEEP_OCCLUDED else fv >= 0
         links = FarLinks(
             tree,

@@ -21,8 +21,11 @@ _PLANE_EPS = 1e-12
 COS_FLOOR = 0.05
 # rows per block of point_to_polygon: its temporaries ((rows, 4) per coordinate) stay in the L2
 # cache; every row is its own, so the block size does not change a value (150k rows of the 100k
-# room's exposed-part form factors: 2.5x faster than all rows at once)
-POINT_BLOCK = 4096
+# room's exposed-part form factors: 2.5x faster than all rows at once). 8192 rather than 4096
+# (session 33): a block's numpy calls hold the GIL for their set-up, the same per block, so less
+# per row (the 20k build's point_to_polygon: GIL-held 0.21 -> 0.11 s, CPU 0.69 -> 0.64 s, one
+# run each; docs/threads.md)
+POINT_BLOCK = 8192
 
 
 def _cross(a, b):

@@ -126,6 +126,15 @@ def ranges(n, step):
     return [(a, min(a + step, n)) for a in range(0, n, step)]
 
 
+def spans(n, step, count=16, grow=4):
+    """ranges(n, s) with s between `step` and grow x step: the largest that still leaves `count`
+    batches (16 cores' worth: docs/threads.md's model). A build batch's numpy calls hold the GIL
+    for their set-up, 10-27% of its CPU at 2^13 items (docs/threads.md, session 33): a large map
+    takes fewer, larger calls, a small one keeps `step`. s depends on n only, never on the thread
+    count."""
+    return ranges(n, min(max(-(-n // count), step), grow * step))
+
+
 def in_worker():
     """True inside a batch of a threaded batch map (in a worker or in the calling thread)."""
     return getattr(_local, "worker", False)

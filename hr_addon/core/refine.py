@@ -20,7 +20,7 @@ from .boxes import sorted_index
 from .corrections import push_corrections
 from .hierarchy import Hierarchy
 from .links import Links
-from .parallel import add_counts, batch_map, ranges
+from .parallel import add_counts, batch_map, ranges, spans
 from .params import RefineParams
 from .planes import Occluders
 from .progress import NO_PROGRESS
@@ -38,7 +38,8 @@ __all__ = [
 
 CHUNK = 100_000  # node pairs processed at once
 # links per batch of the final form factors and shadow tests on threads (core.parallel): fixed, so
-# the values do not depend on the thread count; small enough that a 10k-triangle room has many
+# the values do not depend on the thread count; small enough that a 10k-triangle room has many (up
+# to 4x as many links per batch in large maps: parallel.spans)
 LINK_BATCH = 1 << 13
 # patch links' visibility from the segments that leave both points in front (visibility())
 FRONT_ONLY = True
@@ -436,7 +437,7 @@ class Refiner:
                 else:
                     f_ba[mm], f_ab[mm] = fx, fy
 
-            batch_map(batch, ranges(len(m), chunk), self.threads)
+            batch_map(batch, spans(len(m), chunk), self.threads)
 
     def _exposed_ff(self, k, x, y):
         """F from the exposed part of partly covered nodes x (k: their index in _vis_nodes) to
@@ -524,7 +525,7 @@ class Refiner:
             # the oracle by batches of pairs on threads (each pair on its own), then the splits
             parts = batch_map(
                 lambda i, j: self._oracle(p[i:j], q[i:j], kv[i:j], good_enough, aeps, tol),
-                ranges(len(p), LINK_BATCH),
+                spans(len(p), LINK_BATCH),
                 self.threads,
             )
             p, q, vis, link, split_p, split_q = (np.concatenate(x) for x in zip(*parts))
@@ -611,7 +612,7 @@ class Refiner:
         def form_factors(i, j):  # every batch writes its own links
             f_ab[i:j], f_ba[i:j] = link_form_factors(self.h, a[i:j], b[i:j], self.params.ff_order)
 
-        batch_map(form_factors, ranges(len(a), LINK_BATCH), self.threads)
+        batch_map(form_factors, spans(len(a), LINK_BATCH), self.threads)
         self._exposed_form_factors(a, b, f_ab, f_ba)
         self.stats["t_ff"] += time.perf_counter() - t0
         # links too weak to need a shadow test need no more than a few rays either
@@ -633,8 +634,8 @@ class Refiner:
             vis[t], rays = self._unsplit_visibility(a[t], b[t])
             add_counts(self.stats, rays=rays, unsplit_links=len(t), t_vis=time.perf_counter() - t0)
 
-        batch_map(shadows, ranges(len(todo), LINK_BATCH), self.threads)
-        batch_map(unsplit_shadows, ranges(len(unsplit), LINK_BATCH), self.threads)
+        batch_map(shadows, spans(len(todo), LINK_BATCH), self.threads)
+        batch_map(unsplit_shadows, spans(len(unsplit), LINK_BATCH), self.threads)
         keep = (vis > 0 if not KEEP_OCCLUDED else vis >= 0) & ((f_ab > 0) | (f_ba > 0))
         return Links(a[keep], b[keep], f_ab[keep], f_ba[keep], vis[keep])
 
