@@ -31,6 +31,12 @@ TEST_BATCH = 1 << 14  # candidate texels per batch of texel_samples' test (each 
 # 85 / 76%, 0.30 82 / 78%, 0.25 83 / 79% (docs/accuracy.md, session 24, vx27).
 INSET = 0.5
 OUTPUT_INSET = 0.36
+# LoopGather on an output layout: faces ELONGATED x longer than wide and longer than ELONGATED_MIN
+# (m), which the spacing left whole (a bottle's 24 cm side 1.6 cm wide), get corner_fit's extra
+# samples along them and keep their light's mean (a shadow's edge across a third of one read -20%
+# with its two corner rows; docs/accuracy.md, session 33). 0: off
+ELONGATED = 4.0
+ELONGATED_MIN = 0.1
 FIT = True  # LoopGather's default: the cut faces' corners shifted to keep their light (corner_fit)
 SPLIT = True  # with FIT: faces part open, part in a slot too (slot_split); False: before 2026-12-05
 
@@ -684,15 +690,21 @@ class LoopGather(FinalGather):
         if self.fit:
             pt = lay.patches
             reach = probe_reach(s)
-            cut = np.flatnonzero(cut_patches(s, reach=reach, layout=output))
-            xp, row = corner_fit.extra_points(pt.corners[cut], pt.nv[cut])
-            seen = ~_buried(s, xp, lay.transport(cut[row], xp), reach)  # the cut patches' visible part only
-            xp, xpatch = xp[seen], cut[row[seen]]
-            skip = np.zeros(len(pt.nv), bool)
-            skip[cut] = True
+            skip = cut_patches(s, reach=reach, layout=output)
             sp, spatch, sw, (rows, *area), self.split_mean = slot_split(
                 s, skip if SPLIT else np.ones_like(skip), layout=output
             )
+            cut = skip.copy()
+            if output is not None and ELONGATED > 0:
+                # the faces left whole (their transport polygon's only one), not the slots' split
+                # patches (strata of their own)
+                whole = np.bincount(output.poly)[output.poly] == 1
+                cut |= corner_fit.elongated(pt.corners, pt.nv, ELONGATED, ELONGATED_MIN) & whole[pt.poly]
+                cut[spatch] = skip[spatch]
+            cut = np.flatnonzero(cut)
+            xp, row = corner_fit.extra_points(pt.corners[cut], pt.nv[cut])
+            seen = ~_buried(s, xp, lay.transport(cut[row], xp), reach)  # the cut patches' visible part only
+            xp, xpatch = xp[seen], cut[row[seen]]
             self.extra_weight = np.r_[np.ones(len(pts) + len(xp)), sw]
             if len(rows):
                 kw["slot_area"] = (len(pts) + len(xp) + rows, *area)
