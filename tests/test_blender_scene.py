@@ -263,11 +263,33 @@ def _assert_same_mesh(got, want):
         a, b = getattr(got, f), getattr(want, f)
         assert a.dtype == b.dtype and np.array_equal(a, b), f
     assert got.object_names == want.object_names
-    for f in ("tri_loops", "face_group"):
+    for f in ("tri_loops", "face_group", "flat"):
         a, b = getattr(got, f), getattr(want, f)
         assert (a is None) == (b is None), f
         if a is not None:
             assert a.dtype == b.dtype and np.array_equal(a, b), f
+
+
+def test_flat_shaded_faces_are_read_as_flat(env):
+    """MeshInput.flat (session 33, branch vtxroom): the polygons a render shades flat (sharp_face),
+    per polygon in the joined mesh; none flat: None (as before)."""
+    bpy, ms, scene = env
+    grey = ms.diffuse("Grey", (0.5,) * 3)
+    a = ms.mesh_object("A", *QUAD, grey)
+    b = ms.mesh_object(
+        "B",
+        [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (2, 1, 0)],
+        [[0, 1, 2, 3], [1, 4, 5, 2]],
+        grey,
+        location=(0, 3, 0),
+    )
+    for ob in (a, b):
+        ob.data.shade_smooth()
+    assert _collect(bpy).mesh.flat is None
+    b.data.polygons[1].use_smooth = False
+    si = _collect(bpy)
+    assert si.mesh.object_names == ["A", "B"]
+    assert si.mesh.flat.tolist() == [False, False, True]
 
 
 def test_parts_joined_in_one_pass_equal_the_concat_fold(tmp_path, monkeypatch):
@@ -287,13 +309,16 @@ def test_parts_joined_in_one_pass_equal_the_concat_fold(tmp_path, monkeypatch):
     assert len(seen) == 1 and len(seen[0]) > 800
     rng = np.random.default_rng(3)
 
-    def part(k, tri, face):
+    def part(k, tri, face, flat=False):
         polys = [[0, 1, 2, 3], [1, 4, 2]]
         m = MeshInput.from_polygons(rng.random((5, 3)), polys, rng.random((2, 3)), object_names=[f"o{k}"])
         m.tri_loops = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6]], np.int32) if tri else None
         m.face_group = np.array([0, 0], np.int32) if face else None
+        m.flat = np.array([True, False]) if flat else None
         return m
 
-    made = [part(k, tri, face) for k, (tri, face) in enumerate([(0, 0), (1, 0), (0, 1), (1, 1), (0, 0)])]
+    made = [
+        part(k, tri, face, k == 3) for k, (tri, face) in enumerate([(0, 0), (1, 0), (0, 1), (1, 1), (0, 0)])
+    ]
     for parts in seen + [made, made[:1], made[:2], [made[0], made[4]], made[2:]]:
         _assert_same_mesh(real(parts), _fold(parts))

@@ -97,6 +97,17 @@ def _face_attribute(me):
     return face.astype(np.int64)
 
 
+def _flat_faces(me):
+    """(P,) bool: the evaluated mesh's polygons shaded flat (sharp_face), or None (none is): their
+    corners' light is their own (MeshInput.flat)."""
+    a = me.attributes.get("sharp_face")
+    if a is None or a.domain != "FACE" or a.data_type != "BOOLEAN" or not len(me.polygons):
+        return None
+    flat = np.empty(len(me.polygons), bool)
+    a.data.foreach_get("value", flat)
+    return flat if flat.any() else None
+
+
 def _user_faces(me, face=False):
     """(P,) the first polygon of the user's face each polygon of an evaluated mesh came from (the
     FACE attribute Vertex Spacing's group stores, own_values), or None (each polygon its own).
@@ -537,8 +548,8 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
         me = ob.data
         key = (me.as_pointer(), me.name)
         if key not in meshes:
-            meshes[key] = _mesh_arrays(me), _user_faces(me)
-        arrays, faces = meshes[key]
+            meshes[key] = _mesh_arrays(me), _user_faces(me), _flat_faces(me)
+        arrays, faces, flat = meshes[key]
         if len(arrays[1]) == 0:
             continue
         if digests is not None:
@@ -549,7 +560,7 @@ def collect_instances(view_layer, depsgraph, mat_cache, warnings, digests=None, 
         i.count += 1
         i.polygons = len(arrays[1])
         part, _ = _mesh_input(em, f"{label}#{i.count}", warnings, mat_cache)
-        part.face_group = faces
+        part.face_group, part.flat = faces, flat
         parts.append(part)
     return parts, info
 
@@ -631,8 +642,8 @@ def collect_geometry_steps(view_layer, depsgraph, vertex_output=True, transport=
     instancers = {i.instancer for i in inst_info.values()}
     nloop = nvert = 0
     for oid, obj in enumerate(objs):
-        ob, (arrays, (faces, raw)) = evaluated(
-            obj, depsgraph, lambda me: (_mesh_arrays(me), _user_faces(me, face=True))
+        ob, (arrays, (faces, raw), flat) = evaluated(
+            obj, depsgraph, lambda me: (_mesh_arrays(me), _user_faces(me, face=True), _flat_faces(me))
         )
         mats = [s.material for s in ob.material_slots] or [None]
         em = _placed(arrays, ob.matrix_world, mats)
@@ -642,7 +653,7 @@ def collect_geometry_steps(view_layer, depsgraph, vertex_output=True, transport=
             continue
         signatures[obj.name] = _object_digest(ob, arrays, digest_cache).hexdigest()
         part, perm = _mesh_input(em, obj.name, warnings, mat_cache)
-        part.face_group = faces
+        part.face_group, part.flat = faces, flat
         parts.append(part)
         user = None
         if obj.name in coarse:  # the transport's part: the mesh before the subdivision
@@ -754,4 +765,5 @@ def _joined_parts(parts):
         cat([p.face_groups() + op[i] if i else p.face_groups() for i, p in enumerate(parts)])
         if faces
         else None,
+        cat([p.flats() for p in parts]) if any(p.flat is not None for p in parts) else None,
     )

@@ -368,18 +368,22 @@ def precompute_key(mesh, params, gather, texels=None, output=None):
     the lightmaps `texels` describes: {object name: "resolution px, uv digest"}). Not the method
     nor the light: every method starts from the same RadiositySystem and gather, and a light event
     changes neither (DynamicRadiosity grows its own nodes past them)."""
+    import hashlib
+
+    import numpy as np
+
     from ..io import precompute as pc
 
     stage = "off" if gather is None else ("texture" if texels is not None else "vertex")
     extra = {f"lightmap.{k}": v for k, v in (texels or {}).items()}
     if output is not None:  # the vertex output on a finer mesh (make_gather's output): its digest
-        import hashlib
         import json
-
-        import numpy as np
 
         out_mesh, poly = output
         d = hashlib.sha256(json.dumps(pc.mesh_signatures(out_mesh), sort_keys=True).encode())
         d.update(np.ascontiguousarray(poly, np.int64).tobytes())
         extra["vertex_output_mesh"] = d.hexdigest()[:16]
+    flat = (mesh if output is None else output[0]).flat
+    if stage == "vertex" and flat is not None and np.any(flat):  # its corners' averages (layouts.FLAT_ANGLE)
+        extra["vertex_flat"] = hashlib.sha256(np.packbits(np.asarray(flat, bool)).tobytes()).hexdigest()[:16]
     return pc.expected(mesh, params, gather=gather, final_gather=stage, **extra)

@@ -34,6 +34,9 @@ class MeshInput:
     # Optional (P,) per polygon the first polygon of the user's face it was subdivided from (Vertex
     # Spacing: the finer faces of one face share its orientation check's votes); None: its own.
     face_group: np.ndarray = None
+    # Optional (P,) bool per polygon: shaded flat (Blender's sharp_face), its light its own (the
+    # vertex output averages its corners only with polygons in its own plane); None: all smooth.
+    flat: np.ndarray = None
 
     @staticmethod
     def from_polygons(verts, polys, reflectance, emission=None, object_id=None, object_names=None):
@@ -81,7 +84,14 @@ class MeshInput:
             None
             if self.face_group is None and other.face_group is None
             else np.concatenate([self.face_groups(), other.face_groups() + len(self.loop_start)]),
+            None
+            if self.flat is None and other.flat is None
+            else np.concatenate([self.flats(), other.flats()]),
         )
+
+    def flats(self):
+        """flat, or no polygon flat."""
+        return np.zeros(len(self.loop_start), bool) if self.flat is None else np.asarray(self.flat, bool)
 
     def face_groups(self):
         """face_group, or each polygon its own."""

@@ -75,6 +75,15 @@ def extra_points(corners, nv, n=EXTRA):
     return np.concatenate(pts), np.concatenate(rows)
 
 
+def elongated(corners, nv, ratio, longest):
+    """(K,) bool: patches whose longest edge is more than `ratio` x their shortest and `longest` (m)."""
+    c = np.asarray(corners, np.float64)
+    e = np.linalg.norm(np.roll(c, -1, 1) - c, axis=2)
+    e[:, 2] = np.where(nv == 4, e[:, 2], e[:, 3])  # (a triangle's corner 3 repeats its corner 2)
+    hi, lo = e.max(1), e.min(1)
+    return (hi > longest) & (hi > ratio * lo)
+
+
 def mean_weights(corners, nv):
     """(K, 4) the mean over each patch of its linear interpolant per unit corner value (quads as
     the triangles (0, 1, 2) and (0, 2, 3): corners 0 and 2 a third each, 1 and 3 a third of their

@@ -32,6 +32,12 @@ TEST_BATCH = 1 << 14  # candidate texels per batch of texel_samples' test (each 
 # 85 / 76%, 0.30 82 / 78%, 0.25 83 / 79% (docs/accuracy.md, session 24, vx27).
 INSET = 0.5
 OUTPUT_INSET = 0.36
+# LoopGather on an output layout: faces ELONGATED x longer than wide and longer than ELONGATED_MIN
+# (m), which the spacing left whole (a bottle's 24 cm side 1.6 cm wide), get corner_fit's extra
+# samples along them and keep their light's mean (a shadow's edge across a third of one read -20%
+# with its two corner rows; docs/accuracy.md, session 33). 0: off
+ELONGATED = 4.0
+ELONGATED_MIN = 0.1
 FIT = True  # LoopGather's default: the cut faces' corners shifted to keep their light (corner_fit)
 SPLIT = True  # with FIT: faces part open, part in a slot too (slot_split); False: before 2026-12-05
 
@@ -151,9 +157,15 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
     # by steps of pairs: their polygons' normals, (pairs, 3) each, held whole were 0.34 GB at the
     # 100k vertex bake's 7.1 M pairs (each pair's own product: the same flags)
     ok, cos_min = np.empty(len(li), bool), np.cos(np.radians(smooth_angle))
+    # a flat-shaded polygon (MeshInput.flat) shows its own light, as a render shades it: averaged
+    # only with polygons in its plane (a flat 16-sided cup's lit side read 4-12% dark, each face
+    # averaged with its less lit neighbours 22.5 degrees round; docs/accuracy.md, session 33)
+    flat = None if mesh.flat is None else mesh.flats()
+    cos_flat = np.cos(np.radians(FLAT_ANGLE))
     for s0 in range(0, len(li), PAIR_STEP):
         a, b = loop_poly[li[s0 : s0 + PAIR_STEP]], loop_poly[lj[s0 : s0 + PAIR_STEP]]
-        ok[s0 : s0 + PAIR_STEP] = np.einsum("ij,ij->i", pn[a], pn[b]) >= cos_min
+        lim = cos_min if flat is None else np.where(flat[a] | flat[b], max(cos_flat, cos_min), cos_min)
+        ok[s0 : s0 + PAIR_STEP] = np.einsum("ij,ij->i", pn[a], pn[b]) >= lim
     valid = lpatch >= 0
     vl = np.flatnonzero(valid)
     p = np.asarray(mesh.verts, float)[np.asarray(mesh.loop_verts)]
@@ -216,6 +228,7 @@ def loop_samples(system, smooth_angle=30.0, inset=None, nudge=1e-3, layout=None)
     return pts, nrm, patch, loop_index, None
 
 
+FLAT_ANGLE = 1.0  # loop_samples: flat-shaded polygons' corners averaged with polygons this close in angle
 PAIR_STEP = 1 << 20  # loop_samples: pairs of loops whose polygons' normals are compared at a time
 
 # _uncover: where a corner's sample may move, as fractions of the way from the corner to its
@@ -678,15 +691,21 @@ class LoopGather(FinalGather):
         if self.fit:
             pt = lay.patches
             reach = probe_reach(s)
-            cut = np.flatnonzero(cut_patches(s, reach=reach, layout=output))
-            xp, row = corner_fit.extra_points(pt.corners[cut], pt.nv[cut])
-            seen = ~_buried(s, xp, lay.transport(cut[row], xp), reach)  # the cut patches' visible part only
-            xp, xpatch = xp[seen], cut[row[seen]]
-            skip = np.zeros(len(pt.nv), bool)
-            skip[cut] = True
+            skip = cut_patches(s, reach=reach, layout=output)
             sp, spatch, sw, (rows, *area), self.split_mean = slot_split(
                 s, skip if SPLIT else np.ones_like(skip), layout=output
             )
+            cut = skip.copy()
+            if output is not None and ELONGATED > 0:
+                # the faces left whole (their transport polygon's only one), not the slots' split
+                # patches (strata of their own)
+                whole = np.bincount(output.poly)[output.poly] == 1
+                cut |= corner_fit.elongated(pt.corners, pt.nv, ELONGATED, ELONGATED_MIN) & whole[pt.poly]
+                cut[spatch] = skip[spatch]
+            cut = np.flatnonzero(cut)
+            xp, row = corner_fit.extra_points(pt.corners[cut], pt.nv[cut])
+            seen = ~_buried(s, xp, lay.transport(cut[row], xp), reach)  # the cut patches' visible part only
+            xp, xpatch = xp[seen], cut[row[seen]]
             self.extra_weight = np.r_[np.ones(len(pts) + len(xp)), sw]
             if len(rows):
                 kw["slot_area"] = (len(pts) + len(xp) + rows, *area)
