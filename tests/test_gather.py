@@ -1298,3 +1298,31 @@ def test_probe_rays_set_the_reused_rows_rays(monkeypatch):
     dyn = DynamicRadiosity(s.copy(), method="FE")
     v1, v2 = g1.loop_radiance(dyn), g2.loop_radiance(dyn)
     assert not np.array_equal(v1, v2) and np.abs(v2 - v1).max() <= 1e-3 * np.abs(v1).max()
+
+
+def test_near_hits_remap_on_a_level_with_fewer_samples_than_a_leaf_s_points():
+    """_remap_near on a level of 12 samples (a tiny scene's second level): a near hit (column n_hr
+    (1 + point) + leaf) on a leaf without samples of its own maps back to the leaf, whatever its
+    point's number (it used to index the covered flags with it: an IndexError past 12); on a leaf
+    with samples to n_hr + that sample, unless the sample is covered."""
+    from types import SimpleNamespace
+
+    m = 3  # HR leaves 0, 1, 2; leaf 1's samples are 0..11, leaves 0 and 2 have none
+    off = np.array([-1, 0, -1])
+    dark = np.zeros(12, bool)
+    dark[4] = True
+    point = np.array([15, 15, 3, 4, 5, 0, 2])  # near point + 1 (0: the leaf itself)
+    leaf = np.array([0, 2, 1, 1, 1, 1, 2])
+    g = SimpleNamespace(
+        near_points=True,
+        n_hr=m,
+        dark=dark,
+        cols=(point * m + leaf).astype(np.int32),
+        REMAP_BATCH=4,
+        threads=1,
+        stats={},
+        entry_weights=lambda a, b: np.ones(b - a, np.float32),
+    )
+    FinalGather._remap_near(g, off, None)
+    # leaf 1's points 3, 4, 5 -> samples 2, 3, 4; sample 4 is covered: back to the leaf
+    assert g.cols.tolist() == [0, 2, m + 2, m + 3, 1, 1, 2]

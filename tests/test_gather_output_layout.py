@@ -264,8 +264,7 @@ def test_an_elongated_face_the_spacing_leaves_whole_keeps_its_light_s_mean(monke
     res = {}
     for on in (4.0, 0.0):
         monkeypatch.setattr(layouts, "ELONGATED", on)
-        g, v, dyn = _gather(mesh, mesh, ident, levels=1)  # (one level: this small scene's second
-        # level fails in FinalGather._remap_near on main too, an IndexError; not traced here)
+        g, v, dyn = _gather(mesh, mesh, ident)
         v = v.mean(1)
         lp = g._layout_patches()
         k = int(np.flatnonzero(lp.object_id == 0)[0])
@@ -274,8 +273,9 @@ def test_an_elongated_face_the_spacing_leaves_whole_keeps_its_light_s_mean(monke
             np.repeat(lp.corners[k][None], m, 0), np.full(m, 4), np.repeat(lp.normal[k][None], m, 0), p
         )
         ours = (w @ v[g.average[4][k]]).mean()
-        kw = dict(gather_params("draft"), levels=1)
-        dense = FinalGather(dyn, p, np.repeat(lp.normal[k][None], m, 0), np.full(m, k), **kw)
+        dense = FinalGather(
+            dyn, p, np.repeat(lp.normal[k][None], m, 0), np.full(m, k), **gather_params("draft")
+        )
         exact = dense.evaluate(dyn, "radiance").mean()
         res[on] = ours / exact - 1
     print(res)

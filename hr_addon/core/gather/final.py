@@ -731,7 +731,8 @@ class FinalGather(DirectLight):
             j = np.flatnonzero(c >= m)
             pnt, leaf = np.divmod(c[j], m)  # (one pass for both: the same quotient and remainder)
             s = off[leaf] + pnt - 1
-            ok = (off[leaf] >= 0) & ~dark[np.maximum(s, 0)]
+            ok = off[leaf] >= 0  # (s of a leaf without samples is no index: a tiny level has fewer)
+            ok[ok] = ~dark[s[ok]]
             cols[a + j] = np.where(ok, m + s, leaf)
             w = self.entry_weights(a, b).astype(np.float64)
             return len(j), int(ok.sum()), float(w[j[ok]].sum()), float(w.sum())
