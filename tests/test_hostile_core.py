@@ -278,3 +278,26 @@ def test_isolated_objects_groups_as_all_pairs_would():
         assert roots[0] != main  # the large boxes are not the main group
         want = sorted(f"o{a}" for a in range(n) if roots[a] != main)
         assert sorted(d[0] for d in isolated_objects(mesh).distant) == want
+
+
+def test_an_outline_crosses_the_faces_it_covers_in_part_and_none_without_area():
+    """validation.outline_crosses on two unit squares (two triangles each) in the plane z = 0: a
+    shape over half of the first crosses it only; one over all of both or beside them crosses none;
+    a shape keyed flat (no area) crosses none, with no NaN on the way (numpy warnings as errors)."""
+    from hr_addon.core.events.validation import outline_crosses
+
+    def square(x0):
+        a, b, c, d = ([x0, 0, 0], [x0 + 1, 0, 0], [x0 + 1, 1, 0], [x0, 1, 0])
+        return [[a, b, c], [a, c, d]]
+
+    tris = np.array(square(0) + square(1), float)
+    face = np.array([0, 0, 1, 1])
+
+    def rect(x0, x1, y0=-0.5, y1=1.5):
+        return [np.array([[x0, y0, 0], [x1, y0, 0], [x1, y1, 0], [x0, y1, 0]], float)]
+
+    with np.errstate(all="raise"):
+        assert outline_crosses(rect(-0.5, 0.5), tris, face, 2).tolist() == [True, False]
+        assert outline_crosses(rect(-0.5, 2.5), tris, face, 2).tolist() == [False, False]
+        assert outline_crosses(rect(3, 4), tris, face, 2).tolist() == [False, False]
+        assert outline_crosses(rect(0.5, 0.5), tris, face, 2).tolist() == [False, False]

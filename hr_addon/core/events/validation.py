@@ -274,6 +274,8 @@ def outline_crosses(rings, tris, face, n_faces, plane_tol=1e-3, rel_tol=1e-6):
     inside, wholly outside, or an outline that only runs along the face's edge: False."""
     rings = [np.asarray(r, np.float64) for r in rings]
     n = newell(rings[0])
+    if not np.linalg.norm(n) > 0:  # an outline without area (a shape keyed flat on a frame): no edge
+        return np.zeros(n_faces, bool)
     n = n / np.linalg.norm(n)
     c = rings[0].mean(0)
     tris = np.asarray(tris, np.float64)
