@@ -705,6 +705,28 @@ def test_seidel_passes_reach_the_jacobi_limit_in_fewer_passes(monkeypatch):
     assert np.abs(gs - limit).sum() <= np.abs(jac - limit).sum()
 
 
+def test_seidel_passes_stop_by_their_own_rule_where_set(monkeypatch):
+    """SEIDEL_MIN_PASSES / SEIDEL_TAIL_SHARE set the Gauss-Seidel passes' stopping rule alone: unset,
+    the Jacobi passes' rule (the same passes and values); at least 3 passes and any share, they
+    stop after 3; the Jacobi passes (SEIDEL_BLOCK 0) keep theirs whatever the two say."""
+    dyn, g = _furnace_window_gather()
+    monkeypatch.setattr(FinalGather, "SEIDEL_BLOCK", 4096)
+    gs, n = _shape_part(dyn, g)
+    monkeypatch.setattr(FinalGather, "SEIDEL_MIN_PASSES", 0)
+    monkeypatch.setattr(FinalGather, "SEIDEL_TAIL_SHARE", FinalGather.TAIL_SHARE)
+    same, n_same = _shape_part(dyn, g)
+    assert n_same == n and np.array_equal(same, gs)
+    monkeypatch.setattr(FinalGather, "SEIDEL_MIN_PASSES", 3)
+    monkeypatch.setattr(FinalGather, "SEIDEL_TAIL_SHARE", np.inf)
+    few, n_few = _shape_part(dyn, g)
+    assert n_few == 3 < n and few.any() and not np.array_equal(few, gs)
+    monkeypatch.setattr(FinalGather, "SEIDEL_BLOCK", 0)
+    jac, nj = _shape_part(dyn, g)
+    monkeypatch.setattr(FinalGather, "SEIDEL_MIN_PASSES", 0)
+    monkeypatch.setattr(FinalGather, "SEIDEL_TAIL_SHARE", None)
+    assert (nj, jac.tobytes()) == (lambda p: (p[1], p[0].tobytes()))(_shape_part(dyn, g))
+
+
 def test_seidel_passes_do_not_depend_on_the_thread_count(monkeypatch):
     """The Gauss-Seidel passes' blocks and their row ranges are fixed by the matrix: the shape's
     part is the same bit for bit on 1 and 3 threads, and again (no state kept between events)."""

@@ -1328,8 +1328,12 @@ class FinalGather(DirectLight):
         last, sums = [], []
         until = zero or (tail and until)
         gs = self._seidel_blocks() if zero and fit is None and g2.second is None else None
+        least, share = max(self.iterations, 2), self.TAIL_SHARE  # (the passes' minimum is least + 1)
+        if gs is not None:
+            least = max(self.SEIDEL_MIN_PASSES - 1, 2) if self.SEIDEL_MIN_PASSES else least
+            share = self.TAIL_SHARE if self.SEIDEL_TAIL_SHARE is None else self.SEIDEL_TAIL_SHARE
         for k in range(self.TAIL_PASSES if until else 1 + self.iterations):
-            if until and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
+            if until and k > least and self._tail_share(sums) <= share:
                 k -= 1
                 break
             if gs is not None and not (nothing and k == 0):
@@ -1375,6 +1379,10 @@ class FinalGather(DirectLight):
     # ev100k). 0: the Jacobi passes. (A Blender light's passes to their limit stay Jacobi: not
     # measured.)
     SEIDEL_BLOCK = 1 << 20
+    # the Gauss-Seidel passes' own stopping rule (0 / None: the Jacobi passes' minimum, 1 +
+    # max(iterations, 2), and TAIL_SHARE): at least SEIDEL_MIN_PASSES passes (3 or more: the tail
+    # takes the last three), then on while the tail is more than SEIDEL_TAIL_SHARE of the light
+    SEIDEL_MIN_PASSES, SEIDEL_TAIL_SHARE = 0, None
     SEIDEL_STEP = 1 << 18  # weights per batch of a block's rows on threads (fixed: the same values)
 
     def _seidel_blocks(self):
