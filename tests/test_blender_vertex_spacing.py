@@ -861,6 +861,48 @@ def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top
     assert FINER not in wall.data.attributes and not wall.modifiers
 
 
+@pytest.mark.parametrize("thin_ratio", [4.0, float("inf")])
+def test_a_thin_face_with_something_close_before_part_of_it_gets_finer_corners(monkeypatch, thin_ratio):
+    """A bottle's side: one 1.5 x 24 cm quad (x 0-0.015, z 0-0.24, facing +y) and a plate 5 cm in
+    front of its lower 8 cm. near_clutter finds it in part (some of its rays meet the plate, some
+    pass above); by its area (0.0036 m^2) no finer level is worth the corners (FINER 1 adds 12, 2
+    adds 60 against 8 x 0.0036 / 0.0625^2 = 7 at CLUTTER_WORTH 0.5), but it is thin (_thin: 16 x
+    longer than wide, narrower than the finest spacing, whole at 0.25 m), so FINER 2: the modifier
+    cuts it 4 x 4 (Subdivide Mesh: 64 corners, its light in four rows along it, 6 cm apart). With
+    THIN_RATIO off (inf: before session 34) it keeps its 4 corners and gets no modifier."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import FINER
+
+    monkeypatch.setattr(ov, "THIN_RATIO", thin_ratio)
+    side = ms.mesh_object(
+        "Side",
+        [(0, 0, 0), (0.015, 0, 0), (0.015, 0, 0.24), (0, 0, 0.24)],
+        [[0, 3, 2, 1]],
+        ms.diffuse("Grey", (RHO,) * 3),
+    )
+    plate = ms.mesh_object(
+        "Plate",
+        [(-0.2, 0.05, -0.1), (0.2, 0.05, -0.1), (0.2, 0.05, 0.08), (-0.2, 0.05, 0.08)],
+        [[0, 1, 2, 3]],
+        ms.diffuse("Grey plate", (RHO,) * 3),
+    )
+    dg = bpy.context.evaluated_depsgraph_get()
+    share, area, _ = ov.near_clutter([side, plate], [side], dg, 0.25, 0.25)["Side"]
+    np.testing.assert_allclose(area, 0.0036, rtol=1e-5)
+    thin = thin_ratio < 1e9
+    assert (0 < share[0] < 1) if thin else share[0] == 0, share  # (not looked at: 0)
+    ov.ensure_own_values([side, plate], "CORNER", dg, 0.25, log=lambda line: None)
+    dg.update()
+    assert len(side.evaluated_get(dg).data.loops) == (64 if thin else 4)
+    a = side.data.attributes.get(FINER)
+    assert (a is not None) == thin
+    if thin:
+        finer = np.empty(1, np.int32)
+        a.data.foreach_get("value", finer)
+        assert finer[0] == 2
+
+
 def test_the_group_cuts_each_face_by_its_finer():
     """The subdividing group reads the mesh's FINER per face: the grid wall's 0.2 m quads at 0.25 m
     (level 0) with FINER 1 on its first row (2 x 2 each) and 2 on the second (4 x 4) make 200 +

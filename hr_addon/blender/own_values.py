@@ -114,6 +114,12 @@ CLUTTER_LEVELS = 2
 # area has (4 a quad): not a thin face Subdivide Mesh already cut finely across (a 0.4 x 1.6 m side
 # at level 3: one level; a book's spine: none)
 CLUTTER_WORTH = 0.5
+# ... but a thin face (a bottle's 24 x 1.4 cm side, a book's spine) by its length, not its area: its
+# every level a choice (the budget takes them last: the least area per corner). Its two corner rows
+# cannot show a shadow's edge across it, which a camera sees where only part of it shows (two_rooms'
+# bottles behind the table's items, -6 to -13% at 0.25 m; docs/accuracy.md, session 34, branch tworooms)
+THIN_RATIO = 4.0
+THIN_LEVEL = 1  # a thin face at most this level at the spacing (the pillar's 2.6 m strips: not)
 CLUTTER_REACH = 1.0  # near_clutter's rays this many spacings long: surfaces closer are "close in front"
 CLUTTER_GRID = 32  # near_clutter's points: a triangle cut into at most this many pieces along an edge
 # near_clutter's rays that meet a surface holding one of their face's edges (within JUNCTION x the
@@ -652,7 +658,9 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
         p = co[tri]  # (T, 3, 3)
         e = p[:, [1, 2, 0]] - p
         area = np.bincount(tf, 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1), minlength=F)
-        gain = _choices(longest, cnt, spacing, area)[1].any(1)[tf]  # (even wholly in part)
+        gain = _choices(longest, cnt, spacing, area, _thin(longest, area, spacing))[1].any(1)[
+            tf
+        ]  # (even wholly in part)
         if not gain.any():
             out[o.name] = (np.zeros(F), area, np.zeros(F, bool))
             continue
@@ -807,14 +815,24 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     return out, (own, want, got), {}
 
 
-def _choices(longest, cnt, spacing, area):
+def _thin(longest, area, spacing):
+    """(F,) bool: the faces THIN_RATIO x longer than wide (area / longest), narrower than the finest
+    spacing, that the spacing cuts at most THIN_LEVEL times (short: the spacing leaves them whole or
+    halves them)."""
+    width = area / np.maximum(longest, 1e-30)
+    fine = spacing / 2**CLUTTER_LEVELS
+    return (width < fine) & (longest > THIN_RATIO * width) & (levels(longest, spacing) <= THIN_LEVEL)
+
+
+def _choices(longest, cnt, spacing, area, thin=None):
     """((F, CLUTTER_LEVELS) corners each face adds 1 .. CLUTTER_LEVELS levels finer, (F,
     CLUTTER_LEVELS) whether that is a choice: it adds some, and no more than `area` (m^2) is worth
-    (CLUTTER_WORTH))."""
+    (CLUTTER_WORTH), or the face is thin (thin (F,) bool, _thin: every level a choice))."""
     base = cnt << (2 * levels(longest, spacing))
     add = [(cnt << (2 * levels(longest, spacing, k))) - base for k in range(1, CLUTTER_LEVELS + 1)]
     add = np.stack(add, 1) if add else np.zeros((len(cnt), 0), np.int64)
-    return add, (add > 0) & (add * (spacing / 2**CLUTTER_LEVELS) ** 2 <= 4 / CLUTTER_WORTH * area[:, None])
+    worth = add * (spacing / 2**CLUTTER_LEVELS) ** 2 <= 4 / CLUTTER_WORTH * area[:, None]
+    return add, (add > 0) & (worth | (False if thin is None else thin[:, None]))
 
 
 def _finer_faces_within(clutter, edges, spacing, room):
@@ -827,8 +845,10 @@ def _finer_faces_within(clutter, edges, spacing, room):
     for j, (n, (weight, area)) in enumerate(clutter.items()):
         longest, cnt = edges[n]
         f = np.flatnonzero(weight > 0)
+        add, ok = _choices(
+            longest[f], cnt[f], spacing, weight[f] * area[f], _thin(longest[f], area[f], spacing)
+        )
         area = weight[f] * area[f]
-        add, ok = _choices(longest[f], cnt[f], spacing, area)
         keep = ok.any(1)
         owner.append(np.full(keep.sum(), j))
         faces.append(f[keep])
