@@ -176,6 +176,7 @@ def test_a_faces_extra_samples_share_its_rays_and_nothing_else_changes(monkeypat
         )
         return (w @ g.loop_radiance(s)[g.average[4][k]].mean(1)).mean()
 
+    monkeypatch.setattr(layouts, "EXTRA_FACE", 0)
     g0 = LoopGather(s, rays=64, shadow_rays=16)
     monkeypatch.setattr(layouts, "EXTRA_FACE", 2)
     g2 = LoopGather(s, rays=64, shadow_rays=16)

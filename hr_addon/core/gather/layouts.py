@@ -663,11 +663,15 @@ def shared_rays(average, loop_index, n, rays, share=SHARE):
     return np.maximum(int(rays) // m, 1)
 
 
-# LoopGather: the extra samples of one face (corner_fit's over a cut face, slot_split's over a split
-# face's open part) stand only for their face's mean (corner_fit.shift_plan), so they share
-# EXTRA_FACE x rays between them, each the power of two at most its share (at most rays);
-# 0: each traces all rays (before session 34)
-EXTRA_FACE = 0
+# LoopGather: the extra samples of one face (corner_fit's over a cut face or along an elongated
+# one, slot_split's over a split face's open part) stand only for their face's mean
+# (corner_fit.shift_plan), so they share EXTRA_FACE x rays between them, each the power of two at
+# most its share (at most rays; a face's 8 samples 64 rays each, 4 or fewer all). 0: each traces
+# all rays (before session 34). The 100k bake's top-level rays 45.1 -> 40.0 M; per object within
+# the seed floor (FE add median 0.591% against main's 0.586%, its four realisations
+# 0.569-0.594%); 2 (32 rays each of 8, 64 of 4: 35.1 M) at the floor's edge, 0.596%
+# (docs/scale.md, session 34, bakepre)
+EXTRA_FACE = 4
 
 
 def extra_rays(patch, rays, face=None):
