@@ -176,25 +176,6 @@ def test_the_same_values_whatever_order_the_tiles_were_traced_in(room):
         assert (got_a[k] > 0).sum() > 100
 
 
-def test_the_same_bits_in_any_batches_of_traced_segments(room, monkeypatch):
-    """_fill's batches of rays (TRACE_CHUNK: their temporaries, the 100k vertex bake's first-frame
-    peak) change no bit: stores traced in one batch and in batches of a few samples hold the same
-    rows and bits, and read the same values."""
-    from hr_addon.core.gather import hostvis
-
-    dyn, g, ems = room
-    got = {}
-    for chunk in (1 << 30, 64):
-        monkeypatch.setattr(hostvis, "TRACE_CHUNK", chunk)
-        H = store(dyn, g, ems["w"], policy="lazy")
-        light = [H.light(ems[k]) for k in ("w", "low")]
-        got[chunk] = light, {key: (p[0].copy(), p[1].copy()) for key, p in H.part.items()}
-    (a, pa), (b, pb) = got[1 << 30], got[64]
-    assert pa and pa.keys() == pb.keys()
-    assert all(np.array_equal(pa[k][0], pb[k][0]) and np.array_equal(pa[k][1], pb[k][1]) for k in pa)
-    assert all(x.any() and np.array_equal(x, y) for x, y in zip(a, b))
-
-
 def test_a_scene_scaled_by_a_power_of_two_gives_the_same_values(room):
     """The cells follow the level's unit (a power of two from the scene's size) and the samples'
     keys are their positions in that unit: the same scene x 2 and x 0.25 gives the same cell

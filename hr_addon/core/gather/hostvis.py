@@ -68,10 +68,6 @@ TILE = 4  # cells per tile side (16 bits: the 100k window traces x0.7 the rays o
 BASE = 4096.0  # base cell = BASE x the level's unit (a power of two near the scene's size)
 MAX_LEVEL = 24  # finest cell: base / 4096 (about 2 mm in a 10 m room)
 CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's weights
-# (samples x cells) segments per batch of _fill's rays: their temporaries, ~0.1 KB a segment, in
-# batches of CHUNK were the 100k vertex bake's first frame's peak (a window's first read: +0.2 GB
-# traced; session 34, branch mem2). Each segment's bit is its own: the same values in any batches.
-TRACE_CHUNK = 1 << 18
 # what a store keeps (speed only: the values are the same either way, module doc; HostVisibility._tile):
 # "lazy" every segment an event traced (each traced at most once, only when read), "second" / "always"
 # a tile traced whole on its second / first read, "never" nothing
@@ -330,7 +326,7 @@ class HostVisibility:
                 v[:, cells] = vis
                 bits[r] = np.packbits(v, axis=1)
 
-            batch_map(part, ranges(len(at), max(TRACE_CHUNK // len(cells), 1)), self.threads)
+            batch_map(part, ranges(len(at), max(CHUNK // len(cells), 1)), self.threads)
             known[at] |= gm
             rays += len(at) * len(cells)
         return rays
