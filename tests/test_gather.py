@@ -743,6 +743,32 @@ def test_seidel_passes_do_not_depend_on_the_thread_count(monkeypatch):
     assert one.any() and np.array_equal(one, three) and np.array_equal(one, again)
 
 
+def test_merge_gives_the_batches_concatenated(monkeypatch):
+    """merge copies the batches' fields one by one, each batch let go once copied and the heap
+    trimmed between (MERGE_TRIM): the same arrays, dtypes and indptr as their concatenation."""
+    rng = np.random.default_rng(3)
+    parts = []
+    for n in (5, 0, 7, 3):
+        m = int(rng.integers(0, 20))
+        parts.append(
+            (
+                rng.integers(0, 4, n),
+                rng.integers(0, 99, m).astype(np.int32),
+                rng.integers(1, 9, m).astype(np.uint8),
+                rng.random(m).astype(np.float32),
+                rng.random(m).astype(np.float32),
+            )
+        )
+    want = [np.concatenate([p[i] for p in parts]) for i in range(5)]
+    monkeypatch.setattr(FinalGather, "MERGE_TRIM", 1)  # (a trim after every batch)
+    for k in (5, 3):
+        got = FinalGather.merge([p[:k] + (None,) * (5 - k) for p in parts])
+        assert np.array_equal(got[0], np.concatenate([[0], np.cumsum(want[0])]))
+        for x, y in zip(got[1:k], want[1:k]):
+            assert x.dtype == y.dtype and np.array_equal(x, y)
+        assert all(x is None for x in got[k:])
+
+
 def test_the_passes_from_nothing_skip_their_first_read(monkeypatch):
     """gather_responses "zero": the second level's first pass from V = 0 reads nothing (_read(None):
     zeros, no read); the shape's gathered part is the same bit for bit as with that pass's read of
