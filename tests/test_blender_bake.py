@@ -373,6 +373,13 @@ def test_geometry_out_of_the_depsgraph_while_baking(tmp_path, monkeypatch):
     res = _bake(frames=(5, 7), method="FE")
     assert {o.name: o.hide_viewport for o in scene.objects} == before
     assert {o.name for o in bpy.context.view_layer.depsgraph.objects} >= {o.name for o in geo}
+    # in the UI (not background mode) nothing is hidden: the viewport keeps showing the scene
+    monkeypatch.setattr(bake_mod, "hide_while_baking", lambda: False)
+    job = BakeJob(bake_mod.bake_frames(scene, frames=(5, 7), method="FE", quality="draft"))
+    while job.step() and job.progress.stage != "frame":
+        pass
+    assert {o.name: o.hide_viewport for o in scene.objects} == before
+    job.cancel()
     monkeypatch.setattr(bake_mod, "out_of_depsgraph", lambda objects, view_layer: [])  # all evaluated
     other = _bake(frames=(5, 7), method="FE", cache_dir=str(tmp_path / "evaluated"))
     files = sorted(p.name for p in Path(res.cache_dir).glob("*.npz"))

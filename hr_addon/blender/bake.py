@@ -82,6 +82,12 @@ def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=N
     return h.hexdigest()
 
 
+def hide_while_baking():
+    """Whether a vertex bake takes its geometry out of the depsgraph while it runs (memory: the
+    100k room's peak -0.12 GB): in background mode (the command line, tests), not in the UI."""
+    return bpy.app.background
+
+
 def bake_frames(
     scene,
     view_layer=None,
@@ -144,7 +150,9 @@ def bake_frames(
         for line in run.result.notes:  # log lines (the progress messages), not warnings
             yield BakeProgress("build", total=total, warnings=list(run.result.warnings), message=line)
         run.intr.check()
-        if cfg.output == "VERTEX":  # (the texture plan reads the evaluated meshes again)
+        # only without a window (a viewport emptied for a bake's minutes would alarm its user);
+        # the texture plan reads the evaluated meshes again
+        if cfg.output == "VERTEX" and hide_while_baking():
             hidden = out_of_depsgraph(snap.objects, view_layer)
         params, min_area_rel, far_warning = solver_setup(snap.transport, cfg.params)
         run.warn([far_warning] if far_warning else [])
