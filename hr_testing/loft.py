@@ -15,7 +15,9 @@ chairs instanced from one collection (one of them mirrored, scale x -1), a desk 
 one leg with a Mirror in x and y) at -12 degrees with a monitor whose screen is a light shape, a
 bookshelf (boards: an Array) with ~45 books tilted at odd angles, two armchairs (the second the
 first mirrored: scale -1.1, 1, 1), a cabinet with two materials (white body, red doors), a wall
-shelf, picture frames, storage boxes, plants of many small leaves (each leaf a closed 2 mm solid).
+shelf, picture frames, storage boxes, plants of many small leaves (each leaf a closed 2 mm solid; the
+soil lies inside its pot, whose top is closed: a modelling slip kept, session 34's Cycles references
+are of this scene; nothing lights the soil and no camera sees it).
 Principled materials, base colours (albedos) 0.05 to 0.85, saturated reds, blues, greens, yellows.
 
 Light: a point light in the pendant shade (80 W), a spot light from the flat ceiling onto the
