@@ -11,6 +11,7 @@ The full room against Cycles: benchmarks/camera_compare.py --views loft_a,loft_b
 import numpy as np
 import pytest
 
+from test_blender_artist_room import _cli  # the CLI at draft, one thread
 from test_blender_helpers import load_bpy
 
 pytestmark = [pytest.mark.bpy, pytest.mark.slow]
@@ -25,12 +26,6 @@ def loft_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("loft") / "loft.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(path))
     return path, info
-
-
-def _cli(path, *args):
-    from hr_addon.blender.cli import run
-
-    return run([str(path), "--quality", "draft", "--threads", "1", *args])
 
 
 def _black(means):
