@@ -12,20 +12,17 @@ import numpy as np
 import pytest
 
 from test_blender_artist_room import _cli  # the CLI at draft, one thread
-from test_blender_helpers import load_bpy
+from test_blender_helpers import load_bpy, saved_room, texture_means
 
 pytestmark = [pytest.mark.bpy, pytest.mark.slow]
 
 
 @pytest.fixture(scope="module")
 def loft_file(tmp_path_factory):
-    bpy = load_bpy()
+    load_bpy()
     from hr_testing.loft import loft_scene
 
-    _, info = loft_scene(small=True)
-    path = tmp_path_factory.mktemp("loft") / "loft.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
-    return path, info
+    return saved_room(tmp_path_factory, "loft", lambda: loft_scene(small=True))
 
 
 def _black(means):
@@ -81,9 +78,8 @@ def test_vertex_bake_every_object_and_the_skylight_opens(loft_file):
 
 
 def test_texture_bake_every_object(loft_file):
-    bpy = load_bpy()
+    load_bpy()
     path, info = loft_file
-    from hr_addon.blender.paths import frame_texture
     from hr_addon.io.cache import CacheReader
 
     cache = path.parent / "cache_texture"
@@ -91,12 +87,5 @@ def test_texture_bake_every_object(loft_file):
     assert _cli(path, *args) == 0
     r = CacheReader(cache)
     assert sorted(r.objects) == info["meshes"]
-    means = {}
-    for name in info["meshes"]:
-        img = bpy.data.images.load(frame_texture(str(cache), r.objects[name], 3))
-        px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
-        img.pixels.foreach_get(px)
-        bpy.data.images.remove(img)
-        assert np.isfinite(px).all(), name
-        means[name] = float(px.reshape(-1, 4)[:, :3].mean())
+    means = texture_means(cache, r, info["meshes"], 3)
     assert _black(means) == set()
