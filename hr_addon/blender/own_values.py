@@ -661,9 +661,8 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
         p = co[tri]  # (T, 3, 3)
         e = p[:, [1, 2, 0]] - p
         area = np.bincount(tf, 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1), minlength=F)
-        gain = _choices(longest, cnt, spacing, area, _thin(longest, area, spacing))[1].any(1)[
-            tf
-        ]  # (even wholly in part)
+        thin = _thin(longest, area, spacing)
+        gain = _choices(longest, cnt, spacing, area, thin)[1].any(1)[tf]  # (even wholly in part)
         if not gain.any():
             out[o.name] = (np.zeros(F), area, np.zeros(F, bool))
             continue
@@ -854,10 +853,8 @@ def _finer_faces_within(clutter, edges, spacing, room, thin_room=0):
         f = np.flatnonzero(weight > 0)
         wa = weight[f] * area[f]
         add, ok = _choices(longest[f], cnt[f], spacing, wa)
-        t = (
-            ~ok.any(1)[:, None]
-            & _choices(longest[f], cnt[f], spacing, wa, _thin(longest[f], area[f], spacing))[1]
-        )
+        # the thin faces no level is worth by area: each level that adds corners a choice (_choices')
+        t = ~ok.any(1)[:, None] & (add > 0) & _thin(longest[f], area[f], spacing)[:, None]
         ok |= t
         keep = ok.any(1)
         owner.append(np.full(keep.sum(), j))
