@@ -9,6 +9,7 @@ through the `progress` callback (core.progress), frames through the yielded Bake
 
 import dataclasses
 import functools
+import gc
 import hashlib
 import os
 import time
@@ -80,6 +81,14 @@ def _signature(mesh, params, domain, targets, radiance_mode="RADIANCE", gather=N
     if gather is not None:  # (bakes without the final gather keep the signature they had)
         h.update(repr(sorted(gather.items())).encode())
     return h.hexdigest()
+
+
+def _let_go():
+    """Free the dropped system's arrays now: DynamicRadiosity's parts hold callbacks into it (a
+    reference cycle), so it would otherwise live until Python's next full collection, under
+    Blender's evaluation of the geometry given back (the 100k room: 2.25 GB at the end, not 1.5)."""
+    gc.collect()
+    release_free_memory()
 
 
 def hide_while_baking():
@@ -179,7 +188,7 @@ def bake_frames(
         # the host visibility its events traced, for the next bake (only speed: not written on a cancel)
         pc.keep(final_dir, final, log=run.result.notes.append, warn=lambda m: run.warn([m]))
         system = dyn = final = None  # (not held while Blender evaluates the geometry again)
-        release_free_memory()
+        _let_go()
         back_in_depsgraph(hidden)
         hidden = []
         use_bake(scene, final_dir, cfg.output, snap.objects)
@@ -188,6 +197,7 @@ def bake_frames(
             writer.abort()
         if hidden:  # (a failed or cancelled bake: its arrays not held while Blender evaluates)
             system = dyn = final = None
+            _let_go()
             back_in_depsgraph(hidden)
         STATE.baking = False
         scene.frame_set(original_frame)  # also loads this frame through the handler
