@@ -82,9 +82,10 @@ from .names import ATTRIBUTE, FACE, FINER, GUARD, N_VALUES, TAG
 GROUP_VERSION = 1
 # the subdividing group by faces (SPACING, SCALE) storing FACE, each face finer by the mesh's FINER,
 # its output the helper's mesh while the guard holds (_from_helper: GUARD the corners' hashes' sum
-# and variance); 6: GUARD a hash per corner; 5: the GUARDS slots always hashed, 4: without FINER, 3:
-# always subdividing, 2: without FACE, 1: one LEVEL_V1 per object
-FINER_VERSION = 7
+# and variance); 8: an n-gon's level by its span too (_ngon_span); 6: GUARD a hash per corner; 5:
+# the GUARDS slots always hashed, 4: without FINER, 3: always subdividing, 2: without FACE, 1: one
+# LEVEL_V1 per object
+FINER_VERSION = 8
 GUARD_DOMAIN = "POINT"  # GUARD's (one value: on each point, read at index 0)
 GUARDED = 4  # the subdividing group's string inputs "Attribute 1" ..: the received mesh's own
 GUARDS = "Attribute"  # attributes its guard hashes too (_guard_names; more: no guard, _helper)
@@ -187,7 +188,8 @@ def _add_node(nodes, made, kind, **props):
 def _finer_faces(nodes, link, gi):
     """Nodes subdividing the group input's faces each by the level L its longest edge needs (edge
     * SCALE, metres) to come under SPACING: L = the number of k in 0 .. MAX_LEVEL - 1 for which an
-    edge of the face is longer than SPACING * 2^k (0 for SPACING 0). The faces of each level class
+    edge of the face (or an n-gon's span, _ngon_span) is longer than SPACING * 2^k (0 for SPACING
+    0). The faces of each level class
     are separated and subdivided together (Subdivide Mesh), joined in a fixed order, and the
     vertices on the classes' seams (captured before: their faces' levels differ) merged again.
     Each face's index is stored first as FACE (Subdivide Mesh gives it to the finer faces).
@@ -204,9 +206,15 @@ def _finer_faces(nodes, link, gi):
                 link(x, nd.inputs[i])
         return nd.outputs[0]
 
-    def on(domain, field):  # the field evaluated on `domain` (read elsewhere: its mean there)
-        nd = node("GeometryNodeFieldOnDomain", domain=domain, data_type="FLOAT")
+    def on(domain, field, kind="FLOAT"):  # the field evaluated on `domain` (read elsewhere: its mean there)
+        nd = node("GeometryNodeFieldOnDomain", domain=domain, data_type=kind)
         link(field, nd.inputs[0])
+        return nd.outputs[0]
+
+    def vec(op, a, b):
+        nd = node("ShaderNodeVectorMath", operation=op)
+        link(a, nd.inputs[0])
+        link(b, nd.inputs[1])
         return nd.outputs[0]
 
     spacing = gi.outputs[SPACING]
@@ -220,16 +228,33 @@ def _finer_faces(nodes, link, gi):
     length = node("ShaderNodeVectorMath", operation="LENGTH")
     link(ds.outputs[0], length.inputs[0])
     edge = math("MULTIPLY", length.outputs["Value"], math("GREATER_THAN", spacing, 0.0))  # 0: none
+    # an n-gon's span (_ngon_span) at each of its corners: |P + P_next - 2 C| x SCALE, C the face's
+    # mean position, P_next the next corner's (0 on a triangle or quad: their levels as before)
+    pos = node("GeometryNodeInputPosition").outputs[0]
+    nxt = node("GeometryNodeOffsetCornerInFace")
+    link(node("GeometryNodeInputIndex").outputs[0], nxt.inputs["Corner Index"])
+    nxt.inputs["Offset"].default_value = 1
+    at = node("GeometryNodeFieldAtIndex", domain="CORNER", data_type="FLOAT_VECTOR")
+    link(pos, at.inputs["Value"])
+    link(nxt.outputs[0], at.inputs["Index"])
+    centre = on("FACE", pos, "FLOAT_VECTOR")
+    arm = vec("SUBTRACT", vec("ADD", pos, at.outputs[0]), vec("ADD", centre, centre))
+    span = node("ShaderNodeVectorMath", operation="LENGTH")
+    link(vec("MULTIPLY", arm, gi.outputs[SCALE]), span.inputs[0])
+    ngon = math("GREATER_THAN", node("GeometryNodeInputMeshFaceNeighbors").outputs["Vertex Count"], 4.5)
+    span = math("MULTIPLY", math("MULTIPLY", span.outputs["Value"], ngon), math("GREATER_THAN", spacing, 0.0))
     # the face's FINER e (the mesh's face attribute near_clutter's faces get; 0 where absent): its
     # level counts the k in -e .. MAX_LEVEL - 1 - e, at SPACING / 2^e what k in 0 .. MAX_LEVEL - 1 is
     finer = node("GeometryNodeInputNamedAttribute", data_type="INT")
     finer.inputs["Name"].default_value = FINER
     e = on("FACE", finer.outputs["Attribute"])
     level = None
-    for k in range(-CLUTTER_LEVELS, MAX_LEVEL):  # any edge of the face longer than SPACING * 2^k:
-        # its edges' mean > 0
-        longer = on("EDGE", math("GREATER_THAN", edge, math("MULTIPLY", spacing, float(2.0**k))))
-        step = math("GREATER_THAN", on("FACE", longer), 0.0)
+    for k in range(-CLUTTER_LEVELS, MAX_LEVEL):  # any edge of the face (or an n-gon's span at any
+        # corner) longer than SPACING * 2^k: their mean on the face > 0
+        at_k = math("MULTIPLY", spacing, float(2.0**k))
+        longer = on("EDGE", math("GREATER_THAN", edge, at_k))
+        wider = on("CORNER", math("GREATER_THAN", span, at_k))
+        step = math("GREATER_THAN", math("ADD", on("FACE", longer), on("FACE", wider)), 0.0)
         if k < 0:  # counted where e >= -k
             step = math("MULTIPLY", step, math("GREATER_THAN", e, -k - 0.5))
         if k > MAX_LEVEL - 1 - CLUTTER_LEVELS:  # counted where e <= MAX_LEVEL - 1 - k
@@ -502,9 +527,9 @@ def before_subdivision(objects, depsgraph, read, factor=None):
 
 def has_coarse_edges(obj, spacing, depsgraph):
     """Whether an edge of a face of obj's evaluated mesh (world space; its modifiers' result, a
-    Subdivision Surface's finer faces: without its own subdivision) is longer than `spacing` (False
-    for spacing 0): obj then gets the subdividing group, which gives each face its own level
-    (_finer_faces)."""
+    Subdivision Surface's finer faces: without its own subdivision), or an n-gon's span (_ngon_span),
+    is longer than `spacing` (False for spacing 0): obj then gets the subdividing group, which gives
+    each face its own level (_finer_faces)."""
     if spacing <= 0:
         return False
     ob = obj.evaluated_get(depsgraph)
@@ -520,12 +545,49 @@ def has_coarse_edges(obj, spacing, depsgraph):
     me.vertices.foreach_get("co", co)
     M = np.array(ob.matrix_world, np.float64)[:3, :3]
     d = (co.reshape(-1, 3)[ev[:, 0]] - co.reshape(-1, 3)[ev[:, 1]]) @ M.T
-    return bool(np.sqrt((d * d).sum(1)).max() > spacing)
+    if np.sqrt((d * d).sum(1)).max() > spacing:
+        return True
+    # (or an n-gon spanning more: its centre gets corners, _ngon_span)
+    total = np.empty(len(me.polygons), np.int32)
+    me.polygons.foreach_get("loop_total", total)
+    if not (total > 4).any():
+        return False
+    start = np.empty(len(me.polygons), np.int32)
+    me.polygons.foreach_get("loop_start", start)
+    lv = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("vertex_index", lv)
+    scale = np.linalg.norm(M, axis=0).astype(np.float32)
+    return bool(_ngon_span(co.reshape(-1, 3), start, total, lv, scale).max() > spacing)
+
+
+def _ngon_span(co, start, total, lv, scale):
+    """(F,) float32 each n-gon's span (5 or more corners; 0 for the other faces): the largest
+    |P + P_next - 2 C| x scale over its corners (P a corner's position, P_next the next corner's, C the
+    face's mean position: twice its centre's distance from an edge's midpoint; co local (V, 3)
+    float32, scale (3,) float32), as _finer_faces measures it. Subdivide Mesh cuts an n-gon into quads
+    from its centre to its edges' midpoints: a table top's 64-gon of 5 cm edges spans 1.1 m, and
+    without it got no corner inside (docs/accuracy.md, session 35, branch loftfix). For a triangle
+    or a quad it never exceeds the longest edge (for a quad ABCD at AB: |(A - D) + (B - C)| / 2)."""
+    span = np.zeros(len(start), np.float32)
+    f = np.flatnonzero(total > 4)
+    if not len(f):
+        return span
+    n = total[f].astype(np.int64)
+    face = np.repeat(np.arange(len(f)), n)
+    c = np.arange(len(face)) - np.repeat(np.cumsum(n) - n, n)  # each corner's place in its face
+    first = np.repeat(start[f].astype(np.int64), n)
+    p = co[lv[first + c]]
+    q = co[lv[first + (c + 1) % np.repeat(n, n)]]
+    centre = (np.add.reduceat(p, np.cumsum(n) - n, dtype=np.float32) / n[:, None].astype(np.float32))[face]
+    d = (p + q - 2 * centre) * scale
+    np.maximum.at(span, f[face], np.sqrt((d * d).sum(1, dtype=np.float32)))
+    return span
 
 
 def face_edges(obj, depsgraph):
     """((F,) float32 each face's longest edge in world metres as the group measures it (object-space
-    edge x the object's scale, _finer_faces), (F,) int64 its corners) of obj's evaluated mesh."""
+    edge x the object's scale, _finer_faces; an n-gon's span if longer, _ngon_span), (F,) int64 its
+    corners) of obj's evaluated mesh."""
     me = obj.evaluated_get(depsgraph).data
     n_faces = len(me.polygons)
     if not n_faces:
@@ -547,6 +609,10 @@ def face_edges(obj, depsgraph):
     order = np.argsort(start, kind="stable")  # (reduceat wants the loops' runs in order)
     longest = np.empty(n_faces, np.float32)
     longest[order] = np.maximum.reduceat(length[used], start[order])
+    if (total > 4).any():
+        lv = np.empty(len(me.loops), np.int32)
+        me.loops.foreach_get("vertex_index", lv)
+        np.maximum(longest, _ngon_span(co, start, total, lv, scale), out=longest)
     return longest, total.astype(np.int64)
 
 
