@@ -141,9 +141,9 @@ for fn in (
 first_hit = FG.first_hit
 
 
-def counted_first_hit(self, org, dirs):
+def counted_first_hit(self, org, dirs, per=None):
     count[(level[-1], "rays")] += len(dirs)
-    prim, t = first_hit(self, org, dirs)
+    prim, t = first_hit(self, org, dirs, per)
     count[(level[-1], "hits")] += int((prim >= 0).sum())
     return prim, t
 

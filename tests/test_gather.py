@@ -1233,9 +1233,9 @@ def test_buried_probe_traces_only_rays_that_can_decide_and_keeps_every_answer():
     traced = []
     first_hit = s.backend.first_hit
 
-    def counted(o, d, tmax, sure=None):
-        traced.append(len(o))
-        return first_hit(o, d, tmax, sure)
+    def counted(o, d, tmax, sure=None, per=None):
+        traced.append(len(d))
+        return first_hit(o, d, tmax, sure, per)
 
     s.backend.first_hit = counted
     try:

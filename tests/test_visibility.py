@@ -316,6 +316,40 @@ def test_first_hit_with_sure_keeps_float32_t_away_from_the_ends(name):
     assert np.array_equal(ts[far], t[far]) == (name == "numpy")
 
 
+def test_first_hit_per_origin_equals_the_origins_repeated(name):
+    """first_hit(per=): rays sharing an origin (a sample's hemisphere rays), each origin given
+    once, give bit for bit the hits and t of the origins repeated per ray: every backend, with and
+    without `sure`, over threads' chunks (_map_per), with non-finite origins and rays among them,
+    and through first_hit_within's second segment (the misses traced on)."""
+    from hr_testing import scenes
+    from hr_addon.core.geometry import prepare_patches
+
+    tri = prepare_patches(scenes.cornell_box(subdiv=2)).triangles
+    rng = np.random.default_rng(7)
+    o = rng.uniform(0.05, 0.5, (300, 3))
+    per = rng.integers(1, 12, len(o))
+    d = rng.normal(size=(int(per.sum()), 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    for be in (vis.make_backend(tri, name), vis.make_backend(tri, name, threads=2)):
+        be.PARALLEL_CHUNK = 256
+        for sure in (None, 0.1):
+            ref = be.first_hit(np.repeat(o, per, 0), d, 3.0, sure)
+            got = be.first_hit(o, d, 3.0, sure, per=per)
+            assert all(np.array_equal(x, y) for x, y in zip(ref, got))
+            assert 0 < (ref[0] >= 0).sum() < len(d)
+        ref = vis.first_hit_within(be, np.repeat(o, per, 0), d, 0.2, 3.0, 1e-4)
+        got = vis.first_hit_within(be, o, d, 0.2, 3.0, 1e-4, per=per)
+        assert all(np.array_equal(x, y) for x, y in zip(ref, got))
+        bad_o, bad_d = o.copy(), d.copy()
+        bad_o[3] = np.nan
+        bad_d[5] = np.inf
+        bad_d[9] = 0.0
+        ref = be.first_hit(np.repeat(bad_o, per, 0), bad_d, 3.0)
+        got = be.first_hit(bad_o, bad_d, 3.0, per=per)
+        assert all(np.array_equal(x, y) for x, y in zip(ref, got))
+    assert (got[0][[5, 9]] == -1).all()
+
+
 def test_component_major_occlusion_equals_occluded(name):
     """occluded_cm (the direct light's shadow rays, component-major) gives occluded()'s values
     exactly, zero-length and non-finite segments included."""

@@ -192,41 +192,75 @@ class RayBackend:
     def _occluded(self, a, d):  # segments a -> a + d, (R,3) float64, finite, nonzero length
         raise NotImplementedError
 
-    def first_hit(self, origins, directions, tmax, sure=None):
+    def first_hit(self, origins, directions, tmax, sure=None, per=None):
         """Nearest hit of rays o + t d, t in (TMIN tmax, (1 - TMIN) tmax) (the open segment
         o -> o + tmax d of occluded(): a ray hits something iff that segment is occluded).
         origins, directions (R, 3), tmax scalar or (R,). Returns (index of the triangle hit in the
         array given to the backend, -1 for none (R,) int64; t (R,) float64 in units of d, inf for
         none). Float64 decides every reported hit, as for occluded(); with `sure` (float32
         tracers) only those within sure x the segment of one of its ends, the others keep the
-        tracer's hit and t (see _Float32Backend._first)."""
+        tracer's hit and t (see _Float32Backend._first). per: rays per origin (an int or (S,)
+        counts): origins (S, 3), origin i starting per[i] consecutive rays (a sample's hemisphere
+        rays without a copy of its origin per ray: the same values as the origins repeated)."""
         o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-        d = (
-            np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-            * np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(o),))[:, None]
-        )
-        prim = np.full(len(o), -1, np.int64)
-        t = np.full(len(o), np.inf)
+        d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        n = len(d)
+        scale = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,))
+        d = d * scale[:, None]
+        rep = None if per is None else np.broadcast_to(np.asarray(per, np.int64), (len(o),))
+        prim = np.full(n, -1, np.int64)
+        t = np.full(n, np.inf)
         # finite rows by columns (.all(1) over an axis of 3 loops per row: 2.4 s CPU of the 100k
-        # room's gather precompute)
+        # room's gather precompute); the origins' once per origin
         fin = np.isfinite(o)
+        good = fin[:, 0] & fin[:, 1] & fin[:, 2]
+        if rep is not None:
+            good = np.repeat(good, rep)
         dd = np.einsum("ij,ij->i", d, d)  # (the squared lengths: _first's too, made once)
-        good = fin[:, 0] & fin[:, 1] & fin[:, 2] & (dd > 0)
-        fin = np.isfinite(d)
-        good &= fin[:, 0] & fin[:, 1] & fin[:, 2]
+        good &= dd > 0
+        # d's coordinates are finite where d . d is (a non-finite one makes it inf or nan); the
+        # others tested by coordinate (a finite d whose square overflows)
+        odd = np.flatnonzero(~np.isfinite(dd))
+        if len(odd):
+            good[odd] &= np.isfinite(d[odd]).all(1)
         ok = np.flatnonzero(good)
         if len(ok) and len(self.triangles):
-            kernel = lambda a, d, dd: self._first(a, d, sure, dd)  # noqa: E731
-            every = len(ok) == len(o)  # (no copies of the rays when all are good)
-            p, ts = self._map(kernel, *((o, d, dd) if every else (o[ok], d[ok], dd[ok])))
+            every = len(ok) == n  # (no copies of the rays when all are good)
+            if rep is not None and not every:  # (rare: rays one by one, as without per)
+                o, rep = np.repeat(o, rep, 0), None
+            if rep is None:
+                kernel = lambda a, d, dd: self._first(a, d, sure, dd)  # noqa: E731
+                p, ts = self._map(kernel, *((o, d, dd) if every else (o[ok], d[ok], dd[ok])))
+            else:
+                p, ts = self._map_per(o, rep, d, dd, sure)
             hit = p >= 0
-            prim[ok[hit]] = self.source[p[hit]]
-            t[ok[hit]] = ts[hit]
-        scale = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (len(o),))
+            if every:  # (the rays' own rows: no scatter through ok)
+                prim = np.where(hit, self.source[np.maximum(p, 0)] if len(self.source) else -1, -1)
+                t = np.where(hit, ts, np.inf)
+            else:
+                prim[ok[hit]] = self.source[p[hit]]
+                t[ok[hit]] = ts[hit]
         return prim, t * scale
 
-    def _first(self, a, d, sure=None, dd=None):  # segments a -> a + d: (kept triangle or -1, segment
-        # parameter t); dd: the rows' d . d if known (einsum's)
+    def _map_per(self, o, rep, d, dd, sure):
+        """_first over the rays of origins o (S, 3), rep (S,) rays each, by chunks of whole origins
+        of about PARALLEL_CHUNK rays on self.threads threads (as _map: every ray's result its own)."""
+        cum = np.zeros(len(o) + 1, np.int64)
+        np.cumsum(rep, out=cum[1:])
+
+        def kernel(i, j):
+            a, b = cum[i], cum[j]
+            return self._first(o[i:j], d[a:b], sure, dd[a:b], rep[i:j])
+
+        if len(d) <= self.PARALLEL_CHUNK or in_worker():
+            return kernel(0, len(o))
+        step = max(self.PARALLEL_CHUNK // max(int(rep.max(initial=1)), 1), 1)
+        parts = batch_map(kernel, ranges(len(o), step), self.threads)
+        return tuple(np.concatenate(x) for x in zip(*parts))
+
+    def _first(self, a, d, sure=None, dd=None, per=None):  # segments a -> a + d: (kept triangle or -1,
+        # segment parameter t); dd: the rows' d . d if known (einsum's); per: a's rows each start
+        # per[i] consecutive segments (first_hit's)
         raise NotImplementedError
 
     def __repr__(self):
@@ -307,7 +341,9 @@ class NumpyBackend(RayBackend):
                 )
             return out
 
-    def _first(self, a, d, sure=None, dd=None):  # float64 decides every hit: sure is moot
+    def _first(self, a, d, sure=None, dd=None, per=None):  # float64 decides every hit: sure is moot
+        if per is not None:
+            a = np.repeat(a, per, 0)
         with np.errstate(all="ignore"):
             if not self.grid:
                 return self._brute(a, d, nearest=True)
@@ -578,24 +614,33 @@ class _Float32Backend(RayBackend):
         """float32 o, d (R,3), tfar (R,): whether o + t d hits a triangle for some t in [0, tfar]."""
         raise NotImplementedError
 
-    def _first(self, a, d, sure=None, dd=None):
+    def _first(self, a, d, sure=None, dd=None, per=None):
         """The tracer proposes the nearest hit, float64 re-tests it on the
         original segment (and gives its t); refuted proposals and short segments go to numpy.
         sure: proposals farther than this (relative to the segment) from both ends keep the
         tracer's t, no re-test (the final gather's hemisphere rays: 1e-4 x their 4 x the scene's
         size, ~1 cm, is ~5000 float32 ulps of the coordinates, where a rounding self-hit needs a
         ray within ~1e-4 rad of its surface; what float32 alone misses, a ray through an edge
-        within an ulp, takes the triangle beside: 7 of 2.56 M rays on the 100k room, the t of 2 off)."""
-        o = a - self.center
+        within an ulp, takes the triangle beside: 7 of 2.56 M rays on the 100k room, the t of 2 off).
+        per: a (S, 3) the origins, a[i] starting per[i] consecutive segments (each origin's offset
+        and magnitude made once, not per segment: the same values)."""
         length = np.sqrt(np.einsum("ij,ij->i", d, d) if dd is None else dd)
-        mag = np.sqrt(np.einsum("ij,ij->i", o, o)) + length
+        o = a - self.center
+        mag = np.sqrt(np.einsum("ij,ij->i", o, o))
+        if per is not None:
+            o, mag = np.repeat(o, per, 0), np.repeat(mag, per)
+            cum = np.cumsum(per)
+            rows = lambda r: a[np.searchsorted(cum, r, "right")]  # noqa: E731  (the origins of segments r)
+        else:
+            rows = a.__getitem__
+        mag += length
         o += TMIN * d
         short = length < F32_SHORT * mag
         prim, t32 = self._nearest(
             o.astype(np.float32), d.astype(np.float32), np.full(len(o), 1.0 - 2.0 * TMIN, dtype=np.float32)
         )
         prim = np.where(short, -1, prim).astype(np.int64)
-        t = np.full(len(a), np.inf)
+        t = np.full(len(d), np.inf)
         ray = np.flatnonzero(prim >= 0)
         if sure is not None:  # t32 is measured from the shifted origin a + TMIN d
             tr = t32[ray]
@@ -603,12 +648,12 @@ class _Float32Backend(RayBackend):
             t[ray[ok]] = TMIN + tr[ok]
             ray = ray[~ok]
         with np.errstate(all="ignore"):
-            t[ray] = _hit_t_kernel([m[prim[ray]] for m in self._rows], *a[ray].T, *d[ray].T)
+            t[ray] = _hit_t_kernel([m[prim[ray]] for m in self._rows], *rows(ray).T, *d[ray].T)
         bad = ray[~np.isfinite(t[ray])]
         prim[bad] = -1
         retry = np.concatenate([bad, np.flatnonzero(short)])
         if len(retry):
-            prim[retry], t[retry] = self._numpy()._first(a[retry], d[retry])
+            prim[retry], t[retry] = self._numpy()._first(rows(retry), d[retry])
         self.last_retraced = len(retry)
         return prim, t
 
@@ -712,17 +757,19 @@ def make_backend(triangles, prefer="auto", threads=1):
     return backend
 
 
-def first_hit_within(backend, origins, directions, reach, tmax, sure=None):
+def first_hit_within(backend, origins, directions, reach, tmax, sure=None, per=None):
     """backend.first_hit of unit rays to `reach`, then of the misses on to `tmax`. The contract's
     minimum distance is relative to the segment: one segment as long as a scene with a stray object
     50 km away (tmax 100 km) would skip every hit within 10 cm; `reach` (a few times the size of
-    the main group of objects) keeps it relative to the rays' own surroundings. sure: first_hit's."""
-    prim, t = backend.first_hit(origins, directions, reach, sure)
+    the main group of objects) keeps it relative to the rays' own surroundings. sure, per:
+    first_hit's."""
+    prim, t = backend.first_hit(origins, directions, reach, sure, per)
     if tmax > reach:
         miss = np.flatnonzero(prim < 0)
         if len(miss):
             start = reach * (1 - 4 * TMIN)  # overlaps the first segment's open end
-            p2, t2 = backend.first_hit(origins[miss] + start * directions[miss], directions[miss], tmax, sure)
+            o = origins[miss] if per is None else origins[np.repeat(np.arange(len(origins)), per)[miss]]
+            p2, t2 = backend.first_hit(o + start * directions[miss], directions[miss], tmax, sure)
             hit = p2 >= 0
             prim[miss[hit]], t[miss[hit]] = p2[hit], start + t2[hit]
     return prim, t

@@ -1172,17 +1172,16 @@ class FinalGather(DirectLight):
         sel = np.concatenate(sels)
         row = np.repeat(sel, rr[sel])
         dirs = dirs[0] if len(dirs) == 1 else np.concatenate(dirs)
-        org = np.repeat(self._origins(a + sel), rr[sel], 0)  # (a sample's origin made once, not per ray)
-        prim, t = self.first_hit(org, dirs)
+        org = self._origins(np.arange(a, b))  # (a sample's origin made once, not per ray)
+        prim, t = self.first_hit(org[sel], dirs, rr[sel])
         ok = prim >= 0
         patch = np.where(ok, self.tri_patch[np.maximum(prim, 0)], 0)
         # (rows of 3 by take: fancy indexing of (n, 3) rows costs 3x at 100k)
         ok &= np.einsum("ij,ij->i", dirs, np.take(pt.normal, patch, 0)) < 0  # back faces reflect nothing
         i = np.flatnonzero(ok)
-        with np.errstate(invalid="ignore"):  # (misses: t inf; not taken)
-            hit = t[:, None] * dirs
-        hit += org  # (org + t d: one gather of the hits' rows, not three)
-        hit = np.take(hit, i, 0)
+        hit = np.take(dirs, i, 0)  # org + t d of the hits only (the hits' rows of 3 by take)
+        hit *= t[i, None]
+        hit += np.take(org, row[i], 0)
         leaf = locate_below(h, patch[i], hit, self.n_hr, self._lines())
         if self.covered_hits == "zero":
             lit = ~h.dark(leaf, hit)  # covered points read 0
@@ -1267,9 +1266,10 @@ class FinalGather(DirectLight):
     # per object within 0.02% (20k) / 0.16% (100k) of before (docs/scale.md "inexact cuts")
     SURE_HITS = 1e-4
 
-    def first_hit(self, org, dirs):
-        """Nearest hits of unit rays (visibility.first_hit_within: near hits to self.reach first)."""
-        return first_hit_within(self.system.backend, org, dirs, self.reach, self.tmax, self.SURE_HITS)
+    def first_hit(self, org, dirs, per=None):
+        """Nearest hits of unit rays (visibility.first_hit_within: near hits to self.reach first);
+        per: rays per origin (first_hit's: org one row per origin)."""
+        return first_hit_within(self.system.backend, org, dirs, self.reach, self.tmax, self.SURE_HITS, per)
 
     # -- run time: values at the HR leaves -----------------------------------------------------------
     def _state(self, dyn):

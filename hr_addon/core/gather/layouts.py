@@ -294,7 +294,7 @@ def _buried(system, pts, patch, reach):
                 break
             k = r1 - r0
             d = dirs[todo, r0:r1].reshape(-1, 3)
-            prim, _ = system.backend.first_hit(np.repeat(org[todo], k, 0), d, reach)
+            prim, _ = system.backend.first_hit(org[todo], d, reach, per=k)
             hit = prim >= 0
             back = np.zeros(len(prim), bool)
             hp = pt.triangle_patch[prim[hit]]
@@ -429,8 +429,7 @@ def _toward_openings(system, pts, corner, patch, layout, tp, covered):
     def escaping(q, keys):  # (each sample's rays keyed by its own index: its own answer)
         n = pt.normal[tp[c]]
         d = cosine_directions(n, keys, OPEN_RAYS, seed=11)
-        o = np.repeat(q + eps * n, OPEN_RAYS, 0)
-        hp, hd = system.backend.first_hit(o, d.reshape(-1, 3), reach)
+        hp, hd = system.backend.first_hit(q + eps * n, d.reshape(-1, 3), reach, per=OPEN_RAYS)
         far = (hp < 0) | (hd >= OPEN_FAR * np.repeat(clear, OPEN_RAYS))
         return far.reshape(-1, OPEN_RAYS).sum(1)
 
