@@ -1760,6 +1760,7 @@ class FinalGather(DirectLight):
         if self.second is None:
             return 0.0
         from .. import lights as lt
+        from .hot import bounce_leaves
 
         cache = self.__dict__.setdefault("_bounce_cache", {})
         got = cache.get(rec.geom_key)
@@ -1773,7 +1774,7 @@ class FinalGather(DirectLight):
                 Y1 = rec.D[:, : self.n_hr].T.copy()
             Y1 = self._leaf_means(g2.rho * g2._light(rec)[:, None], Y1)[: self.n_hr]
             ex = h.exposure[: self.n_hr].astype(np.float64)
-            idx = lt.bright_leaves(Y1.mean(1) * h.area[: self.n_hr] * ex)
+            idx = bounce_leaves(Y1.mean(1), h.area[: self.n_hr] * ex)  # (hot.py: and the hot leaves)
             B = np.zeros((self.n, 3))
             ok = np.flatnonzero(~self.dark)
             if len(idx) and len(ok):
