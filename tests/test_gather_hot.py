@@ -12,13 +12,16 @@ from hr_addon.core.refine import RefineParams
 from hr_testing.scenes import SceneBuilder
 
 
-def plate_lamp():
+def plate_lamp(ceiling=False):
     """A 4 m grey floor (rho 0.5, 24 x 24 patches) and a 0.2 m white plate (rho 0.8) facing it
     1 m up, a 50 W point light 3 cm under the plate: the plate's underside holds 44% of the
-    light's first bounce at 175x the room's mean radiance (a lamp shade's hot inside)."""
+    light's first bounce at 175x the room's mean radiance (a lamp shade's hot inside). ceiling:
+    a grey ceiling 2 m up (8 x 8 patches) too, which sees the plate's unlit top and the floor."""
     sb = SceneBuilder()
     sb.add_quad("floor", [(-2, -2, 0), (2, -2, 0), (2, 2, 0), (-2, 2, 0)], (0.5,) * 3, subdiv=24)
     sb.add_quad("plate", [(-0.1, -0.1, 1), (-0.1, 0.1, 1), (0.1, 0.1, 1), (0.1, -0.1, 1)], (0.8,) * 3)
+    if ceiling:
+        sb.add_quad("ceiling", [(-2, -2, 2), (-2, 2, 2), (2, 2, 2), (2, -2, 2)], (0.5,) * 3, subdiv=8)
     s = RadiositySystem(sb.build(), RefineParams())
     dyn = DynamicRadiosity(s, method="FE")
     dyn.apply({}, {"lamp": Light("POINT", (1, 1, 1), 50.0, position=np.array([0.0, 0.0, 0.97]))})
@@ -73,3 +76,30 @@ def test_a_hot_plate_over_a_point_light_is_integrated_exactly_with_the_rays_mean
     assert np.median(spread_rays) > 0.3, spread_rays
     se = rays.mean(1).std() / np.sqrt(len(seeds))
     assert abs(exact.mean() - rays.mean()) < 3 * se, (exact.mean(), rays.mean(), se)
+
+
+def test_the_second_levels_samples_take_the_hot_plate_exactly_too(monkeypatch):
+    """The ceiling sees the plate's unlit top and the floor: its light from the plate comes through
+    the floor's leaf values, the means of the second level's samples, whose 16 rays each found the
+    plate or not. With the plate taken out of those rays too (hot.SECOND, FinalGather._hot_second)
+    the ceiling's 64 patch centres (0.3 m and more off the axis), 32 rays, 12 seeds: each point's
+    spread over the seeds 6.0% (median) against 15.5% without, the same mean (measured: 0.0991 +-
+    0.0002 and 0.1002 +- 0.0009; 512 rays without hot leaves, 4 seeds: 0.0993 +- 0.0002)."""
+    s, dyn = plate_lamp(ceiling=True)
+    pt = s.patches
+    cen = pt.corners.mean(1)
+    r = np.linalg.norm(cen[:, :2], axis=1)
+    ce = np.flatnonzero((pt.object_id == pt.object_names.index("ceiling")) & (r > 0.3))
+
+    def incident(seed):
+        g = FinalGather(dyn, cen[ce], pt.normal[ce], ce, rays=32, levels=2, seed=seed)
+        return g.evaluate(dyn, "incident")[:, 0]
+
+    seeds = range(12)
+    both = np.array([incident(k) for k in seeds])
+    monkeypatch.setattr(hot, "SECOND", False)  # the top level's samples only
+    top = np.array([incident(k) for k in seeds])
+    spread_both, spread_top = (np.median(v.std(0) / v.mean(0)) for v in (both, top))
+    assert spread_both < 0.5 * spread_top, (spread_both, spread_top)
+    se = np.hypot(both.mean(1).std(), top.mean(1).std()) / np.sqrt(len(seeds))
+    assert abs(both.mean() - top.mean()) < 3 * se, (both.mean(), top.mean(), se)
