@@ -1290,7 +1290,9 @@ class FinalGather(DirectLight):
         _lights_tail)."""
         lit = not dyn.naive_active and self._lights_tail(dyn) and bool(dyn.lights)
         tail = lit or (not dyn.naive_active and any(r.gathered for r in dyn.shapes.values()))
-        return self._levels(self.solution_values(dyn), lambda g: g.direct_and_emission(dyn)[0], tail, lit)
+        hot = [self._hot_second(rec, rec.scale[None]) for rec in dyn.lights.values()]
+        direct = lambda g: g.direct_and_emission(dyn)[0]  # noqa: E731
+        return self._levels(self.solution_values(dyn), direct, tail, lit, hot)
 
     @staticmethod
     def _lights_tail(dyn):
@@ -1318,19 +1320,24 @@ class FinalGather(DirectLight):
     # exposed leaf sampled")
     TAIL_PASSES, TAIL_SHARE = 16, 0.02
 
-    def _levels(self, V, direct, tail=False, until=False):
+    def _levels(self, V, direct, tail=False, until=False, hot=()):
         """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
         direct(g) -> (g.n, 3) direct light at a level's samples: V itself with one level; with
         more, the lower levels' gathers (linear in V and the direct light). tail: the passes'
         limit instead of the last pass (the bounces after it: a geometric series of the last
         change, per channel; a shape's passes from V = 0, DynamicRadiosity.gather_responses).
         until (with tail): the passes go on, as from V = 0, while the tail is more than TAIL_SHARE
-        of the light (a Blender light's: _lights_tail)."""
+        of the light (a Blender light's: _lights_tail). hot: [(leaves, their first bounce, its light
+        at the second level's samples)] (_hot_second) taken out of the Jacobi passes' reads and
+        added to D2 exactly."""
         if self.second is None:
             return (V, None, None, None)
         g2 = self.second
         fit = getattr(self, "_slope_map", None)  # None: the rays read the means (slopes off)
         D2 = direct(g2)
+        hot = [x for x in hot if x is not None]
+        if hot:  # (hot.py: a lamp shade's inside integrated, not hit or missed by the rays)
+            D2 = D2 + sum(x[2] for x in hot)
         zero = tail and not V.any()
         # the first pass from V = 0 on the last level reads 0: zeros instead of the read (what it
         # gives, 0 x count summed over the rays; one read of a "zero" event's 8)
@@ -1354,7 +1361,8 @@ class FinalGather(DirectLight):
             if gs is not None and not (nothing and k == 0):
                 Y = self._seidel_pass(gs, L[0], V, D2)
             else:
-                y = g2._read(None if nothing and k == 0 else L)  # rho (D2 + read), in place: no (n, 3)
+                Lr = L if not hot or nothing and k == 0 else self._hot_read(L, hot)
+                y = g2._read(None if nothing and k == 0 else Lr)  # rho (D2 + read), in place: no (n, 3)
                 # temporaries a pass
                 batch_map(
                     lambda a, b: _lit(y, D2, g2.rho, a, b), ranges(len(y), self.ROW_BATCH), self.threads
@@ -1751,15 +1759,26 @@ class FinalGather(DirectLight):
 
     def _light_bounce(self, rec, Y, scale=1.0):
         """A Blender light's first bounce off the few HR leaves that hold it (a sun through a small
-        opening: lights.bright_leaves), integrated at the samples explicitly (lights.leaf_bounce)
-        and taken out of the leaf values Y (n_hr, 3) the hemisphere rays read (in place, Y holding
-        the light at `scale`). -> (n, 3) incident light at that scale, or 0.0. The rays found such a
-        patch a few times per texel: a surface's mean scattered by +-2.5% with the gather's seed.
-        Per unit scale, cached per light geometry; the top level only (the second level's samples
-        are one bounce further)."""
-        if self.second is None:
+        opening: lights.bright_leaves) or off its hot ones (a lamp shade's inside: hot.py),
+        integrated at the samples explicitly (lights.leaf_bounce) and taken out of the leaf values
+        Y (n_hr, 3) the hemisphere rays read (in place, Y holding the light at `scale`). -> (n, 3)
+        incident light at that scale, or 0.0. The rays found such a patch a few times per texel: a
+        surface's mean scattered by +-2.5% with the gather's seed. Per unit scale, cached per light
+        geometry; the second level's samples likewise (_hot_second, in _levels' passes)."""
+        got = self._bounce_leaves(rec)
+        if got is None or len(got[0]) == 0:
             return 0.0
-        from .. import lights as lt
+        idx, Y1, B = got[:3]
+        self._take_out(Y, idx, scale * Y1)
+        return B * scale
+
+    def _bounce_leaves(self, rec):
+        """(idx, Y1 (len(idx), 3), B (n, 3), cache entry) of a Blender light (_light_bounce): the
+        leaves hot.bounce_leaves picks, their first bounce at unit scale and its exact incident light
+        at this level's samples; None without a second level."""
+        if self.second is None:
+            return None
+        from .hot import bounce_leaves
 
         cache = self.__dict__.setdefault("_bounce_cache", {})
         got = cache.get(rec.geom_key)
@@ -1773,44 +1792,69 @@ class FinalGather(DirectLight):
                 Y1 = rec.D[:, : self.n_hr].T.copy()
             Y1 = self._leaf_means(g2.rho * g2._light(rec)[:, None], Y1)[: self.n_hr]
             ex = h.exposure[: self.n_hr].astype(np.float64)
-            idx = lt.bright_leaves(Y1.mean(1) * h.area[: self.n_hr] * ex)
-            B = np.zeros((self.n, 3))
-            ok = np.flatnonzero(~self.dark)
-            if len(idx) and len(ok):
-                # the leaf's value is its uncovered part's mean: spread over its whole polygon
-                pts = self.points
-                if getattr(self, "_slot", None) is not None:  # slot samples: at their gather point,
-                    pts = pts.copy()  # as the rest of the light their gain scales
-                    pts[self._slot["rows"]] = self._slot["at_q"]
-                B[ok] = lt.leaf_bounce(
-                    pts[ok],
-                    self.normals[ok],
-                    self.keys[ok],
-                    h.corners[idx],
-                    h.nv[idx],
-                    Y1[idx] * ex[idx, None],
-                    self.system.backend,
-                    self.eps,
-                    rays=self.shadow_rays,
-                    seed=self.seed,
-                )
-            got = cache[rec.geom_key] = (idx, Y1[idx], B)
+            idx = bounce_leaves(Y1.mean(1), h.area[: self.n_hr] * ex)  # (hot.py: and the hot leaves)
+            B = self._bounce_at(self, idx, Y1[idx] * ex[idx, None])
+            got = cache[rec.geom_key] = [idx, Y1[idx], B, {}]  # ({}: the second level's, _hot_second)
             for k in list(cache)[: max(len(cache) - 16, 0)]:
                 del cache[k]
-        idx, Y1, B = got
-        if len(idx) == 0:
-            return 0.0
-        Y[idx] = np.maximum(Y[idx] - scale * Y1, 0.0)
-        if len(Y) > self.n_hr:  # near hits read those leaves' samples: take the leaf's mean out
-            # of them too (exact on average over the leaf, not per sample)
+        return got
+
+    def _bounce_at(self, g, idx, radiance):
+        """(g.n, 3) incident light at level g's uncovered samples from the leaves idx of uniform
+        radiance (their value is their uncovered part's mean: spread over the whole polygon)."""
+        from .. import lights as lt
+
+        B = np.zeros((g.n, 3))
+        ok = np.flatnonzero(~g.dark)
+        if len(idx) and len(ok):
+            pts = g.points
+            if getattr(g, "_slot", None) is not None:  # slot samples: at their gather point,
+                pts = pts.copy()  # as the rest of the light their gain scales
+                pts[g._slot["rows"]] = g._slot["at_q"]
+            h = self.system.h
+            B[ok] = lt.leaf_bounce(
+                pts[ok], g.normals[ok], g.keys[ok], h.corners[idx], h.nv[idx], radiance,
+                self.system.backend, self.eps, rays=g.shadow_rays, seed=g.seed,
+            )  # fmt: skip
+        return B
+
+    def _hot_second(self, rec, scale=1.0):
+        """(idx, Y1, B2) at `scale` of a Blender light's picked leaves (_bounce_leaves) for the
+        second level's passes (_levels' hot): their first bounce taken out of what that level's
+        rays read, its exact incident light B2 at the level's samples added to their direct light.
+        Deep in a room the second level's 64 rays found a lamp shade's hot inside or not, and the
+        walls' leaf values the top level reads scattered with them. None: nothing picked."""
+        from . import hot
+
+        got = self._bounce_leaves(rec)
+        if got is None or len(got[0]) == 0 or not hot.SECOND:
+            return None
+        idx, Y1, _, more = got
+        if "B2" not in more:
+            ex = self.system.h.exposure[idx].astype(np.float64)
+            more["B2"] = self._bounce_at(self.second, idx, Y1 * ex[:, None])
+        return idx, scale * Y1, scale * more["B2"]
+
+    def _hot_read(self, L, hot):
+        """L (_levels' leaf values) with the hot leaves' first bounce taken out of its means (a copy)."""
+        Y = np.array(L[0])
+        for idx, Y1, _ in hot:
+            self._take_out(Y, idx, Y1)
+        return (Y,) + tuple(L[1:])
+
+    def _take_out(self, Y, idx, Y1):
+        """Y (rows, 3) leaf values a level's rays read, in place: rows idx less Y1 (their first
+        bounce, integrated apart), at least 0; near hits' rows (n_hr + sample) read those leaves'
+        samples: the leaf's mean out of them too (exact on average over the leaf, not per sample)."""
+        Y[idx] = np.maximum(Y[idx] - Y1, 0.0)
+        if len(Y) > self.n_hr:
             used = self._second_map[0]
             pos = np.minimum(np.searchsorted(used, idx), len(used) - 1)
             a, b = self._second_start[pos], self._second_start[pos + 1]
             b = np.where(used[pos] == idx, b, a)  # (a leaf without samples: none)
             rows = self.n_hr + np.concatenate([np.arange(p, q) for p, q in zip(a, b)] + [[]]).astype(np.int64)
-            Yr = np.repeat(np.broadcast_to(scale * Y1, (len(idx), 3)), b - a, 0)
+            Yr = np.repeat(np.broadcast_to(Y1, (len(idx), 3)), b - a, 0)
             Y[rows] = np.maximum(Y[rows] - Yr, 0.0)
-        return B * scale
 
     def solution_values(self, dyn):
         """(n_hr, 3) the solution's reflected radiance on the uncovered part of every HR leaf."""
@@ -1908,7 +1952,7 @@ class FinalGather(DirectLight):
                     return np.repeat(g._light(rec)[:, None].astype(np.float64), 3, 1)
 
                 tail = self._lights_tail(dyn)
-                Y = self._levels(self._values_from(h, X), unit, tail, tail)
+                Y = self._levels(self._values_from(h, X), unit, tail, tail, [self._hot_second(rec)])
                 part = self._dmix(unit(self), self._facing_part(unit)) + self._light_bounce(rec, Y[0])
                 part += self._read(Y)
                 self._responses[k] = part.astype(np.float32)
