@@ -392,6 +392,16 @@ def _classify(refiner, tree, a, b, table=None, lit=None):
     # patch node whose plane cuts the other end cannot be partial (split the other end).
     pa, pb = ~fa & ~ba & ea.cl, ~fb & ~bb & eb.cl
     facing = (fa | pa) & (fb | pb) & ~(pa & pb)
+    if prm.partial_both > 0:
+        # Two small ends (params.partial_both), a crown's leaves: their clusters' normals spread
+        # wide, so none faces anything wholly, and a patch node's plane cuts a cluster beside it;
+        # they link with the clamped cosine on both ends (a node's: its own along each segment)
+        # rather than down to every pair of their triangles
+        aeps = prm.aeps * refiner.total_area
+        tiny = lambda e: e.area <= np.where(e.cl, prm.partial_both * aeps, aeps)
+        both = ~facing & ~ba & ~bb & tiny(ea) & tiny(eb)
+        pa, pb = pa | (both & ~fa & ea.cl), pb | (both & ~fb & eb.cl)
+        facing |= both
     # Small against the distance: a cluster end is seen through 4 member samples and one
     # kernel direction, so its radius counts fully; a patch node end is integrated at 2 x 2
     # Gauss points, so half its radius counts. And the link's transfer times its relative

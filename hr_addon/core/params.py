@@ -20,6 +20,9 @@ class RefineParams:
     cluster: bool = True  # link through face clusters (cluster.py) instead of all patch pairs
     cluster_ratio: float = 0.3  # far links need (radius_a + radius_b) < cluster_ratio x distance
     partial_feps: float = 0.5  # far links with a partly facing cluster end need F < partial_feps x feps
+    # far links may have two partly facing cluster ends when both are smaller than partial_both x
+    # Aeps (0: never): a crown of small leaves, whose clusters' normals spread wide (farlinks)
+    partial_both: float = 0.0
     cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
     # Far links between two dark ends (no patch of the static emission in either, farlinks.LitEnds):
     # in the base solution they carry the emitters' light only after a reflection, so a share of
@@ -102,6 +105,7 @@ GATHER_TRANSPORT = {
         dark_ratio=0.9,
         vis_k=1,
         ff_exposed=3,
+        partial_both=1.0,
     ),
     "medium": dict(feps=0.05, shadow_feps=0.01, vcorr=0.0, cluster_ratio=0.7, cluster_veps=0.1, vis_k=1),
     "high": dict(feps=0.02, shadow_feps=0.002, vcorr=0.0, cluster_ratio=0.3, cluster_veps=1e-3),
