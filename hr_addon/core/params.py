@@ -95,6 +95,9 @@ class RefineParams:
 # made the 20k base solve take twice the GMRES steps (its power balance 5e-3 off), 0.95 and 0.9 did
 # not; dark_veps 0.3 (weak far links' visibility 0.992 of a dense one) and dark_second False (strong
 # ones' +3.8%) fail tests/test_clusters.py's bound of 0.5%: not taken (docs/scale.md, session 32).
+# Draft's partial_both 1.0 since session 35 (leaves): two ends below Aeps that fail only the facing
+# test (a crown's leaves) link with the clamped cosine on both; the loft's links 1.46 M -> 0.64 M,
+# the furnished 20k's 108k -> 93k (its output per object 0.0001% median), 100k 635k -> 453k.
 GATHER_TRANSPORT = {
     "draft": dict(
         feps=0.1,
