@@ -11,7 +11,7 @@ import pytest
 from hr_addon.core.geometry import MeshInput
 from hr_addon.core.radiosity import RadiositySystem
 from hr_addon.core.refine import RefineParams
-from hr_testing.furnished import grid_quad
+from hr_testing.furnished import box
 from hr_testing.loft import leaf_solids
 
 GATHER = RefineParams.for_gather("draft")
@@ -23,25 +23,13 @@ def crown_room(E_ceiling=10.0, E_all=0.0, rho=0.5, n=250):
     E_ceiling (E_all: every polygon emits it, the furnace), a crown of n leaves 0.45 m from the
     wall x = 0. Objects: 0..5 the sides (4: the wall x = 0), 6 the leaves."""
     W, D, H = 3.0, 3.0, 2.5
-    sides = [
-        ((0, 0, 0), (W, 0, 0), (0, D, 0)),
-        ((0, 0, H), (0, D, 0), (W, 0, 0)),
-        ((0, 0, 0), (0, 0, H), (W, 0, 0)),
-        ((0, D, 0), (W, 0, 0), (0, 0, H)),
-        ((0, 0, 0), (0, D, 0), (0, 0, H)),
-        ((W, 0, 0), (0, 0, H), (0, D, 0)),
-    ]
-    verts, polys, oid, emit = [], [], [], []
-    off = 0
-    for k, (o, u, v) in enumerate(sides):
-        vv, q = grid_quad(np.asarray(o, float), np.asarray(u, float), np.asarray(v, float), 6, 6)
-        c = vv[q].mean(1)
-        lit = (k == 1) & (np.abs(c[:, 0] - W / 2) < 0.5) & (np.abs(c[:, 1] - D / 2) < 0.5)
-        verts.append(vv)
-        polys += [list(p + off) for p in q]
-        oid += [k] * len(q)
-        emit += list(np.where(lit, E_ceiling, 0.0))
-        off += len(vv)
+    rv, (rq,) = box((0, 0, 0), (W, D, H), 6)  # sides of 36 quads: floor, ceiling, y = 0, y = D, x = 0, x = W
+    rq = rq[:, ::-1]  # facing in
+    c = rv[rq].mean(1)
+    side = np.arange(len(rq)) // 36
+    lit = (side == 1) & (np.abs(c[:, 0] - W / 2) < 0.5) & (np.abs(c[:, 1] - D / 2) < 0.5)
+    verts, polys, oid, emit = [rv], [list(q) for q in rq], list(side), list(np.where(lit, E_ceiling, 0.0))
+    off = len(rv)
     lv, lf = leaf_solids(np.random.default_rng(11), n, (0.45, 1.5, 1.1), 0.35)
     verts.append(lv)
     polys += [[i + off for i in f] for f in lf]
@@ -71,11 +59,11 @@ def _per_patch(s):
 
 
 def test_a_crowns_links_are_bounded_and_the_wall_beside_it_keeps_its_light(lit):
-    """The crown's 2,000 triangles: links measured 118,522 -> 64,853 (32 a leaf triangle, 59
+    """The crown's 2,000 triangles: links measured 118,495 -> 64,826 (32 a leaf triangle, 59
     without). What the leaves' both-partial links change (the clamped cosine in SH on both
-    ends, kernel error of a few percent on links below partial_feps x Feps): measured, the
-    wall 0.45 m from the crown 4.4e-5 at worst per patch, the leaves' mean -0.12% (per leaf
-    triangle median 0.25%, worst 9.7%); bounds about 5-20x those."""
+    ends, on links below partial_feps x Feps): measured, the wall 0.45 m from the crown 4.4e-5
+    at worst per patch, its mean 1.5e-5, the leaves' mean -0.12% (per leaf triangle median
+    0.25%, worst 9.9%); the bounds about 4-20x those."""
     mesh, on, off = lit
     oid = on.patches.object_id
     leaf, wall = oid == 6, oid == 4
@@ -93,9 +81,8 @@ def test_furnace_with_a_crown():
     """Same reflectance and emission everywhere: B = E / (1 - rho) = 2 on every surface, the
     leaves too, whatever links them. The leaves' both-partial links keep what the links among
     all their triangles give (a few leaves that cut into each other read far off either way:
-    the worst leaf triangle 0.974 off with and without). Measured: the leaves' mean -0.695%
-    (without: -0.687%), per leaf triangle |with - without| p99 1.2%, the room's worst 6.85%
-    either way."""
+    the worst leaf triangle 0.974 off with and without). Measured: the leaves' mean -0.875%
+    (without: -0.868%), the room's worst 7.17% either way."""
     mesh = crown_room(E_ceiling=0.0, E_all=1.0)
     s_on, s_off = RadiositySystem(mesh, GATHER), RadiositySystem(mesh, OFF)
     on, off = _per_patch(s_on) / 2.0 - 1, _per_patch(s_off) / 2.0 - 1
