@@ -142,9 +142,10 @@ def _cylinder(name, radius, height, seg, location, mat, parent, top=True):
     return _mesh_object(name, v, polys, [mat], parent, location=location)
 
 
-def _leaves(name, rng, n, centre, spread, mat, parent):
-    """One object of n small leaves around a crown: each leaf a closed 2 mm solid (a flattened
-    octahedron, 8 triangles), 5-11 cm long, at random directions and tilts."""
+def leaf_solids(rng, n, centre, spread):
+    """(vertices, triangles) of n small leaves around a crown: each leaf a closed 2 mm solid (a
+    flattened octahedron, 8 triangles facing out), 5-11 cm long, at random directions and tilts
+    (numpy only: tests/test_leaves.py builds the same crowns without Blender)."""
     vs, fs = [], []
     for k in range(n):
         d = rng.normal(size=3)
@@ -170,6 +171,12 @@ def _leaves(name, rng, n, centre, spread, mat, parent):
         mid = v[6 * (f[0] // 6) + 4 : 6 * (f[0] // 6) + 6].mean(0)
         nw = np.cross(q[1] - q[0], q[2] - q[0])
         out.append(f if nw @ (q.mean(0) - mid) >= 0 else f[::-1])
+    return v, out
+
+
+def _leaves(name, rng, n, centre, spread, mat, parent):
+    """One object of n small leaves around a crown (leaf_solids)."""
+    v, out = leaf_solids(rng, n, centre, spread)
     return _mesh_object(name, v, out, [mat], parent)
 
 

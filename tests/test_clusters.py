@@ -783,7 +783,11 @@ def test_far_links_visibility_agrees_with_dense_sampling_over_the_room(monkeypat
     dropped on "occluded") and weak ones -3.4% low (an unweighted count of 4 segments against the
     kernel-weighted share: near, head-on segments carry more and are seen more). Now strong
     links kept on the oracle's trace are traced again on other points of their members, and
-    visibilities are kernel-weighted: both within 0.5% (-0.00% / -0.04% measured)."""
+    visibilities are kernel-weighted: both within 1% (-0.00% / -0.04% measured then). The dense
+    reference's own noise (16 x 16 random points an end; any change of the link set redraws
+    every link's points): weak links over dense seeds 1-4 read 0.9961 / 0.9961 / 0.9905 / 0.9939 on
+    session 35's main, 0.9927 / 0.9953 / 1.0009 / 0.9893 with params.partial_both (means 0.9942 /
+    0.9946; strong 0.9985-1.0036 / 0.9977-1.0027): 0.5% was inside that spread."""
     from hr_testing.furnished import furnished_room
 
     monkeypatch.setattr(FL, "KEEP_OCCLUDED", True)
@@ -798,7 +802,7 @@ def test_far_links_visibility_agrees_with_dense_sampling_over_the_room(monkeypat
     assert 1000 < strong.sum() < len(far) - 1000
     for sel in (strong, ~strong):
         got, want = (traced * ex)[sel].sum(), (dense * ex)[sel].sum()
-        assert got / want == pytest.approx(1.0, abs=0.005)
+        assert got / want == pytest.approx(1.0, abs=0.01)
 
 
 def _book_on_board():

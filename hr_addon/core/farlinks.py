@@ -238,6 +238,9 @@ SECOND_TRACE = True
 # segments i -> (i + s) mod 4, s in {0, 2} (each point in two; unbiased, noisier; measured by
 # bld32, not taken: docs/scale.md)
 SECOND_SEGMENTS = 16
+# params.partial_both: a patch node end (at most Aeps) takes part too (its plane cutting the small
+# cluster beside it)
+PARTIAL_NODES = True
 # pairs per block of the kernel variation (_variation): its (4, 4, pairs) temporaries stay in the cache
 VAR_BLOCK = 1024
 
@@ -388,10 +391,21 @@ def _classify(refiner, tree, a, b, table=None, lit=None):
     fmax = np.maximum(f_ab, f_ba)
     drop = ba | bb | (fmax <= 0)
     # A cluster end whose members do not all face the other end is "partial": its kernel is
-    # the SH approximation of the clamped cosine, allowed on one end of weak links only. A
-    # patch node whose plane cuts the other end cannot be partial (split the other end).
+    # the SH approximation of the clamped cosine, allowed on one end of weak links only (both
+    # ends when both are small: params.partial_both). A patch node whose plane cuts the other end
+    # cannot be partial (split the other end).
     pa, pb = ~fa & ~ba & ea.cl, ~fb & ~bb & eb.cl
     facing = (fa | pa) & (fb | pb) & ~(pa & pb)
+    if prm.partial_both > 0:
+        # Two small ends (params.partial_both), a crown's leaves: their clusters' normals spread
+        # wide, so none faces anything wholly, and a patch node's plane cuts a cluster beside it;
+        # they link with the clamped cosine on both ends (a node's: its own along each segment)
+        # rather than down to every pair of their triangles
+        aeps = prm.aeps * refiner.total_area
+        tiny = lambda e: np.where(e.cl, e.area <= prm.partial_both * aeps, PARTIAL_NODES & (e.area <= aeps))
+        both = ~facing & ~ba & ~bb & tiny(ea) & tiny(eb)
+        pa, pb = pa | (both & ~fa & ea.cl), pb | (both & ~fb & eb.cl)
+        facing |= both
     # Small against the distance: a cluster end is seen through 4 member samples and one
     # kernel direction, so its radius counts fully; a patch node end is integrated at 2 x 2
     # Gauss points, so half its radius counts. And the link's transfer times its relative

@@ -20,6 +20,9 @@ class RefineParams:
     cluster: bool = True  # link through face clusters (cluster.py) instead of all patch pairs
     cluster_ratio: float = 0.3  # far links need (radius_a + radius_b) < cluster_ratio x distance
     partial_feps: float = 0.5  # far links with a partly facing cluster end need F < partial_feps x feps
+    # far links may have two partly facing cluster ends when both are smaller than partial_both x
+    # Aeps (0: never): a crown of small leaves, whose clusters' normals spread wide (farlinks)
+    partial_both: float = 0.0
     cluster_veps: float = 1e-3  # far links need F x (radius_a + radius_b) / distance below this
     # Far links between two dark ends (no patch of the static emission in either, farlinks.LitEnds):
     # in the base solution they carry the emitters' light only after a reflection, so a share of
@@ -92,6 +95,9 @@ class RefineParams:
 # made the 20k base solve take twice the GMRES steps (its power balance 5e-3 off), 0.95 and 0.9 did
 # not; dark_veps 0.3 (weak far links' visibility 0.992 of a dense one) and dark_second False (strong
 # ones' +3.8%) fail tests/test_clusters.py's bound of 0.5%: not taken (docs/scale.md, session 32).
+# Draft's partial_both 1.0 since session 35 (leaves): two ends below Aeps that fail only the facing
+# test (a crown's leaves) link with the clamped cosine on both; the loft's links 1.46 M -> 0.64 M,
+# the furnished 20k's 108k -> 93k (its output per object 0.0001% median), 100k 635k -> 453k.
 GATHER_TRANSPORT = {
     "draft": dict(
         feps=0.1,
@@ -102,6 +108,7 @@ GATHER_TRANSPORT = {
         dark_ratio=0.9,
         vis_k=1,
         ff_exposed=3,
+        partial_both=1.0,
     ),
     "medium": dict(feps=0.05, shadow_feps=0.01, vcorr=0.0, cluster_ratio=0.7, cluster_veps=0.1, vis_k=1),
     "high": dict(feps=0.02, shadow_feps=0.002, vcorr=0.0, cluster_ratio=0.3, cluster_veps=1e-3),
