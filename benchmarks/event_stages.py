@@ -5,7 +5,9 @@ visibility stores warm: hostvis_tiles.py --sweep's later steps), each with its g
 the classes, the host visibility's (hostvis.py: `light`, its `visible` read, the segments traced by
 `_fill`, the ratio, the form factors) and the rays traced, the response's operator applications one
 by one (with their sources' nonzero share), optional cProfile and dumps. The draft preset's defaults
-(today "zero": no response); each method starts from empty host visibility stores and shape caches
+(today "zero": no response; warm_moves as DynamicRadiosity's default, Live's: a moved shape's passes
+start from its last limit, FinalGather._seidel_warm; --dyn "dict(warm_moves=False)" for a bake's
+passes from nothing); each method starts from empty host visibility stores and shape caches
 at every level (the slot samples' facing copy too), as a fresh process would. The window is a moving
 shape (LightShape.moves: a keyed sweep's, whose direct light the product reads from the host
 visibility; session 31 evsweep: since hvmove the benchmark's window was still, its light by shadow
@@ -166,13 +168,15 @@ def main(argv=None):
             dumps[f"{method}_{step}"] = v
             print(
                 f"{method} {step}: event {c1 - c0:.3f} s + output {c2 - c1:.3f} s CPU "
-                f"(second-level passes {g.stats.get('tail_passes')}, {counted[0] - n0:,} rays)",
+                f"(second-level passes {g.stats.get('tail_passes')}"
+                f"{' warm' if g.stats.get('warm_passes') else ''}, {counted[0] - n0:,} rays)",
                 flush=True,
             )
             out["steps"][f"{method}_{step}"] = dict(
                 event_cpu_s=round(c1 - c0, 4),
                 output_cpu_s=round(c2 - c1, 4),
                 passes=g.stats.get("tail_passes"),
+                warm=bool(g.stats.get("warm_passes")),
                 rays=counted[0] - n0,
                 stages={k: [round(times[k], 4), calls[k]] for k in sorted(times)},
                 operator_applications=[[round(t, 4), c, round(z, 4)] for t, c, z in gathers],
