@@ -1392,19 +1392,20 @@ class FinalGather(DirectLight):
             self._warm[warm] = L[0]
         return L
 
-    # a gathered shape's Gauss-Seidel passes from nothing started from the limit its passes reached
-    # at its last event instead (_levels' warm: Live's shapes, DynamicRadiosity.warm_moves; never a
-    # bake's, whose frames must not depend on the frames before them, docs/farm.md): the same fixed
-    # point, and a sweep's steps are close, so fewer passes reach it. They go on (at least
-    # WARM_MIN_PASSES, at most TAIL_PASSES) while a pass changes the leaf values by more than
-    # WARM_TOL of their L1 norm (the largest channel's); the change left after the last pass,
-    # about r / (1 - r) of that pass's (r the passes' ratio), is not extrapolated (a warm start's
-    # change has either sign, so its sums give no ratio). The furnished 100k room's FE window swept
-    # by 2.2 cm steps at draft: 2 passes (changes ~8e-3, then ~1.5e-3) instead of 5 from nothing, per
-    # object from the passes' limit median 0.007-0.008%, p95 0.03-0.04%, worst 0.19-0.30% (from
-    # nothing 0.015 / 0.13 / 0.77%); a 0.5 m move 4 passes, 0.019 / 0.045 / 0.70%, bias +0.018%
-    # (docs/events.md, session 35, branch ev05). 0 turns it off.
-    WARM_TOL, WARM_MIN_PASSES = 3e-3, 1
+    # a gathered shape's Gauss-Seidel passes from nothing started from the limit its passes reached at its
+    # last event instead (_levels' warm, where WARM_TOL is set and DynamicRadiosity.warm_moves: never a
+    # bake's, whose frames must not depend on the frames before them, docs/farm.md): the same fixed point,
+    # and a sweep's steps are close, so fewer passes reach it. OFF by default (0): a shape's values would
+    # then depend on where it was before, and Live's refine would no longer equal a bake's frame bit for bit
+    # (test_live_preview, test_blender_moving): the lead's call. They go on (at least WARM_MIN_PASSES, at
+    # most TAIL_PASSES) while a pass changes the leaf values by more than WARM_TOL of their L1 norm (the
+    # largest channel's); the change left after the last pass, about r / (1 - r) of that pass's (r the
+    # passes' ratio), is not extrapolated (a warm start's change has either sign, so its sums give no
+    # ratio). The furnished 100k room's FE window swept by 2.2 cm steps at draft: 2 passes (changes ~8e-3,
+    # then ~1.5e-3) instead of 5 from nothing, per object from the passes' limit median 0.007-0.008%, p95
+    # 0.03-0.04%, worst 0.19-0.30% (from nothing 0.015 / 0.13 / 0.77%); a 0.5 m move 4 passes, 0.019 / 0.045
+    # / 0.70%, bias +0.018% (docs/events.md, session 35, branch ev05), at WARM_TOL 3e-3.
+    WARM_TOL, WARM_MIN_PASSES = 0.0, 1
 
     def _seidel_warm(self, gs, key, V, D2):
         """_levels' leaf values from the limit kept under key (None where there is none, of these
