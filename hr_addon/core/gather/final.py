@@ -1944,7 +1944,7 @@ class FinalGather(DirectLight):
                 warm = None
                 if rec.gathered == "zero":  # no response: the passes from nothing and their tail
                     V = np.zeros_like(V)
-                    warm = ("shape", rec.key) if dyn.warm_moves else None  # (_seidel_warm)
+                    warm = ("shape", rec.key) if dyn.warm_moves and self.WARM_TOL else None  # (_seidel_warm)
                 Y = self._levels(V, unit, bool(rec.gathered), warm=warm)
                 part = self._dmix(unit(self), self._facing_part(unit)) + self._read(Y)
                 self._responses[k] = part.astype(np.float32)
