@@ -5,11 +5,13 @@ visibility stores warm: hostvis_tiles.py --sweep's later steps), each with its g
 the classes, the host visibility's (hostvis.py: `light`, its `visible` read, the segments traced by
 `_fill`, the ratio, the form factors) and the rays traced, the response's operator applications one
 by one (with their sources' nonzero share), optional cProfile and dumps. The draft preset's defaults
-(today "zero": no response); each method starts from empty host visibility stores and shape caches
-at every level (the slot samples' facing copy too), as a fresh process would. The window is a moving
-shape (LightShape.moves: a keyed sweep's, whose direct light the product reads from the host
-visibility; session 31 evsweep: since hvmove the benchmark's window was still, its light by shadow
-rays); --still for that.
+(today "zero": no response; --warm TOL sets FinalGather.WARM_TOL, off by default: a moved shape's
+passes then start from its last limit where warm_moves, DynamicRadiosity's default, as Live's; --dyn
+"dict(warm_moves=False)" gives a bake's passes from nothing); each method starts from empty host
+visibility stores and shape caches at every level (the slot samples' facing copy too), as a fresh
+process would. The window is a moving shape (LightShape.moves: a keyed sweep's, whose direct light the
+product reads from the host visibility; session 31 evsweep: since hvmove the benchmark's window was
+still, its light by shadow rays); --still for that.
 
     .venv/bin/python benchmarks/event_stages.py STORE [--methods FE,AUTO] [--sweep 1] \\
         [--dyn "dict(gather_responses='tail')"] [--dump out.npz] [--profile out.txt] [--json out.json]
@@ -66,6 +68,7 @@ def main(argv=None):
     ap.add_argument("--tail-shares", default=None, help="the passes' stopping rule instead (module doc)")
     ap.add_argument("--limit", type=float, default=1e-4, help="--tail-shares: the reference's share")
     ap.add_argument("--limit-passes", type=int, default=16, help="--tail-shares: its passes at most")
+    ap.add_argument("--warm", type=float, default=None, help="FinalGather.WARM_TOL (module doc)")
     ap.add_argument("--json", default=None, help="the steps' figures and stages (or --tail-shares' results)")
     ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
     ap.add_argument("--profile", default=None, help="a cProfile summary of the events here")
@@ -85,6 +88,8 @@ def main(argv=None):
     from hr_addon.core.gather.hostvis import HostVisibility
 
     cpu = time.process_time
+    if args.warm is not None:
+        FinalGather.WARM_TOL = args.warm
     s, g, window = stored_room(args.store)
     if not args.still:  # a keyed sweep's window moves: the product reads the host visibility for it
         window = functools.partial(_moving, window)
@@ -166,13 +171,15 @@ def main(argv=None):
             dumps[f"{method}_{step}"] = v
             print(
                 f"{method} {step}: event {c1 - c0:.3f} s + output {c2 - c1:.3f} s CPU "
-                f"(second-level passes {g.stats.get('tail_passes')}, {counted[0] - n0:,} rays)",
+                f"(second-level passes {g.stats.get('tail_passes')}"
+                f"{' warm' if g.stats.get('warm_passes') else ''}, {counted[0] - n0:,} rays)",
                 flush=True,
             )
             out["steps"][f"{method}_{step}"] = dict(
                 event_cpu_s=round(c1 - c0, 4),
                 output_cpu_s=round(c2 - c1, 4),
                 passes=g.stats.get("tail_passes"),
+                warm=bool(g.stats.get("warm_passes")),
                 rays=counted[0] - n0,
                 stages={k: [round(times[k], 4), calls[k]] for k in sorted(times)},
                 operator_applications=[[round(t, 4), c, round(z, 4)] for t, c, z in gathers],

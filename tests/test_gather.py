@@ -665,13 +665,18 @@ def test_a_shape_with_the_passes_tail_gives_the_converged_gather(method):
         assert np.abs(parts["tail"] - fe).max() <= 1e-5 * fe.max()
 
 
-def _furnace_window_gather():
-    """(dyn, g): the contact furnace (rho 0.85) lit by a window shape without a response ("zero"),
-    its two-level gather (64 rays, 4 iterations)."""
-    base = RadiositySystem(contact_furnace(0.85), RefineParams.preset("draft"))
+def _furnace_window(cx=1.5):
     frame = (np.zeros(3), (0, 0, 1.0), (1.0, 0, 0))  # wall0, facing +y
-    win = LightShape(S.on_plane(S.rect(1.0, 0.8, centre=(1.5, 1.4)), frame), np.full(3, 5.0), "w")
-    dyn = DynamicRadiosity(base.copy(), method="FE", gather_responses="zero")
+    return LightShape(S.on_plane(S.rect(1.0, 0.8, centre=(cx, 1.4)), frame), np.full(3, 5.0), "w")
+
+
+def _furnace_window_gather(warm_moves=False):
+    """(dyn, g): the contact furnace (rho 0.85) lit by a window shape without a response ("zero"),
+    its two-level gather (64 rays, 4 iterations); warm_moves False (the bake's): the passes from
+    nothing at every event (FinalGather._seidel_warm)."""
+    base = RadiositySystem(contact_furnace(0.85), RefineParams.preset("draft"))
+    win = _furnace_window()
+    dyn = DynamicRadiosity(base.copy(), method="FE", gather_responses="zero", warm_moves=warm_moves)
     dyn.apply({"w": win})
     pts, patch, _ = surface_samples(dyn.system.patches, 10)
     g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=64, levels=2, iterations=4)
@@ -741,6 +746,68 @@ def test_seidel_passes_do_not_depend_on_the_thread_count(monkeypatch):
     g.threads = g.second.threads = 1
     again, _ = _shape_part(dyn, g)
     assert one.any() and np.array_equal(one, three) and np.array_equal(one, again)
+
+
+def test_warm_passes_reach_the_same_limit_in_fewer_passes(monkeypatch):
+    """With WARM_TOL set and warm_moves (Live's), a moved shape's Gauss-Seidel passes start from the
+    limit its passes reached at its last place (_seidel_warm): run long they reach the passes' limit
+    from nothing
+    (the same fixed point, within 1e-5 of the light); at WARM_TOL a small move takes fewer passes
+    than from nothing, and its distance from that limit is about r / (1 - r) of the last pass's
+    change (at most WARM_TOL of the light; the furnace at rho 0.85: r about 0.7)."""
+    dyn, g = _furnace_window_gather(warm_moves=True)
+    default = 3e-3  # (the setting measured on the 100k room; FinalGather.WARM_TOL is 0: off)
+    monkeypatch.setattr(FinalGather, "TAIL_SHARE", 1e-9)
+    monkeypatch.setattr(FinalGather, "TAIL_PASSES", 200)
+    monkeypatch.setattr(FinalGather, "WARM_TOL", 0)  # (off: from nothing)
+    dyn.apply({"w": _furnace_window(1.52)})
+    limit, _ = _shape_part(dyn, g)
+    total = np.abs(limit).sum()
+    monkeypatch.setattr(FinalGather, "TAIL_SHARE", 0.02)
+    monkeypatch.setattr(FinalGather, "TAIL_PASSES", 16)
+    cold, n_cold = _shape_part(dyn, g)
+    got = {}
+    for tol, passes in ((1e-12, 200), (default, 16)):
+        monkeypatch.setattr(FinalGather, "WARM_TOL", tol)
+        monkeypatch.setattr(FinalGather, "TAIL_PASSES", passes)
+        dyn.apply({"w": _furnace_window(1.5)})
+        _shape_part(dyn, g)  # (from the last limit kept: the window's at 1.52)
+        dyn.apply({"w": _furnace_window(1.52)})
+        got[tol] = _shape_part(dyn, g) + (g.stats["warm_changes"][-1],)
+        assert g.stats["warm_passes"] == got[tol][1]
+    assert np.abs(got[1e-12][0] - limit).sum() <= 1e-5 * total
+    warm, n_warm, change = got[default]
+    far = [np.abs(v - limit).sum() / total for v in (cold, warm)]
+    print("passes from nothing / warm", n_cold, n_warm, "from the limit", far, "last change", change)
+    assert n_warm < n_cold and change <= default
+    assert np.abs(warm - limit).sum() <= 0.7 / 0.3 * change * total
+
+
+def test_warm_passes_only_with_warm_moves_and_the_same_on_any_thread_count(monkeypatch):
+    """WARM_TOL set, without warm_moves (the bake's) nothing is kept between events: a moved shape's
+    part is the same bit for bit whatever came before (the passes from nothing); with it, the warm
+    passes from the same start are the same bit for bit on 1 and 3 threads."""
+    monkeypatch.setattr(FinalGather, "SEIDEL_STEP", 512)  # (several ranges a block)
+    monkeypatch.setattr(FinalGather, "WARM_TOL", 3e-3)
+    dyn, g = _furnace_window_gather()
+    dyn.apply({"w": _furnace_window(1.52)})
+    first, n = _shape_part(dyn, g)
+    dyn.apply({"w": _furnace_window(1.5)})
+    _shape_part(dyn, g)
+    dyn.apply({"w": _furnace_window(1.52)})
+    again, n_again = _shape_part(dyn, g)
+    assert g.stats["warm_passes"] == 0 and not g.__dict__.get("_warm")
+    assert n_again == n and np.array_equal(first, again)
+    dyn, g = _furnace_window_gather(warm_moves=True)
+    start = {k: v.copy() for k, v in g._warm.items()}
+    dyn.apply({"w": _furnace_window(1.52)})
+    parts = []
+    for threads in (1, 3, 1):
+        g._warm = {k: v.copy() for k, v in start.items()}
+        g.threads = g.second.threads = threads
+        parts.append(_shape_part(dyn, g))
+        assert g.stats["warm_passes"] > 0
+    assert all(p[1] == parts[0][1] and np.array_equal(p[0], parts[0][0]) for p in parts)
 
 
 def test_merge_gives_the_batches_concatenated(monkeypatch):

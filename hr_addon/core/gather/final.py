@@ -1320,7 +1320,7 @@ class FinalGather(DirectLight):
     # exposed leaf sampled")
     TAIL_PASSES, TAIL_SHARE = 16, 0.02
 
-    def _levels(self, V, direct, tail=False, until=False, hot=()):
+    def _levels(self, V, direct, tail=False, until=False, hot=(), warm=None):
         """The leaf values the top level's rays read, from the solution's V (n_hr, 3) and
         direct(g) -> (g.n, 3) direct light at a level's samples: V itself with one level; with
         more, the lower levels' gathers (linear in V and the direct light). tail: the passes'
@@ -1329,7 +1329,8 @@ class FinalGather(DirectLight):
         until (with tail): the passes go on, as from V = 0, while the tail is more than TAIL_SHARE
         of the light (a Blender light's: _lights_tail). hot: [(leaves, their first bounce, its light
         at the second level's samples)] (_hot_second) taken out of the Jacobi passes' reads and
-        added to D2 exactly."""
+        added to D2 exactly. warm: a key under which the Gauss-Seidel passes from V = 0 keep their
+        limit and start from the one kept last (_seidel_warm)."""
         if self.second is None:
             return (V, None, None, None)
         g2 = self.second
@@ -1354,6 +1355,11 @@ class FinalGather(DirectLight):
         if gs is not None:
             least = max(self.SEIDEL_MIN_PASSES - 1, 2) if self.SEIDEL_MIN_PASSES else least
             share = self.TAIL_SHARE if self.SEIDEL_TAIL_SHARE is None else self.SEIDEL_TAIL_SHARE
+        self.stats["warm_passes"] = 0
+        if gs is not None and warm is not None:
+            got = self._seidel_warm(gs, warm, V, D2)
+            if got is not None:
+                return got
         for k in range(self.TAIL_PASSES if until else 1 + self.iterations):
             if until and k > least and self._tail_share(sums) <= share:
                 k -= 1
@@ -1390,7 +1396,45 @@ class FinalGather(DirectLight):
             Yt, _ = self._tail(last, not zero)
             self.stats["tail_passes"] = k + 1
             L = (Yt,) + tuple(L[1:])
+        if gs is not None and warm is not None:
+            self._warm[warm] = L[0]
         return L
+
+    # a gathered shape's Gauss-Seidel passes from nothing started from the limit its passes reached at its
+    # last event instead (_levels' warm, where WARM_TOL is set and DynamicRadiosity.warm_moves: never a
+    # bake's, whose frames must not depend on the frames before them, docs/farm.md): the same fixed point,
+    # and a sweep's steps are close, so fewer passes reach it. OFF by default (0): a shape's values would
+    # then depend on where it was before, and Live's refine would no longer equal a bake's frame bit for bit
+    # (test_live_preview, test_blender_moving): the lead's call. They go on (at least WARM_MIN_PASSES, at
+    # most TAIL_PASSES) while a pass changes the leaf values by more than WARM_TOL of their L1 norm (the
+    # largest channel's); the change left after the last pass, about r / (1 - r) of that pass's (r the
+    # passes' ratio), is not extrapolated (a warm start's change has either sign, so its sums give no
+    # ratio). The furnished 100k room's FE window swept by 2.2 cm steps at draft: 2 passes (changes ~8e-3,
+    # then ~1.5e-3) instead of 5 from nothing, per object from the passes' limit median 0.007-0.008%, p95
+    # 0.03-0.04%, worst 0.19-0.30% (from nothing 0.015 / 0.13 / 0.77%); a 0.5 m move 4 passes, 0.019 / 0.045
+    # / 0.70%, bias +0.018% (docs/events.md, session 35, branch ev05), at WARM_TOL 3e-3.
+    WARM_TOL, WARM_MIN_PASSES = 0.0, 1
+
+    def _seidel_warm(self, gs, key, V, D2):
+        """_levels' leaf values from the limit kept under key (None where there is none, of these
+        rows, or WARM_TOL is 0: the passes from nothing)."""
+        Y = self.__dict__.setdefault("_warm", {}).get(key)
+        if not self.WARM_TOL or Y is None or len(Y) != len(gs["pos"]):
+            return None
+        changes = self.stats["warm_changes"] = []
+        for k in range(self.TAIL_PASSES):
+            Yn = self._seidel_pass(gs, Y, V, D2)
+            d, s = np.empty(3), np.empty(3)
+            for c in range(3):  # (per channel: no (rows, 3) temporaries)
+                d[c] = np.abs(Yn[:, c] - Y[:, c]).sum()
+                s[c] = np.abs(Yn[:, c]).sum()
+            Y = Yn
+            changes.append(float((d / np.maximum(s, 1e-300)).max()))
+            if k + 1 >= self.WARM_MIN_PASSES and changes[-1] <= self.WARM_TOL:
+                break
+        self.stats["tail_passes"] = self.stats["warm_passes"] = k + 1
+        self._warm[key] = Y
+        return (Y, None, None, None)
 
     # a gathered shape's passes from nothing to their limit (_levels' zero) as Gauss-Seidel: each
     # block of rows (about SEIDEL_BLOCK weights, whole leaves, fixed by the matrix) reads the leaf
@@ -1910,9 +1954,13 @@ class FinalGather(DirectLight):
             return None
         if any(rec.U is None for rec in dyn.lights.values()):
             return None
+        warm = self.__dict__.setdefault("_warm", {})
         if self._responses_of is not dyn:  # parts of another DynamicRadiosity (ids may be reused)
             self._responses.clear()
+            warm.clear()
             self._responses_of = dyn
+        for k in [k for k in warm if k[1] not in dyn.shapes]:  # (shapes gone: their limits)
+            del warm[k]
         dyn._sync()
         h = dyn.system.h
         n = h.n
@@ -1937,9 +1985,11 @@ class FinalGather(DirectLight):
                     return np.repeat(g._shape(dyn, rec)[0][:, None].astype(np.float64), 3, 1)
 
                 V = self._values_from(h, X)
+                warm = None
                 if rec.gathered == "zero":  # no response: the passes from nothing and their tail
                     V = np.zeros_like(V)
-                Y = self._levels(V, unit, bool(rec.gathered))
+                    warm = ("shape", rec.key) if dyn.warm_moves and self.WARM_TOL else None  # (_seidel_warm)
+                Y = self._levels(V, unit, bool(rec.gathered), warm=warm)
                 part = self._dmix(unit(self), self._facing_part(unit)) + self._read(Y)
                 self._responses[k] = part.astype(np.float32)
             out.append((k, rec.emission, self._responses[k], rec))
