@@ -917,3 +917,74 @@ def test_far_links_between_dark_ends_take_their_own_criteria_and_keep_reciprocit
     assert len(far) < len(base.links.far)
     s.solve(tol=1e-10)
     assert s.report.energy_error < 1e-8
+
+
+def _depth_first_levels(refiner, tree, table, lit, progress=None):
+    """link_clusters' refinement as it ran until session 34 (farthreads): one pending set of
+    pairs (up to CHUNK) a round, the last pushed first; each round's splits made as it went."""
+    h, far, nodes = refiner.h, [], []
+    pending = [(C.encode([0]),) * 2]
+    while pending:
+        a, b = pending.pop()
+        if len(a) > FL.CHUNK:
+            pending.append((a[FL.CHUNK :], b[FL.CHUNK :]))
+            a, b = a[: FL.CHUNK], b[: FL.CHUNK]
+        same = a == b
+        s = a[same & (a < 0)]
+        if len(s):
+            pending.append(FL._self_pairs(tree, C.decode(s))[:2])
+        a, b = a[~same], b[~same]
+        both = (a >= 0) & (b >= 0)
+        nodes.append((a[both], b[both]))
+        a, b = a[~both], b[~both]
+        if not len(a):
+            continue
+        table.update()
+        cols = FL._classify(refiner, tree, a, b, table, lit)
+        ok, take, split_a, split_b, vis, mask, pa, pb, fmax = cols[1:10]
+        far += [(a[k], b[k], vis[k], mask[k], pa[k], pb[k], fmax[k]) for k in (ok, take)]
+        new_a, new_b = [], []
+        for sel, x, y in ((split_a, a, b), (split_b, b, a)):
+            xs, ys = x[sel], y[sel]
+            cl = xs < 0
+            if cl.any():
+                kids, owner = tree.children(C.decode(xs[cl]))
+                new_a.append(kids)
+                new_b.append(ys[cl][owner])
+            nd = xs[~cl]
+            if len(nd):
+                h.subdivide(np.unique(nd[h.child0[nd] < 0]))
+                new_a.append(h.children(nd).ravel())
+                new_b.append(np.repeat(ys[~cl], 4))
+        if new_a:
+            pending.append((np.concatenate(new_a), np.concatenate(new_b)))
+    p, q = (np.concatenate(x) for x in zip(*nodes))
+    return [np.concatenate(x) for x in zip(*far)], p, q
+
+
+def test_the_levels_give_the_depth_first_loops_hierarchy_and_links_bit_for_bit(monkeypatch):
+    """link_clusters classifies a whole level of pairs per map (issue 23) and replays the order of
+    the depth-first loop it replaced (_Rounds): the hierarchy (the loop's node ids: a node's second
+    visibility points are shifted by its id), the far links and node pairs in the loop's order,
+    the patch links and the solve are bitwise equal to the loop's. Small CHUNK and LEVEL_PAIRS:
+    the loop's sets are cut into several rounds and the levels' maps cut rounds apart."""
+    from hr_testing.furnished import furnished_room
+
+    monkeypatch.setattr(FL, "CHUNK", 500)
+    monkeypatch.setattr(FL, "LEVEL_PAIRS", 700)
+    monkeypatch.setattr(FL, "PAIR_BATCH", 61)
+    mesh = furnished_room("2k")[0]
+    params = RefineParams.for_gather("draft")
+    s1 = RadiositySystem(mesh, params)
+    monkeypatch.setattr(FL, "_cluster_levels", _depth_first_levels)
+    s2 = RadiositySystem(mesh, params)
+    assert s1.refiner.stats["cluster_pairs"] > 20 * FL.LEVEL_PAIRS and len(s1.links.far) > 1000
+    assert s1.h.n > s1.h.patches.nv.size + 1000  # link_clusters and refine split nodes
+    h1, h2, L1, L2 = s1.h, s2.h, s1.links, s2.links
+    for name in ("corners", "parent", "child0", "level", "patch", "area", "centre", "exposure"):
+        assert np.array_equal(h1.view(name), h2.view(name)), name
+    for x, y in ((L1, L2), (L1.far, L2.far)):
+        for k in ("a", "b", "vis", "f_ab", "f_ba", "mask", "scale", "part_a", "part_b"):
+            if hasattr(x, k):
+                assert np.array_equal(getattr(x, k), getattr(y, k)), k
+    assert np.array_equal(s1.solve(), s2.solve())

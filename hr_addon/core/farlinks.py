@@ -222,7 +222,11 @@ def _end_factors(ids, e, part, u):
 
 
 # -- linking through the clusters -----------------------------------------------------------------------
+# pairs per round of the depth-first loop whose order link_clusters replays (_Rounds)
 CHUNK = 200_000
+# pairs of a level classified per map (link_clusters): its outputs, about 40 bytes a pair, are held
+# until the level's splits are made
+LEVEL_PAIRS = 1 << 20
 # far links per batch of their solver terms (FarLinks.terms): fixed, so the terms do not depend on
 # the thread count
 TERMS_CHUNK = 8192
@@ -250,86 +254,25 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     their distance (radius sum < cluster_ratio x distance: the point-to-point kernel holds), and,
     for links above shadow_feps, visibility is not partial. Pairs wholly behind one end are
     dropped. Otherwise an end is split: a cluster into its children, a patch node into its
-    quadtree children. Pairs of two patch nodes are returned for the ordinary patch refinement.
-    Returns (FarLinks, node pairs p, q)."""
+    quadtree children (_cluster_levels). Pairs of two patch nodes are returned for the ordinary
+    patch refinement. Returns (FarLinks, node pairs p, q)."""
     h, prm = refiner.h, refiner.params
-    far, nodes = [], []
-    root = encode([0])
-    total_w = 0.5 * tree.area[0] ** 2
-    done_w = 0.0
     # Visibility is not inherited from a parent pair: 16 segments between 4 samples per end miss
     # thin occluders (legs, gaps between books). Measured on the 20k furnished room: passing
     # "wholly visible" down made objects 3.9% brighter on average (121% at worst), dropping
     # "wholly occluded" pairs 9% darker (83%), and the extra tests cost more rays than they saved.
-    pending = [(root, root)]
     table = EndTable(tree, h, refiner.eps)
     dark = prm.dark_ratio > 0 or prm.dark_veps > 0 or not prm.dark_second
     lit = LitEnds(tree, h) if dark else None
-
-    def weight(a, b):
-        aa, ab = _area(tree, h, a), _area(tree, h, b)
-        return np.where(a == b, 0.5 * aa * aa, aa * ab).sum()
-
-    while pending:
-        a, b = pending.pop()
-        if len(a) > CHUNK:
-            pending.append((a[CHUNK:], b[CHUNK:]))
-            a, b = a[:CHUNK], b[:CHUNK]
-        refiner.stats["cluster_pairs"] += len(a)
-        same = a == b
-        if same.any():
-            s = a[same & (a < 0)]
-            done_w += weight(a[same & (a >= 0)], a[same & (a >= 0)])
-            if len(s):
-                sa, sb = _self_pairs(tree, decode(s))
-                pending.append((sa, sb))
-            a, b = a[~same], b[~same]
-        both = (a >= 0) & (b >= 0)
-        if both.any():
-            nodes.append((a[both], b[both]))
-            done_w += weight(a[both], b[both])
-            a, b = a[~both], b[~both]
-        if not len(a):
-            continue
-        table.update()  # the nodes subdivided by the last round (here, not on the threads)
-        parts = batch_map(
-            lambda i, j: _classify(refiner, tree, a[i:j], b[i:j], table, lit),
-            spans(len(a), PAIR_BATCH),
-            refiner.threads,
-        )
-        cols = (np.concatenate(x) for x in zip(*parts))
-        drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = cols
-        for sel in (ok, take):
-            if sel.any():
-                far.append((a[sel], b[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel]))
-        done_w += w.sum()  # (the batches' sums: the progress only)
-        new_a, new_b = [], []
-        for sel, x, y in ((split_a, a, b), (split_b, b, a)):
-            xs, ys = x[sel], y[sel]
-            cl = xs < 0
-            if cl.any():
-                kids, owner = tree.children(decode(xs[cl]))
-                new_a.append(kids)
-                new_b.append(ys[cl][owner])
-            nd = xs[~cl]
-            if len(nd):
-                h.subdivide(np.unique(nd[h.child0[nd] < 0]))
-                new_a.append(h.children(nd).ravel())
-                new_b.append(np.repeat(ys[~cl], 4))
-        if new_a:
-            pending.append((np.concatenate(new_a), np.concatenate(new_b)))
-        if progress is not None:
-            progress.update("clusters", done_w, total_w)
-    # the rounds' far links and node pairs: each array concatenated on its own (threads)
-    cat = batch_map(lambda *x: np.concatenate(x), [*zip(*far), *zip(*nodes)], refiner.threads)
-    if far:
-        fa_, fb_, fv, fm, pa_, pb_, ff_ = cat[:7]
+    far, p, q = _cluster_levels(refiner, tree, table, lit, progress)
+    table.update()
+    if far is not None:
+        fa_, fb_, fv, fm, pa_, pb_, ff_ = far
         # the oracle's traced links: a full mask with a fraction is far_visibility's one value
         # for a link with back-facing segments (1 where all 16 are unoccluded: the same)
         fs = np.where(fm == 0xFFFF, np.nan_to_num(fv, nan=1.0), 1.0)
         todo = np.flatnonzero(np.isnan(fv))
         decided = ~np.isnan(fv)  # traced by the oracle (strong links kept on 0 or 1)
-        table.update()
 
         def shadows(i, j):  # every batch writes its own links
             t = todo[i:j]
@@ -370,8 +313,184 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     else:
         z = np.zeros(0)
         links = FarLinks(tree, z.astype(np.int64), z.astype(np.int64), z, z.astype(np.uint16))
-    p, q = cat[-2:] if nodes else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     return links, p, q
+
+
+def _cluster_levels(refiner, tree, table, lit, progress=None):
+    """link_clusters' refinement: (far links' a, b, vis, mask, part_a, part_b, fmax or None, node
+    pairs p, q), in the order of a depth-first loop (which popped one pending set of pairs at a
+    time: _Rounds), the nodes it split numbered as that loop numbered them.
+
+    Breadth-first: all the pairs of a level (those the previous level's splits made) are
+    classified together, in maps of up to LEVEL_PAIRS pairs (the depth-first loop ran 685 maps of
+    2.7 batches each at 100k: issue 23, docs/threads.md, session 34). Every pair's decision is
+    its own, so the levels decide what the loop decided; its order is replayed afterwards: the
+    nodes split here get the loop's ids and the far links and node pairs come in its order, so
+    the hierarchy and the outputs are the loop's bit for bit (a node's id matters beyond order:
+    its second visibility points are shifted by it, cluster._node_points2)."""
+    h = refiner.h
+    far, nodes, splits = [], [], []
+    root = encode([0])
+    total_w = 0.5 * tree.area[0] ** 2
+    done_w = 0.0
+    n0 = h.n  # the nodes split from here on are renumbered (_Rounds.renumber)
+    rounds = _Rounds()
+    a, b, rid = root, root, rounds.sets([1])
+
+    def weight(a, b):
+        aa, ab = _area(tree, h, a), _area(tree, h, b)
+        return np.where(a == b, 0.5 * aa * aa, aa * ab).sum()
+
+    while len(a):
+        refiner.stats["cluster_pairs"] += len(a)
+        kids, selfs = [], []  # the next level's pairs: (a, b, the round that made them, place)
+        same = a == b
+        s = same & (a < 0)
+        done_w += weight(a[same & ~s], a[same & ~s])
+        if s.any():
+            sa, sb, owner = _self_pairs(tree, decode(a[s]))
+            selfs.append((sa, sb, rid[s][owner], np.zeros(len(sa), np.int64)))
+        both = ~same & (a >= 0) & (b >= 0)
+        if both.any():
+            nodes.append((a[both], b[both], rid[both]))
+            done_w += weight(a[both], b[both])
+        rest = ~same & ~both
+        a, b, rid = a[rest], b[rest], rid[rest]
+        for i, j in ranges(len(a), LEVEL_PAIRS):
+            x, y, r = a[i:j], b[i:j], rid[i:j]
+            table.update()  # the nodes subdivided by the last level (here, not on the threads)
+            parts = batch_map(
+                lambda i, j: _classify(refiner, tree, x[i:j], y[i:j], table, lit),
+                spans(len(x), PAIR_BATCH),
+                refiner.threads,
+            )
+            cols = (np.concatenate(c) for c in zip(*parts))
+            drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = cols
+            for kind, sel in enumerate((ok, take)):  # a round's ok links, then its take ones
+                if sel.any():
+                    far.append(
+                        (x[sel], y[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel], 2 * r[sel] + kind)
+                    )
+            done_w += w.sum()  # (the batches' sums: the progress only)
+            # a round's new pairs in the loop's order: split a's clusters, its nodes, then b's
+            for g, (sel, u, v) in enumerate(((split_a, x, y), (split_b, y, x))):
+                us, vs, rs = u[sel], v[sel], r[sel]
+                cl = us < 0
+                if cl.any():
+                    c, owner = tree.children(decode(us[cl]))
+                    kids.append((c, vs[cl][owner], rs[cl][owner], np.full(len(c), 2 * g)))
+                nd = us[~cl]
+                if len(nd):
+                    splits.append((nd, 2 * rs[~cl] + g))
+                    h.subdivide(np.unique(nd[h.child0[nd] < 0]))
+                    kids.append(
+                        (
+                            h.children(nd).ravel(),
+                            np.repeat(vs[~cl], 4),
+                            np.repeat(rs[~cl], 4),
+                            np.full(4 * len(nd), 2 * g + 1),
+                        )
+                    )
+        if progress is not None:
+            progress.update("clusters", done_w, total_w)
+        a, b, rid = rounds.next_level(kids, selfs)
+    # the levels' far links and node pairs: each array concatenated on its own (threads)
+    cat = batch_map(lambda *x: np.concatenate(x), [*zip(*far), *zip(*nodes)], refiner.threads)
+    table.update()
+    new, pos = rounds.renumber(h, n0, splits)
+    table.renumber(new, n0)
+
+    def loop_order(cols, key):  # in the loop's order, renumbered
+        o = np.argsort(key, kind="stable")
+        cols = [np.take(x, o, 0) for x in cols]
+        for x in cols[:2]:
+            x[x >= n0] = new[x[x >= n0]]
+        return cols
+
+    z = np.zeros(0, np.int64)
+    p, q = loop_order(cat[-3:-1], pos[cat[-1]]) if nodes else (z, z)
+    # the loop's rounds, each its ok links, then its take ones
+    return (loop_order(cat[:7], 2 * pos[cat[7] // 2] + cat[7] % 2) if far else None), p, q
+
+
+class _Rounds:
+    """The depth-first loop's rounds, which link_clusters' levels replay. That loop popped the last
+    pending set of pairs and took CHUNK of them (pushing the rest back), pushed the self-pairs of
+    their cluster self-pairs, then the pairs their splits made (split a's clusters, its nodes, then
+    b's), and subdivided the split nodes as it went (a's, then b's, each in id order). A level's
+    pairs carry their round; next_level() makes the next level's sets, renumber() the loop's order
+    of the rounds and its node ids."""
+
+    def __init__(self):
+        self.first, self.count = [], []  # per set: its first round, its number of rounds
+        self.kids, self.selfs = [], []  # per round: the set its splits made, its self-pairs' (-1: none)
+
+    def sets(self, sizes):
+        """New sets of `sizes` pairs, in order: the round of each of their pairs."""
+        sizes = np.asarray(sizes, np.int64)
+        pieces = -(-sizes // CHUNK)
+        first = len(self.kids) + np.cumsum(pieces) - pieces
+        self.first += first.tolist()
+        self.count += pieces.tolist()
+        self.kids += [-1] * int(pieces.sum())
+        self.selfs += [-1] * int(pieces.sum())
+        which = np.repeat(np.arange(len(sizes)), sizes)
+        within = np.arange(int(sizes.sum())) - (np.cumsum(sizes) - sizes)[which]
+        return first[which] + within // CHUNK
+
+    def next_level(self, kids, selfs):
+        """The next level's (a, b, round) from a level's new pairs (a, b, the round that made them,
+        their place in its set): a round's made pairs one set, by place (stably), its self-pairs
+        another."""
+        out = []
+        for parts, link in ((kids, self.kids), (selfs, self.selfs)):
+            if parts:
+                a, b, r, g = (np.concatenate(x) for x in zip(*parts))
+                o = np.lexsort((g, r))  # (stable)
+                made, size = np.unique(r, return_counts=True)
+                rid = self.sets(size)
+                for k, m in enumerate(made.tolist()):
+                    link[m] = len(self.first) - len(size) + k
+                out.append((a[o], b[o], rid))
+        if not out:
+            return (np.zeros(0, np.int64),) * 3
+        return tuple(np.concatenate(x) for x in zip(*out))
+
+    def renumber(self, h, n0, splits):
+        """The loop's order of the rounds (pos[round]) and its ids for the nodes made since node n0
+        (new[id]; h's rows moved to them). splits: (nodes, 2 x round + 0 for a's, 1 for b's)."""
+        pos, k = np.empty(len(self.kids), np.int64), 0
+        stack = [(0, 0)]  # (set, round of it)
+        while stack:
+            s, i = stack.pop()
+            r = self.first[s] + i
+            pos[r], k = k, k + 1
+            for nxt, ok in (((s, i + 1), i + 1 < self.count[s]), ((self.selfs[r], 0), self.selfs[r] >= 0)):
+                if ok:
+                    stack.append(nxt)
+            if self.kids[r] >= 0:
+                stack.append((self.kids[r], 0))
+        new = np.arange(h.n)
+        if h.n == n0:
+            return new, pos
+        node, key = (np.concatenate(x) for x in zip(*splits))
+        key = 2 * pos[key // 2] + key % 2
+        o = np.argsort(key, kind="stable")
+        node, key = node[o], key[o]
+        made = h.child0[node] >= n0  # (a node subdivided before keeps its children)
+        node, key = node[made], key[made]
+        first = np.sort(np.unique(node, return_index=True)[1])  # where the loop subdivided each
+        node, key = node[first], key[first]
+        cut = np.flatnonzero(np.r_[True, key[1:] != key[:-1], True])
+        at = n0
+        for i, j in zip(cut[:-1], cut[1:]):  # one subdivide() of the loop: in its id order
+            blk = node[i:j][np.argsort(new[node[i:j]])]
+            new[h.child0[blk][:, None] + np.arange(4)] = at + np.arange(4 * len(blk)).reshape(-1, 4)
+            at += 4 * len(blk)
+        if at != h.n:
+            raise AssertionError("link_clusters: the replayed subdivisions miss nodes")
+        h.renumber(new, n0)
+        return new, pos
 
 
 def _classify(refiner, tree, a, b, table=None, lit=None):
@@ -514,18 +633,20 @@ def _area(tree, h, ids):
 
 
 def _self_pairs(tree, c):
-    """All pairs (i <= j) of the children of each cluster c; patch self-pairs left out (planar)."""
+    """All pairs (i <= j) of the children of each cluster c; patch self-pairs left out (planar).
+    Returns (a, b, owner: each pair's index in c), by the clusters' child count, then in c's order."""
     cnt = tree.child_start[c + 1] - tree.child_start[c]
-    out_a, out_b = [], []
+    out_a, out_b, out_o = [], [], []
     for k in np.unique(cnt):
-        cs = c[cnt == k]
-        kids = tree.child_ids[tree.child_start[cs][:, None] + np.arange(k)]
+        sel = np.flatnonzero(cnt == k)
+        kids = tree.child_ids[tree.child_start[c[sel]][:, None] + np.arange(k)]
         iu, ju = np.triu_indices(k)
         pa, pb = kids[:, iu].ravel(), kids[:, ju].ravel()
         keep = (pa != pb) | (pa < 0)
         out_a.append(pa[keep])
         out_b.append(pb[keep])
-    return np.concatenate(out_a), np.concatenate(out_b)
+        out_o.append(np.repeat(sel, len(iu))[keep])
+    return np.concatenate(out_a), np.concatenate(out_b), np.concatenate(out_o)
 
 
 def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False, decide=False):

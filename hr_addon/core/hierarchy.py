@@ -144,6 +144,21 @@ class Hierarchy:
         self._changed()
         return remap
 
+    def renumber(self, new, start):
+        """Give the nodes from `start` on the ids new[id] (a permutation of them that keeps each
+        node's four children together and in order): their rows moved, parents and children
+        renumbered (farlinks.link_clusters: the ids its depth-first order gave)."""
+        n = self.n
+        old = np.empty(n - start, np.int64)
+        old[new[start:n] - start] = np.arange(start, n)
+        for name, _, _ in self._fields:
+            arr = getattr(self, name)
+            arr[start:n] = arr[old]
+        for ref in (self.parent[:n], self.child0[:n]):
+            m = ref >= start
+            ref[m] = new[ref[m]]
+        self._changed()
+
     def _changed(self):
         self.version += 1
         self._levels = None
