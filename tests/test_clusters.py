@@ -962,23 +962,61 @@ def _depth_first_levels(refiner, tree, table, lit, progress=None):
     return [np.concatenate(x) for x in zip(*far)], p, q
 
 
+def _depth_first_refine(self, p, q, good_enough=None):
+    """Refiner.refine as it ran until session 34 (farthreads): one pending set of pairs (up to
+    CHUNK) a round, the last pushed first; each round's splits made as it went."""
+    from hr_addon.core import refine as R
+
+    h, aeps = self.h, self.params.aeps * self.total_area
+    tol, out = 1e-9 * np.sqrt(self.total_area), []
+    pending = [(np.asarray(p, np.int64), np.asarray(q, np.int64), np.full(len(p), np.nan))]
+    while pending:
+        p, q, kv = pending.pop()
+        if len(p) > R.CHUNK:
+            pending.append((p[R.CHUNK :], q[R.CHUNK :], kv[R.CHUNK :]))
+            p, q, kv = p[: R.CHUNK], q[: R.CHUNK], kv[: R.CHUNK]
+        if not len(p):
+            continue
+        p, q, vis, link, split_p, split_q, _ = self._oracle(p, q, kv, good_enough, aeps, tol, p)
+        out.append((p[link], q[link], vis[link]))
+        sp_p, sp_q, sq_p, sq_q = p[split_p], q[split_p], p[split_q], q[split_q]
+        h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
+        if len(sp_p) + len(sq_p):
+            kn = np.where(vis == 1, 1.0, np.nan)
+            pending.append(
+                (
+                    np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)]),
+                    np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()]),
+                    np.concatenate([np.repeat(kn[split_p], 4), np.repeat(kn[split_q], 4)]),
+                )
+            )
+    return self._finish(out)
+
+
 def test_the_levels_give_the_depth_first_loops_hierarchy_and_links_bit_for_bit(monkeypatch):
-    """link_clusters classifies a whole level of pairs per map (issue 23) and replays the order of
-    the depth-first loop it replaced (_Rounds): the hierarchy (the loop's node ids: a node's second
-    visibility points are shifted by its id), the far links and node pairs in the loop's order,
-    the patch links and the solve are bitwise equal to the loop's. Small CHUNK and LEVEL_PAIRS:
-    the loop's sets are cut into several rounds and the levels' maps cut rounds apart."""
+    """link_clusters and Refiner.refine take a whole level of pairs per map (issue 23) and replay
+    the order of the depth-first loops they replaced (hierarchy.DepthFirstRounds): the hierarchy
+    (the loops' node ids: a node's second visibility points are shifted by its id), the far links,
+    node pairs and patch links in the loops' order and the solve are bitwise equal to the loops'.
+    Small CHUNKs and LEVEL_PAIRS: the loops' sets are cut into several rounds and the levels' maps
+    cut rounds apart."""
+    from hr_addon.core import refine as R
     from hr_testing.furnished import furnished_room
 
     monkeypatch.setattr(FL, "CHUNK", 500)
     monkeypatch.setattr(FL, "LEVEL_PAIRS", 700)
     monkeypatch.setattr(FL, "PAIR_BATCH", 61)
+    monkeypatch.setattr(R, "CHUNK", 400)
+    monkeypatch.setattr(R, "LEVEL_PAIRS", 900)
+    monkeypatch.setattr(R, "LINK_BATCH", 97)
     mesh = furnished_room("2k")[0]
     params = RefineParams.for_gather("draft")
     s1 = RadiositySystem(mesh, params)
     monkeypatch.setattr(FL, "_cluster_levels", _depth_first_levels)
+    monkeypatch.setattr(R.Refiner, "refine", _depth_first_refine)
     s2 = RadiositySystem(mesh, params)
     assert s1.refiner.stats["cluster_pairs"] > 20 * FL.LEVEL_PAIRS and len(s1.links.far) > 1000
+    assert s1.refiner.stats["pairs_tested"] > 20 * R.LEVEL_PAIRS
     assert s1.h.n > s1.h.patches.nv.size + 1000  # link_clusters and refine split nodes
     h1, h2, L1, L2 = s1.h, s2.h, s1.links, s2.links
     for name in ("corners", "parent", "child0", "level", "patch", "area", "centre", "exposure"):

@@ -23,6 +23,7 @@ from .cluster import (
     visibility_points,
 )
 from .formfactor import dot3, row_range, unoccluded_share
+from .hierarchy import DepthFirstRounds
 from .parallel import add_counts, batch_map, ranges, spans
 
 
@@ -222,7 +223,7 @@ def _end_factors(ids, e, part, u):
 
 
 # -- linking through the clusters -----------------------------------------------------------------------
-# pairs per round of the depth-first loop whose order link_clusters replays (_Rounds)
+# pairs per round of the depth-first loop whose order link_clusters replays (DepthFirstRounds)
 CHUNK = 200_000
 # pairs of a level classified per map (link_clusters): its outputs, about 40 bytes a pair, are held
 # until the level's splits are made
@@ -319,7 +320,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
 def _cluster_levels(refiner, tree, table, lit, progress=None):
     """link_clusters' refinement: (far links' a, b, vis, mask, part_a, part_b, fmax or None, node
     pairs p, q), in the order of a depth-first loop (which popped one pending set of pairs at a
-    time: _Rounds), the nodes it split numbered as that loop numbered them.
+    time: DepthFirstRounds), the nodes it split numbered as that loop numbered them.
 
     Breadth-first: all the pairs of a level (those the previous level's splits made) are
     classified together, in maps of up to LEVEL_PAIRS pairs (the depth-first loop ran 685 maps of
@@ -333,8 +334,8 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
     root = encode([0])
     total_w = 0.5 * tree.area[0] ** 2
     done_w = 0.0
-    n0 = h.n  # the nodes split from here on are renumbered (_Rounds.renumber)
-    rounds = _Rounds()
+    n0 = h.n  # the nodes split from here on are renumbered (DepthFirstRounds.renumber)
+    rounds = DepthFirstRounds(CHUNK)
     a, b, rid = root, root, rounds.sets([1])
 
     def weight(a, b):
@@ -349,7 +350,7 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
         done_w += weight(a[same & ~s], a[same & ~s])
         if s.any():
             sa, sb, owner = _self_pairs(tree, decode(a[s]))
-            selfs.append((sa, sb, rid[s][owner], np.zeros(len(sa), np.int64)))
+            selfs.append((sa, sb, rid[s][owner], 0))
         both = ~same & (a >= 0) & (b >= 0)
         if both.any():
             nodes.append((a[both], b[both], rid[both]))
@@ -378,22 +379,23 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
                 cl = us < 0
                 if cl.any():
                     c, owner = tree.children(decode(us[cl]))
-                    kids.append((c, vs[cl][owner], rs[cl][owner], np.full(len(c), 2 * g)))
+                    kids.append((c, vs[cl][owner], rs[cl][owner], 2 * g))
                 nd = us[~cl]
                 if len(nd):
-                    splits.append((nd, 2 * rs[~cl] + g))
+                    splits.append((nd, rs[~cl], g))
                     h.subdivide(np.unique(nd[h.child0[nd] < 0]))
                     kids.append(
                         (
                             h.children(nd).ravel(),
                             np.repeat(vs[~cl], 4),
                             np.repeat(rs[~cl], 4),
-                            np.full(4 * len(nd), 2 * g + 1),
+                            2 * g + 1,
                         )
                     )
         if progress is not None:
             progress.update("clusters", done_w, total_w)
-        a, b, rid = rounds.next_level(kids, selfs)
+        # the loop pushed a round's self-pairs, then its splits' pairs (popped first)
+        (a, b), rid = rounds.next_level([selfs, kids], 2)
     # the levels' far links and node pairs: each array concatenated on its own (threads)
     cat = batch_map(lambda *x: np.concatenate(x), [*zip(*far), *zip(*nodes)], refiner.threads)
     table.update()
@@ -411,86 +413,6 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
     p, q = loop_order(cat[-3:-1], pos[cat[-1]]) if nodes else (z, z)
     # the loop's rounds, each its ok links, then its take ones
     return (loop_order(cat[:7], 2 * pos[cat[7] // 2] + cat[7] % 2) if far else None), p, q
-
-
-class _Rounds:
-    """The depth-first loop's rounds, which link_clusters' levels replay. That loop popped the last
-    pending set of pairs and took CHUNK of them (pushing the rest back), pushed the self-pairs of
-    their cluster self-pairs, then the pairs their splits made (split a's clusters, its nodes, then
-    b's), and subdivided the split nodes as it went (a's, then b's, each in id order). A level's
-    pairs carry their round; next_level() makes the next level's sets, renumber() the loop's order
-    of the rounds and its node ids."""
-
-    def __init__(self):
-        self.first, self.count = [], []  # per set: its first round, its number of rounds
-        self.kids, self.selfs = [], []  # per round: the set its splits made, its self-pairs' (-1: none)
-
-    def sets(self, sizes):
-        """New sets of `sizes` pairs, in order: the round of each of their pairs."""
-        sizes = np.asarray(sizes, np.int64)
-        pieces = -(-sizes // CHUNK)
-        first = len(self.kids) + np.cumsum(pieces) - pieces
-        self.first += first.tolist()
-        self.count += pieces.tolist()
-        self.kids += [-1] * int(pieces.sum())
-        self.selfs += [-1] * int(pieces.sum())
-        which = np.repeat(np.arange(len(sizes)), sizes)
-        within = np.arange(int(sizes.sum())) - (np.cumsum(sizes) - sizes)[which]
-        return first[which] + within // CHUNK
-
-    def next_level(self, kids, selfs):
-        """The next level's (a, b, round) from a level's new pairs (a, b, the round that made them,
-        their place in its set): a round's made pairs one set, by place (stably), its self-pairs
-        another."""
-        out = []
-        for parts, link in ((kids, self.kids), (selfs, self.selfs)):
-            if parts:
-                a, b, r, g = (np.concatenate(x) for x in zip(*parts))
-                o = np.lexsort((g, r))  # (stable)
-                made, size = np.unique(r, return_counts=True)
-                rid = self.sets(size)
-                for k, m in enumerate(made.tolist()):
-                    link[m] = len(self.first) - len(size) + k
-                out.append((a[o], b[o], rid))
-        if not out:
-            return (np.zeros(0, np.int64),) * 3
-        return tuple(np.concatenate(x) for x in zip(*out))
-
-    def renumber(self, h, n0, splits):
-        """The loop's order of the rounds (pos[round]) and its ids for the nodes made since node n0
-        (new[id]; h's rows moved to them). splits: (nodes, 2 x round + 0 for a's, 1 for b's)."""
-        pos, k = np.empty(len(self.kids), np.int64), 0
-        stack = [(0, 0)]  # (set, round of it)
-        while stack:
-            s, i = stack.pop()
-            r = self.first[s] + i
-            pos[r], k = k, k + 1
-            for nxt, ok in (((s, i + 1), i + 1 < self.count[s]), ((self.selfs[r], 0), self.selfs[r] >= 0)):
-                if ok:
-                    stack.append(nxt)
-            if self.kids[r] >= 0:
-                stack.append((self.kids[r], 0))
-        new = np.arange(h.n)
-        if h.n == n0:
-            return new, pos
-        node, key = (np.concatenate(x) for x in zip(*splits))
-        key = 2 * pos[key // 2] + key % 2
-        o = np.argsort(key, kind="stable")
-        node, key = node[o], key[o]
-        made = h.child0[node] >= n0  # (a node subdivided before keeps its children)
-        node, key = node[made], key[made]
-        first = np.sort(np.unique(node, return_index=True)[1])  # where the loop subdivided each
-        node, key = node[first], key[first]
-        cut = np.flatnonzero(np.r_[True, key[1:] != key[:-1], True])
-        at = n0
-        for i, j in zip(cut[:-1], cut[1:]):  # one subdivide() of the loop: in its id order
-            blk = node[i:j][np.argsort(new[node[i:j]])]
-            new[h.child0[blk][:, None] + np.arange(4)] = at + np.arange(4 * len(blk)).reshape(-1, 4)
-            at += 4 * len(blk)
-        if at != h.n:
-            raise AssertionError("link_clusters: the replayed subdivisions miss nodes")
-        h.renumber(new, n0)
-        return new, pos
 
 
 def _classify(refiner, tree, a, b, table=None, lit=None):

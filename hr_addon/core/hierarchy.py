@@ -233,3 +233,93 @@ class Hierarchy:
         return sum(
             int(np.prod(shape, dtype=np.int64)) * np.dtype(dt).itemsize for _, shape, dt in cls._fields
         )
+
+
+class DepthFirstRounds:
+    """The order of a depth-first refinement loop, replayed by one that runs breadth-first (issue
+    23: a level's pairs in a few large batch maps; farlinks.link_clusters, Refiner.refine). The
+    depth-first loop popped the last pending set of pairs, took `chunk` of them (pushing the rest
+    back) as a round, pushed the sets that round made (in an order of its own) and subdivided the
+    nodes it split as it went. Every pair's decision is its own, so the levels decide what the loop
+    decided; with each pair's round (sets(), next_level()) and the nodes each round split,
+    renumber() gives the loop's order of the rounds and its ids for those nodes, so the results
+    are the loop's bit for bit."""
+
+    def __init__(self, chunk):
+        self.chunk = chunk
+        self.first, self.count = [], []  # per set: its first round, its number of rounds
+        self.made = []  # per round: the sets it made, in the order the loop pushed them
+
+    def sets(self, sizes):
+        """New sets of `sizes` pairs, in order: the round of each of their pairs."""
+        sizes = np.asarray(sizes, np.int64)
+        pieces = -(-sizes // self.chunk)
+        first = len(self.made) + np.cumsum(pieces) - pieces
+        self.first += first.tolist()
+        self.count += pieces.tolist()
+        self.made += [[] for _ in range(int(pieces.sum()))]
+        which = np.repeat(np.arange(len(sizes)), sizes)
+        within = np.arange(int(sizes.sum())) - (np.cumsum(sizes) - sizes)[which]
+        return first[which] + within // self.chunk
+
+    def next_level(self, kinds, width):
+        """The next level's (`width` columns, round of each pair) from the sets a level's rounds
+        made: kinds, in the loop's push order, each a list of parts (columns..., the round that
+        made each row, a place): a round's rows of one kind are one set, ordered by place, then
+        as given."""
+        cols, rid = [], []
+        for parts in kinds:
+            if not parts:
+                continue
+            n = [len(p[0]) for p in parts]
+            made = np.concatenate([p[-2] for p in parts])
+            place = np.repeat([p[-1] for p in parts], n)
+            o = np.lexsort((place, made))  # (stable)
+            rounds, size = np.unique(made, return_counts=True)
+            rid.append(self.sets(size))
+            for k, r in enumerate(rounds.tolist()):
+                self.made[r].append(len(self.first) - len(size) + k)
+            cols.append([np.concatenate(c)[o] for c in zip(*(p[:-2] for p in parts))])
+        if not cols:
+            return [np.zeros(0, np.int64)] * width, np.zeros(0, np.int64)
+        return [np.concatenate(c) for c in zip(*cols)], np.concatenate(rid)
+
+    def order(self):
+        """pos[round]: the rounds in the loop's order."""
+        pos, k = np.empty(len(self.made), np.int64), 0
+        stack = [(0, 0)]  # (set, round of it)
+        while stack:
+            s, i = stack.pop()
+            r = self.first[s] + i
+            pos[r], k = k, k + 1
+            if i + 1 < self.count[s]:
+                stack.append((s, i + 1))
+            stack += [(m, 0) for m in self.made[r]]
+        return pos
+
+    def renumber(self, h: Hierarchy, n0, splits):
+        """The loop's order of the rounds (pos[round]) and its ids for the nodes made since node n0
+        (new[id]; h's rows moved to them: Hierarchy.renumber). splits: (nodes, their rounds, a
+        place: the loop's subdivide() calls of a round, in order) as the levels split them."""
+        pos = self.order()
+        new = np.arange(h.n)
+        if h.n == n0:
+            return new, pos
+        node = np.concatenate([s[0] for s in splits])
+        key = np.concatenate([2 * pos[s[1]] + s[2] for s in splits])
+        o = np.argsort(key, kind="stable")
+        node, key = node[o], key[o]
+        made = h.child0[node] >= n0  # (a node subdivided before keeps its children)
+        node, key = node[made], key[made]
+        first = np.sort(np.unique(node, return_index=True)[1])  # where the loop subdivided each
+        node, key = node[first], key[first]
+        cut = np.flatnonzero(np.r_[True, key[1:] != key[:-1], True])
+        at = n0
+        for i, j in zip(cut[:-1], cut[1:]):  # one subdivide() of the loop: in its id order
+            blk = node[i:j][np.argsort(new[node[i:j]])]
+            new[h.child0[blk][:, None] + np.arange(4)] = at + np.arange(4 * len(blk)).reshape(-1, 4)
+            at += 4 * len(blk)
+        if at != h.n:
+            raise AssertionError("DepthFirstRounds.renumber: the replayed subdivisions miss nodes")
+        h.renumber(new, n0)
+        return new, pos
