@@ -227,7 +227,7 @@ def _end_factors(ids, e, part, u):
 CHUNK = 200_000
 # pairs of a level classified per map (link_clusters): its outputs, about 40 bytes a pair, are held
 # until the level's splits are made
-LEVEL_PAIRS = 1 << 20
+LEVEL_PAIRS = 1 << 18
 # far links per batch of their solver terms (FarLinks.terms): fixed, so the terms do not depend on
 # the thread count
 TERMS_CHUNK = 8192
@@ -350,7 +350,7 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
         done_w += weight(a[same & ~s], a[same & ~s])
         if s.any():
             sa, sb, owner = _self_pairs(tree, decode(a[s]))
-            selfs.append((sa, sb, rid[s][owner], 0))
+            selfs.append([sa, sb, rid[s][owner], 0])
         both = ~same & (a >= 0) & (b >= 0)
         if both.any():
             nodes.append((a[both], b[both], rid[both]))
@@ -365,8 +365,10 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
                 spans(len(x), PAIR_BATCH),
                 refiner.threads,
             )
-            cols = (np.concatenate(c) for c in zip(*parts))
-            drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = cols
+            drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = (
+                np.concatenate(c) for c in zip(*parts)
+            )
+            del parts
             for kind, sel in enumerate((ok, take)):  # a round's ok links, then its take ones
                 if sel.any():
                     far.append(
@@ -379,18 +381,13 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
                 cl = us < 0
                 if cl.any():
                     c, owner = tree.children(decode(us[cl]))
-                    kids.append((c, vs[cl][owner], rs[cl][owner], 2 * g))
+                    kids.append([c, vs[cl][owner], rs[cl][owner], 2 * g])
                 nd = us[~cl]
                 if len(nd):
                     splits.append((nd, rs[~cl], g))
                     h.subdivide(np.unique(nd[h.child0[nd] < 0]))
                     kids.append(
-                        (
-                            h.children(nd).ravel(),
-                            np.repeat(vs[~cl], 4),
-                            np.repeat(rs[~cl], 4),
-                            2 * g + 1,
-                        )
+                        [h.children(nd).ravel(), np.repeat(vs[~cl], 4), np.repeat(rs[~cl], 4), 2 * g + 1]
                     )
         if progress is not None:
             progress.update("clusters", done_w, total_w)

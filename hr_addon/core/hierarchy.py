@@ -258,31 +258,44 @@ class DepthFirstRounds:
         self.first += first.tolist()
         self.count += pieces.tolist()
         self.made += [[] for _ in range(int(pieces.sum()))]
-        which = np.repeat(np.arange(len(sizes)), sizes)
-        within = np.arange(int(sizes.sum())) - (np.cumsum(sizes) - sizes)[which]
-        return first[which] + within // self.chunk
+        rid = np.repeat(first, sizes)
+        start = np.cumsum(sizes) - sizes
+        for k in np.flatnonzero(pieces > 1).tolist():  # (sets of more than one round: few)
+            rid[start[k] : start[k] + sizes[k]] += np.arange(sizes[k]) // self.chunk
+        return rid
 
     def next_level(self, kinds, width):
         """The next level's (`width` columns, round of each pair) from the sets a level's rounds
-        made: kinds, in the loop's push order, each a list of parts (columns..., the round that
-        made each row, a place): a round's rows of one kind are one set, ordered by place, then
-        as given."""
-        cols, rid = [], []
+        made: kinds, in the loop's push order, each a list of parts [columns..., the round that
+        made each row, a place]: a round's rows of one kind are one set, ordered by place, then
+        as given. The parts' columns are let go as they are copied (memory: a level's pairs)."""
+        total = sum(len(p[0]) for parts in kinds for p in parts)
+        out, rid, at = [np.zeros(0, np.int64)] * width, np.empty(total, np.int64), 0
         for parts in kinds:
+            parts = [p for p in parts if len(p[0])]
             if not parts:
                 continue
-            n = [len(p[0]) for p in parts]
             made = np.concatenate([p[-2] for p in parts])
-            place = np.repeat([p[-1] for p in parts], n)
-            o = np.lexsort((place, made))  # (stable)
-            rounds, size = np.unique(made, return_counts=True)
-            rid.append(self.sets(size))
-            for k, r in enumerate(rounds.tolist()):
-                self.made[r].append(len(self.first) - len(size) + k)
-            cols.append([np.concatenate(c)[o] for c in zip(*(p[:-2] for p in parts))])
-        if not cols:
-            return [np.zeros(0, np.int64)] * width, np.zeros(0, np.int64)
-        return [np.concatenate(c) for c in zip(*cols)], np.concatenate(rid)
+            o = None
+            if len(made) > 1 and (len(parts) > 1 or (made[1:] < made[:-1]).any()):
+                places = 1 + max(p[-1] for p in parts)
+                key = made * places + np.repeat([p[-1] for p in parts], [len(p[0]) for p in parts])
+                o = np.argsort(key, kind="stable")  # (timsort: merges the parts' runs)
+                made = made[o]
+            cut = np.flatnonzero(np.r_[True, made[1:] != made[:-1], True])
+            n = len(made)
+            rid[at : at + n] = self.sets(np.diff(cut))
+            for k, r in enumerate(made[cut[:-1]].tolist()):
+                self.made[r].append(len(self.first) - len(cut) + 1 + k)
+            for c in range(width):
+                col = np.concatenate([p[c] for p in parts])
+                for p in parts:
+                    p[c] = None
+                if not len(out[c]):
+                    out[c] = np.empty(total, col.dtype)
+                out[c][at : at + n] = col if o is None else np.take(col, o)
+            at += n
+        return out, rid
 
     def order(self):
         """pos[round]: the rounds in the loop's order."""

@@ -39,7 +39,7 @@ __all__ = [
 # node pairs per round of the depth-first loop whose order Refiner.refine replays (DepthFirstRounds)
 CHUNK = 100_000
 # node pairs of a level per map of Refiner.refine (its outputs held until the level's splits are made)
-LEVEL_PAIRS = 1 << 20
+LEVEL_PAIRS = 1 << 18
 # links per batch of the final form factors and shadow tests on threads (core.parallel): fixed, so
 # the values do not depend on the thread count; small enough that a 10k-triangle room has many (up
 # to 4x as many links per batch in large maps: parallel.spans)
@@ -533,6 +533,7 @@ class Refiner:
                     self.threads,
                 )
                 x, y, vis, link, split_p, split_q, r = (np.concatenate(c) for c in zip(*parts))
+                del parts
                 if link.any():
                     out.append((x[link], y[link], vis[link], r[link]))
                 sp_p, sp_q, sp_r = x[split_p], y[split_p], r[split_p]  # p split: pairs (child of p, q)
@@ -543,22 +544,22 @@ class Refiner:
                 total += 4 * len(nd)
                 kn = np.where(vis == 1, 1.0, np.nan)
                 kids.append(
-                    (
+                    [
                         h.children(sp_p).ravel(),
                         np.repeat(sp_q, 4),
                         np.repeat(kn[split_p], 4),
                         np.repeat(sp_r, 4),
                         0,
-                    )
+                    ]
                 )
                 kids.append(
-                    (
+                    [
                         np.repeat(sq_p, 4),
                         h.children(sq_q).ravel(),
                         np.repeat(kn[split_q], 4),
                         np.repeat(sq_r, 4),
                         1,
-                    )
+                    ]
                 )
             (p, q, kv), rid = rounds.next_level([kids], 3)
         self.stats["t_refine"] += time.perf_counter() - t0
