@@ -348,9 +348,11 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
         same = a == b
         s = same & (a < 0)
         done_w += weight(a[same & ~s], a[same & ~s])
-        if s.any():
-            sa, sb, owner = _self_pairs(tree, decode(a[s]))
-            selfs.append([sa, sb, rid[s][owner], 0])
+        if s.any():  # (by child count: each group in round order)
+            selfs += [
+                [sa, sb, rid[s][own], k]
+                for k, (sa, sb, own) in enumerate(_self_pairs(tree, decode(a[s]), True))
+            ]
         both = ~same & (a >= 0) & (b >= 0)
         if both.any():
             nodes.append((a[both], b[both], rid[both]))
@@ -551,21 +553,20 @@ def _area(tree, h, ids):
     return np.where(ids < 0, tree.area[decode(np.minimum(ids, -1))], h.area[np.maximum(ids, 0)])
 
 
-def _self_pairs(tree, c):
+def _self_pairs(tree, c, groups=False):
     """All pairs (i <= j) of the children of each cluster c; patch self-pairs left out (planar).
-    Returns (a, b, owner: each pair's index in c), by the clusters' child count, then in c's order."""
+    Returns (a, b, owner: each pair's index in c), by the clusters' child count, then in c's
+    order; groups: [(a, b, owner)] per child count."""
     cnt = tree.child_start[c + 1] - tree.child_start[c]
-    out_a, out_b, out_o = [], [], []
+    out = []
     for k in np.unique(cnt):
         sel = np.flatnonzero(cnt == k)
         kids = tree.child_ids[tree.child_start[c[sel]][:, None] + np.arange(k)]
         iu, ju = np.triu_indices(k)
         pa, pb = kids[:, iu].ravel(), kids[:, ju].ravel()
         keep = (pa != pb) | (pa < 0)
-        out_a.append(pa[keep])
-        out_b.append(pb[keep])
-        out_o.append(np.repeat(sel, len(iu))[keep])
-    return np.concatenate(out_a), np.concatenate(out_b), np.concatenate(out_o)
+        out.append((pa[keep], pb[keep], np.repeat(sel, len(iu))[keep]))
+    return out if groups else tuple(np.concatenate(x) for x in zip(*out))
 
 
 def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False, decide=False):

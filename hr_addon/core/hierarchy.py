@@ -267,34 +267,36 @@ class DepthFirstRounds:
     def next_level(self, kinds, width):
         """The next level's (`width` columns, round of each pair) from the sets a level's rounds
         made: kinds, in the loop's push order, each a list of parts [columns..., the round that
-        made each row, a place]: a round's rows of one kind are one set, ordered by place, then
-        as given. The parts' columns are let go as they are copied (memory: a level's pairs)."""
+        made each row, a place], every part's rows in round order: a round's rows of one kind
+        are one set, ordered by place, then as given. Each row's place in the next level is
+        counted (no sort), and the parts' columns are let go as they are copied."""
         total = sum(len(p[0]) for parts in kinds for p in parts)
         out, rid, at = [np.zeros(0, np.int64)] * width, np.empty(total, np.int64), 0
         for parts in kinds:
-            parts = [p for p in parts if len(p[0])]
+            parts = sorted((p for p in parts if len(p[0])), key=lambda p: p[-1])  # (stable)
             if not parts:
                 continue
-            made = np.concatenate([p[-2] for p in parts])
-            o = None
-            if len(made) > 1 and (len(parts) > 1 or (made[1:] < made[:-1]).any()):
-                places = 1 + max(p[-1] for p in parts)
-                key = made * places + np.repeat([p[-1] for p in parts], [len(p[0]) for p in parts])
-                o = np.argsort(key, kind="stable")  # (timsort: merges the parts' runs)
-                made = made[o]
-            cut = np.flatnonzero(np.r_[True, made[1:] != made[:-1], True])
-            n = len(made)
-            rid[at : at + n] = self.sets(np.diff(cut))
-            for k, r in enumerate(made[cut[:-1]].tolist()):
-                self.made[r].append(len(self.first) - len(cut) + 1 + k)
+            r0 = min(int(p[-2][0]) for p in parts)  # a level's rounds: r0 ...
+            cnt = [np.bincount(p[-2] - r0) for p in parts]
+            cnt = np.array([np.pad(c, (0, max(map(len, cnt)) - len(c))) for c in cnt])  # (part, round)
+            # where each round's rows of each part start: rounds in order, parts in order in one
+            start = at + (np.cumsum(cnt.T) - cnt.T.ravel()).reshape(cnt.shape[::-1]).T
+            size = cnt.sum(0)
+            made = np.flatnonzero(size)
+            rid[at : at + int(size.sum())] = self.sets(size[made])
+            for k, r in enumerate(made.tolist()):
+                self.made[r0 + r].append(len(self.first) - len(made) + k)
+            dest = []
+            for k, p in enumerate(parts):
+                r = p[-2] - r0
+                dest.append(np.take(start[k] - (np.cumsum(cnt[k]) - cnt[k]), r) + np.arange(len(r)))
             for c in range(width):
-                col = np.concatenate([p[c] for p in parts])
-                for p in parts:
+                for k, p in enumerate(parts):
+                    if not len(out[c]):
+                        out[c] = np.empty(total, p[c].dtype)
+                    out[c][dest[k]] = p[c]
                     p[c] = None
-                if not len(out[c]):
-                    out[c] = np.empty(total, col.dtype)
-                out[c][at : at + n] = col if o is None else np.take(col, o)
-            at += n
+            at += int(size.sum())
         return out, rid
 
     def order(self):
