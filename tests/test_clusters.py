@@ -1003,12 +1003,9 @@ def test_the_levels_give_the_depth_first_loops_hierarchy_and_links_bit_for_bit(m
     from hr_addon.core import refine as R
     from hr_testing.furnished import furnished_room
 
-    monkeypatch.setattr(FL, "CHUNK", 500)
-    monkeypatch.setattr(FL, "LEVEL_PAIRS", 700)
-    monkeypatch.setattr(FL, "PAIR_BATCH", 61)
-    monkeypatch.setattr(R, "CHUNK", 400)
-    monkeypatch.setattr(R, "LEVEL_PAIRS", 900)
-    monkeypatch.setattr(R, "LINK_BATCH", 97)
+    for mod, sizes in ((FL, (500, 700, 61)), (R, (400, 900, 97))):
+        for name, v in zip(("CHUNK", "LEVEL_PAIRS", "PAIR_BATCH" if mod is FL else "LINK_BATCH"), sizes):
+            monkeypatch.setattr(mod, name, v)
     mesh = furnished_room("2k")[0]
     params = RefineParams.for_gather("draft")
     s1 = RadiositySystem(mesh, params)
