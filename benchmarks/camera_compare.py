@@ -42,7 +42,9 @@ references, bakes and JSON entries named VIEW_fN.
 the shape unchanged: `subdivide`), against the same references: the vertex output's upper bound
 when its values sit at vertices that fine (branch vsub, session 21).
 `--views unseen_a,unseen_b`: hr_testing/two_rooms.py's room, a scene nobody tuned on (session 31,
-branch unseen; its light shapes from frame 3: --frame 3). `--quality Q` bakes at Q instead of draft
+branch unseen; its light shapes from frame 3: --frame 3); `--views loft_a,loft_b`: hr_testing/loft.py's
+room (session 34, branch unseen3; its skylight's blind closed at frame 1, half open at frame 3).
+`--quality Q` bakes at Q instead of draft
 (work folders and JSON entries VIEW..._Q); `--work DIR` keeps copies, bakes and references in DIR
 instead of camera_work/ (the unseen runs: /work/cache/unseen, outside git).
 """
@@ -62,6 +64,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, ROOT)
+from hr_testing.loft import VIEWS as LOFT_VIEWS  # noqa: E402
 from hr_testing.two_rooms import VIEWS as TWO_ROOMS_VIEWS  # noqa: E402
 
 OUT = os.path.join(HERE, "out")
@@ -93,6 +96,8 @@ VIEWS = {
 VIEWS.update(
     {v: dict(scene="two_rooms", frame=1, camera=cam, res=(640, 480)) for v, cam in TWO_ROOMS_VIEWS.items()}
 )
+# hr_testing/loft.py's room (session 34, branch unseen3): --views loft_a,loft_b
+VIEWS.update({v: dict(scene="loft", frame=1, camera=cam, res=(640, 480)) for v, cam in LOFT_VIEWS.items()})
 FLIP_REF = []  # --flip-ref: objects whose faces the references reverse
 QUALITY = ["draft"]  # --quality: the bakes' quality (its work folders and JSON entries named _<quality>)
 
@@ -125,11 +130,12 @@ def source_blend(scene):
         bpy = load_bpy()
         mesh_scene(clutter_room()[0])
         bpy.ops.wm.save_as_mainfile(filepath=path)
-    elif scene == "two_rooms":
+    elif scene in ("two_rooms", "loft"):
+        from hr_testing.loft import loft_scene
         from hr_testing.two_rooms import two_rooms_scene
 
         bpy = load_bpy()
-        two_rooms_scene()
+        (two_rooms_scene if scene == "two_rooms" else loft_scene)()
         bpy.ops.wm.save_as_mainfile(filepath=path)
     else:
         shutil.copy(os.path.join(ROOT, "sample_blends", f"{scene}.blend"), path)

@@ -450,6 +450,12 @@ def shape_proxies(rs: RefScene, frame):
         ]
         verts, faces, mats = [], [], []
         for i, p in enumerate(polys):
+            # a polygon keyed flat (scale 0, squashed to a line: a blind closed) emits nothing, as
+            # the core reads it (lights_in.collect_light_shapes); its normal would be NaN and put
+            # NaN vertices in the proxy Cycles renders
+            sv = np.linalg.svd(em.verts[p] - em.verts[p].mean(0), compute_uv=False)
+            if sv[1] <= 1e-9 * max(sv[0], 1e-300):
+                continue
             n = _surface_front(rs, em.verts[p])
             base = len(verts)
             pts = em.verts[p] + eps * n

@@ -8,20 +8,17 @@ The full room against Cycles: benchmarks/unseen_vs_cycles.py, docs/accuracy.md."
 import numpy as np
 import pytest
 
-from test_blender_helpers import load_bpy
+from test_blender_helpers import load_bpy, saved_room, texture_means
 
 pytestmark = pytest.mark.bpy
 
 
 @pytest.fixture(scope="module")
 def room_file(tmp_path_factory):
-    bpy = load_bpy()
+    load_bpy()
     from hr_testing.artist_room import artist_room
 
-    _, info = artist_room(small=True)
-    path = tmp_path_factory.mktemp("artist") / "room.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
-    return path, info
+    return saved_room(tmp_path_factory, "artist", lambda: artist_room(small=True))
 
 
 def _cli(path, *args):
@@ -106,9 +103,8 @@ def test_a_plane_facing_the_wall_it_hangs_on_is_lit(room_file, vertex_bake):
 
 
 def test_texture_bake_every_object(room_file, capsys):
-    bpy = load_bpy()
+    load_bpy()
     path, info = room_file
-    from hr_addon.blender.paths import frame_texture
     from hr_addon.io.cache import CacheReader
 
     cache = path.parent / "cache_texture"
@@ -117,14 +113,7 @@ def test_texture_bake_every_object(room_file, capsys):
     assert "of the face of" not in capsys.readouterr().out  # textures show small light shapes
     r = CacheReader(cache)
     assert sorted(r.frames) == [1, 2] and sorted(r.objects) == info["meshes"]
-    means = {}
-    for name in info["meshes"]:
-        img = bpy.data.images.load(frame_texture(str(cache), r.objects[name], 1))
-        px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
-        img.pixels.foreach_get(px)
-        bpy.data.images.remove(img)
-        assert np.isfinite(px).all(), name
-        means[name] = float(px.reshape(-1, 4)[:, :3].mean())
+    means = texture_means(cache, r, info["meshes"], 1)
     assert _dark(means) == set()
 
 

@@ -341,3 +341,49 @@ def test_samples_bake_cleanly(tmp_path, name, frames):
         float(shown(o)[:, :3].max()) for o in scene.objects if o.type == "MESH" and not o.hr.is_light_shape
     )
     assert lit > 0.5  # the surface under the shape carries its emission
+
+
+def test_geometry_out_of_the_depsgraph_while_baking(tmp_path, monkeypatch):
+    """While the bake builds and solves, its geometry objects are out of the depsgraph (their
+    evaluated copies freed: scene_in.out_of_depsgraph), the light shapes in it; an object with a
+    child (a shape moving with it) stays in. Afterwards, finished or cancelled, each object's
+    Disable in Viewports is what it was, and the frames' values are the same as a bake that
+    keeps every object evaluated (bit for bit)."""
+    bpy = load_bpy()
+    open_sample("cornell", tmp_path)
+    from hr_addon.blender import bake as bake_mod
+    from hr_addon.blender.bake import BakeJob
+
+    scene = bpy.context.scene
+    geo = [o for o in scene.objects if o.type == "MESH" and not o.hr.is_light_shape]
+    shape = next(o for o in scene.objects if o.hr.is_light_shape)
+    parent = geo[0]
+    shape.parent = parent
+    shape.matrix_parent_inverse = parent.matrix_world.inverted()
+    before = {o.name: o.hide_viewport for o in scene.objects}
+    job = BakeJob(bake_mod.bake_frames(scene, frames=(5, 7), method="FE", quality="draft"))
+    while job.step() and job.progress.stage != "frame":
+        pass
+    evaluated = {o.name for o in bpy.context.view_layer.depsgraph.objects}
+    assert shape.name in evaluated and parent.name in evaluated
+    assert not evaluated & {o.name for o in geo[1:]}
+    assert all(o.hide_viewport for o in geo[1:]) and not parent.hide_viewport
+    job.cancel()
+    assert {o.name: o.hide_viewport for o in scene.objects} == before
+    res = _bake(frames=(5, 7), method="FE")
+    assert {o.name: o.hide_viewport for o in scene.objects} == before
+    assert {o.name for o in bpy.context.view_layer.depsgraph.objects} >= {o.name for o in geo}
+    # in the UI (not background mode) nothing is hidden: the viewport keeps showing the scene
+    monkeypatch.setattr(bake_mod, "hide_while_baking", lambda: False)
+    job = BakeJob(bake_mod.bake_frames(scene, frames=(5, 7), method="FE", quality="draft"))
+    while job.step() and job.progress.stage != "frame":
+        pass
+    assert {o.name: o.hide_viewport for o in scene.objects} == before
+    job.cancel()
+    monkeypatch.setattr(bake_mod, "out_of_depsgraph", lambda objects, view_layer: [])  # all evaluated
+    other = _bake(frames=(5, 7), method="FE", cache_dir=str(tmp_path / "evaluated"))
+    files = sorted(p.name for p in Path(res.cache_dir).glob("*.npz"))
+    assert files and files == sorted(p.name for p in Path(other.cache_dir).glob("*.npz"))
+    for name in files:
+        with np.load(Path(res.cache_dir) / name) as a, np.load(Path(other.cache_dir) / name) as b:
+            assert a.files == b.files and all(a[k].tobytes() == b[k].tobytes() for k in a.files), name

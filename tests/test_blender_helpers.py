@@ -40,6 +40,31 @@ def empty_scene():
     return bpy, ms, scene
 
 
+def saved_room(tmp_path_factory, name, build):
+    """build() -> (scene, info) made in a fresh file, saved as <tmp>/<name>.blend: (path, info)."""
+    bpy = load_bpy()
+    _, info = build()
+    path = tmp_path_factory.mktemp(name) / f"{name}.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path, info
+
+
+def texture_means(cache, reader, names, frame):
+    """Each object's mean RGB over its baked texture of `frame` (every pixel finite)."""
+    bpy = load_bpy()
+    from hr_addon.blender.paths import frame_texture
+
+    means = {}
+    for name in names:
+        img = bpy.data.images.load(frame_texture(str(cache), reader.objects[name], frame))
+        px = np.empty(img.size[0] * img.size[1] * 4, np.float32)
+        img.pixels.foreach_get(px)
+        bpy.data.images.remove(img)
+        assert np.isfinite(px).all(), name
+        means[name] = float(px.reshape(-1, 4)[:, :3].mean())
+    return means
+
+
 def scale_scene(scene, factor):
     """Parent every mesh of `scene` to a new empty "Scale" scaled by `factor` (a unit-dependence test)."""
     bpy = load_bpy()

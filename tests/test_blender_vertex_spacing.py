@@ -710,11 +710,13 @@ def test_the_corner_budget_raises_the_largest_objects_first():
 def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypatch):
     """The furnished sample at 0.25 m (92,104 corners for its 42,676) is within the budget: no
     budget line; the 509 objects with edges over 0.25 m at 0.25 m, and near_clutter's faces finer
-    (one log line, 138 objects, the floor's and the walls' faces along furniture first; each face
-    one or two levels finer: 133,480 corners counted on the evaluated meshes (session 32: 152,884
+    (one log line, 383 objects, the floor's and the walls' faces along furniture first; each face
+    one or two levels finer: 153,472 corners counted on the evaluated meshes (session 32: 152,884
     on 144 objects, with the walls' faces along each other and the floor; session 33 leaves those
-    concave junctions out); 579 objects subdivided, every one at 0.25 m: the walls' 0.23 m quads
-    by their FINER alone); at 0.15 m nothing raised. The
+    concave junctions out: 133,480 on 138; session 34 adds thin faces, the books' spines and edges,
+    within THIN_SHARE x BUDGET_FLOOR = 20,000 corners); 785 objects subdivided (579 before session
+    34), every one at 0.25 m: the walls' 0.23 m quads by their FINER alone); at 0.15 m nothing
+    raised. The
     wall scene (nothing within 0.25 m before its faces) baked at 0.25 m with the budget and
     without it (corner_budget replaced by one that changes nothing: the code before the budget)
     gives the same meshes and values, bit for bit."""
@@ -733,21 +735,21 @@ def test_a_normal_room_is_left_as_it_was_by_the_corner_budget(tmp_path, monkeypa
     ov.ensure_own_values(objects, "CORNER", dg, 0.25, log=lines.append)
     # (the spacing's own note goes to log too since def26: only no budget line)
     clutter, line = lines
-    assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 579"), line
+    assert "corner budget" not in line and line.startswith("Vertex Spacing 0.25: 785"), line
     assert clutter.startswith(
-        "Vertex Spacing 0.25: 138 object(s) with surfaces close in front of part of their faces or a "
+        "Vertex Spacing 0.25: 383 object(s) with surfaces close in front of part of their faces or a "
         "light's edge across them ('floor' 306 faces 17 m^2, 'wall_north' 162 faces 8.7 m^2"
     ), clutter
     spacings = {o.name: ov.subdividing(o) for o in scene.objects if o.type == "MESH" and ov.subdividing(o)}
-    assert len(spacings) == 579 and set(spacings.values()) == {0.25}
+    assert len(spacings) == 785 and set(spacings.values()) == {0.25}
     fine = {}
     for o in objects:
         if FINER in o.data.attributes:
             fine[o.name] = np.empty(len(o.data.polygons), np.int32)
             o.data.attributes[FINER].data.foreach_get("value", fine[o.name])
-    assert len(fine) == 138 and np.bincount(fine["wall_north"]).tolist() == [150, 43, 119]
+    assert len(fine) == 383 and np.bincount(fine["wall_north"]).tolist() == [150, 43, 119]
     dg.update()
-    assert sum(len(o.evaluated_get(dg).data.loops) for o in objects) == 133_480
+    assert sum(len(o.evaluated_get(dg).data.loops) for o in objects) == 153_472
 
     bpy, ms, scene = empty_scene()
     _scene(ms)
@@ -859,6 +861,52 @@ def test_a_wall_with_something_close_before_part_of_it_gets_finer_corners(y, top
     )
     ov.remove_own_values([wall])
     assert FINER not in wall.data.attributes and not wall.modifiers
+
+
+@pytest.mark.parametrize("length, level, corners", [(0.24, 2, 64), (0.3, 2, 256), (0.24, 0, 4), (0.3, 0, 16)])
+def test_a_thin_face_with_something_close_before_part_of_it_gets_finer_corners(
+    monkeypatch, length, level, corners
+):
+    """A bottle's side: one 1.5 cm wide quad `length` m tall (x 0-0.015, facing +y) and a plate 5 cm
+    in front of its lower 8 cm. near_clutter finds it in part (some of its rays meet the plate, some
+    pass above); by its area (0.0036 m^2 at 0.24 m) no finer level is worth the corners (FINER 1
+    adds 12, 2 adds 60 against 8 x 0.0036 / 0.0625^2 = 7 at CLUTTER_WORTH 0.5), but it is thin
+    (_thin: 16 x longer than wide, narrower than the finest spacing, cut at most once at 0.25 m), so
+    FINER 2 (within THIN_SHARE of BUDGET_FLOOR): at 0.24 m level 2 (Subdivide Mesh's 4 x 4: 64
+    corners, its light in four rows along it), at 0.3 m level 3 (8 x 8: 256). level 0: THIN_RATIO
+    off (inf: before session 34), it keeps its corners at the spacing (4; 16 at 0.3 m, level 1) and
+    no FINER."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import FINER
+
+    if not level:
+        monkeypatch.setattr(ov, "THIN_RATIO", float("inf"))
+    side = ms.mesh_object(
+        "Side",
+        [(0, 0, 0), (0.015, 0, 0), (0.015, 0, length), (0, 0, length)],
+        [[0, 3, 2, 1]],
+        ms.diffuse("Grey", (RHO,) * 3),
+    )
+    plate = ms.mesh_object(
+        "Plate",
+        [(-0.2, 0.05, -0.1), (0.2, 0.05, -0.1), (0.2, 0.05, 0.08), (-0.2, 0.05, 0.08)],
+        [[0, 1, 2, 3]],
+        ms.diffuse("Grey plate", (RHO,) * 3),
+    )
+    dg = bpy.context.evaluated_depsgraph_get()
+    share, area, _ = ov.near_clutter([side, plate], [side], dg, 0.25, 0.25)["Side"]
+    np.testing.assert_allclose(area, 0.015 * length, rtol=1e-5)
+    assert (0 < share[0] < 1) if level else share[0] == 0, share  # (not looked at: 0)
+    ov.ensure_own_values([side, plate], "CORNER", dg, 0.25, log=lambda line: None)
+    dg.update()
+    assert len(side.evaluated_get(dg).data.loops) == corners
+    a = side.data.attributes.get(FINER)
+    assert (a is not None) == bool(level)
+    if level:
+        finer = np.empty(1, np.int32)
+        a.data.foreach_get("value", finer)
+        assert finer[0] == level
 
 
 def test_the_group_cuts_each_face_by_its_finer():

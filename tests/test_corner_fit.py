@@ -17,6 +17,7 @@ from hr_addon.core.lights import Light, unit_incident
 from hr_addon.core.geometry import MeshInput
 from hr_addon.core.output import corner_weights
 from hr_addon.core.radiosity import RadiositySystem
+from hr_testing.contact_scenes import contact_furnace
 from hr_addon.core.refine import RefineParams
 from tests import closed_forms as cf
 
@@ -150,6 +151,63 @@ def test_a_side_above_a_shorter_neighbour_keeps_its_strips_light(monkeypatch):
     monkeypatch.setattr(layouts, "SPLIT", False)
     before = rendered(LoopGather(s, rays=64, shadow_rays=16), p).mean()
     assert before / grid - 1 < -0.3, (before, grid)
+
+
+def test_a_faces_extra_samples_share_its_rays_and_nothing_else_changes(monkeypatch):
+    """layouts.EXTRA_FACE: the extra samples of one face (slot_split's on the taller book's open
+    strip, corner_fit's on the cut faces) trace between them about EXTRA_FACE x rays, each a power
+    of two (the rows keep hit counts); the slot samples keep all rays. Every corner sample's row is
+    the unshared gather's bit for bit (their rays and streams are their own), and the side's
+    rendered mean stays within 10% of a dense grid of samples over it, as with all rays; in the
+    furnace (uniform light) every lit corner still reads E / (1 - rho) within 2%."""
+    from hr_addon.core.gather import FinalGather
+
+    s = books_scene()
+    pt = s.patches
+    k = int(np.flatnonzero((pt.normal[:, 0] > 0.99) & (np.abs(pt.corners[:, 0, 0] - 0.03) < 1e-9))[0])
+    y, z = np.meshgrid((np.arange(24) + 0.5) / 24 * 0.2, (np.arange(30) + 0.5) / 30 * 0.25, indexing="ij")
+    p = np.column_stack([np.full(y.size, 0.03), y.ravel(), z.ravel()])
+    dense = FinalGather(s, p, np.tile([1.0, 0, 0], (len(p), 1)), np.full(len(p), k), rays=64, shadow_rays=16)
+    grid = dense.evaluate(s, "radiance").mean()
+
+    def side_mean(g):  # the side's corner values interpolated over the grid's points, as a render does
+        w = corner_weights(
+            np.repeat(pt.corners[k][None], len(p), 0), np.full(len(p), 4), pt.normal[[k] * len(p)], p
+        )
+        return (w @ g.loop_radiance(s)[g.average[4][k]].mean(1)).mean()
+
+    monkeypatch.setattr(layouts, "EXTRA_FACE", 0)
+    g0 = LoopGather(s, rays=64, shadow_rays=16)
+    monkeypatch.setattr(layouts, "EXTRA_FACE", 2)
+    g2 = LoopGather(s, rays=64, shadow_rays=16)
+    n = g0.n_loop
+    assert g2.n == g0.n and g2.n_loop == n and (g0.sample_rays[n:] == 64).all()
+    assert np.array_equal(g2.sample_rays[:n], g0.sample_rays[:n])
+    e = n + np.arange(g0.n - n)
+    slot = np.zeros(g0.n, bool)
+    slot[g2._slot["rows"]] = True
+    assert slot[e].any() and (g2.sample_rays[slot] == 64).all()
+    own = e[~slot[e]]
+    r = g2.sample_rays[own]
+    assert ((r & (r - 1)) == 0).all() and g2._wtype == "uint8"
+    per_face = np.bincount(g2.patch[own], r)[np.unique(g2.patch[own])]
+    cnt = np.bincount(g2.patch[own])[np.unique(g2.patch[own])]
+    assert (r < 64).all()  # (one face here: the strip's 4 samples, 32 rays each)
+    assert ((per_face <= 128) & ((per_face >= 64) | (cnt == 1))).all()
+    hits = np.add.reduceat(g2.w.astype(np.int64), g2.indptr[:-1][own])  # (rows with no entry: none here)
+    assert (np.diff(g2.indptr)[own] > 0).all() and (hits <= r).all()
+    b = g0.indptr[n]
+    assert np.array_equal(g2.indptr[: n + 1], g0.indptr[: n + 1])
+    assert np.array_equal(g2.cols[:b], g0.cols[:b]) and np.array_equal(g2.w[:b], g0.w[:b])
+    assert abs(side_mean(g0) / grid - 1) < 0.1 and abs(side_mean(g2) / grid - 1) < 0.1
+    rho = np.array([0.5, 0.5, 0.5])
+    f = RadiositySystem(contact_furnace(tuple(rho)), RefineParams.preset("draft"))
+    f.solve()
+    g = LoopGather(f, rays=32)
+    assert (g.sample_rays[g.n_loop :] < 32).any()
+    v = g.loop_radiance(DynamicRadiosity(f, method="FE"))[:, 0]
+    lit = v > 0
+    assert lit.mean() > 0.9 and np.abs(v[lit] * (1 - rho[0]) - 1).max() < 0.02
 
 
 def test_a_sparse_correction_shifts_as_the_whole_one():

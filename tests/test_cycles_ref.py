@@ -270,3 +270,37 @@ def test_lit_objects_leave_out_those_darker_than_a_twentieth_of_the_mean_and_unb
     ref["book"][0] = np.nan  # a texel the bake did not write
     # mean over the baked texels (10 x 1.0 + 3 x 0.2 + 4 x 0.02) / 17 = 0.628: the bar 0.031
     assert C.lit_objects(ref) == ["book", "wall"]
+
+
+@pytest.mark.bpy
+def test_a_light_shape_keyed_flat_gets_no_proxy_face_and_no_nan_vertex():
+    """The loft's skylight (hr_testing/loft.py): a light shape whose blind is closed at frame 1 (scale
+    0 along one side, no area) and open at frame 3. The reference's proxies left its polygon in at
+    frame 1 with a NaN normal (_surface_front) and NaN vertices for Cycles to render; now it is off
+    on that frame, as the bake reads it, and the proxy of frame 3 is the open shape."""
+    from test_blender_helpers import empty_scene
+
+    bpy, ms, scene = empty_scene()
+    quad = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)]
+    ms.mesh_object("floor", quad, [[0, 1, 2, 3]], ms.diffuse("grey", (0.5, 0.5, 0.5)))
+    sky = ms.mesh_object(
+        "sky",
+        [(0.25, 0.25, 0), (0.75, 0.25, 0), (0.75, 0.75, 0), (0.25, 0.75, 0)],
+        [[0, 1, 2, 3]],
+        ms.emission("em", (1, 1, 1), 5),
+    )
+    sky.hr.is_light_shape = True
+    sky.scale = (1, 0, 1)
+    sky.keyframe_insert("scale", frame=1)
+    sky.scale = (1, 1, 1)
+    sky.keyframe_insert("scale", frame=3)
+    scene.frame_start, scene.frame_end = 1, 3
+    rs = C.prepare(scene, only=())
+    assert C.shape_proxies(rs, 1) == {}
+    (proxy,) = rs.proxies
+    co = np.array([v.co for v in proxy.data.vertices]).reshape(-1, 3)
+    assert np.isfinite(co).all() and len(proxy.data.polygons) == 0
+    shapes = C.shape_proxies(rs, 3)
+    (proxy,) = rs.proxies
+    co = np.array([v.co for v in proxy.data.vertices])
+    assert len(shapes) == 1 and len(proxy.data.polygons) == 1 and np.isfinite(co).all()

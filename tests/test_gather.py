@@ -402,7 +402,8 @@ def test_corner_samples_share_their_corners_rays():
     """layouts.shared_rays: a corner sample averaged with k - 1 others at every corner that reads it
     traces rays // min(k, SHARE), so each corner's mean still has about the rays of one sample
     (the Cornell box's walls: 4 samples at an inner vertex of a wall's grid, 2 along its edges, 1 at
-    its corners; the blocks' corners 1); the extra samples (corner_fit) keep all rays. In the
+    its corners; the blocks' corners 1); the extra samples (corner_fit) share their face's
+    (layouts.EXTRA_FACE, tests/test_corner_fit.py), at most all rays each. In the
     furnace (uniform light) every corner with an uncovered sample still reads E / (1 - rho)
     within 2%."""
     from hr_addon.core.gather import layouts
@@ -418,7 +419,8 @@ def test_corner_samples_share_their_corners_rays():
     assert (got[li] >= m[li] * (64 // m[li])).all() and (got[li] <= k[li] * 64).all()
     lg = LoopGather(DynamicRadiosity(s, method="FE"), rays=64)
     assert np.array_equal(lg.sample_rays[: lg.n_loop], r)
-    assert lg.n > lg.n_loop and (lg.sample_rays[lg.n_loop :] == 64).all()
+    x = lg.sample_rays[lg.n_loop :]
+    assert lg.n > lg.n_loop and ((x & (x - 1)) == 0).all() and x.max() == 64
     rho = np.array([0.5, 0.5, 0.5])
     f = RadiositySystem(contact_furnace(tuple(rho)), RefineParams.preset("draft"))
     f.solve()
@@ -705,6 +707,28 @@ def test_seidel_passes_reach_the_jacobi_limit_in_fewer_passes(monkeypatch):
     assert np.abs(gs - limit).sum() <= np.abs(jac - limit).sum()
 
 
+def test_seidel_passes_stop_by_their_own_rule_where_set(monkeypatch):
+    """SEIDEL_MIN_PASSES / SEIDEL_TAIL_SHARE set the Gauss-Seidel passes' stopping rule alone: unset,
+    the Jacobi passes' rule (the same passes and values); at least 3 passes and any share, they
+    stop after 3; the Jacobi passes (SEIDEL_BLOCK 0) keep theirs whatever the two say."""
+    dyn, g = _furnace_window_gather()
+    monkeypatch.setattr(FinalGather, "SEIDEL_BLOCK", 4096)
+    gs, n = _shape_part(dyn, g)
+    monkeypatch.setattr(FinalGather, "SEIDEL_MIN_PASSES", 0)
+    monkeypatch.setattr(FinalGather, "SEIDEL_TAIL_SHARE", FinalGather.TAIL_SHARE)
+    same, n_same = _shape_part(dyn, g)
+    assert n_same == n and np.array_equal(same, gs)
+    monkeypatch.setattr(FinalGather, "SEIDEL_MIN_PASSES", 3)
+    monkeypatch.setattr(FinalGather, "SEIDEL_TAIL_SHARE", np.inf)
+    few, n_few = _shape_part(dyn, g)
+    assert n_few == 3 < n and few.any() and not np.array_equal(few, gs)
+    monkeypatch.setattr(FinalGather, "SEIDEL_BLOCK", 0)
+    jac, nj = _shape_part(dyn, g)
+    monkeypatch.setattr(FinalGather, "SEIDEL_MIN_PASSES", 0)
+    monkeypatch.setattr(FinalGather, "SEIDEL_TAIL_SHARE", None)
+    assert (nj, jac.tobytes()) == (lambda p: (p[1], p[0].tobytes()))(_shape_part(dyn, g))
+
+
 def test_seidel_passes_do_not_depend_on_the_thread_count(monkeypatch):
     """The Gauss-Seidel passes' blocks and their row ranges are fixed by the matrix: the shape's
     part is the same bit for bit on 1 and 3 threads, and again (no state kept between events)."""
@@ -717,6 +741,32 @@ def test_seidel_passes_do_not_depend_on_the_thread_count(monkeypatch):
     g.threads = g.second.threads = 1
     again, _ = _shape_part(dyn, g)
     assert one.any() and np.array_equal(one, three) and np.array_equal(one, again)
+
+
+def test_merge_gives_the_batches_concatenated(monkeypatch):
+    """merge copies the batches' fields one by one, each batch let go once copied and the heap
+    trimmed between (MERGE_TRIM): the same arrays, dtypes and indptr as their concatenation."""
+    rng = np.random.default_rng(3)
+    parts = []
+    for n in (5, 0, 7, 3):
+        m = int(rng.integers(0, 20))
+        parts.append(
+            (
+                rng.integers(0, 4, n),
+                rng.integers(0, 99, m).astype(np.int32),
+                rng.integers(1, 9, m).astype(np.uint8),
+                rng.random(m).astype(np.float32),
+                rng.random(m).astype(np.float32),
+            )
+        )
+    want = [np.concatenate([p[i] for p in parts]) for i in range(5)]
+    monkeypatch.setattr(FinalGather, "MERGE_TRIM", 1)  # (a trim after every batch)
+    for k in (5, 3):
+        got = FinalGather.merge([p[:k] + (None,) * (5 - k) for p in parts])
+        assert np.array_equal(got[0], np.concatenate([[0], np.cumsum(want[0])]))
+        for x, y in zip(got[1:k], want[1:k]):
+            assert x.dtype == y.dtype and np.array_equal(x, y)
+        assert all(x is None for x in got[k:])
 
 
 def test_the_passes_from_nothing_skip_their_first_read(monkeypatch):

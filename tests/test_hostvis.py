@@ -433,6 +433,19 @@ def test_events_trace_each_segment_once_and_history_does_not_matter(room):
             assert np.array_equal(Hh.light(ems[k]), fresh[k])
 
 
+def _outlines():
+    """The 2D rings (outer, then holes) of a sheared window with mullions, a star and a rotated
+    rectangle."""
+    return [
+        [np.asarray(x, np.float64)[:, :2] for x in (r if isinstance(r, list) else [r])]
+        for r in (
+            S.window(0.7, 0.6, 0.08, centre=(0.9, 2.0), angle=0.1, shear=0.15),
+            S.star(0.35, 0.15, centre=(1.2, 1.4), angle=0.2),
+            S.rect(0.9, 0.7, centre=(0.3, -0.2), angle=0.2),
+        )
+    ]
+
+
 def test_inside_boxes_hold_every_point_the_even_odd_test_calls_inside():
     """inside_boxes: for the partly covered cells of a sheared window with mullions (a hole), a star
     and a rotated rectangle, every one of 4,096 random points per cell that inside_rings calls
@@ -441,12 +454,7 @@ def test_inside_boxes_hold_every_point_the_even_odd_test_calls_inside():
 
     rng = np.random.default_rng(3)
     h = 0.05
-    for r in (
-        S.window(0.7, 0.6, 0.08, centre=(0.9, 2.0), angle=0.1, shear=0.15),
-        S.star(0.35, 0.15, centre=(1.2, 1.4), angle=0.2),
-        S.rect(0.9, 0.7, centre=(0.3, -0.2), angle=0.2),
-    ):
-        rings2d = [np.asarray(x, np.float64)[:, :2] for x in (r if isinstance(r, list) else [r])]
+    for rings2d in _outlines():
         allr = np.concatenate(rings2d)
         c0 = np.floor(allr.min(0) / h).astype(int)
         c1 = np.floor(allr.max(0) / h).astype(int) + 1
@@ -460,6 +468,26 @@ def test_inside_boxes_hold_every_point_the_even_odd_test_calls_inside():
         print(f"{len(pi)} cells: {ins.mean():.3f} inside, {inbox.mean():.3f} in the boxes")
         assert ins.any() and not (ins & ~inbox).any()
         assert inbox.mean() < 0.85
+
+
+def test_inside_rings_edge_by_edge_is_the_even_odd_test_of_planar():
+    """hostvis.inside_rings (edge by edge over the points each edge's heights span) gives
+    planar._in_rings' answer for every point: a window with mullions (holes), a star, a rotated
+    rectangle; random points around them, their vertices' own coordinates, points on their edges'
+    heights."""
+    from hr_addon.core.events.planar import _in_rings
+    from hr_addon.core.gather.hostvis import inside_rings
+
+    rng = np.random.default_rng(5)
+    for rings2d in _outlines():
+        allr = np.concatenate(rings2d)
+        lo, hi = allr.min(0) - 0.1, allr.max(0) + 0.1
+        q = lo + rng.random((20000, 2)) * (hi - lo)
+        q = np.concatenate([q, allr, np.column_stack([q[: len(allr), 0], allr[:, 1]])])
+        got, want = inside_rings(q, rings2d), _in_rings(q, rings2d)
+        assert got.any() and not got.all() and np.array_equal(got, want)
+        grid = inside_rings(q[:20000].reshape(100, 200, 2), rings2d)  # (any leading shape)
+        assert np.array_equal(grid, want[:20000].reshape(100, 200))
 
 
 def test_the_ratio_tests_only_the_points_in_the_inside_boxes(room, monkeypatch):

@@ -114,6 +114,15 @@ CLUTTER_LEVELS = 2
 # area has (4 a quad): not a thin face Subdivide Mesh already cut finely across (a 0.4 x 1.6 m side
 # at level 3: one level; a book's spine: none)
 CLUTTER_WORTH = 0.5
+# ... but a thin face (a bottle's 24 x 1.4 cm side, a book's spine) by its length, not its area: its
+# every level a choice (the budget takes them last: the least area per corner). Its two corner rows
+# cannot show a shadow's edge across it, which a camera sees where only part of it shows (two_rooms'
+# bottles behind the table's items, -6 to -13% at 0.25 m; docs/accuracy.md, session 34, branch tworooms)
+THIN_RATIO = 4.0
+# the thin faces' corners added: at most this share of the scene's corners at the spacing (of BUDGET_FLOOR in
+# a smaller scene): the furnished sample's books took 134k -> 256k corners without it
+THIN_SHARE = 0.1
+THIN_LEVEL = 1  # a thin face at most this level at the spacing (the pillar's 2.6 m strips: not)
 CLUTTER_REACH = 1.0  # near_clutter's rays this many spacings long: surfaces closer are "close in front"
 CLUTTER_GRID = 32  # near_clutter's points: a triangle cut into at most this many pieces along an edge
 # near_clutter's rays that meet a surface holding one of their face's edges (within JUNCTION x the
@@ -652,7 +661,8 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
         p = co[tri]  # (T, 3, 3)
         e = p[:, [1, 2, 0]] - p
         area = np.bincount(tf, 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1), minlength=F)
-        gain = _choices(longest, cnt, spacing, area)[1].any(1)[tf]  # (even wholly in part)
+        thin = _thin(longest, area, spacing)
+        gain = _choices(longest, cnt, spacing, area, thin)[1].any(1)[tf]  # (even wholly in part)
         if not gain.any():
             out[o.name] = (np.zeros(F), area, np.zeros(F, bool))
             continue
@@ -765,7 +775,9 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     limit = budget(own) if limit is None else int(limit)
     if want <= limit:
         room = limit - want
-        fine, got = _finer_faces_within(clutter or {}, edges, spacing, room)
+        fine, got = _finer_faces_within(
+            clutter or {}, edges, spacing, room, int(THIN_SHARE * max(want, BUDGET_FLOOR))
+        )
         return {}, (own, want, want + got), fine
 
     # near_clutter's objects keep `spacing` while the others' common spacing can make room
@@ -807,55 +819,77 @@ def corner_budget(objects, finer, spacing, depsgraph, limit=None, clutter=None):
     return out, (own, want, got), {}
 
 
-def _choices(longest, cnt, spacing, area):
+def _thin(longest, area, spacing):
+    """(F,) bool: the faces THIN_RATIO x longer than wide (area / longest), narrower than the finest
+    spacing, that the spacing cuts at most THIN_LEVEL times (short: the spacing leaves them whole or
+    halves them)."""
+    width = area / np.maximum(longest, 1e-30)
+    fine = spacing / 2**CLUTTER_LEVELS
+    return (width < fine) & (longest > THIN_RATIO * width) & (levels(longest, spacing) <= THIN_LEVEL)
+
+
+def _choices(longest, cnt, spacing, area, thin=None):
     """((F, CLUTTER_LEVELS) corners each face adds 1 .. CLUTTER_LEVELS levels finer, (F,
     CLUTTER_LEVELS) whether that is a choice: it adds some, and no more than `area` (m^2) is worth
-    (CLUTTER_WORTH))."""
+    (CLUTTER_WORTH), or the face is thin (thin (F,) bool, _thin: every level a choice))."""
     base = cnt << (2 * levels(longest, spacing))
     add = [(cnt << (2 * levels(longest, spacing, k))) - base for k in range(1, CLUTTER_LEVELS + 1)]
     add = np.stack(add, 1) if add else np.zeros((len(cnt), 0), np.int64)
-    return add, (add > 0) & (add * (spacing / 2**CLUTTER_LEVELS) ** 2 <= 4 / CLUTTER_WORTH * area[:, None])
+    worth = add * (spacing / 2**CLUTTER_LEVELS) ** 2 <= 4 / CLUTTER_WORTH * area[:, None]
+    return add, (add > 0) & (worth | (False if thin is None else thin[:, None]))
 
 
-def _finer_faces_within(clutter, edges, spacing, room):
+def _finer_faces_within(clutter, edges, spacing, room, thin_room=0):
     """({name: (F,) int8 FINER}, corners added): the faces of `clutter` (corner_budget's) with a
     weight, each the most levels finer (up to CLUTTER_LEVELS) worth their corners: its area x its
     weight (_cluttered's) per corner added at least CLUTTER_WORTH x the finest spacing^2 / 4. The
     most weighed area per corner first, each the finest of its levels that still fits in `room`
-    corners (a face no finer level cuts more, or none worth it: left)."""
-    owner, faces, areas, costs = [], [], [], []
+    corners (a face no finer level cuts more, or none worth it: left). Then the thin faces no level
+    is worth by area (_thin) the same way, within what is left and at most `thin_room` corners
+    between them."""
+    owner, faces, areas, costs, thin = [], [], [], [], []
     for j, (n, (weight, area)) in enumerate(clutter.items()):
         longest, cnt = edges[n]
         f = np.flatnonzero(weight > 0)
-        area = weight[f] * area[f]
-        add, ok = _choices(longest[f], cnt[f], spacing, area)
+        wa = weight[f] * area[f]
+        add, ok = _choices(longest[f], cnt[f], spacing, wa)
+        # the thin faces no level is worth by area: each level that adds corners a choice (_choices')
+        t = ~ok.any(1)[:, None] & (add > 0) & _thin(longest[f], area[f], spacing)[:, None]
+        ok |= t
         keep = ok.any(1)
         owner.append(np.full(keep.sum(), j))
         faces.append(f[keep])
-        areas.append(area[keep])
+        areas.append(wa[keep])
         costs.append(np.where(ok, add, -1)[keep])  # (-1: not a choice)
+        thin.append(t.any(1)[keep])
     fine = {}
     if not sum(map(len, faces)) or room <= 0:
         return fine, 0
     owner, faces = np.concatenate(owner), np.concatenate(faces)
-    areas, costs = np.concatenate(areas), np.concatenate(costs)
+    areas, costs, thin = np.concatenate(areas), np.concatenate(costs), np.concatenate(thin)
     best = CLUTTER_LEVELS - np.argmax(costs[:, ::-1] > 0, 1)  # each face's finest choice
-    pick = np.zeros(len(faces), np.int64)
     first = costs[np.arange(len(faces)), best - 1]
-    if first.sum() <= room:
-        pick = best
-    else:
-        got = 0
+    pick = np.zeros(len(faces), np.int64)
+    got = 0
+    for part, limit in ((~thin, room), (thin, thin_room)):
+        sel, r = np.flatnonzero(part), min(room - got, limit)
+        if not len(sel) or r <= 0:
+            continue
+        if first[sel].sum() <= r:
+            pick[sel] = best[sel]
+            got += int(first[sel].sum())
+            continue
         # the most area per corner added first: a face whose corners are far apart (a wall's 0.23 m
         # quad) before one Subdivide Mesh already cut finely across (a 0.4 x 1.6 m side at level 3),
         # a book's thin spine or a cup's small faces
-        for i in np.lexsort((faces, owner, -areas / first)).tolist():
+        used = 0
+        for i in sel[np.lexsort((faces[sel], owner[sel], -areas[sel] / first[sel]))].tolist():
             for k in range(int(best[i]), 0, -1):
-                if 0 < costs[i, k - 1] <= room - got:
-                    pick[i], got = k, got + int(costs[i, k - 1])
+                if 0 < costs[i, k - 1] <= r - used:
+                    pick[i], used = k, used + int(costs[i, k - 1])
                     break
+        got += used
     on = pick > 0
-    got = int(costs[np.flatnonzero(on), pick[on] - 1].sum())
     for j, n in enumerate(clutter):
         i = np.flatnonzero(on & (owner == j))
         if len(i):

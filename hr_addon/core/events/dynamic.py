@@ -59,7 +59,11 @@ from .validation import ShapeValidator, check_emission, find_surface, off_surfac
 # only after its two levels' passes, per object 3e-6 from 1e-5's (20k room), 14 -> 9 GMRES steps at
 # 100k. 1e-2 (7 steps, the output 2e-5) left the leaves 3.3e-3 from a tight solve, over
 # test_events' 2.5e-3 for draft's options; 1e-1 (one step) moved the output by 1.5%
-# (docs/scale.md, session 31).
+# (docs/scale.md, session 31). Medium takes "zero" too since session 34 (branch evmed2): on the 100k
+# room per object against the passes' limit median 0.015-0.017%, p95 0.12-0.14%, worst 0.76-0.82%
+# where "tail" read FE 0.017-0.022%, 0.39-0.45%, 2.2-2.4% (AUTO up to 6.1%); Cornell's worst surface
+# against Cycles 0.15% (FE "tail" 0.12%, AUTO 0.15%), every surface within 0.31%; a sweep step's
+# event 1.3 s (FE) / 1.8-2.9 s (AUTO) -> 0.02 s (docs/events.md, session 34).
 GATHER_SOLVE = {
     "draft": dict(
         tol=1e-3,
@@ -75,7 +79,7 @@ GATHER_SOLVE = {
         response_float32=True,
         response_steps=6,
         bounce_points=4,
-        gather_responses="tail",
+        gather_responses="zero",
     ),
     "high": dict(
         tol=1e-6, response_tol=1e-5, response_float32=True, response_steps=8, gather_responses="tail"

@@ -22,6 +22,16 @@ def _ratio_of(kern, vis):
     return np.where(ks > 0, (kern * vis).sum(1) / np.where(ks > 0, ks, 1), 1.0)
 
 
+def _in_set(ids, members):
+    """np.isin(ids, members) for non-negative integer ids, by a flag per id (a look-up a sample
+    instead of isin's sort of the level's samples at every event: the same answer)."""
+    if not len(ids) or int(ids.min()) < 0:
+        return np.isin(ids, members)
+    flag = np.zeros(max(int(ids.max()), int(members.max()) if len(members) else 0) + 1, bool)
+    flag[members] = True
+    return flag[ids]
+
+
 class DirectLight:
     """FinalGather's direct light (a mixin: it reads the gather's samples, points, normals, keys,
     dark, eps, seed, shadow_rays, system and its batching)."""
@@ -237,7 +247,7 @@ class DirectLight:
         _, em, nf = got
         inside = np.zeros(0, np.int64)
         if em is not None and rec.on_surface:
-            on = np.isin(self.patch, rec.roots) & (self.normals @ nf > 0.999)
+            on = _in_set(self.patch, rec.roots) & (self.normals @ nf > 0.999)
             on &= np.abs((self.points - rec.c) @ nf) <= max(rec.tol, 10 * self.eps)
             c = np.flatnonzero(on)
             if len(c):

@@ -368,6 +368,7 @@ class FinalGather(DirectLight):
 
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
     ENTRY_BATCH = 1 << 21  # weights per batch of _read_cols, _reuse_rows on threads (fixed: the same values)
+    MERGE_TRIM = 16 << 20  # bytes of batches merge copies between two release_free_memory
     # weights per batch of _remap_near (fixed): its int64 and float64 temporaries, ~60 bytes a weight,
     # were the 100k vertex bake's build peak in batches of 2^21 (session 32; its statistics' sums
     # are grouped by batch: their last bits moved then, the columns are the same)
@@ -777,20 +778,24 @@ class FinalGather(DirectLight):
         n0 = len(self.cols)
         first = np.where(old, n0 + indptr[:-1][np.maximum(take, 0)], self.indptr[:-1]) - ip[:-1]
         # entries below n0 are this level's, the rest the given rows' (taken from each, not from a
-        # concatenated copy of both: 0.1 GB less at the 100k room's second level, the same entries)
-        srcs = (self.cols, cols), (self.w, w)
-        new = [np.empty(ip[-1], np.result_type(*x)) for x in srcs]
+        # concatenated copy of both: 0.1 GB less at the 100k room's second level, the same entries);
+        # one field at a time, the old one let go before the next is made (-40 MB at its peak)
 
-        def rows(r0, r1):  # each block of rows copies its own entries: on threads (batch_map)
-            a, b = ip[r0], ip[r1]
-            src = np.repeat(first[r0:r1], cnt[r0:r1]) + np.arange(a, b)
-            mine = src < n0
-            for out, (x, y) in zip(new, srcs):
+        def taken(x, y):
+            out = np.empty(ip[-1], np.result_type(x, y))
+
+            def rows(r0, r1):  # each block of rows copies its own entries: on threads (batch_map)
+                a, b = ip[r0], ip[r1]
+                src = np.repeat(first[r0:r1], cnt[r0:r1]) + np.arange(a, b)
+                mine = src < n0
                 out[a:b][mine] = x[src[mine]]
                 out[a:b][~mine] = y[src[~mine] - n0]
 
-        batch_map(rows, _row_blocks(ip, self.ENTRY_BATCH), self.threads)
-        self.cols, self.w = new
+            batch_map(rows, _row_blocks(ip, self.ENTRY_BATCH), self.threads)
+            return out
+
+        self.cols = taken(self.cols, cols)
+        self.w = taken(self.w, w)
         self.indptr = ip
         if not self.near_points:
             self.cols %= self.n_hr
@@ -1070,9 +1075,19 @@ class FinalGather(DirectLight):
             parts[j] = list(parts[j])
         out = []
         for i in range(k):
-            out.append(np.concatenate([p[i] for p in parts]))
+            # copied batch by batch, each let go once copied and the heap's freed pages given back
+            # every MERGE_TRIM bytes: the whole and its batches not both resident (the 100k vertex
+            # bake's top level: its 70 MB of columns were +0.1 GB at the build's peak; session 34)
+            o = np.empty(sum(len(p[i]) for p in parts), np.result_type(*[p[i] for p in parts]))
+            a = done = 0
             for p in parts:
+                o[a : a + len(p[i])] = p[i]
+                a, done = a + len(p[i]), done + p[i].nbytes
                 p[i] = None
+                if done >= FinalGather.MERGE_TRIM:
+                    release_free_memory()
+                    done = 0
+            out.append(o)
         indptr = np.zeros(len(out[0]) + 1, np.int64)
         np.cumsum(out[0], out=indptr[1:])
         return (indptr, *out[1:], None, None) if k == 3 else (indptr, *out[1:])
@@ -1328,8 +1343,12 @@ class FinalGather(DirectLight):
         last, sums = [], []
         until = zero or (tail and until)
         gs = self._seidel_blocks() if zero and fit is None and g2.second is None else None
+        least, share = max(self.iterations, 2), self.TAIL_SHARE  # (the passes' minimum is least + 1)
+        if gs is not None:
+            least = max(self.SEIDEL_MIN_PASSES - 1, 2) if self.SEIDEL_MIN_PASSES else least
+            share = self.TAIL_SHARE if self.SEIDEL_TAIL_SHARE is None else self.SEIDEL_TAIL_SHARE
         for k in range(self.TAIL_PASSES if until else 1 + self.iterations):
-            if until and k > max(self.iterations, 2) and self._tail_share(sums) <= self.TAIL_SHARE:
+            if until and k > least and self._tail_share(sums) <= share:
                 k -= 1
                 break
             if gs is not None and not (nothing and k == 0):
@@ -1375,6 +1394,10 @@ class FinalGather(DirectLight):
     # ev100k). 0: the Jacobi passes. (A Blender light's passes to their limit stay Jacobi: not
     # measured.)
     SEIDEL_BLOCK = 1 << 20
+    # the Gauss-Seidel passes' own stopping rule (0 / None: the Jacobi passes' minimum, 1 +
+    # max(iterations, 2), and TAIL_SHARE): at least SEIDEL_MIN_PASSES passes (3 or more: the tail
+    # takes the last three), then on while the tail is more than SEIDEL_TAIL_SHARE of the light
+    SEIDEL_MIN_PASSES, SEIDEL_TAIL_SHARE = 0, None
     SEIDEL_STEP = 1 << 18  # weights per batch of a block's rows on threads (fixed: the same values)
 
     def _seidel_blocks(self):

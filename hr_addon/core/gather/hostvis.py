@@ -47,7 +47,6 @@ import itertools
 import numpy as np
 
 from ..clip import _clip_halfplane, overlap_areas, polygon_area_2d
-from ..events.planar import _in_rings
 from ..parallel import batch_map, ranges
 from ..planes import frames
 from .sampling import hash_uniform
@@ -124,8 +123,21 @@ def inside_boxes(rings2d, corners, h):
 
 
 def inside_rings(q, rings):
-    """(...,) even-odd test of 2D points q (..., 2) against rings (outer, then holes)."""
-    return _in_rings(q.reshape(-1, 2), rings).reshape(q.shape[:-1])
+    """(...,) even-odd test of 2D points q (..., 2) against rings (outer, then holes): planar._in_rings'
+    answer, edge by edge over the points whose height the edge spans (the same crossing test and
+    abscissa for each such point, the parity of their count: the same booleans; x0.35 of its CPU on a
+    million points against a 4-edge ring, which _in_rings tests as (points, edges) arrays)."""
+    q = np.asarray(q, np.float64)
+    px, py = q[..., 0].ravel(), q[..., 1].ravel()
+    inside = np.zeros(len(px), bool)
+    for r in rings:
+        r = np.asarray(r, np.float64)
+        for (ax, ay), (bx, by) in zip(r.tolist(), np.roll(r, -1, 0).tolist()):
+            c = np.flatnonzero((ay > py) != (by > py))  # (never where ay == by)
+            if len(c):
+                t = (py[c] - ay) / (by - ay)
+                inside[c] ^= px[c] < ax + t * (bx - ax)
+    return inside.reshape(q.shape[:-1])
 
 
 def ring_area(rings2d):
@@ -303,7 +315,8 @@ class HostVisibility:
             bits[clear] = known[clear] = 255
         tested[new] = True
         need = ~known[sel] & mask
-        todo = np.flatnonzero(need.any(1))
+        # (a TILE 4 row's two bytes as one uint16: numpy's any over an axis of 2 is a slow reduction)
+        todo = np.flatnonzero(need.view(np.uint16)[:, 0] if need.shape[1] == 2 else need.any(1))
         if not len(todo):
             return 0
         # the rows by their cells to trace (a row's packed bytes as one integer: np.unique's axis=0
@@ -498,14 +511,15 @@ class HostVisibility:
         m = np.broadcast_to(full[None], k.shape)
         if part.any():
             pj, pi = np.nonzero(part)  # the partly covered cells: their points tested (even-odd)
-            q = np.stack(np.broadcast_arrays(a[:, pi], b[:, pj]), -1)  # (l, P, 2)
+            qa, qb = a[:, pi], b[:, pj]  # (l, P) each
             m = m.copy()
             if boxes is None:
-                m[:, pj, pi] = inside_rings(q, rings2d)
-            else:
-                near = ((q >= boxes[0]) & (q <= boxes[1])).all(-1)
+                m[:, pj, pi] = inside_rings(np.stack([qa, qb], -1), rings2d)
+            else:  # (by component: no (l, P, 2) stack for the boxes' test)
+                (xlo, ylo), (xhi, yhi) = boxes[0].T, boxes[1].T
+                near = (qa >= xlo) & (qa <= xhi) & (qb >= ylo) & (qb <= yhi)
                 ins = np.zeros(near.shape, bool)
-                ins[near] = inside_rings(q[near], rings2d)
+                ins[near] = inside_rings(np.stack([qa[near], qb[near]], -1), rings2d)
                 m[:, pj, pi] = ins
         w = k * m
         ws = w.sum((1, 2))
@@ -588,11 +602,26 @@ def culled(lv, em):
     """The samples of level lv main's culls keep for Emitter em (DirectLight.direct_batch): not
     dark, in front of the shape by eps, a vertex above their horizon by eps. (The horizon's max is
     taken before subtracting x . n_x: rounding is monotonic, so max(v - c) = max(v) - c exactly,
-    without the (samples, vertices) differences.)"""
+    without the (samples, vertices) differences. x . n_x is the level's, once (_x_dot_n); the max
+    once per run of samples with the same normal (a second level's leaf's k x k, a flat face's
+    samples): each sample's own products either way, 1/9 of the second level's rows at 100k.)"""
     x, nx = lv.points, lv.normals
     i = np.flatnonzero(~lv.dark & ((x - em.point) @ em.normal > lv.eps))
-    xn = np.einsum("mk,mk->m", x[i], nx[i])
-    return i[(nx[i] @ em.verts.T).max(1) - xn > lv.eps]
+    ni = nx[i]
+    head = np.ones(len(i), bool)
+    head[1:] = (ni[1:] != ni[:-1]).any(1)
+    at = np.flatnonzero(head)
+    top = np.repeat((ni[at] @ em.verts.T).max(1), np.diff(np.append(at, len(i))))
+    return i[top - _x_dot_n(lv)[i] > lv.eps]
+
+
+def _x_dot_n(lv):
+    """(n,) each sample's x . n_x at level lv (culled's), kept on the level for its points and
+    normals (each row's own einsum: the same values as on any subset of rows)."""
+    got = lv.__dict__.get("_xdotn")
+    if got is None or got[0] is not lv.points or got[1] is not lv.normals:
+        got = lv._xdotn = (lv.points, lv.normals, np.einsum("mk,mk->m", lv.points, lv.normals))
+    return got[2]
 
 
 def points_for(lv):

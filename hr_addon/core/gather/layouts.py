@@ -663,6 +663,30 @@ def shared_rays(average, loop_index, n, rays, share=SHARE):
     return np.maximum(int(rays) // m, 1)
 
 
+# LoopGather: the extra samples of one face (corner_fit's over a cut face or along an elongated
+# one, slot_split's over a split face's open part) stand only for their face's mean
+# (corner_fit.shift_plan), so they share EXTRA_FACE x rays between them, each the power of two at
+# most its share (at most rays; a face's 8 samples 64 rays each, 4 or fewer all). 0: each traces
+# all rays (before session 34). The 100k bake's top-level rays 45.1 -> 40.0 M; per object within
+# the seed floor (FE add median 0.591% against main's 0.586%, its four realisations
+# 0.569-0.594%); 2 (32 rays each of 8, 64 of 4: 35.1 M) at the floor's edge, 0.596%
+# (docs/scale.md, session 34, bakepre)
+EXTRA_FACE = 4
+
+
+def extra_rays(patch, rays, face=None):
+    """(m,) hemisphere rays per extra sample on patches `patch` (m,) (the samples of one face are
+    those with its patch): rays, or with face > 0 (None: EXTRA_FACE) the power of two at most
+    face x rays / (the face's samples), within 1..rays (powers of two: the rows keep hit counts)."""
+    face = EXTRA_FACE if face is None else face
+    patch = np.asarray(patch, np.int64)
+    if face <= 0 or not len(patch):
+        return np.full(len(patch), int(rays), np.int64)
+    _, inv, cnt = np.unique(patch, return_inverse=True, return_counts=True)
+    share = np.maximum(face * int(rays) / cnt[inv.ravel()], 1.0)
+    return np.minimum(2 ** np.floor(np.log2(share)).astype(np.int64), int(rays))
+
+
 class LoopGather(FinalGather):
     """FinalGather for the input mesh's corners: loop_radiance() in the layout of
     DynamicRadiosity.loop_radiance (CORNER: (L, 3) per loop; POINT: (V, 3) per vertex), float32.
@@ -711,8 +735,10 @@ class LoopGather(FinalGather):
                 kw["slot_area"] = (len(pts) + len(xp) + rows, *area)
             xp, xpatch = np.r_[xp, sp], np.r_[xpatch, spatch]
             pts, nrm, patch = np.r_[pts, xp], np.r_[nrm, pt.normal[xpatch]], np.r_[patch, xpatch]
-            if "sample_rays" in kw:  # the extra samples are read alone: all rays
-                kw["sample_rays"] = np.r_[kw["sample_rays"], np.full(len(xp), rays, np.int64)]
+            if "sample_rays" in kw:  # a face's extra samples share its rays (EXTRA_FACE); a slot's all
+                n_open = len(xpatch) - len(rows)  # (corner_fit's, then slot_split's open ones)
+                own = extra_rays(xpatch[:n_open], rays)
+                kw["sample_rays"] = np.r_[kw["sample_rays"], own, np.full(len(rows), rays, np.int64)]
         if output is not None:  # gathered on the transport patch under each point, to its side
             self.output, self.out_patch = output, patch
             patch = output.transport(patch, pts)
