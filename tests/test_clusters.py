@@ -919,20 +919,24 @@ def test_far_links_between_dark_ends_take_their_own_criteria_and_keep_reciprocit
     assert s.report.energy_error < 1e-8
 
 
+# the depth-first loops' rounds (link_clusters, Refiner.refine until session 35)
+_DF_CHUNK, _DF_REFINE_CHUNK = 200_000, 100_000
+
+
 def _depth_first_levels(refiner, tree, table, lit, progress=None):
-    """link_clusters' refinement as it ran until session 34 (farthreads): one pending set of
-    pairs (up to CHUNK) a round, the last pushed first; each round's splits made as it went."""
+    """link_clusters' refinement as it ran until session 35 (farruns): one pending set of pairs
+    (up to 200k) a round, the last pushed first; each round's splits made as it went."""
     h, far, nodes = refiner.h, [], []
     pending = [(C.encode([0]),) * 2]
     while pending:
         a, b = pending.pop()
-        if len(a) > FL.CHUNK:
-            pending.append((a[FL.CHUNK :], b[FL.CHUNK :]))
-            a, b = a[: FL.CHUNK], b[: FL.CHUNK]
+        if len(a) > _DF_CHUNK:
+            pending.append((a[_DF_CHUNK:], b[_DF_CHUNK:]))
+            a, b = a[:_DF_CHUNK], b[:_DF_CHUNK]
         same = a == b
         s = a[same & (a < 0)]
         if len(s):
-            pending.append(FL._self_pairs(tree, C.decode(s))[:2])
+            pending.append(FL._self_pairs(tree, C.decode(s)))
         a, b = a[~same], b[~same]
         both = (a >= 0) & (b >= 0)
         nodes.append((a[both], b[both]))
@@ -953,7 +957,7 @@ def _depth_first_levels(refiner, tree, table, lit, progress=None):
                 new_b.append(ys[cl][owner])
             nd = xs[~cl]
             if len(nd):
-                h.subdivide(np.unique(nd[h.child0[nd] < 0]))
+                h.subdivide(np.unique(nd))
                 new_a.append(h.children(nd).ravel())
                 new_b.append(np.repeat(ys[~cl], 4))
         if new_a:
@@ -963,21 +967,19 @@ def _depth_first_levels(refiner, tree, table, lit, progress=None):
 
 
 def _depth_first_refine(self, p, q, good_enough=None):
-    """Refiner.refine as it ran until session 34 (farthreads): one pending set of pairs (up to
-    CHUNK) a round, the last pushed first; each round's splits made as it went."""
-    from hr_addon.core import refine as R
-
+    """Refiner.refine as it ran until session 35 (farruns): one pending set of pairs (up to 100k)
+    a round, the last pushed first; each round's splits made as it went."""
     h, aeps = self.h, self.params.aeps * self.total_area
-    tol, out = 1e-9 * np.sqrt(self.total_area), []
+    tol, out, n = 1e-9 * np.sqrt(self.total_area), [], _DF_REFINE_CHUNK
     pending = [(np.asarray(p, np.int64), np.asarray(q, np.int64), np.full(len(p), np.nan))]
     while pending:
         p, q, kv = pending.pop()
-        if len(p) > R.CHUNK:
-            pending.append((p[R.CHUNK :], q[R.CHUNK :], kv[R.CHUNK :]))
-            p, q, kv = p[: R.CHUNK], q[: R.CHUNK], kv[: R.CHUNK]
+        if len(p) > n:
+            pending.append((p[n:], q[n:], kv[n:]))
+            p, q, kv = p[:n], q[:n], kv[:n]
         if not len(p):
             continue
-        p, q, vis, link, split_p, split_q, _ = self._oracle(p, q, kv, good_enough, aeps, tol, p)
+        p, q, vis, link, split_p, split_q = self._oracle(p, q, kv, good_enough, aeps, tol)
         out.append((p[link], q[link], vis[link]))
         sp_p, sp_q, sq_p, sq_q = p[split_p], q[split_p], p[split_q], q[split_q]
         h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
@@ -993,19 +995,20 @@ def _depth_first_refine(self, p, q, good_enough=None):
     return self._finish(out)
 
 
-def test_the_levels_give_the_depth_first_loops_hierarchy_and_links_bit_for_bit(monkeypatch):
-    """link_clusters and Refiner.refine take a whole level of pairs per map (issue 23) and replay
-    the order of the depth-first loops they replaced (hierarchy.DepthFirstRounds): the hierarchy
-    (the loops' node ids: a node's second visibility points are shifted by its id), the far links,
-    node pairs and patch links in the loops' order and the solve are bitwise equal to the loops'.
-    Small CHUNKs and LEVEL_PAIRS: the loops' sets are cut into several rounds and the levels' maps
-    cut rounds apart."""
+def test_the_levels_solve_to_the_depth_first_loops_light(monkeypatch):
+    """link_clusters and Refiner.refine take a whole level of pairs per map (issue 23), in their own
+    order: the same pairs are classified and the same nodes split as by the depth-first loops they
+    replaced, but node ids differ, so a few far links' second traces start from other points
+    (cluster._node_points2 shifts them by the id) and the links come in another order. The light
+    each object receives stays within 0.5% of the loops': measured 0.15% at most (0.02% on
+    average) over the 2k room's 111 objects, where shifting the loops' second points by 7 or 1000
+    ids moved them by up to 1.7-1.9% (docs/threads.md, session 35). Small LEVEL_PAIRS: several
+    maps per level."""
     from hr_addon.core import refine as R
     from hr_testing.furnished import furnished_room
 
-    for mod, sizes in ((FL, (500, 700, 61)), (R, (400, 900, 97))):
-        for name, v in zip(("CHUNK", "LEVEL_PAIRS", "PAIR_BATCH" if mod is FL else "LINK_BATCH"), sizes):
-            monkeypatch.setattr(mod, name, v)
+    monkeypatch.setattr(FL, "LEVEL_PAIRS", 700)
+    monkeypatch.setattr(R, "LEVEL_PAIRS", 900)
     mesh = furnished_room("2k")[0]
     params = RefineParams.for_gather("draft")
     s1 = RadiositySystem(mesh, params)
@@ -1014,12 +1017,17 @@ def test_the_levels_give_the_depth_first_loops_hierarchy_and_links_bit_for_bit(m
     s2 = RadiositySystem(mesh, params)
     assert s1.refiner.stats["cluster_pairs"] > 20 * FL.LEVEL_PAIRS and len(s1.links.far) > 1000
     assert s1.refiner.stats["pairs_tested"] > 20 * R.LEVEL_PAIRS
-    assert s1.h.n > s1.h.patches.nv.size + 1000  # link_clusters and refine split nodes
-    h1, h2, L1, L2 = s1.h, s2.h, s1.links, s2.links
-    for name in ("corners", "parent", "child0", "level", "patch", "area", "centre", "exposure"):
-        assert np.array_equal(h1.view(name), h2.view(name)), name
-    for x, y in ((L1, L2), (L1.far, L2.far)):
-        for k in ("a", "b", "vis", "f_ab", "f_ba", "mask", "scale", "part_a", "part_b"):
-            if hasattr(x, k):
-                assert np.array_equal(getattr(x, k), getattr(y, k)), k
-    assert np.array_equal(s1.solve(), s2.solve())
+    h1, h2 = s1.h, s2.h
+    assert h1.n == h2.n > h1.patches.nv.size + 1000  # the same nodes split
+    for name in ("area", "level", "patch"):
+        assert np.array_equal(np.sort(h1.view(name)), np.sort(h2.view(name))), name
+    assert abs(len(s1.links.far) - len(s2.links.far)) < 0.002 * len(s2.links.far)
+    P, K = h1.patches, h1.patches.nv.size
+    means = []
+    for s in (s1, s2):
+        b = s.solve()[:, :K].sum(0)
+        means.append(np.bincount(P.object_id, P.area * b) / np.bincount(P.object_id, P.area))
+        assert s.report.energy_error < 1e-8
+    lit = means[1] > 1e-3 * means[1].max()
+    assert lit.sum() > 50
+    np.testing.assert_allclose(means[0][lit], means[1][lit], rtol=5e-3)

@@ -493,18 +493,6 @@ class EndTable:
         self._append(new)
         self.n = n
 
-    def renumber(self, new, start):
-        """After Hierarchy.renumber(new, start): the patch nodes' rows moved with their ids (every
-        node's row made: update() first)."""
-        n, C = self.n, self.tree.C
-        old = np.empty(n - start, np.int64)
-        old[new[start:n] - start] = np.arange(start, n)
-        for k in ("pts", "w", "nrm", "cov", "vis", "packed"):
-            arr = getattr(self, k)
-            arr[C + start : C + n] = arr[C + old]
-        if len(self.has2) > start:
-            raise ValueError("EndTable.renumber: before prepare_second")
-
     def prepare_second(self, ni):
         """Patch nodes ni's second visibility points (visibility_points(second=True): pushed eps
         off, and whether each is covered), made once per node and kept (link_clusters, before its

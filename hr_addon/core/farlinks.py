@@ -23,7 +23,6 @@ from .cluster import (
     visibility_points,
 )
 from .formfactor import dot3, row_range, unoccluded_share
-from .hierarchy import DepthFirstRounds
 from .parallel import add_counts, batch_map, ranges, spans
 
 
@@ -223,8 +222,6 @@ def _end_factors(ids, e, part, u):
 
 
 # -- linking through the clusters -----------------------------------------------------------------------
-# pairs per round of the depth-first loop whose order link_clusters replays (DepthFirstRounds)
-CHUNK = 200_000
 # pairs of a level classified per map (link_clusters): its outputs, about 40 bytes a pair, are held
 # until the level's splits are made
 LEVEL_PAIRS = 1 << 18
@@ -318,25 +315,21 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
 
 
 def _cluster_levels(refiner, tree, table, lit, progress=None):
-    """link_clusters' refinement: (far links' a, b, vis, mask, part_a, part_b, fmax or None, node
-    pairs p, q), in the order of a depth-first loop (which popped one pending set of pairs at a
-    time: DepthFirstRounds), the nodes it split numbered as that loop numbered them.
+    """link_clusters' refinement, breadth-first: (far links' a, b, vis, mask, part_a, part_b, fmax
+    or None, node pairs p, q).
 
-    Breadth-first: all the pairs of a level (those the previous level's splits made) are
-    classified together, in maps of up to LEVEL_PAIRS pairs (the depth-first loop ran 685 maps of
-    2.7 batches each at 100k: issue 23, docs/threads.md, session 34). Every pair's decision is
-    its own, so the levels decide what the loop decided; its order is replayed afterwards: the
-    nodes split here get the loop's ids and the far links and node pairs come in its order, so
-    the hierarchy and the outputs are the loop's bit for bit (a node's id matters beyond order:
-    its second visibility points are shifted by it, cluster._node_points2)."""
+    All the pairs of a level (those the previous level's splits made) are classified together, in
+    maps of up to LEVEL_PAIRS pairs (the depth-first loop it replaced ran 685 maps of 2.7 batches
+    each at 100k: issue 23, docs/threads.md, sessions 34-35). Every pair's decision is its own, so
+    the levels decide what that loop decided; node ids and the links' order are the levels' own
+    (a node's second visibility points are shifted by its id, cluster._node_points2: 43 of the 20k
+    room's 55,855 far links traced from other points), fixed by LEVEL_PAIRS and not by the
+    thread count."""
     h = refiner.h
-    far, nodes, splits = [], [], []
-    root = encode([0])
+    far, nodes = [], []
+    a = b = encode([0])
     total_w = 0.5 * tree.area[0] ** 2
     done_w = 0.0
-    n0 = h.n  # the nodes split from here on are renumbered (DepthFirstRounds.renumber)
-    rounds = DepthFirstRounds(CHUNK)
-    a, b, rid = root, root, rounds.sets([1])
 
     def weight(a, b):
         aa, ab = _area(tree, h, a), _area(tree, h, b)
@@ -344,24 +337,23 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
 
     while len(a):
         refiner.stats["cluster_pairs"] += len(a)
-        kids, selfs = [], []  # the next level's pairs: (a, b, the round that made them, place)
+        new_a, new_b = [], []  # the next level's pairs
         same = a == b
         s = same & (a < 0)
         done_w += weight(a[same & ~s], a[same & ~s])
-        if s.any():  # (by child count: each group in round order)
-            selfs += [
-                [sa, sb, rid[s][own], k]
-                for k, (sa, sb, own) in enumerate(_self_pairs(tree, decode(a[s]), True))
-            ]
+        if s.any():
+            sa, sb = _self_pairs(tree, decode(a[s]))
+            new_a.append(sa)
+            new_b.append(sb)
         both = ~same & (a >= 0) & (b >= 0)
         if both.any():
-            nodes.append((a[both], b[both], rid[both]))
+            nodes.append((a[both], b[both]))
             done_w += weight(a[both], b[both])
         rest = ~same & ~both
-        a, b, rid = a[rest], b[rest], rid[rest]
+        a, b = a[rest], b[rest]
         for i, j in ranges(len(a), LEVEL_PAIRS):
-            x, y, r = a[i:j], b[i:j], rid[i:j]
-            table.update()  # the nodes subdivided by the last level (here, not on the threads)
+            x, y = a[i:j], b[i:j]
+            table.update()  # the nodes subdivided by the last map (here, not on the threads)
             parts = batch_map(
                 lambda i, j: _classify(refiner, tree, x[i:j], y[i:j], table, lit),
                 spans(len(x), PAIR_BATCH),
@@ -371,47 +363,31 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
                 np.concatenate(c) for c in zip(*parts)
             )
             del parts
-            for kind, sel in enumerate((ok, take)):  # a round's ok links, then its take ones
+            for sel in (ok, take):
                 if sel.any():
-                    far.append(
-                        (x[sel], y[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel], 2 * r[sel] + kind)
-                    )
+                    far.append((x[sel], y[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel]))
             done_w += w.sum()  # (the batches' sums: the progress only)
-            # a round's new pairs in the loop's order: split a's clusters, its nodes, then b's
-            for g, (sel, u, v) in enumerate(((split_a, x, y), (split_b, y, x))):
-                us, vs, rs = u[sel], v[sel], r[sel]
+            for sel, u, v in ((split_a, x, y), (split_b, y, x)):
+                us, vs = u[sel], v[sel]
                 cl = us < 0
                 if cl.any():
                     c, owner = tree.children(decode(us[cl]))
-                    kids.append([c, vs[cl][owner], rs[cl][owner], 2 * g])
+                    new_a.append(c)
+                    new_b.append(vs[cl][owner])
                 nd = us[~cl]
                 if len(nd):
-                    splits.append((nd, rs[~cl], g))
-                    h.subdivide(np.unique(nd[h.child0[nd] < 0]))
-                    kids.append(
-                        [h.children(nd).ravel(), np.repeat(vs[~cl], 4), np.repeat(rs[~cl], 4), 2 * g + 1]
-                    )
+                    h.subdivide(np.unique(nd))
+                    new_a.append(h.children(nd).ravel())
+                    new_b.append(np.repeat(vs[~cl], 4))
         if progress is not None:
             progress.update("clusters", done_w, total_w)
-        # the loop pushed a round's self-pairs, then its splits' pairs (popped first)
-        (a, b), rid = rounds.next_level([selfs, kids], 2)
+        z = np.zeros(0, np.int64)
+        a, b = (np.concatenate(c) if c else z for c in (new_a, new_b))
     # the levels' far links and node pairs: each array concatenated on its own (threads)
     cat = batch_map(lambda *x: np.concatenate(x), [*zip(*far), *zip(*nodes)], refiner.threads)
-    table.update()
-    new, pos = rounds.renumber(h, n0, splits)
-    table.renumber(new, n0)
-
-    def loop_order(cols, key):  # in the loop's order, renumbered
-        o = np.argsort(key, kind="stable")
-        cols = [np.take(x, o, 0) for x in cols]
-        for x in cols[:2]:
-            x[x >= n0] = new[x[x >= n0]]
-        return cols
-
     z = np.zeros(0, np.int64)
-    p, q = loop_order(cat[-3:-1], pos[cat[-1]]) if nodes else (z, z)
-    # the loop's rounds, each its ok links, then its take ones
-    return (loop_order(cat[:7], 2 * pos[cat[7] // 2] + cat[7] % 2) if far else None), p, q
+    p, q = cat[-2:] if nodes else (z, z)
+    return (cat[:7] if far else None), p, q
 
 
 def _classify(refiner, tree, a, b, table=None, lit=None):
@@ -553,20 +529,19 @@ def _area(tree, h, ids):
     return np.where(ids < 0, tree.area[decode(np.minimum(ids, -1))], h.area[np.maximum(ids, 0)])
 
 
-def _self_pairs(tree, c, groups=False):
-    """All pairs (i <= j) of the children of each cluster c; patch self-pairs left out (planar).
-    Returns (a, b, owner: each pair's index in c), by the clusters' child count, then in c's
-    order; groups: [(a, b, owner)] per child count."""
+def _self_pairs(tree, c):
+    """All pairs (i <= j) of the children of each cluster c; patch self-pairs left out (planar)."""
     cnt = tree.child_start[c + 1] - tree.child_start[c]
-    out = []
+    out_a, out_b = [], []
     for k in np.unique(cnt):
-        sel = np.flatnonzero(cnt == k)
-        kids = tree.child_ids[tree.child_start[c[sel]][:, None] + np.arange(k)]
+        cs = c[cnt == k]
+        kids = tree.child_ids[tree.child_start[cs][:, None] + np.arange(k)]
         iu, ju = np.triu_indices(k)
         pa, pb = kids[:, iu].ravel(), kids[:, ju].ravel()
         keep = (pa != pb) | (pa < 0)
-        out.append((pa[keep], pb[keep], np.repeat(sel, len(iu))[keep]))
-    return out if groups else tuple(np.concatenate(x) for x in zip(*out))
+        out_a.append(pa[keep])
+        out_b.append(pb[keep])
+    return np.concatenate(out_a), np.concatenate(out_b)
 
 
 def far_visibility(refiner, tree, a, b, weak=None, table=None, second=False, decide=False):

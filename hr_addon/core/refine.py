@@ -18,7 +18,7 @@ import numpy as np
 from . import formfactor as ff
 from .boxes import sorted_index
 from .corrections import push_corrections
-from .hierarchy import DepthFirstRounds, Hierarchy
+from .hierarchy import Hierarchy
 from .links import Links
 from .parallel import add_counts, batch_map, ranges, spans
 from .params import RefineParams
@@ -27,7 +27,6 @@ from .progress import NO_PROGRESS
 
 # RefineParams, Links and push_corrections have their own modules; importable from here as before
 __all__ = [
-    "CHUNK",
     "Links",
     "RefineParams",
     "Refiner",
@@ -36,8 +35,6 @@ __all__ = [
     "push_corrections",
 ]
 
-# node pairs per round of the depth-first loop whose order Refiner.refine replays (DepthFirstRounds)
-CHUNK = 100_000
 # node pairs of a level per map of Refiner.refine (its outputs held until the level's splits are made)
 LEVEL_PAIRS = 1 << 18
 # links per batch of the final form factors and shadow tests on threads (core.parallel): fixed, so
@@ -506,91 +503,66 @@ class Refiner:
         on: the pairs it splits into need no rays (as in HR).
 
         Breadth-first: a level's pairs (those the last level's splits made) in maps of up to
-        LEVEL_PAIRS pairs, the order of the depth-first loop over sets of up to CHUNK pairs that
-        it replaced replayed (hierarchy.DepthFirstRounds: its node ids and link order, bit for
-        bit; issue 23, docs/threads.md, session 34)."""
+        LEVEL_PAIRS pairs (issue 23: the depth-first loop over sets of up to 100k pairs it replaced
+        ran 81 maps at 100k, docs/threads.md, sessions 34-35); node ids and the links' order are
+        the levels' own, fixed by LEVEL_PAIRS and not by the thread count."""
         t0 = time.perf_counter()
         h, prm = self.h, self.params
         aeps = prm.aeps * self.total_area
-        out, splits = [], []
+        out = []
         p, q = np.asarray(p, np.int64), np.asarray(q, np.int64)
         kv = np.full(len(p), np.nan)  # 1: known to be wholly visible, nan: unknown
         tol = 1e-9 * np.sqrt(self.total_area)
-        n0, rounds = h.n, DepthFirstRounds(CHUNK)
-        rid = rounds.sets([len(p)])
         done, total = 0, len(p)
         while len(p):
             self.stats["pairs_tested"] += len(p)
-            kids = []  # the next level's pairs (p, q, kv, the round that made them, place)
+            kids = []  # the next level's pairs (p, q, kv)
             for i, j in ranges(len(p), LEVEL_PAIRS):
-                x, y, k, r = p[i:j], q[i:j], kv[i:j], rid[i:j]
+                x, y, k = p[i:j], q[i:j], kv[i:j]
                 done += j - i
                 self.progress.update("linking", done, total)
                 # the oracle by batches of pairs on threads (each pair on its own), then the splits
                 parts = batch_map(
-                    lambda i, j: self._oracle(x[i:j], y[i:j], k[i:j], good_enough, aeps, tol, r[i:j]),
+                    lambda i, j: self._oracle(x[i:j], y[i:j], k[i:j], good_enough, aeps, tol),
                     spans(len(x), LINK_BATCH),
                     self.threads,
                 )
-                x, y, vis, link, split_p, split_q, r = (np.concatenate(c) for c in zip(*parts))
+                x, y, vis, link, split_p, split_q = (np.concatenate(c) for c in zip(*parts))
                 del parts
                 if link.any():
-                    out.append((x[link], y[link], vis[link], r[link]))
-                sp_p, sp_q, sp_r = x[split_p], y[split_p], r[split_p]  # p split: pairs (child of p, q)
-                sq_p, sq_q, sq_r = x[split_q], y[split_q], r[split_q]  # q split: pairs (p, child of q)
-                nd = np.concatenate([sp_p, sq_q])
-                splits.append((nd, np.concatenate([sp_r, sq_r]), 0))
-                h.subdivide(np.unique(nd))
-                total += 4 * len(nd)
+                    out.append((x[link], y[link], vis[link]))
+                sp_p, sp_q = x[split_p], y[split_p]  # p split: pairs (child of p, q)
+                sq_p, sq_q = x[split_q], y[split_q]  # q split: pairs (p, child of q)
+                h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
+                total += 4 * (len(sp_p) + len(sq_p))
                 kn = np.where(vis == 1, 1.0, np.nan)
                 kids.append(
-                    [
-                        h.children(sp_p).ravel(),
-                        np.repeat(sp_q, 4),
-                        np.repeat(kn[split_p], 4),
-                        np.repeat(sp_r, 4),
-                        0,
-                    ]
+                    (
+                        np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)]),
+                        np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()]),
+                        np.concatenate([np.repeat(kn[split_p], 4), np.repeat(kn[split_q], 4)]),
+                    )
                 )
-                kids.append(
-                    [
-                        np.repeat(sq_p, 4),
-                        h.children(sq_q).ravel(),
-                        np.repeat(kn[split_q], 4),
-                        np.repeat(sq_r, 4),
-                        1,
-                    ]
-                )
-            (p, q, kv), rid = rounds.next_level([kids], 3)
+            p, q, kv = (np.concatenate(c) for c in zip(*kids)) if kids else (p[:0], q[:0], kv[:0])
         self.stats["t_refine"] += time.perf_counter() - t0
-        if not out:
-            return self._finish(out)
-        new, pos = rounds.renumber(h, n0, splits)
-        a, b, vis, r = (np.concatenate(c) for c in zip(*out))
-        o = np.argsort(pos[r], kind="stable")  # the loop's order
-        a, b, vis = (np.take(c, o) for c in (a, b, vis))
-        for c in (a, b):
-            c[c >= n0] = new[c[c >= n0]]
-        return self._finish([(a, b, vis)])
+        return self._finish(out)
 
-    def _oracle(self, p, q, kv, good_enough, aeps, tol, tag):
+    def _oracle(self, p, q, kv, good_enough, aeps, tol):
         """refine's test of the pairs (p, q) (kv: known visibility): every pair on its own, no
         hierarchy edit, so batches of pairs run on threads. Returns the pairs that can exchange
-        light, their visibility (nan: not tested), the masks link, split p, split q and their
-        `tag` (a value per pair carried along: its round)."""
+        light, their visibility (nan: not tested) and the masks link, split p, split q."""
         h, prm = self.h, self.params
         # the estimates only of the pairs that face and are exposed (27% of them in the 20k room):
         # every pair's estimate is its own, so the same values
         may = np.flatnonzero((h.exposure[p] > 0) & (h.exposure[q] > 0))
         may = may[_facing(h, p[may], q[may], tol)]
-        p, q, kv, tag = p[may], q[may], kv[may], tag[may]
+        p, q, kv = p[may], q[may], kv[may]
         cp, cq = self.centres(p), self.centres(q)
         f_pq = ff.estimate(cp, h.normal[p], h.area[p], h.corners[q], cq, h.normal[q], h.area[q])
         f_qp = ff.estimate(cq, h.normal[q], h.area[q], h.corners[p], cp, h.normal[p], h.area[p])
         fmax = np.maximum(f_pq, f_qp)
         alive = fmax > 0
         p, q, f_pq, f_qp, fmax, kv = p[alive], q[alive], f_pq[alive], f_qp[alive], fmax[alive], kv[alive]
-        tag = tag[alive]
         cp, cq = cp[alive], cq[alive]
         ok = fmax < prm.feps if good_enough is None else good_enough(p, q, f_pq, f_qp)
         can_p, can_q = h.area[p] > aeps, h.area[q] > aeps
@@ -628,7 +600,7 @@ class Refiner:
         split_q = ~ok & can_q & (prefer_q | ~can_p)
         split_p = ~ok & ~split_q & can_p
         link = ~split_q & ~split_p
-        return p, q, vis, link, split_p, split_q, tag
+        return p, q, vis, link, split_p, split_q
 
     def _finish(self, out):
         if not out:
