@@ -1000,10 +1000,10 @@ def test_the_levels_solve_to_the_depth_first_loops_light(monkeypatch):
     order: the same pairs are classified and the same nodes split as by the depth-first loops they
     replaced, but node ids differ, so a few far links' second traces start from other points
     (cluster._node_points2 shifts them by the id) and the links come in another order. The light
-    each object receives stays within 0.5% of the loops': measured 0.15% at most (0.02% on
-    average) over the 2k room's 111 objects, where shifting the loops' second points by 7 or 1000
-    ids moved them by up to 1.7-1.9% (docs/threads.md, session 35). Small LEVEL_PAIRS: several
-    maps per level."""
+    each object receives stays within 0.5% of the loops': measured 0.17% at most (0.02% on
+    average) over these 67 lit objects (0.15% with the product's LEVEL_PAIRS), where shifting the
+    loops' second points by 7 or 1000 ids moved the 2k room's objects by up to 1.7-1.9%
+    (docs/threads.md, session 35). Small LEVEL_PAIRS: several maps per level."""
     from hr_addon.core import refine as R
     from hr_testing.furnished import furnished_room
 
