@@ -268,6 +268,8 @@ def small_batches(monkeypatch):
     monkeypatch.setattr(contacts, "SEGMENT_CHUNK", 2000)
     monkeypatch.setattr(boxes, "PAIR_BLOCK", 5000)
     monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
+    monkeypatch.setattr(farlinks, "LEVEL_PAIRS", 700)  # several maps per level of pairs
+    monkeypatch.setattr(refine, "LEVEL_PAIRS", 900)
     monkeypatch.setattr(RayBackend, "PARALLEL_CHUNK", 1000)
     monkeypatch.setattr(FinalGather, "BATCH_RAYS", 4096)
     monkeypatch.setattr(layouts, "PROBE_BATCH", 500)

@@ -222,7 +222,9 @@ def _end_factors(ids, e, part, u):
 
 
 # -- linking through the clusters -----------------------------------------------------------------------
-CHUNK = 200_000
+# pairs of a level classified per map (link_clusters): its outputs, about 40 bytes a pair, are held
+# until the level's splits are made
+LEVEL_PAIRS = 1 << 18
 # far links per batch of their solver terms (FarLinks.terms): fixed, so the terms do not depend on
 # the thread count
 TERMS_CHUNK = 8192
@@ -253,86 +255,25 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     their distance (radius sum < cluster_ratio x distance: the point-to-point kernel holds), and,
     for links above shadow_feps, visibility is not partial. Pairs wholly behind one end are
     dropped. Otherwise an end is split: a cluster into its children, a patch node into its
-    quadtree children. Pairs of two patch nodes are returned for the ordinary patch refinement.
-    Returns (FarLinks, node pairs p, q)."""
+    quadtree children (_cluster_levels). Pairs of two patch nodes are returned for the ordinary
+    patch refinement. Returns (FarLinks, node pairs p, q)."""
     h, prm = refiner.h, refiner.params
-    far, nodes = [], []
-    root = encode([0])
-    total_w = 0.5 * tree.area[0] ** 2
-    done_w = 0.0
     # Visibility is not inherited from a parent pair: 16 segments between 4 samples per end miss
     # thin occluders (legs, gaps between books). Measured on the 20k furnished room: passing
     # "wholly visible" down made objects 3.9% brighter on average (121% at worst), dropping
     # "wholly occluded" pairs 9% darker (83%), and the extra tests cost more rays than they saved.
-    pending = [(root, root)]
     table = EndTable(tree, h, refiner.eps)
     dark = prm.dark_ratio > 0 or prm.dark_veps > 0 or not prm.dark_second
     lit = LitEnds(tree, h) if dark else None
-
-    def weight(a, b):
-        aa, ab = _area(tree, h, a), _area(tree, h, b)
-        return np.where(a == b, 0.5 * aa * aa, aa * ab).sum()
-
-    while pending:
-        a, b = pending.pop()
-        if len(a) > CHUNK:
-            pending.append((a[CHUNK:], b[CHUNK:]))
-            a, b = a[:CHUNK], b[:CHUNK]
-        refiner.stats["cluster_pairs"] += len(a)
-        same = a == b
-        if same.any():
-            s = a[same & (a < 0)]
-            done_w += weight(a[same & (a >= 0)], a[same & (a >= 0)])
-            if len(s):
-                sa, sb = _self_pairs(tree, decode(s))
-                pending.append((sa, sb))
-            a, b = a[~same], b[~same]
-        both = (a >= 0) & (b >= 0)
-        if both.any():
-            nodes.append((a[both], b[both]))
-            done_w += weight(a[both], b[both])
-            a, b = a[~both], b[~both]
-        if not len(a):
-            continue
-        table.update()  # the nodes subdivided by the last round (here, not on the threads)
-        parts = batch_map(
-            lambda i, j: _classify(refiner, tree, a[i:j], b[i:j], table, lit),
-            spans(len(a), PAIR_BATCH),
-            refiner.threads,
-        )
-        cols = (np.concatenate(x) for x in zip(*parts))
-        drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = cols
-        for sel in (ok, take):
-            if sel.any():
-                far.append((a[sel], b[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel]))
-        done_w += w.sum()  # (the batches' sums: the progress only)
-        new_a, new_b = [], []
-        for sel, x, y in ((split_a, a, b), (split_b, b, a)):
-            xs, ys = x[sel], y[sel]
-            cl = xs < 0
-            if cl.any():
-                kids, owner = tree.children(decode(xs[cl]))
-                new_a.append(kids)
-                new_b.append(ys[cl][owner])
-            nd = xs[~cl]
-            if len(nd):
-                h.subdivide(np.unique(nd[h.child0[nd] < 0]))
-                new_a.append(h.children(nd).ravel())
-                new_b.append(np.repeat(ys[~cl], 4))
-        if new_a:
-            pending.append((np.concatenate(new_a), np.concatenate(new_b)))
-        if progress is not None:
-            progress.update("clusters", done_w, total_w)
-    # the rounds' far links and node pairs: each array concatenated on its own (threads)
-    cat = batch_map(lambda *x: np.concatenate(x), [*zip(*far), *zip(*nodes)], refiner.threads)
-    if far:
-        fa_, fb_, fv, fm, pa_, pb_, ff_ = cat[:7]
+    far, p, q = _cluster_levels(refiner, tree, table, lit, progress)
+    table.update()
+    if far is not None:
+        fa_, fb_, fv, fm, pa_, pb_, ff_ = far
         # the oracle's traced links: a full mask with a fraction is far_visibility's one value
         # for a link with back-facing segments (1 where all 16 are unoccluded: the same)
         fs = np.where(fm == 0xFFFF, np.nan_to_num(fv, nan=1.0), 1.0)
         todo = np.flatnonzero(np.isnan(fv))
         decided = ~np.isnan(fv)  # traced by the oracle (strong links kept on 0 or 1)
-        table.update()
 
         def shadows(i, j):  # every batch writes its own links
             t = todo[i:j]
@@ -373,8 +314,83 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     else:
         z = np.zeros(0)
         links = FarLinks(tree, z.astype(np.int64), z.astype(np.int64), z, z.astype(np.uint16))
-    p, q = cat[-2:] if nodes else (np.zeros(0, np.int64), np.zeros(0, np.int64))
     return links, p, q
+
+
+def _cluster_levels(refiner, tree, table, lit, progress=None):
+    """link_clusters' refinement, breadth-first: (far links' a, b, vis, mask, part_a, part_b, fmax
+    or None, node pairs p, q).
+
+    All the pairs of a level (those the previous level's splits made) are classified together, in
+    maps of up to LEVEL_PAIRS pairs (the depth-first loop it replaced ran 685 maps of 2.7 batches
+    each at 100k: issue 23, docs/threads.md, sessions 34-35). Every pair's decision is its own, so
+    the levels decide what that loop decided; node ids and the links' order are the levels' own
+    (a node's second visibility points are shifted by its id, cluster._node_points2: 43 of the 20k
+    room's 55,855 far links traced from other points), fixed by LEVEL_PAIRS and not by the
+    thread count."""
+    h = refiner.h
+    far, nodes = [], []
+    a = b = encode([0])
+    total_w = 0.5 * tree.area[0] ** 2
+    done_w = 0.0
+
+    def weight(a, b):
+        aa, ab = _area(tree, h, a), _area(tree, h, b)
+        return np.where(a == b, 0.5 * aa * aa, aa * ab).sum()
+
+    while len(a):
+        refiner.stats["cluster_pairs"] += len(a)
+        new_a, new_b = [], []  # the next level's pairs
+        same = a == b
+        s = same & (a < 0)
+        done_w += weight(a[same & ~s], a[same & ~s])
+        if s.any():
+            sa, sb = _self_pairs(tree, decode(a[s]))
+            new_a.append(sa)
+            new_b.append(sb)
+        both = ~same & (a >= 0) & (b >= 0)
+        if both.any():
+            nodes.append((a[both], b[both]))
+            done_w += weight(a[both], b[both])
+        rest = ~same & ~both
+        a, b = a[rest], b[rest]
+        for i, j in ranges(len(a), LEVEL_PAIRS):
+            x, y = a[i:j], b[i:j]
+            table.update()  # the nodes subdivided by the last map (here, not on the threads)
+            parts = batch_map(
+                lambda i, j: _classify(refiner, tree, x[i:j], y[i:j], table, lit),
+                spans(len(x), PAIR_BATCH),
+                refiner.threads,
+            )
+            drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = (
+                np.concatenate(c) for c in zip(*parts)
+            )
+            del parts
+            for sel in (ok, take):
+                if sel.any():
+                    far.append((x[sel], y[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel]))
+            done_w += w.sum()  # (the batches' sums: the progress only)
+            for sel, u, v in ((split_a, x, y), (split_b, y, x)):
+                us, vs = u[sel], v[sel]
+                cl = us < 0
+                if cl.any():
+                    c, owner = tree.children(decode(us[cl]))
+                    new_a.append(c)
+                    new_b.append(vs[cl][owner])
+                nd = us[~cl]
+                if len(nd):
+                    h.subdivide(np.unique(nd))
+                    new_a.append(h.children(nd).ravel())
+                    new_b.append(np.repeat(vs[~cl], 4))
+        if progress is not None:
+            progress.update("clusters", done_w, total_w)
+        z = np.zeros(0, np.int64)
+        a, b = (np.concatenate(c) if c else z for c in (new_a, new_b))
+    # the levels' far links and node pairs: each array concatenated on its own (threads)
+    cat = batch_map(lambda *x: np.concatenate(x), [*zip(*far), *zip(*nodes)], refiner.threads)
+    z = np.zeros(0, np.int64)
+    p, q = cat[-2:] if nodes else (z, z)
+    return (cat[:7] if far else None), p, q
 
 
 def _classify(refiner, tree, a, b, table=None, lit=None):

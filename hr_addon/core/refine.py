@@ -27,7 +27,6 @@ from .progress import NO_PROGRESS
 
 # RefineParams, Links and push_corrections have their own modules; importable from here as before
 __all__ = [
-    "CHUNK",
     "Links",
     "RefineParams",
     "Refiner",
@@ -36,7 +35,8 @@ __all__ = [
     "push_corrections",
 ]
 
-CHUNK = 100_000  # node pairs processed at once
+# node pairs of a level per map of Refiner.refine (its outputs held until the level's splits are made)
+LEVEL_PAIRS = 1 << 18
 # links per batch of the final form factors and shadow tests on threads (core.parallel): fixed, so
 # the values do not depend on the thread count; small enough that a 10k-triangle room has many (up
 # to 4x as many links per batch in large maps: parallel.spans)
@@ -500,7 +500,12 @@ class Refiner:
 
         good_enough(p, q, f_pq, f_qp) -> bool mask may replace the Feps test (BF refinement).
         A pair whose shadow test found all its vis_k^2 x vis_k^2 segments unoccluded hands that
-        on: the pairs it splits into need no rays (as in HR)."""
+        on: the pairs it splits into need no rays (as in HR).
+
+        Breadth-first: a level's pairs (those the last level's splits made) in maps of up to
+        LEVEL_PAIRS pairs (issue 23: the depth-first loop over sets of up to 100k pairs it replaced
+        ran 81 maps at 100k, docs/threads.md, sessions 34-35); node ids and the links' order are
+        the levels' own, fixed by LEVEL_PAIRS and not by the thread count."""
         t0 = time.perf_counter()
         h, prm = self.h, self.params
         aeps = prm.aeps * self.total_area
@@ -508,42 +513,37 @@ class Refiner:
         p, q = np.asarray(p, np.int64), np.asarray(q, np.int64)
         kv = np.full(len(p), np.nan)  # 1: known to be wholly visible, nan: unknown
         tol = 1e-9 * np.sqrt(self.total_area)
-        pending = [(p, q, kv)]
         done, total = 0, len(p)
-        while pending:
-            # Depth-first over bounded batches keeps the temporaries (a few hundred bytes per pair
-            # and quadrature point) small whatever the scene size.
-            p, q, kv = pending.pop()
-            if len(p) > CHUNK:
-                pending.append((p[CHUNK:], q[CHUNK:], kv[CHUNK:]))
-                p, q, kv = p[:CHUNK], q[:CHUNK], kv[:CHUNK]
+        while len(p):
             self.stats["pairs_tested"] += len(p)
-            done += len(p)
-            self.progress.update("linking", done, total)
-            if not len(p):
-                continue
-            # the oracle by batches of pairs on threads (each pair on its own), then the splits
-            parts = batch_map(
-                lambda i, j: self._oracle(p[i:j], q[i:j], kv[i:j], good_enough, aeps, tol),
-                spans(len(p), LINK_BATCH),
-                self.threads,
-            )
-            p, q, vis, link, split_p, split_q = (np.concatenate(x) for x in zip(*parts))
-            if link.any():
-                out.append((p[link], q[link], vis[link]))
-            sp_p, sp_q = p[split_p], q[split_p]  # p split: pairs (child of p, q)
-            sq_p, sq_q = p[split_q], q[split_q]  # q split: pairs (p, child of q)
-            h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
-            total += 4 * (len(sp_p) + len(sq_p))
-            if len(sp_p) + len(sq_p):
+            kids = []  # the next level's pairs (p, q, kv)
+            for i, j in ranges(len(p), LEVEL_PAIRS):
+                x, y, k = p[i:j], q[i:j], kv[i:j]
+                done += j - i
+                self.progress.update("linking", done, total)
+                # the oracle by batches of pairs on threads (each pair on its own), then the splits
+                parts = batch_map(
+                    lambda i, j: self._oracle(x[i:j], y[i:j], k[i:j], good_enough, aeps, tol),
+                    spans(len(x), LINK_BATCH),
+                    self.threads,
+                )
+                x, y, vis, link, split_p, split_q = (np.concatenate(c) for c in zip(*parts))
+                del parts
+                if link.any():
+                    out.append((x[link], y[link], vis[link]))
+                sp_p, sp_q = x[split_p], y[split_p]  # p split: pairs (child of p, q)
+                sq_p, sq_q = x[split_q], y[split_q]  # q split: pairs (p, child of q)
+                h.subdivide(np.unique(np.concatenate([sp_p, sq_q])))
+                total += 4 * (len(sp_p) + len(sq_p))
                 kn = np.where(vis == 1, 1.0, np.nan)
-                pending.append(
+                kids.append(
                     (
                         np.concatenate([h.children(sp_p).ravel(), np.repeat(sq_p, 4)]),
                         np.concatenate([np.repeat(sp_q, 4), h.children(sq_q).ravel()]),
                         np.concatenate([np.repeat(kn[split_p], 4), np.repeat(kn[split_q], 4)]),
                     )
                 )
+            p, q, kv = (np.concatenate(c) for c in zip(*kids)) if kids else (p[:0], q[:0], kv[:0])
         self.stats["t_refine"] += time.perf_counter() - t0
         return self._finish(out)
 
