@@ -107,21 +107,23 @@ def link_form_factors(h: Hierarchy, a, b, max_order=3):
             continue
         # the small nodes' Gauss points and the large ones' planes once per node (a node is an
         # end of several links; every node's values are its own: the same values)
-        u, iu = np.unique(s[m], return_inverse=True)
-        pts, w = ff.quadrature(h.corners[u], h.nv[u], kk)  # (U, kk^2, 3)
-        pts, w = pts[iu], w[iu]
+        us, js = np.unique(s[m], return_inverse=True)
+        pts, w = ff.quadrature(h.corners[us], h.nv[us], kk)  # (U, kk^2, 3)
         ns = kk * kk
-        u, iu = np.unique(big[m], return_inverse=True)
-        qn, qa = ff.polygon_normal_area(h.corners[u], h.nv[u])
-        iu = np.repeat(iu, ns)
-        vals = ff.point_to_polygon(
-            pts.reshape(-1, 3),
-            np.repeat(h.normal[s[m]], ns, 0),
-            h.corners[u[iu]],
-            h.nv[u[iu]],
-            (qn[iu], qa[iu]),
-        )
-        f_sl[m] = np.sum(vals.reshape(-1, ns) * w, axis=1)
+        ub, jb = np.unique(big[m], return_inverse=True)
+        c = ff._padded(h.corners[ub], h.nv[ub])
+        qn, qa = ff.polygon_normal_area(c)
+        normal = h.normal[s[m]]
+        # the (link, Gauss point) rows gathered block by block, not all at once: a batch's rows
+        # (up to 2^15 links x 9) made arrays of tens of MB, faulted in fresh and unmapped per
+        # batch (issue 23, docs/threads.md, session 36); every row is its own: the same values
+        step = max(ff.POINT_BLOCK // ns, 1)
+        for i in range(0, len(m), step):
+            bs, bb = js[i : i + step], np.repeat(jb[i : i + step], ns)
+            vals = ff._point_to_polygon(
+                pts[bs].reshape(-1, 3), np.repeat(normal[i : i + step], ns, 0), c[bb], qn[bb], qa[bb]
+            )
+            f_sl[m[i : i + step]] = np.sum(vals.reshape(-1, ns) * w[bs], axis=1)
     f_sl = np.clip(f_sl, 0.0, 1.0)
     f_ls = f_sl * h.area[s] / h.area[big]
     return np.where(small, f_sl, f_ls), np.where(small, f_ls, f_sl)
