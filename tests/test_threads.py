@@ -341,6 +341,27 @@ def test_build_links_do_not_depend_on_the_batch_sizes(monkeypatch):
         assert np.array_equal(x, y)
 
 
+def test_link_form_factors_by_blocks_equal_all_rows_at_once(monkeypatch):
+    """link_form_factors gathers its (link, Gauss point) rows per block of POINT_BLOCK rows
+    (session 36: not the batch's rows at once): every row is its own, so blocks of 50 rows and
+    one block of every row give bitwise equal form factors (the 2k room's patch links, all three
+    Gauss orders)."""
+    from hr_addon.core import formfactor as ff
+    from hr_addon.core.refine import link_form_factors
+    from hr_testing.furnished import furnished_room
+
+    s = RadiositySystem(furnished_room("2k")[0], RefineParams.for_gather("draft"))
+    a, b = s.links.a, s.links.b
+    want = link_form_factors(s.h, a, b, 3)
+    monkeypatch.setattr(ff, "POINT_BLOCK", 50)
+    got = link_form_factors(s.h, a, b, 3)
+    monkeypatch.setattr(ff, "POINT_BLOCK", 1 << 40)
+    one = link_form_factors(s.h, a, b, 3)
+    assert len(a) > 10_000 and (want[0] > 0).mean() > 0.5
+    for w, g, o in zip(want, got, one, strict=True):
+        assert np.array_equal(w, g) and np.array_equal(w, o)
+
+
 def test_furnished_gather_samples_with_one_and_two_threads_are_equal(small_batches, monkeypatch):
     """The furnished room (contacts): the corner samples (buried ones moved: the covered test and
     the back-face rays by batches of samples), the samples put onto their patches, the patches
