@@ -324,9 +324,10 @@ def test_spans_cover_the_items_in_batches_that_grow_with_the_count_only():
 
 def test_build_links_do_not_depend_on_the_batch_sizes(monkeypatch):
     """The furnished room's build with the product's batch sizes (most of the 2k room's maps in one
-    batch) and with small ones (many batches; point_to_polygon in blocks of 100 rows): every link's
-    and pair's values are its own, so the links, the hierarchy and the contacts are bitwise equal."""
-    from hr_addon.core import farlinks, refine
+    batch) and with small ones (many batches; point_to_polygon in blocks of 100 rows; the contacts'
+    box pairs and near tests in steps of 101 / 300 pairs): every link's and pair's values are its
+    own, so the links, the hierarchy and the contacts are bitwise equal."""
+    from hr_addon.core import boxes, contacts, farlinks, refine
     from hr_addon.core import formfactor as ff
     from hr_testing.furnished import furnished_room
 
@@ -335,6 +336,8 @@ def test_build_links_do_not_depend_on_the_batch_sizes(monkeypatch):
     monkeypatch.setattr(refine, "LINK_BATCH", 97)
     monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
     monkeypatch.setattr(ff, "POINT_BLOCK", 100)
+    monkeypatch.setattr(boxes, "PAIR_STEP", 101)
+    monkeypatch.setattr(contacts, "NEAR_STEP", 300)
     s2 = RadiositySystem(mesh, RefineParams.for_gather("draft"))
     assert len(s1.links) > 10 * 4 * refine.LINK_BATCH and len(s1.links.far) > 10 * 4 * farlinks.PAIR_BATCH
     for x, y in zip(_links(s1), _links(s2), strict=True):
