@@ -23,6 +23,9 @@ other jobs) and blocked (off a core without waiting for one: the GIL held by the
 map's idle thread-seconds (the tail, the hand-out) and the model of each caller's maps on 2 and 16
 cores (their 1-thread batches' makespans). --gil (1-thread runs): each batch's GIL-held CPU, read
 by benchmarks/gil_sampler.c (compiled with cc; CPython 3.11) on the second core of the affinity.
+Per batch also (session 36) the thread's minor page faults and system CPU (RUSAGE_THREAD): the
+`minflt` and `sys` columns by caller (numpy's temporaries that malloc hands back to the kernel and
+gets again as fresh pages; they do not depend on the machine's load).
 """
 
 import argparse
