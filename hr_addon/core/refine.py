@@ -118,11 +118,12 @@ def link_form_factors(h: Hierarchy, a, b, max_order=3):
         # (up to 2^15 links x 9) made arrays of tens of MB, faulted in fresh and unmapped per
         # batch (issue 23, docs/threads.md, session 36); every row is its own: the same values
         step = max(ff.POINT_BLOCK // ns, 1)
+        # each row's link in the block (np.repeat's copies hold the GIL throughout: takes do not)
+        rows = np.repeat(np.arange(step), ns)
         for i in range(0, len(m), step):
-            bs, bb = js[i : i + step], np.repeat(jb[i : i + step], ns)
-            vals = ff._point_to_polygon(
-                pts[bs].reshape(-1, 3), np.repeat(normal[i : i + step], ns, 0), c[bb], qn[bb], qa[bb]
-            )
+            bs, r = js[i : i + step], rows[: ns * len(js[i : i + step])] + i
+            bb = np.take(jb, r)
+            vals = ff._point_to_polygon(pts[bs].reshape(-1, 3), np.take(normal, r, 0), c[bb], qn[bb], qa[bb])
             f_sl[m[i : i + step]] = np.sum(vals.reshape(-1, ns) * w[bs], axis=1)
     f_sl = np.clip(f_sl, 0.0, 1.0)
     f_ls = f_sl * h.area[s] / h.area[big]
