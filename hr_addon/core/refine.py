@@ -115,9 +115,10 @@ def link_form_factors(h: Hierarchy, a, b, max_order=3):
         qn, qa = ff.polygon_normal_area(c)
         normal = h.normal[s[m]]
         # the (link, Gauss point) rows gathered block by block, not all at once: a batch's rows
-        # (up to 2^15 links x 9) made arrays of tens of MB, faulted in fresh and unmapped per
-        # batch (issue 23, docs/threads.md, session 36); every row is its own: the same values
-        step = max(ff.POINT_BLOCK // ns, 1)
+        # (up to 2^15 links x 9) made arrays of tens of MB, memory traffic and, when malloc hands
+        # them back, page faults (issue 23, docs/threads.md, session 36); every row is its own:
+        # the same values
+        step = max(min(ff.POINT_BLOCK // ns, len(m)), 1)
         # each row's link in the block (np.repeat's copies hold the GIL throughout: takes do not)
         rows = np.repeat(np.arange(step), ns)
         for i in range(0, len(m), step):
