@@ -23,6 +23,9 @@ other jobs) and blocked (off a core without waiting for one: the GIL held by the
 map's idle thread-seconds (the tail, the hand-out) and the model of each caller's maps on 2 and 16
 cores (their 1-thread batches' makespans). --gil (1-thread runs): each batch's GIL-held CPU, read
 by benchmarks/gil_sampler.c (compiled with cc; CPython 3.11) on the second core of the affinity.
+Per batch also (session 36) the thread's minor page faults and system CPU (RUSAGE_THREAD): the
+`minflt` and `sys` columns by caller (numpy's temporaries that malloc hands back to the kernel and
+gets again as fresh pages; they do not depend on the machine's load).
 """
 
 import argparse
@@ -102,13 +105,13 @@ def instrument(maps):
         def timed(k, *a):
             _tl.inside = True
             fd = os.open("/proc/thread-self/schedstat", os.O_RDONLY) if SCHEDSTAT else None
-            s0, g0 = schedstat(fd), gil_counts()
+            s0, g0, r0 = schedstat(fd), gil_counts(), thread_usage()
             t0, w0 = time.thread_time(), time.perf_counter()
             try:
                 return fn(*a)
             finally:
                 dt, w1 = time.thread_time() - t0, time.perf_counter()
-                s1, g1 = schedstat(fd), gil_counts()
+                s1, g1, r1 = schedstat(fd), gil_counts(), thread_usage()
                 if fd is not None:
                     os.close(fd)
                 _tl.inside = False
@@ -120,7 +123,9 @@ def instrument(maps):
                     blocked = max(w1 - w0 - (s1[0] - s0[0]) - rq, 0.0)
                     # held: the batch's CPU times the GIL-held share of its samples (gil_sampler)
                     held = dt * (g1[1] - g0[1]) / max(g1[0] - g0[0], 1)
-                    each.append((k, threading.get_ident(), w0, w1, dt, rq, blocked, held))
+                    # this thread's minor faults and system CPU in the batch (RUSAGE_THREAD)
+                    flt, sy = r1[0] - r0[0], r1[1] - r0[1]
+                    each.append((k, threading.get_ident(), w0, w1, dt, rq, blocked, held, flt, sy))
 
         f = sys._getframe(1)
         where = f"{Path(f.f_code.co_filename).stem}.{f.f_code.co_name}"
@@ -134,6 +139,8 @@ def instrument(maps):
             rq=sum(b[5] for b in each),
             blocked=sum(b[6] for b in each),
             held=sum(b[7] for b in each),
+            minflt=sum(b[8] for b in each),
+            sys=sum(b[9] for b in each),
             # the map's thread-seconds outside its batches: the tail (a thread with no batch left),
             # the hand-out, the worker's start
             idle=max(min(used, len(each)) * wall - busy, 0.0),
@@ -151,6 +158,15 @@ def instrument(maps):
 
 
 SCHEDSTAT = Path("/proc/thread-self/schedstat").exists()
+RUSAGE_THREAD = getattr(resource, "RUSAGE_THREAD", None)  # (Linux)
+
+
+def thread_usage():
+    """(minor faults, system CPU s) of the calling thread so far; zeros where unknown."""
+    if RUSAGE_THREAD is None:
+        return (0, 0.0)
+    r = resource.getrusage(RUSAGE_THREAD)
+    return (r.ru_minflt, r.ru_stime)
 
 
 def schedstat(fd):
@@ -424,13 +440,26 @@ def by_caller(runs, steps=("build",)):
         for m in maps:
             x = m[-1] if isinstance(m[-1], dict) else {}
             row = rows.setdefault(m[4], {}).setdefault(t, dict.fromkeys(CALLER_COLS, 0.0))
-            keys = ("rq", "blocked", "idle", "held", "mk2", "mk16")
+            keys = ("rq", "blocked", "idle", "held", "mk2", "mk16", "minflt", "sys")
             for c, v in zip(CALLER_COLS, (1, m[0], m[1], m[3], *(x.get(k, 0.0) for k in keys))):
                 row[c] += v
     return rows, whole
 
 
-CALLER_COLS = ("maps", "batches", "batch_cpu", "wall", "rq", "blocked", "idle", "gil_held", "mk2", "mk16")
+CALLER_COLS = (
+    "maps",
+    "batches",
+    "batch_cpu",
+    "wall",
+    "rq",
+    "blocked",
+    "idle",
+    "gil_held",
+    "mk2",
+    "mk16",
+    "minflt",  # the batches' minor page faults (fresh pages of numpy's temporaries, session 36)
+    "sys",  # the batches' system CPU s (the faults' zeroing, unmapping)
+)
 
 
 def main(argv=None):

@@ -29,9 +29,11 @@ def test_points_in_boxes_equals_box_pairs():
 
 
 def test_box_pairs_on_threads_equal_the_serial_and_brute_force_pairs(monkeypatch):
-    """Candidate blocks of PAIR_BLOCK pairs on 1 and 2 threads (many blocks here): the same
-    sorted unique pairs as the serial loop, and as comparing every pair of boxes."""
+    """Candidate blocks of PAIR_BLOCK pairs on 1 and 2 threads (many blocks here, each in steps
+    of PAIR_STEP pairs, merged): the same sorted unique pairs as the serial loop, and as comparing
+    every pair of boxes."""
     monkeypatch.setattr(boxes, "PAIR_BLOCK", 997)
+    monkeypatch.setattr(boxes, "PAIR_STEP", 101)
     rng = np.random.default_rng(2)
     lo = rng.random((1500, 3))
     hi = lo + rng.random((1500, 3)) * rng.choice([0.01, 0.05, 0.3], (1500, 1))
@@ -79,8 +81,10 @@ def test_norm3_is_linalg_norm_bit_for_bit():
 
 def test_box_pairs_keyed_inside_the_blocks_equal_the_pairs_keys(monkeypatch):
     """box_pairs(key=...) (Contacts' (plane, occluder) keys made inside each block, session 22):
-    the sorted unique keys of all the pairs it would return, serially and on 1 and 2 threads."""
+    the sorted unique keys of all the pairs it would return, serially and on 1 and 2 threads (each
+    block in steps of PAIR_STEP pairs)."""
     monkeypatch.setattr(boxes, "PAIR_BLOCK", 997)
+    monkeypatch.setattr(boxes, "PAIR_STEP", 101)
     rng = np.random.default_rng(6)
     lo = rng.random((1500, 3))
     hi = lo + rng.random((1500, 3)) * rng.choice([0.01, 0.05, 0.3], (1500, 1))

@@ -324,9 +324,10 @@ def test_spans_cover_the_items_in_batches_that_grow_with_the_count_only():
 
 def test_build_links_do_not_depend_on_the_batch_sizes(monkeypatch):
     """The furnished room's build with the product's batch sizes (most of the 2k room's maps in one
-    batch) and with small ones (many batches; point_to_polygon in blocks of 100 rows): every link's
-    and pair's values are its own, so the links, the hierarchy and the contacts are bitwise equal."""
-    from hr_addon.core import farlinks, refine
+    batch) and with small ones (many batches; point_to_polygon in blocks of 100 rows; the contacts'
+    box pairs and near tests in steps of 101 / 300 pairs): every link's and pair's values are its
+    own, so the links, the hierarchy and the contacts are bitwise equal."""
+    from hr_addon.core import boxes, contacts, farlinks, refine
     from hr_addon.core import formfactor as ff
     from hr_testing.furnished import furnished_room
 
@@ -335,10 +336,33 @@ def test_build_links_do_not_depend_on_the_batch_sizes(monkeypatch):
     monkeypatch.setattr(refine, "LINK_BATCH", 97)
     monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
     monkeypatch.setattr(ff, "POINT_BLOCK", 100)
+    monkeypatch.setattr(boxes, "PAIR_STEP", 101)
+    monkeypatch.setattr(contacts, "NEAR_STEP", 300)
     s2 = RadiositySystem(mesh, RefineParams.for_gather("draft"))
     assert len(s1.links) > 10 * 4 * refine.LINK_BATCH and len(s1.links.far) > 10 * 4 * farlinks.PAIR_BATCH
     for x, y in zip(_links(s1), _links(s2), strict=True):
         assert np.array_equal(x, y)
+
+
+def test_link_form_factors_by_blocks_equal_all_rows_at_once(monkeypatch):
+    """link_form_factors gathers its (link, Gauss point) rows per block of POINT_BLOCK rows
+    (session 36: not the batch's rows at once): every row is its own, so blocks of 50 rows and
+    one block of every row give bitwise equal form factors (the 2k room's patch links, all three
+    Gauss orders)."""
+    from hr_addon.core import formfactor as ff
+    from hr_addon.core.refine import link_form_factors
+    from hr_testing.furnished import furnished_room
+
+    s = RadiositySystem(furnished_room("2k")[0], RefineParams.for_gather("draft"))
+    a, b = s.links.a, s.links.b
+    want = link_form_factors(s.h, a, b, 3)
+    monkeypatch.setattr(ff, "POINT_BLOCK", 50)
+    got = link_form_factors(s.h, a, b, 3)
+    monkeypatch.setattr(ff, "POINT_BLOCK", 1 << 40)
+    one = link_form_factors(s.h, a, b, 3)
+    assert len(a) > 10_000 and (want[0] > 0).mean() > 0.5
+    for w, g, o in zip(want, got, one, strict=True):
+        assert np.array_equal(w, g) and np.array_equal(w, o)
 
 
 def test_furnished_gather_samples_with_one_and_two_threads_are_equal(small_batches, monkeypatch):

@@ -8,6 +8,11 @@ from .parallel import batch_map, ranges
 # candidate pairs per batch of box_pairs on threads (core.parallel): fixed, never by the thread
 # count (the pairs come out sorted and unique whatever the blocks)
 PAIR_BLOCK = 1 << 20
+# candidate pairs per step within a block: its int64 temporaries (1 MB) come from the heap and stay
+# in the cache, where a whole block's (8 MB, madvised huge pages) were faulted in fresh and unmapped
+# each time: a third of box_pairs' CPU was system time at 100k (issue 23, docs/threads.md, session
+# 36); the keys are each step's unique ones merged (merge_unique): the same
+PAIR_STEP = 1 << 17
 
 
 def sorted_index(table, keys):
@@ -103,7 +108,7 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000
 
     cm = [np.ascontiguousarray(x.T) for x in (lo_a, hi_a, lo_b, hi_b)]  # per axis: 1-D gathers
 
-    def pairs(s, e):
+    def step(s, e):
         c = cnt[s:e]
         i = np.repeat(ba[s:e], c)
         j = bb[np.repeat(first[s:e], c) + np.arange(len(i)) - np.repeat(np.cumsum(c) - c, c)]
@@ -111,6 +116,14 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, group_a=None, group_b=None, max_refs=4_000
         if key is not None:
             return np.unique(key(i[ok], j[ok]))
         return np.unique(i[ok] * len(lo_b) + j[ok])
+
+    def pairs(s, e):  # a block by steps of about PAIR_STEP candidate pairs (rows s..e of a)
+        if e - s <= 1:
+            return step(s, e)
+        at = np.cumsum(cnt[s:e])
+        cut = s + np.searchsorted(at, np.arange(PAIR_STEP, int(at[-1]), PAIR_STEP))
+        parts = [step(i, j) for i, j in zip(np.r_[s, cut], np.r_[cut, e]) if j > i]
+        return parts[0] if len(parts) == 1 else merge_unique(parts)
 
     blocks = list(zip(np.r_[0, cuts], np.r_[cuts, len(ka)]))
     keys = [pairs(s, e) for s, e in blocks] if threads is None else batch_map(pairs, blocks, threads)

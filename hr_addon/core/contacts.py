@@ -38,6 +38,8 @@ POINT_BATCH = 1 << 15
 # (plane, occluder patch) pairs per chunk of the chain segments: the segments' order follows the
 # chunks, so this is fixed (it was the serial code's chunk: the same chains, bit for bit)
 SEGMENT_CHUNK = 500_000
+# pairs per step of a chunk's near test (_segments): its temporaries stay in the cache
+NEAR_STEP = 1 << 16
 
 
 class Contacts(SlotMouths):
@@ -88,22 +90,31 @@ class Contacts(SlotMouths):
         crosses; wall: the patch whose reflectance stands for the gap's other wall, -1: black)."""
         pt, g = self.patches, self.gap
         c = pt.corners
-        n, o = self.n_g[gi], self.o_g[gi]
-        # (P, 4) corner heights over the plane: einsum("pkj,pj->pk", c[t] - o[:, None], n) by rows
-        # per corner and coordinate (its order, (x + z) + y, from +0: the same bits), 1.6x faster
-        ct = np.take(c.transpose(1, 2, 0).reshape(12, -1), t, 1)  # row 3 k + j: corner k, axis j
-        oT, nT = np.ascontiguousarray(o.T), np.ascontiguousarray(n.T)
-        d = np.empty((4, len(t)))
-        for k in range(4):
-            x, y, z = (ct[3 * k + j] - oT[j] for j in range(3))
-            d[k] = (x * nT[0] + z * nT[2]) + y * nT[1]
-        d = np.ascontiguousarray(d.T) + 0.0
-        nv = pt.nv[t]
-        d[nv == 3, 3] = d[nv == 3, 2]
-        mn, mx = row_range(d)
-        near = (mn <= g) & (mx >= -g)
-        gi, t, d, nv, n, o = gi[near], t[near], d[near], nv[near], n[near], o[near]
-        mn, mx = mn[near], mx[near]
+        cc = c.transpose(1, 2, 0).reshape(12, -1)  # row 3 k + j: corner k, axis j
+        keep = []
+        # the pairs near enough, by steps of NEAR_STEP pairs (most are not: only their rows go on;
+        # each row is its own, so the same rows in the same order as of the whole chunk at once,
+        # whose (12, 500k) temporaries were faulted in fresh per chunk: issue 23, session 36)
+        for i in range(0, max(len(t), 1), NEAR_STEP):
+            gs, ts = gi[i : i + NEAR_STEP], t[i : i + NEAR_STEP]
+            # (P, 4) corner heights over the plane: einsum("pkj,pj->pk", c[t] - o[:, None], n) by
+            # rows per corner and coordinate (its order, (x + z) + y, from +0: the same bits), 1.6x
+            # faster
+            ct = np.take(cc, ts, 1)
+            oT, nT = np.ascontiguousarray(self.o_g[gs].T), np.ascontiguousarray(self.n_g[gs].T)
+            d = np.empty((4, len(ts)))
+            for k in range(4):
+                x, y, z = (ct[3 * k + j] - oT[j] for j in range(3))
+                d[k] = (x * nT[0] + z * nT[2]) + y * nT[1]
+            d = np.ascontiguousarray(d.T) + 0.0
+            tri = pt.nv[ts] == 3
+            d[tri, 3] = d[tri, 2]
+            mn, mx = row_range(d)
+            near = np.flatnonzero((mn <= g) & (mx >= -g))
+            keep.append((i + near, d[near], mn[near], mx[near]))
+        near, d, mn, mx = (np.concatenate(x) for x in zip(*keep))
+        gi, t = gi[near], t[near]
+        nv, n = pt.nv[t], self.n_g[gi]
         cosang = np.einsum("ij,ij->i", pt.normal[t], n)
         flat = (np.abs(cosang) > 1 - 1e-6) & (mx - mn <= g)
         cover = flat & (((cosang < 0) & (d.mean(1) >= -self.pen)) | ((cosang > 0) & (mn > self.pen)))

@@ -297,7 +297,10 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
             t = again[i:j]
             fv[t], fm[t], fs[t] = far_visibility(refiner, tree, fa_[t], fb_[t], None, table, second=True)
 
-        batch_map(retrace, spans(len(again), PAIR_BATCH), refiner.threads)
+        # batches grown to 2 x PAIR_BATCH, not 4: at 4x (28k links at 100k) the second trace's
+        # temporaries were faulted in fresh per batch (93k faults, 0.45 s system CPU, +16% CPU on one
+        # thread against 8-16k links; issue 23, docs/threads.md, session 36)
+        batch_map(retrace, spans(len(again), PAIR_BATCH, grow=2), refiner.threads)
         keep = fv > 0 if not KEEP_OCCLUDED else fv >= 0
         links = FarLinks(
             tree,

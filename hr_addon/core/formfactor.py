@@ -178,9 +178,9 @@ def _point_to_polygon(p, n, c, qn, qa):
     # Most polygons lie wholly above the receiver's horizon: no clipping needed for those. (Rows
     # by take: contiguous, where fancy indexing of the last axis gave strided operands, 1.4x the
     # contour's time; the same values.)
-    whole = np.flatnonzero(front & every)
+    whole = (front & every).nonzero()[0]  # (flatnonzero of a row: without its Python wrappers)
     f[whole] = _contour_cm(np.take(R, whole, 2), np.take(Nn, whole, 1))
-    part = np.flatnonzero(front & some & ~every)
+    part = (front & some & ~every).nonzero()[0]
     if len(part):
         C = np.take(c.transpose(2, 1, 0), part, 2)  # (3, 4, M) the corners
         # the heights as _clip_to_halfspace's einsum has them (from +0: never a negative zero)
@@ -190,6 +190,16 @@ def _point_to_polygon(p, n, c, qn, qa):
     return np.clip(f, 0.0, 1.0)
 
 
+@functools.cache
+def _next(v):
+    """The indices of np.roll(x, -1) along an axis of v: [1, ..., v - 1, 0]. A take with them is
+    the same copy as roll's; np.roll spends ~10 us of Python per call with the GIL held, a few
+    times per point_to_polygon block (issue 23, docs/threads.md, session 36)."""
+    r = np.r_[1:v, 0]
+    r.flags.writeable = False
+    return r
+
+
 def _clip_cm(C, d):
     """_clip_to_halfspace of component-major polygons C (3, V, M) with their corners' signed
     heights d (V, M) (the same values as its own): (3, 2V, M) and the rows with a vertex left.
@@ -197,9 +207,10 @@ def _clip_cm(C, d):
     row form's (M, V, 3) stacks, rolls and gathers loop per row of 3): the same bits."""
     v, m = d.shape
     inside = d >= 0.0
-    nxt = np.roll(C, -1, axis=1)
-    d_next = np.roll(d, -1, axis=0)
-    crosses = inside != np.roll(inside, -1, axis=0)
+    nx = _next(v)  # (np.roll(x, -1) by one take: the same values, without roll's Python)
+    nxt = np.take(C, nx, 1)
+    d_next = np.take(d, nx, 0)
+    crosses = inside != np.take(inside, nx, 0)
     t = np.where(crosses, d / np.where(crosses, d - d_next, 1.0), 0.0)
     hit = C + t * (nxt - C)
     slots = np.empty((3, 2 * v, m))
@@ -249,7 +260,7 @@ def _contour_cm(R, n):
     numpy's sum: in order for V < 8, pairwise for V = 8, from +0): the same bits, negative zeros
     included."""
     V = R.shape[1]
-    Rn = np.roll(R, -1, axis=1)
+    Rn = np.take(R, _next(V), 1)  # np.roll(R, -1, axis=1)
     x, y, z = R
     xn, yn, zn = Rn
     c0 = y * zn - z * yn

@@ -107,21 +107,25 @@ def link_form_factors(h: Hierarchy, a, b, max_order=3):
             continue
         # the small nodes' Gauss points and the large ones' planes once per node (a node is an
         # end of several links; every node's values are its own: the same values)
-        u, iu = np.unique(s[m], return_inverse=True)
-        pts, w = ff.quadrature(h.corners[u], h.nv[u], kk)  # (U, kk^2, 3)
-        pts, w = pts[iu], w[iu]
+        us, js = np.unique(s[m], return_inverse=True)
+        pts, w = ff.quadrature(h.corners[us], h.nv[us], kk)  # (U, kk^2, 3)
         ns = kk * kk
-        u, iu = np.unique(big[m], return_inverse=True)
-        qn, qa = ff.polygon_normal_area(h.corners[u], h.nv[u])
-        iu = np.repeat(iu, ns)
-        vals = ff.point_to_polygon(
-            pts.reshape(-1, 3),
-            np.repeat(h.normal[s[m]], ns, 0),
-            h.corners[u[iu]],
-            h.nv[u[iu]],
-            (qn[iu], qa[iu]),
-        )
-        f_sl[m] = np.sum(vals.reshape(-1, ns) * w, axis=1)
+        ub, jb = np.unique(big[m], return_inverse=True)
+        c = ff._padded(h.corners[ub], h.nv[ub])
+        qn, qa = ff.polygon_normal_area(c)
+        normal = h.normal[s[m]]
+        # the (link, Gauss point) rows gathered block by block, not all at once: a batch's rows
+        # (up to 2^15 links x 9) made arrays of tens of MB, memory traffic and, when malloc hands
+        # them back, page faults (issue 23, docs/threads.md, session 36); every row is its own:
+        # the same values
+        step = max(min(ff.POINT_BLOCK // ns, len(m)), 1)
+        # each row's link in the block (np.repeat's copies hold the GIL throughout: takes do not)
+        rows = np.repeat(np.arange(step), ns)
+        for i in range(0, len(m), step):
+            bs, r = js[i : i + step], rows[: ns * len(js[i : i + step])] + i
+            bb = np.take(jb, r)
+            vals = ff._point_to_polygon(pts[bs].reshape(-1, 3), np.take(normal, r, 0), c[bb], qn[bb], qa[bb])
+            f_sl[m[i : i + step]] = np.sum(vals.reshape(-1, ns) * w[bs], axis=1)
     f_sl = np.clip(f_sl, 0.0, 1.0)
     f_ls = f_sl * h.area[s] / h.area[big]
     return np.where(small, f_sl, f_ls), np.where(small, f_ls, f_sl)
