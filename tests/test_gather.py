@@ -1166,6 +1166,35 @@ def test_csr_matvec_equals_rows_of_three():
         final.READ_STEP = step
 
 
+def test_read_plans_kept_give_the_reads_bit_for_bit():
+    """_read_plan's steps made once (the second level's Gauss-Seidel ranges keep them) read the same
+    values as _csr_rows making them per read: hit counts with rays per row or one for all, float32
+    weights, any row range; the steps cover the range's rows with entries once, in order."""
+    from hr_addon.core.gather import final
+
+    rng = np.random.default_rng(6)
+    n = 2000
+    counts = rng.integers(0, 30, n)
+    counts[::5] = 0
+    indptr = np.r_[0, np.cumsum(counts)]
+    cols = rng.integers(0, 400, indptr[-1]).astype(np.int32)
+    hits = rng.integers(1, 9, indptr[-1]).astype(np.uint8)
+    VT = rng.random((3, 400)).astype(np.float32)
+    step, final.READ_STEP = final.READ_STEP, 150
+    try:
+        for w, rays in ((hits, 64), (hits, rng.choice([16, 64], n)), (hits.astype(np.float32) / 7, None)):
+            for r0, r1 in ((0, n), (13, 977)):
+                plan = final._read_plan(indptr, r0, r1, rays if w.dtype.kind == "u" else None)
+                rows = np.concatenate([p[2] for p in plan])
+                assert np.array_equal(rows, r0 + np.flatnonzero(counts[r0:r1]))
+                ref, got = np.full((n, 3), -1.0), np.full((n, 3), -1.0)
+                final._csr_rows(indptr, cols, w, VT, r0, r1, ref, rays)
+                final._csr_rows(indptr, cols, w, VT, r0, r1, got, rays, plan)
+                assert (ref[rows] >= 0).all() and np.array_equal(got, ref)
+    finally:
+        final.READ_STEP = step
+
+
 def test_csr_matvec_of_hit_counts_equals_their_float32_weights():
     """FinalGather.w holds hit counts (uint8) where every hit weighs 1 and every row's rays are a
     power of two; _csr_matvec divides each row's sum by its rays: bit for bit the float32 weights

@@ -105,33 +105,45 @@ def _columns_f32(V, used=None, threads=1):
     return VT
 
 
-def _csr_rows(indptr, cols, w, VT, r0, r1, out, rays=None):
-    """out[r0:r1] = rows r0..r1 of the CSR matrix times the columns VT (_columns_f32; cols index
-    them), read in steps of about READ_STEP entries (whole rows: the same sums); rows without
-    entries are left as they are (_csr_matvec's doc for w and rays)."""
-    counts = w.dtype.kind == "u"
-    # channel-major: a 1-d take and reduceat per channel are 2x faster than rows of C with
-    # reduceat along axis 0 (100k room, measured), and sum the same products in the same order
-    q0 = r0
+def _read_plan(indptr, r0, r1, rays=None):
+    """[(a, b, rows, starts, per)]: _csr_rows' steps over rows r0..r1 of a CSR matrix, each about
+    READ_STEP entries a..b of whole rows, with its rows that have entries, their starts within the
+    step and (w hit counts: rays given) their rays. Fixed by the matrix: one read many times (the
+    second level's Gauss-Seidel passes, _seidel_blocks) keeps them, ~16 bytes a row with entries."""
+    steps, q0 = [], r0
     while q0 < r1:
         q1 = min(max(int(np.searchsorted(indptr, indptr[q0] + READ_STEP, "right")) - 1, q0 + 1), r1)
-        a, b = indptr[q0], indptr[q1]
+        a, b = int(indptr[q0]), int(indptr[q1])
         if b > a:
-            c = np.asarray(cols[a:b], np.intp)  # once for every channel's take
-            starts = indptr[q0:q1] - a
             nonempty = np.flatnonzero(indptr[q0 + 1 : q1 + 1] > indptr[q0:q1])
-            rows, starts = q0 + nonempty, starts[nonempty]
-            per = (rays if np.ndim(rays) == 0 else rays[rows]) if counts else None
-            buf = getattr(_scratch, "prod", None)
-            if buf is None or len(buf) < b - a:
-                buf = _scratch.prod = np.empty(max(b - a, READ_STEP), np.float32)
-            prod = buf[: b - a]
-            for k in range(len(VT)):
-                np.take(VT[k], c, mode="clip", out=prod)
-                prod *= w[a:b]
-                got = np.add.reduceat(prod, starts)
-                out[rows, k] = got if per is None else got / per
+            rows, starts = q0 + nonempty, (indptr[q0:q1] - a)[nonempty]
+            per = None if rays is None else rays if np.ndim(rays) == 0 else rays[rows]
+            steps.append((a, b, rows, starts, per))
         q0 = q1
+    return steps
+
+
+def _csr_rows(indptr, cols, w, VT, r0, r1, out, rays=None, plan=None):
+    """out[r0:r1] = rows r0..r1 of the CSR matrix times the columns VT (_columns_f32; cols index
+    them), read in steps of about READ_STEP entries (whole rows: the same sums); rows without
+    entries are left as they are (_csr_matvec's doc for w and rays). plan: _read_plan(indptr, r0,
+    r1, rays) made before (the same steps: the same values)."""
+    counts = w.dtype.kind == "u"
+    if plan is None:
+        plan = _read_plan(indptr, r0, r1, rays if counts else None)
+    # channel-major: a 1-d take and reduceat per channel are 2x faster than rows of C with
+    # reduceat along axis 0 (100k room, measured), and sum the same products in the same order
+    for a, b, rows, starts, per in plan:
+        c = np.asarray(cols[a:b], np.intp)  # once for every channel's take
+        buf = getattr(_scratch, "prod", None)
+        if buf is None or len(buf) < b - a:
+            buf = _scratch.prod = np.empty(max(b - a, READ_STEP), np.float32)
+        prod = buf[: b - a]
+        for k in range(len(VT)):
+            np.take(VT[k], c, mode="clip", out=prod)
+            prod *= w[a:b]
+            got = np.add.reduceat(prod, starts)
+            out[rows, k] = got if per is None else got / per
 
 
 def _row_blocks(indptr, chunk):
@@ -1463,7 +1475,8 @@ class FinalGather(DirectLight):
         g2 = self.second
         cols, used = g2._read_cols()
         got = self.__dict__.get("_seidel")
-        if got is not None and got["cols"] is cols and got["block"] == (self.SEIDEL_BLOCK, self.SEIDEL_STEP):
+        key = (self.SEIDEL_BLOCK, self.SEIDEL_STEP, READ_STEP)
+        if got is not None and got["cols"] is cols and got["block"] == key:
             return got
         start = self._second_start
         if len(start) < 2 or not (np.diff(start) > 0).all():
@@ -1483,8 +1496,11 @@ class FinalGather(DirectLight):
         blocks = []
         for a, b in zip(cuts[:-1], cuts[1:]):
             s0, s1 = int(start[a]), int(start[b])
+            # each range's read steps made once (every pass of every event reads them: x0.91 of a
+            # read's CPU on the 100k room, the same steps, docs/events.md session 36)
+            rays = g2.row_rays if g2.w.dtype.kind == "u" else None
             sub = [
-                (s0 + r0, s0 + r1)
+                (s0 + r0, s0 + r1, _read_plan(g2.indptr, s0 + r0, s0 + r1, rays))
                 for r0, r1 in _row_blocks(g2.indptr[s0 : s1 + 1] - g2.indptr[s0], self.SEIDEL_STEP)
             ]
             # the rows of leaf values the block writes (its leaves with weight, then with near hits
@@ -1502,7 +1518,7 @@ class FinalGather(DirectLight):
             ws=ws,
             ok=ok,
             blocks=blocks,
-            block=(self.SEIDEL_BLOCK, self.SEIDEL_STEP),
+            block=key,
         )
         self._seidel = got  # (the static geometry's: one assignment, threads may race to make it)
         return got
@@ -1521,8 +1537,8 @@ class FinalGather(DirectLight):
         for a, b, sub, at, cols in gs["blocks"]:
             s0, s1 = int(start[a]), int(start[b])
 
-            def rows(r0, r1):  # each range its own rows
-                _csr_rows(g2.indptr, gs["cols"], g2.w, VT, r0, r1, y, g2.row_rays)
+            def rows(r0, r1, plan):  # each range its own rows
+                _csr_rows(g2.indptr, gs["cols"], g2.w, VT, r0, r1, y, g2.row_rays, plan)
                 _lit(y, D2, g2.rho, r0, r1)
 
             batch_map(rows, sub, self.threads)
