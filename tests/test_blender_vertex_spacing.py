@@ -1500,6 +1500,62 @@ def test_faces_a_spot_lights_footprint_edge_crosses_get_finer_corners():
     assert (finer.reshape(5, 10) == 2 * edge).all(), finer.reshape(5, 10)
 
 
+@pytest.mark.parametrize("kind", ["POINT", "SUN"])
+def test_faces_a_point_lights_or_suns_shadow_edge_crosses_get_finer_corners(kind):
+    """A point light 2 m before the grid wall (x 1, z 0.5), or a sun shining straight at it, and a
+    0.3 x 0.25 m card 1 m before the wall between them: the card's shadow on the wall (0.6 x 0.5 m
+    from the point light, 0.3 x 0.25 m from the sun, about (1, 0.5)) has its edges across quads. The
+    card is farther than near_clutter's rays reach: only the light's shadow edge (light_edges' cone
+    of a point light, cos -1; a sun's direction) can find them. Exactly the quads the shadow covers in
+    part weigh 1 and get FINER 2 (session 36: the loft's shelf items under the pendant's shade,
+    which only spots' cones were looked at for); those wholly in it or out of it keep theirs."""
+    import math
+
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.lights_in import SUN_CONE, light_edges
+    from hr_addon.blender.names import FINER
+
+    wall = _grid_wall(ms)
+    w, h = 0.3, 0.25
+    card = ms.mesh_object(
+        "Card",
+        [
+            (1 - w / 2, 1.0, 0.5 - h / 2),
+            (1 + w / 2, 1.0, 0.5 - h / 2),
+            (1 + w / 2, 1.0, 0.5 + h / 2),
+            (1 - w / 2, 1.0, 0.5 + h / 2),
+        ],
+        [[0, 1, 2, 3]],
+        ms.diffuse("Card", (RHO,) * 3),
+    )
+    light = bpy.data.objects.new("Light", bpy.data.lights.new("Light", kind))
+    light.location, light.rotation_euler = (1.0, 2.0, 0.5), (math.radians(-90), 0, 0)  # (-z to -y)
+    scene.collection.objects.link(light)
+    vl = scene.view_layers[0]
+    dg = vl.depsgraph
+    dg.update()
+    outlines, cones = light_edges(scene, vl)
+    assert not outlines and len(cones) == 1
+    if kind == "SUN":
+        np.testing.assert_allclose(cones[0], (0, 0, 0, 0, -1, 0, SUN_CONE), atol=1e-6)
+    else:
+        np.testing.assert_allclose(cones[0], (1, 2, 0.5, 0, -1, 0, -1), atol=1e-6)
+    found = ov.near_clutter([wall, card], [wall], dg, 0.25, 0.25, cones)["Grid wall"]
+    assert (found[0] == 0).all(), found[0]  # (the card is beyond the rays' reach)
+    grow = 2.0 if kind == "POINT" else 1.0  # (the shadow's size over the card's)
+    x0, x1, z0, z1 = 1 - grow * w / 2, 1 + grow * w / 2, 0.5 - grow * h / 2, 0.5 + grow * h / 2
+    x, z = np.meshgrid(np.arange(10) * 0.2, np.arange(5) * 0.2)
+    meets = (x < x1) & (x + 0.2 > x0) & (z < z1) & (z + 0.2 > z0)
+    inside = (x >= x0) & (x + 0.2 <= x1) & (z >= z0) & (z + 0.2 <= z1)
+    edge = found[2].reshape(5, 10)
+    assert (edge == (meets & ~inside)).all() and edge.sum() >= 6, edge.astype(int)
+    ov.ensure_own_values([wall, card], "CORNER", dg, 0.25, log=[].append, cones=cones)
+    finer = np.empty(50, np.int32)
+    wall.data.attributes[FINER].data.foreach_get("value", finer)
+    assert (finer.reshape(5, 10) == 2 * edge).all(), finer.reshape(5, 10)
+
+
 def test_an_ngon_disc_under_a_point_light_gets_corners_inside_it(tmp_path):
     """A table top's n-gon: a 64-gon disc 0.55 m in radius (5.4 cm edges, none longer than 0.25 m)
     spans 1.1 m (_ngon_span: twice its centre's distance from an edge's midpoint), so at 0.25 m it
