@@ -1556,6 +1556,49 @@ def test_faces_a_point_lights_or_suns_shadow_edge_crosses_get_finer_corners(kind
     assert (finer.reshape(5, 10) == 2 * edge).all(), finer.reshape(5, 10)
 
 
+def test_an_ngon_the_spacing_leaves_whole_gets_a_centre_corner_where_a_shadow_crosses_it():
+    """A plate's top: a 32-gon 0.22 m across (span 0.219 m: level 0 at 0.25 m, its 32 rim corners
+    only), a point light 1 m above it and a 8 cm box (a cup) standing on its rim towards the light
+    (its shadow and its foot over part of the rim). The loft's Plate 1 so (session 36) read -27% in
+    its direct light: three dark rim corners, which Blender's triangulation of the n-gon spreads over
+    long triangles across it. Its first level (32 quads about a corner at its centre: 96 corners
+    more for 0.038 m^2) is not worth its area by CLUTTER_WORTH, as a quad's would be; an n-gon's first
+    level is a choice anyway, where the light changes across it: FINER 1 (before: none)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.lights_in import light_edges
+    from hr_addon.blender.names import FINER
+
+    seg, R = 32, 0.11
+    t = np.linspace(0, 2 * np.pi, seg, endpoint=False)
+    disc = ms.mesh_object(
+        "Plate",
+        np.c_[R * np.cos(t), R * np.sin(t), np.zeros(seg)],
+        [list(range(seg))],
+        ms.diffuse("P", (RHO,) * 3),
+    )
+    box = [(x, y, z) for z in (0, 0.09) for y in (-0.04, 0.04) for x in (0.1, 0.18)]
+    cube = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
+    cup = ms.mesh_object("Cup", box, cube, ms.diffuse("Cup", (RHO,) * 3))
+    point = bpy.data.objects.new("Point", bpy.data.lights.new("Point", "POINT"))
+    point.location = (0.35, 0.0, 1.0)  # (beyond the cup: its shadow falls on the plate)
+    scene.collection.objects.link(point)
+    vl = scene.view_layers[0]
+    dg = vl.depsgraph
+    dg.update()
+    longest, n = ov.face_edges(disc, dg)
+    assert ov.levels(longest, 0.25)[0] == 0 and n[0] == seg
+    _, cones = light_edges(scene, vl)
+    share, area, edge = ov.near_clutter([disc, cup], [disc], dg, 0.25, 0.25, cones)["Plate"]
+    assert edge[0] and 0 < share[0] < 1, (share, edge)
+    add, ok = ov._choices(longest, n, 0.25, area)
+    assert add[0, 0] == 96 and not ok.any()  # (by its area alone: no level)
+    ov.ensure_own_values([disc, cup], "CORNER", dg, 0.25, log=[].append, cones=cones)
+    finer = np.empty(1, np.int32)
+    disc.data.attributes[FINER].data.foreach_get("value", finer)
+    assert finer[0] == 1
+
+
 def test_an_ngon_disc_under_a_point_light_gets_corners_inside_it(tmp_path):
     """A table top's n-gon: a 64-gon disc 0.55 m in radius (5.4 cm edges, none longer than 0.25 m)
     spans 1.1 m (_ngon_span: twice its centre's distance from an edge's midpoint), so at 0.25 m it
