@@ -1500,6 +1500,105 @@ def test_faces_a_spot_lights_footprint_edge_crosses_get_finer_corners():
     assert (finer.reshape(5, 10) == 2 * edge).all(), finer.reshape(5, 10)
 
 
+@pytest.mark.parametrize("kind", ["POINT", "SUN"])
+def test_faces_a_point_lights_or_suns_shadow_edge_crosses_get_finer_corners(kind):
+    """A point light 2 m before the grid wall (x 1, z 0.5), or a sun shining straight at it, and a
+    0.3 x 0.25 m card 1 m before the wall between them: the card's shadow on the wall (0.6 x 0.5 m
+    from the point light, 0.3 x 0.25 m from the sun, about (1, 0.5)) has its edges across quads. The
+    card is farther than near_clutter's rays reach: only the light's shadow edge (light_edges' cone
+    of a point light, cos -1; a sun's direction) can find them. Exactly the quads the shadow covers in
+    part weigh 1 and get FINER 2 (session 36: the loft's shelf items under the pendant's shade,
+    which only spots' cones were looked at for); those wholly in it or out of it keep theirs."""
+    import math
+
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.lights_in import SUN_CONE, light_edges
+    from hr_addon.blender.names import FINER
+
+    wall = _grid_wall(ms)
+    w, h = 0.3, 0.25
+    card = ms.mesh_object(
+        "Card",
+        [
+            (1 - w / 2, 1.0, 0.5 - h / 2),
+            (1 + w / 2, 1.0, 0.5 - h / 2),
+            (1 + w / 2, 1.0, 0.5 + h / 2),
+            (1 - w / 2, 1.0, 0.5 + h / 2),
+        ],
+        [[0, 1, 2, 3]],
+        ms.diffuse("Card", (RHO,) * 3),
+    )
+    light = bpy.data.objects.new("Light", bpy.data.lights.new("Light", kind))
+    light.location, light.rotation_euler = (1.0, 2.0, 0.5), (math.radians(-90), 0, 0)  # (-z to -y)
+    scene.collection.objects.link(light)
+    vl = scene.view_layers[0]
+    dg = vl.depsgraph
+    dg.update()
+    outlines, cones = light_edges(scene, vl)
+    assert not outlines and len(cones) == 1
+    if kind == "SUN":
+        np.testing.assert_allclose(cones[0], (0, 0, 0, 0, -1, 0, SUN_CONE), atol=1e-6)
+    else:
+        np.testing.assert_allclose(cones[0], (1, 2, 0.5, 0, -1, 0, -1), atol=1e-6)
+    found = ov.near_clutter([wall, card], [wall], dg, 0.25, 0.25, cones)["Grid wall"]
+    assert (found[0] == 0).all(), found[0]  # (the card is beyond the rays' reach)
+    grow = 2.0 if kind == "POINT" else 1.0  # (the shadow's size over the card's)
+    x0, x1, z0, z1 = 1 - grow * w / 2, 1 + grow * w / 2, 0.5 - grow * h / 2, 0.5 + grow * h / 2
+    x, z = np.meshgrid(np.arange(10) * 0.2, np.arange(5) * 0.2)
+    meets = (x < x1) & (x + 0.2 > x0) & (z < z1) & (z + 0.2 > z0)
+    inside = (x >= x0) & (x + 0.2 <= x1) & (z >= z0) & (z + 0.2 <= z1)
+    edge = found[2].reshape(5, 10)
+    assert (edge == (meets & ~inside)).all() and edge.sum() >= 6, edge.astype(int)
+    ov.ensure_own_values([wall, card], "CORNER", dg, 0.25, log=[].append, cones=cones)
+    finer = np.empty(50, np.int32)
+    wall.data.attributes[FINER].data.foreach_get("value", finer)
+    assert (finer.reshape(5, 10) == 2 * edge).all(), finer.reshape(5, 10)
+
+
+def test_an_ngon_the_spacing_leaves_whole_gets_a_centre_corner_where_a_shadow_crosses_it():
+    """A plate's top: a 32-gon 0.22 m across (span 0.219 m: level 0 at 0.25 m, its 32 rim corners
+    only), a point light 1 m above it and a 8 cm box (a cup) standing on its rim towards the light
+    (its shadow and its foot over part of the rim). The loft's Plate 1 so (session 36) read -27% in
+    its direct light: three dark rim corners, which Blender's triangulation of the n-gon spreads over
+    long triangles across it. Its first level (32 quads about a corner at its centre: 96 corners
+    more for 0.038 m^2) is not worth its area by CLUTTER_WORTH, as a quad's would be; an n-gon's first
+    level is a choice anyway, where the light changes across it: FINER 1 (before: none)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.lights_in import light_edges
+    from hr_addon.blender.names import FINER
+
+    seg, R = 32, 0.11
+    t = np.linspace(0, 2 * np.pi, seg, endpoint=False)
+    disc = ms.mesh_object(
+        "Plate",
+        np.c_[R * np.cos(t), R * np.sin(t), np.zeros(seg)],
+        [list(range(seg))],
+        ms.diffuse("P", (RHO,) * 3),
+    )
+    box = [(x, y, z) for z in (0, 0.09) for y in (-0.04, 0.04) for x in (0.1, 0.18)]
+    cube = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]]
+    cup = ms.mesh_object("Cup", box, cube, ms.diffuse("Cup", (RHO,) * 3))
+    point = bpy.data.objects.new("Point", bpy.data.lights.new("Point", "POINT"))
+    point.location = (0.35, 0.0, 1.0)  # (beyond the cup: its shadow falls on the plate)
+    scene.collection.objects.link(point)
+    vl = scene.view_layers[0]
+    dg = vl.depsgraph
+    dg.update()
+    longest, n = ov.face_edges(disc, dg)
+    assert ov.levels(longest, 0.25)[0] == 0 and n[0] == seg
+    _, cones = light_edges(scene, vl)
+    share, area, edge = ov.near_clutter([disc, cup], [disc], dg, 0.25, 0.25, cones)["Plate"]
+    assert edge[0] and 0 < share[0] < 1, (share, edge)
+    add, ok = ov._choices(longest, n, 0.25, area)
+    assert add[0, 0] == 96 and not ok.any()  # (by its area alone: no level)
+    ov.ensure_own_values([disc, cup], "CORNER", dg, 0.25, log=[].append, cones=cones)
+    finer = np.empty(1, np.int32)
+    disc.data.attributes[FINER].data.foreach_get("value", finer)
+    assert finer[0] == 1
+
+
 def test_an_ngon_disc_under_a_point_light_gets_corners_inside_it(tmp_path):
     """A table top's n-gon: a 64-gon disc 0.55 m in radius (5.4 cm edges, none longer than 0.25 m)
     spans 1.1 m (_ngon_span: twice its centre's distance from an edge's midpoint), so at 0.25 m it

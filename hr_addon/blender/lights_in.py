@@ -169,25 +169,30 @@ def collect_light_shapes(view_layer, depsgraph, LightShape, warnings=None, objec
 
 
 OUTLINE_FRAMES = 48  # a moving shape's outline (a spot's cone) read at this many frames at most
+CONE_LIGHTS = ("SPOT", "POINT", "AREA", "SUN")  # light_edges' Blender lights (session 36: a point light's
+# shadow edge across a box, the loft's shelf items, went unseen while only spots' cones were read)
+SUN_CONE = 2.0  # light_edges' cos for a sun (no cos is above 1): a direction, no position
 
 
 def light_edges(scene, view_layer):
-    """([rings], (K, 7) cones): where the light shapes' and spot lights' light ends, over the scene's
-    frames, for the vertex output's finer faces (own_values._cluttered): each light shape's outline
-    ((M, 3) world rings: the outline, then its holes) and each spot's cone (position, direction, cos
-    of its half angle) at the current frame, a moving one's (moving_shapes; a spot keyed or driven)
-    at every frame of the scene's range instead (at most OUTLINE_FRAMES, evenly spread; not the
-    bake's frames nor the current one: the corners are static, the same from the UI and the worker).
-    Hidden ones and their emission or power are not looked at (shown or lit on another frame). The
-    frame is restored."""
+    """([rings], (K, 7) cones): where the light shapes' and Blender lights' light ends, over the
+    scene's frames, for the vertex output's finer faces (own_values._cluttered): each light shape's
+    outline ((M, 3) world rings: the outline, then its holes) and each Blender light's cone
+    (position, direction, cos of its half angle: a spot's; a point light's every direction, cos -1;
+    an area light's half space before it, cos 0; a sun's direction alone: position 0, its light's
+    direction, cos SUN_CONE), whose shadows' edges near_clutter finds too (_cone_edges), at the
+    current frame, a moving one's (moving_shapes; a light keyed or driven) at every frame of the
+    scene's range instead (at most OUTLINE_FRAMES, evenly spread; not the bake's frames nor the
+    current one: the corners are static, the same from the UI and the worker). Hidden ones and their
+    emission or power are not looked at (shown or lit on another frame). The frame is restored."""
     shapes = light_shape_objects(view_layer, include_hidden=True)
-    spots = [o for o in light_objects(view_layer, include_hidden=True) if o.data.type == "SPOT"]
+    spots = [o for o in light_objects(view_layer, include_hidden=True) if o.data.type in CONE_LIGHTS]
     if not shapes and not spots:
         return [], np.zeros((0, 7))
     depsgraph = view_layer.depsgraph
     memo = {}
     moving = [o for o in shapes if _object_moves(o, memo)]
-    moving += [o for o in spots if _object_moves(o, memo) or _animated(o.data)]
+    moving += [o for o in spots if _object_moves(o, memo) or _animated(o.data)]  # (any light kind)
     rings, cones, seen = [], [], set()
 
     def read(objs):
@@ -196,7 +201,12 @@ def light_edges(scene, view_layer):
                 ob = obj.evaluated_get(depsgraph)
                 M = np.array(ob.matrix_world, np.float64)
                 d = -M[:3, 2] / max(float(np.linalg.norm(M[:3, 2])), 1e-300)
-                cones.append(np.r_[M[:3, 3], d, np.cos(0.5 * float(ob.data.spot_size))])
+                kind = ob.data.type
+                if kind == "SUN":
+                    cones.append(np.r_[0.0, 0.0, 0.0, d, SUN_CONE])
+                else:
+                    cos = {"SPOT": np.cos(0.5 * float(getattr(ob.data, "spot_size", np.pi))), "AREA": 0.0}
+                    cones.append(np.r_[M[:3, 3], d, cos.get(kind, -1.0)])
                 continue
             for _, r, _ in mesh_outlines(read_mesh(obj, depsgraph)):
                 key = b"".join(np.ascontiguousarray(x, np.float64).tobytes() for x in r)

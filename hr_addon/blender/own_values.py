@@ -716,6 +716,7 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
     tris = [co[t] for co, *_, t, _ in (_world_faces(o, depsgraph) for o in objects)]
     allt = np.concatenate(tris) if tris else np.zeros((0, 3, 3))
     backend = make_backend(allt)
+    span = 2 * float(np.ptp(allt.reshape(-1, 3), 0).max()) + 1.0 if len(allt) else 1.0  # (a sun's rays)
     out = {}
     for o in candidates:
         co, lv, start, total, nrm, tri, tf = _world_faces(o, depsgraph)
@@ -727,7 +728,8 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
         p = co[tri]  # (T, 3, 3)
         e = p[:, [1, 2, 0]] - p
         area = np.bincount(tf, 0.5 * np.linalg.norm(np.cross(e[:, 0], -e[:, 2]), axis=1), minlength=F)
-        thin = _thin(longest, area, spacing)
+        whole = (cnt > 4) & (levels(longest, spacing) == 0)  # (an n-gon left whole: _finer_faces_within)
+        thin = _thin(longest, area, spacing) | whole
         gain = _choices(longest, cnt, spacing, area, thin)[1].any(1)[tf]  # (even wholly in part)
         if not gain.any():
             out[o.name] = (np.zeros(F), area, np.zeros(F, bool))
@@ -765,25 +767,36 @@ def near_clutter(objects, candidates, depsgraph, reach, spacing, cones=()):
             skip[r, k] = junction | (prim < 0)  # (or float64 finds no hit: a graze, left out)
         n_hit = np.bincount(fid, weights=(hit & ~skip).sum(1), minlength=F)
         n_ray = np.bincount(fid, weights=5 - skip.sum(1), minlength=F)
-        edge = _cone_edges(backend, pts, nrm, fid, F, cones)
+        edge = _cone_edges(backend, pts, nrm, fid, F, cones, span)
         out[o.name] = (n_hit / np.maximum(n_ray, 1), area, edge)
     return out
 
 
-def _cone_edges(backend, pts, nrm, fid, F, cones):
-    """(F,) bool: the faces whose points (pts of faces fid) a spot light's cone (cones: (K, 7)
-    position, direction, cos of its half angle) lights in part: some inside it, facing it and in
-    its sight, some not (its footprint's edge, or a shadow's in it, crosses the face)."""
+def _cone_edges(backend, pts, nrm, fid, F, cones, span=1.0):
+    """(F,) bool: the faces whose points (pts of faces fid) a Blender light (cones: (K, 7) position,
+    direction, cos of its half angle; lights_in.light_edges: a point light's cos -1, a sun's
+    SUN_CONE and no position) lights in part: some inside its cone, facing it and in its sight, some
+    not (its footprint's edge, or a shadow's edge, crosses the face). Every point the light may light
+    traces a ray to it (a sun's `span` m long, the scene's size): a shadow's edge crosses faces wholly
+    in a cone too (the loft's shelf items under the pendant's shade, a box's faces a point light lights
+    in part; session 36)."""
+    from .lights_in import SUN_CONE
+
     edge = np.zeros(F, bool)
     for c in np.asarray(cones, np.float64).reshape(-1, 7):
-        to = c[:3] - pts
-        dist = np.linalg.norm(to, axis=1)
-        lit = ((nrm[fid] * to).sum(1) > 0) & (-(to @ c[3:6]) >= c[6] * dist)
-        part = (np.bincount(fid, lit, F) > 0) & (np.bincount(fid, ~lit, F) > 0)
-        i = np.flatnonzero(part[fid] & lit)
-        if len(i):  # (only the faces it may cross: rays to the light)
-            lit[i] &= ~backend.occluded(pts[i], c[:3])
-            edge |= (np.bincount(fid, lit, F) > 0) & (np.bincount(fid, ~lit, F) > 0)
+        if c[6] >= SUN_CONE:  # (a direction: the light comes from -c[3:6])
+            lit = nrm[fid] @ -c[3:6] > 0
+            i = np.flatnonzero(lit)
+            if len(i):
+                lit[i] &= ~backend.occluded(pts[i], pts[i] - span * c[3:6])
+        else:
+            to = c[:3] - pts
+            dist = np.linalg.norm(to, axis=1)
+            lit = ((nrm[fid] * to).sum(1) > 0) & (-(to @ c[3:6]) >= c[6] * dist)
+            i = np.flatnonzero(lit)
+            if len(i):
+                lit[i] &= ~backend.occluded(pts[i], c[:3])
+        edge |= (np.bincount(fid, lit, F) > 0) & (np.bincount(fid, ~lit, F) > 0)
     return edge
 
 
@@ -912,16 +925,23 @@ def _finer_faces_within(clutter, edges, spacing, room, thin_room=0):
     most weighed area per corner first, each the finest of its levels that still fits in `room`
     corners (a face no finer level cuts more, or none worth it: left). Then the thin faces no level
     is worth by area (_thin) the same way, within what is left and at most `thin_room` corners
-    between them."""
+    between them. An n-gon the spacing leaves whole: the first level that cuts it (a corner at its
+    centre) is always a choice."""
     owner, faces, areas, costs, thin = [], [], [], [], []
     for j, (n, (weight, area)) in enumerate(clutter.items()):
         longest, cnt = edges[n]
         f = np.flatnonzero(weight > 0)
         wa = weight[f] * area[f]
         add, ok = _choices(longest[f], cnt[f], spacing, wa)
-        # the thin faces no level is worth by area: each level that adds corners a choice (_choices')
+        # the thin faces no level is worth by area: each level that adds corners a choice (_choices');
+        # an n-gon's first (a corner at its centre: its rim's corners alone are spread by Blender's
+        # triangulation over long triangles across it, one dark corner at a contact or a shadow's edge
+        # over a third of it: the loft's plate under a cup's shadow, -27%; session 36)
+        # (within `room` with the others: not the thin faces' share)
+        ngon = ((cnt[f] > 4) & (levels(longest[f], spacing) == 0))[:, None] & (add > 0)
+        ngon &= np.cumsum(ngon, 1) == 1
         t = ~ok.any(1)[:, None] & (add > 0) & _thin(longest[f], area[f], spacing)[:, None]
-        ok |= t
+        ok |= t | ngon
         keep = ok.any(1)
         owner.append(np.full(keep.sum(), j))
         faces.append(f[keep])

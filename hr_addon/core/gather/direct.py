@@ -364,6 +364,12 @@ class DirectLight:
                 got = np.zeros(self.n)
                 ok = np.flatnonzero(~self.dark)
                 rays = max(self.shadow_rays // 4, 4)
+                if (L.kind in ("POINT", "SPOT") and L.radius > 0) or (L.kind == "SUN" and L.angle > 0):
+                    # a light with a size: the output's own shadow rays, as a light shape's (4 rays read
+                    # a penumbra's visible share in quarters: the loft's shelf item under the lamp
+                    # shade's rim, exactly 0.36 / 0.19 of the bulb in sight, read 2 / 4 and 1 / 4 at its
+                    # corners, +36% over its face; session 36)
+                    rays = max(self.shadow_rays, rays)
                 portal = None
                 if L.kind == "SKY":  # where the sky gets in, from all the samples' rays: the same
                     # guiding rays for a sample in any batching
