@@ -295,3 +295,42 @@ def test_copies_share_the_tables_built_on_first_use():
     fresh = Contacts(pt, 1e-3 * np.sqrt(pt.area.sum()))
     np.testing.assert_array_equal(got, fresh.covered(pts, patch, open_edge=5.0))
     assert fresh._tables is not c._tables
+
+
+def test_leaf_boxes_give_the_covered_test_the_same_pairs_as_the_grid():
+    """Hierarchy.dark(..., boxes=Hierarchy.leaf_boxes(leaves)) (session 36, pre36: the gather's
+    rays' hits on partly covered HR leaves): each point tests the chains listed for the part of
+    its leaf's box it lies in, not the grid's cells; points off their leaf's box (by rounding, or
+    not on it at all) and leaves without a row fall back to the grid. The same (point, chain)
+    pairs in the same order, so the same answers bit for bit, in chunks and batches too: the
+    contact furnace's leaves, Gauss points and corners (on the boxes' edges) and points beyond."""
+    s = RadiositySystem(contact_furnace(), RefineParams.preset("draft"))
+    h, con = s.h, s.h.contacts
+    lf = h.leaves()
+    ex = h.exposure[lf]
+    part = lf[(ex > 0) & (ex < 1)]
+    assert len(part) > 20
+    x = ff.quadrature(h.corners[part], h.nv[part], 5)[0]
+    corners = h.corners[part]
+    out = corners + 0.3 * (corners - x[:, :1])  # beyond the leaf's corners (its box's too)
+    pts = np.concatenate([x, corners, out], 1)
+    leaf = np.repeat(part, pts.shape[1])
+    pts = pts.reshape(-1, 3)
+    boxes = h.leaf_boxes(part[::2])  # (every other leaf listed: the rest by the grid)
+    want = h.dark(leaf, pts)
+    assert 0.05 < want.mean() < 0.95
+    np.testing.assert_array_equal(h.dark(leaf, pts, boxes=boxes), want)
+    np.testing.assert_array_equal(h.dark(leaf, pts, threads=1, boxes=boxes), want)
+    patch = h.patch[leaf].astype(np.int64)
+    rows = (np.take(boxes[0], leaf), boxes[1])
+    np.testing.assert_array_equal(con.covered(pts, patch, chunk=997, boxes=rows), want)
+    a, b = con._pairs(pts, patch, 4_000_000), con._pairs(pts, patch, 4_000_000, boxes=rows)
+    assert len(a[0]) > 100
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)
+    # the listed leaves' points in their boxes took the listed chains, the others the grid
+    gi = con.plane[patch]
+    p2 = con._to2d(gi, pts[:, None])[:, 0]
+    blo, bhi = boxes[1][2][np.maximum(rows[0], 0)], boxes[1][3][np.maximum(rows[0], 0)]
+    inside = (rows[0] >= 0) & ((p2 >= blo) & (p2 < bhi)).all(1)
+    assert 0.2 < inside.mean() < 0.8

@@ -40,6 +40,8 @@ POINT_BATCH = 1 << 15
 SEGMENT_CHUNK = 500_000
 # pairs per step of a chunk's near test (_segments): its temporaries stay in the cache
 NEAR_STEP = 1 << 16
+# box_chains: parts per side of a box whose chains are listed apart (a point tests its part's)
+BOX_CELLS = 2
 
 
 class Contacts(SlotMouths):
@@ -288,7 +290,9 @@ class Contacts(SlotMouths):
         return len(self.receivers) > 0
 
     # -- the covered-point test -----------------------------------------------------------------------
-    def covered(self, points, patch, budget=4_000_000, chunk=200_000, open_edge=0.0, threads=None):
+    def covered(
+        self, points, patch, budget=4_000_000, chunk=200_000, open_edge=0.0, threads=None, boxes=None
+    ):
         """Boolean (N,): points (N, 3) lying on patches patch (N,) are covered (in chunks of
         points: the temporaries stay small whatever the scene size). threads: batches of
         POINT_BATCH points as a batch map on that many threads (core.parallel; None: serial, in
@@ -299,11 +303,21 @@ class Contacts(SlotMouths):
         gap's open outline: light entering the slot between two parallel faces a distance h apart reaches a
         point at depth x with the opening's view factor (1 - x / sqrt(x^2 + h^2)) / 2, about
         h^2 / (4 x^2); its integral over the depth is h / 2, of which x > c h holds a share
-        1 / (2 c) (open_edge 5: 10%). Touching faces (h = 0) and crossing solids are unchanged."""
+        1 / (2 c) (open_edge 5: 10%). Touching faces (h = 0) and crossing solids are unchanged.
+
+        boxes: (row (N,), table): each point's row of table (box_chains(): the chains that may
+        cover a box it lies in, -1: none known), searched in place of the grid's cells (the same
+        answers)."""
         points, patch = np.asarray(points, float), np.asarray(patch, np.int64)
+
+        def part(i, j):
+            return None if boxes is None else (boxes[0][i:j], boxes[1])
+
         if threads is not None:
             parts = batch_map(
-                lambda i, j: self.covered(points[i:j], patch[i:j], budget, chunk, open_edge),
+                lambda i, j: self.covered(
+                    points[i:j], patch[i:j], budget, chunk, open_edge, boxes=part(i, j)
+                ),
                 ranges(len(points), POINT_BATCH),
                 threads,
             )
@@ -311,12 +325,19 @@ class Contacts(SlotMouths):
         if len(points) > chunk:
             return np.concatenate(
                 [
-                    self.covered(points[s : s + chunk], patch[s : s + chunk], budget, chunk, open_edge)
+                    self.covered(
+                        points[s : s + chunk],
+                        patch[s : s + chunk],
+                        budget,
+                        chunk,
+                        open_edge,
+                        boxes=part(s, s + chunk),
+                    )
                     for s in range(0, len(points), chunk)
                 ]
             )
         out = np.zeros(len(points), bool)
-        pairs = self._pairs(points, patch, budget, open_edge)
+        pairs = self._pairs(points, patch, budget, open_edge, boxes)
         if pairs is not None:
             i, ch, hit, near = pairs[:4]
             out[i[hit & ~near]] = True
@@ -362,20 +383,91 @@ class Contacts(SlotMouths):
             new.__dict__[k] = copy.deepcopy(v, memo)
         return new
 
-    def _pairs(self, points, patch, budget, open_edge=0.0):
-        """The (point, chain) pairs of points (N, 3) on patches (N,) with the point in the chain's
-        box: (i, ch, covering (the chain's winding covers the point), near (within open_edge x h of
-        one of its open edges)); None without pairs."""
-        if not len(self.chain_plane) or not len(points):
-            return None
-        gi = self.plane[patch]
-        p2 = self._to2d(gi, points[:, None])[:, 0]
+    def box_chains(self, gi, lo2, hi2, piece, cells=BOX_CELLS):
+        """The chains that may cover a point in a box: covered(..., boxes=)'s table (a node's,
+        for the points found in it: the hits of the gather's rays on an HR leaf). Box b (B,) in
+        plane gi[b] from lo2[b] to hi2[b] (B, 2), split into cells x cells equal parts (each part's
+        chains fewer than the box's), part (u, v) row b cells^2 + u cells + v: CSR rows (start,
+        chains), each in chain order, of the chains of that plane whose boxes overlap the part
+        (grown by pad, a thousandth of the box's size and pen, on each side: the parts a point is
+        put in by rounding hold it) and whose piece is not piece[b] (_pairs' own-piece rule: the
+        points' patch's piece). Returns (start, chains, lo2, hi2, cells)."""
+        lo2, hi2 = np.asarray(lo2, float), np.asarray(hi2, float)
+        B, k = len(gi), np.arange(cells)
+        pad = (1e-3 * (hi2 - lo2).max(1, initial=0.0) + self.pen)[:, None, None]
+        step = ((hi2 - lo2) / cells)[:, None]  # (B, 1, 2)
+        u, v = np.repeat(k, cells), np.tile(k, cells)
+        f0, f1 = np.stack([u, v], 1)[None], np.stack([u + 1, v + 1], 1)[None]
+        clo = (lo2[:, None] + f0 * step - pad).reshape(-1, 2)
+        chi = (lo2[:, None] + f1 * step + pad).reshape(-1, 2)
+        z = np.zeros((len(clo), 1))
+        g = np.repeat(np.asarray(gi, np.int64), cells * cells)
+        r, ch = box_pairs(
+            np.concatenate([clo, z], 1),
+            np.concatenate([chi, z], 1),
+            self.chain_lo,
+            self.chain_hi,
+            g,
+            self.chain_plane,
+        )
+        keep = self.chain_piece[ch] != np.asarray(piece)[r // (cells * cells)]
+        r, ch = r[keep], ch[keep]  # (by part, then chain: box_pairs' order)
+        return np.searchsorted(r, np.arange(B * cells * cells + 1)), ch, lo2, hi2, cells
+
+    def _in_boxes(self, p2, gi, patch, boxes):
+        """points_in_boxes' pairs (i, ch) of 2D points p2 (N, 2) in planes gi, their own pieces'
+        chains left out (_pairs' rule): a point inside its row's box (boxes: covered's) tests the
+        chains of the part it lies in, which hold every chain box containing it; the rest the
+        grid's cells. The same pairs in the same order (by point, then chain)."""
+        row, (start, chains, blo, bhi, cells) = boxes
+        row = np.asarray(row, np.int64)
+        r = np.maximum(row, 0)
+        inb, part = row >= 0, r * (cells * cells)
+        for ax, w in ((0, cells), (1, 1)):
+            lo = np.take(blo[:, ax], r)
+            with np.errstate(divide="ignore", invalid="ignore"):  # (a box flat on an axis: none in)
+                t = np.floor((p2[:, ax] - lo) / (np.take(bhi[:, ax], r) - lo) * cells)
+            inb &= (t >= 0) & (t < cells)
+            part += np.where(inb, t, 0).astype(np.int64) * w
+        a = np.flatnonzero(inb)
+        pr, k = csr_rows(start, part[a])
+        i, ch = a[pr], chains[k]
+        keep = np.arange(len(i))
+        for ax in (0, 1):  # (points_in_boxes' test: the chain's box holds the point, axis by axis)
+            ii, cc = i[keep], ch[keep]
+            q = p2[ii, ax]
+            keep = keep[(self.chain_lo[cc, ax] <= q) & (self.chain_hi[cc, ax] >= q)]
+        i, ch = i[keep], ch[keep]
+        rest = np.flatnonzero(~inb)
+        if len(rest):
+            j, cj = self._grid_pairs(p2[rest], gi[rest], patch[rest])
+            i, ch = np.concatenate([i, rest[j]]), np.concatenate([ch, cj])
+            o = np.lexsort((ch, i))
+            i, ch = i[o], ch[o]
+        return i, ch
+
+    def _grid_pairs(self, p2, gi, patch):
+        """(i, ch): points_in_boxes' pairs of 2D points p2 in planes gi (the chains' box grid),
+        their own pieces' chains left out."""
         lo = np.concatenate([p2, np.zeros((len(p2), 1))], 1)
         grid = self._table("grid", lambda: box_grid(self.chain_lo, self.chain_hi, self.chain_plane))
         i, ch = points_in_boxes(grid, lo, gi)
         # a piece never covers itself (a room's walls its floor, a table's sides its top)
         own = self.chain_piece[ch] == self.piece[patch[i]]
-        i, ch = i[~own], ch[~own]
+        return i[~own], ch[~own]
+
+    def _pairs(self, points, patch, budget, open_edge=0.0, boxes=None):
+        """The (point, chain) pairs of points (N, 3) on patches (N,) with the point in the chain's
+        box: (i, ch, covering (the chain's winding covers the point), near (within open_edge x h of
+        one of its open edges)); None without pairs. boxes: covered()'s."""
+        if not len(self.chain_plane) or not len(points):
+            return None
+        gi = self.plane[patch]
+        p2 = self._to2d(gi, points[:, None])[:, 0]
+        if boxes is None:
+            i, ch = self._grid_pairs(p2, gi, patch)
+        else:
+            i, ch = self._in_boxes(p2, gi, patch, boxes)
         if not len(i):
             return None
         w = np.zeros(len(i))

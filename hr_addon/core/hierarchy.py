@@ -177,18 +177,40 @@ class Hierarchy:
         out[self.dark(leaf, np.asarray(points, float))] = 0.0
         return out
 
-    def dark(self, leaf, points, threads=None):
+    def dark(self, leaf, points, threads=None, boxes=None):
         """True where points (N, 3) in leaves `leaf` (N,) are covered: the whole leaf when its
         exposure is 0, by the contact test when it is partly covered. threads: the contact test
-        by batches of points on threads (Contacts.covered; None: serial)."""
+        by batches of points on threads (Contacts.covered; None: serial). boxes: (row per node,
+        table) of leaf_boxes(): the contact test searches each leaf's chains (the same answers)."""
         ex = self.exposure[leaf]
         out = ex == 0
         part = np.flatnonzero((ex > 0) & (ex < 1))
         if len(part) and self.contacts is not None:
+            lp = leaf[part]
             out[part] = self.contacts.covered(
-                np.take(points, part, 0), self.patch[leaf[part]], threads=threads
+                np.take(points, part, 0),
+                self.patch[lp],
+                threads=threads,
+                boxes=None if boxes is None else (np.take(boxes[0], lp), boxes[1]),
             )
         return out
+
+    def leaf_boxes(self, nodes):
+        """(row (n,) per node: its row of the table or -1, table): Contacts.box_chains of nodes
+        `nodes`' boxes in their planes, for dark(..., boxes=); None without contacts."""
+        con = self.contacts
+        if con is None:
+            return None
+        nodes = np.asarray(nodes, np.int64)
+        c = self.corners[nodes].copy()
+        tri = self.nv[nodes] == 3
+        c[tri, 3] = c[tri, 2]  # (a triangle's padding corner: its own third)
+        patch = self.patch[nodes].astype(np.int64)
+        gi = con.plane[patch]
+        p2 = con._to2d(gi, c)
+        row = np.full(self.n, -1, np.int64)
+        row[nodes] = np.arange(len(nodes))
+        return row, con.box_chains(gi, p2.min(1), p2.max(1), con.piece[patch])
 
     def leaf_at_corner(self, roots, k):
         """Descend from roots to the leaf holding corner k of each root (vectorised)."""

@@ -240,7 +240,7 @@ def _exposed_quadrature(g, leaves, k):
         flat = q.reshape(-1, 3)
         lf = locate_below(h, np.repeat(p, q.shape[1]), flat, g.n_hr, g._lines())
         thr = 0 if g.threads is None else g.threads
-        return q, h.dark(lf, flat, thr).reshape(q.shape[:2])
+        return q, h.dark(lf, flat, thr, g._leaf_boxes()).reshape(q.shape[:2])
 
     todo = part[covered(x[part], part)[1].all(1)]
     for kk in UNCOVER_GRIDS:
@@ -525,7 +525,9 @@ class FinalGather(DirectLight):
         # count. The covered tests by batches of points on threads (None there is serial)
         self.threads = threads
         cov_threads = 0 if threads is None else threads
-        self.dark = h.dark(self.leaf0, self.points, cov_threads) if n else np.zeros(0, bool)
+        self.dark = (
+            h.dark(self.leaf0, self.points, cov_threads, self._leaf_boxes()) if n else np.zeros(0, bool)
+        )
         self.gain = None  # (n, 3) scale of the incident light of samples in a slot (None: 1)
         self._slot = None  # slot samples' direct light at their own point and the facing wall's
         self.slot_facing = SLOT_FACING if slot_facing is None else bool(slot_facing)
@@ -634,6 +636,7 @@ class FinalGather(DirectLight):
             threads,
         )
         del self._trace, self._near_fine
+        self.__dict__.pop("_boxes", None)  # (the batches' table: not stored)
         self._near_x = None  # (the batches' table, 28 MB at 100k: the lower levels read it from _tables)
         if reuse is not None:
             self._reuse_rows(*reuse)
@@ -716,6 +719,7 @@ class FinalGather(DirectLight):
             self.second._leaf_nodes = (used, k2)
         self.stats["precompute_cpu"] = time.process_time() - t0
         del self._tables
+        self.__dict__.pop("_boxes", None)  # (the covered tests' table: not stored)
         self._D_static = None
         self._shape_cache = {}  # geom_key -> (unit D (n,) float32, indices inside the outline)
         # DynamicRadiosity in "response" mode: D + I of the base solution and of each shape's
@@ -972,6 +976,7 @@ class FinalGather(DirectLight):
             "_bounce_cache",
             "_tables",
             "_host_stores",
+            "_boxes",
         ):
             f.__dict__.pop(k, None)
         for k in ("indptr", "cols", "w", "wu", "wv", "offsets", "rho", "leaf0", "sample_rays"):
@@ -1157,6 +1162,20 @@ class FinalGather(DirectLight):
                 tables[name] = got  # (one assignment: threads may race, never half)
         return got
 
+    def _leaf_boxes(self):
+        """Hierarchy.leaf_boxes of the partly covered HR leaves, once per gather (not stored): the
+        covered test of the rays' hits searches each leaf's chains, not the grid's cells per hit
+        (the same answers)."""
+        if getattr(self, "_boxes", None) is None:  # one assignment: threads may race, never half
+            h, m = self.system.h, self.n_hr
+
+            def make():
+                c0, ex = h.child0[:m], h.exposure[:m]
+                return h.leaf_boxes(np.flatnonzero(((c0 < 0) | (c0 >= m)) & (ex > 0) & (ex < 1)))
+
+            self._boxes = self._shared("leaf_boxes", make)
+        return self._boxes
+
     def _lines(self):
         """The HR nodes' split lines for locate_below, once per gather (not stored: rebuilt)."""
         if getattr(self, "_split", None) is None:  # one assignment: threads may race, never half
@@ -1196,7 +1215,7 @@ class FinalGather(DirectLight):
         hit += np.take(org, row[i], 0)
         leaf = locate_below(h, patch[i], hit, self.n_hr, self._lines())
         if self.covered_hits == "zero":
-            lit = ~h.dark(leaf, hit)  # covered points read 0
+            lit = ~h.dark(leaf, hit, boxes=self._leaf_boxes())  # covered points read 0
         else:
             lit = h.exposure[leaf] > 0
         keep = np.flatnonzero(lit)
