@@ -103,9 +103,12 @@ def release_free_memory():
 
 def trimming(fn, every):
     """fn, the heap's freed pages given back (release_free_memory) after every `every`-th call (on
-    any thread): a long map's batches each free their temporaries, and the arrays they keep land
-    in the holes, so freed pages pile up resident within one stage (0.3-0.4 GB at the 100k vertex
-    bake's gather precompute; docs/scale.md, session 36). No values change."""
+    any thread; every 0: fn itself): a long map's batches each free their temporaries, and the
+    arrays they keep land in the holes, so freed pages pile up resident within one stage (~0.4 GB
+    at the 100k vertex bake's gather precompute; docs/scale.md, session 36). No values change; the
+    next batches fault the given-back pages in again (system CPU)."""
+    if not every:
+        return fn
     calls = count(1)
 
     def run(*args):

@@ -369,9 +369,11 @@ class FinalGather(DirectLight):
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
     ENTRY_BATCH = 1 << 21  # weights per batch of _read_cols, _reuse_rows on threads (fixed: the same values)
     MERGE_TRIM = 16 << 20  # bytes of batches merge copies between two release_free_memory
-    # batches of rays between two release_free_memory (parallel.trimming): their freed temporaries
-    # not resident under the level's peak (the 100k vertex bake, docs/scale.md session 36)
-    TRIM_BATCHES = 4
+    # batches of rays between two release_free_memory (parallel.trimming; 0: none): their freed
+    # temporaries not resident under the level's peak. OFF: at the 100k vertex bake every 4 batches
+    # lowered the top level's peak 2.00 -> 1.93 GB for +16% of its CPU (the pages faulted in again;
+    # docs/scale.md, session 36), and the bake's peak is the first frame's
+    TRIM_BATCHES = 0
     # weights per batch of _remap_near (fixed): its int64 and float64 temporaries, ~60 bytes a weight,
     # were the 100k vertex bake's build peak in batches of 2^21 (session 32; its statistics' sums
     # are grouped by batch: their last bits moved then, the columns are the same)
