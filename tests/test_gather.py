@@ -836,6 +836,40 @@ def test_merge_gives_the_batches_concatenated(monkeypatch):
         assert all(x is None for x in got[k:])
 
 
+def test_the_heap_is_trimmed_between_ray_batches_and_new_response_parts(monkeypatch):
+    """The hemisphere rays' batches go through parallel.trimming (the heap's freed pages given back
+    every TRIM_BATCHES batches; 0, the default: none) and _response_parts trims after each part it
+    makes, not when it returns the kept ones (docs/scale.md, session 36): the same rows and parts
+    as without trims."""
+    from hr_addon.core import parallel
+    from hr_addon.core.gather import final
+
+    trims = []
+    monkeypatch.setattr(parallel, "release_free_memory", lambda: trims.append("batch"))
+    monkeypatch.setattr(final, "release_free_memory", lambda: trims.append("gather"))
+    base = RadiositySystem(contact_furnace(0.85), RefineParams.preset("draft"))
+    dyn = DynamicRadiosity(base.copy(), method="FE", gather_responses="zero")
+    dyn.apply({"w": _furnace_window()})
+    pts, patch, _ = surface_samples(dyn.system.patches, 4)
+    got = []
+    for every in (1, 0):
+        monkeypatch.setattr(FinalGather, "TRIM_BATCHES", every)
+        trims.clear()
+        g = FinalGather(dyn, pts, dyn.system.patches.normal[patch], patch, rays=16, batch_rays=16 * 50)
+        batches = len(g.batches(g.rays))
+        assert batches > 2 and trims.count("batch") == (batches if every == 1 else 0)
+        trims.clear()
+        parts = g._response_parts(dyn)
+        assert trims == ["gather"] * len(parts)  # (a trim after each part made: the base, the shape's)
+        trims.clear()
+        g._response_parts(dyn)
+        assert trims == []  # (the kept parts: nothing made, nothing trimmed)
+        got.append((g.indptr, g.cols, g.w, [p[2] for p in parts]))
+    (a, b) = got
+    assert all(np.array_equal(x, y) for x, y in zip(a[:3], b[:3]))
+    assert all(np.array_equal(x, y) for x, y in zip(a[3], b[3]))
+
+
 def test_the_passes_from_nothing_skip_their_first_read(monkeypatch):
     """gather_responses "zero": the second level's first pass from V = 0 reads nothing (_read(None):
     zeros, no read); the shape's gathered part is the same bit for bit as with that pass's read of

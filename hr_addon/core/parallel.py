@@ -101,6 +101,25 @@ def release_free_memory():
         _trim[0](0)
 
 
+def trimming(fn, every):
+    """fn, the heap's freed pages given back (release_free_memory) after every `every`-th call (on
+    any thread; every 0: fn itself): a long map's batches each free their temporaries, and the
+    arrays they keep land in the holes, so freed pages pile up resident within one stage (~0.4 GB
+    at the 100k vertex bake's gather precompute; docs/scale.md, session 36). No values change; the
+    next batches fault the given-back pages in again (system CPU)."""
+    if not every:
+        return fn
+    calls = count(1)
+
+    def run(*args):
+        out = fn(*args)
+        if next(calls) % every == 0:
+            release_free_memory()
+        return out
+
+    return run
+
+
 def resolve_threads(threads):
     """threads: None or 0 -> every available core; n < 0 -> all but |n| (Live keeps one for the
     UI); otherwise n. At least 1."""

@@ -10,7 +10,7 @@ from .. import formfactor as ff
 from ..events.records import outline_share
 from ..geometry import insideness, isolated_objects
 from ..visibility import first_hit_within
-from ..parallel import batch_map, ranges, release_free_memory
+from ..parallel import batch_map, ranges, release_free_memory, trimming
 from ..progress import Progress
 from ..slots import _slot_tables, slot_mouth
 from .direct import DirectLight
@@ -381,6 +381,11 @@ class FinalGather(DirectLight):
     BATCH_RAYS = 1 << 19  # rays per batch: several batches per thread even on small scenes
     ENTRY_BATCH = 1 << 21  # weights per batch of _read_cols, _reuse_rows on threads (fixed: the same values)
     MERGE_TRIM = 16 << 20  # bytes of batches merge copies between two release_free_memory
+    # batches of rays between two release_free_memory (parallel.trimming; 0: none): their freed
+    # temporaries not resident under the level's peak. OFF: at the 100k vertex bake every 4 batches
+    # lowered the top level's peak 2.00 -> 1.93 GB for +16% of its CPU (the pages faulted in again;
+    # docs/scale.md, session 36), and the bake's peak is the first frame's
+    TRIM_BATCHES = 0
     # weights per batch of _remap_near (fixed): its int64 and float64 temporaries, ~60 bytes a weight,
     # were the 100k vertex bake's build peak in batches of 2^21 (session 32; its statistics' sums
     # are grouped by batch: their last bits moved then, the columns are the same)
@@ -632,7 +637,12 @@ class FinalGather(DirectLight):
         self._trace = ~self.dark if reuse is None else ~self.dark & (reuse[0] < 0)
         release_free_memory()  # (the set-up's and the probe's freed temporaries: not under the rays')
         self.indptr, self.cols, self.w, self.wu, self.wv = self.merge(
-            batch_map(self.gather_batch, self.batches(self.rays), threads, report if progress else None),
+            batch_map(
+                trimming(self.gather_batch, self.TRIM_BATCHES),
+                self.batches(self.rays),
+                threads,
+                report if progress else None,
+            ),
             threads,
         )
         del self._trace, self._near_fine
@@ -2007,6 +2017,8 @@ class FinalGather(DirectLight):
             Y = self._levels(V, lambda g: g.direct_static())
             D0 = self._dmix(self.direct_static(), self._facing_part(lambda g: g.direct_static()))
             self._responses[key0] = D0 + self._read(Y)
+            del X, V, Y, D0
+            release_free_memory()  # (each new part's freed temporaries: not resident under the next's)
         out = [(key0, None, self._responses[key0], None)]
         for rec in recs:
             if rec.preview is not None:
@@ -2027,6 +2039,8 @@ class FinalGather(DirectLight):
                 Y = self._levels(V, unit, bool(rec.gathered), warm=warm)
                 part = self._dmix(unit(self), self._facing_part(unit)) + self._read(Y)
                 self._responses[k] = part.astype(np.float32)
+                del X, V, Y, part
+                release_free_memory()
             out.append((k, rec.emission, self._responses[k], rec))
         for rec in dyn.lights.values():
             k = ("light", rec.geom_key)
@@ -2041,6 +2055,8 @@ class FinalGather(DirectLight):
                 part = self._dmix(unit(self), self._facing_part(unit)) + self._light_bounce(rec, Y[0])
                 part += self._read(Y)
                 self._responses[k] = part.astype(np.float32)
+                del X, Y, part
+                release_free_memory()
             out.append((k, rec.scale, self._responses[k], None))
         live = {p[0] for p in out}
         gone = [k for k in self._responses if k not in live]
