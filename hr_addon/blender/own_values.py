@@ -780,11 +780,11 @@ def _cone_edges(backend, pts, nrm, fid, F, cones, span=1.0):
     traces a ray to it (a sun's `span` m long, the scene's size): a shadow's edge crosses faces wholly
     in a cone too (the loft's shelf items under the pendant's shade, a box's faces a point light lights
     in part; session 36)."""
-    from .lights_in import SUN_CONE
-
     edge = np.zeros(F, bool)
     for c in np.asarray(cones, np.float64).reshape(-1, 7):
-        if c[6] >= SUN_CONE:  # (a direction: the light comes from -c[3:6])
+        # a cos above 1 (lights_in.SUN_CONE; not imported: lights_in reads scene_in, which reads
+        # this module) is a direction: the light comes from -c[3:6]
+        if c[6] > 1.0:
             lit = nrm[fid] @ -c[3:6] > 0
             i = np.flatnonzero(lit)
             if len(i):
