@@ -1460,6 +1460,18 @@ def test_a_floor_along_a_wall_is_not_in_part_a_panel_under_a_board_is(monkeypatc
     assert part[1:3, 4].all() and part[:, :3].sum() == 0 and part[:, 6:].sum() == 0, share
 
 
+def _one_cone(scene):
+    """(depsgraph, cones) of a scene with one Blender light and no light shape: light_edges' one cone."""
+    from hr_addon.blender.lights_in import light_edges
+
+    vl = scene.view_layers[0]
+    dg = vl.depsgraph
+    dg.update()
+    outlines, cones = light_edges(scene, vl)
+    assert not outlines and len(cones) == 1
+    return dg, cones
+
+
 def test_faces_a_spot_lights_footprint_edge_crosses_get_finer_corners():
     """A spot light 1 m before the grid wall aimed at its middle (x 1, z 0.5), its cone 30 degrees
     wide: a footprint about 0.54 m across whose edge crosses the ring of quads around its middle
@@ -1470,7 +1482,6 @@ def test_faces_a_spot_lights_footprint_edge_crosses_get_finer_corners():
 
     bpy, ms, scene = empty_scene()
     from hr_addon.blender import own_values as ov
-    from hr_addon.blender.lights_in import light_edges
     from hr_addon.blender.names import FINER
 
     wall = _grid_wall(ms)
@@ -1478,11 +1489,7 @@ def test_faces_a_spot_lights_footprint_edge_crosses_get_finer_corners():
     spot.data.energy, spot.data.spot_size = 200.0, math.radians(30)
     spot.location, spot.rotation_euler = (1.0, 1.0, 0.5), (math.radians(-90), 0, 0)  # (-z to -y)
     scene.collection.objects.link(spot)
-    vl = scene.view_layers[0]
-    dg = vl.depsgraph
-    dg.update()
-    outlines, cones = light_edges(scene, vl)
-    assert not outlines and len(cones) == 1
+    dg, cones = _one_cone(scene)
     np.testing.assert_allclose(cones[0, 3:6], (0, -1, 0), atol=1e-6)
     _, _, edge = ov.near_clutter([wall], [wall], dg, 0.25, 0.25, cones)["Grid wall"]
     edge = edge.reshape(5, 10)
@@ -1513,7 +1520,7 @@ def test_faces_a_point_lights_or_suns_shadow_edge_crosses_get_finer_corners(kind
 
     bpy, ms, scene = empty_scene()
     from hr_addon.blender import own_values as ov
-    from hr_addon.blender.lights_in import SUN_CONE, light_edges
+    from hr_addon.blender.lights_in import SUN_CONE
     from hr_addon.blender.names import FINER
 
     wall = _grid_wall(ms)
@@ -1532,11 +1539,7 @@ def test_faces_a_point_lights_or_suns_shadow_edge_crosses_get_finer_corners(kind
     light = bpy.data.objects.new("Light", bpy.data.lights.new("Light", kind))
     light.location, light.rotation_euler = (1.0, 2.0, 0.5), (math.radians(-90), 0, 0)  # (-z to -y)
     scene.collection.objects.link(light)
-    vl = scene.view_layers[0]
-    dg = vl.depsgraph
-    dg.update()
-    outlines, cones = light_edges(scene, vl)
-    assert not outlines and len(cones) == 1
+    dg, cones = _one_cone(scene)
     if kind == "SUN":
         np.testing.assert_allclose(cones[0], (0, 0, 0, 0, -1, 0, SUN_CONE), atol=1e-6)
     else:
