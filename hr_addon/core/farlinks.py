@@ -262,7 +262,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     # thin occluders (legs, gaps between books). Measured on the 20k furnished room: passing
     # "wholly visible" down made objects 3.9% brighter on average (121% at worst), dropping
     # "wholly occluded" pairs 9% darker (83%), and the extra tests cost more rays than they saved.
-    table = EndTable(tree, h, refiner.eps)
+    table = EndTable(tree, h, refiner.eps, refiner.threads)
     dark = prm.dark_ratio > 0 or prm.dark_veps > 0 or not prm.dark_second
     lit = LitEnds(tree, h) if dark else None
     far, p, q = _cluster_levels(refiner, tree, table, lit, progress)
@@ -359,7 +359,7 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
         a, b = a[rest], b[rest]
         for i, j in ranges(len(a), LEVEL_PAIRS):
             x, y = a[i:j], b[i:j]
-            table.update()  # the nodes subdivided by the last map (here, not on the threads)
+            table.update()  # the nodes subdivided by the last map (here, between maps; its rows on threads)
             parts = batch_map(
                 lambda i, j: _classify(refiner, tree, x[i:j], y[i:j], table, lit),
                 spans(len(x), PAIR_BATCH),

@@ -665,6 +665,7 @@ class Refiner:
             leaf_size=self.params.cluster_leaf,
             exposure=self.h.exposure[:K] if covered else None,
             sample_at=self.centres(np.arange(K)) if covered else None,
+            threads=self.threads,
         )
         self.stats["t_tree"] = time.perf_counter() - t0
         self.stats["clusters"] = tree.C
