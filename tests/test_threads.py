@@ -350,17 +350,21 @@ def test_build_links_do_not_depend_on_the_batch_sizes(monkeypatch):
 
 def test_end_table_and_cluster_tree_by_batches_equal_one_pass(monkeypatch):
     """EndTable's rows (the clusters' visibility points, the nodes' rows) by batches of ROW_BATCH
-    rows and ClusterTree's depths as a batch map, on 1 and 2 threads (session 37: they were
-    serial): every row and every depth is its own, so batches of 50 rows on 2 threads and one
-    batch of every row on 1 give bitwise equal tables and trees (the 2k room, its contacts)."""
+    rows, ClusterTree's splits by batches of segments and its depths as a batch map, on 1 and 2
+    threads (session 37: they were serial): every row, segment and depth is its own, so batches of
+    50 rows / 100 patches on 2 threads and one batch of every row on 1 give bitwise equal tables
+    and trees (the 2k room, its contacts)."""
+    from hr_addon.core import cluster
     from hr_addon.core.cluster import ClusterTree, EndTable
     from hr_testing.furnished import furnished_room
 
     s = RadiositySystem(furnished_room("2k")[0], RefineParams.for_gather("draft"))
     h, K = s.h, len(s.h.patches.nv)
     kw = dict(exposure=h.exposure[:K], sample_at=s.refiner.centres(np.arange(K)))
-    t1, t2 = (ClusterTree(h.patches, s.params.cluster_leaf, threads=t, **kw) for t in (1, 2))
-    for k in ("lo", "hi", "radius", "theta", "samples", "child_ids"):
+    t1 = ClusterTree(h.patches, s.params.cluster_leaf, **kw)
+    monkeypatch.setattr(cluster, "TREE_BATCH", 100)
+    t2 = ClusterTree(h.patches, s.params.cluster_leaf, threads=2, **kw)
+    for k in ("perm", "start", "end", "parent", "lo", "hi", "radius", "theta", "samples", "child_ids"):
         assert np.array_equal(getattr(t1, k), getattr(t2, k))
     one = EndTable(t1, h, s.refiner.eps)
     monkeypatch.setattr(EndTable, "ROW_BATCH", 50)

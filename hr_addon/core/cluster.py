@@ -35,6 +35,9 @@ from . import parallel
 from .boxes import csr_rows, spans
 
 N_CLASSES = 6
+# patches per batch of a level's splits in ClusterTree (whole segments; fixed: the same tree on any
+# thread count)
+TREE_BATCH = 1 << 15
 
 
 def encode(c):
@@ -85,26 +88,35 @@ class ClusterTree:
             level, s, e = level[big], s[big], e[big]
             if not len(level):
                 break
+
             # split each segment at the middle of the longest axis of its centroids' box (compact
             # clusters: their radius bounds the point-to-point kernel's error); the median when
-            # all centroids fall on one side
-            pos, idx = spans(s, e)
-            pc = cen[perm[idx]]
-            cut = np.r_[0, np.cumsum(e - s)[:-1]]
-            lo_s, hi_s = np.minimum.reduceat(pc, cut, axis=0), np.maximum.reduceat(pc, cut, axis=0)
-            axis = np.argmax(hi_s - lo_s, 1)
-            key = pc[np.arange(len(idx)), axis[pos]]
-            order = np.lexsort((key, pos))
-            perm[idx] = perm[idx[order]]
-            key = key[order]
-            half = 0.5 * (lo_s + hi_s)[np.arange(len(s)), axis]
-            ext = (hi_s - lo_s)[np.arange(len(s)), axis]
-            # centroids on the midplane (regular grids) go left at any scale
-            mid = s + np.bincount(pos, weights=key <= (half + 1e-9 * ext)[pos], minlength=len(s)).astype(
-                np.int64
-            )
-            bad = (mid <= s) | (mid >= e)
-            mid = np.where(bad, (s + e) // 2, mid)
+            # all centroids fall on one side. Every segment is its own (its range of perm): by
+            # batches of whole segments of about TREE_BATCH patches on threads (issue 23: serial,
+            # docs/threads.md, session 37), each reordering its own ranges of perm
+            def split(i, j, s=s, e=e):
+                s, e = s[i:j], e[i:j]
+                pos, idx = spans(s, e)
+                pc = cen[perm[idx]]
+                cut = np.r_[0, np.cumsum(e - s)[:-1]]
+                lo_s, hi_s = np.minimum.reduceat(pc, cut, axis=0), np.maximum.reduceat(pc, cut, axis=0)
+                axis = np.argmax(hi_s - lo_s, 1)
+                key = pc[np.arange(len(idx)), axis[pos]]
+                order = np.lexsort((key, pos))
+                perm[idx] = perm[idx[order]]
+                key = key[order]
+                half = 0.5 * (lo_s + hi_s)[np.arange(len(s)), axis]
+                ext = (hi_s - lo_s)[np.arange(len(s)), axis]
+                # centroids on the midplane (regular grids) go left at any scale
+                below = key <= (half + 1e-9 * ext)[pos]
+                mid = s + np.bincount(pos, weights=below, minlength=len(s)).astype(np.int64)
+                bad = (mid <= s) | (mid >= e)
+                return np.where(bad, (s + e) // 2, mid)
+
+            cum = np.cumsum(e - s)
+            at = np.searchsorted(cum, np.arange(1, -(-int(cum[-1]) // TREE_BATCH)) * TREE_BATCH) + 1
+            edges = np.unique(np.clip(np.r_[0, at, len(s)], 0, len(s)))
+            mid = np.concatenate(parallel.batch_map(split, list(zip(edges[:-1], edges[1:])), threads))
             depth += 1
             first, n = len(starts), len(level)
             starts += np.column_stack([s, mid]).ravel().tolist()
