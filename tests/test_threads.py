@@ -255,6 +255,7 @@ def small_batches(monkeypatch):
     """Batches small enough that the small test scenes split into many (the product's sizes are
     fixed too, larger: the values never depend on the thread count, only on the batch bounds)."""
     from hr_addon.core import boxes, contacts, farlinks, refine, solver
+    from hr_addon.core.cluster import EndTable
     from hr_addon.core.events import direct
     from hr_addon.core.gather import FinalGather, layouts
     from hr_addon.core.visibility import RayBackend
@@ -270,6 +271,7 @@ def small_batches(monkeypatch):
     monkeypatch.setattr(farlinks, "PAIR_BATCH", 61)
     monkeypatch.setattr(farlinks, "LEVEL_PAIRS", 700)  # several maps per level of pairs
     monkeypatch.setattr(refine, "LEVEL_PAIRS", 900)
+    monkeypatch.setattr(EndTable, "ROW_BATCH", 150)
     monkeypatch.setattr(RayBackend, "PARALLEL_CHUNK", 1000)
     monkeypatch.setattr(FinalGather, "BATCH_RAYS", 4096)
     monkeypatch.setattr(layouts, "PROBE_BATCH", 500)
@@ -329,6 +331,7 @@ def test_build_links_do_not_depend_on_the_batch_sizes(monkeypatch):
     own, so the links, the hierarchy and the contacts are bitwise equal."""
     from hr_addon.core import boxes, contacts, farlinks, refine
     from hr_addon.core import formfactor as ff
+    from hr_addon.core.cluster import EndTable
     from hr_testing.furnished import furnished_room
 
     mesh = furnished_room("2k")[0]
@@ -338,10 +341,38 @@ def test_build_links_do_not_depend_on_the_batch_sizes(monkeypatch):
     monkeypatch.setattr(ff, "POINT_BLOCK", 100)
     monkeypatch.setattr(boxes, "PAIR_STEP", 101)
     monkeypatch.setattr(contacts, "NEAR_STEP", 300)
+    monkeypatch.setattr(EndTable, "ROW_BATCH", 150)
     s2 = RadiositySystem(mesh, RefineParams.for_gather("draft"))
     assert len(s1.links) > 10 * 4 * refine.LINK_BATCH and len(s1.links.far) > 10 * 4 * farlinks.PAIR_BATCH
     for x, y in zip(_links(s1), _links(s2), strict=True):
         assert np.array_equal(x, y)
+
+
+def test_end_table_and_cluster_tree_by_batches_equal_one_pass(monkeypatch):
+    """EndTable's rows (the clusters' visibility points, the nodes' rows) by batches of ROW_BATCH
+    rows, ClusterTree's splits by batches of segments and its depths as a batch map, on 1 and 2
+    threads (session 37: they were serial): every row, segment and depth is its own, so batches of
+    50 rows / 100 patches on 2 threads and one batch of every row on 1 give bitwise equal tables
+    and trees (the 2k room, its contacts)."""
+    from hr_addon.core import cluster
+    from hr_addon.core.cluster import ClusterTree, EndTable
+    from hr_testing.furnished import furnished_room
+
+    s = RadiositySystem(furnished_room("2k")[0], RefineParams.for_gather("draft"))
+    h, K = s.h, len(s.h.patches.nv)
+    kw = dict(exposure=h.exposure[:K], sample_at=s.refiner.centres(np.arange(K)))
+    t1 = ClusterTree(h.patches, s.params.cluster_leaf, **kw)
+    monkeypatch.setattr(cluster, "TREE_BATCH", 100)
+    t2 = ClusterTree(h.patches, s.params.cluster_leaf, threads=2, **kw)
+    for k in ("perm", "start", "end", "parent", "lo", "hi", "radius", "theta", "samples", "child_ids"):
+        assert np.array_equal(getattr(t1, k), getattr(t2, k))
+    one = EndTable(t1, h, s.refiner.eps)
+    monkeypatch.setattr(EndTable, "ROW_BATCH", 50)
+    many = EndTable(t1, h, s.refiner.eps, threads=2)
+    assert t1.C > 10 * 50 and h.n > 20 * 50 and one.cov.any() and (one.size == many.size == t1.C + h.n)
+    for k in ("packed", "pts", "w", "nrm", "cov", "vis", "vpts2", "nrm2", "cov2"):
+        x, y = getattr(one, k), getattr(many, k)
+        assert np.array_equal(x[: one.size], y[: one.size]) if len(x) > t1.C else np.array_equal(x, y)
 
 
 def test_link_form_factors_by_blocks_equal_all_rows_at_once(monkeypatch):

@@ -31,9 +31,13 @@ members by orientation and position, both through prefix sums over contiguous le
 import numpy as np
 
 from . import formfactor as ff
+from . import parallel
 from .boxes import csr_rows, spans
 
 N_CLASSES = 6
+# patches per batch of a level's splits in ClusterTree (whole segments; fixed: the same tree on any
+# thread count)
+TREE_BATCH = 1 << 15
 
 
 def encode(c):
@@ -53,10 +57,10 @@ class ClusterTree:
     lo/hi (box), axis + cos_t/sin_t (normal cone), samples/sample_n (points for visibility rays).
     """
 
-    def __init__(self, patches, leaf_size=4, n_samples=4, exposure=None, sample_at=None):
+    def __init__(self, patches, leaf_size=4, n_samples=4, exposure=None, sample_at=None, threads=1):
         """exposure (K,): uncovered fraction of each patch, and sample_at (K, 3): a point on its
         uncovered part (contacts.py); visibility samples are stratified by uncovered area, so a
-        box's bottom on the floor is never one."""
+        box's bottom on the floor is never one. threads: the depths' boxes and cones (core.parallel)."""
         K = len(patches.nv)
         self.K = K
         nrm, area = patches.normal, patches.area
@@ -84,26 +88,35 @@ class ClusterTree:
             level, s, e = level[big], s[big], e[big]
             if not len(level):
                 break
+
             # split each segment at the middle of the longest axis of its centroids' box (compact
             # clusters: their radius bounds the point-to-point kernel's error); the median when
-            # all centroids fall on one side
-            pos, idx = spans(s, e)
-            pc = cen[perm[idx]]
-            cut = np.r_[0, np.cumsum(e - s)[:-1]]
-            lo_s, hi_s = np.minimum.reduceat(pc, cut, axis=0), np.maximum.reduceat(pc, cut, axis=0)
-            axis = np.argmax(hi_s - lo_s, 1)
-            key = pc[np.arange(len(idx)), axis[pos]]
-            order = np.lexsort((key, pos))
-            perm[idx] = perm[idx[order]]
-            key = key[order]
-            half = 0.5 * (lo_s + hi_s)[np.arange(len(s)), axis]
-            ext = (hi_s - lo_s)[np.arange(len(s)), axis]
-            # centroids on the midplane (regular grids) go left at any scale
-            mid = s + np.bincount(pos, weights=key <= (half + 1e-9 * ext)[pos], minlength=len(s)).astype(
-                np.int64
-            )
-            bad = (mid <= s) | (mid >= e)
-            mid = np.where(bad, (s + e) // 2, mid)
+            # all centroids fall on one side. Every segment is its own (its range of perm): by
+            # batches of whole segments of about TREE_BATCH patches on threads (issue 23: serial,
+            # docs/threads.md, session 37), each reordering its own ranges of perm
+            def split(i, j, s=s, e=e):
+                s, e = s[i:j], e[i:j]
+                pos, idx = spans(s, e)
+                pc = cen[perm[idx]]
+                cut = np.r_[0, np.cumsum(e - s)[:-1]]
+                lo_s, hi_s = np.minimum.reduceat(pc, cut, axis=0), np.maximum.reduceat(pc, cut, axis=0)
+                axis = np.argmax(hi_s - lo_s, 1)
+                key = pc[np.arange(len(idx)), axis[pos]]
+                order = np.lexsort((key, pos))
+                perm[idx] = perm[idx[order]]
+                key = key[order]
+                half = 0.5 * (lo_s + hi_s)[np.arange(len(s)), axis]
+                ext = (hi_s - lo_s)[np.arange(len(s)), axis]
+                # centroids on the midplane (regular grids) go left at any scale
+                below = key <= (half + 1e-9 * ext)[pos]
+                mid = s + np.bincount(pos, weights=below, minlength=len(s)).astype(np.int64)
+                bad = (mid <= s) | (mid >= e)
+                return np.where(bad, (s + e) // 2, mid)
+
+            cum = np.cumsum(e - s)
+            at = np.searchsorted(cum, np.arange(1, -(-int(cum[-1]) // TREE_BATCH)) * TREE_BATCH) + 1
+            edges = np.unique(np.clip(np.r_[0, at, len(s)], 0, len(s)))
+            mid = np.concatenate(parallel.batch_map(split, list(zip(edges[:-1], edges[1:])), threads))
             depth += 1
             first, n = len(starts), len(level)
             starts += np.column_stack([s, mid]).ravel().tolist()
@@ -142,17 +155,22 @@ class ClusterTree:
         # ranges, so each depth is one pass over (at most) all patches
         self.lo, self.hi = np.empty((C, 3)), np.empty((C, 3))
         self.radius, theta = np.empty(C), np.empty(C)
-        for ids in self.levels:
+
+        def depth_pass(ids):
             owner, idx = spans(self.start[ids], self.end[ids])
             p, oc = perm[idx], ids[owner]
             cut = np.r_[0, np.cumsum(self.end[ids] - self.start[ids])[:-1]]
-            self.lo[ids] = np.minimum.reduceat(lo_p[p], cut, axis=0)
-            self.hi[ids] = np.maximum.reduceat(hi_p[p], cut, axis=0)
-            self.radius[ids] = np.maximum.reduceat(
-                np.linalg.norm(c[p] - self.centre[oc][:, None], axis=2).max(1), cut
-            )
+            lo, hi = np.minimum.reduceat(lo_p[p], cut, axis=0), np.maximum.reduceat(hi_p[p], cut, axis=0)
+            r = np.maximum.reduceat(np.linalg.norm(c[p] - self.centre[oc][:, None], axis=2).max(1), cut)
             dots = np.einsum("ij,ij->i", nrm[p], self.axis[oc])
-            theta[ids] = np.arccos(np.clip(np.minimum.reduceat(dots, cut), -1, 1))
+            return lo, hi, r, np.arccos(np.clip(np.minimum.reduceat(dots, cut), -1, 1))
+
+        # the depths on threads (each its own clusters; issue 23: a tenth of the 100k build's
+        # serial CPU, docs/threads.md, session 37)
+        for ids, got in zip(
+            self.levels, parallel.batch_map(depth_pass, [(x,) for x in self.levels], threads)
+        ):
+            self.lo[ids], self.hi[ids], self.radius[ids], theta[ids] = got
         # a cluster whose area vector nearly cancels has no meaningful axis: treat as unbounded
         flat = np.linalg.norm(self.avec, axis=1) > 1e-9 * np.maximum(self.area, 1e-300)
         self.theta = np.where(flat, theta, np.pi)
@@ -428,28 +446,43 @@ class EndTable:
     FIELDS = ("centre", "axis", "lo", "hi", "area", "radius", "cos_t", "sin_t", "theta", "pts", "w", "nrm")
     # columns of `packed`: 3 per vector field, then the scalars
     PACKED = ("centre", "axis", "lo", "hi", "area", "radius", "cos_t", "sin_t", "theta")
+    # rows per batch of the rows' computation on threads (_rows)
+    ROW_BATCH = 1 << 13
 
-    def __init__(self, tree: ClusterTree, h, eps):
-        self.tree, self.h, self.eps, self.n = tree, h, eps, 0
+    def __init__(self, tree: ClusterTree, h, eps, threads=1):
+        self.tree, self.h, self.eps, self.n, self.threads = tree, h, eps, 0, threads
         self.size = self.cap = 0
         t, C = tree, tree.C
         cols = dict(centre=t.centre, axis=t.axis, lo=t.lo, hi=t.hi, area=t.area, radius=t.radius)
         cols.update(cos_t=t.cos_t, sin_t=t.sin_t, theta=t.theta)
         cols.update(pts=t.samples + eps * t.sample_n, w=np.full((C, 4), 0.25), nrm=t.sample_n)
         cols = {k: np.asarray(v, float)[:C] for k, v in cols.items()}
-        # the clusters' visibility points (visibility_points; a node's first set are its pts), and
-        # `cov` whether a row's visibility points are covered (a cluster's spread points, a node's
-        # Gauss points)
-        vp, cols["cov"] = spread_points(t, h, np.arange(C))
-        self.vpts = cols["vis"] = vp + eps * t.sample_n
-        m2 = second_members(t, h, np.arange(C))
-        vp, self.cov2 = spread_points(t, h, np.arange(C), SECOND, m2)
-        self.nrm2 = h.normal[m2]
-        self.vpts2 = vp + eps * self.nrm2
+
+        def spread(i, j):
+            # the clusters' visibility points (visibility_points; a node's first set are its pts),
+            # `cov` whether a row's visibility points are covered (a cluster's spread points, a
+            # node's Gauss points), and the second set's
+            ci = np.arange(i, j)
+            vp, cov = spread_points(t, h, ci)
+            m2 = second_members(t, h, ci)
+            vp2, cov2 = spread_points(t, h, ci, SECOND, m2)
+            return vp + eps * t.sample_n[i:j], cov, h.normal[m2], vp2, cov2
+
+        # every cluster's rows are its own: by batches of rows on threads (issue 23: serial, they
+        # were a sixth of the 100k build's serial CPU, docs/threads.md, session 37)
+        vp, cols["cov"], self.nrm2, vp2, self.cov2 = self._rows(spread, C)
+        self.vpts = cols["vis"] = vp
+        self.vpts2 = vp2 + eps * self.nrm2
         # patch nodes' second visibility points (prepare_second), grown to the hierarchy's size
         self.has2, self.pts2, self.cov2n = np.zeros(0, bool), np.empty((0, 4, 3)), np.empty((0, 4), bool)
         self._append(cols)
         self.update()
+
+    def _rows(self, fn, n):
+        """fn(i, j)'s arrays for rows i..j, by batches of ROW_BATCH rows on the table's threads,
+        each concatenated over the batches (batch bounds fixed: the same values on any count)."""
+        parts = parallel.batch_map(fn, parallel.ranges(n, self.ROW_BATCH), self.threads)
+        return [np.concatenate(x) for x in zip(*parts)]
 
     def _append(self, cols):
         m = len(cols["area"])
@@ -477,18 +510,27 @@ class EndTable:
         h, m, n = self.h, self.n, self.h.n
         if n <= m:
             return
-        ni = np.arange(m, n)
-        c = h.corners[ni]
-        pts, w = ff.quadrature(c, h.nv[ni], 2)
-        new = dict(centre=h.centre[ni], axis=h.normal[ni], lo=c.min(1), hi=c.max(1), area=h.area[ni])
-        new["radius"] = ff.norm3(c - h.centre[ni][:, None]).max(1)
-        new.update(cos_t=np.ones(len(ni)), sin_t=np.zeros(len(ni)), theta=np.zeros(len(ni)))
-        new.update(
-            pts=pts + self.eps * h.normal[ni][:, None], w=w, nrm=np.repeat(h.normal[ni][:, None], 4, 1)
-        )
-        new["cov"] = _covered(
-            h, pts, np.repeat(h.patch[ni][:, None], 4, 1), np.repeat(h.exposure[ni][:, None], 4, 1)
-        )
+        keys = (*self.PACKED, "pts", "w", "nrm", "cov")
+
+        def rows(i, j):  # nodes m + i .. m + j: every node's rows its own
+            ni = np.arange(m + i, m + j)
+            c, k, nrm = h.corners[ni], j - i, h.normal[ni]
+            pts, w = ff.quadrature(c, h.nv[ni], 2)
+            radius = ff.norm3(c - h.centre[ni][:, None]).max(1)
+            patch, expo = (np.repeat(x[ni][:, None], 4, 1) for x in (h.patch, h.exposure))
+            cov = _covered(h, pts, patch, expo)
+            box = (h.centre[ni], nrm, c.min(1), c.max(1), h.area[ni], radius)
+            return box + (
+                np.ones(k),
+                np.zeros(k),
+                np.zeros(k),
+                pts + self.eps * nrm[:, None],
+                w,
+                np.repeat(nrm[:, None], 4, 1),
+                cov,
+            )
+
+        new = dict(zip(keys, self._rows(rows, n - m)))
         new["vis"] = new["pts"]  # a node's first visibility points: its Gauss points
         self._append(new)
         self.n = n

@@ -262,7 +262,7 @@ def link_clusters(refiner, tree: ClusterTree, progress=None):
     # thin occluders (legs, gaps between books). Measured on the 20k furnished room: passing
     # "wholly visible" down made objects 3.9% brighter on average (121% at worst), dropping
     # "wholly occluded" pairs 9% darker (83%), and the extra tests cost more rays than they saved.
-    table = EndTable(tree, h, refiner.eps)
+    table = EndTable(tree, h, refiner.eps, refiner.threads)
     dark = prm.dark_ratio > 0 or prm.dark_veps > 0 or not prm.dark_second
     lit = LitEnds(tree, h) if dark else None
     far, p, q = _cluster_levels(refiner, tree, table, lit, progress)
@@ -359,32 +359,28 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
         a, b = a[rest], b[rest]
         for i, j in ranges(len(a), LEVEL_PAIRS):
             x, y = a[i:j], b[i:j]
-            table.update()  # the nodes subdivided by the last map (here, not on the threads)
+            table.update()  # the nodes subdivided by the last map (here, between maps; its rows on threads)
             parts = batch_map(
-                lambda i, j: _classify(refiner, tree, x[i:j], y[i:j], table, lit),
+                lambda i, j: _level_batch(refiner, tree, x[i:j], y[i:j], table, lit),
                 spans(len(x), PAIR_BATCH),
                 refiner.threads,
             )
-            drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = (
-                np.concatenate(c) for c in zip(*parts)
-            )
+            found, w, splits = zip(*parts)
             del parts
-            for sel in (ok, take):
-                if sel.any():
-                    far.append((x[sel], y[sel], vis[sel], mask[sel], pa[sel], pb[sel], fmax[sel]))
-            done_w += w.sum()  # (the batches' sums: the progress only)
-            for sel, u, v in ((split_a, x, y), (split_b, y, x)):
-                us, vs = u[sel], v[sel]
-                cl = us < 0
-                if cl.any():
-                    c, owner = tree.children(decode(us[cl]))
+            for k in (0, 1):  # ok, take: the batches' pieces in batch order (the map's order)
+                cols = [np.concatenate(c) for c in zip(*(f[k] for f in found))]
+                if len(cols[0]):
+                    far.append(tuple(cols))
+            done_w += np.concatenate(w).sum()  # (the batches' sums: the progress only)
+            for k in (0, 1):  # split_a, then split_b: clusters' children, then nodes'
+                c, cv, nd, nv = (np.concatenate(z) for z in zip(*(sp[k] for sp in splits)))
+                if len(c):
                     new_a.append(c)
-                    new_b.append(vs[cl][owner])
-                nd = us[~cl]
+                    new_b.append(cv)
                 if len(nd):
                     h.subdivide(np.unique(nd))
                     new_a.append(h.children(nd).ravel())
-                    new_b.append(np.repeat(vs[~cl], 4))
+                    new_b.append(np.repeat(nv, 4))
         if progress is not None:
             progress.update("clusters", done_w, total_w)
         z = np.zeros(0, np.int64)
@@ -394,6 +390,24 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
     z = np.zeros(0, np.int64)
     p, q = cat[-2:] if nodes else (z, z)
     return (cat[:7] if far else None), p, q
+
+
+def _level_batch(refiner, tree, x, y, table, lit):
+    """_classify's batch of a level and what the level's loop needs of it, on the threads (issue
+    23: serial, the far links' and splits' gathers and the clusters' children were a tenth of the
+    100k build's serial CPU, docs/threads.md, session 37): per (ok, take) the far links' arrays,
+    the progress weight, per (split_a, split_b) the split clusters' children with their other
+    ends, and the split nodes with theirs. Each is row by row in the pairs' order, so the batches'
+    pieces concatenated are the map's whole arrays: the same values and order."""
+    drop, ok, take, split_a, split_b, vis, mask, pa, pb, fmax, w = _classify(refiner, tree, x, y, table, lit)
+    found = [tuple(c[sel] for c in (x, y, vis, mask, pa, pb, fmax)) for sel in (ok, take)]
+    splits = []
+    for sel, u, v in ((split_a, x, y), (split_b, y, x)):
+        us, vs = u[sel], v[sel]
+        cl = us < 0
+        c, owner = tree.children(decode(us[cl]))
+        splits.append((c, vs[cl][owner], us[~cl], vs[~cl]))
+    return found, w, splits
 
 
 def _classify(refiner, tree, a, b, table=None, lit=None):

@@ -403,11 +403,16 @@ class Refiner:
             batches += [(int(kk), sel[i:j]) for i, j in ranges(len(sel), NODE_BATCH)]
         groups = batch_map(group, batches, self.threads)
         M = max([max(int(g[2].sum(1).max()), 1) for g in groups] + [target * target])
-        fp = np.repeat(h.centre[nodes][:, None], M, 1)
-        seen = np.zeros((len(nodes), M), bool)
-        for sel, pts, ok in groups:
+        fp, seen = np.empty((len(nodes), M, 3)), np.empty((len(nodes), M), bool)
+
+        def fill(sel, pts, ok):  # every node is in one group: its rows, padded with its centre
             m = min(M, pts.shape[1])
             fp[sel, :m], seen[sel, :m] = pts[:, :m], ok[:, :m]
+            fp[sel, m:], seen[sel, m:] = h.centre[nodes[sel]][:, None], False
+
+        # the rows written on the threads (issue 23: serial, the (nodes, M, 3) array's fresh pages
+        # and its fill, docs/threads.md, session 37)
+        batch_map(fill, groups, self.threads)
         return fp, seen
 
     def _exposed_form_factors(self, a, b, f_ab, f_ba, chunk=LINK_BATCH):
@@ -665,6 +670,7 @@ class Refiner:
             leaf_size=self.params.cluster_leaf,
             exposure=self.h.exposure[:K] if covered else None,
             sample_at=self.centres(np.arange(K)) if covered else None,
+            threads=self.threads,
         )
         self.stats["t_tree"] = time.perf_counter() - t0
         self.stats["clusters"] = tree.C
