@@ -523,3 +523,34 @@ def test_the_ratio_tests_only_the_points_in_the_inside_boxes(room, monkeypatch):
             monkeypatch.setattr(HostVisibility, "_ratio", ratio)
             print(f"{k}: {boxed} points tested, {tested[0]} without the boxes")
             assert boxed < 0.8 * tested[0]  # (measured x0.34-0.72)
+
+
+def test_the_rays_go_in_batches_of_at_most_trace_chunk_segments_with_the_same_bits(room, monkeypatch):
+    """_fill traces its segments in batches of at most TRACE_CHUNK (its rows' temporaries are the
+    100k bake's first-frame peak: docs/scale.md, session 37 mem37): with TRACE_CHUNK 64 no call of
+    the backend exceeds 64 segments, and every tile holds the bits (and every shape reads the
+    values) of one batch of all, bit for bit."""
+    from hr_addon.core.gather import hostvis
+
+    dyn, g, ems = room
+    backend = g.system.backend
+    sizes = []
+    occ = backend.occluded_cm
+
+    def counted(a, d, per=1):
+        sizes.append(d.shape[1])
+        return occ(a, d, per)
+
+    got = {}
+    for chunk in (1 << 30, 64):
+        monkeypatch.setattr(hostvis, "TRACE_CHUNK", chunk)
+        monkeypatch.setattr(backend, "occluded_cm", counted)
+        sizes.clear()
+        H = store(dyn, g, ems["w"], policy="lazy")
+        got[chunk] = ([H.light(e) for e in ems.values()], H.part)
+        monkeypatch.undo()
+        assert sizes and (max(sizes) <= 64) == (chunk == 64)
+    (va, pa), (vb, pb) = got.values()
+    assert all(np.array_equal(a, b) for a, b in zip(va, vb))
+    assert pa.keys() == pb.keys() and len(pa) > 1
+    assert all(np.array_equal(x, y) for k in pa for x, y in zip(pa[k], pb[k]))

@@ -163,6 +163,10 @@ def bake_frames(
         # the texture plan reads the evaluated meshes again
         if cfg.output == "VERTEX" and hide_while_baking():
             hidden = out_of_depsgraph(snap.objects, view_layer)
+            # their evaluated copies' freed pages (in the main heap and Blender's threads' arenas):
+            # not resident under the build (the 100k room: RSS 1.23 -> 0.90 GB there; docs/scale.md,
+            # session 37 mem37)
+            release_free_memory()
         params, min_area_rel, far_warning = solver_setup(snap.transport, cfg.params)
         run.warn([far_warning] if far_warning else [])
         yield BakeProgress(

@@ -66,7 +66,12 @@ STREAM = 0x5A17  # the host visibility's own random stream (+ the cell level)
 TILE = 4  # cells per tile side (16 bits: the 100k window traces x0.7 the rays of 8 x 8 tiles)
 BASE = 4096.0  # base cell = BASE x the level's unit (a power of two near the scene's size)
 MAX_LEVEL = 24  # finest cell: base / 4096 (about 2 mm in a 10 m room)
-CHUNK = 1 << 20  # (samples x cells) entries per batch of rays or of an event's weights
+CHUNK = 1 << 20  # (samples x cells) entries per batch of an event's weights
+# (sample, cell) segments per batch of rays (_fill): a batch's temporaries are ~0.1 KB a segment
+# (the segments in float64, the tracer's float32 rows, indices and masks), and the first frame of
+# the 100k vertex bake peaks inside the window's trace: 2^20 held ~0.1 GB of them (docs/scale.md,
+# session 37 mem37)
+TRACE_CHUNK = 1 << 16
 # what a store keeps (speed only: the values are the same either way, module doc; HostVisibility._tile):
 # "lazy" every segment an event traced (each traced at most once, only when read), "second" / "always"
 # a tile traced whole on its second / first read, "never" nothing
@@ -339,7 +344,7 @@ class HostVisibility:
                 v[:, cells] = vis
                 bits[r] = np.packbits(v, axis=1)
 
-            batch_map(part, ranges(len(at), max(CHUNK // len(cells), 1)), self.threads)
+            batch_map(part, ranges(len(at), max(TRACE_CHUNK // len(cells), 1)), self.threads)
             known[at] |= gm
             rays += len(at) * len(cells)
         return rays

@@ -877,6 +877,8 @@ class LoopGather(FinalGather):
                 idx = np.flatnonzero((part < 0).any(1) & ok)
                 Q = self._loops(x).astype(np.float32)
                 got = cache[key] = (part, Q if rows is None else Q[rows], idx)
+                del x, Q
+                release_free_memory()  # (a new part's loop values' temporaries: not under the next's)
             Q, idx = got[1], got[2]
             if wt is None:
                 out = Q.astype(np.float64)
