@@ -129,12 +129,13 @@ CLUTTER_GRID = 32  # near_clutter's points: a triangle cut into at most this man
 # near_clutter's rays that meet a surface holding one of their face's edges (within JUNCTION x the
 # spacing: a wall standing on the floor's edge) do not count: a concave junction, not a shadow's edge
 JUNCTION = 0.01
-# faces close to a Blender light (point, spot, area: light_edges' cones but suns): its light falls off
-# as 1 / d^2 across a face as large as its distance, and a corner's value, read OUTPUT_INSET of the
-# way into the face (core.gather.layouts), is not the light at the corner: the loft's lamp shade, 28
-# cm faces 16 cm from the bulb, cut once by the spacing, read its inside +25% along the rim a camera
-# sees (docs/accuracy.md, session 37). Such a face gets up to CLUTTER_LEVELS levels finer, the fewest
-# that leave pieces at most NEAR_LIGHT x its centre's distance from the light (near_light_finer)
+# faces close to a Blender point or spot light (light_edges' cones but suns' and area lights'): its
+# light falls off as 1 / d^2 across a face as large as its distance, and a corner's value, read
+# OUTPUT_INSET of the way into the face (core.gather.layouts), is not the light at the corner: the
+# loft's lamp shade, 28 cm faces 16 cm from the bulb, cut once by the spacing, read its inside +25%
+# along the rim a camera sees (docs/accuracy.md, session 37). Such a face gets up to CLUTTER_LEVELS
+# levels finer, the fewest that leave pieces at most NEAR_LIGHT x its centre's distance from the
+# light (near_light_finer)
 NEAR_LIGHT = 0.25
 
 
@@ -670,8 +671,9 @@ def mesh_topology(me):
 
 
 def near_light_finer(longest, centre, normal, cones, spacing, both=False):
-    """(F,) int64 FINER of faces close to a light: for each of `cones` (lights_in.light_edges':
-    position, direction, cos of the half angle; a sun's cos is above 1: left out) before a face
+    """(F,) int64 FINER of faces close to a light: for each point or spot light of `cones`
+    (lights_in.light_edges': position, direction, cos of the half angle; a sun's cos is above 1, an
+    area light's 0: left out) before a face
     (its centre on the lit side of the light and within its cone widened by the face's half size
     seen from it; both: the face lit from either side, a Solidify's two shells share its FINER) the
     fewest levels finer, at most CLUTTER_LEVELS, whose pieces (longest / 2^level at `spacing`,
@@ -682,8 +684,8 @@ def near_light_finer(longest, centre, normal, cones, spacing, both=False):
         return out
     piece = np.stack([longest / 2.0 ** levels(longest, spacing, k) for k in range(CLUTTER_LEVELS + 1)], 1)
     for q in np.asarray(cones, np.float64).reshape(-1, 7):
-        if q[6] > 1:
-            continue
+        if q[6] > 1 or q[6] == 0:  # (a sun; an area light's half space: its size, not 1 / d^2, near it;
+            continue  # not measured. A spot's cos is never 0: cos(pi / 2) is 6e-17)
         v = q[:3] - centre
         dist = np.maximum(np.linalg.norm(v, axis=1), 1e-30)
         h = (v * normal).sum(1)
@@ -704,7 +706,7 @@ def _near_lights(objects, depsgraph, spacing, cones):
     added: the evaluated mesh's at `spacing` (an object whose modifiers change its faces: its own
     faces' count x evaluated / own corners)."""
     lights = np.asarray(cones, np.float64).reshape(-1, 7)
-    lights = lights[lights[:, 6] <= 1]
+    lights = lights[(lights[:, 6] <= 1) & (lights[:, 6] != 0)]
     fine, added = {}, 0
     if spacing <= 0 or not len(lights):
         return fine, added
