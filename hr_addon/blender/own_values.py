@@ -1248,7 +1248,7 @@ def near_light_line(near, spacing, more):
     return (
         f"Vertex Spacing {spacing:g}: {len(near)} object(s) with faces close to a light ({shown}"
         f"{', ...' if len(by) > 8 else ''}): those faces cut into pieces at most {NEAR_LIGHT:g} x their "
-        f"distance from it (its light falls off across them), {more:,} corners more."
+        f"distance from it (its light falls off across them), at most {more:,} corners more."
     )
 
 
