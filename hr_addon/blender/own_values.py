@@ -702,7 +702,8 @@ def near_light_finer(longest, centre, normal, cones, spacing, both=False):
 def _near_lights(objects, depsgraph, spacing, cones):
     """({name: (P,) int8 FINER of its mesh's faces}, corners added): near_light_finer on the mesh's own
     faces of each of `objects` (one object each: FINER is the mesh's; a modifier's result keeps its
-    source face's FINER, Solidify's shells both), those faces a light is close to. The corners
+    source face's FINER: Solidify's shells both, a Mirror's or an Array's copies their source's,
+    measured where the source is), those faces a light is close to. The corners
     added: the evaluated mesh's at `spacing` (an object whose modifiers change its faces: its own
     faces' count x evaluated / own corners)."""
     lights = np.asarray(cones, np.float64).reshape(-1, 7)
