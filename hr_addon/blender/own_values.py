@@ -673,12 +673,11 @@ def mesh_topology(me):
 def near_light_finer(longest, centre, normal, cones, spacing, both=False):
     """(F,) int64 FINER of faces close to a light: for each point or spot light of `cones`
     (lights_in.light_edges': position, direction, cos of the half angle; a sun's cos is above 1, an
-    area light's 0: left out) before a face
-    (its centre on the lit side of the light and within its cone widened by the face's half size
-    seen from it; both: the face lit from either side, a Solidify's two shells share its FINER) the
-    fewest levels finer, at most CLUTTER_LEVELS, whose pieces (longest / 2^level at `spacing`,
-    levels) are at most NEAR_LIGHT x the distance from the face's centre to the light. longest (F,)
-    (face_edges'), centre (F, 3), unit normal (F, 3): world."""
+    area light's 0: left out) before a face (the light on its front, both: on either side, a
+    Solidify's two shells sharing its FINER; a spot's cone, widened by the face's half size seen
+    from the light, holding its centre) the fewest levels finer, at most CLUTTER_LEVELS, whose pieces
+    (longest / 2^level at `spacing`, levels) are at most NEAR_LIGHT x the distance from the face's
+    centre to the light. longest (F,) (face_edges'), centre (F, 3), unit normal (F, 3): world."""
     out = np.zeros(len(longest), np.int64)
     if spacing <= 0 or not len(longest):
         return out
@@ -690,7 +689,7 @@ def near_light_finer(longest, centre, normal, cones, spacing, both=False):
         dist = np.maximum(np.linalg.norm(v, axis=1), 1e-30)
         h = (v * normal).sum(1)
         lit = (np.abs(h) if both else h) > 0
-        if q[6] > -1:  # (a spot's cone, an area light's half space: the face's centre seen within it)
+        if q[6] > -1:  # (a spot's cone: the face's centre seen within it)
             off = np.arccos(np.clip(-(v @ q[3:6]) / dist, -1, 1))
             lit &= off <= np.arccos(q[6]) + np.arcsin(np.minimum(0.5 * longest / dist, 1))
         ok = piece <= NEAR_LIGHT * dist[:, None]
@@ -1097,7 +1096,9 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outline
     log: callable(str) taking the spacing's note (the objects subdivided) and the budget's line
     instead of the notes: log lines, not warnings (the spacing is the default; they ask nothing
     of the user). outlines, cones: the light shapes' rings and the spot lights' cones over the
-    scene's frames (lights_in.light_edges): the faces they cross are finer too (_cluttered)."""
+    scene's frames (lights_in.light_edges): the faces they cross are finer too (_cluttered), and
+    faces close to a point or spot light, if the budget has room (near_light_finer: FINER on the
+    mesh's own faces, which reaches an object whose modifiers change its faces too)."""
     users = {}
     for o in objects:
         users[o.data.name_full] = users.get(o.data.name_full, 0) + 1
