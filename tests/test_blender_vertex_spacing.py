@@ -1700,3 +1700,35 @@ def test_faces_close_to_a_point_light_get_pieces_that_show_the_light_at_their_ed
     exact = (integral(seen - foot) - integral(-foot)) / seen
     assert strip(0) / exact - 1 == pytest.approx(0.25, abs=0.01)
     assert strip(finer[0]) / exact - 1 == pytest.approx(0.05, abs=0.01)
+
+
+def test_a_solidified_face_close_to_a_point_light_gets_finer_on_both_shells():
+    """The lamp shade's path through the product: a 28.4 x 4 cm quad with a Solidify (6 mm), a point
+    light 15.7 cm before it (the shade's face). near_clutter leaves out an object whose modifiers
+    change its faces (FINER is the mesh's); the near-light rule writes FINER 2 on the mesh's face,
+    the Solidify gives it to both shells (and the rims), and the group cuts each shell's face to
+    level 3 (64 quads, 4 x 4^3 corners) where the spacing alone halves it (level 1: 16 corners)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import FINER
+
+    face = ms.mesh_object(
+        "Shade",
+        [(0, 0, 0), (0.284, 0, 0), (0.284, 0.04, 0), (0, 0.04, 0)],
+        [[0, 1, 2, 3]],
+        ms.diffuse("S", (RHO,) * 3),
+    )
+    face.modifiers.new("Solidify", "SOLIDIFY").thickness = 0.006
+    light = bpy.data.objects.new("Bulb", bpy.data.lights.new("Bulb", "POINT"))
+    light.location = (0.155, 0.02, 0.157)  # (on the face's front, +z)
+    scene.collection.objects.link(light)
+    dg, cones = _one_cone(scene)
+    lines = []
+    ov.ensure_own_values([face], "CORNER", dg, 0.25, log=lines.append, cones=cones)
+    finer = np.empty(1, np.int32)
+    face.data.attributes[FINER].data.foreach_get("value", finer)
+    assert finer.tolist() == [2] and any("close to a light" in line for line in lines), lines
+    dg.update()
+    ev = face.evaluated_get(dg).data
+    shells = [p for p in ev.polygons if abs(p.normal.z) > 0.99]  # (the rims stand on edge)
+    assert len(shells) == 2 * 64 and all(abs(p.area - 0.284 * 0.04 / 64) < 1e-6 for p in shells)
