@@ -1650,3 +1650,85 @@ def test_an_ngon_disc_under_a_point_light_gets_corners_inside_it(tmp_path):
     # keep each face's light, layouts.FIT; measured 0.38%)
     np.testing.assert_allclose(val, ref, rtol=5e-3)
     assert val[r[lv] < 1e-6].mean() / val[r[lv] > R - 1e-4].mean() > 1.45
+
+
+def test_faces_close_to_a_point_light_get_pieces_that_show_the_light_at_their_edge():
+    """near_light_finer on the loft's lamp shade (session 37): a 28.4 cm face whose plane passes
+    h = 15.7 cm from the bulb, the light's foot 15.5 cm up from its rim. The vertex output shows
+    along the rim the corners' values, each read OUTPUT_INSET of the way to its piece's centre, so
+    the mean of the interpolant over the strip a camera sees into the shade's mouth (its first 1.6 cm)
+    is set against the exact mean of cos / d^2 over it (closed form: the integral of h / (h^2 +
+    x^2)^1.5 is x / (h sqrt(h^2 + x^2))). At the spacing alone (0.25 m: the face halved) it reads
+    +25% (the camera's +25% on those pixels); the rule's 2 levels finer (pieces of 3.55 cm, at most
+    NEAR_LIGHT x its centre's 15.8 cm) +5%. The same face facing away, 1 m off, outside a spot's
+    cone, or by an area light or a sun: none finer; facing away with both sides lit (a Solidify's
+    shells): finer too."""
+    from hr_addon.blender import own_values as ov
+
+    h, foot, length, spacing = 0.157, 0.155, 0.284, 0.25
+    light = np.array([0.0, 0.0, h])
+    # faces in the plane z = 0 along x, the light's foot at x = foot: the rim at x = 0
+    centre = np.array([[length / 2 - foot, 0, 0]] * 4) + [[0, 0, 0], [0, 0, 0], [1.0, 0, 0], [0, 0, 0]]
+    normal = np.array([[0, 0, 1.0], [0, 0, -1], [0, 0, 1], [0, 0, 1]])
+    longest = np.full(4, length, np.float32)
+    point = np.r_[light, 0, 0, -1, -1.0]
+    finer = ov.near_light_finer(longest, centre, normal, [point], spacing)
+    assert finer.tolist() == [2, 0, 0, 2]
+    assert ov.near_light_finer(longest, centre, normal, [point], spacing, both=True).tolist() == [2, 2, 0, 2]
+    away = np.r_[light, 0, 0, 1, np.cos(np.radians(25))]  # a spot pointing up, away from the faces
+    down = np.r_[light, 0, 0, -1, np.cos(np.radians(25))]  # ... pointing down: the first face in it
+    assert ov.near_light_finer(longest, centre, normal, [away], spacing).tolist() == [0, 0, 0, 0]
+    assert ov.near_light_finer(longest, centre, normal, [down], spacing)[0] == 2
+    area, sun = np.r_[light, 0, 0, -1, 0.0], np.r_[0, 0, 0, 0, 0, -1, 2.0]  # (light_edges': not 1 / d^2)
+    assert not ov.near_light_finer(longest, centre, normal, [area, sun], spacing).any()
+
+    def light_at(x):  # cos / d^2 at x along the face from its rim
+        return h / (h * h + (x - foot) ** 2) ** 1.5
+
+    seen = 0.016
+
+    def strip(k):  # the interpolant's mean over [0, seen] at k levels finer
+        piece = length / 2 ** ov.levels(longest[:1], spacing, k)[0]
+        off = OUTPUT_INSET * piece / 2
+        rim = light_at(off)
+        next_ = 0.5 * (light_at(piece - off) + light_at(piece + off))  # its samples in both pieces
+        return rim + (next_ - rim) * seen / 2 / piece
+
+    def integral(x):  # of cos / d^2 along the face, x from the light's foot
+        return x / (h * np.sqrt(h * h + x * x))
+
+    exact = (integral(seen - foot) - integral(-foot)) / seen
+    assert strip(0) / exact - 1 == pytest.approx(0.25, abs=0.01)
+    assert strip(finer[0]) / exact - 1 == pytest.approx(0.05, abs=0.01)
+
+
+def test_a_solidified_face_close_to_a_point_light_gets_finer_on_both_shells():
+    """The lamp shade's path through the product: a 28.4 x 4 cm quad with a Solidify (6 mm), a point
+    light 15.7 cm before it (the shade's face). near_clutter leaves out an object whose modifiers
+    change its faces (FINER is the mesh's); the near-light rule writes FINER 2 on the mesh's face,
+    the Solidify gives it to both shells (and the rims), and the group cuts each shell's face to
+    level 3 (64 quads, 4 x 4^3 corners) where the spacing alone halves it (level 1: 16 corners)."""
+    bpy, ms, scene = empty_scene()
+    from hr_addon.blender import own_values as ov
+    from hr_addon.blender.names import FINER
+
+    face = ms.mesh_object(
+        "Shade",
+        [(0, 0, 0), (0.284, 0, 0), (0.284, 0.04, 0), (0, 0.04, 0)],
+        [[0, 1, 2, 3]],
+        ms.diffuse("S", (RHO,) * 3),
+    )
+    face.modifiers.new("Solidify", "SOLIDIFY").thickness = 0.006
+    light = bpy.data.objects.new("Bulb", bpy.data.lights.new("Bulb", "POINT"))
+    light.location = (0.155, 0.02, 0.157)  # (on the face's front, +z)
+    scene.collection.objects.link(light)
+    dg, cones = _one_cone(scene)
+    lines = []
+    ov.ensure_own_values([face], "CORNER", dg, 0.25, log=lines.append, cones=cones)
+    finer = np.empty(1, np.int32)
+    face.data.attributes[FINER].data.foreach_get("value", finer)
+    assert finer.tolist() == [2] and any("close to a light" in line for line in lines), lines
+    dg.update()
+    ev = face.evaluated_get(dg).data
+    shells = [p for p in ev.polygons if abs(p.normal.z) > 0.99]  # (the rims stand on edge)
+    assert len(shells) == 2 * 64 and all(abs(p.area - 0.284 * 0.04 / 64) < 1e-6 for p in shells)

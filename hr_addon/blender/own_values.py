@@ -129,6 +129,14 @@ CLUTTER_GRID = 32  # near_clutter's points: a triangle cut into at most this man
 # near_clutter's rays that meet a surface holding one of their face's edges (within JUNCTION x the
 # spacing: a wall standing on the floor's edge) do not count: a concave junction, not a shadow's edge
 JUNCTION = 0.01
+# faces close to a Blender point or spot light (light_edges' cones but suns' and area lights'): its
+# light falls off as 1 / d^2 across a face as large as its distance, and a corner's value, read
+# OUTPUT_INSET of the way into the face (core.gather.layouts), is not the light at the corner: the
+# loft's lamp shade, 28 cm faces 16 cm from the bulb, cut once by the spacing, read its inside +25%
+# along the rim a camera sees (docs/accuracy.md, session 37). Such a face gets up to CLUTTER_LEVELS
+# levels finer, the fewest that leave pieces at most NEAR_LIGHT x its centre's distance from the
+# light (near_light_finer)
+NEAR_LIGHT = 0.25
 
 
 def geometry_group(name, version, socket, socket_type, store, value, finer=False, output=None):
@@ -584,11 +592,11 @@ def _ngon_span(co, start, total, lv, scale):
     return span
 
 
-def face_edges(obj, depsgraph):
+def face_edges(obj, depsgraph, me=None):
     """((F,) float32 each face's longest edge in world metres as the group measures it (object-space
     edge x the object's scale, _finer_faces; an n-gon's span if longer, _ngon_span), (F,) int64 its
-    corners) of obj's evaluated mesh."""
-    me = obj.evaluated_get(depsgraph).data
+    corners) of obj's evaluated mesh (or of `me`, obj's own)."""
+    me = obj.evaluated_get(depsgraph).data if me is None else me
     n_faces = len(me.polygons)
     if not n_faces:
         return np.zeros(0, np.float32), np.zeros(0, np.int64)
@@ -660,6 +668,78 @@ def mesh_topology(me):
     me.polygons.foreach_get("loop_total", lt)
     me.loops.foreach_get("vertex_index", lv)
     return co.reshape(-1, 3), ls.astype(np.int64), lt.astype(np.int64), lv.astype(np.int64)
+
+
+def near_light_finer(longest, centre, normal, cones, spacing, both=False):
+    """(F,) int64 FINER of faces close to a light: for each point or spot light of `cones`
+    (lights_in.light_edges': position, direction, cos of the half angle; a sun's cos is above 1, an
+    area light's 0: left out) before a face (the light on its front, both: on either side, a
+    Solidify's two shells sharing its FINER; a spot's cone, widened by the face's half size seen
+    from the light, holding its centre) the fewest levels finer, at most CLUTTER_LEVELS, whose pieces
+    (longest / 2^level at `spacing`, levels) are at most NEAR_LIGHT x the distance from the face's
+    centre to the light. longest (F,) (face_edges'), centre (F, 3), unit normal (F, 3): world."""
+    out = np.zeros(len(longest), np.int64)
+    if spacing <= 0 or not len(longest):
+        return out
+    piece = np.stack([longest / 2.0 ** levels(longest, spacing, k) for k in range(CLUTTER_LEVELS + 1)], 1)
+    for q in np.asarray(cones, np.float64).reshape(-1, 7):
+        if q[6] > 1 or q[6] == 0:  # (a sun; an area light's half space: its size, not 1 / d^2, near it;
+            continue  # not measured. A spot's cos is never 0: cos(pi / 2) is 6e-17)
+        v = q[:3] - centre
+        dist = np.maximum(np.linalg.norm(v, axis=1), 1e-30)
+        h = (v * normal).sum(1)
+        lit = (np.abs(h) if both else h) > 0
+        if q[6] > -1:  # (a spot's cone: the face's centre seen within it)
+            off = np.arccos(np.clip(-(v @ q[3:6]) / dist, -1, 1))
+            lit &= off <= np.arccos(q[6]) + np.arcsin(np.minimum(0.5 * longest / dist, 1))
+        ok = piece <= NEAR_LIGHT * dist[:, None]
+        k = np.where(ok.any(1), np.argmax(ok, 1), CLUTTER_LEVELS)
+        out = np.maximum(out, np.where(lit, k, 0))
+    return out
+
+
+def _near_lights(objects, depsgraph, spacing, cones):
+    """({name: (P,) int8 FINER of its mesh's faces}, corners added): near_light_finer on the mesh's own
+    faces of each of `objects` (one object each: FINER is the mesh's; a modifier's result keeps its
+    source face's FINER: Solidify's shells both, a Mirror's or an Array's copies their source's,
+    measured where the source is), those faces a light is close to. The corners
+    added: the evaluated mesh's at `spacing` (an object whose modifiers change its faces: its own
+    faces' count x evaluated / own corners)."""
+    lights = np.asarray(cones, np.float64).reshape(-1, 7)
+    lights = lights[(lights[:, 6] <= 1) & (lights[:, 6] != 0)]
+    fine, added = {}, 0
+    if spacing <= 0 or not len(lights):
+        return fine, added
+    for o in objects:
+        me = o.data
+        if not len(me.polygons):
+            continue
+        M = np.array(o.matrix_world, np.float64)
+        box = np.array(o.bound_box, np.float64) @ M[:3, :3].T + M[:3, 3]
+        lo, hi = box.min(0), box.max(0)
+        # (a light farther from the box than its diagonal / NEAR_LIGHT: no face's piece is longer)
+        gap = np.linalg.norm(np.maximum(np.maximum(lo - lights[:, :3], lights[:, :3] - hi), 0), axis=1)
+        if (gap * NEAR_LIGHT > np.linalg.norm(hi - lo)).all():
+            continue
+        longest, cnt = face_edges(o, depsgraph, me)
+        co, start, total, lv = mesh_topology(me)
+        co = co @ M[:3, :3].T + M[:3, 3]
+        face = np.repeat(np.arange(len(start)), total)
+        loop = np.repeat(start, total) + np.arange(len(face)) - np.repeat(np.cumsum(total) - total, total)
+        centre = np.zeros((len(start), 3))
+        np.add.at(centre, face, co[lv[loop]])
+        centre /= total[:, None]
+        nrm = np.empty(len(me.polygons) * 3, np.float32)
+        me.polygons.foreach_get("normal", nrm)
+        nrm = nrm.reshape(-1, 3) @ np.linalg.pinv(M[:3, :3])  # (a scale 0: no face, no light)
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-30)[:, None]
+        k = near_light_finer(longest, centre, nrm, lights, spacing, both=_changes_topology(o, depsgraph))
+        if not k.any():
+            continue
+        fine[o.name] = k.astype(np.int8)
+        more = int((cnt << (2 * levels(longest, spacing, k))).sum()) - corners_at(longest, cnt, spacing)
+        added += more * len(o.evaluated_get(depsgraph).data.loops) // max(len(me.loops), 1)
+    return fine, added
 
 
 def _world_faces(obj, depsgraph):
@@ -1016,7 +1096,9 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outline
     log: callable(str) taking the spacing's note (the objects subdivided) and the budget's line
     instead of the notes: log lines, not warnings (the spacing is the default; they ask nothing
     of the user). outlines, cones: the light shapes' rings and the spot lights' cones over the
-    scene's frames (lights_in.light_edges): the faces they cross are finer too (_cluttered)."""
+    scene's frames (lights_in.light_edges): the faces they cross are finer too (_cluttered), and
+    faces close to a point or spot light, if the budget has room (near_light_finer: FINER on the
+    mesh's own faces, which reaches an object whose modifiers change its faces too)."""
     users = {}
     for o in objects:
         users[o.data.name_full] = users.get(o.data.name_full, 0) + 1
@@ -1040,8 +1122,20 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outline
     for name in fine:
         coarse[name] = True
     raised = {n: s for n, s in changed.items() if s is None or s > spacing}
+    # faces close to a light (near_light_finer), if the budget left `spacing` as it was and has room
+    near, more = {}, 0
+    if not changed and len(cones):
+        single_ = [o for o in own if users[o.data.name_full] == 1]
+        near, more = _near_lights(single_, depsgraph, spacing, cones)
+        have = counts or (sum(len(o.evaluated_get(depsgraph).data.loops) for o in objects),) * 3
+        if near and have[2] + more > budget(have[0]):
+            near = {}
+    lit_fine = dict(fine)
+    for name, k in near.items():
+        lit_fine[name] = k if name not in fine else np.maximum(fine[name], k)
+        coarse[name] = True
     for obj in own:
-        _set_finer(obj.data, fine.get(obj.name))
+        _set_finer(obj.data, lit_fine.get(obj.name))
     made, finer, kept = [], [], []
     for obj in own:
         finer_faces = coarse[obj.name]
@@ -1060,6 +1154,8 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outline
     notes = []
     if fine:
         (notes.append if log is None else log)(clutter_line(fine, clutter, spacing))
+    if near:
+        (notes.append if log is None else log)(near_light_line(near, spacing, more))
     if raised:
         line = budget_line(raised, spacing, counts)
         if log is None:
@@ -1144,6 +1240,17 @@ def clutter_line(fine, clutter, spacing):
         f"their faces or a light's edge across them ({shown}{', ...' if len(by) > 8 else ''}): those "
         f"faces cut to "
         f"{spacing / 2**CLUTTER_LEVELS:g} m (their light changes across them)."
+    )
+
+
+def near_light_line(near, spacing, more):
+    """The log line naming the objects whose faces are finer for a light close to them (_near_lights)."""
+    by = sorted(near, key=lambda n: (-int((near[n] > 0).sum()), n))
+    shown = ", ".join(f"{n!r} {int((near[n] > 0).sum())} faces" for n in by[:8])
+    return (
+        f"Vertex Spacing {spacing:g}: {len(near)} object(s) with faces close to a light ({shown}"
+        f"{', ...' if len(by) > 8 else ''}): those faces cut into pieces at most {NEAR_LIGHT:g} x their "
+        f"distance from it (its light falls off across them), at most {more:,} corners more."
     )
 
 
