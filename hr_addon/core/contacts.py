@@ -453,7 +453,8 @@ class Contacts(SlotMouths):
         # bounds read per table entry (contiguous by part): the same pairs, x0.7 of the CPU of
         # two passes gathering chain_lo[chain, axis] (session 37)
         qx, qy = px[a].take(pr), py[a].take(pr)
-        keep = np.flatnonzero((x0.take(k) <= qx) & (x1.take(k) >= qx) & (y0.take(k) <= qy) & (y1.take(k) >= qy))
+        keep = (x0.take(k) <= qx) & (x1.take(k) >= qx) & (y0.take(k) <= qy) & (y1.take(k) >= qy)
+        keep = np.flatnonzero(keep)
         i, ch = a[pr[keep]], chains[k[keep]]
         rest = np.flatnonzero(~inb)
         if len(rest):
