@@ -471,10 +471,11 @@ def test_fine_leaves_samples_trace_their_share_of_the_rays(monkeypatch):
 
 
 def test_fine_leaves_from_hit_counts_equal_the_weights_sums():
-    """FinalGather._fine_leaves on a probe's rows (hit counts, uint8, over a power of two of rays:
-    each row's (leaf, count) pairs sorted within the row, session 37, pre37) finds the leaves the
-    per (row, leaf) sums of the float weights find, and so does its float32 path (the same rows
-    with float weights): the Cornell box's HR leaves, 2 x 2 probe samples each, 16 rays."""
+    """FinalGather._fine_leaves on a probe's rows (hit counts, uint8, over a power of two of rays)
+    finds the leaves the per (row, leaf) sums of the float weights find, and so it does from the
+    same rows with float32 weights (session 37, pre37: the oracle a faster form was checked
+    against; that form was slower, not kept): the Cornell box's HR leaves, 2 x 2 probe samples
+    each, 16 rays."""
     import copy
 
     s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
@@ -497,7 +498,7 @@ def test_fine_leaves_from_hit_counts_equal_the_weights_sums():
     u, inv = np.unique(row[near] * m + p.cols[near] % m, return_inverse=True)
     sums = np.bincount(inv.ravel(), p.entry_weights()[near].astype(np.float64))
     f = copy.copy(p)
-    f.w = p.entry_weights()  # (float32: the sorted keys' path)
+    f.w = p.entry_weights()  # (float32 weights)
     for share in (0.0625, 0.125, 0.25, 0.5):
         want = np.unique(u[sums >= share] % m)
         assert 0 < len(want) < len(leaves)

@@ -776,31 +776,18 @@ class FinalGather(DirectLight):
         """HR leaves on which one sample's near hits (traced columns, before _remap_near) carry
         `share` of its rays."""
         m, ip = self.n_hr, self.indptr
-        # hit counts (uint8) over one power of two of rays (the probe's rows): a (row, leaf)'s
-        # count with its leaf in one int32 (leaf 256 + count) sorted within its row
-        # (_row_sorted), not a stable argsort of all keys; the sums count / rays are the float
-        # weights' sums bit for bit (both exact), so the same leaves
-        rr = self.row_rays
-        counts = self.w.dtype == np.uint8 and not np.ndim(rr) and m * 256 < _SENTINEL
 
         def rows(r0, r1):  # each row's sums its own: by blocks of rows on threads
-            c = self.cols[ip[r0] : ip[r1]]
+            c, w = self.cols[ip[r0] : ip[r1]], self.entry_weights(ip[r0], ip[r1])
             j = np.flatnonzero(c >= m)
-            row = np.repeat(np.arange(r1 - r0), np.diff(ip[r0 : r1 + 1]))[j]
-            if counts:
-                key = _row_sorted(
-                    row, (c[j] % m).astype(np.int32) * 256 + self.w[ip[r0] : ip[r1]][j], r1 - r0, m * 256
-                )
-                w = (key & 255) / rr
-                key >>= 8  # row m + leaf
-            else:
-                key = row * m + c[j] % m
-                # a (row, leaf)'s weights summed in entry order (a stable sort of the keys, already
-                # by row: 4x faster than np.unique's inverse, the same sums)
-                o = np.argsort(key, kind="stable")
-                key, w = key[o], self.entry_weights(ip[r0], ip[r1])[j][o]
+            row = np.repeat(np.arange(r0, r1), np.diff(ip[r0 : r1 + 1]))[j]
+            key = row * m + c[j] % m
+            # a (row, leaf)'s weights summed in entry order (a stable sort of the keys, already
+            # by row: 4x faster than np.unique's inverse, the same sums)
+            o = np.argsort(key, kind="stable")
+            key = key[o]
             new = np.r_[True, key[1:] != key[:-1]] if len(key) else np.zeros(0, bool)
-            got = np.bincount(np.cumsum(new) - 1, w, int(new.sum()))
+            got = np.bincount(np.cumsum(new) - 1, w[j][o], int(new.sum()))
             return np.unique(key[new][got >= max(share, 1e-30)] % m)
 
         parts = batch_map(rows, _row_blocks(ip, self.ENTRY_BATCH), self.threads)
