@@ -334,3 +334,24 @@ def test_leaf_boxes_give_the_covered_test_the_same_pairs_as_the_grid():
     blo, bhi = boxes[1][2][np.maximum(rows[0], 0)], boxes[1][3][np.maximum(rows[0], 0)]
     inside = (rows[0] >= 0) & ((p2 >= blo) & (p2 < bhi)).all(1)
     assert 0.2 < inside.mean() < 0.8
+
+
+def test_patch_boxes_give_the_covered_pairs_the_same_pairs_as_the_grid():
+    """Contacts.covered_pairs(..., boxes=) with Contacts.patch_boxes' table (session 37, pre37:
+    layouts.slot_split's test points, each searching its candidate patch's chains by part, not the
+    grid's cells): the same flags and (point, chain) pairs in the same order as the grid's, with
+    the patches' own boxes and with finer faces' (the middle of each patch: the points beyond it
+    fall back to the grid, as do rows -1): the 2k furnished room's receivers, 12 x 12 points each."""
+    c, pts, patch = receiver_points()
+    rec, row = np.unique(patch, return_inverse=True)
+    want = c.covered_pairs(pts, patch)
+    assert want[0].mean() > 0.05 and len(want[1][0]) > 1000
+    corners, nv = c.patches.corners[rec], c.patches.nv[rec]
+    mid = corners.mean(1, keepdims=True)
+    for table in (c.patch_boxes(rec), c.patch_boxes(rec, (mid + 0.5 * (corners - mid), nv))):
+        rows = row.ravel().copy()
+        rows[::7] = -1  # (some points without a row: the grid's)
+        got = c.covered_pairs(pts, patch, chunk=5000, boxes=(rows, table))
+        np.testing.assert_array_equal(got[0], want[0])
+        for a, b in zip(got[1], want[1]):
+            np.testing.assert_array_equal(a, b)

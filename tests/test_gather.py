@@ -470,6 +470,42 @@ def test_fine_leaves_samples_trace_their_share_of_the_rays(monkeypatch):
     assert np.allclose(hits, np.round(hits)) and (hits <= 8).all() and hits.mean() > 4
 
 
+def test_fine_leaves_from_hit_counts_equal_the_weights_sums():
+    """FinalGather._fine_leaves on a probe's rows (hit counts, uint8, over a power of two of rays)
+    finds the leaves the per (row, leaf) sums of the float weights find, and so it does from the
+    same rows with float32 weights (session 37, pre37: the oracle a faster form was checked
+    against; that form was slower, not kept): the Cornell box's HR leaves, 2 x 2 probe samples
+    each, 16 rays."""
+    import copy
+
+    s = RadiositySystem(scenes.cornell_box(), RefineParams.preset("draft"))
+    dyn = DynamicRadiosity(s, method="FE")
+    h, m = s.h, dyn.n_hr
+    c0 = h.child0[:m]
+    leaves = np.flatnonzero((c0 < 0) | (c0 >= m))
+    x = ff.quadrature(h.corners[leaves], h.nv[leaves], 2)[0].reshape(-1, 3)
+    p = FinalGather(
+        dyn,
+        x,
+        np.repeat(h.normal[leaves], 4, 0),
+        np.repeat(h.patch[leaves], 4),
+        rays=16,
+        near_layout=(None, None),
+    )
+    assert p.w.dtype == np.uint8 and p.near_points and (p.cols >= m).mean() > 0.5
+    row = np.repeat(np.arange(p.n), np.diff(p.indptr))
+    near = p.cols >= m
+    u, inv = np.unique(row[near] * m + p.cols[near] % m, return_inverse=True)
+    sums = np.bincount(inv.ravel(), p.entry_weights()[near].astype(np.float64))
+    f = copy.copy(p)
+    f.w = p.entry_weights()  # (float32 weights)
+    for share in (0.0625, 0.125, 0.25, 0.5):
+        want = np.unique(u[sums >= share] % m)
+        assert 0 < len(want) < len(leaves)
+        np.testing.assert_array_equal(p._fine_leaves(share), want)
+        np.testing.assert_array_equal(f._fine_leaves(share), want)
+
+
 def test_near_points_only_on_fine_leaves_keep_every_row_and_column_sum(monkeypatch):
     """final.NEAR_FINE_ONLY (docs/scale.md, session 27): the probe is traced first, and hits on
     leaves that are not fine compute no nearest point (they read their leaf, as _remap_near maps

@@ -527,10 +527,18 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None, layout=None):
                 cand,
                 np.where((lp.nv[cand] == 4)[:, None], lp.corners[cand].mean(1), lp.corners[cand, :3].mean(1)),
             )
-            cand = cand[con.may_slot(home, lp.corners[cand])]
+            ok = con.may_slot(home, lp.corners[cand])
+            cand, home = cand[ok], home[ok]
+    # the candidates' chains by part of their boxes, once for every batch: their test points search
+    # those, not the grid's cells (Contacts.patch_boxes: the same pairs)
+    boxes = None
+    if len(cand):
+        lp = layout.patches
+        home, faces = (cand, None) if own else (home, (lp.corners[cand], lp.nv[cand]))
+        boxes = (home, con.patch_boxes(home, faces))
     threads = system.backend.threads
     parts = batch_map(
-        lambda i, j: _split_part(system, cand[i:j], grid, n, layout),
+        lambda i, j: _split_part(system, cand[i:j], grid, n, layout, boxes and (i, *boxes)),
         ranges(len(cand), SPLIT_BATCH),
         0 if threads is None else threads,
     )
@@ -549,11 +557,11 @@ def slot_split(system, skip=None, grid=SLOT_GRID, n=None, layout=None):
     )
 
 
-def _split_part(system, cand, grid, n, layout):
+def _split_part(system, cand, grid, n, layout, boxes=None):
     """slot_split for patches `cand` (each patch's samples its own: a batch of them): (open samples'
     points, their patches, weights, slot samples' points, their patches, weights, their area's
     points, their chains and transport patches, the split patches, their interpolants' mean) or None
-    if none is split."""
+    if none is split. boxes: (cand[0]'s row, the table's patches, Contacts.patch_boxes' table)."""
     pt, con = layout.patches, system.h.contacts
     if not len(cand):
         return None
@@ -564,7 +572,12 @@ def _split_part(system, cand, grid, n, layout):
     cls = np.zeros(len(gp), np.int64)  # 0 open, 1 in a slot, 2 covered without a gap
     depth, mouth, chain = np.zeros(len(gp)), np.full(len(gp), -1, np.int64), np.full(len(gp), -1, np.int64)
     K = len(cand)
-    cov, pairs = con.covered_pairs(gp, tr)  # (inline: this is a batch; its pairs for slots())
+    if boxes is not None:  # a point on its row's plane and piece searches that row's chains
+        r = boxes[0] + row
+        bp = boxes[1][r]
+        r[(con.plane[tr] != con.plane[bp]) | (con.piece[tr] != con.piece[bp])] = -1
+        boxes = (r, boxes[2])
+    cov, pairs = con.covered_pairs(gp, tr, boxes=boxes)  # (inline: this is a batch; its pairs for slots())
     cls[cov] = 2
     # which covered points lie in a slot: on the patches with an open point only (the others are
     # never split)
