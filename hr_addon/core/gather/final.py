@@ -1496,7 +1496,8 @@ class FinalGather(DirectLight):
     # SEIDEL_TAIL_SHARE 0.05 (one read fewer: a sweep step x0.75-0.93 at draft) the furnished 100k
     # room's FE window stops 0.044% (median) / 0.31% (p95) / 1.87% (worst) per object from the passes'
     # limit, bias +0.012-0.014%, where the room's ratio alone leaves 0.070 / 0.29 / 1.85%, bias +0.052%
-    # (main's 5 passes: 0.015 / 0.13 / 0.77%, -0.002%; docs/events.md, session 37, branch ev37)
+    # (main's 5 passes: 0.015 / 0.13 / 0.77%, -0.002%; with this at 5 passes 0.015 / 0.15 / 0.82%,
+    # -0.013%: it is for the 4 passes; docs/events.md, session 37, branch ev37)
     SEIDEL_TAIL_LOCAL = False
     SEIDEL_STEP = 1 << 18  # weights per batch of a block's rows on threads (fixed: the same values)
 
