@@ -16,6 +16,9 @@ still, its light by shadow rays); --still for that.
     .venv/bin/python benchmarks/event_stages.py STORE [--methods FE,AUTO] [--sweep 1] \\
         [--dyn "dict(gather_responses='tail')"] [--dump out.npz] [--profile out.txt] [--json out.json]
 
+--gather "dict(SEIDEL_MIN_PASSES=4, SEIDEL_TAIL_SHARE=0.05)" sets FinalGather's class settings first (an
+A/B of a knob from one tree; session 37, ev37).
+
 Medium (a store built with --quality medium): --dyn "DynamicRadiosity.gather_options('medium')"
 (its options replace the draft's; the store carries the gather's own rays and shadow rays).
 
@@ -69,6 +72,7 @@ def main(argv=None):
     ap.add_argument("--limit", type=float, default=1e-4, help="--tail-shares: the reference's share")
     ap.add_argument("--limit-passes", type=int, default=16, help="--tail-shares: its passes at most")
     ap.add_argument("--warm", type=float, default=None, help="FinalGather.WARM_TOL (module doc)")
+    ap.add_argument("--gather", default="dict()", help="FinalGather settings: dict(SEIDEL_MIN_PASSES=4)")
     ap.add_argument("--json", default=None, help="the steps' figures and stages (or --tail-shares' results)")
     ap.add_argument("--dump", default=None, help="npz of the gathered output after each event")
     ap.add_argument("--profile", default=None, help="a cProfile summary of the events here")
@@ -90,6 +94,8 @@ def main(argv=None):
     cpu = time.process_time
     if args.warm is not None:
         FinalGather.WARM_TOL = args.warm
+    for k, v in eval(args.gather).items():
+        setattr(FinalGather, k, v)
     s, g, window = stored_room(args.store)
     if not args.still:  # a keyed sweep's window moves: the product reads the host visibility for it
         window = functools.partial(_moving, window)
