@@ -8,7 +8,6 @@ threads' malloc arenas (64 MB aligned), file-backed pages, other anonymous) and 
 Use a copy of the .blend: the scene read gives its objects helpers (in memory only; never saved)."""
 
 import collections
-import ctypes
 import gc
 import re
 import sys
@@ -16,17 +15,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-_libc = ctypes.CDLL("libc.so.6")
-
-
-class _Mallinfo2(ctypes.Structure):
-    _fields_ = [
-        (n, ctypes.c_size_t)
-        for n in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()
-    ]
-
-
-_libc.mallinfo2.restype = _Mallinfo2
+from heapinfo import mallinfo  # noqa: E402
 
 
 def by_mapping():
@@ -45,7 +34,7 @@ def by_mapping():
 
 
 def mark(what):
-    c, mi = by_mapping(), _libc.mallinfo2()
+    c, mi = by_mapping(), mallinfo()
     print(
         f"{what:<34} rss={sum(c.values()):.3f} heap={c['[heap]']:.3f} arenas={c['arenas']:.3f} "
         f"file={c['file']:.3f} anon={c['[anon]']:.3f} | in_use={mi.uordblks / 1e9:.3f} "

@@ -8,7 +8,6 @@ is dropped again (what is left is Blender's: helpers, modifiers' evaluated meshe
 
 Use a copy of the .blend: --snapshot gives its objects helpers (in memory only; never saved)."""
 
-import ctypes
 import gc
 import resource
 import sys
@@ -17,26 +16,15 @@ import tracemalloc
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from heapinfo import mallinfo, rss_gb  # noqa: E402
+
 BLEND = sys.argv[1]
 if "--trace" in sys.argv:
     tracemalloc.start()
-_libc = ctypes.CDLL("libc.so.6")
-
-
-class _Mallinfo2(ctypes.Structure):
-    _fields_ = [
-        (n, ctypes.c_size_t)
-        for n in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()
-    ]
-
-
-_libc.mallinfo2.restype = _Mallinfo2
 
 
 def mark(what):
-    with open("/proc/self/status") as f:
-        rss = next(int(x.split()[1]) for x in f if x.startswith("VmRSS")) / 1e6
-    mi = _libc.mallinfo2()
+    rss, mi = rss_gb(), mallinfo()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     traced = f" traced={tracemalloc.get_traced_memory()[0] / 1e9:.3f}" if tracemalloc.is_tracing() else ""
     print(

@@ -9,7 +9,6 @@ with --trace tracemalloc's current and peak since the previous mark (numpy's arr
 
 The .blend: bench_bpy_frames.py --make's (one copy per run: the bake writes its cache beside it)."""
 
-import ctypes
 import json
 import resource
 import sys
@@ -18,37 +17,19 @@ import tracemalloc
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from heapinfo import mallinfo, rss_gb  # noqa: E402
+
 OUT = sys.argv[1]
 TRACE = "--trace" in sys.argv[2 : sys.argv.index("--")]
 ARGS = sys.argv[sys.argv.index("--") + 1 :]
 marks = []
 
 
-class _Mallinfo2(ctypes.Structure):
-    _fields_ = [
-        (n, ctypes.c_size_t)
-        for n in "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()
-    ]
-
-
-try:
-    _libc = ctypes.CDLL("libc.so.6")
-    _libc.mallinfo2.restype = _Mallinfo2
-except (OSError, AttributeError):
-    _libc = None
-
-
-def _rss():
-    with open("/proc/self/status") as f:
-        return next(int(x.split()[1]) for x in f if x.startswith("VmRSS")) / 1e6
-
-
 def mark(what):
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
     m = dict(at=what, cpu_s=round(time.process_time(), 2), peak_gb=peak)
-    m["rss_gb"] = _rss()
-    if _libc is not None:
-        mi = _libc.mallinfo2()
+    m["rss_gb"] = rss_gb()
+    if (mi := mallinfo()) is not None:
         m.update(heap_used_gb=mi.uordblks / 1e9, heap_free_gb=mi.fordblks / 1e9, mmap_gb=mi.hblkhd / 1e9)
     if tracemalloc.is_tracing():
         cur, peak = tracemalloc.get_traced_memory()
