@@ -682,9 +682,7 @@ def near_light_finer(longest, centre, normal, cones, spacing, both=False):
     if spacing <= 0 or not len(longest):
         return out
     piece = np.stack([longest / 2.0 ** levels(longest, spacing, k) for k in range(CLUTTER_LEVELS + 1)], 1)
-    for q in np.asarray(cones, np.float64).reshape(-1, 7):
-        if q[6] > 1 or q[6] == 0:  # (a sun; an area light's half space: its size, not 1 / d^2, near it;
-            continue  # not measured. A spot's cos is never 0: cos(pi / 2) is 6e-17)
+    for q in _point_cones(cones):
         v = q[:3] - centre
         dist = np.maximum(np.linalg.norm(v, axis=1), 1e-30)
         h = (v * normal).sum(1)
@@ -698,6 +696,14 @@ def near_light_finer(longest, centre, normal, cones, spacing, both=False):
     return out
 
 
+def _point_cones(cones):
+    """The point and spot lights' rows of light_edges' cones (a sun's cos is above 1; an area light's
+    half space, 0: its size, not 1 / d^2, sets its light near it; not measured. A spot's cos is
+    never 0: cos(pi / 2) is 6e-17)."""
+    c = np.asarray(cones, np.float64).reshape(-1, 7)
+    return c[(c[:, 6] <= 1) & (c[:, 6] != 0)]
+
+
 def _near_lights(objects, depsgraph, spacing, cones):
     """({name: (P,) int8 FINER of its mesh's faces}, corners added): near_light_finer on the mesh's own
     faces of each of `objects` (one object each: FINER is the mesh's; a modifier's result keeps its
@@ -705,8 +711,7 @@ def _near_lights(objects, depsgraph, spacing, cones):
     measured where the source is), those faces a light is close to. The corners
     added: the evaluated mesh's at `spacing` (an object whose modifiers change its faces: its own
     faces' count x evaluated / own corners)."""
-    lights = np.asarray(cones, np.float64).reshape(-1, 7)
-    lights = lights[(lights[:, 6] <= 1) & (lights[:, 6] != 0)]
+    lights = _point_cones(cones)
     fine, added = {}, 0
     if spacing <= 0 or not len(lights):
         return fine, added
@@ -1111,9 +1116,10 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outline
     if reset:
         depsgraph.update()
     coarse = {o.name: has_coarse_edges(o, spacing, depsgraph) for o in own}
-    # (a face attribute of the mesh: not for a mesh several objects share, nor one whose modifiers
-    # change its faces)
-    single = [o for o in own if users[o.data.name_full] == 1 and not _changes_topology(o, depsgraph)]
+    # (a face attribute of the mesh: not for a mesh several objects share, nor, for clutter, one
+    # whose modifiers change its faces; near lights' FINER reaches those through their source faces)
+    one_user = [o for o in own if users[o.data.name_full] == 1]
+    single = [o for o in one_user if not _changes_topology(o, depsgraph)]
     clutter = _cluttered(objects, single, spacing, depsgraph, outlines, cones)
     finer_ = [o for o in own if coarse[o.name] or o.name in clutter]
     changed, counts, fine = corner_budget(objects, finer_, spacing, depsgraph, clutter=clutter)
@@ -1125,8 +1131,7 @@ def ensure_own_values(objects, domain, depsgraph, spacing=0.0, log=None, outline
     # faces close to a light (near_light_finer), if the budget left `spacing` as it was and has room
     near, more = {}, 0
     if not changed and len(cones):
-        single_ = [o for o in own if users[o.data.name_full] == 1]
-        near, more = _near_lights(single_, depsgraph, spacing, cones)
+        near, more = _near_lights(one_user, depsgraph, spacing, cones)
         have = counts or (sum(len(o.evaluated_get(depsgraph).data.loops) for o in objects),) * 3
         if near and have[2] + more > budget(have[0]):
             near = {}
