@@ -231,6 +231,8 @@ TERMS_CHUNK = 8192
 # pairs per batch of the oracle and the shadow tests on threads (core.parallel): fixed, so the links
 # do not depend on the thread count (up to 4x as many pairs per batch in large maps: parallel.spans)
 PAIR_BATCH = 1 << 13
+# pairs per batch of the levels' oracle (_cluster_levels, grown up to 4x in large levels as PAIR_BATCH)
+LEVEL_BATCH = 1 << 15
 # benchmarks/far_vis_check.py --all-links: keep the far links traced wholly occluded (they carry no
 # transfer: mask or scale 0), so that every far link's traced visibility can be set against a dense one
 KEEP_OCCLUDED = False
@@ -362,7 +364,7 @@ def _cluster_levels(refiner, tree, table, lit, progress=None):
             table.update()  # the nodes subdivided by the last map (here, between maps; its rows on threads)
             parts = batch_map(
                 lambda i, j: _level_batch(refiner, tree, x[i:j], y[i:j], table, lit),
-                spans(len(x), PAIR_BATCH),
+                spans(len(x), LEVEL_BATCH),
                 refiner.threads,
             )
             found, w, splits = zip(*parts)

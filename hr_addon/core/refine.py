@@ -41,6 +41,12 @@ LEVEL_PAIRS = 1 << 18
 # the values do not depend on the thread count; small enough that a 10k-triangle room has many (up
 # to 4x as many links per batch in large maps: parallel.spans)
 LINK_BATCH = 1 << 13
+# pairs per batch of the refinement rounds' oracle and nodes per batch of the exposed-part form
+# factors (grown up to 4x in large maps, as LINK_BATCH): many numpy calls on each batch's arrays
+# that hold the GIL for their set-up, so on two threads each call can hand the GIL over (a futex
+# wake, a switch: docs/threads.md, session 38); larger batches make fewer calls per pair
+ORACLE_BATCH = 1 << 15
+EXPOSED_BATCH = LINK_BATCH
 # patch links' visibility from the segments that leave both points in front (visibility())
 FRONT_ONLY = True
 # patch links that neither end can split (area <= aeps) and whose form factor is above shadow_feps
@@ -415,7 +421,7 @@ class Refiner:
         batch_map(fill, groups, self.threads)
         return fp, seen
 
-    def _exposed_form_factors(self, a, b, f_ab, f_ba, chunk=LINK_BATCH):
+    def _exposed_form_factors(self, a, b, f_ab, f_ba, chunk=None):
         """Links with a partly covered end: F integrated over that end's exposed part (its
         covered part sees nothing; a box's side, say, is behind it), the other direction by
         reciprocity, so the kernel stays symmetric (in place)."""
@@ -446,7 +452,7 @@ class Refiner:
                 else:
                     f_ba[mm], f_ab[mm] = fx, fy
 
-            batch_map(batch, spans(len(m), chunk), self.threads)
+            batch_map(batch, spans(len(m), chunk or EXPOSED_BATCH), self.threads)
 
     def _exposed_ff(self, k, x, y):
         """F from the exposed part of partly covered nodes x (k: their index in _vis_nodes) to
@@ -533,7 +539,7 @@ class Refiner:
                 # the oracle by batches of pairs on threads (each pair on its own), then the splits
                 parts = batch_map(
                     lambda i, j: self._oracle(x[i:j], y[i:j], k[i:j], good_enough, aeps, tol),
-                    spans(len(x), LINK_BATCH),
+                    spans(len(x), ORACLE_BATCH),
                     self.threads,
                 )
                 x, y, vis, link, split_p, split_q = (np.concatenate(c) for c in zip(*parts))
