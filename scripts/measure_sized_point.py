@@ -6,7 +6,7 @@ spot's cone by its shadow rays) averaged over SUB x SUB points of each pixel. Pi
 by r / d and the angle theta between the plane's normal and the direction to the light's centre.
 h < r puts a soft-falloff disc across the plane's horizon (grazing theta) and a sphere through it.
 
-Run: .venv/bin/python scripts/measure_sized_point.py [samples] [--code DIR] (DIR: another
+Run: .venv/bin/python scripts/measure_sized_point.py [samples [label part]] [--code DIR] (DIR: another
 checkout's hr_addon for a before / after pair, default this one). Prints one MEASURE JSON line per
 light and bin."""
 
@@ -40,6 +40,7 @@ CASES = [
     ("sphere h=r/2", "POINT", 0.05, 0.025, False, 0, 0, 0.6),
     ("spot disc h=2r", "SPOT", 0.05, 0.10, True, 60, 0.3, 0.3),
     ("spot sphere h=2r", "SPOT", 0.05, 0.10, False, 60, 0.3, 0.3),
+    ("spot radius 0", "SPOT", 0.0, 0.10, True, 60, 0.3, 0.3),  # the cone's own profile, for the fringe
 ]
 
 
@@ -68,8 +69,10 @@ def ours(kind, r, h, soft, size, blend, ortho):
     return v, np.hypot(cx, cy)
 
 
-def main(samples):
+def main(samples, only=""):
     for label, kind, r, h, soft, size, blend, ortho in CASES:
+        if only not in label:
+            continue
         sc = M.scene(ortho=ortho, samples=samples)
         props = dict(energy=P, shadow_soft_size=r, use_soft_falloff=soft)
         if kind == "SPOT":
@@ -79,7 +82,9 @@ def main(samples):
         v, s = ours(kind, r, h, soft, size, blend, ortho)
         d = np.hypot(s, h)
         rd, th = r / d, np.degrees(np.arctan2(s, h))
-        edges = [0, 20, 45, 70, 80, 85, 88, 90]
+        edges = (
+            [0, 20, 45, 70, 80, 85, 88, 90] if kind == "POINT" else [0, 20, 25, 30, 35, 40, 45, 50, 55, 60]
+        )
         for a, b in zip(edges[:-1], edges[1:]):
             m = (th >= a) & (th < b) & (v > 0)
             if m.sum() < 8:
@@ -90,10 +95,13 @@ def main(samples):
                 r_over_d=[round(float(rd[m].min()), 3), round(float(rd[m].max()), 3)],
                 pixels=int(m.sum()),
                 cycles_over_ours=round(float(img[m].sum() / v[m].sum()), 4),
-                noise=round(float(np.std(img[m] / v[m]) / math.sqrt(m.sum())), 4),
+                # the pixels' scatter about the fitted ratio, as the ratio's standard error
+                noise=round(
+                    float(np.sqrt(((img[m] - img[m].sum() / v[m].sum() * v[m]) ** 2).sum()) / v[m].sum()), 4
+                ),
             )
             print("MEASURE " + json.dumps(out), flush=True)
 
 
 if __name__ == "__main__":
-    main(int(args[0]) if args else 256)
+    main(int(args[0]) if args else 256, args[1] if len(args) > 1 else "")

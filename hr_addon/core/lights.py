@@ -5,9 +5,11 @@ on the hierarchy's nodes (the seed's "irregular light source", handled by Dynami
 Units, each fitted against a Cycles render of a diffuse plane under the light
 (scripts/measure_light_units.py, docs/lights.md):
 - point and spot, power P watts: radiant intensity I = P / (4 pi) W/sr (measured 0.99984 x).
-  With a radius r and soft falloff (Blender's default) Cycles lights like a disk of radius r facing
-  the point: E = I cos / (d^2 + r^2) (measured at r = 0.5, d = 2: 0.9408 x I / d^2; the formula
-  gives 0.9412).
+  With a radius r Cycles emits radiance I / (pi r^2) from a disc of radius r facing the point with
+  soft falloff (Blender's default): E = I cos / (d^2 + r^2) (measured at r = 0.5, d = 2: 0.9408 x
+  I / d^2; the formula gives 0.9412), or from a sphere without it: E = I cos / d^2; either cut by
+  the point's horizon where it crosses it (sized_point_unit; within 0.2% of Cycles on a plane at
+  r / d 0.1-9 and grazing angles, scripts/measure_sized_point.py, session 38).
 - spot: the point light's intensity times smoothstep((cos a - cos(size / 2)) /
   ((1 - cos(size / 2)) blend)), a the angle off the spot's axis (size 60 deg, blend 0.5: within
   0.007 of the rendered profile once the pixels' footprint is averaged). Inside the cone it is not
@@ -293,7 +295,8 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
     """Unit direct light of `light` (per watt, or per W/m^2 for the sun) at surface points x (N, 3)
     with unit normals n, as irradiance / pi (the gather's "incident" unit), shadow rays through
     `backend` (visibility.RayBackend). rays: shadow rays per point for lights with a size (radius,
-    sun angle, area); a point light of radius 0 casts one. keys: per-point random keys
+    sun angle, area; a point or spot with a radius: _sized_incident); a point light of radius 0
+    casts one. keys: per-point random keys
     (gather.position_keys), default the point index. far: a sun's shadow ray length, beyond the
     scene but not far beyond it (ray backends' minimum hit distance is relative to the segment;
     default 1e4 x eps). portal: the sky's sky.EscapeMap ("auto": from these points' rays). -> (N,)
