@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from test_blender_helpers import attribute, load_bpy, shown
-from tests import closed_forms as cf
 
 from hr_addon.core.gather.layouts import OUTPUT_INSET
+from hr_addon.core.lights import Light, sized_point_unit
 
 pytestmark = pytest.mark.bpy
 
@@ -42,7 +42,8 @@ def _factory(tmp_path, world=False, spacing=0.0):
 def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
     """The factory scene (a 2 m cube, a 1000 W point light of radius 0.1, a grey World) baked to
     all 0.0; now the faces the light sees read rho (E / pi + L) with E from the point light's closed
-    form in Cycles' units (tests/closed_forms.py) and L the World's radiance (the cube is convex and
+    form in Cycles' units (lights.sized_point_unit: the +Y face, 5.5 mm below the light's centre,
+    lit by the part of its disc above the face's plane) and L the World's radiance (the cube is convex and
     alone: every direction above a face is open sky, E = pi L), the faces turned away rho L. At the
     default Vertex Spacing (0.25 m, session 23) with the final gather: at the corners of the cube's
     faces subdivided 8 x 8 (its evaluated mesh); without the gather the spacing is not used."""
@@ -64,7 +65,18 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
     v = v - rho * sky  # the World's part: exact with the final gather (every sky ray escapes)
     c = np.array(light.location)
     r, P = light.data.shadow_soft_size, light.data.energy
-    lit_faces, want, straddle = 0, {}, []
+    L = Light("POINT", (1, 1, 1), 1.0, position=c, radius=r, soft_falloff=light.data.use_soft_falloff)
+
+    def irradiance(x, nrm):
+        # Cycles' soft-falloff disc facing x (lights.sized_point_unit, = cf.point_light_irradiance
+        # while above the horizon), cut by the face's horizon: the factory +Y face, 5.5 mm below
+        # the light's centre, sees the part of the disc above its plane (the convex cube is not in
+        # its way); r / d < 0.03 elsewhere
+        d = c - x
+        dist = np.linalg.norm(d, axis=-1)
+        return np.pi * P * sized_point_unit(L, np.atleast_1d(dist), np.atleast_1d(d @ nrm / dist))
+
+    lit_faces, want, straddle = 0, {}, 0
     for poly in me.polygons:
         nrm = M[:3, :3] @ np.array(poly.normal)
         nrm /= np.linalg.norm(nrm)
@@ -75,32 +87,27 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
             assert np.abs(v[loops]).max() < 1e-6, poly.index
             continue
         lit_faces += 1
-        if (c - centre) @ nrm < 2 * r:
-            # the light's sphere straddles the face's plane (the factory +Y face: 5.5 mm below the
-            # light's centre): shadow rays to its disc see the part above the horizon only
-            straddle += loops
-            continue
+        straddle += (c - centre) @ nrm < r
         if final_gather:
             # each loop's sample lies OUTPUT_INSET of the way from its corner to the face's centre
             # (gather.loop_samples on the finer corners of the default Vertex Spacing)
             for li in loops:
                 p = M[:3, :3] @ np.array(me.vertices[me.loops[li].vertex_index].co) + M[:3, 3]
                 x = p + OUTPUT_INSET * (centre - p)
-                d = c - x
-                dist = np.linalg.norm(d)
-                E = cf.point_light_irradiance(P, dist, d @ nrm / dist, r)
-                # the radius as the soft-falloff disc: exact on the axis, off the axis the code
-                # keeps d^2 + r^2 with the centre's cosine (r / d < 0.03 here: <1e-3)
                 key = (me.loops[li].vertex_index, tuple(np.round(nrm, 6)))
-                want[li] = (key, rho * E / np.pi)
+                want[li] = (key, rho * irradiance(x, nrm)[0] / np.pi)
         else:
-            # leaf values: the face's mean (2 x 2 Gauss points per leaf), close to the centre's
-            d = c - centre
-            dist = np.linalg.norm(d)
-            E = cf.point_light_irradiance(P, dist, d @ nrm / dist, r)
+            # leaf values: the face's mean (2 x 2 Gauss points per leaf), against the face's mean
+            # of the closed form (40 x 40 points)
+            co = np.array([M[:3, :3] @ np.array(me.vertices[i].co) + M[:3, 3] for i in poly.vertices])
+            g = (np.arange(40) + 0.5) / 40
+            uu, vv = np.meshgrid(g, g)
+            a, b = co[1] - co[0], co[3] - co[0]
+            x = co[0] + uu.reshape(-1, 1) * a + vv.reshape(-1, 1) * b
+            E = irradiance(x, nrm).mean()
             assert v[loops].mean(0) == pytest.approx(rho * E / np.pi, rel=0.15), poly.index
     assert lit_faces == len(me.polygons) // 2  # +X, +Y, +Z
-    assert 1e-7 < v[straddle].max() and v[straddle].max() < 1e-3 * v.max()
+    assert straddle == len(me.polygons) // 6  # the +Y face's (its parts')
     # a vertex's loops in one plane (the subdivided faces') read the mean of their samples
     # (gather.loop_samples: the loops within the smooth angle averaged); across the cube's edges none
     groups = {}
@@ -108,7 +115,7 @@ def test_factory_scene_bakes_to_a_lit_cube(tmp_path, final_gather):
         groups.setdefault(key, []).append(x)
     for li, (key, _) in want.items():
         assert v[li] == pytest.approx(np.mean(groups[key], 0), rel=1e-3), li
-    assert len(want) == (3 - 1) * len(me.polygons) // 6 * 4 if final_gather else not want
+    assert len(want) == 3 * len(me.polygons) // 6 * 4 if final_gather else not want
 
 
 def test_unsupported_light_features_are_named(tmp_path):

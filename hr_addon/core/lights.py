@@ -5,9 +5,11 @@ on the hierarchy's nodes (the seed's "irregular light source", handled by Dynami
 Units, each fitted against a Cycles render of a diffuse plane under the light
 (scripts/measure_light_units.py, docs/lights.md):
 - point and spot, power P watts: radiant intensity I = P / (4 pi) W/sr (measured 0.99984 x).
-  With a radius r and soft falloff (Blender's default) Cycles lights like a disk of radius r facing
-  the point: E = I cos / (d^2 + r^2) (measured at r = 0.5, d = 2: 0.9408 x I / d^2; the formula
-  gives 0.9412).
+  With a radius r Cycles emits radiance I / (pi r^2) from a disc of radius r facing the point with
+  soft falloff (Blender's default): E = I cos / (d^2 + r^2) (measured at r = 0.5, d = 2: 0.9408 x
+  I / d^2; the formula gives 0.9412), or from a sphere without it: E = I cos / d^2; either cut by
+  the point's horizon where it crosses it (sized_point_unit; within 0.2% of Cycles on a plane at
+  r / d 0.1-9 and grazing angles, scripts/measure_sized_point.py, session 38).
 - spot: the point light's intensity times smoothstep((cos a - cos(size / 2)) /
   ((1 - cos(size / 2)) blend)), a the angle off the spot's axis (size 60 deg, blend 0.5: within
   0.007 of the rendered profile once the pixels' footprint is averaged). Inside the cone it is not
@@ -170,11 +172,131 @@ def _disk_points(c, axis, r, u):
     return c + (rr * np.cos(ph))[..., None] * t[:, None] + (rr * np.sin(ph))[..., None] * b[:, None]
 
 
+def spot_factor(light, ca):
+    """Cycles' spot cone at cos ca (N,) off the spot's axis: smoothstep((ca - cos(size / 2)) /
+    ((1 - cos(size / 2)) blend)), a step without blend."""
+    ch = np.cos(light.spot_size / 2)
+    if light.spot_blend > 0:
+        return smoothstep((ca - ch) / ((1 - ch) * light.spot_blend))
+    return ca > ch
+
+
+def disc_factor(t, cos):
+    """Form factor from surface points to a uniform disc facing them (its axis through the point),
+    of radius t x its distance, the point's normal at cos (N,) to the axis: clipped by the point's
+    horizon where the disc crosses it (|cot| < t). Lambert's contour integral: the arc above the
+    horizon, phi in (-pc, pc) about the normal's side, and the chord the horizon cuts it along
+    (subtending b). Unclipped: t^2 cos / (1 + t^2)."""
+    t = np.asarray(t, np.float64)
+    cos = np.clip(cos, -1.0, 1.0)
+    sin = np.sqrt(1.0 - cos * cos)
+    t2 = t * t
+    out = np.where(cos >= t * sin, t2 * np.maximum(cos, 0) / (1 + t2), 0.0)
+    cut = np.flatnonzero(np.abs(cos) < t * sin)
+    if len(cut):
+        tc, c, s = np.broadcast_to(t, cos.shape)[cut], cos[cut], sin[cut]
+        pc = np.arccos(np.clip(-c / (tc * s), -1.0, 1.0))
+        sp = np.sin(pc)
+        b = 2 * np.arcsin(np.minimum(tc * sp / np.sqrt(1 + tc * tc), 1.0))
+        out[cut] = (pc * tc * tc * c - tc * s * sp) / (np.pi * (1 + tc * tc)) + b / (2 * np.pi)
+    return out
+
+
+def sized_point_unit(light, d, cos):
+    """Unit incident light (irradiance / pi per watt) of a point or spot light of radius r > 0, no
+    spot cone, no shadow, at points at distance d (N,) from its centre, normals at cos to the
+    direction to it: Cycles' emitter of radiance I / (pi r^2) (scene/light.cpp: eval_fac
+    1 / (4 pi r^2 pi) per watt, both modes). Soft falloff (Blender's default; Cycles' is_sphere
+    false): a disc of radius r facing the point (kernel/light/point.h), I cos / (d^2 + r^2) above
+    the horizon. Without: a sphere, the cone of its outline a disc with t = r / sqrt(d^2 - r^2)
+    (I cos / d^2 above the horizon); inside it the whole hemisphere, I / (pi r^2)."""
+    r = float(light.radius)
+    d = np.maximum(d, 1e-300)
+    if light.soft_falloff:
+        F = disc_factor(np.minimum(r / d, 1e150), cos)
+    else:
+        out = d <= r
+        F = disc_factor(np.minimum(r / np.sqrt(np.maximum(d * d - r * r, 1e-300)), 1e150), cos)
+        F[out] = 1.0
+    return F * (POINT_INTENSITY / (np.pi * r * r))
+
+
+def _sized_incident(light, x, n, o, backend, rays, seed, keys, stream):
+    """unit_incident of a point or spot light of radius > 0: the closed form (sized_point_unit)
+    times a kernel-weighted visible share from `rays` shadow rays per point, each to a point of the
+    emitter Cycles samples: area-uniform on the facing disc (soft falloff), uniform in the cone
+    of directions to the sphere (else; cosine-weighted over the hemisphere inside it); a spot's
+    cone taken per ray's direction as Cycles does (not inside the sphere). One ray (rays <= 1): to
+    the centre, the cone at the centre's direction."""
+    from .gather.sampling import _frame, rotated_hammersley
+
+    d = light.position - x
+    dist = np.sqrt(np.maximum(np.einsum("ij,ij->i", d, d), 1e-300))
+    w = d / dist[:, None]
+    cos = np.einsum("ij,ij->i", w, n)
+    val = sized_point_unit(light, dist, cos)
+    spot = light.kind == "SPOT"
+    inside = (dist <= light.radius) & (not light.soft_falloff)
+    if spot:
+        ca = -(w @ light.direction)
+        if rays <= 1:
+            val *= np.where(inside, 1.0, spot_factor(light, ca))
+        else:  # cull the points no ray can reach: the cone widened by the emitter's angular radius
+            rim = np.arcsin(np.minimum(light.radius / dist, 1.0))
+            reach = np.cos(np.minimum(np.arccos(np.clip(ca, -1, 1)) - rim, np.pi)) > np.cos(
+                light.spot_size / 2
+            )
+            val *= reach | inside
+    lit = np.flatnonzero(val > 0)
+    if not len(lit):
+        return val
+    if rays <= 1:
+        val[lit] *= ~backend.occluded(o[lit], np.broadcast_to(light.position, (len(lit), 3)))
+        return val
+    u = rotated_hammersley(rays, seed, keys[lit], 2000 + stream)
+    wl, nl, xl = w[lit], n[lit], x[lit]
+    if light.soft_falloff:
+        y = _disk_points(light.position, wl, light.radius, u)
+        v = y - xl[:, None]
+        t2 = np.maximum(np.einsum("lsk,lsk->ls", v, v), 1e-300)
+        # cos at the point x cos at the disc / distance^2 (area-uniform points)
+        kern = np.maximum(np.einsum("lsk,lk->ls", v, nl), 0) * np.einsum("lsk,lk->ls", v, wl) / (t2 * t2)
+        dirs = v / np.sqrt(t2)[..., None]
+    else:
+        # directions uniform in the cone of the sphere's outline (or cosine-weighted over the
+        # hemisphere inside it), to the sphere's near (far, inside) surface
+        dl, r = dist[lit], float(light.radius)
+        ins = dl <= r
+        cmax = np.sqrt(np.maximum(1 - (r / dl) ** 2, 0.0))
+        axis = np.where(ins[:, None], nl, wl)
+        cz = np.where(
+            ins[:, None], np.sqrt(np.maximum(1 - u[..., 0], 0)), 1 - u[..., 0] * (1 - cmax[:, None])
+        )
+        sz = np.sqrt(np.maximum(1 - cz * cz, 0))
+        tt, bb = _frame(axis)
+        ph = 2 * np.pi * u[..., 1]
+        dirs = (sz * np.cos(ph))[..., None] * tt[:, None] + (sz * np.sin(ph))[..., None] * bb[:, None]
+        dirs = dirs + cz[..., None] * axis[:, None]
+        cw = np.einsum("lsk,lk->ls", dirs, wl) * dl[:, None]  # d cos to the centre
+        root = np.sqrt(np.maximum(r * r - dl[:, None] ** 2 + cw * cw, 0))
+        tlen = np.where(ins[:, None], cw + root, cw - root)
+        y = xl[:, None] + tlen[..., None] * dirs
+        kern = np.where(ins[:, None], 1.0, np.maximum(np.einsum("lsk,lk->ls", dirs, nl), 0))
+    share = kern * ~backend.occluded(np.broadcast_to(o[lit, None], y.shape), y)
+    if spot:
+        cone = spot_factor(light, -(dirs @ light.direction))
+        share = share * (np.where(inside[lit, None], 1.0, cone) if not light.soft_falloff else cone)
+    ks = kern.sum(1)
+    val[lit] *= np.where(ks > 0, share.sum(1) / np.where(ks > 0, ks, 1), 0.0)
+    return val
+
+
 def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0, far=None, portal="auto"):
     """Unit direct light of `light` (per watt, or per W/m^2 for the sun) at surface points x (N, 3)
     with unit normals n, as irradiance / pi (the gather's "incident" unit), shadow rays through
     `backend` (visibility.RayBackend). rays: shadow rays per point for lights with a size (radius,
-    sun angle, area); a point light of radius 0 casts one. keys: per-point random keys
+    sun angle, area; a point or spot with a radius: _sized_incident); a point light of radius 0
+    casts one. keys: per-point random keys
     (gather.position_keys), default the point index. far: a sun's shadow ray length, beyond the
     scene but not far beyond it (ray backends' minimum hit distance is relative to the segment;
     default 1e4 x eps). portal: the sky's sky.EscapeMap ("auto": from these points' rays). -> (N,)
@@ -194,30 +316,20 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
         far = float(far or 1e4 * eps)
         return sky_incident(light, x, n, backend, eps, rays * RAY_FACTOR, seed, keys, stream, far, portal)
     o = x + eps * n
+    if light.kind in ("POINT", "SPOT") and light.radius > 0:
+        return _sized_incident(light, x, n, o, backend, rays, seed, keys, stream)
     if light.kind in ("POINT", "SPOT"):
         d = light.position - x
         r2 = np.einsum("ij,ij->i", d, d)
         dist = np.sqrt(np.maximum(r2, 1e-300))
         w = d / dist[:, None]
         cos = np.einsum("ij,ij->i", w, n)
-        fall = r2 + light.radius**2 if light.soft_falloff else np.maximum(r2, light.radius**2)
-        val = np.maximum(cos, 0) * POINT_INTENSITY / np.maximum(fall, 1e-300) / np.pi
+        val = np.maximum(cos, 0) * POINT_INTENSITY / np.maximum(r2, 1e-300) / np.pi
         if light.kind == "SPOT":
-            ca = -(w @ light.direction)
-            ch = np.cos(light.spot_size / 2)
-            if light.spot_blend > 0:
-                val *= smoothstep((ca - ch) / ((1 - ch) * light.spot_blend))
-            else:
-                val *= ca > ch
+            val *= spot_factor(light, -(w @ light.direction))
         lit = np.flatnonzero(val > 0)
         if len(lit):
-            if light.radius > 0 and rays > 1:
-                u = rotated_hammersley(rays, seed, keys[lit], 2000 + stream)
-                y = _disk_points(light.position, w[lit], light.radius, u)
-                vis = ~backend.occluded(np.broadcast_to(o[lit, None], y.shape), y)
-                val[lit] *= vis.mean(1)
-            else:
-                val[lit] *= ~backend.occluded(o[lit], np.broadcast_to(light.position, (len(lit), 3)))
+            val[lit] *= ~backend.occluded(o[lit], np.broadcast_to(light.position, (len(lit), 3)))
         return val
     if light.kind == "SUN":
         to_sun = -light.direction
