@@ -1497,7 +1497,10 @@ class FinalGather(DirectLight):
     # room's FE window stops 0.044% (median) / 0.31% (p95) / 1.87% (worst) per object from the passes'
     # limit, bias +0.012-0.014%, where the room's ratio alone leaves 0.070 / 0.29 / 1.85%, bias +0.052%
     # (main's 5 passes: 0.015 / 0.13 / 0.77%, -0.002%; with this at 5 passes 0.015 / 0.15 / 0.82%,
-    # -0.013%: it is for the 4 passes; docs/events.md, session 37, branch ev37)
+    # -0.013%: it is for the 4 passes; docs/events.md, session 37, branch ev37). Kept off in session 38
+    # (ev38): with every shape tried at 100k (draft, medium) the 4 passes leave 8 small objects 1.5-2.3%
+    # from the limit with either ratio (main's 5: 2-5 at 0.5-0.85%), and where the share stops later (6
+    # passes: the 20k room, Cornell) each object's ratio is farther from the limit than the room's
     SEIDEL_TAIL_LOCAL = False
     SEIDEL_STEP = 1 << 18  # weights per batch of a block's rows on threads (fixed: the same values)
 
