@@ -355,3 +355,29 @@ def test_patch_boxes_give_the_covered_pairs_the_same_pairs_as_the_grid():
         np.testing.assert_array_equal(got[0], want[0])
         for a, b in zip(got[1], want[1]):
             np.testing.assert_array_equal(a, b)
+
+
+def test_grey_walls_slot_transfers_equal_every_channels_own(monkeypatch):
+    """slot_transfers with walls of one reflectance in every channel (the gather's black pair for
+    the mouths' view factor, and a grey one) looks them up in one channel and copies it
+    (GREY_ONCE): bit for bit every channel's own lookup, on the 2k furnished room's covered
+    receiver points in slots, coloured walls alongside (their own channels)."""
+    from hr_addon.core import slots
+
+    c, pts, patch = receiver_points(6)
+    cov = np.flatnonzero(c.covered(pts, patch))
+    chain = c.slots(pts[cov], patch[cov])[3]
+    assert (chain >= 0).sum() > 100
+    rng = np.random.default_rng(4)
+    n, K = len(cov), c.patches.reflectance.shape[1]
+    grey = np.repeat(rng.uniform(0, 0.9, (n, 1)), 3, 1)
+    walls = [
+        (np.zeros((n, 3)), np.zeros((3, K))),  # black
+        (grey, np.repeat(c.patches.reflectance[:1], 3, 0)),  # grey
+        (rng.uniform(0, 0.9, (n, 3)), c.patches.reflectance),  # coloured
+    ]
+    got = c.slot_transfers(pts[cov], patch[cov], chain, walls)
+    monkeypatch.setattr(slots, "GREY_ONCE", False)
+    ref = c.slot_transfers(pts[cov], patch[cov], chain, walls)
+    for g, r in zip(got, ref):
+        assert (r > 0).any() and g.view(np.uint64).tolist() == r.view(np.uint64).tolist()

@@ -350,6 +350,32 @@ def test_first_hit_per_origin_equals_the_origins_repeated(name):
     assert (got[0][[5, 9]] == -1).all()
 
 
+def test_first_hit_paths_give_the_same_hits_as_the_plain_ones(name):
+    """first_hit's shortcuts (session 38): as many rays per origin (the origins added by
+    broadcasting), one tmax for all (a scalar) and every triangle kept (no index map) give bit for
+    bit the hits and t of the general paths: per origin as the origins repeated, a scalar tmax as
+    an array of it, and a scene with a degenerate triangle in front (its indices mapped back)."""
+    from hr_testing import scenes
+    from hr_addon.core.geometry import prepare_patches
+
+    tri = prepare_patches(scenes.cornell_box(subdiv=2)).triangles
+    rng = np.random.default_rng(9)
+    o = rng.uniform(0.05, 0.5, (200, 3))
+    d = rng.normal(size=(200 * 8, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    be = vis.make_backend(tri, name)
+    flat = np.concatenate([tri[:1, [0, 0, 1]], tri])  # triangle 0 of zero area: dropped, kept ones + 1
+    be0 = vis.make_backend(flat, name)
+    assert be._identity and not be0._identity
+    for sure in (None, 1e-4):
+        ref = be.first_hit(np.repeat(o, 8, 0), d, np.full(len(d), 3.0), sure)
+        assert 0 < (ref[0] >= 0).sum() < len(d)
+        for got in (be.first_hit(o, d, 3.0, sure, per=8), be.first_hit(np.repeat(o, 8, 0), d, 3.0, sure)):
+            assert all(np.array_equal(x, y) for x, y in zip(ref, got))
+        p0, t0 = be0.first_hit(o, d, 3.0, sure, per=8)
+        assert np.array_equal(np.where(p0 >= 0, p0 - 1, -1), ref[0]) and np.array_equal(t0, ref[1])
+
+
 def test_component_major_occlusion_equals_occluded(name):
     """occluded_cm (the direct light's shadow rays, component-major) gives occluded()'s values
     exactly, zero-length and non-finite segments included."""

@@ -124,11 +124,19 @@ class SlotMouths:
             side.append((fc, w, x[w] / hs[w], ext[w] / hs[w], frac[w, None], j[pr[w]]))
         for (rho, reflectance), out in zip(walls, outs):
             other = self._other_wall(sg, reflectance)
+            C = rho.shape[1]
+            # grey walls (the gather's black pair for the mouths' view factor): every channel's
+            # sums are the same numbers, so one channel is computed and copied (GREY_ONCE)
+            grey = GREY_ONCE and C > 1 and (rho == rho[:, :1]).all() and (other == other[:, :1]).all()
+            if grey:
+                rho, other = rho[:, :1], other[:, :1]
             E = np.zeros((len(sg), rho.shape[1]))
             for fc, w, xw, ew, fw, rw in side:
                 E[w] = fw * slot_irradiance(xw, rho[rw], other[w], ew, fc)
             for k in range(rho.shape[1]):
                 out[j, k] = np.bincount(pr, E[:, k], len(j))
+            if grey:
+                out[j, 1:] = out[j, :1]
         return outs
 
     def _other_wall(self, mouth, reflectance):
@@ -343,6 +351,9 @@ class SlotMouths:
 # which the outside lights (its strips are part of L's system). The receiver may be either wall.
 _SLOT = {}
 RECEIVER_EXT = False  # the receiver's own continuation beyond a face's edge (a bookcase's side)
+# slot_transfers: walls of one reflectance in every channel (the gather's black pair) looked up in
+# one channel, copied to the others (the same numbers: each channel's arithmetic is its own)
+GREY_ONCE = True
 SLOT_EXT = (0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 1000.0)  # the tables' extensions, gap widths
 
 

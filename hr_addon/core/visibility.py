@@ -118,11 +118,14 @@ class RayBackend:
 
     name = "base"
     threads = 1  # threads for large ray batches (core.parallel; 1: inline)
+    _identity = False  # (a backend made before the flag: source's gather, as before)
     PARALLEL_CHUNK = 1 << 16  # rays per batch on threads: fixed, so results do not depend on threads
 
     def __init__(self, triangles):
         # source[i]: index in the input array of the i-th kept triangle (first_hit reports input indices)
         self.triangles, self.source = _clean_triangles(triangles, return_index=True)
+        # every input triangle kept, in order: first_hit's indices need no mapping
+        self._identity = bool(np.array_equal(self.source, np.arange(len(self.source))))
         if len(self.triangles):
             lo, hi = self.triangles.min(axis=(0, 1)), self.triangles.max(axis=(0, 1))
         else:
@@ -205,8 +208,9 @@ class RayBackend:
         o = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
         n = len(d)
-        scale = np.broadcast_to(np.asarray(tmax, dtype=np.float64), (n,))
-        d = d * scale[:, None]
+        # (one tmax for all: d times the scalar, the same products as by a broadcast column)
+        scale = float(tmax) if np.ndim(tmax) == 0 else np.broadcast_to(np.asarray(tmax, np.float64), (n,))
+        d = d * (scale if np.ndim(scale) == 0 else scale[:, None])
         rep = None if per is None else np.broadcast_to(np.asarray(per, np.int64), (len(o),))
         prim = np.full(n, -1, np.int64)
         t = np.full(n, np.inf)
@@ -223,9 +227,9 @@ class RayBackend:
         odd = np.flatnonzero(~np.isfinite(dd))
         if len(odd):
             good[odd] &= np.isfinite(d[odd]).all(1)
-        ok = np.flatnonzero(good)
-        if len(ok) and len(self.triangles):
-            every = len(ok) == n  # (no copies of the rays when all are good)
+        every = bool(good.all())  # (no copies of the rays when all are good)
+        ok = None if every else np.flatnonzero(good)
+        if (every or len(ok)) and n and len(self.triangles):
             if rep is not None and not every:  # (rare: rays one by one, as without per)
                 o, rep = np.repeat(o, rep, 0), None
             if rep is None:
@@ -235,7 +239,10 @@ class RayBackend:
                 p, ts = self._map_per(o, rep, d, dd, sure)
             hit = p >= 0
             if every:  # (the rays' own rows: no scatter through ok)
-                prim = np.where(hit, self.source[np.maximum(p, 0)] if len(self.source) else -1, -1)
+                if self._identity:  # (every triangle kept: its own index, no gather)
+                    prim = np.where(hit, p, -1).astype(np.int64, copy=False)
+                else:
+                    prim = np.where(hit, self.source[np.maximum(p, 0)] if len(self.source) else -1, -1)
                 t = np.where(hit, ts, np.inf)
             else:
                 prim[ok[hit]] = self.source[p[hit]]
@@ -627,31 +634,46 @@ class _Float32Backend(RayBackend):
         length = np.sqrt(np.einsum("ij,ij->i", d, d) if dd is None else dd)
         o = a - self.center
         mag = np.sqrt(np.einsum("ij,ij->i", o, o))
+        R = len(d)
+        start = TMIN * d
         if per is not None:
-            o, mag = np.repeat(o, per, 0), np.repeat(mag, per)
             cum = np.cumsum(per)
             rows = lambda r: a[np.searchsorted(cum, r, "right")]  # noqa: E731  (the origins of segments r)
+            k = int(per[0]) if len(per) else 0
+            if len(per) and k * len(per) == R and (per == k).all():
+                # (as many segments per origin: the origins added by broadcasting, not repeated;
+                # the same sums, each of two terms)
+                start.reshape(-1, k, 3)[:] += o[:, None]
+                mag = np.add(length.reshape(-1, k), mag[:, None]).ravel()
+            else:
+                start += np.repeat(o, per, 0)
+                mag = np.repeat(mag, per) + length
         else:
             rows = a.__getitem__
-        mag += length
-        o += TMIN * d
+            start += o
+            mag += length
         short = length < F32_SHORT * mag
         prim, t32 = self._nearest(
-            o.astype(np.float32), d.astype(np.float32), np.full(len(o), 1.0 - 2.0 * TMIN, dtype=np.float32)
+            start.astype(np.float32), d.astype(np.float32), np.full(R, 1.0 - 2.0 * TMIN, dtype=np.float32)
         )
-        prim = np.where(short, -1, prim).astype(np.int64)
-        t = np.full(len(d), np.inf)
-        ray = np.flatnonzero(prim >= 0)
+        del start
+        any_short = bool(short.any())
+        prim = (np.where(short, -1, prim) if any_short else prim).astype(np.int64, copy=False)
         if sure is not None:  # t32 is measured from the shifted origin a + TMIN d
-            tr = t32[ray]
-            ok = (tr > sure) & (tr < 1.0 - sure)
-            t[ray[ok]] = TMIN + tr[ok]
-            ray = ray[~ok]
+            # (masks over all rays: no index lists for the ~87% sure hits)
+            ok = t32 > sure
+            ok &= t32 < 1.0 - sure
+            ok &= prim >= 0
+            t = np.where(ok, TMIN + t32, np.inf).astype(np.float64)
+            ray = np.flatnonzero(~ok & (prim >= 0))
+        else:
+            t = np.full(R, np.inf)
+            ray = np.flatnonzero(prim >= 0)
         with np.errstate(all="ignore"):
             t[ray] = _hit_t_kernel([m[prim[ray]] for m in self._rows], *rows(ray).T, *d[ray].T)
         bad = ray[~np.isfinite(t[ray])]
         prim[bad] = -1
-        retry = np.concatenate([bad, np.flatnonzero(short)])
+        retry = np.concatenate([bad, np.flatnonzero(short)]) if any_short else bad
         if len(retry):
             prim[retry], t[retry] = self._numpy()._first(rows(retry), d[retry])
         self.last_retraced = len(retry)
