@@ -52,8 +52,16 @@ sys.path.insert(0, str(ROOT / "scripts"))
 FRAMES = (1, 8)
 STEP = 0.025  # metres a moving frame
 # frame: (offset along the wall in steps, strength)
-KEYS = {1: (0, 20.0), 2: (1, 20.0), 3: (2, 20.0), 4: (2, 20.0), 5: (2, 30.0), 6: (3, 30.0), 7: (4, 30.0),
-        8: (5, 30.0)}
+KEYS = {
+    1: (0, 20.0),
+    2: (1, 20.0),
+    3: (2, 20.0),
+    4: (2, 20.0),
+    5: (2, 30.0),
+    6: (3, 30.0),
+    7: (4, 30.0),
+    8: (5, 30.0),
+}
 
 
 def make_blend(path, size="100k"):
@@ -160,10 +168,14 @@ def cache_summary(d):
     for k in frames:
         st = (Path(d) / k).stat()
         inodes[(st.st_dev, st.st_ino)] = st.st_size
-    return dict(files=len(files), total_mb=sum(files.values()) / 1e6,
-                frame_files=len(frames), frame_mb_linked=sum(frames.values()) / 1e6,
-                frame_mb_on_disk=sum(inodes.values()) / 1e6,
-                precompute_mb=files.get("precompute.hrpc", 0) / 1e6)
+    return dict(
+        files=len(files),
+        total_mb=sum(files.values()) / 1e6,
+        frame_files=len(frames),
+        frame_mb_linked=sum(frames.values()) / 1e6,
+        frame_mb_on_disk=sum(inodes.values()) / 1e6,
+        precompute_mb=files.get("precompute.hrpc", 0) / 1e6,
+    )
 
 
 def open_blend(blend, output, resolution):
@@ -222,28 +234,53 @@ def run_bake(args):
         if parts.mark is not None:  # frame 1's step began with the build, the writer, the frames to do
             c1, w1, setup["steps"] = parts.mark
             parts.mark = None
-        row = dict(frame=p.frame, reused=p.reused, cpu_s=c2 - c1, wall_s=w2 - w1, parts=got,
-                   rest_cpu_s=(c2 - c1) - sum(v["cpu_s"] for k, v in got.items() if "." not in k))
+        row = dict(
+            frame=p.frame,
+            reused=p.reused,
+            cpu_s=c2 - c1,
+            wall_s=w2 - w1,
+            parts=got,
+            rest_cpu_s=(c2 - c1) - sum(v["cpu_s"] for k, v in got.items() if "." not in k),
+        )
         if prof:
             path = prof_dir / f"{args.output}_frame{p.frame}.prof"
             prof.dump_stats(str(path))
         rows.append(row)
-        print(f"frame {p.frame}: {row['cpu_s']:.3f} s CPU, {row['wall_s']:.3f} s wall"
-              + (" (unchanged)" if p.reused else "") + "; "
-              + ", ".join(f"{k} {v['cpu_s'] * 1000:.1f} ms" for k, v in got.items()), flush=True)
+        print(
+            f"frame {p.frame}: {row['cpu_s']:.3f} s CPU, {row['wall_s']:.3f} s wall"
+            + (" (unchanged)" if p.reused else "")
+            + "; "
+            + ", ".join(f"{k} {v['cpu_s'] * 1000:.1f} ms" for k, v in got.items()),
+            flush=True,
+        )
     # the first frame report carries the build, the open_writer, the first frame: set apart
     total_cpu, total_wall = time.process_time() - c0, time.perf_counter() - w0
     d = res.cache_dir
     res_tex = args.resolution if args.output == "texture" else None
-    out = dict(path="bake", output=args.output, resolution=res_tex, blend=str(args.blend),
-               load_average=os.getloadavg()[0], total_cpu_s=total_cpu,
-               total_wall_s=total_wall, setup=setup, frames=rows, commit=commit,
-               precompute_loaded=res.precompute_loaded, build_s=res.build_seconds,
-               summary=res.summary(), peak_rss_gb=_rss_gb(), cache=cache_summary(d),
-               per_frame_files=_per_frame(d))
+    out = dict(
+        path="bake",
+        output=args.output,
+        resolution=res_tex,
+        blend=str(args.blend),
+        load_average=os.getloadavg()[0],
+        total_cpu_s=total_cpu,
+        total_wall_s=total_wall,
+        setup=setup,
+        frames=rows,
+        commit=commit,
+        precompute_loaded=res.precompute_loaded,
+        build_s=res.build_seconds,
+        summary=res.summary(),
+        peak_rss_gb=_rss_gb(),
+        cache=cache_summary(d),
+        per_frame_files=_per_frame(d),
+    )
     print(res.summary())
-    print(f"total {total_cpu:.1f} s CPU, {total_wall:.1f} s wall; peak RSS {out['peak_rss_gb']:.2f} GB; "
-          f"cache {out['cache']}", flush=True)
+    print(
+        f"total {total_cpu:.1f} s CPU, {total_wall:.1f} s wall; peak RSS {out['peak_rss_gb']:.2f} GB; "
+        f"cache {out['cache']}",
+        flush=True,
+    )
     return out
 
 
@@ -283,23 +320,41 @@ def run_play(args):
         c2, w2 = time.process_time(), time.perf_counter()
         got = parts.take()
         ms = {k: 1000 * v["cpu_s"] for k, v in got.items()}
-        rows.append(dict(frame=f, cpu_ms=1000 * (c2 - c1), wall_ms=1000 * (w2 - w1), parts_ms=ms,
-                         blender_ms=1000 * (c2 - c1) - ms.get("read", 0) - ms.get("apply", 0),
-                         shown=_shown(bpy, scene, playback, np)))
-        print(f"frame {f}: {rows[-1]['cpu_ms']:.1f} ms CPU; "
-              + ", ".join(f"{k} {v:.1f}" for k, v in ms.items())
-              + f", blender {rows[-1]['blender_ms']:.1f}; shown: {rows[-1]['shown']}", flush=True)
+        rows.append(
+            dict(
+                frame=f,
+                cpu_ms=1000 * (c2 - c1),
+                wall_ms=1000 * (w2 - w1),
+                parts_ms=ms,
+                blender_ms=1000 * (c2 - c1) - ms.get("read", 0) - ms.get("apply", 0),
+                shown=_shown(bpy, scene, playback, np),
+            )
+        )
+        print(
+            f"frame {f}: {rows[-1]['cpu_ms']:.1f} ms CPU; "
+            + ", ".join(f"{k} {v:.1f}" for k, v in ms.items())
+            + f", blender {rows[-1]['blender_ms']:.1f}; shown: {rows[-1]['shown']}",
+            flush=True,
+        )
     moved = [r for r in rows if r["frame"] != 4]  # frame 4 holds frame 3's file: nothing written
 
     def med(key, rs=moved):
         return float(np.median([r[key] if key in r else r["parts_ms"].get(key, 0.0) for r in rs]))
 
-    out = dict(path="play", blend=str(args.blend), load_average=os.getloadavg()[0], frames=rows,
-               median_cpu_ms=med("cpu_ms"), median_read_ms_first_pass=med("read", moved[:7]),
-               median_apply_ms=med("apply"), median_write_attribute_ms=med("apply.write_attribute"),
-               median_blender_ms=med("blender_ms"),
-               unchanged_frame_cpu_ms=[r["cpu_ms"] for r in rows if r["frame"] == 4],
-               all_shown=all(r["shown"] == "all" for r in rows), peak_rss_gb=_rss_gb())
+    out = dict(
+        path="play",
+        blend=str(args.blend),
+        load_average=os.getloadavg()[0],
+        frames=rows,
+        median_cpu_ms=med("cpu_ms"),
+        median_read_ms_first_pass=med("read", moved[:7]),
+        median_apply_ms=med("apply"),
+        median_write_attribute_ms=med("apply.write_attribute"),
+        median_blender_ms=med("blender_ms"),
+        unchanged_frame_cpu_ms=[r["cpu_ms"] for r in rows if r["frame"] == 4],
+        all_shown=all(r["shown"] == "all" for r in rows),
+        peak_rss_gb=_rss_gb(),
+    )
     print({k: v for k, v in out.items() if k != "frames"}, flush=True)
     return out
 
@@ -331,8 +386,11 @@ def regroup(bpy, scene, domain):
     bpy.data.batch_remove([me for o in objs if (me := ov._helper(o, dg)) is not None])
     forget_loaded()  # (the helpers are new: frame 1 written again)
     bare = sum(ov.GUARD not in o.modifiers[-1][ov._socket(o.modifiers[-1])].data.attributes for o in objs)
-    print(f"regroup: {len(objs)} modifiers to group version {ov.FINER_VERSION} ({bare} helpers without "
-          f"the guard), {time.process_time() - c:.1f} s CPU", flush=True)
+    print(
+        f"regroup: {len(objs)} modifiers to group version {ov.FINER_VERSION} ({bare} helpers without "
+        f"the guard), {time.process_time() - c:.1f} s CPU",
+        flush=True,
+    )
 
 
 def _shown(bpy, scene, playback, np):
@@ -368,8 +426,15 @@ def run_op(args):
     bpy, scene = open_blend(args.blend, args.output, args.resolution)
     c0, w0 = time.process_time(), time.perf_counter()
     r = bpy.ops.hr.bake()
-    out = dict(path="op", output=args.output, result=sorted(r), total_cpu_s=time.process_time() - c0,
-               total_wall_s=time.perf_counter() - w0, peak_rss_gb=_rss_gb(), load_average=os.getloadavg()[0])
+    out = dict(
+        path="op",
+        output=args.output,
+        result=sorted(r),
+        total_cpu_s=time.process_time() - c0,
+        total_wall_s=time.perf_counter() - w0,
+        peak_rss_gb=_rss_gb(),
+        load_average=os.getloadavg()[0],
+    )
     print(out, flush=True)
     return out
 
@@ -379,8 +444,17 @@ def run_cli(args):
     user's Ctrl-C / a farm's kill): exit 130 and the cache folder as before."""
     import signal
 
-    cmd = [sys.executable, "-m", "hr_addon", "bake", str(args.blend), "--output", args.output,
-           "--quality", "draft"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "hr_addon",
+        "bake",
+        str(args.blend),
+        "--output",
+        args.output,
+        "--quality",
+        "draft",
+    ]
     if args.output == "texture":
         cmd += ["--resolution", str(args.resolution)]
     d = Path(args.blend).parent / "hr_cache" / Path(args.blend).stem
@@ -397,13 +471,24 @@ def run_cli(args):
                 pr.send_signal(signal.SIGTERM)
                 frames += 1  # once
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    out = dict(path="cli", output=args.output, cmd=cmd[1:], exit=pr.returncode,
-               total_cpu_s=(r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime),
-               total_wall_s=time.perf_counter() - w0, peak_rss_gb=r1.ru_maxrss / 1e6,
-               load_average=os.getloadavg()[0], lines=lines)
+    out = dict(
+        path="cli",
+        output=args.output,
+        cmd=cmd[1:],
+        exit=pr.returncode,
+        total_cpu_s=(r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime),
+        total_wall_s=time.perf_counter() - w0,
+        peak_rss_gb=r1.ru_maxrss / 1e6,
+        load_average=os.getloadavg()[0],
+        lines=lines,
+    )
     if args.term_after:
-        out.update(term_after=args.term_after, cache_unchanged=_stat(d) == before, files_before=len(before),
-                   leftovers=_leftovers(d))
+        out.update(
+            term_after=args.term_after,
+            cache_unchanged=_stat(d) == before,
+            files_before=len(before),
+            leftovers=_leftovers(d),
+        )
         print({k: out[k] for k in ("exit", "cache_unchanged", "files_before", "leftovers")}, flush=True)
     return out
 
@@ -449,11 +534,19 @@ def run_background(args):
                 break
         time.sleep(0.25)
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    out = dict(path="background", output=args.output, state=job.state, summary=job.summary,
-               worker_cpu_s=(r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime),
-               this_process_cpu_s=time.process_time() - c0, result_load_cpu_s=finish_cpu,
-               total_wall_s=time.perf_counter() - w0, frames_seen=frames,
-               worker_peak_rss_gb=r1.ru_maxrss / 1e6, load_average=os.getloadavg()[0])
+    out = dict(
+        path="background",
+        output=args.output,
+        state=job.state,
+        summary=job.summary,
+        worker_cpu_s=(r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime),
+        this_process_cpu_s=time.process_time() - c0,
+        result_load_cpu_s=finish_cpu,
+        total_wall_s=time.perf_counter() - w0,
+        frames_seen=frames,
+        worker_peak_rss_gb=r1.ru_maxrss / 1e6,
+        load_average=os.getloadavg()[0],
+    )
     if args.cancel_after:
         out.update(cache_unchanged=_stat(d) == before, files_before=len(before), leftovers=_leftovers(d))
     print({k: v for k, v in out.items() if k != "frames_seen"}, flush=True)
@@ -476,8 +569,15 @@ def run_cancel(args):
             if n == (args.cancel_after or 3):
                 job.cancel()
                 break
-    out = dict(path="cancel", output=args.output, frames_done=n, files_before=len(before),
-               cache_unchanged=_stat(d) == before, leftovers=_leftovers(d), peak_rss_gb=_rss_gb())
+    out = dict(
+        path="cancel",
+        output=args.output,
+        frames_done=n,
+        files_before=len(before),
+        cache_unchanged=_stat(d) == before,
+        leftovers=_leftovers(d),
+        peak_rss_gb=_rss_gb(),
+    )
     print(out, flush=True)
     return out
 
@@ -493,20 +593,28 @@ def main(argv=None):
     ap.add_argument("--term-after", type=int, default=0, help="--path cli: SIGTERM after N frame lines")
     ap.add_argument("--profile", default=None, help="folder for a cProfile file per frame")
     ap.add_argument("--json", default=None)
-    ap.add_argument("--regroup", action="store_true", help="--path play: the bake's subdividing "
-                    "modifiers brought to this version's group in memory first (regroup)")
+    ap.add_argument(
+        "--regroup",
+        action="store_true",
+        help="--path play: the bake's subdividing "
+        "modifiers brought to this version's group in memory first (regroup)",
+    )
     ap.add_argument("--size", default="100k", help="--make: furnished_room's size (20k, 100k)")
     ap.add_argument("--vertex-spacing", type=float, default=None, help="the bake's Vertex Spacing")
     args = ap.parse_args(argv)
     if args.make:
         c0 = time.process_time()
         info = make_blend(args.blend, args.size)
-        print(f"made {args.blend}: {info['objects']} objects, {info['triangles']} triangles, "
-              f"{time.process_time() - c0:.1f} s CPU", flush=True)
+        print(
+            f"made {args.blend}: {info['objects']} objects, {info['triangles']} triangles, "
+            f"{time.process_time() - c0:.1f} s CPU",
+            flush=True,
+        )
     if args.path is None:
         return
-    paths = dict(bake=run_bake, op=run_op, cli=run_cli, background=run_background, cancel=run_cancel,
-                 play=run_play)
+    paths = dict(
+        bake=run_bake, op=run_op, cli=run_cli, background=run_background, cancel=run_cancel, play=run_play
+    )
     out = paths[args.path](args)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

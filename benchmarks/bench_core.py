@@ -164,13 +164,16 @@ def main():
 def table(rows):
     """The README's markdown table from core.json."""
     L = [
-        "| setting | nodes | links (+ push corrections) | memory | build CPU | solve CPU (iterations) | mean rel. error | RMSE |",
+        "| setting | nodes | links (+ push corrections) | memory | build CPU | solve CPU (iterations) | "
+        "mean rel. error | RMSE |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         L.append(
-            f"| {r['name']} | {r['nodes']:,} | {r['links']:,} (+{r['corrections']:,}) | {r['memory_mb']:.0f} MB | "
-            f"{r['t_build']:.2f} s | {r['t_solve']:.2f} s ({r['iterations']}) | {100 * r['mean_rel']:.1f}% | {r['rmse']:.4f} |"
+            f"| {r['name']} | {r['nodes']:,} | {r['links']:,} (+{r['corrections']:,}) | "
+            f"{r['memory_mb']:.0f} MB | "
+            f"{r['t_build']:.2f} s | {r['t_solve']:.2f} s ({r['iterations']}) | "
+            f"{100 * r['mean_rel']:.1f}% | {r['rmse']:.4f} |"
         )
     return "\n".join(L)
 
@@ -208,7 +211,8 @@ def plot(rows, date=""):
     ax.set_ylabel("mean relative error at the vertices")
     when = f", measured {date}" if date else ""
     ax.set_title(
-        f"Cornell box, 8 x 8 output mesh per wall: error vs a converged reference\n(clusters and contacts on{when})",
+        f"Cornell box, 8 x 8 output mesh per wall: error vs a converged reference\n"
+        f"(clusters and contacts on{when})",
         fontsize=9,
     )
     ax.grid(True, which="both", alpha=0.3)

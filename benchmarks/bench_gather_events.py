@@ -36,7 +36,6 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 
-
 def set_constants(items):
     """module.NAME=value (or module.Class.NAME=value) under hr_addon.core, set before the build
     (issue 19, build60: farlinks.SECOND_TRACE=False)."""
@@ -87,6 +86,7 @@ def stored_room(store):
         return LightShape(rect, np.broadcast_to(np.asarray(em, float), (3,)).copy(), "window")
 
     return s, g, window
+
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])

@@ -32,7 +32,9 @@ SCRIPT = textwrap.dedent(r"""
         def find_spec(self, name, path=None, target=None):
             if name != "embreex":
                 return None
-            mine = [] if mode == "numpy" else [p for p in sys.path if os.path.realpath(p or ".").startswith(RES)]
+            mine = [] if mode == "numpy" else [
+                p for p in sys.path if os.path.realpath(p or ".").startswith(RES)
+            ]
             spec = importlib.machinery.PathFinder.find_spec(name, mine)
             if spec is None:
                 raise ModuleNotFoundError("No module named 'embreex'", name=name)
@@ -45,13 +47,15 @@ SCRIPT = textwrap.dedent(r"""
     bpy.ops.wm.open_mainfile(filepath=blend, load_ui=False)
     s = bpy.context.scene
     a, b = frames.split("-")
-    s.hr.quality, s.hr.use_frame_range, s.hr.frame_start, s.hr.frame_end = quality.upper(), True, int(a), int(b)
+    s.hr.quality, s.hr.use_frame_range, s.hr.frame_start, s.hr.frame_end = (
+        quality.upper(), True, int(a), int(b)
+    )
     bake = __import__("bl_ext.user_default.hr_radiosity.hr_addon.blender.bake", fromlist=["run_bake"])
     t0 = time.perf_counter()
     res = bake.run_bake(s, log=lambda *a, **k: None)
     out = {"bpy": bpy.app.version_string, "mode": mode, "rays": res.rays, "build_s": res.build_seconds,
-           "bake_s": time.perf_counter() - t0, "nodes": res.build_report.nodes, "links": res.build_report.links,
-           "summary": res.summary()}
+           "bake_s": time.perf_counter() - t0, "nodes": res.build_report.nodes,
+           "links": res.build_report.links, "summary": res.summary()}
     print("RESULT:" + json.dumps(out), flush=True)
 """)
 
@@ -67,7 +71,8 @@ FURNISHED = textwrap.dedent(r"""
     scene = ms.reset()
     ms.room((4.0, 4.0, 2.6), ms.room_materials())
     ms.quads_object("Lamp", [ms.orient(ms.np.array([(1.5, 1.5, 2.59), (2.5, 1.5, 2.59), (2.5, 2.5, 2.59),
-                                                    (1.5, 2.5, 2.59)]), (2, 2, 0))], ms.emission("Lamp", (1, 1, 1), 10.0))
+                                                    (1.5, 2.5, 2.59)]), (2, 2, 0))],
+                    ms.emission("Lamp", (1, 1, 1), 10.0))
     props = bpy.data.collections.new("Props")
     scene.collection.children.link(props)
     box = ms.quads_object("Box", list(ms.box_quads((0, 0, 0), (0.4, 0.4, 0.5), inward=False).values()),
@@ -143,12 +148,14 @@ def main(argv=None):
             results.append(r)
             print(
                 f"bpy {r['bpy']} {args.sample} {args.quality} frames {args.frames}: rays {r['rays']}: "
-                f"hierarchy {r['build_s']:.1f} s, bake {r['bake_s']:.1f} s ({r['nodes']} nodes, {r['links']} links)",
+                f"hierarchy {r['build_s']:.1f} s, bake {r['bake_s']:.1f} s "
+                f"({r['nodes']} nodes, {r['links']} links)",
                 flush=True,
             )
     e, n = results
     print(
-        f"numpy / embree: hierarchy {n['build_s'] / e['build_s']:.1f}x, whole bake {n['bake_s'] / e['bake_s']:.1f}x"
+        f"numpy / embree: hierarchy {n['build_s'] / e['build_s']:.1f}x, "
+        f"whole bake {n['bake_s'] / e['bake_s']:.1f}x"
     )
     out = REPO / "benchmarks" / "out"
     out.mkdir(exist_ok=True)

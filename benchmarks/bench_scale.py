@@ -229,9 +229,12 @@ def main(argv=None):
                 + ", ".join(f"{k} {v:.3g}" for k, v in res.items() if k.startswith("gather"))
             )
         print(
-            f"{size:>5} {'clusters' if cluster else 'all pairs':>9}: {res['triangles']:,} triangles, build {res['build_s']:.1f} s ({res['build_cpu_s']:.1f} s CPU), "
-            f"{res['links']:,} links ({res['far_links']:,} far), {res['links'] / res['triangles']:.1f} per triangle, "
-            f"peak {res['peak_rss_gb']:.2f} GB, solve {res['solve_s']:.1f} s ({res['iterations']} it){ev_txt}",
+            f"{size:>5} {'clusters' if cluster else 'all pairs':>9}: {res['triangles']:,} triangles, "
+            f"build {res['build_s']:.1f} s ({res['build_cpu_s']:.1f} s CPU), "
+            f"{res['links']:,} links ({res['far_links']:,} far), "
+            f"{res['links'] / res['triangles']:.1f} per triangle, "
+            f"peak {res['peak_rss_gb']:.2f} GB, "
+            f"solve {res['solve_s']:.1f} s ({res['iterations']} it){ev_txt}",
             flush=True,
         )
     path = Path(args.out) / f"scale_{args.quality}{'_gather' if args.gather else ''}.json"
@@ -259,7 +262,8 @@ def table(results):
         kind = "clusters" if r["cluster"] else "all pairs"
         if "build_s" not in r:
             L.append(
-                f"| ~{r['size']} | {kind} | stopped after {r['timeout_s']:.0f} s ({r['last_progress']}) | | | | | "
+                f"| ~{r['size']} | {kind} | "
+                f"stopped after {r['timeout_s']:.0f} s ({r['last_progress']}) | | | | | "
                 f"{r['peak_rss_gb'] or 0:.1f} GB | | |"
             )
             continue
@@ -268,7 +272,8 @@ def table(results):
         mem = f"{r['build_peak_gb']:.2f} GB" if "build_peak_gb" in r else ""
         L.append(
             f"| {r['triangles']:,} | {kind} | {r['build_s']:.1f} s | {cpu} | {r['links']:,} | "
-            f"{r['links'] / r['triangles']:.1f} | {r['far_links']:,} | {mem} | {r['solve_s']:.1f} s ({r['iterations']}) | {ev} |"
+            f"{r['links'] / r['triangles']:.1f} | {r['far_links']:,} | {mem} | "
+            f"{r['solve_s']:.1f} s ({r['iterations']}) | {ev} |"
         )
     return "\n".join(L)
 

@@ -37,7 +37,9 @@ from hr_addon.core.refine import RefineParams
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--exact", type=int, default=0)
-ap.add_argument("--pointwise", default="", help="R1,R2: the second bounce path-traced with exact direct light")
+ap.add_argument(
+    "--pointwise", default="", help="R1,R2: the second bounce path-traced with exact direct light"
+)
 ap.add_argument("--name", default="")
 ap.add_argument("variants", nargs="*")
 opt = ap.parse_args()
@@ -62,7 +64,9 @@ dyn.apply(C.shape_proxies(rs, 1))
 ours = C.Ours(rs, s, dyn)
 print(f"build + frame 1: {time.process_time() - t0:.0f} s CPU", flush=True)
 ref = {n: np.hstack([cyc[b][n] for b in BOUNCES]) for n in books}
-X, P, AX, TR, REF, OBJ, CLS, ZREL = BC.book_texels(rs, s, ours, ref, books, BC.book_boxes(rs), 0.002, grey=False)
+X, P, AX, TR, REF, OBJ, CLS, ZREL = BC.book_texels(
+    rs, s, ours, ref, books, BC.book_boxes(rs), 0.002, grey=False
+)
 REF = REF.reshape(len(REF), len(BOUNCES), 3).mean(2)
 groups = BC.front_groups(X, OBJ, CLS) + [(BC.FACE[c], CLS == c) for c in (1, 2, 3, 4, 5, 6, 7, 9)]
 groups = [(lab, m) for lab, m in groups if m.any() and REF[m, -1].sum() > 0]
@@ -100,7 +104,9 @@ def exact_first(g, R):
     prim, t = g2.first_hit(org, dirs)
     hp = np.where(prim >= 0, pt.triangle_patch[np.maximum(prim, 0)], 0)
     i = np.flatnonzero((prim >= 0) & (np.einsum("ij,ij->i", dirs, pt.normal[hp]) < 0))
-    gh = FinalGather(dyn, org[i] + t[i, None] * dirs[i], pt.normal[hp[i]], hp[i], rays=1, shadow_rays=16, seed=7)
+    gh = FinalGather(
+        dyn, org[i] + t[i, None] * dirs[i], pt.normal[hp[i]], hp[i], rays=1, shadow_rays=16, seed=7
+    )
     hit = gh.rho * gh.direct_and_emission(dyn)[0]
     out = np.full((g2.n, 3), np.nan)
     out[idx] = np.stack([np.bincount(row[i], hit[:, c], len(idx)) for c in range(3)], 1) / R
@@ -127,7 +133,9 @@ def categories(q, p):
     case = np.char.startswith(name.astype(str), "case") & ~book
     nz, nx = pt.normal[q, 2], np.abs(pt.normal[q, 0])
     cov = s.h.dark(locate_below(s.h, q, p, dyn.n_hr, split_lines(s.h, dyn.n_hr)), p)
-    cat = np.where(book, np.where(nz > 0.9, 0, np.where(nx > 0.9, 1, 2)), np.where(case, np.where(nz < -0.9, 3, 4), 5))
+    cat = np.where(
+        book, np.where(nz > 0.9, 0, np.where(nx > 0.9, 1, 2)), np.where(case, np.where(nz < -0.9, 3, 4), 5)
+    )
     categories.last = (cat, cov)  # (what covered hits lie on)
     return np.where(cov, 6, cat)
 
@@ -153,6 +161,7 @@ def pointwise(g, R1, R2, sel):
 
 def bounces(g, iters):
     """{b: (texels,) grey}: ours truncated at 0, 1, 2 bounces and the full value."""
+
     def out(inc):
         inc = inc.copy()
         inc[g.dark] = 0.0
@@ -230,14 +239,20 @@ for name, kw in VARIANTS.items():
     exp_ = s.h.exposure[: g.n_hr] > 0
     for lev, gg in (("first", g), ("second", g2)):
         c, w = gg.leaf_columns().astype(np.int64), gg.entry_weights().astype(float)
-        leaf = np.where(c < g.n_hr, c, used[np.searchsorted(start, c - g.n_hr, "right") - 1] if len(used) else 0)
+        leaf = np.where(
+            c < g.n_hr, c, used[np.searchsorted(start, c - g.n_hr, "right") - 1] if len(used) else 0
+        )
         tot = w.sum()
         info[f"{lev}_weight_all_dark"] = float(w[(c < g.n_hr) & alld[leaf]].sum() / tot)
         info[f"{lev}_weight_part_dark"] = float(w[(c < g.n_hr) & part[leaf]].sum() / tot)
         info[f"{lev}_weight_near"] = float(w[c >= g.n_hr].sum() / tot)
-        print(f"{lev} level's rays: weight on leaves with all samples covered {info[f'{lev}_weight_all_dark']:.4f} "
-              f"(exposed {float(w[(c < g.n_hr) & alld[leaf] & exp_[leaf]].sum() / tot):.4f}), partly "
-              f"{info[f'{lev}_weight_part_dark']:.4f}, near reads {info[f'{lev}_weight_near']:.4f}", flush=True)
+        print(
+            f"{lev} level's rays: weight on leaves with all samples covered "
+            f"{info[f'{lev}_weight_all_dark']:.4f} "
+            f"(exposed {float(w[(c < g.n_hr) & alld[leaf] & exp_[leaf]].sum() / tot):.4f}), partly "
+            f"{info[f'{lev}_weight_part_dark']:.4f}, near reads {info[f'{lev}_weight_near']:.4f}",
+            flush=True,
+        )
     if opt.exact and name == "base":
         t1 = time.process_time()
         ex, ne = exact_first(g, opt.exact)
@@ -248,14 +263,21 @@ for name, kw in VARIANTS.items():
         res["x2"] = out(D + g._read(L2x))
         ok = ~np.isnan(ex[:, 0])
         info["exact"] = {"rays": opt.exact, "samples": ne, "cpu": time.process_time() - t1}
-        print(f"exact first bounce at {ne} second-level samples: {time.process_time() - t1:.0f} s CPU", flush=True)
-        print("  gathered / exact first bounce at them (unweighted sum):", f"{gat[ok].sum() / ex[ok].sum():.3f}")
+        print(
+            f"exact first bounce at {ne} second-level samples: {time.process_time() - t1:.0f} s CPU",
+            flush=True,
+        )
+        print(
+            "  gathered / exact first bounce at them (unweighted sum):", f"{gat[ok].sum() / ex[ok].sum():.3f}"
+        )
     if opt.pointwise and name == "base" and L1 is not None:
         t1 = time.process_time()
         R1, R2 = (int(v) for v in opt.pointwise.split(","))
         # the classes outside the slots (their samples gather through a mouth, scaled by a gain)
         keep = ~np.isin(CLS, (5, 6, 7))
-        sel = np.flatnonzero(keep[g.group] & ~g.dark) if g.group is not None else np.flatnonzero(keep & ~g.dark)
+        sel = (
+            np.flatnonzero(keep[g.group] & ~g.dark) if g.group is not None else np.flatnonzero(keep & ~g.dark)
+        )
         pw, (sr, p1, q1, b1) = pointwise(g, R1, R2, sel)
         # per class of the texel and category of the first hit: the pointwise one-bounce light at
         # the hit against what the gather reads there (the second level's leaf mean of its second
@@ -275,7 +297,9 @@ for name, kw in VARIANTS.items():
             m = np.isin(tcls, cm)
             ntex = np.isin(CLS, cm)
             cyc2 = (REF[ntex, 2] - REF[ntex, 1]).sum()
-            print(f"  {lab}: second bounce by first hit, of Cycles' (pointwise / gather's read / weight share)")
+            print(
+                f"  {lab}: second bounce by first hit, of Cycles' (pointwise / gather's read / weight share)"
+            )
             att = {}
             for k, cn in enumerate(CATS):
                 mk = m & (cat == k)
@@ -290,17 +314,29 @@ for name, kw in VARIANTS.items():
             mc = m & cv
             dist = np.linalg.norm(p1[mc] - g.origins[sr[mc]], axis=1)
             on = {CATS[k]: round(float((c0[mc] == k).mean()), 3) for k in range(6)}
-            print(f"    covered hits lie on: {on}; distance quartiles (m) {np.round(np.percentile(dist, [25, 50, 75]), 4)}")
+            print(
+                f"    covered hits lie on: {on}; "
+                f"distance quartiles (m) {np.round(np.percentile(dist, [25, 50, 75]), 4)}"
+            )
             att["covered_on"] = on
         pw[np.isnan(pw)] = 0.0
         res["pw2"] = out(pw)  # the second bounce alone (reflected at the texel)
-        print(f"pointwise second bounce ({R1} x {R2} rays at {len(sel)} samples): "
-              f"{time.process_time() - t1:.0f} s CPU", flush=True)
+        print(
+            f"pointwise second bounce ({R1} x {R2} rays at {len(sel)} samples): "
+            f"{time.process_time() - t1:.0f} s CPU",
+            flush=True,
+        )
     if name == "base" and L1 is not None:
         # per book: its error at b64 (case3 only: 64 spp, one seed), and for the books more than 5%
         # dark, the mean part of each class and bounce in it (points of the book's light)
         full = res[64, iters[0]]
-        cl = {"slot sides": (5, 6, 7), "sides above": (8,), "tops": (0,), "fronts": (1,), "other": (2, 3, 4, 9)}
+        cl = {
+            "slot sides": (5, 6, 7),
+            "sides above": (8,),
+            "tops": (0,),
+            "fronts": (1,),
+            "other": (2, 3, 4, 9),
+        }
         ob = np.unique(OBJ)
         inv = np.searchsorted(ob, OBJ)
         cb = np.bincount(inv, REF[:, 3], len(ob))
@@ -310,8 +346,10 @@ for name, kw in VARIANTS.items():
         names = [books[i] for i in ob]
         lit = np.isin(names, room["lit"])
         rerr = np.array([room["objects"][n]["refl_gather"]["bias"] for n in names])
-        print(f"case3's lit books: {lit.sum()}, error here against the room run's: corr "
-              f"{np.corrcoef(err[lit], rerr[lit])[0, 1]:.3f}, median {np.median(err[lit] - rerr[lit]):+.4f}")
+        print(
+            f"case3's lit books: {lit.sum()}, error here against the room run's: corr "
+            f"{np.corrcoef(err[lit], rerr[lit])[0, 1]:.3f}, median {np.median(err[lit] - rerr[lit]):+.4f}"
+        )
         dark = lit & (rerr < -0.05)
         parts = {}
         for lab, cc in cl.items():
@@ -324,11 +362,18 @@ for name, kw in VARIANTS.items():
             }.items():
                 d = np.bincount(inv[m], (o - c)[m], len(ob)) / np.maximum(cb, 1e-30)
                 parts[f"{lab} {bn}"] = float(100 * d[dark].mean())
-        info["books"] = {"n": int(lit.sum()), "within5": int((np.abs(err[lit]) <= 0.05).sum()), "dark5": int(dark.sum()),
-                         "median_abs": float(np.median(np.abs(err))), "dark_parts_pts": parts}
-        print(f"per book (case3's lit, {lit.sum()}): within 5% here {(np.abs(err[lit]) <= 0.05).sum()}, "
-              f"below -5% in the room run {dark.sum()}; "
-              f"in those, points of the book's light by class and bounce (direct / first / second / rest):")
+        info["books"] = {
+            "n": int(lit.sum()),
+            "within5": int((np.abs(err[lit]) <= 0.05).sum()),
+            "dark5": int(dark.sum()),
+            "median_abs": float(np.median(np.abs(err))),
+            "dark_parts_pts": parts,
+        }
+        print(
+            f"per book (case3's lit, {lit.sum()}): within 5% here {(np.abs(err[lit]) <= 0.05).sum()}, "
+            f"below -5% in the room run {dark.sum()}; "
+            f"in those, points of the book's light by class and bounce (direct / first / second / rest):"
+        )
         # the slot sides by depth below the overlap's top (gap widths of 2 mm) and by texel row from
         # the book's front (0: the front row): ours / Cycles, all light and direct
         srow = BC.front_rows(X, OBJ)
@@ -339,12 +384,17 @@ for name, kw in VARIANTS.items():
                     m = (CLS == c) & (-ZREL >= a) & (-ZREL < b) & rm
                     if m.sum() < 5:
                         continue
-                    v = (float(full[m].sum() / REF[m, 3].sum()), float(res[0][m].sum() / max(REF[m, 0].sum(), 1e-30)))
+                    v = (
+                        float(full[m].sum() / REF[m, 3].sum()),
+                        float(res[0][m].sum() / max(REF[m, 0].sum(), 1e-30)),
+                    )
                     # the band's share of the books' light and its deficit (points of it)
                     sh, dp = 100 * REF[m, 3].sum() / TOT, 100 * (full[m].sum() - REF[m, 3].sum()) / TOT
                     info["slot_profile"][f"{lab} {a}-{b} {rl}"] = (int(m.sum()), *v, float(sh), float(dp))
-                    print(f"  slot, {lab}, {a}-{b:g} gap widths deep, {rl}: {m.sum()} texels, "
-                          f"all {v[0]:.3f}, direct {v[1]:.3f}, share {sh:.2f}%, deficit {dp:+.3f} pts")
+                    print(
+                        f"  slot, {lab}, {a}-{b:g} gap widths deep, {rl}: {m.sum()} texels, "
+                        f"all {v[0]:.3f}, direct {v[1]:.3f}, share {sh:.2f}%, deficit {dp:+.3f} pts"
+                    )
         # the slot samples by the mouth they gather at (where the sample was moved: within 3 mm of
         # the book's top, its front or its back, as its texel's first sample has it)
         box = BC.book_boxes(rs)
@@ -361,20 +411,32 @@ for name, kw in VARIANTS.items():
                 m = (CLS == c) & moved & (kind == kd)
                 if m.sum() < 5:
                     continue
-                v = (float(full[m].sum() / REF[m, 3].sum()), float(res[0][m].sum() / max(REF[m, 0].sum(), 1e-30)))
+                v = (
+                    float(full[m].sum() / REF[m, 3].sum()),
+                    float(res[0][m].sum() / max(REF[m, 0].sum(), 1e-30)),
+                )
                 info["slot_mouth"][f"{lab} {kd}"] = (int(m.sum()), *v)
-                print(f"  slot, {lab}, gathers at the {kd}: {m.sum()} texels, all {v[0]:.3f}, direct {v[1]:.3f}")
+                print(
+                    f"  slot, {lab}, gathers at the {kd}: {m.sum()} texels, all {v[0]:.3f}, direct {v[1]:.3f}"
+                )
         for lab in cl:
-            print(f"  {lab:12s} " + " / ".join(f"{parts[f'{lab} {bn}']:+5.2f}" for bn in ("direct", "first", "second", "rest")))
+            print(
+                f"  {lab:12s} "
+                + " / ".join(f"{parts[f'{lab} {bn}']:+5.2f}" for bn in ("direct", "first", "second", "rest"))
+            )
     for k in iters:
         rows = table(res, (64, k))
         results[f"{name}_it{k}" if len(iters) > 1 else name] = {**info, "iterations": k, "classes": rows}
         print(
             f"\n== {name} iterations {k}: precompute {pre:.1f} s CPU, {g.n} + {g2.n} samples "
-            f"({100 * info['second_dark']:.1f}% of the second level dark), weights {info['weights_mb']:.1f} MB",
+            f"({100 * info['second_dark']:.1f}% of the second level dark), "
+            f"weights {info['weights_mb']:.1f} MB",
             flush=True,
         )
-        print(f"{'class':32s} share  first second  rest   all   deficit 2nd / rest (pts)" + ("  2nd exact" if "x2" in res else ""))
+        print(
+            f"{'class':32s} share  first second  rest   all   deficit 2nd / rest (pts)"
+            + ("  2nd exact" if "x2" in res else "")
+        )
         for lab, r in rows.items():
             print(
                 f"{lab:32s} {100 * r['share']:5.1f} {r['first']:6.3f} {r['second']:6.3f} {r['rest']:6.3f} "

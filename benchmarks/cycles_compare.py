@@ -347,7 +347,8 @@ def run_scene(name, cfg, results, maps=None):
         log(f"[{name}] {len(small)} objects smaller than a texel light the others but are not compared")
     log(
         f"[{name}] {len(rs.objects)} objects, {n_tex} texels "
-        f"(texel {1000 * rs.atlases[rs.objects[0]].texel:.1f} mm), {len(rs.scene_in.mesh.loop_start)} polygons"
+        f"(texel {1000 * rs.atlases[rs.objects[0]].texel:.1f} mm), "
+        f"{len(rs.scene_in.mesh.loop_start)} polygons"
     )
     out = {
         "scene": name,
@@ -413,7 +414,8 @@ def run_scene(name, cfg, results, maps=None):
             )
         cached = ", cached" if ca and cb else ""
         log(
-            f"[{name}] frame {f}: reference {2 * cfg['ref_spp']} spp ({ta['wall'] + tb['wall']:.1f} s{cached}), "
+            f"[{name}] frame {f}: reference {2 * cfg['ref_spp']} spp "
+            f"({ta['wall'] + tb['wall']:.1f} s{cached}), "
             f"texel noise of the reference {fr['ref_sigma']:.4f}, shapes {len(shapes_at[f])}"
         )
         if f == cfg.get("sweep_frame"):
@@ -1158,7 +1160,8 @@ def plot_maps(maps, path):
                 ax.set_title(cols[j], fontsize=9)
         axes[i, 0].set_ylabel(n)
     fig.suptitle(
-        f"{maps['scene']} frame {maps['frame']}, medium AUTO: mean of RGB, radiance units (charts in UV layout)",
+        f"{maps['scene']} frame {maps['frame']}, medium AUTO: mean of RGB, radiance units "
+        "(charts in UV layout)",
         fontsize=10,
     )
     fig.tight_layout()
@@ -1350,7 +1353,8 @@ def summary_table(results, eq):
         lines.append("\nequal-error Cycles time (Cornell, sweep frame; per frame: event + final gather)")
         for row in eq["runs"]:
             lines.append(
-                f"{row['quality']:7s} {row['method']:6s} {row.get('output', 'leaf'):6s} frame {row['event_seconds']:.3f} s | RMSE "
+                f"{row['quality']:7s} {row['method']:6s} {row.get('output', 'leaf'):6s} "
+                f"frame {row['event_seconds']:.3f} s | RMSE "
                 f"{row['rmse']['error']:.4f} ~ Cycles {row['rmse']['cycles_spp']:.0f} spp "
                 f"{row['rmse']['cycles_seconds']:.2f} s (x{row['rmse']['speedup']:.1f}) | worst surface "
                 f"{100 * row['worst_mre']['error']:.2f}% ~ {row['worst_mre']['cycles_spp']:.1f} spp "
@@ -1437,7 +1441,8 @@ def markdown(data):
             mt = fr[sf]["metrics"]
             tex = f"{mt['total_smooth']['all']['rmse']:.3f}" if "total_smooth" in mt else "-"
             L.append(
-                f"| {run['quality']} | {run['method']} | {w} | {100 * a['bias']:+.2f}% | {a['rmse_corrected']:.4f} "
+                f"| {run['quality']} | {run['method']} | {w} | {100 * a['bias']:+.2f}% | "
+                f"{a['rmse_corrected']:.4f} "
                 f"| {a['p95']:.4f} | {mt['total_leaf']['all']['rmse']:.3f} / {tex} / "
                 f"{mt['total_vertex']['all']['rmse']:.3f} |"
             )
@@ -1485,9 +1490,10 @@ def markdown(data):
                 for key, d in c.items():
                     row = [f"| {run['method']} {run['quality']} f{f} | {key} "]
                     u = d.get("under")
+                    uv = u["vertex"] if u else None
                     row.append(
                         f"| {np.mean(u['mean_ref']):.4f} / {np.mean(u['mean_ours']):.4f} / "
-                        f"{np.mean(u['vertex']['mean_ours']) - np.mean(u['vertex']['mean_ref']) + np.mean(u['mean_ref']):.4f} "
+                        f"{np.mean(uv['mean_ours']) - np.mean(uv['mean_ref']) + np.mean(u['mean_ref']):.4f} "
                         f"({u['texels']}) "
                         if u
                         else "| - "
@@ -1504,8 +1510,8 @@ def markdown(data):
         if rows:
             L.append(
                 "Contacts: reflected radiance of the surface under the occluder (Cycles / leaves / vertex "
-                "output; texels), and Cycles' mean with the bias of leaves / vertex output in a band of 2 texels "
-                "around the occluder and on the rest of the surface:\n"
+                "output; texels), and Cycles' mean with the bias of leaves / vertex output in a band "
+                "of 2 texels around the occluder and on the rest of the surface:\n"
             )
             L.append("| run | surface / occluders | under | band around | rest of the surface |")
             L.append("|---|---|---|---|---|")
@@ -1522,7 +1528,8 @@ def markdown(data):
         )
         L.append(
             "| quality | method | output | worst surface, frames " + " / ".join(frames) + f" | bias f{sf} "
-            f"| RMSE f{sf} (noise removed) | per frame f{sf} | x Cycles, equal worst surface | x Cycles, equal RMSE |"
+            f"| RMSE f{sf} (noise removed) | per frame f{sf} "
+            "| x Cycles, equal worst surface | x Cycles, equal RMSE |"
         )
         L.append("|---|---|---|---|---|---|---|---|---|")
         for run in r["ours"]:
@@ -1534,7 +1541,8 @@ def markdown(data):
                 a = fr[sf]["metrics"][var]["all"]
                 x = eqg.get((run["quality"], run["method"], out_))
                 sp = (
-                    f"x{x['worst_mre']['speedup']:.1f}{' (extrapolated)' if x['worst_mre'].get('extrapolated') else ''}"
+                    f"x{x['worst_mre']['speedup']:.1f}"
+                    f"{' (extrapolated)' if x['worst_mre'].get('extrapolated') else ''}"
                     f" | x{x['rmse']['speedup']:.1f}"
                     if x
                     else " | "

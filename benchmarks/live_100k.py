@@ -41,10 +41,16 @@ def _preview_error(mesh, p, e):
     lit = me > 1e-3 * me.max()
     rel = np.abs(mp - me)[lit] / me[lit]
     c = live_replay._errors(p, e)
-    return dict(objects=int(lit.sum()), object_median=float(np.median(rel)),
-                object_p95=float(np.percentile(rel, 95)), object_max=float(rel.max()),
-                corner_max=float(c[0]), corner_median=float(c[1]), corner_rms=float(c[2]),
-                corner_bias=float(c[3]))
+    return dict(
+        objects=int(lit.sum()),
+        object_median=float(np.median(rel)),
+        object_p95=float(np.percentile(rel, 95)),
+        object_max=float(rel.max()),
+        corner_max=float(c[0]),
+        corner_median=float(c[1]),
+        corner_rms=float(c[2]),
+        corner_bias=float(c[3]),
+    )
 
 
 def main(argv=None):
@@ -56,8 +62,13 @@ def main(argv=None):
     ap.add_argument("--step", type=float, default=0.05, help="metres per drag step")
     ap.add_argument("--preview", action="store_true")
     ap.add_argument("--options", default="live", choices=("live", "old"))
-    ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
-                    help="the preview's Preview fields instead of Live's (e.g. levels=2 reuse_share=0.5)")
+    ap.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="the preview's Preview fields instead of Live's (e.g. levels=2 reuse_share=0.5)",
+    )
     ap.add_argument("--json", default=None)
     ap.add_argument("--dump", default=None, help="npz of the drag steps' outputs (loop values)")
     args = ap.parse_args(argv)
@@ -82,15 +93,23 @@ def main(argv=None):
 
     s, g, _ = load_store(Path(args.cache) / pc.FILENAME)
     s.links.extended(s.h)  # the solver's far-link terms (a loaded build's first event pays them)
-    opts = solve_options("DRAFT", True) if args.options == "live" else dict(
-        response_tol=RESPONSE_TOL, response_float32=True
+    opts = (
+        solve_options("DRAFT", True)
+        if args.options == "live"
+        else dict(response_tol=RESPONSE_TOL, response_float32=True)
     )
     c0 = cpu()
     dyn = DynamicRadiosity(s, method=args.method, **opts)
     g.loop_radiance(dyn)
-    out = dict(size=args.size, method=args.method, options=args.options, dyn_options=opts,
-               preview=repr(preview) if args.preview else None, load_average=os.getloadavg()[0],
-               start_cpu_s=cpu() - c0)
+    out = dict(
+        size=args.size,
+        method=args.method,
+        options=args.options,
+        dyn_options=opts,
+        preview=repr(preview) if args.preview else None,
+        load_average=os.getloadavg()[0],
+        start_cpu_s=cpu() - c0,
+    )
     _, frame = info["light_wall"]
 
     def window(cx, em=(20.0, 20.0, 20.0)):
@@ -106,10 +125,20 @@ def main(argv=None):
         c1 = cpu()
         last[0] = g.loop_radiance(dyn)
         c2 = cpu()
-        rows.append(dict(kind=kind, cpu_ms=1000 * (c2 - c0), apply_ms=1000 * (c1 - c0),
-                         output_ms=1000 * (c2 - c1), iterations=int(rep.iterations)))
-        print(f"{kind:9s} {rows[-1]['cpu_ms']:8.1f} ms CPU (apply {rows[-1]['apply_ms']:7.1f}, output "
-              f"{rows[-1]['output_ms']:7.1f}), {rep.iterations} it", flush=True)
+        rows.append(
+            dict(
+                kind=kind,
+                cpu_ms=1000 * (c2 - c0),
+                apply_ms=1000 * (c1 - c0),
+                output_ms=1000 * (c2 - c1),
+                iterations=int(rep.iterations),
+            )
+        )
+        print(
+            f"{kind:9s} {rows[-1]['cpu_ms']:8.1f} ms CPU (apply {rows[-1]['apply_ms']:7.1f}, output "
+            f"{rows[-1]['output_ms']:7.1f}), {rep.iterations} it",
+            flush=True,
+        )
 
     x = 0.7
     edit("add", window(x))
@@ -128,15 +157,24 @@ def main(argv=None):
         dyn.refine()
         c1 = cpu()
         exact = g.loop_radiance(dyn)
-        rows.append(dict(kind="refine", cpu_ms=1000 * (cpu() - c0), apply_ms=1000 * (c1 - c0),
-                         output_ms=1000 * (cpu() - c1)))
+        rows.append(
+            dict(
+                kind="refine",
+                cpu_ms=1000 * (cpu() - c0),
+                apply_ms=1000 * (c1 - c0),
+                output_ms=1000 * (cpu() - c1),
+            )
+        )
         print(f"refine    {rows[-1]['cpu_ms']:8.1f} ms CPU (apply {rows[-1]['apply_ms']:7.1f})", flush=True)
         out["last_preview_error"] = err = _preview_error(s.mesh, last[0], exact)
-        print("the last preview against the refine (the same state): per object (mean over its corners) "
-              "median {object_median:.2e} p95 {object_p95:.2e} max {object_max:.2e} over {objects} lit "
-              "objects; "
-              "per corner max {corner_max:.2e} median {corner_median:.2e} RMS {corner_rms:.2e} bias "
-              "{corner_bias:+.2e}".format(**err), flush=True)
+        print(
+            "the last preview against the refine (the same state): per object (mean over its corners) "
+            "median {object_median:.2e} p95 {object_p95:.2e} max {object_max:.2e} over {objects} lit "
+            "objects; "
+            "per corner max {corner_max:.2e} median {corner_median:.2e} RMS {corner_rms:.2e} bias "
+            "{corner_bias:+.2e}".format(**err),
+            flush=True,
+        )
     for i in range(4):
         edit("colour", window(x, (20.0, 20.0 + i, 20.0 + 2 * i)))
     for i in range(4):

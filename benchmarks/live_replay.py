@@ -246,6 +246,7 @@ def replay_preview(path, method, exact, preview, check=False, parts=False):
         print(line, flush=True)
     pv, rf, errs = np.array(pv), np.array(rf), np.array(errs)
     print(f"{preview}")
+
     def ms(x):
         return f"median {1000 * np.median(x):.1f} / p95 {1000 * np.percentile(x, 95):.1f} ms CPU"
 
@@ -253,8 +254,14 @@ def replay_preview(path, method, exact, preview, check=False, parts=False):
     print(
         "preview errors, median (max) over the previews: max corner {:.2e} ({:.2e}), median {:.2e} ({:.2e}), "
         "RMS {:.2e} ({:.2e}), bias {:+.2e} (mean {:+.2e})".format(
-            np.median(errs[:, 0]), errs[:, 0].max(), np.median(errs[:, 1]), errs[:, 1].max(),
-            np.median(errs[:, 2]), errs[:, 2].max(), np.median(errs[:, 3]), errs[:, 3].mean(),
+            np.median(errs[:, 0]),
+            errs[:, 0].max(),
+            np.median(errs[:, 1]),
+            errs[:, 1].max(),
+            np.median(errs[:, 2]),
+            errs[:, 2].max(),
+            np.median(errs[:, 3]),
+            errs[:, 3].mean(),
         )
     )
     if acc is not None:

@@ -35,7 +35,8 @@ ev = time.process_time() - c0
 print(
     f"near_points={near} ({sys.path[0]}): precompute {pre:.1f} s CPU, samples {fg.n} + second "
     f"{fg.second.n}, fine leaves {fg.stats.get('near_leaves', 0)} of {fg.n_hr}, weights "
-    f"{fg.weights_bytes / 1e6:.1f} MB (second {fg.second.weights_bytes / 1e6:.1f}), first evaluate {ev:.1f} s CPU",
+    f"{fg.weights_bytes / 1e6:.1f} MB (second {fg.second.weights_bytes / 1e6:.1f}), "
+    f"first evaluate {ev:.1f} s CPU",
     flush=True,
 )
 if len(sys.argv) > 2:

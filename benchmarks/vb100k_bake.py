@@ -67,14 +67,19 @@ def marked(owner, name):
 wrap(ov, "ensure_own_values", "ensure", lambda a, k, r: dict(notes=r))
 snapshot.ensure_own_values = background.ensure_own_values = ov.ensure_own_values
 if hasattr(ov, "near_clutter"):  # vbudget's
-    wrap(ov, "near_clutter", "near_clutter",
-         lambda a, k, r: dict(candidates=len(a[1]), area={n: float(v) for n, v in r.items() if v > 0}))
+    wrap(
+        ov,
+        "near_clutter",
+        "near_clutter",
+        lambda a, k, r: dict(candidates=len(a[1]), area={n: float(v) for n, v in r.items() if v > 0}),
+    )
     wrap(ov, "_cluttered", "cluttered", lambda a, k, r: dict(names=list(r)))
 if "--marks" in sys.argv:
     for owner, name in ((bk, "RadiositySystem"), (bk, "make_gather"), (pc, "write")):
         marked(owner, name)
-res = b.run_bake(b.argparse.Namespace(blend=BLEND, output="vertex", resolution=16, vertex_spacing=None,
-                                      profile=None))
+res = b.run_bake(
+    b.argparse.Namespace(blend=BLEND, output="vertex", resolution=16, vertex_spacing=None, profile=None)
+)
 npz = sorted(glob.glob(str(Path(BLEND).parent / "**" / "*000001.npz"), recursive=True))
 if npz:
     z = np.load(npz[0])
@@ -83,7 +88,13 @@ if npz:
 res["own_values"] = extra
 res["peak_rss_gb_ru"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
 Path(OUT).write_text(json.dumps(res, indent=1, default=str))
-print("ensure_own_values", [round(e["cpu_s"], 2) for e in extra["ensure"]],
-      "near_clutter", [(round(e["cpu_s"], 2), e["candidates"], len(e["area"]))
-                       for e in extra["near_clutter"]],
-      "named", [len(e["names"]) for e in extra["cluttered"]], "corners", res.get("corners_frame1"))
+print(
+    "ensure_own_values",
+    [round(e["cpu_s"], 2) for e in extra["ensure"]],
+    "near_clutter",
+    [(round(e["cpu_s"], 2), e["candidates"], len(e["area"])) for e in extra["near_clutter"]],
+    "named",
+    [len(e["names"]) for e in extra["cluttered"]],
+    "corners",
+    res.get("corners_frame1"),
+)
