@@ -554,3 +554,41 @@ def test_the_rays_go_in_batches_of_at_most_trace_chunk_segments_with_the_same_bi
     assert all(np.array_equal(a, b) for a, b in zip(va, vb))
     assert pa.keys() == pb.keys() and len(pa) > 1
     assert all(np.array_equal(x, y) for k in pa for x, y in zip(pa[k], pb[k]))
+
+
+def test_the_heap_is_trimmed_after_each_tile_an_event_traces_with_the_same_bits(room, monkeypatch):
+    """An event's tiles each free their segments' temporaries and grow their parts, so freed pages
+    pile up over its tiles (the 100k bake's first-frame peak: docs/scale.md, session 38 mem38):
+    _tile gives them back (release_free_memory) after each tile whose trace traced rays, none after
+    a tile it only read, none with TRIM_TRACED False; the tiles' bits and every shape's values are
+    the same bit for bit either way."""
+    from hr_addon.core.gather import hostvis
+
+    dyn, g, ems = room
+    fill = hostvis.HostVisibility._fill
+    got = {}
+    for on in (True, False):
+        traced, trims = [], []
+        monkeypatch.setattr(hostvis, "TRIM_TRACED", on)
+        monkeypatch.setattr(hostvis, "release_free_memory", lambda: trims.append(len(traced)))
+
+        def counted(self, *a, traced=traced):
+            rays = fill(self, *a)
+            traced.append(rays)
+            return rays
+
+        monkeypatch.setattr(hostvis.HostVisibility, "_fill", counted)
+        H = store(dyn, g, ems["w"], policy="lazy")
+        first = [H.light(e) for e in ems.values()]
+        n_first = len(traced)
+        again = [H.light(e) for e in ems.values()]  # (the same events: every segment read is known)
+        monkeypatch.undo()
+        assert sum(traced[:n_first]) > 0 and not any(traced[n_first:])
+        # a trim right after each call that traced rays, none after the others
+        assert trims == ([i + 1 for i, r in enumerate(traced) if r] if on else [])
+        assert all(np.array_equal(a, b) for a, b in zip(first, again))
+        got[on] = (first, H.part)
+    (va, pa), (vb, pb) = got.values()
+    assert all(np.array_equal(a, b) for a, b in zip(va, vb))
+    assert pa.keys() == pb.keys() and len(pa) > 1
+    assert all(np.array_equal(x, y) for k in pa for x, y in zip(pa[k], pb[k]))

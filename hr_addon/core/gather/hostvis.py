@@ -47,7 +47,7 @@ import itertools
 import numpy as np
 
 from ..clip import _clip_halfplane, overlap_areas, polygon_area_2d
-from ..parallel import batch_map, ranges
+from ..parallel import batch_map, ranges, release_free_memory
 from ..planes import frames
 from .sampling import hash_uniform
 
@@ -72,6 +72,12 @@ CHUNK = 1 << 20  # (samples x cells) entries per batch of an event's weights
 # the 100k vertex bake peaks inside the window's trace: 2^20 held ~0.1 GB of them (docs/scale.md,
 # session 37 mem37)
 TRACE_CHUNK = 1 << 16
+# the heap's freed pages given back after each tile's trace that traced rays (release_free_memory): a
+# tile's segments, their batches' temporaries and the part's grown arrays free pages the next tile's do
+# not fill, so they pile up over an event's tiles (the 100k vertex bake's first frame: +0.26 GB of
+# resident heap over the window's part at a flat heap in use, its peak; docs/scale.md, session 38
+# mem38). No values change; False: none
+TRIM_TRACED = True
 # what a store keeps (speed only: the values are the same either way, module doc; HostVisibility._tile):
 # "lazy" every segment an event traced (each traced at most once, only when read), "second" / "always"
 # a tile traced whole on its second / first read, "never" nothing
@@ -374,7 +380,10 @@ class HostVisibility:
         p = self._rows_of(P[0], idx, self.lv.n)
         sel = p[p >= 0]
         mask = np.packbits(np.isin(np.arange(self.tile**2), cells))
-        self.event_rays += self._fill(key, P, sel, mask)
+        rays = self._fill(key, P, sel, mask)
+        self.event_rays += rays
+        if rays and TRIM_TRACED:
+            release_free_memory()
         return P[0], P[1], p
 
     # -- an event -----------------------------------------------------------------------------------
