@@ -22,6 +22,7 @@ applies the variant's change in the bake process before the command runs:
   (covered_hits="shown") instead of 0.
 - shadow003, shadow01: the draft transport's shadow_feps 0.003 / 0.01 (GATHER_TRANSPORT's 0.03;
   branch ind28: V's darkness, benchmarks/transport_split.py).
+- none: the product's bake unchanged (the baseline beside the others on the same code).
 - rafterinside (hr_testing/loft.py only, a diagnostic: docs/accuracy.md, session 38, branch
   loftdx38): points strictly inside the loft's two rafters (the ceiling under their sunk 2 cm)
   covered (Hierarchy.dark), as the product's contact test does not find them: the second level's
@@ -60,6 +61,7 @@ VARIANTS = {
     "shadow003": dict(transport=dict(shadow_feps=0.003)),
     "shadow01": dict(transport=dict(shadow_feps=0.01)),
     "rafterinside": dict(patch="rafterinside"),
+    "none": dict(),
 }
 
 
@@ -113,8 +115,8 @@ def patched_bake(argv):
 
         levels = FinalGather._levels
 
-        def _levels(self, V, direct, tail=False):  # the passes' limit (their tail) everywhere
-            return levels(self, V, direct, True)
+        def _levels(self, V, direct, tail=False, *a, **k):  # the passes' limit (their tail) everywhere
+            return levels(self, V, direct, True, *a, **k)
 
         FinalGather._levels = _levels
     from hr_addon.__main__ import main
