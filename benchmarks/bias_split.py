@@ -22,6 +22,11 @@ applies the variant's change in the bake process before the command runs:
   (covered_hits="shown") instead of 0.
 - shadow003, shadow01: the draft transport's shadow_feps 0.003 / 0.01 (GATHER_TRANSPORT's 0.03;
   branch ind28: V's darkness, benchmarks/transport_split.py).
+- none: the product's bake unchanged (the baseline beside the others on the same code).
+- rafterinside (hr_testing/loft.py only, a diagnostic: docs/accuracy.md, session 38, branch
+  loftdx38): points strictly inside the loft's two rafters (the ceiling under their sunk 2 cm)
+  covered (Hierarchy.dark), as the product's contact test does not find them: the second level's
+  samples there no longer read ~0 into the ceiling's leaf means and near hits.
 - tail: the second level's passes read at their limit (FinalGather._tail, the geometric series of
   the last change) in every evaluation, not only with a light shape's gathered light (main
   before branch bias27; since its commit the default, so a no-op).
@@ -55,7 +60,28 @@ VARIANTS = {
     "coveredmean": dict(gather=dict(covered_hits="shown")),
     "shadow003": dict(transport=dict(shadow_feps=0.003)),
     "shadow01": dict(transport=dict(shadow_feps=0.01)),
+    "rafterinside": dict(patch="rafterinside"),
+    "none": dict(),
 }
+
+
+def rafter_inside(points):
+    """(N,) True where world points lie strictly inside one of hr_testing/loft.py's two rafters (x
+    within its 12 cm, from 2 cm above the slope it is sunk into to 14 cm below it)."""
+    import math
+
+    import numpy as np
+
+    from hr_testing import loft
+
+    a = math.radians(loft.TURN)
+    q = np.asarray(points, float).reshape(-1, 3) - np.asarray(loft.ORIGIN)
+    x = q[:, 0] * math.cos(a) + q[:, 1] * math.sin(a)
+    y = -q[:, 0] * math.sin(a) + q[:, 1] * math.cos(a)
+    cos = loft.YK / math.hypot(loft.YK, loft.HH - loft.HL)  # the slope's
+    d = (loft.HL + y * (loft.HH - loft.HL) / loft.YK - q[:, 2]) * cos  # below the slope
+    rx = (np.abs(x - 1.2) < 0.06 - 1e-4) | (np.abs(x - 4.6) < 0.06 - 1e-4)
+    return rx & (y > 0) & (y < loft.YK) & (d > -0.02 + 1e-4) & (d < 0.14 - 1e-4)
 
 
 def patched_bake(argv):
@@ -75,13 +101,22 @@ def patched_bake(argv):
         FinalGather.indirect = lambda self, dyn: 0.0
         FinalGather._incident_by_response = lambda self, dyn: None
         FinalGather._response_parts = lambda self, dyn: None  # the vertex output's path (LoopGather)
+    if v.get("patch") == "rafterinside":
+        from hr_addon.core.hierarchy import Hierarchy
+
+        dark = Hierarchy.dark
+
+        def covered(self, leaf, points, threads=None, boxes=None):
+            return dark(self, leaf, points, threads, boxes) | rafter_inside(points)
+
+        Hierarchy.dark = covered
     if v.get("patch") == "tail":
         from hr_addon.core.gather.final import FinalGather
 
         levels = FinalGather._levels
 
-        def _levels(self, V, direct, tail=False):  # the passes' limit (their tail) everywhere
-            return levels(self, V, direct, True)
+        def _levels(self, V, direct, tail=False, *a, **k):  # the passes' limit (their tail) everywhere
+            return levels(self, V, direct, True, *a, **k)
 
         FinalGather._levels = _levels
     from hr_addon.__main__ import main
