@@ -172,6 +172,18 @@ def _disk_points(c, axis, r, u):
     return c + (rr * np.cos(ph))[..., None] * t[:, None] + (rr * np.sin(ph))[..., None] * b[:, None]
 
 
+def _cone_dirs(axis, cz, u1):
+    """Unit directions (n, k, 3) at cosine cz (n, k) from unit axes (n, 3), azimuth 2 pi u1 (n, k)
+    (a sun's cone, a sphere light's outline)."""
+    from .gather.sampling import _frame
+
+    t, b = _frame(axis)
+    sz = np.sqrt(np.maximum(1 - cz * cz, 0))
+    ph = 2 * np.pi * u1
+    dirs = (sz * np.cos(ph))[..., None] * t[:, None] + (sz * np.sin(ph))[..., None] * b[:, None]
+    return dirs + cz[..., None] * axis[:, None]
+
+
 def spot_factor(light, ca):
     """Cycles' spot cone at cos ca (N,) off the spot's axis: smoothstep((ca - cos(size / 2)) /
     ((1 - cos(size / 2)) blend)), a step without blend."""
@@ -228,7 +240,7 @@ def _sized_incident(light, x, n, o, backend, rays, seed, keys, stream):
     of directions to the sphere (else; cosine-weighted over the hemisphere inside it); a spot's
     cone taken per ray's direction as Cycles does (not inside the sphere). One ray (rays <= 1): to
     the centre, the cone at the centre's direction."""
-    from .gather.sampling import _frame, rotated_hammersley
+    from .gather.sampling import rotated_hammersley
 
     d = light.position - x
     dist = np.sqrt(np.maximum(np.einsum("ij,ij->i", d, d), 1e-300))
@@ -272,11 +284,7 @@ def _sized_incident(light, x, n, o, backend, rays, seed, keys, stream):
         cz = np.where(
             ins[:, None], np.sqrt(np.maximum(1 - u[..., 0], 0)), 1 - u[..., 0] * (1 - cmax[:, None])
         )
-        sz = np.sqrt(np.maximum(1 - cz * cz, 0))
-        tt, bb = _frame(axis)
-        ph = 2 * np.pi * u[..., 1]
-        dirs = (sz * np.cos(ph))[..., None] * tt[:, None] + (sz * np.sin(ph))[..., None] * bb[:, None]
-        dirs = dirs + cz[..., None] * axis[:, None]
+        dirs = _cone_dirs(axis, cz, u[..., 1])
         cw = np.einsum("lsk,lk->ls", dirs, wl) * dl[:, None]  # d cos to the centre
         root = np.sqrt(np.maximum(r * r - dl[:, None] ** 2 + cw * cw, 0))
         tlen = np.where(ins[:, None], cw + root, cw - root)
@@ -341,14 +349,7 @@ def unit_incident(light, x, n, backend, eps, rays=8, seed=0, keys=None, stream=0
             if light.angle > 0 and rays > 1:
                 # directions uniform in the sun's cone (half angle angle / 2)
                 u = rotated_hammersley(rays, seed, keys[lit], 3000 + stream)
-                cz = 1 - u[..., 0] * (1 - np.cos(light.angle / 2))
-                sz = np.sqrt(np.maximum(1 - cz * cz, 0))
-                from .gather.sampling import _frame
-
-                t, b = _frame(to_sun[None])
-                ph = 2 * np.pi * u[..., 1]
-                dirs = (sz * np.cos(ph))[..., None] * t[0] + (sz * np.sin(ph))[..., None] * b[0]
-                dirs = dirs + cz[..., None] * to_sun
+                dirs = _cone_dirs(to_sun[None], 1 - u[..., 0] * (1 - np.cos(light.angle / 2)), u[..., 1])
                 vis = ~backend.occluded(np.broadcast_to(o[lit, None], dirs.shape), o[lit, None] + far * dirs)
                 val[lit] *= vis.mean(1)
             else:
